@@ -1,0 +1,80 @@
+"""The hevr error hierarchy.
+
+Every error raised on purpose by hevr derives from :class:`HevrError`, so callers can
+catch everything hevr-specific with one ``except``. Several classes also derive from the
+matching builtin (``ValueError``, ``OverflowError``, ``ImportError``) so generic code
+keeps working.
+
+Messages name the parameter, what was expected and what came. They never contain
+secret-key material (p, q, lambda, mu, or anything derived from them).
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "HevrError",
+    "ParameterError",
+    "InvalidKeyError",
+    "KeyMismatchError",
+    "PlaintextOverflowError",
+    "RenderPlanError",
+    "StoreError",
+    "StoreExistsError",
+    "IncompleteStoreError",
+    "CorruptStoreError",
+    "VolumeFormatError",
+    "MissingDependencyError",
+    "InsecureKeyWarning",
+]
+
+
+class HevrError(Exception):
+    """Base class of every error hevr raises on purpose."""
+
+
+class ParameterError(HevrError, ValueError):
+    """An argument has the wrong type, shape or value."""
+
+
+class InvalidKeyError(HevrError, ValueError):
+    """A key (or key file) is malformed, inconsistent or tampered with."""
+
+
+class KeyMismatchError(HevrError, ValueError):
+    """Data was encrypted under a key with another fingerprint."""
+
+
+class PlaintextOverflowError(HevrError, OverflowError):
+    """A decrypted value lies in the ambiguous middle band of Z_n (|m| >= n/3)."""
+
+
+class RenderPlanError(HevrError, ValueError):
+    """The overflow planner refused a render whose mantissas could exceed n/3."""
+
+
+class StoreError(HevrError):
+    """Problem with an encrypted volume or image store."""
+
+
+class StoreExistsError(StoreError, FileExistsError):
+    """The target store exists and ``overwrite=True`` was not given."""
+
+
+class IncompleteStoreError(StoreError):
+    """The store was not finished (some bricks are missing)."""
+
+
+class CorruptStoreError(StoreError):
+    """The store is foreign, of another format version, truncated or holds invalid ciphertexts."""
+
+
+class VolumeFormatError(HevrError, ValueError):
+    """A volume file or array cannot be read or is not a valid 3-D volume."""
+
+
+class MissingDependencyError(HevrError, ImportError):
+    """An optional dependency (an extra) is needed but not installed."""
+
+
+class InsecureKeyWarning(UserWarning):
+    """A key shorter than 2048 bits was generated or loaded."""
