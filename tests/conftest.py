@@ -1,0 +1,44 @@
+"""Shared session fixtures: keys are generated once per test session."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import pytest
+
+import hevr
+from hevr.keys import generate_keypair
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+
+
+def _keypair(bits: int):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
+        return generate_keypair(bits)
+
+
+@pytest.fixture(scope="session")
+def keypair256():
+    return _keypair(256)
+
+
+@pytest.fixture(scope="session")
+def keypair512():
+    return _keypair(512)
+
+
+@pytest.fixture(scope="session")
+def keypair2048():
+    return _keypair(2048)
+
+
+@pytest.fixture(scope="session", params=[256, 512], ids=["k256", "k512"])
+def keypair(request, keypair256, keypair512):
+    return keypair256 if request.param == 256 else keypair512
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    return SHARED / "data"
