@@ -21,7 +21,11 @@ from .errors import (
 from .encoding import BASE, decode, encode
 from .keyfile import load_key
 from .keys import PrivateKey, PublicKey, generate_keypair
+from .io import load_volume, save_volume
 from .number import EncryptedNumber
+from .phantom import PHANTOM_LEVELS, phantom
+from .store import encrypt_volume
+from .volume import EncryptedVolume, open_volume
 
 __version__ = "0.1.0"
 
@@ -31,6 +35,13 @@ __all__ = [
     "PrivateKey",
     "load_key",
     "EncryptedNumber",
+    "encrypt_volume",
+    "phantom",
+    "PHANTOM_LEVELS",
+    "load_volume",
+    "save_volume",
+    "open_volume",
+    "EncryptedVolume",
     "encode",
     "decode",
     "BASE",

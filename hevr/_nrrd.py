@@ -13,13 +13,15 @@ from __future__ import annotations
 import gzip
 import logging
 import math
+import numbers
 import re
 import zlib
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
-from .errors import VolumeFormatError
+from .errors import ParameterError, VolumeFormatError
 
 _log = logging.getLogger(__name__)
 
@@ -42,6 +44,13 @@ for _names, _np in (
 # Canonical names written by ``write_nrrd`` (the stdint spellings teem itself prefers).
 _TYPE_NAMES = {"i1": "int8", "u1": "uint8", "i2": "int16", "u2": "uint16", "i4": "int32",
                "u4": "uint32", "i8": "int64", "u8": "uint64", "f4": "float", "f8": "double"}
+
+# Type tokens recognised in raw file names like "tooth_103x94x161_uint8.raw".
+RAW_DTYPES = ("int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64")
+_RAW_SHAPE = re.compile(r"(?<![0-9])([0-9]+)x([0-9]+)x([0-9]+)(?![0-9])")
+_RAW_DTYPE = re.compile(r"(?<![a-z0-9])(" + "|".join(RAW_DTYPES) + r")(?![a-z0-9])")
+# Axis kinds of a scalar volume; others (RGB-color, vector, ...) mean a non-scalar axis.
+_SCALAR_KINDS = {"domain", "space", "time", "none", "???"}
 
 _MAX_HEADER_BYTES = 1 << 20  # a header larger than this is certainly not a header
 _VECTOR = re.compile(r"\(([^()]*)\)")
@@ -86,6 +95,69 @@ def read_raw(path: Path, offset: int, shape: tuple[int, int, int], dtype: np.dty
     return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape, order="C")
 
 
+def raw_layout(path: Path) -> tuple[tuple[int, int, int] | None, str | None]:
+    """(shape in (z, y, x) order, dtype name) from a name like ``a_103x94x161_uint8.raw``."""
+    stem = path.name[: -len(path.suffix)].lower()
+    sizes, types = _RAW_SHAPE.findall(stem), _RAW_DTYPE.findall(stem)
+    shape = tuple(int(s) for s in reversed(sizes[-1])) if sizes else None  # name is x*y*z
+    return shape, (types[-1] if types else None)  # type: ignore[return-value]
+
+
+def load_raw(path: Path, shape: object, dtype: object, byte_order: str) -> np.ndarray:
+    """Memory-map a headerless ``.raw`` file; ``shape``/``dtype`` default to the name's tokens."""
+    name_shape, name_dtype = raw_layout(path)
+    if shape is not None:
+        if (isinstance(shape, (str, bytes)) or not hasattr(shape, "__len__") or len(shape) != 3
+                or not all(isinstance(s, numbers.Integral) and not isinstance(s, bool) and s > 0
+                           for s in shape)):
+            raise ParameterError(f"load_volume: shape must be three positive ints (nz, ny, nx), "
+                                 f"got {shape!r}")
+        shape = tuple(int(s) for s in shape)
+    else:
+        shape = name_shape
+    dt: np.dtype | None = None
+    if dtype is not None:
+        try:
+            dt = np.dtype(dtype)  # type: ignore[call-overload]
+        except TypeError:
+            dt = None
+        if dt is None or dt.kind not in "uif":
+            raise ParameterError(f"load_volume: dtype must be an integer or floating-point type, "
+                                 f"got {dtype!r}")
+    elif name_dtype:
+        dt = np.dtype(name_dtype)
+    if shape is None or dt is None:
+        missing = " and ".join(w for w, v in (("shape", shape), ("dtype", dt)) if v is None)
+        raise _fail(path, f"cannot tell the {missing} of this raw file: name it like "
+                          f"'name_XxYxZ_uint8.raw' (sizes x, y, z; type one of "
+                          f"{', '.join(RAW_DTYPES)}) or pass shape=(nz, ny, nx) and dtype=")
+    return read_raw(path, 0, shape, dt.newbyteorder("<" if byte_order == "little" else ">"))
+
+
+def write_raw(path: Path, vol: np.ndarray, byte_order: str = "little") -> None:
+    """Write ``vol`` as headerless x-fastest data, refusing names that describe another layout."""
+    name_shape, name_dtype = raw_layout(path)
+    if name_shape not in (None, vol.shape) or name_dtype not in (None, vol.dtype.name):
+        raise ParameterError(f"save_volume: the name {path.name} says shape {name_shape} (z, y, x) "
+                             f"of {name_dtype}, but vol has shape {vol.shape} of {vol.dtype}")
+    with open(path, "wb") as fh:
+        _write_data(fh, vol, byte_order, "raw")
+
+
+def _write_data(fh: BinaryIO, vol: np.ndarray, byte_order: str, encoding: str) -> None:
+    """Stream ``vol`` in x-fastest order, converting one z-slab at a time (bounded memory)."""
+    dt = vol.dtype.newbyteorder("<" if byte_order == "little" else ">")
+    # mtime=0: the same volume always gives the same bytes.
+    out = gzip.GzipFile(fileobj=fh, mode="wb", mtime=0) if encoding == "gzip" else fh
+    try:
+        step = max(1, (1 << 24) // max(1, vol[0].nbytes))
+        for k in range(0, vol.shape[0], step):
+            out.write(np.ascontiguousarray(vol[k : k + step], dtype=dt).data)
+    finally:
+        if out is not fh:
+            out.close()
+
+
 def _read_header(path: Path) -> tuple[dict[str, str], int]:
     """Parse the header lines of ``path``; return the fields and the byte offset after them."""
     fields: dict[str, str] = {}
@@ -109,6 +181,8 @@ def _read_header(path: Path) -> tuple[dict[str, str], int]:
                 raise _fail(path, f"malformed NRRD header line {line[:80]!r}: "
                                   "expected 'field: value'")
             fields[key.strip().lower()] = value.strip()
+            if key.strip().lower() in ("data file", "datafile") and value.upper().startswith("LIST"):
+                return fields, fh.tell()  # file names follow; read_nrrd rejects the form
 
 
 def _ints(path: Path, field: str, value: str, count: int) -> list[int]:
@@ -173,6 +247,10 @@ def read_nrrd(path: Path) -> tuple[np.ndarray, tuple[float, float, float]]:
     if min(nx, ny, nz) < 1:
         raise _fail(path, f"NRRD sizes must be positive, got {fields['sizes']!r}")
     shape = (nz, ny, nx)
+    kinds = fields.get("kinds", "").lower().split()
+    if any(k not in _SCALAR_KINDS for k in kinds):
+        raise _fail(path, f"expected a scalar 3-D volume, got axis kinds {fields['kinds']!r} "
+                          "(a vector or colour axis)")
 
     dtype = np.dtype(_TYPES[type_name])
     endian = fields.get("endian", "").lower()
@@ -190,7 +268,10 @@ def read_nrrd(path: Path) -> tuple[np.ndarray, tuple[float, float, float]]:
     data_path, offset = path, header_end
     if "data file" in fields or "datafile" in fields:
         spec = fields.get("data file", fields.get("datafile", ""))
-        if spec.upper().startswith("LIST") or len(spec.split()) > 1:
+        parts = spec.split()
+        # The multi-file forms are "LIST" and "<printf format> <min> <max> <step> [<subdim>]";
+        # anything else is one file name (which may contain spaces).
+        if spec.upper().startswith("LIST") or (len(parts) in (4, 5) and "%" in parts[0]):
             raise _fail(path, f"NRRD 'data file: {spec}' names several files; only a "
                               "single data file is supported")
         data_path = check_file((path.parent / spec) if not Path(spec).is_absolute() else Path(spec))
@@ -246,21 +327,23 @@ def write_nrrd(path: Path, vol: np.ndarray, spacing: tuple[float, float, float],
 
     Returns the path of the detached data file, or ``None`` for an attached file.
     """
-    dt = vol.dtype.newbyteorder("<" if byte_order == "little" else ">")
+    type_name = _TYPE_NAMES.get(vol.dtype.str[1:])
+    if type_name is None:
+        raise ParameterError(f"save_volume: NRRD cannot store {vol.dtype} ({path.name}); "
+                             "expected an integer type, float32 or float64")
     nz, ny, nx = vol.shape
     sx, sy, sz = (repr(float(s)) for s in spacing)
-    lines = ["NRRD0004", "# written by hevr", f"type: {_TYPE_NAMES[dt.str[1:]]}", "dimension: 3",
+    lines = ["NRRD0004", "# written by hevr", f"type: {type_name}", "dimension: 3",
              f"sizes: {nx} {ny} {nz}", "space dimension: 3",
              f"space directions: ({sx},0,0) (0,{sy},0) (0,0,{sz})",
              "kinds: domain domain domain", f"endian: {byte_order}", f"encoding: {encoding}"]
-    data = np.ascontiguousarray(vol, dtype=dt).tobytes()
-    if encoding == "gzip":
-        data = gzip.compress(data, mtime=0)  # mtime=0: identical input gives identical files
+    data_path = None
     if path.suffix.lower() == ".nhdr":
         data_path = path.with_suffix(".raw.gz" if encoding == "gzip" else ".raw")
         lines.append(f"data file: {data_path.name}")
         path.write_text("\n".join(lines) + "\n", encoding="ascii")
-        data_path.write_bytes(data)
-        return data_path
-    path.write_bytes(("\n".join(lines) + "\n\n").encode("ascii") + data)
-    return None
+    with open(data_path or path, "wb") as fh:
+        if data_path is None:  # attached: a blank line separates header and data
+            fh.write(("\n".join(lines) + "\n\n").encode("ascii"))
+        _write_data(fh, vol, byte_order, encoding)
+    return data_path

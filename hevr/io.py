@@ -17,9 +17,7 @@ from __future__ import annotations
 import importlib
 import logging
 import math
-import numbers
 import os
-import re
 from pathlib import Path
 from types import ModuleType
 from typing import Any, Sequence
@@ -27,18 +25,15 @@ from typing import Any, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from ._nrrd import _TYPE_NAMES, check_file, read_nrrd, read_raw, to_native, write_nrrd
+from ._nrrd import check_file, load_raw, read_nrrd, to_native, write_nrrd, write_raw
 from .errors import MissingDependencyError, ParameterError, VolumeFormatError
 
 __all__ = ["load_volume", "save_volume"]
 
 _log = logging.getLogger(__name__)
 
-Spacing = tuple[float, float, float]
+_Spacing = tuple[float, float, float]
 
-_RAW_DTYPES = ("int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64")
-_RAW_SHAPE = re.compile(r"(?<![0-9])([0-9]+)x([0-9]+)x([0-9]+)(?![0-9])")
-_RAW_DTYPE = re.compile(r"(?<![a-z0-9])(" + "|".join(_RAW_DTYPES) + r")(?![a-z0-9])")
 _EXTENSIONS = ".npy, .raw, .nrrd, .nhdr, .nii, .nii.gz or a DICOM series folder"
 
 
@@ -62,25 +57,15 @@ def _format(path: Path) -> str:
                             f"expected {_EXTENSIONS}")
 
 
-def _check_spacing(spacing: Any, what: str) -> Spacing:
+def _check_spacing(spacing: Any, what: str) -> _Spacing:
     try:
-        out = tuple(float(s) for s in spacing)
+        out = () if isinstance(spacing, (str, bytes)) else tuple(float(s) for s in spacing)
     except (TypeError, ValueError):
         out = ()
     if len(out) != 3 or not all(math.isfinite(s) and s > 0 for s in out):
         raise ParameterError(f"{what} must be three positive finite numbers (sx, sy, sz), "
                              f"got {spacing!r}")
     return out  # type: ignore[return-value]
-
-
-def _check_dtype(dtype: Any, what: str) -> np.dtype:
-    try:
-        dt = np.dtype(dtype)
-    except TypeError:
-        dt = None
-    if dt is None or dt.kind not in "uif":
-        raise ParameterError(f"{what} must be an integer or floating-point type, got {dtype!r}")
-    return dt
 
 
 def _check_volume(arr: np.ndarray, path: Path) -> np.ndarray:
@@ -108,7 +93,7 @@ def _require(module: str, path: Path) -> ModuleType:
 
 def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None,
                 dtype: npt.DTypeLike | None = None, spacing: Sequence[float] | None = None,
-                byte_order: str = "little") -> tuple[np.ndarray, Spacing]:
+                byte_order: str = "little") -> tuple[np.ndarray, _Spacing]:
     """Read a 3-D volume from a file or a DICOM series folder.
 
     Parameters
@@ -174,7 +159,7 @@ def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None
     if kind == "npy":
         vol, file_spacing = _load_npy(path), (1.0, 1.0, 1.0)
     elif kind == "raw":
-        vol, file_spacing = _load_raw(path, shape, dtype, byte_order), (1.0, 1.0, 1.0)
+        vol, file_spacing = load_raw(path, shape, dtype, byte_order), (1.0, 1.0, 1.0)
     elif kind == "nrrd":
         vol, file_spacing = read_nrrd(path)
     elif kind == "nifti":
@@ -197,55 +182,28 @@ def _load_npy(path: Path) -> np.ndarray:
     return arr
 
 
-def _raw_layout(path: Path) -> tuple[tuple[int, int, int] | None, str | None]:
-    """(shape in (z, y, x) order, dtype name) parsed from a name like ``a_103x94x161_uint8.raw``."""
-    stem = path.name[: -len(path.suffix)].lower()
-    sizes = _RAW_SHAPE.findall(stem)
-    types = _RAW_DTYPE.findall(stem)
-    shape = tuple(int(s) for s in reversed(sizes[-1])) if sizes else None  # name is x×y×z
-    return shape, (types[-1] if types else None)  # type: ignore[return-value]
-
-
-def _load_raw(path: Path, shape: Any, dtype: Any, byte_order: str) -> np.ndarray:
-    name_shape, name_dtype = _raw_layout(path)
-    if shape is not None:
-        if (isinstance(shape, (str, bytes)) or not hasattr(shape, "__len__") or len(shape) != 3
-                or not all(isinstance(s, numbers.Integral) and not isinstance(s, bool) and s > 0
-                           for s in shape)):
-            raise ParameterError(f"load_volume: shape must be three positive ints (nz, ny, nx), "
-                                 f"got {shape!r}")
-        shape = tuple(int(s) for s in shape)
-    else:
-        shape = name_shape
-    dt = _check_dtype(dtype, "load_volume: dtype") if dtype is not None else (
-        np.dtype(name_dtype) if name_dtype else None)
-    if shape is None or dt is None:
-        missing = " and ".join(w for w, v in (("shape", shape), ("dtype", dt)) if v is None)
-        raise VolumeFormatError(
-            f"{path.name}: cannot tell the {missing} of this raw file: name it like "
-            f"'name_XxYxZ_uint8.raw' (sizes x, y, z; type one of {', '.join(_RAW_DTYPES)}) "
-            "or pass shape=(nz, ny, nx) and dtype=")
-    dt = dt.newbyteorder("<" if byte_order == "little" else ">")
-    return read_raw(path, 0, shape, dt)
-
-
 def _rescale(raw: np.ndarray, slope: Any, inter: Any) -> np.ndarray:
     """``raw * slope + inter`` (per slice along axis 0 for arrays), integer-preserving.
 
     With integral factors the result is the smallest signed type from int16 upwards
-    that holds every intermediate, so Hounsfield units stay exact int16; otherwise float32.
+    that holds every intermediate, so Hounsfield units stay exact int16; otherwise float32
+    (float64 for float64 input).
     """
     slope = np.asarray(slope, np.float64).reshape((-1,) + (1,) * (raw.ndim - 1))
     inter = np.asarray(inter, np.float64).reshape((-1,) + (1,) * (raw.ndim - 1))
     if (slope == 1).all() and (inter == 0).all():
         return raw
     if raw.dtype.kind not in "iu" or (slope % 1).any() or (inter % 1).any():
-        out = raw.astype(np.float32)
-        out *= slope.astype(np.float32)
-        out += inter.astype(np.float32)
+        ftype = np.float64 if raw.dtype == np.float64 else np.float32  # never lose precision
+        out = raw.astype(ftype)
+        out *= slope.astype(ftype)
+        out += inter.astype(ftype)
         return out
-    per_slice = raw.reshape(slope.shape[0], -1) if slope.shape[0] > 1 else raw.reshape(1, -1)
-    lo, hi = per_slice.min(axis=1).astype(np.float64), per_slice.max(axis=1).astype(np.float64)
+    if slope.shape[0] > 1:  # per-slice factors: the range of each slice matters
+        flat = raw.reshape(slope.shape[0], -1)
+        lo, hi = flat.min(axis=1).astype(np.float64), flat.max(axis=1).astype(np.float64)
+    else:  # no reshape: it would copy a transposed/Fortran-ordered memmap
+        lo, hi = np.array([raw.min()], np.float64), np.array([raw.max()], np.float64)
     s, b = slope.ravel(), inter.ravel()
     ends = np.concatenate([lo, hi, lo * s, hi * s, lo * s + b, hi * s + b])
     target = next(t for t in (np.int16, np.int32, np.int64)
@@ -256,14 +214,15 @@ def _rescale(raw: np.ndarray, slope: Any, inter: Any) -> np.ndarray:
     return out
 
 
-def _load_nifti(path: Path, need_spacing: bool) -> tuple[np.ndarray, Spacing]:
+def _load_nifti(path: Path, need_spacing: bool) -> tuple[np.ndarray, _Spacing]:
     nib = _require("nibabel", path)
     try:
         img = nib.load(str(path))
         proxy = img.dataobj
         if nib.is_proxy(proxy):
             # Read unscaled so integral scl_slope/scl_inter keep an integer dtype.
-            raw, slope, inter = np.asanyarray(proxy.get_unscaled()), proxy.slope, proxy.inter
+            raw = np.asanyarray(proxy.get_unscaled())
+            slope, inter = getattr(proxy, "slope", 1.0), getattr(proxy, "inter", 0.0)
         else:
             raw, slope, inter = np.asanyarray(proxy), 1.0, 0.0
         zooms = img.header.get_zooms()
@@ -286,7 +245,7 @@ def _load_nifti(path: Path, need_spacing: bool) -> tuple[np.ndarray, Spacing]:
     return vol.transpose(2, 1, 0), spacing  # type: ignore[return-value]
 
 
-def _load_dicom(folder: Path) -> tuple[np.ndarray, Spacing]:
+def _load_dicom(folder: Path) -> tuple[np.ndarray, _Spacing]:
     pydicom = _require("pydicom", folder)
     from pydicom.errors import InvalidDicomError
 
@@ -422,9 +381,6 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
         raise ParameterError(f"save_volume: byte_order must be 'little' or 'big', got {byte_order!r}")
     suffix = path.suffix.lower()
     if suffix in (".nhdr", ".nrrd"):
-        if arr.dtype.str[1:] not in _TYPE_NAMES:
-            raise ParameterError(f"save_volume: NRRD cannot store {arr.dtype} ({path.name}); "
-                                 "convert to float32 or an integer type")
         write_nrrd(path, arr, spacing, encoding=encoding, byte_order=byte_order)
         return path
     if suffix not in (".npy", ".raw"):
@@ -437,10 +393,5 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
     if suffix == ".npy":
         np.save(path, np.ascontiguousarray(arr), allow_pickle=False)
         return path
-    name_shape, name_dtype = _raw_layout(path)
-    if (name_shape not in (None, arr.shape)) or (name_dtype not in (None, arr.dtype.name)):
-        raise ParameterError(f"save_volume: the name {path.name} says shape {name_shape} (z, y, x) "
-                             f"of {name_dtype}, but vol has shape {arr.shape} of {arr.dtype}")
-    dt = arr.dtype.newbyteorder("<" if byte_order == "little" else ">")
-    path.write_bytes(np.ascontiguousarray(arr, dtype=dt).tobytes())
+    write_raw(path, arr, byte_order)
     return path

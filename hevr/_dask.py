@@ -1,0 +1,91 @@
+"""Running task lists on the active Dask scheduler, with an optional progress bar.
+
+hevr never starts a cluster by itself: it uses the client it is given, else the active
+``distributed`` client (``default_client()``), else Dask's default scheduler.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from typing import Any, Sequence
+
+import dask
+
+log = logging.getLogger(__name__)
+
+__all__ = ["active_client", "compute"]
+
+
+def active_client(client: Any = None) -> Any:
+    """The explicit ``client``, else the active distributed client, else None."""
+    if client is not None:
+        return client
+    try:
+        from distributed import default_client
+    except ImportError:  # pragma: no cover - distributed is a dependency
+        return None
+    try:
+        return default_client()
+    except ValueError:
+        return None
+
+
+class _Bar:
+    """A minimal text progress bar on stderr (library code never prints to stdout)."""
+
+    def __init__(self, total: int, desc: str, enabled: bool) -> None:
+        self.total, self.desc, self.enabled = total, desc, enabled and total > 0
+        self.done = 0
+        self.start = time.perf_counter()
+        self._last = 0.0
+        if self.enabled:
+            self._draw(force=True)
+
+    def update(self, k: int = 1) -> None:
+        self.done += k
+        if self.enabled:
+            self._draw(force=self.done >= self.total)
+
+    def _draw(self, force: bool = False) -> None:
+        now = time.perf_counter()
+        if not force and now - self._last < 0.2:
+            return
+        self._last = now
+        frac = self.done / self.total
+        width = 30
+        bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
+        el = now - self.start
+        sys.stderr.write(f"\r{self.desc} [{bar}] {self.done}/{self.total} {el:6.1f}s")
+        if self.done >= self.total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, desc: str = "hevr") -> list[Any]:
+    """Compute dask delayed ``tasks`` on the active scheduler; results in task order."""
+    tasks = list(tasks)
+    if not tasks:
+        return []
+    client = active_client(client)
+    t0 = time.perf_counter()
+    if client is not None:
+        from distributed import as_completed
+
+        futures = client.compute(tasks)
+        bar = _Bar(len(futures), desc, progress)
+        for _ in as_completed(futures):
+            bar.update()
+        results = client.gather(futures)
+    else:
+        if progress and len(tasks) > 1:
+            from dask.diagnostics import ProgressBar
+
+            with ProgressBar(out=sys.stderr):
+                results = list(dask.compute(*tasks))
+        else:
+            results = list(dask.compute(*tasks))
+    log.info("%s: %d tasks in %.2f s (%s)", desc, len(tasks), time.perf_counter() - t0,
+             "distributed" if client is not None else "default scheduler")
+    return results

@@ -1,0 +1,575 @@
+"""Tests for hevr.io (load_volume / save_volume) and the NRRD reader in hevr._nrrd."""
+
+from __future__ import annotations
+
+import gzip
+import hashlib
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hevr.errors import HevrError, MissingDependencyError, ParameterError, VolumeFormatError
+from hevr.io import load_volume, save_volume
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+TOOTH_SHA512 = "5ee3d77ae951e129d29062a4fd4d8730fd8670bd"
+
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared test data folder {DATA} is absent")
+
+
+def _volume(dtype: str | type, shape: tuple[int, int, int] = (5, 6, 7)) -> np.ndarray:
+    """A deterministic volume using most of the dtype's range, no two axes alike."""
+    dt = np.dtype(dtype)
+    ramp = np.arange(np.prod(shape), dtype=np.float64).reshape(shape)
+    if dt.kind == "f":
+        return (ramp * 0.37 - 11.5).astype(dt)
+    info = np.iinfo(dt)
+    return (info.min + (ramp * 7919) % (float(info.max) - info.min + 1)).astype(dt)
+
+
+def _check(vol: np.ndarray, expected: np.ndarray) -> None:
+    assert vol.shape == expected.shape
+    assert vol.dtype == expected.dtype.newbyteorder("=")
+    assert vol.dtype.isnative
+    np.testing.assert_array_equal(vol, expected)
+
+
+def _nrrd_header(**fields: str) -> str:
+    base = {"type": "uint8", "dimension": "3", "sizes": "4 3 2", "encoding": "raw"}
+    base.update({k.replace("_", " "): v for k, v in fields.items()})
+    return "NRRD0004\n" + "".join(f"{k}: {v}\n" for k, v in base.items() if v is not None)
+
+
+# ----------------------------------------------------------------------------- tooth CT
+
+
+@needs_data
+@pytest.mark.parametrize("name", ["tooth.nhdr", "tooth_103x94x161_uint8.raw"])
+def test_tooth(name: str) -> None:
+    vol, spacing = load_volume(DATA / name)
+    assert vol.shape == (161, 94, 103)
+    assert vol.dtype == np.uint8
+    assert spacing == (1.0, 1.0, 1.0)
+    assert isinstance(vol, np.memmap)  # mapped, not read into memory up front
+    digest = hashlib.sha512(np.ascontiguousarray(vol).tobytes()).hexdigest()
+    assert digest.startswith(TOOTH_SHA512)
+    # The volume is what the raw file holds, x fastest.
+    assert digest == hashlib.sha512((DATA / "tooth_103x94x161_uint8.raw").read_bytes()).hexdigest()
+
+
+@needs_data
+def test_tooth_with_str_path_and_spacing_override() -> None:
+    vol, spacing = load_volume(str(DATA / "tooth.nhdr"), spacing=(0.5, 0.5, 2))
+    assert vol.shape == (161, 94, 103)
+    assert spacing == (0.5, 0.5, 2.0)
+
+
+# ----------------------------------------------------------------------------- round trips
+
+
+@pytest.mark.parametrize("dtype", ["uint8", "int16", "uint16", "int32", "float32", "float64"])
+def test_npy_round_trip(tmp_path: Path, dtype: str) -> None:
+    arr = _volume(dtype)
+    path = save_volume(tmp_path / "v.npy", arr)
+    vol, spacing = load_volume(path)
+    _check(vol, arr)
+    assert spacing == (1.0, 1.0, 1.0)
+
+
+def test_npy_big_endian_and_fortran_order(tmp_path: Path) -> None:
+    arr = _volume("int16")
+    np.save(tmp_path / "be.npy", arr.astype(">i2"))
+    np.save(tmp_path / "f.npy", np.asfortranarray(arr))
+    for name in ("be.npy", "f.npy"):
+        vol, _ = load_volume(tmp_path / name, spacing=[1, 2, 3])
+        _check(vol, arr)
+
+
+@pytest.mark.parametrize("dtype", ["int8", "uint8", "int16", "uint16", "int32", "uint32",
+                                   "float32", "float64"])
+def test_raw_round_trip_by_name(tmp_path: Path, dtype: str) -> None:
+    arr = _volume(dtype, (3, 4, 5))
+    # The name lists the sizes x, y, z; the array shape is (z, y, x).
+    path = save_volume(tmp_path / f"scan_5x4x3_{dtype}.raw", arr)
+    vol, spacing = load_volume(path)
+    _check(vol, arr)
+    assert spacing == (1.0, 1.0, 1.0)
+
+
+@pytest.mark.parametrize("byte_order", ["little", "big"])
+def test_raw_round_trip_with_kwargs(tmp_path: Path, byte_order: str) -> None:
+    arr = _volume("int16", (4, 3, 2))
+    path = save_volume(tmp_path / "plain.raw", arr, byte_order=byte_order)
+    assert path.stat().st_size == arr.nbytes
+    assert path.read_bytes() == arr.astype("<i2" if byte_order == "little" else ">i2").tobytes()
+    vol, spacing = load_volume(path, shape=(4, 3, 2), dtype=np.int16, byte_order=byte_order,
+                               spacing=(0.25, 0.5, 4.0))
+    _check(vol, arr)
+    assert spacing == (0.25, 0.5, 4.0)
+
+
+def test_raw_kwargs_override_the_name(tmp_path: Path) -> None:
+    arr = _volume("uint16", (2, 3, 4))
+    path = tmp_path / "misnamed_9x9x9_uint8.raw"
+    path.write_bytes(arr.astype("<u2").tobytes())
+    vol, _ = load_volume(path, shape=(2, 3, 4), dtype="uint16")
+    _check(vol, arr)
+
+
+@pytest.mark.parametrize("suffix", [".nhdr", ".nrrd"])
+@pytest.mark.parametrize("encoding", ["raw", "gzip"])
+@pytest.mark.parametrize("byte_order", ["little", "big"])
+@pytest.mark.parametrize("dtype", ["uint8", "int16", "float32"])
+def test_nrrd_round_trip(tmp_path: Path, suffix: str, encoding: str, byte_order: str,
+                         dtype: str) -> None:
+    arr = _volume(dtype)
+    spacing = (0.5, 1.25, 3.0)  # anisotropic, so a mix-up of axis order would show
+    path = save_volume(tmp_path / f"v{suffix}", arr, spacing, encoding=encoding,
+                       byte_order=byte_order)
+    vol, got = load_volume(path)
+    _check(vol, arr)
+    assert got == spacing
+    if suffix == ".nhdr":
+        data = tmp_path / ("v.raw.gz" if encoding == "gzip" else "v.raw")
+        assert data.is_file()
+        assert f"data file: {data.name}" in path.read_text()
+
+
+def test_nhdr_writes_loadable_big_endian_int16(tmp_path: Path) -> None:
+    arr = _volume("int16", (3, 4, 5))
+    path = save_volume(tmp_path / "be.nhdr", arr, (2, 1, 0.5), byte_order="big")
+    raw = (tmp_path / "be.raw").read_bytes()
+    assert raw == arr.astype(">i2").tobytes()
+    assert "endian: big" in path.read_text()
+    vol, spacing = load_volume(path)
+    _check(vol, arr)
+    assert spacing == (2.0, 1.0, 0.5)
+
+
+def test_nrrd_cross_check_with_pynrrd(tmp_path: Path) -> None:
+    nrrd = pytest.importorskip("nrrd")
+    arr = _volume("int16", (3, 4, 5))
+    header = {"space directions": np.diag([0.5, 1.5, 2.0]), "space": "left-posterior-superior",
+              "encoding": "gzip", "endian": "big"}
+    # pynrrd writes what we read ...
+    for detached in (False, True):
+        name = "p.nhdr" if detached else "p.nrrd"
+        nrrd.write(str(tmp_path / name), arr, dict(header), detached_header=detached,
+                   index_order="C")
+        vol, spacing = load_volume(tmp_path / name)
+        _check(vol, arr)
+        assert spacing == (0.5, 1.5, 2.0)
+    # ... and reads what we write.
+    for encoding in ("raw", "gzip"):
+        path = save_volume(tmp_path / f"o_{encoding}.nhdr", arr, (0.5, 1.5, 2.0),
+                           encoding=encoding, byte_order="big")
+        data, hdr = nrrd.read(str(path), index_order="C")
+        np.testing.assert_array_equal(data, arr)
+        np.testing.assert_allclose(np.linalg.norm(hdr["space directions"], axis=1), [0.5, 1.5, 2.0])
+
+
+def test_nrrd_header_variants(tmp_path: Path) -> None:
+    arr = np.arange(24, dtype="<u2").reshape(2, 3, 4)
+    # 'spacings' (nan = unknown -> 1), comments, key/value pairs, type aliases,
+    # mixed-case field names, CRLF line ends, line skip and byte skip.
+    (tmp_path / "d.bin").write_bytes(b"junk line\n" + b"XYZ" + arr.tobytes())
+    text = ("NRRD0005\r\n# a comment\r\nType: unsigned short\r\ndimension: 3\r\nsizes: 4 3 2\r\n"
+            "spacings: 2 nan 0.5\r\nendian: little\r\nencoding: raw\r\nmodality:=CT\r\n"
+            "line skip: 1\r\nbyte skip: 3\r\ndata file: d.bin\r\n")
+    (tmp_path / "h.nhdr").write_text(text, newline="")
+    vol, spacing = load_volume(tmp_path / "h.nhdr")
+    _check(vol, arr)
+    assert spacing == (2.0, 1.0, 0.5)
+
+
+def test_nrrd_byte_skip_minus_one_and_absolute_data_file(tmp_path: Path) -> None:
+    arr = np.arange(24, dtype="<f4").reshape(2, 3, 4)
+    data = tmp_path / "sub" / "d.dat"
+    data.parent.mkdir()
+    data.write_bytes(b"some foreign header" + arr.tobytes())
+    (tmp_path / "h.nhdr").write_text(_nrrd_header(type="float", endian="little", byte_skip="-1",
+                                                  data_file=str(data)))
+    vol, _ = load_volume(tmp_path / "h.nhdr")
+    _check(vol, arr)
+
+
+def test_oblique_space_directions_use_vector_lengths(tmp_path: Path,
+                                                     caplog: pytest.LogCaptureFixture) -> None:
+    arr = np.arange(24, dtype=np.uint8).reshape(2, 3, 4)
+    (tmp_path / "my data.raw").write_bytes(arr.tobytes())  # a data file name with a space
+    (tmp_path / "o.nhdr").write_text(_nrrd_header(
+        space_dimension="3", space_directions="(0.6,0.8,0) (-1.6,1.2,0) (0,0,-3)",
+        data_file="my data.raw"))
+    with caplog.at_level("INFO", logger="hevr._nrrd"):
+        vol, spacing = load_volume(tmp_path / "o.nhdr")
+    _check(vol, arr)
+    assert spacing == pytest.approx((1.0, 2.0, 3.0))
+    assert "o.nhdr" in caplog.text and "non-axis-aligned" in caplog.text
+
+
+def test_attached_gzip_with_byte_skip(tmp_path: Path) -> None:
+    arr = np.arange(24, dtype=np.uint8).reshape(2, 3, 4)
+    body = gzip.compress(b"\0" * 5 + arr.tobytes())
+    (tmp_path / "a.nrrd").write_bytes((_nrrd_header(encoding="gzip", byte_skip="5") + "\n").encode()
+                                      + body)
+    vol, _ = load_volume(tmp_path / "a.nrrd")
+    _check(vol, arr)
+
+
+# ----------------------------------------------------------------------------- NIfTI
+
+
+def test_nifti_round_trip(tmp_path: Path) -> None:
+    nib = pytest.importorskip("nibabel")
+    arr = _volume("int16", (3, 4, 5))  # (z, y, x)
+    img = nib.Nifti1Image(arr.transpose(2, 1, 0), np.diag([0.5, 0.75, 2.0, 1.0]))
+    for name in ("v.nii", "v.nii.gz"):
+        nib.save(img, str(tmp_path / name))
+        vol, spacing = load_volume(tmp_path / name)
+        _check(vol, arr)
+        assert spacing == pytest.approx((0.5, 0.75, 2.0))
+
+
+@pytest.mark.parametrize("slope, inter, dtype", [(2.0, -10.0, np.int16), (1.0, -40000.0, np.int32),
+                                                 (0.5, 0.0, np.float32)])
+def test_nifti_scaling(tmp_path: Path, slope: float, inter: float, dtype: type) -> None:
+    nib = pytest.importorskip("nibabel")
+    arr = np.arange(60, dtype=np.int16).reshape(3, 4, 5)
+    img = nib.Nifti1Image(arr.transpose(2, 1, 0), np.eye(4))
+    img.header.set_slope_inter(slope, inter)
+    nib.save(img, str(tmp_path / "s.nii"))
+    vol, _ = load_volume(tmp_path / "s.nii")
+    assert vol.dtype == dtype
+    np.testing.assert_array_equal(vol, arr * slope + inter)
+
+
+def test_nifti_trailing_singleton_and_4d(tmp_path: Path) -> None:
+    nib = pytest.importorskip("nibabel")
+    arr = np.arange(24, dtype=np.float32).reshape(2, 3, 4)
+    nib.save(nib.Nifti1Image(arr.transpose(2, 1, 0)[..., None], np.eye(4)), str(tmp_path / "one.nii"))
+    vol, _ = load_volume(tmp_path / "one.nii")
+    _check(vol, arr)
+    nib.save(nib.Nifti1Image(np.zeros((4, 3, 2, 2), np.float32), np.eye(4)), str(tmp_path / "four.nii"))
+    with pytest.raises(VolumeFormatError, match=r"four\.nii.*3-D"):
+        load_volume(tmp_path / "four.nii")
+
+
+# ----------------------------------------------------------------------------- DICOM
+
+
+def _write_dicom_slice(path: Path, pixels: np.ndarray, *, position: list[float] | None,
+                       instance: int | None, series: str, iop: tuple[float, ...] = (1, 0, 0, 0, 1, 0),
+                       intercept: float = -1024, slope: float = 1) -> None:
+    from pydicom.dataset import Dataset, FileMetaDataset
+    from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian, generate_uid
+
+    meta = FileMetaDataset()
+    meta.MediaStorageSOPClassUID = CTImageStorage
+    meta.MediaStorageSOPInstanceUID = generate_uid()
+    meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds = Dataset()
+    ds.file_meta = meta
+    ds.SOPClassUID, ds.SOPInstanceUID = CTImageStorage, meta.MediaStorageSOPInstanceUID
+    ds.SeriesInstanceUID, ds.Modality = series, "CT"
+    ds.Rows, ds.Columns = pixels.shape
+    ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
+    ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 1
+    ds.PixelSpacing = [0.5, 0.7]  # (between rows = sy, between columns = sx)
+    ds.SliceThickness = 3.0
+    if position is not None:
+        ds.ImagePositionPatient = position
+        ds.ImageOrientationPatient = list(iop)
+    if instance is not None:
+        ds.InstanceNumber = instance
+    ds.RescaleIntercept, ds.RescaleSlope = intercept, slope
+    ds.PixelData = pixels.astype("<i2").tobytes()
+    ds.save_as(path, enforce_file_format=True)
+
+
+def _dicom_series(folder: Path, *, iop: tuple[float, ...] = (1, 0, 0, 0, 1, 0), positions: bool = True,
+                  slope: float = 1, series: str = "1.2.3.4") -> np.ndarray:
+    """Write 4 int16 slices 2.5 mm apart, in scrambled file and InstanceNumber order.
+
+    Returns the expected stored values (before rescaling) in ascending slice-normal order.
+    """
+    folder.mkdir(exist_ok=True)
+    normal = np.cross(iop[:3], iop[3:])
+    stored = np.arange(4 * 3 * 5, dtype=np.int16).reshape(4, 3, 5) * 10
+    # File k (in name order) holds slice order[k]; InstanceNumbers disagree with the
+    # positions on purpose, so a reader trusting them (or the names) gets it wrong.
+    order, instances = [2, 0, 3, 1], [1, 2, 3, 4] if positions else [3, 1, 4, 2]
+    for k, (s, inst) in enumerate(zip(order, instances)):
+        pos = (np.array([10.0, -20.0, 30.0]) + 2.5 * s * normal).tolist() if positions else None
+        _write_dicom_slice(folder / f"IM{k:04d}.dcm", stored[s], position=pos, instance=inst,
+                           series=series, iop=iop, slope=slope)
+    return stored
+
+
+@pytest.mark.parametrize("iop", [(1, 0, 0, 0, 1, 0), (0, 1, 0, 0, 0, -1)], ids=["axial", "sagittal"])
+def test_dicom_series(tmp_path: Path, iop: tuple[float, ...]) -> None:
+    pytest.importorskip("pydicom")
+    stored = _dicom_series(tmp_path / "ct", iop=iop)
+    (tmp_path / "ct" / "README.txt").write_text("not a DICOM file")
+    vol, spacing = load_volume(tmp_path / "ct")
+    assert vol.dtype == np.int16  # Hounsfield units stay integers
+    np.testing.assert_array_equal(vol, stored.astype(np.int16) - 1024)
+    assert spacing == pytest.approx((0.7, 0.5, 2.5))
+
+
+def test_dicom_instance_number_fallback(tmp_path: Path) -> None:
+    pytest.importorskip("pydicom")
+    _dicom_series(tmp_path / "ct", positions=False)
+    vol, spacing = load_volume(tmp_path / "ct")
+    # Without positions the InstanceNumbers [3, 1, 4, 2] of slices [2, 0, 3, 1] give the
+    # order 0, 1, 2, 3 as well; the z spacing falls back to SliceThickness.
+    expected = np.arange(60, dtype=np.int16).reshape(4, 3, 5) * 10 - 1024
+    np.testing.assert_array_equal(vol, expected)
+    assert spacing == pytest.approx((0.7, 0.5, 3.0))
+
+
+def test_dicom_fractional_slope_gives_float32(tmp_path: Path) -> None:
+    pytest.importorskip("pydicom")
+    stored = _dicom_series(tmp_path / "ct", slope=0.5)
+    vol, _ = load_volume(tmp_path / "ct")
+    assert vol.dtype == np.float32
+    np.testing.assert_allclose(vol, stored * 0.5 - 1024)
+
+
+def test_dicom_unsigned_storage_becomes_signed_hu(tmp_path: Path) -> None:
+    pytest.importorskip("pydicom")
+    folder = tmp_path / "u16"
+    folder.mkdir()
+    stored = np.array([[0, 1024, 4094]], np.int16)  # + 1 stays within 12 bits
+    for k in range(2):
+        _write_dicom_slice(folder / f"s{k}.dcm", stored + k, position=[0, 0, 1.5 * k],
+                           instance=k + 1, series="5.6")
+    # Rewrite as unsigned 12-bit data, the common CT storage, with the usual intercept.
+    import pydicom
+
+    for k in range(2):
+        ds = pydicom.dcmread(folder / f"s{k}.dcm")
+        ds.PixelRepresentation, ds.BitsStored, ds.HighBit = 0, 12, 11
+        ds.PixelData = (stored + k).astype("<u2").tobytes()
+        ds.save_as(folder / f"s{k}.dcm")
+    vol, spacing = load_volume(folder)
+    assert vol.dtype == np.int16
+    np.testing.assert_array_equal(vol, np.stack([stored, stored + 1]) - 1024)
+    assert spacing == pytest.approx((0.7, 0.5, 1.5))
+
+
+def test_dicom_errors(tmp_path: Path) -> None:
+    pytest.importorskip("pydicom")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(VolumeFormatError, match="empty.*no DICOM"):
+        load_volume(tmp_path / "empty")
+    _dicom_series(tmp_path / "mixed")
+    _write_dicom_slice(tmp_path / "mixed" / "other.dcm", np.zeros((3, 5), np.int16),
+                       position=[0, 0, 99], instance=9, series="9.9.9")
+    with pytest.raises(VolumeFormatError, match="mixed.*one DICOM series"):
+        load_volume(tmp_path / "mixed")
+    _dicom_series(tmp_path / "dup")
+    _write_dicom_slice(tmp_path / "dup" / "copy.dcm", np.zeros((3, 5), np.int16),
+                       position=[10.0, -20.0, 30.0], instance=9, series="1.2.3.4")
+    with pytest.raises(VolumeFormatError, match="dup.*same position"):
+        load_volume(tmp_path / "dup")
+    _dicom_series(tmp_path / "sizes")
+    _write_dicom_slice(tmp_path / "sizes" / "big.dcm", np.zeros((4, 5), np.int16),
+                       position=[0, 0, 99], instance=9, series="1.2.3.4")
+    with pytest.raises(VolumeFormatError, match=r"big\.dcm.*4x5"):
+        load_volume(tmp_path / "sizes")
+    one = tmp_path / "single.dcm"
+    one.write_bytes(b"")
+    with pytest.raises(VolumeFormatError, match=r"single\.dcm.*folder"):
+        load_volume(one)
+
+
+# ----------------------------------------------------------------------------- missing extras
+
+
+@pytest.mark.parametrize("module, make", [("nibabel", "file"), ("pydicom", "folder")])
+def test_missing_extra(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, module: str, make: str) -> None:
+    monkeypatch.setitem(sys.modules, module, None)  # makes "import module" fail
+    if make == "file":
+        target = tmp_path / "brain.nii.gz"
+        target.write_bytes(b"")
+    else:
+        target = tmp_path / "series"
+        target.mkdir()
+    with pytest.raises(MissingDependencyError, match=r"pip install 'hevr\[io\]'") as info:
+        load_volume(target)
+    assert target.name in str(info.value) and module in str(info.value)
+    assert isinstance(info.value, ImportError)
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def _bad(tmp_path: Path, case: str) -> Path:
+    """Create the broken file for ``case``; return the path to load."""
+    u8 = np.zeros((2, 3, 4), np.uint8).tobytes()
+    files: dict[str, tuple[str, bytes | str]] = {
+        "unknown-extension": ("vol.xyz", u8),
+        "no-extension": ("volume", u8),
+        "raw-no-shape": ("scan.raw", u8),
+        "raw-no-dtype": ("scan_4x3x2.raw", u8),
+        "raw-truncated": ("scan_4x3x2_uint16.raw", u8),
+        "raw-too-long": ("scan_4x3x2_uint8.raw", u8 + b"\0"),
+        "nrrd-magic": ("m.nrrd", "NRRD_XX\n" + "type: uint8\n\n"),
+        "nrrd-2d": ("d.nrrd", _nrrd_header(dimension="2", sizes="4 3") + "\n"),
+        "nrrd-4d": ("d.nhdr", _nrrd_header(dimension="4", sizes="4 3 2 1", data_file="d.raw")),
+        "nrrd-sizes": ("s.nhdr", _nrrd_header(sizes="4 3", data_file="d.raw")),
+        "nrrd-missing-field": ("f.nhdr", _nrrd_header(encoding=None, data_file="d.raw")),
+        "nrrd-type": ("t.nhdr", _nrrd_header(type="block", data_file="d.raw")),
+        "nrrd-encoding": ("e.nhdr", _nrrd_header(encoding="bzip2", data_file="d.raw")),
+        "nrrd-ascii": ("e.nhdr", _nrrd_header(encoding="ascii", data_file="d.raw")),
+        "nrrd-endian": ("n.nhdr", _nrrd_header(type="int16", data_file="d.raw")),
+        "nrrd-list": ("l.nhdr", _nrrd_header(data_file="LIST") + "d.raw\n"),
+        "nrrd-multi": ("l.nhdr", _nrrd_header(data_file="slice%03d.raw 1 2 1")),
+        "nrrd-truncated": ("tr.nhdr", _nrrd_header(sizes="4 3 3", data_file="d.raw")),
+        "nrrd-wrong-sizes": ("w.nhdr", _nrrd_header(sizes="4 3 1", data_file="d.raw")),
+        "nrrd-attached-truncated": ("a.nrrd", _nrrd_header() + "\n" + "x" * 10),
+        "nrrd-kinds": ("k.nhdr", _nrrd_header(kinds="RGB-color domain domain", data_file="d.raw")),
+        "nrrd-directions": ("sd.nhdr", _nrrd_header(space_directions="(1,0,0) none (0,0,1)",
+                                                    data_file="d.raw")),
+        "nrrd-zero-spacing": ("zs.nhdr", _nrrd_header(spacings="1 0 1", data_file="d.raw")),
+        "nrrd-gzip-corrupt": ("g.nhdr", _nrrd_header(encoding="gzip", data_file="d.raw")),
+        "nrrd-gzip-short": ("gs.nhdr", _nrrd_header(encoding="gzip", data_file="short.raw.gz")),
+        "npy-2d": ("two.npy", "npy:2d"),
+        "npy-bool": ("mask.npy", "npy:bool"),
+        "npy-complex": ("c.npy", "npy:complex"),
+        "npy-object": ("o.npy", "npy:object"),
+        "npy-empty": ("e.npy", "npy:empty"),
+        "npy-truncated": ("t.npy", "npy:truncated"),
+        "npy-garbage": ("g.npy", b"this is not numpy"),
+        "nifti-garbage": ("g.nii", b"\0" * 10),
+    }
+    name, content = files[case]
+    (tmp_path / "d.raw").write_bytes(u8)
+    (tmp_path / "short.raw.gz").write_bytes(gzip.compress(u8[:-1]))
+    path = tmp_path / name
+    if isinstance(content, str) and content.startswith("npy:"):
+        kind = content[4:]
+        if kind == "2d":
+            np.save(path, np.zeros((3, 4)))
+        elif kind == "bool":
+            np.save(path, np.zeros((2, 2, 2), bool))
+        elif kind == "complex":
+            np.save(path, np.zeros((2, 2, 2), np.complex64))
+        elif kind == "object":
+            np.save(path, np.empty((2, 2, 2), object), allow_pickle=True)
+        elif kind == "empty":
+            np.save(path, np.zeros((0, 2, 2), np.uint8))
+        else:
+            np.save(path, np.zeros((4, 4, 4), np.uint16))
+            path.write_bytes(path.read_bytes()[:-10])
+    else:
+        path.write_bytes(content.encode() if isinstance(content, str) else content)
+    return path
+
+
+BAD_CASES = {
+    "unknown-extension": "unknown volume file extension '.xyz'",
+    "no-extension": "unknown volume file extension",
+    "raw-no-shape": "cannot tell the shape and dtype",
+    "raw-no-dtype": "cannot tell the dtype",
+    "raw-truncated": "truncated: expected 48 bytes",
+    "raw-too-long": "size mismatch: expected 24 bytes",
+    "nrrd-magic": "not an NRRD file",
+    "nrrd-2d": "expected a 3-D volume",
+    "nrrd-4d": "expected a 3-D volume",
+    "nrrd-sizes": "'sizes' must hold 3",
+    "nrrd-missing-field": "lacks the required field 'encoding'",
+    "nrrd-type": "type 'block' is not supported",
+    "nrrd-encoding": "encoding 'bzip2' is not supported",
+    "nrrd-ascii": "encoding 'ascii' is not supported",
+    "nrrd-endian": "'endian' must be 'little' or 'big'",
+    "nrrd-list": "several files",
+    "nrrd-multi": "several files",
+    "nrrd-truncated": "truncated",
+    "nrrd-wrong-sizes": "size mismatch",
+    "nrrd-attached-truncated": "truncated",
+    "nrrd-kinds": "expected a scalar 3-D volume",
+    "nrrd-directions": "space directions",
+    "nrrd-zero-spacing": "positive finite",
+    "nrrd-gzip-corrupt": "gzip",
+    "nrrd-gzip-short": "truncated",
+    "npy-2d": "expected a 3-D volume, got a 2-D",
+    "npy-bool": "integer or floating-point",
+    "npy-complex": "integer or floating-point",
+    "npy-object": "not a valid .npy",
+    "npy-empty": "empty",
+    "npy-truncated": "not a valid .npy",
+    "npy-garbage": "not a valid .npy",
+    "nifti-garbage": "cannot read NIfTI",
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CASES))
+def test_bad_input(tmp_path: Path, case: str) -> None:
+    if case.startswith("nifti"):
+        pytest.importorskip("nibabel")
+    path = _bad(tmp_path, case)
+    with pytest.raises(VolumeFormatError) as info:
+        load_volume(path)
+    message = str(info.value)
+    # The message names the file (the header or the data file it points to) and the problem.
+    assert path.name in message or "d.raw" in message or "short.raw.gz" in message, message
+    assert BAD_CASES[case] in message, message
+    assert isinstance(info.value, (HevrError, ValueError))
+
+
+@pytest.mark.parametrize("name", ["nope.npy", "nope.nhdr", "nope_dir"])
+def test_missing_file(tmp_path: Path, name: str) -> None:
+    with pytest.raises(FileNotFoundError, match="nope"):
+        load_volume(tmp_path / name)
+
+
+def test_missing_nrrd_data_file(tmp_path: Path) -> None:
+    (tmp_path / "h.nhdr").write_text(_nrrd_header(data_file="gone.raw"))
+    with pytest.raises(FileNotFoundError, match=r"gone\.raw"):
+        load_volume(tmp_path / "h.nhdr")
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"byte_order": "middle"}, "byte_order"),
+    ({"spacing": (1, 0, 1)}, "spacing"),
+    ({"spacing": (1, 1)}, "spacing"),
+    ({"spacing": "abc"}, "spacing"),
+    ({"spacing": "123"}, "spacing"),
+    ({"spacing": (1, float("nan"), 1)}, "spacing"),
+    ({"shape": (2, 3)}, "shape"),
+    ({"shape": (2, 3, -4)}, "shape"),
+    ({"shape": (2, 3, 4), "dtype": "complex64"}, "dtype"),
+    ({"shape": (2, 3, 4), "dtype": "no-such-type"}, "dtype"),
+])
+def test_bad_load_parameters(tmp_path: Path, kwargs: dict, match: str) -> None:
+    path = tmp_path / "v_4x3x2_uint8.raw"
+    path.write_bytes(bytes(24))
+    with pytest.raises(ParameterError, match=match):
+        load_volume(path, **kwargs)
+
+
+def test_shape_and_dtype_only_for_raw(tmp_path: Path) -> None:
+    path = save_volume(tmp_path / "v.npy", np.zeros((2, 2, 2), np.uint8))
+    with pytest.raises(ParameterError, match=r"only apply to \.raw.*v\.npy"):
+        load_volume(path, shape=(2, 2, 2))
+
+
+@pytest.mark.parametrize("name, vol, kwargs, match", [
+    ("v.npy", np.zeros((2, 2)), {}, "3-D"),
+    ("v.npy", np.zeros((2, 2, 2), bool), {}, "integer or float"),
+    ("v.npy", np.zeros((2, 2, 2)), {"spacing": (1, -1, 1)}, "spacing"),
+    ("v.tif", np.zeros((2, 2, 2)), {}, r"\.npy, \.raw, \.nhdr or \.nrrd, got v\.tif"),
+    ("v.npy", np.zeros((2, 2, 2)), {"encoding": "gzip"}, "needs an NRRD"),
+    ("v.nhdr", np.zeros((2, 2, 2)), {"encoding": "bz2"}, "encoding"),
+    ("v.nhdr", np.zeros((2, 2, 2)), {"byte_order": "native"}, "byte_order"),
+    ("v.nhdr", np.zeros((2, 2, 2), np.float16), {}, "float16"),
+    ("v_2x2x3_uint8.raw", np.zeros((2, 2, 2), np.uint8), {}, r"v_2x2x3_uint8\.raw"),
+    ("v_2x2x2_int16.raw", np.zeros((2, 2, 2), np.uint8), {}, "int16"),
+])
+def test_bad_save_parameters(tmp_path: Path, name: str, vol: np.ndarray, kwargs: dict,
+                             match: str) -> None:
+    with pytest.raises(ParameterError, match=match):
+        save_volume(tmp_path / name, vol, **kwargs)

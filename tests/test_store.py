@@ -1,0 +1,271 @@
+"""Encrypted volume store: round trips, secrets scan, resume, bad input, corruption."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import dask
+import dask.array as da
+import numpy as np
+import pytest
+
+import hevr
+from hevr import store as store_mod
+from hevr.density import encode_density, normalize_density
+
+SHAPE = (5, 7, 9)
+BRICK = (2, 3, 4)  # 3 x 3 x 3 bricks, ragged at every edge
+
+
+def _decrypt_scalar(ev, priv):
+    out = np.zeros(ev.shape, dtype=object)
+    for idx in ev.brick_indices():
+        sl = ev.brick_slices(idx)
+        out[sl] = np.array(priv.decrypt_array(ev.read_brick(idx)), dtype=object).reshape(ev.brick_shape(idx))
+    return out
+
+
+def _decrypt_vector(ev, priv):
+    k = ev.vector_dims
+    out = np.zeros((k,) + ev.shape, dtype=object)
+    for idx in ev.brick_indices():
+        sl = ev.brick_slices(idx)
+        for j, cts in enumerate(ev.read_brick(idx, "vector")):
+            out[(j,) + sl] = np.array(priv.decrypt_array(cts), dtype=object).reshape(ev.brick_shape(idx))
+    return out
+
+
+def _vol(dtype):
+    rng = np.random.default_rng(7)
+    if dtype == "uint8":
+        return rng.integers(0, 256, SHAPE).astype(np.uint8)
+    if dtype == "int16":
+        return rng.integers(-1024, 3000, SHAPE).astype(np.int16)
+    return (rng.random(SHAPE) * 10 - 5).astype(np.float32)
+
+
+@pytest.mark.parametrize("dtype", ["uint8", "int16", "float32"])
+@pytest.mark.parametrize("owner", [True, False], ids=["owner", "public"])
+def test_scalar_round_trip(tmp_path, keypair256, dtype, owner):
+    pub, priv = keypair256
+    vol = _vol(dtype)
+    kw = {"value_range": (-5, 5)} if dtype == "float32" else {}
+    ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", priv if owner else pub, brick=BRICK,
+                             spacing=(1.0, 2.0, 0.5), progress=False, **kw)
+    assert ev.grid == (3, 3, 3) and ev.shape == SHAPE and ev.spacing == (1.0, 2.0, 0.5)
+    got = _decrypt_scalar(hevr.open_volume(tmp_path / "v.zarr"), priv)
+    if dtype == "float32":
+        assert ev.meta.scalar.exponent == -3
+        assert np.abs(got.astype(np.float64) * 1e-3 - vol).max() <= 0.5e-3 + 1e-6
+    else:
+        assert ev.meta.scalar.exponent == 0
+        assert np.array_equal(got.astype(np.int64), vol.astype(np.int64))
+
+
+@pytest.mark.parametrize("k", [2, 4])
+def test_vector_channel_round_trip(tmp_path, keypair256, k):
+    pub, priv = keypair256
+    vol = _vol("uint8")
+    ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", priv, brick=BRICK, scalar=False, vector_dims=k,
+                             vector_digits=4, progress=False)
+    assert not ev.has_scalar and ev.vector_dims == k and ev.value_range == (0.0, 255.0)
+    got = _decrypt_vector(ev, priv).astype(np.float64) * 1e-4
+    expected = np.moveaxis(encode_density(normalize_density(vol, (0, 255)), k), -1, 0)
+    assert np.abs(got - expected).max() <= 0.5e-4 + 1e-12
+
+
+def test_dask_array_input_and_distributed_client(tmp_path, keypair256):
+    from distributed import Client, LocalCluster
+
+    pub, priv = keypair256
+    vol = _vol("int16")
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        ev = hevr.encrypt_volume(da.from_array(vol, chunks=(3, 3, 3)), tmp_path / "v.zarr", priv,
+                                 brick=BRICK, vector_dims=3, progress=False, client=client)
+    assert np.array_equal(_decrypt_scalar(ev, priv).astype(np.int64), vol.astype(np.int64))
+
+
+def _secret_forms(priv):
+    p, q = int(priv.p), int(priv.q)
+    lam = (p - 1) * (q - 1)
+    import math
+
+    lcm = lam // math.gcd(p - 1, q - 1)
+    forms = []
+    for x in (p, q, lam, lcm):
+        forms += [str(x).encode(), format(x, "x").encode(), format(x, "X").encode(),
+                  x.to_bytes((x.bit_length() + 7) // 8, "big"), x.to_bytes((x.bit_length() + 7) // 8, "little")]
+    return forms
+
+
+def test_no_secret_in_any_file(tmp_path, keypair256):
+    pub, priv = keypair256
+    ev = hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", priv, brick=BRICK, vector_dims=2, progress=False)
+    files = [f for f in Path(ev.path).rglob("*") if f.is_file()]
+    assert len(files) > 27
+    forms = _secret_forms(priv)
+    for f in files:
+        blob = f.read_bytes()
+        for s in forms:
+            assert s not in blob, f"secret material found in {f}"
+    meta = json.loads((Path(ev.path) / "zarr.json").read_text())
+    assert meta["attributes"]["hevr"]["public_key"]["n"] == str(int(pub.n))
+
+
+def test_resume_after_interrupted_run(tmp_path, keypair256, monkeypatch):
+    pub, priv = keypair256
+    vol = _vol("uint8")
+    path = tmp_path / "v.zarr"
+    real = store_mod._encrypt_brick
+    calls = []
+
+    def flaky(*args, **kw):
+        if len(calls) >= 10:
+            raise RuntimeError("worker died")
+        calls.append(args[2])
+        return real(*args, **kw)
+
+    monkeypatch.setattr(store_mod, "_encrypt_brick", flaky)
+    with dask.config.set(scheduler="synchronous"), pytest.raises(RuntimeError, match="worker died"):
+        hevr.encrypt_volume(vol, path, priv, brick=BRICK, vector_dims=2, progress=False)
+    with pytest.raises(hevr.IncompleteStoreError, match="17 of 27 bricks missing"):
+        hevr.open_volume(path)
+    with pytest.raises(hevr.StoreExistsError):
+        hevr.encrypt_volume(vol, path, priv, brick=BRICK, vector_dims=2, progress=False)
+    done_first = set(calls)
+    calls.clear()
+    monkeypatch.setattr(store_mod, "_encrypt_brick", lambda *a, **k: (calls.append(a[2]), real(*a, **k))[1])
+    with dask.config.set(scheduler="synchronous"):
+        ev = hevr.encrypt_volume(vol, path, priv, brick=BRICK, vector_dims=2, progress=False, resume=True)
+    assert len(calls) == 17 and not (set(calls) & done_first)
+    assert np.array_equal(_decrypt_scalar(ev, priv).astype(np.int64), vol.astype(np.int64))
+    hevr.open_volume(path, verify="full")
+
+
+def test_resume_with_another_key_is_refused(tmp_path, keypair256, keypair512):
+    vol = _vol("uint8")
+    path = tmp_path / "v.zarr"
+    hevr.encrypt_volume(vol, path, keypair256[0], brick=BRICK, progress=False)
+    before = {f: f.read_bytes() for f in path.rglob("*") if f.is_file()}
+    with pytest.raises(hevr.ParameterError, match="key"):
+        hevr.encrypt_volume(vol, path, keypair512[0], brick=BRICK, progress=False, resume=True)
+    assert before == {f: f.read_bytes() for f in path.rglob("*") if f.is_file()}
+
+
+@pytest.mark.parametrize(
+    "vol, kw, match",
+    [
+        (np.full(SHAPE, np.nan, np.float32), {"value_range": (0, 1)}, "NaN"),
+        (np.full(SHAPE, np.inf), {"value_range": (0, 1)}, "NaN or infinity"),
+        (np.zeros((0, 3, 3), np.uint8), {}, "non-empty"),
+        (np.zeros((3, 3), np.uint8), {}, "3-D"),
+        (np.zeros((3, 3, 3), np.complex64), {}, "dtype"),
+        (np.zeros((3, 3, 3), object), {}, "dtype"),
+        (np.full(SHAPE, 300, np.int16), {"value_range": (0, 255)}, "value_range"),
+        (np.zeros(SHAPE, np.uint8), {"value_range": (5, 1)}, "value_range"),
+        (np.zeros(SHAPE, np.uint8), {"brick": 0}, "brick"),
+        (np.zeros(SHAPE, np.uint8), {"brick": (2, -1, 2)}, "brick"),
+        (np.zeros(SHAPE, np.uint8), {"vector_dims": 1}, "vector_dims"),
+        (np.zeros(SHAPE, np.uint8), {"scalar": False}, "channel"),
+        (np.zeros(SHAPE, np.uint8), {"spacing": (1, 0, 1)}, "spacing"),
+    ],
+)
+def test_bad_input(tmp_path, keypair256, vol, kw, match):
+    with pytest.raises(hevr.HevrError, match=match):
+        hevr.encrypt_volume(vol, tmp_path / "v.zarr", keypair256[0], progress=False, **kw)
+    assert not (tmp_path / "v.zarr").exists()
+
+
+def test_existing_store_needs_overwrite_and_is_kept(tmp_path, keypair256):
+    path = tmp_path / "v.zarr"
+    hevr.encrypt_volume(np.ones(SHAPE, np.uint8), path, keypair256[0], brick=BRICK, progress=False)
+    digest = hashlib.sha256(b"".join(f.read_bytes() for f in sorted(path.rglob("*")) if f.is_file())).hexdigest()
+    with pytest.raises(hevr.StoreExistsError, match="overwrite=True"):
+        hevr.encrypt_volume(np.zeros(SHAPE, np.uint8), path, keypair256[0], brick=BRICK, progress=False)
+    assert digest == hashlib.sha256(b"".join(f.read_bytes() for f in sorted(path.rglob("*")) if f.is_file())).hexdigest()
+    ev = hevr.encrypt_volume(np.zeros(SHAPE, np.uint8), path, keypair256[0], brick=BRICK, progress=False, overwrite=True)
+    assert ev.meta.complete
+
+
+def test_refuses_to_delete_a_non_store(tmp_path, keypair256):
+    (tmp_path / "precious").mkdir()
+    (tmp_path / "precious" / "thesis.txt").write_text("do not delete")
+    with pytest.raises(hevr.StoreExistsError):
+        hevr.encrypt_volume(np.ones(SHAPE, np.uint8), tmp_path / "precious", keypair256[0], overwrite=True, progress=False)
+    assert (tmp_path / "precious" / "thesis.txt").read_text() == "do not delete"
+
+
+@pytest.fixture()
+def small_store(tmp_path, keypair256):
+    ev = hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", keypair256[1], brick=BRICK, progress=False)
+    return Path(ev.path)
+
+
+def _chunk(path, idx):
+    return path / "scalar" / "c" / "/".join(str(i) for i in idx + (0,))
+
+
+def test_corrupt_wrong_version(small_store):
+    meta = json.loads((small_store / "zarr.json").read_text())
+    meta["attributes"]["hevr"]["version"] = 99
+    (small_store / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(hevr.CorruptStoreError, match="version 99"):
+        hevr.open_volume(small_store)
+
+
+def test_corrupt_foreign_group(tmp_path):
+    import zarr
+
+    zarr.open_group(tmp_path / "foreign.zarr", mode="w").attrs["x"] = 1
+    with pytest.raises(hevr.CorruptStoreError, match="not an hevr encrypted volume"):
+        hevr.open_volume(tmp_path / "foreign.zarr")
+
+
+def test_corrupt_missing_chunk(small_store):
+    _chunk(small_store, (1, 2, 0)).unlink()
+    with pytest.raises(hevr.CorruptStoreError, match=r"missing chunk for brick \(1, 2, 0\)"):
+        hevr.open_volume(small_store)
+    ev = hevr.open_volume(small_store, verify="none")
+    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(1, 2, 0\).*zero"):
+        ev.read_brick((1, 2, 0))
+
+
+def test_corrupt_truncated_chunk(small_store):
+    f = _chunk(small_store, (0, 1, 1))
+    f.write_bytes(f.read_bytes()[:-5])
+    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(0, 1, 1\).*truncated"):
+        hevr.open_volume(small_store)
+
+
+def test_corrupt_ciphertext_too_large(small_store):
+    f = _chunk(small_store, (2, 0, 1))
+    f.write_bytes(b"\xff" * len(f.read_bytes()))
+    ev = hevr.open_volume(small_store)  # sizes are right: quick verify passes
+    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(2, 0, 1\).*>= n²"):
+        ev.read_brick((2, 0, 1))
+    with pytest.raises(hevr.CorruptStoreError, match=r"\(2, 0, 1\)"):
+        hevr.open_volume(small_store, verify="full")
+
+
+def test_corrupt_not_coprime(small_store, keypair256):
+    pub, _ = keypair256
+    f = _chunk(small_store, (1, 1, 1))
+    blob = bytearray(f.read_bytes())
+    w = pub.ciphertext_bytes
+    blob[:w] = int(pub.n).to_bytes(w, "big")  # c = n: in range but not a unit
+    f.write_bytes(bytes(blob))
+    with pytest.raises(hevr.CorruptStoreError, match=r"\(1, 1, 1\).*coprime"):
+        hevr.open_volume(small_store, verify="full")
+
+
+def test_storage_is_ciphertext_bytes_only(tmp_path, keypair256):
+    pub, priv = keypair256
+    vol = np.ones((4, 6, 8), np.uint8)
+    ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", priv, brick=(2, 3, 4), vector_dims=4, progress=False)
+    for name, k in (("scalar", 1), ("vector", 4)):
+        size = sum(f.stat().st_size for f in (Path(ev.path) / name / "c").rglob("*") if f.is_file())
+        assert size == vol.size * k * pub.ciphertext_bytes
