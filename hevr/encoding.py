@@ -77,7 +77,8 @@ def encode(value: Real, exponent: int | None = None) -> tuple[int, int]:
     exponent = int(exponent)
     if isinstance(value, Integral) and exponent <= 0:
         return int(value) * BASE ** (-exponent), exponent
-    d = Decimal(repr(float(value))) if not isinstance(value, Integral) else Decimal(int(value))
+    # The exact binary value (not its repr), so the error is at most half a unit of 10**exponent.
+    d = Decimal(float(value)) if not isinstance(value, Integral) else Decimal(int(value))
     scaled = d.scaleb(-exponent, _CTX).quantize(Decimal(1), rounding=ROUND_HALF_UP, context=_CTX)
     return int(scaled), exponent
 
