@@ -18,12 +18,15 @@ from .errors import (
     VolumeFormatError,
 )
 
+from .camera import Camera
+from .density import encode_density, normalize_density
 from .encoding import BASE, decode, encode
 from .keyfile import load_key
 from .keys import PrivateKey, PublicKey, generate_keypair
 from .io import load_volume, save_volume
 from .number import EncryptedNumber
 from .phantom import PHANTOM_LEVELS, phantom
+from .plain import render_plain
 from .store import encrypt_volume
 from .volume import EncryptedVolume, open_volume
 
@@ -37,6 +40,10 @@ __all__ = [
     "EncryptedNumber",
     "encrypt_volume",
     "phantom",
+    "Camera",
+    "render_plain",
+    "encode_density",
+    "normalize_density",
     "PHANTOM_LEVELS",
     "load_volume",
     "save_volume",
