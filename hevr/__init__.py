@@ -23,10 +23,12 @@ from .density import encode_density, normalize_density
 from .encoding import BASE, decode, encode
 from .keyfile import load_key
 from .keys import PrivateKey, PublicKey, generate_keypair
+from .image import EncryptedImage, load_image, save_png
 from .io import load_volume, save_volume
 from .number import EncryptedNumber
 from .phantom import PHANTOM_LEVELS, phantom
 from .plain import render_plain
+from .renderer import RaySums, clear_cache, render
 from .store import encrypt_volume
 from .volume import EncryptedVolume, open_volume
 
@@ -42,6 +44,12 @@ __all__ = [
     "phantom",
     "Camera",
     "render_plain",
+    "render",
+    "RaySums",
+    "clear_cache",
+    "EncryptedImage",
+    "load_image",
+    "save_png",
     "encode_density",
     "normalize_density",
     "PHANTOM_LEVELS",
