@@ -82,7 +82,7 @@ def test_dask_array_input_and_distributed_client(tmp_path, keypair256):
 
     pub, priv = keypair256
     vol = _vol("int16")
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as client:
         ev = hevr.encrypt_volume(da.from_array(vol, chunks=(3, 3, 3)), tmp_path / "v.zarr", priv,
                                  brick=BRICK, vector_dims=3, progress=False, client=client)

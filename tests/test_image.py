@@ -1,0 +1,61 @@
+"""EncryptedImage: decryption with the right key only, save/load, PNG windowing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import hevr
+from hevr.image import to_uint8
+
+
+@pytest.fixture(scope="module")
+def frame(tmp_path_factory, keypair256):
+    rng = np.random.default_rng(1)
+    vol = rng.integers(0, 256, (5, 6, 7)).astype(np.uint8)
+    ev = hevr.encrypt_volume(vol, tmp_path_factory.mktemp("i") / "v.zarr", keypair256[1], brick=3,
+                             vector_dims=2, progress=False)
+    cam = hevr.Camera.orbit(ev, azimuth=10, width=9, height=8)
+    return hevr.render(ev, cam, mode="tf", nodes=[(0.2, "red"), (0.8, "blue")], progress=False)
+
+
+def test_key_mismatch(frame, keypair512):
+    with pytest.raises(hevr.KeyMismatchError, match="fingerprint"):
+        frame.decrypt(keypair512[1])
+
+
+def test_save_load_round_trip(tmp_path, frame, keypair256):
+    path = tmp_path / "f.hevr"
+    frame.save(path)
+    back = hevr.load_image(path)
+    assert back.shape == frame.shape == (8, 9, 3)
+    assert back.exponent == frame.exponent and back.fingerprint == frame.fingerprint
+    assert np.array_equal(back.decrypt(keypair256[1]), frame.decrypt(keypair256[1]))
+    # compact: header + ciphertext bytes only
+    w = keypair256[0].ciphertext_bytes
+    assert path.stat().st_size < frame.n_ciphertexts * w + 4096
+
+
+def test_truncated_and_foreign_files(tmp_path, frame):
+    path = tmp_path / "f.hevr"
+    frame.save(path)
+    path.write_bytes(path.read_bytes()[:-3])
+    with pytest.raises(hevr.CorruptStoreError, match="truncated"):
+        hevr.load_image(path)
+    (tmp_path / "x.hevr").write_bytes(b"PNG....")
+    with pytest.raises(hevr.CorruptStoreError, match="magic"):
+        hevr.load_image(tmp_path / "x.hevr")
+
+
+def test_png_windowing(tmp_path):
+    grey = np.linspace(0, 200, 20).reshape(4, 5)
+    hevr.save_png(grey, tmp_path / "g.png")
+    g = np.asarray(Image.open(tmp_path / "g.png"))
+    assert g.dtype == np.uint8 and g.shape == (4, 5) and g.max() == 255 and g.min() == 0
+    rgb = np.zeros((3, 3, 3))
+    rgb[0, 0] = (0.5, 0.25, 0.0)
+    out = to_uint8(rgb)
+    assert tuple(out[0, 0]) == (255, 128, 0)  # joint windowing keeps colour ratios
+    with pytest.raises(hevr.ParameterError):
+        to_uint8(np.zeros((2, 2, 4)))
