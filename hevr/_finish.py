@@ -60,20 +60,29 @@ def merge_partials(parts: Sequence[tuple[np.ndarray, np.ndarray]], nsquare: int)
     return uniq, out
 
 
-def _multi_pow(bases: Sequence[mpz], exps: Sequence[int], n2: mpz) -> mpz:
-    """Π b_i^e_i mod n² by interleaved square-and-multiply (Straus), sharing squarings."""
-    pairs = [(b, e) for b, e in zip(bases, exps) if e]
-    if not pairs:
-        return mpz(1)
-    if len(pairs) == 1:
-        return gmpy2.powmod(pairs[0][0], pairs[0][1], n2)
-    top = max(e for _, e in pairs).bit_length()
+def _subset_products(bases: Sequence[mpz], n2: mpz) -> list[mpz]:
+    """sub[mask] = Π_{i in mask} bases[i] mod n²: 2^k − 1 − k multiplications, shared by all channels."""
+    sub = [mpz(1)] * (1 << len(bases))
+    for i, b in enumerate(bases):
+        bit = 1 << i
+        sub[bit] = b
+        for m in range(1, bit):
+            sub[bit | m] = sub[m] * b % n2
+    return sub
+
+
+def _straus(sub: list[mpz], exps: Sequence[int], n2: mpz) -> mpz:
+    """Π b_i^e_i from subset products: one squaring and at most one multiplication per bit."""
+    top = max(exps).bit_length()
     acc = mpz(1)
     for bit in range(top - 1, -1, -1):
         acc = acc * acc % n2
-        for b, e in pairs:
+        m = 0
+        for i, e in enumerate(exps):
             if e >> bit & 1:
-                acc = acc * b % n2
+                m |= 1 << i
+        if m:
+            acc = acc * sub[m] % n2
     return acc
 
 
@@ -102,12 +111,24 @@ def finish_tile(plan: RenderPlan, sums: dict[int, list[mpz]], pixels: np.ndarray
             values = [gmpy2.powmod(s[0], R, n2)]
             ops += R.bit_length()
         else:
-            # fold R into the combination exponents: one multi-exponentiation per channel
+            # Σ_k Q[k,ch]·S_k by Straus over small exponents (subset products shared by the
+            # channels), then one reciprocal exponentiation per channel.
+            sub = _subset_products(s, n2) if len(s) <= 8 else None
             values = []
             for ch in range(C):
-                exps = [row[ch] * R for row in plan.comb]
-                values.append(_multi_pow(s, exps, n2))
-                ops += max(exps).bit_length() * (1 + len(exps)) if any(exps) else 0
+                exps = [row[ch] for row in plan.comb]
+                if not any(exps):
+                    values.append(mpz(1))
+                    continue
+                if sub is not None:
+                    t = _straus(sub, exps, n2)
+                else:
+                    t = mpz(1)
+                    for b, e in zip(s, exps):
+                        if e:
+                            t = t * gmpy2.powmod(b, e, n2) % n2
+                values.append(gmpy2.powmod(t, R, n2))
+                ops += 2 * max(exps).bit_length() + R.bit_length()
         if plan.offset:
             values = [v * nude_offset % n2 for v in values]
         out.extend(values)
