@@ -242,7 +242,9 @@ def encrypt_volume(
     path : str or Path
         Target store (a local path or an fsspec URL).
     key : PublicKey or PrivateKey
-        A private key selects the owner-side fast path (same ciphertext distribution).
+        A private key selects the owner-side fast path (same ciphertext distribution); it is
+        shipped to the Dask workers that encrypt, so use it only on machines the data owner
+        controls (see docs/security.md), else pass the public key.
     spacing : 3 floats
         Voxel spacing in world order (sx, sy, sz).
     brick : int or 3 ints
