@@ -286,7 +286,8 @@ def encrypt_volume(
         fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
         value_range=vr, scalar=sc, vector=vc,
     )
-    path = str(path)
+    path = str(Path(path).resolve()) if _is_local(str(path)) else str(path)
+    _warn_if_remote(client, key)
     exists = _store_exists(path)
     if exists and resume:
         _resume_target(path, meta)
@@ -316,6 +317,19 @@ def encrypt_volume(
     attrs["complete"] = True
     group.attrs["hevr"] = attrs
     return open_volume(path)
+
+
+def _warn_if_remote(client: Any, key: Any) -> None:
+    """Encryption tasks carry plaintext bricks (and p, q with a PrivateKey): say so loudly
+    when they are about to go to a scheduler that is not on this machine."""
+    from ._dask import active_client
+
+    c = active_client(client)
+    addr = getattr(getattr(c, "scheduler", None), "address", "") or ""
+    if addr and not any(h in addr for h in ("127.0.0.1", "localhost", "inproc://", "[::1]")):
+        what = "plaintext bricks and the private key's p, q" if isinstance(key, PrivateKey) else "plaintext bricks"
+        log.warning("encrypt_volume sends %s to the Dask workers of %s; encrypt only on machines the "
+                    "data owner controls", what, addr)
 
 
 def _token() -> str:

@@ -208,8 +208,10 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     if verify not in ("quick", "full", "none"):
         raise ParameterError(f"verify: expected 'quick', 'full' or 'none', got {verify!r}")
     path = str(path)
-    if "://" not in path and not Path(path).exists():
-        raise StoreError(f"path: {path} does not exist")
+    if "://" not in path:
+        if not Path(path).exists():
+            raise StoreError(f"path: {path} does not exist")
+        path = str(Path(path).resolve())  # workers may run in another working directory
     try:
         group = zarr.open_group(path, mode="r")
         attrs = dict(group.attrs)
@@ -226,6 +228,8 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
             f"{path}: store is incomplete ({missing} of {meta.n_bricks} bricks missing); "
             "finish it with encrypt_volume(..., resume=True)"
         )
+    if PublicKey(int(meta.n)).fingerprint != meta.fingerprint:
+        raise CorruptStoreError(f"{path}: the stored key fingerprint does not match the stored modulus n")
     w_expected = (2 * int(meta.n).bit_length() + 7) // 8
     if meta.ciphertext_bytes != w_expected:
         raise CorruptStoreError(f"{path}: ciphertext_bytes is {meta.ciphertext_bytes}, expected {w_expected} for this key")

@@ -269,3 +269,17 @@ def test_storage_is_ciphertext_bytes_only(tmp_path, keypair256):
     for name, k in (("scalar", 1), ("vector", 4)):
         size = sum(f.stat().st_size for f in (Path(ev.path) / name / "c").rglob("*") if f.is_file())
         assert size == vol.size * k * pub.ciphertext_bytes
+
+
+def test_fingerprint_must_match_modulus(small_store):
+    meta = json.loads((small_store / "zarr.json").read_text())
+    meta["attributes"]["hevr"]["public_key"]["fingerprint"] = "0" * 64
+    (small_store / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(hevr.CorruptStoreError, match="fingerprint"):
+        hevr.open_volume(small_store)
+
+
+def test_relative_path_is_made_absolute(tmp_path, keypair256, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    ev = hevr.encrypt_volume(np.ones(SHAPE, np.uint8), "rel.zarr", keypair256[0], brick=BRICK, progress=False)
+    assert Path(ev.path).is_absolute() and Path(ev.path) == tmp_path / "rel.zarr"
