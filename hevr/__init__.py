@@ -23,12 +23,12 @@ from .density import encode_density, normalize_density
 from .encoding import BASE, decode, encode
 from .keyfile import load_key
 from .keys import PrivateKey, PublicKey, generate_keypair
-from .image import EncryptedImage, load_image, save_png
+from .image import EncryptedImage, load_image, save_png, to_uint8
 from .io import load_volume, save_volume
 from .number import EncryptedNumber
 from .phantom import PHANTOM_LEVELS, phantom
 from .plain import render_plain
-from .renderer import RaySums, clear_cache, render
+from .renderer import RaySums, clear_cache, error_bound, render
 from .store import encrypt_volume
 from .volume import EncryptedVolume, open_volume
 
@@ -50,6 +50,8 @@ __all__ = [
     "EncryptedImage",
     "load_image",
     "save_png",
+    "to_uint8",
+    "error_bound",
     "encode_density",
     "normalize_density",
     "PHANTOM_LEVELS",

@@ -44,6 +44,7 @@ class VolumeMetadata:
     vector: ChannelInfo | None
     base: int = 10
     complete: bool = False
+    store_id: str = ""  # random per store creation: caches must not confuse two volumes at one path
     format: str = FORMAT_NAME
     version: int = FORMAT_VERSION
     extra: dict = field(default_factory=dict)
@@ -75,6 +76,7 @@ class VolumeMetadata:
             },
             "n_bricks": self.n_bricks,
             "complete": self.complete,
+            "store_id": self.store_id,
             **({"extra": self.extra} if self.extra else {}),
         }
 
@@ -101,6 +103,7 @@ class VolumeMetadata:
                 vector=ChannelInfo.from_dict(ch["vector"]) if "vector" in ch else None,
                 base=int(d.get("base", 10)),
                 complete=bool(d.get("complete", False)),
+                store_id=str(d.get("store_id", "")),
                 extra=dict(d.get("extra", {})),
             )
         except (KeyError, TypeError, ValueError) as exc:

@@ -220,7 +220,11 @@ class PrivateKey:
 
     def encrypt(self, m: int, *, unsafe_no_obfuscation: bool = False) -> mpz:
         """Encrypt a signed integer with the owner-side fast path (same distribution)."""
-        return self.encrypt_array([m], unsafe_no_obfuscation=unsafe_no_obfuscation)[0]
+        pub = self.public_key
+        residue = raw.raw_encode_signed(m, pub.n)
+        if unsafe_no_obfuscation:
+            return raw.raw_encrypt_nude(residue, pub.n, pub.nsquare)
+        return self.owner.encrypt_residues((residue,))[0]
 
     def encrypt_array(
         self, values: np.ndarray | Sequence[int], *, unsafe_no_obfuscation: bool = False

@@ -135,7 +135,7 @@ def render(
                        comb_digits=comb_digits, pack=pack, combination=comb)
     H, W = camera.height, camera.width
     n_tiles = (-(-H // tile)) * (-(-W // tile))
-    key = (ev.path, ev.meta.fingerprint, camera.key(), spec.sampling, spec.step, plan.weight_digits,
+    key = (ev.path, ev.meta.store_id, ev.meta.fingerprint, camera.key(), spec.sampling, spec.step, plan.weight_digits,
            plan.channel, tile)
     sums = _CACHE.get(key) if cache else None
     reused = sums is not None

@@ -27,6 +27,7 @@ only its own brick's chunks and its own marker, so no two tasks ever write the s
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import shutil
@@ -290,12 +291,13 @@ def encrypt_volume(
     _warn_if_remote(client, key)
     exists = _store_exists(path)
     if exists and resume:
-        _resume_target(path, meta)
+        meta = dataclasses.replace(meta, store_id=_resume_target(path, meta).store_id)
     elif exists and not overwrite:
         raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
     else:
         if exists:
             _remove_store(path)
+        meta = dataclasses.replace(meta, store_id=_token() + _token())
         _create_store(path, meta)
     done = np.asarray(zarr.open_array(f"{path}/done", mode="r")[...]) if exists and resume else np.zeros(meta.grid, np.uint8)
     todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid) if not done[idx]]

@@ -164,3 +164,16 @@ def test_degenerate_cameras(bad):
     kw.update(bad)
     with pytest.raises(hevr.HevrError):
         hevr.Camera(**kw)
+
+
+def test_cache_never_serves_another_volume_at_the_same_path(tmp_path, keypair256, volume):
+    _, priv = keypair256
+    path = tmp_path / "v.zarr"
+    ev1 = hevr.encrypt_volume(volume, path, priv, brick=BRICK, progress=False)
+    cam = hevr.Camera.orbit(ev1, width=8, height=8)
+    hevr.render(ev1, cam, progress=False)
+    other = (255 - volume).astype(np.uint8)
+    ev2 = hevr.encrypt_volume(other, path, priv, brick=BRICK, progress=False, overwrite=True)
+    img = hevr.render(ev2, cam, progress=False)
+    assert not img.stats["reused_ray_sums"]
+    assert np.allclose(img.decrypt(priv), hevr.render_plain(other, cam), atol=0.01)
