@@ -40,6 +40,9 @@ class _Bar:
         self.done = 0
         self.start = time.perf_counter()
         self._last = 0.0
+        # Not a terminal (logs, CI, notebooks): a line per 10 % instead of carriage-return frames.
+        self.tty = bool(getattr(sys.stderr, "isatty", lambda: False)())
+        self._decile = -1
         if self.enabled:
             self._draw(force=True)
 
@@ -50,6 +53,12 @@ class _Bar:
 
     def _draw(self, force: bool = False) -> None:
         now = time.perf_counter()
+        if not self.tty:
+            decile = int(10 * self.done / self.total)
+            if decile != self._decile:
+                self._decile = decile
+                sys.stderr.write(f"{self.desc}: {self.done}/{self.total} tasks, {now - self.start:.1f}s\n")
+            return
         if not force and now - self._last < 0.2:
             return
         self._last = now

@@ -84,6 +84,10 @@ class EncryptedImage:
 
     def decrypt_mantissas(self, private_key: Any) -> np.ndarray:
         """Integer mantissas (offset removed) as an object array of the image shape."""
+        from .keys import PrivateKey
+
+        if not isinstance(private_key, PrivateKey):
+            raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
         if private_key.public_key.fingerprint != self.fingerprint:
             raise KeyMismatchError(
                 f"private_key: the image was encrypted under key {self.fingerprint[:16]}…, "

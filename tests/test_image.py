@@ -59,3 +59,8 @@ def test_png_windowing(tmp_path):
     assert tuple(out[0, 0]) == (255, 128, 0)  # joint windowing keeps colour ratios
     with pytest.raises(hevr.ParameterError):
         to_uint8(np.zeros((2, 2, 4)))
+
+
+def test_decrypt_needs_a_private_key(frame, keypair256):
+    with pytest.raises(hevr.ParameterError, match="PrivateKey"):
+        frame.decrypt(keypair256[0])

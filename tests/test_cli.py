@@ -1,0 +1,233 @@
+"""The ``hevr`` command line, end to end in a temporary folder (256-bit keys: fast, NOT secure)."""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import hevr
+from hevr.cli import main
+from hevr.image import to_uint8
+
+pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
+
+COMMANDS = ["keygen", "encrypt", "render", "decrypt", "info", "demo", "bench"]
+AZ, EL, W, H = 25.0, 15.0, 20, 16
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def err_lines(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.strip()]
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    """keygen -> encrypt phantom:12 (brick 5, 4-dim vector) -> renders -> decrypts, once per module."""
+    d = tmp_path_factory.mktemp("cli")
+    cap = {}
+
+    def call(*argv):
+        import contextlib
+        import io
+
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main([str(a) for a in argv])
+        cap.setdefault(argv[0], (code, out.getvalue(), err.getvalue()))
+        assert code == 0, (argv, out.getvalue(), err.getvalue())
+        return out.getvalue(), err.getvalue()
+
+    key = d / "key.json"
+    call("keygen", "--bits", "256", "--out", key)
+    call("encrypt", "phantom:12", "--key", d / "key.pub.json", "--out", d / "vol.zarr", "--brick", "5",
+         "--vector-dims", "4", "-q")
+    common = ["--azimuth", AZ, "--elevation", EL, "--size", f"{W}x{H}", "-q"]
+    call("render", d / "vol.zarr", "--out", d / "xray.hevr", "--mode", "xray", "--sampling", "nearest", *common)
+    call("render", d / "vol.zarr", "--out", d / "tf.hevr", "--tf", "0.279:#0000ff,0.797:red", *common)
+    call("decrypt", d / "xray.hevr", "--key", key, "--out", d / "xray.png", "--npy", d / "xray.npy")
+    call("decrypt", d / "tf.hevr", "--key", key, "--out", d / "tf.png")
+    return d, cap
+
+
+def test_keygen_files_and_modes(work, capsys):
+    d, cap = work
+    code, out, err = cap["keygen"]
+    key, pub_file = d / "key.json", d / "key.pub.json"
+    assert stat.S_IMODE(key.stat().st_mode) == 0o600
+    assert pub_file.exists()
+    priv, pub = hevr.load_key(key), hevr.load_key(pub_file)
+    assert isinstance(priv, hevr.PrivateKey) and isinstance(pub, hevr.PublicKey)
+    assert pub.fingerprint in out and priv.fingerprint == pub.fingerprint
+    assert str(priv.p) not in out and str(priv.q) not in out
+    lines = err_lines(err)
+    assert len(lines) == 1 and lines[0].startswith("hevr: warning:") and "256" in lines[0]
+    # refuses to overwrite without --force, replaces with it
+    code, out, err = run(capsys, "keygen", "--bits", "256", "--out", key)
+    assert code == 1 and err_lines(err)[-1].startswith("hevr: error:") and "--force" in err
+    other = d / "other.json"
+    assert run(capsys, "keygen", "--bits", "256", "--out", other, "-q")[0] == 0
+    assert run(capsys, "keygen", "--bits", "256", "--out", other, "--force")[0] == 0
+    assert hevr.load_key(d / "other.pub.json").fingerprint == hevr.load_key(other).fingerprint
+
+
+def test_encrypt_reports_path(work, capsys):
+    d, cap = work
+    assert "public-key path" in cap["encrypt"][1]
+    code, out, err = run(capsys, "encrypt", "phantom:6", "--key", d / "key.json", "--out", d / "small.zarr", "-q")
+    assert code == 0 and "owner-side fast path" in out
+    ev = hevr.open_volume(d / "small.zarr")
+    assert ev.shape == (6, 6, 6) and ev.vector_dims is None
+    # exists -> refused; --overwrite replaces it
+    code, out, err = run(capsys, "encrypt", "phantom:6", "--key", d / "key.json", "--out", d / "small.zarr", "-q")
+    assert code == 1 and "--overwrite" in err_lines(err)[-1]
+    code, out, err = run(capsys, "encrypt", "phantom:6", "--key", d / "key.json", "--out", d / "small.zarr",
+                         "--overwrite", "--no-scalar", "--vector-dims", "3", "-q")
+    assert code == 0 and hevr.open_volume(d / "small.zarr").vector_dims == 3
+
+
+@pytest.mark.parametrize("name, mode, kw", [
+    ("xray", "xray", {}),
+    ("tf", "tf", {"nodes": [(0.279, "#0000ff"), (0.797, "red")]}),
+])
+def test_png_matches_plaintext_reference(work, name, mode, kw):
+    d, _ = work
+    vol = hevr.phantom(12)
+    cam = hevr.Camera.orbit(vol.shape, azimuth=AZ, elevation=EL, width=W, height=H)
+    ref = hevr.render_plain(vol, cam, mode=mode, sampling="nearest", value_range=(0, 255), vector_dims=4, **kw)
+    png = np.asarray(Image.open(d / f"{name}.png"))
+    assert png.shape == ref.shape
+    diff = np.abs(png.astype(int) - to_uint8(ref).astype(int))
+    assert diff.max() <= 1
+    if name == "xray":
+        assert np.allclose(np.load(d / "xray.npy"), ref, atol=1e-3)
+
+
+def test_info_never_prints_secrets(work, capsys):
+    d, _ = work
+    priv = hevr.load_key(d / "key.json")
+    fp = priv.fingerprint
+    secrets = (str(priv.p), str(priv.q))
+    for path, what in [(d / "vol.zarr", "store"), (d / "tf.hevr", "image"), (d / "key.pub.json", "public key"),
+                       (d / "key.json", "private key")]:
+        code, out, err = run(capsys, "info", path)
+        assert code == 0, err
+        assert fp in out and what in out
+        assert not any(s in out or s in err for s in secrets)
+    out = run(capsys, "info", d / "vol.zarr")[1]
+    assert "(12, 12, 12)" in out and "27 bricks" in out and "vector[4]" in out and "complete:    True" in out
+    out = run(capsys, "info", d / "tf.hevr")[1]
+    assert "tf" in out and "exponent" in out and "ciphertexts" in out
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_help(command, capsys):
+    code, out, err = run(capsys, command, "--help")
+    assert code == 0 and f"hevr {command}" in out and "example" in out and err == ""
+
+
+def _bad_cases(d: Path) -> list[tuple[list, int, str]]:
+    return [
+        (["keygen", "--bits", "1001", "--out", d / "k.json"], 2, "--bits"),
+        (["keygen", "--bits", "abc"], 2, "--bits"),
+        (["encrypt", "phantom:8", "--key", d / "missing.json", "--out", d / "x.zarr"], 1, "missing.json"),
+        (["encrypt", d / "nothing.npy", "--key", d / "key.json", "--out", d / "x.zarr"], 1, "nothing.npy"),
+        (["encrypt", d / "notes.txt", "--key", d / "key.json", "--out", d / "x.zarr"], 1, "extension"),
+        (["encrypt", "phantom:8", "--key", d / "key.json", "--out", d / "x.zarr", "--brick", "0"], 2, "--brick"),
+        (["render", d / "missing.zarr", "--out", d / "x.hevr"], 1, "missing.zarr"),
+        (["render", d / "vol.zarr", "--out", d / "x.hevr", "--tf", "0.5:notacolour"], 2, "notacolour"),
+        (["render", d / "vol.zarr", "--out", d / "x.hevr", "--tf", "1.5:red"], 2, "[0, 1]"),
+        (["render", d / "vol.zarr", "--out", d / "x.hevr", "--size", "20by20"], 2, "--size"),
+        (["render", d / "vol.zarr", "--out", d / "x.hevr", "--mode", "emphasize"], 2, "--density"),
+        (["decrypt", d / "xray.hevr", "--key", d / "wrong.json", "--out", d / "x.png"], 1, "encrypted under key"),
+        (["decrypt", d / "xray.hevr", "--key", d / "key.pub.json"], 1, "private key"),
+        (["decrypt", d / "notes.txt", "--key", d / "key.json"], 1, "notes.txt"),
+        (["info", d / "nothing-here"], 1, "nothing-here"),
+        (["demo", "--image", "0x5"], 2, "--image"),
+        (["bench", "--quick", "--paper"], 2, "not allowed"),
+        (["frobnicate"], 2, "invalid choice"),
+        ([], 2, "command"),
+    ]
+
+
+def test_errors_are_one_line(work, capsys):
+    d, _ = work
+    (d / "notes.txt").write_text("not a volume\n")
+    assert run(capsys, "keygen", "--bits", "256", "--out", d / "wrong.json", "-q")[0] == 0
+    for argv, code, needle in _bad_cases(d):
+        got, out, err = run(capsys, *argv)
+        lines = err_lines(err)
+        assert got == code, (argv, got, err)
+        assert len(lines) == 1 and lines[0].startswith("hevr: error:"), (argv, err)
+        assert needle in lines[0], (argv, lines[0])
+        assert "Traceback" not in err
+
+
+def test_verbose_shows_traceback(work, capsys):
+    d, _ = work
+    code, out, err = run(capsys, "decrypt", d / "xray.hevr", "--key", d / "wrong.json", "--verbose")
+    assert code == 1 and "Traceback" in err and "KeyMismatchError" in err
+    assert err_lines(err)[-1].startswith("hevr: error:")
+
+
+def test_mode_inference_and_tf_parsing():
+    from hevr._cli_util import parse_tf, size_type
+
+    assert parse_tf("0.279:#0000ff, 0.797:red") == [(0.279, (0.0, 0.0, 1.0)), (0.797, (1.0, 0.0, 0.0))]
+    assert size_type("150x100") == (150, 100) and size_type("64") == (64, 64)
+    with pytest.raises(hevr.ParameterError):
+        parse_tf("0.5-red")
+
+
+def test_demo_tiny(tmp_path, capsys):
+    out_dir = tmp_path / "demo"
+    code, out, err = run(capsys, "demo", "--out", out_dir, "--size", "10", "--image", "12x12", "--bits", "256",
+                         "--workers", "1", "-q")
+    assert code == 0, err
+    summary = json.loads((out_dir / "summary.json").read_text())
+    names = [im["name"] for im in summary["images"]]
+    assert names == ["xray-nearest", "xray-trilinear", "emphasize-0.331", "emphasize-0.653", "emphasize-0.781",
+                     "tf1", "tf2"]
+    for im in summary["images"]:
+        assert im["within_bound"] and im["max_abs_error"] < 0.05
+        for f in (im["png"], im["reference_png"], im["frame"]):
+            assert (out_dir / f).is_file()
+    assert (out_dir / "contact-sheet.png").is_file() and (out_dir / "report.md").is_file()
+    assert {"keygen", "encrypt", "render tf2", "decrypt (all)"} <= set(summary["stages_s"])
+    assert "max|err|" in out and "keygen" in out and "encrypt" in out
+    assert stat.S_IMODE((out_dir / "demo-key.json").stat().st_mode) == 0o600
+
+
+def test_bench_quick(capsys):
+    code, out, err = run(capsys, "bench", "--quick", "--workers", "0", "-q")
+    assert code == 0, err
+    assert "keygen" in out and "encrypt" in out and "render xray-nearest" in out and "ciphertexts/s" in out
+
+
+def _hevr_exe() -> list[str]:
+    exe = Path(sys.executable).with_name("hevr")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "hevr"]
+
+
+def test_console_script_subprocess(work):
+    d, _ = work
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    r = subprocess.run(_hevr_exe() + ["info", str(d / "key.pub.json")], capture_output=True, text=True, env=env,
+                       timeout=60)
+    assert r.returncode == 0 and hevr.load_key(d / "key.pub.json").fingerprint in r.stdout
+    r = subprocess.run([sys.executable, "-m", "hevr", "render", str(d / "vol.zarr"), "--out", str(d / "y.hevr"),
+                        "--size", "10x10x10"], capture_output=True, text=True, env=env, timeout=60)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith("hevr: error: argument --size")
