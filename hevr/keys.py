@@ -215,7 +215,7 @@ class PrivateKey:
     @property
     def owner(self) -> OwnerEncryptor:
         if self._owner is None:
-            self._owner = OwnerEncryptor(self.p, self.q)
+            self._owner = _owner_tables(self.p, self.q)
         return self._owner
 
     def encrypt(self, m: int, *, unsafe_no_obfuscation: bool = False) -> mpz:
@@ -296,6 +296,23 @@ class PrivateKey:
         from .keyfile import write_key_file
 
         write_key_file(path, self.to_dict(), private=True)
+
+
+_OWNER_CACHE: "dict[int, OwnerEncryptor]" = {}
+
+
+def _owner_tables(p: mpz, q: mpz) -> OwnerEncryptor:
+    """One set of fixed-base tables per key and process: every Dask task unpickles its own
+    PrivateKey, and rebuilding ~100 MB of tables per brick would cost ~0.7 s each time.
+    Kept in process memory only, for the two most recent keys."""
+    n = int(p * q)
+    enc = _OWNER_CACHE.get(n)
+    if enc is None:
+        enc = OwnerEncryptor(p, q)
+        while len(_OWNER_CACHE) >= 2:
+            _OWNER_CACHE.pop(next(iter(_OWNER_CACHE)))
+        _OWNER_CACHE[n] = enc
+    return enc
 
 
 def generate_keypair(bits: int = 2048) -> tuple[PublicKey, PrivateKey]:
