@@ -14,7 +14,7 @@ from gmpy2 import mpz
 
 from .planner import RenderPlan
 
-__all__ = ["finish_tile", "merge_partials", "pack_values"]
+__all__ = ["finish_tile", "merge_partials", "pack_terms"]
 
 
 def _to_mpz(arr: np.ndarray) -> list[mpz]:
@@ -87,72 +87,79 @@ def _straus(sub: list[mpz], exps: Sequence[int], n2: mpz) -> mpz:
 
 
 def finish_tile(plan: RenderPlan, sums: dict[int, list[mpz]], pixels: np.ndarray, n_samples: np.ndarray,
-                n: int, counter: dict | None = None) -> list[mpz]:
-    """Finished, offset ciphertexts of one tile in (pixel, channel) order.
+                n: int) -> list[tuple[mpz, int]]:
+    """Per-pixel terms (T, R) of one tile, for the pixels whose rays hit, in (pixel, channel) order.
 
-    For each pixel: combine the k component sums with the quantised matrix (emphasize /
-    tf), multiply by the rounded reciprocal R = round(10^G / (n·K)) (Eq. 1), add the public
-    offset. A pixel whose ray misses gets the trivial encryption of the offset: which
-    rays miss is fixed by the public camera and volume shape, so nothing is revealed.
+    T is the pixel's combined ciphertext (xray: the ray sum; emphasize / tf: Σ_k Q[k,ch]·S_k,
+    computed by Straus with subset products shared by the channels) and R = round(10^G/(n·K))
+    the rounded reciprocal of Eq. 1; the finished value is T^R (⊗ R), which :func:`pack_terms`
+    raises while packing. Pixels whose rays miss are skipped: which rays miss follows from the
+    public camera and volume shape, and the image records them in a public mask.
     """
-    n = mpz(n)
-    n2 = n * n
-    nude_offset = (1 + plan.offset * n) % n2
+    n2 = mpz(n) * mpz(n)
     recips = plan.reciprocal(n_samples)
     C = plan.channels_out
-    out: list[mpz] = []
-    ops = 0
+    out: list[tuple[mpz, int]] = []
+    one = mpz(1)
     for pix, R in zip(pixels.tolist(), recips):
+        if R == 0:
+            continue
         s = sums.get(pix)
-        if s is None or R == 0:
-            out.extend([nude_offset] * C)
+        if s is None:  # every weight of this ray rounded to 0
+            out.extend([(one, R)] * C)
             continue
         if plan.comb is None:
-            values = [gmpy2.powmod(s[0], R, n2)]
-            ops += R.bit_length()
-        else:
-            # Σ_k Q[k,ch]·S_k by Straus over small exponents (subset products shared by the
-            # channels), then one reciprocal exponentiation per channel.
-            sub = _subset_products(s, n2) if len(s) <= 8 else None
-            values = []
-            for ch in range(C):
-                exps = [row[ch] for row in plan.comb]
-                if not any(exps):
-                    values.append(mpz(1))
-                    continue
-                if sub is not None:
-                    t = _straus(sub, exps, n2)
-                else:
-                    t = mpz(1)
-                    for b, e in zip(s, exps):
-                        if e:
-                            t = t * gmpy2.powmod(b, e, n2) % n2
-                values.append(gmpy2.powmod(t, R, n2))
-                ops += 2 * max(exps).bit_length() + R.bit_length()
-        if plan.offset:
-            values = [v * nude_offset % n2 for v in values]
-        out.extend(values)
-    if counter is not None:
-        counter["finish_ops"] = counter.get("finish_ops", 0) + ops
+            out.append((s[0], R))
+            continue
+        sub = _subset_products(s, n2) if len(s) <= 8 else None
+        for ch in range(C):
+            exps = [row[ch] for row in plan.comb]
+            if not any(exps):
+                out.append((one, R))
+            elif sub is not None:
+                out.append((_straus(sub, exps, n2), R))
+            else:
+                t = one
+                for b, e in zip(s, exps):
+                    if e:
+                        t = t * gmpy2.powmod(b, e, n2) % n2
+                out.append((t, R))
     return out
 
 
-def pack_values(values: Sequence[mpz], plan: RenderPlan, n: int) -> list[mpz]:
-    """Horner packing c = Π_j c_j^(B^j), B = 2^pack_bits, ``per_pack`` values per ciphertext.
+def pack_terms(terms: Sequence[tuple[mpz, int]], plan: RenderPlan, n: int) -> list[mpz]:
+    """Finish and pack: c = Π_j (T_j^R_j · g^O)^(B^j), B = 2^pack_bits, ``per_pack`` values each.
 
-    Valid because every value lies in [0, bound] with bound < B and per_pack·pack_bits <=
-    bits(n) - 2, so the packed plaintext Σ m_j·B^j stays below n/2 and no digit carries.
+    Horner from the highest digit, acc ← acc^B · T_j^R_j, with the b squarings of acc^B and
+    the square-and-multiply of T_j^R_j interleaved (Shamir), so a value costs b squarings
+    plus popcount(R_j) multiplications. The public offset O is added once per ciphertext,
+    as g^(O·Σ_j B^j). Valid because every value M_j + O lies in [0, bound], bound < B, and
+    per_pack·pack_bits <= bits(n) − 2: no digit carries and the plaintext stays below n/2.
+    With ``per_pack == 1`` each value is one ciphertext T^R · g^O.
     """
-    if plan.per_pack <= 1:
-        return list(values)
-    n2 = mpz(n) * mpz(n)
-    B = mpz(1) << plan.pack_bits
-    J = plan.per_pack
-    out = []
-    for start in range(0, len(values), J):
-        group = values[start:start + J]
-        acc = group[-1]
-        for v in reversed(group[:-1]):
-            acc = gmpy2.powmod(acc, B, n2) * v % n2
+    n = mpz(n)
+    n2 = n * n
+    b = plan.pack_bits
+    J = max(1, plan.per_pack)
+    out: list[mpz] = []
+    powmod = gmpy2.powmod
+    for start in range(0, len(terms), J):
+        group = terms[start:start + J]
+        T, R = group[-1]
+        acc = powmod(T, R, n2)
+        for T, R in reversed(group[:-1]):
+            r = R.bit_length()
+            if r > b:  # not reachable under the planner's bounds; kept exact anyway
+                acc = powmod(acc, mpz(1) << b, n2) * powmod(T, R, n2) % n2
+                continue
+            if b > r:
+                acc = powmod(acc, mpz(1) << (b - r), n2)
+            for i in range(r - 1, -1, -1):
+                acc = acc * acc % n2
+                if R >> i & 1:
+                    acc = acc * T % n2
+        if plan.offset:
+            digits = sum(mpz(1) << (b * j) for j in range(len(group))) if J > 1 else 1
+            acc = acc * ((1 + plan.offset * digits * n) % n2) % n2
         out.append(acc)
     return out

@@ -8,6 +8,7 @@ every pixel, a public offset, the key fingerprint. File format: ``docs/image-for
 
 from __future__ import annotations
 
+import base64
 import json
 import struct
 from dataclasses import dataclass, field
@@ -45,6 +46,9 @@ class EncryptedImage:
         Packing base 2**pack_bits and values per ciphertext (1: unpacked).
     ciphertexts : list of np.ndarray
         Per tile, a (P_t, W) uint8 array of big-endian ciphertext records.
+    hits : np.ndarray of bool, shape (H, W)
+        Public mask of the pixels whose rays hit the volume; only those carry values, the
+        others are 0 (which rays miss follows from the public camera and volume shape).
     info : dict
         Public render parameters (mode, sampling, camera, precision, ...).
     """
@@ -58,6 +62,7 @@ class EncryptedImage:
     pack_bits: int
     per_pack: int
     ciphertexts: list
+    hits: np.ndarray | None = None
     info: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
 
@@ -98,22 +103,25 @@ class EncryptedImage:
         C = self.channels
         H, W = self.shape[:2]
         out = np.zeros((H, W, C), dtype=object)
-        mask = (1 << self.pack_bits) - 1 if self.per_pack > 1 else None
+        digit_mask = (1 << self.pack_bits) - 1 if self.per_pack > 1 else None
+        hits = self.hits if self.hits is not None else np.ones((H, W), bool)
         for t, r0, r1, c0, c1 in self._tiles():
-            need = (r1 - r0) * (c1 - c0) * C
+            mask = hits[r0:r1, c0:c1]
+            need = int(mask.sum()) * C
             plain = private_key.decrypt_array(bytes_to_mpz(self.ciphertexts[t]), signed=False)
-            if mask is None:
+            if digit_mask is None:
                 vals = plain
             else:
                 vals = []
                 for m in plain:
                     for _ in range(self.per_pack):
-                        vals.append(m & mask)
+                        vals.append(m & digit_mask)
                         m >>= self.pack_bits
             if len(vals) < need:
                 raise CorruptStoreError(f"image tile {t}: {len(vals)} values, expected {need}")
             arr = np.array([v - self.offset for v in vals[:need]], dtype=object)
-            out[r0:r1, c0:c1, :] = arr.reshape(r1 - r0, c1 - c0, C)
+            block = out[r0:r1, c0:c1, :]
+            block[mask] = arr.reshape(-1, C)
         return out[..., 0] if len(self.shape) == 2 else out
 
     def decrypt(self, private_key: Any) -> np.ndarray:
@@ -131,6 +139,7 @@ class EncryptedImage:
             "n": str(int(self.n)), "tile": self.tile, "pack_bits": self.pack_bits, "per_pack": self.per_pack,
             "width": (2 * int(self.n).bit_length() + 7) // 8,
             "counts": [int(len(c)) for c in self.ciphertexts], "info": self.info,
+            "hits": None if self.hits is None else base64.b64encode(np.packbits(self.hits.ravel())).decode(),
         }
 
     def save(self, path: str | Path) -> None:
@@ -169,6 +178,11 @@ def load_image(path: str | Path) -> EncryptedImage:
     body = np.frombuffer(blob, dtype=np.uint8, offset=start + hl)
     if body.size != sum(counts) * width:
         raise CorruptStoreError(f"{path}: truncated: {body.size} ciphertext bytes, expected {sum(counts) * width}")
+    hits = None
+    if h.get("hits") is not None:
+        H, W = (int(x) for x in h["shape"][:2])
+        bits = np.unpackbits(np.frombuffer(base64.b64decode(h["hits"]), np.uint8))[: H * W]
+        hits = bits.astype(bool).reshape(H, W)
     cts, pos = [], 0
     for c in counts:
         cts.append(body[pos:pos + c * width].reshape(c, width))
@@ -176,7 +190,7 @@ def load_image(path: str | Path) -> EncryptedImage:
     return EncryptedImage(shape=tuple(h["shape"]), exponent=int(h["exponent"]), offset=int(h["offset"]),
                           fingerprint=h["fingerprint"], n=int(h["n"]), tile=int(h["tile"]),
                           pack_bits=int(h["pack_bits"]), per_pack=int(h["per_pack"]), ciphertexts=cts,
-                          info=h.get("info", {}))
+                          hits=hits, info=h.get("info", {}))
 
 
 def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None) -> np.ndarray:

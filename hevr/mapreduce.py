@@ -16,7 +16,7 @@ from typing import Any
 import dask
 import numpy as np
 
-from ._finish import finish_tile, merge_partials, pack_values
+from ._finish import finish_tile, merge_partials, pack_terms
 from .camera import Camera
 from .planner import RenderPlan
 from .sampling import RaySet
@@ -111,9 +111,8 @@ def finish_task(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels:
         vals = bytes_to_mpz(recs.reshape(-1, recs.shape[-1]))
         for i, r in enumerate(rays.tolist()):
             sums[r] = vals[i * C:(i + 1) * C]
-    values = finish_tile(plan, sums, pixels, n_samples, n)
-    packed = pack_values(values, plan, n)
-    return mpz_to_bytes(packed, width_bytes)
+    terms = finish_tile(plan, sums, pixels, n_samples, n)
+    return mpz_to_bytes(pack_terms(terms, plan, n), width_bytes)
 
 
 def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,

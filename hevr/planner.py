@@ -14,7 +14,7 @@ Per pixel r with n_r samples and K transfer-function nodes (K = 1 otherwise):
 * combined value T = Σ_k Q[k, ch]·S_k <= (Σ_k Q[k, ch])·A·W_r, Q the combination matrix
   quantised to ``comb_digits`` (xray: T = S);
 * normalised mantissa M = T·R_r with R_r = round(10^G / (n_r·K)), G = precision +
-  ceil(log10(max n_r·K)) + 1, so R_r has relative error <= 0.05·10^-precision;
+  ceil(log10(max n_r·K)), so R_r has relative error <= 0.5·10^-precision;
 * a public offset O = max_r(-lo·W_r·R_r) (only for signed scalar data) makes M + O >= 0,
   so pixels can be packed B = 2^b per ciphertext, b = bits of the largest M + O.
 """
@@ -112,7 +112,7 @@ def plan_render(*, n: int, spec, meta, n_samples: np.ndarray, digits: int, preci
         comb_sum = int(q.sum(axis=0).max())
     else:
         comb_sum = 1
-    G = int(precision) + (math.ceil(math.log10(max(n_max * K, 1))) if n_max else 0) + 1
+    G = int(precision) + (math.ceil(math.log10(max(n_max * K, 1))) if n_max else 0)
     tips = "use a larger key, a lower precision=, fewer weight digits= (trilinear) or fewer comb_digits="
     s_bound = amax * w_max
     t_bound = comb_sum * s_bound

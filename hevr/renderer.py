@@ -9,7 +9,7 @@ Error bound of a decrypted pixel against :func:`hevr.render_plain` (same camera/
   10^-vector_digits (error <= 0.5·10^-vector_digits·Σ_k|Q_k| per sample for emphasize/tf);
 * combination matrix: quantised to 10^-comb_digits (<= 0.5·10^-comb_digits·Σ_k s_k per
   sample, Σ_k s_k <= sqrt(k));
-* normalisation: the reciprocal's relative error is <= 0.05·10^-precision.
+* normalisation: the reciprocal's relative error is <= 0.5·10^-precision.
 
 :func:`error_bound` evaluates this for a given render.
 """
@@ -22,6 +22,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
+import dask
 import numpy as np
 
 from ._dask import compute
@@ -98,7 +99,7 @@ def render(
     digits : int
         Decimal digits of the trilinear weights.
     precision : int
-        Decimal digits of the reciprocal normalisation (relative error <= 0.05·10^-precision).
+        Decimal digits of the reciprocal normalisation (relative error <= 0.5·10^-precision).
     comb_digits : int
         Decimal digits of the emphasis / transfer-function combination matrix.
     pack : bool
@@ -139,38 +140,40 @@ def render(
            plan.channel, tile)
     sums = _CACHE.get(key) if cache else None
     reused = sums is not None
-    import dask
+    width_bytes = ev.public_key.ciphertext_bytes
+    empty = (np.zeros(0, np.int64), np.zeros((0, 1, width_bytes), np.uint8))
+
+    def finish(merged_t: Any, t: int) -> Any:
+        pix = tile_pixels(t, W, H, tile)
+        return dask.delayed(finish_task, pure=True)(plan, merged_t if merged_t is not None else empty, pix,
+                                                    rays.n_samples[pix], int(ev.public_key.n), width_bytes)
 
     if sums is None:
+        # One graph: map -> tree merge -> finish, so merged sums never travel through the client;
+        # they come back only when they are to be cached for re-colouring.
         merged, n_map = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits,
                                          plan.channel, tile, n_tiles)
-        live = {t: d for t, d in merged.items() if d is not None}
-        results = compute(list(live.values()), client=client, progress=progress, desc="render")
-        tiles = {t: None for t in merged}
-        tiles.update(dict(zip(live.keys(), results)))
-        sums = RaySums(key, tiles, n_map)
+        live = [t for t, d in merged.items() if d is not None] if cache else []
+        fin = [finish(merged[t], t) for t in range(n_tiles)]
+        results = compute(fin + [merged[t] for t in live], client=client, progress=progress, desc="render")
+        packed = results[:n_tiles]
+        sums = RaySums(key, {t: None for t in merged}, n_map)
+        sums.tiles.update(dict(zip(live, results[n_tiles:])))
         if cache:
             _CACHE[key] = sums
             while len(_CACHE) > CACHE_SIZE:
                 _CACHE.popitem(last=False)
     else:
         _CACHE.move_to_end(key)
-    width_bytes = ev.public_key.ciphertext_bytes
-    empty = (np.zeros(0, np.int64), np.zeros((0, 1, width_bytes), np.uint8))
-    fin = []
-    for t in range(n_tiles):
-        pix = tile_pixels(t, W, H, tile)
-        merged_t = sums.tiles.get(t) or empty
-        fin.append(dask.delayed(finish_task, pure=True)(plan, merged_t, pix, rays.n_samples[pix],
-                                                         int(ev.public_key.n), width_bytes))
-    packed = compute(fin, client=client, progress=progress and not reused, desc="finish")
+        fin = [finish(sums.tiles.get(t), t) for t in range(n_tiles)]
+        packed = compute(fin, client=client, progress=False, desc="finish")
     shape = (H, W, 3) if plan.channels_out == 3 else (H, W)
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
              "seconds": time.perf_counter() - t0}
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
     return EncryptedImage(shape=shape, exponent=plan.exponent, offset=plan.offset, fingerprint=ev.meta.fingerprint,
                           n=int(ev.public_key.n), tile=tile, pack_bits=plan.pack_bits, per_pack=plan.per_pack,
-                          ciphertexts=list(packed),
+                          ciphertexts=list(packed), hits=(rays.n_samples > 0).reshape(H, W),
                           info={"mode": spec.mode, "sampling": spec.sampling, "step": spec.step,
                                 "density": spec.density, "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None,
                                 "camera": camera.to_dict(), "plan": plan.to_dict()},
@@ -199,6 +202,6 @@ def error_bound(ev: EncryptedVolume, camera: Camera, mode: str = "xray", samplin
         K = len(spec.nodes) if spec.mode == "tf" else 1
     weights = 4 * 10.0 ** -digits * (qmax + store + comb_err) if spec.sampling == "trilinear" else 0.0
     value = (qmax + store + comb_err) / K
-    norm = value * 0.05 * 10.0 ** -precision * 1.0001
+    norm = value * 0.5 * 10.0 ** -precision * 1.0001
     b = (weights / K + store / K + comb_err / K + norm) * (n > 0) + 1e-9
     return np.repeat(b[..., None], C, axis=2) if C == 3 else b

@@ -82,7 +82,7 @@ def test_axis_aligned_parallel_is_exact_mean(tmp_path, keypair256, sampling):
     scale = 10 ** (-img.info["plan"]["weight_exponent"])
     assert np.array_equal(s.astype(np.int64), np.flipud(vol.astype(np.int64).sum(axis=0)) * scale)
     ref = np.flipud(vol.mean(axis=0))
-    assert np.allclose(img.decrypt(priv), ref, rtol=1e-5, atol=0)
+    assert np.allclose(img.decrypt(priv), ref, rtol=0.5e-4, atol=0)  # precision=4: reciprocal error <= 0.5e-4
     assert np.allclose(hevr.render_plain(vol, cam, sampling=sampling), ref, rtol=1e-12, atol=1e-12)
 
 
@@ -100,7 +100,7 @@ def test_pack_on_and_off_agree(store, keypair256):
     a = hevr.render(store, cam, mode="tf", nodes=NODES, sampling="trilinear", progress=False)
     b = hevr.render(store, cam, mode="tf", nodes=NODES, sampling="trilinear", progress=False, pack=False)
     assert a.per_pack > 1 and b.per_pack == 1
-    assert b.n_ciphertexts == 13 * 10 * 3
+    assert b.n_ciphertexts == int(b.hits.sum()) * 3 and 0 < b.hits.sum() < 13 * 10  # misses carry nothing
     assert a.n_ciphertexts <= -(-b.n_ciphertexts // a.per_pack) + 4  # per-tile rounding only
     assert np.array_equal(a.decrypt(priv), b.decrypt(priv))
     assert a.exponent == b.exponent
