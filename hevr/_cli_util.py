@@ -1,4 +1,4 @@
-"""Helpers shared by the command line (:mod:`hevr.cli`) and :mod:`hevr.demo`.
+"""Helpers shared by the command line (:mod:`hevr.cli`) and :mod:`hevr._cli_demo`.
 
 Argument parsers that turn a bad value into one clear argparse error, the Dask
 client/cluster context of a command, input loading (``phantom:N`` or a volume file),

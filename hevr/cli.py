@@ -172,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="examples:\n  hevr info vol.zarr\n  hevr info frame.hevr\n  hevr info key.pub.json\n")
     p.add_argument("path", metavar="PATH")
 
-    from .demo import BENCH_EPILOG, DEMO_EPILOG
+    from ._cli_demo import BENCH_EPILOG, DEMO_EPILOG
 
     p = sub.add_parser("demo", parents=[demo_opts], formatter_class=_RAW,
                        help="the whole pipeline on the paper's figures, no input needed",
@@ -224,7 +224,7 @@ def _run(args: Any) -> int:
     from . import _cli_cmds as cmds
 
     if args.command in ("demo", "bench"):
-        from . import demo
+        from . import _cli_demo as demo
 
         return demo.cmd_demo(args) if args.command == "demo" else demo.cmd_bench(args)
     return getattr(cmds, f"cmd_{args.command}")(args)
