@@ -36,6 +36,7 @@ def main(argv=None) -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--brick", type=int, default=25)
     ap.add_argument("--quick", action="store_true", help="size 40, 1024 bits")
+    ap.add_argument("--only", choices=["scalar", "vector"], default=None, help="measure one channel only")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the stores and the private key in this folder (for benchmarks/render.py)")
     args = ap.parse_args(argv)
@@ -53,7 +54,10 @@ def main(argv=None) -> None:
     rows = []
     with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cl, \
             Client(cl) as client:
-        for label, kw in (("scalar", {"scalar": True}), (4, {"scalar": False, "vector_dims": 4})):
+        cases = [("scalar", {"scalar": True}), (4, {"scalar": False, "vector_dims": 4})]
+        if args.only:
+            cases = cases[:1] if args.only == "scalar" else cases[1:]
+        for label, kw in cases:
             path = tmp / f"{label}.zarr"
             t = time.perf_counter()
             hevr.encrypt_volume(vol, path, priv, brick=args.brick, client=client, progress=False, overwrite=True, **kw)
