@@ -145,10 +145,14 @@ def _plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_r
 
 
 def _quantise_scalar(block: np.ndarray, info: ChannelInfo) -> list[int]:
+    """Mantissas of one brick as Python ints, converted in one vectorised step."""
     if info.digits is None:
-        return block.astype(np.int64).ravel().tolist() if block.dtype.kind != "u" or block.dtype.itemsize < 8 else [int(v) for v in block.ravel()]
-    scaled = np.rint(block.astype(np.float64) * 10.0**info.digits)
-    return [int(v) for v in scaled.ravel()]
+        # uint64 values above 2^63 do not fit int64; tolist() on the original dtype is exact
+        return block.ravel().tolist() if block.dtype == np.uint64 else block.astype(np.int64).ravel().tolist()
+    scaled = np.rint(block.astype(np.float64).ravel() * 10.0**info.digits)
+    if scaled.size and np.abs(scaled).max() < 2.0**62:
+        return scaled.astype(np.int64).tolist()
+    return [int(v) for v in scaled]  # mantissas beyond int64 (large keys, many digits)
 
 
 def _quantise_vector(block: np.ndarray, info: ChannelInfo, value_range: tuple[float, float]) -> np.ndarray:
