@@ -1,4 +1,4 @@
-"""Describe the machine a benchmark ran on (appended to benchmarks/RESULTS.md)."""
+"""Describe the machine a benchmark ran on (appended to benchmarks/history.md)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def machine() -> str:
 
 
 def append(section: str) -> None:
-    path = os.path.join(os.path.dirname(__file__), "RESULTS.md")
+    path = os.path.join(os.path.dirname(__file__), "history.md")
     new = not os.path.exists(path)
     with open(path, "a") as fh:
         if new:

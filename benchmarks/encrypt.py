@@ -1,7 +1,7 @@
 """Encrypting the paper's 100³ phantom on a 2-worker LocalCluster, beside Tables 1–3.
 
 Run: python benchmarks/encrypt.py [--size 100] [--bits 2048] [--workers 2] [--brick 25] [--quick]
-Appends a section to benchmarks/RESULTS.md. The brick divides the volume so the store
+Appends a section to benchmarks/history.md. The brick divides the volume so the store
 holds exactly the ciphertext bytes (Zarr pads edge chunks to the full brick shape).
 """
 

@@ -4,7 +4,7 @@ Run after ``python benchmarks/encrypt.py --keep DIR`` (which leaves DIR/scalar.z
 DIR/4.zarr and DIR/key.json):  python benchmarks/render.py --stores DIR [--quick]
 Measures nearest / trilinear X-ray, the 4-dim transfer function with 1–4 colours, the
 re-colouring cost on cached ray sums, the client's decryption with and without packing
-(one core), and the speed-up of 2 workers over 1. Appends to benchmarks/RESULTS.md.
+(one core), and the speed-up of 2 workers over 1. Appends to benchmarks/history.md.
 """
 
 from __future__ import annotations

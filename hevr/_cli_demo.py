@@ -13,7 +13,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -42,7 +41,7 @@ from ._cli_util import (
 from .errors import InsecureKeyWarning
 from .keys import SECURE_BITS
 
-__all__ = ["Job", "paper_jobs", "cmd_demo", "cmd_bench", "DEMO_EPILOG", "BENCH_EPILOG"]
+__all__ = ["Job", "paper_jobs", "cmd_demo", "DEMO_EPILOG"]
 
 DEMO_EPILOG = """\
 examples:
@@ -57,17 +56,6 @@ image (<name>.png decrypted, <name>.ref.png plaintext reference), contact-sheet.
 report.md and summary.json. The timings are printed as tables.
 Keys below 2048 bits are NOT secure; the small default only keeps the demo fast.
 """
-
-BENCH_EPILOG = """\
-examples:
-  hevr bench --quick        # a few seconds: 12^3 voxels, 16x16 px, 256-bit key
-  hevr bench                # 15-25 s: 32^3, 48x48 px, 512-bit key
-  hevr bench --paper        # the paper's 100^3, 150x150 px, 2048 bits: ~1-1.5 h on 2 cores
-  hevr bench --workers 4 --json timings.json
-"""
-
-BENCH_SETTINGS = {"quick": (12, (16, 16), 256), "default": (32, (48, 48), 512), "paper": (100, (150, 150), 2048)}
-
 
 @dataclass
 class Job:
@@ -265,65 +253,3 @@ def _report(summary: dict, jobs_table: str, stages_table: str) -> str:
         "```", jobs_table, "```", "", "Time per stage:", "", "```", stages_table, "```", "",
     ]
     return "\n".join(lines)
-
-
-def cmd_bench(args: Any) -> int:
-    from .camera import Camera
-    from .phantom import phantom
-    from .store import encrypt_volume
-
-    name = "quick" if args.quick else "paper" if args.paper else "default"
-    size, (w, h), bits = BENCH_SETTINGS[name]
-    workers = 2 if args.workers is None else args.workers
-    progress = show_progress(args)
-    print(f"hevr bench ({name}): phantom {size}^3, {w}x{h} px, {bits}-bit key")
-    if args.paper:
-        warn_line("the paper's setting takes many minutes (about 1-1.5 hours on 2 cores, mostly encrypting "
-                  "5 million 2048-bit ciphertexts); Ctrl-C stops it")
-    stages: dict[str, float] = {}
-    vol = phantom(size)
-    with Timer() as t:
-        pub, priv = _keypair(bits)
-    stages["keygen"] = t.seconds
-    sample = 2000 if bits <= 512 else 200
-    with Timer() as t:
-        pub.encrypt_array(list(range(sample)))
-    public_rate = sample / t.seconds
-    with Timer() as t:
-        priv.encrypt_array(list(range(sample)))
-    owner_rate = sample / t.seconds
-    with tempfile.TemporaryDirectory(prefix="hevr-bench-") as tmp, contextlib.ExitStack() as stack:
-        client = None
-        if not args.scheduler:
-            with Timer() as t:
-                client = stack.enter_context(dask_client(None, workers))
-            stages["start cluster"] = t.seconds
-        with Timer() as t:
-            ev = encrypt_volume(vol, Path(tmp) / "v.zarr", priv, brick=_auto_brick(vol.shape), vector_dims=4,
-                                overwrite=True, progress=progress)
-        stages["encrypt"] = t.seconds
-        n_ct = vol.size * 5
-        if args.scheduler:
-            client = stack.enter_context(dask_client(args.scheduler, None))
-        print(f"compute: {describe_client(client)}")
-        cam = Camera.orbit(ev, azimuth=30, elevation=20, width=w, height=h)
-        jobs = [j for j in paper_jobs() if j.name in ("xray-nearest", "xray-trilinear", "emphasize-0.653", "tf1")]
-        run_jobs(ev, vol, priv, jobs, cam, progress=progress, log=lambda *_: None)
-    for j in jobs:
-        stages[f"render {j.name}"] = j.result["render_s"]
-    stages["decrypt (all)"] = sum(j.result["decrypt_s"] for j in jobs)
-    print()
-    print(_stages_table(stages))
-    print()
-    print(_jobs_table(jobs))
-    print(f"\nencryption, one core: owner-side fast path {owner_rate:.0f} ciphertexts/s, public-key path "
-          f"{public_rate:.0f} ciphertexts/s ({sample} values);\nwhole volume on the cluster (owner path, "
-          f"bricks, Zarr writes): {n_ct / stages['encrypt']:.0f} ciphertexts/s ({n_ct} ciphertexts)")
-    if args.json:
-        doc = {"setting": name, "size": size, "image": [w, h], "bits": bits, "stages_s": stages,
-               "volume_encrypt_per_s": n_ct / stages["encrypt"], "owner_encrypt_per_s_one_core": owner_rate,
-               "public_encrypt_per_s_one_core": public_rate,
-               "images": [{"name": j.name, **j.result} for j in jobs]}
-        Path(args.json).expanduser().write_text(json.dumps(doc, indent=1) + "\n")
-        print(f"wrote {args.json}")
-    return 0 if all(j.result["within_bound"] for j in jobs) else 1

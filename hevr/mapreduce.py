@@ -11,11 +11,13 @@ finish  per tile: per-pixel combination, reciprocal normalisation, offset and pa
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 import dask
 import numpy as np
 
+from . import _stats
 from ._finish import finish_tile, merge_partials, pack_terms
 from .camera import Camera
 from .planner import RenderPlan
@@ -74,21 +76,27 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     from .sampling import cast_rays
     from .weights import brick_weights
 
+    t0 = time.perf_counter()
     rays = cast_rays(camera, ev.shape, ev.spacing, step)
     bw = brick_weights(rays, ev.shape, ev.spacing, ev.brick, index, sampling, step, digits)
+    _stats.add("map.geometry", time.perf_counter() - t0, 1)
     W = ev.meta.ciphertext_bytes
     empty = (np.zeros(0, np.int64), np.zeros((0, 1 if channel == "scalar" else ev.vector_dims, W), np.uint8))
     if bw.rays.size == 0:
         return {t: empty for t in tiles}
-    cts = ev.read_brick(index, channel)
+    with _stats.timed("map.read"):
+        cts = ev.read_brick(index, channel)
     comps = [cts] if channel == "scalar" else cts
-    prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare)
+    with _stats.timed("map.kernel", int(bw.indptr[-1]) * len(comps)):
+        prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare)
+    t0 = time.perf_counter()
     recs = np.stack([mpz_to_bytes(p, W) for p in prods], axis=1)  # (R, C, W)
     tid = tile_ids(bw.rays, rays.width, tile)
     out = {}
     for t in tiles:
         m = tid == t
         out[t] = (bw.rays[m], recs[m])
+    _stats.add("map.emit", time.perf_counter() - t0)
     extra = set(np.unique(tid).tolist()) - set(tiles)
     if extra:  # pragma: no cover - the slab test is conservative
         raise RuntimeError(f"brick {index}: rays in tiles {sorted(extra)} not planned")
@@ -96,12 +104,19 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
 
 
 def merge_task(nsquare: int, *parts):
-    return merge_partials(parts, nsquare)
+    with _stats.timed("merge", 1):
+        return merge_partials(parts, nsquare)
 
 
 def finish_task(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
                 n_samples: np.ndarray, n: int, width_bytes: int) -> np.ndarray:
     """One finish task: (P, W) uint8 packed ciphertexts of one tile."""
+    with _stats.timed("finish", 1):
+        return _finish(plan, merged, pixels, n_samples, n, width_bytes)
+
+
+def _finish(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
+            n_samples: np.ndarray, n: int, width_bytes: int) -> np.ndarray:
     from ._mpzbytes import bytes_to_mpz, mpz_to_bytes
 
     rays, recs = merged

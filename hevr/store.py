@@ -40,6 +40,7 @@ import dask.array
 import numpy as np
 import zarr
 
+from . import _stats
 from ._dask import compute
 from ._volmeta import ChannelInfo, VolumeMetadata
 from .density import encode_density, normalize_density
@@ -173,16 +174,20 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
     width = meta.ciphertext_bytes
     group = zarr.open_group(path, mode="r+")
     if meta.scalar is not None:
-        cts = key.encrypt_array(_quantise_scalar(block, meta.scalar), unsafe_no_obfuscation=unsafe_no_obfuscation)
-        group["scalar"][sl] = mpz_to_bytes(cts, width).reshape(block.shape + (width,))
+        with _stats.timed("encrypt.crypto", block.size):
+            cts = key.encrypt_array(_quantise_scalar(block, meta.scalar), unsafe_no_obfuscation=unsafe_no_obfuscation)
+        with _stats.timed("encrypt.write"):
+            group["scalar"][sl] = mpz_to_bytes(cts, width).reshape(block.shape + (width,))
     if meta.vector is not None:
         q = _quantise_vector(block, meta.vector, meta.value_range)
         k = meta.vector.dims
         out = np.empty((k,) + block.shape + (width,), dtype=np.uint8)
         for j in range(k):
-            cts = key.encrypt_array(q[j], unsafe_no_obfuscation=unsafe_no_obfuscation)
+            with _stats.timed("encrypt.crypto", block.size):
+                cts = key.encrypt_array(q[j], unsafe_no_obfuscation=unsafe_no_obfuscation)
             out[j] = mpz_to_bytes(cts, width).reshape(block.shape + (width,))
-        group["vector"][(slice(None),) + sl] = out
+        with _stats.timed("encrypt.write"):
+            group["vector"][(slice(None),) + sl] = out
     group["done"][index] = 1
     return index
 

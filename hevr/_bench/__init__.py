@@ -1,0 +1,7 @@
+"""Benchmarks behind ``hevr bench``: the paper's Tables 1-3, limits, python-paillier, scaling.
+
+Modules: ``settings`` (quick / default / paper), ``paper`` (the published figures),
+``measure`` (timers, machine, workers), ``cases`` (one function per kind of cell),
+``crypto_micro`` and ``kernel_micro`` (one-core micro-benchmarks), ``runner`` (resumable
+orchestration, raw JSON), ``report`` and ``plot`` (markdown, goals, figure).
+"""

@@ -1,0 +1,156 @@
+"""Timing, machine and cluster helpers shared by the benchmark cases."""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import os
+import platform
+import resource
+import secrets
+import time
+import timeit
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import gmpy2
+from gmpy2 import mpz
+
+from .. import _stats
+
+
+def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
+    """``(fn(), wall seconds)``."""
+    t0 = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t0
+
+
+def mulmod_seconds(bits: int, number: int = 2000, repeat: int = 7) -> float:
+    """Best time of one bare ``a * b % n2`` with ``n2`` of ``2 * bits`` bits (this process)."""
+    n = mpz(secrets.randbits(bits)) | 1 | (mpz(3) << (bits - 2))
+    n2 = n * n
+    a, b = mpz(secrets.randbelow(int(n2))), mpz(secrets.randbelow(int(n2)))
+    return min(timeit.repeat(lambda: a * b % n2, number=number, repeat=repeat)) / number
+
+
+def fixed_base_seconds(private_key: Any, number: int = 50) -> float:
+    """Best per-call time of one owner-side mask: the two fixed-base table exponentiations
+    (mod p² and q²) and their CRT combination — the floor of one secure encryption."""
+    owner = private_key.owner
+    owner.mask()  # tables built outside the timing
+    return min(timeit.repeat(owner.mask, number=number, repeat=3)) / number
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def machine() -> dict[str, Any]:
+    """Date, CPU, cores, OS and the versions of everything on the hot path."""
+    import dask
+    import distributed
+    import numpy
+    import zarr
+
+    from .. import __version__
+
+    try:
+        import phe
+        phe_version = phe.__version__
+    except ImportError:  # pragma: no cover - phe is in the test extra
+        phe_version = None
+    return {
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "cpu": cpu_model(), "cores": os.cpu_count(), "os": f"{platform.system()} {platform.release()}",
+        "memory_gib": round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1),
+        "versions": {"python": platform.python_version(), "hevr": __version__, "gmpy2": gmpy2.version(),
+                     "numpy": numpy.__version__, "dask": dask.__version__, "distributed": distributed.__version__,
+                     "zarr": zarr.__version__, "phe": phe_version},
+        "load_average_start": os.getloadavg()[0],
+    }
+
+
+def dir_bytes(path: str | Path) -> int:
+    """Bytes of all files under ``path`` (what the store occupies, metadata included)."""
+    total = 0
+    for root, _dirs, files in os.walk(path):
+        total += sum(os.path.getsize(os.path.join(root, f)) for f in files)
+    return total
+
+
+def _maxrss_bytes() -> int:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux reports KiB
+
+
+class Workers:
+    """The compute side of a benchmark: a LocalCluster we own, or a user's client.
+
+    ``fresh()`` restarts our own workers so that their peak RSS (``ru_maxrss``) covers one
+    stage only; on a user's scheduler nothing is restarted and peaks are since start.
+    """
+
+    def __init__(self, client: Any, own: bool, n_workers: int) -> None:
+        self.client, self.own, self.n_workers = client, own, n_workers
+
+    def fresh(self) -> None:
+        if self.client is None:
+            _warm()
+            return
+        if self.own:
+            self.client.restart()
+        self.client.run(_warm)
+
+    def _run(self, fn: Callable[[], Any]) -> list[Any]:
+        return [fn()] if self.client is None else list(self.client.run(fn).values())
+
+    def take_stats(self) -> dict[str, dict]:
+        """Sum of the per-process task phase totals of every worker (and reset them)."""
+        out: dict[str, dict] = {"seconds": {}, "counts": {}}
+        for snap in self._run(_stats.take):
+            for kind in out:
+                for k, v in snap[kind].items():
+                    out[kind][k] = out[kind].get(k, 0) + v
+        return out
+
+    def peak_rss(self) -> int:
+        """Largest peak RSS of any worker process, bytes."""
+        return max(self._run(_maxrss_bytes))
+
+
+def _warm() -> None:
+    import hevr  # noqa: F401  (imports are not part of any timing)
+
+    _stats.take()
+
+
+@contextlib.contextmanager
+def workers(n_workers: int, scheduler: str | None = None) -> Iterator[Workers]:
+    """A ``Workers`` on a new LocalCluster (1 thread per process), on ``scheduler``, or with
+    ``n_workers=0`` in this process on Dask's threaded scheduler (no cluster at all)."""
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    if not scheduler and n_workers == 0:
+        yield Workers(None, False, 1)
+        return
+    if scheduler:
+        with Client(scheduler) as client:
+            n = len(client.scheduler_info()["workers"])
+            client.run(_warm)
+            yield Workers(client, False, n)
+        return
+    # distributed logs every restart at INFO; the benchmark's own log says what happens
+    logging.getLogger("distributed").setLevel(logging.WARNING)
+    logging.getLogger("distributed.nanny").setLevel(logging.ERROR)  # "Restarting worker" is expected here
+    with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
+            Client(cluster) as client:
+        client.run(_warm)
+        yield Workers(client, True, n_workers)

@@ -1,0 +1,69 @@
+"""The scaling figure: render time against work (samples × key size²), and 1 vs 2 workers."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def _points(doc: dict) -> list[tuple[str, float, float]]:
+    """(series, work, seconds) for every secure X-ray render of the run."""
+    c, s = doc["cells"], doc["setting"]
+    pts = []
+    for key, cell in c.items():
+        parts = key.split(".")
+        if not isinstance(cell, dict) or "samples" not in cell or "refused" in cell:
+            continue
+        if parts[0] == "t1" and parts[2] == "obf":
+            series = f"Table 1, {parts[3]} ({s['size']}³, keys {min(s['t1_bits'])}–{max(s['t1_bits'])})"
+        elif parts[0] == "scale" and parts[1] == "size":
+            series = f"volume sizes, {parts[3]} ({s['scaling_bits']} bits)"
+        else:
+            continue
+        work = cell["samples"] * (cell["bits"] / 1024) ** 2 * (8 if "trilinear" in key else 1)
+        pts.append((series, work, cell["seconds"]))
+    return pts
+
+
+def plot_scaling(doc: dict, path: Path) -> Path | None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        log.warning("matplotlib is not installed: no %s (pip install 'hevr[notebook]')", path.name)
+        return None
+    pts = _points(doc)
+    if not pts:
+        return None
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.3), gridspec_kw={"width_ratios": [2.3, 1]})
+    markers = iter("os^vDx")
+    for series in sorted({p[0] for p in pts}):
+        xs, ys = zip(*sorted((w, t) for name, w, t in pts if name == series))
+        ax.loglog(xs, ys, marker=next(markers), label=series)
+    lo = min(p[1] for p in pts)
+    hi = max(p[1] for p in pts)
+    ref = min(p[2] * lo / p[1] for p in pts)
+    ax.loglog([lo, hi], [ref, ref * hi / lo], "k:", lw=1, label="∝ work (slope 1)")
+    ax.set_xlabel("work = samples × (key bits / 1024)² × (8 if trilinear)")
+    ax.set_ylabel("render wall time, s")
+    ax.set_title("Render time grows with the work")
+    ax.legend(fontsize=7)
+    ax.grid(True, which="both", alpha=0.3)
+    c, s = doc["cells"], doc["setting"]
+    one = c.get("scale.workers.1")
+    two = c.get(f"t1.{s['workers_bits']}.obf.trilinear")
+    if one and two and "seconds" in one and "seconds" in two:
+        bx.bar(["1 worker", "2 workers"], [one["seconds"], two["seconds"]], color=["#999", "#37c"])
+        bx.set_title(f"Trilinear X-ray, {s['size']}³, {s['workers_bits']} bits\n"
+                     f"speed-up {one['seconds'] / two['seconds']:.2f}×", fontsize=9)
+        bx.set_ylabel("s")
+    else:
+        bx.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

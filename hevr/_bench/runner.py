@@ -1,0 +1,184 @@
+"""Run a benchmark setting block by block, saving raw numbers after every cell.
+
+A block (one key size of Table 1, one of Table 3, the micro-benchmarks, ...) is the unit of
+resumption: ``resume=True`` skips blocks the JSON records as done, so a stopped two-hour
+``--paper`` run continues where it was. Markdown and the plot are regenerated after each
+block, so partial results are always readable.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from ..errors import ParameterError
+from ..phantom import phantom
+from . import cases, measure
+from .crypto_micro import crypto_micro
+from .kernel_micro import kernel_micro
+from .paper import TF_NODES
+from .settings import SETTINGS, BenchSettings
+
+log = logging.getLogger(__name__)
+
+BLOCK_KINDS = ("micro", "t1", "t3", "t2", "naive", "scaling")
+
+
+class Results:
+    """The raw-numbers JSON of one run: ``{"setting", "machine", "cells", "blocks_done"}``."""
+
+    def __init__(self, path: Path, settings: BenchSettings, resume: bool) -> None:
+        self.path = path
+        doc = None
+        if resume and path.exists():
+            doc = json.loads(path.read_text())
+            if doc.get("setting", {}).get("name") != settings.name:
+                raise ParameterError(f"resume: {path} holds a {doc.get('setting', {}).get('name')!r} run, "
+                                     f"not {settings.name!r}")
+        if doc is None:
+            doc = {"setting": settings.to_dict(), "machine": measure.machine(), "cells": {}, "blocks_done": [],
+                   "block_seconds": {}}
+        doc.setdefault("machines", []).append(measure.machine())  # one entry per (re)start
+        self.doc = doc
+        self.save()
+
+    @property
+    def cells(self) -> dict[str, Any]:
+        return self.doc["cells"]
+
+    def put(self, key: str, value: Any) -> None:
+        self.cells[key] = value
+        self.save()
+
+    def save(self) -> None:
+        tmp = self.path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(self.doc, indent=1, sort_keys=True) + "\n")
+        os.replace(tmp, self.path)
+
+
+def _blocks(s: BenchSettings) -> list[tuple[str, str, Callable[..., None]]]:
+    """(name, kind, function) in run order: the paper's columns first, 3072 bits last."""
+    small = [b for b in s.t1_bits if b <= 2048]
+    big = [b for b in s.t1_bits if b > 2048]
+    out: list[tuple[str, str, Callable[..., None]]] = [("micro", "micro", _micro)]
+    out += [(f"t1.{b}", "t1", lambda ctx, r, s, b=b: _table1(ctx, r, s, b)) for b in small]
+    out += [(f"t3.{b}", "t3", lambda ctx, r, s, b=b: _table3(ctx, r, s, b)) for b in s.t3_bits]
+    out += [("naive", "naive", _naive), ("scaling", "scaling", _scaling)]
+    out += [(f"t1.{b}", "t1", lambda ctx, r, s, b=b: _table1(ctx, r, s, b)) for b in big]
+    out += [(f"t2.{b}", "t2", lambda ctx, r, s, b=b: _table2_extra(ctx, r, s, b)) for b in s.t2_extra_bits]
+    return out
+
+
+def _micro(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
+    for bits in s.micro_bits:
+        r.put(f"micro.crypto.{bits}", crypto_micro(bits, s.micro_n))
+    r.put(f"micro.kernel.{s.kernel_bits}", kernel_micro(s.kernel_bits, s.kernel_quick))
+
+
+def _table1(ctx: cases.Context, r: Results, s: BenchSettings, bits: int) -> None:
+    vol = phantom(s.size)
+    _pub, priv, keygen_s = ctx.keypair(bits)
+    r.put(f"keygen.{bits}", keygen_s)
+    for obf in (False, True):
+        tag = "obf" if obf else "plain"
+        path = ctx.work / f"t1-{bits}-{tag}.zarr"
+        ev, cell = cases.encrypt_case(ctx, vol, priv, path, obfuscate=obf)
+        r.put(f"t1.{bits}.{tag}.encrypt", cell)
+        if obf:
+            r.put(f"t2.{bits}.1", {k: cell[k] for k in ("ciphertext_bytes", "store_bytes")} | {"source": "table 1"})
+        for sampling in ("nearest", "trilinear"):
+            r.put(f"t1.{bits}.{tag}.{sampling}", cases.render_case(ctx, ev, vol, priv, sampling=sampling))
+        if obf and bits == s.workers_bits and ctx.workers.own:
+            with measure.workers(1) as one:
+                sub = cases.Context(one, ctx.work, ctx.brick, ctx.image, ctx.progress, ctx.keys, ctx.restart)
+                r.put("scale.workers.1", cases.render_case(sub, ev, vol, priv, sampling="trilinear"))
+        cases.remove(path)
+
+
+def _table3(ctx: cases.Context, r: Results, s: BenchSettings, bits: int) -> None:
+    vol = phantom(s.size)
+    _pub, priv, _ = ctx.keypair(bits)
+    for dims in s.dims:
+        path = ctx.work / f"t3-{bits}-{dims}.zarr"
+        ev, cell = cases.encrypt_case(ctx, vol, priv, path, dims=dims)
+        r.put(f"t3.{bits}.{dims}.encrypt", cell)
+        r.put(f"t2.{bits}.{dims}", {k: cell[k] for k in ("ciphertext_bytes", "store_bytes")} | {"source": "table 3"})
+        for k in range(1, dims + 1):
+            r.put(f"t3.{bits}.{dims}.{k}", cases.render_case(ctx, ev, vol, priv, mode="tf", nodes=TF_NODES[:k]))
+        if bits == s.goal_bits and dims == 4:
+            r.put(f"goal.tf4_trilinear.{bits}", cases.render_case(ctx, ev, vol, priv, mode="tf", sampling="trilinear",
+                                                                  nodes=TF_NODES))
+        cases.remove(path)
+
+
+def _table2_extra(ctx: cases.Context, r: Results, s: BenchSettings, bits: int) -> None:
+    """Bytes on disk for encodings not encrypted for Table 3: written without the random mask
+    (seconds instead of an hour; the layout and sizes do not depend on the mask)."""
+    vol = phantom(s.size)
+    _pub, priv, _ = ctx.keypair(bits)
+    for dims in (1,) + tuple(s.dims):
+        if f"t2.{bits}.{dims}" in r.cells:
+            continue
+        path = ctx.work / f"t2-{bits}-{dims}.zarr"
+        _ev, cell = cases.encrypt_case(ctx, vol, priv, path, dims=dims, obfuscate=False)
+        r.put(f"t2.{bits}.{dims}", {k: cell[k] for k in ("ciphertext_bytes", "store_bytes")}
+              | {"source": "unobfuscated, for Table 2 only"})
+        cases.remove(path)
+
+
+def _naive(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
+    r.put("naive.phe", cases.naive_phe_case(s.naive_size, s.naive_image, s.naive_bits))
+    r.put("naive.hevr", cases.hevr_small_case(ctx, s.naive_size, s.naive_image, s.naive_bits))
+
+
+def _scaling(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
+    _pub, priv, _ = ctx.keypair(s.scaling_bits)
+    for size in s.scaling_sizes:
+        vol = phantom(size)
+        path = ctx.work / f"scale-{size}.zarr"
+        ev, cell = cases.encrypt_case(ctx, vol, priv, path, brick=max(2, -(-size // 4)))
+        r.put(f"scale.size.{size}.encrypt", cell)
+        for sampling in ("nearest", "trilinear"):
+            r.put(f"scale.size.{size}.{sampling}", cases.render_case(ctx, ev, vol, priv, sampling=sampling))
+        cases.remove(path)
+
+
+def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, resume: bool = False,
+              only: tuple[str, ...] | None = None, workers: int = 2, scheduler: str | None = None,
+              work: str | Path | None = None, progress: bool = False,
+              log_line: Callable[[str], None] = lambda _: None) -> Path:
+    """Run the benchmark ``setting`` and write ``RESULTS*.md``, ``results-*.json`` and the
+    scaling plot into ``out``. Returns the markdown path."""
+    from .report import write_report
+
+    s = SETTINGS[setting] if isinstance(setting, str) else setting
+    if only is not None:
+        bad = sorted(set(only) - set(BLOCK_KINDS))
+        if bad:
+            raise ParameterError(f"only: expected some of {', '.join(BLOCK_KINDS)}, got {', '.join(bad)}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    results = Results(out / f"results-{s.name}.json", s, resume)
+    scratch = Path(work) if work else Path(tempfile.mkdtemp(prefix=f"hevr-bench-{s.name}-"))
+    scratch.mkdir(parents=True, exist_ok=True)
+    with measure.workers(workers, scheduler) as w:
+        ctx = cases.Context(w, scratch, s.brick, s.image, progress, restart=s.restart and w.own)
+        for name, kind, fn in _blocks(s):
+            if (only is not None and kind not in only) or name in results.doc["blocks_done"]:
+                continue
+            log_line(f"[{time.strftime('%H:%M:%S')}] {name} …")
+            t0 = time.perf_counter()
+            fn(ctx, results, s)
+            results.doc["block_seconds"][name] = time.perf_counter() - t0
+            results.doc["blocks_done"].append(name)
+            results.save()
+            md = write_report(results.doc, out)
+            log_line(f"[{time.strftime('%H:%M:%S')}] {name} done in {time.perf_counter() - t0:.1f} s → {md}")
+    if not work:
+        cases.remove(scratch)
+    return write_report(results.doc, out)
