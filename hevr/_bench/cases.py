@@ -46,7 +46,6 @@ class Context:
     image: int
     progress: bool = False
     keys: dict[int, tuple[Any, PrivateKey]] = field(default_factory=dict)
-    restart: bool = True
 
     def keypair(self, bits: int) -> tuple[Any, PrivateKey, float]:
         """Cached key pair of ``bits`` and the seconds its generation took (0 if cached)."""
@@ -62,10 +61,7 @@ class Context:
         return Camera.orbit(tuple(shape), azimuth=30, elevation=20, width=self.image, height=self.image)
 
     def fresh(self) -> None:
-        if self.restart:
-            self.workers.fresh()
-        else:
-            self.workers.take_stats()
+        self.workers.fresh()
 
 
 def encrypt_case(ctx: Context, vol: np.ndarray, private_key: PrivateKey, path: Path, *, dims: int = 1,

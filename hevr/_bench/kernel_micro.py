@@ -32,7 +32,6 @@ import os
 import datetime as _dt
 import platform
 import secrets
-import sys
 import time
 import timeit
 from pathlib import Path
@@ -248,23 +247,3 @@ def report(res: dict) -> str:
     lines += ["", f"- bytes_to_mpz: {results[0]['conv']:.3f} `a * b % n2` per ciphertext "
               "(once per brick)", ""]
     return "\n".join(lines)
-
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--bits", type=int, default=2048, help="bits of n (n^2 has twice as many)")
-    ap.add_argument("--quick", action="store_true", help="smaller workloads, fewer repeats")
-    ap.add_argument("--no-append", action="store_true", help="do not append to RESULTS.md")
-    args = ap.parse_args(argv)
-    text = report(kernel_micro(args.bits, args.quick))
-    print(text)
-    if not args.no_append:
-        out = Path(__file__).resolve().parents[2] / "benchmarks" / "history.md"
-        with out.open("a", encoding="utf-8") as fh:
-            fh.write(text + "\n")
-        print(f"appended to {out}", file=sys.stderr)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -154,7 +154,7 @@ def _table1(doc: dict) -> list[str]:
                   for b, _t, _sp, cell in errs if cell and cell["params"] != {"precision": 4, "digits": 3}})
     refused = [f"{b}/{t}/{sp}" for b, t, sp, _ in errs if isinstance(c.get(f"t1.{b}.{t}.{sp}"), dict)
                and "refused" in c[f"t1.{b}.{t}.{sp}"]]
-    lines += ["", f"Every decrypted image was compared with `render_plain`: "
+    lines += ["", "Every decrypted image was compared with `render_plain`: "
               + ("all within `error_bound`." if not bad else f"OUTSIDE the bound: {', '.join(bad)}.")
               + (f" Reduced precision where the planner refused the default (4 reciprocal digits, 3 weight digits): "
                  f"{'; '.join(adj)}." if adj else "")
@@ -226,7 +226,7 @@ def _limits(doc: dict) -> list[str]:
              "`a * b % n²` at that key size; *end to end* = wall seconds × workers per pair ÷ the same; *outside "
              "kernel* = share of the workers' wall time (wall × workers) not spent in the kernel — graph building, "
              "brick reads, plaintext geometry, transfers, merges, finishing, idle. Peak RSS is the largest worker "
-             "process" + (" (workers restarted before every stage)." if s["restart"] else " (since the cluster started)."), "",
+             "process's high-water mark during that stage (reset before it).", "",
              "| render | bits | samples | pairs | `a*b % n²` µs | kernel | end to end | outside kernel | map / merge / finish core-s | peak RSS MB |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---|---:|"]
     for b in s["t1_bits"]:
@@ -344,10 +344,13 @@ def markdown(doc: dict) -> str:
 
 def _planned(doc: dict) -> list[str]:
     from .runner import _blocks
+    from dataclasses import fields
+
     from .settings import BenchSettings
 
     s = doc["setting"]
-    st = BenchSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in s.items()})
+    known = {f.name for f in fields(BenchSettings)}
+    st = BenchSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in s.items() if k in known})
     return [name for name, _kind, _fn in _blocks(st)]
 
 

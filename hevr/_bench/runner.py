@@ -95,7 +95,7 @@ def _table1(ctx: cases.Context, r: Results, s: BenchSettings, bits: int) -> None
             r.put(f"t1.{bits}.{tag}.{sampling}", cases.render_case(ctx, ev, vol, priv, sampling=sampling))
         if obf and bits == s.workers_bits and ctx.workers.own:
             with measure.workers(1) as one:
-                sub = cases.Context(one, ctx.work, ctx.brick, ctx.image, ctx.progress, ctx.keys, ctx.restart)
+                sub = cases.Context(one, ctx.work, ctx.brick, ctx.image, ctx.progress, ctx.keys)
                 r.put("scale.workers.1", cases.render_case(sub, ev, vol, priv, sampling="trilinear"))
         cases.remove(path)
 
@@ -167,7 +167,7 @@ def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, 
     scratch = Path(work) if work else Path(tempfile.mkdtemp(prefix=f"hevr-bench-{s.name}-"))
     scratch.mkdir(parents=True, exist_ok=True)
     with measure.workers(workers, scheduler) as w:
-        ctx = cases.Context(w, scratch, s.brick, s.image, progress, restart=s.restart and w.own)
+        ctx = cases.Context(w, scratch, s.brick, s.image, progress)
         for name, kind, fn in _blocks(s):
             if (only is not None and kind not in only) or name in results.doc["blocks_done"]:
                 continue

@@ -28,7 +28,6 @@ class BenchSettings:
     scaling_bits: int = 512
     workers_bits: int = 2048        # key of the 1-vs-2-worker comparison (trilinear X-ray)
     goal_bits: int | None = 2048    # where the goals of issues 2-5 are judged
-    restart: bool = True            # restart workers before every stage: per-stage peak memory
     paper_case: bool = True         # 100³ / 150²: the paper's figures apply
 
     def to_dict(self) -> dict:
@@ -44,12 +43,12 @@ DEFAULT = BenchSettings(
     name="default", size=32, image=48, brick=16, t1_bits=(256, 512, 1024), t3_bits=(512,),
     t2_extra_bits=(256, 1024), micro_bits=(1024,), micro_n=100, kernel_bits=1024, kernel_quick=True,
     naive_size=8, naive_image=8, naive_bits=1024, scaling_sizes=(16, 32, 64), scaling_bits=256,
-    workers_bits=1024, goal_bits=None, restart=False, paper_case=False)
+    workers_bits=1024, goal_bits=None, paper_case=False)
 
 QUICK = BenchSettings(
     name="quick", size=12, image=16, brick=6, t1_bits=(64, 128, 256), t3_bits=(128,), t2_extra_bits=(64,),
     micro_bits=(256,), micro_n=20, kernel_bits=256, kernel_quick=True, naive_size=6, naive_image=6,
     naive_bits=256, scaling_sizes=(6, 12, 24), scaling_bits=128, workers_bits=128, goal_bits=None,
-    restart=False, paper_case=False)
+    paper_case=False)
 
 SETTINGS = {s.name: s for s in (QUICK, DEFAULT, PAPER)}
