@@ -72,7 +72,7 @@ def test_goals_judged_from_cells():
     assert g["TF 4-dim, 4 colours, nearest ≤ 25 s"] == (None, None)
 
 
-@pytest.mark.parametrize("ours, theirs, text", [(2.0, 94.3, "2.00 / 94.3 (**47×**)"), (10.0, 5.0, "10.0 / 5.00 (**0.50×**)"),
+@pytest.mark.parametrize("ours, theirs, text", [(2.0, 94.3, "2.00 / 94.3 (**47×**)"), (2.79, 3.49, "2.79 / 3.49 (**1.25×**)"), (10.0, 5.0, "10.0 / 5.00 (**0.50×**)"),
                                                 (None, 3.0, "– / 3.00"), (1.5, None, "1.50")])
 def test_cell_format(ours, theirs, text):
     assert report._cmp(ours, theirs) == text

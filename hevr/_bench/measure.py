@@ -52,6 +52,21 @@ def cpu_model() -> str:
     return platform.processor() or "unknown CPU"
 
 
+def _git_commit() -> str | None:
+    """Commit of the hevr checkout being measured (None when installed from a wheel)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    if not (root / ".git").exists():
+        return None
+    try:
+        out = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty"], capture_output=True,
+                             text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None
+
+
 def machine() -> dict[str, Any]:
     """Date, CPU, cores, OS and the versions of everything on the hot path."""
     import dask
@@ -74,6 +89,7 @@ def machine() -> dict[str, Any]:
                      "numpy": numpy.__version__, "dask": dask.__version__, "distributed": distributed.__version__,
                      "zarr": zarr.__version__, "phe": phe_version},
         "load_average_start": os.getloadavg()[0],
+        "commit": _git_commit(),
     }
 
 

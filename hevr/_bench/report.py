@@ -22,8 +22,7 @@ def _cmp(ours: float | None, theirs: float | None) -> str:
         return DASH if theirs is None else f"{DASH} / {_s(theirs)}"
     if theirs is None:
         return _s(ours)
-    return f"{_s(ours)} / {_s(theirs)} (**{theirs / ours:,.0f}×**)" if theirs >= ours else \
-        f"{_s(ours)} / {_s(theirs)} (**{theirs / ours:.2f}×**)"
+    return f"{_s(ours)} / {_s(theirs)} (**{_x(theirs / ours)}**)"
 
 
 def _x(r: float) -> str:
@@ -51,7 +50,7 @@ def _header(doc: dict) -> list[str]:
         "",
         f"- **Machine:** {m['cpu']}, {m['cores']} cores, {m['memory_gib']} GiB, {m['os']}; run started {m['date']}"
         + (f" (resumed {restarts}×)" if restarts > 0 else "") + ".",
-        f"- **Versions:** {vers}.",
+        f"- **Versions:** {vers}" + (f"; hevr commit `{m['commit']}`." if m.get("commit") else "."),
         f"- **Setting:** {s['size']}³ phantom, {s['image']}² image, bricks of {s['brick']}³, camera "
         "`Camera.orbit(azimuth=30, elevation=20)`, step 1 voxel; a LocalCluster of "
         f"{doc['cells'].get('t1.%d.obf.encrypt' % s['t1_bits'][0], {}).get('workers', 2)} worker processes × 1 thread. "
