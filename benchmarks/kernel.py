@@ -18,7 +18,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--bits", type=int, default=2048, help="bits of n (n^2 has twice as many)")
     ap.add_argument("--quick", action="store_true", help="smaller workloads, fewer repeats")
-    ap.add_argument("--no-append", action="store_true", help="do not append to RESULTS.md")
+    ap.add_argument("--no-append", action="store_true", help="do not append to history.md")
     args = ap.parse_args(argv)
     text = report(kernel_micro(args.bits, args.quick))
     print(text)

@@ -190,7 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--azimuth", type=finite_float, default=30.0, metavar="DEG", help="camera azimuth (default 30)")
     p.add_argument("--elevation", type=finite_float, default=20.0, metavar="DEG", help="camera elevation (default 20)")
 
-    p = sub.add_parser("bench", parents=[dask_opts], formatter_class=_RAW,
+    p = sub.add_parser("bench", parents=[_common(True, "2 (a 2-worker local cluster)")], formatter_class=_RAW,
                        help="benchmarks: the paper's Tables 1-3, limits, python-paillier, scaling",
                        description=_d("Reproduce the paper's Tables 1-3 (X-ray, storage, transfer function) with the "
                                    "paper's figures beside ours, measure against the limits (one modular "
@@ -205,6 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="keep the finished blocks of an earlier run of this setting")
     p.add_argument("--only", metavar="KINDS", help="comma-separated blocks: micro, t1, t2, t3, naive, scaling")
     p.add_argument("--work", metavar="DIR", help="scratch folder for the encrypted stores (default: a temporary one)")
+    p.add_argument("--report-only", action="store_true",
+                   help="measure nothing: rewrite the markdown and plot from the existing results JSON")
     return parser
 
 

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from hevr._bench import report
-from hevr._bench.runner import run_bench
+from hevr._bench.runner import rewrite_report, run_bench
 from hevr._bench.settings import PAPER, QUICK, SETTINGS
 from hevr.errors import ParameterError
 from hevr.cli import main
@@ -31,12 +31,22 @@ def test_bench_quick_cli_writes_everything(tmp_path, capsys):
     for dims in QUICK.dims:
         assert cells[f"t2.{QUICK.t3_bits[0]}.{dims}"]["ciphertext_bytes"] == 12**3 * dims * 2 * QUICK.t3_bits[0] // 8
     assert cells["naive.phe"]["nearest"]["max_abs_err"] < 1e-6
+    assert cells["naive.phe"]["nearest"]["max_abs_err_plain"] < 1e-6  # phe's naive render is right too
     assert doc["machine"]["cores"] >= 1 and doc["machine"]["versions"]["gmpy2"]
+    # the markdown is a pure function of the JSON
+    (tmp_path / "RESULTS-quick.md").unlink()
+    assert main(["bench", "--quick", "--report-only", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "RESULTS-quick.md").read_text() == md
     # a resumed run keeps every finished block and measures nothing again
     before = dict(doc["block_seconds"])
     run_bench("quick", tmp_path, resume=True, workers=0)
     again = json.loads((tmp_path / "results-quick.json").read_text())
     assert again["block_seconds"] == before and len(again["machines"]) == 2
+
+
+def test_report_only_needs_results(tmp_path):
+    with pytest.raises(ParameterError, match="out: expected .*results-quick.json"):
+        rewrite_report("quick", tmp_path)
 
 
 def test_only_rejects_unknown_block(tmp_path):

@@ -60,14 +60,15 @@ class Context:
     def camera(self, shape: tuple[int, ...]) -> Camera:
         return Camera.orbit(tuple(shape), azimuth=30, elevation=20, width=self.image, height=self.image)
 
-    def fresh(self) -> None:
-        self.workers.fresh()
+    def fresh(self) -> bool:
+        """Reset the workers' statistics and peak memory; False if the peak could not be reset."""
+        return self.workers.fresh()
 
 
 def encrypt_case(ctx: Context, vol: np.ndarray, private_key: PrivateKey, path: Path, *, dims: int = 1,
                  obfuscate: bool = True, brick: int | None = None) -> tuple[EncryptedVolume, dict]:
     """Encrypt ``vol`` (scalar if ``dims == 1`` else a ``dims``-vector encoding) on the workers."""
-    ctx.fresh()
+    reset = ctx.fresh()
     brick = brick or ctx.brick
     ev, wall = timed(lambda: encrypt_volume(
         vol, path, private_key, brick=brick, scalar=dims == 1, vector_dims=None if dims == 1 else dims,
@@ -78,7 +79,7 @@ def encrypt_case(ctx: Context, vol: np.ndarray, private_key: PrivateKey, path: P
             "obfuscated": obfuscate, "dims": dims, "crypto_core_s": st["seconds"].get("encrypt.crypto", 0.0),
             "write_core_s": st["seconds"].get("encrypt.write", 0.0), "peak_rss": ctx.workers.peak_rss(),
             "ciphertext_bytes": dir_bytes(Path(path) / ("scalar" if dims == 1 else "vector") / "c"),
-            "store_bytes": dir_bytes(path), "bits": private_key.public_key.bits}
+            "store_bytes": dir_bytes(path), "bits": private_key.public_key.bits, "peak_reset": reset}
     if obfuscate:
         cell["fixed_base_s"] = fixed_base_seconds(private_key)
     log.info("encrypt %s-bit dims=%d obf=%s: %.2f s", cell["bits"], dims, obfuscate, wall)
@@ -92,7 +93,7 @@ def render_case(ctx: Context, ev: EncryptedVolume, vol: np.ndarray, private_key:
     vector_dims = ev.vector_dims if mode == "tf" else None
     last: Exception | None = None
     for params in PARAM_LADDER:
-        ctx.fresh()
+        reset = ctx.fresh()
         t_mul = mulmod_seconds(ev.public_key.bits)
         try:
             img, wall = timed(lambda: render(ev, cam, mode=mode, sampling=sampling, nodes=nodes, cache=False,
@@ -117,7 +118,7 @@ def render_case(ctx: Context, ev: EncryptedVolume, vol: np.ndarray, private_key:
             "samples": int(rays.n_samples.sum()), "hit_rays": int((rays.n_samples > 0).sum()),
             "pairs": int(st["counts"].get("map.kernel", 0)), "kernel_core_s": st["seconds"].get("map.kernel", 0.0),
             "phases_core_s": st["seconds"], "mulmod_s": t_mul, "peak_rss": peak, "bits": ev.public_key.bits,
-            "map_tasks": img.stats.get("map_tasks")}
+            "map_tasks": img.stats.get("map_tasks"), "peak_reset": reset}
     log.info("render %s/%s %d-bit: %.2f s (decrypt %.2f s, max err %.2e)", mode, sampling, cell["bits"], wall,
              dec_s, cell["max_abs_err"])
     return cell
@@ -130,7 +131,8 @@ def remove(path: Path) -> None:
 def naive_phe_case(size: int, image: int, bits: int) -> dict:
     """What a Python user would write with python-paillier: one ``EncryptedNumber`` per voxel,
     and per pixel ``sum(w * E(v)) * (1 / n)`` with float weights (phe aligns exponents by
-    itself). Same geometry as hevr (one brick holding the whole volume), one core."""
+    itself). The (ray, voxel) weights come from hevr's own geometry, computed for one brick
+    holding the whole volume (so per ray, not split by brick), 6 decimal digits; one core."""
     import phe
 
     from ..weights import brick_weights
@@ -160,8 +162,10 @@ def naive_phe_case(size: int, image: int, bits: int) -> dict:
         pixels, render_s = timed(run)
         vals, dec_s = timed(lambda: [ppriv.decrypt(p) for p in pixels])
         ref = bw.apply(vol.astype(np.float64)) / rays.n_samples[bw.rays]
+        plain = render_plain(vol, cam, sampling=sampling).ravel()[bw.rays]
         out[sampling] = {"render_s": render_s, "decrypt_s": dec_s, "pixels": len(pixels), "pairs": bw.n_pairs,
-                         "max_abs_err": float(np.abs(np.asarray(vals) - ref).max())}
+                         "max_abs_err": float(np.abs(np.asarray(vals) - ref).max()),
+                         "max_abs_err_plain": float(np.abs(np.asarray(vals) - plain).max())}
         log.info("phe naive %s: render %.2f s, decrypt %.2f s", sampling, render_s, dec_s)
     return out
 

@@ -26,7 +26,7 @@ def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
     return out, time.perf_counter() - t0
 
 
-def mulmod_seconds(bits: int, number: int = 2000, repeat: int = 7) -> float:
+def mulmod_seconds(bits: int, number: int = 5000, repeat: int = 7) -> float:
     """Best time of one bare ``a * b % n2`` with ``n2`` of ``2 * bits`` bits (this process)."""
     n = mpz(secrets.randbits(bits)) | 1 | (mpz(3) << (bits - 2))
     n2 = n * n
@@ -34,12 +34,12 @@ def mulmod_seconds(bits: int, number: int = 2000, repeat: int = 7) -> float:
     return min(timeit.repeat(lambda: a * b % n2, number=number, repeat=repeat)) / number
 
 
-def fixed_base_seconds(private_key: Any, number: int = 50) -> float:
+def fixed_base_seconds(private_key: Any, number: int = 100) -> float:
     """Best per-call time of one owner-side mask: the two fixed-base table exponentiations
     (mod p² and q²) and their CRT combination — the floor of one secure encryption."""
     owner = private_key.owner
     owner.mask()  # tables built outside the timing
-    return min(timeit.repeat(owner.mask, number=number, repeat=3)) / number
+    return min(timeit.repeat(owner.mask, number=number, repeat=5)) / number
 
 
 def cpu_model() -> str:

@@ -9,8 +9,9 @@ log = logging.getLogger(__name__)
 
 
 def _points(doc: dict) -> list[tuple[str, float, float]]:
-    """(series, work, seconds) for every secure X-ray render of the run; work = samples ×
-    (bits / 1024)², the number of modular multiplications scaled by their cost."""
+    """(series, work, seconds) for every secure X-ray render of the run; work = (ray, voxel)
+    pairs × the measured time of one modular multiplication ÷ workers: the render's arithmetic,
+    which grows as samples × key size² once multiplications dominate."""
     c, s = doc["cells"], doc["setting"]
     pts = []
     for key, cell in c.items():
@@ -23,7 +24,7 @@ def _points(doc: dict) -> list[tuple[str, float, float]]:
             series = f"volume sizes, {parts[3]} ({s['scaling_bits']} bits)"
         else:
             continue
-        work = cell["samples"] * (cell["bits"] / 1024) ** 2
+        work = cell["pairs"] * cell["mulmod_s"] / cell["workers"]
         pts.append((series, work, cell["seconds"]))
     return pts
 
@@ -47,9 +48,8 @@ def plot_scaling(doc: dict, path: Path) -> Path | None:
         ax.loglog(xs, ys, marker=next(markers), label=series)
     lo = min(p[1] for p in pts)
     hi = max(p[1] for p in pts)
-    top = max(pts, key=lambda p: p[1])  # the line runs through the largest case: overheads matter least there
-    ax.loglog([lo, hi], [top[2] * lo / hi, top[2]], "k:", lw=1, label="∝ work (slope 1)")
-    ax.set_xlabel("work = samples × (key bits / 1024)²")
+    ax.loglog([lo, hi], [lo, hi], "k:", lw=1, label="one modular multiplication per pair (time = work)")
+    ax.set_xlabel("work = (ray, voxel) pairs × one `a·b mod n²` ÷ workers, s")
     ax.set_ylabel("render wall time, s")
     ax.set_title("Render time grows with the work")
     ax.legend(fontsize=7)
@@ -58,7 +58,7 @@ def plot_scaling(doc: dict, path: Path) -> Path | None:
     one = c.get("scale.workers.1")
     two = c.get(f"t1.{s['workers_bits']}.obf.trilinear")
     if one and two and "seconds" in one and "seconds" in two:
-        bx.bar(["1 worker", "2 workers"], [one["seconds"], two["seconds"]], color=["#999", "#37c"])
+        bx.bar(["1 worker", f"{two['workers']} workers"], [one["seconds"], two["seconds"]], color=["#999", "#37c"])
         bx.set_title(f"Trilinear X-ray, {s['size']}³, {s['workers_bits']} bits\n"
                      f"speed-up {one['seconds'] / two['seconds']:.2f}×", fontsize=9)
         bx.set_ylabel("s")

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import ParameterError
+from ..errors import MissingDependencyError, ParameterError
 from ..phantom import phantom
 from . import cases, measure
 from .crypto_micro import crypto_micro
@@ -161,24 +161,42 @@ def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, 
         bad = sorted(set(only) - set(BLOCK_KINDS))
         if bad:
             raise ParameterError(f"only: expected some of {', '.join(BLOCK_KINDS)}, got {', '.join(bad)}")
+    if only is None or {"micro", "naive"} & set(only):
+        try:
+            import phe  # noqa: F401
+        except ImportError:
+            raise MissingDependencyError("hevr bench compares with python-paillier: pip install phe (or "
+                                         "'hevr[test]'), or leave out the micro and naive blocks with --only") from None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     results = Results(out / f"results-{s.name}.json", s, resume)
     scratch = Path(work) if work else Path(tempfile.mkdtemp(prefix=f"hevr-bench-{s.name}-"))
     scratch.mkdir(parents=True, exist_ok=True)
-    with measure.workers(workers, scheduler) as w:
-        ctx = cases.Context(w, scratch, s.brick, s.image, progress)
-        for name, kind, fn in _blocks(s):
-            if (only is not None and kind not in only) or name in results.doc["blocks_done"]:
-                continue
-            log_line(f"[{time.strftime('%H:%M:%S')}] {name} …")
-            t0 = time.perf_counter()
-            fn(ctx, results, s)
-            results.doc["block_seconds"][name] = time.perf_counter() - t0
-            results.doc["blocks_done"].append(name)
-            results.save()
-            md = write_report(results.doc, out)
-            log_line(f"[{time.strftime('%H:%M:%S')}] {name} done in {time.perf_counter() - t0:.1f} s → {md}")
-    if not work:
-        cases.remove(scratch)
+    try:
+        with measure.workers(workers, scheduler) as w:
+            ctx = cases.Context(w, scratch, s.brick, s.image, progress)
+            for name, kind, fn in _blocks(s):
+                if (only is not None and kind not in only) or name in results.doc["blocks_done"]:
+                    continue
+                log_line(f"[{time.strftime('%H:%M:%S')}] {name} …")
+                t0 = time.perf_counter()
+                fn(ctx, results, s)
+                results.doc["block_seconds"][name] = time.perf_counter() - t0
+                results.doc["blocks_done"].append(name)
+                results.save()
+                md = write_report(results.doc, out)
+                log_line(f"[{time.strftime('%H:%M:%S')}] {name} done in {time.perf_counter() - t0:.1f} s → {md}")
+    finally:  # stores can be gigabytes; a resumed block re-encrypts anyway
+        if not work:
+            cases.remove(scratch)
     return write_report(results.doc, out)
+
+
+def rewrite_report(setting: str, out: str | Path) -> Path:
+    """Rewrite the markdown and plot of ``setting`` from ``out/results-<setting>.json`` only."""
+    from .report import write_report
+
+    path = Path(out) / f"results-{setting}.json"
+    if not path.is_file():
+        raise ParameterError(f"out: expected {path} from an earlier run, found none")
+    return write_report(json.loads(path.read_text()), Path(out))
