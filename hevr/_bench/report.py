@@ -70,7 +70,9 @@ def _header(doc: dict) -> list[str]:
     # the 1-worker scaling cell is the exception: the run's own worker count is the largest
     nw = max((c["workers"] for c in doc["cells"].values() if isinstance(c, dict) and "workers" in c), default=2)
     v = m["versions"]
-    vers = ", ".join(f"{k} {val}" for k, val in v.items() if val)
+    order = ["python", "hevr", "gmpy2", "numpy", "dask", "distributed", "zarr", "phe"]
+    keys = [k for k in order if k in v] + sorted(set(v) - set(order))  # JSON round trips sort keys
+    vers = ", ".join(f"{k} {v[k]}" for k in keys if v[k])
     restarts = len(doc.get("machines", [])) - 1
     return [
         f"# hevr benchmarks — `hevr bench --{s['name']}`" if s["name"] != "default" else "# hevr benchmarks — `hevr bench`",
