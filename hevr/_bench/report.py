@@ -383,7 +383,7 @@ def markdown(doc: dict) -> str:
         parts += ["## Not (yet) run in this setting", "", ", ".join(todo), ""]
     secs = doc.get("block_seconds", {})
     parts += [f"Whole run: {sum(secs.values()) / 60:,.1f} min of measuring ("
-              + ", ".join(f"{k} {v / 60:.1f}" for k, v in secs.items()) + " min).", ""]
+              + ", ".join(f"{k} {secs[k] / 60:.1f}" for k in doc["blocks_done"] if k in secs) + " min).", ""]
     return "\n".join(parts)
 
 
