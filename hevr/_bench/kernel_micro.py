@@ -34,7 +34,6 @@ import platform
 import secrets
 import time
 import timeit
-from pathlib import Path
 
 import gmpy2
 import numpy as np
@@ -42,20 +41,11 @@ from gmpy2 import mpz
 
 from .._mpzbytes import bytes_to_mpz, mpz_to_bytes
 from ..kernel import OpCounter, brick_ray_products
+from .measure import cpu_model
 
 # CPU time of this process: other jobs on the machine do not count against the kernel.
 CLOCK = time.process_time
 GOALS = {"nearest": 1.3, "nearest-nodup": 1.3, "trilinear": 3.0}
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.lower().startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def _to_csr(rows: list[dict[int, float]]):
