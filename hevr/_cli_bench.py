@@ -10,7 +10,7 @@ from ._cli_util import show_progress, warn_line
 BENCH_EPILOG = """\
 examples:
   hevr bench --quick              # ~20 s: 12^3 voxels, 16x16 px, keys 64-256 bits (CI smoke test)
-  hevr bench                      # ~10 min: 32^3, 48x48 px, keys 256-1024 bits
+  hevr bench                      # ~1 min: 32^3, 48x48 px, keys 256-1024 bits
   hevr bench --paper              # the paper's tables: 100^3, 150x150 px, keys 64-3072 bits: ~2 h on 2 cores
   hevr bench --paper --resume     # continue a stopped run (finished blocks are kept)
   hevr bench --only t1,micro      # some blocks only: micro, t1, t2, t3, naive, scaling
