@@ -11,7 +11,7 @@ BENCH_EPILOG = """\
 examples:
   hevr bench --quick              # ~20 s: 12^3 voxels, 16x16 px, keys 64-256 bits (CI smoke test)
   hevr bench                      # ~1 min: 32^3, 48x48 px, keys 256-1024 bits
-  hevr bench --paper              # the paper's tables: 100^3, 150x150 px, keys 64-3072 bits: ~2 h on 2 cores
+  hevr bench --paper              # the paper's tables: 100^3, 150x150 px, keys 64-3072 bits: ~1.5 h on 2 cores
   hevr bench --paper --resume     # continue a stopped run (finished blocks are kept)
   hevr bench --only t1,micro      # some blocks only: micro, t1, t2, t3, naive, scaling
   hevr bench --paper --report-only  # rewrite RESULTS.md and the plot from results-paper.json
@@ -29,7 +29,7 @@ def cmd_bench(args: Any) -> int:
     only = tuple(k.strip() for k in args.only.split(",") if k.strip()) if args.only else None
     workers = 2 if args.workers is None else args.workers
     if args.paper and not args.resume and not args.report_only:
-        warn_line("the paper's setting takes about 2 hours on 2 cores (mostly encrypting ~60 million masked "
+        warn_line("the paper's setting takes about 1.5 hours on 2 cores (mostly encrypting ~60 million masked "
                   "ciphertexts); "
                   "results are saved after every cell: stop with Ctrl-C and continue with --resume")
     if args.report_only:

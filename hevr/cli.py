@@ -200,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=BENCH_EPILOG)
     g = p.add_mutually_exclusive_group()
     g.add_argument("--quick", action="store_true", help="a smoke run in about a minute (tiny volume and keys)")
-    g.add_argument("--paper", action="store_true", help="the paper's setting: 100^3, 150x150, keys 64-3072 bits (hours)")
+    g.add_argument("--paper", action="store_true", help="the paper's setting: 100^3, 150x150, keys 64-3072 bits (~1.5 h)")
     p.add_argument("--out", metavar="DIR", help="output folder (default ./benchmarks if it exists, else .)")
     p.add_argument("--resume", action="store_true", help="keep the finished blocks of an earlier run of this setting")
     p.add_argument("--only", metavar="KINDS", help="comma-separated blocks: micro, t1, t2, t3, naive, scaling")
