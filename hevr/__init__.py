@@ -18,19 +18,19 @@ from .errors import (
     VolumeFormatError,
 )
 
-from .camera import Camera
-from .density import encode_density, normalize_density
-from .encoding import BASE, decode, encode
-from .keyfile import load_key
-from .keys import PrivateKey, PublicKey, generate_keypair
+from .rendering.camera import Camera
+from .volume.density import encode_density, normalize_density
+from .crypto.encoding import BASE, decode, encode
+from .crypto.keyfile import load_key
+from .crypto.keys import PrivateKey, PublicKey, generate_keypair
 from .image import EncryptedImage, load_image, save_png, to_uint8
-from .io import load_volume, save_volume
-from .number import EncryptedNumber
-from .phantom import PHANTOM_LEVELS, phantom
-from .plain import render_plain
-from .renderer import RaySums, clear_cache, error_bound, render
-from .store import encrypt_volume
-from .volume import EncryptedVolume, open_volume
+from .volume.loaders import load_volume, save_volume
+from .crypto.number import EncryptedNumber
+from .volume.phantom import PHANTOM_LEVELS, phantom
+from .rendering.plain import render_plain
+from .rendering.encrypted import RaySums, clear_cache, error_bound, render
+from .store.writer import encrypt_volume
+from .store.reader import EncryptedVolume, open_volume
 
 __version__ = "0.1.0"
 

@@ -1,8 +1,8 @@
-"""``python -m hevr``: the command line (see :mod:`hevr.cli`)."""
+"""``python -m hevr``: the command line (see :mod:`hevr.cli.main`)."""
 
 import sys
 
-from .cli import main
+from .cli.main import main
 
 if __name__ == "__main__":
     sys.exit(main())

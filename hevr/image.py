@@ -89,7 +89,7 @@ class EncryptedImage:
 
     def decrypt_mantissas(self, private_key: Any) -> np.ndarray:
         """Integer mantissas (offset removed) as an object array of the image shape."""
-        from .keys import PrivateKey
+        from .crypto.keys import PrivateKey
 
         if not isinstance(private_key, PrivateKey):
             raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
@@ -98,7 +98,7 @@ class EncryptedImage:
                 f"private_key: the image was encrypted under key {self.fingerprint[:16]}…, "
                 f"got a key with fingerprint {private_key.public_key.fingerprint[:16]}…"
             )
-        from ._mpzbytes import bytes_to_mpz
+        from .crypto.records import bytes_to_mpz
 
         C = self.channels
         H, W = self.shape[:2]

@@ -101,7 +101,7 @@ QUICKSTART = [
     from distributed import Client, LocalCluster
 
     import hevr
-    from hevr.renderer import error_bound
+    from hevr.rendering.encrypted import error_bound
 
     WORKDIR = tempfile.mkdtemp(prefix="hevr-quickstart-")
     print("hevr", hevr.__version__, "- temporary files in", WORKDIR)
@@ -256,7 +256,7 @@ QUICKSTART = [
     `hevr.render_plain` renders the *unencrypted* volume with the same camera and
     sampling. The encrypted pipeline works with fixed-point numbers (trilinear weights
     with 3 decimals, a 4-digit reciprocal), so the two differ slightly;
-    `hevr.renderer.error_bound` gives the guaranteed per-pixel bound.
+    `hevr.rendering.encrypted.error_bound` gives the guaranteed per-pixel bound.
     """),
     code("""
     reference = hevr.render_plain(vol, cam, mode="xray", sampling=SAMPLING, step=STEP)
@@ -352,7 +352,7 @@ TRANSFER = [
     EMPHASIS_DENSITIES = [0.653, 0.331, 0.781]
 
     # The paper's colour figure. Colours are (r, g, b) in [0, 1], '#rrggbb' or CSS names
-    # (hevr.modes.parse_color); note that CSS "green" and "purple" are half-intensity
+    # (hevr.rendering.modes.parse_color); note that CSS "green" and "purple" are half-intensity
     # (0, 0.5, 0) and (0.5, 0, 0.5) - use "lime" or (0, 1, 0) for pure green.
     TRANSFER_FUNCTIONS = {
         "blue 0.279, red 0.797": [(0.279, "blue"), (0.797, "red")],
@@ -379,8 +379,8 @@ TRANSFER = [
 
     import hevr
     from hevr.image import to_uint8
-    from hevr.modes import CSS_COLORS, parse_color
-    from hevr.renderer import error_bound
+    from hevr.rendering.modes import CSS_COLORS, parse_color
+    from hevr.rendering.encrypted import error_bound
 
     WORKDIR = tempfile.mkdtemp(prefix="hevr-tf-")
     """),
@@ -413,7 +413,7 @@ TRANSFER = [
 
     `render_and_check` renders on the server, decrypts on the client, renders the
     plaintext reference and asserts that every pixel is within the guaranteed error bound
-    (`hevr.renderer.error_bound`). It also records the render statistics: `map_tasks` is
+    (`hevr.rendering.encrypted.error_bound`). It also records the render statistics: `map_tasks` is
     the number of per-brick tasks that ran (0 when the cached ray sums were reused).
     """),
     code("""
@@ -641,7 +641,7 @@ SCALING = [
     from distributed import Client, LocalCluster
 
     import hevr
-    from hevr.renderer import error_bound
+    from hevr.rendering.encrypted import error_bound
 
     # Small keys are the point of this experiment: silence the InsecureKeyWarning.
     warnings.filterwarnings("ignore", category=hevr.InsecureKeyWarning)
@@ -697,7 +697,7 @@ SCALING = [
     warm_cam = hevr.Camera.orbit(ev_a, azimuth=AZIMUTH, elevation=ELEVATION, width=8, height=8)
 
     def warm_up():
-        import hevr.renderer  # noqa: F401  (runs on every worker)
+        import hevr.rendering.encrypted  # noqa: F401  (runs on every worker)
 
     cluster, client = start_cluster(WORKER_COUNTS[0])
     worker_seconds = {}

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 import hevr
-from hevr.keys import generate_keypair
+from hevr.crypto.keys import generate_keypair
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 

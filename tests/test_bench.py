@@ -10,7 +10,7 @@ from hevr._bench import report
 from hevr._bench.runner import rewrite_report, run_bench
 from hevr._bench.settings import PAPER, QUICK, SETTINGS
 from hevr.errors import ParameterError
-from hevr.cli import main
+from hevr.cli.main import main
 
 
 @pytest.mark.slow

@@ -1,4 +1,4 @@
-"""Tests for hevr.camera.Camera (VTK conventions of API.md)."""
+"""Tests for hevr.rendering.camera.Camera (VTK conventions of API.md)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hevr.camera import Camera
+from hevr.rendering.camera import Camera
 from hevr.errors import ParameterError
 
 

@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 import hevr
-from hevr.cli import main
+from hevr.cli.main import main
 from hevr.image import to_uint8
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
@@ -183,7 +183,7 @@ def test_verbose_shows_traceback(work, capsys):
 
 
 def test_mode_inference_and_tf_parsing():
-    from hevr._cli_util import parse_tf, size_type
+    from hevr.cli.util import parse_tf, size_type
 
     assert parse_tf("0.279:#0000ff, 0.797:red") == [(0.279, (0.0, 0.0, 1.0)), (0.797, (1.0, 0.0, 0.0))]
     assert size_type("150x100") == (150, 100) and size_type("64") == (64, 64)

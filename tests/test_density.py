@@ -1,4 +1,4 @@
-"""Tests for hevr.density: the paper's Alg. 4 encodeDensity and density normalisation."""
+"""Tests for hevr.volume.density: the paper's Alg. 4 encodeDensity and density normalisation."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hevr.density import default_value_range, encode_density, normalize_density
+from hevr.volume.density import default_value_range, encode_density, normalize_density
 from hevr.errors import HevrError, ParameterError
 
 

@@ -1,4 +1,4 @@
-"""Tests for hevr.io (load_volume / save_volume) and the NRRD reader in hevr._nrrd."""
+"""Tests for hevr.volume.loaders (load_volume / save_volume) and the NRRD reader in hevr.volume.nrrd."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hevr.errors import HevrError, MissingDependencyError, ParameterError, VolumeFormatError
-from hevr.io import load_volume, save_volume
+from hevr.volume.loaders import load_volume, save_volume
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 TOOTH_SHA512 = "5ee3d77ae951e129d29062a4fd4d8730fd8670bd"
@@ -202,7 +202,7 @@ def test_oblique_space_directions_use_vector_lengths(tmp_path: Path,
     (tmp_path / "o.nhdr").write_text(_nrrd_header(
         space_dimension="3", space_directions="(0.6,0.8,0) (-1.6,1.2,0) (0,0,-3)",
         data_file="my data.raw"))
-    with caplog.at_level("INFO", logger="hevr._nrrd"):
+    with caplog.at_level("INFO", logger="hevr.volume.nrrd"):
         vol, spacing = load_volume(tmp_path / "o.nhdr")
     _check(vol, arr)
     assert spacing == pytest.approx((1.0, 2.0, 3.0))

@@ -1,4 +1,4 @@
-"""Tests of hevr.kernel: products against a naive prod-of-powmod, and operation counts."""
+"""Tests of hevr.rendering.kernel: products against a naive prod-of-powmod, and operation counts."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hevr.errors import ParameterError
-from hevr.kernel import OpCounter, brick_ray_products, brick_ray_products_multi
+from hevr.rendering.kernel import OpCounter, brick_ray_products, brick_ray_products_multi
 
 
 def _modulus(rng: np.random.Generator, bits: int) -> mpz:

@@ -12,8 +12,8 @@ import phe
 import pytest
 
 import hevr
-from hevr.keyfile import load_key
-from hevr.keys import PrivateKey, PublicKey, generate_keypair
+from hevr.crypto.keyfile import load_key
+from hevr.crypto.keys import PrivateKey, PublicKey, generate_keypair
 
 
 @pytest.mark.parametrize("bits", [64, 66, 128, 256, 510, 512])

@@ -13,9 +13,9 @@ import pytest
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr.mapreduce import FAN_IN, build_sums_graph
-from hevr.renderer import error_bound
-from hevr.sampling import cast_rays
+from hevr.rendering.graph import FAN_IN, build_sums_graph
+from hevr.rendering.encrypted import error_bound
+from hevr.rendering.rays import cast_rays
 
 SHAPE = (7, 9, 11)
 BRICK = (3, 4, 5)

@@ -1,13 +1,13 @@
-"""Tests for hevr.modes: colours, render-spec validation and combination matrices."""
+"""Tests for hevr.rendering.modes: colours, render-spec validation and combination matrices."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from hevr.density import encode_density
+from hevr.volume.density import encode_density
 from hevr.errors import ParameterError
-from hevr.modes import (
+from hevr.rendering.modes import (
     MODES,
     SAMPLINGS,
     RenderSpec,

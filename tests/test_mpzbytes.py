@@ -1,4 +1,4 @@
-"""Tests of hevr._mpzbytes: fixed-width big-endian records <-> lists of mpz."""
+"""Tests of hevr.crypto.records: fixed-width big-endian records <-> lists of mpz."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from gmpy2 import mpz
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import hevr._mpzbytes as mb
-from hevr._mpzbytes import bytes_to_mpz, mpz_to_bytes
+import hevr.crypto.records as mb
+from hevr.crypto.records import bytes_to_mpz, mpz_to_bytes
 from hevr.errors import ParameterError
 
 

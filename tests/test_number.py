@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hevr
-from hevr.encoding import decode, decode_exact, encode, reciprocal
+from hevr.crypto.encoding import decode, decode_exact, encode, reciprocal
 
 FLOATS = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False)
 EXPS = st.integers(min_value=-8, max_value=3)

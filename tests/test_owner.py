@@ -6,8 +6,8 @@ import gmpy2
 import pytest
 from gmpy2 import mpz
 
-from hevr import _primes
-from hevr._owner import OwnerEncryptor
+from hevr.crypto import primes as _primes
+from hevr.crypto.owner import OwnerEncryptor
 
 
 def test_mask_is_nth_residue(keypair):
@@ -58,7 +58,7 @@ def test_masks_cover_the_subgroup_uniformly_on_a_tiny_key():
 
 def test_fallback_without_factorisation_is_exact(keypair256, monkeypatch):
     _, priv = keypair256
-    monkeypatch.setattr("hevr._owner.factor_p_minus_1", lambda p: None)
+    monkeypatch.setattr("hevr.crypto.owner.factor_p_minus_1", lambda p: None)
     owner = OwnerEncryptor(priv.p, priv.q)
     assert not owner.uses_tables
     cs = owner.encrypt_residues([mpz(5), mpz(0)])

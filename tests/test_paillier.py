@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hevr
-from hevr import _paillier as raw
-from hevr.keys import PrivateKey, PublicKey
+from hevr.crypto import paillier as raw
+from hevr.crypto.keys import PrivateKey, PublicKey
 
 VALUES = st.integers(min_value=-(2**60), max_value=2**60)
 

@@ -1,4 +1,4 @@
-"""Tests for hevr.phantom: the paper's cube-in-sphere test object."""
+"""Tests for hevr.volume.phantom: the paper's cube-in-sphere test object."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hevr.errors import ParameterError
-from hevr.phantom import PHANTOM_LEVELS, phantom
+from hevr.volume.phantom import PHANTOM_LEVELS, phantom
 
 
 def _levels(dtype: np.dtype) -> dict[str, float]:

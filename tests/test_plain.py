@@ -1,4 +1,4 @@
-"""Tests for hevr.plain.render_plain, the plaintext reference renderer."""
+"""Tests for hevr.rendering.plain.render_plain, the plaintext reference renderer."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from hevr.camera import Camera
-from hevr.density import encode_density
+from hevr.rendering.camera import Camera
+from hevr.volume.density import encode_density
 from hevr.errors import HevrError, ParameterError
-from hevr.modes import parse_color
-from hevr.plain import render_plain
-from hevr.sampling import cast_rays
+from hevr.rendering.modes import parse_color
+from hevr.rendering.plain import render_plain
+from hevr.rendering.rays import cast_rays
 
 _NODES = [(0.279, (0, 0, 1)), (0.797, "red"), (0.5, "#00ff00")]
 _MODE_KW = {"xray": {}, "emphasize": {"density": 0.653}, "tf": {"nodes": _NODES}}
@@ -186,7 +186,7 @@ def test_degenerate_camera_is_a_hevr_error() -> None:
 
 
 def test_chunking_does_not_change_the_result(monkeypatch: pytest.MonkeyPatch) -> None:
-    import hevr.plain as plain
+    import hevr.rendering.plain as plain
 
     shape = (6, 7, 8)
     vol = np.random.default_rng(4).random(shape)

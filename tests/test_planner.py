@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr.keys import generate_keypair
+from hevr.crypto.keys import generate_keypair
 
 SHAPE = (6, 7, 8)
 
@@ -45,7 +45,7 @@ def test_64_bit_key_accepts_feasible_render_and_decrypts_right(tiny, mode, kw, s
                       progress=False, **kw)
     got = img.decrypt(priv)
     ref = hevr.render_plain(vol, cam, mode=mode, sampling=sampling, vector_dims=3, **kw)
-    bound = hevr.renderer.error_bound(ev, cam, mode, sampling, digits=2, precision=2, comb_digits=2, **kw)
+    bound = hevr.rendering.encrypted.error_bound(ev, cam, mode, sampling, digits=2, precision=2, comb_digits=2, **kw)
     assert np.all(np.abs(got - ref) <= bound)
 
 
@@ -59,7 +59,7 @@ def test_signed_volume_uses_public_offset(tmp_path, keypair256):
     assert img.offset > 0 and img.per_pack > 1
     got = img.decrypt(priv)
     ref = hevr.render_plain(vol, cam, sampling="trilinear", value_range=ev.value_range)
-    assert np.all(np.abs(got - ref) <= hevr.renderer.error_bound(ev, cam, "xray", "trilinear"))
+    assert np.all(np.abs(got - ref) <= hevr.rendering.encrypted.error_bound(ev, cam, "xray", "trilinear"))
     assert got.min() < 0  # negative pixel values survive packing
 
 

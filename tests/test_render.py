@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr import renderer as render_mod
-from hevr._mpzbytes import bytes_to_mpz
-from hevr.renderer import error_bound
+from hevr.rendering import encrypted as render_mod
+from hevr.crypto.records import bytes_to_mpz
+from hevr.rendering.encrypted import error_bound
 
 SHAPE = (7, 9, 11)  # odd, non-cubic
 BRICK = (3, 4, 5)  # 3 bricks per axis

@@ -1,4 +1,4 @@
-"""Tests for hevr.sampling: ray/box clipping and the shared sample-position helpers."""
+"""Tests for hevr.rendering.rays: ray/box clipping and the shared sample-position helpers."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from hevr.camera import Camera
+from hevr.rendering.camera import Camera
 from hevr.errors import ParameterError
-from hevr.sampling import (
+from hevr.rendering.rays import (
     RaySet,
     cast_rays,
     check_shape,

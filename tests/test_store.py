@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr import store as store_mod
-from hevr.density import encode_density, normalize_density
+from hevr.store import writer as store_mod
+from hevr.volume.density import encode_density, normalize_density
 
 SHAPE = (5, 7, 9)
 BRICK = (2, 3, 4)  # 3 x 3 x 3 bricks, ragged at every edge

@@ -1,4 +1,4 @@
-"""Tests for hevr.weights: per-brick integer weights of the encrypted path."""
+"""Tests for hevr.rendering.weights: per-brick integer weights of the encrypted path."""
 
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import hevr.weights as weights_mod
-from hevr.camera import Camera
-from hevr.density import encode_density, normalize_density
+import hevr.rendering.weights as weights_mod
+from hevr.rendering.camera import Camera
+from hevr.volume.density import encode_density, normalize_density
 from hevr.errors import ParameterError
-from hevr.modes import combination_matrix, make_spec, normalisation_factor
-from hevr.plain import render_plain
-from hevr.sampling import cast_rays
-from hevr.weights import BrickWeights, brick_bounds, brick_grid, brick_weights, touched_bricks
+from hevr.rendering.modes import combination_matrix, make_spec, normalisation_factor
+from hevr.rendering.plain import render_plain
+from hevr.rendering.rays import cast_rays
+from hevr.rendering.weights import BrickWeights, brick_bounds, brick_grid, brick_weights, touched_bricks
 
 SHAPE, BRICK, SPACING, STEP = (7, 9, 11), (3, 4, 5), (0.8, 1.1, 1.3), 0.7
 _NODES = [(0.279, (0, 0, 1)), (0.797, "red"), (0.5, "#00ff00")]

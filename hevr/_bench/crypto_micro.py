@@ -8,7 +8,7 @@ import time
 import warnings
 
 from ..errors import InsecureKeyWarning
-from ..keys import generate_keypair
+from ..crypto.keys import generate_keypair
 
 
 def per_op(fn, args, repeat=3):

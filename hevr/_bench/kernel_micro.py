@@ -1,4 +1,4 @@
-"""Benchmark of :mod:`hevr.kernel` on realistic per-brick CSR workloads.
+"""Benchmark of :mod:`hevr.rendering.kernel` on realistic per-brick CSR workloads.
 
 Usage::
 
@@ -39,8 +39,8 @@ import gmpy2
 import numpy as np
 from gmpy2 import mpz
 
-from .._mpzbytes import bytes_to_mpz, mpz_to_bytes
-from ..kernel import OpCounter, brick_ray_products
+from ..crypto.records import bytes_to_mpz, mpz_to_bytes
+from ..rendering.kernel import OpCounter, brick_ray_products
 from .measure import cpu_model
 
 # CPU time of this process: other jobs on the machine do not count against the kernel.

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..errors import MissingDependencyError, ParameterError
-from ..phantom import phantom
+from ..volume.phantom import phantom
 from . import cases, measure
 from .crypto_micro import crypto_micro
 from .kernel_micro import kernel_micro

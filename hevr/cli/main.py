@@ -1,0 +1,283 @@
+"""The ``hevr`` command line: keygen, encrypt, render, decrypt, info, demo, bench.
+
+Run ``hevr COMMAND --help`` for each command's options and an example. Errors are one
+line on stderr, ``hevr: error: …``, with exit code 2 for a bad command line and 1 for
+anything that goes wrong while running; ``--verbose`` adds INFO logging and tracebacks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import textwrap
+import traceback
+import warnings
+from typing import Any, Sequence
+
+from .. import __version__
+from .util import (
+    PAPER_TF1,
+    UsageError,
+    bits_type,
+    brick_type,
+    err_line,
+    finite_float,
+    floats_type,
+    nonneg_int,
+    positive_float,
+    positive_int,
+    range_type,
+    size_type,
+    tf_type,
+    unit_float,
+    vector_dims_type,
+)
+from ..errors import HevrError
+
+__all__ = ["main", "build_parser"]
+
+_RAW = argparse.RawDescriptionHelpFormatter
+
+
+def _d(text: str) -> str:
+    """Wrap a description (RawDescriptionHelpFormatter keeps the examples' layout)."""
+    return textwrap.fill(text, 88)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is ONE line on stderr (exit code 2)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        err_line(f"{message} (see '{self.prog} --help')")
+        raise SystemExit(2)
+
+
+def _common(dask: bool, workers_default: str = "Dask's default threaded scheduler") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(add_help=False)
+    g = p.add_argument_group("general options")
+    if dask:
+        g.add_argument("--scheduler", metavar="ADDRESS",
+                       help="join a running Dask cluster, e.g. tcp://10.0.0.5:8786 (store paths must be "
+                            "reachable from its workers)")
+        g.add_argument("--workers", type=nonneg_int, metavar="N",
+                       help="start a local Dask cluster of N worker processes (1 thread each) for this "
+                            f"command (0: none); default: {workers_default}")
+    g.add_argument("-v", "--verbose", action="store_true", help="INFO logging, and tracebacks on errors")
+    g.add_argument("-q", "--quiet", action="store_true", help="no progress bars (they are only drawn on a terminal anyway)")
+    return p
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="hevr", formatter_class=_RAW,
+        description=_d("Privacy-preserving remote volume rendering on Paillier-encrypted volumes "
+                    "(after Mazza, Patel, Viola, TVCG 2020)."),
+        epilog="typical session:\n"
+               "  hevr keygen --bits 2048 --out key.json             # data owner: key pair\n"
+               "  hevr encrypt phantom:64 --key key.json --out vol.zarr --vector-dims 4\n"
+               "  hevr render vol.zarr --out frame.hevr --mode tf --tf '0.279:blue,0.797:red'   # server side\n"
+               "  hevr decrypt frame.hevr --key key.json --out frame.png   # client: only the key holder sees it\n"
+               "  hevr demo                                          # all of the above on the paper's figures\n")
+    parser.add_argument("--version", action="version", version=f"hevr {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    dask_opts, plain_opts = _common(True), _common(False)
+    demo_opts = _common(True, "2 (a 2-worker local cluster)")
+
+    p = sub.add_parser("keygen", parents=[plain_opts], formatter_class=_RAW,
+                       help="generate a Paillier key pair",
+                       description=_d("Generate a Paillier key pair: the private key file (mode 0600) and the "
+                                   "public key beside it (key.json -> key.pub.json)."),
+                       epilog="example:\n  hevr keygen --bits 2048 --out key.json\n")
+    p.add_argument("--bits", type=bits_type, default=2048, help="modulus size n in bits (default 2048; "
+                                                                "smaller keys are for tests and demos only)")
+    p.add_argument("--out", default="key.json", metavar="KEY.json", help="private key file (default key.json)")
+    p.add_argument("--force", action="store_true", help="overwrite existing key files")
+
+    p = sub.add_parser("encrypt", parents=[dask_opts], formatter_class=_RAW,
+                       help="encrypt a volume into a Zarr store",
+                       description=_d("Encrypt a volume voxel by voxel into a Zarr v3 store of Paillier ciphertexts, "
+                                   "one Dask task per brick. The store holds the public key and ciphertexts only."),
+                       epilog="examples:\n"
+                              "  hevr encrypt phantom:100 --key key.pub.json --out vol.zarr --vector-dims 4\n"
+                              "  hevr encrypt tooth_103x94x161_uint8.raw --key key.json --out tooth.zarr --workers 2\n"
+                              "  hevr encrypt ct.nii.gz --key key.pub.json --out ct.zarr --resume\n"
+                              "\nINPUT: .npy, .raw (shape/type from a name like tooth_103x94x161_uint8.raw), .nrrd, "
+                              ".nhdr,\n.nii/.nii.gz, a DICOM folder, or phantom:N (the paper's test object, N^3 voxels).\n"
+                              "A private --key selects the owner-side fast path (same ciphertexts, much faster).\n")
+    p.add_argument("input", metavar="INPUT", help="volume file or folder, or phantom:N")
+    p.add_argument("--key", required=True, metavar="KEY", help="public key (key.pub.json) or private key file")
+    p.add_argument("--out", required=True, metavar="STORE", help="target store, e.g. vol.zarr")
+    p.add_argument("--vector-dims", type=vector_dims_type, metavar="K",
+                   help="also store the paper's K-dimensional density encoding (needed for emphasize/tf; "
+                        "the paper uses 4)")
+    p.add_argument("--brick", type=brick_type, default=32, metavar="N|BZ,BY,BX", help="brick edge (default 32)")
+    p.add_argument("--resume", action="store_true", help="finish an interrupted run (only missing bricks)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    p.add_argument("--no-scalar", action="store_true", help="skip the scalar channel (no X-ray rendering)")
+    p.add_argument("--value-range", type=range_type, metavar="LO,HI",
+                   help="density normalisation range (default: the dtype's range for integers, "
+                        "the data range for floats)")
+    p.add_argument("--digits", type=nonneg_int, metavar="D", help="decimal digits kept of float voxels (default 3)")
+    p.add_argument("--spacing", type=floats_type(3, "SX,SY,SZ", positive=True), metavar="SX,SY,SZ",
+                   help="voxel spacing, overriding the file's")
+    p.add_argument("--trust-scheduler", action="store_true",
+                   help="allow a private --key with --scheduler (sends p, q to that cluster's workers)")
+
+    p = sub.add_parser("render", parents=[dask_opts], formatter_class=_RAW,
+                       help="render an encrypted volume to an encrypted image (no key needed)",
+                       description=_d("Ray-cast an encrypted volume on the Dask cluster. Never needs the secret key: "
+                                   "the result is an encrypted .hevr frame only the key holder can decrypt."),
+                       epilog="examples:\n"
+                              "  hevr render vol.zarr --out xray.hevr --sampling trilinear --azimuth 30 --elevation 20\n"
+                              "  hevr render vol.zarr --out emph.hevr --mode emphasize --density 0.653\n"
+                              "  hevr render vol.zarr --out tf.hevr --mode tf --tf '0.279:#0000ff,0.797:red'\n"
+                              "\n--mode defaults to emphasize with --density, tf with --tf, else xray.\n")
+    p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
+    p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
+    p.add_argument("--mode", choices=("xray", "emphasize", "tf"), help="render mode (default: see below)")
+    p.add_argument("--sampling", choices=("nearest", "trilinear"), default="nearest",
+                   help="sampling along the rays (default nearest)")
+    p.add_argument("--azimuth", type=finite_float, default=0.0, metavar="DEG",
+                   help="camera azimuth about the y axis (default 0: looking from +z)")
+    p.add_argument("--elevation", type=finite_float, default=0.0, metavar="DEG", help="camera elevation (default 0)")
+    p.add_argument("--size", type=size_type, default=(150, 150), metavar="WxH", help="image size (default 150x150)")
+    p.add_argument("--view-angle", type=positive_float, default=30.0, metavar="DEG",
+                   help="vertical view angle (default 30)")
+    p.add_argument("--parallel", action="store_true", help="parallel projection instead of perspective")
+    p.add_argument("--step", type=positive_float, default=1.0, metavar="S", help="sample spacing in world units (default 1)")
+    p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
+    p.add_argument("--tf", type=tf_type, metavar="NODES",
+                   help=f"transfer function DENSITY:COLOR,... (colours #rrggbb, #rgb or CSS names; "
+                        f"default {PAPER_TF1})")
+    p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext (bigger, slower to decrypt)")
+    p.add_argument("--precision", type=nonneg_int, default=4, metavar="P",
+                   help="decimal digits of the normalisation (default 4)")
+
+    p = sub.add_parser("decrypt", parents=[plain_opts], formatter_class=_RAW,
+                       help="decrypt an encrypted image to PNG",
+                       description=_d("Decrypt an encrypted .hevr frame with the private key and write a PNG."),
+                       epilog="example:\n  hevr decrypt frame.hevr --key key.json --out frame.png --npy frame.npy\n")
+    p.add_argument("frame", metavar="FRAME", help="encrypted image (.hevr)")
+    p.add_argument("--key", required=True, metavar="KEY.json", help="private key file")
+    p.add_argument("--out", metavar="PNG", help="PNG to write (default: FRAME with .png)")
+    p.add_argument("--npy", metavar="FILE.npy", help="also save the float64 pixel values")
+    p.add_argument("--window", type=range_type, metavar="LO,HI",
+                   help="grey/colour window of the PNG (default 0 .. 99.9th percentile)")
+
+    p = sub.add_parser("info", parents=[plain_opts], formatter_class=_RAW,
+                       help="describe a store, a frame, a key or a volume file",
+                       description=_d("Print what is public about a store, an encrypted frame, a key file or a "
+                                   "volume file. Never prints secret-key material."),
+                       epilog="examples:\n  hevr info vol.zarr\n  hevr info frame.hevr\n  hevr info key.pub.json\n")
+    p.add_argument("path", metavar="PATH")
+
+    from .bench import BENCH_EPILOG
+    from .demo import DEMO_EPILOG
+
+    p = sub.add_parser("demo", parents=[demo_opts], formatter_class=_RAW,
+                       help="the whole pipeline on the paper's figures, no input needed",
+                       description=_d("Generate the paper's phantom (or read --input), make a key, encrypt, render the "
+                                   "paper's figure set on a local Dask cluster, decrypt, and compare every image with "
+                                   "its plaintext reference. Writes PNGs, a contact sheet, report.md and summary.json."),
+                       epilog=DEMO_EPILOG)
+    p.add_argument("--out", default="hevr-demo", metavar="DIR", help="output folder (default hevr-demo)")
+    p.add_argument("--size", type=positive_int, default=32, metavar="N", help="phantom edge in voxels (default 32)")
+    p.add_argument("--image", type=size_type, default=(48, 48), metavar="WxH", help="image size (default 48x48)")
+    p.add_argument("--bits", type=bits_type, default=512, metavar="B", help="key size (default 512: demo only)")
+    p.add_argument("--input", metavar="FILE", help="render this volume (any INPUT of 'hevr encrypt') instead of the phantom")
+    p.add_argument("--brick", type=brick_type, metavar="N|BZ,BY,BX", help="brick edge (default: a third of the volume)")
+    p.add_argument("--azimuth", type=finite_float, default=30.0, metavar="DEG", help="camera azimuth (default 30)")
+    p.add_argument("--elevation", type=finite_float, default=20.0, metavar="DEG", help="camera elevation (default 20)")
+
+    p = sub.add_parser("bench", parents=[_common(True, "2 (a 2-worker local cluster)")], formatter_class=_RAW,
+                       help="benchmarks: the paper's Tables 1-3, limits, python-paillier, scaling",
+                       description=_d("Reproduce the paper's Tables 1-3 (X-ray, storage, transfer function) with the "
+                                   "paper's figures beside ours, measure against the limits (one modular "
+                                   "multiplication, one fixed-base exponentiation), against python-paillier used "
+                                   "naively, and how render time scales with workers, volume and key size. Writes "
+                                   "markdown, raw JSON and a plot."),
+                       epilog=BENCH_EPILOG)
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--quick", action="store_true", help="a smoke run in about a minute (tiny volume and keys)")
+    g.add_argument("--paper", action="store_true", help="the paper's setting: 100^3, 150x150, keys 64-3072 bits (~1.5 h)")
+    p.add_argument("--out", metavar="DIR", help="output folder (default ./benchmarks if it exists, else .)")
+    p.add_argument("--resume", action="store_true", help="keep the finished blocks of an earlier run of this setting")
+    p.add_argument("--only", metavar="KINDS", help="comma-separated blocks: micro, t1, t2, t3, naive, scaling")
+    p.add_argument("--work", metavar="DIR", help="scratch folder for the encrypted stores (default: a temporary one)")
+    p.add_argument("--report-only", action="store_true",
+                   help="measure nothing: rewrite the markdown and plot from the existing results JSON")
+    return parser
+
+
+def _setup_logging(verbose: bool) -> logging.Handler:
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("hevr: %(levelname)s: %(message)s" if not verbose
+                                           else "%(asctime)s %(name)s %(levelname)s: %(message)s"))
+    logger = logging.getLogger("hevr")
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO if verbose else logging.WARNING)
+    return handler
+
+
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.filename and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}"
+    text = str(exc) or type(exc).__name__
+    if not isinstance(exc, (HevrError, OSError, ValueError)):
+        text = f"{type(exc).__name__}: {text} (run with --verbose for the traceback)"
+    return text
+
+
+def _run(args: Any) -> int:
+    from . import commands as cmds
+
+    if args.command in ("demo", "bench"):
+        from . import demo as demo
+
+        if args.command == "bench":
+            from .bench import cmd_bench
+
+            return cmd_bench(args)
+        return demo.cmd_demo(args)
+    return getattr(cmds, f"cmd_{args.command}")(args)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``hevr`` console script; returns the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version and usage errors
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    if args.command is None:
+        err_line("a command is required: keygen, encrypt, render, decrypt, info, demo or bench (see 'hevr --help')")
+        return 2
+    handler = _setup_logging(args.verbose)
+    try:
+        with warnings.catch_warnings():
+            if not args.verbose:
+                warnings.simplefilter("ignore", DeprecationWarning)
+                warnings.simplefilter("ignore", FutureWarning)
+            warnings.showwarning = _show_warning
+            return _run(args)
+    except KeyboardInterrupt:
+        err_line("interrupted")
+        return 130
+    except Exception as exc:  # one line; the traceback only with --verbose
+        if args.verbose:
+            traceback.print_exc()
+        err_line(_message(exc))
+        return 2 if isinstance(exc, UsageError) else 1
+    finally:
+        logging.getLogger("hevr").removeHandler(handler)
+
+
+def _show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+    from .util import warn_line
+
+    warn_line(f"{message}")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,24 @@
+"""Paillier cryptography: the raw integer layer, keys and key files, the owner's fast
+encryption, primes, fixed-point encoding, :class:`EncryptedNumber` and byte records.
+
+=================  =============================================================
+``paillier``       ``raw_`` functions on plain integers (the textbook scheme)
+``primes``         prime generation with a known factorisation of p - 1
+``owner``          owner-side masks from fixed-base tables mod p² and q², CRT
+``keys``           :class:`PublicKey`, :class:`PrivateKey`, key generation
+``keyfile``        JSON key files (0600 private files), validation on load
+``encoding``       base-10 fixed-point encoding of floats into Z_n
+``number``         :class:`EncryptedNumber`: encrypted floating point
+``records``        fixed-width big-endian byte records <-> big integers
+=================  =============================================================
+"""
+
+from __future__ import annotations
+
+from .encoding import BASE, decode, encode
+from .keyfile import load_key
+from .keys import PrivateKey, PublicKey, generate_keypair
+from .number import EncryptedNumber
+
+__all__ = ["BASE", "EncryptedNumber", "PrivateKey", "PublicKey", "decode", "encode", "generate_keypair",
+           "load_key"]

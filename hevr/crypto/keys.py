@@ -1,0 +1,351 @@
+"""Paillier keys (g = n + 1): generation, encryption, CRT decryption and key files.
+
+>>> import warnings, hevr
+>>> with warnings.catch_warnings():
+...     warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
+...     pub, priv = hevr.generate_keypair(bits=256)
+>>> priv.decrypt(pub.add(pub.encrypt(20), priv.encrypt(22)))
+42
+
+Secret material (p, q and everything derived from them) never appears in a ``repr``, a
+log line or an exception message; private key files are created with mode 0600.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import secrets
+import warnings
+from numbers import Integral
+from typing import Iterable, Sequence
+
+import gmpy2
+import numpy as np
+from gmpy2 import mpz
+
+from . import paillier as raw
+from .owner import OwnerEncryptor
+from .primes import random_prime_with_factors
+from ..errors import InsecureKeyWarning, ParameterError
+from .number import EncryptedNumber
+
+log = logging.getLogger(__name__)
+
+MIN_BITS, MAX_BITS, SECURE_BITS = 64, 4096, 2048
+
+__all__ = ["PublicKey", "PrivateKey", "generate_keypair", "MIN_BITS", "MAX_BITS", "SECURE_BITS"]
+
+
+def _as_int_list(values: np.ndarray | Iterable[int], name: str) -> list[int]:
+    if isinstance(values, np.ndarray):
+        if values.dtype.kind not in "iub" and values.dtype != object:
+            raise ParameterError(f"{name} must hold integers; got dtype {values.dtype}")
+        return values.ravel().tolist()
+    return [int(v) for v in values]
+
+
+class PublicKey:
+    """Paillier public key (n, g = n + 1).
+
+    Parameters
+    ----------
+    n : int
+        The modulus, a product of two distinct primes.
+
+    Examples
+    --------
+    >>> pub = PublicKey(11 * 13)
+    >>> pub.bits
+    8
+    """
+
+    __slots__ = ("n", "nsquare", "g", "bits", "max_int", "_fingerprint")
+
+    def __init__(self, n: int) -> None:
+        if isinstance(n, bool) or not isinstance(n, (Integral, type(mpz(0)))) or n < 15:
+            raise ParameterError(f"n must be an integer >= 15; got {type(n).__name__}")
+        self.n = mpz(n)
+        self.nsquare = self.n * self.n
+        self.g = self.n + 1
+        self.bits = int(self.n.bit_length())
+        self.max_int = raw.max_int(self.n)
+        self._fingerprint: str | None = None
+
+    # -- identity -----------------------------------------------------------------
+    @property
+    def fingerprint(self) -> str:
+        """Hex SHA-256 of n as big-endian bytes."""
+        if self._fingerprint is None:
+            nb = int(self.n).to_bytes((self.bits + 7) // 8, "big")
+            self._fingerprint = hashlib.sha256(nb).hexdigest()
+        return self._fingerprint
+
+    @property
+    def ciphertext_bytes(self) -> int:
+        """Fixed byte width of a ciphertext (n² < 2^(2·bits))."""
+        return (2 * self.bits + 7) // 8
+
+    def __repr__(self) -> str:
+        return f"PublicKey(bits={self.bits}, fingerprint={self.fingerprint[:16]}…)"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, PublicKey) and self.n == other.n
+
+    def __hash__(self) -> int:
+        return hash(("hevr.PublicKey", int(self.n)))
+
+    def __reduce__(self):
+        return (PublicKey, (int(self.n),))
+
+    # -- encryption -----------------------------------------------------------------
+    def _random_mask(self) -> mpz:
+        n = self.n
+        while True:
+            r = mpz(secrets.randbelow(int(n)))
+            if r > 0 and gmpy2.gcd(r, n) == 1:
+                return gmpy2.powmod(r, n, self.nsquare)
+
+    def encrypt(self, m: int, *, unsafe_no_obfuscation: bool = False) -> mpz:
+        """Encrypt a signed integer |m| < n // 3: c = (1 + m·n)·r^n mod n².
+
+        ``unsafe_no_obfuscation=True`` skips the random mask (r = 1). The result is NOT
+        secure — it exists only to reproduce the paper's "without obfuscation" rows.
+        """
+        c = raw.raw_encrypt_nude(raw.raw_encode_signed(m, self.n), self.n, self.nsquare)
+        if unsafe_no_obfuscation:
+            return c
+        return raw.raw_obfuscate(c, self._random_mask(), self.nsquare)
+
+    def encrypt_array(
+        self, values: np.ndarray | Sequence[int], *, unsafe_no_obfuscation: bool = False
+    ) -> list[mpz]:
+        """Encrypt every integer of ``values`` (flattened, C order); returns a list of mpz."""
+        return [self.encrypt(v, unsafe_no_obfuscation=unsafe_no_obfuscation) for v in _as_int_list(values, "values")]
+
+    def encrypt_number(self, value: float, exponent: int | None = None) -> EncryptedNumber:
+        """Encrypt a plain number as an :class:`EncryptedNumber` (see :func:`hevr.crypto.encoding.encode`)."""
+        return EncryptedNumber.encrypt(self, value, exponent, self.encrypt)
+
+    # -- homomorphic operations ------------------------------------------------------
+    def add(self, c1: int, c2: int) -> mpz:
+        """⊕: a ciphertext of m1 + m2."""
+        return raw.raw_add(mpz(c1), mpz(c2), self.nsquare)
+
+    def sub(self, c1: int, c2: int) -> mpz:
+        """A ciphertext of m1 - m2."""
+        return raw.raw_sub(mpz(c1), mpz(c2), self.nsquare)
+
+    def neg(self, c: int) -> mpz:
+        """A ciphertext of -m."""
+        return raw.raw_neg(mpz(c), self.nsquare)
+
+    def mul(self, c: int, k: int) -> mpz:
+        """⊗: a ciphertext of m·k for a plain integer k (negative allowed)."""
+        if isinstance(k, bool) or not isinstance(k, (Integral, type(mpz(0)))):
+            raise ParameterError(f"k must be an int; got {type(k).__name__} (use EncryptedNumber for floats)")
+        return raw.raw_mul(mpz(c), k, self.n, self.nsquare)
+
+    def check_ciphertext(self, c: int) -> None:
+        """Raise ParameterError unless 0 < c < n² and gcd(c, n) = 1."""
+        c = mpz(c)
+        if not 0 < c < self.nsquare:
+            raise ParameterError("ciphertext must lie in (0, n²); got a value outside that range")
+        if gmpy2.gcd(c, self.n) != 1:
+            raise ParameterError("ciphertext must be coprime to n; got one that is not")
+
+    # -- files ----------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {"format": "hevr-key", "version": 1, "kind": "public", "bits": self.bits,
+                "n": str(int(self.n)), "fingerprint": self.fingerprint}
+
+    def save(self, path) -> None:
+        """Write the public key as JSON (world-readable is fine)."""
+        from .keyfile import write_key_file
+
+        write_key_file(path, self.to_dict(), private=False)
+
+
+class PrivateKey:
+    """Paillier private key (p, q) with precomputed CRT constants.
+
+    Encryption with a private key (:meth:`encrypt`) uses the owner-side fast path of
+    :mod:`hevr.crypto.owner`: the same ciphertext distribution as :meth:`PublicKey.encrypt`,
+    many times faster.
+    """
+
+    __slots__ = ("public_key", "p", "q", "_psquare", "_qsquare", "_hp", "_hq", "_p_inv_q", "_owner")
+
+    def __init__(self, public_key: PublicKey, p: int, q: int) -> None:
+        p, q = mpz(p), mpz(q)
+        if p > q:
+            p, q = q, p
+        if p * q != public_key.n:
+            raise ParameterError("p·q does not equal the public modulus n")
+        self.public_key = public_key
+        self.p, self.q = p, q
+        self._psquare, self._qsquare = p * p, q * q
+        self._hp = self._h(p, self._psquare)
+        self._hq = self._h(q, self._qsquare)
+        self._p_inv_q = gmpy2.invert(p, q)
+        self._owner: OwnerEncryptor | None = None
+
+    def _h(self, x: mpz, xsquare: mpz) -> mpz:
+        lx = (gmpy2.powmod(self.public_key.g, x - 1, xsquare) - 1) // x
+        return gmpy2.invert(lx, x)
+
+    def __repr__(self) -> str:
+        return f"PrivateKey(bits={self.public_key.bits}, fingerprint={self.public_key.fingerprint[:16]}…)"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, PrivateKey) and self.public_key == other.public_key
+
+    def __hash__(self) -> int:
+        return hash(("hevr.PrivateKey", int(self.public_key.n)))
+
+    def __reduce__(self):
+        # Tables are rebuilt where they are needed rather than shipped.
+        return (PrivateKey, (self.public_key, int(self.p), int(self.q)))
+
+    @property
+    def fingerprint(self) -> str:
+        return self.public_key.fingerprint
+
+    # -- encryption (owner-side fast path) ------------------------------------------
+    @property
+    def owner(self) -> OwnerEncryptor:
+        if self._owner is None:
+            self._owner = _owner_tables(self.p, self.q)
+        return self._owner
+
+    def encrypt(self, m: int, *, unsafe_no_obfuscation: bool = False) -> mpz:
+        """Encrypt a signed integer with the owner-side fast path (same distribution)."""
+        pub = self.public_key
+        residue = raw.raw_encode_signed(m, pub.n)
+        if unsafe_no_obfuscation:
+            return raw.raw_encrypt_nude(residue, pub.n, pub.nsquare)
+        return self.owner.encrypt_residues((residue,))[0]
+
+    def encrypt_array(
+        self, values: np.ndarray | Sequence[int], *, unsafe_no_obfuscation: bool = False
+    ) -> list[mpz]:
+        """Encrypt every integer of ``values`` (flattened, C order) on the fast path."""
+        pub = self.public_key
+        n = pub.n
+        residues = [raw.raw_encode_signed(v, n) for v in _as_int_list(values, "values")]
+        if unsafe_no_obfuscation:
+            return [raw.raw_encrypt_nude(m, n, pub.nsquare) for m in residues]
+        return self.owner.encrypt_residues(residues)
+
+    def encrypt_number(self, value: float, exponent: int | None = None) -> EncryptedNumber:
+        return EncryptedNumber.encrypt(self.public_key, value, exponent, self.encrypt)
+
+    # -- decryption ----------------------------------------------------------------
+    def raw_decrypt(self, c: int) -> mpz:
+        """Residue m in [0, n) (no signed decoding)."""
+        c = mpz(c)
+        if not 0 < c < self.public_key.nsquare:
+            raise ParameterError("ciphertext must lie in (0, n²); got a value outside that range")
+        return raw.raw_decrypt_crt(c, self.p, self.q, self._psquare, self._qsquare,
+                                   self._hp, self._hq, self._p_inv_q)
+
+    def decrypt(self, c: int) -> int:
+        """Signed plaintext; :class:`hevr.PlaintextOverflowError` in the ambiguous band."""
+        return int(raw.raw_decode_signed(self.raw_decrypt(c), self.public_key.n))
+
+    def decrypt_array(self, ciphertexts: Iterable[int], signed: bool = True) -> list[int]:
+        """Decrypt many ciphertexts (CRT each); returns Python ints."""
+        n = self.public_key.n
+        n2 = self.public_key.nsquare
+        p, q, p2, q2 = self.p, self.q, self._psquare, self._qsquare
+        hp, hq, piq = self._hp, self._hq, self._p_inv_q
+        dec = raw.raw_decrypt_crt
+        out = []
+        for c in ciphertexts:
+            c = mpz(c)
+            if not 0 < c < n2:
+                raise ParameterError("ciphertext must lie in (0, n²); got a value outside that range")
+            m = dec(c, p, q, p2, q2, hp, hq, piq)
+            out.append(int(raw.raw_decode_signed(m, n)) if signed else int(m))
+        return out
+
+    def decrypt_number(self, x: EncryptedNumber) -> float:
+        """Decrypt an :class:`EncryptedNumber` to the nearest float."""
+        from .encoding import decode
+
+        return decode(self.decrypt_number_mantissa(x), x.exponent)
+
+    def decrypt_number_mantissa(self, x: EncryptedNumber) -> int:
+        if x.public_key != self.public_key:
+            from ..errors import KeyMismatchError
+
+            raise KeyMismatchError(
+                f"number was encrypted under key {x.public_key.fingerprint[:16]}…, "
+                f"this private key is {self.fingerprint[:16]}…"
+            )
+        return self.decrypt(x.ciphertext)
+
+    # -- files ----------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        d = self.public_key.to_dict()
+        d.update(kind="private", p=str(int(self.p)), q=str(int(self.q)))
+        return d
+
+    def save(self, path) -> None:
+        """Write the private key as JSON, created with mode 0600 (atomic replace)."""
+        from .keyfile import write_key_file
+
+        write_key_file(path, self.to_dict(), private=True)
+
+
+_OWNER_CACHE: "dict[int, OwnerEncryptor]" = {}
+
+
+def _owner_tables(p: mpz, q: mpz) -> OwnerEncryptor:
+    """One set of fixed-base tables per key and process: every Dask task unpickles its own
+    PrivateKey, and rebuilding ~100 MB of tables per brick would cost ~0.7 s each time.
+    Kept in process memory only, for the two most recent keys."""
+    n = int(p * q)
+    enc = _OWNER_CACHE.get(n)
+    if enc is None:
+        enc = OwnerEncryptor(p, q)
+        while len(_OWNER_CACHE) >= 2:
+            _OWNER_CACHE.pop(next(iter(_OWNER_CACHE)))
+        _OWNER_CACHE[n] = enc
+    return enc
+
+
+def generate_keypair(bits: int = 2048) -> tuple[PublicKey, PrivateKey]:
+    """Generate a Paillier key pair (supplementary Alg. "Create Keys").
+
+    p ≠ q are random primes of bits/2 bits from :mod:`secrets`, n has exactly ``bits``
+    bits, g = n + 1 and gcd(n, (p-1)(q-1)) = 1. Sizes below 2048 bits emit
+    :class:`hevr.InsecureKeyWarning`.
+
+    Examples
+    --------
+    >>> import warnings
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     pub, priv = generate_keypair(64)
+    >>> pub.bits
+    64
+    """
+    if isinstance(bits, bool) or not isinstance(bits, Integral) or bits % 2 or not MIN_BITS <= bits <= MAX_BITS:
+        raise ParameterError(f"bits must be an even integer in [{MIN_BITS}, {MAX_BITS}]; got {bits!r}")
+    bits = int(bits)
+    if bits < SECURE_BITS:
+        warnings.warn(f"a {bits}-bit Paillier key is not secure; use at least {SECURE_BITS} bits",
+                      InsecureKeyWarning, stacklevel=2)
+    half = bits // 2
+    while True:
+        p, _ = random_prime_with_factors(half)
+        q, _ = random_prime_with_factors(half)
+        if p == q:
+            continue
+        n = p * q
+        if n.bit_length() != bits or gmpy2.gcd(n, (p - 1) * (q - 1)) != 1:
+            continue
+        pub = PublicKey(n)
+        log.info("generated a %d-bit Paillier key %s", bits, pub.fingerprint[:16])
+        return pub, PrivateKey(pub, p, q)

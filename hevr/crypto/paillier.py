@@ -1,0 +1,120 @@
+"""Raw Paillier arithmetic on bare integers (g = n + 1).
+
+The ``raw_`` functions take and return plain integers (``gmpy2.mpz``); they know nothing
+about encodings, exponents or keys. This mirrors python-paillier's ``raw_encrypt`` /
+``raw_add`` / ``raw_multiply`` layer: the key classes and :class:`hevr.EncryptedNumber`
+are thin wrappers around these.
+
+Plaintexts live in Z_n. Signed values use the two's-complement convention of the paper
+(§4.1): v < 0 is represented by v + n. Values in [0, n//3) are non-negative, values in
+(n - n//3, n) are negative, and the middle third is an overflow band.
+
+>>> from gmpy2 import mpz
+>>> n = mpz(11 * 13); n2 = n * n
+>>> c = raw_encrypt_nude(5, n, n2)
+>>> int(raw_add(c, raw_encrypt_nude(7, n, n2), n2)) == int(raw_encrypt_nude(12, n, n2))
+True
+"""
+
+from __future__ import annotations
+
+import gmpy2
+from gmpy2 import mpz
+
+from ..errors import ParameterError, PlaintextOverflowError
+
+__all__ = [
+    "raw_encrypt_nude",
+    "raw_obfuscate",
+    "raw_add",
+    "raw_neg",
+    "raw_sub",
+    "raw_mul",
+    "raw_decrypt_crt",
+    "raw_decode_signed",
+    "raw_encode_signed",
+    "max_int",
+]
+
+
+def max_int(n: int) -> int:
+    """Largest magnitude a signed plaintext may have under modulus ``n`` (n // 3 - 1)."""
+    return int(n) // 3 - 1
+
+
+def raw_encode_signed(value: int, n: mpz) -> mpz:
+    """Map a signed integer with |value| < n // 3 to Z_n (two's complement mod n)."""
+    v = mpz(value)
+    if abs(v) > n // 3 - 1:
+        raise PlaintextOverflowError(
+            f"plaintext magnitude must be below n // 3 for a {int(n).bit_length()}-bit key; "
+            f"got a {int(abs(v)).bit_length()}-bit value (use a larger key or fewer digits)"
+        )
+    return v % n
+
+
+def raw_decode_signed(m: mpz, n: mpz) -> mpz:
+    """Inverse of :func:`raw_encode_signed`; the middle third of Z_n is an overflow."""
+    third = n // 3
+    if m < third:
+        return mpz(m)
+    if m > n - third:
+        return mpz(m) - n
+    raise PlaintextOverflowError(
+        "decrypted value lies in the overflow band [n/3, 2n/3]: a homomorphic result "
+        "exceeded the plaintext range (use a larger key or fewer digits)"
+    )
+
+
+def raw_encrypt_nude(m: int, n: mpz, nsquare: mpz) -> mpz:
+    """g^m mod n² for g = n + 1, which is 1 + m·n (no obfuscation, not secure alone)."""
+    return (1 + mpz(m) * n) % nsquare
+
+
+def raw_obfuscate(c: mpz, mask: mpz, nsquare: mpz) -> mpz:
+    """Multiply a ciphertext by an n-th residue ``mask`` = r^n mod n²."""
+    return c * mask % nsquare
+
+
+def raw_add(c1: mpz, c2: mpz, nsquare: mpz) -> mpz:
+    """⊕: Dec(c1·c2 mod n²) = m1 + m2 (mod n)."""
+    return c1 * c2 % nsquare
+
+
+def raw_neg(c: mpz, nsquare: mpz) -> mpz:
+    """Additive inverse: c^-1 mod n² decrypts to -m (mod n)."""
+    return gmpy2.invert(c, nsquare)
+
+
+def raw_sub(c1: mpz, c2: mpz, nsquare: mpz) -> mpz:
+    """Dec(c1 · c2^-1) = m1 - m2 (mod n)."""
+    return c1 * gmpy2.invert(c2, nsquare) % nsquare
+
+
+def raw_mul(c: mpz, k: int, n: mpz, nsquare: mpz) -> mpz:
+    """⊗ by a plain integer ``k`` (paper Alg. 2, with the n - k optimisation).
+
+    ``k`` may be negative or given as a residue mod n. When n - k is small (k encodes a
+    negative number) we raise c^-1 to n - k instead of c to k: same result, far shorter
+    exponent.
+    """
+    k = mpz(k) % n
+    if k == 0:
+        return mpz(1)
+    neg = n - k
+    if neg < k:
+        return gmpy2.powmod(gmpy2.invert(c, nsquare), neg, nsquare)
+    if k == 1:
+        return mpz(c)
+    return gmpy2.powmod(c, k, nsquare)
+
+
+def raw_decrypt_crt(
+    c: mpz, p: mpz, q: mpz, psquare: mpz, qsquare: mpz, hp: mpz, hq: mpz, p_inv_q: mpz
+) -> mpz:
+    """CRT decryption (supplementary Alg. "Decrypt"): returns m in [0, n)."""
+    if c <= 0:
+        raise ParameterError("ciphertext must be a positive integer below n²; got a non-positive value")
+    mp = (gmpy2.powmod(c, p - 1, psquare) - 1) // p * hp % p
+    mq = (gmpy2.powmod(c, q - 1, qsquare) - 1) // q * hq % q
+    return mp + ((mq - mp) * p_inv_q % q) * p

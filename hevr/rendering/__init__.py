@@ -1,0 +1,28 @@
+"""Ray casting on encrypted bricks, as a MapReduce on Dask, and its plaintext reference.
+
+The data path of one frame, module by module:
+
+=================  =============================================================
+``camera``         :class:`Camera`: the request's geometry (frozen, validated)
+``modes``          ``RenderSpec``: mode, sampling, channels, combination matrix
+``rays``           rays, slab tests and sample positions
+``weights``        per-brick sparse (ray, voxel, weight) matrices
+``planner``        overflow planning: fixed-point digits, packing bounds
+``kernel``         the per-brick multi-exponentiation (cost model in its docstring)
+``graph``          the Dask graph: map per brick, tree merge per tile
+``finishing``      combination, normalisation and packing of one tile
+``encrypted``      ``render``, ``error_bound``, the ray-sum cache
+``plain``          ``render_plain``: the independent plaintext ray marcher
+=================  =============================================================
+
+(The package is named ``rendering`` so that it does not shadow the :func:`hevr.render`
+function.)
+"""
+
+from __future__ import annotations
+
+from .camera import Camera
+from .encrypted import RaySums, clear_cache, error_bound, render
+from .plain import render_plain
+
+__all__ = ["Camera", "RaySums", "clear_cache", "error_bound", "render", "render_plain"]

@@ -1,0 +1,363 @@
+"""The pinhole / parallel camera of the public contract (API.md, "Geometry conventions").
+
+A :class:`Camera` is an immutable value: two cameras with the same parameters compare
+equal, hash equal and have the same :meth:`Camera.key`, so renders can be cached by
+camera. All ray geometry is float64 numpy and follows VTK:
+
+* ``d = normalize(focal_point - position)``, ``right = normalize(d x view_up)``,
+  ``up = right x d``;
+* pixel ``(r, c)`` with row 0 at the top has ``u = ((c + 0.5)/width*2 - 1)*aspect`` and
+  ``v = 1 - (r + 0.5)/height*2`` with ``aspect = width/height``;
+* perspective: ``origin = position``,
+  ``direction = normalize(d + tan(view_angle/2)*(u*right + v*up))``;
+* parallel: ``origin = position + parallel_scale*(u*right + v*up)``, ``direction = d``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import numbers
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import ParameterError
+
+__all__ = ["Camera"]
+
+# The default framing leaves this much room around the volume's bounding sphere.
+_FRAME_MARGIN = 1.05
+# |d x view_up| below this (both unit vectors) counts as parallel: the basis would be
+# numerically meaningless.
+_PARALLEL_TOL = 1e-9
+
+
+def _vec3(name: str, value: Any) -> tuple[float, float, float]:
+    """Validate a 3-vector of finite reals and return it as a tuple of Python floats."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(
+            f"{name}: expected 3 finite numbers (x, y, z), got {value!r}"
+        ) from None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ParameterError(f"{name}: expected 3 finite numbers (x, y, z), got {value!r}")
+    # + 0.0 turns -0.0 into 0.0 so equal cameras have equal keys.
+    return (float(arr[0]) + 0.0, float(arr[1]) + 0.0, float(arr[2]) + 0.0)
+
+
+def _positive_int(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value <= 0:
+        raise ParameterError(f"{name}: expected a positive integer, got {value!r}")
+    return int(value)
+
+
+def _finite_float(name: str, value: Any, expected: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ParameterError(f"{name}: expected {expected}, got {value!r}")
+    out = float(value)
+    if not math.isfinite(out):
+        raise ParameterError(f"{name}: expected {expected}, got {value!r}")
+    return out + 0.0
+
+
+def _normalize(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """An immutable VTK-style camera producing one ray per pixel.
+
+    Parameters
+    ----------
+    position, focal_point : sequence of 3 floats
+        Eye point and the point looked at, in world coordinates (x, y, z).
+    view_up : sequence of 3 floats, default (0, 1, 0)
+        Approximate up direction; must not be parallel to the view direction.
+    view_angle : float, default 30.0
+        Full vertical view angle in degrees, in (0, 180). Used by perspective cameras and
+        to default ``parallel_scale``.
+    width, height : int, default 150
+        Image size in pixels.
+    parallel : bool, default False
+        Parallel (orthographic) projection instead of perspective.
+    parallel_scale : float or None
+        Half of the view's height in world units for parallel projection. ``None``
+        defaults to ``distance * tan(view_angle/2)``, the half-height a perspective
+        camera sees at the focal point, so toggling ``parallel`` keeps the framing.
+
+    Examples
+    --------
+    >>> cam = Camera((0, 0, 10), (0, 0, 0), width=3, height=2)
+    >>> origins, dirs = cam.rays()
+    >>> origins.shape, dirs.shape
+    ((6, 3), (6, 3))
+    >>> Camera.from_dict(cam.to_dict()) == cam
+    True
+    """
+
+    position: tuple[float, float, float]
+    focal_point: tuple[float, float, float]
+    view_up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    view_angle: float = 30.0
+    width: int = 150
+    height: int = 150
+    parallel: bool = False
+    parallel_scale: float | None = None
+
+    def __post_init__(self) -> None:
+        # Frozen dataclass: normalise fields through object.__setattr__.
+        pos = _vec3("position", self.position)
+        foc = _vec3("focal_point", self.focal_point)
+        up = _vec3("view_up", self.view_up)
+        angle = _finite_float("view_angle", self.view_angle, "degrees in (0, 180)")
+        if not 0.0 < angle < 180.0:
+            raise ParameterError(f"view_angle: expected degrees in (0, 180), got {self.view_angle!r}")
+        width = _positive_int("width", self.width)
+        height = _positive_int("height", self.height)
+        if not isinstance(self.parallel, (bool, np.bool_)):
+            raise ParameterError(f"parallel: expected True or False, got {self.parallel!r}")
+        dist_vec = np.subtract(foc, pos)
+        distance = float(np.linalg.norm(dist_vec))
+        if distance == 0.0:
+            raise ParameterError(
+                f"focal_point: expected a point different from position, got {foc} == position"
+            )
+        up_norm = float(np.linalg.norm(up))
+        if up_norm == 0.0:
+            raise ParameterError(f"view_up: expected a non-zero vector, got {up}")
+        if np.linalg.norm(np.cross(dist_vec / distance, np.asarray(up) / up_norm)) < _PARALLEL_TOL:
+            raise ParameterError(
+                f"view_up: expected a direction not parallel to the view direction "
+                f"focal_point - position = {tuple(dist_vec.tolist())}, got {up}"
+            )
+        if self.parallel_scale is None:
+            scale = distance * math.tan(math.radians(angle) / 2.0)
+        else:
+            scale = _finite_float("parallel_scale", self.parallel_scale, "a positive number or None")
+            if scale <= 0.0:
+                raise ParameterError(
+                    f"parallel_scale: expected a positive number or None, got {self.parallel_scale!r}"
+                )
+        object.__setattr__(self, "position", pos)
+        object.__setattr__(self, "focal_point", foc)
+        object.__setattr__(self, "view_up", up)
+        object.__setattr__(self, "view_angle", angle)
+        object.__setattr__(self, "width", width)
+        object.__setattr__(self, "height", height)
+        object.__setattr__(self, "parallel", bool(self.parallel))
+        object.__setattr__(self, "parallel_scale", scale)
+
+    # ------------------------------------------------------------------ identity
+    def to_dict(self) -> dict[str, Any]:
+        """Return the camera as a JSON-able dict (floats, ints, bools and lists).
+
+        Examples
+        --------
+        >>> Camera((0, 0, 5), (0, 0, 0)).to_dict()["position"]
+        [0.0, 0.0, 5.0]
+        """
+        return {
+            "position": list(self.position),
+            "focal_point": list(self.focal_point),
+            "view_up": list(self.view_up),
+            "view_angle": self.view_angle,
+            "width": self.width,
+            "height": self.height,
+            "parallel": self.parallel,
+            "parallel_scale": self.parallel_scale,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Camera:
+        """Rebuild a camera from :meth:`to_dict` output (missing keys take defaults).
+
+        Examples
+        --------
+        >>> cam = Camera((1, 2, 3), (0, 0, 0))
+        >>> Camera.from_dict(cam.to_dict()).key() == cam.key()
+        True
+        """
+        if not isinstance(data, dict):
+            raise ParameterError(f"data: expected a dict from Camera.to_dict(), got {type(data).__name__}")
+        allowed = {"position", "focal_point", "view_up", "view_angle", "width", "height",
+                   "parallel", "parallel_scale"}
+        unknown = sorted(set(data) - allowed)
+        if unknown:
+            raise ParameterError(f"data: expected only the keys {sorted(allowed)}, got extra keys {unknown}")
+        missing = sorted({"position", "focal_point"} - set(data))
+        if missing:
+            raise ParameterError(f"data: expected the keys position and focal_point, missing {missing}")
+        return cls(**data)
+
+    def key(self) -> str:
+        """A stable hex identity (SHA-256 of the canonical JSON), equal across processes.
+
+        Examples
+        --------
+        >>> Camera((0, 0, 5), (0, 0, 0)).key() == Camera([0, 0, 5.0], [0, 0, 0]).key()
+        True
+        """
+        text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode("ascii")).hexdigest()
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def aspect(self) -> float:
+        """``width / height``."""
+        return self.width / self.height
+
+    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return the orthonormal camera frame ``(d, right, up)`` as float64 arrays.
+
+        Examples
+        --------
+        >>> d, right, up = Camera((0, 0, 5), (0, 0, 0)).basis()
+        >>> d.tolist(), right.tolist(), up.tolist()
+        ([0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        """
+        d = _normalize(np.subtract(self.focal_point, self.position, dtype=np.float64))
+        right = _normalize(np.cross(d, np.asarray(self.view_up, dtype=np.float64)))
+        up = np.cross(right, d)
+        # + 0.0 turns the -0.0 a cross product can produce into 0.0 (cosmetic only).
+        return d + 0.0, right + 0.0, up + 0.0
+
+    def rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(origins, directions)``, each (height*width, 3) float64.
+
+        Ray ``row*width + col`` belongs to pixel (row, col), row 0 at the top;
+        directions are unit vectors.
+
+        Examples
+        --------
+        >>> o, d = Camera((0, 0, 5), (0, 0, 0), width=1, height=1).rays()
+        >>> o.tolist(), d.tolist()
+        ([[0.0, 0.0, 5.0]], [[0.0, 0.0, -1.0]])
+        """
+        d, right, up = self.basis()
+        cols = np.arange(self.width, dtype=np.float64)
+        rows = np.arange(self.height, dtype=np.float64)
+        u = ((cols + 0.5) / self.width * 2.0 - 1.0) * self.aspect
+        v = 1.0 - (rows + 0.5) / self.height * 2.0
+        # (H, W) grids flattened row-major so that index = row*W + col.
+        uu = np.broadcast_to(u[None, :], (self.height, self.width)).reshape(-1, 1)
+        vv = np.broadcast_to(v[:, None], (self.height, self.width)).reshape(-1, 1)
+        offset = uu * right + vv * up
+        n = self.width * self.height
+        pos = np.asarray(self.position, dtype=np.float64)
+        if self.parallel:
+            origins = pos + self.parallel_scale * offset
+            directions = np.broadcast_to(d, (n, 3)).copy()
+        else:
+            origins = np.broadcast_to(pos, (n, 3)).copy()
+            tan_half = math.tan(math.radians(self.view_angle) / 2.0)
+            directions = _normalize(d + tan_half * offset)
+        return origins, directions
+
+    # ------------------------------------------------------------------ orbit
+    @classmethod
+    def orbit(
+        cls,
+        ev_or_shape: Any,
+        azimuth: float = 0.0,
+        elevation: float = 0.0,
+        width: int = 150,
+        height: int = 150,
+        view_angle: float = 30.0,
+        distance: float | None = None,
+        spacing: Any = None,
+        parallel: bool = False,
+    ) -> Camera:
+        """A camera on a sphere around the volume centre, looking at the centre.
+
+        Parameters
+        ----------
+        ev_or_shape : tuple (nz, ny, nx) or object with ``.shape`` and ``.spacing``
+            The volume (e.g. an encrypted volume) or its array shape.
+        azimuth, elevation : float
+            Degrees. ``0, 0`` puts the camera on the +z side looking towards -z with
+            view-up +y. Azimuth rotates about the y axis (90 -> the +x side),
+            elevation tilts the camera up (90 -> above, looking down -y).
+        width, height, view_angle :
+            As for :class:`Camera`.
+        distance : float or None
+            Distance from the centre; ``None`` fits the bounding sphere of the voxel-centre
+            box into the narrower of the two view angles, with a 5 % margin.
+        spacing : (sx, sy, sz) or None
+            World-order voxel spacing; overrides ``ev.spacing``; default (1, 1, 1).
+        parallel : bool
+            Parallel projection; ``parallel_scale`` then frames the bounding sphere.
+
+        Examples
+        --------
+        >>> cam = Camera.orbit((10, 20, 30), width=4, height=4)
+        >>> cam.focal_point
+        (14.5, 9.5, 4.5)
+        """
+        shape, spacing = _orbit_geometry(ev_or_shape, spacing)
+        az = math.radians(_finite_float("azimuth", azimuth, "degrees"))
+        el = math.radians(_finite_float("elevation", elevation, "degrees"))
+        width = _positive_int("width", width)
+        height = _positive_int("height", height)
+        angle = _finite_float("view_angle", view_angle, "degrees in (0, 180)")
+        if not 0.0 < angle < 180.0:
+            raise ParameterError(f"view_angle: expected degrees in (0, 180), got {view_angle!r}")
+        extent = np.array([(shape[2] - 1) * spacing[0], (shape[1] - 1) * spacing[1],
+                           (shape[0] - 1) * spacing[2]], dtype=np.float64)
+        centre = extent / 2.0
+        # Bounding sphere of the voxel-centre box; never 0 so 1-voxel volumes still work.
+        radius = max(float(np.linalg.norm(extent)) / 2.0, max(spacing) / 2.0) * _FRAME_MARGIN
+        aspect = width / height
+        half_v = math.radians(angle) / 2.0
+        half_h = math.atan(aspect * math.tan(half_v))
+        if distance is None:
+            dist = radius / math.sin(min(half_v, half_h))
+        else:
+            dist = _finite_float("distance", distance, "a positive number or None")
+            if dist <= 0.0:
+                raise ParameterError(f"distance: expected a positive number or None, got {distance!r}")
+        ca, sa, ce, se = math.cos(az), math.sin(az), math.cos(el), math.sin(el)
+        offset = np.array([ce * sa, se, ce * ca])
+        # The orthogonalised +y: equals (0, 1, 0) at elevation 0, stays well defined
+        # (and continuous) at elevation +-90 where +y is parallel to the view direction.
+        view_up = (-se * sa, ce, -se * ca)
+        return cls(
+            position=tuple(centre + dist * offset),
+            focal_point=tuple(centre),
+            view_up=view_up,
+            view_angle=angle,
+            width=width,
+            height=height,
+            parallel=bool(parallel),
+            parallel_scale=radius / min(1.0, aspect) if parallel else None,
+        )
+
+
+def _orbit_geometry(ev_or_shape: Any, spacing: Any) -> tuple[tuple[int, int, int], tuple[float, float, float]]:
+    """Extract (shape, spacing) from a shape tuple or a volume-like object."""
+    if hasattr(ev_or_shape, "shape") and hasattr(ev_or_shape, "spacing"):
+        shape_in = ev_or_shape.shape
+        if spacing is None:
+            spacing = ev_or_shape.spacing
+    else:
+        shape_in = ev_or_shape
+    try:
+        shape = tuple(shape_in)
+    except TypeError:
+        raise ParameterError(
+            f"ev_or_shape: expected a shape (nz, ny, nx) or a volume with .shape and .spacing, "
+            f"got {ev_or_shape!r}"
+        ) from None
+    if len(shape) != 3:
+        raise ParameterError(f"ev_or_shape: expected a 3-D shape (nz, ny, nx), got {shape!r}")
+    shape = tuple(_positive_int("ev_or_shape", s) for s in shape)
+    if spacing is None:
+        spacing = (1.0, 1.0, 1.0)
+    sp = _vec3("spacing", spacing)
+    if min(sp) <= 0.0:
+        raise ParameterError(f"spacing: expected 3 positive numbers (sx, sy, sz), got {spacing!r}")
+    return shape, sp  # type: ignore[return-value]

@@ -1,0 +1,245 @@
+"""Render modes and their validation, shared by the plaintext and the encrypted renderer.
+
+Modes (API.md): ``xray`` averages the scalar channel; ``emphasize`` averages
+``dot(s, e(density))`` of the sampled encoded vector ``s``; ``tf`` averages
+``sum_i dot(s, e(d_i)) * c_i`` over K nodes and divides by K as well. Both vector modes
+are linear in ``s``, so a renderer applies one plaintext matrix per sample:
+``s @ combination_matrix(spec, k)``, and divides each pixel's sum by
+``n * normalisation_factor(spec)``.
+"""
+
+from __future__ import annotations
+
+import numbers
+import re
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..volume.density import encode_density
+from ..errors import ParameterError
+from .rays import check_step
+
+__all__ = [
+    "MODES",
+    "SAMPLINGS",
+    "CSS_COLORS",
+    "RenderSpec",
+    "parse_color",
+    "make_spec",
+    "combination_matrix",
+    "normalisation_factor",
+]
+
+MODES = ("xray", "emphasize", "tf")
+SAMPLINGS = ("nearest", "trilinear")
+
+# CSS Color Module values (so "green" and "purple" are the half-intensity CSS colours;
+# "lime" is pure green).
+CSS_COLORS: dict[str, tuple[float, float, float]] = {
+    "black": (0.0, 0.0, 0.0),
+    "white": (1.0, 1.0, 1.0),
+    "red": (1.0, 0.0, 0.0),
+    "lime": (0.0, 1.0, 0.0),
+    "green": (0.0, 128 / 255, 0.0),
+    "blue": (0.0, 0.0, 1.0),
+    "yellow": (1.0, 1.0, 0.0),
+    "cyan": (0.0, 1.0, 1.0),
+    "magenta": (1.0, 0.0, 1.0),
+    "purple": (128 / 255, 0.0, 128 / 255),
+    "orange": (1.0, 165 / 255, 0.0),
+    "gray": (128 / 255, 128 / 255, 128 / 255),
+}
+
+_HEX = re.compile(r"^#([0-9a-fA-F]{6}|[0-9a-fA-F]{3})$")
+
+
+def parse_color(c: Any) -> tuple[float, float, float]:
+    """Parse a colour: (r, g, b) floats in [0, 1], ``'#rrggbb'``/``'#rgb'`` or a CSS name.
+
+    Examples
+    --------
+    >>> parse_color("#ff8000")
+    (1.0, 0.5019607843137255, 0.0)
+    >>> parse_color("Red"), parse_color((0, 0, 1))
+    ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    """
+    if isinstance(c, str):
+        text = c.strip()
+        m = _HEX.match(text)
+        if m:
+            h = m.group(1)
+            if len(h) == 3:
+                h = "".join(ch * 2 for ch in h)
+            return tuple(int(h[i:i + 2], 16) / 255 for i in (0, 2, 4))  # type: ignore[return-value]
+        name = text.lower()
+        if name in CSS_COLORS:
+            return CSS_COLORS[name]
+        raise ParameterError(
+            f"color: expected (r, g, b) in [0, 1], '#rrggbb' or one of {sorted(CSS_COLORS)}, got {c!r}"
+        )
+    try:
+        vals = [x for x in c]
+    except TypeError:
+        vals = []
+    if len(vals) != 3 or any(isinstance(x, bool) or not isinstance(x, numbers.Real) for x in vals):
+        raise ParameterError(
+            f"color: expected (r, g, b) in [0, 1], '#rrggbb' or a CSS name, got {c!r}"
+        )
+    rgb = tuple(float(x) + 0.0 for x in vals)
+    if not all(0.0 <= x <= 1.0 for x in rgb):  # also rejects NaN
+        raise ParameterError(f"color: expected components in [0, 1], got {c!r}")
+    return rgb  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class RenderSpec:
+    """A validated render request (hashable, usable as a cache key).
+
+    Attributes
+    ----------
+    mode : {'xray', 'emphasize', 'tf'}
+    sampling : {'nearest', 'trilinear'}
+    step : float
+    density : float or None
+        Only for ``emphasize`` (``None`` otherwise).
+    nodes : tuple of (float, (r, g, b)) or None
+        Only for ``tf`` (``None`` otherwise), in the order given.
+    """
+
+    mode: str
+    sampling: str
+    step: float
+    density: float | None = None
+    nodes: tuple[tuple[float, tuple[float, float, float]], ...] | None = None
+
+    @property
+    def channels(self) -> int:
+        """Image channels: 3 for ``tf``, else 1."""
+        return 3 if self.mode == "tf" else 1
+
+    @property
+    def needs_vector(self) -> bool:
+        """Whether the mode reads the encoded-vector channel (emphasize, tf)."""
+        return self.mode != "xray"
+
+
+def _unit_density(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0.0 <= float(value) <= 1.0:
+        raise ParameterError(f"{name}: expected a normalised density in [0, 1], got {value!r}")
+    return float(value) + 0.0
+
+
+def _parse_nodes(nodes: Any) -> tuple[tuple[float, tuple[float, float, float]], ...]:
+    if nodes is None:
+        raise ParameterError(
+            "nodes: expected a list of (density, color) pairs for mode='tf', got None"
+        )
+    try:
+        items = list(nodes)
+    except TypeError:
+        raise ParameterError(f"nodes: expected a list of (density, color) pairs, got {nodes!r}") from None
+    if not items:
+        raise ParameterError("nodes: expected at least one (density, color) pair, got none")
+    out = []
+    for i, node in enumerate(items):
+        try:
+            d, col = node
+        except (TypeError, ValueError):
+            raise ParameterError(f"nodes[{i}]: expected a (density, color) pair, got {node!r}") from None
+        try:
+            out.append((_unit_density(f"nodes[{i}] density", d), parse_color(col)))
+        except ParameterError as exc:
+            raise ParameterError(f"nodes[{i}]: {exc}") from None
+    return tuple(out)
+
+
+def make_spec(
+    mode: str,
+    sampling: str,
+    step: float,
+    density: float | None,
+    nodes: Any,
+    vector_dims: int | None,
+    has_scalar: bool = True,
+) -> RenderSpec:
+    """Validate a render request against what the volume/store holds.
+
+    Parameters
+    ----------
+    mode, sampling, step, density, nodes :
+        As for ``hevr.render``; ``density``/``nodes`` are ignored (stored as ``None``)
+        by modes that do not use them.
+    vector_dims : int or None
+        Length of the volume's encoded-vector channel, ``None`` if it has none.
+    has_scalar : bool
+        Whether the volume has the scalar channel (needed by ``xray``).
+
+    Examples
+    --------
+    >>> make_spec("emphasize", "nearest", 1.0, 0.653, None, vector_dims=4).density
+    0.653
+    """
+    if mode not in MODES:
+        raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
+    if sampling not in SAMPLINGS:
+        raise ParameterError(f"sampling: expected one of {', '.join(SAMPLINGS)}, got {sampling!r}")
+    step = check_step(step)
+    if mode == "xray":
+        if not has_scalar:
+            raise ParameterError(
+                "mode: 'xray' needs the scalar channel, but the store/volume has none "
+                "(re-encrypt with scalar=True), got mode='xray'"
+            )
+        return RenderSpec(mode, sampling, step)
+    if vector_dims is None:
+        raise ParameterError(
+            f"mode: {mode!r} needs the encoded-density vector channel, but the store/volume "
+            f"has no vector channel (re-encrypt with vector_dims=k, e.g. 4), got vector_dims=None"
+        )
+    if isinstance(vector_dims, bool) or not isinstance(vector_dims, numbers.Integral) or vector_dims < 2:
+        raise ParameterError(f"vector_dims: expected an integer >= 2 or None, got {vector_dims!r}")
+    if mode == "emphasize":
+        if density is None:
+            raise ParameterError("density: expected a density in [0, 1] for mode='emphasize', got None")
+        return RenderSpec(mode, sampling, step, density=_unit_density("density", density))
+    return RenderSpec(mode, sampling, step, nodes=_parse_nodes(nodes))
+
+
+def combination_matrix(spec: RenderSpec, vector_dims: int) -> np.ndarray:
+    """The plaintext (k, C) matrix turning a sampled encoded vector into the mode's value.
+
+    ``emphasize``: C = 1, the column ``e(density)``. ``tf``: C = 3,
+    ``M = sum_i e(d_i) c_i^T``. (``xray`` uses the scalar channel and has none.)
+
+    Examples
+    --------
+    >>> spec = make_spec("tf", "nearest", 1.0, None, [(0.0, "red"), (1.0, "blue")], 2)
+    >>> combination_matrix(spec, 2).tolist()
+    [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    """
+    if spec.mode == "emphasize":
+        return encode_density(spec.density, vector_dims).reshape(vector_dims, 1)
+    if spec.mode == "tf":
+        assert spec.nodes is not None
+        dens = np.array([d for d, _ in spec.nodes], dtype=np.float64)
+        cols = np.array([c for _, c in spec.nodes], dtype=np.float64)
+        return encode_density(dens, vector_dims).T @ cols
+    raise ParameterError(
+        f"spec.mode: expected 'emphasize' or 'tf' (xray reads the scalar channel), got {spec.mode!r}"
+    )
+
+
+def normalisation_factor(spec: RenderSpec) -> int:
+    """Extra per-pixel divisor: 1 for xray/emphasize, K (number of nodes) for tf.
+
+    A pixel's value is its sum over samples divided by ``n_samples * factor``.
+
+    Examples
+    --------
+    >>> normalisation_factor(make_spec("xray", "nearest", 1.0, None, None, None))
+    1
+    """
+    return len(spec.nodes) if spec.mode == "tf" and spec.nodes else 1
+

@@ -1,0 +1,176 @@
+"""The plaintext reference renderer: a direct, vectorised numpy ray marcher.
+
+It implements API.md's rendering equations on an unencrypted volume so the encrypted
+path can be checked against it:
+
+* ``xray``: ``(1/n) sum value`` of the raw voxel values (as float64);
+* ``emphasize``: ``(1/n) sum dot(s, e(density))``;
+* ``tf``: ``(1/(n K)) sum_samples sum_i dot(s, e(d_i)) c_i``;
+
+where ``s`` is the sampled (nearest or trilinearly interpolated) encoded vector of the
+voxels' normalised densities. Because both vector modes are linear in ``s`` the renderer
+first maps every voxel to ``e(density) @ M`` (M from :func:`hevr.rendering.modes.combination_matrix`)
+and then interpolates that 1- or 3-channel field, which is the same sum in another order.
+Rays are processed in chunks of about ``_CHUNK_SAMPLES`` samples to bound memory.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from .camera import Camera
+from ..volume.density import default_value_range, encode_density, normalize_density
+from ..errors import ParameterError
+from .modes import RenderSpec, combination_matrix, make_spec, normalisation_factor
+from .rays import (
+    cast_rays,
+    check_spacing,
+    expand_samples,
+    nearest_voxels,
+    sample_positions,
+    trilinear_corners,
+)
+
+__all__ = ["render_plain", "DEFAULT_VECTOR_DIMS"]
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_VECTOR_DIMS = 4
+# Samples per chunk: trilinear keeps ~8 (m, C) float64 temporaries alive, so 2**18
+# samples stay well under 100 MB.
+_CHUNK_SAMPLES = 1 << 18
+# Integer volumes whose value span is at most this use a lookup table per value.
+_LUT_MAX = 1 << 16
+
+Field = Callable[[np.ndarray], np.ndarray]
+
+
+def _check_volume(vol: Any) -> np.ndarray:
+    arr = np.asarray(vol)
+    if arr.ndim != 3 or arr.size == 0:
+        raise ParameterError(f"vol: expected a non-empty 3-D array (nz, ny, nx), got shape {arr.shape}")
+    if not (arr.dtype == np.bool_ or np.issubdtype(arr.dtype, np.integer)
+            or np.issubdtype(arr.dtype, np.floating)):
+        raise ParameterError(f"vol: expected a bool, integer or float array, got dtype {arr.dtype}")
+    if np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
+        raise ParameterError("vol: expected finite values, got NaN or infinity")
+    return arr
+
+
+def _make_field(arr: np.ndarray, spec: RenderSpec, value_range: Any, dims: int | None) -> tuple[Field, int]:
+    """Return ``field(flat_voxel_indices) -> (m, C) float64`` and C."""
+    flat = arr.reshape(-1)
+    if spec.mode == "xray":
+        return (lambda idx: flat[idx].astype(np.float64)[:, None]), 1
+    assert dims is not None
+    matrix = combination_matrix(spec, dims)
+    rng = default_value_range(arr) if value_range is None else value_range
+    channels = matrix.shape[1]
+    if arr.dtype == np.bool_ or np.issubdtype(arr.dtype, np.integer):
+        lo, hi = int(flat.min()), int(flat.max())
+        if hi - lo < _LUT_MAX:
+            # One encoding per distinct value instead of one per voxel sample.
+            lut = encode_density(normalize_density(np.arange(lo, hi + 1), rng), dims) @ matrix
+            return (lambda idx: lut[flat[idx].astype(np.int64) - lo]), channels
+    return (lambda idx: encode_density(normalize_density(flat[idx], rng), dims) @ matrix), channels
+
+
+def _chunks(counts: np.ndarray, limit: int) -> list[tuple[int, int]]:
+    """Split consecutive rays into [a, b) runs of about ``limit`` samples each."""
+    csum = np.cumsum(counts)
+    bounds = [0]
+    while bounds[-1] < len(counts):
+        start = bounds[-1]
+        base = csum[start - 1] if start else 0
+        end = int(np.searchsorted(csum, base + limit, side="right"))
+        bounds.append(max(end, start + 1))
+    return list(zip(bounds[:-1], bounds[1:]))
+
+
+def render_plain(
+    vol: Any,
+    camera: Camera,
+    mode: str = "xray",
+    sampling: str = "nearest",
+    step: float = 1.0,
+    spacing: Any = (1, 1, 1),
+    value_range: Any = None,
+    vector_dims: int | None = None,
+    density: float | None = None,
+    nodes: Any = None,
+) -> np.ndarray:
+    """Render a plaintext volume; the reference for the encrypted renderer.
+
+    Parameters
+    ----------
+    vol : array_like, shape (nz, ny, nx)
+        Bool, integer or float voxel values.
+    camera : Camera
+    mode : {'xray', 'emphasize', 'tf'}
+    sampling : {'nearest', 'trilinear'}
+    step : float
+        Sample distance in world units.
+    spacing : (sx, sy, sz)
+        World-order voxel spacing.
+    value_range : (lo, hi) or None
+        Density normalisation for emphasize/tf; default: integer dtypes -> full dtype
+        range, floats -> data (min, max).
+    vector_dims : int or None
+        Length k of the density encoding (emphasize/tf); default 4.
+    density : float
+        Emphasised density in [0, 1] (emphasize).
+    nodes : list of (density, color)
+        Transfer-function nodes (tf); colours as accepted by :func:`hevr.rendering.modes.parse_color`.
+
+    Returns
+    -------
+    np.ndarray
+        float64, (height, width) or (height, width, 3) for ``tf``; 0 where rays miss.
+
+    Examples
+    --------
+    >>> vol = np.arange(27, dtype=np.uint8).reshape(3, 3, 3)
+    >>> cam = Camera.orbit(vol.shape, width=4, height=4)
+    >>> render_plain(vol, cam).shape
+    (4, 4)
+    """
+    arr = _check_volume(vol)
+    dims = None
+    if mode in ("emphasize", "tf"):
+        dims = DEFAULT_VECTOR_DIMS if vector_dims is None else vector_dims
+    spec = make_spec(mode, sampling, step, density, nodes, dims)
+    if dims is not None:
+        dims = int(dims)
+    sp = check_spacing(spacing)
+    rays = cast_rays(camera, arr.shape, sp, spec.step)
+    field, channels = _make_field(arr, spec, value_range, dims)
+    nz, ny, nx = arr.shape
+    strides = np.array([1, nx, nx * ny], dtype=np.int64)  # (i, j, k) -> flat C-order index
+
+    hits = np.flatnonzero(rays.n_samples > 0)
+    counts = rays.n_samples[hits]
+    sums = np.zeros((rays.n_rays, channels), dtype=np.float64)
+    for a, b in _chunks(counts, _CHUNK_SAMPLES) if hits.size else []:
+        ray_idx, k = expand_samples(hits[a:b], np.zeros(b - a, dtype=np.int64), counts[a:b])
+        p = sample_positions(rays, ray_idx, k, sp, spec.step)
+        if spec.sampling == "nearest":
+            vals = field(nearest_voxels(p, arr.shape) @ strides)
+        else:
+            lo, hi, w = trilinear_corners(p, arr.shape)
+            lo_f, hi_f = lo * strides, hi * strides  # per-axis flat offsets
+            vals = np.zeros((p.shape[0], channels), dtype=np.float64)
+            for c in range(8):
+                off = sum((hi_f if (c >> ax) & 1 else lo_f)[:, ax] for ax in range(3))
+                vals += w[:, c, None] * field(off)
+        starts = np.concatenate(([0], np.cumsum(counts[a:b])[:-1]))
+        sums[hits[a:b]] = np.add.reduceat(vals, starts, axis=0)
+
+    n = rays.n_samples.astype(np.float64) * normalisation_factor(spec)
+    out = np.divide(sums, n[:, None], out=np.zeros_like(sums), where=n[:, None] > 0)
+    logger.debug("render_plain: %d rays, %d samples, mode=%s", rays.n_rays, int(counts.sum()), mode)
+    shape = (rays.height, rays.width) + ((3,) if spec.mode == "tf" else ())
+    return out.reshape(shape)

@@ -1,0 +1,302 @@
+"""Ray/box clipping and sample positions (plaintext, vectorised numpy).
+
+Conventions (API.md, "Geometry conventions"): a volume of shape (nz, ny, nx) has voxel
+(k, j, i) centred at world point (i*sx, j*sy, k*sz). Rays are clipped to the closed box of
+voxel centres ``[0, (nx-1)sx] x [0, (ny-1)sy] x [0, (nz-1)sz]``; a ray on a face is
+inside. Rays start at ``t = 0`` (nothing behind the camera or the parallel image plane is
+rendered). Samples sit at ``t_enter + k*step`` for ``k = 0 .. n-1`` with
+``n = floor((t_exit - t_enter)/step + 1e-9) + 1``.
+
+Every consumer of sample positions -- the plaintext renderer and the per-brick weights of
+the encrypted path -- goes through :func:`sample_positions`, :func:`nearest_voxels` and
+:func:`trilinear_corners`, so both see bit-identical floating point (this matters for
+``floor(p + 0.5)`` at exact halves and for the summation order of trilinear weights).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .camera import Camera
+from ..errors import ParameterError
+
+__all__ = [
+    "RaySet",
+    "cast_rays",
+    "sample_positions",
+    "nearest_voxels",
+    "trilinear_corners",
+    "corner_index",
+    "expand_samples",
+    "check_shape",
+    "check_spacing",
+    "check_step",
+]
+
+# Direction components smaller than this (unit vectors) are treated as exactly parallel
+# to the slab: the slab test then degenerates to "is the origin inside (with tolerance)".
+_PARALLEL_DIR = 1e-12
+# Relative tolerance of the face / hit tests ("rays on a face are inside").
+_FACE_TOL = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class RaySet:
+    """One ray per pixel, clipped to the voxel-centre box.
+
+    Attributes
+    ----------
+    origins, directions : (N, 3) float64
+        World-space rays, ``N = width*height``, index ``row*width + col``; unit directions.
+    t_enter, t_exit : (N,) float64
+        Clipped parameter interval (``0, 0`` for rays that miss).
+    n_samples : (N,) int64
+        Number of samples, 0 for rays that miss.
+    width, height : int
+        Image size.
+    """
+
+    origins: np.ndarray
+    directions: np.ndarray
+    t_enter: np.ndarray
+    t_exit: np.ndarray
+    n_samples: np.ndarray
+    width: int
+    height: int
+
+    @property
+    def n_rays(self) -> int:
+        """Number of rays (``width*height``)."""
+        return int(self.n_samples.shape[0])
+
+
+def check_shape(shape: Any) -> tuple[int, int, int]:
+    """Validate a volume shape (nz, ny, nx) of positive ints and return it as a tuple.
+
+    Examples
+    --------
+    >>> check_shape([2, 3, 4])
+    (2, 3, 4)
+    """
+    try:
+        out = tuple(shape)
+    except TypeError:
+        raise ParameterError(f"shape: expected 3 positive integers (nz, ny, nx), got {shape!r}") from None
+    if len(out) != 3 or any(
+        isinstance(s, bool) or not isinstance(s, numbers.Integral) or s <= 0 for s in out
+    ):
+        raise ParameterError(f"shape: expected 3 positive integers (nz, ny, nx), got {shape!r}")
+    return tuple(int(s) for s in out)  # type: ignore[return-value]
+
+
+def check_spacing(spacing: Any) -> tuple[float, float, float]:
+    """Validate a world-order spacing (sx, sy, sz) of positive finite floats.
+
+    Examples
+    --------
+    >>> check_spacing((1, 2, 0.5))
+    (1.0, 2.0, 0.5)
+    """
+    try:
+        arr = np.asarray(spacing, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise ParameterError(f"spacing: expected 3 positive numbers (sx, sy, sz), got {spacing!r}")
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+def check_step(step: Any) -> float:
+    """Validate the sampling step (world units, finite, > 0).
+
+    Examples
+    --------
+    >>> check_step(0.5)
+    0.5
+    """
+    if isinstance(step, bool) or not isinstance(step, numbers.Real) or not math.isfinite(step) or step <= 0:
+        raise ParameterError(f"step: expected a positive finite number (world units), got {step!r}")
+    return float(step)
+
+
+def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float) -> RaySet:
+    """Cast the camera's rays and clip them to the voxel-centre box.
+
+    Parameters
+    ----------
+    camera : Camera
+    shape : (nz, ny, nx)
+    spacing : (sx, sy, sz)
+        World order.
+    step : float
+        Sample distance in world units, > 0.
+
+    Returns
+    -------
+    RaySet
+
+    Examples
+    --------
+    >>> cam = Camera((1, 1, 10), (1, 1, 0), width=1, height=1, parallel=True)
+    >>> rs = cast_rays(cam, (5, 3, 3), (1, 1, 1), 1.0)
+    >>> rs.t_enter.tolist(), rs.t_exit.tolist(), rs.n_samples.tolist()
+    ([6.0], [10.0], [5])
+    """
+    if not isinstance(camera, Camera):
+        raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
+    nz, ny, nx = check_shape(shape)
+    sp = np.asarray(check_spacing(spacing))
+    step = check_step(step)
+    origins, dirs = camera.rays()
+    hi = np.array([(nx - 1), (ny - 1), (nz - 1)], dtype=np.float64) * sp
+    # Absolute tolerance of the face tests, relative to the box size (at least a voxel).
+    tol = _FACE_TOL * np.maximum(hi, sp)
+    parallel = np.abs(dirs) < _PARALLEL_DIR
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (0.0 - origins) / dirs
+        t2 = (hi - origins) / dirs
+    tmin = np.where(parallel, -np.inf, np.minimum(t1, t2))
+    tmax = np.where(parallel, np.inf, np.maximum(t1, t2))
+    inside_slab = ~parallel | ((origins >= -tol) & (origins <= hi + tol))
+    t_enter = np.maximum(tmin.max(axis=1), 0.0)
+    t_exit = tmax.min(axis=1)
+    # A ray grazing an edge or corner may have t_exit a hair below t_enter by rounding.
+    t_tol = _FACE_TOL * max(step, float(np.linalg.norm(hi)))
+    hit = inside_slab.all(axis=1) & (t_exit >= t_enter - t_tol) & np.isfinite(t_exit)
+    t_exit = np.where(hit, np.maximum(t_exit, t_enter), 0.0)
+    t_enter = np.where(hit, t_enter, 0.0)
+    n = np.where(hit, np.floor((t_exit - t_enter) / step + 1e-9).astype(np.int64) + 1, 0)
+    return RaySet(
+        origins=origins,
+        directions=dirs,
+        t_enter=t_enter,
+        t_exit=t_exit,
+        n_samples=n.astype(np.int64),
+        width=camera.width,
+        height=camera.height,
+    )
+
+
+def sample_positions(
+    rays: RaySet, ray_idx: np.ndarray, k: np.ndarray, spacing: Any, step: float
+) -> np.ndarray:
+    """Sample positions in voxel-index space, (m, 3) float64 with columns (i, j, k).
+
+    ``p = (origin + (t_enter + k*step)*direction) / spacing`` evaluated elementwise, so
+    the result for a (ray, k) pair does not depend on which other pairs are computed with
+    it. This is the single definition shared by the plaintext renderer and the weights.
+
+    Examples
+    --------
+    >>> cam = Camera((1, 1, 10), (1, 1, 0), width=1, height=1, parallel=True)
+    >>> rs = cast_rays(cam, (5, 3, 3), (1, 1, 2), 1.0)
+    >>> sample_positions(rs, np.array([0, 0]), np.array([0, 4]), (1, 1, 2), 1.0).tolist()
+    [[1.0, 1.0, 4.0], [1.0, 1.0, 2.0]]
+    """
+    ray_idx = np.asarray(ray_idx, dtype=np.int64)
+    t = rays.t_enter[ray_idx] + np.asarray(k, dtype=np.int64) * float(step)
+    world = rays.origins[ray_idx] + t[:, None] * rays.directions[ray_idx]
+    return world / np.asarray(spacing, dtype=np.float64)
+
+
+def nearest_voxels(p: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
+    """Nearest voxel ``floor(p + 0.5)`` (round half up), clamped to the box.
+
+    Parameters
+    ----------
+    p : (m, 3) float64, columns (i, j, k)
+    shape : (nz, ny, nx)
+
+    Returns
+    -------
+    (m, 3) int64, columns (i, j, k)
+
+    Examples
+    --------
+    >>> nearest_voxels(np.array([[0.5, 1.49, -0.2]]), (2, 2, 2)).tolist()
+    [[1, 1, 0]]
+    """
+    upper = np.array([shape[2] - 1, shape[1] - 1, shape[0] - 1], dtype=np.int64)
+    idx = np.floor(p + 0.5).astype(np.int64)
+    return np.clip(idx, 0, upper)
+
+
+def trilinear_corners(
+    p: np.ndarray, shape: tuple[int, int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 8 trilinear corners of each sample: clamped lower/upper indices and weights.
+
+    Corner ``c`` (0..7) uses the upper index along x if ``c & 1``, along y if ``c & 2``
+    and along z if ``c & 4`` (see :func:`corner_index`). Indices are clamped to the box;
+    two corners that clamp to the same voxel each keep their weight (callers that sum
+    per voxel thereby add them).
+
+    Returns
+    -------
+    lo, hi : (m, 3) int64, columns (i, j, k)
+        Clamped ``floor(p)`` and ``floor(p) + 1``.
+    w : (m, 8) float64
+        Corner weights ``(wx*wy)*wz``; rows sum to 1 up to rounding.
+
+    Examples
+    --------
+    >>> lo, hi, w = trilinear_corners(np.array([[0.25, 0.0, 0.0]]), (1, 1, 2))
+    >>> lo.tolist(), hi.tolist(), w[0, :2].tolist()
+    ([[0, 0, 0]], [[1, 0, 0]], [0.75, 0.25])
+    """
+    upper = np.array([shape[2] - 1, shape[1] - 1, shape[0] - 1], dtype=np.int64)
+    base = np.floor(p)
+    frac = p - base
+    base = base.astype(np.int64)
+    lo = np.clip(base, 0, upper)
+    hi = np.clip(base + 1, 0, upper)
+    wl = 1.0 - frac
+    w = np.empty((p.shape[0], 8), dtype=np.float64)
+    for cy in (0, 1):
+        wy = frac[:, 1] if cy else wl[:, 1]
+        for cx in (0, 1):
+            wxy = (frac[:, 0] if cx else wl[:, 0]) * wy
+            w[:, cx | (cy << 1)] = wxy * wl[:, 2]
+            w[:, cx | (cy << 1) | 4] = wxy * frac[:, 2]
+    return lo, hi, w
+
+
+def corner_index(lo: np.ndarray, hi: np.ndarray, corner: int) -> np.ndarray:
+    """Per-axis indices (m, 3) of trilinear corner ``corner`` (see :func:`trilinear_corners`).
+
+    Examples
+    --------
+    >>> corner_index(np.array([[0, 0, 0]]), np.array([[1, 1, 1]]), 5).tolist()
+    [[1, 0, 1]]
+    """
+    out = lo.copy()
+    for a in range(3):
+        if (corner >> a) & 1:
+            out[:, a] = hi[:, a]
+    return out
+
+
+def expand_samples(
+    ray_ids: np.ndarray, k_first: np.ndarray, counts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Enumerate sample (ray, k) pairs, ray-major, k ascending within each ray.
+
+    Ray ``ray_ids[r]`` contributes ``k = k_first[r] .. k_first[r] + counts[r] - 1``.
+
+    Examples
+    --------
+    >>> r, k = expand_samples(np.array([3, 5]), np.array([0, 2]), np.array([2, 3]))
+    >>> r.tolist(), k.tolist()
+    ([3, 3, 5, 5, 5], [0, 1, 2, 3, 4])
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    total = int(counts.sum())
+    ray_idx = np.repeat(np.asarray(ray_ids, dtype=np.int64), counts)
+    # k = k_first + (position within the ray's run) = arange - run start + k_first.
+    shift = np.repeat(np.asarray(k_first, dtype=np.int64) - (np.cumsum(counts) - counts), counts)
+    return ray_idx, np.arange(total, dtype=np.int64) + shift

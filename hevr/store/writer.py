@@ -1,0 +1,379 @@
+"""The encrypted volume store: Zarr v3 bricks of Paillier ciphertexts.
+
+Layout (format ``hevr-encrypted-volume`` version 1, documented in ``docs/format.md``)::
+
+    vol.zarr/
+      zarr.json            group; attribute "hevr" = VolumeMetadata.to_dict()
+      scalar/              uint8 (nz, ny, nx, W), chunks (bz, by, bx, W)      [optional]
+      vector/              uint8 (k, nz, ny, nx, W), chunks (k, bz, by, bx, W) [optional]
+      done/                uint8 (gz, gy, gx), chunks (1, 1, 1): brick completion markers
+
+W is the ciphertext width in bytes (2·bits/8); every ciphertext is a big-endian record,
+uncompressed. One chunk holds all of one brick's bytes, and each encryption task writes
+only its own brick's chunks and its own marker, so no two tasks ever write the same chunk.
+
+>>> import tempfile, os, warnings, numpy as np, hevr
+>>> with warnings.catch_warnings():
+...     warnings.simplefilter("ignore")
+...     pub, priv = hevr.generate_keypair(128)
+>>> vol = np.arange(27, dtype=np.uint8).reshape(3, 3, 3)
+>>> path = os.path.join(tempfile.mkdtemp(), "v.zarr")
+>>> ev = hevr.encrypt_volume(vol, path, priv, brick=2, progress=False)
+>>> ev.shape, ev.grid
+((3, 3, 3), (2, 2, 2))
+>>> priv.decrypt_array(ev.read_brick((1, 1, 1)))
+[26]
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import shutil
+from numbers import Integral
+from pathlib import Path
+from typing import Any, Sequence
+
+import dask
+import dask.array
+import numpy as np
+import zarr
+
+from .. import _stats
+from .._dask import compute
+from .metadata import ChannelInfo, VolumeMetadata
+from ..volume.density import encode_density, normalize_density
+from ..errors import ParameterError, StoreError, StoreExistsError
+from ..crypto.keys import PrivateKey, PublicKey
+from .reader import EncryptedVolume, brick_slices, open_volume
+
+log = logging.getLogger(__name__)
+
+__all__ = ["encrypt_volume", "open_volume", "EncryptedVolume"]
+
+
+def _check_brick(brick: Any) -> tuple[int, int, int]:
+    b = (brick,) * 3 if isinstance(brick, Integral) and not isinstance(brick, bool) else brick
+    try:
+        b = tuple(b)
+    except TypeError:
+        raise ParameterError(f"brick: expected a positive int or 3 positive ints, got {brick!r}") from None
+    if len(b) != 3 or not all(isinstance(x, Integral) and not isinstance(x, bool) and x > 0 for x in b):
+        raise ParameterError(f"brick: expected a positive int or 3 positive ints, got {brick!r}")
+    return tuple(int(x) for x in b)  # type: ignore[return-value]
+
+
+def _check_spacing(spacing: Any) -> tuple[float, float, float]:
+    try:
+        s = tuple(float(x) for x in spacing)
+    except (TypeError, ValueError):
+        raise ParameterError(f"spacing: expected 3 positive numbers (sx, sy, sz), got {spacing!r}") from None
+    if len(s) != 3 or not all(math.isfinite(x) and x > 0 for x in s):
+        raise ParameterError(f"spacing: expected 3 positive finite numbers (sx, sy, sz), got {spacing!r}")
+    return s  # type: ignore[return-value]
+
+
+def _check_volume(vol: Any) -> Any:
+    if not hasattr(vol, "shape") or not hasattr(vol, "dtype"):
+        vol = np.asarray(vol)
+    if len(vol.shape) != 3:
+        raise ParameterError(f"vol: expected a 3-D array (nz, ny, nx), got shape {tuple(vol.shape)}")
+    if any(s == 0 for s in vol.shape):
+        raise ParameterError(f"vol: expected a non-empty array, got shape {tuple(vol.shape)}")
+    kind = np.dtype(vol.dtype).kind
+    if kind not in "biuf" or np.dtype(vol.dtype).itemsize > 8:
+        raise ParameterError(f"vol: expected an integer, bool or float dtype, got {vol.dtype}")
+    return vol
+
+
+def _minmax(vol: Any) -> tuple[float, float, bool]:
+    """(min, max, all_finite) in one pass; dask arrays are reduced lazily."""
+    if isinstance(vol, dask.array.Array):
+        lo, hi, fin = dask.compute(vol.min(), vol.max(), dask.array.isfinite(vol).all())
+    else:
+        lo, hi = np.min(vol), np.max(vol)
+        fin = bool(np.isfinite(lo) and np.isfinite(hi)) if np.dtype(vol.dtype).kind == "f" else True
+    return float(lo), float(hi), bool(fin)
+
+
+def _plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_range: Any,
+                   digits: Any, vector_digits: Any) -> tuple[ChannelInfo | None, ChannelInfo | None, tuple[float, float]]:
+    is_float = np.dtype(vol.dtype).kind == "f"
+    lo, hi, finite = _minmax(vol)
+    if not finite:
+        raise ParameterError("vol: expected finite voxel values, got NaN or infinity")
+    if vector_dims is not None and (isinstance(vector_dims, bool) or not isinstance(vector_dims, Integral) or vector_dims < 2):
+        raise ParameterError(f"vector_dims: expected an integer >= 2 or None, got {vector_dims!r}")
+    if not scalar and vector_dims is None:
+        raise ParameterError("scalar/vector_dims: expected at least one channel, got scalar=False and vector_dims=None")
+    if value_range is None:
+        if is_float:
+            value_range = (lo, hi if hi > lo else lo + 1.0)
+            log.warning("value_range not given for a float volume; using the data range %s, which "
+                        "is then visible in the store metadata", value_range)
+        else:
+            info = np.iinfo(vol.dtype) if np.dtype(vol.dtype).kind != "b" else None
+            value_range = (float(info.min), float(info.max)) if info else (0.0, 1.0)
+    try:
+        vr = (float(value_range[0]), float(value_range[1]))
+    except (TypeError, ValueError, IndexError):
+        raise ParameterError(f"value_range: expected (lo, hi), got {value_range!r}") from None
+    if len(value_range) != 2 or not (math.isfinite(vr[0]) and math.isfinite(vr[1]) and vr[1] > vr[0]):
+        raise ParameterError(f"value_range: expected finite (lo, hi) with hi > lo, got {value_range!r}")
+    if lo < vr[0] or hi > vr[1]:
+        raise ParameterError(f"vol: values must lie inside value_range {vr}; got data range [{lo}, {hi}]")
+    sc = vc = None
+    max_int = int(key_n) // 3 - 1
+    if scalar:
+        if is_float:
+            d = 3 if digits is None else digits
+            if not isinstance(d, Integral) or d < 0:
+                raise ParameterError(f"digits: expected a non-negative int, got {digits!r}")
+            if max(abs(lo), abs(hi)) * 10.0**d >= max_int:
+                raise ParameterError(f"digits: {d} digits overflow a {int(key_n).bit_length()}-bit key; use fewer")
+            sc = ChannelInfo(exponent=-int(d), digits=int(d))
+        else:
+            if digits is not None:
+                raise ParameterError("digits: integer volumes are stored exactly; digits applies to float volumes only")
+            sc = ChannelInfo(exponent=0)
+    if vector_dims is not None:
+        vd = vector_digits
+        if not isinstance(vd, Integral) or not 1 <= vd <= 12:
+            raise ParameterError(f"vector_digits: expected an int in [1, 12], got {vector_digits!r}")
+        vc = ChannelInfo(exponent=-int(vd), digits=int(vd), dims=int(vector_dims))
+    return sc, vc, vr
+
+
+def _quantise_scalar(block: np.ndarray, info: ChannelInfo) -> list[int]:
+    """Mantissas of one brick as Python ints, converted in one vectorised step."""
+    if info.digits is None:
+        # uint64 values above 2^63 do not fit int64; tolist() on the original dtype is exact
+        return block.ravel().tolist() if block.dtype == np.uint64 else block.astype(np.int64).ravel().tolist()
+    scaled = np.rint(block.astype(np.float64).ravel() * 10.0**info.digits)
+    if scaled.size and np.abs(scaled).max() < 2.0**62:
+        return scaled.astype(np.int64).tolist()
+    return [int(v) for v in scaled]  # mantissas beyond int64 (large keys, many digits)
+
+
+def _quantise_vector(block: np.ndarray, info: ChannelInfo, value_range: tuple[float, float]) -> np.ndarray:
+    """(k, voxels) non-negative integer mantissas of the Alg. 4 encoding."""
+    enc = encode_density(normalize_density(block, value_range), info.dims)  # (..., k)
+    q = np.rint(enc * 10.0**info.digits).astype(np.int64)
+    return q.reshape(-1, info.dims).T
+
+
+def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
+                   unsafe_no_obfuscation: bool) -> tuple[int, int, int]:
+    """One task: encrypt one plaintext brick and write its chunks, then its marker."""
+    from ..crypto.records import mpz_to_bytes
+
+    meta = VolumeMetadata.from_dict(meta_dict)
+    block = np.asarray(block)
+    sl = brick_slices(meta, index)
+    width = meta.ciphertext_bytes
+    group = zarr.open_group(path, mode="r+")
+    if meta.scalar is not None:
+        with _stats.timed("encrypt.crypto", block.size):
+            cts = key.encrypt_array(_quantise_scalar(block, meta.scalar), unsafe_no_obfuscation=unsafe_no_obfuscation)
+        with _stats.timed("encrypt.write"):
+            group["scalar"][sl] = mpz_to_bytes(cts, width).reshape(block.shape + (width,))
+    if meta.vector is not None:
+        q = _quantise_vector(block, meta.vector, meta.value_range)
+        k = meta.vector.dims
+        out = np.empty((k,) + block.shape + (width,), dtype=np.uint8)
+        for j in range(k):
+            with _stats.timed("encrypt.crypto", block.size):
+                cts = key.encrypt_array(q[j], unsafe_no_obfuscation=unsafe_no_obfuscation)
+            out[j] = mpz_to_bytes(cts, width).reshape(block.shape + (width,))
+        with _stats.timed("encrypt.write"):
+            group["vector"][(slice(None),) + sl] = out
+    group["done"][index] = 1
+    return index
+
+
+def _create_store(path: str, meta: VolumeMetadata) -> None:
+    group = zarr.open_group(path, mode="w")
+    shape, brick, w = meta.shape, meta.brick, meta.ciphertext_bytes
+    if meta.scalar is not None:
+        group.create_array("scalar", shape=shape + (w,), chunks=brick + (w,), dtype="uint8",
+                           compressors=None, fill_value=0)
+    if meta.vector is not None:
+        k = meta.vector.dims
+        group.create_array("vector", shape=(k,) + shape + (w,), chunks=(k,) + brick + (w,), dtype="uint8",
+                           compressors=None, fill_value=0)
+    group.create_array("done", shape=meta.grid, chunks=(1, 1, 1), dtype="uint8", compressors=None, fill_value=0)
+    group.attrs["hevr"] = meta.to_dict()
+
+
+def _resume_target(path: str, meta: VolumeMetadata) -> VolumeMetadata:
+    try:
+        group = zarr.open_group(path, mode="r")
+        old = VolumeMetadata.from_dict(dict(group.attrs).get("hevr"), where=path)
+    except StoreError:
+        raise
+    except Exception as exc:
+        raise StoreError(f"resume: cannot open the existing store {path}: {exc}") from None
+    if old.fingerprint != meta.fingerprint:
+        raise ParameterError(
+            f"key: the store {path} was started with key {old.fingerprint[:16]}…, got key {meta.fingerprint[:16]}…"
+        )
+    for name in ("shape", "brick", "spacing", "scalar", "vector", "value_range", "dtype"):
+        if getattr(old, name) != getattr(meta, name):
+            raise ParameterError(
+                f"{name}: resume needs the same {name} as the interrupted run ({getattr(old, name)!r}), got {getattr(meta, name)!r}"
+            )
+    return old
+
+
+def encrypt_volume(
+    vol: Any,
+    path: str | Path,
+    key: PublicKey | PrivateKey,
+    *,
+    spacing: Sequence[float] = (1.0, 1.0, 1.0),
+    brick: int | Sequence[int] = 32,
+    scalar: bool = True,
+    vector_dims: int | None = None,
+    value_range: Sequence[float] | None = None,
+    digits: int | None = None,
+    vector_digits: int = 3,
+    overwrite: bool = False,
+    resume: bool = False,
+    progress: bool = True,
+    client: Any = None,
+    unsafe_no_obfuscation: bool = False,
+) -> EncryptedVolume:
+    """Encrypt a 3-D volume brick by brick into a Zarr v3 store, one Dask task per brick.
+
+    Parameters
+    ----------
+    vol : array_like (numpy, numpy memmap or dask array), shape (nz, ny, nx)
+    path : str or Path
+        Target store (a local path or an fsspec URL).
+    key : PublicKey or PrivateKey
+        A private key selects the owner-side fast path (same ciphertext distribution); it is
+        shipped to the Dask workers that encrypt, so use it only on machines the data owner
+        controls (see docs/security.md), else pass the public key.
+    spacing : 3 floats
+        Voxel spacing in world order (sx, sy, sz).
+    brick : int or 3 ints
+        Brick shape in array order; one Zarr chunk per brick.
+    scalar : bool
+        Store the scalar channel (X-ray).
+    vector_dims : int, optional
+        Also store the paper's k-dimensional density encoding (Alg. 4), k >= 2.
+    value_range : (lo, hi), optional
+        Density normalisation range. Integer dtypes default to the dtype's full range.
+    digits : int, optional
+        Decimal digits kept for float volumes (default 3). Integer volumes are exact.
+    vector_digits : int
+        Decimal digits of each encoded vector component (default 3).
+    overwrite, resume : bool
+        Replace an existing store, or finish an interrupted run (only missing bricks).
+    progress : bool
+        Show a progress bar on stderr.
+    client : distributed.Client, optional
+        Defaults to the active client, else Dask's default scheduler.
+    unsafe_no_obfuscation : bool
+        NOT SECURE; only for reproducing the paper's "without obfuscation" benchmarks.
+
+    Returns
+    -------
+    EncryptedVolume
+    """
+    if not isinstance(key, (PublicKey, PrivateKey)):
+        raise ParameterError(f"key: expected a PublicKey or PrivateKey, got {type(key).__name__}")
+    if unsafe_no_obfuscation:
+        log.warning("encrypt_volume(unsafe_no_obfuscation=True): the store is NOT secure")
+    vol = _check_volume(vol)
+    brick_t = _check_brick(brick)
+    spacing_t = _check_spacing(spacing)
+    pub = key.public_key if isinstance(key, PrivateKey) else key
+    sc, vc, vr = _plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
+    meta = VolumeMetadata(
+        shape=tuple(int(s) for s in vol.shape), spacing=spacing_t, brick=brick_t, n=str(int(pub.n)),
+        fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
+        value_range=vr, scalar=sc, vector=vc,
+    )
+    path = str(Path(path).resolve()) if _is_local(str(path)) else str(path)
+    _warn_if_remote(client, key)
+    exists = _store_exists(path)
+    if exists and resume:
+        meta = dataclasses.replace(meta, store_id=_resume_target(path, meta).store_id)
+    elif exists and not overwrite:
+        raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
+    else:
+        if exists:
+            _remove_store(path)
+        meta = dataclasses.replace(meta, store_id=_token() + _token())
+        _create_store(path, meta)
+    done = np.asarray(zarr.open_array(f"{path}/done", mode="r")[...]) if exists and resume else np.zeros(meta.grid, np.uint8)
+    todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid) if not done[idx]]
+    log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, path)
+    darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(vol, chunks=brick_t)
+    darr = darr.rechunk(brick_t)
+    blocks = darr.to_delayed()
+    task = dask.delayed(_encrypt_brick, pure=False)
+    meta_dict = meta.to_dict()
+    tasks = [task(blocks[idx], path, idx, meta_dict, key, unsafe_no_obfuscation,
+                  dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{_token()}")
+             for idx in todo]
+    compute(tasks, client=client, progress=progress, desc="encrypt")
+    group = zarr.open_group(path, mode="r+")
+    final = np.asarray(group["done"][...])
+    if not final.all():  # pragma: no cover - tasks raise instead
+        raise StoreError(f"path: {int((final == 0).sum())} bricks of {path} are still missing")
+    attrs = dict(group.attrs["hevr"])
+    attrs["complete"] = True
+    group.attrs["hevr"] = attrs
+    return open_volume(path)
+
+
+def _warn_if_remote(client: Any, key: Any) -> None:
+    """Encryption tasks carry plaintext bricks (and p, q with a PrivateKey): say so loudly
+    when they are about to go to a scheduler that is not on this machine."""
+    from .._dask import active_client
+
+    c = active_client(client)
+    addr = getattr(getattr(c, "scheduler", None), "address", "") or ""
+    if addr and not any(h in addr for h in ("127.0.0.1", "localhost", "inproc://", "[::1]")):
+        what = "plaintext bricks and the private key's p, q" if isinstance(key, PrivateKey) else "plaintext bricks"
+        log.warning("encrypt_volume sends %s to the Dask workers of %s; encrypt only on machines the "
+                    "data owner controls", what, addr)
+
+
+def _token() -> str:
+    import secrets
+
+    return secrets.token_hex(4)
+
+
+def _is_local(path: str) -> bool:
+    return "://" not in path
+
+
+def _store_exists(path: str) -> bool:
+    if _is_local(path):
+        return Path(path).exists()
+    try:
+        zarr.open_group(path, mode="r")
+        return True
+    except Exception:
+        return False
+
+
+def _remove_store(path: str) -> None:
+    if _is_local(path):
+        p = Path(path)
+        if p.is_dir():
+            if not (p / "zarr.json").exists():
+                raise StoreExistsError(f"path: {path} exists and is not a Zarr store; refusing to delete it")
+            shutil.rmtree(p)
+        else:
+            raise StoreExistsError(f"path: {path} exists and is not a directory; refusing to delete it")
+    else:
+        import fsspec
+
+        fs, _, (root,) = fsspec.get_fs_token_paths(path)
+        fs.rm(root, recursive=True)

@@ -1,0 +1,397 @@
+"""Reading and writing plaintext volumes.
+
+:func:`load_volume` reads ``.npy``, ``.raw`` (shape and type from the name or arguments),
+NRRD (``.nrrd``/``.nhdr``, own reader in :mod:`hevr.volume.nrrd`), NIfTI (``.nii``/``.nii.gz``,
+needs nibabel) and DICOM series folders (needs pydicom); the last two come with the
+``hevr[io]`` extra. Every reader returns the array in (z, y, x) order (x fastest) and the
+spacing in world order (sx, sy, sz), as described in ``API.md``. Voxel axes are kept as
+stored: orientation matrices (NRRD space directions, NIfTI affines, DICOM patient
+orientation) only contribute their voxel sizes.
+
+:func:`save_volume` writes ``.npy``, ``.raw`` and NRRD (detached ``.nhdr`` + ``.raw``, or
+attached ``.nrrd``), enough for tests, demos and the CLI.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import math
+import os
+from pathlib import Path
+from types import ModuleType
+from typing import Any, Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from .nrrd import check_file, load_raw, read_nrrd, to_native, write_nrrd, write_raw
+from ..errors import MissingDependencyError, ParameterError, VolumeFormatError
+
+__all__ = ["load_volume", "save_volume"]
+
+_log = logging.getLogger(__name__)
+
+_Spacing = tuple[float, float, float]
+
+_EXTENSIONS = ".npy, .raw, .nrrd, .nhdr, .nii, .nii.gz or a DICOM series folder"
+
+
+def _format(path: Path) -> str:
+    """Which reader handles ``path``: npy, raw, nrrd, nifti or dicom."""
+    if path.is_dir():
+        return "dicom"
+    check_file(path)
+    name = path.name.lower()
+    if name.endswith((".nii", ".nii.gz")):
+        return "nifti"
+    suffix = path.suffix.lower()
+    if suffix in (".npy", ".raw"):
+        return suffix[1:]
+    if suffix in (".nrrd", ".nhdr"):
+        return "nrrd"
+    if suffix in (".dcm", ".dicom", ".ima"):
+        raise VolumeFormatError(f"{path.name}: a single DICOM file is not a volume; pass the "
+                                f"folder holding the whole series ({path.parent})")
+    raise VolumeFormatError(f"{path.name}: unknown volume file extension {suffix or '(none)'!r}; "
+                            f"expected {_EXTENSIONS}")
+
+
+def _check_spacing(spacing: Any, what: str) -> _Spacing:
+    try:
+        out = () if isinstance(spacing, (str, bytes)) else tuple(float(s) for s in spacing)
+    except (TypeError, ValueError):
+        out = ()
+    if len(out) != 3 or not all(math.isfinite(s) and s > 0 for s in out):
+        raise ParameterError(f"{what} must be three positive finite numbers (sx, sy, sz), "
+                             f"got {spacing!r}")
+    return out  # type: ignore[return-value]
+
+
+def _check_volume(arr: np.ndarray, path: Path) -> np.ndarray:
+    """Reject anything that is not a non-empty 3-D integer/float array."""
+    if arr.ndim != 3:
+        raise VolumeFormatError(f"{path.name}: expected a 3-D volume, got a {arr.ndim}-D "
+                                f"array of shape {arr.shape}")
+    if arr.dtype.kind not in "uif":
+        raise VolumeFormatError(f"{path.name}: expected integer or floating-point voxels, "
+                                f"got dtype {arr.dtype}")
+    if arr.size == 0:
+        raise VolumeFormatError(f"{path.name}: the volume is empty (shape {arr.shape})")
+    return to_native(arr)
+
+
+def _require(module: str, path: Path) -> ModuleType:
+    """Import an optional dependency or explain which extra provides it."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise MissingDependencyError(
+            f"reading {path.name} needs the optional package '{module}', which is not "
+            "installed: pip install 'hevr[io]'") from exc
+
+
+def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None,
+                dtype: npt.DTypeLike | None = None, spacing: Sequence[float] | None = None,
+                byte_order: str = "little") -> tuple[np.ndarray, _Spacing]:
+    """Read a 3-D volume from a file or a DICOM series folder.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.npy``; ``.raw`` (headerless, x fastest); ``.nrrd``/``.nhdr`` (raw or gzip
+        encoding, one data file); ``.nii``/``.nii.gz`` (needs nibabel); or a folder with
+        one DICOM series (needs pydicom). The format is chosen by the extension.
+    shape : sequence of 3 ints, optional
+        Only for ``.raw``: the array shape in (z, y, x) order. Default: parsed from the file
+        name, whose ``XxYxZ`` token lists the sizes in x, y, z order (``tooth_103x94x161_uint8.raw``).
+    dtype : numpy dtype, optional
+        Only for ``.raw``: the voxel type. Default: the name's type token (int8, uint8,
+        int16, uint16, int32, uint32, float32 or float64).
+    spacing : sequence of 3 floats, optional
+        Voxel size (sx, sy, sz) in world order; overrides what the file says. Files without
+        spacing (``.npy``, ``.raw``) default to (1, 1, 1).
+    byte_order : {"little", "big"}, default "little"
+        Only used for ``.raw`` files; the other formats record their byte order.
+
+    Returns
+    -------
+    volume : numpy.ndarray
+        Shape (nz, ny, nx), native byte order, integer or float dtype. Uncompressed native
+        data (``.npy``, ``.raw``, raw NRRD) comes as a read-only ``np.memmap``: copy it
+        with ``np.array(volume)`` before modifying it. DICOM and scaled NIfTI data are
+        rescaled (slope/intercept) and stay integer (int16 or wider, signed) when the
+        factors are integers, else become float32.
+    spacing : tuple of 3 floats
+        (sx, sy, sz).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` (or an NRRD data file) does not exist.
+    VolumeFormatError
+        Unknown extension, not 3-D, sizes that do not match the data, truncated files,
+        unsupported types or encodings; the message names the file and the problem.
+    MissingDependencyError
+        NIfTI or DICOM without nibabel/pydicom installed (``pip install 'hevr[io]'``).
+    ParameterError
+        Invalid ``shape``/``dtype``/``spacing``/``byte_order``, or ``shape``/``dtype``
+        given for a format other than ``.raw``.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from hevr.volume.loaders import load_volume, save_volume
+    >>> d = tempfile.mkdtemp()
+    >>> _ = save_volume(os.path.join(d, "v.nhdr"), np.zeros((4, 5, 6), np.int16), (0.5, 1, 2))
+    >>> vol, spacing = load_volume(os.path.join(d, "v.nhdr"))
+    >>> vol.shape, vol.dtype, spacing
+    ((4, 5, 6), dtype('int16'), (0.5, 1.0, 2.0))
+    """
+    path = Path(os.fspath(path)).expanduser()
+    if byte_order not in ("little", "big"):
+        raise ParameterError(f"load_volume: byte_order must be 'little' or 'big', got {byte_order!r}")
+    override = None if spacing is None else _check_spacing(spacing, "load_volume: spacing")
+    kind = _format(path)
+    if kind != "raw" and (shape is not None or dtype is not None):
+        raise ParameterError(f"load_volume: shape and dtype only apply to .raw files, got "
+                             f"shape={shape!r}, dtype={dtype!r} for {path.name}")
+    if kind == "npy":
+        vol, file_spacing = _load_npy(path), (1.0, 1.0, 1.0)
+    elif kind == "raw":
+        vol, file_spacing = load_raw(path, shape, dtype, byte_order), (1.0, 1.0, 1.0)
+    elif kind == "nrrd":
+        vol, file_spacing = read_nrrd(path)
+    elif kind == "nifti":
+        vol, file_spacing = _load_nifti(path, need_spacing=override is None)
+    else:
+        vol, file_spacing = _load_dicom(path)
+    vol = _check_volume(vol, path)
+    result = override or file_spacing
+    _log.debug("loaded %s: shape %s, %s, spacing %s", path, vol.shape, vol.dtype, result)
+    return vol, result
+
+
+def _load_npy(path: Path) -> np.ndarray:
+    try:
+        arr = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise VolumeFormatError(f"{path.name}: not a valid .npy array file ({exc})") from None
+    if not isinstance(arr, np.ndarray):  # an .npz archive renamed to .npy
+        raise VolumeFormatError(f"{path.name}: expected a single .npy array, got an .npz archive")
+    return arr
+
+
+def _rescale(raw: np.ndarray, slope: Any, inter: Any) -> np.ndarray:
+    """``raw * slope + inter`` (per slice along axis 0 for arrays), integer-preserving.
+
+    With integral factors the result is the smallest signed type from int16 upwards
+    that holds every intermediate, so Hounsfield units stay exact int16; otherwise float32
+    (float64 for float64 input).
+    """
+    slope = np.asarray(slope, np.float64).reshape((-1,) + (1,) * (raw.ndim - 1))
+    inter = np.asarray(inter, np.float64).reshape((-1,) + (1,) * (raw.ndim - 1))
+    if (slope == 1).all() and (inter == 0).all():
+        return raw
+    if raw.dtype.kind not in "iu" or (slope % 1).any() or (inter % 1).any():
+        ftype = np.float64 if raw.dtype == np.float64 else np.float32  # never lose precision
+        out = raw.astype(ftype)
+        out *= slope.astype(ftype)
+        out += inter.astype(ftype)
+        return out
+    if slope.shape[0] > 1:  # per-slice factors: the range of each slice matters
+        flat = raw.reshape(slope.shape[0], -1)
+        lo, hi = flat.min(axis=1).astype(np.float64), flat.max(axis=1).astype(np.float64)
+    else:  # no reshape: it would copy a transposed/Fortran-ordered memmap
+        lo, hi = np.array([raw.min()], np.float64), np.array([raw.max()], np.float64)
+    s, b = slope.ravel(), inter.ravel()
+    ends = np.concatenate([lo, hi, lo * s, hi * s, lo * s + b, hi * s + b])
+    target = next(t for t in (np.int16, np.int32, np.int64)
+                  if np.iinfo(t).min <= ends.min() and ends.max() <= np.iinfo(t).max)
+    out = raw.astype(target)
+    out *= slope.astype(target)
+    out += inter.astype(target)
+    return out
+
+
+def _load_nifti(path: Path, need_spacing: bool) -> tuple[np.ndarray, _Spacing]:
+    nib = _require("nibabel", path)
+    try:
+        img = nib.load(str(path))
+        proxy = img.dataobj
+        if nib.is_proxy(proxy):
+            # Read unscaled so integral scl_slope/scl_inter keep an integer dtype.
+            raw = np.asanyarray(proxy.get_unscaled())
+            slope, inter = getattr(proxy, "slope", 1.0), getattr(proxy, "inter", 0.0)
+        else:
+            raw, slope, inter = np.asanyarray(proxy), 1.0, 0.0
+        zooms = img.header.get_zooms()
+    except Exception as exc:  # nibabel raises many types for broken files
+        raise VolumeFormatError(f"{path.name}: cannot read NIfTI file ({exc})") from None
+    shape = tuple(raw.shape)
+    while len(shape) > 3 and shape[-1] == 1:  # tools often write (x, y, z, 1)
+        shape = shape[:-1]
+    if len(shape) != 3:
+        raise VolumeFormatError(f"{path.name}: expected a 3-D volume, got a {len(raw.shape)}-D "
+                                f"image of shape {raw.shape}")
+    if raw.dtype.kind not in "iuf":
+        raise VolumeFormatError(f"{path.name}: expected integer or floating-point voxels, "
+                                f"got dtype {raw.dtype}")
+    vol = _rescale(raw.reshape(shape), 1.0 if slope is None else slope, 0.0 if inter is None else inter)
+    spacing = tuple(float(z) for z in zooms[:3])
+    if need_spacing and not all(math.isfinite(z) and z > 0 for z in spacing):
+        raise VolumeFormatError(f"{path.name}: NIfTI voxel sizes (pixdim) must be positive, "
+                                f"got {spacing}; pass spacing= to override")
+    return vol.transpose(2, 1, 0), spacing  # type: ignore[return-value]
+
+
+def _load_dicom(folder: Path) -> tuple[np.ndarray, _Spacing]:
+    pydicom = _require("pydicom", folder)
+    from pydicom.errors import InvalidDicomError
+
+    slices = []
+    for f in sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")):
+        try:
+            ds = pydicom.dcmread(f)
+        except InvalidDicomError:
+            _log.debug("%s: skipping %s, not a DICOM file", folder.name, f.name)
+            continue
+        except Exception as exc:
+            raise VolumeFormatError(f"{f.name}: cannot read DICOM file in {folder} ({exc})") from None
+        if "PixelData" in ds:  # DICOMDIR and other non-image objects carry none
+            slices.append((f, ds))
+    if not slices:
+        raise VolumeFormatError(f"{folder.name}: expected a folder of DICOM slices, found no "
+                                "DICOM file with pixel data in it")
+    first = slices[0][1]
+    series = sorted({str(ds.get("SeriesInstanceUID", "?")) for _, ds in slices})
+    if len(series) > 1:
+        raise VolumeFormatError(f"{folder.name}: expected one DICOM series, the folder holds "
+                                f"{len(series)} ({', '.join(series[:4])}); split them into folders")
+    for f, ds in slices:
+        if int(ds.get("NumberOfFrames", 1) or 1) > 1 or int(ds.get("SamplesPerPixel", 1)) != 1:
+            raise VolumeFormatError(f"{f.name}: expected single-frame greyscale DICOM slices, got "
+                                    f"{ds.get('NumberOfFrames', 1)} frame(s) with "
+                                    f"{ds.get('SamplesPerPixel', 1)} sample(s) per pixel")
+        if (ds.get("Rows"), ds.get("Columns")) != (first.get("Rows"), first.get("Columns")):
+            raise VolumeFormatError(f"{f.name}: slice size {ds.get('Rows')}x{ds.get('Columns')} differs "
+                                    f"from {first.get('Rows')}x{first.get('Columns')} in {slices[0][0].name}")
+    order, sz = _dicom_order(folder, slices)
+    slices = [slices[i] for i in order]
+    pixels = []
+    for f, ds in slices:
+        try:
+            pixels.append(ds.pixel_array)
+        except Exception as exc:  # compressed syntaxes need handlers that may be missing
+            raise VolumeFormatError(f"{f.name}: cannot decode the pixel data (transfer syntax "
+                                    f"{ds.file_meta.get('TransferSyntaxUID', '?')}): {exc}") from None
+    slopes = [float(ds.get("RescaleSlope", 1) or 1) for _, ds in slices]
+    inters = [float(ds.get("RescaleIntercept", 0) or 0) for _, ds in slices]
+    vol = _rescale(np.stack(pixels), slopes, inters)
+    ps = first.get("PixelSpacing")
+    if ps is None or len(ps) != 2:
+        _log.warning("%s: no PixelSpacing; assuming 1 x 1", folder.name)
+        ps = (1.0, 1.0)
+    # PixelSpacing is (between rows, between columns) = (sy, sx).
+    return vol, (float(ps[1]), float(ps[0]), sz)
+
+
+def _dicom_order(folder: Path, slices: list) -> tuple[np.ndarray, float]:
+    """Slice order (ascending along the slice normal) and the z spacing."""
+    try:
+        iop = np.array(slices[0][1].ImageOrientationPatient, dtype=np.float64)
+        normal = np.cross(iop[:3], iop[3:])
+        pos = np.array([float(np.dot(np.array(ds.ImagePositionPatient, np.float64), normal))
+                        for _, ds in slices])
+    except (AttributeError, TypeError, ValueError):
+        pos = None
+    if pos is not None:
+        order = np.argsort(pos, kind="stable")
+        gaps = np.diff(pos[order])
+        if len(gaps) and gaps.min() < 1e-4:
+            i = int(np.argmin(gaps))
+            raise VolumeFormatError(
+                f"{folder.name}: slices {slices[order[i]][0].name} and {slices[order[i + 1]][0].name} "
+                f"lie at the same position {pos[order[i]]:.4g}; expected one slice per position")
+        if len(gaps):
+            sz = float(np.median(gaps))
+            if gaps.max() - gaps.min() > 1e-3 * sz:
+                _log.warning("%s: uneven slice spacing %.4g..%.4g; using the median %.4g",
+                             folder.name, gaps.min(), gaps.max(), sz)
+            return order, sz
+    else:
+        instance = [ds.get("InstanceNumber") for _, ds in slices]
+        if None in instance:
+            raise VolumeFormatError(f"{folder.name}: cannot order the DICOM slices: expected "
+                                    "ImagePositionPatient/ImageOrientationPatient or InstanceNumber")
+        order = np.argsort(np.array(instance, dtype=np.int64), kind="stable")
+    ds = slices[0][1]
+    sz = float(ds.get("SpacingBetweenSlices") or ds.get("SliceThickness") or 1.0)
+    return order, sz
+
+
+def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
+                spacing: Sequence[float] = (1.0, 1.0, 1.0), *, encoding: str = "raw",
+                byte_order: str = "little") -> Path:
+    """Write a 3-D volume as ``.npy``, ``.raw``, NRRD ``.nhdr`` (+ data file) or ``.nrrd``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Target; the extension picks the format. ``x.nhdr`` also writes ``x.raw`` (or
+        ``x.raw.gz`` with gzip) next to it. Existing files are overwritten.
+    vol : array_like
+        Integer or floating-point array of shape (nz, ny, nx).
+    spacing : sequence of 3 floats, default (1, 1, 1)
+        (sx, sy, sz); stored in NRRD ``space directions``. ``.npy`` and ``.raw`` cannot
+        store it (a warning is logged when it is not all ones).
+    encoding : {"raw", "gzip"}, default "raw"
+        NRRD data encoding.
+    byte_order : {"little", "big"}, default "little"
+        Byte order of ``.raw`` and NRRD data (``.npy`` records its own).
+
+    Returns
+    -------
+    pathlib.Path
+        The path written (the header for ``.nhdr``).
+
+    Raises
+    ------
+    ParameterError
+        Bad array, spacing, encoding, byte order or extension, or a ``.raw`` name whose
+        ``XxYxZ``/type tokens contradict the array.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from hevr.volume.loaders import load_volume, save_volume
+    >>> p = save_volume(os.path.join(tempfile.mkdtemp(), "v.npy"), np.ones((2, 3, 4)))
+    >>> load_volume(p)[0].shape
+    (2, 3, 4)
+    """
+    path = Path(os.fspath(path)).expanduser()
+    arr = np.asanyarray(vol)
+    if arr.ndim != 3 or arr.dtype.kind not in "uif" or arr.size == 0:
+        raise ParameterError(f"save_volume: vol must be a non-empty 3-D integer or float array "
+                             f"(nz, ny, nx), got shape {arr.shape} of {arr.dtype}")
+    spacing = _check_spacing(spacing, "save_volume: spacing")
+    if encoding not in ("raw", "gzip"):
+        raise ParameterError(f"save_volume: encoding must be 'raw' or 'gzip', got {encoding!r}")
+    if byte_order not in ("little", "big"):
+        raise ParameterError(f"save_volume: byte_order must be 'little' or 'big', got {byte_order!r}")
+    suffix = path.suffix.lower()
+    if suffix in (".nhdr", ".nrrd"):
+        write_nrrd(path, arr, spacing, encoding=encoding, byte_order=byte_order)
+        return path
+    if suffix not in (".npy", ".raw"):
+        raise ParameterError(f"save_volume: path must end in .npy, .raw, .nhdr or .nrrd, got {path.name}")
+    if encoding != "raw":
+        raise ParameterError(f"save_volume: encoding={encoding!r} needs an NRRD file, got {path.name}")
+    if spacing != (1.0, 1.0, 1.0):
+        _log.warning("save_volume: %s cannot store spacing %s; it will load as (1, 1, 1)",
+                     path.name, spacing)
+    if suffix == ".npy":
+        np.save(path, np.ascontiguousarray(arr), allow_pickle=False)
+        return path
+    write_raw(path, arr, byte_order)
+    return path
