@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from .crypto.encoding import BASE, decode, encode
+from .crypto.keyfile import load_key
+from .crypto.keys import PrivateKey, PublicKey, generate_keypair
+from .crypto.number import EncryptedNumber
 from .errors import (
     CorruptStoreError,
     HevrError,
@@ -10,6 +14,7 @@ from .errors import (
     InvalidKeyError,
     KeyMismatchError,
     MissingDependencyError,
+    MissingFileError,
     ParameterError,
     PlaintextOverflowError,
     RenderPlanError,
@@ -17,20 +22,15 @@ from .errors import (
     StoreExistsError,
     VolumeFormatError,
 )
-
-from .rendering.camera import Camera
-from .volume.density import encode_density, normalize_density
-from .crypto.encoding import BASE, decode, encode
-from .crypto.keyfile import load_key
-from .crypto.keys import PrivateKey, PublicKey, generate_keypair
 from .image import EncryptedImage, load_image, save_png, to_uint8
-from .volume.loaders import load_volume, save_volume
-from .crypto.number import EncryptedNumber
-from .volume.phantom import PHANTOM_LEVELS, phantom
-from .rendering.plain import render_plain
+from .rendering.camera import Camera
 from .rendering.encrypted import RaySums, clear_cache, error_bound, render
-from .store.writer import encrypt_volume
+from .rendering.plain import render_plain
 from .store.reader import EncryptedVolume, open_volume
+from .store.writer import encrypt_volume
+from .volume.density import encode_density, normalize_density
+from .volume.loaders import load_volume, save_volume
+from .volume.phantom import PHANTOM_LEVELS, phantom
 
 __version__ = "0.1.0"
 
@@ -74,5 +74,6 @@ __all__ = [
     "CorruptStoreError",
     "VolumeFormatError",
     "MissingDependencyError",
+    "MissingFileError",
     "InsecureKeyWarning",
 ]

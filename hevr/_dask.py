@@ -12,6 +12,8 @@ import time
 from typing import Any, Sequence
 
 import dask
+from dask.diagnostics import ProgressBar
+from distributed import as_completed, default_client
 
 log = logging.getLogger(__name__)
 
@@ -22,10 +24,6 @@ def active_client(client: Any = None) -> Any:
     """The explicit ``client``, else the active distributed client, else None."""
     if client is not None:
         return client
-    try:
-        from distributed import default_client
-    except ImportError:  # pragma: no cover - distributed is a dependency
-        return None
     try:
         return default_client()
     except ValueError:
@@ -80,7 +78,6 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     client = active_client(client)
     t0 = time.perf_counter()
     if client is not None:
-        from distributed import as_completed
 
         futures = client.compute(tasks)
         bar = _Bar(len(futures), desc, progress)
@@ -89,7 +86,6 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
         results = client.gather(futures)
     else:
         if progress and len(tasks) > 1:
-            from dask.diagnostics import ProgressBar
 
             with ProgressBar(out=sys.stderr):
                 results = list(dask.compute(*tasks))

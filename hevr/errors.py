@@ -11,6 +11,9 @@ secret-key material (p, q, lambda, mu, or anything derived from them).
 
 from __future__ import annotations
 
+import errno
+import os
+
 __all__ = [
     "HevrError",
     "ParameterError",
@@ -24,6 +27,7 @@ __all__ = [
     "CorruptStoreError",
     "VolumeFormatError",
     "MissingDependencyError",
+    "MissingFileError",
     "InsecureKeyWarning",
 ]
 
@@ -74,6 +78,21 @@ class VolumeFormatError(HevrError, ValueError):
 
 class MissingDependencyError(HevrError, ImportError):
     """An optional dependency (an extra) is needed but not installed."""
+
+
+class MissingFileError(HevrError, FileNotFoundError):
+    """A file, folder or store that should exist does not: the one error hevr raises for a
+    missing path, everywhere (also a :class:`FileNotFoundError`).
+
+    >>> str(MissingFileError("key", "a key file", "k.json"))
+    'key: expected a key file, found nothing at k.json'
+    """
+
+    def __init__(self, name: str, expected: str, path: str | os.PathLike) -> None:
+        super().__init__(errno.ENOENT, f"{name}: expected {expected}, found nothing at {path}", str(path))
+
+    def __str__(self) -> str:
+        return str(self.strerror)
 
 
 class InsecureKeyWarning(UserWarning):

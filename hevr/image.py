@@ -17,7 +17,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
+from ._files import require_file
+from .crypto.keys import PrivateKey
+from .crypto.records import bytes_to_mpz
 from .errors import CorruptStoreError, KeyMismatchError, ParameterError
 
 __all__ = ["EncryptedImage", "load_image", "save_png"]
@@ -89,7 +93,6 @@ class EncryptedImage:
 
     def decrypt_mantissas(self, private_key: Any) -> np.ndarray:
         """Integer mantissas (offset removed) as an object array of the image shape."""
-        from .crypto.keys import PrivateKey
 
         if not isinstance(private_key, PrivateKey):
             raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
@@ -98,7 +101,6 @@ class EncryptedImage:
                 f"private_key: the image was encrypted under key {self.fingerprint[:16]}…, "
                 f"got a key with fingerprint {private_key.public_key.fingerprint[:16]}…"
             )
-        from .crypto.records import bytes_to_mpz
 
         C = self.channels
         H, W = self.shape[:2]
@@ -158,7 +160,7 @@ class EncryptedImage:
 
 def load_image(path: str | Path) -> EncryptedImage:
     """Read an image written by :meth:`EncryptedImage.save`."""
-    path = Path(path)
+    path = require_file(path, "path", "an encrypted image file")
     try:
         blob = path.read_bytes()
     except OSError as exc:
@@ -218,6 +220,5 @@ def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | No
     >>> import tempfile, os, numpy as np
     >>> save_png(np.linspace(0, 1, 12).reshape(3, 4), os.path.join(tempfile.mkdtemp(), "a.png"))
     """
-    from PIL import Image
 
     Image.fromarray(to_uint8(arr, window)).save(str(path))

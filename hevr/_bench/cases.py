@@ -18,13 +18,14 @@ from typing import Any
 import numpy as np
 
 from .. import error_bound, render, render_plain
-from ..rendering.camera import Camera
-from ..errors import InsecureKeyWarning, RenderPlanError
 from ..crypto.keys import PrivateKey, generate_keypair
-from ..volume.phantom import phantom
+from ..errors import InsecureKeyWarning, RenderPlanError
+from ..rendering.camera import Camera
 from ..rendering.rays import cast_rays
-from ..store.writer import encrypt_volume
+from ..rendering.weights import brick_weights
 from ..store.reader import EncryptedVolume
+from ..store.writer import encrypt_volume
+from ..volume.phantom import phantom
 from .measure import Workers, dir_bytes, fixed_base_seconds, mulmod_seconds, timed
 
 log = logging.getLogger(__name__)
@@ -135,7 +136,6 @@ def naive_phe_case(size: int, image: int, bits: int) -> dict:
     holding the whole volume (so per ray, not split by brick), 6 decimal digits; one core."""
     import phe
 
-    from ..rendering.weights import brick_weights
 
     vol = phantom(size)
     cam = Camera.orbit(vol.shape, azimuth=30, elevation=20, width=image, height=image)

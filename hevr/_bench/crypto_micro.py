@@ -7,8 +7,8 @@ import secrets
 import time
 import warnings
 
-from ..errors import InsecureKeyWarning
 from ..crypto.keys import generate_keypair
+from ..errors import InsecureKeyWarning
 
 
 def per_op(fn, args, repeat=3):

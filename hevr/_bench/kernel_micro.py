@@ -28,8 +28,8 @@ Run alone, a markdown section is appended to ``benchmarks/history.md``.
 from __future__ import annotations
 
 import argparse
-import os
 import datetime as _dt
+import os
 import platform
 import secrets
 import time

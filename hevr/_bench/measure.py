@@ -4,19 +4,26 @@ from __future__ import annotations
 
 import contextlib
 import datetime
+import logging
 import os
 import platform
 import resource
 import secrets
+import subprocess
 import time
 import timeit
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+import dask
+import distributed
 import gmpy2
+import numpy
+import zarr
+from distributed import Client, LocalCluster
 from gmpy2 import mpz
 
-from .. import _stats
+from .. import __version__, _stats
 
 
 def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
@@ -54,7 +61,6 @@ def cpu_model() -> str:
 
 def _git_commit() -> str | None:
     """Commit of the hevr checkout being measured (None when installed from a wheel)."""
-    import subprocess
 
     root = Path(__file__).resolve().parents[2]
     if not (root / ".git").exists():
@@ -69,12 +75,7 @@ def _git_commit() -> str | None:
 
 def machine() -> dict[str, Any]:
     """Date, CPU, cores, OS and the versions of everything on the hot path."""
-    import dask
-    import distributed
-    import numpy
-    import zarr
 
-    from .. import __version__
 
     try:
         import phe
@@ -158,18 +159,14 @@ class Workers:
 
 
 def _warm() -> None:
-    import hevr  # noqa: F401  (imports are not part of any timing)
-
-    _stats.take()
+    _stats.take()  # hevr is imported on the worker with this module: imports are not part of any timing
 
 
 @contextlib.contextmanager
 def workers(n_workers: int, scheduler: str | None = None) -> Iterator[Workers]:
     """A ``Workers`` on a new LocalCluster (1 thread per process), on ``scheduler``, or with
     ``n_workers=0`` in this process on Dask's threaded scheduler (no cluster at all)."""
-    import logging
 
-    from distributed import Client, LocalCluster
 
     if not scheduler and n_workers == 0:
         yield Workers(None, False, 1)

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 from . import paper
+from .plot import plot_scaling
+from .settings import BenchSettings, block_names
 
 DASH = "–"
 
@@ -389,20 +392,16 @@ def markdown(doc: dict) -> str:
 
 
 def _planned(doc: dict) -> list[str]:
-    from .runner import _blocks
-    from dataclasses import fields
 
-    from .settings import BenchSettings
 
     s = doc["setting"]
     known = {f.name for f in fields(BenchSettings)}
     st = BenchSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in s.items() if k in known})
-    return [name for name, _kind, _fn in _blocks(st)]
+    return [name for name, _kind in block_names(st)]
 
 
 def write_report(doc: dict, out: Path) -> Path:
     """Write the markdown (and the plot, if matplotlib is installed); return the markdown path."""
-    from .plot import plot_scaling
 
     name = doc["setting"]["name"]
     md = out / ("RESULTS.md" if name == "paper" else f"RESULTS-{name}.md")

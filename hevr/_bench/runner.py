@@ -22,7 +22,8 @@ from . import cases, measure
 from .crypto_micro import crypto_micro
 from .kernel_micro import kernel_micro
 from .paper import TF_NODES
-from .settings import SETTINGS, BenchSettings
+from .report import write_report
+from .settings import SETTINGS, BenchSettings, block_names
 
 log = logging.getLogger(__name__)
 
@@ -62,15 +63,13 @@ class Results:
 
 
 def _blocks(s: BenchSettings) -> list[tuple[str, str, Callable[..., None]]]:
-    """(name, kind, function) in run order: the paper's columns first, 3072 bits last."""
-    small = [b for b in s.t1_bits if b <= 2048]
-    big = [b for b in s.t1_bits if b > 2048]
-    out: list[tuple[str, str, Callable[..., None]]] = [("micro", "micro", _micro)]
-    out += [(f"t1.{b}", "t1", lambda ctx, r, s, b=b: _table1(ctx, r, s, b)) for b in small]
-    out += [(f"t3.{b}", "t3", lambda ctx, r, s, b=b: _table3(ctx, r, s, b)) for b in s.t3_bits]
-    out += [("naive", "naive", _naive), ("scaling", "scaling", _scaling)]
-    out += [(f"t1.{b}", "t1", lambda ctx, r, s, b=b: _table1(ctx, r, s, b)) for b in big]
-    out += [(f"t2.{b}", "t2", lambda ctx, r, s, b=b: _table2_extra(ctx, r, s, b)) for b in s.t2_extra_bits]
+    """(name, kind, function) in the run order of :func:`block_names`."""
+    fns: dict[str, Callable[..., None]] = {"micro": _micro, "naive": _naive, "scaling": _scaling}
+    table = {"t1": _table1, "t3": _table3, "t2": _table2_extra}
+    out = []
+    for name, kind in block_names(s):
+        fn = fns.get(kind) or (lambda ctx, r, s, f=table[kind], b=int(name.split(".")[1]): f(ctx, r, s, b))
+        out.append((name, kind, fn))
     return out
 
 
@@ -154,7 +153,6 @@ def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, 
               log_line: Callable[[str], None] = lambda _: None) -> Path:
     """Run the benchmark ``setting`` and write ``RESULTS*.md``, ``results-*.json`` and the
     scaling plot into ``out``. Returns the markdown path."""
-    from .report import write_report
 
     s = SETTINGS[setting] if isinstance(setting, str) else setting
     if only is not None:
@@ -194,7 +192,6 @@ def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, 
 
 def rewrite_report(setting: str, out: str | Path) -> Path:
     """Rewrite the markdown and plot of ``setting`` from ``out/results-<setting>.json`` only."""
-    from .report import write_report
 
     path = Path(out) / f"results-{setting}.json"
     if not path.is_file():

@@ -52,3 +52,16 @@ QUICK = BenchSettings(
     paper_case=False)
 
 SETTINGS = {s.name: s for s in (QUICK, DEFAULT, PAPER)}
+
+
+def block_names(s: BenchSettings) -> list[tuple[str, str]]:
+    """(name, kind) of every block of ``s`` in run order: the paper's columns first, 3072 bits last.
+
+    >>> block_names(QUICK)[:3]
+    [('micro', 'micro'), ('t1.64', 't1'), ('t1.128', 't1')]
+    """
+    small = [b for b in s.t1_bits if b <= 2048]
+    big = [b for b in s.t1_bits if b > 2048]
+    return ([("micro", "micro")] + [(f"t1.{b}", "t1") for b in small] + [(f"t3.{b}", "t3") for b in s.t3_bits]
+            + [("naive", "naive"), ("scaling", "scaling")] + [(f"t1.{b}", "t1") for b in big]
+            + [(f"t2.{b}", "t2") for b in s.t2_extra_bits])

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from .._bench.runner import rewrite_report, run_bench
 from .util import show_progress, warn_line
 
 BENCH_EPILOG = """\
@@ -22,7 +23,6 @@ writes, into --out (default: ./benchmarks if it exists, else .):
 
 
 def cmd_bench(args: Any) -> int:
-    from .._bench.runner import rewrite_report, run_bench
 
     setting = "quick" if args.quick else "paper" if args.paper else "default"
     out = Path(args.out) if args.out else (Path("benchmarks") if Path("benchmarks").is_dir() else Path("."))

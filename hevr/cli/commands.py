@@ -14,8 +14,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zarr
 
+from ..crypto.keys import SECURE_BITS, PrivateKey, generate_keypair
+from ..errors import InsecureKeyWarning, MissingFileError, ParameterError, StoreError
+from ..image import MAGIC, load_image, save_png
+from ..rendering.camera import Camera
+from ..rendering.encrypted import render
+from ..store.metadata import VolumeMetadata
+from ..store.reader import open_volume
+from ..store.writer import encrypt_volume
 from .util import (
+    PAPER_TF1,
     Timer,
     UsageError,
     check_writable_dir,
@@ -26,20 +36,18 @@ from .util import (
     human_bytes,
     key_label,
     load_input,
+    parse_tf,
     public_key_path,
     read_key,
     show_progress,
     warn_line,
 )
-from ..errors import InsecureKeyWarning, ParameterError, StoreError
-from ..crypto.keys import SECURE_BITS, PrivateKey
 
 log = logging.getLogger("hevr.cli.main")
 
 
 # -- keygen --------------------------------------------------------------------------------
 def cmd_keygen(args: Any) -> int:
-    from ..crypto.keys import generate_keypair
 
     out = Path(args.out).expanduser()
     pub_out = public_key_path(out)
@@ -63,7 +71,6 @@ def cmd_keygen(args: Any) -> int:
 
 # -- encrypt -------------------------------------------------------------------------------
 def cmd_encrypt(args: Any) -> int:
-    from ..store.writer import encrypt_volume
 
     if args.resume and args.overwrite:
         raise UsageError("--resume and --overwrite exclude each other")
@@ -72,7 +79,7 @@ def cmd_encrypt(args: Any) -> int:
         raise FileExistsError(17, "already exists; pass --overwrite to replace it or --resume to finish an "
                                   "interrupted run", args.out)
     if not store.exists() and args.resume:
-        raise FileNotFoundError(2, "nothing to resume (no such store)", args.out)
+        raise MissingFileError("--out", "a store to --resume", args.out)
     check_writable_dir(store)
     key = read_key(args.key)
     private = isinstance(key, PrivateKey)
@@ -127,11 +134,7 @@ def resolve_mode(args: Any) -> str:
 
 
 def cmd_render(args: Any) -> int:
-    from ..rendering.camera import Camera
-    from ..rendering.encrypted import render
-    from ..store.reader import open_volume
 
-    from .util import PAPER_TF1, parse_tf
 
     mode = resolve_mode(args)
     nodes = (args.tf if args.tf is not None else parse_tf(PAPER_TF1)) if mode == "tf" else None
@@ -139,7 +142,7 @@ def cmd_render(args: Any) -> int:
     check_writable_dir(out)
     store = Path(args.store).expanduser().absolute()
     if not store.exists():
-        raise FileNotFoundError(2, "encrypted volume store not found (make one with 'hevr encrypt')", args.store)
+        raise MissingFileError("--store", "an encrypted volume store (make one with 'hevr encrypt')", args.store)
     ev = open_volume(store)
     w, h = args.size
     cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h,
@@ -164,7 +167,6 @@ def cmd_render(args: Any) -> int:
 
 # -- decrypt -------------------------------------------------------------------------------
 def cmd_decrypt(args: Any) -> int:
-    from ..image import load_image, save_png
 
     key = read_key(args.key)
     if not isinstance(key, PrivateKey):
@@ -188,11 +190,10 @@ def cmd_decrypt(args: Any) -> int:
 
 # -- info ----------------------------------------------------------------------------------
 def cmd_info(args: Any) -> int:
-    from ..image import MAGIC
 
     path = Path(args.path).expanduser()
     if not path.exists():
-        raise FileNotFoundError(2, "no such file or directory", str(path))
+        raise MissingFileError("path", "a key, store or image file", path)
     if path.is_dir():
         if (path / "zarr.json").exists():
             return _info_store(path)
@@ -221,10 +222,7 @@ def _rows(rows: list[tuple[str, Any]]) -> None:
 
 
 def _info_store(path: Path) -> int:
-    import zarr
 
-    from ..store.metadata import VolumeMetadata
-    from ..store.reader import open_volume
 
     try:
         group = zarr.open_group(str(path), mode="r")
@@ -260,7 +258,6 @@ def _info_store(path: Path) -> int:
 
 
 def _info_image(path: Path) -> int:
-    from ..image import load_image
 
     img = load_image(path)
     info = img.info or {}

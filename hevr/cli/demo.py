@@ -21,6 +21,14 @@ from typing import Any
 
 import numpy as np
 
+from ..crypto.keys import SECURE_BITS, generate_keypair
+from ..errors import InsecureKeyWarning
+from ..image import save_png
+from ..rendering.camera import Camera
+from ..rendering.encrypted import error_bound, render
+from ..rendering.plain import render_plain
+from ..store.writer import encrypt_volume
+from .sheet import contact_sheet
 from .util import (
     PAPER_DENSITIES,
     PAPER_TF1,
@@ -28,9 +36,9 @@ from .util import (
     Timer,
     dask_client,
     describe_client,
+    disk_usage,
     format_tf,
     human_bytes,
-    disk_usage,
     key_label,
     load_input,
     parse_tf,
@@ -38,8 +46,6 @@ from .util import (
     table,
     warn_line,
 )
-from ..errors import InsecureKeyWarning
-from ..crypto.keys import SECURE_BITS
 
 __all__ = ["Job", "paper_jobs", "cmd_demo", "DEMO_EPILOG"]
 
@@ -90,9 +96,6 @@ def _window(ref: np.ndarray) -> tuple[float, float]:
 def run_jobs(ev: Any, vol: np.ndarray, priv: Any, jobs: list[Job], cam: Any, *, progress: bool,
              outdir: Path | None = None, log: Any = print) -> None:
     """Render, decrypt and compare every job (results in ``job.result``); optionally write files."""
-    from ..image import save_png
-    from ..rendering.plain import render_plain
-    from ..rendering.encrypted import error_bound, render
 
     for job in jobs:
         kw = dict(mode=job.mode, sampling=job.sampling, step=1.0, density=job.density, nodes=job.nodes)
@@ -137,7 +140,6 @@ def _stages_table(stages: dict) -> str:
 
 
 def _keypair(bits: int) -> tuple[Any, Any]:
-    from ..crypto.keys import generate_keypair
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InsecureKeyWarning)
@@ -161,9 +163,6 @@ def _auto_brick(shape: tuple) -> int:
 
 
 def cmd_demo(args: Any) -> int:
-    from .sheet import contact_sheet
-    from ..rendering.camera import Camera
-    from ..store.writer import encrypt_volume
 
     t_start = time.perf_counter()
     out = Path(args.out).expanduser()

@@ -16,6 +16,11 @@ import warnings
 from typing import Any, Sequence
 
 from .. import __version__
+from ..errors import HevrError
+from . import commands as cmds
+from . import demo as demo
+from .bench import BENCH_EPILOG, cmd_bench
+from .demo import DEMO_EPILOG
 from .util import (
     PAPER_TF1,
     UsageError,
@@ -32,8 +37,8 @@ from .util import (
     tf_type,
     unit_float,
     vector_dims_type,
+    warn_line,
 )
-from ..errors import HevrError
 
 __all__ = ["main", "build_parser"]
 
@@ -172,8 +177,6 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="examples:\n  hevr info vol.zarr\n  hevr info frame.hevr\n  hevr info key.pub.json\n")
     p.add_argument("path", metavar="PATH")
 
-    from .bench import BENCH_EPILOG
-    from .demo import DEMO_EPILOG
 
     p = sub.add_parser("demo", parents=[demo_opts], formatter_class=_RAW,
                        help="the whole pipeline on the paper's figures, no input needed",
@@ -221,7 +224,7 @@ def _setup_logging(verbose: bool) -> logging.Handler:
 
 
 def _message(exc: BaseException) -> str:
-    if isinstance(exc, OSError) and exc.filename and exc.strerror:
+    if isinstance(exc, OSError) and not isinstance(exc, HevrError) and exc.filename and exc.strerror:
         return f"{exc.filename}: {exc.strerror}"
     text = str(exc) or type(exc).__name__
     if not isinstance(exc, (HevrError, OSError, ValueError)):
@@ -230,13 +233,10 @@ def _message(exc: BaseException) -> str:
 
 
 def _run(args: Any) -> int:
-    from . import commands as cmds
 
     if args.command in ("demo", "bench"):
-        from . import demo as demo
 
         if args.command == "bench":
-            from .bench import cmd_bench
 
             return cmd_bench(args)
         return demo.cmd_demo(args)
@@ -274,7 +274,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-    from .util import warn_line
 
     warn_line(f"{message}")
 

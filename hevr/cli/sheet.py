@@ -6,6 +6,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from PIL import Image, ImageDraw, ImageFont
+
 __all__ = ["contact_sheet"]
 
 _PAD = 8
@@ -15,7 +17,6 @@ _MIN_EDGE = 160  # small renders are enlarged (nearest neighbour) to at least th
 
 
 def _font(size: int) -> Any:
-    from PIL import ImageFont
 
     try:
         return ImageFont.load_default(size=size)
@@ -25,7 +26,6 @@ def _font(size: int) -> Any:
 
 def contact_sheet(folder: Path, jobs: list, caption: str, out: Path) -> None:
     """Lay out ``<name>.png`` | ``<name>.ref.png`` for every job, with a caption line each."""
-    from PIL import Image, ImageDraw
 
     pairs = []
     for job in jobs:

@@ -14,13 +14,19 @@ import math
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
+from distributed import Client, LocalCluster
 
-from ..errors import ParameterError
+from ..crypto.keyfile import load_key
 from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
+from ..errors import InsecureKeyWarning, MissingFileError, ParameterError
+from ..rendering.modes import parse_color
+from ..volume.loaders import load_volume
+from ..volume.phantom import phantom
 
 log = logging.getLogger("hevr.cli.main")
 
@@ -154,7 +160,6 @@ def parse_tf(text: str) -> list[tuple[float, tuple[float, float, float]]]:
     >>> parse_tf("0.5:#f00, 1:blue")
     [(0.5, (1.0, 0.0, 0.0)), (1.0, (0.0, 0.0, 1.0))]
     """
-    from ..rendering.modes import parse_color
 
     nodes = []
     for i, item in enumerate(p.strip() for p in text.split(",")):
@@ -196,8 +201,6 @@ def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float,
 
     Returns (volume, spacing, description).
     """
-    from ..volume.loaders import load_volume
-    from ..volume.phantom import phantom
 
     if spec == "phantom" or spec.startswith("phantom:"):
         size_text = spec.partition(":")[2] or "100"
@@ -209,7 +212,7 @@ def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float,
         return vol, tuple(spacing) if spacing else (1.0, 1.0, 1.0), f"phantom {size}^3 (uint8)"
     path = Path(spec).expanduser()
     if not path.exists():
-        raise FileNotFoundError(2, "input volume not found (expected a volume file, a DICOM folder or phantom:N)", spec)
+        raise MissingFileError("--input", "a volume file, a DICOM folder or phantom:N", spec)
     vol, sp = load_volume(path, spacing=spacing)
     return vol, sp, f"{path.name} {'x'.join(str(s) for s in vol.shape[::-1])} ({vol.dtype})"
 
@@ -224,10 +227,7 @@ def public_key_path(path: str | Path) -> Path:
 
 def read_key(path: str) -> Any:
     """Load a key file; insecure-size warnings are left to keygen/info (bits are shown there)."""
-    import warnings
 
-    from ..errors import InsecureKeyWarning
-    from ..crypto.keyfile import load_key
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InsecureKeyWarning)
@@ -247,7 +247,6 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     Yields the ``distributed.Client`` (or None); closes what it opened.
     """
     if scheduler:
-        from distributed import Client
 
         log.info("connecting to the Dask scheduler at %s", scheduler)
         try:
@@ -259,7 +258,6 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
         finally:
             client.close()
     elif workers:
-        from distributed import Client, LocalCluster
 
         log.info("starting a local Dask cluster: %d worker processes, 1 thread each", workers)
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -345,6 +343,6 @@ def warn_line(message: str) -> None:
 def check_writable_dir(path: Path) -> None:
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
-        raise FileNotFoundError(2, "directory does not exist", str(parent))
+        raise MissingFileError("--out", "an existing directory", parent)
     if not os.access(parent, os.W_OK):
         raise PermissionError(13, "directory is not writable", str(parent))

@@ -1,4 +1,5 @@
-"""JSON key files: writing (private ones 0600, atomically) and validated loading.
+"""JSON key files: validated loading (writing is :meth:`PublicKey.save` / :meth:`PrivateKey.save`,
+private files 0600, atomically).
 
 A key file is a JSON object ``{"format": "hevr-key", "version": 1, "kind":
 "public"|"private", "bits": …, "n": "…", "fingerprint": "…"}`` plus ``"p"`` and ``"q"``
@@ -10,36 +11,18 @@ quoting a secret value.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import warnings
 from pathlib import Path
 
 import gmpy2
 from gmpy2 import mpz
 
-from .primes import is_probable_prime
+from .._files import require_file
 from ..errors import InsecureKeyWarning, InvalidKeyError
 from .keys import MAX_BITS, MIN_BITS, SECURE_BITS, PrivateKey, PublicKey
+from .primes import is_probable_prime
 
-__all__ = ["load_key", "write_key_file"]
-
-
-def write_key_file(path, data: dict, private: bool) -> None:
-    """Write ``data`` as JSON to ``path``; private files never exist with a mode other than 0600."""
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=".hevr-key-", dir=directory)
-    try:
-        os.fchmod(fd, 0o600 if private else 0o644)
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=1)
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+__all__ = ["load_key"]
 
 
 def _int_field(d: dict, name: str, path: Path) -> mpz:
@@ -64,11 +47,9 @@ def load_key(path) -> PublicKey | PrivateKey:
     ...     hevr.load_key(os.path.join(d, "k.json")) == priv
     True
     """
-    path = Path(path)
+    path = require_file(path, "key", "a key file")
     try:
         text = path.read_text()
-    except FileNotFoundError:
-        raise InvalidKeyError(f"key file {path} does not exist") from None
     except OSError as exc:
         raise InvalidKeyError(f"key file {path} cannot be read: {exc.strerror}") from None
     try:

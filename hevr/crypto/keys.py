@@ -14,6 +14,7 @@ log line or an exception message; private key files are created with mode 0600.
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import secrets
 import warnings
@@ -24,11 +25,13 @@ import gmpy2
 import numpy as np
 from gmpy2 import mpz
 
+from .._files import write_atomic
+from ..errors import InsecureKeyWarning, KeyMismatchError, ParameterError
 from . import paillier as raw
+from .encoding import decode
+from .number import EncryptedNumber
 from .owner import OwnerEncryptor
 from .primes import random_prime_with_factors
-from ..errors import InsecureKeyWarning, ParameterError
-from .number import EncryptedNumber
 
 log = logging.getLogger(__name__)
 
@@ -160,10 +163,8 @@ class PublicKey:
                 "n": str(int(self.n)), "fingerprint": self.fingerprint}
 
     def save(self, path) -> None:
-        """Write the public key as JSON (world-readable is fine)."""
-        from .keyfile import write_key_file
-
-        write_key_file(path, self.to_dict(), private=False)
+        """Write the public key as JSON (world-readable is fine); read it with :func:`hevr.load_key`."""
+        write_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n", mode=0o644)
 
 
 class PrivateKey:
@@ -271,14 +272,10 @@ class PrivateKey:
 
     def decrypt_number(self, x: EncryptedNumber) -> float:
         """Decrypt an :class:`EncryptedNumber` to the nearest float."""
-        from .encoding import decode
-
         return decode(self.decrypt_number_mantissa(x), x.exponent)
 
     def decrypt_number_mantissa(self, x: EncryptedNumber) -> int:
         if x.public_key != self.public_key:
-            from ..errors import KeyMismatchError
-
             raise KeyMismatchError(
                 f"number was encrypted under key {x.public_key.fingerprint[:16]}…, "
                 f"this private key is {self.fingerprint[:16]}…"
@@ -292,10 +289,9 @@ class PrivateKey:
         return d
 
     def save(self, path) -> None:
-        """Write the private key as JSON, created with mode 0600 (atomic replace)."""
-        from .keyfile import write_key_file
-
-        write_key_file(path, self.to_dict(), private=True)
+        """Write the private key as JSON, created with mode 0600 (atomic replace); read it
+        with :func:`hevr.load_key`."""
+        write_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n", mode=0o600)
 
 
 _OWNER_CACHE: "dict[int, OwnerEncryptor]" = {}

@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING, Callable
 
 from gmpy2 import mpz
 
+from ..errors import KeyMismatchError, ParameterError
 from . import paillier as raw
 from .encoding import BASE, encode, reciprocal
-from ..errors import KeyMismatchError, ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
     from .keys import PublicKey

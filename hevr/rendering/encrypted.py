@@ -26,14 +26,14 @@ import dask
 import numpy as np
 
 from .._dask import compute
-from .camera import Camera
 from ..errors import ParameterError
 from ..image import EncryptedImage
+from ..store.reader import EncryptedVolume
+from .camera import Camera
 from .graph import build_sums_graph, finish_task, tile_pixels
 from .modes import combination_matrix, make_spec
 from .planner import plan_render
 from .rays import cast_rays
-from ..store.reader import EncryptedVolume
 
 log = logging.getLogger(__name__)
 

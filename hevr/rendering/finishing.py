@@ -12,19 +12,18 @@ import gmpy2
 import numpy as np
 from gmpy2 import mpz
 
+from ..crypto.records import bytes_to_mpz, mpz_to_bytes
 from .planner import RenderPlan
 
 __all__ = ["finish_tile", "merge_partials", "pack_terms"]
 
 
 def _to_mpz(arr: np.ndarray) -> list[mpz]:
-    from ..crypto.records import bytes_to_mpz
 
     return bytes_to_mpz(arr)
 
 
 def _to_bytes(values: Sequence[mpz], width: int) -> np.ndarray:
-    from ..crypto.records import mpz_to_bytes
 
     return mpz_to_bytes(values, width)
 

@@ -18,11 +18,14 @@ import dask
 import numpy as np
 
 from .. import _stats
-from .finishing import finish_tile, merge_partials, pack_terms
-from .camera import Camera
-from .planner import RenderPlan
-from .rays import RaySet
+from ..crypto.records import bytes_to_mpz, mpz_to_bytes
 from ..store.reader import EncryptedVolume
+from .camera import Camera
+from .finishing import finish_tile, merge_partials, pack_terms
+from .kernel import brick_ray_products_multi
+from .planner import RenderPlan
+from .rays import RaySet, cast_rays
+from .weights import brick_weights, touched_bricks
 
 log = logging.getLogger(__name__)
 
@@ -71,10 +74,6 @@ def conservative_tiles(rays: RaySet, ev: EncryptedVolume, index: tuple[int, int,
 def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,
               digits: int, channel: str, tiles: list[int], tile: int) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """One map task: partial encrypted ray sums of one brick, split by tile."""
-    from ..crypto.records import mpz_to_bytes
-    from .kernel import brick_ray_products_multi
-    from .rays import cast_rays
-    from .weights import brick_weights
 
     t0 = time.perf_counter()
     rays = cast_rays(camera, ev.shape, ev.spacing, step)
@@ -117,7 +116,6 @@ def finish_task(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels:
 
 def _finish(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
             n_samples: np.ndarray, n: int, width_bytes: int) -> np.ndarray:
-    from ..crypto.records import bytes_to_mpz, mpz_to_bytes
 
     rays, recs = merged
     sums: dict[int, list] = {}
@@ -133,7 +131,6 @@ def _finish(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.
 def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,
                      channel: str, tile: int, n_tiles: int) -> tuple[dict[int, Any], int]:
     """Delayed merged ray sums per tile (None for tiles no brick touches); map task count."""
-    from .weights import touched_bricks
 
     bricks = touched_bricks(rays, ev.shape, ev.spacing, ev.brick, sampling, step)
     token = dask.base.tokenize(ev.path, ev.meta.fingerprint, camera.key(), sampling, step, digits, channel, tile)

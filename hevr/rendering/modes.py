@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from ..volume.density import encode_density
 from ..errors import ParameterError
+from ..volume.density import encode_density
 from .rays import check_step
 
 __all__ = [

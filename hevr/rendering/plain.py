@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from .camera import Camera
-from ..volume.density import default_value_range, encode_density, normalize_density
 from ..errors import ParameterError
+from ..volume.density import default_value_range, encode_density, normalize_density
+from .camera import Camera
 from .modes import RenderSpec, combination_matrix, make_spec, normalisation_factor
 from .rays import (
     cast_rays,

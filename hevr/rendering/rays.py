@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from .camera import Camera
 from ..errors import ParameterError
+from .camera import Camera
 
 __all__ = [
     "RaySet",

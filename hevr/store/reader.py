@@ -12,9 +12,15 @@ import gmpy2
 import numpy as np
 import zarr
 
-from .metadata import VolumeMetadata
-from ..errors import CorruptStoreError, IncompleteStoreError, ParameterError, StoreError
 from ..crypto.keys import PublicKey
+from ..crypto.records import bytes_to_mpz
+from ..errors import (
+    CorruptStoreError,
+    IncompleteStoreError,
+    MissingFileError,
+    ParameterError,
+)
+from .metadata import VolumeMetadata
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +130,6 @@ class EncryptedVolume:
         With ``check`` every ciphertext must lie in (0, n²); a violation raises
         :class:`hevr.CorruptStoreError` naming the brick.
         """
-        from ..crypto.records import bytes_to_mpz
 
         data = self.read_brick_bytes(index, channel)
         if channel == "scalar":
@@ -210,7 +215,7 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     path = str(path)
     if "://" not in path:
         if not Path(path).exists():
-            raise StoreError(f"path: {path} does not exist")
+            raise MissingFileError("path", "an encrypted volume store", path)
         path = str(Path(path).resolve())  # workers may run in another working directory
     try:
         group = zarr.open_group(path, mode="r")

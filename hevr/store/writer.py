@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import secrets
 import shutil
 from numbers import Integral
 from pathlib import Path
@@ -41,11 +42,12 @@ import numpy as np
 import zarr
 
 from .. import _stats
-from .._dask import compute
-from .metadata import ChannelInfo, VolumeMetadata
-from ..volume.density import encode_density, normalize_density
-from ..errors import ParameterError, StoreError, StoreExistsError
+from .._dask import active_client, compute
 from ..crypto.keys import PrivateKey, PublicKey
+from ..crypto.records import mpz_to_bytes
+from ..errors import ParameterError, StoreError, StoreExistsError
+from ..volume.density import encode_density, normalize_density
+from .metadata import ChannelInfo, VolumeMetadata
 from .reader import EncryptedVolume, brick_slices, open_volume
 
 log = logging.getLogger(__name__)
@@ -166,7 +168,6 @@ def _quantise_vector(block: np.ndarray, info: ChannelInfo, value_range: tuple[fl
 def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
                    unsafe_no_obfuscation: bool) -> tuple[int, int, int]:
     """One task: encrypt one plaintext brick and write its chunks, then its marker."""
-    from ..crypto.records import mpz_to_bytes
 
     meta = VolumeMetadata.from_dict(meta_dict)
     block = np.asarray(block)
@@ -333,7 +334,6 @@ def encrypt_volume(
 def _warn_if_remote(client: Any, key: Any) -> None:
     """Encryption tasks carry plaintext bricks (and p, q with a PrivateKey): say so loudly
     when they are about to go to a scheduler that is not on this machine."""
-    from .._dask import active_client
 
     c = active_client(client)
     addr = getattr(getattr(c, "scheduler", None), "address", "") or ""
@@ -344,7 +344,6 @@ def _warn_if_remote(client: Any, key: Any) -> None:
 
 
 def _token() -> str:
-    import secrets
 
     return secrets.token_hex(4)
 

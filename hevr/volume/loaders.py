@@ -25,8 +25,8 @@ from typing import Any, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from .nrrd import check_file, load_raw, read_nrrd, to_native, write_nrrd, write_raw
 from ..errors import MissingDependencyError, ParameterError, VolumeFormatError
+from .nrrd import check_file, load_raw, read_nrrd, to_native, write_nrrd, write_raw
 
 __all__ = ["load_volume", "save_volume"]
 

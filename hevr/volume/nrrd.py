@@ -21,7 +21,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from ..errors import ParameterError, VolumeFormatError
+from ..errors import MissingFileError, ParameterError, VolumeFormatError
 
 _log = logging.getLogger(__name__)
 
@@ -61,9 +61,9 @@ def _fail(path: Path, problem: str) -> VolumeFormatError:
 
 
 def check_file(path: Path) -> Path:
-    """Return ``path`` if it is an existing file, else raise ``FileNotFoundError``."""
+    """Return ``path`` if it is an existing file, else raise :class:`hevr.MissingFileError`."""
     if not path.is_file():
-        raise FileNotFoundError(2, "volume file not found", str(path))
+        raise MissingFileError("path", "a volume file", path)
     return path
 
 

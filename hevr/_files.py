@@ -1,0 +1,49 @@
+"""Small file helpers shared by every writer and reader: atomic writes with a fixed mode,
+and the one way hevr reports a missing file.
+
+>>> import tempfile, os
+>>> d = tempfile.mkdtemp()
+>>> write_atomic(os.path.join(d, "a.json"), "{}\\n", mode=0o600)
+>>> oct(os.stat(os.path.join(d, "a.json")).st_mode & 0o777)
+'0o600'
+>>> require_file(os.path.join(d, "missing.json"), "key", "a key file")  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+...
+hevr.errors.MissingFileError: key: expected a key file, found nothing at .../missing.json
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from .errors import MissingFileError
+
+__all__ = ["require_file", "write_atomic"]
+
+
+def write_atomic(path: str | os.PathLike, text: str, mode: int = 0o644) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and
+    ``os.replace``: the file never exists half-written, nor with a mode other than ``mode``."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", dir=directory)
+    try:
+        os.fchmod(fd, mode)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def require_file(path: str | os.PathLike, name: str, expected: str, *, directory: bool = False) -> Path:
+    """Return ``Path(path)`` if it exists (as a folder when ``directory``), else raise
+    :class:`hevr.MissingFileError` naming the parameter ``name`` and what was ``expected``."""
+    p = Path(path)
+    if not (p.is_dir() if directory else p.exists()):
+        raise MissingFileError(name, expected, p)
+    return p
