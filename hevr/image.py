@@ -21,7 +21,7 @@ from PIL import Image
 
 from ._files import require_file
 from .crypto.keys import PrivateKey
-from .crypto.records import bytes_to_mpz
+from .backends import get_backend
 from .errors import CorruptStoreError, KeyMismatchError, ParameterError
 
 __all__ = ["EncryptedImage", "load_image", "save_png"]
@@ -91,9 +91,10 @@ class EncryptedImage:
             r0, c0 = ty * self.tile, tx * self.tile
             yield t, r0, min(r0 + self.tile, H), c0, min(c0 + self.tile, W)
 
-    def decrypt_mantissas(self, private_key: Any) -> np.ndarray:
-        """Integer mantissas (offset removed) as an object array of the image shape."""
-
+    def decrypt_mantissas(self, private_key: Any, backend: str | None = None) -> np.ndarray:
+        """Integer mantissas (offset removed) as an object array of the image shape; the
+        batch decryption runs on ``backend`` (:mod:`hevr.backends`, default ``cpu``)."""
+        be = get_backend(backend)
         if not isinstance(private_key, PrivateKey):
             raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
         if private_key.public_key.fingerprint != self.fingerprint:
@@ -110,7 +111,7 @@ class EncryptedImage:
         for t, r0, r1, c0, c1 in self._tiles():
             mask = hits[r0:r1, c0:c1]
             need = int(mask.sum()) * C
-            plain = private_key.decrypt_array(bytes_to_mpz(self.ciphertexts[t]), signed=False)
+            plain = be.decrypt(private_key, be.from_bytes(self.ciphertexts[t]))
             if digit_mask is None:
                 vals = plain
             else:
@@ -126,9 +127,9 @@ class EncryptedImage:
             block[mask] = arr.reshape(-1, C)
         return out[..., 0] if len(self.shape) == 2 else out
 
-    def decrypt(self, private_key: Any) -> np.ndarray:
-        """Decrypt to float64 pixel values (batch CRT decryption, then unpacking)."""
-        m = self.decrypt_mantissas(private_key)
+    def decrypt(self, private_key: Any, backend: str | None = None) -> np.ndarray:
+        """Decrypt to float64 pixel values (batch CRT decryption on ``backend``, then unpacking)."""
+        m = self.decrypt_mantissas(private_key, backend)
         scale = Fraction(10) ** self.exponent
         flat = [float(int(v) * scale) for v in m.ravel()]
         return np.array(flat, dtype=np.float64).reshape(self.shape)

@@ -26,6 +26,7 @@ import dask
 import numpy as np
 
 from .._dask import compute
+from ..backends import resolve_backend_name
 from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..store.reader import EncryptedVolume
@@ -81,6 +82,7 @@ def render(
     cache: bool = True,
     client: Any = None,
     progress: bool = True,
+    backend: str | None = None,
 ) -> EncryptedImage:
     """Render an encrypted volume to an :class:`EncryptedImage` on the active Dask scheduler.
 
@@ -113,6 +115,9 @@ def render(
         Defaults to the active client, else Dask's default scheduler.
     progress : bool
         Progress bar on stderr.
+    backend : str, optional
+        Arithmetic backend of the workers (:mod:`hevr.backends`); default: the Dask config
+        key ``hevr.backend``, else ``"cpu"``. Every backend gives the identical image.
 
     Returns
     -------
@@ -128,6 +133,7 @@ def render(
     precision = _int_param("precision", precision, 0, 30)
     comb_digits = _int_param("comb_digits", comb_digits, 1, 12)
     tile = _int_param("tile", tile, 1, 4096)
+    backend = resolve_backend_name(backend)
     t0 = time.perf_counter()
     rays = cast_rays(camera, ev.shape, ev.spacing, spec.step)
     comb = combination_matrix(spec, ev.vector_dims) if spec.mode != "xray" else None
@@ -146,13 +152,13 @@ def render(
     def finish(merged_t: Any, t: int) -> Any:
         pix = tile_pixels(t, W, H, tile)
         return dask.delayed(finish_task, pure=True)(plan, merged_t if merged_t is not None else empty, pix,
-                                                    rays.n_samples[pix], int(ev.public_key.n), width_bytes)
+                                                    rays.n_samples[pix], int(ev.public_key.n), width_bytes, backend)
 
     if sums is None:
         # One graph: map -> tree merge -> finish, so merged sums never travel through the client;
         # they come back only when they are to be cached for re-colouring.
         merged, n_map = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits,
-                                         plan.channel, tile, n_tiles)
+                                         plan.channel, tile, n_tiles, backend)
         live = [t for t, d in merged.items() if d is not None] if cache else []
         fin = [finish(merged[t], t) for t in range(n_tiles)]
         results = compute(fin + [merged[t] for t in live], client=client, progress=progress, desc="render")

@@ -1,38 +1,56 @@
-"""Server-side pixel finishing: per-pixel combination, Eq. 1 normalisation, offset, packing.
+"""Server-side merging and pixel finishing: ⊕ of partial ray sums, per-pixel combination,
+Eq. 1 normalisation, offset and packing — everything after the map step, in one place.
 
 Every function here works on one image tile and only on public integers plus
-ciphertexts; the secret key is never needed.
+ciphertexts; the secret key is never needed. The big-integer work goes through the
+backend (:mod:`hevr.backends`): the records of a tile are converted once, combined, raised
+and packed in the backend's form, and converted back once.
+
+For a pixel whose ray hits the volume, with stored ray sums S_k (k = 1..K) and the
+quantised combination matrix Q (K × C) of the render plan:
+
+* combination: T_ch = Π_k S_k^Q[k,ch] (X-ray: T = S_1, no arithmetic);
+* normalisation: the finished value is T^R with R = round(10^G/(n_samples·factor)), the
+  rounded reciprocal of Eq. 1 (a plaintext exponent that depends on public data only);
+* offset and packing: c = Π_j (T_j^R_j · g^O)^(B^j), B = 2^pack_bits, ``per_pack`` values
+  each. Valid because every value M_j + O lies in [0, bound], bound < B, and
+  per_pack·pack_bits <= bits(n) − 2: no digit carries and the plaintext stays below n/2.
+
+Pixels whose rays miss are skipped: which rays miss follows from the public camera and
+volume shape, and the image records them in a public mask. A hit ray whose every weight
+rounded to 0 has no partial sums: its sums are the trivial encryption 1 of 0.
 """
 
 from __future__ import annotations
 
 from typing import Sequence
 
-import gmpy2
 import numpy as np
-from gmpy2 import mpz
 
-from ..crypto.records import bytes_to_mpz, mpz_to_bytes
+from ..backends import Backend, get_backend
 from .planner import RenderPlan
 
-__all__ = ["finish_tile", "merge_partials", "pack_terms"]
+__all__ = ["finish_tile", "merge_partials", "one_records"]
 
 
-def _to_mpz(arr: np.ndarray) -> list[mpz]:
+def one_records(shape: tuple[int, ...], width: int) -> np.ndarray:
+    """Records of the integer 1 (the trivial encryption of 0), shape ``shape + (width,)``.
 
-    return bytes_to_mpz(arr)
+    >>> one_records((2,), 3).tolist()
+    [[0, 0, 1], [0, 0, 1]]
+    """
+    out = np.zeros(tuple(shape) + (width,), np.uint8)
+    out[..., -1] = 1
+    return out
 
 
-def _to_bytes(values: Sequence[mpz], width: int) -> np.ndarray:
-
-    return mpz_to_bytes(values, width)
-
-
-def merge_partials(parts: Sequence[tuple[np.ndarray, np.ndarray]], nsquare: int) -> tuple[np.ndarray, np.ndarray]:
+def merge_partials(parts: Sequence[tuple[np.ndarray, np.ndarray]], nsquare: int,
+                   backend: str | Backend | None = None) -> tuple[np.ndarray, np.ndarray]:
     """fpAdd of partial ray sums that share one exponent: ⊕ per ray, i.e. a product mod n².
 
-    ``parts`` are ``(rays (R,), records (R, C, W))``; the result has sorted unique rays.
-    Rays present in one part only are passed through without any arithmetic.
+    ``parts`` are ``(rays (R,), records (R, K, W))``; the result has sorted unique rays.
+    Rays present in one part only are passed through without any arithmetic; the records
+    of the others are converted once and multiplied per ray by the backend.
     """
     parts = [p for p in parts if p[0].size]
     if not parts:
@@ -47,118 +65,40 @@ def merge_partials(parts: Sequence[tuple[np.ndarray, np.ndarray]], nsquare: int)
     out = recs[start].copy()
     multi = np.nonzero(counts > 1)[0]
     if multi.size:
-        n2 = mpz(nsquare)
-        _, C, W = recs.shape
-        for u in multi.tolist():
-            s, e = int(start[u]), int(start[u] + counts[u])
-            vals = _to_mpz(recs[s:e].reshape(-1, W))  # (e - s)·C values, ray-major
-            acc = vals[:C]
-            for i in range(1, e - s):
-                acc = [a * b % n2 for a, b in zip(acc, vals[i * C:(i + 1) * C])]
-            out[u] = _to_bytes(acc, W)
+        be = get_backend(backend)
+        _, K, W = recs.shape
+        rows = np.concatenate([np.arange(start[u], start[u] + counts[u]) for u in multi.tolist()])
+        indptr = np.concatenate([[0], np.cumsum(counts[multi])])
+        vals = be.from_bytes(recs[rows].reshape(-1, W))
+        out[multi] = be.to_bytes(be.segment_products(vals, indptr, K, nsquare), W).reshape(-1, K, W)
     return uniq, out
 
 
-def _subset_products(bases: Sequence[mpz], n2: mpz) -> list[mpz]:
-    """sub[mask] = Π_{i in mask} bases[i] mod n²: 2^k − 1 − k multiplications, shared by all channels."""
-    sub = [mpz(1)] * (1 << len(bases))
-    for i, b in enumerate(bases):
-        bit = 1 << i
-        sub[bit] = b
-        for m in range(1, bit):
-            sub[bit | m] = sub[m] * b % n2
-    return sub
+def finish_tile(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
+                n_samples: np.ndarray, n: int, width_bytes: int,
+                backend: str | Backend | None = None) -> np.ndarray:
+    """(P, W) uint8 packed ciphertexts of one tile, for its hit pixels in (pixel, channel) order.
 
-
-def _straus(sub: list[mpz], exps: Sequence[int], n2: mpz) -> mpz:
-    """Π b_i^e_i from subset products: one squaring and at most one multiplication per bit."""
-    top = max(exps).bit_length()
-    acc = mpz(1)
-    for bit in range(top - 1, -1, -1):
-        acc = acc * acc % n2
-        m = 0
-        for i, e in enumerate(exps):
-            if e >> bit & 1:
-                m |= 1 << i
-        if m:
-            acc = acc * sub[m] % n2
-    return acc
-
-
-def finish_tile(plan: RenderPlan, sums: dict[int, list[mpz]], pixels: np.ndarray, n_samples: np.ndarray,
-                n: int) -> list[tuple[mpz, int]]:
-    """Per-pixel terms (T, R) of one tile, for the pixels whose rays hit, in (pixel, channel) order.
-
-    T is the pixel's combined ciphertext (xray: the ray sum; emphasize / tf: Σ_k Q[k,ch]·S_k,
-    computed by Straus with subset products shared by the channels) and R = round(10^G/(n·K))
-    the rounded reciprocal of Eq. 1; the finished value is T^R (⊗ R), which :func:`pack_terms`
-    raises while packing. Pixels whose rays miss are skipped: which rays miss follows from the
-    public camera and volume shape, and the image records them in a public mask.
+    ``merged`` holds the tile's merged ray sums ``(rays (R,), records (R, K, W))`` (rays sorted,
+    global pixel indices); ``pixels`` and ``n_samples`` list every pixel of the tile.
     """
-    n2 = mpz(n) * mpz(n)
+    be = get_backend(backend)
+    rays, recs = merged
     recips = plan.reciprocal(n_samples)
+    hit = np.flatnonzero(np.asarray(recips, dtype=object) != 0)
+    if hit.size == 0:
+        return np.zeros((0, width_bytes), np.uint8)
+    K = 1 if plan.comb is None else len(plan.comb)
     C = plan.channels_out
-    out: list[tuple[mpz, int]] = []
-    one = mpz(1)
-    for pix, R in zip(pixels.tolist(), recips):
-        if R == 0:
-            continue
-        s = sums.get(pix)
-        if s is None:  # every weight of this ray rounded to 0
-            out.extend([(one, R)] * C)
-            continue
-        if plan.comb is None:
-            out.append((s[0], R))
-            continue
-        sub = _subset_products(s, n2) if len(s) <= 8 else None
-        for ch in range(C):
-            exps = [row[ch] for row in plan.comb]
-            if not any(exps):
-                out.append((one, R))
-            elif sub is not None:
-                out.append((_straus(sub, exps, n2), R))
-            else:
-                t = one
-                for b, e in zip(s, exps):
-                    if e:
-                        t = t * gmpy2.powmod(b, e, n2) % n2
-                out.append((t, R))
-    return out
-
-
-def pack_terms(terms: Sequence[tuple[mpz, int]], plan: RenderPlan, n: int) -> list[mpz]:
-    """Finish and pack: c = Π_j (T_j^R_j · g^O)^(B^j), B = 2^pack_bits, ``per_pack`` values each.
-
-    Horner from the highest digit, acc ← acc^B · T_j^R_j, with the b squarings of acc^B and
-    the square-and-multiply of T_j^R_j interleaved (Shamir), so a value costs b squarings
-    plus popcount(R_j) multiplications. The public offset O is added once per ciphertext,
-    as g^(O·Σ_j B^j). Valid because every value M_j + O lies in [0, bound], bound < B, and
-    per_pack·pack_bits <= bits(n) − 2: no digit carries and the plaintext stays below n/2.
-    With ``per_pack == 1`` each value is one ciphertext T^R · g^O.
-    """
-    n = mpz(n)
-    n2 = n * n
-    b = plan.pack_bits
-    J = max(1, plan.per_pack)
-    out: list[mpz] = []
-    powmod = gmpy2.powmod
-    for start in range(0, len(terms), J):
-        group = terms[start:start + J]
-        T, R = group[-1]
-        acc = powmod(T, R, n2)
-        for T, R in reversed(group[:-1]):
-            r = R.bit_length()
-            if r > b:  # not reachable under the planner's bounds; kept exact anyway
-                acc = powmod(acc, mpz(1) << b, n2) * powmod(T, R, n2) % n2
-                continue
-            if b > r:
-                acc = powmod(acc, mpz(1) << (b - r), n2)
-            for i in range(r - 1, -1, -1):
-                acc = acc * acc % n2
-                if R >> i & 1:
-                    acc = acc * T % n2
-        if plan.offset:
-            digits = sum(mpz(1) << (b * j) for j in range(len(group))) if J > 1 else 1
-            acc = acc * ((1 + plan.offset * digits * n) % n2) % n2
-        out.append(acc)
-    return out
+    sums = one_records((hit.size, K), width_bytes)
+    if rays.size:
+        want = np.asarray(pixels)[hit]
+        pos = np.minimum(np.searchsorted(rays, want), rays.size - 1)
+        found = rays[pos] == want
+        sums[found] = recs[pos[found]]
+    vals = be.from_bytes(sums.reshape(-1, width_bytes))
+    nsquare = int(n) * int(n)
+    terms = vals if plan.comb is None else be.combine(vals, plan.comb, nsquare)
+    exps = [int(recips[i]) for i in hit.tolist() for _ in range(C)]
+    packed = be.pack(terms, exps, plan.pack_bits, plan.per_pack, plan.offset, n)
+    return be.to_bytes(packed, width_bytes)

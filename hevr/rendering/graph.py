@@ -6,6 +6,10 @@ map     one task per brick that some ray touches: read the brick's chunk inside 
 reduce  per image tile, a tree of merges (fan-in 4) multiplies the partials of the same
         ray (fpAdd of partial sums that share one exponent); no task receives every partial.
 finish  per tile: per-pixel combination, reciprocal normalisation, offset and packing.
+
+The graph holds public data only (the volume handle, camera, plan) and the *name* of the
+arithmetic backend; every task resolves the backend in its own process
+(:func:`hevr.backends.get_backend`), and converts bytes to the backend's form once.
 """
 
 from __future__ import annotations
@@ -18,10 +22,10 @@ import dask
 import numpy as np
 
 from .. import _stats
-from ..crypto.records import bytes_to_mpz, mpz_to_bytes
+from ..backends import get_backend
 from ..store.reader import EncryptedVolume
 from .camera import Camera
-from .finishing import finish_tile, merge_partials, pack_terms
+from .finishing import finish_tile, merge_partials
 from .kernel import brick_ray_products_multi
 from .planner import RenderPlan
 from .rays import RaySet, cast_rays
@@ -72,7 +76,8 @@ def conservative_tiles(rays: RaySet, ev: EncryptedVolume, index: tuple[int, int,
 
 
 def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,
-              digits: int, channel: str, tiles: list[int], tile: int) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+              digits: int, channel: str, tiles: list[int], tile: int,
+              backend: str = "cpu") -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """One map task: partial encrypted ray sums of one brick, split by tile."""
 
     t0 = time.perf_counter()
@@ -83,13 +88,14 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     empty = (np.zeros(0, np.int64), np.zeros((0, 1 if channel == "scalar" else ev.vector_dims, W), np.uint8))
     if bw.rays.size == 0:
         return {t: empty for t in tiles}
+    be = get_backend(backend)
     with _stats.timed("map.read"):
-        cts = ev.read_brick(index, channel)
+        cts = ev.read_brick(index, channel, backend=be)
     comps = [cts] if channel == "scalar" else cts
     with _stats.timed("map.kernel", int(bw.indptr[-1]) * len(comps)):
-        prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare)
+        prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare, backend=be)
     t0 = time.perf_counter()
-    recs = np.stack([mpz_to_bytes(p, W) for p in prods], axis=1)  # (R, C, W)
+    recs = np.stack([be.to_bytes(p, W) for p in prods], axis=1)  # (R, C, W)
     tid = tile_ids(bw.rays, rays.width, tile)
     out = {}
     for t in tiles:
@@ -102,34 +108,21 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     return out
 
 
-def merge_task(nsquare: int, *parts):
+def merge_task(nsquare: int, backend: str, *parts):
+    """One merge task: ⊕ per ray of up to ``FAN_IN`` partial results of one tile."""
     with _stats.timed("merge", 1):
-        return merge_partials(parts, nsquare)
+        return merge_partials(parts, nsquare, backend)
 
 
 def finish_task(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
-                n_samples: np.ndarray, n: int, width_bytes: int) -> np.ndarray:
+                n_samples: np.ndarray, n: int, width_bytes: int, backend: str = "cpu") -> np.ndarray:
     """One finish task: (P, W) uint8 packed ciphertexts of one tile."""
     with _stats.timed("finish", 1):
-        return _finish(plan, merged, pixels, n_samples, n, width_bytes)
-
-
-def _finish(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
-            n_samples: np.ndarray, n: int, width_bytes: int) -> np.ndarray:
-
-    rays, recs = merged
-    sums: dict[int, list] = {}
-    if rays.size:
-        C = recs.shape[1]
-        vals = bytes_to_mpz(recs.reshape(-1, recs.shape[-1]))
-        for i, r in enumerate(rays.tolist()):
-            sums[r] = vals[i * C:(i + 1) * C]
-    terms = finish_tile(plan, sums, pixels, n_samples, n)
-    return mpz_to_bytes(pack_terms(terms, plan, n), width_bytes)
+        return finish_tile(plan, merged, pixels, n_samples, n, width_bytes, backend)
 
 
 def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,
-                     channel: str, tile: int, n_tiles: int) -> tuple[dict[int, Any], int]:
+                     channel: str, tile: int, n_tiles: int, backend: str = "cpu") -> tuple[dict[int, Any], int]:
     """Delayed merged ray sums per tile (None for tiles no brick touches); map task count."""
 
     bricks = touched_bricks(rays, ev.shape, ev.spacing, ev.brick, sampling, step)
@@ -142,14 +135,14 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
             continue
         name = f"hevr-map-{token}-{idx[0]}-{idx[1]}-{idx[2]}"
         m = dask.delayed(map_brick, pure=True)(ev, camera, idx, sampling, step, digits, channel, tiles, tile,
-                                               dask_key_name=name)
+                                               backend, dask_key_name=name)
         for t in tiles:
             leaves[t].append(m[t])
     merged: dict[int, Any] = {}
     for t, parts in leaves.items():
         level = 0
         while len(parts) > 1:
-            parts = [dask.delayed(merge_task, pure=True)(n2, *parts[i:i + FAN_IN],
+            parts = [dask.delayed(merge_task, pure=True)(n2, backend, *parts[i:i + FAN_IN],
                                                           dask_key_name=f"hevr-merge-{token}-{t}-{level}-{i}")
                      for i in range(0, len(parts), FAN_IN)]
             level += 1

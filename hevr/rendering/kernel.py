@@ -3,7 +3,10 @@
 For one brick the renderer has, per ray ``r``, plaintext weights ``w_rv >= 0`` in CSR form
 (``indptr``, ``voxels``, ``weights``); the product of the Paillier ciphertexts raised to
 them encrypts the weighted sum. The cost is big-integer modular multiplication, so the
-kernel minimises their number and keeps the Python work per pair to a few bytecodes.
+kernel minimises their number. This module is the plaintext half: it plans, from the
+public weights alone, which products to form (:func:`plan_products` ->
+:class:`~hevr.backends.base.ProductPlan`); a backend (:mod:`hevr.backends`) executes the
+plan on the ciphertexts (the CPU backend keeps the Python work per pair to a few bytecodes).
 
 Cost model (unit: one ``a * b % n2``; a modular squaring ``S ~= 0.85``; ``powmod`` with
 a ``b``-bit exponent ``~= 1.3 b + 0.5``; gmpy2 2.3, n^2 of 4096 bits). Zero weights are
@@ -36,80 +39,23 @@ take ``w = 1``: ``n - 1`` plus one squaring when a 2 is present.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
 
-import gmpy2
 import numpy as np
 from gmpy2 import mpz
 
+from ..backends import get_backend
+from ..backends.base import HORNER as _HORNER
+from ..backends.base import ONES as _ONES
+from ..backends.base import SHARED as _SHARED
+from ..backends.base import SINGLE as _SINGLE
+from ..backends.base import SQR_COST as _SQR
+from ..backends.base import Backend, OpCounter, ProductPlan
 from ..errors import ParameterError
 
-__all__ = ["OpCounter", "brick_ray_products", "brick_ray_products_multi"]
+__all__ = ["OpCounter", "brick_ray_products", "brick_ray_products_multi", "plan_products"]
 
-_SQR = 0.85  # cost of a modular squaring relative to a modular multiplication
 _POW_BIT, _POW_BASE = 1.3, 0.5  # powmod cost per exponent bit, plus Montgomery set-up
 _MAX_W = 16  # radix bits tried; 2^16 buckets is far beyond any optimum
-_ONES, _SINGLE, _HORNER, _SHARED = range(4)
-
-
-@dataclass
-class OpCounter:
-    """Modular operations done by the kernel (accumulates over calls).
-
-    Attributes
-    ----------
-    mulmod : int
-        Modular multiplications of two operands (``a * b % n2``).
-    squarings : int
-        Modular squarings (Horner steps, binary powering, per-voxel powers).
-    powmod, powmod_bits : int
-        ``gmpy2.powmod`` calls and the sum of their exponent bit lengths.
-    pairs, rows : int
-        CSR entries and rows processed (counted once per component).
-    duplicate_rows : int
-        Non-empty rows served from an identical earlier row (per component).
-    precomputed : int
-        Per-voxel powers ``c^(2^(w j))``, ``j >= 1``, made for shared buckets.
-
-    Examples
-    --------
-    >>> c = OpCounter(mulmod=3, squarings=2)
-    >>> c.modmuls
-    5
-    """
-
-    mulmod: int = 0
-    squarings: int = 0
-    powmod: int = 0
-    powmod_bits: int = 0
-    pairs: int = 0
-    rows: int = 0
-    duplicate_rows: int = 0
-    precomputed: int = 0
-
-    @property
-    def modmuls(self) -> int:
-        """Multiplications plus squarings (``powmod`` calls excluded)."""
-        return self.mulmod + self.squarings
-
-    def add(self, other: OpCounter) -> None:
-        """Add the counts of ``other`` into this counter."""
-        for f in fields(self):
-            setattr(self, f.name, getattr(self, f.name) + getattr(other, f.name))
-
-
-@dataclass
-class _Plan:
-    """Weight analysis of one brick, shared by all components."""
-
-    n_rows: int
-    n_pairs: int
-    rep: list[int]  # per row: index into tasks, -1 for an empty row
-    vl: list[int]
-    wl: list[int]
-    tasks: list[tuple[int, int, int, int, int]] | None = None  # (kind, start, stop, w, J)
-    shared_w: int = 0
-    pre: list[tuple[int, int]] | None = None  # (voxel, J_v) for shared buckets
 
 
 def brick_ray_products(
@@ -119,6 +65,7 @@ def brick_ray_products(
     weights: np.ndarray,
     nsquare,
     counter: OpCounter | None = None,
+    backend: str | Backend | None = None,
 ) -> list[mpz]:
     """Compute ``prod_v c_v^(w_rv) mod n^2`` for every CSR row of one brick.
 
@@ -136,6 +83,9 @@ def brick_ray_products(
         The modulus ``n^2``.
     counter : OpCounter, optional
         Incremented with the operations done.
+    backend : str or Backend, optional
+        The arithmetic backend (default: :func:`hevr.backends.get_backend`'s choice);
+        ``ciphertexts`` is a batch of that backend (a list of mpz for ``cpu``).
 
     Returns
     -------
@@ -150,7 +100,7 @@ def brick_ray_products(
     ...                    np.array([3, 1]), 1000)
     [mpz(24), mpz(1)]
     """
-    return brick_ray_products_multi([ciphertexts], indptr, voxels, weights, nsquare, counter)[0]
+    return brick_ray_products_multi([ciphertexts], indptr, voxels, weights, nsquare, counter, backend)[0]
 
 
 def brick_ray_products_multi(
@@ -160,6 +110,7 @@ def brick_ray_products_multi(
     weights: np.ndarray,
     nsquare,
     counter: OpCounter | None = None,
+    backend: str | Backend | None = None,
 ) -> list[list[mpz]]:
     """Like :func:`brick_ray_products` for ``k`` ciphertext lists sharing the weights.
 
@@ -170,7 +121,7 @@ def brick_ray_products_multi(
     ----------
     components : sequence of sequences of gmpy2.mpz
         ``k`` lists, each with one ciphertext per local voxel (all the same length).
-    indptr, voxels, weights, nsquare, counter
+    indptr, voxels, weights, nsquare, counter, backend
         As in :func:`brick_ray_products`.
 
     Returns
@@ -198,8 +149,8 @@ def brick_ray_products_multi(
     for i, comp in enumerate(components):
         if len(comp) != n_vox:
             raise ParameterError(f"components[{i}]: expected {n_vox} ciphertexts, got {len(comp)}")
-    plan = _plan(indptr, voxels, weights, n_vox)
-    return [_execute(plan, comp, n2, counter) for comp in components]
+    plan = plan_products(indptr, voxels, weights, n_vox)
+    return get_backend(backend).ray_products(plan, components, n2, counter)
 
 
 def _as_int_array(name: str, a) -> np.ndarray:
@@ -218,8 +169,15 @@ def _bit_length(a: np.ndarray) -> np.ndarray:
     return bits - ((bits > 0) & ((a >> np.maximum(bits - 1, 0).astype(np.uint64)) == 0))
 
 
-def _plan(indptr, voxels, weights, n_vox: int) -> _Plan:
-    """Validate the CSR arrays, find duplicate rows and choose a method per row."""
+def plan_products(indptr, voxels, weights, n_vox: int) -> ProductPlan:
+    """Validate the CSR arrays, find duplicate rows and choose a method per row.
+
+    Examples
+    --------
+    >>> p = plan_products(np.array([0, 2, 4, 4]), np.array([0, 1, 0, 1]), np.array([1, 1, 1, 1]), 2)
+    >>> p.rep, len(p.tasks)          # row 1 repeats row 0; row 2 is empty
+    ([0, 0, -1], 1)
+    """
     ip = _as_int_array("indptr", indptr).astype(np.int64)
     vox = _as_int_array("voxels", voxels)
     wt = _as_int_array("weights", weights)
@@ -248,7 +206,7 @@ def _plan(indptr, voxels, weights, n_vox: int) -> _Plan:
             rep[r] = u = first.setdefault(blob[16 * s : 16 * e], len(uniq))
             if u == len(uniq):
                 uniq.append(r)
-    plan = _Plan(n_rows, n_pairs, rep, vox.tolist(), wt.tolist(), [])
+    plan = ProductPlan(n_rows, n_pairs, rep, vox.tolist(), wt.tolist(), [])
     if not uniq:
         return plan
     nonempty = np.flatnonzero(np.diff(ip))
@@ -325,154 +283,3 @@ def _choose_windows(vox, wt, starts, stops, rmax):
         return best_w, None
     v_need = np.flatnonzero(j_v >= 1)  # J_v == 1 entries are just [c]
     return best_w, (use, w, list(zip(v_need.tolist(), j_v[v_need].tolist())))
-
-
-def _execute(plan: _Plan, cts: Sequence[mpz], n2: mpz, counter: OpCounter | None) -> list[mpz]:
-    """Run the plan on one component (one ciphertext list)."""
-    vl, wl = plan.vl, plan.wl
-    mul = n_pow = pow_bits = 0
-    pw, sq = _precompute(cts, plan.pre, plan.shared_w, n2) if plan.pre else (None, 0)
-    vals: list[mpz] = []
-    for kind, s, e, w, n_win in plan.tasks:
-        if kind == _ONES:  # the nearest-sampling hot path: one multiplication per pair
-            acc = cts[vl[s]]
-            for v in vl[s + 1 : e]:
-                acc = acc * cts[v] % n2
-            m, q = e - s - 1, 0
-        elif kind == _HORNER:
-            acc, m, q = _horner(cts, vl, wl, s, e, w, n_win, n2)
-        elif kind == _SHARED:
-            acc, m, q = _shared(pw, vl, wl, s, e, plan.shared_w, n2)
-        else:  # one pair with a weight large enough for powmod's Montgomery set-up
-            acc, m, q = gmpy2.powmod(cts[vl[s]], wl[s], n2), 0, 0
-            n_pow += 1
-            pow_bits += wl[s].bit_length()
-        mul += m
-        sq += q
-        vals.append(acc)
-    one = mpz(1)
-    out = [one if u < 0 else vals[u] for u in plan.rep]
-    if counter is not None:
-        counter.add(OpCounter(
-            mulmod=mul, squarings=sq, powmod=n_pow, powmod_bits=pow_bits,
-            pairs=plan.n_pairs, rows=plan.n_rows,
-            duplicate_rows=sum(1 for u in plan.rep if u >= 0) - len(plan.tasks),
-            precomputed=sum(j - 1 for _, j in plan.pre or ()),
-        ))
-    return out
-
-
-def _combine(B: list, lo: int, hi: int, n2: mpz) -> tuple[mpz | None, int]:
-    """``prod_d B[lo + d]^d``, ``d = 1..hi-lo``, by running products, and the top digit.
-
-    Costs ``(m - 1) + (top - 1)`` for ``m`` non-empty buckets: the first one is free.
-    """
-    run = tot = None
-    top = 0
-    for i in range(hi, lo, -1):
-        b = B[i]
-        if b is not None:
-            if run is None:
-                run, top = b, i - lo
-            else:
-                run = run * b % n2
-        if run is not None:
-            tot = run if tot is None else tot * run % n2
-    return tot, top
-
-
-def _horner(cts, vl, wl, s: int, e: int, w: int, n_win: int, n2: mpz) -> tuple[mpz, int, int]:
-    """Bucket multi-exponentiation, ``n_win`` windows of ``w`` bits joined by Horner."""
-    size = 1 << w
-    mask = size - 1
-    stride = size + 1  # bucket d of window j at j * stride + d; d = size is for folding
-    B: list = [None] * (stride * n_win)
-    k = 0  # digits inserted; all but the first of each bucket cost a multiplication
-    if n_win <= 2:  # unrolled for nearest (w = 1) and 10-bit trilinear (w = 5) rows
-        for v, x in zip(vl[s:e], wl[s:e]):
-            c = cts[v]
-            d = x & mask
-            if d:
-                b = B[d]
-                B[d] = c if b is None else b * c % n2
-                k += 1
-            d = x >> w
-            if d:
-                d += stride
-                b = B[d]
-                B[d] = c if b is None else b * c % n2
-                k += 1
-    else:
-        for v, x in zip(vl[s:e], wl[s:e]):
-            c = cts[v]
-            base = 0
-            while x:
-                d = x & mask
-                if d:
-                    b = B[base + d]
-                    B[base + d] = c if b is None else b * c % n2
-                    k += 1
-                x >>= w
-                base += stride
-    acc = None
-    mul, sq = k, 0
-    fold = size - w * _SQR  # see _choose_windows: fold when the top digit exceeds this
-    for j in range(n_win - 1, -1, -1):
-        lo = j * stride
-        if acc is not None:
-            top = mask
-            while top and B[lo + top] is None:
-                top -= 1
-            if top > fold:  # acc^(2^w) T_j as bucket 2^w: size - top + 1 < w S + 1
-                B[lo + size] = acc
-                acc = _combine(B, lo, lo + size, n2)[0]
-                mul += size - 1  # n_j + 2^w - 1 for the window and the join
-                continue
-            for _ in range(w):
-                acc = acc * acc % n2
-            sq += w
-        t, top = _combine(B, lo, lo + mask, n2)
-        if t is not None:
-            mul += top - 2  # window cost n_j + top_j - 2, the n_j are in k
-            if acc is None:
-                acc = t
-            else:
-                acc = acc * t % n2
-                mul += 1
-    return acc, mul, sq
-
-
-def _precompute(cts, pre: list[tuple[int, int]], w: int, n2: mpz) -> tuple[list, int]:
-    """Per-voxel powers ``[c, c^(2^w), c^(2^(2w)), ...]`` for the shared-bucket rows."""
-    pw: list = [None] * len(cts)
-    sq = 0
-    for v, n_win in pre:
-        c = cts[v]
-        row = [c]
-        for _ in range(n_win - 1):
-            for _ in range(w):
-                c = c * c % n2
-            row.append(c)
-        sq += (n_win - 1) * w
-        pw[v] = row
-    return pw, sq
-
-
-def _shared(pw, vl, wl, s: int, e: int, w: int, n2: mpz) -> tuple[mpz, int, int]:
-    """All windows share one bucket set thanks to the precomputed ``c^(2^(w j))``."""
-    mask = (1 << w) - 1
-    B: list = [None] * (mask + 1)
-    k = 0
-    for v, x in zip(vl[s:e], wl[s:e]):
-        powers = pw[v]
-        j = 0
-        while x:
-            d = x & mask
-            if d:
-                b = B[d]
-                B[d] = powers[j] if b is None else b * powers[j] % n2
-                k += 1
-            x >>= w
-            j += 1
-    t, top = _combine(B, 0, mask, n2)
-    return t, k + top - 2, 0

@@ -13,7 +13,8 @@ import numpy as np
 import zarr
 
 from ..crypto.keys import PublicKey
-from ..crypto.records import bytes_to_mpz
+from ..backends import Backend, get_backend
+from ..crypto.records import mpz_to_bytes
 from ..errors import (
     CorruptStoreError,
     IncompleteStoreError,
@@ -63,6 +64,11 @@ class EncryptedVolume:
     @cached_property
     def public_key(self) -> PublicKey:
         return PublicKey(int(self.meta.n))
+
+    @cached_property
+    def _n2_record(self) -> np.ndarray:
+        """n² as one big-endian record of the store's width (for the range check)."""
+        return mpz_to_bytes([self.public_key.nsquare], self.meta.ciphertext_bytes)[0]
 
     @property
     def has_scalar(self) -> bool:
@@ -124,33 +130,37 @@ class EncryptedVolume:
             ) from None
         return np.asarray(data)
 
-    def read_brick(self, index: tuple[int, int, int], channel: str = "scalar", check: bool = True):
-        """Ciphertexts of one brick as mpz, converted once: a flat list (scalar) or k lists (vector).
+    def read_brick(self, index: tuple[int, int, int], channel: str = "scalar", check: bool = True,
+                   backend: str | Backend | None = None):
+        """Ciphertexts of one brick in the backend's form, converted once: one batch (scalar)
+        or k batches (vector). For the default ``cpu`` backend a batch is a list of mpz.
 
         With ``check`` every ciphertext must lie in (0, n²); a violation raises
-        :class:`hevr.CorruptStoreError` naming the brick.
+        :class:`hevr.CorruptStoreError` naming the brick. The check runs on the bytes, before
+        conversion, so it is the same for every backend.
         """
-
+        be = get_backend(backend)
         data = self.read_brick_bytes(index, channel)
-        if channel == "scalar":
-            cts = bytes_to_mpz(data)
-            if check:
-                self._check_range(cts, index, channel)
-            return cts
-        out = [bytes_to_mpz(data[j]) for j in range(data.shape[0])]
         if check:
-            for cts in out:
-                self._check_range(cts, index, channel)
-        return out
+            self._check_range(data, index, channel)
+        if channel == "scalar":
+            return be.from_bytes(data)
+        return [be.from_bytes(data[j]) for j in range(data.shape[0])]
 
-    def _check_range(self, cts: list, index: Any, channel: str) -> None:
-        n2 = self.public_key.nsquare
-        for i, c in enumerate(cts):
-            if not 0 < c < n2:
-                what = "zero (missing data)" if c == 0 else ">= n²"
-                raise CorruptStoreError(
-                    f"{self.path}: brick {tuple(index)} of channel {channel!r}: ciphertext {i} is {what}"
-                )
+    def _check_range(self, data: np.ndarray, index: Any, channel: str) -> None:
+        """0 < c < n² for every record, compared as big-endian bytes (vectorised)."""
+        recs = data.reshape(-1, data.shape[-1])
+        zero = ~recs.any(axis=1)
+        big = _records_at_least(recs, self._n2_record)
+        bad = np.flatnonzero(zero | big)
+        if bad.size:
+            i = int(bad[0])
+            what = "zero (missing data)" if zero[i] else ">= n²"
+            if channel == "vector":  # number within its component, as the flat lists count
+                i %= recs.shape[0] // data.shape[0]
+            raise CorruptStoreError(
+                f"{self.path}: brick {tuple(index)} of channel {channel!r}: ciphertext {i} is {what}"
+            )
 
     def verify(self, coprime: bool = True) -> None:
         """Read every brick and check every ciphertext (range, and coprimality with n)."""
@@ -158,7 +168,7 @@ class EncryptedVolume:
         channels = (["scalar"] if self.has_scalar else []) + (["vector"] if self.vector_dims else [])
         for idx in self.brick_indices():
             for ch in channels:
-                res = self.read_brick(idx, ch)
+                res = self.read_brick(idx, ch, backend="cpu")  # the gcd test below works on mpz
                 lists = [res] if ch == "scalar" else res
                 if coprime:
                     for cts in lists:
@@ -170,6 +180,18 @@ class EncryptedVolume:
                             raise CorruptStoreError(
                                 f"{self.path}: brick {idx} of channel {ch!r} holds a ciphertext not coprime to n"
                             )
+
+
+def _records_at_least(recs: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Row-wise ``record >= ref`` for big-endian byte records (lexicographic, vectorised).
+
+    >>> _records_at_least(np.array([[0, 9], [1, 0], [0, 255]], np.uint8), np.array([1, 0], np.uint8)).tolist()
+    [False, True, False]
+    """
+    diff = recs != ref
+    first = diff.argmax(axis=1)
+    rows = np.arange(recs.shape[0])
+    return ~diff.any(axis=1) | (recs[rows, first] > ref[first])
 
 
 def _chunk_files_ok(path: str, meta: VolumeMetadata) -> None:

@@ -44,7 +44,7 @@ import zarr
 from .. import _stats
 from .._dask import active_client, compute
 from ..crypto.keys import PrivateKey, PublicKey
-from ..crypto.records import mpz_to_bytes
+from ..backends import get_backend, resolve_backend_name
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume.density import encode_density, normalize_density
 from .metadata import ChannelInfo, VolumeMetadata
@@ -166,9 +166,9 @@ def _quantise_vector(block: np.ndarray, info: ChannelInfo, value_range: tuple[fl
 
 
 def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
-                   unsafe_no_obfuscation: bool) -> tuple[int, int, int]:
+                   unsafe_no_obfuscation: bool, backend: str = "cpu") -> tuple[int, int, int]:
     """One task: encrypt one plaintext brick and write its chunks, then its marker."""
-
+    be = get_backend(backend)
     meta = VolumeMetadata.from_dict(meta_dict)
     block = np.asarray(block)
     sl = brick_slices(meta, index)
@@ -176,17 +176,17 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
     group = zarr.open_group(path, mode="r+")
     if meta.scalar is not None:
         with _stats.timed("encrypt.crypto", block.size):
-            cts = key.encrypt_array(_quantise_scalar(block, meta.scalar), unsafe_no_obfuscation=unsafe_no_obfuscation)
+            cts = be.encrypt(key, _quantise_scalar(block, meta.scalar), unsafe_no_obfuscation=unsafe_no_obfuscation)
         with _stats.timed("encrypt.write"):
-            group["scalar"][sl] = mpz_to_bytes(cts, width).reshape(block.shape + (width,))
+            group["scalar"][sl] = be.to_bytes(cts, width).reshape(block.shape + (width,))
     if meta.vector is not None:
         q = _quantise_vector(block, meta.vector, meta.value_range)
         k = meta.vector.dims
         out = np.empty((k,) + block.shape + (width,), dtype=np.uint8)
         for j in range(k):
             with _stats.timed("encrypt.crypto", block.size):
-                cts = key.encrypt_array(q[j], unsafe_no_obfuscation=unsafe_no_obfuscation)
-            out[j] = mpz_to_bytes(cts, width).reshape(block.shape + (width,))
+                cts = be.encrypt(key, q[j], unsafe_no_obfuscation=unsafe_no_obfuscation)
+            out[j] = be.to_bytes(cts, width).reshape(block.shape + (width,))
         with _stats.timed("encrypt.write"):
             group["vector"][(slice(None),) + sl] = out
     group["done"][index] = 1
@@ -244,6 +244,7 @@ def encrypt_volume(
     progress: bool = True,
     client: Any = None,
     unsafe_no_obfuscation: bool = False,
+    backend: str | None = None,
 ) -> EncryptedVolume:
     """Encrypt a 3-D volume brick by brick into a Zarr v3 store, one Dask task per brick.
 
@@ -278,6 +279,9 @@ def encrypt_volume(
         Defaults to the active client, else Dask's default scheduler.
     unsafe_no_obfuscation : bool
         NOT SECURE; only for reproducing the paper's "without obfuscation" benchmarks.
+    backend : str, optional
+        Arithmetic backend of the encrypting workers (:mod:`hevr.backends`); default: the
+        Dask config key ``hevr.backend``, else ``"cpu"``.
 
     Returns
     -------
@@ -287,6 +291,7 @@ def encrypt_volume(
         raise ParameterError(f"key: expected a PublicKey or PrivateKey, got {type(key).__name__}")
     if unsafe_no_obfuscation:
         log.warning("encrypt_volume(unsafe_no_obfuscation=True): the store is NOT secure")
+    backend = resolve_backend_name(backend)
     vol = _check_volume(vol)
     brick_t = _check_brick(brick)
     spacing_t = _check_spacing(spacing)
@@ -317,7 +322,7 @@ def encrypt_volume(
     blocks = darr.to_delayed()
     task = dask.delayed(_encrypt_brick, pure=False)
     meta_dict = meta.to_dict()
-    tasks = [task(blocks[idx], path, idx, meta_dict, key, unsafe_no_obfuscation,
+    tasks = [task(blocks[idx], path, idx, meta_dict, key, unsafe_no_obfuscation, backend,
                   dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{_token()}")
              for idx in todo]
     compute(tasks, client=client, progress=progress, desc="encrypt")

@@ -1,0 +1,79 @@
+"""Arithmetic backends: where hevr's bulk big-integer work runs.
+
+Every bulk modular operation — owner-side masks, the per-brick multi-exponentiation,
+merging partial sums, finishing and packing, batch decryption — goes through one
+:class:`~hevr.backends.base.Backend` (interface and operation counts per render mode in
+:mod:`hevr.backends.base`). ``cpu`` (gmpy2, :mod:`hevr.backends.cpu`) is the default and the
+reference.
+
+Choosing a backend is explicit: the ``backend=`` parameter of :func:`hevr.render`,
+:func:`hevr.encrypt_volume` and :meth:`hevr.EncryptedImage.decrypt`, else the Dask config key
+``hevr.backend`` (``dask.config.set({"hevr.backend": "cpu"})``, or ``HEVR__BACKEND`` /
+``DASK_HEVR__BACKEND`` in the environment as Dask reads it), else ``"cpu"``. The client
+resolves the name once and puts only the *name* into the task graph; each worker builds its
+own backend instance from it.
+
+>>> get_backend().name
+'cpu'
+>>> import dask
+>>> with dask.config.set({"hevr.backend": "cpu"}):
+...     resolve_backend_name(None)
+'cpu'
+>>> resolve_backend_name("abacus")
+Traceback (most recent call last):
+...
+hevr.errors.ParameterError: backend: expected one of 'cpu', got 'abacus'
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import dask
+
+from ..errors import ParameterError
+from .base import Backend, OpCounter, ProductPlan
+from .cpu import CpuBackend
+
+__all__ = ["Backend", "CONFIG_KEY", "CpuBackend", "OpCounter", "ProductPlan", "available_backends", "get_backend",
+           "register_backend", "resolve_backend_name"]
+
+CONFIG_KEY = "hevr.backend"
+DEFAULT = "cpu"
+
+_FACTORIES: dict[str, Callable[[], Backend]] = {"cpu": CpuBackend}
+_INSTANCES: dict[str, Backend] = {}
+
+
+def register_backend(name: str, factory: Callable[[], Backend]) -> None:
+    """Make ``factory`` (called once per process, lazily) available as backend ``name``."""
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ParameterError(f"name: expected a backend name (an identifier), got {name!r}")
+    _FACTORIES[name] = factory
+    _INSTANCES.pop(name, None)
+
+
+def available_backends() -> tuple[str, ...]:
+    """Names of the registered backends."""
+    return tuple(_FACTORIES)
+
+
+def resolve_backend_name(backend: str | Backend | None) -> str:
+    """The backend name to use: ``backend``, else the Dask config ``hevr.backend``, else ``'cpu'``."""
+    if isinstance(backend, Backend):
+        backend = backend.name
+    name = dask.config.get(CONFIG_KEY, DEFAULT) if backend is None else backend
+    if name not in _FACTORIES:
+        raise ParameterError(f"backend: expected one of {', '.join(repr(k) for k in _FACTORIES)}, got {name!r}")
+    return name
+
+
+def get_backend(backend: str | Backend | None = None) -> Backend:
+    """The backend instance of this process for ``backend`` (see :func:`resolve_backend_name`)."""
+    if isinstance(backend, Backend):
+        return backend
+    name = resolve_backend_name(backend)
+    inst = _INSTANCES.get(name)
+    if inst is None:
+        inst = _INSTANCES[name] = _FACTORIES[name]()
+    return inst
