@@ -150,8 +150,9 @@ def test_malformed_files_rejected(tmp_path, content):
 
 
 def test_missing_file(tmp_path):
-    with pytest.raises(hevr.InvalidKeyError, match="does not exist"):
+    with pytest.raises(hevr.MissingFileError, match="key: expected a key file, found nothing at") as info:
         load_key(tmp_path / "nope.json")
+    assert isinstance(info.value, FileNotFoundError) and info.value.filename == str(tmp_path / "nope.json")
 
 
 @pytest.mark.parametrize("bits", [256, 2048])
