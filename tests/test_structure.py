@@ -37,16 +37,13 @@ OPTIONAL_IMPORTS = frozenset({
     "pydicom",
     "fsspec",
     "cupy",
-    "distributed",
     "bokeh",
     "ipywidgets",
     "nbformat",
     "nbclient",
     "jupytext",
-    "PIL",
     "tqdm",
-    "subprocess",
-})
+})  # optional extras only: required dependencies (distributed, pillow, zarr, ...) are imported at the top
 
 # Module paths that no longer exist since the layout change (see CHANGELOG.md): the flat
 # modules hevr/<name>.py. Packages with one of these names exist now (store, volume, cli), so
