@@ -21,12 +21,12 @@ import numpy as np  # noqa: E402
 from _machine import append, machine  # noqa: E402
 
 import hevr  # noqa: E402
+from hevr.paper import TF_NODES  # noqa: E402
 
 PAPER_RENDER = {("xray", "nearest"): 94.30, ("xray", "trilinear"): 1182.48,
                 ("tf1", "nearest"): 2292.48, ("tf2", "nearest"): 3234.38, ("tf3", "nearest"): 4251.69,
                 ("tf4", "nearest"): 5217.38}
 PAPER_DECRYPT_RGB = 190.49
-TF_NODES = [(0.0, "blue"), (0.293, "yellow"), (0.664, "lime"), (1.0, "purple")]
 
 
 def timed(fn):

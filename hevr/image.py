@@ -20,7 +20,9 @@ import numpy as np
 from PIL import Image
 
 from ._files import require_file
+from ._tiles import TileLayout
 from .crypto.keys import PrivateKey
+from .crypto.records import record_width
 from .backends import get_backend
 from .errors import CorruptStoreError, KeyMismatchError, ParameterError
 
@@ -82,15 +84,6 @@ class EncryptedImage:
     def channels(self) -> int:
         return self.shape[2] if len(self.shape) == 3 else 1
 
-    def _tiles(self):
-        H, W = self.shape[:2]
-        tiles_x = -(-W // self.tile)
-        tiles_y = -(-H // self.tile)
-        for t in range(tiles_x * tiles_y):
-            ty, tx = divmod(t, tiles_x)
-            r0, c0 = ty * self.tile, tx * self.tile
-            yield t, r0, min(r0 + self.tile, H), c0, min(c0 + self.tile, W)
-
     def decrypt_mantissas(self, private_key: Any, backend: str | None = None) -> np.ndarray:
         """Integer mantissas (offset removed) as an object array of the image shape; the
         batch decryption runs on ``backend`` (:mod:`hevr.backends`, default ``cpu``)."""
@@ -108,7 +101,9 @@ class EncryptedImage:
         out = np.zeros((H, W, C), dtype=object)
         digit_mask = (1 << self.pack_bits) - 1 if self.per_pack > 1 else None
         hits = self.hits if self.hits is not None else np.ones((H, W), bool)
-        for t, r0, r1, c0, c1 in self._tiles():
+        layout = TileLayout(W, H, self.tile)
+        for t in range(layout.n_tiles):
+            r0, r1, c0, c1 = layout.bounds(t)
             mask = hits[r0:r1, c0:c1]
             need = int(mask.sum()) * C
             plain = be.decrypt(private_key, be.from_bytes(self.ciphertexts[t]))
@@ -140,7 +135,7 @@ class EncryptedImage:
             "format": "hevr-encrypted-image", "version": 1, "shape": list(self.shape),
             "exponent": self.exponent, "offset": str(self.offset), "fingerprint": self.fingerprint,
             "n": str(int(self.n)), "tile": self.tile, "pack_bits": self.pack_bits, "per_pack": self.per_pack,
-            "width": (2 * int(self.n).bit_length() + 7) // 8,
+            "width": record_width(self.n),
             "counts": [int(len(c)) for c in self.ciphertexts], "info": self.info,
             "hits": None if self.hits is None else base64.b64encode(np.packbits(self.hits.ravel())).decode(),
         }

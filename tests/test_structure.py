@@ -137,11 +137,18 @@ def _resolve_from(module: str, node: ast.ImportFrom) -> str | None:
 
 def _edges(module: str, tree: ast.AST) -> dict[str, int]:
     """hevr modules ``module`` imports -> first line. ``from pkg import name`` goes to
-    ``pkg.name`` when that is a submodule, else to ``pkg``; the parent packages Python
-    imports on the way are not edges."""
+    ``pkg.name`` when that is a submodule, else to ``pkg``. Importing ``a.b.c`` first runs
+    the ``__init__`` of the packages ``a.b`` on the way, so those are edges too — except the
+    packages ``module`` itself lives in, which are already (being) imported when it runs."""
     out: dict[str, int] = {}
+    own = {".".join(module.split(".")[:i]) for i in range(1, module.count(".") + 2)}
 
     def add(target: str, line: int) -> None:
+        parts = target.split(".")
+        for i in range(1, len(parts)):
+            parent = ".".join(parts[:i])
+            if parent in PACKAGES and parent not in own:
+                out.setdefault(parent, line)
         if target in MODULES and target != module:
             out.setdefault(target, line)
 

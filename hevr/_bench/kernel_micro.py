@@ -39,7 +39,7 @@ import gmpy2
 import numpy as np
 from gmpy2 import mpz
 
-from ..crypto.records import bytes_to_mpz, mpz_to_bytes
+from ..crypto.records import bytes_to_mpz, mpz_to_bytes, record_width
 from ..rendering.kernel import OpCounter, brick_ray_products
 from .measure import cpu_model
 
@@ -158,7 +158,7 @@ def kernel_micro(bits: int = 2048, quick: bool = False) -> dict:
     # Two top bits set: n^2 has exactly 2 * bits bits, like a real Paillier modulus.
     n = mpz(secrets.randbits(args.bits)) | 1 | (mpz(3) << (args.bits - 2))
     n2 = n * n
-    width = (int(gmpy2.bit_length(n2)) + 7) // 8
+    width = record_width(n)
     repeat = 2 if args.quick else 3
 
     a, b = mpz(secrets.randbelow(int(n2))), mpz(secrets.randbelow(int(n2)))

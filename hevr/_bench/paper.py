@@ -2,10 +2,13 @@
 
 Measured on a 2016 MacBook Pro (2.9 GHz Intel Core i7) with a single-threaded Java
 prototype, 100³ voxels rendered to 150² pixels. Seconds unless stated; Table 2 holds bytes
-(the paper's MB are 10^6 bytes: 100³ · dims · 2 · bits / 8).
+(the paper's MB are 10^6 bytes: 100³ · dims · 2 · bits / 8). The paper's render settings
+(transfer functions, densities, sizes) are in :mod:`hevr.paper`.
 """
 
 from __future__ import annotations
+
+from ..paper import PAPER_SIZE
 
 MACHINE = "2016 MacBook Pro, 2.9 GHz Intel Core i7, single-threaded Java prototype"
 
@@ -43,7 +46,7 @@ TABLE1 = {
 PLAIN1 = {"nearest": 0.03, "trilinear": 0.08}
 
 # Table 2: bytes per channel count (1 = scalar) and key size; plain is 8-bit.
-TABLE2 = {dims: {bits: 100**3 * dims * 2 * bits // 8 for bits in T1_BITS} for dims in (1, 2, 3, 4)}
+TABLE2 = {dims: {bits: PAPER_SIZE**3 * dims * 2 * bits // 8 for bits in T1_BITS} for dims in (1, 2, 3, 4)}
 
 # Table 3: encrypt per encoding; render / decrypt per (encoding, colours).
 TABLE3_ENCRYPT = {2: _row3(29.87, 115.03, 622.77, 4405.69, 31796.00),
@@ -65,7 +68,3 @@ TABLE3_DECRYPT = {
 }
 PLAIN3 = {(2, 1): 0.05, (2, 2): 0.06, (3, 1): 0.05, (3, 2): 0.06, (3, 3): 0.06,
           (4, 1): 0.06, (4, 2): 0.07, (4, 3): 0.07, (4, 4): 0.08}
-
-# The transfer-function nodes of the paper's Fig. 6(d) (4-dim encoding; its "green" is CSS lime,
-# #00ff00), the first k used for k colours.
-TF_NODES = [(0.0, "blue"), (0.293, "yellow"), (0.664, "lime"), (1.0, "purple")]

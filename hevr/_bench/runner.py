@@ -17,11 +17,11 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..errors import MissingDependencyError, ParameterError
+from ..paper import TF_NODES
 from ..volume.phantom import phantom
 from . import cases, measure
 from .crypto_micro import crypto_micro
 from .kernel_micro import kernel_micro
-from .paper import TF_NODES
 from .report import write_report
 from .settings import SETTINGS, BenchSettings, block_names
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from ..paper import PAPER_BRICK, PAPER_IMAGE, PAPER_SIZE
+
 
 @dataclass(frozen=True)
 class BenchSettings:
@@ -35,7 +37,7 @@ class BenchSettings:
 
 
 PAPER = BenchSettings(
-    name="paper", size=100, image=150, brick=25,
+    name="paper", size=PAPER_SIZE, image=PAPER_IMAGE, brick=PAPER_BRICK,
     t1_bits=(64, 128, 256, 512, 1024, 2048, 3072), t3_bits=(128, 256, 512, 1024, 2048),
     t2_extra_bits=(64, 3072), micro_bits=(1024, 2048, 3072))
 

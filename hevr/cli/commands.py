@@ -24,8 +24,8 @@ from ..rendering.encrypted import render
 from ..store.metadata import VolumeMetadata
 from ..store.reader import open_volume
 from ..store.writer import encrypt_volume
+from ..paper import PAPER_DENSITIES, PAPER_TF1
 from .util import (
-    PAPER_TF1,
     Timer,
     UsageError,
     check_writable_dir,
@@ -36,7 +36,6 @@ from .util import (
     human_bytes,
     key_label,
     load_input,
-    parse_tf,
     public_key_path,
     read_key,
     show_progress,
@@ -125,7 +124,7 @@ def resolve_mode(args: Any) -> str:
     """The render mode: explicit --mode, else inferred from --density / --tf, else xray."""
     mode = args.mode or ("tf" if args.tf is not None else "emphasize" if args.density is not None else "xray")
     if mode == "emphasize" and args.density is None:
-        raise UsageError("--mode emphasize needs --density D (a normalised density in [0, 1], e.g. 0.653)")
+        raise UsageError(f"--mode emphasize needs --density D (a normalised density in [0, 1], e.g. {PAPER_DENSITIES[1]})")
     if mode != "emphasize" and args.density is not None:
         raise UsageError(f"--density only applies to --mode emphasize, got --mode {mode}")
     if mode != "tf" and args.tf is not None:
@@ -137,7 +136,7 @@ def cmd_render(args: Any) -> int:
 
 
     mode = resolve_mode(args)
-    nodes = (args.tf if args.tf is not None else parse_tf(PAPER_TF1)) if mode == "tf" else None
+    nodes = (args.tf if args.tf is not None else list(PAPER_TF1)) if mode == "tf" else None
     out = Path(args.out).expanduser()
     check_writable_dir(out)
     store = Path(args.store).expanduser().absolute()

@@ -3,9 +3,9 @@
 The demo generates the paper's phantom (or reads ``--input``), makes a key pair, encrypts
 the scalar and the 4-dim vector channel on the owner-side fast path, starts a local
 2-worker Dask cluster, renders the paper's figure set — X-ray (nearest and trilinear),
-emphasis of the densities 0.331, 0.653 and 0.781, and two transfer functions — decrypts
-each image, compares it with :func:`hevr.render_plain` and writes PNGs, a contact sheet,
-``report.md`` and ``summary.json``.
+emphasis of the densities 0.331, 0.653 and 0.781, and two transfer functions (all from
+:mod:`hevr.paper`) — decrypts each image, compares it with :func:`hevr.render_plain` and
+writes PNGs, a contact sheet, ``report.md`` and ``summary.json``.
 """
 
 from __future__ import annotations
@@ -29,10 +29,8 @@ from ..rendering.encrypted import error_bound, render
 from ..rendering.plain import render_plain
 from ..store.writer import encrypt_volume
 from .sheet import contact_sheet
+from ..paper import PAPER_DENSITIES, PAPER_IMAGE, PAPER_SIZE, PAPER_TF1, PAPER_TF2, tf_text
 from .util import (
-    PAPER_DENSITIES,
-    PAPER_TF1,
-    PAPER_TF2,
     Timer,
     dask_client,
     describe_client,
@@ -41,7 +39,6 @@ from .util import (
     human_bytes,
     key_label,
     load_input,
-    parse_tf,
     show_progress,
     table,
     warn_line,
@@ -49,11 +46,11 @@ from .util import (
 
 __all__ = ["Job", "paper_jobs", "cmd_demo", "DEMO_EPILOG"]
 
-DEMO_EPILOG = """\
+DEMO_EPILOG = f"""\
 examples:
   hevr demo                                   # 15-25 s on a 2-core laptop (32^3, 48x48 px, 512-bit key)
   hevr demo --out figs --size 64 --image 96x96
-  hevr demo --size 100 --image 150x150 --bits 2048   # the paper's setting: ~1-1.5 h on 2 cores
+  hevr demo --size {PAPER_SIZE} --image {PAPER_IMAGE}x{PAPER_IMAGE} --bits 2048   # the paper's setting: ~1-1.5 h on 2 cores
   hevr demo --input tooth_103x94x161_uint8.raw --image 128x128
   hevr demo --scheduler tcp://10.0.0.5:8786   # render on a running cluster (DIR must be shared)
 
@@ -83,7 +80,7 @@ def paper_jobs() -> list[Job]:
     for d in PAPER_DENSITIES:
         jobs.append(Job(f"emphasize-{d}", f"emphasis of density {d}, trilinear", "emphasize", "trilinear", density=d))
     for i, tf in enumerate((PAPER_TF1, PAPER_TF2), 1):
-        jobs.append(Job(f"tf{i}", f"transfer function {tf}", "tf", "trilinear", nodes=parse_tf(tf)))
+        jobs.append(Job(f"tf{i}", f"transfer function {tf_text(tf)}", "tf", "trilinear", nodes=list(tf)))
     return jobs
 
 

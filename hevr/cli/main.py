@@ -17,18 +17,19 @@ from typing import Any, Sequence
 
 from .. import __version__
 from ..errors import HevrError
+from ..paper import PAPER_DENSITIES, PAPER_IMAGE, PAPER_SIZE, PAPER_TF1, PAPER_TF2, tf_text
 from . import commands as cmds
 from . import demo as demo
 from .bench import BENCH_EPILOG, cmd_bench
 from .demo import DEMO_EPILOG
 from .util import (
-    PAPER_TF1,
     UsageError,
     bits_type,
     brick_type,
     err_line,
     finite_float,
     floats_type,
+    format_tf,
     nonneg_int,
     positive_float,
     positive_int,
@@ -81,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="typical session:\n"
                "  hevr keygen --bits 2048 --out key.json             # data owner: key pair\n"
                "  hevr encrypt phantom:64 --key key.json --out vol.zarr --vector-dims 4\n"
-               "  hevr render vol.zarr --out frame.hevr --mode tf --tf '0.279:blue,0.797:red'   # server side\n"
+               f"  hevr render vol.zarr --out frame.hevr --mode tf --tf '{tf_text(PAPER_TF1)}'   # server side\n"
                "  hevr decrypt frame.hevr --key key.json --out frame.png   # client: only the key holder sees it\n"
                "  hevr demo                                          # all of the above on the paper's figures\n")
     parser.add_argument("--version", action="version", version=f"hevr {__version__}")
@@ -104,7 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description=_d("Encrypt a volume voxel by voxel into a Zarr v3 store of Paillier ciphertexts, "
                                    "one Dask task per brick. The store holds the public key and ciphertexts only."),
                        epilog="examples:\n"
-                              "  hevr encrypt phantom:100 --key key.pub.json --out vol.zarr --vector-dims 4\n"
+                              f"  hevr encrypt phantom:{PAPER_SIZE} --key key.pub.json --out vol.zarr --vector-dims 4\n"
                               "  hevr encrypt tooth_103x94x161_uint8.raw --key key.json --out tooth.zarr --workers 2\n"
                               "  hevr encrypt ct.nii.gz --key key.pub.json --out ct.zarr --resume\n"
                               "\nINPUT: .npy, .raw (shape/type from a name like tooth_103x94x161_uint8.raw), .nrrd, "
@@ -135,8 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the result is an encrypted .hevr frame only the key holder can decrypt."),
                        epilog="examples:\n"
                               "  hevr render vol.zarr --out xray.hevr --sampling trilinear --azimuth 30 --elevation 20\n"
-                              "  hevr render vol.zarr --out emph.hevr --mode emphasize --density 0.653\n"
-                              "  hevr render vol.zarr --out tf.hevr --mode tf --tf '0.279:#0000ff,0.797:red'\n"
+                              f"  hevr render vol.zarr --out emph.hevr --mode emphasize --density {PAPER_DENSITIES[1]}\n"
+                              f"  hevr render vol.zarr --out tf.hevr --mode tf --tf '{format_tf(PAPER_TF2)}'\n"
                               "\n--mode defaults to emphasize with --density, tf with --tf, else xray.\n")
     p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
@@ -146,7 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--azimuth", type=finite_float, default=0.0, metavar="DEG",
                    help="camera azimuth about the y axis (default 0: looking from +z)")
     p.add_argument("--elevation", type=finite_float, default=0.0, metavar="DEG", help="camera elevation (default 0)")
-    p.add_argument("--size", type=size_type, default=(150, 150), metavar="WxH", help="image size (default 150x150)")
+    p.add_argument("--size", type=size_type, default=(PAPER_IMAGE, PAPER_IMAGE), metavar="WxH",
+                   help=f"image size (default {PAPER_IMAGE}x{PAPER_IMAGE})")
     p.add_argument("--view-angle", type=positive_float, default=30.0, metavar="DEG",
                    help="vertical view angle (default 30)")
     p.add_argument("--parallel", action="store_true", help="parallel projection instead of perspective")
@@ -154,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
     p.add_argument("--tf", type=tf_type, metavar="NODES",
                    help=f"transfer function DENSITY:COLOR,... (colours #rrggbb, #rgb or CSS names; "
-                        f"default {PAPER_TF1})")
+                        f"default {tf_text(PAPER_TF1)})")
     p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext (bigger, slower to decrypt)")
     p.add_argument("--precision", type=nonneg_int, default=4, metavar="P",
                    help="decimal digits of the normalisation (default 4)")
@@ -203,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=BENCH_EPILOG)
     g = p.add_mutually_exclusive_group()
     g.add_argument("--quick", action="store_true", help="a smoke run in about a minute (tiny volume and keys)")
-    g.add_argument("--paper", action="store_true", help="the paper's setting: 100^3, 150x150, keys 64-3072 bits (~1.5 h)")
+    g.add_argument("--paper", action="store_true", help=f"the paper's setting: {PAPER_SIZE}^3, {PAPER_IMAGE}x{PAPER_IMAGE}, keys 64-3072 bits (~1.5 h)")
     p.add_argument("--out", metavar="DIR", help="output folder (default ./benchmarks if it exists, else .)")
     p.add_argument("--resume", action="store_true", help="keep the finished blocks of an earlier run of this setting")
     p.add_argument("--only", metavar="KINDS", help="comma-separated blocks: micro, t1, t2, t3, naive, scaling")

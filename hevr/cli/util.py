@@ -24,15 +24,12 @@ from distributed import Client, LocalCluster
 from ..crypto.keyfile import load_key
 from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
 from ..errors import InsecureKeyWarning, MissingFileError, ParameterError
+from ..paper import PAPER_SIZE
 from ..rendering.modes import parse_color
 from ..volume.loaders import load_volume
 from ..volume.phantom import phantom
 
 log = logging.getLogger("hevr.cli.main")
-
-PAPER_TF1 = "0.279:blue,0.797:red"
-PAPER_TF2 = "0.076:green,0.651:blue,1.0:red"
-PAPER_DENSITIES = (0.331, 0.653, 0.781)
 
 
 class UsageError(ParameterError):
@@ -188,9 +185,14 @@ def tf_type(text: str) -> list[tuple[float, tuple[float, float, float]]]:
 
 
 def format_tf(nodes: Any) -> str:
+    """Nodes (colours in any form :func:`parse_color` reads) -> ``"0.279:#0000ff,..."``.
+
+    >>> format_tf([(0.279, "blue"), (0.797, (1, 0, 0))])
+    '0.279:#0000ff,0.797:#ff0000'
+    """
     out = []
     for d, c in nodes:
-        rgb = "#" + "".join(f"{round(float(x) * 255):02x}" for x in c)
+        rgb = "#" + "".join(f"{round(float(x) * 255):02x}" for x in parse_color(c))
         out.append(f"{float(d):g}:{rgb}")
     return ",".join(out)
 
@@ -203,11 +205,11 @@ def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float,
     """
 
     if spec == "phantom" or spec.startswith("phantom:"):
-        size_text = spec.partition(":")[2] or "100"
+        size_text = spec.partition(":")[2] or str(PAPER_SIZE)
         try:
             size = int(size_text)
         except ValueError:
-            raise ParameterError(f"input {spec!r}: expected phantom:N with an integer N >= 4, e.g. phantom:100") from None
+            raise ParameterError(f"input {spec!r}: expected phantom:N with an integer N >= 4, e.g. phantom:{PAPER_SIZE}") from None
         vol = phantom(size)
         return vol, tuple(spacing) if spacing else (1.0, 1.0, 1.0), f"phantom {size}^3 (uint8)"
     path = Path(spec).expanduser()

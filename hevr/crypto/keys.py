@@ -32,6 +32,7 @@ from .encoding import decode
 from .number import EncryptedNumber
 from .owner import OwnerEncryptor
 from .primes import random_prime_with_factors
+from .records import record_width
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +88,7 @@ class PublicKey:
     @property
     def ciphertext_bytes(self) -> int:
         """Fixed byte width of a ciphertext (n² < 2^(2·bits))."""
-        return (2 * self.bits + 7) // 8
+        return record_width(self.n)
 
     def __repr__(self) -> str:
         return f"PublicKey(bits={self.bits}, fingerprint={self.fingerprint[:16]}…)"

@@ -38,10 +38,24 @@ from gmpy2 import mpz
 
 from ..errors import ParameterError
 
-__all__ = ["bytes_to_mpz", "mpz_to_bytes"]
+__all__ = ["bytes_to_mpz", "mpz_to_bytes", "record_width"]
 
 # gmpy2 >= 2.3 has the int-compatible from_bytes/to_bytes; older versions do not.
 _HAS_NATIVE_BYTES = hasattr(mpz, "from_bytes") and hasattr(mpz, "to_bytes")
+
+
+def record_width(n: int) -> int:
+    """Fixed byte width of a ciphertext record under the modulus ``n``.
+
+    Ciphertexts lie in [0, n²) and n² < 2^(2·bits(n)), so ``ceil(2·bits(n) / 8)`` bytes
+    hold every one. The one definition for keys, stores and encrypted images.
+
+    Examples
+    --------
+    >>> record_width(2**2047 + 1), record_width(11 * 13)
+    (512, 2)
+    """
+    return (2 * int(n).bit_length() + 7) // 8
 
 
 def bytes_to_mpz(arr: np.ndarray) -> list[mpz]:

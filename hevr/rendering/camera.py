@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import check_int, check_shape, check_spacing
 from ..errors import ParameterError
 
 __all__ = ["Camera"]
@@ -49,12 +50,6 @@ def _vec3(name: str, value: Any) -> tuple[float, float, float]:
     return (float(arr[0]) + 0.0, float(arr[1]) + 0.0, float(arr[2]) + 0.0)
 
 
-def _positive_int(name: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value <= 0:
-        raise ParameterError(f"{name}: expected a positive integer, got {value!r}")
-    return int(value)
-
-
 def _finite_float(name: str, value: Any, expected: str) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ParameterError(f"{name}: expected {expected}, got {value!r}")
@@ -62,6 +57,13 @@ def _finite_float(name: str, value: Any, expected: str) -> float:
     if not math.isfinite(out):
         raise ParameterError(f"{name}: expected {expected}, got {value!r}")
     return out + 0.0
+
+
+def _view_angle(value: Any) -> float:
+    angle = _finite_float("view_angle", value, "degrees in (0, 180)")
+    if not 0.0 < angle < 180.0:
+        raise ParameterError(f"view_angle: expected degrees in (0, 180), got {value!r}")
+    return angle
 
 
 def _normalize(v: np.ndarray) -> np.ndarray:
@@ -114,11 +116,9 @@ class Camera:
         pos = _vec3("position", self.position)
         foc = _vec3("focal_point", self.focal_point)
         up = _vec3("view_up", self.view_up)
-        angle = _finite_float("view_angle", self.view_angle, "degrees in (0, 180)")
-        if not 0.0 < angle < 180.0:
-            raise ParameterError(f"view_angle: expected degrees in (0, 180), got {self.view_angle!r}")
-        width = _positive_int("width", self.width)
-        height = _positive_int("height", self.height)
+        angle = _view_angle(self.view_angle)
+        width = check_int("width", self.width, 1)
+        height = check_int("height", self.height, 1)
         if not isinstance(self.parallel, (bool, np.bool_)):
             raise ParameterError(f"parallel: expected True or False, got {self.parallel!r}")
         dist_vec = np.subtract(foc, pos)
@@ -301,11 +301,9 @@ class Camera:
         shape, spacing = _orbit_geometry(ev_or_shape, spacing)
         az = math.radians(_finite_float("azimuth", azimuth, "degrees"))
         el = math.radians(_finite_float("elevation", elevation, "degrees"))
-        width = _positive_int("width", width)
-        height = _positive_int("height", height)
-        angle = _finite_float("view_angle", view_angle, "degrees in (0, 180)")
-        if not 0.0 < angle < 180.0:
-            raise ParameterError(f"view_angle: expected degrees in (0, 180), got {view_angle!r}")
+        width = check_int("width", width, 1)
+        height = check_int("height", height, 1)
+        angle = _view_angle(view_angle)
         extent = np.array([(shape[2] - 1) * spacing[0], (shape[1] - 1) * spacing[1],
                            (shape[0] - 1) * spacing[2]], dtype=np.float64)
         centre = extent / 2.0
@@ -345,19 +343,6 @@ def _orbit_geometry(ev_or_shape: Any, spacing: Any) -> tuple[tuple[int, int, int
             spacing = ev_or_shape.spacing
     else:
         shape_in = ev_or_shape
-    try:
-        shape = tuple(shape_in)
-    except TypeError:
-        raise ParameterError(
-            f"ev_or_shape: expected a shape (nz, ny, nx) or a volume with .shape and .spacing, "
-            f"got {ev_or_shape!r}"
-        ) from None
-    if len(shape) != 3:
-        raise ParameterError(f"ev_or_shape: expected a 3-D shape (nz, ny, nx), got {shape!r}")
-    shape = tuple(_positive_int("ev_or_shape", s) for s in shape)
-    if spacing is None:
-        spacing = (1.0, 1.0, 1.0)
-    sp = _vec3("spacing", spacing)
-    if min(sp) <= 0.0:
-        raise ParameterError(f"spacing: expected 3 positive numbers (sx, sy, sz), got {spacing!r}")
+    shape = check_shape(shape_in, "ev_or_shape")
+    sp = check_spacing((1.0, 1.0, 1.0) if spacing is None else spacing)
     return shape, sp  # type: ignore[return-value]

@@ -26,13 +26,15 @@ import dask
 import numpy as np
 
 from .._dask import compute
+from .._tiles import TileLayout
+from .._validate import check_int
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..store.reader import EncryptedVolume
 from .camera import Camera
-from .graph import build_sums_graph, finish_task, tile_pixels
-from .modes import combination_matrix, make_spec
+from .graph import build_sums_graph, finish_task
+from .modes import RenderSpec, combination_matrix, make_spec
 from .planner import plan_render
 from .rays import cast_rays
 
@@ -59,10 +61,16 @@ def clear_cache() -> None:
     _CACHE.clear()
 
 
-def _int_param(name: str, value: Any, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
-        raise ParameterError(f"{name}: expected an int in [{lo}, {hi}], got {value!r}")
-    return int(value)
+def _check_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: Any, density: Any, nodes: Any,
+                   digits: Any, precision: Any, comb_digits: Any) -> tuple[RenderSpec, int, int, int]:
+    """Check what :func:`render` and :func:`error_bound` share, once, where it enters."""
+    if not isinstance(ev, EncryptedVolume):
+        raise ParameterError(f"ev: expected an EncryptedVolume (hevr.open_volume), got {type(ev).__name__}")
+    if not isinstance(camera, Camera):
+        raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
+    spec = make_spec(mode, sampling, step, density, nodes, ev.vector_dims, ev.has_scalar)
+    return (spec, check_int("digits", digits, 0, 9), check_int("precision", precision, 0, 30),
+            check_int("comb_digits", comb_digits, 1, 12))
 
 
 def render(
@@ -124,24 +132,19 @@ def render(
     EncryptedImage
         Never touches the secret key.
     """
-    if not isinstance(ev, EncryptedVolume):
-        raise ParameterError(f"ev: expected an EncryptedVolume (hevr.open_volume), got {type(ev).__name__}")
-    if not isinstance(camera, Camera):
-        raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
-    spec = make_spec(mode, sampling, step, density, nodes, ev.vector_dims, ev.has_scalar)
-    digits = _int_param("digits", digits, 0, 9)
-    precision = _int_param("precision", precision, 0, 30)
-    comb_digits = _int_param("comb_digits", comb_digits, 1, 12)
-    tile = _int_param("tile", tile, 1, 4096)
+    spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
+                                                          digits, precision, comb_digits)
+    tile = check_int("tile", tile, 1, 4096)
     backend = resolve_backend_name(backend)
     t0 = time.perf_counter()
     rays = cast_rays(camera, ev.shape, ev.spacing, spec.step)
-    comb = combination_matrix(spec, ev.vector_dims) if spec.mode != "xray" else None
+    comb = combination_matrix(spec, ev.vector_dims) if spec.needs_vector else None
     plan = plan_render(n=int(ev.public_key.n), spec=spec, meta=ev.meta, n_samples=rays.n_samples,
                        digits=digits if spec.sampling == "trilinear" else 0, precision=precision,
                        comb_digits=comb_digits, pack=pack, combination=comb)
     H, W = camera.height, camera.width
-    n_tiles = (-(-H // tile)) * (-(-W // tile))
+    layout = TileLayout(W, H, tile)
+    n_tiles = layout.n_tiles
     key = (ev.path, ev.meta.store_id, ev.meta.fingerprint, camera.key(), spec.sampling, spec.step, plan.weight_digits,
            plan.channel, tile)
     sums = _CACHE.get(key) if cache else None
@@ -150,7 +153,7 @@ def render(
     empty = (np.zeros(0, np.int64), np.zeros((0, 1, width_bytes), np.uint8))
 
     def finish(merged_t: Any, t: int) -> Any:
-        pix = tile_pixels(t, W, H, tile)
+        pix = layout.pixels(t)
         return dask.delayed(finish_task, pure=True)(plan, merged_t if merged_t is not None else empty, pix,
                                                     rays.n_samples[pix], int(ev.public_key.n), width_bytes, backend)
 
@@ -173,7 +176,7 @@ def render(
         _CACHE.move_to_end(key)
         fin = [finish(sums.tiles.get(t), t) for t in range(n_tiles)]
         packed = compute(fin, client=client, progress=False, desc="finish")
-    shape = (H, W, 3) if plan.channels_out == 3 else (H, W)
+    shape = spec.image_shape(H, W)
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
              "seconds": time.perf_counter() - t0}
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
@@ -190,24 +193,22 @@ def error_bound(ev: EncryptedVolume, camera: Camera, mode: str = "xray", samplin
                 step: float = 1.0, density: float | None = None, nodes: Any = None, *, digits: int = 3,
                 precision: int = 4, comb_digits: int = 4) -> np.ndarray:
     """Per-pixel bound on |decrypted render − render_plain| (see the module docstring)."""
-    spec = make_spec(mode, sampling, step, density, nodes, ev.vector_dims, ev.has_scalar)
+    spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
+                                                          digits, precision, comb_digits)
     rays = cast_rays(camera, ev.shape, ev.spacing, spec.step)
     n = rays.n_samples.astype(np.float64).reshape(camera.height, camera.width)
-    C = 3 if spec.mode == "tf" else 1
-    if spec.mode == "xray":
+    if spec.channel == "scalar":
         qmax = max(abs(ev.value_range[0]), abs(ev.value_range[1]))
         store = 0.5 * 10.0 ** ev.meta.scalar.exponent if ev.meta.scalar.digits is not None else 0.0
         comb_err = 0.0
-        K = 1
     else:
         M = combination_matrix(spec, ev.vector_dims)
         qmax = float(np.abs(M).sum(axis=0).max())
-        k = ev.vector_dims
         store = 0.5 * 10.0 ** ev.meta.vector.exponent * qmax
-        comb_err = 0.5 * 10.0 ** -comb_digits * np.sqrt(k)
-        K = len(spec.nodes) if spec.mode == "tf" else 1
+        comb_err = 0.5 * 10.0 ** -comb_digits * np.sqrt(ev.vector_dims)
+    K = spec.n_nodes
     weights = 4 * 10.0 ** -digits * (qmax + store + comb_err) if spec.sampling == "trilinear" else 0.0
     value = (qmax + store + comb_err) / K
     norm = value * 0.5 * 10.0 ** -precision * 1.0001
     b = (weights / K + store / K + comb_err / K + norm) * (n > 0) + 1e-9
-    return np.repeat(b[..., None], C, axis=2) if C == 3 else b
+    return np.repeat(b[..., None], spec.channels, axis=2) if spec.channels > 1 else b

@@ -22,6 +22,7 @@ import dask
 import numpy as np
 
 from .. import _stats
+from .._tiles import TileLayout
 from ..backends import get_backend
 from ..store.reader import EncryptedVolume
 from .camera import Camera
@@ -36,20 +37,9 @@ log = logging.getLogger(__name__)
 FAN_IN = 4
 
 
-def tile_ids(pixels: np.ndarray, width: int, tile: int) -> np.ndarray:
-    """Tile index of each global pixel index (row-major tiles of ``tile``² pixels)."""
-    rows, cols = np.divmod(np.asarray(pixels, dtype=np.int64), width)
-    tiles_x = -(-width // tile)
-    return (rows // tile) * tiles_x + cols // tile
-
-
 def tile_pixels(t: int, width: int, height: int, tile: int) -> np.ndarray:
-    """Global pixel indices of tile ``t``, row-major inside the tile."""
-    tiles_x = -(-width // tile)
-    ty, tx = divmod(t, tiles_x)
-    r = np.arange(ty * tile, min((ty + 1) * tile, height))
-    c = np.arange(tx * tile, min((tx + 1) * tile, width))
-    return (r[:, None] * width + c[None, :]).ravel()
+    """Global pixel indices of tile ``t`` (the layout of :class:`hevr._tiles.TileLayout`)."""
+    return TileLayout(width, height, tile).pixels(t)
 
 
 def conservative_tiles(rays: RaySet, ev: EncryptedVolume, index: tuple[int, int, int], tile: int) -> list[int]:
@@ -72,7 +62,7 @@ def conservative_tiles(rays: RaySet, ev: EncryptedVolume, index: tuple[int, int,
     t0 = np.maximum(tmin.max(axis=1), rays.t_enter[hit] - 1e-6)
     t3 = np.minimum(tmax.min(axis=1), rays.t_exit[hit] + 1e-6)
     ok = (t0 <= t3) & ~parallel_out.any(axis=1)
-    return sorted(set(tile_ids(hit[ok], rays.width, tile).tolist()))
+    return sorted(set(TileLayout(rays.width, rays.height, tile).ids(hit[ok]).tolist()))
 
 
 def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,
@@ -96,7 +86,7 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
         prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare, backend=be)
     t0 = time.perf_counter()
     recs = np.stack([be.to_bytes(p, W) for p in prods], axis=1)  # (R, C, W)
-    tid = tile_ids(bw.rays, rays.width, tile)
+    tid = TileLayout(rays.width, rays.height, tile).ids(bw.rays)
     out = {}
     for t in tiles:
         m = tid == t

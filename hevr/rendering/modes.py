@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import check_choice, check_int, check_step
 from ..errors import ParameterError
 from ..volume.density import encode_density
-from .rays import check_step
 
 __all__ = [
     "MODES",
@@ -124,6 +124,24 @@ class RenderSpec:
         """Whether the mode reads the encoded-vector channel (emphasize, tf)."""
         return self.mode != "xray"
 
+    @property
+    def channel(self) -> str:
+        """The stored channel the mode reads: ``"scalar"`` (xray) or ``"vector"``."""
+        return "vector" if self.needs_vector else "scalar"
+
+    @property
+    def n_nodes(self) -> int:
+        """K, the number of transfer-function nodes (``tf``), else 1: the extra divisor."""
+        return len(self.nodes) if self.mode == "tf" and self.nodes else 1
+
+    def image_shape(self, height: int, width: int) -> tuple[int, ...]:
+        """The rendered image's shape: (height, width), or (height, width, 3) for ``tf``.
+
+        >>> RenderSpec("tf", "nearest", 1.0).image_shape(2, 3)
+        (2, 3, 3)
+        """
+        return (int(height), int(width)) + ((self.channels,) if self.channels > 1 else ())
+
 
 def _unit_density(name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0.0 <= float(value) <= 1.0:
@@ -181,10 +199,8 @@ def make_spec(
     >>> make_spec("emphasize", "nearest", 1.0, 0.653, None, vector_dims=4).density
     0.653
     """
-    if mode not in MODES:
-        raise ParameterError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
-    if sampling not in SAMPLINGS:
-        raise ParameterError(f"sampling: expected one of {', '.join(SAMPLINGS)}, got {sampling!r}")
+    check_choice("mode", mode, MODES)
+    check_choice("sampling", sampling, SAMPLINGS)
     step = check_step(step)
     if mode == "xray":
         if not has_scalar:
@@ -198,8 +214,7 @@ def make_spec(
             f"mode: {mode!r} needs the encoded-density vector channel, but the store/volume "
             f"has no vector channel (re-encrypt with vector_dims=k, e.g. 4), got vector_dims=None"
         )
-    if isinstance(vector_dims, bool) or not isinstance(vector_dims, numbers.Integral) or vector_dims < 2:
-        raise ParameterError(f"vector_dims: expected an integer >= 2 or None, got {vector_dims!r}")
+    check_int("vector_dims", vector_dims, 2)
     if mode == "emphasize":
         if density is None:
             raise ParameterError("density: expected a density in [0, 1] for mode='emphasize', got None")
@@ -241,5 +256,5 @@ def normalisation_factor(spec: RenderSpec) -> int:
     >>> normalisation_factor(make_spec("xray", "nearest", 1.0, None, None, None))
     1
     """
-    return len(spec.nodes) if spec.mode == "tf" and spec.nodes else 1
+    return spec.n_nodes
 

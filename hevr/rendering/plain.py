@@ -22,13 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ParameterError
+from .._validate import check_data_range, check_spacing, check_volume
 from ..volume.density import default_value_range, encode_density, normalize_density
 from .camera import Camera
-from .modes import RenderSpec, combination_matrix, make_spec, normalisation_factor
+from .modes import RenderSpec, combination_matrix, make_spec
 from .rays import (
     cast_rays,
-    check_spacing,
     expand_samples,
     nearest_voxels,
     sample_positions,
@@ -50,21 +49,17 @@ Field = Callable[[np.ndarray], np.ndarray]
 
 
 def _check_volume(vol: Any) -> np.ndarray:
-    arr = np.asarray(vol)
-    if arr.ndim != 3 or arr.size == 0:
-        raise ParameterError(f"vol: expected a non-empty 3-D array (nz, ny, nx), got shape {arr.shape}")
-    if not (arr.dtype == np.bool_ or np.issubdtype(arr.dtype, np.integer)
-            or np.issubdtype(arr.dtype, np.floating)):
-        raise ParameterError(f"vol: expected a bool, integer or float array, got dtype {arr.dtype}")
-    if np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
-        raise ParameterError("vol: expected finite values, got NaN or infinity")
+    """The volume as a numpy array: 3-D, non-empty, bool/integer/float, finite values."""
+    arr = check_volume(np.asarray(vol))
+    if arr.dtype.kind == "f":
+        check_data_range(arr.min(), arr.max())
     return arr
 
 
 def _make_field(arr: np.ndarray, spec: RenderSpec, value_range: Any, dims: int | None) -> tuple[Field, int]:
     """Return ``field(flat_voxel_indices) -> (m, C) float64`` and C."""
     flat = arr.reshape(-1)
-    if spec.mode == "xray":
+    if not spec.needs_vector:
         return (lambda idx: flat[idx].astype(np.float64)[:, None]), 1
     assert dims is not None
     matrix = combination_matrix(spec, dims)
@@ -169,8 +164,7 @@ def render_plain(
         starts = np.concatenate(([0], np.cumsum(counts[a:b])[:-1]))
         sums[hits[a:b]] = np.add.reduceat(vals, starts, axis=0)
 
-    n = rays.n_samples.astype(np.float64) * normalisation_factor(spec)
+    n = rays.n_samples.astype(np.float64) * spec.n_nodes
     out = np.divide(sums, n[:, None], out=np.zeros_like(sums), where=n[:, None] > 0)
     logger.debug("render_plain: %d rays, %d samples, mode=%s", rays.n_rays, int(counts.sum()), mode)
-    shape = (rays.height, rays.width) + ((3,) if spec.mode == "tf" else ())
-    return out.reshape(shape)
+    return out.reshape(spec.image_shape(rays.height, rays.width))

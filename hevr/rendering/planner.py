@@ -27,6 +27,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import RenderPlanError
+from ..store.metadata import VolumeMetadata
+from .modes import RenderSpec
 
 __all__ = ["RenderPlan", "plan_render"]
 
@@ -82,12 +84,16 @@ def _bits(x: int) -> int:
     return max(1, int(x).bit_length())
 
 
-def plan_render(*, n: int, spec, meta, n_samples: np.ndarray, digits: int, precision: int,
-                comb_digits: int, pack: bool, combination: np.ndarray | None) -> RenderPlan:
-    """Plan a render and refuse it when any mantissa could reach n/3."""
+def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np.ndarray, digits: int,
+                precision: int, comb_digits: int, pack: bool, combination: np.ndarray | None) -> RenderPlan:
+    """Plan a render and refuse it when any mantissa could reach n/3.
+
+    The arguments come checked from :func:`hevr.render`: the channel read, the number of
+    output channels and K are the :class:`~hevr.rendering.modes.RenderSpec`'s.
+    """
     limit = int(n) // 3
     key_bits = int(n).bit_length()
-    channel = "scalar" if spec.mode == "xray" else "vector"
+    channel = spec.channel
     info = meta.scalar if channel == "scalar" else meta.vector
     ch_exp = int(info.exponent)
     if channel == "scalar":
@@ -100,7 +106,7 @@ def plan_render(*, n: int, spec, meta, n_samples: np.ndarray, digits: int, preci
     w_exp = -int(digits) if trilinear else 0
     ns = np.asarray(n_samples, dtype=np.int64).ravel()
     n_max = int(ns.max()) if ns.size else 0
-    K = len(spec.nodes) if spec.mode == "tf" else 1
+    K = spec.n_nodes
     per_sample_w = (10 ** int(digits) + 4) if trilinear else 1
     w_max = n_max * per_sample_w
     comb = None
@@ -135,5 +141,5 @@ def plan_render(*, n: int, spec, meta, n_samples: np.ndarray, digits: int, preci
         recip_digits=G, factor=K, offset=int(offset),
         exponent=w_exp + ch_exp + comb_exp - G, bound=int(bound),
         pack_bits=pack_bits if pack else 0, per_pack=per_pack,
-        channels_out=3 if spec.mode == "tf" else 1, precision=int(precision),
+        channels_out=spec.channels, precision=int(precision),
     )

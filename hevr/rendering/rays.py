@@ -15,13 +15,12 @@ the encrypted path -- goes through :func:`sample_positions`, :func:`nearest_voxe
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from .._validate import check_shape, check_spacing, check_step
 from ..errors import ParameterError
 from .camera import Camera
 
@@ -33,9 +32,6 @@ __all__ = [
     "trilinear_corners",
     "corner_index",
     "expand_samples",
-    "check_shape",
-    "check_spacing",
-    "check_step",
 ]
 
 # Direction components smaller than this (unit vectors) are treated as exactly parallel
@@ -73,55 +69,6 @@ class RaySet:
     def n_rays(self) -> int:
         """Number of rays (``width*height``)."""
         return int(self.n_samples.shape[0])
-
-
-def check_shape(shape: Any) -> tuple[int, int, int]:
-    """Validate a volume shape (nz, ny, nx) of positive ints and return it as a tuple.
-
-    Examples
-    --------
-    >>> check_shape([2, 3, 4])
-    (2, 3, 4)
-    """
-    try:
-        out = tuple(shape)
-    except TypeError:
-        raise ParameterError(f"shape: expected 3 positive integers (nz, ny, nx), got {shape!r}") from None
-    if len(out) != 3 or any(
-        isinstance(s, bool) or not isinstance(s, numbers.Integral) or s <= 0 for s in out
-    ):
-        raise ParameterError(f"shape: expected 3 positive integers (nz, ny, nx), got {shape!r}")
-    return tuple(int(s) for s in out)  # type: ignore[return-value]
-
-
-def check_spacing(spacing: Any) -> tuple[float, float, float]:
-    """Validate a world-order spacing (sx, sy, sz) of positive finite floats.
-
-    Examples
-    --------
-    >>> check_spacing((1, 2, 0.5))
-    (1.0, 2.0, 0.5)
-    """
-    try:
-        arr = np.asarray(spacing, dtype=np.float64)
-    except (TypeError, ValueError):
-        arr = np.zeros(0)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise ParameterError(f"spacing: expected 3 positive numbers (sx, sy, sz), got {spacing!r}")
-    return (float(arr[0]), float(arr[1]), float(arr[2]))
-
-
-def check_step(step: Any) -> float:
-    """Validate the sampling step (world units, finite, > 0).
-
-    Examples
-    --------
-    >>> check_step(0.5)
-    0.5
-    """
-    if isinstance(step, bool) or not isinstance(step, numbers.Real) or not math.isfinite(step) or step <= 0:
-        raise ParameterError(f"step: expected a positive finite number (world units), got {step!r}")
-    return float(step)
 
 
 def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float) -> RaySet:

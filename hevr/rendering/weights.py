@@ -44,19 +44,24 @@ exactly.
 
 from __future__ import annotations
 
-import numbers
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from .._validate import (
+    check_brick,
+    check_brick_index,
+    check_choice,
+    check_int,
+    check_shape,
+    check_spacing,
+    check_step,
+)
 from ..errors import ParameterError
 from .modes import SAMPLINGS
 from .rays import (
     RaySet,
-    check_shape,
-    check_spacing,
-    check_step,
     corner_index,
     expand_samples,
     nearest_voxels,
@@ -122,18 +127,6 @@ class BrickWeights:
         return np.add.reduceat(contrib, self.indptr[:-1], axis=0) * 10.0 ** self.exponent
 
 
-def _check_brick(brick: Any) -> tuple[int, int, int]:
-    if isinstance(brick, numbers.Integral) and not isinstance(brick, bool):
-        brick = (brick,) * 3
-    try:
-        out = tuple(brick)
-    except TypeError:
-        out = ()
-    if len(out) != 3 or any(isinstance(b, bool) or not isinstance(b, numbers.Integral) or b <= 0 for b in out):
-        raise ParameterError(f"brick: expected a positive int or 3 positive ints (B0, B1, B2), got {brick!r}")
-    return tuple(int(b) for b in out)  # type: ignore[return-value]
-
-
 def brick_grid(shape: Any, brick: Any) -> tuple[int, int, int]:
     """Number of bricks per array axis.
 
@@ -142,7 +135,10 @@ def brick_grid(shape: Any, brick: Any) -> tuple[int, int, int]:
     >>> brick_grid((7, 9, 11), (3, 4, 5))
     (3, 3, 3)
     """
-    shape, brick = check_shape(shape), _check_brick(brick)
+    return _grid(check_shape(shape), check_brick(brick))
+
+
+def _grid(shape: tuple[int, int, int], brick: tuple[int, int, int]) -> tuple[int, int, int]:
     return tuple(-(-n // b) for n, b in zip(shape, brick))  # type: ignore[return-value]
 
 
@@ -154,23 +150,21 @@ def brick_bounds(shape: Any, brick: Any, brick_index: Any) -> tuple[tuple[int, i
     >>> brick_bounds((7, 9, 11), (3, 4, 5), (2, 0, 2))
     ((6, 7), (0, 4), (10, 11))
     """
-    shape, brick = check_shape(shape), _check_brick(brick)
-    grid = brick_grid(shape, brick)
-    try:
-        idx = tuple(int(i) for i in brick_index)
-    except (TypeError, ValueError):
-        idx = ()
-    if len(idx) != 3 or any(not 0 <= i < g for i, g in zip(idx, grid)):
-        raise ParameterError(f"brick_index: expected (bz, by, bx) within the brick grid {grid}, got {brick_index!r}")
+    return _bounds(check_shape(shape), check_brick(brick), brick_index)
+
+
+def _bounds(shape: tuple[int, int, int], brick: tuple[int, int, int], brick_index: Any) -> tuple[tuple[int, int], ...]:
+    """:func:`brick_bounds` of a checked shape and brick; checks only the brick index."""
+    idx = check_brick_index(brick_index, _grid(shape, brick))
     return tuple((i * b, min((i + 1) * b, n)) for i, b, n in zip(idx, brick, shape))
 
 
-def _check_common(rays: Any, shape: Any, spacing: Any, sampling: Any, step: Any):
+def _check_request(rays: Any, shape: Any, spacing: Any, brick: Any, sampling: Any, step: Any):
+    """Check the arguments :func:`touched_bricks` and :func:`brick_weights` share, once."""
     if not isinstance(rays, RaySet):
         raise ParameterError(f"rays: expected a hevr.rendering.rays.RaySet, got {type(rays).__name__}")
-    if sampling not in SAMPLINGS:
-        raise ParameterError(f"sampling: expected one of {', '.join(SAMPLINGS)}, got {sampling!r}")
-    return check_shape(shape), np.asarray(check_spacing(spacing)), check_step(step)
+    check_choice("sampling", sampling, SAMPLINGS)
+    return check_shape(shape), np.asarray(check_spacing(spacing)), check_brick(brick), check_step(step)
 
 
 def touched_bricks(
@@ -190,9 +184,9 @@ def touched_bricks(
     >>> touched_bricks(rs, (5, 5, 5), (1, 1, 1), 3, "nearest", 1.0)
     [(0, 0, 0), (1, 0, 0)]
     """
-    shape, sp, step = _check_common(rays, shape, spacing, sampling, step)
-    bshape = np.array(_check_brick(brick)[::-1], dtype=np.int64)  # (i, j, k) order
-    gx, gy, _ = brick_grid(shape, bshape[::-1].tolist())[::-1]
+    shape, sp, brick, step = _check_request(rays, shape, spacing, brick, sampling, step)
+    bshape = np.array(brick[::-1], dtype=np.int64)  # (i, j, k) order
+    gx, gy, _ = _grid(shape, brick)[::-1]
     bstride = np.array([1, gx, gx * gy], dtype=np.int64)
     hits = np.flatnonzero(rays.n_samples > 0)
     counts = rays.n_samples[hits]
@@ -283,10 +277,9 @@ def brick_weights(
     >>> bw.rays.tolist(), bw.voxels.tolist(), bw.weights.tolist()
     ([0], [8, 17], [1, 1])
     """
-    shape, sp, step = _check_common(rays, shape, spacing, sampling, step)
-    if isinstance(digits, bool) or not isinstance(digits, numbers.Integral) or not 0 <= digits <= _MAX_DIGITS:
-        raise ParameterError(f"digits: expected an integer in [0, {_MAX_DIGITS}], got {digits!r}")
-    bounds = brick_bounds(shape, brick, brick_index)
+    shape, sp, brick, step = _check_request(rays, shape, spacing, brick, sampling, step)
+    digits = check_int("digits", digits, 0, _MAX_DIGITS)
+    bounds = _bounds(shape, brick, brick_index)
     index = tuple(int(i) for i in brick_index)
     v0 = np.array([b[0] for b in bounds[::-1]], dtype=np.int64)  # (i, j, k) order
     v1 = np.array([b[1] for b in bounds[::-1]], dtype=np.int64)

@@ -12,9 +12,10 @@ import gmpy2
 import numpy as np
 import zarr
 
+from .._validate import check_brick_index, check_choice
 from ..crypto.keys import PublicKey
 from ..backends import Backend, get_backend
-from ..crypto.records import mpz_to_bytes
+from ..crypto.records import mpz_to_bytes, record_width
 from ..errors import (
     CorruptStoreError,
     IncompleteStoreError,
@@ -111,8 +112,7 @@ class EncryptedVolume:
         return tuple(s.stop - s.start for s in self.brick_slices(index))  # type: ignore[return-value]
 
     def _check_index(self, index: Any) -> None:
-        if len(tuple(index)) != 3 or not all(0 <= int(i) < g for i, g in zip(index, self.grid)):
-            raise ParameterError(f"index: expected a brick index inside the grid {self.grid}, got {index!r}")
+        check_brick_index(index, self.grid, "index")
 
     def read_brick_bytes(self, index: tuple[int, int, int], channel: str = "scalar") -> np.ndarray:
         """Raw ciphertext records of one brick: (bz, by, bx, W) or (k, bz, by, bx, W)."""
@@ -232,8 +232,7 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     CorruptStoreError, IncompleteStoreError
         Naming what is wrong and where.
     """
-    if verify not in ("quick", "full", "none"):
-        raise ParameterError(f"verify: expected 'quick', 'full' or 'none', got {verify!r}")
+    check_choice("verify", verify, ("quick", "full", "none"))
     path = str(path)
     if "://" not in path:
         if not Path(path).exists():
@@ -257,7 +256,7 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
         )
     if PublicKey(int(meta.n)).fingerprint != meta.fingerprint:
         raise CorruptStoreError(f"{path}: the stored key fingerprint does not match the stored modulus n")
-    w_expected = (2 * int(meta.n).bit_length() + 7) // 8
+    w_expected = record_width(int(meta.n))
     if meta.ciphertext_bytes != w_expected:
         raise CorruptStoreError(f"{path}: ciphertext_bytes is {meta.ciphertext_bytes}, expected {w_expected} for this key")
     for name in ("scalar", "vector"):

@@ -29,10 +29,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import secrets
 import shutil
-from numbers import Integral
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -43,10 +41,11 @@ import zarr
 
 from .. import _stats
 from .._dask import active_client, compute
+from .._validate import check_brick, check_data_range, check_int, check_spacing, check_value_range, check_volume
 from ..crypto.keys import PrivateKey, PublicKey
 from ..backends import get_backend, resolve_backend_name
 from ..errors import ParameterError, StoreError, StoreExistsError
-from ..volume.density import encode_density, normalize_density
+from ..volume.density import default_value_range, encode_density, normalize_density
 from .metadata import ChannelInfo, VolumeMetadata
 from .reader import EncryptedVolume, brick_slices, open_volume
 
@@ -55,95 +54,49 @@ log = logging.getLogger(__name__)
 __all__ = ["encrypt_volume", "open_volume", "EncryptedVolume"]
 
 
-def _check_brick(brick: Any) -> tuple[int, int, int]:
-    b = (brick,) * 3 if isinstance(brick, Integral) and not isinstance(brick, bool) else brick
-    try:
-        b = tuple(b)
-    except TypeError:
-        raise ParameterError(f"brick: expected a positive int or 3 positive ints, got {brick!r}") from None
-    if len(b) != 3 or not all(isinstance(x, Integral) and not isinstance(x, bool) and x > 0 for x in b):
-        raise ParameterError(f"brick: expected a positive int or 3 positive ints, got {brick!r}")
-    return tuple(int(x) for x in b)  # type: ignore[return-value]
+def _minmax(vol: Any) -> tuple[float, float]:
+    """The finite data range (min, max) in one pass; dask arrays are reduced lazily.
 
-
-def _check_spacing(spacing: Any) -> tuple[float, float, float]:
-    try:
-        s = tuple(float(x) for x in spacing)
-    except (TypeError, ValueError):
-        raise ParameterError(f"spacing: expected 3 positive numbers (sx, sy, sz), got {spacing!r}") from None
-    if len(s) != 3 or not all(math.isfinite(x) and x > 0 for x in s):
-        raise ParameterError(f"spacing: expected 3 positive finite numbers (sx, sy, sz), got {spacing!r}")
-    return s  # type: ignore[return-value]
-
-
-def _check_volume(vol: Any) -> Any:
-    if not hasattr(vol, "shape") or not hasattr(vol, "dtype"):
-        vol = np.asarray(vol)
-    if len(vol.shape) != 3:
-        raise ParameterError(f"vol: expected a 3-D array (nz, ny, nx), got shape {tuple(vol.shape)}")
-    if any(s == 0 for s in vol.shape):
-        raise ParameterError(f"vol: expected a non-empty array, got shape {tuple(vol.shape)}")
-    kind = np.dtype(vol.dtype).kind
-    if kind not in "biuf" or np.dtype(vol.dtype).itemsize > 8:
-        raise ParameterError(f"vol: expected an integer, bool or float dtype, got {vol.dtype}")
-    return vol
-
-
-def _minmax(vol: Any) -> tuple[float, float, bool]:
-    """(min, max, all_finite) in one pass; dask arrays are reduced lazily."""
+    NaN propagates through min and max, so the finiteness check needs no extra pass.
+    """
     if isinstance(vol, dask.array.Array):
-        lo, hi, fin = dask.compute(vol.min(), vol.max(), dask.array.isfinite(vol).all())
+        lo, hi = dask.compute(vol.min(), vol.max())
     else:
         lo, hi = np.min(vol), np.max(vol)
-        fin = bool(np.isfinite(lo) and np.isfinite(hi)) if np.dtype(vol.dtype).kind == "f" else True
-    return float(lo), float(hi), bool(fin)
+    return check_data_range(lo, hi)
 
 
 def _plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_range: Any,
                    digits: Any, vector_digits: Any) -> tuple[ChannelInfo | None, ChannelInfo | None, tuple[float, float]]:
     is_float = np.dtype(vol.dtype).kind == "f"
-    lo, hi, finite = _minmax(vol)
-    if not finite:
-        raise ParameterError("vol: expected finite voxel values, got NaN or infinity")
-    if vector_dims is not None and (isinstance(vector_dims, bool) or not isinstance(vector_dims, Integral) or vector_dims < 2):
-        raise ParameterError(f"vector_dims: expected an integer >= 2 or None, got {vector_dims!r}")
+    if vector_dims is not None:
+        vector_dims = check_int("vector_dims", vector_dims, 2)
     if not scalar and vector_dims is None:
         raise ParameterError("scalar/vector_dims: expected at least one channel, got scalar=False and vector_dims=None")
+    lo, hi = _minmax(vol)
     if value_range is None:
+        value_range = default_value_range(vol, (lo, hi))
         if is_float:
-            value_range = (lo, hi if hi > lo else lo + 1.0)
             log.warning("value_range not given for a float volume; using the data range %s, which "
                         "is then visible in the store metadata", value_range)
-        else:
-            info = np.iinfo(vol.dtype) if np.dtype(vol.dtype).kind != "b" else None
-            value_range = (float(info.min), float(info.max)) if info else (0.0, 1.0)
-    try:
-        vr = (float(value_range[0]), float(value_range[1]))
-    except (TypeError, ValueError, IndexError):
-        raise ParameterError(f"value_range: expected (lo, hi), got {value_range!r}") from None
-    if len(value_range) != 2 or not (math.isfinite(vr[0]) and math.isfinite(vr[1]) and vr[1] > vr[0]):
-        raise ParameterError(f"value_range: expected finite (lo, hi) with hi > lo, got {value_range!r}")
+    vr = check_value_range(value_range)
     if lo < vr[0] or hi > vr[1]:
         raise ParameterError(f"vol: values must lie inside value_range {vr}; got data range [{lo}, {hi}]")
     sc = vc = None
     max_int = int(key_n) // 3 - 1
     if scalar:
         if is_float:
-            d = 3 if digits is None else digits
-            if not isinstance(d, Integral) or d < 0:
-                raise ParameterError(f"digits: expected a non-negative int, got {digits!r}")
+            d = check_int("digits", 3 if digits is None else digits, 0)
             if max(abs(lo), abs(hi)) * 10.0**d >= max_int:
                 raise ParameterError(f"digits: {d} digits overflow a {int(key_n).bit_length()}-bit key; use fewer")
-            sc = ChannelInfo(exponent=-int(d), digits=int(d))
+            sc = ChannelInfo(exponent=-d, digits=d)
         else:
             if digits is not None:
                 raise ParameterError("digits: integer volumes are stored exactly; digits applies to float volumes only")
             sc = ChannelInfo(exponent=0)
     if vector_dims is not None:
-        vd = vector_digits
-        if not isinstance(vd, Integral) or not 1 <= vd <= 12:
-            raise ParameterError(f"vector_digits: expected an int in [1, 12], got {vector_digits!r}")
-        vc = ChannelInfo(exponent=-int(vd), digits=int(vd), dims=int(vector_dims))
+        vd = check_int("vector_digits", vector_digits, 1, 12)
+        vc = ChannelInfo(exponent=-vd, digits=vd, dims=vector_dims)
     return sc, vc, vr
 
 
@@ -292,9 +245,9 @@ def encrypt_volume(
     if unsafe_no_obfuscation:
         log.warning("encrypt_volume(unsafe_no_obfuscation=True): the store is NOT secure")
     backend = resolve_backend_name(backend)
-    vol = _check_volume(vol)
-    brick_t = _check_brick(brick)
-    spacing_t = _check_spacing(spacing)
+    vol = check_volume(vol)
+    brick_t = check_brick(brick)
+    spacing_t = check_spacing(spacing)
     pub = key.public_key if isinstance(key, PrivateKey) else key
     sc, vc, vr = _plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
     meta = VolumeMetadata(

@@ -13,20 +13,14 @@ nevertheless clamped to ``dim - 1`` so that rounding can never index out of boun
 
 from __future__ import annotations
 
-import numbers
 from typing import Any
 
 import numpy as np
 
+from .._validate import check_data_range, check_int, check_value_range
 from ..errors import ParameterError
 
 __all__ = ["encode_density", "normalize_density", "default_value_range"]
-
-
-def _check_dims(dims: Any) -> int:
-    if isinstance(dims, bool) or not isinstance(dims, numbers.Integral) or dims < 2:
-        raise ParameterError(f"dims: expected an integer >= 2 (vector_dims), got {dims!r}")
-    return int(dims)
 
 
 def encode_density(density: Any, dims: int) -> np.ndarray:
@@ -51,7 +45,7 @@ def encode_density(density: Any, dims: int) -> np.ndarray:
     >>> encode_density([0.25, 1.0], 2).round(4).tolist()
     [[0.8944, 0.4472], [0.0, 1.0]]
     """
-    dims = _check_dims(dims)
+    dims = check_int("dims", dims, 2)
     d = np.asarray(density, dtype=np.float64)
     if d.size and not (np.all(d >= 0.0) and np.all(d <= 1.0)):  # also rejects NaN
         bad = d[~((d >= 0.0) & (d <= 1.0))].ravel()[0]
@@ -73,16 +67,6 @@ def encode_density(density: Any, dims: int) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _check_range(value_range: Any) -> tuple[float, float]:
-    try:
-        lo, hi = (float(x) for x in value_range)
-    except (TypeError, ValueError):
-        raise ParameterError(f"value_range: expected two numbers (lo, hi), got {value_range!r}") from None
-    if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
-        raise ParameterError(f"value_range: expected finite (lo, hi) with hi > lo, got {value_range!r}")
-    return lo, hi
-
-
 def normalize_density(values: Any, value_range: Any) -> np.ndarray:
     """Map raw voxel values to densities ``(v - lo)/(hi - lo)``, float64, clipped to [0, 1].
 
@@ -91,16 +75,26 @@ def normalize_density(values: Any, value_range: Any) -> np.ndarray:
     >>> normalize_density(np.array([0, 51, 255], dtype=np.uint8), (0, 255)).tolist()
     [0.0, 0.2, 1.0]
     """
-    lo, hi = _check_range(value_range)
+    lo, hi = check_value_range(value_range)
     v = np.asarray(values).astype(np.float64)
     return np.clip((v - lo) / (hi - lo), 0.0, 1.0)
 
 
-def default_value_range(vol: np.ndarray) -> tuple[float, float]:
+def default_value_range(vol: Any, data_range: Any = None) -> tuple[float, float]:
     """Default density range: integer dtypes -> the dtype's full range; floats -> (min, max).
 
     ``bool`` gives (0, 1). A constant float volume gives ``(v, v + 1)`` so that every
-    voxel has density 0 instead of dividing by zero.
+    voxel has density 0 instead of dividing by zero. This is the one default, used by
+    :func:`hevr.render_plain` and :func:`hevr.encrypt_volume`.
+
+    Parameters
+    ----------
+    vol : array_like
+        The volume (only its dtype is read unless it is a float volume without
+        ``data_range``). An array with ``.dtype`` (numpy, dask) is not converted.
+    data_range : (min, max), optional
+        The float volume's data range when the caller has it already (one pass fewer,
+        and a lazy array stays lazy).
 
     Examples
     --------
@@ -108,16 +102,20 @@ def default_value_range(vol: np.ndarray) -> tuple[float, float]:
     (0.0, 255.0)
     >>> default_value_range(np.array([1.5, 4.0]))
     (1.5, 4.0)
+    >>> default_value_range(np.zeros(3), data_range=(2.0, 2.0))
+    (2.0, 3.0)
     """
-    arr = np.asarray(vol)
-    if arr.dtype == np.bool_:
+    if not hasattr(vol, "dtype"):
+        vol = np.asarray(vol)
+    dtype = np.dtype(vol.dtype)
+    if dtype == np.bool_:
         return (0.0, 1.0)
-    if np.issubdtype(arr.dtype, np.integer):
-        info = np.iinfo(arr.dtype)
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
         return (float(info.min), float(info.max))
-    if arr.size == 0:
-        raise ParameterError("vol: expected a non-empty array to derive value_range, got an empty one")
-    lo, hi = float(np.min(arr)), float(np.max(arr))
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise ParameterError(f"vol: expected finite values to derive value_range, got min {lo}, max {hi}")
+    if data_range is None:
+        if vol.size == 0:
+            raise ParameterError("vol: expected a non-empty array to derive value_range, got an empty one")
+        data_range = (np.min(vol), np.max(vol))
+    lo, hi = check_data_range(*data_range)
     return (lo, hi) if hi > lo else (lo, lo + 1.0)

@@ -25,6 +25,7 @@ from typing import Any, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from .._validate import check_choice, check_spacing, check_volume
 from ..errors import MissingDependencyError, ParameterError, VolumeFormatError
 from .nrrd import check_file, load_raw, read_nrrd, to_native, write_nrrd, write_raw
 
@@ -57,28 +58,9 @@ def _format(path: Path) -> str:
                             f"expected {_EXTENSIONS}")
 
 
-def _check_spacing(spacing: Any, what: str) -> _Spacing:
-    try:
-        out = () if isinstance(spacing, (str, bytes)) else tuple(float(s) for s in spacing)
-    except (TypeError, ValueError):
-        out = ()
-    if len(out) != 3 or not all(math.isfinite(s) and s > 0 for s in out):
-        raise ParameterError(f"{what} must be three positive finite numbers (sx, sy, sz), "
-                             f"got {spacing!r}")
-    return out  # type: ignore[return-value]
-
-
 def _check_volume(arr: np.ndarray, path: Path) -> np.ndarray:
-    """Reject anything that is not a non-empty 3-D integer/float array."""
-    if arr.ndim != 3:
-        raise VolumeFormatError(f"{path.name}: expected a 3-D volume, got a {arr.ndim}-D "
-                                f"array of shape {arr.shape}")
-    if arr.dtype.kind not in "uif":
-        raise VolumeFormatError(f"{path.name}: expected integer or floating-point voxels, "
-                                f"got dtype {arr.dtype}")
-    if arr.size == 0:
-        raise VolumeFormatError(f"{path.name}: the volume is empty (shape {arr.shape})")
-    return to_native(arr)
+    """Reject anything that is not a non-empty 3-D integer/float array; native byte order."""
+    return to_native(check_volume(arr, path.name, kinds="uif", error=VolumeFormatError))
 
 
 def _require(module: str, path: Path) -> ModuleType:
@@ -149,9 +131,8 @@ def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None
     ((4, 5, 6), dtype('int16'), (0.5, 1.0, 2.0))
     """
     path = Path(os.fspath(path)).expanduser()
-    if byte_order not in ("little", "big"):
-        raise ParameterError(f"load_volume: byte_order must be 'little' or 'big', got {byte_order!r}")
-    override = None if spacing is None else _check_spacing(spacing, "load_volume: spacing")
+    check_choice("byte_order", byte_order, ("little", "big"))
+    override = None if spacing is None else check_spacing(spacing)
     kind = _format(path)
     if kind != "raw" and (shape is not None or dtype is not None):
         raise ParameterError(f"load_volume: shape and dtype only apply to .raw files, got "
@@ -370,15 +351,10 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
     (2, 3, 4)
     """
     path = Path(os.fspath(path)).expanduser()
-    arr = np.asanyarray(vol)
-    if arr.ndim != 3 or arr.dtype.kind not in "uif" or arr.size == 0:
-        raise ParameterError(f"save_volume: vol must be a non-empty 3-D integer or float array "
-                             f"(nz, ny, nx), got shape {arr.shape} of {arr.dtype}")
-    spacing = _check_spacing(spacing, "save_volume: spacing")
-    if encoding not in ("raw", "gzip"):
-        raise ParameterError(f"save_volume: encoding must be 'raw' or 'gzip', got {encoding!r}")
-    if byte_order not in ("little", "big"):
-        raise ParameterError(f"save_volume: byte_order must be 'little' or 'big', got {byte_order!r}")
+    arr = check_volume(np.asanyarray(vol), kinds="uif")
+    spacing = check_spacing(spacing)
+    check_choice("encoding", encoding, ("raw", "gzip"))
+    check_choice("byte_order", byte_order, ("little", "big"))
     suffix = path.suffix.lower()
     if suffix in (".nhdr", ".nrrd"):
         write_nrrd(path, arr, spacing, encoding=encoding, byte_order=byte_order)

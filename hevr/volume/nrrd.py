@@ -13,7 +13,6 @@ from __future__ import annotations
 import gzip
 import logging
 import math
-import numbers
 import re
 import zlib
 from pathlib import Path
@@ -21,6 +20,7 @@ from typing import BinaryIO
 
 import numpy as np
 
+from .._validate import check_dtype, check_shape
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 
 _log = logging.getLogger(__name__)
@@ -107,23 +107,12 @@ def load_raw(path: Path, shape: object, dtype: object, byte_order: str) -> np.nd
     """Memory-map a headerless ``.raw`` file; ``shape``/``dtype`` default to the name's tokens."""
     name_shape, name_dtype = raw_layout(path)
     if shape is not None:
-        if (isinstance(shape, (str, bytes)) or not hasattr(shape, "__len__") or len(shape) != 3
-                or not all(isinstance(s, numbers.Integral) and not isinstance(s, bool) and s > 0
-                           for s in shape)):
-            raise ParameterError(f"load_volume: shape must be three positive ints (nz, ny, nx), "
-                                 f"got {shape!r}")
-        shape = tuple(int(s) for s in shape)
+        shape = check_shape(shape)
     else:
         shape = name_shape
     dt: np.dtype | None = None
     if dtype is not None:
-        try:
-            dt = np.dtype(dtype)  # type: ignore[call-overload]
-        except TypeError:
-            dt = None
-        if dt is None or dt.kind not in "uif":
-            raise ParameterError(f"load_volume: dtype must be an integer or floating-point type, "
-                                 f"got {dtype!r}")
+        dt = check_dtype(dtype)
     elif name_dtype:
         dt = np.dtype(name_dtype)
     if shape is None or dt is None:

@@ -12,14 +12,14 @@ high y, low x and high z.
 from __future__ import annotations
 
 import logging
-import numbers
 from types import MappingProxyType
 from typing import Mapping
 
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import ParameterError
+from .._validate import check_dtype, check_int
+from ..paper import PAPER_DENSITIES, PAPER_SIZE
 
 __all__ = ["phantom", "PHANTOM_LEVELS"]
 
@@ -28,7 +28,7 @@ _log = logging.getLogger(__name__)
 #: Densities of the three objects as fractions of the dtype's range (background is 0).
 #: They equal the paper's emphasis densities so that ``density=0.331`` etc. hit them.
 PHANTOM_LEVELS: Mapping[str, float] = MappingProxyType(
-    {"sphere": 0.331, "small_sphere": 0.653, "cube": 0.781}
+    dict(zip(("sphere", "small_sphere", "cube"), PAPER_DENSITIES))
 )
 
 # Geometry as fractions of ``size``.  The cube's half-diagonal (0.16 * sqrt(3) = 0.277)
@@ -53,7 +53,7 @@ def _level(fraction: float, dtype: np.dtype) -> np.generic:
     return dtype.type(round(fraction * np.iinfo(dtype).max))
 
 
-def phantom(size: int = 100, dtype: npt.DTypeLike = np.uint8) -> np.ndarray:
+def phantom(size: int = PAPER_SIZE, dtype: npt.DTypeLike = np.uint8) -> np.ndarray:
     """Build the paper's test volume: a cube in a sphere plus a small corner sphere.
 
     Parameters
@@ -88,19 +88,8 @@ def phantom(size: int = 100, dtype: npt.DTypeLike = np.uint8) -> np.ndarray:
     >>> sorted(np.unique(vol).tolist())
     [0, 84, 167, 199]
     """
-    if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 4:
-        raise ParameterError(f"phantom: size must be an integer >= 4, got {size!r}")
-    size = int(size)
-    try:
-        dt = np.dtype(dtype)
-    except TypeError as exc:
-        raise ParameterError(
-            f"phantom: dtype must be an integer or floating-point numpy type, got {dtype!r}"
-        ) from exc
-    if dt.kind not in "uif":
-        raise ParameterError(
-            f"phantom: dtype must be an integer or floating-point numpy type, got {dt}"
-        )
+    size = check_int("size", size, 4)
+    dt = check_dtype(dtype)
 
     vol = np.zeros((size,) * 3, dtype=dt)
     centre = (size - 1) / 2.0  # exact in binary, so the objects are mirror-symmetric

@@ -1,0 +1,288 @@
+"""Input validation: one checker per rule, called where data enters hevr.
+
+Each checker takes what a caller passed and returns it normalised (Python ints and floats,
+tuples) or raises :class:`hevr.ParameterError` with the project's message style
+``"name: expected X, got Y"``. The public entry points (:func:`hevr.encrypt_volume`,
+:func:`hevr.render`, :func:`hevr.render_plain`, :func:`hevr.error_bound`,
+:class:`hevr.Camera`, :func:`hevr.load_volume`, :func:`hevr.save_volume`, ...) call them
+once on their arguments; the inner steps they call trust the checked values and do not
+check them again.
+
+>>> check_brick(32)
+(32, 32, 32)
+>>> check_int("tile", 0, 1, 4096)
+Traceback (most recent call last):
+    ...
+hevr.errors.ParameterError: tile: expected an integer in [1, 4096], got 0
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any, Sequence
+
+import numpy as np
+
+from .errors import ParameterError
+
+__all__ = [
+    "check_int",
+    "check_choice",
+    "check_shape",
+    "check_spacing",
+    "check_step",
+    "check_brick",
+    "check_brick_index",
+    "check_dtype",
+    "check_volume",
+    "check_data_range",
+    "check_value_range",
+]
+
+# Voxel dtype kinds by letter (numpy's dtype.kind), in the order a message lists them.
+_KIND_NAMES = {"b": "bool", "i": "integer", "u": "integer", "f": "floating-point"}
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _int_expectation(lo: int | None, hi: int | None) -> str:
+    if lo is not None and hi is not None:
+        return f"an integer in [{lo}, {hi}]"
+    if lo == 1:
+        return "a positive integer"
+    if lo == 0:
+        return "a non-negative integer"
+    if lo is not None:
+        return f"an integer >= {lo}"
+    return "an integer" if hi is None else f"an integer <= {hi}"
+
+
+def check_int(name: str, value: Any, lo: int | None = None, hi: int | None = None) -> int:
+    """An integer (not a bool) in ``[lo, hi]`` (either bound may be ``None``), as an int.
+
+    Examples
+    --------
+    >>> check_int("digits", 3, 0, 9), check_int("width", 150, 1)
+    (3, 150)
+    >>> check_int("vector_dims", 1, 2)
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: vector_dims: expected an integer >= 2, got 1
+    """
+    if not _is_int(value) or (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise ParameterError(f"{name}: expected {_int_expectation(lo, hi)}, got {value!r}")
+    return int(value)
+
+
+def check_choice(name: str, value: Any, choices: Sequence[str]) -> str:
+    """One of ``choices``.
+
+    Examples
+    --------
+    >>> check_choice("sampling", "cubic", ("nearest", "trilinear"))
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: sampling: expected one of nearest, trilinear, got 'cubic'
+    """
+    if not isinstance(value, str) or value not in choices:
+        raise ParameterError(f"{name}: expected one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
+def check_shape(shape: Any, name: str = "shape") -> tuple[int, int, int]:
+    """A volume shape (nz, ny, nx) of 3 positive integers, as a tuple of ints.
+
+    Examples
+    --------
+    >>> check_shape(np.array([2, 3, 4]))
+    (2, 3, 4)
+    >>> check_shape((2, 0, 4))
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: shape: expected 3 positive integers (nz, ny, nx), got (2, 0, 4)
+    """
+    try:
+        out = tuple(shape)
+    except TypeError:
+        out = ()
+    if len(out) != 3 or not all(_is_int(s) and s > 0 for s in out):
+        raise ParameterError(f"{name}: expected 3 positive integers (nz, ny, nx), got {shape!r}")
+    return tuple(int(s) for s in out)  # type: ignore[return-value]
+
+
+def check_spacing(spacing: Any, name: str = "spacing") -> tuple[float, float, float]:
+    """A world-order voxel spacing (sx, sy, sz) of 3 positive finite numbers, as floats.
+
+    Examples
+    --------
+    >>> check_spacing((1, 2, 0.5))
+    (1.0, 2.0, 0.5)
+    >>> check_spacing("123")
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: spacing: expected 3 positive finite numbers (sx, sy, sz), got '123'
+    """
+    try:
+        out = () if isinstance(spacing, (str, bytes)) else tuple(float(s) for s in spacing)
+    except (TypeError, ValueError):
+        out = ()
+    if len(out) != 3 or not all(math.isfinite(s) and s > 0 for s in out):
+        raise ParameterError(f"{name}: expected 3 positive finite numbers (sx, sy, sz), got {spacing!r}")
+    return out  # type: ignore[return-value]
+
+
+def check_step(step: Any, name: str = "step") -> float:
+    """The sampling step along a ray: a positive finite number (world units), as a float.
+
+    Examples
+    --------
+    >>> check_step(1)
+    1.0
+    """
+    if isinstance(step, bool) or not isinstance(step, numbers.Real) or not math.isfinite(step) or step <= 0:
+        raise ParameterError(f"{name}: expected a positive finite number (world units), got {step!r}")
+    return float(step)
+
+
+def check_brick(brick: Any, name: str = "brick") -> tuple[int, int, int]:
+    """A brick shape in array order: one positive int (a cube) or 3 positive ints.
+
+    Examples
+    --------
+    >>> check_brick((2, 3, 4))
+    (2, 3, 4)
+    >>> check_brick(0)
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: brick: expected a positive int or 3 positive ints (B0, B1, B2), got 0
+    """
+    try:
+        out = (brick,) * 3 if _is_int(brick) else tuple(brick)
+    except TypeError:
+        out = ()
+    if len(out) != 3 or not all(_is_int(b) and b > 0 for b in out):
+        raise ParameterError(f"{name}: expected a positive int or 3 positive ints (B0, B1, B2), got {brick!r}")
+    return tuple(int(b) for b in out)  # type: ignore[return-value]
+
+
+def check_brick_index(index: Any, grid: Sequence[int], name: str = "brick_index") -> tuple[int, int, int]:
+    """A brick index (bz, by, bx) inside the brick grid, as a tuple of ints.
+
+    Examples
+    --------
+    >>> check_brick_index([1, 0, 2], (2, 2, 3))
+    (1, 0, 2)
+    >>> check_brick_index((2, 0, 0), (2, 2, 3))
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: brick_index: expected a brick index (bz, by, bx) inside the grid (2, 2, 3), got (2, 0, 0)
+    """
+    try:
+        out = tuple(int(i) for i in index)
+    except (TypeError, ValueError):
+        out = ()
+    if len(out) != 3 or not all(0 <= i < g for i, g in zip(out, grid)):
+        raise ParameterError(f"{name}: expected a brick index (bz, by, bx) inside the grid {tuple(grid)}, "
+                             f"got {index!r}")
+    return out  # type: ignore[return-value]
+
+
+def _kinds_text(kinds: str) -> str:
+    names = list(dict.fromkeys(_KIND_NAMES[k] for k in kinds))
+    return ", ".join(names[:-1]) + " or " + names[-1] if len(names) > 1 else names[0]
+
+
+def check_dtype(dtype: Any, name: str = "dtype", *, kinds: str = "uif") -> np.dtype:
+    """A voxel type: a numpy dtype whose kind is one of ``kinds``, at most 8 bytes wide.
+
+    Examples
+    --------
+    >>> check_dtype("uint16")
+    dtype('uint16')
+    >>> check_dtype(complex)
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: dtype: expected an integer or floating-point type, got <class 'complex'>
+    """
+    try:
+        out = np.dtype(dtype)
+    except (TypeError, ValueError):
+        out = None
+    if out is None or out.kind not in kinds or out.itemsize > 8:
+        what = _kinds_text(kinds)
+        raise ParameterError(f"{name}: expected {'an' if what[0] in 'aeiou' else 'a'} {what} type, got {dtype!r}")
+    return out
+
+
+def check_volume(vol: Any, name: str = "vol", *, kinds: str = "biuf",
+                 error: type[Exception] = ParameterError) -> Any:
+    """A non-empty 3-D voxel array whose dtype kind is one of ``kinds`` (at most 8 bytes).
+
+    Anything with ``.shape`` and ``.dtype`` (numpy, memmap, dask, zarr) is returned as it
+    is, so a lazy array stays lazy; anything else goes through :func:`numpy.asarray`. The
+    values are not looked at (see :func:`check_data_range`). ``error`` is the class raised:
+    loaders pass :class:`hevr.VolumeFormatError` and the file name as ``name``.
+
+    Examples
+    --------
+    >>> check_volume(np.zeros((2, 3, 4), np.uint8)).shape
+    (2, 3, 4)
+    >>> check_volume([[1, 2]])
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: vol: expected a 3-D volume, got a 2-D array of shape (1, 2)
+    """
+    if not hasattr(vol, "shape") or not hasattr(vol, "dtype"):
+        vol = np.asarray(vol)
+    shape, dtype = tuple(vol.shape), np.dtype(vol.dtype)
+    if len(shape) != 3:
+        raise error(f"{name}: expected a 3-D volume, got a {len(shape)}-D array of shape {shape}")
+    if dtype.kind not in kinds or dtype.itemsize > 8:
+        raise error(f"{name}: expected {_kinds_text(kinds)} voxels, got dtype {dtype}")
+    if 0 in shape:
+        raise error(f"{name}: expected a non-empty volume, got shape {shape}")
+    return vol
+
+
+def check_data_range(lo: Any, hi: Any, name: str = "vol") -> tuple[float, float]:
+    """The data range (min, max) of a volume's values, which must both be finite.
+
+    NaN propagates through min and max, so this one test also finds NaN voxels.
+
+    Examples
+    --------
+    >>> check_data_range(np.uint8(0), 2.5)
+    (0.0, 2.5)
+    >>> check_data_range(float("nan"), 1.0)
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: vol: expected finite values, got NaN or infinity (min nan, max 1.0)
+    """
+    lo, hi = float(lo), float(hi)
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ParameterError(f"{name}: expected finite values, got NaN or infinity (min {lo}, max {hi})")
+    return lo, hi
+
+
+def check_value_range(value_range: Any, name: str = "value_range") -> tuple[float, float]:
+    """A density normalisation range (lo, hi): two finite numbers with hi > lo, as floats.
+
+    Examples
+    --------
+    >>> check_value_range([0, 255])
+    (0.0, 255.0)
+    >>> check_value_range((5, 1))
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: value_range: expected finite (lo, hi) with hi > lo, got (5, 1)
+    """
+    try:
+        lo, hi = (float(x) for x in value_range)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name}: expected two numbers (lo, hi), got {value_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+        raise ParameterError(f"{name}: expected finite (lo, hi) with hi > lo, got {value_range!r}")
+    return lo, hi
