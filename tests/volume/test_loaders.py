@@ -13,7 +13,7 @@ import pytest
 from hevr.errors import HevrError, MissingDependencyError, ParameterError, VolumeFormatError
 from hevr.volume.loaders import load_volume, save_volume
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 TOOTH_SHA512 = "5ee3d77ae951e129d29062a4fd4d8730fd8670bd"
 
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared test data folder {DATA} is absent")
