@@ -38,11 +38,14 @@ packing bits and J = ``per_pack`` values per packed ciphertext:
 ==============  ===============================================================
 map             nearest: ≈ P·K (weights 1–2: running products); trilinear:
                 ≈ 2.4·P·K (10-bit weights, bucket method; see the kernel's cost model)
-merge           (partials per ray − 1)·R·K — one product per extra brick a ray crosses
+merge           Σ_r (b_r − 1)·K for b_r the bricks ray r crosses: one product per
+                extra partial sum
 combine         xray: 0; emphasize / tf: per pixel 2^K − 1 − K subset products, then
                 per channel one squaring and ≤ 1 product per bit of Q[·, ch]
-pack            per value bits(R_j)·(1 + S) for ⊗R_j, plus b·S per Horner digit;
-                per ciphertext one product for the offset
+pack            per value b·S + popcount(R_j): the b squarings of the Horner step
+                interleaved with the square-and-multiply of T_j^R_j (the top value of
+                a ciphertext: one exponentiation, ≈ 1.3·bits(R_j)); per ciphertext one
+                product for the offset
 decrypt         per packed ciphertext two half-size exponentiations (CRT)
 ==============  ===============================================================
 
