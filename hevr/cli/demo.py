@@ -1,4 +1,4 @@
-"""``hevr demo`` and ``hevr bench``: the whole pipeline end to end, with timings.
+"""``hevr demo``: the whole pipeline end to end, with timings.
 
 The demo generates the paper's phantom (or reads ``--input``), makes a key pair, encrypts
 the scalar and the 4-dim vector channel on the owner-side fast path, starts a local

@@ -1,4 +1,4 @@
-"""Paillier keys (g = n + 1): generation, encryption, CRT decryption and key files.
+"""Paillier keys (g = n + 1): generation, encryption, CRT decryption; saving as JSON (loading: :mod:`hevr.crypto.keyfile`).
 
 >>> import warnings, hevr
 >>> with warnings.catch_warnings():

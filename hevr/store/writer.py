@@ -1,4 +1,4 @@
-"""The encrypted volume store: Zarr v3 bricks of Paillier ciphertexts.
+"""Writing the encrypted volume store (``encrypt_volume``): Zarr v3 bricks of Paillier ciphertexts.
 
 Layout (format ``hevr-encrypted-volume`` version 1, documented in ``docs/format.md``)::
 
