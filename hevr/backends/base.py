@@ -20,6 +20,7 @@ Operations, in the order of the data path
                               the owner path (fixed-base tables mod p², q², then CRT)
 ``from_bytes(records)``       (m, W) uint8 -> batch
 ``to_bytes(batch, W)``        batch -> (m, W) uint8
+``first_out_of_range(b, u)``  the range check 0 < c < n² of every brick read
 ``ray_products(plan, comps)`` per-brick multi-exponentiation ``Π_v c_v^w_rv`` of a
                               :class:`ProductPlan` (made by :mod:`hevr.rendering.kernel`)
 ``segment_products(b, ip)``   ⊕ of consecutive rows (merging partial ray sums)
@@ -167,6 +168,10 @@ class Backend(ABC):
     @abstractmethod
     def to_bytes(self, values: Residues, width: int) -> np.ndarray:
         """(m, width) big-endian uint8 records of a batch."""
+
+    @abstractmethod
+    def first_out_of_range(self, values: Residues, upper: int) -> int | None:
+        """Index of the first value not in (0, ``upper``), or None (the store's range check)."""
 
     # -- encryption and decryption -------------------------------------------------------
     @abstractmethod

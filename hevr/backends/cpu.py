@@ -44,6 +44,13 @@ class CpuBackend(Backend):
     def to_bytes(self, values: Sequence[mpz], width: int) -> np.ndarray:
         return mpz_to_bytes(values, width)
 
+    def first_out_of_range(self, values: Sequence[mpz], upper: int) -> int | None:
+        u = mpz(upper)
+        for i, c in enumerate(values):
+            if not 0 < c < u:
+                return i
+        return None
+
     # -- encryption and decryption ----------------------------------------------------------
     def encrypt(self, key: Any, mantissas, *, unsafe_no_obfuscation: bool = False) -> list[mpz]:
         return key.encrypt_array(mantissas, unsafe_no_obfuscation=unsafe_no_obfuscation)

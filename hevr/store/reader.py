@@ -13,9 +13,9 @@ import numpy as np
 import zarr
 
 from .._validate import check_brick_index, check_choice
-from ..crypto.keys import PublicKey
 from ..backends import Backend, get_backend
-from ..crypto.records import mpz_to_bytes, record_width
+from ..crypto.keys import PublicKey
+from ..crypto.records import record_width
 from ..errors import (
     CorruptStoreError,
     IncompleteStoreError,
@@ -65,11 +65,6 @@ class EncryptedVolume:
     @cached_property
     def public_key(self) -> PublicKey:
         return PublicKey(int(self.meta.n))
-
-    @cached_property
-    def _n2_record(self) -> np.ndarray:
-        """n² as one big-endian record of the store's width (for the range check)."""
-        return mpz_to_bytes([self.public_key.nsquare], self.meta.ciphertext_bytes)[0]
 
     @property
     def has_scalar(self) -> bool:
@@ -141,26 +136,18 @@ class EncryptedVolume:
         """
         be = get_backend(backend)
         data = self.read_brick_bytes(index, channel)
+        parts = [data] if channel == "scalar" else list(data)
+        batches = [be.from_bytes(d) for d in parts]
         if check:
-            self._check_range(data, index, channel)
-        if channel == "scalar":
-            return be.from_bytes(data)
-        return [be.from_bytes(data[j]) for j in range(data.shape[0])]
-
-    def _check_range(self, data: np.ndarray, index: Any, channel: str) -> None:
-        """0 < c < n² for every record, compared as big-endian bytes (vectorised)."""
-        recs = data.reshape(-1, data.shape[-1])
-        zero = ~recs.any(axis=1)
-        big = _records_at_least(recs, self._n2_record)
-        bad = np.flatnonzero(zero | big)
-        if bad.size:
-            i = int(bad[0])
-            what = "zero (missing data)" if zero[i] else ">= n²"
-            if channel == "vector":  # number within its component, as the flat lists count
-                i %= recs.shape[0] // data.shape[0]
-            raise CorruptStoreError(
-                f"{self.path}: brick {tuple(index)} of channel {channel!r}: ciphertext {i} is {what}"
-            )
+            n2 = int(self.public_key.nsquare)
+            for part, batch in zip(parts, batches):
+                i = be.first_out_of_range(batch, n2)
+                if i is not None:
+                    what = ">= n²" if part.reshape(-1, part.shape[-1])[i].any() else "zero (missing data)"
+                    raise CorruptStoreError(
+                        f"{self.path}: brick {tuple(index)} of channel {channel!r}: ciphertext {i} is {what}"
+                    )
+        return batches[0] if channel == "scalar" else batches
 
     def verify(self, coprime: bool = True) -> None:
         """Read every brick and check every ciphertext (range, and coprimality with n)."""
@@ -180,18 +167,6 @@ class EncryptedVolume:
                             raise CorruptStoreError(
                                 f"{self.path}: brick {idx} of channel {ch!r} holds a ciphertext not coprime to n"
                             )
-
-
-def _records_at_least(recs: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """Row-wise ``record >= ref`` for big-endian byte records (lexicographic, vectorised).
-
-    >>> _records_at_least(np.array([[0, 9], [1, 0], [0, 255]], np.uint8), np.array([1, 0], np.uint8)).tolist()
-    [False, True, False]
-    """
-    diff = recs != ref
-    first = diff.argmax(axis=1)
-    rows = np.arange(recs.shape[0])
-    return ~diff.any(axis=1) | (recs[rows, first] > ref[first])
 
 
 def _chunk_files_ok(path: str, meta: VolumeMetadata) -> None:

@@ -52,6 +52,10 @@ class NaiveBackend(Backend):
         self._count("to_bytes")
         return np.frombuffer(b"".join(int(v).to_bytes(width, "big") for v in values), np.uint8).reshape(-1, width).copy()
 
+    def first_out_of_range(self, values, upper):
+        self._count("first_out_of_range")
+        return next((i for i, c in enumerate(values) if not 0 < c < upper), None)
+
     def encrypt(self, key, mantissas, *, unsafe_no_obfuscation=False):
         self._count("encrypt")
         pub = key.public_key if isinstance(key, hevr.PrivateKey) else key
