@@ -8,8 +8,8 @@ reference.
 
 Choosing a backend is explicit: the ``backend=`` parameter of :func:`hevr.render`,
 :func:`hevr.encrypt_volume` and :meth:`hevr.EncryptedImage.decrypt`, else the Dask config key
-``hevr.backend`` (``dask.config.set({"hevr.backend": "cpu"})``, or ``HEVR__BACKEND`` /
-``DASK_HEVR__BACKEND`` in the environment as Dask reads it), else ``"cpu"``. The client
+``hevr.backend`` (``dask.config.set({"hevr.backend": "cpu"})``, or
+``DASK_HEVR__BACKEND`` in the environment), else ``"cpu"``. The client
 resolves the name once and puts only the *name* into the task graph; each worker builds its
 own backend instance from it.
 
