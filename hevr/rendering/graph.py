@@ -37,11 +37,6 @@ log = logging.getLogger(__name__)
 FAN_IN = 4
 
 
-def tile_pixels(t: int, width: int, height: int, tile: int) -> np.ndarray:
-    """Global pixel indices of tile ``t`` (the layout of :class:`hevr._tiles.TileLayout`)."""
-    return TileLayout(width, height, tile).pixels(t)
-
-
 def conservative_tiles(rays: RaySet, ev: EncryptedVolume, index: tuple[int, int, int], tile: int) -> list[int]:
     """Tiles whose rays may touch a brick: slab test against the brick grown by one voxel."""
     sl = ev.brick_slices(index)

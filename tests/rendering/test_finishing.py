@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 import hevr
+from hevr._tiles import TileLayout
 from hevr.crypto.records import bytes_to_mpz, mpz_to_bytes
 from hevr.rendering import encrypted as render_mod
 from hevr.rendering.finishing import finish_tile, merge_partials, one_records
-from hevr.rendering.graph import tile_pixels
 from hevr.rendering.planner import RenderPlan
 from hevr.rendering.rays import cast_rays
 
@@ -82,7 +82,7 @@ def test_finish_tile_is_combination_times_reciprocal_plus_offset_packed(rendered
     for t, merged in sums.tiles.items():
         if merged is None:
             continue
-        pix = tile_pixels(t, cam.width, cam.height, 4)
+        pix = TileLayout(cam.width, cam.height, 4).pixels(t)
         packed = finish_tile(plan, merged, pix, rays.n_samples[pix], n, W)
         np.testing.assert_array_equal(packed, img.ciphertexts[t])  # the render's own finishing
         # the reference: plaintext arithmetic on the decrypted merged sums
