@@ -224,10 +224,12 @@ def output_problems(nb: nbformat.NotebookNode, secrets: list[str] = ()) -> list[
         for p in paths:
             if p and p != os.sep and p in text:
                 problems.append(f"cell {cid}: output shows the path {p!r} of this machine")
-        for rx, what in ((MACHINE_PATH, "an absolute path"), (LONG_DECIMAL, "a long decimal number"),
-                         (LONG_HEX, "a long hex number")):
-            if m := rx.search(text):
-                problems.append(f"cell {cid}: output shows {what}: {text[max(0, m.start() - 20):m.end() + 20]!r}")
+        if m := MACHINE_PATH.search(text):
+            problems.append(f"cell {cid}: output shows an absolute path: {text[m.start():m.end() + 30]!r}")
+        for rx, what in ((LONG_DECIMAL, "decimal"), (LONG_HEX, "hex")):
+            if m := rx.search(text):   # the number itself is not repeated: it may be a secret
+                problems.append(f"cell {cid}: output shows a {len(m.group())}-digit {what} number "
+                                f"at character {m.start()}")
     return problems
 
 

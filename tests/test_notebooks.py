@@ -1,33 +1,38 @@
-"""Execute the example notebooks (notebooks/*.ipynb) top to bottom and check their results.
+"""The example notebooks: sources, committed outputs, and a full run of each.
 
-Each notebook ends with a cell tagged ``summary`` that prints one JSON object; the checks
-below read it. The notebooks also assert their own invariants (decrypted images within
-the error bound of the plaintext render, reused ray sums, no secret in the store), so a
+Each notebook ``notebooks/NN_name.ipynb`` is built from the jupytext percent script
+``notebooks/NN_name.py`` by ``notebooks/_build.py`` and committed *with* its outputs. The
+fast tests check that the committed files are in sync with their sources (what
+``python notebooks/_build.py --check`` does), that each shows at least one picture, and
+that no output shows a path of the build machine or key material. The slow tests execute
+every notebook top to bottom with the build script's own executor (a fresh kernel of
+this interpreter; a probe afterwards collects the private keys alive in the kernel and
+the run fails if an output shows one) and check the JSON printed by its cell tagged
+``summary``. The notebooks also assert their own invariants (decrypted images within the
+error bound of the plaintext render, reused ray sums, no secret in the store), so a
 failed assertion shows up as an errored cell.
-
-The kernel is always this test's interpreter: a throw-away kernelspec named ``python3``
-pointing at ``sys.executable`` is put first on ``JUPYTER_PATH``, so a ``python3``
-kernelspec of another Python (e.g. ``~/.local/share/jupyter/kernels/python3``) cannot
-hijack the run, and nothing has to be installed on a fresh CI machine.
 """
 
 from __future__ import annotations
 
+import base64
+import io
 import json
-import sys
+import shutil
 import time
 from pathlib import Path
 
 import pytest
 
 nbformat = pytest.importorskip("nbformat")
-nbclient = pytest.importorskip("nbclient")
+pytest.importorskip("nbclient")
 pytest.importorskip("ipykernel")
+pytest.importorskip("jupytext")
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOK_DIR = ROOT / "notebooks"
 NOTEBOOKS = ["01_quickstart", "02_transfer_functions", "03_scaling"]
-CELL_TIMEOUT = 300
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def _load_build():
@@ -39,23 +44,11 @@ def _load_build():
     return mod
 
 
-@pytest.fixture(scope="module")
-def kernel_env(tmp_path_factory):
-    """A private ``python3`` kernelspec running this interpreter, and a clean IPython dir."""
-    base = tmp_path_factory.mktemp("jupyter")
-    spec_dir = base / "data" / "kernels" / "python3"
-    spec_dir.mkdir(parents=True)
-    (spec_dir / "kernel.json").write_text(json.dumps({
-        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
-        "display_name": "Python 3 (hevr tests)",
-        "language": "python",
-    }))
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("JUPYTER_PATH", str(base / "data"))
-        mp.setenv("IPYTHONDIR", str(base / "ipython"))   # no user profile/startup files
-        mp.setenv("JUPYTER_RUNTIME_DIR", str(base / "runtime"))   # connection files
-        mp.delenv("MPLBACKEND", raising=False)           # let ipykernel pick the inline backend
-        yield
+build = _load_build()
+
+
+def _committed(name: str):
+    return nbformat.read(NOTEBOOK_DIR / f"{name}.ipynb", as_version=4)
 
 
 def _summary(nb) -> dict:
@@ -64,6 +57,11 @@ def _summary(nb) -> dict:
     text = "".join(o.get("text", "") for o in cells[0].outputs
                    if o.output_type == "stream" and o.name == "stdout")
     return json.loads(text.strip().splitlines()[-1])
+
+
+def _pngs(nb) -> list[bytes]:
+    return [base64.b64decode(o.data["image/png"]) for c in nb.cells if c.cell_type == "code"
+            for o in c.outputs if "image/png" in o.get("data", {})]
 
 
 def _check_quickstart(s: dict) -> None:
@@ -77,7 +75,7 @@ def _check_quickstart(s: dict) -> None:
 
 def _check_transfer(s: dict) -> None:
     labels = [r["label"] for r in s["images"]]
-    assert labels[:4] == ["X-ray", "emphasis 0.653", "emphasis 0.331", "emphasis 0.781"]
+    assert labels[:4] == ["X-ray", "emphasis 0.331", "emphasis 0.653", "emphasis 0.781"]
     assert len(labels) == 8 and all(lab.startswith("TF ") for lab in labels[4:])
     for r in s["images"]:
         assert r["max_error"] <= r["bound"], r
@@ -112,37 +110,154 @@ CHECKS = {
 }
 
 
-def test_notebooks_are_built_and_clean():
-    """The committed notebooks equal the generator's output (hence carry no outputs)."""
-    build = _load_build()
-    expected = build.build()
-    assert sorted(expected) == sorted(f"{n}.ipynb" for n in NOTEBOOKS)
-    for name, text in expected.items():
-        path = NOTEBOOK_DIR / name
-        assert path.read_text(encoding="utf-8") == text, f"{name} is stale: run python notebooks/_build.py"
-        nb = nbformat.reads(text, as_version=4)
-        for cell in nb.cells:
-            if cell.cell_type == "code":
-                assert cell.outputs == [] and cell.execution_count is None, f"{name}: cell {cell.id} has outputs"
+# -- sources and committed notebooks (fast) ------------------------------------------------------
+
+
+def test_sources_are_python_with_one_summary_cell():
+    """Each notebook's source is a compilable Python file; its summary cell is tagged."""
+    srcs = build.sources()
+    assert sorted(srcs) == NOTEBOOKS
+    for name, path in srcs.items():
+        text = path.read_text(encoding="utf-8")
+        compile(text, str(path), "exec")   # SyntaxError if the source is not Python
+        nb = build.notebook_from_source(path)
+        code = [c for c in nb.cells if c.cell_type == "code"]
+        assert len(code) >= 5 and any(c.cell_type == "markdown" for c in nb.cells), name
+        assert [c for c in code if "summary" in c.metadata.get("tags", [])] == [code[-1]], name
+
+
+def test_committed_notebooks_match_their_sources():
+    """``python notebooks/_build.py --check`` would pass: same cells, executed, clean outputs."""
+    assert build.check() == []
+    assert build.main(["--check"]) == 0
+
+
+def test_check_detects_stale_and_unexecuted_notebooks(tmp_path):
+    """The --check logic is not vacuous: edits to code, markdown or tags and missing outputs show."""
+    src = tmp_path / "01_quickstart.py"
+    shutil.copy(NOTEBOOK_DIR / "01_quickstart.py", src)
+    shutil.copy(NOTEBOOK_DIR / "01_quickstart.ipynb", tmp_path / "01_quickstart.ipynb")
+    assert build.check_notebook("01_quickstart", src) == []
+
+    original = src.read_text(encoding="utf-8")
+    edits = [
+        original.replace("KEY_BITS = 512", "KEY_BITS = 1024", 1),                 # code
+        original.replace("# # hevr quick start", "# # hevr quickstart", 1),       # markdown
+        original.replace('# %% tags=["summary"]', "# %%", 1),                     # tags
+    ]
+    for edited in edits:
+        assert edited != original
+        src.write_text(edited, encoding="utf-8")
+        problems = build.check_notebook("01_quickstart", src)
+        assert any("cells differ" in p for p in problems), problems
+    src.write_text(original, encoding="utf-8")
+
+    nb = nbformat.read(tmp_path / "01_quickstart.ipynb", as_version=4)
+    for cell in nb.cells:
+        if cell.cell_type == "code":
+            cell.outputs, cell.execution_count = [], None
+    nbformat.write(nb, tmp_path / "01_quickstart.ipynb")
+    problems = build.check_notebook("01_quickstart", src)
+    assert any("was not executed" in p for p in problems), problems
+
+
+@pytest.mark.parametrize("name", NOTEBOOKS)
+def test_committed_notebook_shows_pictures(name):
+    """At least one PNG output, so that a code host shows the figures without running anything."""
+    from PIL import Image
+
+    pngs = _pngs(_committed(name))
+    assert pngs, f"{name}.ipynb has no image/png output: run python notebooks/_build.py {name}"
+    for png in pngs:
+        assert png.startswith(PNG_MAGIC)
+        with Image.open(io.BytesIO(png)) as im:
+            assert im.width >= 100 and im.height >= 100, im.size
+
+
+@pytest.mark.parametrize("name", NOTEBOOKS)
+def test_committed_summary_passes_the_checks(name):
+    """The committed outputs are those of a run that passes the same checks as a fresh run."""
+    CHECKS[name](_summary(_committed(name)))
+
+
+def test_output_problems_flags_paths_and_key_numbers():
+    """Guard for the output check used by the build and by --check."""
+    p = 2**127 - 1   # a (Mersenne) prime, standing in for a key's secret prime
+    bad = [
+        f"temporary files in {ROOT / 'x'}",
+        "EncryptedVolume('/tmp/hevr-quickstart-abc/phantom.zarr')",
+        "written to /home/someone/key.json",
+        f"p = {p}",
+        f"hex {p:x}",
+        "n = 1234567890123456789012345678901234567890",
+    ]
+    clean = [
+        "hevr 0.1.0 - temporary files in WORKDIR = hevr-quickstart-5rwpvptv",
+        "EncryptedVolume('WORKDIR/phantom.zarr', shape=(24, 24, 24), key=1a04dfd2cf0e666f…)",
+        "<Client: 'tcp://127.0.0.1:41201' processes=2 threads=2, memory=23.54 GiB>",
+        "69120 ciphertexts in 11.02 s (159 us each), bricks: (2, 2, 2)",
+    ]
+
+    def notebook(text):
+        nb = nbformat.v4.new_notebook()
+        cell = nbformat.v4.new_code_cell("print(x)")
+        cell.id = "t-00"
+        cell.outputs = [nbformat.v4.new_output("stream", name="stdout", text=text)]
+        nb.cells.append(cell)
+        return nb
+
+    for text in bad:
+        assert build.output_problems(notebook(text)), text
+    for text in clean:
+        assert build.output_problems(notebook(text), [str(p)]) == [], text
+    # The secret is found in decimal and hex even where the generic rules would not see it,
+    # and no message repeats it (build logs are not secret).
+    for text in (f"x{p}y", f"{p:X}", f"p={p} q={p:x}"):
+        problems = build.output_problems(notebook(text), [str(p)])
+        assert any("private key number" in m for m in problems), text
+        assert not any(str(p) in m or f"{p:x}" in m.lower() for m in problems), problems
+
+
+# -- full runs (slow) ---------------------------------------------------------------------------
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", NOTEBOOKS)
-def test_notebook_runs(name, kernel_env, record_property):
-    from nbclient import NotebookClient
-
-    nb = nbformat.read(NOTEBOOK_DIR / f"{name}.ipynb", as_version=4)
-    client = NotebookClient(nb, timeout=CELL_TIMEOUT, startup_timeout=120, kernel_name="python3",
-                            allow_errors=False, resources={"metadata": {"path": str(NOTEBOOK_DIR)}})
+def test_notebook_runs(name, record_property):
+    nb = _committed(name)
     t0 = time.perf_counter()
-    client.execute()   # raises CellExecutionError on the first failing cell
+    build.execute(nb)   # CellExecutionError on the first failing cell; NotebookOutputError on a leak
     seconds = time.perf_counter() - t0
     record_property("seconds", round(seconds, 1))
     print(f"{name}: {seconds:.1f} s")
 
+    assert all(c.get("id") != "probe" for c in nb.cells)   # the probe is never kept
     for cell in nb.cells:
         if cell.cell_type == "code":
             errors = [o for o in cell.outputs if o.output_type == "error"]
             assert not errors, f"{name}: cell {cell.id} raised {errors[0].ename}: {errors[0].evalue}"
             assert cell.execution_count is not None, f"{name}: cell {cell.id} did not run"
+    assert _pngs(nb), f"{name}: the run drew no figure"
     CHECKS[name](_summary(nb))
+
+
+@pytest.mark.slow
+def test_execute_rejects_a_notebook_that_prints_a_private_prime():
+    """The probe in the kernel finds the live private key; a printed prime fails the build."""
+    nb = nbformat.v4.new_notebook()
+    for i, src in enumerate([
+        ("import warnings\nimport hevr\nwarnings.simplefilter('ignore', hevr.InsecureKeyWarning)\n"
+         "pub, priv = hevr.generate_keypair(256)"),
+        "print('modulus bits:', pub.bits)",
+        "print('q =', priv.q)",
+    ]):
+        cell = nbformat.v4.new_code_cell(src)
+        cell.id = f"t-{i:02d}"
+        nb.cells.append(cell)
+    with pytest.raises(build.NotebookOutputError) as err:
+        build.execute(nb, timeout=120)
+    message = str(err.value)
+    # "private key number" comes only from the numbers the probe collected in the kernel.
+    assert "cell t-02: output shows a private key number" in message, message
+    assert "cell t-01" not in message, message
+    assert not build.LONG_DECIMAL.search(message) and not build.LONG_HEX.search(message), message
