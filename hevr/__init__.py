@@ -1,4 +1,19 @@
-"""hevr: privacy-preserving remote volume rendering on Paillier-encrypted volumes."""
+"""hevr: privacy-preserving remote volume rendering on Paillier-encrypted volumes.
+
+The subpackages follow the data path; every public name is re-exported here:
+
+=====================  ==========================================================
+:mod:`hevr.crypto`     Paillier (``raw_`` layer), keys, key files, owner-side masks,
+                       fixed-point encoding, :class:`EncryptedNumber`, byte records
+:mod:`hevr.volume`     plaintext volumes: loaders, phantom, densities, Alg. 4 encoding
+:mod:`hevr.store`      the encrypted Zarr v3 store: metadata, writer, reader
+:mod:`hevr.rendering`  camera, modes, rays, weights, planner, kernel, graph,
+                       finishing, :func:`render`, :func:`render_plain`
+:mod:`hevr.image`      :class:`EncryptedImage`: file format, decryption, PNG
+:mod:`hevr.cli`        the ``hevr`` command
+:mod:`hevr.backends`   the arithmetic seam: bulk big-integer work (``cpu`` = gmpy2)
+=====================  ==========================================================
+"""
 
 from __future__ import annotations
 
