@@ -1,5 +1,5 @@
-"""Small file helpers shared by every writer and reader: atomic writes with a fixed mode,
-and the one way hevr reports a missing file.
+"""Small file helpers: atomic writes with a fixed mode (key files), and the one way hevr
+reports a missing file or folder (keys, stores, images, volumes, output folders).
 
 >>> import tempfile, os
 >>> d = tempfile.mkdtemp()
@@ -27,11 +27,17 @@ def write_atomic(path: str | os.PathLike, text: str, mode: int = 0o644) -> None:
     """Write ``text`` to ``path`` through a temporary file in the same folder and
     ``os.replace``: the file never exists half-written, nor with a mode other than ``mode``."""
     path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
+    directory = require_file(path.parent if str(path.parent) else Path("."), "path", "an existing folder",
+                             directory=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", dir=directory)
     try:
-        os.fchmod(fd, mode)
-        with os.fdopen(fd, "w") as fh:
+        try:
+            os.fchmod(fd, mode)
+            fh = os.fdopen(fd, "w")
+        except BaseException:
+            os.close(fd)
+            raise
+        with fh:
             fh.write(text)
         os.replace(tmp, path)
     except BaseException:

@@ -63,7 +63,7 @@ def resolve_backend_name(backend: str | Backend | None) -> str:
     if isinstance(backend, Backend):
         backend = backend.name
     name = dask.config.get(CONFIG_KEY, DEFAULT) if backend is None else backend
-    if name not in _FACTORIES:
+    if not isinstance(name, str) or name not in _FACTORIES:
         raise ParameterError(f"backend: expected one of {', '.join(repr(k) for k in _FACTORIES)}, got {name!r}")
     return name
 

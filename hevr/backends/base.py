@@ -2,8 +2,10 @@
 
 hevr's cost is modular multiplication of big integers (mod n² of 2·bits bits, mod p² and
 q² for the owner). Everything that does it in bulk goes through one small interface, so
-that the render graph and the store never touch a big integer themselves: they hand a
-backend byte records and public plaintext parameters, and get byte records back.
+that the render graph, the store's writer and readers and the client never touch a big
+integer themselves: they hand a backend byte records and public plaintext parameters, and
+get byte records back (the one exception is the maintenance check
+``EncryptedVolume.verify``, one gcd per brick on gmpy2).
 :class:`hevr.backends.cpu.CpuBackend` (gmpy2) is the reference; a GPU backend implements the
 same methods and must give bit-identical results.
 

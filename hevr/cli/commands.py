@@ -19,12 +19,12 @@ import zarr
 from ..crypto.keys import SECURE_BITS, PrivateKey, generate_keypair
 from ..errors import InsecureKeyWarning, MissingFileError, ParameterError, StoreError
 from ..image import MAGIC, load_image, save_png
+from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..rendering.camera import Camera
 from ..rendering.encrypted import render
 from ..store.metadata import VolumeMetadata
 from ..store.reader import open_volume
 from ..store.writer import encrypt_volume
-from ..paper import PAPER_DENSITIES, PAPER_TF1
 from .util import (
     Timer,
     UsageError,

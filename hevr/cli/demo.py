@@ -24,12 +24,19 @@ import numpy as np
 from ..crypto.keys import SECURE_BITS, generate_keypair
 from ..errors import InsecureKeyWarning
 from ..image import save_png
+from ..paper import (
+    PAPER_DENSITIES,
+    PAPER_IMAGE,
+    PAPER_SIZE,
+    PAPER_TF1,
+    PAPER_TF2,
+    tf_text,
+)
 from ..rendering.camera import Camera
 from ..rendering.encrypted import error_bound, render
 from ..rendering.plain import render_plain
 from ..store.writer import encrypt_volume
 from .sheet import contact_sheet
-from ..paper import PAPER_DENSITIES, PAPER_IMAGE, PAPER_SIZE, PAPER_TF1, PAPER_TF2, tf_text
 from .util import (
     Timer,
     dask_client,

@@ -17,7 +17,14 @@ from typing import Any, Sequence
 
 from .. import __version__
 from ..errors import HevrError
-from ..paper import PAPER_DENSITIES, PAPER_IMAGE, PAPER_SIZE, PAPER_TF1, PAPER_TF2, tf_text
+from ..paper import (
+    PAPER_DENSITIES,
+    PAPER_IMAGE,
+    PAPER_SIZE,
+    PAPER_TF1,
+    PAPER_TF2,
+    tf_text,
+)
 from . import commands as cmds
 from . import demo as demo
 from .bench import BENCH_EPILOG, cmd_bench

@@ -131,8 +131,8 @@ class EncryptedVolume:
         or k batches (vector). For the default ``cpu`` backend a batch is a list of mpz.
 
         With ``check`` every ciphertext must lie in (0, n²); a violation raises
-        :class:`hevr.CorruptStoreError` naming the brick. The check runs on the bytes, before
-        conversion, so it is the same for every backend.
+        :class:`hevr.CorruptStoreError` naming the brick; the backend checks its converted
+        batch (:meth:`~hevr.backends.base.Backend.first_out_of_range`), the same rule for all.
         """
         be = get_backend(backend)
         data = self.read_brick_bytes(index, channel)

@@ -25,6 +25,7 @@ from typing import Any, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from .._files import require_file
 from .._validate import check_choice, check_spacing, check_volume
 from ..errors import MissingDependencyError, ParameterError, VolumeFormatError
 from .nrrd import check_file, load_raw, read_nrrd, to_native, write_nrrd, write_raw
@@ -355,6 +356,7 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
     spacing = check_spacing(spacing)
     check_choice("encoding", encoding, ("raw", "gzip"))
     check_choice("byte_order", byte_order, ("little", "big"))
+    require_file(path.parent, "path", "an existing folder", directory=True)
     suffix = path.suffix.lower()
     if suffix in (".nhdr", ".nrrd"):
         write_nrrd(path, arr, spacing, encoding=encoding, byte_order=byte_order)

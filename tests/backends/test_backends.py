@@ -212,6 +212,8 @@ def test_unknown_backend_is_refused_by_name(store, keypair256, tmp_path):
     assert not (tmp_path / "x.zarr").exists()  # refused before anything was written
     with dask.config.set({"hevr.backend": "abacus"}), pytest.raises(hevr.ParameterError, match="got 'abacus'"):
         get_backend()
+    with pytest.raises(hevr.ParameterError, match="backend: expected one of"):
+        resolve_backend_name(["cpu"])  # unhashable: still a clear ParameterError
     with pytest.raises(hevr.ParameterError, match="name: expected a backend name"):
         register_backend("not a name", CpuBackend)
 

@@ -1,0 +1,8 @@
+"""``python -m hevr.cli``: the command line (same as ``python -m hevr`` and ``hevr``)."""
+
+import sys
+
+from .main import main
+
+if __name__ == "__main__":
+    sys.exit(main())
