@@ -49,34 +49,22 @@ def bits_type(text: str) -> int:
     return bits
 
 
-def positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
+def _int_at_least(lo: int, expected: str):
+    """An argparse type: an integer >= ``lo``, else "expected <expected>, got '<text>'"."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            v = lo - 1
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return v
+    return parse
 
 
-def vector_dims_type(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if v < 2:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 2 (the paper uses 4), got {text!r}")
-    return v
-
-
-def nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        v = -1
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return v
+positive_int = _int_at_least(1, "a positive integer")
+vector_dims_type = _int_at_least(2, "an integer >= 2 (the paper uses 4)")
+nonneg_int = _int_at_least(0, "a non-negative integer")
 
 
 def finite_float(text: str) -> float:
