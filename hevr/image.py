@@ -21,9 +21,9 @@ from PIL import Image
 
 from ._files import require_file
 from ._tiles import TileLayout
+from .backends import get_backend
 from .crypto.keys import PrivateKey
 from .crypto.records import record_width
-from .backends import get_backend
 from .errors import CorruptStoreError, KeyMismatchError, ParameterError
 
 __all__ = ["EncryptedImage", "load_image", "save_png"]

@@ -9,8 +9,8 @@ import pytest
 from hevr._bench import report
 from hevr._bench.runner import rewrite_report, run_bench
 from hevr._bench.settings import PAPER, QUICK, SETTINGS
-from hevr.errors import ParameterError
 from hevr.cli.main import main
+from hevr.errors import ParameterError
 
 
 @pytest.mark.slow

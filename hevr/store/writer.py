@@ -41,9 +41,16 @@ import zarr
 
 from .. import _stats
 from .._dask import active_client, compute
-from .._validate import check_brick, check_data_range, check_int, check_spacing, check_value_range, check_volume
-from ..crypto.keys import PrivateKey, PublicKey
+from .._validate import (
+    check_brick,
+    check_data_range,
+    check_int,
+    check_spacing,
+    check_value_range,
+    check_volume,
+)
 from ..backends import get_backend, resolve_backend_name
+from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume.density import default_value_range, encode_density, normalize_density
 from .metadata import ChannelInfo, VolumeMetadata

@@ -11,8 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hevr.rendering.camera import Camera
 from hevr.errors import ParameterError
+from hevr.rendering.camera import Camera
 
 
 def test_basis_and_defaults() -> None:

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr.rendering import encrypted as render_mod
 from hevr.crypto.records import bytes_to_mpz
+from hevr.rendering import encrypted as render_mod
 from hevr.rendering.encrypted import error_bound
 
 SHAPE = (7, 9, 11)  # odd, non-cubic

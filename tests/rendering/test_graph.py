@@ -13,8 +13,8 @@ import pytest
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr.rendering.graph import FAN_IN, build_sums_graph
 from hevr.rendering.encrypted import error_bound
+from hevr.rendering.graph import FAN_IN, build_sums_graph
 from hevr.rendering.rays import cast_rays
 
 SHAPE = (7, 9, 11)

@@ -10,7 +10,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hevr.errors import ParameterError
-from hevr.rendering.kernel import OpCounter, brick_ray_products, brick_ray_products_multi
+from hevr.rendering.kernel import (
+    OpCounter,
+    brick_ray_products,
+    brick_ray_products_multi,
+)
 
 
 def _modulus(rng: np.random.Generator, bits: int) -> mpz:

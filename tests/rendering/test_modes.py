@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hevr.volume.density import encode_density
 from hevr.errors import ParameterError
 from hevr.rendering.modes import (
     MODES,
@@ -16,6 +15,7 @@ from hevr.rendering.modes import (
     normalisation_factor,
     parse_color,
 )
+from hevr.volume.density import encode_density
 
 
 @pytest.mark.parametrize(

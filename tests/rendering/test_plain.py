@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from hevr.rendering.camera import Camera
-from hevr.volume.density import encode_density
 from hevr.errors import HevrError, ParameterError
+from hevr.rendering.camera import Camera
 from hevr.rendering.modes import parse_color
 from hevr.rendering.plain import render_plain
 from hevr.rendering.rays import cast_rays
+from hevr.volume.density import encode_density
 
 _NODES = [(0.279, (0, 0, 1)), (0.797, "red"), (0.5, "#00ff00")]
 _MODE_KW = {"xray": {}, "emphasize": {"density": 0.653}, "tf": {"nodes": _NODES}}

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from hevr.rendering.camera import Camera
 from hevr.errors import ParameterError
+from hevr.rendering.camera import Camera
 from hevr.rendering.rays import (
     RaySet,
     cast_rays,

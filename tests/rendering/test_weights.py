@@ -11,13 +11,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hevr.rendering.weights as weights_mod
-from hevr.rendering.camera import Camera
-from hevr.volume.density import encode_density, normalize_density
 from hevr.errors import ParameterError
+from hevr.rendering.camera import Camera
 from hevr.rendering.modes import combination_matrix, make_spec, normalisation_factor
 from hevr.rendering.plain import render_plain
 from hevr.rendering.rays import cast_rays
-from hevr.rendering.weights import BrickWeights, brick_bounds, brick_grid, brick_weights, touched_bricks
+from hevr.rendering.weights import (
+    BrickWeights,
+    brick_bounds,
+    brick_grid,
+    brick_weights,
+    touched_bricks,
+)
+from hevr.volume.density import encode_density, normalize_density
 
 SHAPE, BRICK, SPACING, STEP = (7, 9, 11), (3, 4, 5), (0.8, 1.1, 1.3), 0.7
 _NODES = [(0.279, (0, 0, 1)), (0.797, "red"), (0.5, "#00ff00")]

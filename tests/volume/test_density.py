@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hevr.volume.density import default_value_range, encode_density, normalize_density
 from hevr.errors import HevrError, ParameterError
+from hevr.volume.density import default_value_range, encode_density, normalize_density
 
 
 def _unit(*v: float) -> list[float]:

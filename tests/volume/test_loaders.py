@@ -10,7 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hevr.errors import HevrError, MissingDependencyError, ParameterError, VolumeFormatError
+from hevr.errors import (
+    HevrError,
+    MissingDependencyError,
+    ParameterError,
+    VolumeFormatError,
+)
 from hevr.volume.loaders import load_volume, save_volume
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
