@@ -23,6 +23,7 @@ from .crypto.keys import PrivateKey, PublicKey, generate_keypair
 from .crypto.number import EncryptedNumber
 from .errors import (
     CorruptStoreError,
+    IntegrityError,
     HevrError,
     IncompleteStoreError,
     InsecureKeyWarning,
@@ -87,6 +88,7 @@ __all__ = [
     "StoreExistsError",
     "IncompleteStoreError",
     "CorruptStoreError",
+    "IntegrityError",
     "VolumeFormatError",
     "MissingDependencyError",
     "MissingFileError",

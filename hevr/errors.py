@@ -25,6 +25,7 @@ __all__ = [
     "StoreExistsError",
     "IncompleteStoreError",
     "CorruptStoreError",
+    "IntegrityError",
     "VolumeFormatError",
     "MissingDependencyError",
     "MissingFileError",
@@ -70,6 +71,12 @@ class IncompleteStoreError(StoreError):
 
 class CorruptStoreError(StoreError):
     """The store is foreign, of another format version, truncated or holds invalid ciphertexts."""
+
+
+class IntegrityError(HevrError, ValueError):
+    """Data failed an integrity check: a decrypted value outside the range its render plan
+    allows, or an image file whose checksum does not match. The data was corrupted (or
+    mixed up) somewhere between encryption and decryption; no image is returned."""
 
 
 class VolumeFormatError(HevrError, ValueError):

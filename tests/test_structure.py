@@ -66,7 +66,7 @@ PUBLIC_API = (
     "normalize_density", "PHANTOM_LEVELS", "load_volume", "save_volume", "open_volume",
     "EncryptedVolume", "encode", "decode", "BASE",
     "HevrError", "ParameterError", "InvalidKeyError", "KeyMismatchError", "PlaintextOverflowError",
-    "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError",
+    "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "IntegrityError",
     "VolumeFormatError", "MissingDependencyError", "MissingFileError", "InsecureKeyWarning",
 )
 API_MD = ROOT.parent / "shared" / "API.md"

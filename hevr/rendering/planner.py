@@ -17,6 +17,15 @@ Per pixel r with n_r samples and K transfer-function nodes (K = 1 otherwise):
   ceil(log10(max n_r·K)), so R_r has relative error <= 0.5·10^-precision;
 * a public offset O = max_r(-lo·W_r·R_r) (only for signed scalar data) makes M + O >= 0,
   so pixels can be packed B = 2^b per ciphertext, b = bits of the largest M + O.
+
+Integrity margin. Every decrypted plaintext is checked by the client (``EncryptedImage``):
+a packed plaintext must lie below B^J (J = ``per_pack``) and each of its digits in
+[0, bound]; an unpacked one in [0, bound]. The planner keeps κ = ``INTEGRITY_BITS`` = 64
+bits of every plaintext unused: J·b + κ <= bits(n) − 1, so B^J·2^κ <= n/2 < n, and a
+plaintext that is uniform in Z_n (what a corrupted ciphertext decrypts to, see
+docs/security.md) passes the check with probability below 2^-κ. Renders whose bound needs
+more than bits(n) − 1 − κ bits are refused; the intermediate sums S and T, never decrypted,
+only need to stay below n/3.
 """
 
 from __future__ import annotations
@@ -30,7 +39,9 @@ from ..errors import RenderPlanError
 from ..store.metadata import VolumeMetadata
 from .modes import RenderSpec
 
-__all__ = ["RenderPlan", "plan_render"]
+__all__ = ["RenderPlan", "plan_render", "INTEGRITY_BITS"]
+
+INTEGRITY_BITS = 64
 
 
 @dataclass(frozen=True)
@@ -133,8 +144,15 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
                 f"overflow planner: the {name} could reach {_bits(val)} bits but a {key_bits}-bit key "
                 f"allows plaintexts below n/3 (~{key_bits - 2} bits); {tips}"
             )
+    room = key_bits - 1 - INTEGRITY_BITS  # bits a decrypted plaintext may use (module docstring)
     pack_bits = _bits(bound)
-    per_pack = max(1, (key_bits - 2) // pack_bits) if pack else 1
+    if pack_bits > room:
+        raise RenderPlanError(
+            f"overflow planner: the normalised mantissa could reach {pack_bits} bits but a {key_bits}-bit key "
+            f"keeps {INTEGRITY_BITS} bits of every decrypted plaintext for the integrity check, leaving "
+            f"{max(room, 0)} bits; {tips}"
+        )
+    per_pack = max(1, room // pack_bits) if pack else 1
     return RenderPlan(
         mode=spec.mode, sampling=spec.sampling, channel=channel, weight_digits=int(digits),
         weight_exponent=w_exp, channel_exponent=ch_exp, comb=comb, comb_digits=int(comb_digits),
