@@ -57,6 +57,9 @@ class EncryptedImage:
         others are 0 (which rays miss follows from the public camera and volume shape).
     info : dict
         Public render parameters (mode, sampling, camera, precision, ...).
+    bound : int, optional
+        The render plan's bound: every value M + offset lies in [0, bound]. Decryption checks
+        every plaintext against it (see :mod:`hevr.rendering.planner`, integrity margin).
     """
 
     shape: tuple
@@ -71,6 +74,7 @@ class EncryptedImage:
     hits: np.ndarray | None = None
     info: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+    bound: int | None = None
 
     def __repr__(self) -> str:
         return (f"EncryptedImage(shape={self.shape}, exponent={self.exponent}, per_pack={self.per_pack}, "

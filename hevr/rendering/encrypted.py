@@ -186,7 +186,7 @@ def render(
                           info={"mode": spec.mode, "sampling": spec.sampling, "step": spec.step,
                                 "density": spec.density, "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None,
                                 "camera": camera.to_dict(), "plan": plan.to_dict()},
-                          stats=stats)
+                          stats=stats, bound=plan.bound)
 
 
 def error_bound(ev: EncryptedVolume, camera: Camera, mode: str = "xray", sampling: str = "nearest",
