@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
+import dask
 import pytest
 
 import hevr
@@ -42,3 +44,12 @@ def keypair(request, keypair256, keypair512):
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     return SHARED / "data"
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _journal_dir(tmp_path_factory):
+    """Resume journals of the test session go to a temporary folder, never ~/.cache."""
+    folder = tmp_path_factory.mktemp("journals")
+    os.environ["DASK_HEVR__JOURNAL_DIR"] = str(folder)  # subprocesses (CLI tests) inherit it
+    with dask.config.set({"hevr.journal-dir": str(folder)}):
+        yield folder

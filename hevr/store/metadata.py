@@ -1,15 +1,57 @@
-"""Versioned metadata of an encrypted volume store (see docs/format.md)."""
+"""Versioned, checksummed metadata of an encrypted volume store (see docs/format.md).
+
+Version 2 adds integrity: the ``hevr`` attribute carries ``checksum``, the SHA-256 of
+its own canonical JSON (every other field, keys sorted, no spaces), and every field is
+validated on reading — types exactly (a bool is not an int, a float is not an int),
+ranges (brick >= 1, value range ordered, known dtype), and consistency (fingerprint
+length, ``n_bricks`` and ``bits`` when present). :meth:`VolumeMetadata.from_dict` names
+the first field that is wrong. Version 1 stores (no digests) are refused with the
+one-line command that converts them (``hevr upgrade-store``).
+
+>>> m = VolumeMetadata(shape=(2, 2, 2), spacing=(1.0, 1.0, 1.0), brick=(2, 2, 2), n="3233",
+...                    fingerprint="ab" * 32, ciphertext_bytes=3, dtype="uint8",
+...                    value_range=(0.0, 255.0), scalar=ChannelInfo(0), vector=None,
+...                    complete=True, store_id="0123456789abcdef")
+>>> VolumeMetadata.from_dict(m.to_dict()) == m
+True
+>>> d = m.to_dict(); d["shape"] = [2, 2, 3]
+>>> VolumeMetadata.from_dict(d)
+Traceback (most recent call last):
+    ...
+hevr.errors.CorruptStoreError: store: metadata checksum mismatch (the 'hevr' attribute was modified or corrupted)
+"""
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from ..errors import CorruptStoreError
 
+__all__ = ["ChannelInfo", "VolumeMetadata", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum"]
+
 FORMAT_NAME = "hevr-encrypted-volume"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+DTYPES = ("bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64",
+          "float16", "float32", "float64")
+MAX_N_DIGITS = 5000  # a 16 000-bit modulus; longer decimal strings are refused before int()
+_HEX64 = re.compile(r"[0-9a-f]{64}")
+_STORE_ID = re.compile(r"[0-9a-f]{16}")
+
+
+def metadata_checksum(d: dict) -> str:
+    """``"sha256:<hex>"`` of the canonical JSON of ``d`` without its ``checksum`` field.
+
+    >>> metadata_checksum({"b": 1, "a": [1, 2]}) == metadata_checksum({"a": [1, 2], "b": 1, "checksum": "x"})
+    True
+    """
+    body = {k: v for k, v in d.items() if k != "checksum"}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -24,8 +66,15 @@ class ChannelInfo:
         return {k: v for k, v in asdict(self).items() if v is not None}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ChannelInfo":
-        return cls(exponent=int(d["exponent"]), digits=d.get("digits"), dims=d.get("dims"))
+    def from_dict(cls, d: Any, where: str = "store", name: str = "channels") -> "ChannelInfo":
+        if not isinstance(d, dict) or "exponent" not in d or set(d) - {"exponent", "digits", "dims"}:
+            raise CorruptStoreError(f"{where}: {name}: expected an object with 'exponent' (and 'digits', 'dims'), got {d!r}")
+        exponent = _int(d["exponent"], f"{name}.exponent", where, -30, 30)
+        digits = _int(d["digits"], f"{name}.digits", where, 0, 30) if "digits" in d else None
+        dims = _int(d["dims"], f"{name}.dims", where, 2, 64) if "dims" in d else None
+        if digits is not None and exponent != -digits:
+            raise CorruptStoreError(f"{where}: {name}.exponent: expected -digits = {-digits}, got {exponent}")
+        return cls(exponent=exponent, digits=digits, dims=dims)
 
 
 @dataclass(frozen=True)
@@ -44,7 +93,7 @@ class VolumeMetadata:
     vector: ChannelInfo | None
     base: int = 10
     complete: bool = False
-    store_id: str = ""  # random per store creation: caches must not confuse two volumes at one path
+    store_id: str = ""  # random per store creation: digests and caches tell two volumes apart by it
     format: str = FORMAT_NAME
     version: int = FORMAT_VERSION
     extra: dict = field(default_factory=dict)
@@ -58,8 +107,13 @@ class VolumeMetadata:
         g = self.grid
         return g[0] * g[1] * g[2]
 
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The channels present, in store order (scalar first): the order of the digests."""
+        return tuple(name for name in ("scalar", "vector") if getattr(self, name) is not None)
+
     def to_dict(self) -> dict[str, Any]:
-        return {
+        d = {
             "format": self.format,
             "version": self.version,
             "shape": list(self.shape),
@@ -79,37 +133,112 @@ class VolumeMetadata:
             "store_id": self.store_id,
             **({"extra": self.extra} if self.extra else {}),
         }
+        if self.version >= 2:
+            d["checksum"] = metadata_checksum(d)
+        return d
 
     @classmethod
-    def from_dict(cls, d: Any, where: str = "store") -> "VolumeMetadata":
+    def from_dict(cls, d: Any, where: str = "store", *, accept_v1: bool = False) -> "VolumeMetadata":
+        """Parse and validate the ``hevr`` attribute; :class:`hevr.CorruptStoreError` names
+        the first field that is wrong. ``accept_v1`` (for ``hevr upgrade-store`` only) also
+        reads version 1, which has no checksum and no digests."""
         if not isinstance(d, dict) or d.get("format") != FORMAT_NAME:
             raise CorruptStoreError(f"{where}: not an hevr encrypted volume (attribute 'hevr.format' is not {FORMAT_NAME!r})")
-        if d.get("version") != FORMAT_VERSION:
+        version = d.get("version")
+        if version == 1 and type(version) is int and not accept_v1:
             raise CorruptStoreError(
-                f"{where}: unsupported format version {d.get('version')!r}; this hevr reads version {FORMAT_VERSION}"
+                f"{where}: format version 1 has no integrity digests and is no longer opened; convert it once "
+                f"with: hevr upgrade-store {where} NEW.zarr"
             )
-        try:
-            ch = d["channels"]
-            meta = cls(
-                shape=tuple(int(x) for x in d["shape"]),
-                spacing=tuple(float(x) for x in d["spacing"]),
-                brick=tuple(int(x) for x in d["brick"]),
-                n=str(d["public_key"]["n"]),
-                fingerprint=str(d["public_key"]["fingerprint"]),
-                ciphertext_bytes=int(d["ciphertext_bytes"]),
-                dtype=str(d["dtype"]),
-                value_range=tuple(float(x) for x in d["value_range"]),
-                scalar=ChannelInfo.from_dict(ch["scalar"]) if "scalar" in ch else None,
-                vector=ChannelInfo.from_dict(ch["vector"]) if "vector" in ch else None,
-                base=int(d.get("base", 10)),
-                complete=bool(d.get("complete", False)),
-                store_id=str(d.get("store_id", "")),
-                extra=dict(d.get("extra", {})),
+        if not (type(version) is int and (version == FORMAT_VERSION or (accept_v1 and version == 1))):
+            raise CorruptStoreError(
+                f"{where}: unsupported format version {version!r}; this hevr reads version {FORMAT_VERSION}"
             )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise CorruptStoreError(f"{where}: malformed metadata ({type(exc).__name__}: {exc})") from None
-        if len(meta.shape) != 3 or len(meta.brick) != 3 or len(meta.spacing) != 3:
-            raise CorruptStoreError(f"{where}: shape, brick and spacing must have 3 entries")
-        if not meta.n.isdigit():
-            raise CorruptStoreError(f"{where}: public_key.n must be a decimal string")
-        return meta
+        if version >= 2 and d.get("checksum") != metadata_checksum(d):
+            what = "missing" if "checksum" not in d else "mismatch (the 'hevr' attribute was modified or corrupted)"
+            raise CorruptStoreError(f"{where}: metadata checksum {what}")
+        return _parse(cls, d, where, version)
+
+
+# -- field validation ---------------------------------------------------------------------------
+def _bad(where: str, name: str, expected: str, got: Any) -> CorruptStoreError:
+    text = repr(got)
+    return CorruptStoreError(f"{where}: {name}: expected {expected}, got {text[:80] + '…' if len(text) > 80 else text}")
+
+
+def _get(d: dict, key: str, where: str, prefix: str = "") -> Any:
+    if key not in d:
+        raise CorruptStoreError(f"{where}: malformed metadata (missing field '{prefix}{key}')")
+    return d[key]
+
+
+def _int(v: Any, name: str, where: str, lo: int, hi: int | None = None) -> int:
+    if type(v) is not int or v < lo or (hi is not None and v > hi):
+        raise _bad(where, name, f"an integer in [{lo}, {hi if hi is not None else '∞'}]", v)
+    return v
+
+
+def _number(v: Any, name: str, where: str, positive: bool = False) -> float:
+    if type(v) not in (int, float) or not math.isfinite(v) or (positive and not v > 0):
+        raise _bad(where, name, "a positive finite number" if positive else "a finite number", v)
+    return float(v)
+
+
+def _triple(v: Any, name: str, where: str, kind: str) -> tuple:
+    if not isinstance(v, list) or len(v) != 3:
+        raise _bad(where, name, "a list of 3 entries", v)
+    if kind == "int":
+        return tuple(_int(x, name, where, 1) for x in v)
+    return tuple(_number(x, name, where, positive=True) for x in v)
+
+
+def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
+    shape = _triple(_get(d, "shape", where), "shape", where, "int")
+    spacing = _triple(_get(d, "spacing", where), "spacing", where, "float")
+    brick = _triple(_get(d, "brick", where), "brick", where, "int")
+    pk = _get(d, "public_key", where)
+    if not isinstance(pk, dict):
+        raise _bad(where, "public_key", "an object", pk)
+    n = _get(pk, "n", where, "public_key.")
+    if not (isinstance(n, str) and 0 < len(n) <= MAX_N_DIGITS and n.isascii() and n.isdigit() and n[0] != "0"):
+        raise _bad(where, "public_key.n", "a decimal string (public_key.n must be a decimal string)", n)
+    fingerprint = _get(pk, "fingerprint", where, "public_key.")
+    if not (isinstance(fingerprint, str) and _HEX64.fullmatch(fingerprint)):
+        raise _bad(where, "public_key.fingerprint", "64 lower-case hex digits", fingerprint)
+    if "bits" in pk and pk["bits"] != int(n).bit_length():
+        raise _bad(where, "public_key.bits", f"{int(n).bit_length()} (the bit length of n)", pk["bits"])
+    width = _int(_get(d, "ciphertext_bytes", where), "ciphertext_bytes", where, 1)
+    dtype = _get(d, "dtype", where)
+    if dtype not in DTYPES:
+        raise _bad(where, "dtype", f"one of {', '.join(DTYPES)}", dtype)
+    vr = _get(d, "value_range", where)
+    if not isinstance(vr, list) or len(vr) != 2:
+        raise _bad(where, "value_range", "a list [lo, hi]", vr)
+    lo, hi = (_number(x, "value_range", where) for x in vr)
+    if not lo < hi:
+        raise _bad(where, "value_range", "lo < hi", vr)
+    base = d.get("base", 10)
+    if type(base) is not int or base != 10:
+        raise _bad(where, "base", "10", base)
+    ch = _get(d, "channels", where)
+    if not isinstance(ch, dict) or not ch or set(ch) - {"scalar", "vector"}:
+        raise _bad(where, "channels", "an object with 'scalar' and/or 'vector'", ch)
+    scalar = ChannelInfo.from_dict(ch["scalar"], where, "channels.scalar") if "scalar" in ch else None
+    vector = ChannelInfo.from_dict(ch["vector"], where, "channels.vector") if "vector" in ch else None
+    if vector is not None and (vector.dims is None or vector.digits is None):
+        raise _bad(where, "channels.vector", "'digits' and 'dims'", ch["vector"])
+    complete = d.get("complete", False)
+    if type(complete) is not bool:
+        raise _bad(where, "complete", "true or false", complete)
+    store_id = d.get("store_id", "")
+    if not isinstance(store_id, str) or (version >= 2 and not _STORE_ID.fullmatch(store_id)):
+        raise _bad(where, "store_id", "16 lower-case hex digits", store_id)
+    extra = d.get("extra", {})
+    if not isinstance(extra, dict):
+        raise _bad(where, "extra", "an object", extra)
+    meta = cls(shape=shape, spacing=spacing, brick=brick, n=n, fingerprint=fingerprint, ciphertext_bytes=width,
+               dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, base=base, complete=complete,
+               store_id=store_id, version=version, extra=dict(extra))
+    if "n_bricks" in d and d["n_bricks"] != meta.n_bricks:
+        raise _bad(where, "n_bricks", f"{meta.n_bricks} (the brick grid of shape and brick)", d["n_bricks"])
+    return meta

@@ -22,11 +22,28 @@ from ..errors import (
     MissingFileError,
     ParameterError,
 )
+from .digests import DIGEST_BYTES, brick_digest, digest_hex
 from .metadata import VolumeMetadata
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EncryptedVolume", "open_volume", "brick_slices"]
+__all__ = ["EncryptedVolume", "open_volume", "brick_slices", "array_layout", "CRC_BYTES"]
+
+CRC_BYTES = 4  # Zarr's crc32c codec appends 4 bytes to every chunk
+
+
+def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple[int, ...]]]:
+    """``{array name: (shape, chunk shape)}`` of every array a store of ``meta`` has; the
+    ``done`` array holds one digest per channel per brick (:mod:`hevr.store.digests`)."""
+    w, out = meta.ciphertext_bytes, {}
+    if meta.scalar is not None:
+        out["scalar"] = (meta.shape + (w,), meta.brick + (w,))
+    if meta.vector is not None:
+        k = meta.vector.dims
+        out["vector"] = ((k,) + meta.shape + (w,), (k,) + meta.brick + (w,))
+    nch = len(meta.channel_names)
+    out["done"] = (meta.grid + (nch, DIGEST_BYTES), (1, 1, 1, nch, DIGEST_BYTES))
+    return out
 
 
 def brick_slices(meta: VolumeMetadata, index: tuple[int, int, int]) -> tuple[slice, slice, slice]:
@@ -109,33 +126,54 @@ class EncryptedVolume:
     def _check_index(self, index: Any) -> None:
         check_brick_index(index, self.grid, "index")
 
-    def read_brick_bytes(self, index: tuple[int, int, int], channel: str = "scalar") -> np.ndarray:
-        """Raw ciphertext records of one brick: (bz, by, bx, W) or (k, bz, by, bx, W)."""
+    def read_brick_bytes(self, index: tuple[int, int, int], channel: str = "scalar",
+                         verify: bool = True) -> np.ndarray:
+        """Raw ciphertext records of one brick: (bz, by, bx, W) or (k, bz, by, bx, W).
+
+        With ``verify`` (the default) the brick's digest (:mod:`hevr.store.digests`) must
+        match the one its writer recorded; a mismatch raises :class:`hevr.CorruptStoreError`
+        naming the brick. Zarr's crc32c codec checks the chunk file itself in any case.
+        """
         if channel not in ("scalar", "vector"):
             raise ParameterError(f"channel: expected 'scalar' or 'vector', got {channel!r}")
-        if channel == "scalar" and not self.has_scalar or channel == "vector" and not self.vector_dims:
+        if channel not in self.meta.channel_names:
             raise ParameterError(f"channel: this store has no {channel} channel")
         sl = self.brick_slices(index)
+        index = tuple(int(i) for i in index)
         try:
             arr = zarr.open_array(f"{self.path}/{channel}", mode="r")
-            data = arr[sl if channel == "scalar" else (slice(None),) + sl]
+            data = np.asarray(arr[sl if channel == "scalar" else (slice(None),) + sl])
+            stored = np.asarray(zarr.open_array(f"{self.path}/done", mode="r")[index]) if verify else None
         except Exception as exc:
             raise CorruptStoreError(
-                f"{self.path}: brick {tuple(index)} of channel {channel!r} cannot be read ({type(exc).__name__}: {exc})"
+                f"{self.path}: brick {index} of channel {channel!r} cannot be read ({type(exc).__name__}: {exc})"
             ) from None
-        return np.asarray(data)
+        if verify:
+            want = stored[self.meta.channel_names.index(channel)]
+            got = brick_digest(self.meta.store_id, channel, index, data)
+            if not want.any():
+                raise CorruptStoreError(f"{self.path}: brick {index} of channel {channel!r} has no digest "
+                                        "(its marker is missing: the brick was never finished or was removed)")
+            if got != want.tobytes():
+                raise CorruptStoreError(
+                    f"{self.path}: brick {index} of channel {channel!r}: digest mismatch (recorded "
+                    f"{digest_hex(want)}…, computed {digest_hex(got)}…): the chunk was corrupted, truncated, "
+                    "swapped with another brick or copied from another store"
+                )
+        return data
 
     def read_brick(self, index: tuple[int, int, int], channel: str = "scalar", check: bool = True,
                    backend: str | Backend | None = None):
         """Ciphertexts of one brick in the backend's form, converted once: one batch (scalar)
         or k batches (vector). For the default ``cpu`` backend a batch is a list of mpz.
 
-        With ``check`` every ciphertext must lie in (0, n²); a violation raises
+        With ``check`` (the default; ``False`` is for forensics only) the brick's digest must
+        match and every ciphertext must lie in (0, n²); a violation raises
         :class:`hevr.CorruptStoreError` naming the brick; the backend checks its converted
         batch (:meth:`~hevr.backends.base.Backend.first_out_of_range`), the same rule for all.
         """
         be = get_backend(backend)
-        data = self.read_brick_bytes(index, channel)
+        data = self.read_brick_bytes(index, channel, verify=check)
         parts = [data] if channel == "scalar" else list(data)
         batches = [be.from_bytes(d) for d in parts]
         if check:
@@ -170,25 +208,43 @@ class EncryptedVolume:
 
 
 def _chunk_files_ok(path: str, meta: VolumeMetadata) -> None:
-    """Local stores: every brick chunk exists and has exactly the expected size."""
+    """Local stores: every brick chunk (and digest marker) exists and has exactly the expected size."""
     root = Path(path)
-    for name, lead in (("scalar", ()), ("vector", (0,))):
-        info = getattr(meta, name)
-        if info is None:
-            continue
-        k = info.dims or 1
-        expected = int(np.prod(meta.brick)) * meta.ciphertext_bytes * (k if name == "vector" else 1)
+    for name, (_, chunks) in array_layout(meta).items():
+        expected = int(np.prod(chunks)) + CRC_BYTES
+        lead = (0, 0) if name == "done" else (0,)
         for idx in np.ndindex(*meta.grid):
-            key = "/".join(str(i) for i in lead + tuple(idx) + (0,))
+            key = "/".join(str(i) for i in ((0,) if name == "vector" else ()) + tuple(idx) + lead)
             f = root / name / "c" / key
+            brick = tuple(int(i) for i in idx)
+            where = "the digest markers 'done'" if name == "done" else f"channel {name!r}"
             if not f.exists():
-                raise CorruptStoreError(f"{path}: missing chunk for brick {tuple(int(i) for i in idx)} in channel {name!r}")
+                raise CorruptStoreError(f"{path}: missing chunk for brick {brick} in {where}")
             size = f.stat().st_size
             if size != expected:
-                raise CorruptStoreError(
-                    f"{path}: chunk of brick {tuple(int(i) for i in idx)} in channel {name!r} is truncated "
-                    f"or padded ({size} bytes, expected {expected})"
-                )
+                raise CorruptStoreError(f"{path}: chunk of brick {brick} in {where} is truncated "
+                                        f"or padded ({size} bytes, expected {expected})")
+
+
+def _check_arrays(path: str, group: Any, meta: VolumeMetadata) -> None:
+    """Every array the metadata implies exists with exactly the layout hevr writes: shape,
+    chunk shape, uint8, fill value 0, codecs ``bytes`` + ``crc32c``, no attributes."""
+    for name, (shape, chunks) in array_layout(meta).items():
+        try:
+            arr = group[name]
+        except KeyError:
+            what = f"channel {name!r} is declared but its array is missing" if name != "done" else \
+                "the digest array 'done' is missing"
+            raise CorruptStoreError(f"{path}: {what}") from None
+        except Exception as exc:
+            raise CorruptStoreError(f"{path}: array {name!r} cannot be opened ({type(exc).__name__}: {exc})") from None
+        codecs = [c.to_dict().get("name") for c in arr.metadata.codecs] if hasattr(arr.metadata, "codecs") else None
+        got = (tuple(arr.shape), tuple(arr.chunks), str(arr.dtype), arr.metadata.fill_value, codecs, dict(arr.attrs))
+        want = (shape, chunks, "uint8", 0, ["bytes", "crc32c"], {})
+        if got != want or getattr(arr.metadata, "dimension_names", None) is not None:
+            labels = ("shape", "chunks", "dtype", "fill_value", "codecs", "attributes")
+            diff = "; ".join(f"{lab} {g!r} (expected {w!r})" for lab, g, w in zip(labels, got, want) if g != w)
+            raise CorruptStoreError(f"{path}: array {name!r} has {diff or 'dimension names'}, inconsistent with the metadata")
 
 
 def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolume:
@@ -222,7 +278,7 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     if not meta.complete:
         try:
             done = np.asarray(group["done"][...])
-            missing = int((done == 0).sum())
+            missing = int((~done.reshape(done.shape[:3] + (-1,)).any(axis=-1)).sum())
         except Exception:
             missing = meta.n_bricks
         raise IncompleteStoreError(
@@ -234,17 +290,7 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     w_expected = record_width(int(meta.n))
     if meta.ciphertext_bytes != w_expected:
         raise CorruptStoreError(f"{path}: ciphertext_bytes is {meta.ciphertext_bytes}, expected {w_expected} for this key")
-    for name in ("scalar", "vector"):
-        info = getattr(meta, name)
-        if info is None:
-            continue
-        try:
-            arr = group[name]
-        except KeyError:
-            raise CorruptStoreError(f"{path}: channel {name!r} is declared but its array is missing") from None
-        lead = (info.dims,) if name == "vector" else ()
-        if tuple(arr.shape) != lead + meta.shape + (meta.ciphertext_bytes,) or arr.dtype != np.uint8:
-            raise CorruptStoreError(f"{path}: array {name!r} has shape {arr.shape} / dtype {arr.dtype}, inconsistent with the metadata")
+    _check_arrays(path, group, meta)
     if verify != "none" and "://" not in path:
         _chunk_files_ok(path, meta)
     ev = EncryptedVolume(path, meta)

@@ -1,16 +1,23 @@
 """Writing the encrypted volume store (``encrypt_volume``): Zarr v3 bricks of Paillier ciphertexts.
 
-Layout (format ``hevr-encrypted-volume`` version 1, documented in ``docs/format.md``)::
+Layout (format ``hevr-encrypted-volume`` version 2, documented in ``docs/format.md``)::
 
     vol.zarr/
-      zarr.json            group; attribute "hevr" = VolumeMetadata.to_dict()
+      zarr.json            group; attribute "hevr" = VolumeMetadata.to_dict() (checksummed)
       scalar/              uint8 (nz, ny, nx, W), chunks (bz, by, bx, W)      [optional]
       vector/              uint8 (k, nz, ny, nx, W), chunks (k, bz, by, bx, W) [optional]
-      done/                uint8 (gz, gy, gx), chunks (1, 1, 1): brick completion markers
+      done/                uint8 (gz, gy, gx, C, 32), chunks (1, 1, 1, C, 32): per brick,
+                           the SHA-256 digest of each of its C channels (hevr.store.digests)
 
 W is the ciphertext width in bytes (2·bits/8); every ciphertext is a big-endian record,
-uncompressed. One chunk holds all of one brick's bytes, and each encryption task writes
-only its own brick's chunks and its own marker, so no two tasks ever write the same chunk.
+uncompressed, and every chunk ends in Zarr's crc32c. One chunk holds all of one brick's
+bytes, and each encryption task writes only its own brick's chunks and then its own digest
+marker, so no two tasks ever write the same chunk.
+
+Nothing is lost: every input is checked (integer magnitudes against the key included)
+before the disk is touched, and ``overwrite=True`` writes the new store beside the old one
+and swaps the two only once the new one is complete, so a failure leaves the old store
+intact. ``resume=True`` is refused for another input volume (:mod:`hevr.store.journal`).
 
 >>> import tempfile, os, warnings, numpy as np, hevr
 >>> with warnings.catch_warnings():
@@ -29,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 import secrets
 import shutil
 from pathlib import Path
@@ -38,6 +46,7 @@ import dask
 import dask.array
 import numpy as np
 import zarr
+from zarr.codecs import Crc32cCodec
 
 from .. import _stats
 from .._dask import active_client, compute
@@ -53,8 +62,10 @@ from ..backends import get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume.density import default_value_range, encode_density, normalize_density
+from .digests import brick_digest
+from .journal import check_journal, input_digests, write_journal
 from .metadata import ChannelInfo, VolumeMetadata
-from .reader import EncryptedVolume, brick_slices, open_volume
+from .reader import EncryptedVolume, array_layout, brick_slices, open_volume
 
 log = logging.getLogger(__name__)
 
@@ -100,9 +111,14 @@ def _plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_r
         else:
             if digits is not None:
                 raise ParameterError("digits: integer volumes are stored exactly; digits applies to float volumes only")
+            if max(abs(int(lo)), abs(int(hi))) >= max_int:
+                raise ParameterError(f"vol: values up to {max(abs(int(lo)), abs(int(hi)))} do not fit a "
+                                     f"{int(key_n).bit_length()}-bit key (|value| must stay below n/3); use a larger key")
             sc = ChannelInfo(exponent=0)
     if vector_dims is not None:
         vd = check_int("vector_digits", vector_digits, 1, 12)
+        if 10**vd >= max_int:
+            raise ParameterError(f"vector_digits: {vd} digits overflow a {int(key_n).bit_length()}-bit key; use fewer")
         vc = ChannelInfo(exponent=-vd, digits=vd, dims=vector_dims)
     return sc, vc, vr
 
@@ -127,18 +143,21 @@ def _quantise_vector(block: np.ndarray, info: ChannelInfo, value_range: tuple[fl
 
 def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
                    unsafe_no_obfuscation: bool, backend: str = "cpu") -> tuple[int, int, int]:
-    """One task: encrypt one plaintext brick and write its chunks, then its marker."""
+    """One task: encrypt one plaintext brick and write its chunks, then its digest marker."""
     be = get_backend(backend)
     meta = VolumeMetadata.from_dict(meta_dict)
     block = np.asarray(block)
     sl = brick_slices(meta, index)
     width = meta.ciphertext_bytes
     group = zarr.open_group(path, mode="r+")
+    digests = []
     if meta.scalar is not None:
         with _stats.timed("encrypt.crypto", block.size):
             cts = be.encrypt(key, _quantise_scalar(block, meta.scalar), unsafe_no_obfuscation=unsafe_no_obfuscation)
+        out = be.to_bytes(cts, width).reshape(block.shape + (width,))
+        digests.append(brick_digest(meta.store_id, "scalar", index, out))
         with _stats.timed("encrypt.write"):
-            group["scalar"][sl] = be.to_bytes(cts, width).reshape(block.shape + (width,))
+            group["scalar"][sl] = out
     if meta.vector is not None:
         q = _quantise_vector(block, meta.vector, meta.value_range)
         k = meta.vector.dims
@@ -147,23 +166,18 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
             with _stats.timed("encrypt.crypto", block.size):
                 cts = be.encrypt(key, q[j], unsafe_no_obfuscation=unsafe_no_obfuscation)
             out[j] = be.to_bytes(cts, width).reshape(block.shape + (width,))
+        digests.append(brick_digest(meta.store_id, "vector", index, out))
         with _stats.timed("encrypt.write"):
             group["vector"][(slice(None),) + sl] = out
-    group["done"][index] = 1
+    group["done"][index] = np.frombuffer(b"".join(digests), np.uint8).reshape(len(digests), -1)
     return index
 
 
 def _create_store(path: str, meta: VolumeMetadata) -> None:
     group = zarr.open_group(path, mode="w")
-    shape, brick, w = meta.shape, meta.brick, meta.ciphertext_bytes
-    if meta.scalar is not None:
-        group.create_array("scalar", shape=shape + (w,), chunks=brick + (w,), dtype="uint8",
-                           compressors=None, fill_value=0)
-    if meta.vector is not None:
-        k = meta.vector.dims
-        group.create_array("vector", shape=(k,) + shape + (w,), chunks=(k,) + brick + (w,), dtype="uint8",
-                           compressors=None, fill_value=0)
-    group.create_array("done", shape=meta.grid, chunks=(1, 1, 1), dtype="uint8", compressors=None, fill_value=0)
+    for name, (shape, chunks) in array_layout(meta).items():
+        group.create_array(name, shape=shape, chunks=chunks, dtype="uint8", compressors=[Crc32cCodec()],
+                           fill_value=0)
     group.attrs["hevr"] = meta.to_dict()
 
 
@@ -265,21 +279,43 @@ def encrypt_volume(
     path = str(Path(path).resolve()) if _is_local(str(path)) else str(path)
     _warn_if_remote(client, key)
     exists = _store_exists(path)
+    if exists and not (resume or overwrite):
+        raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
+    bricks = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid)]
     if exists and resume:
         meta = dataclasses.replace(meta, store_id=_resume_target(path, meta).store_id)
-    elif exists and not overwrite:
-        raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
+        check_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
+        done = np.asarray(zarr.open_array(f"{path}/done", mode="r")[...]).reshape(meta.grid + (-1,)).any(axis=-1)
+        target = path
     else:
         if exists:
-            _remove_store(path)
+            _check_replaceable(path)
         meta = dataclasses.replace(meta, store_id=_token() + _token())
-        _create_store(path, meta)
-    done = np.asarray(zarr.open_array(f"{path}/done", mode="r")[...]) if exists and resume else np.zeros(meta.grid, np.uint8)
-    todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid) if not done[idx]]
-    log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, path)
-    darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(vol, chunks=brick_t)
-    darr = darr.rechunk(brick_t)
-    blocks = darr.to_delayed()
+        write_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
+        target = _sibling(path, "new") if exists else path  # overwrite: beside the old store, then swap
+        _create_store(target, meta)
+        done = np.zeros(meta.grid, bool)
+    todo = [idx for idx in bricks if not done[idx]]
+    log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)
+    try:
+        _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress)
+    except BaseException:
+        if target != path:
+            log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
+                        target, path)
+            _remove_tree(target)
+        raise
+    if target != path:
+        _swap(target, path)
+    return open_volume(path)
+
+
+def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: VolumeMetadata, key: Any,
+         unsafe_no_obfuscation: bool, backend: str, client: Any, progress: bool) -> None:
+    """Encrypt the bricks ``todo`` into the store at ``path`` (one impure task per brick), then
+    mark the store complete once every digest marker is written."""
+    darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(vol, chunks=brick)
+    blocks = darr.rechunk(brick).to_delayed()
     task = dask.delayed(_encrypt_brick, pure=False)
     meta_dict = meta.to_dict()
     tasks = [task(blocks[idx], path, idx, meta_dict, key, unsafe_no_obfuscation, backend,
@@ -287,13 +323,10 @@ def encrypt_volume(
              for idx in todo]
     compute(tasks, client=client, progress=progress, desc="encrypt")
     group = zarr.open_group(path, mode="r+")
-    final = np.asarray(group["done"][...])
+    final = np.asarray(group["done"][...]).reshape(meta.grid + (-1,)).any(axis=-1)
     if not final.all():  # pragma: no cover - tasks raise instead
-        raise StoreError(f"path: {int((final == 0).sum())} bricks of {path} are still missing")
-    attrs = dict(group.attrs["hevr"])
-    attrs["complete"] = True
-    group.attrs["hevr"] = attrs
-    return open_volume(path)
+        raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
+    group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
 
 
 def _warn_if_remote(client: Any, key: Any) -> None:
@@ -327,17 +360,60 @@ def _store_exists(path: str) -> bool:
         return False
 
 
-def _remove_store(path: str) -> None:
+def _sibling(path: str, what: str) -> str:
+    """A fresh path beside ``path`` (same folder or bucket prefix) for a new or an old store."""
     if _is_local(path):
         p = Path(path)
-        if p.is_dir():
-            if not (p / "zarr.json").exists():
-                raise StoreExistsError(f"path: {path} exists and is not a Zarr store; refusing to delete it")
-            shutil.rmtree(p)
-        else:
-            raise StoreExistsError(f"path: {path} exists and is not a directory; refusing to delete it")
-    else:
-        import fsspec
+        return str(p.with_name(f".{p.name}.hevr-{what}-{_token()}"))
+    return f"{path.rstrip('/')}.hevr-{what}-{_token()}"
 
-        fs, _, (root,) = fsspec.get_fs_token_paths(path)
-        fs.rm(root, recursive=True)
+
+def _check_replaceable(path: str) -> None:
+    """``overwrite=True`` replaces only an hevr (Zarr) store, never another folder or a file."""
+    if _is_local(path):
+        p = Path(path)
+        if not p.is_dir():
+            raise StoreExistsError(f"path: {path} exists and is not a directory; refusing to replace it")
+        if not (p / "zarr.json").exists():
+            raise StoreExistsError(f"path: {path} exists and is not a Zarr store; refusing to replace it")
+
+
+def _fs(path: str) -> tuple[Any, str]:
+    import fsspec
+
+    fs, _, (root,) = fsspec.get_fs_token_paths(path)
+    return fs, root
+
+
+def _remove_tree(path: str) -> None:
+    try:
+        if _is_local(path):
+            shutil.rmtree(path)
+        else:
+            fs, root = _fs(path)
+            fs.rm(root, recursive=True)
+    except OSError as exc:  # pragma: no cover - best effort after another failure
+        log.warning("could not remove %s: %s", path, exc)
+
+
+def _swap(new: str, path: str) -> None:
+    """Put the complete store ``new`` at ``path``; the old store is moved aside first and
+    deleted only once the new one is in place (restored if the second move fails)."""
+    old = _sibling(path, "old")
+    if _is_local(path):
+        os.replace(path, old)
+        try:
+            os.replace(new, path)
+        except BaseException:
+            os.replace(old, path)
+            raise
+    else:
+        fs, root = _fs(path)
+        fs_old, fs_new = _fs(old)[1], _fs(new)[1]
+        fs.mv(root, fs_old, recursive=True)
+        try:
+            fs.mv(fs_new, root, recursive=True)
+        except BaseException:
+            fs.mv(fs_old, root, recursive=True)
+            raise
+    _remove_tree(old)

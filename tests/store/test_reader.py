@@ -13,6 +13,8 @@ import pytest
 import zarr
 
 import hevr
+from hevr.store.digests import brick_digest
+from hevr.store.metadata import metadata_checksum
 from hevr.store.reader import EncryptedVolume, brick_slices
 from hevr.volume.density import encode_density, normalize_density
 
@@ -55,10 +57,28 @@ def _chunk(path, idx):
     return path / "scalar" / "c" / "/".join(str(i) for i in idx + (0,))
 
 
-def _edit_attrs(store, edit):
+def _edit_attrs(store, edit, checksum=True):
+    """Edit the ``hevr`` attribute; with ``checksum`` recompute it, as a crafted store would."""
     meta = json.loads((store / "zarr.json").read_text())
     edit(meta["attributes"]["hevr"])
+    if checksum:
+        meta["attributes"]["hevr"]["checksum"] = metadata_checksum(meta["attributes"]["hevr"])
     (store / "zarr.json").write_text(json.dumps(meta))
+
+
+def _craft_brick(store, idx, edit):
+    """Rewrite brick ``idx``'s scalar records through Zarr (valid crc32c) and its digest, as a
+    crafted store would: only the range checks are left to catch what ``edit`` did."""
+    ev = hevr.open_volume(store, verify="none")
+    sl = ev.brick_slices(idx)
+    arr = zarr.open_array(str(store / "scalar"), mode="r+")
+    recs = np.array(arr[sl])
+    edit(recs)
+    arr[sl] = recs
+    done = zarr.open_array(str(store / "done"), mode="r+")
+    digests = np.array(done[idx])
+    digests[0] = np.frombuffer(brick_digest(ev.meta.store_id, "scalar", idx, recs), np.uint8)
+    done[idx] = digests
 
 
 # -- reading bricks ------------------------------------------------------------------------
@@ -200,6 +220,7 @@ def test_wrong_key_fingerprint_is_refused(small_store, keypair512):
     """The modulus of another key under this store's fingerprint: the pair no longer matches."""
     def swap(meta):
         meta["public_key"]["n"] = str(int(keypair512[0].n))
+        meta["public_key"]["bits"] = 512
 
     _edit_attrs(small_store, swap)
     with pytest.raises(hevr.CorruptStoreError, match="fingerprint does not match"):
@@ -213,7 +234,7 @@ def test_ciphertext_width_must_match_key(small_store):
 
 
 def test_metadata_shape_inconsistent_with_array(small_store):
-    _edit_attrs(small_store, lambda m: m.update(shape=[5, 7, 8]))
+    _edit_attrs(small_store, lambda m: m.update(shape=[5, 7, 8], n_bricks=18))
     with pytest.raises(hevr.CorruptStoreError, match="array 'scalar' has shape .*inconsistent"):
         hevr.open_volume(small_store)
 
@@ -225,10 +246,8 @@ def test_declared_channel_array_missing(small_store):
 
 
 def _mark_incomplete(store, missing):
+    _edit_attrs(store, lambda m: m.update(complete=False))
     group = zarr.open_group(str(store), mode="r+")
-    attrs = dict(group.attrs["hevr"])
-    attrs["complete"] = False
-    group.attrs["hevr"] = attrs
     for idx in missing:
         group["done"][idx] = 0
 
@@ -270,7 +289,7 @@ def test_corrupt_missing_chunk(small_store):
     with pytest.raises(hevr.CorruptStoreError, match=r"missing chunk for brick \(1, 2, 0\)"):
         hevr.open_volume(small_store)
     ev = hevr.open_volume(small_store, verify="none")
-    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(1, 2, 0\).*zero"):
+    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(1, 2, 0\).*digest mismatch"):
         ev.read_brick((1, 2, 0))
 
 
@@ -286,12 +305,15 @@ def test_corrupt_truncated_chunk(small_store):
     f.write_bytes(f.read_bytes()[:-5])
     with pytest.raises(hevr.CorruptStoreError, match=r"brick \(0, 1, 1\).*truncated"):
         hevr.open_volume(small_store)
+    ev = hevr.open_volume(small_store, verify="none")
+    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(0, 1, 1\).*cannot be read"):
+        ev.read_brick((0, 1, 1))
 
 
 def test_corrupt_ciphertext_too_large(small_store):
-    f = _chunk(small_store, (2, 0, 1))
-    f.write_bytes(b"\xff" * len(f.read_bytes()))
-    ev = hevr.open_volume(small_store)  # sizes are right: quick verify passes
+    """A crafted brick (valid crc32c and digest) of records >= n²: the range check names it."""
+    _craft_brick(small_store, (2, 0, 1), lambda recs: recs.fill(0xFF))
+    ev = hevr.open_volume(small_store)  # sizes, crc and digests are right: quick verify passes
     with pytest.raises(hevr.CorruptStoreError, match=r"brick \(2, 0, 1\).*>= n²"):
         ev.read_brick((2, 0, 1))
     with pytest.raises(hevr.CorruptStoreError, match=r"\(2, 0, 1\)"):
@@ -300,18 +322,23 @@ def test_corrupt_ciphertext_too_large(small_store):
 
 def test_corrupt_not_coprime(small_store, keypair256):
     pub, _ = keypair256
-    f = _chunk(small_store, (1, 1, 1))
-    blob = bytearray(f.read_bytes())
     w = pub.ciphertext_bytes
-    blob[:w] = int(pub.n).to_bytes(w, "big")  # c = n: in range but not a unit
-    f.write_bytes(bytes(blob))
+
+    def put_n(recs):  # c = n: in range but not a unit
+        recs.reshape(-1, w)[0] = np.frombuffer(int(pub.n).to_bytes(w, "big"), np.uint8)
+
+    _craft_brick(small_store, (1, 1, 1), put_n)
     with pytest.raises(hevr.CorruptStoreError, match=r"\(1, 1, 1\).*coprime"):
         hevr.open_volume(small_store, verify="full")
 
 
 def test_fingerprint_must_match_modulus(small_store):
-    meta = json.loads((small_store / "zarr.json").read_text())
-    meta["attributes"]["hevr"]["public_key"]["fingerprint"] = "0" * 64
-    (small_store / "zarr.json").write_text(json.dumps(meta))
+    _edit_attrs(small_store, lambda m: m["public_key"].update(fingerprint="0" * 64))
     with pytest.raises(hevr.CorruptStoreError, match="fingerprint"):
         hevr.open_volume(small_store)
+
+
+def test_metadata_edit_without_checksum_is_refused(small_store):
+    _edit_attrs(small_store, lambda m: m.update(value_range=[0.0, 256.0]), checksum=False)
+    with pytest.raises(hevr.CorruptStoreError, match="metadata checksum mismatch"):
+        hevr.open_volume(small_store, verify="none")

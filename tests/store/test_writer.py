@@ -203,8 +203,9 @@ def test_storage_is_ciphertext_bytes_only(tmp_path, keypair256):
     vol = np.ones((4, 6, 8), np.uint8)
     ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", priv, brick=(2, 3, 4), vector_dims=4, progress=False)
     for name, k in (("scalar", 1), ("vector", 4)):
-        size = sum(f.stat().st_size for f in (Path(ev.path) / name / "c").rglob("*") if f.is_file())
-        assert size == vol.size * k * pub.ciphertext_bytes
+        files = [f for f in (Path(ev.path) / name / "c").rglob("*") if f.is_file()]
+        size = sum(f.stat().st_size for f in files)
+        assert len(files) == 8 and size == vol.size * k * pub.ciphertext_bytes + 4 * len(files)  # + crc32c
 
 
 def test_relative_path_is_made_absolute(tmp_path, keypair256, monkeypatch):
