@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 from pathlib import Path
 
 import dask
@@ -212,3 +213,119 @@ def test_relative_path_is_made_absolute(tmp_path, keypair256, monkeypatch):
     monkeypatch.chdir(tmp_path)
     ev = hevr.encrypt_volume(np.ones(SHAPE, np.uint8), "rel.zarr", keypair256[0], brick=BRICK, progress=False)
     assert Path(ev.path).is_absolute() and Path(ev.path) == tmp_path / "rel.zarr"
+
+
+# -- nothing lost, nothing mixed ----------------------------------------------------------------
+
+
+def _tree(path: Path) -> dict:
+    return {str(f.relative_to(path)): f.read_bytes() for f in sorted(path.rglob("*")) if f.is_file()}
+
+
+def _interrupt_after(monkeypatch, n_bricks: int) -> None:
+    real, calls = store_mod._encrypt_brick, []
+
+    def flaky(*args, **kw):
+        if len(calls) >= n_bricks:
+            raise RuntimeError("worker died")
+        calls.append(args[2])
+        return real(*args, **kw)
+
+    monkeypatch.setattr(store_mod, "_encrypt_brick", flaky)
+
+
+def test_resume_with_another_volume_of_the_same_shape_is_refused(tmp_path, keypair256, monkeypatch):
+    pub, _ = keypair256
+    vol, path = _vol("uint8"), tmp_path / "v.zarr"
+    _interrupt_after(monkeypatch, 5)
+    with dask.config.set(scheduler="synchronous"), pytest.raises(RuntimeError, match="worker died"):
+        hevr.encrypt_volume(vol, path, pub, brick=BRICK, progress=False)
+    monkeypatch.undo()
+    before = _tree(path)
+    other = vol.copy()
+    other[4, 6, 8] ^= 1  # one voxel of the last brick
+    with pytest.raises(hevr.ParameterError, match=r"vol: brick \(2, 2, 2\) differs from the volume"):
+        hevr.encrypt_volume(other, path, pub, brick=BRICK, progress=False, resume=True)
+    with pytest.raises(hevr.ParameterError, match="differs"):  # a dask array is compared the same way
+        hevr.encrypt_volume(da.from_array(other, chunks=(3, 3, 3)), path, pub, brick=BRICK, progress=False, resume=True)
+    assert _tree(path) == before
+    ev = hevr.encrypt_volume(da.from_array(vol, chunks=(3, 3, 3)), path, pub, brick=BRICK, progress=False, resume=True)
+    assert ev.meta.complete
+
+
+def test_resume_without_the_journal_is_refused(tmp_path, keypair256, monkeypatch):
+    pub, _ = keypair256
+    vol, path = _vol("uint8"), tmp_path / "v.zarr"
+    _interrupt_after(monkeypatch, 3)
+    with dask.config.set(scheduler="synchronous"), pytest.raises(RuntimeError):
+        hevr.encrypt_volume(vol, path, pub, brick=BRICK, progress=False)
+    monkeypatch.undo()
+    with dask.config.set({"hevr.journal-dir": str(tmp_path / "elsewhere")}):
+        with pytest.raises(hevr.ParameterError, match="resume: no resume journal"):
+            hevr.encrypt_volume(vol, path, pub, brick=BRICK, progress=False, resume=True)
+
+
+def test_journal_is_private_and_holds_no_ciphertext(tmp_path, keypair256):
+    folder = tmp_path / "journals"
+    with dask.config.set({"hevr.journal-dir": str(folder)}):
+        ev = hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False)
+    (journal,) = folder.iterdir()
+    assert journal.name == f"{ev.meta.store_id}.json" and journal.stat().st_mode & 0o777 == 0o600
+    doc = json.loads(journal.read_text())
+    assert doc["store"] == ev.path and len(doc["bricks"]) == 27
+    store_text = b"".join(_tree(Path(ev.path)).values())
+    assert not any(d.encode() in store_text for d in doc["bricks"].values())  # plaintext digests stay home
+
+
+@pytest.mark.parametrize(
+    "vol, kw, match",
+    [
+        (np.full(SHAPE, 2**63, np.uint64), {"key_bits": 64}, "do not fit a 64-bit key"),
+        (np.ones(SHAPE, np.uint8), {"vector_dims": 3, "vector_digits": 12, "value_range": (0, 1)}, None),
+        (np.ones(SHAPE) * 1e80, {"value_range": (0, 2e80)}, "digits: 3 digits overflow"),
+        (np.ones(SHAPE, np.uint8), {"brick": 0}, "brick"),
+    ],
+)
+def test_overwrite_with_invalid_input_keeps_the_old_store(tmp_path, keypair256, vol, kw, match):
+    pub, priv = keypair256
+    path = tmp_path / "v.zarr"
+    hevr.encrypt_volume(_vol("uint8"), path, pub, brick=BRICK, progress=False)
+    before = _tree(path)
+    kw = {"brick": BRICK, **kw}
+    if "key_bits" in kw:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
+            pub = hevr.generate_keypair(kw.pop("key_bits"))[0]
+    if match is None:  # valid input: the overwrite goes through
+        hevr.encrypt_volume(vol, path, pub, progress=False, overwrite=True, **kw)
+        assert _tree(path) != before
+        return
+    with pytest.raises(hevr.HevrError, match=match):
+        hevr.encrypt_volume(vol, path, pub, progress=False, overwrite=True, **kw)
+    assert _tree(path) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.zarr"]
+
+
+def test_overwrite_that_fails_midway_keeps_the_old_store(tmp_path, keypair256, monkeypatch):
+    pub, priv = keypair256
+    path = tmp_path / "v.zarr"
+    hevr.encrypt_volume(_vol("uint8"), path, pub, brick=BRICK, progress=False)
+    before = _tree(path)
+    _interrupt_after(monkeypatch, 4)
+    with dask.config.set(scheduler="synchronous"), pytest.raises(RuntimeError, match="worker died"):
+        hevr.encrypt_volume(np.zeros(SHAPE, np.uint8), path, pub, brick=BRICK, progress=False, overwrite=True)
+    assert _tree(path) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.zarr"]  # the partial new store is gone
+    monkeypatch.undo()
+    ev = hevr.encrypt_volume(np.zeros(SHAPE, np.uint8), path, pub, brick=BRICK, progress=False, overwrite=True)
+    assert np.array_equal(_decrypt_scalar(ev, priv).astype(np.int64), np.zeros(SHAPE, np.int64))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.zarr"]  # the old store is deleted after the swap
+
+
+def test_remote_store_overwrite_swaps(keypair256):
+    """fsspec stores (memory://) get the same write-beside-then-swap."""
+    pub, priv = keypair256
+    url = "memory://hevr-test-overwrite/v.zarr"
+    hevr.encrypt_volume(np.ones(SHAPE, np.uint8), url, pub, brick=BRICK, progress=False)
+    ev = hevr.encrypt_volume(np.full(SHAPE, 7, np.uint8), url, pub, brick=BRICK, progress=False, overwrite=True)
+    assert np.array_equal(_decrypt_scalar(ev, priv).astype(np.int64), np.full(SHAPE, 7))
