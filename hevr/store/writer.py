@@ -36,9 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
-import secrets
-import shutil
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -65,6 +62,15 @@ from ..volume.density import default_value_range, encode_density, normalize_dens
 from .digests import brick_digest
 from .journal import check_journal, input_digests, write_journal
 from .metadata import ChannelInfo, VolumeMetadata
+from .paths import (
+    check_replaceable,
+    is_local,
+    remove_tree,
+    sibling,
+    store_exists,
+    swap,
+    token,
+)
 from .reader import EncryptedVolume, array_layout, brick_slices, open_volume
 
 log = logging.getLogger(__name__)
@@ -276,9 +282,9 @@ def encrypt_volume(
         fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
         value_range=vr, scalar=sc, vector=vc,
     )
-    path = str(Path(path).resolve()) if _is_local(str(path)) else str(path)
+    path = str(Path(path).resolve()) if is_local(str(path)) else str(path)
     _warn_if_remote(client, key)
-    exists = _store_exists(path)
+    exists = store_exists(path)
     if exists and not (resume or overwrite):
         raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
     bricks = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid)]
@@ -289,10 +295,10 @@ def encrypt_volume(
         target = path
     else:
         if exists:
-            _check_replaceable(path)
-        meta = dataclasses.replace(meta, store_id=_token() + _token())
+            check_replaceable(path)
+        meta = dataclasses.replace(meta, store_id=token() + token())
         write_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
-        target = _sibling(path, "new") if exists else path  # overwrite: beside the old store, then swap
+        target = sibling(path, "new") if exists else path  # overwrite: beside the old store, then swap
         _create_store(target, meta)
         done = np.zeros(meta.grid, bool)
     todo = [idx for idx in bricks if not done[idx]]
@@ -303,10 +309,10 @@ def encrypt_volume(
         if target != path:
             log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
                         target, path)
-            _remove_tree(target)
+            remove_tree(target)
         raise
     if target != path:
-        _swap(target, path)
+        swap(target, path)
     return open_volume(path)
 
 
@@ -319,7 +325,7 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
     task = dask.delayed(_encrypt_brick, pure=False)
     meta_dict = meta.to_dict()
     tasks = [task(blocks[idx], path, idx, meta_dict, key, unsafe_no_obfuscation, backend,
-                  dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{_token()}")
+                  dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
              for idx in todo]
     compute(tasks, client=client, progress=progress, desc="encrypt")
     group = zarr.open_group(path, mode="r+")
@@ -339,81 +345,3 @@ def _warn_if_remote(client: Any, key: Any) -> None:
         what = "plaintext bricks and the private key's p, q" if isinstance(key, PrivateKey) else "plaintext bricks"
         log.warning("encrypt_volume sends %s to the Dask workers of %s; encrypt only on machines the "
                     "data owner controls", what, addr)
-
-
-def _token() -> str:
-
-    return secrets.token_hex(4)
-
-
-def _is_local(path: str) -> bool:
-    return "://" not in path
-
-
-def _store_exists(path: str) -> bool:
-    if _is_local(path):
-        return Path(path).exists()
-    try:
-        zarr.open_group(path, mode="r")
-        return True
-    except Exception:
-        return False
-
-
-def _sibling(path: str, what: str) -> str:
-    """A fresh path beside ``path`` (same folder or bucket prefix) for a new or an old store."""
-    if _is_local(path):
-        p = Path(path)
-        return str(p.with_name(f".{p.name}.hevr-{what}-{_token()}"))
-    return f"{path.rstrip('/')}.hevr-{what}-{_token()}"
-
-
-def _check_replaceable(path: str) -> None:
-    """``overwrite=True`` replaces only an hevr (Zarr) store, never another folder or a file."""
-    if _is_local(path):
-        p = Path(path)
-        if not p.is_dir():
-            raise StoreExistsError(f"path: {path} exists and is not a directory; refusing to replace it")
-        if not (p / "zarr.json").exists():
-            raise StoreExistsError(f"path: {path} exists and is not a Zarr store; refusing to replace it")
-
-
-def _fs(path: str) -> tuple[Any, str]:
-    import fsspec
-
-    fs, _, (root,) = fsspec.get_fs_token_paths(path)
-    return fs, root
-
-
-def _remove_tree(path: str) -> None:
-    try:
-        if _is_local(path):
-            shutil.rmtree(path)
-        else:
-            fs, root = _fs(path)
-            fs.rm(root, recursive=True)
-    except OSError as exc:  # pragma: no cover - best effort after another failure
-        log.warning("could not remove %s: %s", path, exc)
-
-
-def _swap(new: str, path: str) -> None:
-    """Put the complete store ``new`` at ``path``; the old store is moved aside first and
-    deleted only once the new one is in place (restored if the second move fails)."""
-    old = _sibling(path, "old")
-    if _is_local(path):
-        os.replace(path, old)
-        try:
-            os.replace(new, path)
-        except BaseException:
-            os.replace(old, path)
-            raise
-    else:
-        fs, root = _fs(path)
-        fs_old, fs_new = _fs(old)[1], _fs(new)[1]
-        fs.mv(root, fs_old, recursive=True)
-        try:
-            fs.mv(fs_new, root, recursive=True)
-        except BaseException:
-            fs.mv(fs_old, root, recursive=True)
-            raise
-    _remove_tree(old)

@@ -9,7 +9,13 @@ import json
 import pytest
 
 from hevr.errors import CorruptStoreError, StoreError
-from hevr.store.metadata import FORMAT_NAME, FORMAT_VERSION, ChannelInfo, VolumeMetadata, metadata_checksum
+from hevr.store.metadata import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    ChannelInfo,
+    VolumeMetadata,
+    metadata_checksum,
+)
 
 N = 3233 * 10**70 + 1  # any decimal string will do: metadata never checks primality
 
