@@ -23,10 +23,10 @@ from .crypto.keys import PrivateKey, PublicKey, generate_keypair
 from .crypto.number import EncryptedNumber
 from .errors import (
     CorruptStoreError,
-    IntegrityError,
     HevrError,
     IncompleteStoreError,
     InsecureKeyWarning,
+    IntegrityError,
     InvalidKeyError,
     KeyMismatchError,
     MissingDependencyError,
@@ -43,6 +43,7 @@ from .rendering.camera import Camera
 from .rendering.encrypted import RaySums, clear_cache, error_bound, render
 from .rendering.plain import render_plain
 from .store.reader import EncryptedVolume, open_volume
+from .store.upgrade import upgrade_store
 from .store.writer import encrypt_volume
 from .volume.density import encode_density, normalize_density
 from .volume.loaders import load_volume, save_volume
@@ -75,6 +76,7 @@ __all__ = [
     "save_volume",
     "open_volume",
     "EncryptedVolume",
+    "upgrade_store",
     "encode",
     "decode",
     "BASE",

@@ -64,7 +64,7 @@ PUBLIC_API = (
     "encrypt_volume", "phantom", "Camera", "render_plain", "render", "RaySums", "clear_cache",
     "EncryptedImage", "load_image", "save_png", "to_uint8", "error_bound", "encode_density",
     "normalize_density", "PHANTOM_LEVELS", "load_volume", "save_volume", "open_volume",
-    "EncryptedVolume", "encode", "decode", "BASE",
+    "EncryptedVolume", "upgrade_store", "encode", "decode", "BASE",
     "HevrError", "ParameterError", "InvalidKeyError", "KeyMismatchError", "PlaintextOverflowError",
     "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "IntegrityError",
     "VolumeFormatError", "MissingDependencyError", "MissingFileError", "InsecureKeyWarning",

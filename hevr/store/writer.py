@@ -179,7 +179,7 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
     return index
 
 
-def _create_store(path: str, meta: VolumeMetadata) -> None:
+def create_store(path: str, meta: VolumeMetadata) -> None:
     group = zarr.open_group(path, mode="w")
     for name, (shape, chunks) in array_layout(meta).items():
         group.create_array(name, shape=shape, chunks=chunks, dtype="uint8", compressors=[Crc32cCodec()],
@@ -299,7 +299,7 @@ def encrypt_volume(
         meta = dataclasses.replace(meta, store_id=token() + token())
         write_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
         target = sibling(path, "new") if exists else path  # overwrite: beside the old store, then swap
-        _create_store(target, meta)
+        create_store(target, meta)
         done = np.zeros(meta.grid, bool)
     todo = [idx for idx in bricks if not done[idx]]
     log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)

@@ -1,0 +1,96 @@
+"""hevr.store.upgrade: a format-1 store (built here exactly as the format-1 writer laid it
+out: no crc32c, one-byte done markers, no checksum, no store_id) is refused by open_volume
+with the upgrade command, and upgrade_store copies it into a format-2 store whose records are
+byte-identical and whose renders match render_plain."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+
+import hevr
+from hevr.crypto.records import record_width
+from hevr.store.metadata import ChannelInfo, VolumeMetadata
+from hevr.store.reader import brick_slices
+
+SHAPE, BRICK = (5, 6, 7), (2, 3, 4)
+
+
+def _v1_store(path: Path, pub, vol: np.ndarray, complete: bool = True) -> VolumeMetadata:
+    w = record_width(int(pub.n))
+    meta = VolumeMetadata(shape=SHAPE, spacing=(1.0, 1.0, 1.0), brick=BRICK, n=str(int(pub.n)),
+                          fingerprint=pub.fingerprint, ciphertext_bytes=w, dtype="uint8",
+                          value_range=(0.0, 255.0), scalar=ChannelInfo(exponent=0), vector=None,
+                          complete=complete, version=1)
+    group = zarr.open_group(str(path), mode="w")
+    group.create_array("scalar", shape=SHAPE + (w,), chunks=BRICK + (w,), dtype="uint8", compressors=None, fill_value=0)
+    group.create_array("done", shape=meta.grid, chunks=(1, 1, 1), dtype="uint8", compressors=None, fill_value=0)
+    for idx in np.ndindex(*meta.grid):
+        sl = brick_slices(meta, idx)
+        cts = pub.encrypt_array(vol[sl].ravel().tolist())
+        group["scalar"][sl] = np.array([list(int(c).to_bytes(w, "big")) for c in cts], np.uint8).reshape(
+            vol[sl].shape + (w,))
+        group["done"][idx] = 1
+    group.attrs["hevr"] = meta.to_dict()
+    return meta
+
+
+@pytest.fixture()
+def v1(tmp_path, keypair256):
+    vol = np.random.default_rng(5).integers(0, 256, SHAPE).astype(np.uint8)
+    _v1_store(tmp_path / "old.zarr", keypair256[0], vol)
+    return tmp_path / "old.zarr", vol
+
+
+def test_v1_store_is_refused_with_the_upgrade_command(v1):
+    path, _ = v1
+    with pytest.raises(hevr.CorruptStoreError, match=rf"format version 1 .* hevr upgrade-store {path} NEW.zarr"):
+        hevr.open_volume(path)
+
+
+def test_upgrade_copies_records_and_renders_right(v1, tmp_path, keypair256):
+    path, vol = v1
+    old_files = {f: f.read_bytes() for f in path.rglob("*") if f.is_file()}
+    ev = hevr.upgrade_store(path, tmp_path / "new.zarr", progress=False)
+    assert ev.meta.version == 2 and ev.meta.complete and len(ev.meta.store_id) == 16
+    assert old_files == {f: f.read_bytes() for f in path.rglob("*") if f.is_file()}  # source untouched
+    old = zarr.open_array(str(path / "scalar"), mode="r")[...]
+    assert np.array_equal(np.asarray(zarr.open_array(str(tmp_path / "new.zarr" / "scalar"), mode="r")[...]), old)
+    hevr.open_volume(ev.path, verify="full")
+    cam = hevr.Camera.orbit(ev, azimuth=30, width=8, height=8)
+    got = hevr.render(ev, cam, progress=False).decrypt(keypair256[1])
+    ref = hevr.render_plain(vol, cam, value_range=ev.value_range)
+    assert np.all(np.abs(got - ref) <= hevr.error_bound(ev, cam))
+
+
+def test_upgrade_refuses_what_it_cannot_convert(v1, tmp_path, keypair256):
+    path, vol = v1
+    with pytest.raises(hevr.StoreExistsError, match="dst: .* already exists"):
+        hevr.upgrade_store(path, path, progress=False)
+    new = hevr.upgrade_store(path, tmp_path / "new.zarr", progress=False)
+    with pytest.raises(hevr.ParameterError, match="src: expected a format-1 store, got format 2"):
+        hevr.upgrade_store(new.path, tmp_path / "again.zarr", progress=False)
+    with pytest.raises(hevr.MissingFileError):
+        hevr.upgrade_store(tmp_path / "nothing.zarr", tmp_path / "x.zarr", progress=False)
+    _v1_store(tmp_path / "half.zarr", keypair256[0], vol, complete=False)
+    with pytest.raises(hevr.IncompleteStoreError):
+        hevr.upgrade_store(tmp_path / "half.zarr", tmp_path / "y.zarr", progress=False)
+
+
+def test_upgrade_refuses_out_of_range_records(v1, tmp_path):
+    path, _ = v1
+    arr = zarr.open_array(str(path / "scalar"), mode="r+")
+    arr[1, 4, 5] = 255  # >= n² (n² < 2^512 = 64 bytes of 0xFF)
+    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(0, 1, 1\) of channel 'scalar': ciphertext \d+ is not in"):
+        hevr.upgrade_store(path, tmp_path / "new.zarr", progress=False)
+
+
+def test_metadata_of_a_v1_store_has_no_checksum():
+    meta = dataclasses.replace(VolumeMetadata(shape=SHAPE, spacing=(1.0, 1.0, 1.0), brick=BRICK, n="3233",
+                                              fingerprint="ab" * 32, ciphertext_bytes=3, dtype="uint8",
+                                              value_range=(0.0, 1.0), scalar=ChannelInfo(0), vector=None), version=1)
+    assert "checksum" not in meta.to_dict()
