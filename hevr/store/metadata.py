@@ -41,6 +41,7 @@ DTYPES = ("bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32"
 MAX_N_DIGITS = 5000  # a 16 000-bit modulus; longer decimal strings are refused before int()
 _HEX64 = re.compile(r"[0-9a-f]{64}")
 _STORE_ID = re.compile(r"[0-9a-f]{16}")
+_DOC_DIGEST = re.compile(r"sha256:[0-9a-f]{64}")
 
 
 def metadata_checksum(d: dict) -> str:
@@ -97,6 +98,7 @@ class VolumeMetadata:
     format: str = FORMAT_NAME
     version: int = FORMAT_VERSION
     extra: dict = field(default_factory=dict)
+    arrays: dict = field(default_factory=dict)  # array name -> "sha256:…" of its zarr.json bytes (v2)
 
     @property
     def grid(self) -> tuple[int, int, int]:
@@ -132,6 +134,7 @@ class VolumeMetadata:
             "complete": self.complete,
             "store_id": self.store_id,
             **({"extra": self.extra} if self.extra else {}),
+            **({"arrays": dict(self.arrays)} if self.arrays else {}),
         }
         if self.version >= 2:
             d["checksum"] = metadata_checksum(d)
@@ -236,9 +239,14 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     extra = d.get("extra", {})
     if not isinstance(extra, dict):
         raise _bad(where, "extra", "an object", extra)
+    arrays = d.get("arrays", {})
+    names = {*(k for k in ("scalar", "vector") if k in ch), "done"}
+    if version >= 2 and not (isinstance(arrays, dict) and set(arrays) == names
+                             and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())):
+        raise _bad(where, "arrays", f"a 'sha256:…' digest for each of {sorted(names)}", arrays)
     meta = cls(shape=shape, spacing=spacing, brick=brick, n=n, fingerprint=fingerprint, ciphertext_bytes=width,
                dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, base=base, complete=complete,
-               store_id=store_id, version=version, extra=dict(extra))
+               store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {})
     if "n_bricks" in d and d["n_bricks"] != meta.n_bricks:
         raise _bad(where, "n_bricks", f"{meta.n_bricks} (the brick grid of shape and brick)", d["n_bricks"])
     return meta

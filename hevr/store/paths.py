@@ -3,6 +3,7 @@ without ever losing the old one (write beside, then swap)."""
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import secrets
@@ -16,7 +17,8 @@ from ..errors import StoreExistsError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["token", "is_local", "store_exists", "sibling", "check_replaceable", "remove_tree", "swap"]
+__all__ = ["token", "is_local", "store_exists", "sibling", "check_replaceable", "remove_tree", "swap",
+           "read_document", "document_digest"]
 
 
 def token() -> str:
@@ -35,6 +37,22 @@ def store_exists(path: str) -> bool:
         return True
     except Exception:
         return False
+
+
+def read_document(path: str, name: str) -> bytes:
+    """The raw bytes of the Zarr metadata document ``name/zarr.json`` (``zarr.json`` for the
+    group when ``name`` is empty) of the store at ``path``, local or fsspec."""
+    rel = f"{name}/zarr.json" if name else "zarr.json"
+    if is_local(path):
+        return (Path(path) / rel).read_bytes()
+    fs, root = _fs(path)
+    return fs.cat(f"{root.rstrip('/')}/{rel}")
+
+
+def document_digest(path: str, name: str) -> str:
+    """``"sha256:<hex>"`` of a metadata document's exact bytes: every byte counts, since Zarr
+    tolerates some damage (a misspelt key falls back to a default)."""
+    return "sha256:" + hashlib.sha256(read_document(path, name)).hexdigest()
 
 
 def sibling(path: str, what: str) -> str:

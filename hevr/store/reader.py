@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from functools import cached_property
@@ -24,6 +25,7 @@ from ..errors import (
 )
 from .digests import DIGEST_BYTES, brick_digest, digest_hex
 from .metadata import VolumeMetadata
+from .paths import document_digest, read_document
 
 log = logging.getLogger(__name__)
 
@@ -226,6 +228,33 @@ def _chunk_files_ok(path: str, meta: VolumeMetadata) -> None:
                                         f"or padded ({size} bytes, expected {expected})")
 
 
+_GROUP_KEYS = {"attributes": None, "zarr_format": 3, "node_type": "group", "consolidated_metadata": None}
+
+
+def _check_documents(path: str, meta: VolumeMetadata) -> None:
+    """Every byte of every metadata document counts (Zarr itself tolerates a misspelt key):
+    each array's ``zarr.json`` must have the digest recorded in the checksummed ``hevr``
+    attribute, and the group's ``zarr.json`` holds nothing but what hevr wrote."""
+    try:
+        doc = json.loads(read_document(path, ""))
+        for name, want in meta.arrays.items():
+            try:
+                got = document_digest(path, name)
+            except FileNotFoundError:
+                raise CorruptStoreError(f"{path}: " + (f"channel {name!r} is declared but its array is missing"
+                                        if name != "done" else "the digest array 'done' is missing")) from None
+            if got != want:
+                raise CorruptStoreError(f"{path}: the metadata document of array {name!r} was modified or "
+                                        "corrupted (digest mismatch)")
+    except (OSError, ValueError) as exc:
+        raise CorruptStoreError(f"{path}: a metadata document cannot be read ({type(exc).__name__}: {exc})") from None
+    extra = set(doc) - set(_GROUP_KEYS)
+    wrong = [k for k, v in _GROUP_KEYS.items() if k != "attributes" and doc.get(k, v) != v]
+    if extra or wrong or set(doc.get("attributes", {})) != {"hevr"}:
+        raise CorruptStoreError(f"{path}: the group's zarr.json has unexpected content "
+                                f"({sorted(extra) + wrong or 'attributes other than hevr'})")
+
+
 def _check_arrays(path: str, group: Any, meta: VolumeMetadata) -> None:
     """Every array the metadata implies exists with exactly the layout hevr writes: shape,
     chunk shape, uint8, fill value 0, codecs ``bytes`` + ``crc32c``, no attributes."""
@@ -290,6 +319,7 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     w_expected = record_width(int(meta.n))
     if meta.ciphertext_bytes != w_expected:
         raise CorruptStoreError(f"{path}: ciphertext_bytes is {meta.ciphertext_bytes}, expected {w_expected} for this key")
+    _check_documents(path, meta)
     _check_arrays(path, group, meta)
     if verify != "none" and "://" not in path:
         _chunk_files_ok(path, meta)

@@ -107,7 +107,7 @@ def upgrade_store(src: str | os.PathLike, dst: str | os.PathLike, *, client: Any
     if store_exists(dst):
         raise StoreExistsError(f"dst: {dst} already exists; choose a new path for the upgraded store")
     meta = dataclasses.replace(old, version=2, store_id=token() + token(), complete=False)
-    create_store(dst, meta)
+    meta = create_store(dst, meta)
     meta_dict = meta.to_dict()
     task = dask.delayed(_copy_brick, pure=False)
     tasks = [task(src, dst, idx, meta_dict, dask_key_name=f"hevr-upgrade-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")

@@ -64,6 +64,7 @@ from .journal import check_journal, input_digests, write_journal
 from .metadata import ChannelInfo, VolumeMetadata
 from .paths import (
     check_replaceable,
+    document_digest,
     is_local,
     remove_tree,
     sibling,
@@ -179,12 +180,16 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
     return index
 
 
-def create_store(path: str, meta: VolumeMetadata) -> None:
+def create_store(path: str, meta: VolumeMetadata) -> VolumeMetadata:
+    """Create the group and its arrays; record the digest of each array's metadata document
+    in the (checksummed) ``hevr`` attribute, written last. Returns the metadata written."""
     group = zarr.open_group(path, mode="w")
     for name, (shape, chunks) in array_layout(meta).items():
         group.create_array(name, shape=shape, chunks=chunks, dtype="uint8", compressors=[Crc32cCodec()],
                            fill_value=0)
+    meta = dataclasses.replace(meta, arrays={name: document_digest(path, name) for name in array_layout(meta)})
     group.attrs["hevr"] = meta.to_dict()
+    return meta
 
 
 def _resume_target(path: str, meta: VolumeMetadata) -> VolumeMetadata:
@@ -289,7 +294,8 @@ def encrypt_volume(
         raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
     bricks = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid)]
     if exists and resume:
-        meta = dataclasses.replace(meta, store_id=_resume_target(path, meta).store_id)
+        old = _resume_target(path, meta)
+        meta = dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays)
         check_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
         done = np.asarray(zarr.open_array(f"{path}/done", mode="r")[...]).reshape(meta.grid + (-1,)).any(axis=-1)
         target = path
@@ -299,7 +305,7 @@ def encrypt_volume(
         meta = dataclasses.replace(meta, store_id=token() + token())
         write_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
         target = sibling(path, "new") if exists else path  # overwrite: beside the old store, then swap
-        create_store(target, meta)
+        meta = create_store(target, meta)
         done = np.zeros(meta.grid, bool)
     todo = [idx for idx in bricks if not done[idx]]
     log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)

@@ -28,6 +28,8 @@ def _meta(**kw) -> VolumeMetadata:
         complete=True, store_id="0123abcd0123abcd",
     )
     base.update(kw)
+    names = [k for k in ("scalar", "vector") if base[k] is not None] + ["done"]
+    base.setdefault("arrays", {k: "sha256:" + f"{i:x}" * 64 for i, k in enumerate(names)})
     return VolumeMetadata(**base)
 
 
@@ -56,6 +58,7 @@ def test_to_dict_layout():
         "n_bricks": 27,
         "complete": True,
         "store_id": "0123abcd0123abcd",
+        "arrays": {"scalar": "sha256:" + "0" * 64, "vector": "sha256:" + "1" * 64, "done": "sha256:" + "2" * 64},
     }
 
 
@@ -175,6 +178,9 @@ def _set(path: str, value):
         (_set("channels.scalar", {"exponent": -2, "digits": 3}), r"channels.scalar.exponent: expected -digits = -3"),
         (_set("channels.vector.dims", 1), r"channels.vector.dims: expected an integer in \[2, 64\]"),
         (_set("extra", []), r"extra: expected an object"),
+        (_without("arrays"), r"arrays: expected a 'sha256:…' digest for each of \['done', 'scalar', 'vector'\]"),
+        (_without("arrays.done"), r"arrays: expected a 'sha256:…' digest"),
+        (_set("arrays.scalar", "sha256:xyz"), r"arrays: expected a 'sha256:…' digest"),
     ],
 )
 def test_malformed_metadata_is_named(edit, match):
