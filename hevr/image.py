@@ -3,12 +3,19 @@
 An :class:`EncryptedImage` holds, per image tile, the finished pixel ciphertexts —
 packed ``per_pack`` values per ciphertext (Horner, B = 2^pack_bits) unless rendered with
 ``pack=False`` — plus the public numbers needed to decode them: one common exponent for
-every pixel, a public offset, the key fingerprint. File format: ``docs/image-format.md``.
+every pixel, a public offset, the render plan's bound, the key fingerprint.
+
+Nothing wrong reaches the screen: decryption checks every ciphertext and every plaintext
+against the bound and the planner's 64-bit integrity margin, and the ``.hevr`` file (version
+2) carries a SHA-256 of all its bytes and is validated field by field on loading
+(:mod:`hevr._image_header`); every fault is a :class:`hevr.HevrError`. File format:
+``docs/image-format.md``.
 """
 
 from __future__ import annotations
 
 import base64
+import hashlib
 import json
 import struct
 from dataclasses import dataclass, field
@@ -20,15 +27,15 @@ import numpy as np
 from PIL import Image
 
 from ._files import require_file
-from ._tiles import TileLayout
+from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile_name
 from .backends import get_backend
 from .crypto.keys import PrivateKey
 from .crypto.records import record_width
-from .errors import CorruptStoreError, KeyMismatchError, ParameterError
+from .errors import IntegrityError, KeyMismatchError, ParameterError
 
 __all__ = ["EncryptedImage", "load_image", "save_png"]
 
-MAGIC = b"HEVRIMG\x01"
+_CORRUPT = "the image was corrupted or tampered with after the render; no image is returned"
 
 
 @dataclass
@@ -59,7 +66,8 @@ class EncryptedImage:
         Public render parameters (mode, sampling, camera, precision, ...).
     bound : int, optional
         The render plan's bound: every value M + offset lies in [0, bound]. Decryption checks
-        every plaintext against it (see :mod:`hevr.rendering.planner`, integrity margin).
+        every plaintext against it (see :mod:`hevr.rendering.planner`, integrity margin); an
+        image without it cannot be decrypted or saved.
     """
 
     shape: tuple
@@ -89,45 +97,70 @@ class EncryptedImage:
         return self.shape[2] if len(self.shape) == 3 else 1
 
     def decrypt_mantissas(self, private_key: Any, backend: str | None = None) -> np.ndarray:
-        """Integer mantissas (offset removed) as an object array of the image shape; the
-        batch decryption runs on ``backend`` (:mod:`hevr.backends`, default ``cpu``)."""
+        """Integer mantissas (offset removed) as an object array of the image shape.
+
+        The batch decryption runs on ``backend`` (:mod:`hevr.backends`, default ``cpu``).
+        Every ciphertext is checked before it is decrypted and every plaintext after: the
+        image is returned only if all of them pass.
+
+        Raises
+        ------
+        ParameterError, KeyMismatchError
+            Not a private key, or the key of another image.
+        IntegrityError
+            The image carries no ``bound``; a tile holds another number of ciphertexts than
+            its hit pixels need (ceil(hits · channels / per_pack)); a ciphertext is not in
+            (0, n²); a packed plaintext of L values is not below 2^(pack_bits·L), or a value
+            (a base-2^pack_bits digit, or an unpacked plaintext) is not in [0, bound]. The
+            message names the tile and the pixels (row, col). A corrupted ciphertext decrypts
+            to an essentially uniform element of Z_n and passes with probability below 2^-64
+            (the planner's integrity margin, :mod:`hevr.rendering.planner`).
+        """
         be = get_backend(backend)
         if not isinstance(private_key, PrivateKey):
             raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
         if private_key.public_key.fingerprint != self.fingerprint:
             raise KeyMismatchError(
-                f"private_key: the image was encrypted under key {self.fingerprint[:16]}…, "
+                f"private_key: the image was encrypted under key {str(self.fingerprint)[:16]}…, "
                 f"got a key with fingerprint {private_key.public_key.fingerprint[:16]}…"
             )
-
+        layout, hits, _ = check_image(self)
+        n = private_key.public_key.n
+        if int(self.n) != int(n):
+            raise IntegrityError(f"image: its modulus n is not the one of its key fingerprint; {_CORRUPT}")
         C = self.channels
         H, W = self.shape[:2]
         out = np.zeros((H, W, C), dtype=object)
-        digit_mask = (1 << self.pack_bits) - 1 if self.per_pack > 1 else None
-        hits = self.hits if self.hits is not None else np.ones((H, W), bool)
-        layout = TileLayout(W, H, self.tile)
+        bound, offset, J, b = int(self.bound), int(self.offset), int(self.per_pack), int(self.pack_bits)
+        nsquare = int(n) * int(n)
         for t in range(layout.n_tiles):
+            if not len(self.ciphertexts[t]):
+                continue
             r0, r1, c0, c1 = layout.bounds(t)
-            mask = hits[r0:r1, c0:c1]
+            mask = np.ones((r1 - r0, c1 - c0), bool) if hits is None else hits[r0:r1, c0:c1]
             need = int(mask.sum()) * C
-            plain = be.decrypt(private_key, be.from_bytes(self.ciphertexts[t]))
-            if digit_mask is None:
-                vals = plain
-            else:
-                vals = []
-                for m in plain:
-                    for _ in range(self.per_pack):
-                        vals.append(m & digit_mask)
-                        m >>= self.pack_bits
-            if len(vals) < need:
-                raise CorruptStoreError(f"image tile {t}: {len(vals)} values, expected {need}")
-            arr = np.array([v - self.offset for v in vals[:need]], dtype=object)
+            recs = be.from_bytes(self.ciphertexts[t])
+            bad = be.first_out_of_range(recs, nsquare)
+            if bad is not None:
+                raise IntegrityError(f"{tile_name(layout, t)}: ciphertext {bad} (pixels "
+                                     f"{_pixels(mask, r0, c0, C, bad * J, min(need, bad * J + J))}) is not in "
+                                     f"(0, n²); {_CORRUPT}")
+            vals, fault = _unpack_checked(be.decrypt(private_key, recs), need, b, J, bound)
+            if fault is not None:
+                wide, j, lo, hi = fault
+                pix = _pixels(mask, r0, c0, C, lo, hi)
+                what = (f"ciphertext {j} (pixels {pix}) decrypts to a plaintext wider than its {hi - lo} packed "
+                        f"values ({b * (hi - lo)} bits)" if wide else
+                        f"pixel {pix} (ciphertext {j}) decrypts to a value outside the render plan's range "
+                        f"[0, bound]")
+                raise IntegrityError(f"{tile_name(layout, t)}: {what}; {_CORRUPT}")
             block = out[r0:r1, c0:c1, :]
-            block[mask] = arr.reshape(-1, C)
+            block[mask] = np.array([v - offset for v in vals], dtype=object).reshape(-1, C)
         return out[..., 0] if len(self.shape) == 2 else out
 
     def decrypt(self, private_key: Any, backend: str | None = None) -> np.ndarray:
-        """Decrypt to float64 pixel values (batch CRT decryption on ``backend``, then unpacking)."""
+        """Decrypt to float64 pixel values (batch CRT decryption on ``backend``, then unpacking),
+        after the checks of :meth:`decrypt_mantissas` (``IntegrityError`` on any fault)."""
         m = self.decrypt_mantissas(private_key, backend)
         scale = Fraction(10) ** self.exponent
         flat = [float(int(v) * scale) for v in m.ravel()]
@@ -135,64 +168,101 @@ class EncryptedImage:
 
     # -- files --------------------------------------------------------------------------
     def _header(self) -> dict:
+        hits = None if self.hits is None else np.packbits(self.hits.ravel())
         return {
-            "format": "hevr-encrypted-image", "version": 1, "shape": list(self.shape),
-            "exponent": self.exponent, "offset": str(self.offset), "fingerprint": self.fingerprint,
-            "n": str(int(self.n)), "tile": self.tile, "pack_bits": self.pack_bits, "per_pack": self.per_pack,
-            "width": record_width(self.n),
-            "counts": [int(len(c)) for c in self.ciphertexts], "info": self.info,
-            "hits": None if self.hits is None else base64.b64encode(np.packbits(self.hits.ravel())).decode(),
+            "format": FORMAT, "version": VERSION, "shape": [int(x) for x in self.shape],
+            "exponent": int(self.exponent), "offset": str(int(self.offset)), "bound": str(int(self.bound)),
+            "fingerprint": self.fingerprint, "n": str(int(self.n)), "width": record_width(int(self.n)),
+            "tile": int(self.tile), "pack_bits": int(self.pack_bits), "per_pack": int(self.per_pack),
+            "counts": [len(c) for c in self.ciphertexts],
+            "hits": None if hits is None else base64.b64encode(hits.tobytes()).decode(), "info": self.info,
         }
 
     def save(self, path: str | Path) -> None:
-        """Write the compact ``.hevr`` file: magic, JSON header length and header, ciphertext bytes."""
+        """Write the ``.hevr`` file (format version 2, ``docs/image-format.md``): magic, header
+        length, JSON header, ciphertext records, SHA-256 of all of it. Atomic: written to
+        ``<path>.tmp``, then renamed over ``path``. The image is checked first
+        (``IntegrityError`` for one that :meth:`decrypt` would refuse)."""
+        check_image(self)
         head = json.dumps(self._header(), separators=(",", ":")).encode()
         path = Path(path)
         tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as fh:
-            fh.write(MAGIC)
-            fh.write(struct.pack("<I", len(head)))
-            fh.write(head)
-            for c in self.ciphertexts:
-                fh.write(np.ascontiguousarray(c, dtype=np.uint8).tobytes())
-        tmp.replace(path)
+        digest = hashlib.sha256()
+        parts = [MAGIC, struct.pack("<I", len(head)), head]
+        parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in self.ciphertexts]
+        try:
+            with open(tmp, "wb") as fh:
+                for part in parts:
+                    digest.update(part)
+                    fh.write(part)
+                fh.write(digest.digest())
+            tmp.replace(path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+
+
+def _unpack_checked(plain: list[int], need: int, pack_bits: int, per_pack: int,
+                    bound: int) -> tuple[list[int], tuple[bool, int, int, int] | None]:
+    """The ``need`` values of a tile's plaintexts, and the first fault or None.
+
+    A fault is (wide, ciphertext, first value, end value): ``wide`` when a packed plaintext of L
+    values is not below 2^(pack_bits·L) (the whole group), else the one value outside [0, bound].
+    Only shifts and comparisons: the cost is negligible next to the decryption.
+    """
+    if per_pack == 1:
+        if plain and (min(plain) < 0 or max(plain) > bound):
+            i = next(i for i, m in enumerate(plain) if not 0 <= m <= bound)
+            return plain, (False, i, i, i + 1)
+        return plain, None
+    vals: list[int] = []
+    append = vals.append
+    digit = (1 << pack_bits) - 1
+    for j, m in enumerate(plain):
+        lo = j * per_pack
+        L = min(per_pack, need - lo)
+        if m < 0 or m >> (pack_bits * L):
+            return vals, (True, j, lo, lo + L)
+        for _ in range(L):
+            append(m & digit)
+            m >>= pack_bits
+    if vals and max(vals) > bound:
+        i = next(i for i, v in enumerate(vals) if v > bound)
+        return vals, (False, i // per_pack, i, i + 1)
+    return vals, None
+
+
+def _pixels(mask: np.ndarray, r0: int, c0: int, channels: int, lo: int, hi: int) -> str:
+    """The pixels (row, col) of a tile's values ``lo:hi`` (hit pixels row-major, channels inside)."""
+    where = np.argwhere(mask)[lo // channels:(hi - 1) // channels + 1]
+    names = [f"({r0 + int(r)}, {c0 + int(c)})" for r, c in where[:8]]
+    more = f", … {len(where)} in all" if len(where) > 8 else ""
+    return ", ".join(names) + more
 
 
 def load_image(path: str | Path) -> EncryptedImage:
-    """Read an image written by :meth:`EncryptedImage.save`."""
+    """Read an image written by :meth:`EncryptedImage.save` (format version 2).
+
+    The whole file is checked before an image is returned (``docs/image-format.md``): its
+    SHA-256 trailer (:class:`hevr.IntegrityError` on a mismatch: any flipped bit) and every
+    header field (:class:`hevr.CorruptStoreError` naming the field), each before anything
+    sized by it is allocated. Version-1 files are refused with a ``CorruptStoreError``.
+    """
     path = require_file(path, "path", "an encrypted image file")
     try:
         blob = path.read_bytes()
     except OSError as exc:
         raise ParameterError(f"path: cannot read {path}: {exc.strerror}") from None
-    if not blob.startswith(MAGIC) or len(blob) < len(MAGIC) + 4:
-        raise CorruptStoreError(f"{path}: not an hevr encrypted image (bad magic)")
-    (hl,) = struct.unpack("<I", blob[len(MAGIC):len(MAGIC) + 4])
-    start = len(MAGIC) + 4
-    try:
-        h = json.loads(blob[start:start + hl])
-        if h.get("format") != "hevr-encrypted-image" or h.get("version") != 1:
-            raise ValueError("format/version")
-        width = int(h["width"])
-        counts = [int(c) for c in h["counts"]]
-    except (ValueError, KeyError, TypeError) as exc:
-        raise CorruptStoreError(f"{path}: malformed image header ({exc})") from None
-    body = np.frombuffer(blob, dtype=np.uint8, offset=start + hl)
-    if body.size != sum(counts) * width:
-        raise CorruptStoreError(f"{path}: truncated: {body.size} ciphertext bytes, expected {sum(counts) * width}")
-    hits = None
-    if h.get("hits") is not None:
-        H, W = (int(x) for x in h["shape"][:2])
-        bits = np.unpackbits(np.frombuffer(base64.b64decode(h["hits"]), np.uint8))[: H * W]
-        hits = bits.astype(bool).reshape(H, W)
+    h, body = parse_file(blob, str(path))
+    width = h["width"]
     cts, pos = [], 0
-    for c in counts:
+    for c in h["counts"]:
         cts.append(body[pos:pos + c * width].reshape(c, width))
         pos += c * width
-    return EncryptedImage(shape=tuple(h["shape"]), exponent=int(h["exponent"]), offset=int(h["offset"]),
-                          fingerprint=h["fingerprint"], n=int(h["n"]), tile=int(h["tile"]),
-                          pack_bits=int(h["pack_bits"]), per_pack=int(h["per_pack"]), ciphertexts=cts,
-                          hits=hits, info=h.get("info", {}))
+    return EncryptedImage(shape=h["shape"], exponent=h["exponent"], offset=h["offset"],
+                          fingerprint=h["fingerprint"], n=h["n"], tile=h["tile"], pack_bits=h["pack_bits"],
+                          per_pack=h["per_pack"], ciphertexts=cts, hits=h["hits"], info=h["info"],
+                          bound=h["bound"])
 
 
 def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None) -> np.ndarray:

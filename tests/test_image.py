@@ -41,6 +41,9 @@ def test_truncated_and_foreign_files(tmp_path, frame):
     path = tmp_path / "f.hevr"
     frame.save(path)
     path.write_bytes(path.read_bytes()[:-3])
+    with pytest.raises(hevr.IntegrityError, match="checksum mismatch"):
+        hevr.load_image(path)
+    path.write_bytes(path.read_bytes()[:20])
     with pytest.raises(hevr.CorruptStoreError, match="truncated"):
         hevr.load_image(path)
     (tmp_path / "x.hevr").write_bytes(b"PNG....")

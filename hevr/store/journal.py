@@ -6,7 +6,8 @@ store: a hash of the plaintext there would let anyone who reads the store confir
 volume. So it stays with the data owner, in a **journal** in the owner's cache folder:
 
 * folder: Dask config ``hevr.journal-dir`` (env ``DASK_HEVR__JOURNAL_DIR``), else
-  ``$XDG_CACHE_HOME/hevr/journals``, else ``~/.cache/hevr/journals`` (created mode 0700);
+  ``hevr/journals`` in the user's cache folder (``$XDG_CACHE_HOME``, else ``.cache`` in the
+  home folder), created mode 0700;
 * file: ``<store_id>.json`` (mode 0600), written before the first brick is encrypted;
 * content: the store's path, id and key fingerprint, and per brick
   SHA-256(dtype ‖ shape ‖ the brick's plaintext bytes, C order).

@@ -1,0 +1,384 @@
+"""Private helpers of :mod:`hevr.image`: the ``.hevr`` version-2 file layout and the checks of
+every number an encrypted image carries, on a file's header and on an image in memory.
+
+A file is checked in this order, and nothing sized by a header field is allocated before that
+field has been checked (errors come in milliseconds; memory stays a small multiple of the file
+size): magic and version, the SHA-256 trailer over everything before it
+(:class:`hevr.IntegrityError`), the header length, the header's JSON (limited number of
+containers and strings, no duplicate keys, no integer of more than 40 digits), then every field
+(:class:`hevr.CorruptStoreError`, ``"<file>: header field 'tile': expected an int >= 1, got 0"``)
+and the size of the ciphertext body. The layout is in ``docs/image-format.md``.
+
+The same numeric rules (:func:`check_numbers`) and the ciphertext counts per tile
+(:func:`check_image`) are checked on an image in memory before it is decrypted or saved,
+raising :class:`hevr.IntegrityError` there.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import numbers
+import struct
+from typing import Any, NoReturn
+
+import numpy as np
+
+from ._tiles import TileLayout
+from .crypto.records import record_width
+from .errors import CorruptStoreError, HevrError, IntegrityError
+
+__all__ = ["DIGEST_BYTES", "FORMAT", "MAGIC", "MAGIC_PREFIX", "VERSION", "check_image", "check_numbers",
+           "expected_counts", "parse_file", "tile_hit_counts", "tile_name"]
+
+MAGIC_PREFIX = b"HEVRIMG"
+VERSION = 2
+MAGIC = MAGIC_PREFIX + bytes([VERSION])
+FORMAT = "hevr-encrypted-image"
+DIGEST_BYTES = 32  # SHA-256 trailer
+LENGTH = struct.Struct("<I")
+HEAD = len(MAGIC) + LENGTH.size
+
+MAX_PIXELS = 1 << 26  # H·W of one image: 67 million pixels
+MAX_EXPONENT = 1000  # |exponent|: 10**exponent must stay cheap
+MAX_N_DIGITS = 4300  # Python's default int/str conversion limit (about a 14 000-bit modulus)
+MAX_INT_DIGITS = 40  # any JSON integer of the header (counts, shape, exponent, ...)
+MAX_CONTAINERS = 16384  # '[' plus '{' in the header
+MAX_QUOTES = 65536  # '"' in the header (two per string)
+# The planner's INTEGRITY_BITS (hevr.rendering.planner; the rendering package imports hevr.image,
+# so it cannot be imported here): bits of every decrypted plaintext kept unused. Equal: tested.
+INTEGRITY_BITS = 64
+FIELDS = ("format", "version", "shape", "exponent", "offset", "bound", "fingerprint", "n", "width",
+          "tile", "pack_bits", "per_pack", "counts", "hits", "info")
+
+
+def _show(value: Any) -> str:
+    """A short repr for messages (a hostile header may hold megabytes in one field)."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:45] + f"… ({len(text)} chars)"
+
+
+def _clip(text: str) -> str:
+    return text if len(text) <= 80 else text[:65] + f"… ({len(text)} chars)"
+
+
+def _kind(value: Any) -> str:
+    return "null" if value is None else type(value).__name__
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+class Fields:
+    """Where a check runs and what it raises: a file's header (``CorruptStoreError``) or an
+    image in memory (``IntegrityError``)."""
+
+    def __init__(self, where: str, error: type[HevrError], label: str) -> None:
+        self.where, self.error, self.label = where, error, label
+
+    def fail(self, name: str, expected: str, got: Any = None, *, raw: str | None = None) -> NoReturn:
+        shown = raw if raw is not None else _show(got)
+        raise self.error(f"{self.where}: {self.label} {name!r}: expected {expected}, got {shown}")
+
+    def integer(self, name: str, value: Any, lo: int | None = None, hi: int | None = None) -> int:
+        if not _is_int(value):
+            self.fail(name, _int_text(lo, hi), raw=f"{_show(value)} ({_kind(value)})")
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            self.fail(name, _int_text(lo, hi), value)
+        return int(value)
+
+    def decimal(self, name: str, value: Any, max_digits: int) -> int:
+        """A canonical decimal string (ASCII digits, no sign, no leading zero), length checked
+        before any conversion."""
+        if not isinstance(value, str):
+            self.fail(name, "a decimal string", raw=f"{_show(value)} ({_kind(value)})")
+        if not 1 <= len(value) <= max_digits:
+            self.fail(name, f"a decimal string of 1 to {max_digits} digits", raw=f"{len(value)} characters")
+        if not (value.isascii() and value.isdigit()) or (len(value) > 1 and value[0] == "0"):
+            self.fail(name, "a decimal string (digits 0-9, no sign, no leading zero)", value)
+        return int(value)
+
+
+def _int_text(lo: int | None, hi: int | None) -> str:
+    if lo is not None and hi is not None:
+        return f"an int in [{lo}, {hi}]"
+    if lo is not None:
+        return f"an int >= {lo}"
+    return "an int" if hi is None else f"an int <= {hi}"
+
+
+# -- rules shared by files and images in memory ---------------------------------------------
+def check_shape(ctx: Fields, shape: Any) -> tuple[int, ...]:
+    """[H, W] or [H, W, 3] of positive ints with H·W <= 2^26."""
+    if not isinstance(shape, (list, tuple)) or len(shape) not in (2, 3):
+        ctx.fail("shape", "a list [H, W] or [H, W, 3]", shape)
+    if not all(_is_int(x) and x >= 1 for x in shape) or (len(shape) == 3 and shape[2] != 3):
+        ctx.fail("shape", "a list [H, W] or [H, W, 3] of positive ints", list(shape))
+    H, W = int(shape[0]), int(shape[1])
+    if H * W > MAX_PIXELS:
+        ctx.fail("shape", f"at most {MAX_PIXELS} pixels (H·W)", shape)
+    return (H, W) if len(shape) == 2 else (H, W, 3)
+
+
+def check_numbers(ctx: Fields, *, n: int, exponent: Any, bound: Any, offset: Any, tile: Any, pack_bits: Any,
+                  per_pack: Any) -> None:
+    """The render plan's numbers against each other and against the integrity margin:
+    |exponent| <= 1000, 0 <= offset <= bound, bits(bound) <= room, tile >= 1, pack_bits >= 0,
+    per_pack >= 1, pack_bits >= 1 when per_pack > 1, pack_bits·per_pack <= room and
+    bound < 2^pack_bits when pack_bits > 0, with room = bits(n) − 1 − INTEGRITY_BITS (see
+    :mod:`hevr.rendering.planner`)."""
+    kappa = INTEGRITY_BITS
+    room = int(n).bit_length() - 1 - kappa
+    ctx.integer("exponent", exponent, -MAX_EXPONENT, MAX_EXPONENT)
+    if room < 1:
+        ctx.fail("n", f"a modulus of at least {kappa + 2} bits (the integrity margin keeps {kappa})",
+                 raw=f"{int(n).bit_length()} bits")
+    bound = ctx.integer("bound", bound, 0)
+    if bound.bit_length() > room:
+        ctx.fail("bound", f"an int below 2^{room} (bits(n) − 1 − {kappa}: the integrity margin)",
+                 raw=f"an int of {bound.bit_length()} bits")
+    ctx.integer("offset", offset, 0, bound)
+    ctx.integer("tile", tile, 1, MAX_PIXELS)
+    pack_bits = ctx.integer("pack_bits", pack_bits, 0, room)
+    per_pack = ctx.integer("per_pack", per_pack, 1, room)
+    if per_pack > 1 and pack_bits < 1:
+        ctx.fail("pack_bits", "an int >= 1 when per_pack > 1", pack_bits)
+    if pack_bits * per_pack > room:
+        ctx.fail("per_pack", f"pack_bits·per_pack <= {room} (bits(n) − 1 − {kappa})",
+                 raw=f"{per_pack} (pack_bits·per_pack = {pack_bits * per_pack})")
+    if pack_bits and bound.bit_length() > pack_bits:
+        ctx.fail("bound", f"an int below 2^pack_bits = 2^{pack_bits}", raw=f"an int of {bound.bit_length()} bits")
+
+
+def _sizes(total: int, tile: int) -> np.ndarray:
+    out = np.full(-(-total // tile), tile, np.int32)
+    if total % tile:
+        out[-1] = total % tile
+    return out
+
+
+def tile_hit_counts(hits: np.ndarray | None, shape: tuple[int, int], tile: int) -> np.ndarray:
+    """Hit pixels of every tile (row-major tile order), int32 (H·W <= 2^26); ``hits=None``
+    means all pixels hit. Sums over reshaped views: no copy of the mask.
+
+    >>> tile_hit_counts(np.eye(3, dtype=bool), (3, 3), 2).tolist()
+    [2, 0, 0, 1]
+    """
+    H, W = shape
+    if hits is None:
+        return np.outer(_sizes(H, tile), _sizes(W, tile)).ravel()
+    out = np.zeros((-(-H // tile), -(-W // tile)), np.int32)
+    fy, fx = H // tile, W // tile  # full tiles per column and per row
+    Hf, Wf = fy * tile, fx * tile
+    if fy and fx:
+        hits[:Hf, :Wf].reshape(fy, tile, fx, tile).sum(axis=(1, 3), dtype=np.int32, out=out[:fy, :fx])
+    if Hf < H and fx:
+        hits[Hf:, :Wf].reshape(H - Hf, fx, tile).sum(axis=(0, 2), dtype=np.int32, out=out[fy, :fx])
+    if Wf < W and fy:
+        hits[:Hf, Wf:].reshape(fy, tile, W - Wf).sum(axis=(1, 2), dtype=np.int32, out=out[:fy, fx])
+    if Hf < H and Wf < W:
+        out[fy, fx] = hits[Hf:, Wf:].sum()
+    return out.ravel()
+
+
+def expected_counts(hit_counts: np.ndarray, channels: int, per_pack: int) -> np.ndarray:
+    """Ciphertexts of every tile: ceil(hit pixels · channels / per_pack)."""
+    return -(-hit_counts * channels // per_pack)
+
+
+def tile_name(layout: TileLayout, t: int) -> str:
+    """``"image tile 3 (rows 0-7, cols 8-15)"``."""
+    r0, r1, c0, c1 = layout.bounds(t)
+    return f"image tile {t} (rows {r0}-{r1 - 1}, cols {c0}-{c1 - 1})"
+
+
+def check_image(img: Any) -> tuple[TileLayout, np.ndarray | None, int]:
+    """Check an image in memory before decryption or saving (:class:`hevr.IntegrityError`).
+
+    Returns its tile layout, hits mask (or None) and record width. Checks the numbers as
+    :func:`check_numbers`, the hits mask, one ciphertext array per tile and every tile's
+    ciphertext count.
+    """
+    ctx = Fields("image", IntegrityError, "field")
+    if img.bound is None:
+        raise IntegrityError("image: it carries no bound (the render plan's range of every value), so its "
+                             "decrypted values cannot be checked; render it again with this hevr")
+    shape = check_shape(ctx, tuple(img.shape) if isinstance(img.shape, (list, tuple)) else img.shape)
+    if not _is_int(img.n) or img.n < 3:
+        ctx.fail("n", "an int modulus", raw=_kind(img.n))
+    check_numbers(ctx, n=int(img.n), exponent=img.exponent, bound=img.bound, offset=img.offset, tile=img.tile,
+                  pack_bits=img.pack_bits, per_pack=img.per_pack)
+    H, W = shape[:2]
+    hits = img.hits
+    if hits is not None and not (isinstance(hits, np.ndarray) and hits.dtype == bool and hits.shape == (H, W)):
+        ctx.fail("hits", f"a bool array of shape ({H}, {W}) or None",
+                 raw=f"{type(hits).__name__} {getattr(hits, 'dtype', '')}{getattr(hits, 'shape', '')}")
+    layout = TileLayout(W, H, int(img.tile))
+    width = record_width(int(img.n))
+    cts = img.ciphertexts
+    if not isinstance(cts, (list, tuple)) or len(cts) != layout.n_tiles:
+        ctx.fail("ciphertexts", f"a list of {layout.n_tiles} arrays (one per tile)",
+                 raw=f"{_kind(cts)} of {len(cts) if isinstance(cts, (list, tuple)) else '?'}")
+    want = expected_counts(tile_hit_counts(hits, (H, W), int(img.tile)), 3 if len(shape) == 3 else 1,
+                           int(img.per_pack))
+    for t, (c, e) in enumerate(zip(cts, want.tolist())):
+        if not (isinstance(c, np.ndarray) and c.dtype == np.uint8 and c.ndim == 2 and c.shape[1] == width):
+            raise IntegrityError(f"{tile_name(layout, t)}: ciphertexts: expected a uint8 array of shape "
+                                 f"({e}, {width}), got {type(c).__name__} {getattr(c, 'dtype', '')}"
+                                 f"{getattr(c, 'shape', '')}")
+        if c.shape[0] != e:
+            raise IntegrityError(f"{tile_name(layout, t)}: expected {e} ciphertexts (its hit pixels × channels / "
+                                 f"per_pack, rounded up), got {c.shape[0]}: the image was corrupted or tampered "
+                                 f"with; no image is returned")
+    return layout, hits, width
+
+
+# -- the file -----------------------------------------------------------------------------------
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        seen: set = set()
+        dup = next(k for k, _ in pairs if k in seen or seen.add(k))
+        raise ValueError(f"duplicate key {_show(dup)}")
+    return out
+
+
+def _small_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise ValueError(f"an integer of {len(text)} digits (at most {MAX_INT_DIGITS})")
+    return int(text)
+
+
+def _parse_json(raw: bytes, where: str) -> Any:
+    def bad(why: str) -> NoReturn:
+        raise CorruptStoreError(f"{where}: header: expected a JSON object, got {why}")
+
+    containers = raw.count(b"[") + raw.count(b"{")
+    if containers > MAX_CONTAINERS:
+        bad(f"{containers} '[' and '{{' (at most {MAX_CONTAINERS})")
+    quotes = raw.count(b'"')
+    if quotes > MAX_QUOTES:
+        bad(f"{quotes} '\"' (at most {MAX_QUOTES})")
+    try:
+        return json.loads(raw.decode("utf-8"), object_pairs_hook=_no_duplicates, parse_int=_small_int)
+    except RecursionError:
+        bad("JSON nested too deeply")
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, the hooks'
+        bad(f"invalid JSON ({_clip(str(exc))})")
+
+
+def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
+    """Check a whole ``.hevr`` file; return its checked header values and its ciphertext body.
+
+    The values: ``shape`` (tuple), ``n``, ``offset``, ``bound`` (ints), ``exponent``, ``tile``,
+    ``pack_bits``, ``per_pack``, ``width`` (ints), ``fingerprint``, ``counts`` (list of int),
+    ``hits`` (bool (H, W) array or None), ``info`` (dict). The body is a uint8 view of ``blob``.
+    """
+    if len(blob) < len(MAGIC) or not blob.startswith(MAGIC_PREFIX):
+        raise CorruptStoreError(f"{where}: not an hevr encrypted image (bad magic)")
+    version = blob[len(MAGIC_PREFIX)]
+    if version == 1:
+        raise CorruptStoreError(f"{where}: image format version 1 is no longer read (it has no checksum and "
+                                f"no value bound to check decryption against); render the image again")
+    if version != VERSION:
+        raise CorruptStoreError(f"{where}: unsupported image format version {version}; this hevr reads "
+                                f"version {VERSION}")
+    if len(blob) < HEAD + DIGEST_BYTES:
+        raise CorruptStoreError(f"{where}: truncated: {len(blob)} bytes, shorter than any version-2 image")
+    view = memoryview(blob)
+    if hashlib.sha256(view[:-DIGEST_BYTES]).digest() != bytes(view[-DIGEST_BYTES:]):
+        raise IntegrityError(f"{where}: checksum mismatch: the file was corrupted, truncated or altered after "
+                             f"it was written; no image is returned")
+    (hl,) = LENGTH.unpack_from(blob, len(MAGIC))
+    if hl > len(blob) - HEAD - DIGEST_BYTES:
+        raise CorruptStoreError(f"{where}: header length: expected at most {len(blob) - HEAD - DIGEST_BYTES} "
+                                f"bytes (the file's size), got {hl}")
+    h = _parse_json(bytes(view[HEAD:HEAD + hl]), where)
+    if not isinstance(h, dict):
+        raise CorruptStoreError(f"{where}: header: expected a JSON object, got a JSON {_kind(h)}")
+    out = _check_header(h, Fields(where, CorruptStoreError, "header field"))
+    body = np.frombuffer(blob, dtype=np.uint8, count=len(blob) - HEAD - hl - DIGEST_BYTES, offset=HEAD + hl)
+    size = sum(out["counts"]) * out["width"]
+    if body.size != size:
+        what = "truncated" if body.size < size else "too long"
+        raise CorruptStoreError(f"{where}: {what}: expected {size} ciphertext bytes (sum of counts × width), "
+                                f"got {body.size}")
+    return out, body
+
+
+def _check_header(h: dict, ctx: Fields) -> dict:
+    if h.get("format") != FORMAT:
+        ctx.fail("format", repr(FORMAT), h.get("format"))
+    if not _is_int(h.get("version")) or h["version"] != VERSION:
+        ctx.fail("version", str(VERSION), h.get("version"))
+    for name in FIELDS:
+        if name not in h:
+            ctx.fail(name, "the field", raw="nothing")
+    extra = sorted(set(h) - set(FIELDS))
+    if extra:
+        raise CorruptStoreError(f"{ctx.where}: header: unexpected field {_show(extra[0])}")
+    shape = check_shape(ctx, h["shape"])
+    n = ctx.decimal("n", h["n"], MAX_N_DIGITS)
+    width = record_width(n)
+    if not _is_int(h["width"]) or h["width"] != width:
+        ctx.fail("width", f"{width} (the record width of n: ceil(2·bits(n)/8) bytes)", h["width"])
+    fp = h["fingerprint"]
+    want_fp = hashlib.sha256(n.to_bytes((n.bit_length() + 7) // 8, "big")).hexdigest()  # = PublicKey.fingerprint
+    if fp != want_fp:
+        ctx.fail("fingerprint", "the SHA-256 of n (64 hex digits)", fp)
+    bound = ctx.decimal("bound", h["bound"], MAX_N_DIGITS)
+    offset = ctx.decimal("offset", h["offset"], MAX_N_DIGITS)
+    check_numbers(ctx, n=n, exponent=h["exponent"], bound=bound, offset=offset, tile=h["tile"],
+                  pack_bits=h["pack_bits"], per_pack=h["per_pack"])
+    H, W = shape[:2]
+    tile, per_pack = h["tile"], h["per_pack"]
+    hits = _check_hits(ctx, h["hits"], H, W)
+    h["hits"] = None  # drop the base64 text early
+    layout = TileLayout(W, H, tile)
+    counts = h["counts"]
+    if not isinstance(counts, list) or len(counts) != layout.n_tiles:
+        ctx.fail("counts", f"a list of {layout.n_tiles} ints (one per tile)",
+                 raw=f"a list of {len(counts)}" if isinstance(counts, list) else _kind(counts))
+    top = 3 * MAX_PIXELS  # no tile needs more ciphertexts
+    for t, c in enumerate(counts):
+        if not _is_int(c) or not 0 <= c <= top:
+            ctx.fail(f"counts[{t}]", "an int >= 0 (ciphertexts of the tile)",
+                     raw=f"{_show(c)}" + ("" if _is_int(c) else f" ({_kind(c)})"))
+    want = expected_counts(tile_hit_counts(hits, (H, W), tile), 3 if len(shape) == 3 else 1, per_pack)
+    bad = np.flatnonzero(np.array(counts, dtype=np.int32) != want)
+    if bad.size:
+        t = int(bad[0])
+        ctx.fail(f"counts[{t}]", f"{int(want[t])} (the hit pixels of {tile_name(layout, t)} × channels / "
+                 f"per_pack, rounded up)", counts[t])
+    if not isinstance(h["info"], dict):
+        ctx.fail("info", "a JSON object", raw=_kind(h["info"]))
+    return {"shape": shape, "n": n, "width": width, "fingerprint": fp, "bound": bound, "offset": offset,
+            "exponent": int(h["exponent"]), "tile": int(tile), "pack_bits": int(h["pack_bits"]),
+            "per_pack": int(per_pack), "counts": counts, "hits": hits, "info": h["info"]}
+
+
+def _check_hits(ctx: Fields, text: Any, H: int, W: int) -> np.ndarray | None:
+    """The (H, W) mask from base64 of np.packbits; its length is checked before decoding."""
+    if text is None:
+        return None
+    nbytes = -(-H * W // 8)
+    length = 4 * -(-nbytes // 3)
+    if not isinstance(text, str):
+        ctx.fail("hits", f"a base64 string of {length} characters or null", raw=f"{_show(text)} ({_kind(text)})")
+    if len(text) != length:
+        ctx.fail("hits", f"a base64 string of {length} characters (ceil(H·W/8) = {nbytes} bytes)",
+                 raw=f"{len(text)} characters")
+    try:
+        packed = base64.b64decode(text, validate=True)
+    except ValueError:
+        ctx.fail("hits", "base64 (A-Z, a-z, 0-9, +, /, = padding)", raw="other characters")
+    if len(packed) != nbytes:
+        ctx.fail("hits", f"{nbytes} bytes once decoded", raw=f"{len(packed)}")
+    spare = nbytes * 8 - H * W
+    if spare and packed[-1] & ((1 << spare) - 1):
+        ctx.fail("hits", f"zero padding bits after the {H * W} pixels", raw="set bits")
+    bits = np.unpackbits(np.frombuffer(packed, np.uint8), count=H * W)
+    del packed
+    return bits.view(bool).reshape(H, W)
