@@ -25,6 +25,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
+from ._limits import MAX_IMAGE_PIXELS, integrity_bits
 from ._tiles import TileLayout
 from .crypto.records import record_width
 from .errors import CorruptStoreError, HevrError, IntegrityError
@@ -40,15 +41,12 @@ DIGEST_BYTES = 32  # SHA-256 trailer
 LENGTH = struct.Struct("<I")
 HEAD = len(MAGIC) + LENGTH.size
 
-MAX_PIXELS = 1 << 26  # H·W of one image: 67 million pixels
+MAX_PIXELS = MAX_IMAGE_PIXELS  # H·W of one image: 67 million pixels, the renderer's cap too
 MAX_EXPONENT = 1000  # |exponent|: 10**exponent must stay cheap
 MAX_N_DIGITS = 4300  # Python's default int/str conversion limit (about a 14 000-bit modulus)
 MAX_INT_DIGITS = 40  # any JSON integer of the header (counts, shape, exponent, ...)
 MAX_CONTAINERS = 16384  # '[' plus '{' in the header
 MAX_QUOTES = 65536  # '"' in the header (two per string)
-# The planner's INTEGRITY_BITS (hevr.rendering.planner; the rendering package imports hevr.image,
-# so it cannot be imported here): bits of every decrypted plaintext kept unused. Equal: tested.
-INTEGRITY_BITS = 64
 FIELDS = ("format", "version", "shape", "exponent", "offset", "bound", "fingerprint", "n", "width",
           "tile", "pack_bits", "per_pack", "counts", "hits", "info")
 
@@ -127,9 +125,9 @@ def check_numbers(ctx: Fields, *, n: int, exponent: Any, bound: Any, offset: Any
     """The render plan's numbers against each other and against the integrity margin:
     |exponent| <= 1000, 0 <= offset <= bound, bits(bound) <= room, tile >= 1, pack_bits >= 0,
     per_pack >= 1, pack_bits >= 1 when per_pack > 1, pack_bits·per_pack <= room and
-    bound < 2^pack_bits when pack_bits > 0, with room = bits(n) − 1 − INTEGRITY_BITS (see
-    :mod:`hevr.rendering.planner`)."""
-    kappa = INTEGRITY_BITS
+    bound < 2^pack_bits when pack_bits > 0, with room = bits(n) − 1 − κ (κ =
+    :func:`hevr._limits.integrity_bits`, the planner's margin)."""
+    kappa = integrity_bits(int(n).bit_length())
     room = int(n).bit_length() - 1 - kappa
     ctx.integer("exponent", exponent, -MAX_EXPONENT, MAX_EXPONENT)
     if room < 1:

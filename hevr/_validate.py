@@ -27,18 +27,29 @@ import numpy as np
 from .errors import ParameterError
 
 __all__ = [
-    "check_int",
+    "MAX_BRICK_EDGE",
+    "MAX_BRICK_VOXELS",
+    "MAX_VECTOR_DIMS",
+    "check_brick",
+    "check_brick_index",
     "check_choice",
+    "check_data_range",
+    "check_dtype",
+    "check_int",
     "check_shape",
     "check_spacing",
     "check_step",
-    "check_brick",
-    "check_brick_index",
-    "check_dtype",
-    "check_volume",
-    "check_data_range",
     "check_value_range",
+    "check_vector_dims",
+    "check_volume",
 ]
+
+# Largest brick (check_brick): voxels along one axis, and voxels in all.
+MAX_BRICK_EDGE = 4096
+MAX_BRICK_VOXELS = 1 << 24
+# Largest density encoding (check_vector_dims): the paper uses 4; every dimension is one
+# more ciphertext per voxel and one more float64 per sample in the plaintext renderer.
+MAX_VECTOR_DIMS = 64
 
 # Voxel dtype kinds by letter (numpy's dtype.kind), in the order a message lists them.
 _KIND_NAMES = {"b": "bool", "i": "integer", "u": "integer", "f": "floating-point"}
@@ -147,17 +158,31 @@ def check_step(step: Any, name: str = "step") -> float:
     return float(step)
 
 
-def check_brick(brick: Any, name: str = "brick") -> tuple[int, int, int]:
+def check_brick(brick: Any, name: str = "brick", *, shape: Any = None) -> tuple[int, int, int]:
     """A brick shape in array order: one positive int (a cube) or 3 positive ints.
+
+    A brick is one Zarr chunk of ciphertexts and the unit of work of one Dask task, so it
+    must stay small enough to hold in a worker's memory: at most :data:`MAX_BRICK_EDGE`
+    (4096) voxels along an axis and :data:`MAX_BRICK_VOXELS` (2^24 = 256³) voxels in all —
+    already 8 GiB of 2048-bit ciphertexts per channel, while useful bricks hold 10³–64³.
+    With ``shape`` (the volume's), each axis is first clipped to the volume's size, so a
+    brick bigger than the volume means "one brick along that axis" and is never refused
+    for that alone.
 
     Examples
     --------
     >>> check_brick((2, 3, 4))
     (2, 3, 4)
+    >>> check_brick(10**9, shape=(20, 30, 40))
+    (20, 30, 40)
     >>> check_brick(0)
     Traceback (most recent call last):
         ...
     hevr.errors.ParameterError: brick: expected a positive int or 3 positive ints (B0, B1, B2), got 0
+    >>> check_brick(10**9)
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: brick: expected at most 4096 voxels per axis, got 1000000000
     """
     try:
         out = (brick,) * 3 if _is_int(brick) else tuple(brick)
@@ -165,7 +190,29 @@ def check_brick(brick: Any, name: str = "brick") -> tuple[int, int, int]:
         out = ()
     if len(out) != 3 or not all(_is_int(b) and b > 0 for b in out):
         raise ParameterError(f"{name}: expected a positive int or 3 positive ints (B0, B1, B2), got {brick!r}")
+    if shape is not None:
+        out = tuple(min(b, s) for b, s in zip(out, check_shape(shape)))
+    if max(out) > MAX_BRICK_EDGE:
+        raise ParameterError(f"{name}: expected at most {MAX_BRICK_EDGE} voxels per axis, got {brick!r}")
+    if math.prod(out) > MAX_BRICK_VOXELS:
+        raise ParameterError(f"{name}: expected at most {MAX_BRICK_VOXELS} voxels per brick (2^24, e.g. 256^3), "
+                             f"got {tuple(int(b) for b in out)} = {math.prod(out)} voxels")
     return tuple(int(b) for b in out)  # type: ignore[return-value]
+
+
+def check_vector_dims(dims: Any, name: str = "vector_dims") -> int:
+    """The length k of the density encoding: an integer in [2, :data:`MAX_VECTOR_DIMS`].
+
+    Examples
+    --------
+    >>> check_vector_dims(4)
+    4
+    >>> check_vector_dims(10**12)
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: vector_dims: expected an integer in [2, 64], got 1000000000000
+    """
+    return check_int(name, dims, 2, MAX_VECTOR_DIMS)
 
 
 def check_brick_index(index: Any, grid: Sequence[int], name: str = "brick_index") -> tuple[int, int, int]:

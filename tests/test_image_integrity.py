@@ -23,7 +23,7 @@ from hevr import _image_header
 from hevr._image_header import MAGIC
 from hevr._tiles import TileLayout
 from hevr.crypto.records import mpz_to_bytes
-from hevr.rendering.planner import INTEGRITY_BITS
+from hevr._limits import integrity_bits
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
 
@@ -97,12 +97,13 @@ def _targets(img):
 
 # -- the images used here are meaningful ---------------------------------------------------
 def test_integrity_margin_is_the_planners():
-    assert _image_header.INTEGRITY_BITS == INTEGRITY_BITS
+    """The header checks and the planner share hevr._limits: κ = 64 for real keys."""
+    assert _image_header.integrity_bits is integrity_bits and integrity_bits(256) == 64
 
 
 def test_images_cover_the_cases(images):
     packed = [img for img in images.values() if img.per_pack > 1]
-    assert len(packed) == 3 and all(img.pack_bits * img.per_pack + INTEGRITY_BITS
+    assert len(packed) == 3 and all(img.pack_bits * img.per_pack + integrity_bits(int(img.n).bit_length())
                                     <= int(img.n).bit_length() - 1 for img in packed)
     assert images["xray-unpacked"].per_pack == images["tf-unpacked"].per_pack == 1
     assert images["signed-xray-trilinear"].offset > 0
@@ -203,7 +204,7 @@ def test_image_without_bound_or_with_bad_numbers(tmp_path, images, keypair256):
     with pytest.raises(hevr.IntegrityError, match="carries no bound"):
         dataclasses.replace(img, bound=None).save(tmp_path / "never.hevr")
     bits = int(img.n).bit_length()
-    for change, field in [({"bound": 1 << (bits - INTEGRITY_BITS)}, "bound"), ({"offset": -1}, "offset"),
+    for change, field in [({"bound": 1 << (bits - integrity_bits(bits))}, "bound"), ({"offset": -1}, "offset"),
                           ({"exponent": 10**9}, "exponent"), ({"per_pack": img.per_pack * 10}, "per_pack"),
                           ({"tile": 0}, "tile"), ({"shape": (10, 9, 4)}, "shape"),
                           ({"hits": img.hits[:, :-1]}, "hits"), ({"n": int(img.n) + 2}, "modulus n")]:
@@ -290,7 +291,7 @@ def _cases(h, body):
     nb = -(-H * W // 8)
     b64 = 4 * -(-nb // 3)
     n_tiles = len(h["counts"])
-    kappa_room = int(h["n"]).bit_length() - 1 - INTEGRITY_BITS
+    kappa_room = int(h["n"]).bit_length() - 1 - integrity_bits(int(h["n"]).bit_length())
     yield "magic", b"GIF89a\x00\x00" + body, "bad magic"
     yield "v1", _file(h, body, magic=b"HEVRIMG\x01"), "version 1 is no longer read"
     yield "v3", _file(h, body, magic=b"HEVRIMG\x03"), "unsupported image format version 3"

@@ -26,7 +26,7 @@ from ..rendering.weights import brick_weights
 from ..store.reader import EncryptedVolume
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
-from .measure import Workers, dir_bytes, fixed_base_seconds, mulmod_seconds, timed
+from .measure import Workers, dir_bytes, fixed_base_seconds, mulmod_seconds, payload_bytes, timed
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +79,7 @@ def encrypt_case(ctx: Context, vol: np.ndarray, private_key: PrivateKey, path: P
     cell = {"seconds": wall, "ciphertexts": n_ct, "workers": ctx.workers.n_workers, "brick": brick,
             "obfuscated": obfuscate, "dims": dims, "crypto_core_s": st["seconds"].get("encrypt.crypto", 0.0),
             "write_core_s": st["seconds"].get("encrypt.write", 0.0), "peak_rss": ctx.workers.peak_rss(),
-            "ciphertext_bytes": dir_bytes(Path(path) / ("scalar" if dims == 1 else "vector") / "c"),
+            "ciphertext_bytes": payload_bytes(Path(path) / ("scalar" if dims == 1 else "vector") / "c"),
             "store_bytes": dir_bytes(path), "bits": private_key.public_key.bits, "peak_reset": reset}
     if obfuscate:
         cell["fixed_base_s"] = fixed_base_seconds(private_key)

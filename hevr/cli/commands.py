@@ -22,6 +22,7 @@ from ..image import MAGIC, load_image, save_png
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..rendering.camera import Camera
 from ..rendering.encrypted import render
+from ..rendering.planner import check_render_size
 from ..store.metadata import VolumeMetadata
 from ..store.reader import open_volume
 from ..store.writer import encrypt_volume
@@ -146,6 +147,7 @@ def cmd_render(args: Any) -> int:
     w, h = args.size
     cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h,
                        view_angle=args.view_angle, parallel=args.parallel)
+    check_render_size(cam, ev.shape, ev.spacing, args.step)  # refuse before a cluster starts
     what = {"xray": "X-ray", "emphasize": f"emphasis of density {args.density}",
             "tf": f"transfer function {format_tf(nodes) if nodes else ''}"}[mode]
     print(f"store:   {args.store} {ev.shape[::-1]} (x, y, z), key {ev.meta.fingerprint[:16]}…")

@@ -33,19 +33,21 @@ from .util import (
     UsageError,
     bits_type,
     brick_type,
+    digits_type,
     err_line,
     finite_float,
     floats_type,
     format_tf,
     nonneg_int,
+    phantom_size_type,
     positive_float,
-    positive_int,
     range_type,
     size_type,
     tf_type,
     unit_float,
     vector_dims_type,
     warn_line,
+    workers_type,
 )
 
 __all__ = ["main", "build_parser"]
@@ -73,7 +75,7 @@ def _common(dask: bool, workers_default: str = "Dask's default threaded schedule
         g.add_argument("--scheduler", metavar="ADDRESS",
                        help="join a running Dask cluster, e.g. tcp://10.0.0.5:8786 (store paths must be "
                             "reachable from its workers)")
-        g.add_argument("--workers", type=nonneg_int, metavar="N",
+        g.add_argument("--workers", type=workers_type, metavar="N",
                        help="start a local Dask cluster of N worker processes (1 thread each) for this "
                             f"command (0: none); default: {workers_default}")
     g.add_argument("-v", "--verbose", action="store_true", help="INFO logging, and tracebacks on errors")
@@ -131,7 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--value-range", type=range_type, metavar="LO,HI",
                    help="density normalisation range (default: the dtype's range for integers, "
                         "the data range for floats)")
-    p.add_argument("--digits", type=nonneg_int, metavar="D", help="decimal digits kept of float voxels (default 3)")
+    p.add_argument("--digits", type=digits_type, metavar="D", help="decimal digits kept of float voxels (default 3)")
     p.add_argument("--spacing", type=floats_type(3, "SX,SY,SZ", positive=True), metavar="SX,SY,SZ",
                    help="voxel spacing, overriding the file's")
     p.add_argument("--trust-scheduler", action="store_true",
@@ -194,7 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "its plaintext reference. Writes PNGs, a contact sheet, report.md and summary.json."),
                        epilog=DEMO_EPILOG)
     p.add_argument("--out", default="hevr-demo", metavar="DIR", help="output folder (default hevr-demo)")
-    p.add_argument("--size", type=positive_int, default=32, metavar="N", help="phantom edge in voxels (default 32)")
+    p.add_argument("--size", type=phantom_size_type, default=32, metavar="N",
+                   help="phantom edge in voxels (default 32)")
     p.add_argument("--image", type=size_type, default=(48, 48), metavar="WxH", help="image size (default 48x48)")
     p.add_argument("--bits", type=bits_type, default=512, metavar="B", help="key size (default 512: demo only)")
     p.add_argument("--input", metavar="FILE", help="render this volume (any INPUT of 'hevr encrypt') instead of the phantom")

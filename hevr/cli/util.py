@@ -21,11 +21,13 @@ from typing import Any, Iterator
 import numpy as np
 from distributed import Client, LocalCluster
 
+from .._validate import MAX_BRICK_EDGE, MAX_VECTOR_DIMS
 from ..crypto.keyfile import load_key
 from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
 from ..errors import InsecureKeyWarning, MissingFileError, ParameterError
 from ..paper import PAPER_SIZE
 from ..rendering.modes import parse_color
+from ..rendering.planner import MAX_PIXELS_KEY, render_limits
 from ..volume.loaders import load_volume
 from ..volume.phantom import phantom
 
@@ -62,9 +64,50 @@ def _int_at_least(lo: int, expected: str):
     return parse
 
 
+# Most worker processes --workers starts on this machine (each is a Python process).
+MAX_WORKERS = 1024
+# Largest phantom:N / demo --size: 1024^3 voxels is 1 GiB in memory and days of encryption.
+MAX_PHANTOM = 1024
+
 positive_int = _int_at_least(1, "a positive integer")
-vector_dims_type = _int_at_least(2, "an integer >= 2 (the paper uses 4)")
+
+
+def vector_dims_type(text: str) -> int:
+    """``--vector-dims``: an integer in [2, MAX_VECTOR_DIMS]."""
+    v = _int_at_least(2, f"an integer in [2, {MAX_VECTOR_DIMS}] (the paper uses 4)")(text)
+    if v > MAX_VECTOR_DIMS:
+        raise argparse.ArgumentTypeError(f"expected an integer in [2, {MAX_VECTOR_DIMS}] (the paper uses 4), got {text!r}")
+    return v
+
+
 nonneg_int = _int_at_least(0, "a non-negative integer")
+
+
+def digits_type(text: str) -> int:
+    """``--digits``: decimal digits kept of float voxels, 0 .. 300 (10^300 still fits a float)."""
+    v = nonneg_int(text)
+    if v > 300:
+        raise argparse.ArgumentTypeError(f"expected an integer in [0, 300], got {text!r}")
+    return v
+
+
+def phantom_size_type(text: str) -> int:
+    """A phantom edge N: an integer in [4, MAX_PHANTOM]."""
+    try:
+        v = int(text) if text.strip().isascii() else 0
+    except ValueError:
+        v = 0
+    if not 4 <= v <= MAX_PHANTOM:
+        raise argparse.ArgumentTypeError(f"expected a phantom edge N in [4, {MAX_PHANTOM}] voxels, got {text!r}")
+    return v
+
+
+def workers_type(text: str) -> int:
+    """``--workers``: 0 .. MAX_WORKERS local worker processes."""
+    v = nonneg_int(text)
+    if v > MAX_WORKERS:
+        raise argparse.ArgumentTypeError(f"expected at most {MAX_WORKERS} worker processes, got {text!r}")
+    return v
 
 
 def finite_float(text: str) -> float:
@@ -92,16 +135,22 @@ def unit_float(text: str) -> float:
 
 
 def size_type(text: str) -> tuple[int, int]:
-    """``WxH`` (or a single ``N`` for a square) -> (width, height)."""
+    """``WxH`` (or a single ``N`` for a square) -> (width, height), at most the render
+    pixel limit (``hevr.limits.max-pixels``, :mod:`hevr.rendering.planner`) in all."""
     parts = text.lower().replace("×", "x").split("x")
     try:
-        vals = [int(p) for p in parts]
+        vals = [int(p) for p in parts if p.strip().isascii()]
     except ValueError:
         vals = []
-    if len(vals) == 1:
+    if len(vals) == 1 and len(parts) == 1:
         vals = vals * 2
-    if len(vals) != 2 or min(vals) < 1 or max(vals) > 16384:
+    if len(vals) != 2 or len(parts) > 2 or min(vals) < 1:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels such as 150x150, got {text!r}")
+    max_pixels = render_limits()[0]
+    if vals[0] * vals[1] > max_pixels:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT of at most {max_pixels} pixels in all "
+                                         f"(Dask config {MAX_PIXELS_KEY}), got {text!r} = "
+                                         f"{vals[0] * vals[1]} pixels")
     return vals[0], vals[1]
 
 
@@ -136,6 +185,8 @@ def brick_type(text: str) -> int | tuple[int, int, int]:
         vals = []
     if len(vals) not in (1, 3) or min(vals, default=0) < 1:
         raise argparse.ArgumentTypeError(f"expected a positive brick edge N or BZ,BY,BX, got {text!r}")
+    if max(vals) > MAX_BRICK_EDGE:
+        raise argparse.ArgumentTypeError(f"expected a brick edge of at most {MAX_BRICK_EDGE} voxels, got {text!r}")
     return vals[0] if len(vals) == 1 else (vals[0], vals[1], vals[2])
 
 
@@ -195,9 +246,10 @@ def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float,
     if spec == "phantom" or spec.startswith("phantom:"):
         size_text = spec.partition(":")[2] or str(PAPER_SIZE)
         try:
-            size = int(size_text)
-        except ValueError:
-            raise ParameterError(f"input {spec!r}: expected phantom:N with an integer N >= 4, e.g. phantom:{PAPER_SIZE}") from None
+            size = phantom_size_type(size_text)
+        except argparse.ArgumentTypeError:
+            raise ParameterError(f"input {spec!r}: expected phantom:N with an integer N in [4, {MAX_PHANTOM}], "
+                                 f"e.g. phantom:{PAPER_SIZE}") from None
         vol = phantom(size)
         return vol, tuple(spacing) if spacing else (1.0, 1.0, 1.0), f"phantom {size}^3 (uint8)"
     path = Path(spec).expanduser()

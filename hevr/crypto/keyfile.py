@@ -11,6 +11,8 @@ quoting a secret value.
 from __future__ import annotations
 
 import json
+import math
+import re
 import warnings
 from pathlib import Path
 
@@ -22,14 +24,50 @@ from ..errors import InsecureKeyWarning, InvalidKeyError
 from .keys import MAX_BITS, MIN_BITS, SECURE_BITS, PrivateKey, PublicKey
 from .primes import is_probable_prime
 
-__all__ = ["load_key"]
+__all__ = ["MAX_KEY_FILE_BYTES", "load_key"]
+
+# A private key file of MAX_BITS holds about 2.5 kB: anything much bigger is not a key file,
+# and is refused before it is read into memory.
+MAX_KEY_FILE_BYTES = 1 << 16
+# Decimal digits of the largest n a key file may hold (MAX_BITS bits); p and q have fewer.
+_MAX_DIGITS = math.ceil(MAX_BITS * math.log10(2)) + 1
+# ASCII digits only: str.isdigit() and int() also take '١٢٣' or fullwidth digits, and
+# gmpy2 refuses those with a ValueError.
+_DECIMAL = re.compile(r"[0-9]+")
 
 
 def _int_field(d: dict, name: str, path: Path) -> mpz:
+    """Field ``name`` of the key file as an mpz; never quotes the value (it may be secret)."""
     v = d.get(name)
-    if not isinstance(v, str) or not v.isdigit():
-        raise InvalidKeyError(f"key file {path}: field {name!r} must be a decimal string of digits")
-    return mpz(v)
+    if isinstance(v, str) and _DECIMAL.fullmatch(v) is not None and len(v) <= _MAX_DIGITS:
+        return mpz(v)
+    if v is None:
+        got = "nothing"
+    elif not isinstance(v, str):
+        got = f"a JSON {type(v).__name__}"
+    elif _DECIMAL.fullmatch(v) is None:
+        got = f"a {len(v)}-character string with characters other than 0-9"
+    else:
+        got = f"{len(v)} digits"
+    raise InvalidKeyError(f"key file {path}: field {name!r}: expected a decimal string of at most "
+                          f"{_MAX_DIGITS} ASCII digits 0-9, got {got}")
+
+
+def _read_text(path: Path) -> str:
+    """The file's text: UTF-8, at most MAX_KEY_FILE_BYTES bytes."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_KEY_FILE_BYTES + 1)
+    except OSError as exc:
+        raise InvalidKeyError(f"key file {path} cannot be read: {exc.strerror}") from None
+    if len(data) > MAX_KEY_FILE_BYTES:
+        raise InvalidKeyError(f"key file {path}: expected at most {MAX_KEY_FILE_BYTES} bytes, got a "
+                              "larger file (not a key file?)")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InvalidKeyError(f"key file {path}: expected UTF-8 JSON text, got a byte that is not UTF-8 "
+                              f"at offset {exc.start}") from None
 
 
 def load_key(path) -> PublicKey | PrivateKey:
@@ -48,17 +86,21 @@ def load_key(path) -> PublicKey | PrivateKey:
     True
     """
     path = require_file(path, "key", "a key file")
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InvalidKeyError(f"key file {path} cannot be read: {exc.strerror}") from None
+    if not path.is_file():  # a folder, a FIFO (reading would block), a device
+        raise InvalidKeyError(f"key file {path}: expected a regular file, got something else")
+    text = _read_text(path)
     try:
         d = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InvalidKeyError(f"key file {path} is not valid JSON (line {exc.lineno})") from None
+    except ValueError:  # a JSON number of more than 4300 digits (Python's int limit)
+        raise InvalidKeyError(f"key file {path} is not a key file: its JSON holds a number too long to "
+                              "read") from None
+    except RecursionError:  # "[[[[…" deeper than the parser's stack
+        raise InvalidKeyError(f"key file {path} is not a key file: its JSON is nested too deeply") from None
     if not isinstance(d, dict) or d.get("format") != "hevr-key":
         raise InvalidKeyError(f"key file {path}: expected format 'hevr-key'")
-    if d.get("version") != 1:
+    if type(d.get("version")) is not int or d.get("version") != 1:
         raise InvalidKeyError(f"key file {path}: unsupported version {d.get('version')!r}, expected 1")
     kind = d.get("kind")
     if kind not in ("public", "private"):
@@ -67,7 +109,7 @@ def load_key(path) -> PublicKey | PrivateKey:
     bits = int(n.bit_length())
     if bits % 2 or not MIN_BITS <= bits <= MAX_BITS:
         raise InvalidKeyError(f"key file {path}: n must have an even number of bits in [{MIN_BITS}, {MAX_BITS}]; got {bits}")
-    if d.get("bits") is not None and d.get("bits") != bits:
+    if d.get("bits") is not None and (type(d.get("bits")) is not int or d.get("bits") != bits):
         raise InvalidKeyError(f"key file {path}: 'bits' says {d.get('bits')} but n has {bits} bits")
     pub = PublicKey(n)
     fp = d.get("fingerprint")

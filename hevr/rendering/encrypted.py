@@ -35,7 +35,7 @@ from ..store.reader import EncryptedVolume
 from .camera import Camera
 from .graph import build_sums_graph, finish_task
 from .modes import RenderSpec, combination_matrix, make_spec
-from .planner import plan_render
+from .planner import check_render_size, plan_render
 from .rays import cast_rays
 
 log = logging.getLogger(__name__)
@@ -131,11 +131,19 @@ def render(
     -------
     EncryptedImage
         Never touches the secret key.
+
+    Raises
+    ------
+    RenderPlanError
+        The render could overflow the key's plaintext space, or is bigger than the size
+        limits ``hevr.limits.max-pixels`` / ``hevr.limits.max-samples``
+        (:func:`hevr.rendering.planner.check_render_size`): refused before any work.
     """
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits)
     tile = check_int("tile", tile, 1, 4096)
     backend = resolve_backend_name(backend)
+    check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
     t0 = time.perf_counter()
     rays = cast_rays(camera, ev.shape, ev.spacing, spec.step)
     comb = combination_matrix(spec, ev.vector_dims) if spec.needs_vector else None
@@ -195,6 +203,7 @@ def error_bound(ev: EncryptedVolume, camera: Camera, mode: str = "xray", samplin
     """Per-pixel bound on |decrypted render − render_plain| (see the module docstring)."""
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits)
+    check_render_size(camera, ev.shape, ev.spacing, spec.step)
     rays = cast_rays(camera, ev.shape, ev.spacing, spec.step)
     n = rays.n_samples.astype(np.float64).reshape(camera.height, camera.width)
     if spec.channel == "scalar":

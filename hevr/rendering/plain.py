@@ -11,7 +11,9 @@ where ``s`` is the sampled (nearest or trilinearly interpolated) encoded vector 
 voxels' normalised densities. Because both vector modes are linear in ``s`` the renderer
 first maps every voxel to ``e(density) @ M`` (M from :func:`hevr.rendering.modes.combination_matrix`)
 and then interpolates that 1- or 3-channel field, which is the same sum in another order.
-Rays are processed in chunks of about ``_CHUNK_SAMPLES`` samples to bound memory.
+Rays are processed in chunks of about ``_CHUNK_SAMPLES`` samples, and a ray longer than
+``_RAY_PIECE`` samples in pieces, so memory stays bounded however long the rays are; renders
+above the size limits (:func:`hevr.rendering.planner.check_render_size`) are refused first.
 """
 
 from __future__ import annotations
@@ -22,10 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_data_range, check_spacing, check_volume
+from .._validate import check_data_range, check_spacing, check_vector_dims, check_volume
 from ..volume.density import default_value_range, encode_density, normalize_density
 from .camera import Camera
 from .modes import RenderSpec, combination_matrix, make_spec
+from .planner import check_render_size
 from .rays import (
     cast_rays,
     expand_samples,
@@ -42,6 +45,8 @@ DEFAULT_VECTOR_DIMS = 4
 # Samples per chunk: trilinear keeps ~8 (m, C) float64 temporaries alive, so 2**18
 # samples stay well under 100 MB.
 _CHUNK_SAMPLES = 1 << 18
+# A ray with more samples than this is summed in pieces of this many (bounded memory).
+_RAY_PIECE = 1 << 18
 # Integer volumes whose value span is at most this use a lookup table per value.
 _LUT_MAX = 1 << 16
 
@@ -72,6 +77,19 @@ def _make_field(arr: np.ndarray, spec: RenderSpec, value_range: Any, dims: int |
             lut = encode_density(normalize_density(np.arange(lo, hi + 1), rng), dims) @ matrix
             return (lambda idx: lut[flat[idx].astype(np.int64) - lo]), channels
     return (lambda idx: encode_density(normalize_density(flat[idx], rng), dims) @ matrix), channels
+
+
+def _pieces(rays: np.ndarray, counts: np.ndarray, piece: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split rays longer than ``piece`` samples: (ray ids, first k, counts) of the pieces.
+
+    >>> [a.tolist() for a in _pieces(np.array([4, 7]), np.array([5, 2]), 2)]
+    [[4, 4, 4, 7], [0, 2, 4, 0], [2, 2, 1, 2]]
+    """
+    n_pieces = -(-counts // piece)
+    ray_ids = np.repeat(rays, n_pieces)
+    index = np.arange(int(n_pieces.sum()), dtype=np.int64) - np.repeat(np.cumsum(n_pieces) - n_pieces, n_pieces)
+    k_first = index * piece
+    return ray_ids, k_first, np.minimum(piece, np.repeat(counts, n_pieces) - k_first)
 
 
 def _chunks(counts: np.ndarray, limit: int) -> list[tuple[int, int]]:
@@ -115,7 +133,7 @@ def render_plain(
         Density normalisation for emphasize/tf; default: integer dtypes -> full dtype
         range, floats -> data (min, max).
     vector_dims : int or None
-        Length k of the density encoding (emphasize/tf); default 4.
+        Length k of the density encoding (emphasize/tf), 2 .. 64; default 4.
     density : float
         Emphasised density in [0, 1] (emphasize).
     nodes : list of (density, color)
@@ -136,21 +154,22 @@ def render_plain(
     arr = _check_volume(vol)
     dims = None
     if mode in ("emphasize", "tf"):
-        dims = DEFAULT_VECTOR_DIMS if vector_dims is None else vector_dims
+        dims = DEFAULT_VECTOR_DIMS if vector_dims is None else check_vector_dims(vector_dims)
     spec = make_spec(mode, sampling, step, density, nodes, dims)
     if dims is not None:
         dims = int(dims)
     sp = check_spacing(spacing)
+    check_render_size(camera, arr.shape, sp, spec.step)  # before anything per pixel or sample
     rays = cast_rays(camera, arr.shape, sp, spec.step)
     field, channels = _make_field(arr, spec, value_range, dims)
     nz, ny, nx = arr.shape
     strides = np.array([1, nx, nx * ny], dtype=np.int64)  # (i, j, k) -> flat C-order index
 
     hits = np.flatnonzero(rays.n_samples > 0)
-    counts = rays.n_samples[hits]
+    ray_ids, k_first, counts = _pieces(hits, rays.n_samples[hits], _RAY_PIECE)
     sums = np.zeros((rays.n_rays, channels), dtype=np.float64)
     for a, b in _chunks(counts, _CHUNK_SAMPLES) if hits.size else []:
-        ray_idx, k = expand_samples(hits[a:b], np.zeros(b - a, dtype=np.int64), counts[a:b])
+        ray_idx, k = expand_samples(ray_ids[a:b], k_first[a:b], counts[a:b])
         p = sample_positions(rays, ray_idx, k, sp, spec.step)
         if spec.sampling == "nearest":
             vals = field(nearest_voxels(p, arr.shape) @ strides)
@@ -162,7 +181,7 @@ def render_plain(
                 off = sum((hi_f if (c >> ax) & 1 else lo_f)[:, ax] for ax in range(3))
                 vals += w[:, c, None] * field(off)
         starts = np.concatenate(([0], np.cumsum(counts[a:b])[:-1]))
-        sums[hits[a:b]] = np.add.reduceat(vals, starts, axis=0)
+        np.add.at(sums, ray_ids[a:b], np.add.reduceat(vals, starts, axis=0))  # pieces of a ray add up
 
     n = rays.n_samples.astype(np.float64) * spec.n_nodes
     out = np.divide(sums, n[:, None], out=np.zeros_like(sums), where=n[:, None] > 0)

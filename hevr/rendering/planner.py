@@ -20,28 +20,76 @@ Per pixel r with n_r samples and K transfer-function nodes (K = 1 otherwise):
 
 Integrity margin. Every decrypted plaintext is checked by the client (``EncryptedImage``):
 a packed plaintext must lie below B^J (J = ``per_pack``) and each of its digits in
-[0, bound]; an unpacked one in [0, bound]. The planner keeps κ = ``INTEGRITY_BITS`` = 64
-bits of every plaintext unused: J·b + κ <= bits(n) − 1, so B^J·2^κ <= n/2 < n, and a
+[0, bound]; an unpacked one in [0, bound]. The planner keeps κ bits of every plaintext
+unused (κ = 64 for keys of 256 bits and more, a quarter of the bits of toy keys:
+:func:`hevr._limits.integrity_bits`): J·b + κ <= bits(n) − 1, so B^J·2^κ <= n/2 < n, and a
 plaintext that is uniform in Z_n (what a corrupted ciphertext decrypts to, see
 docs/security.md) passes the check with probability below 2^-κ. Renders whose bound needs
 more than bits(n) − 1 − κ bits are refused; the intermediate sums S and T, never decrypted,
 only need to stay below n/3.
+
+Size limits (:func:`check_render_size`). Before anything is allocated per pixel or per
+sample, a render is refused with :class:`hevr.RenderPlanError` when
+
+* its image has more than ``hevr.limits.max-pixels`` pixels (width·height; default
+  4096² = 16 777 216), naming ``width``/``height``; or
+* its rays take more than ``hevr.limits.max-samples`` samples in all (default 2^31),
+  naming ``step``. Each ray takes at most ``diagonal/step + 1`` samples (the voxel-centre
+  box's world diagonal), so ``pixels·(diagonal/step + 1)`` bounds the total from public
+  data alone; only when that bound exceeds the limit are the exact per-ray counts computed
+  (:func:`~hevr.rendering.rays.cast_rays`, whose memory is linear in the — already
+  bounded — pixel count).
+
+Both are Dask config keys: ``dask.config.set({"hevr.limits.max-pixels": 8192**2})``, a
+``dask.yaml``, or ``DASK_HEVR__LIMITS__MAX_PIXELS`` / ``DASK_HEVR__LIMITS__MAX_SAMPLES`` in
+the environment; values are integers in [1, 2^26] (pixels: the largest image a ``.hevr`` file
+holds) and [1, 2^53] (samples); :mod:`hevr._limits` holds them. The defaults leave every setting this
+project uses far inside (the paper's 150² image of a 100³ volume at step 1 takes < 4·10^6
+samples; the largest benchmark, 150² through 200³, < 8·10^6) while refusing in
+milliseconds what could not finish anyway: the plaintext renderer needs ~100 bytes and the
+encrypted one a modular multiplication of key size per sample, so 2^31 samples are
+already minutes of numpy or hours of ciphertext work, and a 4096² image is 50 times the
+paper's pixel count. The per-pixel arrays of a 4096² render (rays, counts, hits) take
+about 1 GB; raise the limits on purpose for more.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
-from ..errors import RenderPlanError
+from .._limits import (
+    DEFAULT_MAX_PIXELS,
+    DEFAULT_MAX_SAMPLES,
+    INTEGRITY_BITS,
+    MAX_PIXELS_KEY,
+    MAX_SAMPLES_KEY,
+    integrity_bits,
+    render_limits,
+)
+from .._validate import check_shape, check_spacing, check_step
+from ..errors import ParameterError, RenderPlanError
 from ..store.metadata import VolumeMetadata
+from .camera import Camera
 from .modes import RenderSpec
+from .rays import cast_rays
 
-__all__ = ["RenderPlan", "plan_render", "INTEGRITY_BITS"]
+__all__ = [
+    "DEFAULT_MAX_PIXELS",
+    "DEFAULT_MAX_SAMPLES",
+    "INTEGRITY_BITS",
+    "MAX_PIXELS_KEY",
+    "MAX_SAMPLES_KEY",
+    "RenderPlan",
+    "check_render_size",
+    "max_ray_samples",
+    "plan_render",
+    "render_limits",
+]
 
-INTEGRITY_BITS = 64
 
 
 @dataclass(frozen=True)
@@ -144,12 +192,13 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
                 f"overflow planner: the {name} could reach {_bits(val)} bits but a {key_bits}-bit key "
                 f"allows plaintexts below n/3 (~{key_bits - 2} bits); {tips}"
             )
-    room = key_bits - 1 - INTEGRITY_BITS  # bits a decrypted plaintext may use (module docstring)
+    kappa = integrity_bits(key_bits)
+    room = key_bits - 1 - kappa  # bits a decrypted plaintext may use (module docstring)
     pack_bits = _bits(bound)
     if pack_bits > room:
         raise RenderPlanError(
             f"overflow planner: the normalised mantissa could reach {pack_bits} bits but a {key_bits}-bit key "
-            f"keeps {INTEGRITY_BITS} bits of every decrypted plaintext for the integrity check, leaving "
+            f"keeps {kappa} bits of every decrypted plaintext for the integrity check, leaving "
             f"{max(room, 0)} bits; {tips}"
         )
     per_pack = max(1, room // pack_bits) if pack else 1
@@ -161,3 +210,74 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
         pack_bits=pack_bits if pack else 0, per_pack=per_pack,
         channels_out=spec.channels, precision=int(precision),
     )
+
+
+def max_ray_samples(shape: Any, spacing: Any, step: float) -> float:
+    """An upper bound on the samples of any one ray: the voxel-centre box's world diagonal
+    over ``step``, plus one (and a hair of slack); ``inf`` when that overflows.
+
+    Examples
+    --------
+    >>> max_ray_samples((101, 101, 101), (1, 1, 1), 1.0) >= 100 * 3 ** 0.5 + 1
+    True
+    """
+    nz, ny, nx = check_shape(shape)
+    sx, sy, sz = check_spacing(spacing)
+    diag = math.hypot((nx - 1) * sx, (ny - 1) * sy, (nz - 1) * sz)
+    ratio = diag / check_step(step)
+    return ratio * (1.0 + 1e-9) + 2.0 if math.isfinite(ratio) else math.inf
+
+
+def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> None:
+    """Refuse a render that is too big, before anything is allocated per pixel or sample.
+
+    The one rule behind :func:`hevr.render`, :func:`hevr.error_bound` and
+    :func:`hevr.render_plain` (module docstring, "Size limits"): at most
+    :func:`render_limits` pixels and samples.
+
+    Parameters
+    ----------
+    camera : Camera
+    shape : (nz, ny, nx)
+    spacing : (sx, sy, sz)
+    step : float
+        Sample distance in world units.
+
+    Raises
+    ------
+    RenderPlanError
+        Too many pixels (the message names ``width``/``height``) or samples (``step``).
+    ParameterError
+        ``camera`` is not a :class:`~hevr.rendering.camera.Camera`, a bad shape, spacing or
+        step, or a bad limit in the Dask config.
+
+    Examples
+    --------
+    >>> check_render_size(Camera.orbit((8, 8, 8), width=16, height=16), (8, 8, 8), (1, 1, 1), 1.0)
+    >>> check_render_size(Camera.orbit((8, 8, 8), width=16384, height=16384), (8, 8, 8), (1, 1, 1), 1.0)
+    Traceback (most recent call last):
+        ...
+    hevr.errors.RenderPlanError: width, height: expected an image of at most 16777216 pixels \
+(Dask config hevr.limits.max-pixels), got 16384x16384 = 268435456 pixels
+    """
+    if not isinstance(camera, Camera):
+        raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
+    shape, spacing, step = check_shape(shape), check_spacing(spacing), check_step(step)
+    max_pixels, max_samples = render_limits()
+    w, h = camera.width, camera.height
+    pixels = w * h
+    if pixels > max_pixels:
+        raise RenderPlanError(f"width, height: expected an image of at most {max_pixels} pixels "
+                              f"(Dask config {MAX_PIXELS_KEY}), got {w}x{h} = {pixels} pixels")
+    if pixels * max_ray_samples(shape, spacing, step) <= max_samples:
+        return
+    # The public bound is too loose to decide: count exactly (memory linear in pixels).
+    counts = cast_rays(camera, shape, spacing, step).n_samples
+    top = int(counts.max()) if counts.size else 0
+    total = int(counts.sum()) if top * counts.size < 2**63 else float(counts.sum(dtype=np.float64))
+    if total > max_samples:
+        raise RenderPlanError(
+            f"step: expected at most {max_samples} samples in all (Dask config {MAX_SAMPLES_KEY}), got "
+            f"{total:.4g} samples for {w}x{h} rays through a {shape[2]}x{shape[1]}x{shape[0]} volume at "
+            f"step {step:g}; use a larger step or a smaller image"
+        )

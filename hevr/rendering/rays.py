@@ -7,6 +7,12 @@ inside. Rays start at ``t = 0`` (nothing behind the camera or the parallel image
 rendered). Samples sit at ``t_enter + k*step`` for ``k = 0 .. n-1`` with
 ``n = floor((t_exit - t_enter)/step + 1e-9) + 1``.
 
+Casting allocates a few arrays per ray (memory linear in ``width*height``), never per
+sample; a ray of more than :data:`MAX_RAY_SAMPLES` samples (a step far below the volume's
+size) is refused with :class:`hevr.RenderPlanError` instead of overflowing int64. How many
+pixels and samples a render may have is decided before, by
+:func:`hevr.rendering.planner.check_render_size`.
+
 Every consumer of sample positions -- the plaintext renderer and the per-brick weights of
 the encrypted path -- goes through :func:`sample_positions`, :func:`nearest_voxels` and
 :func:`trilinear_corners`, so both see bit-identical floating point (this matters for
@@ -21,17 +27,18 @@ from typing import Any
 import numpy as np
 
 from .._validate import check_shape, check_spacing, check_step
-from ..errors import ParameterError
+from ..errors import ParameterError, RenderPlanError
 from .camera import Camera
 
 __all__ = [
+    "MAX_RAY_SAMPLES",
     "RaySet",
     "cast_rays",
-    "sample_positions",
-    "nearest_voxels",
-    "trilinear_corners",
     "corner_index",
     "expand_samples",
+    "nearest_voxels",
+    "sample_positions",
+    "trilinear_corners",
 ]
 
 # Direction components smaller than this (unit vectors) are treated as exactly parallel
@@ -39,6 +46,9 @@ __all__ = [
 _PARALLEL_DIR = 1e-12
 # Relative tolerance of the face / hit tests ("rays on a face are inside").
 _FACE_TOL = 1e-9
+# Most samples one ray may have: 2^53, where float64 still counts every integer (and far
+# from int64 overflow). No render limit (hevr.limits.max-samples) may exceed it.
+MAX_RAY_SAMPLES = 2**53
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,7 +110,8 @@ def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float) -> RaySet:
     sp = np.asarray(check_spacing(spacing))
     step = check_step(step)
     origins, dirs = camera.rays()
-    hi = np.array([(nx - 1), (ny - 1), (nz - 1)], dtype=np.float64) * sp
+    with np.errstate(over="ignore"):  # a box beyond float range: inf, every ray misses
+        hi = np.array([(nx - 1), (ny - 1), (nz - 1)], dtype=np.float64) * sp
     # Absolute tolerance of the face tests, relative to the box size (at least a voxel).
     tol = _FACE_TOL * np.maximum(hi, sp)
     parallel = np.abs(dirs) < _PARALLEL_DIR
@@ -117,7 +128,12 @@ def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float) -> RaySet:
     hit = inside_slab.all(axis=1) & (t_exit >= t_enter - t_tol) & np.isfinite(t_exit)
     t_exit = np.where(hit, np.maximum(t_exit, t_enter), 0.0)
     t_enter = np.where(hit, t_enter, 0.0)
-    n = np.where(hit, np.floor((t_exit - t_enter) / step + 1e-9).astype(np.int64) + 1, 0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        span = np.where(hit, np.floor((t_exit - t_enter) / step + 1e-9), 0.0)
+    if not np.all(span < MAX_RAY_SAMPLES):  # also catches inf / nan from an extreme step
+        raise RenderPlanError(f"step: expected at most 2^53 samples along one ray, got a ray of "
+                              f"{float(np.nanmax(span)):.3g} samples at step {step:g}")
+    n = np.where(hit, span.astype(np.int64) + 1, 0)
     return RaySet(
         origins=origins,
         directions=dirs,

@@ -11,7 +11,8 @@ one-line command that converts them (``hevr upgrade-store``).
 >>> m = VolumeMetadata(shape=(2, 2, 2), spacing=(1.0, 1.0, 1.0), brick=(2, 2, 2), n="3233",
 ...                    fingerprint="ab" * 32, ciphertext_bytes=3, dtype="uint8",
 ...                    value_range=(0.0, 255.0), scalar=ChannelInfo(0), vector=None,
-...                    complete=True, store_id="0123456789abcdef")
+...                    complete=True, store_id="0123456789abcdef",
+...                    arrays={"scalar": "sha256:" + "0" * 64, "done": "sha256:" + "1" * 64})
 >>> VolumeMetadata.from_dict(m.to_dict()) == m
 True
 >>> d = m.to_dict(); d["shape"] = [2, 2, 3]

@@ -28,7 +28,15 @@ import numpy.typing as npt
 from .._files import require_file
 from .._validate import check_choice, check_spacing, check_volume
 from ..errors import MissingDependencyError, ParameterError, VolumeFormatError
-from .nrrd import check_file, load_raw, read_nrrd, to_native, write_nrrd, write_raw
+from .nrrd import (
+    check_file,
+    is_kind,
+    load_raw,
+    read_nrrd,
+    to_native,
+    write_nrrd,
+    write_raw,
+)
 
 __all__ = ["load_volume", "save_volume"]
 
@@ -41,7 +49,7 @@ _EXTENSIONS = ".npy, .raw, .nrrd, .nhdr, .nii, .nii.gz or a DICOM series folder"
 
 def _format(path: Path) -> str:
     """Which reader handles ``path``: npy, raw, nrrd, nifti or dicom."""
-    if path.is_dir():
+    if is_kind(path, directory=True):
         return "dicom"
     check_file(path)
     name = path.name.lower()
@@ -149,6 +157,9 @@ def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None
     else:
         vol, file_spacing = _load_dicom(path)
     vol = _check_volume(vol, path)
+    if override is None and not all(math.isfinite(v) and v > 0 for v in file_spacing):
+        raise VolumeFormatError(f"{path.name}: spacing: expected 3 positive finite voxel sizes in the file, got "
+                                f"{tuple(file_spacing)}; pass spacing= to override")
     result = override or file_spacing
     _log.debug("loaded %s: shape %s, %s, spacing %s", path, vol.shape, vol.dtype, result)
     return vol, result
@@ -251,7 +262,7 @@ def _load_dicom(folder: Path) -> tuple[np.ndarray, _Spacing]:
         raise VolumeFormatError(f"{folder.name}: expected one DICOM series, the folder holds "
                                 f"{len(series)} ({', '.join(series[:4])}); split them into folders")
     for f, ds in slices:
-        if int(ds.get("NumberOfFrames", 1) or 1) > 1 or int(ds.get("SamplesPerPixel", 1)) != 1:
+        if _dicom_number(f, ds, "NumberOfFrames", 1) > 1 or _dicom_number(f, ds, "SamplesPerPixel", 1) != 1:
             raise VolumeFormatError(f"{f.name}: expected single-frame greyscale DICOM slices, got "
                                     f"{ds.get('NumberOfFrames', 1)} frame(s) with "
                                     f"{ds.get('SamplesPerPixel', 1)} sample(s) per pixel")
@@ -267,15 +278,27 @@ def _load_dicom(folder: Path) -> tuple[np.ndarray, _Spacing]:
         except Exception as exc:  # compressed syntaxes need handlers that may be missing
             raise VolumeFormatError(f"{f.name}: cannot decode the pixel data (transfer syntax "
                                     f"{ds.file_meta.get('TransferSyntaxUID', '?')}): {exc}") from None
-    slopes = [float(ds.get("RescaleSlope", 1) or 1) for _, ds in slices]
-    inters = [float(ds.get("RescaleIntercept", 0) or 0) for _, ds in slices]
+    slopes = [_dicom_number(f, ds, "RescaleSlope", 1) for f, ds in slices]
+    inters = [_dicom_number(f, ds, "RescaleIntercept", 0) for f, ds in slices]
     vol = _rescale(np.stack(pixels), slopes, inters)
     ps = first.get("PixelSpacing")
     if ps is None or len(ps) != 2:
         _log.warning("%s: no PixelSpacing; assuming 1 x 1", folder.name)
         ps = (1.0, 1.0)
     # PixelSpacing is (between rows, between columns) = (sy, sx).
-    return vol, (float(ps[1]), float(ps[0]), sz)
+    try:
+        return vol, (float(ps[1]), float(ps[0]), sz)
+    except (TypeError, ValueError):
+        raise VolumeFormatError(f"{folder.name}: PixelSpacing: expected two numbers, got {ps!r}") from None
+
+
+def _dicom_number(f: Path, ds: Any, key: str, default: float) -> float:
+    """A numeric DICOM attribute (``default`` when absent, empty or 0), else VolumeFormatError."""
+    value = ds.get(key, default)
+    try:
+        return float(value or default)
+    except (TypeError, ValueError):
+        raise VolumeFormatError(f"{f.name}: {key}: expected a number, got {str(value)[:40]!r}") from None
 
 
 def _dicom_order(folder: Path, slices: list) -> tuple[np.ndarray, float]:

@@ -6,6 +6,12 @@ single data file, ``raw`` and ``gzip`` encodings, ``sizes``/``type``/``endian``,
 from ``space directions`` or ``spacings``, and ``line skip``/``byte skip``.
 
 Raw uncompressed data is memory-mapped so huge volumes are read only once, when used.
+
+Hostile files end in :class:`hevr.VolumeFormatError` (or :class:`hevr.MissingFileError`),
+quickly and in bounded memory: sizes are checked against the file before anything is
+mapped, gzip data is decompressed only up to the size the header announces (a "zip bomb"
+costs at most that), ``line skip`` stops at the end of the file, and header numbers must be
+ASCII decimal integers.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from __future__ import annotations
 import gzip
 import logging
 import math
+import os
 import re
 import zlib
 from pathlib import Path
@@ -53,6 +60,8 @@ _RAW_DTYPE = re.compile(r"(?<![a-z0-9])(" + "|".join(RAW_DTYPES) + r")(?![a-z0-9
 _SCALAR_KINDS = {"domain", "space", "time", "none", "???"}
 
 _MAX_HEADER_BYTES = 1 << 20  # a header larger than this is certainly not a header
+_BLOCK = 1 << 20  # read gzip data and skipped lines in blocks of this many bytes
+_INT = re.compile(r"[+-]?[0-9]+")  # int() alone would also take '٢', '1_0' and ' 1 '
 _VECTOR = re.compile(r"\(([^()]*)\)")
 
 
@@ -60,9 +69,18 @@ def _fail(path: Path, problem: str) -> VolumeFormatError:
     return VolumeFormatError(f"{path.name}: {problem}")
 
 
+def is_kind(path: Path, directory: bool = False) -> bool:
+    """``path.is_dir()`` / ``path.is_file()``, but False (not an error) for names the OS
+    refuses (too long, a NUL byte)."""
+    try:
+        return path.is_dir() if directory else path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def check_file(path: Path) -> Path:
     """Return ``path`` if it is an existing file, else raise :class:`hevr.MissingFileError`."""
-    if not path.is_file():
+    if not is_kind(path):
         raise MissingFileError("path", "a volume file", path)
     return path
 
@@ -110,6 +128,10 @@ def load_raw(path: Path, shape: object, dtype: object, byte_order: str) -> np.nd
         shape = check_shape(shape)
     else:
         shape = name_shape
+        if shape is not None and min(shape) < 1:
+            sizes = "x".join(str(v) for v in reversed(shape))
+            raise _fail(path, f"shape: expected positive sizes in the name's XxYxZ token, got {sizes}; "
+                              "rename the file or pass shape=(nz, ny, nx)")
     dt: np.dtype | None = None
     if dtype is not None:
         dt = check_dtype(dtype)
@@ -175,9 +197,10 @@ def _read_header(path: Path) -> tuple[dict[str, str], int]:
 
 
 def _ints(path: Path, field: str, value: str, count: int) -> list[int]:
+    words = value.split()
     try:
-        out = [int(v) for v in value.split()]
-    except ValueError:
+        out = [int(v) for v in words] if all(_INT.fullmatch(v) for v in words) else []
+    except ValueError:  # more than 4300 digits
         out = []
     if len(out) != count:
         raise _fail(path, f"NRRD field '{field}' must hold {count} integer(s), got {value!r}")
@@ -272,11 +295,7 @@ def read_nrrd(path: Path) -> tuple[np.ndarray, tuple[float, float, float]]:
         raise _fail(path, f"NRRD 'line skip' must be >= 0 and 'byte skip' >= -1, "
                           f"got {line_skip} and {byte_skip}")
     if line_skip:
-        with open(data_path, "rb") as fh:
-            fh.seek(offset)
-            for _ in range(line_skip):
-                fh.readline()
-            offset = fh.tell()
+        offset = _skip_lines(data_path, offset, line_skip)
 
     spacing = _spacing(path, fields)
     what = f"header {path.name} says "
@@ -291,22 +310,61 @@ def read_nrrd(path: Path) -> tuple[np.ndarray, tuple[float, float, float]]:
     return to_native(arr), spacing
 
 
+def _skip_lines(path: Path, offset: int, count: int) -> int:
+    """The offset after ``count`` lines from ``offset`` (or the file's end), in bounded memory."""
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        for _ in range(count):
+            line = fh.readline(_BLOCK)
+            while line and not line.endswith(b"\n"):
+                line = fh.readline(_BLOCK)
+            if not line:  # end of file: read_raw reports the missing data
+                break
+        return fh.tell()
+
+
+def _physical_memory() -> int | None:
+    """Bytes of RAM of this machine, or None where the OS does not say."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
 def _read_gzip(path: Path, offset: int, byte_skip: int, shape: tuple[int, int, int],
                dtype: np.dtype, what: str) -> np.ndarray:
     need = math.prod(shape) * dtype.itemsize
+    memory = _physical_memory()
+    if memory is not None and need > memory:  # gzip data is decompressed into memory
+        raise _fail(path, f"too big: {what}{need} bytes of gzip-compressed data (shape {shape} of "
+                          f"{dtype.name}), more than this machine's {memory} bytes of memory; "
+                          "store it with raw encoding, which is memory-mapped")
+    buf = bytearray()
     with open(path, "rb") as fh:
         fh.seek(offset)
         try:
             # GzipFile handles concatenated members; byte skip applies to the
-            # decompressed stream (format.html, "byte skip").
-            data = gzip.GzipFile(fileobj=fh, mode="rb").read()
+            # decompressed stream (format.html, "byte skip"). Decompress no more than
+            # byte skip + the announced size + 1 byte (to tell "too much"), in blocks.
+            with gzip.GzipFile(fileobj=fh, mode="rb") as gz:
+                skipped = 0
+                while skipped < byte_skip:
+                    block = gz.read(min(_BLOCK, byte_skip - skipped))
+                    if not block:
+                        break
+                    skipped += len(block)
+                while len(buf) <= need:
+                    block = gz.read(min(_BLOCK, need + 1 - len(buf)))
+                    if not block:
+                        break
+                    buf += block
         except (OSError, EOFError, zlib.error) as exc:
             raise _fail(path, f"corrupt or truncated gzip data: {exc}") from None
-    data = memoryview(data)[byte_skip:]
+    data = memoryview(buf)
     if len(data) != need:
         raise _fail(path, f"{'truncated' if len(data) < need else 'size mismatch'}: {what}"
                           f"expected {need} bytes of decompressed data (shape {shape} of "
-                          f"{dtype.name}), got {len(data)}")
+                          f"{dtype.name}), got {len(data) if len(data) < need else f'more than {need}'}")
     return np.frombuffer(data, dtype=dtype).reshape(shape)
 
 

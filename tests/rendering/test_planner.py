@@ -16,7 +16,8 @@ import hevr
 from hevr.crypto.keys import generate_keypair
 from hevr.rendering.camera import Camera
 from hevr.rendering.modes import combination_matrix, make_spec
-from hevr.rendering.planner import INTEGRITY_BITS, RenderPlan, plan_render
+from hevr._limits import integrity_bits
+from hevr.rendering.planner import RenderPlan, plan_render
 from hevr.rendering.rays import cast_rays
 from hevr.rendering.weights import brick_grid, brick_weights
 from hevr.store.metadata import ChannelInfo, VolumeMetadata
@@ -28,7 +29,7 @@ SHAPE = (6, 7, 8)
 def tiny(tmp_path_factory):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
-        pub, priv = generate_keypair(128)
+        pub, priv = generate_keypair(64)
     rng = np.random.default_rng(11)
     vol = rng.integers(0, 256, SHAPE).astype(np.uint8)
     ev = hevr.encrypt_volume(vol, tmp_path_factory.mktemp("p") / "v.zarr", priv, brick=(3, 4, 4),
@@ -36,12 +37,12 @@ def tiny(tmp_path_factory):
     return ev, vol, priv
 
 
-def test_128_bit_key_refuses_high_precision(tiny):
+def test_64_bit_key_refuses_high_precision(tiny):
     ev, _, _ = tiny
     cam = hevr.Camera.orbit(ev, width=8, height=8)
     with pytest.raises(hevr.RenderPlanError, match="precision") as info:
         hevr.render(ev, cam, sampling="trilinear", precision=15, progress=False)
-    assert "128-bit key" in str(info.value)
+    assert "64-bit key" in str(info.value)
     with pytest.raises(hevr.RenderPlanError):
         hevr.render(ev, cam, mode="tf", nodes=[(0.2, "red"), (0.9, "blue")], sampling="trilinear",
                     precision=8, comb_digits=8, progress=False)
@@ -49,7 +50,7 @@ def test_128_bit_key_refuses_high_precision(tiny):
 
 @pytest.mark.parametrize("mode, kw", [("xray", {}), ("emphasize", {"density": 0.4})])
 @pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
-def test_128_bit_key_accepts_feasible_render_and_decrypts_right(tiny, mode, kw, sampling):
+def test_64_bit_key_accepts_feasible_render_and_decrypts_right(tiny, mode, kw, sampling):
     ev, vol, priv = tiny
     cam = hevr.Camera.orbit(ev, azimuth=20, elevation=10, width=8, height=8)
     img = hevr.render(ev, cam, mode=mode, sampling=sampling, precision=2, digits=2, comb_digits=2,
@@ -79,7 +80,7 @@ def test_plan_bounds_are_recorded(tiny):
     img = hevr.render(ev, hevr.Camera.orbit(ev, width=6, height=6), precision=2, progress=False)
     plan = img.info["plan"]
     assert int(plan["bound"]) < 2 ** plan["pack_bits"]
-    assert plan["per_pack"] * plan["pack_bits"] + INTEGRITY_BITS <= 128 - 1
+    assert plan["per_pack"] * plan["pack_bits"] + integrity_bits(64) <= 64 - 1
 
 
 # -- plan_render directly: bounds against brute force and hand-computed values ------------------
@@ -221,35 +222,43 @@ def test_empty_view_plans_nothing():
     assert (plan.bound, plan.offset, plan.recip_digits) == (0, 0, 3)
 
 
-@pytest.mark.parametrize("bits", [128, 254, 256, 272, 512, 1024, 2048, 3072])
+def _smallest_key_bits(bound: int) -> int:
+    """The fewest bits of n for which a plan of this bound is accepted: bits(bound) <= bits(n) - 1 - κ."""
+    return next(k for k in range(2, 4096) if bound.bit_length() <= k - 1 - integrity_bits(k))
+
+
+@pytest.mark.parametrize("bits", [64, 128, 254, 256, 272, 512, 1024, 2048, 3072])
 def test_packing_capacity_follows_key_size(bits):
     """The smallest modulus of each size: per_pack slots of pack_bits fill at most
-    bits - 1 - INTEGRITY_BITS, one more would not fit, so a packed plaintext is below
-    n / 2^INTEGRITY_BITS. 254 and 272 = 18·k + 65 + 1 bits: one bit short of another 18-bit slot."""
+    bits - 1 - κ (κ = 64 from 256 bits, a quarter of a toy key's bits), one more would not
+    fit, so a packed plaintext is below n / 2^κ."""
     n = 2 ** (bits - 1) + 1
-    room = bits - 1 - INTEGRITY_BITS
+    kappa = integrity_bits(bits)
+    room = bits - 1 - kappa
     plan = _plan(n, precision=2)
+    assert kappa == (64 if bits >= 256 else bits // 4)
     assert 2 ** (plan.pack_bits - 1) <= plan.bound < 2**plan.pack_bits  # pack_bits is minimal
     assert plan.per_pack == room // plan.pack_bits
     assert plan.per_pack * plan.pack_bits <= room < (plan.per_pack + 1) * plan.pack_bits
-    assert 2 ** (plan.per_pack * plan.pack_bits + INTEGRITY_BITS) <= n
+    assert 2 ** (plan.per_pack * plan.pack_bits + kappa) <= n
     unpacked = _plan(n, precision=2, pack=False)
     assert (unpacked.per_pack, unpacked.pack_bits, unpacked.bound) == (1, 0, plan.bound)
 
 
-def test_refusal_threshold_keeps_the_integrity_margin():
+@pytest.mark.parametrize("precision", [3, 60])
+def test_refusal_threshold_keeps_the_integrity_margin(precision):
     """The bound does not depend on n; a plan is accepted iff the bound needs at most
-    bits(n) - 1 - INTEGRITY_BITS bits (far below n/3)."""
-    bound = _plan(precision=3).bound
-    b = bound.bit_length()
-    ok = _plan(2 ** (b + INTEGRITY_BITS), precision=3)  # bits(n) = b + 65
+    bits(n) - 1 - κ bits (far below n/3): accepted at the smallest such key, refused one bit below."""
+    bound = _plan(precision=precision).bound
+    k = _smallest_key_bits(bound)
+    ok = _plan(2 ** (k - 1), precision=precision)
     assert ok.bound == bound and ok.per_pack == 1
-    n_bad = 2 ** (b + INTEGRITY_BITS - 1) + 1  # one bit short
+    n_bad = 2 ** (k - 2) + 1  # one bit short
     assert bound < n_bad // 3
     with pytest.raises(hevr.RenderPlanError) as info:
-        _plan(n_bad, precision=3)
+        _plan(n_bad, precision=precision)
     msg = str(info.value)
-    assert "normalised mantissa" in msg and f"a {n_bad.bit_length()}-bit key" in msg and "integrity" in msg
+    assert "normalised mantissa" in msg and f"a {k - 1}-bit key" in msg and "integrity" in msg
     for knob in ("larger key", "precision=", "digits=", "comb_digits="):
         assert knob in msg
     assert isinstance(info.value, ValueError)
@@ -281,7 +290,7 @@ def test_turning_the_named_knob_makes_a_refused_render_fit(knob, small, large):
     hi_bound = _plan(**large).bound
     assert lo_bound < hi_bound
     assert lo_bound.bit_length() < hi_bound.bit_length()
-    n = 2 ** (lo_bound.bit_length() + INTEGRITY_BITS)  # room for exactly lo_bound's bits
+    n = 2 ** (_smallest_key_bits(lo_bound) - 1)  # room for exactly lo_bound's bits
     assert _plan(n, **small).bound == lo_bound
     with pytest.raises(hevr.RenderPlanError, match=f"{knob}="):
         _plan(n, **large)
