@@ -50,6 +50,10 @@ def require_file(path: str | os.PathLike, name: str, expected: str, *, directory
     """Return ``Path(path)`` if it exists (as a folder when ``directory``), else raise
     :class:`hevr.MissingFileError` naming the parameter ``name`` and what was ``expected``."""
     p = Path(path)
-    if not (p.is_dir() if directory else p.exists()):
+    try:
+        found = p.is_dir() if directory else p.exists()
+    except (OSError, ValueError):  # a name the OS refuses (too long, NUL byte) names nothing
+        found = False
+    if not found:
         raise MissingFileError(name, expected, p)
     return p

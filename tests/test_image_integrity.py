@@ -21,9 +21,9 @@ import pytest
 import hevr
 from hevr import _image_header
 from hevr._image_header import MAGIC
+from hevr._limits import integrity_bits
 from hevr._tiles import TileLayout
 from hevr.crypto.records import mpz_to_bytes
-from hevr._limits import integrity_bits
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
 

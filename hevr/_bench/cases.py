@@ -26,7 +26,14 @@ from ..rendering.weights import brick_weights
 from ..store.reader import EncryptedVolume
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
-from .measure import Workers, dir_bytes, fixed_base_seconds, mulmod_seconds, payload_bytes, timed
+from .measure import (
+    Workers,
+    dir_bytes,
+    fixed_base_seconds,
+    mulmod_seconds,
+    payload_bytes,
+    timed,
+)
 
 log = logging.getLogger(__name__)
 

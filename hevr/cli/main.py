@@ -188,6 +188,15 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="examples:\n  hevr info vol.zarr\n  hevr info frame.hevr\n  hevr info key.pub.json\n")
     p.add_argument("path", metavar="PATH")
 
+    p = sub.add_parser("upgrade-store", parents=[dask_opts], formatter_class=_RAW,
+                       help="convert a format-1 store (no integrity digests) into a new format-2 store",
+                       description=_d("Copy every brick of a format-1 store, unchanged and range-checked, into a new "
+                                   "store with crc32c chunks and per-brick digests (docs/format.md). The old store is "
+                                   "only read; no key is needed."),
+                       epilog="example:\n  hevr upgrade-store old.zarr new.zarr\n")
+    p.add_argument("src", metavar="OLD", help="the format-1 store")
+    p.add_argument("dst", metavar="NEW", help="where the format-2 store goes (must not exist)")
+
 
     p = sub.add_parser("demo", parents=[demo_opts], formatter_class=_RAW,
                        help="the whole pipeline on the paper's figures, no input needed",
@@ -252,7 +261,7 @@ def _run(args: Any) -> int:
 
             return cmd_bench(args)
         return demo.cmd_demo(args)
-    return getattr(cmds, f"cmd_{args.command}")(args)
+    return getattr(cmds, f"cmd_{args.command.replace('-', '_')}")(args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_choice, check_int, check_step
+from .._validate import check_choice, check_step, check_vector_dims
 from ..errors import ParameterError
 from ..volume.density import encode_density
 
@@ -214,7 +214,7 @@ def make_spec(
             f"mode: {mode!r} needs the encoded-density vector channel, but the store/volume "
             f"has no vector channel (re-encrypt with vector_dims=k, e.g. 4), got vector_dims=None"
         )
-    check_int("vector_dims", vector_dims, 2)
+    check_vector_dims(vector_dims)
     if mode == "emphasize":
         if density is None:
             raise ParameterError("density: expected a density in [0, 1] for mode='emphasize', got None")

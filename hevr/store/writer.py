@@ -53,6 +53,7 @@ from .._validate import (
     check_int,
     check_spacing,
     check_value_range,
+    check_vector_dims,
     check_volume,
 )
 from ..backends import get_backend, resolve_backend_name
@@ -95,7 +96,7 @@ def _plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_r
                    digits: Any, vector_digits: Any) -> tuple[ChannelInfo | None, ChannelInfo | None, tuple[float, float]]:
     is_float = np.dtype(vol.dtype).kind == "f"
     if vector_dims is not None:
-        vector_dims = check_int("vector_dims", vector_dims, 2)
+        vector_dims = check_vector_dims(vector_dims)
     if not scalar and vector_dims is None:
         raise ParameterError("scalar/vector_dims: expected at least one channel, got scalar=False and vector_dims=None")
     lo, hi = _minmax(vol)
@@ -111,7 +112,7 @@ def _plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_r
     max_int = int(key_n) // 3 - 1
     if scalar:
         if is_float:
-            d = check_int("digits", 3 if digits is None else digits, 0)
+            d = check_int("digits", 3 if digits is None else digits, 0, 30)
             if max(abs(lo), abs(hi)) * 10.0**d >= max_int:
                 raise ParameterError(f"digits: {d} digits overflow a {int(key_n).bit_length()}-bit key; use fewer")
             sc = ChannelInfo(exponent=-d, digits=d)
@@ -278,7 +279,7 @@ def encrypt_volume(
         log.warning("encrypt_volume(unsafe_no_obfuscation=True): the store is NOT secure")
     backend = resolve_backend_name(backend)
     vol = check_volume(vol)
-    brick_t = check_brick(brick)
+    brick_t = check_brick(brick, shape=vol.shape)
     spacing_t = check_spacing(spacing)
     pub = key.public_key if isinstance(key, PrivateKey) else key
     sc, vc, vr = _plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)

@@ -17,7 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_data_range, check_int, check_value_range
+from .._validate import (
+    check_data_range,
+    check_value_range,
+    check_vector_dims,
+)
 from ..errors import ParameterError
 
 __all__ = ["encode_density", "normalize_density", "default_value_range"]
@@ -45,7 +49,7 @@ def encode_density(density: Any, dims: int) -> np.ndarray:
     >>> encode_density([0.25, 1.0], 2).round(4).tolist()
     [[0.8944, 0.4472], [0.0, 1.0]]
     """
-    dims = check_int("dims", dims, 2)
+    dims = check_vector_dims(dims, "dims")
     d = np.asarray(density, dtype=np.float64)
     if d.size and not (np.all(d >= 0.0) and np.all(d <= 1.0)):  # also rejects NaN
         bad = d[~((d >= 0.0) & (d <= 1.0))].ravel()[0]

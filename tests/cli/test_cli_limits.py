@@ -80,3 +80,4 @@ def test_render_refuses_before_starting_a_cluster(capsys, tmp_path, store, extra
     assert code == 1 and needle in line
     assert seconds < 1.0  # a 2-worker LocalCluster alone takes longer to start
     assert not (tmp_path / "f.hevr").exists()
+

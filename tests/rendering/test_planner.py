@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 import hevr
+from hevr._limits import integrity_bits
 from hevr.crypto.keys import generate_keypair
 from hevr.rendering.camera import Camera
 from hevr.rendering.modes import combination_matrix, make_spec
-from hevr._limits import integrity_bits
 from hevr.rendering.planner import RenderPlan, plan_render
 from hevr.rendering.rays import cast_rays
 from hevr.rendering.weights import brick_grid, brick_weights

@@ -13,6 +13,7 @@ import pytest
 import zarr
 
 import hevr
+from hevr.cli.main import main
 from hevr.crypto.records import record_width
 from hevr.store.metadata import ChannelInfo, VolumeMetadata
 from hevr.store.reader import brick_slices
@@ -94,3 +95,24 @@ def test_metadata_of_a_v1_store_has_no_checksum():
                                               fingerprint="ab" * 32, ciphertext_bytes=3, dtype="uint8",
                                               value_range=(0.0, 1.0), scalar=ChannelInfo(0), vector=None), version=1)
     assert "checksum" not in meta.to_dict()
+
+
+# -- integrity on the command line ------------------------------------------------------------------
+
+
+def test_upgrade_store_command_and_info_on_old_formats(tmp_path, keypair256, capsys):
+    """A format-1 store: `hevr info` says how to upgrade, `hevr upgrade-store` converts it, and a
+    format-1 image is named as such, not taken for a volume file."""
+    vol = np.random.default_rng(1).integers(0, 256, SHAPE).astype(np.uint8)
+    _v1_store(tmp_path / "old.zarr", keypair256[0], vol)
+    assert main(["info", str(tmp_path / "old.zarr")]) == 0
+    out = capsys.readouterr().out
+    assert "version 1" in out and "hevr upgrade-store" in out
+    assert main(["upgrade-store", str(tmp_path / "old.zarr"), str(tmp_path / "new.zarr"), "--workers", "0",
+                 "-q"]) == 0
+    assert hevr.open_volume(tmp_path / "new.zarr", verify="full").meta.version == 2
+    assert main(["upgrade-store", str(tmp_path / "old.zarr"), str(tmp_path / "new.zarr"), "--workers", "0"]) == 1
+    assert "already exists" in capsys.readouterr().err
+    (tmp_path / "v1.hevr").write_bytes(b"HEVRIMG\x01" + b"\x00" * 64)
+    assert main(["info", str(tmp_path / "v1.hevr")]) == 1
+    assert "version 1 is no longer read" in capsys.readouterr().err
