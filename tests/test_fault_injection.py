@@ -165,3 +165,48 @@ def test_a_truncated_or_missing_chunk_is_detected_without_quick_verify(clean, tm
     f.unlink()
     with pytest.raises(hevr.CorruptStoreError, match=r"brick \(1, 0, 1\).*digest mismatch"):
         hevr.render(ev, cam, cache=False, progress=False)
+
+
+# -- the image file -------------------------------------------------------------------------------
+
+IMAGES = {"xray-packed": ("xray", True), "xray-unpacked": ("xray", False),
+          "emphasize-packed": ("emphasize", True), "emphasize-unpacked": ("emphasize", False)}
+
+
+@pytest.mark.parametrize("name", list(IMAGES))
+def test_one_bit_flips_in_an_image_file_are_all_detected(clean, tmp_path, name):
+    """Scalar and vector renders, packed and unpacked: a bit flipped anywhere in the saved
+    .hevr file (magic, header length, header, ciphertexts, checksum) is a HevrError on loading
+    or decrypting, never an image."""
+    path, cam, priv, ref, _ = clean
+    mode, pack = IMAGES[name]
+    kw = {"density": 0.5} if mode == "emphasize" else {}
+    img = hevr.render(hevr.open_volume(path), cam, mode=mode, pack=pack, cache=False, progress=False, **kw)
+    f = tmp_path / "frame.hevr"
+    img.save(f)
+    assert np.array_equal(hevr.load_image(f).decrypt(priv), ref[mode])
+    size = f.stat().st_size
+    injected = 0
+    for pos in sorted({*range(0, 64), *range(64, size, max(1, size // 120)), *range(size - 40, size)}):
+        _flip(f, pos)
+        try:
+            with pytest.raises(hevr.HevrError):
+                hevr.load_image(f).decrypt(priv)
+        finally:
+            _flip(f, pos)
+        injected += 1
+    log.warning("image file faults (%s): %d injected, all detected", name, injected)
+    assert injected >= 150
+
+
+def test_impossible_work_is_refused_at_once(clean):
+    """step=1e-9 (10^11 samples per ray) and a 16384² image: RenderPlanError before any
+    allocation; the crafted image headers are in tests/test_image_integrity.py (each < 1 s)."""
+    path, cam, _, _, vol = clean
+    ev = hevr.open_volume(path)
+    big = hevr.Camera.orbit(ev, width=16384, height=16384)
+    for call in (lambda: hevr.render(ev, cam, step=1e-9, progress=False),
+                 lambda: hevr.render_plain(vol, cam, step=1e-9),
+                 lambda: hevr.render(ev, big, progress=False)):
+        with pytest.raises(hevr.RenderPlanError, match="step|width, height"):
+            call()
