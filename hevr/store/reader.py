@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import os
@@ -51,6 +52,14 @@ def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple
 def brick_slices(meta: VolumeMetadata, index: tuple[int, int, int]) -> tuple[slice, slice, slice]:
     """Array slices (z, y, x) of the voxels owned by brick ``index``."""
     return tuple(slice(i * b, min((i + 1) * b, s)) for i, b, s in zip(index, meta.brick, meta.shape))  # type: ignore[return-value]
+
+
+@functools.lru_cache(maxsize=64)
+def _array(path: str, store_id: str, name: str) -> Any:
+    """One store array, opened once per process (a render task reads one brick of it; opening
+    parses its metadata). Keyed by ``store_id`` too: a store replaced at the same path has
+    another id, so a stale handle is never used; open_volume checks the documents each time."""
+    return zarr.open_array(f"{path}/{name}", mode="r")
 
 
 class EncryptedVolume:
@@ -143,9 +152,9 @@ class EncryptedVolume:
         sl = self.brick_slices(index)
         index = tuple(int(i) for i in index)
         try:
-            arr = zarr.open_array(f"{self.path}/{channel}", mode="r")
+            arr = _array(self.path, self.meta.store_id, channel)
             data = np.asarray(arr[sl if channel == "scalar" else (slice(None),) + sl])
-            stored = np.asarray(zarr.open_array(f"{self.path}/done", mode="r")[index]) if verify else None
+            stored = np.asarray(_array(self.path, self.meta.store_id, "done")[index]) if verify else None
         except Exception as exc:
             raise CorruptStoreError(
                 f"{self.path}: brick {index} of channel {channel!r} cannot be read ({type(exc).__name__}: {exc})"
