@@ -165,15 +165,15 @@ def check_brick(brick: Any, name: str = "brick", *, shape: Any = None) -> tuple[
     must stay small enough to hold in a worker's memory: at most :data:`MAX_BRICK_EDGE`
     (4096) voxels along an axis and :data:`MAX_BRICK_VOXELS` (2^24 = 256³) voxels in all —
     already 8 GiB of 2048-bit ciphertexts per channel, while useful bricks hold 10³–64³.
-    With ``shape`` (the volume's), each axis is first clipped to the volume's size, so a
-    brick bigger than the volume means "one brick along that axis" and is never refused
-    for that alone.
+    With ``shape`` (the volume's), each axis is then clipped to the volume's size, so a
+    brick bigger than the volume (up to the caps) means "one brick along that axis" and the
+    Zarr chunk is never bigger than the volume.
 
     Examples
     --------
     >>> check_brick((2, 3, 4))
     (2, 3, 4)
-    >>> check_brick(10**9, shape=(20, 30, 40))
+    >>> check_brick(1000, shape=(20, 30, 40))
     (20, 30, 40)
     >>> check_brick(0)
     Traceback (most recent call last):
@@ -190,10 +190,10 @@ def check_brick(brick: Any, name: str = "brick", *, shape: Any = None) -> tuple[
         out = ()
     if len(out) != 3 or not all(_is_int(b) and b > 0 for b in out):
         raise ParameterError(f"{name}: expected a positive int or 3 positive ints (B0, B1, B2), got {brick!r}")
-    if shape is not None:
-        out = tuple(min(b, s) for b, s in zip(out, check_shape(shape)))
     if max(out) > MAX_BRICK_EDGE:
         raise ParameterError(f"{name}: expected at most {MAX_BRICK_EDGE} voxels per axis, got {brick!r}")
+    if shape is not None:
+        out = tuple(min(b, s) for b, s in zip(out, check_shape(shape)))
     if math.prod(out) > MAX_BRICK_VOXELS:
         raise ParameterError(f"{name}: expected at most {MAX_BRICK_VOXELS} voxels per brick (2^24, e.g. 256^3), "
                              f"got {tuple(int(b) for b in out)} = {math.prod(out)} voxels")

@@ -210,3 +210,25 @@ def test_impossible_work_is_refused_at_once(clean):
                  lambda: hevr.render(ev, big, progress=False)):
         with pytest.raises(hevr.RenderPlanError, match="step|width, height"):
             call()
+
+
+@pytest.mark.slow
+def test_every_bit_of_every_metadata_document(clean):
+    """Exhaustive: each of the ~24 000 single-bit flips of the four metadata documents makes
+    open_volume raise a HevrError (Zarr alone tolerates some of them, e.g. a misspelt key)."""
+    path = clean[0]
+    flips = 0
+    for doc in ("zarr.json", "scalar/zarr.json", "vector/zarr.json", "done/zarr.json"):
+        f = path / doc
+        blob = f.read_bytes()
+        for pos in range(len(blob)):
+            for bit in range(8):
+                damaged = bytearray(blob)
+                damaged[pos] ^= 1 << bit
+                f.write_bytes(bytes(damaged))
+                with pytest.raises(hevr.HevrError):
+                    hevr.open_volume(path, verify="none")
+                flips += 1
+        f.write_bytes(blob)
+    log.warning("metadata sweep: %d flips, all detected", flips)
+    assert flips > 20000
