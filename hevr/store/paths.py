@@ -93,8 +93,14 @@ def remove_tree(path: str) -> None:
 
 def swap(new: str, path: str) -> None:
     """Put the complete store ``new`` at ``path``; the old store is moved aside first and
-    deleted only once the new one is in place (restored if the second move fails)."""
+    deleted only once the new one is in place (restored if the second move fails).
+
+    POSIX has no portable atomic exchange of two folders: if the process is killed between
+    the two renames (a window of microseconds locally), ``path`` is missing and both stores
+    sit beside it, complete, as ``.NAME.hevr-old-…`` and ``.NAME.hevr-new-…`` (logged first);
+    renaming either back restores a store. Nothing is lost either way."""
     old = sibling(path, "old")
+    log.info("replacing %s: old store moved to %s, new store %s moved in", path, old, new)
     if is_local(path):
         os.replace(path, old)
         try:
