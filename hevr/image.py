@@ -116,6 +116,19 @@ class EncryptedImage:
             to an essentially uniform element of Z_n and passes with probability below 2^-64
             (the planner's integrity margin, :mod:`hevr.rendering.planner`).
         """
+        C = self.channels
+        H, W = self.shape[:2]
+        out = np.zeros((H, W, C), dtype=object)
+        offset = int(self.offset)
+        for r0, r1, c0, c1, mask, vals in self._checked_tiles(private_key, backend):
+            block = out[r0:r1, c0:c1, :]
+            block[mask] = np.array([v - offset for v in vals], dtype=object).reshape(-1, C)
+        return out[..., 0] if len(self.shape) == 2 else out
+
+    def _checked_tiles(self, private_key: Any, backend: str | None):
+        """Check the image's numbers now, then return an iterator over the tiles with hits:
+        (r0, r1, c0, c1, hit mask, checked values with the offset), in tile order, which raises
+        on the first faulty ciphertext (the rules of :meth:`decrypt_mantissas`)."""
         be = get_backend(backend)
         if not isinstance(private_key, PrivateKey):
             raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
@@ -124,14 +137,16 @@ class EncryptedImage:
                 f"private_key: the image was encrypted under key {str(self.fingerprint)[:16]}…, "
                 f"got a key with fingerprint {private_key.public_key.fingerprint[:16]}…"
             )
-        layout, hits, _ = check_image(self)
+        layout, hits, _ = check_image(self)  # eagerly: before the caller uses any number of the image
         n = private_key.public_key.n
         if int(self.n) != int(n):
             raise IntegrityError(f"image: its modulus n is not the one of its key fingerprint; {_CORRUPT}")
+        return self._tile_values(private_key, be, layout, hits, int(n))
+
+    def _tile_values(self, private_key: Any, be: Any, layout: Any, hits: np.ndarray | None, n: int):
+        """The iterator of :meth:`_checked_tiles`: range-check, decrypt and unpack tile by tile."""
         C = self.channels
-        H, W = self.shape[:2]
-        out = np.zeros((H, W, C), dtype=object)
-        bound, offset, J, b = int(self.bound), int(self.offset), int(self.per_pack), int(self.pack_bits)
+        bound, J, b = int(self.bound), int(self.per_pack), int(self.pack_bits)
         nsquare = int(n) * int(n)
         for t in range(layout.n_tiles):
             if not len(self.ciphertexts[t]):
@@ -154,17 +169,21 @@ class EncryptedImage:
                         f"pixel {pix} (ciphertext {j}) decrypts to a value outside the render plan's range "
                         f"[0, bound]")
                 raise IntegrityError(f"{tile_name(layout, t)}: {what}; {_CORRUPT}")
-            block = out[r0:r1, c0:c1, :]
-            block[mask] = np.array([v - offset for v in vals], dtype=object).reshape(-1, C)
-        return out[..., 0] if len(self.shape) == 2 else out
+            yield r0, r1, c0, c1, mask, vals
 
     def decrypt(self, private_key: Any, backend: str | None = None) -> np.ndarray:
         """Decrypt to float64 pixel values (batch CRT decryption on ``backend``, then unpacking),
-        after the checks of :meth:`decrypt_mantissas` (``IntegrityError`` on any fault)."""
-        m = self.decrypt_mantissas(private_key, backend)
-        scale = Fraction(10) ** self.exponent
-        flat = [float(int(v) * scale) for v in m.ravel()]
-        return np.array(flat, dtype=np.float64).reshape(self.shape)
+        after the checks of :meth:`decrypt_mantissas` (``IntegrityError`` on any fault). Only
+        the hit pixels are converted (exactly rounded); pixels whose rays miss stay 0.0."""
+        C = self.channels
+        H, W = self.shape[:2]
+        out = np.zeros((H, W, C), dtype=np.float64)
+        tiles = self._checked_tiles(private_key, backend)  # checks the header numbers first
+        offset, scale = int(self.offset), Fraction(10) ** self.exponent
+        for r0, r1, c0, c1, mask, vals in tiles:
+            block = out[r0:r1, c0:c1, :]
+            block[mask] = np.array([float((v - offset) * scale) for v in vals], dtype=np.float64).reshape(-1, C)
+        return out[..., 0] if len(self.shape) == 2 else out
 
     # -- files --------------------------------------------------------------------------
     def _header(self) -> dict:

@@ -13,7 +13,10 @@ volume. So it stays with the data owner, in a **journal** in the owner's cache f
   SHA-256(dtype ‖ shape ‖ the brick's plaintext bytes, C order).
 
 A resume recomputes the per-brick digests of the volume it is given and refuses any
-difference, naming the first brick that differs. A resume on a machine without the
+difference, naming the first brick that differs. A journal lives as long as its store: it
+stays after completion (so that ``resume=True`` on a finished store stays a verified no-op)
+and is deleted when ``overwrite=True`` replaces the store; journals of stores deleted by
+hand can be deleted with them (their names are the stores' ``store_id``). A resume on a machine without the
 journal is refused too: the input cannot be shown to be the same. The journal holds
 digests of the plaintext; it is as sensitive as a hash of the volume and stays on the
 owner's machine, next to the plaintext it describes (docs/security.md).
@@ -42,7 +45,8 @@ from ..errors import ParameterError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["journal_dir", "journal_path", "plain_digest", "input_digests", "write_journal", "check_journal"]
+__all__ = ["journal_dir", "journal_path", "plain_digest", "input_digests", "write_journal", "check_journal",
+           "remove_journal"]
 
 FORMAT = "hevr-resume-journal"
 
@@ -91,6 +95,15 @@ def write_journal(store_id: str, path: str, fingerprint: str, digests: dict) -> 
     write_atomic(target, json.dumps(doc, indent=1) + "\n", mode=0o600)
     log.info("resume journal of %s: %s", path, target)
     return target
+
+
+def remove_journal(store_id: str) -> None:
+    """Forget the journal of a store that was replaced (``overwrite=True``); best effort."""
+    if store_id:
+        try:
+            journal_path(store_id).unlink(missing_ok=True)
+        except OSError as exc:  # pragma: no cover - a read-only cache folder
+            log.warning("could not remove the resume journal of store %s: %s", store_id, exc)
 
 
 def check_journal(store_id: str, path: str, fingerprint: str, digests: dict) -> None:

@@ -4,6 +4,7 @@ without ever losing the old one (write beside, then swap)."""
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import os
 import secrets
@@ -11,14 +12,13 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-import zarr
-
 from ..errors import StoreExistsError
+from .metadata import FORMAT_NAME
 
 log = logging.getLogger(__name__)
 
-__all__ = ["token", "is_local", "store_exists", "sibling", "check_replaceable", "remove_tree", "swap",
-           "read_document", "document_digest"]
+__all__ = ["token", "is_local", "normalise", "store_exists", "interrupted_swaps", "sibling", "check_replaceable",
+           "remove_tree", "swap", "read_document", "document_digest"]
 
 
 def token() -> str:
@@ -29,14 +29,36 @@ def is_local(path: str) -> bool:
     return "://" not in path
 
 
+def normalise(path: str | os.PathLike) -> str:
+    """The one spelling of a store path: local paths absolute and resolved (workers may run
+    elsewhere), URLs without a trailing slash (``memory://x/`` and ``memory://x`` are one store).
+
+    >>> normalise("memory://bucket/v.zarr/")
+    'memory://bucket/v.zarr'
+    """
+    text = str(path)
+    return str(Path(text).resolve()) if is_local(text) else text.rstrip("/")
+
+
 def store_exists(path: str) -> bool:
+    """Whether anything at all is at ``path`` (a folder, a file, or any object under a URL
+    prefix): such a path is never written over without ``overwrite=True``."""
     if is_local(path):
-        return Path(path).exists()
+        return Path(path).exists() or Path(path).is_symlink()
+    fs, root = _fs(path)
+    return bool(fs.exists(root))
+
+
+def interrupted_swaps(path: str) -> list[str]:
+    """Stores an interrupted overwrite left beside a local ``path`` (see :func:`swap`)."""
+    if not is_local(path):
+        return []
+    p = Path(path)
     try:
-        zarr.open_group(path, mode="r")
-        return True
-    except Exception:
-        return False
+        return sorted(str(q) for q in p.parent.glob(f".{p.name}.hevr-*-*") if q.name.split(".hevr-")[1][:4] in
+                      ("old-", "new-"))
+    except OSError:
+        return []
 
 
 def read_document(path: str, name: str) -> bytes:
@@ -63,14 +85,21 @@ def sibling(path: str, what: str) -> str:
     return f"{path.rstrip('/')}.hevr-{what}-{token()}"
 
 
-def check_replaceable(path: str) -> None:
-    """``overwrite=True`` replaces only an hevr (Zarr) store, never another folder or a file."""
-    if is_local(path):
-        p = Path(path)
-        if not p.is_dir():
-            raise StoreExistsError(f"path: {path} exists and is not a directory; refusing to replace it")
-        if not (p / "zarr.json").exists():
-            raise StoreExistsError(f"path: {path} exists and is not a Zarr store; refusing to replace it")
+def check_replaceable(path: str) -> str:
+    """``overwrite=True`` replaces only an hevr store (any format version), never another
+    folder, file, Zarr group or prefix; returns its ``store_id`` ('' if it has none)."""
+    if is_local(path) and not Path(path).is_dir():
+        raise StoreExistsError(f"path: {path} exists and is not a directory; refusing to replace it")
+    try:
+        attrs = json.loads(read_document(path, "")).get("attributes", {}).get("hevr", {})
+        ok = isinstance(attrs, dict) and attrs.get("format") == FORMAT_NAME
+    except (OSError, ValueError, AttributeError):
+        ok, attrs = False, {}
+    if not ok:
+        raise StoreExistsError(f"path: {path} exists and is not an hevr store (no readable zarr.json with an "
+                               "'hevr' attribute); refusing to replace it")
+    store_id = attrs.get("store_id", "")
+    return store_id if isinstance(store_id, str) else ""
 
 
 def _fs(path: str) -> tuple[Any, str]:

@@ -26,7 +26,13 @@ from ..errors import (
 )
 from .digests import DIGEST_BYTES, brick_digest, digest_hex
 from .metadata import VolumeMetadata
-from .paths import document_digest, read_document
+from .paths import (
+    document_digest,
+    interrupted_swaps,
+    is_local,
+    normalise,
+    read_document,
+)
 
 log = logging.getLogger(__name__)
 
@@ -302,11 +308,12 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
         Naming what is wrong and where.
     """
     check_choice("verify", verify, ("quick", "full", "none"))
-    path = str(path)
-    if "://" not in path:
-        if not Path(path).exists():
-            raise MissingFileError("path", "an encrypted volume store", path)
-        path = str(Path(path).resolve())  # workers may run in another working directory
+    path = normalise(path)  # absolute: workers may run in another working directory
+    if is_local(path) and not Path(path).exists():
+        left = interrupted_swaps(path)
+        hint = (f" (an interrupted overwrite left {', '.join(Path(q).name for q in left)} beside it: rename "
+                f"one of them to {Path(path).name})") if left else ""
+        raise MissingFileError("path", "an encrypted volume store" + hint, path)
     try:
         group = zarr.open_group(path, mode="r")
         attrs = dict(group.attrs)

@@ -34,7 +34,7 @@ from ..errors import (
 )
 from .digests import brick_digest
 from .metadata import VolumeMetadata
-from .paths import is_local, store_exists, token
+from .paths import is_local, normalise, remove_tree, store_exists, token
 from .reader import EncryptedVolume, brick_slices, open_volume
 from .writer import create_store
 
@@ -70,7 +70,11 @@ def _copy_brick(src: str, dst: str, index: tuple[int, int, int], meta_dict: dict
     digests = []
     for name in meta.channel_names:
         key = sl if name == "scalar" else (slice(None),) + sl
-        data = np.asarray(zarr.open_array(f"{src}/{name}", mode="r")[key])
+        try:
+            data = np.asarray(zarr.open_array(f"{src}/{name}", mode="r")[key])
+        except Exception as exc:  # noqa: BLE001 - whatever a damaged chunk raises, name the brick
+            raise CorruptStoreError(f"{src}: brick {index} of channel {name!r} cannot be read "
+                                    f"({type(exc).__name__}: {exc})") from None
         flat = data.reshape(-1, data.shape[-1])
         bad = be.first_out_of_range(be.from_bytes(flat), n2)
         if bad is not None:
@@ -101,8 +105,7 @@ def upgrade_store(src: str | os.PathLike, dst: str | os.PathLike, *, client: Any
     EncryptedVolume
         The new store, opened.
     """
-    src = str(Path(src).resolve()) if is_local(str(src)) else str(src)
-    dst = str(Path(dst).resolve()) if is_local(str(dst)) else str(dst)
+    src, dst = normalise(src), normalise(dst)
     old = _old_metadata(src)
     if store_exists(dst):
         raise StoreExistsError(f"dst: {dst} already exists; choose a new path for the upgraded store")
@@ -112,7 +115,12 @@ def upgrade_store(src: str | os.PathLike, dst: str | os.PathLike, *, client: Any
     task = dask.delayed(_copy_brick, pure=False)
     tasks = [task(src, dst, idx, meta_dict, dask_key_name=f"hevr-upgrade-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
              for idx in (tuple(int(i) for i in ix) for ix in np.ndindex(*meta.grid))]
-    compute(tasks, client=client, progress=progress, desc="upgrade")
-    zarr.open_group(dst, mode="r+").attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
+    try:
+        compute(tasks, client=client, progress=progress, desc="upgrade")
+        zarr.open_group(dst, mode="r+").attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
+    except BaseException:
+        log.warning("upgrade of %s failed; removing the partial new store %s", src, dst)
+        remove_tree(dst)
+        raise
     log.info("upgraded %s (format 1) to %s (format 2)", src, dst)
     return open_volume(dst)

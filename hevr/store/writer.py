@@ -61,12 +61,13 @@ from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume.density import default_value_range, encode_density, normalize_density
 from .digests import brick_digest
-from .journal import check_journal, input_digests, write_journal
+from .journal import check_journal, input_digests, remove_journal, write_journal
 from .metadata import ChannelInfo, VolumeMetadata
 from .paths import (
     check_replaceable,
     document_digest,
-    is_local,
+    interrupted_swaps,
+    normalise,
     remove_tree,
     sibling,
     store_exists,
@@ -288,7 +289,9 @@ def encrypt_volume(
         fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
         value_range=vr, scalar=sc, vector=vc,
     )
-    path = str(Path(path).resolve()) if is_local(str(path)) else str(path)
+    path = normalise(path)
+    if interrupted_swaps(path):
+        log.warning("an interrupted overwrite left %s beside %s; they are not touched", interrupted_swaps(path), path)
     _warn_if_remote(client, key)
     exists = store_exists(path)
     if exists and not (resume or overwrite):
@@ -302,7 +305,7 @@ def encrypt_volume(
         target = path
     else:
         if exists:
-            check_replaceable(path)
+            old_id = check_replaceable(path)
         meta = dataclasses.replace(meta, store_id=token() + token())
         write_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
         target = sibling(path, "new") if exists else path  # overwrite: beside the old store, then swap
@@ -320,6 +323,7 @@ def encrypt_volume(
         raise
     if target != path:
         swap(target, path)
+        remove_journal(old_id)  # the replaced store's resume evidence is of no more use
     return open_volume(path)
 
 
@@ -327,7 +331,10 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
          unsafe_no_obfuscation: bool, backend: str, client: Any, progress: bool) -> None:
     """Encrypt the bricks ``todo`` into the store at ``path`` (one impure task per brick), then
     mark the store complete once every digest marker is written."""
-    darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(vol, chunks=brick)
+    # A random name: dask's default is a hash of the array's content, which would put a value
+    # that confirms a guessed volume into the task graph, the scheduler's logs and dashboard.
+    darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(
+        vol, chunks=brick, name=f"hevr-plain-{token()}{token()}")
     blocks = darr.rechunk(brick).to_delayed()
     task = dask.delayed(_encrypt_brick, pure=False)
     meta_dict = meta.to_dict()

@@ -116,3 +116,14 @@ def test_upgrade_store_command_and_info_on_old_formats(tmp_path, keypair256, cap
     (tmp_path / "v1.hevr").write_bytes(b"HEVRIMG\x01" + b"\x00" * 64)
     assert main(["info", str(tmp_path / "v1.hevr")]) == 1
     assert "version 1 is no longer read" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage"])
+def test_a_damaged_old_chunk_is_named_and_leaves_nothing(v1, tmp_path, damage):
+    path, _ = v1
+    f = path / "scalar" / "c" / "1" / "0" / "1" / "0"
+    blob = f.read_bytes()
+    f.write_bytes(blob[:-7] if damage == "truncate" else b"\x1f\x8b" + blob)
+    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(1, 0, 1\) of channel 'scalar'"):
+        hevr.upgrade_store(path, tmp_path / "new.zarr", progress=False)
+    assert not (tmp_path / "new.zarr").exists()

@@ -9,8 +9,10 @@ from pathlib import Path
 
 import dask
 import dask.array as da
+import fsspec
 import numpy as np
 import pytest
+import zarr
 
 import hevr
 from hevr.store import writer as store_mod
@@ -329,3 +331,74 @@ def test_remote_store_overwrite_swaps(keypair256):
     hevr.encrypt_volume(np.ones(SHAPE, np.uint8), url, pub, brick=BRICK, progress=False)
     ev = hevr.encrypt_volume(np.full(SHAPE, 7, np.uint8), url, pub, brick=BRICK, progress=False, overwrite=True)
     assert np.array_equal(_decrypt_scalar(ev, priv).astype(np.int64), np.full(SHAPE, 7))
+
+
+# -- paths that hold something else, remote paths, graph names (review findings) -----------------
+
+
+def test_a_remote_prefix_with_other_data_is_never_written_over(keypair256):
+    fs = fsspec.filesystem("memory")
+    fs.pipe("/hevr-test-precious/notes.txt", b"do not delete")
+    url = "memory://hevr-test-precious"
+    with pytest.raises(hevr.StoreExistsError, match="already exists"):
+        hevr.encrypt_volume(np.ones(SHAPE, np.uint8), url, keypair256[0], brick=BRICK, progress=False)
+    with pytest.raises(hevr.StoreExistsError, match="not an hevr store"):
+        hevr.encrypt_volume(np.ones(SHAPE, np.uint8), url, keypair256[0], brick=BRICK, progress=False, overwrite=True)
+    assert fs.cat("/hevr-test-precious/notes.txt") == b"do not delete"
+
+
+def test_overwrite_refuses_a_zarr_group_that_is_not_hevr(tmp_path, keypair256):
+    group = zarr.open_group(str(tmp_path / "other.zarr"), mode="w")
+    group.create_array("precious", shape=(2,), dtype="uint8")
+    with pytest.raises(hevr.StoreExistsError, match="not an hevr store"):
+        hevr.encrypt_volume(np.ones(SHAPE, np.uint8), tmp_path / "other.zarr", keypair256[0], brick=BRICK,
+                            progress=False, overwrite=True)
+    assert "precious" in zarr.open_group(str(tmp_path / "other.zarr"), mode="r")
+
+
+def test_remote_url_with_a_trailing_slash_is_one_store(keypair256):
+    pub, priv = keypair256
+    vol = _vol("uint8")
+    ev = hevr.encrypt_volume(vol, "memory://hevr-test-slash/v.zarr/", pub, brick=BRICK, progress=False)
+    assert ev.path == "memory://hevr-test-slash/v.zarr"
+    assert np.array_equal(_decrypt_scalar(ev, priv).astype(np.int64), vol.astype(np.int64))
+    again = hevr.encrypt_volume(vol, "memory://hevr-test-slash/v.zarr/", pub, brick=BRICK, progress=False, resume=True)
+    assert again.meta.store_id == ev.meta.store_id
+
+
+def test_the_task_graph_names_nothing_derived_from_the_volume(tmp_path, keypair256, monkeypatch):
+    """dask's default name for an in-memory array is a hash of its content, which would let
+    anyone who sees the graph (scheduler logs, dashboard) confirm a guessed volume."""
+    vol = _vol("uint8")
+    seen = []
+    real = store_mod.compute
+
+    def spy(tasks, **kw):
+        seen.extend(str(k) for t in tasks for k in dict(t.__dask_graph__()).keys())
+        return real(tasks, **kw)
+
+    monkeypatch.setattr(store_mod, "compute", spy)
+    hevr.encrypt_volume(vol, tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False)
+    token = dask.base.tokenize(vol)
+    assert seen and not any(token in k for k in seen)
+    assert any(k.startswith("hevr-plain-") or "hevr-plain-" in k for k in seen)
+
+
+def test_an_interrupted_swap_is_named(tmp_path, keypair256):
+    """Killed between the two renames of an overwrite: nothing at the path, both stores beside it."""
+    ev = hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False)
+    Path(ev.path).rename(tmp_path / ".v.zarr.hevr-old-0123abcd")
+    with pytest.raises(hevr.MissingFileError, match=r"interrupted overwrite left \.v\.zarr\.hevr-old-0123abcd"):
+        hevr.open_volume(tmp_path / "v.zarr")
+    (tmp_path / ".v.zarr.hevr-old-0123abcd").rename(tmp_path / "v.zarr")
+    hevr.open_volume(tmp_path / "v.zarr")
+
+
+def test_overwrite_deletes_the_replaced_stores_journal(tmp_path, keypair256):
+    folder = tmp_path / "journals"
+    with dask.config.set({"hevr.journal-dir": str(folder)}):
+        first = hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False)
+        second = hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False,
+                                     overwrite=True)
+    assert sorted(p.name for p in folder.iterdir()) == [f"{second.meta.store_id}.json"]
+    assert first.meta.store_id != second.meta.store_id
