@@ -10,8 +10,9 @@ Raw uncompressed data is memory-mapped so huge volumes are read only once, when 
 Hostile files end in :class:`hevr.VolumeFormatError` (or :class:`hevr.MissingFileError`),
 quickly and in bounded memory: sizes are checked against the file before anything is
 mapped, gzip data is decompressed only up to the size the header announces (a "zip bomb"
-costs at most that), ``line skip`` stops at the end of the file, and header numbers must be
-ASCII decimal integers.
+costs at most that), a gzip ``byte skip`` may pass at most the data's size + 64 MiB (it
+is decompressed to be skipped), ``line skip`` stops at the end of the file, and header numbers
+must be ASCII decimal integers.
 """
 
 from __future__ import annotations
@@ -331,9 +332,15 @@ def _physical_memory() -> int | None:
         return None
 
 
+MAX_GZIP_SKIP = 64 << 20  # bytes of decompressed stream a gzip "byte skip" may pass beyond the data's size
+
+
 def _read_gzip(path: Path, offset: int, byte_skip: int, shape: tuple[int, int, int],
                dtype: np.dtype, what: str) -> np.ndarray:
     need = math.prod(shape) * dtype.itemsize
+    if byte_skip > need + MAX_GZIP_SKIP:  # skipping means decompressing: seconds per GB
+        raise _fail(path, f"NRRD 'byte skip': expected at most {need + MAX_GZIP_SKIP} bytes before "
+                          f"{what}gzip data of {need} bytes, got {byte_skip}")
     memory = _physical_memory()
     if memory is not None and need > memory:  # gzip data is decompressed into memory
         raise _fail(path, f"too big: {what}{need} bytes of gzip-compressed data (shape {shape} of "

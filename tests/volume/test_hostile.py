@@ -81,7 +81,21 @@ def test_gzip_sizes_beyond_memory_are_refused_before_reading(tmp_path: Path) -> 
 def test_gzip_byte_skip_beyond_the_data(tmp_path: Path) -> None:
     path = tmp_path / "skip.nrrd"
     path.write_bytes(header(encoding="gzip", byte_skip="10000000000000") + gzip.compress(bytes(16)))
-    assert "truncated" in refused(hevr.VolumeFormatError, hevr.load_volume, path)
+    assert "'byte skip': expected at most" in refused(hevr.VolumeFormatError, hevr.load_volume, path)
+
+
+def test_gzip_byte_skip_is_capped_before_decompressing(tmp_path: Path) -> None:
+    """A 4 GiB skip over a small bomb used to decompress for seconds before failing."""
+    path = tmp_path / "skip.nrrd"
+    path.write_bytes(header(encoding="gzip", byte_skip=str(1 << 32)) + gzip.compress(bytes(1 << 20)))
+    assert "'byte skip': expected at most" in refused(hevr.VolumeFormatError, hevr.load_volume, path)
+
+
+def test_gzip_small_byte_skip_still_loads(tmp_path: Path) -> None:
+    path = tmp_path / "ok.nrrd"
+    path.write_bytes(header(encoding="gzip", byte_skip="5") + gzip.compress(b"HEAD!" + bytes(range(8))))
+    vol, _ = hevr.load_volume(path)
+    assert vol.ravel().tolist() == list(range(8))
 
 
 @pytest.mark.parametrize("line_skip", ["1000000000000", "99999999999999999999"])
