@@ -27,6 +27,7 @@ import numpy as np
 
 from ._limits import MAX_IMAGE_PIXELS, integrity_bits
 from ._tiles import TileLayout
+from .crypto.paillier import fingerprint
 from .crypto.records import record_width
 from .errors import CorruptStoreError, HevrError, IntegrityError
 
@@ -323,8 +324,7 @@ def _check_header(h: dict, ctx: Fields) -> dict:
     if not _is_int(h["width"]) or h["width"] != width:
         ctx.fail("width", f"{width} (the record width of n: ceil(2·bits(n)/8) bytes)", h["width"])
     fp = h["fingerprint"]
-    want_fp = hashlib.sha256(n.to_bytes((n.bit_length() + 7) // 8, "big")).hexdigest()  # = PublicKey.fingerprint
-    if fp != want_fp:
+    if fp != fingerprint(n):
         ctx.fail("fingerprint", "the SHA-256 of n (64 hex digits)", fp)
     bound = ctx.decimal("bound", h["bound"], MAX_N_DIGITS)
     offset = ctx.decimal("offset", h["offset"], MAX_N_DIGITS)

@@ -30,6 +30,7 @@ __all__ = [
     "MAX_BRICK_EDGE",
     "MAX_BRICK_VOXELS",
     "MAX_VECTOR_DIMS",
+    "MAX_STORE_DIGITS",
     "check_brick",
     "check_brick_index",
     "check_choice",
@@ -50,6 +51,8 @@ MAX_BRICK_VOXELS = 1 << 24
 # Largest density encoding (check_vector_dims): the paper uses 4; every dimension is one
 # more ciphertext per voxel and one more float64 per sample in the plaintext renderer.
 MAX_VECTOR_DIMS = 64
+# Most decimal digits a stored channel keeps (float digits=, the store metadata's exponents).
+MAX_STORE_DIGITS = 30
 
 # Voxel dtype kinds by letter (numpy's dtype.kind), in the order a message lists them.
 _KIND_NAMES = {"b": "bool", "i": "integer", "u": "integer", "f": "floating-point"}

@@ -13,6 +13,7 @@ key. The counts are logged by the tests (pytest -s shows them) and asserted.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import shutil
 from pathlib import Path
@@ -59,10 +60,17 @@ def _outcomes(path: Path, cam, priv, ref) -> list[bool]:
     return out
 
 
-def _flip(f: Path, pos: int) -> None:
-    blob = bytearray(f.read_bytes())
-    blob[pos] ^= 1 << (pos % 8)
-    f.write_bytes(bytes(blob))
+@contextlib.contextmanager
+def _flipped(f: Path, pos: int):
+    """One bit of ``f`` flipped (bit pos % 8 of byte pos) while the block runs, then restored."""
+    blob = f.read_bytes()
+    damaged = bytearray(blob)
+    damaged[pos] ^= 1 << (pos % 8)
+    f.write_bytes(bytes(damaged))
+    try:
+        yield
+    finally:
+        f.write_bytes(blob)
 
 
 def _positions(size: int, width: int) -> list[int]:
@@ -79,11 +87,8 @@ def test_one_bit_flips_in_every_chunk_and_marker_are_all_detected(clean):
     injected = detected = 0
     for f in files:
         for pos in _positions(f.stat().st_size, width):
-            _flip(f, pos)
-            try:
+            with _flipped(f, pos):
                 outcome = _outcomes(path, cam, priv, ref)
-            finally:
-                _flip(f, pos)
             injected += 1
             detected += any(outcome)
     log.warning("chunk faults: %d injected, %d detected", injected, detected)
@@ -97,11 +102,8 @@ def test_one_bit_flips_in_the_metadata_are_all_detected(clean, doc):
     size = f.stat().st_size
     injected = detected = 0
     for pos in range(0, size, 7 if doc == "zarr.json" else 11):
-        _flip(f, pos)
-        try:
+        with _flipped(f, pos):
             outcome = _outcomes(path, cam, priv, ref)
-        finally:
-            _flip(f, pos)
         injected += 1
         detected += all(outcome)  # metadata is read by every render
     log.warning("metadata faults in %s: %d injected, %d detected", doc, injected, detected)
@@ -188,12 +190,8 @@ def test_one_bit_flips_in_an_image_file_are_all_detected(clean, tmp_path, name):
     size = f.stat().st_size
     injected = 0
     for pos in sorted({*range(0, 64), *range(64, size, max(1, size // 120)), *range(size - 40, size)}):
-        _flip(f, pos)
-        try:
-            with pytest.raises(hevr.HevrError):
-                hevr.load_image(f).decrypt(priv)
-        finally:
-            _flip(f, pos)
+        with _flipped(f, pos), pytest.raises(hevr.HevrError):
+            hevr.load_image(f).decrypt(priv)
         injected += 1
     log.warning("image file faults (%s): %d injected, all detected", name, injected)
     assert injected >= 150

@@ -21,7 +21,7 @@ from typing import Any, Iterator
 import numpy as np
 from distributed import Client, LocalCluster
 
-from .._validate import MAX_BRICK_EDGE, MAX_VECTOR_DIMS
+from .._validate import MAX_BRICK_EDGE, MAX_STORE_DIGITS, MAX_VECTOR_DIMS
 from ..crypto.keyfile import load_key
 from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
 from ..errors import InsecureKeyWarning, MissingFileError, ParameterError
@@ -84,10 +84,10 @@ nonneg_int = _int_at_least(0, "a non-negative integer")
 
 
 def digits_type(text: str) -> int:
-    """``--digits``: decimal digits kept of float voxels, 0 .. 300 (10^300 still fits a float)."""
+    """``--digits``: decimal digits kept of float voxels, 0 .. MAX_STORE_DIGITS (the library's cap)."""
     v = nonneg_int(text)
-    if v > 300:
-        raise argparse.ArgumentTypeError(f"expected an integer in [0, 300], got {text!r}")
+    if v > MAX_STORE_DIGITS:
+        raise argparse.ArgumentTypeError(f"expected an integer in [0, {MAX_STORE_DIGITS}], got {text!r}")
     return v
 
 

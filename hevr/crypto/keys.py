@@ -13,7 +13,6 @@ log line or an exception message; private key files are created with mode 0600.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import secrets
@@ -81,8 +80,7 @@ class PublicKey:
     def fingerprint(self) -> str:
         """Hex SHA-256 of n as big-endian bytes."""
         if self._fingerprint is None:
-            nb = int(self.n).to_bytes((self.bits + 7) // 8, "big")
-            self._fingerprint = hashlib.sha256(nb).hexdigest()
+            self._fingerprint = raw.fingerprint(self.n)
         return self._fingerprint
 
     @property

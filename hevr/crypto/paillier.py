@@ -18,6 +18,8 @@ True
 
 from __future__ import annotations
 
+import hashlib
+
 import gmpy2
 from gmpy2 import mpz
 
@@ -34,7 +36,18 @@ __all__ = [
     "raw_decode_signed",
     "raw_encode_signed",
     "max_int",
+    "fingerprint",
 ]
+
+
+def fingerprint(n: int) -> str:
+    """The key's identity: hex SHA-256 of n as big-endian bytes of length ceil(bits(n)/8).
+
+    >>> fingerprint(143)[:16]
+    '5e37305c587caf07'
+    """
+    n = int(n)
+    return hashlib.sha256(n.to_bytes((n.bit_length() + 7) // 8, "big")).hexdigest()
 
 
 def max_int(n: int) -> int:

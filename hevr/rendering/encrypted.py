@@ -143,9 +143,9 @@ def render(
                                                           digits, precision, comb_digits)
     tile = check_int("tile", tile, 1, 4096)
     backend = resolve_backend_name(backend)
-    check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
+    checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
     t0 = time.perf_counter()
-    rays = cast_rays(camera, ev.shape, ev.spacing, spec.step)
+    rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
     comb = combination_matrix(spec, ev.vector_dims) if spec.needs_vector else None
     plan = plan_render(n=int(ev.public_key.n), spec=spec, meta=ev.meta, n_samples=rays.n_samples,
                        digits=digits if spec.sampling == "trilinear" else 0, precision=precision,
@@ -203,8 +203,8 @@ def error_bound(ev: EncryptedVolume, camera: Camera, mode: str = "xray", samplin
     """Per-pixel bound on |decrypted render − render_plain| (see the module docstring)."""
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits)
-    check_render_size(camera, ev.shape, ev.spacing, spec.step)
-    rays = cast_rays(camera, ev.shape, ev.spacing, spec.step)
+    checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)
+    rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
     n = rays.n_samples.astype(np.float64).reshape(camera.height, camera.width)
     if spec.channel == "scalar":
         qmax = max(abs(ev.value_range[0]), abs(ev.value_range[1]))

@@ -159,8 +159,8 @@ def render_plain(
     if dims is not None:
         dims = int(dims)
     sp = check_spacing(spacing)
-    check_render_size(camera, arr.shape, sp, spec.step)  # before anything per pixel or sample
-    rays = cast_rays(camera, arr.shape, sp, spec.step)
+    checked = check_render_size(camera, arr.shape, sp, spec.step)  # before anything per pixel or sample
+    rays = checked if checked is not None else cast_rays(camera, arr.shape, sp, spec.step)
     field, channels = _make_field(arr, spec, value_range, dims)
     nz, ny, nx = arr.shape
     strides = np.array([1, nx, nx * ny], dtype=np.int64)  # (i, j, k) -> flat C-order index

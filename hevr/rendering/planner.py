@@ -75,7 +75,7 @@ from ..errors import ParameterError, RenderPlanError
 from ..store.metadata import VolumeMetadata
 from .camera import Camera
 from .modes import RenderSpec
-from .rays import cast_rays
+from .rays import RaySet, cast_rays
 
 __all__ = [
     "DEFAULT_MAX_PIXELS",
@@ -228,7 +228,7 @@ def max_ray_samples(shape: Any, spacing: Any, step: float) -> float:
     return ratio * (1.0 + 1e-9) + 2.0 if math.isfinite(ratio) else math.inf
 
 
-def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> None:
+def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> RaySet | None:
     """Refuse a render that is too big, before anything is allocated per pixel or sample.
 
     The one rule behind :func:`hevr.render`, :func:`hevr.error_bound` and
@@ -242,6 +242,12 @@ def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> None:
     spacing : (sx, sy, sz)
     step : float
         Sample distance in world units.
+
+    Returns
+    -------
+    RaySet or None
+        The cast rays when the exact count needed them (the caller reuses them rather than
+        casting twice), else ``None``.
 
     Raises
     ------
@@ -270,9 +276,10 @@ def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> None:
         raise RenderPlanError(f"width, height: expected an image of at most {max_pixels} pixels "
                               f"(Dask config {MAX_PIXELS_KEY}), got {w}x{h} = {pixels} pixels")
     if pixels * max_ray_samples(shape, spacing, step) <= max_samples:
-        return
+        return None
     # The public bound is too loose to decide: count exactly (memory linear in pixels).
-    counts = cast_rays(camera, shape, spacing, step).n_samples
+    rays = cast_rays(camera, shape, spacing, step)
+    counts = rays.n_samples
     top = int(counts.max()) if counts.size else 0
     total = int(counts.sum()) if top * counts.size < 2**63 else float(counts.sum(dtype=np.float64))
     if total > max_samples:
@@ -281,3 +288,4 @@ def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> None:
             f"{total:.4g} samples for {w}x{h} rays through a {shape[2]}x{shape[1]}x{shape[0]} volume at "
             f"step {step:g}; use a larger step or a smaller image"
         )
+    return rays

@@ -45,7 +45,7 @@ import struct
 import google_crc32c
 import numpy as np
 
-__all__ = ["DIGEST_BYTES", "brick_digest", "digest_hex"]
+__all__ = ["DIGEST_BYTES", "brick_digest", "digest_hex", "marker", "written"]
 
 DIGEST_BYTES = 32
 _DOMAIN = b"hevr-brick-v2\x00"
@@ -60,6 +60,21 @@ def brick_digest(store_id: str, channel: str, index: tuple[int, int, int], recor
     h.update(struct.pack("<5q", *(int(i) for i in index), width, len(data)))
     h.update(struct.pack(">I", google_crc32c.value(data)))
     return h.digest()
+
+
+def marker(digests: list[bytes]) -> np.ndarray:
+    """The ``done`` entry of one brick: its channels' digests as a (C, 32) uint8 array."""
+    return np.frombuffer(b"".join(digests), np.uint8).reshape(len(digests), DIGEST_BYTES)
+
+
+def written(done: np.ndarray) -> np.ndarray:
+    """Which bricks have their digests: ``done`` (..., C, 32) -> bool (...); all-zero = not written.
+
+    >>> written(np.zeros((2, 1, 1, 2, 32), np.uint8)).tolist()
+    [[[False]], [[False]]]
+    """
+    done = np.asarray(done)
+    return done.reshape(done.shape[:-2] + (-1,)).any(axis=-1)
 
 
 def digest_hex(digest: bytes | np.ndarray) -> str:

@@ -31,6 +31,7 @@ import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from .._validate import MAX_STORE_DIGITS
 from ..errors import CorruptStoreError
 
 __all__ = ["ChannelInfo", "VolumeMetadata", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum"]
@@ -71,8 +72,8 @@ class ChannelInfo:
     def from_dict(cls, d: Any, where: str = "store", name: str = "channels") -> "ChannelInfo":
         if not isinstance(d, dict) or "exponent" not in d or set(d) - {"exponent", "digits", "dims"}:
             raise CorruptStoreError(f"{where}: {name}: expected an object with 'exponent' (and 'digits', 'dims'), got {d!r}")
-        exponent = _int(d["exponent"], f"{name}.exponent", where, -30, 30)
-        digits = _int(d["digits"], f"{name}.digits", where, 0, 30) if "digits" in d else None
+        exponent = _int(d["exponent"], f"{name}.exponent", where, -MAX_STORE_DIGITS, MAX_STORE_DIGITS)
+        digits = _int(d["digits"], f"{name}.digits", where, 0, MAX_STORE_DIGITS) if "digits" in d else None
         dims = _int(d["dims"], f"{name}.dims", where, 2, 64) if "dims" in d else None
         if digits is not None and exponent != -digits:
             raise CorruptStoreError(f"{where}: {name}.exponent: expected -digits = {-digits}, got {exponent}")

@@ -24,7 +24,7 @@ from ..errors import (
     MissingFileError,
     ParameterError,
 )
-from .digests import DIGEST_BYTES, brick_digest, digest_hex
+from .digests import DIGEST_BYTES, brick_digest, digest_hex, written
 from .metadata import VolumeMetadata
 from .paths import (
     document_digest,
@@ -167,10 +167,10 @@ class EncryptedVolume:
             ) from None
         if verify:
             want = stored[self.meta.channel_names.index(channel)]
-            got = brick_digest(self.meta.store_id, channel, index, data)
             if not want.any():
                 raise CorruptStoreError(f"{self.path}: brick {index} of channel {channel!r} has no digest "
                                         "(its marker is missing: the brick was never finished or was removed)")
+            got = brick_digest(self.meta.store_id, channel, index, data)
             if got != want.tobytes():
                 raise CorruptStoreError(
                     f"{self.path}: brick {index} of channel {channel!r}: digest mismatch (recorded "
@@ -274,12 +274,8 @@ def _check_arrays(path: str, group: Any, meta: VolumeMetadata) -> None:
     """Every array the metadata implies exists with exactly the layout hevr writes: shape,
     chunk shape, uint8, fill value 0, codecs ``bytes`` + ``crc32c``, no attributes."""
     for name, (shape, chunks) in array_layout(meta).items():
-        try:
+        try:  # a missing array was named by _check_documents already
             arr = group[name]
-        except KeyError:
-            what = f"channel {name!r} is declared but its array is missing" if name != "done" else \
-                "the digest array 'done' is missing"
-            raise CorruptStoreError(f"{path}: {what}") from None
         except Exception as exc:
             raise CorruptStoreError(f"{path}: array {name!r} cannot be opened ({type(exc).__name__}: {exc})") from None
         codecs = [c.to_dict().get("name") for c in arr.metadata.codecs] if hasattr(arr.metadata, "codecs") else None
@@ -322,8 +318,7 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     meta = VolumeMetadata.from_dict(attrs.get("hevr"), where=path)
     if not meta.complete:
         try:
-            done = np.asarray(group["done"][...])
-            missing = int((~done.reshape(done.shape[:3] + (-1,)).any(axis=-1)).sum())
+            missing = int((~written(group["done"][...])).sum())
         except Exception:
             missing = meta.n_bricks
         raise IncompleteStoreError(

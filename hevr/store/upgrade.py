@@ -32,7 +32,7 @@ from ..errors import (
     ParameterError,
     StoreExistsError,
 )
-from .digests import brick_digest
+from .digests import brick_digest, marker
 from .metadata import VolumeMetadata
 from .paths import is_local, normalise, remove_tree, store_exists, token
 from .reader import EncryptedVolume, brick_slices, open_volume
@@ -81,7 +81,7 @@ def _copy_brick(src: str, dst: str, index: tuple[int, int, int], meta_dict: dict
             raise CorruptStoreError(f"{src}: brick {index} of channel {name!r}: ciphertext {bad} is not in (0, n²)")
         group[name][key] = data
         digests.append(brick_digest(meta.store_id, name, index, data))
-    group["done"][index] = np.frombuffer(b"".join(digests), np.uint8).reshape(len(digests), -1)
+    group["done"][index] = marker(digests)
     return index
 
 

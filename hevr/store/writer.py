@@ -48,6 +48,7 @@ from zarr.codecs import Crc32cCodec
 from .. import _stats
 from .._dask import active_client, compute
 from .._validate import (
+    MAX_STORE_DIGITS,
     check_brick,
     check_data_range,
     check_int,
@@ -60,7 +61,7 @@ from ..backends import get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume.density import default_value_range, encode_density, normalize_density
-from .digests import brick_digest
+from .digests import brick_digest, marker, written
 from .journal import check_journal, input_digests, remove_journal, write_journal
 from .metadata import ChannelInfo, VolumeMetadata
 from .paths import (
@@ -113,15 +114,16 @@ def _plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_r
     max_int = int(key_n) // 3 - 1
     if scalar:
         if is_float:
-            d = check_int("digits", 3 if digits is None else digits, 0, 30)
+            d = check_int("digits", 3 if digits is None else digits, 0, MAX_STORE_DIGITS)
             if max(abs(lo), abs(hi)) * 10.0**d >= max_int:
                 raise ParameterError(f"digits: {d} digits overflow a {int(key_n).bit_length()}-bit key; use fewer")
             sc = ChannelInfo(exponent=-d, digits=d)
         else:
             if digits is not None:
                 raise ParameterError("digits: integer volumes are stored exactly; digits applies to float volumes only")
-            if max(abs(int(lo)), abs(int(hi))) >= max_int:
-                raise ParameterError(f"vol: values up to {max(abs(int(lo)), abs(int(hi)))} do not fit a "
+            top = max(abs(int(lo)), abs(int(hi)))
+            if top >= max_int:
+                raise ParameterError(f"vol: values up to {top} do not fit a "
                                      f"{int(key_n).bit_length()}-bit key (|value| must stay below n/3); use a larger key")
             sc = ChannelInfo(exponent=0)
     if vector_dims is not None:
@@ -178,7 +180,7 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
         digests.append(brick_digest(meta.store_id, "vector", index, out))
         with _stats.timed("encrypt.write"):
             group["vector"][(slice(None),) + sl] = out
-    group["done"][index] = np.frombuffer(b"".join(digests), np.uint8).reshape(len(digests), -1)
+    group["done"][index] = marker(digests)
     return index
 
 
@@ -290,8 +292,9 @@ def encrypt_volume(
         value_range=vr, scalar=sc, vector=vc,
     )
     path = normalise(path)
-    if interrupted_swaps(path):
-        log.warning("an interrupted overwrite left %s beside %s; they are not touched", interrupted_swaps(path), path)
+    left = interrupted_swaps(path)
+    if left:
+        log.warning("an interrupted overwrite left %s beside %s; they are not touched", left, path)
     _warn_if_remote(client, key)
     exists = store_exists(path)
     if exists and not (resume or overwrite):
@@ -301,7 +304,7 @@ def encrypt_volume(
         old = _resume_target(path, meta)
         meta = dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays)
         check_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
-        done = np.asarray(zarr.open_array(f"{path}/done", mode="r")[...]).reshape(meta.grid + (-1,)).any(axis=-1)
+        done = written(zarr.open_array(f"{path}/done", mode="r")[...])
         target = path
     else:
         if exists:
@@ -343,7 +346,7 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
              for idx in todo]
     compute(tasks, client=client, progress=progress, desc="encrypt")
     group = zarr.open_group(path, mode="r+")
-    final = np.asarray(group["done"][...]).reshape(meta.grid + (-1,)).any(axis=-1)
+    final = written(group["done"][...])
     if not final.all():  # pragma: no cover - tasks raise instead
         raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
     group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()

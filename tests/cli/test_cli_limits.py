@@ -50,6 +50,7 @@ def store(tmp_path_factory):
     (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--brick", "2,2,5000"], "--brick"),
     (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--workers", str(MAX_WORKERS + 1)], "--workers"),
     (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--digits", "1000"], "--digits: expected an integer"),
+    (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--digits", "31"], "--digits: expected an integer in [0, 30]"),
     (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--vector-dims", "100000"], "--vector-dims: expected"),
 ])
 def test_absurd_options_are_usage_errors(capsys, argv, needle):

@@ -63,7 +63,7 @@ def ev(tmp_path_factory):
 def test_defaults_and_the_paper_setting_fit() -> None:
     assert render_limits() == (DEFAULT_MAX_PIXELS, DEFAULT_MAX_SAMPLES) == (4096 * 4096, 2**31)
     shape = (100, 100, 100)
-    check_render_size(Camera.orbit(shape, width=150, height=150), shape, (1, 1, 1), 1.0)
+    assert check_render_size(Camera.orbit(shape, width=150, height=150), shape, (1, 1, 1), 1.0) is None
     check_render_size(Camera.orbit((200,) * 3, width=150, height=150), (200,) * 3, (1, 1, 1), 0.5)
 
 
@@ -91,7 +91,9 @@ def test_exact_count_decides_when_the_public_bound_is_too_loose() -> None:
     bound = 64 * 64 * max_ray_samples(shape, spacing, 0.5)
     assert exact < bound  # most rays miss or cross less than the diagonal
     with dask.config.set({MAX_SAMPLES_KEY: exact}):
-        check_render_size(cam, shape, spacing, 0.5)
+        rays = check_render_size(cam, shape, spacing, 0.5)  # counted exactly: the rays come back
+    assert np.array_equal(rays.n_samples, cast_rays(cam, shape, spacing, 0.5).n_samples)
+    assert check_render_size(cam, shape, spacing, 0.5) is None  # the public bound decided: nothing cast
     with dask.config.set({MAX_SAMPLES_KEY: exact - 1}):
         msg, _, _ = refused(hevr.RenderPlanError, check_render_size, cam, shape, spacing, 0.5)
     assert msg.startswith("step:") and MAX_SAMPLES_KEY in msg
