@@ -27,6 +27,7 @@ import numpy as np
 
 from ._limits import MAX_IMAGE_PIXELS, integrity_bits
 from ._tiles import TileLayout
+from ._validate import is_decimal
 from .crypto.paillier import fingerprint
 from .crypto.records import record_width
 from .errors import CorruptStoreError, HevrError, IntegrityError
@@ -95,7 +96,7 @@ class Fields:
             self.fail(name, "a decimal string", raw=f"{_show(value)} ({_kind(value)})")
         if not 1 <= len(value) <= max_digits:
             self.fail(name, f"a decimal string of 1 to {max_digits} digits", raw=f"{len(value)} characters")
-        if not (value.isascii() and value.isdigit()) or (len(value) > 1 and value[0] == "0"):
+        if not is_decimal(value, max_digits) or (len(value) > 1 and value[0] == "0"):
             self.fail(name, "a decimal string (digits 0-9, no sign, no leading zero)", value)
         return int(value)
 

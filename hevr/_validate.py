@@ -43,6 +43,7 @@ __all__ = [
     "check_value_range",
     "check_vector_dims",
     "check_volume",
+    "is_decimal",
 ]
 
 # Largest brick (check_brick): voxels along one axis, and voxels in all.
@@ -72,6 +73,19 @@ def _int_expectation(lo: int | None, hi: int | None) -> str:
     if lo is not None:
         return f"an integer >= {lo}"
     return "an integer" if hi is None else f"an integer <= {hi}"
+
+
+def is_decimal(value: Any, max_digits: int) -> bool:
+    """A string of 1 to ``max_digits`` ASCII digits 0-9 (the length is checked first).
+
+    ``str.isdigit`` and ``int`` alone also take '١٢٣' or fullwidth digits, and ``int`` of a
+    huge string is slow; every big integer read from a file (key files, store metadata, image
+    headers) passes this first.
+
+    >>> is_decimal("12345", 10), is_decimal("١٢٣", 10), is_decimal("-1", 10), is_decimal("9" * 11, 10)
+    (True, False, False, False)
+    """
+    return isinstance(value, str) and 0 < len(value) <= max_digits and value.isascii() and value.isdigit()
 
 
 def check_int(name: str, value: Any, lo: int | None = None, hi: int | None = None) -> int:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import warnings
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import gmpy2
 from gmpy2 import mpz
 
 from .._files import require_file
+from .._validate import is_decimal
 from ..errors import InsecureKeyWarning, InvalidKeyError
 from .keys import MAX_BITS, MIN_BITS, SECURE_BITS, PrivateKey, PublicKey
 from .primes import is_probable_prime
@@ -31,21 +31,18 @@ __all__ = ["MAX_KEY_FILE_BYTES", "load_key"]
 MAX_KEY_FILE_BYTES = 1 << 16
 # Decimal digits of the largest n a key file may hold (MAX_BITS bits); p and q have fewer.
 _MAX_DIGITS = math.ceil(MAX_BITS * math.log10(2)) + 1
-# ASCII digits only: str.isdigit() and int() also take '١٢٣' or fullwidth digits, and
-# gmpy2 refuses those with a ValueError.
-_DECIMAL = re.compile(r"[0-9]+")
 
 
 def _int_field(d: dict, name: str, path: Path) -> mpz:
     """Field ``name`` of the key file as an mpz; never quotes the value (it may be secret)."""
     v = d.get(name)
-    if isinstance(v, str) and _DECIMAL.fullmatch(v) is not None and len(v) <= _MAX_DIGITS:
+    if is_decimal(v, _MAX_DIGITS):
         return mpz(v)
     if v is None:
         got = "nothing"
     elif not isinstance(v, str):
         got = f"a JSON {type(v).__name__}"
-    elif _DECIMAL.fullmatch(v) is None:
+    elif not is_decimal(v, len(v)):
         got = f"a {len(v)}-character string with characters other than 0-9"
     else:
         got = f"{len(v)} digits"

@@ -31,7 +31,7 @@ import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from .._validate import MAX_STORE_DIGITS
+from .._validate import MAX_STORE_DIGITS, is_decimal
 from ..errors import CorruptStoreError
 
 __all__ = ["ChannelInfo", "VolumeMetadata", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum"]
@@ -205,7 +205,7 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     if not isinstance(pk, dict):
         raise _bad(where, "public_key", "an object", pk)
     n = _get(pk, "n", where, "public_key.")
-    if not (isinstance(n, str) and 0 < len(n) <= MAX_N_DIGITS and n.isascii() and n.isdigit() and n[0] != "0"):
+    if not (is_decimal(n, MAX_N_DIGITS) and n[0] != "0"):
         raise _bad(where, "public_key.n", "a decimal string (public_key.n must be a decimal string)", n)
     fingerprint = _get(pk, "fingerprint", where, "public_key.")
     if not (isinstance(fingerprint, str) and _HEX64.fullmatch(fingerprint)):
