@@ -2,7 +2,7 @@
 
 =================  =============================================================
 ``metadata``       versioned, checksummed, frozen store metadata (``VolumeMetadata``)
-``digests``        per-brick SHA-256 digests over ciphertext bytes and public ids
+``digests``        per-brick digests over ciphertext bytes (crc32c) and public ids
 ``journal``        owner-side resume journals (a resume cannot mix two volumes)
 ``paths``          local / fsspec store paths; write beside, then swap
 ``writer``         ``encrypt_volume``: brick-parallel encryption on Dask

@@ -34,7 +34,7 @@ from typing import Any
 from .._validate import MAX_STORE_DIGITS, is_decimal
 from ..errors import CorruptStoreError
 
-__all__ = ["ChannelInfo", "VolumeMetadata", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum"]
+__all__ = ["ChannelInfo", "VolumeMetadata", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
 
 FORMAT_NAME = "hevr-encrypted-volume"
 FORMAT_VERSION = 2
@@ -46,6 +46,15 @@ _STORE_ID = re.compile(r"[0-9a-f]{16}")
 _DOC_DIGEST = re.compile(r"sha256:[0-9a-f]{64}")
 
 
+def sha256_tag(data: bytes) -> str:
+    """``"sha256:<hex>"``: how the metadata writes a digest (its checksum, the arrays' documents).
+
+    >>> sha256_tag(b"")[:15]
+    'sha256:e3b0c442'
+    """
+    return "sha256:" + hashlib.sha256(data).hexdigest()
+
+
 def metadata_checksum(d: dict) -> str:
     """``"sha256:<hex>"`` of the canonical JSON of ``d`` without its ``checksum`` field.
 
@@ -54,7 +63,7 @@ def metadata_checksum(d: dict) -> str:
     """
     body = {k: v for k, v in d.items() if k != "checksum"}
     text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
-    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
+    return sha256_tag(text.encode())
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,6 @@ without ever losing the old one (write beside, then swap)."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -13,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import StoreExistsError
-from .metadata import FORMAT_NAME
+from .metadata import FORMAT_NAME, sha256_tag
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +73,7 @@ def read_document(path: str, name: str) -> bytes:
 def document_digest(path: str, name: str) -> str:
     """``"sha256:<hex>"`` of a metadata document's exact bytes: every byte counts, since Zarr
     tolerates some damage (a misspelt key falls back to a default)."""
-    return "sha256:" + hashlib.sha256(read_document(path, name)).hexdigest()
+    return sha256_tag(read_document(path, name))
 
 
 def sibling(path: str, what: str) -> str:

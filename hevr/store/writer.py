@@ -7,7 +7,7 @@ Layout (format ``hevr-encrypted-volume`` version 2, documented in ``docs/format.
       scalar/              uint8 (nz, ny, nx, W), chunks (bz, by, bx, W)      [optional]
       vector/              uint8 (k, nz, ny, nx, W), chunks (k, bz, by, bx, W) [optional]
       done/                uint8 (gz, gy, gx, C, 32), chunks (1, 1, 1, C, 32): per brick,
-                           the SHA-256 digest of each of its C channels (hevr.store.digests)
+                           the digest of each of its C channels (hevr.store.digests)
 
 W is the ciphertext width in bytes (2·bits/8); every ciphertext is a big-endian record,
 uncompressed, and every chunk ends in Zarr's crc32c. One chunk holds all of one brick's
