@@ -29,6 +29,7 @@ from .errors import (
     IntegrityError,
     InvalidKeyError,
     KeyMismatchError,
+    MemoryLimitError,
     MissingDependencyError,
     MissingFileError,
     ParameterError,
@@ -94,5 +95,6 @@ __all__ = [
     "VolumeFormatError",
     "MissingDependencyError",
     "MissingFileError",
+    "MemoryLimitError",
     "InsecureKeyWarning",
 ]

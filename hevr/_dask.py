@@ -70,20 +70,26 @@ class _Bar:
         sys.stderr.flush()
 
 
-def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, desc: str = "hevr") -> list[Any]:
-    """Compute dask delayed ``tasks`` on the active scheduler; results in task order."""
+def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, desc: str = "hevr",
+            keep: int = 0) -> list[Any]:
+    """Compute dask delayed ``tasks`` on the active scheduler; results in task order.
+
+    On a distributed client the last ``keep`` tasks are computed but not gathered: their
+    futures stand in their place and their data stays on the workers (the render keeps its
+    ray sums there for re-colouring). Without a client every result comes back.
+    """
     tasks = list(tasks)
     if not tasks:
         return []
     client = active_client(client)
     t0 = time.perf_counter()
     if client is not None:
-
         futures = client.compute(tasks)
         bar = _Bar(len(futures), desc, progress)
         for _ in as_completed(futures):
             bar.update()
-        results = client.gather(futures)
+        cut = len(futures) - keep
+        results = list(client.gather(futures[:cut])) + list(futures[cut:])
     else:
         if progress and len(tasks) > 1:
 

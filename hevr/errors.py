@@ -29,6 +29,7 @@ __all__ = [
     "VolumeFormatError",
     "MissingDependencyError",
     "MissingFileError",
+    "MemoryLimitError",
     "InsecureKeyWarning",
 ]
 
@@ -55,6 +56,11 @@ class PlaintextOverflowError(HevrError, OverflowError):
 
 class RenderPlanError(HevrError, ValueError):
     """The overflow planner refused a render whose mantissas could exceed n/3."""
+
+
+class MemoryLimitError(HevrError, MemoryError):
+    """A resident volume would take more of a worker's memory than ``hevr.limits.resident-memory``
+    allows; refused before anything is loaded."""
 
 
 class StoreError(HevrError):

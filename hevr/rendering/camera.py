@@ -226,37 +226,46 @@ class Camera:
         # + 0.0 turns the -0.0 a cross product can produce into 0.0 (cosmetic only).
         return d + 0.0, right + 0.0, up + 0.0
 
-    def rays(self) -> tuple[np.ndarray, np.ndarray]:
-        """Return ``(origins, directions)``, each (height*width, 3) float64.
+    def rays(self, pixels: Any = None) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(origins, directions)``, each (N, 3) float64.
 
         Ray ``row*width + col`` belongs to pixel (row, col), row 0 at the top;
-        directions are unit vectors.
+        directions are unit vectors. ``pixels`` (global indices ``row*width + col``)
+        selects a subset; every ray is computed elementwise, so a subset is bit-identical
+        to the same rows of the whole image (a render task casts only its own rays).
 
         Examples
         --------
         >>> o, d = Camera((0, 0, 5), (0, 0, 0), width=1, height=1).rays()
         >>> o.tolist(), d.tolist()
         ([[0.0, 0.0, 5.0]], [[0.0, 0.0, -1.0]])
+        >>> cam = Camera((1, 2, 5), (0, 0, 0), width=4, height=3)
+        >>> bool((cam.rays([2, 7])[1] == cam.rays()[1][[2, 7]]).all())
+        True
         """
         d, right, up = self.basis()
-        cols = np.arange(self.width, dtype=np.float64)
-        rows = np.arange(self.height, dtype=np.float64)
-        u = ((cols + 0.5) / self.width * 2.0 - 1.0) * self.aspect
-        v = 1.0 - (rows + 0.5) / self.height * 2.0
-        # (H, W) grids flattened row-major so that index = row*W + col.
-        uu = np.broadcast_to(u[None, :], (self.height, self.width)).reshape(-1, 1)
-        vv = np.broadcast_to(v[:, None], (self.height, self.width)).reshape(-1, 1)
+        if pixels is None:
+            pix = np.arange(self.width * self.height, dtype=np.int64)
+        else:
+            pix = np.asarray(pixels, dtype=np.int64).reshape(-1)
+        rows, cols = np.divmod(pix, self.width)
+        uu = (((cols + 0.5) / self.width * 2.0 - 1.0) * self.aspect).reshape(-1, 1)
+        vv = (1.0 - (rows + 0.5) / self.height * 2.0).reshape(-1, 1)
         offset = uu * right + vv * up
-        n = self.width * self.height
+        n = pix.size
         pos = np.asarray(self.position, dtype=np.float64)
         if self.parallel:
             origins = pos + self.parallel_scale * offset
             directions = np.broadcast_to(d, (n, 3)).copy()
         else:
             origins = np.broadcast_to(pos, (n, 3)).copy()
-            tan_half = math.tan(math.radians(self.view_angle) / 2.0)
-            directions = _normalize(d + tan_half * offset)
+            directions = _normalize(d + self.tan_half * offset)
         return origins, directions
+
+    @property
+    def tan_half(self) -> float:
+        """``tan(view_angle / 2)``: the image half-height at unit distance (perspective)."""
+        return math.tan(math.radians(self.view_angle) / 2.0)
 
     # ------------------------------------------------------------------ orbit
     @classmethod

@@ -18,14 +18,17 @@ from __future__ import annotations
 
 import logging
 import time
+import uuid
 from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
 import dask
 import numpy as np
+from dask.delayed import Delayed
+from dask.highlevelgraph import HighLevelGraph
 
-from .._dask import compute
+from .._dask import active_client, compute
 from .._tiles import TileLayout
 from .._validate import check_int
 from ..backends import resolve_backend_name
@@ -45,11 +48,29 @@ __all__ = ["render", "RaySums", "clear_cache", "error_bound"]
 
 @dataclass
 class RaySums:
-    """Merged encrypted per-component ray sums of one view, per tile (reusable)."""
+    """Merged encrypted per-component ray sums of one view, per tile (reusable).
+
+    On a distributed client ``tiles`` holds futures: the sums stay on the workers that
+    merged them, and re-colouring runs its finishing tasks there (no sums cross the
+    network); on a single machine it holds the values.
+    """
 
     key: tuple
-    tiles: dict  # tile id -> (rays, records (R, C, W)) or None
+    tiles: dict  # tile id -> (rays, records (R, C, W)), a future of it, or None
     map_tasks: int
+    client: Any = None
+
+    def usable(self, client: Any) -> bool:
+        """Whether these sums can serve a render on ``client`` (futures are bound to theirs)."""
+        return client is self.client and (client is None or client.status == "running")
+
+
+def _gathered_bytes(packed: list, sums: RaySums, client: Any, reused: bool) -> int:
+    """Bytes the client received: the packed tiles, plus the ray sums it holds itself (single machine)."""
+    total = sum(int(p.nbytes) for p in packed)
+    if client is None and not reused:
+        total += sum(int(r.nbytes) + int(c.nbytes) for v in sums.tiles.values() if v is not None for r, c in [v])
+    return total
 
 
 _CACHE: "OrderedDict[tuple, RaySums]" = OrderedDict()
@@ -155,26 +176,53 @@ def render(
     n_tiles = layout.n_tiles
     key = (ev.path, ev.meta.store_id, ev.meta.fingerprint, camera.key(), spec.sampling, spec.step, plan.weight_digits,
            plan.channel, tile)
+    cl = active_client(client)
     sums = _CACHE.get(key) if cache else None
+    if sums is not None and not sums.usable(cl):
+        del _CACHE[key]  # its futures belong to another (or a closed) client
+        sums = None
     reused = sums is not None
     width_bytes = ev.public_key.ciphertext_bytes
     empty = (np.zeros(0, np.int64), np.zeros((0, 1, width_bytes), np.uint8))
 
-    def finish(merged_t: Any, t: int) -> Any:
-        pix = layout.pixels(t)
-        return dask.delayed(finish_task, pure=True)(plan, merged_t if merged_t is not None else empty, pix,
-                                                    rays.n_samples[pix], int(ev.public_key.n), width_bytes, backend)
+    fin_token = dask.base.tokenize(key, plan.to_dict(), backend, uuid.uuid4().hex)
+    n_int = int(ev.public_key.n)
 
+    def finishing(merged: dict[int, Any]) -> list[Any]:
+        """One finishing task per tile, as a plain task dictionary (no per-task tokenising)."""
+        dsk: dict[str, Any] = {}
+        deps = []
+        for t in range(n_tiles):
+            pix = layout.pixels(t)
+            m = merged.get(t)
+            if isinstance(m, Delayed):
+                deps.append(m)
+                m = m.key
+            dsk[f"hevr-finish-{fin_token}-{t}"] = (finish_task, plan, m if m is not None else empty, pix,
+                                                  rays.n_samples[pix], n_int, width_bytes, backend)
+        hlg = HighLevelGraph.from_collections(f"hevr-finish-{fin_token}", dsk, dependencies=deps)
+        return [Delayed(f"hevr-finish-{fin_token}-{t}", hlg, layer=f"hevr-finish-{fin_token}") for t in range(n_tiles)]
+
+    resident = None
+    if ev.resident is not None:
+        if ev.resident.usable(plan.channel, backend, cl):
+            resident = ev.resident.bricks
+        else:
+            log.warning("render: the resident bricks (%s, backend %s) cannot serve this render (channel %s, backend "
+                        "%s, %s client); streaming from the store", "+".join(ev.resident.channels),
+                        ev.resident.backend, plan.channel, backend, "another" if cl is not ev.resident.client else "a")
     if sums is None:
-        # One graph: map -> tree merge -> finish, so merged sums never travel through the client;
-        # they come back only when they are to be cached for re-colouring.
-        merged, n_map = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits,
-                                         plan.channel, tile, n_tiles, backend)
-        live = [t for t, d in merged.items() if d is not None] if cache else []
-        fin = [finish(merged[t], t) for t in range(n_tiles)]
-        results = compute(fin + [merged[t] for t in live], client=client, progress=progress, desc="render")
+        # One graph: map -> tree merge -> finish, so merged sums never travel through the client.
+        # When they are cached they stay where they are: futures on a cluster (re-colouring
+        # then runs next to them), values on a single machine.
+        graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
+                                 tile, n_tiles, backend, resident)
+        live = [t for t, d in graph.merged.items() if d is not None] if cache else []
+        fin = finishing({t: graph.delayed(t) for t in graph.merged})
+        results = compute(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",
+                          keep=len(live))
         packed = results[:n_tiles]
-        sums = RaySums(key, {t: None for t in merged}, n_map)
+        sums = RaySums(key, {t: None for t in graph.merged}, graph.map_tasks, cl if cl is not None else None)
         sums.tiles.update(dict(zip(live, results[n_tiles:])))
         if cache:
             _CACHE[key] = sums
@@ -182,10 +230,11 @@ def render(
                 _CACHE.popitem(last=False)
     else:
         _CACHE.move_to_end(key)
-        fin = [finish(sums.tiles.get(t), t) for t in range(n_tiles)]
-        packed = compute(fin, client=client, progress=False, desc="finish")
+        fin = finishing(sums.tiles)
+        packed = compute(fin, client=cl, progress=False, desc="finish")
     shape = spec.image_shape(H, W)
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
+             "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),
              "seconds": time.perf_counter() - t0}
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
     return EncryptedImage(shape=shape, exponent=plan.exponent, offset=plan.offset, fingerprint=ev.meta.fingerprint,

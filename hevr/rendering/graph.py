@@ -1,8 +1,10 @@
 """The MapReduce render graph on Dask (after Stuart et al.).
 
-map     one task per brick that some ray touches: read the brick's chunk inside the task,
-        compute its plaintext weights, run the encrypted kernel, and emit partial ray sums
-        split by image tile, as compact bytes (ray ids + fixed-width ciphertext records).
+map     one task per brick whose footprint (:mod:`hevr.rendering.footprint`) holds a hit
+        pixel: cast the footprint's rays, compute the brick's plaintext weights, read the
+        brick inside the task (or take it from worker memory when the volume is resident),
+        run the encrypted kernel, and emit partial ray sums split by image tile, as compact
+        bytes (ray ids + fixed-width ciphertext records).
 reduce  per image tile, a tree of merges (fan-in 4) multiplies the partials of the same
         ray (fpAdd of partial sums that share one exponent); no task receives every partial.
 finish  per tile: per-pixel combination, reciprocal normalisation, offset and packing.
@@ -15,11 +17,15 @@ arithmetic backend; every task resolves the backend in its own process
 from __future__ import annotations
 
 import logging
+import operator
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import dask
 import numpy as np
+from dask.delayed import Delayed
+from dask.highlevelgraph import HighLevelGraph
 
 from .. import _stats
 from .._tiles import TileLayout
@@ -27,55 +33,42 @@ from ..backends import get_backend
 from ..store.reader import EncryptedVolume
 from .camera import Camera
 from .finishing import finish_tile, merge_partials
+from .footprint import Footprint, brick_footprints
 from .kernel import brick_ray_products_multi
 from .planner import RenderPlan
 from .rays import RaySet, cast_rays
-from .weights import brick_weights, touched_bricks
+from .weights import brick_weights
 
 log = logging.getLogger(__name__)
 
 FAN_IN = 4
 
 
-def conservative_tiles(rays: RaySet, ev: EncryptedVolume, index: tuple[int, int, int], tile: int) -> list[int]:
-    """Tiles whose rays may touch a brick: slab test against the brick grown by one voxel."""
-    sl = ev.brick_slices(index)
-    sp = np.asarray(ev.spacing)  # (sx, sy, sz)
-    lo_idx = np.array([sl[2].start, sl[1].start, sl[0].start], float) - 1.0
-    hi_idx = np.array([sl[2].stop - 1, sl[1].stop - 1, sl[0].stop - 1], float) + 1.0
-    lo, hi = lo_idx * sp, hi_idx * sp
-    hit = np.nonzero(rays.n_samples > 0)[0]
-    if hit.size == 0:
-        return []
-    o, d = rays.origins[hit], rays.directions[hit]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        t1, t2 = (lo - o) * inv, (hi - o) * inv
-    tmin = np.where(np.isnan(t1), -np.inf, np.minimum(t1, t2))
-    tmax = np.where(np.isnan(t1), np.inf, np.maximum(t1, t2))
-    parallel_out = (d == 0) & ((o < lo) | (o > hi))
-    t0 = np.maximum(tmin.max(axis=1), rays.t_enter[hit] - 1e-6)
-    t3 = np.minimum(tmax.min(axis=1), rays.t_exit[hit] + 1e-6)
-    ok = (t0 <= t3) & ~parallel_out.any(axis=1)
-    return sorted(set(TileLayout(rays.width, rays.height, tile).ids(hit[ok]).tolist()))
-
-
 def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,
-              digits: int, channel: str, tiles: list[int], tile: int,
-              backend: str = "cpu") -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """One map task: partial encrypted ray sums of one brick, split by tile."""
+              digits: int, channel: str, footprint: Footprint, tile: int,
+              backend: str = "cpu", data: Any = None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """One map task: partial encrypted ray sums of one brick, split by tile.
 
+    Casts only the rays of the brick's footprint rectangle (bit-identical to the same rays of
+    the whole image), so its geometry costs the rectangle's pixels plus the samples that reach
+    the brick. ``data`` is the brick's resident ciphertexts (:class:`ResidentBrick`, from
+    :meth:`hevr.EncryptedVolume.persist`); without it the brick is read from the store.
+    """
     t0 = time.perf_counter()
-    rays = cast_rays(camera, ev.shape, ev.spacing, step)
+    rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=footprint.pixels(camera.width))
     bw = brick_weights(rays, ev.shape, ev.spacing, ev.brick, index, sampling, step, digits)
     _stats.add("map.geometry", time.perf_counter() - t0, 1)
     W = ev.meta.ciphertext_bytes
+    tiles = footprint.tiles
     empty = (np.zeros(0, np.int64), np.zeros((0, 1 if channel == "scalar" else ev.vector_dims, W), np.uint8))
     if bw.rays.size == 0:
         return {t: empty for t in tiles}
     be = get_backend(backend)
-    with _stats.timed("map.read"):
-        cts = ev.read_brick(index, channel, backend=be)
+    if data is not None:
+        cts = data.channel(channel)
+    else:
+        with _stats.timed("map.read"):
+            cts = ev.read_brick(index, channel, backend=be)
     comps = [cts] if channel == "scalar" else cts
     with _stats.timed("map.kernel", int(bw.indptr[-1]) * len(comps)):
         prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare, backend=be)
@@ -88,7 +81,7 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
         out[t] = (bw.rays[m], recs[m])
     _stats.add("map.emit", time.perf_counter() - t0)
     extra = set(np.unique(tid).tolist()) - set(tiles)
-    if extra:  # pragma: no cover - the slab test is conservative
+    if extra:  # pragma: no cover - footprint tiles hold every hit pixel of the rectangle
         raise RuntimeError(f"brick {index}: rays in tiles {sorted(extra)} not planned")
     return out
 
@@ -106,30 +99,75 @@ def finish_task(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels:
         return finish_tile(plan, merged, pixels, n_samples, n, width_bytes, backend)
 
 
-def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,
-                     channel: str, tile: int, n_tiles: int, backend: str = "cpu") -> tuple[dict[int, Any], int]:
-    """Delayed merged ray sums per tile (None for tiles no brick touches); map task count."""
+@dataclass(frozen=True)
+class SumsGraph:
+    """The merged ray sums of one view as one Dask graph, and its size.
 
-    bricks = touched_bricks(rays, ev.shape, ev.spacing, ev.brick, sampling, step)
-    token = dask.base.tokenize(ev.path, ev.meta.fingerprint, camera.key(), sampling, step, digits, channel, tile)
+    Attributes
+    ----------
+    dsk : HighLevelGraph
+        Every map, selection and merge task of the view (one layer).
+    merged : dict
+        Tile id -> key of its merged ``(rays, records)``, or None for a tile no brick touches.
+    map_tasks : int
+        One per brick whose footprint holds a hit pixel.
+    edges : int
+        (map task, tile) outputs: the sum over map tasks of their footprint's tiles. The
+        graph has ``map_tasks + edges`` map and selection tasks and fewer than
+        ``edges/(FAN_IN - 1)`` merges: its size is linear in bricks + tiles + edges.
+    """
+
+    dsk: Any
+    layer: str
+    merged: dict[int, Any]
+    map_tasks: int
+    edges: int
+
+    def delayed(self, t: int) -> Any:
+        """The merged sums of tile ``t`` as a Dask ``Delayed`` (None if no brick touches it)."""
+        key = self.merged.get(t)
+        return None if key is None else Delayed(key, self.dsk, layer=self.layer)
+
+
+def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,
+                     channel: str, tile: int, n_tiles: int, backend: str = "cpu",
+                     resident: dict | None = None) -> SumsGraph:
+    """The view's map -> select -> merge graph, built in O(bricks + pixels + edges) on the client.
+
+    Written as a plain task dictionary (Dask's graph specification): a few dictionary
+    entries per task, no per-task tokenising. ``resident`` maps brick index -> the brick's
+    resident data (a future, or the data itself on a single machine), passed to its map
+    task so that the task runs where the brick lives.
+    """
+    prints = brick_footprints(camera, ev.shape, ev.spacing, ev.brick, rays.n_samples > 0, tile)
+    token = dask.base.tokenize(ev.path, ev.meta.store_id, camera.key(), sampling, step, digits, channel, tile,
+                               backend, resident is not None)
     leaves: dict[int, list] = {t: [] for t in range(n_tiles)}
     n2 = int(ev.public_key.nsquare)
-    for idx in bricks:
-        tiles = conservative_tiles(rays, ev, idx, tile)
-        if not tiles:
+    dsk: dict[str, Any] = {}
+    edges = 0
+    for idx, fp in prints.items():
+        if not fp.tiles:
             continue
         name = f"hevr-map-{token}-{idx[0]}-{idx[1]}-{idx[2]}"
-        m = dask.delayed(map_brick, pure=True)(ev, camera, idx, sampling, step, digits, channel, tiles, tile,
-                                               backend, dask_key_name=name)
-        for t in tiles:
-            leaves[t].append(m[t])
+        data = resident.get(idx) if resident is not None else None
+        dsk[name] = (map_brick, ev, camera, idx, sampling, step, digits, channel, fp, tile, backend, data)
+        for t in fp.tiles:
+            part = f"hevr-part-{token}-{t}-{idx[0]}-{idx[1]}-{idx[2]}"
+            dsk[part] = (operator.getitem, name, t)
+            leaves[t].append(part)
+        edges += len(fp.tiles)
     merged: dict[int, Any] = {}
     for t, parts in leaves.items():
         level = 0
         while len(parts) > 1:
-            parts = [dask.delayed(merge_task, pure=True)(n2, backend, *parts[i:i + FAN_IN],
-                                                          dask_key_name=f"hevr-merge-{token}-{t}-{level}-{i}")
-                     for i in range(0, len(parts), FAN_IN)]
+            nxt = []
+            for i in range(0, len(parts), FAN_IN):
+                key = f"hevr-merge-{token}-{t}-{level}-{i}"
+                dsk[key] = (merge_task, n2, backend, *parts[i:i + FAN_IN])
+                nxt.append(key)
+            parts = nxt
             level += 1
         merged[t] = parts[0] if parts else None
-    return merged, len(bricks)
+    layer = f"hevr-sums-{token}"
+    return SumsGraph(HighLevelGraph.from_collections(layer, dsk), layer, merged, len(prints), edges)

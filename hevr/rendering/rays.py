@@ -65,6 +65,9 @@ class RaySet:
         Number of samples, 0 for rays that miss.
     width, height : int
         Image size.
+    pixel_ids : (N,) int64 or None
+        Global pixel index ``row*width + col`` of each ray when the set is a subset of the
+        image (sorted, unique); None when it holds every pixel in order.
     """
 
     origins: np.ndarray
@@ -74,14 +77,20 @@ class RaySet:
     n_samples: np.ndarray
     width: int
     height: int
+    pixel_ids: np.ndarray | None = None
 
     @property
     def n_rays(self) -> int:
-        """Number of rays (``width*height``)."""
+        """Number of rays (``width*height`` unless a subset)."""
         return int(self.n_samples.shape[0])
 
+    def global_ids(self, local: np.ndarray) -> np.ndarray:
+        """Global pixel indices of rays given by their position in this set."""
+        local = np.asarray(local, dtype=np.int64)
+        return local if self.pixel_ids is None else self.pixel_ids[local]
 
-def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float) -> RaySet:
+
+def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float, pixels: Any = None) -> RaySet:
     """Cast the camera's rays and clip them to the voxel-centre box.
 
     Parameters
@@ -92,6 +101,9 @@ def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float) -> RaySet:
         World order.
     step : float
         Sample distance in world units, > 0.
+    pixels : array of int, optional
+        Only these pixels (global indices, made sorted and unique); every ray is computed
+        elementwise, so they equal the same rays of the whole image bit for bit.
 
     Returns
     -------
@@ -109,7 +121,13 @@ def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float) -> RaySet:
     nz, ny, nx = check_shape(shape)
     sp = np.asarray(check_spacing(spacing))
     step = check_step(step)
-    origins, dirs = camera.rays()
+    ids = None
+    if pixels is not None:
+        ids = np.unique(np.asarray(pixels, dtype=np.int64).reshape(-1))
+        if ids.size and (ids[0] < 0 or ids[-1] >= camera.width * camera.height):
+            raise ParameterError(f"pixels: expected indices in [0, {camera.width * camera.height}), "
+                                 f"got {ids[0]}..{ids[-1]}")
+    origins, dirs = camera.rays(ids)
     with np.errstate(over="ignore"):  # a box beyond float range: inf, every ray misses
         hi = np.array([(nx - 1), (ny - 1), (nz - 1)], dtype=np.float64) * sp
     # Absolute tolerance of the face tests, relative to the box size (at least a voxel).
@@ -142,6 +160,7 @@ def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float) -> RaySet:
         n_samples=n.astype(np.int64),
         width=camera.width,
         height=camera.height,
+        pixel_ids=ids,
     )
 
 

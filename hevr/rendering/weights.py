@@ -86,7 +86,8 @@ class BrickWeights:
     ----------
     brick : tuple (bz, by, bx)
     rays : (R,) int64
-        Sorted unique global pixel indices ``row*width + col`` touching the brick.
+        Sorted unique global pixel indices ``row*width + col`` touching the brick (also when
+        the ray set is a subset of the image).
     indptr : (R + 1,) int64
         Ray ``rays[r]`` owns entries ``indptr[r]:indptr[r + 1]``.
     voxels : (P,) int64
@@ -336,7 +337,7 @@ def brick_weights(
     indptr = np.append(first, pairs.size).astype(np.int64)
     return BrickWeights(
         brick=index,  # type: ignore[arg-type]
-        rays=uniq.astype(np.int64),
+        rays=rays.global_ids(uniq),
         indptr=indptr,
         voxels=(pairs % nloc).astype(np.int64),
         weights=wts,

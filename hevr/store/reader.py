@@ -10,10 +10,12 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+import dask
 import gmpy2
 import numpy as np
 import zarr
 
+from .._dask import active_client
 from .._validate import check_brick_index, check_choice
 from ..backends import Backend, get_backend
 from ..crypto.keys import PublicKey
@@ -33,6 +35,7 @@ from .paths import (
     normalise,
     read_document,
 )
+from .resident import Residency, load_brick, plan_residency
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +81,7 @@ class EncryptedVolume:
     def __init__(self, path: str, meta: VolumeMetadata) -> None:
         self.path = str(path)
         self.meta = meta
+        self.resident: Residency | None = None  # set on the handle persist() returns
 
     # -- public metadata -----------------------------------------------------------
     @property
@@ -120,14 +124,57 @@ class EncryptedVolume:
         ch = ["scalar"] if self.has_scalar else []
         if self.vector_dims:
             ch.append(f"vector[{self.vector_dims}]")
+        res = f", resident={'+'.join(self.resident.channels)}" if self.resident is not None else ""
         return (f"EncryptedVolume({self.path!r}, shape={self.shape}, brick={self.brick}, "
-                f"channels={'+'.join(ch)}, key={self.meta.fingerprint[:16]}…)")
+                f"channels={'+'.join(ch)}, key={self.meta.fingerprint[:16]}…{res})")
 
     def __getstate__(self) -> dict:
-        return {"path": self.path, "meta": self.meta}
+        return {"path": self.path, "meta": self.meta}  # never the resident bricks
 
     def __setstate__(self, state: dict) -> None:
         self.path, self.meta = state["path"], state["meta"]
+        self.resident = None
+
+    # -- residency -------------------------------------------------------------------------
+    def persist(self, channels: Any = None, *, client: Any = None, backend: str | None = None) -> EncryptedVolume:
+        """Keep this volume's decoded bricks in worker memory for the frames to come.
+
+        Parameters
+        ----------
+        channels : str or sequence of str, optional
+            ``"scalar"`` and/or ``"vector"``; default: every stored channel.
+        client : distributed.Client, optional
+            Default: the active client; without one the bricks stay in this process.
+        backend : str, optional
+            The renders' backend (:func:`hevr.backends.resolve_backend_name`).
+
+        Returns
+        -------
+        EncryptedVolume
+            A new handle whose renders take their bricks from memory (``.resident`` says
+            where and how many bytes; :mod:`hevr.store.resident`). Like Dask's ``persist``
+            it returns at once on a cluster (``.resident.wait()`` blocks until loaded).
+
+        Raises
+        ------
+        MemoryLimitError
+            A worker's share would exceed ``hevr.limits.resident-memory`` of its memory.
+        """
+        client = active_client(client)
+        channels, backend, place, share = plan_residency(self, channels, backend, client)
+        plain = EncryptedVolume(self.path, self.meta)
+        if client is None:
+            bricks = dict(zip(place, dask.compute(*[dask.delayed(load_brick, pure=False)(plain, idx, channels, backend)
+                                                    for idx in place])))
+        else:
+            tag = f"{self.meta.store_id}-{'+'.join(channels)}-{backend}"
+            bricks = {idx: client.submit(load_brick, plain, idx, channels, backend, workers=[w],
+                                         allow_other_workers=True, pure=False,
+                                         key=f"hevr-brick-{tag}-{idx[0]}-{idx[1]}-{idx[2]}")
+                      for idx, w in place.items()}
+        out = EncryptedVolume(self.path, self.meta)
+        out.resident = Residency(channels, backend, bricks, client, sum(share.values()), share)
+        return out
 
     # -- bricks --------------------------------------------------------------------------
     def brick_indices(self) -> list[tuple[int, int, int]]:
