@@ -86,7 +86,7 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     if client is not None:
         futures = client.compute(tasks)
         bar = _Bar(len(futures), desc, progress)
-        for _ in as_completed(futures):
+        for _ in as_completed(futures, loop=client.loop):  # this client's, not the default one
             bar.update()
         cut = len(futures) - keep
         results = list(client.gather(futures[:cut])) + list(futures[cut:])

@@ -34,6 +34,7 @@ from .measure import (
     payload_bytes,
     timed,
 )
+from .pipeline import trace_frame
 
 log = logging.getLogger(__name__)
 
@@ -193,3 +194,15 @@ def hevr_small_case(ctx: Context, size: int, image: int, bits: int) -> dict:
         ctx.image = saved
         remove(path)
     return out
+
+
+def pipeline_case(workers: Workers, ev: EncryptedVolume, camera: Camera) -> dict:
+    """A resident volume's second X-ray nearest frame on ``workers``, traced
+    (:func:`hevr._bench.pipeline.trace_frame`); the first frame is the warm-up."""
+    rv = ev.persist(client=workers.client)
+    rv.resident.wait()
+    try:
+        trace_frame(workers.client, rv, camera)
+        return trace_frame(workers.client, rv, camera)
+    finally:
+        rv.resident.release()

@@ -41,7 +41,14 @@ def plot_scaling(doc: dict, path: Path) -> Path | None:
     pts = _points(doc)
     if not pts:
         return None
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.3), gridspec_kw={"width_ratios": [2.3, 1]})
+    runs = sorted((int(k.split(".")[1]), v["wall"]) for k, v in doc["cells"].items()
+                  if k.startswith("pipeline.") and k[9:].isdigit())
+    model = doc["cells"].get("pipeline.model")
+    if runs:
+        fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(15, 4.3), gridspec_kw={"width_ratios": [2.3, 1, 1.4]})
+        _pipeline_panel(cx, runs, model, doc["setting"])
+    else:
+        fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.3), gridspec_kw={"width_ratios": [2.3, 1]})
     markers = iter("os^vDx")
     for series in sorted({p[0] for p in pts}):
         xs, ys = zip(*sorted((w, t) for name, w, t in pts if name == series))
@@ -68,3 +75,20 @@ def plot_scaling(doc: dict, path: Path) -> Path | None:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _pipeline_panel(ax, runs: list[tuple[int, float]], model: dict | None, s: dict) -> None:
+    """Measured frame time against workers, and the model's prediction up to 64 workers."""
+    ax.loglog([n for n, _ in runs], [t for _, t in runs], "o", color="#37c", label="measured")
+    if model:
+        ns = sorted(int(n) for n in model["frame"])
+        ax.loglog(ns, [model["frame"][str(n)] for n in ns], "-", color="#c53",
+                  label=f"model (from {model['from_workers']} workers)")
+        t1 = model["frame"].get("1")
+        if t1:
+            ax.loglog(ns, [t1 / n for n in ns], "k:", lw=1, label="perfect scaling")
+    ax.set_xlabel("workers")
+    ax.set_ylabel("frame s")
+    ax.set_title(f"Resident X-ray nearest, {s['size']}³, {s['pipeline_bits']} bits", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(True, which="both", alpha=0.3)

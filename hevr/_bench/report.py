@@ -379,9 +379,37 @@ def _scaling(doc: dict) -> list[str]:
     return lines
 
 
+def _pipeline(doc: dict) -> list[str]:
+    c, s = doc["cells"], doc["setting"]
+    runs = sorted((int(k.split(".")[1]), v) for k, v in c.items() if k.startswith("pipeline.") and k[9:].isdigit())
+    model = c.get("pipeline.model")
+    if not runs:
+        return []
+    lines = ["## Pipeline: frame time against workers", "",
+             f"Resident {s['size']}³ phantom, {s['pipeline_bits']}-bit key, {s['image']}² X-ray nearest, second frame "
+             "of each cluster (N processes × 1 thread). Serial = client time before the first task (rays, "
+             "footprints, graph, submission) + after the last (gather, assembly); tail = graph time after the "
+             "last map task. Model: the traced graph replayed on N simulated workers (`hevr/_bench/pipeline.py`)"
+             + (f", fitted on the {model['from_workers']}-worker run." if model else "."), "",
+             "| N | measured s | serial before / after s | tail s | busy s | model s | model efficiency |",
+             "|---:|---:|---:|---:|---:|---:|---:|"]
+    frames = model["frame"] if model else {}
+    eff = model["efficiency"] if model else {}
+    for n, v in runs:
+        mark = " (more processes than cores)" if v.get("oversubscribed") else ""
+        m = frames.get(str(n))
+        lines.append(f"| {n}{mark} | {_s(v['wall'])} | {_s(v['serial_before'])} / {_s(v['serial_after'])} | "
+                     f"{_s(v['tail'])} | {_s(v['busy'])} | {_s(m) if m else '—'} | "
+                     f"{f'{eff[str(n)]:.0%}' if str(n) in eff else '—'} |")
+    for n in ("16", "64"):
+        if n in frames:
+            lines.append(f"| {n} (predicted) | — | — | — | — | {_s(frames[n])} | {eff[n]:.0%} |")
+    return lines + [""]
+
+
 def markdown(doc: dict) -> str:
     parts = (_header(doc) + _goals_md(doc) + _table1(doc) + _table2(doc) + _table3(doc) + _limits(doc)
-             + _micro(doc) + _naive(doc) + _scaling(doc))
+             + _micro(doc) + _naive(doc) + _scaling(doc) + _pipeline(doc))
     todo = [b for b in _planned(doc) if b not in doc["blocks_done"]]
     if todo:
         parts += ["## Not (yet) run in this setting", "", ", ".join(todo), ""]

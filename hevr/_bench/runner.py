@@ -8,6 +8,7 @@ block, so partial results are always readable.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -22,12 +23,13 @@ from ..volume.phantom import phantom
 from . import cases, measure
 from .crypto_micro import crypto_micro
 from .kernel_micro import kernel_micro
+from .pipeline import predict
 from .report import write_report
 from .settings import SETTINGS, BenchSettings, block_names
 
 log = logging.getLogger(__name__)
 
-BLOCK_KINDS = ("micro", "t1", "t3", "t2", "naive", "scaling")
+BLOCK_KINDS = ("micro", "t1", "t3", "t2", "naive", "scaling", "pipeline")
 
 
 class Results:
@@ -64,7 +66,8 @@ class Results:
 
 def _blocks(s: BenchSettings) -> list[tuple[str, str, Callable[..., None]]]:
     """(name, kind, function) in the run order of :func:`block_names`."""
-    fns: dict[str, Callable[..., None]] = {"micro": _micro, "naive": _naive, "scaling": _scaling}
+    fns: dict[str, Callable[..., None]] = {"micro": _micro, "naive": _naive, "scaling": _scaling,
+                                           "pipeline": _pipeline}
     table = {"t1": _table1, "t3": _table3, "t2": _table2_extra}
     out = []
     for name, kind in block_names(s):
@@ -145,6 +148,29 @@ def _scaling(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
         for sampling in ("nearest", "trilinear"):
             r.put(f"scale.size.{size}.{sampling}", cases.render_case(ctx, ev, vol, priv, sampling=sampling))
         cases.remove(path)
+
+
+def _pipeline(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
+    """Resident X-ray nearest frames on 1 … cores workers (and 2·cores, oversubscribed), each
+    traced; the model (:mod:`hevr._bench.pipeline`) fitted on the largest run that is not
+    oversubscribed predicts 1 … 64 workers."""
+    vol = phantom(s.size)
+    _pub, priv, _ = ctx.keypair(s.pipeline_bits)
+    path = ctx.work / "pipeline.zarr"
+    ev, _cell = cases.encrypt_case(ctx, vol, priv, path)
+    cores = os.cpu_count() or 1
+    counts = sorted({1, 2, cores, 2 * cores}) if ctx.workers.own else [ctx.workers.n_workers]
+    best = None
+    for n in counts:
+        with (measure.workers(n) if ctx.workers.own else contextlib.nullcontext(ctx.workers)) as w:
+            tr = cases.pipeline_case(w, ev, ctx.camera(ev.shape))
+        tr["oversubscribed"] = n > cores
+        r.put(f"pipeline.{n}", {k: v for k, v in tr.items() if k not in ("durations", "deps")})
+        if not tr["oversubscribed"]:
+            best = tr
+    if best is not None:
+        r.put("pipeline.model", predict(best, [1, 2, 4, 8, 16, 32, 64]) | {"from_workers": best["workers"]})
+    cases.remove(path)
 
 
 def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, resume: bool = False,

@@ -15,7 +15,7 @@ examples:
   hevr bench                      # ~1 min: 32^3, 48x48 px, keys 256-1024 bits
   hevr bench --paper              # the paper's tables: {PAPER_SIZE}^3, {PAPER_IMAGE}x{PAPER_IMAGE} px, keys 64-3072 bits: ~1.5 h on 2 cores
   hevr bench --paper --resume     # continue a stopped run (finished blocks are kept)
-  hevr bench --only t1,micro      # some blocks only: micro, t1, t2, t3, naive, scaling
+  hevr bench --only t1,micro      # some blocks only: micro, t1, t2, t3, naive, scaling, pipeline
   hevr bench --paper --report-only  # rewrite RESULTS.md and the plot from results-paper.json
 
 writes, into --out (default: ./benchmarks if it exists, else .):

@@ -227,7 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--paper", action="store_true", help=f"the paper's setting: {PAPER_SIZE}^3, {PAPER_IMAGE}x{PAPER_IMAGE}, keys 64-3072 bits (~1.5 h)")
     p.add_argument("--out", metavar="DIR", help="output folder (default ./benchmarks if it exists, else .)")
     p.add_argument("--resume", action="store_true", help="keep the finished blocks of an earlier run of this setting")
-    p.add_argument("--only", metavar="KINDS", help="comma-separated blocks: micro, t1, t2, t3, naive, scaling")
+    p.add_argument("--only", metavar="KINDS", help="comma-separated blocks: micro, t1, t2, t3, naive, scaling, pipeline")
     p.add_argument("--work", metavar="DIR", help="scratch folder for the encrypted stores (default: a temporary one)")
     p.add_argument("--report-only", action="store_true",
                    help="measure nothing: rewrite the markdown and plot from the existing results JSON")

@@ -36,7 +36,8 @@ from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..store.reader import EncryptedVolume
 from .camera import Camera
-from .graph import build_sums_graph, finish_task
+from .finishing import finish_units
+from .graph import Priorities, build_sums_graph, finish_task
 from .modes import RenderSpec, combination_matrix, make_spec
 from .planner import check_render_size, plan_render
 from .rays import cast_rays
@@ -188,23 +189,39 @@ def render(
     fin_token = dask.base.tokenize(key, plan.to_dict(), backend, uuid.uuid4().hex)
     n_int = int(ev.public_key.n)
 
+    key_bits = int(ev.public_key.n).bit_length()
+    units = []  # (tile, first pixel, end pixel) of every finishing task
+    for t in range(n_tiles):
+        pix = layout.pixels(t)
+        units += [(t, a, b) for a, b in finish_units(plan, rays.n_samples[pix] > 0, key_bits)]
+
     def finishing(merged: dict[int, Any]) -> list[Any]:
-        """One finishing task per tile, as a plain task dictionary (no per-task tokenising)."""
+        """The finishing tasks (:func:`~hevr.rendering.finishing.finish_units`), as a plain task
+        dictionary (no per-task tokenising)."""
         dsk: dict[str, Any] = {}
         deps = []
-        for t in range(n_tiles):
-            pix = layout.pixels(t)
+        layer = f"hevr-finish-{fin_token}"
+        for i, (t, a, b) in enumerate(units):
+            pix = layout.pixels(t)[a:b]
             m = merged.get(t)
             if isinstance(m, Delayed):
                 deps.append(m)
                 m = m.key
-            dsk[f"hevr-finish-{fin_token}-{t}"] = (finish_task, plan, m if m is not None else empty, pix,
-                                                  rays.n_samples[pix], n_int, width_bytes, backend)
-        hlg = HighLevelGraph.from_collections(f"hevr-finish-{fin_token}", dsk, dependencies=deps)
-        return [Delayed(f"hevr-finish-{fin_token}-{t}", hlg, layer=f"hevr-finish-{fin_token}") for t in range(n_tiles)]
+            dsk[f"{layer}-{i}"] = (finish_task, plan, m if m is not None else empty, pix, rays.n_samples[pix], n_int,
+                                   width_bytes, backend)
+        hlg = HighLevelGraph.from_collections(layer, dsk, dependencies=deps)
+        hlg.layers[layer].annotations = {"priority": Priorities({})}  # as soon as ready
+        return [Delayed(f"{layer}-{i}", hlg, layer=layer) for i in range(len(units))]
+
+    def assemble(results: list[np.ndarray]) -> list[np.ndarray]:
+        """Each tile's packed ciphertexts: its units' outputs in order."""
+        per_tile: list[list[np.ndarray]] = [[] for _ in range(n_tiles)]
+        for (t, _, _), r in zip(units, results):
+            per_tile[t].append(r)
+        return [p[0] if len(p) == 1 else np.concatenate(p) for p in per_tile]
 
     resident = None
-    if ev.resident is not None:
+    if ev.resident is not None and ev.resident.bricks:  # a released residency just streams
         if ev.resident.usable(plan.channel, backend, cl):
             resident = ev.resident.bricks
         else:
@@ -221,9 +238,9 @@ def render(
         fin = finishing({t: graph.delayed(t) for t in graph.merged})
         results = compute(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",
                           keep=len(live))
-        packed = results[:n_tiles]
+        packed = assemble(results[:len(fin)])
         sums = RaySums(key, {t: None for t in graph.merged}, graph.map_tasks, cl if cl is not None else None)
-        sums.tiles.update(dict(zip(live, results[n_tiles:])))
+        sums.tiles.update(dict(zip(live, results[len(fin):])))
         if cache:
             _CACHE[key] = sums
             while len(_CACHE) > CACHE_SIZE:
@@ -231,7 +248,7 @@ def render(
     else:
         _CACHE.move_to_end(key)
         fin = finishing(sums.tiles)
-        packed = compute(fin, client=cl, progress=False, desc="finish")
+        packed = assemble(compute(fin, client=cl, progress=False, desc="finish"))
     shape = spec.image_shape(H, W)
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
              "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),

@@ -16,6 +16,15 @@ quantised combination matrix Q (K × C) of the render plan:
   each. Valid because every value M_j + O lies in [0, bound], bound < B, and
   per_pack·pack_bits <= bits(n) − 2: no digit carries and the plaintext stays below n/2.
 
+Finishing units. A tile's packed ciphertexts are independent groups of ``per_pack`` values
+in (pixel, channel) order, so a tile may be finished by several tasks, each over a run of
+pixels whose first value starts a group: their outputs, concatenated, are the tile's
+ciphertexts bit for bit. :func:`finish_units` cuts runs of about :data:`UNIT_MULS`
+modular multiplications of a 2048-bit key (a value costs ``pack_bits`` squarings, about
+``bits(R)/2`` multiplications for the reciprocal and its share of the combination), so that
+no finishing task outlasts a typical map task and the finishing after the last map task is
+spread over every worker instead of waiting on one tile.
+
 Pixels whose rays miss are skipped: which rays miss follows from the public camera and
 volume shape, and the image records them in a public mask. A hit ray whose every weight
 rounded to 0 has no partial sums: its sums are the trivial encryption 1 of 0.
@@ -30,7 +39,42 @@ import numpy as np
 from ..backends import Backend, get_backend
 from .planner import RenderPlan
 
-__all__ = ["finish_tile", "merge_partials", "one_records"]
+__all__ = ["finish_tile", "finish_units", "merge_partials", "one_records", "UNIT_MULS"]
+
+UNIT_MULS = 1 << 13  # target work of one finishing task, in 2048-bit-key modular multiplications
+
+
+def finish_units(plan: RenderPlan, hit: np.ndarray, key_bits: int) -> list[tuple[int, int]]:
+    """Pixel runs ``[a, b)`` of one tile (``hit``: its pixels' hit mask, in tile order) to finish
+    as separate tasks; each run but the first starts a new packing group.
+
+    >>> from types import SimpleNamespace as NS
+    >>> plan = NS(pack_bits=40, per_pack=2, channels_out=1, comb=None, recip_digits=6)
+    >>> finish_units(plan, np.ones(1000, bool), 2048)[:2]
+    [(0, 162), (162, 324)]
+    >>> finish_units(plan, np.ones(1000, bool), 64)
+    [(0, 1000)]
+    """
+    C = plan.channels_out
+    K = 1 if plan.comb is None else len(plan.comb)
+    per_value = plan.pack_bits + 1.7 * plan.recip_digits + (0 if plan.comb is None else (2 ** K + 16 * K) / C)
+    weight = max((key_bits / 2048) ** 1.6, 0.05)  # a mulmod's cost relative to a 2048-bit key's
+    values = max(1, int(UNIT_MULS / (per_value * weight)))
+    group = max(1, plan.per_pack)
+    values = max(group, values // group * group)  # whole packing groups per unit
+    hits_before = np.concatenate([[0], np.cumsum(hit)]) * C  # values before each pixel
+    units, a = [], 0
+    n = len(hit)
+    while a < n:
+        # the first pixel at which the unit holds `values` values, on a group boundary
+        want = hits_before[a] + values
+        b = int(np.searchsorted(hits_before, want, side="left"))
+        while b < n and hits_before[b] % group:
+            b += 1
+        b = min(max(b, a + 1), n)
+        units.append((a, b))
+        a = b
+    return units
 
 
 def one_records(shape: tuple[int, ...], width: int) -> np.ndarray:

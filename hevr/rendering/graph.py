@@ -19,13 +19,14 @@ from __future__ import annotations
 import logging
 import operator
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
 import dask
 import numpy as np
 from dask.delayed import Delayed
-from dask.highlevelgraph import HighLevelGraph
+from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
 
 from .. import _stats
 from .._tiles import TileLayout
@@ -42,6 +43,26 @@ from .weights import brick_weights
 log = logging.getLogger(__name__)
 
 FAN_IN = 4
+FOLLOW_UP = 1 << 40  # priority of selections, merges and finishing: run as soon as they are ready
+
+
+class Priorities:
+    """Dask task priorities of a layer (higher runs first): ``key -> value``, else ``default``.
+
+    Map tasks go in image order (by their footprint's first row), so the tiles at the top
+    complete first; everything after a map task outranks the maps still waiting, so merging
+    and finishing overlap the map phase instead of forming a tail.
+
+    >>> Priorities({"a": 3}, 7)("a"), Priorities({"a": 3}, 7)("b")
+    (3, 7)
+    """
+
+    def __init__(self, values: dict, default: int = FOLLOW_UP) -> None:
+        self.values, self.default = values, default
+
+    def __call__(self, key: Any) -> int:
+        return self.values.get(key, self.default)
+
 
 
 def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,
@@ -113,8 +134,9 @@ class SumsGraph:
         One per brick whose footprint holds a hit pixel.
     edges : int
         (map task, tile) outputs: the sum over map tasks of their footprint's tiles. The
-        graph has ``map_tasks + edges`` map and selection tasks and fewer than
-        ``edges/(FAN_IN - 1)`` merges: its size is linear in bricks + tiles + edges.
+        graph has ``map_tasks + edges`` map and selection tasks and, per tile of e partials,
+        ``ceil((e - 1)/(FAN_IN - 1))`` merges, so at most ``edges/(FAN_IN - 1) + tiles`` in
+        all: its size is linear in bricks + tiles + edges.
     """
 
     dsk: Any
@@ -145,6 +167,7 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
     leaves: dict[int, list] = {t: [] for t in range(n_tiles)}
     n2 = int(ev.public_key.nsquare)
     dsk: dict[str, Any] = {}
+    prio: dict[str, int] = {}
     edges = 0
     for idx, fp in prints.items():
         if not fp.tiles:
@@ -152,6 +175,7 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
         name = f"hevr-map-{token}-{idx[0]}-{idx[1]}-{idx[2]}"
         data = resident.get(idx) if resident is not None else None
         dsk[name] = (map_brick, ev, camera, idx, sampling, step, digits, channel, fp, tile, backend, data)
+        prio[name] = -(fp.rect[0] * camera.width + fp.rect[2])
         for t in fp.tiles:
             part = f"hevr-part-{token}-{t}-{idx[0]}-{idx[1]}-{idx[2]}"
             dsk[part] = (operator.getitem, name, t)
@@ -159,15 +183,18 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
         edges += len(fp.tiles)
     merged: dict[int, Any] = {}
     for t, parts in leaves.items():
-        level = 0
-        while len(parts) > 1:
-            nxt = []
-            for i in range(0, len(parts), FAN_IN):
-                key = f"hevr-merge-{token}-{t}-{level}-{i}"
-                dsk[key] = (merge_task, n2, backend, *parts[i:i + FAN_IN])
-                nxt.append(key)
-            parts = nxt
-            level += 1
-        merged[t] = parts[0] if parts else None
+        # A queue of partials: merge the first FAN_IN, put the result at the back. Every merge
+        # but the last takes FAN_IN inputs (ceil((e - 1)/(FAN_IN - 1)) merges for e partials)
+        # and the rounds stay balanced (depth about log_FAN_IN e).
+        queue = deque(parts)
+        i = 0
+        while len(queue) > 1:
+            group = [queue.popleft() for _ in range(min(FAN_IN, len(queue)))]
+            key = f"hevr-merge-{token}-{t}-{i}"
+            dsk[key] = (merge_task, n2, backend, *group)
+            queue.append(key)
+            i += 1
+        merged[t] = queue[0] if queue else None
     layer = f"hevr-sums-{token}"
-    return SumsGraph(HighLevelGraph.from_collections(layer, dsk), layer, merged, len(prints), edges)
+    hlg = HighLevelGraph({layer: MaterializedLayer(dsk, annotations={"priority": Priorities(prio)})}, {layer: set()})
+    return SumsGraph(hlg, layer, merged, len(prints), edges)

@@ -133,7 +133,7 @@ def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float, pixels: Any
     # Absolute tolerance of the face tests, relative to the box size (at least a voxel).
     tol = _FACE_TOL * np.maximum(hi, sp)
     parallel = np.abs(dirs) < _PARALLEL_DIR
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         t1 = (0.0 - origins) / dirs
         t2 = (hi - origins) / dirs
     tmin = np.where(parallel, -np.inf, np.minimum(t1, t2))

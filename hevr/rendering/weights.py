@@ -228,7 +228,7 @@ def _clip_rays(rays: RaySet, sp: np.ndarray, step: float, lo: np.ndarray, hi: np
     e = sample_positions(rays, hits, np.zeros_like(hits), sp, step)
     delta = rays.directions[hits] * step / sp
     lo_e, hi_e = lo - _REGION_EPS, hi + _REGION_EPS
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         a, b = (lo_e - e) / delta, (hi_e - e) / delta
     zero = delta == 0
     inside = (e >= lo_e) & (e <= hi_e)

@@ -24,7 +24,6 @@ fraction ``hevr.limits.resident-memory`` (Dask config, default 0.5) of its memor
 from __future__ import annotations
 
 import logging
-import sys
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,6 +40,7 @@ log = logging.getLogger(__name__)
 __all__ = ["ResidentBrick", "Residency", "load_brick", "plan_residency", "RESIDENT_MEMORY_KEY"]
 
 RESIDENT_MEMORY_KEY = "hevr.limits.resident-memory"
+_MPZ_HEADER = 40  # a gmpy2 2.x mpz object without its limbs (CPython 3.11, 64-bit)
 DEFAULT_RESIDENT_MEMORY = 0.5
 
 
@@ -68,13 +68,14 @@ class ResidentBrick:
 
 
 def residue_bytes(width: int) -> int:
-    """Bytes one ciphertext of ``width`` record bytes takes as a resident ``mpz`` (with its list slot).
+    """Bytes one ciphertext of ``width`` record bytes takes as a resident ``mpz``: the object
+    header, its 64-bit limbs and its list slot (a formula: ``sys.getsizeof`` of a recycled mpz
+    reports its earlier allocation).
 
-    >>> residue_bytes(512) > 512
-    True
+    >>> residue_bytes(512), residue_bytes(16)
+    (560, 64)
     """
-    from_bytes = get_backend("cpu").from_bytes(np.full((1, width), 255, np.uint8))
-    return sys.getsizeof(from_bytes[0]) + 8
+    return _MPZ_HEADER + 8 * -(-int(width) // 8) + 8
 
 
 def load_brick(ev: Any, index: tuple[int, int, int], channels: tuple[str, ...], backend: str) -> ResidentBrick:
@@ -113,8 +114,8 @@ class Residency:
 
     def usable(self, channel: str, backend: str, client: Any) -> bool:
         """Whether a render of ``channel`` with ``backend`` on ``client`` can use these bricks."""
-        return channel in self.channels and backend == self.backend and client is self.client and (
-            client is None or client.status == "running")
+        return bool(self.bricks) and channel in self.channels and backend == self.backend and (
+            client is self.client) and (client is None or client.status == "running")
 
     def wait(self) -> None:
         """Block until every brick is loaded (re-raises a brick's read error)."""
@@ -150,6 +151,8 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
         channels = stored
     elif isinstance(channels, str):
         channels = (channels,)
+    elif not isinstance(channels, (list, tuple)):
+        raise ParameterError(f"channels: expected 'scalar', 'vector' or a list of them, got {type(channels).__name__}")
     channels = tuple(dict.fromkeys(check_choice("channels", c, stored) for c in channels))
     if not channels:
         raise ParameterError(f"channels: expected some of {list(stored)}, got none")

@@ -196,7 +196,7 @@ def test_graph_holds_the_backend_name_not_an_object(store):
     cam = hevr.Camera.orbit(store, azimuth=10, elevation=5, width=6, height=6)
     rays = cast_rays(cam, store.shape, store.spacing, 1.0)
     g = build_sums_graph(store, cam, rays, "nearest", 1.0, 0, "scalar", 4, 4, "cpu")
-    merged, n_map = g.merged, g.map_tasks
+    n_map = g.map_tasks
     assert n_map > 0
     args = _task_args(g.dsk)
     assert args and not any(isinstance(a, Backend) for a in args)

@@ -70,7 +70,7 @@ def test_tree_reduce_no_task_receives_every_partial(store):
     cam = hevr.Camera.orbit(store, azimuth=25, elevation=15, width=40, height=40)
     rays = cast_rays(cam, store.shape, store.spacing, 1.0)
     g = build_sums_graph(store, cam, rays, "trilinear", 1.0, 3, "scalar", tile=8, n_tiles=25)
-    merged, n_map = g.merged, g.map_tasks
+    n_map = g.map_tasks
     assert n_map > 1
     graph = dict(g.dsk)
     for key, task in graph.items():
@@ -92,7 +92,7 @@ def test_untouched_bricks_cost_nothing(store):
                       parallel=True, parallel_scale=0.5)
     rays = cast_rays(cam, store.shape, store.spacing, 1.0)
     g = build_sums_graph(store, cam, rays, "nearest", 1.0, 0, "scalar", tile=32, n_tiles=1)
-    merged, n_map = g.merged, g.map_tasks
+    n_map = g.map_tasks
     assert n_map == store.grid[0]  # one brick per z-layer, nothing else
     assert centre  # documented for readers: the beam avoids the centre bricks
 
