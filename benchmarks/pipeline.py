@@ -69,7 +69,7 @@ def main(scalar: str, vector: str, key: str, small: str, small_key: str, out: st
             first = trace_frame(cl, rv, cam, **kw)
             second = trace_frame(cl, rv, cam, **kw)
             cell = {"streamed": slim(streamed), "resident_first": slim(first), "resident_second": slim(second),
-                    "persist_s": persist_s + wait_s, "resident_bytes": rv.resident.worker_bytes,
+                    "persist_s": persist_s + wait_s, "resident_bytes": dict(rv.resident.worker_bytes),
                     "model": predict(second, [1, 2, 4, 8, 16, 32, 64]),
                     "model_streamed": predict(streamed, [1, 2, 4, 8, 16, 32, 64])}
             if mode == "tf":  # re-colouring: the sums stay on the workers
