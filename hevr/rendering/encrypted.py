@@ -18,15 +18,11 @@ from __future__ import annotations
 
 import logging
 import time
-import uuid
 from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-import dask
 import numpy as np
-from dask.delayed import Delayed
-from dask.highlevelgraph import HighLevelGraph
 
 from .._dask import active_client, compute
 from .._tiles import TileLayout
@@ -36,8 +32,7 @@ from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..store.reader import EncryptedVolume
 from .camera import Camera
-from .finishing import finish_units
-from .graph import Priorities, build_sums_graph, finish_task
+from .graph import FinishGraph, build_sums_graph
 from .modes import RenderSpec, combination_matrix, make_spec
 from .planner import check_render_size, plan_render
 from .rays import cast_rays
@@ -183,42 +178,7 @@ def render(
         del _CACHE[key]  # its futures belong to another (or a closed) client
         sums = None
     reused = sums is not None
-    width_bytes = ev.public_key.ciphertext_bytes
-    empty = (np.zeros(0, np.int64), np.zeros((0, 1, width_bytes), np.uint8))
-
-    fin_token = dask.base.tokenize(key, plan.to_dict(), backend, uuid.uuid4().hex)
-    n_int = int(ev.public_key.n)
-
-    key_bits = int(ev.public_key.n).bit_length()
-    units = []  # (tile, first pixel, end pixel) of every finishing task
-    for t in range(n_tiles):
-        pix = layout.pixels(t)
-        units += [(t, a, b) for a, b in finish_units(plan, rays.n_samples[pix] > 0, key_bits)]
-
-    def finishing(merged: dict[int, Any]) -> list[Any]:
-        """The finishing tasks (:func:`~hevr.rendering.finishing.finish_units`), as a plain task
-        dictionary (no per-task tokenising)."""
-        dsk: dict[str, Any] = {}
-        deps = []
-        layer = f"hevr-finish-{fin_token}"
-        for i, (t, a, b) in enumerate(units):
-            pix = layout.pixels(t)[a:b]
-            m = merged.get(t)
-            if isinstance(m, Delayed):
-                deps.append(m)
-                m = m.key
-            dsk[f"{layer}-{i}"] = (finish_task, plan, m if m is not None else empty, pix, rays.n_samples[pix], n_int,
-                                   width_bytes, backend)
-        hlg = HighLevelGraph.from_collections(layer, dsk, dependencies=deps)
-        hlg.layers[layer].annotations = {"priority": Priorities({})}  # as soon as ready
-        return [Delayed(f"{layer}-{i}", hlg, layer=layer) for i in range(len(units))]
-
-    def assemble(results: list[np.ndarray]) -> list[np.ndarray]:
-        """Each tile's packed ciphertexts: its units' outputs in order."""
-        per_tile: list[list[np.ndarray]] = [[] for _ in range(n_tiles)]
-        for (t, _, _), r in zip(units, results):
-            per_tile[t].append(r)
-        return [p[0] if len(p) == 1 else np.concatenate(p) for p in per_tile]
+    finish = FinishGraph.plan_units(plan, layout, rays.n_samples, int(ev.public_key.n), backend)
 
     resident = None
     if ev.resident is not None and ev.resident.bricks:  # a released residency just streams
@@ -235,10 +195,10 @@ def render(
         graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
                                  tile, n_tiles, backend, resident)
         live = [t for t, d in graph.merged.items() if d is not None] if cache else []
-        fin = finishing({t: graph.delayed(t) for t in graph.merged})
+        fin = finish.tasks({t: graph.delayed(t) for t in graph.merged})
         results = compute(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",
                           keep=len(live))
-        packed = assemble(results[:len(fin)])
+        packed = finish.assemble(results[:len(fin)])
         sums = RaySums(key, {t: None for t in graph.merged}, graph.map_tasks, cl if cl is not None else None)
         sums.tiles.update(dict(zip(live, results[len(fin):])))
         if cache:
@@ -247,8 +207,8 @@ def render(
                 _CACHE.popitem(last=False)
     else:
         _CACHE.move_to_end(key)
-        fin = finishing(sums.tiles)
-        packed = assemble(compute(fin, client=cl, progress=False, desc="finish"))
+        fin = finish.tasks(sums.tiles)
+        packed = finish.assemble(compute(fin, client=cl, progress=False, desc="finish"))
     shape = spec.image_shape(H, W)
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
              "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),

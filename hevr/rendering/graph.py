@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import operator
 import time
+import uuid
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
@@ -31,9 +32,10 @@ from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
 from .. import _stats
 from .._tiles import TileLayout
 from ..backends import get_backend
+from ..crypto.records import record_width
 from ..store.reader import EncryptedVolume
 from .camera import Camera
-from .finishing import finish_tile, merge_partials
+from .finishing import finish_tile, finish_units, merge_partials
 from .footprint import Footprint, brick_footprints
 from .kernel import brick_ray_products_multi
 from .planner import RenderPlan
@@ -198,3 +200,65 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
     layer = f"hevr-sums-{token}"
     hlg = HighLevelGraph({layer: MaterializedLayer(dsk, annotations={"priority": Priorities(prio)})}, {layer: set()})
     return SumsGraph(hlg, layer, merged, len(prints), edges)
+
+
+@dataclass(frozen=True)
+class FinishGraph:
+    """The finishing tasks of one view: :func:`~hevr.rendering.finishing.finish_units` per tile.
+
+    Attributes
+    ----------
+    plan : RenderPlan
+    layout : TileLayout
+    n_samples : (H*W,) int64
+        Samples per pixel (public).
+    n : int
+        The public modulus.
+    backend : str
+    units : list of (tile, a, b)
+        Every finishing task: pixels ``a:b`` of the tile's pixel list.
+    """
+
+    plan: RenderPlan
+    layout: TileLayout
+    n_samples: np.ndarray
+    n: int
+    backend: str
+    units: list
+
+    @classmethod
+    def plan_units(cls, plan: RenderPlan, layout: TileLayout, n_samples: np.ndarray, n: int,
+                   backend: str) -> FinishGraph:
+        """Cut every tile into finishing units (about one map task's work each)."""
+        bits = int(n).bit_length()
+        units = [(t, a, b) for t in range(layout.n_tiles)
+                 for a, b in finish_units(plan, n_samples[layout.pixels(t)] > 0, bits)]
+        return cls(plan, layout, n_samples, int(n), backend, units)
+
+    def tasks(self, merged: dict[int, Any]) -> list[Delayed]:
+        """One ``Delayed`` per unit; ``merged`` maps tile -> its merged sums (a ``Delayed``, a
+        future, the value itself, or None for a tile no brick touches). A plain task dictionary
+        (no per-task tokenising) whose tasks outrank every waiting map task."""
+        width = record_width(self.n)
+        empty = (np.zeros(0, np.int64), np.zeros((0, 1, width), np.uint8))
+        layer = f"hevr-finish-{uuid.uuid4().hex}"
+        dsk: dict[str, Any] = {}
+        deps = []
+        for i, (t, a, b) in enumerate(self.units):
+            pix = self.layout.pixels(t)[a:b]
+            m = merged.get(t)
+            if isinstance(m, Delayed):
+                deps.append(m)
+                m = m.key
+            dsk[f"{layer}-{i}"] = (finish_task, self.plan, m if m is not None else empty, pix, self.n_samples[pix],
+                                   self.n, width, self.backend)
+        hlg = HighLevelGraph.from_collections(layer, dsk, dependencies=deps)
+        hlg.layers[layer].annotations = {"priority": Priorities({})}
+        return [Delayed(f"{layer}-{i}", hlg, layer=layer) for i in range(len(self.units))]
+
+    def assemble(self, results: list[np.ndarray]) -> list[np.ndarray]:
+        """Each tile's packed ciphertexts: its units' outputs, concatenated in order."""
+        per_tile: list[list[np.ndarray]] = [[] for _ in range(self.layout.n_tiles)]
+        for (t, _, _), r in zip(self.units, results):
+            per_tile[t].append(r)
+        return [p[0] if len(p) == 1 else np.concatenate(p) for p in per_tile]
