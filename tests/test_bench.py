@@ -7,6 +7,7 @@ import json
 import pytest
 
 from hevr._bench import report
+from hevr._bench.pipeline import predict, simulate
 from hevr._bench.runner import rewrite_report, run_bench
 from hevr._bench.settings import PAPER, QUICK, SETTINGS
 from hevr.cli.main import main
@@ -19,7 +20,8 @@ def test_bench_quick_cli_writes_everything(tmp_path, capsys):
     md = (tmp_path / "RESULTS-quick.md").read_text()
     doc = json.loads((tmp_path / "results-quick.json").read_text())
     assert (tmp_path / "scaling-quick.png").stat().st_size > 1000
-    for heading in ("Table 1", "Table 2", "Table 3", "Against the limit", "python-paillier", "Scaling"):
+    for heading in ("Table 1", "Table 2", "Table 3", "Against the limit", "python-paillier", "Scaling",
+                    "Pipeline: frame time against workers"):
         assert heading in md
     assert "Not (yet) run" not in md
     cells = doc["cells"]
@@ -33,6 +35,14 @@ def test_bench_quick_cli_writes_everything(tmp_path, capsys):
     assert cells["naive.phe"]["nearest"]["max_abs_err"] < 1e-6
     assert cells["naive.phe"]["nearest"]["max_abs_err_plain"] < 1e-6  # phe's naive render is right too
     assert doc["machine"]["cores"] >= 1 and doc["machine"]["versions"]["gmpy2"]
+    # the pipeline block: traced frames on 1 and 2 workers, the model's predictions up to 64
+    for n in (1, 2):
+        run = cells[f"pipeline.{n}"]
+        assert run["workers"] == n and run["image_stats"]["resident"] and run["tasks"] > 0
+        assert 0 <= run["serial_before"] < run["wall"] and run["busy"] > 0
+    model = cells["pipeline.model"]
+    assert set(model["frame"]) == {"1", "2", "4", "8", "16", "32", "64"}
+    assert all(0 < e <= 1.0 + 1e-9 for e in model["efficiency"].values())
     # the markdown is a pure function of the JSON
     (tmp_path / "RESULTS-quick.md").unlink()
     assert main(["bench", "--quick", "--report-only", "--out", str(tmp_path)]) == 0
@@ -86,3 +96,15 @@ def test_goals_judged_from_cells():
                                                 (None, 3.0, "– / 3.00"), (1.5, None, "1.50")])
 def test_cell_format(ours, theirs, text):
     assert report._cmp(ours, theirs) == text
+
+
+def test_pipeline_model_replays_a_graph():
+    # a fan-in of 8 unit tasks into one of 1 s: 2 workers need 4 + 1 s; 8 workers 1 + 1 s
+    deps = {f"m{i}": [] for i in range(8)} | {"f": [f"m{i}" for i in range(8)]}
+    dur = {f"m{i}": 1.0 for i in range(8)} | {"f": 1.0}
+    assert simulate(deps, dur, 2) == 5.0 and simulate(deps, dur, 8) == 2.0 and simulate(deps, dur, 64) == 2.0
+    trace = {"deps": deps, "durations": dur, "workers": 2, "span": 5.9, "serial_before": 0.1, "serial_after": 0.0,
+             "tasks": 9}
+    out = predict(trace, [1, 2, 8])
+    assert out["frame"]["2"] == pytest.approx(6.0, abs=1e-3)  # the overhead is fitted to the traced span
+    assert out["efficiency"]["2"] < 1 and out["efficiency"]["8"] < out["efficiency"]["2"]

@@ -134,8 +134,9 @@ def render(
     tile : int
         Image tile edge (pixels) of the reduce.
     cache : bool
-        Keep the per-component ray sums of this view in memory so that another density or
-        transfer function on the same camera only redoes the per-pixel step.
+        Keep the per-component ray sums of this view so that another density or transfer
+        function on the same camera only redoes the per-pixel step. On a distributed client the
+        sums stay on the workers (futures) and re-colouring runs there: no sums travel.
     client : distributed.Client, optional
         Defaults to the active client, else Dask's default scheduler.
     progress : bool
@@ -147,7 +148,9 @@ def render(
     Returns
     -------
     EncryptedImage
-        Never touches the secret key.
+        Never touches the secret key. ``stats`` reports ``map_tasks``, ``finish_tasks``,
+        ``reused_ray_sums``, ``resident`` (bricks taken from a persisted volume,
+        :meth:`hevr.EncryptedVolume.persist`) and ``gathered_bytes`` (what reached the client).
 
     Raises
     ------

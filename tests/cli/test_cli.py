@@ -205,7 +205,9 @@ def test_demo_tiny(tmp_path, capsys):
         for f in (im["png"], im["reference_png"], im["frame"]):
             assert (out_dir / f).is_file()
     assert (out_dir / "contact-sheet.png").is_file() and (out_dir / "report.md").is_file()
-    assert {"keygen", "encrypt", "render tf2", "decrypt (all)"} <= set(summary["stages_s"])
+    assert {"keygen", "encrypt", "persist", "render tf2", "decrypt (all)"} <= set(summary["stages_s"])
+    # open once, render many: every image that ran map tasks took its bricks from worker memory
+    assert all(im["resident"] or im["reused_ray_sums"] for im in summary["images"])
     assert "max|err|" in out and "keygen" in out and "encrypt" in out
     assert stat.S_IMODE((out_dir / "demo-key.json").stat().st_mode) == 0o600
 
