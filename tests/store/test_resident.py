@@ -12,7 +12,7 @@ import dask
 import gmpy2
 import numpy as np
 import pytest
-from distributed import Client, LocalCluster
+from distributed import Client, LocalCluster, get_task_stream
 
 import hevr
 from hevr.rendering.encrypted import error_bound
@@ -362,3 +362,18 @@ def test_resident_volume_survives_a_killed_worker(store, keypair256, camera):
         assert all(f.status == "finished" for f in ev2.resident.bricks.values())
     assert _same(before, after)
     assert np.array_equal(after.decrypt(priv), before.decrypt(priv))
+
+
+def test_map_tasks_run_where_their_brick_lives(store, camera, cluster):
+    with cluster.as_current():
+        ev2 = store.persist()
+        ev2.resident.wait()
+        who = cluster.who_has(list(ev2.resident.bricks.values()))
+        holder = {idx: next(iter(who[f.key])) for idx, f in ev2.resident.bricks.items()}
+        with get_task_stream(client=cluster) as ts:
+            _render(ev2, camera, "xray", "nearest", {}, client=cluster)
+    ran = {tuple(int(x) for x in str(t["key"]).rsplit("-", 3)[1:]): t["worker"]
+           for t in ts.data if str(t["key"]).startswith("hevr-map-")}
+    assert len(ran) > 5
+    local = sum(ran[idx] == holder[idx] for idx in ran)
+    assert local >= 0.75 * len(ran), (local, len(ran))  # work stealing may move a few; the brick stays put
