@@ -69,6 +69,10 @@ def _gathered_bytes(packed: list, sums: RaySums, client: Any, reused: bool) -> i
     return total
 
 
+# Resident bricks get one map task per tile row of their footprint (graph.build_sums_graph) from
+# this key size on: there the arithmetic of a piece outweighs a task's fixed cost (~2 ms).
+BAND_BITS = 1024
+
 _CACHE: "OrderedDict[tuple, RaySums]" = OrderedDict()
 CACHE_SIZE = 2
 
@@ -196,7 +200,8 @@ def render(
         # When they are cached they stay where they are: futures on a cluster (re-colouring
         # then runs next to them), values on a single machine.
         graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
-                                 tile, n_tiles, backend, resident)
+                                 tile, n_tiles, backend, resident,
+                                 bands=resident is not None and int(ev.public_key.n).bit_length() >= BAND_BITS)
         live = [t for t, d in graph.merged.items() if d is not None] if cache else []
         fin = finish.tasks({t: graph.delayed(t) for t in graph.merged})
         results = compute(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",

@@ -58,6 +58,20 @@ class Footprint:
     rect: tuple[int, int, int, int]
     tiles: tuple[int, ...]
 
+    def bands(self, tile: int, tiles_x: int) -> list[Footprint]:
+        """The footprint cut into tile rows: one piece per tile row that holds some of its tiles.
+
+        >>> [(f.rect, f.tiles) for f in Footprint((1, 5, 0, 2), (0, 2)).bands(2, 2)]
+        [((1, 2, 0, 2), (0,)), ((4, 5, 0, 2), (2,))]
+        """
+        r0, r1, c0, c1 = self.rect
+        out = []
+        for ty in range(r0 // tile, (r1 - 1) // tile + 1):
+            tiles = tuple(t for t in self.tiles if t // tiles_x == ty)
+            if tiles:
+                out.append(Footprint((max(r0, ty * tile), min(r1, (ty + 1) * tile), c0, c1), tiles))
+        return out
+
     def pixels(self, width: int) -> np.ndarray:
         """Global pixel indices of the rectangle, ascending.
 

@@ -133,12 +133,15 @@ class SumsGraph:
     merged : dict
         Tile id -> key of its merged ``(rays, records)``, or None for a tile no brick touches.
     map_tasks : int
-        One per brick whose footprint holds a hit pixel.
+        Bricks whose footprint holds a hit pixel (one map task each, or ``pieces`` map
+        tasks in all when split into tile rows).
     edges : int
-        (map task, tile) outputs: the sum over map tasks of their footprint's tiles. The
-        graph has ``map_tasks + edges`` map and selection tasks and, per tile of e partials,
+        (brick, tile) outputs: the sum over bricks of their footprint's tiles. The graph has
+        ``pieces + edges <= 2·edges`` map and selection tasks and, per tile of e partials,
         ``ceil((e - 1)/(FAN_IN - 1))`` merges, so at most ``edges/(FAN_IN - 1) + tiles`` in
         all: its size is linear in bricks + tiles + edges.
+    pieces : int
+        Map tasks: ``map_tasks``, or more when bricks are split into tile rows.
     """
 
     dsk: Any
@@ -146,6 +149,7 @@ class SumsGraph:
     merged: dict[int, Any]
     map_tasks: int
     edges: int
+    pieces: int
 
     def delayed(self, t: int) -> Any:
         """The merged sums of tile ``t`` as a Dask ``Delayed`` (None if no brick touches it)."""
@@ -155,13 +159,20 @@ class SumsGraph:
 
 def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,
                      channel: str, tile: int, n_tiles: int, backend: str = "cpu",
-                     resident: dict | None = None) -> SumsGraph:
+                     resident: dict | None = None, bands: bool = False) -> SumsGraph:
     """The view's map -> select -> merge graph, built in O(bricks + pixels + edges) on the client.
 
     Written as a plain task dictionary (Dask's graph specification): a few dictionary
     entries per task, no per-task tokenising. ``resident`` maps brick index -> the brick's
     resident data (a future, or the data itself on a single machine), passed to its map
     task so that the task runs where the brick lives.
+
+    With ``bands`` a brick gets one map task per tile row of its footprint
+    (:meth:`Footprint.bands`): the rays, and so the kernel work, are split, not repeated, and
+    each (brick, tile) output still comes from one task. Run in image order, the tiles of a row
+    then complete as soon as that row's tasks are done and their finishing overlaps the rest of
+    the map phase (the tail shrinks from the tiles of the last bricks' footprints to one tile
+    row). Only for resident bricks: streamed, each piece would read the brick again.
     """
     prints = brick_footprints(camera, ev.shape, ev.spacing, ev.brick, rays.n_samples > 0, tile)
     token = dask.base.tokenize(ev.path, ev.meta.store_id, camera.key(), sampling, step, digits, channel, tile,
@@ -170,18 +181,21 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
     n2 = int(ev.public_key.nsquare)
     dsk: dict[str, Any] = {}
     prio: dict[str, int] = {}
-    edges = 0
+    edges = pieces_total = 0
     for idx, fp in prints.items():
         if not fp.tiles:
             continue
-        name = f"hevr-map-{token}-{idx[0]}-{idx[1]}-{idx[2]}"
         data = resident.get(idx) if resident is not None else None
-        dsk[name] = (map_brick, ev, camera, idx, sampling, step, digits, channel, fp, tile, backend, data)
-        prio[name] = -(fp.rect[0] * camera.width + fp.rect[2])
-        for t in fp.tiles:
-            part = f"hevr-part-{token}-{t}-{idx[0]}-{idx[1]}-{idx[2]}"
-            dsk[part] = (operator.getitem, name, t)
-            leaves[t].append(part)
+        pieces = fp.bands(tile, -(-camera.width // tile)) if bands else [fp]
+        for b, piece in enumerate(pieces):
+            name = f"hevr-map-{token}-{b}-{idx[0]}-{idx[1]}-{idx[2]}"
+            dsk[name] = (map_brick, ev, camera, idx, sampling, step, digits, channel, piece, tile, backend, data)
+            prio[name] = -(piece.rect[0] * camera.width + piece.rect[2])
+            for t in piece.tiles:
+                part = f"hevr-part-{token}-{t}-{idx[0]}-{idx[1]}-{idx[2]}"
+                dsk[part] = (operator.getitem, name, t)
+                leaves[t].append(part)
+        pieces_total += len(pieces)
         edges += len(fp.tiles)
     merged: dict[int, Any] = {}
     for t, parts in leaves.items():
@@ -199,7 +213,7 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
         merged[t] = queue[0] if queue else None
     layer = f"hevr-sums-{token}"
     hlg = HighLevelGraph({layer: MaterializedLayer(dsk, annotations={"priority": Priorities(prio)})}, {layer: set()})
-    return SumsGraph(hlg, layer, merged, len(prints), edges)
+    return SumsGraph(hlg, layer, merged, len(prints), edges, pieces_total)
 
 
 @dataclass(frozen=True)

@@ -177,3 +177,22 @@ def test_resident_bricks_are_passed_to_their_map_tasks(family):
         if str(key).startswith("hevr-map"):
             assert task[-1] is None
     assert all(isinstance(k, str) for k in dict(res.dsk))
+
+
+
+def test_tile_row_pieces_split_rays_not_outputs(family):
+    """With bands every (brick, tile) output still comes from exactly one map task, and each
+    piece's rectangle lies in one tile row inside its brick's rectangle."""
+    ev = family[-1]
+    cam = hevr.Camera.orbit(ev, azimuth=35, elevation=25, width=40, height=40)
+    rays = cast_rays(cam, ev.shape, ev.spacing, 1.0)
+    whole = build_sums_graph(ev, cam, rays, "nearest", 1.0, 0, "scalar", 8, 25)
+    split = build_sums_graph(ev, cam, rays, "nearest", 1.0, 0, "scalar", 8, 25, bands=True)
+    assert split.edges == whole.edges and split.map_tasks == whole.map_tasks
+    assert whole.pieces == whole.map_tasks < split.pieces <= split.edges
+    parts = lambda g: sorted(k.split("-", 3)[3] for k in dict(g.dsk) if k.startswith("hevr-part-"))  # noqa: E731
+    assert parts(split) == parts(whole)
+    for key, task in dict(split.dsk).items():
+        if key.startswith("hevr-map-"):
+            fp = task[8]
+            assert fp.rect[0] // 8 == (fp.rect[1] - 1) // 8 and all(t // 5 == fp.rect[0] // 8 for t in fp.tiles)

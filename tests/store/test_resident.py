@@ -15,6 +15,7 @@ import pytest
 from distributed import Client, LocalCluster, get_task_stream
 
 import hevr
+from hevr.rendering import encrypted as render_mod
 from hevr.rendering.encrypted import error_bound
 from hevr.store import reader as reader_mod
 from hevr.store.resident import (
@@ -377,3 +378,23 @@ def test_map_tasks_run_where_their_brick_lives(store, camera, cluster):
     assert len(ran) > 5
     local = sum(ran[idx] == holder[idx] for idx in ran)
     assert local >= 0.75 * len(ran), (local, len(ran))  # work stealing may move a few; the brick stays put
+
+
+
+@pytest.mark.parametrize("mode, sampling, kw", RENDERS, ids=IDS)
+def test_tile_row_pieces_give_the_identical_image(store, volume, keypair256, camera, cluster, monkeypatch,
+                                                 mode, sampling, kw):
+    """Resident bricks split into one map task per tile row (the default from BAND_BITS on):
+    the same ciphertexts as one task per brick, and as streaming."""
+    with cluster.as_current():
+        ev2 = store.persist()
+        ev2.resident.wait()
+        whole = _render(ev2, camera, mode, sampling, kw, client=cluster, tile=4)
+        monkeypatch.setattr(render_mod, "BAND_BITS", 0)
+        with get_task_stream(client=cluster) as ts:
+            split = _render(ev2, camera, mode, sampling, kw, client=cluster, tile=4)
+    streamed = _render(store, camera, mode, sampling, kw, tile=4)
+    maps = [t for t in ts.data if str(t["key"]).startswith("hevr-map-")]
+    assert len(maps) > split.stats["map_tasks"]  # more pieces than bricks
+    assert _same(whole, split) and _same(split, streamed)
+    _check_plain(split, store, volume, camera, mode, sampling, kw, keypair256[1])
