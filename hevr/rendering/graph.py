@@ -109,10 +109,12 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     return out
 
 
-def merge_task(nsquare: int, backend: str, *parts):
-    """One merge task: ⊕ per ray of up to ``FAN_IN`` partial results of one tile."""
+def merge_task(nsquare: int, backend: str, tile: int, *parts):
+    """One merge task: ⊕ per ray of up to ``FAN_IN`` partial results of tile ``tile``: a map
+    task's output (its dict by tile: this tile's entry is taken here, so no selection task
+    stands between map and merge) or an earlier merge's ``(rays, records)``."""
     with _stats.timed("merge", 1):
-        return merge_partials(parts, nsquare, backend)
+        return merge_partials([p[tile] if isinstance(p, dict) else p for p in parts], nsquare, backend)
 
 
 def finish_task(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
@@ -137,9 +139,10 @@ class SumsGraph:
         tasks in all when split into tile rows).
     edges : int
         (brick, tile) outputs: the sum over bricks of their footprint's tiles. The graph has
-        ``pieces + edges <= 2·edges`` map and selection tasks and, per tile of e partials,
-        ``ceil((e - 1)/(FAN_IN - 1))`` merges, so at most ``edges/(FAN_IN - 1) + tiles`` in
-        all: its size is linear in bricks + tiles + edges.
+        ``pieces <= edges`` map tasks, one selection task per tile that a single brick reaches,
+        and per tile of e > 1 partials ``ceil((e - 1)/(FAN_IN - 1))`` merges (the first ones
+        take their tile's entry from the map outputs themselves), so at most
+        ``edges/(FAN_IN - 1) + tiles`` in all: its size is linear in bricks + tiles + edges.
     pieces : int
         Map tasks: ``map_tasks``, or more when bricks are split into tile rows.
     """
@@ -160,7 +163,7 @@ class SumsGraph:
 def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,
                      channel: str, tile: int, n_tiles: int, backend: str = "cpu",
                      resident: dict | None = None, bands: bool = False) -> SumsGraph:
-    """The view's map -> select -> merge graph, built in O(bricks + pixels + edges) on the client.
+    """The view's map -> merge graph, built in O(bricks + pixels + edges) on the client.
 
     Written as a plain task dictionary (Dask's graph specification): a few dictionary
     entries per task, no per-task tokenising. ``resident`` maps brick index -> the brick's
@@ -192,9 +195,7 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
             dsk[name] = (map_brick, ev, camera, idx, sampling, step, digits, channel, piece, tile, backend, data)
             prio[name] = -(piece.rect[0] * camera.width + piece.rect[2])
             for t in piece.tiles:
-                part = f"hevr-part-{token}-{t}-{idx[0]}-{idx[1]}-{idx[2]}"
-                dsk[part] = (operator.getitem, name, t)
-                leaves[t].append(part)
+                leaves[t].append(name)
         pieces_total += len(pieces)
         edges += len(fp.tiles)
     merged: dict[int, Any] = {}
@@ -202,12 +203,16 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
         # A queue of partials: merge the first FAN_IN, put the result at the back. Every merge
         # but the last takes FAN_IN inputs (ceil((e - 1)/(FAN_IN - 1)) merges for e partials)
         # and the rounds stay balanced (depth about log_FAN_IN e).
+        if len(parts) == 1:  # one brick reaches this tile: select its entry
+            merged[t] = f"hevr-part-{token}-{t}"
+            dsk[merged[t]] = (operator.getitem, parts[0], t)
+            continue
         queue = deque(parts)
         i = 0
         while len(queue) > 1:
             group = [queue.popleft() for _ in range(min(FAN_IN, len(queue)))]
             key = f"hevr-merge-{token}-{t}-{i}"
-            dsk[key] = (merge_task, n2, backend, *group)
+            dsk[key] = (merge_task, n2, backend, t, *group)
             queue.append(key)
             i += 1
         merged[t] = queue[0] if queue else None

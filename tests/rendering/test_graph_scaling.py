@@ -63,16 +63,17 @@ def test_task_count_is_linear_in_bricks_tiles_and_edges(family, parallel, tile):
             dsk = dict(g.dsk)
             kinds = _kinds(dsk)
             assert len(dsk) == sum(len(v) for v in kinds.values())
-            assert len(kinds["map"]) == g.map_tasks and len(kinds["part"]) == g.edges
             prints = brick_footprints(cam, ev.shape, ev.spacing, ev.brick, rays.n_samples > 0, tile)
+            leaves = [sum(t in fp.tiles for fp in prints.values()) for t in range(n_tiles)]
+            # selection tasks only for tiles that a single brick reaches; merges select their own
+            assert len(kinds["map"]) == g.map_tasks and len(kinds["part"]) == sum(n == 1 for n in leaves)
             assert g.map_tasks == len(prints) <= math.prod(ev.grid)
             assert g.edges == sum(len(fp.tiles) for fp in prints.values())
             assert g.edges <= g.map_tasks * max(len(fp.tiles) for fp in prints.values())
-            leaves = [sum(t in fp.tiles for fp in prints.values()) for t in range(n_tiles)]
             assert len(kinds["merge"]) == sum(_tree_merges(n) for n in leaves)
-            # linear: map + part tasks, and at most edges/(FAN_IN - 1) + tiles merges
+            # linear: map tasks, a selection per single-brick tile, at most edges/(FAN_IN - 1) + tiles merges
             assert len(kinds["merge"]) <= g.edges / (FAN_IN - 1) + n_tiles
-            assert len(dsk) <= g.map_tasks + g.edges + g.edges / (FAN_IN - 1) + n_tiles
+            assert len(dsk) <= g.map_tasks + g.edges / (FAN_IN - 1) + 2 * n_tiles
             assert sum(1 for t in g.merged.values() if t is not None) == sum(n > 0 for n in leaves)
             if previous is not None:  # twice the bricks: at most twice the tasks (plus a tree level per tile)
                 assert g.map_tasks <= 2 * previous.map_tasks and g.edges <= 2 * previous.edges
@@ -190,8 +191,10 @@ def test_tile_row_pieces_split_rays_not_outputs(family):
     split = build_sums_graph(ev, cam, rays, "nearest", 1.0, 0, "scalar", 8, 25, bands=True)
     assert split.edges == whole.edges and split.map_tasks == whole.map_tasks
     assert whole.pieces == whole.map_tasks < split.pieces <= split.edges
-    parts = lambda g: sorted(k.split("-", 3)[3] for k in dict(g.dsk) if k.startswith("hevr-part-"))  # noqa: E731
-    assert parts(split) == parts(whole)
+    def outputs(g):  # (brick, tile) pairs the map tasks emit
+        return sorted((task[3], t) for k, task in dict(g.dsk).items() if k.startswith("hevr-map-") for t in task[8].tiles)
+
+    assert outputs(split) == outputs(whole) and len(outputs(whole)) == whole.edges
     for key, task in dict(split.dsk).items():
         if key.startswith("hevr-map-"):
             fp = task[8]
