@@ -70,7 +70,9 @@ def _gathered_bytes(packed: list, sums: RaySums, client: Any, reused: bool) -> i
 
 
 # Resident bricks get one map task per tile row of their footprint (graph.build_sums_graph) from
-# this key size on: there the arithmetic of a piece outweighs a task's fixed cost (~2 ms).
+# this key size on, where a piece's arithmetic outweighs a task's fixed cost (~2 ms); nearest
+# sampling only: trilinear rows share per-voxel powers across a brick's rays (kernel.py), which
+# pieces would compute once per piece (measured: +8 % map time at 2048 bits).
 BAND_BITS = 1024
 
 _CACHE: "OrderedDict[tuple, RaySums]" = OrderedDict()
@@ -201,7 +203,8 @@ def render(
         # then runs next to them), values on a single machine.
         graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
                                  tile, n_tiles, backend, resident,
-                                 bands=resident is not None and int(ev.public_key.n).bit_length() >= BAND_BITS)
+                                 bands=resident is not None and spec.sampling == "nearest"
+                                 and int(ev.public_key.n).bit_length() >= BAND_BITS)
         live = [t for t, d in graph.merged.items() if d is not None] if cache else []
         fin = finish.tasks({t: graph.delayed(t) for t in graph.merged})
         results = compute(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",
