@@ -62,7 +62,7 @@ class Footprint:
         """The footprint cut into tile rows: one piece per tile row that holds some of its tiles.
 
         >>> [(f.rect, f.tiles) for f in Footprint((1, 5, 0, 2), (0, 2)).bands(2, 2)]
-        [((1, 2, 0, 2), (0,)), ((4, 5, 0, 2), (2,))]
+        [((1, 2, 0, 2), (0,)), ((2, 4, 0, 2), (2,))]
         """
         r0, r1, c0, c1 = self.rect
         out = []
