@@ -23,6 +23,7 @@ from .crypto.keys import PrivateKey, PublicKey, generate_keypair
 from .crypto.number import EncryptedNumber
 from .errors import (
     CorruptStoreError,
+    ExistingFileError,
     HevrError,
     IncompleteStoreError,
     InsecureKeyWarning,
@@ -96,5 +97,6 @@ __all__ = [
     "MissingDependencyError",
     "MissingFileError",
     "MemoryLimitError",
+    "ExistingFileError",
     "InsecureKeyWarning",
 ]

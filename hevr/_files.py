@@ -18,14 +18,19 @@ import os
 import tempfile
 from pathlib import Path
 
-from .errors import MissingFileError
+from .errors import ExistingFileError, MissingFileError
 
 __all__ = ["require_file", "write_atomic"]
 
 
-def write_atomic(path: str | os.PathLike, text: str, mode: int = 0o644) -> None:
+def write_atomic(path: str | os.PathLike, text: str, mode: int = 0o644, *, overwrite: bool = True,
+                 name: str = "path") -> None:
     """Write ``text`` to ``path`` through a temporary file in the same folder and
-    ``os.replace``: the file never exists half-written, nor with a mode other than ``mode``."""
+    ``os.replace``: the file never exists half-written, nor with a mode other than ``mode``.
+
+    With ``overwrite=False`` an existing ``path`` is never replaced: the temporary file is
+    hard-linked into place, which fails atomically if ``path`` exists (no window between a
+    check and the write); :class:`hevr.ExistingFileError` names ``name`` then."""
     path = Path(path)
     directory = require_file(path.parent if str(path.parent) else Path("."), "path", "an existing folder",
                              directory=True)
@@ -39,11 +44,30 @@ def write_atomic(path: str | os.PathLike, text: str, mode: int = 0o644) -> None:
             raise
         with fh:
             fh.write(text)
-        os.replace(tmp, path)
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            _link_new(tmp, path, name)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def _link_new(tmp: str, path: Path, name: str) -> None:
+    """Put ``tmp`` at ``path`` only if nothing is there, atomically; then drop ``tmp``."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise ExistingFileError(name, path) from None
+    except OSError:  # a filesystem without hard links: exclusive create, then copy
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, os.stat(tmp).st_mode & 0o777)
+        except FileExistsError:
+            raise ExistingFileError(name, path) from None
+        with os.fdopen(fd, "w") as out, open(tmp) as src:
+            out.write(src.read())
+    os.unlink(tmp)
 
 
 def require_file(path: str | os.PathLike, name: str, expected: str, *, directory: bool = False) -> Path:

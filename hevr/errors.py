@@ -30,6 +30,7 @@ __all__ = [
     "MissingDependencyError",
     "MissingFileError",
     "MemoryLimitError",
+    "ExistingFileError",
     "InsecureKeyWarning",
 ]
 
@@ -103,6 +104,22 @@ class MissingFileError(HevrError, FileNotFoundError):
 
     def __init__(self, name: str, expected: str, path: str | os.PathLike) -> None:
         super().__init__(errno.ENOENT, f"{name}: expected {expected}, found nothing at {path}", str(path))
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
+class ExistingFileError(HevrError, FileExistsError):
+    """A file that would be written exists already and replacing it was not asked for (also
+    a :class:`FileExistsError`).
+
+    >>> str(ExistingFileError("path", "k.json"))
+    'path: expected no file at k.json (pass overwrite=True to replace it), found one'
+    """
+
+    def __init__(self, name: str, path: str | os.PathLike) -> None:
+        super().__init__(errno.EEXIST, f"{name}: expected no file at {path} (pass overwrite=True to replace it), "
+                                       "found one", str(path))
 
     def __str__(self) -> str:
         return str(self.strerror)

@@ -67,7 +67,7 @@ PUBLIC_API = (
     "EncryptedVolume", "upgrade_store", "encode", "decode", "BASE",
     "HevrError", "ParameterError", "InvalidKeyError", "KeyMismatchError", "PlaintextOverflowError",
     "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "IntegrityError",
-    "VolumeFormatError", "MissingDependencyError", "MissingFileError", "MemoryLimitError", "InsecureKeyWarning",
+    "VolumeFormatError", "MissingDependencyError", "MissingFileError", "MemoryLimitError", "ExistingFileError", "InsecureKeyWarning",
 )
 API_MD = ROOT.parent / "shared" / "API.md"
 

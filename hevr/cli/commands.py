@@ -61,8 +61,8 @@ def cmd_keygen(args: Any) -> int:
     with Timer() as t, warnings.catch_warnings():
         warnings.simplefilter("ignore", InsecureKeyWarning)
         pub, priv = generate_keypair(args.bits)
-    priv.save(out)
-    pub.save(pub_out)
+    priv.save(out, overwrite=args.force)
+    pub.save(pub_out, overwrite=args.force)
     print(f"generated a {args.bits}-bit Paillier key pair in {t.seconds:.2f} s")
     print(f"  private key: {out}  (mode 0600 - keep it secret, it decrypts every image)")
     print(f"  public key:  {pub_out}  (give this one to whoever encrypts)")

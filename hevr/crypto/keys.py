@@ -161,9 +161,10 @@ class PublicKey:
         return {"format": "hevr-key", "version": 1, "kind": "public", "bits": self.bits,
                 "n": str(int(self.n)), "fingerprint": self.fingerprint}
 
-    def save(self, path) -> None:
-        """Write the public key as JSON (world-readable is fine); read it with :func:`hevr.load_key`."""
-        write_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n", mode=0o644)
+    def save(self, path, overwrite: bool = False) -> None:
+        """Write the public key as JSON (world-readable is fine); read it with :func:`hevr.load_key`.
+        An existing file is replaced only with ``overwrite=True`` (:class:`hevr.ExistingFileError`)."""
+        write_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n", mode=0o644, overwrite=overwrite)
 
 
 class PrivateKey:
@@ -287,10 +288,11 @@ class PrivateKey:
         d.update(kind="private", p=str(int(self.p)), q=str(int(self.q)))
         return d
 
-    def save(self, path) -> None:
-        """Write the private key as JSON, created with mode 0600 (atomic replace); read it
-        with :func:`hevr.load_key`."""
-        write_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n", mode=0o600)
+    def save(self, path, overwrite: bool = False) -> None:
+        """Write the private key as JSON, created with mode 0600 (atomically); read it with
+        :func:`hevr.load_key`. An existing file is never replaced unless ``overwrite=True``
+        (:class:`hevr.ExistingFileError`): a key written over loses every image it decrypts."""
+        write_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n", mode=0o600, overwrite=overwrite)
 
 
 _OWNER_CACHE: "dict[int, OwnerEncryptor]" = {}

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from PIL import ImageColor
 
 from .._validate import check_choice, check_step, check_vector_dims
 from ..errors import ParameterError
@@ -56,14 +57,18 @@ _HEX = re.compile(r"^#([0-9a-fA-F]{6}|[0-9a-fA-F]{3})$")
 
 
 def parse_color(c: Any) -> tuple[float, float, float]:
-    """Parse a colour: (r, g, b) floats in [0, 1], ``'#rrggbb'``/``'#rgb'`` or a CSS name.
+    """Parse a colour: (r, g, b) floats in [0, 1], ``'#rrggbb'``/``'#rgb'`` or a CSS name
+    (any of the ~150 names of Pillow's ``ImageColor`` table; :data:`CSS_COLORS` lists the
+    common ones, with the same values).
 
     Examples
     --------
     >>> parse_color("#ff8000")
     (1.0, 0.5019607843137255, 0.0)
-    >>> parse_color("Red"), parse_color((0, 0, 1))
-    ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    >>> parse_color("Red"), parse_color((0, 0, 1)), parse_color("#00f")
+    ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, 1.0))
+    >>> parse_color("steelblue")
+    (0.27450980392156865, 0.5098039215686274, 0.7058823529411765)
     """
     if isinstance(c, str):
         text = c.strip()
@@ -76,8 +81,11 @@ def parse_color(c: Any) -> tuple[float, float, float]:
         name = text.lower()
         if name in CSS_COLORS:
             return CSS_COLORS[name]
+        if name in ImageColor.colormap:
+            return tuple(v / 255 for v in ImageColor.getrgb(name)[:3])  # type: ignore[return-value]
         raise ParameterError(
-            f"color: expected (r, g, b) in [0, 1], '#rrggbb' or one of {sorted(CSS_COLORS)}, got {c!r}"
+            f"color: expected (r, g, b) in [0, 1], '#rgb', '#rrggbb' or a CSS colour name (one of "
+            f"{len(ImageColor.colormap)}, e.g. {', '.join(sorted(CSS_COLORS)[:6])}, steelblue), got {c!r}"
         )
     try:
         vals = [x for x in c]
@@ -170,6 +178,12 @@ def _parse_nodes(nodes: Any) -> tuple[tuple[float, tuple[float, float, float]], 
             out.append((_unit_density(f"nodes[{i}] density", d), parse_color(col)))
         except ParameterError as exc:
             raise ParameterError(f"nodes[{i}]: {exc}") from None
+    seen: dict[float, int] = {}
+    for i, (d, _) in enumerate(out):
+        if d in seen:
+            raise ParameterError(f"nodes: expected distinct densities, got {d:g} twice (nodes[{seen[d]}] and "
+                                 f"nodes[{i}]); give each density one colour")
+        seen[d] = i
     return tuple(out)
 
 

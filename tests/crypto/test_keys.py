@@ -89,8 +89,26 @@ def test_overwriting_private_key_keeps_0600(tmp_path, keypair256):
     path = tmp_path / "key.json"
     path.write_text("old")
     os.chmod(path, 0o644)
-    keypair256[1].save(path)
+    keypair256[1].save(path, overwrite=True)
     assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
+
+
+@pytest.mark.parametrize("which", [0, 1], ids=["public", "private"])
+def test_saving_over_an_existing_key_is_refused(tmp_path, keypair256, keypair512, which):
+    """A Dask worker re-running a script's priv.save used to replace the key silently."""
+    path = tmp_path / "key.json"
+    keypair256[1].save(path)
+    before = path.read_bytes()
+    other = keypair512[1]
+    key = other if which else other.public_key
+    with pytest.raises(hevr.ExistingFileError, match="expected no file at .*key.json .*overwrite=True") as err:
+        key.save(path)
+    assert isinstance(err.value, FileExistsError) and isinstance(err.value, hevr.HevrError)
+    assert path.read_bytes() == before and hevr.load_key(path).public_key.n == keypair256[0].n
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["key.json"]  # no temporary file left behind
+    key.save(path, overwrite=True)
+    again = hevr.load_key(path)
+    assert (again.public_key if which else again).n == other.public_key.n
 
 
 def _tamper(d, **kw):

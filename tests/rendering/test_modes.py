@@ -123,3 +123,11 @@ def test_combination_matrix(k: int) -> None:
 def test_combination_matrix_rejects_xray() -> None:
     with pytest.raises(ParameterError, match="mode"):
         combination_matrix(make_spec("xray", "nearest", 1.0, None, None, None), 4)
+
+
+def test_duplicate_transfer_function_densities_are_refused():
+    with pytest.raises(ParameterError, match=r"nodes: expected distinct densities, got 0.5 twice \(nodes\[0\] "
+                                                  r"and nodes\[2\]\)"):
+        make_spec("tf", "nearest", 1.0, None, [(0.5, "red"), (0.7, "blue"), (0.5, "green")], 4, True)
+    spec = make_spec("tf", "nearest", 1.0, None, [(0.5, "red"), (0.50001, "red")], 4, True)  # close is fine
+    assert spec.n_nodes == 2
