@@ -243,11 +243,12 @@ def _info_store(path: Path) -> int:
     except Exception as exc:
         raise StoreError(f"{path}: not a readable Zarr store ({type(exc).__name__})") from None
     meta = VolumeMetadata.from_dict(attrs.get("hevr"), where=str(path), accept_v1=True)
+    failed = False
     try:
         open_volume(path)
         check = "ok (metadata checksum and documents, completeness, chunk sizes; digests are checked on every read)"
     except StoreError as exc:
-        check = f"FAILED: {exc}"
+        check, failed = f"FAILED: {exc}", True
     bits = int(meta.n).bit_length()
     _rows([
         ("path", path),
@@ -267,7 +268,7 @@ def _info_store(path: Path) -> int:
         ("check", check),
         ("on disk", human_bytes(disk_usage(path))),
     ])
-    return 0
+    return 1 if failed else 0  # the table is printed either way; a failed check is not a success
 
 
 def _info_image(path: Path) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import os
 import stat
 import subprocess
@@ -113,6 +114,18 @@ def test_png_matches_plaintext_reference(work, name, mode, kw):
     assert diff.max() <= 1
     if name == "xray":
         assert np.allclose(np.load(d / "xray.npy"), ref, atol=1e-3)
+
+
+def test_info_exits_non_zero_when_its_check_fails(work, capsys, tmp_path):
+    d, _ = work
+    bad = tmp_path / "bad.zarr"
+    shutil.copytree(d / "vol.zarr", bad)
+    chunk = next(p for p in sorted((bad / "scalar" / "c").rglob("*")) if p.is_file())
+    chunk.write_bytes(chunk.read_bytes()[:-7])  # truncated: the chunk-size check fails
+    code, out, err = run(capsys, "info", bad)
+    assert code == 1, (out, err)
+    assert "FAILED" in out and "encrypted volume store" in out  # the table is still printed
+    assert run(capsys, "info", d / "vol.zarr")[0] == 0
 
 
 def test_info_never_prints_secrets(work, capsys):
