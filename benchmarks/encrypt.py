@@ -50,7 +50,7 @@ def main(argv=None) -> None:
     vol = hevr.phantom(args.size)
     tmp = args.keep or Path(tempfile.mkdtemp(prefix="hevr-bench-"))
     tmp.mkdir(parents=True, exist_ok=True)
-    priv.save(tmp / "key.json")
+    priv.save(tmp / "key.json", overwrite=True)  # the scratch folder of this run (--keep reuses it)
     rows = []
     with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cl, \
             Client(cl) as client:

@@ -183,8 +183,10 @@ def cmd_demo(args: Any) -> int:
     with Timer() as t:
         pub, priv = _keypair(args.bits)
     stages["keygen"] = t.seconds
-    priv.save(out / "demo-key.json")
-    pub.save(out / "demo-key.pub.json")
+    # The demo's folder holds its own run: a new key, with the volume and images encrypted
+    # under it, replaces the previous run's (keys are never saved over anywhere else).
+    priv.save(out / "demo-key.json", overwrite=True)
+    pub.save(out / "demo-key.pub.json", overwrite=True)
     print(f"[keygen]  {t.seconds:.2f} s: {key_label(pub)}")
     brick = args.brick or _auto_brick(vol.shape)
     with contextlib.ExitStack() as stack:

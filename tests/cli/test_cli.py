@@ -223,6 +223,10 @@ def test_demo_tiny(tmp_path, capsys):
     assert all(im["resident"] or im["reused_ray_sums"] for im in summary["images"])
     assert "max|err|" in out and "keygen" in out and "encrypt" in out
     assert stat.S_IMODE((out_dir / "demo-key.json").stat().st_mode) == 0o600
+    # run again into the same folder: the demo replaces its own run (key included)
+    code, out, err = run(capsys, "demo", "--out", out_dir, "--size", "6", "--image", "6x6", "--bits", "256",
+                         "--workers", "1", "-q")
+    assert code == 0, err
 
 
 def test_bench_quick_threaded(capsys, tmp_path):
