@@ -8,6 +8,7 @@ from pathlib import Path
 
 import dask
 import pytest
+from distributed import Client, LocalCluster
 
 import hevr
 from hevr.crypto.keys import generate_keypair
@@ -53,3 +54,12 @@ def _journal_dir(tmp_path_factory):
     os.environ["DASK_HEVR__JOURNAL_DIR"] = str(folder)  # subprocesses (CLI tests) inherit it
     with dask.config.set({"hevr.journal-dir": str(folder)}):
         yield folder
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """Two in-process workers (1 thread each) behind a client that is NOT the global default:
+    hevr must use the client it is given (tests enter ``as_current`` where they want the default)."""
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as lc, \
+            Client(lc, set_as_default=False) as c:
+        yield c

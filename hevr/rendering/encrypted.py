@@ -210,7 +210,7 @@ def render(
         results = compute(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",
                           keep=len(live))
         packed = finish.assemble(results[:len(fin)])
-        sums = RaySums(key, {t: None for t in graph.merged}, graph.map_tasks, cl if cl is not None else None)
+        sums = RaySums(key, {t: None for t in graph.merged}, graph.map_tasks, cl)
         sums.tiles.update(dict(zip(live, results[len(fin):])))
         if cache:
             _CACHE[key] = sums

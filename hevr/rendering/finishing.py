@@ -62,16 +62,15 @@ def finish_units(plan: RenderPlan, hit: np.ndarray, key_bits: int) -> list[tuple
     values = max(1, int(UNIT_MULS / (per_value * weight)))
     group = max(1, plan.per_pack)
     values = max(group, values // group * group)  # whole packing groups per unit
-    hits_before = np.concatenate([[0], np.cumsum(hit)]) * C  # values before each pixel
-    units, a = [], 0
     n = len(hit)
+    hits_before = np.concatenate([[0], np.cumsum(hit)]) * C  # values before each pixel
+    starts = np.flatnonzero(hits_before[:n] % group == 0)  # pixels where a packing group may start
+    units, a = [], 0
     while a < n:
-        # the first pixel at which the unit holds `values` values, on a group boundary
-        want = hits_before[a] + values
-        b = int(np.searchsorted(hits_before, want, side="left"))
-        while b < n and hits_before[b] % group:
-            b += 1
-        b = min(max(b, a + 1), n)
+        # the first group start at or after the pixel where the unit holds `values` values
+        b = int(np.searchsorted(hits_before, hits_before[a] + values, side="left"))
+        i = int(np.searchsorted(starts, max(b, a + 1)))
+        b = int(starts[i]) if i < starts.size else n
         units.append((a, b))
         a = b
     return units

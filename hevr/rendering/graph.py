@@ -45,7 +45,7 @@ from .weights import brick_weights
 log = logging.getLogger(__name__)
 
 FAN_IN = 4
-FOLLOW_UP = 1 << 40  # priority of selections, merges and finishing: run as soon as they are ready
+FOLLOW_UP = 1 << 40  # priority of everything after a map task: run as soon as it is ready
 
 
 class Priorities:
@@ -64,7 +64,6 @@ class Priorities:
 
     def __call__(self, key: Any) -> int:
         return self.values.get(key, self.default)
-
 
 
 def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from distributed import Client, Future, LocalCluster, get_task_stream
+from distributed import Future, get_task_stream
 
 import hevr
 from hevr.rendering import encrypted as render_mod
@@ -27,13 +27,6 @@ def volume():
 def store(tmp_path_factory, keypair256, volume):
     return hevr.encrypt_volume(volume, tmp_path_factory.mktemp("recolour") / "v.zarr", keypair256[1], brick=BRICK,
                                spacing=SPACING, vector_dims=K, progress=False)
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as lc, \
-            Client(lc, set_as_default=False) as c:
-        yield c
 
 
 @pytest.fixture(autouse=True)

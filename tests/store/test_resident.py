@@ -47,14 +47,6 @@ def store(tmp_path_factory, keypair256, volume):
 
 
 @pytest.fixture(scope="module")
-def cluster():
-    """Two in-process workers; the client is not the global default (tests enter ``as_current``)."""
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as lc, \
-            Client(lc, set_as_default=False) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
 def camera(store):
     return hevr.Camera.orbit(store, azimuth=35, elevation=25, width=13, height=10)
 
