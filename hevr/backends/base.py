@@ -172,6 +172,11 @@ class Backend(ABC):
         """(m, width) big-endian uint8 records of a batch."""
 
     @abstractmethod
+    def residue_bytes(self, width: int) -> int:
+        """Memory one value of ``width`` record bytes takes in this backend's form, where a
+        resident volume keeps it (host or device memory): what ``persist`` plans with."""
+
+    @abstractmethod
     def first_out_of_range(self, values: Residues, upper: int) -> int | None:
         """Index of the first value not in (0, ``upper``), or None (the store's range check)."""
 

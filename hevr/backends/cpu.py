@@ -44,6 +44,16 @@ class CpuBackend(Backend):
     def to_bytes(self, values: Sequence[mpz], width: int) -> np.ndarray:
         return mpz_to_bytes(values, width)
 
+    def residue_bytes(self, width: int) -> int:
+        """Memory of one resident value: an ``mpz`` object header (40 bytes, CPython 3.11,
+        64-bit), its 64-bit limbs and its list slot. A formula: ``sys.getsizeof`` of a
+        recycled mpz reports its earlier allocation.
+
+        >>> CpuBackend().residue_bytes(512), CpuBackend().residue_bytes(16)
+        (560, 64)
+        """
+        return 40 + 8 * -(-int(width) // 8) + 8
+
     def first_out_of_range(self, values: Sequence[mpz], upper: int) -> int | None:
         u = mpz(upper)
         for i, c in enumerate(values):

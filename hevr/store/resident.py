@@ -11,8 +11,9 @@ the store), and each :class:`ResidentBrick` reports its true size to Dask, so th
 runs a brick's map task where the brick lives (moving a brick costs far more than its
 task's output). On a single machine (no client) the bricks stay in this process.
 
-Memory. A ciphertext held as a gmpy2 ``mpz`` costs ``sys.getsizeof(mpz(n² − 1)) + 8``
-bytes (the integer, and its list slot): 560 bytes at a 2048-bit key, 56 at 64 bits. A
+Memory. A resident ciphertext costs the backend's :meth:`~hevr.backends.base.Backend.residue_bytes`:
+for ``cpu`` a gmpy2 ``mpz`` and its list slot, ``40 + 8·ceil(W/8) + 8`` bytes for W-byte
+records (560 at a 2048-bit key, 64 at 64 bits). A
 resident volume of V voxels and C stored channels (1 scalar + k vector components) holds
 ``V·C`` of them; each worker holds the bricks assigned to it, at most
 ``ceil(bricks/N)·brick voxels·C`` ciphertexts. :func:`plan_residency` states this before
@@ -40,7 +41,6 @@ log = logging.getLogger(__name__)
 __all__ = ["ResidentBrick", "Residency", "load_brick", "plan_residency", "RESIDENT_MEMORY_KEY"]
 
 RESIDENT_MEMORY_KEY = "hevr.limits.resident-memory"
-_MPZ_HEADER = 40  # a gmpy2 2.x mpz object without its limbs (CPython 3.11, 64-bit)
 DEFAULT_RESIDENT_MEMORY = 0.5
 
 
@@ -67,15 +67,14 @@ class ResidentBrick:
         return f"ResidentBrick({self.index}, channels={sorted(self.batches)}, {self.nbytes} bytes)"
 
 
-def residue_bytes(width: int) -> int:
-    """Bytes one ciphertext of ``width`` record bytes takes as a resident ``mpz``: the object
-    header, its 64-bit limbs and its list slot (a formula: ``sys.getsizeof`` of a recycled mpz
-    reports its earlier allocation).
+def residue_bytes(width: int, backend: str | None = "cpu") -> int:
+    """Bytes one ciphertext of ``width`` record bytes takes resident in ``backend``'s form
+    (:meth:`hevr.backends.base.Backend.residue_bytes`).
 
     >>> residue_bytes(512), residue_bytes(16)
     (560, 64)
     """
-    return _MPZ_HEADER + 8 * -(-int(width) // 8) + 8
+    return get_backend(backend).residue_bytes(width)
 
 
 def load_brick(ev: Any, index: tuple[int, int, int], channels: tuple[str, ...], backend: str) -> ResidentBrick:
@@ -83,7 +82,7 @@ def load_brick(ev: Any, index: tuple[int, int, int], channels: tuple[str, ...], 
     be = get_backend(backend)
     batches = {ch: ev.read_brick(index, ch, backend=be) for ch in channels}
     n_cts = sum(len(b) if ch == "scalar" else sum(len(x) for x in b) for ch, b in batches.items())
-    return ResidentBrick(tuple(index), batches, n_cts * residue_bytes(ev.meta.ciphertext_bytes))
+    return ResidentBrick(tuple(index), batches, n_cts * be.residue_bytes(ev.meta.ciphertext_bytes))
 
 
 @dataclass
@@ -157,7 +156,7 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     if not channels:
         raise ParameterError(f"channels: expected some of {list(stored)}, got none")
     backend = resolve_backend_name(backend)
-    per_ct = residue_bytes(ev.meta.ciphertext_bytes)
+    per_ct = residue_bytes(ev.meta.ciphertext_bytes, backend)
     k = sum(1 if c == "scalar" else ev.vector_dims for c in channels)
     bricks = ev.brick_indices()
     cost = {idx: int(np.prod(ev.brick_shape(idx))) * k * per_ct for idx in bricks}

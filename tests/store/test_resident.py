@@ -73,12 +73,8 @@ def _voxels() -> int:
 
 
 def _clean_residue_bytes(width: int) -> int:
-    """residue_bytes once gmpy2's free-object cache holds only small integers.
-
-    residue_bytes measures a recycled mpz, whose allocation depends on what was freed before
-    (see test_residue_bytes_depends_only_on_the_width); the tests that compare the plan with it
-    put the cache into one known state first, just before persist plans.
-    """
+    """residue_bytes after churning gmpy2's free-object cache: it must not matter (the size is a
+    formula of the width, see test_residue_bytes_depends_only_on_the_width)."""
     small = [gmpy2.mpz(i) for i in range(1000)]
     del small
     return residue_bytes(width)
