@@ -244,10 +244,7 @@ class Camera:
         True
         """
         d, right, up = self.basis()
-        if pixels is None:
-            pix = np.arange(self.width * self.height, dtype=np.int64)
-        else:
-            pix = np.asarray(pixels, dtype=np.int64).reshape(-1)
+        pix = np.arange(self.width * self.height, dtype=np.int64) if pixels is None else self.check_pixels(pixels)
         rows, cols = np.divmod(pix, self.width)
         uu = (((cols + 0.5) / self.width * 2.0 - 1.0) * self.aspect).reshape(-1, 1)
         vv = (1.0 - (rows + 0.5) / self.height * 2.0).reshape(-1, 1)
@@ -261,6 +258,25 @@ class Camera:
             origins = np.broadcast_to(pos, (n, 3)).copy()
             directions = _normalize(d + self.tan_half * offset)
         return origins, directions
+
+    def check_pixels(self, pixels: Any) -> np.ndarray:
+        """``pixels`` as a flat int64 array of global indices in ``[0, width·height)``.
+
+        >>> Camera((0, 0, 5), (0, 0, 0), width=2, height=2).check_pixels([3, 0]).tolist()
+        [3, 0]
+        >>> Camera((0, 0, 5), (0, 0, 0), width=2, height=2).check_pixels([4])
+        Traceback (most recent call last):
+        ...
+        hevr.errors.ParameterError: pixels: expected indices in [0, 4), got 4..4
+        """
+        arr = np.asarray(pixels).reshape(-1)
+        if arr.size and arr.dtype.kind not in "iu":
+            raise ParameterError(f"pixels: expected integer pixel indices, got {arr.dtype}")
+        arr = arr.astype(np.int64)
+        n = self.width * self.height
+        if arr.size and (arr.min() < 0 or arr.max() >= n):
+            raise ParameterError(f"pixels: expected indices in [0, {n}), got {arr.min()}..{arr.max()}")
+        return arr
 
     @property
     def tan_half(self) -> float:

@@ -262,8 +262,11 @@ class FinishGraph:
         layer = f"hevr-finish-{uuid.uuid4().hex}"
         dsk: dict[str, Any] = {}
         deps = []
+        tile_pixels: dict[int, np.ndarray] = {}
         for i, (t, a, b) in enumerate(self.units):
-            pix = self.layout.pixels(t)[a:b]
+            if t not in tile_pixels:
+                tile_pixels[t] = self.layout.pixels(t)
+            pix = tile_pixels[t][a:b]
             m = merged.get(t)
             if isinstance(m, Delayed):
                 deps.append(m)

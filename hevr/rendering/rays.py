@@ -123,10 +123,7 @@ def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float, pixels: Any
     step = check_step(step)
     ids = None
     if pixels is not None:
-        ids = np.unique(np.asarray(pixels, dtype=np.int64).reshape(-1))
-        if ids.size and (ids[0] < 0 or ids[-1] >= camera.width * camera.height):
-            raise ParameterError(f"pixels: expected indices in [0, {camera.width * camera.height}), "
-                                 f"got {ids[0]}..{ids[-1]}")
+        ids = np.unique(camera.check_pixels(pixels))
     origins, dirs = camera.rays(ids)
     with np.errstate(over="ignore"):  # a box beyond float range: inf, every ray misses
         hi = np.array([(nx - 1), (ny - 1), (nz - 1)], dtype=np.float64) * sp

@@ -201,3 +201,14 @@ def test_orbit_with_volume_object_and_overrides() -> None:
 def test_orbit_rejects(args: tuple, kwargs: dict, match: str) -> None:
     with pytest.raises(ParameterError, match=match):
         Camera.orbit(*args, **kwargs)
+
+
+@pytest.mark.parametrize("pixels, match", [([0.5], "expected integer pixel indices, got float64"),
+                                           (["a"], "expected integer pixel indices"),
+                                           ([-1], r"expected indices in \[0, 6\), got -1"),
+                                           ([6], r"expected indices in \[0, 6\), got 6")])
+def test_rays_of_bad_pixels_are_refused(pixels, match):
+    cam = Camera((0, 0, 5), (0, 0, 0), width=3, height=2)
+    with pytest.raises(ParameterError, match=match):
+        cam.rays(pixels)
+    assert cam.rays([])[0].shape == (0, 3)
