@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/pipeline.py SCALAR_STORE VECTOR_STORE KEY SMALL_STORE SMALL_KEY OUT.json
+    python benchmarks/pipeline.py SCALAR_STORE VECTOR_STORE KEY SMALL_STORE OUT.json
 
 SCALAR_STORE: 100³ phantom, scalar, brick 25, 2048-bit key (owner-encrypted, masked);
 VECTOR_STORE: the same volume with the 4-dim vector encoding only; SMALL_STORE: the same
@@ -45,7 +45,7 @@ def slim(trace: dict) -> dict:
     return {k: v for k, v in trace.items() if k not in ("durations", "deps")}
 
 
-def main(scalar: str, vector: str, key: str, small: str, small_key: str, out: str) -> None:
+def main(scalar: str, vector: str, key: str, small: str, out: str) -> None:
     priv = hevr.load_key(key)
     cores = os.cpu_count() or 1
     res: dict = {"machine": machine(), "cores": cores, "cases": {}}
@@ -121,4 +121,4 @@ def main(scalar: str, vector: str, key: str, small: str, small_key: str, out: st
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:7])
+    main(*sys.argv[1:6])
