@@ -44,6 +44,7 @@ from .image import EncryptedImage, load_image, save_png, to_uint8
 from .rendering.camera import Camera
 from .rendering.encrypted import RaySums, clear_cache, error_bound, render
 from .rendering.plain import render_plain
+from .rendering.sums import SavedSums, load_sums, recolour
 from .store.reader import EncryptedVolume, open_volume
 from .store.upgrade import upgrade_store
 from .store.writer import encrypt_volume
@@ -66,6 +67,9 @@ __all__ = [
     "render",
     "RaySums",
     "clear_cache",
+    "recolour",
+    "load_sums",
+    "SavedSums",
     "EncryptedImage",
     "load_image",
     "save_png",

@@ -33,7 +33,7 @@ from .crypto.records import record_width
 from .errors import CorruptStoreError, HevrError, IntegrityError
 
 __all__ = ["DIGEST_BYTES", "FORMAT", "MAGIC", "MAGIC_PREFIX", "VERSION", "check_image", "check_numbers",
-           "expected_counts", "parse_file", "tile_hit_counts", "tile_name"]
+           "expected_counts", "parse_file", "parse_json", "tile_hit_counts", "tile_name"]
 
 MAGIC_PREFIX = b"HEVRIMG"
 VERSION = 2
@@ -251,7 +251,7 @@ def _small_int(text: str) -> int:
     return int(text)
 
 
-def _parse_json(raw: bytes, where: str) -> Any:
+def parse_json(raw: bytes, where: str) -> Any:
     def bad(why: str) -> NoReturn:
         raise CorruptStoreError(f"{where}: header: expected a JSON object, got {why}")
 
@@ -295,7 +295,7 @@ def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
     if hl > len(blob) - HEAD - DIGEST_BYTES:
         raise CorruptStoreError(f"{where}: header length: expected at most {len(blob) - HEAD - DIGEST_BYTES} "
                                 f"bytes (the file's size), got {hl}")
-    h = _parse_json(bytes(view[HEAD:HEAD + hl]), where)
+    h = parse_json(bytes(view[HEAD:HEAD + hl]), where)
     if not isinstance(h, dict):
         raise CorruptStoreError(f"{where}: header: expected a JSON object, got a JSON {_kind(h)}")
     out = _check_header(h, Fields(where, CorruptStoreError, "header field"))

@@ -12,6 +12,7 @@ The data path of one frame, module by module:
 ``graph``          the Dask graph: map per brick, tree merge per tile
 ``finishing``      combination, normalisation and packing of one tile
 ``encrypted``      ``render``, ``error_bound``, the ray-sum cache
+``sums``           ray sums kept in memory or in a ``.hevrsums`` file; ``recolour``
 ``plain``          ``render_plain``: the independent plaintext ray marcher
 =================  =============================================================
 
@@ -24,5 +25,7 @@ from __future__ import annotations
 from .camera import Camera
 from .encrypted import RaySums, clear_cache, error_bound, render
 from .plain import render_plain
+from .sums import SavedSums, load_sums, recolour
 
-__all__ = ["Camera", "RaySums", "clear_cache", "error_bound", "render", "render_plain"]
+__all__ = ["Camera", "RaySums", "SavedSums", "clear_cache", "error_bound", "load_sums", "recolour", "render",
+           "render_plain"]

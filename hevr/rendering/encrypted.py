@@ -17,14 +17,17 @@ Error bound of a decrypted pixel against :func:`hevr.render_plain` (same camera/
 from __future__ import annotations
 
 import logging
+import os
 import time
+import uuid
 from collections import OrderedDict
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from dask.delayed import Delayed, delayed
 
-from .._dask import active_client, compute
+from .._dask import active_client
+from .._dask import compute as run_tasks
 from .._tiles import TileLayout
 from .._validate import check_int
 from ..backends import resolve_backend_name
@@ -36,29 +39,11 @@ from .graph import FinishGraph, build_sums_graph
 from .modes import RenderSpec, combination_matrix, make_spec
 from .planner import check_render_size, plan_render
 from .rays import cast_rays
+from .sums import RaySums, image_fields, save_sums
 
 log = logging.getLogger(__name__)
 
 __all__ = ["render", "RaySums", "clear_cache", "error_bound"]
-
-
-@dataclass
-class RaySums:
-    """Merged encrypted per-component ray sums of one view, per tile (reusable).
-
-    On a distributed client ``tiles`` holds futures: the sums stay on the workers that
-    merged them, and re-colouring runs its finishing tasks there (no sums cross the
-    network); on a single machine it holds the values.
-    """
-
-    key: tuple
-    tiles: dict  # tile id -> (rays, records (R, C, W)), a future of it, or None
-    map_tasks: int
-    client: Any = None
-
-    def usable(self, client: Any) -> bool:
-        """Whether these sums can serve a render on ``client`` (futures are bound to theirs)."""
-        return client is self.client and (client is None or client.status == "running")
 
 
 def _gathered_bytes(packed: list, sums: RaySums, client: Any, reused: bool) -> int:
@@ -114,7 +99,9 @@ def render(
     client: Any = None,
     progress: bool = True,
     backend: str | None = None,
-) -> EncryptedImage:
+    compute: bool = True,
+    keep_sums: str | os.PathLike | None = None,
+) -> EncryptedImage | Delayed:
     """Render an encrypted volume to an :class:`EncryptedImage` on the active Dask scheduler.
 
     Parameters
@@ -150,10 +137,20 @@ def render(
     backend : str, optional
         Arithmetic backend of the workers (:mod:`hevr.backends`); default: the Dask config
         key ``hevr.backend``, else ``"cpu"``. Every backend gives the identical image.
+    compute : bool
+        False: build the graph and return it unevaluated, as a ``dask.delayed`` object whose
+        result is the :class:`EncryptedImage` (``client.compute(d)`` gives a future,
+        ``dask.compute(d)`` or ``d.compute()`` the image) — for notebooks and services that
+        must not block. Its ray sums are not cached (cached sums are still used).
+    keep_sums : path, optional
+        Also write this view's merged encrypted ray sums to a ``.hevrsums`` file (ciphertexts
+        and public geometry only: safe on the server), from which :func:`hevr.recolour`
+        finishes another density or transfer function without the map step
+        (:mod:`hevr.rendering.sums`). The sums travel to this process to be written.
 
     Returns
     -------
-    EncryptedImage
+    EncryptedImage or dask.delayed.Delayed
         Never touches the secret key. ``stats`` reports ``map_tasks``, ``finish_tasks``,
         ``reused_ray_sums``, ``resident`` (bricks taken from a persisted volume,
         :meth:`hevr.EncryptedVolume.persist`) and ``gathered_bytes`` (what reached the client).
@@ -168,6 +165,9 @@ def render(
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits)
     tile = check_int("tile", tile, 1, 4096)
+    if keep_sums is not None and not compute:
+        raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
+                             f"render runs), got {str(keep_sums)!r}")
     backend = resolve_backend_name(backend)
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
     t0 = time.perf_counter()
@@ -197,6 +197,7 @@ def render(
             log.warning("render: the resident bricks (%s, backend %s) cannot serve this render (channel %s, backend "
                         "%s, %s client); streaming from the store", "+".join(ev.resident.channels),
                         ev.resident.backend, plan.channel, backend, "another" if cl is not ev.resident.client else "a")
+    fields = image_fields(spec, plan, camera, rays.n_samples, ev.meta, tile)
     if sums is None:
         # One graph: map -> tree merge -> finish, so merged sums never travel through the client.
         # When they are cached they stay where they are: futures on a cluster (re-colouring
@@ -205,12 +206,16 @@ def render(
                                  tile, n_tiles, backend, resident,
                                  bands=resident is not None and spec.sampling == "nearest"
                                  and int(ev.public_key.n).bit_length() >= BAND_BITS)
-        live = [t for t, d in graph.merged.items() if d is not None] if cache else []
         fin = finish.tasks({t: graph.delayed(t) for t in graph.merged})
-        results = compute(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",
-                          keep=len(live))
+        map_tasks = graph.map_tasks
+        if not compute:
+            return _deferred(fin, finish, fields, {"map_tasks": map_tasks, "reused_ray_sums": False,
+                                                   "resident": resident is not None})
+        live = [t for t, d in graph.merged.items() if d is not None] if cache or keep_sums is not None else []
+        results = run_tasks(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",
+                            keep=len(live))
         packed = finish.assemble(results[:len(fin)])
-        sums = RaySums(key, {t: None for t in graph.merged}, graph.map_tasks, cl)
+        sums = RaySums(key, {t: None for t in graph.merged}, map_tasks, cl)
         sums.tiles.update(dict(zip(live, results[len(fin):])))
         if cache:
             _CACHE[key] = sums
@@ -219,19 +224,30 @@ def render(
     else:
         _CACHE.move_to_end(key)
         fin = finish.tasks(sums.tiles)
-        packed = finish.assemble(compute(fin, client=cl, progress=False, desc="finish"))
-    shape = spec.image_shape(H, W)
+        if not compute:
+            return _deferred(fin, finish, fields, {"map_tasks": 0, "reused_ray_sums": True,
+                                                   "resident": resident is not None})
+        packed = finish.assemble(run_tasks(fin, client=cl, progress=False, desc="finish"))
+    if keep_sums is not None:
+        save_sums(keep_sums, sums, meta=ev.meta, camera=camera, sampling=spec.sampling, step=spec.step,
+                  weight_digits=plan.weight_digits, channel=plan.channel, tile=tile, store=str(ev.path))
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
              "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),
              "seconds": time.perf_counter() - t0}
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
-    return EncryptedImage(shape=shape, exponent=plan.exponent, offset=plan.offset, fingerprint=ev.meta.fingerprint,
-                          n=int(ev.public_key.n), tile=tile, pack_bits=plan.pack_bits, per_pack=plan.per_pack,
-                          ciphertexts=list(packed), hits=(rays.n_samples > 0).reshape(H, W),
-                          info={"mode": spec.mode, "sampling": spec.sampling, "step": spec.step,
-                                "density": spec.density, "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None,
-                                "camera": camera.to_dict(), "plan": plan.to_dict()},
-                          stats=stats, bound=plan.bound)
+    return EncryptedImage(ciphertexts=list(packed), stats=stats, **fields)
+
+
+def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict) -> EncryptedImage:
+    """The last task of a deferred render (``compute=False``): the finished units as an image."""
+    packed = finish.assemble(parts)
+    stats = dict(stats, finish_tasks=len(parts), gathered_bytes=sum(int(p.nbytes) for p in packed))
+    return EncryptedImage(ciphertexts=list(packed), stats=stats, **fields)
+
+
+def _deferred(fin: list, finish: FinishGraph, fields: dict, stats: dict) -> Delayed:
+    """A ``Delayed`` of the image: one more task over the finishing tasks (tile-sized outputs)."""
+    return delayed(_image_from, pure=True)(fin, finish, fields, stats, dask_key_name=f"hevr-image-{uuid.uuid4().hex}")
 
 
 def error_bound(ev: EncryptedVolume, camera: Camera, mode: str = "xray", sampling: str = "nearest",

@@ -1,0 +1,182 @@
+"""hevr's one progress mechanism: a widget in Jupyter, a bar on a terminal, a few log lines otherwise.
+
+Every job that shows progress (encryption, rendering, store upgrades, the benchmarks) goes
+through :class:`Progress`; it picks where to draw once, when the job starts:
+
+* **Jupyter** (an IPython kernel is running and ipywidgets is installed): an
+  ``ipywidgets.IntProgress`` with a label, displayed in the cell's output and updated in place;
+* **a terminal** (stderr is a TTY): one line redrawn with carriage returns, at most five times
+  a second, ended by a newline;
+* **anything else** (logs, CI, pipes): no drawing at all, only INFO records of the
+  ``hevr.progress`` logger at 0, 25, 50, 75 and 100 % (a handful of lines, never ``\\r`` frames).
+
+Jobs on a ``distributed`` client count completed futures (:func:`hevr._dask.compute`); jobs on
+Dask's local schedulers count finished graph tasks through a Dask callback
+(:class:`TaskCounter`), so the same bar serves both.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from typing import Any
+
+from dask.callbacks import Callback
+
+log = logging.getLogger("hevr.progress")
+
+__all__ = ["Progress", "TaskCounter", "sink_kind"]
+
+_QUARTERS = 4
+
+
+def _in_jupyter() -> bool:
+    """Whether this process is an IPython kernel (a notebook, JupyterLab, VS Code, nbclient)."""
+    shell = sys.modules.get("IPython")
+    if shell is None or "ipykernel" not in sys.modules:
+        return False
+    try:
+        ip = shell.get_ipython()
+    except AttributeError:  # pragma: no cover - a partial IPython
+        return False
+    return ip is not None and "IPKernelApp" in getattr(ip, "config", {})
+
+
+def sink_kind() -> str:
+    """Where a progress display would go now: ``"widget"``, ``"terminal"`` or ``"log"``.
+
+    >>> sink_kind() in ("widget", "terminal", "log")
+    True
+    """
+    if _in_jupyter():
+        try:
+            import ipywidgets  # noqa: F401
+        except ImportError:
+            return "log"
+        return "widget"
+    return "terminal" if bool(getattr(sys.stderr, "isatty", lambda: False)()) else "log"
+
+
+class Progress:
+    """Progress of one job of ``total`` steps.
+
+    Parameters
+    ----------
+    total : int
+        Steps of the job (tasks). A job of 0 steps shows nothing.
+    desc : str
+        Short name of the job (``"encrypt"``, ``"render"``).
+    enabled : bool
+        False: count silently (``progress=False`` of the public functions).
+    kind : str, optional
+        Force ``"widget"``, ``"terminal"`` or ``"log"``; default :func:`sink_kind`.
+
+    >>> p = Progress(8, "demo", kind="log")
+    >>> for _ in range(8):
+    ...     p.update()
+    >>> p.done, p.closed
+    (8, True)
+    """
+
+    def __init__(self, total: int, desc: str, enabled: bool = True, kind: str | None = None) -> None:
+        self.total, self.desc = max(0, int(total)), desc
+        self.kind = (kind or sink_kind()) if enabled else "off"
+        self.done = 0
+        self.closed = False
+        self.start = time.perf_counter()
+        self._last = 0.0
+        self._quarter = -1
+        self._widget: Any = None
+        self._drawn = False
+        self._draw(force=True)
+
+    def _open_widget(self) -> None:
+        import ipywidgets as widgets
+        from IPython.display import display
+
+        bar = widgets.IntProgress(value=0, min=0, max=self.total, description=self.desc,
+                                  layout=widgets.Layout(width="60%"))
+        label = widgets.Label(value=f"0/{self.total}")
+        self._widget = (bar, label)
+        display(widgets.HBox([bar, label]))
+
+    def set_total(self, total: int) -> None:
+        """Change the number of steps (a Dask callback learns it when the graph starts)."""
+        self.total = max(0, int(total))
+        if self._widget is not None:
+            self._widget[0].max = self.total
+        self._draw(force=True)
+
+    def update(self, k: int = 1) -> None:
+        """``k`` more steps are done; the last step closes the display."""
+        self.done += k
+        self._draw(force=self.done >= self.total)
+        if self.done >= self.total:
+            self.close()
+
+    def close(self) -> None:
+        """End the display (idempotent): the terminal line gets its newline."""
+        if self.closed:
+            return
+        self.closed = True
+        if self.kind == "terminal" and self._drawn:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+        if self._widget is not None:
+            self._widget[0].bar_style = "success" if self.done >= self.total else "warning"
+
+    def _draw(self, force: bool = False) -> None:
+        if self.kind == "off" or self.closed or self.total == 0:
+            return
+        if not self._drawn and self.kind == "widget":
+            self._open_widget()
+        self._drawn = True
+        now = time.perf_counter()
+        el = now - self.start
+        done = min(self.done, self.total)
+        if self.kind == "log":
+            quarter = _QUARTERS * done // self.total
+            if quarter != self._quarter:
+                self._quarter = quarter
+                log.info("%s: %d/%d tasks, %.1f s", self.desc, done, self.total, el)
+            return
+        if not force and now - self._last < 0.2:
+            return
+        self._last = now
+        if self.kind == "widget":
+            bar, label = self._widget
+            bar.value = done
+            label.value = f"{done}/{self.total} tasks, {el:.1f} s"
+            return
+        width = 30
+        fill = width * done // self.total
+        sys.stderr.write(f"\r{self.desc} [{'#' * fill}{'-' * (width - fill)}] {done}/{self.total} {el:6.1f}s")
+        sys.stderr.flush()
+
+
+class TaskCounter(Callback):
+    """A Dask callback (local schedulers) that drives a :class:`Progress` per finished task.
+
+    >>> import dask
+    >>> p = Progress(0, "sum", kind="log")
+    >>> with TaskCounter(p):
+    ...     dask.compute(dask.delayed(sum)([1, 2]))
+    (3,)
+    >>> p.total, p.done
+    (1, 1)
+    """
+
+    def __init__(self, progress: Progress) -> None:
+        super().__init__()
+        self.progress = progress
+
+    def _start_state(self, dsk: Any, state: dict) -> None:
+        total = sum(len(state[k]) for k in ("ready", "waiting", "running", "finished"))
+        self.progress.set_total(total)
+
+    def _posttask(self, key: Any, result: Any, dsk: Any, state: dict, worker_id: Any) -> None:
+        self.progress.update()
+
+    def _finish(self, dsk: Any, state: dict, errored: bool) -> None:
+        self.progress.close()

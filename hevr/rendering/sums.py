@@ -1,0 +1,316 @@
+"""Encrypted ray sums that outlive a render: the in-memory cache entry, the ``.hevrsums`` file,
+and re-colouring from either.
+
+The map and merge steps of a render produce, per image tile, the merged encrypted ray sums of
+every stored component (scalar: one per ray; vector: k per ray). Everything after them — the
+combination matrix of an emphasis density or a transfer function, Eq. 1's normalisation, the
+offset and packing (:mod:`hevr.rendering.finishing`) — depends only on these sums and public
+numbers. So another density or transfer function on the same view needs no map step: the
+sums are kept in memory (:class:`RaySums`, the render cache) or in a file
+(``hevr.render(..., keep_sums=PATH)``, ``hevr render --keep-sums``), and :func:`recolour`
+redoes only the finishing. The result is bit for bit the image a full render with the new
+parameters gives.
+
+File layout (version 1; little-endian; everything public — ciphertexts and render geometry,
+safe to keep on the server):
+
+* 9 bytes: ``HEVRSUMS`` and the version byte ``0x01``;
+* 4 bytes: header length L (uint32); L bytes of JSON header: ``format``, ``version``,
+  ``n`` (decimal string), ``fingerprint``, ``volume`` (the store's public metadata, as in its
+  ``hevr`` attribute, checksum included), ``store`` (its path when rendered, for information),
+  ``camera`` (:meth:`hevr.Camera.to_dict`), ``sampling``, ``step``, ``weight_digits``,
+  ``channel`` (``"scalar"`` or ``"vector"``), ``tile``, ``width`` (bytes per ciphertext),
+  ``components`` (K) and ``tiles``: one ``[tile, R]`` per image tile, R rays with sums, or -1
+  for a tile no brick touches;
+* per tile with R >= 0: R int64 global pixel indices (strictly increasing, inside the tile),
+  then R·K·width bytes of ciphertext records;
+* 32 bytes: SHA-256 of everything before.
+
+Loading checks the checksum first (:class:`hevr.IntegrityError`), then every header field and
+the body's size before anything sized by them is allocated (:class:`hevr.CorruptStoreError`),
+then every ciphertext's range (0 < c < n²).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import struct
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._dask import active_client
+from .._dask import compute as run_tasks
+from .._files import require_file
+from .._image_header import MAX_N_DIGITS, Fields, parse_json
+from .._tiles import TileLayout
+from .._validate import check_int
+from ..backends import get_backend, resolve_backend_name
+from ..crypto.paillier import fingerprint as fingerprint_of
+from ..crypto.records import record_width
+from ..errors import CorruptStoreError, HevrError, IntegrityError, ParameterError
+from ..image import EncryptedImage
+from ..store.metadata import VolumeMetadata
+from .camera import Camera
+from .graph import FinishGraph
+from .modes import RenderSpec, combination_matrix, make_spec
+from .planner import RenderPlan, check_render_size, plan_render
+from .rays import cast_rays
+
+log = logging.getLogger(__name__)
+
+__all__ = ["RaySums", "SavedSums", "image_fields", "load_sums", "recolour", "save_sums"]
+
+MAGIC = b"HEVRSUMS" + bytes([1])
+FORMAT = "hevr-ray-sums"
+VERSION = 1
+LENGTH = struct.Struct("<I")
+DIGEST = 32
+FIELDS = ("format", "version", "n", "fingerprint", "volume", "store", "camera", "sampling", "step",
+          "weight_digits", "channel", "tile", "width", "components", "tiles")
+
+
+@dataclass
+class RaySums:
+    """Merged encrypted per-component ray sums of one view, per tile (reusable).
+
+    On a distributed client ``tiles`` holds futures: the sums stay on the workers that
+    merged them, and re-colouring runs its finishing tasks there (no sums cross the
+    network); on a single machine it holds the values.
+    """
+
+    key: tuple
+    tiles: dict  # tile id -> (rays, records (R, C, W)), a future of it, or None
+    map_tasks: int
+    client: Any = None
+
+    def usable(self, client: Any) -> bool:
+        """Whether these sums can serve a render on ``client`` (futures are bound to theirs)."""
+        return client is self.client and (client is None or client.status == "running")
+
+    def values(self) -> dict:
+        """Tile id -> ``(rays, records)`` or None, gathered from the workers if they hold them."""
+        live = {t: v for t, v in self.tiles.items() if v is not None}
+        if self.client is not None and live:
+            live = dict(zip(live, self.client.gather(list(live.values()))))
+        return {t: live.get(t) for t in self.tiles}
+
+
+@dataclass(frozen=True)
+class SavedSums:
+    """The ray sums of one view as read from a ``.hevrsums`` file, checked.
+
+    ``tiles`` maps every tile id to ``(rays (R,) int64, records (R, K, width) uint8)``, or to
+    None for a tile no brick touches.
+    """
+
+    meta: VolumeMetadata
+    camera: Camera
+    sampling: str
+    step: float
+    weight_digits: int
+    channel: str
+    tile: int
+    tiles: dict
+    store: str
+    path: str
+
+
+def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: np.ndarray, meta: VolumeMetadata,
+                 tile: int) -> dict:
+    """Everything of an :class:`EncryptedImage` but its ciphertexts and stats (render and recolour)."""
+    H, W = camera.height, camera.width
+    return dict(shape=spec.image_shape(H, W), exponent=plan.exponent, offset=plan.offset, fingerprint=meta.fingerprint,
+                n=int(meta.n), tile=tile, pack_bits=plan.pack_bits, per_pack=plan.per_pack,
+                hits=(np.asarray(n_samples) > 0).reshape(H, W), bound=plan.bound,
+                info={"mode": spec.mode, "sampling": spec.sampling, "step": spec.step, "density": spec.density,
+                      "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None,
+                      "camera": camera.to_dict(), "plan": plan.to_dict()})
+
+
+def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, camera: Camera, sampling: str,
+              step: float, weight_digits: int, channel: str, tile: int, store: str = "") -> int:
+    """Write ``sums`` (gathered from the workers if needed) as a ``.hevrsums`` file; atomic
+    (``<path>.tmp`` renamed over ``path``). Returns the file's size in bytes."""
+    values = sums.values()
+    n = int(meta.n)
+    width = record_width(n)
+    K = 1 if channel == "scalar" else int(meta.vector.dims)
+    head = {"format": FORMAT, "version": VERSION, "n": str(n), "fingerprint": meta.fingerprint,
+            "volume": meta.to_dict(), "store": str(store), "camera": camera.to_dict(), "sampling": sampling,
+            "step": float(step), "weight_digits": int(weight_digits), "channel": channel, "tile": int(tile),
+            "width": width, "components": K,
+            "tiles": [[int(t), -1 if v is None else int(v[0].size)] for t, v in sorted(values.items())]}
+    blob = json.dumps(head, separators=(",", ":")).encode()
+    parts: list[Any] = [MAGIC, LENGTH.pack(len(blob)), blob]
+    for _, v in sorted(values.items()):
+        if v is not None:
+            parts += [np.ascontiguousarray(v[0], dtype="<i8").reshape(-1),
+                      np.ascontiguousarray(v[1], dtype=np.uint8).reshape(-1)]
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    digest = hashlib.sha256()
+    try:
+        with open(tmp, "wb") as fh:
+            for part in parts:
+                digest.update(part)
+                fh.write(part)
+            fh.write(digest.digest())
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    size = path.stat().st_size
+    log.info("ray sums of %d tiles written to %s (%d bytes)", len(values), path, size)
+    return size
+
+
+def load_sums(path: str | os.PathLike) -> SavedSums:
+    """Read and check a ``.hevrsums`` file (module docstring: checksum, header, sizes, ranges)."""
+    p = require_file(path, "sums", "a ray-sums file (hevr.render(..., keep_sums=PATH))")
+    where = str(p)
+    blob = p.read_bytes()
+    if not blob.startswith(MAGIC[:-1]):
+        raise CorruptStoreError(f"{where}: not an hevr ray-sums file (bad magic)")
+    if len(blob) < len(MAGIC) + LENGTH.size + DIGEST or blob[len(MAGIC) - 1] != VERSION:
+        raise CorruptStoreError(f"{where}: expected ray-sums format version {VERSION}, got "
+                                f"{'a truncated file' if len(blob) < len(MAGIC) + LENGTH.size + DIGEST else blob[len(MAGIC) - 1]}")
+    view = memoryview(blob)
+    if hashlib.sha256(view[:-DIGEST]).digest() != bytes(view[-DIGEST:]):
+        raise IntegrityError(f"{where}: checksum mismatch: the file was corrupted, truncated or altered after it "
+                             "was written; no sums are returned")
+    (hl,) = LENGTH.unpack_from(blob, len(MAGIC))
+    start = len(MAGIC) + LENGTH.size
+    if hl > len(blob) - start - DIGEST:
+        raise CorruptStoreError(f"{where}: header length: expected at most {len(blob) - start - DIGEST}, got {hl}")
+    h = parse_json(bytes(view[start:start + hl]), where)
+    ctx = Fields(where, CorruptStoreError, "header field")
+    if not isinstance(h, dict):
+        ctx.fail("header", "a JSON object", h)
+    for name in FIELDS:
+        if name not in h:
+            ctx.fail(name, "the field", raw="nothing")
+    if h["format"] != FORMAT or h["version"] != VERSION:
+        ctx.fail("format", f"{FORMAT!r} version {VERSION}", f"{h['format']!r} version {h['version']!r}")
+    n = ctx.decimal("n", h["n"], MAX_N_DIGITS)
+    if h["fingerprint"] != fingerprint_of(n):
+        ctx.fail("fingerprint", "the SHA-256 fingerprint of n", h["fingerprint"])
+    meta = VolumeMetadata.from_dict(h["volume"], where=f"{where}: header field 'volume'")
+    if int(meta.n) != n:
+        ctx.fail("volume", "the metadata of a volume under the same key", raw="another key's")
+    try:
+        camera = Camera.from_dict(h["camera"])
+    except HevrError as exc:
+        raise CorruptStoreError(f"{where}: header field 'camera': {exc}") from None
+    if h["sampling"] not in ("nearest", "trilinear"):
+        ctx.fail("sampling", "'nearest' or 'trilinear'", h["sampling"])
+    step = h["step"]
+    if not isinstance(step, (int, float)) or isinstance(step, bool) or not np.isfinite(step) or step <= 0:
+        ctx.fail("step", "a positive finite number", step)
+    channel = h["channel"]
+    if channel not in meta.channel_names:
+        ctx.fail("channel", f"one of the volume's channels {list(meta.channel_names)}", channel)
+    K = 1 if channel == "scalar" else int(meta.vector.dims)
+    ctx.integer("components", h["components"], K, K)
+    width = ctx.integer("width", h["width"], record_width(n), record_width(n))
+    tile = ctx.integer("tile", h["tile"], 1, 4096)
+    layout = TileLayout(camera.width, camera.height, tile)
+    tiles = _read_tiles(ctx, h["tiles"], layout, view[start + hl:-DIGEST], K, width, n)
+    return SavedSums(meta=meta, camera=camera, sampling=h["sampling"], step=float(step),
+                     weight_digits=ctx.integer("weight_digits", h["weight_digits"], 0, 9), channel=channel,
+                     tile=tile, tiles=tiles, store=str(h["store"]), path=where)
+
+
+def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, K: int, width: int,
+                n: int) -> dict:
+    """Every tile's (rays, records) from the body, sizes checked before anything is allocated."""
+    if not isinstance(listed, list) or len(listed) != layout.n_tiles:
+        ctx.fail("tiles", f"a list of {layout.n_tiles} [tile, rays] pairs", raw=f"{type(listed).__name__} "
+                 f"of {len(listed) if isinstance(listed, list) else '?'}")
+    counts = []
+    for i, item in enumerate(listed):
+        if not (isinstance(item, list) and len(item) == 2):
+            ctx.fail(f"tiles[{i}]", "a [tile, rays] pair", item)
+        ctx.integer(f"tiles[{i}][0]", item[0], i, i)
+        counts.append(ctx.integer(f"tiles[{i}][1]", item[1], -1, len(layout.pixels(i))))
+    per_ray = 8 + K * width
+    need = sum(max(c, 0) for c in counts) * per_ray
+    if len(body) != need:
+        raise CorruptStoreError(f"{ctx.where}: {'truncated' if len(body) < need else 'too long'}: expected {need} "
+                                f"bytes of rays and records, got {len(body)}")
+    be = get_backend("cpu")
+    n2 = n * n
+    out: dict = {}
+    pos = 0
+    for t, R in enumerate(counts):
+        if R < 0:
+            out[t] = None
+            continue
+        rays = np.frombuffer(body, dtype="<i8", count=R, offset=pos).astype(np.int64)
+        recs = np.frombuffer(body, dtype=np.uint8, count=R * K * width, offset=pos + 8 * R).reshape(R, K, width)
+        pos += R * per_ray
+        if R and (np.any(np.diff(rays) <= 0) or not np.isin(rays, layout.pixels(t)).all()):
+            raise CorruptStoreError(f"{ctx.where}: tile {t}: expected strictly increasing pixel indices inside the "
+                                    "tile, got others")
+        bad = be.first_out_of_range(be.from_bytes(recs.reshape(-1, width)), n2) if R else None
+        if bad is not None:
+            raise CorruptStoreError(f"{ctx.where}: tile {t}: ciphertext {bad} is not in (0, n²)")
+        out[t] = (rays, recs.copy())
+    return out
+
+
+def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: float | None = None,
+             nodes: Any = None, *, precision: int = 4, comb_digits: int = 4, pack: bool = True,
+             client: Any = None, progress: bool = True, backend: str | None = None) -> EncryptedImage:
+    """Finish saved ray sums with another density or transfer function: only the per-pixel step.
+
+    Parameters
+    ----------
+    sums : SavedSums or path
+        From :func:`load_sums`, or the path of a ``.hevrsums`` file.
+    mode, density, nodes, precision, comb_digits, pack
+        As for :func:`hevr.render`; the camera, sampling, step and weight digits are the sums'.
+        ``emphasize`` and ``tf`` need sums of the vector channel, ``xray`` of the scalar one.
+    client, progress, backend
+        As for :func:`hevr.render`.
+
+    Returns
+    -------
+    EncryptedImage
+        Bit for bit the image ``hevr.render`` gives for the same view and parameters.
+    """
+    if not isinstance(sums, SavedSums):
+        sums = load_sums(sums)
+    t0 = time.perf_counter()
+    meta, camera = sums.meta, sums.camera
+    spec = make_spec(mode, sums.sampling, sums.step, density, nodes, meta.vector.dims if meta.vector else None,
+                     meta.scalar is not None)
+    if spec.channel != sums.channel:
+        need = "a render in mode 'emphasize' or 'tf'" if spec.channel == "vector" else "an X-ray render"
+        raise ParameterError(f"sums: expected the {spec.channel} channel's sums ({need}) for mode {spec.mode!r}, "
+                             f"got the {sums.channel} channel's ({sums.path})")
+    precision = check_int("precision", precision, 0, 30)
+    comb_digits = check_int("comb_digits", comb_digits, 1, 12)
+    backend = resolve_backend_name(backend)
+    checked = check_render_size(camera, meta.shape, meta.spacing, spec.step)
+    rays = checked if checked is not None else cast_rays(camera, meta.shape, meta.spacing, spec.step)
+    comb = combination_matrix(spec, meta.vector.dims) if spec.needs_vector else None
+    plan = plan_render(n=int(meta.n), spec=spec, meta=meta, n_samples=rays.n_samples,
+                       digits=sums.weight_digits if spec.sampling == "trilinear" else 0, precision=precision,
+                       comb_digits=comb_digits, pack=pack, combination=comb)
+    if plan.weight_digits != sums.weight_digits:  # pragma: no cover - the planner keeps the digits it is given
+        raise HevrError(f"sums: expected weights of {plan.weight_digits} digits, got {sums.weight_digits}")
+    layout = TileLayout(camera.width, camera.height, sums.tile)
+    finish = FinishGraph.plan_units(plan, layout, rays.n_samples, int(meta.n), backend)
+    fin = finish.tasks(sums.tiles)
+    packed = finish.assemble(run_tasks(fin, client=active_client(client), progress=progress, desc="recolour"))
+    stats = {"map_tasks": 0, "finish_tasks": len(fin), "reused_ray_sums": True, "resident": False,
+             "gathered_bytes": sum(int(p.nbytes) for p in packed), "seconds": time.perf_counter() - t0}
+    return EncryptedImage(ciphertexts=list(packed), stats=stats,
+                          **image_fields(spec, plan, camera, rays.n_samples, meta, sums.tile))
