@@ -10,6 +10,7 @@ The subpackages follow the data path; every public name is re-exported here:
 :mod:`hevr.rendering`  camera, modes, rays, weights, planner, kernel, graph,
                        finishing, :func:`render`, :func:`render_plain`
 :mod:`hevr.image`      :class:`EncryptedImage`: file format, decryption, PNG
+:mod:`hevr.viewer`     :class:`Viewer`: the key holder's notebook viewer (ipywidgets)
 :mod:`hevr.cli`        the ``hevr`` command
 :mod:`hevr.backends`   the arithmetic seam: bulk big-integer work (``cpu`` = gmpy2)
 =====================  ==========================================================
@@ -48,6 +49,7 @@ from .rendering.sums import SavedSums, load_sums, recolour
 from .store.reader import EncryptedVolume, open_volume
 from .store.upgrade import upgrade_store
 from .store.writer import encrypt_volume
+from .viewer import Viewer
 from .volume.density import encode_density, normalize_density
 from .volume.loaders import load_volume, save_volume
 from .volume.phantom import PHANTOM_LEVELS, phantom
@@ -70,6 +72,7 @@ __all__ = [
     "recolour",
     "load_sums",
     "SavedSums",
+    "Viewer",
     "EncryptedImage",
     "load_image",
     "save_png",

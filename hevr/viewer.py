@@ -1,0 +1,283 @@
+"""``hevr.Viewer``: an interactive viewer of an encrypted volume in the key holder's notebook.
+
+The notebook that holds the private key drives renders on the (untrusted) cluster and
+decrypts the frames it gets back; the cluster sees only ciphertexts and the public render
+request, as with :func:`hevr.render`. The viewer is a thin layer of widgets over
+:func:`hevr.render` and the ray-sum cache:
+
+* **camera**: azimuth, elevation and view-angle sliders (:meth:`hevr.Camera.orbit`); a frame
+  is rendered when a slider is released (``continuous_update=False``), one render per move;
+* **mode and sampling**: X-ray, density emphasis (a density slider), transfer function;
+* **transfer-function editor**: one row per node — density slider, colour picker, remove
+  button — and an *add node* button; nodes with the same density are refused by
+  :func:`hevr.render` and the message shows in the status line (the frame stays);
+* **re-colouring from cached ray sums**: emphasis and TF frames are linear in the stored
+  density encoding, so a new density, colour, node or mode on an unchanged camera and sampling
+  skips the map step (``map_tasks == 0`` in the status line and in :attr:`Viewer.history`);
+* **status line**: frame time (render + decryption), map tasks, whether the sums were reused,
+  and the largest pixel error against the plaintext reference when the notebook has the
+  plaintext volume (``volume=``), next to :func:`hevr.error_bound`.
+
+Not offered: orbiting by dragging on the image (ipywidgets' ``Image`` has no pointer events;
+that needs ipyevents or an anywidget front end) and a coarse preview while a slider moves (it
+needs a multi-resolution level of the store, which hevr does not write yet).
+
+Every widget change calls :meth:`Viewer.refresh` synchronously, so the viewer can be driven
+headlessly — set a widget's ``value`` in code, as a test does, and the render runs.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import time
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from .crypto.keys import PrivateKey
+from .errors import HevrError, MissingDependencyError, ParameterError
+from .image import to_uint8
+from .paper import PAPER_DENSITIES, PAPER_TF1
+from .rendering.camera import Camera
+from .rendering.encrypted import error_bound, render
+from .rendering.modes import parse_color
+from .rendering.plain import render_plain
+from .store.reader import EncryptedVolume
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Viewer"]
+
+
+def _hex(colour: Any) -> str:
+    """'#rrggbb' of any colour hevr accepts.
+
+    >>> _hex("red"), _hex((0, 0.5, 1))
+    ('#ff0000', '#0080ff')
+    """
+    r, g, b = parse_color(colour)
+    return "#{:02x}{:02x}{:02x}".format(*(int(round(255 * v)) for v in (r, g, b)))
+
+
+def _png(arr: np.ndarray, window: tuple[float, float] | None) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(to_uint8(arr, window)).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+class Viewer:
+    """Interactive viewer of an encrypted volume (ipywidgets; the key holder's notebook).
+
+    Parameters
+    ----------
+    ev : EncryptedVolume
+        The store to render (opened, or persisted with :meth:`EncryptedVolume.persist`).
+    private_key : PrivateKey
+        Decrypts the frames here, in the notebook; it is never sent anywhere.
+    volume : numpy.ndarray, optional
+        The plaintext volume, when the notebook has it: each frame is compared with
+        :func:`hevr.render_plain` and the largest error is shown.
+    width, height : int
+        Frame size in pixels.
+    mode : {"xray", "emphasize", "tf"}
+    sampling : {"nearest", "trilinear"}
+    nodes : list of (density, colour), optional
+        Initial transfer function (default: the paper's first one).
+    density : float, optional
+        Initial emphasised density (default 0.653, the paper's small sphere).
+    client : distributed.Client, optional
+        Passed to :func:`hevr.render`: a LocalCluster's or a remote scheduler's client.
+    step : float
+        Sample spacing along the rays.
+    show : bool
+        Render the first frame now.
+
+    Attributes
+    ----------
+    history : list of dict
+        One entry per refresh: the request, ``map_tasks``, ``reused_ray_sums``, ``seconds``,
+        ``error`` (or None) and ``bound``; or ``error_message`` when the render was refused.
+    widget : ipywidgets.VBox
+        The whole viewer (displayed by the notebook when the viewer is the cell's value).
+    """
+
+    def __init__(self, ev: EncryptedVolume, private_key: PrivateKey, *, volume: np.ndarray | None = None,
+                 width: int = 128, height: int = 128, mode: str = "xray", sampling: str = "nearest",
+                 nodes: Any = None, density: float | None = None, client: Any = None, step: float = 1.0,
+                 show: bool = True) -> None:
+        try:
+            import ipywidgets as widgets
+        except ImportError:
+            raise MissingDependencyError("Viewer: expected ipywidgets (pip install 'hevr[notebook]'), got an "
+                                         "environment without it") from None
+        if not isinstance(ev, EncryptedVolume):
+            raise ParameterError(f"ev: expected an EncryptedVolume (hevr.open_volume), got {type(ev).__name__}")
+        if not isinstance(private_key, PrivateKey):
+            raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
+        if private_key.public_key.fingerprint != ev.meta.fingerprint:
+            raise ParameterError("private_key: expected the key of this volume (fingerprint "
+                                 f"{ev.meta.fingerprint[:16]}…), got {private_key.public_key.fingerprint[:16]}…")
+        if volume is not None and tuple(np.shape(volume)) != tuple(ev.shape):
+            raise ParameterError(f"volume: expected the plaintext of shape {tuple(ev.shape)}, got {np.shape(volume)}")
+        self.ev, self._key, self.volume, self.client, self.step = ev, private_key, volume, client, float(step)
+        self.size = (width, height)
+        Camera.orbit(ev, width=width, height=height)  # validates the size once, here
+        self.history: list[dict] = []
+        self._held = False
+        modes = ["xray"] * ev.has_scalar + ["emphasize", "tf"] * bool(ev.vector_dims)
+        if mode not in modes:
+            raise ParameterError(f"mode: expected one of {modes} (the store's channels), got {mode!r}")
+        W = widgets
+        slider = dict(continuous_update=False, readout_format=".0f")
+        self.azimuth = W.FloatSlider(value=30.0, min=-180.0, max=180.0, step=1.0, description="azimuth", **slider)
+        self.elevation = W.FloatSlider(value=20.0, min=-89.0, max=89.0, step=1.0, description="elevation", **slider)
+        self.view_angle = W.FloatSlider(value=30.0, min=5.0, max=90.0, step=1.0, description="view angle", **slider)
+        self.mode = W.ToggleButtons(options=modes, value=mode, description="mode")
+        self.sampling = W.ToggleButtons(options=["nearest", "trilinear"], value=sampling, description="sampling")
+        self.density = W.FloatSlider(value=PAPER_DENSITIES[1] if density is None else float(density), min=0.0,
+                                     max=1.0, step=0.001, readout_format=".3f", description="density",
+                                     continuous_update=False)
+        self._W = W
+        self._rows = W.VBox()
+        self.add_button = W.Button(description="add node", icon="plus")
+        self.add_button.on_click(lambda _b: self.add_node())
+        self.image = W.Image(format="png", width=max(256, width), height=max(256, height))
+        self.status = W.HTML(value="")
+        self.node_rows: list[tuple[Any, Any, Any]] = []
+        with self.hold():
+            for d, c in (PAPER_TF1 if nodes is None else nodes):
+                self.add_node(d, c)
+        for w in (self.azimuth, self.elevation, self.view_angle, self.mode, self.sampling, self.density):
+            w.observe(self._changed, names="value")
+        self.tf_box = W.VBox([self._rows, self.add_button])
+        self.widget = W.VBox([
+            W.HBox([self.image, W.VBox([self.azimuth, self.elevation, self.view_angle, self.mode, self.sampling,
+                                        self.density, self.tf_box])]),
+            self.status])
+        self._layout()
+        if show:
+            self.refresh()
+
+    # -- the request ------------------------------------------------------------------------
+    def camera(self) -> Camera:
+        """The camera of the current slider positions."""
+        return Camera.orbit(self.ev, azimuth=self.azimuth.value, elevation=self.elevation.value,
+                            width=self.size[0], height=self.size[1], view_angle=self.view_angle.value)
+
+    def nodes(self) -> list[tuple[float, str]]:
+        """The transfer function of the editor: (density, '#rrggbb') per row, in row order."""
+        return [(float(d.value), str(c.value)) for d, c, _ in self.node_rows]
+
+    def request(self) -> dict:
+        """Keyword arguments of :func:`hevr.render` (and :func:`hevr.render_plain`) for the current state."""
+        kw: dict[str, Any] = {"mode": self.mode.value, "sampling": self.sampling.value, "step": self.step}
+        if self.mode.value == "emphasize":
+            kw["density"] = float(self.density.value)
+        elif self.mode.value == "tf":
+            kw["nodes"] = self.nodes()
+        return kw
+
+    # -- the transfer-function editor ----------------------------------------------------------
+    def add_node(self, density: float = 0.5, colour: Any = "white") -> None:
+        """Append a node row (density slider, colour picker, remove button); renders once."""
+        W = self._W
+        d = W.FloatSlider(value=float(density), min=0.0, max=1.0, step=0.001, readout_format=".3f",
+                          description="node", continuous_update=False)
+        c = W.ColorPicker(value=_hex(colour), concise=True)
+        rm = W.Button(icon="trash", tooltip="remove this node", layout=W.Layout(width="36px"))
+        row = (d, c, rm)
+        rm.on_click(lambda _b, row=row: self.remove_node(self.node_rows.index(row)))
+        d.observe(self._changed, names="value")
+        c.observe(self._changed, names="value")
+        self.node_rows.append(row)
+        self._rows.children = [W.HBox(list(r)) for r in self.node_rows]
+        self._changed()
+
+    def remove_node(self, index: int) -> None:
+        """Remove node ``index`` (the last node stays: a transfer function needs one)."""
+        if len(self.node_rows) <= 1:
+            self._say("a transfer function needs at least one node")
+            return
+        self.node_rows.pop(index)
+        self._rows.children = [self._W.HBox(list(r)) for r in self.node_rows]
+        self._changed()
+
+    # -- rendering --------------------------------------------------------------------------
+    def hold(self) -> "_Hold":
+        """Context manager: change several widgets, then render once (``with viewer.hold(): ...``)."""
+        return _Hold(self)
+
+    def _changed(self, _change: Any = None) -> None:
+        self._layout()
+        if not self._held:
+            self.refresh()
+
+    def _layout(self) -> None:
+        if hasattr(self, "tf_box"):
+            self.density.layout.display = None if self.mode.value == "emphasize" else "none"
+            self.tf_box.layout.display = None if self.mode.value == "tf" else "none"
+
+    def _say(self, text: str) -> None:
+        self.status.value = f"<span style='color:#b00'>{text}</span>"
+
+    def refresh(self) -> dict:
+        """Render, decrypt and show the current state; returns (and appends to :attr:`history`)
+        what happened."""
+        kw = self.request()
+        cam = self.camera()
+        entry: dict[str, Any] = {"request": kw, "camera": cam.to_dict()}
+        t0 = time.perf_counter()
+        try:
+            img = render(self.ev, cam, client=self.client, progress=False, **kw)
+        except HevrError as exc:  # e.g. two nodes at one density: say it, keep the last frame
+            entry["error_message"] = str(exc)
+            self.history.append(entry)
+            self._say(str(exc))
+            return entry
+        arr = img.decrypt(self._key)
+        seconds = time.perf_counter() - t0
+        err = bound = None
+        window = None
+        if self.volume is not None:
+            ref = render_plain(self.volume, cam, spacing=self.ev.spacing, value_range=self.ev.value_range,
+                               vector_dims=self.ev.vector_dims, **kw)
+            err = float(np.abs(arr - ref).max()) if arr.size else 0.0
+            bound = float(error_bound(self.ev, cam, **kw).max())
+            window = (0.0, max(float(ref.max()), 1e-12))
+        self.image.value = _png(arr, window)
+        entry.update(map_tasks=img.stats["map_tasks"], reused_ray_sums=img.stats["reused_ray_sums"],
+                     seconds=seconds, error=err, bound=bound)
+        self.history.append(entry)
+        how = "re-coloured from cached ray sums" if img.stats["reused_ray_sums"] else \
+            f"{img.stats['map_tasks']} map tasks"
+        took = f"{seconds:.2f} s" if seconds >= 1 else f"{1000 * seconds:.0f} ms"
+        text = f"{kw['mode']}/{kw['sampling']}: {took} (render + decrypt), {how}"
+        if err is not None:
+            text += f"; max |error| vs plaintext {err:.2e} (bound {bound:.2e})"
+        self.status.value = text
+        log.info("viewer: %s", text)
+        return entry
+
+    def _ipython_display_(self) -> None:  # pragma: no cover - needs a front end
+        from IPython.display import display
+
+        display(self.widget)
+
+
+class _Hold:
+    """Defers the viewer's renders until the block ends, then renders once."""
+
+    def __init__(self, viewer: Viewer) -> None:
+        self.viewer = viewer
+
+    def __enter__(self) -> Viewer:
+        self.outer = self.viewer._held
+        self.viewer._held = True
+        return self.viewer
+
+    def __exit__(self, *exc: Any) -> None:
+        self.viewer._held = self.outer
+        if not self.outer and exc[0] is None and hasattr(self.viewer, "widget"):
+            self.viewer.refresh()

@@ -1,0 +1,137 @@
+"""hevr.Viewer driven headlessly: each widget change gives the expected render call, re-colouring
+comes from cached ray sums (counted map tasks), and every frame matches render_plain within
+error_bound."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import hevr
+from hevr.viewer import Viewer
+
+pytest.importorskip("ipywidgets")  # the notebook extra; installed with the test extra
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory, keypair256):
+    pub, priv = keypair256
+    vol = hevr.phantom(8)
+    path = tmp_path_factory.mktemp("viewer") / "v.zarr"
+    ev = hevr.encrypt_volume(vol, path, priv, brick=4, vector_dims=3, progress=False)
+    return ev, priv, vol
+
+
+@pytest.fixture
+def viewer(scene):
+    hevr.clear_cache()
+    ev, priv, vol = scene
+    return Viewer(ev, priv, volume=vol, width=10, height=8, mode="tf")
+
+
+def _frame_matches(v: Viewer) -> None:
+    """The frame on show decrypts to render_plain within error_bound, pixel by pixel."""
+    last = v.history[-1]
+    assert last["error"] is not None and last["error"] <= last["bound"]
+    cam, kw = v.camera(), v.request()
+    img = hevr.render(v.ev, cam, progress=False, **kw)  # cached: no map work
+    arr = img.decrypt(v._key)
+    ref = hevr.render_plain(v.volume, cam, value_range=v.ev.value_range, vector_dims=v.ev.vector_dims, **kw)
+    assert (np.abs(arr - ref) <= hevr.error_bound(v.ev, cam, **kw)).all()
+    assert bytes(v.image.value[:8]) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_first_frame_runs_the_map_step(viewer):
+    first = viewer.history[-1]
+    assert first["map_tasks"] > 0 and first["reused_ray_sums"] is False
+    assert first["request"]["nodes"] == [(0.279, "#0000ff"), (0.797, "#ff0000")]
+    _frame_matches(viewer)
+    assert "map tasks" in viewer.status.value
+
+
+def test_colour_change_alone_recolours_from_cached_sums(viewer):
+    before = len(viewer.history)
+    viewer.node_rows[0][1].value = "#00ff00"
+    assert len(viewer.history) == before + 1
+    last = viewer.history[-1]
+    assert last["map_tasks"] == 0 and last["reused_ray_sums"] is True
+    assert last["request"]["nodes"][0] == (0.279, "#00ff00")
+    _frame_matches(viewer)
+    assert "re-coloured" in viewer.status.value
+
+
+def test_add_and_remove_nodes(viewer):
+    viewer.add_node(0.5, "yellow")
+    assert len(viewer.nodes()) == 3 and viewer.history[-1]["map_tasks"] == 0
+    assert viewer.nodes()[2] == (0.5, "#ffff00")
+    viewer.node_rows[2][0].value = 0.6  # moving a node's density re-colours too
+    assert viewer.history[-1]["map_tasks"] == 0 and viewer.history[-1]["request"]["nodes"][2][0] == 0.6
+    _frame_matches(viewer)
+    viewer.node_rows[0][2].click()  # the remove button of the first node
+    assert [d for d, _ in viewer.nodes()] == [0.797, 0.6] and viewer.history[-1]["map_tasks"] == 0
+    viewer.remove_node(0)
+    n = len(viewer.history)
+    viewer.remove_node(0)  # the last node stays
+    assert len(viewer.nodes()) == 1 and len(viewer.history) == n and "at least one node" in viewer.status.value
+
+
+def test_duplicate_density_is_reported_not_raised(viewer):
+    shown = bytes(viewer.image.value)
+    viewer.add_node(0.279, "white")  # the first node's density
+    assert "distinct densities" in viewer.history[-1]["error_message"]
+    assert "distinct densities" in viewer.status.value and bytes(viewer.image.value) == shown
+
+
+def test_camera_sampling_and_mode_changes(viewer):
+    viewer.azimuth.value = 75.0
+    assert viewer.history[-1]["map_tasks"] > 0  # a new view needs the map step
+    assert viewer.history[-1]["camera"] == hevr.Camera.orbit(viewer.ev, azimuth=75, elevation=20, width=10,
+                                                             height=8).to_dict()
+    viewer.mode.value = "emphasize"  # same camera, same (vector) channel: re-coloured
+    assert viewer.history[-1]["map_tasks"] == 0 and viewer.history[-1]["request"]["density"] == 0.653
+    assert viewer.density.layout.display is None and viewer.tf_box.layout.display == "none"
+    viewer.density.value = 0.331
+    assert viewer.history[-1]["map_tasks"] == 0
+    _frame_matches(viewer)
+    viewer.mode.value = "xray"  # the scalar channel: another map step
+    assert viewer.history[-1]["map_tasks"] > 0
+    viewer.sampling.value = "trilinear"
+    assert viewer.history[-1]["map_tasks"] > 0 and viewer.history[-1]["request"]["sampling"] == "trilinear"
+    _frame_matches(viewer)
+
+
+def test_hold_renders_once(viewer):
+    n = len(viewer.history)
+    with viewer.hold():
+        viewer.azimuth.value = -40.0
+        viewer.elevation.value = 10.0
+        viewer.view_angle.value = 45.0
+    assert len(viewer.history) == n + 1
+    assert viewer.history[-1]["camera"]["view_angle"] == 45.0
+
+
+def test_on_a_cluster_the_sums_stay_there(scene, cluster):
+    hevr.clear_cache()
+    ev, priv, vol = scene
+    v = Viewer(ev, priv, volume=vol, width=10, height=8, mode="emphasize", client=cluster)
+    assert v.history[-1]["map_tasks"] > 0
+    v.density.value = 0.9
+    assert v.history[-1]["map_tasks"] == 0 and v.history[-1]["reused_ray_sums"] is True
+    _frame_matches(v)
+
+
+def test_bad_input(scene, keypair512, tmp_path):
+    ev, priv, vol = scene
+    with pytest.raises(hevr.ParameterError, match="private_key: expected the key of this volume"):
+        Viewer(ev, keypair512[1], show=False)
+    with pytest.raises(hevr.ParameterError, match="private_key: expected a hevr.PrivateKey"):
+        Viewer(ev, priv.public_key, show=False)
+    with pytest.raises(hevr.ParameterError, match="volume: expected the plaintext of shape"):
+        Viewer(ev, priv, volume=vol[:4], show=False)
+    with pytest.raises(hevr.ParameterError, match="ev: expected an EncryptedVolume"):
+        Viewer(str(ev.path), priv, show=False)
+    scalar = hevr.encrypt_volume(vol, tmp_path / "s.zarr", priv, brick=4, progress=False)
+    with pytest.raises(hevr.ParameterError, match=r"mode: expected one of \['xray'\]"):
+        Viewer(scalar, priv, mode="tf", show=False)
+    with pytest.raises(hevr.ParameterError, match="width"):
+        Viewer(ev, priv, width=0, show=False)
