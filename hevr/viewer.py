@@ -260,10 +260,17 @@ class Viewer:
         log.info("viewer: %s", text)
         return entry
 
-    def _ipython_display_(self) -> None:  # pragma: no cover - needs a front end
-        from IPython.display import display
+    def __repr__(self) -> str:
+        kw = self.request()
+        extra = {"emphasize": f", density {kw.get('density')}", "tf": f", {len(self.node_rows)} TF nodes"}
+        return (f"hevr.Viewer({kw['mode']}/{kw['sampling']}{extra.get(kw['mode'], '')}, {self.size[0]}x{self.size[1]}"
+                f", azimuth {self.azimuth.value:g}, elevation {self.elevation.value:g}; {len(self.history)} frames)")
 
-        display(self.widget)
+    def _repr_mimebundle_(self, **kwargs: Any) -> dict:
+        """The widget for Jupyter front ends; this short text where widgets cannot show."""
+        data = self.widget._repr_mimebundle_(**kwargs)
+        data["text/plain"] = repr(self)
+        return data
 
 
 class _Hold:

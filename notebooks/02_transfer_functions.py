@@ -21,9 +21,9 @@
 #   *(density, colour)* nodes.
 #
 # Every encrypted image is shown above its plaintext reference (`hevr.render_plain`).
-# Finally a small widget re-colours the view interactively: since emphasis and TF modes
+# Finally `hevr.Viewer` explores the volume interactively: since emphasis and TF modes
 # are *linear* in the stored density encoding, the server keeps the per-view encrypted
-# ray sums (`render(..., cache=True)`, the default) and a new density or colour only
+# ray sums (`render(..., cache=True)`, the default) and a new density, colour or node only
 # redoes the cheap per-pixel step.
 #
 # Sizes are deliberately small (24³ phantom, 40×40 images, 512-bit key); change them in
@@ -60,6 +60,7 @@ for label, nodes in TRANSFER_FUNCTIONS.items():
     print(f"{label:14s} {tf_text(nodes)}")
 
 # %%
+import io
 import json
 import os
 import shutil
@@ -68,14 +69,12 @@ import textwrap
 import time
 import warnings
 
-import ipywidgets as widgets
 import matplotlib.pyplot as plt
 import numpy as np
 from distributed import Client, LocalCluster
-from IPython.display import display
 
 import hevr
-from hevr.rendering.modes import CSS_COLORS, parse_color
+from hevr.rendering.modes import parse_color
 
 WORKDIR = tempfile.mkdtemp(prefix="hevr-tf-")
 
@@ -191,71 +190,67 @@ plt.tight_layout()
 plt.show()
 
 # %% [markdown]
-# ## 5. Interactive re-colouring from the cached ray sums
+# ## 5. The viewer: camera, mode and a transfer-function editor
 #
-# Pick a density with the slider (it re-renders when released: `continuous_update=False`)
-# and a colour, or press **re-colour**. The callback renders a one-node TF
-# *(density, colour)* for the same camera, so the server skips the per-brick work
-# entirely: the statistics show `reused_ray_sums=True` and `map_tasks=0`.
+# `hevr.Viewer` runs in the key holder's notebook: it sends render requests to the cluster
+# (`client=`), decrypts the frames here and shows them with the frame time and, since this
+# notebook has the plaintext volume, the largest error against `hevr.render_plain`.
+# Sliders render when released. The transfer-function editor has one row per node
+# (density slider, colour picker, remove button) and an *add node* button. A new colour,
+# density, node or mode on the same camera re-colours the cached ray sums: the status
+# line says `re-coloured from cached ray sums` and no map task runs.
 #
-# Widgets need a live Jupyter front end; when the notebook runs headless (as in the
-# test suite) they do not display, so the cell after next also calls the callback
-# programmatically.
+# Widgets need a live Jupyter front end; on a code host (or headless, as in the test
+# suite) they show as text. So the next cells also drive the viewer from code, exactly as
+# the widgets would, and draw its frames with matplotlib.
 
 # %%
-density_slider = widgets.FloatSlider(value=PAPER_DENSITIES[1], min=0.0, max=1.0, step=0.001,
-                                     readout_format=".3f", description="density",
-                                     continuous_update=False)
-colour_picker = widgets.Dropdown(options=sorted(CSS_COLORS), value="red", description="colour")
-recolour_button = widgets.Button(description="re-colour", icon="paint-brush")
-view = widgets.Output()
-last_recolour = {}   # statistics of the latest callback, for inspection below
-
-def recolour(_event=None):
-    density, colour_name = density_slider.value, colour_picker.value
-    nodes = [(density, parse_color(colour_name))]
-    t0 = time.perf_counter()
-    img = hevr.render(ev, cam, mode="tf", nodes=nodes, sampling=SAMPLING, step=STEP, progress=False)
-    enc = img.decrypt(priv)
-    seconds = time.perf_counter() - t0
-    ref = hevr.render_plain(vol, cam, mode="tf", nodes=nodes, sampling=SAMPLING, step=STEP,
-                            vector_dims=VECTOR_DIMS)
-    last_recolour.clear()
-    last_recolour.update(density=density, colour=colour_name, seconds=round(seconds, 3),
-                         reused_ray_sums=img.stats["reused_ray_sums"],
-                         map_tasks=img.stats["map_tasks"],
-                         max_error=float(np.abs(enc - ref).max()))
-    with view:
-        view.clear_output(wait=True)
-        _, ax = plt.subplots(figsize=(3, 3))
-        ax.imshow(hevr.to_uint8(enc, (0.0, max(float(ref.max()), 1e-12))))
-        ax.set_title(f"{colour_name} at {density:.3f}", fontsize=9)
-        ax.axis("off")
-        plt.show()
-        print(f"reused_ray_sums={img.stats['reused_ray_sums']}, map_tasks={img.stats['map_tasks']}, "
-              f"render + decrypt {seconds:.2f} s")
-
-recolour_calls = []
-def on_recolour(event=None):
-    recolour_calls.append(event)
-    recolour(event)
-    last_recolour["calls"] = len(recolour_calls)
-
-recolour_button.on_click(on_recolour)
-density_slider.observe(on_recolour, names="value")
-display(widgets.VBox([widgets.HBox([density_slider, colour_picker, recolour_button]), view]))
+viewer = hevr.Viewer(ev, priv, volume=vol, width=WIDTH, height=HEIGHT, mode="tf",
+                     sampling=SAMPLING, client=client)
+viewer   # camera sliders, mode, sampling, density, TF editor, frame and status line
 
 # %%
-# Drive the widgets from code (what a click would do), then inspect the result.
-colour_picker.value = "lime"
-recolour_button.click()
-print("after the click:", last_recolour)
-assert last_recolour["reused_ray_sums"] is True and last_recolour["map_tasks"] == 0
+import PIL.Image
 
-density_slider.value = PAPER_DENSITIES[0]   # moving the slider re-renders too
-print("after the slider:", last_recolour)
-assert last_recolour["reused_ray_sums"] is True and last_recolour["map_tasks"] == 0
-assert abs(last_recolour["density"] - PAPER_DENSITIES[0]) < 1e-9 and last_recolour["calls"] == 2
+frames = [("start: paper TF 1", viewer.history[-1], bytes(viewer.image.value))]
+
+def drive(label, action):
+    """Do what a click or a slider release would do; keep the frame it shows."""
+    action()
+    frames.append((label, viewer.history[-1], bytes(viewer.image.value)))
+
+drive("first node's colour -> lime", lambda: setattr(viewer.node_rows[0][1], "value", "#00ff00"))
+drive("add node 0.5, yellow", lambda: viewer.add_node(0.5, "yellow"))
+drive("remove the last node", lambda: viewer.node_rows[-1][2].click())
+drive("emphasis mode", lambda: setattr(viewer.mode, "value", "emphasize"))
+drive("camera: azimuth 120", lambda: setattr(viewer.azimuth, "value", 120.0))
+drive("back to the TF", lambda: setattr(viewer.mode, "value", "tf"))
+
+print(f"{'step':32s} {'map tasks':>9s} {'reused':>6s} {'seconds':>8s} {'max err':>9s} {'bound':>9s}")
+for label, h, _ in frames:
+    print(f"{label:32s} {h['map_tasks']:9d} {h['reused_ray_sums']!s:>6s} {h['seconds']:8.2f} "
+          f"{h['error']:9.2g} {h['bound']:9.2g}")
+
+fig, axes = plt.subplots(1, len(frames), figsize=(2.2 * len(frames), 2.8), squeeze=False)
+for ax, (label, h, png) in zip(axes[0], frames):
+    ax.imshow(np.asarray(PIL.Image.open(io.BytesIO(png))), cmap="gray")   # grey frames are 2-D
+    ax.set_title("\n".join(textwrap.wrap(label, 18)), fontsize=8)
+    ax.axis("off")
+fig.suptitle("The viewer's frames, driven from code (decrypted in this notebook)")
+plt.tight_layout()
+plt.show()
+
+for label, h, _ in frames:
+    assert h["error"] <= h["bound"], (label, h)
+camera_moves = {"start: paper TF 1", "camera: azimuth 120"}
+for label, h, _ in frames:
+    if label not in camera_moves:   # same camera: re-coloured, no map step
+        assert h["reused_ray_sums"] is True and h["map_tasks"] == 0, (label, h)
+assert frames[5][1]["map_tasks"] > 0   # a new camera needs the map step
+viewer_summary = {"frames": len(frames),
+                  "map_tasks": [h["map_tasks"] for _, h, _ in frames],
+                  "reused": [h["reused_ray_sums"] for _, h, _ in frames]}
+print(viewer_summary)
 
 # %% [markdown]
 # ## 6. Clean up
@@ -270,6 +265,6 @@ shutil.rmtree(WORKDIR, ignore_errors=True)
 summary = {
     "images": [{k: r[k] for k in ("label", "map_tasks", "reused_ray_sums", "max_error", "bound")}
                for r in results],
-    "recolour": last_recolour,
+    "viewer": viewer_summary,
 }
 print(json.dumps(summary))

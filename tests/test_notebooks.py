@@ -84,8 +84,12 @@ def _check_transfer(s: dict) -> None:
     assert first["reused_ray_sums"] is False and first["map_tasks"] > 0
     for r in s["images"][2:]:
         assert r["reused_ray_sums"] is True and r["map_tasks"] == 0, r
-    rc = s["recolour"]
-    assert rc["reused_ray_sums"] is True and rc["map_tasks"] == 0 and rc["calls"] == 2
+    # hevr.Viewer driven from code: its first frame (the view of section 4) and every colour,
+    # node and mode change re-colour cached sums; the new camera (frame 5) runs the map step.
+    v = s["viewer"]
+    assert v["frames"] == 7
+    assert [m > 0 for m in v["map_tasks"]] == [False, False, False, False, False, True, False], v
+    assert v["reused"] == [True, True, True, True, True, False, True], v
 
 
 def _check_scaling(s: dict) -> None:
