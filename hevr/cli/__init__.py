@@ -2,8 +2,10 @@
 
 =================  =============================================================
 ``main``           the argument parser and dispatch (``hevr`` entry point)
-``commands``       keygen, encrypt, render, decrypt, info
-``util``           shared argument types, progress, key/volume loading for commands
+``commands``       keygen, encrypt, render, recolour, decrypt, info, upgrade-store
+``options``        argparse value types (one checker per option kind)
+``exits``          the exit-status rule and the CLI's words in error messages
+``util``           shared checks, progress, key/volume loading, Dask clients, formatting
 ``demo``           ``hevr demo``: the whole data path on a phantom
 ``sheet``          the demo's contact sheet
 ``bench``          ``hevr bench`` (the engine is :mod:`hevr._bench`)

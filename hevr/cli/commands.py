@@ -1,7 +1,10 @@
 """Implementations of ``hevr keygen | encrypt | render | decrypt | info`` (see :mod:`hevr.cli.main`).
 
 Each ``cmd_*`` takes the parsed argparse namespace, prints its report on stdout and
-returns the exit code; errors are raised and turned into one line by :func:`hevr.cli.main.main`.
+returns the exit code; errors are raised and turned into one line and an exit status by
+:func:`hevr.cli.main.main` (:mod:`hevr.cli.exits`). What only the command line can check is
+checked here first, in its words (``UsageError("--out: …")``), before anything is computed.
+Every size printed goes through :func:`~hevr.cli.util.xyz` / :func:`~hevr.cli.util.wh`.
 """
 
 from __future__ import annotations
@@ -17,12 +20,14 @@ import numpy as np
 import zarr
 
 from ..crypto.keys import SECURE_BITS, PrivateKey, generate_keypair
-from ..errors import InsecureKeyWarning, MissingFileError, ParameterError, StoreError
+from ..errors import InsecureKeyWarning, MissingFileError, StoreError
 from ..image import MAGIC, load_image, save_png
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..rendering.camera import Camera
 from ..rendering.encrypted import render
 from ..rendering.planner import check_render_size
+from ..rendering.sums import MAGIC as SUMS_MAGIC
+from ..rendering.sums import load_sums, recolour
 from ..store.metadata import VolumeMetadata
 from ..store.reader import open_volume
 from ..store.upgrade import upgrade_store
@@ -30,6 +35,9 @@ from ..store.writer import encrypt_volume
 from .util import (
     Timer,
     UsageError,
+    check_frame_path,
+    check_output_file,
+    check_store_path,
     check_writable_dir,
     dask_client,
     describe_client,
@@ -42,6 +50,8 @@ from .util import (
     read_key,
     show_progress,
     warn_line,
+    wh,
+    xyz,
 )
 
 log = logging.getLogger("hevr.cli.main")
@@ -52,10 +62,11 @@ def cmd_keygen(args: Any) -> int:
 
     out = Path(args.out).expanduser()
     pub_out = public_key_path(out)
-    check_writable_dir(out)
     for p in (out, pub_out):
+        check_output_file(p)
         if p.exists() and not args.force:
-            raise FileExistsError(17, "refusing to overwrite an existing key (pass --force to replace it)", str(p))
+            what = "" if p == out else " (the public key beside it)"
+            raise UsageError(f"--out: {p}{what} exists; pass --force to replace the key pair")
     if args.bits < SECURE_BITS:
         warn_line(f"a {args.bits}-bit key is NOT secure; use --bits {SECURE_BITS} or more for real data")
     with Timer() as t, warnings.catch_warnings():
@@ -74,23 +85,27 @@ def cmd_keygen(args: Any) -> int:
 def cmd_encrypt(args: Any) -> int:
 
     if args.resume and args.overwrite:
-        raise UsageError("--resume and --overwrite exclude each other")
+        raise UsageError("--resume, --overwrite: expected one of them, got both (they exclude each other)")
+    if args.no_scalar and not args.vector_dims:
+        raise UsageError("--no-scalar: expected --vector-dims K as well (a store needs at least one channel)")
     store = Path(args.out).expanduser().absolute()
+    if store.exists() and not store.is_dir():
+        raise UsageError(f"--out: expected a store folder (e.g. vol.zarr), got a file ({args.out})")
     if store.exists() and not (args.resume or args.overwrite):
-        raise FileExistsError(17, "already exists; pass --overwrite to replace it or --resume to finish an "
-                                  "interrupted run", args.out)
+        raise UsageError(f"--out: {args.out} exists; pass --overwrite to replace it or --resume to finish "
+                         "an interrupted run")
     if not store.exists() and args.resume:
-        raise MissingFileError("--out", "a store to --resume", args.out)
-    check_writable_dir(store)
+        raise MissingFileError("--resume", "the interrupted store named by --out", args.out)
+    check_writable_dir(Path(args.out).expanduser())
     key = read_key(args.key)
     private = isinstance(key, PrivateKey)
     pub = key.public_key if private else key
     if private and args.scheduler and not args.trust_scheduler:
         raise UsageError(
-            f"--key {args.key} is a private key and --scheduler is set: the owner-side fast path would send "
+            f"--key: {args.key} is a private key and --scheduler is set: the owner-side fast path would send "
             "p and q to the cluster's workers; encrypt with the public key (.pub.json) or pass --trust-scheduler")
     vol, spacing, what = load_input(args.input, args.spacing)
-    print(f"input:   {what}, spacing {tuple(float(s) for s in spacing)}")
+    print(f"input:   {what}, spacing {xyz(tuple(spacing)[::-1], sep=', ')}")
     print(f"key:     {key_label(pub)}")
     print("path:    " + ("owner-side fast path (private key: p, q speed up encryption; "
                           "the store still holds only the public key)" if private
@@ -104,7 +119,7 @@ def cmd_encrypt(args: Any) -> int:
                                 progress=show_progress(args))
     n_ct = int(np.prod(ev.shape)) * ((1 if ev.has_scalar else 0) + (ev.vector_dims or 0))
     chans = _channels(ev.meta)
-    print(f"wrote {args.out}: {ev.meta.n_bricks} bricks of {ev.brick}, channels {chans}, "
+    print(f"wrote {args.out}: {ev.meta.n_bricks} bricks of {xyz(ev.brick)}, channels {chans}, "
           f"{n_ct} ciphertexts, {human_bytes(disk_usage(ev.path))}, in {t.seconds:.2f} s "
           f"({n_ct / max(t.seconds, 1e-9):.0f} ciphertexts/s)")
     if not ev.vector_dims:
@@ -126,11 +141,12 @@ def resolve_mode(args: Any) -> str:
     """The render mode: explicit --mode, else inferred from --density / --tf, else xray."""
     mode = args.mode or ("tf" if args.tf is not None else "emphasize" if args.density is not None else "xray")
     if mode == "emphasize" and args.density is None:
-        raise UsageError(f"--mode emphasize needs --density D (a normalised density in [0, 1], e.g. {PAPER_DENSITIES[1]})")
+        raise UsageError(f"--mode emphasize: expected --density D as well (a normalised density in [0, 1], "
+                         f"e.g. {PAPER_DENSITIES[1]})")
     if mode != "emphasize" and args.density is not None:
-        raise UsageError(f"--density only applies to --mode emphasize, got --mode {mode}")
+        raise UsageError(f"--density: only applies to --mode emphasize, got --mode {mode}")
     if mode != "tf" and args.tf is not None:
-        raise UsageError(f"--tf only applies to --mode tf, got --mode {mode}")
+        raise UsageError(f"--tf: only applies to --mode tf, got --mode {mode}")
     return mode
 
 
@@ -140,51 +156,98 @@ def cmd_render(args: Any) -> int:
     mode = resolve_mode(args)
     nodes = (args.tf if args.tf is not None else list(PAPER_TF1)) if mode == "tf" else None
     out = Path(args.out).expanduser()
-    check_writable_dir(out)
-    store = Path(args.store).expanduser().absolute()
-    if not store.exists():
-        raise MissingFileError("--store", "an encrypted volume store (make one with 'hevr encrypt')", args.store)
+    check_output_file(out)
+    sums = Path(args.keep_sums).expanduser() if args.keep_sums else None
+    if sums is not None:
+        check_output_file(sums, "--keep-sums")
+    store = check_store_path(Path(args.store).expanduser(), "STORE").absolute()
     ev = open_volume(store)
+    if mode != "xray" and not ev.vector_dims:
+        raise UsageError(f"--mode {mode}: expected a store with the vector channel, got {args.store} without one; "
+                         "encrypt it with --vector-dims 4 (or render --mode xray)")
+    if mode == "xray" and not ev.has_scalar:
+        raise UsageError(f"--mode xray: expected a store with the scalar channel, got {args.store} without one "
+                         "(encrypted with --no-scalar); render --mode emphasize or --mode tf")
     w, h = args.size
     cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h,
                        view_angle=args.view_angle, parallel=args.parallel)
     check_render_size(cam, ev.shape, ev.spacing, args.step)  # refuse before a cluster starts
     what = {"xray": "X-ray", "emphasize": f"emphasis of density {args.density}",
             "tf": f"transfer function {format_tf(nodes) if nodes else ''}"}[mode]
-    print(f"store:   {args.store} {ev.shape[::-1]} (x, y, z), key {ev.meta.fingerprint[:16]}…")
-    print(f"render:  {what}, {args.sampling} sampling, {w}x{h} px, azimuth {args.azimuth:g}, "
+    print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…")
+    print(f"render:  {what}, {args.sampling} sampling, {wh(w, h)} px, azimuth {args.azimuth:g}, "
           f"elevation {args.elevation:g}, step {args.step:g}")
     with dask_client(args.scheduler, args.workers) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             img = render(ev, cam, mode=mode, sampling=args.sampling, step=args.step, density=args.density,
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,
-                         progress=show_progress(args))
+                         progress=show_progress(args), keep_sums=sums)
     img.save(out)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(out.stat().st_size)}, rendered in {t.seconds:.2f} s")
+    if sums is not None:
+        again = "--density D" if mode != "xray" else "--mode xray"
+        print(f"wrote {sums}: the view's encrypted ray sums, {human_bytes(sums.stat().st_size)}; "
+              f"re-colour with: hevr recolour {sums} --out FRAME.hevr --tf NODES | {again}")
     print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {out.with_suffix('.png')}")
+    return 0
+
+
+# -- recolour ------------------------------------------------------------------------------
+def cmd_recolour(args: Any) -> int:
+    out = Path(args.out).expanduser()
+    check_output_file(out)
+    path = Path(args.sums).expanduser()
+    if path.is_dir():
+        raise UsageError(f"SUMS: expected a ray-sums file (hevr render --keep-sums), got a folder ({args.sums})")
+    if not path.is_file():
+        raise MissingFileError("SUMS", "a ray-sums file (hevr render --keep-sums)", args.sums)
+    with open(path, "rb") as fh:
+        if fh.read(len(SUMS_MAGIC) - 1) != SUMS_MAGIC[:-1]:
+            raise UsageError(f"SUMS: expected a ray-sums file (hevr render --keep-sums), got {args.sums}, which is not one")
+    saved = load_sums(path)
+    if args.mode is None and args.tf is None and args.density is None:
+        args.mode = "xray" if saved.channel == "scalar" else "tf"
+    mode = resolve_mode(args)
+    nodes = (args.tf if args.tf is not None else list(PAPER_TF1)) if mode == "tf" else None
+    if (saved.channel == "scalar") != (mode == "xray"):
+        raise UsageError(f"--mode {mode}: expected {'X-ray' if mode == 'xray' else 'emphasis/TF'} ray sums, got "
+                         f"{args.sums} with the {saved.channel} channel's; render them again with --keep-sums "
+                         f"and {'--mode xray' if mode == 'xray' else '--density or --tf'}")
+    cam = saved.camera
+    print(f"sums:    {args.sums}, {saved.sampling} sampling, {wh(cam.width, cam.height)} px, key "
+          f"{saved.meta.fingerprint[:16]}… (from {saved.store or 'an unnamed store'})")
+    with dask_client(args.scheduler, args.workers) as client:
+        print(f"compute: {describe_client(client)}")
+        with Timer() as t:
+            img = recolour(saved, mode=mode, density=args.density, nodes=nodes, precision=args.precision,
+                           pack=not args.no_pack, client=client, progress=show_progress(args))
+    img.save(out)
+    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts, {human_bytes(out.stat().st_size)}, re-coloured in "
+          f"{t.seconds:.2f} s (no map step)")
     return 0
 
 
 # -- decrypt -------------------------------------------------------------------------------
 def cmd_decrypt(args: Any) -> int:
 
-    key = read_key(args.key)
-    if not isinstance(key, PrivateKey):
-        raise ParameterError(f"--key {args.key} is a public key; decrypting needs the private key file")
-    img = load_image(Path(args.frame).expanduser())
+    frame = check_frame_path(Path(args.frame).expanduser(), "FRAME")
+    out = Path(args.out).expanduser() if args.out else frame.with_suffix(".png")
+    check_output_file(out, "--out", suffix=".png")
+    npy = Path(args.npy).expanduser() if args.npy else None
+    if npy is not None:
+        check_output_file(npy, "--npy")
+    key = read_key(args.key, private=True)
+    img = load_image(frame)
     with Timer() as t:
         arr = img.decrypt(key)
-    out = Path(args.out).expanduser() if args.out else Path(args.frame).expanduser().with_suffix(".png")
-    check_writable_dir(out)
     save_png(arr, out, window=args.window)
-    print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: shape {arr.shape}, "
-          f"values {float(arr.min()):.6g} .. {float(arr.max()):.6g}")
+    rgb = ", rgb" if arr.ndim == 3 else ""
+    print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
+          f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}")
     print(f"wrote {out}")
-    if args.npy:
-        npy = Path(args.npy).expanduser()
-        check_writable_dir(npy)
+    if npy is not None:
         np.save(npy, arr)
         print(f"wrote {npy} (float64 values)")
     return 0
@@ -192,6 +255,11 @@ def cmd_decrypt(args: Any) -> int:
 
 # -- upgrade-store ---------------------------------------------------------------------------
 def cmd_upgrade_store(args: Any) -> int:
+    check_store_path(Path(args.src).expanduser(), "OLD")
+    dst = Path(args.dst).expanduser()
+    if dst.exists():
+        raise UsageError(f"NEW: {args.dst} already exists; choose a new path for the upgraded store")
+    check_writable_dir(dst, "NEW")
     with dask_client(args.scheduler, args.workers) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
@@ -206,15 +274,15 @@ def cmd_info(args: Any) -> int:
 
     path = Path(args.path).expanduser()
     if not path.exists():
-        raise MissingFileError("path", "a key, store or image file", path)
+        raise MissingFileError("PATH", "a key, store, frame or volume file", args.path)
     if path.is_dir():
         if (path / "zarr.json").exists():
-            return _info_store(path)
+            return _info_store(check_store_path(path, "PATH"))
         return _info_volume(path)
     with open(path, "rb") as fh:
         head = fh.read(len(MAGIC))
-    if head[:-1] == MAGIC[:-1]:  # any version: load_image names an unsupported one
-        return _info_image(path)
+    if head[:-1] == MAGIC[:-1] or path.suffix == ".hevr":  # any version: load_image names an unsupported one
+        return _info_image(check_frame_path(path, "PATH"))
     if head.lstrip()[:1] == b"{":
         try:
             doc = json.loads(path.read_text())
@@ -223,8 +291,9 @@ def cmd_info(args: Any) -> int:
         if isinstance(doc, dict) and doc.get("format") == "hevr-key":
             return _info_key(path)
         if isinstance(doc, dict) and doc.get("zarr_format") is not None:
-            return _info_store(path.parent)
-        raise ParameterError(f"{path}: a JSON file but not an hevr key file")
+            return _info_store(check_store_path(path.parent, "PATH"))
+        raise UsageError(f"PATH: expected a key, store, frame or volume file, got a JSON file that is not an "
+                         f"hevr key ({args.path})")
     return _info_volume(path)
 
 
@@ -254,11 +323,11 @@ def _info_store(path: Path) -> int:
         ("path", path),
         ("kind", "encrypted volume store"),
         ("format", f"{meta.format} version {meta.version}"),
-        ("shape", f"{meta.shape} (nz, ny, nx) = {meta.shape[2]}x{meta.shape[1]}x{meta.shape[0]} voxels"),
+        ("shape", f"{xyz(meta.shape)} voxels"),
         ("dtype", meta.dtype),
-        ("spacing", f"{meta.spacing} (sx, sy, sz)"),
-        ("brick", f"{meta.brick} (bz, by, bx)"),
-        ("grid", f"{meta.grid} = {meta.n_bricks} bricks"),
+        ("spacing", xyz(tuple(meta.spacing)[::-1], sep=", ")),
+        ("brick", f"{xyz(meta.brick)} voxels"),
+        ("grid", f"{xyz(meta.grid)} = {meta.n_bricks} bricks"),
         ("channels", _channels(meta)),
         ("value range", meta.value_range),
         ("key", f"{bits}-bit public key" + (" (NOT secure: < 2048 bits)" if bits < SECURE_BITS else "")),
@@ -281,7 +350,7 @@ def _info_image(path: Path) -> int:
     rows = [
         ("path", path),
         ("kind", "encrypted image (.hevr frame)"),
-        ("shape", f"{tuple(img.shape)} (height, width{', rgb' if len(img.shape) == 3 else ''})"),
+        ("shape", f"{wh(img.shape[1], img.shape[0])} px{', rgb' if len(img.shape) == 3 else ''}"),
         ("mode", f"{info.get('mode', '?')}, {info.get('sampling', '?')} sampling, step {info.get('step', '?')}"),
     ]
     if info.get("density") is not None:
@@ -289,7 +358,9 @@ def _info_image(path: Path) -> int:
     if info.get("nodes"):
         rows.append(("transfer fn", format_tf(info["nodes"])))
     if cam:
-        rows.append(("camera", f"position {tuple(round(x, 3) for x in cam.get('position', ()))}, "
+        pos = tuple(round(float(v), 3) for v in cam.get("position", ()))
+        where = xyz(pos[::-1], sep=", ") if len(pos) == 3 else "?"
+        rows.append(("camera", f"position {where}, "
                                f"view angle {cam.get('view_angle')}, parallel {cam.get('parallel')}"))
     rows += [
         ("exponent", f"{img.exponent} (pixel = (m - offset) * 10^{img.exponent})"),
@@ -325,9 +396,9 @@ def _info_volume(path: Path) -> int:
     _rows([
         ("path", path),
         ("kind", "plaintext volume"),
-        ("shape", f"{vol.shape} (nz, ny, nx)"),
+        ("shape", f"{xyz(vol.shape)} voxels"),
         ("dtype", vol.dtype),
-        ("spacing", f"{spacing} (sx, sy, sz)"),
+        ("spacing", xyz(tuple(spacing)[::-1], sep=", ")),
         ("values", f"{vol.min()} .. {vol.max()}"),
     ])
     return 0

@@ -1,8 +1,23 @@
-"""The ``hevr`` command line: keygen, encrypt, render, decrypt, info, demo, bench.
+"""The ``hevr`` command line: keygen, encrypt, render, recolour, decrypt, info, upgrade-store, demo, bench.
 
-Run ``hevr COMMAND --help`` for each command's options and an example. Errors are one
-line on stderr, ``hevr: error: …``, with exit code 2 for a bad command line and 1 for
-anything that goes wrong while running; ``--verbose`` adds INFO logging and tracebacks.
+Run ``hevr COMMAND --help`` for each command's options and an example. An error is one line
+on stderr, ``hevr: error: --key: expected a private key file, got a public key (key.pub.json)``,
+that starts with the option or argument it is about, in the CLI's words (``--key``, ``INPUT``,
+``STORE``), never a Python parameter's name; ``--verbose`` adds INFO logging and tracebacks.
+
+Exit status, one rule for every command, applied in :func:`main` only (by error class:
+:mod:`hevr.cli.exits`, which also holds each command's Python-name -> option mapping):
+
+* 0 - done (``hevr info``: and every check passed).
+* 2 - the command line asks for something that cannot be done as given: argparse's errors,
+  bad option values or combinations, a named file that is missing or of the wrong kind (not a
+  key, store, frame or volume hevr reads; a public key where the private one is needed), an
+  output that exists without ``--force``/``--overwrite``, a key of another volume, a render the
+  planner refuses (the message names the option to change). Fix the command line.
+* 1 - the data or the run failed: a corrupt, tampered or incomplete store or frame, a failed
+  integrity check (``hevr info`` whose check fails too), an I/O failure, a missing optional
+  dependency, a memory limit, a crashed worker or any other error.
+* 130 - interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
@@ -16,7 +31,6 @@ import warnings
 from typing import Any, Sequence
 
 from .. import __version__
-from ..errors import HevrError
 from ..paper import (
     PAPER_DENSITIES,
     PAPER_IMAGE,
@@ -29,26 +43,24 @@ from . import commands as cmds
 from . import demo as demo
 from .bench import BENCH_EPILOG, cmd_bench
 from .demo import DEMO_EPILOG
-from .util import (
-    UsageError,
+from .exits import EXIT_RULE, cli_message, exit_code
+from .options import (
     bits_type,
     brick_type,
     digits_type,
-    err_line,
     finite_float,
     floats_type,
-    format_tf,
-    nonneg_int,
     phantom_size_type,
     positive_float,
+    precision_type,
     range_type,
     size_type,
     tf_type,
     unit_float,
     vector_dims_type,
-    warn_line,
     workers_type,
 )
+from .util import err_line, format_tf, warn_line
 
 __all__ = ["main", "build_parser"]
 
@@ -93,7 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
                "  hevr encrypt phantom:64 --key key.json --out vol.zarr --vector-dims 4\n"
                f"  hevr render vol.zarr --out frame.hevr --mode tf --tf '{tf_text(PAPER_TF1)}'   # server side\n"
                "  hevr decrypt frame.hevr --key key.json --out frame.png   # client: only the key holder sees it\n"
-               "  hevr demo                                          # all of the above on the paper's figures\n")
+               "  hevr demo                                          # all of the above on the paper's figures\n"
+               "\nsizes are printed in world order, labelled: x×y×z for volumes, W×H for images.\n"
+               "\n" + EXIT_RULE)
     parser.add_argument("--version", action="version", version=f"hevr {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     dask_opts, plain_opts = _common(True), _common(False)
@@ -167,7 +181,33 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"transfer function DENSITY:COLOR,... (colours #rrggbb, #rgb or CSS names; "
                         f"default {tf_text(PAPER_TF1)})")
     p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext (bigger, slower to decrypt)")
-    p.add_argument("--precision", type=nonneg_int, default=4, metavar="P",
+    p.add_argument("--precision", type=precision_type, default=4, metavar="P",
+                   help="decimal digits of the normalisation (default 4)")
+
+    p.add_argument("--keep-sums", metavar="SUMS", help="also write the view's encrypted ray sums (ciphertexts only: "
+                   "safe on the server) so that 'hevr recolour SUMS' can finish another --density or --tf "
+                   "without the map step")
+
+    p = sub.add_parser("recolour", parents=[dask_opts], formatter_class=_RAW,
+                       help="re-colour saved ray sums with another density or transfer function (no map step)",
+                       description=_d("Finish the encrypted ray sums written by 'hevr render --keep-sums' with another "
+                                   "emphasis density or transfer function: only the per-pixel step runs, and the "
+                                   "frame is bit for bit what 'hevr render' with the same options writes. Never "
+                                   "needs the secret key."),
+                       epilog="examples:\n"
+                              f"  hevr render vol.zarr --out tf1.hevr --tf '{format_tf(PAPER_TF1)}' --keep-sums view.hevrsums\n"
+                              f"  hevr recolour view.hevrsums --out tf2.hevr --tf '{format_tf(PAPER_TF2)}'\n"
+                              f"  hevr recolour view.hevrsums --out emph.hevr --density {PAPER_DENSITIES[1]}\n"
+                              "\nThe camera, sampling and step are the sums'. --mode defaults to emphasize with "
+                              "--density, else tf;\nX-ray sums (rendered with --mode xray) re-finish only as "
+                              "--mode xray.\n")
+    p.add_argument("sums", metavar="SUMS", help="ray-sums file (hevr render --keep-sums)")
+    p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
+    p.add_argument("--mode", choices=("xray", "emphasize", "tf"), help="render mode (default: see below)")
+    p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
+    p.add_argument("--tf", type=tf_type, metavar="NODES", help="transfer function DENSITY:COLOR,...")
+    p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext")
+    p.add_argument("--precision", type=precision_type, default=4, metavar="P",
                    help="decimal digits of the normalisation (default 4)")
 
     p = sub.add_parser("decrypt", parents=[plain_opts], formatter_class=_RAW,
@@ -244,35 +284,24 @@ def _setup_logging(verbose: bool) -> logging.Handler:
     return handler
 
 
-def _message(exc: BaseException) -> str:
-    if isinstance(exc, OSError) and not isinstance(exc, HevrError) and exc.filename and exc.strerror:
-        return f"{exc.filename}: {exc.strerror}"
-    text = str(exc) or type(exc).__name__
-    if not isinstance(exc, (HevrError, OSError, ValueError)):
-        text = f"{type(exc).__name__}: {text} (run with --verbose for the traceback)"
-    return text
-
-
 def _run(args: Any) -> int:
-
-    if args.command in ("demo", "bench"):
-
-        if args.command == "bench":
-
-            return cmd_bench(args)
+    if args.command == "bench":
+        return cmd_bench(args)
+    if args.command == "demo":
         return demo.cmd_demo(args)
     return getattr(cmds, f"cmd_{args.command.replace('-', '_')}")(args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``hevr`` console script; returns the exit code."""
+    """Entry point of the ``hevr`` console script; returns the exit code (module docstring)."""
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     if args.command is None:
-        err_line("a command is required: keygen, encrypt, render, decrypt, info, demo or bench (see 'hevr --help')")
+        err_line("a command is required: keygen, encrypt, render, recolour, decrypt, info, upgrade-store, demo or bench "
+                 "(see 'hevr --help')")
         return 2
     handler = _setup_logging(args.verbose)
     try:
@@ -288,8 +317,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # one line; the traceback only with --verbose
         if args.verbose:
             traceback.print_exc()
-        err_line(_message(exc))
-        return 2 if isinstance(exc, UsageError) else 1
+        err_line(cli_message(exc, args))
+        return exit_code(exc, args)
     finally:
         logging.getLogger("hevr").removeHandler(handler)
 

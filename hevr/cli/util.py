@@ -1,16 +1,18 @@
 """Helpers shared by the command line (:mod:`hevr.cli.main`) and :mod:`hevr.cli.demo`.
 
-Argument parsers that turn a bad value into one clear argparse error, the Dask
-client/cluster context of a command, input loading (``phantom:N`` or a volume file),
-and small formatting helpers. Nothing here ever prints secret-key material.
+The Dask client/cluster context of a command, input and key loading (``phantom:N`` or a
+volume file), the command line's own checks of the files it names (in its words: ``--key``,
+``STORE``), and small formatting helpers, among them :func:`xyz` and :func:`wh`, the one axis
+order the CLI prints. The argparse value types are in :mod:`hevr.cli.options`. Nothing here
+ever prints secret-key material.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import logging
-import math
 import os
 import sys
 import time
@@ -21,206 +23,28 @@ from typing import Any, Iterator
 import numpy as np
 from distributed import Client, LocalCluster
 
-from .._validate import MAX_BRICK_EDGE, MAX_STORE_DIGITS, MAX_VECTOR_DIMS
+from .._image_header import MAGIC_PREFIX
 from ..crypto.keyfile import load_key
-from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
-from ..errors import InsecureKeyWarning, MissingFileError, ParameterError
+from ..crypto.keys import SECURE_BITS, PrivateKey
+from ..errors import (
+    InsecureKeyWarning,
+    MissingFileError,
+    ParameterError,
+    VolumeFormatError,
+)
 from ..paper import PAPER_SIZE
 from ..rendering.modes import parse_color
-from ..rendering.planner import MAX_PIXELS_KEY, render_limits
 from ..volume.loaders import load_volume
 from ..volume.phantom import phantom
+from .options import MAX_PHANTOM, phantom_size_type
 
 log = logging.getLogger("hevr.cli.main")
 
 
 class UsageError(ParameterError):
-    """An option combination argparse cannot check; reported like a usage error (exit 2)."""
-
-
-# -- argparse value types ----------------------------------------------------------------
-def bits_type(text: str) -> int:
-    """``--bits``: an even key size in [MIN_BITS, MAX_BITS]."""
-    try:
-        bits = int(text)
-    except ValueError:
-        bits = -1
-    if bits < MIN_BITS or bits > MAX_BITS or bits % 2:
-        raise argparse.ArgumentTypeError(
-            f"expected an even number of bits in [{MIN_BITS}, {MAX_BITS}] (e.g. {SECURE_BITS}), got {text!r}")
-    return bits
-
-
-def _int_at_least(lo: int, expected: str):
-    """An argparse type: an integer >= ``lo``, else "expected <expected>, got '<text>'"."""
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            v = lo - 1
-        if v < lo:
-            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
-        return v
-    return parse
-
-
-# Most worker processes --workers starts on this machine (each is a Python process).
-MAX_WORKERS = 1024
-# Largest phantom:N / demo --size: 1024^3 voxels is 1 GiB in memory and days of encryption.
-MAX_PHANTOM = 1024
-
-positive_int = _int_at_least(1, "a positive integer")
-
-
-def vector_dims_type(text: str) -> int:
-    """``--vector-dims``: an integer in [2, MAX_VECTOR_DIMS]."""
-    v = _int_at_least(2, f"an integer in [2, {MAX_VECTOR_DIMS}] (the paper uses 4)")(text)
-    if v > MAX_VECTOR_DIMS:
-        raise argparse.ArgumentTypeError(f"expected an integer in [2, {MAX_VECTOR_DIMS}] (the paper uses 4), got {text!r}")
-    return v
-
-
-nonneg_int = _int_at_least(0, "a non-negative integer")
-
-
-def digits_type(text: str) -> int:
-    """``--digits``: decimal digits kept of float voxels, 0 .. MAX_STORE_DIGITS (the library's cap)."""
-    v = nonneg_int(text)
-    if v > MAX_STORE_DIGITS:
-        raise argparse.ArgumentTypeError(f"expected an integer in [0, {MAX_STORE_DIGITS}], got {text!r}")
-    return v
-
-
-def phantom_size_type(text: str) -> int:
-    """A phantom edge N: an integer in [4, MAX_PHANTOM]."""
-    try:
-        v = int(text) if text.strip().isascii() else 0
-    except ValueError:
-        v = 0
-    if not 4 <= v <= MAX_PHANTOM:
-        raise argparse.ArgumentTypeError(f"expected a phantom edge N in [4, {MAX_PHANTOM}] voxels, got {text!r}")
-    return v
-
-
-def workers_type(text: str) -> int:
-    """``--workers``: 0 .. MAX_WORKERS local worker processes."""
-    v = nonneg_int(text)
-    if v > MAX_WORKERS:
-        raise argparse.ArgumentTypeError(f"expected at most {MAX_WORKERS} worker processes, got {text!r}")
-    return v
-
-
-def finite_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        v = math.nan
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return v
-
-
-def positive_float(text: str) -> float:
-    v = finite_float(text)
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
-def unit_float(text: str) -> float:
-    v = finite_float(text)
-    if not 0.0 <= v <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a normalised density in [0, 1], got {text!r}")
-    return v
-
-
-def size_type(text: str) -> tuple[int, int]:
-    """``WxH`` (or a single ``N`` for a square) -> (width, height), at most the render
-    pixel limit (``hevr.limits.max-pixels``, :mod:`hevr.rendering.planner`) in all."""
-    parts = text.lower().replace("×", "x").split("x")
-    try:
-        vals = [int(p) for p in parts if p.strip().isascii()]
-    except ValueError:
-        vals = []
-    if len(vals) == 1 and len(parts) == 1:
-        vals = vals * 2
-    if len(vals) != 2 or len(parts) > 2 or min(vals) < 1:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels such as 150x150, got {text!r}")
-    max_pixels = render_limits()[0]
-    if vals[0] * vals[1] > max_pixels:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT of at most {max_pixels} pixels in all "
-                                         f"(Dask config {MAX_PIXELS_KEY}), got {text!r} = "
-                                         f"{vals[0] * vals[1]} pixels")
-    return vals[0], vals[1]
-
-
-def floats_type(count: int, what: str, positive: bool = False):
-    """A comma-separated list of exactly ``count`` finite floats."""
-
-    def parse(text: str) -> tuple[float, ...]:
-        try:
-            vals = tuple(float(p) for p in text.split(","))
-        except ValueError:
-            vals = ()
-        if len(vals) != count or not all(math.isfinite(v) and (v > 0 or not positive) for v in vals):
-            kind = "positive " if positive else ""
-            raise argparse.ArgumentTypeError(f"expected {what}: {count} comma-separated {kind}numbers, got {text!r}")
-        return vals
-
-    return parse
-
-
-def range_type(text: str) -> tuple[float, float]:
-    lo, hi = floats_type(2, "LO,HI")(text)
-    if not hi > lo:
-        raise argparse.ArgumentTypeError(f"expected LO,HI with HI > LO, got {text!r}")
-    return lo, hi
-
-
-def brick_type(text: str) -> int | tuple[int, int, int]:
-    """``--brick 32`` or ``--brick BZ,BY,BX``."""
-    try:
-        vals = [int(p) for p in text.split(",")]
-    except ValueError:
-        vals = []
-    if len(vals) not in (1, 3) or min(vals, default=0) < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive brick edge N or BZ,BY,BX, got {text!r}")
-    if max(vals) > MAX_BRICK_EDGE:
-        raise argparse.ArgumentTypeError(f"expected a brick edge of at most {MAX_BRICK_EDGE} voxels, got {text!r}")
-    return vals[0] if len(vals) == 1 else (vals[0], vals[1], vals[2])
-
-
-def parse_tf(text: str) -> list[tuple[float, tuple[float, float, float]]]:
-    """``"0.279:#0000ff,0.797:red"`` -> [(0.279, (0, 0, 1)), (0.797, (1, 0, 0))].
-
-    >>> parse_tf("0.5:#f00, 1:blue")
-    [(0.5, (1.0, 0.0, 0.0)), (1.0, (0.0, 0.0, 1.0))]
-    """
-
-    nodes = []
-    for i, item in enumerate(p.strip() for p in text.split(",")):
-        dens, sep, col = item.partition(":")
-        if not sep:
-            raise ParameterError(f"transfer-function node {i + 1} {item!r}: expected DENSITY:COLOR such as 0.279:blue")
-        try:
-            d = float(dens)
-        except ValueError:
-            d = math.nan
-        if not 0.0 <= d <= 1.0:
-            raise ParameterError(f"transfer-function node {i + 1} {item!r}: density must be a number in [0, 1]")
-        try:
-            nodes.append((d, parse_color(col.strip())))
-        except ParameterError:
-            raise ParameterError(f"transfer-function node {i + 1} {item!r}: unknown colour {col.strip()!r} "
-                                 "(use #rrggbb, #rgb or a CSS name such as red, blue, green)") from None
-    return nodes
-
-
-def tf_type(text: str) -> list[tuple[float, tuple[float, float, float]]]:
-    try:
-        return parse_tf(text)
-    except ParameterError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    """The command line asks for something that cannot be done as given, found by the CLI's own
+    checks (an option combination, a named file of the wrong kind, an existing output); exit 2
+    like argparse's errors (:mod:`hevr.cli.main`). The message starts with the option it names."""
 
 
 def format_tf(nodes: Any) -> str:
@@ -240,7 +64,8 @@ def format_tf(nodes: Any) -> str:
 def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float, float, float], str]:
     """``phantom:N`` (or ``phantom``) or any file/folder :func:`hevr.load_volume` reads.
 
-    Returns (volume, spacing, description).
+    Returns (volume, spacing, description). Errors name the volume ``input``: each command
+    says which of its arguments that is (``INPUT``, ``--input``, ``PATH``).
     """
 
     if spec == "phantom" or spec.startswith("phantom:"):
@@ -248,15 +73,18 @@ def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float,
         try:
             size = phantom_size_type(size_text)
         except argparse.ArgumentTypeError:
-            raise ParameterError(f"input {spec!r}: expected phantom:N with an integer N in [4, {MAX_PHANTOM}], "
-                                 f"e.g. phantom:{PAPER_SIZE}") from None
+            raise UsageError(f"input: expected phantom:N with an integer N in [4, {MAX_PHANTOM}] "
+                             f"(e.g. phantom:{PAPER_SIZE}), got {spec!r}") from None
         vol = phantom(size)
-        return vol, tuple(spacing) if spacing else (1.0, 1.0, 1.0), f"phantom {size}^3 (uint8)"
+        return vol, tuple(spacing) if spacing else (1.0, 1.0, 1.0), f"phantom, {xyz(vol.shape)} voxels (uint8)"
     path = Path(spec).expanduser()
     if not path.exists():
-        raise MissingFileError("--input", "a volume file, a DICOM folder or phantom:N", spec)
-    vol, sp = load_volume(path, spacing=spacing)
-    return vol, sp, f"{path.name} {'x'.join(str(s) for s in vol.shape[::-1])} ({vol.dtype})"
+        raise MissingFileError("input", "a volume file, a DICOM folder or phantom:N", spec)
+    try:
+        vol, sp = load_volume(path, spacing=spacing)
+    except MissingFileError as exc:  # a file the input refers to (an .nhdr's detached data file)
+        raise VolumeFormatError(f"input: {spec} refers to {exc.filename}, which does not exist") from None
+    return vol, sp, f"{path.name}, {xyz(vol.shape)} voxels ({vol.dtype})"
 
 
 def public_key_path(path: str | Path) -> Path:
@@ -267,13 +95,20 @@ def public_key_path(path: str | Path) -> Path:
     return path.with_name(path.name + ".pub")
 
 
-def read_key(path: str) -> Any:
-    """Load a key file; insecure-size warnings are left to keygen/info (bits are shown there)."""
+def read_key(path: str, private: bool = False) -> Any:
+    """Load a key file; insecure-size warnings are left to keygen/info (bits are shown there).
 
-
+    ``private``: refuse a public key (``key: expected a private key file, …``). Errors name
+    the ``key``, as :func:`hevr.load_key` does; each command says which argument that is.
+    """
+    if Path(path).expanduser().is_dir():
+        raise UsageError(f"key: expected a key file, got a folder ({path})")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InsecureKeyWarning)
-        return load_key(path)
+        key = load_key(Path(path).expanduser())
+    if private and not isinstance(key, PrivateKey):
+        raise UsageError(f"key: expected a private key file, got a public key ({path})")
+    return key
 
 
 def key_label(pub: Any) -> str:
@@ -294,7 +129,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
         try:
             client = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError) as exc:
-            raise OSError(f"cannot connect to the Dask scheduler at {scheduler}: {exc}") from None
+            raise OSError(f"--scheduler: cannot connect to the Dask scheduler at {scheduler}: {exc}") from None
         try:
             yield client
         finally:
@@ -323,7 +158,11 @@ def describe_client(client: Any) -> str:
         n = len(client.scheduler_info().get("workers", {}))
     except Exception:  # pragma: no cover - informational only
         n = "?"
-    return f"Dask cluster {client.scheduler.address} ({n} workers)"
+    try:
+        board = f", dashboard {client.dashboard_link}" if client.dashboard_link else ""
+    except Exception:  # pragma: no cover - no dashboard (bokeh missing, or disabled)
+        board = ""
+    return f"Dask cluster {client.scheduler.address} ({n} workers{board})"
 
 
 # -- formatting --------------------------------------------------------------------------
@@ -382,9 +221,87 @@ def warn_line(message: str) -> None:
     sys.stderr.flush()
 
 
-def check_writable_dir(path: Path) -> None:
+# -- what the command line names, checked in its words -----------------------------------------
+def check_writable_dir(path: Path, option: str = "--out") -> None:
+    """The folder ``path`` goes into exists and is writable (else a usage error naming ``option``)."""
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
-        raise MissingFileError("--out", "an existing directory", parent)
+        raise MissingFileError(option, "an existing directory", parent)
     if not os.access(parent, os.W_OK):
-        raise PermissionError(13, "directory is not writable", str(parent))
+        raise UsageError(f"{option}: expected a writable directory, got {parent} (permission denied)")
+
+
+def check_output_file(path: Path, option: str = "--out", suffix: str | None = None) -> None:
+    """``path`` can be written as a file: not a folder, in a writable folder, ending in ``suffix``."""
+    if path.is_dir():
+        raise UsageError(f"{option}: expected a file name, got a folder ({path})")
+    if suffix and path.suffix.lower() != suffix:
+        raise UsageError(f"{option}: expected a {suffix} file name, got {path}")
+    check_writable_dir(path, option)
+
+
+def check_store_path(path: Path, word: str) -> Path:
+    """``path`` names an hevr encrypted volume store: a folder whose zarr.json has hevr metadata.
+
+    Anything else is the wrong kind of file (a usage error naming ``word``); a store that has
+    hevr metadata but fails hevr's own checks is left to :func:`hevr.open_volume` (corrupt data).
+    """
+    what = "an encrypted volume store (a folder made by 'hevr encrypt')"
+    if not path.exists():
+        raise MissingFileError(word, what, path)
+    if not path.is_dir():
+        raise UsageError(f"{word}: expected {what}, got a file ({path})")
+    meta = path / "zarr.json"
+    if not meta.is_file():
+        raise UsageError(f"{word}: expected {what}, got a folder without zarr.json ({path})")
+    try:
+        doc = json.loads(meta.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return path  # unreadable metadata of what may be a store: hevr.open_volume names the damage
+    attrs = doc.get("attributes") if isinstance(doc, dict) else None
+    if not (isinstance(attrs, dict) and "hevr" in attrs):
+        raise UsageError(f"{word}: expected {what}, got a Zarr folder without hevr metadata ({path})")
+    return path
+
+
+def check_frame_path(path: Path, word: str) -> Path:
+    """``path`` names an encrypted image file (.hevr): it exists, is a file, starts with its magic.
+    The rest (version, header, checksum) is :func:`hevr.load_image`'s."""
+    what = "an encrypted image (a .hevr file made by 'hevr render')"
+    if not path.exists():
+        raise MissingFileError(word, what, path)
+    if path.is_dir():
+        raise UsageError(f"{word}: expected {what}, got a folder ({path})")
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(len(MAGIC_PREFIX))
+    except OSError as exc:
+        raise OSError(f"{word}: cannot read {path}: {exc.strerror}") from None
+    if head != MAGIC_PREFIX:
+        raise UsageError(f"{word}: expected {what}, got a file that is not one ({path})")
+    return path
+
+
+# -- the one axis order the CLI prints ---------------------------------------------------------
+def _num(v: Any) -> str:
+    return f"{float(v):g}" if isinstance(v, (float, np.floating)) else str(v)
+
+
+def xyz(zyx: Any, sep: str = "×") -> str:
+    """Three sizes given in array order (z, y, x) -> ``"x×y×z = 103×94×161"``.
+
+    Every size the CLI prints (volumes, bricks, grids; spacing with ``sep=", "``) goes through
+    here: world order x, y, z, labelled, the order of ``--spacing SX,SY,SZ`` and ``--size WxH``.
+
+    >>> xyz((161, 94, 103))
+    'x×y×z = 103×94×161'
+    >>> xyz((2.5, 1.0, 1.0), sep=", ")
+    'x, y, z = 1, 1, 2.5'
+    """
+    z, y, x = (_num(v) for v in zyx)
+    return f"x{sep}y{sep}z = {x}{sep}{y}{sep}{z}"
+
+
+def wh(width: Any, height: Any) -> str:
+    """An image size, the order of ``--size WxH``: ``wh(20, 16)`` -> ``"W×H = 20×16"``."""
+    return f"W×H = {_num(width)}×{_num(height)}"

@@ -77,7 +77,7 @@ def test_keygen_files_and_modes(work, capsys):
     assert len(lines) == 1 and lines[0].startswith("hevr: warning:") and "256" in lines[0]
     # refuses to overwrite without --force, replaces with it
     code, out, err = run(capsys, "keygen", "--bits", "256", "--out", key)
-    assert code == 1 and err_lines(err)[-1].startswith("hevr: error:") and "--force" in err
+    assert code == 2 and err_lines(err)[-1].startswith("hevr: error: --out:") and "--force" in err
     other = d / "other.json"
     assert run(capsys, "keygen", "--bits", "256", "--out", other, "-q")[0] == 0
     assert run(capsys, "keygen", "--bits", "256", "--out", other, "--force")[0] == 0
@@ -93,7 +93,7 @@ def test_encrypt_reports_path(work, capsys):
     assert ev.shape == (6, 6, 6) and ev.vector_dims is None
     # exists -> refused; --overwrite replaces it
     code, out, err = run(capsys, "encrypt", "phantom:6", "--key", d / "key.json", "--out", d / "small.zarr", "-q")
-    assert code == 1 and "--overwrite" in err_lines(err)[-1]
+    assert code == 2 and "--overwrite" in err_lines(err)[-1]
     code, out, err = run(capsys, "encrypt", "phantom:6", "--key", d / "key.json", "--out", d / "small.zarr",
                          "--overwrite", "--no-scalar", "--vector-dims", "3", "-q")
     assert code == 0 and hevr.open_volume(d / "small.zarr").vector_dims == 3
@@ -140,7 +140,7 @@ def test_info_never_prints_secrets(work, capsys):
         assert fp in out and what in out
         assert not any(s in out or s in err for s in secrets)
     out = run(capsys, "info", d / "vol.zarr")[1]
-    assert "(12, 12, 12)" in out and "27 bricks" in out and "vector[4]" in out and "complete:    True" in out
+    assert "x×y×z = 12×12×12 voxels" in out and "27 bricks" in out and "vector[4]" in out and "complete:    True" in out
     out = run(capsys, "info", d / "tf.hevr")[1]
     assert "tf" in out and "exponent" in out and "ciphertexts" in out
 
@@ -155,19 +155,19 @@ def _bad_cases(d: Path) -> list[tuple[list, int, str]]:
     return [
         (["keygen", "--bits", "1001", "--out", d / "k.json"], 2, "--bits"),
         (["keygen", "--bits", "abc"], 2, "--bits"),
-        (["encrypt", "phantom:8", "--key", d / "missing.json", "--out", d / "x.zarr"], 1, "missing.json"),
-        (["encrypt", d / "nothing.npy", "--key", d / "key.json", "--out", d / "x.zarr"], 1, "nothing.npy"),
-        (["encrypt", d / "notes.txt", "--key", d / "key.json", "--out", d / "x.zarr"], 1, "extension"),
+        (["encrypt", "phantom:8", "--key", d / "missing.json", "--out", d / "x.zarr"], 2, "missing.json"),
+        (["encrypt", d / "nothing.npy", "--key", d / "key.json", "--out", d / "x.zarr"], 2, "nothing.npy"),
+        (["encrypt", d / "notes.txt", "--key", d / "key.json", "--out", d / "x.zarr"], 2, "extension"),
         (["encrypt", "phantom:8", "--key", d / "key.json", "--out", d / "x.zarr", "--brick", "0"], 2, "--brick"),
-        (["render", d / "missing.zarr", "--out", d / "x.hevr"], 1, "missing.zarr"),
+        (["render", d / "missing.zarr", "--out", d / "x.hevr"], 2, "missing.zarr"),
         (["render", d / "vol.zarr", "--out", d / "x.hevr", "--tf", "0.5:notacolour"], 2, "notacolour"),
         (["render", d / "vol.zarr", "--out", d / "x.hevr", "--tf", "1.5:red"], 2, "[0, 1]"),
         (["render", d / "vol.zarr", "--out", d / "x.hevr", "--size", "20by20"], 2, "--size"),
         (["render", d / "vol.zarr", "--out", d / "x.hevr", "--mode", "emphasize"], 2, "--density"),
-        (["decrypt", d / "xray.hevr", "--key", d / "wrong.json", "--out", d / "x.png"], 1, "encrypted under key"),
-        (["decrypt", d / "xray.hevr", "--key", d / "key.pub.json"], 1, "private key"),
-        (["decrypt", d / "notes.txt", "--key", d / "key.json"], 1, "notes.txt"),
-        (["info", d / "nothing-here"], 1, "nothing-here"),
+        (["decrypt", d / "xray.hevr", "--key", d / "wrong.json", "--out", d / "x.png"], 2, "encrypted under key"),
+        (["decrypt", d / "xray.hevr", "--key", d / "key.pub.json"], 2, "private key"),
+        (["decrypt", d / "notes.txt", "--key", d / "key.json"], 2, "notes.txt"),
+        (["info", d / "nothing-here"], 2, "nothing-here"),
         (["demo", "--image", "0x5"], 2, "--image"),
         (["bench", "--quick", "--paper"], 2, "not allowed"),
         (["frobnicate"], 2, "invalid choice"),
@@ -191,12 +191,12 @@ def test_errors_are_one_line(work, capsys):
 def test_verbose_shows_traceback(work, capsys):
     d, _ = work
     code, out, err = run(capsys, "decrypt", d / "xray.hevr", "--key", d / "wrong.json", "--verbose")
-    assert code == 1 and "Traceback" in err and "KeyMismatchError" in err
+    assert code == 2 and "Traceback" in err and "KeyMismatchError" in err
     assert err_lines(err)[-1].startswith("hevr: error:")
 
 
 def test_mode_inference_and_tf_parsing():
-    from hevr.cli.util import parse_tf, size_type
+    from hevr.cli.options import parse_tf, size_type
 
     assert parse_tf("0.279:#0000ff, 0.797:red") == [(0.279, (0.0, 0.0, 1.0)), (0.797, (1.0, 0.0, 0.0))]
     assert size_type("150x100") == (150, 100) and size_type("64") == (64, 64)

@@ -1,5 +1,5 @@
 """The command line refuses impossible work at once: one ``hevr: error:`` line naming the
-option, exit 2 for what argparse can check and 1 for what needs the store, and no cluster
+option, exit 2 (a usage error, whether argparse or the planner refuses it), and no cluster
 started for a render that would be refused anyway."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 
 import hevr
 from hevr.cli.main import main
-from hevr.cli.util import MAX_PHANTOM, MAX_WORKERS, size_type
+from hevr.cli.options import MAX_PHANTOM, MAX_WORKERS, size_type
 from hevr.rendering.planner import MAX_PIXELS_KEY
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
@@ -70,15 +70,16 @@ def test_size_cap_follows_the_config():
 def test_absurd_phantom_is_refused_before_allocating(capsys, tmp_path, store, spec):
     key = store.parent / "k.pub.json"
     code, line, seconds = run(capsys, "encrypt", spec, "--key", key, "--out", tmp_path / "o.zarr")
-    assert code == 1 and "phantom:N with an integer N in [4, 1024]" in line and seconds < 1.0
+    assert code == 2 and line.startswith("hevr: error: INPUT: expected phantom:N with an integer N in [4, 1024]")
+    assert seconds < 1.0
 
 
-@pytest.mark.parametrize("extra, needle", [(["--step", "1e-9"], "step: expected at most"),
-                                           (["--step", "1e-300"], "step: expected at most")])
+@pytest.mark.parametrize("extra, needle", [(["--step", "1e-9"], "--step: expected at most"),
+                                           (["--step", "1e-300"], "--step: expected at most")])
 def test_render_refuses_before_starting_a_cluster(capsys, tmp_path, store, extra, needle):
     code, line, seconds = run(capsys, "render", store, "--out", tmp_path / "f.hevr", "--workers", "2",
                               "--size", "32x32", *extra)
-    assert code == 1 and needle in line
+    assert code == 2 and needle in line
     assert seconds < 1.0  # a 2-worker LocalCluster alone takes longer to start
     assert not (tmp_path / "f.hevr").exists()
 

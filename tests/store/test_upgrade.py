@@ -111,7 +111,7 @@ def test_upgrade_store_command_and_info_on_old_formats(tmp_path, keypair256, cap
     assert main(["upgrade-store", str(tmp_path / "old.zarr"), str(tmp_path / "new.zarr"), "--workers", "0",
                  "-q"]) == 0
     assert hevr.open_volume(tmp_path / "new.zarr", verify="full").meta.version == 2
-    assert main(["upgrade-store", str(tmp_path / "old.zarr"), str(tmp_path / "new.zarr"), "--workers", "0"]) == 1
+    assert main(["upgrade-store", str(tmp_path / "old.zarr"), str(tmp_path / "new.zarr"), "--workers", "0"]) == 2
     assert "already exists" in capsys.readouterr().err
     (tmp_path / "v1.hevr").write_bytes(b"HEVRIMG\x01" + b"\x00" * 64)
     assert main(["info", str(tmp_path / "v1.hevr")]) == 1

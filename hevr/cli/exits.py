@@ -1,0 +1,166 @@
+"""How an error escaping a ``hevr`` command is reported: its exit status and its message.
+
+One rule for every command (also in :mod:`hevr.cli.main`'s docstring and ``hevr --help``):
+exit 2 when the command line asks for something that cannot be done as given
+(:data:`USAGE_ERRORS`, and a plain ``OSError`` "missing / exists / is (not) a folder" about a
+path the command line names), exit 1 when the data or the run failed (``CorruptStoreError``,
+``IncompleteStoreError``, ``IntegrityError``, ``PlaintextOverflowError``,
+``MissingDependencyError``, ``MemoryLimitError``, I/O errors, anything unexpected), 130 when
+interrupted.
+
+Library messages name Python parameters (``vol: expected …``); :func:`cli_message` rewrites
+that leading name with the option or argument it came from, per command (:data:`CLI_NAMES`),
+puts the argument first when a message starts with a file name (:data:`CLI_SUBJECTS`), and
+respells Python phrases inside it (:data:`CLI_PHRASES`). A new command adds its entries there.
+"""
+
+from __future__ import annotations
+
+import errno
+import re
+from pathlib import Path
+from typing import Any
+
+from ..errors import (
+    ExistingFileError,
+    HevrError,
+    IntegrityError,
+    InvalidKeyError,
+    KeyMismatchError,
+    MissingDependencyError,
+    MissingFileError,
+    ParameterError,
+    PlaintextOverflowError,
+    RenderPlanError,
+    StoreError,
+    StoreExistsError,
+    VolumeFormatError,
+)
+from .util import UsageError
+
+__all__ = ["EXIT_RULE", "USAGE_ERRORS", "CLI_NAMES", "CLI_SUBJECTS", "CLI_PHRASES", "exit_code", "cli_message"]
+
+EXIT_RULE = """\
+exit status (every command):
+  0    done (hevr info: and every check passed)
+  2    the command line asks for something that cannot be done as given: a bad option value
+       or combination, a named file that is missing or of the wrong kind, an output that
+       exists without --force/--overwrite, a key of another volume, a render refused by the
+       planner (the message names the option to change)
+  1    the data or the run failed: a corrupt, tampered or incomplete store or frame, an
+       integrity check, an I/O error, a missing optional dependency, a crashed worker
+  130  interrupted
+"""
+
+# Exit 2: the command line asks for something that cannot be done as given (module docstring).
+# Everything else that escapes a command is exit 1: the data or the run failed.
+USAGE_ERRORS: tuple[type[BaseException], ...] = (
+    UsageError, ParameterError, MissingFileError, ExistingFileError, StoreExistsError, KeyMismatchError,
+    RenderPlanError, InvalidKeyError, VolumeFormatError,
+)
+# An OSError about a path the command line names: the path is missing or of the wrong kind.
+_PATH_ERRNOS = frozenset({errno.ENOENT, errno.EEXIST, errno.EISDIR, errno.ENOTDIR})
+
+_EVERY = {"workers": "--workers", "scheduler": "--scheduler", "client": "--scheduler"}
+# Per command: the library's parameter names (and the CLI helpers' "input", "key") -> the option
+# or argument the value came from. An escaping error's leading "name: " is rewritten with it; a
+# command's argparse dest is listed too (a path it names is matched to its option).
+CLI_NAMES: dict[str, dict[str, str]] = {
+    "keygen": {"bits": "--bits", "out": "--out", "path": "--out", "overwrite": "--force"},
+    "encrypt": {"input": "INPUT", "vol": "INPUT", "data": "INPUT", "load_volume": "INPUT",
+                "key": "--key", "public_key": "--key", "private_key": "--key", "out": "--out", "path": "--out",
+                "brick": "--brick", "spacing": "--spacing", "value_range": "--value-range", "digits": "--digits",
+                "vector_dims": "--vector-dims", "scalar": "--no-scalar", "overwrite": "--overwrite",
+                "resume": "--resume"},
+    "render": {"store": "STORE", "path": "STORE", "ev": "STORE", "out": "--out", "mode": "--mode",
+               "nodes": "--tf", "density": "--density", "sampling": "--sampling", "camera": "--size",
+               "width": "--size", "height": "--size", "view_angle": "--view-angle", "parallel": "--parallel",
+               "step": "--step", "precision": "--precision", "pack": "--no-pack", "keep_sums": "--keep-sums"},
+    "recolour": {"sums": "SUMS", "path": "SUMS", "out": "--out", "mode": "--mode", "nodes": "--tf",
+                 "density": "--density", "precision": "--precision", "pack": "--no-pack"},
+    "decrypt": {"frame": "FRAME", "path": "FRAME", "image": "FRAME", "key": "--key", "private_key": "--key",
+                "out": "--out", "npy": "--npy", "window": "--window"},
+    "info": {"path": "PATH", "input": "PATH", "key": "PATH", "image": "PATH"},
+    "upgrade-store": {"src": "OLD", "dst": "NEW"},
+    "demo": {"input": "--input", "vol": "--input", "load_volume": "--input", "out": "--out", "bits": "--bits",
+             "brick": "--brick", "camera": "--image", "width": "--image", "height": "--image", "size": "--size"},
+    "bench": {"only": "--only", "out": "--out", "work": "--work", "resume": "--resume"},
+}
+# A message that starts with a file name instead: the argument that named that file, by error class.
+CLI_SUBJECTS: dict[str, dict[type, str]] = {
+    "encrypt": {InvalidKeyError: "--key", KeyMismatchError: "--key", VolumeFormatError: "INPUT",
+                MissingDependencyError: "INPUT", StoreError: "--out"},
+    "render": {StoreError: "STORE"},
+    "recolour": {StoreError: "SUMS", IntegrityError: "SUMS"},
+    "decrypt": {InvalidKeyError: "--key", KeyMismatchError: "--key", StoreError: "FRAME",
+                IntegrityError: "FRAME", PlaintextOverflowError: "FRAME"},
+    "info": {HevrError: "PATH"},
+    "upgrade-store": {StoreError: "OLD"},
+    "demo": {VolumeFormatError: "--input", MissingDependencyError: "--input"},
+}
+# Python spellings inside library messages, as the CLI spells them ("*": every command).
+CLI_PHRASES: dict[str, dict[str, str]] = {
+    "*": {"encrypt_volume(..., resume=True)": "'hevr encrypt … --resume'"},
+    "render": {"use a larger step or a smaller image": "use a larger --step or a smaller --size"},
+}
+_LEADING = re.compile(r"([A-Za-z_]\w*(?:\[\d+\])?(?:(?:, |/)[A-Za-z_]\w*(?:\[\d+\])?)*): ")
+
+
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and not isinstance(exc, HevrError) and exc.filename and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}"
+    text = str(exc) or type(exc).__name__
+    if not isinstance(exc, (HevrError, OSError, ValueError)):
+        text = f"{type(exc).__name__}: {text} (run with --verbose for the traceback)"
+    return text
+
+
+def _named_path(exc: BaseException, args: Any, names: dict[str, str]) -> str | None:
+    """The option/argument whose value is the path a plain OSError is about, if any."""
+    filename = getattr(exc, "filename", None) if isinstance(exc, OSError) and not isinstance(exc, HevrError) else None
+    if not filename:
+        return None
+    for dest, word in names.items():
+        value = getattr(args, dest, None)
+        if isinstance(value, str) and value and \
+                (value == str(filename) or Path(value).expanduser().absolute() == Path(filename).absolute()):
+            return word
+    return None
+
+
+def exit_code(exc: BaseException, args: Any = None) -> int:
+    """The exit status of an error escaping a command (the rule of the module docstring)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return 130
+    if isinstance(exc, USAGE_ERRORS):
+        return 2
+    names = {**_EVERY, **CLI_NAMES.get(getattr(args, "command", None) or "", {})}
+    if isinstance(exc, OSError) and exc.errno in _PATH_ERRNOS and _named_path(exc, args, names):
+        return 2
+    return 1
+
+
+def cli_message(exc: BaseException, args: Any = None) -> str:
+    """The one-line message of an error escaping a command, in the command's words: a leading
+    Python parameter name (``vol: …``) becomes the option it came from (``INPUT: …``); a message
+    about a file the command line names starts with that option."""
+    command = getattr(args, "command", None) or ""
+    names = {**_EVERY, **CLI_NAMES.get(command, {})}
+    text = _message(exc)
+    for python, cli in {**CLI_PHRASES["*"], **CLI_PHRASES.get(command, {})}.items():
+        text = text.replace(python, cli)
+    for flag in ("overwrite", "resume"):
+        if flag in names:
+            text = text.replace(f"{flag}=True", names[flag])
+    m = _LEADING.match(text)
+    if m:
+        words = [names.get(re.sub(r"\[\d+\]$", "", part)) for part in re.split(r", |/", m.group(1))]
+        if all(words):
+            return ", ".join(dict.fromkeys(w for w in words if w)) + ": " + text[m.end():]
+    subjects = CLI_SUBJECTS.get(command, {})
+    known = set(names.values()) | set(subjects.values())
+    if text.startswith("--") or re.split(r"[: ]", text, maxsplit=1)[0] in known:
+        return text
+    subject = _named_path(exc, args, names) or next(
+        (subjects[c] for c in type(exc).__mro__ if c in subjects), None)
+    return f"{subject}: {text}" if subject else text
