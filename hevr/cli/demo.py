@@ -49,6 +49,8 @@ from .util import (
     show_progress,
     table,
     warn_line,
+    wh,
+    xyz,
 )
 
 __all__ = ["Job", "paper_jobs", "cmd_demo", "DEMO_EPILOG"]
@@ -202,7 +204,7 @@ def cmd_demo(args: Any) -> int:
         stages["encrypt"] = t.seconds
         n_ct = int(np.prod(vol.shape)) * 5
         print(f"[encrypt] {t.seconds:.2f} s: {n_ct} ciphertexts (scalar + 4-dim vector, owner-side fast path), "
-              f"{ev.meta.n_bricks} bricks of {ev.brick}, {human_bytes(disk_usage(ev.path))}")
+              f"{ev.meta.n_bricks} bricks of {xyz(ev.brick)}, {human_bytes(disk_usage(ev.path))}")
         if args.scheduler:
             with Timer() as t:
                 client = stack.enter_context(dask_client(args.scheduler, None))
@@ -258,9 +260,10 @@ def cmd_demo(args: Any) -> int:
 def _report(summary: dict, jobs_table: str, stages_table: str) -> str:
     lines = [
         "# hevr demo", "",
-        f"Input: {summary['input']}, spacing {tuple(summary['spacing'])}, value range {tuple(summary['value_range'])}.  ",
+        f"Input: {summary['input']}, spacing {xyz(summary['spacing'][::-1], sep=', ')}, value range "
+        f"{tuple(summary['value_range'])}.  ",
         f"Key: {summary['bits']} bits, fingerprint `{summary['fingerprint']}`.  ",
-        f"Images: {summary['image'][0]}x{summary['image'][1]} px; bricks {tuple(summary['brick'])}; "
+        f"Images: {wh(*summary['image'])} px; bricks {xyz(summary['brick'])}; "
         f"workers: {summary['workers'] if summary['workers'] is not None else 'external scheduler'}.", "",
         "![contact sheet](contact-sheet.png)", "",
         "Each encrypted render was decrypted and compared with `hevr.render_plain` on the plaintext volume "
