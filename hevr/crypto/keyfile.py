@@ -6,6 +6,9 @@ A key file is a JSON object ``{"format": "hevr-key", "version": 1, "kind":
 (decimal strings) for private keys. Loading checks everything that can be checked —
 format, sizes, p·q = n, primality, fingerprint — and reports problems without ever
 quoting a secret value.
+
+:func:`load_key` also reads the key files of python-paillier's ``pheutil`` (a JSON object
+with ``"kty": "DAJ"``; see :mod:`hevr.crypto.phe_keys`), with the same limits and checks.
 """
 
 from __future__ import annotations
@@ -15,14 +18,13 @@ import math
 import warnings
 from pathlib import Path
 
-import gmpy2
 from gmpy2 import mpz
 
 from .._files import require_file
 from .._validate import is_decimal
 from ..errors import InsecureKeyWarning, InvalidKeyError
-from .keys import MAX_BITS, MIN_BITS, SECURE_BITS, PrivateKey, PublicKey
-from .primes import is_probable_prime
+from .keys import MAX_BITS, MIN_BITS, SECURE_BITS, PrivateKey, PublicKey, factor_problem
+from .phe_keys import is_phe_dict, key_from_phe_dict
 
 __all__ = ["MAX_KEY_FILE_BYTES", "load_key"]
 
@@ -67,8 +69,22 @@ def _read_text(path: Path) -> str:
                               f"at offset {exc.start}") from None
 
 
+def _parse(text: str, path: Path) -> object:
+    """The file's JSON value."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InvalidKeyError(f"key file {path} is not valid JSON (line {exc.lineno})") from None
+    except ValueError:  # a JSON number of more than 4300 digits (Python's int limit)
+        raise InvalidKeyError(f"key file {path} is not a key file: its JSON holds a number too long to "
+                              "read") from None
+    except RecursionError:  # "[[[[…" deeper than the parser's stack
+        raise InvalidKeyError(f"key file {path} is not a key file: its JSON is nested too deeply") from None
+
+
 def load_key(path) -> PublicKey | PrivateKey:
-    """Load a key file written by :meth:`PublicKey.save` / :meth:`PrivateKey.save`.
+    """Load a key file written by :meth:`PublicKey.save` / :meth:`PrivateKey.save` (either
+    format), or by python-paillier's ``pheutil`` (:mod:`hevr.crypto.phe_keys`).
 
     Raises :class:`hevr.InvalidKeyError` for a malformed, inconsistent or tampered file.
 
@@ -85,18 +101,17 @@ def load_key(path) -> PublicKey | PrivateKey:
     path = require_file(path, "key", "a key file")
     if not path.is_file():  # a folder, a FIFO (reading would block), a device
         raise InvalidKeyError(f"key file {path}: expected a regular file, got something else")
-    text = _read_text(path)
-    try:
-        d = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InvalidKeyError(f"key file {path} is not valid JSON (line {exc.lineno})") from None
-    except ValueError:  # a JSON number of more than 4300 digits (Python's int limit)
-        raise InvalidKeyError(f"key file {path} is not a key file: its JSON holds a number too long to "
-                              "read") from None
-    except RecursionError:  # "[[[[…" deeper than the parser's stack
-        raise InvalidKeyError(f"key file {path} is not a key file: its JSON is nested too deeply") from None
+    d = _parse(_read_text(path), path)
+    if is_phe_dict(d):
+        key = key_from_phe_dict(d, path)
+        bits = key.public_key.bits if isinstance(key, PrivateKey) else key.bits
+        if bits < SECURE_BITS:
+            warnings.warn(f"key file {path} holds a {bits}-bit key, which is not secure", InsecureKeyWarning,
+                          stacklevel=2)
+        return key
     if not isinstance(d, dict) or d.get("format") != "hevr-key":
-        raise InvalidKeyError(f"key file {path}: expected format 'hevr-key'")
+        raise InvalidKeyError(f"key file {path}: expected format 'hevr-key' (or a python-paillier key, "
+                              "kty 'DAJ')")
     if type(d.get("version")) is not int or d.get("version") != 1:
         raise InvalidKeyError(f"key file {path}: unsupported version {d.get('version')!r}, expected 1")
     kind = d.get("kind")
@@ -117,14 +132,7 @@ def load_key(path) -> PublicKey | PrivateKey:
     if kind == "public":
         return pub
     p, q = _int_field(d, "p", path), _int_field(d, "q", path)
-    if p * q != n:
-        raise InvalidKeyError(f"key file {path}: p·q does not equal n (file tampered with?)")
-    if p == q:
-        raise InvalidKeyError(f"key file {path}: p and q must be distinct")
-    if p.bit_length() != bits // 2 or q.bit_length() != bits // 2:
-        raise InvalidKeyError(f"key file {path}: p and q must each have {bits // 2} bits")
-    if not (is_probable_prime(p) and is_probable_prime(q)):
-        raise InvalidKeyError(f"key file {path}: p or q is not prime")
-    if gmpy2.gcd(n, (p - 1) * (q - 1)) != 1:
-        raise InvalidKeyError(f"key file {path}: gcd(n, (p-1)(q-1)) must be 1")
+    problem = factor_problem(n, p, q)
+    if problem is not None:
+        raise InvalidKeyError(f"key file {path}: {problem}")
     return PrivateKey(pub, p, q)

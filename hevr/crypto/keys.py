@@ -1,4 +1,5 @@
-"""Paillier keys (g = n + 1): generation, encryption, CRT decryption; saving as JSON (loading: :mod:`hevr.crypto.keyfile`).
+"""Paillier keys (g = n + 1): generation, encryption, CRT decryption; saving as JSON, in hevr's
+format or python-paillier's (loading: :mod:`hevr.crypto.keyfile`, :mod:`hevr.crypto.phe_keys`).
 
 >>> import warnings, hevr
 >>> with warnings.catch_warnings():
@@ -13,6 +14,7 @@ log line or an exception message; private key files are created with mode 0600.
 
 from __future__ import annotations
 
+import base64
 import json
 import logging
 import secrets
@@ -30,14 +32,19 @@ from . import paillier as raw
 from .encoding import decode
 from .number import EncryptedNumber
 from .owner import OwnerEncryptor
-from .primes import random_prime_with_factors
+from .primes import is_probable_prime, random_prime_with_factors
 from .records import record_width
 
 log = logging.getLogger(__name__)
 
 MIN_BITS, MAX_BITS, SECURE_BITS = 64, 4096, 2048
 
-__all__ = ["PublicKey", "PrivateKey", "generate_keypair", "MIN_BITS", "MAX_BITS", "SECURE_BITS"]
+# Key-file formats :meth:`PublicKey.save` / :meth:`PrivateKey.save` write: hevr's own, and the
+# JSON of python-paillier's ``pheutil`` (described in :mod:`hevr.crypto.phe_keys`).
+KEY_FORMATS = ("hevr", "phe")
+
+__all__ = ["PublicKey", "PrivateKey", "generate_keypair", "factor_problem", "KEY_FORMATS", "MIN_BITS", "MAX_BITS",
+           "SECURE_BITS"]
 
 
 def _as_int_list(values: np.ndarray | Iterable[int], name: str) -> list[int]:
@@ -46,6 +53,56 @@ def _as_int_list(values: np.ndarray | Iterable[int], name: str) -> list[int]:
             raise ParameterError(f"{name} must hold integers; got dtype {values.dtype}")
         return values.ravel().tolist()
     return [int(v) for v in values]
+
+
+def _check_format(format: str) -> str:
+    """``format`` if it is one of :data:`KEY_FORMATS`, else :class:`hevr.ParameterError`.
+
+    >>> _check_format("pem")
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: format: expected 'hevr' or 'phe', got 'pem'
+    """
+    if not isinstance(format, str) or format not in KEY_FORMATS:
+        raise ParameterError(f"format: expected 'hevr' or 'phe', got {format!r:.40}")
+    return format
+
+
+def _b64url(x: int) -> str:
+    """A positive integer as unpadded base64url of its minimal big-endian bytes (JWK style,
+    as python-paillier's ``phe.util.int_to_base64``).
+
+    >>> _b64url(65537)
+    'AQAB'
+    """
+    x = int(x)
+    return base64.urlsafe_b64encode(x.to_bytes((x.bit_length() + 7) // 8, "big")).rstrip(b"=").decode("ascii")
+
+
+def factor_problem(n: int, p: int, q: int) -> str | None:
+    """What is wrong with ``p`` and ``q`` as the secret factors of ``n``, or None if nothing.
+
+    Checks p·q = n, p ≠ q, half the bits of n each, primality and gcd(n, (p-1)(q-1)) = 1. The
+    answer never quotes p or q (they are secret).
+
+    >>> factor_problem(11 * 13, 11, 13) is None
+    True
+    >>> factor_problem(9 * 15, 9, 15)
+    'p or q is not prime'
+    """
+    n, p, q = mpz(n), mpz(p), mpz(q)
+    half = n.bit_length() // 2
+    if p * q != n:
+        return "p·q does not equal n (file tampered with?)"
+    if p == q:
+        return "p and q must be distinct"
+    if p.bit_length() != half or q.bit_length() != half:
+        return f"p and q must each have {half} bits"
+    if not (is_probable_prime(p) and is_probable_prime(q)):
+        return "p or q is not prime"
+    if gmpy2.gcd(n, (p - 1) * (q - 1)) != 1:
+        return "gcd(n, (p-1)(q-1)) must be 1"
+    return None
 
 
 class PublicKey:
@@ -157,14 +214,20 @@ class PublicKey:
             raise ParameterError("ciphertext must be coprime to n; got one that is not")
 
     # -- files ----------------------------------------------------------------------
-    def to_dict(self) -> dict:
+    def to_dict(self, format: str = "hevr") -> dict:
+        """The JSON object of the key file: ``format="hevr"`` (hevr's) or ``"phe"`` (pheutil's)."""
+        if _check_format(format) == "phe":
+            return {"kty": "DAJ", "alg": "PAI-GN1", "key_ops": ["encrypt"], "n": _b64url(self.n),
+                    "kid": f"Paillier public key exported by hevr, fingerprint {self.fingerprint}"}
         return {"format": "hevr-key", "version": 1, "kind": "public", "bits": self.bits,
                 "n": str(int(self.n)), "fingerprint": self.fingerprint}
 
-    def save(self, path, overwrite: bool = False) -> None:
+    def save(self, path, overwrite: bool = False, format: str = "hevr") -> None:
         """Write the public key as JSON (world-readable is fine); read it with :func:`hevr.load_key`.
-        An existing file is replaced only with ``overwrite=True`` (:class:`hevr.ExistingFileError`)."""
-        write_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n", mode=0o644, overwrite=overwrite)
+        An existing file is replaced only with ``overwrite=True`` (:class:`hevr.ExistingFileError`).
+        ``format="phe"`` writes python-paillier's ``pheutil`` JSON instead of hevr's."""
+        text = json.dumps(self.to_dict(format), indent=1) + "\n"
+        write_atomic(path, text, mode=0o644, overwrite=overwrite)
 
 
 class PrivateKey:
@@ -283,16 +346,22 @@ class PrivateKey:
         return self.decrypt(x.ciphertext)
 
     # -- files ----------------------------------------------------------------------
-    def to_dict(self) -> dict:
-        d = self.public_key.to_dict()
-        d.update(kind="private", p=str(int(self.p)), q=str(int(self.q)))
-        return d
+    def to_dict(self, format: str = "hevr") -> dict:
+        """The JSON object of the key file (secret): ``format="hevr"`` or ``"phe"`` (pheutil's)."""
+        pub = self.public_key.to_dict(format)
+        if format == "phe":  # checked by the line above
+            return {"kty": "DAJ", "key_ops": ["decrypt"], "p": _b64url(self.p), "q": _b64url(self.q), "pub": pub,
+                    "kid": f"Paillier private key exported by hevr, fingerprint {self.fingerprint}"}
+        pub.update(kind="private", p=str(int(self.p)), q=str(int(self.q)))
+        return pub
 
-    def save(self, path, overwrite: bool = False) -> None:
+    def save(self, path, overwrite: bool = False, format: str = "hevr") -> None:
         """Write the private key as JSON, created with mode 0600 (atomically); read it with
         :func:`hevr.load_key`. An existing file is never replaced unless ``overwrite=True``
-        (:class:`hevr.ExistingFileError`): a key written over loses every image it decrypts."""
-        write_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n", mode=0o600, overwrite=overwrite)
+        (:class:`hevr.ExistingFileError`): a key written over loses every image it decrypts.
+        ``format="phe"`` writes python-paillier's ``pheutil`` JSON instead of hevr's."""
+        text = json.dumps(self.to_dict(format), indent=1) + "\n"
+        write_atomic(path, text, mode=0o600, overwrite=overwrite)
 
 
 _OWNER_CACHE: "dict[int, OwnerEncryptor]" = {}
