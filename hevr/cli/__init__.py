@@ -2,7 +2,8 @@
 
 =================  =============================================================
 ``main``           the argument parser and dispatch (``hevr`` entry point)
-``commands``       keygen, encrypt, render, recolour, decrypt, info, upgrade-store
+``keys``           keygen, convert-key (hevr and python-paillier key files)
+``commands``       encrypt, render, recolour, decrypt, info, upgrade-store
 ``options``        argparse value types (one checker per option kind)
 ``exits``          the exit-status rule and the CLI's words in error messages
 ``util``           shared checks, progress, key/volume loading, Dask clients, formatting

@@ -1,4 +1,5 @@
-"""Implementations of ``hevr keygen | encrypt | render | decrypt | info`` (see :mod:`hevr.cli.main`).
+"""Implementations of ``hevr encrypt | render | recolour | decrypt | info | upgrade-store`` (see
+:mod:`hevr.cli.main`; the key commands are in :mod:`hevr.cli.keys`, re-exported here for dispatch).
 
 Each ``cmd_*`` takes the parsed argparse namespace, prints its report on stdout and
 returns the exit code; errors are raised and turned into one line and an exit status by
@@ -12,15 +13,15 @@ from __future__ import annotations
 import json
 import logging
 import stat
-import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zarr
 
-from ..crypto.keys import SECURE_BITS, PrivateKey, generate_keypair
-from ..errors import InsecureKeyWarning, MissingFileError, StoreError
+from ..crypto.keys import SECURE_BITS, PrivateKey
+from ..crypto.phe_keys import is_phe_dict
+from ..errors import MissingFileError, StoreError
 from ..image import MAGIC, load_image, save_png
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..rendering.camera import Camera
@@ -32,6 +33,7 @@ from ..store.metadata import VolumeMetadata
 from ..store.reader import open_volume
 from ..store.upgrade import upgrade_store
 from ..store.writer import encrypt_volume
+from .keys import cmd_convert_key, cmd_keygen
 from .util import (
     Timer,
     UsageError,
@@ -46,7 +48,6 @@ from .util import (
     human_bytes,
     key_label,
     load_input,
-    public_key_path,
     read_key,
     show_progress,
     warn_line,
@@ -55,30 +56,6 @@ from .util import (
 )
 
 log = logging.getLogger("hevr.cli.main")
-
-
-# -- keygen --------------------------------------------------------------------------------
-def cmd_keygen(args: Any) -> int:
-
-    out = Path(args.out).expanduser()
-    pub_out = public_key_path(out)
-    for p in (out, pub_out):
-        check_output_file(p)
-        if p.exists() and not args.force:
-            what = "" if p == out else " (the public key beside it)"
-            raise UsageError(f"--out: {p}{what} exists; pass --force to replace the key pair")
-    if args.bits < SECURE_BITS:
-        warn_line(f"a {args.bits}-bit key is NOT secure; use --bits {SECURE_BITS} or more for real data")
-    with Timer() as t, warnings.catch_warnings():
-        warnings.simplefilter("ignore", InsecureKeyWarning)
-        pub, priv = generate_keypair(args.bits)
-    priv.save(out, overwrite=args.force)
-    pub.save(pub_out, overwrite=args.force)
-    print(f"generated a {args.bits}-bit Paillier key pair in {t.seconds:.2f} s")
-    print(f"  private key: {out}  (mode 0600 - keep it secret, it decrypts every image)")
-    print(f"  public key:  {pub_out}  (give this one to whoever encrypts)")
-    print(f"  fingerprint: {pub.fingerprint}")
-    return 0
 
 
 # -- encrypt -------------------------------------------------------------------------------
@@ -187,9 +164,9 @@ def cmd_render(args: Any) -> int:
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(out.stat().st_size)}, rendered in {t.seconds:.2f} s")
     if sums is not None:
-        again = "--density D" if mode != "xray" else "--mode xray"
+        again = " --tf NODES | --density D" if mode != "xray" else " (X-ray sums: other --precision / --no-pack)"
         print(f"wrote {sums}: the view's encrypted ray sums, {human_bytes(sums.stat().st_size)}; "
-              f"re-colour with: hevr recolour {sums} --out FRAME.hevr --tf NODES | {again}")
+              f"finish again with: hevr recolour {sums} --out FRAME.hevr{again}")
     print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {out.with_suffix('.png')}")
     return 0
 
@@ -283,13 +260,15 @@ def cmd_info(args: Any) -> int:
         head = fh.read(len(MAGIC))
     if head[:-1] == MAGIC[:-1] or path.suffix == ".hevr":  # any version: load_image names an unsupported one
         return _info_image(check_frame_path(path, "PATH"))
+    if head == SUMS_MAGIC[:len(MAGIC)] or path.suffix == ".hevrsums":
+        return _info_sums(path)
     if head.lstrip()[:1] == b"{":
         try:
             doc = json.loads(path.read_text())
         except (ValueError, UnicodeDecodeError):
             doc = None
-        if isinstance(doc, dict) and doc.get("format") == "hevr-key":
-            return _info_key(path)
+        if isinstance(doc, dict) and (doc.get("format") == "hevr-key" or is_phe_dict(doc)):
+            return _info_key(path, "python-paillier (pheutil)" if is_phe_dict(doc) else "hevr")
         if isinstance(doc, dict) and doc.get("zarr_format") is not None:
             return _info_store(check_store_path(path.parent, "PATH"))
         raise UsageError(f"PATH: expected a key, store, frame or volume file, got a JSON file that is not an "
@@ -376,11 +355,26 @@ def _info_image(path: Path) -> int:
     return 0
 
 
-def _info_key(path: Path) -> int:
+def _info_sums(path: Path) -> int:
+    saved = load_sums(path)
+    cam = saved.camera
+    kept = sum(1 for v in saved.tiles.values() if v is not None)
+    _rows([("path", path), ("kind", f"encrypted ray sums ({saved.channel} channel: "
+                                    f"{'X-ray' if saved.channel == 'scalar' else 'emphasis / transfer function'})"),
+           ("store", saved.store or "-"), ("volume", f"{xyz(saved.meta.shape)} voxels"),
+           ("view", f"{wh(cam.width, cam.height)} px, {saved.sampling} sampling, step {saved.step:g}"),
+           ("tiles", f"{kept} of {len(saved.tiles)} with sums (tile {saved.tile})"),
+           ("key", f"{int(saved.meta.n).bit_length()}-bit, fingerprint {saved.meta.fingerprint}"),
+           ("checks", "passed (checksum, header, ciphertext ranges)")])
+    return 0
+
+
+def _info_key(path: Path, fmt: str = "hevr") -> int:
     key = read_key(str(path))
     private = isinstance(key, PrivateKey)
     pub = key.public_key if private else key
     rows = [("path", path), ("kind", "private key (holds the secret primes; not shown)" if private else "public key"),
+            ("format", fmt),
             ("bits", f"{pub.bits}" + (" (NOT secure: < 2048 bits)" if pub.bits < SECURE_BITS else "")),
             ("fingerprint", pub.fingerprint)]
     mode = stat.S_IMODE(path.stat().st_mode)
@@ -404,4 +398,5 @@ def _info_volume(path: Path) -> int:
     return 0
 
 
-__all__ = ["cmd_keygen", "cmd_encrypt", "cmd_render", "cmd_decrypt", "cmd_info", "resolve_mode"]
+__all__ = ["cmd_keygen", "cmd_convert_key", "cmd_encrypt", "cmd_render", "cmd_recolour", "cmd_decrypt", "cmd_info",
+           "cmd_upgrade_store", "resolve_mode"]

@@ -67,6 +67,7 @@ _EVERY = {"workers": "--workers", "scheduler": "--scheduler", "client": "--sched
 # command's argparse dest is listed too (a path it names is matched to its option).
 CLI_NAMES: dict[str, dict[str, str]] = {
     "keygen": {"bits": "--bits", "out": "--out", "path": "--out", "overwrite": "--force"},
+    "convert-key": {"key": "KEY", "out": "--out", "path": "--out", "overwrite": "--force", "format": "--format"},
     "encrypt": {"input": "INPUT", "vol": "INPUT", "data": "INPUT", "load_volume": "INPUT",
                 "key": "--key", "public_key": "--key", "private_key": "--key", "out": "--out", "path": "--out",
                 "brick": "--brick", "spacing": "--spacing", "value_range": "--value-range", "digits": "--digits",
@@ -90,6 +91,7 @@ CLI_NAMES: dict[str, dict[str, str]] = {
 CLI_SUBJECTS: dict[str, dict[type, str]] = {
     "encrypt": {InvalidKeyError: "--key", KeyMismatchError: "--key", VolumeFormatError: "INPUT",
                 MissingDependencyError: "INPUT", StoreError: "--out"},
+    "convert-key": {InvalidKeyError: "KEY"},
     "render": {StoreError: "STORE"},
     "recolour": {StoreError: "SUMS", IntegrityError: "SUMS"},
     "decrypt": {InvalidKeyError: "--key", KeyMismatchError: "--key", StoreError: "FRAME",

@@ -122,6 +122,20 @@ def build_parser() -> argparse.ArgumentParser:
                                                                 "smaller keys are for tests and demos only)")
     p.add_argument("--out", default="key.json", metavar="KEY.json", help="private key file (default key.json)")
     p.add_argument("--force", action="store_true", help="overwrite existing key files")
+    p.add_argument("--format", choices=("hevr", "phe"), default="hevr",
+                   help="file format: hevr's (default) or python-paillier's pheutil JSON (phe)")
+
+    p = sub.add_parser("convert-key", parents=[plain_opts], formatter_class=_RAW,
+                       help="convert a key file between hevr's and python-paillier's (pheutil) formats",
+                       description=_d("Write the key in KEY (either format; a private key stays private, mode 0600) "
+                                   "in the other format. Every --key option reads both formats already."),
+                       epilog="examples:\n  hevr convert-key key.json --out phe-private.json            # hevr -> pheutil\n"
+                              "  hevr convert-key phe-private.json --out key.json --format hevr   # pheutil -> hevr\n"
+                              "  pheutil genpkey phe.json && hevr encrypt phantom:32 --key phe.json --out v.zarr\n")
+    p.add_argument("key", metavar="KEY", help="key file to read (hevr or pheutil, public or private)")
+    p.add_argument("--out", required=True, metavar="FILE", help="key file to write")
+    p.add_argument("--format", choices=("hevr", "phe"), default="phe", help="format to write (default phe)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out")
 
     p = sub.add_parser("encrypt", parents=[dask_opts], formatter_class=_RAW,
                        help="encrypt a volume into a Zarr store",
@@ -300,7 +314,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     if args.command is None:
-        err_line("a command is required: keygen, encrypt, render, recolour, decrypt, info, upgrade-store, demo or bench "
+        err_line("a command is required: keygen, convert-key, encrypt, render, recolour, decrypt, info, upgrade-store, demo or bench "
                  "(see 'hevr --help')")
         return 2
     handler = _setup_logging(args.verbose)

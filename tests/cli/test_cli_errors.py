@@ -91,6 +91,16 @@ CASES = [
     ("keygen-exists", ["keygen", "--bits", "256", "--out", "{d}/key.json"], 2, "--out"),
     ("keygen-no-dir", ["keygen", "--bits", "256", "--out", "{d}/nodir/k.json"], 2, "--out"),
     ("keygen-out-is-folder", ["keygen", "--bits", "256", "--out", "{d}/adir"], 2, "--out"),
+    ("keygen-bad-format", ["keygen", "--bits", "256", "--out", "{d}/k.json", "--format", "pem"], 2, "argument --format"),
+    # convert-key
+    ("convert-missing-key", ["convert-key", "{d}/none.json", "--out", "{d}/k2.json"], 2, "KEY"),
+    ("convert-garbage-key", ["convert-key", "{d}/bad.json", "--out", "{d}/k2.json"], 2, "KEY"),
+    ("convert-json-not-key", ["convert-key", "{d}/plain.json", "--out", "{d}/k2.json"], 2, "KEY"),
+    ("convert-key-is-folder", ["convert-key", "{d}/adir", "--out", "{d}/k2.json"], 2, "KEY"),
+    ("convert-exists", ["convert-key", "{d}/key.json", "--out", "{d}/other.json"], 2, "--out"),
+    ("convert-onto-itself", ["convert-key", "{d}/key.json", "--out", "{d}/key.json", "--force"], 2, "--out"),
+    ("convert-out-is-folder", ["convert-key", "{d}/key.json", "--out", "{d}/adir"], 2, "--out"),
+    ("convert-no-dir", ["convert-key", "{d}/key.json", "--out", "{d}/nodir/k2.json"], 2, "--out"),
     # encrypt: the input
     ("encrypt-phantom-3", [E, "phantom:3", "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr"], 2, "INPUT"),
     ("encrypt-phantom-text", [E, "phantom:x", "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr"], 2, "INPUT"),
@@ -233,7 +243,7 @@ def test_the_failed_commands_left_the_fixtures_alone(d):
     """The refused runs above wrote nothing: the stores, the frame and the keys still work."""
     assert hevr.open_volume(d / "vol.zarr").shape == (8, 8, 8)
     assert not (d / "x.zarr").exists() and not (d / "x.hevr").exists() and not (d / "new.zarr").exists()
-    assert not (d / "y.hevr").exists() and hevr.load_sums(d / "v.hevrsums").channel == "vector"
+    assert not (d / "y.hevr").exists() and not (d / "k2.json").exists() and hevr.load_sums(d / "v.hevrsums").channel == "vector"
     assert hevr.load_key(d / "key.json").fingerprint == hevr.load_key(d / "key.pub.json").fingerprint
 
 
