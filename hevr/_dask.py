@@ -47,11 +47,13 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     if client is not None:
         futures = client.compute(tasks)
         bar = Progress(len(futures), desc, progress)
+        failed = False
         try:
-            for _ in as_completed(futures, loop=client.loop):  # this client's, not the default one
+            for fut in as_completed(futures, loop=client.loop):  # this client's, not the default one
+                failed = failed or fut.status == "error"
                 bar.update()
         finally:
-            bar.close()
+            bar.close(failed=failed)
         cut = len(futures) - keep
         results = list(client.gather(futures[:cut])) + list(futures[cut:])
     else:

@@ -75,6 +75,7 @@ class Progress:
     >>> p = Progress(8, "demo", kind="log")
     >>> for _ in range(8):
     ...     p.update()
+    >>> p.close()
     >>> p.done, p.closed
     (8, True)
     """
@@ -109,22 +110,26 @@ class Progress:
         self._draw(force=True)
 
     def update(self, k: int = 1) -> None:
-        """``k`` more steps are done; the last step closes the display."""
+        """``k`` more steps are done (a step that failed counts as done: :meth:`close` says so)."""
         self.done += k
         self._draw(force=self.done >= self.total)
-        if self.done >= self.total:
-            self.close()
 
-    def close(self) -> None:
-        """End the display (idempotent): the terminal line gets its newline."""
+    def close(self, failed: bool = False) -> None:
+        """End the display (idempotent): the terminal line gets its newline; the widget turns
+        green, or red when ``failed`` (or orange when the job stopped early)."""
         if self.closed:
             return
+        self._draw(force=True)
         self.closed = True
+        if failed and self.kind == "log" and self.total:
+            log.info("%s: failed after %d/%d tasks", self.desc, min(self.done, self.total), self.total)
         if self.kind == "terminal" and self._drawn:
+            if failed:
+                sys.stderr.write(" failed")
             sys.stderr.write("\n")
             sys.stderr.flush()
         if self._widget is not None:
-            self._widget[0].bar_style = "success" if self.done >= self.total else "warning"
+            self._widget[0].bar_style = "danger" if failed else "success" if self.done >= self.total else "warning"
 
     def _draw(self, force: bool = False) -> None:
         if self.kind == "off" or self.closed or self.total == 0:
@@ -179,4 +184,4 @@ class TaskCounter(Callback):
         self.progress.update()
 
     def _finish(self, dsk: Any, state: dict, errored: bool) -> None:
-        self.progress.close()
+        self.progress.close(failed=errored)

@@ -169,10 +169,21 @@ def check_step(step: Any, name: str = "step") -> float:
     --------
     >>> check_step(1)
     1.0
+    >>> check_step(10**400)
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: step: expected a positive finite number (world units), got an integer of 401 digits
     """
-    if isinstance(step, bool) or not isinstance(step, numbers.Real) or not math.isfinite(step) or step <= 0:
+    if isinstance(step, bool) or not isinstance(step, numbers.Real):
         raise ParameterError(f"{name}: expected a positive finite number (world units), got {step!r}")
-    return float(step)
+    try:
+        value = float(step)
+    except OverflowError:
+        raise ParameterError(f"{name}: expected a positive finite number (world units), got an integer of "
+                             f"{len(str(abs(int(step))))} digits") from None
+    if not math.isfinite(value) or value <= 0:
+        raise ParameterError(f"{name}: expected a positive finite number (world units), got {step!r}")
+    return value
 
 
 def check_brick(brick: Any, name: str = "brick", *, shape: Any = None) -> tuple[int, int, int]:

@@ -28,6 +28,7 @@ headlessly — set a widget's ``value`` in code, as a test does, and the render 
 
 from __future__ import annotations
 
+import html
 import io
 import logging
 import time
@@ -81,7 +82,8 @@ class Viewer:
         :func:`hevr.render_plain` and the largest error is shown.
     width, height : int
         Frame size in pixels.
-    mode : {"xray", "emphasize", "tf"}
+    mode : {"xray", "emphasize", "tf"}, optional
+        Default: the first the store offers (X-ray if it has the scalar channel).
     sampling : {"nearest", "trilinear"}
     nodes : list of (density, colour), optional
         Initial transfer function (default: the paper's first one).
@@ -104,7 +106,7 @@ class Viewer:
     """
 
     def __init__(self, ev: EncryptedVolume, private_key: PrivateKey, *, volume: np.ndarray | None = None,
-                 width: int = 128, height: int = 128, mode: str = "xray", sampling: str = "nearest",
+                 width: int = 128, height: int = 128, mode: str | None = None, sampling: str = "nearest",
                  nodes: Any = None, density: float | None = None, client: Any = None, step: float = 1.0,
                  show: bool = True) -> None:
         try:
@@ -127,6 +129,7 @@ class Viewer:
         self.history: list[dict] = []
         self._held = False
         modes = ["xray"] * ev.has_scalar + ["emphasize", "tf"] * bool(ev.vector_dims)
+        mode = modes[0] if mode is None else mode
         if mode not in modes:
             raise ParameterError(f"mode: expected one of {modes} (the store's channels), got {mode!r}")
         W = widgets
@@ -149,8 +152,9 @@ class Viewer:
         with self.hold():
             for d, c in (PAPER_TF1 if nodes is None else nodes):
                 self.add_node(d, c)
-        for w in (self.azimuth, self.elevation, self.view_angle, self.mode, self.sampling, self.density):
+        for w in (self.azimuth, self.elevation, self.view_angle, self.mode, self.sampling):
             w.observe(self._changed, names="value")
+        self.density.observe(lambda ch: self._changed(ch, only="emphasize"), names="value")
         self.tf_box = W.VBox([self._rows, self.add_button])
         self.widget = W.VBox([
             W.HBox([self.image, W.VBox([self.azimuth, self.elevation, self.view_angle, self.mode, self.sampling,
@@ -189,29 +193,32 @@ class Viewer:
         rm = W.Button(icon="trash", tooltip="remove this node", layout=W.Layout(width="36px"))
         row = (d, c, rm)
         rm.on_click(lambda _b, row=row: self.remove_node(self.node_rows.index(row)))
-        d.observe(self._changed, names="value")
-        c.observe(self._changed, names="value")
+        d.observe(lambda ch: self._changed(ch, only="tf"), names="value")
+        c.observe(lambda ch: self._changed(ch, only="tf"), names="value")
         self.node_rows.append(row)
         self._rows.children = [W.HBox(list(r)) for r in self.node_rows]
-        self._changed()
+        self._changed(only="tf")
 
     def remove_node(self, index: int) -> None:
         """Remove node ``index`` (the last node stays: a transfer function needs one)."""
+        if not isinstance(index, int) or not -len(self.node_rows) <= index < len(self.node_rows):
+            raise ParameterError(f"index: expected a node index in [0, {len(self.node_rows)}), got {index!r}")
         if len(self.node_rows) <= 1:
             self._say("a transfer function needs at least one node")
             return
         self.node_rows.pop(index)
         self._rows.children = [self._W.HBox(list(r)) for r in self.node_rows]
-        self._changed()
+        self._changed(only="tf")
 
     # -- rendering --------------------------------------------------------------------------
     def hold(self) -> "_Hold":
         """Context manager: change several widgets, then render once (``with viewer.hold(): ...``)."""
         return _Hold(self)
 
-    def _changed(self, _change: Any = None) -> None:
+    def _changed(self, _change: Any = None, only: str | None = None) -> None:
+        """A widget changed; ``only``: it matters in that mode alone (a hidden widget renders nothing)."""
         self._layout()
-        if not self._held:
+        if not self._held and (only is None or self.mode.value == only):
             self.refresh()
 
     def _layout(self) -> None:
@@ -220,7 +227,7 @@ class Viewer:
             self.tf_box.layout.display = None if self.mode.value == "tf" else "none"
 
     def _say(self, text: str) -> None:
-        self.status.value = f"<span style='color:#b00'>{text}</span>"
+        self.status.value = f"<span style='color:#b00'>{html.escape(text)}</span>"
 
     def refresh(self) -> dict:
         """Render, decrypt and show the current state; returns (and appends to :attr:`history`)
@@ -256,7 +263,7 @@ class Viewer:
         text = f"{kw['mode']}/{kw['sampling']}: {took} (render + decrypt), {how}"
         if err is not None:
             text += f"; max |error| vs plaintext {err:.2e} (bound {bound:.2e})"
-        self.status.value = text
+        self.status.value = html.escape(text)
         log.info("viewer: %s", text)
         return entry
 

@@ -42,6 +42,7 @@ def test_terminal_bar_redraws_one_line_and_ends_it(monkeypatch):
     bar = Progress(3, "enc")
     for _ in range(3):
         bar.update()
+    bar.close()
     text = err.getvalue()
     assert text.startswith("\renc [") and text.endswith("3/3    0.0s\n") and text.count("\n") == 1
 
@@ -78,4 +79,19 @@ def test_a_failing_job_closes_its_display(monkeypatch):
 
     with pytest.raises(RuntimeError, match="task failed"):
         _dask.compute([dask.delayed(boom)(1), dask.delayed(boom)(2)], desc="bad")
-    assert err.getvalue().endswith("\n")
+    assert err.getvalue().endswith(" failed\n")
+
+
+def test_a_failing_job_on_a_cluster_is_not_shown_as_a_success(monkeypatch, cluster):
+    pytest.importorskip("ipywidgets")
+    shown = []
+    monkeypatch.setattr(_progress, "_in_jupyter", lambda: True)
+    monkeypatch.setattr("IPython.display.display", lambda w: shown.append(w))
+
+    def boom(i):
+        raise RuntimeError("task failed")
+
+    with pytest.raises(RuntimeError, match="task failed"):
+        _dask.compute([dask.delayed(boom)(1), dask.delayed(lambda: 2)()], client=cluster, desc="bad")
+    (box,) = shown
+    assert box.children[0].bar_style == "danger"

@@ -4,6 +4,8 @@ error_bound."""
 
 from __future__ import annotations
 
+import html
+
 import numpy as np
 import pytest
 
@@ -135,3 +137,19 @@ def test_bad_input(scene, keypair512, tmp_path):
         Viewer(scalar, priv, mode="tf", show=False)
     with pytest.raises(hevr.ParameterError, match="width"):
         Viewer(ev, priv, width=0, show=False)
+
+
+def test_hidden_widgets_render_nothing_and_bad_indices_are_named(viewer):
+    viewer.mode.value = "xray"
+    n = len(viewer.history)
+    viewer.density.value = 0.9  # hidden in X-ray mode
+    viewer.node_rows[0][1].value = "#123456"  # so is the TF editor
+    viewer.add_node(0.4, "white")
+    assert len(viewer.history) == n
+    viewer.mode.value = "tf"  # the edits apply when the editor shows again
+    assert viewer.history[-1]["request"]["nodes"][0][1] == "#123456" and len(viewer.nodes()) == 3
+    with pytest.raises(hevr.ParameterError, match=r"index: expected a node index in \[0, 3\)"):
+        viewer.remove_node(3)
+    viewer.add_node(float("nan"), "red")
+    assert viewer.history[-1]["error_message"].startswith("nodes[3] density: expected a normalised density")
+    assert viewer.status.value.endswith(html.escape(viewer.history[-1]["error_message"]) + "</span>")

@@ -134,9 +134,11 @@ def cmd_render(args: Any) -> int:
     nodes = (args.tf if args.tf is not None else list(PAPER_TF1)) if mode == "tf" else None
     out = Path(args.out).expanduser()
     check_output_file(out)
-    sums = Path(args.keep_sums).expanduser() if args.keep_sums else None
+    sums = Path(args.keep_sums).expanduser() if args.keep_sums is not None else None
     if sums is not None:
         check_output_file(sums, "--keep-sums")
+        if sums.absolute() == out.absolute():
+            raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
     store = check_store_path(Path(args.store).expanduser(), "STORE").absolute()
     ev = open_volume(store)
     if mode != "xray" and not ev.vector_dims:
@@ -176,6 +178,8 @@ def cmd_recolour(args: Any) -> int:
     out = Path(args.out).expanduser()
     check_output_file(out)
     path = Path(args.sums).expanduser()
+    if path.absolute() == out.absolute():
+        raise UsageError(f"--out: expected another file than SUMS, got {args.out} for both (it would replace the sums)")
     if path.is_dir():
         raise UsageError(f"SUMS: expected a ray-sums file (hevr render --keep-sums), got a folder ({args.sums})")
     if not path.is_file():

@@ -39,7 +39,7 @@ from .graph import FinishGraph, build_sums_graph
 from .modes import RenderSpec, combination_matrix, make_spec
 from .planner import check_render_size, plan_render
 from .rays import cast_rays
-from .sums import RaySums, image_fields, save_sums
+from .sums import RaySums, check_sums_path, image_fields, save_sums
 
 log = logging.getLogger(__name__)
 
@@ -141,7 +141,10 @@ def render(
         False: build the graph and return it unevaluated, as a ``dask.delayed`` object whose
         result is the :class:`EncryptedImage` (``client.compute(d)`` gives a future,
         ``dask.compute(d)`` or ``d.compute()`` the image) — for notebooks and services that
-        must not block. Its ray sums are not cached (cached sums are still used).
+        must not block. Its ray sums are not cached (cached sums are still used). When the
+        graph refers to data held by a client that is not the default one (cached sums or a
+        persisted volume), compute it with that client: ``client.compute(d)``. The image's
+        ``stats["seconds"]`` is None (the caller times the compute).
     keep_sums : path, optional
         Also write this view's merged encrypted ray sums to a ``.hevrsums`` file (ciphertexts
         and public geometry only: safe on the server), from which :func:`hevr.recolour`
@@ -168,6 +171,8 @@ def render(
     if keep_sums is not None and not compute:
         raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
                              f"render runs), got {str(keep_sums)!r}")
+    if keep_sums is not None:
+        keep_sums = check_sums_path(keep_sums)
     backend = resolve_backend_name(backend)
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
     t0 = time.perf_counter()
@@ -241,7 +246,7 @@ def render(
 def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict) -> EncryptedImage:
     """The last task of a deferred render (``compute=False``): the finished units as an image."""
     packed = finish.assemble(parts)
-    stats = dict(stats, finish_tasks=len(parts), gathered_bytes=sum(int(p.nbytes) for p in packed))
+    stats = dict(stats, finish_tasks=len(parts), gathered_bytes=sum(int(p.nbytes) for p in packed), seconds=None)
     return EncryptedImage(ciphertexts=list(packed), stats=stats, **fields)
 
 

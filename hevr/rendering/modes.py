@@ -174,8 +174,9 @@ def _parse_nodes(nodes: Any) -> tuple[tuple[float, tuple[float, float, float]], 
             d, col = node
         except (TypeError, ValueError):
             raise ParameterError(f"nodes[{i}]: expected a (density, color) pair, got {node!r}") from None
+        density = _unit_density(f"nodes[{i}] density", d)
         try:
-            out.append((_unit_density(f"nodes[{i}] density", d), parse_color(col)))
+            out.append((density, parse_color(col)))
         except ParameterError as exc:
             raise ParameterError(f"nodes[{i}]: {exc}") from None
     seen: dict[float, int] = {}

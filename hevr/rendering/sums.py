@@ -49,8 +49,9 @@ from .._dask import active_client
 from .._dask import compute as run_tasks
 from .._files import require_file
 from .._image_header import MAX_N_DIGITS, Fields, parse_json
+from .._limits import MAX_IMAGE_PIXELS
 from .._tiles import TileLayout
-from .._validate import check_int
+from .._validate import check_int, check_step
 from ..backends import get_backend, resolve_backend_name
 from ..crypto.paillier import fingerprint as fingerprint_of
 from ..crypto.records import record_width
@@ -65,7 +66,7 @@ from .rays import cast_rays
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RaySums", "SavedSums", "image_fields", "load_sums", "recolour", "save_sums"]
+__all__ = ["RaySums", "SavedSums", "check_sums_path", "image_fields", "load_sums", "recolour", "save_sums"]
 
 MAGIC = b"HEVRSUMS" + bytes([1])
 FORMAT = "hevr-ray-sums"
@@ -173,14 +174,17 @@ def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, c
 
 def load_sums(path: str | os.PathLike) -> SavedSums:
     """Read and check a ``.hevrsums`` file (module docstring: checksum, header, sizes, ranges)."""
+    if Path(path).is_dir():
+        raise ParameterError(f"sums: expected a ray-sums file (hevr.render(..., keep_sums=PATH)), got a folder ({path})")
     p = require_file(path, "sums", "a ray-sums file (hevr.render(..., keep_sums=PATH))")
     where = str(p)
     blob = p.read_bytes()
     if not blob.startswith(MAGIC[:-1]):
         raise CorruptStoreError(f"{where}: not an hevr ray-sums file (bad magic)")
-    if len(blob) < len(MAGIC) + LENGTH.size + DIGEST or blob[len(MAGIC) - 1] != VERSION:
-        raise CorruptStoreError(f"{where}: expected ray-sums format version {VERSION}, got "
-                                f"{'a truncated file' if len(blob) < len(MAGIC) + LENGTH.size + DIGEST else blob[len(MAGIC) - 1]}")
+    if len(blob) >= len(MAGIC) and blob[len(MAGIC) - 1] != VERSION:
+        raise CorruptStoreError(f"{where}: expected ray-sums format version {VERSION}, got {blob[len(MAGIC) - 1]}")
+    if len(blob) < len(MAGIC) + LENGTH.size + DIGEST:
+        raise CorruptStoreError(f"{where}: truncated: {len(blob)} bytes, shorter than any ray-sums file")
     view = memoryview(blob)
     if hashlib.sha256(view[:-DIGEST]).digest() != bytes(view[-DIGEST:]):
         raise IntegrityError(f"{where}: checksum mismatch: the file was corrupted, truncated or altered after it "
@@ -196,8 +200,9 @@ def load_sums(path: str | os.PathLike) -> SavedSums:
     for name in FIELDS:
         if name not in h:
             ctx.fail(name, "the field", raw="nothing")
-    if h["format"] != FORMAT or h["version"] != VERSION:
-        ctx.fail("format", f"{FORMAT!r} version {VERSION}", f"{h['format']!r} version {h['version']!r}")
+    if h["format"] != FORMAT:
+        ctx.fail("format", repr(FORMAT), h["format"])
+    ctx.integer("version", h["version"], VERSION, VERSION)
     n = ctx.decimal("n", h["n"], MAX_N_DIGITS)
     if h["fingerprint"] != fingerprint_of(n):
         ctx.fail("fingerprint", "the SHA-256 fingerprint of n", h["fingerprint"])
@@ -208,11 +213,14 @@ def load_sums(path: str | os.PathLike) -> SavedSums:
         camera = Camera.from_dict(h["camera"])
     except HevrError as exc:
         raise CorruptStoreError(f"{where}: header field 'camera': {exc}") from None
+    if camera.width * camera.height > MAX_IMAGE_PIXELS:  # before anything is sized by the image
+        ctx.fail("camera", f"an image of at most {MAX_IMAGE_PIXELS} pixels", raw=f"{camera.width}x{camera.height}")
     if h["sampling"] not in ("nearest", "trilinear"):
         ctx.fail("sampling", "'nearest' or 'trilinear'", h["sampling"])
-    step = h["step"]
-    if not isinstance(step, (int, float)) or isinstance(step, bool) or not np.isfinite(step) or step <= 0:
-        ctx.fail("step", "a positive finite number", step)
+    try:
+        step = check_step(h["step"])  # the render's own rule
+    except (ParameterError, OverflowError):
+        ctx.fail("step", "a positive finite number", h["step"])
     channel = h["channel"]
     if channel not in meta.channel_names:
         ctx.fail("channel", f"one of the volume's channels {list(meta.channel_names)}", channel)
@@ -222,9 +230,22 @@ def load_sums(path: str | os.PathLike) -> SavedSums:
     tile = ctx.integer("tile", h["tile"], 1, 4096)
     layout = TileLayout(camera.width, camera.height, tile)
     tiles = _read_tiles(ctx, h["tiles"], layout, view[start + hl:-DIGEST], K, width, n)
-    return SavedSums(meta=meta, camera=camera, sampling=h["sampling"], step=float(step),
-                     weight_digits=ctx.integer("weight_digits", h["weight_digits"], 0, 9), channel=channel,
-                     tile=tile, tiles=tiles, store=str(h["store"]), path=where)
+    nearest = h["sampling"] == "nearest"
+    digits = ctx.integer("weight_digits", h["weight_digits"], 0, 0 if nearest else 9)  # nearest weights are counts
+    return SavedSums(meta=meta, camera=camera, sampling=h["sampling"], step=float(step), weight_digits=digits,
+                     channel=channel, tile=tile, tiles=tiles, store=str(h["store"]), path=where)
+
+
+def check_sums_path(path: Any, name: str = "keep_sums") -> Path:
+    """Where a ``.hevrsums`` file may be written: a non-empty path, not a folder, in an existing
+    folder — checked before a render runs, so a bad path costs no map work."""
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ParameterError(f"{name}: expected a file path, got {path!r}")
+    p = Path(path)
+    if p.is_dir():
+        raise ParameterError(f"{name}: expected a file path, got a folder ({p})")
+    require_file(p.parent if str(p.parent) else Path("."), name, "an existing folder for the file", directory=True)
+    return p
 
 
 def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, K: int, width: int,
@@ -238,7 +259,8 @@ def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, 
         if not (isinstance(item, list) and len(item) == 2):
             ctx.fail(f"tiles[{i}]", "a [tile, rays] pair", item)
         ctx.integer(f"tiles[{i}][0]", item[0], i, i)
-        counts.append(ctx.integer(f"tiles[{i}][1]", item[1], -1, len(layout.pixels(i))))
+        r0, r1, c0, c1 = layout.bounds(i)
+        counts.append(ctx.integer(f"tiles[{i}][1]", item[1], -1, (r1 - r0) * (c1 - c0)))
     per_ray = 8 + K * width
     need = sum(max(c, 0) for c in counts) * per_ray
     if len(body) != need:
@@ -304,8 +326,9 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     plan = plan_render(n=int(meta.n), spec=spec, meta=meta, n_samples=rays.n_samples,
                        digits=sums.weight_digits if spec.sampling == "trilinear" else 0, precision=precision,
                        comb_digits=comb_digits, pack=pack, combination=comb)
-    if plan.weight_digits != sums.weight_digits:  # pragma: no cover - the planner keeps the digits it is given
-        raise HevrError(f"sums: expected weights of {plan.weight_digits} digits, got {sums.weight_digits}")
+    if plan.weight_digits != sums.weight_digits:  # the planner keeps the digits it is given; a guard
+        raise CorruptStoreError(f"{sums.path}: expected weights of {plan.weight_digits} digits, got "
+                                f"{sums.weight_digits}")
     layout = TileLayout(camera.width, camera.height, sums.tile)
     finish = FinishGraph.plan_units(plan, layout, rays.n_samples, int(meta.n), backend)
     fin = finish.tasks(sums.tiles)
