@@ -24,6 +24,7 @@ hevr.errors.CorruptStoreError: store: metadata checksum mismatch (the 'hevr' att
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -33,8 +34,9 @@ from typing import Any
 
 from .._validate import MAX_STORE_DIGITS, is_decimal
 from ..errors import CorruptStoreError
+from ..volume.pyramid import MAX_LEVELS, level_spacing
 
-__all__ = ["ChannelInfo", "VolumeMetadata", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
+__all__ = ["ChannelInfo", "LevelInfo", "VolumeMetadata", "ome_attribute", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
 
 FORMAT_NAME = "hevr-encrypted-volume"
 FORMAT_VERSION = 2
@@ -90,6 +92,39 @@ class ChannelInfo:
 
 
 @dataclass(frozen=True)
+class LevelInfo:
+    """One level of the encrypted multi-resolution pyramid (:mod:`hevr.store.pyramid`): its
+    shape (``ceil`` halving of the level below), whether every brick is written, and the digests
+    of its arrays' metadata documents (``levels/<level>/<array>``, relative names)."""
+
+    level: int
+    shape: tuple[int, int, int]
+    complete: bool = False
+    arrays: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"level": self.level, "shape": list(self.shape), "complete": self.complete,
+                "arrays": dict(self.arrays)}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str, expected_level: int, expected_shape: tuple, names: set) -> "LevelInfo":
+        name = f"levels[{expected_level - 1}]"
+        if not isinstance(d, dict) or set(d) != {"level", "shape", "complete", "arrays"}:
+            raise _bad(where, name, "an object with 'level', 'shape', 'complete' and 'arrays'", d)
+        _int(d["level"], f"{name}.level", where, expected_level, expected_level)
+        shape = _triple(d["shape"], f"{name}.shape", where, "int")
+        if shape != tuple(expected_shape):
+            raise _bad(where, f"{name}.shape", f"{list(expected_shape)} (the level below, halved)", d["shape"])
+        if type(d["complete"]) is not bool:
+            raise _bad(where, f"{name}.complete", "true or false", d["complete"])
+        arrays = d["arrays"]
+        if not (isinstance(arrays, dict) and set(arrays) == names
+                and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())):
+            raise _bad(where, f"{name}.arrays", f"a 'sha256:…' digest for each of {sorted(names)}", arrays)
+        return cls(level=expected_level, shape=shape, complete=d["complete"], arrays=dict(arrays))
+
+
+@dataclass(frozen=True)
 class VolumeMetadata:
     """Everything public about an encrypted volume. Never holds secret-key material."""
 
@@ -110,6 +145,7 @@ class VolumeMetadata:
     version: int = FORMAT_VERSION
     extra: dict = field(default_factory=dict)
     arrays: dict = field(default_factory=dict)  # array name -> "sha256:…" of its zarr.json bytes (v2)
+    levels: tuple = ()  # LevelInfo of pyramid levels 1, 2, … (hevr.store.pyramid); () without a pyramid
 
     @property
     def grid(self) -> tuple[int, int, int]:
@@ -119,6 +155,24 @@ class VolumeMetadata:
     def n_bricks(self) -> int:
         g = self.grid
         return g[0] * g[1] * g[2]
+
+    def level_meta(self, level: int) -> "VolumeMetadata":
+        """The metadata of pyramid level ``level`` (≥ 1) as a volume of its own: the level's shape,
+        spacing ``2^level·s``, the same bricks and key, channel exponents ``e − 3·level``
+        (mantissas are 125·Σ of 8 children per level: :mod:`hevr.volume.pyramid`) and the
+        level's own array digests and completeness. Its voxel (0, 0, 0) sits at
+        :func:`hevr.volume.pyramid.level_origin`, not at the world origin."""
+        info = self.levels[level - 1]
+
+        def shifted(ch: ChannelInfo | None) -> ChannelInfo | None:
+            if ch is None:
+                return None
+            digits = None if ch.digits is None else ch.digits + 3 * level
+            return ChannelInfo(exponent=ch.exponent - 3 * level, digits=digits, dims=ch.dims)
+
+        return dataclasses.replace(self, shape=info.shape, spacing=level_spacing(self.spacing, level),
+                                   scalar=shifted(self.scalar), vector=shifted(self.vector), complete=info.complete,
+                                   arrays=dict(info.arrays), levels=())
 
     @property
     def channel_names(self) -> tuple[str, ...]:
@@ -146,6 +200,7 @@ class VolumeMetadata:
             "store_id": self.store_id,
             **({"extra": self.extra} if self.extra else {}),
             **({"arrays": dict(self.arrays)} if self.arrays else {}),
+            **({"levels": [lv.to_dict() for lv in self.levels]} if self.levels else {}),
         }
         if self.version >= 2:
             d["checksum"] = metadata_checksum(d)
@@ -172,6 +227,30 @@ class VolumeMetadata:
             what = "missing" if "checksum" not in d else "mismatch (the 'hevr' attribute was modified or corrupted)"
             raise CorruptStoreError(f"{where}: metadata checksum {what}")
         return _parse(cls, d, where, version)
+
+
+def ome_attribute(meta: VolumeMetadata) -> dict:
+    """The group's ``ome`` attribute: OME-Zarr (0.5) ``multiscales``, one per channel, listing
+    level 0 and every complete pyramid level with its scale and translation (array order,
+    z, y, x; the component and ciphertext-byte axes unscaled). Derived from the checksummed
+    ``hevr`` attribute, so it is checked byte for byte on opening; ciphertexts stay opaque to
+    OME tools, but the pyramid is discoverable the standard way."""
+    space = [{"name": a, "type": "space"} for a in ("z", "y", "x")]
+    record = [{"name": "ciphertext_byte", "type": "ciphertext"}]
+    done = [lv.level for lv in meta.levels if lv.complete]
+    out = []
+    for ch in meta.channel_names:
+        lead = [{"name": "component", "type": "channel"}] if ch == "vector" else []
+        datasets = []
+        for lv in [0] + done:
+            scale = [1.0] * len(lead) + [s * 2**lv for s in meta.spacing[::-1]] + [1.0]
+            transforms: list[dict] = [{"type": "scale", "scale": scale}]
+            if lv:
+                shift = [0.0] * len(lead) + [s * (2**lv - 1) / 2 for s in meta.spacing[::-1]] + [0.0]
+                transforms.append({"type": "translation", "translation": shift})
+            datasets.append({"path": f"levels/{lv}/{ch}" if lv else ch, "coordinateTransformations": transforms})
+        out.append({"name": ch, "axes": lead + space + record, "datasets": datasets})
+    return {"version": "0.5", "multiscales": out}
 
 
 # -- field validation ---------------------------------------------------------------------------
@@ -258,6 +337,15 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     meta = cls(shape=shape, spacing=spacing, brick=brick, n=n, fingerprint=fingerprint, ciphertext_bytes=width,
                dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, base=base, complete=complete,
                store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {})
+    levels = d.get("levels", [])
+    if not isinstance(levels, list) or len(levels) > MAX_LEVELS:
+        raise _bad(where, "levels", f"a list of at most {MAX_LEVELS} pyramid levels", levels)
+    parsed, below = [], shape
+    for i, lv in enumerate(levels):
+        below = tuple(-(-s // 2) for s in below)
+        parsed.append(LevelInfo.from_dict(lv, where, i + 1, below, names))
+    if parsed:
+        meta = dataclasses.replace(meta, levels=tuple(parsed))
     if "n_bricks" in d and d["n_bricks"] != meta.n_bricks:
         raise _bad(where, "n_bricks", f"{meta.n_bricks} (the brick grid of shape and brick)", d["n_bricks"])
     return meta

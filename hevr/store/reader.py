@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-import json
 import logging
 import os
 from functools import cached_property
@@ -26,42 +25,28 @@ from ..errors import (
     MissingFileError,
     ParameterError,
 )
-from .digests import DIGEST_BYTES, brick_digest, digest_hex, written
+from ..volume.pyramid import check_level, level_origin
+from .digests import brick_digest, digest_hex, written
+from .layout import (
+    CRC_BYTES,
+    array_layout,
+    brick_slices,
+    check_arrays,
+    check_chunk_files,
+    check_documents,
+    check_level_layout,
+)
 from .metadata import VolumeMetadata
 from .paths import (
-    document_digest,
     interrupted_swaps,
     is_local,
     normalise,
-    read_document,
 )
 from .resident import Residency, load_brick, plan_residency
 
 log = logging.getLogger(__name__)
 
 __all__ = ["EncryptedVolume", "open_volume", "brick_slices", "array_layout", "CRC_BYTES"]
-
-CRC_BYTES = 4  # Zarr's crc32c codec appends 4 bytes to every chunk
-
-
-def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple[int, ...]]]:
-    """``{array name: (shape, chunk shape)}`` of every array a store of ``meta`` has; the
-    ``done`` array holds one digest per channel per brick (:mod:`hevr.store.digests`)."""
-    w, out = meta.ciphertext_bytes, {}
-    if meta.scalar is not None:
-        out["scalar"] = (meta.shape + (w,), meta.brick + (w,))
-    if meta.vector is not None:
-        k = meta.vector.dims
-        out["vector"] = ((k,) + meta.shape + (w,), (k,) + meta.brick + (w,))
-    nch = len(meta.channel_names)
-    out["done"] = (meta.grid + (nch, DIGEST_BYTES), (1, 1, 1, nch, DIGEST_BYTES))
-    return out
-
-
-def brick_slices(meta: VolumeMetadata, index: tuple[int, int, int]) -> tuple[slice, slice, slice]:
-    """Array slices (z, y, x) of the voxels owned by brick ``index``."""
-    return tuple(slice(i * b, min((i + 1) * b, s)) for i, b, s in zip(index, meta.brick, meta.shape))  # type: ignore[return-value]
-
 
 @functools.lru_cache(maxsize=64)
 def _array(path: str, store_id: str, name: str) -> Any:
@@ -78,10 +63,51 @@ class EncryptedVolume:
     Zarr arrays are opened lazily wherever the handle is used.
     """
 
-    def __init__(self, path: str, meta: VolumeMetadata) -> None:
+    def __init__(self, path: str, meta: VolumeMetadata, level: int = 0, base: VolumeMetadata | None = None) -> None:
         self.path = str(path)
         self.meta = meta
+        self.level = int(level)  # pyramid level: 0 is the volume itself (hevr.store.pyramid)
+        self.base = base if level else None  # level 0's metadata, for a level's view
         self.resident: Residency | None = None  # set on the handle persist() returns
+
+    @property
+    def prefix(self) -> str:
+        """Where this level's arrays live in the group: ``""``, or ``"levels/<level>/"``."""
+        return f"levels/{self.level}/" if self.level else ""
+
+    @property
+    def origin(self) -> tuple[float, float, float]:
+        """World position of voxel (0, 0, 0)'s centre: the origin, or a level's offset."""
+        return level_origin(self.base.spacing, self.level) if self.level else (0.0, 0.0, 0.0)
+
+    @property
+    def levels(self) -> int:
+        """Complete pyramid levels above this volume (0 without a pyramid; 0 for a level's view)."""
+        if self.level:
+            return 0
+        done = 0
+        for info in self.meta.levels:
+            if not info.complete:
+                break
+            done += 1
+        return done
+
+    def at_level(self, level: int) -> EncryptedVolume:
+        """A read-only view of pyramid level ``level`` as a volume of its own (its shape,
+        spacing, exponents and arrays; :meth:`hevr.EncryptedVolume.origin` says where it sits);
+        level 0 is this volume. Renders take it through ``hevr.render(..., level=)``."""
+        base = self.base if self.level else self.meta
+        ev0 = self if not self.level else EncryptedVolume(self.path, base)
+        level = check_level(level, ev0.levels)
+        if level == 0:
+            return EncryptedVolume(self.path, base)
+        view = EncryptedVolume(self.path, base.level_meta(level), level, base)
+        check_level_layout(view)
+        return view
+
+    def _plain(self) -> EncryptedVolume:
+        """The same volume (and level) without residency."""
+        return EncryptedVolume(self.path, self.meta, self.level, self.base)
 
     # -- public metadata -----------------------------------------------------------
     @property
@@ -129,10 +155,11 @@ class EncryptedVolume:
                 f"channels={'+'.join(ch)}, key={self.meta.fingerprint[:16]}…{res})")
 
     def __getstate__(self) -> dict:
-        return {"path": self.path, "meta": self.meta}  # never the resident bricks
+        return {"path": self.path, "meta": self.meta, "level": self.level, "base": self.base}  # never the bricks
 
     def __setstate__(self, state: dict) -> None:
         self.path, self.meta = state["path"], state["meta"]
+        self.level, self.base = state.get("level", 0), state.get("base")
         self.resident = None
 
     # -- residency -------------------------------------------------------------------------
@@ -162,7 +189,7 @@ class EncryptedVolume:
         """
         client = active_client(client)
         channels, backend, place, share = plan_residency(self, channels, backend, client)
-        plain = EncryptedVolume(self.path, self.meta)
+        plain = self._plain()
         if client is None:
             bricks = dict(zip(place, dask.compute(*[dask.delayed(load_brick, pure=False)(plain, idx, channels, backend)
                                                     for idx in place])))
@@ -172,7 +199,7 @@ class EncryptedVolume:
                                          allow_other_workers=True, pure=False,
                                          key=f"hevr-brick-{tag}-{idx[0]}-{idx[1]}-{idx[2]}")
                       for idx, w in place.items()}
-        out = EncryptedVolume(self.path, self.meta)
+        out = self._plain()
         out.resident = Residency(channels, backend, bricks, client, sum(share.values()), share)
         return out
 
@@ -204,23 +231,24 @@ class EncryptedVolume:
             raise ParameterError(f"channel: this store has no {channel} channel")
         sl = self.brick_slices(index)
         index = tuple(int(i) for i in index)
+        where = f"brick {index} of channel {channel!r}" + (f" of level {self.level}" if self.level else "")
         try:
-            arr = _array(self.path, self.meta.store_id, channel)
+            arr = _array(self.path, self.meta.store_id, self.prefix + channel)
             data = np.asarray(arr[sl if channel == "scalar" else (slice(None),) + sl])
-            stored = np.asarray(_array(self.path, self.meta.store_id, "done")[index]) if verify else None
+            stored = np.asarray(_array(self.path, self.meta.store_id, self.prefix + "done")[index]) if verify else None
         except Exception as exc:
             raise CorruptStoreError(
-                f"{self.path}: brick {index} of channel {channel!r} cannot be read ({type(exc).__name__}: {exc})"
+                f"{self.path}: {where} cannot be read ({type(exc).__name__}: {exc})"
             ) from None
         if verify:
             want = stored[self.meta.channel_names.index(channel)]
             if not want.any():
-                raise CorruptStoreError(f"{self.path}: brick {index} of channel {channel!r} has no digest "
+                raise CorruptStoreError(f"{self.path}: {where} has no digest "
                                         "(its marker is missing: the brick was never finished or was removed)")
-            got = brick_digest(self.meta.store_id, channel, index, data)
+            got = brick_digest(self.meta.store_id, self.prefix + channel, index, data)
             if got != want.tobytes():
                 raise CorruptStoreError(
-                    f"{self.path}: brick {index} of channel {channel!r}: digest mismatch (recorded "
+                    f"{self.path}: {where}: digest mismatch (recorded "
                     f"{digest_hex(want)}…, computed {digest_hex(got)}…): the chunk was corrupted, truncated, "
                     "swapped with another brick or copied from another store"
                 )
@@ -246,8 +274,9 @@ class EncryptedVolume:
                 i = be.first_out_of_range(batch, n2)
                 if i is not None:
                     what = ">= n²" if part.reshape(-1, part.shape[-1])[i].any() else "zero (missing data)"
+                    lv = f" of level {self.level}" if self.level else ""
                     raise CorruptStoreError(
-                        f"{self.path}: brick {tuple(index)} of channel {channel!r}: ciphertext {i} is {what}"
+                        f"{self.path}: brick {tuple(index)} of channel {channel!r}{lv}: ciphertext {i} is {what}"
                     )
         return batches[0] if channel == "scalar" else batches
 
@@ -269,69 +298,6 @@ class EncryptedVolume:
                             raise CorruptStoreError(
                                 f"{self.path}: brick {idx} of channel {ch!r} holds a ciphertext not coprime to n"
                             )
-
-
-def _chunk_files_ok(path: str, meta: VolumeMetadata) -> None:
-    """Local stores: every brick chunk (and digest marker) exists and has exactly the expected size."""
-    root = Path(path)
-    for name, (_, chunks) in array_layout(meta).items():
-        expected = int(np.prod(chunks)) + CRC_BYTES
-        lead = (0, 0) if name == "done" else (0,)
-        for idx in np.ndindex(*meta.grid):
-            key = "/".join(str(i) for i in ((0,) if name == "vector" else ()) + tuple(idx) + lead)
-            f = root / name / "c" / key
-            brick = tuple(int(i) for i in idx)
-            where = "the digest markers 'done'" if name == "done" else f"channel {name!r}"
-            if not f.exists():
-                raise CorruptStoreError(f"{path}: missing chunk for brick {brick} in {where}")
-            size = f.stat().st_size
-            if size != expected:
-                raise CorruptStoreError(f"{path}: chunk of brick {brick} in {where} is truncated "
-                                        f"or padded ({size} bytes, expected {expected})")
-
-
-_GROUP_KEYS = {"attributes": None, "zarr_format": 3, "node_type": "group", "consolidated_metadata": None}
-
-
-def _check_documents(path: str, meta: VolumeMetadata) -> None:
-    """Every byte of every metadata document counts (Zarr itself tolerates a misspelt key):
-    each array's ``zarr.json`` must have the digest recorded in the checksummed ``hevr``
-    attribute, and the group's ``zarr.json`` holds nothing but what hevr wrote."""
-    try:
-        doc = json.loads(read_document(path, ""))
-        for name, want in meta.arrays.items():
-            try:
-                got = document_digest(path, name)
-            except FileNotFoundError:
-                raise CorruptStoreError(f"{path}: " + (f"channel {name!r} is declared but its array is missing"
-                                        if name != "done" else "the digest array 'done' is missing")) from None
-            if got != want:
-                raise CorruptStoreError(f"{path}: the metadata document of array {name!r} was modified or "
-                                        "corrupted (digest mismatch)")
-    except (OSError, ValueError) as exc:
-        raise CorruptStoreError(f"{path}: a metadata document cannot be read ({type(exc).__name__}: {exc})") from None
-    extra = set(doc) - set(_GROUP_KEYS)
-    wrong = [k for k, v in _GROUP_KEYS.items() if k != "attributes" and doc.get(k, v) != v]
-    if extra or wrong or set(doc.get("attributes", {})) != {"hevr"}:
-        raise CorruptStoreError(f"{path}: the group's zarr.json has unexpected content "
-                                f"({sorted(extra) + wrong or 'attributes other than hevr'})")
-
-
-def _check_arrays(path: str, group: Any, meta: VolumeMetadata) -> None:
-    """Every array the metadata implies exists with exactly the layout hevr writes: shape,
-    chunk shape, uint8, fill value 0, codecs ``bytes`` + ``crc32c``, no attributes."""
-    for name, (shape, chunks) in array_layout(meta).items():
-        try:  # a missing array was named by _check_documents already
-            arr = group[name]
-        except Exception as exc:
-            raise CorruptStoreError(f"{path}: array {name!r} cannot be opened ({type(exc).__name__}: {exc})") from None
-        codecs = [c.to_dict().get("name") for c in arr.metadata.codecs] if hasattr(arr.metadata, "codecs") else None
-        got = (tuple(arr.shape), tuple(arr.chunks), str(arr.dtype), arr.metadata.fill_value, codecs, dict(arr.attrs))
-        want = (shape, chunks, "uint8", 0, ["bytes", "crc32c"], {})
-        if got != want or getattr(arr.metadata, "dimension_names", None) is not None:
-            labels = ("shape", "chunks", "dtype", "fill_value", "codecs", "attributes")
-            diff = "; ".join(f"{lab} {g!r} (expected {w!r})" for lab, g, w in zip(labels, got, want) if g != w)
-            raise CorruptStoreError(f"{path}: array {name!r} has {diff or 'dimension names'}, inconsistent with the metadata")
 
 
 def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolume:
@@ -377,10 +343,10 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     w_expected = record_width(int(meta.n))
     if meta.ciphertext_bytes != w_expected:
         raise CorruptStoreError(f"{path}: ciphertext_bytes is {meta.ciphertext_bytes}, expected {w_expected} for this key")
-    _check_documents(path, meta)
-    _check_arrays(path, group, meta)
+    check_documents(path, meta)
+    check_arrays(path, group, meta)
     if verify != "none" and "://" not in path:
-        _chunk_files_ok(path, meta)
+        check_chunk_files(path, meta)
     ev = EncryptedVolume(path, meta)
     if verify == "full":
         ev.verify()

@@ -1,0 +1,193 @@
+"""The encrypted multi-resolution pyramid, computed by the server from the store alone (no key).
+
+A voxel of level L+1 is the average of its 2×2×2 children of level L, edges clamped
+(:mod:`hevr.volume.pyramid` has the definition and the geometry). On ciphertexts, with
+``c_1 … c_8`` the children (a clamped child counted twice),
+
+    C = (c_1 · c_2 ⋯ c_8)^125  mod n²   decrypts to   125 · Σ m_i = mean · 10^3,
+
+so the level's channels keep exact fixed point with exponent ``e − 3`` per level (no rounding,
+no key, no new randomness: a level ciphertext is a public function of public ciphertexts and
+reveals nothing new). Cost per coarse voxel and stored component: 7 products for the ⊕ and
+about 11 for ⊗ 125 (6 squarings, 5 multiplications); a level has 1/8 of the voxels of the
+level below, so a whole pyramid costs at most 18/7 ≈ 2.6 products per voxel and component of
+level 0 — a few percent of encryption, which costs two fixed-base exponentiations per value.
+
+Layout (docs/format.md, "Pyramid levels"): level L's arrays are ``levels/L/scalar``,
+``levels/L/vector`` and ``levels/L/done`` with the same bricks, codecs and digest markers as
+level 0 (digests over the channel name ``levels/L/<channel>``, so no brick can pass for one of
+another level); the checksummed ``hevr`` attribute lists each level (shape, completeness,
+array-document digests) and the group's ``ome`` attribute mirrors it as OME-Zarr
+``multiscales``. :func:`build_pyramid` is one Dask task per brick of a level, level after
+level, and resumable: bricks whose digest marker exists are not recomputed. Each task reads
+the child bricks one at a time (every read checks its digest), multiplies each coarse voxel's
+children inside the child brick, then merges those partial products: memory stays a few bricks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from typing import Any
+
+import dask
+import numpy as np
+import zarr
+from zarr.codecs import Crc32cCodec
+
+from .._dask import compute
+from ..backends import get_backend, resolve_backend_name
+from ..errors import ParameterError, StoreError
+from ..volume.pyramid import MAX_LEVELS, level_shape
+from .digests import brick_digest, marker, written
+from .metadata import LevelInfo, VolumeMetadata, ome_attribute
+from .paths import document_digest
+from .reader import EncryptedVolume, array_layout, brick_slices, open_volume
+
+log = logging.getLogger(__name__)
+
+__all__ = ["build_pyramid", "LEVEL_FACTOR"]
+
+LEVEL_FACTOR = 125  # 10^3 / 8: the ⊗ that turns a sum of 8 children into their mean at exponent e − 3
+_MAX_DIGITS = 30  # hevr._validate.MAX_STORE_DIGITS: the most decimal digits a channel's metadata holds
+
+
+def _children(shape_below: tuple, coarse: tuple[slice, slice, slice]) -> np.ndarray:
+    """Level-below voxel coordinates (M, 8, 3) of the children of every coarse voxel of the slices
+    (C order), clamped at the last voxel of each axis.
+
+    >>> _children((3, 1, 1), (slice(1, 2), slice(0, 1), slice(0, 1)))[0, :, 0].tolist()
+    [2, 2, 2, 2, 2, 2, 2, 2]
+    """
+    axes = np.meshgrid(*[np.arange(s.start, s.stop) for s in coarse], indexing="ij")
+    base = np.stack([a.ravel() for a in axes], axis=1) * 2  # (M, 3)
+    offs = np.array([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])  # (8, 3): z, y, x bits
+    out = base[:, None, :] + offs[None, :, :]
+    return np.minimum(out, np.asarray(shape_below) - 1)
+
+
+def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int, int, int], meta: VolumeMetadata,
+                 backend: str) -> tuple[int, int, int]:
+    """One task: the brick ``index`` of ``level`` from the level below, written with its marker."""
+    be = get_backend(backend)
+    n2 = int(below.public_key.nsquare)
+    width = meta.ciphertext_bytes
+    sl = brick_slices(meta, index)
+    bshape = tuple(s.stop - s.start for s in sl)
+    kids = _children(below.shape, sl).reshape(-1, 3)  # (8M, 3)
+    owner = np.repeat(np.arange(kids.shape[0] // 8), 8)  # coarse voxel of each child entry
+    bb = np.asarray(below.brick)
+    kid_brick = kids // bb
+    group = zarr.open_group(path, mode="r+")
+    prefix = f"levels/{level}/"
+    digests = []
+    for channel in meta.channel_names:
+        K = 1 if channel == "scalar" else meta.vector.dims
+        parts: list[np.ndarray] = []  # per child brick: (rows, K, W) partial products, with their owners
+        owners: list[np.ndarray] = []
+        for child in {tuple(int(v) for v in row) for row in kid_brick}:
+            mine = np.flatnonzero((kid_brick == child).all(axis=1))
+            data = below.read_brick_bytes(child, channel)  # digest checked
+            recs = data.reshape((1,) + data.shape) if channel == "scalar" else data  # (K, bz, by, bx, W)
+            csl = below.brick_slices(child)
+            local = kids[mine] - np.array([s.start for s in csl])
+            who = owner[mine]  # sorted: children were listed coarse voxel by coarse voxel
+            starts = np.flatnonzero(np.r_[True, who[1:] != who[:-1]])
+            rows = recs[:, local[:, 0], local[:, 1], local[:, 2]]  # (K, entries, W)
+            rows = np.ascontiguousarray(rows.transpose(1, 0, 2)).reshape(-1, width)  # entry-major, K per row
+            vals = be.segment_products(be.from_bytes(rows), np.r_[starts, who.size], K, n2)
+            parts.append(be.to_bytes(vals, width).reshape(-1, K, width))
+            owners.append(who[starts])
+        who = np.concatenate(owners)
+        order = np.argsort(who, kind="stable")
+        who = who[order]
+        rows = np.concatenate(parts)[order].reshape(-1, width)
+        starts = np.flatnonzero(np.r_[True, who[1:] != who[:-1]])
+        sums = be.segment_products(be.from_bytes(rows), np.r_[starts, who.size], K, n2)
+        means = be.combine(sums, [[LEVEL_FACTOR]], n2)  # each value ⊗ 125 (rows of one value)
+        out = be.to_bytes(means, width).reshape(bshape + (K, width))
+        out = out[..., 0, :] if channel == "scalar" else np.moveaxis(out, 3, 0)
+        out = np.ascontiguousarray(out)
+        digests.append(brick_digest(meta.store_id, prefix + channel, index, out))
+        group[prefix + channel][sl if channel == "scalar" else (slice(None),) + sl] = out
+    group[prefix + "done"][index] = marker(digests)
+    return index
+
+
+def _write_meta(path: str, meta: VolumeMetadata) -> None:
+    group = zarr.open_group(path, mode="r+")
+    group.attrs.update({"hevr": meta.to_dict(), "ome": ome_attribute(meta)})
+
+
+def _start_level(path: str, meta: VolumeMetadata, level: int) -> VolumeMetadata:
+    """Create level ``level``'s arrays (if not there from an interrupted run) and record them."""
+    if len(meta.levels) >= level:
+        return meta
+    shape = level_shape(meta.shape, level)
+    layout = array_layout(dataclasses.replace(meta, shape=shape, levels=()))
+    group = zarr.open_group(path, mode="r+").require_group("levels").require_group(str(level))
+    for name, (ashape, chunks) in layout.items():
+        group.create_array(name, shape=ashape, chunks=chunks, dtype="uint8", compressors=[Crc32cCodec()],
+                           fill_value=0, overwrite=True)
+    digests = {name: document_digest(path, f"levels/{level}/{name}") for name in layout}
+    meta = dataclasses.replace(meta, levels=meta.levels + (LevelInfo(level, shape, False, digests),))
+    _write_meta(path, meta)
+    return meta
+
+
+def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = None, progress: bool = True,
+                  backend: str | None = None) -> EncryptedVolume:
+    """Add pyramid levels 1 … ``levels`` to an encrypted store, on the cluster, without a key.
+
+    Parameters
+    ----------
+    ev : EncryptedVolume or path
+        A complete store (:func:`hevr.open_volume`).
+    levels : int
+        Build up to this level (1 … 8); levels already complete are kept, an interrupted level
+        is finished (only its missing bricks are computed).
+    client : distributed.Client, optional
+        Default: the active client, else Dask's default scheduler. One task per brick of a level.
+    progress : bool
+    backend : str, optional
+        Arithmetic backend (:mod:`hevr.backends`).
+
+    Returns
+    -------
+    EncryptedVolume
+        The store reopened; ``.levels`` complete levels, ``.at_level(L)`` and
+        ``hevr.render(..., level=L)`` use them.
+    """
+    if not isinstance(ev, EncryptedVolume):
+        ev = open_volume(ev)
+    if ev.level:
+        raise ParameterError(f"ev: expected a store (level 0), got a view of pyramid level {ev.level}")
+    if isinstance(levels, bool) or not isinstance(levels, int) or not 1 <= levels <= MAX_LEVELS:
+        raise ParameterError(f"levels: expected an int in [1, {MAX_LEVELS}], got {levels!r}")
+    meta = ev.meta
+    for ch in (meta.scalar, meta.vector):
+        if ch is not None and ch.digits is not None and ch.digits + 3 * levels > _MAX_DIGITS:
+            raise ParameterError(f"levels: expected at most {(_MAX_DIGITS - ch.digits) // 3} levels for a channel of "
+                                 f"{ch.digits} digits (each level adds 3), got {levels}")
+    backend = resolve_backend_name(backend)
+    path = ev.path
+    for level in range(1, levels + 1):
+        if len(meta.levels) >= level and meta.levels[level - 1].complete:
+            continue
+        meta = _start_level(path, meta, level)
+        below = EncryptedVolume(path, meta).at_level(level - 1)
+        lmeta = meta.level_meta(level)
+        done = written(zarr.open_group(path, mode="r")[f"levels/{level}/done"][...])
+        todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*lmeta.grid) if not done[idx]]
+        log.info("pyramid level %d: %d of %d bricks to compute", level, len(todo), lmeta.n_bricks)
+        task = dask.delayed(_level_brick, pure=False)
+        compute([task(below, path, level, idx, lmeta, backend, dask_key_name=f"hevr-pyramid-{meta.store_id}-{level}-"
+                      f"{idx[0]}-{idx[1]}-{idx[2]}") for idx in todo],
+                client=client, progress=progress, desc=f"pyramid level {level}")
+        if not written(zarr.open_group(path, mode="r")[f"levels/{level}/done"][...]).all():  # pragma: no cover
+            raise StoreError(f"ev: level {level} of {path} still has missing bricks")
+        infos = list(meta.levels)
+        infos[level - 1] = dataclasses.replace(infos[level - 1], complete=True)
+        meta = dataclasses.replace(meta, levels=tuple(infos))
+        _write_meta(path, meta)
+    return open_volume(path)
