@@ -44,7 +44,9 @@ from .errors import (
 from .image import EncryptedImage, load_image, save_png, to_uint8
 from .rendering.camera import Camera
 from .rendering.encrypted import RaySums, clear_cache, error_bound, render
-from .rendering.plain import render_plain
+from .rendering.plain import render_plain, render_slice_plain
+from .rendering.plane import Plane
+from .rendering.slices import render_slice
 from .rendering.sums import SavedSums, load_sums, recolour
 from .store.reader import EncryptedVolume, open_volume
 from .store.upgrade import upgrade_store
@@ -73,6 +75,9 @@ __all__ = [
     "load_sums",
     "SavedSums",
     "Viewer",
+    "Plane",
+    "render_slice",
+    "render_slice_plain",
     "EncryptedImage",
     "load_image",
     "save_png",

@@ -340,7 +340,11 @@ def _info_image(path: Path) -> int:
         rows.append(("density", info["density"]))
     if info.get("nodes"):
         rows.append(("transfer fn", format_tf(info["nodes"])))
-    if cam:
+    if cam.get("kind") == "plane":  # a slice (hevr slice / hevr.render_slice)
+        org = tuple(round(float(v), 3) for v in cam.get("origin", ()))
+        rows.append(("plane", f"pixel (0, 0) at {xyz(org[::-1], sep=', ') if len(org) == 3 else '?'}, "
+                              f"slab {cam.get('slab')} x {cam.get('slab_step')}"))
+    elif cam:
         pos = tuple(round(float(v), 3) for v in cam.get("position", ()))
         where = xyz(pos[::-1], sep=", ") if len(pos) == 3 else "?"
         rows.append(("camera", f"position {where}, "

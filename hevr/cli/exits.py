@@ -79,6 +79,12 @@ CLI_NAMES: dict[str, dict[str, str]] = {
                "step": "--step", "precision": "--precision", "pack": "--no-pack", "keep_sums": "--keep-sums"},
     "recolour": {"sums": "SUMS", "path": "SUMS", "out": "--out", "mode": "--mode", "nodes": "--tf",
                  "density": "--density", "precision": "--precision", "pack": "--no-pack"},
+    "slice": {"store": "STORE", "path": "STORE", "ev": "STORE", "out": "--out", "mode": "--mode", "nodes": "--tf",
+              "density": "--density", "sampling": "--sampling", "k": "--axial", "j": "--coronal", "i": "--sagittal",
+              "axial": "--axial", "coronal": "--coronal", "sagittal": "--sagittal", "oblique": "--oblique",
+              "center": "--oblique", "normal": "--oblique", "v": "--oblique", "camera": "--size", "plane": "--size",
+              "width": "--size", "height": "--size", "pixel_spacing": "--pixel-spacing", "slab": "--slab",
+              "slab_step": "--slab-step", "step": "--slab-step", "precision": "--precision", "pack": "--no-pack"},
     "decrypt": {"frame": "FRAME", "path": "FRAME", "image": "FRAME", "key": "--key", "private_key": "--key",
                 "out": "--out", "npy": "--npy", "window": "--window"},
     "info": {"path": "PATH", "input": "PATH", "key": "PATH", "image": "PATH"},
@@ -94,6 +100,7 @@ CLI_SUBJECTS: dict[str, dict[type, str]] = {
     "convert-key": {InvalidKeyError: "KEY"},
     "render": {StoreError: "STORE"},
     "recolour": {StoreError: "SUMS", IntegrityError: "SUMS"},
+    "slice": {StoreError: "STORE"},
     "decrypt": {InvalidKeyError: "--key", KeyMismatchError: "--key", StoreError: "FRAME",
                 IntegrityError: "FRAME", PlaintextOverflowError: "FRAME"},
     "info": {HevrError: "PATH"},
@@ -104,6 +111,7 @@ CLI_SUBJECTS: dict[str, dict[type, str]] = {
 CLI_PHRASES: dict[str, dict[str, str]] = {
     "*": {"encrypt_volume(..., resume=True)": "'hevr encrypt … --resume'"},
     "render": {"use a larger step or a smaller image": "use a larger --step or a smaller --size"},
+    "slice": {"use a larger step or a smaller image": "use a larger --slab-step, a smaller --slab or --size"},
 }
 _LEADING = re.compile(r"([A-Za-z_]\w*(?:\[\d+\])?(?:(?:, |/)[A-Za-z_]\w*(?:\[\d+\])?)*): ")
 

@@ -1,4 +1,4 @@
-"""The ``hevr`` command line: keygen, encrypt, render, recolour, decrypt, info, upgrade-store, demo, bench.
+"""The ``hevr`` command line: keygen, encrypt, render, recolour, slice, decrypt, info, upgrade-store, demo, bench.
 
 Run ``hevr COMMAND --help`` for each command's options and an example. An error is one line
 on stderr, ``hevr: error: --key: expected a private key file, got a public key (key.pub.json)``,
@@ -52,6 +52,7 @@ from .options import (
     floats_type,
     phantom_size_type,
     positive_float,
+    positive_int,
     precision_type,
     range_type,
     size_type,
@@ -60,6 +61,7 @@ from .options import (
     vector_dims_type,
     workers_type,
 )
+from .slice import SLICE_EPILOG, cmd_slice, oblique_type
 from .util import err_line, format_tf, warn_line
 
 __all__ = ["main", "build_parser"]
@@ -224,6 +226,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--precision", type=precision_type, default=4, metavar="P",
                    help="decimal digits of the normalisation (default 4)")
 
+    p = sub.add_parser("slice", parents=[dask_opts], formatter_class=_RAW,
+                       help="an encrypted slice (axial, coronal, sagittal, oblique) of an encrypted volume (no key needed)",
+                       description=_d("Resample the encrypted volume on a plane (multi-planar reformatting), optionally "
+                                   "averaging a thick slab of parallel planes, on the Dask cluster. Never needs the "
+                                   "secret key: the result is an encrypted .hevr frame only the key holder can decrypt."),
+                       epilog=SLICE_EPILOG)
+    p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
+    p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--axial", type=finite_float, metavar="K", help="the plane z = K·sz (layer K of the array)")
+    g.add_argument("--coronal", type=finite_float, metavar="J", help="the plane y = J·sy")
+    g.add_argument("--sagittal", type=finite_float, metavar="I", help="the plane x = I·sx")
+    g.add_argument("--oblique", type=oblique_type, metavar="CX,CY,CZ:NX,NY,NZ",
+                   help="the plane through world point C with normal N (':NX,NY,NZ': through the volume's centre)")
+    p.add_argument("--size", type=size_type, metavar="WxH", help="image size (default: see below)")
+    p.add_argument("--pixel-spacing", type=positive_float, metavar="D", help="world units per pixel (default: see below)")
+    p.add_argument("--slab", type=positive_int, default=1, metavar="N",
+                   help="average N parallel planes (a thick slab; default 1)")
+    p.add_argument("--slab-step", type=positive_float, metavar="S",
+                   help="world distance between the slab's planes (default: the voxel spacing along the normal)")
+    p.add_argument("--sampling", choices=("nearest", "trilinear"), default="nearest",
+                   help="sampling of the volume (default nearest)")
+    p.add_argument("--mode", choices=("xray", "emphasize", "tf"), help="xray: the value; emphasize, tf as in render")
+    p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
+    p.add_argument("--tf", type=tf_type, metavar="NODES", help="transfer function DENSITY:COLOR,...")
+    p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext")
+    p.add_argument("--precision", type=precision_type, metavar="P",
+                   help="decimal digits of the normalisation (default 0 where it is exact: one plane in mode "
+                        "xray or emphasize; else 4)")
+
     p = sub.add_parser("decrypt", parents=[plain_opts], formatter_class=_RAW,
                        help="decrypt an encrypted image to PNG",
                        description=_d("Decrypt an encrypted .hevr frame with the private key and write a PNG."),
@@ -303,6 +335,8 @@ def _run(args: Any) -> int:
         return cmd_bench(args)
     if args.command == "demo":
         return demo.cmd_demo(args)
+    if args.command == "slice":
+        return cmd_slice(args)
     return getattr(cmds, f"cmd_{args.command.replace('-', '_')}")(args)
 
 
@@ -314,7 +348,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     if args.command is None:
-        err_line("a command is required: keygen, convert-key, encrypt, render, recolour, decrypt, info, upgrade-store, demo or bench "
+        err_line("a command is required: keygen, convert-key, encrypt, render, recolour, slice, decrypt, info, upgrade-store, demo or bench "
                  "(see 'hevr --help')")
         return 2
     handler = _setup_logging(args.verbose)

@@ -4,6 +4,7 @@ The data path of one frame, module by module:
 
 =================  =============================================================
 ``camera``         :class:`Camera`: the request's geometry (frozen, validated)
+``plane``          :class:`Plane`: a slice (and slab) as the second kind of view
 ``modes``          ``RenderSpec``: mode, sampling, channels, combination matrix
 ``rays``           rays, slab tests and sample positions
 ``weights``        per-brick sparse (ray, voxel, weight) matrices
@@ -12,8 +13,9 @@ The data path of one frame, module by module:
 ``graph``          the Dask graph: map per brick, tree merge per tile
 ``finishing``      combination, normalisation and packing of one tile
 ``encrypted``      ``render``, ``error_bound``, the ray-sum cache
+``slices``         ``render_slice``: slices through the same pipeline
 ``sums``           ray sums kept in memory or in a ``.hevrsums`` file; ``recolour``
-``plain``          ``render_plain``: the independent plaintext ray marcher
+``plain``          ``render_plain`` / ``render_slice_plain``: the independent plaintext references
 =================  =============================================================
 
 (The package is named ``rendering`` so that it does not shadow the :func:`hevr.render`
@@ -24,8 +26,10 @@ from __future__ import annotations
 
 from .camera import Camera
 from .encrypted import RaySums, clear_cache, error_bound, render
-from .plain import render_plain
+from .plain import render_plain, render_slice_plain
+from .plane import Plane
+from .slices import render_slice
 from .sums import SavedSums, load_sums, recolour
 
-__all__ = ["Camera", "RaySums", "SavedSums", "clear_cache", "error_bound", "load_sums", "recolour", "render",
-           "render_plain"]
+__all__ = ["Camera", "Plane", "RaySums", "SavedSums", "clear_cache", "error_bound", "load_sums", "recolour", "render",
+           "render_plain", "render_slice", "render_slice_plain"]

@@ -37,6 +37,7 @@ from ..store.reader import EncryptedVolume
 from .camera import Camera
 from .graph import FinishGraph, build_sums_graph
 from .modes import RenderSpec, combination_matrix, make_spec
+from .plane import Plane
 from .planner import check_render_size, plan_render
 from .rays import cast_rays
 from .sums import RaySums, check_sums_path, image_fields, save_sums
@@ -70,12 +71,15 @@ def clear_cache() -> None:
 
 
 def _check_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: Any, density: Any, nodes: Any,
-                   digits: Any, precision: Any, comb_digits: Any) -> tuple[RenderSpec, int, int, int]:
-    """Check what :func:`render` and :func:`error_bound` share, once, where it enters."""
+                   digits: Any, precision: Any, comb_digits: Any,
+                   views: tuple[type, ...] = (Camera,)) -> tuple[RenderSpec, int, int, int]:
+    """Check what :func:`render` and :func:`error_bound` share, once, where it enters (``views``:
+    the kinds of view the caller takes)."""
     if not isinstance(ev, EncryptedVolume):
         raise ParameterError(f"ev: expected an EncryptedVolume (hevr.open_volume), got {type(ev).__name__}")
-    if not isinstance(camera, Camera):
-        raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
+    if not isinstance(camera, views):
+        kinds = " or ".join(f"hevr.{v.__name__}" for v in views)
+        raise ParameterError(f"camera: expected a {kinds}, got {type(camera).__name__}")
     spec = make_spec(mode, sampling, step, density, nodes, ev.vector_dims, ev.has_scalar)
     return (spec, check_int("digits", digits, 0, 9), check_int("precision", precision, 0, 30),
             check_int("comb_digits", comb_digits, 1, 12))
@@ -165,8 +169,21 @@ def render(
         limits ``hevr.limits.max-pixels`` / ``hevr.limits.max-samples``
         (:func:`hevr.rendering.planner.check_render_size`): refused before any work.
     """
+    if isinstance(camera, Plane):
+        raise ParameterError("camera: expected a hevr.Camera, got a hevr.Plane (render slices with hevr.render_slice)")
+    return _render(ev, camera, mode, sampling, step, density, nodes, digits=digits, precision=precision,
+                   comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
+                   backend=backend, compute=compute, keep_sums=keep_sums)
+
+
+# -- the render of one view (a Camera, or a Plane: hevr.render_slice) ----------------------------
+def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: str, step: float,
+            density: float | None, nodes: Any, *, digits: int, precision: int, comb_digits: int, pack: bool,
+            tile: int, cache: bool, client: Any, progress: bool, backend: str | None, compute: bool,
+            keep_sums: str | os.PathLike | None, views: tuple[type, ...] = (Camera,)) -> EncryptedImage | Delayed:
+    """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``."""
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
-                                                          digits, precision, comb_digits)
+                                                          digits, precision, comb_digits, views)
     tile = check_int("tile", tile, 1, 4096)
     if keep_sums is not None and not compute:
         raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
@@ -255,12 +272,19 @@ def _deferred(fin: list, finish: FinishGraph, fields: dict, stats: dict) -> Dela
     return delayed(_image_from, pure=True)(fin, finish, fields, stats, dask_key_name=f"hevr-image-{uuid.uuid4().hex}")
 
 
-def error_bound(ev: EncryptedVolume, camera: Camera, mode: str = "xray", sampling: str = "nearest",
+def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray", sampling: str = "nearest",
                 step: float = 1.0, density: float | None = None, nodes: Any = None, *, digits: int = 3,
                 precision: int = 4, comb_digits: int = 4) -> np.ndarray:
-    """Per-pixel bound on |decrypted render − render_plain| (see the module docstring)."""
+    """Per-pixel bound on |decrypted render − render_plain| (see the module docstring).
+
+    ``camera`` may be a :class:`~hevr.rendering.plane.Plane`: the bound of
+    :func:`hevr.render_slice` against :func:`hevr.render_slice_plain` (same formula, n = the
+    pixel's slab samples inside the volume); ``step`` is then ignored (it is the plane's ``slab_step``).
+    """
+    if isinstance(camera, Plane):
+        step = camera.slab_step
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
-                                                          digits, precision, comb_digits)
+                                                          digits, precision, comb_digits, (Camera, Plane))
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
     n = rays.n_samples.astype(np.float64).reshape(camera.height, camera.width)

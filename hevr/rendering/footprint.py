@@ -22,9 +22,12 @@ Projection. With camera basis (d, right, up) and a point's coordinates
   ``z > 0``; a central projection maps a convex set in ``z > 0`` onto the convex hull of its
   corners' images, so again the corner rectangle bounds it. Samples have ``t >= 0``, hence
   ``z >= 0``: a box with every corner at ``z < 0`` is never sampled; a box that reaches
-  ``z <= 0`` (the camera inside or beside it) gets the whole image.
+  ``z <= 0`` (the camera inside or beside it) gets the whole image;
+* slice plane (:class:`~hevr.rendering.plane.Plane`): pixel (r, c)'s samples are
+  ``origin + c·du·u + r·dv·v + s·n`` for the slab's offsets s; the map to (c, r) is linear
+  (:func:`_plane_extent`), and a box whose extent along n misses the slab is never sampled.
 
-Pixel (r, c) has ``u = ((c + 0.5)/W·2 − 1)·aspect`` and ``v = 1 − (r + 0.5)/H·2``; the
+Camera pixel (r, c) has ``u = ((c + 0.5)/W·2 − 1)·aspect`` and ``v = 1 − (r + 0.5)/H·2``; the
 rectangle is widened by one pixel on every side against rounding. Bricks whose rectangle
 holds no hit pixel (2-D prefix sums of the hit mask, O(1) per brick) get no task.
 """
@@ -37,6 +40,7 @@ import numpy as np
 
 from .._tiles import TileLayout
 from .camera import Camera
+from .plane import Plane
 
 __all__ = ["Footprint", "brick_footprints"]
 
@@ -95,13 +99,14 @@ def _grown_boxes(shape: tuple[int, int, int], spacing, brick: tuple[int, int, in
     return (v0 - 1.0) * sp, v1 * sp
 
 
-def brick_footprints(camera: Camera, shape: tuple[int, int, int], spacing, brick: tuple[int, int, int],
+def brick_footprints(camera: Camera | Plane, shape: tuple[int, int, int], spacing, brick: tuple[int, int, int],
                      hit: np.ndarray, tile: int) -> dict[tuple[int, int, int], Footprint]:
     """Footprints of every brick whose rectangle holds a hit pixel, in brick raster order.
 
     Parameters
     ----------
-    camera : Camera
+    camera : Camera or Plane
+        A plane's projection is linear (:func:`_plane_extent`); bricks its slab misses get no task.
     shape : (nz, ny, nx)
     spacing : (sx, sy, sz)
     brick : (B0, B1, B2)
@@ -124,25 +129,11 @@ def brick_footprints(camera: Camera, shape: tuple[int, int, int], spacing, brick
     lo, hi = _grown_boxes(shape, spacing, brick, bricks)
     sel = np.array([[(c >> a) & 1 for a in range(3)] for c in range(8)], bool)  # (8, 3)
     corners = np.where(sel[None], hi[:, None, :], lo[:, None, :])  # (B, 8, 3)
-    d, right, up = camera.basis()
-    rel = corners - np.asarray(camera.position, np.float64)
-    x, y, z = rel @ right, rel @ up, rel @ d  # (B, 8)
-    behind = (z < 0).all(axis=1)
-    if camera.parallel:
-        scale = float(camera.parallel_scale)
-        u, v = x / scale, y / scale
+    if isinstance(camera, Plane):
+        cmin, cmax, rmin, rmax, behind = _plane_extent(camera, corners)
         whole = np.zeros(len(bricks), bool)
     else:
-        eps = 1e-9 * max(float(np.abs(rel).max()), 1.0)
-        whole = (z <= eps).any(axis=1) & ~behind
-        with np.errstate(divide="ignore", invalid="ignore"):
-            zz = np.where(z > eps, z, 1.0) * camera.tan_half
-            u, v = x / zz, y / zz
-    aspect = W / H
-    cmin = (u.min(axis=1) / aspect + 1.0) * W / 2.0 - 0.5
-    cmax = (u.max(axis=1) / aspect + 1.0) * W / 2.0 - 0.5
-    rmin = (1.0 - v.max(axis=1)) * H / 2.0 - 0.5
-    rmax = (1.0 - v.min(axis=1)) * H / 2.0 - 0.5
+        cmin, cmax, rmin, rmax, behind, whole = _camera_extent(camera, corners)
     with np.errstate(invalid="ignore"):
         c0 = np.clip(np.floor(cmin) - 1, 0, W).astype(np.int64)
         c1 = np.clip(np.ceil(cmax) + 2, 0, W).astype(np.int64)
@@ -172,3 +163,51 @@ def brick_footprints(camera: Camera, shape: tuple[int, int, int], spacing, brick
         out[tuple(int(k) for k in bricks[i])] = Footprint(  # type: ignore[index]
             (a0, a1, b0, b1), tuple((ty[keep] * lay.tiles_x + tx[keep]).tolist()))
     return out
+
+
+def _camera_extent(camera: Camera, corners: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Column and row ranges (fractional pixel indices) of the projected grown boxes (B, 8, 3),
+    which boxes lie behind the camera and which reach its plane (then: the whole image)."""
+    d, right, up = camera.basis()
+    rel = corners - np.asarray(camera.position, np.float64)
+    x, y, z = rel @ right, rel @ up, rel @ d  # (B, 8)
+    behind = (z < 0).all(axis=1)
+    if camera.parallel:
+        scale = float(camera.parallel_scale)
+        u, v = x / scale, y / scale
+        whole = np.zeros(len(corners), bool)
+    else:
+        eps = 1e-9 * max(float(np.abs(rel).max()), 1.0)
+        whole = (z <= eps).any(axis=1) & ~behind
+        with np.errstate(divide="ignore", invalid="ignore"):
+            zz = np.where(z > eps, z, 1.0) * camera.tan_half
+            u, v = x / zz, y / zz
+    H, W = camera.height, camera.width
+    aspect = W / H
+    cmin = (u.min(axis=1) / aspect + 1.0) * W / 2.0 - 0.5
+    cmax = (u.max(axis=1) / aspect + 1.0) * W / 2.0 - 0.5
+    rmin = (1.0 - v.max(axis=1)) * H / 2.0 - 0.5
+    rmax = (1.0 - v.min(axis=1)) * H / 2.0 - 0.5
+    return cmin, cmax, rmin, rmax, behind, whole
+
+
+def _plane_extent(plane: Plane, corners: np.ndarray) -> tuple[np.ndarray, ...]:
+    """A plane's column and row ranges of the grown boxes (B, 8, 3), and which boxes its slab misses.
+
+    A point X = origin + c·du·u + r·dv·v + s·n (n orthogonal to u and v) has
+    ``a = (X - origin)·u = c·du + g·r·dv`` and ``b = (X - origin)·v = g·c·du + r·dv``
+    (g = u·v, |g| <= 1e-6), so ``c·du = (a - g·b)/(1 - g²)`` and ``r·dv = (b - g·a)/(1 - g²)``:
+    a linear map, so the box's pixels lie in its corners' rectangle. The slab reaches only
+    points with s in [s_first, s_last]; a box whose s range misses it gets no task.
+    """
+    u, v, n = plane.basis()
+    rel = corners - np.asarray(plane.origin, np.float64)
+    a, b, s = rel @ u, rel @ v, rel @ n  # (B, 8)
+    g = float(u @ v)
+    du, dv = plane.pixel_spacing
+    c = (a - g * b) / (1.0 - g * g) / du
+    r = (b - g * a) / (1.0 - g * g) / dv
+    offsets = plane.slab_offsets
+    eps = 1e-9 * max(float(np.abs(rel).max()), float(offsets[-1] - offsets[0]), 1.0)
+    missed = (s.max(axis=1) < offsets[0] - eps) | (s.min(axis=1) > offsets[-1] + eps)
+    return c.min(axis=1), c.max(axis=1), r.min(axis=1), r.max(axis=1), missed

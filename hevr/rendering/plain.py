@@ -11,6 +11,9 @@ where ``s`` is the sampled (nearest or trilinearly interpolated) encoded vector 
 voxels' normalised densities. Because both vector modes are linear in ``s`` the renderer
 first maps every voxel to ``e(density) @ M`` (M from :func:`hevr.rendering.modes.combination_matrix`)
 and then interpolates that 1- or 3-channel field, which is the same sum in another order.
+:func:`render_slice_plain` is the slices' reference: it evaluates every slab sample of every
+pixel directly from the plane's definition (no ray casting, its own nearest and trilinear
+lookups), so it checks :func:`hevr.render_slice` by a second implementation.
 Rays are processed in chunks of about ``_CHUNK_SAMPLES`` samples, and a ray longer than
 ``_RAY_PIECE`` samples in pieces, so memory stays bounded however long the rays are; renders
 above the size limits (:func:`hevr.rendering.planner.check_render_size`) are refused first.
@@ -25,9 +28,11 @@ from typing import Any
 import numpy as np
 
 from .._validate import check_data_range, check_spacing, check_vector_dims, check_volume
+from ..errors import ParameterError
 from ..volume.density import default_value_range, encode_density, normalize_density
 from .camera import Camera
 from .modes import RenderSpec, combination_matrix, make_spec
+from .plane import Plane
 from .planner import check_render_size
 from .rays import (
     cast_rays,
@@ -37,7 +42,7 @@ from .rays import (
     trilinear_corners,
 )
 
-__all__ = ["render_plain", "DEFAULT_VECTOR_DIMS"]
+__all__ = ["render_plain", "render_slice_plain", "DEFAULT_VECTOR_DIMS"]
 
 logger = logging.getLogger(__name__)
 
@@ -187,3 +192,84 @@ def render_plain(
     out = np.divide(sums, n[:, None], out=np.zeros_like(sums), where=n[:, None] > 0)
     logger.debug("render_plain: %d rays, %d samples, mode=%s", rays.n_rays, int(counts.sum()), mode)
     return out.reshape(spec.image_shape(rays.height, rays.width))
+
+
+def render_slice_plain(
+    vol: Any,
+    plane: Plane,
+    mode: str = "xray",
+    sampling: str = "nearest",
+    spacing: Any = (1, 1, 1),
+    value_range: Any = None,
+    vector_dims: int | None = None,
+    density: float | None = None,
+    nodes: Any = None,
+) -> np.ndarray:
+    """Slice a plaintext volume; the reference for :func:`hevr.render_slice`.
+
+    Each pixel (r, c) averages the mode's quantity over its slab samples
+    ``origin + c·du·u + r·dv·v + (k - (S - 1)/2)·slab_step·n`` that lie in the closed
+    voxel-centre box (1e-9 relative tolerance), sampled as API.md defines: nearest
+    ``floor(p + 0.5)``, trilinear over the 8 surrounding voxels, indices clamped to the box.
+    A pixel without such a sample is 0. Arguments as for :func:`render_plain`, ``plane`` a
+    :class:`~hevr.rendering.plane.Plane`.
+
+    Returns
+    -------
+    np.ndarray
+        float64, (height, width) or (height, width, 3) for ``tf``.
+
+    Examples
+    --------
+    >>> vol = np.arange(24, dtype=np.uint8).reshape(2, 3, 4)
+    >>> bool((render_slice_plain(vol, Plane.axial(vol.shape, 1)) == vol[1]).all())
+    True
+    >>> render_slice_plain(vol, Plane.axial(vol.shape, 0.5), sampling="trilinear")[0].tolist()
+    [6.0, 7.0, 8.0, 9.0]
+    """
+    arr = _check_volume(vol)
+    if not isinstance(plane, Plane):
+        raise ParameterError(f"plane: expected a hevr.Plane, got {type(plane).__name__}")
+    dims = None
+    if mode in ("emphasize", "tf"):
+        dims = DEFAULT_VECTOR_DIMS if vector_dims is None else int(check_vector_dims(vector_dims))
+    spec = make_spec(mode, sampling, plane.slab_step, density, nodes, dims)
+    sp = np.asarray(check_spacing(spacing), dtype=np.float64)
+    check_render_size(plane, arr.shape, tuple(sp), plane.slab_step)
+    field, channels = _make_field(arr, spec, value_range, dims)
+    nz, ny, nx = arr.shape
+    upper = np.array([nx - 1, ny - 1, nz - 1], dtype=np.int64)
+    strides = np.array([1, nx, nx * ny], dtype=np.int64)
+    box = upper * sp
+    tol = 1e-9 * np.maximum(box, sp)
+    u, v = np.asarray(plane.u, dtype=np.float64), np.asarray(plane.v, dtype=np.float64)
+    normal = np.cross(u, v)
+    normal /= np.linalg.norm(normal)
+    du, dv = plane.pixel_spacing
+    n_pix = plane.width * plane.height
+    sums = np.zeros((n_pix, channels), dtype=np.float64)
+    counts = np.zeros(n_pix, dtype=np.int64)
+    for a in range(0, n_pix, _CHUNK_SAMPLES):
+        pix = np.arange(a, min(a + _CHUNK_SAMPLES, n_pix), dtype=np.int64)
+        rows, cols = np.divmod(pix, plane.width)
+        centre = np.asarray(plane.origin) + (cols * du)[:, None] * u + (rows * dv)[:, None] * v
+        for k in range(plane.slab):
+            world = centre + ((k - (plane.slab - 1) / 2.0) * plane.slab_step) * normal
+            inside = np.all((world >= -tol) & (world <= box + tol), axis=1)
+            p = world[inside] / sp
+            if spec.sampling == "nearest":
+                vals = field(np.clip(np.floor(p + 0.5).astype(np.int64), 0, upper) @ strides)
+            else:
+                base = np.floor(p)
+                frac = p - base
+                vals = np.zeros((p.shape[0], channels), dtype=np.float64)
+                for corner in range(8):
+                    bits = np.array([(corner >> ax) & 1 for ax in range(3)])
+                    idx = np.clip(base.astype(np.int64) + bits, 0, upper)
+                    w = np.prod(np.where(bits == 1, frac, 1.0 - frac), axis=1)
+                    vals += w[:, None] * field(idx @ strides)
+            sums[pix[inside]] += vals
+            counts[pix[inside]] += 1
+    n = counts.astype(np.float64) * spec.n_nodes
+    out = np.divide(sums, n[:, None], out=np.zeros_like(sums), where=n[:, None] > 0)
+    return out.reshape(spec.image_shape(plane.height, plane.width))

@@ -75,6 +75,7 @@ from ..errors import ParameterError, RenderPlanError
 from ..store.metadata import VolumeMetadata
 from .camera import Camera
 from .modes import RenderSpec
+from .plane import Plane
 from .rays import RaySet, cast_rays
 
 __all__ = [
@@ -237,11 +238,11 @@ def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> RaySe
 
     Parameters
     ----------
-    camera : Camera
+    camera : Camera or Plane
     shape : (nz, ny, nx)
     spacing : (sx, sy, sz)
     step : float
-        Sample distance in world units.
+        Sample distance in world units (a plane's ``slab_step``).
 
     Returns
     -------
@@ -266,8 +267,8 @@ def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> RaySe
     hevr.errors.RenderPlanError: width, height: expected an image of at most 16777216 pixels \
 (Dask config hevr.limits.max-pixels), got 16384x16384 = 268435456 pixels
     """
-    if not isinstance(camera, Camera):
-        raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
+    if not isinstance(camera, (Camera, Plane)):
+        raise ParameterError(f"camera: expected a hevr.Camera or hevr.Plane, got {type(camera).__name__}")
     shape, spacing, step = check_shape(shape), check_spacing(spacing), check_step(step)
     max_pixels, max_samples = render_limits()
     w, h = camera.width, camera.height

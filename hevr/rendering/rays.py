@@ -5,7 +5,9 @@ Conventions (API.md, "Geometry conventions"): a volume of shape (nz, ny, nx) has
 voxel centres ``[0, (nx-1)sx] x [0, (ny-1)sy] x [0, (nz-1)sz]``; a ray on a face is
 inside. Rays start at ``t = 0`` (nothing behind the camera or the parallel image plane is
 rendered). Samples sit at ``t_enter + k*step`` for ``k = 0 .. n-1`` with
-``n = floor((t_exit - t_enter)/step + 1e-9) + 1``.
+``n = floor((t_exit - t_enter)/step + 1e-9) + 1``. A slice plane's rays
+(:class:`~hevr.rendering.plane.Plane`) are its pixels' slabs: samples at ``t = k·slab_step``,
+those inside the box (one run, the box being convex) kept.
 
 Casting allocates a few arrays per ray (memory linear in ``width*height``), never per
 sample; a ray of more than :data:`MAX_RAY_SAMPLES` samples (a step far below the volume's
@@ -29,6 +31,7 @@ import numpy as np
 from .._validate import check_shape, check_spacing, check_step
 from ..errors import ParameterError, RenderPlanError
 from .camera import Camera
+from .plane import Plane
 
 __all__ = [
     "MAX_RAY_SAMPLES",
@@ -90,12 +93,14 @@ class RaySet:
         return local if self.pixel_ids is None else self.pixel_ids[local]
 
 
-def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float, pixels: Any = None) -> RaySet:
+def cast_rays(camera: Camera | Plane, shape: Any, spacing: Any, step: float, pixels: Any = None) -> RaySet:
     """Cast the camera's rays and clip them to the voxel-centre box.
 
     Parameters
     ----------
-    camera : Camera
+    camera : Camera or Plane
+        A :class:`~hevr.rendering.plane.Plane`'s rays are its pixels' slabs
+        (:func:`_cast_plane`); ``step`` must then be its ``slab_step``.
     shape : (nz, ny, nx)
     spacing : (sx, sy, sz)
         World order.
@@ -116,8 +121,10 @@ def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float, pixels: Any
     >>> rs.t_enter.tolist(), rs.t_exit.tolist(), rs.n_samples.tolist()
     ([6.0], [10.0], [5])
     """
+    if isinstance(camera, Plane):
+        return _cast_plane(camera, shape, spacing, step, pixels)
     if not isinstance(camera, Camera):
-        raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
+        raise ParameterError(f"camera: expected a hevr.Camera or hevr.Plane, got {type(camera).__name__}")
     nz, ny, nx = check_shape(shape)
     sp = np.asarray(check_spacing(spacing))
     step = check_step(step)
@@ -159,6 +166,51 @@ def cast_rays(camera: Camera, shape: Any, spacing: Any, step: float, pixels: Any
         height=camera.height,
         pixel_ids=ids,
     )
+
+
+def _cast_plane(plane: Plane, shape: Any, spacing: Any, step: Any, pixels: Any = None) -> RaySet:
+    """A plane's rays: per pixel, the run of its slab samples inside the voxel-centre box.
+
+    Ray (r, c) starts at its first slab sample and has direction n; sample k sits at
+    ``t = k·h`` (h = ``slab_step`` = ``step``), k = 0 .. slab - 1. A sample is inside when it lies
+    in the box widened by the face tolerance of :func:`cast_rays` on every axis; the box is
+    convex, so the inside samples are one run ``k0 .. k1``, found per axis from the line's
+    parameter interval in the widened box: ``k0 = ceil(t_min/h)``, ``k1 = floor(t_max/h)``,
+    clipped to the slab. Then ``t_enter = k0·h``, ``n = k1 - k0 + 1`` (0: the pixel has no
+    value), and :func:`sample_positions` gives exactly those samples.
+
+    >>> rs = cast_rays(Plane((0, 0, 1), (1, 0, 0), (0, 1, 0), 3, 1, slab=5), (3, 2, 2), (1, 1, 1), 1.0)
+    >>> rs.t_enter.tolist(), rs.n_samples.tolist()
+    ([1.0, 1.0, 0.0], [3, 3, 0])
+    """
+    nz, ny, nx = check_shape(shape)
+    sp = np.asarray(check_spacing(spacing))
+    step = check_step(step)
+    if step != plane.slab_step:
+        raise ParameterError(f"step: expected the plane's slab_step {plane.slab_step:g} (a plane's samples are "
+                             f"its slab's planes), got {step:g}")
+    ids = None if pixels is None else np.unique(plane.check_pixels(pixels))
+    origins, dirs = plane.rays(ids)
+    with np.errstate(over="ignore"):
+        hi = np.array([(nx - 1), (ny - 1), (nz - 1)], dtype=np.float64) * sp
+    tol = _FACE_TOL * np.maximum(hi, sp)
+    lo_b, hi_b = -tol, hi + tol
+    parallel = np.abs(dirs) < _PARALLEL_DIR
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t1 = (lo_b - origins) / dirs
+        t2 = (hi_b - origins) / dirs
+        tmin = np.where(parallel, -np.inf, np.minimum(t1, t2)).max(axis=1)
+        tmax = np.where(parallel, np.inf, np.maximum(t1, t2)).min(axis=1)
+        k0 = np.clip(np.ceil(tmin / step), 0, plane.slab)
+        k1 = np.clip(np.floor(tmax / step), -1, plane.slab - 1)
+    inside_slab = (~parallel | ((origins >= lo_b) & (origins <= hi_b))).all(axis=1)
+    hit = inside_slab & (k1 >= k0)  # NaN (a box beyond float range) compares False: a miss
+    k0 = np.where(hit, k0, 0.0).astype(np.int64)
+    n = np.where(hit, np.where(hit, k1, 0.0).astype(np.int64) - k0 + 1, 0).astype(np.int64)
+    t_enter = k0 * step
+    return RaySet(origins=origins, directions=dirs, t_enter=t_enter.astype(np.float64),
+                  t_exit=np.where(hit, t_enter + (n - 1) * step, 0.0), n_samples=n,
+                  width=plane.width, height=plane.height, pixel_ids=ids)
 
 
 def sample_positions(

@@ -18,7 +18,8 @@ safe to keep on the server):
 * 4 bytes: header length L (uint32); L bytes of JSON header: ``format``, ``version``,
   ``n`` (decimal string), ``fingerprint``, ``volume`` (the store's public metadata, as in its
   ``hevr`` attribute, checksum included), ``store`` (its path when rendered, for information),
-  ``camera`` (:meth:`hevr.Camera.to_dict`), ``sampling``, ``step``, ``weight_digits``,
+  ``camera`` (:meth:`hevr.Camera.to_dict`, or a slice's :meth:`hevr.Plane.to_dict`, told apart by
+  its ``kind: "plane"``), ``sampling``, ``step``, ``weight_digits``,
   ``channel`` (``"scalar"`` or ``"vector"``), ``tile``, ``width`` (bytes per ciphertext),
   ``components`` (K) and ``tiles``: one ``[tile, R]`` per image tile, R rays with sums, or -1
   for a tile no brick touches;
@@ -61,6 +62,7 @@ from ..store.metadata import VolumeMetadata
 from .camera import Camera
 from .graph import FinishGraph
 from .modes import RenderSpec, combination_matrix, make_spec
+from .plane import Plane, view_from_dict
 from .planner import RenderPlan, check_render_size, plan_render
 from .rays import cast_rays
 
@@ -112,7 +114,7 @@ class SavedSums:
     """
 
     meta: VolumeMetadata
-    camera: Camera
+    camera: Camera | Plane
     sampling: str
     step: float
     weight_digits: int
@@ -210,7 +212,7 @@ def load_sums(path: str | os.PathLike) -> SavedSums:
     if int(meta.n) != n:
         ctx.fail("volume", "the metadata of a volume under the same key", raw="another key's")
     try:
-        camera = Camera.from_dict(h["camera"])
+        camera = view_from_dict(h["camera"])  # a Camera, or a Plane (kind "plane": hevr.render_slice)
     except HevrError as exc:
         raise CorruptStoreError(f"{where}: header field 'camera': {exc}") from None
     if camera.width * camera.height > MAX_IMAGE_PIXELS:  # before anything is sized by the image
