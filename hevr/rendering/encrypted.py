@@ -16,6 +16,7 @@ Error bound of a decrypted pixel against :func:`hevr.render_plain` (same camera/
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import time
@@ -105,6 +106,7 @@ def render(
     backend: str | None = None,
     compute: bool = True,
     keep_sums: str | os.PathLike | None = None,
+    level: int | None = None,
 ) -> EncryptedImage | Delayed:
     """Render an encrypted volume to an :class:`EncryptedImage` on the active Dask scheduler.
 
@@ -154,6 +156,12 @@ def render(
         and public geometry only: safe on the server), from which :func:`hevr.recolour`
         finishes another density or transfer function without the map step
         (:mod:`hevr.rendering.sums`). The sums travel to this process to be written.
+    level : int, optional
+        Render pyramid level ``level`` of the store (:func:`hevr.build_pyramid`; 0 = the full
+        volume) with the same camera: each level has 8× fewer voxels, so about 8× fewer
+        ray-voxel pairs, and shows the 2×2×2 means (for emphasis and transfer functions: the
+        means of the encoded density vectors, :mod:`hevr.volume.pyramid`). Default: the
+        volume as given (a view from :meth:`hevr.EncryptedVolume.at_level` renders its level).
 
     Returns
     -------
@@ -173,17 +181,34 @@ def render(
         raise ParameterError("camera: expected a hevr.Camera, got a hevr.Plane (render slices with hevr.render_slice)")
     return _render(ev, camera, mode, sampling, step, density, nodes, digits=digits, precision=precision,
                    comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
-                   backend=backend, compute=compute, keep_sums=keep_sums)
+                   backend=backend, compute=compute, keep_sums=keep_sums, level=level)
+
+
+def _at_level(ev: EncryptedVolume, view: Camera | Plane, level: int | None) -> tuple[EncryptedVolume, Camera | Plane]:
+    """The volume to render — ``ev``, or the pyramid level asked for — and the view moved into
+    that level's frame: a level's voxel (0, 0, 0) sits at ``ev.origin``, hevr's rays assume
+    the origin, so the view moves by ``−origin`` (an exact change of coordinates)."""
+    if level is not None and level != ev.level:
+        ev = ev.at_level(level)
+    if not ev.level:
+        return ev, view
+    shift = np.asarray(ev.origin)
+    if isinstance(view, Plane):
+        return ev, dataclasses.replace(view, origin=tuple((np.asarray(view.origin) - shift).tolist()))
+    return ev, dataclasses.replace(view, position=tuple((np.asarray(view.position) - shift).tolist()),
+                                   focal_point=tuple((np.asarray(view.focal_point) - shift).tolist()))
 
 
 # -- the render of one view (a Camera, or a Plane: hevr.render_slice) ----------------------------
 def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: str, step: float,
             density: float | None, nodes: Any, *, digits: int, precision: int, comb_digits: int, pack: bool,
             tile: int, cache: bool, client: Any, progress: bool, backend: str | None, compute: bool,
-            keep_sums: str | os.PathLike | None, views: tuple[type, ...] = (Camera,)) -> EncryptedImage | Delayed:
+            keep_sums: str | os.PathLike | None, views: tuple[type, ...] = (Camera,),
+            level: int | None = None) -> EncryptedImage | Delayed:
     """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``."""
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, views)
+    ev, camera = _at_level(ev, camera, level)
     tile = check_int("tile", tile, 1, 4096)
     if keep_sums is not None and not compute:
         raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
@@ -201,8 +226,8 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     H, W = camera.height, camera.width
     layout = TileLayout(W, H, tile)
     n_tiles = layout.n_tiles
-    key = (ev.path, ev.meta.store_id, ev.meta.fingerprint, camera.key(), spec.sampling, spec.step, plan.weight_digits,
-           plan.channel, tile)
+    key = (ev.path, ev.meta.store_id, ev.meta.fingerprint, ev.level, camera.key(), spec.sampling, spec.step,
+           plan.weight_digits, plan.channel, tile)
     cl = active_client(client)
     sums = _CACHE.get(key) if cache else None
     if sums is not None and not sums.usable(cl):
@@ -219,7 +244,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
             log.warning("render: the resident bricks (%s, backend %s) cannot serve this render (channel %s, backend "
                         "%s, %s client); streaming from the store", "+".join(ev.resident.channels),
                         ev.resident.backend, plan.channel, backend, "another" if cl is not ev.resident.client else "a")
-    fields = image_fields(spec, plan, camera, rays.n_samples, ev.meta, tile)
+    fields = image_fields(spec, plan, camera, rays.n_samples, ev.meta, tile, level=ev.level)
     if sums is None:
         # One graph: map -> tree merge -> finish, so merged sums never travel through the client.
         # When they are cached they stay where they are: futures on a cluster (re-colouring
@@ -274,9 +299,10 @@ def _deferred(fin: list, finish: FinishGraph, fields: dict, stats: dict) -> Dela
 
 def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray", sampling: str = "nearest",
                 step: float = 1.0, density: float | None = None, nodes: Any = None, *, digits: int = 3,
-                precision: int = 4, comb_digits: int = 4) -> np.ndarray:
+                precision: int = 4, comb_digits: int = 4, level: int | None = None) -> np.ndarray:
     """Per-pixel bound on |decrypted render − render_plain| (see the module docstring).
 
+    ``level``: the bound of ``hevr.render(..., level=)`` against ``hevr.render_plain(..., level=)``.
     ``camera`` may be a :class:`~hevr.rendering.plane.Plane`: the bound of
     :func:`hevr.render_slice` against :func:`hevr.render_slice_plain` (same formula, n = the
     pixel's slab samples inside the volume); ``step`` is then ignored (it is the plane's ``slab_step``).
@@ -285,17 +311,20 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
         step = camera.slab_step
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, (Camera, Plane))
+    ev, camera = _at_level(ev, camera, level)
+    # a level's values are exact means of level-0 values: their storage error is level 0's
+    stored = ev.base if ev.level else ev.meta
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
     n = rays.n_samples.astype(np.float64).reshape(camera.height, camera.width)
     if spec.channel == "scalar":
         qmax = max(abs(ev.value_range[0]), abs(ev.value_range[1]))
-        store = 0.5 * 10.0 ** ev.meta.scalar.exponent if ev.meta.scalar.digits is not None else 0.0
+        store = 0.5 * 10.0 ** stored.scalar.exponent if stored.scalar.digits is not None else 0.0
         comb_err = 0.0
     else:
         M = combination_matrix(spec, ev.vector_dims)
         qmax = float(np.abs(M).sum(axis=0).max())
-        store = 0.5 * 10.0 ** ev.meta.vector.exponent * qmax
+        store = 0.5 * 10.0 ** stored.vector.exponent * qmax
         comb_err = 0.5 * 10.0 ** -comb_digits * np.sqrt(ev.vector_dims)
     K = spec.n_nodes
     weights = 4 * 10.0 ** -digits * (qmax + store + comb_err) if spec.sampling == "trilinear" else 0.0

@@ -21,6 +21,7 @@ above the size limits (:func:`hevr.rendering.planner.check_render_size`) are ref
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -30,6 +31,7 @@ import numpy as np
 from .._validate import check_data_range, check_spacing, check_vector_dims, check_volume
 from ..errors import ParameterError
 from ..volume.density import default_value_range, encode_density, normalize_density
+from ..volume.pyramid import check_level, downsample, level_origin, level_spacing
 from .camera import Camera
 from .modes import RenderSpec, combination_matrix, make_spec
 from .plane import Plane
@@ -120,6 +122,7 @@ def render_plain(
     vector_dims: int | None = None,
     density: float | None = None,
     nodes: Any = None,
+    level: int = 0,
 ) -> np.ndarray:
     """Render a plaintext volume; the reference for the encrypted renderer.
 
@@ -143,6 +146,10 @@ def render_plain(
         Emphasised density in [0, 1] (emphasize).
     nodes : list of (density, color)
         Transfer-function nodes (tf); colours as accepted by :func:`hevr.rendering.modes.parse_color`.
+    level : int
+        Render pyramid level ``level`` (:mod:`hevr.volume.pyramid`): the per-voxel field (values,
+        or encoded density vectors times the combination matrix) averaged over 2×2×2 children
+        ``level`` times, on the level's grid, with the same camera.
 
     Returns
     -------
@@ -164,9 +171,21 @@ def render_plain(
     if dims is not None:
         dims = int(dims)
     sp = check_spacing(spacing)
+    field, channels = _make_field(arr, spec, value_range, dims)
+    level = check_level(level)
+    if level:  # the pyramid's definition: means of the per-voxel field, on the level's grid
+        if not isinstance(camera, Camera):
+            raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
+        coarse = downsample(field(np.arange(arr.size)).reshape(arr.shape + (channels,)), level)
+        flat_field = coarse.reshape(-1, channels)
+        arr = np.empty(coarse.shape[:3], dtype=np.uint8)  # only its shape is used from here on
+        field = lambda idx: flat_field[idx]  # noqa: E731
+        shift = np.asarray(level_origin(sp, level))
+        camera = dataclasses.replace(camera, position=tuple((np.asarray(camera.position) - shift).tolist()),
+                                     focal_point=tuple((np.asarray(camera.focal_point) - shift).tolist()))
+        sp = level_spacing(sp, level)
     checked = check_render_size(camera, arr.shape, sp, spec.step)  # before anything per pixel or sample
     rays = checked if checked is not None else cast_rays(camera, arr.shape, sp, spec.step)
-    field, channels = _make_field(arr, spec, value_range, dims)
     nz, ny, nx = arr.shape
     strides = np.array([1, nx, nx * ny], dtype=np.int64)  # (i, j, k) -> flat C-order index
 

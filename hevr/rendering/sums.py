@@ -126,7 +126,7 @@ class SavedSums:
 
 
 def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: np.ndarray, meta: VolumeMetadata,
-                 tile: int) -> dict:
+                 tile: int, level: int = 0) -> dict:
     """Everything of an :class:`EncryptedImage` but its ciphertexts and stats (render and recolour)."""
     H, W = camera.height, camera.width
     return dict(shape=spec.image_shape(H, W), exponent=plan.exponent, offset=plan.offset, fingerprint=meta.fingerprint,
@@ -134,7 +134,8 @@ def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: 
                 hits=(np.asarray(n_samples) > 0).reshape(H, W), bound=plan.bound,
                 info={"mode": spec.mode, "sampling": spec.sampling, "step": spec.step, "density": spec.density,
                       "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None,
-                      "camera": camera.to_dict(), "plan": plan.to_dict()})
+                      "camera": camera.to_dict(), "plan": plan.to_dict(),
+                      **({"level": level} if level else {})})  # a level's camera is in the level's frame
 
 
 def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, camera: Camera, sampling: str,
