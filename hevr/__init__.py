@@ -48,6 +48,7 @@ from .rendering.plain import render_plain, render_slice_plain
 from .rendering.plane import Plane
 from .rendering.slices import render_slice
 from .rendering.sums import SavedSums, load_sums, recolour
+from .store.pyramid import build_pyramid
 from .store.reader import EncryptedVolume, open_volume
 from .store.upgrade import upgrade_store
 from .store.writer import encrypt_volume
@@ -78,6 +79,7 @@ __all__ = [
     "Plane",
     "render_slice",
     "render_slice_plain",
+    "build_pyramid",
     "EncryptedImage",
     "load_image",
     "save_png",

@@ -34,6 +34,7 @@ from ..store.reader import open_volume
 from ..store.upgrade import upgrade_store
 from ..store.writer import encrypt_volume
 from .keys import cmd_convert_key, cmd_keygen
+from .pyramid import level_rows
 from .util import (
     Timer,
     UsageError,
@@ -150,18 +151,22 @@ def cmd_render(args: Any) -> int:
     w, h = args.size
     cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h,
                        view_angle=args.view_angle, parallel=args.parallel)
+    if args.level > ev.levels:
+        raise UsageError(f"--level {args.level}: expected a level of the store's pyramid (0 to {ev.levels}), got "
+                         f"{args.level}; build it with: hevr pyramid {args.store} --levels {args.level}")
     check_render_size(cam, ev.shape, ev.spacing, args.step)  # refuse before a cluster starts
     what = {"xray": "X-ray", "emphasize": f"emphasis of density {args.density}",
             "tf": f"transfer function {format_tf(nodes) if nodes else ''}"}[mode]
     print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…")
+    lvl = f", pyramid level {args.level} ({xyz(ev.meta.levels[args.level - 1].shape)})" if args.level else ""
     print(f"render:  {what}, {args.sampling} sampling, {wh(w, h)} px, azimuth {args.azimuth:g}, "
-          f"elevation {args.elevation:g}, step {args.step:g}")
+          f"elevation {args.elevation:g}, step {args.step:g}{lvl}")
     with dask_client(args.scheduler, args.workers) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             img = render(ev, cam, mode=mode, sampling=args.sampling, step=args.step, density=args.density,
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,
-                         progress=show_progress(args), keep_sums=sums)
+                         progress=show_progress(args), keep_sums=sums, level=args.level or None)
     img.save(out)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(out.stat().st_size)}, rendered in {t.seconds:.2f} s")
@@ -317,6 +322,7 @@ def _info_store(path: Path) -> int:
         ("fingerprint", meta.fingerprint),
         ("ciphertext", f"{meta.ciphertext_bytes} bytes each"),
         ("complete", meta.complete),
+        *level_rows(meta),
         ("check", check),
         ("on disk", human_bytes(disk_usage(path))),
     ])

@@ -50,6 +50,8 @@ from .options import (
     digits_type,
     finite_float,
     floats_type,
+    level_type,
+    levels_type,
     phantom_size_type,
     positive_float,
     positive_int,
@@ -61,6 +63,7 @@ from .options import (
     vector_dims_type,
     workers_type,
 )
+from .pyramid import PYRAMID_EPILOG, cmd_pyramid
 from .slice import SLICE_EPILOG, cmd_slice, oblique_type
 from .util import err_line, format_tf, warn_line
 
@@ -200,6 +203,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--precision", type=precision_type, default=4, metavar="P",
                    help="decimal digits of the normalisation (default 4)")
 
+    p.add_argument("--level", type=level_type, default=0, metavar="L",
+                   help="render pyramid level L (hevr pyramid; default 0: the full volume)")
     p.add_argument("--keep-sums", metavar="SUMS", help="also write the view's encrypted ray sums (ciphertexts only: "
                    "safe on the server) so that 'hevr recolour SUMS' can finish another --density or --tf "
                    "without the map step")
@@ -284,6 +289,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dst", metavar="NEW", help="where the format-2 store goes (must not exist)")
 
 
+    p = sub.add_parser("pyramid", parents=[dask_opts], formatter_class=_RAW,
+                       help="add coarse levels (2x2x2 means) to a store, for quick previews (no key needed)",
+                       description=_d("Compute the encrypted multi-resolution pyramid of a store on the cluster: level "
+                                   "L+1 holds the means of 2x2x2 voxels of level L, computed on the ciphertexts. "
+                                   "'hevr render --level L' renders a level with the same camera, about 8^L times "
+                                   "less work."),
+                       epilog=PYRAMID_EPILOG)
+    p.add_argument("store", metavar="STORE", help="encrypted volume store")
+    p.add_argument("--levels", type=levels_type, default=1, metavar="N", help="build levels 1..N (default 1, at most 8)")
+
     p = sub.add_parser("demo", parents=[demo_opts], formatter_class=_RAW,
                        help="the whole pipeline on the paper's figures, no input needed",
                        description=_d("Generate the paper's phantom (or read --input), make a key, encrypt, render the "
@@ -337,6 +352,8 @@ def _run(args: Any) -> int:
         return demo.cmd_demo(args)
     if args.command == "slice":
         return cmd_slice(args)
+    if args.command == "pyramid":
+        return cmd_pyramid(args)
     return getattr(cmds, f"cmd_{args.command.replace('-', '_')}")(args)
 
 

@@ -15,6 +15,7 @@ from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
 from ..errors import ParameterError
 from ..rendering.modes import parse_color
 from ..rendering.planner import MAX_PIXELS_KEY, render_limits
+from ..volume.pyramid import MAX_LEVELS
 
 
 # -- value types ----------------------------------------------------------------
@@ -214,3 +215,27 @@ def tf_type(text: str) -> list[tuple[float, tuple[float, float, float]]]:
         return parse_tf(text)
     except ParameterError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def level_type(text: str) -> int:
+    """``--level L``: a pyramid level, 0 (the full volume) to 8.
+
+    >>> level_type("2")
+    2
+    """
+    return _int_in(text, 0, MAX_LEVELS, f"a pyramid level from 0 to {MAX_LEVELS}")
+
+
+def levels_type(text: str) -> int:
+    """``--levels N``: how many pyramid levels to build, 1 to 8."""
+    return _int_in(text, 1, MAX_LEVELS, f"a number of levels from 1 to {MAX_LEVELS}")
+
+
+def _int_in(text: str, lo: int, hi: int, expected: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not lo <= value <= hi:
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+    return value

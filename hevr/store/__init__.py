@@ -6,15 +6,19 @@
 ``journal``        owner-side resume journals (a resume cannot mix two volumes)
 ``paths``          local / fsspec store paths; write beside, then swap
 ``writer``         ``encrypt_volume``: brick-parallel encryption on Dask
-``reader``         ``open_volume`` / :class:`EncryptedVolume`: reading, checked bricks
+``layout``         the arrays of a store and the checks that a store on disk has them
+``reader``         ``open_volume`` / :class:`EncryptedVolume`: reading, checked bricks, levels
+``resident``       resident volumes: decoded bricks in worker memory
+``pyramid``        ``build_pyramid``: the encrypted multi-resolution pyramid (server side)
 ``upgrade``        ``upgrade_store``: format 1 → format 2 (adds the digests)
 =================  =============================================================
 """
 
 from __future__ import annotations
 
+from .pyramid import build_pyramid
 from .reader import EncryptedVolume, open_volume
 from .upgrade import upgrade_store
 from .writer import encrypt_volume
 
-__all__ = ["EncryptedVolume", "encrypt_volume", "open_volume", "upgrade_store"]
+__all__ = ["EncryptedVolume", "build_pyramid", "encrypt_volume", "open_volume", "upgrade_store"]
