@@ -18,9 +18,14 @@ request, as with :func:`hevr.render`. The viewer is a thin layer of widgets over
   and the largest pixel error against the plaintext reference when the notebook has the
   plaintext volume (``volume=``), next to :func:`hevr.error_bound`.
 
+* **progressive viewing**: on a store with a pyramid (:func:`hevr.build_pyramid`) the camera
+  sliders report every move and each move renders a coarse frame at pyramid level ``preview``
+  (default: the coarsest of levels 1–2 the store has; about 8^level times less work); once the
+  sliders have been still for ``settle`` seconds (or on :meth:`Viewer.settle`) the full frame
+  follows. Without a pyramid, sliders render on release.
+
 Not offered: orbiting by dragging on the image (ipywidgets' ``Image`` has no pointer events;
-that needs ipyevents or an anywidget front end) and a coarse preview while a slider moves (it
-needs a multi-resolution level of the store, which hevr does not write yet).
+that needs ipyevents or an anywidget front end).
 
 Every widget change calls :meth:`Viewer.refresh` synchronously, so the viewer can be driven
 headlessly — set a widget's ``value`` in code, as a test does, and the render runs.
@@ -31,6 +36,7 @@ from __future__ import annotations
 import html
 import io
 import logging
+import threading
 import time
 from typing import Any
 
@@ -46,6 +52,7 @@ from .rendering.encrypted import error_bound, render
 from .rendering.modes import parse_color
 from .rendering.plain import render_plain
 from .store.reader import EncryptedVolume
+from .volume.pyramid import check_level
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +100,12 @@ class Viewer:
         Passed to :func:`hevr.render`: a LocalCluster's or a remote scheduler's client.
     step : float
         Sample spacing along the rays.
+    preview : int, optional
+        Pyramid level of the frames shown while a camera slider moves (0: none). Default: the
+        coarsest of levels 1–2 the store has, else 0.
+    settle : float or None
+        Seconds without slider movement before the full frame replaces a preview; None: only
+        :meth:`settle` does it (headless use).
     show : bool
         Render the first frame now.
 
@@ -108,7 +121,7 @@ class Viewer:
     def __init__(self, ev: EncryptedVolume, private_key: PrivateKey, *, volume: np.ndarray | None = None,
                  width: int = 128, height: int = 128, mode: str | None = None, sampling: str = "nearest",
                  nodes: Any = None, density: float | None = None, client: Any = None, step: float = 1.0,
-                 show: bool = True) -> None:
+                 preview: int | None = None, settle: float | None = 0.6, show: bool = True) -> None:
         try:
             import ipywidgets as widgets
         except ImportError:
@@ -133,7 +146,15 @@ class Viewer:
         if mode not in modes:
             raise ParameterError(f"mode: expected one of {modes} (the store's channels), got {mode!r}")
         W = widgets
-        slider = dict(continuous_update=False, readout_format=".0f")
+        self.preview = min(ev.levels, 2) if preview is None else check_level(preview, ev.levels, "preview")
+        if settle is not None and not (isinstance(settle, (int, float)) and settle >= 0):
+            raise ParameterError(f"settle: expected seconds >= 0 or None, got {settle!r}")
+        self.settle_after = settle
+        self._timer: threading.Timer | None = None
+        self._pending = False
+        self._lock = threading.RLock()
+        # with a preview level, camera sliders report every move (cheap coarse frames); else on release
+        slider = dict(continuous_update=bool(self.preview), readout_format=".0f")
         self.azimuth = W.FloatSlider(value=30.0, min=-180.0, max=180.0, step=1.0, description="azimuth", **slider)
         self.elevation = W.FloatSlider(value=20.0, min=-89.0, max=89.0, step=1.0, description="elevation", **slider)
         self.view_angle = W.FloatSlider(value=30.0, min=5.0, max=90.0, step=1.0, description="view angle", **slider)
@@ -152,7 +173,9 @@ class Viewer:
         with self.hold():
             for d, c in (PAPER_TF1 if nodes is None else nodes):
                 self.add_node(d, c)
-        for w in (self.azimuth, self.elevation, self.view_angle, self.mode, self.sampling):
+        for w in (self.azimuth, self.elevation, self.view_angle):
+            w.observe(self._moved, names="value")
+        for w in (self.mode, self.sampling):
             w.observe(self._changed, names="value")
         self.density.observe(lambda ch: self._changed(ch, only="emphasize"), names="value")
         self.tf_box = W.VBox([self._rows, self.add_button])
@@ -221,6 +244,32 @@ class Viewer:
         if not self._held and (only is None or self.mode.value == only):
             self.refresh()
 
+    def _moved(self, _change: Any = None) -> None:
+        """A camera slider moved: a coarse frame now (when the store has a pyramid level), the
+        full frame once the sliders have been still for ``settle`` seconds (or on :meth:`settle`)."""
+        if self._held:
+            return
+        if not self.preview:
+            self.refresh()
+            return
+        self.refresh(level=self.preview)
+        self._pending = True
+        if self._timer is not None:
+            self._timer.cancel()
+        if self.settle_after is not None:
+            self._timer = threading.Timer(self.settle_after, self.settle)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def settle(self) -> dict | None:
+        """Render the full frame if the last one shown was a preview; returns its history entry."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if not self._pending:
+            return None
+        return self.refresh()
+
     def _layout(self) -> None:
         if hasattr(self, "tf_box"):
             self.density.layout.display = None if self.mode.value == "emphasize" else "none"
@@ -229,15 +278,21 @@ class Viewer:
     def _say(self, text: str) -> None:
         self.status.value = f"<span style='color:#b00'>{html.escape(text)}</span>"
 
-    def refresh(self) -> dict:
-        """Render, decrypt and show the current state; returns (and appends to :attr:`history`)
-        what happened."""
+    def refresh(self, level: int = 0) -> dict:
+        """Render, decrypt and show the current state (at pyramid ``level``: a preview); returns
+        (and appends to :attr:`history`) what happened."""
+        with self._lock:
+            if not level:
+                self._pending = False
+            return self._refresh(level)
+
+    def _refresh(self, level: int) -> dict:
         kw = self.request()
         cam = self.camera()
-        entry: dict[str, Any] = {"request": kw, "camera": cam.to_dict()}
+        entry: dict[str, Any] = {"request": kw, "camera": cam.to_dict(), "level": level}
         t0 = time.perf_counter()
         try:
-            img = render(self.ev, cam, client=self.client, progress=False, **kw)
+            img = render(self.ev, cam, client=self.client, progress=False, level=level or None, **kw)
         except HevrError as exc:  # e.g. two nodes at one density: say it, keep the last frame
             entry["error_message"] = str(exc)
             self.history.append(entry)
@@ -249,9 +304,9 @@ class Viewer:
         window = None
         if self.volume is not None:
             ref = render_plain(self.volume, cam, spacing=self.ev.spacing, value_range=self.ev.value_range,
-                               vector_dims=self.ev.vector_dims, **kw)
+                               vector_dims=self.ev.vector_dims, level=level, **kw)
             err = float(np.abs(arr - ref).max()) if arr.size else 0.0
-            bound = float(error_bound(self.ev, cam, **kw).max())
+            bound = float(error_bound(self.ev, cam, level=level or None, **kw).max())
             window = (0.0, max(float(ref.max()), 1e-12))
         self.image.value = _png(arr, window)
         entry.update(map_tasks=img.stats["map_tasks"], reused_ray_sums=img.stats["reused_ray_sums"],
@@ -260,7 +315,8 @@ class Viewer:
         how = "re-coloured from cached ray sums" if img.stats["reused_ray_sums"] else \
             f"{img.stats['map_tasks']} map tasks"
         took = f"{seconds:.2f} s" if seconds >= 1 else f"{1000 * seconds:.0f} ms"
-        text = f"{kw['mode']}/{kw['sampling']}: {took} (render + decrypt), {how}"
+        what = f"preview at pyramid level {level}, " if level else ""
+        text = f"{what}{kw['mode']}/{kw['sampling']}: {took} (render + decrypt), {how}"
         if err is not None:
             text += f"; max |error| vs plaintext {err:.2e} (bound {bound:.2e})"
         self.status.value = html.escape(text)

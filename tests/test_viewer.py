@@ -5,6 +5,7 @@ error_bound."""
 from __future__ import annotations
 
 import html
+import time
 
 import numpy as np
 import pytest
@@ -153,3 +154,37 @@ def test_hidden_widgets_render_nothing_and_bad_indices_are_named(viewer):
     viewer.add_node(float("nan"), "red")
     assert viewer.history[-1]["error_message"].startswith("nodes[3] density: expected a normalised density")
     assert viewer.status.value.endswith(html.escape(viewer.history[-1]["error_message"]) + "</span>")
+
+
+def test_progressive_viewing_on_a_pyramid(scene, tmp_path):
+    """A store with pyramid levels: a slider move shows a coarse frame (level 1 here), the full
+    frame follows on settle() or after `settle` seconds of stillness."""
+    ev, priv, vol = scene
+    path = tmp_path / "p.zarr"
+    pev = hevr.encrypt_volume(vol, path, priv, brick=4, vector_dims=3, progress=False)
+    pev = hevr.build_pyramid(pev, 1, progress=False)
+    hevr.clear_cache()
+    v = Viewer(pev, priv, volume=vol, width=10, height=8, mode="emphasize", settle=None)
+    assert v.preview == 1 and v.azimuth.continuous_update is True and v.history[-1]["level"] == 0
+    v.azimuth.value = 50.0
+    last = v.history[-1]
+    assert last["level"] == 1 and last["map_tasks"] >= 1 and last["error"] <= last["bound"]
+    assert "preview at pyramid level 1" in v.status.value
+    full = v.settle()
+    assert full["level"] == 0 and full["camera"] == last["camera"] and full["error"] <= full["bound"]
+    assert v.settle() is None  # nothing pending
+    v.density.value = 0.4  # not a camera move: the full frame directly (re-coloured)
+    assert v.history[-1]["level"] == 0 and v.history[-1]["map_tasks"] == 0
+    timed = Viewer(pev, priv, width=10, height=8, settle=0.05, preview=1)
+    timed.elevation.value = -30.0
+    assert timed.history[-1]["level"] == 1
+    deadline = time.time() + 20
+    while timed.history[-1]["level"] != 0 and time.time() < deadline:
+        time.sleep(0.05)
+    assert timed.history[-1]["level"] == 0  # the timer rendered the full frame
+    no = Viewer(pev, priv, width=10, height=8, preview=0)
+    assert no.azimuth.continuous_update is False
+    with pytest.raises(hevr.ParameterError, match="preview: expected a level of this store's pyramid, 0 to 1"):
+        Viewer(pev, priv, preview=2, show=False)
+    with pytest.raises(hevr.ParameterError, match="settle"):
+        Viewer(pev, priv, settle=-1, show=False)
