@@ -31,7 +31,7 @@ pytest.importorskip("jupytext")
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOK_DIR = ROOT / "notebooks"
-NOTEBOOKS = ["01_quickstart", "02_transfer_functions", "03_scaling"]
+NOTEBOOKS = ["01_quickstart", "02_transfer_functions", "03_scaling", "04_slices_pyramid_gradient"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
@@ -107,10 +107,24 @@ def _check_scaling(s: dict) -> None:
     assert all(r["render_s"] > 0 and r["decrypt_s"] > 0 and r["volume_us_per_voxel"] > 0 for r in keys)
 
 
+def _check_beyond(s: dict) -> None:
+    planes = {r["plane"] for r in s["slices"]}
+    assert planes == {"axial 12", "coronal 12", "sagittal 12", "oblique", "slab of 5"}
+    assert {r["sampling"] for r in s["slices"]} == {"nearest", "trilinear"}
+    tasks = [r["map_tasks"] for r in sorted(s["levels"], key=lambda r: r["level"])]
+    assert len(tasks) == 3 and tasks[0] > tasks[1] > tasks[2] >= 1, tasks  # coarser levels, fewer bricks
+    grads = [(r["volume"], r["gradient"]) for r in s["gradient"]]
+    assert ("phantom", False) in grads and ("phantom", True) in grads
+    v = s["viewer"]
+    assert v["moving_level"] == 1 and v["still_level"] == 0 and v["moving_map_tasks"] >= 1
+    assert s["pyramid_over_encrypt"] > 0
+
+
 CHECKS = {
     "01_quickstart": _check_quickstart,
     "02_transfer_functions": _check_transfer,
     "03_scaling": _check_scaling,
+    "04_slices_pyramid_gradient": _check_beyond,
 }
 
 
