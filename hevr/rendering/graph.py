@@ -82,7 +82,7 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     _stats.add("map.geometry", time.perf_counter() - t0, 1)
     W = ev.meta.ciphertext_bytes
     tiles = footprint.tiles
-    empty = (np.zeros(0, np.int64), np.zeros((0, 1 if channel == "scalar" else ev.vector_dims, W), np.uint8))
+    empty = (np.zeros(0, np.int64), np.zeros((0, ev.meta.components(channel), W), np.uint8))
     if bw.rays.size == 0:
         return {t: empty for t in tiles}
     be = get_backend(backend)

@@ -6,6 +6,11 @@ Modes (API.md): ``xray`` averages the scalar channel; ``emphasize`` averages
 are linear in ``s``, so a renderer applies one plaintext matrix per sample:
 ``s @ combination_matrix(spec, k)``, and divides each pixel's sum by
 ``n * normalisation_factor(spec)``.
+
+``gradient=True`` (emphasize and tf only) samples the gradient channel ``g·e(d)``
+(:mod:`hevr.volume.gradient`) instead of ``e(d)``: the same matrix and kernel, each sample
+weighted by its voxel's normalised gradient magnitude ``g`` (boundaries emphasised). The one
+place that says which stored channel a request reads is :attr:`RenderSpec.channel`.
 """
 
 from __future__ import annotations
@@ -114,6 +119,8 @@ class RenderSpec:
         Only for ``emphasize`` (``None`` otherwise).
     nodes : tuple of (float, (r, g, b)) or None
         Only for ``tf`` (``None`` otherwise), in the order given.
+    gradient : bool
+        Sample the gradient channel g·e(d) instead of e(d) (``emphasize``, ``tf`` only).
     """
 
     mode: str
@@ -121,6 +128,7 @@ class RenderSpec:
     step: float
     density: float | None = None
     nodes: tuple[tuple[float, tuple[float, float, float]], ...] | None = None
+    gradient: bool = False
 
     @property
     def channels(self) -> int:
@@ -134,8 +142,15 @@ class RenderSpec:
 
     @property
     def channel(self) -> str:
-        """The stored channel the mode reads: ``"scalar"`` (xray) or ``"vector"``."""
-        return "vector" if self.needs_vector else "scalar"
+        """The stored channel the request reads: ``"scalar"`` (xray), ``"vector"``, or
+        ``"gradient"`` (emphasize / tf with ``gradient=True``).
+
+        >>> RenderSpec("tf", "nearest", 1.0, gradient=True).channel
+        'gradient'
+        """
+        if not self.needs_vector:
+            return "scalar"
+        return "gradient" if self.gradient else "vector"
 
     @property
     def n_nodes(self) -> int:
@@ -196,6 +211,8 @@ def make_spec(
     nodes: Any,
     vector_dims: int | None,
     has_scalar: bool = True,
+    gradient: Any = False,
+    has_gradient: bool = False,
 ) -> RenderSpec:
     """Validate a render request against what the volume/store holds.
 
@@ -208,15 +225,33 @@ def make_spec(
         Length of the volume's encoded-vector channel, ``None`` if it has none.
     has_scalar : bool
         Whether the volume has the scalar channel (needed by ``xray``).
+    gradient : bool
+        Read the gradient channel (``emphasize`` / ``tf`` only).
+    has_gradient : bool
+        Whether the volume has the gradient channel (needed by ``gradient=True``).
 
     Examples
     --------
     >>> make_spec("emphasize", "nearest", 1.0, 0.653, None, vector_dims=4).density
     0.653
+    >>> make_spec("xray", "nearest", 1.0, None, None, None, gradient=True)
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: gradient: expected mode 'emphasize' or 'tf' with gradient=True (the gradient channel weights the density encoding; an X-ray has none), got mode='xray'
     """
     check_choice("mode", mode, MODES)
     check_choice("sampling", sampling, SAMPLINGS)
     step = check_step(step)
+    if not isinstance(gradient, (bool, np.bool_)):
+        raise ParameterError(f"gradient: expected True or False, got {gradient!r}")
+    gradient = bool(gradient)
+    if gradient and mode not in ("emphasize", "tf"):
+        raise ParameterError(f"gradient: expected mode 'emphasize' or 'tf' with gradient=True (the gradient channel "
+                             f"weights the density encoding; an X-ray has none), got mode={mode!r}")
+    if gradient and not has_gradient:
+        raise ParameterError(
+            "gradient: expected a store encrypted with gradient=True (its 'gradient' channel), got one without — "
+            "encrypt again with hevr.encrypt_volume(..., vector_dims=k, gradient=True)")
     if mode == "xray":
         if not has_scalar:
             raise ParameterError(
@@ -233,15 +268,16 @@ def make_spec(
     if mode == "emphasize":
         if density is None:
             raise ParameterError("density: expected a density in [0, 1] for mode='emphasize', got None")
-        return RenderSpec(mode, sampling, step, density=_unit_density("density", density))
-    return RenderSpec(mode, sampling, step, nodes=_parse_nodes(nodes))
+        return RenderSpec(mode, sampling, step, density=_unit_density("density", density), gradient=gradient)
+    return RenderSpec(mode, sampling, step, nodes=_parse_nodes(nodes), gradient=gradient)
 
 
 def combination_matrix(spec: RenderSpec, vector_dims: int) -> np.ndarray:
     """The plaintext (k, C) matrix turning a sampled encoded vector into the mode's value.
 
     ``emphasize``: C = 1, the column ``e(density)``. ``tf``: C = 3,
-    ``M = sum_i e(d_i) c_i^T``. (``xray`` uses the scalar channel and has none.)
+    ``M = sum_i e(d_i) c_i^T``. (``xray`` uses the scalar channel and has none.) The same
+    matrix serves the gradient channel, whose samples are g·e(d).
 
     Examples
     --------

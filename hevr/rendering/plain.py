@@ -8,7 +8,9 @@ path can be checked against it:
 * ``tf``: ``(1/(n K)) sum_samples sum_i dot(s, e(d_i)) c_i``;
 
 where ``s`` is the sampled (nearest or trilinearly interpolated) encoded vector of the
-voxels' normalised densities. Because both vector modes are linear in ``s`` the renderer
+voxels' normalised densities — with ``gradient=True`` the sampled ``g·e(d)`` instead, the
+field the writer stores in the gradient channel (:func:`hevr.volume.gradient.gradient_encoding`,
+the same float64 values before quantisation). Because both vector modes are linear in ``s`` the renderer
 first maps every voxel to ``e(density) @ M`` (M from :func:`hevr.rendering.modes.combination_matrix`)
 and then interpolates that 1- or 3-channel field, which is the same sum in another order.
 :func:`render_slice_plain` is the slices' reference: it evaluates every slab sample of every
@@ -31,6 +33,7 @@ import numpy as np
 from .._validate import check_data_range, check_spacing, check_vector_dims, check_volume
 from ..errors import ParameterError
 from ..volume.density import default_value_range, encode_density, normalize_density
+from ..volume.gradient import gradient_encoding
 from ..volume.pyramid import check_level, downsample, level_origin, level_spacing
 from .camera import Camera
 from .modes import RenderSpec, combination_matrix, make_spec
@@ -68,8 +71,9 @@ def _check_volume(vol: Any) -> np.ndarray:
     return arr
 
 
-def _make_field(arr: np.ndarray, spec: RenderSpec, value_range: Any, dims: int | None) -> tuple[Field, int]:
-    """Return ``field(flat_voxel_indices) -> (m, C) float64`` and C."""
+def _make_field(arr: np.ndarray, spec: RenderSpec, value_range: Any, dims: int | None,
+                spacing: Any = (1, 1, 1)) -> tuple[Field, int]:
+    """Return ``field(flat_voxel_indices) -> (m, C) float64`` and C (``spacing``: the gradient's world units)."""
     flat = arr.reshape(-1)
     if not spec.needs_vector:
         return (lambda idx: flat[idx].astype(np.float64)[:, None]), 1
@@ -77,6 +81,9 @@ def _make_field(arr: np.ndarray, spec: RenderSpec, value_range: Any, dims: int |
     matrix = combination_matrix(spec, dims)
     rng = default_value_range(arr) if value_range is None else value_range
     channels = matrix.shape[1]
+    if spec.gradient:  # g·e(d) of every voxel, from the whole volume's gradient, times the matrix
+        table = gradient_encoding(arr, spacing, rng, dims).reshape(-1, dims) @ matrix
+        return (lambda idx: table[idx]), channels
     if arr.dtype == np.bool_ or np.issubdtype(arr.dtype, np.integer):
         lo, hi = int(flat.min()), int(flat.max())
         if hi - lo < _LUT_MAX:
@@ -123,6 +130,7 @@ def render_plain(
     density: float | None = None,
     nodes: Any = None,
     level: int = 0,
+    gradient: bool = False,
 ) -> np.ndarray:
     """Render a plaintext volume; the reference for the encrypted renderer.
 
@@ -150,6 +158,11 @@ def render_plain(
         Render pyramid level ``level`` (:mod:`hevr.volume.pyramid`): the per-voxel field (values,
         or encoded density vectors times the combination matrix) averaged over 2×2×2 children
         ``level`` times, on the level's grid, with the same camera.
+    gradient : bool
+        ``emphasize`` / ``tf`` only: sample ``g·e(d)`` instead of ``e(d)`` — ``g`` the voxel's
+        gradient magnitude (central differences in world units, ``spacing``) over the whole
+        volume's largest (:mod:`hevr.volume.gradient`); the reference of
+        ``hevr.render(..., gradient=True)``.
 
     Returns
     -------
@@ -167,11 +180,11 @@ def render_plain(
     dims = None
     if mode in ("emphasize", "tf"):
         dims = DEFAULT_VECTOR_DIMS if vector_dims is None else check_vector_dims(vector_dims)
-    spec = make_spec(mode, sampling, step, density, nodes, dims)
+    spec = make_spec(mode, sampling, step, density, nodes, dims, gradient=gradient, has_gradient=True)
     if dims is not None:
         dims = int(dims)
     sp = check_spacing(spacing)
-    field, channels = _make_field(arr, spec, value_range, dims)
+    field, channels = _make_field(arr, spec, value_range, dims, sp)
     level = check_level(level)
     if level:  # the pyramid's definition: means of the per-voxel field, on the level's grid
         if not isinstance(camera, Camera):
@@ -223,6 +236,7 @@ def render_slice_plain(
     vector_dims: int | None = None,
     density: float | None = None,
     nodes: Any = None,
+    gradient: bool = False,
 ) -> np.ndarray:
     """Slice a plaintext volume; the reference for :func:`hevr.render_slice`.
 
@@ -252,10 +266,10 @@ def render_slice_plain(
     dims = None
     if mode in ("emphasize", "tf"):
         dims = DEFAULT_VECTOR_DIMS if vector_dims is None else int(check_vector_dims(vector_dims))
-    spec = make_spec(mode, sampling, plane.slab_step, density, nodes, dims)
+    spec = make_spec(mode, sampling, plane.slab_step, density, nodes, dims, gradient=gradient, has_gradient=True)
     sp = np.asarray(check_spacing(spacing), dtype=np.float64)
     check_render_size(plane, arr.shape, tuple(sp), plane.slab_step)
-    field, channels = _make_field(arr, spec, value_range, dims)
+    field, channels = _make_field(arr, spec, value_range, dims, tuple(sp))
     nz, ny, nx = arr.shape
     upper = np.array([nx - 1, ny - 1, nz - 1], dtype=np.int64)
     strides = np.array([1, nx, nx * ny], dtype=np.int64)

@@ -99,7 +99,7 @@ class RenderPlan:
 
     mode: str
     sampling: str
-    channel: str  # "scalar" or "vector"
+    channel: str  # "scalar", "vector" or "gradient"
     weight_digits: int
     weight_exponent: int
     channel_exponent: int
@@ -154,12 +154,12 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
     limit = int(n) // 3
     key_bits = int(n).bit_length()
     channel = spec.channel
-    info = meta.scalar if channel == "scalar" else meta.vector
+    info = getattr(meta, channel)
     ch_exp = int(info.exponent)
     if channel == "scalar":
         lo_m = math.floor(meta.value_range[0] * 10 ** (-ch_exp))
         hi_m = math.ceil(meta.value_range[1] * 10 ** (-ch_exp))
-    else:
+    else:  # vector and gradient components lie in [0, 1]: mantissas in [0, 10^digits]
         lo_m, hi_m = 0, 10 ** int(info.digits)
     amax = max(abs(lo_m), abs(hi_m))
     trilinear = spec.sampling == "trilinear"

@@ -54,6 +54,7 @@ def render_slice(
     backend: str | None = None,
     compute: bool = True,
     keep_sums: str | os.PathLike | None = None,
+    gradient: bool = False,
 ) -> EncryptedImage | Delayed:
     """Render a slice of an encrypted volume to an :class:`EncryptedImage` (no key needed).
 
@@ -76,8 +77,9 @@ def render_slice(
         pixel divides by n·K = 1 — else 4. Fewer digits mean smaller packed values: the
         finishing does ``bits(value)`` squarings per pixel, so a nearest X-ray slice of 8-bit
         data packs 8 bits per pixel instead of 22.
-    digits, comb_digits, pack, tile, cache, client, progress, backend, compute, keep_sums :
-        As for :func:`hevr.render` (the plane's ``slab_step`` is the sample step).
+    digits, comb_digits, pack, tile, cache, client, progress, backend, compute, keep_sums, gradient :
+        As for :func:`hevr.render` (the plane's ``slab_step`` is the sample step; ``gradient``:
+        the gradient channel g·e(d), emphasize / tf only).
 
     Returns
     -------
@@ -105,4 +107,5 @@ def render_slice(
         precision = 0 if plane.slab == 1 and mode in ("xray", "emphasize") else DEFAULT_PRECISION
     return _render(ev, plane, mode, sampling, plane.slab_step, density, nodes, digits=digits, precision=precision,
                    comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
-                   backend=backend, compute=compute, keep_sums=keep_sums, views=(Plane,))
+                   backend=backend, compute=compute, keep_sums=keep_sums, views=(Plane,),
+                   gradient=gradient)

@@ -20,7 +20,7 @@ safe to keep on the server):
   ``hevr`` attribute, checksum included), ``store`` (its path when rendered, for information),
   ``camera`` (:meth:`hevr.Camera.to_dict`, or a slice's :meth:`hevr.Plane.to_dict`, told apart by
   its ``kind: "plane"``), ``sampling``, ``step``, ``weight_digits``,
-  ``channel`` (``"scalar"`` or ``"vector"``), ``tile``, ``width`` (bytes per ciphertext),
+  ``channel`` (``"scalar"``, ``"vector"`` or ``"gradient"``), ``tile``, ``width`` (bytes per ciphertext),
   ``components`` (K) and ``tiles``: one ``[tile, R]`` per image tile, R rays with sums, or -1
   for a tile no brick touches;
 * per tile with R >= 0: R int64 global pixel indices (strictly increasing, inside the tile),
@@ -135,6 +135,7 @@ def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: 
                 info={"mode": spec.mode, "sampling": spec.sampling, "step": spec.step, "density": spec.density,
                       "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None,
                       "camera": camera.to_dict(), "plan": plan.to_dict(),
+                      **({"gradient": True} if spec.gradient else {}),
                       **({"level": level} if level else {})})  # a level's camera is in the level's frame
 
 
@@ -145,7 +146,7 @@ def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, c
     values = sums.values()
     n = int(meta.n)
     width = record_width(n)
-    K = 1 if channel == "scalar" else int(meta.vector.dims)
+    K = meta.components(channel)
     head = {"format": FORMAT, "version": VERSION, "n": str(n), "fingerprint": meta.fingerprint,
             "volume": meta.to_dict(), "store": str(store), "camera": camera.to_dict(), "sampling": sampling,
             "step": float(step), "weight_digits": int(weight_digits), "channel": channel, "tile": int(tile),
@@ -227,7 +228,7 @@ def load_sums(path: str | os.PathLike) -> SavedSums:
     channel = h["channel"]
     if channel not in meta.channel_names:
         ctx.fail("channel", f"one of the volume's channels {list(meta.channel_names)}", channel)
-    K = 1 if channel == "scalar" else int(meta.vector.dims)
+    K = meta.components(channel)
     ctx.integer("components", h["components"], K, K)
     width = ctx.integer("width", h["width"], record_width(n), record_width(n))
     tile = ctx.integer("tile", h["tile"], 1, 4096)
@@ -292,7 +293,8 @@ def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, 
 
 def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: float | None = None,
              nodes: Any = None, *, precision: int = 4, comb_digits: int = 4, pack: bool = True,
-             client: Any = None, progress: bool = True, backend: str | None = None) -> EncryptedImage:
+             client: Any = None, progress: bool = True, backend: str | None = None,
+             gradient: bool = False) -> EncryptedImage:
     """Finish saved ray sums with another density or transfer function: only the per-pixel step.
 
     Parameters
@@ -304,6 +306,9 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
         ``emphasize`` and ``tf`` need sums of the vector channel, ``xray`` of the scalar one.
     client, progress, backend
         As for :func:`hevr.render`.
+    gradient : bool
+        ``emphasize`` / ``tf`` of sums of the gradient channel (a render with ``gradient=True``);
+        sums of the vector channel need ``gradient=False``, and the other way round.
 
     Returns
     -------
@@ -315,9 +320,13 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     t0 = time.perf_counter()
     meta, camera = sums.meta, sums.camera
     spec = make_spec(mode, sums.sampling, sums.step, density, nodes, meta.vector.dims if meta.vector else None,
-                     meta.scalar is not None)
+                     meta.scalar is not None, gradient, meta.gradient is not None)
+    if spec.channel != sums.channel and {spec.channel, sums.channel} == {"vector", "gradient"}:
+        raise ParameterError(f"gradient: expected sums of the {spec.channel} channel for gradient={spec.gradient}, got "
+                             f"the {sums.channel} channel's (rendered with gradient={not spec.gradient}; {sums.path}); "
+                             f"recolour them with gradient={not spec.gradient}")
     if spec.channel != sums.channel:
-        need = "a render in mode 'emphasize' or 'tf'" if spec.channel == "vector" else "an X-ray render"
+        need = "an X-ray render" if spec.channel == "scalar" else "a render in mode 'emphasize' or 'tf'"
         raise ParameterError(f"sums: expected the {spec.channel} channel's sums ({need}) for mode {spec.mode!r}, "
                              f"got the {sums.channel} channel's ({sums.path})")
     precision = check_int("precision", precision, 0, 30)

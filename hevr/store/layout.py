@@ -30,9 +30,10 @@ def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple
     w, out = meta.ciphertext_bytes, {}
     if meta.scalar is not None:
         out["scalar"] = (meta.shape + (w,), meta.brick + (w,))
-    if meta.vector is not None:
-        k = meta.vector.dims
-        out["vector"] = ((k,) + meta.shape + (w,), (k,) + meta.brick + (w,))
+    for name in ("vector", "gradient"):  # k components per voxel, one chunk holds all k of a brick
+        if getattr(meta, name) is not None:
+            k = meta.components(name)
+            out[name] = ((k,) + meta.shape + (w,), (k,) + meta.brick + (w,))
     nch = len(meta.channel_names)
     out["done"] = (meta.grid + (nch, DIGEST_BYTES), (1, 1, 1, nch, DIGEST_BYTES))
     return out
@@ -50,7 +51,7 @@ def check_chunk_files(path: str, meta: VolumeMetadata, prefix: str = "") -> None
         expected = int(np.prod(chunks)) + CRC_BYTES
         lead = (0, 0) if name == "done" else (0,)
         for idx in np.ndindex(*meta.grid):
-            key = "/".join(str(i) for i in ((0,) if name == "vector" else ()) + tuple(idx) + lead)
+            key = "/".join(str(i) for i in ((0,) if name in ("vector", "gradient") else ()) + tuple(idx) + lead)
             f = root / name / "c" / key
             brick = tuple(int(i) for i in idx)
             where = "the digest markers 'done'" if name == "done" else f"channel {name!r}"

@@ -36,7 +36,7 @@ from .._validate import MAX_STORE_DIGITS, is_decimal
 from ..errors import CorruptStoreError
 from ..volume.pyramid import MAX_LEVELS, level_spacing
 
-__all__ = ["ChannelInfo", "LevelInfo", "VolumeMetadata", "ome_attribute", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
+__all__ = ["CHANNELS", "ChannelInfo", "LevelInfo", "VolumeMetadata", "ome_attribute", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
 
 FORMAT_NAME = "hevr-encrypted-volume"
 FORMAT_VERSION = 2
@@ -46,6 +46,7 @@ MAX_N_DIGITS = 5000  # a 16 000-bit modulus; longer decimal strings are refused 
 _HEX64 = re.compile(r"[0-9a-f]{64}")
 _STORE_ID = re.compile(r"[0-9a-f]{16}")
 _DOC_DIGEST = re.compile(r"sha256:[0-9a-f]{64}")
+CHANNELS = ("scalar", "vector", "gradient")  # store order: the order of a brick's digests
 
 
 def sha256_tag(data: bytes) -> str:
@@ -74,7 +75,7 @@ class ChannelInfo:
 
     exponent: int
     digits: int | None = None  # None: stored exactly (integer volume)
-    dims: int | None = None  # vector channel only
+    dims: int | None = None  # vector and gradient channels only
 
     def to_dict(self) -> dict:
         return {k: v for k, v in asdict(self).items() if v is not None}
@@ -138,6 +139,7 @@ class VolumeMetadata:
     value_range: tuple[float, float]
     scalar: ChannelInfo | None
     vector: ChannelInfo | None
+    gradient: ChannelInfo | None = None  # g·e(d), hevr.volume.gradient: same dims and digits as vector
     base: int = 10
     complete: bool = False
     store_id: str = ""  # random per store creation: digests and caches tell two volumes apart by it
@@ -171,13 +173,18 @@ class VolumeMetadata:
             return ChannelInfo(exponent=ch.exponent - 3 * level, digits=digits, dims=ch.dims)
 
         return dataclasses.replace(self, shape=info.shape, spacing=level_spacing(self.spacing, level),
-                                   scalar=shifted(self.scalar), vector=shifted(self.vector), complete=info.complete,
+                                   scalar=shifted(self.scalar), vector=shifted(self.vector),
+                                   gradient=shifted(self.gradient), complete=info.complete,
                                    arrays=dict(info.arrays), levels=())
 
     @property
     def channel_names(self) -> tuple[str, ...]:
-        """The channels present, in store order (scalar first): the order of the digests."""
-        return tuple(name for name in ("scalar", "vector") if getattr(self, name) is not None)
+        """The channels present, in store order (scalar, vector, gradient): the order of the digests."""
+        return tuple(name for name in CHANNELS if getattr(self, name) is not None)
+
+    def components(self, channel: str) -> int:
+        """Ciphertexts per voxel of ``channel``: 1 (scalar) or its ``dims`` (vector, gradient)."""
+        return 1 if channel == "scalar" else int(getattr(self, channel).dims)
 
     def to_dict(self) -> dict[str, Any]:
         d = {
@@ -194,6 +201,7 @@ class VolumeMetadata:
             "channels": {
                 **({"scalar": self.scalar.to_dict()} if self.scalar else {}),
                 **({"vector": self.vector.to_dict()} if self.vector else {}),
+                **({"gradient": self.gradient.to_dict()} if self.gradient else {}),
             },
             "n_bricks": self.n_bricks,
             "complete": self.complete,
@@ -240,7 +248,7 @@ def ome_attribute(meta: VolumeMetadata) -> dict:
     done = [lv.level for lv in meta.levels if lv.complete]
     out = []
     for ch in meta.channel_names:
-        lead = [{"name": "component", "type": "channel"}] if ch == "vector" else []
+        lead = [{"name": "component", "type": "channel"}] if ch != "scalar" else []
         datasets = []
         for lv in [0] + done:
             scale = [1.0] * len(lead) + [s * 2**lv for s in meta.spacing[::-1]] + [1.0]
@@ -314,12 +322,16 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     if type(base) is not int or base != 10:
         raise _bad(where, "base", "10", base)
     ch = _get(d, "channels", where)
-    if not isinstance(ch, dict) or not ch or set(ch) - {"scalar", "vector"}:
-        raise _bad(where, "channels", "an object with 'scalar' and/or 'vector'", ch)
+    if not isinstance(ch, dict) or not (set(ch) & {"scalar", "vector"}) or set(ch) - set(CHANNELS):
+        raise _bad(where, "channels", "an object with 'scalar' and/or 'vector' (and 'gradient')", ch)
     scalar = ChannelInfo.from_dict(ch["scalar"], where, "channels.scalar") if "scalar" in ch else None
     vector = ChannelInfo.from_dict(ch["vector"], where, "channels.vector") if "vector" in ch else None
     if vector is not None and (vector.dims is None or vector.digits is None):
         raise _bad(where, "channels.vector", "'digits' and 'dims'", ch["vector"])
+    gradient = ChannelInfo.from_dict(ch["gradient"], where, "channels.gradient") if "gradient" in ch else None
+    if gradient is not None and (vector is None or gradient != vector):
+        raise _bad(where, "channels.gradient", "the same 'exponent', 'digits' and 'dims' as channels.vector",
+                   ch["gradient"])
     complete = d.get("complete", False)
     if type(complete) is not bool:
         raise _bad(where, "complete", "true or false", complete)
@@ -330,13 +342,13 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     if not isinstance(extra, dict):
         raise _bad(where, "extra", "an object", extra)
     arrays = d.get("arrays", {})
-    names = {*(k for k in ("scalar", "vector") if k in ch), "done"}
+    names = {*(k for k in CHANNELS if k in ch), "done"}
     if version >= 2 and not (isinstance(arrays, dict) and set(arrays) == names
                              and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())):
         raise _bad(where, "arrays", f"a 'sha256:…' digest for each of {sorted(names)}", arrays)
     meta = cls(shape=shape, spacing=spacing, brick=brick, n=n, fingerprint=fingerprint, ciphertext_bytes=width,
-               dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, base=base, complete=complete,
-               store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {})
+               dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, gradient=gradient, base=base,
+               complete=complete, store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {})
     levels = d.get("levels", [])
     if not isinstance(levels, list) or len(levels) > MAX_LEVELS:
         raise _bad(where, "levels", f"a list of at most {MAX_LEVELS} pyramid levels", levels)

@@ -14,7 +14,7 @@ level below, so a whole pyramid costs at most 18/7 ≈ 2.6 products per voxel an
 level 0 — a few percent of encryption, which costs two fixed-base exponentiations per value.
 
 Layout (docs/format.md, "Pyramid levels"): level L's arrays are ``levels/L/scalar``,
-``levels/L/vector`` and ``levels/L/done`` with the same bricks, codecs and digest markers as
+``levels/L/vector``, ``levels/L/gradient`` (every channel of the store) and ``levels/L/done`` with the same bricks, codecs and digest markers as
 level 0 (digests over the channel name ``levels/L/<channel>``, so no brick can pass for one of
 another level); the checksummed ``hevr`` attribute lists each level (shape, completeness,
 array-document digests) and the group's ``ome`` attribute mirrors it as OME-Zarr
@@ -82,7 +82,7 @@ def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int
     prefix = f"levels/{level}/"
     digests = []
     for channel in meta.channel_names:
-        K = 1 if channel == "scalar" else meta.vector.dims
+        K = meta.components(channel)
         parts: list[np.ndarray] = []  # per child brick: (rows, K, W) partial products, with their owners
         owners: list[np.ndarray] = []
         for child in {tuple(int(v) for v in row) for row in kid_brick}:
@@ -165,7 +165,7 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
     if isinstance(levels, bool) or not isinstance(levels, int) or not 1 <= levels <= MAX_LEVELS:
         raise ParameterError(f"levels: expected an int in [1, {MAX_LEVELS}], got {levels!r}")
     meta = ev.meta
-    for ch in (meta.scalar, meta.vector):
+    for ch in (meta.scalar, meta.vector, meta.gradient):
         if ch is not None and ch.digits is not None and ch.digits + 3 * levels > _MAX_DIGITS:
             raise ParameterError(f"levels: expected at most {(_MAX_DIGITS - ch.digits) // 3} levels for a channel of "
                                  f"{ch.digits} digits (each level adds 3), got {levels}")

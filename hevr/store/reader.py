@@ -36,7 +36,7 @@ from .layout import (
     check_documents,
     check_level_layout,
 )
-from .metadata import VolumeMetadata
+from .metadata import CHANNELS, VolumeMetadata
 from .paths import (
     interrupted_swaps,
     is_local,
@@ -139,6 +139,12 @@ class EncryptedVolume:
         return self.meta.vector.dims if self.meta.vector is not None else None
 
     @property
+    def has_gradient(self) -> bool:
+        """Whether the store holds the gradient channel g·e(d) (``encrypt_volume(..., gradient=True)``,
+        :mod:`hevr.volume.gradient`): what ``hevr.render(..., gradient=True)`` reads."""
+        return self.meta.gradient is not None
+
+    @property
     def value_range(self) -> tuple[float, float]:
         return self.meta.value_range
 
@@ -150,6 +156,8 @@ class EncryptedVolume:
         ch = ["scalar"] if self.has_scalar else []
         if self.vector_dims:
             ch.append(f"vector[{self.vector_dims}]")
+        if self.has_gradient:
+            ch.append(f"gradient[{self.vector_dims}]")
         res = f", resident={'+'.join(self.resident.channels)}" if self.resident is not None else ""
         return (f"EncryptedVolume({self.path!r}, shape={self.shape}, brick={self.brick}, "
                 f"channels={'+'.join(ch)}, key={self.meta.fingerprint[:16]}…{res})")
@@ -169,7 +177,7 @@ class EncryptedVolume:
         Parameters
         ----------
         channels : str or sequence of str, optional
-            ``"scalar"`` and/or ``"vector"``; default: every stored channel.
+            ``"scalar"``, ``"vector"`` and/or ``"gradient"``; default: every stored channel.
         client : distributed.Client, optional
             Default: the active client; without one the bricks stay in this process.
         backend : str, optional
@@ -219,14 +227,15 @@ class EncryptedVolume:
 
     def read_brick_bytes(self, index: tuple[int, int, int], channel: str = "scalar",
                          verify: bool = True) -> np.ndarray:
-        """Raw ciphertext records of one brick: (bz, by, bx, W) or (k, bz, by, bx, W).
+        """Raw ciphertext records of one brick: (bz, by, bx, W) (``scalar``) or (k, bz, by, bx, W)
+        (``vector``, ``gradient``).
 
         With ``verify`` (the default) the brick's digest (:mod:`hevr.store.digests`) must
         match the one its writer recorded; a mismatch raises :class:`hevr.CorruptStoreError`
         naming the brick. Zarr's crc32c codec checks the chunk file itself in any case.
         """
-        if channel not in ("scalar", "vector"):
-            raise ParameterError(f"channel: expected 'scalar' or 'vector', got {channel!r}")
+        if channel not in CHANNELS:
+            raise ParameterError(f"channel: expected 'scalar', 'vector' or 'gradient', got {channel!r}")
         if channel not in self.meta.channel_names:
             raise ParameterError(f"channel: this store has no {channel} channel")
         sl = self.brick_slices(index)
@@ -257,7 +266,7 @@ class EncryptedVolume:
     def read_brick(self, index: tuple[int, int, int], channel: str = "scalar", check: bool = True,
                    backend: str | Backend | None = None):
         """Ciphertexts of one brick in the backend's form, converted once: one batch (scalar)
-        or k batches (vector). For the default ``cpu`` backend a batch is a list of mpz.
+        or k batches (vector, gradient). For the default ``cpu`` backend a batch is a list of mpz.
 
         With ``check`` (the default; ``False`` is for forensics only) the brick's digest must
         match and every ciphertext must lie in (0, n²); a violation raises
@@ -283,7 +292,7 @@ class EncryptedVolume:
     def verify(self, coprime: bool = True) -> None:
         """Read every brick and check every ciphertext (range, and coprimality with n)."""
         n = self.public_key.n
-        channels = (["scalar"] if self.has_scalar else []) + (["vector"] if self.vector_dims else [])
+        channels = self.meta.channel_names
         for idx in self.brick_indices():
             for ch in channels:
                 res = self.read_brick(idx, ch, backend="cpu")  # the gcd test below works on mpz

@@ -14,7 +14,8 @@ task's output). On a single machine (no client) the bricks stay in this process.
 Memory. A resident ciphertext costs the backend's :meth:`~hevr.backends.base.Backend.residue_bytes`:
 for ``cpu`` a gmpy2 ``mpz`` and its list slot, ``40 + 8·ceil(W/8) + 8`` bytes for W-byte
 records (560 at a 2048-bit key, 64 at 64 bits). A
-resident volume of V voxels and C stored channels (1 scalar + k vector components) holds
+resident volume of V voxels and C stored channels (1 scalar + k vector components + k gradient
+components) holds
 ``V·C`` of them; each worker holds the bricks assigned to it, at most
 ``ceil(bricks/N)·brick voxels·C`` ciphertexts. :func:`plan_residency` states this before
 anything is loaded and refuses (``MemoryLimitError``) when a worker's share would exceed the
@@ -57,7 +58,7 @@ class ResidentBrick:
         self.index, self.batches, self.nbytes = index, batches, int(nbytes)
 
     def channel(self, name: str) -> Any:
-        """One batch (``scalar``) or the k batches (``vector``) of this brick."""
+        """One batch (``scalar``) or the k batches (``vector``, ``gradient``) of this brick."""
         return self.batches[name]
 
     def __sizeof__(self) -> int:
@@ -151,13 +152,13 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     elif isinstance(channels, str):
         channels = (channels,)
     elif not isinstance(channels, (list, tuple)):
-        raise ParameterError(f"channels: expected 'scalar', 'vector' or a list of them, got {type(channels).__name__}")
+        raise ParameterError(f"channels: expected 'scalar', 'vector', 'gradient' or a list of them, got {type(channels).__name__}")
     channels = tuple(dict.fromkeys(check_choice("channels", c, stored) for c in channels))
     if not channels:
         raise ParameterError(f"channels: expected some of {list(stored)}, got none")
     backend = resolve_backend_name(backend)
     per_ct = residue_bytes(ev.meta.ciphertext_bytes, backend)
-    k = sum(1 if c == "scalar" else ev.vector_dims for c in channels)
+    k = sum(ev.meta.components(c) for c in channels)
     bricks = ev.brick_indices()
     cost = {idx: int(np.prod(ev.brick_shape(idx))) * k * per_ct for idx in bricks}
     if client is not None:

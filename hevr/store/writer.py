@@ -6,6 +6,8 @@ Layout (format ``hevr-encrypted-volume`` version 2, documented in ``docs/format.
       zarr.json            group; attribute "hevr" = VolumeMetadata.to_dict() (checksummed)
       scalar/              uint8 (nz, ny, nx, W), chunks (bz, by, bx, W)      [optional]
       vector/              uint8 (k, nz, ny, nx, W), chunks (k, bz, by, bx, W) [optional]
+      gradient/            uint8 (k, nz, ny, nx, W), chunks (k, bz, by, bx, W) [optional: g·e(d),
+                           hevr.volume.gradient; needs vector, k more ciphertexts per voxel]
       done/                uint8 (gz, gy, gx, C, 32), chunks (1, 1, 1, C, 32): per brick,
                            the digest of each of its C channels (hevr.store.digests)
 
@@ -60,6 +62,7 @@ from .._validate import (
 from ..backends import get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError, StoreError, StoreExistsError
+from ..volume import gradient as grad
 from ..volume.density import default_value_range, encode_density, normalize_density
 from .digests import brick_digest, marker, written
 from .journal import check_journal, input_digests, remove_journal, write_journal
@@ -96,6 +99,8 @@ def _minmax(vol: Any) -> tuple[float, float]:
 
 def _plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_range: Any,
                    digits: Any, vector_digits: Any) -> tuple[ChannelInfo | None, ChannelInfo | None, tuple[float, float]]:
+    """The scalar and vector channels' fixed point and the value range (the gradient channel,
+    when asked for, is the vector one's twin: same dims and digits)."""
     is_float = np.dtype(vol.dtype).kind == "f"
     if vector_dims is not None:
         vector_dims = check_vector_dims(vector_dims)
@@ -145,19 +150,34 @@ def _quantise_scalar(block: np.ndarray, info: ChannelInfo) -> list[int]:
     return [int(v) for v in scaled]  # mantissas beyond int64 (large keys, many digits)
 
 
-def _quantise_vector(block: np.ndarray, info: ChannelInfo, value_range: tuple[float, float]) -> np.ndarray:
-    """(k, voxels) non-negative integer mantissas of the Alg. 4 encoding."""
-    enc = encode_density(normalize_density(block, value_range), info.dims)  # (..., k)
+def _quantise_vector(enc: np.ndarray, info: ChannelInfo) -> np.ndarray:
+    """(k, voxels) non-negative integer mantissas of a (..., k) field with components in [0, 1]:
+    the Alg. 4 encoding (vector) or g·e(d) (gradient)."""
     q = np.rint(enc * 10.0**info.digits).astype(np.int64)
     return q.reshape(-1, info.dims).T
 
 
+def _encrypt_components(be: Any, key: Any, q: np.ndarray, shape: tuple, width: int, unsafe: bool) -> np.ndarray:
+    """(k, bz, by, bx, W) records of the (k, voxels) mantissas ``q``."""
+    out = np.empty((q.shape[0],) + shape + (width,), dtype=np.uint8)
+    for j in range(q.shape[0]):
+        with _stats.timed("encrypt.crypto", q.shape[1]):
+            cts = be.encrypt(key, q[j], unsafe_no_obfuscation=unsafe)
+        out[j] = be.to_bytes(cts, width).reshape(shape + (width,))
+    return out
+
+
 def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
-                   unsafe_no_obfuscation: bool, backend: str = "cpu") -> tuple[int, int, int]:
-    """One task: encrypt one plaintext brick and write its chunks, then its digest marker."""
+                   unsafe_no_obfuscation: bool, backend: str = "cpu", halo: grad.Halo | None = None,
+                   m_max: float = 0.0) -> tuple[int, int, int]:
+    """One task: encrypt one plaintext brick and write its chunks, then its digest marker.
+
+    With the gradient channel ``block`` carries a one-voxel ``halo`` of its neighbours
+    (:mod:`hevr.volume.gradient`) and ``m_max`` is the whole volume's max |∇d| (owner side only)."""
     be = get_backend(backend)
     meta = VolumeMetadata.from_dict(meta_dict)
-    block = np.asarray(block)
+    haloed = np.asarray(block)
+    block = haloed if halo is None else haloed[tuple(slice(lo, n - hi) for (lo, hi), n in zip(halo, haloed.shape))]
     sl = brick_slices(meta, index)
     width = meta.ciphertext_bytes
     group = zarr.open_group(path, mode="r+")
@@ -169,17 +189,20 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
         digests.append(brick_digest(meta.store_id, "scalar", index, out))
         with _stats.timed("encrypt.write"):
             group["scalar"][sl] = out
+    fields = {}
     if meta.vector is not None:
-        q = _quantise_vector(block, meta.vector, meta.value_range)
-        k = meta.vector.dims
-        out = np.empty((k,) + block.shape + (width,), dtype=np.uint8)
-        for j in range(k):
-            with _stats.timed("encrypt.crypto", block.size):
-                cts = be.encrypt(key, q[j], unsafe_no_obfuscation=unsafe_no_obfuscation)
-            out[j] = be.to_bytes(cts, width).reshape(block.shape + (width,))
-        digests.append(brick_digest(meta.store_id, "vector", index, out))
+        fields["vector"] = encode_density(normalize_density(block, meta.value_range), meta.vector.dims)
+    if meta.gradient is not None:
+        if halo is None:  # pragma: no cover - _run always passes the halo with the gradient channel
+            raise StoreError(f"brick {index}: the gradient channel needs the brick's halo")
+        fields["gradient"] = grad.brick_gradient_encoding(haloed, halo, meta.spacing, meta.value_range,
+                                                          meta.gradient.dims, m_max)
+    for name, enc in fields.items():  # store order: vector, then gradient
+        out = _encrypt_components(be, key, _quantise_vector(enc, getattr(meta, name)), block.shape, width,
+                                  unsafe_no_obfuscation)
+        digests.append(brick_digest(meta.store_id, name, index, out))
         with _stats.timed("encrypt.write"):
-            group["vector"][(slice(None),) + sl] = out
+            group[name][(slice(None),) + sl] = out
     group["done"][index] = marker(digests)
     return index
 
@@ -208,7 +231,7 @@ def _resume_target(path: str, meta: VolumeMetadata) -> VolumeMetadata:
         raise ParameterError(
             f"key: the store {path} was started with key {old.fingerprint[:16]}…, got key {meta.fingerprint[:16]}…"
         )
-    for name in ("shape", "brick", "spacing", "scalar", "vector", "value_range", "dtype"):
+    for name in ("shape", "brick", "spacing", "scalar", "vector", "gradient", "value_range", "dtype"):
         if getattr(old, name) != getattr(meta, name):
             raise ParameterError(
                 f"{name}: resume needs the same {name} as the interrupted run ({getattr(old, name)!r}), got {getattr(meta, name)!r}"
@@ -228,6 +251,7 @@ def encrypt_volume(
     value_range: Sequence[float] | None = None,
     digits: int | None = None,
     vector_digits: int = 3,
+    gradient: bool = False,
     overwrite: bool = False,
     resume: bool = False,
     progress: bool = True,
@@ -260,6 +284,13 @@ def encrypt_volume(
         Decimal digits kept for float volumes (default 3). Integer volumes are exact.
     vector_digits : int
         Decimal digits of each encoded vector component (default 3).
+    gradient : bool
+        Also store the gradient channel g·e(d) (:mod:`hevr.volume.gradient`): the encoding
+        scaled by each voxel's normalised gradient magnitude (central differences on the
+        plaintext, in world units, over the whole volume), for ``hevr.render(...,
+        gradient=True)``. Needs ``vector_dims``; same k and ``vector_digits``; costs k more
+        ciphertexts per voxel (as much again as the vector channel) and one more read of the
+        plaintext (the whole volume's max |∇d|, which stays with the owner).
     overwrite, resume : bool
         Replace an existing store, or finish an interrupted run (only missing bricks).
     progress : bool
@@ -285,11 +316,16 @@ def encrypt_volume(
     brick_t = check_brick(brick, shape=vol.shape)
     spacing_t = check_spacing(spacing)
     pub = key.public_key if isinstance(key, PrivateKey) else key
+    if not isinstance(gradient, (bool, np.bool_)):
+        raise ParameterError(f"gradient: expected True or False, got {gradient!r}")
+    if gradient and vector_dims is None:
+        raise ParameterError("gradient: expected vector_dims=k as well, got vector_dims=None (the gradient channel "
+                             "holds g·e(d), the k-dimensional density encoding scaled by the gradient magnitude)")
     sc, vc, vr = _plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
     meta = VolumeMetadata(
         shape=tuple(int(s) for s in vol.shape), spacing=spacing_t, brick=brick_t, n=str(int(pub.n)),
         fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
-        value_range=vr, scalar=sc, vector=vc,
+        value_range=vr, scalar=sc, vector=vc, gradient=vc if gradient else None,
     )
     path = normalise(path)
     left = interrupted_swaps(path)
@@ -338,12 +374,24 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
     # that confirms a guessed volume into the task graph, the scheduler's logs and dashboard.
     darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(
         vol, chunks=brick, name=f"hevr-plain-{token()}{token()}")
-    blocks = darr.rechunk(brick).to_delayed()
+    darr = darr.rechunk(brick)
+    extra: list[dict] = [{} for _ in todo]
+    if meta.gradient is not None and todo:
+        # bricks with a one-voxel halo of their neighbours (none at the volume's faces), and the
+        # whole volume's max |∇d| from a first pass: a task argument, never in a key or the store
+        # (the halo blocks' names are hashes of the array's name, random above, not of the data)
+        darr = dask.array.overlap.overlap(darr, depth=1, boundary="none")
+        blocks = darr.to_delayed()
+        m_max = grad.max_gradient_magnitude(blocks, meta.grid, meta.spacing, meta.value_range, lambda tasks: compute(
+            tasks, client=client, progress=progress, desc="gradient"), token() + token())
+        extra = [{"halo": grad.halo_of(idx, meta.grid), "m_max": m_max} for idx in todo]
+    else:
+        blocks = darr.to_delayed()
     task = dask.delayed(_encrypt_brick, pure=False)
     meta_dict = meta.to_dict()
-    tasks = [task(blocks[idx], path, idx, meta_dict, key, unsafe_no_obfuscation, backend,
+    tasks = [task(blocks[idx], path, idx, meta_dict, key, unsafe_no_obfuscation, backend, **kw,
                   dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
-             for idx in todo]
+             for idx, kw in zip(todo, extra)]
     compute(tasks, client=client, progress=progress, desc="encrypt")
     group = zarr.open_group(path, mode="r+")
     final = written(group["done"][...])

@@ -155,7 +155,7 @@ def test_ciphertexts_are_randomised(signed_store):
 @pytest.mark.parametrize(
     "args, match",
     [
-        (((0, 0, 0), "rgb"), "channel: expected 'scalar' or 'vector'"),
+        (((0, 0, 0), "rgb"), "channel: expected 'scalar', 'vector' or 'gradient'"),
         (((3, 0, 0), "scalar"), r"inside the grid \(3, 3, 3\)"),
         (((0, -1, 0), "scalar"), "inside the grid"),
         (((0, 0), "scalar"), "brick index"),
