@@ -20,7 +20,8 @@ request, as with :func:`hevr.render`. The viewer is a thin layer of widgets over
 
 * **progressive viewing**: on a store with a pyramid (:func:`hevr.build_pyramid`) the camera
   sliders report every move and each move renders a coarse frame at pyramid level ``preview``
-  (default: the coarsest of levels 1–2 the store has; about 8^level times less work); once the
+  (default: the coarsest of levels 1–2 the store has) with 2^level times fewer pixels per axis,
+  shown enlarged — about 8^level times fewer ray-voxel pairs; once the
   sliders have been still for ``settle`` seconds (or on :meth:`Viewer.settle`) the full frame
   follows. Without a pyramid, sliders render on release.
 
@@ -69,9 +70,11 @@ def _hex(colour: Any) -> str:
     return "#{:02x}{:02x}{:02x}".format(*(int(round(255 * v)) for v in (r, g, b)))
 
 
-def _png(arr: np.ndarray, window: tuple[float, float] | None) -> bytes:
+def _png(arr: np.ndarray, window: tuple[float, float] | None, size: tuple[int, int]) -> bytes:
+    """The frame as PNG bytes of ``size`` (W, H): a preview's fewer pixels are shown enlarged."""
     buf = io.BytesIO()
-    Image.fromarray(to_uint8(arr, window)).save(buf, format="PNG")
+    im = Image.fromarray(to_uint8(arr, window))
+    (im if im.size == tuple(size) else im.resize(tuple(size), Image.NEAREST)).save(buf, format="PNG")
     return buf.getvalue()
 
 
@@ -188,10 +191,12 @@ class Viewer:
             self.refresh()
 
     # -- the request ------------------------------------------------------------------------
-    def camera(self) -> Camera:
-        """The camera of the current slider positions."""
+    def camera(self, level: int = 0) -> Camera:
+        """The camera of the current slider positions; for a preview at pyramid ``level``, with
+        2^level times fewer pixels per axis (a level's voxels are 2^level times larger)."""
+        w, h = (max(1, d >> level) for d in self.size)
         return Camera.orbit(self.ev, azimuth=self.azimuth.value, elevation=self.elevation.value,
-                            width=self.size[0], height=self.size[1], view_angle=self.view_angle.value)
+                            width=w, height=h, view_angle=self.view_angle.value)
 
     def nodes(self) -> list[tuple[float, str]]:
         """The transfer function of the editor: (density, '#rrggbb') per row, in row order."""
@@ -288,7 +293,7 @@ class Viewer:
 
     def _refresh(self, level: int) -> dict:
         kw = self.request()
-        cam = self.camera()
+        cam = self.camera(level)
         entry: dict[str, Any] = {"request": kw, "camera": cam.to_dict(), "level": level}
         t0 = time.perf_counter()
         try:
@@ -308,7 +313,7 @@ class Viewer:
             err = float(np.abs(arr - ref).max()) if arr.size else 0.0
             bound = float(error_bound(self.ev, cam, level=level or None, **kw).max())
             window = (0.0, max(float(ref.max()), 1e-12))
-        self.image.value = _png(arr, window)
+        self.image.value = _png(arr, window, self.size)
         entry.update(map_tasks=img.stats["map_tasks"], reused_ray_sums=img.stats["reused_ray_sums"],
                      seconds=seconds, error=err, bound=bound)
         self.history.append(entry)

@@ -5,10 +5,12 @@ error_bound."""
 from __future__ import annotations
 
 import html
+import io
 import time
 
 import numpy as np
 import pytest
+from PIL import Image
 
 import hevr
 from hevr.viewer import Viewer
@@ -171,7 +173,10 @@ def test_progressive_viewing_on_a_pyramid(scene, tmp_path):
     assert last["level"] == 1 and last["map_tasks"] >= 1 and last["error"] <= last["bound"]
     assert "preview at pyramid level 1" in v.status.value
     full = v.settle()
-    assert full["level"] == 0 and full["camera"] == last["camera"] and full["error"] <= full["bound"]
+    assert last["camera"]["width"] == 5 and last["camera"]["height"] == 4  # half the pixels per axis
+    assert full["level"] == 0 and full["camera"] == {**last["camera"], "width": 10, "height": 8}
+    assert full["error"] <= full["bound"]
+    assert Image.open(io.BytesIO(bytes(v.image.value))).size == (10, 8)
     assert v.settle() is None  # nothing pending
     v.density.value = 0.4  # not a camera move: the full frame directly (re-coloured)
     assert v.history[-1]["level"] == 0 and v.history[-1]["map_tasks"] == 0

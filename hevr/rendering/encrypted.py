@@ -160,8 +160,10 @@ def render(
         (:mod:`hevr.rendering.sums`). The sums travel to this process to be written.
     level : int, optional
         Render pyramid level ``level`` of the store (:func:`hevr.build_pyramid`; 0 = the full
-        volume) with the same camera: each level has 8× fewer voxels, so about 8× fewer
-        ray-voxel pairs, and shows the 2×2×2 means (for emphasis and transfer functions: the
+        volume) with the same camera, sampled in the level's voxels (``step·2^level`` world
+        units): 2^level times fewer samples per ray, 8^level times fewer voxels; a camera of
+        half the width and height per level (a preview) makes it ~8^level times fewer
+        ray-voxel pairs. It shows the 2×2×2 means (for emphasis and transfer functions: the
         means of the encoded density vectors, :mod:`hevr.volume.pyramid`). Default: the
         volume as given (a view from :meth:`hevr.EncryptedVolume.at_level` renders its level).
     gradient : bool
@@ -206,6 +208,15 @@ def _at_level(ev: EncryptedVolume, view: Camera | Plane, level: int | None) -> t
                                    focal_point=tuple((np.asarray(view.focal_point) - shift).tolist()))
 
 
+def _level_step(spec: RenderSpec, ev: EncryptedVolume, view: Camera | Plane) -> RenderSpec:
+    """A level is sampled in its own voxels: ``step`` (world units at level 0) becomes
+    ``step·2^level``, so a coarse frame takes 2^level times fewer samples per ray instead of
+    revisiting each coarse voxel 2^level times (a plane keeps its slab step)."""
+    if not ev.level or isinstance(view, Plane):
+        return spec
+    return dataclasses.replace(spec, step=spec.step * 2**ev.level)
+
+
 # -- the render of one view (a Camera, or a Plane: hevr.render_slice) ----------------------------
 def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: str, step: float,
             density: float | None, nodes: Any, *, digits: int, precision: int, comb_digits: int, pack: bool,
@@ -216,6 +227,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, views, gradient)
     ev, camera = _at_level(ev, camera, level)
+    spec = _level_step(spec, ev, camera)
     tile = check_int("tile", tile, 1, 4096)
     if keep_sums is not None and not compute:
         raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
@@ -323,6 +335,7 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, (Camera, Plane), gradient)
     ev, camera = _at_level(ev, camera, level)
+    spec = _level_step(spec, ev, camera)
     # a level's values are exact means of level-0 values: their storage error is level 0's
     stored = ev.base if ev.level else ev.meta
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)

@@ -157,7 +157,8 @@ def render_plain(
     level : int
         Render pyramid level ``level`` (:mod:`hevr.volume.pyramid`): the per-voxel field (values,
         or encoded density vectors times the combination matrix) averaged over 2×2×2 children
-        ``level`` times, on the level's grid, with the same camera.
+        ``level`` times, on the level's grid, with the same camera, sampled every
+        ``step·2^level`` world units.
     gradient : bool
         ``emphasize`` / ``tf`` only: sample ``g·e(d)`` instead of ``e(d)`` — ``g`` the voxel's
         gradient magnitude (central differences in world units, ``spacing``) over the whole
@@ -197,6 +198,7 @@ def render_plain(
         camera = dataclasses.replace(camera, position=tuple((np.asarray(camera.position) - shift).tolist()),
                                      focal_point=tuple((np.asarray(camera.focal_point) - shift).tolist()))
         sp = level_spacing(sp, level)
+        spec = dataclasses.replace(spec, step=spec.step * 2**level)  # sampled in the level's voxels
     checked = check_render_size(camera, arr.shape, sp, spec.step)  # before anything per pixel or sample
     rays = checked if checked is not None else cast_rays(camera, arr.shape, sp, spec.step)
     nz, ny, nx = arr.shape

@@ -34,7 +34,7 @@ from typing import Any
 
 from .._validate import MAX_STORE_DIGITS, is_decimal
 from ..errors import CorruptStoreError
-from ..volume.pyramid import MAX_LEVELS, level_spacing
+from ..volume.pyramid import MAX_LEVELS, level_brick, level_spacing
 
 __all__ = ["CHANNELS", "ChannelInfo", "LevelInfo", "VolumeMetadata", "ome_attribute", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
 
@@ -100,29 +100,34 @@ class LevelInfo:
 
     level: int
     shape: tuple[int, int, int]
+    brick: tuple[int, int, int]
     complete: bool = False
     arrays: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return {"level": self.level, "shape": list(self.shape), "complete": self.complete,
+        return {"level": self.level, "shape": list(self.shape), "brick": list(self.brick), "complete": self.complete,
                 "arrays": dict(self.arrays)}
 
     @classmethod
-    def from_dict(cls, d: Any, where: str, expected_level: int, expected_shape: tuple, names: set) -> "LevelInfo":
+    def from_dict(cls, d: Any, where: str, expected_level: int, expected_shape: tuple, expected_brick: tuple,
+                  names: set) -> "LevelInfo":
         name = f"levels[{expected_level - 1}]"
-        if not isinstance(d, dict) or set(d) != {"level", "shape", "complete", "arrays"}:
-            raise _bad(where, name, "an object with 'level', 'shape', 'complete' and 'arrays'", d)
+        if not isinstance(d, dict) or set(d) != {"level", "shape", "brick", "complete", "arrays"}:
+            raise _bad(where, name, "an object with 'level', 'shape', 'brick', 'complete' and 'arrays'", d)
         _int(d["level"], f"{name}.level", where, expected_level, expected_level)
         shape = _triple(d["shape"], f"{name}.shape", where, "int")
         if shape != tuple(expected_shape):
             raise _bad(where, f"{name}.shape", f"{list(expected_shape)} (the level below, halved)", d["shape"])
+        brick = _triple(d["brick"], f"{name}.brick", where, "int")
+        if brick != tuple(expected_brick):
+            raise _bad(where, f"{name}.brick", f"{list(expected_brick)} (hevr.volume.pyramid.level_brick)", d["brick"])
         if type(d["complete"]) is not bool:
             raise _bad(where, f"{name}.complete", "true or false", d["complete"])
         arrays = d["arrays"]
         if not (isinstance(arrays, dict) and set(arrays) == names
                 and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())):
             raise _bad(where, f"{name}.arrays", f"a 'sha256:…' digest for each of {sorted(names)}", arrays)
-        return cls(level=expected_level, shape=shape, complete=d["complete"], arrays=dict(arrays))
+        return cls(level=expected_level, shape=shape, brick=brick, complete=d["complete"], arrays=dict(arrays))
 
 
 @dataclass(frozen=True)
@@ -160,7 +165,7 @@ class VolumeMetadata:
 
     def level_meta(self, level: int) -> "VolumeMetadata":
         """The metadata of pyramid level ``level`` (≥ 1) as a volume of its own: the level's shape,
-        spacing ``2^level·s``, the same bricks and key, channel exponents ``e − 3·level``
+        spacing ``2^level·s``, its bricks (:func:`~hevr.volume.pyramid.level_brick`), the key, channel exponents ``e − 3·level``
         (mantissas are 125·Σ of 8 children per level: :mod:`hevr.volume.pyramid`) and the
         level's own array digests and completeness. Its voxel (0, 0, 0) sits at
         :func:`hevr.volume.pyramid.level_origin`, not at the world origin."""
@@ -172,7 +177,7 @@ class VolumeMetadata:
             digits = None if ch.digits is None else ch.digits + 3 * level
             return ChannelInfo(exponent=ch.exponent - 3 * level, digits=digits, dims=ch.dims)
 
-        return dataclasses.replace(self, shape=info.shape, spacing=level_spacing(self.spacing, level),
+        return dataclasses.replace(self, shape=info.shape, brick=info.brick, spacing=level_spacing(self.spacing, level),
                                    scalar=shifted(self.scalar), vector=shifted(self.vector),
                                    gradient=shifted(self.gradient), complete=info.complete,
                                    arrays=dict(info.arrays), levels=())
@@ -355,7 +360,7 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     parsed, below = [], shape
     for i, lv in enumerate(levels):
         below = tuple(-(-s // 2) for s in below)
-        parsed.append(LevelInfo.from_dict(lv, where, i + 1, below, names))
+        parsed.append(LevelInfo.from_dict(lv, where, i + 1, below, level_brick(brick, i + 1), names))
     if parsed:
         meta = dataclasses.replace(meta, levels=tuple(parsed))
     if "n_bricks" in d and d["n_bricks"] != meta.n_bricks:

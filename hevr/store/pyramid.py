@@ -14,8 +14,9 @@ level below, so a whole pyramid costs at most 18/7 ≈ 2.6 products per voxel an
 level 0 — a few percent of encryption, which costs two fixed-base exponentiations per value.
 
 Layout (docs/format.md, "Pyramid levels"): level L's arrays are ``levels/L/scalar``,
-``levels/L/vector``, ``levels/L/gradient`` (every channel of the store) and ``levels/L/done`` with the same bricks, codecs and digest markers as
-level 0 (digests over the channel name ``levels/L/<channel>``, so no brick can pass for one of
+``levels/L/vector``, ``levels/L/gradient`` (every channel of the store) and ``levels/L/done`` with the codecs and digest markers of
+level 0 and bricks halved per level down to 8 voxels (:func:`hevr.volume.pyramid.level_brick`:
+as many tasks, so as much parallelism, for a coarse frame) (digests over the channel name ``levels/L/<channel>``, so no brick can pass for one of
 another level); the checksummed ``hevr`` attribute lists each level (shape, completeness,
 array-document digests) and the group's ``ome`` attribute mirrors it as OME-Zarr
 ``multiscales``. :func:`build_pyramid` is one Dask task per brick of a level, level after
@@ -38,7 +39,7 @@ from zarr.codecs import Crc32cCodec
 from .._dask import compute
 from ..backends import get_backend, resolve_backend_name
 from ..errors import ParameterError, StoreError
-from ..volume.pyramid import MAX_LEVELS, level_shape
+from ..volume.pyramid import MAX_LEVELS, level_brick, level_shape
 from .digests import brick_digest, marker, written
 from .metadata import LevelInfo, VolumeMetadata, ome_attribute
 from .paths import document_digest
@@ -123,14 +124,14 @@ def _start_level(path: str, meta: VolumeMetadata, level: int) -> VolumeMetadata:
     """Create level ``level``'s arrays (if not there from an interrupted run) and record them."""
     if len(meta.levels) >= level:
         return meta
-    shape = level_shape(meta.shape, level)
-    layout = array_layout(dataclasses.replace(meta, shape=shape, levels=()))
+    shape, brick = level_shape(meta.shape, level), level_brick(meta.brick, level)
+    layout = array_layout(dataclasses.replace(meta, shape=shape, brick=brick, levels=()))
     group = zarr.open_group(path, mode="r+").require_group("levels").require_group(str(level))
     for name, (ashape, chunks) in layout.items():
         group.create_array(name, shape=ashape, chunks=chunks, dtype="uint8", compressors=[Crc32cCodec()],
                            fill_value=0, overwrite=True)
     digests = {name: document_digest(path, f"levels/{level}/{name}") for name in layout}
-    meta = dataclasses.replace(meta, levels=meta.levels + (LevelInfo(level, shape, False, digests),))
+    meta = dataclasses.replace(meta, levels=meta.levels + (LevelInfo(level, shape, brick, False, digests),))
     _write_meta(path, meta)
     return meta
 
