@@ -10,8 +10,9 @@ On a 2-worker LocalCluster (processes, one thread each), in one run:
    case; ``--reuse`` takes WORKDIR/key.json + scalar.zarr from an earlier run and does not time
    the encryption again);
 2. build pyramid levels 1 and 2 (``hevr.build_pyramid``), timed per level;
-3. X-ray 150² frames, nearest and trilinear, at levels 0, 1 and 2 — seconds (streamed, no
-   cache) and ray-voxel pairs (nearest: samples; trilinear: 8 per sample);
+3. X-ray frames, nearest and trilinear, at levels 0, 1 and 2 — with the same 150² camera and
+   with a preview camera of 150/2^L pixels per axis — seconds (streamed, no cache) and
+   ray-voxel pairs (nearest: samples; trilinear: 8 per sample; a level samples every 2^L);
 4. a 150² axial slice through the middle, nearest and trilinear, streamed and resident
    (``persist``), each with its client decryption, end to end;
 5. the gradient channel's cost: 32³ phantom, 4-dim encoding, encrypted without and with
@@ -55,23 +56,26 @@ def check(arr, ref, bound, what):
 
 
 def frames(ev, vol, priv, res):
-    cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=IMAGE, height=IMAGE)
+    """X-ray frames at levels 0-2: the same 150² camera, and a preview camera of 150/2^L pixels."""
     rows = []
     for level in (0, 1, 2):
         lv = ev.at_level(level)
-        moved = cam if not level else hevr.Camera(**{**cam.to_dict(), "position": tuple(
-            np.subtract(cam.position, lv.origin)), "focal_point": tuple(np.subtract(cam.focal_point, lv.origin))})
-        samples = int(cast_rays(moved, lv.shape, lv.spacing, 1.0).n_samples.sum())
-        for sampling in ("nearest", "trilinear"):
-            hevr.clear_cache()
-            img, sec = timed(hevr.render, ev, cam, sampling=sampling, level=level, cache=False, progress=False)
-            arr, dsec = timed(img.decrypt, priv)
-            ref = hevr.render_plain(vol, cam, sampling=sampling, level=level)
-            err = check(arr, ref, hevr.error_bound(ev, cam, sampling=sampling, level=level), f"level {level}")
-            rows.append({"level": level, "sampling": sampling, "shape": list(lv.shape), "seconds": sec,
-                         "decrypt_s": dsec, "pairs": samples * (8 if sampling == "trilinear" else 1),
-                         "map_tasks": img.stats["map_tasks"], "max_error": err})
-            print(rows[-1], flush=True)
+        for size in sorted({IMAGE, IMAGE >> level}, reverse=True):
+            cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=size, height=size)
+            moved = cam if not level else hevr.Camera(**{**cam.to_dict(), "position": tuple(
+                np.subtract(cam.position, lv.origin)), "focal_point": tuple(np.subtract(cam.focal_point, lv.origin))})
+            samples = int(cast_rays(moved, lv.shape, lv.spacing, 2.0**level).n_samples.sum())
+            for sampling in ("nearest", "trilinear"):
+                hevr.clear_cache()
+                img, sec = timed(hevr.render, ev, cam, sampling=sampling, level=level, cache=False, progress=False)
+                arr, dsec = timed(img.decrypt, priv)
+                ref = hevr.render_plain(vol, cam, sampling=sampling, level=level)
+                err = check(arr, ref, hevr.error_bound(ev, cam, sampling=sampling, level=level), f"level {level}")
+                rows.append({"level": level, "image": size, "sampling": sampling, "shape": list(lv.shape),
+                             "brick": list(lv.brick), "seconds": sec, "decrypt_s": dsec,
+                             "pairs": samples * (8 if sampling == "trilinear" else 1),
+                             "map_tasks": img.stats["map_tasks"], "max_error": err})
+                print(rows[-1], flush=True)
     res["frames"] = rows
 
 
