@@ -7,7 +7,9 @@ request, as with :func:`hevr.render`. The viewer is a thin layer of widgets over
 
 * **camera**: azimuth, elevation and view-angle sliders (:meth:`hevr.Camera.orbit`); a frame
   is rendered when a slider is released (``continuous_update=False``), one render per move;
-* **mode and sampling**: X-ray, density emphasis (a density slider), transfer function;
+* **mode and sampling**: X-ray, density emphasis (a density slider), transfer function; a
+  *gradient* box (stores encrypted with ``gradient=True``) weights emphasis and transfer-function
+  samples by the gradient magnitude;
 * **transfer-function editor**: one row per node — density slider, colour picker, remove
   button — and an *add node* button; nodes with the same density are refused by
   :func:`hevr.render` and the message shows in the status line (the frame stays);
@@ -163,6 +165,8 @@ class Viewer:
         self.view_angle = W.FloatSlider(value=30.0, min=5.0, max=90.0, step=1.0, description="view angle", **slider)
         self.mode = W.ToggleButtons(options=modes, value=mode, description="mode")
         self.sampling = W.ToggleButtons(options=["nearest", "trilinear"], value=sampling, description="sampling")
+        self.gradient = W.Checkbox(value=False, description="gradient", indent=False,
+                                   layout=W.Layout(display=None if ev.meta.gradient is not None else "none"))
         self.density = W.FloatSlider(value=PAPER_DENSITIES[1] if density is None else float(density), min=0.0,
                                      max=1.0, step=0.001, readout_format=".3f", description="density",
                                      continuous_update=False)
@@ -180,11 +184,12 @@ class Viewer:
             w.observe(self._moved, names="value")
         for w in (self.mode, self.sampling):
             w.observe(self._changed, names="value")
+        self.gradient.observe(lambda ch: self._changed(ch, only="vector"), names="value")
         self.density.observe(lambda ch: self._changed(ch, only="emphasize"), names="value")
         self.tf_box = W.VBox([self._rows, self.add_button])
         self.widget = W.VBox([
             W.HBox([self.image, W.VBox([self.azimuth, self.elevation, self.view_angle, self.mode, self.sampling,
-                                        self.density, self.tf_box])]),
+                                        self.gradient, self.density, self.tf_box])]),
             self.status])
         self._layout()
         if show:
@@ -209,6 +214,8 @@ class Viewer:
             kw["density"] = float(self.density.value)
         elif self.mode.value == "tf":
             kw["nodes"] = self.nodes()
+        if self.mode.value != "xray" and self.gradient.value:
+            kw["gradient"] = True
         return kw
 
     # -- the transfer-function editor ----------------------------------------------------------
@@ -246,7 +253,8 @@ class Viewer:
     def _changed(self, _change: Any = None, only: str | None = None) -> None:
         """A widget changed; ``only``: it matters in that mode alone (a hidden widget renders nothing)."""
         self._layout()
-        if not self._held and (only is None or self.mode.value == only):
+        current = "vector" if only == "vector" and self.mode.value != "xray" else self.mode.value
+        if not self._held and (only is None or current == only):
             self.refresh()
 
     def _moved(self, _change: Any = None) -> None:

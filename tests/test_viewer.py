@@ -193,3 +193,24 @@ def test_progressive_viewing_on_a_pyramid(scene, tmp_path):
         Viewer(pev, priv, preview=2, show=False)
     with pytest.raises(hevr.ParameterError, match="settle"):
         Viewer(pev, priv, settle=-1, show=False)
+
+
+def test_gradient_box(scene, tmp_path):
+    """On a store with the gradient channel the box shows; ticking it re-renders emphasis/TF with
+    gradient=True (another channel: a map step) and matches render_plain(gradient=True)."""
+    ev, priv, vol = scene
+    gev = hevr.encrypt_volume(vol, tmp_path / "g.zarr", priv, brick=4, vector_dims=3, gradient=True, progress=False)
+    hevr.clear_cache()
+    v = Viewer(gev, priv, volume=vol, width=10, height=8, mode="tf")
+    assert v.gradient.layout.display is None and "gradient" not in v.request()
+    v.gradient.value = True
+    last = v.history[-1]
+    assert last["request"]["gradient"] is True and last["map_tasks"] > 0 and last["error"] <= last["bound"]
+    v.mode.value = "emphasize"  # same channel (gradient), same camera: re-coloured
+    assert v.history[-1]["map_tasks"] == 0 and v.history[-1]["request"]["gradient"] is True
+    v.mode.value = "xray"
+    n = len(v.history)
+    v.gradient.value = False  # irrelevant in X-ray mode: no render
+    assert len(v.history) == n and "gradient" not in v.request()
+    plain = Viewer(ev, priv, width=10, height=8, show=False)
+    assert plain.gradient.layout.display == "none"

@@ -64,6 +64,9 @@ def cmd_encrypt(args: Any) -> int:
 
     if args.resume and args.overwrite:
         raise UsageError("--resume, --overwrite: expected one of them, got both (they exclude each other)")
+    if args.gradient and not args.vector_dims:
+        raise UsageError("--gradient: expected --vector-dims K as well (the gradient channel scales the K-dim "
+                         "density encoding)")
     if args.no_scalar and not args.vector_dims:
         raise UsageError("--no-scalar: expected --vector-dims K as well (a store needs at least one channel)")
     store = Path(args.out).expanduser().absolute()
@@ -93,9 +96,9 @@ def cmd_encrypt(args: Any) -> int:
         with Timer() as t:
             ev = encrypt_volume(vol, store, key, spacing=spacing, brick=args.brick, scalar=not args.no_scalar,
                                 vector_dims=args.vector_dims, value_range=args.value_range, digits=args.digits,
-                                overwrite=args.overwrite, resume=args.resume,
+                                overwrite=args.overwrite, resume=args.resume, gradient=args.gradient,
                                 progress=show_progress(args))
-    n_ct = int(np.prod(ev.shape)) * ((1 if ev.has_scalar else 0) + (ev.vector_dims or 0))
+    n_ct = int(np.prod(ev.shape)) * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
     chans = _channels(ev.meta)
     print(f"wrote {args.out}: {ev.meta.n_bricks} bricks of {xyz(ev.brick)}, channels {chans}, "
           f"{n_ct} ciphertexts, {human_bytes(disk_usage(ev.path))}, in {t.seconds:.2f} s "
@@ -111,6 +114,8 @@ def _channels(meta: Any) -> str:
         ch.append("scalar" + (f" ({meta.scalar.digits} digits)" if meta.scalar.digits is not None else " (exact)"))
     if meta.vector is not None:
         ch.append(f"vector[{meta.vector.dims}] ({meta.vector.digits} digits)")
+    if getattr(meta, "gradient", None) is not None:
+        ch.append(f"gradient[{meta.gradient.dims}] ({meta.gradient.digits} digits)")
     return " + ".join(ch) or "none"
 
 
@@ -166,7 +171,8 @@ def cmd_render(args: Any) -> int:
         with Timer() as t:
             img = render(ev, cam, mode=mode, sampling=args.sampling, step=args.step, density=args.density,
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,
-                         progress=show_progress(args), keep_sums=sums, level=args.level or None)
+                         progress=show_progress(args), keep_sums=sums, level=args.level or None,
+                         gradient=args.gradient)
     img.save(out)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(out.stat().st_size)}, rendered in {t.seconds:.2f} s")
@@ -208,7 +214,7 @@ def cmd_recolour(args: Any) -> int:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             img = recolour(saved, mode=mode, density=args.density, nodes=nodes, precision=args.precision,
-                           pack=not args.no_pack, client=client, progress=show_progress(args))
+                           pack=not args.no_pack, client=client, progress=show_progress(args), gradient=args.gradient)
     img.save(out)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts, {human_bytes(out.stat().st_size)}, re-coloured in "
           f"{t.seconds:.2f} s (no map step)")

@@ -163,6 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="finish an interrupted run (only missing bricks)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing store")
     p.add_argument("--no-scalar", action="store_true", help="skip the scalar channel (no X-ray rendering)")
+    p.add_argument("--gradient", action="store_true",
+                   help="also store the gradient-modulated encoding g*e(d) (needs --vector-dims; k more ciphertexts "
+                        "per voxel) for 'hevr render --gradient'")
     p.add_argument("--value-range", type=range_type, metavar="LO,HI",
                    help="density normalisation range (default: the dtype's range for integers, "
                         "the data range for floats)")
@@ -200,6 +203,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"transfer function DENSITY:COLOR,... (colours #rrggbb, #rgb or CSS names; "
                         f"default {tf_text(PAPER_TF1)})")
     p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext (bigger, slower to decrypt)")
+    p.add_argument("--gradient", action="store_true",
+                   help="weight every sample by the gradient magnitude (emphasize/tf; a store encrypted with --gradient)")
     p.add_argument("--precision", type=precision_type, default=4, metavar="P",
                    help="decimal digits of the normalisation (default 4)")
 
@@ -228,6 +233,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
     p.add_argument("--tf", type=tf_type, metavar="NODES", help="transfer function DENSITY:COLOR,...")
     p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext")
+    p.add_argument("--gradient", action="store_true",
+                   help="weight every sample by the gradient magnitude (emphasize/tf; a store encrypted with --gradient)")
     p.add_argument("--precision", type=precision_type, default=4, metavar="P",
                    help="decimal digits of the normalisation (default 4)")
 
@@ -257,6 +264,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
     p.add_argument("--tf", type=tf_type, metavar="NODES", help="transfer function DENSITY:COLOR,...")
     p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext")
+    p.add_argument("--gradient", action="store_true",
+                   help="weight every sample by the gradient magnitude (emphasize/tf; a store encrypted with --gradient)")
     p.add_argument("--precision", type=precision_type, metavar="P",
                    help="decimal digits of the normalisation (default 0 where it is exact: one plane in mode "
                         "xray or emphasize; else 4)")

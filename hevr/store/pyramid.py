@@ -14,9 +14,8 @@ level below, so a whole pyramid costs at most 18/7 ≈ 2.6 products per voxel an
 level 0 — a few percent of encryption, which costs two fixed-base exponentiations per value.
 
 Layout (docs/format.md, "Pyramid levels"): level L's arrays are ``levels/L/scalar``,
-``levels/L/vector``, ``levels/L/gradient`` (every channel of the store) and ``levels/L/done`` with the codecs and digest markers of
-level 0 and bricks halved per level down to 8 voxels (:func:`hevr.volume.pyramid.level_brick`:
-as many tasks, so as much parallelism, for a coarse frame) (digests over the channel name ``levels/L/<channel>``, so no brick can pass for one of
+``levels/L/vector``, ``levels/L/gradient`` (every channel of the store) and ``levels/L/done`` with the bricks, codecs and digest markers
+of level 0 (:func:`hevr.volume.pyramid.level_brick` says why the bricks do not shrink) (digests over the channel name ``levels/L/<channel>``, so no brick can pass for one of
 another level); the checksummed ``hevr`` attribute lists each level (shape, completeness,
 array-document digests) and the group's ``ome`` attribute mirrors it as OME-Zarr
 ``multiscales``. :func:`build_pyramid` is one Dask task per brick of a level, level after

@@ -35,11 +35,10 @@ import numpy as np
 from .._validate import check_int
 from ..errors import ParameterError
 
-__all__ = ["MAX_LEVELS", "MIN_LEVEL_BRICK", "downsample", "level_brick", "level_origin", "level_shape", "level_spacing",
+__all__ = ["MAX_LEVELS", "downsample", "level_brick", "level_origin", "level_shape", "level_spacing",
            "check_level"]
 
 MAX_LEVELS = 8  # 2^8 = 256 voxels per axis fold into one: more is never useful
-MIN_LEVEL_BRICK = 8  # a level's bricks shrink with its voxels down to this edge (or the base brick's)
 
 
 def check_level(level: Any, available: int | None = None, name: str = "level") -> int:
@@ -68,14 +67,15 @@ def level_shape(shape: Any, level: int) -> tuple[int, int, int]:
 
 
 def level_brick(brick: Any, level: int) -> tuple[int, int, int]:
-    """Brick shape of level ``level``: the base brick halved per level (same brick count, so the
-    same parallelism) but not below :data:`MIN_LEVEL_BRICK` voxels per edge (tasks stay worth
-    their overhead). A level brick's children then lie in at most 2 bricks per axis below.
+    """Brick shape of level ``level``: the base brick (a level has 8^level times fewer bricks,
+    each as much work as a base brick's task; on the 2-worker benchmark machine, bricks halved per
+    level — as many tasks as level 0 — made coarse frames 1.3–2.4× slower from per-task costs,
+    benchmarks/history.md).
 
-    >>> level_brick((25, 25, 25), 1), level_brick((25, 25, 25), 2), level_brick((4, 32, 9), 3)
-    ((13, 13, 13), (8, 8, 8), (4, 8, 8))
+    >>> level_brick((25, 25, 25), 2)
+    (25, 25, 25)
     """
-    return tuple(max(min(int(b), MIN_LEVEL_BRICK), -(-int(b) // 2**level)) for b in brick)  # type: ignore[return-value]
+    return tuple(int(b) for b in brick)  # type: ignore[return-value]
 
 
 def level_spacing(spacing: Any, level: int) -> tuple[float, float, float]:
