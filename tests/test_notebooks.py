@@ -31,7 +31,7 @@ pytest.importorskip("jupytext")
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOK_DIR = ROOT / "notebooks"
-NOTEBOOKS = ["01_quickstart", "02_transfer_functions", "03_scaling"]
+NOTEBOOKS = ["01_quickstart", "02_transfer_functions", "03_scaling", "04_slices_pyramid_gradient"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
