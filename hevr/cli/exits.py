@@ -116,7 +116,11 @@ CLI_SUBJECTS: dict[str, dict[type, str]] = {
 }
 # Python spellings inside library messages, as the CLI spells them ("*": every command).
 CLI_PHRASES: dict[str, dict[str, str]] = {
-    "*": {"encrypt_volume(..., resume=True)": "'hevr encrypt … --resume'"},
+    "*": {"encrypt_volume(..., resume=True)": "'hevr encrypt … --resume'",
+          "hevr.encrypt_volume(..., vector_dims=k, gradient=True)": "'hevr encrypt … --vector-dims K --gradient'",
+          "a store encrypted with gradient=True": "a store encrypted with --gradient",
+          "with gradient=True (the gradient channel": "with --gradient (the gradient channel",
+          "vector_dims=k as well": "--vector-dims K as well"},
     "render": {"use a larger step or a smaller image": "use a larger --step or a smaller --size"},
     "slice": {"use a larger step or a smaller image": "use a larger --slab-step, a smaller --slab or --size"},
 }

@@ -296,7 +296,8 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         packed = finish.assemble(run_tasks(fin, client=cl, progress=False, desc="finish"))
     if keep_sums is not None:
         save_sums(keep_sums, sums, meta=ev.meta, camera=camera, sampling=spec.sampling, step=spec.step,
-                  weight_digits=plan.weight_digits, channel=plan.channel, tile=tile, store=str(ev.path))
+                  weight_digits=plan.weight_digits, channel=plan.channel, tile=tile, store=str(ev.path),
+                  level=ev.level)
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
              "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),
              "seconds": time.perf_counter() - t0}
@@ -332,6 +333,8 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
     """
     if isinstance(camera, Plane):
         step = camera.slab_step
+        if level:
+            raise ParameterError(f"level: expected None for a hevr.Plane (render_slice has no level), got {level!r}")
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, (Camera, Plane), gradient)
     ev, camera = _at_level(ev, camera, level)

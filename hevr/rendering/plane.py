@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from .._limits import MAX_IMAGE_PIXELS
 from .._validate import check_int, check_step
 from ..errors import ParameterError
 from .camera import Camera, _orbit_geometry, _vec3
@@ -395,8 +396,8 @@ class Plane:
         d = min(sp) if pixel_spacing is None else None
         du, dv = (d, d) if d is not None else _pixel_spacing(pixel_spacing)
         diag = float(np.linalg.norm(extent))
-        w = int(math.floor(diag / du + 1e-9)) + 1 if width is None else check_int("width", width, 1)
-        h = int(math.floor(diag / dv + 1e-9)) + 1 if height is None else check_int("height", height, 1)
+        w = _count(diag, du) if width is None else check_int("width", width, 1)
+        h = _count(diag, dv) if height is None else check_int("height", height, 1)
         origin = c - (w - 1) / 2.0 * du * uu - (h - 1) / 2.0 * dv * vv
         return cls(tuple(origin.tolist()), tuple(uu.tolist()), tuple(vv.tolist()), w, h, (du, dv), slab,
                    min(sp) if slab_step is None else slab_step)
@@ -414,10 +415,23 @@ def _fit(ext: list, voxel: tuple, width: Any, height: Any, pixel_spacing: Any) -
         fits = [e / (n - 1) for e, n in zip(ext, (w, h)) if n is not None and n > 1 and e > 0]
         du = dv = max(fits) if fits else float(min(voxel))
     if w is None:
-        w = int(math.floor(ext[0] / du + 1e-9)) + 1
+        w = _count(ext[0], du)
     if h is None:
-        h = int(math.floor(ext[1] / dv + 1e-9)) + 1
+        h = _count(ext[1], dv)
     return w, h, du, dv
+
+
+def _count(extent: float, d: float) -> int:
+    """Pixels of spacing ``d`` across ``extent``, refused (naming ``pixel_spacing``) past the image cap.
+
+    >>> _count(10.0, 0.5)
+    21
+    """
+    n = extent / d + 1e-9
+    if not math.isfinite(n) or n >= MAX_IMAGE_PIXELS:
+        raise ParameterError(f"pixel_spacing: expected a spacing giving at most {MAX_IMAGE_PIXELS} pixels across "
+                             f"the volume's extent {extent:g}, got {d:g}")
+    return int(math.floor(n)) + 1
 
 
 def view_from_dict(data: Any) -> Camera | Plane:

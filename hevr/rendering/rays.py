@@ -81,6 +81,7 @@ class RaySet:
     width: int
     height: int
     pixel_ids: np.ndarray | None = None
+    t_index: np.ndarray | None = None  # planes: sample k sits at t = (t_index + k)·step from the origin
 
     @property
     def n_rays(self) -> int:
@@ -171,17 +172,18 @@ def cast_rays(camera: Camera | Plane, shape: Any, spacing: Any, step: float, pix
 def _cast_plane(plane: Plane, shape: Any, spacing: Any, step: Any, pixels: Any = None) -> RaySet:
     """A plane's rays: per pixel, the run of its slab samples inside the voxel-centre box.
 
-    Ray (r, c) starts at its first slab sample and has direction n; sample k sits at
-    ``t = k·h`` (h = ``slab_step`` = ``step``), k = 0 .. slab - 1. A sample is inside when it lies
+    Ray (r, c) has direction n; slab sample k sits at ``t = k·h`` from the first slab sample
+    (h = ``slab_step`` = ``step``), k = 0 .. slab - 1. A sample is inside when it lies
     in the box widened by the face tolerance of :func:`cast_rays` on every axis; the box is
     convex, so the inside samples are one run ``k0 .. k1``, found per axis from the line's
     parameter interval in the widened box: ``k0 = ceil(t_min/h)``, ``k1 = floor(t_max/h)``,
-    clipped to the slab. Then ``t_enter = k0·h``, ``n = k1 - k0 + 1`` (0: the pixel has no
-    value), and :func:`sample_positions` gives exactly those samples.
+    clipped to the slab, and ``n = k1 - k0 + 1`` (0: the pixel has no value). The returned rays
+    start at the pixel centres with ``t_index = k0 - (slab - 1)/2``, and :func:`sample_positions`
+    places sample k at ``centre + ((t_index + k)·h)·n``: the definition's own arithmetic.
 
     >>> rs = cast_rays(Plane((0, 0, 1), (1, 0, 0), (0, 1, 0), 3, 1, slab=5), (3, 2, 2), (1, 1, 1), 1.0)
-    >>> rs.t_enter.tolist(), rs.n_samples.tolist()
-    ([1.0, 1.0, 0.0], [3, 3, 0])
+    >>> rs.t_index.tolist(), rs.n_samples.tolist()
+    ([-1.0, -1.0, 0.0], [3, 3, 0])
     """
     nz, ny, nx = check_shape(shape)
     sp = np.asarray(check_spacing(spacing))
@@ -207,10 +209,12 @@ def _cast_plane(plane: Plane, shape: Any, spacing: Any, step: Any, pixels: Any =
     hit = inside_slab & (k1 >= k0)  # NaN (a box beyond float range) compares False: a miss
     k0 = np.where(hit, k0, 0.0).astype(np.int64)
     n = np.where(hit, np.where(hit, k1, 0.0).astype(np.int64) - k0 + 1, 0).astype(np.int64)
-    t_enter = k0 * step
-    return RaySet(origins=origins, directions=dirs, t_enter=t_enter.astype(np.float64),
-                  t_exit=np.where(hit, t_enter + (n - 1) * step, 0.0), n_samples=n,
-                  width=plane.width, height=plane.height, pixel_ids=ids)
+    # Samples are placed from the pixel centre, t = (k - (S-1)/2)·h, exactly as the definition
+    # (and render_slice_plain) writes them: the same float operations, so the same voxel at ties.
+    index0 = np.where(hit, k0 - (plane.slab - 1) / 2.0, 0.0)
+    return RaySet(origins=plane.centres(ids), directions=dirs, t_enter=index0 * step,
+                  t_exit=np.where(hit, (index0 + n - 1) * step, 0.0), n_samples=n,
+                  width=plane.width, height=plane.height, pixel_ids=ids, t_index=index0)
 
 
 def sample_positions(
@@ -230,7 +234,10 @@ def sample_positions(
     [[1.0, 1.0, 4.0], [1.0, 1.0, 2.0]]
     """
     ray_idx = np.asarray(ray_idx, dtype=np.int64)
-    t = rays.t_enter[ray_idx] + np.asarray(k, dtype=np.int64) * float(step)
+    if rays.t_index is not None:  # a plane: t = (first index + k)·h, from the pixel centre
+        t = (rays.t_index[ray_idx] + np.asarray(k, dtype=np.int64)) * float(step)
+    else:
+        t = rays.t_enter[ray_idx] + np.asarray(k, dtype=np.int64) * float(step)
     world = rays.origins[ray_idx] + t[:, None] * rays.directions[ray_idx]
     return world / np.asarray(spacing, dtype=np.float64)
 

@@ -59,6 +59,7 @@ from ..crypto.records import record_width
 from ..errors import CorruptStoreError, HevrError, IntegrityError, ParameterError
 from ..image import EncryptedImage
 from ..store.metadata import VolumeMetadata
+from ..volume.pyramid import MAX_LEVELS
 from .camera import Camera
 from .graph import FinishGraph
 from .modes import RenderSpec, combination_matrix, make_spec
@@ -75,7 +76,7 @@ FORMAT = "hevr-ray-sums"
 VERSION = 1
 LENGTH = struct.Struct("<I")
 DIGEST = 32
-FIELDS = ("format", "version", "n", "fingerprint", "volume", "store", "camera", "sampling", "step",
+FIELDS = ("format", "version", "n", "fingerprint", "volume", "store", "level", "camera", "sampling", "step",
           "weight_digits", "channel", "tile", "width", "components", "tiles")
 
 
@@ -122,6 +123,7 @@ class SavedSums:
     tile: int
     tiles: dict
     store: str
+    level: int
     path: str
 
 
@@ -140,7 +142,7 @@ def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: 
 
 
 def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, camera: Camera, sampling: str,
-              step: float, weight_digits: int, channel: str, tile: int, store: str = "") -> int:
+              step: float, weight_digits: int, channel: str, tile: int, store: str = "", level: int = 0) -> int:
     """Write ``sums`` (gathered from the workers if needed) as a ``.hevrsums`` file; atomic
     (``<path>.tmp`` renamed over ``path``). Returns the file's size in bytes."""
     values = sums.values()
@@ -148,7 +150,7 @@ def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, c
     width = record_width(n)
     K = meta.components(channel)
     head = {"format": FORMAT, "version": VERSION, "n": str(n), "fingerprint": meta.fingerprint,
-            "volume": meta.to_dict(), "store": str(store), "camera": camera.to_dict(), "sampling": sampling,
+            "volume": meta.to_dict(), "store": str(store), "level": int(level), "camera": camera.to_dict(), "sampling": sampling,
             "step": float(step), "weight_digits": int(weight_digits), "channel": channel, "tile": int(tile),
             "width": width, "components": K,
             "tiles": [[int(t), -1 if v is None else int(v[0].size)] for t, v in sorted(values.items())]}
@@ -237,7 +239,8 @@ def load_sums(path: str | os.PathLike) -> SavedSums:
     nearest = h["sampling"] == "nearest"
     digits = ctx.integer("weight_digits", h["weight_digits"], 0, 0 if nearest else 9)  # nearest weights are counts
     return SavedSums(meta=meta, camera=camera, sampling=h["sampling"], step=float(step), weight_digits=digits,
-                     channel=channel, tile=tile, tiles=tiles, store=str(h["store"]), path=where)
+                     channel=channel, tile=tile, tiles=tiles, store=str(h["store"]),
+                     level=ctx.integer("level", h["level"], 0, MAX_LEVELS), path=where)
 
 
 def check_sums_path(path: Any, name: str = "keep_sums") -> Path:
@@ -348,4 +351,4 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     stats = {"map_tasks": 0, "finish_tasks": len(fin), "reused_ray_sums": True, "resident": False,
              "gathered_bytes": sum(int(p.nbytes) for p in packed), "seconds": time.perf_counter() - t0}
     return EncryptedImage(ciphertexts=list(packed), stats=stats,
-                          **image_fields(spec, plan, camera, rays.n_samples, meta, sums.tile))
+                          **image_fields(spec, plan, camera, rays.n_samples, meta, sums.tile, level=sums.level))

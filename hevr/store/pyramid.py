@@ -115,13 +115,27 @@ def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int
 
 
 def _write_meta(path: str, meta: VolumeMetadata) -> None:
+    """Record ``meta`` (and its OME attribute) — only over the same store (its id on disk)."""
     group = zarr.open_group(path, mode="r+")
+    on_disk = (dict(group.attrs).get("hevr") or {}).get("store_id")
+    if on_disk != meta.store_id:
+        raise StoreError(f"ev: the store at {path} was replaced while its pyramid was being built (store id "
+                         f"{on_disk!r}, expected {meta.store_id!r}); nothing was written; open it again")
     group.attrs.update({"hevr": meta.to_dict(), "ome": ome_attribute(meta)})
 
 
+def _level_arrays_ok(path: str, info: LevelInfo) -> bool:
+    """Whether level ``info``'s arrays are all there with the documents its metadata pins."""
+    try:
+        return all(document_digest(path, f"levels/{info.level}/{name}") == want for name, want in info.arrays.items())
+    except (OSError, ValueError, KeyError):
+        return False
+
+
 def _start_level(path: str, meta: VolumeMetadata, level: int) -> VolumeMetadata:
-    """Create level ``level``'s arrays (if not there from an interrupted run) and record them."""
-    if len(meta.levels) >= level:
+    """Create level ``level``'s arrays (if not there from an interrupted run, or gone since) and
+    record them, the level incomplete."""
+    if len(meta.levels) >= level and _level_arrays_ok(path, meta.levels[level - 1]):
         return meta
     shape, brick = level_shape(meta.shape, level), level_brick(meta.brick, level)
     layout = array_layout(dataclasses.replace(meta, shape=shape, brick=brick, levels=()))
@@ -130,7 +144,8 @@ def _start_level(path: str, meta: VolumeMetadata, level: int) -> VolumeMetadata:
         group.create_array(name, shape=ashape, chunks=chunks, dtype="uint8", compressors=[Crc32cCodec()],
                            fill_value=0, overwrite=True)
     digests = {name: document_digest(path, f"levels/{level}/{name}") for name in layout}
-    meta = dataclasses.replace(meta, levels=meta.levels + (LevelInfo(level, shape, brick, False, digests),))
+    info = LevelInfo(level, shape, brick, False, digests)
+    meta = dataclasses.replace(meta, levels=meta.levels[:level - 1] + (info,))  # levels above it are rebuilt too
     _write_meta(path, meta)
     return meta
 
@@ -158,10 +173,13 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
         The store reopened; ``.levels`` complete levels, ``.at_level(L)`` and
         ``hevr.render(..., level=L)`` use them.
     """
-    if not isinstance(ev, EncryptedVolume):
-        ev = open_volume(ev)
-    if ev.level:
+    if isinstance(ev, EncryptedVolume) and ev.level:
         raise ParameterError(f"ev: expected a store (level 0), got a view of pyramid level {ev.level}")
+    fresh = open_volume(ev.path if isinstance(ev, EncryptedVolume) else ev)  # never build from a stale handle
+    if isinstance(ev, EncryptedVolume) and fresh.meta.store_id != ev.meta.store_id:
+        raise StoreError(f"ev: the store at {ev.path} was replaced since this handle was opened (store id "
+                         f"{fresh.meta.store_id}, the handle's {ev.meta.store_id}); open it again")
+    ev = fresh
     if isinstance(levels, bool) or not isinstance(levels, int) or not 1 <= levels <= MAX_LEVELS:
         raise ParameterError(f"levels: expected an int in [1, {MAX_LEVELS}], got {levels!r}")
     meta = ev.meta
@@ -172,10 +190,10 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
     backend = resolve_backend_name(backend)
     path = ev.path
     for level in range(1, levels + 1):
-        if len(meta.levels) >= level and meta.levels[level - 1].complete:
+        if len(meta.levels) >= level and meta.levels[level - 1].complete and _level_arrays_ok(path, meta.levels[level - 1]):
             continue
+        below = EncryptedVolume(path, meta).at_level(level - 1)  # readable before anything is started
         meta = _start_level(path, meta, level)
-        below = EncryptedVolume(path, meta).at_level(level - 1)
         lmeta = meta.level_meta(level)
         done = written(zarr.open_group(path, mode="r")[f"levels/{level}/done"][...])
         todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*lmeta.grid) if not done[idx]]

@@ -338,7 +338,8 @@ def encrypt_volume(
     bricks = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid)]
     if exists and resume:
         old = _resume_target(path, meta)
-        meta = dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays)
+        # a finished store keeps everything built on it since (its pyramid levels)
+        meta = dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays, levels=old.levels)
         check_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
         done = written(zarr.open_array(f"{path}/done", mode="r")[...])
         target = path

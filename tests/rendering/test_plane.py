@@ -180,7 +180,7 @@ def test_cast_rays_keeps_the_slab_samples_inside_the_box():
     # axial at z = 1·sz with 5 planes one layer apart: z = −1, 0, 1, 2, 3 (layers); 4 layers exist
     p = Plane.axial(SHAPE, 1, slab=5, spacing=SPACING)
     rs = cast_rays(p, SHAPE, SPACING, p.slab_step)
-    assert set(rs.n_samples.tolist()) == {4} and set(rs.t_enter.tolist()) == {1.5}
+    assert set(rs.n_samples.tolist()) == {4} and set(rs.t_index.tolist()) == {-1.0}  # samples k = 1..4 of 0..4
     # brute force: every sample position tested against the box
     for pl in (p, Plane.oblique(SHAPE, normal=(1, 1, 1), width=9, height=9, spacing=SPACING, slab=7),
                _plane(origin=(-1, 0, 0), slab=3)):
@@ -190,7 +190,8 @@ def test_cast_rays_keeps_the_slab_samples_inside_the_box():
         inside = np.all((pts >= -1e-9) & (pts <= hi + 1e-9), axis=2)
         assert np.array_equal(rs.n_samples, inside.sum(axis=1))
         first = np.where(inside.any(axis=1), inside.argmax(axis=1), 0)
-        assert np.allclose(rs.t_enter, first * pl.slab_step)
+        hit = inside.any(axis=1)  # the first inside sample, counted from the pixel centre
+        assert np.array_equal(rs.t_index[hit], first[hit] - (pl.slab - 1) / 2.0)
     with pytest.raises(hevr.ParameterError, match="^step: expected the plane's slab_step 1.5"):
         cast_rays(p, SHAPE, SPACING, 1.0)
 
