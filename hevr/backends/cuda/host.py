@@ -1,0 +1,151 @@
+"""The host build of the CUDA kernel source ``mont.cuh``: compiled with the C compiler, called
+through ctypes, checked against gmpy2 by the tests.
+
+Montgomery form (the source's comment has the algorithm). For an odd modulus N of ``NL = ceil(bits/32)``
+limbs and R = 2^(32·NL):
+
+* ``mont_mul(a, b) = a·b·R^-1 mod N`` (CIOS), for a, b < N;
+* ``to_mont(x) = mont_mul(x, R² mod N) = x·R mod N`` and ``from_mont(y) = mont_mul(y, 1)``;
+* so ``from_mont(mont_mul(to_mont(a), to_mont(b))) = a·b mod N``: a chain of products stays in
+  Montgomery form and converts once at each end — how a GPU backend keeps residues on the device.
+
+>>> m = HostMontgomery(1_000_003)          # an odd modulus
+>>> m.modmul([123456, 0, 1_000_002], [654321, 5, 1_000_002])
+[611039, 0, 1]
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ...errors import MissingDependencyError, ParameterError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["HostMontgomery", "build_host", "from_limbs", "montgomery_params", "source", "to_limbs"]
+
+SOURCE = Path(__file__).with_name("mont.cuh")
+MAX_LIMBS = 128  # HEVR_MAX_LIMBS in the source: 4096-bit moduli (n² of a 2048-bit key)
+_LIB: dict[str, ctypes.CDLL] = {}
+
+
+def source() -> str:
+    """The kernel source (CUDA C; host-compilable)."""
+    return SOURCE.read_text(encoding="utf-8")
+
+
+def build_host(compiler: str | None = None) -> ctypes.CDLL:
+    """Compile the source for the host once per process (cached on disk by its hash) and load it.
+
+    Raises
+    ------
+    MissingDependencyError
+        No C compiler (``cc``/``gcc``, or ``$CC``) on this machine.
+    """
+    text = source()
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    if digest in _LIB:
+        return _LIB[digest]
+    cc = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if not cc:
+        raise MissingDependencyError("compiler: expected a C compiler (cc, gcc or $CC) to build the kernel source "
+                                     "for the host, got none on PATH")
+    folder = Path(tempfile.gettempdir()) / f"hevr-kernels-{os.getuid() if hasattr(os, 'getuid') else 0}"
+    folder.mkdir(mode=0o700, exist_ok=True)
+    lib = folder / f"mont-{digest}.so"
+    if not lib.exists():
+        tmp = folder / f".mont-{digest}-{os.getpid()}.so"
+        try:
+            run = subprocess.run([cc, "-O2", "-shared", "-fPIC", "-x", "c", "-std=c99", str(SOURCE), "-o", str(tmp)],
+                                 capture_output=True, text=True)
+        except OSError as exc:
+            raise MissingDependencyError(f"compiler: expected a C compiler at {cc}, got {exc.strerror}") from None
+        if run.returncode != 0:
+            raise MissingDependencyError(f"compiler: {cc} could not build {SOURCE.name}: {run.stderr.strip()[:500]}")
+        os.replace(tmp, lib)
+        log.info("built %s with %s", lib, cc)
+    dll = ctypes.CDLL(str(lib))
+    u32p = ctypes.POINTER(ctypes.c_uint32)
+    dll.hevr_mont_mul_batch.argtypes = [u32p, u32p, u32p, ctypes.c_uint32, ctypes.c_int, ctypes.c_longlong, u32p]
+    dll.hevr_mont_mul_batch.restype = ctypes.c_int
+    _LIB[digest] = dll
+    return dll
+
+
+def montgomery_params(n: int) -> tuple[int, int, int]:
+    """``(NL, ninv, R² mod n)`` of an odd modulus: limbs, ``−n^-1 mod 2^32`` and the conversion constant.
+
+    >>> montgomery_params(2**61 - 1)
+    (2, 1, 64)
+    """
+    n = int(n)
+    if n < 3 or n % 2 == 0:
+        raise ParameterError(f"n: expected an odd modulus >= 3, got {'an even number' if n > 0 else n}")
+    nl = -(-n.bit_length() // 32)
+    if nl > MAX_LIMBS:
+        raise ParameterError(f"n: expected at most {32 * MAX_LIMBS} bits, got {n.bit_length()}")
+    ninv = (-pow(n, -1, 1 << 32)) % (1 << 32)
+    return nl, ninv, pow(1 << (32 * nl), 2, n)
+
+
+def to_limbs(values: Sequence[int], nl: int) -> np.ndarray:
+    """Integers in ``[0, 2^(32·nl))`` as a (count, nl) uint32 array, little-endian limbs.
+
+    >>> to_limbs([2**32 + 5], 2).tolist()
+    [[5, 1]]
+    """
+    raw = b"".join(int(v).to_bytes(4 * nl, "little") for v in values)
+    return np.frombuffer(raw, dtype="<u4").reshape(len(values), nl).astype(np.uint32)
+
+
+def from_limbs(arr: np.ndarray) -> list[int]:
+    """The inverse of :func:`to_limbs`."""
+    arr = np.ascontiguousarray(arr, dtype="<u4")
+    return [int.from_bytes(row.tobytes(), "little") for row in arr]
+
+
+class HostMontgomery:
+    """Montgomery arithmetic modulo ``n`` with the host build of the kernel source (for tests)."""
+
+    def __init__(self, n: int) -> None:
+        self.n = int(n)
+        self.nl, self.ninv, self.r2 = montgomery_params(self.n)
+        self._lib = build_host()
+        self._n = to_limbs([self.n], self.nl)[0]
+
+    def mont_mul(self, a: Sequence[int], b: Sequence[int]) -> list[int]:
+        """``a_k·b_k·R^-1 mod n`` for every k (each operand in [0, n))."""
+        if len(a) != len(b):
+            raise ParameterError(f"b: expected {len(a)} operands like a, got {len(b)}")
+        for name, vals in (("a", a), ("b", b)):
+            bad = next((v for v in vals if not 0 <= int(v) < self.n), None)
+            if bad is not None:
+                raise ParameterError(f"{name}: expected operands in [0, n), got one of {int(bad).bit_length()} bits")
+        A, B = to_limbs(a, self.nl), to_limbs(b, self.nl)
+        out = np.zeros_like(A)
+        p = ctypes.POINTER(ctypes.c_uint32)
+        rc = self._lib.hevr_mont_mul_batch(A.ctypes.data_as(p), B.ctypes.data_as(p), self._n.ctypes.data_as(p),
+                                           self.ninv, self.nl, len(a), out.ctypes.data_as(p))
+        if rc != 0:  # pragma: no cover - montgomery_params bounds nl
+            raise ParameterError(f"n: the kernel refused {self.nl} limbs")
+        return from_limbs(out)
+
+    def to_mont(self, x: Sequence[int]) -> list[int]:
+        return self.mont_mul(x, [self.r2] * len(x))
+
+    def from_mont(self, y: Sequence[int]) -> list[int]:
+        return self.mont_mul(y, [1] * len(y))
+
+    def modmul(self, a: Sequence[int], b: Sequence[int]) -> list[int]:
+        """``a_k·b_k mod n`` through Montgomery form (three conversions, one product)."""
+        return self.from_mont(self.mont_mul(self.to_mont(a), self.to_mont(b)))
