@@ -247,7 +247,8 @@ def ome_attribute(meta: VolumeMetadata) -> dict:
     level 0 and every complete pyramid level with its scale and translation (array order,
     z, y, x; the component and ciphertext-byte axes unscaled). Derived from the checksummed
     ``hevr`` attribute, so it is checked byte for byte on opening; ciphertexts stay opaque to
-    OME tools, but the pyramid is discoverable the standard way."""
+    OME tools, but the pyramid is discoverable the standard way (not a valid OME-NGFF image: the
+    arrays end in the ciphertext-byte axis, docs/format.md)."""
     space = [{"name": a, "type": "space"} for a in ("z", "y", "x")]
     record = [{"name": "ciphertext_byte", "type": "ciphertext"}]
     done = [lv.level for lv in meta.levels if lv.complete]
