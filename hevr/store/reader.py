@@ -317,8 +317,9 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     path : str or Path
     verify : {"quick", "full", "none"}
         ``quick`` checks metadata, completeness and (for local stores) that every chunk
-        exists with the exact size; ``full`` additionally reads every ciphertext and
-        checks 0 < c < n² and gcd(c, n) = 1.
+        exists with the exact size, for level 0 and every complete pyramid level; ``full``
+        additionally reads every ciphertext of every level and checks 0 < c < n² and
+        gcd(c, n) = 1.
 
     Raises
     ------
@@ -357,6 +358,8 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     if verify != "none" and "://" not in path:
         check_chunk_files(path, meta)
     ev = EncryptedVolume(path, meta)
+    levels = [ev.at_level(level) for level in range(1, ev.levels + 1)] if verify != "none" else []  # their layout
     if verify == "full":
-        ev.verify()
+        for view in [ev, *levels]:
+            view.verify()
     return ev

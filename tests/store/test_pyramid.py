@@ -161,3 +161,17 @@ def test_bad_requests(built, tmp_path, keypair256):
     fev = hevr.encrypt_volume(vol, tmp_path / "f.zarr", keypair256[0], brick=4, digits=12, progress=False)
     with pytest.raises(hevr.ParameterError, match="levels: expected at most 6 levels for a channel of 12 digits"):
         pyr.build_pyramid(fev, 7)
+
+
+def test_opening_checks_every_complete_level(built, tmp_path):
+    """open_volume (quick) checks each complete level's layout and chunk files; verify='full' reads
+    every level's ciphertexts: a level that lost a chunk is named, not reported as fine."""
+    ev, _, _ = built
+    copy = tmp_path / "c.zarr"
+    shutil.copytree(ev.path, copy)
+    assert hevr.open_volume(copy, verify="full").levels == 2
+    victim = next(p for p in sorted((copy / "levels" / "2" / "vector" / "c").rglob("*")) if p.is_file())
+    victim.unlink()
+    with pytest.raises(hevr.CorruptStoreError, match="missing chunk"):
+        hevr.open_volume(copy)
+    assert hevr.open_volume(copy, verify="none").levels == 2  # forensics still open it
