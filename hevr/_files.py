@@ -14,13 +14,15 @@ hevr.errors.MissingFileError: key: expected a key file, found nothing at .../mis
 
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
 from pathlib import Path
+from typing import Any, Iterable
 
 from .errors import ExistingFileError, MissingFileError
 
-__all__ = ["require_file", "write_atomic"]
+__all__ = ["require_file", "write_atomic", "write_checksummed"]
 
 
 def write_atomic(path: str | os.PathLike, text: str, mode: int = 0o644, *, overwrite: bool = True,
@@ -81,3 +83,22 @@ def require_file(path: str | os.PathLike, name: str, expected: str, *, directory
     if not found:
         raise MissingFileError(name, expected, p)
     return p
+
+
+def write_checksummed(path: str | os.PathLike, parts: Iterable[Any]) -> None:
+    """Write ``parts`` (bytes-like) and then the SHA-256 of all of them to ``path``, atomically:
+    through ``<path>.tmp`` renamed over ``path`` — the layout of ``.hevr`` images and ``.hevrsums``
+    files, whose readers check the trailer before anything else."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    digest = hashlib.sha256()
+    try:
+        with open(tmp, "wb") as fh:
+            for part in parts:
+                digest.update(part)
+                fh.write(part)
+            fh.write(digest.digest())
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

@@ -88,6 +88,27 @@ def is_decimal(value: Any, max_digits: int) -> bool:
     return isinstance(value, str) and 0 < len(value) <= max_digits and value.isascii() and value.isdigit()
 
 
+def check_pixel_ids(pixels: Any, width: int, height: int) -> np.ndarray:
+    """Global pixel indices ``row·width + col`` as a flat int64 array in ``[0, width·height)``
+    (what :meth:`hevr.Camera.rays` and :meth:`hevr.Plane.rays` accept).
+
+    >>> check_pixel_ids([3, 0], 2, 2).tolist()
+    [3, 0]
+    >>> check_pixel_ids([4], 2, 2)
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: pixels: expected indices in [0, 4), got 4..4
+    """
+    arr = np.asarray(pixels).reshape(-1)
+    if arr.size and arr.dtype.kind not in "iu":
+        raise ParameterError(f"pixels: expected integer pixel indices, got {arr.dtype}")
+    arr = arr.astype(np.int64)
+    n = width * height
+    if arr.size and (arr.min() < 0 or arr.max() >= n):
+        raise ParameterError(f"pixels: expected indices in [0, {n}), got {arr.min()}..{arr.max()}")
+    return arr
+
+
 def check_int(name: str, value: Any, lo: int | None = None, hi: int | None = None) -> int:
     """An integer (not a bool) in ``[lo, hi]`` (either bound may be ``None``), as an int.
 

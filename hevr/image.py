@@ -15,7 +15,6 @@ against the bound and the planner's 64-bit integrity margin, and the ``.hevr`` f
 from __future__ import annotations
 
 import base64
-import hashlib
 import json
 import struct
 from dataclasses import dataclass, field
@@ -26,7 +25,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from ._files import require_file
+from ._files import require_file, write_checksummed
 from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile_name
 from .backends import get_backend
 from .crypto.keys import PrivateKey
@@ -204,21 +203,9 @@ class EncryptedImage:
         (``IntegrityError`` for one that :meth:`decrypt` would refuse)."""
         check_image(self)
         head = json.dumps(self._header(), separators=(",", ":")).encode()
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        digest = hashlib.sha256()
         parts = [MAGIC, struct.pack("<I", len(head)), head]
         parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in self.ciphertexts]
-        try:
-            with open(tmp, "wb") as fh:
-                for part in parts:
-                    digest.update(part)
-                    fh.write(part)
-                fh.write(digest.digest())
-            tmp.replace(path)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
+        write_checksummed(path, parts)
 
 
 def _unpack_checked(plain: list[int], need: int, pack_bits: int, per_pack: int,

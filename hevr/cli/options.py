@@ -54,31 +54,23 @@ positive_int = _int_at_least(1, "a positive integer")
 MAX_PRECISION = 30
 
 
-def vector_dims_type(text: str) -> int:
-    """``--vector-dims``: an integer in [2, MAX_VECTOR_DIMS]."""
-    v = _int_at_least(2, f"an integer in [2, {MAX_VECTOR_DIMS}] (the paper uses 4)")(text)
-    if v > MAX_VECTOR_DIMS:
-        raise argparse.ArgumentTypeError(f"expected an integer in [2, {MAX_VECTOR_DIMS}] (the paper uses 4), got {text!r}")
-    return v
-
-
 nonneg_int = _int_at_least(0, "a non-negative integer")
 
 
-def digits_type(text: str) -> int:
-    """``--digits``: decimal digits kept of float voxels, 0 .. MAX_STORE_DIGITS (the library's cap)."""
-    v = nonneg_int(text)
-    if v > MAX_STORE_DIGITS:
-        raise argparse.ArgumentTypeError(f"expected an integer in [0, {MAX_STORE_DIGITS}], got {text!r}")
-    return v
+def _int_range(lo: int, hi: int, expected: str):
+    """An argparse type: an integer in [lo, hi]; anything else names ``expected`` and the text."""
+    def parse(text: str) -> int:
+        v = _int_at_least(lo, expected)(text)
+        if v > hi:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return v
+    return parse
 
 
-def precision_type(text: str) -> int:
-    """``--precision``: decimal digits of the normalisation, 0 .. MAX_PRECISION."""
-    v = nonneg_int(text)
-    if v > MAX_PRECISION:
-        raise argparse.ArgumentTypeError(f"expected an integer in [0, {MAX_PRECISION}], got {text!r}")
-    return v
+# --digits: decimal digits kept of float voxels (the library's cap); --precision: of the normalisation
+vector_dims_type = _int_range(2, MAX_VECTOR_DIMS, f"an integer in [2, {MAX_VECTOR_DIMS}] (the paper uses 4)")
+digits_type = _int_range(0, MAX_STORE_DIGITS, f"an integer in [0, {MAX_STORE_DIGITS}]")
+precision_type = _int_range(0, MAX_PRECISION, f"an integer in [0, {MAX_PRECISION}]")
 
 
 def phantom_size_type(text: str) -> int:
@@ -92,12 +84,7 @@ def phantom_size_type(text: str) -> int:
     return v
 
 
-def workers_type(text: str) -> int:
-    """``--workers``: 0 .. MAX_WORKERS local worker processes."""
-    v = nonneg_int(text)
-    if v > MAX_WORKERS:
-        raise argparse.ArgumentTypeError(f"expected at most {MAX_WORKERS} worker processes, got {text!r}")
-    return v
+workers_type = _int_range(0, MAX_WORKERS, f"at most {MAX_WORKERS} worker processes (0: none)")  # --workers
 
 
 def finite_float(text: str) -> float:
@@ -217,25 +204,5 @@ def tf_type(text: str) -> list[tuple[float, tuple[float, float, float]]]:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def level_type(text: str) -> int:
-    """``--level L``: a pyramid level, 0 (the full volume) to 8.
-
-    >>> level_type("2")
-    2
-    """
-    return _int_in(text, 0, MAX_LEVELS, f"a pyramid level from 0 to {MAX_LEVELS}")
-
-
-def levels_type(text: str) -> int:
-    """``--levels N``: how many pyramid levels to build, 1 to 8."""
-    return _int_in(text, 1, MAX_LEVELS, f"a number of levels from 1 to {MAX_LEVELS}")
-
-
-def _int_in(text: str, lo: int, hi: int, expected: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = None
-    if value is None or not lo <= value <= hi:
-        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
-    return value
+level_type = _int_range(0, MAX_LEVELS, f"a pyramid level from 0 to {MAX_LEVELS}")  # --level L (0: the volume)
+levels_type = _int_range(1, MAX_LEVELS, f"a number of levels from 1 to {MAX_LEVELS}")  # --levels N to build

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_int, check_shape, check_spacing
+from .._validate import check_int, check_pixel_ids, check_shape, check_spacing
 from ..errors import ParameterError
 
 __all__ = ["Camera"]
@@ -269,14 +269,7 @@ class Camera:
         ...
         hevr.errors.ParameterError: pixels: expected indices in [0, 4), got 4..4
         """
-        arr = np.asarray(pixels).reshape(-1)
-        if arr.size and arr.dtype.kind not in "iu":
-            raise ParameterError(f"pixels: expected integer pixel indices, got {arr.dtype}")
-        arr = arr.astype(np.int64)
-        n = self.width * self.height
-        if arr.size and (arr.min() < 0 or arr.max() >= n):
-            raise ParameterError(f"pixels: expected indices in [0, {n}), got {arr.min()}..{arr.max()}")
-        return arr
+        return check_pixel_ids(pixels, self.width, self.height)
 
     @property
     def tan_half(self) -> float:

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from .._limits import MAX_IMAGE_PIXELS
-from .._validate import check_int, check_step
+from .._validate import check_int, check_pixel_ids, check_step
 from ..errors import ParameterError
 from .camera import Camera, _orbit_geometry, _vec3
 
@@ -263,14 +263,7 @@ class Plane:
         ...
         hevr.errors.ParameterError: pixels: expected indices in [0, 4), got 4..4
         """
-        arr = np.asarray(pixels).reshape(-1)
-        if arr.size and arr.dtype.kind not in "iu":
-            raise ParameterError(f"pixels: expected integer pixel indices, got {arr.dtype}")
-        arr = arr.astype(np.int64)
-        n = self.width * self.height
-        if arr.size and (arr.min() < 0 or arr.max() >= n):
-            raise ParameterError(f"pixels: expected indices in [0, {n}), got {arr.min()}..{arr.max()}")
-        return arr
+        return check_pixel_ids(pixels, self.width, self.height)
 
     # ------------------------------------------------------------------ helpers
     @classmethod

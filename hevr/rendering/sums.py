@@ -48,7 +48,7 @@ import numpy as np
 
 from .._dask import active_client
 from .._dask import compute as run_tasks
-from .._files import require_file
+from .._files import require_file, write_checksummed
 from .._image_header import MAX_N_DIGITS, Fields, parse_json
 from .._limits import MAX_IMAGE_PIXELS
 from .._tiles import TileLayout
@@ -161,18 +161,7 @@ def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, c
             parts += [np.ascontiguousarray(v[0], dtype="<i8").reshape(-1),
                       np.ascontiguousarray(v[1], dtype=np.uint8).reshape(-1)]
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    digest = hashlib.sha256()
-    try:
-        with open(tmp, "wb") as fh:
-            for part in parts:
-                digest.update(part)
-                fh.write(part)
-            fh.write(digest.digest())
-        tmp.replace(path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_checksummed(path, parts)
     size = path.stat().st_size
     log.info("ray sums of %d tiles written to %s (%d bytes)", len(values), path, size)
     return size

@@ -85,7 +85,7 @@ def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int
         K = meta.components(channel)
         parts: list[np.ndarray] = []  # per child brick: (rows, K, W) partial products, with their owners
         owners: list[np.ndarray] = []
-        for child in {tuple(int(v) for v in row) for row in kid_brick}:
+        for child in map(tuple, np.unique(kid_brick, axis=0).tolist()):  # at most 8 child bricks
             mine = np.flatnonzero((kid_brick == child).all(axis=1))
             data = below.read_brick_bytes(child, channel)  # digest checked
             recs = data.reshape((1,) + data.shape) if channel == "scalar" else data  # (K, bz, by, bx, W)
