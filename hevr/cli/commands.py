@@ -133,6 +133,18 @@ def resolve_mode(args: Any) -> str:
     return mode
 
 
+def open_for_mode(store: str, mode: str, verb: str) -> Any:
+    """Open STORE and check that it has the channel ``mode`` reads (``verb``: the command, for the hint)."""
+    ev = open_volume(check_store_path(Path(store).expanduser(), "STORE").absolute())
+    if mode != "xray" and not ev.vector_dims:
+        raise UsageError(f"--mode {mode}: expected a store with the vector channel, got {store} without one; "
+                         f"encrypt it with --vector-dims 4 (or {verb} --mode xray)")
+    if mode == "xray" and not ev.has_scalar:
+        raise UsageError(f"--mode xray: expected a store with the scalar channel, got {store} without one "
+                         f"(encrypted with --no-scalar); {verb} --mode emphasize or --mode tf")
+    return ev
+
+
 def cmd_render(args: Any) -> int:
 
 
@@ -145,14 +157,7 @@ def cmd_render(args: Any) -> int:
         check_output_file(sums, "--keep-sums")
         if sums.absolute() == out.absolute():
             raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
-    store = check_store_path(Path(args.store).expanduser(), "STORE").absolute()
-    ev = open_volume(store)
-    if mode != "xray" and not ev.vector_dims:
-        raise UsageError(f"--mode {mode}: expected a store with the vector channel, got {args.store} without one; "
-                         "encrypt it with --vector-dims 4 (or render --mode xray)")
-    if mode == "xray" and not ev.has_scalar:
-        raise UsageError(f"--mode xray: expected a store with the scalar channel, got {args.store} without one "
-                         "(encrypted with --no-scalar); render --mode emphasize or --mode tf")
+    ev = open_for_mode(args.store, mode, "render")
     w, h = args.size
     cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h,
                        view_angle=args.view_angle, parallel=args.parallel)
@@ -419,4 +424,4 @@ def _info_volume(path: Path) -> int:
 
 
 __all__ = ["cmd_keygen", "cmd_convert_key", "cmd_encrypt", "cmd_render", "cmd_recolour", "cmd_decrypt", "cmd_info",
-           "cmd_upgrade_store", "resolve_mode"]
+           "cmd_upgrade_store", "open_for_mode", "resolve_mode"]

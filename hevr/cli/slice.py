@@ -17,13 +17,11 @@ from ..paper import PAPER_TF1
 from ..rendering.plane import Plane
 from ..rendering.planner import check_render_size
 from ..rendering.slices import render_slice
-from ..store.reader import open_volume
-from .commands import resolve_mode
+from .commands import open_for_mode, resolve_mode
 from .util import (
     Timer,
     UsageError,
     check_output_file,
-    check_store_path,
     dask_client,
     describe_client,
     format_tf,
@@ -99,14 +97,7 @@ def cmd_slice(args: Any) -> int:
         raise UsageError(f"--slab-step: only applies to a thick slab (--slab N > 1), got --slab {args.slab}")
     out = Path(args.out).expanduser()
     check_output_file(out)
-    store = check_store_path(Path(args.store).expanduser(), "STORE").absolute()
-    ev = open_volume(store)
-    if mode != "xray" and not ev.vector_dims:
-        raise UsageError(f"--mode {mode}: expected a store with the vector channel, got {args.store} without one; "
-                         "encrypt it with --vector-dims 4 (or slice --mode xray)")
-    if mode == "xray" and not ev.has_scalar:
-        raise UsageError(f"--mode xray: expected a store with the scalar channel, got {args.store} without one "
-                         "(encrypted with --no-scalar); slice --mode emphasize or --mode tf")
+    ev = open_for_mode(args.store, mode, "slice")
     plane, where = _plane(args, ev)
     check_render_size(plane, ev.shape, ev.spacing, plane.slab_step)  # refuse before a cluster starts
     what = {"xray": "value", "emphasize": f"emphasis of density {args.density}",
