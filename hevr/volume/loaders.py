@@ -14,20 +14,20 @@ attached ``.nrrd``), enough for tests, demos and the CLI.
 
 from __future__ import annotations
 
-import importlib
 import logging
 import math
 import os
 from pathlib import Path
-from types import ModuleType
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 import numpy.typing as npt
 
 from .._files import require_file
 from .._validate import check_choice, check_spacing, check_volume
-from ..errors import MissingDependencyError, ParameterError, VolumeFormatError
+from ..errors import ParameterError, VolumeFormatError
+from ._optional import require
+from .dicom import read_dicom_folder
 from .nrrd import (
     check_file,
     is_kind,
@@ -37,6 +37,7 @@ from .nrrd import (
     write_nrrd,
     write_raw,
 )
+from .rescale import rescale
 
 __all__ = ["load_volume", "save_volume"]
 
@@ -70,16 +71,6 @@ def _format(path: Path) -> str:
 def _check_volume(arr: np.ndarray, path: Path) -> np.ndarray:
     """Reject anything that is not a non-empty 3-D integer/float array; native byte order."""
     return to_native(check_volume(arr, path.name, kinds="uif", error=VolumeFormatError))
-
-
-def _require(module: str, path: Path) -> ModuleType:
-    """Import an optional dependency or explain which extra provides it."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:
-        raise MissingDependencyError(
-            f"reading {path.name} needs the optional package '{module}', which is not "
-            "installed: pip install 'hevr[io]'") from exc
 
 
 def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None,
@@ -155,7 +146,7 @@ def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None
     elif kind == "nifti":
         vol, file_spacing = _load_nifti(path, need_spacing=override is None)
     else:
-        vol, file_spacing = _load_dicom(path)
+        vol, file_spacing = read_dicom_folder(path)
     vol = _check_volume(vol, path)
     if override is None and not all(math.isfinite(v) and v > 0 for v in file_spacing):
         raise VolumeFormatError(f"{path.name}: spacing: expected 3 positive finite voxel sizes in the file, got "
@@ -175,40 +166,8 @@ def _load_npy(path: Path) -> np.ndarray:
     return arr
 
 
-def _rescale(raw: np.ndarray, slope: Any, inter: Any) -> np.ndarray:
-    """``raw * slope + inter`` (per slice along axis 0 for arrays), integer-preserving.
-
-    With integral factors the result is the smallest signed type from int16 upwards
-    that holds every intermediate, so Hounsfield units stay exact int16; otherwise float32
-    (float64 for float64 input).
-    """
-    slope = np.asarray(slope, np.float64).reshape((-1,) + (1,) * (raw.ndim - 1))
-    inter = np.asarray(inter, np.float64).reshape((-1,) + (1,) * (raw.ndim - 1))
-    if (slope == 1).all() and (inter == 0).all():
-        return raw
-    if raw.dtype.kind not in "iu" or (slope % 1).any() or (inter % 1).any():
-        ftype = np.float64 if raw.dtype == np.float64 else np.float32  # never lose precision
-        out = raw.astype(ftype)
-        out *= slope.astype(ftype)
-        out += inter.astype(ftype)
-        return out
-    if slope.shape[0] > 1:  # per-slice factors: the range of each slice matters
-        flat = raw.reshape(slope.shape[0], -1)
-        lo, hi = flat.min(axis=1).astype(np.float64), flat.max(axis=1).astype(np.float64)
-    else:  # no reshape: it would copy a transposed/Fortran-ordered memmap
-        lo, hi = np.array([raw.min()], np.float64), np.array([raw.max()], np.float64)
-    s, b = slope.ravel(), inter.ravel()
-    ends = np.concatenate([lo, hi, lo * s, hi * s, lo * s + b, hi * s + b])
-    target = next(t for t in (np.int16, np.int32, np.int64)
-                  if np.iinfo(t).min <= ends.min() and ends.max() <= np.iinfo(t).max)
-    out = raw.astype(target)
-    out *= slope.astype(target)
-    out += inter.astype(target)
-    return out
-
-
 def _load_nifti(path: Path, need_spacing: bool) -> tuple[np.ndarray, _Spacing]:
-    nib = _require("nibabel", path)
+    nib = require("nibabel", path)
     try:
         img = nib.load(str(path))
         proxy = img.dataobj
@@ -230,109 +189,12 @@ def _load_nifti(path: Path, need_spacing: bool) -> tuple[np.ndarray, _Spacing]:
     if raw.dtype.kind not in "iuf":
         raise VolumeFormatError(f"{path.name}: expected integer or floating-point voxels, "
                                 f"got dtype {raw.dtype}")
-    vol = _rescale(raw.reshape(shape), 1.0 if slope is None else slope, 0.0 if inter is None else inter)
+    vol = rescale(raw.reshape(shape), 1.0 if slope is None else slope, 0.0 if inter is None else inter)
     spacing = tuple(float(z) for z in zooms[:3])
     if need_spacing and not all(math.isfinite(z) and z > 0 for z in spacing):
         raise VolumeFormatError(f"{path.name}: NIfTI voxel sizes (pixdim) must be positive, "
                                 f"got {spacing}; pass spacing= to override")
     return vol.transpose(2, 1, 0), spacing  # type: ignore[return-value]
-
-
-def _load_dicom(folder: Path) -> tuple[np.ndarray, _Spacing]:
-    pydicom = _require("pydicom", folder)
-    from pydicom.errors import InvalidDicomError
-
-    slices = []
-    for f in sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")):
-        try:
-            ds = pydicom.dcmread(f)
-        except InvalidDicomError:
-            _log.debug("%s: skipping %s, not a DICOM file", folder.name, f.name)
-            continue
-        except Exception as exc:
-            raise VolumeFormatError(f"{f.name}: cannot read DICOM file in {folder} ({exc})") from None
-        if "PixelData" in ds:  # DICOMDIR and other non-image objects carry none
-            slices.append((f, ds))
-    if not slices:
-        raise VolumeFormatError(f"{folder.name}: expected a folder of DICOM slices, found no "
-                                "DICOM file with pixel data in it")
-    first = slices[0][1]
-    series = sorted({str(ds.get("SeriesInstanceUID", "?")) for _, ds in slices})
-    if len(series) > 1:
-        raise VolumeFormatError(f"{folder.name}: expected one DICOM series, the folder holds "
-                                f"{len(series)} ({', '.join(series[:4])}); split them into folders")
-    for f, ds in slices:
-        if _dicom_number(f, ds, "NumberOfFrames", 1) > 1 or _dicom_number(f, ds, "SamplesPerPixel", 1) != 1:
-            raise VolumeFormatError(f"{f.name}: expected single-frame greyscale DICOM slices, got "
-                                    f"{ds.get('NumberOfFrames', 1)} frame(s) with "
-                                    f"{ds.get('SamplesPerPixel', 1)} sample(s) per pixel")
-        if (ds.get("Rows"), ds.get("Columns")) != (first.get("Rows"), first.get("Columns")):
-            raise VolumeFormatError(f"{f.name}: slice size {ds.get('Rows')}x{ds.get('Columns')} differs "
-                                    f"from {first.get('Rows')}x{first.get('Columns')} in {slices[0][0].name}")
-    order, sz = _dicom_order(folder, slices)
-    slices = [slices[i] for i in order]
-    pixels = []
-    for f, ds in slices:
-        try:
-            pixels.append(ds.pixel_array)
-        except Exception as exc:  # compressed syntaxes need handlers that may be missing
-            raise VolumeFormatError(f"{f.name}: cannot decode the pixel data (transfer syntax "
-                                    f"{ds.file_meta.get('TransferSyntaxUID', '?')}): {exc}") from None
-    slopes = [_dicom_number(f, ds, "RescaleSlope", 1) for f, ds in slices]
-    inters = [_dicom_number(f, ds, "RescaleIntercept", 0) for f, ds in slices]
-    vol = _rescale(np.stack(pixels), slopes, inters)
-    ps = first.get("PixelSpacing")
-    if ps is None or len(ps) != 2:
-        _log.warning("%s: no PixelSpacing; assuming 1 x 1", folder.name)
-        ps = (1.0, 1.0)
-    # PixelSpacing is (between rows, between columns) = (sy, sx).
-    try:
-        return vol, (float(ps[1]), float(ps[0]), sz)
-    except (TypeError, ValueError):
-        raise VolumeFormatError(f"{folder.name}: PixelSpacing: expected two numbers, got {ps!r}") from None
-
-
-def _dicom_number(f: Path, ds: Any, key: str, default: float) -> float:
-    """A numeric DICOM attribute (``default`` when absent, empty or 0), else VolumeFormatError."""
-    value = ds.get(key, default)
-    try:
-        return float(value or default)
-    except (TypeError, ValueError):
-        raise VolumeFormatError(f"{f.name}: {key}: expected a number, got {str(value)[:40]!r}") from None
-
-
-def _dicom_order(folder: Path, slices: list) -> tuple[np.ndarray, float]:
-    """Slice order (ascending along the slice normal) and the z spacing."""
-    try:
-        iop = np.array(slices[0][1].ImageOrientationPatient, dtype=np.float64)
-        normal = np.cross(iop[:3], iop[3:])
-        pos = np.array([float(np.dot(np.array(ds.ImagePositionPatient, np.float64), normal))
-                        for _, ds in slices])
-    except (AttributeError, TypeError, ValueError):
-        pos = None
-    if pos is not None:
-        order = np.argsort(pos, kind="stable")
-        gaps = np.diff(pos[order])
-        if len(gaps) and gaps.min() < 1e-4:
-            i = int(np.argmin(gaps))
-            raise VolumeFormatError(
-                f"{folder.name}: slices {slices[order[i]][0].name} and {slices[order[i + 1]][0].name} "
-                f"lie at the same position {pos[order[i]]:.4g}; expected one slice per position")
-        if len(gaps):
-            sz = float(np.median(gaps))
-            if gaps.max() - gaps.min() > 1e-3 * sz:
-                _log.warning("%s: uneven slice spacing %.4g..%.4g; using the median %.4g",
-                             folder.name, gaps.min(), gaps.max(), sz)
-            return order, sz
-    else:
-        instance = [ds.get("InstanceNumber") for _, ds in slices]
-        if None in instance:
-            raise VolumeFormatError(f"{folder.name}: cannot order the DICOM slices: expected "
-                                    "ImagePositionPatient/ImageOrientationPatient or InstanceNumber")
-        order = np.argsort(np.array(instance, dtype=np.int64), kind="stable")
-    ds = slices[0][1]
-    sz = float(ds.get("SpacingBetweenSlices") or ds.get("SliceThickness") or 1.0)
-    return order, sz
 
 
 def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
