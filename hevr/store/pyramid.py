@@ -33,15 +33,15 @@ from typing import Any
 import dask
 import numpy as np
 import zarr
-from zarr.codecs import Crc32cCodec
 
-from .._dask import compute
+from .._dask import active_client, compute
 from ..backends import get_backend, resolve_backend_name
 from ..errors import ParameterError, StoreError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_shape
 from .digests import brick_digest, marker, written
+from .layout import compressors
 from .metadata import LevelInfo, VolumeMetadata, ome_attribute
-from .paths import document_digest
+from .paths import check_reachable, document_digest, zarr_store
 from .reader import EncryptedVolume, array_layout, brick_slices, open_volume
 
 log = logging.getLogger(__name__)
@@ -78,7 +78,7 @@ def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int
     owner = np.repeat(np.arange(kids.shape[0] // 8), 8)  # coarse voxel of each child entry
     bb = np.asarray(below.brick)
     kid_brick = kids // bb
-    group = zarr.open_group(path, mode="r+")
+    group = zarr.open_group(zarr_store(path, below.storage_options), mode="r+")
     prefix = f"levels/{level}/"
     digests = []
     for channel in meta.channel_names:
@@ -114,9 +114,9 @@ def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int
     return index
 
 
-def _write_meta(path: str, meta: VolumeMetadata) -> None:
+def _write_meta(path: str, meta: VolumeMetadata, so: dict | None) -> None:
     """Record ``meta`` (and its OME attribute) — only over the same store (its id on disk)."""
-    group = zarr.open_group(path, mode="r+")
+    group = zarr.open_group(zarr_store(path, so), mode="r+")
     on_disk = (dict(group.attrs).get("hevr") or {}).get("store_id")
     if on_disk != meta.store_id:
         raise StoreError(f"ev: the store at {path} was replaced while its pyramid was being built (store id "
@@ -124,34 +124,35 @@ def _write_meta(path: str, meta: VolumeMetadata) -> None:
     group.attrs.update({"hevr": meta.to_dict(), "ome": ome_attribute(meta)})
 
 
-def _level_arrays_ok(path: str, info: LevelInfo) -> bool:
+def _level_arrays_ok(path: str, info: LevelInfo, so: dict | None) -> bool:
     """Whether level ``info``'s arrays are all there with the documents its metadata pins."""
     try:
-        return all(document_digest(path, f"levels/{info.level}/{name}") == want for name, want in info.arrays.items())
+        return all(document_digest(path, f"levels/{info.level}/{name}", so) == want
+                   for name, want in info.arrays.items())
     except (OSError, ValueError, KeyError):
         return False
 
 
-def _start_level(path: str, meta: VolumeMetadata, level: int) -> VolumeMetadata:
+def _start_level(path: str, meta: VolumeMetadata, level: int, so: dict | None) -> VolumeMetadata:
     """Create level ``level``'s arrays (if not there from an interrupted run, or gone since) and
     record them, the level incomplete."""
-    if len(meta.levels) >= level and _level_arrays_ok(path, meta.levels[level - 1]):
+    if len(meta.levels) >= level and _level_arrays_ok(path, meta.levels[level - 1], so):
         return meta
     shape, brick = level_shape(meta.shape, level), level_brick(meta.brick, level)
     layout = array_layout(dataclasses.replace(meta, shape=shape, brick=brick, levels=()))
-    group = zarr.open_group(path, mode="r+").require_group("levels").require_group(str(level))
+    group = zarr.open_group(zarr_store(path, so), mode="r+").require_group("levels").require_group(str(level))
     for name, (ashape, chunks) in layout.items():
-        group.create_array(name, shape=ashape, chunks=chunks, dtype="uint8", compressors=[Crc32cCodec()],
+        group.create_array(name, shape=ashape, chunks=chunks, dtype="uint8", compressors=compressors(name),
                            fill_value=0, overwrite=True)
-    digests = {name: document_digest(path, f"levels/{level}/{name}") for name in layout}
+    digests = {name: document_digest(path, f"levels/{level}/{name}", so) for name in layout}
     info = LevelInfo(level, shape, brick, False, digests)
     meta = dataclasses.replace(meta, levels=meta.levels[:level - 1] + (info,))  # levels above it are rebuilt too
-    _write_meta(path, meta)
+    _write_meta(path, meta, so)
     return meta
 
 
 def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = None, progress: bool = True,
-                  backend: str | None = None) -> EncryptedVolume:
+                  backend: str | None = None, storage_options: dict | None = None) -> EncryptedVolume:
     """Add pyramid levels 1 … ``levels`` to an encrypted store, on the cluster, without a key.
 
     Parameters
@@ -166,6 +167,8 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
     progress : bool
     backend : str, optional
         Arithmetic backend (:mod:`hevr.backends`).
+    storage_options : dict, optional
+        Options of a URL's fsspec filesystem; default: the handle's (``ev.storage_options``).
 
     Returns
     -------
@@ -175,7 +178,10 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
     """
     if isinstance(ev, EncryptedVolume) and ev.level:
         raise ParameterError(f"ev: expected a store (level 0), got a view of pyramid level {ev.level}")
-    fresh = open_volume(ev.path if isinstance(ev, EncryptedVolume) else ev)  # never build from a stale handle
+    if storage_options is None and isinstance(ev, EncryptedVolume):
+        storage_options = ev.storage_options
+    # never build from a stale handle
+    fresh = open_volume(ev.path if isinstance(ev, EncryptedVolume) else ev, storage_options=storage_options)
     if isinstance(ev, EncryptedVolume) and fresh.meta.store_id != ev.meta.store_id:
         raise StoreError(f"ev: the store at {ev.path} was replaced since this handle was opened (store id "
                          f"{fresh.meta.store_id}, the handle's {ev.meta.store_id}); open it again")
@@ -188,24 +194,27 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
             raise ParameterError(f"levels: expected at most {(_MAX_DIGITS - ch.digits) // 3} levels for a channel of "
                                  f"{ch.digits} digits (each level adds 3), got {levels}")
     backend = resolve_backend_name(backend)
-    path = ev.path
+    path, so = ev.path, ev.storage_options
+    check_reachable(path, active_client(client))
     for level in range(1, levels + 1):
-        if len(meta.levels) >= level and meta.levels[level - 1].complete and _level_arrays_ok(path, meta.levels[level - 1]):
+        if len(meta.levels) >= level and meta.levels[level - 1].complete and _level_arrays_ok(
+                path, meta.levels[level - 1], so):
             continue
-        below = EncryptedVolume(path, meta).at_level(level - 1)  # readable before anything is started
-        meta = _start_level(path, meta, level)
+        below = EncryptedVolume(path, meta, storage_options=so).at_level(level - 1)  # readable before anything starts
+        meta = _start_level(path, meta, level, so)
         lmeta = meta.level_meta(level)
-        done = written(zarr.open_group(path, mode="r")[f"levels/{level}/done"][...])
+        done = written(zarr.open_group(zarr_store(path, so, read_only=True), mode="r")[f"levels/{level}/done"][...])
         todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*lmeta.grid) if not done[idx]]
         log.info("pyramid level %d: %d of %d bricks to compute", level, len(todo), lmeta.n_bricks)
         task = dask.delayed(_level_brick, pure=False)
         compute([task(below, path, level, idx, lmeta, backend, dask_key_name=f"hevr-pyramid-{meta.store_id}-{level}-"
                       f"{idx[0]}-{idx[1]}-{idx[2]}") for idx in todo],
                 client=client, progress=progress, desc=f"pyramid level {level}")
-        if not written(zarr.open_group(path, mode="r")[f"levels/{level}/done"][...]).all():  # pragma: no cover
+        if not written(zarr.open_group(zarr_store(path, so, read_only=True),
+                                       mode="r")[f"levels/{level}/done"][...]).all():  # pragma: no cover
             raise StoreError(f"ev: level {level} of {path} still has missing bricks")
         infos = list(meta.levels)
         infos[level - 1] = dataclasses.replace(infos[level - 1], complete=True)
         meta = dataclasses.replace(meta, levels=tuple(infos))
-        _write_meta(path, meta)
-    return open_volume(path)
+        _write_meta(path, meta, so)
+    return open_volume(path, storage_options=so)

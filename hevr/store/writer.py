@@ -45,7 +45,6 @@ import dask
 import dask.array
 import numpy as np
 import zarr
-from zarr.codecs import Crc32cCodec
 
 from .. import _stats
 from .._dask import active_client, compute
@@ -66,9 +65,12 @@ from ..volume import gradient as grad
 from ..volume.density import default_value_range, encode_density, normalize_density
 from .digests import brick_digest, marker, written
 from .journal import check_journal, input_digests, remove_journal, write_journal
+from .layout import compressors
 from .metadata import ChannelInfo, VolumeMetadata
 from .paths import (
+    check_reachable,
     check_replaceable,
+    check_storage_options,
     document_digest,
     interrupted_swaps,
     normalise,
@@ -77,6 +79,7 @@ from .paths import (
     store_exists,
     swap,
     token,
+    zarr_store,
 )
 from .reader import EncryptedVolume, array_layout, brick_slices, open_volume
 
@@ -169,7 +172,7 @@ def _encrypt_components(be: Any, key: Any, q: np.ndarray, shape: tuple, width: i
 
 def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
                    unsafe_no_obfuscation: bool, backend: str = "cpu", halo: grad.Halo | None = None,
-                   m_max: float = 0.0) -> tuple[int, int, int]:
+                   m_max: float = 0.0, storage_options: dict | None = None) -> tuple[int, int, int]:
     """One task: encrypt one plaintext brick and write its chunks, then its digest marker.
 
     With the gradient channel ``block`` carries a one-voxel ``halo`` of its neighbours
@@ -180,7 +183,7 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
     block = haloed if halo is None else haloed[tuple(slice(lo, n - hi) for (lo, hi), n in zip(halo, haloed.shape))]
     sl = brick_slices(meta, index)
     width = meta.ciphertext_bytes
-    group = zarr.open_group(path, mode="r+")
+    group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
     digests = []
     if meta.scalar is not None:
         with _stats.timed("encrypt.crypto", block.size):
@@ -207,21 +210,22 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
     return index
 
 
-def create_store(path: str, meta: VolumeMetadata) -> VolumeMetadata:
+def create_store(path: str, meta: VolumeMetadata, storage_options: dict | None = None) -> VolumeMetadata:
     """Create the group and its arrays; record the digest of each array's metadata document
     in the (checksummed) ``hevr`` attribute, written last. Returns the metadata written."""
-    group = zarr.open_group(path, mode="w")
+    group = zarr.open_group(zarr_store(path, storage_options), mode="w")
     for name, (shape, chunks) in array_layout(meta).items():
-        group.create_array(name, shape=shape, chunks=chunks, dtype="uint8", compressors=[Crc32cCodec()],
+        group.create_array(name, shape=shape, chunks=chunks, dtype="uint8", compressors=compressors(name),
                            fill_value=0)
-    meta = dataclasses.replace(meta, arrays={name: document_digest(path, name) for name in array_layout(meta)})
+    meta = dataclasses.replace(meta, arrays={name: document_digest(path, name, storage_options)
+                                             for name in array_layout(meta)})
     group.attrs["hevr"] = meta.to_dict()
     return meta
 
 
-def _resume_target(path: str, meta: VolumeMetadata) -> VolumeMetadata:
+def _resume_target(path: str, meta: VolumeMetadata, storage_options: dict | None = None) -> VolumeMetadata:
     try:
-        group = zarr.open_group(path, mode="r")
+        group = zarr.open_group(zarr_store(path, storage_options, read_only=True), mode="r")
         old = VolumeMetadata.from_dict(dict(group.attrs).get("hevr"), where=path)
     except StoreError:
         raise
@@ -258,6 +262,7 @@ def encrypt_volume(
     client: Any = None,
     unsafe_no_obfuscation: bool = False,
     backend: str | None = None,
+    storage_options: dict | None = None,
 ) -> EncryptedVolume:
     """Encrypt a 3-D volume brick by brick into a Zarr v3 store, one Dask task per brick.
 
@@ -265,7 +270,8 @@ def encrypt_volume(
     ----------
     vol : array_like (numpy, numpy memmap or dask array), shape (nz, ny, nx)
     path : str or Path
-        Target store (a local path or an fsspec URL).
+        Target store: a local path or an fsspec URL (``file://`` is the local path; ``s3://…``;
+        ``memory://`` only without a distributed cluster, whose workers cannot see it).
     key : PublicKey or PrivateKey
         A private key selects the owner-side fast path (same ciphertext distribution); it is
         shipped to the Dask workers that encrypt, so use it only on machines the data owner
@@ -302,6 +308,9 @@ def encrypt_volume(
     backend : str, optional
         Arithmetic backend of the encrypting workers (:mod:`hevr.backends`); default: the
         Dask config key ``hevr.backend``, else ``"cpu"``.
+    storage_options : dict, optional
+        Options of the URL's fsspec filesystem (endpoint, credentials, …); the encrypting
+        tasks and the returned handle reach the store with them (:mod:`hevr.store.paths`).
 
     Returns
     -------
@@ -327,48 +336,50 @@ def encrypt_volume(
         fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
         value_range=vr, scalar=sc, vector=vc, gradient=vc if gradient else None,
     )
-    path = normalise(path)
+    path, so = normalise(path), check_storage_options(storage_options)
+    check_reachable(path, active_client(client))
     left = interrupted_swaps(path)
     if left:
         log.warning("an interrupted overwrite left %s beside %s; they are not touched", left, path)
     _warn_if_remote(client, key)
-    exists = store_exists(path)
+    exists = store_exists(path, so)
     if exists and not (resume or overwrite):
         raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
     bricks = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid)]
     if exists and resume:
-        old = _resume_target(path, meta)
+        old = _resume_target(path, meta, so)
         # a finished store keeps everything built on it since (its pyramid levels)
         meta = dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays, levels=old.levels)
         check_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
-        done = written(zarr.open_array(f"{path}/done", mode="r")[...])
+        done = written(zarr.open_array(zarr_store(path, so, read_only=True), path="done", mode="r")[...])
         target = path
     else:
         if exists:
-            old_id = check_replaceable(path)
+            old_id = check_replaceable(path, so)
         meta = dataclasses.replace(meta, store_id=token() + token())
         write_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
         target = sibling(path, "new") if exists else path  # overwrite: beside the old store, then swap
-        meta = create_store(target, meta)
+        meta = create_store(target, meta, so)
         done = np.zeros(meta.grid, bool)
     todo = [idx for idx in bricks if not done[idx]]
     log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)
     try:
-        _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress)
+        _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
     except BaseException:
         if target != path:
             log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
                         target, path)
-            remove_tree(target)
+            remove_tree(target, so)
         raise
     if target != path:
-        swap(target, path)
+        swap(target, path, so)
         remove_journal(old_id)  # the replaced store's resume evidence is of no more use
-    return open_volume(path)
+    return open_volume(path, storage_options=so)
 
 
 def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: VolumeMetadata, key: Any,
-         unsafe_no_obfuscation: bool, backend: str, client: Any, progress: bool) -> None:
+         unsafe_no_obfuscation: bool, backend: str, client: Any, progress: bool,
+         storage_options: dict | None = None) -> None:
     """Encrypt the bricks ``todo`` into the store at ``path`` (one impure task per brick), then
     mark the store complete once every digest marker is written."""
     # A random name: dask's default is a hash of the array's content, which would put a value
@@ -391,10 +402,11 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
     task = dask.delayed(_encrypt_brick, pure=False)
     meta_dict = meta.to_dict()
     tasks = [task(blocks[idx], path, idx, meta_dict, key, unsafe_no_obfuscation, backend, **kw,
+                  storage_options=storage_options,
                   dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
              for idx, kw in zip(todo, extra)]
     compute(tasks, client=client, progress=progress, desc="encrypt")
-    group = zarr.open_group(path, mode="r+")
+    group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
     final = written(group["done"][...])
     if not final.all():  # pragma: no cover - tasks raise instead
         raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
