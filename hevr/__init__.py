@@ -48,14 +48,24 @@ from .rendering.plain import render_plain, render_slice_plain
 from .rendering.plane import Plane
 from .rendering.slices import render_slice
 from .rendering.sums import SavedSums, load_sums, recolour
+from .rendering.views import VIEWS
 from .store.pyramid import build_pyramid
 from .store.reader import EncryptedVolume, open_volume
 from .store.upgrade import upgrade_store
 from .store.writer import encrypt_volume
 from .viewer import Viewer
 from .volume.density import encode_density, normalize_density
-from .volume.loaders import load_volume, save_volume
+from .volume.loaders import load_volume, read_scan, save_volume
+from .volume.modality import (
+    MODALITY_RANGES,
+    TF_PRESETS,
+    modality_range,
+    range_hint,
+    tf_preset,
+    window_density,
+)
 from .volume.phantom import PHANTOM_LEVELS, phantom
+from .volume.scan import Scan
 
 __version__ = "0.1.0"
 
@@ -89,6 +99,8 @@ __all__ = [
     "normalize_density",
     "PHANTOM_LEVELS",
     "load_volume",
+    "read_scan",
+    "Scan",
     "save_volume",
     "open_volume",
     "EncryptedVolume",
@@ -113,4 +125,11 @@ __all__ = [
     "MemoryLimitError",
     "ExistingFileError",
     "InsecureKeyWarning",
+    "VIEWS",
+    "MODALITY_RANGES",
+    "TF_PRESETS",
+    "modality_range",
+    "range_hint",
+    "tf_preset",
+    "window_density",
 ]

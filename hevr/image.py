@@ -9,12 +9,15 @@ Nothing wrong reaches the screen: decryption checks every ciphertext and every p
 against the bound and the planner's 64-bit integrity margin, and the ``.hevr`` file (version
 2) carries a SHA-256 of all its bytes and is validated field by field on loading
 (:mod:`hevr._image_header`); every fault is a :class:`hevr.HevrError`. File format:
-``docs/image-format.md``.
+``docs/image-format.md``. An image file may live on object storage: :meth:`EncryptedImage.save`
+and :func:`load_image` take an fsspec URL and its ``storage_options`` (:mod:`hevr.store.paths`);
+there the file is written in one request, which an object store makes visible whole or not at all.
 """
 
 from __future__ import annotations
 
 import base64
+import hashlib
 import json
 import struct
 from dataclasses import dataclass, field
@@ -30,7 +33,14 @@ from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile
 from .backends import get_backend
 from .crypto.keys import PrivateKey
 from .crypto.records import record_width
-from .errors import IntegrityError, KeyMismatchError, ParameterError
+from .errors import IntegrityError, KeyMismatchError, MissingFileError, ParameterError
+from .store.paths import (
+    check_storage_options,
+    is_local,
+    normalise,
+    read_bytes,
+    write_bytes,
+)
 
 __all__ = ["EncryptedImage", "load_image", "save_png"]
 
@@ -196,16 +206,23 @@ class EncryptedImage:
             "hits": None if hits is None else base64.b64encode(hits.tobytes()).decode(), "info": self.info,
         }
 
-    def save(self, path: str | Path) -> None:
+    def save(self, path: str | Path, *, storage_options: dict | None = None) -> None:
         """Write the ``.hevr`` file (format version 2, ``docs/image-format.md``): magic, header
         length, JSON header, ciphertext records, SHA-256 of all of it. Atomic: written to
-        ``<path>.tmp``, then renamed over ``path``. The image is checked first
-        (``IntegrityError`` for one that :meth:`decrypt` would refuse)."""
+        ``<path>.tmp``, then renamed over ``path`` (an fsspec URL, with ``storage_options``:
+        one request). The image is checked first (``IntegrityError`` for one that
+        :meth:`decrypt` would refuse)."""
+        so = check_storage_options(storage_options)
         check_image(self)
         head = json.dumps(self._header(), separators=(",", ":")).encode()
         parts = [MAGIC, struct.pack("<I", len(head)), head]
         parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in self.ciphertexts]
-        write_checksummed(path, parts)
+        where = normalise(path) if "://" in str(path) else path  # file:// is the local file
+        if is_local(str(where)):
+            write_checksummed(where, parts)
+        else:
+            parts.append(hashlib.sha256(b"".join(parts)).digest())
+            write_bytes(str(where), parts, so)
 
 
 def _unpack_checked(plain: list[int], need: int, pack_bits: int, per_pack: int,
@@ -246,20 +263,36 @@ def _pixels(mask: np.ndarray, r0: int, c0: int, channels: int, lo: int, hi: int)
     return ", ".join(names) + more
 
 
-def load_image(path: str | Path) -> EncryptedImage:
+def load_image(path: str | Path, *, storage_options: dict | None = None) -> EncryptedImage:
     """Read an image written by :meth:`EncryptedImage.save` (format version 2).
 
     The whole file is checked before an image is returned (``docs/image-format.md``): its
     SHA-256 trailer (:class:`hevr.IntegrityError` on a mismatch: any flipped bit) and every
     header field (:class:`hevr.CorruptStoreError` naming the field), each before anything
     sized by it is allocated. Version-1 files are refused with a ``CorruptStoreError``.
+    ``path`` may be an fsspec URL, read with ``storage_options``.
     """
-    path = require_file(path, "path", "an encrypted image file")
+    so = check_storage_options(storage_options)
+    if "://" in str(path) and not is_local(normalise(path)):
+        path = normalise(path)
+        try:
+            blob = read_bytes(path, so)
+        except FileNotFoundError:
+            raise MissingFileError("path", "an encrypted image file", path) from None
+        except OSError as exc:
+            raise ParameterError(f"path: cannot read {path}: {type(exc).__name__}") from None
+        return _from_blob(blob, path)
+    path = require_file(normalise(path) if "://" in str(path) else path, "path", "an encrypted image file")
     try:
         blob = path.read_bytes()
     except OSError as exc:
         raise ParameterError(f"path: cannot read {path}: {exc.strerror}") from None
-    h, body = parse_file(blob, str(path))
+    return _from_blob(blob, str(path))
+
+
+def _from_blob(blob: bytes, path: str) -> EncryptedImage:
+    """The image in the bytes of a ``.hevr`` file (``path`` names it in messages)."""
+    h, body = parse_file(blob, path)
     width = h["width"]
     cts, pos = [], 0
     for c in h["counts"]:

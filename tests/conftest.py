@@ -63,3 +63,25 @@ def cluster():
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as lc, \
             Client(lc, set_as_default=False) as c:
         yield c
+
+
+@pytest.fixture(scope="session")
+def s3_server():
+    """A real S3-compatible server (moto's, in a thread of this process) on 127.0.0.1 with one
+    bucket; yields ``(bucket URL, storage_options)``. Worker processes of a LocalCluster reach it
+    over HTTP like any S3 endpoint. Skipped where moto's server or s3fs is not installed."""
+    import logging
+
+    server_mod = pytest.importorskip("moto.server")
+    s3fs = pytest.importorskip("s3fs")
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)  # no line per request
+    server = server_mod.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    options = {"endpoint_url": f"http://{host}:{port}", "key": "hevr-test-key", "secret": "hevr-test-secret-5f3a9c"}
+    s3fs.S3FileSystem(skip_instance_cache=True, **options).mkdir("hevr-test")
+    try:
+        yield "s3://hevr-test", options
+    finally:
+        s3fs.S3FileSystem.clear_instance_cache()
+        server.stop()

@@ -65,11 +65,12 @@ PUBLIC_API = (
     "encrypt_volume", "phantom", "Camera", "render_plain", "render", "RaySums", "clear_cache",
     "recolour", "load_sums", "SavedSums", "Viewer", "Plane", "render_slice", "render_slice_plain", "build_pyramid",
     "EncryptedImage", "load_image", "save_png", "to_uint8", "error_bound", "encode_density",
-    "normalize_density", "PHANTOM_LEVELS", "load_volume", "save_volume", "open_volume",
+    "normalize_density", "PHANTOM_LEVELS", "load_volume", "read_scan", "Scan", "save_volume", "open_volume",
     "EncryptedVolume", "upgrade_store", "encode", "decode", "BASE",
     "HevrError", "ParameterError", "InvalidKeyError", "KeyMismatchError", "PlaintextOverflowError",
     "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "IntegrityError",
     "VolumeFormatError", "MissingDependencyError", "MissingFileError", "MemoryLimitError", "ExistingFileError", "InsecureKeyWarning",
+    "VIEWS", "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
 )
 API_MD = ROOT.parent / "shared" / "API.md"
 

@@ -31,7 +31,6 @@ from .measure import (
     dir_bytes,
     fixed_base_seconds,
     mulmod_seconds,
-    payload_bytes,
     timed,
 )
 from .pipeline import trace_frame
@@ -87,7 +86,8 @@ def encrypt_case(ctx: Context, vol: np.ndarray, private_key: PrivateKey, path: P
     cell = {"seconds": wall, "ciphertexts": n_ct, "workers": ctx.workers.n_workers, "brick": brick,
             "obfuscated": obfuscate, "dims": dims, "crypto_core_s": st["seconds"].get("encrypt.crypto", 0.0),
             "write_core_s": st["seconds"].get("encrypt.write", 0.0), "peak_rss": ctx.workers.peak_rss(),
-            "ciphertext_bytes": payload_bytes(Path(path) / ("scalar" if dims == 1 else "vector") / "c"),
+            # the ciphertexts themselves; store_bytes is what the store occupies (zstd, crc, metadata)
+            "ciphertext_bytes": n_ct * private_key.public_key.ciphertext_bytes,
             "store_bytes": dir_bytes(path), "bits": private_key.public_key.bits, "peak_reset": reset}
     if obfuscate:
         cell["fixed_base_s"] = fixed_base_seconds(private_key)

@@ -24,7 +24,6 @@ from distributed import Client, LocalCluster
 from gmpy2 import mpz
 
 from .. import __version__, _stats
-from ..store.reader import CRC_BYTES
 
 
 def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
@@ -93,14 +92,6 @@ def machine() -> dict[str, Any]:
         "load_average_start": os.getloadavg()[0],
         "commit": _git_commit(),
     }
-
-
-def payload_bytes(chunks: str | Path) -> int:
-    """Ciphertext bytes of a store array's chunk folder: every chunk file less its crc32c."""
-    total = 0
-    for root, _dirs, files in os.walk(chunks):
-        total += sum(os.path.getsize(os.path.join(root, f)) - CRC_BYTES for f in files)
-    return total
 
 
 def dir_bytes(path: str | Path) -> int:

@@ -30,11 +30,14 @@ from ..rendering.planner import check_render_size
 from ..rendering.sums import MAGIC as SUMS_MAGIC
 from ..rendering.sums import load_sums, recolour
 from ..store.metadata import VolumeMetadata
+from ..store.paths import normalise, zarr_store
 from ..store.reader import open_volume
 from ..store.upgrade import upgrade_store
 from ..store.writer import encrypt_volume
+from . import storage as st
 from .keys import cmd_convert_key, cmd_keygen
 from .pyramid import level_rows
+from .scan import encrypt_input, resolve_tf, scan_rows
 from .util import (
     Timer,
     UsageError,
@@ -48,7 +51,6 @@ from .util import (
     format_tf,
     human_bytes,
     key_label,
-    load_input,
     read_key,
     show_progress,
     warn_line,
@@ -69,15 +71,8 @@ def cmd_encrypt(args: Any) -> int:
                          "density encoding)")
     if args.no_scalar and not args.vector_dims:
         raise UsageError("--no-scalar: expected --vector-dims K as well (a store needs at least one channel)")
-    store = Path(args.out).expanduser().absolute()
-    if store.exists() and not store.is_dir():
-        raise UsageError(f"--out: expected a store folder (e.g. vol.zarr), got a file ({args.out})")
-    if store.exists() and not (args.resume or args.overwrite):
-        raise UsageError(f"--out: {args.out} exists; pass --overwrite to replace it or --resume to finish "
-                         "an interrupted run")
-    if not store.exists() and args.resume:
-        raise MissingFileError("--resume", "the interrupted store named by --out", args.out)
-    check_writable_dir(Path(args.out).expanduser())
+    so = st.storage_options(args)
+    store = st.encrypt_target(args, so)
     key = read_key(args.key)
     private = isinstance(key, PrivateKey)
     pub = key.public_key if private else key
@@ -85,8 +80,7 @@ def cmd_encrypt(args: Any) -> int:
         raise UsageError(
             f"--key: {args.key} is a private key and --scheduler is set: the owner-side fast path would send "
             "p and q to the cluster's workers; encrypt with the public key (.pub.json) or pass --trust-scheduler")
-    vol, spacing, what = load_input(args.input, args.spacing)
-    print(f"input:   {what}, spacing {xyz(tuple(spacing)[::-1], sep=', ')}")
+    vol, spacing, value_range = encrypt_input(args)  # prints input, scan and value-range lines
     print(f"key:     {key_label(pub)}")
     print("path:    " + ("owner-side fast path (private key: p, q speed up encryption; "
                           "the store still holds only the public key)" if private
@@ -95,13 +89,14 @@ def cmd_encrypt(args: Any) -> int:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             ev = encrypt_volume(vol, store, key, spacing=spacing, brick=args.brick, scalar=not args.no_scalar,
-                                vector_dims=args.vector_dims, value_range=args.value_range, digits=args.digits,
+                                vector_dims=args.vector_dims, value_range=value_range, digits=args.digits,
                                 overwrite=args.overwrite, resume=args.resume, gradient=args.gradient,
+                                storage_options=so,
                                 progress=show_progress(args))
     n_ct = int(np.prod(ev.shape)) * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
     chans = _channels(ev.meta)
     print(f"wrote {args.out}: {ev.meta.n_bricks} bricks of {xyz(ev.brick)}, channels {chans}, "
-          f"{n_ct} ciphertexts, {human_bytes(disk_usage(ev.path))}, in {t.seconds:.2f} s "
+          f"{n_ct} ciphertexts, {human_bytes(st.size_of(ev.path, so))}, in {t.seconds:.2f} s "
           f"({n_ct / max(t.seconds, 1e-9):.0f} ciphertexts/s)")
     if not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
@@ -133,9 +128,10 @@ def resolve_mode(args: Any) -> str:
     return mode
 
 
-def open_for_mode(store: str, mode: str, verb: str) -> Any:
-    """Open STORE and check that it has the channel ``mode`` reads (``verb``: the command, for the hint)."""
-    ev = open_volume(check_store_path(Path(store).expanduser(), "STORE").absolute())
+def open_for_mode(store: str, mode: str, verb: str, so: dict | None = None) -> Any:
+    """Open STORE (a folder or a URL, with storage options ``so``) and check that it has the channel
+    ``mode`` reads (``verb``: the command, for the hint)."""
+    ev = st.open_store(store, "STORE", so)
     if mode != "xray" and not ev.vector_dims:
         raise UsageError(f"--mode {mode}: expected a store with the vector channel, got {store} without one; "
                          f"encrypt it with --vector-dims 4 (or {verb} --mode xray)")
@@ -150,17 +146,16 @@ def cmd_render(args: Any) -> int:
 
     mode = resolve_mode(args)
     nodes = (args.tf if args.tf is not None else list(PAPER_TF1)) if mode == "tf" else None
-    out = Path(args.out).expanduser()
-    check_output_file(out)
-    sums = Path(args.keep_sums).expanduser() if args.keep_sums is not None else None
-    if sums is not None:
-        check_output_file(sums, "--keep-sums")
-        if sums.absolute() == out.absolute():
-            raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
-    ev = open_for_mode(args.store, mode, "render")
+    so = st.storage_options(args)
+    out = st.output_file(args.out)
+    sums = st.output_file(args.keep_sums, "--keep-sums") if args.keep_sums is not None else None
+    if sums is not None and str(sums) == str(out):
+        raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
+    ev = open_for_mode(args.store, mode, "render", so)
+    nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     w, h = args.size
     cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h,
-                       view_angle=args.view_angle, parallel=args.parallel)
+                       view_angle=args.view_angle, parallel=args.parallel, view=args.view)
     if args.level > ev.levels:
         raise UsageError(f"--level {args.level}: expected a level of the store's pyramid (0 to {ev.levels}), got "
                          f"{args.level}; build it with: hevr pyramid {args.store} --levels {args.level}")
@@ -169,7 +164,8 @@ def cmd_render(args: Any) -> int:
             "tf": f"transfer function {format_tf(nodes) if nodes else ''}"}[mode]
     print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…")
     lvl = f", pyramid level {args.level} ({xyz(ev.meta.levels[args.level - 1].shape)})" if args.level else ""
-    print(f"render:  {what}, {args.sampling} sampling, {wh(w, h)} px, azimuth {args.azimuth:g}, "
+    print(f"render:  {what}, {args.sampling} sampling, {wh(w, h)} px, "
+          f"{f'{args.view} view, ' if args.view else ''}azimuth {args.azimuth:g}, "
           f"elevation {args.elevation:g}, step {args.step:g}{lvl}")
     with dask_client(args.scheduler, args.workers) as client:
         print(f"compute: {describe_client(client)}")
@@ -178,32 +174,31 @@ def cmd_render(args: Any) -> int:
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,
                          progress=show_progress(args), keep_sums=sums, level=args.level or None,
                          gradient=args.gradient)
-    img.save(out)
+    img.save(out, storage_options=so)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
-          f"{human_bytes(out.stat().st_size)}, rendered in {t.seconds:.2f} s")
+          f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
     if sums is not None:
         again = " --tf NODES | --density D" if mode != "xray" else " (X-ray sums: other --precision / --no-pack)"
-        print(f"wrote {sums}: the view's encrypted ray sums, {human_bytes(sums.stat().st_size)}; "
+        print(f"wrote {sums}: the view's encrypted ray sums, {human_bytes(st.size_of(sums, so))}; "
               f"finish again with: hevr recolour {sums} --out FRAME.hevr{again}")
-    print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {out.with_suffix('.png')}")
+    print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {st.png_name(out)}")
     return 0
 
 
 # -- recolour ------------------------------------------------------------------------------
 def cmd_recolour(args: Any) -> int:
-    out = Path(args.out).expanduser()
-    check_output_file(out)
-    path = Path(args.sums).expanduser()
-    if path.absolute() == out.absolute():
+    so = st.storage_options(args)
+    out = st.output_file(args.out)
+    path = normalise(args.sums) if st.is_url(args.sums) else st.local_path(args.sums)
+    if str(path if st.is_url(args.sums) else path.absolute()) == str(out if st.is_url(args.out) else out.absolute()):
         raise UsageError(f"--out: expected another file than SUMS, got {args.out} for both (it would replace the sums)")
-    if path.is_dir():
+    if not st.is_url(args.sums) and path.is_dir():
         raise UsageError(f"SUMS: expected a ray-sums file (hevr render --keep-sums), got a folder ({args.sums})")
-    if not path.is_file():
+    if not st.is_url(args.sums) and not path.is_file():
         raise MissingFileError("SUMS", "a ray-sums file (hevr render --keep-sums)", args.sums)
-    with open(path, "rb") as fh:
-        if fh.read(len(SUMS_MAGIC) - 1) != SUMS_MAGIC[:-1]:
-            raise UsageError(f"SUMS: expected a ray-sums file (hevr render --keep-sums), got {args.sums}, which is not one")
-    saved = load_sums(path)
+    if st.head_of(args.sums, len(SUMS_MAGIC) - 1, "SUMS", "a ray-sums file", so) != SUMS_MAGIC[:-1]:
+        raise UsageError(f"SUMS: expected a ray-sums file (hevr render --keep-sums), got {args.sums}, which is not one")
+    saved = load_sums(path, storage_options=so)
     if args.mode is None and args.tf is None and args.density is None:
         args.mode = "xray" if saved.channel == "scalar" else "tf"
     mode = resolve_mode(args)
@@ -212,6 +207,7 @@ def cmd_recolour(args: Any) -> int:
         raise UsageError(f"--mode {mode}: expected {'X-ray' if mode == 'xray' else 'emphasis/TF'} ray sums, got "
                          f"{args.sums} with the {saved.channel} channel's; render them again with --keep-sums "
                          f"and {'--mode xray' if mode == 'xray' else '--density or --tf'}")
+    nodes = resolve_tf(nodes, saved.meta.value_range)
     cam = saved.camera
     print(f"sums:    {args.sums}, {saved.sampling} sampling, {wh(cam.width, cam.height)} px, key "
           f"{saved.meta.fingerprint[:16]}… (from {saved.store or 'an unnamed store'})")
@@ -220,8 +216,8 @@ def cmd_recolour(args: Any) -> int:
         with Timer() as t:
             img = recolour(saved, mode=mode, density=args.density, nodes=nodes, precision=args.precision,
                            pack=not args.no_pack, client=client, progress=show_progress(args), gradient=args.gradient)
-    img.save(out)
-    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts, {human_bytes(out.stat().st_size)}, re-coloured in "
+    img.save(out, storage_options=so)
+    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts, {human_bytes(st.size_of(out, so))}, re-coloured in "
           f"{t.seconds:.2f} s (no map step)")
     return 0
 
@@ -229,14 +225,15 @@ def cmd_recolour(args: Any) -> int:
 # -- decrypt -------------------------------------------------------------------------------
 def cmd_decrypt(args: Any) -> int:
 
-    frame = check_frame_path(Path(args.frame).expanduser(), "FRAME")
-    out = Path(args.out).expanduser() if args.out else frame.with_suffix(".png")
+    so = st.storage_options(args)
+    frame = normalise(args.frame) if st.is_url(args.frame) else check_frame_path(st.local_path(args.frame), "FRAME")
+    out = Path(args.out).expanduser() if args.out else Path(st.png_name(frame))
     check_output_file(out, "--out", suffix=".png")
     npy = Path(args.npy).expanduser() if args.npy else None
     if npy is not None:
         check_output_file(npy, "--npy")
     key = read_key(args.key, private=True)
-    img = load_image(frame)
+    img = load_image(frame, storage_options=so)
     with Timer() as t:
         arr = img.decrypt(key)
     save_png(arr, out, window=args.window)
@@ -269,7 +266,10 @@ def cmd_upgrade_store(args: Any) -> int:
 # -- info ----------------------------------------------------------------------------------
 def cmd_info(args: Any) -> int:
 
-    path = Path(args.path).expanduser()
+    if st.is_url(args.path):  # a store, frame or sums file on object storage
+        url, so = normalise(args.path), st.storage_options(args)
+        return {"store": _info_store, "frame": _info_image, "sums": _info_sums}[st.url_kind(url, so)](url, so)
+    path = st.local_path(args.path)
     if not path.exists():
         raise MissingFileError("PATH", "a key, store, frame or volume file", args.path)
     if path.is_dir():
@@ -302,18 +302,18 @@ def _rows(rows: list[tuple[str, Any]]) -> None:
         print(f"{k + ':':<{w + 1}} {v}")
 
 
-def _info_store(path: Path) -> int:
+def _info_store(path: Path | str, so: dict | None = None) -> int:
 
 
     try:
-        group = zarr.open_group(str(path), mode="r")
+        group = zarr.open_group(zarr_store(str(path), so, read_only=True), mode="r")
         attrs = dict(group.attrs)
     except Exception as exc:
         raise StoreError(f"{path}: not a readable Zarr store ({type(exc).__name__})") from None
     meta = VolumeMetadata.from_dict(attrs.get("hevr"), where=str(path), accept_v1=True)
     failed = False
     try:
-        open_volume(path)
+        open_volume(path, storage_options=so)
         check = "ok (metadata checksum and documents, completeness, chunk sizes; digests are checked on every read)"
     except StoreError as exc:
         check, failed = f"FAILED: {exc}", True
@@ -335,14 +335,14 @@ def _info_store(path: Path) -> int:
         ("complete", meta.complete),
         *level_rows(meta),
         ("check", check),
-        ("on disk", human_bytes(disk_usage(path))),
+        ("on disk", human_bytes(st.size_of(path, so))),
     ])
     return 1 if failed else 0  # the table is printed either way; a failed check is not a success
 
 
-def _info_image(path: Path) -> int:
+def _info_image(path: Path | str, so: dict | None = None) -> int:
 
-    img = load_image(path)
+    img = load_image(path, storage_options=so)
     info = img.info or {}
     cam = info.get("camera") or {}
     bits = int(img.n).bit_length()
@@ -374,14 +374,14 @@ def _info_image(path: Path) -> int:
         ("checksum", "ok (SHA-256 over the whole file)"),
         ("key", f"{bits}-bit"),
         ("fingerprint", img.fingerprint),
-        ("on disk", human_bytes(path.stat().st_size)),
+        ("on disk", human_bytes(st.size_of(path, so))),
     ]
     _rows(rows)
     return 0
 
 
-def _info_sums(path: Path) -> int:
-    saved = load_sums(path)
+def _info_sums(path: Path | str, so: dict | None = None) -> int:
+    saved = load_sums(path, storage_options=so)
     cam = saved.camera
     kept = sum(1 for v in saved.tiles.values() if v is not None)
     _rows([("path", path), ("kind", f"encrypted ray sums ({saved.channel} channel: "
@@ -411,15 +411,7 @@ def _info_key(path: Path, fmt: str = "hevr") -> int:
 
 
 def _info_volume(path: Path) -> int:
-    vol, spacing, what = load_input(str(path))
-    _rows([
-        ("path", path),
-        ("kind", "plaintext volume"),
-        ("shape", f"{xyz(vol.shape)} voxels"),
-        ("dtype", vol.dtype),
-        ("spacing", xyz(tuple(spacing)[::-1], sep=", ")),
-        ("values", f"{vol.min()} .. {vol.max()}"),
-    ])
+    _rows(scan_rows(path))  # a DICOM folder: its series; a scan: frame, modality, default value range
     return 0
 
 

@@ -64,7 +64,9 @@ from .options import (
     workers_type,
 )
 from .pyramid import PYRAMID_EPILOG, cmd_pyramid
+from .scan import TF_HELP, add_encrypt_scan_options, add_view_option
 from .slice import SLICE_EPILOG, cmd_slice, oblique_type
+from .storage import storage_parent
 from .util import err_line, format_tf, warn_line
 
 __all__ = ["main", "build_parser"]
@@ -116,6 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"hevr {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     dask_opts, plain_opts = _common(True), _common(False)
+    storage_opts = storage_parent()  # --storage-option: stores, frames and sums on object storage
     demo_opts = _common(True, "2 (a 2-worker local cluster)")
 
     p = sub.add_parser("keygen", parents=[plain_opts], formatter_class=_RAW,
@@ -142,16 +145,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", choices=("hevr", "phe"), default="phe", help="format to write (default phe)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out")
 
-    p = sub.add_parser("encrypt", parents=[dask_opts], formatter_class=_RAW,
+    p = sub.add_parser("encrypt", parents=[dask_opts, storage_opts], formatter_class=_RAW,
                        help="encrypt a volume into a Zarr store",
                        description=_d("Encrypt a volume voxel by voxel into a Zarr v3 store of Paillier ciphertexts, "
                                    "one Dask task per brick. The store holds the public key and ciphertexts only."),
                        epilog="examples:\n"
                               f"  hevr encrypt phantom:{PAPER_SIZE} --key key.pub.json --out vol.zarr --vector-dims 4\n"
                               "  hevr encrypt tooth_103x94x161_uint8.raw --key key.json --out tooth.zarr --workers 2\n"
-                              "  hevr encrypt ct.nii.gz --key key.pub.json --out ct.zarr --resume\n"
+                              "  hevr encrypt ct.nii.gz --key key.pub.json --out ct.zarr --modality CT --resume\n"
+                              "  hevr encrypt dicom/ --key key.pub.json --out ct.zarr --series 1.2.840.1 --vector-dims 8\n"
                               "\nINPUT: .npy, .raw (shape/type from a name like tooth_103x94x161_uint8.raw), .nrrd, "
                               ".nhdr,\n.nii/.nii.gz, a DICOM folder, or phantom:N (the paper's test object, N^3 voxels).\n"
+                              "Scans that record their orientation are read into the RAS+ patient frame (render --view).\n"
                               "A private --key selects the owner-side fast path (same ciphertexts, much faster).\n")
     p.add_argument("input", metavar="INPUT", help="volume file or folder, or phantom:N")
     p.add_argument("--key", required=True, metavar="KEY", help="public key (key.pub.json) or private key file")
@@ -167,15 +172,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also store the gradient-modulated encoding g*e(d) (needs --vector-dims; k more ciphertexts "
                         "per voxel) for 'hevr render --gradient'")
     p.add_argument("--value-range", type=range_type, metavar="LO,HI",
-                   help="density normalisation range (default: the dtype's range for integers, "
-                        "the data range for floats)")
+                   help="density normalisation range (default: the --modality range, else the dtype's range "
+                        "for integers, the data range for floats)")
     p.add_argument("--digits", type=digits_type, metavar="D", help="decimal digits kept of float voxels (default 3)")
     p.add_argument("--spacing", type=floats_type(3, "SX,SY,SZ", positive=True), metavar="SX,SY,SZ",
                    help="voxel spacing, overriding the file's")
     p.add_argument("--trust-scheduler", action="store_true",
                    help="allow a private --key with --scheduler (sends p, q to that cluster's workers)")
+    add_encrypt_scan_options(p)
 
-    p = sub.add_parser("render", parents=[dask_opts], formatter_class=_RAW,
+    p = sub.add_parser("render", parents=[dask_opts, storage_opts], formatter_class=_RAW,
                        help="render an encrypted volume to an encrypted image (no key needed)",
                        description=_d("Ray-cast an encrypted volume on the Dask cluster. Never needs the secret key: "
                                    "the result is an encrypted .hevr frame only the key holder can decrypt."),
@@ -183,6 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
                               "  hevr render vol.zarr --out xray.hevr --sampling trilinear --azimuth 30 --elevation 20\n"
                               f"  hevr render vol.zarr --out emph.hevr --mode emphasize --density {PAPER_DENSITIES[1]}\n"
                               f"  hevr render vol.zarr --out tf.hevr --mode tf --tf '{format_tf(PAPER_TF2)}'\n"
+                              "  hevr render ct.zarr --out bone.hevr --view anterior --azimuth 30 --tf ct-bone\n"
                               "\n--mode defaults to emphasize with --density, tf with --tf, else xray.\n")
     p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
@@ -190,8 +197,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampling", choices=("nearest", "trilinear"), default="nearest",
                    help="sampling along the rays (default nearest)")
     p.add_argument("--azimuth", type=finite_float, default=0.0, metavar="DEG",
-                   help="camera azimuth about the y axis (default 0: looking from +z)")
+                   help="camera azimuth about the y axis (default 0: looking from +z); with --view, about the "
+                        "view's up axis")
     p.add_argument("--elevation", type=finite_float, default=0.0, metavar="DEG", help="camera elevation (default 0)")
+    add_view_option(p)
     p.add_argument("--size", type=size_type, default=(PAPER_IMAGE, PAPER_IMAGE), metavar="WxH",
                    help=f"image size (default {PAPER_IMAGE}x{PAPER_IMAGE})")
     p.add_argument("--view-angle", type=positive_float, default=30.0, metavar="DEG",
@@ -200,8 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--step", type=positive_float, default=1.0, metavar="S", help="sample spacing in world units (default 1)")
     p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
     p.add_argument("--tf", type=tf_type, metavar="NODES",
-                   help=f"transfer function DENSITY:COLOR,... (colours #rrggbb, #rgb or CSS names; "
-                        f"default {tf_text(PAPER_TF1)})")
+                   help=f"{TF_HELP}; default {tf_text(PAPER_TF1)}")
     p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext (bigger, slower to decrypt)")
     p.add_argument("--gradient", action="store_true",
                    help="weight every sample by the gradient magnitude (emphasize/tf; a store encrypted with --gradient)")
@@ -214,7 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "safe on the server) so that 'hevr recolour SUMS' can finish another --density or --tf "
                    "without the map step")
 
-    p = sub.add_parser("recolour", parents=[dask_opts], formatter_class=_RAW,
+    p = sub.add_parser("recolour", parents=[dask_opts, storage_opts], formatter_class=_RAW,
                        help="re-colour saved ray sums with another density or transfer function (no map step)",
                        description=_d("Finish the encrypted ray sums written by 'hevr render --keep-sums' with another "
                                    "emphasis density or transfer function: only the per-pixel step runs, and the "
@@ -231,14 +239,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
     p.add_argument("--mode", choices=("xray", "emphasize", "tf"), help="render mode (default: see below)")
     p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
-    p.add_argument("--tf", type=tf_type, metavar="NODES", help="transfer function DENSITY:COLOR,...")
+    p.add_argument("--tf", type=tf_type, metavar="NODES", help=TF_HELP)
     p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext")
     p.add_argument("--gradient", action="store_true",
                    help="weight every sample by the gradient magnitude (emphasize/tf; a store encrypted with --gradient)")
     p.add_argument("--precision", type=precision_type, default=4, metavar="P",
                    help="decimal digits of the normalisation (default 4)")
 
-    p = sub.add_parser("slice", parents=[dask_opts], formatter_class=_RAW,
+    p = sub.add_parser("slice", parents=[dask_opts, storage_opts], formatter_class=_RAW,
                        help="an encrypted slice (axial, coronal, sagittal, oblique) of an encrypted volume (no key needed)",
                        description=_d("Resample the encrypted volume on a plane (multi-planar reformatting), optionally "
                                    "averaging a thick slab of parallel planes, on the Dask cluster. Never needs the "
@@ -262,7 +270,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="sampling of the volume (default nearest)")
     p.add_argument("--mode", choices=("xray", "emphasize", "tf"), help="xray: the value; emphasize, tf as in render")
     p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
-    p.add_argument("--tf", type=tf_type, metavar="NODES", help="transfer function DENSITY:COLOR,...")
+    p.add_argument("--tf", type=tf_type, metavar="NODES", help=TF_HELP)
     p.add_argument("--no-pack", action="store_true", help="one pixel value per ciphertext")
     p.add_argument("--gradient", action="store_true",
                    help="weight every sample by the gradient magnitude (emphasize/tf; a store encrypted with --gradient)")
@@ -270,7 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="decimal digits of the normalisation (default 0 where it is exact: one plane in mode "
                         "xray or emphasize; else 4)")
 
-    p = sub.add_parser("decrypt", parents=[plain_opts], formatter_class=_RAW,
+    p = sub.add_parser("decrypt", parents=[plain_opts, storage_opts], formatter_class=_RAW,
                        help="decrypt an encrypted image to PNG",
                        description=_d("Decrypt an encrypted .hevr frame with the private key and write a PNG."),
                        epilog="example:\n  hevr decrypt frame.hevr --key key.json --out frame.png --npy frame.npy\n")
@@ -281,11 +289,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--window", type=range_type, metavar="LO,HI",
                    help="grey/colour window of the PNG (default 0 .. 99.9th percentile)")
 
-    p = sub.add_parser("info", parents=[plain_opts], formatter_class=_RAW,
-                       help="describe a store, a frame, a key or a volume file",
+    p = sub.add_parser("info", parents=[plain_opts, storage_opts], formatter_class=_RAW,
+                       help="describe a store, a frame, a key or a volume file; list a DICOM folder's series",
                        description=_d("Print what is public about a store, an encrypted frame, a key file or a "
-                                   "volume file. Never prints secret-key material."),
-                       epilog="examples:\n  hevr info vol.zarr\n  hevr info frame.hevr\n  hevr info key.pub.json\n")
+                                   "volume file (its patient frame, modality and default value range), or the "
+                                   "series a DICOM folder holds. Never prints secret-key material."),
+                       epilog="examples:\n  hevr info vol.zarr\n  hevr info frame.hevr\n  hevr info key.pub.json\n"
+                              "  hevr info dicom/          # its series, for hevr encrypt --series UID\n")
     p.add_argument("path", metavar="PATH")
 
     p = sub.add_parser("upgrade-store", parents=[dask_opts], formatter_class=_RAW,
@@ -298,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dst", metavar="NEW", help="where the format-2 store goes (must not exist)")
 
 
-    p = sub.add_parser("pyramid", parents=[dask_opts], formatter_class=_RAW,
+    p = sub.add_parser("pyramid", parents=[dask_opts, storage_opts], formatter_class=_RAW,
                        help="add coarse levels (2x2x2 means) to a store, for quick previews (no key needed)",
                        description=_d("Compute the encrypted multi-resolution pyramid of a store on the cluster: level "
                                    "L+1 holds the means of 2x2x2 voxels of level L, computed on the ciphertexts. "

@@ -15,6 +15,7 @@ from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
 from ..errors import ParameterError
 from ..rendering.modes import parse_color
 from ..rendering.planner import MAX_PIXELS_KEY, render_limits
+from ..volume.modality import TF_PRESETS
 from ..volume.pyramid import MAX_LEVELS
 
 
@@ -197,7 +198,18 @@ def parse_tf(text: str) -> list[tuple[float, tuple[float, float, float]]]:
     return nodes
 
 
-def tf_type(text: str) -> list[tuple[float, tuple[float, float, float]]]:
+def tf_type(text: str) -> list[tuple[float, tuple[float, float, float]]] | str:
+    """``--tf``: nodes, or a preset name (:data:`hevr.TF_PRESETS`) kept as the name: the command
+    turns it into nodes with the store's value range (:func:`hevr.cli.scan.resolve_tf`).
+
+    >>> tf_type("CT-Bone"), tf_type("0.5:red")
+    ('ct-bone', [(0.5, (1.0, 0.0, 0.0))])
+    """
+    if text.strip().lower() in TF_PRESETS:
+        return text.strip().lower()
+    if ":" not in text:
+        raise argparse.ArgumentTypeError(f"expected a preset ({', '.join(TF_PRESETS)}) or DENSITY:COLOR,... "
+                                         f"such as 0.279:blue, got {text!r}")
     try:
         return parse_tf(text)
     except ParameterError as exc:

@@ -7,17 +7,14 @@ ciphertexts by one Dask task per brick (:func:`hevr.build_pyramid`); an interrup
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from ..store.pyramid import build_pyramid
-from ..store.reader import open_volume
+from .storage import open_store, size_of, storage_options
 from .util import (
     Timer,
-    check_store_path,
     dask_client,
     describe_client,
-    disk_usage,
     human_bytes,
     show_progress,
     xyz,
@@ -47,15 +44,16 @@ def level_rows(meta: Any) -> list[tuple[str, str]]:
 
 
 def cmd_pyramid(args: Any) -> int:
-    store = check_store_path(Path(args.store).expanduser(), "STORE").absolute()
-    ev = open_volume(store)
+    so = storage_options(args)
+    ev = open_store(args.store, "STORE", so)
+    store = ev.path
     before = ev.levels
     print(f"store:   {args.store}, {xyz(ev.shape)} voxels, {ev.meta.n_bricks} bricks, "
           f"{before} pyramid level{'s' if before != 1 else ''} so far")
     if before >= args.levels:
         print(f"nothing to do: level{'s' if args.levels > 1 else ''} 1..{args.levels} exist")
         return 0
-    size = disk_usage(store)
+    size = size_of(store, so)
     with dask_client(args.scheduler, args.workers) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
@@ -63,5 +61,5 @@ def cmd_pyramid(args: Any) -> int:
     for name, text in level_rows(ev.meta):
         print(f"{name}: {text}")
     print(f"built levels {before + 1}..{args.levels} in {t.seconds:.2f} s; the store grew by "
-          f"{human_bytes(disk_usage(store) - size)}")
+          f"{human_bytes(size_of(store, so) - size)}")
     return 0

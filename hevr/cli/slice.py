@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 from typing import Any
 
 from ..paper import PAPER_TF1
@@ -18,10 +17,11 @@ from ..rendering.plane import Plane
 from ..rendering.planner import check_render_size
 from ..rendering.slices import render_slice
 from .commands import open_for_mode, resolve_mode
+from .scan import resolve_tf
+from .storage import output_file, png_name, size_of, storage_options
 from .util import (
     Timer,
     UsageError,
-    check_output_file,
     dask_client,
     describe_client,
     format_tf,
@@ -95,9 +95,10 @@ def cmd_slice(args: Any) -> int:
     nodes = (args.tf if args.tf is not None else list(PAPER_TF1)) if mode == "tf" else None
     if args.slab_step is not None and args.slab == 1:
         raise UsageError(f"--slab-step: only applies to a thick slab (--slab N > 1), got --slab {args.slab}")
-    out = Path(args.out).expanduser()
-    check_output_file(out)
-    ev = open_for_mode(args.store, mode, "slice")
+    so = storage_options(args)
+    out = output_file(args.out)
+    ev = open_for_mode(args.store, mode, "slice", so)
+    nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     plane, where = _plane(args, ev)
     check_render_size(plane, ev.shape, ev.spacing, plane.slab_step)  # refuse before a cluster starts
     what = {"xray": "value", "emphasize": f"emphasis of density {args.density}",
@@ -114,10 +115,10 @@ def cmd_slice(args: Any) -> int:
             img = render_slice(ev, plane, mode=mode, sampling=args.sampling, density=args.density, nodes=nodes,
                                precision=args.precision, pack=not args.no_pack, client=client,
                                progress=show_progress(args), gradient=args.gradient)
-    img.save(out)
+    img.save(out, storage_options=so)
     inside = int(img.hits.sum())
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
-          f"{human_bytes(out.stat().st_size)}, {inside} of {plane.width * plane.height} pixels inside the volume, "
+          f"{human_bytes(size_of(out, so))}, {inside} of {plane.width * plane.height} pixels inside the volume, "
           f"rendered in {t.seconds:.2f} s")
-    print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {out.with_suffix('.png')}")
+    print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {png_name(out)}")
     return 0

@@ -34,8 +34,9 @@ from ..errors import (
 )
 from ..paper import PAPER_SIZE
 from ..rendering.modes import parse_color
-from ..volume.loaders import load_volume
+from ..volume.loaders import read_scan
 from ..volume.phantom import phantom
+from ..volume.scan import Scan
 from .options import MAX_PHANTOM, phantom_size_type
 
 log = logging.getLogger("hevr.cli.main")
@@ -62,10 +63,18 @@ def format_tf(nodes: Any) -> str:
 
 # -- inputs and keys -----------------------------------------------------------------------
 def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float, float, float], str]:
-    """``phantom:N`` (or ``phantom``) or any file/folder :func:`hevr.load_volume` reads.
+    """:func:`load_scan` reduced to (volume, spacing, description)."""
+    scan, what = load_scan(spec, spacing)
+    return scan.volume, scan.spacing, what
 
-    Returns (volume, spacing, description). Errors name the volume ``input``: each command
-    says which of its arguments that is (``INPUT``, ``--input``, ``PATH``).
+
+def load_scan(spec: str, spacing: Any = None, **read: Any) -> tuple[Scan, str]:
+    """``phantom:N`` (or ``phantom``) or any file/folder :func:`hevr.read_scan` reads.
+
+    ``read``: read_scan's ``series``, ``volume``, ``allow_uneven``, ``oblique``. Returns the
+    scan and a description; its frame, modality and origin are logged at INFO. Errors name
+    the volume ``input``: each command says which of its arguments that is (``INPUT``,
+    ``--input``, ``PATH``).
     """
 
     if spec == "phantom" or spec.startswith("phantom:"):
@@ -75,16 +84,23 @@ def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float,
         except argparse.ArgumentTypeError:
             raise UsageError(f"input: expected phantom:N with an integer N in [4, {MAX_PHANTOM}] "
                              f"(e.g. phantom:{PAPER_SIZE}), got {spec!r}") from None
+        given = [k for k, v in read.items() if v not in (None, False, "refuse")]
+        if given:
+            raise UsageError(f"{', '.join(given)}: expected a scan file or folder as INPUT, got {spec!r}")
         vol = phantom(size)
-        return vol, tuple(spacing) if spacing else (1.0, 1.0, 1.0), f"phantom, {xyz(vol.shape)} voxels (uint8)"
+        sp = tuple(float(v) for v in spacing) if spacing else (1.0, 1.0, 1.0)
+        return Scan(vol, sp, source=spec), f"phantom, {xyz(vol.shape)} voxels (uint8)"  # type: ignore[arg-type]
     path = Path(spec).expanduser()
     if not path.exists():
         raise MissingFileError("input", "a volume file, a DICOM folder or phantom:N", spec)
     try:
-        vol, sp = load_volume(path, spacing=spacing)
+        scan = read_scan(path, spacing=spacing, **read)
     except MissingFileError as exc:  # a file the input refers to (an .nhdr's detached data file)
         raise VolumeFormatError(f"input: {spec} refers to {exc.filename}, which does not exist") from None
-    return vol, sp, f"{path.name}, {xyz(vol.shape)} voxels ({vol.dtype})"
+    log.info("%s: %s, modality %s, origin %s mm", spec, "RAS+ patient frame" if scan.frame else "axes as stored "
+             "(no patient frame recorded)", scan.modality or "not recorded", scan.origin)
+    vol = scan.volume
+    return scan, f"{path.name}, {xyz(vol.shape)} voxels ({vol.dtype})"
 
 
 def public_key_path(path: str | Path) -> Path:

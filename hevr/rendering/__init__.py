@@ -4,6 +4,7 @@ The data path of one frame, module by module:
 
 =================  =============================================================
 ``camera``         :class:`Camera`: the request's geometry (frozen, validated)
+``views``          anatomical presets of ``Camera.orbit(view=...)`` (RAS+ patient frame)
 ``plane``          :class:`Plane`: a slice (and slab) as the second kind of view
 ``modes``          ``RenderSpec``: mode, sampling, channels, combination matrix
 ``rays``           rays, slab tests and sample positions

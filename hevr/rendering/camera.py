@@ -11,6 +11,10 @@ camera. All ray geometry is float64 numpy and follows VTK:
 * perspective: ``origin = position``,
   ``direction = normalize(d + tan(view_angle/2)*(u*right + v*up))``;
 * parallel: ``origin = position + parallel_scale*(u*right + v*up)``, ``direction = d``.
+
+:meth:`Camera.orbit` frames a volume; its ``view=`` presets (``"anterior"``, …,
+:data:`Camera.VIEWS`) put the camera on one side of the patient in hevr's RAS+ patient
+frame (:mod:`hevr.rendering.views`).
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import numpy as np
 
 from .._validate import check_int, check_pixel_ids, check_shape, check_spacing
 from ..errors import ParameterError
+from .views import VIEWS, view_offset
 
 __all__ = ["Camera"]
 
@@ -110,6 +115,9 @@ class Camera:
     height: int = 150
     parallel: bool = False
     parallel_scale: float | None = None
+
+    #: The anatomical presets of :meth:`orbit` (``view=``), :data:`hevr.rendering.views.VIEWS`.
+    VIEWS = VIEWS
 
     def __post_init__(self) -> None:
         # Frozen dataclass: normalise fields through object.__setattr__.
@@ -289,6 +297,7 @@ class Camera:
         distance: float | None = None,
         spacing: Any = None,
         parallel: bool = False,
+        view: str | None = None,
     ) -> Camera:
         """A camera on a sphere around the volume centre, looking at the centre.
 
@@ -299,7 +308,9 @@ class Camera:
         azimuth, elevation : float
             Degrees. ``0, 0`` puts the camera on the +z side looking towards -z with
             view-up +y. Azimuth rotates about the y axis (90 -> the +x side),
-            elevation tilts the camera up (90 -> above, looking down -y).
+            elevation tilts the camera up (90 -> above, looking down -y). With a ``view``,
+            both are relative to it: azimuth about the view's up axis (towards the image's
+            right), elevation towards that axis.
         width, height, view_angle :
             As for :class:`Camera`.
         distance : float or None
@@ -309,12 +320,21 @@ class Camera:
             World-order voxel spacing; overrides ``ev.spacing``; default (1, 1, 1).
         parallel : bool
             Parallel projection; ``parallel_scale`` then frames the bounding sphere.
+        view : {"anterior", "posterior", "left", "right", "superior", "inferior"} or None
+            An anatomical preset for scans in the RAS+ patient frame (+x right, +y anterior,
+            +z superior; what :func:`hevr.read_scan` returns): the side of the patient the
+            camera is on. ``"anterior"`` looks at the patient's front with superior up and
+            the patient's right on the image's left, as in radiology; the table of all six
+            is in :mod:`hevr.rendering.views`. ``None``: the plain orbit above.
 
         Examples
         --------
         >>> cam = Camera.orbit((10, 20, 30), width=4, height=4)
         >>> cam.focal_point
         (14.5, 9.5, 4.5)
+        >>> front = Camera.orbit((10, 20, 30), view="anterior")
+        >>> front.basis()[0].tolist(), front.view_up
+        ([0.0, -1.0, 0.0], (0.0, 0.0, 1.0))
         """
         shape, spacing = _orbit_geometry(ev_or_shape, spacing)
         az = math.radians(_finite_float("azimuth", azimuth, "degrees"))
@@ -336,11 +356,15 @@ class Camera:
             dist = _finite_float("distance", distance, "a positive number or None")
             if dist <= 0.0:
                 raise ParameterError(f"distance: expected a positive number or None, got {distance!r}")
-        ca, sa, ce, se = math.cos(az), math.sin(az), math.cos(el), math.sin(el)
-        offset = np.array([ce * sa, se, ce * ca])
-        # The orthogonalised +y: equals (0, 1, 0) at elevation 0, stays well defined
-        # (and continuous) at elevation +-90 where +y is parallel to the view direction.
-        view_up = (-se * sa, ce, -se * ca)
+        if view is not None:
+            offset, up = view_offset(view, az, el)
+            view_up = tuple(up.tolist())
+        else:
+            ca, sa, ce, se = math.cos(az), math.sin(az), math.cos(el), math.sin(el)
+            offset = np.array([ce * sa, se, ce * ca])
+            # The orthogonalised +y: equals (0, 1, 0) at elevation 0, stays well defined
+            # (and continuous) at elevation +-90 where +y is parallel to the view direction.
+            view_up = (-se * sa, ce, -se * ca)
         return cls(
             position=tuple(centre + dist * offset),
             focal_point=tuple(centre),

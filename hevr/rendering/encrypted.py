@@ -35,6 +35,7 @@ from .._validate import check_int
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
 from ..image import EncryptedImage
+from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
 from .camera import Camera
 from .graph import FinishGraph, build_sums_graph
@@ -248,6 +249,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     key = (ev.path, ev.meta.store_id, ev.meta.fingerprint, ev.level, camera.key(), spec.sampling, spec.step,
            plan.weight_digits, plan.channel, tile)
     cl = active_client(client)
+    check_reachable(ev.path, cl)  # memory:// stores only where the tasks run in this process
     sums = _CACHE.get(key) if cache else None
     if sums is not None and not sums.usable(cl):
         del _CACHE[key]  # its futures belong to another (or a closed) client
@@ -297,7 +299,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     if keep_sums is not None:
         save_sums(keep_sums, sums, meta=ev.meta, camera=camera, sampling=spec.sampling, step=spec.step,
                   weight_digits=plan.weight_digits, channel=plan.channel, tile=tile, store=str(ev.path),
-                  level=ev.level)
+                  level=ev.level, storage_options=ev.storage_options)  # a URL: written with the store's options
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
              "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),
              "seconds": time.perf_counter() - t0}

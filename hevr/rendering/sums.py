@@ -56,9 +56,22 @@ from .._validate import check_int, check_step
 from ..backends import get_backend, resolve_backend_name
 from ..crypto.paillier import fingerprint as fingerprint_of
 from ..crypto.records import record_width
-from ..errors import CorruptStoreError, HevrError, IntegrityError, ParameterError
+from ..errors import (
+    CorruptStoreError,
+    HevrError,
+    IntegrityError,
+    MissingFileError,
+    ParameterError,
+)
 from ..image import EncryptedImage
 from ..store.metadata import VolumeMetadata
+from ..store.paths import (
+    check_storage_options,
+    is_local,
+    normalise,
+    read_bytes,
+    write_bytes,
+)
 from ..volume.pyramid import MAX_LEVELS
 from .camera import Camera
 from .graph import FinishGraph
@@ -142,9 +155,11 @@ def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: 
 
 
 def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, camera: Camera, sampling: str,
-              step: float, weight_digits: int, channel: str, tile: int, store: str = "", level: int = 0) -> int:
+              step: float, weight_digits: int, channel: str, tile: int, store: str = "", level: int = 0,
+              storage_options: dict | None = None) -> int:
     """Write ``sums`` (gathered from the workers if needed) as a ``.hevrsums`` file; atomic
-    (``<path>.tmp`` renamed over ``path``). Returns the file's size in bytes."""
+    (``<path>.tmp`` renamed over ``path``; an fsspec URL with ``storage_options``: one request).
+    Returns the file's size in bytes."""
     values = sums.values()
     n = int(meta.n)
     width = record_width(n)
@@ -160,20 +175,38 @@ def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, c
         if v is not None:
             parts += [np.ascontiguousarray(v[0], dtype="<i8").reshape(-1),
                       np.ascontiguousarray(v[1], dtype=np.uint8).reshape(-1)]
-    path = Path(path)
-    write_checksummed(path, parts)
-    size = path.stat().st_size
+    if not is_local(str(path)) and not is_local(normalise(path)):
+        parts.append(hashlib.sha256(b"".join(parts)).digest())
+        write_bytes(normalise(path), parts, check_storage_options(storage_options))
+        size = sum(memoryview(p).nbytes for p in parts)
+    else:
+        path = Path(normalise(path)) if "://" in str(path) else Path(path)
+        write_checksummed(path, parts)
+        size = path.stat().st_size
     log.info("ray sums of %d tiles written to %s (%d bytes)", len(values), path, size)
     return size
 
 
-def load_sums(path: str | os.PathLike) -> SavedSums:
-    """Read and check a ``.hevrsums`` file (module docstring: checksum, header, sizes, ranges)."""
+def load_sums(path: str | os.PathLike, *, storage_options: dict | None = None) -> SavedSums:
+    """Read and check a ``.hevrsums`` file (module docstring: checksum, header, sizes, ranges);
+    ``path`` may be an fsspec URL, read with ``storage_options``."""
+    what = "a ray-sums file (hevr.render(..., keep_sums=PATH))"
+    path = normalise(path) if "://" in str(path) else path
+    if not is_local(str(path)):
+        where = str(path)
+        try:
+            blob = read_bytes(where, check_storage_options(storage_options))
+        except FileNotFoundError:
+            raise MissingFileError("sums", what, where) from None
+        return _parse(blob, where)
     if Path(path).is_dir():
         raise ParameterError(f"sums: expected a ray-sums file (hevr.render(..., keep_sums=PATH)), got a folder ({path})")
-    p = require_file(path, "sums", "a ray-sums file (hevr.render(..., keep_sums=PATH))")
-    where = str(p)
-    blob = p.read_bytes()
+    p = require_file(path, "sums", what)
+    return _parse(p.read_bytes(), str(p))
+
+
+def _parse(blob: bytes, where: str) -> SavedSums:
+    """The checked sums in the bytes of a ``.hevrsums`` file (``where`` names it in messages)."""
     if not blob.startswith(MAGIC[:-1]):
         raise CorruptStoreError(f"{where}: not an hevr ray-sums file (bad magic)")
     if len(blob) >= len(MAGIC) and blob[len(MAGIC) - 1] != VERSION:
@@ -232,12 +265,14 @@ def load_sums(path: str | os.PathLike) -> SavedSums:
                      level=ctx.integer("level", h["level"], 0, MAX_LEVELS), path=where)
 
 
-def check_sums_path(path: Any, name: str = "keep_sums") -> Path:
+def check_sums_path(path: Any, name: str = "keep_sums") -> Path | str:
     """Where a ``.hevrsums`` file may be written: a non-empty path, not a folder, in an existing
     folder — checked before a render runs, so a bad path costs no map work."""
     if not isinstance(path, (str, os.PathLike)) or not str(path):
         raise ParameterError(f"{name}: expected a file path, got {path!r}")
-    p = Path(path)
+    if "://" in str(path) and not is_local(normalise(path)):
+        return str(path)  # an object: written in one request after the render (save_sums)
+    p = Path(normalise(path) if "://" in str(path) else path)
     if p.is_dir():
         raise ParameterError(f"{name}: expected a file path, got a folder ({p})")
     require_file(p.parent if str(p.parent) else Path("."), name, "an existing folder for the file", directory=True)

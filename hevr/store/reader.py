@@ -1,10 +1,17 @@
-"""Opening an encrypted volume store and reading its bricks as ciphertexts."""
+"""Opening an encrypted volume store and reading its bricks as ciphertexts.
+
+A store is a location (:mod:`hevr.store.paths`): a path or fsspec URL and its
+``storage_options``. The handle keeps both, so the Dask tasks it is pickled into reach the same
+store; the options (object-store credentials, never hevr key material) stay out of its ``repr``
+and of every message. A task process opens each array once (:func:`_array`, a small LRU).
+"""
 
 from __future__ import annotations
 
-import functools
 import logging
 import os
+import threading
+from collections import OrderedDict
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -33,14 +40,19 @@ from .layout import (
     brick_slices,
     check_arrays,
     check_chunk_files,
+    check_chunk_objects,
     check_documents,
     check_level_layout,
 )
 from .metadata import CHANNELS, VolumeMetadata
 from .paths import (
+    check_reachable,
+    check_storage_options,
     interrupted_swaps,
     is_local,
     normalise,
+    store_exists,
+    zarr_store,
 )
 from .resident import Residency, load_brick, plan_residency
 
@@ -48,23 +60,40 @@ log = logging.getLogger(__name__)
 
 __all__ = ["EncryptedVolume", "open_volume", "brick_slices", "array_layout", "CRC_BYTES"]
 
-@functools.lru_cache(maxsize=64)
-def _array(path: str, store_id: str, name: str) -> Any:
+_ARRAYS: OrderedDict = OrderedDict()
+_ARRAYS_LOCK = threading.Lock()
+_ARRAYS_SIZE = 64
+
+
+def _array(path: str, store_id: str, name: str, storage_options: dict | None = None) -> Any:
     """One store array, opened once per process (a render task reads one brick of it; opening
     parses its metadata). Keyed by ``store_id`` too: a store replaced at the same path has
-    another id, so a stale handle is never used; open_volume checks the documents each time."""
-    return zarr.open_array(f"{path}/{name}", mode="r")
+    another id, so a stale handle is never used; open_volume checks the documents each time.
+    The options enter the key as their ``repr`` (they need not be hashable), kept only here."""
+    key = (path, store_id, name, repr(sorted((storage_options or {}).items())))
+    with _ARRAYS_LOCK:
+        if key in _ARRAYS:
+            _ARRAYS.move_to_end(key)
+            return _ARRAYS[key]
+    arr = zarr.open_array(zarr_store(path, storage_options, read_only=True), path=name, mode="r")
+    with _ARRAYS_LOCK:
+        _ARRAYS[key] = arr
+        while len(_ARRAYS) > _ARRAYS_SIZE:
+            _ARRAYS.popitem(last=False)
+    return arr
 
 
 class EncryptedVolume:
     """A read-only handle on an encrypted volume store.
 
-    Holds only the path and public metadata, so it pickles cheaply into Dask tasks; the
-    Zarr arrays are opened lazily wherever the handle is used.
+    Holds only the location (path and ``storage_options``) and public metadata, so it pickles
+    cheaply into Dask tasks; the Zarr arrays are opened lazily wherever the handle is used.
     """
 
-    def __init__(self, path: str, meta: VolumeMetadata, level: int = 0, base: VolumeMetadata | None = None) -> None:
+    def __init__(self, path: str, meta: VolumeMetadata, level: int = 0, base: VolumeMetadata | None = None,
+                 storage_options: dict | None = None) -> None:
         self.path = str(path)
+        self.storage_options = check_storage_options(storage_options)  # never in repr or messages
         self.meta = meta
         self.level = int(level)  # pyramid level: 0 is the volume itself (hevr.store.pyramid)
         self.base = base if level else None  # level 0's metadata, for a level's view
@@ -97,17 +126,18 @@ class EncryptedVolume:
         spacing, exponents and arrays; :meth:`hevr.EncryptedVolume.origin` says where it sits);
         level 0 is this volume. Renders take it through ``hevr.render(..., level=)``."""
         base = self.base if self.level else self.meta
-        ev0 = self if not self.level else EncryptedVolume(self.path, base)
+        so = self.storage_options
+        ev0 = self if not self.level else EncryptedVolume(self.path, base, storage_options=so)
         level = check_level(level, ev0.levels)
         if level == 0:
-            return EncryptedVolume(self.path, base)
-        view = EncryptedVolume(self.path, base.level_meta(level), level, base)
+            return EncryptedVolume(self.path, base, storage_options=so)
+        view = EncryptedVolume(self.path, base.level_meta(level), level, base, storage_options=so)
         check_level_layout(view)
         return view
 
     def _plain(self) -> EncryptedVolume:
         """The same volume (and level) without residency."""
-        return EncryptedVolume(self.path, self.meta, self.level, self.base)
+        return EncryptedVolume(self.path, self.meta, self.level, self.base, self.storage_options)
 
     # -- public metadata -----------------------------------------------------------
     @property
@@ -163,10 +193,12 @@ class EncryptedVolume:
                 f"channels={'+'.join(ch)}, key={self.meta.fingerprint[:16]}…{res})")
 
     def __getstate__(self) -> dict:
-        return {"path": self.path, "meta": self.meta, "level": self.level, "base": self.base}  # never the bricks
+        return {"path": self.path, "meta": self.meta, "level": self.level, "base": self.base,  # never the bricks
+                "storage_options": self.storage_options}
 
     def __setstate__(self, state: dict) -> None:
         self.path, self.meta = state["path"], state["meta"]
+        self.storage_options = state.get("storage_options")
         self.level, self.base = state.get("level", 0), state.get("base")
         self.resident = None
 
@@ -196,6 +228,7 @@ class EncryptedVolume:
             A worker's share would exceed ``hevr.limits.resident-memory`` of its memory.
         """
         client = active_client(client)
+        check_reachable(self.path, client)
         channels, backend, place, share = plan_residency(self, channels, backend, client)
         plain = self._plain()
         if client is None:
@@ -242,9 +275,10 @@ class EncryptedVolume:
         index = tuple(int(i) for i in index)
         where = f"brick {index} of channel {channel!r}" + (f" of level {self.level}" if self.level else "")
         try:
-            arr = _array(self.path, self.meta.store_id, self.prefix + channel)
+            so = self.storage_options
+            arr = _array(self.path, self.meta.store_id, self.prefix + channel, so)
             data = np.asarray(arr[sl if channel == "scalar" else (slice(None),) + sl])
-            stored = np.asarray(_array(self.path, self.meta.store_id, self.prefix + "done")[index]) if verify else None
+            stored = np.asarray(_array(self.path, self.meta.store_id, self.prefix + "done", so)[index]) if verify else None
         except Exception as exc:
             raise CorruptStoreError(
                 f"{self.path}: {where} cannot be read ({type(exc).__name__}: {exc})"
@@ -309,17 +343,23 @@ class EncryptedVolume:
                             )
 
 
-def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolume:
+def open_volume(path: str | os.PathLike, verify: str = "quick", *,
+                storage_options: dict | None = None) -> EncryptedVolume:
     """Open an encrypted volume store.
 
     Parameters
     ----------
     path : str or Path
+        A local path or an fsspec URL (``file://`` is the local path; ``s3://bucket/v.zarr``, …).
     verify : {"quick", "full", "none"}
-        ``quick`` checks metadata, completeness and (for local stores) that every chunk
-        exists with the exact size, for level 0 and every complete pyramid level; ``full``
+        ``quick`` checks metadata, completeness and that every chunk exists with a plausible
+        size (local stores: each file's; object stores: one listing of every array's
+        objects), for level 0 and every complete pyramid level; ``full``
         additionally reads every ciphertext of every level and checks 0 < c < n² and
         gcd(c, n) = 1.
+    storage_options : dict, optional
+        Options of the URL's fsspec filesystem (endpoint, credentials, …), kept by the handle for
+        the tasks that read the store (never shown in its repr or in messages).
 
     Raises
     ------
@@ -327,14 +367,17 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
         Naming what is wrong and where.
     """
     check_choice("verify", verify, ("quick", "full", "none"))
+    so = check_storage_options(storage_options)
     path = normalise(path)  # absolute: workers may run in another working directory
+    if not is_local(path) and not store_exists(path, so):
+        raise MissingFileError("path", "an encrypted volume store", path)
     if is_local(path) and not Path(path).exists():
         left = interrupted_swaps(path)
         hint = (f" (an interrupted overwrite left {', '.join(Path(q).name for q in left)} beside it: rename "
                 f"one of them to {Path(path).name})") if left else ""
         raise MissingFileError("path", "an encrypted volume store" + hint, path)
     try:
-        group = zarr.open_group(path, mode="r")
+        group = zarr.open_group(zarr_store(path, so, read_only=True), mode="r")
         attrs = dict(group.attrs)
     except Exception as exc:
         raise CorruptStoreError(f"{path}: not a Zarr v3 group ({type(exc).__name__}: {exc})") from None
@@ -353,11 +396,11 @@ def open_volume(path: str | os.PathLike, verify: str = "quick") -> EncryptedVolu
     w_expected = record_width(int(meta.n))
     if meta.ciphertext_bytes != w_expected:
         raise CorruptStoreError(f"{path}: ciphertext_bytes is {meta.ciphertext_bytes}, expected {w_expected} for this key")
-    check_documents(path, meta)
+    check_documents(path, meta, so)
     check_arrays(path, group, meta)
-    if verify != "none" and "://" not in path:
-        check_chunk_files(path, meta)
-    ev = EncryptedVolume(path, meta)
+    if verify != "none":
+        check_chunk_files(path, meta) if is_local(path) else check_chunk_objects(path, meta, "", so)
+    ev = EncryptedVolume(path, meta, storage_options=so)
     levels = [ev.at_level(level) for level in range(1, ev.levels + 1)] if verify != "none" else []  # their layout
     if verify == "full":
         for view in [ev, *levels]:

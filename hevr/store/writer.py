@@ -63,6 +63,7 @@ from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume import gradient as grad
 from ..volume.density import default_value_range, encode_density, normalize_density
+from ..volume.mapped import file_backed
 from .digests import brick_digest, marker, written
 from .journal import check_journal, input_digests, remove_journal, write_journal
 from .layout import compressors
@@ -270,8 +271,7 @@ def encrypt_volume(
     ----------
     vol : array_like (numpy, numpy memmap or dask array), shape (nz, ny, nx)
     path : str or Path
-        Target store: a local path or an fsspec URL (``file://`` is the local path; ``s3://…``;
-        ``memory://`` only without a distributed cluster, whose workers cannot see it).
+        Target store: a local path or an fsspec URL (``file://`` is local; ``memory://`` not on a cluster).
     key : PublicKey or PrivateKey
         A private key selects the owner-side fast path (same ciphertext distribution); it is
         shipped to the Dask workers that encrypt, so use it only on machines the data owner
@@ -309,8 +309,7 @@ def encrypt_volume(
         Arithmetic backend of the encrypting workers (:mod:`hevr.backends`); default: the
         Dask config key ``hevr.backend``, else ``"cpu"``.
     storage_options : dict, optional
-        Options of the URL's fsspec filesystem (endpoint, credentials, …); the encrypting
-        tasks and the returned handle reach the store with them (:mod:`hevr.store.paths`).
+        Options of the URL's fsspec filesystem (endpoint, credentials, …; :mod:`hevr.store.paths`).
 
     Returns
     -------
@@ -323,6 +322,7 @@ def encrypt_volume(
     backend = resolve_backend_name(backend)
     vol = check_volume(vol)
     brick_t = check_brick(brick, shape=vol.shape)
+    vol = _tasks_read_files(vol, brick_t)
     spacing_t = check_spacing(spacing)
     pub = key.public_key if isinstance(key, PrivateKey) else key
     if not isinstance(gradient, (bool, np.bool_)):
@@ -375,6 +375,18 @@ def encrypt_volume(
         swap(target, path, so)
         remove_journal(old_id)  # the replaced store's resume evidence is of no more use
     return open_volume(path, storage_options=so)
+
+
+def _tasks_read_files(vol: Any, brick: tuple[int, int, int]) -> Any:
+    """A read-only memory map (``load_volume``'s uncompressed files, also reoriented views)
+    becomes a dask array whose tasks map the file and read their own brick: the graph holds
+    the file's name and layout, never the voxels (:mod:`hevr.volume.mapped`)."""
+    src = file_backed(vol)
+    if src is None:
+        return vol
+    log.debug("encrypting %s: bricks are read from the file inside the tasks", src)
+    return dask.array.from_array(src, chunks=brick, name=f"hevr-plain-{token()}{token()}", lock=False,
+                                 meta=np.empty((0, 0, 0), src.dtype))
 
 
 def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: VolumeMetadata, key: Any,

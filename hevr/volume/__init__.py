@@ -2,11 +2,18 @@
 Alg. 4 vector encoding.
 
 =================  =============================================================
-``loaders``        ``load_volume`` / ``save_volume``: .npy, raw, NRRD, NIfTI, DICOM
-``nrrd``           the NRRD reader/writer (memory-mapped raw data)
+``loaders``        ``read_scan`` (one dispatcher) / ``load_volume`` / ``save_volume``
+``scan``           ``Scan``: a loaded volume, its spacing, origin, frame and modality
+``orientation``    hevr's RAS+ patient frame: reorienting views of the stored axes
+``nrrd``           the NRRD reader/writer (memory-mapped raw data); ``nrrd_space`` its geometry
+``nifti``          NIfTI and FreeSurfer MGH/MGZ (nibabel)
+``dicom``          DICOM series, DICOMDIR and multi-frame files (pydicom)
+``tiff``           TIFF stacks, OME-TIFF, ImageJ hyperstacks (tifffile)
+``zarr_input``     plaintext Zarr arrays and OME-Zarr images
 ``phantom``        the paper's synthetic phantom
 ``density``        value range -> [0, 1] densities, Alg. 4 encoding
 ``gradient``       the gradient channel g·e(d): gradient-magnitude modulation (owner side)
+``modality``       value ranges and transfer-function presets per modality (CT, MR, ...)
 =================  =============================================================
 """
 
@@ -14,7 +21,18 @@ from __future__ import annotations
 
 from .density import encode_density, normalize_density
 from .gradient import gradient_encoding
-from .loaders import load_volume, save_volume
+from .loaders import load_volume, read_scan, save_volume
+from .modality import (
+           MODALITY_RANGES,
+           TF_PRESETS,
+           modality_range,
+           range_hint,
+           tf_preset,
+           window_density,
+)
 from .phantom import PHANTOM_LEVELS, phantom
+from .scan import Scan
 
-__all__ = ["PHANTOM_LEVELS", "encode_density", "gradient_encoding", "load_volume", "normalize_density", "phantom", "save_volume"]
+__all__ = ["PHANTOM_LEVELS", "encode_density", "gradient_encoding", "load_volume", "normalize_density", "phantom", "save_volume",
+           "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
+           "read_scan", "Scan"]

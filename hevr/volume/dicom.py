@@ -1,116 +1,177 @@
-"""DICOM series folders (needs pydicom, the ``hevr[io]`` extra)."""
+"""DICOM volumes as a radiologist's files come (needs pydicom, the ``hevr[io]`` extra).
+
+:func:`read_dicom` reads one series from a folder tree, a ``DICOMDIR`` or a single file,
+in hevr's RAS+ patient frame (:mod:`hevr.volume.orientation`):
+
+1. find the images and pick the series, from headers only (:mod:`hevr.volume.dicom_series`);
+2. list its frames with their geometry (single-frame slices, enhanced and legacy
+   multi-frame files alike) and stack them along the slice normal, refusing duplicate
+   positions, uneven gaps (unless ``allow_uneven``), gantry tilt (unless ``oblique="snap"``)
+   and mixed orientations (:mod:`hevr.volume.dicom_frames`);
+3. decode the pixels of that series only, rescale them per frame (``RescaleSlope/Intercept``,
+   integer-preserving, :func:`~hevr.volume.rescale.rescale`);
+4. turn the voxel→LPS+ affine into RAS+ (``LPS_TO_RAS @ affine``) and reorient the array
+   with :func:`~hevr.volume.orientation.to_patient_frame` (a view: transposes and flips only).
+
+Without ``ImagePositionPatient``/``ImageOrientationPatient`` (or with a non-positive
+``PixelSpacing``, then passed on as recorded for the caller to reject or override) the
+slices are ordered by ``InstanceNumber``, the axes kept as stored and ``Scan.frame`` is None.
+Colour images (``SamplesPerPixel`` ≠ 1, palette colour) are refused: they are pictures, not
+densities.
+"""
 
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .._validate import check_choice
 from ..errors import VolumeFormatError
 from ._optional import require
+from .dicom_frames import Frame, frames_of, plan_stack
+from .dicom_series import Image, SeriesInfo, choose_series, list_series, scan_images
+from .orientation import FRAME, LPS_TO_RAS, to_patient_frame
 from .rescale import rescale
+from .scan import Scan
 
-__all__ = ["read_dicom_folder"]
+__all__ = ["SeriesInfo", "list_series", "read_dicom", "read_dicom_folder"]
 
 _log = logging.getLogger(__name__)
 
 _Spacing = tuple[float, float, float]
 
 
+def read_dicom(path: str | os.PathLike[str], *, series: str | None = None, allow_uneven: bool = False,
+               oblique: str = "refuse") -> Scan:
+    """Read one DICOM series as a volume in the RAS+ patient frame.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A folder (searched recursively; non-DICOM and hidden files are skipped), a
+        ``DICOMDIR`` file (its referenced images), or one DICOM file: a multi-frame file is
+        a volume by itself, a single-frame file stands for its series in the same folder.
+    series : str, optional
+        Which series, when ``path`` holds several: a SeriesInstanceUID, a SeriesNumber
+        (``"3"``, when unique) or a unique prefix of a UID. Without it, several series are
+        refused with a listing (also available from :func:`list_series`).
+    allow_uneven : bool, default False
+        Stack slices whose gaps differ by more than 1 % (or with a missing slice) at the
+        median gap instead of refusing them; distances along the slice axis become wrong.
+    oblique : {"refuse", "snap"}, default "refuse"
+        Oblique planes and gantry-tilted (sheared) stacks: refuse them, or take the nearest
+        patient axes without resampling (logged with the angle).
+
+    Returns
+    -------
+    Scan
+        ``volume`` (nz, ny, nx) in RAS+ order (a view of the stacked array), ``spacing``
+        (sx, sy, sz) in mm, ``origin`` (RAS+ mm of voxel 0), ``frame`` ("RAS", or None
+        without patient geometry), ``modality`` and ``details`` (``series_uid``,
+        ``series_number``, ``series_description``, ``images``, ``frames``,
+        ``transfer_syntax``, ``uneven_spacing``).
+
+    Raises
+    ------
+    MissingFileError
+        ``path`` does not exist.
+    VolumeFormatError
+        No image, several series and no (or no matching) ``series``, mixed sizes or
+        orientations, duplicate positions, uneven spacing, tilt, colour images, pixel data
+        that cannot be decoded; the message names the file.
+    ParameterError
+        ``oblique`` is not "refuse" or "snap".
+    MissingDependencyError
+        pydicom is not installed.
+    """
+    path = Path(path)
+    check_choice("oblique", oblique, ("refuse", "snap"))
+    pydicom = require("pydicom", path)
+    name = path.name
+    uid, images = choose_series(name, scan_images(path), series)
+    _check_images(images)
+    frames = [fr for im in images for fr in frames_of(im)]
+    stack = plan_stack(frames, name, allow_uneven=allow_uneven, oblique=oblique)
+    frames = [frames[i] for i in stack.order]
+    raw = _decode(pydicom, frames)
+    slopes, inters = [f.slope for f in frames], [f.intercept for f in frames]
+    if len(set(slopes)) == 1 and len(set(inters)) == 1:  # one factor: the cheaper whole-array path
+        slopes, inters = slopes[:1], inters[:1]
+    vol = rescale(raw, slopes, inters)
+    first = images[0].header
+    meta = getattr(first, "file_meta", None) or {}
+    details: dict[str, Any] = {
+        "series_uid": uid,
+        "series_number": _text(first.get("SeriesNumber")),
+        "series_description": _text(first.get("SeriesDescription")),
+        "images": len(images),
+        "frames": len(frames),
+        "transfer_syntax": _text(meta.get("TransferSyntaxUID")),
+        "uneven_spacing": stack.uneven,
+    }
+    modality = _text(first.get("Modality")) or None
+    if stack.affine is None:
+        return Scan(vol, stack.spacing, frame=None, modality=modality, source=str(path), details=details)
+    view, spacing, origin = to_patient_frame(vol, LPS_TO_RAS @ stack.affine, name=name, oblique=oblique)
+    _log.debug("%s: series %s, %d frame(s), %s, spacing %s", name, uid, len(frames), modality, spacing)
+    return Scan(view, spacing, origin, FRAME, modality, str(path), details)
+
+
 def read_dicom_folder(folder: Path) -> tuple[np.ndarray, _Spacing]:
-    pydicom = require("pydicom", folder)
-    from pydicom.errors import InvalidDicomError
+    """``read_dicom(folder)`` as (volume, spacing): the form :func:`hevr.load_volume` used."""
+    scan = read_dicom(folder)
+    return scan.volume, scan.spacing
 
-    slices = []
-    for f in sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")):
+
+def _text(value: Any) -> str:
+    return "" if value is None else str(value).strip()
+
+
+def _check_images(images: list[Image]) -> None:
+    """One image size and greyscale samples throughout the series."""
+    first = images[0].header
+    size = (first.get("Rows"), first.get("Columns"))
+    for im in images:
+        ds = im.header
+        spp, photometric = ds.get("SamplesPerPixel", 1), _text(ds.get("PhotometricInterpretation"))
+        if spp not in (1, None) or photometric.startswith(("RGB", "YBR", "PALETTE")):
+            raise VolumeFormatError(f"{im.path.name}: expected greyscale images (SamplesPerPixel 1, MONOCHROME), "
+                                    f"got colour ({spp} sample(s) per pixel, {photometric or '?'}); a colour "
+                                    "picture is not a density volume")
+        if (ds.get("Rows"), ds.get("Columns")) != size:
+            raise VolumeFormatError(f"{im.path.name}: slice size {ds.get('Rows')}x{ds.get('Columns')} differs "
+                                    f"from {size[0]}x{size[1]} in {images[0].path.name}")
+
+
+def _decode(pydicom: Any, frames: list[Frame]) -> np.ndarray:
+    """The stored values of ``frames``, stacked in that order; each file decoded once."""
+    slots: dict[Path, list[tuple[int, int]]] = {}
+    for k, f in enumerate(frames):
+        slots.setdefault(f.image.path, []).append((k, f.index))
+    out: np.ndarray | None = None
+    for file, pairs in slots.items():
+        image = frames[pairs[0][0]].image
         try:
-            ds = pydicom.dcmread(f)
-        except InvalidDicomError:
-            _log.debug("%s: skipping %s, not a DICOM file", folder.name, f.name)
-            continue
-        except Exception as exc:
-            raise VolumeFormatError(f"{f.name}: cannot read DICOM file in {folder} ({exc})") from None
-        if "PixelData" in ds:  # DICOMDIR and other non-image objects carry none
-            slices.append((f, ds))
-    if not slices:
-        raise VolumeFormatError(f"{folder.name}: expected a folder of DICOM slices, found no "
-                                "DICOM file with pixel data in it")
-    first = slices[0][1]
-    series = sorted({str(ds.get("SeriesInstanceUID", "?")) for _, ds in slices})
-    if len(series) > 1:
-        raise VolumeFormatError(f"{folder.name}: expected one DICOM series, the folder holds "
-                                f"{len(series)} ({', '.join(series[:4])}); split them into folders")
-    for f, ds in slices:
-        if _dicom_number(f, ds, "NumberOfFrames", 1) > 1 or _dicom_number(f, ds, "SamplesPerPixel", 1) != 1:
-            raise VolumeFormatError(f"{f.name}: expected single-frame greyscale DICOM slices, got "
-                                    f"{ds.get('NumberOfFrames', 1)} frame(s) with "
-                                    f"{ds.get('SamplesPerPixel', 1)} sample(s) per pixel")
-        if (ds.get("Rows"), ds.get("Columns")) != (first.get("Rows"), first.get("Columns")):
-            raise VolumeFormatError(f"{f.name}: slice size {ds.get('Rows')}x{ds.get('Columns')} differs "
-                                    f"from {first.get('Rows')}x{first.get('Columns')} in {slices[0][0].name}")
-    order, sz = _dicom_order(folder, slices)
-    slices = [slices[i] for i in order]
-    pixels = []
-    for f, ds in slices:
-        try:
-            pixels.append(ds.pixel_array)
-        except Exception as exc:  # compressed syntaxes need handlers that may be missing
-            raise VolumeFormatError(f"{f.name}: cannot decode the pixel data (transfer syntax "
-                                    f"{ds.file_meta.get('TransferSyntaxUID', '?')}): {exc}") from None
-    slopes = [_dicom_number(f, ds, "RescaleSlope", 1) for f, ds in slices]
-    inters = [_dicom_number(f, ds, "RescaleIntercept", 0) for f, ds in slices]
-    vol = rescale(np.stack(pixels), slopes, inters)
-    ps = first.get("PixelSpacing")
-    if ps is None or len(ps) != 2:
-        _log.warning("%s: no PixelSpacing; assuming 1 x 1", folder.name)
-        ps = (1.0, 1.0)
-    # PixelSpacing is (between rows, between columns) = (sy, sx).
-    try:
-        return vol, (float(ps[1]), float(ps[0]), sz)
-    except (TypeError, ValueError):
-        raise VolumeFormatError(f"{folder.name}: PixelSpacing: expected two numbers, got {ps!r}") from None
-
-
-def _dicom_number(f: Path, ds: Any, key: str, default: float) -> float:
-    """A numeric DICOM attribute (``default`` when absent, empty or 0), else VolumeFormatError."""
-    value = ds.get(key, default)
-    try:
-        return float(value or default)
-    except (TypeError, ValueError):
-        raise VolumeFormatError(f"{f.name}: {key}: expected a number, got {str(value)[:40]!r}") from None
-
-
-def _dicom_order(folder: Path, slices: list) -> tuple[np.ndarray, float]:
-    """Slice order (ascending along the slice normal) and the z spacing."""
-    try:
-        iop = np.array(slices[0][1].ImageOrientationPatient, dtype=np.float64)
-        normal = np.cross(iop[:3], iop[3:])
-        pos = np.array([float(np.dot(np.array(ds.ImagePositionPatient, np.float64), normal))
-                        for _, ds in slices])
-    except (AttributeError, TypeError, ValueError):
-        pos = None
-    if pos is not None:
-        order = np.argsort(pos, kind="stable")
-        gaps = np.diff(pos[order])
-        if len(gaps) and gaps.min() < 1e-4:
-            i = int(np.argmin(gaps))
-            raise VolumeFormatError(
-                f"{folder.name}: slices {slices[order[i]][0].name} and {slices[order[i + 1]][0].name} "
-                f"lie at the same position {pos[order[i]]:.4g}; expected one slice per position")
-        if len(gaps):
-            sz = float(np.median(gaps))
-            if gaps.max() - gaps.min() > 1e-3 * sz:
-                _log.warning("%s: uneven slice spacing %.4g..%.4g; using the median %.4g",
-                             folder.name, gaps.min(), gaps.max(), sz)
-            return order, sz
-    else:
-        instance = [ds.get("InstanceNumber") for _, ds in slices]
-        if None in instance:
-            raise VolumeFormatError(f"{folder.name}: cannot order the DICOM slices: expected "
-                                    "ImagePositionPatient/ImageOrientationPatient or InstanceNumber")
-        order = np.argsort(np.array(instance, dtype=np.int64), kind="stable")
-    ds = slices[0][1]
-    sz = float(ds.get("SpacingBetweenSlices") or ds.get("SliceThickness") or 1.0)
-    return order, sz
+            ds = pydicom.dcmread(file)
+            arr = ds.pixel_array
+        except Exception as exc:  # noqa: BLE001  # compressed syntaxes need handlers that may be missing
+            meta = getattr(image.header, "file_meta", None) or {}
+            raise VolumeFormatError(f"{file.name}: cannot decode the pixel data (transfer syntax "
+                                    f"{meta.get('TransferSyntaxUID', '?')}): {exc}") from None
+        rows, cols = int(image.header.Rows), int(image.header.Columns)
+        if arr.size != image.frames * rows * cols:
+            raise VolumeFormatError(f"{file.name}: expected {image.frames} frame(s) of {rows}x{cols} pixels, "
+                                    f"got pixel data of shape {arr.shape}")
+        arr = arr.reshape(image.frames, rows, cols)
+        if out is None:
+            out = np.empty((len(frames), rows, cols), arr.dtype)
+        elif np.result_type(out.dtype, arr.dtype) != out.dtype:
+            out = out.astype(np.result_type(out.dtype, arr.dtype))
+        dest, src = zip(*pairs)
+        out[list(dest)] = arr[list(src)]
+    assert out is not None
+    return out

@@ -1,12 +1,22 @@
-"""Reading and writing plaintext volumes.
+"""Reading and writing plaintext volumes; one dispatcher for every scan format.
 
-:func:`load_volume` reads ``.npy``, ``.raw`` (shape and type from the name or arguments),
-NRRD (``.nrrd``/``.nhdr``, own reader in :mod:`hevr.volume.nrrd`), NIfTI (``.nii``/``.nii.gz``,
-needs nibabel) and DICOM series folders (needs pydicom); the last two come with the
-``hevr[io]`` extra. Every reader returns the array in (z, y, x) order (x fastest) and the
-spacing in world order (sx, sy, sz), as described in ``API.md``. Voxel axes are kept as
-stored: orientation matrices (NRRD space directions, NIfTI affines, DICOM patient
-orientation) only contribute their voxel sizes.
+:func:`read_scan` reads a file or folder into a :class:`hevr.volume.scan.Scan`; the format
+comes from the name (and, for folders, what they hold):
+
+=========================================  =====================================================
+``.npy``, ``.raw``                         numpy / headerless; axes as stored, ``frame=None``
+``.nrrd``, ``.nhdr``                       :mod:`hevr.volume.nrrd` + :mod:`hevr.volume.nrrd_space`
+``.nii``, ``.nii.gz``, ``.mgz``, ``.mgh``  nibabel (:mod:`hevr.volume.nifti`)
+``.tif``, ``.tiff`` (OME-TIFF, ImageJ)     tifffile (:mod:`hevr.volume.tiff`)
+folder with ``zarr.json``/``.zarray``/…    zarr / OME-Zarr (:mod:`hevr.volume.zarr_input`)
+other folder, ``DICOMDIR``, ``.dcm`` …     pydicom (:mod:`hevr.volume.dicom`)
+=========================================  =====================================================
+
+Files that record patient geometry (NRRD with an anatomical ``space``, NIfTI/MGH affines,
+DICOM) come back reoriented into hevr's RAS+ patient frame (:mod:`hevr.volume.orientation`:
+transposes and flips only, memory maps stay memory maps); the others keep their stored
+axes. Every reader returns (z, y, x) order (x fastest) and the spacing in world order
+(sx, sy, sz). :func:`load_volume` is :func:`read_scan` reduced to ``(volume, spacing)``.
 
 :func:`save_volume` writes ``.npy``, ``.raw`` and NRRD (detached ``.nhdr`` + ``.raw``, or
 attached ``.nrrd``), enough for tests, demos and the CLI.
@@ -14,56 +24,56 @@ attached ``.nrrd``), enough for tests, demos and the CLI.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import numpy.typing as npt
 
 from .._files import require_file
-from .._validate import check_choice, check_spacing, check_volume
+from .._validate import check_choice, check_int, check_spacing, check_volume
 from ..errors import ParameterError, VolumeFormatError
-from ._optional import require
-from .dicom import read_dicom_folder
-from .nrrd import (
-    check_file,
-    is_kind,
-    load_raw,
-    read_nrrd,
-    to_native,
-    write_nrrd,
-    write_raw,
-)
-from .rescale import rescale
+from .dicom import read_dicom
+from .nifti import read_nifti
+from .nrrd import check_file, is_kind, load_raw, to_native, write_nrrd, write_raw
+from .nrrd_space import read_nrrd_scan
+from .scan import Scan
+from .tiff import read_tiff
+from .zarr_input import is_zarr, read_zarr
 
-__all__ = ["load_volume", "save_volume"]
+__all__ = ["read_scan", "load_volume", "save_volume"]
 
 _log = logging.getLogger(__name__)
 
 _Spacing = tuple[float, float, float]
 
-_EXTENSIONS = ".npy, .raw, .nrrd, .nhdr, .nii, .nii.gz or a DICOM series folder"
+_EXTENSIONS = (".npy, .raw, .nrrd, .nhdr, .nii, .nii.gz, .mgz, .mgh, .tif, .tiff, .dcm, DICOMDIR, a DICOM "
+               "folder or a Zarr/OME-Zarr folder")
+_DICOM_SUFFIXES = (".dcm", ".dicom", ".ima")
+_MULTI = ("nifti", "nrrd", "zarr", "tiff")  # formats that may hold several volumes (volume=)
 
 
 def _format(path: Path) -> str:
-    """Which reader handles ``path``: npy, raw, nrrd, nifti or dicom."""
+    """Which reader handles ``path``: npy, raw, nrrd, nifti, tiff, zarr or dicom."""
     if is_kind(path, directory=True):
-        return "dicom"
+        return "zarr" if is_zarr(path) else "dicom"
     check_file(path)
     name = path.name.lower()
-    if name.endswith((".nii", ".nii.gz")):
+    if name.endswith((".nii", ".nii.gz", ".mgz", ".mgh")):
         return "nifti"
     suffix = path.suffix.lower()
     if suffix in (".npy", ".raw"):
         return suffix[1:]
     if suffix in (".nrrd", ".nhdr"):
         return "nrrd"
-    if suffix in (".dcm", ".dicom", ".ima"):
-        raise VolumeFormatError(f"{path.name}: a single DICOM file is not a volume; pass the "
-                                f"folder holding the whole series ({path.parent})")
+    if suffix in (".tif", ".tiff"):
+        return "tiff"
+    if suffix in _DICOM_SUFFIXES or path.name.upper() == "DICOMDIR":
+        return "dicom"
     raise VolumeFormatError(f"{path.name}: unknown volume file extension {suffix or '(none)'!r}; "
                             f"expected {_EXTENSIONS}")
 
@@ -73,52 +83,148 @@ def _check_volume(arr: np.ndarray, path: Path) -> np.ndarray:
     return to_native(check_volume(arr, path.name, kinds="uif", error=VolumeFormatError))
 
 
-def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None,
-                dtype: npt.DTypeLike | None = None, spacing: Sequence[float] | None = None,
-                byte_order: str = "little") -> tuple[np.ndarray, _Spacing]:
-    """Read a 3-D volume from a file or a DICOM series folder.
+def _check_keywords(kind: str, path: Path, shape: Any, dtype: Any, series: Any, allow_uneven: Any,
+                    volume: Any) -> int | None:
+    """Refuse keywords that do not apply to ``kind``; return ``volume`` checked."""
+    if kind != "raw" and (shape is not None or dtype is not None):
+        raise ParameterError(f"load_volume: shape and dtype only apply to .raw files, got "
+                             f"shape={shape!r}, dtype={dtype!r} for {path.name}")
+    if kind != "dicom" and (series is not None or allow_uneven):
+        raise ParameterError(f"read_scan: series and allow_uneven only apply to DICOM, got series={series!r}, "
+                             f"allow_uneven={allow_uneven!r} for {path.name}")
+    if volume is None:
+        return None
+    if kind not in _MULTI:
+        raise ParameterError(f"volume: only applies to 4-D NIfTI/MGH, NRRD, TIFF or OME-Zarr files, got "
+                             f"volume={volume!r} for {path.name}")
+    return check_int("volume", volume, 0)
+
+
+def read_scan(path: str | os.PathLike[str], *, shape: Sequence[int] | None = None,
+              dtype: npt.DTypeLike | None = None, spacing: Sequence[float] | None = None,
+              byte_order: str = "little", series: str | None = None, volume: int | None = None,
+              allow_uneven: bool = False, oblique: str = "refuse") -> Scan:
+    """Read a 3-D scan from a file or folder, in hevr's RAS+ patient frame when the file has one.
 
     Parameters
     ----------
     path : str or os.PathLike
-        ``.npy``; ``.raw`` (headerless, x fastest); ``.nrrd``/``.nhdr`` (raw or gzip
-        encoding, one data file); ``.nii``/``.nii.gz`` (needs nibabel); or a folder with
-        one DICOM series (needs pydicom). The format is chosen by the extension.
-    shape : sequence of 3 ints, optional
-        Only for ``.raw``: the array shape in (z, y, x) order. Default: parsed from the file
-        name, whose ``XxYxZ`` token lists the sizes in x, y, z order (``tooth_103x94x161_uint8.raw``).
-    dtype : numpy dtype, optional
-        Only for ``.raw``: the voxel type. Default: the name's type token (int8, uint8,
-        int16, uint16, int32, uint32, float32 or float64).
+        A file or folder; see the table in :mod:`hevr.volume.loaders`. The format is chosen
+        by the extension, folders by their content (Zarr metadata, else DICOM).
+    shape, dtype : optional
+        Only for ``.raw``: the array shape in (z, y, x) order and the voxel type. Default:
+        the name's ``XxYxZ`` token (sizes in x, y, z order) and type token
+        (``tooth_103x94x161_uint8.raw``).
     spacing : sequence of 3 floats, optional
         Voxel size (sx, sy, sz) in world order; overrides what the file says. Files without
-        spacing (``.npy``, ``.raw``) default to (1, 1, 1).
+        spacing (``.npy``, ``.raw``, plain TIFF and Zarr arrays) default to (1, 1, 1).
     byte_order : {"little", "big"}, default "little"
         Only used for ``.raw`` files; the other formats record their byte order.
+    series : str, optional
+        DICOM only: the SeriesInstanceUID (or a unique prefix) to read from a folder holding several.
+    volume : int, optional
+        The index along a 4th dimension (NIfTI/MGH time points, NRRD time or component
+        axis, TIFF ``T``, OME-Zarr ``t``). Required when that dimension holds more than one;
+        refused for 3-D files.
+    allow_uneven : bool, default False
+        DICOM only: accept unevenly spaced slices (read at their median spacing).
+    oblique : {"refuse", "snap"}, default "refuse"
+        A scan whose axes are more than 1° off the patient axes is refused, or snapped to the
+        nearest axes with ``"snap"`` (see :func:`hevr.volume.orientation.to_patient_frame`).
 
     Returns
     -------
-    volume : numpy.ndarray
-        Shape (nz, ny, nx), native byte order, integer or float dtype. Uncompressed native
-        data (``.npy``, ``.raw``, raw NRRD) comes as a read-only ``np.memmap``: copy it
-        with ``np.array(volume)`` before modifying it. DICOM and scaled NIfTI data are
-        rescaled (slope/intercept) and stay integer (int16 or wider, signed) when the
-        factors are integers, else become float32.
-    spacing : tuple of 3 floats
-        (sx, sy, sz).
+    Scan
+        ``volume`` of shape (nz, ny, nx), native byte order, integer or float; ``spacing``;
+        ``origin``; ``frame`` (``"RAS"`` or None); ``modality``; ``source``; ``details``.
+        Uncompressed native data (``.npy``, ``.raw``, raw NRRD, ``.nii``, plain TIFF stacks)
+        comes as a read-only ``np.memmap`` (possibly a transposed/flipped view of one):
+        copy it with ``np.array(volume)`` before modifying it. Zarr inputs are read into
+        memory. DICOM and scaled NIfTI data are rescaled (slope/intercept) and stay integer
+        (int16 or wider, signed) when the factors are integers, else become float32.
 
     Raises
     ------
     FileNotFoundError
         If ``path`` (or an NRRD data file) does not exist.
     VolumeFormatError
-        Unknown extension, not 3-D, sizes that do not match the data, truncated files,
-        unsupported types or encodings; the message names the file and the problem.
+        Unknown extension, not 3-D (or a 4-D file without ``volume=``), sizes that do not
+        match the data, truncated files, unsupported types or encodings, RGB/multi-channel
+        data, oblique scans, encrypted hevr stores; the message names the file.
     MissingDependencyError
-        NIfTI or DICOM without nibabel/pydicom installed (``pip install 'hevr[io]'``).
+        NIfTI/MGH, DICOM, TIFF or NRRD ascii without nibabel/pydicom/tifffile/pynrrd
+        (``pip install 'hevr[io]'``).
     ParameterError
-        Invalid ``shape``/``dtype``/``spacing``/``byte_order``, or ``shape``/``dtype``
-        given for a format other than ``.raw``.
+        Invalid arguments, or arguments given for a format they do not apply to.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from hevr.volume.loaders import read_scan, save_volume
+    >>> p = save_volume(os.path.join(tempfile.mkdtemp(), "v.nhdr"), np.zeros((4, 5, 6), np.int16), (0.5, 1, 2))
+    >>> scan = read_scan(p)
+    >>> scan.volume.shape, scan.spacing, scan.frame
+    ((4, 5, 6), (0.5, 1.0, 2.0), None)
+    """
+    path = Path(os.fspath(path)).expanduser()
+    check_choice("byte_order", byte_order, ("little", "big"))
+    check_choice("oblique", oblique, ("refuse", "snap"))
+    override = None if spacing is None else check_spacing(spacing)
+    kind = _format(path)
+    volume = _check_keywords(kind, path, shape, dtype, series, allow_uneven, volume)
+    if kind == "npy":
+        scan = Scan(_load_npy(path), (1.0, 1.0, 1.0), source=str(path))
+    elif kind == "raw":
+        scan = Scan(load_raw(path, shape, dtype, byte_order), (1.0, 1.0, 1.0), source=str(path))
+    elif kind == "nrrd":
+        scan = read_nrrd_scan(path, volume=volume, oblique=oblique)
+    elif kind == "nifti":
+        scan = read_nifti(path, volume=volume, oblique=oblique)
+    elif kind == "tiff":
+        scan = read_tiff(path, volume=volume)
+    elif kind == "zarr":
+        scan = read_zarr(path, volume=volume)
+    else:
+        scan = read_dicom(path, series=series, allow_uneven=allow_uneven, oblique=oblique)
+    vol = _check_volume(scan.volume, path)
+    file_spacing = tuple(float(v) for v in scan.spacing)
+    if override is None and not all(math.isfinite(v) and v > 0 for v in file_spacing):
+        raise VolumeFormatError(f"{path.name}: spacing: expected 3 positive finite voxel sizes in the file, got "
+                                f"{file_spacing}; pass spacing= to override")
+    result = override or file_spacing
+    _log.debug("loaded %s: shape %s, %s, spacing %s, frame %s", path, vol.shape, vol.dtype, result, scan.frame)
+    return dataclasses.replace(scan, volume=vol, spacing=result)
+
+
+def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None,
+                dtype: npt.DTypeLike | None = None, spacing: Sequence[float] | None = None,
+                byte_order: str = "little", *, series: str | None = None, volume: int | None = None,
+                allow_uneven: bool = False, oblique: str = "refuse") -> tuple[np.ndarray, _Spacing]:
+    """Read a 3-D volume: :func:`read_scan` reduced to ``(volume, spacing)``.
+
+    Files with patient geometry come back in hevr's RAS+ frame (NRRD with an anatomical
+    ``space``, NIfTI/MGH, DICOM: transposed/flipped views of what the file stores, e.g. an
+    LPS NRRD with identity directions has its x and y axes reversed); ``.npy``, ``.raw``,
+    TIFF, Zarr and NRRD without ``space`` keep their stored axes. Use :func:`read_scan` to
+    also get the origin, frame and modality.
+
+    Parameters
+    ----------
+    path, shape, dtype, spacing, byte_order, series, volume, allow_uneven, oblique
+        As for :func:`read_scan`.
+
+    Returns
+    -------
+    volume : numpy.ndarray
+        Shape (nz, ny, nx), native byte order, integer or float dtype; a read-only
+        ``np.memmap`` (or a view of one) for uncompressed native data.
+    spacing : tuple of 3 floats
+        (sx, sy, sz).
+
+    Raises
+    ------
+    FileNotFoundError, VolumeFormatError, MissingDependencyError, ParameterError
+        As for :func:`read_scan`.
 
     Examples
     --------
@@ -130,30 +236,9 @@ def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None
     >>> vol.shape, vol.dtype, spacing
     ((4, 5, 6), dtype('int16'), (0.5, 1.0, 2.0))
     """
-    path = Path(os.fspath(path)).expanduser()
-    check_choice("byte_order", byte_order, ("little", "big"))
-    override = None if spacing is None else check_spacing(spacing)
-    kind = _format(path)
-    if kind != "raw" and (shape is not None or dtype is not None):
-        raise ParameterError(f"load_volume: shape and dtype only apply to .raw files, got "
-                             f"shape={shape!r}, dtype={dtype!r} for {path.name}")
-    if kind == "npy":
-        vol, file_spacing = _load_npy(path), (1.0, 1.0, 1.0)
-    elif kind == "raw":
-        vol, file_spacing = load_raw(path, shape, dtype, byte_order), (1.0, 1.0, 1.0)
-    elif kind == "nrrd":
-        vol, file_spacing = read_nrrd(path)
-    elif kind == "nifti":
-        vol, file_spacing = _load_nifti(path, need_spacing=override is None)
-    else:
-        vol, file_spacing = read_dicom_folder(path)
-    vol = _check_volume(vol, path)
-    if override is None and not all(math.isfinite(v) and v > 0 for v in file_spacing):
-        raise VolumeFormatError(f"{path.name}: spacing: expected 3 positive finite voxel sizes in the file, got "
-                                f"{tuple(file_spacing)}; pass spacing= to override")
-    result = override or file_spacing
-    _log.debug("loaded %s: shape %s, %s, spacing %s", path, vol.shape, vol.dtype, result)
-    return vol, result
+    scan = read_scan(path, shape=shape, dtype=dtype, spacing=spacing, byte_order=byte_order, series=series,
+                     volume=volume, allow_uneven=allow_uneven, oblique=oblique)
+    return scan.volume, scan.spacing
 
 
 def _load_npy(path: Path) -> np.ndarray:
@@ -164,37 +249,6 @@ def _load_npy(path: Path) -> np.ndarray:
     if not isinstance(arr, np.ndarray):  # an .npz archive renamed to .npy
         raise VolumeFormatError(f"{path.name}: expected a single .npy array, got an .npz archive")
     return arr
-
-
-def _load_nifti(path: Path, need_spacing: bool) -> tuple[np.ndarray, _Spacing]:
-    nib = require("nibabel", path)
-    try:
-        img = nib.load(str(path))
-        proxy = img.dataobj
-        if nib.is_proxy(proxy):
-            # Read unscaled so integral scl_slope/scl_inter keep an integer dtype.
-            raw = np.asanyarray(proxy.get_unscaled())
-            slope, inter = getattr(proxy, "slope", 1.0), getattr(proxy, "inter", 0.0)
-        else:
-            raw, slope, inter = np.asanyarray(proxy), 1.0, 0.0
-        zooms = img.header.get_zooms()
-    except Exception as exc:  # nibabel raises many types for broken files
-        raise VolumeFormatError(f"{path.name}: cannot read NIfTI file ({exc})") from None
-    shape = tuple(raw.shape)
-    while len(shape) > 3 and shape[-1] == 1:  # tools often write (x, y, z, 1)
-        shape = shape[:-1]
-    if len(shape) != 3:
-        raise VolumeFormatError(f"{path.name}: expected a 3-D volume, got a {len(raw.shape)}-D "
-                                f"image of shape {raw.shape}")
-    if raw.dtype.kind not in "iuf":
-        raise VolumeFormatError(f"{path.name}: expected integer or floating-point voxels, "
-                                f"got dtype {raw.dtype}")
-    vol = rescale(raw.reshape(shape), 1.0 if slope is None else slope, 0.0 if inter is None else inter)
-    spacing = tuple(float(z) for z in zooms[:3])
-    if need_spacing and not all(math.isfinite(z) and z > 0 for z in spacing):
-        raise VolumeFormatError(f"{path.name}: NIfTI voxel sizes (pixdim) must be positive, "
-                                f"got {spacing}; pass spacing= to override")
-    return vol.transpose(2, 1, 0), spacing  # type: ignore[return-value]
 
 
 def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,

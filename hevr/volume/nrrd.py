@@ -1,18 +1,21 @@
-"""Raw binary and NRRD volume files, without any third-party NRRD library.
+"""Raw binary and NRRD volume files: hevr's own header parser and raw/gzip/bzip2/hex reader.
 
-Implements the subset of the NRRD format (http://teem.sourceforge.net/nrrd/format.html)
-that scalar 3-D volumes need: attached (``.nrrd``) and detached (``.nhdr``) headers, a
-single data file, ``raw`` and ``gzip`` encodings, ``sizes``/``type``/``endian``, spacing
-from ``space directions`` or ``spacings``, and ``line skip``/``byte skip``.
+Implements the part of the NRRD format (http://teem.sourceforge.net/nrrd/format.html)
+that scalar volumes need: attached (``.nrrd``) and detached (``.nhdr``) headers, a
+single data file, 3-D and 4-D ``sizes``, ``type``/``endian``, ``line skip``/``byte skip``
+and the encodings ``raw``, ``gzip``, ``bzip2``, ``hex`` and ``ascii`` (the last through
+pynrrd; see :mod:`hevr.volume.nrrd_encodings`). :func:`read_nrrd` returns the data and the
+header fields; :mod:`hevr.volume.nrrd_space` turns ``space``/``space directions``/
+``space origin``/``kinds`` into hevr's patient frame and picks one volume of a 4-D file.
 
 Raw uncompressed data is memory-mapped so huge volumes are read only once, when used.
 
 Hostile files end in :class:`hevr.VolumeFormatError` (or :class:`hevr.MissingFileError`),
 quickly and in bounded memory: sizes are checked against the file before anything is
-mapped, gzip data is decompressed only up to the size the header announces (a "zip bomb"
-costs at most that), a gzip ``byte skip`` may pass at most the data's size + 64 MiB (it
-is decompressed to be skipped), ``line skip`` stops at the end of the file, and header numbers
-must be ASCII decimal integers.
+mapped, compressed data is decompressed only up to the size the header announces (a "zip
+bomb" costs at most that), a compressed ``byte skip`` may pass at most the data's size +
+64 MiB (it is decompressed to be skipped), ``line skip`` stops at the end of the file, and
+header numbers must be ASCII decimal integers.
 """
 
 from __future__ import annotations
@@ -20,16 +23,15 @@ from __future__ import annotations
 import gzip
 import logging
 import math
-import os
 import re
-import zlib
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO, Callable
 
 import numpy as np
 
 from .._validate import check_dtype, check_shape
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
+from .nrrd_encodings import BLOCK, ENCODINGS, read_ascii, read_compressed, read_hex
 
 _log = logging.getLogger(__name__)
 
@@ -57,13 +59,9 @@ _TYPE_NAMES = {"i1": "int8", "u1": "uint8", "i2": "int16", "u2": "uint16", "i4":
 RAW_DTYPES = ("int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64")
 _RAW_SHAPE = re.compile(r"(?<![0-9])([0-9]+)x([0-9]+)x([0-9]+)(?![0-9])")
 _RAW_DTYPE = re.compile(r"(?<![a-z0-9])(" + "|".join(RAW_DTYPES) + r")(?![a-z0-9])")
-# Axis kinds of a scalar volume; others (RGB-color, vector, ...) mean a non-scalar axis.
-_SCALAR_KINDS = {"domain", "space", "time", "none", "???"}
 
 _MAX_HEADER_BYTES = 1 << 20  # a header larger than this is certainly not a header
-_BLOCK = 1 << 20  # read gzip data and skipped lines in blocks of this many bytes
 _INT = re.compile(r"[+-]?[0-9]+")  # int() alone would also take '٢', '1_0' and ' 1 '
-_VECTOR = re.compile(r"\(([^()]*)\)")
 
 
 def _fail(path: Path, problem: str) -> VolumeFormatError:
@@ -208,41 +206,19 @@ def _ints(path: Path, field: str, value: str, count: int) -> list[int]:
     return out
 
 
-def _spacing(path: Path, fields: dict[str, str]) -> tuple[float, float, float]:
-    """World spacing (sx, sy, sz) from 'space directions' (vector norms) or 'spacings'."""
-    if "space directions" in fields:
-        value = fields["space directions"]
-        vectors = _VECTOR.findall(value)
-        if len(vectors) != 3 or "none" in value.lower():
-            raise _fail(path, "NRRD field 'space directions' must hold three vectors like "
-                              f"'(1,0,0) (0,1,0) (0,0,1)' for the three axes, got {value!r}")
-        try:
-            vecs = [[float(c) for c in vec.split(",")] for vec in vectors]
-        except ValueError:
-            raise _fail(path, f"NRRD field 'space directions' has a non-numeric vector: {value!r}") from None
-        out = [math.hypot(*v) for v in vecs]
-        # hevr's world axes are the voxel axes, so only the lengths matter; say so when
-        # the file also carries a rotation that is being dropped.
-        if any(len(v) != 3 or abs(v[i]) < out[i] * (1 - 1e-9) for i, v in enumerate(vecs)):
-            _log.info("%s: non-axis-aligned space directions %s; only their lengths %s are used",
-                      path.name, value, out)
-    elif "spacings" in fields:
-        try:
-            # NaN means "unknown" in NRRD: fall back to 1 like teem's tools do.
-            out = [1.0 if math.isnan(float(v)) else float(v) for v in fields["spacings"].split()]
-        except ValueError:
-            out = []
-        if len(out) != 3:
-            raise _fail(path, f"NRRD field 'spacings' must hold 3 numbers, got {fields['spacings']!r}")
-    else:
-        out = [1.0, 1.0, 1.0]
-    if not all(math.isfinite(v) and v > 0 for v in out):
-        raise _fail(path, f"NRRD spacing must be three positive finite numbers, got {tuple(out)}")
-    return out[0], out[1], out[2]
+def read_nrrd(path: Path, before_data: Callable[[dict[str, str], tuple[int, ...]], Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, str], Any]:
+    """Read the data of a 3-D or 4-D ``.nrrd``/``.nhdr`` file.
 
+    ``before_data(fields, shape)``, when given, runs once the header is checked and before
+    any data is read (so geometry problems are refused without decompressing anything); what
+    it returns is the third item of the result.
 
-def read_nrrd(path: Path) -> tuple[np.ndarray, tuple[float, float, float]]:
-    """Read a 3-D ``.nrrd``/``.nhdr`` file: (array in (z, y, x) order, spacing (sx, sy, sz))."""
+    Returns the array with the file's sizes reversed (slowest axis first, so a 3-D file
+    comes as (z, y, x)), in the file's byte order (so that picking one volume of a 4-D
+    big-endian file swaps only that one; :func:`to_native` later), and the header fields
+    (lower-case names) for :mod:`hevr.volume.nrrd_space` to turn into geometry.
+    """
     check_file(path)
     fields, header_end = _read_header(path)
     for required in ("type", "dimension", "sizes", "encoding"):
@@ -254,29 +230,25 @@ def read_nrrd(path: Path) -> tuple[np.ndarray, tuple[float, float, float]]:
         raise _fail(path, f"NRRD type {fields['type']!r} is not supported: expected an integer "
                           "or floating-point type (e.g. uint8, int16, float)")
     dim = _ints(path, "dimension", fields["dimension"], 1)[0]
-    if dim != 3:
-        raise _fail(path, f"expected a 3-D volume (dimension: 3), got dimension: {dim}")
-    nx, ny, nz = _ints(path, "sizes", fields["sizes"], 3)
-    if min(nx, ny, nz) < 1:
+    if dim not in (3, 4):
+        raise _fail(path, f"expected a 3-D volume (dimension: 3, or 4 with one non-spatial axis), "
+                          f"got dimension: {dim}")
+    sizes = _ints(path, "sizes", fields["sizes"], dim)
+    if min(sizes) < 1:
         raise _fail(path, f"NRRD sizes must be positive, got {fields['sizes']!r}")
-    shape = (nz, ny, nx)
-    kinds = fields.get("kinds", "").lower().split()
-    if any(k not in _SCALAR_KINDS for k in kinds):
-        raise _fail(path, f"expected a scalar 3-D volume, got axis kinds {fields['kinds']!r} "
-                          "(a vector or colour axis)")
+    shape = tuple(reversed(sizes))
 
+    encoding = ENCODINGS.get(fields["encoding"].lower())
+    if encoding is None:
+        raise _fail(path, f"NRRD encoding {fields['encoding']!r} is not supported: expected raw, gzip, "
+                          "bzip2, ascii or hex")
     dtype = np.dtype(_TYPES[type_name])
     endian = fields.get("endian", "").lower()
-    if dtype.itemsize > 1:
+    if dtype.itemsize > 1 and encoding != "ascii":
         if endian not in ("little", "big"):
             raise _fail(path, f"NRRD field 'endian' must be 'little' or 'big' for type "
                               f"{fields['type']}, got {fields.get('endian')!r}")
         dtype = dtype.newbyteorder("<" if endian == "little" else ">")
-
-    encoding = fields["encoding"].lower()
-    if encoding not in ("raw", "gzip", "gz"):
-        raise _fail(path, f"NRRD encoding {fields['encoding']!r} is not supported: "
-                          "expected 'raw' or 'gzip'")
 
     data_path, offset = path, header_end
     if "data file" in fields or "datafile" in fields:
@@ -297,18 +269,22 @@ def read_nrrd(path: Path) -> tuple[np.ndarray, tuple[float, float, float]]:
                           f"got {line_skip} and {byte_skip}")
     if line_skip:
         offset = _skip_lines(data_path, offset, line_skip)
+    if byte_skip == -1 and encoding != "raw":
+        raise _fail(path, f"NRRD 'byte skip: -1' is only allowed with raw encoding, got {encoding}")
 
-    spacing = _spacing(path, fields)
+    checked = None if before_data is None else before_data(fields, shape)
     what = f"header {path.name} says "
     if encoding == "raw":
         if byte_skip == -1:  # "the data is at the very end of the file"
             offset = max(offset, data_path.stat().st_size - math.prod(shape) * dtype.itemsize)
         arr = read_raw(data_path, offset + max(byte_skip, 0), shape, dtype, what=what)
+    elif encoding in ("gzip", "bzip2"):
+        arr = read_compressed(data_path, offset, byte_skip, shape, dtype, what, encoding)
+    elif encoding == "hex":
+        arr = read_hex(data_path, offset + byte_skip, shape, dtype, what)
     else:
-        if byte_skip == -1:
-            raise _fail(path, "NRRD 'byte skip: -1' is only allowed with raw encoding")
-        arr = _read_gzip(data_path, offset, byte_skip, shape, dtype, what)
-    return to_native(arr), spacing
+        arr = read_ascii(path, data_path, offset + byte_skip, shape, dtype, _TYPE_NAMES[dtype.str[1:]], what)
+    return arr, fields, checked
 
 
 def _skip_lines(path: Path, offset: int, count: int) -> int:
@@ -316,63 +292,12 @@ def _skip_lines(path: Path, offset: int, count: int) -> int:
     with open(path, "rb") as fh:
         fh.seek(offset)
         for _ in range(count):
-            line = fh.readline(_BLOCK)
+            line = fh.readline(BLOCK)
             while line and not line.endswith(b"\n"):
-                line = fh.readline(_BLOCK)
+                line = fh.readline(BLOCK)
             if not line:  # end of file: read_raw reports the missing data
                 break
         return fh.tell()
-
-
-def _physical_memory() -> int | None:
-    """Bytes of RAM of this machine, or None where the OS does not say."""
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
-    except (AttributeError, ValueError, OSError):
-        return None
-
-
-MAX_GZIP_SKIP = 64 << 20  # bytes of decompressed stream a gzip "byte skip" may pass beyond the data's size
-
-
-def _read_gzip(path: Path, offset: int, byte_skip: int, shape: tuple[int, int, int],
-               dtype: np.dtype, what: str) -> np.ndarray:
-    need = math.prod(shape) * dtype.itemsize
-    if byte_skip > need + MAX_GZIP_SKIP:  # skipping means decompressing: seconds per GB
-        raise _fail(path, f"NRRD 'byte skip': expected at most {need + MAX_GZIP_SKIP} bytes before "
-                          f"{what}gzip data of {need} bytes, got {byte_skip}")
-    memory = _physical_memory()
-    if memory is not None and need > memory:  # gzip data is decompressed into memory
-        raise _fail(path, f"too big: {what}{need} bytes of gzip-compressed data (shape {shape} of "
-                          f"{dtype.name}), more than this machine's {memory} bytes of memory; "
-                          "store it with raw encoding, which is memory-mapped")
-    buf = bytearray()
-    with open(path, "rb") as fh:
-        fh.seek(offset)
-        try:
-            # GzipFile handles concatenated members; byte skip applies to the
-            # decompressed stream (format.html, "byte skip"). Decompress no more than
-            # byte skip + the announced size + 1 byte (to tell "too much"), in blocks.
-            with gzip.GzipFile(fileobj=fh, mode="rb") as gz:
-                skipped = 0
-                while skipped < byte_skip:
-                    block = gz.read(min(_BLOCK, byte_skip - skipped))
-                    if not block:
-                        break
-                    skipped += len(block)
-                while len(buf) <= need:
-                    block = gz.read(min(_BLOCK, need + 1 - len(buf)))
-                    if not block:
-                        break
-                    buf += block
-        except (OSError, EOFError, zlib.error) as exc:
-            raise _fail(path, f"corrupt or truncated gzip data: {exc}") from None
-    data = memoryview(buf)
-    if len(data) != need:
-        raise _fail(path, f"{'truncated' if len(data) < need else 'size mismatch'}: {what}"
-                          f"expected {need} bytes of decompressed data (shape {shape} of "
-                          f"{dtype.name}), got {len(data) if len(data) < need else f'more than {need}'}")
-    return np.frombuffer(data, dtype=dtype).reshape(shape)
 
 
 def write_nrrd(path: Path, vol: np.ndarray, spacing: tuple[float, float, float], *,

@@ -100,7 +100,8 @@ def test_metadata_layout_and_digests(stores, keypair256):
     hevr.open_volume(ev.path, verify="full")  # every digest and ciphertext of the three channels
     assert VolumeMetadata.from_dict(meta.to_dict()) == meta
     chunk = Path(ev.path) / "gradient" / "c" / "0" / "0" / "0" / "0" / "0"  # component axis, brick, W axis
-    assert chunk.stat().st_size == 3 * 4**3 * meta.ciphertext_bytes + 4
+    cipher = 3 * 4**3 * meta.ciphertext_bytes  # one chunk holds all 3 components of a brick
+    assert cipher < chunk.stat().st_size <= cipher + 24  # + the zstd frame's headers and the crc32c
 
 
 def test_corrupt_gradient_metadata_is_named():

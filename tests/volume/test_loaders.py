@@ -1,4 +1,4 @@
-"""Tests for hevr.volume.loaders (load_volume / save_volume) and the NRRD reader in hevr.volume.nrrd."""
+"""Tests for hevr.volume.loaders (read_scan / load_volume / save_volume) and the NRRD reader in hevr.volume.nrrd."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from hevr.errors import (
     ParameterError,
     VolumeFormatError,
 )
-from hevr.volume.loaders import load_volume, save_volume
+from hevr.volume.loaders import _format, load_volume, read_scan, save_volume
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 TOOTH_SHA512 = "5ee3d77ae951e129d29062a4fd4d8730fd8670bd"
@@ -58,10 +58,27 @@ def test_tooth(name: str) -> None:
     assert vol.dtype == np.uint8
     assert spacing == (1.0, 1.0, 1.0)
     assert isinstance(vol, np.memmap)  # mapped, not read into memory up front
+    if name == "tooth.nhdr":
+        # space: left-posterior-superior with identity directions: i runs to the patient's left and
+        # j to the back, so in RAS+ the x and y axes come back reversed (views of the same map).
+        vol = vol[:, ::-1, ::-1]
     digest = hashlib.sha512(np.ascontiguousarray(vol).tobytes()).hexdigest()
     assert digest.startswith(TOOTH_SHA512)
     # The volume is what the raw file holds, x fastest.
     assert digest == hashlib.sha512((DATA / "tooth_103x94x161_uint8.raw").read_bytes()).hexdigest()
+
+
+@needs_data
+def test_tooth_scan_geometry() -> None:
+    scan = read_scan(DATA / "tooth.nhdr")
+    assert scan.frame == "RAS" and scan.modality is None and scan.source.endswith("tooth.nhdr")
+    # space origin (-51.5, -47, -80.5) LPS is voxel (0, 0, 0) of the file; RAS+ voxel (0, 0, 0) is the
+    # file's (102, 93, 0): LPS (50.5, 46, -80.5) = RAS (-50.5, -46, -80.5).
+    assert scan.origin == (-50.5, -46.0, -80.5)
+    assert scan.details["space"] == "left-posterior-superior"
+    raw = read_scan(DATA / "tooth_103x94x161_uint8.raw")
+    assert raw.frame is None and raw.origin == (0.0, 0.0, 0.0)
+    np.testing.assert_array_equal(scan.volume, raw.volume[:, ::-1, ::-1])
 
 
 @needs_data
@@ -164,7 +181,7 @@ def test_nrrd_cross_check_with_pynrrd(tmp_path: Path) -> None:
         nrrd.write(str(tmp_path / name), arr, dict(header), detached_header=detached,
                    index_order="C")
         vol, spacing = load_volume(tmp_path / name)
-        _check(vol, arr)
+        _check(vol, arr[:, ::-1, ::-1])  # LPS: x and y reversed into RAS+
         assert spacing == (0.5, 1.5, 2.0)
     # ... and reads what we write.
     for encoding in ("raw", "gzip"):
@@ -207,7 +224,7 @@ def test_oblique_space_directions_use_vector_lengths(tmp_path: Path,
     (tmp_path / "o.nhdr").write_text(_nrrd_header(
         space_dimension="3", space_directions="(0.6,0.8,0) (-1.6,1.2,0) (0,0,-3)",
         data_file="my data.raw"))
-    with caplog.at_level("INFO", logger="hevr.volume.nrrd"):
+    with caplog.at_level("INFO", logger="hevr.volume.nrrd_space"):
         vol, spacing = load_volume(tmp_path / "o.nhdr")
     _check(vol, arr)
     assert spacing == pytest.approx((1.0, 2.0, 3.0))
@@ -257,18 +274,21 @@ def test_nifti_trailing_singleton_and_4d(tmp_path: Path) -> None:
     vol, _ = load_volume(tmp_path / "one.nii")
     _check(vol, arr)
     nib.save(nib.Nifti1Image(np.zeros((4, 3, 2, 2), np.float32), np.eye(4)), str(tmp_path / "four.nii"))
-    with pytest.raises(VolumeFormatError, match=r"four\.nii.*3-D"):
+    with pytest.raises(VolumeFormatError, match=r"four\.nii: holds 2 volumes.*volume=i \(CLI --volume i\)"):
         load_volume(tmp_path / "four.nii")
+    vol, _ = load_volume(tmp_path / "four.nii", volume=1)
+    assert vol.shape == (2, 3, 4)
 
 
 # ----------------------------------------------------------------------------- missing extras
 
 
-@pytest.mark.parametrize("module, make", [("nibabel", "file"), ("pydicom", "folder")])
+@pytest.mark.parametrize("module, make", [("nibabel", "brain.nii.gz"), ("nibabel", "brain.mgz"), ("pydicom", "folder"),
+                                          ("tifffile", "cells.tif")])
 def test_missing_extra(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, module: str, make: str) -> None:
     monkeypatch.setitem(sys.modules, module, None)  # makes "import module" fail
-    if make == "file":
-        target = tmp_path / "brain.nii.gz"
+    if make != "folder":
+        target = tmp_path / make
         target.write_bytes(b"")
     else:
         target = tmp_path / "series"
@@ -294,12 +314,16 @@ def _bad(tmp_path: Path, case: str) -> Path:
         "raw-too-long": ("scan_4x3x2_uint8.raw", u8 + b"\0"),
         "nrrd-magic": ("m.nrrd", "NRRD_XX\n" + "type: uint8\n\n"),
         "nrrd-2d": ("d.nrrd", _nrrd_header(dimension="2", sizes="4 3") + "\n"),
-        "nrrd-4d": ("d.nhdr", _nrrd_header(dimension="4", sizes="4 3 2 1", data_file="d.raw")),
+        "nrrd-5d": ("d.nhdr", _nrrd_header(dimension="5", sizes="4 3 2 1 1", data_file="d.raw")),
+        "nrrd-4d-two": ("d.nhdr", _nrrd_header(dimension="4", sizes="4 3 1 2", data_file="d.raw")),
         "nrrd-sizes": ("s.nhdr", _nrrd_header(sizes="4 3", data_file="d.raw")),
         "nrrd-missing-field": ("f.nhdr", _nrrd_header(encoding=None, data_file="d.raw")),
         "nrrd-type": ("t.nhdr", _nrrd_header(type="block", data_file="d.raw")),
-        "nrrd-encoding": ("e.nhdr", _nrrd_header(encoding="bzip2", data_file="d.raw")),
+        "nrrd-encoding": ("e.nhdr", _nrrd_header(encoding="zrl", data_file="d.raw")),
         "nrrd-ascii": ("e.nhdr", _nrrd_header(encoding="ascii", data_file="d.raw")),
+        "nrrd-bzip2": ("e.nhdr", _nrrd_header(encoding="bzip2", data_file="d.raw")),
+        "nrrd-hex": ("e.nhdr", _nrrd_header(encoding="hex", data_file="d.raw")),
+        "nrrd-space": ("sp.nhdr", _nrrd_header(space="left-handed-nonsense", data_file="d.raw")),
         "nrrd-endian": ("n.nhdr", _nrrd_header(type="int16", data_file="d.raw")),
         "nrrd-list": ("l.nhdr", _nrrd_header(data_file="LIST") + "d.raw\n"),
         "nrrd-multi": ("l.nhdr", _nrrd_header(data_file="slice%03d.raw 1 2 1")),
@@ -354,12 +378,16 @@ BAD_CASES = {
     "raw-too-long": "size mismatch: expected 24 bytes",
     "nrrd-magic": "not an NRRD file",
     "nrrd-2d": "expected a 3-D volume",
-    "nrrd-4d": "expected a 3-D volume",
+    "nrrd-5d": "expected a 3-D volume",
+    "nrrd-4d-two": "holds 2 volumes along its axis 3",
     "nrrd-sizes": "'sizes' must hold 3",
     "nrrd-missing-field": "lacks the required field 'encoding'",
     "nrrd-type": "type 'block' is not supported",
-    "nrrd-encoding": "encoding 'bzip2' is not supported",
-    "nrrd-ascii": "encoding 'ascii' is not supported",
+    "nrrd-encoding": "encoding 'zrl' is not supported",
+    "nrrd-ascii": "ascii data in d.raw",
+    "nrrd-bzip2": "corrupt or truncated bzip2 data",
+    "nrrd-hex": "hex data: expected hexadecimal digits",
+    "nrrd-space": "NRRD field 'space': expected one of",
     "nrrd-endian": "'endian' must be 'little' or 'big'",
     "nrrd-list": "several files",
     "nrrd-multi": "several files",
@@ -449,3 +477,20 @@ def test_bad_save_parameters(tmp_path: Path, name: str, vol: np.ndarray, kwargs:
                              match: str) -> None:
     with pytest.raises(ParameterError, match=match):
         save_volume(tmp_path / name, vol, **kwargs)
+
+
+def test_format_dispatch(tmp_path: Path) -> None:
+    for name, kind in [("a.npy", "npy"), ("a_2x2x2_uint8.raw", "raw"), ("a.NHDR", "nrrd"), ("a.nrrd", "nrrd"),
+                       ("a.nii", "nifti"), ("a.nii.gz", "nifti"), ("a.mgz", "nifti"), ("a.mgh", "nifti"),
+                       ("a.tif", "tiff"), ("a.ome.tiff", "tiff"), ("a.dcm", "dicom"), ("a.IMA", "dicom"),
+                       ("DICOMDIR", "dicom")]:
+        (tmp_path / name).write_bytes(b"")
+        assert _format(tmp_path / name) == kind, name
+    for folder, marker, kind in [("v3.zarr", "zarr.json", "zarr"), ("v2", ".zarray", "zarr"),
+                                 ("g2", ".zgroup", "zarr"), ("series", "IM0001", "dicom")]:
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / marker).write_text("{}")
+        assert _format(tmp_path / folder) == kind, folder
+    (tmp_path / "a.xyz").write_bytes(b"")
+    with pytest.raises(VolumeFormatError, match=r"a\.xyz: unknown .*expected .*\.mgz.*\.tiff.*DICOMDIR.*Zarr"):
+        _format(tmp_path / "a.xyz")

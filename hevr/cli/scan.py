@@ -1,0 +1,175 @@
+"""The command line's side of real scans: modality value ranges, ``--view``, ``--tf`` presets,
+the scan options of ``hevr encrypt`` and what ``hevr info`` says about a scan or a DICOM folder.
+
+How ``hevr encrypt`` picks the value range (the density normalisation, public in the store)
+-------------------------------------------------------------------------------------------
+1. ``--value-range LO,HI`` when given;
+2. else the modality's fixed range (:mod:`hevr.volume.modality`): ``--modality CT|MR|US``, or with
+   ``--modality auto`` (the default) the modality the file records (DICOM ``Modality``);
+   NIfTI, NRRD and the headerless formats record none;
+3. else the library default: the dtype's range for integers, the data range for floats.
+
+Never a range computed from the voxels unless they are floats without a modality (then the
+data range is today's default, as in :func:`hevr.encrypt_volume`). The owner's data min/max
+only feed :func:`hevr.volume.modality.range_hint`, a warning on stderr when the data occupy a
+tiny band of the chosen range (a flat render) or run above it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..rendering.views import VIEWS
+from ..volume.density import default_value_range
+from ..volume.dicom import list_series
+from ..volume.modality import (
+    MODALITY_RANGES,
+    TF_PRESETS,
+    UNSUPPORTED,
+    modality_range,
+    range_hint,
+    tf_preset,
+)
+from ..volume.scan import Scan
+from .util import load_scan, warn_line, xyz
+
+__all__ = ["MODALITY_CHOICES", "add_encrypt_scan_options", "add_view_option", "modality_type", "TF_HELP",
+           "resolve_tf", "encrypt_input", "scan_rows"]
+
+log = logging.getLogger(__name__)
+
+MODALITY_CHOICES = ("auto",) + tuple(MODALITY_RANGES)
+
+
+# -- argparse types and options ---------------------------------------------------------------
+def modality_type(text: str) -> str:
+    """``--modality``: ``auto`` or a modality with a fixed range (upper-cased).
+
+    >>> modality_type("ct"), modality_type("auto")
+    ('CT', 'auto')
+    """
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        modality_range(text)
+    except ParameterError as exc:
+        reason = f"; {text.strip().upper()} has no fixed value range, give --value-range LO,HI" \
+            if text.strip().upper() in UNSUPPORTED else ""
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(MODALITY_CHOICES)}, got {text!r}{reason}") \
+            from exc
+    return text.strip().upper()
+
+
+def resolve_tf(tf: Any, value_range: Any) -> Any:
+    """Nodes from ``--tf`` (:func:`hevr.cli.options.tf_type`): a preset name becomes nodes for
+    the store's ``value_range``; nodes and ``None`` pass through."""
+    if not isinstance(tf, str):
+        return tf
+    try:
+        return tf_preset(tf, value_range)
+    except ParameterError as exc:
+        raise ParameterError(f"--tf {tf}: {str(exc).partition(': ')[2]}") from None
+
+
+TF_HELP = (f"transfer function: a preset ({', '.join(TF_PRESETS)}: windows in the modality's units, converted "
+           "with the store's value range) or DENSITY:COLOR,... (colours #rrggbb, #rgb or CSS names)")
+
+
+def add_view_option(p: argparse.ArgumentParser) -> None:
+    """``hevr render --view``."""
+    p.add_argument("--view", choices=VIEWS, metavar="VIEW",
+                   help=f"anatomical view of a scan in the RAS+ patient frame: {', '.join(VIEWS)} (anterior: "
+                        "facing the patient, their right on the image's left); --azimuth/--elevation then "
+                        "turn about the view's up axis / tilt towards it")
+
+
+def add_encrypt_scan_options(p: argparse.ArgumentParser) -> None:
+    """``hevr encrypt``'s options for real scans."""
+    p.add_argument("--modality", type=modality_type, default="auto", metavar="|".join(MODALITY_CHOICES),
+                   help="value range of the modality when --value-range is not given: CT (-1024, 3071) HU, "
+                        "MR (0, 4095), US (0, 255); auto (default): the modality the file records (DICOM), else "
+                        "the dtype's range (integers) or the data range (floats)")
+    p.add_argument("--series", metavar="UID", help="DICOM: the series to read from a folder holding several "
+                   "(a SeriesInstanceUID, a unique prefix or a SeriesNumber; 'hevr info FOLDER' lists them)")
+    p.add_argument("--volume", type=int, metavar="INDEX",
+                   help="4-D NIfTI/NRRD/TIFF/OME-Zarr: the time point or component to encrypt")
+    p.add_argument("--allow-uneven", action="store_true",
+                   help="DICOM: accept unevenly spaced slices (read at their median spacing)")
+    p.add_argument("--oblique", choices=("refuse", "snap"), default="refuse",
+                   help="a scan tilted more than 1 degree off the patient axes: refuse (default; hevr does not "
+                        "resample) or snap to the nearest axes")
+
+
+# -- encrypt --------------------------------------------------------------------------------------
+def _effective_range(scan: Scan, value_range: Any, modality: str) -> tuple[Any, str, bool]:
+    """(value_range for encrypt_volume or None, how it was chosen, whether it is data-independent)."""
+    vol = scan.volume
+    if value_range is not None:
+        return tuple(value_range), "--value-range", True
+    code = modality if modality != "auto" else (scan.modality or "").strip().upper() or None
+    if code in MODALITY_RANGES:
+        how = f"the {code} range" + ("" if modality != "auto" else f" (the file's modality is {code})")
+        return MODALITY_RANGES[code], how, True
+    if code is not None:
+        log.info("%s: modality %s has no fixed value range; using the default", scan.source, code)
+    kind = np.dtype(vol.dtype).kind
+    if kind in "iub":
+        return None, f"the {vol.dtype} range, no modality known (--modality, --value-range)", True
+    return None, "the data range", False
+
+
+def encrypt_input(args: Any) -> tuple[np.ndarray, tuple[float, float, float], Any]:
+    """Load ``hevr encrypt``'s INPUT, print what it is and the value range it gets; warn (stderr)
+    when the data occupy a tiny band of that range. Returns (volume, spacing, value_range)."""
+    scan, what = load_scan(args.input, args.spacing, series=args.series, volume=args.volume,
+                           allow_uneven=args.allow_uneven, oblique=args.oblique)
+    print(f"input:   {what}, spacing {xyz(tuple(scan.spacing)[::-1], sep=', ')}")
+    if scan.frame or scan.modality:
+        print(f"scan:    {scan.modality or 'modality not recorded'}, "
+              f"{'RAS+ patient frame' if scan.frame else 'axes as stored'}, origin "
+              f"{', '.join(f'{v:g}' for v in scan.origin)} mm")
+    value_range, how, fixed = _effective_range(scan, args.value_range, args.modality)
+    if fixed:
+        lo, hi = value_range if value_range is not None else default_value_range(scan.volume)
+        print(f"values:  density range {lo:g} .. {hi:g}, {how}")
+        hint = range_hint(float(np.min(scan.volume)), float(np.max(scan.volume)), (lo, hi))
+        if hint:
+            warn_line(hint)
+    else:
+        print(f"values:  density range: {how} (floats without a modality)")
+    return scan.volume, scan.spacing, value_range
+
+
+# -- info -------------------------------------------------------------------------------------------
+def scan_rows(path: Path) -> list[tuple[str, Any]]:
+    """``hevr info`` of a volume file or folder: a DICOM folder lists its series first."""
+    rows: list[tuple[str, Any]] = [("path", path)]
+    if path.is_dir() and not any((path / m).exists() for m in (".zarray", ".zgroup", "zarr.json")):
+        series = list_series(path)
+        rows.append(("kind", f"DICOM folder, {len(series)} series"))
+        rows += [("series", s.summary()) for s in series]
+        if len(series) > 1:
+            rows.append(("encrypt", f"one of them: hevr encrypt {path} --series UID ..."))
+            return rows
+    scan, _ = load_scan(str(path))
+    vol = scan.volume
+    rows += [("kind", "plaintext volume"), ("shape", f"{xyz(vol.shape)} voxels"), ("dtype", vol.dtype),
+             ("spacing", xyz(tuple(scan.spacing)[::-1], sep=", ")),
+             ("frame", "RAS+ patient frame (+x right, +y anterior, +z superior)" if scan.frame else
+              "none recorded (axes as stored)"),
+             ("origin", ", ".join(f"{v:g}" for v in scan.origin)), ("modality", scan.modality or "-"),
+             ("values", f"{vol.min()} .. {vol.max()}")]
+    value_range, how, fixed = _effective_range(scan, None, "auto")
+    if fixed:
+        lo, hi = value_range if value_range is not None else default_value_range(vol)
+        rows.append(("encrypt", f"density range {lo:g} .. {hi:g} by default ({how})"))
+        hint = range_hint(float(vol.min()), float(vol.max()), (lo, hi))
+        if hint:
+            rows.append(("hint", hint))
+    return rows

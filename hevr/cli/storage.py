@@ -1,0 +1,187 @@
+"""Stores, frames and ray sums on object storage, on the command line.
+
+Every command that reads or writes a store, a ``.hevr`` frame or a ``.hevrsums`` file takes an
+fsspec URL where it takes a path (``s3://bucket/vol.zarr``, ``gs://…``, ``az://…``; ``file://``
+is the local path) and the filesystem's options as ``--storage-option KEY=VALUE`` (repeatable).
+A VALUE is read as JSON where it parses (``anon=true``, ``client_kwargs={"region_name":
+"eu-west-1"}``), else taken as a string (``endpoint_url=http://127.0.0.1:9000``). The environment
+variable ``HEVR_STORAGE_OPTIONS`` may hold a JSON object of options too (so that credentials
+need not appear in a command line); ``--storage-option`` overrides its keys. Options are
+passed to hevr and on to the workers; they are never printed (nor echoed in an error).
+
+>>> storage_option_type("endpoint_url=http://127.0.0.1:9000")
+('endpoint_url', 'http://127.0.0.1:9000')
+>>> storage_option_type("anon=true")
+('anon', True)
+>>> is_url("s3://b/v.zarr"), is_url("file:///tmp/v.zarr"), is_url("v.zarr")
+(True, False, False)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from ..errors import MissingFileError
+from ..image import MAGIC
+from ..rendering.sums import MAGIC as SUMS_MAGIC
+from ..store.paths import (
+    normalise,
+    object_sizes,
+    read_bytes,
+    read_document,
+    store_exists,
+)
+from ..store.reader import EncryptedVolume, open_volume
+from .util import (
+    UsageError,
+    check_output_file,
+    check_store_path,
+    check_writable_dir,
+    disk_usage,
+)
+
+__all__ = ["STORAGE_OPTIONS_ENV", "storage_option_type", "storage_parent", "storage_options", "is_url", "local_path",
+           "open_store", "output_file", "size_of", "head_of", "png_name", "url_kind", "encrypt_target"]
+
+STORAGE_OPTIONS_ENV = "HEVR_STORAGE_OPTIONS"
+
+
+def storage_option_type(text: str) -> tuple[str, Any]:
+    """argparse type of ``--storage-option KEY=VALUE`` (module docstring)."""
+    key, sep, value = str(text).partition("=")
+    key = key.strip()
+    if not sep or not key or not key.replace("_", "a").replace("-", "a").isalnum():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE with a KEY of letters, digits and '_' "
+                                         f"(e.g. endpoint_url=http://127.0.0.1:9000), got {key or 'no key'!r}")
+    try:
+        return key, json.loads(value)
+    except ValueError:
+        return key, value
+
+
+def storage_parent() -> argparse.ArgumentParser:
+    """The parent parser that adds ``--storage-option`` to a command."""
+    p = argparse.ArgumentParser(add_help=False)
+    g = p.add_argument_group("object storage")
+    g.add_argument("--storage-option", dest="storage_option", action="append", type=storage_option_type,
+                   metavar="KEY=VALUE",
+                   help="an fsspec option of the URL's filesystem (repeatable), e.g. endpoint_url=http://host:9000, "
+                        f"anon=true, profile=NAME; JSON values are parsed. Env {STORAGE_OPTIONS_ENV}: a JSON object "
+                        "of options. STORE, FRAME and SUMS may be URLs (s3://, gs://, az://, file://)")
+    return p
+
+
+def storage_options(args: Any) -> dict | None:
+    """The options of this command: ``$HEVR_STORAGE_OPTIONS``, then ``--storage-option`` (None if none)."""
+    out: dict[str, Any] = {}
+    env = os.environ.get(STORAGE_OPTIONS_ENV, "").strip()
+    if env:
+        try:
+            doc = json.loads(env)
+        except ValueError:
+            doc = None
+        if not isinstance(doc, dict):
+            raise UsageError(f"{STORAGE_OPTIONS_ENV}: expected a JSON object of fsspec options, got something "
+                             "else (its value is not shown)")
+        out.update(doc)
+    out.update(dict(getattr(args, "storage_option", None) or []))
+    return out or None
+
+
+def is_url(text: Any) -> bool:
+    """Whether a command-line path is a URL of a remote filesystem (``file://`` is local)."""
+    text = str(text)
+    return "://" in text and text[:7].lower() != "file://"
+
+
+def local_path(text: Any) -> Path:
+    """A local command-line path (``file://`` stripped, ``~`` expanded)."""
+    text = str(text)
+    return Path(normalise(text)) if text[:7].lower() == "file://" else Path(text).expanduser()
+
+
+def open_store(text: str, word: str = "STORE", so: dict | None = None) -> EncryptedVolume:
+    """Open the store the command line names (a folder checked as one first, or a URL)."""
+    if is_url(text):
+        return open_volume(text, storage_options=so)
+    return open_volume(check_store_path(local_path(text), word).absolute())
+
+
+def output_file(text: str, option: str = "--out", suffix: str | None = None) -> Path | str:
+    """Where a frame or sums file goes: a checked local path, or a URL (written in one request)."""
+    if is_url(text):
+        return normalise(text)
+    path = local_path(text)
+    check_output_file(path, option, suffix)
+    return path
+
+
+def size_of(path: Any, so: dict | None = None) -> int:
+    """Bytes of a local file or folder, or of every object under a URL."""
+    if not is_url(path):
+        return disk_usage(local_path(path))
+    if not store_exists(normalise(str(path)), so):
+        return 0
+    sizes = object_sizes(normalise(str(path)), so)
+    if sizes:
+        return sum(sizes.values())
+    return len(read_bytes(normalise(str(path)), so))
+
+
+def head_of(text: str, n: int, word: str, what: str, so: dict | None = None) -> bytes:
+    """The first ``n`` bytes of the file or object the command line names (MissingFileError if absent)."""
+    if is_url(text):
+        try:
+            return read_bytes(normalise(text), so)[:n]
+        except FileNotFoundError:
+            raise MissingFileError(word, what, text) from None
+    with open(local_path(text), "rb") as fh:
+        return fh.read(n)
+
+
+def png_name(out: Path | str) -> str:
+    """The PNG name to suggest for a frame: beside a local one, the frame's name for a URL."""
+    if isinstance(out, Path):
+        return str(out.with_suffix(".png"))
+    return Path(str(out).rsplit("/", 1)[-1]).with_suffix(".png").name
+
+
+def url_kind(url: str, so: dict | None = None) -> str:
+    """What ``hevr info URL`` describes: ``"store"`` (a zarr.json under it), else ``"frame"`` or
+    ``"sums"`` by the object's magic; anything else is a usage error naming the URL."""
+    what = "a store, frame or sums file"
+    if not store_exists(url, so):
+        raise MissingFileError("PATH", what, url)
+    try:
+        read_document(url, "", so)
+        return "store"
+    except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
+        pass
+    head = head_of(url, len(MAGIC), "PATH", what, so)
+    if head[:-1] == MAGIC[:-1]:
+        return "frame"
+    if head == SUMS_MAGIC[:len(MAGIC)]:
+        return "sums"
+    raise UsageError(f"PATH: expected {what}, got an object that is none of them ({url})")
+
+
+def encrypt_target(args: Any, so: dict | None) -> Path | str:
+    """``hevr encrypt --out STORE``: a folder (in a writable folder) or a URL; one that exists
+    only with ``--resume`` or ``--overwrite``; ``--resume`` only of one that exists."""
+    url = is_url(args.out)
+    store = normalise(args.out) if url else local_path(args.out).absolute()
+    exists = store_exists(store, so) if url else store.exists()
+    if exists and not url and not store.is_dir():
+        raise UsageError(f"--out: expected a store folder (e.g. vol.zarr), got a file ({args.out})")
+    if exists and not (args.resume or args.overwrite):
+        raise UsageError(f"--out: {args.out} exists; pass --overwrite to replace it or --resume to finish "
+                         "an interrupted run")
+    if not exists and args.resume:
+        raise MissingFileError("--resume", "the interrupted store named by --out", args.out)
+    if not url:
+        check_writable_dir(store)
+    return store

@@ -1,0 +1,260 @@
+"""The command line for real scans: ``render --view``, ``encrypt --modality`` and the range hint,
+``--tf`` presets, the DICOM options of ``encrypt`` and ``hevr info`` of a DICOM folder.
+
+256-bit keys and tiny volumes: fast, NOT secure.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import hevr
+from hevr import Camera
+from hevr.cli.main import main
+
+pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
+
+CT = (-1024.0, 3071.0)
+
+
+def _run(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _ok(capsys, *argv) -> tuple[str, str]:
+    code, out, err = _run(capsys, *argv)
+    assert code == 0, err
+    return out, err
+
+
+def _fails(capsys, *argv) -> str:
+    code, out, err = _run(capsys, *argv)
+    assert code == 2, (code, out, err)
+    assert err.count("\n") == 1, err  # one line
+    return err
+
+
+def _hu() -> np.ndarray:
+    """A tiny int16 CT in Hounsfield units, (z, y, x): air, soft tissue, a bone block at right-anterior-superior."""
+    vol = np.full((5, 6, 7), -1000, np.int16)
+    vol[1:4, 1:5, 1:6] = 40
+    vol[3:5, 4:6, 5:7] = 1200
+    return vol
+
+
+def _write_nifti(path: Path, hu: np.ndarray) -> Path:
+    nib = pytest.importorskip("nibabel")
+    nib.save(nib.Nifti1Image(hu.transpose(2, 1, 0), np.diag([1.0, 1.0, 1.5, 1.0])), str(path))
+    return path
+
+
+def _write_dicom(folder: Path, hu: np.ndarray, series: str = "1.2.826.0.1.3680043.2.1", number: int = 1,
+                 modality: str = "CT") -> Path:
+    """Axial CT slices (LPS: rows run posterior, columns left), stored + 1024 with intercept -1024."""
+    pytest.importorskip("pydicom")
+    from pydicom.dataset import Dataset, FileMetaDataset
+    from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian, generate_uid
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for k, plane in enumerate(hu):
+        meta = FileMetaDataset()
+        meta.MediaStorageSOPClassUID, meta.MediaStorageSOPInstanceUID = CTImageStorage, generate_uid()
+        meta.TransferSyntaxUID = ExplicitVRLittleEndian
+        ds = Dataset()
+        ds.file_meta = meta
+        ds.SOPClassUID, ds.SOPInstanceUID = meta.MediaStorageSOPClassUID, meta.MediaStorageSOPInstanceUID
+        ds.SeriesInstanceUID, ds.SeriesNumber, ds.Modality = series, number, modality
+        ds.SeriesDescription = f"series {number}"
+        ds.Rows, ds.Columns = plane.shape
+        ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
+        ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 1
+        ds.PixelSpacing, ds.SliceThickness = [1.0, 1.0], 1.5
+        ds.ImageOrientationPatient = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+        ds.ImagePositionPatient = [0.0, 0.0, 1.5 * k]
+        ds.InstanceNumber, ds.RescaleIntercept, ds.RescaleSlope = k + 1, -1024, 1
+        ds.PixelData = (plane.astype(np.int32) + 1024).astype("<i2").tobytes()
+        ds.save_as(folder / f"{series[-3:]}-IM{k:03d}.dcm", enforce_file_format=True)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def keys(tmp_path_factory):
+    d = tmp_path_factory.mktemp("scan-keys")
+    assert main(["keygen", "--bits", "256", "--out", str(d / "key.json"), "-q"]) == 0
+    return d / "key.json"
+
+
+@pytest.fixture(scope="module")
+def ct_store(tmp_path_factory, keys):
+    """A CT NIfTI encrypted with --modality CT (vector channel for --tf)."""
+    d = tmp_path_factory.mktemp("ct")
+    src = _write_nifti(d / "ct.nii.gz", _hu())
+    assert main(["encrypt", str(src), "--key", str(keys), "--out", str(d / "ct.zarr"), "--modality", "CT",
+                 "--vector-dims", "6", "--brick", "4", "-q"]) == 0
+    return d / "ct.zarr"
+
+
+def _decrypt(keys, frame):
+    return hevr.load_image(frame).decrypt(hevr.load_key(keys))
+
+
+# -- encrypt: the value range ---------------------------------------------------------------------
+def test_ct_nifti_with_modality_records_the_hounsfield_range(ct_store):
+    ev = hevr.open_volume(ct_store)
+    assert ev.value_range == CT
+    assert ev.meta.dtype == "int16"
+
+
+def test_ct_dicom_gets_the_ct_range_from_its_header(tmp_path, keys, capsys):
+    src = _write_dicom(tmp_path / "dicom", _hu())
+    out, err = _ok(capsys, "encrypt", src, "--key", keys, "--out", tmp_path / "d.zarr", "-q")
+    assert hevr.open_volume(tmp_path / "d.zarr").value_range == CT
+    assert "the CT range (the file's modality is CT)" in out and "RAS+ patient frame" in out
+    assert "warning" not in err  # the data fill a good part of the CT range: no hint
+    # --value-range still wins
+    _ok(capsys, "encrypt", src, "--key", keys, "--out", tmp_path / "e.zarr", "--value-range=-1000,2000", "-q")
+    assert hevr.open_volume(tmp_path / "e.zarr").value_range == (-1000.0, 2000.0)
+
+
+def test_no_modality_keeps_the_dtype_range_and_hints(tmp_path, keys, capsys):
+    src = _write_nifti(tmp_path / "mr.nii.gz", (_hu() + 1000) // 4)  # 0 .. 550: a tiny band of int16
+    out, err = _ok(capsys, "encrypt", src, "--key", keys, "--out", tmp_path / "m.zarr", "-q")
+    assert hevr.open_volume(tmp_path / "m.zarr").value_range == (-32768.0, 32767.0)
+    hint = [line for line in err.splitlines() if "nearly flat" in line]
+    assert len(hint) == 1 and hint[0].startswith("hevr: warning: the data span 0 .. 550")
+    assert "--modality" in hint[0] and "--value-range" in hint[0]
+    # hevr info says the same before anything is encrypted
+    out, _ = _ok(capsys, "info", src)
+    assert "frame:" in out and "RAS+" in out and "modality: -" in out and "nearly flat" in out
+    # MR: the 12-bit range, and the hint is gone
+    out, err = _ok(capsys, "encrypt", src, "--key", keys, "--out", tmp_path / "m2.zarr", "--modality", "mr", "-q")
+    assert hevr.open_volume(tmp_path / "m2.zarr").value_range == (0.0, 4095.0)
+    assert "nearly flat" not in err
+
+
+def test_the_hint_never_reaches_the_store(tmp_path, keys, capsys):
+    src = _write_nifti(tmp_path / "v.nii.gz", (_hu() + 1000) // 4)
+    _ok(capsys, "encrypt", src, "--key", keys, "--out", tmp_path / "v.zarr", "-q")
+    text = (tmp_path / "v.zarr" / "zarr.json").read_text()
+    assert "550" not in text and "span" not in text
+
+
+# -- render --view ---------------------------------------------------------------------------------
+def test_render_view_is_the_python_camera(ct_store, keys, tmp_path, capsys):
+    argv = ["--size", "9x8", "--parallel", "--azimuth", "20", "--elevation", "10"]
+    out, _ = _ok(capsys, "render", ct_store, "--out", tmp_path / "a.hevr", "--view", "anterior", *argv,
+                 "--keep-sums", tmp_path / "a.hevrsums", "-q")
+    assert "anterior view, azimuth 20, elevation 10" in out
+    ev = hevr.open_volume(ct_store)
+    cam = Camera.orbit(ev, azimuth=20, elevation=10, width=9, height=8, parallel=True, view="anterior")
+    assert hevr.load_sums(tmp_path / "a.hevrsums").camera == cam
+    got = _decrypt(keys, tmp_path / "a.hevr")
+    python = hevr.render(ev, cam).decrypt(hevr.load_key(keys))
+    assert np.array_equal(got, python)
+    ref = hevr.render_plain(_hu(), cam, spacing=ev.spacing, value_range=ev.value_range)
+    assert np.all(np.abs(got - ref) <= hevr.error_bound(ev, cam))
+    # the view matters: the plain orbit sees another image
+    _ok(capsys, "render", ct_store, "--out", tmp_path / "b.hevr", *argv, "-q")
+    assert not np.allclose(got, _decrypt(keys, tmp_path / "b.hevr"), atol=1e-3)
+
+
+def test_tf_presets_in_render_recolour_and_slice(ct_store, keys, tmp_path, capsys):
+    ev = hevr.open_volume(ct_store)
+    cam = Camera.orbit(ev, width=6, height=6, view="right")
+    out, _ = _ok(capsys, "render", ct_store, "--out", tmp_path / "t.hevr", "--view", "right", "--size", "6x6",
+                 "--tf", "ct-bone", "--keep-sums", tmp_path / "t.hevrsums", "-q")
+    nodes = hevr.tf_preset("ct-bone", CT)
+    assert "0.3233:#d9b38c" in out
+    kw = dict(mode="tf", nodes=nodes)
+    ref = hevr.render_plain(_hu(), cam, spacing=ev.spacing, value_range=CT, vector_dims=6, **kw)
+    got = _decrypt(keys, tmp_path / "t.hevr")
+    assert got.shape == ref.shape and np.all(np.abs(got - ref) <= hevr.error_bound(ev, cam, **kw))
+    assert ref.max() > 0
+    # recolour with another preset, resolved with the sums' value range
+    _ok(capsys, "recolour", tmp_path / "t.hevrsums", "--out", tmp_path / "r.hevr", "--tf", "CT-Soft-Tissue", "-q")
+    kw = dict(mode="tf", nodes=hevr.tf_preset("ct-soft-tissue", CT))
+    ref = hevr.render_plain(_hu(), cam, spacing=ev.spacing, value_range=CT, vector_dims=6, **kw)
+    assert np.all(np.abs(_decrypt(keys, tmp_path / "r.hevr") - ref) <= hevr.error_bound(ev, cam, **kw))
+    # slice, and the node syntax still works
+    _ok(capsys, "slice", ct_store, "--out", tmp_path / "s.hevr", "--axial", "3", "--tf", "ct-lung", "-q")
+    _ok(capsys, "render", ct_store, "--out", tmp_path / "n.hevr", "--size", "4x4", "--tf", "0.279:#0000ff,0.5:red", "-q")
+
+
+def test_a_preset_outside_the_store_range_is_refused(tmp_path, keys, capsys):
+    _ok(capsys, "encrypt", "phantom:6", "--key", keys, "--out", tmp_path / "p.zarr", "--vector-dims", "3", "-q")
+    err = _fails(capsys, "render", tmp_path / "p.zarr", "--out", tmp_path / "x.hevr", "--tf", "ct-bone")
+    assert err.startswith("hevr: error: --tf ct-bone: the CT preset 'ct-bone' has no node inside the value range (0, 255)")
+    assert not (tmp_path / "x.hevr").exists()
+
+
+@pytest.mark.parametrize("argv, start", [
+    (["render", "{store}", "--out", "{tmp}/x.hevr", "--view", "front"],
+     "argument --view: invalid choice: 'front' (choose from 'anterior', 'posterior', 'left', 'right', 'superior', "
+     "'inferior')"),
+    (["render", "{store}", "--out", "{tmp}/x.hevr", "--tf", "ct-brain"],
+     "argument --tf: expected a preset (ct-bone, ct-soft-tissue, ct-lung, mr-generic) or DENSITY:COLOR"),
+    (["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--modality", "XY"],
+     "argument --modality: expected one of auto, CT, MR, US, got 'XY'"),
+    (["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--modality", "PT"],
+     "argument --modality: expected one of auto, CT, MR, US, got 'PT'; PT has no fixed value range"),
+    (["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--series", "1.2"],
+     "--series: expected a scan file or folder as INPUT, got 'phantom:6'"),
+    (["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--oblique", "tilt"],
+     "argument --oblique: invalid choice: 'tilt'"),
+])
+def test_bad_options_exit_2(ct_store, keys, tmp_path, capsys, argv, start):
+    filled = [a.format(store=ct_store, tmp=tmp_path, key=keys) for a in argv]
+    err = _fails(capsys, *filled)
+    assert err.startswith(f"hevr: error: {start}"), err
+    assert not (tmp_path / "x.hevr").exists() and not (tmp_path / "x.zarr").exists()
+
+
+def test_dicom_options_need_a_dicom_input(tmp_path, keys, capsys):
+    src = _write_nifti(tmp_path / "ct.nii.gz", _hu())
+    err = _fails(capsys, "encrypt", src, "--key", keys, "--out", tmp_path / "x.zarr", "--series", "1.2")
+    assert err.startswith("hevr: error: --series"), err
+    err = _fails(capsys, "encrypt", src, "--key", keys, "--out", tmp_path / "x.zarr", "--volume", "1")
+    assert err.startswith("hevr: error: --volume:"), err
+
+
+# -- DICOM folders with several series ------------------------------------------------------------
+def test_info_lists_series_and_encrypt_picks_one(tmp_path, keys, capsys):
+    folder = tmp_path / "study"
+    hu = _hu()
+    _write_dicom(folder, hu, series="1.2.826.0.1.3680043.2.111", number=3)
+    _write_dicom(folder, hu[:, :, ::-1] // 2, series="1.2.826.0.1.3680043.2.222", number=4)
+    out, _ = _ok(capsys, "info", folder)
+    assert "DICOM folder, 2 series" in out
+    series_rows = [line for line in out.splitlines() if line.startswith("series:")]
+    assert len(series_rows) == 2
+    assert "1.2.826.0.1.3680043.2.111" in series_rows[0] and "#3 CT 'series 3'" in series_rows[0]
+    assert "5 images" in series_rows[1]
+    err = _fails(capsys, "encrypt", folder, "--key", keys, "--out", tmp_path / "x.zarr")
+    assert "found 2" in err and "--series UID" in err
+    assert "1.2.826.0.1.3680043.2.111" in err and "1.2.826.0.1.3680043.2.222" in err
+    assert "CLI" not in err and "series=UID" not in err
+    out, _ = _ok(capsys, "encrypt", folder, "--key", keys, "--out", tmp_path / "b.zarr", "--series", "4",
+                 "--vector-dims", "3", "-q")
+    ev = hevr.open_volume(tmp_path / "b.zarr")
+    assert ev.value_range == CT and ev.shape == hu.shape
+    # one series: info describes the scan as well
+    out, _ = _ok(capsys, "info", _write_dicom(tmp_path / "one", hu))
+    assert "DICOM folder, 1 series" in out and "modality: CT" in out
+    assert "density range -1024 .. 3071 by default (the CT range" in out
+
+
+def test_help_texts(capsys):
+    assert main(["render", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "--view VIEW" in out and "anterior" in out and "ct-bone" in out
+    assert main(["encrypt", "--help"]) == 0
+    out = capsys.readouterr().out
+    for flag in ("--modality", "--series UID", "--volume INDEX", "--allow-uneven", "--oblique"):
+        assert flag in out, flag
+    assert main(["info", "--help"]) == 0
+    assert "DICOM folder" in capsys.readouterr().out
