@@ -80,7 +80,7 @@ def cmd_encrypt(args: Any) -> int:
         raise UsageError(
             f"--key: {args.key} is a private key and --scheduler is set: the owner-side fast path would send "
             "p and q to the cluster's workers; encrypt with the public key (.pub.json) or pass --trust-scheduler")
-    vol, spacing, value_range = encrypt_input(args)  # prints input, scan and value-range lines
+    scan, value_range = encrypt_input(args)  # prints input, scan and value-range lines
     print(f"key:     {key_label(pub)}")
     print("path:    " + ("owner-side fast path (private key: p, q speed up encryption; "
                           "the store still holds only the public key)" if private
@@ -88,7 +88,7 @@ def cmd_encrypt(args: Any) -> int:
     with dask_client(args.scheduler, args.workers) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
-            ev = encrypt_volume(vol, store, key, spacing=spacing, brick=args.brick, scalar=not args.no_scalar,
+            ev = encrypt_volume(scan, store, key, brick=args.brick, scalar=not args.no_scalar,
                                 vector_dims=args.vector_dims, value_range=value_range, digits=args.digits,
                                 overwrite=args.overwrite, resume=args.resume, gradient=args.gradient,
                                 storage_options=so,
@@ -153,6 +153,9 @@ def cmd_render(args: Any) -> int:
         raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
     ev = open_for_mode(args.store, mode, "render", so)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
+    if args.view and ev.frame is None:
+        warn_line(f"--view {args.view}: {args.store} records no patient frame (its input had no orientation); "
+                  "the view takes the stored axes as RAS+ (x right, y anterior, z superior)")
     w, h = args.size
     cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h,
                        view_angle=args.view_angle, parallel=args.parallel, view=args.view)
@@ -325,6 +328,8 @@ def _info_store(path: Path | str, so: dict | None = None) -> int:
         ("shape", f"{xyz(meta.shape)} voxels"),
         ("dtype", meta.dtype),
         ("spacing", xyz(tuple(meta.spacing)[::-1], sep=", ")),
+        ("frame", f"RAS+, voxel (0, 0, 0) at {', '.join(f'{v:g}' for v in meta.patient['origin'])} mm"
+         if meta.patient else "none recorded (axes as the input stored them)"),
         ("brick", f"{xyz(meta.brick)} voxels"),
         ("grid", f"{xyz(meta.grid)} = {meta.n_bricks} bricks"),
         ("channels", _channels(meta)),

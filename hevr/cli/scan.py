@@ -124,9 +124,10 @@ def _effective_range(scan: Scan, value_range: Any, modality: str) -> tuple[Any, 
     return None, "the data range", False
 
 
-def encrypt_input(args: Any) -> tuple[np.ndarray, tuple[float, float, float], Any]:
+def encrypt_input(args: Any) -> tuple[Scan, Any]:
     """Load ``hevr encrypt``'s INPUT, print what it is and the value range it gets; warn (stderr)
-    when the data occupy a tiny band of that range. Returns (volume, spacing, value_range)."""
+    when the data occupy a tiny band of that range. Returns (scan, value_range): the scan brings
+    its spacing and patient frame to the store."""
     scan, what = load_scan(args.input, args.spacing, series=args.series, volume=args.volume,
                            allow_uneven=args.allow_uneven, oblique=args.oblique)
     print(f"input:   {what}, spacing {xyz(tuple(scan.spacing)[::-1], sep=', ')}")
@@ -143,7 +144,7 @@ def encrypt_input(args: Any) -> tuple[np.ndarray, tuple[float, float, float], An
             warn_line(hint)
     else:
         print(f"values:  density range: {how} (floats without a modality)")
-    return scan.volume, scan.spacing, value_range
+    return scan, value_range
 
 
 # -- info -------------------------------------------------------------------------------------------

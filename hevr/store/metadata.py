@@ -153,6 +153,8 @@ class VolumeMetadata:
     extra: dict = field(default_factory=dict)
     arrays: dict = field(default_factory=dict)  # array name -> "sha256:…" of its zarr.json bytes (v2)
     levels: tuple = ()  # LevelInfo of pyramid levels 1, 2, … (hevr.store.pyramid); () without a pyramid
+    # {"frame": "RAS", "origin": [x, y, z]} when the input recorded patient geometry (hevr.read_scan), else {}
+    patient: dict = field(default_factory=dict)
 
     @property
     def grid(self) -> tuple[int, int, int]:
@@ -214,6 +216,8 @@ class VolumeMetadata:
             **({"extra": self.extra} if self.extra else {}),
             **({"arrays": dict(self.arrays)} if self.arrays else {}),
             **({"levels": [lv.to_dict() for lv in self.levels]} if self.levels else {}),
+            **({"patient": {"frame": self.patient["frame"], "origin": list(self.patient["origin"])}}
+               if self.patient else {}),
         }
         if self.version >= 2:
             d["checksum"] = metadata_checksum(d)
@@ -347,6 +351,7 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     extra = d.get("extra", {})
     if not isinstance(extra, dict):
         raise _bad(where, "extra", "an object", extra)
+    patient = _patient(d.get("patient", {}), where)
     arrays = d.get("arrays", {})
     names = {*(k for k in CHANNELS if k in ch), "done"}
     if version >= 2 and not (isinstance(arrays, dict) and set(arrays) == names
@@ -354,7 +359,8 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
         raise _bad(where, "arrays", f"a 'sha256:…' digest for each of {sorted(names)}", arrays)
     meta = cls(shape=shape, spacing=spacing, brick=brick, n=n, fingerprint=fingerprint, ciphertext_bytes=width,
                dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, gradient=gradient, base=base,
-               complete=complete, store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {})
+               complete=complete, store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {},
+               patient=patient)
     levels = d.get("levels", [])
     if not isinstance(levels, list) or len(levels) > MAX_LEVELS:
         raise _bad(where, "levels", f"a list of at most {MAX_LEVELS} pyramid levels", levels)
@@ -367,3 +373,19 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     if "n_bricks" in d and d["n_bricks"] != meta.n_bricks:
         raise _bad(where, "n_bricks", f"{meta.n_bricks} (the brick grid of shape and brick)", d["n_bricks"])
     return meta
+
+
+def _patient(p: Any, where: str) -> dict:
+    """The optional ``patient`` object: the frame the volume is in (only ``"RAS"``) and the
+    world position (mm) of voxel (0, 0, 0); both public header facts of the input file.
+
+    >>> _patient({"frame": "RAS", "origin": [-50.5, -46, -80.5]}, "store")
+    {'frame': 'RAS', 'origin': (-50.5, -46.0, -80.5)}
+    """
+    if p == {}:
+        return {}
+    if not (isinstance(p, dict) and set(p) == {"frame", "origin"} and p["frame"] == "RAS"
+            and isinstance(p["origin"], list) and len(p["origin"]) == 3):
+        raise _bad(where, "patient", '{"frame": "RAS", "origin": [x, y, z]}', p)
+    origin = tuple(_number(v, "patient.origin", where) for v in p["origin"])
+    return {"frame": "RAS", "origin": origin}

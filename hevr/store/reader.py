@@ -149,6 +149,17 @@ class EncryptedVolume:
         return self.meta.spacing
 
     @property
+    def frame(self) -> str | None:
+        """``"RAS"`` when the input recorded patient geometry (the store is in RAS+, so the
+        camera's anatomical views apply), else ``None`` (axes as the input stored them)."""
+        return self.meta.patient.get("frame")
+
+    @property
+    def patient_origin(self) -> tuple[float, float, float] | None:
+        """World position (mm, RAS+) of voxel (0, 0, 0) as the input file recorded it, or ``None``."""
+        return self.meta.patient.get("origin")
+
+    @property
     def brick(self) -> tuple[int, int, int]:
         return self.meta.brick
 

@@ -63,7 +63,8 @@ from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume import gradient as grad
 from ..volume.density import default_value_range, encode_density, normalize_density
-from ..volume.mapped import file_backed
+from ..volume.mapped import task_array
+from ..volume.scan import Scan
 from .digests import brick_digest, marker, written
 from .journal import check_journal, input_digests, remove_journal, write_journal
 from .layout import compressors
@@ -249,7 +250,7 @@ def encrypt_volume(
     path: str | Path,
     key: PublicKey | PrivateKey,
     *,
-    spacing: Sequence[float] = (1.0, 1.0, 1.0),
+    spacing: Sequence[float] | None = None,
     brick: int | Sequence[int] = 32,
     scalar: bool = True,
     vector_dims: int | None = None,
@@ -269,15 +270,17 @@ def encrypt_volume(
 
     Parameters
     ----------
-    vol : array_like (numpy, numpy memmap or dask array), shape (nz, ny, nx)
+    vol : array_like (numpy, numpy memmap or dask array), shape (nz, ny, nx), or a Scan
+        A :class:`hevr.Scan` (from :func:`hevr.read_scan`) brings its spacing and, when its
+        file recorded patient geometry, its frame and origin (``ev.frame``, ``ev.patient_origin``).
     path : str or Path
         Target store: a local path or an fsspec URL (``file://`` is local; ``memory://`` not on a cluster).
     key : PublicKey or PrivateKey
         A private key selects the owner-side fast path (same ciphertext distribution); it is
         shipped to the Dask workers that encrypt, so use it only on machines the data owner
         controls (see docs/security.md), else pass the public key.
-    spacing : 3 floats
-        Voxel spacing in world order (sx, sy, sz).
+    spacing : 3 floats, optional
+        Voxel spacing in world order (sx, sy, sz); default the Scan's, else (1, 1, 1).
     brick : int or 3 ints
         Brick shape in array order; one Zarr chunk per brick.
     scalar : bool
@@ -320,10 +323,13 @@ def encrypt_volume(
     if unsafe_no_obfuscation:
         log.warning("encrypt_volume(unsafe_no_obfuscation=True): the store is NOT secure")
     backend = resolve_backend_name(backend)
+    patient = {"frame": vol.frame, "origin": tuple(vol.origin)} if isinstance(vol, Scan) and vol.frame else {}
+    if isinstance(vol, Scan):
+        vol, spacing = vol.volume, vol.spacing if spacing is None else spacing
     vol = check_volume(vol)
     brick_t = check_brick(brick, shape=vol.shape)
-    vol = _tasks_read_files(vol, brick_t)
-    spacing_t = check_spacing(spacing)
+    vol = task_array(vol, brick_t, f"hevr-plain-{token()}{token()}")  # memmaps: read inside the tasks
+    spacing_t = check_spacing((1.0, 1.0, 1.0) if spacing is None else spacing)
     pub = key.public_key if isinstance(key, PrivateKey) else key
     if not isinstance(gradient, (bool, np.bool_)):
         raise ParameterError(f"gradient: expected True or False, got {gradient!r}")
@@ -334,7 +340,7 @@ def encrypt_volume(
     meta = VolumeMetadata(
         shape=tuple(int(s) for s in vol.shape), spacing=spacing_t, brick=brick_t, n=str(int(pub.n)),
         fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
-        value_range=vr, scalar=sc, vector=vc, gradient=vc if gradient else None,
+        value_range=vr, scalar=sc, vector=vc, gradient=vc if gradient else None, patient=patient,
     )
     path, so = normalise(path), check_storage_options(storage_options)
     check_reachable(path, active_client(client))
@@ -375,18 +381,6 @@ def encrypt_volume(
         swap(target, path, so)
         remove_journal(old_id)  # the replaced store's resume evidence is of no more use
     return open_volume(path, storage_options=so)
-
-
-def _tasks_read_files(vol: Any, brick: tuple[int, int, int]) -> Any:
-    """A read-only memory map (``load_volume``'s uncompressed files, also reoriented views)
-    becomes a dask array whose tasks map the file and read their own brick: the graph holds
-    the file's name and layout, never the voxels (:mod:`hevr.volume.mapped`)."""
-    src = file_backed(vol)
-    if src is None:
-        return vol
-    log.debug("encrypting %s: bricks are read from the file inside the tasks", src)
-    return dask.array.from_array(src, chunks=brick, name=f"hevr-plain-{token()}{token()}", lock=False,
-                                 meta=np.empty((0, 0, 0), src.dtype))
 
 
 def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: VolumeMetadata, key: Any,

@@ -21,9 +21,10 @@ import mmap
 import os
 from typing import Any
 
+import dask.array
 import numpy as np
 
-__all__ = ["MappedFile", "file_backed"]
+__all__ = ["MappedFile", "file_backed", "task_array"]
 
 
 class MappedFile:
@@ -92,3 +93,13 @@ def file_backed(vol: Any) -> MappedFile | None:
     start = int(vol.offset) - int(vol.offset) % mmap.ALLOCATIONGRANULARITY  # where numpy mapped from
     pos = int(vol.__array_interface__["data"][0]) - int(base.ctypes.data) + start
     return MappedFile(os.path.abspath(filename), pos, vol.shape, vol.strides, vol.dtype)
+
+
+def task_array(vol: Any, brick: tuple[int, int, int], name: str) -> Any:
+    """``vol`` as the tasks should read it: a read-only memory map becomes a dask array named
+    ``name`` whose tasks map the file and read their own brick (the graph holds the file's
+    name and layout, never the voxels); anything else is returned unchanged."""
+    src = file_backed(vol)
+    if src is None:
+        return vol
+    return dask.array.from_array(src, chunks=brick, name=name, lock=False, meta=np.empty((0, 0, 0), src.dtype))

@@ -258,3 +258,39 @@ def test_help_texts(capsys):
         assert flag in out, flag
     assert main(["info", "--help"]) == 0
     assert "DICOM folder" in capsys.readouterr().out
+
+
+# -- the patient frame travels to the store ---------------------------------------------------------
+def test_the_store_records_the_scans_frame_and_origin(ct_store, keys, tmp_path, capsys):
+    ev = hevr.open_volume(ct_store)
+    scan = hevr.read_scan(ct_store.parent / "ct.nii.gz")
+    assert ev.frame == "RAS" and scan.frame == "RAS" and ev.patient_origin == scan.origin
+    out, _ = _ok(capsys, "info", ct_store)
+    assert "RAS+, voxel (0, 0, 0) at" in out
+    # a phantom has no orientation: the store says so, and --view warns that it assumes RAS+
+    _ok(capsys, "encrypt", "phantom:6", "--key", keys, "--out", tmp_path / "p.zarr", "--brick", "3", "-q")
+    assert hevr.open_volume(tmp_path / "p.zarr").frame is None
+    out, _ = _ok(capsys, "info", tmp_path / "p.zarr")
+    assert "none recorded" in out
+    _, err = _ok(capsys, "render", tmp_path / "p.zarr", "--out", tmp_path / "p.hevr", "--view", "anterior",
+                 "--size", "4x4", "-q")
+    assert "records no patient frame" in err
+    _, err = _ok(capsys, "render", ct_store, "--out", tmp_path / "c.hevr", "--view", "anterior", "--size", "4x4", "-q")
+    assert "records no patient frame" not in err
+
+
+def test_encrypt_volume_takes_a_scan(tmp_path, keys):
+    import nibabel as nib
+
+    vol = np.arange(4 * 5 * 6, dtype=np.int16).reshape(4, 5, 6)
+    affine = np.diag([-0.5, 2.0, 1.5, 1.0])  # LAS, 0.5 x 2 x 1.5 mm
+    affine[:3, 3] = (10.0, -20.0, 30.0)
+    nib.save(nib.Nifti1Image(vol.transpose(2, 1, 0), affine), tmp_path / "s.nii")
+    scan = hevr.read_scan(tmp_path / "s.nii")
+    ev = hevr.encrypt_volume(scan, tmp_path / "s.zarr", hevr.load_key(keys), brick=3, progress=False)
+    assert ev.spacing == (0.5, 2.0, 1.5) and ev.frame == "RAS"
+    assert ev.patient_origin == (10.0 - 0.5 * 5, -20.0, 30.0)  # x flipped: voxel 0 is the file's last column
+    priv = hevr.load_key(keys)
+    assert [priv.decrypt(c) for c in ev.read_brick((0, 0, 0))][:3] == list(vol[0, 0, ::-1][:3])
+    ev2 = hevr.encrypt_volume(scan, tmp_path / "t.zarr", priv, spacing=(1, 1, 1), brick=3, progress=False)
+    assert ev2.spacing == (1.0, 1.0, 1.0) and ev2.frame == "RAS"  # spacing= still overrides

@@ -217,3 +217,20 @@ def test_version_1_is_read_only_for_the_upgrade():
 def test_not_a_dict(obj):
     with pytest.raises(CorruptStoreError, match="^store: not an hevr encrypted volume"):
         VolumeMetadata.from_dict(obj)
+
+
+def test_patient_frame_round_trip_and_strict_parsing():
+    meta = _meta(patient={"frame": "RAS", "origin": (-50.5, -46.0, -80.5)})
+    d = json.loads(json.dumps(meta.to_dict()))
+    assert d["patient"] == {"frame": "RAS", "origin": [-50.5, -46.0, -80.5]}
+    assert VolumeMetadata.from_dict(d) == meta
+    assert "patient" not in _meta().to_dict() and VolumeMetadata.from_dict(_meta().to_dict()).patient == {}
+    for bad in ({"frame": "LPS", "origin": [0, 0, 0]}, {"frame": "RAS"}, {"frame": "RAS", "origin": [0, 0]},
+                {"frame": "RAS", "origin": [0, "1", 0]}, {"frame": "RAS", "origin": [0, float("nan"), 0]},
+                {"frame": "RAS", "origin": [0, 0, 0], "modality": "CT"}, []):
+        d = meta.to_dict()
+        d["patient"] = bad
+        d.pop("checksum")
+        d["checksum"] = metadata_checksum(d)
+        with pytest.raises(CorruptStoreError, match="patient"):
+            VolumeMetadata.from_dict(d)

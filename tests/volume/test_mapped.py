@@ -12,8 +12,7 @@ import psutil
 import pytest
 
 import hevr
-from hevr.store.writer import _tasks_read_files
-from hevr.volume.mapped import MappedFile, file_backed
+from hevr.volume.mapped import MappedFile, file_backed, task_array
 
 
 def _views(m: np.memmap) -> list[np.ndarray]:
@@ -58,12 +57,12 @@ def test_the_graph_holds_the_location_not_the_voxels(tmp_path: Path) -> None:
     vol = np.random.default_rng(1).integers(0, 255, (64, 64, 64)).astype(np.uint8)  # 256 KiB
     vol.tofile(tmp_path / "v_64x64x64_uint8.raw")
     loaded, _ = hevr.load_volume(tmp_path / "v_64x64x64_uint8.raw")
-    darr = _tasks_read_files(loaded[:, ::-1], (16, 16, 16))
+    darr = task_array(loaded[:, ::-1], (16, 16, 16), "t")
     graph = pickle.dumps(dict(darr.__dask_graph__()))
     assert len(graph) < vol.nbytes / 8, len(graph)
     np.testing.assert_array_equal(darr.compute(), vol[:, ::-1])
     plain = np.asarray(loaded)
-    assert _tasks_read_files(plain, (16, 16, 16)) is plain  # in-memory arrays pass unchanged
+    assert task_array(plain, (16, 16, 16), "t") is plain  # in-memory arrays pass unchanged
 
 
 def test_encrypt_a_reoriented_memmap_on_worker_processes(tmp_path: Path, keypair256: tuple) -> None:
