@@ -8,7 +8,8 @@ in hevr's RAS+ patient frame (:mod:`hevr.volume.orientation`):
    multi-frame files alike) and stack them along the slice normal, refusing duplicate
    positions, uneven gaps (unless ``allow_uneven``), gantry tilt (unless ``oblique="snap"``)
    and mixed orientations (:mod:`hevr.volume.dicom_frames`);
-3. decode the pixels of that series only, rescale them per frame (``RescaleSlope/Intercept``,
+3. refuse a series larger than this machine's memory (:mod:`hevr.volume._memory`: compressed
+   pixel data is decoded into one array of the declared size), then decode the pixels of that series only, rescale them per frame (``RescaleSlope/Intercept``,
    integer-preserving, :func:`~hevr.volume.rescale.rescale`);
 4. turn the voxel→LPS+ affine into RAS+ (``LPS_TO_RAS @ affine``) and reorient the array
    with :func:`~hevr.volume.orientation.to_patient_frame` (a view: transposes and flips only).
@@ -31,6 +32,7 @@ import numpy as np
 
 from .._validate import check_choice
 from ..errors import VolumeFormatError
+from ._memory import check_fits
 from ._optional import require
 from .dicom_frames import Frame, frames_of, plan_stack
 from .dicom_series import Image, SeriesInfo, choose_series, list_series, scan_images
@@ -97,12 +99,14 @@ def read_dicom(path: str | os.PathLike[str], *, series: str | None = None, allow
     frames = [fr for im in images for fr in frames_of(im)]
     stack = plan_stack(frames, name, allow_uneven=allow_uneven, oblique=oblique)
     frames = [frames[i] for i in stack.order]
+    first = images[0].header
+    check_fits(name, (len(frames), _positive(first, "Rows"), _positive(first, "Columns"),
+                      -(-_positive(first, "BitsAllocated") // 8)), np.uint8, "DICOM pixel data")
     raw = _decode(pydicom, frames)
     slopes, inters = [f.slope for f in frames], [f.intercept for f in frames]
     if len(set(slopes)) == 1 and len(set(inters)) == 1:  # one factor: the cheaper whole-array path
         slopes, inters = slopes[:1], inters[:1]
     vol = rescale(raw, slopes, inters)
-    first = images[0].header
     meta = getattr(first, "file_meta", None) or {}
     details: dict[str, Any] = {
         "series_uid": uid,
@@ -125,6 +129,14 @@ def read_dicom_folder(folder: Path) -> tuple[np.ndarray, _Spacing]:
     """``read_dicom(folder)`` as (volume, spacing): the form :func:`hevr.load_volume` used."""
     scan = read_dicom(folder)
     return scan.volume, scan.spacing
+
+
+def _positive(ds: Any, key: str) -> int:
+    """A positive integer attribute, else 1 (pydicom's decoder reports the invalid value)."""
+    try:
+        return max(1, int(ds.get(key)))
+    except (TypeError, ValueError):
+        return 1
 
 
 def _text(value: Any) -> str:

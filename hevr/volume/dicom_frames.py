@@ -32,8 +32,12 @@ translation IPP_first. A step off the normal by more than
 refused, or with ``oblique="snap"`` replaced by ``g·n`` (the slices stacked unsheared, g
 apart, which keeps the plane distance exact).
 
-Without IPP/IOP the frames are ordered by ``InstanceNumber`` (frame order within a file)
-and spaced by ``SpacingBetweenSlices``/``SliceThickness`` (else 1), with no patient frame.
+Without IPP/IOP on any frame, the frames are ordered by ``InstanceNumber`` (frame order within a file)
+and spaced by ``SpacingBetweenSlices``/``SliceThickness`` (else 1), with no patient frame; a
+series where some frames have IPP/IOP and others not is refused (a damaged file, whose
+placed frames would otherwise silently lose their orientation). A ``NumberOfFrames`` the
+file is too small to hold, and functional groups that are not sequences of items, are refused
+before any frame is built.
 """
 
 from __future__ import annotations
@@ -54,6 +58,8 @@ __all__ = ["GAP_TOLERANCE", "Frame", "Stack", "frames_of", "plan_stack"]
 _log = logging.getLogger(__name__)
 
 GAP_TOLERANCE = 0.01  # relative: the slice gaps may spread by 1 % of their median
+# Implicit VR LE, explicit VR LE, explicit VR BE: pixel data stored as is, one frame after the other.
+_NATIVE = ("1.2.840.10008.1.2", "1.2.840.10008.1.2.1", "1.2.840.10008.1.2.2")
 
 
 @dataclass(frozen=True)
@@ -98,12 +104,60 @@ def _floats(label: str, key: str, value: Any, n: int) -> tuple[float, ...] | Non
     return out
 
 
-def _item(groups: list[Any], keyword: str) -> Any | None:
+def _items(label: str, key: str, value: Any) -> list[Any]:
+    """The items of a sequence element (``[]`` when absent); anything else is refused."""
+    if value is None or value == "":
+        return []
+    try:
+        items = None if isinstance(value, (str, bytes)) else list(value)
+    except TypeError:
+        items = None
+    if items is None or not all(hasattr(v, "get") and hasattr(v, "__contains__") for v in items):
+        raise VolumeFormatError(f"{label}: {key}: expected a sequence of items, got {str(value)[:40]!r}")
+    return items
+
+
+def _item(label: str, groups: list[Any], keyword: str) -> Any | None:
     """The first item of ``keyword`` in the first functional group that has it."""
     for g in groups:
-        if g is not None and keyword in g and len(g[keyword].value):
-            return g[keyword].value[0]
+        if g is not None and keyword in g:
+            items = _items(label, keyword, g[keyword].value)
+            if items:
+                return items[0]
     return None
+
+
+def _count(ds: Any, key: str) -> int:
+    """A positive integer attribute, or 1 when absent or invalid (the lenient bound)."""
+    try:
+        value = int(ds.get(key))
+    except (TypeError, ValueError):
+        return 1
+    return max(value, 1)
+
+
+def _check_frame_count(image: Image) -> int:
+    """``NumberOfFrames``, refused when the file is too small to hold that many frames.
+
+    Every frame costs a :class:`Frame` before any pixel is read: a forged count of 10**7 in
+    a tiny file took minutes. Native (uncompressed) pixel data needs rows × columns ×
+    samples × BitsAllocated / 8 bytes per frame, encapsulated data an 8-byte item per frame.
+    """
+    ds, n = image.header, image.frames
+    if n == 1:
+        return n
+    meta = getattr(ds, "file_meta", None) or {}
+    syntax = str(meta.get("TransferSyntaxUID", "1.2.840.10008.1.2"))
+    if syntax in _NATIVE:
+        per = _count(ds, "Rows") * _count(ds, "Columns") * _count(ds, "SamplesPerPixel") * \
+            min(_count(ds, "BitsAllocated"), 64) / 8
+    else:
+        per = 8
+    size = image.path.stat().st_size
+    if n * per > size:
+        raise VolumeFormatError(f"{image.path.name}: NumberOfFrames: {n} frames need at least {math.ceil(n * per)} "
+                                f"bytes of pixel data, the file holds {size} bytes")
+    return n
 
 
 def _get(sources: list[Any], key: str) -> Any:
@@ -115,24 +169,26 @@ def _get(sources: list[Any], key: str) -> Any:
 
 def frames_of(image: Image) -> list[Frame]:
     """The frames of one file, each with its geometry and rescale factors."""
-    ds, n, name = image.header, image.frames, image.path.name
-    shared_seq = ds.get("SharedFunctionalGroupsSequence")
+    ds, n, name = image.header, _check_frame_count(image), image.path.name
+    shared_seq = _items(name, "SharedFunctionalGroupsSequence", ds.get("SharedFunctionalGroupsSequence"))
     shared = shared_seq[0] if shared_seq else None
-    per = ds.get("PerFrameFunctionalGroupsSequence") or []
+    per = _items(name, "PerFrameFunctionalGroupsSequence", ds.get("PerFrameFunctionalGroupsSequence"))
     if per and len(per) != n:
         raise VolumeFormatError(f"{name}: PerFrameFunctionalGroupsSequence: expected {n} items "
                                 f"(NumberOfFrames), got {len(per)}")
-    detector = ds.get("DetectorInformationSequence")
-    top = [ds] + ([detector[0]] if detector else [])  # NM keeps IPP/IOP per detector
+    detector = _items(name, "DetectorInformationSequence", ds.get("DetectorInformationSequence"))
+    top = [ds] + detector[:1]  # NM keeps IPP/IOP per detector
     legacy_offsets = None
     if n > 1 and not per:
         legacy_offsets = _floats(name, "GridFrameOffsetVector", ds.get("GridFrameOffsetVector"), n)
     out = []
     for k in range(n):
         groups = [per[k] if per else None, shared]
-        plane_pos, plane_ori = _item(groups, "PlanePositionSequence"), _item(groups, "PlaneOrientationSequence")
-        measures, values = _item(groups, "PixelMeasuresSequence"), _item(groups, "PixelValueTransformationSequence")
         label = name + (f" frame {k + 1}" if n > 1 else "")
+        plane_pos = _item(label, groups, "PlanePositionSequence")
+        plane_ori = _item(label, groups, "PlaneOrientationSequence")
+        measures = _item(label, groups, "PixelMeasuresSequence")
+        values = _item(label, groups, "PixelValueTransformationSequence")
         pos = _floats(label, "ImagePositionPatient", _get([plane_pos] + top, "ImagePositionPatient"), 3)
         iop = _floats(label, "ImageOrientationPatient", _get([plane_ori] + top, "ImageOrientationPatient"), 6)
         spacing = _floats(label, "PixelSpacing", _get([measures, ds], "PixelSpacing"), 2)
@@ -187,7 +243,13 @@ def plan_stack(frames: list[Frame], name: str, *, allow_uneven: bool, oblique: s
     if ps is None:
         _log.warning("%s: no PixelSpacing; assuming 1 x 1 mm pixels", name)
         ps = (1.0, 1.0)
-    if not all(f.position is not None and f.orientation is not None for f in frames):
+    placed = [f.position is not None and f.orientation is not None for f in frames]
+    if not all(placed):
+        if any(placed):  # some frames placed, others not: a damaged file, not "no geometry"
+            lost = frames[placed.index(False)]
+            raise VolumeFormatError(f"{name}: {lost.label} lacks ImagePositionPatient/ImageOrientationPatient "
+                                    f"that {frames[placed.index(True)].label} has; expected patient geometry for "
+                                    "every slice of the series, or for none")
         return _by_instance(frames, name, ps)
     _check_same(frames, name, "orientation", "ImageOrientationPatient", 1e-3)
     iop = np.asarray(frames[0].orientation)

@@ -166,9 +166,11 @@ def read_scan(path: str | os.PathLike[str], *, shape: Sequence[int] | None = Non
     >>> scan.volume.shape, scan.spacing, scan.frame
     ((4, 5, 6), (0.5, 1.0, 2.0), None)
     """
-    path = Path(os.fspath(path)).expanduser()
+    path = _as_path(path)
     check_choice("byte_order", byte_order, ("little", "big"))
     check_choice("oblique", oblique, ("refuse", "snap"))
+    if not isinstance(allow_uneven, (bool, np.bool_)):  # "no" is truthy: it would allow them
+        raise ParameterError(f"allow_uneven: expected True or False, got {allow_uneven!r}")
     override = None if spacing is None else check_spacing(spacing)
     kind = _format(path)
     volume = _check_keywords(kind, path, shape, dtype, series, allow_uneven, volume)
@@ -241,6 +243,13 @@ def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None
     return scan.volume, scan.spacing
 
 
+def _as_path(path: Any) -> Path:
+    """``path`` as a :class:`~pathlib.Path` (``~`` expanded); anything but a str/PathLike is refused."""
+    if isinstance(path, bytes) or not isinstance(path, (str, os.PathLike)):
+        raise ParameterError(f"path: expected a file or folder name (str or os.PathLike), got {type(path).__name__}")
+    return Path(os.fspath(path)).expanduser()
+
+
 def _load_npy(path: Path) -> np.ndarray:
     try:
         arr = np.load(path, mmap_mode="r", allow_pickle=False)
@@ -290,7 +299,7 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
     >>> load_volume(p)[0].shape
     (2, 3, 4)
     """
-    path = Path(os.fspath(path)).expanduser()
+    path = _as_path(path)
     arr = check_volume(np.asanyarray(vol), kinds="uif")
     spacing = check_spacing(spacing)
     check_choice("encoding", encoding, ("raw", "gzip"))

@@ -16,6 +16,12 @@ Data are read unscaled; ``scl_slope``/``scl_inter`` are applied by
 :func:`hevr.volume.rescale.rescale`, which keeps integer data integer when both are
 integers. Unscaled uncompressed ``.nii`` files come back as memory-map views.
 
+Hostile headers
+---------------
+A ``.nii`` shorter than its header declares is refused before nibabel reads it (nibabel
+would allocate the declared size first); a compressed file whose one volume is larger than
+this machine's memory is refused before decompressing (:mod:`hevr.volume._memory`).
+
 4-D files
 ---------
 Trailing axes of size 1 are dropped. A 4-D image (fMRI time points, diffusion volumes)
@@ -34,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import VolumeFormatError
+from ._memory import check_fits
 from ._optional import require
 from ._select import reject_index, select_index
 from .orientation import FRAME, to_patient_frame
@@ -60,11 +67,27 @@ def _unscaled(nib: Any, img: Any, path: Path, index: tuple) -> tuple[np.ndarray,
     return np.asanyarray(proxy.get_unscaled())[index], slope, inter
 
 
+def _check_size(nib: Any, img: Any, path: Path, shape: tuple[int, ...], dtype: np.dtype) -> None:
+    """Refuse a truncated uncompressed file, or a compressed volume larger than memory, before reading.
+
+    nibabel reads a ``.nii`` too short for its memory map into a buffer of the declared size
+    before it notices, and decompresses ``.nii.gz`` into one: a forged header would cost that much.
+    """
+    offset = getattr(img.dataobj, "offset", None) if nib.is_proxy(img.dataobj) else None
+    if path.name.lower().endswith((".gz", ".mgz")):
+        check_fits(path.name, shape[:3], dtype, "compressed image data")  # one volume is read
+    elif offset is not None:
+        need, have = int(offset) + math.prod(shape) * dtype.itemsize, path.stat().st_size
+        if have < need:
+            raise VolumeFormatError(f"{path.name}: truncated: the header declares shape {shape} of {dtype} "
+                                    f"(data ending at byte {need}), the file holds {have} bytes")
+
+
 def read_nifti(path: Path, *, volume: int | None = None, oblique: str = "refuse") -> Scan:
     """Read a NIfTI-1/2 or MGH/MGZ file into a :class:`Scan` (RAS+ when the file has an orientation)."""
     nib = require("nibabel", path)
     try:
-        img = nib.load(str(path))
+        img = nib.load(str(path), mmap="r")  # read-only: mapped.file_backed needs it (nibabel maps "c")
         shape = tuple(int(s) for s in img.shape)
         dtype = np.dtype(img.get_data_dtype())
         affine = np.asarray(img.affine, np.float64)
@@ -87,6 +110,7 @@ def read_nifti(path: Path, *, volume: int | None = None, oblique: str = "refuse"
         details.update(volume=picked, volumes=kept[3])
     else:
         reject_index(volume, path)
+    _check_size(nib, img, path, shape, dtype)
     try:
         raw, slope, inter = _unscaled(nib, img, path, index)
     except Exception as exc:

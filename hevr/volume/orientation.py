@@ -127,7 +127,11 @@ def to_patient_frame(vol: np.ndarray, affine: Any, *, name: str,
     if a.shape != (4, 4) or not np.isfinite(a).all():
         raise VolumeFormatError(f"{name}: expected a finite 4x4 voxel-to-patient affine, got {a.tolist()!r}")
     steps = a[:3, :3]
-    lengths = np.linalg.norm(steps, axis=0)
+    with np.errstate(over="ignore"):
+        lengths = np.linalg.norm(steps, axis=0)
+    if not np.isfinite(lengths).all():  # finite entries whose squares overflow (1e300 mm voxels)
+        raise VolumeFormatError(f"{name}: expected voxel sizes within floating-point range, got step vectors "
+                                f"{steps.tolist()!r}")
     if not (lengths > 0).all() or abs(np.linalg.det(steps)) < 1e-12 * float(np.prod(lengths)):
         raise VolumeFormatError(f"{name}: the voxel axes in the file's geometry are degenerate "
                                 f"(directions {np.round(steps, 6).tolist()}); expected 3 independent axes")

@@ -13,11 +13,12 @@ for a plain page sequence, then ``Y``, ``X``; ImageJ hyperstacks and OME-TIFF ma
 
 Spacing, in the file's own unit (micrometres for most microscopes; ``details["unit"]``):
 ImageJ files give ``spacing`` (z) in their description and ``XResolution``/``YResolution``
-(pixels per unit) for x and y; OME-TIFF gives ``PhysicalSizeX/Y/Z``; anything else is
-(1, 1, 1). TIFF records no patient orientation: ``frame`` is None, axes as stored.
+(pixels per unit) for x and y; OME-TIFF gives ``PhysicalSizeX/Y/Z`` (converted to the x
+unit when the axes' units differ, :mod:`hevr.volume._units`; a size that is not a number is
+refused); anything else is (1, 1, 1). TIFF records no patient orientation: ``frame`` is None, axes as stored.
 
 Uncompressed contiguous data is memory-mapped (``tifffile.memmap``); compressed or
-scattered pages are read into memory.
+scattered pages are read into memory, after checking that their declared size fits in it.
 """
 
 from __future__ import annotations
@@ -31,8 +32,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import HevrError, VolumeFormatError
+from ._memory import check_fits
 from ._optional import require
 from ._select import reject_index, select_index
+from ._units import common_unit
 from .scan import Scan
 
 __all__ = ["read_tiff"]
@@ -49,8 +52,15 @@ def _ratio(page: Any, tag: str) -> float:
     return float(den) / float(num) if num else math.inf
 
 
-def _ome_spacing(xml: str) -> tuple[tuple[float, float, float], str | None] | None:
-    """PhysicalSizeX/Y/Z of the first OME image (missing ones are 1), and the x unit."""
+def _number(path: Path, field: str, value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise VolumeFormatError(f"{path.name}: {field}: expected a number, got {str(value)[:40]!r}") from None
+
+
+def _ome_spacing(path: Path, xml: str) -> tuple[tuple[float, float, float], str | None] | None:
+    """PhysicalSizeX/Y/Z of the first OME image (missing ones are 1) in one unit, and that unit."""
     try:
         root = ElementTree.fromstring(xml)
     except ElementTree.ParseError:
@@ -58,21 +68,19 @@ def _ome_spacing(xml: str) -> tuple[tuple[float, float, float], str | None] | No
     pixels = next((el for el in root.iter() if el.tag.rsplit("}", 1)[-1] == "Pixels"), None)
     if pixels is None:
         return None
-    try:
-        sizes = tuple(float(pixels.get(f"PhysicalSize{a}", "1")) for a in "XYZ")
-    except ValueError:
-        return None
-    return sizes, pixels.get("PhysicalSizeXUnit", "µm")  # type: ignore[return-value]
+    sizes = [_number(path, f"OME PhysicalSize{a}", pixels.get(f"PhysicalSize{a}", "1")) for a in "XYZ"]
+    # The OME schema's default unit is the micrometre; a z step in mm is converted.
+    return common_unit(path.name, sizes, [pixels.get(f"PhysicalSize{a}Unit", "µm") for a in "XYZ"])
 
 
-def _spacing(tif: Any) -> tuple[tuple[float, float, float], str | None]:
+def _spacing(path: Path, tif: Any) -> tuple[tuple[float, float, float], str | None]:
     page = tif.pages[0]
     if tif.is_imagej and tif.imagej_metadata is not None:
         meta = tif.imagej_metadata
-        return (_ratio(page, "XResolution"), _ratio(page, "YResolution"), float(meta.get("spacing", 1.0))), \
-            meta.get("unit")
+        return (_ratio(page, "XResolution"), _ratio(page, "YResolution"),
+                _number(path, "ImageJ spacing", meta.get("spacing", 1.0))), meta.get("unit")
     if tif.is_ome and tif.ome_metadata:
-        found = _ome_spacing(tif.ome_metadata)
+        found = _ome_spacing(path, tif.ome_metadata)
         if found is not None:
             return found
     return (1.0, 1.0, 1.0), None
@@ -118,11 +126,13 @@ def read_tiff(path: Path, *, volume: int | None = None) -> Scan:
             index, details = _index(path, axes, shape, volume)
             if dtype.kind not in "iuf":
                 raise VolumeFormatError(f"{path.name}: expected integer or floating-point pixels, got {dtype}")
-            spacing, details["unit"] = _spacing(tif)
+            spacing, details["unit"] = _spacing(path, tif)
             if len(tif.series) > 1:
                 _log.info("%s: holds %d image series; reading the first", path.name, len(tif.series))
             # Uncompressed contiguous data is mapped (picking a view); anything else is read whole.
             mappable = series.dataoffset is not None
+            if not mappable:
+                check_fits(path.name, shape, dtype, "compressed or scattered TIFF data")
             data = None if mappable else series.asarray()
         if mappable:
             data = tifffile.memmap(str(path), mode="r", series=0)

@@ -9,14 +9,17 @@
   than one point needs ``volume=i``; a ``channel`` axis of more than one channel is refused
   (hevr encrypts one scalar per voxel); other axes of size 1 are dropped. The spacing is the
   product of the dataset's and the multiscale's ``scale`` transformations on x, y, z, in
-  the axes' ``unit`` (``details["unit"]``), the origin their ``translation``. NGFF records
+  the axes' ``unit`` (``details["unit"]``; sizes in different length units are converted to
+x's, :mod:`hevr.volume._units`), the origin their ``translation``. A ``scale`` or
+``translation`` that is not one number per axis is refused, not ignored. NGFF records
   no patient orientation: ``frame`` is None.
 * An encrypted hevr store (a group whose attributes hold ``hevr``, or any array inside one)
   is refused: it holds ciphertexts, not a plaintext volume (open it with
   :func:`hevr.open_volume`).
 
 The result is a numpy array read fully into memory (Zarr chunks are compressed and cannot
-be memory-mapped); only the chosen time point is read.
+be memory-mapped); only the chosen time point is read, and only when its declared size fits
+in this machine's memory (zarr fills missing chunks, so a tiny store may declare terabytes).
 """
 
 from __future__ import annotations
@@ -31,7 +34,9 @@ import numpy as np
 import zarr
 
 from ..errors import HevrError, VolumeFormatError
+from ._memory import check_fits
 from ._select import reject_index, select_index
+from ._units import common_unit
 from .scan import Scan
 
 __all__ = ["read_zarr", "is_zarr"]
@@ -76,10 +81,20 @@ def _multiscale(attrs: dict[str, Any]) -> dict[str, Any] | None:
     return ms[0] if isinstance(ms, list) and ms and isinstance(ms[0], dict) else None
 
 
-def _transform(items: Any, kind: str, n: int) -> np.ndarray:
-    for t in items or []:
-        if isinstance(t, dict) and t.get("type") == kind and isinstance(t.get(kind), list) and len(t[kind]) == n:
-            return np.array(t[kind], np.float64)
+def _transform(path: Path, items: Any, kind: str, n: int) -> np.ndarray:
+    """The ``scale``/``translation`` vector of a coordinateTransformations list (1s/0s when absent).
+
+    A transformation of that type whose vector is not ``n`` numbers is refused: ignoring it
+    would silently give the wrong voxel size.
+    """
+    for t in items if isinstance(items, list) else []:
+        if isinstance(t, dict) and t.get("type") == kind:
+            values = t.get(kind)
+            if not (isinstance(values, list) and len(values) == n and all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)):
+                raise VolumeFormatError(f"{path.name}: OME-Zarr {kind}: expected {n} numbers (one per axis), got "
+                                        f"{str(values)[:80]}")
+            return np.array(values, np.float64)
     return np.full(n, 1.0 if kind == "scale" else 0.0)
 
 
@@ -95,9 +110,9 @@ def _ome(path: Path, group: Any, ms: dict[str, Any], volume: int | None) -> Scan
     if len(axes) != n:
         raise VolumeFormatError(f"{path.name}: OME-Zarr axes {[a.get('name') for a in axes]} do not match the "
                                 f"dataset's {n} dimensions {arr.shape}")
-    scale = _transform(datasets[0].get("coordinateTransformations"), "scale", n)
-    scale = scale * _transform(ms.get("coordinateTransformations"), "scale", n)
-    shift = _transform(datasets[0].get("coordinateTransformations"), "translation", n)
+    scale = _transform(path, datasets[0].get("coordinateTransformations"), "scale", n)
+    scale = scale * _transform(path, ms.get("coordinateTransformations"), "scale", n)
+    shift = _transform(path, datasets[0].get("coordinateTransformations"), "translation", n)
     index: list[Any] = []
     space: list[int] = []
     details: dict[str, Any] = {"axes": [a.get("name") for a in axes], "dataset": str(datasets[0]["path"])}
@@ -107,7 +122,6 @@ def _ome(path: Path, group: Any, ms: dict[str, Any], volume: int | None) -> Scan
         if kind == "space":
             index.append(slice(None))
             space.append(i)
-            details["unit"] = ax.get("unit")
         elif kind == "channel" and size > 1:
             raise VolumeFormatError(f"{path.name}: expected one channel, got {size} along axis {name!r}; hevr "
                                     "encrypts one scalar per voxel: pick or combine a channel first")
@@ -127,9 +141,12 @@ def _ome(path: Path, group: Any, ms: dict[str, Any], volume: int | None) -> Scan
                                 f"{details['axes']}")
     names = [str(axes[i].get("name", "")).lower() for i in space]
     order = [names.index(a) for a in "zyx"] if sorted(names) == ["x", "y", "z"] else [0, 1, 2]
-    vol = np.asarray(arr[tuple(index)]).transpose(order)
     zyx = [space[o] for o in order]
-    spacing = tuple(float(scale[zyx[2 - w]]) for w in range(3))
+    units = [axes[zyx[2 - w]].get("unit") for w in range(3)]
+    spacing, details["unit"] = common_unit(path.name, [float(scale[zyx[2 - w]]) for w in range(3)],
+                                           [str(u) if u else None for u in units])
+    check_fits(path.name, [arr.shape[i] for i in space], arr.dtype, "Zarr data")
+    vol = np.asarray(arr[tuple(index)]).transpose(order)
     origin = tuple(float(shift[zyx[2 - w]]) for w in range(3))
     if not all(math.isfinite(v) for v in origin):
         origin = (0.0, 0.0, 0.0)
@@ -145,6 +162,7 @@ def read_zarr(path: Path, *, volume: int | None = None) -> Scan:
             reject_index(volume, path)
             if node.ndim != 3:
                 raise VolumeFormatError(f"{path.name}: expected a 3-D Zarr array (z, y, x), got shape {node.shape}")
+            check_fits(path.name, node.shape, node.dtype, "Zarr data")
             return Scan(np.asarray(node[...]), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), None, None, str(path),
                         {"zarr_format": node.metadata.zarr_format})
         ms = _multiscale(dict(node.attrs))
