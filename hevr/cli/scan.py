@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..rendering.views import VIEWS
-from ..volume.density import default_value_range
+from ..volume.density import default_value_range, minmax
 from ..volume.dicom import list_series
 from ..volume.modality import (
     MODALITY_RANGES,
@@ -139,7 +139,7 @@ def encrypt_input(args: Any) -> tuple[Scan, Any]:
     if fixed:
         lo, hi = value_range if value_range is not None else default_value_range(scan.volume)
         print(f"values:  density range {lo:g} .. {hi:g}, {how}")
-        hint = range_hint(float(np.min(scan.volume)), float(np.max(scan.volume)), (lo, hi))
+        hint = range_hint(*(float(v) for v in minmax(scan.volume)), (lo, hi))  # one pass over the data
         if hint:
             warn_line(hint)
     else:

@@ -62,7 +62,12 @@ from ..backends import get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume import gradient as grad
-from ..volume.density import default_value_range, encode_density, normalize_density
+from ..volume.density import (
+    default_value_range,
+    encode_density,
+    minmax,
+    normalize_density,
+)
 from ..volume.mapped import task_array
 from ..volume.scan import Scan
 from .digests import brick_digest, marker, written
@@ -98,7 +103,7 @@ def _minmax(vol: Any) -> tuple[float, float]:
     if isinstance(vol, dask.array.Array):
         lo, hi = dask.compute(vol.min(), vol.max())
     else:
-        lo, hi = np.min(vol), np.max(vol)
+        lo, hi = minmax(vol)  # one pass over a large array, not two
     return check_data_range(lo, hi)
 
 

@@ -24,7 +24,7 @@ from .._validate import (
 )
 from ..errors import ParameterError
 
-__all__ = ["encode_density", "normalize_density", "default_value_range"]
+__all__ = ["encode_density", "normalize_density", "default_value_range", "minmax"]
 
 
 def encode_density(density: Any, dims: int) -> np.ndarray:
@@ -69,6 +69,23 @@ def encode_density(density: Any, dims: int) -> np.ndarray:
     nxt = np.where(up, idx + 1, idx)
     np.put_along_axis(v, nxt[..., None], np.where(up, frac, 1.0)[..., None], axis=-1)
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def minmax(vol: Any, slab_bytes: int = 64 << 20) -> tuple[Any, Any]:
+    """(min, max) of a numpy array or memory map in ONE pass: slab by slab along axis 0, so a
+    large memory-mapped file is read once instead of once for ``min`` and once for ``max``.
+    NaN propagates, as with ``np.min``/``np.max``.
+
+    >>> minmax(np.arange(24).reshape(2, 3, 4), slab_bytes=1)
+    (0, 23)
+    """
+    step = max(1, slab_bytes // max(1, int(np.prod(vol.shape[1:])) * vol.dtype.itemsize))
+    lo = hi = None
+    for k in range(0, vol.shape[0], step):
+        slab = np.asarray(vol[k:k + step])
+        a, b = slab.min(), slab.max()
+        lo, hi = (a, b) if lo is None else (np.minimum(lo, a), np.maximum(hi, b))
+    return lo.item(), hi.item()
 
 
 def normalize_density(values: Any, value_range: Any) -> np.ndarray:
@@ -120,6 +137,6 @@ def default_value_range(vol: Any, data_range: Any = None) -> tuple[float, float]
     if data_range is None:
         if vol.size == 0:
             raise ParameterError("vol: expected a non-empty array to derive value_range, got an empty one")
-        data_range = (np.min(vol), np.max(vol))
+        data_range = globals()["minmax"](vol)
     lo, hi = check_data_range(*data_range)
     return (lo, hi) if hi > lo else (lo, lo + 1.0)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import bz2
 import gzip
 import math
-import os
 import warnings
 import zlib
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import VolumeFormatError
+from . import _memory
 from ._optional import require
 
 __all__ = ["ENCODINGS", "MAX_GZIP_SKIP", "BLOCK", "read_compressed", "read_hex", "read_ascii"]
@@ -38,20 +38,12 @@ def _fail(path: Path, problem: str) -> VolumeFormatError:
     return VolumeFormatError(f"{path.name}: {problem}")
 
 
-def _physical_memory() -> int | None:
-    """Bytes of RAM of this machine, or None where the OS does not say."""
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
-    except (AttributeError, ValueError, OSError):
-        return None
-
-
 MAX_GZIP_SKIP = 64 << 20  # bytes of decompressed stream a compressed "byte skip" may pass beyond the data's size
 
 
 def _check_memory(path: Path, need: int, shape: tuple[int, ...], dtype: np.dtype, what: str,
                   encoding: str) -> None:
-    memory = _physical_memory()
+    memory = _memory.physical_memory()
     if memory is not None and need > memory:  # compressed and text data are decoded into memory
         raise _fail(path, f"too big: {what}{need} bytes of {encoding} data (shape {shape} of "
                           f"{dtype.name}), more than this machine's {memory} bytes of memory; "
