@@ -92,7 +92,7 @@ def check_chunk_files(path: str, meta: VolumeMetadata, prefix: str = "") -> None
                 raise CorruptStoreError(f"{path}: missing chunk for brick {brick} in {where}")
             size = f.stat().st_size
             if not exact:  # the zstd frame's own length (walked from its block headers) + the crc
-                expected = _zstd_frame_length(f, int(np.prod(chunks))) + CRC_BYTES
+                expected = _zstd_frame_length(f, int(np.prod(chunks)), size - CRC_BYTES) + CRC_BYTES
             if size != expected:
                 raise CorruptStoreError(f"{path}: chunk of brick {brick} in {where} is truncated "
                                         f"or padded ({size} bytes, expected {expected})")
@@ -184,11 +184,19 @@ _ZSTD_FCS_BYTES = (0, 2, 4, 8)  # by Frame_Content_Size_flag (flag 0: 1 byte if 
 _ZSTD_DICT_BYTES = (0, 1, 2, 4)
 
 
-def _zstd_frame_length(f: Path, content: int) -> int:
+_ZSTD_BLOCK = 128 << 10  # Block_Maximum_Size: a raw block holds at most 128 KiB
+
+
+def _zstd_frame_length(f: Path, content: int, observed: int = -1) -> int:
     """Bytes of the single zstd frame at the start of ``f`` (RFC 8878 §3.1.1), or -1 when the
-    frame is malformed, truncated or does not decompress to ``content`` bytes."""
+    frame is malformed, truncated or does not decompress to ``content`` bytes.
+
+    A brick of ciphertexts only (no padding) is stored as full raw blocks: when ``observed``
+    (the file's frame bytes) is exactly that length and the first block is such a raw block,
+    the frame's length is known from its header alone; otherwise (edge bricks, damage) the
+    block headers are walked, one 3-byte read per block."""
     try:
-        with open(f, "rb") as fh:
+        with open(f, "rb", buffering=0) as fh:
             head = fh.read(18)
             if len(head) < 6 or int.from_bytes(head[:4], "little") != _ZSTD_MAGIC:
                 return -1
@@ -201,6 +209,12 @@ def _zstd_frame_length(f: Path, content: int) -> int:
                 if fcs != content:
                     return -1
             pos += fcs_len
+            raw = pos + 3 * -(-content // _ZSTD_BLOCK) + content
+            if observed == raw and content:
+                fh.seek(pos)
+                first = int.from_bytes(fh.read(3), "little")
+                if (first >> 1) & 3 == 0 and first >> 3 == min(content, _ZSTD_BLOCK):
+                    return raw
             while True:
                 fh.seek(pos)
                 block = fh.read(3)
