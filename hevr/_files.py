@@ -1,11 +1,27 @@
-"""Small file helpers: atomic writes with a fixed mode (key files), and the one way hevr
-reports a missing file or folder (keys, stores, images, volumes, output folders).
+"""Small file helpers: the one way hevr writes a file (atomically, never over an existing one
+unless asked), reads one (regular files only: a FIFO or a device would block), reports a
+missing path, and turns the operating system's refusals into :class:`hevr.FileSystemError`.
+
+Writing. :func:`write_file` writes through a temporary sibling ``.NAME.hevr-tmp-<token>`` in
+the same folder and then either ``os.replace`` (``overwrite=True``) or ``os.link`` (otherwise:
+the link fails atomically if ``path`` exists, so there is no window between a check and the
+write). The writer holds an exclusive ``flock`` on its temporary file while it writes, so
+:func:`remove_stale` can tell a temporary left by a killed writer (no lock held: removed by the
+next write to the same path) from one that is being written right now (locked: left alone).
+A name so long that the temporary's would exceed the filesystem's limit gets a short hashed
+stem (:func:`sibling_stem`), so a path near the limit stays writable.
+
+Reading. :func:`read_regular` opens with ``O_NONBLOCK`` (which makes opening a FIFO return at
+once) and checks ``fstat`` before reading a byte; :func:`check_regular` does the same check with
+``stat`` for files another library opens (Zarr chunks and documents).
 
 >>> import tempfile, os
 >>> d = tempfile.mkdtemp()
 >>> write_atomic(os.path.join(d, "a.json"), "{}\\n", mode=0o600)
 >>> oct(os.stat(os.path.join(d, "a.json")).st_mode & 0o777)
 '0o600'
+>>> read_regular(os.path.join(d, "a.json"), "path", "a JSON file")
+b'{}\\n'
 >>> require_file(os.path.join(d, "missing.json"), "key", "a key file")  # doctest: +ELLIPSIS
 Traceback (most recent call last):
 ...
@@ -14,61 +30,247 @@ hevr.errors.MissingFileError: key: expected a key file, found nothing at .../mis
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import fcntl
 import hashlib
+import logging
 import os
-import tempfile
+import secrets
+import shutil
+import stat
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Iterator
 
-from .errors import ExistingFileError, MissingFileError
+from .errors import (
+    ExistingFileError,
+    FileSystemError,
+    HevrError,
+    MissingFileError,
+    NotRegularFileError,
+    ParameterError,
+)
 
-__all__ = ["require_file", "write_atomic", "write_checksummed"]
+log = logging.getLogger(__name__)
+
+__all__ = ["require_file", "write_atomic", "write_checksummed", "write_file", "read_regular", "check_regular",
+           "file_kind", "fs_errors", "os_error", "sibling_stem", "temp_sibling", "is_temporary", "remove_stale",
+           "held_lock"]
+
+#: The longest file name written beside a target: NAME_MAX of every common filesystem is 255.
+NAME_MAX = 255
+_TOKEN_CHARS = 8  # secrets.token_hex(4)
+_SUFFIX = ".hevr-"  # .STEM.hevr-WHAT-TOKEN
+
+
+def file_kind(mode: int) -> str:
+    """What a ``st_mode`` is, in words.
+
+    >>> file_kind(stat.S_IFIFO), file_kind(stat.S_IFREG)
+    ('a FIFO', 'a regular file')
+    """
+    for test, words in ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO"),
+                        (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+                        (stat.S_ISBLK, "a block device")):
+        if test(mode):
+            return words
+    return "not a regular file"
+
+
+def os_error(exc: OSError, doing: str, path: str | os.PathLike) -> HevrError:
+    """The hevr error for an ``OSError`` met while ``doing`` something to ``path``: missing ->
+    :class:`MissingFileError`, exists -> :class:`ExistingFileError`, anything else ->
+    :class:`FileSystemError` with the same errno; hevr errors pass through unchanged."""
+    if isinstance(exc, HevrError):
+        return exc
+    where = exc.filename or path
+    if exc.errno == errno.ENOENT:
+        return MissingFileError("path", "an existing file or folder", where)
+    if exc.errno == errno.EEXIST:
+        return ExistingFileError("path", where)
+    return FileSystemError(exc.errno, doing, where, exc.strerror)
+
+
+@contextlib.contextmanager
+def fs_errors(doing: str, path: str | os.PathLike) -> Iterator[None]:
+    """Turn an ``OSError`` (not already an hevr error) raised inside the block into
+    :class:`FileSystemError` (``doing`` names the operation, e.g. ``"writing the image"``)."""
+    try:
+        yield
+    except HevrError:
+        raise
+    except OSError as exc:
+        raise FileSystemError(exc.errno, doing, exc.filename or path, exc.strerror) from exc
+
+
+def sibling_stem(name: str, room: int = len(_SUFFIX) + 4 + 1 + _TOKEN_CHARS + 1) -> str:
+    """The stem of a temporary sibling's name ``.STEM.hevr-WHAT-TOKEN``: ``name`` itself, or a
+    short hash of it when the sibling's name would not fit in :data:`NAME_MAX` bytes.
+
+    >>> sibling_stem("v.zarr")
+    'v.zarr'
+    >>> len(sibling_stem("x" * 250)) <= 200
+    True
+    """
+    if len(name.encode()) + room <= NAME_MAX:
+        return name
+    return name.encode()[:40].decode(errors="ignore") + "~" + hashlib.sha256(name.encode()).hexdigest()[:16]
+
+
+def temp_sibling(path: str | os.PathLike, what: str) -> Path:
+    """A fresh path ``.STEM.hevr-WHAT-TOKEN`` beside ``path`` (``what``: tmp, new, old)."""
+    p = Path(path)
+    return p.with_name(f".{sibling_stem(p.name)}{_SUFFIX}{what}-{secrets.token_hex(_TOKEN_CHARS // 2)}")
+
+
+def is_temporary(path: str | os.PathLike, of: str | os.PathLike, kinds: Iterable[str] = ("tmp", "new", "old")) -> bool:
+    """Whether ``path`` is a temporary sibling (:func:`temp_sibling`) of ``of``, of one of ``kinds``."""
+    p, o = Path(path), Path(of)
+    head = f".{sibling_stem(o.name)}{_SUFFIX}"
+    if p.parent != o.parent or not p.name.startswith(head):
+        return False
+    what, _, tok = p.name[len(head):].rpartition("-")
+    return what in tuple(kinds) and len(tok) == _TOKEN_CHARS
+
+
+def temporaries(path: str | os.PathLike, kinds: Iterable[str] = ("tmp", "new", "old")) -> list[Path]:
+    """The temporary siblings of ``path`` that exist now (sorted)."""
+    p = Path(path)
+    try:
+        names = os.listdir(p.parent if str(p.parent) else ".")
+    except OSError:
+        return []
+    kinds = tuple(kinds)
+    return sorted(p.with_name(n) for n in names if is_temporary(p.with_name(n), p, kinds))
+
+
+@contextlib.contextmanager
+def held_lock(path: str | os.PathLike) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on the file or folder ``path`` while the block runs: the mark
+    of a temporary that its writer is still working on (:func:`remove_stale`)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _abandoned(path: Path) -> bool:
+    """Whether nobody holds the lock of the temporary ``path`` (its writer is gone)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+
+
+def remove_stale(path: str | os.PathLike, kinds: Iterable[str] = ("tmp",)) -> list[Path]:
+    """Remove the temporary siblings of ``path`` (of ``kinds``) whose writer is gone (no lock
+    held on them: a killed or failed earlier run); returns what was removed. Best effort: one
+    that cannot be removed is logged and left."""
+    removed = []
+    for t in temporaries(path, kinds):
+        if not _abandoned(t):
+            continue
+        try:
+            if t.is_dir() and not t.is_symlink():
+                shutil.rmtree(t)
+            else:
+                t.unlink()
+            removed.append(t)
+            log.info("removed %s, left beside %s by an earlier run that did not finish", t, path)
+        except OSError as exc:
+            log.warning("could not remove %s (left by an earlier run): %s", t, exc.strerror)
+    return removed
+
+
+def write_file(path: str | os.PathLike, parts: Iterable[Any], *, mode: int = 0o644, overwrite: bool = False,
+               name: str = "path", doing: str = "writing", checksum: bool = False) -> None:
+    """Write the bytes-like ``parts`` to ``path`` atomically: through a locked temporary sibling,
+    then ``os.replace`` (``overwrite=True``) or an exclusive link (otherwise; an existing
+    ``path`` raises :class:`hevr.ExistingFileError` naming ``name``, and is never touched). The
+    file never exists half-written, nor with a mode other than ``mode``. With ``checksum`` the
+    SHA-256 of all parts is appended (the trailer of ``.hevr`` and ``.hevrsums`` files). An
+    ``OSError`` (disk full, read-only filesystem, …) becomes :class:`hevr.FileSystemError`
+    naming ``doing`` and ``path``; the temporary is removed, and one left by a killed earlier
+    writer of the same path is removed too."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    require_file(folder, name, "an existing folder", directory=True)
+    remove_stale(path)
+    if not overwrite and (path.exists() or path.is_symlink()):  # fail fast; the link below decides
+        raise ExistingFileError(name, path)
+    tmp = temp_sibling(path, "tmp")
+    digest = hashlib.sha256() if checksum else None
+    with fs_errors(doing, path):
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX)
+                os.fchmod(fd, mode)
+                for part in parts:
+                    view = memoryview(part).cast("B")
+                    if digest is not None:
+                        digest.update(view)
+                    _write_all(fd, view)
+                if digest is not None:
+                    _write_all(fd, memoryview(digest.digest()))
+            finally:
+                os.close(fd)
+            if overwrite:
+                os.replace(tmp, path)
+            else:
+                _link_new(tmp, path, name)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+
+
+def _write_all(fd: int, view: memoryview) -> None:
+    while view:
+        n = os.write(fd, view)
+        view = view[n:]
 
 
 def write_atomic(path: str | os.PathLike, text: str, mode: int = 0o644, *, overwrite: bool = True,
-                 name: str = "path") -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and
-    ``os.replace``: the file never exists half-written, nor with a mode other than ``mode``.
-
-    With ``overwrite=False`` an existing ``path`` is never replaced: the temporary file is
-    hard-linked into place, which fails atomically if ``path`` exists (no window between a
-    check and the write); :class:`hevr.ExistingFileError` names ``name`` then."""
-    path = Path(path)
-    directory = require_file(path.parent if str(path.parent) else Path("."), "path", "an existing folder",
-                             directory=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", dir=directory)
-    try:
-        try:
-            os.fchmod(fd, mode)
-            fh = os.fdopen(fd, "w")
-        except BaseException:
-            os.close(fd)
-            raise
-        with fh:
-            fh.write(text)
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            _link_new(tmp, path, name)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+                 name: str = "path", doing: str = "writing") -> None:
+    """Write ``text`` (UTF-8) to ``path`` with :func:`write_file` (``overwrite=True`` by default
+    here: journals; key files pass ``overwrite`` through)."""
+    write_file(path, [text.encode()], mode=mode, overwrite=overwrite, name=name, doing=doing)
 
 
-def _link_new(tmp: str, path: Path, name: str) -> None:
+def write_checksummed(path: str | os.PathLike, parts: Iterable[Any], *, overwrite: bool = False,
+                      name: str = "path", doing: str = "writing") -> None:
+    """Write ``parts`` and then the SHA-256 of all of them to ``path`` with :func:`write_file`:
+    the layout of ``.hevr`` images and ``.hevrsums`` files, whose readers check the trailer
+    before anything else. An existing ``path`` is replaced only with ``overwrite=True``."""
+    write_file(path, parts, overwrite=overwrite, name=name, doing=doing, checksum=True)
+
+
+def _link_new(tmp: Path, path: Path, name: str) -> None:
     """Put ``tmp`` at ``path`` only if nothing is there, atomically; then drop ``tmp``."""
     try:
         os.link(tmp, path)
     except FileExistsError:
         raise ExistingFileError(name, path) from None
-    except OSError:  # a filesystem without hard links: exclusive create, then copy
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.EXDEV, errno.EMLINK, errno.ENOSYS):
+            raise
+        # a filesystem without hard links: exclusive create, then copy
         try:
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, os.stat(tmp).st_mode & 0o777)
         except FileExistsError:
             raise ExistingFileError(name, path) from None
-        with os.fdopen(fd, "w") as out, open(tmp) as src:
-            out.write(src.read())
+        with os.fdopen(fd, "wb") as out, open(tmp, "rb") as src:
+            shutil.copyfileobj(src, out)
     os.unlink(tmp)
 
 
@@ -85,20 +287,49 @@ def require_file(path: str | os.PathLike, name: str, expected: str, *, directory
     return p
 
 
-def write_checksummed(path: str | os.PathLike, parts: Iterable[Any]) -> None:
-    """Write ``parts`` (bytes-like) and then the SHA-256 of all of them to ``path``, atomically:
-    through ``<path>.tmp`` renamed over ``path`` — the layout of ``.hevr`` images and ``.hevrsums``
-    files, whose readers check the trailer before anything else."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    digest = hashlib.sha256()
+def check_regular(path: str | os.PathLike, name: str, expected: str, *,
+                  error: Any = None) -> os.stat_result:
+    """``stat`` of ``path`` if it is a regular file (never opens it: a FIFO would block);
+    :class:`MissingFileError` if absent, :class:`NotRegularFileError` (or ``error(message)``
+    when given, e.g. ``CorruptStoreError`` for a chunk inside a store) for anything else."""
     try:
-        with open(tmp, "wb") as fh:
-            for part in parts:
-                digest.update(part)
-                fh.write(part)
-            fh.write(digest.digest())
-        tmp.replace(path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise MissingFileError(name, expected, path) from None
+    except (OSError, ValueError) as exc:
+        if isinstance(exc, OSError) and exc.errno == errno.ENOTDIR:
+            raise MissingFileError(name, expected, path) from None
+        raise FileSystemError(getattr(exc, "errno", None), f"reading {expected}", path,
+                              getattr(exc, "strerror", None) or str(exc)) from None
+    if not stat.S_ISREG(st.st_mode):
+        exc = NotRegularFileError(name, expected, path, file_kind(st.st_mode))
+        raise (error(str(exc)) if error is not None else exc)
+    return st
+
+
+def read_regular(path: str | os.PathLike, name: str, expected: str, *, limit: int | None = None,
+                 error: Any = None) -> bytes:
+    """The bytes of the regular file ``path``, refusing anything else before reading a byte
+    (:func:`check_regular`'s errors, checked on the opened file with ``fstat``); ``limit``
+    bounds the size (a :class:`hevr.ParameterError` beyond it, before reading)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        raise MissingFileError(name, expected, path) from None
+    except OSError as exc:
+        if exc.errno == errno.ENOTDIR:
+            raise MissingFileError(name, expected, path) from None
+        raise FileSystemError(exc.errno, f"reading {expected}", path, exc.strerror) from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            err = NotRegularFileError(name, expected, path, file_kind(st.st_mode))
+            raise (error(str(err)) if error is not None else err)
+        if limit is not None and st.st_size > limit:
+            raise ParameterError(f"{name}: expected {expected} of at most {limit} bytes, got {st.st_size} bytes "
+                                 f"at {path}")
+        os.set_blocking(fd, True)
+        with fs_errors(f"reading {expected}", path), os.fdopen(os.dup(fd), "rb") as fh:
+            return fh.read()
+    finally:
+        os.close(fd)

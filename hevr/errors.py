@@ -31,6 +31,8 @@ __all__ = [
     "MissingFileError",
     "MemoryLimitError",
     "ExistingFileError",
+    "NotRegularFileError",
+    "FileSystemError",
     "InsecureKeyWarning",
 ]
 
@@ -120,6 +122,44 @@ class ExistingFileError(HevrError, FileExistsError):
     def __init__(self, name: str, path: str | os.PathLike) -> None:
         super().__init__(errno.EEXIST, f"{name}: expected no file at {path} (pass overwrite=True to replace it), "
                                        "found one", str(path))
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
+class NotRegularFileError(HevrError, OSError):
+    """A path that should be a regular file is something else: a folder, a FIFO, a socket, a
+    device (reading a FIFO or a device would block or never end, so readers refuse them before
+    opening them for reading). Also an :class:`OSError` (errno ``EINVAL``).
+
+    >>> str(NotRegularFileError("path", "an encrypted image file", "a.hevr", "a FIFO"))
+    'path: expected an encrypted image file (a regular file), got a FIFO at a.hevr'
+    """
+
+    def __init__(self, name: str, expected: str, path: str | os.PathLike, kind: str) -> None:
+        super().__init__(errno.EINVAL, f"{name}: expected {expected} (a regular file), got {kind} at {path}",
+                         str(path))
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
+class FileSystemError(HevrError, OSError):
+    """The operating system refused a file operation hevr needed: disk full (``ENOSPC``), file
+    too large (``EFBIG``), read-only filesystem (``EROFS``), name too long, not a folder,
+    permission denied, … Also an :class:`OSError` with the original ``errno`` and
+    ``filename``; the message names what was being done, the path and the reason.
+
+    >>> e = FileSystemError(errno.ENOSPC, "writing the image", "/d/a.hevr")
+    >>> str(e), e.errno == errno.ENOSPC, e.filename
+    ('writing the image /d/a.hevr: No space left on device (ENOSPC)', True, '/d/a.hevr')
+    """
+
+    def __init__(self, err: int | None, doing: str, path: str | os.PathLike, reason: str | None = None) -> None:
+        reason = reason or (os.strerror(err) if err else "failed")
+        code = errno.errorcode.get(err or 0)
+        text = f"{doing} {path}: {reason}" + (f" ({code})" if code else "")
+        super().__init__(err, text, str(path))
 
     def __str__(self) -> str:
         return str(self.strerror)

@@ -29,6 +29,7 @@ from ..errors import (
     KeyMismatchError,
     MissingDependencyError,
     MissingFileError,
+    NotRegularFileError,
     ParameterError,
     PlaintextOverflowError,
     RenderPlanError,
@@ -55,7 +56,7 @@ exit status (every command):
 # Exit 2: the command line asks for something that cannot be done as given (module docstring).
 # Everything else that escapes a command is exit 1: the data or the run failed.
 USAGE_ERRORS: tuple[type[BaseException], ...] = (
-    UsageError, ParameterError, MissingFileError, ExistingFileError, StoreExistsError, KeyMismatchError,
+    UsageError, ParameterError, MissingFileError, NotRegularFileError, ExistingFileError, StoreExistsError, KeyMismatchError,
     RenderPlanError, InvalidKeyError, VolumeFormatError,
 )
 # An OSError about a path the command line names: the path is missing or of the wrong kind.
