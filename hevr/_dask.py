@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Sequence
 
 import dask
+import dask.threaded
 from distributed import as_completed, default_client
 
 from ._progress import Progress, TaskCounter
@@ -59,7 +61,25 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     else:
         bar = Progress(0, desc, progress)  # the callback learns the number of graph tasks
         with TaskCounter(bar):
-            results = list(dask.compute(*tasks))
+            results = _compute_local(tasks)
     log.info("%s: %d tasks in %.2f s (%s)", desc, len(tasks), time.perf_counter() - t0,
              "distributed" if client is not None else "default scheduler")
     return results
+
+
+def _compute_local(tasks: list[Any]) -> list[Any]:
+    """``dask.compute`` on Dask's default scheduler. The threaded scheduler gets a pool of its
+    own that is shut down before this returns or raises: when a task fails, dask raises at
+    once while the tasks already running go on in the pool's threads, and a clean-up of what
+    they write (a partial store) would race with them ("Directory not empty", files written
+    after the removal). Here the tasks still running are waited for and those not started are
+    dropped. (On a distributed client :func:`compute` waits for every future before raising.)"""
+    scheduler = dask.base.get_scheduler(collections=tasks)
+    if scheduler is not dask.threaded.get or dask.config.get("pool", None) is not None:
+        return list(dask.compute(*tasks))
+    workers = dask.config.get("num_workers", None) or dask.threaded.CPU_COUNT
+    pool = ThreadPoolExecutor(max_workers=workers)
+    try:
+        return list(dask.compute(*tasks, pool=pool))
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)

@@ -205,7 +205,9 @@ def write_file(path: str | os.PathLike, parts: Iterable[Any], *, mode: int = 0o6
     folder = path.parent if str(path.parent) else Path(".")
     require_file(folder, name, "an existing folder", directory=True)
     remove_stale(path)
-    if not overwrite and (path.exists() or path.is_symlink()):  # fail fast; the link below decides
+    with fs_errors(doing, path):  # a name too long for the filesystem fails here already
+        there = not overwrite and (path.exists() or path.is_symlink())
+    if there:  # fail fast; the link below decides
         raise ExistingFileError(name, path)
     tmp = temp_sibling(path, "tmp")
     digest = hashlib.sha256() if checksum else None
@@ -319,6 +321,8 @@ def read_regular(path: str | os.PathLike, name: str, expected: str, *, limit: in
     except OSError as exc:
         if exc.errno == errno.ENOTDIR:
             raise MissingFileError(name, expected, path) from None
+        if exc.errno in (errno.ENXIO, errno.EOPNOTSUPP):  # a socket cannot be opened: say what is there
+            check_regular(path, name, expected, error=error)
         raise FileSystemError(exc.errno, f"reading {expected}", path, exc.strerror) from None
     try:
         st = os.fstat(fd)

@@ -21,11 +21,12 @@ import hashlib
 import json
 import numbers
 import struct
+import sys
 from typing import Any, NoReturn
 
 import numpy as np
 
-from ._limits import MAX_IMAGE_PIXELS, integrity_bits
+from ._limits import MAX_IMAGE_PIXELS, fits_float, integrity_bits
 from ._tiles import TileLayout
 from ._validate import is_decimal
 from .crypto.paillier import fingerprint
@@ -125,7 +126,9 @@ def check_shape(ctx: Fields, shape: Any) -> tuple[int, ...]:
 def check_numbers(ctx: Fields, *, n: int, exponent: Any, bound: Any, offset: Any, tile: Any, pack_bits: Any,
                   per_pack: Any) -> None:
     """The render plan's numbers against each other and against the integrity margin:
-    |exponent| <= 1000, 0 <= offset <= bound, bits(bound) <= room, tile >= 1, pack_bits >= 0,
+    |exponent| <= 1000, 0 <= offset <= bound, bits(bound) <= room, every pixel
+    (m − offset)·10^exponent (m in [0, bound]) a finite float64
+    (:func:`hevr._limits.fits_float`), tile >= 1, pack_bits >= 0,
     per_pack >= 1, pack_bits >= 1 when per_pack > 1, pack_bits·per_pack <= room and
     bound < 2^pack_bits when pack_bits > 0, with room = bits(n) − 1 − κ (κ =
     :func:`hevr._limits.integrity_bits`, the planner's margin)."""
@@ -139,7 +142,10 @@ def check_numbers(ctx: Fields, *, n: int, exponent: Any, bound: Any, offset: Any
     if bound.bit_length() > room:
         ctx.fail("bound", f"an int below 2^{room} (bits(n) − 1 − {kappa}: the integrity margin)",
                  raw=f"an int of {bound.bit_length()} bits")
-    ctx.integer("offset", offset, 0, bound)
+    offset = ctx.integer("offset", offset, 0, bound)
+    if not fits_float(max(offset, bound - offset), exponent):
+        ctx.fail("exponent", f"an int with max(offset, bound − offset)·10^exponent <= {sys.float_info.max:.4g} "
+                 f"(every pixel a finite float64)", exponent)
     ctx.integer("tile", tile, 1, MAX_PIXELS)
     pack_bits = ctx.integer("pack_bits", pack_bits, 0, room)
     per_pack = ctx.integer("per_pack", per_pack, 1, room)

@@ -13,16 +13,28 @@ render at all.
 (64, 64, 32, 16)
 >>> render_limits() == (DEFAULT_MAX_PIXELS, DEFAULT_MAX_SAMPLES)
 True
+
+Float range of an output. A decrypted pixel is ``(m − offset)·10^exponent`` with m in
+[0, bound], converted exactly rounded to float64; :func:`fits_float` says whether every such
+value is finite, in integer arithmetic (the planner refuses a render, and the image and its
+file header an exponent, for which it is not).
+
+>>> fits_float(10**308, 0), fits_float(10**309, -1), fits_float(2, 308)
+(True, True, False)
 """
 
 from __future__ import annotations
+
+import sys
 
 import dask
 
 from ._validate import check_int
 
 __all__ = [
+    "FLOAT_MAX",
     "INTEGRITY_BITS",
+    "fits_float",
     "integrity_bits",
     "MAX_IMAGE_PIXELS",
     "MAX_PIXELS_KEY",
@@ -39,6 +51,18 @@ INTEGRITY_BITS = 64
 def integrity_bits(key_bits: int) -> int:
     """κ for a modulus of ``key_bits`` bits: 64, or a quarter of a toy key's bits."""
     return min(INTEGRITY_BITS, int(key_bits) // 4)
+
+
+FLOAT_MAX = int(sys.float_info.max)  # the largest finite float64, as an exact int
+
+
+def fits_float(magnitude: int, exponent: int) -> bool:
+    """Whether ``magnitude·10^exponent`` (magnitude >= 0) is at most the largest finite
+    float64, i.e. converts to a finite float; exact, for ``|exponent|`` up to a few thousand."""
+    magnitude, exponent = int(magnitude), int(exponent)
+    if exponent >= 0:
+        return magnitude * 10**exponent <= FLOAT_MAX
+    return magnitude <= FLOAT_MAX * 10**(-exponent)
 
 
 # Size limits: Dask config keys, defaults and the hard caps a setting may not pass.

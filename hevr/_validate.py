@@ -31,6 +31,7 @@ __all__ = [
     "MAX_BRICK_VOXELS",
     "MAX_VECTOR_DIMS",
     "MAX_STORE_DIGITS",
+    "MAX_VALUE",
     "check_brick",
     "check_brick_index",
     "check_choice",
@@ -54,6 +55,8 @@ MAX_BRICK_VOXELS = 1 << 24
 MAX_VECTOR_DIMS = 64
 # Most decimal digits a stored channel keeps (float digits=, the store metadata's exponents).
 MAX_STORE_DIGITS = 30
+# Largest |value| of a value range (check_value_range): renders stay finite in float64.
+MAX_VALUE = 1e100
 
 # Voxel dtype kinds by letter (numpy's dtype.kind), in the order a message lists them.
 _KIND_NAMES = {"b": "bool", "i": "integer", "u": "integer", "f": "floating-point"}
@@ -364,7 +367,13 @@ def check_data_range(lo: Any, hi: Any, name: str = "vol") -> tuple[float, float]
 
 
 def check_value_range(value_range: Any, name: str = "value_range") -> tuple[float, float]:
-    """A density normalisation range (lo, hi): two finite numbers with hi > lo, as floats.
+    """A density normalisation range (lo, hi): two finite numbers with hi > lo and
+    ``|lo|, |hi| <= MAX_VALUE`` (1e100), as floats.
+
+    The bound keeps every float step of a render finite: the width ``hi - lo``, the stored
+    mantissas ``value·10^digits`` (up to 10^30, times 10^3 per pyramid level), sums over up
+    to 2^53 samples and their squares. 1e100 is far beyond any float32 value (3.4e38) and any
+    physical quantity a scan holds.
 
     Examples
     --------
@@ -374,11 +383,20 @@ def check_value_range(value_range: Any, name: str = "value_range") -> tuple[floa
     Traceback (most recent call last):
         ...
     hevr.errors.ParameterError: value_range: expected finite (lo, hi) with hi > lo, got (5, 1)
+    >>> check_value_range((-1e308, 1e308))
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: value_range: expected (lo, hi) with |lo|, |hi| <= 1e+100, got (-1e+308, 1e+308)
     """
     try:
         lo, hi = (float(x) for x in value_range)
+    except OverflowError:  # an int beyond float64
+        raise ParameterError(f"{name}: expected (lo, hi) with |lo|, |hi| <= {MAX_VALUE:g}, got integers of "
+                             f"{max(len(str(abs(int(x)))) for x in value_range)} digits") from None
     except (TypeError, ValueError):
         raise ParameterError(f"{name}: expected two numbers (lo, hi), got {value_range!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
         raise ParameterError(f"{name}: expected finite (lo, hi) with hi > lo, got {value_range!r}")
+    if max(abs(lo), abs(hi)) > MAX_VALUE:
+        raise ParameterError(f"{name}: expected (lo, hi) with |lo|, |hi| <= {MAX_VALUE:g}, got ({lo:g}, {hi:g})")
     return lo, hi

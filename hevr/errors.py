@@ -34,6 +34,7 @@ __all__ = [
     "NotRegularFileError",
     "FileSystemError",
     "InsecureKeyWarning",
+    "KeyFilePermissionWarning",
 ]
 
 
@@ -167,3 +168,10 @@ class FileSystemError(HevrError, OSError):
 
 class InsecureKeyWarning(UserWarning):
     """A key shorter than 2048 bits was generated or loaded."""
+
+
+class KeyFilePermissionWarning(UserWarning):
+    """A private key file is readable or writable by its group or by others (as OpenSSH's
+    "UNPROTECTED PRIVATE KEY FILE!"); the message says ``chmod 600 PATH``. A warning, not
+    a refusal: python-paillier's ``pheutil`` writes its keys with the umask's mode (0644),
+    and some filesystems (mounted Windows drives, some network shares) cannot hold 0600."""

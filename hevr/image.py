@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import io
 import json
+import os
 import struct
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -28,7 +30,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from ._files import require_file, write_checksummed
+from ._files import read_regular, write_checksummed, write_file
 from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile_name
 from .backends import get_backend
 from .crypto.keys import PrivateKey
@@ -39,7 +41,7 @@ from .store.paths import (
     is_local,
     normalise,
     read_bytes,
-    write_bytes,
+    write_new_bytes,
 )
 
 __all__ = ["EncryptedImage", "load_image", "save_png"]
@@ -206,23 +208,51 @@ class EncryptedImage:
             "hits": None if hits is None else base64.b64encode(hits.tobytes()).decode(), "info": self.info,
         }
 
-    def save(self, path: str | Path, *, storage_options: dict | None = None) -> None:
+    def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None) -> None:
         """Write the ``.hevr`` file (format version 2, ``docs/image-format.md``): magic, header
-        length, JSON header, ciphertext records, SHA-256 of all of it. Atomic: written to
-        ``<path>.tmp``, then renamed over ``path`` (an fsspec URL, with ``storage_options``:
-        one request). The image is checked first (``IntegrityError`` for one that
-        :meth:`decrypt` would refuse)."""
+        length, JSON header, ciphertext records, SHA-256 of all of it. The image is checked
+        first (``IntegrityError`` for one that :meth:`decrypt` would refuse).
+
+        Never over an existing file unless ``overwrite=True``: otherwise
+        :class:`hevr.ExistingFileError`, and the file there (a key, another frame) is not
+        touched. Atomic either way: written to a temporary sibling, then linked into place
+        (exclusive: no window between a check and the write) or renamed over ``path``
+        (``overwrite=True``); a failed write (disk full, file size limit, read-only
+        filesystem, …) raises :class:`hevr.FileSystemError` and leaves no temporary and the
+        old file as it was. ``path`` may be an fsspec URL, written with ``storage_options`` in
+        one request (:func:`hevr.store.paths.write_new_bytes` says what an object store
+        guarantees against a racing writer); a local name containing ``://`` is a
+        :class:`hevr.ParameterError`."""
         so = check_storage_options(storage_options)
+        overwrite = check_overwrite(overwrite)
+        where = output_location(path)
         check_image(self)
         head = json.dumps(self._header(), separators=(",", ":")).encode()
         parts = [MAGIC, struct.pack("<I", len(head)), head]
         parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in self.ciphertexts]
-        where = normalise(path) if "://" in str(path) else path  # file:// is the local file
-        if is_local(str(where)):
-            write_checksummed(where, parts)
+        if isinstance(where, Path):
+            write_checksummed(where, parts, overwrite=overwrite, doing="writing the encrypted image")
         else:
             parts.append(hashlib.sha256(b"".join(parts)).digest())
-            write_bytes(str(where), parts, so)
+            write_new_bytes(where, parts, so, overwrite=overwrite)
+
+
+def check_overwrite(overwrite: Any, name: str = "overwrite") -> bool:
+    """``overwrite`` as a writer takes it: True or False (a :class:`hevr.ParameterError` else)."""
+    if not isinstance(overwrite, (bool, np.bool_)):
+        raise ParameterError(f"{name}: expected True or False, got {overwrite!r}")
+    return bool(overwrite)
+
+
+def output_location(path: Any, name: str = "path") -> Path | str:
+    """A local file (``Path``; ``file://`` URLs included) or an fsspec URL (``str``, checked:
+    a text with ``://`` that is no URL fsspec knows is a :class:`hevr.ParameterError`)."""
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ParameterError(f"{name}: expected a file path or an fsspec URL, got {path!r}")
+    if "://" not in str(path):
+        return Path(path)
+    where = normalise(path, name)  # a text with '://' that is no URL: a ParameterError naming ``name``
+    return Path(where) if is_local(where) else where
 
 
 def _unpack_checked(plain: list[int], need: int, pack_bits: int, per_pack: int,
@@ -282,11 +312,9 @@ def load_image(path: str | Path, *, storage_options: dict | None = None) -> Encr
         except OSError as exc:
             raise ParameterError(f"path: cannot read {path}: {type(exc).__name__}") from None
         return _from_blob(blob, path)
-    path = require_file(normalise(path) if "://" in str(path) else path, "path", "an encrypted image file")
-    try:
-        blob = path.read_bytes()
-    except OSError as exc:
-        raise ParameterError(f"path: cannot read {path}: {exc.strerror}") from None
+    path = normalise(path) if "://" in str(path) else path
+    # never blocks: a FIFO, a folder or a device is a NotRegularFileError before a byte is read
+    blob = read_regular(path, "path", "an encrypted image file")
     return _from_blob(blob, str(path))
 
 
@@ -321,8 +349,13 @@ def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None) -> np.n
     return (np.clip((a - lo) / (hi - lo), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
-def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | None = None) -> None:
+def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | None = None, *,
+             overwrite: bool = False) -> None:
     """Save a decrypted (or plaintext) image as PNG with sensible windowing.
+
+    Encoded in memory, then written atomically (:func:`hevr._files.write_file`): never over an
+    existing file unless ``overwrite=True`` (:class:`hevr.ExistingFileError`), and a failed
+    write is a :class:`hevr.FileSystemError` that leaves nothing behind.
 
     Examples
     --------
@@ -330,4 +363,9 @@ def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | No
     >>> save_png(np.linspace(0, 1, 12).reshape(3, 4), os.path.join(tempfile.mkdtemp(), "a.png"))
     """
 
-    Image.fromarray(to_uint8(arr, window)).save(str(path))
+    overwrite = check_overwrite(overwrite)
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ParameterError(f"path: expected a file path, got {path!r}")
+    buf = io.BytesIO()
+    Image.fromarray(to_uint8(arr, window)).save(buf, format="PNG")
+    write_file(path, [buf.getbuffer()], overwrite=overwrite, doing="writing the PNG")

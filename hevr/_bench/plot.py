@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import io
 import logging
 from pathlib import Path
+
+from .._files import write_file
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +75,10 @@ def plot_scaling(doc: dict, path: Path) -> Path | None:
     else:
         bx.axis("off")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png")
     plt.close(fig)
+    write_file(path, [buf.getbuffer()], overwrite=True, name="out", doing="writing the scaling plot")
     return path
 
 

@@ -6,6 +6,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+from .._files import write_atomic
 from . import paper
 from .plot import plot_scaling
 from .settings import BenchSettings, block_names
@@ -433,6 +434,6 @@ def write_report(doc: dict, out: Path) -> Path:
 
     name = doc["setting"]["name"]
     md = out / ("RESULTS.md" if name == "paper" else f"RESULTS-{name}.md")
-    md.write_text(markdown(doc))
+    write_atomic(md, markdown(doc), overwrite=True, name="out", doing="writing the benchmark report")
     plot_scaling(doc, out / f"scaling-{name}.png")
     return md

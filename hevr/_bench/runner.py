@@ -17,7 +17,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import MissingDependencyError, ParameterError
+from .._files import write_atomic
+from ..errors import ExistingFileError, MissingDependencyError, ParameterError
 from ..paper import TF_NODES
 from ..volume.phantom import phantom
 from . import cases, measure
@@ -33,11 +34,21 @@ BLOCK_KINDS = ("micro", "t1", "t3", "t2", "naive", "scaling", "pipeline")
 
 
 class Results:
-    """The raw-numbers JSON of one run: ``{"setting", "machine", "cells", "blocks_done"}``."""
+    """The raw-numbers JSON of one run: ``{"setting", "machine", "cells", "blocks_done"}``.
 
-    def __init__(self, path: Path, settings: BenchSettings, resume: bool) -> None:
+    A fresh run creates it exclusively: an existing results file (or the markdown and plot of
+    the setting, :func:`outputs`) is a :class:`hevr.ExistingFileError` unless ``overwrite``;
+    ``resume`` continues the one there. From then on the run owns these files and rewrites
+    them (atomically) after every cell."""
+
+    def __init__(self, path: Path, settings: BenchSettings, resume: bool, overwrite: bool = False) -> None:
         self.path = path
         doc = None
+        self._replace = overwrite or (resume and path.exists())
+        if not self._replace:
+            for p in outputs(path.parent, settings.name):
+                if p.exists() or p.is_symlink():
+                    raise ExistingFileError("out", p)
         if resume and path.exists():
             doc = json.loads(path.read_text())
             if doc.get("setting", {}).get("name") != settings.name:
@@ -59,9 +70,15 @@ class Results:
         self.save()
 
     def save(self) -> None:
-        tmp = self.path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(self.doc, indent=1, sort_keys=True) + "\n")
-        os.replace(tmp, self.path)
+        write_atomic(self.path, json.dumps(self.doc, indent=1, sort_keys=True) + "\n", overwrite=self._replace,
+                     name="out", doing="writing the benchmark results")
+        self._replace = True  # this run's own file from now on
+
+
+def outputs(out: Path, name: str) -> list[Path]:
+    """The files a run of the setting ``name`` writes into ``out``: results JSON, markdown, plot."""
+    return [out / f"results-{name}.json", out / ("RESULTS.md" if name == "paper" else f"RESULTS-{name}.md"),
+            out / f"scaling-{name}.png"]
 
 
 def _blocks(s: BenchSettings) -> list[tuple[str, str, Callable[..., None]]]:
@@ -175,10 +192,12 @@ def _pipeline(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
 
 def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, resume: bool = False,
               only: tuple[str, ...] | None = None, workers: int = 2, scheduler: str | None = None,
-              work: str | Path | None = None, progress: bool = False,
+              work: str | Path | None = None, progress: bool = False, overwrite: bool = False,
               log_line: Callable[[str], None] = lambda _: None) -> Path:
     """Run the benchmark ``setting`` and write ``RESULTS*.md``, ``results-*.json`` and the
-    scaling plot into ``out``. Returns the markdown path."""
+    scaling plot into ``out``. Returns the markdown path. Files of an earlier run of the
+    setting there are continued with ``resume=True``, replaced with ``overwrite=True``, and
+    otherwise refused before anything is measured (:class:`hevr.ExistingFileError`)."""
 
     s = SETTINGS[setting] if isinstance(setting, str) else setting
     if only is not None:
@@ -193,7 +212,7 @@ def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, 
                                          "'hevr[test]'), or leave out the micro and naive blocks with --only") from None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    results = Results(out / f"results-{s.name}.json", s, resume)
+    results = Results(out / f"results-{s.name}.json", s, resume, overwrite)
     scratch = Path(work) if work else Path(tempfile.mkdtemp(prefix=f"hevr-bench-{s.name}-"))
     scratch.mkdir(parents=True, exist_ok=True)
     try:

@@ -7,7 +7,7 @@ from typing import Any
 
 from .._bench.runner import rewrite_report, run_bench
 from ..paper import PAPER_IMAGE, PAPER_SIZE
-from .util import show_progress, warn_line
+from .util import UsageError, show_progress, warn_line
 
 BENCH_EPILOG = f"""\
 examples:
@@ -20,6 +20,8 @@ examples:
 
 writes, into --out (default: ./benchmarks if it exists, else .):
   RESULTS.md (--paper) or RESULTS-<setting>.md, results-<setting>.json, scaling-<setting>.png
+  (an earlier run's files of the setting: continued with --resume, replaced with --force,
+  else refused with exit 2)
 """
 
 
@@ -33,11 +35,14 @@ def cmd_bench(args: Any) -> int:
         warn_line("the paper's setting takes about 1.5 hours on 2 cores (mostly encrypting ~60 million masked "
                   "ciphertexts); "
                   "results are saved after every cell: stop with Ctrl-C and continue with --resume")
+    if args.resume and args.force:
+        raise UsageError("--resume, --force: expected one of them, got both (--force starts the setting afresh)")
     if args.report_only:
         md = rewrite_report(setting, out)
         print(f"wrote {md}")
         return 0
     md = run_bench(setting, out, resume=args.resume, only=only, workers=workers, scheduler=args.scheduler,
-                   work=args.work, progress=show_progress(args), log_line=lambda s: print(s, flush=True))
+                   work=args.work, progress=show_progress(args), overwrite=args.force,
+                   log_line=lambda s: print(s, flush=True))
     print(f"wrote {md}")
     return 0

@@ -21,8 +21,9 @@ import zarr
 
 from ..crypto.keys import SECURE_BITS, PrivateKey
 from ..crypto.phe_keys import is_phe_dict
+from .._files import check_regular
 from ..errors import MissingFileError, StoreError
-from ..image import MAGIC, load_image, save_png
+from ..image import MAGIC, load_image
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..rendering.camera import Camera
 from ..rendering.encrypted import render
@@ -31,6 +32,7 @@ from ..rendering.sums import MAGIC as SUMS_MAGIC
 from ..rendering.sums import load_sums, recolour
 from ..store.metadata import VolumeMetadata
 from ..store.paths import normalise, zarr_store
+from ..store.layout import check_document
 from ..store.reader import open_volume
 from ..store.upgrade import upgrade_store
 from ..store.writer import encrypt_volume
@@ -38,11 +40,12 @@ from . import storage as st
 from .keys import cmd_convert_key, cmd_keygen
 from .pyramid import level_rows
 from .scan import encrypt_input, resolve_tf, scan_rows
+from .verify import verify_store, warn_leftovers
 from .util import (
     Timer,
     UsageError,
     check_frame_path,
-    check_output_file,
+    check_new_file,
     check_store_path,
     check_writable_dir,
     dask_client,
@@ -147,8 +150,8 @@ def cmd_render(args: Any) -> int:
     mode = resolve_mode(args)
     nodes = (args.tf if args.tf is not None else list(PAPER_TF1)) if mode == "tf" else None
     so = st.storage_options(args)
-    out = st.output_file(args.out)
-    sums = st.output_file(args.keep_sums, "--keep-sums") if args.keep_sums is not None else None
+    out = st.output_file(args.out, force=args.force, so=so)
+    sums = st.output_file(args.keep_sums, "--keep-sums", force=args.force, so=so) if args.keep_sums is not None else None
     if sums is not None and str(sums) == str(out):
         raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
     ev = open_for_mode(args.store, mode, "render", so)
@@ -176,8 +179,8 @@ def cmd_render(args: Any) -> int:
             img = render(ev, cam, mode=mode, sampling=args.sampling, step=args.step, density=args.density,
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,
                          progress=show_progress(args), keep_sums=sums, level=args.level or None,
-                         gradient=args.gradient)
-    img.save(out, storage_options=so)
+                         gradient=args.gradient, overwrite=args.force)
+    st.save_frame(img, out, force=args.force, so=so)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
     if sums is not None:
@@ -191,10 +194,11 @@ def cmd_render(args: Any) -> int:
 # -- recolour ------------------------------------------------------------------------------
 def cmd_recolour(args: Any) -> int:
     so = st.storage_options(args)
-    out = st.output_file(args.out)
     path = normalise(args.sums) if st.is_url(args.sums) else st.local_path(args.sums)
+    out = normalise(args.out) if st.is_url(args.out) else st.local_path(args.out)
     if str(path if st.is_url(args.sums) else path.absolute()) == str(out if st.is_url(args.out) else out.absolute()):
         raise UsageError(f"--out: expected another file than SUMS, got {args.out} for both (it would replace the sums)")
+    out = st.output_file(args.out, force=args.force, so=so)  # after the check above: SUMS exists
     if not st.is_url(args.sums) and path.is_dir():
         raise UsageError(f"SUMS: expected a ray-sums file (hevr render --keep-sums), got a folder ({args.sums})")
     if not st.is_url(args.sums) and not path.is_file():
@@ -219,7 +223,7 @@ def cmd_recolour(args: Any) -> int:
         with Timer() as t:
             img = recolour(saved, mode=mode, density=args.density, nodes=nodes, precision=args.precision,
                            pack=not args.no_pack, client=client, progress=show_progress(args), gradient=args.gradient)
-    img.save(out, storage_options=so)
+    st.save_frame(img, out, force=args.force, so=so)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts, {human_bytes(st.size_of(out, so))}, re-coloured in "
           f"{t.seconds:.2f} s (no map step)")
     return 0
@@ -231,21 +235,22 @@ def cmd_decrypt(args: Any) -> int:
     so = st.storage_options(args)
     frame = normalise(args.frame) if st.is_url(args.frame) else check_frame_path(st.local_path(args.frame), "FRAME")
     out = Path(args.out).expanduser() if args.out else Path(st.png_name(frame))
-    check_output_file(out, "--out", suffix=".png")
+    check_new_file(out, "--out", suffix=".png", force=args.force)
     npy = Path(args.npy).expanduser() if args.npy else None
     if npy is not None:
-        check_output_file(npy, "--npy")
+        check_new_file(npy, "--npy", force=args.force)
+        if npy.absolute() == out.absolute():
+            raise UsageError(f"--npy: expected another file than --out, got {args.npy} for both")
     key = read_key(args.key, private=True)
     img = load_image(frame, storage_options=so)
     with Timer() as t:
         arr = img.decrypt(key)
-    save_png(arr, out, window=args.window)
+    st.save_decrypted(arr, out, npy, args.window, force=args.force)
     rgb = ", rgb" if arr.ndim == 3 else ""
     print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}")
     print(f"wrote {out}")
     if npy is not None:
-        np.save(npy, arr)
         print(f"wrote {npy} (float64 values)")
     return 0
 
@@ -271,14 +276,16 @@ def cmd_info(args: Any) -> int:
 
     if st.is_url(args.path):  # a store, frame or sums file on object storage
         url, so = normalise(args.path), st.storage_options(args)
-        return {"store": _info_store, "frame": _info_image, "sums": _info_sums}[st.url_kind(url, so)](url, so)
+        kind = st.url_kind(url, so)
+        return _info_store(url, so, args) if kind == "store" else {"frame": _info_image, "sums": _info_sums}[kind](url, so)
     path = st.local_path(args.path)
     if not path.exists():
         raise MissingFileError("PATH", "a key, store, frame or volume file", args.path)
     if path.is_dir():
         if (path / "zarr.json").exists():
-            return _info_store(check_store_path(path, "PATH"))
+            return _info_store(check_store_path(path, "PATH"), None, args)
         return _info_volume(path)
+    check_regular(path, "PATH", "a key, store, frame or volume file")  # a FIFO would block the read below
     with open(path, "rb") as fh:
         head = fh.read(len(MAGIC))
     if head[:-1] == MAGIC[:-1] or path.suffix == ".hevr":  # any version: load_image names an unsupported one
@@ -293,7 +300,7 @@ def cmd_info(args: Any) -> int:
         if isinstance(doc, dict) and (doc.get("format") == "hevr-key" or is_phe_dict(doc)):
             return _info_key(path, "python-paillier (pheutil)" if is_phe_dict(doc) else "hevr")
         if isinstance(doc, dict) and doc.get("zarr_format") is not None:
-            return _info_store(check_store_path(path.parent, "PATH"))
+            return _info_store(check_store_path(path.parent, "PATH"), None, args)
         raise UsageError(f"PATH: expected a key, store, frame or volume file, got a JSON file that is not an "
                          f"hevr key ({args.path})")
     return _info_volume(path)
@@ -305,9 +312,10 @@ def _rows(rows: list[tuple[str, Any]]) -> None:
         print(f"{k + ':':<{w + 1}} {v}")
 
 
-def _info_store(path: Path | str, so: dict | None = None) -> int:
-
-
+def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> int:
+    """The store's public metadata and its quick check; with ``--verify`` every brick read back
+    (:mod:`hevr.cli.verify`); a warning names temporaries left beside it. 1 if a check failed."""
+    check_document(str(path), "")  # a FIFO in place of zarr.json: CorruptStoreError, never a blocked open
     try:
         group = zarr.open_group(zarr_store(str(path), so, read_only=True), mode="r")
         attrs = dict(group.attrs)
@@ -320,6 +328,10 @@ def _info_store(path: Path | str, so: dict | None = None) -> int:
         check = "ok (metadata checksum and documents, completeness, chunk sizes; digests are checked on every read)"
     except StoreError as exc:
         check, failed = f"FAILED: {exc}", True
+    verify, damaged = None, []
+    if getattr(args, "verify", False):
+        verify, damaged, bad = verify_store(str(path), so, args)
+        failed = failed or bad
     bits = int(meta.n).bit_length()
     _rows([
         ("path", path),
@@ -340,8 +352,12 @@ def _info_store(path: Path | str, so: dict | None = None) -> int:
         ("complete", meta.complete),
         *level_rows(meta),
         ("check", check),
+        *([("verify", verify)] if verify else []),
         ("on disk", human_bytes(st.size_of(path, so))),
     ])
+    for line in damaged:
+        print(line)
+    warn_leftovers(path)
     return 1 if failed else 0  # the table is printed either way; a failed check is not a success
 
 

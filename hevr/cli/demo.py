@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .._files import write_atomic
 from ..crypto.keys import SECURE_BITS, generate_keypair
 from ..errors import InsecureKeyWarning, MemoryLimitError
 from ..image import save_png
@@ -36,9 +37,11 @@ from ..rendering.camera import Camera
 from ..rendering.encrypted import error_bound, render
 from ..rendering.plain import render_plain
 from ..store.writer import encrypt_volume
+from .outdir import OutputFolder
 from .sheet import contact_sheet
 from .util import (
     Timer,
+    UsageError,
     dask_client,
     describe_client,
     disk_usage,
@@ -65,7 +68,9 @@ examples:
 
 Writes into DIR: demo-key.json (+ .pub.json), volume.zarr, one .hevr frame and two PNGs per
 image (<name>.png decrypted, <name>.ref.png plaintext reference), contact-sheet.png,
-report.md and summary.json. The timings are printed as tables.
+report.md and summary.json. The timings are printed as tables. A second run into DIR
+replaces what the first one wrote (recorded in DIR/.hevr-outputs.json); a file at one of
+these names that the demo did not write is refused (exit 2) unless --force.
 Keys below 2048 bits are NOT secure; the small default only keeps the demo fast.
 """
 
@@ -99,9 +104,17 @@ def _window(ref: np.ndarray) -> tuple[float, float]:
     return 0.0, float(np.percentile(pos, 99.9)) if pos.size else 1.0
 
 
+def output_names(jobs: list[Job]) -> list[str]:
+    """Every name the demo writes into its folder."""
+    frames = [f"{j.name}{ext}" for j in jobs for ext in (".hevr", ".png", ".ref.png")]
+    return ["demo-key.json", "demo-key.pub.json", "volume.zarr", *frames, "contact-sheet.png", "summary.json",
+            "report.md"]
+
+
 def run_jobs(ev: Any, vol: np.ndarray, priv: Any, jobs: list[Job], cam: Any, *, progress: bool,
-             outdir: Path | None = None, log: Any = print) -> None:
-    """Render, decrypt and compare every job (results in ``job.result``); optionally write files."""
+             outdir: OutputFolder | None = None, log: Any = print) -> None:
+    """Render, decrypt and compare every job (results in ``job.result``); optionally write files
+    into ``outdir`` (what it may replace: :class:`hevr.cli.outdir.OutputFolder`)."""
 
     for job in jobs:
         kw = dict(mode=job.mode, sampling=job.sampling, step=1.0, density=job.density, nodes=job.nodes)
@@ -121,10 +134,12 @@ def run_jobs(ev: Any, vol: np.ndarray, priv: Any, jobs: list[Job], cam: Any, *, 
                       "reused_ray_sums": bool(img.stats.get("reused_ray_sums")),
                       "resident": bool(img.stats.get("resident"))}
         if outdir is not None:
-            img.save(outdir / f"{job.name}.hevr")
             win = _window(ref)
-            save_png(arr, outdir / f"{job.name}.png", window=win)
-            save_png(ref, outdir / f"{job.name}.ref.png", window=win)
+            for name, write in ((f"{job.name}.hevr", lambda p, o: img.save(p, overwrite=o)),
+                                (f"{job.name}.png", lambda p, o: save_png(arr, p, window=win, overwrite=o)),
+                                (f"{job.name}.ref.png", lambda p, o: save_png(ref, p, window=win, overwrite=o))):
+                write(outdir.path / name, outdir.overwrite(name))
+                outdir.wrote(name)
             job.result["window"] = list(win)
         log(f"  {job.name:<16} render {tr.seconds:6.2f} s  decrypt {td.seconds:5.2f} s  "
             f"max|err| {err.max():.2e}{'' if job.result['within_bound'] else '  (ABOVE the error bound!)'}")
@@ -173,7 +188,10 @@ def cmd_demo(args: Any) -> int:
 
     t_start = time.perf_counter()
     out = Path(args.out).expanduser()
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out: expected a folder, got a file ({args.out})")
+    folder = OutputFolder(out, "demo", output_names(paper_jobs()), force=args.force)
+    folder.check()  # before any work: a file the demo did not write is never replaced without --force
     workers = 2 if args.workers is None else args.workers
     progress = show_progress(args)
     stages: dict[str, float] = {}
@@ -186,9 +204,10 @@ def cmd_demo(args: Any) -> int:
         pub, priv = _keypair(args.bits)
     stages["keygen"] = t.seconds
     # The demo's folder holds its own run: a new key, with the volume and images encrypted
-    # under it, replaces the previous run's (keys are never saved over anywhere else).
-    priv.save(out / "demo-key.json", overwrite=True)
-    pub.save(out / "demo-key.pub.json", overwrite=True)
+    # under it, replaces the previous run's key only (the folder's record, hevr.cli.outdir).
+    for name, key in (("demo-key.json", priv), ("demo-key.pub.json", pub)):
+        key.save(out / name, overwrite=folder.overwrite(name))  # the private key: mode 0600
+        folder.wrote(name)
     print(f"[keygen]  {t.seconds:.2f} s: {key_label(pub)}")
     brick = args.brick or _auto_brick(vol.shape)
     with contextlib.ExitStack() as stack:
@@ -200,7 +219,8 @@ def cmd_demo(args: Any) -> int:
             print(f"[cluster] {t.seconds:.2f} s: {describe_client(client)}")
         with Timer() as t:
             ev = encrypt_volume(vol, out / "volume.zarr", priv, spacing=spacing, brick=brick, vector_dims=4,
-                                value_range=value_range, overwrite=True, progress=progress)
+                                value_range=value_range, overwrite=folder.overwrite("volume.zarr"), progress=progress)
+            folder.wrote("volume.zarr")
         stages["encrypt"] = t.seconds
         n_ct = int(np.prod(vol.shape)) * 5
         print(f"[encrypt] {t.seconds:.2f} s: {n_ct} ciphertexts (scalar + 4-dim vector, owner-side fast path), "
@@ -222,14 +242,15 @@ def cmd_demo(args: Any) -> int:
         cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h)
         jobs = paper_jobs()
         print(f"[render]  {len(jobs)} images on {describe_client(client)}; decrypt and compare with render_plain:")
-        run_jobs(ev, vol, priv, jobs, cam, progress=progress, outdir=out)
+        run_jobs(ev, vol, priv, jobs, cam, progress=progress, outdir=folder)
     for j in jobs:
         stages[f"render {j.name}"] = j.result["render_s"]
     stages["decrypt (all)"] = sum(j.result["decrypt_s"] for j in jobs)
     stages["reference (all)"] = sum(j.result["reference_s"] for j in jobs)
     with Timer() as t:
         caption = f"hevr demo: {what}, {args.bits}-bit key, {w}x{h} px; left decrypted, right plaintext reference"
-        contact_sheet(out, jobs, caption, out / "contact-sheet.png")
+        contact_sheet(out, jobs, caption, out / "contact-sheet.png", overwrite=folder.overwrite("contact-sheet.png"))
+        folder.wrote("contact-sheet.png")
     stages["write images"] = t.seconds
     total = time.perf_counter() - t_start
     summary = {
@@ -241,9 +262,10 @@ def cmd_demo(args: Any) -> int:
                     "tf": format_tf(j.nodes) if j.nodes else None, "png": f"{j.name}.png",
                     "reference_png": f"{j.name}.ref.png", "frame": f"{j.name}.hevr", **j.result} for j in jobs],
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     jt, st = _jobs_table(jobs), _stages_table(stages)
-    (out / "report.md").write_text(_report(summary, jt, st))
+    for name, text in (("summary.json", json.dumps(summary, indent=1) + "\n"), ("report.md", _report(summary, jt, st))):
+        write_atomic(out / name, text, overwrite=folder.overwrite(name), name="--out", doing="writing the demo's")
+        folder.wrote(name)
     print()
     print(jt)
     print()

@@ -193,6 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
                               "\n--mode defaults to emphasize with --density, tf with --tf, else xray.\n")
     p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
+    p.add_argument("--force", action="store_true", help="replace an existing --out (and --keep-sums) file")
     p.add_argument("--mode", choices=("xray", "emphasize", "tf"), help="render mode (default: see below)")
     p.add_argument("--sampling", choices=("nearest", "trilinear"), default="nearest",
                    help="sampling along the rays (default nearest)")
@@ -237,6 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
                               "--mode xray.\n")
     p.add_argument("sums", metavar="SUMS", help="ray-sums file (hevr render --keep-sums)")
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file")
     p.add_argument("--mode", choices=("xray", "emphasize", "tf"), help="render mode (default: see below)")
     p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
     p.add_argument("--tf", type=tf_type, metavar="NODES", help=TF_HELP)
@@ -254,6 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=SLICE_EPILOG)
     p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--axial", type=finite_float, metavar="K", help="the plane z = K·sz (layer K of the array)")
     g.add_argument("--coronal", type=finite_float, metavar="J", help="the plane y = J·sy")
@@ -286,17 +289,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--key", required=True, metavar="KEY.json", help="private key file")
     p.add_argument("--out", metavar="PNG", help="PNG to write (default: FRAME with .png)")
     p.add_argument("--npy", metavar="FILE.npy", help="also save the float64 pixel values")
+    p.add_argument("--force", action="store_true", help="replace an existing --out (or --npy) file")
     p.add_argument("--window", type=range_type, metavar="LO,HI",
                    help="grey/colour window of the PNG (default 0 .. 99.9th percentile)")
 
-    p = sub.add_parser("info", parents=[plain_opts, storage_opts], formatter_class=_RAW,
+    p = sub.add_parser("info", parents=[dask_opts, storage_opts], formatter_class=_RAW,
                        help="describe a store, a frame, a key or a volume file; list a DICOM folder's series",
                        description=_d("Print what is public about a store, an encrypted frame, a key file or a "
                                    "volume file (its patient frame, modality and default value range), or the "
-                                   "series a DICOM folder holds. Never prints secret-key material."),
-                       epilog="examples:\n  hevr info vol.zarr\n  hevr info frame.hevr\n  hevr info key.pub.json\n"
+                                   "series a DICOM folder holds. Never prints secret-key material. A store gets "
+                                   "a quick check (metadata, documents, completeness, chunk sizes: no ciphertext "
+                                   "is read); --verify reads every brick back. Temporaries that an interrupted "
+                                   "write left beside a store are named in a warning. Exit 1 if a check fails."),
+                       epilog="examples:\n  hevr info vol.zarr\n  hevr info vol.zarr --verify   # read every brick back\n"
+                              "  hevr info frame.hevr\n  hevr info key.pub.json\n"
                               "  hevr info dicom/          # its series, for hevr encrypt --series UID\n")
     p.add_argument("path", metavar="PATH")
+    p.add_argument("--verify", action="store_true",
+                   help="stores: also read every brick of every channel (and pyramid level) and check its "
+                        "digest and every ciphertext (0 < c < n², coprime to n); names each damaged brick by "
+                        "channel and index and exits 1 if any. Reads the whole store: one Dask task per brick "
+                        "with --scheduler/--workers. Frames and sums files are always checked in full")
 
     p = sub.add_parser("upgrade-store", parents=[dask_opts], formatter_class=_RAW,
                        help="convert a format-1 store (no integrity digests) into a new format-2 store",
@@ -325,6 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "its plaintext reference. Writes PNGs, a contact sheet, report.md and summary.json."),
                        epilog=DEMO_EPILOG)
     p.add_argument("--out", default="hevr-demo", metavar="DIR", help="output folder (default hevr-demo)")
+    p.add_argument("--force", action="store_true",
+                   help="replace files in DIR at the demo's names that an earlier demo run did not write")
     p.add_argument("--size", type=phantom_size_type, default=32, metavar="N",
                    help="phantom edge in voxels (default 32)")
     p.add_argument("--image", type=size_type, default=(48, 48), metavar="WxH", help="image size (default 48x48)")
@@ -347,6 +362,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--paper", action="store_true", help=f"the paper's setting: {PAPER_SIZE}^3, {PAPER_IMAGE}x{PAPER_IMAGE}, keys 64-3072 bits (~1.5 h)")
     p.add_argument("--out", metavar="DIR", help="output folder (default ./benchmarks if it exists, else .)")
     p.add_argument("--resume", action="store_true", help="keep the finished blocks of an earlier run of this setting")
+    p.add_argument("--force", action="store_true",
+                   help="start this setting afresh, replacing its results JSON, markdown and plot in --out")
     p.add_argument("--only", metavar="KINDS", help="comma-separated blocks: micro, t1, t2, t3, naive, scaling, pipeline")
     p.add_argument("--work", metavar="DIR", help="scratch folder for the encrypted stores (default: a temporary one)")
     p.add_argument("--report-only", action="store_true",

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import io
 import math
 from pathlib import Path
 from typing import Any
 
 from PIL import Image, ImageDraw, ImageFont
+
+from .._files import write_file
 
 __all__ = ["contact_sheet"]
 
@@ -24,8 +27,9 @@ def _font(size: int) -> Any:
         return ImageFont.load_default()
 
 
-def contact_sheet(folder: Path, jobs: list, caption: str, out: Path) -> None:
-    """Lay out ``<name>.png`` | ``<name>.ref.png`` for every job, with a caption line each."""
+def contact_sheet(folder: Path, jobs: list, caption: str, out: Path, *, overwrite: bool = False) -> None:
+    """Lay out ``<name>.png`` | ``<name>.ref.png`` for every job, with a caption line each; written
+    to ``out`` atomically, over an existing file only with ``overwrite``."""
 
     pairs = []
     for job in jobs:
@@ -57,4 +61,6 @@ def contact_sheet(folder: Path, jobs: list, caption: str, out: Path) -> None:
         top = y + 2 * line + _GAP
         sheet.paste(enc.resize((cw, ch), Image.NEAREST), (x, top))
         sheet.paste(ref.resize((cw, ch), Image.NEAREST), (x + cw + _GAP, top))
-    sheet.save(str(out))
+    buf = io.BytesIO()
+    sheet.save(buf, format="PNG")
+    write_file(out, [buf.getbuffer()], overwrite=overwrite, doing="writing the contact sheet")

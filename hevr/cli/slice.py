@@ -18,7 +18,7 @@ from ..rendering.planner import check_render_size
 from ..rendering.slices import render_slice
 from .commands import open_for_mode, resolve_mode
 from .scan import resolve_tf
-from .storage import output_file, png_name, size_of, storage_options
+from .storage import output_file, png_name, save_frame, size_of, storage_options
 from .util import (
     Timer,
     UsageError,
@@ -96,7 +96,7 @@ def cmd_slice(args: Any) -> int:
     if args.slab_step is not None and args.slab == 1:
         raise UsageError(f"--slab-step: only applies to a thick slab (--slab N > 1), got --slab {args.slab}")
     so = storage_options(args)
-    out = output_file(args.out)
+    out = output_file(args.out, force=args.force, so=so)
     ev = open_for_mode(args.store, mode, "slice", so)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     plane, where = _plane(args, ev)
@@ -115,7 +115,7 @@ def cmd_slice(args: Any) -> int:
             img = render_slice(ev, plane, mode=mode, sampling=args.sampling, density=args.density, nodes=nodes,
                                precision=args.precision, pack=not args.no_pack, client=client,
                                progress=show_progress(args), gradient=args.gradient)
-    img.save(out, storage_options=so)
+    save_frame(img, out, force=args.force, so=so)
     inside = int(img.hits.sum())
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(size_of(out, so))}, {inside} of {plane.width * plane.height} pixels inside the volume, "

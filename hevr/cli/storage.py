@@ -9,6 +9,10 @@ variable ``HEVR_STORAGE_OPTIONS`` may hold a JSON object of options too (so that
 need not appear in a command line); ``--storage-option`` overrides its keys. Options are
 passed to hevr and on to the workers; they are never printed (nor echoed in an error).
 
+Output files (frames, sums, ``hevr decrypt``'s PNG and ``--npy``) are never written over an
+existing file or object unless ``--force``: :func:`output_file` refuses one before any work
+(exit 2), and the write itself refuses it again, atomically.
+
 >>> storage_option_type("endpoint_url=http://127.0.0.1:9000")
 ('endpoint_url', 'http://127.0.0.1:9000')
 >>> storage_option_type("anon=true")
@@ -20,13 +24,17 @@ passed to hevr and on to the workers; they are never printed (nor echoed in an e
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 from pathlib import Path
 from typing import Any
 
-from ..errors import MissingFileError
-from ..image import MAGIC
+import numpy as np
+
+from .._files import write_file
+from ..errors import ExistingFileError, MissingFileError
+from ..image import MAGIC, save_png
 from ..rendering.sums import MAGIC as SUMS_MAGIC
 from ..store.paths import (
     normalise,
@@ -38,14 +46,14 @@ from ..store.paths import (
 from ..store.reader import EncryptedVolume, open_volume
 from .util import (
     UsageError,
-    check_output_file,
+    check_new_file,
     check_store_path,
     check_writable_dir,
     disk_usage,
 )
 
 __all__ = ["STORAGE_OPTIONS_ENV", "storage_option_type", "storage_parent", "storage_options", "is_url", "local_path",
-           "open_store", "output_file", "size_of", "head_of", "png_name", "url_kind", "encrypt_target"]
+           "open_store", "output_file", "save_frame", "save_decrypted", "size_of", "head_of", "png_name", "url_kind", "encrypt_target"]
 
 STORAGE_OPTIONS_ENV = "HEVR_STORAGE_OPTIONS"
 
@@ -111,13 +119,43 @@ def open_store(text: str, word: str = "STORE", so: dict | None = None) -> Encryp
     return open_volume(check_store_path(local_path(text), word).absolute())
 
 
-def output_file(text: str, option: str = "--out", suffix: str | None = None) -> Path | str:
-    """Where a frame or sums file goes: a checked local path, or a URL (written in one request)."""
+def output_file(text: str, option: str = "--out", suffix: str | None = None, *, force: bool = False,
+                so: dict | None = None) -> Path | str:
+    """Where a frame or sums file goes: a checked local path, or a URL (written in one request).
+    A file (or object) already there is refused here, before any work, unless ``force``
+    (:class:`hevr.ExistingFileError` naming ``option``; exit 2, the message says ``--force``);
+    the write refuses it again, atomically (:func:`save_frame`)."""
     if is_url(text):
-        return normalise(text)
+        url = normalise(text, option)
+        if not force and store_exists(url, so):
+            raise ExistingFileError(option, text)
+        return url
     path = local_path(text)
-    check_output_file(path, option, suffix)
+    check_new_file(path, option, suffix, force=force)
     return path
+
+
+def save_frame(img: Any, out: Path | str, option: str = "--out", *, force: bool = False,
+               so: dict | None = None) -> None:
+    """``img.save(out)``, replacing a file there only with ``force``; an existing file is
+    reported as ``option``'s (it may have appeared while the frame was rendered)."""
+    try:
+        img.save(out, overwrite=force, storage_options=so)
+    except ExistingFileError:
+        raise ExistingFileError(option, out) from None
+
+
+def save_decrypted(arr: Any, out: Path, npy: Path | None, window: Any, *, force: bool = False) -> None:
+    """``hevr decrypt``'s PNG and (``--npy``) float64 values, each written atomically and over an
+    existing file only with ``force``; one that appeared meanwhile is reported as its option's."""
+    try:
+        save_png(arr, out, window=window, overwrite=force)
+    except ExistingFileError:
+        raise ExistingFileError("--out", out) from None
+    if npy is not None:
+        buf = io.BytesIO()
+        np.save(buf, arr)
+        write_file(npy, [buf.getbuffer()], overwrite=force, name="--npy", doing="writing the pixel values")
 
 
 def size_of(path: Any, so: dict | None = None) -> int:

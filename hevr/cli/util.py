@@ -23,10 +23,12 @@ from typing import Any, Iterator
 import numpy as np
 from distributed import Client, LocalCluster
 
+from .._files import check_regular
 from .._image_header import MAGIC_PREFIX
 from ..crypto.keyfile import load_key
 from ..crypto.keys import SECURE_BITS, PrivateKey
 from ..errors import (
+    ExistingFileError,
     InsecureKeyWarning,
     MissingFileError,
     ParameterError,
@@ -256,6 +258,14 @@ def check_output_file(path: Path, option: str = "--out", suffix: str | None = No
     check_writable_dir(path, option)
 
 
+def check_new_file(path: Path, option: str = "--out", suffix: str | None = None, *, force: bool = False) -> None:
+    """:func:`check_output_file`, and nothing at ``path`` unless ``force``: an existing file is
+    an :class:`hevr.ExistingFileError` naming ``option`` (exit 2; the message says ``--force``)."""
+    check_output_file(path, option, suffix)
+    if not force and (path.exists() or path.is_symlink()):
+        raise ExistingFileError(option, path)
+
+
 def check_store_path(path: Path, word: str) -> Path:
     """``path`` names an hevr encrypted volume store: a folder whose zarr.json has hevr metadata.
 
@@ -268,6 +278,8 @@ def check_store_path(path: Path, word: str) -> Path:
     if not path.is_dir():
         raise UsageError(f"{word}: expected {what}, got a file ({path})")
     meta = path / "zarr.json"
+    if meta.exists() and not meta.is_file():  # a FIFO there: hevr.open_volume names the damage (never opened here)
+        return path
     if not meta.is_file():
         raise UsageError(f"{word}: expected {what}, got a folder without zarr.json ({path})")
     try:
@@ -288,6 +300,7 @@ def check_frame_path(path: Path, word: str) -> Path:
         raise MissingFileError(word, what, path)
     if path.is_dir():
         raise UsageError(f"{word}: expected {what}, got a folder ({path})")
+    check_regular(path, word, what)  # a FIFO or a device: NotRegularFileError, never a blocked open
     try:
         with open(path, "rb") as fh:
             head = fh.read(len(MAGIC_PREFIX))

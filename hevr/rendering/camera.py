@@ -39,6 +39,14 @@ _FRAME_MARGIN = 1.05
 # |d x view_up| below this (both unit vectors) counts as parallel: the basis would be
 # numerically meaningless.
 _PARALLEL_TOL = 1e-9
+# Largest |coordinate| of position, focal_point and view_up, and largest distance and
+# parallel_scale, in world units: the ray geometry (differences, norms, box intersections
+# along rays) stays finite and keeps ~1e-4 of a unit of precision there; far beyond any scan
+# (1e12 mm is 1e6 km).
+MAX_COORDINATE = 1e12
+# Smallest |focal_point - position| and |view_up|, relative to the largest coordinate
+# (at least 1): below it the view direction or the up direction is lost in rounding.
+_MIN_RELATIVE = 1e-9
 
 
 def _vec3(name: str, value: Any) -> tuple[float, float, float]:
@@ -51,6 +59,9 @@ def _vec3(name: str, value: Any) -> tuple[float, float, float]:
         ) from None
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ParameterError(f"{name}: expected 3 finite numbers (x, y, z), got {value!r}")
+    if np.abs(arr).max() > MAX_COORDINATE:
+        raise ParameterError(f"{name}: expected coordinates of magnitude at most {MAX_COORDINATE:g} (world units), "
+                             f"got {tuple(float(x) for x in arr)}")
     # + 0.0 turns -0.0 into 0.0 so equal cameras have equal keys.
     return (float(arr[0]) + 0.0, float(arr[1]) + 0.0, float(arr[2]) + 0.0)
 
@@ -131,13 +142,20 @@ class Camera:
             raise ParameterError(f"parallel: expected True or False, got {self.parallel!r}")
         dist_vec = np.subtract(foc, pos)
         distance = float(np.linalg.norm(dist_vec))
+        tiny = _MIN_RELATIVE * max(1.0, *map(abs, pos), *map(abs, foc))
         if distance == 0.0:
             raise ParameterError(
                 f"focal_point: expected a point different from position, got {foc} == position"
             )
+        if distance < tiny:
+            raise ParameterError(f"focal_point: expected a point at least {tiny:.3g} from position ({_MIN_RELATIVE:g} "
+                                 f"of the largest coordinate, at least 1), got one {distance:.3g} away")
         up_norm = float(np.linalg.norm(up))
-        if up_norm == 0.0:
+        if not any(up):
             raise ParameterError(f"view_up: expected a non-zero vector, got {up}")
+        if up_norm < _MIN_RELATIVE:
+            raise ParameterError(f"view_up: expected a vector of length at least {_MIN_RELATIVE:g}, got {up} "
+                                 f"(length {up_norm:.3g})")
         if np.linalg.norm(np.cross(dist_vec / distance, np.asarray(up) / up_norm)) < _PARALLEL_TOL:
             raise ParameterError(
                 f"view_up: expected a direction not parallel to the view direction "
@@ -147,9 +165,10 @@ class Camera:
             scale = distance * math.tan(math.radians(angle) / 2.0)
         else:
             scale = _finite_float("parallel_scale", self.parallel_scale, "a positive number or None")
-            if scale <= 0.0:
+            if not 0.0 < scale <= MAX_COORDINATE:
                 raise ParameterError(
-                    f"parallel_scale: expected a positive number or None, got {self.parallel_scale!r}"
+                    f"parallel_scale: expected a positive number of at most {MAX_COORDINATE:g} or None, "
+                    f"got {self.parallel_scale!r}"
                 )
         object.__setattr__(self, "position", pos)
         object.__setattr__(self, "focal_point", foc)
@@ -314,8 +333,9 @@ class Camera:
         width, height, view_angle :
             As for :class:`Camera`.
         distance : float or None
-            Distance from the centre; ``None`` fits the bounding sphere of the voxel-centre
-            box into the narrower of the two view angles, with a 5 % margin.
+            Distance from the centre, at most 5e11 world units; ``None`` fits the bounding
+            sphere of the voxel-centre box into the narrower of the two view angles, with a
+            5 % margin (and at most 5e11 away).
         spacing : (sx, sy, sz) or None
             World-order voxel spacing; overrides ``ev.spacing``; default (1, 1, 1).
         parallel : bool
@@ -346,16 +366,21 @@ class Camera:
                            (shape[0] - 1) * spacing[2]], dtype=np.float64)
         centre = extent / 2.0
         # Bounding sphere of the voxel-centre box; never 0 so 1-voxel volumes still work.
-        radius = max(float(np.linalg.norm(extent)) / 2.0, max(spacing) / 2.0) * _FRAME_MARGIN
+        with np.errstate(over="ignore"):  # an infinite extent is refused below, naming spacing
+            radius = max(float(np.linalg.norm(extent)) / 2.0, max(spacing) / 2.0) * _FRAME_MARGIN
         aspect = width / height
         half_v = math.radians(angle) / 2.0
         half_h = math.atan(aspect * math.tan(half_v))
-        if distance is None:
-            dist = radius / math.sin(min(half_v, half_h))
+        if not math.isfinite(radius) or float(np.linalg.norm(centre)) + radius > MAX_COORDINATE / 4:
+            raise ParameterError(f"spacing: expected a volume of at most {MAX_COORDINATE / 4:g} world units "
+                                 f"across (shape·spacing), got {shape} voxels of spacing {spacing}")
+        if distance is None:  # at most MAX_COORDINATE / 2 away (only a sliver of a view angle needs more)
+            dist = min(radius / math.sin(min(half_v, half_h)), MAX_COORDINATE / 2)
         else:
             dist = _finite_float("distance", distance, "a positive number or None")
-            if dist <= 0.0:
-                raise ParameterError(f"distance: expected a positive number or None, got {distance!r}")
+            if not 0.0 < dist <= MAX_COORDINATE / 2:
+                raise ParameterError(f"distance: expected a positive number of at most {MAX_COORDINATE / 2:g} or "
+                                     f"None, got {distance!r}")
         if view is not None:
             offset, up = view_offset(view, az, el)
             view_up = tuple(up.tolist())

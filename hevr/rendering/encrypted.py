@@ -34,7 +34,7 @@ from .._tiles import TileLayout
 from .._validate import check_int
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
-from ..image import EncryptedImage
+from ..image import EncryptedImage, check_overwrite
 from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
 from .camera import Camera
@@ -110,6 +110,7 @@ def render(
     keep_sums: str | os.PathLike | None = None,
     level: int | None = None,
     gradient: bool = False,
+    overwrite: bool = False,
 ) -> EncryptedImage | Delayed:
     """Render an encrypted volume to an :class:`EncryptedImage` on the active Dask scheduler.
 
@@ -158,7 +159,9 @@ def render(
         Also write this view's merged encrypted ray sums to a ``.hevrsums`` file (ciphertexts
         and public geometry only: safe on the server), from which :func:`hevr.recolour`
         finishes another density or transfer function without the map step
-        (:mod:`hevr.rendering.sums`). The sums travel to this process to be written.
+        (:mod:`hevr.rendering.sums`). The sums travel to this process to be written. An
+        existing file there is refused before any work (:class:`hevr.ExistingFileError`)
+        unless ``overwrite=True``.
     level : int, optional
         Render pyramid level ``level`` of the store (:func:`hevr.build_pyramid`; 0 = the full
         volume) with the same camera, sampled in the level's voxels (``step·2^level`` world
@@ -172,6 +175,8 @@ def render(
         ``gradient=True``, :mod:`hevr.volume.gradient`) instead of e(d), so each sample is weighted
         by its voxel's normalised gradient magnitude: boundaries stand out, homogeneous regions
         fade. Same kernel and cost per sample as without.
+    overwrite : bool
+        Replace an existing ``keep_sums`` file (the only file a render writes).
 
     Returns
     -------
@@ -191,7 +196,8 @@ def render(
         raise ParameterError("camera: expected a hevr.Camera, got a hevr.Plane (render slices with hevr.render_slice)")
     return _render(ev, camera, mode, sampling, step, density, nodes, digits=digits, precision=precision,
                    comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
-                   backend=backend, compute=compute, keep_sums=keep_sums, level=level, gradient=gradient)
+                   backend=backend, compute=compute, keep_sums=keep_sums, level=level, gradient=gradient,
+                   overwrite=overwrite)
 
 
 def _at_level(ev: EncryptedVolume, view: Camera | Plane, level: int | None) -> tuple[EncryptedVolume, Camera | Plane]:
@@ -223,7 +229,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
             density: float | None, nodes: Any, *, digits: int, precision: int, comb_digits: int, pack: bool,
             tile: int, cache: bool, client: Any, progress: bool, backend: str | None, compute: bool,
             keep_sums: str | os.PathLike | None, views: tuple[type, ...] = (Camera,),
-            level: int | None = None, gradient: bool = False) -> EncryptedImage | Delayed:
+            level: int | None = None, gradient: bool = False, overwrite: bool = False) -> EncryptedImage | Delayed:
     """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``."""
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, views, gradient)
@@ -233,8 +239,9 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     if keep_sums is not None and not compute:
         raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
                              f"render runs), got {str(keep_sums)!r}")
+    overwrite = check_overwrite(overwrite)
     if keep_sums is not None:
-        keep_sums = check_sums_path(keep_sums)
+        keep_sums = check_sums_path(keep_sums, overwrite=overwrite)
     backend = resolve_backend_name(backend)
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
     t0 = time.perf_counter()
@@ -299,7 +306,8 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     if keep_sums is not None:
         save_sums(keep_sums, sums, meta=ev.meta, camera=camera, sampling=spec.sampling, step=spec.step,
                   weight_digits=plan.weight_digits, channel=plan.channel, tile=tile, store=str(ev.path),
-                  level=ev.level, storage_options=ev.storage_options)  # a URL: written with the store's options
+                  level=ev.level, storage_options=ev.storage_options,  # a URL: written with the store's options
+                  overwrite=overwrite, name="keep_sums")
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
              "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),
              "seconds": time.perf_counter() - t0}

@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from fractions import Fraction
 from typing import Any
 
 import numpy as np
@@ -64,9 +65,11 @@ import numpy as np
 from .._limits import (
     DEFAULT_MAX_PIXELS,
     DEFAULT_MAX_SAMPLES,
+    FLOAT_MAX,
     INTEGRITY_BITS,
     MAX_PIXELS_KEY,
     MAX_SAMPLES_KEY,
+    fits_float,
     integrity_bits,
     render_limits,
 )
@@ -144,6 +147,22 @@ def _bits(x: int) -> int:
     return max(1, int(x).bit_length())
 
 
+def _mantissa_range(value_range: tuple[float, float], ch_exp: int) -> tuple[int, int]:
+    """floor(lo·10^-e), ceil(hi·10^-e): in float64 as always, exactly (never overflowing)
+    when the product leaves float64's range (a store's value_range beyond 1e100, written by
+    an older hevr or by hand).
+
+    >>> _mantissa_range((-1.5, 2.25), -1), _mantissa_range((0.0, 1e300), -30)[1] > 10**329
+    ((-15, 23), True)
+    """
+    lo, hi = (float(v) for v in value_range)
+    scale = 10 ** (-int(ch_exp))
+    try:
+        return math.floor(lo * scale), math.ceil(hi * scale)
+    except (OverflowError, ValueError):  # inf (or nan) from an overflowing product
+        return math.floor(Fraction(lo) * Fraction(scale)), math.ceil(Fraction(hi) * Fraction(scale))
+
+
 def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np.ndarray, digits: int,
                 precision: int, comb_digits: int, pack: bool, combination: np.ndarray | None) -> RenderPlan:
     """Plan a render and refuse it when any mantissa could reach n/3.
@@ -157,8 +176,7 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
     info = getattr(meta, channel)
     ch_exp = int(info.exponent)
     if channel == "scalar":
-        lo_m = math.floor(meta.value_range[0] * 10 ** (-ch_exp))
-        hi_m = math.ceil(meta.value_range[1] * 10 ** (-ch_exp))
+        lo_m, hi_m = _mantissa_range(meta.value_range, ch_exp)
     else:  # vector and gradient components lie in [0, 1]: mantissas in [0, 10^digits]
         lo_m, hi_m = 0, 10 ** int(info.digits)
     amax = max(abs(lo_m), abs(hi_m))
@@ -203,11 +221,18 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
             f"{max(room, 0)} bits; {tips}"
         )
     per_pack = max(1, room // pack_bits) if pack else 1
+    exponent = w_exp + ch_exp + comb_exp - G
+    if not fits_float(max(offset, m_bound), exponent):  # the image check (hevr._image_header) would refuse it
+        raise RenderPlanError(
+            f"overflow planner: value_range: expected values whose render fits a float64 (at most "
+            f"{FLOAT_MAX:.4g}), got the store's value_range ({meta.value_range[0]:g}, {meta.value_range[1]:g}), "
+            f"whose pixels could reach {max(offset, m_bound)}e{exponent}"
+        )
     return RenderPlan(
         mode=spec.mode, sampling=spec.sampling, channel=channel, weight_digits=int(digits),
         weight_exponent=w_exp, channel_exponent=ch_exp, comb=comb, comb_digits=int(comb_digits),
         recip_digits=G, factor=K, offset=int(offset),
-        exponent=w_exp + ch_exp + comb_exp - G, bound=int(bound),
+        exponent=exponent, bound=int(bound),
         pack_bits=pack_bits if pack else 0, per_pack=per_pack,
         channels_out=spec.channels, precision=int(precision),
     )

@@ -48,7 +48,7 @@ import numpy as np
 
 from .._dask import active_client
 from .._dask import compute as run_tasks
-from .._files import require_file, write_checksummed
+from .._files import read_regular, require_file, write_checksummed
 from .._image_header import MAX_N_DIGITS, Fields, parse_json
 from .._limits import MAX_IMAGE_PIXELS
 from .._tiles import TileLayout
@@ -58,19 +58,20 @@ from ..crypto.paillier import fingerprint as fingerprint_of
 from ..crypto.records import record_width
 from ..errors import (
     CorruptStoreError,
+    ExistingFileError,
     HevrError,
     IntegrityError,
     MissingFileError,
     ParameterError,
 )
-from ..image import EncryptedImage
+from ..image import EncryptedImage, check_overwrite, output_location
 from ..store.metadata import VolumeMetadata
 from ..store.paths import (
     check_storage_options,
     is_local,
     normalise,
     read_bytes,
-    write_bytes,
+    write_new_bytes,
 )
 from ..volume.pyramid import MAX_LEVELS
 from .camera import Camera
@@ -156,10 +157,17 @@ def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: 
 
 def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, camera: Camera, sampling: str,
               step: float, weight_digits: int, channel: str, tile: int, store: str = "", level: int = 0,
-              storage_options: dict | None = None) -> int:
-    """Write ``sums`` (gathered from the workers if needed) as a ``.hevrsums`` file; atomic
-    (``<path>.tmp`` renamed over ``path``; an fsspec URL with ``storage_options``: one request).
-    Returns the file's size in bytes."""
+              storage_options: dict | None = None, overwrite: bool = False, name: str = "path") -> int:
+    """Write ``sums`` (gathered from the workers if needed) as a ``.hevrsums`` file. Returns the
+    file's size in bytes.
+
+    As :meth:`hevr.EncryptedImage.save`: atomic (a temporary sibling linked into place, or
+    renamed over ``path`` with ``overwrite=True``; an fsspec URL with ``storage_options``: one
+    request), never over an existing file unless ``overwrite=True``
+    (:class:`hevr.ExistingFileError` naming ``name``), a failed write a
+    :class:`hevr.FileSystemError` that leaves nothing behind."""
+    overwrite = check_overwrite(overwrite)
+    where = output_location(path, name)
     values = sums.values()
     n = int(meta.n)
     width = record_width(n)
@@ -175,15 +183,14 @@ def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, c
         if v is not None:
             parts += [np.ascontiguousarray(v[0], dtype="<i8").reshape(-1),
                       np.ascontiguousarray(v[1], dtype=np.uint8).reshape(-1)]
-    if not is_local(str(path)) and not is_local(normalise(path)):
+    if not isinstance(where, Path):
         parts.append(hashlib.sha256(b"".join(parts)).digest())
-        write_bytes(normalise(path), parts, check_storage_options(storage_options))
+        write_new_bytes(where, parts, check_storage_options(storage_options), overwrite=overwrite, name=name)
         size = sum(memoryview(p).nbytes for p in parts)
     else:
-        path = Path(normalise(path)) if "://" in str(path) else Path(path)
-        write_checksummed(path, parts)
-        size = path.stat().st_size
-    log.info("ray sums of %d tiles written to %s (%d bytes)", len(values), path, size)
+        write_checksummed(where, parts, overwrite=overwrite, name=name, doing="writing the ray sums")
+        size = where.stat().st_size
+    log.info("ray sums of %d tiles written to %s (%d bytes)", len(values), where, size)
     return size
 
 
@@ -201,8 +208,8 @@ def load_sums(path: str | os.PathLike, *, storage_options: dict | None = None) -
         return _parse(blob, where)
     if Path(path).is_dir():
         raise ParameterError(f"sums: expected a ray-sums file (hevr.render(..., keep_sums=PATH)), got a folder ({path})")
-    p = require_file(path, "sums", what)
-    return _parse(p.read_bytes(), str(p))
+    # never blocks: a FIFO or a device is a NotRegularFileError before a byte is read
+    return _parse(read_regular(path, "sums", what), str(path))
 
 
 def _parse(blob: bytes, where: str) -> SavedSums:
@@ -228,6 +235,11 @@ def _parse(blob: bytes, where: str) -> SavedSums:
     for name in FIELDS:
         if name not in h:
             ctx.fail(name, "the field", raw="nothing")
+    extra = sorted(set(h) - set(FIELDS))
+    if extra:  # as the .hevr header: a field this version does not write is not silently ignored
+        shown = repr(extra[0]) if len(extra[0]) <= 40 else repr(extra[0][:30]) + f"… ({len(extra[0])} chars)"
+        raise CorruptStoreError(f"{where}: header: unexpected field {shown} (a ray-sums header of version "
+                                f"{VERSION} holds exactly {', '.join(FIELDS)})")
     if h["format"] != FORMAT:
         ctx.fail("format", repr(FORMAT), h["format"])
     ctx.integer("version", h["version"], VERSION, VERSION)
@@ -265,17 +277,22 @@ def _parse(blob: bytes, where: str) -> SavedSums:
                      level=ctx.integer("level", h["level"], 0, MAX_LEVELS), path=where)
 
 
-def check_sums_path(path: Any, name: str = "keep_sums") -> Path | str:
+def check_sums_path(path: Any, name: str = "keep_sums", *, overwrite: bool = False) -> Path | str:
     """Where a ``.hevrsums`` file may be written: a non-empty path, not a folder, in an existing
-    folder — checked before a render runs, so a bad path costs no map work."""
+    folder, with no file there unless ``overwrite`` (:class:`hevr.ExistingFileError`) —
+    checked before a render runs, so a bad path costs no map work (:func:`save_sums` refuses
+    an existing file again, atomically, when it writes)."""
     if not isinstance(path, (str, os.PathLike)) or not str(path):
         raise ParameterError(f"{name}: expected a file path, got {path!r}")
-    if "://" in str(path) and not is_local(normalise(path)):
-        return str(path)  # an object: written in one request after the render (save_sums)
-    p = Path(normalise(path) if "://" in str(path) else path)
+    where = output_location(path, name)
+    if not isinstance(where, Path):
+        return where  # an object: written in one request after the render (save_sums)
+    p = where
     if p.is_dir():
         raise ParameterError(f"{name}: expected a file path, got a folder ({p})")
     require_file(p.parent if str(p.parent) else Path("."), name, "an existing folder for the file", directory=True)
+    if not overwrite and (p.exists() or p.is_symlink()):
+        raise ExistingFileError(name, p)
     return p
 
 

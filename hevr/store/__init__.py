@@ -5,6 +5,8 @@
 ``digests``        per-brick digests over ciphertext bytes (crc32c) and public ids
 ``journal``        owner-side resume journals (a resume cannot mix two volumes)
 ``paths``          local / fsspec store paths; write beside, then swap
+``exclusive``      one writer per store: atomic claims, store locks, stale temporaries
+``creation``       ``claim_store``: a new store, exactly one of concurrent creators wins
 ``writer``         ``encrypt_volume``: brick-parallel encryption on Dask
 ``layout``         the arrays of a store and the checks that a store on disk has them
 ``reader``         ``open_volume`` / :class:`EncryptedVolume`: reading, checked bricks, levels

@@ -40,7 +40,7 @@ import dask.array
 import numpy as np
 
 from .._dask import compute
-from .._files import write_atomic
+from .._files import fs_errors, write_atomic
 from ..errors import ParameterError
 
 log = logging.getLogger(__name__)
@@ -65,8 +65,9 @@ def journal_path(store_id: str) -> Path:
 
 
 def plain_digest(block: np.ndarray) -> str:
-    """SHA-256 hex of one plaintext brick: dtype, shape and bytes."""
-    arr = np.ascontiguousarray(block)
+    """SHA-256 hex of one plaintext brick: dtype, shape and bytes, in native byte order (a
+    ``>i2`` brick and its ``<i2`` twin have one digest)."""
+    arr = np.ascontiguousarray(block, dtype=np.dtype(block.dtype).newbyteorder("="))
     h = hashlib.sha256(f"{arr.dtype.str}|{arr.shape}|".encode())
     h.update(memoryview(arr).cast("B") if arr.size else b"")
     return h.hexdigest()
@@ -88,7 +89,8 @@ def input_digests(vol: Any, brick: tuple[int, int, int], bricks: Sequence[tuple[
 def write_journal(store_id: str, path: str, fingerprint: str, digests: dict) -> Path:
     """Record the input of a new store (before any brick is encrypted)."""
     folder = journal_dir()
-    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    with fs_errors("creating the resume journal folder", folder):
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
     doc = {"format": FORMAT, "version": 1, "store": path, "store_id": store_id, "fingerprint": fingerprint,
            "bricks": {",".join(map(str, k)): v for k, v in digests.items()}}
     target = journal_path(store_id)

@@ -21,6 +21,8 @@ has no padding and keeps ``bytes`` + ``crc32c`` with exact chunk sizes.
 from __future__ import annotations
 
 import json
+import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -28,13 +30,15 @@ import numpy as np
 import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
-from ..errors import CorruptStoreError
+from .._files import check_regular, file_kind
+from ..errors import CorruptStoreError, MissingFileError
 from .digests import DIGEST_BYTES
 from .metadata import VolumeMetadata, ome_attribute
 from .paths import document_digest, is_local, object_sizes, read_document, zarr_store
 
-__all__ = ["CRC_BYTES", "compressors", "array_layout", "brick_slices", "check_arrays", "check_chunk_files", "check_chunk_objects", "check_documents",
-           "check_level_layout"]
+__all__ = ["CRC_BYTES", "compressors", "array_layout", "brick_slices", "chunk_key", "check_entry", "check_document",
+           "check_arrays",
+           "check_chunk_files", "check_chunk_objects", "check_documents", "check_level_layout"]
 
 CRC_BYTES = 4  # Zarr's crc32c codec appends 4 bytes to every chunk
 ZSTD_LEVEL = 1  # ciphertexts do not compress; level 1 only has to squeeze out the edge padding
@@ -74,27 +78,66 @@ def brick_slices(meta: VolumeMetadata, index: tuple[int, int, int]) -> tuple[sli
     return tuple(slice(i * b, min((i + 1) * b, s)) for i, b, s in zip(index, meta.brick, meta.shape))  # type: ignore[return-value]
 
 
+def chunk_key(name: str, index: tuple[int, ...]) -> str:
+    """The key of brick ``index``'s chunk in array ``name`` of a store, relative to the array's
+    folder: Zarr v3's default ``c/`` + ``/``-separated chunk coordinates.
+
+    >>> chunk_key("scalar", (0, 1, 2)), chunk_key("vector", (0, 1, 2)), chunk_key("done", (0, 1, 2))
+    ('c/0/1/2/0', 'c/0/0/1/2/0', 'c/0/1/2/0/0')
+    """
+    lead = (0, 0) if name == "done" else (0,)
+    return "c/" + "/".join(str(int(i)) for i in ((0,) if name in ("vector", "gradient") else ()) + tuple(index) + lead)
+
+
+def check_entry(path: str, rel: str, what: str) -> bool:
+    """Whether the file ``rel`` (a chunk or a ``zarr.json``) exists in the local store ``path``
+    (``True`` for an object store, whose objects are never FIFOs). Anything there that is not
+    a regular file (a FIFO, a folder, a socket, a device: opening or reading it would block or
+    fail) is a :class:`hevr.CorruptStoreError` naming ``what`` and the path, found with one
+    ``stat``, before Zarr or hevr opens it."""
+    if not is_local(path):
+        return True
+    try:
+        check_regular(Path(path) / rel, str(path), what, error=CorruptStoreError)
+    except MissingFileError:
+        return False
+    return True
+
+
+def check_document(path: str, name: str) -> None:
+    """The metadata document ``NAME/zarr.json`` (the group's when ``name`` is empty) of the local
+    store ``path`` is a regular file or absent (:func:`check_entry`): call before reading it."""
+    rel = f"{name}/zarr.json" if name else "zarr.json"
+    check_entry(path, rel, f"the metadata document {rel}")
+
+
 def check_chunk_files(path: str, meta: VolumeMetadata, prefix: str = "") -> None:
-    """Local stores: every brick chunk (and digest marker) exists and has exactly the expected size."""
+    """Local stores: every brick chunk (and digest marker) exists as a regular file and has
+    exactly the expected size (a zstd chunk: its frame's own length plus the crc)."""
     root = Path(path) / prefix
     for name, (_, chunks) in array_layout(meta).items():
         expected = int(np.prod(chunks)) + CRC_BYTES
-        lead = (0, 0) if name == "done" else (0,)
         # zstd chunks have no fixed size, but a zstd frame records its block sizes: the frame's
         # length is found by reading a 3-byte header every block (128 KiB), not the data
         exact = name == "done" or _codec_names(root / name) == _LEGACY_CODECS
         for idx in np.ndindex(*meta.grid):
-            key = "/".join(str(i) for i in ((0,) if name in ("vector", "gradient") else ()) + tuple(idx) + lead)
-            f = root / name / "c" / key
+            rel = f"{prefix}{name}/{chunk_key(name, idx)}"
             brick = tuple(int(i) for i in idx)
             where = "the digest markers 'done'" if name == "done" else f"channel {name!r}"
-            if not f.exists():
-                raise CorruptStoreError(f"{path}: missing chunk for brick {brick} in {where}")
-            size = f.stat().st_size
+            try:
+                size = check_regular(Path(path) / rel, str(path), f"the chunk of brick {brick} in {where}",
+                                     error=CorruptStoreError).st_size
+            except MissingFileError:
+                raise CorruptStoreError(f"{path}: missing chunk for brick {brick} in {where}") from None
             if not exact:  # the zstd frame's own length (walked from its block headers) + the crc
-                expected = _zstd_frame_length(f, int(np.prod(chunks)), size - CRC_BYTES) + CRC_BYTES
+                try:
+                    expected = _zstd_frame_length(root / name / chunk_key(name, idx), int(np.prod(chunks)),
+                                                  size - CRC_BYTES) + CRC_BYTES
+                except _DamagedFrame as exc:
+                    raise CorruptStoreError(f"{path}: chunk {rel} of brick {brick} in {where} is damaged "
+                                            f"(not a complete zstd frame: {exc})") from None
             if size != expected:
-                raise CorruptStoreError(f"{path}: chunk of brick {brick} in {where} is truncated "
+                raise CorruptStoreError(f"{path}: chunk {rel} of brick {brick} in {where} is truncated "
                                         f"or padded ({size} bytes, expected {expected})")
 
 
@@ -106,9 +149,11 @@ def check_documents(path: str, meta: VolumeMetadata, storage_options: dict | Non
     each array's ``zarr.json`` must have the digest recorded in the checksummed ``hevr``
     attribute, and the group's ``zarr.json`` holds nothing but what hevr wrote."""
     try:
+        check_document(path, "")
         doc = json.loads(read_document(path, "", storage_options))
         for name, want in meta.arrays.items():
             try:
+                check_document(path, name)
                 got = document_digest(path, name, storage_options)
             except FileNotFoundError:
                 raise CorruptStoreError(f"{path}: " + (f"channel {name!r} is declared but its array is missing"
@@ -135,6 +180,7 @@ def check_level_layout(view: Any) -> None:
     path, meta, prefix, so = view.path, view.meta, view.prefix, view.storage_options
     for name, want in meta.arrays.items():
         try:
+            check_document(path, prefix + name)
             got = document_digest(path, prefix + name, so)
         except (OSError, ValueError):
             raise CorruptStoreError(f"{path}: array {prefix + name!r} of pyramid level {view.level} is missing") from None
@@ -187,48 +233,77 @@ _ZSTD_DICT_BYTES = (0, 1, 2, 4)
 _ZSTD_BLOCK = 128 << 10  # Block_Maximum_Size: a raw block holds at most 128 KiB
 
 
+class _DamagedFrame(Exception):
+    """A chunk file that is not one complete zstd frame; the message says what is wrong, in
+    words for a user (the caller names the store, the chunk and the brick)."""
+
+
 def _zstd_frame_length(f: Path, content: int, observed: int = -1) -> int:
-    """Bytes of the single zstd frame at the start of ``f`` (RFC 8878 §3.1.1), or -1 when the
-    frame is malformed, truncated or does not decompress to ``content`` bytes.
+    """Bytes of the single zstd frame at the start of ``f`` (RFC 8878 §3.1.1); raises
+    :class:`_DamagedFrame` saying why when the file does not start with such a frame of
+    ``content`` bytes (no magic number, another content size, a block header cut off by the
+    end of the file, a reserved block type).
 
     A brick of ciphertexts only (no padding) is stored as full raw blocks: when ``observed``
     (the file's frame bytes) is exactly that length and the first block is such a raw block,
     the frame's length is known from its header alone; otherwise (edge bricks, damage) the
-    block headers are walked, one 3-byte read per block."""
+    block headers are walked, one 3-byte read per block. The file is opened without blocking
+    and must be a regular file (a FIFO put in its place raises, it never hangs)."""
     try:
-        with open(f, "rb", buffering=0) as fh:
-            head = fh.read(18)
-            if len(head) < 6 or int.from_bytes(head[:4], "little") != _ZSTD_MAGIC:
-                return -1
-            fhd = head[4]
-            single, fcs_flag = (fhd >> 5) & 1, fhd >> 6
-            pos = 5 + (0 if single else 1) + _ZSTD_DICT_BYTES[fhd & 3]
-            fcs_len = _ZSTD_FCS_BYTES[fcs_flag] or (1 if single else 0)
-            if fcs_len:
-                fcs = int.from_bytes(head[pos:pos + fcs_len], "little") + (256 if fcs_len == 2 else 0)
-                if fcs != content:
-                    return -1
-            pos += fcs_len
-            raw = pos + 3 * -(-content // _ZSTD_BLOCK) + content
-            if observed == raw and content:
-                fh.seek(pos)
-                first = int.from_bytes(fh.read(3), "little")
-                if (first >> 1) & 3 == 0 and first >> 3 == min(content, _ZSTD_BLOCK):
-                    return raw
-            while True:
-                fh.seek(pos)
-                block = fh.read(3)
-                if len(block) < 3:
-                    return -1
-                bh = int.from_bytes(block, "little")
-                last, kind, size = bh & 1, (bh >> 1) & 3, bh >> 3
-                if kind == 3:
-                    return -1
-                pos += 3 + (1 if kind == 1 else size)
-                if last:
-                    return pos + (4 if fhd & 4 else 0)
-    except OSError:
-        return -1
+        fd = os.open(f, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        raise _DamagedFrame(f"it cannot be opened: {exc.strerror}") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise _DamagedFrame(f"it is {file_kind(mode)}, not a regular file")
+        os.set_blocking(fd, True)
+        with os.fdopen(os.dup(fd), "rb", buffering=0) as fh:
+            return _walk_frame(fh, content, observed)
+    except OSError as exc:
+        raise _DamagedFrame(f"it cannot be read: {exc.strerror}") from None
+    finally:
+        os.close(fd)
+
+
+def _walk_frame(fh: Any, content: int, observed: int) -> int:
+    """:func:`_zstd_frame_length` on an open file."""
+    head = fh.read(18)
+    if len(head) < 6:
+        raise _DamagedFrame(f"the file holds {len(head)} bytes, too few for a zstd frame header (truncated)")
+    if int.from_bytes(head[:4], "little") != _ZSTD_MAGIC:
+        raise _DamagedFrame(f"it does not start with the zstd magic number (its first bytes are {head[:4].hex()}, "
+                            "expected 28b52ffd)")
+    fhd = head[4]
+    single, fcs_flag = (fhd >> 5) & 1, fhd >> 6
+    pos = 5 + (0 if single else 1) + _ZSTD_DICT_BYTES[fhd & 3]
+    fcs_len = _ZSTD_FCS_BYTES[fcs_flag] or (1 if single else 0)
+    if fcs_len:
+        if len(head) < pos + fcs_len:
+            raise _DamagedFrame(f"the file ends inside the frame header after {len(head)} bytes (truncated)")
+        fcs = int.from_bytes(head[pos:pos + fcs_len], "little") + (256 if fcs_len == 2 else 0)
+        if fcs != content:
+            raise _DamagedFrame(f"its header says the brick holds {fcs} bytes, expected {content}")
+    pos += fcs_len
+    raw = pos + 3 * -(-content // _ZSTD_BLOCK) + content
+    if observed == raw and content:
+        fh.seek(pos)
+        first = int.from_bytes(fh.read(3), "little")
+        if (first >> 1) & 3 == 0 and first >> 3 == min(content, _ZSTD_BLOCK):
+            return raw
+    while True:
+        fh.seek(pos)
+        block = fh.read(3)
+        if len(block) < 3:
+            total = os.fstat(fh.fileno()).st_size
+            raise _DamagedFrame(f"a block header was due at byte {pos}, but the file has {total} bytes (truncated)")
+        bh = int.from_bytes(block, "little")
+        last, kind, size = bh & 1, (bh >> 1) & 3, bh >> 3
+        if kind == 3:
+            raise _DamagedFrame(f"the block header at byte {pos} has the reserved block type 3 (overwritten data)")
+        pos += 3 + (1 if kind == 1 else size)
+        if last:
+            return pos + (4 if fhd & 4 else 0)
 
 
 def check_chunk_objects(path: str, meta: VolumeMetadata, prefix: str = "", storage_options: dict | None = None) -> None:

@@ -17,17 +17,19 @@ in-process cluster, ``LocalCluster(processes=False)``, shares this process and i
 
 from __future__ import annotations
 
+import inspect
 import json
 import logging
 import os
 import secrets
-import shutil
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from zarr.storage import FsspecStore
 
-from ..errors import MissingDependencyError, ParameterError, StoreExistsError
+from .._files import fs_errors, temp_sibling, temporaries
+from ..errors import ExistingFileError, MissingDependencyError, ParameterError, StoreExistsError
+from .exclusive import lock_store, remove_local_tree, rename_noreplace, swap_lock
 from .metadata import FORMAT_NAME, sha256_tag
 
 log = logging.getLogger(__name__)
@@ -45,22 +47,46 @@ def is_local(path: str) -> bool:
     return "://" not in path
 
 
-def normalise(path: str | os.PathLike) -> str:
+def normalise(path: str | os.PathLike, name: str = "path") -> str:
     """The one spelling of a store path: local paths (and ``file://`` URLs) absolute and
     resolved (workers may run elsewhere), URLs without a trailing slash (``memory://x/`` and
-    ``memory://x`` are one store).
+    ``memory://x`` are one store). A text with ``://`` is a URL: its protocol must be one
+    fsspec knows (``s3``, ``gs``, ``az``, ``memory``, chained ``simplecache::s3`` …), else a
+    :class:`hevr.ParameterError` naming ``name`` — a local name may not contain ``://``
+    (``dir/a://b.zarr`` or a typo such as ``s3a:/`` never becomes a local folder).
 
     >>> normalise("memory://bucket/v.zarr/")
     'memory://bucket/v.zarr'
     >>> normalise("file://" + str(Path("v.zarr").resolve())) == normalise("v.zarr")
     True
+    >>> normalise("dir/a://b.zarr")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: path: expected a local path or an fsspec URL ..., got 'dir/a://b.zarr': ...
     """
     text = str(path)
     if text[:7].lower() == "file://":
         text = text[7:]
         if text.startswith("localhost/"):
             text = text[len("localhost"):]
-    return str(Path(text).resolve()) if is_local(text) else text.rstrip("/")
+    if is_local(text):
+        return str(Path(text).resolve())
+    _check_protocol(text, name)
+    return text.rstrip("/")
+
+
+def _check_protocol(url: str, name: str) -> None:
+    """Refuse a ``://`` text whose protocol fsspec does not know (:func:`normalise`)."""
+    try:
+        import fsspec
+    except ImportError:  # the URL's reader says that fsspec is missing
+        return
+    known = set(fsspec.available_protocols())
+    protocols = url.split("://", 1)[0].split("::")
+    if not all(p in known for p in protocols):
+        raise ParameterError(f"{name}: expected a local path or an fsspec URL (s3://, gs://, az://, memory://, "
+                             f"file://, …), got {url!r}: {protocols[-1]!r} is no protocol fsspec knows (a local "
+                             "name may not contain '://')")
 
 
 def check_storage_options(storage_options: Any) -> dict[str, Any] | None:
@@ -120,22 +146,30 @@ def store_exists(path: str, storage_options: dict[str, Any] | None = None) -> bo
     """Whether anything at all is at ``path`` (a folder, a file, or any object under a URL
     prefix): such a path is never written over without ``overwrite=True``."""
     if is_local(path):
-        return Path(path).exists() or Path(path).is_symlink()
+        with fs_errors("looking for the store", path):
+            return os.path.lexists(path) or _exists_strict(path)
     fs, root = filesystem(path, storage_options)
     fs.invalidate_cache(root)
     return bool(fs.exists(root))
 
 
+def _exists_strict(path: str) -> bool:
+    """False for a missing path; the ``OSError`` of anything else that stops a look (a name
+    too long, a permission) is raised, where ``os.path.lexists`` says False."""
+    try:
+        os.lstat(path)
+        return True
+    except (FileNotFoundError, NotADirectoryError):
+        return False
+
+
 def interrupted_swaps(path: str) -> list[str]:
-    """Stores an interrupted overwrite left beside a local ``path`` (see :func:`swap`)."""
+    """Stores an interrupted or failed overwrite left beside a local ``path`` (see :func:`swap`):
+    its ``.NAME.hevr-old-TOKEN`` and ``.NAME.hevr-new-TOKEN`` siblings (hevr._files naming; a
+    name near the filesystem's limit has a hashed stem)."""
     if not is_local(path):
         return []
-    p = Path(path)
-    try:
-        return sorted(str(q) for q in p.parent.glob(f".{p.name}.hevr-*-*") if q.name.split(".hevr-")[1][:4] in
-                      ("old-", "new-"))
-    except OSError:
-        return []
+    return [str(q) for q in temporaries(path, ("old", "new"))]
 
 
 def read_document(path: str, name: str, storage_options: dict[str, Any] | None = None) -> bytes:
@@ -179,10 +213,10 @@ def object_sizes(path: str, storage_options: dict[str, Any] | None = None) -> di
 
 
 def sibling(path: str, what: str) -> str:
-    """A fresh path beside ``path`` (same folder or bucket prefix) for a new or an old store."""
+    """A fresh path beside ``path`` (same folder or bucket prefix) for a new or an old store:
+    locally ``.NAME.hevr-WHAT-TOKEN`` (:func:`hevr._files.temp_sibling`)."""
     if is_local(path):
-        p = Path(path)
-        return str(p.with_name(f".{p.name}.hevr-{what}-{token()}"))
+        return str(temp_sibling(path, what))
     return f"{path.rstrip('/')}.hevr-{what}-{token()}"
 
 
@@ -204,9 +238,11 @@ def check_replaceable(path: str, storage_options: dict[str, Any] | None = None) 
 
 
 def remove_tree(path: str, storage_options: dict[str, Any] | None = None) -> None:
+    """Remove the store ``path`` after a failure: best effort (logged), a local tree retried
+    (:func:`hevr.store.exclusive.remove_local_tree`)."""
     try:
         if is_local(path):
-            shutil.rmtree(path)
+            remove_local_tree(path)
         else:
             fs, root = filesystem(path, storage_options)
             fs.rm(root, recursive=True)
@@ -214,35 +250,62 @@ def remove_tree(path: str, storage_options: dict[str, Any] | None = None) -> Non
         log.warning("could not remove %s: %s", path, exc)
 
 
-def swap(new: str, path: str, storage_options: dict[str, Any] | None = None) -> None:
+def swap(new: str, path: str, storage_options: dict[str, Any] | None = None, *, lock: Any = None,
+         then: Callable[[], Any] | None = None) -> tuple[str, Any]:
     """Put the complete store ``new`` at ``path``; the old store is moved aside first and
-    deleted only once the new one is in place (restored if the second move fails).
+    deleted only once the new one is in place (restored if the second move fails). Returns
+    the replaced store's ``store_id`` and what ``then()`` (run right after the swap) returned.
+
+    Locally the swap holds :func:`hevr.store.exclusive.swap_lock` (one swap at a time in a
+    folder) and the replaced store's own lock (a store that another run is writing right now
+    is never swapped out: :class:`hevr.StoreExistsError`); ``then`` runs and ``lock`` (the
+    caller's lock of ``new``) is released before the folder's lock is, so a concurrent
+    overwrite finds the swapped-in store complete and free. Moves into ``path`` never replace
+    anything (:func:`hevr.store.exclusive.rename_noreplace`).
 
     POSIX has no portable atomic exchange of two folders: if the process is killed between
     the two renames (a window of microseconds locally), ``path`` is missing and both stores
     sit beside it, complete, as ``.NAME.hevr-old-…`` and ``.NAME.hevr-new-…`` (logged first);
     renaming either back restores a store. Nothing is lost either way. On an object store a
     move is a copy of every object and a delete (no rename exists there), so an overwrite
-    copies the store twice; the same two steps keep the old store until the new one is in."""
+    copies the store twice; the same two steps keep the old store until the new one is in;
+    concurrent overwrites of one URL are not serialised there (the last one wins)."""
     old = sibling(path, "old")
-    log.info("replacing %s: old store moved to %s, new store %s moved in", path, old, new)
     if is_local(path):
-        os.replace(path, old)
-        try:
-            os.replace(new, path)
-        except BaseException:
-            os.replace(old, path)
-            raise
-    else:
-        fs, root = filesystem(path, storage_options)
-        fs_old, fs_new = filesystem(old, storage_options)[1], filesystem(new, storage_options)[1]
-        _move_objects(fs, root, fs_old)
-        try:
-            _move_objects(fs, fs_new, root)
-        except BaseException:
-            _move_objects(fs, fs_old, root)
-            raise
+        with fs_errors("replacing the store", path):
+            with swap_lock(path):
+                held = lock_store(path)
+                try:
+                    old_id = check_replaceable(path, storage_options)
+                    log.info("replacing %s: old store moved to %s, new store %s moved in", path, old, new)
+                    os.rename(path, old)
+                    try:
+                        rename_noreplace(new, path)
+                    except BaseException:
+                        rename_noreplace(old, path)
+                        raise
+                    result = then() if then is not None else None
+                    if lock is not None:
+                        lock.release()
+                except BaseException:
+                    held.release()
+                    raise
+            with held:  # the old store stays locked while it is removed (a clean-up keeps off)
+                remove_local_tree(old)
+        return old_id, result
+    old_id = check_replaceable(path, storage_options)
+    log.info("replacing %s: old store moved to %s, new store %s moved in", path, old, new)
+    fs, root = filesystem(path, storage_options)
+    fs_old, fs_new = filesystem(old, storage_options)[1], filesystem(new, storage_options)[1]
+    _move_objects(fs, root, fs_old)
+    try:
+        _move_objects(fs, fs_new, root)
+    except BaseException:
+        _move_objects(fs, fs_old, root)
+        raise
+    result = then() if then is not None else None
     remove_tree(old, storage_options)
+    return old_id, result
 
 
 def _move_objects(fs: Any, src: str, dst: str) -> None:
@@ -256,3 +319,32 @@ def _move_objects(fs: Any, src: str, dst: str) -> None:
         fs.rm(files)
     fs.invalidate_cache(src)
     fs.invalidate_cache(dst)
+
+
+def write_new_bytes(path: str, parts: Any, storage_options: dict[str, Any] | None = None, *,
+                    overwrite: bool = False, name: str = "path") -> None:
+    """Write the concatenated ``parts`` to the object ``path`` in one request (an object store
+    makes an object visible whole or not at all), refusing an existing object with
+    :class:`hevr.ExistingFileError` naming ``name`` unless ``overwrite``.
+
+    What is guaranteed without ``overwrite``: an object that exists before the call is never
+    replaced. Whether two writers racing for a new name can both succeed depends on the store:
+    the write is a conditional create (fsspec's ``pipe_file(mode="create")``) — atomic on AWS S3
+    and S3 servers that honour ``If-None-Match: *`` (s3fs), and on fsspec's ``memory://``; a
+    filesystem without it (or an fsspec older than that mode) gets a check just before the one
+    request, and a writer that creates the object inside that window is replaced."""
+    fs, root = filesystem(path, storage_options)
+    data = b"".join(parts)
+    if overwrite:
+        fs.pipe_file(root, data)
+        return
+    fs.invalidate_cache(root)
+    if fs.exists(root):
+        raise ExistingFileError(name, path)
+    try:
+        if "mode" in inspect.signature(fs.pipe_file).parameters:
+            fs.pipe_file(root, data, mode="create")
+        else:  # pragma: no cover - fsspec before the "create" mode
+            fs.pipe_file(root, data)
+    except FileExistsError:
+        raise ExistingFileError(name, path) from None

@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import dask
-import gmpy2
 import numpy as np
 import zarr
 
@@ -41,8 +40,11 @@ from .layout import (
     check_arrays,
     check_chunk_files,
     check_chunk_objects,
+    check_document,
     check_documents,
+    check_entry,
     check_level_layout,
+    chunk_key,
 )
 from .metadata import CHANNELS, VolumeMetadata
 from .paths import (
@@ -55,6 +57,7 @@ from .paths import (
     zarr_store,
 )
 from .resident import Residency, load_brick, plan_residency
+from .verify import check_brick
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +78,7 @@ def _array(path: str, store_id: str, name: str, storage_options: dict | None = N
         if key in _ARRAYS:
             _ARRAYS.move_to_end(key)
             return _ARRAYS[key]
+    check_document(path, name)  # a FIFO in its place would block Zarr's open
     arr = zarr.open_array(zarr_store(path, storage_options, read_only=True), path=name, mode="r")
     with _ARRAYS_LOCK:
         _ARRAYS[key] = arr
@@ -285,15 +289,18 @@ class EncryptedVolume:
         sl = self.brick_slices(index)
         index = tuple(int(i) for i in index)
         where = f"brick {index} of channel {channel!r}" + (f" of level {self.level}" if self.level else "")
+        for name in (channel, "done") if verify else (channel,):  # a FIFO there would block Zarr's read
+            what = f"the chunk of {where}" if name == channel else f"the digest marker of {where}"
+            check_entry(self.path, f"{self.prefix}{name}/{chunk_key(name, index)}", what)
         try:
             so = self.storage_options
             arr = _array(self.path, self.meta.store_id, self.prefix + channel, so)
             data = np.asarray(arr[sl if channel == "scalar" else (slice(None),) + sl])
             stored = np.asarray(_array(self.path, self.meta.store_id, self.prefix + "done", so)[index]) if verify else None
         except Exception as exc:
-            raise CorruptStoreError(
-                f"{self.path}: {where} cannot be read ({type(exc).__name__}: {exc})"
-            ) from None
+            why = ("its chunk fails its crc32c check: the file was damaged" if "checksum" in str(exc).lower()
+                   else f"{type(exc).__name__}: {exc}")
+            raise CorruptStoreError(f"{self.path}: {where} cannot be read ({why})") from None
         if verify:
             want = stored[self.meta.channel_names.index(channel)]
             if not want.any():
@@ -335,23 +342,13 @@ class EncryptedVolume:
         return batches[0] if channel == "scalar" else batches
 
     def verify(self, coprime: bool = True) -> None:
-        """Read every brick and check every ciphertext (range, and coprimality with n)."""
-        n = self.public_key.n
-        channels = self.meta.channel_names
+        """Read every brick and check every ciphertext (digest, range, and coprimality with n);
+        the first damaged brick raises :class:`hevr.CorruptStoreError` naming it. To name every
+        damaged brick (in Dask tasks on a cluster) use :func:`hevr.store.verify.verify_bricks`."""
         for idx in self.brick_indices():
-            for ch in channels:
-                res = self.read_brick(idx, ch, backend="cpu")  # the gcd test below works on mpz
-                lists = [res] if ch == "scalar" else res
-                if coprime:
-                    for cts in lists:
-                        # one gcd per brick: gcd(prod c mod n, n) = 1 iff every c is a unit
-                        prod = gmpy2.mpz(1)
-                        for c in cts:
-                            prod = prod * c % n
-                        if gmpy2.gcd(prod, n) != 1:
-                            raise CorruptStoreError(
-                                f"{self.path}: brick {idx} of channel {ch!r} holds a ciphertext not coprime to n"
-                            )
+            problems = check_brick(self, idx, coprime)
+            if problems:
+                raise CorruptStoreError(f"{self.path}: {problems[0]}")
 
 
 def open_volume(path: str | os.PathLike, verify: str = "quick", *,
@@ -387,6 +384,7 @@ def open_volume(path: str | os.PathLike, verify: str = "quick", *,
         hint = (f" (an interrupted overwrite left {', '.join(Path(q).name for q in left)} beside it: rename "
                 f"one of them to {Path(path).name})") if left else ""
         raise MissingFileError("path", "an encrypted volume store" + hint, path)
+    check_document(path, "")  # a FIFO there would block Zarr's open
     try:
         group = zarr.open_group(zarr_store(path, so, read_only=True), mode="r")
         attrs = dict(group.attrs)

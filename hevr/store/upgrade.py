@@ -12,7 +12,9 @@ re-encrypting is the stronger choice.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import errno
 import logging
 import os
 from pathlib import Path
@@ -23,6 +25,7 @@ import numpy as np
 import zarr
 
 from .._dask import compute
+from .._files import held_lock, os_error, temp_sibling
 from ..backends import get_backend
 from ..crypto.keys import PublicKey
 from ..errors import (
@@ -94,7 +97,8 @@ def upgrade_store(src: str | os.PathLike, dst: str | os.PathLike, *, client: Any
     src : str or Path
         A complete format-1 store; it is only read.
     dst : str or Path
-        Where the new store goes; must not exist.
+        Where the new store goes; must not exist (:class:`hevr.StoreExistsError`, checked
+        before any work and again, atomically, when the finished store is put there).
     client : distributed.Client, optional
         Defaults to the active client, else Dask's default scheduler.
     progress : bool
@@ -104,23 +108,61 @@ def upgrade_store(src: str | os.PathLike, dst: str | os.PathLike, *, client: Any
     -------
     EncryptedVolume
         The new store, opened.
+
+    Notes
+    -----
+    Locally the new store is built in a hidden sibling ``.NAME.hevr-new-…`` (locked while it
+    is written, removed if the upgrade fails) and moved to ``dst`` only when complete, by an
+    exclusive ``mkdir`` of ``dst`` and a rename onto that empty folder: of two upgrades (or an
+    upgrade and any other writer) into one path exactly one wins, and nothing already at
+    ``dst`` is ever touched. An object store has no atomic create of a prefix: there ``dst`` is
+    checked before the store is created in place, and a writer that creates it in between is
+    not detected.
     """
     src, dst = normalise(src), normalise(dst)
     old = _old_metadata(src)
     if store_exists(dst):
         raise StoreExistsError(f"dst: {dst} already exists; choose a new path for the upgraded store")
     meta = dataclasses.replace(old, version=2, store_id=token() + token(), complete=False)
-    meta = create_store(dst, meta)
+    build = str(temp_sibling(dst, "new")) if is_local(dst) else dst
+    meta = create_store(build, meta)
     meta_dict = meta.to_dict()
     task = dask.delayed(_copy_brick, pure=False)
-    tasks = [task(src, dst, idx, meta_dict, dask_key_name=f"hevr-upgrade-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
+    tasks = [task(src, build, idx, meta_dict, dask_key_name=f"hevr-upgrade-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
              for idx in (tuple(int(i) for i in ix) for ix in np.ndindex(*meta.grid))]
     try:
-        compute(tasks, client=client, progress=progress, desc="upgrade")
-        zarr.open_group(dst, mode="r+").attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
+        with held_lock(build) if is_local(build) else contextlib.nullcontext():
+            compute(tasks, client=client, progress=progress, desc="upgrade")
+            zarr.open_group(build, mode="r+").attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
+        if build != dst:
+            _move_new(build, dst)
     except BaseException:
-        log.warning("upgrade of %s failed; removing the partial new store %s", src, dst)
-        remove_tree(dst)
+        log.warning("upgrade of %s failed; removing the partial new store %s", src, build)
+        remove_tree(build)
         raise
     log.info("upgraded %s (format 1) to %s (format 2)", src, dst)
     return open_volume(dst)
+
+
+def _move_new(build: str, dst: str) -> None:
+    """Put the finished local store ``build`` at ``dst`` only if nothing is there: an exclusive
+    ``mkdir`` claims ``dst`` (``EEXIST``: :class:`hevr.StoreExistsError`), then ``build`` is
+    renamed onto that empty folder (which POSIX ``rename`` replaces atomically)."""
+    try:
+        os.mkdir(dst)
+    except FileExistsError:
+        raise StoreExistsError(f"dst: {dst} already exists (created while the upgrade ran); choose a new path "
+                               "for the upgraded store") from None
+    except OSError as exc:
+        raise os_error(exc, "creating the upgraded store", dst) from None
+    try:
+        os.rename(build, dst)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.rmdir(dst)  # the empty folder claimed above (rmdir never removes anything else)
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+            raise StoreExistsError(f"dst: {dst} was filled while the upgrade ran; choose a new path for the "
+                                   "upgraded store") from None
+        if isinstance(exc, OSError):
+            raise os_error(exc, "moving the upgraded store to", dst) from None
+        raise

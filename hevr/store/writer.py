@@ -36,6 +36,7 @@ intact. ``resume=True`` is refused for another input volume (:mod:`hevr.store.jo
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 from pathlib import Path
@@ -48,6 +49,7 @@ import zarr
 
 from .. import _stats
 from .._dask import active_client, compute
+from .._files import fs_errors
 from .._validate import (
     MAX_STORE_DIGITS,
     check_brick,
@@ -63,6 +65,7 @@ from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume import gradient as grad
 from ..volume.density import (
+    check_brick_range,
     default_value_range,
     encode_density,
     minmax,
@@ -71,24 +74,24 @@ from ..volume.density import (
 from ..volume.mapped import task_array
 from ..volume.scan import Scan
 from .digests import brick_digest, marker, written
+from .creation import create_store, new_store, resume_target  # noqa: F401 - create_store: hevr.store.upgrade
+from .exclusive import lock_store, remove_leftovers
 from .journal import check_journal, input_digests, remove_journal, write_journal
-from .layout import compressors
 from .metadata import ChannelInfo, VolumeMetadata
 from .paths import (
     check_reachable,
     check_replaceable,
     check_storage_options,
-    document_digest,
     interrupted_swaps,
+    is_local,
     normalise,
     remove_tree,
-    sibling,
     store_exists,
     swap,
     token,
     zarr_store,
 )
-from .reader import EncryptedVolume, array_layout, brick_slices, open_volume
+from .reader import EncryptedVolume, brick_slices, open_volume
 
 log = logging.getLogger(__name__)
 
@@ -183,11 +186,22 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
     """One task: encrypt one plaintext brick and write its chunks, then its digest marker.
 
     With the gradient channel ``block`` carries a one-voxel ``halo`` of its neighbours
-    (:mod:`hevr.volume.gradient`) and ``m_max`` is the whole volume's max |∇d| (owner side only)."""
+    (:mod:`hevr.volume.gradient`) and ``m_max`` is the whole volume's max |∇d| (owner side only).
+    An ``OSError`` (disk full, read-only filesystem, …) becomes :class:`hevr.FileSystemError`
+    naming the store and the reason only (never a value of the brick)."""
+    with fs_errors("writing a brick of the store", path):
+        return _write_brick(block, path, index, meta_dict, key, unsafe_no_obfuscation, backend, halo, m_max,
+                            storage_options)
+
+
+def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
+                 unsafe_no_obfuscation: bool, backend: str, halo: grad.Halo | None, m_max: float,
+                 storage_options: dict | None) -> tuple[int, int, int]:
     be = get_backend(backend)
     meta = VolumeMetadata.from_dict(meta_dict)
     haloed = np.asarray(block)
     block = haloed if halo is None else haloed[tuple(slice(lo, n - hi) for (lo, hi), n in zip(halo, haloed.shape))]
+    check_brick_range(block, meta.value_range, index)  # no data value in a task's message
     sl = brick_slices(meta, index)
     width = meta.ciphertext_bytes
     group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
@@ -215,39 +229,6 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
             group[name][(slice(None),) + sl] = out
     group["done"][index] = marker(digests)
     return index
-
-
-def create_store(path: str, meta: VolumeMetadata, storage_options: dict | None = None) -> VolumeMetadata:
-    """Create the group and its arrays; record the digest of each array's metadata document
-    in the (checksummed) ``hevr`` attribute, written last. Returns the metadata written."""
-    group = zarr.open_group(zarr_store(path, storage_options), mode="w")
-    for name, (shape, chunks) in array_layout(meta).items():
-        group.create_array(name, shape=shape, chunks=chunks, dtype="uint8", compressors=compressors(name),
-                           fill_value=0)
-    meta = dataclasses.replace(meta, arrays={name: document_digest(path, name, storage_options)
-                                             for name in array_layout(meta)})
-    group.attrs["hevr"] = meta.to_dict()
-    return meta
-
-
-def _resume_target(path: str, meta: VolumeMetadata, storage_options: dict | None = None) -> VolumeMetadata:
-    try:
-        group = zarr.open_group(zarr_store(path, storage_options, read_only=True), mode="r")
-        old = VolumeMetadata.from_dict(dict(group.attrs).get("hevr"), where=path)
-    except StoreError:
-        raise
-    except Exception as exc:
-        raise StoreError(f"resume: cannot open the existing store {path}: {exc}") from None
-    if old.fingerprint != meta.fingerprint:
-        raise ParameterError(
-            f"key: the store {path} was started with key {old.fingerprint[:16]}…, got key {meta.fingerprint[:16]}…"
-        )
-    for name in ("shape", "brick", "spacing", "scalar", "vector", "gradient", "value_range", "dtype"):
-        if getattr(old, name) != getattr(meta, name):
-            raise ParameterError(
-                f"{name}: resume needs the same {name} as the interrupted run ({getattr(old, name)!r}), got {getattr(meta, name)!r}"
-            )
-    return old
 
 
 def encrypt_volume(
@@ -349,43 +330,64 @@ def encrypt_volume(
     )
     path, so = normalise(path), check_storage_options(storage_options)
     check_reachable(path, active_client(client))
-    left = interrupted_swaps(path)
-    if left:
-        log.warning("an interrupted overwrite left %s beside %s; they are not touched", left, path)
     _warn_if_remote(client, key)
     exists = store_exists(path, so)
     if exists and not (resume or overwrite):
         raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
+    local = is_local(path)
+    if local:
+        remove_leftovers(path)  # of killed or failed earlier runs (hevr.store.exclusive)
+        left = interrupted_swaps(path)
+        if left:
+            log.warning("an interrupted or failed overwrite left %s beside %s; they are not touched", left, path)
     bricks = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid)]
-    if exists and resume:
-        old = _resume_target(path, meta, so)
-        # a finished store keeps everything built on it since (its pyramid levels)
-        meta = dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays, levels=old.levels)
-        check_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
-        done = written(zarr.open_array(zarr_store(path, so, read_only=True), path="done", mode="r")[...])
-        target = path
-    else:
-        if exists:
-            old_id = check_replaceable(path, so)
-        meta = dataclasses.replace(meta, store_id=token() + token())
-        write_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
-        target = sibling(path, "new") if exists else path  # overwrite: beside the old store, then swap
-        meta = create_store(target, meta, so)
-        done = np.zeros(meta.grid, bool)
-    todo = [idx for idx in bricks if not done[idx]]
-    log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)
-    try:
-        _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
-    except BaseException:
-        if target != path:
-            log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
-                        target, path)
-            remove_tree(target, so)
-        raise
-    if target != path:
-        swap(target, path, so)
-        remove_journal(old_id)  # the replaced store's resume evidence is of no more use
-    return open_volume(path, storage_options=so)
+    with contextlib.ExitStack() as stack:  # the store's lock, held until the store is opened
+        if exists and resume:
+            if local:
+                stack.enter_context(lock_store(path))
+            old = resume_target(path, meta, so)
+            # a finished store keeps everything built on it since (its pyramid levels)
+            meta = dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays, levels=old.levels)
+            check_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
+            done = written(zarr.open_array(zarr_store(path, so, read_only=True), path="done", mode="r")[...])
+            target = path
+        else:
+            if exists:
+                check_replaceable(path, so)
+                if local:
+                    lock_store(path, hold=False)  # refuse at once to replace a store another run writes now
+            meta = dataclasses.replace(meta, store_id=token() + token())
+            write_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
+            try:
+                target, meta, lock = new_store(path, meta, so, beside=exists)  # overwrite: beside, then swap
+            except BaseException:
+                remove_journal(meta.store_id)
+                raise
+            stack.enter_context(lock)
+            done = np.zeros(meta.grid, bool)
+        todo = [idx for idx in bricks if not done[idx]]
+        log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)
+        try:
+            _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
+        except BaseException:
+            if target != path:
+                log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
+                            target, path)
+                remove_tree(target, so)
+            raise
+        if target == path:
+            ev = open_volume(path, storage_options=so)
+        else:
+            try:
+                old_id, ev = swap(target, path, so, lock=lock, then=lambda: open_volume(path, storage_options=so))
+            except StoreExistsError:  # refused before anything moved (another run writes the store now)
+                remove_tree(target, so)
+                raise
+            remove_journal(old_id)  # the replaced store's resume evidence is of no more use
+    if ev.meta.store_id != meta.store_id:
+        raise StoreExistsError(f"path: the store at {path} was created or replaced by another run while this one "
+                               "wrote it; this run's store is not there")
+    return ev
 
 
 def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: VolumeMetadata, key: Any,
@@ -417,11 +419,12 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
                   dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
              for idx, kw in zip(todo, extra)]
     compute(tasks, client=client, progress=progress, desc="encrypt")
-    group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
-    final = written(group["done"][...])
-    if not final.all():  # pragma: no cover - tasks raise instead
-        raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
-    group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
+    with fs_errors("finishing the store", path):
+        group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
+        final = written(group["done"][...])
+        if not final.all():  # pragma: no cover - tasks raise instead
+            raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
+        group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
 
 
 def _warn_if_remote(client: Any, key: Any) -> None:

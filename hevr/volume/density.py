@@ -24,7 +24,7 @@ from .._validate import (
 )
 from ..errors import ParameterError
 
-__all__ = ["encode_density", "normalize_density", "default_value_range", "minmax"]
+__all__ = ["check_brick_range", "encode_density", "normalize_density", "default_value_range", "minmax"]
 
 
 def encode_density(density: Any, dims: int) -> np.ndarray:
@@ -52,8 +52,10 @@ def encode_density(density: Any, dims: int) -> np.ndarray:
     dims = check_vector_dims(dims, "dims")
     d = np.asarray(density, dtype=np.float64)
     if d.size and not (np.all(d >= 0.0) and np.all(d <= 1.0)):  # also rejects NaN
-        bad = d[~((d >= 0.0) & (d <= 1.0))].ravel()[0]
-        raise ParameterError(f"density: expected values in [0, 1], got {bad!r}")
+        # where, never what: this also runs inside encryption tasks, whose errors reach the
+        # scheduler's logs (module docstring of hevr.store.writer)
+        where = tuple(int(i) for i in np.argwhere(~((d >= 0.0) & (d <= 1.0)))[0])
+        raise ParameterError(f"density: expected values in [0, 1], got one outside (or NaN) at index {where}")
     s = d * 2.0 * (dims - 1)
     fs = np.floor(s)
     frac = s - fs
@@ -86,6 +88,32 @@ def minmax(vol: Any, slab_bytes: int = 64 << 20) -> tuple[Any, Any]:
         a, b = slab.min(), slab.max()
         lo, hi = (a, b) if lo is None else (np.minimum(lo, a), np.maximum(hi, b))
     return lo.item(), hi.item()
+
+
+def check_brick_range(block: np.ndarray, value_range: tuple[float, float], index: Any) -> None:
+    """Refuse a plaintext brick with a value outside ``value_range`` (or NaN) inside an
+    encryption task, naming the brick but no value.
+
+    The owner's process checked the whole volume against ``value_range`` before any task ran
+    (and may say the data range there); a brick that fails here changed since (a file written
+    to while it was encrypted, a non-deterministic dask array). The message goes to the
+    workers' and scheduler's logs, so it quotes neither the data nor a range derived from it
+    — only the brick and the public ``value_range``.
+
+    >>> check_brick_range(np.array([1.0, 2.0]), (0.0, 2.0), (0, 0, 0))
+    >>> check_brick_range(np.array([1.0, 31415.9]), (0.0, 2.0), (0, 1, 0))
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: vol: brick (0, 1, 0): expected values inside value_range (0.0, 2.0) as checked before encryption, got values outside it (the input changed while it was encrypted?)
+    """
+    arr = np.asarray(block)
+    if not arr.size:
+        return
+    lo, hi = arr.min(), arr.max()
+    if not (value_range[0] <= lo and hi <= value_range[1]):  # NaN fails both
+        raise ParameterError(f"vol: brick {tuple(int(i) for i in index)}: expected values inside value_range "
+                             f"{tuple(float(v) for v in value_range)} as checked before encryption, got values "
+                             "outside it (the input changed while it was encrypted?)")
 
 
 def normalize_density(values: Any, value_range: Any) -> np.ndarray:

@@ -127,11 +127,18 @@ def _is_image(ds: Any) -> bool:
 
 
 def _walk(folder: Path) -> list[Path]:
-    """Every non-hidden file under ``folder``, sorted, without following links to folders."""
+    """Every non-hidden regular file under ``folder``, sorted, without following links to
+    folders; a FIFO, socket or device is skipped (opening it to look for DICOM would block)."""
     out = []
     for root, dirs, files in os.walk(folder):
         dirs[:] = sorted(d for d in dirs if not d.startswith("."))
-        out.extend(Path(root) / f for f in sorted(files) if not f.startswith("."))
+        for f in sorted(files):
+            if f.startswith("."):
+                continue
+            if (Path(root) / f).is_file():
+                out.append(Path(root) / f)
+            else:
+                _log.warning("skipping %s: not a regular file (a FIFO, socket or device)", Path(root) / f)
     return out
 
 

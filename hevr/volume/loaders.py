@@ -34,9 +34,9 @@ from typing import Any, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from .._files import require_file
+from .._files import check_regular, require_file
 from .._validate import check_choice, check_int, check_spacing, check_volume
-from ..errors import ParameterError, VolumeFormatError
+from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from .dicom import read_dicom
 from .nifti import read_nifti
 from .nrrd import check_file, is_kind, load_raw, to_native, write_nrrd, write_raw
@@ -81,6 +81,18 @@ def _format(path: Path) -> str:
 def _check_volume(arr: np.ndarray, path: Path) -> np.ndarray:
     """Reject anything that is not a non-empty 3-D integer/float array; native byte order."""
     return to_native(check_volume(arr, path.name, kinds="uif", error=VolumeFormatError))
+
+
+def _check_folder_files(folder: Path) -> None:
+    """Every file in the Zarr input ``folder`` is a regular file: a FIFO, a socket or a device
+    in place of a chunk or a document would block or fail Zarr's read (one ``stat`` each)."""
+    for root, _, files in os.walk(folder):
+        for f in files:
+            try:
+                check_regular(Path(root) / f, "path", f"a file of the Zarr input {folder.name}",
+                              error=VolumeFormatError)
+            except MissingFileError:  # removed while we looked: Zarr says what that means
+                continue
 
 
 def _check_keywords(kind: str, path: Path, shape: Any, dtype: Any, series: Any, allow_uneven: Any,
@@ -173,6 +185,8 @@ def read_scan(path: str | os.PathLike[str], *, shape: Sequence[int] | None = Non
         raise ParameterError(f"allow_uneven: expected True or False, got {allow_uneven!r}")
     override = None if spacing is None else check_spacing(spacing)
     kind = _format(path)
+    if kind == "zarr":
+        _check_folder_files(path)
     volume = _check_keywords(kind, path, shape, dtype, series, allow_uneven, volume)
     if kind == "npy":
         scan = Scan(_load_npy(path), (1.0, 1.0, 1.0), source=str(path))

@@ -39,7 +39,9 @@ class MappedFile:
     shape, strides : tuple of int
         As numpy's; strides in bytes, negative for flipped axes.
     dtype : numpy dtype
-        The voxel type, with its byte order.
+        The voxel type in the file, with its byte order. The window's own ``dtype`` is its
+        native-order twin: what ``[...]`` returns (a big-endian file is swapped in the copy
+        each task makes, never read whole).
 
     Examples
     --------
@@ -56,11 +58,12 @@ class MappedFile:
                  dtype: Any) -> None:
         self.filename, self.offset = str(filename), int(offset)
         self.shape, self.strides = tuple(int(s) for s in shape), tuple(int(s) for s in strides)
-        self.dtype = np.dtype(dtype)
+        self.file_dtype = np.dtype(dtype)
+        self.dtype = self.file_dtype.newbyteorder("=")
         self.ndim = len(self.shape)
 
     def __reduce__(self) -> tuple:
-        return MappedFile, (self.filename, self.offset, self.shape, self.strides, self.dtype)
+        return MappedFile, (self.filename, self.offset, self.shape, self.strides, self.file_dtype)
 
     def __repr__(self) -> str:
         return f"MappedFile({self.filename!r}, shape={self.shape}, dtype={self.dtype})"
@@ -70,11 +73,12 @@ class MappedFile:
         return int(np.prod(self.shape))
 
     def __getitem__(self, index: Any) -> np.ndarray:
-        """A copy of ``array[index]``: the mapping is closed again when the copy is made."""
+        """A copy of ``array[index]`` in native byte order: the mapping is closed again when the
+        copy is made."""
         raw = np.memmap(self.filename, dtype=np.uint8, mode="r")
         try:
-            view = np.ndarray(self.shape, self.dtype, buffer=raw, offset=self.offset, strides=self.strides)
-            return np.array(view[index])
+            view = np.ndarray(self.shape, self.file_dtype, buffer=raw, offset=self.offset, strides=self.strides)
+            return np.array(view[index], dtype=self.dtype)
         finally:
             del raw
 
@@ -96,10 +100,24 @@ def file_backed(vol: Any) -> MappedFile | None:
 
 
 def task_array(vol: Any, brick: tuple[int, int, int], name: str) -> Any:
-    """``vol`` as the tasks should read it: a read-only memory map becomes a dask array named
-    ``name`` whose tasks map the file and read their own brick (the graph holds the file's
-    name and layout, never the voxels); anything else is returned unchanged."""
+    """``vol`` as the tasks should read it, in native byte order: a read-only memory map
+    becomes a dask array named ``name`` whose tasks map the file and read their own brick
+    (the graph holds the file's name and layout, never the voxels); any other array of
+    another byte order (``>i2``, ``>f8`` of some NRRD and raw files) a dask array that swaps
+    each brick inside its task; anything else is returned unchanged.
+
+    >>> v = np.arange(8, dtype=">i2").reshape(2, 2, 2)
+    >>> t = task_array(v, (1, 2, 2), "x")
+    >>> t.dtype.isnative, t.compute().tolist() == v.tolist()
+    (True, True)
+    """
     src = file_backed(vol)
-    if src is None:
+    if src is not None:
+        return dask.array.from_array(src, chunks=brick, name=name, lock=False,
+                                     meta=np.empty((0, 0, 0), src.dtype))
+    dtype = np.dtype(vol.dtype)
+    if dtype.isnative:
         return vol
-    return dask.array.from_array(src, chunks=brick, name=name, lock=False, meta=np.empty((0, 0, 0), src.dtype))
+    if not isinstance(vol, dask.array.Array):
+        vol = dask.array.from_array(vol, chunks=brick, name=name)
+    return vol.astype(dtype.newbyteorder("="))

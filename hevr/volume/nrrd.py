@@ -29,6 +29,7 @@ from typing import Any, BinaryIO, Callable
 
 import numpy as np
 
+from .._files import check_regular
 from .._validate import check_dtype, check_shape
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from .nrrd_encodings import BLOCK, ENCODINGS, read_ascii, read_compressed, read_hex
@@ -78,8 +79,16 @@ def is_kind(path: Path, directory: bool = False) -> bool:
 
 
 def check_file(path: Path) -> Path:
-    """Return ``path`` if it is an existing file, else raise :class:`hevr.MissingFileError`."""
+    """Return ``path`` if it is an existing regular file, else raise :class:`hevr.MissingFileError`
+    (nothing there) or :class:`hevr.NotRegularFileError` (a FIFO, a socket, a device, a folder:
+    reading one would block or fail)."""
     if not is_kind(path):
+        try:
+            there = path.exists()
+        except (OSError, ValueError):  # a name the OS refuses names nothing
+            there = False
+        if there:
+            check_regular(path, "path", "a volume file")
         raise MissingFileError("path", "a volume file", path)
     return path
 

@@ -165,7 +165,7 @@ def _bad_cases(d: Path) -> list[tuple[list, int, str]]:
         (["render", d / "vol.zarr", "--out", d / "x.hevr", "--size", "20by20"], 2, "--size"),
         (["render", d / "vol.zarr", "--out", d / "x.hevr", "--mode", "emphasize"], 2, "--density"),
         (["decrypt", d / "xray.hevr", "--key", d / "wrong.json", "--out", d / "x.png"], 2, "encrypted under key"),
-        (["decrypt", d / "xray.hevr", "--key", d / "key.pub.json"], 2, "private key"),
+        (["decrypt", d / "xray.hevr", "--key", d / "key.pub.json", "--out", d / "pub.png"], 2, "private key"),
         (["decrypt", d / "notes.txt", "--key", d / "key.json"], 2, "notes.txt"),
         (["info", d / "nothing-here"], 2, "nothing-here"),
         (["demo", "--image", "0x5"], 2, "--image"),
@@ -190,7 +190,7 @@ def test_errors_are_one_line(work, capsys):
 
 def test_verbose_shows_traceback(work, capsys):
     d, _ = work
-    code, out, err = run(capsys, "decrypt", d / "xray.hevr", "--key", d / "wrong.json", "--verbose")
+    code, out, err = run(capsys, "decrypt", d / "xray.hevr", "--key", d / "wrong.json", "--verbose", "--force")
     assert code == 2 and "Traceback" in err and "KeyMismatchError" in err
     assert err_lines(err)[-1].startswith("hevr: error:")
 
