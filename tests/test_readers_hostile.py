@@ -237,3 +237,31 @@ def test_verify_bricks_names_every_damaged_brick(store, cluster, on_cluster):
     assert all(str(p).startswith(f"brick {p.index} of channel '{p.channel}'") for p in report.problems)
     with pytest.raises(hevr.CorruptStoreError, match=r"brick \(0, 2, 2\) of channel 'vector'"):
         ev.verify()  # the first damaged brick, in raster order
+
+
+def test_overwriting_or_resuming_a_store_whose_zarr_json_is_a_fifo_does_not_block(store, keypair256):
+    """The writer reads the old store's documents too (is it an hevr store? is it complete?)."""
+    fifo = _replace(store / "zarr.json", "fifo")
+    vol = np.zeros(SHAPE, np.uint8)
+    for kw in ({"overwrite": True}, {"resume": True}):
+        with pytest.raises(hevr.HevrError):
+            _bounded(lambda: hevr.encrypt_volume(vol, store, keypair256[0], brick=BRICK, progress=False, **kw),
+                     fifo)
+    assert fifo.is_fifo()  # refused, not replaced: it is no hevr store
+
+
+def test_a_fifo_journal_does_not_block_a_resume(tmp_path, keypair256, monkeypatch):
+    from hevr.store import journal
+
+    monkeypatch.setattr(journal, "journal_path", lambda store_id: tmp_path / "journal.json")
+    os.mkfifo(tmp_path / "journal.json")
+    with pytest.raises(hevr.ParameterError):
+        _bounded(lambda: journal.check_journal("abc", "v.zarr", "f" * 64, {}), tmp_path / "journal.json")
+
+
+def test_resuming_a_store_with_a_fifo_digest_marker_does_not_block(store, keypair256):
+    vol = np.random.default_rng(5).integers(0, 256, SHAPE).astype(np.uint8)  # the fixture's volume
+    fifo = _replace(store / "done/c/1/2/0/0/0", "fifo")
+    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(1, 2, 0\).*got a FIFO"):
+        _bounded(lambda: hevr.encrypt_volume(vol, store, keypair256[0], brick=BRICK, vector_dims=3, progress=False,
+                                             resume=True), fifo)

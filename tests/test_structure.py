@@ -70,7 +70,7 @@ PUBLIC_API = (
     "HevrError", "ParameterError", "InvalidKeyError", "KeyMismatchError", "PlaintextOverflowError",
     "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "IntegrityError",
     "VolumeFormatError", "MissingDependencyError", "MissingFileError", "MemoryLimitError", "ExistingFileError", "NotRegularFileError",
-    "FileSystemError", "InsecureKeyWarning",
+    "FileSystemError", "InsecureKeyWarning", "KeyFilePermissionWarning",
     "VIEWS", "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
 )
 API_MD = ROOT.parent / "shared" / "API.md"

@@ -259,3 +259,34 @@ def test_a_local_name_with_a_scheme_separator_is_a_parameter_error(tmp_path, sce
     with pytest.raises(hevr.ParameterError, match=r"^keep_sums: expected a local path or an fsspec URL"):
         hevr.render(ev, cam, keep_sums=name.replace(".hevr", ".hevrsums"), cache=False, progress=False)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", ["v.npy", "v_5x4x3_int16.raw", "v.nrrd", "v.nhdr", "g.nhdr"])
+def test_save_volume_refuses_an_existing_file_and_replaces_only_when_asked(tmp_path, name):
+    vol = np.arange(60, dtype=">i2").reshape(3, 4, 5)  # big-endian, as some NRRD files are
+    kw = {"encoding": "gzip"} if name == "g.nhdr" else {}
+    path = hevr.save_volume(tmp_path / name, vol, **kw)
+    written = sorted(p.name for p in tmp_path.iterdir())
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    with pytest.raises(hevr.ExistingFileError, match="pass overwrite=True"):
+        hevr.save_volume(tmp_path / name, vol + 1, **kw)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # nothing touched, nothing left
+    hevr.save_volume(tmp_path / name, vol + 1, overwrite=True, **kw)
+    assert sorted(p.name for p in tmp_path.iterdir()) == written
+    if not name.endswith(".raw"):
+        assert np.array_equal(hevr.load_volume(path)[0], vol + 1)
+
+
+def test_save_volume_refuses_a_header_whose_data_file_exists(tmp_path):
+    (tmp_path / "v.raw").write_bytes(b"someone else's data")
+    with pytest.raises(hevr.ExistingFileError, match="v.raw"):
+        hevr.save_volume(tmp_path / "v.nhdr", np.zeros((2, 2, 2), np.uint8))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.raw"]
+    assert (tmp_path / "v.raw").read_bytes() == b"someone else's data"
+
+
+def test_save_volume_on_a_full_disk_is_a_filesystem_error(tmp_path, monkeypatch):
+    monkeypatch.setattr(_files.os, "write", _raise(errno.ENOSPC))
+    with pytest.raises(hevr.FileSystemError, match=r"writing the volume .*v\.npy: .*\(ENOSPC\)"):
+        hevr.save_volume(tmp_path / "v.npy", np.zeros((2, 2, 2), np.uint8))
+    assert list(tmp_path.iterdir()) == []

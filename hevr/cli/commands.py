@@ -199,10 +199,8 @@ def cmd_recolour(args: Any) -> int:
     if str(path if st.is_url(args.sums) else path.absolute()) == str(out if st.is_url(args.out) else out.absolute()):
         raise UsageError(f"--out: expected another file than SUMS, got {args.out} for both (it would replace the sums)")
     out = st.output_file(args.out, force=args.force, so=so)  # after the check above: SUMS exists
-    if not st.is_url(args.sums) and path.is_dir():
-        raise UsageError(f"SUMS: expected a ray-sums file (hevr render --keep-sums), got a folder ({args.sums})")
-    if not st.is_url(args.sums) and not path.is_file():
-        raise MissingFileError("SUMS", "a ray-sums file (hevr render --keep-sums)", args.sums)
+    if not st.is_url(args.sums):  # missing, or a folder, FIFO, device (never opened: it could block)
+        check_regular(args.sums, "SUMS", "a ray-sums file (hevr render --keep-sums)")
     if st.head_of(args.sums, len(SUMS_MAGIC) - 1, "SUMS", "a ray-sums file", so) != SUMS_MAGIC[:-1]:
         raise UsageError(f"SUMS: expected a ray-sums file (hevr render --keep-sums), got {args.sums}, which is not one")
     saved = load_sums(path, storage_options=so)

@@ -22,7 +22,7 @@ import json
 from pathlib import Path
 from typing import Iterable
 
-from .._files import write_atomic
+from .._files import read_regular, write_atomic
 from ..errors import ExistingFileError
 
 __all__ = ["MARK", "OutputFolder"]
@@ -44,7 +44,7 @@ def fingerprint(path: Path) -> str | None:
                     h.update(block)
             return "sha256:" + h.hexdigest()
         if path.is_dir():
-            doc = json.loads((path / "zarr.json").read_text(encoding="utf-8"))
+            doc = json.loads(read_regular(path / "zarr.json", "--out", "a store document", limit=1 << 24))
             sid = doc["attributes"]["hevr"]["store_id"]
             return f"store:{sid}" if isinstance(sid, str) and sid else None
     except (OSError, ValueError, KeyError, TypeError):

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from .._files import write_file
+from .._files import check_regular, write_file
 from ..errors import ExistingFileError, MissingFileError
 from ..image import MAGIC, save_png
 from ..rendering.sums import MAGIC as SUMS_MAGIC
@@ -177,6 +177,7 @@ def head_of(text: str, n: int, word: str, what: str, so: dict | None = None) -> 
             return read_bytes(normalise(text), so)[:n]
         except FileNotFoundError:
             raise MissingFileError(word, what, text) from None
+    check_regular(local_path(text), word, what)  # a FIFO or a device would block the read
     with open(local_path(text), "rb") as fh:
         return fh.read(n)
 

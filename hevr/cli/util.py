@@ -29,6 +29,7 @@ from ..crypto.keyfile import load_key
 from ..crypto.keys import SECURE_BITS, PrivateKey
 from ..errors import (
     ExistingFileError,
+    FileSystemError,
     InsecureKeyWarning,
     MissingFileError,
     ParameterError,
@@ -305,7 +306,7 @@ def check_frame_path(path: Path, word: str) -> Path:
         with open(path, "rb") as fh:
             head = fh.read(len(MAGIC_PREFIX))
     except OSError as exc:
-        raise OSError(f"{word}: cannot read {path}: {exc.strerror}") from None
+        raise FileSystemError(exc.errno, f"{word}: reading", path, exc.strerror) from None
     if head != MAGIC_PREFIX:
         raise UsageError(f"{word}: expected {what}, got a file that is not one ({path})")
     return path

@@ -9,7 +9,7 @@ quoting a secret value. What a file claims is checked too: a public key's n must
 be a Paillier modulus (:func:`modulus_problem`: odd, not a square, not prime, no factor below
 2^16), a file of kind ``"public"`` must not hold private fields (a private key file edited to
 say public is refused, not loaded as its public half), and a private key file readable or
-writable by others is loaded with a :class:`hevr.errors.KeyFilePermissionWarning` telling
+writable by others is loaded with a :class:`hevr.KeyFilePermissionWarning` telling
 ``chmod 600 PATH`` (a warning, not OpenSSH's refusal: pheutil writes its keys 0644, and some
 filesystems cannot hold 0600).
 

@@ -16,12 +16,13 @@ import json
 import threading
 from pathlib import Path
 
+import numpy as np
 import zarr
 
 from .._files import fs_errors
 from ..errors import FileSystemError, ParameterError, StoreError, StoreExistsError
 from .exclusive import StoreLock, locked_folder, remove_local_tree, rename_noreplace
-from .layout import compressors
+from .layout import check_document, check_documents, check_entry, chunk_key, compressors
 from .metadata import VolumeMetadata
 from .paths import document_digest, filesystem, is_local, read_document, sibling, zarr_store
 from .reader import array_layout
@@ -148,8 +149,12 @@ def resume_target(path: str, meta: VolumeMetadata, storage_options: dict | None 
     """The metadata of the interrupted store at ``path`` that ``resume=True`` finishes, refused
     (:class:`hevr.ParameterError`) unless the run's key and layout ``meta`` match it."""
     try:
+        check_document(path, "")  # a FIFO in place of a document or a marker would block Zarr's read
         group = zarr.open_group(zarr_store(path, storage_options, read_only=True), mode="r")
         old = VolumeMetadata.from_dict(dict(group.attrs).get("hevr"), where=path)
+        check_documents(path, old, storage_options)
+        for idx in np.ndindex(*old.grid):  # the markers resume reads (absent ones are bricks to do)
+            check_entry(path, f"done/{chunk_key('done', idx)}", f"the digest marker of brick {idx}")
     except StoreError:
         raise
     except Exception as exc:

@@ -44,7 +44,7 @@ import time
 from pathlib import Path
 from typing import Iterator
 
-from .._files import temp_sibling, temporaries
+from .._files import read_regular, temp_sibling, temporaries
 from ..errors import FileSystemError, StoreError, StoreExistsError
 
 log = logging.getLogger(__name__)
@@ -172,8 +172,8 @@ def swap_lock(path: str | os.PathLike) -> Iterator[None]:
 
 def is_complete(path: str | os.PathLike) -> bool:
     """Whether the local ``path`` holds an hevr store marked complete (its ``zarr.json`` says so)."""
-    try:
-        doc = json.loads((Path(path) / "zarr.json").read_bytes()[:1 << 24])
+    try:  # read_regular: a FIFO in place of zarr.json must not block the clean-up
+        doc = json.loads(read_regular(Path(path) / "zarr.json", "path", "a store document", limit=1 << 24))
         return doc["attributes"]["hevr"]["complete"] is True
     except (OSError, ValueError, KeyError, TypeError):
         return False

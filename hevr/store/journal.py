@@ -40,7 +40,7 @@ import dask.array
 import numpy as np
 
 from .._dask import compute
-from .._files import fs_errors, write_atomic
+from .._files import fs_errors, read_regular, write_atomic
 from ..errors import ParameterError
 
 log = logging.getLogger(__name__)
@@ -112,7 +112,7 @@ def check_journal(store_id: str, path: str, fingerprint: str, digests: dict) -> 
     """Refuse a resume whose input differs from the interrupted run's (or cannot be compared)."""
     target = journal_path(store_id)
     try:
-        doc = json.loads(target.read_text())
+        doc = json.loads(read_regular(target, "journal", "a resume journal", limit=1 << 26))
         recorded = doc["bricks"] if doc.get("format") == FORMAT and doc.get("store_id") == store_id else None
     except FileNotFoundError:
         raise ParameterError(

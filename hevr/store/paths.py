@@ -27,8 +27,8 @@ from typing import Any, Callable
 
 from zarr.storage import FsspecStore
 
-from .._files import fs_errors, temp_sibling, temporaries
-from ..errors import ExistingFileError, MissingDependencyError, ParameterError, StoreExistsError
+from .._files import fs_errors, read_regular, temp_sibling, temporaries
+from ..errors import CorruptStoreError, ExistingFileError, MissingDependencyError, ParameterError, StoreExistsError
 from .exclusive import lock_store, remove_local_tree, rename_noreplace, swap_lock
 from .metadata import FORMAT_NAME, sha256_tag
 
@@ -176,8 +176,8 @@ def read_document(path: str, name: str, storage_options: dict[str, Any] | None =
     """The raw bytes of the Zarr metadata document ``name/zarr.json`` (``zarr.json`` for the
     group when ``name`` is empty) of the store at ``path``, local or fsspec."""
     rel = f"{name}/zarr.json" if name else "zarr.json"
-    if is_local(path):
-        return (Path(path) / rel).read_bytes()
+    if is_local(path):  # never blocks: a FIFO in place of a document is refused
+        return read_regular(Path(path) / rel, "path", f"the store document {rel}", error=CorruptStoreError)
     return read_bytes(f"{path.rstrip('/')}/{rel}", storage_options)
 
 
@@ -188,9 +188,10 @@ def document_digest(path: str, name: str, storage_options: dict[str, Any] | None
 
 
 def read_bytes(path: str, storage_options: dict[str, Any] | None = None) -> bytes:
-    """The bytes of the file or object ``path`` (local, or a URL); ``FileNotFoundError`` if absent."""
+    """The bytes of the file or object ``path`` (local, or a URL); ``FileNotFoundError`` if absent
+    (a local path must be a regular file: :func:`hevr._files.read_regular`)."""
     if is_local(path):
-        return Path(path).read_bytes()
+        return read_regular(path, "path", "a file")
     fs, root = filesystem(path, storage_options)
     return fs.cat_file(root)
 

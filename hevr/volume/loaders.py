@@ -25,6 +25,8 @@ attached ``.nrrd``), enough for tests, demos and the CLI.
 from __future__ import annotations
 
 import dataclasses
+import io
+import itertools
 import logging
 import math
 import os
@@ -34,12 +36,12 @@ from typing import Any, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from .._files import check_regular, require_file
+from .._files import check_regular, require_file, write_file
 from .._validate import check_choice, check_int, check_spacing, check_volume
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from .dicom import read_dicom
 from .nifti import read_nifti
-from .nrrd import check_file, is_kind, load_raw, to_native, write_nrrd, write_raw
+from .nrrd import check_file, data_parts, is_kind, load_raw, to_native, write_nrrd, write_raw
 from .nrrd_space import read_nrrd_scan
 from .scan import Scan
 from .tiff import read_tiff
@@ -276,14 +278,15 @@ def _load_npy(path: Path) -> np.ndarray:
 
 def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
                 spacing: Sequence[float] = (1.0, 1.0, 1.0), *, encoding: str = "raw",
-                byte_order: str = "little") -> Path:
+                byte_order: str = "little", overwrite: bool = False) -> Path:
     """Write a 3-D volume as ``.npy``, ``.raw``, NRRD ``.nhdr`` (+ data file) or ``.nrrd``.
 
     Parameters
     ----------
     path : str or os.PathLike
         Target; the extension picks the format. ``x.nhdr`` also writes ``x.raw`` (or
-        ``x.raw.gz`` with gzip) next to it. Existing files are overwritten.
+        ``x.raw.gz`` with gzip) next to it. Every file is written atomically (through a
+        temporary sibling) and an existing one is never replaced unless ``overwrite=True``.
     vol : array_like
         Integer or floating-point array of shape (nz, ny, nx).
     spacing : sequence of 3 floats, default (1, 1, 1)
@@ -293,6 +296,8 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
         NRRD data encoding.
     byte_order : {"little", "big"}, default "little"
         Byte order of ``.raw`` and NRRD data (``.npy`` records its own).
+    overwrite : bool, default False
+        Replace existing files (else :class:`hevr.ExistingFileError`, nothing written).
 
     Returns
     -------
@@ -321,7 +326,7 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
     require_file(path.parent, "path", "an existing folder", directory=True)
     suffix = path.suffix.lower()
     if suffix in (".nhdr", ".nrrd"):
-        write_nrrd(path, arr, spacing, encoding=encoding, byte_order=byte_order)
+        write_nrrd(path, arr, spacing, encoding=encoding, byte_order=byte_order, overwrite=overwrite)
         return path
     if suffix not in (".npy", ".raw"):
         raise ParameterError(f"save_volume: path must end in .npy, .raw, .nhdr or .nrrd, got {path.name}")
@@ -331,7 +336,11 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
         _log.warning("save_volume: %s cannot store spacing %s; it will load as (1, 1, 1)",
                      path.name, spacing)
     if suffix == ".npy":
-        np.save(path, np.ascontiguousarray(arr), allow_pickle=False)
+        head = io.BytesIO()  # C order whatever arr's layout: data_parts writes x fastest
+        np.lib.format.write_array_header_1_0(head, {"descr": np.lib.format.dtype_to_descr(arr.dtype),
+                                                    "fortran_order": False, "shape": arr.shape})
+        write_file(path, itertools.chain([head.getvalue()], data_parts(arr, None, "raw")), overwrite=overwrite,
+                   doing="writing the volume")
         return path
-    write_raw(path, arr, byte_order)
+    write_raw(path, arr, byte_order, overwrite=overwrite)
     return path

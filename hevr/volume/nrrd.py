@@ -21,17 +21,19 @@ header numbers must be ASCII decimal integers.
 from __future__ import annotations
 
 import gzip
+import io
+import itertools
 import logging
 import math
 import re
 from pathlib import Path
-from typing import Any, BinaryIO, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from .._files import check_regular
+from .._files import check_regular, write_file
 from .._validate import check_dtype, check_shape
-from ..errors import MissingFileError, ParameterError, VolumeFormatError
+from ..errors import ExistingFileError, MissingFileError, ParameterError, VolumeFormatError
 from .nrrd_encodings import BLOCK, ENCODINGS, read_ascii, read_compressed, read_hex
 
 _log = logging.getLogger(__name__)
@@ -153,28 +155,34 @@ def load_raw(path: Path, shape: object, dtype: object, byte_order: str) -> np.nd
     return read_raw(path, 0, shape, dt.newbyteorder("<" if byte_order == "little" else ">"))
 
 
-def write_raw(path: Path, vol: np.ndarray, byte_order: str = "little") -> None:
-    """Write ``vol`` as headerless x-fastest data, refusing names that describe another layout."""
+def write_raw(path: Path, vol: np.ndarray, byte_order: str = "little", *, overwrite: bool = False) -> None:
+    """Write ``vol`` as headerless x-fastest data, refusing names that describe another layout
+    (atomically; an existing file only with ``overwrite``: :func:`hevr._files.write_file`)."""
     name_shape, name_dtype = raw_layout(path)
     if name_shape not in (None, vol.shape) or name_dtype not in (None, vol.dtype.name):
         raise ParameterError(f"save_volume: the name {path.name} says shape {name_shape} (z, y, x) "
                              f"of {name_dtype}, but vol has shape {vol.shape} of {vol.dtype}")
-    with open(path, "wb") as fh:
-        _write_data(fh, vol, byte_order, "raw")
+    write_file(path, data_parts(vol, byte_order, "raw"), overwrite=overwrite, doing="writing the volume")
 
 
-def _write_data(fh: BinaryIO, vol: np.ndarray, byte_order: str, encoding: str) -> None:
-    """Stream ``vol`` in x-fastest order, converting one z-slab at a time (bounded memory)."""
-    dt = vol.dtype.newbyteorder("<" if byte_order == "little" else ">")
-    # mtime=0: the same volume always gives the same bytes.
-    out = gzip.GzipFile(fileobj=fh, mode="wb", mtime=0) if encoding == "gzip" else fh
-    try:
-        step = max(1, (1 << 24) // max(1, vol[0].nbytes))
-        for k in range(0, vol.shape[0], step):
-            out.write(np.ascontiguousarray(vol[k : k + step], dtype=dt).data)
-    finally:
-        if out is not fh:
-            out.close()
+def data_parts(vol: np.ndarray, byte_order: str | None, encoding: str) -> Iterator[bytes]:
+    """``vol`` in x-fastest order as bytes, one z-slab of at most 16 MiB at a time (bounded
+    memory), in ``byte_order`` ("little", "big"; None: ``vol``'s own), gzip-compressed with
+    ``encoding="gzip"`` (mtime 0: the same volume always gives the same bytes)."""
+    dt = vol.dtype if byte_order is None else vol.dtype.newbyteorder("<" if byte_order == "little" else ">")
+    step = max(1, (1 << 24) // max(1, vol[0].nbytes))
+    slabs = (np.ascontiguousarray(vol[k : k + step], dtype=dt).tobytes() for k in range(0, vol.shape[0], step))
+    if encoding != "gzip":
+        yield from slabs
+        return
+    buf = io.BytesIO()
+    with gzip.GzipFile(fileobj=buf, mode="wb", mtime=0) as out:
+        for slab in slabs:
+            out.write(slab)
+            yield buf.getvalue()
+            buf.seek(0)
+            buf.truncate()
+    yield buf.getvalue()
 
 
 def _read_header(path: Path) -> tuple[dict[str, str], int]:
@@ -310,8 +318,9 @@ def _skip_lines(path: Path, offset: int, count: int) -> int:
 
 
 def write_nrrd(path: Path, vol: np.ndarray, spacing: tuple[float, float, float], *,
-               encoding: str = "raw", byte_order: str = "little") -> Path | None:
+               encoding: str = "raw", byte_order: str = "little", overwrite: bool = False) -> Path | None:
     """Write ``vol`` (z, y, x) as NRRD; detached (``.nhdr`` + data file) or attached (``.nrrd``).
+    Each file is written atomically; existing files are replaced only with ``overwrite``.
 
     Returns the path of the detached data file, or ``None`` for an attached file.
     """
@@ -329,9 +338,14 @@ def write_nrrd(path: Path, vol: np.ndarray, spacing: tuple[float, float, float],
     if path.suffix.lower() == ".nhdr":
         data_path = path.with_suffix(".raw.gz" if encoding == "gzip" else ".raw")
         lines.append(f"data file: {data_path.name}")
-        path.write_text("\n".join(lines) + "\n", encoding="ascii")
-    with open(data_path or path, "wb") as fh:
-        if data_path is None:  # attached: a blank line separates header and data
-            fh.write(("\n".join(lines) + "\n\n").encode("ascii"))
-        _write_data(fh, vol, byte_order, encoding)
-    return data_path
+        if not overwrite and data_path.exists():  # neither file is written when one is there
+            raise ExistingFileError("path", data_path)
+        write_file(data_path, data_parts(vol, byte_order, encoding), overwrite=overwrite,
+                   doing="writing the volume data")
+        write_file(path, [("\n".join(lines) + "\n").encode("ascii")], overwrite=overwrite,
+                   doing="writing the volume header")
+        return data_path
+    head = ("\n".join(lines) + "\n\n").encode("ascii")  # attached: a blank line separates header and data
+    write_file(path, itertools.chain([head], data_parts(vol, byte_order, encoding)), overwrite=overwrite,
+               doing="writing the volume")
+    return None
