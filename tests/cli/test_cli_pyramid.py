@@ -44,7 +44,8 @@ def test_pyramid_then_render_a_level(store, capsys, tmp_path):
     ev = hevr.open_volume(d / "v.zarr")
     for level, mode, extra in [(1, "xray", []), (2, "tf", ["--tf", "0.3:red,0.8:blue"])]:
         code, out, err = _run(capsys, "render", d / "v.zarr", "--out", tmp_path / "f.hevr", "--level", level,
-                              "--size", "10x9", "--azimuth", "30", "--elevation", "15", *extra, "-q")
+                              "--size", "10x9", "--azimuth", "30", "--elevation", "15", *extra, "-q",
+                              "--force")  # one frame file, rendered again per level
         assert code == 0, err
         assert f"pyramid level {level}" in out
         img = hevr.load_image(tmp_path / "f.hevr")
