@@ -40,7 +40,7 @@ import secrets
 import shutil
 import stat
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 from .errors import (
     ExistingFileError,
@@ -55,7 +55,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["require_file", "write_atomic", "write_checksummed", "write_file", "read_regular", "check_regular",
            "file_kind", "fs_errors", "os_error", "sibling_stem", "temp_sibling", "is_temporary", "remove_stale",
-           "held_lock"]
+           "remove_if_abandoned", "held_lock"]
 
 #: The longest file name written beside a target: NAME_MAX of every common filesystem is 255.
 NAME_MAX = 255
@@ -156,17 +156,32 @@ def held_lock(path: str | os.PathLike) -> Iterator[None]:
         os.close(fd)
 
 
-def _abandoned(path: Path) -> bool:
-    """Whether nobody holds the lock of the temporary ``path`` (its writer is gone)."""
+def remove_if_abandoned(path: Path, remove: Callable[[Path], bool] | None = None) -> bool:
+    """Remove the temporary ``path`` if nobody holds its lock (its writer is gone), holding the
+    lock while it is removed (with ``remove``, default: unlink, or rmtree for a folder): a
+    writer that created it a moment ago and waits for its lock then finds it unlinked and
+    starts afresh (:func:`write_file`, :func:`hevr.store.exclusive.locked_folder`). False if
+    it was left (held, or it could not be removed: logged)."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | getattr(os, "O_NOFOLLOW", 0))
     except OSError:
         return False
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return False  # held: its writer is alive (or the filesystem cannot tell: leave it)
+        if remove is not None:
+            return remove(path)
+        try:
+            if stat.S_ISDIR(os.fstat(fd).st_mode):
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        except OSError as exc:
+            log.warning("could not remove %s (left by an earlier run): %s", path, exc.strerror)
+            return False
         return True
-    except OSError:
-        return False
     finally:
         os.close(fd)
 
@@ -177,17 +192,9 @@ def remove_stale(path: str | os.PathLike, kinds: Iterable[str] = ("tmp",)) -> li
     that cannot be removed is logged and left."""
     removed = []
     for t in temporaries(path, kinds):
-        if not _abandoned(t):
-            continue
-        try:
-            if t.is_dir() and not t.is_symlink():
-                shutil.rmtree(t)
-            else:
-                t.unlink()
+        if remove_if_abandoned(t):
             removed.append(t)
             log.info("removed %s, left beside %s by an earlier run that did not finish", t, path)
-        except OSError as exc:
-            log.warning("could not remove %s (left by an earlier run): %s", t, exc.strerror)
     return removed
 
 
@@ -209,13 +216,11 @@ def write_file(path: str | os.PathLike, parts: Iterable[Any], *, mode: int = 0o6
         there = not overwrite and (path.exists() or path.is_symlink())
     if there:  # fail fast; the link below decides
         raise ExistingFileError(name, path)
-    tmp = temp_sibling(path, "tmp")
     digest = hashlib.sha256() if checksum else None
     with fs_errors(doing, path):
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
+        tmp, fd = _locked_temporary(path)
         try:
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX)
                 os.fchmod(fd, mode)
                 for part in parts:
                     view = memoryview(part).cast("B")
@@ -224,16 +229,38 @@ def write_file(path: str | os.PathLike, parts: Iterable[Any], *, mode: int = 0o6
                     _write_all(fd, view)
                 if digest is not None:
                     _write_all(fd, memoryview(digest.digest()))
+                if overwrite:  # still locked: a clean-up of another writer keeps off until it is in place
+                    os.replace(tmp, path)
+                else:
+                    _link_new(tmp, path, name)
             finally:
                 os.close(fd)
-            if overwrite:
-                os.replace(tmp, path)
-            else:
-                _link_new(tmp, path, name)
         except BaseException:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
             raise
+
+
+def _locked_temporary(path: Path) -> tuple[Path, int]:
+    """A new temporary sibling of ``path`` (mode 0600), open for writing and locked. A clean-up
+    (:func:`remove_stale`) of another writer of ``path`` may find it in the instant between
+    its creation and the lock and remove it: then the lock is taken on an unlinked file, which
+    is seen (no links) and a fresh temporary is made."""
+    for _ in range(8):
+        tmp = temp_sibling(path, "tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            if os.fstat(fd).st_nlink > 0:
+                return tmp, fd
+        except BaseException:
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+        os.close(fd)
+    raise OSError(errno.EAGAIN, "a temporary file was removed again and again by another process",  # pragma: no cover
+                  str(path))
 
 
 def _write_all(fd: int, view: memoryview) -> None:

@@ -390,9 +390,9 @@ def check_value_range(value_range: Any, name: str = "value_range") -> tuple[floa
     """
     try:
         lo, hi = (float(x) for x in value_range)
-    except OverflowError:  # an int beyond float64
-        raise ParameterError(f"{name}: expected (lo, hi) with |lo|, |hi| <= {MAX_VALUE:g}, got integers of "
-                             f"{max(len(str(abs(int(x)))) for x in value_range)} digits") from None
+    except OverflowError:  # an int beyond float64 (never str() it: 4300+ digits raise ValueError)
+        raise ParameterError(f"{name}: expected (lo, hi) with |lo|, |hi| <= {MAX_VALUE:g}, got a number "
+                             "beyond float64") from None
     except (TypeError, ValueError):
         raise ParameterError(f"{name}: expected two numbers (lo, hi), got {value_range!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):

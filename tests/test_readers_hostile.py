@@ -265,3 +265,12 @@ def test_resuming_a_store_with_a_fifo_digest_marker_does_not_block(store, keypai
     with pytest.raises(hevr.CorruptStoreError, match=r"brick \(1, 2, 0\).*got a FIFO"):
         _bounded(lambda: hevr.encrypt_volume(vol, store, keypair256[0], brick=BRICK, vector_dims=3, progress=False,
                                              resume=True), fifo)
+
+
+# -- review: upgrade_store reads its source through the same checks ------------------------------
+def test_upgrade_store_with_a_fifo_as_its_source_document_fails_fast(store, tmp_path):
+    """(A FIFO chunk of a format-1 source: tests/store/test_upgrade.py.)"""
+    f = _replace(store / "zarr.json", "fifo")
+    with pytest.raises(hevr.CorruptStoreError, match=r"\(a regular file\), got a FIFO"):
+        _bounded(lambda: hevr.upgrade_store(store, tmp_path / "new.zarr", progress=False), f)
+    assert not (tmp_path / "new.zarr").exists()

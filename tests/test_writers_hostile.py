@@ -290,3 +290,42 @@ def test_save_volume_on_a_full_disk_is_a_filesystem_error(tmp_path, monkeypatch)
     with pytest.raises(hevr.FileSystemError, match=r"writing the volume .*v\.npy: .*\(ENOSPC\)"):
         hevr.save_volume(tmp_path / "v.npy", np.zeros((2, 2, 2), np.uint8))
     assert list(tmp_path.iterdir()) == []
+
+
+# -- review: the temporary stays locked from its creation until it is in place -------------------
+def test_a_temporary_removed_before_its_lock_is_taken_is_made_afresh(tmp_path, monkeypatch):
+    """Another writer's clean-up may find the temporary in the instant between its creation and
+    its lock, and remove it: the write starts over with a fresh temporary, never fails."""
+    real, calls = _files.fcntl.flock, []
+
+    def flock(fd, op):
+        if not calls:  # the first lock of a fresh temporary: a clean-up removes it just before
+            calls.append(fd)
+            assert _files.remove_stale(tmp_path / "a.bin")
+        return real(fd, op)
+
+    monkeypatch.setattr(_files.fcntl, "flock", flock)
+    _files.write_file(tmp_path / "a.bin", [b"payload"])
+    assert calls and (tmp_path / "a.bin").read_bytes() == b"payload"
+    assert _temporaries(tmp_path) == []
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_a_concurrent_clean_up_keeps_off_a_temporary_until_it_is_in_place(tmp_path, monkeypatch, overwrite):
+    """The lock is held up to the final link or rename, so another writer of the same path
+    removing stale temporaries at that moment leaves this one alone."""
+    path = tmp_path / "a.bin"
+    if overwrite:
+        path.write_bytes(b"old")
+    link, replace = _files._link_new, _files.os.replace
+
+    def cleaned_first(fn):
+        def run(src, dst, *rest):
+            assert _files.remove_stale(path) == []  # the writer holds the lock: nothing removed
+            return fn(src, dst, *rest)
+        return run
+
+    monkeypatch.setattr(_files, "_link_new", cleaned_first(link))
+    monkeypatch.setattr(_files.os, "replace", cleaned_first(replace))
+    _files.write_file(path, [b"new"], overwrite=overwrite)
+    assert path.read_bytes() == b"new" and _temporaries(tmp_path) == []

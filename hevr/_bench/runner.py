@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from .._files import write_atomic
+from .._files import read_regular, write_atomic
 from ..errors import ExistingFileError, MissingDependencyError, ParameterError
 from ..paper import TF_NODES
 from ..volume.phantom import phantom
@@ -50,7 +50,7 @@ class Results:
                 if p.exists() or p.is_symlink():
                     raise ExistingFileError("out", p)
         if resume and path.exists():
-            doc = json.loads(path.read_text())
+            doc = json.loads(read_regular(path, "resume", "the results of an earlier run"))  # never a FIFO
             if doc.get("setting", {}).get("name") != settings.name:
                 raise ParameterError(f"resume: {path} holds a {doc.get('setting', {}).get('name')!r} run, "
                                      f"not {settings.name!r}")
@@ -241,4 +241,4 @@ def rewrite_report(setting: str, out: str | Path) -> Path:
     path = Path(out) / f"results-{setting}.json"
     if not path.is_file():
         raise ParameterError(f"out: expected {path} from an earlier run, found none")
-    return write_report(json.loads(path.read_text()), Path(out))
+    return write_report(json.loads(read_regular(path, "out", "the results of an earlier run")), Path(out))

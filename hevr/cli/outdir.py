@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Iterable
 
 from .._files import read_regular, write_atomic
-from ..errors import ExistingFileError
+from ..errors import ExistingFileError, HevrError
 
 __all__ = ["MARK", "OutputFolder"]
 
@@ -81,9 +81,9 @@ class OutputFolder:
         mark = self.path / MARK
         if not (mark.exists() or mark.is_symlink()):
             return {}, False
-        try:
-            doc = json.loads(mark.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        try:  # read_regular: a FIFO there is no record (and would block)
+            doc = json.loads(read_regular(mark, self.option, "a record of outputs", limit=1 << 24))
+        except (OSError, ValueError, HevrError):
             return {}, True
         files = doc.get("files") if isinstance(doc, dict) and doc.get("command") == self.command else None
         if not isinstance(files, dict):

@@ -23,7 +23,7 @@ from typing import Any, Iterator
 import numpy as np
 from distributed import Client, LocalCluster
 
-from .._files import check_regular
+from .._files import check_regular, fs_errors
 from .._image_header import MAGIC_PREFIX
 from ..crypto.keyfile import load_key
 from ..crypto.keys import SECURE_BITS, PrivateKey
@@ -251,12 +251,14 @@ def check_writable_dir(path: Path, option: str = "--out") -> None:
 
 
 def check_output_file(path: Path, option: str = "--out", suffix: str | None = None) -> None:
-    """``path`` can be written as a file: not a folder, in a writable folder, ending in ``suffix``."""
-    if path.is_dir():
-        raise UsageError(f"{option}: expected a file name, got a folder ({path})")
-    if suffix and path.suffix.lower() != suffix:
-        raise UsageError(f"{option}: expected a {suffix} file name, got {path}")
-    check_writable_dir(path, option)
+    """``path`` can be written as a file: not a folder, in a writable folder, ending in ``suffix``
+    (a name the OS refuses, e.g. too long: :class:`hevr.FileSystemError` naming ``option``)."""
+    with fs_errors(f"{option}: checking", path):
+        if path.is_dir():
+            raise UsageError(f"{option}: expected a file name, got a folder ({path})")
+        if suffix and path.suffix.lower() != suffix:
+            raise UsageError(f"{option}: expected a {suffix} file name, got {path}")
+        check_writable_dir(path, option)
 
 
 def check_new_file(path: Path, option: str = "--out", suffix: str | None = None, *, force: bool = False) -> None:

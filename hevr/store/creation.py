@@ -21,7 +21,7 @@ import zarr
 
 from .._files import fs_errors
 from ..errors import FileSystemError, ParameterError, StoreError, StoreExistsError
-from .exclusive import StoreLock, locked_folder, remove_local_tree, rename_noreplace
+from .exclusive import StoreLock, locked_folder, remove_local_tree, rename_noreplace, swap_lock
 from .layout import check_document, check_documents, check_entry, chunk_key, compressors
 from .metadata import VolumeMetadata
 from .paths import document_digest, filesystem, is_local, read_document, sibling, zarr_store
@@ -70,7 +70,8 @@ def claim_store(path: str, meta: VolumeMetadata, storage_options: dict | None = 
         tmp, lock = locked_folder(path, "tmp")
         try:
             meta = _skeleton(tmp, meta, None)
-            rename_noreplace(tmp, path)
+            with swap_lock(path):  # never in the instant a swap has moved the old store aside
+                rename_noreplace(tmp, path)
         except BaseException as exc:
             remove_local_tree(tmp)
             lock.release()

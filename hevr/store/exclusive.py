@@ -44,7 +44,7 @@ import time
 from pathlib import Path
 from typing import Iterator
 
-from .._files import read_regular, temp_sibling, temporaries
+from .._files import read_regular, remove_if_abandoned, temp_sibling, temporaries
 from ..errors import FileSystemError, StoreError, StoreExistsError
 
 log = logging.getLogger(__name__)
@@ -124,7 +124,12 @@ def lock_store(path: str | os.PathLike, *, name: str = "path", error: type[Store
     except OSError as exc:
         raise FileSystemError(exc.errno, "locking the store", path, exc.strerror) from None
     lock = StoreLock(fd)
-    if not _flock(fd, blocking=False):
+    try:
+        free = _flock(fd, blocking=False)
+    except BaseException:
+        lock.release()
+        raise
+    if not free:
         lock.release()
         raise error(f"{name}: {path} is being written by another run right now (encrypt_volume, an overwrite or "
                     "build_pyramid); wait for it to finish")
@@ -145,10 +150,16 @@ def locked_folder(path: str | os.PathLike, what: str) -> tuple[str, StoreLock]:
         except FileNotFoundError:
             continue  # removed already
 
-        _flock(fd, blocking=True)
-        with contextlib.suppress(OSError):
-            if os.fstat(fd).st_nlink > 0 and os.path.samestat(os.fstat(fd), os.stat(tmp)):
-                return str(tmp), StoreLock(fd)
+        try:
+            _flock(fd, blocking=True)
+            with contextlib.suppress(OSError):
+                if os.fstat(fd).st_nlink > 0 and os.path.samestat(os.fstat(fd), os.stat(tmp)):
+                    return str(tmp), StoreLock(fd)
+        except BaseException:  # the lock failed (or an interrupt): nothing of this folder is kept
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                os.rmdir(tmp)
+            raise
         os.close(fd)
     raise FileSystemError(errno.EAGAIN, "creating a temporary folder beside", path,  # pragma: no cover
                           "removed again and again by another process")
@@ -197,28 +208,12 @@ def remove_local_tree(path: str | os.PathLike, attempts: int = 6) -> bool:
     return not os.path.lexists(path)
 
 
-def _remove_abandoned(folder: Path) -> bool:
-    """Remove the temporary ``folder`` if no writer holds its lock, holding the lock meanwhile."""
-    try:
-        fd = os.open(folder, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | getattr(os, "O_NOFOLLOW", 0)
-                     | getattr(os, "O_DIRECTORY", 0))
-    except OSError:
-        return False
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            return False  # held: its writer is alive (or the filesystem cannot tell: leave it)
-        return remove_local_tree(folder)
-    finally:
-        os.close(fd)
-
-
 def remove_leftovers(path: str | os.PathLike) -> list[Path]:
     """Remove the temporary folders of earlier runs beside the local store ``path`` whose
     writer is gone (module docstring); returns what was removed. Best effort (logged)."""
     kinds = ("tmp", "new", "old") if is_complete(path) else ("tmp",)
-    removed = [t for t in temporaries(path, kinds) if t.is_dir() and not t.is_symlink() and _remove_abandoned(t)]
+    removed = [t for t in temporaries(path, kinds)
+               if t.is_dir() and not t.is_symlink() and remove_if_abandoned(t, remove_local_tree)]
     for t in removed:
         log.info("removed %s, left beside %s by an earlier run that did not finish", t, path)
     return removed

@@ -36,6 +36,8 @@ from ..errors import (
     StoreExistsError,
 )
 from .digests import brick_digest, marker
+from .exclusive import swap_lock
+from .layout import check_document, check_entry, chunk_key
 from .metadata import VolumeMetadata
 from .paths import is_local, normalise, remove_tree, store_exists, token
 from .reader import EncryptedVolume, brick_slices, open_volume
@@ -49,6 +51,7 @@ __all__ = ["upgrade_store"]
 def _old_metadata(src: str) -> VolumeMetadata:
     if is_local(src) and not Path(src).exists():
         raise MissingFileError("src", "an encrypted volume store", src)
+    check_document(src, "")  # a FIFO in place of zarr.json would block Zarr's open
     try:
         attrs = dict(zarr.open_group(src, mode="r").attrs)
     except Exception as exc:  # noqa: BLE001 - any failure to open is a corrupt store
@@ -73,6 +76,8 @@ def _copy_brick(src: str, dst: str, index: tuple[int, int, int], meta_dict: dict
     digests = []
     for name in meta.channel_names:
         key = sl if name == "scalar" else (slice(None),) + sl
+        check_document(src, name)  # a FIFO in place of a document or a chunk would block Zarr's read
+        check_entry(src, f"{name}/{chunk_key(name, index)}", f"the chunk of brick {index} in channel {name!r}")
         try:
             data = np.asarray(zarr.open_array(f"{src}/{name}", mode="r")[key])
         except Exception as exc:  # noqa: BLE001 - whatever a damaged chunk raises, name the brick
@@ -149,7 +154,8 @@ def _move_new(build: str, dst: str) -> None:
     ``mkdir`` claims ``dst`` (``EEXIST``: :class:`hevr.StoreExistsError`), then ``build`` is
     renamed onto that empty folder (which POSIX ``rename`` replaces atomically)."""
     try:
-        os.mkdir(dst)
+        with swap_lock(dst):  # never in the instant an overwrite's swap has moved the old store aside
+            os.mkdir(dst)
     except FileExistsError:
         raise StoreExistsError(f"dst: {dst} already exists (created while the upgrade ran); choose a new path "
                                "for the upgraded store") from None

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import json
+import os
 import stat
 from pathlib import Path
 
@@ -175,6 +176,15 @@ def test_demo_replaces_only_what_it_wrote(tmp_path, capsys):
     assert _temporaries(out) == []
 
 
+@pytest.mark.timeout(120)
+def test_demo_with_a_fifo_as_its_record_refuses_and_never_blocks(tmp_path, capsys):
+    out = tmp_path / "demo"
+    out.mkdir()
+    os.mkfifo(out / ".hevr-outputs.json")  # reading it would block forever
+    refused(capsys, "--out", out / ".hevr-outputs.json", "demo", "--out", out, *DEMO)
+    assert sorted(p.name for p in out.iterdir()) == [".hevr-outputs.json"]
+
+
 def test_bench_refuses_an_earlier_run_unless_resumed_or_forced(tmp_path, capsys):
     results = tmp_path / "results-quick.json"
     results.write_text(json.dumps({"setting": {"name": "quick"}}))
@@ -187,3 +197,10 @@ def test_bench_refuses_an_earlier_run_unless_resumed_or_forced(tmp_path, capsys)
     refused(capsys, "--out", tmp_path / "RESULTS-quick.md", "bench", "--quick", "--out", tmp_path, "--only", "t1",
             "-q")
     assert (tmp_path / "RESULTS-quick.md").read_text() == "my notes" and not results.exists()
+
+
+@pytest.mark.timeout(120)
+def test_bench_resume_with_a_fifo_as_its_results_refuses_and_never_blocks(tmp_path, capsys):
+    os.mkfifo(tmp_path / "results-quick.json")  # reading it would block forever
+    code, _, err = run(capsys, "bench", "--quick", "--out", tmp_path, "--resume", "--only", "t1", "-q")
+    assert code == 2 and "--resume: expected the results of an earlier run (a regular file), got a FIFO" in err, err

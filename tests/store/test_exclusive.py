@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 import hevr
+import hevr.store.creation as creation
 import hevr.store.exclusive as exclusive
 from hevr.store.exclusive import lock_store
 
@@ -242,3 +243,67 @@ def test_impossible_local_paths_are_filesystem_errors(tmp_path, keypair256, wher
         hevr.encrypt_volume(_vol(1), path, keypair256[0], brick=BRICK, progress=False)
     assert err.value.errno == (errno.ENOTDIR if where == "not_a_dir" else errno.ENAMETOOLONG)
     assert str(path) in str(err.value)
+
+
+def _open_fds() -> set[str]:
+    return set(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="needs /proc/self/fd")
+def test_a_failing_lock_leaks_no_descriptor_and_no_folder(tmp_path, monkeypatch):
+    """flock refused by the filesystem (an errno that is not 'no locks here'): the descriptors
+    opened for the lock are closed and the fresh temporary folder is removed."""
+    def refuse(fd, op):
+        raise OSError(errno.EIO, "Input/output error")
+
+    store = tmp_path / "s"
+    store.mkdir()
+    before = _open_fds()
+    monkeypatch.setattr(exclusive.fcntl, "flock", refuse)
+    with pytest.raises(OSError, match="Input/output error"):
+        lock_store(store)
+    with pytest.raises(OSError, match="Input/output error"):
+        exclusive.locked_folder(tmp_path / "v.zarr", "tmp")
+    monkeypatch.undo()
+    assert _open_fds() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_a_creator_never_takes_the_path_that_a_swap_has_just_emptied(tmp_path, keypair256, monkeypatch):
+    """Between a swap's two renames the path is missing for an instant: a creator that looked
+    then (and found nothing) must not put its store there while the old one is aside (it
+    would be lost: the swap could not put either store back). The creator's final rename
+    waits for the folder's swap lock, then finds the path taken."""
+    pub, priv = keypair256
+    path = tmp_path / "v.zarr"
+    hevr.encrypt_volume(_vol(1), path, pub, brick=BRICK, progress=False)
+    aside = tmp_path / ".v.zarr.aside"
+    waiting, box = threading.Event(), {}
+    real = exclusive.swap_lock
+
+    def swap_lock(p):
+        waiting.set()
+        return real(p)
+
+    monkeypatch.setattr(creation, "swap_lock", swap_lock, raising=False)
+
+    def create():
+        try:
+            box["result"] = hevr.encrypt_volume(_vol(2), path, pub, brick=BRICK, progress=False)
+        except BaseException as exc:  # noqa: BLE001 - checked below
+            box["result"] = exc
+
+    with real(path):  # a swap, between its two renames
+        path.rename(aside)
+        t = threading.Thread(target=create, daemon=True)
+        t.start()
+        for _ in range(1200):
+            if waiting.is_set() or not t.is_alive():
+                break
+            time.sleep(0.1)
+        assert not path.exists(), "the creator put its store where the swapped-out store belongs"
+        aside.rename(path)  # the swap puts a store back
+    t.join(120)
+    assert isinstance(box.get("result"), hevr.StoreExistsError), box
+    assert _value(path, priv) == {1}
+    assert _hidden(tmp_path) == []

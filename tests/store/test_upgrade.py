@@ -6,6 +6,8 @@ byte-identical and whose renders match render_plain."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -126,4 +128,37 @@ def test_a_damaged_old_chunk_is_named_and_leaves_nothing(v1, tmp_path, damage):
     f.write_bytes(blob[:-7] if damage == "truncate" else b"\x1f\x8b" + blob)
     with pytest.raises(hevr.CorruptStoreError, match=r"brick \(1, 0, 1\) of channel 'scalar'"):
         hevr.upgrade_store(path, tmp_path / "new.zarr", progress=False)
+    assert not (tmp_path / "new.zarr").exists()
+
+
+@pytest.mark.parametrize("rel", ["scalar/zarr.json", "scalar/c/1/0/1/0"])
+def test_a_fifo_in_the_old_store_fails_fast(v1, tmp_path, rel):
+    """A FIFO in place of a document or a chunk of the source is named, never read (a read blocks)."""
+    path, _ = v1
+    fifo = path / rel
+    fifo.unlink()
+    os.mkfifo(fifo)
+    box: dict = {}
+
+    def upgrade():
+        try:
+            hevr.upgrade_store(path, tmp_path / "new.zarr", progress=False)
+        except BaseException as exc:  # noqa: BLE001 - checked below
+            box["error"] = exc
+
+    t = threading.Thread(target=upgrade, daemon=True)
+    t.start()
+    t.join(60)
+    for _ in range(100 if t.is_alive() else 0):  # blocked: let it go (open the FIFO's write end), then fail
+        box["blocked"] = True
+        try:
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        except OSError:
+            pass
+        t.join(0.1)
+        if not t.is_alive():
+            break
+    assert "blocked" not in box, "upgrade_store blocked on a FIFO"
+    assert isinstance(box.get("error"), hevr.CorruptStoreError), box
+    assert "(a regular file), got a FIFO" in str(box["error"])
     assert not (tmp_path / "new.zarr").exists()
