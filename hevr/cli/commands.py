@@ -1,5 +1,6 @@
-"""Implementations of ``hevr encrypt | render | recolour | decrypt | info | upgrade-store`` (see
-:mod:`hevr.cli.main`; the key commands are in :mod:`hevr.cli.keys`, re-exported here for dispatch).
+"""Implementations of ``hevr encrypt | render | recolour | decrypt | upgrade-store`` (see
+:mod:`hevr.cli.main`; the key commands in :mod:`hevr.cli.keys` and ``info`` in :mod:`hevr.cli.info`
+are re-exported here for dispatch).
 
 Each ``cmd_*`` takes the parsed argparse namespace, prints its report on stdout and
 returns the exit code; errors are raised and turned into one line and an exit status by
@@ -10,37 +11,28 @@ Every size printed goes through :func:`~hevr.cli.util.xyz` / :func:`~hevr.cli.ut
 
 from __future__ import annotations
 
-import json
 import logging
-import stat
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import zarr
 
-from ..crypto.keys import SECURE_BITS, PrivateKey
-from ..crypto.phe_keys import is_phe_dict
+from ..crypto.keys import PrivateKey
 from .._files import check_regular
-from ..errors import MissingFileError, StoreError
-from ..image import MAGIC, load_image
+from ..image import load_image
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..rendering.camera import Camera
 from ..rendering.encrypted import render
 from ..rendering.planner import check_render_size
 from ..rendering.sums import MAGIC as SUMS_MAGIC
 from ..rendering.sums import load_sums, recolour
-from ..store.metadata import VolumeMetadata
-from ..store.paths import normalise, zarr_store
-from ..store.layout import check_document
-from ..store.reader import open_volume
+from ..store.paths import normalise
 from ..store.upgrade import upgrade_store
 from ..store.writer import encrypt_volume
 from . import storage as st
+from .info import channels, cmd_info
 from .keys import cmd_convert_key, cmd_keygen
-from .pyramid import level_rows
-from .scan import encrypt_input, resolve_tf, scan_rows
-from .verify import verify_store, warn_leftovers
+from .scan import encrypt_input, resolve_tf
 from .util import (
     Timer,
     UsageError,
@@ -97,24 +89,13 @@ def cmd_encrypt(args: Any) -> int:
                                 storage_options=so,
                                 progress=show_progress(args))
     n_ct = int(np.prod(ev.shape)) * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
-    chans = _channels(ev.meta)
+    chans = channels(ev.meta)
     print(f"wrote {args.out}: {ev.meta.n_bricks} bricks of {xyz(ev.brick)}, channels {chans}, "
           f"{n_ct} ciphertexts, {human_bytes(st.size_of(ev.path, so))}, in {t.seconds:.2f} s "
           f"({n_ct / max(t.seconds, 1e-9):.0f} ciphertexts/s)")
     if not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
     return 0
-
-
-def _channels(meta: Any) -> str:
-    ch = []
-    if meta.scalar is not None:
-        ch.append("scalar" + (f" ({meta.scalar.digits} digits)" if meta.scalar.digits is not None else " (exact)"))
-    if meta.vector is not None:
-        ch.append(f"vector[{meta.vector.dims}] ({meta.vector.digits} digits)")
-    if getattr(meta, "gradient", None) is not None:
-        ch.append(f"gradient[{meta.gradient.dims}] ({meta.gradient.digits} digits)")
-    return " + ".join(ch) or "none"
 
 
 # -- render --------------------------------------------------------------------------------
@@ -266,171 +247,6 @@ def cmd_upgrade_store(args: Any) -> int:
             ev = upgrade_store(args.src, args.dst, client=client, progress=show_progress(args))
     print(f"wrote {args.dst}: format {ev.meta.version}, {ev.meta.n_bricks} bricks with digests, "
           f"{human_bytes(disk_usage(ev.path))}, in {t.seconds:.2f} s; {args.src} is unchanged")
-    return 0
-
-
-# -- info ----------------------------------------------------------------------------------
-def cmd_info(args: Any) -> int:
-
-    if st.is_url(args.path):  # a store, frame or sums file on object storage
-        url, so = normalise(args.path), st.storage_options(args)
-        kind = st.url_kind(url, so)
-        return _info_store(url, so, args) if kind == "store" else {"frame": _info_image, "sums": _info_sums}[kind](url, so)
-    path = st.local_path(args.path)
-    if not path.exists():
-        raise MissingFileError("PATH", "a key, store, frame or volume file", args.path)
-    if path.is_dir():
-        if (path / "zarr.json").exists():
-            return _info_store(check_store_path(path, "PATH"), None, args)
-        return _info_volume(path)
-    check_regular(path, "PATH", "a key, store, frame or volume file")  # a FIFO would block the read below
-    with open(path, "rb") as fh:
-        head = fh.read(len(MAGIC))
-    if head[:-1] == MAGIC[:-1] or path.suffix == ".hevr":  # any version: load_image names an unsupported one
-        return _info_image(check_frame_path(path, "PATH"))
-    if head == SUMS_MAGIC[:len(MAGIC)] or path.suffix == ".hevrsums":
-        return _info_sums(path)
-    if head.lstrip()[:1] == b"{":
-        try:
-            doc = json.loads(path.read_text())
-        except (ValueError, UnicodeDecodeError):
-            doc = None
-        if isinstance(doc, dict) and (doc.get("format") == "hevr-key" or is_phe_dict(doc)):
-            return _info_key(path, "python-paillier (pheutil)" if is_phe_dict(doc) else "hevr")
-        if isinstance(doc, dict) and doc.get("zarr_format") is not None:
-            return _info_store(check_store_path(path.parent, "PATH"), None, args)
-        raise UsageError(f"PATH: expected a key, store, frame or volume file, got a JSON file that is not an "
-                         f"hevr key ({args.path})")
-    return _info_volume(path)
-
-
-def _rows(rows: list[tuple[str, Any]]) -> None:
-    w = max(len(k) for k, _ in rows)
-    for k, v in rows:
-        print(f"{k + ':':<{w + 1}} {v}")
-
-
-def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> int:
-    """The store's public metadata and its quick check; with ``--verify`` every brick read back
-    (:mod:`hevr.cli.verify`); a warning names temporaries left beside it. 1 if a check failed."""
-    check_document(str(path), "")  # a FIFO in place of zarr.json: CorruptStoreError, never a blocked open
-    try:
-        group = zarr.open_group(zarr_store(str(path), so, read_only=True), mode="r")
-        attrs = dict(group.attrs)
-    except Exception as exc:
-        raise StoreError(f"{path}: not a readable Zarr store ({type(exc).__name__})") from None
-    meta = VolumeMetadata.from_dict(attrs.get("hevr"), where=str(path), accept_v1=True)
-    failed = False
-    try:
-        open_volume(path, storage_options=so)
-        check = "ok (metadata checksum and documents, completeness, chunk sizes; digests are checked on every read)"
-    except StoreError as exc:
-        check, failed = f"FAILED: {exc}", True
-    verify, damaged = None, []
-    if getattr(args, "verify", False):
-        verify, damaged, bad = verify_store(str(path), so, args)
-        failed = failed or bad
-    bits = int(meta.n).bit_length()
-    _rows([
-        ("path", path),
-        ("kind", "encrypted volume store"),
-        ("format", f"{meta.format} version {meta.version}"),
-        ("shape", f"{xyz(meta.shape)} voxels"),
-        ("dtype", meta.dtype),
-        ("spacing", xyz(tuple(meta.spacing)[::-1], sep=", ")),
-        ("frame", f"RAS+, voxel (0, 0, 0) at {', '.join(f'{v:g}' for v in meta.patient['origin'])} mm"
-         if meta.patient else "none recorded (axes as the input stored them)"),
-        ("brick", f"{xyz(meta.brick)} voxels"),
-        ("grid", f"{xyz(meta.grid)} = {meta.n_bricks} bricks"),
-        ("channels", _channels(meta)),
-        ("value range", meta.value_range),
-        ("key", f"{bits}-bit public key" + (" (NOT secure: < 2048 bits)" if bits < SECURE_BITS else "")),
-        ("fingerprint", meta.fingerprint),
-        ("ciphertext", f"{meta.ciphertext_bytes} bytes each"),
-        ("complete", meta.complete),
-        *level_rows(meta),
-        ("check", check),
-        *([("verify", verify)] if verify else []),
-        ("on disk", human_bytes(st.size_of(path, so))),
-    ])
-    for line in damaged:
-        print(line)
-    warn_leftovers(path)
-    return 1 if failed else 0  # the table is printed either way; a failed check is not a success
-
-
-def _info_image(path: Path | str, so: dict | None = None) -> int:
-
-    img = load_image(path, storage_options=so)
-    info = img.info or {}
-    cam = info.get("camera") or {}
-    bits = int(img.n).bit_length()
-    packing = f"{img.per_pack} values per ciphertext (base 2^{img.pack_bits})" if img.per_pack > 1 else "unpacked"
-    rows = [
-        ("path", path),
-        ("kind", "encrypted image (.hevr frame)"),
-        ("shape", f"{wh(img.shape[1], img.shape[0])} px{', rgb' if len(img.shape) == 3 else ''}"),
-        ("mode", f"{info.get('mode', '?')}, {info.get('sampling', '?')} sampling, step {info.get('step', '?')}"),
-    ]
-    if info.get("density") is not None:
-        rows.append(("density", info["density"]))
-    if info.get("nodes"):
-        rows.append(("transfer fn", format_tf(info["nodes"])))
-    if cam.get("kind") == "plane":  # a slice (hevr slice / hevr.render_slice)
-        org = tuple(round(float(v), 3) for v in cam.get("origin", ()))
-        rows.append(("plane", f"pixel (0, 0) at {xyz(org[::-1], sep=', ') if len(org) == 3 else '?'}, "
-                              f"slab {cam.get('slab')} x {cam.get('slab_step')}"))
-    elif cam:
-        pos = tuple(round(float(v), 3) for v in cam.get("position", ()))
-        where = xyz(pos[::-1], sep=", ") if len(pos) == 3 else "?"
-        rows.append(("camera", f"position {where}, "
-                               f"view angle {cam.get('view_angle')}, parallel {cam.get('parallel')}"))
-    rows += [
-        ("exponent", f"{img.exponent} (pixel = (m - offset) * 10^{img.exponent})"),
-        ("packing", packing),
-        ("bound", f"every value + offset in [0, {img.bound}] (checked at decryption)"),
-        ("ciphertexts", f"{img.n_ciphertexts} in {len(img.ciphertexts)} tiles of {img.tile}x{img.tile} px"),
-        ("checksum", "ok (SHA-256 over the whole file)"),
-        ("key", f"{bits}-bit"),
-        ("fingerprint", img.fingerprint),
-        ("on disk", human_bytes(st.size_of(path, so))),
-    ]
-    _rows(rows)
-    return 0
-
-
-def _info_sums(path: Path | str, so: dict | None = None) -> int:
-    saved = load_sums(path, storage_options=so)
-    cam = saved.camera
-    kept = sum(1 for v in saved.tiles.values() if v is not None)
-    _rows([("path", path), ("kind", f"encrypted ray sums ({saved.channel} channel: "
-                                    f"{'X-ray' if saved.channel == 'scalar' else 'emphasis / transfer function'})"),
-           ("store", saved.store or "-"), ("volume", f"{xyz(saved.meta.shape)} voxels"),
-           ("view", f"{wh(cam.width, cam.height)} px, {saved.sampling} sampling, step {saved.step:g}"),
-           ("tiles", f"{kept} of {len(saved.tiles)} with sums (tile {saved.tile})"),
-           ("key", f"{int(saved.meta.n).bit_length()}-bit, fingerprint {saved.meta.fingerprint}"),
-           ("checks", "passed (checksum, header, ciphertext ranges)")])
-    return 0
-
-
-def _info_key(path: Path, fmt: str = "hevr") -> int:
-    key = read_key(str(path))
-    private = isinstance(key, PrivateKey)
-    pub = key.public_key if private else key
-    rows = [("path", path), ("kind", "private key (holds the secret primes; not shown)" if private else "public key"),
-            ("format", fmt),
-            ("bits", f"{pub.bits}" + (" (NOT secure: < 2048 bits)" if pub.bits < SECURE_BITS else "")),
-            ("fingerprint", pub.fingerprint)]
-    mode = stat.S_IMODE(path.stat().st_mode)
-    rows.append(("file mode", f"{mode:04o}"))
-    _rows(rows)
-    if private and mode & 0o077:
-        warn_line(f"{path} is readable by other users (mode {mode:04o}); run: chmod 600 {path}")
-    return 0
-
-
-def _info_volume(path: Path) -> int:
-    _rows(scan_rows(path))  # a DICOM folder: its series; a scan: frame, modality, default value range
     return 0
 
 
