@@ -217,7 +217,7 @@ def test_an_error_inside_an_encryption_task_quotes_no_data_value(tmp_path, keypa
     names its brick, never the value nor the data range."""
     vol = np.full((4, 4, 4), 12.5)
     vol[3, 2, 1] = 31415.926
-    monkeypatch.setattr("hevr.store.writer._minmax", lambda v: (12.5, 12.5))
+    monkeypatch.setattr("hevr.store.quantise.data_range", lambda v: (12.5, 12.5))
     for kw in [{}, {"vector_dims": 3}]:
         target = tmp_path / f"v{len(kw)}.zarr"
         with pytest.raises(hevr.ParameterError) as info:

@@ -7,9 +7,11 @@
 ``paths``          local / fsspec store paths; write beside, then swap
 ``exclusive``      one writer per store: atomic claims, store locks, stale temporaries
 ``creation``       ``claim_store``: a new store, exactly one of concurrent creators wins
+``quantise``       the channels' fixed point, planned by the owner; a brick's mantissas
 ``writer``         ``encrypt_volume``: brick-parallel encryption on Dask
 ``layout``         the arrays of a store and the checks that a store on disk has them
 ``reader``         ``open_volume`` / :class:`EncryptedVolume`: reading, checked bricks, levels
+``verify``         the full check: every brick of every channel read back and named if damaged
 ``resident``       resident volumes: decoded bricks in worker memory
 ``pyramid``        ``build_pyramid``: the encrypted multi-resolution pyramid (server side)
 ``upgrade``        ``upgrade_store``: format 1 → format 2 (adds the digests)

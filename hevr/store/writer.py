@@ -51,13 +51,8 @@ from .. import _stats
 from .._dask import active_client, compute
 from .._files import fs_errors
 from .._validate import (
-    MAX_STORE_DIGITS,
     check_brick,
-    check_data_range,
-    check_int,
     check_spacing,
-    check_value_range,
-    check_vector_dims,
     check_volume,
 )
 from ..backends import get_backend, resolve_backend_name
@@ -66,9 +61,7 @@ from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume import gradient as grad
 from ..volume.density import (
     check_brick_range,
-    default_value_range,
     encode_density,
-    minmax,
     normalize_density,
 )
 from ..volume.mapped import task_array
@@ -77,7 +70,7 @@ from .digests import brick_digest, marker, written
 from .creation import create_store, new_store, resume_target  # noqa: F401 - create_store: hevr.store.upgrade
 from .exclusive import lock_store, remove_leftovers
 from .journal import check_journal, input_digests, remove_journal, write_journal
-from .metadata import ChannelInfo, VolumeMetadata
+from .metadata import VolumeMetadata
 from .paths import (
     check_reachable,
     check_replaceable,
@@ -91,83 +84,12 @@ from .paths import (
     token,
     zarr_store,
 )
+from .quantise import plan_channels, quantise_scalar, quantise_vector
 from .reader import EncryptedVolume, brick_slices, open_volume
 
 log = logging.getLogger(__name__)
 
 __all__ = ["encrypt_volume", "open_volume", "EncryptedVolume"]
-
-
-def _minmax(vol: Any) -> tuple[float, float]:
-    """The finite data range (min, max) in one pass; dask arrays are reduced lazily.
-
-    NaN propagates through min and max, so the finiteness check needs no extra pass.
-    """
-    if isinstance(vol, dask.array.Array):
-        lo, hi = dask.compute(vol.min(), vol.max())
-    else:
-        lo, hi = minmax(vol)  # one pass over a large array, not two
-    return check_data_range(lo, hi)
-
-
-def _plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_range: Any,
-                   digits: Any, vector_digits: Any) -> tuple[ChannelInfo | None, ChannelInfo | None, tuple[float, float]]:
-    """The scalar and vector channels' fixed point and the value range (the gradient channel,
-    when asked for, is the vector one's twin: same dims and digits)."""
-    is_float = np.dtype(vol.dtype).kind == "f"
-    if vector_dims is not None:
-        vector_dims = check_vector_dims(vector_dims)
-    if not scalar and vector_dims is None:
-        raise ParameterError("scalar/vector_dims: expected at least one channel, got scalar=False and vector_dims=None")
-    lo, hi = _minmax(vol)
-    if value_range is None:
-        value_range = default_value_range(vol, (lo, hi))
-        if is_float:
-            log.warning("value_range not given for a float volume; using the data range %s, which "
-                        "is then visible in the store metadata", value_range)
-    vr = check_value_range(value_range)
-    if lo < vr[0] or hi > vr[1]:
-        raise ParameterError(f"vol: values must lie inside value_range {vr}; got data range [{lo}, {hi}]")
-    sc = vc = None
-    max_int = int(key_n) // 3 - 1
-    if scalar:
-        if is_float:
-            d = check_int("digits", 3 if digits is None else digits, 0, MAX_STORE_DIGITS)
-            if max(abs(lo), abs(hi)) * 10.0**d >= max_int:
-                raise ParameterError(f"digits: {d} digits overflow a {int(key_n).bit_length()}-bit key; use fewer")
-            sc = ChannelInfo(exponent=-d, digits=d)
-        else:
-            if digits is not None:
-                raise ParameterError("digits: integer volumes are stored exactly; digits applies to float volumes only")
-            top = max(abs(int(lo)), abs(int(hi)))
-            if top >= max_int:
-                raise ParameterError(f"vol: values up to {top} do not fit a "
-                                     f"{int(key_n).bit_length()}-bit key (|value| must stay below n/3); use a larger key")
-            sc = ChannelInfo(exponent=0)
-    if vector_dims is not None:
-        vd = check_int("vector_digits", vector_digits, 1, 12)
-        if 10**vd >= max_int:
-            raise ParameterError(f"vector_digits: {vd} digits overflow a {int(key_n).bit_length()}-bit key; use fewer")
-        vc = ChannelInfo(exponent=-vd, digits=vd, dims=vector_dims)
-    return sc, vc, vr
-
-
-def _quantise_scalar(block: np.ndarray, info: ChannelInfo) -> list[int]:
-    """Mantissas of one brick as Python ints, converted in one vectorised step."""
-    if info.digits is None:
-        # uint64 values above 2^63 do not fit int64; tolist() on the original dtype is exact
-        return block.ravel().tolist() if block.dtype == np.uint64 else block.astype(np.int64).ravel().tolist()
-    scaled = np.rint(block.astype(np.float64).ravel() * 10.0**info.digits)
-    if scaled.size and np.abs(scaled).max() < 2.0**62:
-        return scaled.astype(np.int64).tolist()
-    return [int(v) for v in scaled]  # mantissas beyond int64 (large keys, many digits)
-
-
-def _quantise_vector(enc: np.ndarray, info: ChannelInfo) -> np.ndarray:
-    """(k, voxels) non-negative integer mantissas of a (..., k) field with components in [0, 1]:
-    the Alg. 4 encoding (vector) or g·e(d) (gradient)."""
-    q = np.rint(enc * 10.0**info.digits).astype(np.int64)
-    return q.reshape(-1, info.dims).T
 
 
 def _encrypt_components(be: Any, key: Any, q: np.ndarray, shape: tuple, width: int, unsafe: bool) -> np.ndarray:
@@ -208,7 +130,7 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
     digests = []
     if meta.scalar is not None:
         with _stats.timed("encrypt.crypto", block.size):
-            cts = be.encrypt(key, _quantise_scalar(block, meta.scalar), unsafe_no_obfuscation=unsafe_no_obfuscation)
+            cts = be.encrypt(key, quantise_scalar(block, meta.scalar), unsafe_no_obfuscation=unsafe_no_obfuscation)
         out = be.to_bytes(cts, width).reshape(block.shape + (width,))
         digests.append(brick_digest(meta.store_id, "scalar", index, out))
         with _stats.timed("encrypt.write"):
@@ -222,7 +144,7 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
         fields["gradient"] = grad.brick_gradient_encoding(haloed, halo, meta.spacing, meta.value_range,
                                                           meta.gradient.dims, m_max)
     for name, enc in fields.items():  # store order: vector, then gradient
-        out = _encrypt_components(be, key, _quantise_vector(enc, getattr(meta, name)), block.shape, width,
+        out = _encrypt_components(be, key, quantise_vector(enc, getattr(meta, name)), block.shape, width,
                                   unsafe_no_obfuscation)
         digests.append(brick_digest(meta.store_id, name, index, out))
         with _stats.timed("encrypt.write"):
@@ -322,7 +244,7 @@ def encrypt_volume(
     if gradient and vector_dims is None:
         raise ParameterError("gradient: expected vector_dims=k as well, got vector_dims=None (the gradient channel "
                              "holds g·e(d), the k-dimensional density encoding scaled by the gradient magnitude)")
-    sc, vc, vr = _plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
+    sc, vc, vr = plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
     meta = VolumeMetadata(
         shape=tuple(int(s) for s in vol.shape), spacing=spacing_t, brick=brick_t, n=str(int(pub.n)),
         fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
