@@ -32,6 +32,7 @@ __all__ = [
     "MAX_VECTOR_DIMS",
     "MAX_STORE_DIGITS",
     "MAX_VALUE",
+    "check_bool",
     "check_brick",
     "check_brick_index",
     "check_choice",
@@ -110,6 +111,21 @@ def check_pixel_ids(pixels: Any, width: int, height: int) -> np.ndarray:
     if arr.size and (arr.min() < 0 or arr.max() >= n):
         raise ParameterError(f"pixels: expected indices in [0, {n}), got {arr.min()}..{arr.max()}")
     return arr
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """``value`` if it is True or False (numpy's bool too), as a Python bool.
+
+    >>> check_bool("overwrite", True)
+    True
+    >>> check_bool("overwrite", "yes")
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: overwrite: expected True or False, got 'yes'
+    """
+    if not isinstance(value, (bool, np.bool_)):
+        raise ParameterError(f"{name}: expected True or False, got {value!r}")
+    return bool(value)
 
 
 def check_int(name: str, value: Any, lo: int | None = None, hi: int | None = None) -> int:

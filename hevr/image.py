@@ -17,7 +17,6 @@ there the file is written in one request, which an object store makes visible wh
 from __future__ import annotations
 
 import base64
-import hashlib
 import io
 import json
 import os
@@ -30,8 +29,9 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from ._files import read_regular, write_checksummed, write_file
+from ._files import read_regular, write_file
 from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile_name
+from ._validate import check_bool
 from .backends import get_backend
 from .crypto.keys import PrivateKey
 from .crypto.records import record_width
@@ -40,8 +40,9 @@ from .store.paths import (
     check_storage_options,
     is_local,
     normalise,
+    output_location,
     read_bytes,
-    write_new_bytes,
+    write_output,
 )
 
 __all__ = ["EncryptedImage", "load_image", "save_png"]
@@ -224,35 +225,13 @@ class EncryptedImage:
         guarantees against a racing writer); a local name containing ``://`` is a
         :class:`hevr.ParameterError`."""
         so = check_storage_options(storage_options)
-        overwrite = check_overwrite(overwrite)
+        overwrite = check_bool("overwrite", overwrite)
         where = output_location(path)
         check_image(self)
         head = json.dumps(self._header(), separators=(",", ":")).encode()
         parts = [MAGIC, struct.pack("<I", len(head)), head]
         parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in self.ciphertexts]
-        if isinstance(where, Path):
-            write_checksummed(where, parts, overwrite=overwrite, doing="writing the encrypted image")
-        else:
-            parts.append(hashlib.sha256(b"".join(parts)).digest())
-            write_new_bytes(where, parts, so, overwrite=overwrite)
-
-
-def check_overwrite(overwrite: Any, name: str = "overwrite") -> bool:
-    """``overwrite`` as a writer takes it: True or False (a :class:`hevr.ParameterError` else)."""
-    if not isinstance(overwrite, (bool, np.bool_)):
-        raise ParameterError(f"{name}: expected True or False, got {overwrite!r}")
-    return bool(overwrite)
-
-
-def output_location(path: Any, name: str = "path") -> Path | str:
-    """A local file (``Path``; ``file://`` URLs included) or an fsspec URL (``str``, checked:
-    a text with ``://`` that is no URL fsspec knows is a :class:`hevr.ParameterError`)."""
-    if not isinstance(path, (str, os.PathLike)) or not str(path):
-        raise ParameterError(f"{name}: expected a file path or an fsspec URL, got {path!r}")
-    if "://" not in str(path):
-        return Path(path)
-    where = normalise(path, name)  # a text with '://' that is no URL: a ParameterError naming ``name``
-    return Path(where) if is_local(where) else where
+        write_output(where, parts, so, overwrite=overwrite, doing="writing the encrypted image")
 
 
 def _unpack_checked(plain: list[int], need: int, pack_bits: int, per_pack: int,
@@ -363,7 +342,7 @@ def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | No
     >>> save_png(np.linspace(0, 1, 12).reshape(3, 4), os.path.join(tempfile.mkdtemp(), "a.png"))
     """
 
-    overwrite = check_overwrite(overwrite)
+    overwrite = check_bool("overwrite", overwrite)
     if not isinstance(path, (str, os.PathLike)) or not str(path):
         raise ParameterError(f"path: expected a file path, got {path!r}")
     buf = io.BytesIO()

@@ -1,4 +1,5 @@
-"""Issue 24, items 1 and 6, for hevr's file writers (frames, ray sums, PNGs, keys, upgrade targets).
+"""Issue 24, items 1 and 6, for hevr's file writers (frames, ray sums, PNGs, keys, volumes; upgrade
+targets: tests/store/test_upgrade.py).
 
 Every writer refuses an existing path unless ``overwrite=True`` (``ExistingFileError``, the file
 untouched), atomically; an operating-system refusal while writing (disk full, file-size limit,
@@ -109,58 +110,6 @@ def test_s3_refuses_a_racing_writer_with_a_conditional_put(s3_server, scene, mon
     with pytest.raises(hevr.ExistingFileError, match="race-24.hevr"):
         scene[2].save(url, storage_options=so)
     assert fs.cat_file(url[5:]) == b"written by the other writer"
-
-
-def _v1_store(path: Path, pub) -> None:
-    """A small complete format-1 store (as tests/store/test_upgrade.py builds one)."""
-    import zarr
-
-    from hevr.crypto.records import record_width
-    from hevr.store.metadata import ChannelInfo, VolumeMetadata
-    from hevr.store.reader import brick_slices
-
-    shape, brick, w = (4, 3, 5), (2, 3, 4), record_width(int(pub.n))
-    vol = np.random.default_rng(5).integers(0, 256, shape).astype(np.uint8)
-    meta = VolumeMetadata(shape=shape, spacing=(1.0, 1.0, 1.0), brick=brick, n=str(int(pub.n)),
-                          fingerprint=pub.fingerprint, ciphertext_bytes=w, dtype="uint8", value_range=(0.0, 255.0),
-                          scalar=ChannelInfo(exponent=0), vector=None, complete=True, version=1)
-    group = zarr.open_group(str(path), mode="w")
-    group.create_array("scalar", shape=shape + (w,), chunks=brick + (w,), dtype="uint8", compressors=None,
-                       fill_value=0)
-    group.create_array("done", shape=meta.grid, chunks=(1, 1, 1), dtype="uint8", compressors=None, fill_value=0)
-    for idx in np.ndindex(*meta.grid):
-        sl = brick_slices(meta, idx)
-        cts = pub.encrypt_array(vol[sl].ravel().tolist())
-        group["scalar"][sl] = np.array([list(int(c).to_bytes(w, "big")) for c in cts], np.uint8).reshape(
-            vol[sl].shape + (w,))
-        group["done"][idx] = 1
-    group.attrs["hevr"] = meta.to_dict()
-
-
-def test_upgrade_never_builds_into_a_path_that_appears_meanwhile(tmp_path, keypair256, monkeypatch):
-    """The target is checked first; a folder created after that check (another writer) is not
-    wiped: the finished store is put in place by an exclusive mkdir, so the upgrade refuses."""
-    from hevr.store import upgrade
-
-    _v1_store(tmp_path / "old.zarr", keypair256[0])
-    dst = tmp_path / "new.zarr"
-    dst.mkdir()
-    (dst / "notes.txt").write_text("someone else's")
-    monkeypatch.setattr(upgrade, "store_exists", lambda *a, **k: False)  # the check raced
-    with pytest.raises(hevr.StoreExistsError, match="dst: .*new.zarr"):
-        hevr.upgrade_store(tmp_path / "old.zarr", dst, progress=False)
-    assert sorted(p.name for p in dst.iterdir()) == ["notes.txt"]
-    assert _temporaries(tmp_path) == []
-
-
-def test_upgrade_refuses_an_existing_target(tmp_path, keypair256):
-    _v1_store(tmp_path / "old.zarr", keypair256[0])
-    (tmp_path / "new.zarr").write_text("a file")
-    with pytest.raises(hevr.StoreExistsError, match="dst: .*already exists"):
-        hevr.upgrade_store(tmp_path / "old.zarr", tmp_path / "new.zarr", progress=False)
-    assert (tmp_path / "new.zarr").read_text() == "a file"
-    ev = hevr.upgrade_store(tmp_path / "old.zarr", tmp_path / "fresh.zarr", progress=False)
-    assert ev.meta.complete and _temporaries(tmp_path) == []
 
 
 # -- item 6: the operating system's refusals, one error family --------------------------------

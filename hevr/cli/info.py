@@ -37,6 +37,7 @@ __all__ = ["cmd_info", "channels"]
 
 
 def channels(meta: Any) -> str:
+    """The stored channels in words, e.g. ``scalar (exact) + vector[4] (3 digits)``."""
     ch = []
     if meta.scalar is not None:
         ch.append("scalar" + (f" ({meta.scalar.digits} digits)" if meta.scalar.digits is not None else " (exact)"))
@@ -47,9 +48,8 @@ def channels(meta: Any) -> str:
     return " + ".join(ch) or "none"
 
 
-
 def cmd_info(args: Any) -> int:
-
+    """Print what PATH holds (module docstring); 1 if a check failed."""
     if st.is_url(args.path):  # a store, frame or sums file on object storage
         url, so = normalise(args.path), st.storage_options(args)
         kind = st.url_kind(url, so)
@@ -138,7 +138,6 @@ def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> i
 
 
 def _info_image(path: Path | str, so: dict | None = None) -> int:
-
     img = load_image(path, storage_options=so)
     info = img.info or {}
     cam = info.get("camera") or {}

@@ -31,10 +31,10 @@ from dask.delayed import Delayed, delayed
 from .._dask import active_client
 from .._dask import compute as run_tasks
 from .._tiles import TileLayout
-from .._validate import check_int
+from .._validate import check_bool, check_int
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
-from ..image import EncryptedImage, check_overwrite
+from ..image import EncryptedImage
 from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
 from .camera import Camera
@@ -239,7 +239,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     if keep_sums is not None and not compute:
         raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
                              f"render runs), got {str(keep_sums)!r}")
-    overwrite = check_overwrite(overwrite)
+    overwrite = check_bool("overwrite", overwrite)
     if keep_sums is not None:
         keep_sums = check_sums_path(keep_sums, overwrite=overwrite)
     backend = resolve_backend_name(backend)

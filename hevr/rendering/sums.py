@@ -48,11 +48,11 @@ import numpy as np
 
 from .._dask import active_client
 from .._dask import compute as run_tasks
-from .._files import read_regular, require_file, write_checksummed
+from .._files import read_regular, require_file
 from .._image_header import MAX_N_DIGITS, Fields, parse_json
 from .._limits import MAX_IMAGE_PIXELS
 from .._tiles import TileLayout
-from .._validate import check_int, check_step
+from .._validate import check_bool, check_int, check_step
 from ..backends import get_backend, resolve_backend_name
 from ..crypto.paillier import fingerprint as fingerprint_of
 from ..crypto.records import record_width
@@ -64,14 +64,15 @@ from ..errors import (
     MissingFileError,
     ParameterError,
 )
-from ..image import EncryptedImage, check_overwrite, output_location
+from ..image import EncryptedImage
 from ..store.metadata import VolumeMetadata
 from ..store.paths import (
     check_storage_options,
     is_local,
     normalise,
+    output_location,
     read_bytes,
-    write_new_bytes,
+    write_output,
 )
 from ..volume.pyramid import MAX_LEVELS
 from .camera import Camera
@@ -166,7 +167,7 @@ def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, c
     request), never over an existing file unless ``overwrite=True``
     (:class:`hevr.ExistingFileError` naming ``name``), a failed write a
     :class:`hevr.FileSystemError` that leaves nothing behind."""
-    overwrite = check_overwrite(overwrite)
+    overwrite = check_bool("overwrite", overwrite)
     where = output_location(path, name)
     values = sums.values()
     n = int(meta.n)
@@ -183,13 +184,8 @@ def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, c
         if v is not None:
             parts += [np.ascontiguousarray(v[0], dtype="<i8").reshape(-1),
                       np.ascontiguousarray(v[1], dtype=np.uint8).reshape(-1)]
-    if not isinstance(where, Path):
-        parts.append(hashlib.sha256(b"".join(parts)).digest())
-        write_new_bytes(where, parts, check_storage_options(storage_options), overwrite=overwrite, name=name)
-        size = sum(memoryview(p).nbytes for p in parts)
-    else:
-        write_checksummed(where, parts, overwrite=overwrite, name=name, doing="writing the ray sums")
-        size = where.stat().st_size
+    size = write_output(where, parts, check_storage_options(storage_options), overwrite=overwrite, name=name,
+                        doing="writing the ray sums")
     log.info("ray sums of %d tiles written to %s (%d bytes)", len(values), where, size)
     return size
 

@@ -20,11 +20,11 @@ import numpy as np
 import zarr
 
 from .._files import fs_errors
-from ..errors import FileSystemError, ParameterError, StoreError, StoreExistsError
+from ..errors import ExistingFileError, FileSystemError, ParameterError, StoreError, StoreExistsError
 from .exclusive import StoreLock, locked_folder, remove_local_tree, rename_noreplace, swap_lock
 from .layout import check_document, check_documents, check_entry, chunk_key, compressors
 from .metadata import VolumeMetadata
-from .paths import document_digest, filesystem, is_local, read_document, sibling, zarr_store
+from .paths import document_digest, filesystem, is_local, read_document, sibling, write_new_bytes, zarr_store
 from .reader import array_layout
 
 __all__ = ["create_store", "claim_store", "new_store", "resume_target"]
@@ -86,18 +86,13 @@ def _claim_url(path: str, meta: VolumeMetadata, storage_options: dict | None, na
     """Write the group's ``zarr.json`` at the URL ``path`` if no object is there (claim_store)."""
     fs, root = filesystem(path, storage_options)
     doc = json.dumps({"zarr_format": 3, "node_type": "group", "attributes": {"hevr": meta.to_dict()}}).encode()
-    key = f"{root.rstrip('/')}/zarr.json"
     with _URL_CLAIMS:
         fs.invalidate_cache(root)
-        try:
-            fs.pipe_file(key, doc, mode="create")
-        except FileExistsError:
+        try:  # the conditional create of hevr.store.paths.write_new_bytes
+            write_new_bytes(f"{path.rstrip('/')}/zarr.json", [doc], storage_options, name=name)
+        except ExistingFileError:
             raise StoreExistsError(f"{name}: {path} already exists (created by another run at the same time); "
                                    "nothing was written there") from None
-        except TypeError:  # pragma: no cover - a filesystem whose pipe_file has no mode
-            if fs.exists(key):
-                raise StoreExistsError(f"{name}: {path} already exists") from None
-            fs.pipe_file(key, doc)
 
 
 def _check_owner(path: str, store_id: str, storage_options: dict | None, name: str) -> None:

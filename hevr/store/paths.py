@@ -17,6 +17,7 @@ in-process cluster, ``LocalCluster(processes=False)``, shares this process and i
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import json
 import logging
@@ -27,8 +28,20 @@ from typing import Any, Callable
 
 from zarr.storage import FsspecStore
 
-from .._files import fs_errors, read_regular, temp_sibling, temporaries
-from ..errors import CorruptStoreError, ExistingFileError, MissingDependencyError, ParameterError, StoreExistsError
+from .._files import (
+    fs_errors,
+    read_regular,
+    temp_sibling,
+    temporaries,
+    write_checksummed,
+)
+from ..errors import (
+    CorruptStoreError,
+    ExistingFileError,
+    MissingDependencyError,
+    ParameterError,
+    StoreExistsError,
+)
 from .exclusive import lock_store, remove_local_tree, rename_noreplace, swap_lock
 from .metadata import FORMAT_NAME, sha256_tag
 
@@ -36,7 +49,8 @@ log = logging.getLogger(__name__)
 
 __all__ = ["token", "is_local", "normalise", "store_exists", "interrupted_swaps", "sibling", "check_replaceable",
            "remove_tree", "swap", "read_document", "document_digest", "check_storage_options", "filesystem",
-           "zarr_store", "check_reachable", "read_bytes", "write_bytes", "object_sizes"]
+           "zarr_store", "check_reachable", "read_bytes", "object_sizes", "output_location",
+           "write_new_bytes", "write_output"]
 
 
 def token() -> str:
@@ -196,13 +210,6 @@ def read_bytes(path: str, storage_options: dict[str, Any] | None = None) -> byte
     return fs.cat_file(root)
 
 
-def write_bytes(path: str, parts: Any, storage_options: dict[str, Any] | None = None) -> None:
-    """Write the concatenated ``parts`` to the object ``path`` in one request: an object store
-    makes an object visible whole or not at all (what the local ``<path>.tmp`` + rename gives)."""
-    fs, root = filesystem(path, storage_options)
-    fs.pipe_file(root, b"".join(parts))
-
-
 def object_sizes(path: str, storage_options: dict[str, Any] | None = None) -> dict[str, int]:
     """``{key relative to path: size in bytes}`` of every object under the URL ``path``, from
     one listing (``fs.find``: one LIST request per 1000 objects on S3)."""
@@ -349,3 +356,32 @@ def write_new_bytes(path: str, parts: Any, storage_options: dict[str, Any] | Non
             fs.pipe_file(root, data)
     except FileExistsError:
         raise ExistingFileError(name, path) from None
+
+
+def output_location(path: Any, name: str = "path") -> Path | str:
+    """Where a file is to be written: a local file (``Path``; ``file://`` URLs included) or an
+    fsspec URL (``str``; a text with ``://`` whose protocol fsspec does not know is a
+    :class:`hevr.ParameterError` naming ``name``, :func:`normalise`)."""
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ParameterError(f"{name}: expected a file path or an fsspec URL, got {path!r}")
+    if "://" not in str(path):
+        return Path(path)
+    where = normalise(path, name)
+    return Path(where) if is_local(where) else where
+
+
+def write_output(where: Path | str, parts: list[Any], storage_options: dict[str, Any] | None = None, *,
+                 overwrite: bool = False, name: str = "path", doing: str = "writing") -> int:
+    """Write ``parts`` and the SHA-256 of all of them (the trailer of ``.hevr`` and ``.hevrsums``
+    files) to ``where`` (:func:`output_location`): a local file through
+    :func:`hevr._files.write_checksummed`, an object in one request (:func:`write_new_bytes`);
+    an existing one only with ``overwrite``. Returns the bytes written."""
+    if isinstance(where, Path):
+        write_checksummed(where, parts, overwrite=overwrite, name=name, doing=doing)
+        return where.stat().st_size
+    digest = hashlib.sha256()
+    for part in parts:
+        digest.update(part)
+    parts = [*parts, digest.digest()]
+    write_new_bytes(where, parts, storage_options, overwrite=overwrite, name=name)
+    return sum(memoryview(p).nbytes for p in parts)

@@ -36,7 +36,7 @@ from ..errors import (
     StoreExistsError,
 )
 from .digests import brick_digest, marker
-from .exclusive import swap_lock
+from .exclusive import rename_noreplace, swap_lock
 from .layout import check_document, check_entry, chunk_key
 from .metadata import VolumeMetadata
 from .paths import is_local, normalise, remove_tree, store_exists, token
@@ -117,9 +117,9 @@ def upgrade_store(src: str | os.PathLike, dst: str | os.PathLike, *, client: Any
     Notes
     -----
     Locally the new store is built in a hidden sibling ``.NAME.hevr-new-…`` (locked while it
-    is written, removed if the upgrade fails) and moved to ``dst`` only when complete, by an
-    exclusive ``mkdir`` of ``dst`` and a rename onto that empty folder: of two upgrades (or an
-    upgrade and any other writer) into one path exactly one wins, and nothing already at
+    is written, removed if the upgrade fails) and moved to ``dst`` only when complete, by a
+    rename that never replaces anything (``renameat2(RENAME_NOREPLACE)``, else an exclusive
+    ``mkdir`` claim): of two upgrades (or an upgrade and any other writer) into one path exactly one wins, and nothing already at
     ``dst`` is ever touched. An object store has no atomic create of a prefix: there ``dst`` is
     checked before the store is created in place, and a writer that creates it in between is
     not detected.
@@ -150,25 +150,14 @@ def upgrade_store(src: str | os.PathLike, dst: str | os.PathLike, *, client: Any
 
 
 def _move_new(build: str, dst: str) -> None:
-    """Put the finished local store ``build`` at ``dst`` only if nothing is there: an exclusive
-    ``mkdir`` claims ``dst`` (``EEXIST``: :class:`hevr.StoreExistsError`), then ``build`` is
-    renamed onto that empty folder (which POSIX ``rename`` replaces atomically)."""
+    """Put the finished local store ``build`` at ``dst`` only if nothing is there: one rename
+    that never replaces (:func:`hevr.store.exclusive.rename_noreplace`), under the folder's
+    swap lock (never in the instant an overwrite's swap has moved an old store aside)."""
     try:
-        with swap_lock(dst):  # never in the instant an overwrite's swap has moved the old store aside
-            os.mkdir(dst)
-    except FileExistsError:
-        raise StoreExistsError(f"dst: {dst} already exists (created while the upgrade ran); choose a new path "
-                               "for the upgraded store") from None
+        with swap_lock(dst):
+            rename_noreplace(build, dst)
     except OSError as exc:
-        raise os_error(exc, "creating the upgraded store", dst) from None
-    try:
-        os.rename(build, dst)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.rmdir(dst)  # the empty folder claimed above (rmdir never removes anything else)
-        if isinstance(exc, OSError) and exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
-            raise StoreExistsError(f"dst: {dst} was filled while the upgrade ran; choose a new path for the "
-                                   "upgraded store") from None
-        if isinstance(exc, OSError):
-            raise os_error(exc, "moving the upgraded store to", dst) from None
-        raise
+        if exc.errno in (errno.EEXIST, errno.ENOTEMPTY):
+            raise StoreExistsError(f"dst: {dst} already exists (created while the upgrade ran); choose a new path "
+                                   "for the upgraded store") from None
+        raise os_error(exc, "moving the upgraded store to", dst) from None

@@ -37,7 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .._files import check_regular, require_file, write_file
-from .._validate import check_choice, check_int, check_spacing, check_volume
+from .._validate import check_bool, check_choice, check_int, check_spacing, check_volume
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from .dicom import read_dicom
 from .nifti import read_nifti
@@ -323,6 +323,7 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
     spacing = check_spacing(spacing)
     check_choice("encoding", encoding, ("raw", "gzip"))
     check_choice("byte_order", byte_order, ("little", "big"))
+    overwrite = check_bool("overwrite", overwrite)
     require_file(path.parent, "path", "an existing folder", directory=True)
     suffix = path.suffix.lower()
     if suffix in (".nhdr", ".nrrd"):

@@ -165,13 +165,14 @@ def write_raw(path: Path, vol: np.ndarray, byte_order: str = "little", *, overwr
     write_file(path, data_parts(vol, byte_order, "raw"), overwrite=overwrite, doing="writing the volume")
 
 
-def data_parts(vol: np.ndarray, byte_order: str | None, encoding: str) -> Iterator[bytes]:
-    """``vol`` in x-fastest order as bytes, one z-slab of at most 16 MiB at a time (bounded
+def data_parts(vol: np.ndarray, byte_order: str | None, encoding: str) -> Iterator[Any]:
+    """``vol`` in x-fastest order as bytes-like parts, one z-slab of at most 16 MiB at a time (bounded
     memory), in ``byte_order`` ("little", "big"; None: ``vol``'s own), gzip-compressed with
     ``encoding="gzip"`` (mtime 0: the same volume always gives the same bytes)."""
     dt = vol.dtype if byte_order is None else vol.dtype.newbyteorder("<" if byte_order == "little" else ">")
     step = max(1, (1 << 24) // max(1, vol[0].nbytes))
-    slabs = (np.ascontiguousarray(vol[k : k + step], dtype=dt).tobytes() for k in range(0, vol.shape[0], step))
+    # memoryviews of the converted slabs: no second copy of the data
+    slabs = (np.ascontiguousarray(vol[k : k + step], dtype=dt).data for k in range(0, vol.shape[0], step))
     if encoding != "gzip":
         yield from slabs
         return

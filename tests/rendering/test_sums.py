@@ -102,7 +102,8 @@ def test_header_checks_name_the_field(scene, tmp_path):
     for field, value, words in [("channel", "gradient", "one of the volume's channels"), ("components", 2, "'components'"),
                                 ("tile", 0, "'tile'"), ("width", 3, "'width'"), ("sampling", "cubic", "'sampling'"),
                                 ("step", -1, "'step'"), ("fingerprint", "00", "'fingerprint'"),
-                                ("tiles", [[0, 1], [1, 1]], "'tiles'"), ("tiles", [[0, 500]], r"tiles\[0\]\[1\]")]:
+                                ("tiles", [[0, 1], [1, 1]], "'tiles'"), ("tiles", [[0, 500]], r"tiles\[0\]\[1\]"),
+                                ("note", "added by something else", r"v\.hevrsums: header: unexpected field 'note'")]:
         write(dict(head, **{field: value}))
         with pytest.raises(hevr.CorruptStoreError, match=words):
             hevr.load_sums(path)

@@ -162,3 +162,35 @@ def test_a_fifo_in_the_old_store_fails_fast(v1, tmp_path, rel):
     assert isinstance(box.get("error"), hevr.CorruptStoreError), box
     assert "(a regular file), got a FIFO" in str(box["error"])
     assert not (tmp_path / "new.zarr").exists()
+
+
+# -- issue 24: the target is never written over (an upgrade is a writer like any other) ---------
+def _hidden_left(folder: Path) -> list[str]:
+    return [p.name for p in folder.iterdir() if ".hevr-" in p.name]
+
+
+def test_upgrade_never_builds_into_a_path_that_appears_meanwhile(v1, monkeypatch):
+    """The target is checked first; a folder created after that check (another writer) is not
+    wiped: the finished store is put in place by a rename that never replaces, so the upgrade
+    refuses."""
+    from hevr.store import upgrade
+
+    old, _ = v1
+    dst = old.parent / "new.zarr"
+    dst.mkdir()
+    (dst / "notes.txt").write_text("someone else's")
+    monkeypatch.setattr(upgrade, "store_exists", lambda *a, **k: False)  # the check raced
+    with pytest.raises(hevr.StoreExistsError, match="dst: .*new.zarr"):
+        hevr.upgrade_store(old, dst, progress=False)
+    assert sorted(p.name for p in dst.iterdir()) == ["notes.txt"]
+    assert _hidden_left(old.parent) == []
+
+
+def test_upgrade_refuses_an_existing_target(v1):
+    old, _ = v1
+    (old.parent / "new.zarr").write_text("a file")
+    with pytest.raises(hevr.StoreExistsError, match="dst: .*already exists"):
+        hevr.upgrade_store(old, old.parent / "new.zarr", progress=False)
+    assert (old.parent / "new.zarr").read_text() == "a file"
+    ev = hevr.upgrade_store(old, old.parent / "fresh.zarr", progress=False)
+    assert ev.meta.complete and _hidden_left(old.parent) == []
