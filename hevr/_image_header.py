@@ -37,7 +37,8 @@ __all__ = ["DIGEST_BYTES", "FORMAT", "MAGIC", "MAGIC_PREFIX", "VERSION", "check_
            "expected_counts", "parse_file", "parse_json", "tile_hit_counts", "tile_name"]
 
 MAGIC_PREFIX = b"HEVRIMG"
-VERSION = 2
+VERSION = 3
+READS = (2, 3)  # version 2: server-finished images only (no finish/channel/components fields)
 MAGIC = MAGIC_PREFIX + bytes([VERSION])
 FORMAT = "hevr-encrypted-image"
 DIGEST_BYTES = 32  # SHA-256 trailer
@@ -50,8 +51,13 @@ MAX_N_DIGITS = 4300  # Python's default int/str conversion limit (about a 14 000
 MAX_INT_DIGITS = 40  # any JSON integer of the header (counts, shape, exponent, ...)
 MAX_CONTAINERS = 16384  # '[' plus '{' in the header
 MAX_QUOTES = 65536  # '"' in the header (two per string)
-FIELDS = ("format", "version", "shape", "exponent", "offset", "bound", "fingerprint", "n", "width",
-          "tile", "pack_bits", "per_pack", "counts", "hits", "info")
+FIELDS_V2 = ("format", "version", "shape", "exponent", "offset", "bound", "fingerprint", "n", "width",
+             "tile", "pack_bits", "per_pack", "counts", "hits", "info")
+FIELDS = FIELDS_V2 + ("finish", "channel", "components")
+FINISHES = ("server", "client")
+CHANNELS = ("scalar", "vector", "gradient")
+MAX_COMPONENTS = 64  # values per hit pixel of a client-finished frame (the vector encoding's length)
+SAMPLE_BYTES = 4  # a client-finished frame's body ends with H·W little-endian uint32 sample counts
 
 
 def _show(value: Any) -> str:
@@ -221,14 +227,23 @@ def check_image(img: Any) -> tuple[TileLayout, np.ndarray | None, int]:
     if hits is not None and not (isinstance(hits, np.ndarray) and hits.dtype == bool and hits.shape == (H, W)):
         ctx.fail("hits", f"a bool array of shape ({H}, {W}) or None",
                  raw=f"{type(hits).__name__} {getattr(hits, 'dtype', '')}{getattr(hits, 'shape', '')}")
+    per_pixel = check_frame(ctx, img.finish, img.channel, img.components, shape)
+    if img.finish == "client":
+        samples = img.samples
+        if not (isinstance(samples, np.ndarray) and samples.dtype.kind in "iu" and samples.shape == (H, W)):
+            ctx.fail("samples", f"an int array of shape ({H}, {W}) (client finishing divides by it)",
+                     raw=f"{type(samples).__name__} {getattr(samples, 'dtype', '')}{getattr(samples, 'shape', '')}")
+        if samples.size and (samples.min() < 0 or samples.max() >= 2**32):
+            ctx.fail("samples", "counts in [0, 2^32)", raw="others")
+        if hits is None or not np.array_equal(hits, samples > 0):
+            ctx.fail("hits", "the pixels with samples > 0", raw="another mask")
     layout = TileLayout(W, H, int(img.tile))
     width = record_width(int(img.n))
     cts = img.ciphertexts
     if not isinstance(cts, (list, tuple)) or len(cts) != layout.n_tiles:
         ctx.fail("ciphertexts", f"a list of {layout.n_tiles} arrays (one per tile)",
                  raw=f"{_kind(cts)} of {len(cts) if isinstance(cts, (list, tuple)) else '?'}")
-    want = expected_counts(tile_hit_counts(hits, (H, W), int(img.tile)), 3 if len(shape) == 3 else 1,
-                           int(img.per_pack))
+    want = expected_counts(tile_hit_counts(hits, (H, W), int(img.tile)), per_pixel, int(img.per_pack))
     for t, (c, e) in enumerate(zip(cts, want.tolist())):
         if not (isinstance(c, np.ndarray) and c.dtype == np.uint8 and c.ndim == 2 and c.shape[1] == width):
             raise IntegrityError(f"{tile_name(layout, t)}: ciphertexts: expected a uint8 array of shape "
@@ -239,6 +254,26 @@ def check_image(img: Any) -> tuple[TileLayout, np.ndarray | None, int]:
                                  f"per_pack, rounded up), got {c.shape[0]}: the image was corrupted or tampered "
                                  f"with; no image is returned")
     return layout, hits, width
+
+
+def check_frame(ctx: Fields, finish: Any, channel: Any, components: Any, shape: tuple[int, ...]) -> int:
+    """``finish``, ``channel`` and ``components`` against each other and the shape; returns the
+    values per hit pixel. Server finishing: the shape's channels (1 or 3), channel any or None
+    (a version-2 file); client finishing: 1 for the scalar channel, else 2..64."""
+    if finish not in FINISHES:
+        ctx.fail("finish", "'server' or 'client'", finish)
+    channels = 3 if len(shape) == 3 else 1
+    if finish == "server":
+        if channel is not None and channel not in CHANNELS:
+            ctx.fail("channel", f"one of {list(CHANNELS)} or null", channel)
+        if components is not None:
+            ctx.integer("components", components, channels, channels)
+        return channels
+    if channel not in CHANNELS:
+        ctx.fail("channel", f"one of {list(CHANNELS)}", channel)
+    if channel == "scalar":
+        return ctx.integer("components", components, 1, 1)
+    return ctx.integer("components", components, 2, MAX_COMPONENTS)
 
 
 # -- the file -----------------------------------------------------------------------------------
@@ -288,11 +323,11 @@ def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
     if version == 1:
         raise CorruptStoreError(f"{where}: image format version 1 is no longer read (it has no checksum and "
                                 f"no value bound to check decryption against); render the image again")
-    if version != VERSION:
+    if version not in READS:
         raise CorruptStoreError(f"{where}: unsupported image format version {version}; this hevr reads "
-                                f"version {VERSION}")
+                                f"versions {READS[0]} and {READS[-1]}")
     if len(blob) < HEAD + DIGEST_BYTES:
-        raise CorruptStoreError(f"{where}: truncated: {len(blob)} bytes, shorter than any version-2 image")
+        raise CorruptStoreError(f"{where}: truncated: {len(blob)} bytes, shorter than any version-{version} image")
     view = memoryview(blob)
     if hashlib.sha256(view[:-DIGEST_BYTES]).digest() != bytes(view[-DIGEST_BYTES:]):
         raise IntegrityError(f"{where}: checksum mismatch: the file was corrupted, truncated or altered after "
@@ -304,25 +339,37 @@ def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
     h = parse_json(bytes(view[HEAD:HEAD + hl]), where)
     if not isinstance(h, dict):
         raise CorruptStoreError(f"{where}: header: expected a JSON object, got a JSON {_kind(h)}")
-    out = _check_header(h, Fields(where, CorruptStoreError, "header field"))
+    ctx = Fields(where, CorruptStoreError, "header field")
+    out = _check_header(h, ctx, version)
     body = np.frombuffer(blob, dtype=np.uint8, count=len(blob) - HEAD - hl - DIGEST_BYTES, offset=HEAD + hl)
     size = sum(out["counts"]) * out["width"]
-    if body.size != size:
-        what = "truncated" if body.size < size else "too long"
-        raise CorruptStoreError(f"{where}: {what}: expected {size} ciphertext bytes (sum of counts × width), "
+    H, W = out["shape"][:2]
+    extra = H * W * SAMPLE_BYTES if out["finish"] == "client" else 0
+    if body.size != size + extra:
+        what = "truncated" if body.size < size + extra else "too long"
+        more = f" and {extra} bytes of sample counts" if extra else ""
+        raise CorruptStoreError(f"{where}: {what}: expected {size} ciphertext bytes (sum of counts × width){more}, "
                                 f"got {body.size}")
+    out["samples"] = None
+    if extra:
+        samples = body[size:].view("<u4").reshape(H, W).astype(np.int64)
+        if not np.array_equal(samples > 0, out["hits"] if out["hits"] is not None else np.ones((H, W), bool)):
+            ctx.fail("hits", "the pixels whose sample count (after the records) is > 0", raw="another mask")
+        out["samples"] = samples
+        body = body[:size]
     return out, body
 
 
-def _check_header(h: dict, ctx: Fields) -> dict:
+def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
     if h.get("format") != FORMAT:
         ctx.fail("format", repr(FORMAT), h.get("format"))
-    if not _is_int(h.get("version")) or h["version"] != VERSION:
-        ctx.fail("version", str(VERSION), h.get("version"))
-    for name in FIELDS:
+    if not _is_int(h.get("version")) or h["version"] != version:
+        ctx.fail("version", str(version), h.get("version"))
+    fields = FIELDS if version >= 3 else FIELDS_V2
+    for name in fields:
         if name not in h:
             ctx.fail(name, "the field", raw="nothing")
-    extra = sorted(set(h) - set(FIELDS))
+    extra = sorted(set(h) - set(fields))
     if extra:
         raise CorruptStoreError(f"{ctx.where}: header: unexpected field {_show(extra[0])}")
     shape = check_shape(ctx, h["shape"])
@@ -346,12 +393,17 @@ def _check_header(h: dict, ctx: Fields) -> dict:
     if not isinstance(counts, list) or len(counts) != layout.n_tiles:
         ctx.fail("counts", f"a list of {layout.n_tiles} ints (one per tile)",
                  raw=f"a list of {len(counts)}" if isinstance(counts, list) else _kind(counts))
-    top = 3 * MAX_PIXELS  # no tile needs more ciphertexts
+    top = MAX_COMPONENTS * MAX_PIXELS  # no tile needs more ciphertexts
     for t, c in enumerate(counts):
         if not _is_int(c) or not 0 <= c <= top:
             ctx.fail(f"counts[{t}]", "an int >= 0 (ciphertexts of the tile)",
                      raw=f"{_show(c)}" + ("" if _is_int(c) else f" ({_kind(c)})"))
-    want = expected_counts(tile_hit_counts(hits, (H, W), tile), 3 if len(shape) == 3 else 1, per_pack)
+    finish, channel, components = (h["finish"], h["channel"], h["components"]) if version >= 3 else \
+        ("server", None, None)
+    per_pixel = check_frame(ctx, finish, channel, components, shape)
+    if finish == "client" and hits is None:
+        ctx.fail("hits", "the mask of the pixels with samples (a client-finished frame)", raw="null")
+    want = expected_counts(tile_hit_counts(hits, (H, W), tile), per_pixel, per_pack)
     bad = np.flatnonzero(np.array(counts, dtype=np.int32) != want)
     if bad.size:
         t = int(bad[0])
@@ -361,7 +413,8 @@ def _check_header(h: dict, ctx: Fields) -> dict:
         ctx.fail("info", "a JSON object", raw=_kind(h["info"]))
     return {"shape": shape, "n": n, "width": width, "fingerprint": fp, "bound": bound, "offset": offset,
             "exponent": int(h["exponent"]), "tile": int(tile), "pack_bits": int(h["pack_bits"]),
-            "per_pack": int(per_pack), "counts": counts, "hits": hits, "info": h["info"]}
+            "per_pack": int(per_pack), "counts": counts, "hits": hits, "info": h["info"], "finish": finish,
+            "channel": channel, "components": components}
 
 
 def _check_hits(ctx: Fields, text: Any, H: int, W: int) -> np.ndarray | None:

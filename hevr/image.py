@@ -21,6 +21,7 @@ import io
 import json
 import os
 import struct
+import time
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -80,6 +81,19 @@ class EncryptedImage:
         The render plan's bound: every value M + offset lies in [0, bound]. Decryption checks
         every plaintext against it (see :mod:`hevr.rendering.planner`, integrity margin); an
         image without it cannot be decrypted or saved.
+    finish : {"server", "client"}
+        ``"server"``: the values are the finished pixels (the paper's way). ``"client"``: they
+        are the ``components`` ray sums of every hit pixel, coloured after decryption on the
+        client (:mod:`hevr.colour`).
+    channel : str or None
+        The stored channel rendered (``"scalar"``, ``"vector"``, ``"gradient"``).
+    components : int or None
+        Values per hit pixel (None: the shape's channels, 1 or 3).
+    samples : np.ndarray of int, shape (H, W), or None
+        Samples of every pixel's ray (public geometry; client-finished frames, which divide by it).
+    colouring : RenderSpec or None
+        The render's colouring (density, transfer function), kept in this process only: it is
+        never saved, shown or sent; :meth:`decrypt` applies it unless given another.
     """
 
     shape: tuple
@@ -95,10 +109,20 @@ class EncryptedImage:
     info: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
     bound: int | None = None
+    finish: str = "server"
+    channel: str | None = None
+    components: int | None = None
+    samples: np.ndarray | None = None
+    colouring: Any = field(default=None, repr=False, compare=False)
 
     def __repr__(self) -> str:
-        return (f"EncryptedImage(shape={self.shape}, exponent={self.exponent}, per_pack={self.per_pack}, "
-                f"ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
+        return (f"EncryptedImage(shape={self.shape}, finish={self.finish!r}, exponent={self.exponent}, "
+                f"per_pack={self.per_pack}, ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
+
+    @property
+    def values_per_pixel(self) -> int:
+        """Values each hit pixel carries: its ``components`` (client finishing), else its channels."""
+        return int(self.components) if self.components is not None else self.channels
 
     @property
     def n_ciphertexts(self) -> int:
@@ -128,14 +152,14 @@ class EncryptedImage:
             to an essentially uniform element of Z_n and passes with probability below 2^-64
             (the planner's integrity margin, :mod:`hevr.rendering.planner`).
         """
-        C = self.channels
+        C = self.values_per_pixel
         H, W = self.shape[:2]
         out = np.zeros((H, W, C), dtype=object)
         offset = int(self.offset)
         for r0, r1, c0, c1, mask, vals in self._checked_tiles(private_key, backend):
             block = out[r0:r1, c0:c1, :]
             block[mask] = np.array([v - offset for v in vals], dtype=object).reshape(-1, C)
-        return out[..., 0] if len(self.shape) == 2 else out
+        return out[..., 0] if C == 1 and len(self.shape) == 2 else out
 
     def _checked_tiles(self, private_key: Any, backend: str | None):
         """Check the image's numbers now, then return an iterator over the tiles with hits:
@@ -157,7 +181,7 @@ class EncryptedImage:
 
     def _tile_values(self, private_key: Any, be: Any, layout: Any, hits: np.ndarray | None, n: int):
         """The iterator of :meth:`_checked_tiles`: range-check, decrypt and unpack tile by tile."""
-        C = self.channels
+        C = self.values_per_pixel
         bound, J, b = int(self.bound), int(self.per_pack), int(self.pack_bits)
         nsquare = int(n) * int(n)
         for t in range(layout.n_tiles):
@@ -183,10 +207,45 @@ class EncryptedImage:
                 raise IntegrityError(f"{tile_name(layout, t)}: {what}; {_CORRUPT}")
             yield r0, r1, c0, c1, mask, vals
 
-    def decrypt(self, private_key: Any, backend: str | None = None) -> np.ndarray:
+    def decrypt_frame(self, private_key: Any, backend: str | None = None) -> Any:
+        """Decrypt a client-finished image to a :class:`hevr.Frame`: the per-pixel means of the
+        stored components, to colour (and re-colour) on this machine (:mod:`hevr.colour`).
+        The checks of :meth:`decrypt_mantissas` apply (``IntegrityError`` on any fault)."""
+        from .colour import frame_from_sums
+
+        if self.finish != "client":
+            raise ParameterError("finish: expected an image rendered with finish='client' (it holds the ray sums "
+                                 "to colour), got one finished on the server: use decrypt()")
+        t0 = time.perf_counter()
+        K = self.values_per_pixel
+        H, W = self.shape[:2]
+        sums = np.zeros((H, W, K), dtype=np.float64)
+        offset = int(self.offset)
+        for r0, r1, c0, c1, mask, vals in self._checked_tiles(private_key, backend):
+            block = sums[r0:r1, c0:c1, :]
+            block[mask] = np.array([v - offset for v in vals], dtype=np.float64).reshape(-1, K)
+        stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts)
+        return frame_from_sums(sums, self.samples, self.exponent, str(self.channel), self.colouring, stats)
+
+    def decrypt(self, private_key: Any, backend: str | None = None, *, mode: str | None = None,
+                density: float | None = None, nodes: Any = None) -> np.ndarray:
         """Decrypt to float64 pixel values (batch CRT decryption on ``backend``, then unpacking),
         after the checks of :meth:`decrypt_mantissas` (``IntegrityError`` on any fault). Only
-        the hit pixels are converted (exactly rounded); pixels whose rays miss stay 0.0."""
+        the hit pixels are converted (exactly rounded); pixels whose rays miss stay 0.0.
+
+        A client-finished image (``finish="client"``) is coloured here, on this machine:
+        with ``mode`` / ``density`` / ``nodes`` when given, else with the render's own
+        colouring (held in this process only), else as an X-ray for the scalar channel
+        (:meth:`decrypt_frame` keeps the sums to re-colour). A server-finished image is
+        already coloured: giving a colouring is a :class:`hevr.ParameterError`."""
+        if self.finish == "client":
+            from .colour import colouring_spec
+
+            spec = colouring_spec(str(self.channel), self.values_per_pixel, mode, density, nodes, self.colouring)
+            return self.decrypt_frame(private_key, backend).recolour(spec.mode, spec.density, spec.nodes)
+        if mode is not None or density is not None or nodes is not None:
+            raise ParameterError("mode, density, nodes: expected none for an image finished on the server (its "
+                                 "colouring was applied there); render with finish='client' to colour at decryption")
         C = self.channels
         H, W = self.shape[:2]
         out = np.zeros((H, W, C), dtype=np.float64)
@@ -207,6 +266,8 @@ class EncryptedImage:
             "tile": int(self.tile), "pack_bits": int(self.pack_bits), "per_pack": int(self.per_pack),
             "counts": [len(c) for c in self.ciphertexts],
             "hits": None if hits is None else base64.b64encode(hits.tobytes()).decode(), "info": self.info,
+            "finish": self.finish, "channel": self.channel,
+            "components": None if self.components is None else int(self.components),
         }
 
     def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None) -> None:
@@ -231,6 +292,8 @@ class EncryptedImage:
         head = json.dumps(self._header(), separators=(",", ":")).encode()
         parts = [MAGIC, struct.pack("<I", len(head)), head]
         parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in self.ciphertexts]
+        if self.finish == "client":  # the public sample counts the client divides by
+            parts.append(np.ascontiguousarray(self.samples, dtype="<u4").reshape(-1))
         write_output(where, parts, so, overwrite=overwrite, doing="writing the encrypted image")
 
 
@@ -308,7 +371,8 @@ def _from_blob(blob: bytes, path: str) -> EncryptedImage:
     return EncryptedImage(shape=h["shape"], exponent=h["exponent"], offset=h["offset"],
                           fingerprint=h["fingerprint"], n=h["n"], tile=h["tile"], pack_bits=h["pack_bits"],
                           per_pack=h["per_pack"], ciphertexts=cts, hits=h["hits"], info=h["info"],
-                          bound=h["bound"])
+                          bound=h["bound"], finish=h["finish"], channel=h["channel"], components=h["components"],
+                          samples=h["samples"])
 
 
 def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None) -> np.ndarray:

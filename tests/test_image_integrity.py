@@ -34,6 +34,8 @@ RENDERS = {  # name -> render keyword arguments; tile 4 on a 10x9 image: 9 tiles
     "tf-packed": {"mode": "tf", "nodes": NODES},
     "tf-unpacked": {"mode": "tf", "nodes": NODES, "pack": False},
     "signed-xray-trilinear": {"mode": "xray", "sampling": "trilinear", "signed": True},
+    "tf-server": {"mode": "tf", "nodes": NODES, "finish": "server"},  # the paper's finishing
+    "signed-xray-server": {"mode": "xray", "sampling": "trilinear", "signed": True, "finish": "server"},
 }
 
 
@@ -103,7 +105,7 @@ def test_integrity_margin_is_the_planners():
 
 def test_images_cover_the_cases(images):
     packed = [img for img in images.values() if img.per_pack > 1]
-    assert len(packed) == 3 and all(img.pack_bits * img.per_pack + integrity_bits(int(img.n).bit_length())
+    assert len(packed) == 5 and all(img.pack_bits * img.per_pack + integrity_bits(int(img.n).bit_length())
                                     <= int(img.n).bit_length() - 1 for img in packed)
     assert images["xray-unpacked"].per_pack == images["tf-unpacked"].per_pack == 1
     assert images["signed-xray-trilinear"].offset > 0
@@ -111,7 +113,7 @@ def test_images_cover_the_cases(images):
         assert img.bound is not None and len(img.ciphertexts) == 9
         assert sum(1 for c in img.ciphertexts if len(c)) >= 4
         # some tile ends with a partly filled group
-        need = [int(img.hits[r0:r1, c0:c1].sum()) * img.channels for r0, r1, c0, c1 in
+        need = [int(img.hits[r0:r1, c0:c1].sum()) * img.values_per_pixel for r0, r1, c0, c1 in
                 (TileLayout(9, 10, 4).bounds(t) for t in range(9))]
         if img.per_pack > 1:
             assert any(k % img.per_pack for k in need)
@@ -122,12 +124,13 @@ def test_valid_image_matches_plain(name, images, stores, volumes, keypair256):
     kw = dict(RENDERS[name])
     signed = kw.pop("signed", False)
     kw.pop("pack", None)
+    finish = kw.pop("finish", "client")
     ev, vol = (stores[1], volumes[1]) if signed else (stores[0], volumes[0])
     cam = _camera(ev)
     got = images[name].decrypt(keypair256[1])
     ref = hevr.render_plain(vol, cam, value_range=ev.meta.value_range,
                             vector_dims=ev.vector_dims if kw["mode"] == "tf" else None, **kw)
-    err = hevr.error_bound(ev, cam, **kw)
+    err = hevr.error_bound(ev, cam, finish=finish, **kw)
     assert got.shape == ref.shape and np.count_nonzero(ref) > 10
     assert np.all(np.abs(got - ref) <= err), np.abs(got - ref).max()
 
@@ -152,7 +155,7 @@ def test_every_corrupted_ciphertext_is_detected(name, images, keypair256):
             assert f"image tile {t} (rows " in msg and "no image is returned" in msg
             assert any(f"({r}, " in msg for r in range(10))  # names a pixel (row, col)
             detected += 1
-    assert detected == trials >= 60, (detected, trials)
+    assert detected == trials >= 50, (detected, trials)
 
 
 @pytest.mark.parametrize("name", ["xray-packed", "tf-unpacked"])
@@ -220,9 +223,10 @@ def test_round_trip_keeps_the_bound(tmp_path, images, keypair256):
         back = hevr.load_image(path)
         assert back.bound == img.bound and back.offset == img.offset and back.shape == img.shape
         assert np.array_equal(back.hits, img.hits)
-        assert np.array_equal(back.decrypt(keypair256[1]), img.decrypt(keypair256[1]))
+        again = {"nodes": NODES} if img.finish == "client" and img.channel != "scalar" else {}  # not in the file
+        assert np.array_equal(back.decrypt(keypair256[1], **again), img.decrypt(keypair256[1]))
         blob = path.read_bytes()
-        assert blob[:8] == b"HEVRIMG\x02" and hashlib.sha256(blob[:-32]).digest() == blob[-32:]
+        assert blob[:8] == b"HEVRIMG\x03" and hashlib.sha256(blob[:-32]).digest() == blob[-32:]
         assert not (tmp_path / f"{name}.hevr.tmp").exists()
 
 
@@ -265,7 +269,7 @@ def _file(head: bytes | dict, body: bytes = b"", *, magic: bytes = MAGIC, length
 @pytest.fixture(scope="module")
 def valid(tmp_path_factory, images):
     path = tmp_path_factory.mktemp("hdr") / "v.hevr"
-    images["tf-packed"].save(path)
+    images["tf-server"].save(path)  # the header rules; a client frame's samples: tests/test_colour.py
     blob = path.read_bytes()
     (hl,) = struct.unpack("<I", blob[8:12])
     return json.loads(blob[12:12 + hl]), blob[12 + hl:-32]
@@ -294,7 +298,7 @@ def _cases(h, body):
     kappa_room = int(h["n"]).bit_length() - 1 - integrity_bits(int(h["n"]).bit_length())
     yield "magic", b"GIF89a\x00\x00" + body, "bad magic"
     yield "v1", _file(h, body, magic=b"HEVRIMG\x01"), "version 1 is no longer read"
-    yield "v3", _file(h, body, magic=b"HEVRIMG\x03"), "unsupported image format version 3"
+    yield "v4", _file(h, body, magic=b"HEVRIMG\x04"), "unsupported image format version 4"
     yield "length", _file(h, body, length=10**9), "header length"
     yield "list", _file(b"[1,2,3]"), "expected a JSON object, got a JSON list"
     yield "string", _file(b'"x"'), "got a JSON str"
@@ -384,7 +388,7 @@ def test_the_valid_header_loads(tmp_path, valid, images, keypair256):
     path = tmp_path / "ok.hevr"
     path.write_bytes(_file(h, body))
     back = hevr.load_image(path)
-    assert np.array_equal(back.decrypt(keypair256[1]), images["tf-packed"].decrypt(keypair256[1]))
+    assert np.array_equal(back.decrypt(keypair256[1]), images["tf-server"].decrypt(keypair256[1]))
 
 
 def test_large_hits_mask_memory(tmp_path, valid):
@@ -395,7 +399,7 @@ def test_large_hits_mask_memory(tmp_path, valid):
     mask = np.packbits(np.zeros(H * W, bool))
     tiles = (H // 64) ** 2
     head = _edit(h, shape=[H, W], tile=64, hits=base64.b64encode(mask.tobytes()).decode(),
-                 counts=[0] * tiles)
+                 counts=[0] * tiles, components=1)
     data = _file(head)
     path = tmp_path / "big.hevr"
     path.write_bytes(data)

@@ -1,6 +1,14 @@
 """``hevr.render``: encrypted ray casting as one Dask graph, and re-colouring from cached ray sums.
 
-Error bound of a decrypted pixel against :func:`hevr.render_plain` (same camera/step):
+Two ways to finish a frame (``finish=``). ``"client"`` (the default): the server merges and
+packs the per-component ray sums only, and the client divides by the public sample counts and
+colours them after decryption (:mod:`hevr.colour`): the density, transfer function and colours
+never leave the client process — not in the task graph, the scheduler, a worker, a store, a
+``.hevr`` file or a log. ``"server"``: the paper's way, the server combines, normalises and
+packs the finished pixels (bit for bit the images of earlier releases).
+
+Error bound of a decrypted pixel against :func:`hevr.render_plain` (same camera/step), server
+finishing (client finishing keeps the first two items only, :mod:`hevr.colour`):
 
 * weights: nearest weights are exact counts; a trilinear pair weight is rounded to
   10^-digits, so the ray sum is off by at most P_r·0.5·10^-digits·max|q| (P_r <= 8·n_r
@@ -31,7 +39,7 @@ from dask.delayed import Delayed, delayed
 from .._dask import active_client
 from .._dask import compute as run_tasks
 from .._tiles import TileLayout
-from .._validate import check_bool, check_int
+from .._validate import check_bool, check_choice, check_int
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
 from ..image import EncryptedImage
@@ -42,6 +50,8 @@ from .graph import FinishGraph, build_sums_graph
 from .modes import RenderSpec, combination_matrix, make_spec
 from .plane import Plane
 from .planner import check_render_size, plan_render
+
+FINISHES = ("client", "server")
 from .rays import cast_rays
 from .sums import RaySums, check_sums_path, image_fields, save_sums
 
@@ -75,7 +85,7 @@ def clear_cache() -> None:
 
 def _check_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: Any, density: Any, nodes: Any,
                    digits: Any, precision: Any, comb_digits: Any, views: tuple[type, ...] = (Camera,),
-                   gradient: Any = False) -> tuple[RenderSpec, int, int, int]:
+                   gradient: Any = False, finish: Any = "client") -> tuple[RenderSpec, int, int, int]:
     """Check what :func:`render` and :func:`error_bound` share, once, where it enters (``views``:
     the kinds of view the caller takes)."""
     if not isinstance(ev, EncryptedVolume):
@@ -84,6 +94,7 @@ def _check_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: Any, de
         kinds = " or ".join(f"hevr.{v.__name__}" for v in views)
         raise ParameterError(f"camera: expected a {kinds}, got {type(camera).__name__}")
     spec = make_spec(mode, sampling, step, density, nodes, ev.vector_dims, ev.has_scalar, gradient, ev.has_gradient)
+    check_choice("finish", finish, FINISHES)
     return (spec, check_int("digits", digits, 0, 9), check_int("precision", precision, 0, 30),
             check_int("comb_digits", comb_digits, 1, 12))
 
@@ -111,6 +122,7 @@ def render(
     level: int | None = None,
     gradient: bool = False,
     overwrite: bool = False,
+    finish: str = "client",
 ) -> EncryptedImage | Delayed:
     """Render an encrypted volume to an :class:`EncryptedImage` on the active Dask scheduler.
 
@@ -177,6 +189,14 @@ def render(
         fade. Same kernel and cost per sample as without.
     overwrite : bool
         Replace an existing ``keep_sums`` file (the only file a render writes).
+    finish : {"client", "server"}
+        ``"client"`` (default): the server packs only the ray sums of the stored components;
+        ``density`` / ``nodes`` stay in this process (the returned image holds them in memory,
+        never in its file) and :meth:`~hevr.EncryptedImage.decrypt` colours on the client —
+        or :meth:`~hevr.EncryptedImage.decrypt_frame` keeps the sums to re-colour in
+        milliseconds (:mod:`hevr.colour`). ``"server"``: the paper's way, the server
+        combines, normalises and packs finished pixels (the colouring is sent to the workers).
+        With ``compute=False`` a client-finished image carries no colouring: pass it to ``decrypt``.
 
     Returns
     -------
@@ -197,7 +217,7 @@ def render(
     return _render(ev, camera, mode, sampling, step, density, nodes, digits=digits, precision=precision,
                    comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
                    backend=backend, compute=compute, keep_sums=keep_sums, level=level, gradient=gradient,
-                   overwrite=overwrite)
+                   overwrite=overwrite, finish=finish)
 
 
 def _at_level(ev: EncryptedVolume, view: Camera | Plane, level: int | None) -> tuple[EncryptedVolume, Camera | Plane]:
@@ -229,10 +249,15 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
             density: float | None, nodes: Any, *, digits: int, precision: int, comb_digits: int, pack: bool,
             tile: int, cache: bool, client: Any, progress: bool, backend: str | None, compute: bool,
             keep_sums: str | os.PathLike | None, views: tuple[type, ...] = (Camera,),
-            level: int | None = None, gradient: bool = False, overwrite: bool = False) -> EncryptedImage | Delayed:
-    """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``."""
+            level: int | None = None, gradient: bool = False, overwrite: bool = False,
+            finish: str = "client") -> EncryptedImage | Delayed:
+    """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``.
+
+    With ``finish="client"`` nothing below this function sees ``spec``'s density or nodes: the
+    plan (:func:`~hevr.rendering.planner.plan_sums`), the graph and the image fields are built
+    from the channel, the sampling and the step; the spec joins the image here, at the end."""
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
-                                                          digits, precision, comb_digits, views, gradient)
+                                                          digits, precision, comb_digits, views, gradient, finish)
     ev, camera = _at_level(ev, camera, level)
     spec = _level_step(spec, ev, camera)
     tile = check_int("tile", tile, 1, 4096)
@@ -246,10 +271,10 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
     t0 = time.perf_counter()
     rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
-    comb = combination_matrix(spec, ev.vector_dims) if spec.needs_vector else None
+    comb = combination_matrix(spec, ev.vector_dims) if spec.needs_vector and finish == "server" else None
     plan = plan_render(n=int(ev.public_key.n), spec=spec, meta=ev.meta, n_samples=rays.n_samples,
                        digits=digits if spec.sampling == "trilinear" else 0, precision=precision,
-                       comb_digits=comb_digits, pack=pack, combination=comb)
+                       comb_digits=comb_digits, pack=pack, combination=comb, finish=finish)
     H, W = camera.height, camera.width
     layout = TileLayout(W, H, tile)
     n_tiles = layout.n_tiles
@@ -312,7 +337,8 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
              "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),
              "seconds": time.perf_counter() - t0}
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
-    return EncryptedImage(ciphertexts=list(packed), stats=stats, **fields)
+    return EncryptedImage(ciphertexts=list(packed), stats=stats, colouring=spec if plan.finish == "client" else None,
+                          **fields)
 
 
 def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict) -> EncryptedImage:
@@ -330,8 +356,11 @@ def _deferred(fin: list, finish: FinishGraph, fields: dict, stats: dict) -> Dela
 def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray", sampling: str = "nearest",
                 step: float = 1.0, density: float | None = None, nodes: Any = None, *, digits: int = 3,
                 precision: int = 4, comb_digits: int = 4, level: int | None = None,
-                gradient: bool = False) -> np.ndarray:
+                gradient: bool = False, finish: str = "client") -> np.ndarray:
     """Per-pixel bound on |decrypted render − render_plain| (see the module docstring).
+
+    ``finish``: the bound of a render with the same ``finish`` (client finishing has no
+    combination-matrix or reciprocal error: :mod:`hevr.colour`).
 
     ``gradient``: the bound of ``hevr.render(..., gradient=True)`` against
     ``hevr.render_plain(..., gradient=True)`` (the gradient channel's quantisation).
@@ -346,7 +375,8 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
         if level:
             raise ParameterError(f"level: expected None for a hevr.Plane (render_slice has no level), got {level!r}")
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
-                                                          digits, precision, comb_digits, (Camera, Plane), gradient)
+                                                          digits, precision, comb_digits, (Camera, Plane), gradient,
+                                                          finish)
     ev, camera = _at_level(ev, camera, level)
     spec = _level_step(spec, ev, camera)
     # a level's values are exact means of level-0 values: their storage error is level 0's
@@ -362,10 +392,10 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
         M = combination_matrix(spec, ev.vector_dims)
         qmax = float(np.abs(M).sum(axis=0).max())
         store = 0.5 * 10.0 ** getattr(stored, spec.channel).exponent * qmax  # vector or gradient
-        comb_err = 0.5 * 10.0 ** -comb_digits * np.sqrt(ev.vector_dims)
+        comb_err = 0.5 * 10.0 ** -comb_digits * np.sqrt(ev.vector_dims) if finish == "server" else 0.0
     K = spec.n_nodes
     weights = 4 * 10.0 ** -digits * (qmax + store + comb_err) if spec.sampling == "trilinear" else 0.0
     value = (qmax + store + comb_err) / K
-    norm = value * 0.5 * 10.0 ** -precision * 1.0001
+    norm = value * 0.5 * 10.0 ** -precision * 1.0001 if finish == "server" else 0.0
     b = (weights / K + store / K + comb_err / K + norm) * (n > 0) + 1e-9
     return np.repeat(b[..., None], spec.channels, axis=2) if spec.channels > 1 else b

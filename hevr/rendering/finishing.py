@@ -56,8 +56,8 @@ def finish_units(plan: RenderPlan, hit: np.ndarray, key_bits: int) -> list[tuple
     [(0, 1000)]
     """
     C = plan.channels_out
-    K = 1 if plan.comb is None else len(plan.comb)
-    per_value = plan.pack_bits + 1.7 * plan.recip_digits + (0 if plan.comb is None else (2 ** K + 16 * K) / C)
+    K = C if plan.comb is None else len(plan.comb)
+    per_value = max(1, plan.pack_bits) + 1.7 * plan.recip_digits + (0 if plan.comb is None else (2 ** K + 16 * K) / C)
     weight = max((key_bits / 2048) ** 1.6, 0.05)  # a mulmod's cost relative to a 2048-bit key's
     values = max(1, int(UNIT_MULS / (per_value * weight)))
     group = max(1, plan.per_pack)
@@ -131,8 +131,8 @@ def finish_tile(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels:
     hit = np.flatnonzero(np.asarray(recips, dtype=object) != 0)
     if hit.size == 0:
         return np.zeros((0, width_bytes), np.uint8)
-    K = 1 if plan.comb is None else len(plan.comb)
     C = plan.channels_out
+    K = C if plan.comb is None else len(plan.comb)  # X-ray or client finishing: every component is a value
     sums = one_records((hit.size, K), width_bytes)
     if rays.size:
         want = np.asarray(pixels)[hit]

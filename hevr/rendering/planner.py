@@ -91,6 +91,7 @@ __all__ = [
     "check_render_size",
     "max_ray_samples",
     "plan_render",
+    "plan_sums",
     "render_limits",
 ]
 
@@ -115,8 +116,9 @@ class RenderPlan:
     bound: int  # every packed value M + O lies in [0, bound]
     pack_bits: int
     per_pack: int
-    channels_out: int
+    channels_out: int  # values per hit pixel: the mode's channels, or the stored components (client finishing)
     precision: int
+    finish: str = "server"  # "server": combined, normalised and packed on the server; "client": sums packed
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -134,7 +136,10 @@ class RenderPlan:
         return cls(**d)
 
     def reciprocal(self, n_samples: np.ndarray) -> list[int]:
-        """R_r = round(10^G / (n_r·K)) for every pixel (0 where n_r = 0)."""
+        """R_r = round(10^G / (n_r·K)) for every pixel (0 where n_r = 0); client finishing
+        packs the sums themselves: R_r = 1 for every hit pixel."""
+        if self.finish == "client":
+            return [1 if int(n) else 0 for n in np.asarray(n_samples).ravel().tolist()]
         num = 10 ** self.recip_digits
         out = []
         for n in np.asarray(n_samples).ravel().tolist():
@@ -164,12 +169,18 @@ def _mantissa_range(value_range: tuple[float, float], ch_exp: int) -> tuple[int,
 
 
 def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np.ndarray, digits: int,
-                precision: int, comb_digits: int, pack: bool, combination: np.ndarray | None) -> RenderPlan:
+                precision: int, comb_digits: int, pack: bool, combination: np.ndarray | None,
+                finish: str = "server") -> RenderPlan:
     """Plan a render and refuse it when any mantissa could reach n/3.
 
     The arguments come checked from :func:`hevr.render`: the channel read, the number of
     output channels and K are the :class:`~hevr.rendering.modes.RenderSpec`'s.
+    ``finish="client"`` plans :func:`plan_sums` instead (``combination`` and ``precision``
+    unused: nothing of the colouring reaches the plan).
     """
+    if finish == "client":
+        return plan_sums(n=n, channel=spec.channel, sampling=spec.sampling, meta=meta, n_samples=n_samples,
+                         digits=digits, pack=pack)
     limit = int(n) // 3
     key_bits = int(n).bit_length()
     channel = spec.channel
@@ -236,6 +247,66 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
         pack_bits=pack_bits if pack else 0, per_pack=per_pack,
         channels_out=spec.channels, precision=int(precision),
     )
+
+
+def plan_sums(*, n: int, channel: str, sampling: str, meta: VolumeMetadata, n_samples: np.ndarray, digits: int,
+              pack: bool) -> RenderPlan:
+    """Plan a client-finished render (:mod:`hevr.colour`): the server packs the K component ray
+    sums S_k of ``channel`` themselves, with no combination and no reciprocal.
+
+    S_k of a ray with weight sum W_r lies in [lo·W_r, hi·W_r] (lo, hi the channel's mantissa
+    range), so with W_max the largest weight sum, the public offset O = max(0, −lo)·W_max and
+    bound = max(0, hi)·W_max + O, every packed value S_k + O lies in [0, bound] — the smallest
+    uniform width this public data proves. Only public numbers enter: the key, the store's
+    channel metadata, the sample counts and the weight digits; never a density, a node or a colour.
+
+    >>> from hevr.store.metadata import ChannelInfo
+    >>> from types import SimpleNamespace as NS
+    >>> meta = NS(scalar=ChannelInfo(exponent=0, digits=None), value_range=(0.0, 255.0))
+    >>> p = plan_sums(n=2**2047 + 1, channel="scalar", sampling="nearest", meta=meta,
+    ...               n_samples=np.array([0, 100, 173]), digits=0, pack=True)
+    >>> p.bound, p.pack_bits, p.per_pack, p.offset, p.exponent
+    (44115, 16, 123, 0, 0)
+    """
+    limit = int(n) // 3
+    key_bits = int(n).bit_length()
+    info = getattr(meta, channel)
+    ch_exp = int(info.exponent)
+    if channel == "scalar":
+        lo_m, hi_m = _mantissa_range(meta.value_range, ch_exp)
+        comps = 1
+    else:  # vector and gradient components lie in [0, 1]: mantissas in [0, 10^digits]
+        lo_m, hi_m = 0, 10 ** int(info.digits)
+        comps = int(info.dims)
+    trilinear = sampling == "trilinear"
+    ns = np.asarray(n_samples, dtype=np.int64).ravel()
+    n_max = int(ns.max()) if ns.size else 0
+    w_max = n_max * ((10 ** int(digits) + 4) if trilinear else 1)
+    offset = max(0, -lo_m) * w_max
+    bound = max(0, hi_m) * w_max + offset
+    tips = "use a larger key or fewer weight digits= (trilinear)"
+    if max(abs(lo_m), abs(hi_m)) * w_max >= limit or bound >= limit:
+        raise RenderPlanError(f"overflow planner: the ray sum could reach {_bits(bound)} bits but a {key_bits}-bit "
+                              f"key allows plaintexts below n/3 (~{key_bits - 2} bits); {tips}")
+    kappa = integrity_bits(key_bits)
+    room = key_bits - 1 - kappa
+    pack_bits = _bits(bound)
+    if pack_bits > room:
+        raise RenderPlanError(
+            f"overflow planner: the ray sum could reach {pack_bits} bits but a {key_bits}-bit key keeps {kappa} bits "
+            f"of every decrypted plaintext for the integrity check, leaving {max(room, 0)} bits; {tips}")
+    exponent = (-int(digits) if trilinear else 0) + ch_exp
+    if not fits_float(max(offset, bound), exponent):
+        raise RenderPlanError(
+            f"overflow planner: value_range: expected values whose ray sums fit a float64 (at most {FLOAT_MAX:.4g}), "
+            f"got the store's value_range ({meta.value_range[0]:g}, {meta.value_range[1]:g}), whose sums could "
+            f"reach {bound}e{exponent}")
+    return RenderPlan(
+        mode="sums", sampling=sampling, channel=channel, weight_digits=int(digits),
+        weight_exponent=-int(digits) if trilinear else 0, channel_exponent=ch_exp, comb=None, comb_digits=0,
+        recip_digits=0, factor=1, offset=int(offset), exponent=exponent, bound=int(bound),
+        pack_bits=pack_bits if pack else 0, per_pack=max(1, room // pack_bits) if pack else 1,
+        channels_out=comps, precision=0, finish="client")
 
 
 def max_ray_samples(shape: Any, spacing: Any, step: float) -> float:

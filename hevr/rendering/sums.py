@@ -52,7 +52,7 @@ from .._files import read_regular, require_file
 from .._image_header import MAX_N_DIGITS, Fields, parse_json
 from .._limits import MAX_IMAGE_PIXELS
 from .._tiles import TileLayout
-from .._validate import check_bool, check_int, check_step
+from .._validate import check_bool, check_choice, check_int, check_step
 from ..backends import get_backend, resolve_backend_name
 from ..crypto.paillier import fingerprint as fingerprint_of
 from ..crypto.records import record_width
@@ -144,14 +144,21 @@ class SavedSums:
 
 def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: np.ndarray, meta: VolumeMetadata,
                  tile: int, level: int = 0) -> dict:
-    """Everything of an :class:`EncryptedImage` but its ciphertexts and stats (render and recolour)."""
+    """Everything of an :class:`EncryptedImage` but its ciphertexts and stats (render and recolour).
+
+    A client-finished plan (``plan.finish == "client"``) gives fields without the density and the
+    nodes (they stay with the caller) and with the public sample counts the client divides by."""
     H, W = camera.height, camera.width
+    client = plan.finish == "client"
+    colouring = {} if client else {"density": spec.density,
+                                   "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None}
+    counts = np.asarray(n_samples).reshape(H, W)
     return dict(shape=spec.image_shape(H, W), exponent=plan.exponent, offset=plan.offset, fingerprint=meta.fingerprint,
                 n=int(meta.n), tile=tile, pack_bits=plan.pack_bits, per_pack=plan.per_pack,
-                hits=(np.asarray(n_samples) > 0).reshape(H, W), bound=plan.bound,
-                info={"mode": spec.mode, "sampling": spec.sampling, "step": spec.step, "density": spec.density,
-                      "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None,
-                      "camera": camera.to_dict(), "plan": plan.to_dict(),
+                hits=counts > 0, bound=plan.bound, finish=plan.finish, channel=plan.channel,
+                components=plan.channels_out, samples=counts.astype(np.int64) if client else None,
+                info={"mode": spec.mode, "sampling": spec.sampling, "step": spec.step, **colouring,
+                      "camera": camera.to_dict(), "plan": plan.to_dict(), "finish": plan.finish,
                       **({"gradient": True} if spec.gradient else {}),
                       **({"level": level} if level else {})})  # a level's camera is in the level's frame
 
@@ -334,7 +341,7 @@ def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, 
 def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: float | None = None,
              nodes: Any = None, *, precision: int = 4, comb_digits: int = 4, pack: bool = True,
              client: Any = None, progress: bool = True, backend: str | None = None,
-             gradient: bool = False) -> EncryptedImage:
+             gradient: bool = False, finish: str = "client") -> EncryptedImage:
     """Finish saved ray sums with another density or transfer function: only the per-pixel step.
 
     Parameters
@@ -349,6 +356,9 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     gradient : bool
         ``emphasize`` / ``tf`` of sums of the gradient channel (a render with ``gradient=True``);
         sums of the vector channel need ``gradient=False``, and the other way round.
+    finish : {"client", "server"}
+        As for :func:`hevr.render`: ``"client"`` packs the saved sums for colouring at
+        decryption (the density / nodes stay here); ``"server"`` finishes them on the workers.
 
     Returns
     -------
@@ -371,13 +381,14 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
                              f"got the {sums.channel} channel's ({sums.path})")
     precision = check_int("precision", precision, 0, 30)
     comb_digits = check_int("comb_digits", comb_digits, 1, 12)
+    check_choice("finish", finish, ("client", "server"))
     backend = resolve_backend_name(backend)
     checked = check_render_size(camera, meta.shape, meta.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(camera, meta.shape, meta.spacing, spec.step)
-    comb = combination_matrix(spec, meta.vector.dims) if spec.needs_vector else None
+    comb = combination_matrix(spec, meta.vector.dims) if spec.needs_vector and finish == "server" else None
     plan = plan_render(n=int(meta.n), spec=spec, meta=meta, n_samples=rays.n_samples,
                        digits=sums.weight_digits if spec.sampling == "trilinear" else 0, precision=precision,
-                       comb_digits=comb_digits, pack=pack, combination=comb)
+                       comb_digits=comb_digits, pack=pack, combination=comb, finish=finish)
     if plan.weight_digits != sums.weight_digits:  # the planner keeps the digits it is given; a guard
         raise CorruptStoreError(f"{sums.path}: expected weights of {plan.weight_digits} digits, got "
                                 f"{sums.weight_digits}")
@@ -387,5 +398,5 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     packed = finish.assemble(run_tasks(fin, client=active_client(client), progress=progress, desc="recolour"))
     stats = {"map_tasks": 0, "finish_tasks": len(fin), "reused_ray_sums": True, "resident": False,
              "gathered_bytes": sum(int(p.nbytes) for p in packed), "seconds": time.perf_counter() - t0}
-    return EncryptedImage(ciphertexts=list(packed), stats=stats,
+    return EncryptedImage(ciphertexts=list(packed), stats=stats, colouring=spec if plan.finish == "client" else None,
                           **image_fields(spec, plan, camera, rays.n_samples, meta, sums.tile, level=sums.level))

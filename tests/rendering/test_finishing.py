@@ -64,7 +64,7 @@ def rendered(tmp_path_factory, keypair256):
         out = {}
         for mode, kw in (("xray", {}), ("tf", {"nodes": NODES})):
             hevr.clear_cache()
-            img = hevr.render(ev, cam, mode=mode, sampling="trilinear", tile=4, progress=False, **kw)
+            img = hevr.render(ev, cam, mode=mode, sampling="trilinear", tile=4, progress=False, finish="server", **kw)
             out[mode] = (img, next(iter(render_mod._CACHE.values())))
     return ev, cam, out
 

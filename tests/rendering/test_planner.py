@@ -37,15 +37,15 @@ def tiny(tmp_path_factory):
     return ev, vol, priv
 
 
-def test_64_bit_key_refuses_high_precision(tiny):
+def test_64_bit_key_refuses_high_precision(tiny):  # the reciprocal's precision: server finishing
     ev, _, _ = tiny
     cam = hevr.Camera.orbit(ev, width=8, height=8)
     with pytest.raises(hevr.RenderPlanError, match="precision") as info:
-        hevr.render(ev, cam, sampling="trilinear", precision=15, progress=False)
+        hevr.render(ev, cam, sampling="trilinear", precision=15, progress=False, finish="server")
     assert "64-bit key" in str(info.value)
     with pytest.raises(hevr.RenderPlanError):
         hevr.render(ev, cam, mode="tf", nodes=[(0.2, "red"), (0.9, "blue")], sampling="trilinear",
-                    precision=8, comb_digits=8, progress=False)
+                    precision=8, comb_digits=8, progress=False, finish="server")
 
 
 @pytest.mark.parametrize("mode, kw", [("xray", {}), ("emphasize", {"density": 0.4})])
