@@ -44,12 +44,14 @@ from .errors import (
     StoreExistsError,
     VolumeFormatError,
 )
+from .colour import Frame
 from .image import EncryptedImage, load_image, save_png, to_uint8
 from .rendering.camera import Camera
 from .rendering.encrypted import RaySums, clear_cache, error_bound, render
 from .rendering.plain import render_plain, render_slice_plain
 from .rendering.plane import Plane
 from .rendering.slices import render_slice
+from .rendering.stream import render_frame
 from .rendering.sums import SavedSums, load_sums, recolour
 from .rendering.views import VIEWS
 from .store.pyramid import build_pyramid
@@ -83,6 +85,8 @@ __all__ = [
     "Camera",
     "render_plain",
     "render",
+    "render_frame",
+    "Frame",
     "RaySums",
     "clear_cache",
     "recolour",

@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import dask
 import dask.threaded
@@ -34,12 +34,16 @@ def active_client(client: Any = None) -> Any:
 
 
 def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, desc: str = "hevr",
-            keep: int = 0) -> list[Any]:
+            keep: int = 0, on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
     """Compute dask delayed ``tasks`` on the active scheduler; results in task order.
 
     On a distributed client the last ``keep`` tasks are computed but not gathered: their
     futures stand in their place and their data stays on the workers (the render keeps its
     ray sums there for re-colouring). Without a client every result comes back.
+
+    ``on_result(i, value)`` is called for every gathered task i: on a distributed client as
+    each one completes (the client's work on it overlaps the tasks still running), on Dask's
+    default scheduler once all have run.
     """
     tasks = list(tasks)
     if not tasks:
@@ -50,18 +54,29 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
         futures = client.compute(tasks)
         bar = Progress(len(futures), desc, progress)
         failed = False
+        cut = len(futures) - keep
+        index = {f.key: i for i, f in enumerate(futures)}
+        got: dict[int, Any] = {}
         try:
             for fut in as_completed(futures, loop=client.loop):  # this client's, not the default one
                 failed = failed or fut.status == "error"
                 bar.update()
+                i = index[fut.key]
+                if on_result is not None and not failed and i < cut:
+                    got[i] = fut.result()
+                    on_result(i, got[i])
         finally:
             bar.close(failed=failed)
-        cut = len(futures) - keep
-        results = list(client.gather(futures[:cut])) + list(futures[cut:])
+        rest = [i for i in range(cut) if i not in got]
+        got.update(zip(rest, client.gather([futures[i] for i in rest])))
+        results = [got[i] for i in range(cut)] + list(futures[cut:])
     else:
         bar = Progress(0, desc, progress)  # the callback learns the number of graph tasks
         with TaskCounter(bar):
             results = _compute_local(tasks)
+        if on_result is not None:
+            for i, value in enumerate(results[:len(results) - keep] if keep else results):
+                on_result(i, value)
     log.info("%s: %d tasks in %.2f s (%s)", desc, len(tasks), time.perf_counter() - t0,
              "distributed" if client is not None else "default scheduler")
     return results

@@ -250,12 +250,15 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
             tile: int, cache: bool, client: Any, progress: bool, backend: str | None, compute: bool,
             keep_sums: str | os.PathLike | None, views: tuple[type, ...] = (Camera,),
             level: int | None = None, gradient: bool = False, overwrite: bool = False,
-            finish: str = "client") -> EncryptedImage | Delayed:
+            finish: str = "client", stream: Any = None) -> EncryptedImage | Delayed:
     """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``.
 
     With ``finish="client"`` nothing below this function sees ``spec``'s density or nodes: the
     plan (:func:`~hevr.rendering.planner.plan_sums`), the graph and the image fields are built
-    from the channel, the sampling and the step; the spec joins the image here, at the end."""
+    from the channel, the sampling and the step; the spec joins the image here, at the end.
+
+    ``stream`` (:class:`hevr.rendering.stream.StreamDecryptor`): told the plan before the graph
+    runs and handed every finishing unit's ciphertexts as it completes."""
     spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, views, gradient, finish)
     ev, camera = _at_level(ev, camera, level)
@@ -298,6 +301,10 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                         "%s, %s client); streaming from the store", "+".join(ev.resident.channels),
                         ev.resident.backend, plan.channel, backend, "another" if cl is not ev.resident.client else "a")
     fields = image_fields(spec, plan, camera, rays.n_samples, ev.meta, tile, level=ev.level)
+    on_unit = None
+    if stream is not None:
+        stream.start(finish, fields)
+        on_unit = stream.unit
     if sums is None:
         # One graph: map -> tree merge -> finish, so merged sums never travel through the client.
         # When they are cached they stay where they are: futures on a cluster (re-colouring
@@ -313,7 +320,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                                                    "resident": resident is not None})
         live = [t for t, d in graph.merged.items() if d is not None] if cache or keep_sums is not None else []
         results = run_tasks(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",
-                            keep=len(live))
+                            keep=len(live), on_result=on_unit)
         packed = finish.assemble(results[:len(fin)])
         sums = RaySums(key, {t: None for t in graph.merged}, map_tasks, cl)
         sums.tiles.update(dict(zip(live, results[len(fin):])))
@@ -327,7 +334,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         if not compute:
             return _deferred(fin, finish, fields, {"map_tasks": 0, "reused_ray_sums": True,
                                                    "resident": resident is not None})
-        packed = finish.assemble(run_tasks(fin, client=cl, progress=False, desc="finish"))
+        packed = finish.assemble(run_tasks(fin, client=cl, progress=False, desc="finish", on_result=on_unit))
     if keep_sums is not None:
         save_sums(keep_sums, sums, meta=ev.meta, camera=camera, sampling=spec.sampling, step=spec.step,
                   weight_digits=plan.weight_digits, channel=plan.channel, tile=tile, store=str(ev.path),

@@ -1,0 +1,146 @@
+"""``hevr.render_frame``: request → decrypted frame, decrypting each finished piece as it arrives.
+
+A client-finished render (:mod:`hevr.colour`) ends in finishing units — runs of a tile's hit
+pixels whose packed ray sums one task produces (:func:`~hevr.rendering.finishing.finish_units`).
+Each unit is a whole number of packing groups, so the client can check and decrypt it alone.
+On a distributed client :func:`render_frame` does so as each unit completes
+(:func:`hevr._dask.compute`'s ``on_result``): the client's CRT decryptions overlap the
+server's remaining map, merge and finishing work, and the frame's time is measured end to
+end — from the request to the decrypted means. On Dask's default scheduler (one machine) the
+units are decrypted after the graph has run.
+
+The private key never leaves this process: the graph is the one :func:`hevr.render` builds
+(it holds no key and, finished on the client, no colouring); the units come back as public
+ciphertexts and are decrypted here with the checks of :meth:`hevr.EncryptedImage.decrypt`
+(range of every ciphertext, width and bound of every plaintext: :class:`hevr.IntegrityError`).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from .._image_header import tile_name
+from ..backends import get_backend
+from ..colour import Frame, frame_from_sums
+from ..crypto.keys import PrivateKey
+from ..errors import IntegrityError, ParameterError
+from ..image import _CORRUPT, _unpack_checked
+
+__all__ = ["StreamDecryptor", "render_frame"]
+
+
+class StreamDecryptor:
+    """Checks and decrypts the finishing units of one client-finished render as they come."""
+
+    def __init__(self, private_key: PrivateKey, backend: str | None = None) -> None:
+        self.key = private_key
+        self.be = get_backend(backend)
+        self.decrypt_s = 0.0
+        self.ciphertexts = 0
+
+    def start(self, finish: Any, fields: dict) -> None:
+        """The plan of the render (its :class:`~hevr.rendering.graph.FinishGraph`) and image fields."""
+        if fields["finish"] != "client":  # pragma: no cover - render_frame asks for client finishing
+            raise ParameterError("finish: expected 'client' for a streamed frame")
+        if fields["fingerprint"] != self.key.public_key.fingerprint:
+            from ..errors import KeyMismatchError
+
+            raise KeyMismatchError(f"private_key: the volume is encrypted under key {fields['fingerprint'][:16]}…, "
+                                   f"got a key with fingerprint {self.key.public_key.fingerprint[:16]}…")
+        self.finish, self.fields = finish, fields
+        self.K = int(fields["components"])
+        self.samples = np.asarray(fields["samples"]).ravel()
+        self.sums = np.zeros((self.samples.size, self.K), dtype=np.float64)
+        self.n = int(fields["n"])
+        self.done = 0
+
+    def unit(self, i: int, packed: np.ndarray) -> None:
+        """Check and decrypt unit ``i``'s packed ciphertexts into the frame's sums."""
+        t0 = time.perf_counter()
+        t, a, b = self.finish.units[i]
+        layout = self.finish.layout
+        pixels = layout.pixels(t)[a:b]
+        hit = pixels[self.samples[pixels] > 0]
+        need = hit.size * self.K
+        J, bits, bound = int(self.fields["per_pack"]), int(self.fields["pack_bits"]), int(self.fields["bound"])
+        if packed.shape[0] != -(-need // J):
+            raise IntegrityError(f"{tile_name(layout, t)}: expected {-(-need // J)} ciphertexts for pixels {a}-{b - 1}, "
+                                 f"got {packed.shape[0]}; {_CORRUPT}")
+        if need:
+            recs = self.be.from_bytes(packed)
+            bad = self.be.first_out_of_range(recs, self.n * self.n)
+            if bad is not None:
+                raise IntegrityError(f"{tile_name(layout, t)}: ciphertext {bad} of pixels {a}-{b - 1} is not in "
+                                     f"(0, n²); {_CORRUPT}")
+            vals, fault = _unpack_checked(self.be.decrypt(self.key, recs), need, bits, J, bound)
+            if fault is not None:
+                raise IntegrityError(f"{tile_name(layout, t)}: a value of pixels {a}-{b - 1} decrypts outside the "
+                                     f"render plan's range; {_CORRUPT}")
+            offset = int(self.fields["offset"])
+            self.sums[hit] = np.array([v - offset for v in vals], dtype=np.float64).reshape(-1, self.K)
+        self.ciphertexts += int(packed.shape[0])
+        self.done += 1
+        self.decrypt_s += time.perf_counter() - t0
+
+    def frame(self, stats: dict, t0: float) -> Frame:
+        if self.done != len(self.finish.units):  # pragma: no cover - compute returns every unit
+            raise IntegrityError(f"frame: expected {len(self.finish.units)} finished units, got {self.done}")
+        H, W = self.fields["shape"][:2]
+        stats = dict(stats, decrypt_s=self.decrypt_s, ciphertexts=self.ciphertexts)
+        return frame_from_sums(self.sums.reshape(H, W, self.K), self.samples.reshape(H, W), self.fields["exponent"],
+                               self.fields["channel"], None, stats, t0=t0)
+
+
+def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xray", sampling: str = "nearest",
+                 step: float = 1.0, density: float | None = None, nodes: Any = None, *,
+                 decrypt_backend: str | None = None, **kwargs: Any) -> Frame:
+    """Render a view finished on the client and decrypt it as it completes: a :class:`hevr.Frame`.
+
+    Parameters
+    ----------
+    ev, camera, mode, sampling, step, density, nodes
+        As for :func:`hevr.render` (``camera`` may be a :class:`hevr.Plane`: a slice). The
+        density and nodes stay in this process: they colour the frame (:attr:`Frame.colouring`).
+    private_key : PrivateKey
+        Decrypts the finished units here; it never enters the graph.
+    decrypt_backend : str, optional
+        Backend of the client's decryption (default ``cpu``).
+    **kwargs
+        Any other keyword of :func:`hevr.render` but ``finish``, ``compute`` and ``keep_sums``
+        (``client``, ``level``, ``gradient``, ``backend``, ``cache``, ``tile``, ...).
+
+    Returns
+    -------
+    Frame
+        ``frame.image`` is the frame under this colouring, ``frame.recolour(...)`` another one;
+        ``frame.stats["seconds"]`` the end-to-end time (request to decrypted means),
+        ``decrypt_s`` the client's decryption time (overlapping the render on a cluster).
+    """
+    from .encrypted import _render  # a cycle: encrypted imports the image, the image nothing of this
+    from .plane import Plane
+    from .camera import Camera
+
+    for bad in ("finish", "compute", "keep_sums"):
+        if bad in kwargs:
+            raise ParameterError(f"{bad}: expected no {bad}= for render_frame (a client-finished frame, computed "
+                                 f"now); use hevr.render for it, got {kwargs[bad]!r}")
+    if not isinstance(private_key, PrivateKey):
+        raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
+    t0 = time.perf_counter()
+    stream = StreamDecryptor(private_key, decrypt_backend)
+    plane = isinstance(camera, Plane)
+    kw = dict(kwargs)
+    kw.setdefault("digits", 3)
+    kw.setdefault("precision", 4)
+    kw.setdefault("comb_digits", 4)
+    for name, default in (("pack", True), ("tile", 32), ("cache", True), ("client", None), ("progress", True),
+                          ("backend", None)):
+        kw.setdefault(name, default)
+    img = _render(ev, camera, mode, sampling, camera.slab_step if plane else step, density, nodes, compute=True,
+                  keep_sums=None, views=(Plane,) if plane else (Camera,), finish="client", stream=stream, **kw)
+    frame = stream.frame(img.stats, t0)
+    return Frame(means=frame.means, n_samples=frame.n_samples, channel=frame.channel, colouring=img.colouring,
+                 stats=frame.stats)
