@@ -18,7 +18,7 @@ client alone knows (:func:`colour`):
 * ``xray`` (scalar channel, K = 1): value = x_{r,1};
 * ``emphasize``: value = Σ_k x_{r,k}·e(d)_k, e the density encoding (Alg. 4);
 * ``tf`` with nodes (d_i, c_i), i = 1..N: colour = (1/N)·Σ_k x_{r,k}·M_{k,:},
-  M = Σ_i e(d_i)·c_i^T (:func:`hevr.rendering.modes.combination_matrix`);
+  M = Σ_i e(d_i)·c_i^T (:meth:`Colouring.matrix`);
 * ``gradient=True`` renders read the gradient channel g·e(d) and colour the same way.
 
 Error bound against :func:`hevr.render_plain` (same view): only the stored quantisation and, for
@@ -33,23 +33,212 @@ Re-colouring (:meth:`Frame.recolour`) is one (H·W, K) × (K, C) product: millis
 
 from __future__ import annotations
 
+import numbers
+import re
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from PIL import ImageColor
 
+from ._validate import check_choice
 from .errors import ParameterError
-from .rendering.modes import RenderSpec, combination_matrix, make_spec
+from .volume.density import encode_density
 
-__all__ = ["Frame", "colour", "colouring_spec"]
+__all__ = ["CSS_COLORS", "Colouring", "Frame", "colour", "colouring_spec", "parse_color", "parse_nodes",
+           "unit_density"]
+
+MODES = ("xray", "emphasize", "tf")
+
+# CSS Color Module values (so "green" and "purple" are the half-intensity CSS colours;
+# "lime" is pure green).
+CSS_COLORS: dict[str, tuple[float, float, float]] = {
+    "black": (0.0, 0.0, 0.0),
+    "white": (1.0, 1.0, 1.0),
+    "red": (1.0, 0.0, 0.0),
+    "lime": (0.0, 1.0, 0.0),
+    "green": (0.0, 128 / 255, 0.0),
+    "blue": (0.0, 0.0, 1.0),
+    "yellow": (1.0, 1.0, 0.0),
+    "cyan": (0.0, 1.0, 1.0),
+    "magenta": (1.0, 0.0, 1.0),
+    "purple": (128 / 255, 0.0, 128 / 255),
+    "orange": (1.0, 165 / 255, 0.0),
+    "gray": (128 / 255, 128 / 255, 128 / 255),
+}
+
+_HEX = re.compile(r"^#([0-9a-fA-F]{6}|[0-9a-fA-F]{3})$")
+
+
+def parse_color(c: Any) -> tuple[float, float, float]:
+    """Parse a colour: (r, g, b) floats in [0, 1], ``'#rrggbb'``/``'#rgb'`` or a CSS name
+    (any of the ~150 names of Pillow's ``ImageColor`` table; :data:`CSS_COLORS` lists the
+    common ones, with the same values).
+
+    Examples
+    --------
+    >>> parse_color("#ff8000")
+    (1.0, 0.5019607843137255, 0.0)
+    >>> parse_color("Red"), parse_color((0, 0, 1)), parse_color("#00f")
+    ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, 1.0))
+    >>> parse_color("steelblue")
+    (0.27450980392156865, 0.5098039215686274, 0.7058823529411765)
+    """
+    if isinstance(c, str):
+        text = c.strip()
+        m = _HEX.match(text)
+        if m:
+            h = m.group(1)
+            if len(h) == 3:
+                h = "".join(ch * 2 for ch in h)
+            return tuple(int(h[i:i + 2], 16) / 255 for i in (0, 2, 4))  # type: ignore[return-value]
+        name = text.lower()
+        if name in CSS_COLORS:
+            return CSS_COLORS[name]
+        if name in ImageColor.colormap:
+            return tuple(v / 255 for v in ImageColor.getrgb(name)[:3])  # type: ignore[return-value]
+        raise ParameterError(
+            f"color: expected (r, g, b) in [0, 1], '#rgb', '#rrggbb' or a CSS colour name (one of "
+            f"{len(ImageColor.colormap)}, e.g. {', '.join(sorted(CSS_COLORS)[:6])}, steelblue), got {c!r}"
+        )
+    try:
+        vals = [x for x in c]
+    except TypeError:
+        vals = []
+    if len(vals) != 3 or any(isinstance(x, bool) or not isinstance(x, numbers.Real) for x in vals):
+        raise ParameterError(
+            f"color: expected (r, g, b) in [0, 1], '#rrggbb' or a CSS name, got {c!r}"
+        )
+    rgb = tuple(float(x) + 0.0 for x in vals)
+    if not all(0.0 <= x <= 1.0 for x in rgb):  # also rejects NaN
+        raise ParameterError(f"color: expected components in [0, 1], got {c!r}")
+    return rgb  # type: ignore[return-value]
+
+
+
+def unit_density(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0.0 <= float(value) <= 1.0:
+        raise ParameterError(f"{name}: expected a normalised density in [0, 1], got {value!r}")
+    return float(value) + 0.0
+
+
+def parse_nodes(nodes: Any) -> tuple[tuple[float, tuple[float, float, float]], ...]:
+    if nodes is None:
+        raise ParameterError(
+            "nodes: expected a list of (density, color) pairs for mode='tf', got None"
+        )
+    try:
+        items = list(nodes)
+    except TypeError:
+        raise ParameterError(f"nodes: expected a list of (density, color) pairs, got {nodes!r}") from None
+    if not items:
+        raise ParameterError("nodes: expected at least one (density, color) pair, got none")
+    out = []
+    for i, node in enumerate(items):
+        try:
+            d, col = node
+        except (TypeError, ValueError):
+            raise ParameterError(f"nodes[{i}]: expected a (density, color) pair, got {node!r}") from None
+        density = unit_density(f"nodes[{i}] density", d)
+        try:
+            out.append((density, parse_color(col)))
+        except ParameterError as exc:
+            raise ParameterError(f"nodes[{i}]: {exc}") from None
+    seen: dict[float, int] = {}
+    for i, (d, _) in enumerate(out):
+        if d in seen:
+            raise ParameterError(f"nodes: expected distinct densities, got {d:g} twice (nodes[{seen[d]}] and "
+                                 f"nodes[{i}]); give each density one colour")
+        seen[d] = i
+    return tuple(out)
+
+
+
+@dataclass(frozen=True)
+class Colouring:
+    """How a pixel's mean stored components become its value: the client's half of a render
+    request (frozen, validated; never sent to the server when finished on the client).
+
+    Attributes
+    ----------
+    mode : {"xray", "emphasize", "tf"}
+    density : float or None
+        The emphasised normalised density (``emphasize`` only).
+    nodes : tuple of (density, (r, g, b)) or None
+        The transfer function (``tf`` only), in the order given; colours as :func:`parse_color`.
+
+    Examples
+    --------
+    >>> Colouring("tf", nodes=[(0.0, "red"), (1.0, "blue")]).matrix(2).tolist()
+    [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    >>> Colouring("emphasize")
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: density: expected a density in [0, 1] for mode='emphasize', got None
+    """
+
+    mode: str
+    density: float | None = None
+    nodes: Any = None
+
+    def __post_init__(self) -> None:
+        check_choice("mode", self.mode, MODES)
+        if self.mode == "emphasize":
+            if self.density is None:
+                raise ParameterError("density: expected a density in [0, 1] for mode='emphasize', got None")
+            object.__setattr__(self, "density", unit_density("density", self.density))
+        else:
+            object.__setattr__(self, "density", None)
+        object.__setattr__(self, "nodes", parse_nodes(self.nodes) if self.mode == "tf" else None)
+
+    @classmethod
+    def of(cls, spec: Any) -> Colouring:
+        """The colouring of a :class:`~hevr.rendering.modes.RenderSpec` (or anything with
+        ``mode``, ``density`` and ``nodes``)."""
+        return cls(spec.mode, spec.density, spec.nodes)
+
+    @property
+    def n_nodes(self) -> int:
+        """N, the transfer function's nodes (its extra divisor), else 1."""
+        return len(self.nodes) if self.nodes else 1
+
+    @property
+    def channels(self) -> int:
+        return 3 if self.mode == "tf" else 1
+
+    def matrix(self, k: int) -> np.ndarray:
+        """The (k, C) matrix of the mode on a k-dim density encoding: ``e(density)`` as a column
+        (emphasize), ``Σ_i e(d_i)·c_i^T`` (tf); module docstring."""
+        if self.mode == "emphasize":
+            return encode_density(self.density, k).reshape(k, 1)
+        if self.mode == "tf":
+            dens = np.array([d for d, _ in self.nodes], dtype=np.float64)
+            cols = np.array([c for _, c in self.nodes], dtype=np.float64)
+            return encode_density(dens, k).T @ cols
+        raise ParameterError("mode: expected 'emphasize' or 'tf' for a combination matrix (an X-ray has none), "
+                             "got 'xray'")
+
+    def to_dict(self) -> dict:
+        return {"mode": self.mode, "density": self.density,
+                "nodes": [[d, list(c)] for d, c in self.nodes] if self.nodes else None}
+
+    @classmethod
+    def from_dict(cls, d: Any) -> Colouring:
+        if not isinstance(d, dict) or set(d) - {"mode", "density", "nodes"} or "mode" not in d:
+            raise ParameterError(f"colouring: expected a dict with mode, density and nodes, got {d!r:.80}")
+        return cls(d["mode"], d.get("density"), d.get("nodes"))
+
+    def key(self) -> tuple:
+        return (self.mode, self.density, self.nodes)
+
 
 
 def colouring_spec(channel: str, components: int, mode: Any = None, density: Any = None, nodes: Any = None,
-                   default: RenderSpec | None = None) -> RenderSpec:
-    """The checked colouring of a frame of ``channel``'s sums: the arguments when any is given
-    (``nodes`` alone means ``mode="tf"``, ``density`` alone ``"emphasize"``), else ``default``
-    (the render's own), else X-ray for the scalar channel.
+                   default: Colouring | None = None) -> Colouring:
+    """The checked colouring of a frame of ``channel``'s sums (``components`` per pixel): the
+    arguments when any is given (``nodes`` alone means ``mode="tf"``, ``density`` alone
+    ``"emphasize"``), else ``default`` (the render's own), else X-ray for the scalar channel.
 
     >>> colouring_spec("vector", 4, nodes=[(0.5, "red")]).mode
     'tf'
@@ -69,30 +258,28 @@ def colouring_spec(channel: str, components: int, mode: Any = None, density: Any
                 f"(density=...) to colour a frame of the {channel} channel's ray sums, got neither")
     if mode is None:
         mode = "tf" if nodes is not None else "emphasize"
+    check_choice("mode", mode, MODES)
     if channel == "scalar" and mode != "xray":
         raise ParameterError(f"mode: expected 'xray' for a frame of the scalar channel's ray sums, got {mode!r} "
                              "(emphasis and transfer functions colour the vector channel: render mode='tf')")
     if channel != "scalar" and mode == "xray":
         raise ParameterError(f"mode: expected 'emphasize' or 'tf' for a frame of the {channel} channel's ray sums, "
                              "got 'xray' (an X-ray reads the scalar channel: render mode='xray')")
-    vector = channel != "scalar"
-    return make_spec(mode, "nearest", 1.0, density, nodes, components if vector else None, not vector,
-                     channel == "gradient", channel == "gradient")
+    return Colouring(mode, density, nodes)
 
 
-def colour(means: np.ndarray, spec: RenderSpec) -> np.ndarray:
-    """The image of per-pixel component means ``means`` (H, W, K) under ``spec`` (module
+def colour(means: np.ndarray, colouring: Colouring) -> np.ndarray:
+    """The image of per-pixel component means ``means`` (H, W, K) under ``colouring`` (module
     docstring): (H, W) for xray / emphasize, (H, W, 3) for tf.
 
     >>> m = np.zeros((1, 2, 2)); m[0, 0] = (1.0, 0.0)
-    >>> colour(m, make_spec("tf", "nearest", 1.0, None, [(0.0, "red"), (1.0, "blue")], 2)).tolist()
+    >>> colour(m, Colouring("tf", nodes=[(0.0, "red"), (1.0, "blue")])).tolist()
     [[[0.5, 0.0, 0.0], [0.0, 0.0, 0.0]]]
     """
-    if spec.mode == "xray":
+    if colouring.mode == "xray":
         return np.array(means[..., 0], dtype=np.float64)
-    M = combination_matrix(spec, means.shape[-1])
-    out = means @ (M / spec.n_nodes)
-    return out[..., 0] if spec.mode == "emphasize" else out
+    out = means @ (colouring.matrix(means.shape[-1]) / colouring.n_nodes)
+    return out[..., 0] if colouring.mode == "emphasize" else out
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,7 +296,7 @@ class Frame:
         Samples per pixel (public geometry).
     channel : str
         The stored channel rendered: ``"scalar"``, ``"vector"`` or ``"gradient"``.
-    colouring : RenderSpec or None
+    colouring : Colouring or None
         The render's own colouring (client-side only; never stored), used when
         :meth:`recolour` is given none.
     stats : dict
@@ -120,7 +307,7 @@ class Frame:
     means: np.ndarray
     n_samples: np.ndarray
     channel: str
-    colouring: RenderSpec | None = field(default=None, repr=False)
+    colouring: Colouring | None = field(default=None, repr=False)
     stats: dict = field(default_factory=dict)
 
     def __repr__(self) -> str:  # never the pixels, never the colouring
@@ -131,7 +318,7 @@ class Frame:
     def components(self) -> int:
         return int(self.means.shape[-1])
 
-    def spec(self, mode: Any = None, density: Any = None, nodes: Any = None) -> RenderSpec:
+    def spec(self, mode: Any = None, density: Any = None, nodes: Any = None) -> Colouring:
         """The checked colouring :meth:`recolour` would apply (:func:`colouring_spec`)."""
         return colouring_spec(self.channel, self.components, mode, density, nodes, self.colouring)
 
@@ -161,7 +348,7 @@ class Frame:
 
 
 def frame_from_sums(sums: np.ndarray, n_samples: np.ndarray, exponent: int, channel: str,
-                    colouring: RenderSpec | None, stats: dict, t0: float | None = None) -> Frame:
+                    colouring: Colouring | None, stats: dict, t0: float | None = None) -> Frame:
     """A :class:`Frame` from decrypted integer sums (H, W, K) (object or float array, offset
     removed) and the public sample counts: x = S·10^exponent / n (module docstring)."""
     t = time.perf_counter()

@@ -31,6 +31,7 @@ import numpy as np
 from PIL import Image
 
 from ._files import read_regular, write_file
+from .colour import colouring_spec, frame_from_sums
 from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile_name
 from ._validate import check_bool
 from .backends import get_backend
@@ -211,8 +212,6 @@ class EncryptedImage:
         """Decrypt a client-finished image to a :class:`hevr.Frame`: the per-pixel means of the
         stored components, to colour (and re-colour) on this machine (:mod:`hevr.colour`).
         The checks of :meth:`decrypt_mantissas` apply (``IntegrityError`` on any fault)."""
-        from .colour import frame_from_sums
-
         if self.finish != "client":
             raise ParameterError("finish: expected an image rendered with finish='client' (it holds the ray sums "
                                  "to colour), got one finished on the server: use decrypt()")
@@ -239,8 +238,6 @@ class EncryptedImage:
         (:meth:`decrypt_frame` keeps the sums to re-colour). A server-finished image is
         already coloured: giving a colouring is a :class:`hevr.ParameterError`."""
         if self.finish == "client":
-            from .colour import colouring_spec
-
             spec = colouring_spec(str(self.channel), self.values_per_pixel, mode, density, nodes, self.colouring)
             return self.decrypt_frame(private_key, backend).recolour(spec.mode, spec.density, spec.nodes)
         if mode is not None or density is not None or nodes is not None:

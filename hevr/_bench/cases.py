@@ -13,11 +13,12 @@ import shutil
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
-from .. import error_bound, render, render_plain
+from .. import error_bound, render, render_frame, render_plain
 from ..crypto.keys import PrivateKey, generate_keypair
 from ..errors import InsecureKeyWarning, RenderPlanError
 from ..rendering.camera import Camera
@@ -96,8 +97,12 @@ def encrypt_case(ctx: Context, vol: np.ndarray, private_key: PrivateKey, path: P
 
 
 def render_case(ctx: Context, ev: EncryptedVolume, vol: np.ndarray, private_key: PrivateKey, *,
-                mode: str = "xray", sampling: str = "nearest", nodes: Any = None) -> dict:
-    """Render, decrypt on the client (one core), compare with ``render_plain`` and its bound."""
+                mode: str = "xray", sampling: str = "nearest", nodes: Any = None, finish: str = "server") -> dict:
+    """Render, decrypt on the client (one core), compare with ``render_plain`` and its bound.
+
+    ``finish="server"`` (the paper's way: the Tables) times the render, then the decryption;
+    ``finish="client"`` times :func:`hevr.render_frame` end to end (request → decrypted, units
+    decrypted as they complete), its decryption part in ``decrypt_s``."""
     cam = ctx.camera(ev.shape)
     vector_dims = ev.vector_dims if mode == "tf" else None
     last: Exception | None = None
@@ -105,8 +110,13 @@ def render_case(ctx: Context, ev: EncryptedVolume, vol: np.ndarray, private_key:
         reset = ctx.fresh()
         t_mul = mulmod_seconds(ev.public_key.bits)
         try:
-            img, wall = timed(lambda: render(ev, cam, mode=mode, sampling=sampling, nodes=nodes, cache=False,
-                                             client=ctx.workers.client, progress=ctx.progress, **params))
+            if finish == "client":
+                frame, wall = timed(lambda: render_frame(ev, cam, private_key, mode=mode, sampling=sampling,
+                                                         nodes=nodes, cache=False, client=ctx.workers.client,
+                                                         progress=ctx.progress, **params))
+            else:
+                img, wall = timed(lambda: render(ev, cam, mode=mode, sampling=sampling, nodes=nodes, cache=False,
+                                                 client=ctx.workers.client, progress=ctx.progress, **params))
         except RenderPlanError as exc:
             last = exc
             continue
@@ -115,10 +125,14 @@ def render_case(ctx: Context, ev: EncryptedVolume, vol: np.ndarray, private_key:
         return {"refused": str(last)}
     st = ctx.workers.take_stats()
     peak = ctx.workers.peak_rss()
-    dec, dec_s = timed(lambda: img.decrypt(private_key))
+    if finish == "client":
+        dec, dec_s = frame.image, frame.stats["decrypt_s"]
+        img = SimpleNamespace(n_ciphertexts=frame.stats["ciphertexts"], per_pack=None, stats=frame.stats)
+    else:
+        dec, dec_s = timed(lambda: img.decrypt(private_key))
     ref, plain_s = timed(lambda: render_plain(vol, cam, mode=mode, sampling=sampling, nodes=nodes,
                                               vector_dims=vector_dims))
-    bound = error_bound(ev, cam, mode, sampling, nodes=nodes, **params)
+    bound = error_bound(ev, cam, mode, sampling, nodes=nodes, finish=finish, **params)
     err = np.abs(dec - ref)
     rays = cast_rays(cam, ev.shape, ev.spacing, 1.0)
     cell = {"seconds": wall, "decrypt_s": dec_s, "plain_s": plain_s, "params": params,
@@ -127,7 +141,7 @@ def render_case(ctx: Context, ev: EncryptedVolume, vol: np.ndarray, private_key:
             "samples": int(rays.n_samples.sum()), "hit_rays": int((rays.n_samples > 0).sum()),
             "pairs": int(st["counts"].get("map.kernel", 0)), "kernel_core_s": st["seconds"].get("map.kernel", 0.0),
             "phases_core_s": st["seconds"], "mulmod_s": t_mul, "peak_rss": peak, "bits": ev.public_key.bits,
-            "map_tasks": img.stats.get("map_tasks"), "peak_reset": reset}
+            "map_tasks": img.stats.get("map_tasks"), "peak_reset": reset, "finish": finish}
     log.info("render %s/%s %d-bit: %.2f s (decrypt %.2f s, max err %.2e)", mode, sampling, cell["bits"], wall,
              dec_s, cell["max_abs_err"])
     return cell

@@ -129,6 +129,9 @@ def _table3(ctx: cases.Context, r: Results, s: BenchSettings, bits: int) -> None
         r.put(f"t2.{bits}.{dims}", {k: cell[k] for k in ("ciphertext_bytes", "store_bytes")} | {"source": "table 3"})
         for k in range(1, dims + 1):
             r.put(f"t3.{bits}.{dims}.{k}", cases.render_case(ctx, ev, vol, priv, mode="tf", nodes=TF_NODES[:k]))
+        if dims == 4:  # beside the paper's way: the same frame coloured on the client, end to end
+            r.put(f"client.{bits}.tf4", cases.render_case(ctx, ev, vol, priv, mode="tf", nodes=TF_NODES,
+                                                          finish="client"))
         if bits == s.goal_bits and dims == 4:
             r.put(f"goal.tf4_trilinear.{bits}", cases.render_case(ctx, ev, vol, priv, mode="tf", sampling="trilinear",
                                                                   nodes=TF_NODES))

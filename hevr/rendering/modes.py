@@ -15,17 +15,14 @@ place that says which stored channel a request reads is :attr:`RenderSpec.channe
 
 from __future__ import annotations
 
-import numbers
-import re
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from PIL import ImageColor
 
 from .._validate import check_choice, check_step, check_vector_dims
+from ..colour import CSS_COLORS, Colouring, parse_color, parse_nodes, unit_density
 from ..errors import ParameterError
-from ..volume.density import encode_density
 
 __all__ = [
     "MODES",
@@ -40,71 +37,6 @@ __all__ = [
 
 MODES = ("xray", "emphasize", "tf")
 SAMPLINGS = ("nearest", "trilinear")
-
-# CSS Color Module values (so "green" and "purple" are the half-intensity CSS colours;
-# "lime" is pure green).
-CSS_COLORS: dict[str, tuple[float, float, float]] = {
-    "black": (0.0, 0.0, 0.0),
-    "white": (1.0, 1.0, 1.0),
-    "red": (1.0, 0.0, 0.0),
-    "lime": (0.0, 1.0, 0.0),
-    "green": (0.0, 128 / 255, 0.0),
-    "blue": (0.0, 0.0, 1.0),
-    "yellow": (1.0, 1.0, 0.0),
-    "cyan": (0.0, 1.0, 1.0),
-    "magenta": (1.0, 0.0, 1.0),
-    "purple": (128 / 255, 0.0, 128 / 255),
-    "orange": (1.0, 165 / 255, 0.0),
-    "gray": (128 / 255, 128 / 255, 128 / 255),
-}
-
-_HEX = re.compile(r"^#([0-9a-fA-F]{6}|[0-9a-fA-F]{3})$")
-
-
-def parse_color(c: Any) -> tuple[float, float, float]:
-    """Parse a colour: (r, g, b) floats in [0, 1], ``'#rrggbb'``/``'#rgb'`` or a CSS name
-    (any of the ~150 names of Pillow's ``ImageColor`` table; :data:`CSS_COLORS` lists the
-    common ones, with the same values).
-
-    Examples
-    --------
-    >>> parse_color("#ff8000")
-    (1.0, 0.5019607843137255, 0.0)
-    >>> parse_color("Red"), parse_color((0, 0, 1)), parse_color("#00f")
-    ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, 1.0))
-    >>> parse_color("steelblue")
-    (0.27450980392156865, 0.5098039215686274, 0.7058823529411765)
-    """
-    if isinstance(c, str):
-        text = c.strip()
-        m = _HEX.match(text)
-        if m:
-            h = m.group(1)
-            if len(h) == 3:
-                h = "".join(ch * 2 for ch in h)
-            return tuple(int(h[i:i + 2], 16) / 255 for i in (0, 2, 4))  # type: ignore[return-value]
-        name = text.lower()
-        if name in CSS_COLORS:
-            return CSS_COLORS[name]
-        if name in ImageColor.colormap:
-            return tuple(v / 255 for v in ImageColor.getrgb(name)[:3])  # type: ignore[return-value]
-        raise ParameterError(
-            f"color: expected (r, g, b) in [0, 1], '#rgb', '#rrggbb' or a CSS colour name (one of "
-            f"{len(ImageColor.colormap)}, e.g. {', '.join(sorted(CSS_COLORS)[:6])}, steelblue), got {c!r}"
-        )
-    try:
-        vals = [x for x in c]
-    except TypeError:
-        vals = []
-    if len(vals) != 3 or any(isinstance(x, bool) or not isinstance(x, numbers.Real) for x in vals):
-        raise ParameterError(
-            f"color: expected (r, g, b) in [0, 1], '#rrggbb' or a CSS name, got {c!r}"
-        )
-    rgb = tuple(float(x) + 0.0 for x in vals)
-    if not all(0.0 <= x <= 1.0 for x in rgb):  # also rejects NaN
-        raise ParameterError(f"color: expected components in [0, 1], got {c!r}")
-    return rgb  # type: ignore[return-value]
-
 
 @dataclass(frozen=True)
 class RenderSpec:
@@ -164,43 +96,6 @@ class RenderSpec:
         (2, 3, 3)
         """
         return (int(height), int(width)) + ((self.channels,) if self.channels > 1 else ())
-
-
-def _unit_density(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0.0 <= float(value) <= 1.0:
-        raise ParameterError(f"{name}: expected a normalised density in [0, 1], got {value!r}")
-    return float(value) + 0.0
-
-
-def _parse_nodes(nodes: Any) -> tuple[tuple[float, tuple[float, float, float]], ...]:
-    if nodes is None:
-        raise ParameterError(
-            "nodes: expected a list of (density, color) pairs for mode='tf', got None"
-        )
-    try:
-        items = list(nodes)
-    except TypeError:
-        raise ParameterError(f"nodes: expected a list of (density, color) pairs, got {nodes!r}") from None
-    if not items:
-        raise ParameterError("nodes: expected at least one (density, color) pair, got none")
-    out = []
-    for i, node in enumerate(items):
-        try:
-            d, col = node
-        except (TypeError, ValueError):
-            raise ParameterError(f"nodes[{i}]: expected a (density, color) pair, got {node!r}") from None
-        density = _unit_density(f"nodes[{i}] density", d)
-        try:
-            out.append((density, parse_color(col)))
-        except ParameterError as exc:
-            raise ParameterError(f"nodes[{i}]: {exc}") from None
-    seen: dict[float, int] = {}
-    for i, (d, _) in enumerate(out):
-        if d in seen:
-            raise ParameterError(f"nodes: expected distinct densities, got {d:g} twice (nodes[{seen[d]}] and "
-                                 f"nodes[{i}]); give each density one colour")
-        seen[d] = i
-    return tuple(out)
 
 
 def make_spec(
@@ -268,12 +163,13 @@ def make_spec(
     if mode == "emphasize":
         if density is None:
             raise ParameterError("density: expected a density in [0, 1] for mode='emphasize', got None")
-        return RenderSpec(mode, sampling, step, density=_unit_density("density", density), gradient=gradient)
-    return RenderSpec(mode, sampling, step, nodes=_parse_nodes(nodes), gradient=gradient)
+        return RenderSpec(mode, sampling, step, density=unit_density("density", density), gradient=gradient)
+    return RenderSpec(mode, sampling, step, nodes=parse_nodes(nodes), gradient=gradient)
 
 
 def combination_matrix(spec: RenderSpec, vector_dims: int) -> np.ndarray:
-    """The plaintext (k, C) matrix turning a sampled encoded vector into the mode's value.
+    """The plaintext (k, C) matrix turning a sampled encoded vector into the mode's value:
+    :meth:`hevr.colour.Colouring.matrix` of the spec's colouring (one home for the maths).
 
     ``emphasize``: C = 1, the column ``e(density)``. ``tf``: C = 3,
     ``M = sum_i e(d_i) c_i^T``. (``xray`` uses the scalar channel and has none.) The same
@@ -285,16 +181,10 @@ def combination_matrix(spec: RenderSpec, vector_dims: int) -> np.ndarray:
     >>> combination_matrix(spec, 2).tolist()
     [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
     """
-    if spec.mode == "emphasize":
-        return encode_density(spec.density, vector_dims).reshape(vector_dims, 1)
-    if spec.mode == "tf":
-        assert spec.nodes is not None
-        dens = np.array([d for d, _ in spec.nodes], dtype=np.float64)
-        cols = np.array([c for _, c in spec.nodes], dtype=np.float64)
-        return encode_density(dens, vector_dims).T @ cols
-    raise ParameterError(
-        f"spec.mode: expected 'emphasize' or 'tf' (xray reads the scalar channel), got {spec.mode!r}"
-    )
+    if spec.mode == "xray":
+        raise ParameterError(f"spec.mode: expected 'emphasize' or 'tf' (xray reads the scalar channel), got "
+                             f"{spec.mode!r}")
+    return Colouring.of(spec).matrix(vector_dims)
 
 
 def normalisation_factor(spec: RenderSpec) -> int:

@@ -26,8 +26,11 @@ from .._image_header import tile_name
 from ..backends import get_backend
 from ..colour import Frame, frame_from_sums
 from ..crypto.keys import PrivateKey
-from ..errors import IntegrityError, ParameterError
+from ..errors import IntegrityError, KeyMismatchError, ParameterError
 from ..image import _CORRUPT, _unpack_checked
+from .camera import Camera
+from .encrypted import _render
+from .plane import Plane
 
 __all__ = ["StreamDecryptor", "render_frame"]
 
@@ -46,8 +49,6 @@ class StreamDecryptor:
         if fields["finish"] != "client":  # pragma: no cover - render_frame asks for client finishing
             raise ParameterError("finish: expected 'client' for a streamed frame")
         if fields["fingerprint"] != self.key.public_key.fingerprint:
-            from ..errors import KeyMismatchError
-
             raise KeyMismatchError(f"private_key: the volume is encrypted under key {fields['fingerprint'][:16]}…, "
                                    f"got a key with fingerprint {self.key.public_key.fingerprint[:16]}…")
         self.finish, self.fields = finish, fields
@@ -119,10 +120,6 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
         ``frame.stats["seconds"]`` the end-to-end time (request to decrypted means),
         ``decrypt_s`` the client's decryption time (overlapping the render on a cluster).
     """
-    from .encrypted import _render  # a cycle: encrypted imports the image, the image nothing of this
-    from .plane import Plane
-    from .camera import Camera
-
     for bad in ("finish", "compute", "keep_sums"):
         if bad in kwargs:
             raise ParameterError(f"{bad}: expected no {bad}= for render_frame (a client-finished frame, computed "

@@ -54,6 +54,7 @@ from .._limits import MAX_IMAGE_PIXELS
 from .._tiles import TileLayout
 from .._validate import check_bool, check_choice, check_int, check_step
 from ..backends import get_backend, resolve_backend_name
+from ..colour import Colouring
 from ..crypto.paillier import fingerprint as fingerprint_of
 from ..crypto.records import record_width
 from ..errors import (
@@ -398,5 +399,5 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     packed = finish.assemble(run_tasks(fin, client=active_client(client), progress=progress, desc="recolour"))
     stats = {"map_tasks": 0, "finish_tasks": len(fin), "reused_ray_sums": True, "resident": False,
              "gathered_bytes": sum(int(p.nbytes) for p in packed), "seconds": time.perf_counter() - t0}
-    return EncryptedImage(ciphertexts=list(packed), stats=stats, colouring=spec if plan.finish == "client" else None,
+    return EncryptedImage(ciphertexts=list(packed), stats=stats, colouring=Colouring.of(spec) if plan.finish == "client" else None,
                           **image_fields(spec, plan, camera, rays.n_samples, meta, sums.tile, level=sums.level))
