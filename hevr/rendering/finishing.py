@@ -25,6 +25,11 @@ modular multiplications of a 2048-bit key (a value costs ``pack_bits`` squarings
 no finishing task outlasts a typical map task and the finishing after the last map task is
 spread over every worker instead of waiting on one tile.
 
+Client finishing (:func:`~hevr.rendering.planner.plan_sums`, the default): the plan has no
+combination matrix and R = 1, so a tile's values are the K component sums S_k themselves,
+offset and packed (b squarings and one product per value); the client divides and colours
+(:mod:`hevr.colour`).
+
 Pixels whose rays miss are skipped: which rays miss follows from the public camera and
 volume shape, and the image records them in a public mask. A hit ray whose every weight
 rounded to 0 has no partial sums: its sums are the trivial encryption 1 of 0.
