@@ -18,6 +18,7 @@ The subpackages follow the data path; every public name is re-exported here:
 
 from __future__ import annotations
 
+from .colour import Colouring, Frame
 from .crypto.encoding import BASE, decode, encode
 from .crypto.keyfile import load_key
 from .crypto.keys import PrivateKey, PublicKey, generate_keypair
@@ -44,7 +45,6 @@ from .errors import (
     StoreExistsError,
     VolumeFormatError,
 )
-from .colour import Frame
 from .image import EncryptedImage, load_image, save_png, to_uint8
 from .rendering.camera import Camera
 from .rendering.encrypted import RaySums, clear_cache, error_bound, render
@@ -87,6 +87,7 @@ __all__ = [
     "render",
     "render_frame",
     "Frame",
+    "Colouring",
     "RaySums",
     "clear_cache",
     "recolour",

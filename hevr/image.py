@@ -31,10 +31,10 @@ import numpy as np
 from PIL import Image
 
 from ._files import read_regular, write_file
-from .colour import colouring_spec, frame_from_sums
 from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile_name
 from ._validate import check_bool
 from .backends import get_backend
+from .colour import colouring_spec, frame_from_sums
 from .crypto.keys import PrivateKey
 from .crypto.records import record_width
 from .errors import IntegrityError, KeyMismatchError, MissingFileError, ParameterError
