@@ -2,8 +2,9 @@
 
 The notebook that holds the private key drives renders on the (untrusted) cluster and
 decrypts the frames it gets back; the cluster sees only ciphertexts and the public render
-request, as with :func:`hevr.render`. The viewer is a thin layer of widgets over
-:func:`hevr.render` and the ray-sum cache:
+request — camera, sampling, step, pyramid level and stored channel, never the density, the
+transfer function or its colours (client finishing, :mod:`hevr.colour`). The viewer is a thin
+layer of widgets over :func:`hevr.render_frame` and :meth:`hevr.Frame.recolour`:
 
 * **camera**: azimuth, elevation and view-angle sliders (:meth:`hevr.Camera.orbit`); a frame
   is rendered when a slider is released (``continuous_update=False``), one render per move;
@@ -13,12 +14,16 @@ request, as with :func:`hevr.render`. The viewer is a thin layer of widgets over
 * **transfer-function editor**: one row per node — density slider, colour picker, remove
   button — and an *add node* button; nodes with the same density are refused by
   :func:`hevr.render` and the message shows in the status line (the frame stays);
-* **re-colouring from cached ray sums**: emphasis and TF frames are linear in the stored
-  density encoding, so a new density, colour, node or mode on an unchanged camera and sampling
-  skips the map step (``map_tasks == 0`` in the status line and in :attr:`Viewer.history`);
-* **status line**: frame time (render + decryption), map tasks, whether the sums were reused,
-  and the largest pixel error against the plaintext reference when the notebook has the
-  plaintext volume (``volume=``), next to :func:`hevr.error_bound`.
+* **re-colouring on the client**: the last frame is kept decrypted as per-pixel component
+  means (a :class:`hevr.Frame`); emphasis and TF images are linear in them, so a new density,
+  colour, node or mode on an unchanged camera, level, sampling and channel is a numpy product
+  of milliseconds in the notebook — no request reaches the cluster (``client_recolour`` and
+  ``map_tasks == 0`` in :attr:`Viewer.history`). A new camera, level, sampling or channel
+  (X-ray ↔ emphasis/TF, the gradient box) renders again;
+* **status line**: the frame time end to end (request → decrypted frame), map tasks, whether
+  the cluster reused cached ray sums, or "re-coloured on the client in N ms, no server"; and the
+  largest pixel error against the plaintext reference when the notebook has the plaintext
+  volume (``volume=``), next to :func:`hevr.error_bound`.
 
 * **progressive viewing**: on a store with a pyramid (:func:`hevr.build_pyramid`) the camera
   sliders report every move and each move renders a coarse frame at pyramid level ``preview``
@@ -46,14 +51,16 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from .colour import Frame
 from .crypto.keys import PrivateKey
 from .errors import HevrError, MissingDependencyError, ParameterError
 from .image import to_uint8
 from .paper import PAPER_DENSITIES, PAPER_TF1
 from .rendering.camera import Camera
-from .rendering.encrypted import error_bound, render
+from .rendering.encrypted import error_bound
 from .rendering.modes import parse_color
 from .rendering.plain import render_plain
+from .rendering.stream import render_frame
 from .store.reader import EncryptedVolume
 from .volume.pyramid import check_level
 
@@ -102,7 +109,7 @@ class Viewer:
     density : float, optional
         Initial emphasised density (default 0.653, the paper's small sphere).
     client : distributed.Client, optional
-        Passed to :func:`hevr.render`: a LocalCluster's or a remote scheduler's client.
+        Passed to :func:`hevr.render_frame`: a LocalCluster's or a remote scheduler's client.
     step : float
         Sample spacing along the rays.
     preview : int, optional
@@ -117,8 +124,12 @@ class Viewer:
     Attributes
     ----------
     history : list of dict
-        One entry per refresh: the request, ``map_tasks``, ``reused_ray_sums``, ``seconds``,
-        ``error`` (or None) and ``bound``; or ``error_message`` when the render was refused.
+        One entry per refresh: the request, ``map_tasks``, ``reused_ray_sums``,
+        ``client_recolour`` (True: re-coloured in the notebook, no request to the cluster),
+        ``seconds`` (end to end: request to the image on show), ``error`` (or None) and
+        ``bound``; or ``error_message`` when the render (or colouring) was refused.
+    frame : hevr.Frame or None
+        The last decrypted frame of component means, re-coloured while only the colouring changes.
     widget : ipywidgets.VBox
         The whole viewer (displayed by the notebook when the viewer is the cell's value).
     """
@@ -145,6 +156,8 @@ class Viewer:
         self.size = (width, height)
         Camera.orbit(ev, width=width, height=height)  # validates the size once, here
         self.history: list[dict] = []
+        self.frame: Frame | None = None
+        self._frame_view: tuple | None = None  # what the frame depends on: camera, level, sampling, channel
         self._held = False
         modes = ["xray"] * ev.has_scalar + ["emphasize", "tf"] * bool(ev.vector_dims)
         mode = modes[0] if mode is None else mode
@@ -208,7 +221,7 @@ class Viewer:
         return [(float(d.value), str(c.value)) for d, c, _ in self.node_rows]
 
     def request(self) -> dict:
-        """Keyword arguments of :func:`hevr.render` (and :func:`hevr.render_plain`) for the current state."""
+        """Keyword arguments of :func:`hevr.render_frame` (and :func:`hevr.render_plain`) for the current state."""
         kw: dict[str, Any] = {"mode": self.mode.value, "sampling": self.sampling.value, "step": self.step}
         if self.mode.value == "emphasize":
             kw["density"] = float(self.density.value)
@@ -299,20 +312,35 @@ class Viewer:
                 self._pending = False
             return self._refresh(level)
 
+    def _view(self, cam: Camera, level: int, kw: dict) -> tuple:
+        """What a frame of component sums depends on (anything else is colouring): the camera,
+        the level, the sampling, the step and the stored channel the mode reads."""
+        channel = "scalar" if kw["mode"] == "xray" else "gradient" if kw.get("gradient") else "vector"
+        return cam.key(), level, kw["sampling"], kw["step"], channel
+
     def _refresh(self, level: int) -> dict:
         kw = self.request()
         cam = self.camera(level)
         entry: dict[str, Any] = {"request": kw, "camera": cam.to_dict(), "level": level}
+        view = self._view(cam, level, kw)
         t0 = time.perf_counter()
+        recolour = self.frame is not None and view == self._frame_view
         try:
-            img = render(self.ev, cam, client=self.client, progress=False, level=level or None, **kw)
+            if recolour:  # only the colouring changed: numpy here, nothing sent anywhere
+                frame = self.frame
+                arr = frame.recolour(kw["mode"], kw.get("density"), kw.get("nodes"))
+            else:
+                frame = render_frame(self.ev, cam, self._key, client=self.client, progress=False,
+                                     level=level or None, **kw)
+                arr = frame.image
         except HevrError as exc:  # e.g. two nodes at one density: say it, keep the last frame
             entry["error_message"] = str(exc)
             self.history.append(entry)
             self._say(str(exc))
             return entry
-        arr = img.decrypt(self._key)
         seconds = time.perf_counter() - t0
+        if not recolour:
+            self.frame, self._frame_view = frame, view
         err = bound = None
         window = None
         if self.volume is not None:
@@ -322,14 +350,20 @@ class Viewer:
             bound = float(error_bound(self.ev, cam, level=level or None, **kw).max())
             window = (0.0, max(float(ref.max()), 1e-12))
         self.image.value = _png(arr, window, self.size)
-        entry.update(map_tasks=img.stats["map_tasks"], reused_ray_sums=img.stats["reused_ray_sums"],
+        stats = frame.stats
+        entry.update(map_tasks=0 if recolour else stats["map_tasks"],
+                     reused_ray_sums=True if recolour else stats["reused_ray_sums"], client_recolour=recolour,
                      seconds=seconds, error=err, bound=bound)
         self.history.append(entry)
-        how = "re-coloured from cached ray sums" if img.stats["reused_ray_sums"] else \
-            f"{img.stats['map_tasks']} map tasks"
         took = f"{seconds:.2f} s" if seconds >= 1 else f"{1000 * seconds:.0f} ms"
+        if recolour:
+            how = f"re-coloured on the client in {1000 * seconds:.1f} ms, no server"
+        elif stats["reused_ray_sums"]:
+            how = f"{took} request → decrypted frame, ray sums reused on the cluster (no map step)"
+        else:
+            how = f"{took} request → decrypted frame, {stats['map_tasks']} map tasks"
         what = f"preview at pyramid level {level}, " if level else ""
-        text = f"{what}{kw['mode']}/{kw['sampling']}: {took} (render + decrypt), {how}"
+        text = f"{what}{kw['mode']}/{kw['sampling']}: {how}"
         if err is not None:
             text += f"; max |error| vs plaintext {err:.2e} (bound {bound:.2e})"
         self.status.value = html.escape(text)

@@ -1,6 +1,6 @@
 """hevr.Viewer driven headlessly: each widget change gives the expected render call, re-colouring
-comes from cached ray sums (counted map tasks), and every frame matches render_plain within
-error_bound."""
+happens on the client from the last decrypted frame (no render call, no map task), and every
+frame matches render_plain within error_bound."""
 
 from __future__ import annotations
 
@@ -54,15 +54,55 @@ def test_first_frame_runs_the_map_step(viewer):
     assert "map tasks" in viewer.status.value
 
 
-def test_colour_change_alone_recolours_from_cached_sums(viewer):
+def test_colour_change_alone_recolours_on_the_client(viewer):
     before = len(viewer.history)
     viewer.node_rows[0][1].value = "#00ff00"
     assert len(viewer.history) == before + 1
     last = viewer.history[-1]
-    assert last["map_tasks"] == 0 and last["reused_ray_sums"] is True
+    assert last["map_tasks"] == 0 and last["reused_ray_sums"] is True and last["client_recolour"] is True
     assert last["request"]["nodes"][0] == (0.279, "#00ff00")
     _frame_matches(viewer)
-    assert "re-coloured" in viewer.status.value
+    assert "re-coloured on the client in" in viewer.status.value and "no server" in viewer.status.value
+
+
+def test_a_tf_change_makes_no_render_call(viewer, monkeypatch):
+    """After a render, TF and density edits re-colour the kept frame in the notebook: neither
+    render_frame nor the render underneath is called; a camera move renders again."""
+    import hevr.rendering.encrypted as encrypted
+    import hevr.rendering.stream as stream
+    import hevr.viewer as viewer_module
+
+    calls = []
+
+    def counting(fn, name):
+        def wrapper(*a, **kw):
+            calls.append(name)
+            return fn(*a, **kw)
+        return wrapper
+
+    monkeypatch.setattr(viewer_module, "render_frame", counting(viewer_module.render_frame, "render_frame"))
+    monkeypatch.setattr(stream, "_render", counting(stream._render, "_render"))
+    monkeypatch.setattr(encrypted, "_render", counting(encrypted._render, "_render"))
+    first = viewer.history[-1]
+    assert first["client_recolour"] is False and "request → decrypted frame" in viewer.status.value
+    viewer.node_rows[1][1].value = "#ffff00"
+    viewer.node_rows[0][0].value = 0.35
+    viewer.add_node(0.6, "white")
+    viewer.mode.value = "emphasize"
+    viewer.density.value = 0.4
+    assert calls == []
+    assert all(e["client_recolour"] and e["map_tasks"] == 0 for e in viewer.history[-5:])
+    cam, kw = viewer.camera(), viewer.request()
+    shown = viewer.frame.recolour(kw["mode"], kw.get("density"), kw.get("nodes"))
+    ref = hevr.render_plain(viewer.volume, cam, value_range=viewer.ev.value_range, vector_dims=viewer.ev.vector_dims,
+                            **kw)
+    assert (np.abs(shown - ref) <= hevr.error_bound(viewer.ev, cam, **kw)).all()
+    viewer.mode.value = "tf"
+    assert calls == [] and viewer.history[-1]["request"]["nodes"][0] == (0.35, "#0000ff")
+    last = viewer.history[-1]
+    assert last["error"] is not None and last["error"] <= last["bound"]
+    viewer.azimuth.value = 60.0  # a new camera: one render
+    assert calls[:1] == ["render_frame"] and viewer.history[-1]["client_recolour"] is False
 
 
 def test_add_and_remove_nodes(viewer):

@@ -30,6 +30,7 @@ from ..store.paths import normalise
 from ..store.upgrade import upgrade_store
 from ..store.writer import encrypt_volume
 from . import storage as st
+from .finish import report_finish
 from .info import channels, cmd_info
 from .keys import cmd_convert_key, cmd_keygen
 from .scan import encrypt_input, resolve_tf
@@ -126,8 +127,6 @@ def open_for_mode(store: str, mode: str, verb: str, so: dict | None = None) -> A
 
 
 def cmd_render(args: Any) -> int:
-
-
     mode = resolve_mode(args)
     nodes = (args.tf if args.tf is not None else list(PAPER_TF1)) if mode == "tf" else None
     so = st.storage_options(args)
@@ -160,15 +159,17 @@ def cmd_render(args: Any) -> int:
             img = render(ev, cam, mode=mode, sampling=args.sampling, step=args.step, density=args.density,
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,
                          progress=show_progress(args), keep_sums=sums, level=args.level or None,
-                         gradient=args.gradient, overwrite=args.force)
+                         gradient=args.gradient, overwrite=args.force, finish=args.finish)
     st.save_frame(img, out, force=args.force, so=so)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
     if sums is not None:
-        again = " --tf NODES | --density D" if mode != "xray" else " (X-ray sums: other --precision / --no-pack)"
+        again = (" (X-ray sums: other --precision / --no-pack)" if mode == "xray" else " --tf NODES | --density D"
+                 if args.finish == "server" else " --finish server --tf NODES | --density D (a client frame is "
+                 "re-coloured at decryption: hevr decrypt --tf | --density)")
         print(f"wrote {sums}: the view's encrypted ray sums, {human_bytes(st.size_of(sums, so))}; "
               f"finish again with: hevr recolour {sums} --out FRAME.hevr{again}")
-    print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {st.png_name(out)}")
+    report_finish(img, out, mode, args.density, nodes)
     return 0
 
 
@@ -201,16 +202,60 @@ def cmd_recolour(args: Any) -> int:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             img = recolour(saved, mode=mode, density=args.density, nodes=nodes, precision=args.precision,
-                           pack=not args.no_pack, client=client, progress=show_progress(args), gradient=args.gradient)
+                           pack=not args.no_pack, client=client, progress=show_progress(args), gradient=args.gradient,
+                           finish=args.finish)
     st.save_frame(img, out, force=args.force, so=so)
-    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts, {human_bytes(st.size_of(out, so))}, re-coloured in "
+    done = "re-coloured" if img.finish == "server" else "packed for colouring at decryption"
+    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts, {human_bytes(st.size_of(out, so))}, {done} in "
           f"{t.seconds:.2f} s (no map step)")
+    report_finish(img, out, mode, args.density, nodes)
     return 0
 
 
 # -- decrypt -------------------------------------------------------------------------------
-def cmd_decrypt(args: Any) -> int:
+def decrypt_colouring(args: Any, img: Any) -> tuple[str, float | None, Any] | None:
+    """(mode, density, nodes) that colour the client-finished frame ``img`` (``--mode``,
+    ``--density``, ``--tf``, ``--value-range`` for a preset); None for a frame the server
+    finished, which takes none of them. Every mistake is a :class:`UsageError` naming the option."""
+    given = [opt for opt, v in (("--mode", args.mode), ("--density", args.density), ("--tf", args.tf),
+                                ("--value-range", args.value_range)) if v is not None]
+    if img.finish != "client":
+        if given:
+            raise UsageError(f"{', '.join(given)}: only for a frame finished on the client, got {args.frame}, which "
+                             "the server finished (its colouring was applied there); render it with --finish client "
+                             "to colour at decryption")
+        return None
+    channel = str(img.channel)
+    if args.mode is None and args.density is None and args.tf is None:
+        if channel != "scalar":
+            raise UsageError(f"--tf, --density: expected one of them to colour {args.frame}: it holds the {channel} "
+                             "channel's ray sums, finished on the client, and not the render's transfer function or "
+                             "density (hevr render printed the decrypt command with them)")
+        if args.value_range is not None:
+            raise UsageError("--value-range: only applies to a --tf preset, got no --tf")
+        return "xray", None, None
+    mode = resolve_mode(args)
+    if channel == "scalar" and mode != "xray":
+        opt = f"--mode {mode}" if args.mode else "--tf" if args.tf is not None else "--density"
+        raise UsageError(f"{opt}: expected no colouring for {args.frame}, an X-ray (the scalar channel's ray sums); "
+                         "emphasis and transfer functions colour a frame of the vector channel (hevr render "
+                         "--density / --tf)")
+    if channel != "scalar" and mode == "xray":
+        raise UsageError(f"--mode xray: expected --mode emphasize or tf for {args.frame}, a frame of the {channel} "
+                         "channel's ray sums (an X-ray reads the scalar channel: hevr render --mode xray)")
+    nodes = (args.tf if args.tf is not None else list(PAPER_TF1)) if mode == "tf" else None
+    if args.value_range is not None and not isinstance(nodes, str):
+        raise UsageError(f"--value-range: only applies to a --tf preset, got "
+                         f"{'--tf DENSITY:COLOR,...' if args.tf is not None else 'no --tf'}")
+    if isinstance(nodes, str):
+        if args.value_range is None:
+            raise UsageError(f"--tf {nodes}: a preset needs the store's value range and a frame does not record it; "
+                             "give --value-range=LO,HI (hevr info STORE shows it) or the nodes as DENSITY:COLOR,...")
+        nodes = resolve_tf(nodes, args.value_range)
+    return mode, args.density, nodes
 
+
+def cmd_decrypt(args: Any) -> int:
     so = st.storage_options(args)
     frame = normalise(args.frame) if st.is_url(args.frame) else check_frame_path(st.local_path(args.frame), "FRAME")
     out = Path(args.out).expanduser() if args.out else Path(st.png_name(frame))
@@ -222,12 +267,23 @@ def cmd_decrypt(args: Any) -> int:
             raise UsageError(f"--npy: expected another file than --out, got {args.npy} for both")
     key = read_key(args.key, private=True)
     img = load_image(frame, storage_options=so)
+    colouring = decrypt_colouring(args, img)
     with Timer() as t:
-        arr = img.decrypt(key)
+        decrypted = img.decrypt_frame(key) if colouring is not None else img.decrypt(key)
+    coloured = ""
+    if colouring is not None:
+        mode, density, nodes = colouring
+        with Timer() as tc:
+            arr = decrypted.recolour(mode, density, nodes)
+        what = ("X-ray" if mode == "xray" else f"emphasis of density {density:g}" if mode == "emphasize"
+                else f"transfer function {format_tf(nodes)}")
+        coloured = f"; coloured on this machine in {1000 * tc.seconds:.1f} ms ({what})"
+    else:
+        arr = decrypted
     st.save_decrypted(arr, out, npy, args.window, force=args.force)
     rgb = ", rgb" if arr.ndim == 3 else ""
     print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
-          f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}")
+          f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
     print(f"wrote {out}")
     if npy is not None:
         print(f"wrote {npy} (float64 values)")
@@ -251,4 +307,4 @@ def cmd_upgrade_store(args: Any) -> int:
 
 
 __all__ = ["cmd_keygen", "cmd_convert_key", "cmd_encrypt", "cmd_render", "cmd_recolour", "cmd_decrypt", "cmd_info",
-           "cmd_upgrade_store", "open_for_mode", "resolve_mode"]
+           "cmd_upgrade_store", "decrypt_colouring", "open_for_mode", "resolve_mode"]

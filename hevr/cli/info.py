@@ -143,12 +143,27 @@ def _info_image(path: Path | str, so: dict | None = None) -> int:
     cam = info.get("camera") or {}
     bits = int(img.n).bit_length()
     packing = f"{img.per_pack} values per ciphertext (base 2^{img.pack_bits})" if img.per_pack > 1 else "unpacked"
+    client = img.finish == "client"
+    view = f"{info.get('sampling', '?')} sampling, step {info.get('step', '?')}"
     rows = [
         ("path", path),
         ("kind", "encrypted image (.hevr frame)"),
-        ("shape", f"{wh(img.shape[1], img.shape[0])} px{', rgb' if len(img.shape) == 3 else ''}"),
-        ("mode", f"{info.get('mode', '?')}, {info.get('sampling', '?')} sampling, step {info.get('step', '?')}"),
+        ("shape", f"{wh(img.shape[1], img.shape[0])} px{', rgb' if len(img.shape) == 3 and not client else ''}"),
     ]
+    if client:
+        colour = ("an X-ray: decrypted as it is" if img.channel == "scalar" else
+                  "coloured at decryption: hevr decrypt --tf NODES | --density D (the frame holds neither)")
+        rows += [("finish", f"client: the ray sums of the {img.channel} channel, {colour}"),
+                 ("components", f"{img.values_per_pixel} per pixel the ray hits (each sum / its samples = the "
+                                f"mean of a stored component)"),
+                 ("rendered", f"{img.channel} channel, {view}")]
+        if img.samples is not None and img.hits is not None and img.hits.any():
+            rows.append(("samples", f"{int(img.samples[img.hits].min())} .. {int(img.samples.max())} per ray "
+                                    "(public geometry)"))
+    else:
+        rows += [("finish", "server: finished pixels (the paper's way: colouring applied on the cluster)"),
+                 ("components", f"{img.values_per_pixel} per pixel the ray hits"),
+                 ("mode", f"{info.get('mode', '?')}, {view}")]
     if info.get("density") is not None:
         rows.append(("density", info["density"]))
     if info.get("nodes"):
@@ -163,7 +178,7 @@ def _info_image(path: Path | str, so: dict | None = None) -> int:
         rows.append(("camera", f"position {where}, "
                                f"view angle {cam.get('view_angle')}, parallel {cam.get('parallel')}"))
     rows += [
-        ("exponent", f"{img.exponent} (pixel = (m - offset) * 10^{img.exponent})"),
+        ("exponent", f"{img.exponent} ({'ray sum' if client else 'pixel'} = (m - offset) * 10^{img.exponent})"),
         ("packing", packing),
         ("bound", f"every value + offset in [0, {img.bound}] (checked at decryption)"),
         ("ciphertexts", f"{img.n_ciphertexts} in {len(img.ciphertexts)} tiles of {img.tile}x{img.tile} px"),

@@ -44,6 +44,7 @@ from . import demo as demo
 from .bench import BENCH_EPILOG, cmd_bench
 from .demo import DEMO_EPILOG
 from .exits import EXIT_RULE, cli_message, exit_code
+from .finish import DECRYPT_DESCRIPTION, DECRYPT_EPILOG, add_decrypt_colour_options, add_finish_option
 from .options import (
     bits_type,
     brick_type,
@@ -110,8 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="typical session:\n"
                "  hevr keygen --bits 2048 --out key.json             # data owner: key pair\n"
                "  hevr encrypt phantom:64 --key key.json --out vol.zarr --vector-dims 4\n"
-               f"  hevr render vol.zarr --out frame.hevr --mode tf --tf '{tf_text(PAPER_TF1)}'   # server side\n"
-               "  hevr decrypt frame.hevr --key key.json --out frame.png   # client: only the key holder sees it\n"
+               "  hevr render vol.zarr --out frame.hevr --mode tf        # server side: the ray sums, no colours\n"
+               f"  hevr decrypt frame.hevr --key key.json --out frame.png --tf '{tf_text(PAPER_TF1)}'\n"
+               "                                                     # client: colours it; only the key holder sees it\n"
                "  hevr demo                                          # all of the above on the paper's figures\n"
                "\nsizes are printed in world order, labelled: x×y×z for volumes, W×H for images.\n"
                "\n" + EXIT_RULE)
@@ -184,12 +186,18 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("render", parents=[dask_opts, storage_opts], formatter_class=_RAW,
                        help="render an encrypted volume to an encrypted image (no key needed)",
                        description=_d("Ray-cast an encrypted volume on the Dask cluster. Never needs the secret key: "
-                                   "the result is an encrypted .hevr frame only the key holder can decrypt."),
+                                   "the result is an encrypted .hevr frame only the key holder can decrypt. By "
+                                   "default (--finish client) the cluster computes only the ray sums of the stored "
+                                   "channel: the density or transfer function is applied at decryption ('hevr "
+                                   "decrypt --density / --tf'; the command is printed) and is neither sent to the "
+                                   "workers nor written to the frame."),
                        epilog="examples:\n"
                               "  hevr render vol.zarr --out xray.hevr --sampling trilinear --azimuth 30 --elevation 20\n"
                               f"  hevr render vol.zarr --out emph.hevr --mode emphasize --density {PAPER_DENSITIES[1]}\n"
                               f"  hevr render vol.zarr --out tf.hevr --mode tf --tf '{format_tf(PAPER_TF2)}'\n"
                               "  hevr render ct.zarr --out bone.hevr --view anterior --azimuth 30 --tf ct-bone\n"
+                              f"  hevr render vol.zarr --out tf.hevr --tf '{format_tf(PAPER_TF2)}' --finish server"
+                              "   # the paper's way\n"
                               "\n--mode defaults to emphasize with --density, tf with --tf, else xray.\n")
     p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
@@ -215,8 +223,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gradient", action="store_true",
                    help="weight every sample by the gradient magnitude (emphasize/tf; a store encrypted with --gradient)")
     p.add_argument("--precision", type=precision_type, default=4, metavar="P",
-                   help="decimal digits of the normalisation (default 4)")
-
+                   help="decimal digits of the normalisation (--finish server; default 4)")
+    add_finish_option(p)
     p.add_argument("--level", type=level_type, default=0, metavar="L",
                    help="render pyramid level L (hevr pyramid; default 0: the full volume)")
     p.add_argument("--keep-sums", metavar="SUMS", help="also write the view's encrypted ray sums (ciphertexts only: "
@@ -228,7 +236,9 @@ def build_parser() -> argparse.ArgumentParser:
                        description=_d("Finish the encrypted ray sums written by 'hevr render --keep-sums' with another "
                                    "emphasis density or transfer function: only the per-pixel step runs, and the "
                                    "frame is bit for bit what 'hevr render' with the same options writes. Never "
-                                   "needs the secret key."),
+                                   "needs the secret key. With --finish client (the default) the frame holds the "
+                                   "sums and the colouring is applied at decryption: 'hevr decrypt --tf / --density' "
+                                   "re-colours a client frame without any server work."),
                        epilog="examples:\n"
                               f"  hevr render vol.zarr --out tf1.hevr --tf '{format_tf(PAPER_TF1)}' --keep-sums view.hevrsums\n"
                               f"  hevr recolour view.hevrsums --out tf2.hevr --tf '{format_tf(PAPER_TF2)}'\n"
@@ -246,7 +256,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gradient", action="store_true",
                    help="weight every sample by the gradient magnitude (emphasize/tf; a store encrypted with --gradient)")
     p.add_argument("--precision", type=precision_type, default=4, metavar="P",
-                   help="decimal digits of the normalisation (default 4)")
+                   help="decimal digits of the normalisation (--finish server; default 4)")
+    add_finish_option(p)
 
     p = sub.add_parser("slice", parents=[dask_opts, storage_opts], formatter_class=_RAW,
                        help="an encrypted slice (axial, coronal, sagittal, oblique) of an encrypted volume (no key needed)",
@@ -278,13 +289,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gradient", action="store_true",
                    help="weight every sample by the gradient magnitude (emphasize/tf; a store encrypted with --gradient)")
     p.add_argument("--precision", type=precision_type, metavar="P",
-                   help="decimal digits of the normalisation (default 0 where it is exact: one plane in mode "
-                        "xray or emphasize; else 4)")
+                   help="decimal digits of the normalisation (--finish server; default 0 where it is exact: "
+                        "one plane in mode xray or emphasize; else 4)")
+    add_finish_option(p)
 
     p = sub.add_parser("decrypt", parents=[plain_opts, storage_opts], formatter_class=_RAW,
-                       help="decrypt an encrypted image to PNG",
-                       description=_d("Decrypt an encrypted .hevr frame with the private key and write a PNG."),
-                       epilog="example:\n  hevr decrypt frame.hevr --key key.json --out frame.png --npy frame.npy\n")
+                       help="decrypt an encrypted image to PNG (and colour a client-finished frame)",
+                       description=_d(DECRYPT_DESCRIPTION), epilog=DECRYPT_EPILOG)
     p.add_argument("frame", metavar="FRAME", help="encrypted image (.hevr)")
     p.add_argument("--key", required=True, metavar="KEY.json", help="private key file")
     p.add_argument("--out", metavar="PNG", help="PNG to write (default: FRAME with .png)")
@@ -292,6 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an existing --out (or --npy) file")
     p.add_argument("--window", type=range_type, metavar="LO,HI",
                    help="grey/colour window of the PNG (default 0 .. 99.9th percentile)")
+    add_decrypt_colour_options(p)
 
     p = sub.add_parser("info", parents=[dask_opts, storage_opts], formatter_class=_RAW,
                        help="describe a store, a frame, a key or a volume file; list a DICOM folder's series",

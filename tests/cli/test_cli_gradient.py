@@ -38,20 +38,20 @@ def test_gradient_end_to_end(tmp_path, capsys):
     assert code == 0, err
     cam = hevr.Camera.orbit(ev, azimuth=20, width=9, height=8)
     ref = hevr.render_plain(vol, cam, mode="tf", nodes=NODES, vector_dims=3, gradient=True)
-    got = hevr.load_image(tmp_path / "g.hevr").decrypt(key)
+    got = hevr.load_image(tmp_path / "g.hevr").decrypt(key, nodes=NODES)
     assert (np.abs(got - ref) <= hevr.error_bound(ev, cam, mode="tf", nodes=NODES, gradient=True)).all()
     code, _, err = _run(capsys, "recolour", tmp_path / "g.hevrsums", "--out", tmp_path / "r.hevr", "--density", "0.5",
                         "--gradient", "-q")
     assert code == 0, err
     ref = hevr.render_plain(vol, cam, mode="emphasize", density=0.5, vector_dims=3, gradient=True)
-    got = hevr.load_image(tmp_path / "r.hevr").decrypt(key)
+    got = hevr.load_image(tmp_path / "r.hevr").decrypt(key, density=0.5)
     assert (np.abs(got - ref) <= hevr.error_bound(ev, cam, mode="emphasize", density=0.5, gradient=True)).all()
     code, _, err = _run(capsys, "slice", tmp_path / "v.zarr", "--out", tmp_path / "s.hevr", "--axial", "5",
                         "--density", "0.3", "--gradient", "-q")
     assert code == 0, err
     plane = hevr.Plane.axial(ev, 5)
     ref = hevr.render_slice_plain(vol, plane, mode="emphasize", density=0.3, vector_dims=3, gradient=True)
-    got = hevr.load_image(tmp_path / "s.hevr").decrypt(key)
+    got = hevr.load_image(tmp_path / "s.hevr").decrypt(key, density=0.3)
     assert (np.abs(got - ref) <= hevr.error_bound(ev, plane, mode="emphasize", density=0.3, gradient=True)).all()
     # mistakes
     for argv, word in [

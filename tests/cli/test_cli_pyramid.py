@@ -53,7 +53,7 @@ def test_pyramid_then_render_a_level(store, capsys, tmp_path):
         kw = {"nodes": [(0.3, "red"), (0.8, "blue")]} if mode == "tf" else {}
         ref = hevr.render_plain(hevr.phantom(12), cam, mode=mode, vector_dims=3, level=level, **kw)
         bound = hevr.error_bound(ev, cam, mode=mode, level=level, **kw)
-        assert (np.abs(img.decrypt(key) - ref) <= bound).all()
+        assert (np.abs(img.decrypt(key, nodes=kw.get("nodes")) - ref) <= bound).all()
 
 
 def test_errors(store, capsys, tmp_path):

@@ -40,8 +40,8 @@ def store(tmp_path_factory):
     return d
 
 
-def _decrypt(store, frame):
-    return hevr.load_image(frame).decrypt(hevr.load_key(store / "key.json"))
+def _decrypt(store, frame, density=None, nodes=None, **_):
+    return hevr.load_image(frame).decrypt(hevr.load_key(store / "key.json"), density=density, nodes=nodes)
 
 
 def test_axial_slice_is_the_layer(store, tmp_path, capsys):
@@ -71,7 +71,7 @@ def test_slices_match_the_reference(store, tmp_path, capsys, argv, plane, kw):
     assert "wrote" in out and "decrypt it with" in out
     ev = hevr.open_volume(store / "vol.zarr")
     p = plane(ev)
-    got = _decrypt(store, tmp_path / "s.hevr")
+    got = _decrypt(store, tmp_path / "s.hevr", **kw)
     ref = render_slice_plain(hevr.phantom(10), p, vector_dims=3, **kw)
     bound = hevr.error_bound(ev, p, **kw)
     assert got.shape == ref.shape and np.all(np.abs(got - ref) <= bound)

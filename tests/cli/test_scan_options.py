@@ -100,8 +100,8 @@ def ct_store(tmp_path_factory, keys):
     return d / "ct.zarr"
 
 
-def _decrypt(keys, frame):
-    return hevr.load_image(frame).decrypt(hevr.load_key(keys))
+def _decrypt(keys, frame, **colouring):
+    return hevr.load_image(frame).decrypt(hevr.load_key(keys), **colouring)
 
 
 # -- encrypt: the value range ---------------------------------------------------------------------
@@ -183,14 +183,20 @@ def test_tf_presets_in_render_recolour_and_slice(ct_store, keys, tmp_path, capsy
     assert "0.3233:#d9b38c" in out
     kw = dict(mode="tf", nodes=nodes)
     ref = hevr.render_plain(_hu(), cam, spacing=ev.spacing, value_range=CT, vector_dims=6, **kw)
-    got = _decrypt(keys, tmp_path / "t.hevr")
+    got = _decrypt(keys, tmp_path / "t.hevr", nodes=nodes)
     assert got.shape == ref.shape and np.all(np.abs(got - ref) <= hevr.error_bound(ev, cam, **kw))
     assert ref.max() > 0
+    # hevr decrypt turns a preset into nodes with --value-range (a frame does not record the store's)
+    err = _fails(capsys, "decrypt", tmp_path / "t.hevr", "--key", keys, "--tf", "ct-bone")
+    assert err.startswith("hevr: error: --tf ct-bone: a preset needs the store's value range"), err
+    _ok(capsys, "decrypt", tmp_path / "t.hevr", "--key", keys, "--tf", "ct-bone", "--value-range=-1024,3071",
+        "--npy", tmp_path / "t.npy", "-q")
+    assert np.array_equal(np.load(tmp_path / "t.npy"), got)
     # recolour with another preset, resolved with the sums' value range
     _ok(capsys, "recolour", tmp_path / "t.hevrsums", "--out", tmp_path / "r.hevr", "--tf", "CT-Soft-Tissue", "-q")
     kw = dict(mode="tf", nodes=hevr.tf_preset("ct-soft-tissue", CT))
     ref = hevr.render_plain(_hu(), cam, spacing=ev.spacing, value_range=CT, vector_dims=6, **kw)
-    assert np.all(np.abs(_decrypt(keys, tmp_path / "r.hevr") - ref) <= hevr.error_bound(ev, cam, **kw))
+    assert np.all(np.abs(_decrypt(keys, tmp_path / "r.hevr", nodes=kw["nodes"]) - ref) <= hevr.error_bound(ev, cam, **kw))
     # slice, and the node syntax still works
     _ok(capsys, "slice", ct_store, "--out", tmp_path / "s.hevr", "--axial", "3", "--tf", "ct-lung", "-q")
     _ok(capsys, "render", ct_store, "--out", tmp_path / "n.hevr", "--size", "4x4", "--tf", "0.279:#0000ff,0.5:red", "-q")
