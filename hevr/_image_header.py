@@ -193,6 +193,8 @@ def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
     finish, channel, components = (h["finish"], h["channel"], h["components"]) if version >= 3 else \
         ("server", None, None)
     per_pixel = check_frame(ctx, finish, channel, components, shape)
+    if finish == "client" and len(shape) != 2:
+        ctx.fail("shape", "[H, W] for a frame finished on the client (its colouring is not in the file)", shape)
     if finish == "client" and hits is None:
         ctx.fail("hits", "the mask of the pixels with samples (a client-finished frame)", raw="null")
     want = expected_counts(tile_hit_counts(hits, (H, W), tile), per_pixel, per_pack)

@@ -257,7 +257,8 @@ class EncryptedImage:
     def _header(self) -> dict:
         hits = None if self.hits is None else np.packbits(self.hits.ravel())
         return {
-            "format": FORMAT, "version": VERSION, "shape": [int(x) for x in self.shape],
+            "format": FORMAT, "version": VERSION,
+            "shape": [int(x) for x in (self.shape[:2] if self.finish == "client" else self.shape)],
             "exponent": int(self.exponent), "offset": str(int(self.offset)), "bound": str(int(self.bound)),
             "fingerprint": self.fingerprint, "n": str(int(self.n)), "width": record_width(int(self.n)),
             "tile": int(self.tile), "pack_bits": int(self.pack_bits), "per_pack": int(self.per_pack),

@@ -140,9 +140,10 @@ def test_the_colouring_never_reaches_graph_file_or_log(scene, tmp_path, caplog, 
         tf = hevr.render(ev, cam, mode="tf", nodes=SECRET_NODES, progress=False, cache=False, finish=finish)
         em = hevr.render(ev, cam, mode="emphasize", density=SECRET_DENSITY, progress=False, finish=finish)
         deferred = hevr.render(ev, cam, mode="tf", nodes=SECRET_NODES, compute=False, cache=False, finish=finish)
+        em_deferred = hevr.render(ev, cam, mode="emphasize", density=SECRET_DENSITY, compute=False, finish=finish)
     tf.save(tmp_path / "tf.hevr")
     em.save(tmp_path / "em.hevr")
-    worker_side = b"".join(graphs.blobs) + pickle.dumps(dict(deferred.dask))
+    worker_side = b"".join(graphs.blobs) + pickle.dumps(dict(deferred.dask)) + pickle.dumps(dict(em_deferred.dask))
     files = (tmp_path / "tf.hevr").read_bytes() + (tmp_path / "em.hevr").read_bytes()
     logs = "\n".join(r.getMessage() for r in caplog.records).encode()
     if finish == "server":  # the check finds what the paper's way sends
@@ -150,6 +151,9 @@ def test_the_colouring_never_reaches_graph_file_or_log(scene, tmp_path, caplog, 
         return
     assert graphs.blobs and not _leaks(worker_side), _leaks(worker_side)
     assert not _leaks(files) and not _leaks(logs)
+    # not even which of the two vector modes: the tasks and the file know the vector channel only
+    assert b"emphasize" not in worker_side and b"emphasize" not in (tmp_path / "em.hevr").read_bytes()
+    assert em.shape == (8, 9) and tf.shape == (8, 9, 3) and hevr.load_image(tmp_path / "tf.hevr").shape == (8, 9)
     assert "nodes" not in tf.info and "density" not in em.info and "colouring" not in repr(tf)
     assert np.array_equal(hevr.load_image(tmp_path / "tf.hevr").decrypt(priv, nodes=SECRET_NODES), tf.decrypt(priv))
     with pytest.raises(hevr.ParameterError, match="^nodes: expected a transfer function"):

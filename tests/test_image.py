@@ -29,7 +29,7 @@ def test_save_load_round_trip(tmp_path, frame, keypair256):
     path = tmp_path / "f.hevr"
     frame.save(path)
     back = hevr.load_image(path)
-    assert back.shape == frame.shape == (8, 9, 3)
+    assert frame.shape == (8, 9, 3) and back.shape == (8, 9)  # the file does not say it is a transfer function
     assert back.exponent == frame.exponent and back.fingerprint == frame.fingerprint
     # the transfer function is not in the file: the client gives it again
     assert np.array_equal(back.decrypt(keypair256[1], nodes=[(0.2, "red"), (0.8, "blue")]), frame.decrypt(keypair256[1]))

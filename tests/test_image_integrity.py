@@ -221,7 +221,8 @@ def test_round_trip_keeps_the_bound(tmp_path, images, keypair256):
         path = tmp_path / f"{name}.hevr"
         img.save(path)
         back = hevr.load_image(path)
-        assert back.bound == img.bound and back.offset == img.offset and back.shape == img.shape
+        assert back.bound == img.bound and back.offset == img.offset
+        assert back.shape == (img.shape[:2] if img.finish == "client" else img.shape)
         assert np.array_equal(back.hits, img.hits)
         again = {"nodes": NODES} if img.finish == "client" and img.channel != "scalar" else {}  # not in the file
         assert np.array_equal(back.decrypt(keypair256[1], **again), img.decrypt(keypair256[1]))

@@ -9,7 +9,6 @@ plane, size or slab is exit 2 with a message that starts with the option.
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 from typing import Any
 
@@ -103,11 +102,7 @@ def cmd_slice(args: Any) -> int:
     ev = open_for_mode(args.store, mode, "slice", so)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     plane, where = _plane(args, ev)
-    # TODO(lead): render_slice has no finish= yet (it finishes on the client, render's default); pass it always
-    finish = {"finish": args.finish} if "finish" in inspect.signature(render_slice).parameters else {}
-    if not finish and args.finish != "client":
-        raise UsageError(f"--finish {args.finish}: expected client for a slice (render_slice finishes on the client "
-                         "only), got server")
+    finish = {"finish": args.finish}
     check_render_size(plane, ev.shape, ev.spacing, plane.slab_step)  # refuse before a cluster starts
     what = {"xray": "value", "emphasize": f"emphasis of density {args.density}",
             "tf": f"transfer function {format_tf(nodes) if nodes else ''}"}[mode]

@@ -41,7 +41,6 @@ from .._dask import compute as run_tasks
 from .._tiles import TileLayout
 from .._validate import check_bool, check_choice, check_int
 from ..backends import resolve_backend_name
-from ..colour import Colouring
 from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..store.paths import check_reachable
@@ -54,7 +53,7 @@ from .planner import check_render_size, plan_render
 
 FINISHES = ("client", "server")
 from .rays import cast_rays
-from .sums import RaySums, check_sums_path, image_fields, save_sums
+from .sums import RaySums, check_sums_path, image_fields, save_sums, with_colouring
 
 log = logging.getLogger(__name__)
 
@@ -345,8 +344,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
              "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),
              "seconds": time.perf_counter() - t0}
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
-    return EncryptedImage(ciphertexts=list(packed), stats=stats, colouring=Colouring.of(spec) if plan.finish == "client" else None,
-                          **fields)
+    return EncryptedImage(ciphertexts=list(packed), stats=stats, **with_colouring(fields, spec))
 
 
 def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict) -> EncryptedImage:

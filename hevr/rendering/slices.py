@@ -56,6 +56,7 @@ def render_slice(
     keep_sums: str | os.PathLike | None = None,
     gradient: bool = False,
     overwrite: bool = False,
+    finish: str = "client",
 ) -> EncryptedImage | Delayed:
     """Render a slice of an encrypted volume to an :class:`EncryptedImage` (no key needed).
 
@@ -78,7 +79,7 @@ def render_slice(
         pixel divides by n·K = 1 — else 4. Fewer digits mean smaller packed values: the
         finishing does ``bits(value)`` squarings per pixel, so a nearest X-ray slice of 8-bit
         data packs 8 bits per pixel instead of 22.
-    digits, comb_digits, pack, tile, cache, client, progress, backend, compute, keep_sums, gradient, overwrite :
+    digits, comb_digits, pack, tile, cache, client, progress, backend, compute, keep_sums, gradient, overwrite, finish :
         As for :func:`hevr.render` (the plane's ``slab_step`` is the sample step; ``gradient``:
         the gradient channel g·e(d), emphasize / tf only).
 
@@ -109,4 +110,4 @@ def render_slice(
     return _render(ev, plane, mode, sampling, plane.slab_step, density, nodes, digits=digits, precision=precision,
                    comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
                    backend=backend, compute=compute, keep_sums=keep_sums, views=(Plane,),
-                   gradient=gradient, overwrite=overwrite)
+                   gradient=gradient, overwrite=overwrite, finish=finish)

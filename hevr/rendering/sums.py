@@ -147,21 +147,31 @@ def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: 
                  tile: int, level: int = 0) -> dict:
     """Everything of an :class:`EncryptedImage` but its ciphertexts and stats (render and recolour).
 
-    A client-finished plan (``plan.finish == "client"``) gives fields without the density and the
-    nodes (they stay with the caller) and with the public sample counts the client divides by."""
+    A client-finished plan (``plan.finish == "client"``) gives fields without the mode, the density
+    and the nodes (they stay with the caller: :func:`with_colouring`), the pixel grid (H, W) as the
+    shape, and the public sample counts the client divides by."""
     H, W = camera.height, camera.width
     client = plan.finish == "client"
-    colouring = {} if client else {"density": spec.density,
-                                   "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None}
+    colouring = {"channel": plan.channel} if client else {
+        "mode": spec.mode, "density": spec.density, "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None}
     counts = np.asarray(n_samples).reshape(H, W)
-    return dict(shape=spec.image_shape(H, W), exponent=plan.exponent, offset=plan.offset, fingerprint=meta.fingerprint,
+    return dict(shape=(H, W) if client else spec.image_shape(H, W), exponent=plan.exponent, offset=plan.offset, fingerprint=meta.fingerprint,
                 n=int(meta.n), tile=tile, pack_bits=plan.pack_bits, per_pack=plan.per_pack,
                 hits=counts > 0, bound=plan.bound, finish=plan.finish, channel=plan.channel,
                 components=plan.channels_out, samples=counts.astype(np.int64) if client else None,
-                info={"mode": spec.mode, "sampling": spec.sampling, "step": spec.step, **colouring,
+                info={"sampling": spec.sampling, "step": spec.step, **colouring,
                       "camera": camera.to_dict(), "plan": plan.to_dict(), "finish": plan.finish,
                       **({"gradient": True} if spec.gradient else {}),
                       **({"level": level} if level else {})})  # a level's camera is in the level's frame
+
+
+def with_colouring(fields: dict, spec: RenderSpec) -> dict:
+    """The fields of the image returned in this process: a client-finished one gets the request's
+    :class:`~hevr.colour.Colouring` and the shape it colours to ((H, W, 3) for a transfer
+    function); neither is ever in a task, a file or a log."""
+    if fields["finish"] != "client":
+        return dict(fields, colouring=None)
+    return dict(fields, colouring=Colouring.of(spec), shape=spec.image_shape(*fields["shape"][:2]))
 
 
 def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, camera: Camera, sampling: str,
@@ -399,5 +409,5 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     packed = finish.assemble(run_tasks(fin, client=active_client(client), progress=progress, desc="recolour"))
     stats = {"map_tasks": 0, "finish_tasks": len(fin), "reused_ray_sums": True, "resident": False,
              "gathered_bytes": sum(int(p.nbytes) for p in packed), "seconds": time.perf_counter() - t0}
-    return EncryptedImage(ciphertexts=list(packed), stats=stats, colouring=Colouring.of(spec) if plan.finish == "client" else None,
-                          **image_fields(spec, plan, camera, rays.n_samples, meta, sums.tile, level=sums.level))
+    fields = image_fields(spec, plan, camera, rays.n_samples, meta, sums.tile, level=sums.level)
+    return EncryptedImage(ciphertexts=list(packed), stats=stats, **with_colouring(fields, spec))

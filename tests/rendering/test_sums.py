@@ -25,7 +25,7 @@ def scene(tmp_path_factory, keypair256):
 
 
 def _same(a: hevr.EncryptedImage, b: hevr.EncryptedImage) -> bool:
-    return a.shape == b.shape and all(np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts))
+    return a.shape[:2] == b.shape[:2] and all(np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts))
 
 
 @pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
