@@ -1,13 +1,15 @@
 """The encrypted image the client downloads, decrypts and looks at.
 
-An :class:`EncryptedImage` holds, per image tile, the finished pixel ciphertexts —
+An :class:`EncryptedImage` holds, per image tile, the finished pixel ciphertexts — or, finished
+on the client (the default, :mod:`hevr.colour`), the ray sums of the stored components, which
+:meth:`EncryptedImage.decrypt` colours here —
 packed ``per_pack`` values per ciphertext (Horner, B = 2^pack_bits) unless rendered with
 ``pack=False`` — plus the public numbers needed to decode them: one common exponent for
 every pixel, a public offset, the render plan's bound, the key fingerprint.
 
 Nothing wrong reaches the screen: decryption checks every ciphertext and every plaintext
 against the bound and the planner's 64-bit integrity margin, and the ``.hevr`` file (version
-2) carries a SHA-256 of all its bytes and is validated field by field on loading
+3) carries a SHA-256 of all its bytes and is validated field by field on loading
 (:mod:`hevr._image_header`); every fault is a :class:`hevr.HevrError`. File format:
 ``docs/image-format.md``. An image file may live on object storage: :meth:`EncryptedImage.save`
 and :func:`load_image` take an fsspec URL and its ``storage_options`` (:mod:`hevr.store.paths`);
@@ -269,7 +271,7 @@ class EncryptedImage:
         }
 
     def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None) -> None:
-        """Write the ``.hevr`` file (format version 2, ``docs/image-format.md``): magic, header
+        """Write the ``.hevr`` file (format version 3, ``docs/image-format.md``): magic, header
         length, JSON header, ciphertext records, SHA-256 of all of it. The image is checked
         first (``IntegrityError`` for one that :meth:`decrypt` would refuse).
 
@@ -334,7 +336,7 @@ def _pixels(mask: np.ndarray, r0: int, c0: int, channels: int, lo: int, hi: int)
 
 
 def load_image(path: str | Path, *, storage_options: dict | None = None) -> EncryptedImage:
-    """Read an image written by :meth:`EncryptedImage.save` (format version 2).
+    """Read an image written by :meth:`EncryptedImage.save` (format version 3; version-2 files are read as server-finished images).
 
     The whole file is checked before an image is returned (``docs/image-format.md``): its
     SHA-256 trailer (:class:`hevr.IntegrityError` on a mismatch: any flipped bit) and every

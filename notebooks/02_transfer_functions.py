@@ -197,8 +197,9 @@ plt.show()
 # notebook has the plaintext volume, the largest error against `hevr.render_plain`.
 # Sliders render when released. The transfer-function editor has one row per node
 # (density slider, colour picker, remove button) and an *add node* button. A new colour,
-# density, node or mode on the same camera re-colours the cached ray sums: the status
-# line says `re-coloured from cached ray sums` and no map task runs.
+# density, node or mode on the same camera re-colours the frame the viewer already holds,
+# on this machine (the frame is finished on the client, `hevr.Frame`): the status line says
+# `re-coloured on the client in N ms, no server` and nothing is sent to the cluster.
 #
 # Widgets need a live Jupyter front end; on a code host (or headless, as in the test
 # suite) they show as text. So the next cells also drive the viewer from code, exactly as
