@@ -41,7 +41,7 @@ def stores(tmp_path_factory, keypair256):
 
 
 def _same(a: hevr.EncryptedImage, b: hevr.EncryptedImage) -> bool:
-    return (a.shape == b.shape and a.exponent == b.exponent and a.offset == b.offset and a.per_pack == b.per_pack
+    return (a.shape[:2] == b.shape[:2] and a.exponent == b.exponent and a.offset == b.offset and a.per_pack == b.per_pack
             and len(a.ciphertexts) == len(b.ciphertexts)
             and all(np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts)))
 
