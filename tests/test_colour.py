@@ -181,6 +181,10 @@ def test_render_frame_streams_the_same_frame(scene, cluster):
         frame = hevr.render_frame(ev, cam, priv, mode="tf", nodes=nodes, client=client, progress=False, tile=4,
                                   cache=False)
         assert np.array_equal(frame.image, want) and frame.stats["finish_tasks"] > 1
+    hevr.clear_cache()  # a cached view: another colouring is served from the packed sums, with no task
+    a = hevr.render_frame(ev, cam, priv, mode="tf", nodes=nodes, progress=False, tile=4)
+    b = hevr.render_frame(ev, cam, priv, mode="emphasize", density=0.4, progress=False, tile=4)
+    assert b.stats["finish_tasks"] == 0 and b.stats["reused_ray_sums"] and np.array_equal(b.means, a.means)
     plane = hevr.Plane.axial(ev, 3)
     assert np.abs(hevr.render_frame(ev, plane, priv, progress=False).image - vol[3]).max() <= 1e-9
     with pytest.raises(hevr.ParameterError, match="^finish: expected no finish="):

@@ -323,25 +323,39 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                             keep=len(live), on_result=on_unit)
         packed = finish.assemble(results[:len(fin)])
         sums = RaySums(key, {t: None for t in graph.merged}, map_tasks, cl)
+        if plan.finish == "client":
+            sums.packed[plan] = results[:len(fin)]
         sums.tiles.update(dict(zip(live, results[len(fin):])))
         if cache:
             _CACHE[key] = sums
             while len(_CACHE) > CACHE_SIZE:
                 _CACHE.popitem(last=False)
+    elif compute and plan in sums.packed:  # finished on the client: the same packed sums for any colouring
+        _CACHE.move_to_end(key)
+        fin = []
+        units = sums.packed[plan]
+        for i, unit in enumerate(units):
+            if on_unit is not None:
+                on_unit(i, unit)
+        packed = finish.assemble(units)
     else:
         _CACHE.move_to_end(key)
         fin = finish.tasks(sums.tiles)
         if not compute:
             return _deferred(fin, finish, fields, {"map_tasks": 0, "reused_ray_sums": True,
                                                    "resident": resident is not None})
-        packed = finish.assemble(run_tasks(fin, client=cl, progress=False, desc="finish", on_result=on_unit))
+        units = run_tasks(fin, client=cl, progress=False, desc="finish", on_result=on_unit)
+        packed = finish.assemble(units)
+        if plan.finish == "client":
+            sums.packed[plan] = units
     if keep_sums is not None:
         save_sums(keep_sums, sums, meta=ev.meta, camera=camera, sampling=spec.sampling, step=spec.step,
                   weight_digits=plan.weight_digits, channel=plan.channel, tile=tile, store=str(ev.path),
                   level=ev.level, storage_options=ev.storage_options,  # a URL: written with the store's options
                   overwrite=overwrite, name="keep_sums")
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
-             "resident": resident is not None, "gathered_bytes": _gathered_bytes(packed, sums, cl, reused),
+             "resident": resident is not None,
+             "gathered_bytes": _gathered_bytes(packed, sums, cl, reused) if fin else 0,
              "seconds": time.perf_counter() - t0}
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
     return EncryptedImage(ciphertexts=list(packed), stats=stats, **with_colouring(fields, spec))

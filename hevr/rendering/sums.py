@@ -40,7 +40,7 @@ import logging
 import os
 import struct
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -102,13 +102,16 @@ class RaySums:
 
     On a distributed client ``tiles`` holds futures: the sums stay on the workers that
     merged them, and re-colouring runs its finishing tasks there (no sums cross the
-    network); on a single machine it holds the values.
+    network); on a single machine it holds the values. ``packed`` keeps, per client-finished
+    plan, the finishing units' outputs: the packed sums are the same for every colouring, so
+    another density or transfer function on this view needs no task at all.
     """
 
     key: tuple
     tiles: dict  # tile id -> (rays, records (R, C, W)), a future of it, or None
     map_tasks: int
     client: Any = None
+    packed: dict = field(default_factory=dict)  # client-finished RenderPlan -> its units' (P, W) outputs
 
     def usable(self, client: Any) -> bool:
         """Whether these sums can serve a render on ``client`` (futures are bound to theirs)."""

@@ -64,7 +64,7 @@ class _GatherLog:
 
 def _check_plain(img, store, volume, cam, priv, **kw):
     ref = hevr.render_plain(volume, cam, spacing=SPACING, vector_dims=K, **kw)
-    assert np.all(np.abs(img.decrypt(priv) - ref) <= error_bound(store, cam, **kw))
+    assert np.all(np.abs(img.decrypt(priv) - ref) <= error_bound(store, cam, finish=img.finish, **kw))
     assert np.count_nonzero(ref) > 10
 
 
@@ -90,9 +90,19 @@ def test_recolour_keeps_ray_sums_on_the_workers(store, volume, keypair256, clust
         assert all(k.startswith(("hevr-merge-", "hevr-part-")) for k in sum_keys)
         assert set(cluster.who_has(futures)) == sum_keys and all(cluster.who_has(futures).values())
 
+        # finished on the client, another colouring of the view is the packed sums it already has: no task
+        with get_task_stream(client=cluster) as ts:
+            same = hevr.render(store, cam, mode="emphasize", density=0.42, sampling=sampling, tile=8, client=cluster,
+                               progress=False)
+        assert same.stats["finish_tasks"] == 0 and same.stats["gathered_bytes"] == 0 and not ts.data
+        assert all(np.array_equal(a, b) for a, b in zip(same.ciphertexts, first.ciphertexts))
+        _check_plain(same, store, volume, cam, priv, mode="emphasize", density=0.42, sampling=sampling)
+
+        # finished on the server (the paper's way), the finishing runs next to the sums on the workers
         for kw in ({"mode": "tf", "nodes": OTHER}, {"mode": "emphasize", "density": 0.42}):
             with _GatherLog(cluster) as log, get_task_stream(client=cluster) as ts:
-                again = hevr.render(store, cam, sampling=sampling, tile=8, client=cluster, progress=False, **kw)
+                again = hevr.render(store, cam, sampling=sampling, tile=8, client=cluster, progress=False,
+                                    finish="server", **kw)
             assert again.stats["reused_ray_sums"] is True and again.stats["map_tasks"] == 0
             assert again.stats["finish_tasks"] >= n_tiles  # at least one finishing task per tile
             packed = sum(int(c.nbytes) for c in again.ciphertexts)
