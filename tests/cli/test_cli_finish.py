@@ -43,12 +43,8 @@ def _fails(capsys, *argv) -> str:
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    d = tmp_path_factory.mktemp("finish")
-    assert main(["keygen", "--bits", "256", "--out", str(d / "key.json"), "-q"]) == 0
-    assert main(["encrypt", "phantom:10", "--key", str(d / "key.json"), "--out", str(d / "vol.zarr"), "--brick", "5",
-                 "--vector-dims", "3", "-q"]) == 0
-    return d
+def store(cli_store):
+    return cli_store("finish", brick=5)
 
 
 def _reference(d, finish="client", **kw):

@@ -46,11 +46,8 @@ def _temporaries(folder: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def work(tmp_path_factory):
-    d = tmp_path_factory.mktemp("force")
-    assert main(["keygen", "--bits", "256", "--out", str(d / "key.json"), "-q"]) == 0
-    assert main(["encrypt", "phantom:8", "--key", str(d / "key.json"), "--out", str(d / "vol.zarr"), "--brick", "4",
-                 "--vector-dims", "2", "-q"]) == 0
+def work(cli_store):
+    d = cli_store("force", size=8, dims=2)
     assert main(["render", str(d / "vol.zarr"), "--out", str(d / "f.hevr"), "--size", "6x5", "--keep-sums",
                  str(d / "f.hevrsums"), "-q"]) == 0
     return d

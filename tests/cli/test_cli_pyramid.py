@@ -23,12 +23,8 @@ def _run(capsys, *argv):
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    d = tmp_path_factory.mktemp("clipyr")
-    assert main(["keygen", "--bits", "256", "--out", str(d / "key.json"), "-q"]) == 0
-    assert main(["encrypt", "phantom:12", "--key", str(d / "key.json"), "--out", str(d / "v.zarr"), "--brick", "4",
-                 "--vector-dims", "3", "-q"]) == 0
-    return d
+def store(cli_store):
+    return cli_store("clipyr", size=12, store="v.zarr")
 
 
 def test_pyramid_then_render_a_level(store, capsys, tmp_path):

@@ -23,12 +23,8 @@ def _ok(capsys, *argv) -> str:
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    d = tmp_path_factory.mktemp("recolour")
-    assert main(["keygen", "--bits", "256", "--out", str(d / "key.json"), "-q"]) == 0
-    assert main(["encrypt", "phantom:10", "--key", str(d / "key.json"), "--out", str(d / "vol.zarr"), "--brick", "4",
-                 "--vector-dims", "3", "-q"]) == 0
-    return d
+def store(cli_store):
+    return cli_store("recolour")
 
 
 def _same_frame(a, b) -> None:

@@ -32,12 +32,8 @@ def _fails(capsys, *argv) -> str:
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    d = tmp_path_factory.mktemp("slice")
-    assert main(["keygen", "--bits", "256", "--out", str(d / "key.json"), "-q"]) == 0
-    assert main(["encrypt", "phantom:10", "--key", str(d / "key.json"), "--out", str(d / "vol.zarr"), "--brick", "4",
-                 "--vector-dims", "3", "-q"]) == 0
-    return d
+def store(cli_store):
+    return cli_store("slice")
 
 
 def _decrypt(store, frame, density=None, nodes=None, **_):
