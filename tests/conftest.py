@@ -85,3 +85,20 @@ def s3_server():
     finally:
         s3fs.S3FileSystem.clear_instance_cache()
         server.stop()
+
+
+@pytest.fixture(scope="session")
+def cli_store(tmp_path_factory):
+    """The CLI tests' set-up: ``cli_store(name, size=10, brick=4, dims=3, store="vol.zarr")``, a
+    folder holding ``key.json`` (256 bits) and ``hevr encrypt phantom:SIZE`` (brick ``brick``, a ``dims``-dim vector channel) at ``store``."""
+
+    from hevr.cli.main import main  # only where a CLI test asks for it
+
+    def make(name: str, size: int = 10, brick: int = 4, dims: int = 3, store: str = "vol.zarr"):
+        d = tmp_path_factory.mktemp(name)
+        assert main(["keygen", "--bits", "256", "--out", str(d / "key.json"), "-q"]) == 0
+        assert main(["encrypt", f"phantom:{size}", "--key", str(d / "key.json"), "--out", str(d / store),
+                     "--brick", str(brick), "--vector-dims", str(dims), "-q"]) == 0
+        return d
+
+    return make
