@@ -14,6 +14,7 @@ import dask
 import numpy as np
 import pytest
 from dask.callbacks import Callback
+from distributed import WorkerPlugin
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -160,13 +161,46 @@ def test_the_colouring_never_reaches_graph_file_or_log(scene, tmp_path, caplog, 
         hevr.load_image(tmp_path / "tf.hevr").decrypt(priv)
 
 
+def _worker_specs(cluster, run) -> bytes:
+    """Every task spec the workers executed while ``run()`` ran, pickled (a worker plugin)."""
+
+    class Record(WorkerPlugin):  # local: pickled by value for the worker processes
+        name = "hevr-test-specs"
+
+        def setup(self, worker):
+            self.worker, self.seen = worker, []
+
+        def transition(self, key, start, finish, **kwargs):
+            ts = self.worker.state.tasks.get(key)
+            if finish == "executing" and ts is not None:
+                self.seen.append(pickle.dumps(ts.run_spec))
+
+    cluster.register_plugin(Record(), name="hevr-test-specs")
+    try:
+        run()
+        blobs = cluster.run(lambda dask_worker: b"".join(dask_worker.plugins["hevr-test-specs"].seen))
+    finally:
+        cluster.unregister_worker_plugin("hevr-test-specs")
+    return b"".join(blobs.values())
+
+
 def test_the_colouring_never_reaches_a_cluster(scene, cluster):
     ev, vol, priv, cam = scene
-    frame = hevr.render_frame(ev, cam, priv, mode="tf", nodes=SECRET_NODES, client=cluster, progress=False,
-                              cache=False)
-    seen = cluster.run_on_scheduler(lambda dask_scheduler: pickle.dumps(
-        [repr(ts.run_spec) for ts in dask_scheduler.tasks.values()]))
-    assert not _leaks(seen)
+    out = {}
+
+    def client_finished():
+        out["frame"] = hevr.render_frame(ev, cam, priv, mode="tf", nodes=SECRET_NODES, client=cluster,
+                                         progress=False, cache=False)
+        hevr.render(ev, cam, mode="emphasize", density=SECRET_DENSITY, client=cluster, progress=False, cache=False)
+
+    seen = _worker_specs(cluster, client_finished)
+    assert len(seen) > 10000 and not _leaks(seen) and b"emphasize" not in seen  # the tasks ran; nothing leaked
+    server = _worker_specs(cluster, lambda: hevr.render(ev, cam, mode="emphasize", density=SECRET_DENSITY,
+                                                        client=cluster, progress=False, cache=False, finish="server"))
+    # the check sees what the paper's way sends to the workers: its plan names the mode and carries
+    # the density as the quantised combination matrix (integers, so no float of it travels either way)
+    assert b"emphasize" in server and not _leaks(server)
+    frame = out["frame"]
     ref = hevr.render_plain(vol, cam, mode="tf", nodes=SECRET_NODES, vector_dims=3)
     assert (np.abs(frame.image - ref) <= hevr.error_bound(ev, cam, "tf", nodes=SECRET_NODES)).all()
     assert frame.stats["seconds"] > 0 and frame.stats["ciphertexts"] > 0
