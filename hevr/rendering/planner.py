@@ -18,6 +18,12 @@ Per pixel r with n_r samples and K transfer-function nodes (K = 1 otherwise):
 * a public offset O = max_r(-lo·W_r·R_r) (only for signed scalar data) makes M + O >= 0,
   so pixels can be packed B = 2^b per ciphertext, b = bits of the largest M + O.
 
+Client finishing (:func:`plan_sums`, the default of :func:`hevr.render`) stops after the ray
+sums: the server packs S_k + O, O = max(0, −lo)·W_max, bound = max(0, hi)·W_max + O
+(lo, hi the channel's mantissa range, W_max = max_r W_r), with no combination and no
+reciprocal; the client divides and colours (:mod:`hevr.colour`). Neither the combination
+matrix nor K enters its plan, so nothing of the colouring reaches the server.
+
 Integrity margin. Every decrypted plaintext is checked by the client (``EncryptedImage``):
 a packed plaintext must lie below B^J (J = ``per_pack``) and each of its digits in
 [0, bound]; an unpacked one in [0, bound]. The planner keeps κ bits of every plaintext
