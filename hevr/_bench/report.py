@@ -256,6 +256,12 @@ def _table3(doc: dict) -> list[str]:
     if g:
         lines += ["", f"4-dim, 4 colours, trilinear at {s['goal_bits']} bits: render {_s(g['seconds'])} s, "
                   f"decrypt {_s(g['decrypt_s'])} s (the paper gives no trilinear transfer-function figures)."]
+    client = [(b, _get(c, f"client.{b}.tf4")) for b in bits if _get(c, f"client.{b}.tf4")]
+    if client:  # the same 4-dim, 4-colour frame, coloured on the client (hevr's default)
+        lines += ["", "Coloured on the client (`finish=\"client\"`, the default; the rows above are the paper's "
+                  "server-side finishing), 4-dim, 4 colours, end to end (request → decrypted image, decryption "
+                  "included): " + ", ".join(f"{b} bit {_s(v['seconds'])} s ({v['ciphertexts']} ciphertexts)"
+                                            for b, v in client) + "."]
     return lines + [""]
 
 
