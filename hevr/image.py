@@ -122,6 +122,11 @@ class EncryptedImage:
         return (f"EncryptedImage(shape={self.shape}, finish={self.finish!r}, exponent={self.exponent}, "
                 f"per_pack={self.per_pack}, ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
 
+    def __getstate__(self) -> dict:
+        """Pickled — to a worker, another process, a file — without the colouring, which stays in
+        the process that rendered (``copy.copy`` too; :func:`dataclasses.replace` keeps it)."""
+        return dict(self.__dict__, colouring=None)
+
     @property
     def values_per_pixel(self) -> int:
         """Values each hit pixel carries: its ``components`` (client finishing), else its channels."""

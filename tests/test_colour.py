@@ -156,6 +156,7 @@ def test_the_colouring_never_reaches_graph_file_or_log(scene, tmp_path, caplog, 
     assert b"emphasize" not in worker_side and b"emphasize" not in (tmp_path / "em.hevr").read_bytes()
     assert em.shape == (8, 9) and tf.shape == (8, 9, 3) and hevr.load_image(tmp_path / "tf.hevr").shape == (8, 9)
     assert "nodes" not in tf.info and "density" not in em.info and "colouring" not in repr(tf)
+    assert tf.colouring is not None and pickle.loads(pickle.dumps(tf)).colouring is None  # not even when shipped
     assert np.array_equal(hevr.load_image(tmp_path / "tf.hevr").decrypt(priv, nodes=SECRET_NODES), tf.decrypt(priv))
     with pytest.raises(hevr.ParameterError, match="^nodes: expected a transfer function"):
         hevr.load_image(tmp_path / "tf.hevr").decrypt(priv)
