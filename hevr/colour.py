@@ -37,6 +37,7 @@ import numbers
 import re
 import time
 from dataclasses import dataclass, field
+from fractions import Fraction
 from typing import Any
 
 import numpy as np
@@ -46,8 +47,8 @@ from ._validate import check_choice
 from .errors import ParameterError
 from .volume.density import encode_density
 
-__all__ = ["CSS_COLORS", "Colouring", "Frame", "colour", "colouring_spec", "parse_color", "parse_nodes",
-           "unit_density"]
+__all__ = ["CSS_COLORS", "Colouring", "Frame", "colour", "colouring_spec", "frame_from_sums", "parse_color",
+           "parse_nodes", "scaled_sums", "unit_density"]
 
 MODES = ("xray", "emphasize", "tf")
 
@@ -347,15 +348,33 @@ class Frame:
         return self.recolour()
 
 
-def frame_from_sums(sums: np.ndarray, n_samples: np.ndarray, exponent: int, channel: str,
+def scaled_sums(values: list[int], exponent: int) -> np.ndarray:
+    """The decrypted integer sums ``values`` (offset removed) times 10^exponent, as float64: one
+    rounding (10^k is exact in float64 for k <= 22) — or, for sums beyond float64 or exponents
+    below -300, exactly rounded through fractions (the planner only promises that the scaled
+    values fit: :func:`hevr._limits.fits_float`).
+
+    >>> scaled_sums([12345, -5], -3).tolist(), scaled_sums([10**400], -398).tolist()
+    ([12.345, -0.005], [100.0])
+    """
+    e = int(exponent)
+    if e >= -300:
+        try:
+            S = np.array(values, dtype=np.float64)
+        except OverflowError:  # a sum beyond float64 whose scaled value fits
+            pass
+        else:
+            return S / 10.0 ** -e if -22 <= e < 0 else S * 10.0 ** e
+    scale = Fraction(10) ** e
+    return np.array([float(v * scale) for v in values], dtype=np.float64)
+
+
+def frame_from_sums(scaled: np.ndarray, n_samples: np.ndarray, channel: str,
                     colouring: Colouring | None, stats: dict, t0: float | None = None) -> Frame:
-    """A :class:`Frame` from decrypted integer sums (H, W, K) (object or float array, offset
-    removed) and the public sample counts: x = S·10^exponent / n (module docstring)."""
+    """A :class:`Frame` from the scaled sums S·10^exponent (H, W, K) (:func:`scaled_sums`) and
+    the public sample counts: x = S·10^exponent / n (module docstring)."""
     t = time.perf_counter()
     n = np.asarray(n_samples, dtype=np.int64)
-    S = np.asarray(sums, dtype=np.float64)
-    e = int(exponent)
-    scaled = S / 10.0 ** -e if -22 <= e < 0 else S * 10.0 ** e  # 10^k is exact in float64 for k <= 22
     with np.errstate(invalid="ignore", divide="ignore"):
         means = np.where(n[..., None] > 0, scaled / np.maximum(n, 1)[..., None], 0.0)
     stats = dict(stats, convert_s=time.perf_counter() - t)

@@ -36,7 +36,7 @@ from ._files import read_regular, write_file
 from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile_name
 from ._validate import check_bool
 from .backends import get_backend
-from .colour import colouring_spec, frame_from_sums
+from .colour import colouring_spec, frame_from_sums, scaled_sums
 from .crypto.keys import PrivateKey
 from .crypto.records import record_width
 from .errors import IntegrityError, KeyMismatchError, MissingFileError, ParameterError
@@ -229,9 +229,9 @@ class EncryptedImage:
         offset = int(self.offset)
         for r0, r1, c0, c1, mask, vals in self._checked_tiles(private_key, backend):
             block = sums[r0:r1, c0:c1, :]
-            block[mask] = np.array([v - offset for v in vals], dtype=np.float64).reshape(-1, K)
+            block[mask] = scaled_sums([v - offset for v in vals], self.exponent).reshape(-1, K)
         stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts)
-        return frame_from_sums(sums, self.samples, self.exponent, str(self.channel), self.colouring, stats)
+        return frame_from_sums(sums, self.samples, str(self.channel), self.colouring, stats)
 
     def decrypt(self, private_key: Any, backend: str | None = None, *, mode: str | None = None,
                 density: float | None = None, nodes: Any = None) -> np.ndarray:

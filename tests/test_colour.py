@@ -320,3 +320,19 @@ def test_plan_sums_bounds_every_sum(lo, span, exp, counts, trilinear, bits):
     assert p.offset + min(lo_m, 0) * w >= 0 and p.offset + max(hi_m, 0) * w <= p.bound < 2**p.pack_bits
     assert p.pack_bits * p.per_pack <= bits - 1 - integrity_bits(bits)  # the integrity margin is kept
     assert p.comb is None and p.factor == 1 and p.finish == "client"
+
+
+def test_cached_packed_sums_are_not_shared_with_an_image(scene):
+    """Changing an image's ciphertexts in place cannot reach the next render of the view."""
+    ev, _, priv, cam = scene
+    hevr.clear_cache()
+    first = hevr.render(ev, cam, mode="tf", nodes=MODES[2][1]["nodes"], progress=False)
+    want = first.decrypt(priv)
+    for c in first.ciphertexts:
+        c[...] = 0
+    again = hevr.render(ev, cam, mode="tf", nodes=MODES[2][1]["nodes"], progress=False)
+    assert again.stats["finish_tasks"] == 0 and np.array_equal(again.decrypt(priv), want)
+    for c in again.ciphertexts:
+        c[...] = 0
+    assert np.array_equal(hevr.render(ev, cam, density=0.3, mode="emphasize", progress=False).decrypt(priv),
+                          hevr.render(ev, cam, density=0.3, mode="emphasize", progress=False, cache=False).decrypt(priv))

@@ -323,8 +323,8 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                             keep=len(live), on_result=on_unit)
         packed = finish.assemble(results[:len(fin)])
         sums = RaySums(key, {t: None for t in graph.merged}, map_tasks, cl)
-        if plan.finish == "client":
-            sums.packed[plan] = results[:len(fin)]
+        if plan.finish == "client":  # copies: the image's arrays are the caller's to change
+            sums.packed[plan] = [u.copy() for u in results[:len(fin)]]
         sums.tiles.update(dict(zip(live, results[len(fin):])))
         if cache:
             _CACHE[key] = sums
@@ -333,7 +333,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     elif compute and plan in sums.packed:  # finished on the client: the same packed sums for any colouring
         _CACHE.move_to_end(key)
         fin = []
-        units = sums.packed[plan]
+        units = [u.copy() for u in sums.packed[plan]]
         for i, unit in enumerate(units):
             if on_unit is not None:
                 on_unit(i, unit)
@@ -347,7 +347,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         units = run_tasks(fin, client=cl, progress=False, desc="finish", on_result=on_unit)
         packed = finish.assemble(units)
         if plan.finish == "client":
-            sums.packed[plan] = units
+            sums.packed[plan] = [u.copy() for u in units]
     if keep_sums is not None:
         save_sums(keep_sums, sums, meta=ev.meta, camera=camera, sampling=spec.sampling, step=spec.step,
                   weight_digits=plan.weight_digits, channel=plan.channel, tile=tile, store=str(ev.path),

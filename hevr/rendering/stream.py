@@ -24,7 +24,7 @@ import numpy as np
 
 from .._image_header import tile_name
 from ..backends import get_backend
-from ..colour import Frame, frame_from_sums
+from ..colour import Frame, frame_from_sums, scaled_sums
 from ..crypto.keys import PrivateKey
 from ..errors import IntegrityError, KeyMismatchError, ParameterError
 from ..image import _CORRUPT, _unpack_checked
@@ -81,7 +81,7 @@ class StreamDecryptor:
                 raise IntegrityError(f"{tile_name(layout, t)}: a value of pixels {a}-{b - 1} decrypts outside the "
                                      f"render plan's range; {_CORRUPT}")
             offset = int(self.fields["offset"])
-            self.sums[hit] = np.array([v - offset for v in vals], dtype=np.float64).reshape(-1, self.K)
+            self.sums[hit] = scaled_sums([v - offset for v in vals], self.fields["exponent"]).reshape(-1, self.K)
         self.ciphertexts += int(packed.shape[0])
         self.done += 1
         self.decrypt_s += time.perf_counter() - t0
@@ -91,8 +91,8 @@ class StreamDecryptor:
             raise IntegrityError(f"frame: expected {len(self.finish.units)} finished units, got {self.done}")
         H, W = self.fields["shape"][:2]
         stats = dict(stats, decrypt_s=self.decrypt_s, ciphertexts=self.ciphertexts)
-        return frame_from_sums(self.sums.reshape(H, W, self.K), self.samples.reshape(H, W), self.fields["exponent"],
-                               self.fields["channel"], None, stats, t0=t0)
+        return frame_from_sums(self.sums.reshape(H, W, self.K), self.samples.reshape(H, W), self.fields["channel"],
+                               None, stats, t0=t0)
 
 
 def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xray", sampling: str = "nearest",
