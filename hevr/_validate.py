@@ -333,8 +333,11 @@ def check_dtype(dtype: Any, name: str = "dtype", *, kinds: str = "uif") -> np.dt
 
 
 def check_volume(vol: Any, name: str = "vol", *, kinds: str = "biuf",
-                 error: type[Exception] = ParameterError) -> Any:
-    """A non-empty 3-D voxel array whose dtype kind is one of ``kinds`` (at most 8 bytes).
+                 error: type[Exception] = ParameterError, thick: bool = False) -> Any:
+    """A non-empty 3-D voxel array whose dtype kind is one of ``kinds`` (at most 8 bytes);
+    with ``thick=True`` (a scan read from a file, before it is encrypted) at least 2 voxels along
+    every axis: rays are clipped to the box of the voxel centres, which a single slice leaves
+    without thickness, so every frame of it would be empty.
 
     Anything with ``.shape`` and ``.dtype`` (numpy, memmap, dask, zarr) is returned as it
     is, so a lazy array stays lazy; anything else goes through :func:`numpy.asarray`. The
@@ -349,6 +352,10 @@ def check_volume(vol: Any, name: str = "vol", *, kinds: str = "biuf",
     Traceback (most recent call last):
         ...
     hevr.errors.ParameterError: vol: expected a 3-D volume, got a 2-D array of shape (1, 2)
+    >>> check_volume(np.zeros((1, 3, 4)), thick=True)
+    Traceback (most recent call last):
+        ...
+    hevr.errors.ParameterError: vol: expected a volume at least 2 voxels thick along every axis (a single slice has no thickness for the rays to cross: every frame would be empty), got 1 slice of 4x3 voxels (shape (1, 3, 4))
     """
     if not hasattr(vol, "shape") or not hasattr(vol, "dtype"):
         vol = np.asarray(vol)
@@ -359,6 +366,11 @@ def check_volume(vol: Any, name: str = "vol", *, kinds: str = "biuf",
         raise error(f"{name}: expected {_kinds_text(kinds)} voxels, got dtype {dtype}")
     if 0 in shape:
         raise error(f"{name}: expected a non-empty volume, got shape {shape}")
+    if thick and min(shape) < 2:
+        nz, ny, nx = shape
+        got = f"{nz} slice of {nx}x{ny} voxels" if nz == 1 else f"{nx}x{ny}x{nz} voxels"
+        raise error(f"{name}: expected a volume at least 2 voxels thick along every axis (a single slice has no "
+                    f"thickness for the rays to cross: every frame would be empty), got {got} (shape {shape})")
     return vol
 
 

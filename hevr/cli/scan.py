@@ -166,6 +166,10 @@ def scan_rows(path: Path) -> list[tuple[str, Any]]:
               "none recorded (axes as stored)"),
              ("origin", ", ".join(f"{v:g}" for v in scan.origin)), ("modality", scan.modality or "-"),
              ("values", f"{vol.min()} .. {vol.max()}")]
+    if min(vol.shape) < 2:  # the rule of encrypt_volume (hevr._validate.check_volume, thick=True)
+        rows.append(("encrypt", "refused: a single slice (an axis of 1 voxel) has no thickness for the rays to "
+                                "cross; hevr renders volumes (give the folder or file of the whole series)"))
+        return rows
     value_range, how, fixed = _effective_range(scan, None, "auto")
     if fixed:
         lo, hi = value_range if value_range is not None else default_value_range(vol)

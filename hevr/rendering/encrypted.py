@@ -274,6 +274,11 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
     t0 = time.perf_counter()
     rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
+    if not rays.n_samples.any():  # public geometry: say so rather than hand back a black frame
+        log.warning("render: no ray of this %dx%d %s hits the volume (%s voxels, spacing %s): the image is empty; "
+                    "aim it at the volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height,
+                    "plane" if isinstance(camera, Plane) else "camera", "x".join(map(str, ev.shape[::-1])),
+                    ", ".join(f"{s:g}" for s in ev.spacing))
     comb = combination_matrix(spec, ev.vector_dims) if spec.needs_vector and finish == "server" else None
     plan = plan_render(n=int(ev.public_key.n), spec=spec, meta=ev.meta, n_samples=rays.n_samples,
                        digits=digits if spec.sampling == "trilinear" else 0, precision=precision,

@@ -232,9 +232,11 @@ def encrypt_volume(
         log.warning("encrypt_volume(unsafe_no_obfuscation=True): the store is NOT secure")
     backend = resolve_backend_name(backend)
     patient = {"frame": vol.frame, "origin": tuple(vol.origin)} if isinstance(vol, Scan) and vol.frame else {}
-    if isinstance(vol, Scan):
+    scanned = isinstance(vol, Scan)
+    if scanned:
         vol, spacing = vol.volume, vol.spacing if spacing is None else spacing
-    vol = check_volume(vol)
+    # a file's single 2-D slice is refused, as a 2-D array is (arrays with a flat axis stay: slices of them render)
+    vol = check_volume(vol, thick=scanned)
     brick_t = check_brick(brick, shape=vol.shape)
     vol = task_array(vol, brick_t, f"hevr-plain-{token()}{token()}")  # memmaps: read inside the tasks
     spacing_t = check_spacing((1.0, 1.0, 1.0) if spacing is None else spacing)

@@ -311,3 +311,44 @@ def test_encrypt_volume_takes_a_scan(tmp_path, keys):
     assert [priv.decrypt(c) for c in ev.read_brick((0, 0, 0))][:3] == list(vol[0, 0, ::-1][:3])
     ev2 = hevr.encrypt_volume(scan, tmp_path / "t.zarr", priv, spacing=(1, 1, 1), brick=3, progress=False)
     assert ev2.spacing == (1.0, 1.0, 1.0) and ev2.frame == "RAS"  # spacing= still overrides
+
+
+# -- a single 2-D slice is not a volume (issue 29, item 1) ------------------------------------------
+@pytest.mark.filterwarnings("ignore:Expected explicit VR")  # from siblings read for CT_small's series
+def test_a_single_dicom_slice_is_described_and_refused(tmp_path, capsys):
+    """pydicom's CT_small.dcm (one 128x128 slice): ``info`` says encrypt refuses it, ``encrypt``
+    refuses it in well under a second with one line naming INPUT, and writes nothing."""
+    pytest.importorskip("pydicom")
+    import time
+
+    from pydicom.data import get_testdata_file
+
+    ct = get_testdata_file("CT_small.dcm", download=False)
+    assert main(["keygen", "--bits", "256", "--out", str(tmp_path / "key.json"), "-q"]) == 0
+    out, _ = _ok(capsys, "info", ct)
+    assert "128×128×1 voxels" in out and "refused: a single slice" in out
+    t0 = time.perf_counter()
+    err = _fails(capsys, "encrypt", ct, "--key", tmp_path / "key.json", "--out", tmp_path / "ct.zarr")
+    assert time.perf_counter() - t0 < 5 and not (tmp_path / "ct.zarr").exists()
+    assert err.startswith("hevr: error: INPUT: expected a volume at least 2 voxels thick along every axis") \
+        and "got 1 slice of 128x128 voxels" in err, err
+
+
+def test_a_single_slice_scan_is_refused_and_a_frame_that_misses_says_so(tmp_path, keypair256, caplog):
+    slice_ = hevr.Scan(volume=np.zeros((1, 6, 7), np.uint8), spacing=(1.0, 1.0, 1.0), source="one.tif")
+    with pytest.raises(hevr.ParameterError, match=r"^vol: expected a volume at least 2 voxels thick .* got "
+                                                  r"1 slice of 7x6 voxels \(shape \(1, 6, 7\)\)"):
+        hevr.encrypt_volume(slice_, tmp_path / "s.zarr", keypair256[1], progress=False)
+    flat = hevr.Scan(volume=np.zeros((5, 1, 7), np.uint8), spacing=(1.0, 1.0, 1.0), source="flat.nii")
+    with pytest.raises(hevr.ParameterError, match=r"got 7x1x5 voxels"):
+        hevr.encrypt_volume(flat, tmp_path / "s.zarr", keypair256[1], progress=False)
+    assert not (tmp_path / "s.zarr").exists()
+    ev = hevr.encrypt_volume(np.ones((4, 5, 6), np.uint8), tmp_path / "v.zarr", keypair256[1], progress=False)
+    away = Camera(position=(50.0, 50.0, 50.0), focal_point=(100.0, 100.0, 100.0), width=8, height=8)
+    with caplog.at_level("WARNING", logger="hevr"):
+        img = hevr.render(ev, away, progress=False)
+    assert img.n_ciphertexts == 0 and "no ray of this 8x8 camera hits the volume" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="hevr"):
+        hevr.render(ev, Camera.orbit(ev, width=8, height=8), progress=False)
+    assert "hits the volume" not in caplog.text
