@@ -51,6 +51,7 @@ from .options import (
     digits_type,
     finite_float,
     floats_type,
+    join_negative_values,
     level_type,
     levels_type,
     phantom_size_type,
@@ -61,6 +62,7 @@ from .options import (
     size_type,
     tf_type,
     unit_float,
+    value_options,
     vector_dims_type,
     workers_type,
 )
@@ -68,7 +70,7 @@ from .pyramid import PYRAMID_EPILOG, cmd_pyramid
 from .scan import TF_HELP, add_encrypt_scan_options, add_view_option
 from .slice import SLICE_EPILOG, cmd_slice, oblique_type
 from .storage import storage_parent
-from .util import err_line, format_tf, warn_line
+from .util import err_line, format_tf, show_warning, silence_stdout
 
 __all__ = ["main", "build_parser"]
 
@@ -408,6 +410,7 @@ def _run(args: Any) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``hevr`` console script; returns the exit code (module docstring)."""
     parser = build_parser()
+    argv = join_negative_values(sys.argv[1:] if argv is None else argv, value_options(parser))  # --size -5x-5
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version and usage errors
@@ -422,11 +425,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not args.verbose:
                 warnings.simplefilter("ignore", DeprecationWarning)
                 warnings.simplefilter("ignore", FutureWarning)
-            warnings.showwarning = _show_warning
-            return _run(args)
+            warnings.showwarning = show_warning
+            code = _run(args)
+            sys.stdout.flush()  # here, so that a reader gone away (`hevr info … | head -1`) is caught below
+            return code
     except KeyboardInterrupt:
         err_line("interrupted")
         return 130
+    except BrokenPipeError:  # the reader of stdout left: stop quietly, as Unix tools do
+        silence_stdout()
+        return 141  # 128 + SIGPIPE
     except Exception as exc:  # one line; the traceback only with --verbose
         if args.verbose:
             traceback.print_exc()
@@ -434,11 +442,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exit_code(exc, args)
     finally:
         logging.getLogger("hevr").removeHandler(handler)
-
-
-def _show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-
-    warn_line(f"{message}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
+from typing import Sequence
 
 from .._validate import MAX_BRICK_EDGE, MAX_STORE_DIGITS, MAX_VECTOR_DIMS
 from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
@@ -218,3 +220,39 @@ def tf_type(text: str) -> list[tuple[float, tuple[float, float, float]]] | str:
 
 level_type = _int_range(0, MAX_LEVELS, f"a pyramid level from 0 to {MAX_LEVELS}")  # --level L (0: the volume)
 levels_type = _int_range(1, MAX_LEVELS, f"a number of levels from 1 to {MAX_LEVELS}")  # --levels N to build
+
+
+NEGATIVE_VALUE = re.compile(r"^-[\d.]")  # "-5x-5", "-1024,3071", "-.5": a value, never an option name
+
+
+def value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """Every option string of ``parser`` and its subcommands that takes exactly one value."""
+    out: set[str] = set()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                out |= value_options(sub)
+        elif action.option_strings and action.nargs is None:
+            out.update(action.option_strings)
+    return out
+
+
+def join_negative_values(argv: Sequence[str], options: set[str]) -> list[str]:
+    """``--size -5x-5`` → ``--size=-5x-5`` for ``options`` that take a value: argparse reads a
+    following token that starts with ``-`` as an option unless it is a plain negative number, and
+    would say "expected one argument"; joined, the option's own check names what is wrong.
+
+    >>> join_negative_values(["render", "--size", "-5x-5", "--azimuth", "-30", "-q"], {"--size", "--azimuth"})
+    ['render', '--size=-5x-5', '--azimuth=-30', '-q']
+    """
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = str(argv[i])
+        if a in options and i + 1 < len(argv) and NEGATIVE_VALUE.match(str(argv[i + 1])):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import json
 import logging
 import os
@@ -229,6 +230,17 @@ def show_progress(args: Any) -> bool:
     return not getattr(args, "quiet", False) and sys.stderr.isatty()
 
 
+def silence_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's last flush into the closed pipe
+    prints no "Exception ignored … BrokenPipeError"."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):  # no real file behind stdout
+        pass
+
+
 def err_line(message: str) -> None:
     """One line on stderr, ``hevr: error: …``."""
     sys.stderr.write("hevr: error: " + " ".join(str(message).split()) + "\n")
@@ -238,6 +250,11 @@ def err_line(message: str) -> None:
 def warn_line(message: str) -> None:
     sys.stderr.write("hevr: warning: " + " ".join(str(message).split()) + "\n")
     sys.stderr.flush()
+
+
+def show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+    """``warnings.showwarning`` of a command: one ``hevr: warning:`` line."""
+    warn_line(f"{message}")
 
 
 # -- what the command line names, checked in its words -----------------------------------------

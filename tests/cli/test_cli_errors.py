@@ -368,3 +368,32 @@ def test_every_command_prints_the_same_axis_order(tmp_path, d, capsys):
     assert "W×H = 8×6" in dec
     for text in (enc, info_store, info_vol, ren, info_img, dec):  # no other order, no unlabelled tuple
         assert "(4, 5, 6)" not in text and "(6, 5, 4)" not in text and "nz" not in text and "height, width" not in text
+
+
+# -- words of the command line (issue 29, item 7) ---------------------------------------------------------
+def test_a_value_that_starts_with_a_minus_is_checked_as_that_value(d, capsys, tmp_path):
+    """``--size -5x-5`` is the size option's own error, not argparse's "expected one argument"; a
+    negative angle or value range still reads."""
+    code, _, err = run(capsys, "render", d / "vol.zarr", "--out", tmp_path / "x.hevr", "--size", "-5x-5")
+    assert code == 2 and one_error_line(err).startswith("argument --size: expected WIDTHxHEIGHT in pixels such as "
+                                                        "150x150, got '-5x-5'"), err
+    code, _, err = run(capsys, "render", d / "vol.zarr", "--out", tmp_path / "y.hevr", "--size", "6x5", "--azimuth",
+                       "-30", "--elevation", "-10", "-q")
+    assert code == 0, err
+
+
+def test_a_reader_that_leaves_ends_the_command_quietly(d):
+    """``hevr info … | head -1``: when stdout's reader has gone the command stops with SIGPIPE's
+    status (141) and writes nothing on stderr — no "Broken pipe", no "Exception ignored"."""
+    import os
+    import subprocess
+    import sys
+
+    r, w = os.pipe()
+    os.close(r)  # the reader is gone before hevr writes a byte
+    try:
+        proc = subprocess.run([sys.executable, "-m", "hevr", "info", str(d / "vol.zarr")], stdout=w,
+                              stderr=subprocess.PIPE, timeout=120)
+    finally:
+        os.close(w)
+    assert proc.returncode == 141 and proc.stderr == b"", (proc.returncode, proc.stderr)
