@@ -386,11 +386,12 @@ def check_data_range(lo: Any, hi: Any, name: str = "vol") -> tuple[float, float]
     >>> check_data_range(float("nan"), 1.0)
     Traceback (most recent call last):
         ...
-    hevr.errors.ParameterError: vol: expected finite values, got NaN or infinity (min nan, max 1.0)
+    hevr.errors.ParameterError: vol: expected finite values, got NaN or infinity (min nan, max 1.0); give NaN voxels a value first (np.nan_to_num(vol, nan=VALUE); hevr encrypt --nan-as VALUE)
     """
     lo, hi = float(lo), float(hi)
     if not (math.isfinite(lo) and math.isfinite(hi)):
-        raise ParameterError(f"{name}: expected finite values, got NaN or infinity (min {lo}, max {hi})")
+        raise ParameterError(f"{name}: expected finite values, got NaN or infinity (min {lo}, max {hi}); give NaN "
+                             "voxels a value first (np.nan_to_num(vol, nan=VALUE); hevr encrypt --nan-as VALUE)")
     return lo, hi
 
 

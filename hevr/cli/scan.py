@@ -18,6 +18,7 @@ tiny band of the chosen range (a flat render) or run above it.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 from pathlib import Path
 from typing import Any
@@ -37,7 +38,8 @@ from ..volume.modality import (
     tf_preset,
 )
 from ..volume.scan import Scan
-from .util import load_scan, warn_line, xyz
+from .options import finite_float
+from .util import UsageError, load_scan, warn_line, xyz
 
 __all__ = ["MODALITY_CHOICES", "add_encrypt_scan_options", "add_view_option", "modality_type", "TF_HELP",
            "resolve_tf", "encrypt_input", "scan_rows"]
@@ -104,6 +106,9 @@ def add_encrypt_scan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--oblique", choices=("refuse", "snap"), default="refuse",
                    help="a scan tilted more than 1 degree off the patient axes: refuse (default; hevr does not "
                         "resample) or snap to the nearest axes")
+    p.add_argument("--nan-as", type=finite_float, metavar="VALUE",
+                   help="float scans: encrypt NaN voxels (no measurement) as VALUE; without it a scan with NaN "
+                        "voxels is refused")
 
 
 # -- encrypt --------------------------------------------------------------------------------------
@@ -131,6 +136,7 @@ def encrypt_input(args: Any) -> tuple[Scan, Any]:
     scan, what = load_scan(args.input, args.spacing, series=args.series, volume=args.volume,
                            allow_uneven=args.allow_uneven, oblique=args.oblique)
     print(f"input:   {what}, spacing {xyz(tuple(scan.spacing)[::-1], sep=', ')}")
+    scan = _fill_nan(scan, args.nan_as)
     if scan.frame or scan.modality:
         print(f"scan:    {scan.modality or 'modality not recorded'}, "
               f"{'RAS+ patient frame' if scan.frame else 'axes as stored'}, origin "
@@ -147,7 +153,36 @@ def encrypt_input(args: Any) -> tuple[Scan, Any]:
     return scan, value_range
 
 
+def _nan_count(vol: Any) -> int:
+    """NaN voxels of a float volume (one pass), 0 for integers."""
+    return int(np.count_nonzero(np.isnan(vol))) if np.dtype(vol.dtype).kind == "f" else 0
+
+
+def _fill_nan(scan: Scan, value: float | None) -> Scan:
+    """The scan with its NaN voxels set to ``value`` (``--nan-as``); refused (exit 2, naming the
+    option) when it has NaN voxels and no ``value``. A NaN is no measurement: hevr does not guess one."""
+    nans = _nan_count(scan.volume)
+    if not nans:
+        return scan
+    if value is None:
+        raise UsageError(f"INPUT: expected finite voxel values, got {nans} NaN voxels of {scan.volume.size}; "
+                         "give them a value with --nan-as VALUE (e.g. --nan-as 0, or the scan's background)")
+    vol = scan.volume
+    print(f"nan:     {nans} NaN voxels of {vol.size} encrypted as {value:g} (--nan-as)")
+    return dataclasses.replace(scan, volume=np.where(np.isnan(vol), np.asarray(value, vol.dtype), vol))
+
+
 # -- info -------------------------------------------------------------------------------------------
+def _values_row(vol: Any) -> str:
+    """``values`` of ``hevr info``: the range of the finite voxels and how many are NaN."""
+    nans = _nan_count(vol)
+    if not nans:
+        return f"{vol.min()} .. {vol.max()}"
+    if nans == vol.size:
+        return f"all {nans} voxels are NaN"
+    return f"{np.nanmin(vol)} .. {np.nanmax(vol)}, and {nans} NaN voxels of {vol.size}"
+
+
 def scan_rows(path: Path) -> list[tuple[str, Any]]:
     """``hevr info`` of a volume file or folder: a DICOM folder lists its series first."""
     rows: list[tuple[str, Any]] = [("path", path)]
@@ -165,10 +200,13 @@ def scan_rows(path: Path) -> list[tuple[str, Any]]:
              ("frame", "RAS+ patient frame (+x right, +y anterior, +z superior)" if scan.frame else
               "none recorded (axes as stored)"),
              ("origin", ", ".join(f"{v:g}" for v in scan.origin)), ("modality", scan.modality or "-"),
-             ("values", f"{vol.min()} .. {vol.max()}")]
+             ("values", _values_row(vol))]
     if min(vol.shape) < 2:  # the rule of encrypt_volume (hevr._validate.check_volume, thick=True)
         rows.append(("encrypt", "refused: a single slice (an axis of 1 voxel) has no thickness for the rays to "
                                 "cross; hevr renders volumes (give the folder or file of the whole series)"))
+        return rows
+    if _nan_count(vol):
+        rows.append(("encrypt", "needs --nan-as VALUE: hevr encrypts measurements, and a NaN is none"))
         return rows
     value_range, how, fixed = _effective_range(scan, None, "auto")
     if fixed:

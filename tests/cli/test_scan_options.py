@@ -352,3 +352,27 @@ def test_a_single_slice_scan_is_refused_and_a_frame_that_misses_says_so(tmp_path
     with caplog.at_level("WARNING", logger="hevr"):
         hevr.render(ev, Camera.orbit(ev, width=8, height=8), progress=False)
     assert "hits the volume" not in caplog.text
+
+
+# -- NaN voxels (issue 29, item 5) ---------------------------------------------------------------------------
+def test_nan_voxels_are_counted_refused_and_filled_on_request(tmp_path, keys, capsys):
+    """A float NIfTI written by nibabel with NaN voxels: ``info`` counts them and names --nan-as;
+    ``encrypt`` refuses with one line naming --nan-as; ``--nan-as 0`` encrypts them as 0."""
+    nib = pytest.importorskip("nibabel")
+    vol = np.linspace(0, 1, 4 * 5 * 6, dtype=np.float32).reshape(4, 5, 6)
+    vol[1, 2, 3] = vol[2, 0, 0] = np.nan
+    path = tmp_path / "pet.nii.gz"
+    nib.save(nib.Nifti1Image(vol.transpose(2, 1, 0), np.eye(4)), str(path))
+    out, _ = _ok(capsys, "info", path)
+    assert "and 2 NaN voxels of 120" in out and "needs --nan-as VALUE" in out and "nan .. nan" not in out
+    err = _fails(capsys, "encrypt", path, "--key", keys, "--out", tmp_path / "v.zarr")
+    assert "got 2 NaN voxels of 120; give them a value with --nan-as VALUE" in err and not (tmp_path / "v.zarr").exists()
+    out, _ = _ok(capsys, "encrypt", path, "--key", keys, "--out", tmp_path / "v.zarr", "--nan-as", "0")
+    assert "2 NaN voxels of 120 encrypted as 0 (--nan-as)" in out
+    ev = hevr.open_volume(tmp_path / "v.zarr")
+    priv = hevr.load_key(keys)
+    got = np.array([priv.decrypt(c) for c in ev.read_brick((0, 0, 0))], dtype=np.float64) * 10.0 ** ev.meta.scalar.exponent
+    want = np.nan_to_num(hevr.read_scan(path).volume, nan=0.0)[:ev.brick[0], :ev.brick[1], :ev.brick[2]]
+    assert np.allclose(got, want.ravel(), atol=10.0 ** ev.meta.scalar.exponent)
+    with pytest.raises(hevr.ParameterError, match=r"np.nan_to_num\(vol, nan=VALUE\); hevr encrypt --nan-as VALUE"):
+        hevr.encrypt_volume(vol, tmp_path / "w.zarr", priv, progress=False)
