@@ -62,7 +62,7 @@ DEMO_EPILOG = f"""\
 examples:
   hevr demo                                   # 15-25 s on a 2-core laptop (32^3, 48x48 px, 512-bit key)
   hevr demo --out figs --size 64 --image 96x96
-  hevr demo --size {PAPER_SIZE} --image {PAPER_IMAGE}x{PAPER_IMAGE} --bits 2048   # the paper's setting: ~1-1.5 h on 2 cores
+  hevr demo --size {PAPER_SIZE} --image {PAPER_IMAGE}x{PAPER_IMAGE} --bits 2048   # the paper's setting: ~25 min on 2 cores (README)
   hevr demo --input tooth_103x94x161_uint8.raw --image 128x128
   hevr demo --scheduler tcp://10.0.0.5:8786   # render on a running cluster (DIR must be shared)
 

@@ -372,7 +372,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "markdown, raw JSON and a plot."),
                        epilog=BENCH_EPILOG)
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--quick", action="store_true", help="a smoke run in about a minute (tiny volume and keys)")
+    g.add_argument("--quick", action="store_true", help="a smoke run of about 20 s (tiny volume and keys)")
     g.add_argument("--paper", action="store_true", help=f"the paper's setting: {PAPER_SIZE}^3, {PAPER_IMAGE}x{PAPER_IMAGE}, keys 64-3072 bits (~1.5 h)")
     p.add_argument("--out", metavar="DIR", help="output folder (default ./benchmarks if it exists, else .)")
     p.add_argument("--resume", action="store_true", help="keep the finished blocks of an earlier run of this setting")

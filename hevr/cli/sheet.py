@@ -11,7 +11,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from .._files import write_file
 
-__all__ = ["contact_sheet"]
+__all__ = ["contact_sheet", "drawable"]
 
 _PAD = 8
 _GAP = 4
@@ -25,6 +25,19 @@ def _font(size: int) -> Any:
         return ImageFont.load_default(size=size)
     except TypeError:  # Pillow < 10.1
         return ImageFont.load_default()
+
+
+# Pillow's built-in font has no glyph for these: they would be drawn as boxes
+_PLAIN = str.maketrans({"×": "x", "→": "->", "…": "...", "²": "^2", "³": "^3", "·": "*"})
+
+
+def drawable(text: str) -> str:
+    """``text`` in characters Pillow's built-in font draws.
+
+    >>> drawable("x×y×z = 64×64×64, 150² px")
+    'xxyxz = 64x64x64, 150^2 px'
+    """
+    return text.translate(_PLAIN)
 
 
 def contact_sheet(folder: Path, jobs: list, caption: str, out: Path, *, overwrite: bool = False) -> None:
@@ -49,13 +62,13 @@ def contact_sheet(folder: Path, jobs: list, caption: str, out: Path, *, overwrit
     height = _PAD + line + _PAD + rows * (cell_h + _PAD)
     sheet = Image.new("RGB", (width, height), (255, 255, 255))
     draw = ImageDraw.Draw(sheet)
-    draw.text((_PAD, _PAD), caption, fill=(0, 0, 0), font=font)
+    draw.text((_PAD, _PAD), drawable(caption), fill=(0, 0, 0), font=font)
     for i, (job, enc, ref) in enumerate(pairs):
         r, c = divmod(i, cols)
         x = _PAD + c * (cell_w + _PAD)
         y = _PAD + line + _PAD + r * (cell_h + _PAD)
         res = job.result
-        draw.text((x, y), job.title, fill=(0, 0, 0), font=small)
+        draw.text((x, y), drawable(job.title), fill=(0, 0, 0), font=small)
         draw.text((x, y + line), f"max|err| {res['max_abs_error']:.1e}   render {res['render_s']:.2f} s   "
                                  f"decrypt {res['decrypt_s']:.2f} s", fill=(90, 90, 90), font=small)
         top = y + 2 * line + _GAP

@@ -35,6 +35,7 @@ from ..errors import ParameterError
 from ..volume.density import default_value_range, encode_density, normalize_density
 from ..volume.gradient import gradient_encoding
 from ..volume.pyramid import check_level, downsample, level_origin, level_spacing
+from ..volume.scan import Scan
 from .camera import Camera
 from .modes import RenderSpec, combination_matrix, make_spec
 from .plane import Plane
@@ -63,12 +64,15 @@ _LUT_MAX = 1 << 16
 Field = Callable[[np.ndarray], np.ndarray]
 
 
-def _check_volume(vol: Any) -> np.ndarray:
-    """The volume as a numpy array: 3-D, non-empty, bool/integer/float, finite values."""
+def _check_volume(vol: Any, spacing: Any) -> tuple[np.ndarray, Any]:
+    """The volume as a numpy array (3-D, non-empty, bool/integer/float, finite values) and its
+    spacing: ``spacing``, else a :class:`~hevr.volume.scan.Scan`'s own, else (1, 1, 1)."""
+    if isinstance(vol, Scan):
+        vol, spacing = vol.volume, vol.spacing if spacing is None else spacing
     arr = check_volume(np.asarray(vol))
     if arr.dtype.kind == "f":
         check_data_range(arr.min(), arr.max())
-    return arr
+    return arr, (1, 1, 1) if spacing is None else spacing
 
 
 def _make_field(arr: np.ndarray, spec: RenderSpec, value_range: Any, dims: int | None,
@@ -124,7 +128,7 @@ def render_plain(
     mode: str = "xray",
     sampling: str = "nearest",
     step: float = 1.0,
-    spacing: Any = (1, 1, 1),
+    spacing: Any = None,
     value_range: Any = None,
     vector_dims: int | None = None,
     density: float | None = None,
@@ -136,15 +140,16 @@ def render_plain(
 
     Parameters
     ----------
-    vol : array_like, shape (nz, ny, nx)
-        Bool, integer or float voxel values.
+    vol : array_like, shape (nz, ny, nx), or Scan
+        Bool, integer or float voxel values, or a :class:`hevr.Scan` (:func:`hevr.read_scan`),
+        which brings its spacing (as :func:`hevr.encrypt_volume` takes it).
     camera : Camera
     mode : {'xray', 'emphasize', 'tf'}
     sampling : {'nearest', 'trilinear'}
     step : float
         Sample distance in world units.
-    spacing : (sx, sy, sz)
-        World-order voxel spacing.
+    spacing : (sx, sy, sz), optional
+        World-order voxel spacing; default the scan's, else (1, 1, 1).
     value_range : (lo, hi) or None
         Density normalisation for emphasize/tf; default: integer dtypes -> full dtype
         range, floats -> data (min, max).
@@ -177,7 +182,7 @@ def render_plain(
     >>> render_plain(vol, cam).shape
     (4, 4)
     """
-    arr = _check_volume(vol)
+    arr, spacing = _check_volume(vol, spacing)
     dims = None
     if mode in ("emphasize", "tf"):
         dims = DEFAULT_VECTOR_DIMS if vector_dims is None else check_vector_dims(vector_dims)
@@ -233,7 +238,7 @@ def render_slice_plain(
     plane: Plane,
     mode: str = "xray",
     sampling: str = "nearest",
-    spacing: Any = (1, 1, 1),
+    spacing: Any = None,
     value_range: Any = None,
     vector_dims: int | None = None,
     density: float | None = None,
@@ -262,7 +267,7 @@ def render_slice_plain(
     >>> render_slice_plain(vol, Plane.axial(vol.shape, 0.5), sampling="trilinear")[0].tolist()
     [6.0, 7.0, 8.0, 9.0]
     """
-    arr = _check_volume(vol)
+    arr, spacing = _check_volume(vol, spacing)
     if not isinstance(plane, Plane):
         raise ParameterError(f"plane: expected a hevr.Plane, got {type(plane).__name__}")
     dims = None

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+import hevr
 from hevr.errors import HevrError, ParameterError
 from hevr.rendering.camera import Camera
 from hevr.rendering.modes import parse_color
@@ -194,3 +195,16 @@ def test_chunking_does_not_change_the_result(monkeypatch: pytest.MonkeyPatch) ->
     full = render_plain(vol, cam, sampling="trilinear", step=0.5)
     monkeypatch.setattr(plain, "_CHUNK_SAMPLES", 17)
     np.testing.assert_array_equal(render_plain(vol, cam, sampling="trilinear", step=0.5), full)
+
+
+def test_a_scan_brings_its_spacing():
+    """render_plain / render_slice_plain take a hevr.Scan as encrypt_volume does (issue 29, item 9)."""
+    vol = np.arange(4 * 5 * 6, dtype=np.uint8).reshape(4, 5, 6)
+    scan = hevr.Scan(volume=vol, spacing=(0.5, 1.0, 2.0), source="s.nii")
+    cam = hevr.Camera.orbit(vol.shape, azimuth=20, elevation=10, width=7, height=6, spacing=(0.5, 1.0, 2.0))
+    assert np.array_equal(hevr.render_plain(scan, cam), hevr.render_plain(vol, cam, spacing=(0.5, 1.0, 2.0)))
+    assert not np.array_equal(hevr.render_plain(scan, cam), hevr.render_plain(vol, cam))
+    assert np.array_equal(hevr.render_plain(scan, cam, spacing=(1, 1, 1)), hevr.render_plain(vol, cam))
+    plane = hevr.Plane.axial(vol.shape, 2, spacing=(0.5, 1.0, 2.0), slab=3)
+    assert np.array_equal(hevr.render_slice_plain(scan, plane),
+                          hevr.render_slice_plain(vol, plane, spacing=(0.5, 1.0, 2.0)))
