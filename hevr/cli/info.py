@@ -60,7 +60,7 @@ def cmd_info(args: Any) -> int:
     if path.is_dir():
         if (path / "zarr.json").exists():
             return _info_store(check_store_path(path, "PATH"), None, args)
-        return _info_volume(path)
+        return _info_volume(path, args)
     check_regular(path, "PATH", "a key, store, frame or volume file")  # a FIFO would block the read below
     with open(path, "rb") as fh:
         head = fh.read(len(MAGIC))
@@ -79,7 +79,7 @@ def cmd_info(args: Any) -> int:
             return _info_store(check_store_path(path.parent, "PATH"), None, args)
         raise UsageError(f"PATH: expected a key, store, frame or volume file, got a JSON file that is not an "
                          f"hevr key ({args.path})")
-    return _info_volume(path)
+    return _info_volume(path, args)
 
 
 def _rows(rows: list[tuple[str, Any]]) -> None:
@@ -218,6 +218,7 @@ def _info_key(path: Path, fmt: str = "hevr") -> int:
     return 0
 
 
-def _info_volume(path: Path) -> int:
-    _rows(scan_rows(path))  # a DICOM folder: its series; a scan: frame, modality, default value range
+def _info_volume(path: Path, args: Any) -> int:
+    read = {k: getattr(args, k, None) for k in ("series", "volume", "allow_uneven", "oblique")}
+    _rows(scan_rows(path, **read))  # a DICOM folder: its series; a scan: frame, modality, default value range
     return 0

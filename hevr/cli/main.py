@@ -67,7 +67,7 @@ from .options import (
     workers_type,
 )
 from .pyramid import PYRAMID_EPILOG, cmd_pyramid
-from .scan import TF_HELP, add_encrypt_scan_options, add_view_option
+from .scan import TF_HELP, add_encrypt_scan_options, add_scan_read_options, add_view_option
 from .slice import SLICE_EPILOG, cmd_slice, oblique_type
 from .storage import storage_parent
 from .util import err_line, format_tf, show_warning, silence_stdout
@@ -319,6 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
                               "  hevr info frame.hevr\n  hevr info key.pub.json\n"
                               "  hevr info dicom/          # its series, for hevr encrypt --series UID\n")
     p.add_argument("path", metavar="PATH")
+    add_scan_read_options(p)  # a volume file: read as hevr encrypt reads it
     p.add_argument("--verify", action="store_true",
                    help="stores: also read every brick of every channel (and pyramid level) and check its "
                         "digest and every ciphertext (0 < c < n², coprime to n); names each damaged brick by "

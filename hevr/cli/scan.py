@@ -41,7 +41,7 @@ from ..volume.scan import Scan
 from .options import finite_float
 from .util import UsageError, load_scan, warn_line, xyz
 
-__all__ = ["MODALITY_CHOICES", "add_encrypt_scan_options", "add_view_option", "modality_type", "TF_HELP",
+__all__ = ["MODALITY_CHOICES", "add_encrypt_scan_options", "add_scan_read_options", "add_view_option", "modality_type", "TF_HELP",
            "resolve_tf", "encrypt_input", "scan_rows"]
 
 log = logging.getLogger(__name__)
@@ -97,6 +97,15 @@ def add_encrypt_scan_options(p: argparse.ArgumentParser) -> None:
                    help="value range of the modality when --value-range is not given: CT (-1024, 3071) HU, "
                         "MR (0, 4095), US (0, 255); auto (default): the modality the file records (DICOM), else "
                         "the dtype's range (integers) or the data range (floats)")
+    add_scan_read_options(p)
+    p.add_argument("--nan-as", type=finite_float, metavar="VALUE",
+                   help="float scans: encrypt NaN voxels (no measurement) as VALUE; without it a scan with NaN "
+                        "voxels is refused")
+
+
+def add_scan_read_options(p: argparse.ArgumentParser) -> None:
+    """How a scan is read — ``hevr encrypt`` and ``hevr info`` alike, so that info describes
+    exactly what encrypt reads."""
     p.add_argument("--series", metavar="UID", help="DICOM: the series to read from a folder holding several "
                    "(a SeriesInstanceUID, a unique prefix or a SeriesNumber; 'hevr info FOLDER' lists them)")
     p.add_argument("--volume", type=int, metavar="INDEX",
@@ -106,9 +115,6 @@ def add_encrypt_scan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--oblique", choices=("refuse", "snap"), default="refuse",
                    help="a scan tilted more than 1 degree off the patient axes: refuse (default; hevr does not "
                         "resample) or snap to the nearest axes")
-    p.add_argument("--nan-as", type=finite_float, metavar="VALUE",
-                   help="float scans: encrypt NaN voxels (no measurement) as VALUE; without it a scan with NaN "
-                        "voxels is refused")
 
 
 # -- encrypt --------------------------------------------------------------------------------------
@@ -183,17 +189,20 @@ def _values_row(vol: Any) -> str:
     return f"{np.nanmin(vol)} .. {np.nanmax(vol)}, and {nans} NaN voxels of {vol.size}"
 
 
-def scan_rows(path: Path) -> list[tuple[str, Any]]:
-    """``hevr info`` of a volume file or folder: a DICOM folder lists its series first."""
+def scan_rows(path: Path, **read: Any) -> list[tuple[str, Any]]:
+    """``hevr info`` of a volume file or folder, read as ``hevr encrypt`` reads it with the same
+    options (``read``: series, volume, allow_uneven, oblique); a DICOM folder lists its series
+    first, and only them when it holds several and ``--series`` names none."""
     rows: list[tuple[str, Any]] = [("path", path)]
-    if path.is_dir() and not any((path / m).exists() for m in (".zarray", ".zgroup", "zarr.json")):
+    if path.is_dir() and not any((path / m).exists() for m in (".zarray", ".zgroup", "zarr.json")) \
+            and read.get("series") is None:
         series = list_series(path)
         rows.append(("kind", f"DICOM folder, {len(series)} series"))
         rows += [("series", s.summary()) for s in series]
         if len(series) > 1:
             rows.append(("encrypt", f"one of them: hevr encrypt {path} --series UID ..."))
             return rows
-    scan, _ = load_scan(str(path))
+    scan, _ = load_scan(str(path), **read)
     vol = scan.volume
     rows += [("kind", "plaintext volume"), ("shape", f"{xyz(vol.shape)} voxels"), ("dtype", vol.dtype),
              ("spacing", xyz(tuple(scan.spacing)[::-1], sep=", ")),

@@ -376,3 +376,22 @@ def test_nan_voxels_are_counted_refused_and_filled_on_request(tmp_path, keys, ca
     assert np.allclose(got, want.ravel(), atol=10.0 ** ev.meta.scalar.exponent)
     with pytest.raises(hevr.ParameterError, match=r"np.nan_to_num\(vol, nan=VALUE\); hevr encrypt --nan-as VALUE"):
         hevr.encrypt_volume(vol, tmp_path / "w.zarr", priv, progress=False)
+
+
+# -- info reads what encrypt reads (issue 29, item 4) ----------------------------------------------------
+def test_info_takes_the_options_that_encrypt_reads_with(tmp_path, capsys):
+    """``hevr info`` takes --series, --volume, --allow-uneven and --oblique as ``hevr encrypt`` does,
+    so a 4-D NIfTI (nibabel) and one series of a folder are described, not refused."""
+    nib = pytest.importorskip("nibabel")
+    four = np.arange(3 * 4 * 5 * 2, dtype=np.int16).reshape(5, 4, 3, 2)  # x, y, z, t
+    nib.save(nib.Nifti1Image(four, np.eye(4)), str(tmp_path / "fmri.nii.gz"))
+    _fails(capsys, "info", tmp_path / "fmri.nii.gz")  # which volume? (as encrypt without --volume)
+    out, _ = _ok(capsys, "info", tmp_path / "fmri.nii.gz", "--volume", "1")
+    assert "5×4×3 voxels" in out and "int16" in out
+    folder = tmp_path / "study"
+    hu = _hu()
+    _write_dicom(folder, hu, series="1.2.826.0.1.3680043.2.111", number=3)
+    _write_dicom(folder, hu[:, :, ::-1] // 2, series="1.2.826.0.1.3680043.2.222", number=4)
+    out, _ = _ok(capsys, "info", folder, "--series", "4")
+    assert "DICOM folder" not in out and f"{hu.shape[2]}×{hu.shape[1]}×{hu.shape[0]} voxels" in out
+    assert "modality: CT" in out
