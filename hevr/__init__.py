@@ -70,6 +70,7 @@ from .volume.modality import (
     window_density,
 )
 from .volume.phantom import PHANTOM_LEVELS, phantom
+from .volume.samples import sample_scan
 from .volume.scan import Scan
 
 __version__ = "0.1.0"
@@ -82,6 +83,7 @@ __all__ = [
     "EncryptedNumber",
     "encrypt_volume",
     "phantom",
+    "sample_scan",
     "Camera",
     "render_plain",
     "render",

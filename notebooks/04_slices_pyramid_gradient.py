@@ -26,8 +26,8 @@
 #    `gradient=True` weights every sample by it, so boundaries stand out.
 #
 # Every encrypted image is checked against its plaintext reference within `hevr.error_bound`.
-# Sizes are small (512-bit demo key, 24³ phantom, a strided tooth CT when the shared data
-# folder is there); change them in the next cell.
+# Sizes are small (512-bit demo key, 24³ phantom, and a real brain MRI of 33×41×25 voxels
+# that nibabel ships: `hevr.sample_scan()`); change them in the next cell.
 
 # %% tags=["parameters"]
 # --- parameters --------------------------------------------------------------------
@@ -37,7 +37,7 @@ VECTOR_DIMS = 4
 BRICK = 8
 N_WORKERS = 2
 IMAGE = 48
-TOOTH_STRIDE = 4        # every 4th voxel of the 103×94×161 tooth CT (owner side, before encryption)
+MRI_RANGE = (-700.0, 30500.0)  # the sample MRI's density normalisation range (its values: -610 .. 30393)
 TF = [(0.15, "blue"), (0.45, "lime"), (0.8, "red")]
 
 # %%
@@ -163,25 +163,28 @@ show(pairs, "X-ray (trilinear) at pyramid levels 0, 1, 2 — same camera")
 #
 # With `gradient=True` every sample is weighted by the normalised gradient magnitude of the
 # density at its voxel (central differences, computed by the owner before encryption), so the
-# homogeneous insides fade and the boundaries between materials stand out. The phantom and —
-# when the shared data folder is present — the tooth CT, each with and without it.
+# homogeneous insides fade and the boundaries between materials stand out. The phantom and a
+# real brain MRI (`hevr.sample_scan()`: a crop around the ventricles that nibabel ships, read
+# into RAS+ and seen from the front), each with and without it.
 
 # %%
-scenes = [("phantom", ev, vol, (1.0, 1.0, 1.0))]
-tooth_file = Path("..") / ".." / "shared" / "data" / "tooth.nhdr"
-if tooth_file.exists():
-    tooth, tooth_spacing = hevr.load_volume(tooth_file)
-    tooth = np.ascontiguousarray(tooth[::TOOTH_STRIDE, ::TOOTH_STRIDE, ::TOOTH_STRIDE])
-    tooth_spacing = tuple(s * TOOTH_STRIDE for s in tooth_spacing)
-    tev = hevr.encrypt_volume(tooth, os.path.join(WORKDIR, "tooth.zarr"), priv, brick=BRICK, spacing=tooth_spacing,
-                              vector_dims=VECTOR_DIMS, gradient=True, progress=False)
-    scenes.append(("tooth", tev, tooth, tooth_spacing))
+scenes = [("phantom", ev, vol, (1.0, 1.0, 1.0), None)]
+try:
+    mri = hevr.read_scan(hevr.sample_scan())  # needs nibabel: pip install 'hevr[io]'
+except hevr.MissingDependencyError as exc:
+    print(f"NOTE: the brain MRI rows are left out: {exc}")
+else:
+    mev = hevr.encrypt_volume(mri, os.path.join(WORKDIR, "mri.zarr"), priv, brick=BRICK, vector_dims=VECTOR_DIMS,
+                              gradient=True, value_range=MRI_RANGE, progress=False)
+    scenes.append(("brain MRI", mev, mri.volume, mri.spacing, MRI_RANGE))
 gradient_rows, pairs = [], []
-for name, sev, svol, sp in scenes:
-    scam = hevr.Camera.orbit(sev, azimuth=30, elevation=20, width=IMAGE, height=IMAGE)
+for name, sev, svol, sp, vr in scenes:
+    view = "anterior" if sev.frame else None  # a scan in the patient frame: from the front
+    scam = hevr.Camera.orbit(sev, azimuth=30, elevation=20, width=IMAGE, height=IMAGE, view=view)
     for grad in (False, True):
         img = hevr.render(sev, scam, mode="tf", nodes=TF, gradient=grad, progress=False)
-        ref = hevr.render_plain(svol, scam, mode="tf", nodes=TF, spacing=sp, vector_dims=VECTOR_DIMS, gradient=grad)
+        ref = hevr.render_plain(svol, scam, mode="tf", nodes=TF, spacing=sp, vector_dims=VECTOR_DIMS, gradient=grad,
+                                value_range=vr)
         enc, err = checked(img, ref, hevr.error_bound(sev, scam, mode="tf", nodes=TF, gradient=grad), name)
         gradient_rows.append({"volume": name, "gradient": grad, "map_tasks": img.stats["map_tasks"],
                               "max_error": err})

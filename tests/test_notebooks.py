@@ -115,6 +115,7 @@ def _check_beyond(s: dict) -> None:
     assert len(tasks) == 3 and tasks[0] > tasks[1] > tasks[2] >= 1, tasks  # coarser levels, fewer bricks
     grads = [(r["volume"], r["gradient"]) for r in s["gradient"]]
     assert ("phantom", False) in grads and ("phantom", True) in grads
+    assert ("brain MRI", False) in grads and ("brain MRI", True) in grads  # the real scan nibabel ships
     v = s["viewer"]
     assert v["moving_level"] == 1 and v["still_level"] == 0 and v["moving_map_tasks"] >= 1
     assert s["pyramid_over_encrypt"] > 0

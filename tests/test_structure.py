@@ -62,7 +62,7 @@ OLD_NAMES_ALLOWED_IN = frozenset({"CHANGELOG.md"})
 # of the public contract (../shared/API.md): make it on purpose.
 PUBLIC_API = (
     "generate_keypair", "PublicKey", "PrivateKey", "load_key", "EncryptedNumber",
-    "encrypt_volume", "phantom", "Camera", "render_plain", "render", "render_frame", "Frame", "Colouring", "RaySums", "clear_cache",
+    "encrypt_volume", "phantom", "sample_scan", "Camera", "render_plain", "render", "render_frame", "Frame", "Colouring", "RaySums", "clear_cache",
     "recolour", "load_sums", "SavedSums", "Viewer", "Plane", "render_slice", "render_slice_plain", "build_pyramid",
     "EncryptedImage", "load_image", "save_png", "to_uint8", "error_bound", "encode_density",
     "normalize_density", "PHANTOM_LEVELS", "load_volume", "read_scan", "Scan", "save_volume", "open_volume",

@@ -55,6 +55,8 @@ def cmd_info(args: Any) -> int:
         kind = st.url_kind(url, so)
         return _info_store(url, so, args) if kind == "store" else {"frame": _info_image, "sums": _info_sums}[kind](url, so)
     path = st.local_path(args.path)
+    if str(args.path).startswith("sample:") and not path.exists():  # a real scan a package ships
+        return _info_volume(path, args, spec=str(args.path))
     if not path.exists():
         raise MissingFileError("PATH", "a key, store, frame or volume file", args.path)
     if path.is_dir():
@@ -218,7 +220,7 @@ def _info_key(path: Path, fmt: str = "hevr") -> int:
     return 0
 
 
-def _info_volume(path: Path, args: Any) -> int:
+def _info_volume(path: Path, args: Any, spec: str | None = None) -> int:
     read = {k: getattr(args, k, None) for k in ("series", "volume", "allow_uneven", "oblique")}
-    _rows(scan_rows(path, **read))  # a DICOM folder: its series; a scan: frame, modality, default value range
+    _rows(scan_rows(path, spec=spec, **read))  # a DICOM folder: its series; a scan: frame, modality, default value range
     return 0

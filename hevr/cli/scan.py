@@ -189,10 +189,14 @@ def _values_row(vol: Any) -> str:
     return f"{np.nanmin(vol)} .. {np.nanmax(vol)}, and {nans} NaN voxels of {vol.size}"
 
 
-def scan_rows(path: Path, **read: Any) -> list[tuple[str, Any]]:
+def scan_rows(path: Path, spec: str | None = None, **read: Any) -> list[tuple[str, Any]]:
     """``hevr info`` of a volume file or folder, read as ``hevr encrypt`` reads it with the same
     options (``read``: series, volume, allow_uneven, oblique); a DICOM folder lists its series
-    first, and only them when it holds several and ``--series`` names none."""
+    first, and only them when it holds several and ``--series`` names none. ``spec``: an input
+    such as ``sample:mri`` that :func:`~hevr.cli.util.load_scan` resolves."""
+    if spec is not None:
+        scan, _ = load_scan(spec, **read)
+        path = Path(scan.source)
     rows: list[tuple[str, Any]] = [("path", path)]
     if path.is_dir() and not any((path / m).exists() for m in (".zarray", ".zgroup", "zarr.json")) \
             and read.get("series") is None:

@@ -40,6 +40,7 @@ from ..paper import PAPER_SIZE
 from ..rendering.modes import parse_color
 from ..volume.loaders import read_scan
 from ..volume.phantom import phantom
+from ..volume.samples import SAMPLES, sample_scan
 from ..volume.scan import Scan
 from .options import MAX_PHANTOM, phantom_size_type
 
@@ -73,7 +74,8 @@ def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float,
 
 
 def load_scan(spec: str, spacing: Any = None, **read: Any) -> tuple[Scan, str]:
-    """``phantom:N`` (or ``phantom``) or any file/folder :func:`hevr.read_scan` reads.
+    """``phantom:N`` (or ``phantom``), ``sample:mri`` (:func:`hevr.sample_scan`) or any
+    file/folder :func:`hevr.read_scan` reads.
 
     ``read``: read_scan's ``series``, ``volume``, ``allow_uneven``, ``oblique``. Returns the
     scan and a description; its frame, modality and origin are logged at INFO. Errors name
@@ -94,9 +96,15 @@ def load_scan(spec: str, spacing: Any = None, **read: Any) -> tuple[Scan, str]:
         vol = phantom(size)
         sp = tuple(float(v) for v in spacing) if spacing else (1.0, 1.0, 1.0)
         return Scan(vol, sp, source=spec), f"phantom, {xyz(vol.shape)} voxels (uint8)"  # type: ignore[arg-type]
-    path = Path(spec).expanduser()
+    if spec.startswith("sample:") and not Path(spec).exists():  # a real scan an installed package ships
+        name = spec.partition(":")[2]
+        if name not in SAMPLES:
+            raise UsageError(f"input: expected sample:NAME with NAME one of {', '.join(SAMPLES)}, got {spec!r}")
+        path = sample_scan(name)
+    else:
+        path = Path(spec).expanduser()
     if not path.exists():
-        raise MissingFileError("input", "a volume file, a DICOM folder or phantom:N", spec)
+        raise MissingFileError("input", "a volume file, a DICOM folder, phantom:N or sample:mri", spec)
     try:
         scan = read_scan(path, spacing=spacing, **read)
     except MissingFileError as exc:  # a file the input refers to (an .nhdr's detached data file)
