@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from .._validate import check_choice
-from ..errors import VolumeFormatError
+from ..errors import MissingDependencyError, VolumeFormatError
 from ._memory import check_fits
 from ._optional import require
 from .dicom_frames import Frame, frames_of, plan_stack
@@ -172,8 +172,14 @@ def _decode(pydicom: Any, frames: list[Frame]) -> np.ndarray:
             arr = ds.pixel_array
         except Exception as exc:  # noqa: BLE001  # compressed syntaxes need handlers that may be missing
             meta = getattr(image.header, "file_meta", None) or {}
-            raise VolumeFormatError(f"{file.name}: cannot decode the pixel data (transfer syntax "
-                                    f"{meta.get('TransferSyntaxUID', '?')}): {exc}") from None
+            syntax = meta.get("TransferSyntaxUID", "?")
+            text = str(exc)
+            if "missing dependencies" in text:  # pydicom has decoders for it, none installed: exit 1, not 2
+                needs = "; ".join(line.strip() for line in text.splitlines()[1:] if line.strip())
+                raise MissingDependencyError(f"{file.name}: decoding its pixel data (transfer syntax {syntax}) needs "
+                                             f"a pydicom plugin that is not installed — one of: {needs}") from None
+            raise VolumeFormatError(f"{file.name}: cannot decode the pixel data (transfer syntax {syntax}): "
+                                    f"{text}") from None
         rows, cols = int(image.header.Rows), int(image.header.Columns)
         if arr.size != image.frames * rows * cols:
             raise VolumeFormatError(f"{file.name}: expected {image.frames} frame(s) of {rows}x{cols} pixels, "

@@ -88,6 +88,13 @@ def read_nifti(path: Path, *, volume: int | None = None, oblique: str = "refuse"
     nib = require("nibabel", path)
     try:
         img = nib.load(str(path), mmap="r")  # read-only: mapped.file_backed needs it (nibabel maps "c")
+    except Exception as exc:  # nibabel raises many types for broken files
+        raise VolumeFormatError(f"{path.name}: cannot read NIfTI/MGH file ({exc})") from None
+    if not hasattr(img, "affine"):  # CIFTI-2 (greyordinates × series) is no voxel grid
+        raise VolumeFormatError(f"{path.name}: expected a NIfTI-1/2 or MGH volume on a voxel grid, got a "
+                                f"{type(img).__name__.replace('Image', '')} file (surface and greyordinate data, "
+                                "no voxel grid): hevr renders volumes")
+    try:
         shape = tuple(int(s) for s in img.shape)
         dtype = np.dtype(img.get_data_dtype())
         affine = np.asarray(img.affine, np.float64)

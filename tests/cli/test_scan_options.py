@@ -395,3 +395,26 @@ def test_info_takes_the_options_that_encrypt_reads_with(tmp_path, capsys):
     out, _ = _ok(capsys, "info", folder, "--series", "4")
     assert "DICOM folder" not in out and f"{hu.shape[2]}×{hu.shape[1]}×{hu.shape[0]} voxels" in out
     assert "modality: CT" in out
+
+
+# -- exit status of a missing decoder (issue 29, item 7) -------------------------------------------------
+@pytest.mark.filterwarnings("ignore:Expected explicit VR")
+def test_a_missing_decoder_plugin_is_a_missing_dependency(tmp_path, keys, capsys):
+    """pydicom's JPEG-LS file without a JPEG-LS plugin: exit 1 (a missing optional dependency, as
+    the help says), naming the plugins that would decode it."""
+    pydicom = pytest.importorskip("pydicom")
+    from pydicom.data import get_testdata_file
+
+    src = get_testdata_file("MR_small_jpeg_ls_lossless.dcm", download=False)
+    try:
+        pydicom.dcmread(src).pixel_array
+    except RuntimeError:
+        pass
+    else:
+        pytest.skip("a JPEG-LS plugin is installed here")
+    folder = tmp_path / "jls"
+    folder.mkdir()
+    (folder / "mr.dcm").write_bytes(Path(src).read_bytes())  # alone: no sibling of another syntax
+    code, _, err = _run(capsys, "encrypt", folder / "mr.dcm", "--key", keys, "--out", tmp_path / "x.zarr")
+    assert code == 1, (code, err)
+    assert "needs a pydicom plugin that is not installed" in err and "pylibjpeg" in err and err.count("\n") == 1

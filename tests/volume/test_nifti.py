@@ -112,3 +112,16 @@ def test_keywords_for_other_formats_refused(tmp_path: Path) -> None:
     np.save(tmp_path / "v.npy", np.zeros((2, 2, 2)))
     with pytest.raises(ParameterError, match=r"volume: only applies to 4-D .* v\.npy"):
         hevr.load_volume(tmp_path / "v.npy", volume=0)
+
+
+def test_a_cifti_file_is_named_not_leaked(tmp_path):
+    """nibabel's CIFTI-2 test file: a clear VolumeFormatError, not "'Cifti2Image' object has no
+    attribute 'affine'" (issue 29, item 7)."""
+    import os
+
+    nib = pytest.importorskip("nibabel")
+    path = os.path.join(os.path.dirname(nib.__file__), "tests", "data", "row_major.dconn.nii")
+    with pytest.raises(hevr.VolumeFormatError, match=r"row_major.dconn.nii: expected a NIfTI-1/2 or MGH volume on a "
+                                                     r"voxel grid, got a Cifti2 file") as info:
+        hevr.read_scan(path)
+    assert "attribute" not in str(info.value)
