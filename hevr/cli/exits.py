@@ -99,7 +99,9 @@ CLI_NAMES: dict[str, dict[str, str]] = {
     "decrypt": {"frame": "FRAME", "path": "FRAME", "image": "FRAME", "key": "--key", "private_key": "--key",
                 "out": "--out", "npy": "--npy", "window": "--window", "overwrite": "--force", "mode": "--mode",
                 "nodes": "--tf", "density": "--density", "value_range": "--value-range"},
-    "info": {"path": "PATH", "input": "PATH", "key": "PATH", "image": "PATH"},
+    "info": {"path": "PATH", "input": "PATH", "key": "PATH", "image": "PATH", "series": "--series",
+             "volume": "--volume", "oblique": "--oblique", "allow_uneven": "--allow-uneven",
+             "read_scan": "--series, --allow-uneven"},
     "upgrade-store": {"src": "OLD", "dst": "NEW"},
     "demo": {"input": "--input", "vol": "--input", "load_volume": "--input", "out": "--out", "bits": "--bits",
              "brick": "--brick", "camera": "--image", "width": "--image", "height": "--image", "size": "--size",
@@ -122,6 +124,12 @@ CLI_SUBJECTS: dict[str, dict[type, str]] = {
     "demo": {VolumeFormatError: "--input", MissingDependencyError: "--input"},
 }
 # Python spellings inside library messages, as the CLI spells them ("*": every command).
+# how a scan is read: hevr encrypt and hevr info take the same options (cli/scan.py)
+_SCAN_PHRASES = {"pass series=UID (CLI --series UID;": "pass --series UID (", "volume=i (CLI --volume i)": "--volume i",
+                 "volume= only applies": "--volume only applies",
+                 "oblique='snap' (CLI --oblique snap)": "--oblique snap", "allow_uneven=True": "--allow-uneven",
+                 "series and allow_uneven only apply to DICOM": "they only apply to a DICOM INPUT"}
+
 CLI_PHRASES: dict[str, dict[str, str]] = {
     "*": {"encrypt_volume(..., resume=True)": "'hevr encrypt … --resume'",
           "hevr.encrypt_volume(..., vector_dims=k, gradient=True)": "'hevr encrypt … --vector-dims K --gradient'",
@@ -129,10 +137,8 @@ CLI_PHRASES: dict[str, dict[str, str]] = {
           "with gradient=True (the gradient channel": "with --gradient (the gradient channel",
           "vector_dims=k as well": "--vector-dims K as well"},
     "render": {"use a larger step or a smaller image": "use a larger --step or a smaller --size"},
-    "encrypt": {"pass series=UID (CLI --series UID;": "pass --series UID (", "volume=i (CLI --volume i)": "--volume i",
-                "volume= only applies": "--volume only applies",
-                "oblique='snap' (CLI --oblique snap)": "--oblique snap", "allow_uneven=True": "--allow-uneven",
-                "series and allow_uneven only apply to DICOM": "they only apply to a DICOM INPUT"},
+    "encrypt": _SCAN_PHRASES,
+    "info": _SCAN_PHRASES,  # reads a scan with encrypt's options
     "slice": {"use a larger step or a smaller image": "use a larger --slab-step, a smaller --slab or --size"},
 }
 _LEADING = re.compile(r"([A-Za-z_]\w*(?:\[\d+\])?(?:(?:, |/)[A-Za-z_]\w*(?:\[\d+\])?)*): ")

@@ -418,3 +418,14 @@ def test_a_missing_decoder_plugin_is_a_missing_dependency(tmp_path, keys, capsys
     code, _, err = _run(capsys, "encrypt", folder / "mr.dcm", "--key", keys, "--out", tmp_path / "x.zarr")
     assert code == 1, (code, err)
     assert "needs a pydicom plugin that is not installed" in err and "pylibjpeg" in err and err.count("\n") == 1
+
+
+def test_info_of_an_uneven_series_names_the_option(tmp_path, capsys):
+    """A series with a missing slice: ``hevr info`` says --allow-uneven (not allow_uneven=True) and
+    describes the scan with it (issue 29, items 4 and 7)."""
+    folder = _write_dicom(tmp_path / "gap", _hu())
+    (sorted(folder.glob("*.dcm"))[2]).unlink()  # a missing slice: 1.5 mm steps with one of 3 mm
+    code, _, err = _run(capsys, "info", folder)
+    assert code == 2 and "--allow-uneven" in err and "allow_uneven=True" not in err, err
+    out, _ = _ok(capsys, "info", folder, "--allow-uneven")
+    assert "7×6×4 voxels" in out
