@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,6 +51,11 @@ class Image:
     @property
     def series_uid(self) -> str:
         return str(self.header.get("SeriesInstanceUID", "") or "")
+
+    @property
+    def instance_uid(self) -> str:
+        """SOPInstanceUID: the same image saved again (another transfer syntax) keeps it."""
+        return str(self.header.get("SOPInstanceUID", "") or "")
 
     @property
     def frames(self) -> int:
@@ -162,17 +168,19 @@ def scan_images(path: Path) -> list[Image]:
     """The DICOM images a folder (recursively), a DICOMDIR or a single file stands for.
 
     A single-frame file stands for its whole series: the files of the same series in the
-    same folder (not below it), as viewers do. A multi-frame file is a series by itself.
+    same folder (not below it), as viewers do; the other files' warnings are not shown. A
+    multi-frame file is a series by itself. A file that repeats an image (same
+    SOPInstanceUID, e.g. another transfer syntax) is not a second slice.
     """
     pydicom = require("pydicom", path)
     path = require_file(path, "path", "a DICOM folder, DICOMDIR or DICOM file")
     if path.is_dir():
-        return _images(pydicom, _walk(path), quiet=True)
+        return _distinct(path.name, _images(pydicom, _walk(path), quiet=True))
     if path.name.upper() == "DICOMDIR":
-        return _images(pydicom, _dicomdir_files(pydicom, path), quiet=True)
+        return _distinct(path.name, _images(pydicom, _dicomdir_files(pydicom, path), quiet=True))
     ds = _read_header(pydicom, path, quiet=False)
     if ds is not None and "DirectoryRecordSequence" in ds:
-        return _images(pydicom, _dicomdir_files(pydicom, path), quiet=True)
+        return _distinct(path.name, _images(pydicom, _dicomdir_files(pydicom, path), quiet=True))
     if ds is None or not _is_image(ds):
         raise VolumeFormatError(f"{path.name}: expected a DICOM image file (or a folder or DICOMDIR), got "
                                 f"{'no DICOM file' if ds is None else 'a DICOM file without an image'}")
@@ -182,12 +190,31 @@ def scan_images(path: Path) -> list[Image]:
     uid = one.series_uid
     siblings = [f for f in sorted(path.parent.iterdir()) if f.is_file() and not f.name.startswith(".")
                 and f != path]
-    images = [one] + [im for im in _images(pydicom, siblings, quiet=True)
-                      if im.series_uid == uid and im.frames == 1]
+    with warnings.catch_warnings():  # files the user did not name: their readers' complaints are not theirs
+        warnings.simplefilter("ignore")
+        found = _images(pydicom, siblings, quiet=True)
+    images = _distinct(path.name, [one] + [im for im in found if im.series_uid == uid and im.frames == 1])
     if len(images) > 1:
         _log.info("%s: one slice of series %s; reading its %d files in %s", path.name, uid or "?",
                   len(images), path.parent)
     return images
+
+
+def _distinct(name: str, images: list[Image]) -> list[Image]:
+    """``images`` without the repeats of an image already in the list (same SOPInstanceUID: one
+    slice saved again, e.g. in another transfer syntax), the first kept: a named file first."""
+    seen: set[str] = set()
+    out = []
+    for im in images:
+        uid = im.instance_uid
+        if uid and uid in seen:
+            continue
+        seen.add(uid)
+        out.append(im)
+    if len(out) < len(images):
+        _log.info("%s: %d file(s) repeat an image already read (same SOPInstanceUID): not read twice", name,
+                  len(images) - len(out))
+    return out
 
 
 def _images(pydicom: Any, files: list[Path], *, quiet: bool) -> list[Image]:

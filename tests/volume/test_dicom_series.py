@@ -11,6 +11,7 @@ from test_dicom import dataset, write_series, write_slice
 import hevr
 from hevr.errors import VolumeFormatError
 from hevr.volume.dicom import SeriesInfo, list_series, read_dicom
+from hevr.volume.dicom_series import scan_images
 
 pytest.importorskip("pydicom")
 
@@ -148,3 +149,23 @@ def test_pydicom_bundled_dicomdir() -> None:
     localizer = next(i for i in infos if i.modality == "MR" and i.images == 3)
     with pytest.raises(VolumeFormatError, match="ImageOrientationPatient.*localizer"):
         read_dicom(path, series=localizer.uid)
+
+
+def test_one_file_repeated_in_other_syntaxes_is_one_slice(capsys, caplog):
+    """pydicom's MR_small.dcm beside eight copies of itself in other transfer syntaxes (same
+    SOPInstanceUID): one slice, read from the named file, and none of the siblings' warnings
+    (issue 29, item 3)."""
+    import warnings
+
+    pytest.importorskip("pydicom")
+    from pydicom.data import get_testdata_file
+
+    path = Path(get_testdata_file("MR_small.dcm", download=False))
+    assert len([f for f in path.parent.glob("MR_small*.dcm")]) > 3  # the copies are there
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        images = scan_images(path)
+    assert [im.path.name for im in images] == ["MR_small.dcm"]
+    assert not seen, [str(w.message) for w in seen]
+    scan = hevr.read_scan(path)
+    assert scan.volume.shape == (1, 64, 64)
