@@ -198,10 +198,11 @@ def scan_rows(path: Path, spec: str | None = None, **read: Any) -> list[tuple[st
         scan, _ = load_scan(spec, **read)
         path = Path(scan.source)
     rows: list[tuple[str, Any]] = [("path", path)]
-    if path.is_dir() and not any((path / m).exists() for m in (".zarray", ".zgroup", "zarr.json")) \
-            and read.get("series") is None:
+    folder = path.is_dir() and not any((path / m).exists() for m in (".zarray", ".zgroup", "zarr.json"))
+    dicomdir = path.is_file() and path.name.upper() == "DICOMDIR"
+    if (folder or dicomdir) and read.get("series") is None:
         series = list_series(path)
-        rows.append(("kind", f"DICOM folder, {len(series)} series"))
+        rows.append(("kind", f"{'DICOMDIR' if dicomdir else 'DICOM folder'}, {len(series)} series"))
         rows += [("series", s.summary()) for s in series]
         if len(series) > 1:
             rows.append(("encrypt", f"one of them: hevr encrypt {path} --series UID ..."))

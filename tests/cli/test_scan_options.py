@@ -429,3 +429,13 @@ def test_info_of_an_uneven_series_names_the_option(tmp_path, capsys):
     assert code == 2 and "--allow-uneven" in err and "allow_uneven=True" not in err, err
     out, _ = _ok(capsys, "info", folder, "--allow-uneven")
     assert "7×6×4 voxels" in out
+
+
+def test_info_of_a_dicomdir_lists_its_series(capsys):
+    """pydicom's DICOMDIR (13 series): one row per series, as for a folder (issue 29, item 4)."""
+    pytest.importorskip("pydicom")
+    from pydicom.data import get_testdata_file
+
+    out, _ = _ok(capsys, "info", get_testdata_file("DICOMDIR", download=False))
+    series = [line for line in out.splitlines() if line.startswith("series:")]
+    assert "DICOMDIR, 13 series" in out and len(series) == 13 and "Routine Brain" in out
