@@ -7,13 +7,16 @@ The data path of one frame, module by module:
 ``views``          anatomical presets of ``Camera.orbit(view=...)`` (RAS+ patient frame)
 ``plane``          :class:`Plane`: a slice (and slab) as the second kind of view
 ``modes``          ``RenderSpec``: mode, sampling, channels, combination matrix
+``request``        a request checked once where it enters; a view moved to a pyramid level
 ``rays``           rays, slab tests and sample positions
 ``weights``        per-brick sparse (ray, voxel, weight) matrices
 ``planner``        overflow planning: fixed-point digits, packing bounds
 ``kernel``         the per-brick multi-exponentiation (cost model in its docstring)
 ``graph``          the Dask graph: map per brick, tree merge per tile
-``finishing``      combination, normalisation and packing of one tile
-``encrypted``      ``render``, ``error_bound``, the ray-sum cache
+``finishing``      combination, normalisation and packing of one tile (or of the sums only)
+``encrypted``      ``render`` (client or server finishing), the ray-sum cache
+``bounds``         ``error_bound``: a decrypted pixel against ``render_plain``
+``stream``         ``render_frame``: finishing units decrypted on the client as they complete
 ``slices``         ``render_slice``: slices through the same pipeline
 ``sums``           ray sums kept in memory or in a ``.hevrsums`` file; ``recolour``
 ``plain``          ``render_plain`` / ``render_slice_plain``: the independent plaintext references

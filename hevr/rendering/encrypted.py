@@ -7,25 +7,13 @@ never leave the client process — not in the task graph, the scheduler, a worke
 ``.hevr`` file or a log. ``"server"``: the paper's way, the server combines, normalises and
 packs the finished pixels (bit for bit the images of earlier releases).
 
-Error bound of a decrypted pixel against :func:`hevr.render_plain` (same camera/step), server
-finishing (client finishing keeps the first two items only, :mod:`hevr.colour`):
-
-* weights: nearest weights are exact counts; a trilinear pair weight is rounded to
-  10^-digits, so the ray sum is off by at most P_r·0.5·10^-digits·max|q| (P_r <= 8·n_r
-  pairs, q the stored per-voxel quantity), i.e. at most 4·10^-digits·max|q| per pixel;
-* storage: float scalars are quantised to 10^-store_digits, vector components (and the
-  gradient channel's g·e(d), components in [0, 1] too) to 10^-vector_digits
-  (error <= 0.5·10^-vector_digits·Σ_k|Q_k| per sample for emphasize/tf);
-* combination matrix: quantised to 10^-comb_digits (<= 0.5·10^-comb_digits·Σ_k s_k per
-  sample, Σ_k s_k <= sqrt(k));
-* normalisation: the reciprocal's relative error is <= 0.5·10^-precision.
-
-:func:`error_bound` evaluates this for a given render.
+The error bound of a decrypted pixel against :func:`hevr.render_plain` is
+:mod:`hevr.rendering.bounds` (:func:`error_bound`); a request is checked once, where it enters
+(:mod:`hevr.rendering.request`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import os
 import time
@@ -33,26 +21,25 @@ import uuid
 from collections import OrderedDict
 from typing import Any
 
-import numpy as np
 from dask.delayed import Delayed, delayed
 
 from .._dask import active_client
 from .._dask import compute as run_tasks
 from .._tiles import TileLayout
-from .._validate import check_bool, check_choice, check_int
+from .._validate import check_bool, check_int
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
+from .bounds import error_bound
 from .camera import Camera
 from .graph import FinishGraph, build_sums_graph
-from .modes import RenderSpec, combination_matrix, make_spec
+from .modes import combination_matrix
 from .plane import Plane
 from .planner import check_render_size, plan_render
-
-FINISHES = ("client", "server")
 from .rays import cast_rays
+from .request import at_level, check_request, level_step
 from .sums import RaySums, check_sums_path, image_fields, save_sums, with_colouring
 
 log = logging.getLogger(__name__)
@@ -81,22 +68,6 @@ CACHE_SIZE = 2
 def clear_cache() -> None:
     """Forget every cached set of ray sums."""
     _CACHE.clear()
-
-
-def _check_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: Any, density: Any, nodes: Any,
-                   digits: Any, precision: Any, comb_digits: Any, views: tuple[type, ...] = (Camera,),
-                   gradient: Any = False, finish: Any = "client") -> tuple[RenderSpec, int, int, int]:
-    """Check what :func:`render` and :func:`error_bound` share, once, where it enters (``views``:
-    the kinds of view the caller takes)."""
-    if not isinstance(ev, EncryptedVolume):
-        raise ParameterError(f"ev: expected an EncryptedVolume (hevr.open_volume), got {type(ev).__name__}")
-    if not isinstance(camera, views):
-        kinds = " or ".join(f"hevr.{v.__name__}" for v in views)
-        raise ParameterError(f"camera: expected a {kinds}, got {type(camera).__name__}")
-    spec = make_spec(mode, sampling, step, density, nodes, ev.vector_dims, ev.has_scalar, gradient, ev.has_gradient)
-    check_choice("finish", finish, FINISHES)
-    return (spec, check_int("digits", digits, 0, 9), check_int("precision", precision, 0, 30),
-            check_int("comb_digits", comb_digits, 1, 12))
 
 
 def render(
@@ -220,30 +191,6 @@ def render(
                    overwrite=overwrite, finish=finish)
 
 
-def _at_level(ev: EncryptedVolume, view: Camera | Plane, level: int | None) -> tuple[EncryptedVolume, Camera | Plane]:
-    """The volume to render — ``ev``, or the pyramid level asked for — and the view moved into
-    that level's frame: a level's voxel (0, 0, 0) sits at ``ev.origin``, hevr's rays assume
-    the origin, so the view moves by ``−origin`` (an exact change of coordinates)."""
-    if level is not None and level != ev.level:
-        ev = ev.at_level(level)
-    if not ev.level:
-        return ev, view
-    shift = np.asarray(ev.origin)
-    if isinstance(view, Plane):
-        return ev, dataclasses.replace(view, origin=tuple((np.asarray(view.origin) - shift).tolist()))
-    return ev, dataclasses.replace(view, position=tuple((np.asarray(view.position) - shift).tolist()),
-                                   focal_point=tuple((np.asarray(view.focal_point) - shift).tolist()))
-
-
-def _level_step(spec: RenderSpec, ev: EncryptedVolume, view: Camera | Plane) -> RenderSpec:
-    """A level is sampled in its own voxels: ``step`` (world units at level 0) becomes
-    ``step·2^level``, so a coarse frame takes 2^level times fewer samples per ray instead of
-    revisiting each coarse voxel 2^level times (a plane keeps its slab step)."""
-    if not ev.level or isinstance(view, Plane):
-        return spec
-    return dataclasses.replace(spec, step=spec.step * 2**ev.level)
-
-
 # -- the render of one view (a Camera, or a Plane: hevr.render_slice) ----------------------------
 def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: str, step: float,
             density: float | None, nodes: Any, *, digits: int, precision: int, comb_digits: int, pack: bool,
@@ -259,10 +206,10 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
 
     ``stream`` (:class:`hevr.rendering.stream.StreamDecryptor`): told the plan before the graph
     runs and handed every finishing unit's ciphertexts as it completes."""
-    spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
+    spec, digits, precision, comb_digits = check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, views, gradient, finish)
-    ev, camera = _at_level(ev, camera, level)
-    spec = _level_step(spec, ev, camera)
+    ev, camera = at_level(ev, camera, level)
+    spec = level_step(spec, ev, camera)
     tile = check_int("tile", tile, 1, 4096)
     if keep_sums is not None and not compute:
         raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
@@ -376,51 +323,3 @@ def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict) -> 
 def _deferred(fin: list, finish: FinishGraph, fields: dict, stats: dict) -> Delayed:
     """A ``Delayed`` of the image: one more task over the finishing tasks (tile-sized outputs)."""
     return delayed(_image_from, pure=True)(fin, finish, fields, stats, dask_key_name=f"hevr-image-{uuid.uuid4().hex}")
-
-
-def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray", sampling: str = "nearest",
-                step: float = 1.0, density: float | None = None, nodes: Any = None, *, digits: int = 3,
-                precision: int = 4, comb_digits: int = 4, level: int | None = None,
-                gradient: bool = False, finish: str = "client") -> np.ndarray:
-    """Per-pixel bound on |decrypted render − render_plain| (see the module docstring).
-
-    ``finish``: the bound of a render with the same ``finish`` (client finishing has no
-    combination-matrix or reciprocal error: :mod:`hevr.colour`).
-
-    ``gradient``: the bound of ``hevr.render(..., gradient=True)`` against
-    ``hevr.render_plain(..., gradient=True)`` (the gradient channel's quantisation).
-
-    ``level``: the bound of ``hevr.render(..., level=)`` against ``hevr.render_plain(..., level=)``.
-    ``camera`` may be a :class:`~hevr.rendering.plane.Plane`: the bound of
-    :func:`hevr.render_slice` against :func:`hevr.render_slice_plain` (same formula, n = the
-    pixel's slab samples inside the volume); ``step`` is then ignored (it is the plane's ``slab_step``).
-    """
-    if isinstance(camera, Plane):
-        step = camera.slab_step
-        if level:
-            raise ParameterError(f"level: expected None for a hevr.Plane (render_slice has no level), got {level!r}")
-    spec, digits, precision, comb_digits = _check_request(ev, camera, mode, sampling, step, density, nodes,
-                                                          digits, precision, comb_digits, (Camera, Plane), gradient,
-                                                          finish)
-    ev, camera = _at_level(ev, camera, level)
-    spec = _level_step(spec, ev, camera)
-    # a level's values are exact means of level-0 values: their storage error is level 0's
-    stored = ev.base if ev.level else ev.meta
-    checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)
-    rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
-    n = rays.n_samples.astype(np.float64).reshape(camera.height, camera.width)
-    if spec.channel == "scalar":
-        qmax = max(abs(ev.value_range[0]), abs(ev.value_range[1]))
-        store = 0.5 * 10.0 ** stored.scalar.exponent if stored.scalar.digits is not None else 0.0
-        comb_err = 0.0
-    else:
-        M = combination_matrix(spec, ev.vector_dims)
-        qmax = float(np.abs(M).sum(axis=0).max())
-        store = 0.5 * 10.0 ** getattr(stored, spec.channel).exponent * qmax  # vector or gradient
-        comb_err = 0.5 * 10.0 ** -comb_digits * np.sqrt(ev.vector_dims) if finish == "server" else 0.0
-    K = spec.n_nodes
-    weights = 4 * 10.0 ** -digits * (qmax + store + comb_err) if spec.sampling == "trilinear" else 0.0
-    value = (qmax + store + comb_err) / K
-    norm = value * 0.5 * 10.0 ** -precision * 1.0001 if finish == "server" else 0.0
-    b = (weights / K + store / K + comb_err / K + norm) * (n > 0) + 1e-9
-    return np.repeat(b[..., None], spec.channels, axis=2) if spec.channels > 1 else b
