@@ -49,6 +49,7 @@ import numpy as np
 from .._dask import active_client
 from .._dask import compute as run_tasks
 from .._files import read_regular, require_file
+from .._image_checks import FINISHES
 from .._image_header import MAX_N_DIGITS, Fields, parse_json
 from .._limits import MAX_IMAGE_PIXELS
 from .._tiles import TileLayout
@@ -395,7 +396,7 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
                              f"got the {sums.channel} channel's ({sums.path})")
     precision = check_int("precision", precision, 0, 30)
     comb_digits = check_int("comb_digits", comb_digits, 1, 12)
-    check_choice("finish", finish, ("client", "server"))
+    check_choice("finish", finish, FINISHES)
     backend = resolve_backend_name(backend)
     checked = check_render_size(camera, meta.shape, meta.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(camera, meta.shape, meta.spacing, spec.step)
