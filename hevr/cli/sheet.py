@@ -34,10 +34,10 @@ _PLAIN = str.maketrans({"×": "x", "→": "->", "…": "...", "²": "^2", "³": 
 def drawable(text: str) -> str:
     """``text`` in characters Pillow's built-in font draws.
 
-    >>> drawable("x×y×z = 64×64×64, 150² px")
-    'xxyxz = 64x64x64, 150^2 px'
+    >>> drawable("phantom, x×y×z = 64×64×64 voxels, 150² px")
+    'phantom, 64x64x64 voxels, 150^2 px'
     """
-    return text.translate(_PLAIN)
+    return text.replace("x×y×z = ", "").replace("W×H = ", "").translate(_PLAIN)
 
 
 def contact_sheet(folder: Path, jobs: list, caption: str, out: Path, *, overwrite: bool = False) -> None:
