@@ -226,6 +226,10 @@ def test_render_frame_streams_the_same_frame(scene, cluster):
         hevr.render_frame(ev, cam, priv, finish="server")
     with pytest.raises(hevr.ParameterError, match="^private_key: expected a hevr.PrivateKey"):
         hevr.render_frame(ev, cam, priv.public_key)
+    with pytest.raises(hevr.ParameterError, match=r"^tiles: expected a keyword of hevr.render \(backend, cache"):
+        hevr.render_frame(ev, cam, priv, tiles=4)
+    with pytest.raises(hevr.ParameterError, match="^level: expected None for a hevr.Plane"):
+        hevr.render_frame(ev, plane, priv, level=1)
 
 
 def test_a_tampered_unit_is_an_integrity_error(scene, monkeypatch):

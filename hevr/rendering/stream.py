@@ -17,6 +17,7 @@ ciphertexts and are decrypted here with the checks of :meth:`hevr.EncryptedImage
 
 from __future__ import annotations
 
+import inspect
 import time
 from typing import Any
 
@@ -29,7 +30,7 @@ from ..crypto.keys import PrivateKey
 from ..errors import IntegrityError, KeyMismatchError, ParameterError
 from ..image import _CORRUPT, _unpack_checked
 from .camera import Camera
-from .encrypted import _render
+from .encrypted import _render, render
 from .plane import Plane
 
 __all__ = ["StreamDecryptor", "render_frame"]
@@ -86,13 +87,18 @@ class StreamDecryptor:
         self.done += 1
         self.decrypt_s += time.perf_counter() - t0
 
-    def frame(self, stats: dict, t0: float) -> Frame:
+    def frame(self, stats: dict, t0: float, colouring: Any = None) -> Frame:
         if self.done != len(self.finish.units):  # pragma: no cover - compute returns every unit
             raise IntegrityError(f"frame: expected {len(self.finish.units)} finished units, got {self.done}")
         H, W = self.fields["shape"][:2]
         stats = dict(stats, decrypt_s=self.decrypt_s, ciphertexts=self.ciphertexts)
         return frame_from_sums(self.sums.reshape(H, W, self.K), self.samples.reshape(H, W), self.fields["channel"],
-                               None, stats, t0=t0)
+                               colouring, stats, t0=t0)
+
+
+# the keywords of hevr.render that render_frame passes on, with render's defaults
+_RENDER_KEYWORDS = {name: p.default for name, p in inspect.signature(render).parameters.items()
+                    if p.kind is inspect.Parameter.KEYWORD_ONLY and name not in ("finish", "compute", "keep_sums")}
 
 
 def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xray", sampling: str = "nearest",
@@ -124,20 +130,18 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
         if bad in kwargs:
             raise ParameterError(f"{bad}: expected no {bad}= for render_frame (a client-finished frame, computed "
                                  f"now); use hevr.render for it, got {kwargs[bad]!r}")
+    unknown = sorted(set(kwargs) - set(_RENDER_KEYWORDS))
+    if unknown:
+        raise ParameterError(f"{unknown[0]}: expected a keyword of hevr.render ({', '.join(sorted(_RENDER_KEYWORDS))}), "
+                             f"got {unknown[0]}={kwargs[unknown[0]]!r}")
     if not isinstance(private_key, PrivateKey):
         raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
+    plane = isinstance(camera, Plane)
+    if plane and kwargs.get("level"):
+        raise ParameterError(f"level: expected None for a hevr.Plane (slices have no level), got {kwargs['level']!r}")
     t0 = time.perf_counter()
     stream = StreamDecryptor(private_key, decrypt_backend)
-    plane = isinstance(camera, Plane)
-    kw = dict(kwargs)
-    kw.setdefault("digits", 3)
-    kw.setdefault("precision", 4)
-    kw.setdefault("comb_digits", 4)
-    for name, default in (("pack", True), ("tile", 32), ("cache", True), ("client", None), ("progress", True),
-                          ("backend", None)):
-        kw.setdefault(name, default)
+    kw = {**_RENDER_KEYWORDS, **kwargs}  # hevr.render's own defaults: one home
     img = _render(ev, camera, mode, sampling, camera.slab_step if plane else step, density, nodes, compute=True,
                   keep_sums=None, views=(Plane,) if plane else (Camera,), finish="client", stream=stream, **kw)
-    frame = stream.frame(img.stats, t0)
-    return Frame(means=frame.means, n_samples=frame.n_samples, channel=frame.channel, colouring=img.colouring,
-                 stats=frame.stats)
+    return stream.frame(img.stats, t0, img.colouring)
