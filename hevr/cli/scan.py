@@ -179,9 +179,8 @@ def _fill_nan(scan: Scan, value: float | None) -> Scan:
 
 
 # -- info -------------------------------------------------------------------------------------------
-def _values_row(vol: Any) -> str:
-    """``values`` of ``hevr info``: the range of the finite voxels and how many are NaN."""
-    nans = _nan_count(vol)
+def _values_row(vol: Any, nans: int) -> str:
+    """``values`` of ``hevr info``: the range of the finite voxels and how many (``nans``) are NaN."""
     if not nans:
         return f"{vol.min()} .. {vol.max()}"
     if nans == vol.size:
@@ -194,7 +193,8 @@ def scan_rows(path: Path, spec: str | None = None, **read: Any) -> list[tuple[st
     options (``read``: series, volume, allow_uneven, oblique); a DICOM folder lists its series
     first, and only them when it holds several and ``--series`` names none. ``spec``: an input
     such as ``sample:mri`` that :func:`~hevr.cli.util.load_scan` resolves."""
-    if spec is not None:
+    scan = None
+    if spec is not None:  # read once, here
         scan, _ = load_scan(spec, **read)
         path = Path(scan.source)
     rows: list[tuple[str, Any]] = [("path", path)]
@@ -207,19 +207,21 @@ def scan_rows(path: Path, spec: str | None = None, **read: Any) -> list[tuple[st
         if len(series) > 1:
             rows.append(("encrypt", f"one of them: hevr encrypt {path} --series UID ..."))
             return rows
-    scan, _ = load_scan(str(path), **read)
+    if scan is None:
+        scan, _ = load_scan(str(path), **read)
     vol = scan.volume
+    nans = _nan_count(vol)  # one pass, for the values row and the encrypt row
     rows += [("kind", "plaintext volume"), ("shape", f"{xyz(vol.shape)} voxels"), ("dtype", vol.dtype),
              ("spacing", xyz(tuple(scan.spacing)[::-1], sep=", ")),
              ("frame", "RAS+ patient frame (+x right, +y anterior, +z superior)" if scan.frame else
               "none recorded (axes as stored)"),
              ("origin", ", ".join(f"{v:g}" for v in scan.origin)), ("modality", scan.modality or "-"),
-             ("values", _values_row(vol))]
+             ("values", _values_row(vol, nans))]
     if min(vol.shape) < 2:  # the rule of encrypt_volume (hevr._validate.check_volume, thick=True)
         rows.append(("encrypt", "refused: a single slice (an axis of 1 voxel) has no thickness for the rays to "
                                 "cross; hevr renders volumes (give the folder or file of the whole series)"))
         return rows
-    if _nan_count(vol):
+    if nans:
         rows.append(("encrypt", "needs --nan-as VALUE: hevr encrypts measurements, and a NaN is none"))
         return rows
     value_range, how, fixed = _effective_range(scan, None, "auto")
