@@ -36,7 +36,7 @@ from ._files import read_regular, write_file
 from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile_name
 from ._validate import check_bool
 from .backends import get_backend
-from .colour import colouring_spec, frame_from_sums, scaled_sums
+from .colour import colour, colouring_spec, frame_from_sums, scaled_sums
 from .crypto.keys import PrivateKey
 from .crypto.records import record_width
 from .errors import IntegrityError, KeyMismatchError, MissingFileError, ParameterError
@@ -246,7 +246,7 @@ class EncryptedImage:
         already coloured: giving a colouring is a :class:`hevr.ParameterError`."""
         if self.finish == "client":
             spec = colouring_spec(str(self.channel), self.values_per_pixel, mode, density, nodes, self.colouring)
-            return self.decrypt_frame(private_key, backend).recolour(spec.mode, spec.density, spec.nodes)
+            return colour(self.decrypt_frame(private_key, backend).means, spec)  # checked once, above
         if mode is not None or density is not None or nodes is not None:
             raise ParameterError("mode, density, nodes: expected none for an image finished on the server (its "
                                  "colouring was applied there); render with finish='client' to colour at decryption")
