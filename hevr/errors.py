@@ -93,6 +93,13 @@ class VolumeFormatError(HevrError, ValueError):
     """A volume file or array cannot be read or is not a valid 3-D volume."""
 
 
+class CorruptVolumeError(VolumeFormatError):
+    """A volume file of a kind hevr reads whose data fails: fewer bytes than its header
+    declares, or pixel data that neither decodes nor is refused for a plugin known to be
+    missing. The data failed, not the request (the CLI exits 1 for it, 2 for other
+    :class:`VolumeFormatError`)."""
+
+
 class MissingDependencyError(HevrError, ImportError):
     """An optional dependency (an extra) is needed but not installed."""
 

@@ -4,7 +4,7 @@ One rule for every command (also in :mod:`hevr.cli.main`'s docstring and ``hevr 
 exit 2 when the command line asks for something that cannot be done as given
 (:data:`USAGE_ERRORS`, and a plain ``OSError`` "missing / exists / is (not) a folder" about a
 path the command line names), exit 1 when the data or the run failed (``CorruptStoreError``,
-``IncompleteStoreError``, ``IntegrityError``, ``PlaintextOverflowError``,
+``IncompleteStoreError``, ``CorruptVolumeError``, ``IntegrityError``, ``PlaintextOverflowError``,
 ``MissingDependencyError``, ``MemoryLimitError``, I/O errors, anything unexpected), 130 when
 interrupted.
 
@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import (
+    CorruptVolumeError,
     ExistingFileError,
     HevrError,
     IntegrityError,
@@ -39,7 +40,7 @@ from ..errors import (
 )
 from .util import UsageError
 
-__all__ = ["EXIT_RULE", "USAGE_ERRORS", "CLI_NAMES", "CLI_SUBJECTS", "CLI_PHRASES", "exit_code", "cli_message"]
+__all__ = ["EXIT_RULE", "USAGE_ERRORS", "DATA_ERRORS", "CLI_NAMES", "CLI_SUBJECTS", "CLI_PHRASES", "exit_code", "cli_message"]
 
 EXIT_RULE = """\
 exit status (every command):
@@ -48,7 +49,7 @@ exit status (every command):
        or combination, a named file that is missing or of the wrong kind, an output that
        exists without --force/--overwrite, a key of another volume, a render refused by the
        planner (the message names the option to change)
-  1    the data or the run failed: a corrupt, tampered or incomplete store or frame, an
+  1    the data or the run failed: a corrupt, tampered or incomplete store, frame or scan, an
        integrity check, an I/O error, a missing optional dependency, a crashed worker
   130  interrupted
 """
@@ -59,6 +60,8 @@ USAGE_ERRORS: tuple[type[BaseException], ...] = (
     UsageError, ParameterError, MissingFileError, NotRegularFileError, ExistingFileError, StoreExistsError, KeyMismatchError,
     RenderPlanError, InvalidKeyError, VolumeFormatError,
 )
+# Subclasses of a usage error that are failed data all the same (exit 1).
+DATA_ERRORS: tuple[type[BaseException], ...] = (CorruptVolumeError,)
 # An OSError about a path the command line names: the path is missing or of the wrong kind.
 _PATH_ERRNOS = frozenset({errno.ENOENT, errno.EEXIST, errno.EISDIR, errno.ENOTDIR})
 
@@ -170,7 +173,7 @@ def exit_code(exc: BaseException, args: Any = None) -> int:
     """The exit status of an error escaping a command (the rule of the module docstring)."""
     if isinstance(exc, KeyboardInterrupt):
         return 130
-    if isinstance(exc, USAGE_ERRORS):
+    if isinstance(exc, USAGE_ERRORS) and not isinstance(exc, DATA_ERRORS):
         return 2
     names = {**_EVERY, **CLI_NAMES.get(getattr(args, "command", None) or "", {})}
     if isinstance(exc, OSError) and exc.errno in _PATH_ERRNOS and _named_path(exc, args, names):

@@ -31,10 +31,11 @@ from typing import Any
 import numpy as np
 
 from .._validate import check_choice
-from ..errors import MissingDependencyError, VolumeFormatError
+from ..errors import CorruptVolumeError, MissingDependencyError, VolumeFormatError
 from ._memory import check_fits
 from ._optional import require
 from .dicom_frames import Frame, frames_of, plan_stack
+from .dicom_mosaic import untile
 from .dicom_series import Image, SeriesInfo, choose_series, list_series, scan_images
 from .orientation import FRAME, LPS_TO_RAS, to_patient_frame
 from .rescale import rescale
@@ -97,10 +98,11 @@ def read_dicom(path: str | os.PathLike[str], *, series: str | None = None, allow
     uid, images = choose_series(name, scan_images(path), series)
     _check_images(images)
     frames = [fr for im in images for fr in frames_of(im)]
+    _check_layout(frames, name)
     stack = plan_stack(frames, name, allow_uneven=allow_uneven, oblique=oblique)
     frames = [frames[i] for i in stack.order]
     first = images[0].header
-    check_fits(name, (len(frames), _positive(first, "Rows"), _positive(first, "Columns"),
+    check_fits(name, (len(frames), *(max(1, v) for v in frames[0].shape),
                       -(-_positive(first, "BitsAllocated") // 8)), np.uint8, "DICOM pixel data")
     raw = _decode(pydicom, frames)
     slopes, inters = [f.slope for f in frames], [f.intercept for f in frames]
@@ -159,6 +161,16 @@ def _check_images(images: list[Image]) -> None:
                                     f"from {size[0]}x{size[1]} in {images[0].path.name}")
 
 
+def _check_layout(frames: list[Frame], name: str) -> None:
+    """One slice layout throughout: all Siemens MOSAICs of one tiling, or none."""
+    layouts = {None if f.mosaic is None else (f.mosaic.slices, f.mosaic.grid) for f in frames}
+    if len(layouts) > 1:
+        what = [f"{f.image.path.name}: " + ("not a mosaic" if f.mosaic is None else
+                                            f"a mosaic of {f.mosaic.slices} slices") for f in frames]
+        raise VolumeFormatError(f"{name}: expected one slice layout for the whole series, got "
+                                f"{'; '.join(sorted(set(what))[:2])}")
+
+
 def _decode(pydicom: Any, frames: list[Frame]) -> np.ndarray:
     """The stored values of ``frames``, stacked in that order; each file decoded once."""
     slots: dict[Path, list[tuple[int, int]]] = {}
@@ -178,13 +190,20 @@ def _decode(pydicom: Any, frames: list[Frame]) -> np.ndarray:
                 needs = "; ".join(line.strip() for line in text.splitlines()[1:] if line.strip())
                 raise MissingDependencyError(f"{file.name}: decoding its pixel data (transfer syntax {syntax}) needs "
                                              f"a pydicom plugin that is not installed — one of: {needs}") from None
-            raise VolumeFormatError(f"{file.name}: cannot decode the pixel data (transfer syntax {syntax}): "
-                                    f"{text}") from None
+            text = " ".join(line.strip() for line in text.splitlines() if line.strip())  # one line for the CLI
+            hint = ("; another pydicom plugin (pylibjpeg with its libjpeg/openjpeg packages, or python-gdcm) "
+                    "may decode it") if "all available plugins" in text else ""
+            raise CorruptVolumeError(f"{file.name}: cannot decode the pixel data (transfer syntax {syntax}): "
+                                     f"{text}{hint}") from None
         rows, cols = int(image.header.Rows), int(image.header.Columns)
         if arr.size != image.frames * rows * cols:
-            raise VolumeFormatError(f"{file.name}: expected {image.frames} frame(s) of {rows}x{cols} pixels, "
-                                    f"got pixel data of shape {arr.shape}")
-        arr = arr.reshape(image.frames, rows, cols)
+            raise CorruptVolumeError(f"{file.name}: expected {image.frames} frame(s) of {rows}x{cols} pixels, "
+                                     f"got pixel data of shape {arr.shape}")
+        mosaic = frames[pairs[0][0]].mosaic
+        if mosaic is not None:  # one image of tiles: its slices
+            arr = untile(arr.reshape(rows, cols), mosaic)
+            rows, cols = mosaic.rows, mosaic.columns
+        arr = arr.reshape(-1, rows, cols)
         if out is None:
             out = np.empty((len(frames), rows, cols), arr.dtype)
         elif np.result_type(out.dtype, arr.dtype) != out.dtype:

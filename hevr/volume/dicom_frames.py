@@ -42,6 +42,7 @@ before any frame is built.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -50,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import VolumeFormatError
+from .dicom_mosaic import Mosaic, mosaic_of, tile_position
 from .dicom_series import Image
 from .orientation import OBLIQUE_TOLERANCE_DEG
 
@@ -75,11 +77,21 @@ class Frame:
     slope: float
     intercept: float
     instance: int | None
+    mosaic: Mosaic | None = None  # a Siemens MOSAIC: ``index`` is the slice's tile
 
     @property
     def label(self) -> str:
-        """``IM0001.dcm`` or ``enhanced.dcm frame 7`` (1-based), for messages."""
+        """``IM0001.dcm``, ``enhanced.dcm frame 7`` or ``epi.dcm slice 3`` (1-based), for messages."""
+        if self.mosaic is not None:
+            return f"{self.image.path.name} slice {self.index + 1}"
         return self.image.path.name + (f" frame {self.index + 1}" if self.image.frames > 1 else "")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, columns) of this frame's pixels: a mosaic's tile, else the image's."""
+        if self.mosaic is not None:
+            return self.mosaic.rows, self.mosaic.columns
+        return int(self.image.header.get("Rows") or 0), int(self.image.header.get("Columns") or 0)
 
 
 @dataclass(frozen=True)
@@ -205,6 +217,20 @@ def frames_of(image: Image) -> list[Frame]:
             instance = None
         out.append(Frame(image, k, pos, iop, spacing, thick[0] if thick else None,
                          slope[0] or 1.0, inter[0], instance))
+    mosaic = mosaic_of(ds, image.path) if n == 1 else None
+    return _tiles(out[0], mosaic) if mosaic is not None else out
+
+
+def _tiles(whole: Frame, mosaic: Mosaic) -> list[Frame]:
+    """The slices of a Siemens MOSAIC image, each placed (:mod:`hevr.volume.dicom_mosaic`)."""
+    placed = whole.position is not None and whole.orientation is not None and whole.pixel_spacing is not None
+    gap = abs(whole.thickness or 1.0)
+    out = []
+    for k in range(mosaic.slices):
+        pos = tile_position(mosaic, whole.position, whole.orientation, whole.pixel_spacing, gap, k) \
+            if placed else None
+        instance = None if whole.instance is None else whole.instance * mosaic.slices + k
+        out.append(dataclasses.replace(whole, index=k, position=pos, instance=instance, mosaic=mosaic))
     return out
 
 
@@ -273,7 +299,7 @@ def plan_stack(frames: list[Frame], name: str, *, allow_uneven: bool, oblique: s
             raise VolumeFormatError(
                 f"{name}: slices {frames[order[i]].label} and {frames[order[i + 1]].label} lie at the same "
                 f"position {d[order[i]]:.4g} mm; expected one slice per position (several echoes, phases or "
-                "b-values in one series cannot be one volume)")
+                f"b-values in one series cannot be one volume){_one_file_hint(frames)}")
         g = float(np.median(gaps))
         off = np.flatnonzero(np.abs(gaps - g) > GAP_TOLERANCE * g / 2)
         if gaps.max() - gaps.min() > GAP_TOLERANCE * g:
@@ -306,6 +332,13 @@ def plan_stack(frames: list[Frame], name: str, *, allow_uneven: bool, oblique: s
     affine[:3, 0], affine[:3, 1], affine[:3, 2] = row * ps[1], col * ps[0], step
     affine[:3, 3] = pos[order[0]]
     return Stack([int(i) for i in order], affine, spacing, uneven)
+
+
+def _one_file_hint(frames: list[Frame]) -> str:
+    """Where every file holds a whole volume (multi-frame, mosaic): say that one file reads."""
+    if all(f.mosaic is not None or f.image.frames > 1 for f in frames):
+        return "; each file holds a whole volume: name one file to read that volume"
+    return ""
 
 
 def _check_line(frames: list[Frame], pos: np.ndarray, d: np.ndarray, order: np.ndarray, step: np.ndarray,

@@ -33,6 +33,7 @@ from typing import Any
 from .._files import require_file
 from ..errors import VolumeFormatError
 from ._optional import require
+from .dicom_mosaic import is_mosaic
 
 __all__ = ["Image", "SeriesInfo", "choose_series", "group_series", "list_series", "scan_images"]
 
@@ -110,8 +111,9 @@ class SeriesInfo:
                 f"{count}, {self.rows}x{self.columns}, in {self.path.parent}")
 
 
-def _read_header(pydicom: Any, f: Path, *, quiet: bool) -> Any | None:
-    """The header of ``f``, or None when it is not DICOM (quiet) or cannot be parsed (warned)."""
+def _read_header(pydicom: Any, f: Path, *, quiet: bool, named: bool = True) -> Any | None:
+    """The header of ``f``, or None when it is not DICOM (quiet) or cannot be parsed (warned;
+    for a file the user did not name, a sibling of the file named, only logged at DEBUG)."""
     from pydicom.errors import InvalidDicomError
 
     try:
@@ -121,7 +123,7 @@ def _read_header(pydicom: Any, f: Path, *, quiet: bool) -> Any | None:
     except Exception as exc:  # noqa: BLE001  # truncated or damaged files: pydicom raises many types
         if not quiet:
             raise VolumeFormatError(f"{f.name}: cannot read the DICOM file ({exc})") from None
-        _log.warning("skipping %s: cannot read it as DICOM (%s)", f, exc)
+        _log.log(logging.WARNING if named else logging.DEBUG, "skipping %s: cannot read it as DICOM (%s)", f, exc)
     return None
 
 
@@ -185,14 +187,14 @@ def scan_images(path: Path) -> list[Image]:
         raise VolumeFormatError(f"{path.name}: expected a DICOM image file (or a folder or DICOMDIR), got "
                                 f"{'no DICOM file' if ds is None else 'a DICOM file without an image'}")
     one = Image(path, ds)
-    if one.frames > 1:
+    if one.frames > 1 or is_mosaic(ds):  # a volume by itself
         return [one]
     uid = one.series_uid
     siblings = [f for f in sorted(path.parent.iterdir()) if f.is_file() and not f.name.startswith(".")
                 and f != path]
     with warnings.catch_warnings():  # files the user did not name: their readers' complaints are not theirs
         warnings.simplefilter("ignore")
-        found = _images(pydicom, siblings, quiet=True)
+        found = _images(pydicom, siblings, quiet=True, named=False)
     images = _distinct(path.name, [one] + [im for im in found if im.series_uid == uid and im.frames == 1])
     if len(images) > 1:
         _log.info("%s: one slice of series %s; reading its %d files in %s", path.name, uid or "?",
@@ -217,10 +219,10 @@ def _distinct(name: str, images: list[Image]) -> list[Image]:
     return out
 
 
-def _images(pydicom: Any, files: list[Path], *, quiet: bool) -> list[Image]:
+def _images(pydicom: Any, files: list[Path], *, quiet: bool, named: bool = True) -> list[Image]:
     out = []
     for f in files:
-        ds = _read_header(pydicom, f, quiet=quiet)
+        ds = _read_header(pydicom, f, quiet=quiet, named=named)
         if ds is not None and _is_image(ds):
             out.append(Image(f, ds))
     return out

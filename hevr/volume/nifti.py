@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import VolumeFormatError
+from ..errors import CorruptVolumeError, VolumeFormatError
 from ._memory import check_fits
 from ._optional import require
 from ._select import reject_index, select_index
@@ -79,7 +79,7 @@ def _check_size(nib: Any, img: Any, path: Path, shape: tuple[int, ...], dtype: n
     elif offset is not None:
         need, have = int(offset) + math.prod(shape) * dtype.itemsize, path.stat().st_size
         if have < need:
-            raise VolumeFormatError(f"{path.name}: truncated: the header declares shape {shape} of {dtype} "
+            raise CorruptVolumeError(f"{path.name}: truncated: the header declares shape {shape} of {dtype} "
                                     f"(data ending at byte {need}), the file holds {have} bytes")
 
 

@@ -33,8 +33,15 @@ import numpy as np
 
 from .._files import check_regular, write_file
 from .._validate import check_dtype, check_shape
-from ..errors import ExistingFileError, MissingFileError, ParameterError, VolumeFormatError
-from .nrrd_encodings import BLOCK, ENCODINGS, read_ascii, read_compressed, read_hex
+from ..errors import ExistingFileError, MissingFileError, ParameterError
+from .nrrd_encodings import (
+    BLOCK,
+    ENCODINGS,
+    _fail,
+    read_ascii,
+    read_compressed,
+    read_hex,
+)
 
 _log = logging.getLogger(__name__)
 
@@ -65,10 +72,6 @@ _RAW_DTYPE = re.compile(r"(?<![a-z0-9])(" + "|".join(RAW_DTYPES) + r")(?![a-z0-9
 
 _MAX_HEADER_BYTES = 1 << 20  # a header larger than this is certainly not a header
 _INT = re.compile(r"[+-]?[0-9]+")  # int() alone would also take '٢', '1_0' and ' 1 '
-
-
-def _fail(path: Path, problem: str) -> VolumeFormatError:
-    return VolumeFormatError(f"{path.name}: {problem}")
 
 
 def is_kind(path: Path, directory: bool = False) -> bool:
@@ -116,7 +119,7 @@ def read_raw(path: Path, offset: int, shape: tuple[int, int, int], dtype: np.dty
     where = f" after {offset} header/skip bytes" if offset else ""
     if have < need:
         raise _fail(path, f"truncated: {what}expected {need} bytes of data{where} "
-                          f"(shape {shape} of {dtype.name}), the file holds {max(have, 0)}")
+                          f"(shape {shape} of {dtype.name}), the file holds {max(have, 0)}", corrupt=True)
     if exact and have != need:
         raise _fail(path, f"size mismatch: {what}expected {need} bytes of data{where} "
                           f"(shape {shape} of {dtype.name}), the file holds {have}")

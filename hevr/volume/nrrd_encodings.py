@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import VolumeFormatError
+from ..errors import CorruptVolumeError, VolumeFormatError
 from . import _memory
 from ._optional import require
 
@@ -34,8 +34,9 @@ BLOCK = 1 << 20  # read compressed data, text and skipped lines in blocks of thi
 _OPENERS: dict[str, Any] = {"gzip": lambda fh: gzip.GzipFile(fileobj=fh, mode="rb"), "bzip2": bz2.BZ2File}
 
 
-def _fail(path: Path, problem: str) -> VolumeFormatError:
-    return VolumeFormatError(f"{path.name}: {problem}")
+def _fail(path: Path, problem: str, *, corrupt: bool = False) -> VolumeFormatError:
+    """The error naming ``path``; ``corrupt``: its data is damaged (:class:`CorruptVolumeError`)."""
+    return (CorruptVolumeError if corrupt else VolumeFormatError)(f"{path.name}: {problem}")
 
 
 MAX_GZIP_SKIP = 64 << 20  # bytes of decompressed stream a compressed "byte skip" may pass beyond the data's size
@@ -55,7 +56,8 @@ def _decoded(path: Path, data: bytes | bytearray, need: int, shape: tuple[int, .
     if len(data) != need:
         raise _fail(path, f"{'truncated' if len(data) < need else 'size mismatch'}: {what}"
                           f"expected {need} bytes of decoded {encoding} data (shape {shape} of "
-                          f"{dtype.name}), got {len(data) if len(data) < need else f'more than {need}'}")
+                          f"{dtype.name}), got {len(data) if len(data) < need else f'more than {need}'}",
+                    corrupt=len(data) < need)
     return np.frombuffer(memoryview(data), dtype=dtype).reshape(shape)
 
 
@@ -86,7 +88,7 @@ def read_compressed(path: Path, offset: int, byte_skip: int, shape: tuple[int, .
                         break
                     buf += block
         except (OSError, EOFError, ValueError, zlib.error) as exc:
-            raise _fail(path, f"corrupt or truncated {encoding} data: {exc}") from None
+            raise _fail(path, f"corrupt or truncated {encoding} data: {exc}", corrupt=True) from None
     return _decoded(path, buf, need, shape, dtype, what, encoding)
 
 

@@ -169,3 +169,33 @@ def test_one_file_repeated_in_other_syntaxes_is_one_slice(capsys, caplog):
     assert not seen, [str(w.message) for w in seen]
     scan = hevr.read_scan(path)
     assert scan.volume.shape == (1, 64, 64)
+
+
+def test_one_file_reads_its_series_whatever_else_lies_beside_it(tmp_path: Path, caplog) -> None:
+    """A file argument means that file's series (issue 29, item 3): beside it a damaged file,
+    a file of another series whose pixel data would be a decompression bomb (a header that
+    declares 60000 x 60000 pixels) and a duplicate of one of its slices (same SOPInstanceUID)
+    change nothing, and nothing about them is said above DEBUG."""
+    import logging
+    import warnings
+
+    ct = np.arange(3 * 3 * 5, dtype=np.int16).reshape(3, 3, 5)
+    paths = write_series(tmp_path, ct, series=CT_UID)
+    whole = read_dicom(tmp_path)
+    broken = bytearray(paths[0].read_bytes())
+    assert broken[128:138] == b"DICM\x02\x00\x00\x00UL"  # (0002,0000) UL, the first element
+    broken[138:140] = b"\x06\x00"  # its length: 6 bytes for a UL (4 bytes each), which pydicom cannot parse
+    (tmp_path / "broken.dcm").write_bytes(broken)
+    bomb = dataset(np.zeros((2, 2), np.int16), series=MR_UID, modality="MR")
+    bomb.Rows = bomb.Columns = 60000
+    bomb.save_as(tmp_path / "bomb.dcm", enforce_file_format=True)
+    (tmp_path / "again.dcm").write_bytes(paths[1].read_bytes())
+    with caplog.at_level(logging.INFO, logger="hevr"), warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scan = read_dicom(paths[0])
+    assert np.array_equal(scan.volume, whole.volume) and scan.details["images"] == 3
+    said = " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING); print("LOG", caplog.text, caplog.records)
+    assert not said, said
+    assert "broken" not in caplog.text and "bomb" not in caplog.text
+    with pytest.raises(VolumeFormatError, match="found 2"):  # the folder itself: both series, listed
+        read_dicom(tmp_path)
