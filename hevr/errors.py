@@ -27,6 +27,7 @@ __all__ = [
     "CorruptStoreError",
     "IntegrityError",
     "VolumeFormatError",
+    "CorruptVolumeError",
     "MissingDependencyError",
     "MissingFileError",
     "MemoryLimitError",

@@ -420,6 +420,34 @@ def test_a_missing_decoder_plugin_is_a_missing_dependency(tmp_path, keys, capsys
     assert "needs a pydicom plugin that is not installed" in err and "pylibjpeg" in err and err.count("\n") == 1
 
 
+@pytest.mark.parametrize("kind", ["dicom", "nrrd", "nifti"])
+def test_corrupt_pixel_data_exits_1(tmp_path, keys, capsys, kind):
+    """A readable header whose data fails (cut short, or not decodable) is failed data: exit 1 and
+    one line naming the file, as the help says; before, exit 2 (issue 29, item 7)."""
+    if kind == "dicom":
+        pytest.importorskip("pydicom")
+        from pydicom.data import get_testdata_file
+
+        path = tmp_path / "mr.dcm"
+        path.write_bytes(Path(get_testdata_file("MR_small.dcm", download=False)).read_bytes()[:-3000])
+        words = "mr.dcm: cannot decode the pixel data"
+    elif kind == "nrrd":
+        path = tmp_path / "v.nrrd"
+        hevr.save_volume(path, np.arange(4 * 5 * 6, dtype=np.int16).reshape(4, 5, 6), spacing=(1, 1, 1))
+        path.write_bytes(path.read_bytes()[:-10])
+        words = "v.nrrd: truncated"
+    else:
+        nib = pytest.importorskip("nibabel")
+        path = tmp_path / "v.nii"
+        nib.save(nib.Nifti1Image(np.arange(4 * 5 * 6, dtype=np.int16).reshape(6, 5, 4), np.eye(4)), path)
+        path.write_bytes(path.read_bytes()[:-10])
+        words = "v.nii: truncated"
+    for argv in (("info", path), ("encrypt", path, "--key", keys, "--out", tmp_path / "x.zarr")):
+        code, _, err = _run(capsys, *argv)
+        assert code == 1 and words in err and err.count("\n") == 1, (argv[0], code, err)
+    assert not (tmp_path / "x.zarr").exists()
+
+
 def test_info_of_an_uneven_series_names_the_option(tmp_path, capsys):
     """A series with a missing slice: ``hevr info`` says --allow-uneven (not allow_uneven=True) and
     describes the scan with it (issue 29, items 4 and 7)."""
