@@ -33,7 +33,7 @@ from typing import Any
 from .._files import require_file
 from ..errors import VolumeFormatError
 from ._optional import require
-from .dicom_mosaic import is_mosaic
+from .dicom_mosaic import is_mosaic, mosaic_of
 
 __all__ = ["Image", "SeriesInfo", "choose_series", "group_series", "list_series", "scan_images"]
 
@@ -242,10 +242,16 @@ def _info(uid: str, images: list[Image]) -> SeriesInfo:
         number: int | None = int(ds.get("SeriesNumber"))
     except (TypeError, ValueError):
         number = None
+    frames, rows, cols = sum(im.frames for im in images), int(ds.get("Rows") or 0), int(ds.get("Columns") or 0)
+    try:  # a Siemens MOSAIC: its slices and their size (a damaged one is listed as stored; reading it says why)
+        mosaic = mosaic_of(ds, images[0].path)
+    except VolumeFormatError:
+        mosaic = None
+    if mosaic is not None:
+        frames, rows, cols = len(images) * mosaic.slices, mosaic.rows, mosaic.columns
     return SeriesInfo(uid=uid, number=number, modality=str(ds.get("Modality", "") or ""),
                       description=str(ds.get("SeriesDescription", "") or ""), images=len(images),
-                      frames=sum(im.frames for im in images), rows=int(ds.get("Rows") or 0),
-                      columns=int(ds.get("Columns") or 0), path=images[0].path)
+                      frames=frames, rows=rows, columns=cols, path=images[0].path)
 
 
 def list_series(path: str | os.PathLike[str]) -> list[SeriesInfo]:

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from hevr.errors import CorruptVolumeError, VolumeFormatError
-from hevr.volume.dicom import read_dicom
+from hevr.volume.dicom import list_series, read_dicom
 from hevr.volume.dicom_mosaic import Mosaic, grid_of, untile
 
 nib = pytest.importorskip("nibabel")
@@ -81,6 +81,8 @@ def test_one_file_of_a_diffusion_series_reads_that_volume(tmp_path):
     b0, b1000 = _dwi(tmp_path, 0), _dwi(tmp_path, 1000)
     with pytest.raises(VolumeFormatError, match="same position.*each file holds a whole volume: name one file"):
         read_dicom(tmp_path)
+    (info,) = list_series(tmp_path)  # the listing counts slices, not tiles
+    assert (info.images, info.frames, info.rows, info.columns) == (2, 96, 128, 128)
     v0, v1000 = read_dicom(b0), read_dicom(b1000)
     assert v0.volume.shape == v1000.volume.shape == (48, 128, 128)
     assert np.array_equal(v1000.volume, v0.volume + 1)  # each file's own pixels
