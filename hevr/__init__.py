@@ -1,6 +1,6 @@
 """hevr: privacy-preserving remote volume rendering on Paillier-encrypted volumes.
 
-The subpackages follow the data path; every public name is re-exported here:
+The subpackages follow the data path; every public name is re-exported here, lazily:
 
 =====================  ==========================================================
 :mod:`hevr.crypto`     Paillier (``raw_`` layer), keys, key files, owner-side masks,
@@ -14,135 +14,186 @@ The subpackages follow the data path; every public name is re-exported here:
 :mod:`hevr.cli`        the ``hevr`` command
 :mod:`hevr.backends`   the arithmetic seam: bulk big-integer work (``cpu`` = gmpy2)
 =====================  ==========================================================
+
+``import hevr`` imports none of them: a public name is imported from its submodule when it is
+first used (:mod:`hevr._lazy`, PEP 562), so that ``import hevr`` and the ``hevr`` command start
+in a few tens of milliseconds instead of half a second (Zarr, Dask, distributed, numpy).
+``hevr.render`` and ``from hevr import render`` work as before; the ``if TYPE_CHECKING:``
+imports below are what static tools and IDEs read.
 """
 
 from __future__ import annotations
 
-from .colour import Colouring, Frame
-from .crypto.encoding import BASE, decode, encode
-from .crypto.keyfile import load_key
-from .crypto.keys import PrivateKey, PublicKey, generate_keypair
-from .crypto.number import EncryptedNumber
-from .errors import (
-    CorruptStoreError,
-    ExistingFileError,
-    FileSystemError,
-    HevrError,
-    IncompleteStoreError,
-    InsecureKeyWarning,
-    IntegrityError,
-    InvalidKeyError,
-    KeyFilePermissionWarning,
-    KeyMismatchError,
-    MemoryLimitError,
-    MissingDependencyError,
-    MissingFileError,
-    NotRegularFileError,
-    ParameterError,
-    PlaintextOverflowError,
-    RenderPlanError,
-    StoreError,
-    StoreExistsError,
-    VolumeFormatError,
-)
-from .image import EncryptedImage, load_image, save_png, to_uint8
-from .rendering.camera import Camera
-from .rendering.encrypted import RaySums, clear_cache, error_bound, render
-from .rendering.plain import render_plain, render_slice_plain
-from .rendering.plane import Plane
-from .rendering.slices import render_slice
-from .rendering.stream import render_frame
-from .rendering.sums import SavedSums, load_sums, recolour
-from .rendering.views import VIEWS
-from .store.pyramid import build_pyramid
-from .store.reader import EncryptedVolume, open_volume
-from .store.upgrade import upgrade_store
-from .store.writer import encrypt_volume
-from .viewer import Viewer
-from .volume.density import encode_density, normalize_density
-from .volume.loaders import load_volume, read_scan, save_volume
-from .volume.modality import (
-    MODALITY_RANGES,
-    TF_PRESETS,
-    modality_range,
-    range_hint,
-    tf_preset,
-    window_density,
-)
-from .volume.phantom import PHANTOM_LEVELS, phantom
-from .volume.samples import sample_scan
-from .volume.scan import Scan
+from typing import TYPE_CHECKING
+
+from ._lazy import attach
+
+if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is imported on first use
+    from .colour import Colouring, Frame
+    from .crypto.encoding import BASE, decode, encode
+    from .crypto.keyfile import load_key
+    from .crypto.keys import PrivateKey, PublicKey, generate_keypair
+    from .crypto.number import EncryptedNumber
+    from .errors import (
+        CorruptStoreError,
+        CorruptVolumeError,
+        ExistingFileError,
+        FileSystemError,
+        HevrError,
+        IncompleteStoreError,
+        InsecureKeyWarning,
+        IntegrityError,
+        InvalidKeyError,
+        KeyFilePermissionWarning,
+        KeyMismatchError,
+        MemoryLimitError,
+        MissingDependencyError,
+        MissingFileError,
+        NotRegularFileError,
+        ParameterError,
+        PlaintextOverflowError,
+        RenderPlanError,
+        StoreError,
+        StoreExistsError,
+        VolumeFormatError,
+    )
+    from .image import EncryptedImage, load_image, save_png, to_uint8
+    from .rendering.camera import Camera
+    from .rendering.encrypted import RaySums, clear_cache, error_bound, render
+    from .rendering.plain import render_plain, render_slice_plain
+    from .rendering.plane import Plane
+    from .rendering.slices import render_slice
+    from .rendering.stream import render_frame
+    from .rendering.sums import SavedSums, load_sums, recolour
+    from .rendering.views import VIEWS
+    from .store.pyramid import build_pyramid
+    from .store.reader import EncryptedVolume, open_volume
+    from .store.upgrade import upgrade_store
+    from .store.writer import encrypt_volume
+    from .viewer import Viewer
+    from .volume.density import encode_density, normalize_density
+    from .volume.loaders import load_volume, read_scan, save_volume
+    from .volume.modality import (
+        MODALITY_RANGES,
+        TF_PRESETS,
+        modality_range,
+        range_hint,
+        tf_preset,
+        window_density,
+    )
+    from .volume.phantom import PHANTOM_LEVELS, phantom
+    from .volume.samples import sample_scan
+    from .volume.scan import Scan
 
 __version__ = "0.1.0"
 
+# Public name -> the submodule it is imported from, on first use (module docstring). Keep it
+# equal to the TYPE_CHECKING imports above (tests/test_lazy_imports.py checks).
+_LAZY = {
+    ".colour": ("Colouring", "Frame"),
+    ".crypto.encoding": ("BASE", "decode", "encode"),
+    ".crypto.keyfile": ("load_key",),
+    ".crypto.keys": ("PrivateKey", "PublicKey", "generate_keypair"),
+    ".crypto.number": ("EncryptedNumber",),
+    ".errors": (
+        "CorruptStoreError", "CorruptVolumeError", "ExistingFileError", "FileSystemError", "HevrError", "IncompleteStoreError",
+        "InsecureKeyWarning", "IntegrityError", "InvalidKeyError", "KeyFilePermissionWarning", "KeyMismatchError",
+        "MemoryLimitError", "MissingDependencyError", "MissingFileError", "NotRegularFileError", "ParameterError",
+        "PlaintextOverflowError", "RenderPlanError", "StoreError", "StoreExistsError", "VolumeFormatError",
+    ),
+    ".image": ("EncryptedImage", "load_image", "save_png", "to_uint8"),
+    ".rendering.camera": ("Camera",),
+    ".rendering.encrypted": ("RaySums", "clear_cache", "error_bound", "render"),
+    ".rendering.plain": ("render_plain", "render_slice_plain"),
+    ".rendering.plane": ("Plane",),
+    ".rendering.slices": ("render_slice",),
+    ".rendering.stream": ("render_frame",),
+    ".rendering.sums": ("SavedSums", "load_sums", "recolour"),
+    ".rendering.views": ("VIEWS",),
+    ".store.pyramid": ("build_pyramid",),
+    ".store.reader": ("EncryptedVolume", "open_volume"),
+    ".store.upgrade": ("upgrade_store",),
+    ".store.writer": ("encrypt_volume",),
+    ".viewer": ("Viewer",),
+    ".volume.density": ("encode_density", "normalize_density"),
+    ".volume.loaders": ("load_volume", "read_scan", "save_volume"),
+    ".volume.modality": ("MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density"),
+    ".volume.phantom": ("PHANTOM_LEVELS", "phantom"),
+    ".volume.samples": ("sample_scan",),
+    ".volume.scan": ("Scan",),
+}
+__getattr__, __dir__ = attach(__name__, _LAZY)
+
+
 __all__ = [
-    "generate_keypair",
-    "PublicKey",
-    "PrivateKey",
-    "load_key",
-    "EncryptedNumber",
-    "encrypt_volume",
-    "phantom",
-    "sample_scan",
-    "Camera",
-    "render_plain",
-    "render",
-    "render_frame",
-    "Frame",
-    "Colouring",
-    "RaySums",
-    "clear_cache",
-    "recolour",
-    "load_sums",
-    "SavedSums",
-    "Viewer",
-    "Plane",
-    "render_slice",
-    "render_slice_plain",
-    "build_pyramid",
-    "EncryptedImage",
-    "load_image",
-    "save_png",
-    "to_uint8",
-    "error_bound",
-    "encode_density",
-    "normalize_density",
-    "PHANTOM_LEVELS",
-    "load_volume",
-    "read_scan",
-    "Scan",
-    "save_volume",
-    "open_volume",
-    "EncryptedVolume",
-    "upgrade_store",
-    "encode",
-    "decode",
     "BASE",
-    "HevrError",
-    "ParameterError",
-    "InvalidKeyError",
-    "KeyMismatchError",
-    "PlaintextOverflowError",
-    "RenderPlanError",
-    "StoreError",
-    "StoreExistsError",
-    "IncompleteStoreError",
+    "MODALITY_RANGES",
+    "PHANTOM_LEVELS",
+    "TF_PRESETS",
+    "VIEWS",
+    "Camera",
+    "Colouring",
     "CorruptStoreError",
-    "IntegrityError",
-    "VolumeFormatError",
-    "MissingDependencyError",
-    "MissingFileError",
-    "MemoryLimitError",
+    "CorruptVolumeError",
+    "EncryptedImage",
+    "EncryptedNumber",
+    "EncryptedVolume",
     "ExistingFileError",
     "FileSystemError",
-    "NotRegularFileError",
+    "Frame",
+    "HevrError",
+    "IncompleteStoreError",
     "InsecureKeyWarning",
+    "IntegrityError",
+    "InvalidKeyError",
     "KeyFilePermissionWarning",
-    "VIEWS",
-    "MODALITY_RANGES",
-    "TF_PRESETS",
+    "KeyMismatchError",
+    "MemoryLimitError",
+    "MissingDependencyError",
+    "MissingFileError",
+    "NotRegularFileError",
+    "ParameterError",
+    "PlaintextOverflowError",
+    "Plane",
+    "PrivateKey",
+    "PublicKey",
+    "RaySums",
+    "RenderPlanError",
+    "SavedSums",
+    "Scan",
+    "StoreError",
+    "StoreExistsError",
+    "Viewer",
+    "VolumeFormatError",
+    "build_pyramid",
+    "clear_cache",
+    "decode",
+    "encode",
+    "encode_density",
+    "encrypt_volume",
+    "error_bound",
+    "generate_keypair",
+    "load_image",
+    "load_key",
+    "load_sums",
+    "load_volume",
     "modality_range",
+    "normalize_density",
+    "open_volume",
+    "phantom",
     "range_hint",
+    "read_scan",
+    "recolour",
+    "render",
+    "render_frame",
+    "render_plain",
+    "render_slice",
+    "render_slice_plain",
+    "sample_scan",
+    "save_png",
+    "save_volume",
     "tf_preset",
+    "to_uint8",
+    "upgrade_store",
     "window_density",
 ]

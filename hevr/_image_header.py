@@ -41,6 +41,7 @@ from ._image_checks import (
     tile_name,
 )
 from ._limits import integrity_bits
+from ._magic import IMAGE_MAGIC_PREFIX
 from ._tiles import TileLayout
 from .crypto.paillier import fingerprint
 from .crypto.records import record_width
@@ -49,7 +50,7 @@ from .errors import CorruptStoreError, IntegrityError
 __all__ = ["DIGEST_BYTES", "FORMAT", "MAGIC", "MAGIC_PREFIX", "VERSION", "Fields", "check_image", "check_numbers",
            "expected_counts", "integrity_bits", "parse_file", "parse_json", "tile_hit_counts", "tile_name"]
 
-MAGIC_PREFIX = b"HEVRIMG"
+MAGIC_PREFIX = IMAGE_MAGIC_PREFIX
 VERSION = 3
 READS = (2, 3)  # version 2: server-finished images only (no finish/channel/components fields)
 MAGIC = MAGIC_PREFIX + bytes([VERSION])

@@ -8,6 +8,11 @@ layer of widgets over :func:`hevr.render_frame` and :meth:`hevr.Frame.recolour`:
 
 * **camera**: azimuth, elevation and view-angle sliders (:meth:`hevr.Camera.orbit`); a frame
   is rendered when a slider is released (``continuous_update=False``), one render per move;
+* **dragging on the image** orbits the camera and the wheel zooms (the view angle): the frame is
+  an anywidget (:mod:`hevr._drag`) whose pointer events set the camera sliders — one source of
+  truth, the sliders follow the drag — and take the sliders' path below: coarse frames while
+  dragging, the full frame on release; one message in flight at a time, the pointer's
+  movements meanwhile added up (the latest position is rendered, no render queue);
 * **mode and sampling**: X-ray, density emphasis (a density slider), transfer function; a
   *gradient* box (stores encrypted with ``gradient=True``) weights emphasis and transfer-function
   samples by the gradient magnitude;
@@ -32,9 +37,6 @@ layer of widgets over :func:`hevr.render_frame` and :meth:`hevr.Frame.recolour`:
   sliders have been still for ``settle`` seconds (or on :meth:`Viewer.settle`) the full frame
   follows. Without a pyramid, sliders render on release.
 
-Not offered: orbiting by dragging on the image (ipywidgets' ``Image`` has no pointer events;
-that needs ipyevents or an anywidget front end).
-
 Every widget change calls :meth:`Viewer.refresh` synchronously, so the viewer can be driven
 headlessly — set a widget's ``value`` in code, as a test does, and the render runs.
 """
@@ -42,19 +44,17 @@ headlessly — set a widget's ``value`` in code, as a test does, and the render 
 from __future__ import annotations
 
 import html
-import io
 import logging
 import threading
 import time
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
+from ._drag import Orbit, drag_image, png
 from .colour import Frame
 from .crypto.keys import PrivateKey
 from .errors import HevrError, MissingDependencyError, ParameterError
-from .image import to_uint8
 from .paper import PAPER_DENSITIES, PAPER_TF1
 from .rendering.camera import Camera
 from .rendering.encrypted import error_bound
@@ -77,14 +77,6 @@ def _hex(colour: Any) -> str:
     """
     r, g, b = parse_color(colour)
     return "#{:02x}{:02x}{:02x}".format(*(int(round(255 * v)) for v in (r, g, b)))
-
-
-def _png(arr: np.ndarray, window: tuple[float, float] | None, size: tuple[int, int]) -> bytes:
-    """The frame as PNG bytes of ``size`` (W, H): a preview's fewer pixels are shown enlarged."""
-    buf = io.BytesIO()
-    im = Image.fromarray(to_uint8(arr, window))
-    (im if im.size == tuple(size) else im.resize(tuple(size), Image.NEAREST)).save(buf, format="PNG")
-    return buf.getvalue()
 
 
 class Viewer:
@@ -130,6 +122,11 @@ class Viewer:
         ``bound``; or ``error_message`` when the render (or colouring) was refused.
     frame : hevr.Frame or None
         The last decrypted frame of component means, re-coloured while only the colouring changes.
+    image : anywidget.AnyWidget
+        The frame on show (PNG bytes in ``value``); dragging on it orbits, the wheel zooms.
+    orbit : hevr._drag.Orbit
+        Turns drags and wheel turns on :attr:`image` into slider values (``orbit.drag(dx, dy)``,
+        ``orbit.zoom(wheel)`` drive it from code).
     widget : ipywidgets.VBox
         The whole viewer (displayed by the notebook when the viewer is the cell's value).
     """
@@ -139,10 +136,11 @@ class Viewer:
                  nodes: Any = None, density: float | None = None, client: Any = None, step: float = 1.0,
                  preview: int | None = None, settle: float | None = 0.6, show: bool = True) -> None:
         try:
+            import anywidget  # noqa: F401  (the drag surface, hevr._drag)
             import ipywidgets as widgets
-        except ImportError:
-            raise MissingDependencyError("Viewer: expected ipywidgets (pip install 'hevr[notebook]'), got an "
-                                         "environment without it") from None
+        except ImportError as exc:
+            raise MissingDependencyError(f"Viewer: expected ipywidgets and anywidget (pip install 'hevr[notebook]'), "
+                                         f"got an environment without {exc.name}") from None
         if not isinstance(ev, EncryptedVolume):
             raise ParameterError(f"ev: expected an EncryptedVolume (hevr.open_volume), got {type(ev).__name__}")
         if not isinstance(private_key, PrivateKey):
@@ -187,7 +185,8 @@ class Viewer:
         self._rows = W.VBox()
         self.add_button = W.Button(description="add node", icon="plus")
         self.add_button.on_click(lambda _b: self.add_node())
-        self.image = W.Image(format="png", width=max(256, width), height=max(256, height))
+        self.image = drag_image(max(256, width), max(256, height))  # drag to orbit, wheel to zoom
+        self.orbit = Orbit(self)
         self.status = W.HTML(value="")
         self.node_rows: list[tuple[Any, Any, Any]] = []
         with self.hold():
@@ -270,11 +269,12 @@ class Viewer:
         if not self._held and (only is None or current == only):
             self.refresh()
 
-    def _moved(self, _change: Any = None) -> None:
+    def _moved(self, change: Any = None, wait: bool = True) -> None:
         """A camera slider moved: a coarse frame now (when the store has a pyramid level), the
-        full frame once the sliders have been still for ``settle`` seconds (or on :meth:`settle`)."""
-        if self._held:
-            return
+        full frame once the sliders have been still for ``settle`` seconds (or on :meth:`settle`;
+        ``wait=False``: only then — a drag on the image ends with it)."""
+        if self._held or (change is not None and abs(change["new"] - change["old"]) < 1e-6):
+            return  # < 1e-6°: a browser's slider sending back the value it was given, recomputed
         if not self.preview:
             self.refresh()
             return
@@ -282,7 +282,7 @@ class Viewer:
         self._pending = True
         if self._timer is not None:
             self._timer.cancel()
-        if self.settle_after is not None:
+        if self.settle_after is not None and wait:
             self._timer = threading.Timer(self.settle_after, self.settle)
             self._timer.daemon = True
             self._timer.start()
@@ -349,12 +349,12 @@ class Viewer:
             err = float(np.abs(arr - ref).max()) if arr.size else 0.0
             bound = float(error_bound(self.ev, cam, level=level or None, **kw).max())
             window = (0.0, max(float(ref.max()), 1e-12))
-        self.image.value = _png(arr, window, self.size)
         stats = frame.stats
         entry.update(map_tasks=0 if recolour else stats["map_tasks"],
                      reused_ray_sums=True if recolour else stats["reused_ray_sums"], client_recolour=recolour,
                      seconds=seconds, error=err, bound=bound)
-        self.history.append(entry)
+        self.history.append(entry)  # before the image: an observer of image.value sees this entry last
+        self.image.value = png(arr, window, self.size)
         took = f"{seconds:.2f} s" if seconds >= 1 else f"{1000 * seconds:.0f} ms"
         if recolour:
             how = f"re-coloured on the client in {1000 * seconds:.1f} ms, no server"

@@ -2,7 +2,8 @@
 
 * no import cycle among hevr modules;
 * no module longer than MAX_LINES;
-* no import statement inside a function body, except of an optional dependency;
+* no import statement inside a function body, except of an optional dependency; and no import
+  by name (importlib, ``__import__``) outside the modules in LAZY_IMPORTERS;
 * no docstring or comment in hevr/ pointing to a file outside the repository;
 * the module paths from before the crypto/volume/store/rendering/cli layout appear only in
   CHANGELOG.md;
@@ -39,12 +40,22 @@ OPTIONAL_IMPORTS = frozenset({
     "cupy",
     "bokeh",
     "ipywidgets",
+    "anywidget",
+    "traitlets",
     "IPython",
     "nbformat",
     "nbclient",
     "jupytext",
     "tqdm",
 })  # optional extras only: required dependencies (distributed, pillow, zarr, ...) are imported at the top
+
+# The only modules that import by name (importlib, __import__), and why. Everything else imports at
+# its top; a lazy import is an entry in one of hevr._lazy's tables (hevr.__init__'s re-exports, the
+# CLI's table of commands), not a call hidden in a function body.
+LAZY_IMPORTERS = {
+    "hevr._lazy": "PEP 562 re-exports and the CLI's 'module:function' table: start-up time (issue 29)",
+    "hevr.volume._optional": "optional dependencies (nibabel, pydicom, ...) named in one message",
+}
 
 # Module paths that no longer exist since the layout change (see CHANGELOG.md): the flat
 # modules hevr/<name>.py. Packages with one of these names exist now (store, volume, cli), so
@@ -68,7 +79,7 @@ PUBLIC_API = (
     "normalize_density", "PHANTOM_LEVELS", "load_volume", "read_scan", "Scan", "save_volume", "open_volume",
     "EncryptedVolume", "upgrade_store", "encode", "decode", "BASE",
     "HevrError", "ParameterError", "InvalidKeyError", "KeyMismatchError", "PlaintextOverflowError",
-    "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "IntegrityError",
+    "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "CorruptVolumeError", "IntegrityError",
     "VolumeFormatError", "MissingDependencyError", "MissingFileError", "MemoryLimitError", "ExistingFileError", "NotRegularFileError",
     "FileSystemError", "InsecureKeyWarning", "KeyFilePermissionWarning",
     "VIEWS", "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
@@ -316,6 +327,30 @@ def test_no_import_inside_functions_except_optional_dependencies():
         "imports inside function bodies (move them to the top of the module, or add the package to "
         "OPTIONAL_IMPORTS if it is an optional dependency):\n" + "\n".join(found)
     )
+
+
+def _imports_by_name(tree: ast.AST):
+    """(line, text) of every import by name: ``import importlib``, ``from importlib import …``,
+    ``__import__(…)``."""
+    for node in ast.walk(tree):
+        by_name = (
+            (isinstance(node, ast.Import) and any(a.name.split(".")[0] == "importlib" for a in node.names))
+            or (isinstance(node, ast.ImportFrom) and not node.level and (node.module or "").split(".")[0] == "importlib")
+            or (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "__import__")
+        )
+        if by_name:
+            yield node.lineno, ast.unparse(node)
+
+
+def test_imports_by_name_only_in_the_lazy_modules():
+    """Importing by name would get round the rule above; it has one home (LAZY_IMPORTERS)."""
+    assert set(LAZY_IMPORTERS) <= set(MODULES), f"LAZY_IMPORTERS names no module: {set(LAZY_IMPORTERS) - set(MODULES)}"
+    seen = ast.parse("import importlib.util\nfrom importlib import import_module\nm = __import__('os')\nfrom . import x")
+    assert [line for line, _ in _imports_by_name(seen)] == [1, 2, 3]  # guard: the scan sees all three forms
+    found = [f"{_rel(path)}:{line}: {text}" for name, path in MODULES.items() if name not in LAZY_IMPORTERS
+             for line, text in _imports_by_name(_parse(path))]
+    assert not found, ("imports by name outside LAZY_IMPORTERS (import at the top of the module, or name the "
+                       "object in one of hevr._lazy's tables):\n" + "\n".join(found))
 
 
 def _docstrings_and_comments(path: Path):

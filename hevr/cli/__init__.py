@@ -1,18 +1,31 @@
 """The ``hevr`` command line: one module per concern.
 
-=================  =============================================================
-``main``           the argument parser and dispatch (``hevr`` entry point)
-``keys``           keygen, convert-key (hevr and python-paillier key files)
-``commands``       encrypt, render, recolour, decrypt, info, upgrade-store
-``slice``          ``hevr slice``: encrypted planes (axial, coronal, sagittal, oblique)
-``pyramid``        ``hevr pyramid``: the encrypted multi-resolution pyramid
-``options``        argparse value types (one checker per option kind)
-``exits``          the exit-status rule and the CLI's words in error messages
-``util``           shared checks, progress, key/volume loading, Dask clients, formatting
-``demo``           ``hevr demo``: the whole data path on a phantom
-``sheet``          the demo's contact sheet
-``bench``          ``hevr bench`` (the engine is :mod:`hevr._bench`)
-=================  =============================================================
+====================  ==========================================================
+``main``              the entry point: parse, run the command, one exit-status rule
+``parser``            the table of commands and the parser, built per command on demand
+``arguments``         keygen, convert-key, info, upgrade-store, bench: their arguments
+``render_arguments``  encrypt, render, recolour, slice, decrypt, pyramid, demo: theirs
+``options``           argparse value types and shared option groups (light)
+``render_options``    types and options quoting the render side (presets, views, sizes)
+``keys``              keygen, convert-key, reading a ``--key``, ``info KEY``
+``commands``          encrypt, render, recolour, decrypt, upgrade-store
+``info``              ``hevr info``: a key file here, everything else to ``describe``
+``describe``          what ``hevr info`` says about stores, frames, sums files, scans
+``slice``             ``hevr slice``: encrypted planes (axial, coronal, sagittal, oblique)
+``pyramid``           ``hevr pyramid``: the encrypted multi-resolution pyramid
+``scan``              inputs (``phantom:N``, files, folders) and what they hold
+``finish``            where a frame gets its colours: the ``hevr decrypt`` line printed
+``storage``           stores, frames and sums on object storage (fsspec URLs)
+``cluster``           the Dask client of a command (``--scheduler``, ``--workers``)
+``exits``             the exit-status rule and the CLI's words in error messages
+``util``              shared checks, messages and formatting (light)
+``demo``              ``hevr demo``: the whole data path on a phantom
+``sheet``             the demo's contact sheet
+``bench``             ``hevr bench`` (the engine is :mod:`hevr._bench`)
+====================  ==========================================================
+
+Start-up: ``main``, ``parser``, ``exits`` and ``util`` import no Dask, Zarr or numpy; a command's
+modules are imported when it runs (:mod:`hevr.cli.parser`).
 """
 
 from __future__ import annotations

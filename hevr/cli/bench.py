@@ -6,23 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from .._bench.runner import rewrite_report, run_bench
-from ..paper import PAPER_IMAGE, PAPER_SIZE
 from .util import UsageError, show_progress, warn_line
-
-BENCH_EPILOG = f"""\
-examples:
-  hevr bench --quick              # ~20 s: 12^3 voxels, 16x16 px, keys 64-256 bits (CI smoke test)
-  hevr bench                      # ~1 min: 32^3, 48x48 px, keys 256-1024 bits
-  hevr bench --paper              # the paper's tables: {PAPER_SIZE}^3, {PAPER_IMAGE}x{PAPER_IMAGE} px, keys 64-3072 bits: ~1.5 h on 2 cores
-  hevr bench --paper --resume     # continue a stopped run (finished blocks are kept)
-  hevr bench --only t1,micro      # some blocks only: micro, t1, t2, t3, naive, scaling, pipeline
-  hevr bench --paper --report-only  # rewrite RESULTS.md and the plot from results-paper.json
-
-writes, into --out (default: ./benchmarks if it exists, else .):
-  RESULTS.md (--paper) or RESULTS-<setting>.md, results-<setting>.json, scaling-<setting>.png
-  (an earlier run's files of the setting: continued with --resume, replaced with --force,
-  else refused with exit 2)
-"""
 
 
 def cmd_bench(args: Any) -> int:

@@ -1,6 +1,6 @@
 """Implementations of ``hevr encrypt | render | recolour | decrypt | upgrade-store`` (see
-:mod:`hevr.cli.main`; the key commands in :mod:`hevr.cli.keys` and ``info`` in :mod:`hevr.cli.info`
-are re-exported here for dispatch).
+:mod:`hevr.cli.main`; the key commands are in :mod:`hevr.cli.keys`, ``info`` in
+:mod:`hevr.cli.info`; :data:`hevr.cli.parser.COMMANDS` names each command's function).
 
 Each ``cmd_*`` takes the parsed argparse namespace, prints its report on stdout and
 returns the exit code; errors are raised and turned into one line and an exit status by
@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from ..crypto.keys import PrivateKey
 from .._files import check_regular
+from ..crypto.keys import PrivateKey
 from ..image import load_image
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..rendering.camera import Camera
@@ -30,9 +30,11 @@ from ..store.paths import normalise
 from ..store.upgrade import upgrade_store
 from ..store.writer import encrypt_volume
 from . import storage as st
+from .cluster import dask_client, describe_client
+from .describe import channels
 from .finish import report_finish
-from .info import channels, cmd_info
-from .keys import cmd_convert_key, cmd_keygen
+from .keys import key_label, read_key
+from .render_options import format_tf
 from .scan import encrypt_input, resolve_tf
 from .util import (
     Timer,
@@ -41,13 +43,8 @@ from .util import (
     check_new_file,
     check_store_path,
     check_writable_dir,
-    dask_client,
-    describe_client,
     disk_usage,
-    format_tf,
     human_bytes,
-    key_label,
-    read_key,
     show_progress,
     warn_line,
     wh,
@@ -306,5 +303,5 @@ def cmd_upgrade_store(args: Any) -> int:
     return 0
 
 
-__all__ = ["cmd_keygen", "cmd_convert_key", "cmd_encrypt", "cmd_render", "cmd_recolour", "cmd_decrypt", "cmd_info",
-           "cmd_upgrade_store", "decrypt_colouring", "open_for_mode", "resolve_mode"]
+__all__ = ["cmd_encrypt", "cmd_render", "cmd_recolour", "cmd_decrypt", "cmd_upgrade_store", "decrypt_colouring", "open_for_mode",
+           "resolve_mode"]

@@ -27,8 +27,6 @@ from ..errors import InsecureKeyWarning, MemoryLimitError
 from ..image import save_png
 from ..paper import (
     PAPER_DENSITIES,
-    PAPER_IMAGE,
-    PAPER_SIZE,
     PAPER_TF1,
     PAPER_TF2,
     tf_text,
@@ -37,18 +35,17 @@ from ..rendering.camera import Camera
 from ..rendering.encrypted import error_bound, render
 from ..rendering.plain import render_plain
 from ..store.writer import encrypt_volume
+from .cluster import dask_client, describe_client
+from .keys import key_label
 from .outdir import OutputFolder
+from .render_options import format_tf
+from .scan import load_input
 from .sheet import contact_sheet
 from .util import (
     Timer,
     UsageError,
-    dask_client,
-    describe_client,
     disk_usage,
-    format_tf,
     human_bytes,
-    key_label,
-    load_input,
     show_progress,
     table,
     warn_line,
@@ -56,23 +53,8 @@ from .util import (
     xyz,
 )
 
-__all__ = ["Job", "paper_jobs", "cmd_demo", "DEMO_EPILOG"]
+__all__ = ["Job", "paper_jobs", "cmd_demo"]
 
-DEMO_EPILOG = f"""\
-examples:
-  hevr demo                                   # 15-25 s on a 2-core laptop (32^3, 48x48 px, 512-bit key)
-  hevr demo --out figs --size 64 --image 96x96
-  hevr demo --size {PAPER_SIZE} --image {PAPER_IMAGE}x{PAPER_IMAGE} --bits 2048   # the paper's setting: ~25 min on 2 cores (README)
-  hevr demo --input tooth_103x94x161_uint8.raw --image 128x128
-  hevr demo --scheduler tcp://10.0.0.5:8786   # render on a running cluster (DIR must be shared)
-
-Writes into DIR: demo-key.json (+ .pub.json), volume.zarr, one .hevr frame and two PNGs per
-image (<name>.png decrypted, <name>.ref.png plaintext reference), contact-sheet.png,
-report.md and summary.json. The timings are printed as tables. A second run into DIR
-replaces what the first one wrote (recorded in DIR/.hevr-outputs.json); a file at one of
-these names that the demo did not write is refused (exit 2) unless --force.
-Keys below 2048 bits are NOT secure; the small default only keeps the demo fast.
-"""
 
 @dataclass
 class Job:

@@ -1,5 +1,6 @@
-"""Client finishing on the command line: ``--finish`` of render, recolour and slice, the
-colouring options of ``hevr decrypt`` and the lines that tell where a frame gets its colours.
+"""Client finishing on the command line: the lines that tell where a frame gets its colours
+(``--finish`` of render, recolour and slice and the colouring options of ``hevr decrypt`` are in
+:mod:`hevr.cli.render_options`).
 
 With ``--finish client`` (the default) a frame holds the ray sums of the stored channel, not the
 density or transfer function (:mod:`hevr.colour`): the command that renders it prints the exact
@@ -8,50 +9,12 @@ density or transfer function (:mod:`hevr.colour`): the command that renders it p
 
 from __future__ import annotations
 
-import argparse
 from typing import Any
 
-from ..paper import PAPER_DENSITIES, PAPER_TF1
-from .options import range_type, tf_type, unit_float
-from .scan import TF_HELP
+from .render_options import format_tf
 from .storage import png_name
-from .util import format_tf
 
-__all__ = ["DECRYPT_DESCRIPTION", "DECRYPT_EPILOG", "add_decrypt_colour_options", "add_finish_option",
-           "colour_options", "report_finish"]
-
-DECRYPT_DESCRIPTION = (
-    "Decrypt an encrypted .hevr frame with the private key and write a PNG. A frame finished on the client "
-    "(hevr render's default) holds the ray sums of the stored channel, not their colouring: an X-ray decrypts as "
-    "it is; an emphasis or transfer-function frame takes --density or --tf here, on this machine (any other "
-    "density or transfer function too: re-colouring needs no server). A frame rendered with --finish server is "
-    "coloured already and takes neither.")
-DECRYPT_EPILOG = (
-    "examples:\n  hevr decrypt xray.hevr --key key.json --out xray.png --npy xray.npy\n"
-    f"  hevr decrypt tf.hevr --key key.json --out tf.png --tf '{format_tf(PAPER_TF1)}'\n"
-    f"  hevr decrypt tf.hevr --key key.json --out emph.png --density {PAPER_DENSITIES[1]}\n"
-    "  hevr decrypt bone.hevr --key key.json --tf ct-bone --value-range=-1024,3071\n")
-
-
-def add_finish_option(p: argparse.ArgumentParser) -> None:
-    """``--finish`` of render, recolour and slice."""
-    p.add_argument("--finish", choices=("client", "server"), default="client",
-                   help="client (default): the cluster packs only the ray sums of the stored channel; the density "
-                        "or transfer function stays in this process, is not written to the frame and is applied "
-                        "at 'hevr decrypt' (the command is printed); server: the paper's way, the cluster combines, "
-                        "normalises and packs finished pixels (the colouring goes to the workers and into the frame)")
-
-
-def add_decrypt_colour_options(p: argparse.ArgumentParser) -> None:
-    """``hevr decrypt --mode / --density / --tf / --value-range``: the colouring of a client frame."""
-    g = p.add_argument_group("colouring a client-finished frame (hevr render --finish client, the default)")
-    g.add_argument("--mode", choices=("xray", "emphasize", "tf"),
-                   help="default: emphasize with --density, tf with --tf, xray for an X-ray frame")
-    g.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
-    g.add_argument("--tf", type=tf_type, metavar="NODES", help=TF_HELP.replace("the store's value range",
-                                                                           "--value-range"))
-    g.add_argument("--value-range", type=range_type, metavar="LO,HI",
-                   help="the store's value range (hevr info STORE), for a --tf preset: a frame does not record it")
+__all__ = ["colour_options", "report_finish"]
 
 
 def colour_options(mode: str, density: float | None, nodes: Any) -> str:

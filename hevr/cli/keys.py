@@ -1,29 +1,32 @@
-"""``hevr keygen`` and ``hevr convert-key``: key pairs, and key files between hevr and
-python-paillier (``pheutil``) formats (:mod:`hevr.crypto.phe_keys`).
+"""Key files on the command line: ``hevr keygen`` and ``hevr convert-key`` (key pairs, and key
+files between hevr and python-paillier (``pheutil``) formats, :mod:`hevr.crypto.phe_keys`),
+reading a ``--key`` and what ``hevr info KEY`` prints about one.
 
 Every command that takes ``--key`` reads both formats (:func:`hevr.load_key` detects a
 pheutil file); ``convert-key`` writes one key file in the other format, ``keygen --format phe``
-writes a new pair in pheutil's.
+writes a new pair in pheutil's. Light to import (gmpy2 and numpy through :mod:`hevr.crypto`,
+no Dask or Zarr): ``hevr info KEY`` runs from here.
 """
 
 from __future__ import annotations
 
+import stat
 import warnings
 from pathlib import Path
 from typing import Any
 
+from ..crypto.keyfile import load_key
 from ..crypto.keys import SECURE_BITS, PrivateKey, generate_keypair
 from ..errors import InsecureKeyWarning
 from .util import (
     Timer,
     UsageError,
     check_output_file,
-    public_key_path,
-    read_key,
+    print_rows,
     warn_line,
 )
 
-__all__ = ["cmd_keygen", "cmd_convert_key", "FORMAT_NAMES"]
+__all__ = ["FORMAT_NAMES", "cmd_convert_key", "cmd_keygen", "info_key", "key_label", "public_key_path", "read_key"]
 
 FORMAT_NAMES = {"hevr": "hevr's JSON key file", "phe": "python-paillier's (pheutil) JSON key file"}
 
@@ -52,7 +55,6 @@ def cmd_keygen(args: Any) -> int:
     return 0
 
 
-
 # -- convert-key ---------------------------------------------------------------------------
 def cmd_convert_key(args: Any) -> int:
     src = Path(args.key).expanduser()
@@ -72,4 +74,48 @@ def cmd_convert_key(args: Any) -> int:
     print(f"  fingerprint: {pub.fingerprint}")
     if pub.bits < SECURE_BITS:
         warn_line(f"a {pub.bits}-bit key is NOT secure; use {SECURE_BITS} bits or more for real data")
+    return 0
+
+
+# -- reading a key -------------------------------------------------------------------------
+def public_key_path(path: str | Path) -> Path:
+    """``key.json`` -> ``key.pub.json``; ``key`` -> ``key.pub``."""
+    path = Path(path)
+    if path.suffix == ".json":
+        return path.with_name(path.stem + ".pub.json")
+    return path.with_name(path.name + ".pub")
+
+
+def read_key(path: str, private: bool = False) -> Any:
+    """Load a key file; insecure-size warnings are left to keygen/info (bits are shown there).
+
+    ``private``: refuse a public key (``key: expected a private key file, …``). Errors name
+    the ``key``, as :func:`hevr.load_key` does; each command says which argument that is.
+    """
+    if Path(path).expanduser().is_dir():
+        raise UsageError(f"key: expected a key file, got a folder ({path})")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", InsecureKeyWarning)
+        key = load_key(Path(path).expanduser())
+    if private and not isinstance(key, PrivateKey):
+        raise UsageError(f"key: expected a private key file, got a public key ({path})")
+    return key
+
+
+def key_label(pub: Any) -> str:
+    weak = " (NOT secure: < 2048 bits)" if pub.bits < SECURE_BITS else ""
+    return f"{pub.bits}-bit{weak}, fingerprint {pub.fingerprint}"
+
+
+def info_key(path: Path, fmt: str = "hevr") -> int:
+    """``hevr info KEY``: kind, format, size and fingerprint of a key file (never its secret)."""
+    key = read_key(str(path))
+    private = isinstance(key, PrivateKey)
+    pub = key.public_key if private else key
+    rows = [("path", path), ("kind", "private key (holds the secret primes; not shown)" if private else "public key"),
+            ("format", fmt),
+            ("bits", f"{pub.bits}" + (" (NOT secure: < 2048 bits)" if pub.bits < SECURE_BITS else "")),
+            ("fingerprint", pub.fingerprint)]
+    rows.append(("file mode", f"{stat.S_IMODE(path.stat().st_mode):04o}"))
+    print_rows(rows)  # a private key others may read: load_key warned already (KeyFilePermissionWarning)
     return 0

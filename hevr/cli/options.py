@@ -1,24 +1,31 @@
-"""argparse value types of the ``hevr`` command line (:mod:`hevr.cli.main`).
+"""argparse value types of the ``hevr`` command line (:mod:`hevr.cli.parser`), and the option
+groups several commands share (general options, ``--storage-option``, how a scan is read).
 
-Each turns a bad value into one argparse error, ``argument --bits: expected …, got '…'``
+Each type turns a bad value into one argparse error, ``argument --bits: expected …, got '…'``
 (exit 2), before anything is loaded or started; the caps (``MAX_WORKERS``, ``MAX_PHANTOM``,
 ``MAX_PRECISION``, the library's own limits) live here.
+
+Light to import (numpy and gmpy2 for the library's caps; no Dask, Zarr or plaintext readers):
+``hevr info KEY`` builds its parser from here. The types whose checks or help quote the render
+side's tables (image sizes, colours and transfer-function presets, pyramid levels, views,
+modalities) are in :mod:`hevr.cli.render_options`.
+
+>>> storage_option_type("endpoint_url=http://127.0.0.1:9000"), storage_option_type("anon=true")
+(('endpoint_url', 'http://127.0.0.1:9000'), ('anon', True))
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
-import re
-from typing import Sequence
+from typing import Any
 
 from .._validate import MAX_BRICK_EDGE, MAX_STORE_DIGITS, MAX_VECTOR_DIMS
 from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
-from ..errors import ParameterError
-from ..rendering.modes import parse_color
-from ..rendering.planner import MAX_PIXELS_KEY, render_limits
-from ..volume.modality import TF_PRESETS
-from ..volume.pyramid import MAX_LEVELS
+
+# Environment variable: a JSON object of fsspec options, beside --storage-option (hevr.cli.storage).
+STORAGE_OPTIONS_ENV = "HEVR_STORAGE_OPTIONS"
 
 
 # -- value types ----------------------------------------------------------------
@@ -60,7 +67,7 @@ MAX_PRECISION = 30
 nonneg_int = _int_at_least(0, "a non-negative integer")
 
 
-def _int_range(lo: int, hi: int, expected: str):
+def int_range(lo: int, hi: int, expected: str):
     """An argparse type: an integer in [lo, hi]; anything else names ``expected`` and the text."""
     def parse(text: str) -> int:
         v = _int_at_least(lo, expected)(text)
@@ -71,9 +78,9 @@ def _int_range(lo: int, hi: int, expected: str):
 
 
 # --digits: decimal digits kept of float voxels (the library's cap); --precision: of the normalisation
-vector_dims_type = _int_range(2, MAX_VECTOR_DIMS, f"an integer in [2, {MAX_VECTOR_DIMS}] (the paper uses 4)")
-digits_type = _int_range(0, MAX_STORE_DIGITS, f"an integer in [0, {MAX_STORE_DIGITS}]")
-precision_type = _int_range(0, MAX_PRECISION, f"an integer in [0, {MAX_PRECISION}]")
+vector_dims_type = int_range(2, MAX_VECTOR_DIMS, f"an integer in [2, {MAX_VECTOR_DIMS}] (the paper uses 4)")
+digits_type = int_range(0, MAX_STORE_DIGITS, f"an integer in [0, {MAX_STORE_DIGITS}]")
+precision_type = int_range(0, MAX_PRECISION, f"an integer in [0, {MAX_PRECISION}]")
 
 
 def phantom_size_type(text: str) -> int:
@@ -87,7 +94,7 @@ def phantom_size_type(text: str) -> int:
     return v
 
 
-workers_type = _int_range(0, MAX_WORKERS, f"at most {MAX_WORKERS} worker processes (0: none)")  # --workers
+workers_type = int_range(0, MAX_WORKERS, f"at most {MAX_WORKERS} worker processes (0: none)")  # --workers
 
 
 def finite_float(text: str) -> float:
@@ -112,26 +119,6 @@ def unit_float(text: str) -> float:
     if not 0.0 <= v <= 1.0:
         raise argparse.ArgumentTypeError(f"expected a normalised density in [0, 1], got {text!r}")
     return v
-
-
-def size_type(text: str) -> tuple[int, int]:
-    """``WxH`` (or a single ``N`` for a square) -> (width, height), at most the render
-    pixel limit (``hevr.limits.max-pixels``, :mod:`hevr.rendering.planner`) in all."""
-    parts = text.lower().replace("×", "x").split("x")
-    try:
-        vals = [int(p) for p in parts if p.strip().isascii()]
-    except ValueError:
-        vals = []
-    if len(vals) == 1 and len(parts) == 1:
-        vals = vals * 2
-    if len(vals) != 2 or len(parts) > 2 or min(vals) < 1:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels such as 150x150, got {text!r}")
-    max_pixels = render_limits()[0]
-    if vals[0] * vals[1] > max_pixels:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT of at most {max_pixels} pixels in all "
-                                         f"(Dask config {MAX_PIXELS_KEY}), got {text!r} = "
-                                         f"{vals[0] * vals[1]} pixels")
-    return vals[0], vals[1]
 
 
 def floats_type(count: int, what: str, positive: bool = False):
@@ -170,89 +157,54 @@ def brick_type(text: str) -> int | tuple[int, int, int]:
     return vals[0] if len(vals) == 1 else (vals[0], vals[1], vals[2])
 
 
-def parse_tf(text: str) -> list[tuple[float, tuple[float, float, float]]]:
-    """``"0.279:#0000ff,0.797:red"`` -> [(0.279, (0, 0, 1)), (0.797, (1, 0, 0))].
-
-    >>> parse_tf("0.5:#f00, 1:blue")
-    [(0.5, (1.0, 0.0, 0.0)), (1.0, (0.0, 0.0, 1.0))]
-    """
-
-    nodes: list[tuple[float, tuple[float, float, float]]] = []
-    for i, item in enumerate(p.strip() for p in text.split(",")):
-        dens, sep, col = item.partition(":")
-        if not sep:
-            raise ParameterError(f"transfer-function node {i + 1} {item!r}: expected DENSITY:COLOR such as 0.279:blue")
-        try:
-            d = float(dens)
-        except ValueError:
-            d = math.nan
-        if not 0.0 <= d <= 1.0:
-            raise ParameterError(f"transfer-function node {i + 1} {item!r}: density must be a number in [0, 1]")
-        twin = next((j for j, (dj, _) in enumerate(nodes) if dj == d), None)
-        if twin is not None:
-            raise ParameterError(f"transfer-function node {i + 1} {item!r}: density {d:g} is node {twin + 1}'s "
-                                 "as well; give each density one colour")
-        try:
-            nodes.append((d, parse_color(col.strip())))
-        except ParameterError:
-            raise ParameterError(f"transfer-function node {i + 1} {item!r}: unknown colour {col.strip()!r} "
-                                 "(use #rrggbb, #rgb or a CSS name such as red, blue, green)") from None
-    return nodes
-
-
-def tf_type(text: str) -> list[tuple[float, tuple[float, float, float]]] | str:
-    """``--tf``: nodes, or a preset name (:data:`hevr.TF_PRESETS`) kept as the name: the command
-    turns it into nodes with the store's value range (:func:`hevr.cli.scan.resolve_tf`).
-
-    >>> tf_type("CT-Bone"), tf_type("0.5:red")
-    ('ct-bone', [(0.5, (1.0, 0.0, 0.0))])
-    """
-    if text.strip().lower() in TF_PRESETS:
-        return text.strip().lower()
-    if ":" not in text:
-        raise argparse.ArgumentTypeError(f"expected a preset ({', '.join(TF_PRESETS)}) or DENSITY:COLOR,... "
-                                         f"such as 0.279:blue, got {text!r}")
+def storage_option_type(text: str) -> tuple[str, Any]:
+    """argparse type of ``--storage-option KEY=VALUE`` (:mod:`hevr.cli.storage`)."""
+    key, sep, value = str(text).partition("=")
+    key = key.strip()
+    if not sep or not key or not key.replace("_", "a").replace("-", "a").isalnum():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE with a KEY of letters, digits and '_' "
+                                         f"(e.g. endpoint_url=http://127.0.0.1:9000), got {key or 'no key'!r}")
     try:
-        return parse_tf(text)
-    except ParameterError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+        return key, json.loads(value)
+    except ValueError:
+        return key, value
 
 
-level_type = _int_range(0, MAX_LEVELS, f"a pyramid level from 0 to {MAX_LEVELS}")  # --level L (0: the volume)
-levels_type = _int_range(1, MAX_LEVELS, f"a number of levels from 1 to {MAX_LEVELS}")  # --levels N to build
+# -- option groups ----------------------------------------------------------------------------
+def add_general_options(p: argparse.ArgumentParser, dask: bool,
+                        workers_default: str = "Dask's default threaded scheduler") -> None:
+    """Every command's ``-v``/``-q``; with ``dask``, ``--scheduler`` and ``--workers`` too."""
+    g = p.add_argument_group("general options")
+    if dask:
+        g.add_argument("--scheduler", metavar="ADDRESS",
+                       help="join a running Dask cluster, e.g. tcp://10.0.0.5:8786 (store paths must be "
+                            "reachable from its workers)")
+        g.add_argument("--workers", type=workers_type, metavar="N",
+                       help="start a local Dask cluster of N worker processes (1 thread each) for this "
+                            f"command (0: none); default: {workers_default}")
+    g.add_argument("-v", "--verbose", action="store_true", help="INFO logging, and tracebacks on errors")
+    g.add_argument("-q", "--quiet", action="store_true", help="no progress bars (they are only drawn on a terminal anyway)")
 
 
-NEGATIVE_VALUE = re.compile(r"^-[\d.]")  # "-5x-5", "-1024,3071", "-.5": a value, never an option name
+def add_storage_option(p: argparse.ArgumentParser) -> None:
+    """``--storage-option``: stores, frames and sums on object storage (:mod:`hevr.cli.storage`)."""
+    g = p.add_argument_group("object storage")
+    g.add_argument("--storage-option", dest="storage_option", action="append", type=storage_option_type,
+                   metavar="KEY=VALUE",
+                   help="an fsspec option of the URL's filesystem (repeatable), e.g. endpoint_url=http://host:9000, "
+                        f"anon=true, profile=NAME; JSON values are parsed. Env {STORAGE_OPTIONS_ENV}: a JSON object "
+                        "of options. STORE, FRAME and SUMS may be URLs (s3://, gs://, az://, file://)")
 
 
-def value_options(parser: argparse.ArgumentParser) -> set[str]:
-    """Every option string of ``parser`` and its subcommands that takes exactly one value."""
-    out: set[str] = set()
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for sub in action.choices.values():
-                out |= value_options(sub)
-        elif action.option_strings and action.nargs is None:
-            out.update(action.option_strings)
-    return out
-
-
-def join_negative_values(argv: Sequence[str], options: set[str]) -> list[str]:
-    """``--size -5x-5`` → ``--size=-5x-5`` for ``options`` that take a value: argparse reads a
-    following token that starts with ``-`` as an option unless it is a plain negative number, and
-    would say "expected one argument"; joined, the option's own check names what is wrong.
-
-    >>> join_negative_values(["render", "--size", "-5x-5", "--azimuth", "-30", "-q"], {"--size", "--azimuth"})
-    ['render', '--size=-5x-5', '--azimuth=-30', '-q']
-    """
-    out: list[str] = []
-    i = 0
-    while i < len(argv):
-        a = str(argv[i])
-        if a in options and i + 1 < len(argv) and NEGATIVE_VALUE.match(str(argv[i + 1])):
-            out.append(f"{a}={argv[i + 1]}")
-            i += 2
-            continue
-        out.append(a)
-        i += 1
-    return out
+def add_scan_read_options(p: argparse.ArgumentParser) -> None:
+    """How a scan is read — ``hevr encrypt`` and ``hevr info`` alike, so that info describes
+    exactly what encrypt reads."""
+    p.add_argument("--series", metavar="UID", help="DICOM: the series to read from a folder holding several "
+                   "(a SeriesInstanceUID, a unique prefix or a SeriesNumber; 'hevr info FOLDER' lists them)")
+    p.add_argument("--volume", type=int, metavar="INDEX",
+                   help="4-D NIfTI/NRRD/TIFF/OME-Zarr: the time point or component to encrypt")
+    p.add_argument("--allow-uneven", action="store_true",
+                   help="DICOM: accept unevenly spaced slices (read at their median spacing)")
+    p.add_argument("--oblique", choices=("refuse", "snap"), default="refuse",
+                   help="a scan tilted more than 1 degree off the patient axes: refuse (default; hevr does not "
+                        "resample) or snap to the nearest axes")

@@ -10,28 +10,16 @@ from __future__ import annotations
 from typing import Any
 
 from ..store.pyramid import build_pyramid
+from .cluster import dask_client, describe_client
 from .storage import open_store, size_of, storage_options
 from .util import (
     Timer,
-    dask_client,
-    describe_client,
     human_bytes,
     show_progress,
     xyz,
 )
 
-__all__ = ["PYRAMID_EPILOG", "cmd_pyramid", "level_rows"]
-
-PYRAMID_EPILOG = """\
-examples:
-  hevr pyramid vol.zarr                  # level 1: 8x fewer voxels
-  hevr pyramid vol.zarr --levels 3 --workers 2
-  hevr render vol.zarr --out preview.hevr --level 2   # a quick preview, same camera options
-
-A level's voxel is the mean of its 2x2x2 children (edge voxels repeated at odd sizes); levels
-already built are kept, an interrupted level is finished. The store gains levels/L arrays and
-OME-Zarr multiscales metadata; no key is needed and nothing about the data is revealed.
-"""
+__all__ = ["cmd_pyramid", "level_rows"]
 
 
 def level_rows(meta: Any) -> list[tuple[str, str]]:

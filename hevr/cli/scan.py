@@ -1,5 +1,7 @@
-"""The command line's side of real scans: modality value ranges, ``--view``, ``--tf`` presets,
-the scan options of ``hevr encrypt`` and what ``hevr info`` says about a scan or a DICOM folder.
+"""The command line's side of real scans: reading an INPUT (``phantom:N``, ``sample:mri``, a file
+or folder), modality value ranges, ``--tf`` presets turned into nodes, and what ``hevr info``
+says about a scan or a DICOM folder. The options themselves (``--modality``, ``--view``, the scan
+options of ``hevr encrypt``) are in :mod:`hevr.cli.render_options` and :mod:`hevr.cli.options`.
 
 How ``hevr encrypt`` picks the value range (the density normalisation, public in the store)
 -------------------------------------------------------------------------------------------
@@ -25,51 +27,74 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ParameterError
-from ..rendering.views import VIEWS
+from ..errors import MissingFileError, ParameterError, VolumeFormatError
+from ..paper import PAPER_SIZE
 from ..volume.density import default_value_range, minmax
 from ..volume.dicom import list_series
-from ..volume.modality import (
-    MODALITY_RANGES,
-    TF_PRESETS,
-    UNSUPPORTED,
-    modality_range,
-    range_hint,
-    tf_preset,
-)
+from ..volume.loaders import read_scan
+from ..volume.modality import MODALITY_RANGES, range_hint, tf_preset
+from ..volume.phantom import phantom
+from ..volume.samples import SAMPLES, sample_scan
 from ..volume.scan import Scan
-from .options import finite_float
-from .util import UsageError, load_scan, warn_line, xyz
+from .options import MAX_PHANTOM, phantom_size_type
+from .util import UsageError, warn_line, xyz
 
-__all__ = ["MODALITY_CHOICES", "add_encrypt_scan_options", "add_scan_read_options", "add_view_option", "modality_type", "TF_HELP",
-           "resolve_tf", "encrypt_input", "scan_rows"]
+__all__ = ["encrypt_input", "load_input", "load_scan", "resolve_tf", "scan_rows"]
 
 log = logging.getLogger(__name__)
 
-MODALITY_CHOICES = ("auto",) + tuple(MODALITY_RANGES)
+
+# -- inputs -------------------------------------------------------------------------------------
+def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float, float, float], str]:
+    """:func:`load_scan` reduced to (volume, spacing, description)."""
+    scan, what = load_scan(spec, spacing)
+    return scan.volume, scan.spacing, what
 
 
-# -- argparse types and options ---------------------------------------------------------------
-def modality_type(text: str) -> str:
-    """``--modality``: ``auto`` or a modality with a fixed range (upper-cased).
+def load_scan(spec: str, spacing: Any = None, **read: Any) -> tuple[Scan, str]:
+    """``phantom:N`` (or ``phantom``), ``sample:mri`` (:func:`hevr.sample_scan`) or any
+    file/folder :func:`hevr.read_scan` reads.
 
-    >>> modality_type("ct"), modality_type("auto")
-    ('CT', 'auto')
+    ``read``: read_scan's ``series``, ``volume``, ``allow_uneven``, ``oblique``. Returns the
+    scan and a description; its frame, modality and origin are logged at INFO. Errors name
+    the volume ``input``: each command says which of its arguments that is (``INPUT``,
+    ``--input``, ``PATH``).
     """
-    if text.strip().lower() == "auto":
-        return "auto"
+
+    if spec == "phantom" or spec.startswith("phantom:"):
+        size_text = spec.partition(":")[2] or str(PAPER_SIZE)
+        try:
+            size = phantom_size_type(size_text)
+        except argparse.ArgumentTypeError:
+            raise UsageError(f"input: expected phantom:N with an integer N in [4, {MAX_PHANTOM}] "
+                             f"(e.g. phantom:{PAPER_SIZE}), got {spec!r}") from None
+        given = [k for k, v in read.items() if v not in (None, False, "refuse")]
+        if given:
+            raise UsageError(f"{', '.join(given)}: expected a scan file or folder as INPUT, got {spec!r}")
+        vol = phantom(size)
+        sp = tuple(float(v) for v in spacing) if spacing else (1.0, 1.0, 1.0)
+        return Scan(vol, sp, source=spec), f"phantom, {xyz(vol.shape)} voxels (uint8)"  # type: ignore[arg-type]
+    if spec.startswith("sample:") and not Path(spec).exists():  # a real scan an installed package ships
+        name = spec.partition(":")[2]
+        if name not in SAMPLES:
+            raise UsageError(f"input: expected sample:NAME with NAME one of {', '.join(SAMPLES)}, got {spec!r}")
+        path = sample_scan(name)
+    else:
+        path = Path(spec).expanduser()
+    if not path.exists():
+        raise MissingFileError("input", "a volume file, a DICOM folder, phantom:N or sample:mri", spec)
     try:
-        modality_range(text)
-    except ParameterError as exc:
-        reason = f"; {text.strip().upper()} has no fixed value range, give --value-range LO,HI" \
-            if text.strip().upper() in UNSUPPORTED else ""
-        raise argparse.ArgumentTypeError(f"expected one of {', '.join(MODALITY_CHOICES)}, got {text!r}{reason}") \
-            from exc
-    return text.strip().upper()
+        scan = read_scan(path, spacing=spacing, **read)
+    except MissingFileError as exc:  # a file the input refers to (an .nhdr's detached data file)
+        raise VolumeFormatError(f"input: {spec} refers to {exc.filename}, which does not exist") from None
+    log.info("%s: %s, modality %s, origin %s mm", spec, "RAS+ patient frame" if scan.frame else "axes as stored "
+             "(no patient frame recorded)", scan.modality or "not recorded", scan.origin)
+    vol = scan.volume
+    return scan, f"{path.name}, {xyz(vol.shape)} voxels ({vol.dtype})"
 
 
 def resolve_tf(tf: Any, value_range: Any) -> Any:
-    """Nodes from ``--tf`` (:func:`hevr.cli.options.tf_type`): a preset name becomes nodes for
+    """Nodes from ``--tf`` (:func:`hevr.cli.render_options.tf_type`): a preset name becomes nodes for
     the store's ``value_range``; nodes and ``None`` pass through."""
     if not isinstance(tf, str):
         return tf
@@ -77,44 +102,6 @@ def resolve_tf(tf: Any, value_range: Any) -> Any:
         return tf_preset(tf, value_range)
     except ParameterError as exc:
         raise ParameterError(f"--tf {tf}: {str(exc).partition(': ')[2]}") from None
-
-
-TF_HELP = (f"transfer function: a preset ({', '.join(TF_PRESETS)}: windows in the modality's units, converted "
-           "with the store's value range) or DENSITY:COLOR,... (colours #rrggbb, #rgb or CSS names)")
-
-
-def add_view_option(p: argparse.ArgumentParser) -> None:
-    """``hevr render --view``."""
-    p.add_argument("--view", choices=VIEWS, metavar="VIEW",
-                   help=f"anatomical view of a scan in the RAS+ patient frame: {', '.join(VIEWS)} (anterior: "
-                        "facing the patient, their right on the image's left); --azimuth/--elevation then "
-                        "turn about the view's up axis / tilt towards it")
-
-
-def add_encrypt_scan_options(p: argparse.ArgumentParser) -> None:
-    """``hevr encrypt``'s options for real scans."""
-    p.add_argument("--modality", type=modality_type, default="auto", metavar="|".join(MODALITY_CHOICES),
-                   help="value range of the modality when --value-range is not given: CT (-1024, 3071) HU, "
-                        "MR (0, 4095), US (0, 255); auto (default): the modality the file records (DICOM), else "
-                        "the dtype's range (integers) or the data range (floats)")
-    add_scan_read_options(p)
-    p.add_argument("--nan-as", type=finite_float, metavar="VALUE",
-                   help="float scans: encrypt NaN voxels (no measurement) as VALUE; without it a scan with NaN "
-                        "voxels is refused")
-
-
-def add_scan_read_options(p: argparse.ArgumentParser) -> None:
-    """How a scan is read — ``hevr encrypt`` and ``hevr info`` alike, so that info describes
-    exactly what encrypt reads."""
-    p.add_argument("--series", metavar="UID", help="DICOM: the series to read from a folder holding several "
-                   "(a SeriesInstanceUID, a unique prefix or a SeriesNumber; 'hevr info FOLDER' lists them)")
-    p.add_argument("--volume", type=int, metavar="INDEX",
-                   help="4-D NIfTI/NRRD/TIFF/OME-Zarr: the time point or component to encrypt")
-    p.add_argument("--allow-uneven", action="store_true",
-                   help="DICOM: accept unevenly spaced slices (read at their median spacing)")
-    p.add_argument("--oblique", choices=("refuse", "snap"), default="refuse",
-                   help="a scan tilted more than 1 degree off the patient axes: refuse (default; hevr does not "
-                        "resample) or snap to the nearest axes")
 
 
 # -- encrypt --------------------------------------------------------------------------------------
@@ -192,7 +179,7 @@ def scan_rows(path: Path, spec: str | None = None, **read: Any) -> list[tuple[st
     """``hevr info`` of a volume file or folder, read as ``hevr encrypt`` reads it with the same
     options (``read``: series, volume, allow_uneven, oblique); a DICOM folder lists its series
     first, and only them when it holds several and ``--series`` names none. ``spec``: an input
-    such as ``sample:mri`` that :func:`~hevr.cli.util.load_scan` resolves."""
+    such as ``sample:mri`` that :func:`load_scan` resolves."""
     scan = None
     if spec is not None:  # read once, here
         scan, _ = load_scan(spec, **read)

@@ -8,68 +8,28 @@ plane, size or slab is exit 2 with a message that starts with the option.
 
 from __future__ import annotations
 
-import argparse
-import math
 from typing import Any
 
 from ..paper import PAPER_TF1
 from ..rendering.plane import Plane
 from ..rendering.planner import check_render_size
 from ..rendering.slices import render_slice
+from .cluster import dask_client, describe_client
 from .commands import open_for_mode, resolve_mode
 from .finish import report_finish
+from .render_options import format_tf
 from .scan import resolve_tf
 from .storage import output_file, save_frame, size_of, storage_options
 from .util import (
     Timer,
     UsageError,
-    dask_client,
-    describe_client,
-    format_tf,
     human_bytes,
     show_progress,
     wh,
     xyz,
 )
 
-__all__ = ["SLICE_EPILOG", "cmd_slice", "oblique_type"]
-
-SLICE_EPILOG = """\
-examples:
-  hevr slice vol.zarr --out axial.hevr --axial 50                 # layer 50 as it is stored (x across, y down)
-  hevr slice vol.zarr --out cor.hevr --coronal 40 --size 150x150 --sampling trilinear
-  hevr slice vol.zarr --out obl.hevr --oblique 50,50,50:1,1,0 --pixel-spacing 0.5 --size 200x200
-  hevr slice vol.zarr --out slab.hevr --axial 50 --slab 5 --slab-step 1   # mean of 5 planes (no MIP: see README)
-  hevr slice vol.zarr --out tf.hevr --sagittal 30 --tf '0.279:blue,0.797:red'
-
-Rows and columns follow the array: --axial K is vol[K] (x across, y down), --coronal J is
-vol[:, J, :] (x across, z down), --sagittal I is vol[:, :, I] (y across, z down). Without
---size or --pixel-spacing the image is the volume's own grid; --size alone fits the volume
-into it with square pixels; --oblique CX,CY,CZ:NX,NY,NZ centres the image on the world point C
-(':NX,NY,NZ': the volume's centre) with normal N. Pixels outside the volume are 0.
---mode defaults to emphasize with --density, tf with --tf, else xray; with --finish client (the
-default) the density or transfer function is applied at 'hevr decrypt' (the command is printed).
-"""
-
-
-def oblique_type(text: str) -> tuple[tuple[float, float, float] | None, tuple[float, float, float]]:
-    """``--oblique CX,CY,CZ:NX,NY,NZ`` (or ``:NX,NY,NZ`` for the volume's centre) -> (centre, normal).
-
-    >>> oblique_type("1,2,3:0,0,1"), oblique_type(":1,1,0")
-    (((1.0, 2.0, 3.0), (0.0, 0.0, 1.0)), (None, (1.0, 1.0, 0.0)))
-    """
-    expected = "CX,CY,CZ:NX,NY,NZ (a world point and a non-zero normal; ':NX,NY,NZ' for the volume's centre)"
-    centre_text, sep, normal_text = text.partition(":")
-    try:
-        centre = tuple(float(p) for p in centre_text.split(",")) if centre_text.strip() else None
-        normal = tuple(float(p) for p in normal_text.split(","))
-    except ValueError:
-        centre, normal = (), ()
-    ok = (sep and len(normal) == 3 and (centre is None or len(centre) == 3)
-          and all(math.isfinite(v) for v in (centre or ()) + normal) and any(v != 0 for v in normal))
-    if not ok:
-        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
-    return centre, normal  # type: ignore[return-value]
+__all__ = ["cmd_slice"]
 
 
 def _plane(args: Any, ev: Any) -> tuple[Plane, str]:

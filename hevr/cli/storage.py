@@ -13,17 +13,15 @@ Output files (frames, sums, ``hevr decrypt``'s PNG and ``--npy``) are never writ
 existing file or object unless ``--force``: :func:`output_file` refuses one before any work
 (exit 2), and the write itself refuses it again, atomically.
 
->>> storage_option_type("endpoint_url=http://127.0.0.1:9000")
-('endpoint_url', 'http://127.0.0.1:9000')
->>> storage_option_type("anon=true")
-('anon', True)
+The option's type and group are in :mod:`hevr.cli.options` (the parser builds them without
+this module).
+
 >>> is_url("s3://b/v.zarr"), is_url("file:///tmp/v.zarr"), is_url("v.zarr")
 (True, False, False)
 """
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import os
@@ -44,6 +42,7 @@ from ..store.paths import (
     store_exists,
 )
 from ..store.reader import EncryptedVolume, open_volume
+from .options import STORAGE_OPTIONS_ENV
 from .util import (
     UsageError,
     check_new_file,
@@ -52,36 +51,8 @@ from .util import (
     disk_usage,
 )
 
-__all__ = ["STORAGE_OPTIONS_ENV", "storage_option_type", "storage_parent", "storage_options", "is_url", "local_path",
-           "open_store", "output_file", "save_frame", "save_decrypted", "size_of", "head_of", "png_name", "url_kind", "encrypt_target"]
-
-STORAGE_OPTIONS_ENV = "HEVR_STORAGE_OPTIONS"
-
-
-def storage_option_type(text: str) -> tuple[str, Any]:
-    """argparse type of ``--storage-option KEY=VALUE`` (module docstring)."""
-    key, sep, value = str(text).partition("=")
-    key = key.strip()
-    if not sep or not key or not key.replace("_", "a").replace("-", "a").isalnum():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE with a KEY of letters, digits and '_' "
-                                         f"(e.g. endpoint_url=http://127.0.0.1:9000), got {key or 'no key'!r}")
-    try:
-        return key, json.loads(value)
-    except ValueError:
-        return key, value
-
-
-def storage_parent() -> argparse.ArgumentParser:
-    """The parent parser that adds ``--storage-option`` to a command."""
-    p = argparse.ArgumentParser(add_help=False)
-    g = p.add_argument_group("object storage")
-    g.add_argument("--storage-option", dest="storage_option", action="append", type=storage_option_type,
-                   metavar="KEY=VALUE",
-                   help="an fsspec option of the URL's filesystem (repeatable), e.g. endpoint_url=http://host:9000, "
-                        f"anon=true, profile=NAME; JSON values are parsed. Env {STORAGE_OPTIONS_ENV}: a JSON object "
-                        "of options. STORE, FRAME and SUMS may be URLs (s3://, gs://, az://, file://)")
-    return p
-
+__all__ = ["storage_options", "is_url", "local_path", "open_store", "output_file", "save_frame", "save_decrypted",
+           "size_of", "head_of", "png_name", "url_kind", "encrypt_target"]
 
 def storage_options(args: Any) -> dict | None:
     """The options of this command: ``$HEVR_STORAGE_OPTIONS``, then ``--storage-option`` (None if none)."""

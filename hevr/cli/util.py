@@ -1,50 +1,34 @@
-"""Helpers shared by the command line (:mod:`hevr.cli.main`) and :mod:`hevr.cli.demo`.
+"""Helpers shared by the command line's modules (:mod:`hevr.cli.main` and the commands).
 
-The Dask client/cluster context of a command, input and key loading (``phantom:N`` or a
-volume file), the command line's own checks of the files it names (in its words: ``--key``,
-``STORE``), and small formatting helpers, among them :func:`xyz` and :func:`wh`, the one axis
-order the CLI prints. The argparse value types are in :mod:`hevr.cli.options`. Nothing here
-ever prints secret-key material.
+The command line's own checks of the files it names (in its words: ``--out``, ``STORE``,
+``FRAME``), its one-line messages on stderr, and small formatting helpers, among them
+:func:`xyz` and :func:`wh`, the one axis order the CLI prints. The argparse value types are in
+:mod:`hevr.cli.options`, key files in :mod:`hevr.cli.keys`, inputs in :mod:`hevr.cli.scan`, Dask
+clients in :mod:`hevr.cli.cluster`. Nothing here ever prints secret-key material.
+
+Light to import (the standard library, :mod:`hevr.errors` and two leaf modules): :mod:`hevr.cli.exits` and every
+command's parser import it, ``hevr --version`` too.
 """
 
 from __future__ import annotations
 
-import argparse
-import contextlib
 import io
 import json
-import logging
+import numbers
 import os
 import sys
 import time
-import warnings
 from pathlib import Path
-from typing import Any, Iterator
-
-import numpy as np
-from distributed import Client, LocalCluster
+from typing import Any
 
 from .._files import check_regular, fs_errors
-from .._image_header import MAGIC_PREFIX
-from ..crypto.keyfile import load_key
-from ..crypto.keys import SECURE_BITS, PrivateKey
+from .._magic import IMAGE_MAGIC_PREFIX
 from ..errors import (
     ExistingFileError,
     FileSystemError,
-    InsecureKeyWarning,
     MissingFileError,
     ParameterError,
-    VolumeFormatError,
 )
-from ..paper import PAPER_SIZE
-from ..rendering.modes import parse_color
-from ..volume.loaders import read_scan
-from ..volume.phantom import phantom
-from ..volume.samples import SAMPLES, sample_scan
-from ..volume.scan import Scan
-from .options import MAX_PHANTOM, phantom_size_type
-
-log = logging.getLogger("hevr.cli.main")
 
 
 class UsageError(ParameterError):
@@ -53,156 +37,16 @@ class UsageError(ParameterError):
     like argparse's errors (:mod:`hevr.cli.main`). The message starts with the option it names."""
 
 
-def format_tf(nodes: Any) -> str:
-    """Nodes (colours in any form :func:`parse_color` reads) -> ``"0.279:#0000ff,..."``.
-
-    >>> format_tf([(0.279, "blue"), (0.797, (1, 0, 0))])
-    '0.279:#0000ff,0.797:#ff0000'
-    """
-    out = []
-    for d, c in nodes:
-        rgb = "#" + "".join(f"{round(float(x) * 255):02x}" for x in parse_color(c))
-        out.append(f"{float(d):g}:{rgb}")
-    return ",".join(out)
-
-
-# -- inputs and keys -----------------------------------------------------------------------
-def load_input(spec: str, spacing: Any = None) -> tuple[np.ndarray, tuple[float, float, float], str]:
-    """:func:`load_scan` reduced to (volume, spacing, description)."""
-    scan, what = load_scan(spec, spacing)
-    return scan.volume, scan.spacing, what
-
-
-def load_scan(spec: str, spacing: Any = None, **read: Any) -> tuple[Scan, str]:
-    """``phantom:N`` (or ``phantom``), ``sample:mri`` (:func:`hevr.sample_scan`) or any
-    file/folder :func:`hevr.read_scan` reads.
-
-    ``read``: read_scan's ``series``, ``volume``, ``allow_uneven``, ``oblique``. Returns the
-    scan and a description; its frame, modality and origin are logged at INFO. Errors name
-    the volume ``input``: each command says which of its arguments that is (``INPUT``,
-    ``--input``, ``PATH``).
-    """
-
-    if spec == "phantom" or spec.startswith("phantom:"):
-        size_text = spec.partition(":")[2] or str(PAPER_SIZE)
-        try:
-            size = phantom_size_type(size_text)
-        except argparse.ArgumentTypeError:
-            raise UsageError(f"input: expected phantom:N with an integer N in [4, {MAX_PHANTOM}] "
-                             f"(e.g. phantom:{PAPER_SIZE}), got {spec!r}") from None
-        given = [k for k, v in read.items() if v not in (None, False, "refuse")]
-        if given:
-            raise UsageError(f"{', '.join(given)}: expected a scan file or folder as INPUT, got {spec!r}")
-        vol = phantom(size)
-        sp = tuple(float(v) for v in spacing) if spacing else (1.0, 1.0, 1.0)
-        return Scan(vol, sp, source=spec), f"phantom, {xyz(vol.shape)} voxels (uint8)"  # type: ignore[arg-type]
-    if spec.startswith("sample:") and not Path(spec).exists():  # a real scan an installed package ships
-        name = spec.partition(":")[2]
-        if name not in SAMPLES:
-            raise UsageError(f"input: expected sample:NAME with NAME one of {', '.join(SAMPLES)}, got {spec!r}")
-        path = sample_scan(name)
-    else:
-        path = Path(spec).expanduser()
-    if not path.exists():
-        raise MissingFileError("input", "a volume file, a DICOM folder, phantom:N or sample:mri", spec)
-    try:
-        scan = read_scan(path, spacing=spacing, **read)
-    except MissingFileError as exc:  # a file the input refers to (an .nhdr's detached data file)
-        raise VolumeFormatError(f"input: {spec} refers to {exc.filename}, which does not exist") from None
-    log.info("%s: %s, modality %s, origin %s mm", spec, "RAS+ patient frame" if scan.frame else "axes as stored "
-             "(no patient frame recorded)", scan.modality or "not recorded", scan.origin)
-    vol = scan.volume
-    return scan, f"{path.name}, {xyz(vol.shape)} voxels ({vol.dtype})"
-
-
-def public_key_path(path: str | Path) -> Path:
-    """``key.json`` -> ``key.pub.json``; ``key`` -> ``key.pub``."""
-    path = Path(path)
-    if path.suffix == ".json":
-        return path.with_name(path.stem + ".pub.json")
-    return path.with_name(path.name + ".pub")
-
-
-def read_key(path: str, private: bool = False) -> Any:
-    """Load a key file; insecure-size warnings are left to keygen/info (bits are shown there).
-
-    ``private``: refuse a public key (``key: expected a private key file, …``). Errors name
-    the ``key``, as :func:`hevr.load_key` does; each command says which argument that is.
-    """
-    if Path(path).expanduser().is_dir():
-        raise UsageError(f"key: expected a key file, got a folder ({path})")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", InsecureKeyWarning)
-        key = load_key(Path(path).expanduser())
-    if private and not isinstance(key, PrivateKey):
-        raise UsageError(f"key: expected a private key file, got a public key ({path})")
-    return key
-
-
-def key_label(pub: Any) -> str:
-    weak = " (NOT secure: < 2048 bits)" if pub.bits < SECURE_BITS else ""
-    return f"{pub.bits}-bit{weak}, fingerprint {pub.fingerprint}"
-
-
-# -- Dask --------------------------------------------------------------------------------
-@contextlib.contextmanager
-def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
-    """Join ``scheduler``, or start ``workers`` local worker processes, or use Dask's default.
-
-    Yields the ``distributed.Client`` (or None); closes what it opened.
-    """
-    if scheduler:
-
-        log.info("connecting to the Dask scheduler at %s", scheduler)
-        try:
-            client = Client(scheduler, timeout="10s")
-        except (OSError, TimeoutError) as exc:
-            raise OSError(f"--scheduler: cannot connect to the Dask scheduler at {scheduler}: {exc}") from None
-        try:
-            yield client
-        finally:
-            client.close()
-    elif workers:
-
-        log.info("starting a local Dask cluster: %d worker processes, 1 thread each", workers)
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
-        try:
-            client = Client(cluster)
-            try:
-                yield client
-            finally:
-                client.close()
-        finally:
-            cluster.close()
-    else:
-        yield None
-
-
-def describe_client(client: Any) -> str:
-    if client is None:
-        return "Dask's default (threaded) scheduler"
-    try:
-        n = len(client.scheduler_info().get("workers", {}))
-    except Exception:  # pragma: no cover - informational only
-        n = "?"
-    try:
-        board = f", dashboard {client.dashboard_link}" if client.dashboard_link else ""
-    except Exception:  # pragma: no cover - no dashboard (bokeh missing, or disabled)
-        board = ""
-    return f"Dask cluster {client.scheduler.address} ({n} workers{board})"
-
-
 # -- formatting --------------------------------------------------------------------------
 class Timer:
     """``with Timer() as t: ...; t.seconds``"""
 
-    def __enter__(self) -> "Timer":
+    def __enter__(self) -> Timer:
         self.start = time.perf_counter()
         self.seconds = 0.0
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.seconds = time.perf_counter() - self.start
 
 
@@ -231,6 +75,13 @@ def table(rows: list[list[Any]], header: list[str]) -> str:
         if j == 0:
             lines.append("  ".join("-" * w for w in widths))
     return "\n".join(lines)
+
+
+def print_rows(rows: list[tuple[str, Any]]) -> None:
+    """``hevr info``'s table: one ``key: value`` row a line, the values aligned."""
+    w = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"{k + ':':<{w + 1}} {v}")
 
 
 def show_progress(args: Any) -> bool:
@@ -331,17 +182,18 @@ def check_frame_path(path: Path, word: str) -> Path:
     check_regular(path, word, what)  # a FIFO or a device: NotRegularFileError, never a blocked open
     try:
         with open(path, "rb") as fh:
-            head = fh.read(len(MAGIC_PREFIX))
+            head = fh.read(len(IMAGE_MAGIC_PREFIX))
     except OSError as exc:
         raise FileSystemError(exc.errno, f"{word}: reading", path, exc.strerror) from None
-    if head != MAGIC_PREFIX:
+    if head != IMAGE_MAGIC_PREFIX:
         raise UsageError(f"{word}: expected {what}, got a file that is not one ({path})")
     return path
 
 
 # -- the one axis order the CLI prints ---------------------------------------------------------
 def _num(v: Any) -> str:
-    return f"{float(v):g}" if isinstance(v, (float, np.floating)) else str(v)
+    """A size as printed: a float (numpy's too) in ``%g``, anything else as it is."""
+    return f"{float(v):g}" if isinstance(v, numbers.Real) and not isinstance(v, numbers.Integral) else str(v)
 
 
 def xyz(zyx: Any, sep: str = "×") -> str:

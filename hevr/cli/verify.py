@@ -15,7 +15,8 @@ from ..errors import StoreError
 from ..store.paths import interrupted_swaps, is_local
 from ..store.reader import open_volume
 from ..store.verify import verify_bricks
-from .util import dask_client, disk_usage, human_bytes, show_progress, warn_line
+from .cluster import dask_client
+from .util import disk_usage, human_bytes, show_progress, warn_line
 
 __all__ = ["leftovers", "warn_leftovers", "verify_store"]
 

@@ -28,12 +28,29 @@ function.)
 
 from __future__ import annotations
 
-from .camera import Camera
-from .encrypted import RaySums, clear_cache, error_bound, render
-from .plain import render_plain, render_slice_plain
-from .plane import Plane
-from .slices import render_slice
-from .sums import SavedSums, load_sums, recolour
+from typing import TYPE_CHECKING
+
+from .._lazy import attach
+
+if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr._lazy)
+    from .camera import Camera
+    from .encrypted import RaySums, clear_cache, error_bound, render
+    from .plain import render_plain, render_slice_plain
+    from .plane import Plane
+    from .slices import render_slice
+    from .sums import SavedSums, load_sums, recolour
 
 __all__ = ["Camera", "Plane", "RaySums", "SavedSums", "clear_cache", "error_bound", "load_sums", "recolour", "render",
            "render_plain", "render_slice", "render_slice_plain"]
+
+# Name -> submodule, imported on first use: ``hevr.rendering.views`` or ``.camera`` alone (the
+# command line's --view choices) need numpy, not Dask. Equal to the TYPE_CHECKING imports above.
+_LAZY = {
+    ".camera": ("Camera",),
+    ".encrypted": ("RaySums", "clear_cache", "error_bound", "render"),
+    ".plain": ("render_plain", "render_slice_plain"),
+    ".plane": ("Plane",),
+    ".slices": ("render_slice",),
+    ".sums": ("SavedSums", "load_sums", "recolour"),
+}
+__getattr__, __dir__ = attach(__name__, _LAZY)

@@ -52,6 +52,7 @@ from .._files import read_regular, require_file
 from .._image_checks import FINISHES
 from .._image_header import MAX_N_DIGITS, Fields, parse_json
 from .._limits import MAX_IMAGE_PIXELS
+from .._magic import SUMS_MAGIC_PREFIX
 from .._tiles import TileLayout
 from .._validate import check_bool, check_choice, check_int, check_step
 from ..backends import get_backend, resolve_backend_name
@@ -88,7 +89,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["RaySums", "SavedSums", "check_sums_path", "image_fields", "load_sums", "recolour", "save_sums"]
 
-MAGIC = b"HEVRSUMS" + bytes([1])
+MAGIC = SUMS_MAGIC_PREFIX + bytes([1])
 FORMAT = "hevr-ray-sums"
 VERSION = 1
 LENGTH = struct.Struct("<I")

@@ -19,20 +19,37 @@ Alg. 4 vector encoding.
 
 from __future__ import annotations
 
-from .density import encode_density, normalize_density
-from .gradient import gradient_encoding
-from .loaders import load_volume, read_scan, save_volume
-from .modality import (
-           MODALITY_RANGES,
-           TF_PRESETS,
-           modality_range,
-           range_hint,
-           tf_preset,
-           window_density,
-)
-from .phantom import PHANTOM_LEVELS, phantom
-from .scan import Scan
+from typing import TYPE_CHECKING
+
+from .._lazy import attach
+
+if TYPE_CHECKING:
+    from .density import encode_density, normalize_density
+    from .gradient import gradient_encoding
+    from .loaders import load_volume, read_scan, save_volume
+    from .modality import (
+               MODALITY_RANGES,
+               TF_PRESETS,
+               modality_range,
+               range_hint,
+               tf_preset,
+               window_density,
+    )
+    from .scan import Scan
+
+# Eager, and light (numpy): hevr.volume.phantom stays the function even once the submodule of
+# that name is imported (a lazy name that is also a submodule would be either; hevr._lazy.attach).
+from .phantom import PHANTOM_LEVELS, phantom  # noqa: E402
 
 __all__ = ["PHANTOM_LEVELS", "encode_density", "gradient_encoding", "load_volume", "normalize_density", "phantom", "save_volume",
            "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
            "read_scan", "Scan"]
+
+_LAZY = {
+    ".density": ("encode_density", "normalize_density"),
+    ".gradient": ("gradient_encoding",),
+    ".loaders": ("load_volume", "read_scan", "save_volume"),
+    ".modality": ("MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density"),
+    ".scan": ("Scan",),
+}
+__getattr__, __dir__ = attach(__name__, _LAZY)

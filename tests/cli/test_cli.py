@@ -197,7 +197,7 @@ def test_verbose_shows_traceback(work, capsys):
 
 
 def test_mode_inference_and_tf_parsing():
-    from hevr.cli.options import parse_tf, size_type
+    from hevr.cli.render_options import parse_tf, size_type
 
     assert parse_tf("0.279:#0000ff, 0.797:red") == [(0.279, (0.0, 0.0, 1.0)), (0.797, (1.0, 0.0, 0.0))]
     assert size_type("150x100") == (150, 100) and size_type("64") == (64, 64)

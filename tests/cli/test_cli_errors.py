@@ -17,6 +17,7 @@ import pytest
 
 import hevr
 import hevr.store.writer as writer_mod
+from hevr.cli import cluster as cli_cluster
 from hevr.cli import exits
 from hevr.cli import util as cli_util
 from hevr.cli.main import main
@@ -266,7 +267,7 @@ def test_unreachable_scheduler_is_a_run_failure(d, capsys, monkeypatch):
     def refuse(*args, **kw):
         raise OSError("connection refused")
 
-    monkeypatch.setattr(cli_util, "Client", refuse)
+    monkeypatch.setattr(cli_cluster, "Client", refuse)
     code, _, err = run(capsys, "encrypt", "phantom:8", "--key", d / "key.pub.json", "--out", d / "s.zarr",
                        "--scheduler", "tcp://127.0.0.1:1")
     msg = one_error_line(err)
