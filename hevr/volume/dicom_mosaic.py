@@ -30,6 +30,7 @@ volume.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -88,7 +89,9 @@ def mosaic_of(ds: Any, path: Path) -> Mosaic | None:
     """
     if not is_mosaic(ds):
         return None
-    csareader = require("nibabel.nicom.csareader", path)
+    with warnings.catch_warnings():  # nibabel.nicom warns about its own DICOM readers, which hevr does not use
+        warnings.filterwarnings("ignore", message="The DICOM readers are highly experimental")
+        csareader = require("nibabel.nicom.csareader", path)
     name = path.name
     try:
         csa = csareader.get_csa_header(ds, "image")
