@@ -21,6 +21,7 @@ import uuid
 from collections import OrderedDict
 from typing import Any
 
+import dask
 from dask.delayed import Delayed, delayed
 
 from .._dask import active_client
@@ -34,7 +35,7 @@ from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
 from .bounds import error_bound
 from .camera import Camera
-from .graph import FinishGraph, build_sums_graph
+from .graph import FinishGraph, build_sums_graph, resident_groups
 from .modes import combination_matrix
 from .plane import Plane
 from .planner import check_render_size, plan_render
@@ -60,6 +61,8 @@ def _gathered_bytes(packed: list, sums: RaySums, client: Any, reused: bool) -> i
 # sampling only: trilinear rows share per-voxel powers across a brick's rays (kernel.py), which
 # pieces would compute once per piece (measured: +8 % map time at 2048 bits).
 BAND_BITS = 1024
+# Dask config: resident bricks mapped in one task per worker (True) or one task per brick (False).
+RESIDENT_BATCH_KEY = "hevr.render.resident-batch"
 
 _CACHE: "OrderedDict[tuple, RaySums]" = OrderedDict()
 CACHE_SIZE = 2
@@ -261,10 +264,12 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         # One graph: map -> tree merge -> finish, so merged sums never travel through the client.
         # When they are cached they stay where they are: futures on a cluster (re-colouring
         # then runs next to them), values on a single machine.
+        batch = resident is not None and bool(dask.config.get(RESIDENT_BATCH_KEY, True))
         graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
                                  tile, n_tiles, backend, resident,
                                  bands=resident is not None and spec.sampling == "nearest"
-                                 and int(ev.public_key.n).bit_length() >= BAND_BITS)
+                                 and int(ev.public_key.n).bit_length() >= BAND_BITS,
+                                 groups=resident_groups(resident, cl) if batch else None)
         fin = finish.tasks({t: graph.delayed(t) for t in graph.merged})
         map_tasks = graph.map_tasks
         if not compute:

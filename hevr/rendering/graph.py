@@ -108,6 +108,47 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     return out
 
 
+def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, step: float, digits: int,
+              channel: str, tile: int, backend: str, *data: Any) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """One map task for several resident bricks of one worker: each brick's :func:`map_brick`,
+    then the partials of every tile merged here (one ``(rays, records)`` per tile), so that the
+    per-task overhead and the merge tasks scale with workers, not bricks.
+
+    ``items`` lists ``(index, footprint)`` per brick, ``data`` their :class:`ResidentBrick`
+    in the same order. The output is the same kind of dict by tile as :func:`map_brick`'s, with
+    every tile of any of the bricks' footprints.
+    """
+    W = ev.meta.ciphertext_bytes
+    parts: dict[int, list] = {}
+    for (idx, fp), brick in zip(items, data):
+        for t, part in map_brick(ev, camera, idx, sampling, step, digits, channel, fp, tile, backend,
+                                 brick).items():
+            if part[0].size:
+                parts.setdefault(t, []).append(part)
+    empty = (np.zeros(0, np.int64), np.zeros((0, ev.meta.components(channel), W), np.uint8))
+    tiles = sorted({t for _, fp in items for t in fp.tiles})
+    n2 = int(ev.public_key.nsquare)
+    with _stats.timed("map.merge", len(tiles)):
+        return {t: (parts[t][0] if len(parts.get(t, ())) == 1 else
+                    merge_partials(parts[t], n2, backend) if t in parts else empty) for t in tiles}
+
+
+def resident_groups(resident: dict, client: Any) -> list[list]:
+    """The resident bricks' indices grouped by the worker holding them (on a cluster), else
+    into as many groups as the local scheduler has threads; brick order kept in each group."""
+    keys = list(resident)
+    if client is not None:
+        futures = [resident[k] for k in keys]
+        where = client.who_has(futures)
+        by: dict[str, list] = {}
+        for k, f in zip(keys, futures):
+            holders = sorted(where.get(f.key, ())) or ["?"]
+            by.setdefault(holders[0], []).append(k)
+        return [by[w] for w in sorted(by)]
+    n = max(1, min(len(keys), dask.system.CPU_COUNT))
+    return [keys[i::n] for i in range(n)] if keys else []
+
+
 def merge_task(nsquare: int, backend: str, tile: int, *parts):
     """One merge task: ⊕ per ray of up to ``FAN_IN`` partial results of tile ``tile``: a map
     task's output (its dict by tile: this tile's entry is taken here, so no selection task
@@ -161,7 +202,8 @@ class SumsGraph:
 
 def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,
                      channel: str, tile: int, n_tiles: int, backend: str = "cpu",
-                     resident: dict | None = None, bands: bool = False) -> SumsGraph:
+                     resident: dict | None = None, bands: bool = False,
+                     groups: list[list] | None = None) -> SumsGraph:
     """The view's map -> merge graph, built in O(bricks + pixels + edges) on the client.
 
     Written as a plain task dictionary (Dask's graph specification): a few dictionary
@@ -175,16 +217,30 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
     then complete as soon as that row's tasks are done and their finishing overlaps the rest of
     the map phase (the tail shrinks from the tiles of the last bricks' footprints to one tile
     row). Only for resident bricks: streamed, each piece would read the brick again.
+
+    With ``groups`` (lists of resident brick indices, one per worker: :func:`resident_groups`)
+    each group is one map task (:func:`map_group`), which merges its bricks' partials itself.
     """
     prints = brick_footprints(camera, ev.shape, ev.spacing, ev.brick, rays.n_samples > 0, tile)
     token = dask.base.tokenize(ev.path, ev.meta.store_id, camera.key(), sampling, step, digits, channel, tile,
-                               backend, resident is not None)
+                               backend, resident is not None, groups is not None)
     leaves: dict[int, list] = {t: [] for t in range(n_tiles)}
     n2 = int(ev.public_key.nsquare)
     dsk: dict[str, Any] = {}
     prio: dict[str, int] = {}
     edges = pieces_total = 0
-    for idx, fp in prints.items():
+    for g, group in enumerate(groups or ()):
+        items = [(idx, prints[idx]) for idx in group if prints[idx].tiles]
+        if not items:
+            continue
+        name = f"hevr-map-{token}-g{g}"
+        dsk[name] = (map_group, ev, camera, items, sampling, step, digits, channel, tile, backend,
+                     *[resident[idx] for idx, _ in items])
+        for t in sorted({t for _, fp in items for t in fp.tiles}):
+            leaves[t].append(name)
+        pieces_total += 1
+        edges += sum(len(fp.tiles) for _, fp in items)
+    for idx, fp in (prints.items() if groups is None else ()):
         if not fp.tiles:
             continue
         data = resident.get(idx) if resident is not None else None
@@ -217,7 +273,7 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
         merged[t] = queue[0] if queue else None
     layer = f"hevr-sums-{token}"
     hlg = HighLevelGraph({layer: MaterializedLayer(dsk, annotations={"priority": Priorities(prio)})}, {layer: set()})
-    return SumsGraph(hlg, layer, merged, len(prints), edges, pieces_total)
+    return SumsGraph(hlg, layer, merged, len(prints) if groups is None else pieces_total, edges, pieces_total)
 
 
 @dataclass(frozen=True)

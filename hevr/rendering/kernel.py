@@ -196,33 +196,22 @@ def plan_products(indptr, voxels, weights, n_vox: int) -> ProductPlan:
         rowid = np.repeat(np.arange(n_rows), np.diff(ip))
         ip = np.concatenate([[0], np.cumsum(np.bincount(rowid[keep], minlength=n_rows))])
         vox, wt = vox[keep], wt[keep]
-    # Duplicate rows: the dict compares the exact bytes of the (voxel, weight) records.
-    blob = np.stack([vox, wt], axis=1).tobytes()
-    ipl = ip.tolist()
-    rep, uniq, first = [-1] * n_rows, [], {}
-    for r in range(n_rows):
-        s, e = ipl[r], ipl[r + 1]
-        if s != e:
-            rep[r] = u = first.setdefault(blob[16 * s : 16 * e], len(uniq))
-            if u == len(uniq):
-                uniq.append(r)
-    plan = ProductPlan(n_rows, n_pairs, rep, vox.tolist(), wt.tolist(), [])
-    if not uniq:
+    rep_a, u_rows = _duplicate_rows(ip, vox, wt)
+    plan = ProductPlan(n_rows, n_pairs, rep_a.tolist(), vox.tolist(), wt.tolist(), [])
+    if not u_rows.size:
         return plan
     nonempty = np.flatnonzero(np.diff(ip))
     row_max = np.zeros(n_rows, np.uint64)
     row_max[nonempty] = np.maximum.reduceat(wt, ip[nonempty])
-    u_rows = np.asarray(uniq)
     u_s, u_e, u_max = ip[u_rows], ip[u_rows + 1], row_max[u_rows]
     kinds = np.where(u_e - u_s == 1, _SINGLE, np.where(u_max == 1, _ONES, _HORNER))
-    w_r = np.zeros(len(uniq), np.int64)
+    w_r = np.zeros(u_rows.size, np.int64)
     gen = np.flatnonzero(kinds == _HORNER)
-    for i in np.flatnonzero(kinds == _SINGLE).tolist():
-        # Binary powering is Horner with w = 1: (b - 1) S + popcount - 1; else powmod.
-        x = int(u_max[i])
-        b = x.bit_length()
-        if (b - 1) * _SQR + bin(x).count("1") - 1 <= _POW_BIT * b + _POW_BASE:
-            kinds[i], w_r[i] = _HORNER, 1
+    # One pair: binary powering is Horner with w = 1, (b - 1) S + popcount - 1; else powmod.
+    single = kinds == _SINGLE
+    b = _bit_length(u_max)
+    binary = single & ((b - 1) * _SQR + np.bitwise_count(u_max).astype(np.int64) - 1 <= _POW_BIT * b + _POW_BASE)
+    kinds[binary], w_r[binary] = _HORNER, 1
     if gen.size:
         w_r[gen], shared = _choose_windows(vox, wt, u_s[gen], u_e[gen], u_max[gen])
         if shared is not None:
@@ -231,6 +220,70 @@ def plan_products(indptr, voxels, weights, n_vox: int) -> ProductPlan:
     n_win = np.where(w_r > 0, -(-_bit_length(u_max) // np.maximum(w_r, 1)), 0)
     plan.tasks = list(zip(kinds.tolist(), u_s.tolist(), u_e.tolist(), w_r.tolist(), n_win.tolist()))
     return plan
+
+
+_MIX = tuple(np.uint64(k) for k in (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0xBF58476D1CE4E5B9))
+
+
+def _duplicate_rows(ip: np.ndarray, vox: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Identical rows, found with array operations: ``(rep, uniq)``.
+
+    ``uniq`` holds the first row of every distinct non-empty ``(voxel, weight)`` list, in row
+    order; ``rep[r]`` is the position in ``uniq`` of row ``r``'s list (-1: an empty row). Rows
+    are grouped by length and a 64-bit hash of their pairs and positions, then every row is
+    compared pair by pair with its group's first row, so a hash collision cannot merge two
+    different rows (on one, the rows are grouped again by their exact bytes).
+
+    >>> r, u = _duplicate_rows(np.array([0, 2, 2, 4, 5]), np.array([1, 2, 1, 2, 1], np.uint64),
+    ...                        np.array([1, 1, 1, 1, 1], np.uint64))
+    >>> r.tolist(), u.tolist()
+    ([0, -1, 0, 1], [0, 3])
+    """
+    n_rows = ip.size - 1
+    lens = np.diff(ip)
+    rows = np.flatnonzero(lens)
+    rep = np.full(n_rows, -1, np.int64)
+    if not rows.size:
+        return rep, rows
+    k0, k1, k2, k3 = _MIX
+    pos = np.arange(vox.size, dtype=np.uint64) - np.repeat(ip[:-1], lens).astype(np.uint64)
+    with np.errstate(over="ignore"):
+        h = (vox * k0) ^ ((wt + k1) * k2) ^ ((pos + np.uint64(1)) * k3)
+        h ^= h >> np.uint64(31)
+        h *= k1
+        h ^= h >> np.uint64(29)
+        key = np.add.reduceat(h, ip[rows]) ^ (lens[rows].astype(np.uint64) * k2)
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    head = rows[first[inverse.reshape(-1)]]  # per non-empty row: the first row of its group
+    other = head != rows
+    if other.any():  # check every pair against the group's first row
+        r, g = rows[other], head[other]
+        n = lens[r]
+        if np.any(n != lens[g]):  # a hash collision across lengths
+            return _duplicate_rows_exact(ip, vox, wt)
+        start = np.repeat(ip[r], n)
+        at = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+        a, b = start + at, np.repeat(ip[g], n) + at
+        differ = np.add.reduceat(((vox[a] != vox[b]) | (wt[a] != wt[b])).astype(np.int64), np.cumsum(n) - n)
+        if differ.any():  # a hash collision: group these rows by their exact bytes instead
+            return _duplicate_rows_exact(ip, vox, wt)
+    uniq = np.unique(head)
+    rep[rows] = np.searchsorted(uniq, head)
+    return rep, uniq
+
+
+def _duplicate_rows_exact(ip: np.ndarray, vox: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_duplicate_rows` by the exact bytes of every row (a dict): the collision fallback."""
+    blob = np.stack([vox, wt], axis=1).tobytes()
+    ipl = ip.tolist()
+    rep, uniq, first = [-1] * (ip.size - 1), [], {}
+    for r in range(ip.size - 1):
+        s, e = ipl[r], ipl[r + 1]
+        if s != e:
+            rep[r] = u = first.setdefault(blob[16 * s : 16 * e], len(uniq))
+            if u == len(uniq):
+                uniq.append(r)
+    return np.asarray(rep, np.int64), np.asarray(uniq, np.int64)
 
 
 def _choose_windows(vox, wt, starts, stops, rmax):

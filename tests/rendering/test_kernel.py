@@ -271,3 +271,50 @@ def test_random_csr_matches_naive(case, bits, k, seed):
     for comp, res in zip(comps, got):
         assert res == _naive(comp, ip, vx, wt, n2)
     assert c.rows == k * len(rows) and c.pairs == k * len(vx)
+
+
+# -- duplicate rows found with array operations (issue 27, item 1) ---------------------------------------
+def _csr_with_repeats(rng: np.random.Generator, n_rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows drawn from a few distinct (voxel, weight) lists, with empty rows and near-misses
+    (same voxels, one weight changed; same pairs in another order)."""
+    base = [(rng.integers(0, 30, size=n, dtype=np.uint64), rng.integers(1, 4, size=n, dtype=np.uint64))
+            for n in rng.integers(1, 6, size=6)]
+    rows = []
+    for _ in range(n_rows):
+        v, w = base[int(rng.integers(0, len(base)))]
+        kind = int(rng.integers(0, 5))
+        if kind == 0:
+            v, w = v[:0], w[:0]
+        elif kind == 1 and v.size:
+            w = w.copy()
+            w[-1] += 1
+        elif kind == 2 and v.size > 1:
+            v, w = v[::-1], w[::-1]
+        rows.append((v, w))
+    ip = np.concatenate([[0], np.cumsum([v.size for v, _ in rows])]).astype(np.int64)
+    vox = np.concatenate([v for v, _ in rows]).astype(np.uint64)
+    wt = np.concatenate([w for _, w in rows]).astype(np.uint64)
+    return ip, vox, wt
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 80))
+def test_duplicate_rows_match_the_exact_byte_comparison(seed, n_rows):
+    from hevr.rendering.kernel import _duplicate_rows, _duplicate_rows_exact
+
+    ip, vox, wt = _csr_with_repeats(np.random.default_rng(seed), n_rows)
+    rep, uniq = _duplicate_rows(ip, vox, wt)
+    rep_x, uniq_x = _duplicate_rows_exact(ip, vox, wt)
+    assert rep.tolist() == rep_x.tolist() and uniq.tolist() == uniq_x.tolist()
+
+
+def test_duplicate_rows_survive_hash_collisions(monkeypatch):
+    """With every hash equal, rows of one length collide: the exact comparison still decides."""
+    import hevr.rendering.kernel as kernel
+
+    ip, vox, wt = _csr_with_repeats(np.random.default_rng(7), 50)
+    expected = kernel._duplicate_rows_exact(ip, vox, wt)
+    monkeypatch.setattr(kernel, "_MIX", tuple(np.uint64(0) for _ in range(4)))
+    rep, uniq = kernel._duplicate_rows(ip, vox, wt)
+    assert rep.tolist() == expected[0].tolist() and uniq.tolist() == expected[1].tolist()
+    assert len(set(expected[0].tolist())) > 3  # several distinct rows, so a merge would show

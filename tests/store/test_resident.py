@@ -132,8 +132,10 @@ def test_resident_render_reads_no_brick(store, camera, monkeypatch):
     with dask.config.set(scheduler="sync"):
         img = _render(ev2, camera, "tf", "trilinear", {"nodes": NODES})
         assert img.stats["resident"] and reads == []
-        _render(store, camera, "tf", "trilinear", {"nodes": NODES})
-    assert 0 < len(reads) <= img.stats["map_tasks"]  # the streamed render reads its bricks
+        streamed = _render(store, camera, "tf", "trilinear", {"nodes": NODES})
+    assert 0 < len(reads) <= streamed.stats["map_tasks"]  # the streamed render reads its bricks
+    # resident: one map task per group of bricks (one per thread here), not one per brick
+    assert img.stats["map_tasks"] <= min(dask.system.CPU_COUNT, streamed.stats["map_tasks"])
 
 
 def test_scalar_resident_tf_render_streams(store, volume, keypair256, camera, caplog):
@@ -354,7 +356,7 @@ def test_resident_volume_survives_a_killed_worker(store, keypair256, camera):
 
 
 def test_map_tasks_run_where_their_brick_lives(store, camera, cluster):
-    with cluster.as_current():
+    with cluster.as_current(), dask.config.set({"hevr.render.resident-batch": False}):
         ev2 = store.persist()
         ev2.resident.wait()
         who = cluster.who_has(list(ev2.resident.bricks.values()))
@@ -374,7 +376,7 @@ def test_tile_row_pieces_give_the_identical_image(store, volume, keypair256, cam
                                                  mode, sampling, kw):
     """Resident bricks split into one map task per tile row (the default from BAND_BITS on):
     the same ciphertexts as one task per brick, and as streaming."""
-    with cluster.as_current():
+    with cluster.as_current(), dask.config.set({"hevr.render.resident-batch": False}):
         ev2 = store.persist()
         ev2.resident.wait()
         whole = _render(ev2, camera, mode, sampling, kw, client=cluster, tile=4)
@@ -389,3 +391,26 @@ def test_tile_row_pieces_give_the_identical_image(store, volume, keypair256, cam
         assert len(maps) == split.stats["map_tasks"]
     assert _same(whole, split) and _same(split, streamed)
     _check_plain(split, store, volume, camera, mode, sampling, kw, keypair256[1])
+
+
+@pytest.mark.parametrize("mode, sampling, kw", RENDERS, ids=IDS)
+def test_one_map_task_per_worker_gives_the_identical_image(store, volume, keypair256, camera, cluster,
+                                                          mode, sampling, kw):
+    """Resident bricks mapped in one task per worker (the default, issue 27): the same packed
+    ciphertexts as one task per brick and as streaming; each group's task runs on the worker
+    that holds its bricks, and there are no more map tasks than workers."""
+    with cluster.as_current():
+        ev2 = store.persist()
+        ev2.resident.wait()
+        who = cluster.who_has(list(ev2.resident.bricks.values()))
+        holders = {next(iter(who[f.key])) for f in ev2.resident.bricks.values()}
+        with get_task_stream(client=cluster) as ts:
+            batched = _render(ev2, camera, mode, sampling, kw, client=cluster, tile=4)
+        with dask.config.set({"hevr.render.resident-batch": False}):
+            per_brick = _render(ev2, camera, mode, sampling, kw, client=cluster, tile=4)
+    streamed = _render(store, camera, mode, sampling, kw, tile=4)
+    maps = [t for t in ts.data if str(t["key"]).startswith("hevr-map-")]
+    assert 1 <= len(maps) == batched.stats["map_tasks"] <= len(holders) < per_brick.stats["map_tasks"]
+    assert {t["worker"] for t in maps} == holders  # each group where its bricks are (one group per holder)
+    assert _same(batched, per_brick) and _same(batched, streamed)
+    _check_plain(batched, store, volume, camera, mode, sampling, kw, keypair256[1])
