@@ -37,10 +37,11 @@ from ..store.reader import EncryptedVolume
 from .camera import Camera
 from .finishing import finish_tile, finish_units, merge_partials
 from .footprint import Footprint, brick_footprints
+from .group_weights import nearest_group_weights
 from .kernel import brick_ray_products_multi
 from .planner import RenderPlan
 from .rays import RaySet, cast_rays
-from .weights import brick_weights
+from .weights import BrickWeights, brick_weights
 
 log = logging.getLogger(__name__)
 
@@ -68,18 +69,22 @@ class Priorities:
 
 def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,
               digits: int, channel: str, footprint: Footprint, tile: int,
-              backend: str = "cpu", data: Any = None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+              backend: str = "cpu", data: Any = None, weights: BrickWeights | None = None
+              ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """One map task: partial encrypted ray sums of one brick, split by tile.
 
     Casts only the rays of the brick's footprint rectangle (bit-identical to the same rays of
     the whole image), so its geometry costs the rectangle's pixels plus the samples that reach
     the brick. ``data`` is the brick's resident ciphertexts (:class:`ResidentBrick`, from
     :meth:`hevr.EncryptedVolume.persist`); without it the brick is read from the store.
+    ``weights``: the brick's weights when the caller made them (:func:`map_group`).
     """
-    t0 = time.perf_counter()
-    rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=footprint.pixels(camera.width))
-    bw = brick_weights(rays, ev.shape, ev.spacing, ev.brick, index, sampling, step, digits)
-    _stats.add("map.geometry", time.perf_counter() - t0, 1)
+    bw = weights
+    if bw is None:
+        t0 = time.perf_counter()
+        rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=footprint.pixels(camera.width))
+        bw = brick_weights(rays, ev.shape, ev.spacing, ev.brick, index, sampling, step, digits)
+        _stats.add("map.geometry", time.perf_counter() - t0, 1)
     W = ev.meta.ciphertext_bytes
     tiles = footprint.tiles
     empty = (np.zeros(0, np.int64), np.zeros((0, ev.meta.components(channel), W), np.uint8))
@@ -96,7 +101,7 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
         prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare, backend=be)
     t0 = time.perf_counter()
     recs = np.stack([be.to_bytes(p, W) for p in prods], axis=1)  # (R, C, W)
-    tid = TileLayout(rays.width, rays.height, tile).ids(bw.rays)
+    tid = TileLayout(camera.width, camera.height, tile).ids(bw.rays)
     out = {}
     for t in tiles:
         m = tid == t
@@ -119,10 +124,17 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
     every tile of any of the bricks' footprints.
     """
     W = ev.meta.ciphertext_bytes
+    weights: dict = {}
+    if sampling == "nearest":  # every brick's weights in one pass over the samples
+        t0 = time.perf_counter()
+        pixels = np.unique(np.concatenate([fp.pixels(camera.width) for _, fp in items]))
+        rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=pixels)
+        weights = nearest_group_weights(rays, ev.shape, ev.spacing, ev.brick, [idx for idx, _ in items], step)
+        _stats.add("map.geometry", time.perf_counter() - t0, len(items))
     parts: dict[int, list] = {}
     for (idx, fp), brick in zip(items, data):
         for t, part in map_brick(ev, camera, idx, sampling, step, digits, channel, fp, tile, backend,
-                                 brick).items():
+                                 brick, weights.get(idx)).items():
             if part[0].size:
                 parts.setdefault(t, []).append(part)
     empty = (np.zeros(0, np.int64), np.zeros((0, ev.meta.components(channel), W), np.uint8))
@@ -135,7 +147,8 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
 
 def resident_groups(resident: dict, client: Any) -> list[list]:
     """The resident bricks' indices grouped by the worker holding them (on a cluster), else
-    into as many groups as the local scheduler has threads; brick order kept in each group."""
+    into as many slabs (runs of raster order) as the local scheduler has threads; brick order
+    kept in each group."""
     keys = list(resident)
     if client is not None:
         futures = [resident[k] for k in keys]
@@ -146,7 +159,7 @@ def resident_groups(resident: dict, client: Any) -> list[list]:
             by.setdefault(holders[0], []).append(k)
         return [by[w] for w in sorted(by)]
     n = max(1, min(len(keys), dask.system.CPU_COUNT))
-    return [keys[i::n] for i in range(n)] if keys else []
+    return [keys[i * len(keys) // n:(i + 1) * len(keys) // n] for i in range(n)] if keys else []
 
 
 def merge_task(nsquare: int, backend: str, tile: int, *parts):

@@ -5,9 +5,12 @@ bytes -> the backend's integers) into worker memory; every later frame's map tas
 their brick from there and do no store read and no conversion. Without ``persist`` a render
 streams its bricks from the store, as before. Both give the identical image.
 
-Placement. On a ``distributed`` client, brick ``i`` (raster order) is loaded on worker
-``i mod N`` (a loose restriction: if that worker dies, any worker recomputes the brick from
-the store), and each :class:`ResidentBrick` reports its true size to Dask, so the scheduler
+Placement. On a ``distributed`` client, the bricks in raster order are cut into N runs of about
+equal bytes, run ``w`` loaded on worker ``w`` (the brick whose bytes straddle the middle of the
+cumulative total ``w·T/N`` decides by its midpoint): each worker holds one slab of whole bricks (a loose restriction: if that
+worker dies, any worker recomputes the brick from the store). A slab is one box, so a worker
+that maps all its bricks in one task (:func:`hevr.rendering.graph.map_group`) generates only
+the samples of rays inside its slab; and each each :class:`ResidentBrick` reports its true size to Dask, so the scheduler
 runs a brick's map task where the brick lives (moving a brick costs far more than its
 task's output). On a single machine (no client) the bricks stay in this process.
 
@@ -129,6 +132,21 @@ class Residency:
         self.nbytes = 0
 
 
+def _slabs(bricks: list, cost: dict, workers: list) -> dict:
+    """Brick -> worker: runs of raster order of about equal cost (see the module docstring).
+
+    >>> _slabs([0, 1, 2, 3], {0: 8, 1: 8, 2: 1, 3: 1}, ["a", "b"])
+    {0: 'a', 1: 'b', 2: 'b', 3: 'b'}
+    """
+    total = sum(cost[b] for b in bricks) or 1
+    place, before = {}, 0
+    for b in bricks:
+        mid = before + cost[b] / 2
+        place[b] = workers[min(len(workers) - 1, int(mid * len(workers) / total))]
+        before += cost[b]
+    return place
+
+
 def _memory_fraction() -> float:
     frac = dask.config.get(RESIDENT_MEMORY_KEY, DEFAULT_RESIDENT_MEMORY)
     try:
@@ -170,7 +188,7 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     else:
         workers = ["local"]
         limits = {"local": psutil.virtual_memory().available}
-    place = {idx: workers[i % len(workers)] for i, idx in enumerate(bricks)}
+    place = _slabs(bricks, cost, workers)
     share = {w: 0 for w in workers}
     for idx, w in place.items():
         share[w] += cost[idx]
