@@ -114,7 +114,7 @@ def main() -> None:
     res: dict = {"machine": machine(), "argv": sys.argv[1:]}
     store, priv = small_store(a.work)
     ev = hevr.open_volume(store)
-    cam = hevr.Camera.orbit(ev, 150, 150)
+    cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=150, height=150)  # the bench paper case
     vol = hevr.phantom(100)
     t = []
     for _ in range(5):

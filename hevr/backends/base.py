@@ -190,6 +190,15 @@ class Backend(ABC):
     def decrypt(self, private_key: Any, values: Residues) -> list[int]:
         """Residues in [0, n) of a batch of ciphertexts (CRT decryption)."""
 
+    def concat(self, batches: Sequence[Residues]) -> Residues:
+        """One batch holding the values of ``batches`` in order (a map task that plans over
+        several bricks at once indexes their concatenation). This default suits backends whose
+        batches are Python lists; an array backend overrides it."""
+        out: list = []
+        for b in batches:
+            out.extend(b)
+        return out
+
     # -- rendering ------------------------------------------------------------------------
     @abstractmethod
     def ray_products(self, plan: ProductPlan, components: Sequence[Residues], nsquare: int,

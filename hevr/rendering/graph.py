@@ -37,11 +37,11 @@ from ..store.reader import EncryptedVolume
 from .camera import Camera
 from .finishing import finish_tile, finish_units, merge_partials
 from .footprint import Footprint, brick_footprints
-from .group_weights import nearest_group_weights
+from .group_weights import nearest_group_rows
 from .kernel import brick_ray_products_multi
 from .planner import RenderPlan
 from .rays import RaySet, cast_rays
-from .weights import BrickWeights, brick_weights
+from .weights import brick_weights
 
 log = logging.getLogger(__name__)
 
@@ -69,22 +69,18 @@ class Priorities:
 
 def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,
               digits: int, channel: str, footprint: Footprint, tile: int,
-              backend: str = "cpu", data: Any = None, weights: BrickWeights | None = None
-              ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+              backend: str = "cpu", data: Any = None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """One map task: partial encrypted ray sums of one brick, split by tile.
 
     Casts only the rays of the brick's footprint rectangle (bit-identical to the same rays of
     the whole image), so its geometry costs the rectangle's pixels plus the samples that reach
     the brick. ``data`` is the brick's resident ciphertexts (:class:`ResidentBrick`, from
     :meth:`hevr.EncryptedVolume.persist`); without it the brick is read from the store.
-    ``weights``: the brick's weights when the caller made them (:func:`map_group`).
     """
-    bw = weights
-    if bw is None:
-        t0 = time.perf_counter()
-        rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=footprint.pixels(camera.width))
-        bw = brick_weights(rays, ev.shape, ev.spacing, ev.brick, index, sampling, step, digits)
-        _stats.add("map.geometry", time.perf_counter() - t0, 1)
+    t0 = time.perf_counter()
+    rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=footprint.pixels(camera.width))
+    bw = brick_weights(rays, ev.shape, ev.spacing, ev.brick, index, sampling, step, digits)
+    _stats.add("map.geometry", time.perf_counter() - t0, 1)
     W = ev.meta.ciphertext_bytes
     tiles = footprint.tiles
     empty = (np.zeros(0, np.int64), np.zeros((0, ev.meta.components(channel), W), np.uint8))
@@ -115,31 +111,54 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
 
 def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, step: float, digits: int,
               channel: str, tile: int, backend: str, *data: Any) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """One map task for several resident bricks of one worker: each brick's :func:`map_brick`,
-    then the partials of every tile merged here (one ``(rays, records)`` per tile), so that the
-    per-task overhead and the merge tasks scale with workers, not bricks.
+    """One map task for several resident bricks of one worker, with one output per tile, so
+    that the per-task overhead and the merge tasks scale with workers, not bricks.
+
+    Nearest sampling: one product plan over the whole group — a row per ray holding its pairs in
+    all the group's bricks (:func:`~hevr.rendering.group_weights.nearest_group_rows`), over the
+    concatenation of the bricks' ciphertexts — so each ray's partial sum of the group comes out
+    of one multi-exponentiation, and neither per-brick plans nor in-task merges are needed.
+    Trilinear: each brick's :func:`map_brick`, then every tile's partials merged here.
 
     ``items`` lists ``(index, footprint)`` per brick, ``data`` their :class:`ResidentBrick`
     in the same order. The output is the same kind of dict by tile as :func:`map_brick`'s, with
     every tile of any of the bricks' footprints.
     """
-    W = ev.meta.ciphertext_bytes
-    weights: dict = {}
-    if sampling == "nearest":  # every brick's weights in one pass over the samples
+    W, K = ev.meta.ciphertext_bytes, ev.meta.components(channel)
+    empty = (np.zeros(0, np.int64), np.zeros((0, K, W), np.uint8))
+    tiles = sorted({t for _, fp in items for t in fp.tiles})
+    n2 = int(ev.public_key.nsquare)
+    if sampling == "nearest":
         t0 = time.perf_counter()
         pixels = np.unique(np.concatenate([fp.pixels(camera.width) for _, fp in items]))
         rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=pixels)
-        weights = nearest_group_weights(rays, ev.shape, ev.spacing, ev.brick, [idx for idx, _ in items], step)
+        rows = nearest_group_rows(rays, ev.shape, ev.spacing, ev.brick, [idx for idx, _ in items], step)
+        sizes = [int(np.prod(ev.brick_shape(idx))) for idx, _ in items]
+        voxels = rows.voxels(sizes)
         _stats.add("map.geometry", time.perf_counter() - t0, len(items))
+        if not rows.rays.size:
+            return {t: empty for t in tiles}
+        be = get_backend(backend)
+        batches = [d.channel(channel) for d in data]
+        comps = [be.concat(batches)] if channel == "scalar" else [be.concat([b[c] for b in batches])
+                                                                  for c in range(K)]
+        with _stats.timed("map.kernel", int(rows.indptr[-1]) * K):
+            prods = brick_ray_products_multi(comps, rows.indptr, voxels, rows.weights, n2, backend=be)
+        t0 = time.perf_counter()
+        recs = np.stack([be.to_bytes(p, W) for p in prods], axis=1)  # (R, K, W)
+        tid = TileLayout(camera.width, camera.height, tile).ids(rows.rays)
+        out = {}
+        for t in tiles:
+            m = tid == t
+            out[t] = (rows.rays[m], recs[m])
+        _stats.add("map.emit", time.perf_counter() - t0)
+        return out
     parts: dict[int, list] = {}
     for (idx, fp), brick in zip(items, data):
         for t, part in map_brick(ev, camera, idx, sampling, step, digits, channel, fp, tile, backend,
-                                 brick, weights.get(idx)).items():
+                                 brick).items():
             if part[0].size:
                 parts.setdefault(t, []).append(part)
-    empty = (np.zeros(0, np.int64), np.zeros((0, ev.meta.components(channel), W), np.uint8))
-    tiles = sorted({t for _, fp in items for t in fp.tiles})
-    n2 = int(ev.public_key.nsquare)
     with _stats.timed("map.merge", len(tiles)):
         return {t: (parts[t][0] if len(parts.get(t, ())) == 1 else
                     merge_partials(parts[t], n2, backend) if t in parts else empty) for t in tiles}

@@ -31,6 +31,7 @@ the order of their terms (corner, then k) and keep the per-brick path.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -38,14 +39,71 @@ import numpy as np
 from .rays import RaySet, expand_samples, nearest_voxels, sample_positions
 from .weights import BrickWeights, _bounds, _check_request, _clip_rays, brick_grid
 
-__all__ = ["nearest_group_weights"]
+__all__ = ["GroupRows", "nearest_group_rows", "nearest_group_weights"]
 
 _CHUNK_SAMPLES = 1 << 19
 
 
+@dataclass(frozen=True, eq=False)
+class GroupRows:
+    """The nearest-sampling (ray, voxel) pairs of a group of bricks, one CSR row per ray.
+
+    Attributes
+    ----------
+    indices : list of (bz, by, bx)
+        The group's bricks, in the caller's order.
+    rays : (R,) int64
+        Global pixel ids of the rows, ascending.
+    indptr : (R + 1,) int64
+        Row ``r`` is ``indptr[r]:indptr[r + 1]``: the ray's pairs in sample order, across bricks.
+    brick : (P,) int64
+        Position in ``indices`` of each pair's brick.
+    local : (P,) int64
+        Each pair's voxel in its brick's local array (C order).
+    weights : (P,) int64
+        Samples of the ray in that voxel (positive).
+    """
+
+    indices: list
+    rays: np.ndarray
+    indptr: np.ndarray
+    brick: np.ndarray
+    local: np.ndarray
+    weights: np.ndarray
+
+    def voxels(self, sizes: Any) -> np.ndarray:
+        """Each pair's voxel in the concatenation of the bricks' arrays, ``sizes`` voxels each
+        (in ``indices`` order): what a product plan over the whole group indexes.
+
+        >>> g = GroupRows([(0, 0, 0), (0, 0, 1)], np.array([0]), np.array([0, 2]), np.array([1, 0]),
+        ...               np.array([3, 3]), np.array([1, 1]))
+        >>> g.voxels([8, 4]).tolist()
+        [11, 3]
+        """
+        base = np.concatenate(([0], np.cumsum(np.asarray(sizes, np.int64))[:-1]))
+        return base[self.brick] + self.local
+
+    def per_brick(self) -> dict[tuple[int, int, int], BrickWeights]:
+        """The same pairs as one :class:`BrickWeights` per brick (rows: that brick's rays)."""
+        n = len(self.indices)
+        order = np.argsort(self.brick.astype(np.uint32 if n >= 1 << 16 else np.uint16), kind="stable")
+        ends = np.cumsum(np.bincount(self.brick, minlength=n))
+        pair_ray = np.repeat(self.rays, np.diff(self.indptr))[order]
+        local, weight = self.local[order], self.weights[order]
+        out = {}
+        for i, idx in enumerate(self.indices):
+            a, e = int(ends[i - 1]) if i else 0, int(ends[i])
+            rr = pair_ray[a:e]
+            row = np.flatnonzero(np.concatenate(([True], rr[1:] != rr[:-1]))) if rr.size else np.zeros(0, np.int64)
+            out[idx] = BrickWeights(brick=idx, rays=rr[row], indptr=np.append(row, rr.size).astype(np.int64),
+                                    voxels=local[a:e], weights=weight[a:e], exponent=0)
+        return out
+
+
 def nearest_group_weights(rays: RaySet, shape: Any, spacing: Any, brick: Any, indices: list, step: float
                           ) -> dict[tuple[int, int, int], BrickWeights]:
-    """The nearest-sampling :class:`BrickWeights` of every brick in ``indices``, in one pass.
+    """The nearest-sampling :class:`BrickWeights` of every brick in ``indices``, in one pass
+    (:func:`nearest_group_rows`, then grouped by brick).
 
     Parameters are those of :func:`hevr.rendering.weights.brick_weights` (``indices``: a list
     of brick indices (bz, by, bx)). A brick that no ray reaches gets an empty entry.
@@ -60,6 +118,22 @@ def nearest_group_weights(rays: RaySet, shape: Any, spacing: Any, brick: Any, in
     >>> w[(1, 0, 0)].voxels.tolist(), w[(1, 0, 0)].weights.tolist(), w[(0, 0, 0)].voxels.tolist()
     ([17, 8], [1, 1], [26, 17, 8])
     """
+    return nearest_group_rows(rays, shape, spacing, brick, indices, step).per_brick()
+
+
+def nearest_group_rows(rays: RaySet, shape: Any, spacing: Any, brick: Any, indices: list, step: float
+                       ) -> GroupRows:
+    """The nearest-sampling pairs of the bricks ``indices``, one row per ray (module docstring).
+
+    >>> from hevr.rendering.camera import Camera
+    >>> from hevr.rendering.rays import cast_rays
+    >>> cam = Camera((2, 2, 9), (2, 2, 0), width=1, height=1, parallel=True)
+    >>> rs = cast_rays(cam, (5, 5, 5), (1, 1, 1), 1.0)
+    >>> g = nearest_group_rows(rs, (5, 5, 5), (1, 1, 1), 3, [(1, 0, 0), (0, 0, 0)], 1.0)
+    >>> g.rays.tolist(), g.indptr.tolist(), g.brick.tolist(), g.local.tolist()
+    ([0], [0, 5], [0, 0, 1, 1, 1], [17, 8, 26, 17, 8])
+    """
+
     shape, sp, brick, step = _check_request(rays, shape, spacing, brick, "nearest", step)
     grid = brick_grid(shape, brick)
     indices = [tuple(int(i) for i in idx) for idx in indices]
@@ -68,6 +142,13 @@ def nearest_group_weights(rays: RaySet, shape: Any, spacing: Any, brick: Any, in
         wanted[(bz * grid[1] + by) * grid[2] + bx] = True
     full = np.array(shape[::-1], np.int64)  # (i, j, k) order
     bsize = np.array(brick[::-1], np.int64)
+    # Per brick number: the local array's strides and the offset of its first voxel, so that a
+    # voxel's local index is iz·syx + iy·sx + ix − off (edge bricks are smaller).
+    bi = np.indices(grid).reshape(3, -1)  # (bz, by, bx) of every brick number
+    first = bi[::-1].T * bsize  # (n, 3): i, j, k of each brick's first voxel
+    size = np.minimum(bsize, full - first)
+    sx, syx = size[:, 0], size[:, 0] * size[:, 1]
+    off = first[:, 2] * syx + first[:, 1] * sx + first[:, 0]
     # The group's box, as brick_weights' region of influence for nearest sampling.
     bounds = [_bounds(shape, brick, idx) for idx in indices]
     v0 = np.array([min(b[a][0] for b in bounds) for a in (2, 1, 0)], np.int64)
@@ -75,6 +156,7 @@ def nearest_group_weights(rays: RaySet, shape: Any, spacing: Any, brick: Any, in
     lo = np.where(v0 == 0, -np.inf, v0 - 0.5)
     hi = np.where(v1 == full, np.inf, v1 - 0.5)
     ray_ids, ka, counts = _clip_rays(rays, sp, step, lo, hi)
+    every = bool(wanted.all())
     runs = []
     csum = np.concatenate(([0], np.cumsum(counts)))
     start = 0
@@ -82,17 +164,16 @@ def nearest_group_weights(rays: RaySet, shape: Any, spacing: Any, brick: Any, in
         end = max(int(np.searchsorted(csum, csum[start] + _CHUNK_SAMPLES, side="right")) - 1, start + 1)
         r, k = expand_samples(ray_ids[start:end], ka[start:end], counts[start:end])
         idx = nearest_voxels(sample_positions(rays, r, k, sp, step), shape)  # (m, 3): i, j, k
-        b = idx // bsize
-        bnum = (b[:, 2] * grid[1] + b[:, 1]) * grid[2] + b[:, 0]
-        keep = wanted[bnum]
-        r, idx, b, bnum = r[keep], idx[keep], b[keep], bnum[keep]
-        first = b * bsize
-        size = np.minimum(bsize, full - first)  # edge bricks are smaller
-        local = ((idx[:, 2] - first[:, 2]) * size[:, 1] + (idx[:, 1] - first[:, 1])) * size[:, 0] + (idx[:, 0] - first[:, 0])
+        ix, iy, iz = idx[:, 0], idx[:, 1], idx[:, 2]
+        bnum = (iz // bsize[2] * grid[1] + iy // bsize[1]) * grid[2] + ix // bsize[0]
+        if not every:
+            keep = wanted[bnum]
+            r, ix, iy, iz, bnum = r[keep], ix[keep], iy[keep], iz[keep], bnum[keep]
+        local = iz * syx[bnum] + iy * sx[bnum] + ix - off[bnum]
         # Runs of equal (ray, brick, voxel): one pair each, weighted by the run's length.
         new = np.ones(r.size, bool)
         if r.size > 1:
-            new[1:] = (r[1:] != r[:-1]) | (bnum[1:] != bnum[:-1]) | (local[1:] != local[:-1])
+            new[1:] = (r[1:] != r[:-1]) | (local[1:] != local[:-1]) | (bnum[1:] != bnum[:-1])
         at = np.flatnonzero(new)
         runs.append((r[at], bnum[at], local[at], np.diff(np.append(at, r.size))))
         start = end
@@ -100,17 +181,9 @@ def nearest_group_weights(rays: RaySet, shape: Any, spacing: Any, brick: Any, in
         r, bnum, local, weight = (np.concatenate(x) for x in zip(*runs))
     else:
         r = bnum = local = weight = np.zeros(0, np.int64)
-    order = np.argsort(bnum.astype(np.uint32 if grid[0] * grid[1] * grid[2] >= 1 << 16 else np.uint16),
-                       kind="stable")
-    r, bnum, local, weight = r[order], bnum[order], local[order], weight[order]
-    out = {}
-    for idx in indices:
-        n = (idx[0] * grid[1] + idx[1]) * grid[2] + idx[2]
-        a, e = np.searchsorted(bnum, n, side="left"), np.searchsorted(bnum, n, side="right")
-        rr = r[a:e]
-        row = np.flatnonzero(np.concatenate(([True], rr[1:] != rr[:-1]))) if rr.size else np.zeros(0, np.int64)
-        out[idx] = BrickWeights(brick=idx, rays=rays.global_ids(rr[row]),  # type: ignore[arg-type]
-                                indptr=np.append(row, rr.size).astype(np.int64),
-                                voxels=local[a:e].astype(np.int64), weights=weight[a:e].astype(np.int64),
-                                exponent=0)
-    return out
+    position = np.zeros(wanted.size, np.int64)
+    for i, (bz, by, bx) in enumerate(indices):
+        position[(bz * grid[1] + by) * grid[2] + bx] = i
+    row = np.flatnonzero(np.concatenate(([True], r[1:] != r[:-1]))) if r.size else np.zeros(0, np.int64)
+    return GroupRows(indices, rays.global_ids(r[row]), np.append(row, r.size).astype(np.int64), position[bnum],
+                     local.astype(np.int64), weight.astype(np.int64))
