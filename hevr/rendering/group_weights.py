@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from array_api_compat import array_namespace
 
 from .rays import RaySet, expand_samples, nearest_voxels, sample_positions
 from .weights import BrickWeights, _bounds, _check_request, _clip_rays, brick_grid
@@ -156,34 +157,44 @@ def nearest_group_rows(rays: RaySet, shape: Any, spacing: Any, brick: Any, indic
     lo = np.where(v0 == 0, -np.inf, v0 - 0.5)
     hi = np.where(v1 == full, np.inf, v1 - 0.5)
     ray_ids, ka, counts = _clip_rays(rays, sp, step, lo, hi)
+    xp = array_namespace(ray_ids)  # the rays' namespace: numpy, or CuPy on a GPU worker
+    wanted_x, sx, syx, off = (xp.asarray(a) for a in (wanted, sx, syx, off))
     every = bool(wanted.all())
     runs = []
-    csum = np.concatenate(([0], np.cumsum(counts)))
-    start = 0
-    while start < ray_ids.size:
+    csum = np.concatenate(([0], np.cumsum(_host(counts))))  # chunk bounds: a host array per ray
+    start, n_rays = 0, int(ray_ids.shape[0])
+    while start < n_rays:
         end = max(int(np.searchsorted(csum, csum[start] + _CHUNK_SAMPLES, side="right")) - 1, start + 1)
         r, k = expand_samples(ray_ids[start:end], ka[start:end], counts[start:end])
         idx = nearest_voxels(sample_positions(rays, r, k, sp, step), shape)  # (m, 3): i, j, k
         ix, iy, iz = idx[:, 0], idx[:, 1], idx[:, 2]
-        bnum = (iz // bsize[2] * grid[1] + iy // bsize[1]) * grid[2] + ix // bsize[0]
+        bnum = (iz // int(bsize[2]) * grid[1] + iy // int(bsize[1])) * grid[2] + ix // int(bsize[0])
         if not every:
-            keep = wanted[bnum]
+            keep = xp.take(wanted_x, bnum)
             r, ix, iy, iz, bnum = r[keep], ix[keep], iy[keep], iz[keep], bnum[keep]
-        local = iz * syx[bnum] + iy * sx[bnum] + ix - off[bnum]
+        local = iz * xp.take(syx, bnum) + iy * xp.take(sx, bnum) + ix - xp.take(off, bnum)
         # Runs of equal (ray, brick, voxel): one pair each, weighted by the run's length.
-        new = np.ones(r.size, bool)
-        if r.size > 1:
-            new[1:] = (r[1:] != r[:-1]) | (local[1:] != local[:-1]) | (bnum[1:] != bnum[:-1])
-        at = np.flatnonzero(new)
-        runs.append((r[at], bnum[at], local[at], np.diff(np.append(at, r.size))))
+        m = int(r.shape[0])
+        new = xp.concat([xp.ones(min(m, 1), dtype=xp.bool),
+                         (r[1:] != r[:-1]) | (local[1:] != local[:-1]) | (bnum[1:] != bnum[:-1])])
+        at = xp.nonzero(new)[0]
+        runs.append((xp.take(r, at), xp.take(bnum, at), xp.take(local, at),
+                     xp.diff(xp.concat([at, xp.asarray([m], dtype=at.dtype)]))))
         start = end
     if runs:
-        r, bnum, local, weight = (np.concatenate(x) for x in zip(*runs))
+        r, bnum, local, weight = (xp.concat(list(x)) for x in zip(*runs))
     else:
-        r = bnum = local = weight = np.zeros(0, np.int64)
+        r = bnum = local = weight = xp.zeros(0, dtype=xp.int64)
     position = np.zeros(wanted.size, np.int64)
     for i, (bz, by, bx) in enumerate(indices):
         position[(bz * grid[1] + by) * grid[2] + bx] = i
-    row = np.flatnonzero(np.concatenate(([True], r[1:] != r[:-1]))) if r.size else np.zeros(0, np.int64)
-    return GroupRows(indices, rays.global_ids(r[row]), np.append(row, r.size).astype(np.int64), position[bnum],
-                     local.astype(np.int64), weight.astype(np.int64))
+    m = int(r.shape[0])
+    row = xp.nonzero(xp.concat([xp.ones(min(m, 1), dtype=xp.bool), r[1:] != r[:-1]]))[0]
+    return GroupRows(indices, rays.global_ids(xp.take(r, row)),
+                     xp.astype(xp.concat([row, xp.asarray([m], dtype=row.dtype)]), xp.int64),
+                     xp.take(xp.asarray(position), bnum), xp.astype(local, xp.int64), xp.astype(weight, xp.int64))
+
+
+def _host(a: Any) -> np.ndarray:
+    """A small array (one value per ray) on the host, from any namespace (DLPack)."""
+    return a if isinstance(a, np.ndarray) else np.from_dlpack(a)

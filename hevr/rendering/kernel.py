@@ -160,6 +160,20 @@ def _as_int_array(name: str, a) -> np.ndarray:
     return arr
 
 
+def _popcount(a: np.ndarray) -> np.ndarray:
+    """Set bits of each uint64 (SWAR; ``np.bitwise_count`` needs numpy 2).
+
+    >>> _popcount(np.array([0, 1, 6, 2**64 - 1], np.uint64)).tolist()
+    [0, 1, 2, 64]
+    """
+    x = a.astype(np.uint64)
+    with np.errstate(over="ignore"):
+        x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+        x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+        x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+        return ((x * np.uint64(0x0101010101010101)) >> np.uint64(56)).astype(np.int64)
+
+
 def _bit_length(a: np.ndarray) -> np.ndarray:
     """Exact bit lengths of non-negative integers (frexp rounds up just below 2^k, k > 53)."""
     a = a.astype(np.uint64)
@@ -210,7 +224,7 @@ def plan_products(indptr, voxels, weights, n_vox: int) -> ProductPlan:
     # One pair: binary powering is Horner with w = 1, (b - 1) S + popcount - 1; else powmod.
     single = kinds == _SINGLE
     b = _bit_length(u_max)
-    binary = single & ((b - 1) * _SQR + np.bitwise_count(u_max).astype(np.int64) - 1 <= _POW_BIT * b + _POW_BASE)
+    binary = single & ((b - 1) * _SQR + _popcount(u_max) - 1 <= _POW_BIT * b + _POW_BASE)
     kinds[binary], w_r[binary] = _HORNER, 1
     if gen.size:
         w_r[gen], shared = _choose_windows(vox, wt, u_s[gen], u_e[gen], u_max[gen])

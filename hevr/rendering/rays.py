@@ -23,10 +23,11 @@ the encrypted path -- goes through :func:`sample_positions`, :func:`nearest_voxe
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
+from array_api_compat import array_namespace
 
 from .._validate import check_shape, check_spacing, check_step
 from ..errors import ParameterError, RenderPlanError
@@ -88,10 +89,18 @@ class RaySet:
         """Number of rays (``width*height`` unless a subset)."""
         return int(self.n_samples.shape[0])
 
-    def global_ids(self, local: np.ndarray) -> np.ndarray:
-        """Global pixel indices of rays given by their position in this set."""
-        local = np.asarray(local, dtype=np.int64)
-        return local if self.pixel_ids is None else self.pixel_ids[local]
+    def global_ids(self, local: Any) -> Any:
+        """Global pixel indices of rays given by their position in this set (the namespace of
+        ``local``)."""
+        xp = array_namespace(local)
+        local = xp.astype(local, xp.int64)
+        return local if self.pixel_ids is None else xp.take(xp.asarray(self.pixel_ids), local)
+
+    def to_namespace(self, xp: Any) -> RaySet:
+        """The same rays with every array in array namespace ``xp`` (e.g. CuPy's, or
+        ``array_api_strict`` in the tests): what the namespace-generic geometry then runs on."""
+        return RaySet(**{f.name: xp.asarray(getattr(self, f.name)) if isinstance(getattr(self, f.name), np.ndarray)
+                         else getattr(self, f.name) for f in fields(self)})
 
 
 def cast_rays(camera: Camera | Plane, shape: Any, spacing: Any, step: float, pixels: Any = None) -> RaySet:
@@ -233,13 +242,15 @@ def sample_positions(
     >>> sample_positions(rs, np.array([0, 0]), np.array([0, 4]), (1, 1, 2), 1.0).tolist()
     [[1.0, 1.0, 4.0], [1.0, 1.0, 2.0]]
     """
-    ray_idx = np.asarray(ray_idx, dtype=np.int64)
+    xp = array_namespace(rays.origins)
+    ray_idx = xp.astype(xp.asarray(ray_idx), xp.int64)
+    k = xp.astype(xp.asarray(k), xp.float64)  # int64 -> float64, as numpy's mixed arithmetic does
     if rays.t_index is not None:  # a plane: t = (first index + k)·h, from the pixel centre
-        t = (rays.t_index[ray_idx] + np.asarray(k, dtype=np.int64)) * float(step)
+        t = (xp.take(rays.t_index, ray_idx) + k) * float(step)
     else:
-        t = rays.t_enter[ray_idx] + np.asarray(k, dtype=np.int64) * float(step)
-    world = rays.origins[ray_idx] + t[:, None] * rays.directions[ray_idx]
-    return world / np.asarray(spacing, dtype=np.float64)
+        t = xp.take(rays.t_enter, ray_idx) + k * float(step)
+    world = xp.take(rays.origins, ray_idx, axis=0) + t[:, None] * xp.take(rays.directions, ray_idx, axis=0)
+    return world / xp.asarray([float(s) for s in spacing], dtype=xp.float64)
 
 
 def nearest_voxels(p: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
@@ -259,9 +270,10 @@ def nearest_voxels(p: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
     >>> nearest_voxels(np.array([[0.5, 1.49, -0.2]]), (2, 2, 2)).tolist()
     [[1, 1, 0]]
     """
-    upper = np.array([shape[2] - 1, shape[1] - 1, shape[0] - 1], dtype=np.int64)
-    idx = np.floor(p + 0.5).astype(np.int64)
-    return np.clip(idx, 0, upper)
+    xp = array_namespace(p)
+    upper = xp.asarray([shape[2] - 1, shape[1] - 1, shape[0] - 1], dtype=xp.int64)
+    idx = xp.astype(xp.floor(p + 0.5), xp.int64)
+    return xp.clip(idx, min=0, max=upper)
 
 
 def trilinear_corners(
@@ -332,9 +344,10 @@ def expand_samples(
     >>> r.tolist(), k.tolist()
     ([3, 3, 5, 5, 5], [0, 1, 2, 3, 4])
     """
-    counts = np.asarray(counts, dtype=np.int64)
-    total = int(counts.sum())
-    ray_idx = np.repeat(np.asarray(ray_ids, dtype=np.int64), counts)
+    xp = array_namespace(ray_ids, k_first, counts)
+    counts = xp.astype(xp.asarray(counts), xp.int64)
+    total = int(xp.sum(counts))
+    ray_idx = xp.repeat(xp.astype(xp.asarray(ray_ids), xp.int64), counts)
     # k = k_first + (position within the ray's run) = arange - run start + k_first.
-    shift = np.repeat(np.asarray(k_first, dtype=np.int64) - (np.cumsum(counts) - counts), counts)
-    return ray_idx, np.arange(total, dtype=np.int64) + shift
+    shift = xp.repeat(xp.astype(xp.asarray(k_first), xp.int64) - (xp.cumulative_sum(counts) - counts), counts)
+    return ray_idx, xp.arange(total, dtype=xp.int64) + shift

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from array_api_compat import array_namespace
 
 from .._validate import (
     check_brick,
@@ -223,21 +224,25 @@ def _clip_rays(rays: RaySet, sp: np.ndarray, step: float, lo: np.ndarray, hi: np
     linear model ``p(k) = e + k*delta`` differs from :func:`sample_positions` only by
     rounding (~1e-12), which the widened region and one spare k at each end absorb.
     """
-    hits = np.flatnonzero(rays.n_samples > 0)
-    n = rays.n_samples[hits]
-    e = sample_positions(rays, hits, np.zeros_like(hits), sp, step)
-    delta = rays.directions[hits] * step / sp
-    lo_e, hi_e = lo - _REGION_EPS, hi + _REGION_EPS
+    xp = array_namespace(rays.n_samples)
+    hits = xp.nonzero(rays.n_samples > 0)[0]
+    n = xp.astype(xp.take(rays.n_samples, hits), xp.float64)
+    e = sample_positions(rays, hits, xp.zeros_like(hits), sp, step)
+    spx = xp.asarray([float(v) for v in sp], dtype=xp.float64)
+    delta = xp.take(rays.directions, hits, axis=0) * float(step) / spx
+    lo_e = xp.asarray([float(v) for v in lo], dtype=xp.float64) - _REGION_EPS
+    hi_e = xp.asarray([float(v) for v in hi], dtype=xp.float64) + _REGION_EPS
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         a, b = (lo_e - e) / delta, (hi_e - e) / delta
     zero = delta == 0
     inside = (e >= lo_e) & (e <= hi_e)
-    kmin = np.where(zero, np.where(inside, -np.inf, np.inf), np.minimum(a, b)).max(axis=1)
-    kmax = np.where(zero, np.where(inside, np.inf, -np.inf), np.maximum(a, b)).min(axis=1)
+    inf = xp.full_like(a, xp.inf)
+    kmin = xp.max(xp.where(zero, xp.where(inside, -inf, inf), xp.minimum(a, b)), axis=1)
+    kmax = xp.min(xp.where(zero, xp.where(inside, inf, -inf), xp.maximum(a, b)), axis=1)
     # Clip in float before casting so infinities never reach the int conversion.
-    ka = np.clip(np.ceil(kmin) - 1, 0, n).astype(np.int64)
-    kb = np.clip(np.floor(kmax) + 1, -1, n - 1).astype(np.int64)
-    counts = np.maximum(kb - ka + 1, 0)
+    ka = xp.astype(xp.clip(xp.ceil(kmin) - 1, min=0.0, max=n), xp.int64)
+    kb = xp.astype(xp.clip(xp.floor(kmax) + 1, min=-1.0, max=n - 1), xp.int64)
+    counts = xp.maximum(kb - ka + 1, 0)
     keep = counts > 0
     return hits[keep], ka[keep], counts[keep]
 
