@@ -4,7 +4,9 @@ Every bulk modular operation — owner-side masks, the per-brick multi-exponenti
 merging partial sums, finishing and packing, batch decryption — goes through one
 :class:`~hevr.backends.base.Backend` (interface and operation counts per render mode in
 :mod:`hevr.backends.base`). ``cpu`` (gmpy2, :mod:`hevr.backends.cpu`) is the default and the
-reference.
+reference. ``cuda-host`` (:mod:`hevr.backends.cuda.backend`) runs the CUDA backend's kernels,
+compiled for the host with the C compiler on first use, on the CPU: bit-identical to ``cpu``, for
+tests and for checking a machine (encryption and decryption still delegate to ``cpu``).
 
 Choosing a backend is explicit: the ``backend=`` parameter of :func:`hevr.render`,
 :func:`hevr.encrypt_volume` and :meth:`hevr.EncryptedImage.decrypt`, else the Dask config key
@@ -22,33 +24,46 @@ own backend instance from it.
 >>> resolve_backend_name("abacus")
 Traceback (most recent call last):
 ...
-hevr.errors.ParameterError: backend: expected one of 'cpu', got 'abacus'
+hevr.errors.ParameterError: backend: expected one of 'cpu', 'cuda-host', got 'abacus'
 """
 
 from __future__ import annotations
 
-from typing import Callable
+import re
+from collections.abc import Callable
 
 import dask
 
 from ..errors import ParameterError
 from .base import Backend, OpCounter, ProductPlan
 from .cpu import CpuBackend
+from .cuda.backend import CudaHostBackend
 
-__all__ = ["Backend", "CONFIG_KEY", "CpuBackend", "OpCounter", "ProductPlan", "available_backends", "get_backend",
-           "register_backend", "resolve_backend_name"]
+__all__ = [
+    "CONFIG_KEY",
+    "Backend",
+    "CpuBackend",
+    "CudaHostBackend",
+    "OpCounter",
+    "ProductPlan",
+    "available_backends",
+    "get_backend",
+    "register_backend",
+    "resolve_backend_name",
+]
 
 CONFIG_KEY = "hevr.backend"
 DEFAULT = "cpu"
 
-_FACTORIES: dict[str, Callable[[], Backend]] = {"cpu": CpuBackend}
+_FACTORIES: dict[str, Callable[[], Backend]] = {"cpu": CpuBackend, "cuda-host": CudaHostBackend}
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 _INSTANCES: dict[str, Backend] = {}
 
 
 def register_backend(name: str, factory: Callable[[], Backend]) -> None:
     """Make ``factory`` (called once per process, lazily) available as backend ``name``."""
-    if not isinstance(name, str) or not name.isidentifier():
-        raise ParameterError(f"name: expected a backend name (an identifier), got {name!r}")
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise ParameterError(f"name: expected a backend name (letters, digits, '_' and '-'), got {name!r}")
     _FACTORIES[name] = factory
     _INSTANCES.pop(name, None)
 

@@ -1,20 +1,32 @@
-"""CUDA kernel sources of the (future) GPU backend, and their host build for testing.
+"""CUDA kernel sources of the GPU backend, and their host build (backend ``"cuda-host"``).
 
-:mod:`hevr.backends.cuda.host` compiles ``mont.cuh`` — batched Montgomery multiplication on
-32-bit limbs — with the machine's C compiler and checks it against gmpy2 in the normal test
-suite, so the GPU arithmetic is tested where no GPU is (issue 14: the GPU backend itself, its
-CuPy/NVRTC build and its benchmarks need a GPU machine).
+* ``mont.cuh`` — batched Montgomery multiplication on 32-bit limbs (CIOS);
+  :mod:`hevr.backends.cuda.host` compiles it with the machine's C compiler and checks it against
+  gmpy2 (issue 14: GPU arithmetic tested where no GPU is).
+* ``render.cuh`` — the render path's backend operations as kernels, one independent item per
+  thread: records ↔ limbs, the range check, Montgomery conversion, the per-brick
+  multi-exponentiation of a :class:`~hevr.backends.base.ProductPlan` (every task kind), merging,
+  combining and packing (issue 26, items 1–3, for a render).
+* :mod:`~hevr.backends.cuda.residues` (limb batches, Montgomery constants, plan tables) and
+  :mod:`~hevr.backends.cuda.backend` (the orchestration) are shared by every launcher;
+  :mod:`~hevr.backends.cuda.launch` holds the launchers: the host build through ctypes now, CuPy
+  (NVRTC, ``k_*`` kernels) on a GPU machine later.
 """
 
 from __future__ import annotations
 
+from .backend import CudaHostBackend, KernelBackend
 from .host import (
     HostMontgomery,
     build_host,
+    build_library,
     from_limbs,
     montgomery_params,
     source,
     to_limbs,
 )
+from .launch import HostLauncher, Launcher
+from .residues import LimbBatch
 
-__all__ = ["HostMontgomery", "build_host", "from_limbs", "montgomery_params", "source", "to_limbs"]
+__all__ = ["CudaHostBackend", "HostLauncher", "HostMontgomery", "KernelBackend", "Launcher", "LimbBatch", "build_host",
+           "build_library", "from_limbs", "montgomery_params", "source", "to_limbs"]

@@ -23,8 +23,9 @@ import os
 import shutil
 import subprocess
 import tempfile
+import threading
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -32,11 +33,13 @@ from ...errors import MissingDependencyError, ParameterError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HostMontgomery", "build_host", "from_limbs", "montgomery_params", "source", "to_limbs"]
+__all__ = ["HostMontgomery", "build_host", "build_library", "from_limbs", "montgomery_params", "source", "to_limbs"]
 
 SOURCE = Path(__file__).with_name("mont.cuh")
 MAX_LIMBS = 128  # HEVR_MAX_LIMBS in the source: 4096-bit moduli (n² of a 2048-bit key)
+FLAGS = ("-O3", "-shared", "-fPIC", "-x", "c", "-std=c99")  # portable: no -march, so a cached build runs anywhere
 _LIB: dict[str, ctypes.CDLL] = {}
+_BUILD = threading.Lock()  # the threads of one worker build once
 
 
 def source() -> str:
@@ -44,41 +47,72 @@ def source() -> str:
     return SOURCE.read_text(encoding="utf-8")
 
 
-def build_host(compiler: str | None = None) -> ctypes.CDLL:
-    """Compile the source for the host once per process (cached on disk by its hash) and load it.
+def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None = None) -> ctypes.CDLL:
+    """Compile a kernel source for the host once per process and load it through ctypes.
+
+    The shared library is cached on disk (a private folder in the temporary directory) under the
+    hash of the source, the headers it includes and the compiler flags, so an edited source is
+    rebuilt and an unchanged one is compiled once per machine.
+
+    Parameters
+    ----------
+    main : pathlib.Path
+        The source to compile (its quoted ``#include`` lines resolve beside it).
+    headers : sequence of pathlib.Path
+        The files it includes: part of the hash.
+    compiler : str, optional
+        The C compiler; default ``$CC``, else ``cc`` or ``gcc`` on PATH.
 
     Raises
     ------
     MissingDependencyError
-        No C compiler (``cc``/``gcc``, or ``$CC``) on this machine.
+        No C compiler (``cc``/``gcc``, or ``$CC``) on this machine, or it cannot build the source.
     """
-    text = source()
-    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    if digest in _LIB:
-        return _LIB[digest]
+    texts = [main.read_text(encoding="utf-8")] + [h.read_text(encoding="utf-8") for h in headers]
+    digest = hashlib.sha256("\0".join(texts + list(FLAGS)).encode()).hexdigest()[:16]
+    key = f"{main.stem}-{digest}"
+    with _BUILD:
+        if key not in _LIB:
+            _LIB[key] = _compile(main, key, compiler)
+        return _LIB[key]
+
+
+def _compile(main: Path, key: str, compiler: str | None) -> ctypes.CDLL:
     cc = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if not cc:
         raise MissingDependencyError("compiler: expected a C compiler (cc, gcc or $CC) to build the kernel source "
                                      "for the host, got none on PATH")
     folder = Path(tempfile.gettempdir()) / f"hevr-kernels-{os.getuid() if hasattr(os, 'getuid') else 0}"
     folder.mkdir(mode=0o700, exist_ok=True)
-    lib = folder / f"mont-{digest}.so"
+    st = folder.stat()
+    if hasattr(os, "getuid") and (st.st_uid != os.getuid() or st.st_mode & 0o022):
+        folder = Path(tempfile.mkdtemp(prefix="hevr-kernels-"))  # not ours alone: never load code from it
+    lib = folder / f"{key}.so"
     if not lib.exists():
-        tmp = folder / f".mont-{digest}-{os.getpid()}.so"
+        tmp = folder / f".{key}-{os.getpid()}.so"
         try:
-            run = subprocess.run([cc, "-O2", "-shared", "-fPIC", "-x", "c", "-std=c99", str(SOURCE), "-o", str(tmp)],
-                                 capture_output=True, text=True)
+            run = subprocess.run([cc, *FLAGS, str(main), "-o", str(tmp)], capture_output=True, text=True, check=False)
         except OSError as exc:
             raise MissingDependencyError(f"compiler: expected a C compiler at {cc}, got {exc.strerror}") from None
         if run.returncode != 0:
-            raise MissingDependencyError(f"compiler: {cc} could not build {SOURCE.name}: {run.stderr.strip()[:500]}")
+            raise MissingDependencyError(f"compiler: {cc} could not build {main.name}: {run.stderr.strip()[:500]}")
         os.replace(tmp, lib)
         log.info("built %s with %s", lib, cc)
-    dll = ctypes.CDLL(str(lib))
+    return ctypes.CDLL(str(lib))
+
+
+def build_host(compiler: str | None = None) -> ctypes.CDLL:
+    """The host build of ``mont.cuh`` (:func:`build_library`), its batch product declared.
+
+    Raises
+    ------
+    MissingDependencyError
+        No C compiler (``cc``/``gcc``, or ``$CC``) on this machine.
+    """
+    dll = build_library(SOURCE, (), compiler)
     u32p = ctypes.POINTER(ctypes.c_uint32)
     dll.hevr_mont_mul_batch.argtypes = [u32p, u32p, u32p, ctypes.c_uint32, ctypes.c_int, ctypes.c_longlong, u32p]
     dll.hevr_mont_mul_batch.restype = ctypes.c_int
-    _LIB[digest] = dll
     return dll
 
 

@@ -4,22 +4,31 @@
  * The same source compiles three ways:
  *   - for the GPU through CuPy/NVRTC (__CUDACC__ or __CUDACC_RTC__ defined): the __global__
  *     kernel k_mont_mul below, one thread per product;
- *   - for the host with a C compiler (gcc -O2 -shared -fPIC -x c): the extern function
+ *   - for the host with a C compiler (cc -O3 -shared -fPIC -x c -std=c99): the extern function
  *     hevr_mont_mul_batch, a loop over the same per-product body. hevr's test suite builds it
  *     and checks every result against gmpy2, so the arithmetic is tested on machines without a GPU.
+ * render.cuh includes it for the render path's kernels.
  *
  * Numbers are little-endian arrays of NL 32-bit limbs. For an odd modulus N < 2^(32·NL) and
- * R = 2^(32·NL), mont_mul(a, b) = a·b·R^-1 mod N for a, b < N (CIOS: coarsely integrated operand
- * scanning, Koç et al. 1996): per limb b_i of b, t += a·b_i, then m = t_0·(−N^-1 mod 2^32) mod 2^32
- * and t = (t + m·N) / 2^32. The invariant t < 2N holds after every step, so one conditional
- * subtraction at the end gives the result in [0, N). Work: 2·NL² 32×32→64-bit multiply-adds.
+ * R = 2^(32·NL), mont_mul(a, b) = a·b·R^-1 mod N for a < R, b < N (CIOS: coarsely integrated operand
+ * scanning, Koç et al. 1996): per limb b_i of b, m = (t + a·b_i)_0·(−N^-1 mod 2^32) mod 2^32 and
+ * t = (t + a·b_i + m·N) / 2^32, both products accumulated in one pass over the limbs. Then
+ * t < R + N < 2^(32·NL+1) after every step and t < (a·b + (R−1)·N)/R < 2N at the end, so one
+ * conditional subtraction gives the result in [0, N) (a < R allows to_mont of any NL-limb value).
+ * Work: 2·NL² 32×32→64-bit multiply-adds.
  */
 #if defined(__CUDACC__) || defined(__CUDACC_RTC__)
 #define HEVR_HD __device__ __forceinline__
+#define HEVR_INLINE __device__ __forceinline__
+#define HEVR_CALL __device__ __noinline__ /* one copy of the product per module: short NVRTC builds */
+#define HEVR_RESTRICT __restrict__
 typedef unsigned int hevr_u32;
 typedef unsigned long long hevr_u64;
 #else
 #define HEVR_HD static inline
+#define HEVR_INLINE static inline __attribute__((always_inline))
+#define HEVR_CALL static inline
+#define HEVR_RESTRICT restrict
 #include <stdint.h>
 typedef uint32_t hevr_u32;
 typedef uint64_t hevr_u64;
@@ -27,33 +36,28 @@ typedef uint64_t hevr_u64;
 
 #define HEVR_MAX_LIMBS 128 /* 4096 bits: n² of a 2048-bit key */
 
-/* out = a·b·R^-1 mod n; a, b < n; t: scratch of nl + 2 limbs; out may alias neither a nor b. */
-HEVR_HD void hevr_mont_mul(const hevr_u32 *a, const hevr_u32 *b, const hevr_u32 *n, hevr_u32 ninv, int nl,
-                           hevr_u32 *t, hevr_u32 *out)
+/* The CIOS body; inlined where nl is a constant, so the compiler unrolls the small sizes. */
+HEVR_INLINE void hevr_cios(const hevr_u32 *a, const hevr_u32 *b, const hevr_u32 *n, hevr_u32 ninv, int nl,
+                           hevr_u32 *HEVR_RESTRICT t, hevr_u32 *out)
 {
     for (int i = 0; i < nl + 2; i++) t[i] = 0;
     for (int i = 0; i < nl; i++) {
-        hevr_u64 c = 0, s;
+        /* t = (t + a·b_i + m·n) / 2^32 in one pass: two independent carry chains (c for a·b_i, d for
+         * m·n) instead of two loops, the same sums limb by limb; t < 2^(32·nl+1) throughout */
         hevr_u32 bi = b[i];
-        for (int j = 0; j < nl; j++) {              /* t += a·b_i */
+        hevr_u64 s = (hevr_u64)a[0] * bi + t[0], c = s >> 32;
+        hevr_u32 m = (hevr_u32)s * ninv;            /* t + m·n ≡ 0 mod 2^32 */
+        hevr_u64 r = (hevr_u64)m * n[0] + (hevr_u32)s, d = r >> 32;
+        for (int j = 1; j < nl; j++) {
             s = (hevr_u64)a[j] * bi + t[j] + c;
-            t[j] = (hevr_u32)s;
             c = s >> 32;
+            r = (hevr_u64)m * n[j] + (hevr_u32)s + d;
+            d = r >> 32;
+            t[j - 1] = (hevr_u32)r;
         }
-        s = (hevr_u64)t[nl] + c;
-        t[nl] = (hevr_u32)s;
-        t[nl + 1] = (hevr_u32)(s >> 32);
-        hevr_u32 m = t[0] * ninv;                   /* t + m·n ≡ 0 mod 2^32 */
-        s = (hevr_u64)m * n[0] + t[0];
-        c = s >> 32;
-        for (int j = 1; j < nl; j++) {              /* t = (t + m·n) / 2^32 */
-            s = (hevr_u64)m * n[j] + t[j] + c;
-            t[j - 1] = (hevr_u32)s;
-            c = s >> 32;
-        }
-        s = (hevr_u64)t[nl] + c;
+        s = (hevr_u64)t[nl] + c + d;
         t[nl - 1] = (hevr_u32)s;
-        t[nl] = t[nl + 1] + (hevr_u32)(s >> 32);
+        t[nl] = (hevr_u32)(s >> 32);
     }
     /* t < 2n: subtract n once if t >= n (t has nl + 1 limbs) */
     int ge = t[nl] != 0;
@@ -72,6 +76,21 @@ HEVR_HD void hevr_mont_mul(const hevr_u32 *a, const hevr_u32 *b, const hevr_u32 
         }
     } else {
         for (int j = 0; j < nl; j++) out[j] = t[j];
+    }
+}
+
+/* out = a·b·R^-1 mod n; a < 2^(32·nl), b < n; t: scratch of nl + 2 limbs. out may alias a or b (it is
+ * written after their last read: acc = acc·b and acc = acc² in place), never n or t. The limb counts
+ * of n² for 64- to 512-bit keys get their own unrolled copy of the same body. */
+HEVR_CALL void hevr_mont_mul(const hevr_u32 *a, const hevr_u32 *b, const hevr_u32 *n, hevr_u32 ninv, int nl,
+                             hevr_u32 *t, hevr_u32 *out)
+{
+    switch (nl) {
+    case 4: hevr_cios(a, b, n, ninv, 4, t, out); break;
+    case 8: hevr_cios(a, b, n, ninv, 8, t, out); break;
+    case 16: hevr_cios(a, b, n, ninv, 16, t, out); break;
+    case 32: hevr_cios(a, b, n, ninv, 32, t, out); break;
+    default: hevr_cios(a, b, n, ninv, nl, t, out);
     }
 }
 

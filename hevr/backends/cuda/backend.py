@@ -1,0 +1,315 @@
+"""The kernel backends: hevr's render-path operations on limb batches, through a launcher.
+
+:class:`KernelBackend` implements :class:`~hevr.backends.base.Backend` on top of the kernels of
+``render.cuh`` (one independent item per thread: see the source's header) and is shared by every
+launcher; :class:`CudaHostBackend` (registered as ``"cuda-host"``) runs them on the host through
+ctypes, so CI checks the GPU path's arithmetic, bit for bit, against the ``cpu`` reference. A
+CuPy launcher gives the ``cuda`` backend later.
+
+Where each operation runs
+-------------------------
+=============================  ===================================================================
+``from_bytes`` / ``to_bytes``  kernels: records ↔ limbs (normal form; ``to_bytes`` first leaves
+                               Montgomery form with one CIOS product per value)
+``first_out_of_range``         kernel on normal-form limbs; on a batch in Montgomery form mod
+                               ``upper`` itself only ``x ≠ 0`` is left to check
+``ray_products``               kernels: per-voxel powers, then one item per plan task (ONES,
+                               SINGLE, HORNER, SHARED exactly as the CPU backend: same products,
+                               same :class:`~hevr.backends.base.OpCounter`); rows by numpy gather
+``segment_products``           kernel: one item per (segment, component)
+``combine``                    kernel: one item per row (subset products and Straus for k ≤ 8)
+``pack``                       kernel: one item per packed ciphertext (Horner with interleaved
+                               square-and-multiply); the two offset factors ``g^(O·Σ_j B^j)`` are
+                               made once per call in Python
+``encrypt`` / ``decrypt``      **not in kernels yet**: delegated to :class:`~hevr.backends.cpu.CpuBackend`
+                               (gmpy2) through a records round trip — owner masks and CRT
+                               decryption still run per value in Python
+=============================  ===================================================================
+
+Residues mod N = n² stay in Montgomery form between operations (:mod:`hevr.backends.cuda.residues`);
+the first operation that learns N converts a batch in place, once. Inputs are residues in
+``[0, N)`` (what the store's range check guarantees); the kernels reduce anything below
+``2^(32·NL)``, so a value ≥ N that the CPU backend would pass through unreduced (a one-row
+segment, say) comes back reduced here. A modulus the kernels cannot take (even, or over 4096 bits)
+and a plan needing more than ``MAX_BUCKETS`` buckets per task run on gmpy2 instead — same results.
+
+>>> import numpy as np
+>>> be = CudaHostBackend()
+>>> x = be.from_bytes(np.array([[0, 2], [0, 3], [0, 5]], np.uint8))
+>>> be.to_bytes(be.segment_products(x, np.array([0, 2, 3]), 1, 1001), 2).tolist()
+[[0, 6], [0, 5]]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ...crypto.records import bytes_to_mpz, record_width
+from ...errors import ParameterError
+from ..base import Backend, OpCounter, ProductPlan
+from ..cpu import CpuBackend
+from .host import MAX_LIMBS
+from .launch import HostLauncher, Launcher
+from .residues import LimbBatch, Modulus, exponent_words, limbs_of, plan_tables
+
+__all__ = ["CudaHostBackend", "KernelBackend"]
+
+_CPU = CpuBackend()
+
+
+class KernelBackend(Backend):
+    """:class:`~hevr.backends.base.Backend` on the kernels of ``render.cuh`` (see the module docstring).
+
+    Parameters
+    ----------
+    launcher : Launcher
+        Runs the kernels (the host build, or a device).
+    """
+
+    name = "kernels"
+
+    def __init__(self, launcher: Launcher) -> None:
+        self._launch = launcher
+        self._mods: dict[int, Modulus] = {}
+
+    # -- moduli and forms ----------------------------------------------------------------------
+    def _modulus(self, n: int) -> Modulus | None:
+        """Montgomery constants of ``n`` (cached), None where the kernels cannot take it."""
+        n = int(n)
+        M = self._mods.get(n)
+        if M is None:
+            if n < 3 or n % 2 == 0 or n.bit_length() > 32 * MAX_LIMBS:
+                return None
+            if len(self._mods) >= 16:
+                self._mods.clear()
+            M = self._mods[n] = Modulus(n)
+        return M
+
+    def _batch(self, values: Any) -> LimbBatch:
+        """A LimbBatch of ``values`` (another backend's batch, a list of ints, is converted)."""
+        if isinstance(values, LimbBatch):
+            return values
+        return LimbBatch(limbs_of(values))
+
+    def _mont(self, values: Any, M: Modulus) -> np.ndarray:
+        """The batch's limbs in Montgomery form mod ``M.n``; a normal-form batch is converted in place
+        (a joined one part by part, so the parts stay converted)."""
+        batch = self._batch(values)
+        parts = batch.parts
+        if parts is not None:
+            y = np.concatenate([self._mont(p, M) for p in parts]) if parts else np.zeros((0, M.nl), np.uint32)
+            batch.state = (y, M.n)
+            return y
+        limbs, mod = batch.state
+        if mod is not None and int(mod) == M.n:
+            return limbs
+        x = self._normal(batch)
+        if x.shape[1] > M.nl:
+            high = x[:, M.nl:].any(axis=1)
+            if high.any():  # values of more limbs than N has: reduce those (never from a store)
+                x = x.copy()
+                idx = np.flatnonzero(high)
+                x[idx, :] = limbs_of([v % M.n for v in limbs_to_ints(x[idx])], x.shape[1])
+            x = x[:, :M.nl]
+        elif x.shape[1] < M.nl:
+            x = np.pad(x, ((0, 0), (0, M.nl - x.shape[1])))
+        y = self._launch.mont_convert(np.ascontiguousarray(x), M.r2, M)
+        batch.state = (y, M.n)
+        return y
+
+    def _normal(self, batch: LimbBatch) -> np.ndarray:
+        """Normal-form limbs of a batch (one CIOS product per value from Montgomery form)."""
+        if batch.parts is not None:
+            rows = [self._normal(p) for p in batch.parts]
+            nl = max((r.shape[1] for r in rows), default=1)
+            return np.concatenate([np.pad(r, ((0, 0), (0, nl - r.shape[1]))) for r in rows] or
+                                  [np.zeros((0, 1), np.uint32)])
+        limbs, mod = batch.state
+        if mod is None:
+            return limbs
+        M = self._modulus(int(mod))
+        return self._launch.mont_convert(limbs, M.unit, M)
+
+    def _fallback(self, op: str, *args) -> LimbBatch:
+        """The CPU backend's ``op`` on mpz copies of the LimbBatch arguments (rare paths only)."""
+        conv = [_CPU.from_bytes(self.to_bytes(a, 4 * a.nl)) if isinstance(a, LimbBatch) else a for a in args]
+        out = getattr(_CPU, op)(*conv)
+        return LimbBatch(limbs_of(out))
+
+    # -- conversion ------------------------------------------------------------------------------
+    def from_bytes(self, records: np.ndarray) -> LimbBatch:
+        if not isinstance(records, np.ndarray) or records.dtype != np.uint8 or records.ndim < 1 or \
+                records.shape[-1] < 1:
+            bytes_to_mpz(records)  # the CPU backend's message for a bad array
+            raise ParameterError("records: expected a uint8 array of shape (..., width)")  # pragma: no cover
+        width = int(records.shape[-1])
+        if width > 4 * MAX_LIMBS:
+            raise ParameterError(f"records: expected ciphertexts of at most {4 * MAX_LIMBS} bytes for backend "
+                                 f"{self.name!r} (keys of up to {MAX_LIMBS * 16} bits), got {width}-byte records")
+        limbs, _ = self._launch.records_to_limbs(records.reshape(-1, width), -(-width // 4))
+        return LimbBatch(limbs)
+
+    def to_bytes(self, values: Any, width: int) -> np.ndarray:
+        if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 1:
+            raise ParameterError(f"width: expected an integer >= 1, got {width!r}")
+        batch = self._batch(values)
+        recs, over = self._launch.limbs_to_records(self._normal(batch), int(width))
+        if over.any():
+            i = int(np.flatnonzero(over)[0])
+            bits = limbs_to_ints(self._normal(batch)[i:i + 1])[0].bit_length()
+            raise ParameterError(f"values[{i}]: value of {bits} bits does not fit in {int(width)} bytes")
+        return recs
+
+    def residue_bytes(self, width: int) -> int:
+        """Memory of one resident value: its limbs (a numpy row of 32-bit words).
+
+        >>> CudaHostBackend().residue_bytes(512), CudaHostBackend().residue_bytes(17)
+        (512, 20)
+        """
+        return 4 * -(-int(width) // 4)
+
+    def first_out_of_range(self, values: Any, upper: int) -> int | None:
+        batch = self._batch(values)
+        limbs, mod = batch.state
+        upper = int(upper)
+        if upper <= 1:
+            return 0 if len(batch) else None
+        if mod is not None and int(mod) == upper:
+            x, up = limbs, None  # Montgomery residues are < upper: x ≡ 0 iff its form is 0
+        else:
+            x = self._normal(batch)
+            up = None if upper.bit_length() > 32 * x.shape[1] else limbs_of([upper], x.shape[1])[0]
+        bad = np.flatnonzero(self._launch.out_of_range(x, up))
+        return int(bad[0]) if bad.size else None
+
+    def concat(self, batches: Sequence[Any]) -> LimbBatch:
+        """One batch of the values of ``batches`` in order. Where one of them is in Montgomery form
+        mod N, all are (converted in place) and joined now; else they are joined on first use,
+        when the modulus is known, so that each part — a resident brick — is converted once for
+        all frames, not once per frame.
+
+        >>> be = CudaHostBackend()
+        >>> x = be.from_bytes(np.array([[0, 2], [0, 3]], np.uint8))
+        >>> y = be.segment_products(x, np.array([0, 1, 2]), 1, 1001)
+        >>> be.to_bytes(be.concat([y, be.from_bytes(np.array([[1, 0]], np.uint8))]), 2).tolist()
+        [[0, 2], [0, 3], [1, 0]]
+        """
+        parts = [self._batch(b) for b in batches]
+        mods = {int(b.modulus) for b in parts if b.parts is None and b.modulus is not None}
+        M = self._modulus(mods.pop()) if len(mods) == 1 else None
+        if M is not None:
+            return LimbBatch(np.concatenate([self._mont(b, M) for b in parts]), M.n)
+        if mods:  # several moduli (not in a render): normal form now
+            return LimbBatch(self._normal(LimbBatch.joined([LimbBatch(self._normal(b)) for b in parts])))
+        return LimbBatch.joined(parts)
+
+    # -- encryption and decryption: the CPU backend's, through records ------------------------------
+    def encrypt(self, key: Any, mantissas, *, unsafe_no_obfuscation: bool = False) -> LimbBatch:
+        cts = _CPU.encrypt(key, mantissas, unsafe_no_obfuscation=unsafe_no_obfuscation)
+        width = record_width(getattr(key, "public_key", key).n)
+        return self.from_bytes(_CPU.to_bytes(cts, width))
+
+    def decrypt(self, private_key: Any, values: Any) -> list[int]:
+        batch = self._batch(values)
+        return _CPU.decrypt(private_key, _CPU.from_bytes(self.to_bytes(batch, 4 * batch.nl)))
+
+    # -- rendering -------------------------------------------------------------------------------
+    def ray_products(self, plan: ProductPlan, components, nsquare: int,
+                     counter: OpCounter | None = None) -> list[LimbBatch]:
+        if not len(components):
+            return []
+        M = self._modulus(nsquare)
+        n_vox = len(components[0])
+        t = plan_tables(plan, n_vox) if M is not None else None
+        if t is None:  # an even modulus, or a task with over MAX_BUCKETS buckets: gmpy2
+            mpz = [_CPU.from_bytes(self.to_bytes(c, 4 * self._batch(c).nl)) for c in components]
+            return [LimbBatch(limbs_of(r)) for r in _CPU.ray_products(plan, mpz, nsquare, counter)]
+        rep = t.rep
+        empty = rep < 0
+        out = []
+        for comp in components:
+            if len(comp) != n_vox:
+                raise ParameterError(f"components: expected {n_vox} ciphertexts in each, got {len(comp)}")
+            cts = self._mont(comp, M)
+            vals, counts = self._launch.ray_products(t, cts, int(plan.shared_w or 0), M)
+            if counts.size and counts[:, 0].min() < 0:
+                q = int(np.flatnonzero(counts[:, 0] < 0)[0])
+                raise ParameterError(f"plan: task {q} has a weight with more digits than its windows")
+            rows = np.empty((rep.size, M.nl), np.uint32)
+            rows[~empty] = vals[rep[~empty]]
+            rows[empty] = M.one
+            out.append(LimbBatch(rows, M.n))
+            if counter is not None:
+                mul, sq, bits = (int(v) for v in counts.sum(axis=0)) if counts.size else (0, 0, 0)
+                counter.add(OpCounter(mulmod=mul, squarings=sq + t.squarings_pre, powmod=t.powmod, powmod_bits=bits,
+                                      pairs=plan.n_pairs, rows=plan.n_rows, duplicate_rows=t.duplicate_rows,
+                                      precomputed=t.precomputed))
+        return out
+
+    def segment_products(self, values: Any, indptr: np.ndarray, k: int, nsquare: int) -> LimbBatch:
+        M = self._modulus(nsquare)
+        ip = np.asarray(indptr, dtype=np.int64).reshape(-1)
+        if M is None:
+            return self._fallback("segment_products", self._batch(values), ip, k, nsquare)
+        if ip.size < 1 or ip[0] < 0 or (np.diff(ip) < 1).any() or ip[-1] * k > len(values):
+            raise ParameterError(f"indptr: expected increasing offsets within the {len(values) // max(k, 1)} rows")
+        if ip.size == 1:
+            return LimbBatch(np.zeros((0, M.nl), np.uint32), M.n)
+        return LimbBatch(self._launch.segments(self._mont(values, M), ip, int(k), M), M.n)
+
+    def combine(self, values: Any, comb: Sequence[Sequence[int]], nsquare: int) -> LimbBatch:
+        M = self._modulus(nsquare)
+        k, C = len(comb), len(comb[0])
+        if M is None:
+            return self._fallback("combine", self._batch(values), comb, nsquare)
+        if len(values) % k:
+            raise ParameterError(f"values: expected rows of {k} values, got {len(values)} values")
+        E = exponent_words([comb[i][ch] for ch in range(C) for i in range(k)], "comb").reshape(C, k, -1)
+        if not len(values):
+            return LimbBatch(np.zeros((0, M.nl), np.uint32), M.n)
+        return LimbBatch(self._launch.combine(self._mont(values, M), k, np.ascontiguousarray(E), M), M.n)
+
+    def pack(self, terms: Any, exps: Sequence[int], pack_bits: int, per_pack: int, offset: int,
+             n: int) -> LimbBatch:
+        n = int(n)
+        M = self._modulus(n * n)
+        if M is None:
+            return self._fallback("pack", self._batch(terms), exps, pack_bits, per_pack, offset, n)
+        m, J, b = len(terms), max(1, int(per_pack)), int(pack_bits)
+        R = exponent_words(exps)
+        if R.shape[0] != m:
+            raise ParameterError(f"exps: expected {m} exponents like terms, got {R.shape[0]}")
+        if not m:
+            return LimbBatch(np.zeros((0, M.nl), np.uint32), M.n)
+        offs = None
+        if offset:  # g^(O·Σ_j B^j) = 1 + O·Σ_j B^j·n, for a full group and for the last one
+            lens = (J, m - (m - 1) // J * J)
+            digits = [sum(1 << (b * j) for j in range(g)) if J > 1 else 1 for g in lens]
+            raw = limbs_of([(1 + offset * d * n) % M.n for d in digits], M.nl)
+            offs = self._launch.mont_convert(raw, M.r2, M)
+        return LimbBatch(self._launch.pack(self._mont(terms, M), R, J, b, offs, M), M.n)
+
+
+def limbs_to_ints(limbs: np.ndarray) -> list[int]:
+    """Python ints of limb rows (slow paths and messages only)."""
+    return [int.from_bytes(np.ascontiguousarray(r, dtype="<u4").tobytes(), "little") for r in limbs]
+
+
+class CudaHostBackend(KernelBackend):
+    """The kernels of the CUDA backend compiled for the host: backend ``"cuda-host"``.
+
+    For tests and for checking a machine: the same kernels and orchestration as the GPU
+    backend, on the CPU; bit-identical to ``cpu``. The C source is compiled on first use
+    (:class:`MissingDependencyError` without a C compiler).
+    """
+
+    name = "cuda-host"
+
+    def __init__(self) -> None:
+        super().__init__(HostLauncher())
+
+    def __reduce__(self):
+        return (CudaHostBackend, ())
