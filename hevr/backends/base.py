@@ -122,34 +122,37 @@ class OpCounter:
 
 @dataclass
 class ProductPlan:
-    """What to multiply for one brick: the plaintext half of the kernel, shared by all
-    components and all backends (made by :func:`hevr.rendering.kernel.plan_products`).
+    """What to multiply for one brick (or a worker's group of bricks): the plaintext half of the
+    kernel, shared by all components and all backends (made by
+    :func:`hevr.rendering.kernel.plan_products` as numpy arrays, which an array backend passes
+    to its kernels as they are; sequences of ints are accepted too).
 
     Attributes
     ----------
     n_rows, n_pairs : int
         CSR rows (rays) and non-zero pairs.
-    rep : list of int
+    rep : (n_rows,) int64
         Per row, the index of the task computing it, -1 for an empty row (the result is 1).
-    vl, wl : list of int
+    vl, wl : (pairs,) int64, uint64
         Voxel and weight of every pair (zero weights dropped).
-    tasks : list of (kind, start, stop, w, J)
-        One per distinct row: method (``ONES``, ``SINGLE``, ``HORNER``, ``SHARED``), its pair
-        range, radix bits ``w`` and window count ``J``.
+    tasks : (T, 5) int64
+        One ``(kind, start, stop, w, J)`` per distinct row: method (``ONES``, ``SINGLE``,
+        ``HORNER``, ``SHARED``), its pair range, radix bits ``w`` and window count ``J``.
     shared_w : int
         Radix of the shared-bucket rows (0 if none).
-    pre : list of (voxel, J_v), optional
-        Voxels needing per-voxel powers ``c^(2^(w j))`` for shared buckets.
+    pre : (M, 2) int64, optional
+        ``(voxel, J_v)`` of the voxels needing per-voxel powers ``c^(2^(w j))`` for shared
+        buckets.
     """
 
     n_rows: int
     n_pairs: int
-    rep: list[int]
-    vl: list[int]
-    wl: list[int]
-    tasks: list[tuple[int, int, int, int, int]]
+    rep: Any
+    vl: Any
+    wl: Any
+    tasks: Any
     shared_w: int = 0
-    pre: list[tuple[int, int]] | None = None
+    pre: Any = None
 
 
 class Backend(ABC):

@@ -190,11 +190,12 @@ def _straus(sub: list[mpz], exps: Sequence[int], n2: mpz) -> mpz:
 # -- the per-brick kernel: executing a ProductPlan ------------------------------------------
 def _execute(plan: ProductPlan, cts: Sequence[mpz], n2: mpz, counter: OpCounter | None) -> list[mpz]:
     """Run the plan on one component (one ciphertext list)."""
-    vl, wl = plan.vl, plan.wl
+    vl, wl, tasks, rep = (_listed(a) for a in (plan.vl, plan.wl, plan.tasks, plan.rep))
+    pre = _listed(plan.pre) if plan.pre is not None else []
     mul = n_pow = pow_bits = 0
-    pw, sq = _precompute(cts, plan.pre, plan.shared_w, n2) if plan.pre else (None, 0)
+    pw, sq = _precompute(cts, pre, plan.shared_w, n2) if pre else (None, 0)
     vals: list[mpz] = []
-    for kind, s, e, w, n_win in plan.tasks:
+    for kind, s, e, w, n_win in tasks:
         if kind == ONES:  # the nearest-sampling hot path: one multiplication per pair
             acc = cts[vl[s]]
             for v in vl[s + 1 : e]:
@@ -212,15 +213,24 @@ def _execute(plan: ProductPlan, cts: Sequence[mpz], n2: mpz, counter: OpCounter 
         sq += q
         vals.append(acc)
     one = mpz(1)
-    out = [one if u < 0 else vals[u] for u in plan.rep]
+    out = [one if u < 0 else vals[u] for u in rep]
     if counter is not None:
         counter.add(OpCounter(
             mulmod=mul, squarings=sq, powmod=n_pow, powmod_bits=pow_bits,
             pairs=plan.n_pairs, rows=plan.n_rows,
-            duplicate_rows=sum(1 for u in plan.rep if u >= 0) - len(plan.tasks),
-            precomputed=sum(j - 1 for _, j in plan.pre or ()),
+            duplicate_rows=sum(1 for u in rep if u >= 0) - len(tasks),
+            precomputed=sum(j - 1 for _, j in pre),
         ))
     return out
+
+
+def _listed(a: Any) -> list:
+    """A plan's array as Python ints (the loops below index lists of ints fastest).
+
+    >>> _listed(np.array([[1, 2]], np.uint64)), _listed([3])
+    ([[1, 2]], [3])
+    """
+    return a.tolist() if isinstance(a, np.ndarray) else list(a)
 
 
 def _combine(B: list, lo: int, hi: int, n2: mpz) -> tuple[mpz | None, int]:

@@ -189,7 +189,7 @@ def plan_products(indptr, voxels, weights, n_vox: int) -> ProductPlan:
     Examples
     --------
     >>> p = plan_products(np.array([0, 2, 4, 4]), np.array([0, 1, 0, 1]), np.array([1, 1, 1, 1]), 2)
-    >>> p.rep, len(p.tasks)          # row 1 repeats row 0; row 2 is empty
+    >>> p.rep.tolist(), len(p.tasks)          # row 1 repeats row 0; row 2 is empty
     ([0, 0, -1], 1)
     """
     ip = _as_int_array("indptr", indptr).astype(np.int64)
@@ -211,7 +211,7 @@ def plan_products(indptr, voxels, weights, n_vox: int) -> ProductPlan:
         ip = np.concatenate([[0], np.cumsum(np.bincount(rowid[keep], minlength=n_rows))])
         vox, wt = vox[keep], wt[keep]
     rep_a, u_rows = _duplicate_rows(ip, vox, wt)
-    plan = ProductPlan(n_rows, n_pairs, rep_a.tolist(), vox.tolist(), wt.tolist(), [])
+    plan = ProductPlan(n_rows, n_pairs, rep_a, vox.astype(np.int64), wt, np.zeros((0, 5), np.int64))
     if not u_rows.size:
         return plan
     nonempty = np.flatnonzero(np.diff(ip))
@@ -232,7 +232,7 @@ def plan_products(indptr, voxels, weights, n_vox: int) -> ProductPlan:
             use, plan.shared_w, plan.pre = shared
             kinds[gen[use]] = _SHARED
     n_win = np.where(w_r > 0, -(-_bit_length(u_max) // np.maximum(w_r, 1)), 0)
-    plan.tasks = list(zip(kinds.tolist(), u_s.tolist(), u_e.tolist(), w_r.tolist(), n_win.tolist()))
+    plan.tasks = np.stack([kinds, u_s, u_e, w_r, n_win], axis=1).astype(np.int64)
     return plan
 
 
@@ -349,4 +349,4 @@ def _choose_windows(vox, wt, starts, stops, rmax):
     if not use.any() or (best - sh_row)[use].sum() <= ((j_v - 1).clip(0) * w).sum() * _SQR:
         return best_w, None
     v_need = np.flatnonzero(j_v >= 1)  # J_v == 1 entries are just [c]
-    return best_w, (use, w, list(zip(v_need.tolist(), j_v[v_need].tolist())))
+    return best_w, (use, w, np.stack([v_need, j_v[v_need]], axis=1).astype(np.int64))

@@ -161,7 +161,7 @@ def test_ray_products_identical_with_identical_counts(bits, weights):
     ip, vox, w = _csr(30, n_vox, 24, weights)
     plan = plan_products(ip, vox, w, n_vox)
     if weights == "shared":
-        assert plan.pre and any(t[0] == SHARED for t in plan.tasks)
+        assert plan.pre is not None and len(plan.pre) and any(t[0] == SHARED for t in plan.tasks)
     _check_rays(plan, n * n, record_width(n), n_vox)
 
 

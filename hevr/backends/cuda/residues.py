@@ -264,7 +264,7 @@ def plan_tables(plan: ProductPlan, n_vox: int) -> PlanTables | None:
     slot = max(1, int(size.max(initial=0)), (1 << sw) if shared.any() else 0)
     if slot > MAX_BUCKETS:
         return None
-    pre = np.asarray(plan.pre or [], dtype=np.int64).reshape(-1, 2)
+    pre = np.asarray(plan.pre if plan.pre is not None else [], dtype=np.int64).reshape(-1, 2)
     pre_v, pre_j = np.ascontiguousarray(pre[:, 0]), np.ascontiguousarray(pre[:, 1])
     if pre.size and (pre_v.min() < 0 or pre_v.max() >= n_vox or pre_j.min() < 1 or pre_j.max() > 64 or
                      np.unique(pre_v).size < pre_v.size):
