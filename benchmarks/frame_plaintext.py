@@ -41,6 +41,7 @@ import hevr
 from hevr._bench.measure import machine
 from hevr.paper import TF_NODES
 from hevr.rendering.footprint import brick_footprints
+from hevr.rendering.group_weights import nearest_group_rows
 from hevr.rendering.kernel import plan_products
 from hevr.rendering.rays import cast_rays
 from hevr.rendering.weights import brick_weights
@@ -60,7 +61,7 @@ def small_store(work: Path):
 
 
 def geometry_seconds(ev, cam, sampling: str) -> dict:
-    """CPU seconds of the plaintext side of one frame, all bricks, in this process."""
+    """CPU seconds of the per-brick path's plaintext work of one frame, all bricks, in this process."""
     t0 = time.process_time()
     rays = cast_rays(cam, ev.shape, ev.spacing, 1.0)
     t1 = time.process_time()
@@ -76,32 +77,55 @@ def geometry_seconds(ev, cam, sampling: str) -> dict:
             "bricks": len(weights), "pairs": int(sum(bw.n_pairs for bw in weights))}
 
 
-def frames(ev, cam, priv, cases, n: int, client) -> dict:
-    """``n`` rounds; in each, one frame per (case, arm), arms alternating."""
+def frames(vols: dict, cam, priv, cases, arms, n: int, client) -> dict:
+    """``n`` rounds; in each, one frame per (case, arm), the arms' order alternating.
+
+    ``arms``: ``(label, batch, backend)``; ``vols``: backend -> the resident volume in its form.
+    Every frame is checked against ``render_plain``; all arms' packed images must be identical.
+    """
     out: dict = {}
     for r in range(n):
         for name, mode, sampling, kw in cases:
+            any_ev = next(iter(vols.values()))
             ref = hevr.render_plain(hevr.phantom(100), cam, mode, sampling, **kw)
-            bound = hevr.error_bound(ev, cam, mode, sampling, **kw)
+            bound = hevr.error_bound(any_ev, cam, mode, sampling, **kw)
             images = {}
-            for arm in ((False, True) if r % 2 == 0 else (True, False)):
-                with dask.config.set({BATCH_KEY: arm}):
+            for label, batch, backend in (arms if r % 2 == 0 else arms[::-1]):
+                with dask.config.set({BATCH_KEY: batch}):
                     t = time.perf_counter()
-                    img = hevr.render(ev, cam, mode, sampling, cache=False, progress=False, client=client, **kw)
+                    img = hevr.render(vols[backend], cam, mode, sampling, cache=False, progress=False,
+                                      client=client, backend=backend, **kw)
                     dt = time.perf_counter() - t
                 diff = np.abs(img.decrypt(priv) - ref)
-                assert np.all(diff <= bound), (name, arm, float(diff.max()))
-                err = float(diff.max())
-                images[arm] = b"".join(c.tobytes() for c in img.ciphertexts)
-                rec = out.setdefault(name, {}).setdefault("batched" if arm else "per-brick", {"s": [], "err": 0.0})
+                assert np.all(diff <= bound), (name, label, float(diff.max()))
+                images[label] = b"".join(c.tobytes() for c in img.ciphertexts)
+                rec = out.setdefault(name, {}).setdefault(label, {"s": [], "err": 0.0})
                 rec["s"].append(dt)
-                rec["err"] = max(rec["err"], err)
+                rec["err"] = max(rec["err"], float(diff.max()))
                 rec["map_tasks"] = img.stats["map_tasks"]
-            assert images[True] == images[False], f"{name}: the arms' packed images differ"
+            assert len(set(images.values())) == 1, f"{name}: the arms' packed images differ"
     for rec in out.values():
         for arm in rec.values():
             arm["median_s"] = statistics.median(arm["s"])
     return out
+
+
+def group_geometry_seconds(ev, cam, workers: int = 2) -> dict:
+    """CPU seconds of the batched nearest path's plaintext work, all bricks, in this process:
+    the rays, each worker slab's rows (one pass) and its one product plan."""
+    idx = ev.brick_indices()
+    t0 = time.process_time()
+    rays = cast_rays(cam, ev.shape, ev.spacing, 1.0)
+    t1 = time.process_time()
+    groups = [idx[i * len(idx) // workers:(i + 1) * len(idx) // workers] for i in range(workers)]
+    rows = [nearest_group_rows(rays, ev.shape, ev.spacing, ev.brick, g, 1.0) for g in groups]
+    t2 = time.process_time()
+    for g, rw in zip(groups, rows):
+        sizes = [int(np.prod(ev.brick_shape(i))) for i in g]
+        plan_products(rw.indptr, rw.voxels(sizes), rw.weights, sum(sizes))
+    t3 = time.process_time()
+    return {"rays_s": t1 - t0, "weights_s": t2 - t1, "plans_s": t3 - t2, "total_s": t3 - t0,
+            "groups": workers, "pairs": int(sum(int(rw.indptr[-1]) for rw in rows))}
 
 
 def main() -> None:
@@ -124,25 +148,31 @@ def main() -> None:
     res["plain_nearest_s"] = statistics.median(t)
     res["geometry"] = {s: min((geometry_seconds(ev, cam, s) for _ in range(3)), key=lambda d: d["total_s"])
                        for s in ("nearest", "trilinear")}
+    res["geometry_batched"] = min((group_geometry_seconds(ev, cam) for _ in range(5)), key=lambda d: d["total_s"])
+    arms = [("per-brick cpu", False, "cpu"), ("batched cpu", True, "cpu"), ("batched cuda-host", True, "cuda-host")]
     with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as c, Client(c) as cl:
-        ev = hevr.open_volume(store).persist(client=cl)
-        ev.resident.wait()
-        res["small"] = frames(ev, cam, priv, [("xray-nearest-64", "xray", "nearest", {}),
-                                              ("xray-trilinear-64", "xray", "trilinear", {})], a.frames, cl)
+        vols = {b: hevr.open_volume(store).persist(client=cl, backend=b) for b in ("cpu", "cuda-host")}
+        for v in vols.values():
+            v.resident.wait()
+        res["small"] = frames(vols, cam, priv, [("xray-nearest-64", "xray", "nearest", {}),
+                                               ("xray-trilinear-64", "xray", "trilinear", {}),
+                                               ("tf4-nearest-64", "tf", "nearest", {"nodes": TF_NODES})],
+                              arms, a.frames, cl)
+        for v in vols.values():
+            v.resident.release()
         if a.big:
             big = hevr.open_volume(a.big[0]).persist(client=cl)
             big.resident.wait()
             bpriv = hevr.load_key(a.big[1])
-            res["big"] = frames(big, cam, bpriv, [("xray-nearest-2048", "xray", "nearest", {}),
-                                                  ("xray-trilinear-2048", "xray", "trilinear", {}),
-                                                  ("tf4-nearest-2048", "tf", "nearest",
-                                                   {"nodes": TF_NODES})],
-                                max(2, a.frames // 3), cl)
+            res["big"] = frames({"cpu": big}, cam, bpriv, [("xray-nearest-2048", "xray", "nearest", {}),
+                                                          ("xray-trilinear-2048", "xray", "trilinear", {}),
+                                                          ("tf4-nearest-2048", "tf", "nearest", {"nodes": TF_NODES})],
+                                arms[:2], max(2, a.frames // 2), cl)
     a.out.write_text(json.dumps(res, indent=1, sort_keys=True))
-    small = res["small"]["xray-nearest-64"]
-    print(f"plain {res['plain_nearest_s']:.3f} s; geometry nearest {res['geometry']['nearest']['total_s']:.3f} s; "
-          f"frame per-brick {small['per-brick']['median_s']:.3f} s, batched {small['batched']['median_s']:.3f} s")
-
+    for name, rec in res["small"].items():
+        print(name, "  ".join(f"{k}: {v['median_s']:.3f} s ({v['map_tasks']} maps)" for k, v in rec.items()))
+    print(f"plain {res['plain_nearest_s']:.3f} s; geometry per-brick {res['geometry']['nearest']['total_s']:.3f} s, "
+          f"batched {res['geometry_batched']['total_s']:.3f} s")
 
 if __name__ == "__main__":
     main()
