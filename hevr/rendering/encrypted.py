@@ -61,8 +61,26 @@ def _gathered_bytes(packed: list, sums: RaySums, client: Any, reused: bool) -> i
 # sampling only: trilinear rows share per-voxel powers across a brick's rays (kernel.py), which
 # pieces would compute once per piece (measured: +8 % map time at 2048 bits).
 BAND_BITS = 1024
-# Dask config: resident bricks mapped in one task per worker (True) or one task per brick (False).
+# Dask config: resident bricks mapped in one task per worker (True), one task per brick (False) or
+# "auto": one per worker below BAND_BITS, where a task's fixed cost outweighs a brick's arithmetic
+# (64-bit paper case, 2 workers: 0.45 -> 0.35 s); from BAND_BITS on per brick, whose pipelining of
+# merges and finishing with the maps the batched task would lose (2048 bits: trilinear 18.3 ->
+# 24.8 s, TF 9.4 -> 10.7 s; benchmarks/frame_plaintext.py).
 RESIDENT_BATCH_KEY = "hevr.render.resident-batch"
+
+
+def _batch(bits: int) -> bool:
+    """Whether resident bricks are mapped one task per worker (see RESIDENT_BATCH_KEY).
+
+    >>> _batch(64), _batch(2048)
+    (True, False)
+    """
+    value = dask.config.get(RESIDENT_BATCH_KEY, "auto")
+    if value == "auto":
+        return bits < BAND_BITS
+    if not isinstance(value, bool):
+        raise ParameterError(f"{RESIDENT_BATCH_KEY}: expected true, false or 'auto', got {value!r}")
+    return value
 
 _CACHE: "OrderedDict[tuple, RaySums]" = OrderedDict()
 CACHE_SIZE = 2
@@ -264,7 +282,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         # One graph: map -> tree merge -> finish, so merged sums never travel through the client.
         # When they are cached they stay where they are: futures on a cluster (re-colouring
         # then runs next to them), values on a single machine.
-        batch = resident is not None and bool(dask.config.get(RESIDENT_BATCH_KEY, True))
+        batch = resident is not None and _batch(int(ev.public_key.n).bit_length())
         graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
                                  tile, n_tiles, backend, resident,
                                  bands=resident is not None and spec.sampling == "nearest"

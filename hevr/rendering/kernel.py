@@ -39,8 +39,10 @@ take ``w = 1``: ``n - 1`` plus one squaring when a 2 is present.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
+from array_api_compat import array_namespace
 from gmpy2 import mpz
 
 from ..backends import get_backend
@@ -51,6 +53,7 @@ from ..backends.base import SINGLE as _SINGLE
 from ..backends.base import SQR_COST as _SQR
 from ..backends.base import Backend, OpCounter, ProductPlan
 from ..errors import ParameterError
+from ._segments import bit_length, place, popcount, segment_max, segment_sum
 
 __all__ = ["OpCounter", "brick_ray_products", "brick_ray_products_multi", "plan_products"]
 
@@ -153,38 +156,24 @@ def brick_ray_products_multi(
     return get_backend(backend).ray_products(plan, components, n2, counter)
 
 
-def _as_int_array(name: str, a) -> np.ndarray:
-    arr = np.asarray(a)
-    if arr.ndim != 1 or (arr.size and arr.dtype.kind not in "iu"):
-        raise ParameterError(f"{name}: expected a 1-D integer array, got {arr.dtype} {arr.shape}")
-    return arr
+def _as_int_array(name: str, a: Any) -> Any:
+    """``a`` as a 1-D integer array of its own namespace (numpy for lists)."""
+    try:
+        xp = array_namespace(a)
+    except TypeError:
+        a = np.asarray(a)
+        xp = array_namespace(a)
+    if a.ndim != 1 or (a.shape[0] and not xp.isdtype(a.dtype, "integral")):
+        raise ParameterError(f"{name}: expected a 1-D integer array, got {a.dtype} {a.shape}")
+    return a
 
 
-def _popcount(a: np.ndarray) -> np.ndarray:
-    """Set bits of each uint64 (SWAR; ``np.bitwise_count`` needs numpy 2).
-
-    >>> _popcount(np.array([0, 1, 6, 2**64 - 1], np.uint64)).tolist()
-    [0, 1, 2, 64]
-    """
-    x = a.astype(np.uint64)
-    with np.errstate(over="ignore"):
-        x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
-        x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
-        x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-        return ((x * np.uint64(0x0101010101010101)) >> np.uint64(56)).astype(np.int64)
-
-
-def _bit_length(a: np.ndarray) -> np.ndarray:
-    """Exact bit lengths of non-negative integers (frexp rounds up just below 2^k, k > 53)."""
-    a = a.astype(np.uint64)
-    bits = np.minimum(np.frexp(a.astype(np.float64))[1], 64).astype(np.int64)
-    if a.size == 0 or a.max() < 2**53:
-        return bits
-    return bits - ((bits > 0) & ((a >> np.maximum(bits - 1, 0).astype(np.uint64)) == 0))
-
-
-def plan_products(indptr, voxels, weights, n_vox: int) -> ProductPlan:
+def plan_products(indptr: Any, voxels: Any, weights: Any, n_vox: int) -> ProductPlan:
     """Validate the CSR arrays, find duplicate rows and choose a method per row.
+
+    Written against the array API (:mod:`hevr.rendering._segments` has the segmented
+    reductions): the plan's arrays are in the namespace of ``voxels`` — numpy, or CuPy on a GPU
+    worker — and equal, bit for bit, whatever the namespace.
 
     Examples
     --------
@@ -192,54 +181,57 @@ def plan_products(indptr, voxels, weights, n_vox: int) -> ProductPlan:
     >>> p.rep.tolist(), len(p.tasks)          # row 1 repeats row 0; row 2 is empty
     ([0, 0, -1], 1)
     """
-    ip = _as_int_array("indptr", indptr).astype(np.int64)
+    ip = _as_int_array("indptr", indptr)
     vox = _as_int_array("voxels", voxels)
     wt = _as_int_array("weights", weights)
-    if ip.size == 0 or ip[0] != 0 or np.any(np.diff(ip) < 0) or ip[-1] != vox.size:
+    xp = array_namespace(vox, wt, ip)
+    ip = xp.astype(ip, xp.int64)
+    n_rows, n_pairs = ip.shape[0] - 1, int(vox.shape[0])
+    if n_rows < 0 or int(ip[0]) != 0 or bool(xp.any(ip[1:] < ip[:-1])) or int(ip[-1]) != n_pairs:
         raise ParameterError("indptr: expected non-decreasing offsets from 0 to len(voxels)")
-    if wt.size != vox.size:
-        raise ParameterError(f"weights: expected {vox.size} entries like voxels, got {wt.size}")
-    if vox.size and (vox.min() < 0 or vox.max() >= n_vox):
-        raise ParameterError(f"voxels: expected indices in [0, {n_vox}), got {vox.min()}..{vox.max()}")
-    if wt.size and wt.dtype.kind == "i" and wt.min() < 0:
+    if wt.shape[0] != n_pairs:
+        raise ParameterError(f"weights: expected {n_pairs} entries like voxels, got {wt.shape[0]}")
+    if n_pairs and (int(xp.min(vox)) < 0 or int(xp.max(vox)) >= n_vox):
+        raise ParameterError(f"voxels: expected indices in [0, {n_vox}), got {int(xp.min(vox))}..{int(xp.max(vox))}")
+    if n_pairs and xp.isdtype(wt.dtype, "signed integer") and int(xp.min(wt)) < 0:
         raise ParameterError("weights: expected non-negative integers, got a negative one")
-    n_rows, n_pairs = ip.size - 1, int(vox.size)
-    vox, wt = vox.astype(np.uint64), wt.astype(np.uint64)
-    if n_pairs and not wt.all():  # zero weights contribute c^0 = 1: drop them
+    vox, wt = xp.astype(vox, xp.uint64), xp.astype(wt, xp.uint64)
+    if n_pairs and not bool(xp.all(wt != 0)):  # zero weights contribute c^0 = 1: drop them
         keep = wt != 0
-        rowid = np.repeat(np.arange(n_rows), np.diff(ip))
-        ip = np.concatenate([[0], np.cumsum(np.bincount(rowid[keep], minlength=n_rows))])
+        counts = segment_sum(xp.astype(keep, xp.int64), ip[:-1], ip[1:])
+        ip = xp.concat([xp.zeros(1, dtype=xp.int64), xp.cumulative_sum(counts)])
         vox, wt = vox[keep], wt[keep]
     rep_a, u_rows = _duplicate_rows(ip, vox, wt)
-    plan = ProductPlan(n_rows, n_pairs, rep_a, vox.astype(np.int64), wt, np.zeros((0, 5), np.int64))
-    if not u_rows.size:
+    plan = ProductPlan(n_rows, n_pairs, rep_a, xp.astype(vox, xp.int64), wt, xp.zeros((0, 5), dtype=xp.int64))
+    if not u_rows.shape[0]:
         return plan
-    nonempty = np.flatnonzero(np.diff(ip))
-    row_max = np.zeros(n_rows, np.uint64)
-    row_max[nonempty] = np.maximum.reduceat(wt, ip[nonempty])
-    u_s, u_e, u_max = ip[u_rows], ip[u_rows + 1], row_max[u_rows]
-    kinds = np.where(u_e - u_s == 1, _SINGLE, np.where(u_max == 1, _ONES, _HORNER))
-    w_r = np.zeros(u_rows.size, np.int64)
-    gen = np.flatnonzero(kinds == _HORNER)
+    u_s, u_e = xp.take(ip, u_rows), xp.take(ip, u_rows + 1)
+    u_max = segment_max(wt, u_s, u_e)
+    kinds = xp.full(u_rows.shape, _HORNER, dtype=xp.int64)
+    kinds = xp.where(u_e - u_s == 1, _SINGLE, xp.where(u_max == 1, _ONES, kinds))
+    gen = xp.nonzero(kinds == _HORNER)[0]
     # One pair: binary powering is Horner with w = 1, (b - 1) S + popcount - 1; else powmod.
-    single = kinds == _SINGLE
-    b = _bit_length(u_max)
-    binary = single & ((b - 1) * _SQR + _popcount(u_max) - 1 <= _POW_BIT * b + _POW_BASE)
-    kinds[binary], w_r[binary] = _HORNER, 1
-    if gen.size:
-        w_r[gen], shared = _choose_windows(vox, wt, u_s[gen], u_e[gen], u_max[gen])
+    b = bit_length(u_max)
+    bf = xp.astype(b, xp.float64)
+    binary = (kinds == _SINGLE) & ((bf - 1) * _SQR + xp.astype(popcount(u_max) - 1, xp.float64)
+                                   <= _POW_BIT * bf + _POW_BASE)
+    kinds = xp.where(binary, _HORNER, kinds)
+    w_r = xp.astype(binary, xp.int64)
+    if gen.shape[0]:
+        w_gen, shared = _choose_windows(vox, wt, xp.take(u_s, gen), xp.take(u_e, gen), xp.take(u_max, gen))
+        w_r = place(w_r, gen, w_gen)
         if shared is not None:
             use, plan.shared_w, plan.pre = shared
-            kinds[gen[use]] = _SHARED
-    n_win = np.where(w_r > 0, -(-_bit_length(u_max) // np.maximum(w_r, 1)), 0)
-    plan.tasks = np.stack([kinds, u_s, u_e, w_r, n_win], axis=1).astype(np.int64)
+            kinds = place(kinds, gen[use], xp.full(int(xp.sum(xp.astype(use, xp.int64))), _SHARED, dtype=kinds.dtype))
+    n_win = xp.where(w_r > 0, -(-b // xp.maximum(w_r, 1)), 0)
+    plan.tasks = xp.astype(xp.stack([kinds, u_s, u_e, w_r, n_win], axis=1), xp.int64)
     return plan
 
 
-_MIX = tuple(np.uint64(k) for k in (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0xBF58476D1CE4E5B9))
+_MIX = (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0xBF58476D1CE4E5B9)
 
 
-def _duplicate_rows(ip: np.ndarray, vox: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _duplicate_rows(ip: Any, vox: Any, wt: Any) -> tuple[Any, Any]:
     """Identical rows, found with array operations: ``(rep, uniq)``.
 
     ``uniq`` holds the first row of every distinct non-empty ``(voxel, weight)`` list, in row
@@ -253,100 +245,130 @@ def _duplicate_rows(ip: np.ndarray, vox: np.ndarray, wt: np.ndarray) -> tuple[np
     >>> r.tolist(), u.tolist()
     ([0, -1, 0, 1], [0, 3])
     """
-    n_rows = ip.size - 1
-    lens = np.diff(ip)
-    rows = np.flatnonzero(lens)
-    rep = np.full(n_rows, -1, np.int64)
-    if not rows.size:
+    xp = array_namespace(ip, vox, wt)
+    n_rows = ip.shape[0] - 1
+    lens = ip[1:] - ip[:-1]
+    rows = xp.nonzero(lens)[0]
+    rep = xp.full(n_rows, -1, dtype=xp.int64)
+    if not rows.shape[0]:
         return rep, rows
     k0, k1, k2, k3 = _MIX
-    pos = np.arange(vox.size, dtype=np.uint64) - np.repeat(ip[:-1], lens).astype(np.uint64)
+    pos = xp.astype(xp.arange(vox.shape[0], dtype=xp.int64) - xp.repeat(ip[:-1], lens), xp.uint64)
     with np.errstate(over="ignore"):
-        h = (vox * k0) ^ ((wt + k1) * k2) ^ ((pos + np.uint64(1)) * k3)
-        h ^= h >> np.uint64(31)
-        h *= k1
-        h ^= h >> np.uint64(29)
-        key = np.add.reduceat(h, ip[rows]) ^ (lens[rows].astype(np.uint64) * k2)
-    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    head = rows[first[inverse.reshape(-1)]]  # per non-empty row: the first row of its group
-    other = head != rows
-    if other.any():  # check every pair against the group's first row
-        r, g = rows[other], head[other]
-        n = lens[r]
-        if np.any(n != lens[g]):  # a hash collision across lengths
+        h = (vox * k0) ^ ((wt + k1) * k2) ^ ((pos + 1) * k3)
+        h = h ^ (h >> 31)
+        h = h * k1
+        h = h ^ (h >> 29)
+        r_s, r_l = xp.take(ip, rows), xp.take(lens, rows)
+        key = segment_sum(h, r_s, r_s + r_l) ^ (xp.astype(r_l, xp.uint64) * k2)
+    u = xp.unique_all(key)
+    head = xp.take(rows, xp.take(u.indices, xp.reshape(u.inverse_indices, (-1,))))  # each row's group's first row
+    other = xp.nonzero(head != rows)[0]
+    if other.shape[0]:  # check every pair against the group's first row
+        r, g = xp.take(rows, other), xp.take(head, other)
+        n = xp.take(lens, r)
+        if bool(xp.any(n != xp.take(lens, g))):  # a hash collision across lengths
             return _duplicate_rows_exact(ip, vox, wt)
-        start = np.repeat(ip[r], n)
-        at = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
-        a, b = start + at, np.repeat(ip[g], n) + at
-        differ = np.add.reduceat(((vox[a] != vox[b]) | (wt[a] != wt[b])).astype(np.int64), np.cumsum(n) - n)
-        if differ.any():  # a hash collision: group these rows by their exact bytes instead
+        off = xp.cumulative_sum(n) - n
+        at = xp.arange(int(xp.sum(n)), dtype=xp.int64) - xp.repeat(off, n)
+        a, b = xp.repeat(xp.take(ip, r), n) + at, xp.repeat(xp.take(ip, g), n) + at
+        bad = xp.astype((xp.take(vox, a) != xp.take(vox, b)) | (xp.take(wt, a) != xp.take(wt, b)), xp.int64)
+        if bool(xp.any(segment_sum(bad, off, off + n) > 0)):  # a hash collision: compare exact bytes instead
             return _duplicate_rows_exact(ip, vox, wt)
-    uniq = np.unique(head)
-    rep[rows] = np.searchsorted(uniq, head)
-    return rep, uniq
+    uniq = xp.sort(xp.take(rows, u.indices))
+    return place(rep, rows, xp.searchsorted(uniq, head)), uniq
 
 
-def _duplicate_rows_exact(ip: np.ndarray, vox: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_duplicate_rows` by the exact bytes of every row (a dict): the collision fallback."""
-    blob = np.stack([vox, wt], axis=1).tobytes()
-    ipl = ip.tolist()
-    rep, uniq, first = [-1] * (ip.size - 1), [], {}
-    for r in range(ip.size - 1):
+def _duplicate_rows_exact(ip: Any, vox: Any, wt: Any) -> tuple[Any, Any]:
+    """:func:`_duplicate_rows` by the exact bytes of every row (a dict, on the host): the
+    collision fallback; the result in the namespace of the inputs."""
+    xp = array_namespace(ip, vox, wt)
+    ipl, v, w = (_host(a) for a in (ip, vox, wt))
+    blob = np.stack([v.astype(np.uint64), w.astype(np.uint64)], axis=1).tobytes()
+    ipl = ipl.tolist()
+    rep, uniq, first = [-1] * (len(ipl) - 1), [], {}
+    for r in range(len(ipl) - 1):
         s, e = ipl[r], ipl[r + 1]
         if s != e:
             rep[r] = u = first.setdefault(blob[16 * s : 16 * e], len(uniq))
             if u == len(uniq):
                 uniq.append(r)
-    return np.asarray(rep, np.int64), np.asarray(uniq, np.int64)
+    return xp.asarray(np.asarray(rep, np.int64)), xp.asarray(np.asarray(uniq, np.int64))
 
 
-def _choose_windows(vox, wt, starts, stops, rmax):
-    """Per-row radix bits minimising the exact Horner cost; decide on shared buckets."""
+def _host(a: Any) -> np.ndarray:
+    """An array of any namespace as a numpy array (DLPack)."""
+    return a if isinstance(a, np.ndarray) else np.from_dlpack(a)
+
+
+def _choose_windows(vox: Any, wt: Any, starts: Any, stops: Any, rmax: Any) -> tuple[Any, Any]:
+    """Per-row radix bits minimising the exact Horner cost; decide on shared buckets.
+
+    The per-row costs are elementwise (the same bits in every namespace); the few sums that
+    decide between alternatives are taken on the host, so their order of addition is numpy's
+    whatever the namespace.
+    """
+    xp = array_namespace(vox, wt, starts)
     lens = stops - starts
-    offs = np.cumsum(lens) - lens  # the rows are gathered so that reduceat can segment them
-    idx = np.repeat(starts - offs, lens) + np.arange(int(lens.sum()))
-    g_wt, g_vox = wt[idx], vox[idx]
-    bits = _bit_length(rmax)
-    b_max = int(bits.max())
-    best = lens + rmax.astype(np.float64) - 2  # J = 1: one bucket per weight value
-    best_w = bits.copy()
+    offs = xp.cumulative_sum(lens) - lens  # the rows are gathered so that they are segments
+    ends = offs + lens
+    idx = xp.repeat(starts - offs, lens) + xp.arange(int(xp.sum(lens)), dtype=xp.int64)
+    g_wt, g_vox = xp.take(wt, idx), xp.take(vox, idx)
+    bits = bit_length(rmax)
+    b_max = int(xp.max(bits))
+    best = xp.astype(lens, xp.float64) + xp.astype(rmax, xp.float64) - 2  # J = 1: one bucket per weight value
+    best_w = bits
+    zero = xp.zeros(lens.shape[0], dtype=xp.float64)
     # With weights <= 3 shared buckets save at most one squaring per row for one per
     # voxel: not worth evaluating.
     try_shared = b_max > 2
-    if try_shared:
-        n_vox = int(g_vox.max()) + 1
-        vmax = np.zeros(n_vox, np.uint64)
-        np.maximum.at(vmax, g_vox.astype(np.int64), g_wt)
-        hist = np.bincount(_bit_length(vmax), minlength=b_max + 1)  # of per-voxel bits
+    if try_shared:  # per-voxel bits of the largest weight (voxels no row reaches count for nothing)
+        hist = np.bincount(_host(bit_length(_per_voxel_max(g_vox, g_wt)[1])), minlength=b_max + 1)
         bit_vals = np.arange(hist.size)
     sh_best = None  # (total cost, w, per-row cost)
-    for w in range(1, min(b_max - 1, _MAX_W, int(lens.max()).bit_length() + 2) + 1):
-        mask = np.uint64((1 << w) - 1)
-        n_j = -(-bits // w)
-        horner = digits = dmax = 0
+    for w in range(1, min(b_max - 1, _MAX_W, int(xp.max(lens)).bit_length() + 2) + 1):
+        mask = (1 << w) - 1
+        last = -(-bits // w) - 1
+        horner, digits, dmax = zero, zero, zero
         for j in range(-(-b_max // w)):
-            d = (g_wt >> np.uint64(w * j)) & mask
-            nz = np.add.reduceat(d != 0, offs).astype(np.float64)
-            dj = np.maximum.reduceat(d, offs).astype(np.float64)
-            join = np.where(nz > 0, np.minimum(w * _SQR + 1, 2**w - dj + 1), w * _SQR)
-            horner = horner + np.where(nz > 0, nz + dj - 2, 0) + np.where(j < n_j - 1, join, 0)
-            digits, dmax = digits + nz, np.maximum(dmax, dj)
+            d = (g_wt >> (w * j)) & mask
+            nz = xp.astype(segment_sum(xp.astype(d != 0, xp.int64), offs, ends), xp.float64)
+            dj = xp.astype(segment_max(d, offs, ends), xp.float64)
+            join = xp.where(nz > 0, xp.minimum(xp.full_like(dj, w * _SQR + 1), 2**w - dj + 1), w * _SQR)
+            horner = horner + xp.where(nz > 0, nz + dj - 2, 0.0) + xp.where(last > j, join, 0.0)
+            digits, dmax = digits + nz, xp.maximum(dmax, dj)
         better = horner < best
-        best, best_w = np.where(better, horner, best), np.where(better, w, best_w)
+        best, best_w = xp.where(better, horner, best), xp.where(better, w, best_w)
         if try_shared:
             pre = float((hist * ((-(-bit_vals // w) - 1).clip(0) * w)).sum()) * _SQR
             sh_row = digits + dmax - 2
-            if sh_best is None or pre + sh_row.sum() < sh_best[0]:
-                sh_best = (pre + sh_row.sum(), w, sh_row)
+            cost = pre + _host(sh_row).sum()
+            if sh_best is None or cost < sh_best[0]:
+                sh_best = (cost, w, sh_row)
     if sh_best is None:
         return best_w, None
     _, w, sh_row = sh_best
     use = sh_row < best  # re-price the precomputation for the rows that would use it
-    need = np.zeros(n_vox, np.uint64)
-    sel = np.repeat(use, lens)
-    np.maximum.at(need, g_vox[sel].astype(np.int64), g_wt[sel])
-    j_v = -(-_bit_length(need) // w)
-    if not use.any() or (best - sh_row)[use].sum() <= ((j_v - 1).clip(0) * w).sum() * _SQR:
+    sel = xp.repeat(use, lens)
+    v_need, need = _per_voxel_max(g_vox[sel], g_wt[sel])  # voxels ascending, J_v >= 1 each
+    j_v = -(-bit_length(need) // w)
+    gain = _host(best - sh_row)[_host(use)].sum()
+    if not bool(xp.any(use)) or gain <= int(_host((j_v - 1) * w).sum()) * _SQR:
         return best_w, None
-    v_need = np.flatnonzero(j_v >= 1)  # J_v == 1 entries are just [c]
-    return best_w, (use, w, np.stack([v_need, j_v[v_need]], axis=1).astype(np.int64))
+    return best_w, (use, w, xp.astype(xp.stack([xp.astype(v_need, xp.int64), j_v], axis=1), xp.int64))
+
+
+def _per_voxel_max(vox: Any, wt: Any) -> tuple[Any, Any]:
+    """The distinct voxels of ``vox`` (ascending) and the largest weight each has.
+
+    >>> v, m = _per_voxel_max(np.array([4, 1, 4], np.uint64), np.array([2, 3, 5], np.uint64))
+    >>> v.tolist(), m.tolist()
+    ([1, 4], [3, 5])
+    """
+    xp = array_namespace(vox, wt)
+    order = xp.argsort(vox, stable=True)
+    sv, sw = xp.take(vox, order), xp.take(wt, order)
+    n = int(sv.shape[0])
+    starts = xp.nonzero(xp.concat([xp.ones(min(n, 1), dtype=xp.bool), sv[1:] != sv[:-1]]))[0]
+    ends = xp.concat([starts[1:], xp.asarray([n], dtype=starts.dtype)])
+    return xp.take(sv, starts), segment_max(sw, starts, ends)

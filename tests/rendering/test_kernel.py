@@ -14,6 +14,7 @@ from hevr.rendering.kernel import (
     OpCounter,
     brick_ray_products,
     brick_ray_products_multi,
+    plan_products,
 )
 
 
@@ -318,3 +319,52 @@ def test_duplicate_rows_survive_hash_collisions(monkeypatch):
     rep, uniq = kernel._duplicate_rows(ip, vox, wt)
     assert rep.tolist() == expected[0].tolist() and uniq.tolist() == expected[1].tolist()
     assert len(set(expected[0].tolist())) > 3  # several distinct rows, so a merge would show
+
+
+# -- the plan under a second array namespace (issue 27, item 2) ----------------------------------------
+def _plans_equal(a, b) -> None:
+    to_np = (lambda x: x if isinstance(x, np.ndarray) else np.from_dlpack(x))
+    assert (a.n_rows, a.n_pairs, a.shared_w) == (b.n_rows, b.n_pairs, b.shared_w)
+    for name in ("rep", "vl", "wl", "tasks"):
+        x, y = to_np(getattr(a, name)), to_np(getattr(b, name))
+        assert x.dtype == y.dtype and np.array_equal(x, y), name
+    assert (a.pre is None) == (b.pre is None)
+    if a.pre is not None:
+        assert np.array_equal(to_np(a.pre), to_np(b.pre))
+
+
+@pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
+def test_plan_is_bit_identical_under_array_api_strict(sampling):
+    """Real weights of a render (every brick of a small volume, trilinear rows with shared
+    buckets among them) planned from numpy arrays and from ``array_api_strict`` arrays: the
+    same plan, array for array (the plan code runs on any array-API namespace, CuPy included)."""
+    xps = pytest.importorskip("array_api_strict")
+    from hevr.rendering.camera import Camera
+    from hevr.rendering.rays import cast_rays
+    from hevr.rendering.weights import brick_grid, brick_weights
+
+    shape, brick = (10, 9, 11), (4, 5, 4)  # many rays per voxel: shared buckets pay off for trilinear rows
+    cam = Camera.orbit(shape, 25, 15, width=48, height=44)
+    rays = cast_rays(cam, shape, (1, 1, 1), 0.7)
+    shared = 0
+    for idx in np.ndindex(*brick_grid(shape, brick)):
+        bw = brick_weights(rays, shape, (1, 1, 1), brick, idx, sampling, 0.7, 3)
+        ref = plan_products(bw.indptr, bw.voxels, bw.weights, 4 * 5 * 4)
+        got = plan_products(xps.asarray(bw.indptr), xps.asarray(bw.voxels), xps.asarray(bw.weights), 4 * 5 * 4)
+        assert not isinstance(got.tasks, np.ndarray)
+        _plans_equal(ref, got)
+        shared += ref.pre is not None
+    if sampling == "trilinear":
+        assert shared  # the shared-bucket branch was taken and compared
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 60))
+def test_plan_of_random_rows_under_array_api_strict(seed, n_rows):
+    """Random rows (repeats, zero weights, one-pair rows, wide weights up to 2^40)."""
+    xps = pytest.importorskip("array_api_strict")
+    rng = np.random.default_rng(seed)
+    ip, vox, wt = _csr_with_repeats(rng, n_rows)
+    wt = wt * rng.choice(np.array([0, 1, 3, 1000, 2**40], np.uint64), size=wt.size)
+    ref = plan_products(ip, vox, wt, 30)
+    _plans_equal(ref, plan_products(xps.asarray(ip), xps.asarray(vox), xps.asarray(wt), 30))
