@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace, is_numpy_namespace
 
-__all__ = ["bit_length", "place", "popcount", "segment_max", "segment_sum"]
+__all__ = ["bit_length", "partition_sum", "place", "popcount", "segment_max", "segment_sum"]
 
 
 def segment_sum(x: Any, starts: Any, stops: Any) -> Any:
@@ -37,6 +37,19 @@ def segment_sum(x: Any, starts: Any, stops: Any) -> Any:
     xp = array_namespace(x, starts)
     c = xp.cumulative_sum(x, include_initial=True)
     return xp.take(c, stops) - xp.take(c, starts)
+
+
+def partition_sum(x: Any, offs: Any) -> Any:
+    """``Σ x[offs[i]:offs[i+1]]`` (the last segment to the end) for non-empty segments that
+    cover ``x`` end to end: numpy's ``add.reduceat``, else :func:`segment_sum`.
+
+    >>> partition_sum(np.array([1, 2, 3, 4]), np.array([0, 1, 3])).tolist()
+    [1, 5, 4]
+    """
+    xp = array_namespace(x, offs)
+    if is_numpy_namespace(xp):
+        return np.add.reduceat(np.asarray(x), np.asarray(offs))
+    return segment_sum(x, offs, xp.concat([offs[1:], xp.asarray([x.shape[0]], dtype=offs.dtype)]))
 
 
 def segment_max(x: Any, starts: Any, stops: Any) -> Any:

@@ -53,7 +53,7 @@ from ..backends.base import SINGLE as _SINGLE
 from ..backends.base import SQR_COST as _SQR
 from ..backends.base import Backend, OpCounter, ProductPlan
 from ..errors import ParameterError
-from ._segments import bit_length, place, popcount, segment_max, segment_sum
+from ._segments import bit_length, partition_sum, place, popcount, segment_max, segment_sum
 
 __all__ = ["OpCounter", "brick_ray_products", "brick_ray_products_multi", "plan_products"]
 
@@ -260,7 +260,7 @@ def _duplicate_rows(ip: Any, vox: Any, wt: Any) -> tuple[Any, Any]:
         h = h * k1
         h = h ^ (h >> 29)
         r_s, r_l = xp.take(ip, rows), xp.take(lens, rows)
-        key = segment_sum(h, r_s, r_s + r_l) ^ (xp.astype(r_l, xp.uint64) * k2)
+        key = partition_sum(h, r_s) ^ (xp.astype(r_l, xp.uint64) * k2)  # the non-empty rows cover the pairs
     u = xp.unique_all(key)
     head = xp.take(rows, xp.take(u.indices, xp.reshape(u.inverse_indices, (-1,))))  # each row's group's first row
     other = xp.nonzero(head != rows)[0]
@@ -332,7 +332,7 @@ def _choose_windows(vox: Any, wt: Any, starts: Any, stops: Any, rmax: Any) -> tu
         horner, digits, dmax = zero, zero, zero
         for j in range(-(-b_max // w)):
             d = (g_wt >> (w * j)) & mask
-            nz = xp.astype(segment_sum(xp.astype(d != 0, xp.int64), offs, ends), xp.float64)
+            nz = xp.astype(partition_sum(xp.astype(d != 0, xp.int64), offs), xp.float64)
             dj = xp.astype(segment_max(d, offs, ends), xp.float64)
             join = xp.where(nz > 0, xp.minimum(xp.full_like(dj, w * _SQR + 1), 2**w - dj + 1), w * _SQR)
             horner = horner + xp.where(nz > 0, nz + dj - 2, 0.0) + xp.where(last > j, join, 0.0)

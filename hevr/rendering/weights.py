@@ -240,8 +240,8 @@ def _clip_rays(rays: RaySet, sp: np.ndarray, step: float, lo: np.ndarray, hi: np
     kmin = xp.max(xp.where(zero, xp.where(inside, -inf, inf), xp.minimum(a, b)), axis=1)
     kmax = xp.min(xp.where(zero, xp.where(inside, inf, -inf), xp.maximum(a, b)), axis=1)
     # Clip in float before casting so infinities never reach the int conversion.
-    ka = xp.astype(xp.clip(xp.ceil(kmin) - 1, min=0.0, max=n), xp.int64)
-    kb = xp.astype(xp.clip(xp.floor(kmax) + 1, min=-1.0, max=n - 1), xp.int64)
+    ka = xp.astype(xp.minimum(xp.maximum(xp.ceil(kmin) - 1, 0.0), n), xp.int64)  # np.clip's arithmetic
+    kb = xp.astype(xp.minimum(xp.maximum(xp.floor(kmax) + 1, -1.0), n - 1), xp.int64)
     counts = xp.maximum(kb - ka + 1, 0)
     keep = counts > 0
     return hits[keep], ka[keep], counts[keep]
