@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace, is_numpy_namespace
 
-__all__ = ["bit_length", "partition_sum", "place", "popcount", "segment_max", "segment_sum"]
+__all__ = ["bit_length", "partition_max", "partition_sum", "place", "popcount", "segment_max", "segment_sum"]
 
 
 def segment_sum(x: Any, starts: Any, stops: Any) -> Any:
@@ -50,6 +50,19 @@ def partition_sum(x: Any, offs: Any) -> Any:
     if is_numpy_namespace(xp):
         return np.add.reduceat(np.asarray(x), np.asarray(offs))
     return segment_sum(x, offs, xp.concat([offs[1:], xp.asarray([x.shape[0]], dtype=offs.dtype)]))
+
+
+def partition_max(x: Any, offs: Any) -> Any:
+    """The largest element of ``x[offs[i]:offs[i+1]]`` (the last to the end) for non-empty
+    segments covering ``x`` end to end: numpy's ``maximum.reduceat``, else :func:`segment_max`.
+
+    >>> partition_max(np.array([3, 9, 2, 0, 5], np.uint64), np.array([0, 2, 4])).tolist()
+    [9, 2, 5]
+    """
+    xp = array_namespace(x, offs)
+    if is_numpy_namespace(xp):
+        return np.maximum.reduceat(np.asarray(x), np.asarray(offs))
+    return segment_max(x, offs, xp.concat([offs[1:], xp.asarray([x.shape[0]], dtype=offs.dtype)]))
 
 
 def segment_max(x: Any, starts: Any, stops: Any) -> Any:

@@ -42,7 +42,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from array_api_compat import array_namespace
+from array_api_compat import array_namespace, is_numpy_namespace
 from gmpy2 import mpz
 
 from ..backends import get_backend
@@ -53,7 +53,7 @@ from ..backends.base import SINGLE as _SINGLE
 from ..backends.base import SQR_COST as _SQR
 from ..backends.base import Backend, OpCounter, ProductPlan
 from ..errors import ParameterError
-from ._segments import bit_length, partition_sum, place, popcount, segment_max, segment_sum
+from ._segments import bit_length, partition_max, partition_sum, place, popcount, segment_max, segment_sum
 
 __all__ = ["OpCounter", "brick_ray_products", "brick_ray_products_multi", "plan_products"]
 
@@ -311,7 +311,6 @@ def _choose_windows(vox: Any, wt: Any, starts: Any, stops: Any, rmax: Any) -> tu
     xp = array_namespace(vox, wt, starts)
     lens = stops - starts
     offs = xp.cumulative_sum(lens) - lens  # the rows are gathered so that they are segments
-    ends = offs + lens
     idx = xp.repeat(starts - offs, lens) + xp.arange(int(xp.sum(lens)), dtype=xp.int64)
     g_wt, g_vox = xp.take(wt, idx), xp.take(vox, idx)
     bits = bit_length(rmax)
@@ -333,7 +332,7 @@ def _choose_windows(vox: Any, wt: Any, starts: Any, stops: Any, rmax: Any) -> tu
         for j in range(-(-b_max // w)):
             d = (g_wt >> (w * j)) & mask
             nz = xp.astype(partition_sum(xp.astype(d != 0, xp.int64), offs), xp.float64)
-            dj = xp.astype(segment_max(d, offs, ends), xp.float64)
+            dj = xp.astype(partition_max(d, offs), xp.float64)
             join = xp.where(nz > 0, xp.minimum(xp.full_like(dj, w * _SQR + 1), 2**w - dj + 1), w * _SQR)
             horner = horner + xp.where(nz > 0, nz + dj - 2, 0.0) + xp.where(last > j, join, 0.0)
             digits, dmax = digits + nz, xp.maximum(dmax, dj)
@@ -366,6 +365,11 @@ def _per_voxel_max(vox: Any, wt: Any) -> tuple[Any, Any]:
     ([1, 4], [3, 5])
     """
     xp = array_namespace(vox, wt)
+    if is_numpy_namespace(xp) and vox.size:  # numpy's scattered maximum: the same values, faster
+        top = np.zeros(int(vox.max()) + 1, np.uint64)
+        np.maximum.at(top, vox.astype(np.int64), wt)
+        v = np.flatnonzero(top)  # weights are positive: exactly the voxels present
+        return v.astype(vox.dtype), top[v]
     order = xp.argsort(vox, stable=True)
     sv, sw = xp.take(vox, order), xp.take(wt, order)
     n = int(sv.shape[0])
