@@ -33,6 +33,7 @@ from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
+from ..store.resident import BATCH_BITS
 from .bounds import error_bound
 from .camera import Camera
 from .graph import FinishGraph, build_sums_graph, resident_groups
@@ -62,8 +63,8 @@ def _gathered_bytes(packed: list, sums: RaySums, client: Any, reused: bool) -> i
 # pieces would compute once per piece (measured: +8 % map time at 2048 bits).
 BAND_BITS = 1024
 # Dask config: resident bricks mapped in one task per worker (True), one task per brick (False) or
-# "auto": one per worker below BAND_BITS, where a task's fixed cost outweighs a brick's arithmetic
-# (64-bit paper case, 2 workers: 0.45 -> 0.35 s); from BAND_BITS on per brick, whose pipelining of
+# "auto": one per worker below BATCH_BITS (1024), where a task's fixed cost outweighs a brick's arithmetic
+# (64-bit paper case, 2 workers: 0.45 -> 0.35 s); from BATCH_BITS on per brick, whose pipelining of
 # merges and finishing with the maps the batched task would lose (2048 bits: trilinear 18.3 ->
 # 24.8 s, TF 9.4 -> 10.7 s; benchmarks/frame_plaintext.py).
 RESIDENT_BATCH_KEY = "hevr.render.resident-batch"
@@ -77,7 +78,7 @@ def _batch(bits: int) -> bool:
     """
     value = dask.config.get(RESIDENT_BATCH_KEY, "auto")
     if value == "auto":
-        return bits < BAND_BITS
+        return bits < BATCH_BITS
     if not isinstance(value, bool):
         raise ParameterError(f"{RESIDENT_BATCH_KEY}: expected true, false or 'auto', got {value!r}")
     return value

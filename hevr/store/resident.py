@@ -5,12 +5,15 @@ bytes -> the backend's integers) into worker memory; every later frame's map tas
 their brick from there and do no store read and no conversion. Without ``persist`` a render
 streams its bricks from the store, as before. Both give the identical image.
 
-Placement. On a ``distributed`` client, the bricks in raster order are cut into N runs of about
-equal bytes, run ``w`` loaded on worker ``w`` (the brick whose bytes straddle the middle of the
-cumulative total ``w·T/N`` decides by its midpoint): each worker holds one slab of whole bricks (a loose restriction: if that
-worker dies, any worker recomputes the brick from the store). A slab is one box, so a worker
-that maps all its bricks in one task (:func:`hevr.rendering.graph.map_group`) generates only
-the samples of rays inside its slab; and each each :class:`ResidentBrick` reports its true size to Dask, so the scheduler
+Placement. On a ``distributed`` client, below :data:`BATCH_BITS`-bit keys the bricks in raster
+order are cut into N runs of about equal bytes, run ``w`` loaded on worker ``w`` (the brick whose
+bytes straddle the middle of the cumulative total ``w·T/N`` decides by its midpoint): each worker
+holds one slab of whole bricks. A slab is one box, so a worker that maps all its bricks in one
+task (:func:`hevr.rendering.graph.map_group`) generates only the samples of rays inside its slab.
+From :data:`BATCH_BITS` on (one map task per brick) brick ``i`` goes to worker ``i mod N``, which
+spreads each worker's bricks over the whole image. Placement is a loose restriction: if a worker
+dies, any worker recomputes the brick from the store. Each :class:`ResidentBrick` reports its true
+size to Dask, so the scheduler
 runs a brick's map task where the brick lives (moving a brick costs far more than its
 task's output). On a single machine (no client) the bricks stay in this process.
 
@@ -45,6 +48,9 @@ log = logging.getLogger(__name__)
 __all__ = ["ResidentBrick", "Residency", "load_brick", "plan_residency", "RESIDENT_MEMORY_KEY"]
 
 RESIDENT_MEMORY_KEY = "hevr.limits.resident-memory"
+# Below this key size a render maps a worker's resident bricks in one task
+# (hevr.rendering.encrypted, config hevr.render.resident-batch "auto"), so they are placed in slabs.
+BATCH_BITS = 1024
 DEFAULT_RESIDENT_MEMORY = 0.5
 
 
@@ -188,7 +194,10 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     else:
         workers = ["local"]
         limits = {"local": psutil.virtual_memory().available}
-    place = _slabs(bricks, cost, workers)
+    if int(ev.public_key.n).bit_length() < BATCH_BITS:
+        place = _slabs(bricks, cost, workers)
+    else:  # mapped one task per brick: spread evenly over the image (measured 4 % faster at 2048 bits)
+        place = {idx: workers[i % len(workers)] for i, idx in enumerate(bricks)}
     share = {w: 0 for w in workers}
     for idx, w in place.items():
         share[w] += cost[idx]

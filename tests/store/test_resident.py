@@ -416,3 +416,28 @@ def test_one_map_task_per_worker_gives_the_identical_image(store, volume, keypai
     assert {t["worker"] for t in maps} == holders  # each group where its bricks are (one group per holder)
     assert _same(batched, per_brick) and _same(batched, streamed)
     _check_plain(batched, store, volume, camera, mode, sampling, kw, keypair256[1])
+
+
+class _TwoWorkers:
+    """The part of a distributed client that plan_residency asks: two roomy workers."""
+
+    def scheduler_info(self):
+        return {"workers": {"tcp://a": {"memory_limit": 2**40}, "tcp://b": {"memory_limit": 2**40}}}
+
+
+@pytest.mark.parametrize("bits", [256, 1024])
+def test_placement_slabs_below_batch_bits_round_robin_above(tmp_path, bits):
+    """Below BATCH_BITS a worker's bricks form one slab of raster order (they are mapped in one
+    task); from it on brick i goes to worker i mod N (one task per brick, spread over the image)."""
+    from hevr.store.resident import BATCH_BITS, plan_residency
+
+    pub, _ = hevr.generate_keypair(bits)
+    ev = hevr.encrypt_volume(np.ones((4, 4, 6), np.uint8), tmp_path / "v.zarr", pub, brick=2, progress=False)
+    _, _, place, share = plan_residency(ev, None, "cpu", _TwoWorkers())
+    order = [place[idx] for idx in ev.brick_indices()]
+    assert len(order) == 12 and set(order) == {"tcp://a", "tcp://b"}
+    if bits < BATCH_BITS:
+        assert order == ["tcp://a"] * 6 + ["tcp://b"] * 6
+    else:
+        assert order == ["tcp://a", "tcp://b"] * 6
+    assert share["tcp://a"] == share["tcp://b"]
