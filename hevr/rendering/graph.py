@@ -95,17 +95,24 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     comps = [cts] if channel == "scalar" else cts
     with _stats.timed("map.kernel", int(bw.indptr[-1]) * len(comps)):
         prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare, backend=be)
+    return _emit(prods, bw.rays, be, W, camera, tile, tiles, f"brick {index}")
+
+
+def _emit(prods: list, rays: np.ndarray, be: Any, width: int, camera: Camera, tile: int, tiles: Any,
+          what: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """A map task's output: the products of ``rays`` (one batch per component) as records,
+    split by image tile (every tile of ``tiles`` present, possibly empty)."""
     t0 = time.perf_counter()
-    recs = np.stack([be.to_bytes(p, W) for p in prods], axis=1)  # (R, C, W)
-    tid = TileLayout(camera.width, camera.height, tile).ids(bw.rays)
+    recs = np.stack([be.to_bytes(p, width) for p in prods], axis=1)  # (R, K, W)
+    tid = TileLayout(camera.width, camera.height, tile).ids(rays)
     out = {}
     for t in tiles:
         m = tid == t
-        out[t] = (bw.rays[m], recs[m])
+        out[t] = (rays[m], recs[m])
     _stats.add("map.emit", time.perf_counter() - t0)
     extra = set(np.unique(tid).tolist()) - set(tiles)
     if extra:  # pragma: no cover - footprint tiles hold every hit pixel of the rectangle
-        raise RuntimeError(f"brick {index}: rays in tiles {sorted(extra)} not planned")
+        raise RuntimeError(f"{what}: rays in tiles {sorted(extra)} not planned")
     return out
 
 
@@ -144,15 +151,7 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
                                                                   for c in range(K)]
         with _stats.timed("map.kernel", int(rows.indptr[-1]) * K):
             prods = brick_ray_products_multi(comps, rows.indptr, voxels, rows.weights, n2, backend=be)
-        t0 = time.perf_counter()
-        recs = np.stack([be.to_bytes(p, W) for p in prods], axis=1)  # (R, K, W)
-        tid = TileLayout(camera.width, camera.height, tile).ids(rows.rays)
-        out = {}
-        for t in tiles:
-            m = tid == t
-            out[t] = (rows.rays[m], recs[m])
-        _stats.add("map.emit", time.perf_counter() - t0)
-        return out
+        return _emit(prods, rows.rays, be, W, camera, tile, tiles, f"bricks {[idx for idx, _ in items]}")
     parts: dict[int, list] = {}
     for (idx, fp), brick in zip(items, data):
         for t, part in map_brick(ev, camera, idx, sampling, step, digits, channel, fp, tile, backend,
