@@ -77,6 +77,8 @@ def _batch(bits: int) -> bool:
     (True, False)
     """
     value = dask.config.get(RESIDENT_BATCH_KEY, "auto")
+    if isinstance(value, str) and value.strip().lower() in ("true", "false"):  # from the environment
+        value = value.strip().lower() == "true"
     if value == "auto":
         return bits < BATCH_BITS
     if not isinstance(value, bool):

@@ -261,7 +261,7 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
     prio: dict[str, int] = {}
     edges = pieces_total = 0
     for g, group in enumerate(groups or ()):
-        items = [(idx, prints[idx]) for idx in group if prints[idx].tiles]
+        items = [(idx, prints[idx]) for idx in group if idx in prints and prints[idx].tiles]  # in view only
         if not items:
             continue
         name = f"hevr-map-{token}-g{g}"

@@ -225,6 +225,9 @@ def _tiles(whole: Frame, mosaic: Mosaic) -> list[Frame]:
     """The slices of a Siemens MOSAIC image, each placed (:mod:`hevr.volume.dicom_mosaic`)."""
     placed = whole.position is not None and whole.orientation is not None and whole.pixel_spacing is not None
     gap = abs(whole.thickness or 1.0)
+    if placed and not whole.thickness:
+        _log.warning("%s: a MOSAIC without SpacingBetweenSlices or SliceThickness; assuming its slices 1 mm apart",
+                     whole.image.path.name)
     out = []
     for k in range(mosaic.slices):
         pos = tile_position(mosaic, whole.position, whole.orientation, whole.pixel_spacing, gap, k) \

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from .._files import require_file
-from ..errors import VolumeFormatError
+from ..errors import MissingDependencyError, VolumeFormatError
 from ._optional import require
 from .dicom_mosaic import is_mosaic, mosaic_of
 
@@ -243,9 +243,9 @@ def _info(uid: str, images: list[Image]) -> SeriesInfo:
     except (TypeError, ValueError):
         number = None
     frames, rows, cols = sum(im.frames for im in images), int(ds.get("Rows") or 0), int(ds.get("Columns") or 0)
-    try:  # a Siemens MOSAIC: its slices and their size (a damaged one is listed as stored; reading it says why)
-        mosaic = mosaic_of(ds, images[0].path)
-    except VolumeFormatError:
+    try:  # a Siemens MOSAIC: its slices and their size (a damaged one, or one without nibabel to read its
+        mosaic = mosaic_of(ds, images[0].path)  # header, is listed as stored; reading it says why)
+    except (VolumeFormatError, MissingDependencyError):
         mosaic = None
     if mosaic is not None:
         frames, rows, cols = len(images) * mosaic.slices, mosaic.rows, mosaic.columns

@@ -441,3 +441,35 @@ def test_placement_slabs_below_batch_bits_round_robin_above(tmp_path, bits):
     else:
         assert order == ["tcp://a", "tcp://b"] * 6
     assert share["tcp://a"] == share["tcp://b"]
+
+
+@pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
+def test_batched_views_that_miss_bricks(store, volume, keypair256, cluster, sampling):
+    """Views that reach only some bricks under the default batching (a slice, a zoomed camera):
+    the bricks out of view are left out of the groups' tasks, the image is the streamed one (a
+    KeyError before: the groups listed every resident brick, the footprints only those in view)."""
+    zoom = hevr.Camera.orbit(store, azimuth=35, elevation=25, width=13, height=10, view_angle=8)
+    plane = hevr.Plane.axial(store, 1, width=12, height=10)
+    with cluster.as_current():
+        ev2 = store.persist()
+        ev2.resident.wait()
+        batched = _render(ev2, zoom, "xray", sampling, {}, client=cluster)
+        sliced = hevr.render_slice(ev2, plane, mode="xray", sampling=sampling, progress=False, client=cluster)
+    assert batched.stats["resident"] and batched.stats["map_tasks"] <= 2
+    assert _same(batched, _render(store, zoom, "xray", sampling, {}))
+    assert _same(sliced, hevr.render_slice(store, plane, mode="xray", sampling=sampling, progress=False))
+    _check_plain(batched, store, volume, zoom, "xray", sampling, {}, keypair256[1])
+
+
+def test_resident_batch_setting():
+    """``hevr.render.resident-batch``: "auto" by key size; true/false also as the strings an
+    environment variable gives (DASK_HEVR__RENDER__RESIDENT_BATCH=false); anything else refused."""
+    from hevr.rendering.encrypted import _batch
+
+    assert _batch(64) and not _batch(2048)
+    for value, expected in (("False", False), ("true", True), (False, False), (True, True)):
+        with dask.config.set({"hevr.render.resident-batch": value}):
+            assert _batch(64) is expected and _batch(2048) is expected
+    with dask.config.set({"hevr.render.resident-batch": "sometimes"}), pytest.raises(
+            hevr.ParameterError, match="resident-batch: expected true, false or 'auto', got 'sometimes'"):
+        _batch(64)

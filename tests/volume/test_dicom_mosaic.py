@@ -116,3 +116,21 @@ def test_cli_info_and_exit_status(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "hevr", "info", str(tmp_path / "bad.dcm")], capture_output=True,
                          text=True)
     assert bad.returncode == 1 and "multiples of 7, got 256x256" in bad.stderr
+
+
+def test_listing_a_mosaic_without_nibabel(tmp_path, monkeypatch):
+    """Without nibabel a folder holding a mosaic is still listed (as stored); reading it says
+    what is missing."""
+    import hevr.volume.dicom_mosaic as mosaic_mod
+    from hevr.errors import MissingDependencyError
+
+    _dwi(tmp_path, 0, pattern=False)
+
+    def missing(module, path):
+        raise MissingDependencyError(f"reading {path.name} needs the optional package '{module}'")
+
+    monkeypatch.setattr(mosaic_mod, "require", missing)
+    (info,) = list_series(tmp_path)
+    assert (info.images, info.frames, info.rows, info.columns) == (1, 1, 896, 896)
+    with pytest.raises(MissingDependencyError, match="nibabel"):
+        read_dicom(tmp_path / "dwi_0.dcm")

@@ -20,6 +20,7 @@ import ctypes
 import hashlib
 import logging
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -69,7 +70,10 @@ def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None
         No C compiler (``cc``/``gcc``, or ``$CC``) on this machine, or it cannot build the source.
     """
     texts = [main.read_text(encoding="utf-8")] + [h.read_text(encoding="utf-8") for h in headers]
-    digest = hashlib.sha256("\0".join(texts + list(FLAGS)).encode()).hexdigest()[:16]
+    cc = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or ""
+    # the machine and the compiler too: a cache folder seen by other hosts or compilers never serves a foreign build
+    digest = hashlib.sha256("\0".join(texts + list(FLAGS) + [platform.machine(), platform.system(), cc]).encode()
+                            ).hexdigest()[:16]
     key = f"{main.stem}-{digest}"
     with _BUILD:
         if key not in _LIB:
