@@ -17,7 +17,7 @@ the bucket plans of :mod:`hevr.rendering.kernel` exactly as costed there.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import gmpy2
 import numpy as np
@@ -72,7 +72,8 @@ class CpuBackend(Backend):
     def ray_products(self, plan: ProductPlan, components, nsquare: int,
                      counter: OpCounter | None = None) -> list[list[mpz]]:
         n2 = mpz(nsquare)
-        return [_execute(plan, comp, n2, counter) for comp in components]
+        listed = _ListedPlan.of(plan)  # once for all components
+        return [_execute(listed, comp, n2, counter) for comp in components]
 
     def segment_products(self, values: Sequence[mpz], indptr: np.ndarray, k: int, nsquare: int) -> list[mpz]:
         n2 = mpz(nsquare)
@@ -188,10 +189,26 @@ def _straus(sub: list[mpz], exps: Sequence[int], n2: mpz) -> mpz:
 
 
 # -- the per-brick kernel: executing a ProductPlan ------------------------------------------
-def _execute(plan: ProductPlan, cts: Sequence[mpz], n2: mpz, counter: OpCounter | None) -> list[mpz]:
+class _ListedPlan(NamedTuple):
+    """A plan's arrays as lists of Python ints (the loops below index lists of ints fastest),
+    made once per :meth:`CpuBackend.ray_products` call, whatever the number of components."""
+
+    plan: ProductPlan
+    vl: list
+    wl: list
+    tasks: list
+    rep: list
+    pre: list
+
+    @classmethod
+    def of(cls, plan: ProductPlan) -> _ListedPlan:
+        return cls(plan, *(_listed(a) for a in (plan.vl, plan.wl, plan.tasks, plan.rep)),
+                   _listed(plan.pre) if plan.pre is not None else [])
+
+
+def _execute(listed: _ListedPlan, cts: Sequence[mpz], n2: mpz, counter: OpCounter | None) -> list[mpz]:
     """Run the plan on one component (one ciphertext list)."""
-    vl, wl, tasks, rep = (_listed(a) for a in (plan.vl, plan.wl, plan.tasks, plan.rep))
-    pre = _listed(plan.pre) if plan.pre is not None else []
+    plan, vl, wl, tasks, rep, pre = listed
     mul = n_pow = pow_bits = 0
     pw, sq = _precompute(cts, pre, plan.shared_w, n2) if pre else (None, 0)
     vals: list[mpz] = []
