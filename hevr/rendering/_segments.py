@@ -25,7 +25,16 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace, is_numpy_namespace
 
-__all__ = ["bit_length", "partition_max", "partition_sum", "place", "popcount", "segment_max", "segment_sum"]
+__all__ = ["bit_length", "partition_max", "partition_sum", "place", "popcount", "segment_max", "segment_sum", "to_host"]
+
+
+def to_host(a: Any) -> np.ndarray:
+    """An array of any namespace as a numpy array (DLPack; numpy arrays as they are).
+
+    >>> to_host(np.arange(3)).tolist()
+    [0, 1, 2]
+    """
+    return a if isinstance(a, np.ndarray) else np.from_dlpack(a)
 
 
 def segment_sum(x: Any, starts: Any, stops: Any) -> Any:

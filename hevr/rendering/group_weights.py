@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace
 
+from ._segments import to_host
 from .rays import RaySet, expand_samples, nearest_voxels, sample_positions
 from .weights import BrickWeights, _bounds, _check_request, _clip_rays, brick_grid
 
@@ -161,7 +162,7 @@ def nearest_group_rows(rays: RaySet, shape: Any, spacing: Any, brick: Any, indic
     wanted_x, sx, syx, off = (xp.asarray(a) for a in (wanted, sx, syx, off))
     every = bool(wanted.all())
     runs = []
-    csum = np.concatenate(([0], np.cumsum(_host(counts))))  # chunk bounds: a host array per ray
+    csum = np.concatenate(([0], np.cumsum(to_host(counts))))  # chunk bounds: a host array per ray
     start, n_rays = 0, int(ray_ids.shape[0])
     while start < n_rays:
         end = max(int(np.searchsorted(csum, csum[start] + _CHUNK_SAMPLES, side="right")) - 1, start + 1)
@@ -193,8 +194,3 @@ def nearest_group_rows(rays: RaySet, shape: Any, spacing: Any, brick: Any, indic
     return GroupRows(indices, rays.global_ids(xp.take(r, row)),
                      xp.astype(xp.concat([row, xp.asarray([m], dtype=row.dtype)]), xp.int64),
                      xp.take(xp.asarray(position), bnum), xp.astype(local, xp.int64), xp.astype(weight, xp.int64))
-
-
-def _host(a: Any) -> np.ndarray:
-    """A small array (one value per ray) on the host, from any namespace (DLPack)."""
-    return a if isinstance(a, np.ndarray) else np.from_dlpack(a)

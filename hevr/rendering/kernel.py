@@ -53,7 +53,16 @@ from ..backends.base import SINGLE as _SINGLE
 from ..backends.base import SQR_COST as _SQR
 from ..backends.base import Backend, OpCounter, ProductPlan
 from ..errors import ParameterError
-from ._segments import bit_length, partition_max, partition_sum, place, popcount, segment_max, segment_sum
+from ._segments import (
+    bit_length,
+    partition_max,
+    partition_sum,
+    place,
+    popcount,
+    segment_max,
+    segment_sum,
+    to_host,
+)
 
 __all__ = ["OpCounter", "brick_ray_products", "brick_ray_products_multi", "plan_products"]
 
@@ -283,7 +292,7 @@ def _duplicate_rows_exact(ip: Any, vox: Any, wt: Any) -> tuple[Any, Any]:
     """:func:`_duplicate_rows` by the exact bytes of every row (a dict, on the host): the
     collision fallback; the result in the namespace of the inputs."""
     xp = array_namespace(ip, vox, wt)
-    ipl, v, w = (_host(a) for a in (ip, vox, wt))
+    ipl, v, w = (to_host(a) for a in (ip, vox, wt))
     blob = np.stack([v.astype(np.uint64), w.astype(np.uint64)], axis=1).tobytes()
     ipl = ipl.tolist()
     rep, uniq, first = [-1] * (len(ipl) - 1), [], {}
@@ -294,11 +303,6 @@ def _duplicate_rows_exact(ip: Any, vox: Any, wt: Any) -> tuple[Any, Any]:
             if u == len(uniq):
                 uniq.append(r)
     return xp.asarray(np.asarray(rep, np.int64)), xp.asarray(np.asarray(uniq, np.int64))
-
-
-def _host(a: Any) -> np.ndarray:
-    """An array of any namespace as a numpy array (DLPack)."""
-    return a if isinstance(a, np.ndarray) else np.from_dlpack(a)
 
 
 def _choose_windows(vox: Any, wt: Any, starts: Any, stops: Any, rmax: Any) -> tuple[Any, Any]:
@@ -322,7 +326,7 @@ def _choose_windows(vox: Any, wt: Any, starts: Any, stops: Any, rmax: Any) -> tu
     # voxel: not worth evaluating.
     try_shared = b_max > 2
     if try_shared:  # per-voxel bits of the largest weight (voxels no row reaches count for nothing)
-        hist = np.bincount(_host(bit_length(_per_voxel_max(g_vox, g_wt)[1])), minlength=b_max + 1)
+        hist = np.bincount(to_host(bit_length(_per_voxel_max(g_vox, g_wt)[1])), minlength=b_max + 1)
         bit_vals = np.arange(hist.size)
     sh_best = None  # (total cost, w, per-row cost)
     for w in range(1, min(b_max - 1, _MAX_W, int(xp.max(lens)).bit_length() + 2) + 1):
@@ -341,7 +345,7 @@ def _choose_windows(vox: Any, wt: Any, starts: Any, stops: Any, rmax: Any) -> tu
         if try_shared:
             pre = float((hist * ((-(-bit_vals // w) - 1).clip(0) * w)).sum()) * _SQR
             sh_row = digits + dmax - 2
-            cost = pre + _host(sh_row).sum()
+            cost = pre + to_host(sh_row).sum()
             if sh_best is None or cost < sh_best[0]:
                 sh_best = (cost, w, sh_row)
     if sh_best is None:
@@ -351,8 +355,8 @@ def _choose_windows(vox: Any, wt: Any, starts: Any, stops: Any, rmax: Any) -> tu
     sel = xp.repeat(use, lens)
     v_need, need = _per_voxel_max(g_vox[sel], g_wt[sel])  # voxels ascending, J_v >= 1 each
     j_v = -(-bit_length(need) // w)
-    gain = _host(best - sh_row)[_host(use)].sum()
-    if not bool(xp.any(use)) or gain <= int(_host((j_v - 1) * w).sum()) * _SQR:
+    gain = to_host(best - sh_row)[to_host(use)].sum()
+    if not bool(xp.any(use)) or gain <= int(to_host((j_v - 1) * w).sum()) * _SQR:
         return best_w, None
     return best_w, (use, w, xp.astype(xp.stack([xp.astype(v_need, xp.int64), j_v], axis=1), xp.int64))
 
