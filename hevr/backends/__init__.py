@@ -8,38 +8,52 @@ reference. ``cuda-host`` (:mod:`hevr.backends.cuda.backend`) runs the CUDA backe
 compiled for the host with the C compiler on first use, on the CPU: bit-identical to ``cpu``, for
 tests and for checking a machine (encryption and decryption still delegate to ``cpu``).
 
-Choosing a backend is explicit: the ``backend=`` parameter of :func:`hevr.render`,
-:func:`hevr.encrypt_volume` and :meth:`hevr.EncryptedImage.decrypt`, else the Dask config key
-``hevr.backend`` (``dask.config.set({"hevr.backend": "cpu"})``, or
-``DASK_HEVR__BACKEND`` in the environment), else ``"cpu"``. The client
-resolves the name once and puts only the *name* into the task graph; each worker builds its
-own backend instance from it.
+Choosing a backend: the ``backend=`` parameter of :func:`hevr.render`,
+:meth:`hevr.EncryptedVolume.persist`, :func:`hevr.encrypt_volume` and
+:meth:`hevr.EncryptedImage.decrypt`, else the Dask config key ``hevr.backend``
+(``dask.config.set({"hevr.backend": "cpu"})``, or ``DASK_HEVR__BACKEND`` in the environment),
+else ``"auto"``. The client resolves the name once and puts only the resolved *name* into the
+task graph; each worker builds its own backend instance from it.
+
+``"auto"`` (the default) picks by key size, where the caller knows it (renders, residency,
+pyramids, re-colouring): keys below :data:`COMPILED_BELOW_BITS` (256) bits take ``cuda-host``
+when this machine can build its kernels — there a per-product Python loop is the cost and the
+compiled kernels are 2.2–6.5× faster (``benchmarks/host_kernels.py``: 64 and 128 bits) —
+and everything else ``cpu``, whose gmpy2 is as fast from 256 bits and faster above 1024. A
+render of a resident volume under ``"auto"`` takes the residency's own backend, so a volume
+persisted with an explicit backend is never streamed for want of one. Both give the same bytes
+(every backend gives the identical image), so ``"auto"`` changes speed, never results.
 
 >>> get_backend().name
 'cpu'
+>>> resolve_backend_name(None, bits=2048)
+'cpu'
 >>> import dask
 >>> with dask.config.set({"hevr.backend": "cpu"}):
-...     resolve_backend_name(None)
+...     resolve_backend_name(None, bits=64)
 'cpu'
 >>> resolve_backend_name("abacus")
 Traceback (most recent call last):
 ...
-hevr.errors.ParameterError: backend: expected one of 'cpu', 'cuda-host', got 'abacus'
+hevr.errors.ParameterError: backend: expected 'auto' or one of 'cpu', 'cuda-host', got 'abacus'
 """
 
 from __future__ import annotations
 
+import logging
 import re
 from collections.abc import Callable
 
 import dask
 
-from ..errors import ParameterError
+from ..errors import MissingDependencyError, ParameterError
 from .base import Backend, OpCounter, ProductPlan
 from .cpu import CpuBackend
 from .cuda.backend import CudaHostBackend
 
 __all__ = [
+    "AUTO",
+    "COMPILED_BELOW_BITS",
     "CONFIG_KEY",
     "Backend",
     "CpuBackend",
@@ -52,12 +66,18 @@ __all__ = [
     "resolve_backend_name",
 ]
 
+log = logging.getLogger(__name__)
+
 CONFIG_KEY = "hevr.backend"
-DEFAULT = "cpu"
+AUTO = "auto"
+DEFAULT = AUTO
+COMPILED = "cuda-host"  # the compiled host kernels
+COMPILED_BELOW_BITS = 256
 
 _FACTORIES: dict[str, Callable[[], Backend]] = {"cpu": CpuBackend, "cuda-host": CudaHostBackend}
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 _INSTANCES: dict[str, Backend] = {}
+_COMPILED_OK: list[bool] = []  # whether this process built the compiled kernels (checked once)
 
 
 def register_backend(name: str, factory: Callable[[], Backend]) -> None:
@@ -73,14 +93,40 @@ def available_backends() -> tuple[str, ...]:
     return tuple(_FACTORIES)
 
 
-def resolve_backend_name(backend: str | Backend | None) -> str:
-    """The backend name to use: ``backend``, else the Dask config ``hevr.backend``, else ``'cpu'``."""
+def resolve_backend_name(backend: str | Backend | None, bits: int | None = None,
+                         resident: str | None = None) -> str:
+    """The backend name to use: ``backend``, else the Dask config ``hevr.backend``, else ``'auto'``.
+
+    ``'auto'`` (module docstring) resolves to ``resident`` — the backend of the volume's
+    residency, when a render has one — else to ``'cuda-host'`` for a key of fewer than
+    :data:`COMPILED_BELOW_BITS` ``bits`` when the compiled kernels build here, else ``'cpu'``
+    (also when ``bits`` is not known).
+    """
     if isinstance(backend, Backend):
         backend = backend.name
     name = dask.config.get(CONFIG_KEY, DEFAULT) if backend is None else backend
+    if name == AUTO:
+        if resident in _FACTORIES:
+            return resident
+        return COMPILED if bits is not None and bits < COMPILED_BELOW_BITS and _compiled_ok() else "cpu"
     if not isinstance(name, str) or name not in _FACTORIES:
-        raise ParameterError(f"backend: expected one of {', '.join(repr(k) for k in _FACTORIES)}, got {name!r}")
+        raise ParameterError(f"backend: expected {AUTO!r} or one of {', '.join(repr(k) for k in _FACTORIES)}, "
+                             f"got {name!r}")
     return name
+
+
+def _compiled_ok() -> bool:
+    """Whether the compiled host kernels build and load in this process (tried once)."""
+    if not _COMPILED_OK:
+        try:
+            be = get_backend(COMPILED)
+            if hasattr(be, "check"):
+                be.check()  # compiled once per machine, cached on disk
+            _COMPILED_OK.append(True)
+        except MissingDependencyError as exc:
+            log.info("backend auto: %s; small keys use the cpu backend", exc)
+            _COMPILED_OK.append(False)
+    return _COMPILED_OK[0]
 
 
 def get_backend(backend: str | Backend | None = None) -> Backend:

@@ -24,6 +24,7 @@ from typing import Any
 import dask
 from dask.delayed import Delayed, delayed
 
+from .. import _malloc
 from .._dask import active_client
 from .._dask import compute as run_tasks
 from .._tiles import TileLayout
@@ -41,6 +42,7 @@ from .modes import combination_matrix
 from .plane import Plane
 from .planner import check_render_size, plan_render
 from .rays import cast_rays
+from .reduce import BlockedReduce
 from .request import at_level, check_request, level_step
 from .sums import RaySums, check_sums_path, image_fields, save_sums, with_colouring
 
@@ -153,7 +155,9 @@ def render(
         Progress bar on stderr.
     backend : str, optional
         Arithmetic backend of the workers (:mod:`hevr.backends`); default: the Dask config
-        key ``hevr.backend``, else ``"cpu"``. Every backend gives the identical image.
+        key ``hevr.backend``, else ``"auto"``: the resident volume's backend, else the compiled
+        host kernels (``cuda-host``) for keys under 256 bits where they build, else ``cpu``.
+        Every backend gives the identical image.
     compute : bool
         False: build the graph and return it unevaluated, as a ``dask.delayed`` object whose
         result is the :class:`EncryptedImage` (``client.compute(d)`` gives a future,
@@ -198,7 +202,8 @@ def render(
     EncryptedImage or dask.delayed.Delayed
         Never touches the secret key. ``stats`` reports ``map_tasks``, ``finish_tasks``,
         ``reused_ray_sums``, ``resident`` (bricks taken from a persisted volume,
-        :meth:`hevr.EncryptedVolume.persist`) and ``gathered_bytes`` (what reached the client).
+        :meth:`hevr.EncryptedVolume.persist`), ``backend`` (the one that ran: ``backend="auto"``
+        resolved) and ``gathered_bytes`` (what reached the client).
 
     Raises
     ------
@@ -241,8 +246,10 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     overwrite = check_bool("overwrite", overwrite)
     if keep_sums is not None:
         keep_sums = check_sums_path(keep_sums, overwrite=overwrite)
-    backend = resolve_backend_name(backend)
+    backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length(),  # auto: the residency's, else by key
+                                   resident=ev.resident.backend if ev.resident is not None and ev.resident.bricks else None)
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
+    _malloc.tune()  # the client's rays and plan too
     t0 = time.perf_counter()
     rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
     if not rays.n_samples.any():  # public geometry: say so rather than hand back a black frame
@@ -286,24 +293,35 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         # When they are cached they stay where they are: futures on a cluster (re-colouring
         # then runs next to them), values on a single machine.
         batch = resident is not None and _batch(int(ev.public_key.n).bit_length())
+        groups = resident_groups(resident, cl) if batch else None
         graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
                                  tile, n_tiles, backend, resident,
                                  bands=resident is not None and spec.sampling == "nearest"
                                  and int(ev.public_key.n).bit_length() >= BAND_BITS,
-                                 groups=resident_groups(resident, cl) if batch else None)
-        fin = finish.tasks({t: graph.delayed(t) for t in graph.merged})
+                                 groups=groups, fuse=groups is not None)
+        keep = cache or keep_sums is not None
+        if groups is not None:  # G map tasks: merge and finish in G blocks of tiles (reduce.py)
+            red = BlockedReduce(graph, finish, len(groups))
+            fin, kept, on_result = red.unit_tasks(), red.block_tasks() if keep else [], red.on_block(on_unit)
+        else:
+            red, fin, on_result = None, finish.tasks({t: graph.delayed(t) for t in graph.merged}), on_unit
+            live = [t for t, d in graph.merged.items() if d is not None] if keep else []
+            kept = [graph.delayed(t) for t in live]
         map_tasks = graph.map_tasks
         if not compute:
-            return _deferred(fin, finish, fields, {"map_tasks": map_tasks, "reused_ray_sums": False,
-                                                   "resident": resident is not None})
-        live = [t for t, d in graph.merged.items() if d is not None] if cache or keep_sums is not None else []
-        results = run_tasks(fin + [graph.delayed(t) for t in live], client=cl, progress=progress, desc="render",
-                            keep=len(live), on_result=on_unit)
-        packed = finish.assemble(results[:len(fin)])
-        sums = RaySums(key, {t: None for t in graph.merged}, map_tasks, cl)
+            return _deferred(fin, finish, fields, {"map_tasks": map_tasks, "reused_ray_sums": False, "backend": backend,
+                                                   "resident": resident is not None}, nested=red is not None)
+        results = run_tasks(fin + kept, client=cl, progress=progress, desc="render", keep=len(kept),
+                            on_result=on_result)
+        units = results[:len(fin)] if red is None else red.units(results[:len(fin)])
+        packed = finish.assemble(units)
+        sums = RaySums(key, dict.fromkeys(range(n_tiles)), map_tasks, cl)
         if plan.finish == "client":  # copies: the image's arrays are the caller's to change
-            sums.packed[plan] = [u.copy() for u in results[:len(fin)]]
-        sums.tiles.update(dict(zip(live, results[len(fin):])))
+            sums.packed[plan] = [u.copy() for u in units]
+        if red is not None:
+            sums.tiles.update(red.sums(results[len(fin):], cl) if kept else {})
+        else:
+            sums.tiles.update(dict(zip(live, results[len(fin):])))
         if cache:
             _CACHE[key] = sums
             while len(_CACHE) > CACHE_SIZE:
@@ -320,7 +338,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         _CACHE.move_to_end(key)
         fin = finish.tasks(sums.tiles)
         if not compute:
-            return _deferred(fin, finish, fields, {"map_tasks": 0, "reused_ray_sums": True,
+            return _deferred(fin, finish, fields, {"map_tasks": 0, "reused_ray_sums": True, "backend": backend,
                                                    "resident": resident is not None})
         units = run_tasks(fin, client=cl, progress=False, desc="finish", on_result=on_unit)
         packed = finish.assemble(units)
@@ -332,20 +350,22 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                   level=ev.level, storage_options=ev.storage_options,  # a URL: written with the store's options
                   overwrite=overwrite, name="keep_sums")
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
-             "resident": resident is not None,
+             "resident": resident is not None, "backend": backend,
              "gathered_bytes": _gathered_bytes(packed, sums, cl, reused) if fin else 0,
              "seconds": time.perf_counter() - t0}
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
     return EncryptedImage(ciphertexts=list(packed), stats=stats, **with_colouring(fields, spec))
 
 
-def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict) -> EncryptedImage:
-    """The last task of a deferred render (``compute=False``): the finished units as an image."""
-    packed = finish.assemble(parts)
+def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict, nested: bool = False) -> EncryptedImage:
+    """The last task of a deferred render (``compute=False``): the finished units as an image
+    (``nested``: ``parts`` are reduce blocks' lists of units)."""
+    packed = finish.assemble([p for block in parts for p in block] if nested else parts)
     stats = dict(stats, finish_tasks=len(parts), gathered_bytes=sum(int(p.nbytes) for p in packed), seconds=None)
     return EncryptedImage(ciphertexts=list(packed), stats=stats, **fields)
 
 
-def _deferred(fin: list, finish: FinishGraph, fields: dict, stats: dict) -> Delayed:
+def _deferred(fin: list, finish: FinishGraph, fields: dict, stats: dict, nested: bool = False) -> Delayed:
     """A ``Delayed`` of the image: one more task over the finishing tasks (tile-sized outputs)."""
-    return delayed(_image_from, pure=True)(fin, finish, fields, stats, dask_key_name=f"hevr-image-{uuid.uuid4().hex}")
+    return delayed(_image_from, pure=True)(fin, finish, fields, stats, nested,
+                                           dask_key_name=f"hevr-image-{uuid.uuid4().hex}")

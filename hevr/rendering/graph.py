@@ -21,7 +21,7 @@ import operator
 import time
 import uuid
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import dask
@@ -29,7 +29,7 @@ import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
 
-from .. import _stats
+from .. import _malloc, _stats
 from .._tiles import TileLayout
 from ..backends import get_backend
 from ..crypto.records import record_width
@@ -77,6 +77,7 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     the brick. ``data`` is the brick's resident ciphertexts (:class:`ResidentBrick`, from
     :meth:`hevr.EncryptedVolume.persist`); without it the brick is read from the store.
     """
+    _malloc.tune()
     t0 = time.perf_counter()
     rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=footprint.pixels(camera.width))
     bw = brick_weights(rays, ev.shape, ev.spacing, ev.brick, index, sampling, step, digits)
@@ -131,6 +132,7 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
     in the same order. The output is the same kind of dict by tile as :func:`map_brick`'s, with
     every tile of any of the bricks' footprints.
     """
+    _malloc.tune()
     W, K = ev.meta.ciphertext_bytes, ev.meta.components(channel)
     empty = (np.zeros(0, np.int64), np.zeros((0, K, W), np.uint8))
     tiles = sorted({t for _, fp in items for t in fp.tiles})
@@ -216,6 +218,10 @@ class SumsGraph:
         ``edges/(FAN_IN - 1) + tiles`` in all: its size is linear in bricks + tiles + edges.
     pieces : int
         Map tasks: ``map_tasks``, or more when bricks are split into tile rows.
+    parts : dict
+        Tile id -> the keys of the map tasks holding a partial of it (tiles some brick touches).
+        Built with ``fuse=True`` the graph stops there (``merged`` is empty): the reduce blocks
+        of :mod:`hevr.rendering.reduce` merge and finish.
     """
 
     dsk: Any
@@ -224,17 +230,36 @@ class SumsGraph:
     map_tasks: int
     edges: int
     pieces: int
+    parts: dict[int, list] = field(default_factory=dict)
 
     def delayed(self, t: int) -> Any:
         """The merged sums of tile ``t`` as a Dask ``Delayed`` (None if no brick touches it)."""
         key = self.merged.get(t)
         return None if key is None else Delayed(key, self.dsk, layer=self.layer)
 
+    def collection(self) -> Delayed:
+        """The graph as a Dask collection, for layers that depend on its map tasks."""
+        return Delayed(f"{self.layer}-graph", self.dsk, layer=self.layer)
+
+
+@dataclass(frozen=True)
+class BlockSums:
+    """Tile ``tile``'s merged sums inside a reduce block's output ``block`` (a future: they stay
+    on the worker that merged them; :mod:`hevr.rendering.reduce`)."""
+
+    block: Any
+    tile: int
+
+
+def block_sums(block: tuple[list, dict], tile: int) -> tuple[np.ndarray, np.ndarray]:
+    """The merged sums of ``tile`` in a reduce block's output (inside a finishing task)."""
+    return block[1][tile]
+
 
 def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,
                      channel: str, tile: int, n_tiles: int, backend: str = "cpu",
                      resident: dict | None = None, bands: bool = False,
-                     groups: list[list] | None = None) -> SumsGraph:
+                     groups: list[list] | None = None, fuse: bool = False) -> SumsGraph:
     """The view's map -> merge graph, built in O(bricks + pixels + edges) on the client.
 
     Written as a plain task dictionary (Dask's graph specification): a few dictionary
@@ -251,6 +276,8 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
 
     With ``groups`` (lists of resident brick indices, one per worker: :func:`resident_groups`)
     each group is one map task (:func:`map_group`), which merges its bricks' partials itself.
+    With ``fuse`` the graph holds the map tasks only, and ``parts`` what each tile needs: the
+    caller reduces them in blocks (:class:`hevr.rendering.reduce.BlockedReduce`).
     """
     prints = brick_footprints(camera, ev.shape, ev.spacing, ev.brick, rays.n_samples > 0, tile)
     token = dask.base.tokenize(ev.path, ev.meta.store_id, camera.key(), sampling, step, digits, channel, tile,
@@ -285,7 +312,7 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
         pieces_total += len(pieces)
         edges += len(fp.tiles)
     merged: dict[int, Any] = {}
-    for t, parts in leaves.items():
+    for t, parts in ({} if fuse else leaves).items():
         # A queue of partials: merge the first FAN_IN, put the result at the back. Every merge
         # but the last takes FAN_IN inputs (ceil((e - 1)/(FAN_IN - 1)) merges for e partials)
         # and the rounds stay balanced (depth about log_FAN_IN e).
@@ -304,7 +331,8 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
         merged[t] = queue[0] if queue else None
     layer = f"hevr-sums-{token}"
     hlg = HighLevelGraph({layer: MaterializedLayer(dsk, annotations={"priority": Priorities(prio)})}, {layer: set()})
-    return SumsGraph(hlg, layer, merged, len(prints) if groups is None else pieces_total, edges, pieces_total)
+    return SumsGraph(hlg, layer, merged, len(prints) if groups is None else pieces_total, edges, pieces_total,
+                     {t: p for t, p in leaves.items() if p})
 
 
 @dataclass(frozen=True)
@@ -358,6 +386,8 @@ class FinishGraph:
             if isinstance(m, Delayed):
                 deps.append(m)
                 m = m.key
+            elif isinstance(m, BlockSums):  # a reduce block's future: select the tile inside the task
+                m = (block_sums, m.block, m.tile)
             dsk[f"{layer}-{i}"] = (finish_task, self.plan, m if m is not None else empty, pix, self.n_samples[pix],
                                    self.n, width, self.backend)
         hlg = HighLevelGraph.from_collections(layer, dsk, dependencies=deps)

@@ -79,7 +79,7 @@ from ..store.paths import (
 )
 from ..volume.pyramid import MAX_LEVELS
 from .camera import Camera
-from .graph import FinishGraph
+from .graph import BlockSums, FinishGraph, block_sums
 from .modes import RenderSpec, combination_matrix, make_spec
 from .plane import Plane, view_from_dict
 from .planner import RenderPlan, check_render_size, plan_render
@@ -120,10 +120,15 @@ class RaySums:
         return client is self.client and (client is None or client.status == "running")
 
     def values(self) -> dict:
-        """Tile id -> ``(rays, records)`` or None, gathered from the workers if they hold them."""
+        """Tile id -> ``(rays, records)`` or None, gathered from the workers if they hold them
+        (a tile's future, or the future of the reduce block holding it: :class:`BlockSums`)."""
         live = {t: v for t, v in self.tiles.items() if v is not None}
         if self.client is not None and live:
-            live = dict(zip(live, self.client.gather(list(live.values()))))
+            futures = {t: v.block if isinstance(v, BlockSums) else v for t, v in live.items()}
+            unique = list({f.key: f for f in futures.values()}.values())
+            got = dict(zip((f.key for f in unique), self.client.gather(unique)))
+            live = {t: block_sums(got[futures[t].key], v.tile) if isinstance(v, BlockSums) else got[futures[t].key]
+                    for t, v in live.items()}
         return {t: live.get(t) for t in self.tiles}
 
 
@@ -398,7 +403,7 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     precision = check_int("precision", precision, 0, 30)
     comb_digits = check_int("comb_digits", comb_digits, 1, 12)
     check_choice("finish", finish, FINISHES)
-    backend = resolve_backend_name(backend)
+    backend = resolve_backend_name(backend, int(meta.n).bit_length())
     checked = check_render_size(camera, meta.shape, meta.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(camera, meta.shape, meta.spacing, spec.step)
     comb = combination_matrix(spec, meta.vector.dims) if spec.needs_vector and finish == "server" else None

@@ -218,7 +218,8 @@ def encrypt_volume(
         NOT SECURE; only for reproducing the paper's "without obfuscation" benchmarks.
     backend : str, optional
         Arithmetic backend of the encrypting workers (:mod:`hevr.backends`); default: the
-        Dask config key ``hevr.backend``, else ``"cpu"``.
+        Dask config key ``hevr.backend``, else ``"auto"``, which encrypts on ``cpu`` (no
+        backend encrypts in kernels yet).
     storage_options : dict, optional
         Options of the URL's fsspec filesystem (endpoint, credentials, …; :mod:`hevr.store.paths`).
 

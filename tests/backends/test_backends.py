@@ -210,7 +210,7 @@ def test_graph_holds_the_backend_name_not_an_object(store):
 
 def test_unknown_backend_is_refused_by_name(store, keypair256, tmp_path):
     cam = hevr.Camera.orbit(store, width=4, height=4)
-    with pytest.raises(hevr.ParameterError, match="backend: expected one of 'cpu'.*got 'abacus'"):
+    with pytest.raises(hevr.ParameterError, match="backend: expected 'auto' or one of 'cpu'.*got 'abacus'"):
         hevr.render(store, cam, backend="abacus", progress=False)
     with pytest.raises(hevr.ParameterError, match="backend: expected"):
         hevr.encrypt_volume(np.zeros((2, 2, 2), np.uint8), tmp_path / "x.zarr", keypair256[0], backend="abacus",
@@ -218,7 +218,7 @@ def test_unknown_backend_is_refused_by_name(store, keypair256, tmp_path):
     assert not (tmp_path / "x.zarr").exists()  # refused before anything was written
     with dask.config.set({"hevr.backend": "abacus"}), pytest.raises(hevr.ParameterError, match="got 'abacus'"):
         get_backend()
-    with pytest.raises(hevr.ParameterError, match="backend: expected one of"):
+    with pytest.raises(hevr.ParameterError, match="backend: expected 'auto' or one of"):
         resolve_backend_name(["cpu"])  # unhashable: still a clear ParameterError
     with pytest.raises(hevr.ParameterError, match="name: expected a backend name"):
         register_backend("not a name", CpuBackend)

@@ -313,3 +313,8 @@ class CudaHostBackend(KernelBackend):
 
     def __reduce__(self):
         return (CudaHostBackend, ())
+
+    def check(self) -> bool:
+        """Build (or load the cached build of) the kernels now: True, or
+        :class:`MissingDependencyError` where no C compiler here builds them."""
+        return self._launch.lib is not None  # the property builds or loads the library
