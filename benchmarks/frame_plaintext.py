@@ -8,13 +8,16 @@ WORKDIR holds (or gets) the 64-bit paper-case store: the 100³ phantom, brick 25
 the 4-dim vector channel, under a 64-bit key, so the arithmetic is nearly free and what is left
 is the plaintext work and the task graph. Measured, in one run on one machine:
 
-* ``plain``: :func:`hevr.render_plain` of the same view (the reference the issue compares with);
+* ``plain``: :func:`hevr.render_plain` of the same view (the reference the issue compares with),
+  in a fresh process (``plain_fresh_s``) and in this one after :func:`hevr._malloc.tune`
+  (``plain_nearest_s``, the faster: the ratios are taken against it);
 * ``geometry``: the plaintext work of one frame in one process, all bricks — casting the rays,
   the brick weights and the product plans — as the tasks do it (CPU seconds);
-* ``frame``: the resident 64-bit X-ray nearest frame (150², from scratch, ``cache=False``) on a
-  fresh 2-worker LocalCluster (processes, one thread each), for each arm of
-  ``hevr.render.resident-batch`` (per-brick map tasks against one map task per worker and
-  frame), frames alternating between the arms;
+* ``frame``: the resident 64-bit frames (150², from scratch, ``cache=False``) on a fresh 2-worker
+  LocalCluster (processes, one thread each), for each arm — per-brick map tasks (``cpu``), one
+  map task per worker and frame (``cpu``, ``cuda-host``) and the defaults (backend ``"auto"``) —
+  frames alternating between the arms; with ``--malloc-ab`` the default arm also on a second
+  cluster started with ``hevr.malloc-tuning: false`` (Dask's worker allocator settings);
 * ``--big STORE KEY``: the same frames of a 2048-bit store (nearest and trilinear X-ray, TF
   4-dim nearest) for both arms, to check that they are no slower.
 
@@ -25,9 +28,11 @@ two arms' packed images must be identical.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import pickle
 import statistics
+import subprocess
 import sys
 import time
 import warnings
@@ -38,6 +43,7 @@ import numpy as np
 from distributed import Client, LocalCluster
 
 import hevr
+from hevr import _malloc
 from hevr._bench.measure import machine
 from hevr.paper import TF_NODES
 from hevr.rendering.footprint import brick_footprints
@@ -80,8 +86,9 @@ def geometry_seconds(ev, cam, sampling: str) -> dict:
 def frames(vols: dict, cam, priv, cases, arms, n: int, client) -> dict:
     """``n`` rounds; in each, one frame per (case, arm), the arms' order alternating.
 
-    ``arms``: ``(label, batch, backend)``; ``vols``: backend -> the resident volume in its form.
-    Every frame is checked against ``render_plain``; all arms' packed images must be identical.
+    ``arms``: ``(label, batch, backend[, client])`` (backend None: the default, ``"auto"``);
+    ``vols``: backend (or label) -> the resident volume in its form. Every frame is checked
+    against ``render_plain``; all arms' packed images must be identical.
     """
     out: dict = {}
     for r in range(n):
@@ -90,11 +97,12 @@ def frames(vols: dict, cam, priv, cases, arms, n: int, client) -> dict:
             ref = hevr.render_plain(hevr.phantom(100), cam, mode, sampling, **kw)
             bound = hevr.error_bound(any_ev, cam, mode, sampling, **kw)
             images = {}
-            for label, batch, backend in (arms if r % 2 == 0 else arms[::-1]):
+            for label, batch, backend, *own in (arms if r % 2 == 0 else arms[::-1]):
                 with dask.config.set({BATCH_KEY: batch}):
                     t = time.perf_counter()
-                    img = hevr.render(vols[backend], cam, mode, sampling, cache=False, progress=False,
-                                      client=client, backend=backend, **kw)
+                    img = hevr.render(vols[label if own or backend is None else backend], cam, mode, sampling,
+                                      cache=False, progress=False, client=own[0] if own else client,
+                                      backend=backend, **kw)
                     dt = time.perf_counter() - t
                 diff = np.abs(img.decrypt(priv) - ref)
                 assert np.all(diff <= bound), (name, label, float(diff.max()))
@@ -103,6 +111,7 @@ def frames(vols: dict, cam, priv, cases, arms, n: int, client) -> dict:
                 rec["s"].append(dt)
                 rec["err"] = max(rec["err"], float(diff.max()))
                 rec["map_tasks"] = img.stats["map_tasks"]
+                rec["backend"] = img.stats["backend"]
             assert len(set(images.values())) == 1, f"{name}: the arms' packed images differ"
     for rec in out.values():
         for arm in rec.values():
@@ -128,18 +137,36 @@ def group_geometry_seconds(ev, cam, workers: int = 2) -> dict:
             "groups": workers, "pairs": int(sum(int(rw.indptr[-1]) for rw in rows))}
 
 
+def plain_fresh(cam) -> float:
+    """``render_plain`` of the view ``cam`` in a fresh process (its allocator untouched)."""
+    code = ("import json, statistics, sys, time, hevr\n"
+            "vol = hevr.phantom(100)\n"
+            "cam = hevr.Camera.from_dict(json.loads(sys.argv[1]))\n"
+            "t = []\n"
+            "for _ in range(5):\n"
+            "    t0 = time.perf_counter(); hevr.render_plain(vol, cam, 'xray', 'nearest'); "
+            "t.append(time.perf_counter() - t0)\n"
+            "print(statistics.median(t))\n")
+    run = subprocess.run([sys.executable, "-c", code, json.dumps(cam.to_dict())], capture_output=True, text=True,
+                         check=True)
+    return float(run.stdout)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("work", type=Path)
     ap.add_argument("out", type=Path)
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--big", nargs=2, metavar=("STORE", "KEY"))
+    ap.add_argument("--malloc-ab", action="store_true")
     a = ap.parse_args()
     res: dict = {"machine": machine(), "argv": sys.argv[1:]}
     store, priv = small_store(a.work)
     ev = hevr.open_volume(store)
     cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=150, height=150)  # the bench paper case
     vol = hevr.phantom(100)
+    res["plain_fresh_s"] = plain_fresh(cam)
+    _malloc.tune()
     t = []
     for _ in range(5):
         t0 = time.perf_counter()
@@ -149,9 +176,19 @@ def main() -> None:
     res["geometry"] = {s: min((geometry_seconds(ev, cam, s) for _ in range(3)), key=lambda d: d["total_s"])
                        for s in ("nearest", "trilinear")}
     res["geometry_batched"] = min((group_geometry_seconds(ev, cam) for _ in range(5)), key=lambda d: d["total_s"])
-    arms = [("per-brick cpu", False, "cpu"), ("batched cpu", True, "cpu"), ("batched cuda-host", True, "cuda-host")]
-    with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as c, Client(c) as cl:
+    arms = [("per-brick cpu", False, "cpu"), ("batched cpu", True, "cpu"), ("batched cuda-host", True, "cuda-host"),
+            ("default", "auto", None)]
+    with contextlib.ExitStack() as stack:
+        c = stack.enter_context(LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None))
+        cl = stack.enter_context(Client(c))
         vols = {b: hevr.open_volume(store).persist(client=cl, backend=b) for b in ("cpu", "cuda-host")}
+        vols["default"] = hevr.open_volume(store).persist(client=cl)
+        if a.malloc_ab:  # a second cluster whose workers keep Dask's allocator settings
+            with dask.config.set({"hevr.malloc-tuning": False}):
+                c2 = stack.enter_context(LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None))
+            cl2 = stack.enter_context(Client(c2, set_as_default=False))
+            vols["default, malloc untuned"] = hevr.open_volume(store).persist(client=cl2)
+            arms.append(("default, malloc untuned", "auto", None, cl2))
         for v in vols.values():
             v.resident.wait()
         res["small"] = frames(vols, cam, priv, [("xray-nearest-64", "xray", "nearest", {}),
@@ -171,7 +208,7 @@ def main() -> None:
     a.out.write_text(json.dumps(res, indent=1, sort_keys=True))
     for name, rec in res["small"].items():
         print(name, "  ".join(f"{k}: {v['median_s']:.3f} s ({v['map_tasks']} maps)" for k, v in rec.items()))
-    print(f"plain {res['plain_nearest_s']:.3f} s; geometry per-brick {res['geometry']['nearest']['total_s']:.3f} s, "
+    print(f"plain {res['plain_nearest_s']:.3f} s (fresh process {res['plain_fresh_s']:.3f} s); geometry per-brick {res['geometry']['nearest']['total_s']:.3f} s, "
           f"batched {res['geometry_batched']['total_s']:.3f} s")
 
 if __name__ == "__main__":

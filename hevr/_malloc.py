@@ -46,6 +46,11 @@ def tune() -> bool:
     """
     if _DONE:
         return _DONE[0]
+    value = dask.config.get(CONFIG_KEY, True)
+    if isinstance(value, str):  # from the environment
+        value = value.strip().lower() not in ("false", "0", "no", "off")
+    if not value:  # asked again next time: the setting may change
+        return False
     with _LOCK:
         if not _DONE:
             _DONE.append(_set())
@@ -53,10 +58,7 @@ def tune() -> bool:
 
 
 def _set() -> bool:
-    value = dask.config.get(CONFIG_KEY, True)
-    if isinstance(value, str):  # from the environment
-        value = value.strip().lower() not in ("false", "0", "no", "off")
-    if not value or not sys.platform.startswith("linux"):
+    if not sys.platform.startswith("linux"):
         return False
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")

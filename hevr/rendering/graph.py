@@ -9,6 +9,10 @@ reduce  per image tile, a tree of merges (fan-in 4) multiplies the partials of t
         ray (fpAdd of partial sums that share one exponent); no task receives every partial.
 finish  per tile: per-pixel combination, reciprocal normalisation, offset and packing.
 
+Resident bricks below 1024-bit keys are mapped one task per worker (:func:`map_group`); every
+tile then has at most one partial per worker, and merge and finish run in one task per block of
+tiles instead (:mod:`hevr.rendering.reduce`).
+
 The graph holds public data only (the volume handle, camera, plan) and the *name* of the
 arithmetic backend; every task resolves the backend in its own process
 (:func:`hevr.backends.get_backend`), and converts bytes to the backend's form once.
