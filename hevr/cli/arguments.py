@@ -32,6 +32,7 @@ examples:
   hevr bench --paper --resume     # continue a stopped run (finished blocks are kept)
   hevr bench --only t1,micro      # some blocks only: micro, t1, t2, t3, naive, scaling, pipeline
   hevr bench --paper --report-only  # rewrite RESULTS.md and the plot from results-paper.json
+  hevr bench --gpu                # on a GPU machine (~3 min): the cuda backend against cpu, then its throughput
 
 writes, into --out (default: ./benchmarks if it exists, else .):
   RESULTS.md (--paper) or RESULTS-<setting>.md, results-<setting>.json, scaling-<setting>.png
@@ -114,6 +115,12 @@ def bench_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--quick", action="store_true", help="a smoke run of about 20 s (tiny volume and keys)")
     g.add_argument("--paper", action="store_true", help=f"the paper's setting: {PAPER_SIZE}^3, {PAPER_IMAGE}x{PAPER_IMAGE}, keys 64-3072 bits (~1.5 h)")
     p.add_argument("--out", metavar="DIR", help="output folder (default ./benchmarks if it exists, else .)")
+    p.add_argument("--gpu", action="store_true",
+                   help="prove the GPU backend here: every operation and a 64^3 render bit-identical to cpu, then "
+                        "2048-bit products/s and multi-exponentiation pairs/s; writes gpu.md and gpu.json naming the "
+                        "card (with --quick: 16^3 and fewer values); exit 1 on any mismatch")
+    p.add_argument("--gpu-backend", metavar="NAME", default="cuda",
+                   help="the backend --gpu proves (default cuda; cuda-host runs the same kernels on the CPU)")
     p.add_argument("--resume", action="store_true", help="keep the finished blocks of an earlier run of this setting")
     p.add_argument("--force", action="store_true",
                    help="start this setting afresh, replacing its results JSON, markdown and plot in --out")

@@ -5,14 +5,22 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from .._bench.gpu import run_gpu_bench
 from .._bench.runner import rewrite_report, run_bench
 from .util import UsageError, show_progress, warn_line
 
 
 def cmd_bench(args: Any) -> int:
-
-    setting = "quick" if args.quick else "paper" if args.paper else "default"
     out = Path(args.out) if args.out else (Path("benchmarks") if Path("benchmarks").is_dir() else Path("."))
+    if args.gpu:
+        if args.paper or args.resume or args.report_only or args.only:
+            raise UsageError("--gpu: expected alone or with --quick, --out, --work, --gpu-backend, got it with "
+                             "--paper/--resume/--report-only/--only")
+        md, ok = run_gpu_bench(out, backend=args.gpu_backend, quick=args.quick,
+                               work=Path(args.work) if args.work else None, log_line=lambda s: print(s, flush=True))
+        print(f"wrote {md}")
+        return 0 if ok else 1
+    setting = "quick" if args.quick else "paper" if args.paper else "default"
     only = tuple(k.strip() for k in args.only.split(",") if k.strip()) if args.only else None
     workers = 2 if args.workers is None else args.workers
     if args.paper and not args.resume and not args.report_only:

@@ -246,8 +246,11 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     overwrite = check_bool("overwrite", overwrite)
     if keep_sums is not None:
         keep_sums = check_sums_path(keep_sums, overwrite=overwrite)
+    cl = active_client(client)
+    check_reachable(ev.path, cl)  # memory:// stores only where the tasks run in this process
     backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length(),  # auto: the residency's, else by key
-                                   resident=ev.resident.backend if ev.resident is not None and ev.resident.bricks else None)
+                                   resident=ev.resident.backend if ev.resident is not None and ev.resident.bricks else None,
+                                   client=cl)
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
     _malloc.tune()  # the client's rays and plan too
     t0 = time.perf_counter()
@@ -266,8 +269,6 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     n_tiles = layout.n_tiles
     key = (ev.path, ev.meta.store_id, ev.meta.fingerprint, ev.level, camera.key(), spec.sampling, spec.step,
            plan.weight_digits, plan.channel, tile)
-    cl = active_client(client)
-    check_reachable(ev.path, cl)  # memory:// stores only where the tasks run in this process
     sums = _CACHE.get(key) if cache else None
     if sums is not None and not sums.usable(cl):
         del _CACHE[key]  # its futures belong to another (or a closed) client
@@ -315,7 +316,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                             on_result=on_result)
         units = results[:len(fin)] if red is None else red.units(results[:len(fin)])
         packed = finish.assemble(units)
-        sums = RaySums(key, dict.fromkeys(range(n_tiles)), map_tasks, cl)
+        sums = RaySums(key, dict.fromkeys(range(n_tiles)), map_tasks, cl, backend=backend)
         if plan.finish == "client":  # copies: the image's arrays are the caller's to change
             sums.packed[plan] = [u.copy() for u in units]
         if red is not None:
@@ -350,7 +351,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                   level=ev.level, storage_options=ev.storage_options,  # a URL: written with the store's options
                   overwrite=overwrite, name="keep_sums")
     stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
-             "resident": resident is not None, "backend": backend,
+             "resident": resident is not None, "backend": backend if fin else sums.backend,  # no task: the sums' own
              "gathered_bytes": _gathered_bytes(packed, sums, cl, reused) if fin else 0,
              "seconds": time.perf_counter() - t0}
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)

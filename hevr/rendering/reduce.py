@@ -83,24 +83,25 @@ class BlockedReduce:
         self.tiles = [list(range(a, b)) for a, b in itertools.pairwise(bounds) if b > a]
         if bounds[-1] < n_tiles:  # pragma: no cover - the last end is n_tiles
             self.tiles.append(list(range(bounds[-1], n_tiles)))
-        first = {t: i for i, (t, _, _) in reversed(list(enumerate(units)))}
-        self.starts = [first.get(block[0], len(units)) if block else len(units) for block in self.tiles]
+        block_of = np.zeros(n_tiles, np.int64)
+        for b, block in enumerate(self.tiles):
+            block_of[block] = b
+        mine: list[list] = [[] for _ in self.tiles]  # each block's units, in order: one pass over the units
+        tile_pixels: dict[int, np.ndarray] = {}
+        for t, a, z in units:
+            if t not in tile_pixels:
+                tile_pixels[t] = finish.layout.pixels(t)
+            pix = tile_pixels[t][a:z]
+            mine[block_of[t]].append((t, pix, finish.n_samples[pix]))
+        self.starts = np.cumsum([0, *(len(m) for m in mine[:-1])]).tolist()  # the first unit of each block
         self.layer = f"hevr-reduce-{uuid.uuid4().hex}"  # the finishing plan is in the task: a key per render
         dsk: dict[str, Any] = {}
-        tile_pixels: dict[int, np.ndarray] = {}
         for b, block in enumerate(self.tiles):
             inputs = sorted({k for t in block for k in graph.parts.get(t, ())})
             pos = {k: i for i, k in enumerate(inputs)}
             spec = [(t, [pos[k] for k in graph.parts.get(t, ())]) for t in block]
-            mine = []
-            for t, a, z in units:
-                if t in block:
-                    if t not in tile_pixels:
-                        tile_pixels[t] = finish.layout.pixels(t)
-                    pix = tile_pixels[t][a:z]
-                    mine.append((t, pix, finish.n_samples[pix]))
             n = finish.n
-            dsk[self.key(b)] = (reduce_block, finish.plan, n * n, n, finish.backend, spec, mine, *inputs)
+            dsk[self.key(b)] = (reduce_block, finish.plan, n * n, n, finish.backend, spec, mine[b], *inputs)
             dsk[f"{self.layer}-units-{b}"] = (operator.getitem, self.key(b), 0)
         hlg = HighLevelGraph.from_collections(self.layer, dsk, dependencies=[graph.collection()])
         hlg.layers[self.layer].annotations = {"priority": Priorities({})}

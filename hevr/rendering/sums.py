@@ -114,6 +114,7 @@ class RaySums:
     map_tasks: int
     client: Any = None
     packed: dict = field(default_factory=dict)  # client-finished RenderPlan -> its units' (P, W) outputs
+    backend: str = "cpu"  # the backend that computed them
 
     def usable(self, client: Any) -> bool:
         """Whether these sums can serve a render on ``client`` (futures are bound to theirs)."""
@@ -403,7 +404,7 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     precision = check_int("precision", precision, 0, 30)
     comb_digits = check_int("comb_digits", comb_digits, 1, 12)
     check_choice("finish", finish, FINISHES)
-    backend = resolve_backend_name(backend, int(meta.n).bit_length())
+    backend = resolve_backend_name(backend, int(meta.n).bit_length(), client=active_client(client))
     checked = check_render_size(camera, meta.shape, meta.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(camera, meta.shape, meta.spacing, spec.step)
     comb = combination_matrix(spec, meta.vector.dims) if spec.needs_vector and finish == "server" else None

@@ -193,7 +193,7 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
         if ch is not None and ch.digits is not None and ch.digits + 3 * levels > _MAX_DIGITS:
             raise ParameterError(f"levels: expected at most {(_MAX_DIGITS - ch.digits) // 3} levels for a channel of "
                                  f"{ch.digits} digits (each level adds 3), got {levels}")
-    backend = resolve_backend_name(backend, int(meta.n).bit_length())
+    backend = resolve_backend_name(backend, int(meta.n).bit_length(), client=active_client(client))
     path, so = ev.path, ev.storage_options
     check_reachable(path, active_client(client))
     for level in range(1, levels + 1):

@@ -180,7 +180,7 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     channels = tuple(dict.fromkeys(check_choice("channels", c, stored) for c in channels))
     if not channels:
         raise ParameterError(f"channels: expected some of {list(stored)}, got none")
-    backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length())
+    backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), client=client)
     per_ct = residue_bytes(ev.meta.ciphertext_bytes, backend)
     k = sum(ev.meta.components(c) for c in channels)
     bricks = ev.brick_indices()

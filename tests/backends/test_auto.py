@@ -13,6 +13,7 @@ import pytest
 import hevr
 from hevr import backends
 from hevr.backends import COMPILED_BELOW_BITS, get_backend, resolve_backend_name
+from hevr.backends.cuda import launch
 from hevr.rendering.encrypted import error_bound
 
 SHAPE, BRICK = (6, 7, 9), (3, 4, 4)
@@ -44,6 +45,44 @@ def test_auto_without_a_compiler_is_cpu(monkeypatch, caplog):
     assert "small keys use the cpu backend" in caplog.text and "compiler" in caplog.text
     assert backends._COMPILED_OK == [False]  # tried once per process
     assert resolve_backend_name(None, 64) == "cpu"
+
+
+def test_auto_with_a_library_that_does_not_load_is_cpu(monkeypatch, caplog):
+    """An OSError on loading (a temporary folder mounted noexec, say) is no compiler either."""
+    def noexec(*args, **kwargs):
+        raise OSError("failed to map segment from shared object")
+    monkeypatch.setattr(backends, "_COMPILED_OK", [])
+    monkeypatch.delitem(backends._INSTANCES, "cuda-host", raising=False)
+    monkeypatch.setattr(launch, "build_library", noexec)
+    with caplog.at_level(logging.INFO, logger="hevr.backends"):
+        assert resolve_backend_name(None, 64) == "cpu"
+    assert "failed to map segment" in caplog.text and backends._COMPILED_OK == [False]
+
+
+class _Client:
+    """A distributed client's run() and scheduler address, answered as told."""
+
+    def __init__(self, answer, address="tcp://fake:1"):
+        self.answer, self.calls = answer, 0
+        self.scheduler = type("S", (), {"address": address})()
+
+    def run(self, fn):
+        self.calls += 1
+        if isinstance(self.answer, Exception):
+            raise self.answer
+        return self.answer
+
+
+@pytest.mark.parametrize("answer,want", [({"w1": True, "w2": True}, "cuda-host"), ({"w1": True, "w2": False}, "cpu"),
+                                         ({}, "cpu"), (OSError("worker gone"), "cpu")])
+def test_auto_asks_every_worker_once_per_scheduler(monkeypatch, answer, want):
+    """A worker without a C compiler would fail every task of a cuda-host render: auto asks the
+    workers (once per scheduler) and takes cpu unless all of them build the kernels."""
+    monkeypatch.setattr(backends, "_WORKERS_OK", {})
+    client = _Client(answer)
+    assert resolve_backend_name(None, 64, client=client) == want
+    assert resolve_backend_name(None, 128, client=client) == want and client.calls == 1
+    assert resolve_backend_name(None, 2048, client=client) == "cpu"
 
 
 @pytest.fixture(scope="module")
@@ -89,3 +128,14 @@ def test_auto_render_takes_the_residency_backend(small_key_store, caplog):
                 np.testing.assert_array_equal(a, b)
         auto = ev.persist("scalar")
     assert auto.resident.backend == "cuda-host"  # persisted under auto: by the key's size
+
+
+def test_stats_name_the_backend_that_computed_reused_sums(small_key_store):
+    ev = small_key_store[0]
+    cam = hevr.Camera.orbit(ev, azimuth=5, elevation=35, width=7, height=6)
+    hevr.clear_cache()
+    with dask.config.set(scheduler="sync"):
+        first = hevr.render(ev, cam, progress=False, backend="cpu")
+        again = hevr.render(ev, cam, progress=False)  # auto, the same view: the cached packed sums, no task
+    assert first.stats["backend"] == "cpu" and again.stats["reused_ray_sums"] and again.stats["finish_tasks"] == 0
+    assert again.stats["backend"] == "cpu"

@@ -2,7 +2,11 @@
 against the ``cpu`` reference, operation by operation: bit-identical results and identical
 operation counts, on random operands and the edge cases (1, n²−1, values whose top limbs are zero,
 weights up to 2^64 − 1, exponents wider than 64 bits), for keys of 64 to 2048 bits. Whole renders
-are in test_cuda_host_renders.py."""
+are in test_cuda_host_renders.py.
+
+On a GPU machine ``HEVR_TEST_KERNELS=cuda`` runs every test here against the ``cuda`` backend (the
+same kernels on the device through CuPy) instead: ``hevr bench --gpu`` and
+tests/backends/test_cuda_device.py say how."""
 
 from __future__ import annotations
 
@@ -35,7 +39,8 @@ from hevr.backends.cuda.residues import LimbBatch, exponent_words
 from hevr.crypto.records import record_width
 from hevr.rendering.kernel import plan_products
 
-CPU, GPU = CpuBackend(), CudaHostBackend()
+KERNELS = os.environ.get("HEVR_TEST_KERNELS", "cuda-host")  # "cuda" on a GPU machine
+CPU, GPU = CpuBackend(), get_backend(KERNELS)
 BITS = [64, 96, 128, 256, 512, 1024]  # n; n² has twice as many bits (96: a short top limb)
 
 

@@ -3,10 +3,11 @@ byte-identical packed image of ``backend="cpu"``: every mode × sampling, finish
 on the client, a slice, a pyramid level (built by either backend: identical level bricks), the
 gradient channel, re-colouring saved sums, resident bricks; decryption with either backend agrees
 and lies within ``error_bound`` of the plaintext render. A small multi-brick store and a 256-bit
-key keep it to a few seconds."""
+key keep it to a few seconds. On a GPU machine ``HEVR_TEST_KERNELS=cuda`` runs them on the ``cuda`` backend."""
 
 from __future__ import annotations
 
+import os
 import shutil
 
 import dask
@@ -18,6 +19,7 @@ from hevr.backends.cuda.backend import KernelBackend
 from hevr.backends.cuda.residues import LimbBatch
 from hevr.store.pyramid import build_pyramid
 
+KERNELS = os.environ.get("HEVR_TEST_KERNELS", "cuda-host")  # "cuda" on a GPU machine
 SHAPE, BRICK, SPACING = (7, 8, 9), (3, 4, 4), (1.0, 0.9, 1.2)
 NODES = [(0.2, "blue"), (0.6, "red"), (0.9, "#00ff00")]
 KW = {"xray": {}, "emphasize": {"density": 0.5}, "tf": {"nodes": NODES}}
@@ -32,7 +34,7 @@ def scene(tmp_path_factory, keypair256):
     vol = np.random.default_rng(5).integers(-200, 900, SHAPE).astype(np.int16)
     with dask.config.set(scheduler="sync"):
         ev = hevr.encrypt_volume(vol, d / "v.zarr", priv, brick=BRICK, spacing=SPACING, vector_dims=3, gradient=True,
-                                 value_range=(-200, 900), backend="cuda-host", progress=False)
+                                 value_range=(-200, 900), backend=KERNELS, progress=False)
     shutil.copytree(d / "v.zarr", d / "w.zarr")
     with dask.config.set(scheduler="sync"):
         ev = build_pyramid(ev, 1, backend="cpu", progress=False)
@@ -60,7 +62,7 @@ def calls(monkeypatch):
 def _pair(fn, **kw):
     """The same call with each backend (sync scheduler, no cache): (cpu result, cuda-host result)."""
     with dask.config.set(scheduler="sync"):
-        return fn(backend="cpu", **kw), fn(backend="cuda-host", **kw)
+        return fn(backend="cpu", **kw), fn(backend=KERNELS, **kw)
 
 
 def _same_image(a: hevr.EncryptedImage, b: hevr.EncryptedImage) -> None:
@@ -79,7 +81,7 @@ def test_renders_are_byte_identical(scene, calls, mode, sampling, finish):
     ev, vol, cam, priv, _ = scene
     a, b = _pair(_render(ev, cam, mode=mode, sampling=sampling, finish=finish, **KW[mode]))
     _same_image(a, b)
-    got = b.decrypt(priv, backend="cuda-host")
+    got = b.decrypt(priv, backend=KERNELS)
     assert calls["ray_products"] >= 4 and calls["segment_products"] and calls["pack"] and calls["decrypt"]
     assert calls.get("combine", 0) == (finish == "server" and mode != "xray")
     np.testing.assert_array_equal(got, a.decrypt(priv, backend="cpu"))
@@ -99,13 +101,13 @@ def test_a_slice_a_level_and_the_gradient(scene, finish):
                _render(ev, cam, mode="tf", nodes=NODES, sampling="trilinear", gradient=True, finish=finish)):
         a, b = _pair(fn)
         _same_image(a, b)
-        np.testing.assert_array_equal(a.decrypt(priv), b.decrypt(priv, backend="cuda-host"))
+        np.testing.assert_array_equal(a.decrypt(priv), b.decrypt(priv, backend=KERNELS))
 
 
 def test_pyramid_levels_are_identical(scene):
     d = scene[4]
     with dask.config.set(scheduler="sync"):
-        other = build_pyramid(hevr.open_volume(d / "w.zarr"), 1, backend="cuda-host", progress=False)
+        other = build_pyramid(hevr.open_volume(d / "w.zarr"), 1, backend=KERNELS, progress=False)
     a, b = hevr.open_volume(d / "v.zarr").at_level(1), other.at_level(1)
     for idx in a.brick_indices():
         for ch in ("scalar", "vector", "gradient"):
@@ -116,17 +118,17 @@ def test_recolour_and_resident_bricks(scene, tmp_path):
     ev, _, cam, _, _ = scene
     path = tmp_path / "view.hevrsums"
     with dask.config.set(scheduler="sync"):
-        hevr.render(ev, cam, mode="tf", nodes=NODES, keep_sums=path, cache=False, progress=False, backend="cuda-host")
+        hevr.render(ev, cam, mode="tf", nodes=NODES, keep_sums=path, cache=False, progress=False, backend=KERNELS)
     a, b = _pair(lambda backend: hevr.recolour(path, mode="emphasize", density=0.3, progress=False, backend=backend,
                                                finish="server"))
     _same_image(a, b)
-    resident = hevr.open_volume(ev.path).persist(backend="cuda-host")
+    resident = hevr.open_volume(ev.path).persist(backend=KERNELS)
     brick = next(iter(resident.resident.bricks.values()))
     assert isinstance(brick.channel("scalar"), LimbBatch) and brick.channel("scalar").modulus is None
     with dask.config.set(scheduler="sync"):
         want = hevr.render(ev, cam, mode="xray", progress=False, cache=False, backend="cpu")
         for _ in range(2):  # the second frame finds the bricks in Montgomery form already
-            got = hevr.render(resident, cam, mode="xray", progress=False, cache=False, backend="cuda-host")
+            got = hevr.render(resident, cam, mode="xray", progress=False, cache=False, backend=KERNELS)
             assert got.stats["resident"] is True
             _same_image(want, got)
     assert any(b.channel("scalar").modulus == int(ev.public_key.nsquare) for b in resident.resident.bricks.values())

@@ -117,8 +117,11 @@ def test_blocks_cut_tiles_in_raster_runs_keeping_unit_order(store, camera):
         red = BlockedReduce(graph, finish, B)
         tiles = [t for block in red.tiles for t in block]
         assert tiles == list(range(layout.n_tiles)) and len(red.tiles) == min(B, layout.n_tiles)
-        assert red.starts[0] == 0 and red.starts == sorted(red.starts)
         counts = [sum(1 for t, _, _ in finish.units if t in block) for block in red.tiles]
+        assert red.starts == np.cumsum([0, *counts[:-1]]).tolist()  # each block's first unit
+        got = [(t, pix.tolist()) for b in range(len(red.tiles)) for t, pix, _ in red.hlg[red.key(b)][6]]
+        want = [(t, layout.pixels(t)[a:z].tolist()) for t, a, z in finish.units]
+        assert got == want  # the blocks' units, in block order, are FinishGraph's
         assert max(counts) - min(counts) <= 2 * max(np.bincount([t for t, _, _ in finish.units]))
     n = int(store.public_key.n)
     pix = layout.pixels(0)

@@ -3,8 +3,9 @@
 :class:`KernelBackend` implements :class:`~hevr.backends.base.Backend` on top of the kernels of
 ``render.cuh`` (one independent item per thread: see the source's header) and is shared by every
 launcher; :class:`CudaHostBackend` (registered as ``"cuda-host"``) runs them on the host through
-ctypes, so CI checks the GPU path's arithmetic, bit for bit, against the ``cpu`` reference. A
-CuPy launcher gives the ``cuda`` backend later.
+ctypes, so CI checks the GPU path's arithmetic, bit for bit, against the ``cpu`` reference;
+:class:`CudaBackend` (``"cuda"``) runs them on an NVIDIA GPU through CuPy
+(:mod:`hevr.backends.cuda.device`).
 
 Where each operation runs
 -------------------------
@@ -52,10 +53,11 @@ from ...errors import ParameterError
 from ..base import Backend, OpCounter, ProductPlan
 from ..cpu import CpuBackend
 from .host import MAX_LIMBS
+from .device import CupyLauncher
 from .launch import HostLauncher, Launcher
 from .residues import LimbBatch, Modulus, exponent_words, limbs_of, plan_tables
 
-__all__ = ["CudaHostBackend", "KernelBackend"]
+__all__ = ["CudaBackend", "CudaHostBackend", "KernelBackend"]
 
 _CPU = CpuBackend()
 
@@ -318,3 +320,27 @@ class CudaHostBackend(KernelBackend):
         """Build (or load the cached build of) the kernels now: True, or
         :class:`MissingDependencyError` where no C compiler here builds them."""
         return self._launch.lib is not None  # the property builds or loads the library
+
+
+class CudaBackend(KernelBackend):
+    """The kernels on an NVIDIA GPU through CuPy: backend ``"cuda"``
+    (:class:`~hevr.backends.cuda.device.CupyLauncher`).
+
+    Bit-identical to ``cpu`` and ``cuda-host`` (the same kernels and orchestration). Creating it
+    touches no GPU; the first operation compiles the module with NVRTC and raises
+    :class:`MissingDependencyError` on a machine without CuPy or a device.
+    """
+
+    name = "cuda"
+
+    def __init__(self, device: int | None = None) -> None:
+        super().__init__(CupyLauncher(device))
+        self._device = device
+
+    def __reduce__(self):
+        return (CudaBackend, (self._device,))
+
+    def check(self) -> bool:
+        """CuPy and a device are there, and the module compiles: True, else
+        :class:`MissingDependencyError` saying what is missing."""
+        return self._launch.load()

@@ -1,0 +1,215 @@
+"""The CuPy launcher: the kernels of ``render.cuh`` on an NVIDIA GPU (backend ``"cuda"``).
+
+The same source as the host build (:class:`~hevr.backends.cuda.launch.HostLauncher`), compiled
+once per process by NVRTC through CuPy's ``RawModule`` for the current device's architecture —
+no jitify (it hung for minutes here) and no ``<stdint.h>`` (``mont.cuh`` typedefs its limb types
+under ``__CUDACC_RTC__``); ``mont.cuh`` is pasted in place of its ``#include`` so no include path
+is needed. Each method mirrors the host launcher's: numpy arrays in, one launch of the ``k_*``
+kernel over all items (``BLOCK`` threads per block), numpy arrays out. Kernel arguments are typed
+as the kernels declare them (``int`` → int32, ``long long`` → int64, ``hevr_u32`` → uint32); a
+NULL pointer is passed as a zero uint64 (CuPy turns ``None`` into 0xffffffff, cupy#9046).
+
+Scratch. ``k_ray_tasks`` and ``k_combine`` give every thread its own slice of one bucket buffer,
+``slot`` residues of ``nl`` limbs each; tasks are launched in chunks whose scratch stays under
+``SCRATCH_BYTES`` (256 MiB), at least 32k threads a launch where that fits.
+
+What is not here yet (issue 26): residues stay on the host between operations (each call
+copies its operands to the device and its results back), so a render pays PCIe transfers a
+resident device batch would not; encryption and decryption still delegate to ``cpu``. The
+launcher is exercised only on a machine with CuPy and a GPU (``tests/backends/test_cuda_device.py``,
+marked ``gpu``); without them :class:`hevr.MissingDependencyError` says what is missing.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ...errors import MissingDependencyError
+from .host import SOURCE as MONT_SOURCE
+from .launch import RENDER_SOURCE, Launcher
+from .residues import FOLD, Modulus, PlanTables
+
+__all__ = ["BLOCK", "CupyLauncher", "device_source"]
+
+BLOCK = 128
+SCRATCH_BYTES = 256 << 20
+MIN_THREADS = 32768
+KERNELS = ("k_records_to_limbs", "k_limbs_to_records", "k_out_of_range", "k_mont_convert", "k_ray_powers",
+           "k_ray_tasks", "k_segments", "k_combine", "k_pack")
+_NULL = np.uint64(0)
+
+
+def device_source() -> str:
+    """``render.cuh`` with ``mont.cuh`` pasted in place of its include (what NVRTC compiles).
+
+    >>> src = device_source()
+    >>> '#include "mont.cuh"' in src, "k_ray_tasks" in src, "hevr_mont_mul" in src
+    (False, True, True)
+    """
+    render = RENDER_SOURCE.read_text(encoding="utf-8")
+    if '#include "mont.cuh"' not in render:  # pragma: no cover - the source's own include
+        raise RuntimeError("render.cuh: expected #include \"mont.cuh\"")
+    return render.replace('#include "mont.cuh"', MONT_SOURCE.read_text(encoding="utf-8"), 1)
+
+
+def _i32(x: int) -> np.int32:
+    return np.int32(x)
+
+
+def _i64(x: int) -> np.int64:
+    return np.int64(x)
+
+
+class CupyLauncher(Launcher):
+    """The kernels on the current CUDA device through CuPy (module docstring).
+
+    Parameters
+    ----------
+    device : int, optional
+        The CUDA device to use (default: CuPy's current device, i.e. ``CUDA_VISIBLE_DEVICES``'s first).
+    """
+
+    def __init__(self, device: int | None = None) -> None:
+        self._device = device
+        self._cp: Any = None
+        self._fns: dict[str, Any] = {}
+
+    def __reduce__(self):
+        return (CupyLauncher, (self._device,))
+
+    # -- CuPy, the device and the module -----------------------------------------------------
+    @property
+    def cp(self) -> Any:
+        """The ``cupy`` module, with a device present (MissingDependencyError otherwise)."""
+        if self._cp is None:
+            try:
+                import cupy
+            except ImportError as exc:
+                raise MissingDependencyError(
+                    "backend: 'cuda' needs CuPy and an NVIDIA GPU; CuPy is not installed: pip install 'hevr[gpu]' "
+                    "(cupy-cuda12x or cupy-cuda13x, matching the driver), or use backend='cpu'") from exc
+            try:
+                count = cupy.cuda.runtime.getDeviceCount()
+            except Exception as exc:  # noqa: BLE001 - CUDARuntimeError without a driver, and its kin
+                raise MissingDependencyError(f"backend: 'cuda' needs an NVIDIA GPU; CuPy sees none ({exc})") from None
+            if count < 1:
+                raise MissingDependencyError("backend: 'cuda' needs an NVIDIA GPU; CuPy sees none")
+            if self._device is not None:
+                cupy.cuda.Device(self._device).use()
+            self._cp = cupy
+        return self._cp
+
+    def device_name(self) -> str:
+        """The GPU's name (as the benchmark records it)."""
+        cp = self.cp
+        props = cp.cuda.runtime.getDeviceProperties(cp.cuda.Device().id)
+        name = props["name"]
+        return name.decode() if isinstance(name, bytes) else str(name)
+
+    def load(self) -> bool:
+        """Compile the module now (CuPy caches NVRTC's output on disk): True, or
+        :class:`MissingDependencyError` without CuPy or a device."""
+        return self._fn(KERNELS[0]) is not None
+
+    def _fn(self, name: str) -> Any:
+        if not self._fns:
+            mod = self.cp.RawModule(code=device_source(), options=("--std=c++11",), backend="nvrtc")
+            self._fns = {k: mod.get_function(k) for k in KERNELS}
+        return self._fns[name]
+
+    def _launch(self, name: str, count: int, *args: Any) -> None:
+        if count > 0:
+            self._fn(name)(((count + BLOCK - 1) // BLOCK,), (BLOCK,), args)
+
+    def _dev(self, arr: np.ndarray | None, dtype: Any) -> Any:
+        return _NULL if arr is None else self.cp.asarray(np.ascontiguousarray(arr, dtype=dtype))
+
+    def _mod(self, M: Modulus) -> tuple:
+        return self._dev(M.limbs, np.uint32), self._dev(M.one, np.uint32), np.uint32(M.ninv), _i32(M.nl)
+
+    # -- the operations --------------------------------------------------------------------
+    def records_to_limbs(self, records, nl):
+        cp = self.cp
+        rec = self._dev(records, np.uint8)
+        m, width = rec.shape
+        x, over = cp.empty((m, nl), cp.uint32), cp.empty(m, cp.uint8)
+        self._launch("k_records_to_limbs", m, rec, _i32(width), _i32(nl), _i64(m), x, over)
+        return x.get(), over.get()
+
+    def limbs_to_records(self, limbs, width):
+        cp = self.cp
+        x = self._dev(limbs, np.uint32)
+        m, nl = x.shape
+        rec, over = cp.empty((m, width), cp.uint8), cp.empty(m, cp.uint8)
+        self._launch("k_limbs_to_records", m, x, _i32(nl), _i32(width), _i64(m), rec, over)
+        return rec.get(), over.get()
+
+    def out_of_range(self, limbs, upper):
+        x = self._dev(limbs, np.uint32)
+        bad = self.cp.empty(x.shape[0], self.cp.uint8)
+        self._launch("k_out_of_range", x.shape[0], x, self._dev(upper, np.uint32), _i32(x.shape[1]),
+                     _i64(x.shape[0]), bad)
+        return bad.get()
+
+    def mont_convert(self, limbs, b, M):
+        x = self._dev(limbs, np.uint32)
+        out = self.cp.empty_like(x)
+        self._launch("k_mont_convert", x.shape[0], x, self._dev(b, np.uint32), self._dev(M.limbs, np.uint32),
+                     np.uint32(M.ninv), _i32(M.nl), _i64(x.shape[0]), out)
+        return out.get()
+
+    def ray_products(self, t: PlanTables, cts, shared_w, M):
+        cp, nl = self.cp, M.nl
+        mod = self._mod(M)
+        c = self._dev(cts, np.uint32)
+        pw = cp.empty((max(1, t.pw_rows), nl), cp.uint32)
+        if t.pre_v.size:
+            self._launch("k_ray_powers", t.pre_v.size, c, self._dev(t.pre_v, np.int64), self._dev(t.pre_j, np.int64),
+                         self._dev(t.pre_start, np.int64), _i32(shared_w), _i64(t.pre_v.size), pw, *mod)
+        T = t.tasks.shape[0]
+        vals, counts = cp.empty((max(T, 1), nl), cp.uint32), cp.zeros((max(T, 1), 3), cp.int64)
+        per_thread = max(1, t.slot) * (nl * 4 + 1)
+        chunk = int(min(max(T, 1), max(SCRATCH_BYTES // per_thread, min(MIN_THREADS, T) or 1)))
+        buckets = cp.empty((chunk * max(1, t.slot), nl), cp.uint32)
+        used = cp.empty(chunk * max(1, t.slot), cp.uint8)
+        args = (self._dev(t.tasks, np.int64),)
+        tables = (c, pw, self._dev(t.pw_off, np.int64), self._dev(t.pw_n, np.int64), self._dev(t.vl, np.int64),
+                  self._dev(t.wl, np.uint64), _i32(shared_w), self._dev(FOLD, np.int64), buckets, used,
+                  _i64(t.slot), vals, counts, *mod)
+        for first in range(0, T, chunk):
+            count = min(chunk, T - first)
+            self._launch("k_ray_tasks", count, *args, _i64(first), _i64(count), *tables)
+        return vals[:T].get(), counts[:T].get()
+
+    def segments(self, vals, indptr, k, M):
+        ip = np.ascontiguousarray(indptr, dtype=np.int64)
+        count = (ip.size - 1) * k
+        out = self.cp.empty((max(count, 1), M.nl), self.cp.uint32)
+        self._launch("k_segments", count, self._dev(vals, np.uint32), self._dev(ip, np.int64), _i32(k), _i64(count),
+                     out, *self._mod(M))
+        return out[:count].get()
+
+    def combine(self, vals, k, E, M):
+        cp = self.cp
+        C, _, ew = E.shape
+        rows = vals.shape[0] // k
+        slot = (1 << k) if k <= 8 else 0
+        out = cp.empty((max(rows * C, 1), M.nl), cp.uint32)
+        chunk = int(min(max(rows, 1), max(SCRATCH_BYTES // (max(slot, 1) * M.nl * 4), 1)))
+        sub = cp.empty((chunk * max(slot, 1), M.nl), cp.uint32)
+        v, e, mod = self._dev(vals, np.uint32), self._dev(E, np.uint32), self._mod(M)
+        for first in range(0, rows, chunk):
+            count = min(chunk, rows - first)
+            self._launch("k_combine", count, v, _i32(k), _i32(C), e, _i32(ew), _i64(first), _i64(count), sub, out,
+                         *mod)
+        return out[:rows * C].get()
+
+    def pack(self, terms, R, per_pack, bits, offs, M):
+        m, ew = R.shape
+        groups = -(-m // per_pack)
+        out = self.cp.empty((max(groups, 1), M.nl), self.cp.uint32)
+        self._launch("k_pack", groups, self._dev(terms, np.uint32), self._dev(R, np.uint32), _i32(ew), _i64(m),
+                     _i32(per_pack), _i32(bits), self._dev(offs, np.uint32), _i64(groups), out, *self._mod(M))
+        return out[:groups].get()

@@ -1,0 +1,128 @@
+"""The ``cuda`` backend (hevr.backends.cuda.device: the kernels on a GPU through CuPy).
+
+Everywhere: the device source compiles with NVRTC for Hopper (compute_90) without a GPU — the
+NVRTC wheel is in the test extra, so under CI a missing library fails rather than skips — and
+without CuPy or a device the backend says what is missing. On a GPU machine (marked ``gpu``,
+skipped without one): every operation and a whole render bit-identical to ``cpu``. The full
+operation-by-operation suite runs there with ``HEVR_TEST_KERNELS=cuda python -m pytest
+tests/backends/test_cuda_host_backend.py tests/backends/test_cuda_host_renders.py``.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import secrets
+import sys
+
+import dask
+import numpy as np
+import pytest
+
+import hevr
+from hevr import MissingDependencyError
+from hevr.backends import CpuBackend, CudaBackend, ProductPlan, get_backend
+from hevr.backends.cuda import device as device_module
+from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source
+from hevr.backends.cuda.nvrtc import find_nvrtc, ptx
+from hevr.rendering.kernel import plan_products
+
+CPU = CpuBackend()
+
+
+def _cuda_or_skip() -> CudaBackend:
+    be = get_backend("cuda")
+    try:
+        be.check()
+    except MissingDependencyError as exc:
+        pytest.skip(f"no CUDA device here: {exc}")
+    return be
+
+
+def test_device_source_compiles_with_nvrtc_for_hopper():
+    try:
+        find_nvrtc()
+    except MissingDependencyError as exc:
+        if os.environ.get("CI"):
+            pytest.fail(f"{exc} (the test extra installs nvidia-cuda-nvrtc-cu12)")
+        pytest.skip(str(exc))
+    code = ptx(device_source(), "compute_90")
+    for kernel in KERNELS:
+        assert f".entry {kernel}(" in code, kernel
+    with pytest.raises(RuntimeError, match="NVRTC could not compile"):
+        ptx(device_source() + "\nint broken(\n", "compute_90")
+
+
+def test_without_cupy_or_device_the_first_operation_says_what_is_missing(monkeypatch):
+    be = CudaBackend()  # creating it touches nothing
+    assert be.name == "cuda" and pickle.loads(pickle.dumps(be)).name == "cuda"
+    assert "cuda" in hevr.backends.available_backends()
+
+    class NoDevice:
+        class cuda:
+            class runtime:
+                @staticmethod
+                def getDeviceCount():
+                    raise RuntimeError("cudaErrorNoDevice: no CUDA-capable device is detected")
+
+    for fake, match in ((None, "CuPy is not installed: pip install 'hevr\\[gpu\\]'"),
+                        (NoDevice, "needs an NVIDIA GPU; CuPy sees none")):
+        launcher = CupyLauncher()
+        if fake is None:
+            monkeypatch.setitem(sys.modules, "cupy", None)  # import cupy -> ImportError
+        else:
+            monkeypatch.setitem(sys.modules, "cupy", fake)
+        with pytest.raises(MissingDependencyError, match=match):
+            launcher.records_to_limbs(np.zeros((1, 4), np.uint8), 1)
+        with pytest.raises(MissingDependencyError, match=match):
+            CudaBackend().check()
+
+
+def test_null_pointers_are_passed_as_zero_not_none():
+    """CuPy turns None into 0xffffffff (cupy#9046): optional pointers go as a zero uint64."""
+    launcher = CupyLauncher()
+    null = launcher._dev(None, np.uint32)
+    assert isinstance(null, np.uint64) and int(null) == 0
+    assert device_module.BLOCK % 32 == 0
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("bits", [64, 512, 2048])
+def test_every_operation_identical_on_the_device(bits):
+    be = _cuda_or_skip()
+    n = secrets.randbits(bits) | 1 | (3 << (bits - 2))
+    n2 = n * n
+    W = (n2.bit_length() + 7) // 8
+    vals = [1, 2, n2 - 1] + [secrets.randbelow(n2 - 1) + 1 for _ in range(997)]
+    rec = CPU.to_bytes(vals, W)
+    c, g = CPU.from_bytes(rec), be.from_bytes(rec)
+    np.testing.assert_array_equal(be.to_bytes(g, W), rec)
+    assert be.first_out_of_range(g, n2) is None and be.first_out_of_range(g, n2 - 1) == 2
+    rng = np.random.default_rng(bits)
+    rows = [(np.sort(rng.choice(len(vals), size=rng.integers(1, 40), replace=False)),
+             rng.integers(1, 1 << 12, size=40)) for _ in range(300)]
+    indptr = np.cumsum([0] + [r.size for r, _ in rows])
+    vox = np.concatenate([r for r, _ in rows])
+    w = np.concatenate([x[:r.size] for r, x in rows]).astype(np.uint64)
+    plan = plan_products(indptr, vox, w, len(vals))
+    assert isinstance(plan, ProductPlan)
+    np.testing.assert_array_equal(CPU.to_bytes(CPU.ray_products(plan, [c], n2)[0], W),
+                                  be.to_bytes(be.ray_products(plan, [g], n2)[0], W))
+    seg = np.arange(0, 1001, 7)
+    np.testing.assert_array_equal(CPU.to_bytes(CPU.segment_products(c, seg, 1, n2), W),
+                                  be.to_bytes(be.segment_products(g, seg, 1, n2), W))
+
+
+@pytest.mark.gpu
+def test_a_render_on_the_device_is_the_cpu_render(tmp_path, keypair512):
+    _cuda_or_skip()
+    vol = np.random.default_rng(9).integers(0, 256, (16, 16, 16)).astype(np.uint8)
+    with dask.config.set(scheduler="sync"):
+        ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", keypair512[1], brick=8, vector_dims=3, progress=False)
+        cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=24, height=20)
+        for mode, sampling, kw in (("xray", "nearest", {}), ("tf", "trilinear", {"nodes": [(0.3, "red"), (0.8, "blue")]})):
+            a = hevr.render(ev, cam, mode, sampling, backend="cpu", progress=False, cache=False, **kw)
+            b = hevr.render(ev, cam, mode, sampling, backend="cuda", progress=False, cache=False, **kw)
+            assert b.stats["backend"] == "cuda"
+            for x, y in zip(a.ciphertexts, b.ciphertexts):
+                np.testing.assert_array_equal(x, y)
