@@ -9,7 +9,8 @@ soon as it is known (``gpu.json`` and ``gpu.md`` in the output folder, naming th
    records ↔ residues, the range check, ``ray_products`` for nearest-like (weights 1–2),
    trilinear-like (10-bit) and 64-bit weights, ``segment_products``, ``combine`` and ``pack``;
 3. **render** — a ``size``³ phantom (64, or 16 with ``quick``) encrypted under a
-   ``render_bits`` key, rendered X-ray nearest, X-ray trilinear and TF 4-dim nearest with the
+   ``render_bits`` key (on a LocalCluster of up to 16 processes: owner encryption is CPU work),
+   rendered X-ray nearest, X-ray trilinear and TF 4-dim nearest with the
    backend and with ``cpu``: the packed images must be byte-identical, and within
    ``error_bound`` of ``render_plain``;
 4. **throughput** — at 2048-bit keys (4096-bit products mod n²): independent running products
@@ -25,9 +26,12 @@ H100) are printed beside the figures, never asserted.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import os
 import secrets
+import tempfile
 import time
 import warnings
 from collections.abc import Callable
@@ -36,6 +40,7 @@ from typing import Any
 
 import dask
 import numpy as np
+from distributed import Client, LocalCluster
 
 from ..backends import CpuBackend, get_backend
 from ..crypto.keys import generate_keypair
@@ -107,27 +112,39 @@ def identity(be: Any, quick: bool) -> list[dict]:
     return out
 
 
-def render_identity(be_name: str, size: int, bits: int, work: Path) -> list[dict]:
-    """The ``size``³ phantom's renders with ``be_name`` and ``cpu``: identical bytes, within the bound."""
+def render_identity(be_name: str, size: int, bits: int, work: Path, workers: int = 0) -> list[dict]:
+    """The ``size``³ phantom's renders with ``be_name`` and ``cpu``: identical bytes, within the bound.
+
+    With ``workers`` the encryption and the ``cpu`` renders run on a LocalCluster of that many
+    processes (a 64³ 2048-bit store is ~15 CPU-minutes of owner encryption); the ``be_name``
+    renders run in this process (the GPU is this process's), on Dask's synchronous scheduler."""
     with warnings.catch_warnings():  # --quick's 256-bit key: insecure on purpose
         warnings.simplefilter("ignore", InsecureKeyWarning)
         _, priv = generate_keypair(bits)
     vol = phantom(size)
-    with dask.config.set(scheduler="sync"):
-        ev = encrypt_volume(vol, work / f"phantom{size}.zarr", priv, brick=max(8, size // 4), vector_dims=4,
-                            progress=False)
+    folder = Path(tempfile.mkdtemp(prefix="hevr-gpu-bench-", dir=work))  # never over an earlier run's store
+    with contextlib.ExitStack() as stack:
+        client = None
+        if workers:
+            cluster = stack.enter_context(LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=None))
+            client = stack.enter_context(Client(cluster, set_as_default=False))
+        with dask.config.set(scheduler="sync"):
+            ev = encrypt_volume(vol, folder / f"phantom{size}.zarr", priv, brick=max(8, size // 4), vector_dims=4,
+                                progress=False, client=client)
         cam = Camera.orbit(ev, azimuth=30, elevation=20, width=2 * size, height=2 * size)
         out = []
         for mode, sampling, kw in (("xray", "nearest", {}), ("xray", "trilinear", {}), ("tf", "nearest", {"nodes": TF_NODES})):
             t0 = time.perf_counter()
-            a = render(ev, cam, mode, sampling, backend=be_name, progress=False, cache=False, **kw)
+            with dask.config.set(scheduler="sync"):
+                a = render(ev, cam, mode, sampling, backend=be_name, progress=False, cache=False, **kw)
             t1 = time.perf_counter()
-            b = render(ev, cam, mode, sampling, backend="cpu", progress=False, cache=False, **kw)
+            with dask.config.set(scheduler="sync"):
+                b = render(ev, cam, mode, sampling, backend="cpu", progress=False, cache=False, client=client, **kw)
             t2 = time.perf_counter()
             same = len(a.ciphertexts) == len(b.ciphertexts) and all(
                 np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts))
             row = {"case": f"{mode} {sampling}", "size": size, "bits": bits, "identical": bool(same),
-                   "within_bound": False, "seconds": t1 - t0, "cpu_seconds": t2 - t1}
+                   "within_bound": False, "seconds": t1 - t0, "cpu_seconds": t2 - t1, "cpu_workers": workers or 1}
             try:  # a wrong backend's image may not even decrypt: the client's checks refuse it
                 err = np.abs(a.decrypt(priv) - render_plain(vol, cam, mode, sampling, **kw))
                 row["within_bound"] = bool(np.all(err <= error_bound(ev, cam, mode, sampling, **kw)))
@@ -219,7 +236,8 @@ def run_gpu_bench(out: Path, *, backend: str = "cuda", quick: bool = False, work
     save()
     work = work or out
     t0 = time.perf_counter()
-    res["render"] = render_identity(backend, 16 if quick else 64, 256 if quick else render_bits, Path(work))
+    res["render"] = render_identity(backend, 16 if quick else 64, 256 if quick else render_bits, Path(work),
+                                    0 if quick else min(16, os.cpu_count() or 1))
     rok = all(r["identical"] and r["within_bound"] for r in res["render"])
     log_line(f"renders against cpu: {'identical' if rok else 'MISMATCH'} ({time.perf_counter() - t0:.1f} s)")
     save()
