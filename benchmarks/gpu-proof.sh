@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Issue 26's one-command proof of the GPU backend, for a session that is lent a GPU machine.
+#
+#   here, once:        bash benchmarks/gpu-proof.sh prepare
+#   device tool run:   carry [".whl"], command: bash benchmarks/gpu-proof.sh run   (timeout_s 540)
+#
+# prepare: ../shared/tools/device-wheels (hevr's dependencies as CPython 3.12 wheels in ./.whl,
+# ignored by git) plus the two it does not fetch: google-crc32c and array-api-compat.
+# run (on the GPU machine, whose image has CuPy, numpy, pytest, hypothesis): installs the wheels
+# into /tmp/site, then, each step's output under $OUT (what comes back):
+#   1. nvidia-smi -L                                   -> $OUT/device.txt
+#   2. hevr bench --gpu (operations, a 64³ 2048-bit render, throughput; ~3-5 min)
+#                                                      -> $OUT/gpu.md, $OUT/gpu.json, $OUT/bench.log
+#   3. the kernel test suites on the device (HEVR_TEST_KERNELS=cuda) and the gpu-marked tests
+#                                                      -> $OUT/pytest.log
+# Commit gpu.md / gpu.json under benchmarks/ (they name the card) and put the numbers in history.md.
+set -uo pipefail
+cd "$(git rev-parse --show-toplevel 2>/dev/null || dirname "$0"/..)"
+case "${1:-}" in
+prepare)
+  ../shared/tools/device-wheels
+  python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+    --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
+    -d .whl google-crc32c array-api-compat
+  ls .whl; du -sh .whl ;;
+run)
+  : "${OUT:?run this through the device tool (it sets OUT)}"
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl || exit 1
+  export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
+  nvidia-smi -L 2>&1 | tee "$OUT/device.txt"
+  timeout 360 python3 -m hevr bench --gpu --out "$OUT" --work /tmp 2>&1 | tee "$OUT/bench.log"
+  HEVR_TEST_KERNELS=cuda timeout 150 python3 -m pytest -q -x -p no:cacheprovider -o addopts= \
+    tests/backends/test_cuda_device.py tests/backends/test_cuda_host_backend.py \
+    tests/backends/test_cuda_host_renders.py 2>&1 | tail -40 | tee "$OUT/pytest.log" ;;
+*)
+  echo "usage: bash benchmarks/gpu-proof.sh prepare|run" >&2; exit 2 ;;
+esac
