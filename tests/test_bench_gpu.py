@@ -24,6 +24,7 @@ def test_gpu_bench_on_the_host_kernels_writes_its_report(tmp_path, capsys):
     assert {r["case"] for r in res["render"]} == {"xray nearest", "xray trilinear", "tf nearest"}
     assert all(r["identical"] and r["within_bound"] for r in res["render"])
     assert set(res["throughput"]) == {"products", "pairs"}
+    assert res["encryption"]["exact"] is True and res["encryption"]["values_per_s"] > 0
     assert all(r["products_per_s" if k == "products" else "pairs_per_s"] > 0 for k, r in res["throughput"].items())
     md = (tmp_path / "gpu.md").read_text()
     assert md.startswith("# hevr bench --gpu: the host CPU (cuda-host)") and "**all identical**" in md

@@ -17,6 +17,9 @@ soon as it is known (``gpu.json`` and ``gpu.md`` in the output folder, naming th
    (``ONES`` rows of 64 factors: products/s) and multi-exponentiation rows of 64 pairs with
    10-bit weights (pairs/s), each through ``Backend.ray_products`` end to end (host ↔ device
    copies included), beside ``cpu`` on one core of this machine.
+5. **encryption** — the owner path in a kernel (``owner.cuh``): 64³ int64 mantissas under a
+   2048-bit key, values/s beside ``cpu`` on one core, the projected time of a 100³ volume (goal
+   3 s), and a sample decrypted exactly;
 
 Any mismatch makes the command exit 1 after writing what it found. ``backend`` may be
 ``cuda-host`` (the same kernels on the CPU), which is how the test suite runs this command on a
@@ -182,6 +185,31 @@ def throughput(be: Any, quick: bool) -> dict:
     return res
 
 
+def encryption(be: Any, quick: bool, bits: int = 2048) -> dict:
+    """Owner-side encryption of int64 mantissas at ``bits`` (``owner.cuh``): values/s beside ``cpu``
+    on one core, the time a 100³ scalar volume would take at that rate, and an exact decryption
+    of a sample."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", InsecureKeyWarning)
+        pub, priv = generate_keypair(256 if quick else bits)
+    count = 4096 if quick else 262144
+    x = np.random.default_rng(7).integers(-(2**12), 2**12, count).astype(np.int64)
+    be.encrypt(priv, x[:64])  # warm: the tables (once per key and process), the module
+    t0 = time.perf_counter()
+    cts = be.encrypt(priv, x)
+    dt = time.perf_counter() - t0
+    sample = min(count, 200)
+    exact = be.decrypt(priv, be.from_bytes(be.to_bytes(cts, record_width(pub.n))[:sample])) == \
+        [int(v) % int(pub.n) for v in x[:sample].tolist()]
+    t0 = time.perf_counter()
+    CPU.encrypt(priv, x[:2000])
+    cdt = time.perf_counter() - t0
+    rate, crate = count / dt, 2000 / cdt
+    return {"bits": int(pub.n).bit_length(), "values": count, "seconds": dt, "values_per_s": rate,
+            "cpu_values_per_s": crate, "speedup_vs_one_core": rate / crate, "volume_100_s": 1e6 / rate,
+            "goal_volume_100_s": 3.0, "exact": bool(exact)}
+
+
 def _markdown(res: dict) -> str:
     m = res["machine"]
     head = f"Backend `{res['backend']}`; {m['date']}, commit {m.get('commit')}, {m['cpu']} ({m['cores']} cores)."
@@ -209,6 +237,14 @@ def _markdown(res: dict) -> str:
             lines.append(f"| {label} | {r['rows']} | {r[unit]:.3g} | {r['cpu_' + unit]:.3g} | "
                          f"{r['speedup_vs_one_core']:.3g} | {r['goal']:.1g} |")
         lines.append("")
+    if "encryption" in res:
+        e = res["encryption"]
+        lines += ["## Owner-side encryption (owner.cuh)", "",
+                  "| key bits | values | per s | cpu, one core, per s | × one core | 100³ at this rate | goal | exact |",
+                  "|---:|---:|---:|---:|---:|---:|---:|---|",
+                  f"| {e['bits']} | {e['values']} | {e['values_per_s']:.3g} | {e['cpu_values_per_s']:.3g} | "
+                  f"{e['speedup_vs_one_core']:.3g} | {e['volume_100_s']:.3g} s | {e['goal_volume_100_s']:g} s | "
+                  f"{'yes' if e['exact'] else '**NO**'} |", ""]
     lines.append(f"Result: **{'all identical' if res.get('ok') else 'MISMATCH' if res.get('ok') is False else 'incomplete'}**.")
     return "\n".join(lines) + "\n"
 
@@ -245,6 +281,10 @@ def run_gpu_bench(out: Path, *, backend: str = "cuda", quick: bool = False, work
     for label, r in res["throughput"].items():
         unit = "products_per_s" if label == "products" else "pairs_per_s"
         log_line(f"{label}: {r[unit]:.3g}/s ({r['speedup_vs_one_core']:.3g}x one core; goal {r['goal']:.1g}/s)")
-    res["ok"] = ok and rok
+    save()
+    res["encryption"] = enc = encryption(be, quick)
+    log_line(f"encryption: {enc['values_per_s']:.3g} values/s at {enc['bits']} bits ({enc['volume_100_s']:.3g} s for "
+             f"100^3; {'exact' if enc['exact'] else 'WRONG'})")
+    res["ok"] = ok and rok and enc["exact"]
     save()
     return md, bool(res["ok"])

@@ -127,6 +127,19 @@ class OwnerEncryptor:
     def uses_tables(self) -> bool:
         return self._hp.table is not None and self._hq.table is not None
 
+    def tables(self) -> tuple | None:
+        """What a kernel needs to make the same masks, or None without tables (secret material:
+        for the owner's own processes only).
+
+        ``((p², n mod p², window, rows), (q², n mod q², window, rows), (q²)^-1 mod p²)``; ``rows[i][d]``
+        is ``G^(d·2^(w·i))`` mod the prime square, and the masks are ``G_p^a``, ``G_q^b`` with ``a``,
+        ``b`` uniform in ``[0, p − 1)``, ``[0, q − 1)``.
+        """
+        if not self.uses_tables:
+            return None
+        halves = tuple((h.psquare, h.n_mod, h.table.window, h.table._rows) for h in (self._hp, self._hq))
+        return halves[0], halves[1], self._q2_inv_p2
+
     def encrypt_residues(self, residues: Iterable[mpz]) -> list[mpz]:
         """Encrypt plaintexts already reduced into [0, n)."""
         hp, hq = self._hp, self._hq

@@ -23,7 +23,7 @@ import hevr
 from hevr import MissingDependencyError
 from hevr.backends import CpuBackend, CudaBackend, ProductPlan, get_backend
 from hevr.backends.cuda import device as device_module
-from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source
+from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source, owner_source
 from hevr.backends.cuda.nvrtc import find_nvrtc, ptx
 from hevr.rendering.kernel import plan_products
 
@@ -51,6 +51,7 @@ def test_device_source_compiles_with_nvrtc_for_hopper():
         assert f".entry {kernel}(" in code, kernel
     with pytest.raises(RuntimeError, match="NVRTC could not compile"):
         ptx(device_source() + "\nint broken(\n", "compute_90")
+    assert ".entry k_owner_encrypt(" in ptx(owner_source(), "compute_90")
 
 
 def test_without_cupy_or_device_the_first_operation_says_what_is_missing(monkeypatch):
@@ -126,3 +127,11 @@ def test_a_render_on_the_device_is_the_cpu_render(tmp_path, keypair512):
             assert b.stats["backend"] == "cuda"
             for x, y in zip(a.ciphertexts, b.ciphertexts):
                 np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.gpu
+def test_owner_encryption_on_the_device_decrypts_exactly(keypair2048):
+    be = _cuda_or_skip()
+    pub, priv = keypair2048
+    x = np.array([0, 1, -1, 2**62, -(2**63), 2**63 - 1, 12345, -999], np.int64)
+    assert be.decrypt(priv, be.encrypt(priv, x)) == [int(v) % int(pub.n) for v in x.tolist()]

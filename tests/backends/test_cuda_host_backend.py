@@ -360,6 +360,9 @@ def test_render_kernels_compile_for_the_device(tmp_path):
     for kernel in ("k_records_to_limbs", "k_limbs_to_records", "k_out_of_range", "k_mont_convert", "k_ray_powers",
                    "k_ray_tasks", "k_segments", "k_combine", "k_pack", "k_mont_mul"):
         assert f".entry {kernel}(" in ptx, kernel
+    run = subprocess.run(["nvcc", "-ptx", "-arch=sm_90", "-x", "cu", str(launch_module.OWNER_SOURCE), "-o", str(out)],
+                         capture_output=True, text=True, timeout=300, check=False)
+    assert run.returncode == 0 and ".entry k_owner_encrypt(" in out.read_text(), run.stderr[-2000:]
 
 
 def test_concat_keeps_one_form():

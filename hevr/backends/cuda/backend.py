@@ -22,9 +22,12 @@ Where each operation runs
 ``pack``                       kernel: one item per packed ciphertext (Horner with interleaved
                                square-and-multiply); the two offset factors ``g^(O·Σ_j B^j)`` are
                                made once per call in Python
-``encrypt`` / ``decrypt``      **not in kernels yet**: delegated to :class:`~hevr.backends.cpu.CpuBackend`
-                               (gmpy2) through a records round trip — owner masks and CRT
-                               decryption still run per value in Python
+``encrypt``                    kernel (``owner.cuh``, :mod:`~hevr.backends.cuda.owner`) with a private
+                               key: the owner path's fixed-base masks and CRT, one ciphertext per item;
+                               a public key, ``unsafe_no_obfuscation`` or mantissas beyond int64:
+                               :class:`~hevr.backends.cpu.CpuBackend` (gmpy2)
+``decrypt``                    **not in kernels yet**: delegated to :class:`~hevr.backends.cpu.CpuBackend`
+                               (CRT decryption per value in Python)
 =============================  ===================================================================
 
 Residues mod N = n² stay in Montgomery form between operations (:mod:`hevr.backends.cuda.residues`);
@@ -48,13 +51,15 @@ from typing import Any
 
 import numpy as np
 
+from ...crypto.keys import PrivateKey
 from ...crypto.records import bytes_to_mpz, record_width
 from ...errors import ParameterError
 from ..base import Backend, OpCounter, ProductPlan
 from ..cpu import CpuBackend
-from .host import MAX_LIMBS
 from .device import CupyLauncher
+from .host import MAX_LIMBS
 from .launch import HostLauncher, Launcher
+from .owner import owner_limbs
 from .residues import LimbBatch, Modulus, exponent_words, limbs_of, plan_tables
 
 __all__ = ["CudaBackend", "CudaHostBackend", "KernelBackend"]
@@ -210,6 +215,10 @@ class KernelBackend(Backend):
 
     # -- encryption and decryption: the CPU backend's, through records ------------------------------
     def encrypt(self, key: Any, mantissas, *, unsafe_no_obfuscation: bool = False) -> LimbBatch:
+        if not unsafe_no_obfuscation and isinstance(key, PrivateKey):  # the owner path in a kernel (owner.py)
+            limbs = owner_limbs(self._launch, key, mantissas)
+            if limbs is not None:
+                return LimbBatch(limbs)
         cts = _CPU.encrypt(key, mantissas, unsafe_no_obfuscation=unsafe_no_obfuscation)
         width = record_width(getattr(key, "public_key", key).n)
         return self.from_bytes(_CPU.to_bytes(cts, width))

@@ -15,7 +15,8 @@ Scratch. ``k_ray_tasks`` and ``k_combine`` give every thread its own slice of on
 
 What is not here yet (issue 26): residues stay on the host between operations (each call
 copies its operands to the device and its results back), so a render pays PCIe transfers a
-resident device batch would not; encryption and decryption still delegate to ``cpu``. The
+resident device batch would not; decryption still delegates to ``cpu``. Owner encryption runs
+``owner.cuh`` (:meth:`CupyLauncher.owner_encrypt`; its tables uploaded once per key). The
 launcher is exercised only on a machine with CuPy and a GPU (``tests/backends/test_cuda_device.py``,
 marked ``gpu``); without them :class:`hevr.MissingDependencyError` says what is missing.
 """
@@ -28,10 +29,10 @@ import numpy as np
 
 from ...errors import MissingDependencyError
 from .host import SOURCE as MONT_SOURCE
-from .launch import RENDER_SOURCE, Launcher
+from .launch import OWNER_SOURCE, RENDER_SOURCE, Launcher
 from .residues import FOLD, Modulus, PlanTables
 
-__all__ = ["BLOCK", "CupyLauncher", "device_source"]
+__all__ = ["BLOCK", "CupyLauncher", "device_source", "owner_source"]
 
 BLOCK = 128
 SCRATCH_BYTES = 256 << 20
@@ -52,6 +53,15 @@ def device_source() -> str:
     if '#include "mont.cuh"' not in render:  # pragma: no cover - the source's own include
         raise RuntimeError("render.cuh: expected #include \"mont.cuh\"")
     return render.replace('#include "mont.cuh"', MONT_SOURCE.read_text(encoding="utf-8"), 1)
+
+
+def owner_source() -> str:
+    """``owner.cuh`` with ``mont.cuh`` pasted in (the owner-encryption module NVRTC compiles).
+
+    >>> "k_owner_encrypt" in owner_source() and '#include "mont.cuh"' not in owner_source()
+    True
+    """
+    return OWNER_SOURCE.read_text(encoding="utf-8").replace('#include "mont.cuh"', MONT_SOURCE.read_text(encoding="utf-8"), 1)
 
 
 def _i32(x: int) -> np.int32:
@@ -75,6 +85,7 @@ class CupyLauncher(Launcher):
         self._device = device
         self._cp: Any = None
         self._fns: dict[str, Any] = {}
+        self._owner_fn: Any = None
 
     def __reduce__(self):
         return (CupyLauncher, (self._device,))
@@ -213,3 +224,27 @@ class CupyLauncher(Launcher):
         self._launch("k_pack", groups, self._dev(terms, np.uint32), self._dev(R, np.uint32), _i32(ew), _i64(m),
                      _i32(per_pack), _i32(bits), self._dev(offs, np.uint32), _i64(groups), out, *self._mod(M))
         return out[:groups].get()
+
+    def owner_encrypt(self, x, a, b, tables):
+        cp = self.cp
+        if self._owner_fn is None:
+            mod = cp.RawModule(code=owner_source(), options=("--std=c++11",), backend="nvrtc")
+            self._owner_fn = mod.get_function("k_owner_encrypt")
+        dev = tables.device.get("cupy")
+        if dev is None:  # the tables once per key and process (secret-derived: freed with the tables)
+            dev = tables.device["cupy"] = {
+                name: self._dev(arr, np.uint32) for name, arr in (
+                    ("Tp", tables.p.T), ("Pp", tables.p.P.limbs), ("op", tables.p.P.one), ("NRp", tables.p.NR),
+                    ("Tq", tables.q.T), ("Pq", tables.q.P.limbs), ("oq", tables.q.P.one), ("NRq", tables.q.NR),
+                    ("INVR", tables.INVR))}
+        m = int(np.asarray(x).size)
+        out = cp.empty((max(m, 1), tables.NL), cp.uint32)
+        ad, bd = self._dev(a, np.uint32), self._dev(b, np.uint32)
+        if m:
+            p, q = tables.p, tables.q
+            self._owner_fn(((m + BLOCK - 1) // BLOCK,), (BLOCK,), (
+                self._dev(x, np.int64), ad, _i32(ad.shape[1]), bd, _i32(bd.shape[1]),
+                dev["Tp"], _i32(p.rows), _i32(p.w), dev["Pp"], dev["op"], np.uint32(p.P.ninv), _i32(p.P.nl), dev["NRp"],
+                dev["Tq"], _i32(q.rows), _i32(q.w), dev["Pq"], dev["oq"], np.uint32(q.P.ninv), _i32(q.P.nl), dev["NRq"],
+                dev["INVR"], _i32(tables.NL), _i64(m), out))
+        return out[:m].get()

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import ctypes
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -34,9 +35,10 @@ from .host import SOURCE as MONT_SOURCE
 from .host import build_library
 from .residues import FOLD, Modulus, PlanTables
 
-__all__ = ["RENDER_SOURCE", "HostLauncher", "Launcher"]
+__all__ = ["OWNER_SOURCE", "RENDER_SOURCE", "HostLauncher", "Launcher"]
 
 RENDER_SOURCE = Path(__file__).with_name("render.cuh")
+OWNER_SOURCE = Path(__file__).with_name("owner.cuh")
 
 _P, _I, _LL, _U32 = ctypes.c_void_p, ctypes.c_int, ctypes.c_longlong, ctypes.c_uint32
 _MOD = [_P, _P, _U32, _I]  # n, one, ninv, nl
@@ -51,6 +53,8 @@ _SIGNATURES = {
     "hevr_combine_host": [_P, _I, _I, _P, _I, _LL, _LL, _P, _P, *_MOD],
     "hevr_pack_host": [_P, _P, _I, _LL, _I, _I, _P, _LL, _P, *_MOD],
 }
+_HALF = [_P, _I, _I, _P, _P, _U32, _I, _P]  # T, rows, w, P, one, ninv, nl, NR
+_OWNER_SIGNATURE = [_P, _P, _I, _P, _I, *_HALF, *_HALF, _P, _I, _LL, _P]
 
 
 def _p(arr: np.ndarray | None) -> int | None:
@@ -108,6 +112,11 @@ class Launcher:
         group and of a shorter last one (Montgomery), or None."""
         raise NotImplementedError
 
+    def owner_encrypt(self, x: np.ndarray, a: np.ndarray, b: np.ndarray, tables: Any) -> np.ndarray:
+        """``(m, NL)`` normal-form ciphertexts of the int64 mantissas ``x`` with exponents ``a``, ``b``
+        (``owner.cuh``; ``tables``: :class:`~hevr.backends.cuda.owner.OwnerTables`)."""
+        raise NotImplementedError
+
 
 class HostLauncher(Launcher):
     """The kernels compiled for the host and called through ctypes (see the module docstring)."""
@@ -115,6 +124,7 @@ class HostLauncher(Launcher):
     def __init__(self, compiler: str | None = None) -> None:
         self._compiler = compiler
         self._dll: ctypes.CDLL | None = None
+        self._owner_dll: ctypes.CDLL | None = None
 
     def __reduce__(self):
         return (HostLauncher, (self._compiler,))
@@ -133,6 +143,21 @@ class HostLauncher(Launcher):
     def _call(self, name: str, *args) -> None:
         if getattr(self.lib, name)(*args) != 0:  # pragma: no cover - Modulus bounds nl
             raise ParameterError(f"nl: the kernel {name} refused the limb count")
+
+    def owner_encrypt(self, x, a, b, tables):
+        if self._owner_dll is None:
+            dll = build_library(OWNER_SOURCE, (MONT_SOURCE,), self._compiler)
+            dll.hevr_owner_encrypt_host.argtypes, dll.hevr_owner_encrypt_host.restype = _OWNER_SIGNATURE, ctypes.c_int
+            self._owner_dll = dll
+        x = np.ascontiguousarray(x, dtype=np.int64)
+        a, b = np.ascontiguousarray(a, dtype=np.uint32), np.ascontiguousarray(b, dtype=np.uint32)
+        out = np.empty((x.size, tables.NL), np.uint32)
+        halves = [arg for h in (tables.p, tables.q)
+                  for arg in (_p(h.T), h.rows, h.w, _p(h.P.limbs), _p(h.P.one), h.P.ninv, h.P.nl, _p(h.NR))]
+        if self._owner_dll.hevr_owner_encrypt_host(_p(x), _p(a), a.shape[1], _p(b), b.shape[1], *halves,
+                                                   _p(tables.INVR), tables.NL, x.size, _p(out)) != 0:
+            raise ParameterError("nl: the owner kernel refused the limb counts")  # pragma: no cover
+        return out
 
     def records_to_limbs(self, records, nl):
         rec = np.ascontiguousarray(records, dtype=np.uint8)

@@ -1,0 +1,143 @@
+/*
+ * hevr — owner-side encryption as a kernel: one ciphertext per thread (issue 26).
+ *
+ * The CPU path of hevr/crypto/owner.py, per value (its module docstring proves the distribution):
+ *   mask_p = G_p^a mod p²,  mask_q = G_q^b mod q²       a, b uniform in [0, p−1), [0, q−1), drawn on the
+ *                                                     host from os.urandom (never a GPU PRNG)
+ *   c_p = (1 + x·n)·mask_p mod p²,  c_q likewise      x the signed mantissa (int64); a negative x is the
+ *                                                     residue n + x, and (n + x)·n ≡ x·n mod p² since p² | n²
+ *   c   = c_q + q²·((c_p − c_q)·(q²)^-1 mod p²)       the CRT, as the CPU path writes it: c < n²
+ * G^a comes from the fixed-base window table T[i][d] = G^(d·2^(w·i)) mod p² (Montgomery form, rows of
+ * 2^w entries of nl limbs): G^a = Π_i T[i][digit_i(a)], one CIOS product per non-zero w-bit digit. The
+ * tables come from the same OwnerEncryptor as the CPU path's, so both draw from one distribution; the
+ * ciphertexts differ only by the randomness. Output: c in normal form, NL limbs (n² of the key).
+ *
+ * Everything here but the products is linear-time limb arithmetic on values below p², q² or n².
+ */
+#include "mont.cuh"
+
+/* w-bit digit i of an exponent of ew little-endian 32-bit words (w <= 16) */
+HEVR_HD hevr_u32 hevr_digit(const hevr_u32 *e, int ew, int w, int i)
+{
+    int bit = w * i, word = bit >> 5, off = bit & 31;
+    hevr_u64 v = word < ew ? e[word] : 0;
+    if (word + 1 < ew) v |= (hevr_u64)e[word + 1] << 32;
+    return (hevr_u32)((v >> off) & ((1u << w) - 1));
+}
+
+/* x >= y over nl limbs */
+HEVR_HD int hevr_geq(const hevr_u32 *x, const hevr_u32 *y, int nl)
+{
+    for (int j = nl - 1; j >= 0; j--)
+        if (x[j] != y[j]) return x[j] > y[j];
+    return 1;
+}
+
+/* x -= y over nl limbs (x >= y) */
+HEVR_HD void hevr_sub_in(hevr_u32 *x, const hevr_u32 *y, int nl)
+{
+    hevr_u64 borrow = 0;
+    for (int j = 0; j < nl; j++) {
+        hevr_u64 d = (hevr_u64)x[j] - y[j] - borrow;
+        x[j] = (hevr_u32)d;
+        borrow = (d >> 63) & 1;
+    }
+}
+
+/* one prime square: out = (1 + x·N)·G^a mod P in normal form; NR = (N mod P)·R mod P (Montgomery form) */
+HEVR_HD void hevr_owner_half(long long x, const hevr_u32 *a, int ew, const hevr_u32 *T, int rows, int w,
+                             const hevr_u32 *P, const hevr_u32 *one, hevr_u32 ninv, int nl, const hevr_u32 *NR,
+                             hevr_u32 *out, hevr_u32 *acc, hevr_u32 *t)
+{
+    for (int j = 0; j < nl; j++) acc[j] = one[j];
+    for (int i = 0; i < rows; i++) {
+        hevr_u32 d = hevr_digit(a, ew, w, i);
+        if (d) hevr_mont_mul(acc, T + (((long long)i << w) + d) * nl, P, ninv, nl, t, acc);
+    }
+    /* acc = G^a·R mod P. y = |x|·N mod P (|x| < 2^64 in two limbs; CIOS with NR gives the normal form) */
+    hevr_u64 ax = x < 0 ? (hevr_u64)(-(x + 1)) + 1 : (hevr_u64)x;
+    for (int j = 0; j < nl; j++) out[j] = 0;
+    out[0] = (hevr_u32)ax;
+    if (nl > 1) out[1] = (hevr_u32)(ax >> 32);
+    hevr_mont_mul(out, NR, P, ninv, nl, t, out);
+    int zero = 1;
+    for (int j = 0; j < nl; j++) zero &= out[j] == 0;
+    if (x < 0 && !zero) { /* y = P − y */
+        for (int j = 0; j < nl; j++) t[j] = P[j];
+        hevr_sub_in(t, out, nl);
+        for (int j = 0; j < nl; j++) out[j] = t[j];
+    }
+    hevr_u64 c = 1; /* y + 1 <= P; equal to P means 0 */
+    for (int j = 0; j < nl; j++) { c += out[j]; out[j] = (hevr_u32)c; c >>= 32; }
+    if (hevr_geq(out, P, nl)) hevr_sub_in(out, P, nl);
+    hevr_mont_mul(out, acc, P, ninv, nl, t, out); /* y·G^a·R·R^-1: normal form */
+}
+
+/* one ciphertext: the two halves and the CRT; L = max(nlp, nlq) limbs of scratch per buffer */
+HEVR_HD void hevr_owner_encrypt(long long x, const hevr_u32 *a, int ewa, const hevr_u32 *b, int ewb,
+                                const hevr_u32 *Tp, int rows_p, int wp, const hevr_u32 *P2, const hevr_u32 *onep,
+                                hevr_u32 ninvp, int nlp, const hevr_u32 *NRp,
+                                const hevr_u32 *Tq, int rows_q, int wq, const hevr_u32 *Q2, const hevr_u32 *oneq,
+                                hevr_u32 ninvq, int nlq, const hevr_u32 *NRq, const hevr_u32 *INVR, int NL,
+                                hevr_u32 *out)
+{
+    hevr_u32 cp[HEVR_MAX_LIMBS], cq[HEVR_MAX_LIMBS], acc[HEVR_MAX_LIMBS], p2[HEVR_MAX_LIMBS];
+    hevr_u32 t[HEVR_MAX_LIMBS + 2];
+    int L = nlp > nlq ? nlp : nlq;
+    hevr_owner_half(x, a, ewa, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp, cp, acc, t);
+    hevr_owner_half(x, b, ewb, Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, cq, acc, t);
+    for (int j = nlp; j < L; j++) cp[j] = 0;
+    for (int j = nlq; j < L; j++) cq[j] = 0;
+    for (int j = 0; j < L; j++) p2[j] = j < nlp ? P2[j] : 0;
+    /* d = (c_p − c_q mod p²) mod p²: c_q < q² may exceed p² (a few subtractions at most) */
+    for (int j = 0; j < L; j++) acc[j] = cq[j];
+    while (hevr_geq(acc, p2, L)) hevr_sub_in(acc, p2, L);
+    if (hevr_geq(cp, acc, L)) {
+        hevr_sub_in(cp, acc, L);
+    } else { /* c_p + p² − c_q */
+        hevr_sub_in(p2, acc, L);
+        hevr_u64 c = 0;
+        for (int j = 0; j < L; j++) { c += (hevr_u64)cp[j] + p2[j]; cp[j] = (hevr_u32)c; c >>= 32; }
+    }
+    hevr_mont_mul(cp, INVR, P2, ninvp, nlp, t, cp); /* h = d·(q²)^-1 mod p², normal form (INVR carries R) */
+    /* out = c_q + q²·h, schoolbook; c < n² fits NL limbs */
+    for (int j = 0; j < NL; j++) out[j] = j < nlq ? cq[j] : 0;
+    for (int i = 0; i < nlp; i++) {
+        hevr_u64 c = 0;
+        for (int j = 0; j < nlq && i + j < NL; j++) {
+            c += (hevr_u64)cp[i] * Q2[j] + out[i + j];
+            out[i + j] = (hevr_u32)c;
+            c >>= 32;
+        }
+        for (int k = i + nlq; c && k < NL; k++) { c += out[k]; out[k] = (hevr_u32)c; c >>= 32; }
+    }
+}
+
+#if defined(__CUDACC__) || defined(__CUDACC_RTC__)
+extern "C" __global__ void k_owner_encrypt(const long long *x, const hevr_u32 *a, int ewa, const hevr_u32 *b,
+                                           int ewb, const hevr_u32 *Tp, int rows_p, int wp, const hevr_u32 *P2,
+                                           const hevr_u32 *onep, hevr_u32 ninvp, int nlp, const hevr_u32 *NRp,
+                                           const hevr_u32 *Tq, int rows_q, int wq, const hevr_u32 *Q2,
+                                           const hevr_u32 *oneq, hevr_u32 ninvq, int nlq, const hevr_u32 *NRq,
+                                           const hevr_u32 *INVR, int NL, long long count, hevr_u32 *out)
+{
+    long long k = (long long)blockIdx.x * blockDim.x + threadIdx.x;
+    if (k >= count) return;
+    hevr_owner_encrypt(x[k], a + k * ewa, ewa, b + k * ewb, ewb, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp,
+                       Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INVR, NL, out + k * NL);
+}
+#else
+int hevr_owner_encrypt_host(const long long *x, const hevr_u32 *a, int ewa, const hevr_u32 *b, int ewb,
+                            const hevr_u32 *Tp, int rows_p, int wp, const hevr_u32 *P2, const hevr_u32 *onep,
+                            hevr_u32 ninvp, int nlp, const hevr_u32 *NRp,
+                            const hevr_u32 *Tq, int rows_q, int wq, const hevr_u32 *Q2, const hevr_u32 *oneq,
+                            hevr_u32 ninvq, int nlq, const hevr_u32 *NRq, const hevr_u32 *INVR, int NL,
+                            long long count, hevr_u32 *out)
+{
+    if (nlp < 1 || nlq < 1 || nlp > HEVR_MAX_LIMBS || nlq > HEVR_MAX_LIMBS || NL > HEVR_MAX_LIMBS) return -1;
+    for (long long k = 0; k < count; k++)
+        hevr_owner_encrypt(x[k], a + k * ewa, ewa, b + k * ewb, ewb, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp,
+                           Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INVR, NL, out + k * NL);
+    return 0;
+}
+#endif

@@ -1,0 +1,139 @@
+"""Owner-side encryption on the kernels (``owner.cuh``): tables, exponents, one launch per batch.
+
+The kernel makes exactly the CPU path's ciphertexts (:mod:`hevr.crypto.owner`) from the same
+fixed-base tables, given the same exponents; so its distribution is the one proved there.
+
+* **Tables.** :meth:`hevr.crypto.owner.OwnerEncryptor.tables` gives, per prime square, the rows
+  ``G^(d·2^(w·i))``; they are converted once per key and process to limbs in Montgomery form
+  (through the launcher's own ``mont_convert``) and kept for the two most recent keys, like the
+  CPU path's tables — secret-derived, so only in the owner's encryption processes, never in a
+  store, a log or a task graph (the key travels pickled to the owner's workers as before).
+* **Exponents.** ``a``, ``b`` uniform in ``[0, p − 1)``, ``[0, q − 1)`` from :func:`os.urandom` in
+  bulk (rejection sampling on ``bits(p − 1)``-bit draws: at least half are kept, since p − 1 has
+  its top bit set), never from a GPU PRNG.
+* **Mantissas** as signed 64-bit integers; anything else (Python integers beyond 2^63, or
+  ``unsafe_no_obfuscation``) goes the CPU way, as do keys without tables.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .host import to_limbs
+from .residues import Modulus
+
+__all__ = ["OwnerTables", "owner_limbs", "owner_tables", "random_below"]
+
+_CACHE: dict[int, OwnerTables] = {}
+_LOCK = threading.Lock()
+
+
+@dataclass
+class Half:
+    """One prime square's table: ``T`` ``(rows·2^w, nl)`` uint32 in Montgomery form mod ``P.n``,
+    ``NR`` = (n mod P)·R mod P, exponents below ``bound``."""
+
+    P: Modulus
+    T: np.ndarray
+    rows: int
+    w: int
+    NR: np.ndarray
+    bound: int
+
+
+@dataclass
+class OwnerTables:
+    """Both halves, ``INVR`` = (q²)^-1·R mod p², and ``NL`` limbs of n² (a ciphertext)."""
+
+    p: Half
+    q: Half
+    INVR: np.ndarray
+    NL: int
+    device: dict = field(default_factory=dict)  # a device launcher's copies of the arrays
+
+
+def random_below(bound: int, count: int) -> np.ndarray:
+    """``count`` integers uniform in ``[0, bound)`` as ``(count, ew)`` little-endian uint32 words,
+    from :func:`os.urandom` (rejection sampling on ``bits(bound)``-bit draws).
+
+    >>> r = random_below(1000, 500)
+    >>> r.shape, bool((r[:, 0] < 1000).all()), len(set(r[:, 0].tolist())) > 300
+    ((500, 1), True, True)
+    """
+    k = int(bound).bit_length()
+    ew = max(1, -(-k // 32))
+    B = to_limbs([int(bound)], ew)[0]
+    top = k - 32 * (ew - 1)
+    out = np.empty((count, ew), np.uint32)
+    todo = np.arange(count)
+    while todo.size:
+        r = np.frombuffer(os.urandom(4 * ew * todo.size), "<u4").reshape(todo.size, ew).astype(np.uint32)
+        if top < 32:
+            r[:, -1] &= np.uint32((1 << top) - 1)
+        less, decided = np.zeros(todo.size, bool), np.zeros(todo.size, bool)
+        for j in range(ew - 1, -1, -1):  # lexicographic r < B from the top word
+            lt, gt = (r[:, j] < B[j]) & ~decided, (r[:, j] > B[j]) & ~decided
+            less |= lt
+            decided |= lt | gt
+        out[todo[less]] = r[less]
+        todo = todo[~less]
+    return out
+
+
+def owner_tables(key: Any, launcher: Any) -> OwnerTables | None:
+    """The kernel's tables for a :class:`hevr.PrivateKey` (cached per key), None without tables."""
+    n = int(key.public_key.n)
+    with _LOCK:
+        got = _CACHE.get(n)
+    if got is not None:
+        return got
+    spec = key.owner.tables()
+    if spec is None:
+        return None
+    halves = []
+    for P2, n_mod, w, rows in spec[:2]:
+        M = Modulus(int(P2))
+        flat = [int(e) for row in rows for e in row]  # rows of 2^w entries; entry 0 is 1
+        T = launcher.mont_convert(to_limbs(flat, M.nl), M.r2, M)
+        NR = to_limbs([int(n_mod) * (1 << (32 * M.nl)) % M.n], M.nl)[0]
+        halves.append(Half(M, T, len(rows), int(w), NR, _bound(int(P2))))
+    Mp = halves[0].P
+    INVR = to_limbs([int(spec[2]) * (1 << (32 * Mp.nl)) % Mp.n], Mp.nl)[0]
+    tables = OwnerTables(halves[0], halves[1], INVR, -(-(n * n).bit_length() // 32))
+    with _LOCK:
+        while len(_CACHE) >= 2:
+            _CACHE.pop(next(iter(_CACHE)))
+        _CACHE[n] = tables
+    return tables
+
+
+def _bound(P2: int) -> int:
+    """``p − 1`` from ``p²`` (an exact integer square root).
+
+    >>> _bound(23 * 23)
+    22
+    """
+    r = math.isqrt(P2)
+    if r * r != P2:  # pragma: no cover - P2 is a prime's square
+        raise ValueError("expected the square of a prime")
+    return r - 1
+
+
+def owner_limbs(launcher: Any, key: Any, mantissas: Any) -> np.ndarray | None:
+    """Ciphertexts of ``mantissas`` under the private ``key`` as ``(m, NL)`` normal-form limbs, or
+    None where the kernel path does not apply (module docstring): the caller encrypts on the CPU."""
+    x = np.asarray(mantissas)
+    if x.dtype.kind not in "iu" or (x.dtype.kind == "u" and x.size and int(x.max()) >= 1 << 63):
+        return None
+    tables = owner_tables(key, launcher)
+    if tables is None:
+        return None
+    x = np.ascontiguousarray(x.reshape(-1), dtype=np.int64)
+    a, b = random_below(tables.p.bound, x.size), random_below(tables.q.bound, x.size)
+    return launcher.owner_encrypt(x, a, b, tables)

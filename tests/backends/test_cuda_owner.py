@@ -1,0 +1,107 @@
+"""Owner-side encryption in a kernel (hevr/backends/cuda/owner.cuh, owner.py), run as ``cuda-host``:
+given the same exponents it makes the CPU path's exact ciphertexts; its ciphertexts decrypt
+exactly (edge mantissas, 64–2048-bit keys); its masks are n-th residues drawn uniformly from the
+right subgroup (a tiny key, every element hit); exponents come uniformly from os.urandom; what it
+does not take goes the CPU way. ``HEVR_TEST_KERNELS=cuda`` runs it on a GPU."""
+
+from __future__ import annotations
+
+import os
+import warnings
+from types import SimpleNamespace
+
+import gmpy2
+import numpy as np
+import pytest
+from gmpy2 import mpz
+
+import hevr
+from hevr.backends import get_backend
+from hevr.backends.cuda import owner as owner_module
+from hevr.backends.cuda.host import from_limbs
+from hevr.backends.cuda.owner import owner_tables, random_below
+from hevr.backends.cuda.residues import LimbBatch
+from hevr.crypto.owner import OwnerEncryptor
+
+KERNELS = os.environ.get("HEVR_TEST_KERNELS", "cuda-host")
+BE = get_backend(KERNELS)
+EDGES = np.array([0, 1, -1, 2, -2, 12345, -(2**31), 2**40, -(2**40), 2**62, 2**63 - 1, -(2**63)], np.int64)
+
+
+def _key(bits):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
+        return hevr.generate_keypair(bits)
+
+
+@pytest.mark.parametrize("bits", [64, 128, 256, 512])
+def test_ciphertexts_decrypt_exactly(bits):
+    pub, priv = _key(bits)
+    x = np.concatenate([EDGES, np.random.default_rng(bits).integers(-(2**62), 2**62, 200)])
+    cts = BE.encrypt(priv, x)
+    assert isinstance(cts, LimbBatch) and len(cts) == x.size
+    assert BE.first_out_of_range(cts, pub.nsquare) is None
+    assert BE.decrypt(priv, cts) == [int(v) % int(pub.n) for v in x.tolist()]
+    assert len({bytes(r) for r in BE.to_bytes(cts, 2 * ((int(pub.n).bit_length() + 7) // 8))}) == x.size  # fresh masks
+
+
+def test_ciphertexts_decrypt_exactly_at_2048_bits(keypair2048):
+    pub, priv = keypair2048
+    cts = BE.encrypt(priv, EDGES)
+    assert BE.decrypt(priv, cts) == [int(v) % int(pub.n) for v in EDGES.tolist()]
+
+
+@pytest.mark.parametrize("bits", [64, 512])
+def test_same_exponents_give_the_cpu_path_s_ciphertext(bits):
+    """c = c_q + q²·((c_p − c_q)·(q²)^-1 mod p²), c_p = (1 + x·n)·G_p^a mod p²: the CPU formula."""
+    pub, priv = _key(bits)
+    owner = priv.owner
+    launcher = BE._launch
+    tables = owner_tables(priv, launcher)
+    x = np.concatenate([EDGES, np.arange(-50, 50)]).astype(np.int64)
+    a, b = random_below(tables.p.bound, x.size), random_below(tables.q.bound, x.size)
+    got = from_limbs(launcher.owner_encrypt(x, a, b, tables))
+    hp, hq = owner._hp, owner._hq
+    n = pub.n
+    want = []
+    for v, ea, eb in zip(x.tolist(), from_limbs(a), from_limbs(b)):
+        m = mpz(v) % n
+        cp = (1 + m * hp.n_mod) * hp.table.pow(ea) % hp.psquare
+        cq = (1 + m * hq.n_mod) * hq.table.pow(eb) % hq.psquare
+        want.append(int(cq + hq.psquare * ((cp - cq) * owner._q2_inv_p2 % hp.psquare)))
+    assert got == want
+
+
+def test_masks_are_nth_residues_and_cover_the_subgroup_on_a_tiny_key():
+    """p = 23, q = 59: encryptions of 0 are masks; mod p² they must hit all 22 elements of H_p,
+    each about equally often, and be exactly the textbook set {r^n mod p²}."""
+    p, q = mpz(23), mpz(59)
+    key = SimpleNamespace(public_key=SimpleNamespace(n=int(p * q)), owner=OwnerEncryptor(p, q))
+    owner_module._CACHE.pop(int(p * q), None)
+    cts = from_limbs(owner_module.owner_limbs(BE._launch, key, np.zeros(4000, np.int64)))
+    n, n2, lam = p * q, (p * q) ** 2, (p - 1) * (q - 1)
+    assert all(gmpy2.powmod(c, lam, n2) == 1 and gmpy2.gcd(c, n) == 1 for c in cts)  # n-th residues, units
+    counts: dict[int, int] = {}
+    for c in cts:
+        counts[c % int(p * p)] = counts.get(c % int(p * p), 0) + 1
+    assert set(counts) == {int(gmpy2.powmod(r, n, p * p)) for r in range(1, 23)}
+    assert min(counts.values()) > 4000 / 22 * 0.6
+    owner_module._CACHE.pop(int(p * q), None)
+
+
+@pytest.mark.parametrize("bound", [1000, 2**32 - 1, 2**32, 2**32 + 1, 3 * 2**70 + 5])
+def test_random_exponents_are_uniform_below_the_bound(bound):
+    r = from_limbs(random_below(bound, 3000))
+    assert all(0 <= v < bound for v in r)
+    assert sum(v < bound // 2 for v in r) == pytest.approx(1500, abs=200)  # both halves, evenly
+    assert len(set(r)) > 2900 or bound < 10_000
+
+
+def test_what_the_kernel_does_not_take_goes_the_cpu_way(keypair256):
+    pub, priv = keypair256
+    big = np.array([2**80, -(2**90), 3], dtype=object)  # beyond int64
+    for key, values, kw in ((priv, big, {}), (pub, EDGES[:4], {}), (priv, EDGES[:4], {"unsafe_no_obfuscation": True})):
+        cts = BE.encrypt(key, values, **kw)
+        assert BE.decrypt(priv, cts) == [int(v) % int(pub.n) for v in values.tolist()]
+    assert owner_module.owner_limbs(BE._launch, priv, big) is None
+    assert owner_module.owner_limbs(BE._launch, priv, np.array([2**63], np.uint64)) is None
