@@ -1,5 +1,9 @@
 """The ``cuda`` backend (hevr.backends.cuda.device: the kernels on a GPU through CuPy).
 
+Without a GPU, the launcher itself still runs end to end against ``_fake_cupy.FakeCupy``: CuPy's
+arrays and launches played by the host build of the same kernels, every argument's C type and
+the grid checked at each launch — operations, owner encryption, a render and ``hevr bench --gpu``.
+
 Everywhere: the device source compiles with NVRTC for Hopper (compute_90) without a GPU — the
 NVRTC wheel is in the test extra, so under CI a missing library fails rather than skips — and
 without CuPy or a device the backend says what is missing. On a GPU machine (marked ``gpu``,
@@ -20,11 +24,13 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr import MissingDependencyError
+from _fake_cupy import FakeCupy
+from hevr import MissingDependencyError, backends
 from hevr.backends import CpuBackend, CudaBackend, ProductPlan, get_backend
 from hevr.backends.cuda import device as device_module
 from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source, owner_source
 from hevr.backends.cuda.nvrtc import find_nvrtc, ptx
+from hevr.cli.main import main
 from hevr.rendering.kernel import plan_products
 
 CPU = CpuBackend()
@@ -87,10 +93,37 @@ def test_null_pointers_are_passed_as_zero_not_none():
     assert device_module.BLOCK % 32 == 0
 
 
-@pytest.mark.gpu
+@pytest.fixture
+def fake_cuda(monkeypatch):
+    """The cuda backend on FakeCupy (a fresh instance, registered for the test's renders)."""
+    monkeypatch.setitem(sys.modules, "cupy", FakeCupy)
+    be = CudaBackend()
+    monkeypatch.setitem(backends._INSTANCES, "cuda", be)
+    return be
+
+
 @pytest.mark.parametrize("bits", [64, 512, 2048])
-def test_every_operation_identical_on_the_device(bits):
-    be = _cuda_or_skip()
+def test_the_launcher_on_fake_cupy_matches_cpu(fake_cuda, bits):
+    _check_operations(fake_cuda, bits)
+    fns = fake_cuda._launch._fns
+    assert fns and all(f.calls > 0 for name, f in fns.items() if name not in ("k_combine", "k_pack"))
+
+
+def test_a_render_and_owner_encryption_on_fake_cupy(fake_cuda, tmp_path, keypair512):
+    _check_render(tmp_path, keypair512)
+    pub, priv = keypair512
+    x = np.array([0, 1, -1, 2**62, -(2**63), 2**63 - 1, 12345, -999], np.int64)
+    assert fake_cuda.decrypt(priv, fake_cuda.encrypt(priv, x)) == [int(v) % int(pub.n) for v in x.tolist()]
+    assert fake_cuda._launch._owner_fn.calls == 1
+    assert {n for n, f in fake_cuda._launch._fns.items() if f.calls} >= {"k_combine", "k_pack", "k_ray_tasks"}
+
+
+def test_gpu_bench_on_fake_cupy(fake_cuda, tmp_path):
+    assert main(["bench", "--gpu", "--quick", "--out", str(tmp_path)]) == 0
+    assert "# hevr bench --gpu: FakeCupy on the host build" in (tmp_path / "gpu.md").read_text()
+
+
+def _check_operations(be, bits: int) -> None:
     n = secrets.randbits(bits) | 1 | (3 << (bits - 2))
     n2 = n * n
     W = (n2.bit_length() + 7) // 8
@@ -112,19 +145,38 @@ def test_every_operation_identical_on_the_device(bits):
     seg = np.arange(0, 1001, 7)
     np.testing.assert_array_equal(CPU.to_bytes(CPU.segment_products(c, seg, 1, n2), W),
                                   be.to_bytes(be.segment_products(g, seg, 1, n2), W))
+    comb = [[3, 0], [17, 2], [0, 1000]]
+    rows = c[:999]
+    np.testing.assert_array_equal(CPU.to_bytes(CPU.combine(rows, comb, n2), W),
+                                  be.to_bytes(be.combine(be.from_bytes(CPU.to_bytes(rows, W)), comb, n2), W))
+    exps = [secrets.randbelow(1 << 40) + 1 for _ in range(len(rows))]
+    np.testing.assert_array_equal(CPU.to_bytes(CPU.pack(rows, exps, 20, 3, 7, n), W),
+                                  be.to_bytes(be.pack(be.from_bytes(CPU.to_bytes(rows, W)), exps, 20, 3, 7, n), W))
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("bits", [64, 512, 2048])
+def test_every_operation_identical_on_the_device(bits):
+    _check_operations(_cuda_or_skip(), bits)
 
 
 @pytest.mark.gpu
 def test_a_render_on_the_device_is_the_cpu_render(tmp_path, keypair512):
     _cuda_or_skip()
+    _check_render(tmp_path, keypair512)
+
+
+def _check_render(tmp_path, keypair512) -> None:
     vol = np.random.default_rng(9).integers(0, 256, (16, 16, 16)).astype(np.uint8)
     with dask.config.set(scheduler="sync"):
         ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", keypair512[1], brick=8, vector_dims=3, progress=False)
         cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=24, height=20)
-        for mode, sampling, kw in (("xray", "nearest", {}), ("tf", "trilinear", {"nodes": [(0.3, "red"), (0.8, "blue")]})):
+        nodes = [(0.3, "red"), (0.8, "blue")]
+        for mode, sampling, kw in (("xray", "nearest", {}), ("tf", "trilinear", {"nodes": nodes}),
+                                   ("tf", "nearest", {"nodes": nodes, "finish": "server"})):  # combine on the server
             a = hevr.render(ev, cam, mode, sampling, backend="cpu", progress=False, cache=False, **kw)
             b = hevr.render(ev, cam, mode, sampling, backend="cuda", progress=False, cache=False, **kw)
-            assert b.stats["backend"] == "cuda"
+            assert b.stats["backend"] == "cuda" and len(a.ciphertexts) == len(b.ciphertexts)
             for x, y in zip(a.ciphertexts, b.ciphertexts):
                 np.testing.assert_array_equal(x, y)
 
