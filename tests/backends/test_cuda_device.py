@@ -22,9 +22,9 @@ import sys
 import dask
 import numpy as np
 import pytest
+from _fake_cupy import FakeCupy
 
 import hevr
-from _fake_cupy import FakeCupy
 from hevr import MissingDependencyError, backends
 from hevr.backends import CpuBackend, CudaBackend, ProductPlan, get_backend
 from hevr.backends.cuda import device as device_module
