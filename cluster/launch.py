@@ -14,6 +14,9 @@ Modes
 * --scheduler-only  only a scheduler; start workers on other hosts with
                     ``dask worker tcp://HOST:PORT --nworkers N --nthreads 1``.
 * --check ADDRESS   connect to a running scheduler and list its workers.
+* --gpus N          one worker process per GPU for hevr's ``cuda`` backend: dask-cuda's
+                    LocalCUDACluster where it is installed, else N Nanny workers, worker i started
+                    with ``CUDA_VISIBLE_DEVICES=i`` (1 thread each). Render with ``backend="cuda"``.
 
 Settings from ``cluster/dask.yaml`` apply when the script is started with
 ``DASK_CONFIG=cluster/`` (LocalCluster passes its configuration on to the workers).
@@ -42,6 +45,9 @@ examples:
   python cluster/launch.py --scheduler-only --port 8786
   # ... and on every worker host
   dask worker tcp://SCHEDULER-HOST:8786 --nworkers 8 --nthreads 1 --memory-limit 4GiB
+
+  # a GPU machine: one worker per GPU (hevr.render(..., backend="cuda"); prove it with hevr bench --gpu)
+  python cluster/launch.py --gpus 4 --memory-limit 32GiB
 
   # is the cluster up, and how many workers / threads / memory does it have?
   python cluster/launch.py --check tcp://SCHEDULER-HOST:8786
@@ -118,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     local.add_argument("--memory-limit", type=_memory_limit, default="4GiB", metavar="SIZE",
                        help="memory limit per worker process: a size like 4GiB, a fraction of system "
                             "memory, 'auto' or 0 for no limit (default: 4GiB)")
+    local.add_argument("--gpus", type=_positive_int, metavar="N",
+                       help="one worker process per GPU, worker i on GPU i (CUDA_VISIBLE_DEVICES); replaces --workers")
     local.add_argument("--local-directory", metavar="DIR",
                        help="directory for worker spill files (default: the system temp directory)")
 
@@ -221,12 +229,13 @@ async def run_local_cluster(args: argparse.Namespace) -> int:
     except (ValueError, TypeError):
         mem = args.memory_limit
 
-    async with LocalCluster(**kwargs) as cluster:
+    async with _gpu_cluster(args, kwargs) if args.gpus else LocalCluster(**kwargs) as cluster:
         address = cluster.scheduler_address
         link = None if args.no_dashboard else cluster.dashboard_link
+        what = (f"{args.gpus} GPU worker process(es), worker i on CUDA device i, 1 thread each" if args.gpus else
+                f"{args.workers} worker process(es) x {args.threads_per_worker} thread(s)")
         _say(
-            f"hevr LocalCluster: {args.workers} worker process(es) x {args.threads_per_worker} thread(s), "
-            f"memory limit {mem} each",
+            f"hevr LocalCluster: {what}, memory limit {mem} each",
             f"Scheduler address: {address}",
             f"Dashboard:         {link or 'disabled'}",
             *(_bokeh_note() if link else []),
@@ -239,6 +248,31 @@ async def run_local_cluster(args: argparse.Namespace) -> int:
         _say("Stopping the cluster ...")
     _say("Stopped.")
     return 0
+
+
+def _gpu_cluster(args: argparse.Namespace, kwargs: dict) -> Any:
+    """One worker per GPU: dask-cuda's LocalCUDACluster if installed, else a SpecCluster of Nanny
+    workers, worker i started with CUDA_VISIBLE_DEVICES=i (what LocalCUDACluster does too)."""
+    if importlib.util.find_spec("dask_cuda") is not None:
+        from dask_cuda import LocalCUDACluster
+
+        return LocalCUDACluster(CUDA_VISIBLE_DEVICES=list(range(args.gpus)), threads_per_worker=1,
+                                **{k: v for k, v in kwargs.items() if k not in ("n_workers", "threads_per_worker",
+                                                                               "processes")})
+    from distributed import Nanny, Scheduler, SpecCluster
+
+    scheduler = {"cls": Scheduler, "options": {"host": kwargs["host"], "port": kwargs["scheduler_port"],
+                                               "dashboard_address": kwargs["dashboard_address"],
+                                               **kwargs.get("scheduler_kwargs", {}),
+                                               **({"protocol": kwargs["protocol"]} if "protocol" in kwargs else {}),
+                                               **({"security": kwargs["security"]} if "security" in kwargs else {})}}
+    options = {"nthreads": 1, "memory_limit": kwargs["memory_limit"], "host": kwargs["host"],
+               **({"local_directory": kwargs["local_directory"]} if "local_directory" in kwargs else {}),
+               **({"security": kwargs["security"]} if "security" in kwargs else {})}
+    workers = {f"gpu-{i}": {"cls": Nanny, "options": {**options, "name": f"gpu-{i}",
+                                                      "env": {"CUDA_VISIBLE_DEVICES": str(i)}}}
+               for i in range(args.gpus)}
+    return SpecCluster(workers=workers, scheduler=scheduler, asynchronous=True, security=kwargs.get("security"))
 
 
 async def run_scheduler(args: argparse.Namespace) -> int:

@@ -186,3 +186,39 @@ def test_launch_local_cluster_one_worker():
             proc.kill()
             proc.wait(timeout=10)
     assert time.monotonic() - t0 < 30
+
+
+@pytest.mark.timeout(60)
+def test_launch_gpus_one_worker_per_device():
+    """--gpus 2 (dask-cuda not installed here): two Nanny workers, 1 thread each, worker i started
+    with CUDA_VISIBLE_DEVICES=i — no GPU is needed to check the recipe."""
+    from distributed import Client
+
+    port = _free_port()
+    proc = subprocess.Popen(
+        [sys.executable, str(LAUNCH), "--gpus", "2", "--port", str(port), "--dashboard-port", "0",
+         "--memory-limit", "1GiB"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(ROOT),
+    )
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=_reader, args=(proc.stdout, lines), daemon=True).start()
+    try:
+        seen, deadline = [], time.monotonic() + 30
+        while time.monotonic() < deadline and not any("Scheduler address:" in line for line in seen):
+            line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
+            if line is None:
+                break
+            seen.append(line)
+        assert any("2 GPU worker process(es), worker i on CUDA device i" in line for line in seen), seen
+        with Client(f"tcp://127.0.0.1:{port}", timeout=10, set_as_default=False) as client:
+            client.wait_for_workers(2, timeout=20)
+            got = client.run(os.getenv, "CUDA_VISIBLE_DEVICES")
+            assert sorted(got.values()) == ["0", "1"]
+            assert {w["nthreads"] for w in client.scheduler_info()["workers"].values()} == {1}
+        if sys.platform != "win32":
+            proc.send_signal(signal.SIGTERM)
+            assert proc.wait(timeout=20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
