@@ -242,9 +242,9 @@ def _markdown(res: dict) -> str:
         lines += ["## Owner-side encryption (owner.cuh)", "",
                   "| key bits | values | per s | cpu, one core, per s | × one core | 100³ at this rate | goal | exact |",
                   "|---:|---:|---:|---:|---:|---:|---:|---|",
-                  f"| {e['bits']} | {e['values']} | {e['values_per_s']:.3g} | {e['cpu_values_per_s']:.3g} | "
-                  f"{e['speedup_vs_one_core']:.3g} | {e['volume_100_s']:.3g} s | {e['goal_volume_100_s']:g} s | "
-                  f"{'yes' if e['exact'] else '**NO**'} |", ""]
+                  (f"| {e['bits']} | {e['values']} | {e['values_per_s']:.3g} | {e['cpu_values_per_s']:.3g} | "
+                   f"{e['speedup_vs_one_core']:.3g} | {e['volume_100_s']:.3g} s | {e['goal_volume_100_s']:g} s | "
+                   f"{'yes' if e['exact'] else '**NO**'} |"), ""]
     lines.append(f"Result: **{'all identical' if res.get('ok') else 'MISMATCH' if res.get('ok') is False else 'incomplete'}**.")
     return "\n".join(lines) + "\n"
 

@@ -317,6 +317,11 @@ class PrivateKey:
         """Signed plaintext; :class:`hevr.PlaintextOverflowError` in the ambiguous band."""
         return int(raw.raw_decode_signed(self.raw_decrypt(c), self.public_key.n))
 
+    def crt_constants(self) -> tuple[mpz, mpz, mpz, mpz, mpz]:
+        """``(p, q, h_p, h_q, p^-1 mod q)`` of CRT decryption (secret: for a decryption kernel in this
+        process, never stored or logged)."""
+        return self.p, self.q, self._hp, self._hq, self._p_inv_q
+
     def decrypt_array(self, ciphertexts: Iterable[int], signed: bool = True) -> list[int]:
         """Decrypt many ciphertexts (CRT each); returns Python ints."""
         n = self.public_key.n

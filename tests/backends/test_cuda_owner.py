@@ -1,12 +1,16 @@
-"""Owner-side encryption in a kernel (hevr/backends/cuda/owner.cuh, owner.py), run as ``cuda-host``:
-given the same exponents it makes the CPU path's exact ciphertexts; its ciphertexts decrypt
-exactly (edge mantissas, 64–2048-bit keys); its masks are n-th residues drawn uniformly from the
-right subgroup (a tiny key, every element hit); exponents come uniformly from os.urandom; what it
-does not take goes the CPU way. ``HEVR_TEST_KERNELS=cuda`` runs it on a GPU."""
+"""The key holder's kernels (hevr/backends/cuda/owner.cuh, owner.py), run as ``cuda-host``.
+
+Owner-side encryption: given the same exponents it makes the CPU path's exact ciphertexts; its
+ciphertexts decrypt exactly (edge mantissas, 64–2048-bit keys); its masks are n-th residues drawn
+uniformly from the right subgroup (a tiny key, every element hit); exponents come uniformly from
+os.urandom; magnitudes the CPU path refuses are refused with its error; what it does not take goes
+the CPU way. CRT decryption: the CPU backend's residues for random values in (0, n²) and for
+encryptions. ``HEVR_TEST_KERNELS=cuda`` runs it on a GPU."""
 
 from __future__ import annotations
 
 import os
+import secrets
 import warnings
 from types import SimpleNamespace
 
@@ -16,7 +20,7 @@ import pytest
 from gmpy2 import mpz
 
 import hevr
-from hevr.backends import get_backend
+from hevr.backends import CpuBackend, get_backend
 from hevr.backends.cuda import owner as owner_module
 from hevr.backends.cuda.host import from_limbs
 from hevr.backends.cuda.owner import owner_tables, random_below
@@ -24,8 +28,14 @@ from hevr.backends.cuda.residues import LimbBatch
 from hevr.crypto.owner import OwnerEncryptor
 
 KERNELS = os.environ.get("HEVR_TEST_KERNELS", "cuda-host")
-BE = get_backend(KERNELS)
+BE, CPU = get_backend(KERNELS), CpuBackend()
 EDGES = np.array([0, 1, -1, 2, -2, 12345, -(2**31), 2**40, -(2**40), 2**62, 2**63 - 1, -(2**63)], np.int64)
+
+
+def _edges(pub) -> np.ndarray:
+    """EDGES within the key's signed range (|x| < n // 3: a 64-bit key takes 62-bit values)."""
+    lim = int(pub.n) // 3 - 1
+    return np.clip(EDGES, -min(lim, 2**63 - 1), min(lim, 2**63 - 1)).astype(np.int64)
 
 
 def _key(bits):
@@ -37,7 +47,8 @@ def _key(bits):
 @pytest.mark.parametrize("bits", [64, 128, 256, 512])
 def test_ciphertexts_decrypt_exactly(bits):
     pub, priv = _key(bits)
-    x = np.concatenate([EDGES, np.random.default_rng(bits).integers(-(2**62), 2**62, 200)])
+    lim = min(int(pub.n) // 3 - 1, 2**62)
+    x = np.concatenate([_edges(pub), np.random.default_rng(bits).integers(-lim, lim, 200)])
     cts = BE.encrypt(priv, x)
     assert isinstance(cts, LimbBatch) and len(cts) == x.size
     assert BE.first_out_of_range(cts, pub.nsquare) is None
@@ -58,7 +69,7 @@ def test_same_exponents_give_the_cpu_path_s_ciphertext(bits):
     owner = priv.owner
     launcher = BE._launch
     tables = owner_tables(priv, launcher)
-    x = np.concatenate([EDGES, np.arange(-50, 50)]).astype(np.int64)
+    x = np.concatenate([_edges(pub), np.arange(-50, 50)]).astype(np.int64)
     a, b = random_below(tables.p.bound, x.size), random_below(tables.q.bound, x.size)
     got = from_limbs(launcher.owner_encrypt(x, a, b, tables))
     hp, hq = owner._hp, owner._hq
@@ -105,3 +116,36 @@ def test_what_the_kernel_does_not_take_goes_the_cpu_way(keypair256):
         assert BE.decrypt(priv, cts) == [int(v) % int(pub.n) for v in values.tolist()]
     assert owner_module.owner_limbs(BE._launch, priv, big) is None
     assert owner_module.owner_limbs(BE._launch, priv, np.array([2**63], np.uint64)) is None
+
+
+def test_magnitudes_the_cpu_path_refuses_are_refused_alike():
+    pub, priv = _key(64)
+    lim = int(pub.n) // 3 - 1
+    for bad in (lim + 1, -(lim + 1)):
+        with pytest.raises(hevr.PlaintextOverflowError, match="below n // 3 for a 64-bit key") as kernel:
+            BE.encrypt(priv, np.array([0, bad, 3], np.int64))
+        with pytest.raises(hevr.PlaintextOverflowError) as cpu:
+            CPU.encrypt(priv, np.array([0, bad, 3], np.int64))
+        assert str(kernel.value) == str(cpu.value)
+
+
+@pytest.mark.parametrize("bits", [64, 96, 256, 512, 1024])
+def test_crt_decryption_gives_the_cpu_residues(bits):
+    """Any value in (0, n²) — not only encryptions — decrypts to the CPU backend's residue."""
+    pub, priv = _key(bits)
+    n2 = int(pub.nsquare)
+    W = 2 * ((int(pub.n).bit_length() + 7) // 8)
+    vals = [1, 2, n2 - 1, n2 - 2] + [secrets.randbelow(n2 - 1) + 1 for _ in range(200)]
+    rec = CPU.to_bytes(vals, W)
+    assert BE.decrypt(priv, BE.from_bytes(rec)) == CPU.decrypt(priv, CPU.from_bytes(rec))
+    mont = BE.segment_products(BE.from_bytes(rec), np.arange(len(vals) + 1), 1, n2)  # Montgomery form first
+    assert BE.decrypt(priv, mont) == CPU.decrypt(priv, CPU.from_bytes(rec))
+    assert BE.decrypt(priv, BE.from_bytes(np.zeros((0, W), np.uint8))) == []
+
+
+def test_crt_decryption_at_2048_bits(keypair2048):
+    pub, priv = keypair2048
+    n2 = int(pub.nsquare)
+    vals = [1, n2 - 1] + [secrets.randbelow(n2 - 1) + 1 for _ in range(20)]
+    rec = CPU.to_bytes(vals, 512)
+    assert BE.decrypt(priv, BE.from_bytes(rec)) == CPU.decrypt(priv, CPU.from_bytes(rec))

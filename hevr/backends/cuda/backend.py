@@ -26,8 +26,8 @@ Where each operation runs
                                key: the owner path's fixed-base masks and CRT, one ciphertext per item;
                                a public key, ``unsafe_no_obfuscation`` or mantissas beyond int64:
                                :class:`~hevr.backends.cpu.CpuBackend` (gmpy2)
-``decrypt``                    **not in kernels yet**: delegated to :class:`~hevr.backends.cpu.CpuBackend`
-                               (CRT decryption per value in Python)
+``decrypt``                    kernel (``owner.cuh``): CRT decryption, one ciphertext per item (the
+                               caller checks the range first, as for every backend)
 =============================  ===================================================================
 
 Residues mod N = n² stay in Montgomery form between operations (:mod:`hevr.backends.cuda.residues`);
@@ -59,7 +59,7 @@ from ..cpu import CpuBackend
 from .device import CupyLauncher
 from .host import MAX_LIMBS
 from .launch import HostLauncher, Launcher
-from .owner import owner_limbs
+from .owner import decrypt_limbs, owner_limbs
 from .residues import LimbBatch, Modulus, exponent_words, limbs_of, plan_tables
 
 __all__ = ["CudaBackend", "CudaHostBackend", "KernelBackend"]
@@ -224,8 +224,11 @@ class KernelBackend(Backend):
         return self.from_bytes(_CPU.to_bytes(cts, width))
 
     def decrypt(self, private_key: Any, values: Any) -> list[int]:
+        """CRT decryption in a kernel (``owner.cuh``): residues in ``[0, n)``, as the CPU backend's."""
         batch = self._batch(values)
-        return _CPU.decrypt(private_key, _CPU.from_bytes(self.to_bytes(batch, 4 * batch.nl)))
+        if not len(batch):
+            return []
+        return decrypt_limbs(self._launch, private_key, self._normal(batch))
 
     # -- rendering -------------------------------------------------------------------------------
     def ray_products(self, plan: ProductPlan, components, nsquare: int,

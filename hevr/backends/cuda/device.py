@@ -29,7 +29,7 @@ import numpy as np
 
 from ...errors import MissingDependencyError
 from .host import SOURCE as MONT_SOURCE
-from .launch import OWNER_SOURCE, RENDER_SOURCE, Launcher
+from .launch import OWNER_SOURCE, RENDER_SOURCE, Launcher, decrypt_args
 from .residues import FOLD, Modulus, PlanTables
 
 __all__ = ["BLOCK", "CupyLauncher", "device_source", "owner_source"]
@@ -86,6 +86,7 @@ class CupyLauncher(Launcher):
         self._cp: Any = None
         self._fns: dict[str, Any] = {}
         self._owner_fn: Any = None
+        self._decrypt_fn: Any = None
 
     def __reduce__(self):
         return (CupyLauncher, (self._device,))
@@ -225,11 +226,29 @@ class CupyLauncher(Launcher):
                      _i32(per_pack), _i32(bits), self._dev(offs, np.uint32), _i64(groups), out, *self._mod(M))
         return out[:groups].get()
 
+    def _owner_module(self) -> None:
+        if self._owner_fn is None:
+            mod = self.cp.RawModule(code=owner_source(), options=("--std=c++11",), backend="nvrtc")
+            self._owner_fn, self._decrypt_fn = mod.get_function("k_owner_encrypt"), mod.get_function("k_decrypt")
+
+    def decrypt(self, c, tables):
+        cp = self.cp
+        self._owner_module()
+        dev = tables.device.get("cupy")
+        if dev is None:  # the CRT constants once per key and process
+            dev = tables.device["cupy"] = {id(a): self._dev(a, np.uint32) for h in (tables.p, tables.q) for a in (
+                h.P2.limbs, h.P2.one, h.P2.r2, h.E, h.P.limbs, h.PINV, h.HR)} | {id(tables.PIQR): self._dev(tables.PIQR, np.uint32)}
+        m = int(c.shape[0])
+        out = cp.empty((max(m, 1), tables.nlo), cp.uint32)
+        if m:
+            cd = self._dev(c, np.uint32)
+            args = decrypt_args(cd, tables, lambda a: cd if a is cd else dev[id(a)], _i32, np.uint32, _i64)
+            self._decrypt_fn(((m + BLOCK - 1) // BLOCK,), (BLOCK,), (*args, out))
+        return out[:m].get()
+
     def owner_encrypt(self, x, a, b, tables):
         cp = self.cp
-        if self._owner_fn is None:
-            mod = cp.RawModule(code=owner_source(), options=("--std=c++11",), backend="nvrtc")
-            self._owner_fn = mod.get_function("k_owner_encrypt")
+        self._owner_module()
         dev = tables.device.get("cupy")
         if dev is None:  # the tables once per key and process (secret-derived: freed with the tables)
             dev = tables.device["cupy"] = {

@@ -55,6 +55,19 @@ _SIGNATURES = {
 }
 _HALF = [_P, _I, _I, _P, _P, _U32, _I, _P]  # T, rows, w, P, one, ninv, nl, NR
 _OWNER_SIGNATURE = [_P, _P, _I, _P, _I, *_HALF, *_HALF, _P, _I, _LL, _P]
+_DHALF = [_P, _P, _P, _U32, _I, _P, _I, _P, _P, _P, _U32, _I]  # P2, one2, R2, ninv2, nl2, E, ew, P, PINV, HR, ninv, k
+_DECRYPT_SIGNATURE = [_P, _I, *_DHALF, *_DHALF, _P, _I, _LL, _P]
+
+
+def decrypt_args(c: Any, tables: Any, pointer: Any, i32: Any, u32: Any, i64: Any) -> list:
+    """The arguments of ``k_decrypt`` / ``hevr_decrypt_host`` in order, each through the launcher's
+    own marshalling (``pointer`` for arrays, ``i32``/``u32``/``i64`` for scalars)."""
+    args = [pointer(c), i32(tables.NL)]
+    for h in (tables.p, tables.q):
+        args += [pointer(h.P2.limbs), pointer(h.P2.one), pointer(h.P2.r2), u32(h.P2.ninv), i32(h.P2.nl),
+                 pointer(h.E), i32(h.E.size), pointer(h.P.limbs), pointer(h.PINV), pointer(h.HR), u32(h.P.ninv),
+                 i32(h.P.nl)]
+    return args + [pointer(tables.PIQR), i32(tables.nlo), i64(c.shape[0])]
 
 
 def _p(arr: np.ndarray | None) -> int | None:
@@ -117,6 +130,11 @@ class Launcher:
         (``owner.cuh``; ``tables``: :class:`~hevr.backends.cuda.owner.OwnerTables`)."""
         raise NotImplementedError
 
+    def decrypt(self, c: np.ndarray, tables: Any) -> np.ndarray:
+        """``(m, nlo)`` limbs of the residues in ``[0, n)`` of normal-form ciphertexts ``c`` ``(m, NL)``
+        (``owner.cuh``; ``tables``: :class:`~hevr.backends.cuda.owner.DecryptTables`)."""
+        raise NotImplementedError
+
 
 class HostLauncher(Launcher):
     """The kernels compiled for the host and called through ctypes (see the module docstring)."""
@@ -144,17 +162,32 @@ class HostLauncher(Launcher):
         if getattr(self.lib, name)(*args) != 0:  # pragma: no cover - Modulus bounds nl
             raise ParameterError(f"nl: the kernel {name} refused the limb count")
 
-    def owner_encrypt(self, x, a, b, tables):
+    @property
+    def owner_lib(self) -> ctypes.CDLL:
+        """The host build of ``owner.cuh`` (compiled on first use)."""
         if self._owner_dll is None:
             dll = build_library(OWNER_SOURCE, (MONT_SOURCE,), self._compiler)
             dll.hevr_owner_encrypt_host.argtypes, dll.hevr_owner_encrypt_host.restype = _OWNER_SIGNATURE, ctypes.c_int
+            dll.hevr_decrypt_host.argtypes, dll.hevr_decrypt_host.restype = _DECRYPT_SIGNATURE, ctypes.c_int
             self._owner_dll = dll
+        return self._owner_dll
+
+    def decrypt(self, c, tables):
+        c = np.ascontiguousarray(c, dtype=np.uint32)
+        out = np.empty((c.shape[0], tables.nlo), np.uint32)
+        ident = int  # ctypes converts Python ints by the declared argtypes
+        args = decrypt_args(c, tables, _p, ident, ident, ident)
+        if self.owner_lib.hevr_decrypt_host(*args, _p(out)) != 0:  # pragma: no cover - limbs bounded by Modulus
+            raise ParameterError("nl: the decryption kernel refused the limb counts")
+        return out
+
+    def owner_encrypt(self, x, a, b, tables):
         x = np.ascontiguousarray(x, dtype=np.int64)
         a, b = np.ascontiguousarray(a, dtype=np.uint32), np.ascontiguousarray(b, dtype=np.uint32)
         out = np.empty((x.size, tables.NL), np.uint32)
         halves = [arg for h in (tables.p, tables.q)
                   for arg in (_p(h.T), h.rows, h.w, _p(h.P.limbs), _p(h.P.one), h.P.ninv, h.P.nl, _p(h.NR))]
-        if self._owner_dll.hevr_owner_encrypt_host(_p(x), _p(a), a.shape[1], _p(b), b.shape[1], *halves,
+        if self.owner_lib.hevr_owner_encrypt_host(_p(x), _p(a), a.shape[1], _p(b), b.shape[1], *halves,
                                                    _p(tables.INVR), tables.NL, x.size, _p(out)) != 0:
             raise ParameterError("nl: the owner kernel refused the limb counts")  # pragma: no cover
         return out

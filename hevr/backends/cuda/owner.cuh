@@ -1,5 +1,6 @@
 /*
- * hevr — owner-side encryption as a kernel: one ciphertext per thread (issue 26).
+ * hevr — the key holder's operations as kernels, one value per thread (issue 26): owner-side
+ * encryption and CRT decryption.
  *
  * The CPU path of hevr/crypto/owner.py, per value (its module docstring proves the distribution):
  *   mask_p = G_p^a mod p²,  mask_q = G_q^b mod q²       a, b uniform in [0, p−1), [0, q−1), drawn on the
@@ -11,6 +12,11 @@
  * 2^w entries of nl limbs): G^a = Π_i T[i][digit_i(a)], one CIOS product per non-zero w-bit digit. The
  * tables come from the same OwnerEncryptor as the CPU path's, so both draw from one distribution; the
  * ciphertexts differ only by the randomness. Output: c in normal form, NL limbs (n² of the key).
+ *
+ * CRT decryption (hevr/crypto/paillier.py raw_decrypt_crt), per ciphertext c < n²:
+ *   x   = c mod p²                                     Horner over chunks of c, in Montgomery form
+ *   m_p = L_p(x^(p−1) mod p²)·h_p mod p,  L_p(y) = (y − 1)/p   the division exact: (y − 1)·p^-1 mod 2^(32k)
+ *   m_q likewise;  m = m_p + p·((m_q − m_p)·p^-1 mod q)   in [0, n)
  *
  * Everything here but the products is linear-time limb arithmetic on values below p², q² or n².
  */
@@ -113,6 +119,99 @@ HEVR_HD void hevr_owner_encrypt(long long x, const hevr_u32 *a, int ewa, const h
     }
 }
 
+/* ---- CRT decryption ---------------------------------------------------------------------------- */
+
+/* out = c mod P2 in Montgomery form (c: NL limbs, any size): Horner over chunks of nl limbs from the
+ * top, A' = A·R + chunk, i.e. A'·R = mont(A·R, R²) + mont(chunk, R²) mod P2 */
+HEVR_HD void hevr_reduce_mont(const hevr_u32 *c, int NL, const hevr_u32 *P2, const hevr_u32 *R2, hevr_u32 ninv,
+                              int nl, hevr_u32 *out, hevr_u32 *chunk, hevr_u32 *t)
+{
+    for (int j = 0; j < nl; j++) out[j] = 0;
+    int chunks = (NL + nl - 1) / nl;
+    for (int k = chunks - 1; k >= 0; k--) {
+        for (int j = 0; j < nl; j++) chunk[j] = k * nl + j < NL ? c[k * nl + j] : 0;
+        hevr_mont_mul(out, R2, P2, ninv, nl, t, out);
+        hevr_mont_mul(chunk, R2, P2, ninv, nl, t, chunk);
+        hevr_u64 s = 0;
+        for (int j = 0; j < nl; j++) { s += (hevr_u64)out[j] + chunk[j]; out[j] = (hevr_u32)s; s >>= 32; }
+        if (s || hevr_geq(out, P2, nl)) hevr_sub_in(out, P2, nl);
+    }
+}
+
+/* one prime: out = L_p((c mod p²)^(p−1) mod p²)·h_p mod p, k limbs (normal form) */
+HEVR_HD void hevr_decrypt_half(const hevr_u32 *c, int NL, const hevr_u32 *P2, const hevr_u32 *one2,
+                               const hevr_u32 *R2, hevr_u32 ninv2, int nl2, const hevr_u32 *E, int ew,
+                               const hevr_u32 *P, const hevr_u32 *PINV, const hevr_u32 *HR, hevr_u32 ninvp, int k,
+                               hevr_u32 *out, hevr_u32 *x, hevr_u32 *y, hevr_u32 *t)
+{
+    hevr_reduce_mont(c, NL, P2, R2, ninv2, nl2, x, y, t);
+    int top = 0; /* y = x^E, left-to-right binary, in Montgomery form */
+    for (int i = 32 * ew - 1; i >= 0 && !top; i--) if (E[i >> 5] >> (i & 31) & 1u) top = i + 1;
+    for (int j = 0; j < nl2; j++) y[j] = top ? x[j] : one2[j];
+    for (int i = top - 2; i >= 0; i--) {
+        hevr_mont_mul(y, y, P2, ninv2, nl2, t, y);
+        if (E[i >> 5] >> (i & 31) & 1u) hevr_mont_mul(y, x, P2, ninv2, nl2, t, y);
+    }
+    for (int j = 0; j < nl2; j++) x[j] = j == 0;          /* leave Montgomery form: y·1·R^-1 */
+    hevr_mont_mul(y, x, P2, ninv2, nl2, t, y);
+    hevr_u64 borrow = 1;                                   /* y − 1 (y ≡ 1 mod p, so y >= 1) */
+    for (int j = 0; j < nl2; j++) { hevr_u64 d = (hevr_u64)y[j] - borrow; y[j] = (hevr_u32)d; borrow = (d >> 63) & 1; }
+    for (int j = 0; j < k; j++) {                          /* L = (y − 1)·p^-1 mod 2^(32k): exact, L < p */
+        hevr_u64 cy = 0;
+        for (int i = 0; i + j < k; i++) {
+            cy += (hevr_u64)y[j] * PINV[i] + (j == 0 ? 0 : out[i + j]);
+            out[i + j] = (hevr_u32)cy;
+            cy >>= 32;
+        }
+    }
+    hevr_mont_mul(out, HR, P, ninvp, k, t, out);          /* L·h_p mod p (HR = h_p·R mod p) */
+}
+
+HEVR_HD void hevr_decrypt(const hevr_u32 *c, int NL,
+                          const hevr_u32 *P2, const hevr_u32 *one2p, const hevr_u32 *R2p, hevr_u32 ninv2p, int nl2p,
+                          const hevr_u32 *Ep, int ewp, const hevr_u32 *P, const hevr_u32 *PINVp, const hevr_u32 *HRp,
+                          hevr_u32 ninvp, int kp,
+                          const hevr_u32 *Q2, const hevr_u32 *one2q, const hevr_u32 *R2q, hevr_u32 ninv2q, int nl2q,
+                          const hevr_u32 *Eq, int ewq, const hevr_u32 *Q, const hevr_u32 *PINVq, const hevr_u32 *HRq,
+                          hevr_u32 ninvq, int kq, const hevr_u32 *PIQR, int nlo, hevr_u32 *out)
+{
+    hevr_u32 mp[HEVR_MAX_LIMBS], mq[HEVR_MAX_LIMBS], x[HEVR_MAX_LIMBS], y[HEVR_MAX_LIMBS];
+    hevr_u32 t[HEVR_MAX_LIMBS + 2];
+    hevr_decrypt_half(c, NL, P2, one2p, R2p, ninv2p, nl2p, Ep, ewp, P, PINVp, HRp, ninvp, kp, mp, x, y, t);
+    hevr_decrypt_half(c, NL, Q2, one2q, R2q, ninv2q, nl2q, Eq, ewq, Q, PINVq, HRq, ninvq, kq, mq, x, y, t);
+    int L = kp > kq ? kp : kq;                             /* d = (m_q − m_p mod q): m_p < p may exceed q */
+    for (int j = 0; j < L; j++) { x[j] = j < kp ? mp[j] : 0; y[j] = j < kq ? Q[j] : 0; }
+    while (hevr_geq(x, y, L)) hevr_sub_in(x, y, L);
+    for (int j = kq; j < L; j++) mq[j] = 0;
+    if (hevr_geq(mq, x, L)) {
+        hevr_sub_in(mq, x, L);
+    } else {                                               /* m_q + q − m_p */
+        hevr_sub_in(y, x, L);
+        hevr_u64 s = 0;
+        for (int j = 0; j < L; j++) { s += (hevr_u64)mq[j] + y[j]; mq[j] = (hevr_u32)s; s >>= 32; }
+    }
+    hevr_mont_mul(mq, PIQR, Q, ninvq, kq, t, mq);          /* h = d·p^-1 mod q (PIQR = p^-1·R mod q) */
+    for (int j = 0; j < nlo; j++) out[j] = j < kp ? mp[j] : 0;  /* m = m_p + p·h < n */
+    for (int i = 0; i < kq; i++) {
+        hevr_u64 s = 0;
+        for (int j = 0; j < kp && i + j < nlo; j++) {
+            s += (hevr_u64)mq[i] * P[j] + out[i + j];
+            out[i + j] = (hevr_u32)s;
+            s >>= 32;
+        }
+        for (int j = i + kp; s && j < nlo; j++) { s += out[j]; out[j] = (hevr_u32)s; s >>= 32; }
+    }
+}
+
+#define HEVR_DECRYPT_ARGS const hevr_u32 *c, int NL, \
+    const hevr_u32 *P2, const hevr_u32 *one2p, const hevr_u32 *R2p, hevr_u32 ninv2p, int nl2p, const hevr_u32 *Ep, \
+    int ewp, const hevr_u32 *P, const hevr_u32 *PINVp, const hevr_u32 *HRp, hevr_u32 ninvp, int kp, \
+    const hevr_u32 *Q2, const hevr_u32 *one2q, const hevr_u32 *R2q, hevr_u32 ninv2q, int nl2q, const hevr_u32 *Eq, \
+    int ewq, const hevr_u32 *Q, const hevr_u32 *PINVq, const hevr_u32 *HRq, hevr_u32 ninvq, int kq, \
+    const hevr_u32 *PIQR, int nlo, long long count, hevr_u32 *out
+#define HEVR_DECRYPT_CALL(k) hevr_decrypt(c + (k) * NL, NL, P2, one2p, R2p, ninv2p, nl2p, Ep, ewp, P, PINVp, HRp, \
+    ninvp, kp, Q2, one2q, R2q, ninv2q, nl2q, Eq, ewq, Q, PINVq, HRq, ninvq, kq, PIQR, nlo, out + (k) * nlo)
+
 #if defined(__CUDACC__) || defined(__CUDACC_RTC__)
 extern "C" __global__ void k_owner_encrypt(const long long *x, const hevr_u32 *a, int ewa, const hevr_u32 *b,
                                            int ewb, const hevr_u32 *Tp, int rows_p, int wp, const hevr_u32 *P2,
@@ -126,6 +225,13 @@ extern "C" __global__ void k_owner_encrypt(const long long *x, const hevr_u32 *a
     hevr_owner_encrypt(x[k], a + k * ewa, ewa, b + k * ewb, ewb, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp,
                        Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INVR, NL, out + k * NL);
 }
+
+extern "C" __global__ void k_decrypt(HEVR_DECRYPT_ARGS)
+{
+    long long k = (long long)blockIdx.x * blockDim.x + threadIdx.x;
+    if (k >= count) return;
+    HEVR_DECRYPT_CALL(k);
+}
 #else
 int hevr_owner_encrypt_host(const long long *x, const hevr_u32 *a, int ewa, const hevr_u32 *b, int ewb,
                             const hevr_u32 *Tp, int rows_p, int wp, const hevr_u32 *P2, const hevr_u32 *onep,
@@ -138,6 +244,13 @@ int hevr_owner_encrypt_host(const long long *x, const hevr_u32 *a, int ewa, cons
     for (long long k = 0; k < count; k++)
         hevr_owner_encrypt(x[k], a + k * ewa, ewa, b + k * ewb, ewb, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp,
                            Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INVR, NL, out + k * NL);
+    return 0;
+}
+
+int hevr_decrypt_host(HEVR_DECRYPT_ARGS)
+{
+    if (nl2p > HEVR_MAX_LIMBS || nl2q > HEVR_MAX_LIMBS || NL > 2 * HEVR_MAX_LIMBS || nlo > HEVR_MAX_LIMBS) return -1;
+    for (long long k = 0; k < count; k++) HEVR_DECRYPT_CALL(k);
     return 0;
 }
 #endif

@@ -25,12 +25,15 @@ from typing import Any
 
 import numpy as np
 
-from .host import to_limbs
+from ...crypto.paillier import raw_encode_signed
+from .host import from_limbs, to_limbs
 from .residues import Modulus
 
-__all__ = ["OwnerTables", "owner_limbs", "owner_tables", "random_below"]
+__all__ = ["DecryptTables", "OwnerTables", "decrypt_limbs", "decrypt_tables", "owner_limbs", "owner_tables",
+           "random_below"]
 
 _CACHE: dict[int, OwnerTables] = {}
+_DCACHE: dict[int, DecryptTables] = {}
 _LOCK = threading.Lock()
 
 
@@ -135,5 +138,68 @@ def owner_limbs(launcher: Any, key: Any, mantissas: Any) -> np.ndarray | None:
     if tables is None:
         return None
     x = np.ascontiguousarray(x.reshape(-1), dtype=np.int64)
+    if x.size:  # the CPU path's rule, and its error, for the largest magnitudes (|x| < n // 3)
+        for v in (int(x.min()), int(x.max())):
+            raw_encode_signed(v, key.public_key.n)
     a, b = random_below(tables.p.bound, x.size), random_below(tables.q.bound, x.size)
     return launcher.owner_encrypt(x, a, b, tables)
+
+
+@dataclass
+class DecryptHalf:
+    """One prime of CRT decryption: its square ``P2`` and the prime ``P`` (Montgomery constants),
+    the exponent ``E`` = p − 1 as words, ``PINV`` = p^-1 mod 2^(32k) (the exact division by p),
+    ``HR`` = h_p·R mod p."""
+
+    P2: Modulus
+    P: Modulus
+    E: np.ndarray
+    PINV: np.ndarray
+    HR: np.ndarray
+
+
+@dataclass
+class DecryptTables:
+    """Both primes, ``PIQR`` = (p^-1 mod q)·R mod q, ``NL`` limbs of n², ``nlo`` limbs of n."""
+
+    p: DecryptHalf
+    q: DecryptHalf
+    PIQR: np.ndarray
+    NL: int
+    nlo: int
+    device: dict = field(default_factory=dict)
+
+
+def decrypt_tables(key: Any) -> DecryptTables:
+    """The CRT constants of a :class:`hevr.PrivateKey` as limbs (cached per key and process)."""
+    n = int(key.public_key.n)
+    with _LOCK:
+        got = _DCACHE.get(n)
+    if got is not None:
+        return got
+    p, q, hp, hq, piq = (int(v) for v in key.crt_constants())
+    halves = []
+    for prime, h in ((p, hp), (q, hq)):
+        P2, P = Modulus(prime * prime), Modulus(prime)
+        k = P.nl
+        E = to_limbs([prime - 1], -(-(prime - 1).bit_length() // 32))[0]
+        PINV = to_limbs([pow(prime, -1, 1 << (32 * k))], k)[0]
+        HR = to_limbs([h * (1 << (32 * k)) % prime], k)[0]
+        halves.append(DecryptHalf(P2, P, E, PINV, HR))
+    Q = halves[1].P
+    tables = DecryptTables(halves[0], halves[1], to_limbs([piq * (1 << (32 * Q.nl)) % q], Q.nl)[0],
+                           -(-(n * n).bit_length() // 32), -(-n.bit_length() // 32))
+    with _LOCK:
+        while len(_DCACHE) >= 2:
+            _DCACHE.pop(next(iter(_DCACHE)))
+        _DCACHE[n] = tables
+    return tables
+
+
+def decrypt_limbs(launcher: Any, key: Any, limbs: np.ndarray) -> list[int]:
+    """Residues ``m`` in ``[0, n)`` of normal-form ciphertext limbs ``(m, NL)`` (CRT, ``owner.cuh``)."""
+    tables = decrypt_tables(key)
+    c = np.zeros((limbs.shape[0], tables.NL), np.uint32)
+    w = min(limbs.shape[1], tables.NL)
+    c[:, :w] = limbs[:, :w]
+    return from_limbs(launcher.decrypt(c, tables))
