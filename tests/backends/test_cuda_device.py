@@ -58,7 +58,7 @@ def test_device_source_compiles_with_nvrtc_for_hopper():
     with pytest.raises(RuntimeError, match="NVRTC could not compile"):
         ptx(device_source() + "\nint broken(\n", "compute_90")
     owner_ptx = ptx(owner_source(), "compute_90")
-    assert ".entry k_owner_encrypt(" in owner_ptx and ".entry k_decrypt(" in owner_ptx
+    assert all(f".entry {k}(" in owner_ptx for k in ("k_owner_encrypt", "k_public_encrypt", "k_decrypt"))
 
 
 def test_without_cupy_or_device_the_first_operation_says_what_is_missing(monkeypatch):
@@ -115,7 +115,9 @@ def test_a_render_and_owner_encryption_on_fake_cupy(fake_cuda, tmp_path, keypair
     pub, priv = keypair512
     x = np.array([0, 1, -1, 2**62, -(2**63), 2**63 - 1, 12345, -999], np.int64)
     assert fake_cuda.decrypt(priv, fake_cuda.encrypt(priv, x)) == [int(v) % int(pub.n) for v in x.tolist()]
-    assert fake_cuda._launch._owner_fn.calls == 1 and fake_cuda._launch._decrypt_fn.calls == 1
+    assert fake_cuda.decrypt(priv, fake_cuda.encrypt(pub, x)) == [int(v) % int(pub.n) for v in x.tolist()]
+    launched = fake_cuda._launch
+    assert launched._owner_fn.calls == launched._public_fn.calls == 1 and launched._decrypt_fn.calls == 2
     assert {n for n, f in fake_cuda._launch._fns.items() if f.calls} >= {"k_combine", "k_pack", "k_ray_tasks"}
 
 

@@ -363,7 +363,7 @@ def test_render_kernels_compile_for_the_device(tmp_path):
     run = subprocess.run(["nvcc", "-ptx", "-arch=sm_90", "-x", "cu", str(launch_module.OWNER_SOURCE), "-o", str(out)],
                          capture_output=True, text=True, timeout=300, check=False)
     assert run.returncode == 0, run.stderr[-2000:]
-    assert ".entry k_owner_encrypt(" in out.read_text() and ".entry k_decrypt(" in out.read_text()
+    assert all(f".entry {k}(" in out.read_text() for k in ("k_owner_encrypt", "k_public_encrypt", "k_decrypt"))
 
 
 def test_concat_keeps_one_form():

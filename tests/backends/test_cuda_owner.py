@@ -149,3 +149,20 @@ def test_crt_decryption_at_2048_bits(keypair2048):
     vals = [1, n2 - 1] + [secrets.randbelow(n2 - 1) + 1 for _ in range(20)]
     rec = CPU.to_bytes(vals, 512)
     assert BE.decrypt(priv, BE.from_bytes(rec)) == CPU.decrypt(priv, CPU.from_bytes(rec))
+
+
+@pytest.mark.parametrize("bits", [64, 256, 512])
+def test_public_key_encryption_decrypts_exactly_with_fresh_nth_residue_masks(bits):
+    pub, priv = _key(bits)
+    x = np.concatenate([_edges(pub), np.zeros(50, np.int64)])
+    cts = BE.encrypt(pub, x)
+    assert isinstance(cts, LimbBatch) and BE.decrypt(priv, cts) == [int(v) % int(pub.n) for v in x.tolist()]
+    n, n2, lam = mpz(pub.n), mpz(pub.nsquare), (priv.p - 1) * (priv.q - 1)
+    W = 2 * ((int(n).bit_length() + 7) // 8)
+    zeros = [int(v) for v in CPU.from_bytes(BE.to_bytes(cts, W))[-50:]]  # the encryptions of 0: r^n
+    assert all(gmpy2.powmod(c, lam, n2) == 1 and gmpy2.gcd(c, n) == 1 for c in zeros)  # E(0) = r^n: n-th residues
+    assert len(set(zeros)) == 50
+    lim = int(pub.n) // 3 - 1
+    if lim < 2**63 - 1:
+        with pytest.raises(hevr.PlaintextOverflowError):
+            BE.encrypt(pub, np.array([lim + 1], np.int64))

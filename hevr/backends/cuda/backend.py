@@ -22,10 +22,10 @@ Where each operation runs
 ``pack``                       kernel: one item per packed ciphertext (Horner with interleaved
                                square-and-multiply); the two offset factors ``g^(O·Σ_j B^j)`` are
                                made once per call in Python
-``encrypt``                    kernel (``owner.cuh``, :mod:`~hevr.backends.cuda.owner`) with a private
-                               key: the owner path's fixed-base masks and CRT, one ciphertext per item;
-                               a public key, ``unsafe_no_obfuscation`` or mantissas beyond int64:
-                               :class:`~hevr.backends.cpu.CpuBackend` (gmpy2)
+``encrypt``                    kernels (``owner.cuh``, :mod:`~hevr.backends.cuda.owner`), one ciphertext
+                               per item: with a private key the owner path's fixed-base masks and CRT,
+                               with a public key ``(1 + x·n)·r^n``; ``unsafe_no_obfuscation`` or
+                               mantissas beyond int64: :class:`~hevr.backends.cpu.CpuBackend` (gmpy2)
 ``decrypt``                    kernel (``owner.cuh``): CRT decryption, one ciphertext per item (the
                                caller checks the range first, as for every backend)
 =============================  ===================================================================
@@ -59,7 +59,7 @@ from ..cpu import CpuBackend
 from .device import CupyLauncher
 from .host import MAX_LIMBS
 from .launch import HostLauncher, Launcher
-from .owner import decrypt_limbs, owner_limbs
+from .owner import decrypt_limbs, owner_limbs, public_limbs
 from .residues import LimbBatch, Modulus, exponent_words, limbs_of, plan_tables
 
 __all__ = ["CudaBackend", "CudaHostBackend", "KernelBackend"]
@@ -215,8 +215,8 @@ class KernelBackend(Backend):
 
     # -- encryption and decryption: the CPU backend's, through records ------------------------------
     def encrypt(self, key: Any, mantissas, *, unsafe_no_obfuscation: bool = False) -> LimbBatch:
-        if not unsafe_no_obfuscation and isinstance(key, PrivateKey):  # the owner path in a kernel (owner.py)
-            limbs = owner_limbs(self._launch, key, mantissas)
+        if not unsafe_no_obfuscation:  # in a kernel (owner.py): the owner path, or r^n with a public key
+            limbs = (owner_limbs if isinstance(key, PrivateKey) else public_limbs)(self._launch, key, mantissas)
             if limbs is not None:
                 return LimbBatch(limbs)
         cts = _CPU.encrypt(key, mantissas, unsafe_no_obfuscation=unsafe_no_obfuscation)

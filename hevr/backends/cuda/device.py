@@ -87,6 +87,7 @@ class CupyLauncher(Launcher):
         self._fns: dict[str, Any] = {}
         self._owner_fn: Any = None
         self._decrypt_fn: Any = None
+        self._public_fn: Any = None
 
     def __reduce__(self):
         return (CupyLauncher, (self._device,))
@@ -230,6 +231,19 @@ class CupyLauncher(Launcher):
         if self._owner_fn is None:
             mod = self.cp.RawModule(code=owner_source(), options=("--std=c++11",), backend="nvrtc")
             self._owner_fn, self._decrypt_fn = mod.get_function("k_owner_encrypt"), mod.get_function("k_decrypt")
+            self._public_fn = mod.get_function("k_public_encrypt")
+
+    def public_encrypt(self, x, r, n, M):
+        cp = self.cp
+        self._owner_module()
+        m = int(np.asarray(x).size)
+        out = cp.empty((max(m, 1), M.nl), cp.uint32)
+        if m:
+            nd = self._dev(n, np.uint32)
+            self._public_fn(((m + BLOCK - 1) // BLOCK,), (BLOCK,), (
+                self._dev(x, np.int64), self._dev(r, np.uint32), nd, _i32(nd.shape[0]), self._dev(M.limbs, np.uint32),
+                self._dev(M.one, np.uint32), self._dev(M.r2, np.uint32), np.uint32(M.ninv), _i32(M.nl), _i64(m), out))
+        return out[:m].get()
 
     def decrypt(self, c, tables):
         cp = self.cp

@@ -57,6 +57,7 @@ _HALF = [_P, _I, _I, _P, _P, _U32, _I, _P]  # T, rows, w, P, one, ninv, nl, NR
 _OWNER_SIGNATURE = [_P, _P, _I, _P, _I, *_HALF, *_HALF, _P, _I, _LL, _P]
 _DHALF = [_P, _P, _P, _U32, _I, _P, _I, _P, _P, _P, _U32, _I]  # P2, one2, R2, ninv2, nl2, E, ew, P, PINV, HR, ninv, k
 _DECRYPT_SIGNATURE = [_P, _I, *_DHALF, *_DHALF, _P, _I, _LL, _P]
+_PUBLIC_SIGNATURE = [_P, _P, _P, _I, _P, _P, _P, _U32, _I, _LL, _P]  # x, r, n, k, N, one, R2, ninv, NL, count, out
 
 
 def decrypt_args(c: Any, tables: Any, pointer: Any, i32: Any, u32: Any, i64: Any) -> list:
@@ -130,6 +131,11 @@ class Launcher:
         (``owner.cuh``; ``tables``: :class:`~hevr.backends.cuda.owner.OwnerTables`)."""
         raise NotImplementedError
 
+    def public_encrypt(self, x: np.ndarray, r: np.ndarray, n: np.ndarray, M: Modulus) -> np.ndarray:
+        """``(m, M.nl)`` normal-form ciphertexts ``(1 + x·n)·r^n mod n²`` (``M`` the modulus n², ``n``
+        and each row of ``r`` as ``n``'s limbs; ``owner.cuh``)."""
+        raise NotImplementedError
+
     def decrypt(self, c: np.ndarray, tables: Any) -> np.ndarray:
         """``(m, nlo)`` limbs of the residues in ``[0, n)`` of normal-form ciphertexts ``c`` ``(m, NL)``
         (``owner.cuh``; ``tables``: :class:`~hevr.backends.cuda.owner.DecryptTables`)."""
@@ -169,6 +175,8 @@ class HostLauncher(Launcher):
             dll = build_library(OWNER_SOURCE, (MONT_SOURCE,), self._compiler)
             dll.hevr_owner_encrypt_host.argtypes, dll.hevr_owner_encrypt_host.restype = _OWNER_SIGNATURE, ctypes.c_int
             dll.hevr_decrypt_host.argtypes, dll.hevr_decrypt_host.restype = _DECRYPT_SIGNATURE, ctypes.c_int
+            dll.hevr_public_encrypt_host.argtypes = _PUBLIC_SIGNATURE
+            dll.hevr_public_encrypt_host.restype = ctypes.c_int
             self._owner_dll = dll
         return self._owner_dll
 
@@ -179,6 +187,15 @@ class HostLauncher(Launcher):
         args = decrypt_args(c, tables, _p, ident, ident, ident)
         if self.owner_lib.hevr_decrypt_host(*args, _p(out)) != 0:  # pragma: no cover - limbs bounded by Modulus
             raise ParameterError("nl: the decryption kernel refused the limb counts")
+        return out
+
+    def public_encrypt(self, x, r, n, M):
+        x, r = np.ascontiguousarray(x, dtype=np.int64), np.ascontiguousarray(r, dtype=np.uint32)
+        n = np.ascontiguousarray(n, dtype=np.uint32)
+        out = np.empty((x.size, M.nl), np.uint32)
+        if self.owner_lib.hevr_public_encrypt_host(_p(x), _p(r), _p(n), n.size, _p(M.limbs), _p(M.one), _p(M.r2),
+                                                   M.ninv, M.nl, x.size, _p(out)) != 0:
+            raise ParameterError("nl: the encryption kernel refused the limb counts")  # pragma: no cover
         return out
 
     def owner_encrypt(self, x, a, b, tables):

@@ -1,6 +1,6 @@
 /*
- * hevr — the key holder's operations as kernels, one value per thread (issue 26): owner-side
- * encryption and CRT decryption.
+ * hevr — encryption and decryption as kernels, one value per thread (issue 26): owner-side and
+ * public-key encryption, CRT decryption.
  *
  * The CPU path of hevr/crypto/owner.py, per value (its module docstring proves the distribution):
  *   mask_p = G_p^a mod p²,  mask_q = G_q^b mod q²       a, b uniform in [0, p−1), [0, q−1), drawn on the
@@ -12,6 +12,10 @@
  * 2^w entries of nl limbs): G^a = Π_i T[i][digit_i(a)], one CIOS product per non-zero w-bit digit. The
  * tables come from the same OwnerEncryptor as the CPU path's, so both draw from one distribution; the
  * ciphertexts differ only by the randomness. Output: c in normal form, NL limbs (n² of the key).
+ *
+ * Public-key encryption (hevr/crypto/keys.py PublicKey.encrypt): c = (1 + x·n)·r^n mod n², r uniform in
+ * Z_n^* drawn on the host (os.urandom, gcd checked there); r^n by left-to-right binary powering mod n² in
+ * Montgomery form; 1 + x·n < n² needs no reduction (|x| < n/3), a negative x is n² − |x|·n + 1.
  *
  * CRT decryption (hevr/crypto/paillier.py raw_decrypt_crt), per ciphertext c < n²:
  *   x   = c mod p²                                     Horner over chunks of c, in Montgomery form
@@ -117,6 +121,47 @@ HEVR_HD void hevr_owner_encrypt(long long x, const hevr_u32 *a, int ewa, const h
         }
         for (int k = i + nlq; c && k < NL; k++) { c += out[k]; out[k] = (hevr_u32)c; c >>= 32; }
     }
+}
+
+/* ---- public-key encryption ---------------------------------------------------------------------- */
+
+/* out = (1 + x·n)·r^n mod N (N = n², NL limbs; n: k limbs; NR2 = R² mod N): normal form */
+HEVR_HD void hevr_public_encrypt(long long x, const hevr_u32 *r, const hevr_u32 *n, int k, const hevr_u32 *N,
+                                 const hevr_u32 *one, const hevr_u32 *R2, hevr_u32 ninv, int NL, hevr_u32 *out)
+{
+    hevr_u32 base[HEVR_MAX_LIMBS], acc[HEVR_MAX_LIMBS], y[HEVR_MAX_LIMBS], t[HEVR_MAX_LIMBS + 2];
+    for (int j = 0; j < NL; j++) y[j] = j < k ? r[j] : 0;
+    hevr_mont_mul(y, R2, N, ninv, NL, t, base);            /* r·R mod N */
+    int top = 0;
+    for (int i = 32 * k - 1; i >= 0 && !top; i--) if (n[i >> 5] >> (i & 31) & 1u) top = i + 1;
+    for (int j = 0; j < NL; j++) acc[j] = top ? base[j] : one[j];
+    for (int i = top - 2; i >= 0; i--) {
+        hevr_mont_mul(acc, acc, N, ninv, NL, t, acc);
+        if (n[i >> 5] >> (i & 31) & 1u) hevr_mont_mul(acc, base, N, ninv, NL, t, acc);
+    }
+    hevr_u64 ax = x < 0 ? (hevr_u64)(-(x + 1)) + 1 : (hevr_u64)x;   /* y = |x|·n (< n²), then 1 ± y */
+    for (int j = 0; j < NL; j++) y[j] = 0;
+    hevr_u32 xs[2] = {(hevr_u32)ax, (hevr_u32)(ax >> 32)};
+    for (int i = 0; i < 2; i++) {
+        hevr_u64 c = 0;
+        for (int j = 0; j < k && i + j < NL; j++) {
+            c += (hevr_u64)xs[i] * n[j] + y[i + j];
+            y[i + j] = (hevr_u32)c;
+            c >>= 32;
+        }
+        for (int j = i + k; c && j < NL; j++) { c += y[j]; y[j] = (hevr_u32)c; c >>= 32; }
+    }
+    int zero = 1;
+    for (int j = 0; j < NL; j++) zero &= y[j] == 0;
+    if (x < 0 && !zero) {
+        for (int j = 0; j < NL; j++) t[j] = N[j];
+        hevr_sub_in(t, y, NL);
+        for (int j = 0; j < NL; j++) y[j] = t[j];
+    }
+    hevr_u64 c = 1;
+    for (int j = 0; j < NL; j++) { c += y[j]; y[j] = (hevr_u32)c; c >>= 32; }
+    if (hevr_geq(y, N, NL)) hevr_sub_in(y, N, NL);
+    hevr_mont_mul(y, acc, N, ninv, NL, t, out);            /* y·r^n·R·R^-1: normal form */
 }
 
 /* ---- CRT decryption ---------------------------------------------------------------------------- */
@@ -226,6 +271,15 @@ extern "C" __global__ void k_owner_encrypt(const long long *x, const hevr_u32 *a
                        Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INVR, NL, out + k * NL);
 }
 
+extern "C" __global__ void k_public_encrypt(const long long *x, const hevr_u32 *r, const hevr_u32 *n, int k,
+                                            const hevr_u32 *N, const hevr_u32 *one, const hevr_u32 *R2,
+                                            hevr_u32 ninv, int NL, long long count, hevr_u32 *out)
+{
+    long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
+    if (i >= count) return;
+    hevr_public_encrypt(x[i], r + i * k, n, k, N, one, R2, ninv, NL, out + i * NL);
+}
+
 extern "C" __global__ void k_decrypt(HEVR_DECRYPT_ARGS)
 {
     long long k = (long long)blockIdx.x * blockDim.x + threadIdx.x;
@@ -244,6 +298,16 @@ int hevr_owner_encrypt_host(const long long *x, const hevr_u32 *a, int ewa, cons
     for (long long k = 0; k < count; k++)
         hevr_owner_encrypt(x[k], a + k * ewa, ewa, b + k * ewb, ewb, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp,
                            Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INVR, NL, out + k * NL);
+    return 0;
+}
+
+int hevr_public_encrypt_host(const long long *x, const hevr_u32 *r, const hevr_u32 *n, int k, const hevr_u32 *N,
+                             const hevr_u32 *one, const hevr_u32 *R2, hevr_u32 ninv, int NL, long long count,
+                             hevr_u32 *out)
+{
+    if (NL > HEVR_MAX_LIMBS || k > NL) return -1;
+    for (long long i = 0; i < count; i++)
+        hevr_public_encrypt(x[i], r + i * k, n, k, N, one, R2, ninv, NL, out + i * NL);
     return 0;
 }
 

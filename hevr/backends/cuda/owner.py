@@ -30,7 +30,7 @@ from .host import from_limbs, to_limbs
 from .residues import Modulus
 
 __all__ = ["DecryptTables", "OwnerTables", "decrypt_limbs", "decrypt_tables", "owner_limbs", "owner_tables",
-           "random_below"]
+           "public_limbs", "random_below"]
 
 _CACHE: dict[int, OwnerTables] = {}
 _DCACHE: dict[int, DecryptTables] = {}
@@ -203,3 +203,26 @@ def decrypt_limbs(launcher: Any, key: Any, limbs: np.ndarray) -> list[int]:
     w = min(limbs.shape[1], tables.NL)
     c[:, :w] = limbs[:, :w]
     return from_limbs(launcher.decrypt(c, tables))
+
+
+def public_limbs(launcher: Any, key: Any, mantissas: Any) -> np.ndarray | None:
+    """Ciphertexts of ``mantissas`` under the public ``key`` as ``(m, NL)`` normal-form limbs —
+    ``(1 + x·n)·r^n mod n²``, ``r`` uniform in ``Z_n^*`` from :func:`os.urandom` (``r = 0`` and
+    ``gcd(r, n) ≠ 1`` redrawn, as :class:`hevr.PublicKey` does) — or None where the kernel path
+    does not apply (mantissas beyond int64): the caller encrypts on the CPU."""
+    x = np.asarray(mantissas)
+    if x.dtype.kind not in "iu" or (x.dtype.kind == "u" and x.size and int(x.max()) >= 1 << 63):
+        return None
+    x = np.ascontiguousarray(x.reshape(-1), dtype=np.int64)
+    n = int(key.n)
+    if x.size:
+        for v in (int(x.min()), int(x.max())):
+            raw_encode_signed(v, key.n)
+    r = random_below(n, x.size)
+    k = -(-n.bit_length() // 32)
+    r = np.pad(r, ((0, 0), (0, k - r.shape[1]))) if r.shape[1] < k else r
+    for i, v in enumerate(from_limbs(r)):  # redraw r = 0 or gcd(r, n) ≠ 1 (about 2/sqrt(n) per value)
+        while v == 0 or math.gcd(v, n) != 1:
+            v = from_limbs(random_below(n, 1))[0]
+            r[i] = to_limbs([v], k)[0]
+    return launcher.public_encrypt(x, np.ascontiguousarray(r), to_limbs([n], k)[0], Modulus(n * n))
