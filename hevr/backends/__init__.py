@@ -6,7 +6,7 @@ merging partial sums, finishing and packing, batch decryption — goes through o
 :mod:`hevr.backends.base`). ``cpu`` (gmpy2, :mod:`hevr.backends.cpu`) is the reference, and the
 default's choice (``"auto"``, below) for keys of 256 bits and more. ``cuda-host`` (:mod:`hevr.backends.cuda.backend`) runs the CUDA backend's kernels,
 compiled for the host with the C compiler on first use, on the CPU: bit-identical to ``cpu``, for
-tests and for checking a machine (encryption and decryption still delegate to ``cpu``). ``cuda``
+tests and for checking a machine (encryption and decryption included: ``owner.cuh``). ``cuda``
 runs the same kernels on an NVIDIA GPU through CuPy (:mod:`hevr.backends.cuda.device`; ``pip install
 'hevr[gpu]'``), bit-identical too; without CuPy or a device its first operation raises
 :class:`hevr.MissingDependencyError`.
