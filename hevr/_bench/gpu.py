@@ -115,7 +115,7 @@ def identity(be: Any, quick: bool) -> list[dict]:
     return out
 
 
-def render_identity(be_name: str, size: int, bits: int, work: Path, workers: int = 0) -> list[dict]:
+def render_identity(be_name: str, size: int, bits: int, work: Path | None, workers: int = 0) -> list[dict]:
     """The ``size``³ phantom's renders with ``be_name`` and ``cpu``: identical bytes, within the bound.
 
     With ``workers`` the encryption and the ``cpu`` renders run on a LocalCluster of that many
@@ -125,8 +125,9 @@ def render_identity(be_name: str, size: int, bits: int, work: Path, workers: int
         warnings.simplefilter("ignore", InsecureKeyWarning)
         _, priv = generate_keypair(bits)
     vol = phantom(size)
-    folder = Path(tempfile.mkdtemp(prefix="hevr-gpu-bench-", dir=work))  # never over an earlier run's store
     with contextlib.ExitStack() as stack:
+        # a fresh scratch folder (never over an earlier run's store), removed afterwards
+        folder = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="hevr-gpu-bench-", dir=work)))
         client = None
         if workers:
             cluster = stack.enter_context(LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=None))
@@ -270,9 +271,8 @@ def run_gpu_bench(out: Path, *, backend: str = "cuda", quick: bool = False, work
     ok = all(v for row in res["identity"] for k, v in row.items() if k not in ("bits", "values"))
     log_line(f"operations against cpu: {'identical' if ok else 'MISMATCH'} ({time.perf_counter() - t0:.1f} s)")
     save()
-    work = work or out
     t0 = time.perf_counter()
-    res["render"] = render_identity(backend, 16 if quick else 64, 256 if quick else render_bits, Path(work),
+    res["render"] = render_identity(backend, 16 if quick else 64, 256 if quick else render_bits, work,
                                     0 if quick else min(16, os.cpu_count() or 1))
     rok = all(r["identical"] and r["within_bound"] for r in res["render"])
     log_line(f"renders against cpu: {'identical' if rok else 'MISMATCH'} ({time.perf_counter() - t0:.1f} s)")

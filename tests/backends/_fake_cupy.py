@@ -27,8 +27,8 @@ _SIGS = {**launch._SIGNATURES, "hevr_owner_encrypt_host": launch._OWNER_SIGNATUR
          "hevr_decrypt_host": launch._DECRYPT_SIGNATURE, "hevr_public_encrypt_host": launch._PUBLIC_SIGNATURE}
 # the position of each kernel's item count (what one thread per item covers)
 _COUNT = {"records_to_limbs": 3, "limbs_to_records": 3, "out_of_range": 3, "mont_convert": 5, "ray_powers": 5,
-          "ray_tasks": 2, "segments": 3, "combine": 6, "pack": 7, "owner_encrypt": 23,
-          "decrypt": 28, "public_encrypt": 9}
+          "ray_tasks": 2, "segments": 3, "combine": 6, "pack": 7, "owner_encrypt": 24,
+          "decrypt": 29, "public_encrypt": 9}
 
 
 class FakeArray:

@@ -4,8 +4,10 @@ Owner-side encryption: given the same exponents it makes the CPU path's exact ci
 ciphertexts decrypt exactly (edge mantissas, 64–2048-bit keys); its masks are n-th residues drawn
 uniformly from the right subgroup (a tiny key, every element hit); exponents come uniformly from
 os.urandom; magnitudes the CPU path refuses are refused with its error; what it does not take goes
-the CPU way. CRT decryption: the CPU backend's residues for random values in (0, n²) and for
-encryptions. ``HEVR_TEST_KERNELS=cuda`` runs it on a GPU."""
+the CPU way. CRT decryption: the CPU backend's residues for values in (0, n²) coprime to n (every
+ciphertext is; random values are, but for a chance of about 2/sqrt(n)) and for encryptions.
+Unbalanced primes (p² and q² of different limb counts, p < 2^16) and the secrecy of the tables'
+reprs are checked too. ``HEVR_TEST_KERNELS=cuda`` runs it on a GPU."""
 
 from __future__ import annotations
 
@@ -21,11 +23,13 @@ from gmpy2 import mpz
 
 import hevr
 from hevr.backends import CpuBackend, get_backend
+from hevr.backends.cuda import backend as backend_module
 from hevr.backends.cuda import owner as owner_module
 from hevr.backends.cuda.host import from_limbs
 from hevr.backends.cuda.owner import owner_tables, random_below
 from hevr.backends.cuda.residues import LimbBatch
 from hevr.crypto.owner import OwnerEncryptor
+from hevr.crypto.primes import random_prime_with_factors
 
 KERNELS = os.environ.get("HEVR_TEST_KERNELS", "cuda-host")
 BE, CPU = get_backend(KERNELS), CpuBackend()
@@ -108,12 +112,23 @@ def test_random_exponents_are_uniform_below_the_bound(bound):
     assert len(set(r)) > 2900 or bound < 10_000
 
 
-def test_what_the_kernel_does_not_take_goes_the_cpu_way(keypair256):
+def test_what_the_kernel_does_not_take_goes_the_cpu_way(keypair256, monkeypatch):
     pub, priv = keypair256
+    calls = []
+    for name in ("owner_limbs", "public_limbs"):
+        real = getattr(backend_module, name)
+        monkeypatch.setattr(backend_module, name, lambda *a, _real=real, _name=name: calls.append(_name) or _real(*a))
     big = np.array([2**80, -(2**90), 3], dtype=object)  # beyond int64
-    for key, values, kw in ((priv, big, {}), (pub, EDGES[:4], {}), (priv, EDGES[:4], {"unsafe_no_obfuscation": True})):
+    for key, values, kw, path in ((priv, big, {}, ["owner_limbs"]), (pub, big, {}, ["public_limbs"]),
+                                  (priv, EDGES[:4], {"unsafe_no_obfuscation": True}, []),
+                                  (priv, EDGES[:4], {}, ["owner_limbs"]), (pub, EDGES[:4], {}, ["public_limbs"])):
+        calls.clear()
         cts = BE.encrypt(key, values, **kw)
-        assert BE.decrypt(priv, cts) == [int(v) % int(pub.n) for v in values.tolist()]
+        assert calls == path and BE.decrypt(priv, cts) == [int(v) % int(pub.n) for v in values.tolist()]
+    assert owner_module.public_limbs(BE._launch, pub, big) is None
+    four_k = SimpleNamespace(n=(1 << 4095) + 1, public_key=SimpleNamespace(n=(1 << 4095) + 1))
+    assert owner_module.owner_limbs(BE._launch, four_k, EDGES) is None  # n² beyond the kernels' limbs
+    assert owner_module.public_limbs(BE._launch, four_k, EDGES) is None
     assert owner_module.owner_limbs(BE._launch, priv, big) is None
     assert owner_module.owner_limbs(BE._launch, priv, np.array([2**63], np.uint64)) is None
 
@@ -131,7 +146,7 @@ def test_magnitudes_the_cpu_path_refuses_are_refused_alike():
 
 @pytest.mark.parametrize("bits", [64, 96, 256, 512, 1024])
 def test_crt_decryption_gives_the_cpu_residues(bits):
-    """Any value in (0, n²) — not only encryptions — decrypts to the CPU backend's residue."""
+    """Values in (0, n²) coprime to n — not only encryptions — decrypt to the CPU backend's residues."""
     pub, priv = _key(bits)
     n2 = int(pub.nsquare)
     W = 2 * ((int(pub.n).bit_length() + 7) // 8)
@@ -166,3 +181,34 @@ def test_public_key_encryption_decrypts_exactly_with_fresh_nth_residue_masks(bit
     if lim < 2**63 - 1:
         with pytest.raises(hevr.PlaintextOverflowError):
             BE.encrypt(pub, np.array([lim + 1], np.int64))
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("pbits,qbits", [(16, 24), (20, 40), (32, 64), (33, 95), (60, 68)])
+def test_unbalanced_primes(pbits, qbits):
+    """p² and q² of different limb counts (and p < 2^16: p² in one limb): the kernels reduce with
+    Montgomery steps whatever the sizes — encryption (owner, public key) and decryption agree with
+    the CPU path (a subtraction loop here once ran about q²/p² times)."""
+    p, q = random_prime_with_factors(pbits)[0], random_prime_with_factors(qbits)[0]
+    pub = hevr.PublicKey(int(p * q))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
+        priv = hevr.PrivateKey(pub, int(p), int(q))
+    x = np.concatenate([_edges(pub), np.arange(-20, 20)]).astype(np.int64)
+    want = [int(v) % int(pub.n) for v in x.tolist()]
+    W = 2 * ((int(pub.n).bit_length() + 7) // 8)
+    for key in (priv, pub):
+        cts = BE.encrypt(key, x)
+        assert CPU.decrypt(priv, CPU.from_bytes(BE.to_bytes(cts, W))) == want
+        assert BE.decrypt(priv, cts) == want
+
+
+def test_the_tables_repr_holds_no_secret(keypair256):
+    priv = keypair256[1]
+    p, q, hp, hq, piq = (int(v) for v in priv.crt_constants())
+    texts = [repr(owner_tables(priv, BE._launch)), repr(owner_module.decrypt_tables(priv))]
+    texts += [repr(h) for h in (owner_tables(priv, BE._launch).p, owner_module.decrypt_tables(priv).q)]
+    secrets_ = [p - 1, q - 1, p, q, hp, hq, piq] + [int(w) for w in owner_module.decrypt_tables(priv).p.E]
+    for text in texts:
+        assert "<secret>" in text or "object at" in text
+        assert not any(str(v) in text for v in secrets_ if v > 1000), text

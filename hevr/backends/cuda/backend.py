@@ -228,6 +228,8 @@ class KernelBackend(Backend):
         batch = self._batch(values)
         if not len(batch):
             return []
+        if -(-(int(private_key.public_key.nsquare)).bit_length() // 32) > MAX_LIMBS:  # beyond the kernels: gmpy2
+            return _CPU.decrypt(private_key, _CPU.from_bytes(self.to_bytes(batch, 4 * batch.nl)))
         return decrypt_limbs(self._launch, private_key, self._normal(batch))
 
     # -- rendering -------------------------------------------------------------------------------

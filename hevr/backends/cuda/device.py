@@ -230,8 +230,8 @@ class CupyLauncher(Launcher):
     def _owner_module(self) -> None:
         if self._owner_fn is None:
             mod = self.cp.RawModule(code=owner_source(), options=("--std=c++11",), backend="nvrtc")
-            self._owner_fn, self._decrypt_fn = mod.get_function("k_owner_encrypt"), mod.get_function("k_decrypt")
-            self._public_fn = mod.get_function("k_public_encrypt")
+            fns = [mod.get_function(k) for k in ("k_decrypt", "k_public_encrypt", "k_owner_encrypt")]
+            self._decrypt_fn, self._public_fn, self._owner_fn = fns  # _owner_fn, tested first, set last
 
     def public_encrypt(self, x, r, n, M):
         cp = self.cp
@@ -248,10 +248,11 @@ class CupyLauncher(Launcher):
     def decrypt(self, c, tables):
         cp = self.cp
         self._owner_module()
-        dev = tables.device.get("cupy")
-        if dev is None:  # the CRT constants once per key and process
-            dev = tables.device["cupy"] = {id(a): self._dev(a, np.uint32) for h in (tables.p, tables.q) for a in (
-                h.P2.limbs, h.P2.one, h.P2.r2, h.E, h.P.limbs, h.PINV, h.HR)} | {id(tables.PIQR): self._dev(tables.PIQR, np.uint32)}
+        where = f"cupy-{cp.cuda.Device().id}"  # copies per device
+        dev = tables.device.get(where)
+        if dev is None:  # the CRT constants once per key, process and device
+            dev = tables.device[where] = {id(a): self._dev(a, np.uint32) for h in (tables.p, tables.q) for a in (
+                h.P2.limbs, h.P2.one, h.P2.r2, h.E, h.P.limbs, h.PINV, h.HR, h.P.r2)} | {id(tables.PIQ): self._dev(tables.PIQ, np.uint32)}
         m = int(c.shape[0])
         out = cp.empty((max(m, 1), tables.nlo), cp.uint32)
         if m:
@@ -263,13 +264,14 @@ class CupyLauncher(Launcher):
     def owner_encrypt(self, x, a, b, tables):
         cp = self.cp
         self._owner_module()
-        dev = tables.device.get("cupy")
-        if dev is None:  # the tables once per key and process (secret-derived: freed with the tables)
-            dev = tables.device["cupy"] = {
+        where = f"cupy-{cp.cuda.Device().id}"  # copies per device
+        dev = tables.device.get(where)
+        if dev is None:  # the tables once per key, process and device (secret-derived: freed with the tables)
+            dev = tables.device[where] = {
                 name: self._dev(arr, np.uint32) for name, arr in (
                     ("Tp", tables.p.T), ("Pp", tables.p.P.limbs), ("op", tables.p.P.one), ("NRp", tables.p.NR),
-                    ("Tq", tables.q.T), ("Pq", tables.q.P.limbs), ("oq", tables.q.P.one), ("NRq", tables.q.NR),
-                    ("INVR", tables.INVR))}
+                    ("R2p", tables.p.P.r2), ("Tq", tables.q.T), ("Pq", tables.q.P.limbs), ("oq", tables.q.P.one),
+                    ("NRq", tables.q.NR), ("INV", tables.INV))}
         m = int(np.asarray(x).size)
         out = cp.empty((max(m, 1), tables.NL), cp.uint32)
         ad, bd = self._dev(a, np.uint32), self._dev(b, np.uint32)
@@ -278,6 +280,7 @@ class CupyLauncher(Launcher):
             self._owner_fn(((m + BLOCK - 1) // BLOCK,), (BLOCK,), (
                 self._dev(x, np.int64), ad, _i32(ad.shape[1]), bd, _i32(bd.shape[1]),
                 dev["Tp"], _i32(p.rows), _i32(p.w), dev["Pp"], dev["op"], np.uint32(p.P.ninv), _i32(p.P.nl), dev["NRp"],
+                dev["R2p"],
                 dev["Tq"], _i32(q.rows), _i32(q.w), dev["Pq"], dev["oq"], np.uint32(q.P.ninv), _i32(q.P.nl), dev["NRq"],
-                dev["INVR"], _i32(tables.NL), _i64(m), out))
+                dev["INV"], _i32(tables.NL), _i64(m), out))
         return out[:m].get()

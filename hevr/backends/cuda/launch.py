@@ -54,9 +54,9 @@ _SIGNATURES = {
     "hevr_pack_host": [_P, _P, _I, _LL, _I, _I, _P, _LL, _P, *_MOD],
 }
 _HALF = [_P, _I, _I, _P, _P, _U32, _I, _P]  # T, rows, w, P, one, ninv, nl, NR
-_OWNER_SIGNATURE = [_P, _P, _I, _P, _I, *_HALF, *_HALF, _P, _I, _LL, _P]
+_OWNER_SIGNATURE = [_P, _P, _I, _P, _I, *_HALF, _P, *_HALF, _P, _I, _LL, _P]  # ..., p half, R2p, q half, INV, ...
 _DHALF = [_P, _P, _P, _U32, _I, _P, _I, _P, _P, _P, _U32, _I]  # P2, one2, R2, ninv2, nl2, E, ew, P, PINV, HR, ninv, k
-_DECRYPT_SIGNATURE = [_P, _I, *_DHALF, *_DHALF, _P, _I, _LL, _P]
+_DECRYPT_SIGNATURE = [_P, _I, *_DHALF, *_DHALF, _P, _P, _I, _LL, _P]  # ..., R2Q, PIQ, nlo, count, out
 _PUBLIC_SIGNATURE = [_P, _P, _P, _I, _P, _P, _P, _U32, _I, _LL, _P]  # x, r, n, k, N, one, R2, ninv, NL, count, out
 
 
@@ -68,7 +68,7 @@ def decrypt_args(c: Any, tables: Any, pointer: Any, i32: Any, u32: Any, i64: Any
         args += [pointer(h.P2.limbs), pointer(h.P2.one), pointer(h.P2.r2), u32(h.P2.ninv), i32(h.P2.nl),
                  pointer(h.E), i32(h.E.size), pointer(h.P.limbs), pointer(h.PINV), pointer(h.HR), u32(h.P.ninv),
                  i32(h.P.nl)]
-    return args + [pointer(tables.PIQR), i32(tables.nlo), i64(c.shape[0])]
+    return args + [pointer(tables.q.P.r2), pointer(tables.PIQ), i32(tables.nlo), i64(c.shape[0])]
 
 
 def _p(arr: np.ndarray | None) -> int | None:
@@ -202,10 +202,11 @@ class HostLauncher(Launcher):
         x = np.ascontiguousarray(x, dtype=np.int64)
         a, b = np.ascontiguousarray(a, dtype=np.uint32), np.ascontiguousarray(b, dtype=np.uint32)
         out = np.empty((x.size, tables.NL), np.uint32)
-        halves = [arg for h in (tables.p, tables.q)
-                  for arg in (_p(h.T), h.rows, h.w, _p(h.P.limbs), _p(h.P.one), h.P.ninv, h.P.nl, _p(h.NR))]
-        if self.owner_lib.hevr_owner_encrypt_host(_p(x), _p(a), a.shape[1], _p(b), b.shape[1], *halves,
-                                                   _p(tables.INVR), tables.NL, x.size, _p(out)) != 0:
+        halves = [[_p(h.T), h.rows, h.w, _p(h.P.limbs), _p(h.P.one), h.P.ninv, h.P.nl, _p(h.NR)]
+                  for h in (tables.p, tables.q)]
+        if self.owner_lib.hevr_owner_encrypt_host(_p(x), _p(a), a.shape[1], _p(b), b.shape[1], *halves[0],
+                                                   _p(tables.p.P.r2), *halves[1], _p(tables.INV), tables.NL,
+                                                   x.size, _p(out)) != 0:
             raise ParameterError("nl: the owner kernel refused the limb counts")  # pragma: no cover
         return out
 

@@ -54,6 +54,23 @@ HEVR_HD void hevr_sub_in(hevr_u32 *x, const hevr_u32 *y, int nl)
     }
 }
 
+/* out = c mod P2 in Montgomery form (c: NL limbs, any size): Horner over chunks of nl limbs from the
+ * top, A' = A·R + chunk, i.e. A'·R = mont(A·R, R²) + mont(chunk, R²) mod P2 */
+HEVR_HD void hevr_reduce_mont(const hevr_u32 *c, int NL, const hevr_u32 *P2, const hevr_u32 *R2, hevr_u32 ninv,
+                              int nl, hevr_u32 *out, hevr_u32 *chunk, hevr_u32 *t)
+{
+    for (int j = 0; j < nl; j++) out[j] = 0;
+    int chunks = (NL + nl - 1) / nl;
+    for (int k = chunks - 1; k >= 0; k--) {
+        for (int j = 0; j < nl; j++) chunk[j] = k * nl + j < NL ? c[k * nl + j] : 0;
+        hevr_mont_mul(out, R2, P2, ninv, nl, t, out);
+        hevr_mont_mul(chunk, R2, P2, ninv, nl, t, chunk);
+        hevr_u64 s = 0;
+        for (int j = 0; j < nl; j++) { s += (hevr_u64)out[j] + chunk[j]; out[j] = (hevr_u32)s; s >>= 32; }
+        if (s || hevr_geq(out, P2, nl)) hevr_sub_in(out, P2, nl);
+    }
+}
+
 /* one prime square: out = (1 + x·N)·G^a mod P in normal form; NR = (N mod P)·R mod P (Montgomery form) */
 HEVR_HD void hevr_owner_half(long long x, const hevr_u32 *a, int ew, const hevr_u32 *T, int rows, int w,
                              const hevr_u32 *P, const hevr_u32 *one, hevr_u32 ninv, int nl, const hevr_u32 *NR,
@@ -67,8 +84,12 @@ HEVR_HD void hevr_owner_half(long long x, const hevr_u32 *a, int ew, const hevr_
     /* acc = G^a·R mod P. y = |x|·N mod P (|x| < 2^64 in two limbs; CIOS with NR gives the normal form) */
     hevr_u64 ax = x < 0 ? (hevr_u64)(-(x + 1)) + 1 : (hevr_u64)x;
     for (int j = 0; j < nl; j++) out[j] = 0;
-    out[0] = (hevr_u32)ax;
-    if (nl > 1) out[1] = (hevr_u32)(ax >> 32);
+    if (nl > 1) {
+        out[0] = (hevr_u32)ax;
+        out[1] = (hevr_u32)(ax >> 32);
+    } else {
+        out[0] = (hevr_u32)(ax % P[0]); /* P < 2^32: |x| reduced first (CIOS wants a < 2^(32·nl)) */
+    }
     hevr_mont_mul(out, NR, P, ninv, nl, t, out);
     int zero = 1;
     for (int j = 0; j < nl; j++) zero &= out[j] == 0;
@@ -86,30 +107,28 @@ HEVR_HD void hevr_owner_half(long long x, const hevr_u32 *a, int ew, const hevr_
 /* one ciphertext: the two halves and the CRT; L = max(nlp, nlq) limbs of scratch per buffer */
 HEVR_HD void hevr_owner_encrypt(long long x, const hevr_u32 *a, int ewa, const hevr_u32 *b, int ewb,
                                 const hevr_u32 *Tp, int rows_p, int wp, const hevr_u32 *P2, const hevr_u32 *onep,
-                                hevr_u32 ninvp, int nlp, const hevr_u32 *NRp,
+                                hevr_u32 ninvp, int nlp, const hevr_u32 *NRp, const hevr_u32 *R2p,
                                 const hevr_u32 *Tq, int rows_q, int wq, const hevr_u32 *Q2, const hevr_u32 *oneq,
-                                hevr_u32 ninvq, int nlq, const hevr_u32 *NRq, const hevr_u32 *INVR, int NL,
+                                hevr_u32 ninvq, int nlq, const hevr_u32 *NRq, const hevr_u32 *INV, int NL,
                                 hevr_u32 *out)
 {
     hevr_u32 cp[HEVR_MAX_LIMBS], cq[HEVR_MAX_LIMBS], acc[HEVR_MAX_LIMBS], p2[HEVR_MAX_LIMBS];
     hevr_u32 t[HEVR_MAX_LIMBS + 2];
-    int L = nlp > nlq ? nlp : nlq;
     hevr_owner_half(x, a, ewa, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp, cp, acc, t);
     hevr_owner_half(x, b, ewb, Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, cq, acc, t);
-    for (int j = nlp; j < L; j++) cp[j] = 0;
-    for (int j = nlq; j < L; j++) cq[j] = 0;
-    for (int j = 0; j < L; j++) p2[j] = j < nlp ? P2[j] : 0;
-    /* d = (c_p − c_q mod p²) mod p²: c_q < q² may exceed p² (a few subtractions at most) */
-    for (int j = 0; j < L; j++) acc[j] = cq[j];
-    while (hevr_geq(acc, p2, L)) hevr_sub_in(acc, p2, L);
-    if (hevr_geq(cp, acc, L)) {
-        hevr_sub_in(cp, acc, L);
-    } else { /* c_p + p² − c_q */
-        hevr_sub_in(p2, acc, L);
+    /* h = (c_p − c_q)·(q²)^-1 mod p², in Montgomery steps whatever the sizes of p² and q²: c_q·R mod p²
+     * by Horner over its limbs, c_p·R by one product, their difference d·R, and d·R·INV·R^-1 = d·INV */
+    hevr_reduce_mont(cq, nlq, P2, R2p, ninvp, nlp, acc, p2, t);
+    hevr_mont_mul(cp, R2p, P2, ninvp, nlp, t, cp);
+    if (hevr_geq(cp, acc, nlp)) {
+        hevr_sub_in(cp, acc, nlp);
+    } else { /* c_p·R + p² − c_q·R */
+        for (int j = 0; j < nlp; j++) p2[j] = P2[j];
+        hevr_sub_in(p2, acc, nlp);
         hevr_u64 c = 0;
-        for (int j = 0; j < L; j++) { c += (hevr_u64)cp[j] + p2[j]; cp[j] = (hevr_u32)c; c >>= 32; }
+        for (int j = 0; j < nlp; j++) { c += (hevr_u64)cp[j] + p2[j]; cp[j] = (hevr_u32)c; c >>= 32; }
     }
-    hevr_mont_mul(cp, INVR, P2, ninvp, nlp, t, cp); /* h = d·(q²)^-1 mod p², normal form (INVR carries R) */
+    hevr_mont_mul(cp, INV, P2, ninvp, nlp, t, cp);
     /* out = c_q + q²·h, schoolbook; c < n² fits NL limbs */
     for (int j = 0; j < NL; j++) out[j] = j < nlq ? cq[j] : 0;
     for (int i = 0; i < nlp; i++) {
@@ -166,23 +185,6 @@ HEVR_HD void hevr_public_encrypt(long long x, const hevr_u32 *r, const hevr_u32 
 
 /* ---- CRT decryption ---------------------------------------------------------------------------- */
 
-/* out = c mod P2 in Montgomery form (c: NL limbs, any size): Horner over chunks of nl limbs from the
- * top, A' = A·R + chunk, i.e. A'·R = mont(A·R, R²) + mont(chunk, R²) mod P2 */
-HEVR_HD void hevr_reduce_mont(const hevr_u32 *c, int NL, const hevr_u32 *P2, const hevr_u32 *R2, hevr_u32 ninv,
-                              int nl, hevr_u32 *out, hevr_u32 *chunk, hevr_u32 *t)
-{
-    for (int j = 0; j < nl; j++) out[j] = 0;
-    int chunks = (NL + nl - 1) / nl;
-    for (int k = chunks - 1; k >= 0; k--) {
-        for (int j = 0; j < nl; j++) chunk[j] = k * nl + j < NL ? c[k * nl + j] : 0;
-        hevr_mont_mul(out, R2, P2, ninv, nl, t, out);
-        hevr_mont_mul(chunk, R2, P2, ninv, nl, t, chunk);
-        hevr_u64 s = 0;
-        for (int j = 0; j < nl; j++) { s += (hevr_u64)out[j] + chunk[j]; out[j] = (hevr_u32)s; s >>= 32; }
-        if (s || hevr_geq(out, P2, nl)) hevr_sub_in(out, P2, nl);
-    }
-}
-
 /* one prime: out = L_p((c mod p²)^(p−1) mod p²)·h_p mod p, k limbs (normal form) */
 HEVR_HD void hevr_decrypt_half(const hevr_u32 *c, int NL, const hevr_u32 *P2, const hevr_u32 *one2,
                                const hevr_u32 *R2, hevr_u32 ninv2, int nl2, const hevr_u32 *E, int ew,
@@ -218,24 +220,25 @@ HEVR_HD void hevr_decrypt(const hevr_u32 *c, int NL,
                           hevr_u32 ninvp, int kp,
                           const hevr_u32 *Q2, const hevr_u32 *one2q, const hevr_u32 *R2q, hevr_u32 ninv2q, int nl2q,
                           const hevr_u32 *Eq, int ewq, const hevr_u32 *Q, const hevr_u32 *PINVq, const hevr_u32 *HRq,
-                          hevr_u32 ninvq, int kq, const hevr_u32 *PIQR, int nlo, hevr_u32 *out)
+                          hevr_u32 ninvq, int kq, const hevr_u32 *R2Q, const hevr_u32 *PIQ, int nlo, hevr_u32 *out)
 {
     hevr_u32 mp[HEVR_MAX_LIMBS], mq[HEVR_MAX_LIMBS], x[HEVR_MAX_LIMBS], y[HEVR_MAX_LIMBS];
     hevr_u32 t[HEVR_MAX_LIMBS + 2];
     hevr_decrypt_half(c, NL, P2, one2p, R2p, ninv2p, nl2p, Ep, ewp, P, PINVp, HRp, ninvp, kp, mp, x, y, t);
     hevr_decrypt_half(c, NL, Q2, one2q, R2q, ninv2q, nl2q, Eq, ewq, Q, PINVq, HRq, ninvq, kq, mq, x, y, t);
-    int L = kp > kq ? kp : kq;                             /* d = (m_q − m_p mod q): m_p < p may exceed q */
-    for (int j = 0; j < L; j++) { x[j] = j < kp ? mp[j] : 0; y[j] = j < kq ? Q[j] : 0; }
-    while (hevr_geq(x, y, L)) hevr_sub_in(x, y, L);
-    for (int j = kq; j < L; j++) mq[j] = 0;
-    if (hevr_geq(mq, x, L)) {
-        hevr_sub_in(mq, x, L);
-    } else {                                               /* m_q + q − m_p */
-        hevr_sub_in(y, x, L);
+    /* h = (m_q − m_p)·p^-1 mod q in Montgomery steps (m_p < p may exceed q): m_p·R mod q by Horner,
+     * m_q·R by one product, the difference d·R, then d·R·PIQ·R^-1 = d·PIQ */
+    hevr_reduce_mont(mp, kp, Q, R2Q, ninvq, kq, x, y, t);
+    hevr_mont_mul(mq, R2Q, Q, ninvq, kq, t, mq);
+    if (hevr_geq(mq, x, kq)) {
+        hevr_sub_in(mq, x, kq);
+    } else {                                               /* m_q·R + q − m_p·R */
+        for (int j = 0; j < kq; j++) y[j] = Q[j];
+        hevr_sub_in(y, x, kq);
         hevr_u64 s = 0;
-        for (int j = 0; j < L; j++) { s += (hevr_u64)mq[j] + y[j]; mq[j] = (hevr_u32)s; s >>= 32; }
+        for (int j = 0; j < kq; j++) { s += (hevr_u64)mq[j] + y[j]; mq[j] = (hevr_u32)s; s >>= 32; }
     }
-    hevr_mont_mul(mq, PIQR, Q, ninvq, kq, t, mq);          /* h = d·p^-1 mod q (PIQR = p^-1·R mod q) */
+    hevr_mont_mul(mq, PIQ, Q, ninvq, kq, t, mq);
     for (int j = 0; j < nlo; j++) out[j] = j < kp ? mp[j] : 0;  /* m = m_p + p·h < n */
     for (int i = 0; i < kq; i++) {
         hevr_u64 s = 0;
@@ -253,22 +256,23 @@ HEVR_HD void hevr_decrypt(const hevr_u32 *c, int NL,
     int ewp, const hevr_u32 *P, const hevr_u32 *PINVp, const hevr_u32 *HRp, hevr_u32 ninvp, int kp, \
     const hevr_u32 *Q2, const hevr_u32 *one2q, const hevr_u32 *R2q, hevr_u32 ninv2q, int nl2q, const hevr_u32 *Eq, \
     int ewq, const hevr_u32 *Q, const hevr_u32 *PINVq, const hevr_u32 *HRq, hevr_u32 ninvq, int kq, \
-    const hevr_u32 *PIQR, int nlo, long long count, hevr_u32 *out
+    const hevr_u32 *R2Q, const hevr_u32 *PIQ, int nlo, long long count, hevr_u32 *out
 #define HEVR_DECRYPT_CALL(k) hevr_decrypt(c + (k) * NL, NL, P2, one2p, R2p, ninv2p, nl2p, Ep, ewp, P, PINVp, HRp, \
-    ninvp, kp, Q2, one2q, R2q, ninv2q, nl2q, Eq, ewq, Q, PINVq, HRq, ninvq, kq, PIQR, nlo, out + (k) * nlo)
+    ninvp, kp, Q2, one2q, R2q, ninv2q, nl2q, Eq, ewq, Q, PINVq, HRq, ninvq, kq, R2Q, PIQ, nlo, out + (k) * nlo)
 
 #if defined(__CUDACC__) || defined(__CUDACC_RTC__)
 extern "C" __global__ void k_owner_encrypt(const long long *x, const hevr_u32 *a, int ewa, const hevr_u32 *b,
                                            int ewb, const hevr_u32 *Tp, int rows_p, int wp, const hevr_u32 *P2,
                                            const hevr_u32 *onep, hevr_u32 ninvp, int nlp, const hevr_u32 *NRp,
-                                           const hevr_u32 *Tq, int rows_q, int wq, const hevr_u32 *Q2,
-                                           const hevr_u32 *oneq, hevr_u32 ninvq, int nlq, const hevr_u32 *NRq,
-                                           const hevr_u32 *INVR, int NL, long long count, hevr_u32 *out)
+                                           const hevr_u32 *R2p, const hevr_u32 *Tq, int rows_q, int wq,
+                                           const hevr_u32 *Q2, const hevr_u32 *oneq, hevr_u32 ninvq, int nlq,
+                                           const hevr_u32 *NRq, const hevr_u32 *INV, int NL, long long count,
+                                           hevr_u32 *out)
 {
     long long k = (long long)blockIdx.x * blockDim.x + threadIdx.x;
     if (k >= count) return;
-    hevr_owner_encrypt(x[k], a + k * ewa, ewa, b + k * ewb, ewb, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp,
-                       Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INVR, NL, out + k * NL);
+    hevr_owner_encrypt(x[k], a + k * ewa, ewa, b + k * ewb, ewb, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp, R2p,
+                       Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INV, NL, out + k * NL);
 }
 
 extern "C" __global__ void k_public_encrypt(const long long *x, const hevr_u32 *r, const hevr_u32 *n, int k,
@@ -289,15 +293,15 @@ extern "C" __global__ void k_decrypt(HEVR_DECRYPT_ARGS)
 #else
 int hevr_owner_encrypt_host(const long long *x, const hevr_u32 *a, int ewa, const hevr_u32 *b, int ewb,
                             const hevr_u32 *Tp, int rows_p, int wp, const hevr_u32 *P2, const hevr_u32 *onep,
-                            hevr_u32 ninvp, int nlp, const hevr_u32 *NRp,
+                            hevr_u32 ninvp, int nlp, const hevr_u32 *NRp, const hevr_u32 *R2p,
                             const hevr_u32 *Tq, int rows_q, int wq, const hevr_u32 *Q2, const hevr_u32 *oneq,
-                            hevr_u32 ninvq, int nlq, const hevr_u32 *NRq, const hevr_u32 *INVR, int NL,
+                            hevr_u32 ninvq, int nlq, const hevr_u32 *NRq, const hevr_u32 *INV, int NL,
                             long long count, hevr_u32 *out)
 {
     if (nlp < 1 || nlq < 1 || nlp > HEVR_MAX_LIMBS || nlq > HEVR_MAX_LIMBS || NL > HEVR_MAX_LIMBS) return -1;
     for (long long k = 0; k < count; k++)
         hevr_owner_encrypt(x[k], a + k * ewa, ewa, b + k * ewb, ewb, Tp, rows_p, wp, P2, onep, ninvp, nlp, NRp,
-                           Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INVR, NL, out + k * NL);
+                           R2p, Tq, rows_q, wq, Q2, oneq, ninvq, nlq, NRq, INV, NL, out + k * NL);
     return 0;
 }
 

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ...crypto.paillier import raw_encode_signed
-from .host import from_limbs, to_limbs
+from .host import MAX_LIMBS, from_limbs, to_limbs
 from .residues import Modulus
 
 __all__ = ["DecryptTables", "OwnerTables", "decrypt_limbs", "decrypt_tables", "owner_limbs", "owner_tables",
@@ -37,7 +37,7 @@ _DCACHE: dict[int, DecryptTables] = {}
 _LOCK = threading.Lock()
 
 
-@dataclass
+@dataclass(repr=False)
 class Half:
     """One prime square's table: ``T`` ``(rows·2^w, nl)`` uint32 in Montgomery form mod ``P.n``,
     ``NR`` = (n mod P)·R mod P, exponents below ``bound``."""
@@ -50,15 +50,18 @@ class Half:
     bound: int
 
 
-@dataclass
+@dataclass(repr=False)
 class OwnerTables:
-    """Both halves, ``INVR`` = (q²)^-1·R mod p², and ``NL`` limbs of n² (a ciphertext)."""
+    """Both halves, ``INV`` = (q²)^-1 mod p², and ``NL`` limbs of n² (a ciphertext)."""
 
     p: Half
     q: Half
-    INVR: np.ndarray
+    INV: np.ndarray
     NL: int
     device: dict = field(default_factory=dict)  # a device launcher's copies of the arrays
+
+    def __repr__(self) -> str:  # secret-derived: say what it is, never what it holds
+        return f"OwnerTables(<secret>, {32 * self.NL}-bit ciphertexts)"
 
 
 def random_below(bound: int, count: int) -> np.ndarray:
@@ -107,8 +110,8 @@ def owner_tables(key: Any, launcher: Any) -> OwnerTables | None:
         NR = to_limbs([int(n_mod) * (1 << (32 * M.nl)) % M.n], M.nl)[0]
         halves.append(Half(M, T, len(rows), int(w), NR, _bound(int(P2))))
     Mp = halves[0].P
-    INVR = to_limbs([int(spec[2]) * (1 << (32 * Mp.nl)) % Mp.n], Mp.nl)[0]
-    tables = OwnerTables(halves[0], halves[1], INVR, -(-(n * n).bit_length() // 32))
+    INV = to_limbs([int(spec[2]) % Mp.n], Mp.nl)[0]
+    tables = OwnerTables(halves[0], halves[1], INV, -(-(n * n).bit_length() // 32))
     with _LOCK:
         while len(_CACHE) >= 2:
             _CACHE.pop(next(iter(_CACHE)))
@@ -132,7 +135,7 @@ def owner_limbs(launcher: Any, key: Any, mantissas: Any) -> np.ndarray | None:
     """Ciphertexts of ``mantissas`` under the private ``key`` as ``(m, NL)`` normal-form limbs, or
     None where the kernel path does not apply (module docstring): the caller encrypts on the CPU."""
     x = np.asarray(mantissas)
-    if x.dtype.kind not in "iu" or (x.dtype.kind == "u" and x.size and int(x.max()) >= 1 << 63):
+    if not _kernel_sized(x, int(key.public_key.n)):
         return None
     tables = owner_tables(key, launcher)
     if tables is None:
@@ -145,7 +148,7 @@ def owner_limbs(launcher: Any, key: Any, mantissas: Any) -> np.ndarray | None:
     return launcher.owner_encrypt(x, a, b, tables)
 
 
-@dataclass
+@dataclass(repr=False)
 class DecryptHalf:
     """One prime of CRT decryption: its square ``P2`` and the prime ``P`` (Montgomery constants),
     the exponent ``E`` = p − 1 as words, ``PINV`` = p^-1 mod 2^(32k) (the exact division by p),
@@ -158,16 +161,19 @@ class DecryptHalf:
     HR: np.ndarray
 
 
-@dataclass
+@dataclass(repr=False)
 class DecryptTables:
-    """Both primes, ``PIQR`` = (p^-1 mod q)·R mod q, ``NL`` limbs of n², ``nlo`` limbs of n."""
+    """Both primes, ``PIQ`` = p^-1 mod q, ``NL`` limbs of n², ``nlo`` limbs of n."""
 
     p: DecryptHalf
     q: DecryptHalf
-    PIQR: np.ndarray
+    PIQ: np.ndarray
     NL: int
     nlo: int
     device: dict = field(default_factory=dict)
+
+    def __repr__(self) -> str:  # p − 1, p^-1, h_p: secret
+        return f"DecryptTables(<secret>, {32 * self.nlo}-bit n)"
 
 
 def decrypt_tables(key: Any) -> DecryptTables:
@@ -187,13 +193,25 @@ def decrypt_tables(key: Any) -> DecryptTables:
         HR = to_limbs([h * (1 << (32 * k)) % prime], k)[0]
         halves.append(DecryptHalf(P2, P, E, PINV, HR))
     Q = halves[1].P
-    tables = DecryptTables(halves[0], halves[1], to_limbs([piq * (1 << (32 * Q.nl)) % q], Q.nl)[0],
+    tables = DecryptTables(halves[0], halves[1], to_limbs([piq % q], Q.nl)[0],
                            -(-(n * n).bit_length() // 32), -(-n.bit_length() // 32))
     with _LOCK:
         while len(_DCACHE) >= 2:
             _DCACHE.pop(next(iter(_DCACHE)))
         _DCACHE[n] = tables
     return tables
+
+
+def _kernel_sized(x: np.ndarray, n: int) -> bool:
+    """Whether the kernels take these mantissas under modulus ``n``: integers within int64, and
+    n² within the kernels' limbs (a 4096-bit key's ciphertexts do not fit: the CPU path).
+
+    >>> _kernel_sized(np.array([1, -2]), 2**2047), _kernel_sized(np.array([1]), 2**4095)
+    (True, False)
+    """
+    if -(-(n * n).bit_length() // 32) > MAX_LIMBS:
+        return False
+    return x.dtype.kind in "iu" and not (x.dtype.kind == "u" and x.size and int(x.max()) >= 1 << 63)
 
 
 def decrypt_limbs(launcher: Any, key: Any, limbs: np.ndarray) -> list[int]:
@@ -211,7 +229,7 @@ def public_limbs(launcher: Any, key: Any, mantissas: Any) -> np.ndarray | None:
     ``gcd(r, n) ≠ 1`` redrawn, as :class:`hevr.PublicKey` does) — or None where the kernel path
     does not apply (mantissas beyond int64): the caller encrypts on the CPU."""
     x = np.asarray(mantissas)
-    if x.dtype.kind not in "iu" or (x.dtype.kind == "u" and x.size and int(x.max()) >= 1 << 63):
+    if not _kernel_sized(x, int(key.n)):
         return None
     x = np.ascontiguousarray(x.reshape(-1), dtype=np.int64)
     n = int(key.n)
@@ -221,8 +239,13 @@ def public_limbs(launcher: Any, key: Any, mantissas: Any) -> np.ndarray | None:
     r = random_below(n, x.size)
     k = -(-n.bit_length() // 32)
     r = np.pad(r, ((0, 0), (0, k - r.shape[1]))) if r.shape[1] < k else r
-    for i, v in enumerate(from_limbs(r)):  # redraw r = 0 or gcd(r, n) ≠ 1 (about 2/sqrt(n) per value)
-        while v == 0 or math.gcd(v, n) != 1:
-            v = from_limbs(random_below(n, 1))[0]
-            r[i] = to_limbs([v], k)[0]
+    ints = from_limbs(r)
+    product = 1
+    for v in ints:  # one gcd for the batch: Π r mod n shares a factor with n iff some r does (or is 0)
+        product = product * v % n
+    if math.gcd(product, n) != 1:  # about 2/sqrt(n) per value: in practice never; then value by value
+        for i, v in enumerate(ints):
+            while v == 0 or math.gcd(v, n) != 1:
+                v = from_limbs(random_below(n, 1))[0]
+                r[i] = to_limbs([v], k)[0]
     return launcher.public_encrypt(x, np.ascontiguousarray(r), to_limbs([n], k)[0], Modulus(n * n))
