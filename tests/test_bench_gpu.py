@@ -23,6 +23,7 @@ def test_gpu_bench_on_the_host_kernels_writes_its_report(tmp_path, capsys):
     assert all(v is True for r in res["identity"] for k, v in r.items() if k not in ("bits", "values"))
     assert {r["case"] for r in res["render"]} == {"xray nearest", "xray trilinear", "tf nearest"}
     assert all(r["identical"] and r["within_bound"] for r in res["render"])
+    assert all(r["resident_seconds"] > 0 for r in res["render"])
     assert set(res["throughput"]) == {"products", "pairs"}
     assert res["encryption"]["exact"] is True and res["encryption"]["values_per_s"] > 0
     assert all(r["products_per_s" if k == "products" else "pairs_per_s"] > 0 for k, r in res["throughput"].items())
