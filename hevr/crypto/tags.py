@@ -1,0 +1,183 @@
+"""Linearly homomorphic tags: the arithmetic of a verifiable render (issue 28, groundwork).
+
+Not yet wired into the store, the render or the image (no render uses it today); these are the
+pure functions the verifiable path will be built on, each tested against the textbook formula.
+
+The scheme
+----------
+The owner draws a tag key: α uniform in Z_n^* and a 256-bit PRF key k (both from
+:mod:`secrets`, never stored on the server). Beside the ciphertext c_v = E(m_v) of every voxel v
+(one per component of a channel, per pyramid level) the store would hold the tag
+
+    t_v = E(α·m_v + β_v mod n),   β_v = PRF_k(store_id, channel, level, component, v) ∈ [0, 2^128).
+
+A render applies public integer weights w_{r,v} (nearest counts, quantised trilinear weights)
+to the voxels of ray r: S_r = Σ_v w_{r,v}·m_v. The same products on the tags give
+
+    T_r = Π_v t_v^{w_{r,v}} = E(α·S_r + B_r),   B_r = Σ_v w_{r,v}·β_v   (all mod n),
+
+and the client, who knows α, k and the public geometry, recomputes B_r in plaintext
+(:func:`weighted_beta_sums`). One check per frame instead of one per ray: with coefficients
+ρ_r (:func:`coefficients`), the server returns A = Π_r T_r^{ρ_r} and the client decrypts it once:
+
+    D(A) ≡ α·Σ_r ρ_r·S'_r + Σ_r ρ_r·B_r   (mod n)        (:func:`raw_check`)
+
+where S'_r are the sums the client decrypted from the image.
+
+Soundness, informally. The server sees only ciphertexts (semantically secure under DCR), so α
+and the β_v are hidden from it; whatever it returns, D(A) is a value it fixed by homomorphic
+operations, τ = α·L_m + L_β + (terms in the m_v and constants), with public coefficients of its
+choosing. If the image is wrong (δ_r = S'_r − S_r not all 0), acceptance needs either
+α·Σρ_rδ_r to equal a value independent of α — probability ≤ 2/min(p, q) over α when Σρ_rδ_r ≢ 0
+mod p and mod q — or Σρ_rδ_r ≡ 0, which for ρ_r uniform on 64 bits and any fixed δ ≠ 0 has
+probability ≤ 2^-64; or coefficients on the β_v other than Σρ_r·w_{r,v}, which leaves a non-zero
+combination of 128-bit pseudo-random values to guess (≤ 2^-128 per guess, as the PRF is secure).
+So one frame is accepted wrongly with probability about 2^-64 + 2^-127 + 2/min(p, q) per attempt.
+ρ must be unknown to the server when it fixes the image: drawn by the client *after* the image
+arrives (a second round: hevr's ray sums stay on the workers as futures, so the aggregate is one
+more task) — not derived from a hash of the image, which a server could grind (2^t hashes lower
+the bound to 2^(t−64)).
+
+PRF. SHAKE-256 keyed by prefixing k to a length-prefixed domain string (store id, channel,
+level, component, block number) gives 2^12 values of 128 bits per block (64 KiB of output), so
+any subset of voxels costs the blocks it touches (:func:`betas`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import secrets
+from dataclasses import dataclass
+from typing import Any
+
+import gmpy2
+import numpy as np
+
+from ..errors import ParameterError
+
+__all__ = ["BLOCK", "TagKey", "betas", "coefficients", "generate_tag_key", "raw_check", "raw_tags",
+           "weighted_beta_sums"]
+
+BLOCK = 1 << 12  # β values per PRF block
+BETA_BYTES = 16
+
+
+@dataclass(frozen=True, repr=False)
+class TagKey:
+    """The owner's tag key: α ∈ Z_n^* and the 32-byte PRF key (secret: never in a store, a log or a graph)."""
+
+    alpha: int
+    prf_key: bytes
+    n: int
+
+    def __repr__(self) -> str:
+        return f"TagKey(<secret>, {int(self.n).bit_length()}-bit n)"
+
+
+def generate_tag_key(n: int) -> TagKey:
+    """A fresh tag key for the modulus ``n`` (α uniform in Z_n^*, from :mod:`secrets`).
+
+    >>> k = generate_tag_key(3 * 11)
+    >>> 0 < k.alpha < 33 and k.alpha % 3 and k.alpha % 11 and len(k.prf_key), repr(k)
+    (32, 'TagKey(<secret>, 6-bit n)')
+    """
+    n = int(n)
+    while True:
+        alpha = secrets.randbelow(n)
+        if alpha and gmpy2.gcd(alpha, n) == 1:
+            return TagKey(alpha, secrets.token_bytes(32), n)
+
+
+def _domain(store_id: str, channel: str, level: int, component: int, block: int) -> bytes:
+    parts = [str(store_id).encode(), str(channel).encode(), int(level).to_bytes(4, "little"),
+             int(component).to_bytes(4, "little"), int(block).to_bytes(8, "little")]
+    return b"hevr-tag-beta-v1" + b"".join(len(p).to_bytes(4, "little") + p for p in parts)
+
+
+def betas(key: TagKey, store_id: str, channel: str, level: int, component: int, voxels: Any) -> np.ndarray:
+    """β of the flat voxel indices ``voxels``: ``(len, 4)`` uint32 limbs, little-endian (128 bits each).
+
+    >>> k = TagKey(1, bytes(32), 35)
+    >>> a = betas(k, "s", "scalar", 0, 0, [0, 5000, 1])
+    >>> b = betas(k, "s", "scalar", 0, 0, [1, 0])
+    >>> a.shape, bool((a[0] == b[1]).all() and (a[2] == b[0]).all())   # per voxel, whatever the subset
+    ((3, 4), True)
+    >>> bool((a[0] != betas(k, "t", "scalar", 0, 0, [0])[0]).any())    # another store: other values
+    True
+    """
+    v = np.asarray(voxels, dtype=np.int64).reshape(-1)
+    if v.size and v.min() < 0:
+        raise ParameterError("voxels: expected non-negative flat indices, got a negative one")
+    out = np.empty((v.size, 4), np.uint32)
+    blocks = v // BLOCK
+    for b in np.unique(blocks).tolist():
+        stream = hashlib.shake_256(key.prf_key + _domain(store_id, channel, level, component, b)).digest(BLOCK * BETA_BYTES)
+        words = np.frombuffer(stream, "<u4").reshape(BLOCK, 4)
+        sel = blocks == b
+        out[sel] = words[v[sel] - b * BLOCK]
+    return out
+
+
+def _ints(limbs: np.ndarray) -> list[int]:
+    return [int.from_bytes(r.astype("<u4").tobytes(), "little") for r in limbs]
+
+
+def raw_tags(key: TagKey, residues: Any, beta_limbs: np.ndarray) -> list[int]:
+    """The tag plaintexts α·m + β mod n of residues ``m`` (in [0, n)) and their β (to encrypt as usual)."""
+    n, a = key.n, key.alpha
+    return [(a * int(m) + b) % n for m, b in zip(residues, _ints(beta_limbs))]
+
+
+def weighted_beta_sums(beta_limbs: np.ndarray, indptr: Any, voxels: Any, weights: Any) -> list[int]:
+    """``B_r = Σ_j w_j·β_{v_j}`` over each row ``r`` of a CSR plan (``voxels`` index ``beta_limbs``),
+    exactly, with numpy: β in 16-bit pieces times weights below 2^31 stay below 2^47 per pair, so
+    a row's sums fit uint64 up to 2^16 pairs.
+
+    >>> bl = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], np.uint32)      # β = 1 and 2^32
+    >>> weighted_beta_sums(bl, [0, 2, 3], [0, 1, 1], [3, 2, 5]) == [3 + 2 * 2**32, 5 * 2**32]
+    True
+    """
+    ip = np.asarray(indptr, dtype=np.int64)
+    vox = np.asarray(voxels, dtype=np.int64)
+    w = np.asarray(weights, dtype=np.int64)
+    if w.size and (w.min() < 0 or w.max() >= 1 << 31):
+        raise ParameterError("weights: expected integers in [0, 2^31), got others")
+    if (np.diff(ip) > 1 << 16).any():
+        raise ParameterError("indptr: expected rows of at most 65536 pairs")
+    pieces = np.ascontiguousarray(beta_limbs, dtype="<u4").view("<u2").astype(np.uint64)  # (V, 8) 16-bit pieces
+    terms = pieces[vox] * w.astype(np.uint64)[:, None]
+    rows = ip.size - 1
+    sums = np.zeros((rows, pieces.shape[1]), np.uint64)
+    nonempty = np.flatnonzero(np.diff(ip) > 0)
+    if nonempty.size:
+        sums[nonempty] = np.add.reduceat(terms, ip[nonempty], axis=0)
+    return [sum(int(s) << (16 * j) for j, s in enumerate(row)) for row in sums.tolist()]
+
+
+def coefficients(seed: bytes, count: int) -> list[int]:
+    """``count`` 64-bit aggregation coefficients from ``seed`` — a fresh :func:`secrets.token_bytes`
+    the client draws after the image has arrived (module docstring).
+
+    >>> c = coefficients(b"seed", 3)
+    >>> len(c), all(0 <= x < 2**64 for x in c), c == coefficients(b"seed", 3), c != coefficients(b"seeD", 3)
+    (3, True, True, True)
+    """
+    raw = hashlib.shake_256(b"hevr-tag-rho-v1" + seed).digest(8 * int(count))
+    return np.frombuffer(raw, "<u8").astype(object).tolist() if count else []
+
+
+def raw_check(key: TagKey, sums: list[int], beta_sums: list[int], rho: list[int], aggregate: int) -> bool:
+    """Whether the decrypted aggregate equals α·Σρ·S + Σρ·B (mod n) for the decrypted ray sums ``sums``.
+
+    >>> k = TagKey(7, bytes(32), 101)
+    >>> raw_check(k, [2, 3], [5, 1], [1, 4], (7 * (2 + 12) + (5 + 4)) % 101)
+    True
+    >>> raw_check(k, [2, 4], [5, 1], [1, 4], (7 * (2 + 12) + (5 + 4)) % 101)
+    False
+    """
+    if not len(sums) == len(beta_sums) == len(rho):
+        raise ParameterError(f"sums: expected as many sums, β sums and coefficients, got {len(sums)}, "
+                             f"{len(beta_sums)} and {len(rho)}")
+    n = key.n
+    want = (key.alpha * sum(r * s for r, s in zip(rho, sums)) + sum(r * b for r, b in zip(rho, beta_sums))) % n
+    return int(aggregate) % n == want
