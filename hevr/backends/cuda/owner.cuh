@@ -54,6 +54,47 @@ HEVR_HD void hevr_sub_in(hevr_u32 *x, const hevr_u32 *y, int nl)
     }
 }
 
+/* x = (x − y) mod P for x, y < P: on a borrow, + P (the wrap of 2^(32·nl) cancels) */
+HEVR_HD void hevr_sub_mod(hevr_u32 *x, const hevr_u32 *y, const hevr_u32 *P, int nl)
+{
+    hevr_u64 borrow = 0;
+    for (int j = 0; j < nl; j++) {
+        hevr_u64 d = (hevr_u64)x[j] - y[j] - borrow;
+        x[j] = (hevr_u32)d;
+        borrow = (d >> 63) & 1;
+    }
+    if (borrow) {
+        hevr_u64 c = 0;
+        for (int j = 0; j < nl; j++) { c += (hevr_u64)x[j] + P[j]; x[j] = (hevr_u32)c; c >>= 32; }
+    }
+}
+
+/* y = 1 + (neg ? −y : y) mod P for y < P (the plaintext factor 1 + x·N of a signed mantissa x) */
+HEVR_HD void hevr_one_plus(hevr_u32 *y, int neg, const hevr_u32 *P, int nl, hevr_u32 *tmp)
+{
+    if (neg) { /* y = 0 − y mod P */
+        for (int j = 0; j < nl; j++) tmp[j] = 0;
+        hevr_sub_mod(tmp, y, P, nl);
+        for (int j = 0; j < nl; j++) y[j] = tmp[j];
+    }
+    for (int j = 0; j < nl; j++) tmp[j] = j == 0 ? P[0] - 1 : P[j];  /* y + 1 = y − (P − 1) mod P */
+    hevr_sub_mod(y, tmp, P, nl);
+}
+
+/* out += a·b (schoolbook), kept to NL limbs (the caller knows the sum fits) */
+HEVR_HD void hevr_mul_add(hevr_u32 *out, int NL, const hevr_u32 *a, int na, const hevr_u32 *b, int nb)
+{
+    for (int i = 0; i < na; i++) {
+        hevr_u64 c = 0;
+        for (int j = 0; j < nb && i + j < NL; j++) {
+            c += (hevr_u64)a[i] * b[j] + out[i + j];
+            out[i + j] = (hevr_u32)c;
+            c >>= 32;
+        }
+        for (int k = i + nb; c && k < NL; k++) { c += out[k]; out[k] = (hevr_u32)c; c >>= 32; }
+    }
+}
+
 /* out = c mod P2 in Montgomery form (c: NL limbs, any size): Horner over chunks of nl limbs from the
  * top, A' = A·R + chunk, i.e. A'·R = mont(A·R, R²) + mont(chunk, R²) mod P2 */
 HEVR_HD void hevr_reduce_mont(const hevr_u32 *c, int NL, const hevr_u32 *P2, const hevr_u32 *R2, hevr_u32 ninv,
@@ -91,16 +132,7 @@ HEVR_HD void hevr_owner_half(long long x, const hevr_u32 *a, int ew, const hevr_
         out[0] = (hevr_u32)(ax % P[0]); /* P < 2^32: |x| reduced first (CIOS wants a < 2^(32·nl)) */
     }
     hevr_mont_mul(out, NR, P, ninv, nl, t, out);
-    int zero = 1;
-    for (int j = 0; j < nl; j++) zero &= out[j] == 0;
-    if (x < 0 && !zero) { /* y = P − y */
-        for (int j = 0; j < nl; j++) t[j] = P[j];
-        hevr_sub_in(t, out, nl);
-        for (int j = 0; j < nl; j++) out[j] = t[j];
-    }
-    hevr_u64 c = 1; /* y + 1 <= P; equal to P means 0 */
-    for (int j = 0; j < nl; j++) { c += out[j]; out[j] = (hevr_u32)c; c >>= 32; }
-    if (hevr_geq(out, P, nl)) hevr_sub_in(out, P, nl);
+    hevr_one_plus(out, x < 0, P, nl, t);
     hevr_mont_mul(out, acc, P, ninv, nl, t, out); /* y·G^a·R·R^-1: normal form */
 }
 
@@ -120,26 +152,10 @@ HEVR_HD void hevr_owner_encrypt(long long x, const hevr_u32 *a, int ewa, const h
      * by Horner over its limbs, c_p·R by one product, their difference d·R, and d·R·INV·R^-1 = d·INV */
     hevr_reduce_mont(cq, nlq, P2, R2p, ninvp, nlp, acc, p2, t);
     hevr_mont_mul(cp, R2p, P2, ninvp, nlp, t, cp);
-    if (hevr_geq(cp, acc, nlp)) {
-        hevr_sub_in(cp, acc, nlp);
-    } else { /* c_p·R + p² − c_q·R */
-        for (int j = 0; j < nlp; j++) p2[j] = P2[j];
-        hevr_sub_in(p2, acc, nlp);
-        hevr_u64 c = 0;
-        for (int j = 0; j < nlp; j++) { c += (hevr_u64)cp[j] + p2[j]; cp[j] = (hevr_u32)c; c >>= 32; }
-    }
+    hevr_sub_mod(cp, acc, P2, nlp);
     hevr_mont_mul(cp, INV, P2, ninvp, nlp, t, cp);
-    /* out = c_q + q²·h, schoolbook; c < n² fits NL limbs */
-    for (int j = 0; j < NL; j++) out[j] = j < nlq ? cq[j] : 0;
-    for (int i = 0; i < nlp; i++) {
-        hevr_u64 c = 0;
-        for (int j = 0; j < nlq && i + j < NL; j++) {
-            c += (hevr_u64)cp[i] * Q2[j] + out[i + j];
-            out[i + j] = (hevr_u32)c;
-            c >>= 32;
-        }
-        for (int k = i + nlq; c && k < NL; k++) { c += out[k]; out[k] = (hevr_u32)c; c >>= 32; }
-    }
+    for (int j = 0; j < NL; j++) out[j] = j < nlq ? cq[j] : 0; /* out = c_q + q²·h < n² */
+    hevr_mul_add(out, NL, cp, nlp, Q2, nlq);
 }
 
 /* ---- public-key encryption ---------------------------------------------------------------------- */
@@ -159,27 +175,10 @@ HEVR_HD void hevr_public_encrypt(long long x, const hevr_u32 *r, const hevr_u32 
         if (n[i >> 5] >> (i & 31) & 1u) hevr_mont_mul(acc, base, N, ninv, NL, t, acc);
     }
     hevr_u64 ax = x < 0 ? (hevr_u64)(-(x + 1)) + 1 : (hevr_u64)x;   /* y = |x|·n (< n²), then 1 ± y */
-    for (int j = 0; j < NL; j++) y[j] = 0;
     hevr_u32 xs[2] = {(hevr_u32)ax, (hevr_u32)(ax >> 32)};
-    for (int i = 0; i < 2; i++) {
-        hevr_u64 c = 0;
-        for (int j = 0; j < k && i + j < NL; j++) {
-            c += (hevr_u64)xs[i] * n[j] + y[i + j];
-            y[i + j] = (hevr_u32)c;
-            c >>= 32;
-        }
-        for (int j = i + k; c && j < NL; j++) { c += y[j]; y[j] = (hevr_u32)c; c >>= 32; }
-    }
-    int zero = 1;
-    for (int j = 0; j < NL; j++) zero &= y[j] == 0;
-    if (x < 0 && !zero) {
-        for (int j = 0; j < NL; j++) t[j] = N[j];
-        hevr_sub_in(t, y, NL);
-        for (int j = 0; j < NL; j++) y[j] = t[j];
-    }
-    hevr_u64 c = 1;
-    for (int j = 0; j < NL; j++) { c += y[j]; y[j] = (hevr_u32)c; c >>= 32; }
-    if (hevr_geq(y, N, NL)) hevr_sub_in(y, N, NL);
+    for (int j = 0; j < NL; j++) y[j] = 0;
+    hevr_mul_add(y, NL, xs, 2, n, k);
+    hevr_one_plus(y, x < 0, N, NL, t);
     hevr_mont_mul(y, acc, N, ninv, NL, t, out);            /* y·r^n·R·R^-1: normal form */
 }
 
@@ -230,25 +229,10 @@ HEVR_HD void hevr_decrypt(const hevr_u32 *c, int NL,
      * m_q·R by one product, the difference d·R, then d·R·PIQ·R^-1 = d·PIQ */
     hevr_reduce_mont(mp, kp, Q, R2Q, ninvq, kq, x, y, t);
     hevr_mont_mul(mq, R2Q, Q, ninvq, kq, t, mq);
-    if (hevr_geq(mq, x, kq)) {
-        hevr_sub_in(mq, x, kq);
-    } else {                                               /* m_q·R + q − m_p·R */
-        for (int j = 0; j < kq; j++) y[j] = Q[j];
-        hevr_sub_in(y, x, kq);
-        hevr_u64 s = 0;
-        for (int j = 0; j < kq; j++) { s += (hevr_u64)mq[j] + y[j]; mq[j] = (hevr_u32)s; s >>= 32; }
-    }
+    hevr_sub_mod(mq, x, Q, kq);
     hevr_mont_mul(mq, PIQ, Q, ninvq, kq, t, mq);
     for (int j = 0; j < nlo; j++) out[j] = j < kp ? mp[j] : 0;  /* m = m_p + p·h < n */
-    for (int i = 0; i < kq; i++) {
-        hevr_u64 s = 0;
-        for (int j = 0; j < kp && i + j < nlo; j++) {
-            s += (hevr_u64)mq[i] * P[j] + out[i + j];
-            out[i + j] = (hevr_u32)s;
-            s >>= 32;
-        }
-        for (int j = i + kp; s && j < nlo; j++) { s += out[j]; out[j] = (hevr_u32)s; s >>= 32; }
-    }
+    hevr_mul_add(out, nlo, mq, kq, P, kp);
 }
 
 #define HEVR_DECRYPT_ARGS const hevr_u32 *c, int NL, \
