@@ -27,6 +27,8 @@ import threading
 
 import dask
 
+from .errors import ParameterError
+
 log = logging.getLogger(__name__)
 
 CONFIG_KEY = "hevr.malloc-tuning"
@@ -46,15 +48,30 @@ def tune() -> bool:
     """
     if _DONE:
         return _DONE[0]
-    value = dask.config.get(CONFIG_KEY, True)
-    if isinstance(value, str):  # from the environment
-        value = value.strip().lower() not in ("false", "0", "no", "off")
+    value = _setting(dask.config.get(CONFIG_KEY, True))
     if not value:  # asked again next time: the setting may change
         return False
     with _LOCK:
         if not _DONE:
             _DONE.append(_set())
     return _DONE[0]
+
+
+def _setting(value: object) -> bool:
+    """The config value as a bool: true/false, or the strings an environment variable gives.
+
+    >>> _setting("Off"), _setting(True), _setting("1")
+    (False, True, True)
+    >>> _setting("flase")
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: hevr.malloc-tuning: expected true or false, got 'flase'
+    """
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.strip().lower() in ("true", "1", "yes", "on", "false", "0", "no", "off"):
+        return value.strip().lower() in ("true", "1", "yes", "on")
+    raise ParameterError(f"{CONFIG_KEY}: expected true or false, got {value!r}")
 
 
 def _set() -> bool:

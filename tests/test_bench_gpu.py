@@ -69,3 +69,10 @@ def test_gpu_bench_without_cupy_says_what_is_missing(tmp_path, monkeypatch, caps
 def test_gpu_bench_refuses_other_settings(tmp_path, extra, capsys):
     assert main(["bench", "--gpu", *extra, "--out", str(tmp_path)]) == 2
     assert "--gpu: expected alone" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["abacus", "cpu"])
+def test_gpu_bench_names_an_unknown_backend(tmp_path, name, capsys):
+    assert main(["bench", "--gpu", "--gpu-backend", name, "--out", str(tmp_path)]) == 2
+    assert "--gpu-backend: expected one of cuda-host, cuda" in capsys.readouterr().err
+    assert not (tmp_path / "gpu.json").exists()

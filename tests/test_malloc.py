@@ -78,3 +78,10 @@ def test_render_tasks_tune_their_worker(tmp_path, keypair256):
             assert list(c.run(_tuned).values()) == [[]]  # a fresh worker: nothing set yet
             hevr.render(ev, cam, progress=False, cache=False, client=c)
             assert list(c.run(_tuned).values()) == [want]
+
+
+def test_a_misspelt_setting_is_refused_by_name(monkeypatch):
+    monkeypatch.setattr(_malloc, "_DONE", [])
+    with dask.config.set({"hevr.malloc-tuning": "flase"}), pytest.raises(hevr.ParameterError,
+                                                                     match="hevr.malloc-tuning: expected true or false"):
+        _malloc.tune()

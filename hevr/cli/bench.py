@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from .._bench.gpu import run_gpu_bench
+from ..backends import available_backends
 from .._bench.runner import rewrite_report, run_bench
 from .util import UsageError, show_progress, warn_line
 
@@ -13,6 +14,10 @@ from .util import UsageError, show_progress, warn_line
 def cmd_bench(args: Any) -> int:
     out = Path(args.out) if args.out else (Path("benchmarks") if Path("benchmarks").is_dir() else Path("."))
     if args.gpu:
+        kernels = [b for b in available_backends() if b != "cpu"]
+        if args.gpu_backend not in kernels:
+            raise UsageError(f"--gpu-backend: expected one of {', '.join(kernels)} (the backend to prove against cpu), "
+                             f"got {args.gpu_backend!r}")
         if args.paper or args.resume or args.report_only or args.only:
             raise UsageError("--gpu: expected alone or with --quick, --out, --work, --gpu-backend, got it with "
                              "--paper/--resume/--report-only/--only")
