@@ -124,21 +124,27 @@ def _reader(stream, q: "queue.Queue[str | None]") -> None:
     q.put(None)
 
 
+def _launch(*args: str, port: int):
+    """Start cluster/launch.py on ``port`` (1 GiB workers, dashboard on a free port): the process and
+    queues of its stdout and stderr lines (None at the end)."""
+    proc = subprocess.Popen(
+        [sys.executable, str(LAUNCH), *args, "--port", str(port), "--dashboard-port", "0", "--memory-limit", "1GiB"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(ROOT),
+    )
+    lines: queue.Queue = queue.Queue()
+    errs: queue.Queue = queue.Queue()
+    for stream, q in ((proc.stdout, lines), (proc.stderr, errs)):
+        threading.Thread(target=_reader, args=(stream, q), daemon=True).start()
+    return proc, lines, errs
+
+
 @pytest.mark.timeout(60)
 def test_launch_local_cluster_one_worker():
     from distributed import Client
 
     t0 = time.monotonic()
     port = _free_port()
-    proc = subprocess.Popen(
-        [sys.executable, str(LAUNCH), "--workers", "1", "--port", str(port), "--dashboard-port", "0",
-         "--memory-limit", "1GiB"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(ROOT),
-    )
-    lines: queue.Queue = queue.Queue()
-    threading.Thread(target=_reader, args=(proc.stdout, lines), daemon=True).start()
-    errs: queue.Queue = queue.Queue()
-    threading.Thread(target=_reader, args=(proc.stderr, errs), daemon=True).start()
+    proc, lines, errs = _launch("--workers", "1", port=port)
     try:
         address = None
         deadline = time.monotonic() + 20
@@ -195,13 +201,7 @@ def test_launch_gpus_one_worker_per_device():
     from distributed import Client
 
     port = _free_port()
-    proc = subprocess.Popen(
-        [sys.executable, str(LAUNCH), "--gpus", "2", "--port", str(port), "--dashboard-port", "0",
-         "--memory-limit", "1GiB"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(ROOT),
-    )
-    lines: queue.Queue = queue.Queue()
-    threading.Thread(target=_reader, args=(proc.stdout, lines), daemon=True).start()
+    proc, lines, _ = _launch("--gpus", "2", port=port)
     try:
         seen, deadline = [], time.monotonic() + 30
         while time.monotonic() < deadline and not any("Scheduler address:" in line for line in seen):

@@ -6,8 +6,8 @@ from pathlib import Path
 from typing import Any
 
 from .._bench.gpu import run_gpu_bench
-from ..backends import available_backends
 from .._bench.runner import rewrite_report, run_bench
+from ..backends import available_backends
 from .util import UsageError, show_progress, warn_line
 
 
