@@ -36,6 +36,17 @@ run)
     tests/backends/test_cuda_owner.py tests/backends/test_cuda_host_backend.py \
     tests/backends/test_cuda_host_renders.py >> "$OUT/pytest.log" 2>&1
   tail -30 "$OUT/pytest.log" ;;
+diagnose)
+  # a shorter run for a failure found by `run`: gpu_diagnose.py's checks against Python integers, then the
+  # bench with a ${2:-24}³ render (its cases timed one by one)
+  : "${OUT:?run this through the device tool (it sets OUT)}"
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl || exit 1
+  export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
+  nvidia-smi -L 2>&1 | tee "$OUT/device.txt"
+  timeout 130 python3 benchmarks/gpu_diagnose.py 2>&1 | tee "$OUT/diagnose.log"
+  timeout 240 python3 -c "import sys; from pathlib import Path; from hevr._bench.gpu import run_gpu_bench
+run_gpu_bench(Path(sys.argv[1]), work=Path('/tmp'), render_size=int(sys.argv[2]), log_line=print)" "$OUT" "${2:-24}" \
+    2>&1 | tee "$OUT/bench.log" ;;
 *)
-  echo "usage: bash benchmarks/gpu-proof.sh prepare|run" >&2; exit 2 ;;
+  echo "usage: bash benchmarks/gpu-proof.sh prepare|run|diagnose [size]" >&2; exit 2 ;;
 esac

@@ -137,7 +137,8 @@ def identity(be: Any, quick: bool) -> list[dict]:
     return out
 
 
-def render_identity(be_name: str, size: int, bits: int, work: Path | None, workers: int = 0) -> list[dict]:
+def render_identity(be_name: str, size: int, bits: int, work: Path | None, workers: int = 0,
+                    log_line: Callable[[str], None] = log.info) -> list[dict]:
     """The ``size``³ phantom's renders with ``be_name`` and ``cpu``: identical bytes, within the bound.
 
     With ``workers`` the encryption and the ``cpu`` renders run on a LocalCluster of that many
@@ -157,6 +158,7 @@ def render_identity(be_name: str, size: int, bits: int, work: Path | None, worke
         with dask.config.set(scheduler="sync"):
             ev = encrypt_volume(vol, folder / f"phantom{size}.zarr", priv, brick=max(8, size // 4), vector_dims=4,
                                 progress=False, client=client)
+        log_line(f"  {size}^3 store encrypted ({bits} bits)")
         cam = Camera.orbit(ev, azimuth=30, elevation=20, width=2 * size, height=2 * size)
         with dask.config.set(scheduler="sync"):  # resident in the backend's form, in this process
             resident = ev.persist(backend=be_name)
@@ -187,6 +189,8 @@ def render_identity(be_name: str, size: int, bits: int, work: Path | None, worke
             except IntegrityError as exc:
                 row["error"] = str(exc)
             out.append(row)
+            log_line(f"  {row['case']}: {row['seconds']:.2f} s streamed, {row['resident_seconds']:.2f} s resident, "
+                     f"cpu {row['cpu_seconds']:.2f} s on {row['cpu_workers']} ({'identical' if row['identical'] else 'MISMATCH'})")
     return out
 
 
@@ -284,7 +288,8 @@ def _markdown(res: dict) -> str:
 
 
 def run_gpu_bench(out: Path, *, backend: str = "cuda", quick: bool = False, work: Path | None = None,
-                  render_bits: int = 2048, log_line: Callable[[str], None] = log.info) -> tuple[Path, bool]:
+                  render_bits: int = 2048, render_size: int | None = None,
+                  log_line: Callable[[str], None] = log.info) -> tuple[Path, bool]:
     """Run the steps of the module docstring; returns (the markdown's path, every check passed)."""
     out.mkdir(parents=True, exist_ok=True)
     be = get_backend(backend)
@@ -305,8 +310,9 @@ def run_gpu_bench(out: Path, *, backend: str = "cuda", quick: bool = False, work
     log_line(f"operations against cpu: {'identical' if ok else 'MISMATCH'} ({time.perf_counter() - t0:.1f} s)")
     save()
     t0 = time.perf_counter()
-    res["render"] = render_identity(backend, 16 if quick else 64, 256 if quick else render_bits, work,
-                                    0 if quick else min(16, os.cpu_count() or 1))
+    size = render_size or (16 if quick else 64)
+    res["render"] = render_identity(backend, size, 256 if quick else render_bits, work,
+                                    0 if quick else min(16, os.cpu_count() or 1), log_line)
     rok = all(r["identical"] and r["within_bound"] for r in res["render"])
     log_line(f"renders against cpu: {'identical' if rok else 'MISMATCH'} ({time.perf_counter() - t0:.1f} s)")
     save()
