@@ -215,7 +215,7 @@ class KernelBackend(Backend):
 
     # -- encryption and decryption: the CPU backend's, through records ------------------------------
     def encrypt(self, key: Any, mantissas, *, unsafe_no_obfuscation: bool = False) -> LimbBatch:
-        if not unsafe_no_obfuscation:  # in a kernel (owner.py): the owner path, or r^n with a public key
+        if not unsafe_no_obfuscation and self._launch.keyholder:  # in a kernel (owner.py): owner path or r^n
             limbs = (owner_limbs if isinstance(key, PrivateKey) else public_limbs)(self._launch, key, mantissas)
             if limbs is not None:
                 return LimbBatch(limbs)
@@ -228,7 +228,8 @@ class KernelBackend(Backend):
         batch = self._batch(values)
         if not len(batch):
             return []
-        if -(-(int(private_key.public_key.nsquare)).bit_length() // 32) > MAX_LIMBS:  # beyond the kernels: gmpy2
+        if (-(-(int(private_key.public_key.nsquare)).bit_length() // 32) > MAX_LIMBS  # beyond the kernels: gmpy2
+                or not self._launch.keyholder):
             return _CPU.decrypt(private_key, _CPU.from_bytes(self.to_bytes(batch, 4 * batch.nl)))
         return decrypt_limbs(self._launch, private_key, self._normal(batch))
 

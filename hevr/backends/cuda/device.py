@@ -13,6 +13,16 @@ Scratch. ``k_ray_tasks`` and ``k_combine`` give every thread its own slice of on
 ``slot`` residues of ``nl`` limbs each; tasks are launched in chunks whose scratch stays under
 ``SCRATCH_BYTES`` (256 MiB), at least 32k threads a launch where that fits.
 
+The key holder's kernels are off on a device (``keyholder = False``). On an NVIDIA H200
+(2026-11-26, ``benchmarks/results-gpu-h200-2026-11-26.md``) every render operation and whole
+2048-bit renders were byte-identical to ``cpu``, but ``owner.cuh`` was not: CRT decryption at a
+2048-bit key returned wrong residues in one run and faulted (illegal address) in another, owner
+encryption of 262,144 values faulted while 64 were exact, and one public-key ciphertext of a
+33/95-bit key was wrong; the host build of the same source passes every test, also under
+AddressSanitizer and UBSan. Until a device run passes ``tests/backends/test_cuda_owner.py``
+(``benchmarks/gpu-proof.sh``), :class:`~hevr.backends.cuda.backend.CudaBackend` encrypts and
+decrypts the CPU way on a device; the kernels stay reachable for that proof (set ``keyholder``).
+
 What is not here yet (issue 26): residues stay on the host between operations (each call
 copies its operands to the device and its results back), so a render pays PCIe transfers a
 resident device batch would not; decryption still delegates to ``cpu``. Owner encryption runs
@@ -80,6 +90,8 @@ class CupyLauncher(Launcher):
     device : int, optional
         The CUDA device to use (default: CuPy's current device, i.e. ``CUDA_VISIBLE_DEVICES``'s first).
     """
+
+    keyholder = False  # owner.cuh wrong on an H200 (module docstring): the CPU way until proven
 
     def __init__(self, device: int | None = None) -> None:
         self._device = device

@@ -89,7 +89,12 @@ class Launcher:
 
     Limb arrays are ``(m, nl)`` uint32, C-contiguous; every Montgomery operand is in
     ``[0, M.n)`` and every result is too. See the source's header for what each item computes.
+
+    ``keyholder``: whether the backend sends the key holder's work (encryption, decryption) to this
+    launcher's ``owner.cuh`` kernels; where False it goes the CPU way, byte for byte the same.
     """
+
+    keyholder = True
 
     def records_to_limbs(self, records: np.ndarray, nl: int) -> tuple[np.ndarray, np.ndarray]:
         """(limbs, overflow flags) of (m, W) big-endian uint8 records."""
