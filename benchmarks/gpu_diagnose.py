@@ -1,25 +1,35 @@
-"""Locate a GPU-only wrong result in the key holder's kernels (owner.cuh) against Python references.
+"""Locate a GPU-only wrong result in the key holder's kernels (``owner.cuh``) against Python integers.
 
-Run on the GPU machine (``bash benchmarks/gpu-proof.sh diagnose``). Per key (unbalanced 33/95-bit
-primes, 60/68, 512, 2048 bits), each step checked against plain Python integers, never against
-another kernel:
+Run on the GPU machine (``bash benchmarks/gpu-proof.sh run`` calls it). Each step is checked against
+plain Python integers, never against another kernel:
 
 * ``tables``  — the fixed-base tables converted to Montgomery form by the device (``k_mont_convert``)
   against ``e·R mod P``;
-* ``owner``   — owner encryption on the device, with tables converted in Python, decrypted by ``cpu``;
-* ``owner+devtables`` — the same with the device's own tables (what a user runs);
-* ``repeat``  — the same launch twice (a race would differ);
-* ``public``  — public-key encryption on the device, decrypted by ``cpu``;
-* ``decrypt`` — CRT decryption on the device of ``cpu`` ciphertexts.
+* ``owner``   — owner encryption with tables converted in Python, decrypted by ``cpu``; ``repeat``
+  (the same launch twice: a race would differ); ``owner+devtables`` (the device's own tables);
+  ``owner single`` (one value per launch against the batch's);
+* ``public``  — public-key encryption, decrypted by ``cpu``;
+* ``decrypt`` — CRT decryption of ``cpu`` ciphertexts;
 
-and each variant of the module's compilation: as shipped, without ``__restrict__``, with ``-G``
-(no device optimisation). Prints one line per (variant, key, step): wrong / total and the first
-wrong indices. Exit status 0 always: it is a diagnosis, the tests are the verdict.
+for keys of unbalanced 33/95-bit primes (with known factors of p − 1, so the owner path runs), 60/68,
+512, 1024 and 2048 bits, at several batch sizes. An illegal address poisons a CUDA context for good,
+so every variant of the module's compilation runs in its own process: as shipped, without
+``__restrict__``, without the unrolled limb counts (every product through the generic loop), the
+products inlined instead of called, 32 and 1 threads a block, and ``-G`` (no device optimisation).
+One line per (variant, key, step, batch): wrong / total and the first wrong indices.
+
+    python benchmarks/gpu_diagnose.py                      # every variant, each in a subprocess
+    python benchmarks/gpu_diagnose.py --variant shipped --keys 2048 --steps decrypt --counts 64
+    python benchmarks/gpu_diagnose.py --fake ...           # without a GPU: the host build (FakeCupy)
+
+Exit status 0: it is a diagnosis; the tests are the verdict.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
+import subprocess
 import sys
 import time
 import warnings
@@ -33,99 +43,31 @@ from hevr.backends.cuda import device as device_module
 from hevr.backends.cuda import owner as owner_module
 from hevr.backends.cuda.device import CupyLauncher
 from hevr.backends.cuda.host import from_limbs, to_limbs
+from hevr.crypto.primes import random_prime_with_factors
 
 CPU = CpuBackend()
 _REF: dict = {}
+KEYS = {"33/95": (33, 95), "60/68": (60, 68), "512": (256, 256), "1024": (512, 512), "2048": (1024, 1024)}
+VARIANTS = {
+    "shipped": {},
+    "norestrict": {"replace": ("#define HEVR_RESTRICT __restrict__", "#define HEVR_RESTRICT")},
+    "nounroll": {"replace": ("switch (nl) {", "switch (-1) {")},
+    "inline": {"replace": ("#define HEVR_CALL __device__ __noinline__", "#define HEVR_CALL __device__ __forceinline__")},
+    "block32": {"block": 32},
+    "block1": {"block": 1},
+    "-G": {"options": ("-G",)},
+}
 
 
 class PyConvert:
     """mont_convert in Python integers (the tables' reference)."""
 
+    keyholder = True
+
     def mont_convert(self, limbs, b, M):
-        R_inv = pow(1 << (32 * M.nl), -1, M.n)
-        bb = from_limbs(np.asarray(b).reshape(1, -1))[0]
-        return to_limbs([v * bb * R_inv % M.n for v in from_limbs(limbs)], M.nl)
-
-
-def _key(pbits: int, qbits: int):
-    if pbits == qbits:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
-            return hevr.generate_keypair(2 * pbits)
-    p, q = int(gmpy2.next_prime(2 ** (pbits - 1) + 12345)), int(gmpy2.next_prime(2 ** (qbits - 1) + 987654))
-    pub = hevr.PublicKey(p * q)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
-        return pub, hevr.PrivateKey(pub, p, q)
-
-
-def _report(variant: str, label: str, step: str, got: list[int], want: list[int], extra: str = "") -> None:
-    bad = [i for i, (g, w) in enumerate(zip(got, want)) if g != w]
-    print(f"{variant:10s} {label:8s} {step:16s} wrong {len(bad):5d}/{len(want):5d} first {bad[:6]} {extra}", flush=True)
-
-
-def _records(limbs: np.ndarray, n: int):
-    return CPU.from_bytes(CPU.to_bytes(from_limbs(limbs), 2 * ((n.bit_length() + 7) // 8)))
-
-
-def check(launcher: CupyLauncher, variant: str, label: str, pub, priv, count: int) -> None:
-    n = int(pub.n)
-    x = (np.arange(count, dtype=np.int64) - count // 2) * 7919
-    x[:4] = [0, 1, -1, -2]
-    want = [int(v) % n for v in x.tolist()]
-    if n not in _REF:  # the Python reference tables once per key (seconds at 2048 bits)
-        owner_module._CACHE.clear()
-        _REF[n] = owner_module.owner_tables(priv, PyConvert())
-    ref = _REF[n]
-    owner_module._CACHE.clear()
-    dev = owner_module.owner_tables(priv, launcher)
-    owner_module._CACHE.clear()
-    for half in ("p", "q") if ref is not None else ():
-        a_, b_ = getattr(ref, half).T, getattr(dev, half).T
-        bad = np.flatnonzero((a_ != b_).any(axis=1))
-        print(f"{variant:10s} {label:8s} tables {half:9s} wrong {bad.size:5d}/{a_.shape[0]:5d} first {bad[:6].tolist()} "
-              f"(w={getattr(ref, half).w}, rows={getattr(ref, half).rows}, nl={getattr(ref, half).P.nl})", flush=True)
-    if ref is None:
-        print(f"{variant:10s} {label:8s} owner: no tables for this key (the cpu path)", flush=True)
-    for step in ("owner", "public", "decrypt"):
-        if step == "owner" and ref is None:
-            continue
-        try:
-            STEPS[step](launcher, variant, label, pub, priv, x, want, ref, dev)
-        except Exception as exc:  # noqa: BLE001 - a diagnosis goes on
-            print(f"{variant:10s} {label:8s} {step} FAILED {type(exc).__name__}: {str(exc)[:300]}", flush=True)
-
-
-def _owner(launcher, variant, label, pub, priv, x, want, ref, dev) -> None:
-    n, count = int(pub.n), x.size
-    a = owner_module.random_below(ref.p.bound, count)
-    b = owner_module.random_below(ref.q.bound, count)
-    c1 = launcher.owner_encrypt(x, a, b, ref)
-    _report(variant, label, "owner", CPU.decrypt(priv, _records(c1, n)), want)
-    c2 = launcher.owner_encrypt(x, a, b, ref)
-    _report(variant, label, "repeat", [int(v) for v in (c1 != c2).any(axis=1)], [0] * count)
-    c3 = launcher.owner_encrypt(x, a, b, dev)
-    _report(variant, label, "owner+devtables", CPU.decrypt(priv, _records(c3, n)), want)
-    ones = [i for i in range(min(count, 8))]  # one value per launch: a per-item fault or a launch-wide one
-    single = [from_limbs(launcher.owner_encrypt(x[i:i + 1], a[i:i + 1], b[i:i + 1], ref))[0] for i in ones]
-    _report(variant, label, "owner single", [int(s == from_limbs(c1[i:i + 1])[0]) for i, s in zip(ones, single)],
-            [1] * len(ones))
-
-
-def _public(launcher, variant, label, pub, priv, x, want, ref, dev) -> None:
-    n = int(pub.n)
-    c4 = owner_module.public_limbs(launcher, pub, x)
-    _report(variant, label, "public", CPU.decrypt(priv, _records(c4, n)), want)
-
-
-def _decrypt(launcher, variant, label, pub, priv, x, want, ref, dev) -> None:
-    n = int(pub.n)
-    cts = CPU.encrypt(priv, x)
-    limbs = np.asarray(to_limbs([int(v) for v in cts], -(-(n * n).bit_length() // 32)))
-    _report(variant, label, "decrypt", owner_module.decrypt_limbs(launcher, priv, limbs), want)
-
-
-STEPS = {"owner": _owner, "public": _public, "decrypt": _decrypt}
+        N = gmpy2.mpz(M.n)
+        f = gmpy2.mpz(from_limbs(np.asarray(b).reshape(1, -1))[0]) * pow(gmpy2.mpz(1 << (32 * M.nl)), -1, N) % N
+        return to_limbs([int(gmpy2.mpz(v) * f % N) for v in from_limbs(limbs)], M.nl)
 
 
 class _Block:
@@ -140,6 +82,10 @@ class _Block:
 
 
 class Variant(CupyLauncher):
+    """The device launcher with the owner module compiled or launched another way."""
+
+    keyholder = True
+
     def __init__(self, replace: tuple[str, str] | None = None, options: tuple[str, ...] = (), block: int = 0):
         super().__init__()
         self._replace, self._options, self._block = replace, options, block
@@ -148,6 +94,8 @@ class Variant(CupyLauncher):
         if self._owner_fn is None:
             src = device_module.owner_source()
             if self._replace:
+                if self._replace[0] not in src:
+                    raise RuntimeError(f"variant: {self._replace[0]!r} not in the source")
                 src = src.replace(*self._replace)
             mod = self.cp.RawModule(code=src, options=("--std=c++11", *self._options), backend="nvrtc")
             fns = [mod.get_function(k) for k in ("k_decrypt", "k_public_encrypt", "k_owner_encrypt")]
@@ -156,31 +104,142 @@ class Variant(CupyLauncher):
             self._decrypt_fn, self._public_fn, self._owner_fn = fns
 
 
-def main() -> None:
-    keys = [("33/95", _key(33, 95), 512), ("60/68", _key(60, 68), 512), ("512", _key(256, 256), 256),
-            ("2048", _key(1024, 1024), 64)]
-    variants = [("shipped", Variant()), ("norestrict", Variant(("#define HEVR_RESTRICT __restrict__", "#define HEVR_RESTRICT"))),
-                ("block32", Variant(block=32)), ("block1", Variant(block=1)),
-                ("inline", Variant(("#define HEVR_CALL __device__ __noinline__", "#define HEVR_CALL __device__ __forceinline__"))),
-                ("-G", Variant(options=("-G",)))]
-    wanted = os.environ.get("HEVR_DIAG_KEYS")
-    keys = [k for k in keys if not wanted or k[0] in wanted.split(",")]
-    only = [a for a in sys.argv[1:] if a != "--fake"]
-    if "--fake" in sys.argv:  # on a machine without a GPU: the launcher over the host build (tests' FakeCupy)
-        sys.path.insert(0, "tests/backends")
+def _key(pbits: int, qbits: int):
+    if pbits == qbits:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
+            return hevr.generate_keypair(2 * pbits)
+    p, q = (int(random_prime_with_factors(b)[0]) for b in (pbits, qbits))  # p − 1's factors: owner tables
+    pub = hevr.PublicKey(p * q)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
+        return pub, hevr.PrivateKey(pub, p, q)
+
+
+def _line(variant: str, label: str, step: str, count: int, text: str) -> None:
+    print(f"{variant:10s} {label:6s} {step:16s} m={count:<7d} {text}", flush=True)
+
+
+def _report(variant: str, label: str, step: str, got: list, want: list) -> None:
+    bad = [i for i, (g, w) in enumerate(zip(got, want)) if g != w]
+    _line(variant, label, step, len(want), f"wrong {len(bad)}/{len(want)} first {bad[:6]}")
+
+
+def _records(limbs: np.ndarray, n: int):
+    return CPU.from_bytes(CPU.to_bytes(from_limbs(limbs), 2 * ((n.bit_length() + 7) // 8)))
+
+
+def _values(count: int, n: int) -> np.ndarray:
+    x = (np.arange(count, dtype=np.int64) - count // 2) * 7919
+    x[:min(count, 4)] = [0, 1, -1, -2][:min(count, 4)]
+    return np.clip(x, -(n // 3 - 1), n // 3 - 1)
+
+
+def _tables(launcher, variant, label, pub, priv) -> tuple:
+    n = int(pub.n)
+    if n not in _REF:  # the Python reference tables once per key (seconds at 2048 bits)
+        owner_module._CACHE.clear()
+        _REF[n] = owner_module.owner_tables(priv, PyConvert())
+    ref = _REF[n]
+    owner_module._CACHE.clear()
+    dev = owner_module.owner_tables(priv, launcher)
+    owner_module._CACHE.clear()
+    for half in ("p", "q") if ref is not None else ():
+        a_, b_ = getattr(ref, half).T, getattr(dev, half).T
+        bad = np.flatnonzero((a_ != b_).any(axis=1))
+        h = getattr(ref, half)
+        _line(variant, label, f"tables {half}", a_.shape[0],
+              f"wrong {bad.size}/{a_.shape[0]} first {bad[:6].tolist()} (w={h.w}, rows={h.rows}, nl={h.P.nl})")
+    return ref, dev
+
+
+def _owner(launcher, variant, label, pub, priv, count, tables) -> None:
+    ref, dev = tables
+    if ref is None:
+        _line(variant, label, "owner", count, "no tables for this key (the cpu path)")
+        return
+    n = int(pub.n)
+    x = _values(count, n)
+    want = [int(v) % n for v in x.tolist()]
+    a, b = owner_module.random_below(ref.p.bound, count), owner_module.random_below(ref.q.bound, count)
+    c1 = launcher.owner_encrypt(x, a, b, ref)
+    sample = slice(0, min(count, 512))  # cpu decryption of a sample: seconds at 2048 bits otherwise
+    _report(variant, label, "owner", CPU.decrypt(priv, _records(c1[sample], n)), want[sample])
+    c2 = launcher.owner_encrypt(x, a, b, ref)
+    _report(variant, label, "repeat", [int(v) for v in (c1 != c2).any(axis=1)], [0] * count)
+    c3 = launcher.owner_encrypt(x[sample], a[sample], b[sample], dev)
+    _report(variant, label, "owner+devtables", CPU.decrypt(priv, _records(c3, n)), want[sample])
+    ones = range(min(count, 4))
+    single = [from_limbs(launcher.owner_encrypt(x[i:i + 1], a[i:i + 1], b[i:i + 1], ref))[0] for i in ones]
+    _report(variant, label, "owner single", [int(s == from_limbs(c1[i:i + 1])[0]) for i, s in zip(ones, single)],
+            [1] * len(ones))
+
+
+def _public(launcher, variant, label, pub, priv, count, tables) -> None:
+    n = int(pub.n)
+    x = _values(min(count, 1024), n)  # cpu decrypts them all
+    c = owner_module.public_limbs(launcher, pub, x)
+    _report(variant, label, "public", CPU.decrypt(priv, _records(c, n)), [int(v) % n for v in x.tolist()])
+
+
+def _decrypt(launcher, variant, label, pub, priv, count, tables) -> None:
+    n = int(pub.n)
+    x = _values(min(count, 1024), n)  # cpu encrypts them all
+    cts = CPU.encrypt(priv, x)
+    limbs = np.asarray(to_limbs([int(v) for v in cts], -(-(n * n).bit_length() // 32)))
+    _report(variant, label, "decrypt", owner_module.decrypt_limbs(launcher, priv, limbs),
+            [int(v) % n for v in x.tolist()])
+
+
+STEPS = {"owner": _owner, "public": _public, "decrypt": _decrypt}
+
+
+def run_variant(name: str, keys: list[str], steps: list[str], counts: list[int], fake: bool) -> None:
+    launcher = Variant(**VARIANTS[name])
+    if fake:  # on a machine without a GPU: the launcher over the host build (the tests' FakeCupy)
+        sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "backends"))
         from _fake_cupy import FakeCupy
-        for _, launcher in variants:
-            launcher._cp = FakeCupy()
-    for vname, launcher in variants:
-        if only and vname not in only:
-            continue
-        for label, (pub, priv), count in keys:
-            t0 = time.perf_counter()
-            try:
-                check(launcher, vname, label, pub, priv, count)
-            except Exception as exc:  # noqa: BLE001 - a diagnosis goes on
-                print(f"{vname:10s} {label:8s} FAILED {type(exc).__name__}: {str(exc)[:300]}", flush=True)
-            print(f"{vname:10s} {label:8s} ({time.perf_counter() - t0:.1f} s)", flush=True)
+        launcher._cp = FakeCupy()
+    for label in keys:
+        pub, priv = _key(*KEYS[label])
+        t0 = time.perf_counter()
+        try:
+            tables = _tables(launcher, name, label, pub, priv) if "owner" in steps else (None, None)
+        except Exception as exc:  # noqa: BLE001 - a diagnosis goes on
+            _line(name, label, "tables", 0, f"FAILED {type(exc).__name__}: {str(exc)[:200]}")
+            return
+        for step in steps:
+            for count in counts:
+                try:
+                    STEPS[step](launcher, name, label, pub, priv, count, tables)
+                except Exception as exc:  # noqa: BLE001 - an illegal address ends this process's checks
+                    _line(name, label, step, count, f"FAILED {type(exc).__name__}: {str(exc)[:200]}")
+                    if "illegal" in str(exc).lower() or "CUDA" in type(exc).__name__:
+                        return
+        _line(name, label, "done", 0, f"({time.perf_counter() - t0:.1f} s)")
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--variant", choices=sorted(VARIANTS), help="run one variant here (default: each in a subprocess)")
+    ap.add_argument("--keys", default=",".join(KEYS))
+    ap.add_argument("--steps", default="decrypt,public,owner")
+    ap.add_argument("--counts", default="64,4096")
+    ap.add_argument("--timeout", type=float, default=60.0, help="seconds per variant's subprocess")
+    ap.add_argument("--fake", action="store_true")
+    args = ap.parse_args(argv)
+    keys, steps = args.keys.split(","), args.steps.split(",")
+    counts = [int(c) for c in args.counts.split(",")]
+    if args.variant:
+        run_variant(args.variant, keys, steps, counts, args.fake)
+        return
+    for name in VARIANTS:
+        cmd = [sys.executable, __file__, f"--variant={name}", "--keys", args.keys, "--steps", args.steps,
+               "--counts", args.counts] + (["--fake"] if args.fake else [])
+        try:
+            subprocess.run(cmd, timeout=args.timeout, check=False)
+        except subprocess.TimeoutExpired:
+            print(f"{name:10s} timed out after {args.timeout:.0f} s", flush=True)
 
 
 if __name__ == "__main__":
