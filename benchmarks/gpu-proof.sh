@@ -34,7 +34,7 @@ run)
   : "${OUT:?run this through the device tool (it sets OUT)}"
   python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl || exit 1
   export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
-  nvidia-smi -L 2>&1 | tee "$OUT/device.txt"
+  { nvidia-smi -L; df -hT /tmp /dev/shm "$PWD"; nproc; } 2>&1 | tee "$OUT/device.txt"
   HEVR_TEST_KERNELS=cuda timeout 100 python3 -m pytest -q -rs -p no:cacheprovider -o addopts= -m gpu \
     tests/backends/test_cuda_device.py > "$OUT/pytest.log" 2>&1
   HEVR_TEST_KERNELS=cuda timeout 150 python3 -m pytest -q -rs -p no:cacheprovider -o addopts= --maxfail=20 \
