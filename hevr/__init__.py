@@ -55,6 +55,7 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
         RenderPlanError,
         StoreError,
         StoreExistsError,
+        VerificationError,
         VolumeFormatError,
     )
     from .image import EncryptedImage, load_image, save_png, to_uint8
@@ -99,7 +100,8 @@ _LAZY = {
         "CorruptStoreError", "CorruptVolumeError", "ExistingFileError", "FileSystemError", "HevrError", "IncompleteStoreError",
         "InsecureKeyWarning", "IntegrityError", "InvalidKeyError", "KeyFilePermissionWarning", "KeyMismatchError",
         "MemoryLimitError", "MissingDependencyError", "MissingFileError", "NotRegularFileError", "ParameterError",
-        "PlaintextOverflowError", "RenderPlanError", "StoreError", "StoreExistsError", "VolumeFormatError",
+        "PlaintextOverflowError", "RenderPlanError", "StoreError", "StoreExistsError", "VerificationError",
+        "VolumeFormatError",
     ),
     ".image": ("EncryptedImage", "load_image", "save_png", "to_uint8"),
     ".rendering.camera": ("Camera",),
@@ -145,6 +147,7 @@ __all__ = [
     "IncompleteStoreError",
     "InsecureKeyWarning",
     "IntegrityError",
+    "VerificationError",
     "InvalidKeyError",
     "KeyFilePermissionWarning",
     "KeyMismatchError",

@@ -26,6 +26,7 @@ __all__ = [
     "IncompleteStoreError",
     "CorruptStoreError",
     "IntegrityError",
+    "VerificationError",
     "VolumeFormatError",
     "CorruptVolumeError",
     "MissingDependencyError",
@@ -88,6 +89,12 @@ class IntegrityError(HevrError, ValueError):
     """Data failed an integrity check: a decrypted value outside the range its render plan
     allows, or an image file whose checksum does not match. The data was corrupted (or
     mixed up) somewhere between encryption and decryption; no image is returned."""
+
+
+class VerificationError(IntegrityError):
+    """A verified render failed its check: the image's ray sums are not the ones the store's
+    linearly homomorphic tags certify (:mod:`hevr.rendering.verify`) — an altered, substituted or
+    replayed image or store, or a server that did not render as asked. No image is returned."""
 
 
 class VolumeFormatError(HevrError, ValueError):

@@ -117,6 +117,7 @@ class EncryptedImage:
     components: int | None = None
     samples: np.ndarray | None = None
     colouring: Any = field(default=None, repr=False, compare=False)
+    verification: Any = field(default=None, repr=False, compare=False)
 
     def __repr__(self) -> str:
         return (f"EncryptedImage(shape={self.shape}, finish={self.finish!r}, exponent={self.exponent}, "
@@ -185,7 +186,15 @@ class EncryptedImage:
         n = private_key.public_key.n
         if int(self.n) != int(n):
             raise IntegrityError(f"image: its modulus n is not the one of its key fingerprint; {_CORRUPT}")
-        return self._tile_values(private_key, be, layout, hits, int(n))
+        tiles = self._tile_values(private_key, be, layout, hits, int(n))
+        if self.verification is None:
+            return tiles
+        tiles = list(tiles)  # a verified render: every value checked against the tags before any is used
+        W, offset = self.shape[1], int(self.offset)
+        ids = [((r0 + np.nonzero(mask)[0]) * W + c0 + np.nonzero(mask)[1]) for r0, _, c0, _, mask, _ in tiles]
+        self.verification.check(private_key, np.concatenate(ids) if ids else np.zeros(0, np.int64),
+                                [v - offset for *_, vals in tiles for v in vals])
+        return iter(tiles)
 
     def _tile_values(self, private_key: Any, be: Any, layout: Any, hits: np.ndarray | None, n: int):
         """The iterator of :meth:`_checked_tiles`: range-check, decrypt and unpack tile by tile."""

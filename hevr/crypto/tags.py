@@ -1,7 +1,8 @@
-"""Linearly homomorphic tags: the arithmetic of a verifiable render (issue 28, groundwork).
+"""Linearly homomorphic tags: the arithmetic of a verifiable render (issue 28).
 
-Not yet wired into the store, the render or the image (no render uses it today); these are the
-pure functions the verifiable path will be built on, each tested against the textbook formula.
+The pure functions the verifiable path is built on, each tested against the textbook formula:
+a store written with ``encrypt_volume(..., verifiable=True)`` holds a tag channel beside every
+channel (:mod:`hevr.store.writer`), and :mod:`hevr.rendering.verify` renders and checks them.
 
 The scheme
 ----------
@@ -38,6 +39,12 @@ arrives (a second round: hevr's ray sums stay on the workers as futures, so the 
 more task) — not derived from a hash of the image, which a server could grind (2^t hashes lower
 the bound to 2^(t−64)).
 
+The tag key is derived from the private key (:func:`tag_key_of`): α and k are SHAKE-256 of a
+domain string and the primes p, q. So it is exactly as secret as the key, needs no file of its
+own (nothing new to keep 0600, to lose or to mix up) and is the same on every machine that holds
+the key; deriving it is indistinguishable from drawing it as long as p and q are secret (SHAKE-256
+as a random oracle), and α is reduced from bits(n) + 128 bits (statistical distance ≤ 2^-128).
+
 PRF. SHAKE-256 keyed by prefixing k to a length-prefixed domain string (store id, channel,
 level, component, block number) gives 2^12 values of 128 bits per block (64 KiB of output), so
 any subset of voxels costs the blocks it touches (:func:`betas`).
@@ -47,6 +54,7 @@ from __future__ import annotations
 
 import hashlib
 import secrets
+import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -55,11 +63,15 @@ import numpy as np
 
 from ..errors import ParameterError
 
-__all__ = ["BLOCK", "TagKey", "betas", "coefficients", "generate_tag_key", "raw_check", "raw_tags",
-           "weighted_beta_sums"]
+__all__ = ["BLOCK", "RHO_BITS", "TAG_SUFFIX", "TagKey", "betas", "coefficients", "coefficients_at", "data_channel", "generate_tag_key", "raw_check",
+           "raw_tags", "tag_channel", "tag_ciphertexts", "tag_key_of", "weighted_beta_sums"]
+
+TAG_SUFFIX = "_tag"  # the tag channel of channel c is c + TAG_SUFFIX (its own array in the store)
 
 BLOCK = 1 << 12  # β values per PRF block
 BETA_BYTES = 16
+_KEYS: dict[int, TagKey] = {}
+_KEYS_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True, repr=False)
@@ -86,6 +98,54 @@ def generate_tag_key(n: int) -> TagKey:
         alpha = secrets.randbelow(n)
         if alpha and gmpy2.gcd(alpha, n) == 1:
             return TagKey(alpha, secrets.token_bytes(32), n)
+
+
+def tag_key_of(private_key: Any) -> TagKey:
+    """The tag key of a :class:`hevr.PrivateKey`, derived from its primes (module docstring);
+    cached per key and process.
+
+    >>> import warnings, hevr
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     pub, priv = hevr.generate_keypair(128)
+    >>> k = tag_key_of(priv)
+    >>> k == tag_key_of(hevr.PrivateKey(pub, int(priv.p), int(priv.q))), 0 < k.alpha < int(pub.n), repr(k)[:15]
+    (True, True, 'TagKey(<secret>')
+    """
+    n = int(private_key.public_key.n)
+    with _KEYS_LOCK:
+        got = _KEYS.get(n)
+    if got is not None:
+        return got
+    p, q = sorted((int(private_key.p), int(private_key.q)))
+    width = (n.bit_length() + 7) // 8
+    secret = b"".join(len(b).to_bytes(4, "little") + b for b in (p.to_bytes(width, "little"), q.to_bytes(width, "little")))
+    prf_key = hashlib.shake_256(b"hevr-tag-prf-key-v1" + secret).digest(32)
+    for counter in range(1 << 16):  # gcd(α, n) > 1 has probability about 2/sqrt(n): never in practice
+        raw = hashlib.shake_256(b"hevr-tag-alpha-v1" + counter.to_bytes(4, "little") + secret).digest(width + 16)
+        alpha = int.from_bytes(raw, "little") % n
+        if alpha and gmpy2.gcd(alpha, n) == 1:
+            break
+    key = TagKey(alpha, prf_key, n)
+    with _KEYS_LOCK:
+        while len(_KEYS) >= 4:
+            _KEYS.pop(next(iter(_KEYS)))
+        _KEYS[n] = key
+    return key
+
+
+def tag_channel(channel: str) -> str:
+    """The tag channel of a stored channel.
+
+    >>> tag_channel("vector"), data_channel("vector_tag"), data_channel("scalar")
+    ('vector_tag', 'vector', 'scalar')
+    """
+    return channel + TAG_SUFFIX
+
+
+def data_channel(channel: str) -> str:
+    """The channel a tag channel belongs to (a data channel is its own)."""
+    return channel.removesuffix(TAG_SUFFIX)
 
 
 def _domain(store_id: str, channel: str, level: int, component: int, block: int) -> bytes:
@@ -128,6 +188,32 @@ def raw_tags(key: TagKey, residues: Any, beta_limbs: np.ndarray) -> list[int]:
     return [(a * int(m) + b) % n for m, b in zip(residues, _ints(beta_limbs))]
 
 
+def tag_ciphertexts(private_key: Any, store_id: str, channel: str, level: int, mantissas: Any,
+                    voxels: Any) -> list[list]:
+    """The tag ciphertexts E(α·m + β) of a brick's mantissas ``(k, V)`` (int64, component-major) at
+    the flat voxel indices ``voxels`` ``(V,)`` of ``channel`` at ``level``: ``k`` lists of ``V``
+    ciphertexts, encrypted the owner's way (``private_key.owner``, fresh masks).
+
+    >>> import warnings, hevr
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     pub, priv = hevr.generate_keypair(128)
+    >>> (t,) = tag_ciphertexts(priv, "ab", "scalar", 0, [[5, -2]], [0, 7])
+    >>> k, b = tag_key_of(priv), betas(tag_key_of(priv), "ab", "scalar", 0, 0, [0, 7])
+    >>> [int(priv.raw_decrypt(c)) for c in t] == raw_tags(k, [5 % pub.n, -2 % pub.n], b)
+    True
+    """
+    key = tag_key_of(private_key)
+    n = key.n
+    q = np.asarray(mantissas, dtype=np.int64)
+    owner = private_key.owner
+    out = []
+    for j in range(q.shape[0]):
+        plain = raw_tags(key, [int(m) % n for m in q[j].tolist()], betas(key, store_id, channel, level, j, voxels))
+        out.append(owner.encrypt_residues(gmpy2.mpz(t) for t in plain))
+    return out
+
+
 def weighted_beta_sums(beta_limbs: np.ndarray, indptr: Any, voxels: Any, weights: Any) -> list[int]:
     """``B_r = Σ_j w_j·β_{v_j}`` over each row ``r`` of a CSR plan (``voxels`` index ``beta_limbs``),
     exactly, with numpy: β in 16-bit pieces times weights below 2^31 stay below 2^47 per pair, so
@@ -164,6 +250,27 @@ def coefficients(seed: bytes, count: int) -> list[int]:
     """
     raw = hashlib.shake_256(b"hevr-tag-rho-v1" + seed).digest(8 * int(count))
     return np.frombuffer(raw, "<u8").astype(object).tolist() if count else []
+
+
+RHO_BITS = 62  # aggregation coefficients: below 2^62, so every weight array stays int64-safe
+
+
+def coefficients_at(seed: bytes, ids: Any) -> np.ndarray:
+    """The coefficients ρ of indices ``ids`` (non-negative) in the seed's stream: uint64 below
+    2^62, the same for an index whatever else is asked (the server's tile tasks and the client
+    each take the ones they need).
+
+    >>> a = coefficients_at(b"s", [5, 0, 5])
+    >>> bool(a[0] == a[2]), bool((a < 2**62).all()), bool(coefficients_at(b"s", [0])[0] == a[1])
+    (True, True, True)
+    """
+    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+    if not ids.size:
+        return np.zeros(0, np.uint64)
+    if ids.min() < 0:
+        raise ParameterError("ids: expected non-negative indices, got a negative one")
+    raw = np.frombuffer(hashlib.shake_256(b"hevr-tag-rho-v2" + seed).digest(8 * (int(ids.max()) + 1)), "<u8")
+    return raw[ids] & np.uint64((1 << RHO_BITS) - 1)
 
 
 def raw_check(key: TagKey, sums: list[int], beta_sums: list[int], rho: list[int], aggregate: int) -> bool:

@@ -45,6 +45,7 @@ from .rays import cast_rays
 from .reduce import BlockedReduce
 from .request import at_level, check_request, level_step
 from .sums import RaySums, check_sums_path, image_fields, save_sums, with_colouring
+from .verify import resolve_verify, tag_aggregate
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +121,7 @@ def render(
     gradient: bool = False,
     overwrite: bool = False,
     finish: str = "client",
+    verify: bool | None = None,
 ) -> EncryptedImage | Delayed:
     """Render an encrypted volume to an :class:`EncryptedImage` on the active Dask scheduler.
 
@@ -196,6 +198,14 @@ def render(
         milliseconds (:mod:`hevr.colour`). ``"server"``: the paper's way, the server
         combines, normalises and packs finished pixels (the colouring is sent to the workers).
         With ``compute=False`` a client-finished image carries no colouring: pass it to ``decrypt``.
+    verify : bool, optional
+        Check the render against the store's tags (a store encrypted with ``verifiable=True``):
+        after the image, the server sums the tag channel with the same plan and returns one
+        aggregate ciphertext for coefficients drawn here; decryption then raises
+        :class:`hevr.VerificationError` instead of returning an image that is not the render of
+        this store and camera (:mod:`hevr.rendering.verify`). Default: on for a verifiable store
+        where the request can be verified (client finishing, level 0, ``compute=True``); ``True``
+        where it cannot is a :class:`hevr.ParameterError`. About twice the server's work.
 
     Returns
     -------
@@ -217,7 +227,7 @@ def render(
     return _render(ev, camera, mode, sampling, step, density, nodes, digits=digits, precision=precision,
                    comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
                    backend=backend, compute=compute, keep_sums=keep_sums, level=level, gradient=gradient,
-                   overwrite=overwrite, finish=finish)
+                   overwrite=overwrite, finish=finish, verify=verify)
 
 
 # -- the render of one view (a Camera, or a Plane: hevr.render_slice) ----------------------------
@@ -226,7 +236,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
             tile: int, cache: bool, client: Any, progress: bool, backend: str | None, compute: bool,
             keep_sums: str | os.PathLike | None, views: tuple[type, ...] = (Camera,),
             level: int | None = None, gradient: bool = False, overwrite: bool = False,
-            finish: str = "client", stream: Any = None) -> EncryptedImage | Delayed:
+            finish: str = "client", stream: Any = None, verify: bool | None = None) -> EncryptedImage | Delayed:
     """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``.
 
     With ``finish="client"`` nothing below this function sees ``spec``'s density or nodes: the
@@ -239,6 +249,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                                                           digits, precision, comb_digits, views, gradient, finish)
     ev, camera = at_level(ev, camera, level)
     spec = level_step(spec, ev, camera)
+    verified = resolve_verify(verify, ev, finish, level=ev.level, compute=compute, stream=stream is not None)
     tile = check_int("tile", tile, 1, 4096)
     if keep_sums is not None and not compute:
         raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
@@ -354,8 +365,15 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
              "resident": resident is not None, "backend": backend if fin else sums.backend,  # no task: the sums' own
              "gathered_bytes": _gathered_bytes(packed, sums, cl, reused) if fin else 0,
              "seconds": time.perf_counter() - t0}
+    verification = None
+    if verified:  # the image is fixed: now the coefficients, then the tags' aggregate (verify.py)
+        verification = tag_aggregate(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
+                                     tile, n_tiles, backend, cl, progress)
+        stats["verify_s"] = verification.server_s
+        stats["seconds"] = time.perf_counter() - t0
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
-    return EncryptedImage(ciphertexts=list(packed), stats=stats, **with_colouring(fields, spec))
+    return EncryptedImage(ciphertexts=list(packed), stats=stats, verification=verification,
+                          **with_colouring(fields, spec))
 
 
 def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict, nested: bool = False) -> EncryptedImage:

@@ -37,6 +37,7 @@ from .. import _malloc, _stats
 from .._tiles import TileLayout
 from ..backends import get_backend
 from ..crypto.records import record_width
+from ..crypto.tags import data_channel
 from ..store.reader import EncryptedVolume
 from .camera import Camera
 from .finishing import finish_tile, finish_units, merge_partials
@@ -97,7 +98,7 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     else:
         with _stats.timed("map.read"):
             cts = ev.read_brick(index, channel, backend=be)
-    comps = [cts] if channel == "scalar" else cts
+    comps = [cts] if data_channel(channel) == "scalar" else cts
     with _stats.timed("map.kernel", int(bw.indptr[-1]) * len(comps)):
         prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare, backend=be)
     return _emit(prods, bw.rays, be, W, camera, tile, tiles, f"brick {index}")
@@ -153,7 +154,7 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
             return {t: empty for t in tiles}
         be = get_backend(backend)
         batches = [d.channel(channel) for d in data]
-        comps = [be.concat(batches)] if channel == "scalar" else [be.concat([b[c] for b in batches])
+        comps = [be.concat(batches)] if data_channel(channel) == "scalar" else [be.concat([b[c] for b in batches])
                                                                   for c in range(K)]
         with _stats.timed("map.kernel", int(rows.indptr[-1]) * K):
             prods = brick_ray_products_multi(comps, rows.indptr, voxels, rows.weights, n2, backend=be)

@@ -159,7 +159,7 @@ def resume_target(path: str, meta: VolumeMetadata, storage_options: dict | None 
         raise ParameterError(
             f"key: the store {path} was started with key {old.fingerprint[:16]}…, got key {meta.fingerprint[:16]}…"
         )
-    for name in ("shape", "brick", "spacing", "scalar", "vector", "gradient", "value_range", "dtype"):
+    for name in ("shape", "brick", "spacing", "scalar", "vector", "gradient", "value_range", "dtype", "tags"):
         if getattr(old, name) != getattr(meta, name):
             raise ParameterError(
                 f"{name}: resume needs the same {name} as the interrupted run ({getattr(old, name)!r}), got {getattr(meta, name)!r}"

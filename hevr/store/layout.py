@@ -31,6 +31,7 @@ import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
 from .._files import check_regular, file_kind
+from ..crypto.tags import data_channel, tag_channel
 from ..errors import CorruptStoreError, MissingFileError
 from .digests import DIGEST_BYTES
 from .metadata import VolumeMetadata, ome_attribute
@@ -68,6 +69,8 @@ def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple
         if getattr(meta, name) is not None:
             k = meta.components(name)
             out[name] = ((k,) + meta.shape + (w,), (k,) + meta.brick + (w,))
+    if meta.tags:  # a verifiable store: each channel's tags, laid out as the channel
+        out.update({tag_channel(name): out[name] for name in meta.data_channels})
     nch = len(meta.channel_names)
     out["done"] = (meta.grid + (nch, DIGEST_BYTES), (1, 1, 1, nch, DIGEST_BYTES))
     return out
@@ -86,7 +89,8 @@ def chunk_key(name: str, index: tuple[int, ...]) -> str:
     ('c/0/1/2/0', 'c/0/0/1/2/0', 'c/0/1/2/0/0')
     """
     lead = (0, 0) if name == "done" else (0,)
-    return "c/" + "/".join(str(int(i)) for i in ((0,) if name in ("vector", "gradient") else ()) + tuple(index) + lead)
+    vector = data_channel(name) in ("vector", "gradient")
+    return "c/" + "/".join(str(int(i)) for i in ((0,) if vector else ()) + tuple(index) + lead)
 
 
 def check_entry(path: str, rel: str, what: str) -> bool:

@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from .._validate import MAX_STORE_DIGITS, is_decimal
+from ..crypto.tags import data_channel, tag_channel
 from ..errors import CorruptStoreError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_spacing
 
@@ -155,6 +156,8 @@ class VolumeMetadata:
     levels: tuple = ()  # LevelInfo of pyramid levels 1, 2, … (hevr.store.pyramid); () without a pyramid
     # {"frame": "RAS", "origin": [x, y, z]} when the input recorded patient geometry (hevr.read_scan), else {}
     patient: dict = field(default_factory=dict)
+    # a tag channel "<c>_tag" beside every channel c (encrypt_volume(verifiable=True), hevr.crypto.tags)
+    tags: bool = False
 
     @property
     def grid(self) -> tuple[int, int, int]:
@@ -185,12 +188,21 @@ class VolumeMetadata:
                                    arrays=dict(info.arrays), levels=())
 
     @property
-    def channel_names(self) -> tuple[str, ...]:
-        """The channels present, in store order (scalar, vector, gradient): the order of the digests."""
+    def data_channels(self) -> tuple[str, ...]:
+        """The channels of encrypted values present, in store order (scalar, vector, gradient)."""
         return tuple(name for name in CHANNELS if getattr(self, name) is not None)
 
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """Every stored channel in store order, the order of the digests: the data channels, then
+        (a verifiable store) their tag channels ``<c>_tag`` in the same order."""
+        data = self.data_channels
+        return data + tuple(tag_channel(c) for c in data) if self.tags else data
+
     def components(self, channel: str) -> int:
-        """Ciphertexts per voxel of ``channel``: 1 (scalar) or its ``dims`` (vector, gradient)."""
+        """Ciphertexts per voxel of ``channel``: 1 (scalar) or its ``dims`` (vector, gradient); a tag
+        channel has its channel's."""
+        channel = data_channel(channel)
         return 1 if channel == "scalar" else int(getattr(self, channel).dims)
 
     def to_dict(self) -> dict[str, Any]:
@@ -218,6 +230,7 @@ class VolumeMetadata:
             **({"levels": [lv.to_dict() for lv in self.levels]} if self.levels else {}),
             **({"patient": {"frame": self.patient["frame"], "origin": list(self.patient["origin"])}}
                if self.patient else {}),
+            **({"tags": True} if self.tags else {}),
         }
         if self.version >= 2:
             d["checksum"] = metadata_checksum(d)
@@ -257,7 +270,7 @@ def ome_attribute(meta: VolumeMetadata) -> dict:
     record = [{"name": "ciphertext_byte", "type": "ciphertext"}]
     done = [lv.level for lv in meta.levels if lv.complete]
     out = []
-    for ch in meta.channel_names:
+    for ch in meta.data_channels:  # tag channels are not images: not listed
         lead = [{"name": "component", "type": "channel"}] if ch != "scalar" else []
         datasets = []
         for lv in [0] + done:
@@ -352,15 +365,18 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     if not isinstance(extra, dict):
         raise _bad(where, "extra", "an object", extra)
     patient = _patient(d.get("patient", {}), where)
+    tags = d.get("tags", False)
+    if type(tags) is not bool:
+        raise _bad(where, "tags", "true or false", tags)
     arrays = d.get("arrays", {})
-    names = {*(k for k in CHANNELS if k in ch), "done"}
+    names = {*(k for k in CHANNELS if k in ch), *(tag_channel(k) for k in CHANNELS if k in ch and tags), "done"}
     if version >= 2 and not (isinstance(arrays, dict) and set(arrays) == names
                              and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())):
         raise _bad(where, "arrays", f"a 'sha256:…' digest for each of {sorted(names)}", arrays)
     meta = cls(shape=shape, spacing=spacing, brick=brick, n=n, fingerprint=fingerprint, ciphertext_bytes=width,
                dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, gradient=gradient, base=base,
                complete=complete, store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {},
-               patient=patient)
+               patient=patient, tags=tags)
     levels = d.get("levels", [])
     if not isinstance(levels, list) or len(levels) > MAX_LEVELS:
         raise _bad(where, "levels", f"a list of at most {MAX_LEVELS} pyramid levels", levels)

@@ -36,6 +36,7 @@ import zarr
 
 from .._dask import active_client, compute
 from ..backends import get_backend, resolve_backend_name
+from ..crypto.tags import data_channel
 from ..errors import ParameterError, StoreError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_shape
 from .digests import brick_digest, marker, written
@@ -88,7 +89,7 @@ def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int
         for child in map(tuple, np.unique(kid_brick, axis=0).tolist()):  # at most 8 child bricks
             mine = np.flatnonzero((kid_brick == child).all(axis=1))
             data = below.read_brick_bytes(child, channel)  # digest checked
-            recs = data.reshape((1,) + data.shape) if channel == "scalar" else data  # (K, bz, by, bx, W)
+            recs = data.reshape((1,) + data.shape) if data_channel(channel) == "scalar" else data  # (K, bz, by, bx, W)
             csl = below.brick_slices(child)
             local = kids[mine] - np.array([s.start for s in csl])
             who = owner[mine]  # sorted: children were listed coarse voxel by coarse voxel
@@ -106,10 +107,10 @@ def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int
         sums = be.segment_products(be.from_bytes(rows), np.r_[starts, who.size], K, n2)
         means = be.combine(sums, [[LEVEL_FACTOR]], n2)  # each value ⊗ 125 (rows of one value)
         out = be.to_bytes(means, width).reshape(bshape + (K, width))
-        out = out[..., 0, :] if channel == "scalar" else np.moveaxis(out, 3, 0)
+        out = out[..., 0, :] if data_channel(channel) == "scalar" else np.moveaxis(out, 3, 0)
         out = np.ascontiguousarray(out)
         digests.append(brick_digest(meta.store_id, prefix + channel, index, out))
-        group[prefix + channel][sl if channel == "scalar" else (slice(None),) + sl] = out
+        group[prefix + channel][sl if data_channel(channel) == "scalar" else (slice(None),) + sl] = out
     group[prefix + "done"][index] = marker(digests)
     return index
 

@@ -25,6 +25,7 @@ from .._validate import check_brick_index, check_choice
 from ..backends import Backend, get_backend
 from ..crypto.keys import PublicKey
 from ..crypto.records import record_width
+from ..crypto.tags import data_channel
 from ..errors import (
     CorruptStoreError,
     IncompleteStoreError,
@@ -282,8 +283,9 @@ class EncryptedVolume:
         match the one its writer recorded; a mismatch raises :class:`hevr.CorruptStoreError`
         naming the brick. Zarr's crc32c codec checks the chunk file itself in any case.
         """
-        if channel not in CHANNELS:
-            raise ParameterError(f"channel: expected 'scalar', 'vector' or 'gradient', got {channel!r}")
+        if not isinstance(channel, str) or data_channel(channel) not in CHANNELS:
+            raise ParameterError(f"channel: expected 'scalar', 'vector' or 'gradient' (or its tag channel "
+                                 f"'<channel>_tag'), got {channel!r}")
         if channel not in self.meta.channel_names:
             raise ParameterError(f"channel: this store has no {channel} channel")
         sl = self.brick_slices(index)
@@ -295,7 +297,7 @@ class EncryptedVolume:
         try:
             so = self.storage_options
             arr = _array(self.path, self.meta.store_id, self.prefix + channel, so)
-            data = np.asarray(arr[sl if channel == "scalar" else (slice(None),) + sl])
+            data = np.asarray(arr[sl if data_channel(channel) == "scalar" else (slice(None),) + sl])
             stored = np.asarray(_array(self.path, self.meta.store_id, self.prefix + "done", so)[index]) if verify else None
         except Exception as exc:
             why = ("its chunk fails its crc32c check: the file was damaged" if "checksum" in str(exc).lower()
@@ -327,7 +329,7 @@ class EncryptedVolume:
         """
         be = get_backend(backend)
         data = self.read_brick_bytes(index, channel, verify=check)
-        parts = [data] if channel == "scalar" else list(data)
+        parts = [data] if data_channel(channel) == "scalar" else list(data)
         batches = [be.from_bytes(d) for d in parts]
         if check:
             n2 = int(self.public_key.nsquare)
@@ -339,7 +341,7 @@ class EncryptedVolume:
                     raise CorruptStoreError(
                         f"{self.path}: brick {tuple(index)} of channel {channel!r}{lv}: ciphertext {i} is {what}"
                     )
-        return batches[0] if channel == "scalar" else batches
+        return batches[0] if data_channel(channel) == "scalar" else batches
 
     def verify(self, coprime: bool = True) -> None:
         """Read every brick and check every ciphertext (digest, range, and coprimality with n);

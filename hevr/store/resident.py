@@ -41,6 +41,7 @@ import psutil
 
 from .._validate import check_choice
 from ..backends import get_backend, resolve_backend_name
+from ..crypto.tags import data_channel
 from ..errors import MemoryLimitError, ParameterError
 
 log = logging.getLogger(__name__)
@@ -91,7 +92,7 @@ def load_brick(ev: Any, index: tuple[int, int, int], channels: tuple[str, ...], 
     """Read, check and convert one brick's channels (a Dask task on the worker that keeps it)."""
     be = get_backend(backend)
     batches = {ch: ev.read_brick(index, ch, backend=be) for ch in channels}
-    n_cts = sum(len(b) if ch == "scalar" else sum(len(x) for x in b) for ch, b in batches.items())
+    n_cts = sum(len(b) if data_channel(ch) == "scalar" else sum(len(x) for x in b) for ch, b in batches.items())
     return ResidentBrick(tuple(index), batches, n_cts * be.residue_bytes(ev.meta.ciphertext_bytes))
 
 

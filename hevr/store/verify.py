@@ -23,6 +23,7 @@ import dask
 import gmpy2
 
 from .._dask import active_client, compute
+from ..crypto.tags import data_channel
 from ..errors import CorruptStoreError
 from .paths import check_reachable
 
@@ -79,7 +80,7 @@ def check_brick(ev: Any, index: tuple[int, int, int], coprime: bool = True) -> l
             res = ev.read_brick(index, ch, backend="cpu")  # digest and range; the gcd below works on mpz
             if coprime:
                 n = ev.public_key.n
-                for cts in ([res] if ch == "scalar" else res):
+                for cts in ([res] if data_channel(ch) == "scalar" else res):
                     prod = gmpy2.mpz(1)
                     for c in cts:
                         prod = prod * c % n

@@ -55,8 +55,9 @@ from .._validate import (
     check_spacing,
     check_volume,
 )
-from ..backends import get_backend, resolve_backend_name
+from ..backends import CpuBackend, get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
+from ..crypto.tags import tag_channel, tag_ciphertexts
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume import gradient as grad
 from ..volume.density import (
@@ -90,6 +91,8 @@ from .reader import EncryptedVolume, brick_slices, open_volume
 log = logging.getLogger(__name__)
 
 __all__ = ["encrypt_volume", "open_volume", "EncryptedVolume"]
+
+_CPU = CpuBackend()  # the tags' records (owner-encrypted on the CPU whatever the data's backend)
 
 
 def _encrypt_components(be: Any, key: Any, q: np.ndarray, shape: tuple, width: int, unsafe: bool) -> np.ndarray:
@@ -128,13 +131,16 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
     width = meta.ciphertext_bytes
     group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
     digests = []
+    mantissas = {}  # channel -> (k, voxels) int64, for the tags of a verifiable store
     if meta.scalar is not None:
+        q = quantise_scalar(block, meta.scalar)
         with _stats.timed("encrypt.crypto", block.size):
-            cts = be.encrypt(key, quantise_scalar(block, meta.scalar), unsafe_no_obfuscation=unsafe_no_obfuscation)
+            cts = be.encrypt(key, q, unsafe_no_obfuscation=unsafe_no_obfuscation)
         out = be.to_bytes(cts, width).reshape(block.shape + (width,))
         digests.append(brick_digest(meta.store_id, "scalar", index, out))
         with _stats.timed("encrypt.write"):
             group["scalar"][sl] = out
+        mantissas["scalar"] = np.asarray(q).reshape(1, -1)
     fields = {}
     if meta.vector is not None:
         fields["vector"] = encode_density(normalize_density(block, meta.value_range), meta.vector.dims)
@@ -144,11 +150,23 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
         fields["gradient"] = grad.brick_gradient_encoding(haloed, halo, meta.spacing, meta.value_range,
                                                           meta.gradient.dims, m_max)
     for name, enc in fields.items():  # store order: vector, then gradient
-        out = _encrypt_components(be, key, quantise_vector(enc, getattr(meta, name)), block.shape, width,
-                                  unsafe_no_obfuscation)
+        q = quantise_vector(enc, getattr(meta, name))
+        out = _encrypt_components(be, key, q, block.shape, width, unsafe_no_obfuscation)
         digests.append(brick_digest(meta.store_id, name, index, out))
         with _stats.timed("encrypt.write"):
             group[name][(slice(None),) + sl] = out
+        mantissas[name] = np.asarray(q)
+    if meta.tags:  # after every data channel: the digests' order (VolumeMetadata.channel_names)
+        voxels = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
+                                      meta.shape).reshape(-1)
+        for name, q in mantissas.items():
+            with _stats.timed("encrypt.tags", q.size):
+                tags = tag_ciphertexts(key, meta.store_id, name, 0, q, voxels)
+            out = np.stack([_CPU.to_bytes(t, width).reshape(block.shape + (width,)) for t in tags])
+            out = out[0] if name == "scalar" else out
+            digests.append(brick_digest(meta.store_id, tag_channel(name), index, out))
+            with _stats.timed("encrypt.write"):
+                group[tag_channel(name)][sl if name == "scalar" else (slice(None),) + sl] = out
     group["done"][index] = marker(digests)
     return index
 
@@ -173,6 +191,7 @@ def encrypt_volume(
     unsafe_no_obfuscation: bool = False,
     backend: str | None = None,
     storage_options: dict | None = None,
+    verifiable: bool = False,
 ) -> EncryptedVolume:
     """Encrypt a 3-D volume brick by brick into a Zarr v3 store, one Dask task per brick.
 
@@ -222,6 +241,12 @@ def encrypt_volume(
         backend encrypts in kernels yet).
     storage_options : dict, optional
         Options of the URL's fsspec filesystem (endpoint, credentials, …; :mod:`hevr.store.paths`).
+    verifiable : bool
+        Also store a tag channel ``<c>_tag`` beside every channel: per voxel and component
+        E(α·m + β_v), with α and the PRF key of β derived from the private key
+        (:mod:`hevr.crypto.tags`), so that renders can be checked against a lying server
+        (:mod:`hevr.rendering.verify`). Needs the private key; twice the ciphertexts and about
+        twice the encryption time.
 
     Returns
     -------
@@ -244,6 +269,11 @@ def encrypt_volume(
     pub = key.public_key if isinstance(key, PrivateKey) else key
     if not isinstance(gradient, (bool, np.bool_)):
         raise ParameterError(f"gradient: expected True or False, got {gradient!r}")
+    if not isinstance(verifiable, (bool, np.bool_)):
+        raise ParameterError(f"verifiable: expected True or False, got {verifiable!r}")
+    if verifiable and not isinstance(key, PrivateKey):
+        raise ParameterError("verifiable: expected a PrivateKey as key (the tags need its tag key, "
+                             f"hevr.crypto.tags), got a {type(key).__name__}")
     if gradient and vector_dims is None:
         raise ParameterError("gradient: expected vector_dims=k as well, got vector_dims=None (the gradient channel "
                              "holds g·e(d), the k-dimensional density encoding scaled by the gradient magnitude)")
@@ -252,6 +282,7 @@ def encrypt_volume(
         shape=tuple(int(s) for s in vol.shape), spacing=spacing_t, brick=brick_t, n=str(int(pub.n)),
         fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
         value_range=vr, scalar=sc, vector=vc, gradient=vc if gradient else None, patient=patient,
+        tags=bool(verifiable),
     )
     path, so = normalise(path), check_storage_options(storage_options)
     check_reachable(path, active_client(client))

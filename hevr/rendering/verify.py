@@ -1,0 +1,194 @@
+"""Verified renders: the server's tag sums and the client's check (issue 28; the scheme and its
+soundness: :mod:`hevr.crypto.tags`).
+
+A verifiable store (``encrypt_volume(..., verifiable=True)``) holds beside every channel ``c`` a tag
+channel ``c_tag`` of E(α·m_v + β_v). A render with ``verify`` (the default on such a store)
+
+1. renders the image as usual; its ciphertexts are then fixed, in the client's hands;
+2. draws a fresh seed (:func:`secrets.token_bytes`) and only then asks the server for one more
+   graph: the tag channel's ray sums T_{r,k} with exactly the image's plan (same bricks, weights,
+   merges: :func:`~hevr.rendering.graph.build_sums_graph`), and per image tile one aggregation
+   task, A_t = Π_{r,k} T_{r,k}^{ρ_{r,k}} mod n², ρ_{r,k} the 62-bit coefficient of index
+   r·K + k of the seed's stream (:func:`hevr.crypto.tags.coefficients_at`), computed as one
+   multi-exponentiation row by the backend;
+3. keeps A = Π_t A_t with the image (:class:`Verification`, in this process only).
+
+Decryption checks before it returns any pixel (:meth:`Verification.check`): with S'_{r,k} the ray
+sums the image decrypts to (its values less the public offset, client finishing) and B_{r,k} =
+Σ_v w_{r,v}·β_{v,k} recomputed here from the public geometry (the same
+:func:`~hevr.rendering.weights.brick_weights` the map tasks use, brick by brick, and the PRF),
+
+    D(A) ≡ α·Σ ρ_{r,k}·S'_{r,k} + Σ ρ_{r,k}·B_{r,k}   (mod n),
+
+else :class:`hevr.VerificationError` and no image. The client's cost: the geometry of every brick
+(tens of ms at the paper case), the β of the voxels the rays reach (SHAKE-256, 16 bytes each), exact
+weighted sums in numpy and one decryption. The server's: the tag map (as much again as the image's)
+and ~8 products per ray and component for the aggregate (62-bit exponents, 8-bit windows).
+
+Scope. Camera renders and slices with client finishing at level 0, streamed or resident (the tag
+channel is always streamed). Not verified: server finishing (``finish="server"``: its pixels are not
+the ray sums the tags protect), pyramid levels (β at a level is 125·Σ of its children's, not yet
+computed here), ``compute=False`` and the streaming viewer; ``verify=True`` there is refused with a
+:class:`hevr.ParameterError`, and the default ``verify=None`` renders them unverified with a warning.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import dask
+import gmpy2
+import numpy as np
+
+from .._dask import compute as run_tasks
+from ..backends import get_backend
+from ..crypto.tags import (
+    betas,
+    coefficients_at,
+    tag_channel,
+    tag_key_of,
+    weighted_beta_sums,
+)
+from ..errors import ParameterError, VerificationError
+from .graph import build_sums_graph
+from .kernel import plan_products
+from .rays import RaySet, cast_rays
+from .weights import brick_bounds, brick_weights, touched_bricks
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Verification", "aggregate_tile", "resolve_verify", "tag_aggregate"]
+
+
+def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bool, stream: bool) -> bool:
+    """Whether a render is verified: ``verify`` checked against what the store and request allow
+    (module docstring); None: yes where the store is verifiable and the request supported."""
+    if verify is not None and not isinstance(verify, (bool, np.bool_)):
+        raise ParameterError(f"verify: expected True, False or None, got {verify!r}")
+    if verify is False:
+        return False
+    why = ("the store has no tags (encrypt it with verifiable=True)" if not ev.meta.tags else
+           "finish='server' (verification checks the ray sums, which client finishing decrypts)"
+           if finish != "client" else
+           f"pyramid level {level} (tags are verified at level 0 only, for now)" if level else
+           "compute=False (the check needs a second round after the image)" if not compute else
+           "a streamed frame (the viewer's progressive decryption)" if stream else None)
+    if why is None:
+        return True
+    if verify:
+        raise ParameterError(f"verify: expected a request that can be verified, got {why}")
+    if ev.meta.tags:
+        log.warning("render: not verified: %s", why)
+    return False
+
+
+def aggregate_tile(merged: Any, seed: bytes, width: int, components: int, nsquare: int,
+                   backend: str = "cpu") -> np.ndarray | None:
+    """One server task: A_t = Π T_{r,k}^{ρ_{r,k}} mod n² over a tile's merged tag sums ``(rays,
+    records)`` as one ``(W,)`` record (None: no ray of the tile has tag sums)."""
+    if merged is None:
+        return None
+    rays, recs = merged
+    if not len(rays):
+        return None
+    be = get_backend(backend)
+    ids = (np.asarray(rays, np.int64)[:, None] * components + np.arange(components)).reshape(-1)
+    rho = coefficients_at(seed, ids)
+    batch = be.from_bytes(np.ascontiguousarray(recs).reshape(-1, width))
+    plan = plan_products(np.array([0, ids.size]), np.arange(ids.size), rho, ids.size)
+    (out,) = be.ray_products(plan, [batch], nsquare)
+    return be.to_bytes(out, width)[0]
+
+
+def tag_aggregate(ev: Any, camera: Any, rays: RaySet, sampling: str, step: float, digits: int, channel: str,
+                  tile: int, n_tiles: int, backend: str, client: Any, progress: bool) -> Verification:
+    """Steps 2-3 of the module docstring, after the image: a fresh seed, the tag channel's graph
+    with the image's plan and one aggregation task per tile; the :class:`Verification` to keep."""
+    seed = secrets.token_bytes(32)
+    t0 = time.perf_counter()
+    plain = ev._plain()  # the tags are always read from the store
+    graph = build_sums_graph(plain, camera, rays, sampling, step, digits, tag_channel(channel), tile, n_tiles, backend)
+    K, W, n2 = ev.meta.components(channel), ev.meta.ciphertext_bytes, int(ev.public_key.nsquare)
+    task = dask.delayed(aggregate_tile, pure=True)
+    tasks = [task(graph.delayed(t), seed, W, K, n2, backend) for t in range(n_tiles) if graph.merged.get(t) is not None]
+    parts = run_tasks(tasks, client=client, progress=progress, desc="verify") if tasks else []
+    A = gmpy2.mpz(1)
+    for rec in parts:
+        if rec is not None:
+            A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
+    return Verification(aggregate=int(A), seed=seed, store_id=ev.meta.store_id, channel=channel, shape=ev.shape,
+                        spacing=ev.spacing, brick=ev.brick, camera=camera, sampling=sampling, step=step, digits=digits,
+                        components=K, n=int(ev.public_key.n), server_s=time.perf_counter() - t0)
+
+
+@dataclass(frozen=True, repr=False)
+class Verification:
+    """What the client keeps of a verified render: the aggregate A, the seed of the coefficients
+    and the public geometry to recompute Σρ·B (no secret: A is a ciphertext)."""
+
+    aggregate: int
+    seed: bytes
+    store_id: str
+    channel: str
+    shape: tuple
+    spacing: tuple
+    brick: tuple
+    camera: Any
+    sampling: str
+    step: float
+    digits: int
+    components: int
+    n: int
+    server_s: float = 0.0
+
+    def __repr__(self) -> str:
+        return f"Verification({self.channel}, {self.components} per ray, seed …)"
+
+    def beta_sum(self, private_key: Any) -> int:
+        """Σ_{r,k} ρ_{r,k}·B_{r,k} mod n from the public geometry and the PRF (module docstring)."""
+        key = tag_key_of(private_key)
+        K, n = self.components, self.n
+        rays = cast_rays(self.camera, self.shape, self.spacing, self.step)
+        total = 0
+        nz, ny, nx = self.shape
+        for index in touched_bricks(rays, self.shape, self.spacing, self.brick, self.sampling, self.step):
+            bw = brick_weights(rays, self.shape, self.spacing, self.brick, index, self.sampling, self.step,
+                               self.digits)
+            if not bw.rays.size:
+                continue
+            (z0, z1), (y0, y1), (x0, x1) = brick_bounds(self.shape, self.brick, index)
+            zz, yy, xx = np.meshgrid(np.arange(z0, z1), np.arange(y0, y1), np.arange(x0, x1), indexing="ij")
+            used, local = np.unique(bw.voxels, return_inverse=True)  # β of the voxels the rays reach only
+            glob = ((zz * ny + yy) * nx + xx).reshape(-1)[used]
+            rho = coefficients_at(self.seed, (bw.rays[:, None] * K + np.arange(K)).reshape(-1)).reshape(-1, K)
+            for k in range(K):
+                sums = weighted_beta_sums(betas(key, self.store_id, self.channel, 0, k, glob), bw.indptr,
+                                          local.reshape(-1), bw.weights)
+                total += sum(int(r) * b for r, b in zip(rho[:, k].tolist(), sums))
+        return total % n
+
+    def check(self, private_key: Any, ray_ids: np.ndarray, sums: list[int]) -> None:
+        """Raise :class:`hevr.VerificationError` unless D(A) = α·Σρ·S' + Σρ·B (mod n); ``sums``
+        are the image's decrypted ray sums S' (offset removed), ``K`` per ray of ``ray_ids``."""
+        t0 = time.perf_counter()
+        key = tag_key_of(private_key)
+        K, n = self.components, self.n
+        ids = (np.asarray(ray_ids, np.int64)[:, None] * K + np.arange(K)).reshape(-1)
+        if ids.size != len(sums):
+            raise VerificationError(f"image: expected {ids.size} ray sums for its hit pixels, got {len(sums)}; "
+                                    "no image is returned")
+        rho = coefficients_at(self.seed, ids).tolist()
+        s_sum = sum(int(r) * int(s) for r, s in zip(rho, sums))
+        want = (key.alpha * s_sum + self.beta_sum(private_key)) % n
+        got = int(private_key.raw_decrypt(gmpy2.mpz(self.aggregate))) % n
+        log.info("verification: %.3f s on the client", time.perf_counter() - t0)
+        if got != want:
+            raise VerificationError(
+                "image: the render does not verify: its ray sums are not the ones the store's tags certify (an "
+                "altered, substituted or replayed image or store, or a server that did not render as asked); "
+                "no image is returned")
+
