@@ -162,7 +162,7 @@ def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
     for name in fields:
         if name not in h:
             ctx.fail(name, "the field", raw="nothing")
-    extra = sorted(set(h) - set(fields))
+    extra = sorted(set(h) - set(fields) - ({"verification"} if version >= 3 else set()))  # verification: optional
     if extra:
         raise CorruptStoreError(f"{ctx.where}: header: unexpected field {_show(extra[0])}")
     shape = check_shape(ctx, h["shape"])
@@ -209,7 +209,7 @@ def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
     return {"shape": shape, "n": n, "width": width, "fingerprint": fp, "bound": bound, "offset": offset,
             "exponent": int(h["exponent"]), "tile": int(tile), "pack_bits": int(h["pack_bits"]),
             "per_pack": int(per_pack), "counts": counts, "hits": hits, "info": h["info"], "finish": finish,
-            "channel": channel, "components": components}
+            "channel": channel, "components": components, "verification": h.get("verification")}
 
 
 def _check_hits(ctx: Fields, text: Any, H: int, W: int) -> np.ndarray | None:

@@ -40,6 +40,7 @@ from .colour import colour, colouring_spec, frame_from_sums, scaled_sums
 from .crypto.keys import PrivateKey
 from .crypto.records import record_width
 from .errors import IntegrityError, KeyMismatchError, MissingFileError, ParameterError
+from .rendering.verify import Verification
 from .store.paths import (
     check_storage_options,
     is_local,
@@ -282,6 +283,7 @@ class EncryptedImage:
             "hits": None if hits is None else base64.b64encode(hits.tobytes()).decode(), "info": self.info,
             "finish": self.finish, "channel": self.channel,
             "components": None if self.components is None else int(self.components),
+            **({"verification": self.verification.to_dict()} if self.verification is not None else {}),
         }
 
     def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None) -> None:
@@ -386,7 +388,8 @@ def _from_blob(blob: bytes, path: str) -> EncryptedImage:
                           fingerprint=h["fingerprint"], n=h["n"], tile=h["tile"], pack_bits=h["pack_bits"],
                           per_pack=h["per_pack"], ciphertexts=cts, hits=h["hits"], info=h["info"],
                           bound=h["bound"], finish=h["finish"], channel=h["channel"], components=h["components"],
-                          samples=h["samples"])
+                          samples=h["samples"], verification=None if h["verification"] is None else
+                          Verification.from_dict(h["verification"], int(h["n"]), path))
 
 
 def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None) -> np.ndarray:

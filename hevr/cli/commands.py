@@ -84,7 +84,7 @@ def cmd_encrypt(args: Any) -> int:
             ev = encrypt_volume(scan, store, key, brick=args.brick, scalar=not args.no_scalar,
                                 vector_dims=args.vector_dims, value_range=value_range, digits=args.digits,
                                 overwrite=args.overwrite, resume=args.resume, gradient=args.gradient,
-                                storage_options=so,
+                                storage_options=so, verifiable=args.verifiable,
                                 progress=show_progress(args))
     n_ct = int(np.prod(ev.shape)) * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
     chans = channels(ev.meta)
@@ -156,7 +156,8 @@ def cmd_render(args: Any) -> int:
             img = render(ev, cam, mode=mode, sampling=args.sampling, step=args.step, density=args.density,
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,
                          progress=show_progress(args), keep_sums=sums, level=args.level or None,
-                         gradient=args.gradient, overwrite=args.force, finish=args.finish)
+                         gradient=args.gradient, overwrite=args.force, finish=args.finish,
+                         verify=False if args.no_verify else None)
     st.save_frame(img, out, force=args.force, so=so)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
@@ -281,6 +282,8 @@ def cmd_decrypt(args: Any) -> int:
     rgb = ", rgb" if arr.ndim == 3 else ""
     print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
+    if img.verification is not None:
+        print("verified: the frame is the render of its store and view (checked against the store's tags)")
     print(f"wrote {out}")
     if npy is not None:
         print(f"wrote {npy} (float64 values)")

@@ -41,6 +41,7 @@ from .render_options import (
     add_decrypt_colour_options,
     add_encrypt_scan_options,
     add_finish_option,
+    add_verify_option,
     add_view_option,
     format_tf,
     level_type,
@@ -139,6 +140,10 @@ def encrypt_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gradient", action="store_true",
                    help="also store the gradient-modulated encoding g*e(d) (needs --vector-dims; k more ciphertexts "
                         "per voxel) for 'hevr render --gradient'")
+    p.add_argument("--verifiable", action="store_true",
+                   help="also store a tag channel beside every channel, so that renders are checked against a lying "
+                        "server at 'hevr decrypt' (needs the private --key; twice the ciphertexts and about twice "
+                        "the encryption time)")
     p.add_argument("--value-range", type=range_type, metavar="LO,HI",
                    help="density normalisation range (default: the --modality range, else the dtype's range "
                         "for integers, the data range for floats)")
@@ -194,6 +199,7 @@ def render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--precision", type=precision_type, default=4, metavar="P",
                    help="decimal digits of the normalisation (--finish server; default 4)")
     add_finish_option(p)
+    add_verify_option(p)
     p.add_argument("--level", type=level_type, default=0, metavar="L",
                    help="render pyramid level L (hevr pyramid; default 0: the full volume)")
     p.add_argument("--keep-sums", metavar="SUMS", help="also write the view's encrypted ray sums (ciphertexts only: "
@@ -267,6 +273,7 @@ def slice_arguments(p: argparse.ArgumentParser) -> None:
                    help="decimal digits of the normalisation (--finish server; default 0 where it is exact: "
                         "one plane in mode xray or emphasize; else 4)")
     add_finish_option(p)
+    add_verify_option(p)
 
 
 def decrypt_arguments(p: argparse.ArgumentParser) -> None:

@@ -195,6 +195,14 @@ def add_finish_option(p: argparse.ArgumentParser) -> None:
                         "normalises and packs finished pixels (the colouring goes to the workers and into the frame)")
 
 
+def add_verify_option(p: argparse.ArgumentParser) -> None:
+    """``--no-verify`` of render and slice."""
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip the check against the store's tags (a store encrypted with --verifiable: by default "
+                        "the cluster also sums the tags and the frame carries one aggregate that 'hevr decrypt' "
+                        "checks; about twice the work)")
+
+
 def add_decrypt_colour_options(p: argparse.ArgumentParser) -> None:
     """``hevr decrypt --mode / --density / --tf / --value-range``: the colouring of a client frame."""
     g = p.add_argument_group("colouring a client-finished frame (hevr render --finish client, the default)")

@@ -77,7 +77,8 @@ def cmd_slice(args: Any) -> int:
         with Timer() as t:
             img = render_slice(ev, plane, mode=mode, sampling=args.sampling, density=args.density, nodes=nodes,
                                precision=args.precision, pack=not args.no_pack, client=client,
-                               progress=show_progress(args), gradient=args.gradient, **finish)
+                               progress=show_progress(args), gradient=args.gradient,
+                               verify=False if args.no_verify else None, **finish)
     save_frame(img, out, force=args.force, so=so)
     inside = int(img.hits.sum())
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "

@@ -57,6 +57,7 @@ def render_slice(
     gradient: bool = False,
     overwrite: bool = False,
     finish: str = "client",
+    verify: bool | None = None,
 ) -> EncryptedImage | Delayed:
     """Render a slice of an encrypted volume to an :class:`EncryptedImage` (no key needed).
 
@@ -73,6 +74,8 @@ def render_slice(
     sampling : {"nearest", "trilinear"}
     density, nodes :
         As for :func:`hevr.render`.
+    verify : bool, optional
+        As for :func:`hevr.render`: checked against a verifiable store's tags (the default there).
     precision : int, optional
         Decimal digits of the normalisation, as for :func:`hevr.render`. Default: 0 when it is
         exact without any — one plane (``slab=1``) in mode ``xray`` or ``emphasize``, where every
@@ -110,4 +113,4 @@ def render_slice(
     return _render(ev, plane, mode, sampling, plane.slab_step, density, nodes, digits=digits, precision=precision,
                    comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
                    backend=backend, compute=compute, keep_sums=keep_sums, views=(Plane,),
-                   gradient=gradient, overwrite=overwrite, finish=finish)
+                   gradient=gradient, overwrite=overwrite, finish=finish, verify=verify)

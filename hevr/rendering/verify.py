@@ -53,9 +53,10 @@ from ..crypto.tags import (
     tag_key_of,
     weighted_beta_sums,
 )
-from ..errors import ParameterError, VerificationError
+from ..errors import HevrError, IntegrityError, ParameterError, VerificationError
 from .graph import build_sums_graph
 from .kernel import plan_products
+from .plane import view_from_dict
 from .rays import RaySet, cast_rays
 from .weights import brick_bounds, brick_weights, touched_bricks
 
@@ -148,13 +149,67 @@ class Verification:
     def __repr__(self) -> str:
         return f"Verification({self.channel}, {self.components} per ray, seed …)"
 
+    def to_dict(self) -> dict[str, Any]:
+        """The record a ``.hevr`` file carries (public: a ciphertext, a seed, the request's geometry)."""
+        return {"version": 1, "aggregate": str(self.aggregate), "seed": self.seed.hex(), "store_id": self.store_id,
+                "channel": self.channel, "shape": [int(x) for x in self.shape],
+                "spacing": [float(x) for x in self.spacing], "brick": [int(x) for x in self.brick],
+                "view": self.camera.to_dict(), "sampling": self.sampling, "step": float(self.step),
+                "digits": int(self.digits), "components": int(self.components)}
+
+    @classmethod
+    def from_dict(cls, d: Any, n: int, where: str = "image") -> Verification:
+        """Parse :meth:`to_dict`'s record under the image's modulus ``n``;
+        :class:`hevr.IntegrityError` names the first wrong field."""
+        def bad(name: str, expected: str) -> IntegrityError:
+            got = d.get(name) if isinstance(d, dict) else d
+            return IntegrityError(f"{where}: header field 'verification.{name}': expected {expected}, "
+                                  f"got {str(got)[:80]!r}")
+
+        fields = {"version", "aggregate", "seed", "store_id", "channel", "shape", "spacing", "brick", "view",
+                  "sampling", "step", "digits", "components"}
+        if not isinstance(d, dict) or set(d) != fields:
+            raise bad("version", f"an object with exactly {sorted(fields)}")
+        if d["version"] != 1 or type(d["version"]) is not int:
+            raise bad("version", "1")
+        agg = d["aggregate"]
+        if not (isinstance(agg, str) and agg.isdigit() and len(agg) <= 2 * len(str(n)) and 0 < int(agg) < n * n):
+            raise bad("aggregate", "a decimal string of a ciphertext in (0, n²)")
+        seed = d["seed"]
+        if not (isinstance(seed, str) and len(seed) == 64 and all(c in "0123456789abcdef" for c in seed)):
+            raise bad("seed", "64 lower-case hex digits")
+        if not (isinstance(d["store_id"], str) and len(d["store_id"]) == 16):
+            raise bad("store_id", "a store id of 16 hex digits")
+        if d["channel"] not in ("scalar", "vector", "gradient"):
+            raise bad("channel", "'scalar', 'vector' or 'gradient'")
+        for name, kind in (("shape", int), ("brick", int), ("spacing", float)):
+            v = d[name]
+            if not (isinstance(v, list) and len(v) == 3 and all(type(x) is kind or (kind is float and type(x) is int)
+                                                                 for x in v) and all(x > 0 for x in v)):
+                raise bad(name, f"three positive {kind.__name__}s")
+        if d["sampling"] not in ("nearest", "trilinear"):
+            raise bad("sampling", "'nearest' or 'trilinear'")
+        if not (type(d["step"]) in (int, float) and 0 < d["step"] < float("inf")):
+            raise bad("step", "a positive number")
+        for name, hi in (("digits", 12), ("components", 64)):
+            if type(d[name]) is not int or not 0 <= d[name] <= hi:
+                raise bad(name, f"an integer in [0, {hi}]")
+        try:
+            view = view_from_dict(d["view"])
+        except HevrError as exc:
+            raise bad("view", f"a camera or plane ({exc})") from None
+        return cls(aggregate=int(agg), seed=bytes.fromhex(seed), store_id=d["store_id"], channel=d["channel"],
+                   shape=tuple(d["shape"]), spacing=tuple(float(x) for x in d["spacing"]), brick=tuple(d["brick"]),
+                   camera=view, sampling=d["sampling"], step=float(d["step"]), digits=d["digits"],
+                   components=d["components"], n=int(n))
+
     def beta_sum(self, private_key: Any) -> int:
         """Σ_{r,k} ρ_{r,k}·B_{r,k} mod n from the public geometry and the PRF (module docstring)."""
         key = tag_key_of(private_key)
         K, n = self.components, self.n
         rays = cast_rays(self.camera, self.shape, self.spacing, self.step)
         total = 0
-        nz, ny, nx = self.shape
+        _, ny, nx = self.shape
         for index in touched_bricks(rays, self.shape, self.spacing, self.brick, self.sampling, self.step):
             bw = brick_weights(rays, self.shape, self.spacing, self.brick, index, self.sampling, self.step,
                                self.digits)
