@@ -79,7 +79,7 @@ PUBLIC_API = (
     "normalize_density", "PHANTOM_LEVELS", "load_volume", "read_scan", "Scan", "save_volume", "open_volume",
     "EncryptedVolume", "upgrade_store", "encode", "decode", "BASE",
     "HevrError", "ParameterError", "InvalidKeyError", "KeyMismatchError", "PlaintextOverflowError",
-    "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "CorruptVolumeError", "IntegrityError",
+    "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "CorruptVolumeError", "IntegrityError", "VerificationError",
     "VolumeFormatError", "MissingDependencyError", "MissingFileError", "MemoryLimitError", "ExistingFileError", "NotRegularFileError",
     "FileSystemError", "InsecureKeyWarning", "KeyFilePermissionWarning",
     "VIEWS", "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
