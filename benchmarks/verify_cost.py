@@ -2,13 +2,14 @@
 
 Usage::
 
-    python benchmarks/verify_cost.py WORKDIR OUT.json [--size 100] [--bits 2048] [--rounds 3]
+    python benchmarks/verify_cost.py WORKDIR OUT.json [--size 100] [--encrypt-size 50] [--bits 2048] [--rounds 3]
 
-On a 2-worker LocalCluster (processes, one thread each), the ``size``³ phantom (brick 25, scalar),
-under one ``bits``-bit key:
+On a 2-worker LocalCluster (processes, one thread each), the phantom (brick 25, scalar) under one
+``bits``-bit key:
 
-* ``encrypt``: the store written without and with ``verifiable=True`` (seconds, bytes on disk);
-* ``render``: 150² X-ray frames of the verifiable store from scratch (``cache=False``), verified and
+* ``encrypt``: the ``encrypt-size``³ store written without and with ``verifiable=True`` (seconds,
+  bytes on disk), one after the other;
+* ``render``: 150² X-ray frames of the ``size``³ verifiable store from scratch (``cache=False``), verified and
   not (``verify=False``), alternating, ``rounds`` of each, nearest and trilinear; every image is
   decrypted, the verified ones with their check, and compared with ``render_plain``;
 * ``client``: the decryption of a verified frame against the same without the check, and the check's
@@ -46,11 +47,13 @@ def main(argv: list[str]) -> None:
     ap.add_argument("work", type=Path)
     ap.add_argument("out", type=Path)
     ap.add_argument("--size", type=int, default=100)
+    ap.add_argument("--encrypt-size", type=int, default=50)
     ap.add_argument("--bits", type=int, default=2048)
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
-    res: dict = {"machine": machine(), "size": args.size, "bits": args.bits, "rounds": args.rounds}
+    res: dict = {"machine": machine(), "size": args.size, "encrypt_size": args.encrypt_size, "bits": args.bits,
+                 "rounds": args.rounds}
     _, priv = hevr.generate_keypair(args.bits)
     vol = hevr.phantom(args.size)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc, \
@@ -62,11 +65,19 @@ def main(argv: list[str]) -> None:
             if path.exists():
                 shutil.rmtree(path)
             t0 = time.perf_counter()
-            stores[label] = hevr.encrypt_volume(vol, path, priv, brick=25, progress=False, client=client,
-                                                verifiable=verifiable)
+            stores[label] = hevr.encrypt_volume(hevr.phantom(args.encrypt_size), path, priv, brick=25, progress=False,
+                                                client=client, verifiable=verifiable)
             res.setdefault("encrypt", {})[label] = {"seconds": time.perf_counter() - t0, "bytes": _bytes(path)}
             print(label, res["encrypt"][label], flush=True)
         ev = stores["verifiable"]
+        if args.size != args.encrypt_size:
+            path = args.work / "render.zarr"
+            if path.exists():
+                shutil.rmtree(path)
+            t0 = time.perf_counter()
+            ev = hevr.encrypt_volume(vol, path, priv, brick=25, progress=False, client=client, verifiable=True)
+            res["encrypt"]["render_store_s"] = time.perf_counter() - t0
+            print("render store", res["encrypt"]["render_store_s"], flush=True)
         cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=150, height=150)
         for sampling in ("nearest", "trilinear"):
             ref = hevr.render_plain(vol, cam, "xray", sampling)

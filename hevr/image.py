@@ -21,6 +21,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import logging
 import os
 import struct
 import time
@@ -51,6 +52,8 @@ from .store.paths import (
 )
 
 __all__ = ["EncryptedImage", "load_image", "save_png"]
+
+log = logging.getLogger(__name__)
 
 _CORRUPT = "the image was corrupted or tampered with after the render; no image is returned"
 
@@ -193,7 +196,7 @@ class EncryptedImage:
         tiles = list(tiles)  # a verified render: every value checked against the tags before any is used
         W, offset = self.shape[1], int(self.offset)
         ids = [((r0 + np.nonzero(mask)[0]) * W + c0 + np.nonzero(mask)[1]) for r0, _, c0, _, mask, _ in tiles]
-        self.verification.check(private_key, np.concatenate(ids) if ids else np.zeros(0, np.int64),
+        self.verification.check(private_key, self, np.concatenate(ids) if ids else np.zeros(0, np.int64),
                                 [v - offset for *_, vals in tiles for v in vals])
         return iter(tiles)
 
@@ -305,6 +308,10 @@ class EncryptedImage:
         overwrite = check_bool("overwrite", overwrite)
         where = output_location(path)
         check_image(self)
+        if self.verification is not None and not is_local(str(where)):
+            log.warning("a verified frame written to %s: its check is only as trustworthy as the file; whoever can "
+                        "write there (the server?) can defeat it; keep verified frames where only you can write",
+                        str(where).split("?")[0])
         head = json.dumps(self._header(), separators=(",", ":")).encode()
         parts = [MAGIC, struct.pack("<I", len(head)), head]
         parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in self.ciphertexts]

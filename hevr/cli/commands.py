@@ -93,10 +93,18 @@ def cmd_encrypt(args: Any) -> int:
           f"({n_ct / max(t.seconds, 1e-9):.0f} ciphertexts/s)")
     if not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
+    if ev.meta.tags:
+        print(f"verifiable: store id {ev.meta.store_id}; keep it, and render with --verify {ev.meta.store_id} to "
+              "refuse any other store a server might answer with")
     return 0
 
 
 # -- render --------------------------------------------------------------------------------
+def verify_argument(args: Any) -> bool | str | None:
+    """``render(verify=)`` from ``--verify [STORE_ID]`` / ``--no-verify`` (default None: the store decides)."""
+    return False if args.no_verify else args.verify
+
+
 def resolve_mode(args: Any) -> str:
     """The render mode: explicit --mode, else inferred from --density / --tf, else xray."""
     mode = args.mode or ("tf" if args.tf is not None else "emphasize" if args.density is not None else "xray")
@@ -157,7 +165,7 @@ def cmd_render(args: Any) -> int:
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,
                          progress=show_progress(args), keep_sums=sums, level=args.level or None,
                          gradient=args.gradient, overwrite=args.force, finish=args.finish,
-                         verify=False if args.no_verify else None)
+                         verify=verify_argument(args))
     st.save_frame(img, out, force=args.force, so=so)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
@@ -283,7 +291,11 @@ def cmd_decrypt(args: Any) -> int:
     print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
     if img.verification is not None:
-        print("verified: the frame is the render of its store and view (checked against the store's tags)")
+        print(f"verified: the frame is the render of store {img.verification.store_id} and its view (checked "
+              "against the store's tags)")
+    else:
+        print("not verified: the frame carries no check against a store's tags (a store encrypted without "
+              "--verifiable, or rendered with --no-verify, --finish server or --level)")
     print(f"wrote {out}")
     if npy is not None:
         print(f"wrote {npy} (float64 values)")

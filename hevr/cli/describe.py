@@ -58,7 +58,8 @@ def channels(meta: Any) -> str:
         ch.append(f"vector[{meta.vector.dims}] ({meta.vector.digits} digits)")
     if getattr(meta, "gradient", None) is not None:
         ch.append(f"gradient[{meta.gradient.dims}] ({meta.gradient.digits} digits)")
-    return " + ".join(ch) or "none"
+    tags = f", each with its tag channel (verifiable, store id {meta.store_id})" if getattr(meta, "tags", False) else ""
+    return (" + ".join(ch) or "none") + tags
 
 
 def describe(args: Any) -> int:

@@ -196,11 +196,14 @@ def add_finish_option(p: argparse.ArgumentParser) -> None:
 
 
 def add_verify_option(p: argparse.ArgumentParser) -> None:
-    """``--no-verify`` of render and slice."""
-    p.add_argument("--no-verify", action="store_true",
-                   help="skip the check against the store's tags (a store encrypted with --verifiable: by default "
-                        "the cluster also sums the tags and the frame carries one aggregate that 'hevr decrypt' "
-                        "checks; about twice the work)")
+    """``--verify [STORE_ID]`` / ``--no-verify`` of render and slice."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--verify", nargs="?", const=True, default=None, metavar="STORE_ID",
+                   help="require the check against the store's tags (a store encrypted with --verifiable; on by "
+                        "default there): the cluster also sums the tags and the frame carries one aggregate that "
+                        "'hevr decrypt' checks (about twice the work); with the STORE_ID 'hevr encrypt' printed, "
+                        "any other store is refused")
+    g.add_argument("--no-verify", action="store_true", help="skip the check against the store's tags")
 
 
 def add_decrypt_colour_options(p: argparse.ArgumentParser) -> None:

@@ -15,7 +15,7 @@ from ..rendering.plane import Plane
 from ..rendering.planner import check_render_size
 from ..rendering.slices import render_slice
 from .cluster import dask_client, describe_client
-from .commands import open_for_mode, resolve_mode
+from .commands import open_for_mode, resolve_mode, verify_argument
 from .finish import report_finish
 from .render_options import format_tf
 from .scan import resolve_tf
@@ -78,7 +78,7 @@ def cmd_slice(args: Any) -> int:
             img = render_slice(ev, plane, mode=mode, sampling=args.sampling, density=args.density, nodes=nodes,
                                precision=args.precision, pack=not args.no_pack, client=client,
                                progress=show_progress(args), gradient=args.gradient,
-                               verify=False if args.no_verify else None, **finish)
+                               verify=verify_argument(args), **finish)
     save_frame(img, out, force=args.force, so=so)
     inside = int(img.hits.sum())
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "

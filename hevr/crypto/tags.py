@@ -258,19 +258,28 @@ RHO_BITS = 62  # aggregation coefficients: below 2^62, so every weight array sta
 def coefficients_at(seed: bytes, ids: Any) -> np.ndarray:
     """The coefficients ρ of indices ``ids`` (non-negative) in the seed's stream: uint64 below
     2^62, the same for an index whatever else is asked (the server's tile tasks and the client
-    each take the ones they need).
+    each take the ones they need). The stream comes in blocks of 2^12 values (SHAKE-256 of the
+    seed and the block number), so a request costs the blocks its indices touch.
 
-    >>> a = coefficients_at(b"s", [5, 0, 5])
+    >>> a = coefficients_at(b"s", [5, 0, 5, 10**6])
     >>> bool(a[0] == a[2]), bool((a < 2**62).all()), bool(coefficients_at(b"s", [0])[0] == a[1])
     (True, True, True)
+    >>> bool(coefficients_at(b"s", [10**6])[0] == a[3]), bool(coefficients_at(b"t", [5])[0] != a[0])
+    (True, True)
     """
     ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+    out = np.zeros(ids.size, np.uint64)
     if not ids.size:
-        return np.zeros(0, np.uint64)
+        return out
     if ids.min() < 0:
         raise ParameterError("ids: expected non-negative indices, got a negative one")
-    raw = np.frombuffer(hashlib.shake_256(b"hevr-tag-rho-v2" + seed).digest(8 * (int(ids.max()) + 1)), "<u8")
-    return raw[ids] & np.uint64((1 << RHO_BITS) - 1)
+    blocks = ids // BLOCK
+    for b in np.unique(blocks).tolist():
+        stream = hashlib.shake_256(b"hevr-tag-rho-v3" + len(seed).to_bytes(4, "little") + seed
+                                   + int(b).to_bytes(8, "little")).digest(8 * BLOCK)
+        sel = blocks == b
+        out[sel] = np.frombuffer(stream, "<u8")[ids[sel] - b * BLOCK]
+    return out & np.uint64((1 << RHO_BITS) - 1)
 
 
 def raw_check(key: TagKey, sums: list[int], beta_sums: list[int], rho: list[int], aggregate: int) -> bool:

@@ -121,7 +121,7 @@ def render(
     gradient: bool = False,
     overwrite: bool = False,
     finish: str = "client",
-    verify: bool | None = None,
+    verify: bool | str | None = None,
 ) -> EncryptedImage | Delayed:
     """Render an encrypted volume to an :class:`EncryptedImage` on the active Dask scheduler.
 
@@ -198,14 +198,17 @@ def render(
         milliseconds (:mod:`hevr.colour`). ``"server"``: the paper's way, the server
         combines, normalises and packs finished pixels (the colouring is sent to the workers).
         With ``compute=False`` a client-finished image carries no colouring: pass it to ``decrypt``.
-    verify : bool, optional
+    verify : bool or str, optional
         Check the render against the store's tags (a store encrypted with ``verifiable=True``):
         after the image, the server sums the tag channel with the same plan and returns one
         aggregate ciphertext for coefficients drawn here; decryption then raises
         :class:`hevr.VerificationError` instead of returning an image that is not the render of
         this store and camera (:mod:`hevr.rendering.verify`). Default: on for a verifiable store
         where the request can be verified (client finishing, level 0, ``compute=True``); ``True``
-        where it cannot is a :class:`hevr.ParameterError`. About twice the server's work.
+        where it cannot is a :class:`hevr.ParameterError`. Against a server that may lie, pass the
+        store id the owner recorded (``ev.meta.store_id`` from :func:`hevr.encrypt_volume`): the
+        render is verified, and refused for any other store (a server could otherwise serve another
+        verifiable store of the same key, or one without tags). About twice the server's work.
 
     Returns
     -------
@@ -236,7 +239,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
             tile: int, cache: bool, client: Any, progress: bool, backend: str | None, compute: bool,
             keep_sums: str | os.PathLike | None, views: tuple[type, ...] = (Camera,),
             level: int | None = None, gradient: bool = False, overwrite: bool = False,
-            finish: str = "client", stream: Any = None, verify: bool | None = None) -> EncryptedImage | Delayed:
+            finish: str = "client", stream: Any = None, verify: bool | str | None = None) -> EncryptedImage | Delayed:
     """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``.
 
     With ``finish="client"`` nothing below this function sees ``spec``'s density or nodes: the

@@ -57,7 +57,7 @@ def render_slice(
     gradient: bool = False,
     overwrite: bool = False,
     finish: str = "client",
-    verify: bool | None = None,
+    verify: bool | str | None = None,
 ) -> EncryptedImage | Delayed:
     """Render a slice of an encrypted volume to an :class:`EncryptedImage` (no key needed).
 
@@ -74,8 +74,9 @@ def render_slice(
     sampling : {"nearest", "trilinear"}
     density, nodes :
         As for :func:`hevr.render`.
-    verify : bool, optional
-        As for :func:`hevr.render`: checked against a verifiable store's tags (the default there).
+    verify : bool or str, optional
+        As for :func:`hevr.render`: checked against a verifiable store's tags (the default there);
+        a store id pins the store.
     precision : int, optional
         Decimal digits of the normalisation, as for :func:`hevr.render`. Default: 0 when it is
         exact without any — one plane (``slab=1``) in mode ``xray`` or ``emphasize``, where every

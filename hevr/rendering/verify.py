@@ -25,6 +25,14 @@ else :class:`hevr.VerificationError` and no image. The client's cost: the geomet
 weighted sums in numpy and one decryption. The server's: the tag map (as much again as the image's)
 and ~8 products per ray and component for the aggregate (62-bit exponents, 8-bit windows).
 
+Which store. The tags prove "this is the render of the store with id ``store_id``" — the id the
+store's own metadata states. A server holding several verifiable stores of one key (other patients,
+an older version) could answer with another, and a store without tags renders unverified under
+``verify=None``. Against a server that may lie, pass ``verify=<store id>`` (``ev.meta.store_id`` as
+:func:`hevr.encrypt_volume` returned it, printed by ``hevr encrypt``; ``hevr render --verify ID``):
+the render is then verified and refused for any other store; ``verify=True`` at least refuses a store
+without tags.
+
 Scope. Camera renders and slices with client finishing at level 0, streamed or resident (the tag
 channel is always streamed). Not verified: server finishing (``finish="server"``: its pixels are not
 the ray sums the tags protect), pyramid levels (β at a level is 125·Σ of its children's, not yet
@@ -35,6 +43,7 @@ computed here), ``compute=False`` and the streaming viewer; ``verify=True`` ther
 from __future__ import annotations
 
 import logging
+import re
 import secrets
 import time
 from dataclasses import dataclass
@@ -61,16 +70,25 @@ from .rays import RaySet, cast_rays
 from .weights import brick_bounds, brick_weights, touched_bricks
 
 log = logging.getLogger(__name__)
+_STORE_ID = re.compile(r"[0-9a-f]{16}")
 
 __all__ = ["Verification", "aggregate_tile", "resolve_verify", "tag_aggregate"]
 
 
 def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bool, stream: bool) -> bool:
     """Whether a render is verified: ``verify`` checked against what the store and request allow
-    (module docstring); None: yes where the store is verifiable and the request supported."""
-    if verify is not None and not isinstance(verify, (bool, np.bool_)):
-        raise ParameterError(f"verify: expected True, False or None, got {verify!r}")
-    if verify is False:
+    (module docstring); None: yes where the store is verifiable and the request supported; a store
+    id: yes, and only for that store (:class:`hevr.VerificationError` for another)."""
+    if isinstance(verify, str):  # the store id the owner recorded: verify, and refuse any other store
+        if not _STORE_ID.fullmatch(verify):
+            raise ParameterError(f"verify: expected True, False, None or a store id of 16 lower-case hex digits, "
+                                 f"got {verify[:40]!r}")
+        if ev.meta.store_id != verify:
+            raise VerificationError(f"verify: expected the store {verify}, got the store {ev.meta.store_id} at "
+                                    f"{ev.path}: another store (of the same key?) was served; nothing was rendered")
+    elif verify is not None and not isinstance(verify, (bool, np.bool_)):
+        raise ParameterError(f"verify: expected True, False, None or a store id, got {verify!r}")
+    if verify is not None and not verify:
         return False
     why = ("the store has no tags (encrypt it with verifiable=True)" if not ev.meta.tags else
            "finish='server' (verification checks the ray sums, which client finishing decrypts)"
@@ -203,11 +221,11 @@ class Verification:
                    camera=view, sampling=d["sampling"], step=float(d["step"]), digits=d["digits"],
                    components=d["components"], n=int(n))
 
-    def beta_sum(self, private_key: Any) -> int:
+    def beta_sum(self, private_key: Any, rays: RaySet | None = None) -> int:
         """Σ_{r,k} ρ_{r,k}·B_{r,k} mod n from the public geometry and the PRF (module docstring)."""
         key = tag_key_of(private_key)
         K, n = self.components, self.n
-        rays = cast_rays(self.camera, self.shape, self.spacing, self.step)
+        rays = rays if rays is not None else cast_rays(self.camera, self.shape, self.spacing, self.step)
         total = 0
         _, ny, nx = self.shape
         for index in touched_bricks(rays, self.shape, self.spacing, self.brick, self.sampling, self.step):
@@ -226,19 +244,31 @@ class Verification:
                 total += sum(int(r) * b for r, b in zip(rho[:, k].tolist(), sums))
         return total % n
 
-    def check(self, private_key: Any, ray_ids: np.ndarray, sums: list[int]) -> None:
-        """Raise :class:`hevr.VerificationError` unless D(A) = α·Σρ·S' + Σρ·B (mod n); ``sums``
-        are the image's decrypted ray sums S' (offset removed), ``K`` per ray of ``ray_ids``."""
+    def check(self, private_key: Any, image: Any, ray_ids: np.ndarray, sums: list[int]) -> None:
+        """Raise :class:`hevr.VerificationError` unless the ``image``'s public fields are those of
+        this view (shape, channel, components, sample counts, hit mask) and D(A) = α·Σρ·S' + Σρ·B
+        (mod n); ``sums`` are its decrypted ray sums S' (offset removed), ``K`` per ray of
+        ``ray_ids``."""
         t0 = time.perf_counter()
         key = tag_key_of(private_key)
         K, n = self.components, self.n
+        rays = cast_rays(self.camera, self.shape, self.spacing, self.step)
+        H, W = self.camera.height, self.camera.width
+        samples = np.asarray(rays.n_samples).reshape(H, W)
+        same = (tuple(image.shape[:2]) == (H, W) and image.finish == "client" and image.channel == self.channel
+                and int(image.components or 0) == K and image.samples is not None and image.hits is not None
+                and np.array_equal(np.asarray(image.samples).reshape(H, W), samples)
+                and np.array_equal(np.asarray(image.hits, bool), samples > 0))
+        if not same:
+            raise VerificationError("image: its shape, channel, components, sample counts or hit mask are not those "
+                                    f"of the verified view ({W}x{H}, channel {self.channel!r}); no image is returned")
         ids = (np.asarray(ray_ids, np.int64)[:, None] * K + np.arange(K)).reshape(-1)
         if ids.size != len(sums):
             raise VerificationError(f"image: expected {ids.size} ray sums for its hit pixels, got {len(sums)}; "
                                     "no image is returned")
         rho = coefficients_at(self.seed, ids).tolist()
         s_sum = sum(int(r) * int(s) for r, s in zip(rho, sums))
-        want = (key.alpha * s_sum + self.beta_sum(private_key)) % n
+        want = (key.alpha * s_sum + self.beta_sum(private_key, rays)) % n
         got = int(private_key.raw_decrypt(gmpy2.mpz(self.aggregate))) % n
         log.info("verification: %.3f s on the client", time.perf_counter() - t0)
         if got != want:

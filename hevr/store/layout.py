@@ -329,7 +329,7 @@ def check_chunk_objects(path: str, meta: VolumeMetadata, prefix: str = "", stora
         lead = (0, 0) if name == "done" else (0,)
         where = "the digest markers 'done'" if name == "done" else f"channel {name!r}"
         for idx in np.ndindex(*meta.grid):
-            key = "/".join(str(i) for i in ((0,) if name in ("vector", "gradient") else ()) + tuple(idx) + lead)
+            key = chunk_key(name, idx)[len("c/"):]
             brick = tuple(int(i) for i in idx)
             size = sizes.get(key)
             if size is None:

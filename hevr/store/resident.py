@@ -171,7 +171,7 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     Raises :class:`hevr.MemoryLimitError` before anything is loaded when a worker's share
     would exceed ``hevr.limits.resident-memory`` of its memory limit.
     """
-    stored = tuple(ev.meta.channel_names)
+    stored = tuple(ev.meta.data_channels)  # tag channels are always streamed (hevr.rendering.verify)
     if channels is None:
         channels = stored
     elif isinstance(channels, str):

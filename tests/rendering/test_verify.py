@@ -81,6 +81,22 @@ def test_a_verifiable_store_holds_a_tag_channel_per_channel(stores, keypair256):
     assert [t % n for t in tags] == [(key.alpha * m + b) % n for m, b in zip(data, beta)]
 
 
+def test_verifiable_stores_on_object_storage_and_in_memory(keypair256):
+    """memory:// (the object-store layout checks): vector tag chunks are found; persisting keeps
+    the data channels only (the tags are always streamed)."""
+    _, priv = keypair256
+    with dask.config.set(scheduler="sync"):
+        ev = hevr.encrypt_volume(VOL, "memory://hevr-verify/v.zarr", priv, brick=4, vector_dims=2, progress=False,
+                                 verifiable=True)
+        ev = hevr.open_volume("memory://hevr-verify/v.zarr")
+        assert ev.meta.channel_names == ("scalar", "vector", "scalar_tag", "vector_tag")
+        resident = ev.persist()
+        assert resident.resident.channels == ("scalar", "vector")
+        img = hevr.render(resident, hevr.Camera.orbit(ev, azimuth=20, width=8, height=8), "tf", nodes=NODES,
+                          progress=False, cache=False)
+    img.decrypt(priv)
+
+
 def test_the_tags_field_is_validated(stores):
     ev, _ = stores
     d = ev.meta.to_dict()
@@ -129,14 +145,31 @@ def test_slices_and_resident_bricks_verify(stores, keypair256):
     img.decrypt(priv)
 
 
+def test_a_pinned_store_id_refuses_any_other_store(stores, keypair256, tmp_path):
+    """A server holding another verifiable store of the same key (or one without tags) cannot
+    answer with it when the owner pins the id encrypt_volume returned."""
+    ev, plain = stores
+    _, priv = keypair256
+    _render(ev, verify=ev.meta.store_id).decrypt(priv)
+    with dask.config.set(scheduler="sync"):
+        other = hevr.encrypt_volume(255 - VOL, tmp_path / "o.zarr", priv, brick=4, progress=False, verifiable=True)
+    _render(other).decrypt(priv)  # a valid verified render, of the other store
+    for served in (other, plain):
+        with pytest.raises(hevr.VerificationError, match=f"expected the store {ev.meta.store_id}"):
+            _render(served, verify=ev.meta.store_id)
+    with pytest.raises(hevr.ParameterError, match="a store id of 16 lower-case hex digits"):
+        _render(ev, verify="not-an-id")
+    assert _render(ev, verify=np.False_).verification is None
+
+
 def test_what_cannot_be_verified_is_said(stores, caplog):
     ev, plain = stores
     with pytest.raises(hevr.ParameterError, match="verify: expected a request that can be verified, got the store has no tags"):
         _render(plain, verify=True)
     with pytest.raises(hevr.ParameterError, match="finish='server'"):
         _render(ev, finish="server", verify=True)
-    with pytest.raises(hevr.ParameterError, match="verify: expected True, False or None"):
-        _render(ev, verify="yes")
+    with pytest.raises(hevr.ParameterError, match="verify: expected True, False, None or a store id"):
+        _render(ev, verify=3)
     with caplog.at_level(logging.WARNING, logger="hevr.rendering.verify"):
         img = _render(ev, finish="server")
     assert img.verification is None and "not verified: finish='server'" in caplog.text
@@ -152,8 +185,18 @@ def test_another_camera_s_image_is_caught(stores, keypair256):
     other = _render(ev, hevr.Camera.orbit(ev, azimuth=34, elevation=20, width=12, height=10))
     forged = dataclasses.replace(other, verification=asked.verification)
     dataclasses.replace(forged, verification=None).decrypt(priv)  # a plausible image without the check
+    with pytest.raises(hevr.VerificationError, match="not those of the verified view"):
+        forged.decrypt(priv)  # its public fields give it away first
+    # the other view's ray sums under the asked view's public fields (as many hit pixels): the tags catch it
+    # parallel views down z, shifted in x: every ray crosses the whole depth, so the sample counts agree
+    cam2, cam3 = (hevr.Camera((x, 4.0, 30.0), (x, 4.0, 4.5), view_up=(0, 1, 0), width=12, height=10, parallel=True,
+                              parallel_scale=2.0) for x in (3.5, 3.0))
+    a, b = _render(ev, cam2), _render(ev, cam3)
+    assert a.hits.all() and np.array_equal(a.samples, b.samples)
+    swapped = dataclasses.replace(a, ciphertexts=b.ciphertexts)
+    assert not np.array_equal(dataclasses.replace(swapped, verification=None).decrypt(priv), a.decrypt(priv))
     with pytest.raises(hevr.VerificationError, match="does not verify"):
-        forged.decrypt(priv)
+        swapped.decrypt(priv)
 
 
 def test_swapped_bricks_with_recomputed_digests_are_caught(stores, keypair256, tmp_path):
@@ -279,6 +322,9 @@ def test_a_frame_file_carries_its_verification(stores, keypair256, tmp_path):
         tmp_path / "forged.hevr")
     with pytest.raises(hevr.VerificationError):
         hevr.load_image(tmp_path / "forged.hevr").decrypt(priv)
+    dataclasses.replace(img, samples=img.samples * 2).save(tmp_path / "scaled.hevr")  # means halved, tags untouched
+    with pytest.raises(hevr.VerificationError, match="sample counts"):
+        hevr.load_image(tmp_path / "scaled.hevr").decrypt(priv)
     dataclasses.replace(img, verification=dataclasses.replace(img.verification, seed=b"short")).save(
         tmp_path / "bad.hevr")
     with pytest.raises(hevr.IntegrityError, match="'verification.seed': expected 64 lower-case hex digits"):
@@ -294,15 +340,25 @@ def test_the_command_line_verifies(tmp_path, capsys):
 
     key = tmp_path / "key.json"
     assert main(["keygen", "--bits", "256", "--out", str(key), "-q"]) == 0
-    assert run("encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4", "--verifiable",
-               "-q")[0] == 0
+    code, out, err = run("encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4",
+                         "--verifiable")
+    assert code == 0 and "verifiable: store id" in out, err
     assert hevr.open_volume(tmp_path / "v.zarr").meta.tags
     code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "f.hevr", "--size", "8x8", "-q")
     assert code == 0, err
+    sid = hevr.open_volume(tmp_path / "v.zarr").meta.store_id
     code, out, err = run("decrypt", tmp_path / "f.hevr", "--key", key, "--out", tmp_path / "f.png")
-    assert code == 0 and "verified: the frame is the render of its store and view" in out, err
+    assert code == 0 and f"verified: the frame is the render of store {sid}" in out, err
     code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "u.hevr", "--size", "8x8", "--no-verify", "-q")
     assert code == 0 and hevr.load_image(tmp_path / "u.hevr").verification is None, err
+    code, out, err = run("decrypt", tmp_path / "u.hevr", "--key", key, "--out", tmp_path / "u.png")
+    assert code == 0 and "not verified" in out, err
+    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "p.hevr", "--size", "8x8", "--verify", sid,
+                       "-q")
+    assert code == 0 and hevr.load_image(tmp_path / "p.hevr").verification.store_id == sid, err
+    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "q.hevr", "--size", "8x8", "--verify",
+                       "0" * 16, "-q")
+    assert code != 0 and "expected the store 0000000000000000" in err, err
     code, _, err = run("encrypt", "phantom:8", "--key", tmp_path / "key.pub.json", "--out", tmp_path / "p.zarr",
                        "--verifiable", "-q")
     assert code == 2 and err.startswith("hevr: error: --verifiable: expected a PrivateKey"), err
