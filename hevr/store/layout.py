@@ -326,7 +326,6 @@ def check_chunk_objects(path: str, meta: VolumeMetadata, prefix: str = "", stora
             raise CorruptStoreError(f"{path}: array {prefix + name!r} cannot be listed ({type(exc).__name__})") from None
         exact = name == "done" or codecs == _LEGACY_CODECS
         lo, hi = (raw + CRC_BYTES,) * 2 if exact else (CRC_BYTES + 6, raw + 3 * (raw // 131072 + 1) + 18 + CRC_BYTES)
-        lead = (0, 0) if name == "done" else (0,)
         where = "the digest markers 'done'" if name == "done" else f"channel {name!r}"
         for idx in np.ndindex(*meta.grid):
             key = chunk_key(name, idx)[len("c/"):]
