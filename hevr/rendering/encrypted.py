@@ -204,7 +204,7 @@ def render(
         aggregate ciphertext for coefficients drawn here; decryption then raises
         :class:`hevr.VerificationError` instead of returning an image that is not the render of
         this store and camera (:mod:`hevr.rendering.verify`). Default: on for a verifiable store
-        where the request can be verified (client finishing, level 0, ``compute=True``); ``True``
+        where the request can be verified (client finishing, ``compute=True``); ``True``
         where it cannot is a :class:`hevr.ParameterError`. Against a server that may lie, pass the
         store id the owner recorded (``ev.meta.store_id`` from :func:`hevr.encrypt_volume`): the
         render is verified, and refused for any other store (a server could otherwise serve another

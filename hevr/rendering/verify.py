@@ -33,11 +33,12 @@ an older version) could answer with another, and a store without tags renders un
 the render is then verified and refused for any other store; ``verify=True`` at least refuses a store
 without tags.
 
-Scope. Camera renders and slices with client finishing at level 0, streamed or resident (the tag
-channel is always streamed). Not verified: server finishing (``finish="server"``: its pixels are not
-the ray sums the tags protect), pyramid levels (β at a level is 125·Σ of its children's, not yet
-computed here), ``compute=False`` and the streaming viewer; ``verify=True`` there is refused with a
-:class:`hevr.ParameterError`, and the default ``verify=None`` renders them unverified with a warning.
+Scope. Camera renders and slices with client finishing, at any pyramid level (a level's tags are
+built as its values are: β_L(v) = 125·Σ of its 8 children's, :func:`level_betas`), streamed or
+resident (the tag channel is always streamed). Not verified: server finishing (``finish="server"``:
+its pixels are not the ray sums the tags protect), ``compute=False`` and the streaming viewer;
+``verify=True`` there is refused with a :class:`hevr.ParameterError`, and the default
+``verify=None`` renders them unverified with a warning.
 """
 
 from __future__ import annotations
@@ -63,6 +64,8 @@ from ..crypto.tags import (
     weighted_beta_sums,
 )
 from ..errors import HevrError, IntegrityError, ParameterError, VerificationError
+from ..store.pyramid import LEVEL_FACTOR
+from ..volume.pyramid import MAX_LEVELS, level_shape
 from .graph import build_sums_graph
 from .kernel import plan_products
 from .plane import view_from_dict
@@ -72,7 +75,7 @@ from .weights import brick_bounds, brick_weights, touched_bricks
 log = logging.getLogger(__name__)
 _STORE_ID = re.compile(r"[0-9a-f]{16}")
 
-__all__ = ["Verification", "aggregate_tile", "resolve_verify", "tag_aggregate"]
+__all__ = ["Verification", "aggregate_tile", "level_betas", "resolve_verify", "tag_aggregate"]
 
 
 def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bool, stream: bool) -> bool:
@@ -93,7 +96,6 @@ def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bo
     why = ("the store has no tags (encrypt it with verifiable=True)" if not ev.meta.tags else
            "finish='server' (verification checks the ray sums, which client finishing decrypts)"
            if finish != "client" else
-           f"pyramid level {level} (tags are verified at level 0 only, for now)" if level else
            "compute=False (the check needs a second round after the image)" if not compute else
            "a streamed frame (the viewer's progressive decryption)" if stream else None)
     if why is None:
@@ -103,6 +105,43 @@ def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bo
     if ev.meta.tags:
         log.warning("render: not verified: %s", why)
     return False
+
+
+_CHILDREN = np.array([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])  # z, y, x offsets of 8 children
+
+
+def level_betas(key: Any, store_id: str, channel: str, component: int, level: int, voxels: Any,
+                base_shape: tuple) -> list[int]:
+    """β of the flat voxel indices ``voxels`` of pyramid ``level``: the level's tags are built as its
+    values are (:mod:`hevr.store.pyramid`), 125 ⊗ the product of the 8 children's (clamped at the
+    far edges, as there), so β_L(v) = 125·Σ β_{L−1}(child), down to level 0's PRF values.
+
+    >>> from hevr.crypto.tags import TagKey
+    >>> k = TagKey(1, bytes(32), 2**200)
+    >>> b0 = level_betas(k, "s", "scalar", 0, 0, range(8), (2, 2, 2))
+    >>> level_betas(k, "s", "scalar", 0, 1, [0], (2, 2, 2)) == [125 * sum(b0)]
+    True
+    >>> level_betas(k, "s", "scalar", 0, 1, [0], (1, 1, 1)) == [125 * 8 * b0[0]]   # one voxel: its own 8 times
+    True
+    """
+    v = np.asarray(voxels, dtype=np.int64).reshape(-1)
+    if level == 0:
+        return [int.from_bytes(b.astype("<u4").tobytes(), "little") for b in betas(key, store_id, channel, 0,
+                                                                                  component, v)]
+    shape, below = level_shape(base_shape, level), level_shape(base_shape, level - 1)
+    zyx = np.stack(np.unravel_index(v, shape), axis=1)
+    kids = np.minimum(zyx[:, None, :] * 2 + _CHILDREN[None], np.asarray(below) - 1).reshape(-1, 3)
+    uniq, inverse = np.unique(np.ravel_multi_index(tuple(kids.T), below), return_inverse=True)
+    sub = level_betas(key, store_id, channel, component, level - 1, uniq, base_shape)
+    picked = [sub[i] for i in inverse.reshape(-1).tolist()]
+    return [LEVEL_FACTOR * sum(picked[8 * j:8 * j + 8]) for j in range(v.size)]
+
+
+def _limbs(values: list[int]) -> np.ndarray:
+    """Non-negative integers as ``(len, nl)`` little-endian uint32 limbs (nl ≥ 4, enough for the largest)."""
+    nl = max(4, -(-max([1, *(int(x).bit_length() for x in values)]) // 32))
+    raw = b"".join(int(x).to_bytes(4 * nl, "little") for x in values)
+    return np.frombuffer(raw, "<u4").reshape(len(values), nl) if values else np.zeros((0, nl), np.uint32)
 
 
 def aggregate_tile(merged: Any, seed: bytes, width: int, components: int, nsquare: int,
@@ -141,7 +180,9 @@ def tag_aggregate(ev: Any, camera: Any, rays: RaySet, sampling: str, step: float
             A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
     return Verification(aggregate=int(A), seed=seed, store_id=ev.meta.store_id, channel=channel, shape=ev.shape,
                         spacing=ev.spacing, brick=ev.brick, camera=camera, sampling=sampling, step=step, digits=digits,
-                        components=K, n=int(ev.public_key.n), server_s=time.perf_counter() - t0)
+                        components=K, n=int(ev.public_key.n), level=ev.level,
+                        base_shape=tuple(ev.base.shape) if ev.level else tuple(ev.shape),
+                        server_s=time.perf_counter() - t0)
 
 
 @dataclass(frozen=True, repr=False)
@@ -162,6 +203,8 @@ class Verification:
     digits: int
     components: int
     n: int
+    level: int = 0
+    base_shape: tuple = ()
     server_s: float = 0.0
 
     def __repr__(self) -> str:
@@ -173,7 +216,8 @@ class Verification:
                 "channel": self.channel, "shape": [int(x) for x in self.shape],
                 "spacing": [float(x) for x in self.spacing], "brick": [int(x) for x in self.brick],
                 "view": self.camera.to_dict(), "sampling": self.sampling, "step": float(self.step),
-                "digits": int(self.digits), "components": int(self.components)}
+                "digits": int(self.digits), "components": int(self.components), "level": int(self.level),
+                "base_shape": [int(x) for x in (self.base_shape or self.shape)]}
 
     @classmethod
     def from_dict(cls, d: Any, n: int, where: str = "image") -> Verification:
@@ -185,7 +229,7 @@ class Verification:
                                   f"got {str(got)[:80]!r}")
 
         fields = {"version", "aggregate", "seed", "store_id", "channel", "shape", "spacing", "brick", "view",
-                  "sampling", "step", "digits", "components"}
+                  "sampling", "step", "digits", "components", "level", "base_shape"}
         if not isinstance(d, dict) or set(d) != fields:
             raise bad("version", f"an object with exactly {sorted(fields)}")
         if d["version"] != 1 or type(d["version"]) is not int:
@@ -200,7 +244,7 @@ class Verification:
             raise bad("store_id", "a store id of 16 hex digits")
         if d["channel"] not in ("scalar", "vector", "gradient"):
             raise bad("channel", "'scalar', 'vector' or 'gradient'")
-        for name, kind in (("shape", int), ("brick", int), ("spacing", float)):
+        for name, kind in (("shape", int), ("brick", int), ("spacing", float), ("base_shape", int)):
             v = d[name]
             if not (isinstance(v, list) and len(v) == 3 and all(type(x) is kind or (kind is float and type(x) is int)
                                                                  for x in v) and all(x > 0 for x in v)):
@@ -209,7 +253,7 @@ class Verification:
             raise bad("sampling", "'nearest' or 'trilinear'")
         if not (type(d["step"]) in (int, float) and 0 < d["step"] < float("inf")):
             raise bad("step", "a positive number")
-        for name, hi in (("digits", 12), ("components", 64)):
+        for name, hi in (("digits", 12), ("components", 64), ("level", MAX_LEVELS)):
             if type(d[name]) is not int or not 0 <= d[name] <= hi:
                 raise bad(name, f"an integer in [0, {hi}]")
         try:
@@ -219,7 +263,7 @@ class Verification:
         return cls(aggregate=int(agg), seed=bytes.fromhex(seed), store_id=d["store_id"], channel=d["channel"],
                    shape=tuple(d["shape"]), spacing=tuple(float(x) for x in d["spacing"]), brick=tuple(d["brick"]),
                    camera=view, sampling=d["sampling"], step=float(d["step"]), digits=d["digits"],
-                   components=d["components"], n=int(n))
+                   components=d["components"], n=int(n), level=d["level"], base_shape=tuple(d["base_shape"]))
 
     def beta_sum(self, private_key: Any, rays: RaySet | None = None) -> int:
         """Σ_{r,k} ρ_{r,k}·B_{r,k} mod n from the public geometry and the PRF (module docstring)."""
@@ -239,8 +283,9 @@ class Verification:
             glob = ((zz * ny + yy) * nx + xx).reshape(-1)[used]
             rho = coefficients_at(self.seed, (bw.rays[:, None] * K + np.arange(K)).reshape(-1)).reshape(-1, K)
             for k in range(K):
-                sums = weighted_beta_sums(betas(key, self.store_id, self.channel, 0, k, glob), bw.indptr,
-                                          local.reshape(-1), bw.weights)
+                beta = (betas(key, self.store_id, self.channel, 0, k, glob) if not self.level else
+                        _limbs(level_betas(key, self.store_id, self.channel, k, self.level, glob, self.base_shape)))
+                sums = weighted_beta_sums(beta, bw.indptr, local.reshape(-1), bw.weights)
                 total += sum(int(r) * b for r, b in zip(rho[:, k].tolist(), sums))
         return total % n
 

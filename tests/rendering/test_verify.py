@@ -64,6 +64,16 @@ def _rewrite(ev, index, channel, records):
     group["done"][index] = marker(digests)
 
 
+def _rewrite_level(view, index, channel, records):
+    """_rewrite for a pyramid level's view (its arrays under levels/L/)."""
+    group = zarr.open_group(view.path, mode="r+")
+    sl = view.brick_slices(index)
+    group[view.prefix + channel][sl if channel.startswith("scalar") else (slice(None),) + sl] = records
+    digests = [brick_digest(view.meta.store_id, view.prefix + ch, index, view.read_brick_bytes(index, ch, verify=False))
+               for ch in view.meta.channel_names]
+    group[view.prefix + "done"][index] = marker(digests)
+
+
 def test_a_verifiable_store_holds_a_tag_channel_per_channel(stores, keypair256):
     ev, plain = stores
     pub, priv = keypair256
@@ -290,21 +300,26 @@ def test_a_verified_render_on_a_cluster(stores, keypair256, cluster):
     img.decrypt(priv)
 
 
-def test_a_pyramid_of_a_verifiable_store_keeps_tags_and_says_its_levels_are_not_verified(stores, keypair256, tmp_path,
-                                                                                           caplog):
+def test_pyramid_levels_of_a_verifiable_store_verify(stores, keypair256, tmp_path):
+    """The pyramid builds the tags' levels as the values' (125 ⊗ the product of 8 children), and the
+    client's β follow (level_betas); a level's swapped bricks are caught."""
     ev, _ = stores
     _, priv = keypair256
     with dask.config.set(scheduler="sync"):
-        built = hevr.build_pyramid(_copy(ev, tmp_path), 1, progress=False)
-    assert built.levels == 1 and "scalar_tag" in built.meta.levels[0].arrays
+        built = hevr.build_pyramid(_copy(ev, tmp_path), 2, progress=False)
+    assert built.levels == 2 and "scalar_tag" in built.meta.levels[0].arrays
     built.at_level(1).verify()
-    with pytest.raises(hevr.ParameterError, match="pyramid level 1"):
-        _render(built, level=1, verify=True)
-    with caplog.at_level(logging.WARNING, logger="hevr.rendering.verify"):
-        img = _render(built, level=1)
-    assert img.verification is None and "not verified: pyramid level 1" in caplog.text
-    img.decrypt(priv)
-    _render(built).decrypt(priv)  # level 0 still verified
+    for level in (1, 2):
+        for mode, sampling, kw in (("xray", "trilinear", {}), ("tf", "nearest", {"nodes": NODES})):
+            img = _render(built, None, mode, sampling, level=level, **kw)
+            assert img.verification is not None and img.verification.level == level
+            img.decrypt(priv)
+    view = built.at_level(1)
+    for ch in ("scalar", "scalar_tag"):  # a level brick's voxels moved (with their tags), digests recomputed
+        _rewrite_level(view, (0, 0, 0), ch, view.read_brick_bytes((0, 0, 0), ch)[::-1].copy())
+    with pytest.raises(hevr.VerificationError):
+        _render(hevr.open_volume(built.path), level=1).decrypt(priv)
+    _render(built).decrypt(priv)  # level 0 untouched
 
 
 def test_a_frame_file_carries_its_verification(stores, keypair256, tmp_path):
