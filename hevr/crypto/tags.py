@@ -64,7 +64,7 @@ import numpy as np
 from ..errors import ParameterError
 
 __all__ = ["BLOCK", "RHO_BITS", "TAG_SUFFIX", "TagKey", "betas", "coefficients", "coefficients_at", "data_channel", "generate_tag_key", "raw_check",
-           "raw_tags", "tag_channel", "tag_ciphertexts", "tag_key_of", "weighted_beta_sums"]
+           "raw_tags", "tag_channel", "tag_ciphertexts", "tag_key_of", "weighted_beta_sums", "weighted_beta_total"]
 
 TAG_SUFFIX = "_tag"  # the tag channel of channel c is c + TAG_SUFFIX (its own array in the store)
 
@@ -154,8 +154,11 @@ def _domain(store_id: str, channel: str, level: int, component: int, block: int)
     return b"hevr-tag-beta-v1" + b"".join(len(p).to_bytes(4, "little") + p for p in parts)
 
 
-def betas(key: TagKey, store_id: str, channel: str, level: int, component: int, voxels: Any) -> np.ndarray:
+def betas(key: TagKey, store_id: str, channel: str, level: int, component: int, voxels: Any,
+          cache: dict | None = None) -> np.ndarray:
     """β of the flat voxel indices ``voxels``: ``(len, 4)`` uint32 limbs, little-endian (128 bits each).
+    ``cache`` (a dict the caller keeps, cleared beyond 1024 blocks) keeps the blocks computed, for
+    callers that ask brick by brick: neighbouring bricks share blocks.
 
     >>> k = TagKey(1, bytes(32), 35)
     >>> a = betas(k, "s", "scalar", 0, 0, [0, 5000, 1])
@@ -171,8 +174,15 @@ def betas(key: TagKey, store_id: str, channel: str, level: int, component: int, 
     out = np.empty((v.size, 4), np.uint32)
     blocks = v // BLOCK
     for b in np.unique(blocks).tolist():
-        stream = hashlib.shake_256(key.prf_key + _domain(store_id, channel, level, component, b)).digest(BLOCK * BETA_BYTES)
-        words = np.frombuffer(stream, "<u4").reshape(BLOCK, 4)
+        words = None if cache is None else cache.get((store_id, channel, level, component, b))
+        if words is None:
+            stream = hashlib.shake_256(key.prf_key + _domain(store_id, channel, level, component, b)).digest(
+                BLOCK * BETA_BYTES)
+            words = np.frombuffer(stream, "<u4").reshape(BLOCK, 4)
+            if cache is not None:
+                if len(cache) >= 1024:
+                    cache.clear()
+                cache[(store_id, channel, level, component, b)] = words
         sel = blocks == b
         out[sel] = words[v[sel] - b * BLOCK]
     return out
@@ -238,6 +248,44 @@ def weighted_beta_sums(beta_limbs: np.ndarray, indptr: Any, voxels: Any, weights
     if nonempty.size:
         sums[nonempty] = np.add.reduceat(terms, ip[nonempty], axis=0)
     return [sum(int(s) << (16 * j) for j, s in enumerate(row)) for row in sums.tolist()]
+
+
+def weighted_beta_total(beta_limbs: np.ndarray, indptr: Any, voxels: Any, weights: Any, rho: Any) -> int:
+    """``Σ_r ρ_r·B_r`` with ``B_r = Σ_j w_j·β_{v_j}`` over the rows of a CSR plan, exactly and in numpy:
+    per voxel W_v = Σ ρ_r·w over its pairs (ρ in 16-bit pieces, so every per-voxel sum stays exact in
+    float64's 53 bits), then Σ_v β_v·W_v as one integer matrix product of 16-bit β pieces with W in
+    pieces small enough that no sum overflows 64 bits; a few Python integers at the end.
+
+    >>> bl = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], np.uint32)      # β = 1 and 2^32
+    >>> rho = [2**61 + 5, 3]
+    >>> want = sum(r * b for r, b in zip(rho, weighted_beta_sums(bl, [0, 2, 3], [0, 1, 1], [3, 2, 5])))
+    >>> weighted_beta_total(bl, [0, 2, 3], [0, 1, 1], [3, 2, 5], rho) == want
+    True
+    """
+    ip = np.asarray(indptr, dtype=np.int64)
+    vox = np.asarray(voxels, dtype=np.int64)
+    w = np.asarray(weights, dtype=np.int64)
+    r = np.asarray(rho, dtype=np.uint64)
+    if not vox.size:
+        return 0
+    if w.min() < 0 or w.max() >= 1 << 31:
+        raise ParameterError("weights: expected integers in [0, 2^31), got others")
+    row = np.repeat(np.arange(ip.size - 1), np.diff(ip))
+    U = beta_limbs.shape[0]
+    per_voxel = int(np.bincount(vox, minlength=U).max())
+    if (1 << 16) * int(w.max()) * per_voxel >= 1 << 53:  # float64 sums would round: the exact way
+        return sum(int(x) * b for x, b in zip(r.tolist(), weighted_beta_sums(beta_limbs, ip, vox, w)))
+    pieces = np.ascontiguousarray(beta_limbs, dtype="<u4").view("<u2").astype(np.uint64)  # (U, P) 16-bit
+    h = 63 - 16 - max(1, int(U).bit_length())  # bits of a W piece: 16 + h + log2(U) < 64
+    cols, shifts = [], []
+    for i in range(4):  # ρ's 16-bit pieces
+        rp = ((r >> np.uint64(16 * i)) & np.uint64(0xFFFF)).astype(np.float64)
+        Wv = np.bincount(vox, weights=rp[row] * w, minlength=U).astype(np.uint64)  # exact: < 2^53
+        for c in range(-(-53 // h)):
+            cols.append((Wv >> np.uint64(h * c)) & np.uint64((1 << h) - 1))
+            shifts.append(16 * i + h * c)
+    S = pieces.T @ np.stack(cols, axis=1)  # (P, columns): every entry < 2^64
+    return sum(int(S[j, c]) << (16 * j + shifts[c]) for j in range(S.shape[0]) for c in range(S.shape[1]))
 
 
 def coefficients(seed: bytes, count: int) -> list[int]:

@@ -44,9 +44,11 @@ its pixels are not the ray sums the tags protect), ``compute=False`` and the str
 from __future__ import annotations
 
 import logging
+import os
 import re
 import secrets
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -61,7 +63,7 @@ from ..crypto.tags import (
     coefficients_at,
     tag_channel,
     tag_key_of,
-    weighted_beta_sums,
+    weighted_beta_total,
 )
 from ..errors import HevrError, IntegrityError, ParameterError, VerificationError
 from ..store.pyramid import LEVEL_FACTOR
@@ -266,28 +268,33 @@ class Verification:
                    components=d["components"], n=int(n), level=d["level"], base_shape=tuple(d["base_shape"]))
 
     def beta_sum(self, private_key: Any, rays: RaySet | None = None) -> int:
-        """Σ_{r,k} ρ_{r,k}·B_{r,k} mod n from the public geometry and the PRF (module docstring)."""
+        """Σ_{r,k} ρ_{r,k}·B_{r,k} mod n from the public geometry and the PRF (module docstring):
+        brick by brick, on a thread per core (the geometry's numpy work releases the GIL)."""
         key = tag_key_of(private_key)
-        K, n = self.components, self.n
         rays = rays if rays is not None else cast_rays(self.camera, self.shape, self.spacing, self.step)
-        total = 0
+        cache: dict = {}  # β blocks shared by neighbouring bricks (a race only recomputes a block)
+        bricks = touched_bricks(rays, self.shape, self.spacing, self.brick, self.sampling, self.step)
+        with ThreadPoolExecutor(max_workers=max(1, min(os.cpu_count() or 1, 8))) as pool:
+            parts = list(pool.map(lambda index: self._brick_beta_sum(key, rays, index, cache), bricks))
+        return sum(parts) % self.n
+
+    def _brick_beta_sum(self, key: Any, rays: RaySet, index: tuple, cache: dict) -> int:
+        K = self.components
+        bw = brick_weights(rays, self.shape, self.spacing, self.brick, index, self.sampling, self.step, self.digits)
+        if not bw.rays.size:
+            return 0
         _, ny, nx = self.shape
-        for index in touched_bricks(rays, self.shape, self.spacing, self.brick, self.sampling, self.step):
-            bw = brick_weights(rays, self.shape, self.spacing, self.brick, index, self.sampling, self.step,
-                               self.digits)
-            if not bw.rays.size:
-                continue
-            (z0, z1), (y0, y1), (x0, x1) = brick_bounds(self.shape, self.brick, index)
-            zz, yy, xx = np.meshgrid(np.arange(z0, z1), np.arange(y0, y1), np.arange(x0, x1), indexing="ij")
-            used, local = np.unique(bw.voxels, return_inverse=True)  # β of the voxels the rays reach only
-            glob = ((zz * ny + yy) * nx + xx).reshape(-1)[used]
-            rho = coefficients_at(self.seed, (bw.rays[:, None] * K + np.arange(K)).reshape(-1)).reshape(-1, K)
-            for k in range(K):
-                beta = (betas(key, self.store_id, self.channel, 0, k, glob) if not self.level else
-                        _limbs(level_betas(key, self.store_id, self.channel, k, self.level, glob, self.base_shape)))
-                sums = weighted_beta_sums(beta, bw.indptr, local.reshape(-1), bw.weights)
-                total += sum(int(r) * b for r, b in zip(rho[:, k].tolist(), sums))
-        return total % n
+        (z0, z1), (y0, y1), (x0, x1) = brick_bounds(self.shape, self.brick, index)
+        zz, yy, xx = np.meshgrid(np.arange(z0, z1), np.arange(y0, y1), np.arange(x0, x1), indexing="ij")
+        used, local = np.unique(bw.voxels, return_inverse=True)  # β of the voxels the rays reach only
+        glob = ((zz * ny + yy) * nx + xx).reshape(-1)[used]
+        rho = coefficients_at(self.seed, (bw.rays[:, None] * K + np.arange(K)).reshape(-1)).reshape(-1, K)
+        total = 0
+        for k in range(K):
+            beta = (betas(key, self.store_id, self.channel, 0, k, glob, cache) if not self.level else
+                    _limbs(level_betas(key, self.store_id, self.channel, k, self.level, glob, self.base_shape)))
+            total += weighted_beta_total(beta, bw.indptr, local.reshape(-1), bw.weights, rho[:, k])
+        return total
 
     def check(self, private_key: Any, image: Any, ray_ids: np.ndarray, sums: list[int]) -> None:
         """Raise :class:`hevr.VerificationError` unless the ``image``'s public fields are those of
