@@ -377,3 +377,14 @@ def test_the_command_line_verifies(tmp_path, capsys):
     code, _, err = run("encrypt", "phantom:8", "--key", tmp_path / "key.pub.json", "--out", tmp_path / "p.zarr",
                        "--verifiable", "-q")
     assert code == 2 and err.startswith("hevr: error: --verifiable: expected a PrivateKey"), err
+
+
+def test_verified_renders_on_the_kernel_backend(stores, keypair256):
+    """The tag map and the aggregates through another backend's interface (cuda-host: the GPU
+    backend's kernels on the CPU) give the same check."""
+    ev, _ = stores
+    _, priv = keypair256
+    for mode, kw in (("xray", {}), ("tf", {"nodes": NODES})):
+        img = _render(ev, None, mode, "trilinear", backend="cuda-host", **kw)
+        assert img.stats["backend"] == "cuda-host" and img.verification is not None
+        img.decrypt(priv)
