@@ -295,7 +295,7 @@ def cmd_decrypt(args: Any) -> int:
               "against the store's tags)")
     else:
         print("not verified: the frame carries no check against a store's tags (a store encrypted without "
-              "--verifiable, or rendered with --no-verify, --finish server or --level)")
+              "--verifiable, or rendered with --no-verify or --finish server)")
     print(f"wrote {out}")
     if npy is not None:
         print(f"wrote {npy} (float64 values)")

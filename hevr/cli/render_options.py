@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from typing import Any
 
 from .._limits import MAX_PIXELS_KEY, render_limits
@@ -195,10 +196,18 @@ def add_finish_option(p: argparse.ArgumentParser) -> None:
                         "normalises and packs finished pixels (the colouring goes to the workers and into the frame)")
 
 
+def _store_id(text: str) -> str:
+    """``--verify``'s optional STORE_ID: 16 lower-case hex digits (a path there is a mistake: STORE first)."""
+    if not re.fullmatch(r"[0-9a-f]{16}", text):
+        raise argparse.ArgumentTypeError(f"expected a store id of 16 lower-case hex digits (the one 'hevr encrypt "
+                                         f"printed; put STORE before --verify), got {text[:40]!r}")
+    return text
+
+
 def add_verify_option(p: argparse.ArgumentParser) -> None:
     """``--verify [STORE_ID]`` / ``--no-verify`` of render and slice."""
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--verify", nargs="?", const=True, default=None, metavar="STORE_ID",
+    g.add_argument("--verify", nargs="?", const=True, default=None, metavar="STORE_ID", type=_store_id,
                    help="require the check against the store's tags (a store encrypted with --verifiable; on by "
                         "default there): the cluster also sums the tags and the frame carries one aggregate that "
                         "'hevr decrypt' checks (about twice the work); with the STORE_ID 'hevr encrypt' printed, "

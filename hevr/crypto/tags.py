@@ -30,14 +30,14 @@ and the β_v are hidden from it; whatever it returns, D(A) is a value it fixed b
 operations, τ = α·L_m + L_β + (terms in the m_v and constants), with public coefficients of its
 choosing. If the image is wrong (δ_r = S'_r − S_r not all 0), acceptance needs either
 α·Σρ_rδ_r to equal a value independent of α — probability ≤ 2/min(p, q) over α when Σρ_rδ_r ≢ 0
-mod p and mod q — or Σρ_rδ_r ≡ 0, which for ρ_r uniform on 64 bits and any fixed δ ≠ 0 has
-probability ≤ 2^-64; or coefficients on the β_v other than Σρ_r·w_{r,v}, which leaves a non-zero
+mod p and mod q — or Σρ_rδ_r ≡ 0, which for ρ_r uniform on 62 bits (:data:`RHO_BITS`) and any
+fixed δ ≠ 0 has probability ≤ 2^-62; or coefficients on the β_v other than Σρ_r·w_{r,v}, which leaves a non-zero
 combination of 128-bit pseudo-random values to guess (≤ 2^-128 per guess, as the PRF is secure).
-So one frame is accepted wrongly with probability about 2^-64 + 2^-127 + 2/min(p, q) per attempt.
+So one frame is accepted wrongly with probability about 2^-62 + 2^-127 + 2/min(p, q) per attempt.
 ρ must be unknown to the server when it fixes the image: drawn by the client *after* the image
 arrives (a second round: hevr's ray sums stay on the workers as futures, so the aggregate is one
 more task) — not derived from a hash of the image, which a server could grind (2^t hashes lower
-the bound to 2^(t−64)).
+the bound to 2^(t−62)).
 
 The tag key is derived from the private key (:func:`tag_key_of`): α and k are SHAKE-256 of a
 domain string and the primes p, q. So it is exactly as secret as the key, needs no file of its
@@ -173,7 +173,10 @@ def betas(key: TagKey, store_id: str, channel: str, level: int, component: int, 
         raise ParameterError("voxels: expected non-negative flat indices, got a negative one")
     out = np.empty((v.size, 4), np.uint32)
     blocks = v // BLOCK
-    for b in np.unique(blocks).tolist():
+    order = np.argsort(blocks, kind="stable")  # each block's voxels: one slice of this order
+    starts = np.flatnonzero(np.r_[True, blocks[order][1:] != blocks[order][:-1]]) if v.size else np.zeros(0, int)
+    for a, e in zip(starts.tolist(), np.r_[starts[1:], v.size].tolist()):
+        b = int(blocks[order[a]])
         words = None if cache is None else cache.get((store_id, channel, level, component, b))
         if words is None:
             stream = hashlib.shake_256(key.prf_key + _domain(store_id, channel, level, component, b)).digest(
@@ -183,7 +186,7 @@ def betas(key: TagKey, store_id: str, channel: str, level: int, component: int, 
                 if len(cache) >= 1024:
                     cache.clear()
                 cache[(store_id, channel, level, component, b)] = words
-        sel = blocks == b
+        sel = order[a:e]
         out[sel] = words[v[sel] - b * BLOCK]
     return out
 
@@ -261,6 +264,10 @@ def weighted_beta_total(beta_limbs: np.ndarray, indptr: Any, voxels: Any, weight
     >>> want = sum(r * b for r, b in zip(rho, weighted_beta_sums(bl, [0, 2, 3], [0, 1, 1], [3, 2, 5])))
     >>> weighted_beta_total(bl, [0, 2, 3], [0, 1, 1], [3, 2, 5], rho) == want
     True
+    >>> big = [2**40 + 7, 3, 2**33]                                  # weights beyond 2^31: split
+    >>> want = sum(r * b for r, b in zip(rho, [big[0] + 2 * 2**32 * big[1], 2**32 * big[2]]))
+    >>> weighted_beta_total(bl, [0, 2, 3], [0, 1, 1], [big[0], 2 * big[1], big[2]], rho) == want
+    True
     """
     ip = np.asarray(indptr, dtype=np.int64)
     vox = np.asarray(voxels, dtype=np.int64)
@@ -268,8 +275,12 @@ def weighted_beta_total(beta_limbs: np.ndarray, indptr: Any, voxels: Any, weight
     r = np.asarray(rho, dtype=np.uint64)
     if not vox.size:
         return 0
-    if w.min() < 0 or w.max() >= 1 << 31:
-        raise ParameterError("weights: expected integers in [0, 2^31), got others")
+    if w.min() < 0:
+        raise ParameterError("weights: expected non-negative integers, got a negative one")
+    if w.max() >= 1 << 31:  # linear in w: its low 31 bits, plus the rest shifted (trilinear with many digits)
+        low = w & ((1 << 31) - 1)
+        return (weighted_beta_total(beta_limbs, ip, vox, low, r)
+                + (weighted_beta_total(beta_limbs, ip, vox, w >> 31, r) << 31))
     row = np.repeat(np.arange(ip.size - 1), np.diff(ip))
     U = beta_limbs.shape[0]
     per_voxel = int(np.bincount(vox, minlength=U).max())

@@ -371,7 +371,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     verification = None
     if verified:  # the image is fixed: now the coefficients, then the tags' aggregate (verify.py)
         verification = tag_aggregate(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
-                                     tile, n_tiles, backend, cl, progress)
+                                     tile, n_tiles, backend, cl, progress, exponent=plan.exponent)
         stats["verify_s"] = verification.server_s
         stats["seconds"] = time.perf_counter() - t0
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)

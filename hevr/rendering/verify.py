@@ -113,37 +113,45 @@ _CHILDREN = np.array([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])  #
 
 
 def level_betas(key: Any, store_id: str, channel: str, component: int, level: int, voxels: Any,
-                base_shape: tuple) -> list[int]:
-    """β of the flat voxel indices ``voxels`` of pyramid ``level``: the level's tags are built as its
-    values are (:mod:`hevr.store.pyramid`), 125 ⊗ the product of the 8 children's (clamped at the
-    far edges, as there), so β_L(v) = 125·Σ β_{L−1}(child), down to level 0's PRF values.
+                base_shape: tuple, cache: dict | None = None) -> np.ndarray:
+    """β of the flat voxel indices ``voxels`` of pyramid ``level`` as ``(len, nl)`` uint32 limbs: the
+    level's tags are built as its values are (:mod:`hevr.store.pyramid`), 125 ⊗ the product of the 8
+    children's (clamped at the far edges, as there), so β_L(v) = 125·Σ β_{L−1}(child), down to level
+    0's PRF values — in numpy, in 16-bit pieces with carries (``cache`` as for :func:`betas`).
 
     >>> from hevr.crypto.tags import TagKey
     >>> k = TagKey(1, bytes(32), 2**200)
-    >>> b0 = level_betas(k, "s", "scalar", 0, 0, range(8), (2, 2, 2))
-    >>> level_betas(k, "s", "scalar", 0, 1, [0], (2, 2, 2)) == [125 * sum(b0)]
+    >>> as_int = lambda a: [int.from_bytes(r.astype("<u4").tobytes(), "little") for r in a]
+    >>> b0 = as_int(level_betas(k, "s", "scalar", 0, 0, range(8), (2, 2, 2)))
+    >>> as_int(level_betas(k, "s", "scalar", 0, 1, [0], (2, 2, 2))) == [125 * sum(b0)]
     True
-    >>> level_betas(k, "s", "scalar", 0, 1, [0], (1, 1, 1)) == [125 * 8 * b0[0]]   # one voxel: its own 8 times
+    >>> as_int(level_betas(k, "s", "scalar", 0, 1, [0], (1, 1, 1))) == [125 * 8 * b0[0]]  # itself 8 times
     True
     """
     v = np.asarray(voxels, dtype=np.int64).reshape(-1)
     if level == 0:
-        return [int.from_bytes(b.astype("<u4").tobytes(), "little") for b in betas(key, store_id, channel, 0,
-                                                                                  component, v)]
+        return betas(key, store_id, channel, 0, component, v, cache)
     shape, below = level_shape(base_shape, level), level_shape(base_shape, level - 1)
     zyx = np.stack(np.unravel_index(v, shape), axis=1)
     kids = np.minimum(zyx[:, None, :] * 2 + _CHILDREN[None], np.asarray(below) - 1).reshape(-1, 3)
     uniq, inverse = np.unique(np.ravel_multi_index(tuple(kids.T), below), return_inverse=True)
-    sub = level_betas(key, store_id, channel, component, level - 1, uniq, base_shape)
-    picked = [sub[i] for i in inverse.reshape(-1).tolist()]
-    return [LEVEL_FACTOR * sum(picked[8 * j:8 * j + 8]) for j in range(v.size)]
-
-
-def _limbs(values: list[int]) -> np.ndarray:
-    """Non-negative integers as ``(len, nl)`` little-endian uint32 limbs (nl ≥ 4, enough for the largest)."""
-    nl = max(4, -(-max([1, *(int(x).bit_length() for x in values)]) // 32))
-    raw = b"".join(int(x).to_bytes(4 * nl, "little") for x in values)
-    return np.frombuffer(raw, "<u4").reshape(len(values), nl) if values else np.zeros((0, nl), np.uint32)
+    sub = level_betas(key, store_id, channel, component, level - 1, uniq, base_shape, cache)
+    pieces = np.ascontiguousarray(sub, dtype="<u4").view("<u2").astype(np.uint64)  # (U, P), each < 2^16
+    x = pieces[inverse.reshape(-1, 8)].sum(axis=1) * np.uint64(LEVEL_FACTOR)  # < 8·125·2^16 < 2^26
+    cols = [x[:, j] for j in range(x.shape[1])]
+    j = 0
+    while j < len(cols):  # carries into 16-bit pieces, as many as needed
+        carry = cols[j] >> np.uint64(16)
+        cols[j] = cols[j] & np.uint64(0xFFFF)
+        if carry.any():
+            if j + 1 == len(cols):
+                cols.append(np.zeros_like(carry))
+            cols[j + 1] = cols[j + 1] + carry
+        j += 1
+    if len(cols) % 2:
+        cols.append(np.zeros_like(cols[0]))
+    out = np.stack(cols, axis=1).astype("<u2")
+    return np.ascontiguousarray(out).view("<u4")
 
 
 def aggregate_tile(merged: Any, seed: bytes, width: int, components: int, nsquare: int,
@@ -165,7 +173,8 @@ def aggregate_tile(merged: Any, seed: bytes, width: int, components: int, nsquar
 
 
 def tag_aggregate(ev: Any, camera: Any, rays: RaySet, sampling: str, step: float, digits: int, channel: str,
-                  tile: int, n_tiles: int, backend: str, client: Any, progress: bool) -> Verification:
+                  tile: int, n_tiles: int, backend: str, client: Any, progress: bool,
+                  exponent: int = 0) -> Verification:
     """Steps 2-3 of the module docstring, after the image: a fresh seed, the tag channel's graph
     with the image's plan and one aggregation task per tile; the :class:`Verification` to keep."""
     seed = secrets.token_bytes(32)
@@ -182,7 +191,7 @@ def tag_aggregate(ev: Any, camera: Any, rays: RaySet, sampling: str, step: float
             A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
     return Verification(aggregate=int(A), seed=seed, store_id=ev.meta.store_id, channel=channel, shape=ev.shape,
                         spacing=ev.spacing, brick=ev.brick, camera=camera, sampling=sampling, step=step, digits=digits,
-                        components=K, n=int(ev.public_key.n), level=ev.level,
+                        components=K, n=int(ev.public_key.n), level=ev.level, exponent=int(exponent),
                         base_shape=tuple(ev.base.shape) if ev.level else tuple(ev.shape),
                         server_s=time.perf_counter() - t0)
 
@@ -207,6 +216,7 @@ class Verification:
     n: int
     level: int = 0
     base_shape: tuple = ()
+    exponent: int = 0
     server_s: float = 0.0
 
     def __repr__(self) -> str:
@@ -219,7 +229,7 @@ class Verification:
                 "spacing": [float(x) for x in self.spacing], "brick": [int(x) for x in self.brick],
                 "view": self.camera.to_dict(), "sampling": self.sampling, "step": float(self.step),
                 "digits": int(self.digits), "components": int(self.components), "level": int(self.level),
-                "base_shape": [int(x) for x in (self.base_shape or self.shape)]}
+                "base_shape": [int(x) for x in (self.base_shape or self.shape)], "exponent": int(self.exponent)}
 
     @classmethod
     def from_dict(cls, d: Any, n: int, where: str = "image") -> Verification:
@@ -231,7 +241,7 @@ class Verification:
                                   f"got {str(got)[:80]!r}")
 
         fields = {"version", "aggregate", "seed", "store_id", "channel", "shape", "spacing", "brick", "view",
-                  "sampling", "step", "digits", "components", "level", "base_shape"}
+                  "sampling", "step", "digits", "components", "level", "base_shape", "exponent"}
         if not isinstance(d, dict) or set(d) != fields:
             raise bad("version", f"an object with exactly {sorted(fields)}")
         if d["version"] != 1 or type(d["version"]) is not int:
@@ -255,9 +265,9 @@ class Verification:
             raise bad("sampling", "'nearest' or 'trilinear'")
         if not (type(d["step"]) in (int, float) and 0 < d["step"] < float("inf")):
             raise bad("step", "a positive number")
-        for name, hi in (("digits", 12), ("components", 64), ("level", MAX_LEVELS)):
-            if type(d[name]) is not int or not 0 <= d[name] <= hi:
-                raise bad(name, f"an integer in [0, {hi}]")
+        for name, lo, hi in (("digits", 0, 12), ("components", 0, 64), ("level", 0, MAX_LEVELS), ("exponent", -64, 64)):
+            if type(d[name]) is not int or not lo <= d[name] <= hi:
+                raise bad(name, f"an integer in [{lo}, {hi}]")
         try:
             view = view_from_dict(d["view"])
         except HevrError as exc:
@@ -265,7 +275,8 @@ class Verification:
         return cls(aggregate=int(agg), seed=bytes.fromhex(seed), store_id=d["store_id"], channel=d["channel"],
                    shape=tuple(d["shape"]), spacing=tuple(float(x) for x in d["spacing"]), brick=tuple(d["brick"]),
                    camera=view, sampling=d["sampling"], step=float(d["step"]), digits=d["digits"],
-                   components=d["components"], n=int(n), level=d["level"], base_shape=tuple(d["base_shape"]))
+                   components=d["components"], n=int(n), level=d["level"], base_shape=tuple(d["base_shape"]),
+                   exponent=d["exponent"])
 
     def beta_sum(self, private_key: Any, rays: RaySet | None = None) -> int:
         """Σ_{r,k} ρ_{r,k}·B_{r,k} mod n from the public geometry and the PRF (module docstring):
@@ -291,14 +302,13 @@ class Verification:
         rho = coefficients_at(self.seed, (bw.rays[:, None] * K + np.arange(K)).reshape(-1)).reshape(-1, K)
         total = 0
         for k in range(K):
-            beta = (betas(key, self.store_id, self.channel, 0, k, glob, cache) if not self.level else
-                    _limbs(level_betas(key, self.store_id, self.channel, k, self.level, glob, self.base_shape)))
+            beta = level_betas(key, self.store_id, self.channel, k, self.level, glob, self.base_shape, cache)
             total += weighted_beta_total(beta, bw.indptr, local.reshape(-1), bw.weights, rho[:, k])
         return total
 
     def check(self, private_key: Any, image: Any, ray_ids: np.ndarray, sums: list[int]) -> None:
         """Raise :class:`hevr.VerificationError` unless the ``image``'s public fields are those of
-        this view (shape, channel, components, sample counts, hit mask) and D(A) = α·Σρ·S' + Σρ·B
+        this view (shape, channel, exponent, components, sample counts, hit mask) and D(A) = α·Σρ·S' + Σρ·B
         (mod n); ``sums`` are its decrypted ray sums S' (offset removed), ``K`` per ray of
         ``ray_ids``."""
         t0 = time.perf_counter()
@@ -308,12 +318,14 @@ class Verification:
         H, W = self.camera.height, self.camera.width
         samples = np.asarray(rays.n_samples).reshape(H, W)
         same = (tuple(image.shape[:2]) == (H, W) and image.finish == "client" and image.channel == self.channel
+                and int(image.exponent) == self.exponent
                 and int(image.components or 0) == K and image.samples is not None and image.hits is not None
                 and np.array_equal(np.asarray(image.samples).reshape(H, W), samples)
                 and np.array_equal(np.asarray(image.hits, bool), samples > 0))
         if not same:
-            raise VerificationError("image: its shape, channel, components, sample counts or hit mask are not those "
-                                    f"of the verified view ({W}x{H}, channel {self.channel!r}); no image is returned")
+            raise VerificationError("image: its shape, channel, exponent, components, sample counts or hit mask are "
+                                    f"not those of the verified view ({W}x{H}, channel {self.channel!r}); no image is "
+                                    "returned")
         ids = (np.asarray(ray_ids, np.int64)[:, None] * K + np.arange(K)).reshape(-1)
         if ids.size != len(sums):
             raise VerificationError(f"image: expected {ids.size} ray sums for its hit pixels, got {len(sums)}; "

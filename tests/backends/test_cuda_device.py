@@ -119,7 +119,7 @@ def test_a_render_and_owner_encryption_on_fake_cupy(fake_cuda, tmp_path, keypair
     assert launched.keyholder is False
     assert fake_cuda.decrypt(priv, fake_cuda.encrypt(priv, x)) == [int(v) % int(pub.n) for v in x.tolist()]
     assert launched._owner_fn is None and launched._decrypt_fn is None
-    launched.keyholder = True  # what the device proof sets: the kernels, through the launcher
+    launched.keyholder = True  # what the device proof sets: the kernels (this test's fresh backend only)
     assert fake_cuda.decrypt(priv, fake_cuda.encrypt(priv, x)) == [int(v) % int(pub.n) for v in x.tolist()]
     assert fake_cuda.decrypt(priv, fake_cuda.encrypt(pub, x)) == [int(v) % int(pub.n) for v in x.tolist()]
     assert launched._owner_fn.calls == launched._public_fn.calls == 1 and launched._decrypt_fn.calls == 2
@@ -190,9 +190,9 @@ def _check_render(tmp_path, keypair512) -> None:
 
 
 @pytest.mark.gpu
-def test_owner_encryption_on_the_device_decrypts_exactly(keypair2048):
+def test_owner_encryption_on_the_device_decrypts_exactly(keypair2048, monkeypatch):
     be = _cuda_or_skip()
-    be._launch.keyholder = True  # the kernels themselves (off by default on a device)
+    monkeypatch.setattr(be._launch, "keyholder", True)  # the kernels themselves (off by default on a device)
     pub, priv = keypair2048
     x = np.array([0, 1, -1, 2**62, -(2**63), 2**63 - 1, 12345, -999], np.int64)
     assert be.decrypt(priv, be.encrypt(priv, x)) == [int(v) % int(pub.n) for v in x.tolist()]

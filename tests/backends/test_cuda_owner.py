@@ -33,7 +33,13 @@ from hevr.crypto.primes import random_prime_with_factors
 
 KERNELS = os.environ.get("HEVR_TEST_KERNELS", "cuda-host")
 BE, CPU = get_backend(KERNELS), CpuBackend()
-BE._launch.keyholder = True  # on a device these kernels are off by default (device.py): here they are the subject
+
+
+@pytest.fixture(autouse=True)
+def _keyholder_kernels(monkeypatch):
+    """On a device these kernels are off by default (device.py); here they are the subject, for this
+    module's tests only (the other kernel suites run the shipped setting)."""
+    monkeypatch.setattr(BE._launch, "keyholder", True)
 EDGES = np.array([0, 1, -1, 2, -2, 12345, -(2**31), 2**40, -(2**40), 2**62, 2**63 - 1, -(2**63)], np.int64)
 
 

@@ -141,6 +141,15 @@ def test_honest_renders_always_verify(stores, keypair256, azimuth, elevation, ca
                   <= hevr.error_bound(ev, cam, mode, sampling, **kw))
 
 
+def test_trilinear_weights_beyond_2_31_verify(stores, keypair256):
+    """Many weight digits and a short step: per-pair weights pass 2^31 (the client splits them)."""
+    ev, _ = stores
+    _, priv = keypair256
+    img = _render(ev, hevr.Camera.orbit(ev, azimuth=25, elevation=15, width=6, height=5), "xray", "trilinear",
+                  step=0.25, digits=9)
+    img.decrypt(priv)
+
+
 def test_slices_and_resident_bricks_verify(stores, keypair256):
     ev, _ = stores
     _, priv = keypair256
@@ -374,6 +383,8 @@ def test_the_command_line_verifies(tmp_path, capsys):
     code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "q.hevr", "--size", "8x8", "--verify",
                        "0" * 16, "-q")
     assert code != 0 and "expected the store 0000000000000000" in err, err
+    code, _, err = run("render", "--verify", tmp_path / "v.zarr", "--out", tmp_path / "r.hevr")
+    assert code == 2 and "--verify: expected a store id of 16 lower-case hex digits" in err, err
     code, _, err = run("encrypt", "phantom:8", "--key", tmp_path / "key.pub.json", "--out", tmp_path / "p.zarr",
                        "--verifiable", "-q")
     assert code == 2 and err.startswith("hevr: error: --verifiable: expected a PrivateKey"), err

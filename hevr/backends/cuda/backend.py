@@ -224,7 +224,8 @@ class KernelBackend(Backend):
         return self.from_bytes(_CPU.to_bytes(cts, width))
 
     def decrypt(self, private_key: Any, values: Any) -> list[int]:
-        """CRT decryption in a kernel (``owner.cuh``): residues in ``[0, n)``, as the CPU backend's."""
+        """CRT decryption in a kernel (``owner.cuh``) where the launcher's ``keyholder`` allows it, else
+        the CPU backend's: residues in ``[0, n)`` either way."""
         batch = self._batch(values)
         if not len(batch):
             return []

@@ -25,8 +25,9 @@ decrypts the CPU way on a device; the kernels stay reachable for that proof (set
 
 What is not here yet (issue 26): residues stay on the host between operations (each call
 copies its operands to the device and its results back), so a render pays PCIe transfers a
-resident device batch would not; decryption still delegates to ``cpu``. Owner encryption runs
-``owner.cuh`` (:meth:`CupyLauncher.owner_encrypt`; its tables uploaded once per key). The
+resident device batch would not. Owner encryption, public-key encryption and CRT decryption have
+their kernels here (:meth:`CupyLauncher.owner_encrypt`, tables uploaded once per key), used only
+with ``keyholder`` set (above). The
 launcher is exercised only on a machine with CuPy and a GPU (``tests/backends/test_cuda_device.py``,
 marked ``gpu``); without them :class:`hevr.MissingDependencyError` says what is missing.
 """
