@@ -76,6 +76,7 @@ from .weights import brick_bounds, brick_weights, touched_bricks
 
 log = logging.getLogger(__name__)
 _STORE_ID = re.compile(r"[0-9a-f]{16}")
+_WARNED: set = set()
 
 __all__ = ["Verification", "aggregate_tile", "level_betas", "resolve_verify", "tag_aggregate"]
 
@@ -104,7 +105,8 @@ def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bo
         return True
     if verify:
         raise ParameterError(f"verify: expected a request that can be verified, got {why}")
-    if ev.meta.tags:
+    if ev.meta.tags and (ev.meta.store_id, why) not in _WARNED:  # once per store and reason (the viewer's frames)
+        _WARNED.add((ev.meta.store_id, why))
         log.warning("render: not verified: %s", why)
     return False
 
