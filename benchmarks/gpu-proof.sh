@@ -43,13 +43,13 @@ run)
   tail -3 "$OUT/pytest.log"
   # owner.cuh (wrong on an H200 on 2026-11-26): every compile/launch variant in its own process, then
   # compute-sanitizer on the failing case (it names the faulting access)
-  { timeout 60 python3 benchmarks/gpu_diagnose.py --variant=shipped --counts 64,4096,65536
+  { timeout 90 python3 benchmarks/gpu_diagnose.py --variant=shipped --counts 64,4096,65536
     timeout 150 python3 benchmarks/gpu_diagnose.py --keys 1024,2048 --counts 64 --timeout 25
     timeout 90 compute-sanitizer --tool memcheck --print-limit 6 python3 benchmarks/gpu_diagnose.py \
       --variant=shipped --keys 2048 --steps decrypt --counts 64; } > "$OUT/diagnose.log" 2>&1
   grep -E "wrong [1-9]|FAILED|timed out|ERROR SUMMARY|Invalid|at 0x" "$OUT/diagnose.log" | head -40
   timeout 60 python3 benchmarks/gpu_profile_frame.py 16 > "$OUT/profile.log" 2>&1; grep "^==" "$OUT/profile.log"
-  timeout 200 python3 -c "import sys; from pathlib import Path; from hevr._bench.gpu import run_gpu_bench
+  timeout 170 python3 -c "import sys; from pathlib import Path; from hevr._bench.gpu import run_gpu_bench
 run_gpu_bench(Path(sys.argv[1]), work=Path("/tmp"), render_size=int(sys.argv[2]), log_line=print)" "$OUT" "${2:-16}" \
     2>&1 | tee "$OUT/bench.log" ;;
 *)
