@@ -27,6 +27,7 @@ import numpy as np
 from gmpy2 import mpz
 
 from .._files import write_atomic
+from .._recent import Recent
 from ..errors import InsecureKeyWarning, KeyMismatchError, ParameterError
 from . import paillier as raw
 from .encoding import decode
@@ -369,7 +370,7 @@ class PrivateKey:
         write_atomic(path, text, mode=0o600, overwrite=overwrite)
 
 
-_OWNER_CACHE: "dict[int, OwnerEncryptor]" = {}
+_OWNER_CACHE = Recent(2)  # n -> OwnerEncryptor
 
 
 def _owner_tables(p: mpz, q: mpz) -> OwnerEncryptor:
@@ -377,13 +378,8 @@ def _owner_tables(p: mpz, q: mpz) -> OwnerEncryptor:
     PrivateKey, and rebuilding ~100 MB of tables per brick would cost ~0.7 s each time.
     Kept in process memory only, for the two most recent keys."""
     n = int(p * q)
-    enc = _OWNER_CACHE.get(n)
-    if enc is None:
-        enc = OwnerEncryptor(p, q)
-        while len(_OWNER_CACHE) >= 2:
-            _OWNER_CACHE.pop(next(iter(_OWNER_CACHE)))
-        _OWNER_CACHE[n] = enc
-    return enc
+    enc = _OWNER_CACHE.find(n)
+    return enc if enc is not None else _OWNER_CACHE.keep(n, OwnerEncryptor(p, q))
 
 
 def generate_keypair(bits: int = 2048) -> tuple[PublicKey, PrivateKey]:

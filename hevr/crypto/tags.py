@@ -54,13 +54,13 @@ from __future__ import annotations
 
 import hashlib
 import secrets
-import threading
 from dataclasses import dataclass
 from typing import Any
 
 import gmpy2
 import numpy as np
 
+from .._recent import Recent
 from ..errors import ParameterError
 
 __all__ = ["BLOCK", "RHO_BITS", "TAG_SUFFIX", "TagKey", "betas", "coefficients", "coefficients_at", "data_channel", "generate_tag_key", "raw_check",
@@ -70,8 +70,7 @@ TAG_SUFFIX = "_tag"  # the tag channel of channel c is c + TAG_SUFFIX (its own a
 
 BLOCK = 1 << 12  # β values per PRF block
 BETA_BYTES = 16
-_KEYS: dict[int, TagKey] = {}
-_KEYS_LOCK = threading.Lock()
+_KEYS = Recent(4)  # n -> TagKey
 
 
 @dataclass(frozen=True, repr=False)
@@ -113,8 +112,7 @@ def tag_key_of(private_key: Any) -> TagKey:
     (True, True, 'TagKey(<secret>')
     """
     n = int(private_key.public_key.n)
-    with _KEYS_LOCK:
-        got = _KEYS.get(n)
+    got = _KEYS.find(n)
     if got is not None:
         return got
     p, q = sorted((int(private_key.p), int(private_key.q)))
@@ -126,12 +124,7 @@ def tag_key_of(private_key: Any) -> TagKey:
         alpha = int.from_bytes(raw, "little") % n
         if alpha and gmpy2.gcd(alpha, n) == 1:
             break
-    key = TagKey(alpha, prf_key, n)
-    with _KEYS_LOCK:
-        while len(_KEYS) >= 4:
-            _KEYS.pop(next(iter(_KEYS)))
-        _KEYS[n] = key
-    return key
+    return _KEYS.keep(n, TagKey(alpha, prf_key, n))
 
 
 def tag_channel(channel: str) -> str:

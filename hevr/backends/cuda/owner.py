@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from ..._recent import Recent
 from ...crypto.paillier import raw_encode_signed
 from .host import MAX_LIMBS, from_limbs, to_limbs
 from .residues import Modulus
@@ -32,9 +32,8 @@ from .residues import Modulus
 __all__ = ["DecryptTables", "OwnerTables", "decrypt_limbs", "decrypt_tables", "owner_limbs", "owner_tables",
            "public_limbs", "random_below"]
 
-_CACHE: dict[int, OwnerTables] = {}
-_DCACHE: dict[int, DecryptTables] = {}
-_LOCK = threading.Lock()
+_CACHE = Recent(2)  # n -> OwnerTables
+_DCACHE = Recent(2)  # n -> DecryptTables
 
 
 @dataclass(repr=False)
@@ -95,8 +94,7 @@ def random_below(bound: int, count: int) -> np.ndarray:
 def owner_tables(key: Any, launcher: Any) -> OwnerTables | None:
     """The kernel's tables for a :class:`hevr.PrivateKey` (cached per key), None without tables."""
     n = int(key.public_key.n)
-    with _LOCK:
-        got = _CACHE.get(n)
+    got = _CACHE.find(n)
     if got is not None:
         return got
     spec = key.owner.tables()
@@ -111,12 +109,7 @@ def owner_tables(key: Any, launcher: Any) -> OwnerTables | None:
         halves.append(Half(M, T, len(rows), int(w), NR, _bound(int(P2))))
     Mp = halves[0].P
     INV = to_limbs([int(spec[2]) % Mp.n], Mp.nl)[0]
-    tables = OwnerTables(halves[0], halves[1], INV, -(-(n * n).bit_length() // 32))
-    with _LOCK:
-        while len(_CACHE) >= 2:
-            _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[n] = tables
-    return tables
+    return _CACHE.keep(n, OwnerTables(halves[0], halves[1], INV, -(-(n * n).bit_length() // 32)))
 
 
 def _bound(P2: int) -> int:
@@ -179,8 +172,7 @@ class DecryptTables:
 def decrypt_tables(key: Any) -> DecryptTables:
     """The CRT constants of a :class:`hevr.PrivateKey` as limbs (cached per key and process)."""
     n = int(key.public_key.n)
-    with _LOCK:
-        got = _DCACHE.get(n)
+    got = _DCACHE.find(n)
     if got is not None:
         return got
     p, q, hp, hq, piq = (int(v) for v in key.crt_constants())
@@ -195,11 +187,7 @@ def decrypt_tables(key: Any) -> DecryptTables:
     Q = halves[1].P
     tables = DecryptTables(halves[0], halves[1], to_limbs([piq % q], Q.nl)[0],
                            -(-(n * n).bit_length() // 32), -(-n.bit_length() // 32))
-    with _LOCK:
-        while len(_DCACHE) >= 2:
-            _DCACHE.pop(next(iter(_DCACHE)))
-        _DCACHE[n] = tables
-    return tables
+    return _DCACHE.keep(n, tables)
 
 
 def _kernel_sized(x: np.ndarray, n: int) -> bool:
