@@ -195,7 +195,7 @@ class EncryptedImage:
             return tiles
         tiles = list(tiles)  # a verified render: every value checked against the tags before any is used
         W, offset = self.shape[1], int(self.offset)
-        ids = [((r0 + np.nonzero(mask)[0]) * W + c0 + np.nonzero(mask)[1]) for r0, _, c0, _, mask, _ in tiles]
+        ids = [(r0 + rr) * W + c0 + cc for r0, _, c0, _, mask, _ in tiles for rr, cc in [np.nonzero(mask)]]
         self.verification.check(private_key, self, np.concatenate(ids) if ids else np.zeros(0, np.int64),
                                 [v - offset for *_, vals in tiles for v in vals])
         return iter(tiles)
