@@ -164,6 +164,13 @@ class Backend(ABC):
     """
 
     name: str = ""
+    # where resident residues live: "host" (this process's memory) or "device" (a GPU's memory,
+    # :meth:`memory` says how much); a device backend maps a worker's resident bricks in one task
+    residence: str = "host"
+
+    def memory(self) -> tuple[int, int] | None:
+        """(free, total) bytes of the device memory resident residues take; None for the host's."""
+        return None
 
     # -- conversion, once per brick / tile --------------------------------------------
     @abstractmethod

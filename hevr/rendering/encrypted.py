@@ -34,7 +34,7 @@ from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
-from ..store.resident import BATCH_BITS
+from ..store.resident import batched
 from .bounds import error_bound
 from .camera import Camera
 from .graph import FinishGraph, build_sums_graph, resident_groups
@@ -69,21 +69,23 @@ BAND_BITS = 1024
 # "auto": one per worker below BATCH_BITS (1024), where a task's fixed cost outweighs a brick's arithmetic
 # (64-bit paper case, 2 workers: 0.45 -> 0.35 s); from BATCH_BITS on per brick, whose pipelining of
 # merges and finishing with the maps the batched task would lose (2048 bits: trilinear 18.3 ->
-# 24.8 s, TF 9.4 -> 10.7 s; benchmarks/frame_plaintext.py).
+# 24.8 s, TF 9.4 -> 10.7 s; benchmarks/frame_plaintext.py); and always per worker where the backend
+# keeps residues on a GPU (a few large launches, not one small launch per brick).
 RESIDENT_BATCH_KEY = "hevr.render.resident-batch"
 
 
-def _batch(bits: int) -> bool:
-    """Whether resident bricks are mapped one task per worker (see RESIDENT_BATCH_KEY).
+def _batch(bits: int, backend: str = "cpu") -> bool:
+    """Whether resident bricks are mapped one task per worker (see RESIDENT_BATCH_KEY; "auto":
+    :func:`hevr.store.resident.batched`).
 
-    >>> _batch(64), _batch(2048)
-    (True, False)
+    >>> _batch(64), _batch(2048), _batch(2048, "cuda")
+    (True, False, True)
     """
     value = dask.config.get(RESIDENT_BATCH_KEY, "auto")
     if isinstance(value, str) and value.strip().lower() in ("true", "false"):  # from the environment
         value = value.strip().lower() == "true"
     if value == "auto":
-        return bits < BATCH_BITS
+        return batched(bits, backend)
     if not isinstance(value, bool):
         raise ParameterError(f"{RESIDENT_BATCH_KEY}: expected true, false or 'auto', got {value!r}")
     return value
@@ -307,7 +309,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         # One graph: map -> tree merge -> finish, so merged sums never travel through the client.
         # When they are cached they stay where they are: futures on a cluster (re-colouring
         # then runs next to them), values on a single machine.
-        batch = resident is not None and _batch(int(ev.public_key.n).bit_length())
+        batch = resident is not None and _batch(int(ev.public_key.n).bit_length(), backend)
         groups = resident_groups(resident, cl) if batch else None
         graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
                                  tile, n_tiles, backend, resident,

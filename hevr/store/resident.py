@@ -26,7 +26,11 @@ components) holds
 ``ceil(bricks/N)·brick voxels·C`` ciphertexts. :func:`plan_residency` states this before
 anything is loaded and refuses (``MemoryLimitError``) when a worker's share would exceed the
 fraction ``hevr.limits.resident-memory`` (Dask config, default 0.5) of its memory limit
-(on a single machine: of the memory available now).
+(on a single machine: of the memory available now). Where the backend keeps residues on a GPU
+(``cuda``: :attr:`hevr.backends.base.Backend.residence` is ``"device"``) the bricks are in the
+GPU's memory, in Montgomery form, and the share is of each worker's device memory (its total
+on a cluster, what is free now on a single machine); such bricks are always placed in slabs
+and mapped one task per worker (:func:`batched`).
 """
 
 from __future__ import annotations
@@ -46,7 +50,7 @@ from ..errors import MemoryLimitError, ParameterError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ResidentBrick", "Residency", "load_brick", "plan_residency", "RESIDENT_MEMORY_KEY"]
+__all__ = ["ResidentBrick", "Residency", "batched", "load_brick", "plan_residency", "RESIDENT_MEMORY_KEY"]
 
 RESIDENT_MEMORY_KEY = "hevr.limits.resident-memory"
 # Below this key size a render maps a worker's resident bricks in one task
@@ -59,23 +63,47 @@ class ResidentBrick:
     """The decoded ciphertexts of one brick, per channel, in the backend's form.
 
     Opaque to Dask (it is not traversed when passed to a task) and sized truthfully
-    (``__sizeof__``), so the scheduler keeps work where the brick is.
+    (``__sizeof__``: the host memory it holds), so the scheduler keeps work where the brick is.
+    ``nbytes`` is the residues' memory wherever they are; on a GPU (``device``) that is device
+    memory, which Dask's memory manager must not count as its own (it would spill the brick to
+    disk to free host memory it never took): such a brick's ``__sizeof__`` is its host side only.
     """
 
-    __slots__ = ("index", "batches", "nbytes")
+    __slots__ = ("index", "batches", "nbytes", "device")
 
-    def __init__(self, index: tuple[int, int, int], batches: dict[str, Any], nbytes: int) -> None:
-        self.index, self.batches, self.nbytes = index, batches, int(nbytes)
+    HOST_SIDE = 4096  # bytes of Python objects around a device brick's arrays
+
+    def __init__(self, index: tuple[int, int, int], batches: dict[str, Any], nbytes: int,
+                 device: bool = False) -> None:
+        self.index, self.batches, self.nbytes, self.device = index, batches, int(nbytes), bool(device)
 
     def channel(self, name: str) -> Any:
         """One batch (``scalar``) or the k batches (``vector``, ``gradient``) of this brick."""
         return self.batches[name]
 
     def __sizeof__(self) -> int:
-        return self.nbytes
+        return self.HOST_SIDE if self.device else self.nbytes
 
     def __repr__(self) -> str:
-        return f"ResidentBrick({self.index}, channels={sorted(self.batches)}, {self.nbytes} bytes)"
+        where = " on the device" if self.device else ""
+        return f"ResidentBrick({self.index}, channels={sorted(self.batches)}, {self.nbytes} bytes{where})"
+
+
+def batched(bits: int, backend: str) -> bool:
+    """Whether a render maps each worker's resident bricks in one task (config ``"auto"``), which
+    places them in slabs: below :data:`BATCH_BITS`-bit keys, and always where the backend keeps
+    residues on a GPU, whose frame is then a few large launches over all of a worker's bricks
+    rather than a small launch per brick.
+
+    >>> batched(64, "cpu"), batched(2048, "cpu"), batched(2048, "cuda")
+    (True, False, True)
+    """
+    return int(bits) < BATCH_BITS or get_backend(backend).residence == "device"
+
+
+def _device_memory(backend: str) -> tuple[int, int] | None:
+    """(free, total) device bytes of ``backend`` here (run on each worker by :func:`plan_residency`)."""
+    return get_backend(backend).memory()
 
 
 def residue_bytes(width: int, backend: str | None = "cpu") -> int:
@@ -93,7 +121,8 @@ def load_brick(ev: Any, index: tuple[int, int, int], channels: tuple[str, ...], 
     be = get_backend(backend)
     batches = {ch: ev.read_brick(index, ch, backend=be) for ch in channels}
     n_cts = sum(len(b) if data_channel(ch) == "scalar" else sum(len(x) for x in b) for ch, b in batches.items())
-    return ResidentBrick(tuple(index), batches, n_cts * be.residue_bytes(ev.meta.ciphertext_bytes))
+    return ResidentBrick(tuple(index), batches, n_cts * be.residue_bytes(ev.meta.ciphertext_bytes),
+                         device=be.residence == "device")
 
 
 @dataclass
@@ -183,6 +212,7 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
         raise ParameterError(f"channels: expected some of {list(stored)}, got none")
     backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), client=client)
     per_ct = residue_bytes(ev.meta.ciphertext_bytes, backend)
+    device = get_backend(backend).residence == "device"  # then the share is of each worker's GPU memory
     k = sum(ev.meta.components(c) for c in channels)
     bricks = ev.brick_indices()
     cost = {idx: int(np.prod(ev.brick_shape(idx))) * k * per_ct for idx in bricks}
@@ -191,11 +221,14 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
         workers = sorted(info)
         if not workers:
             raise ParameterError("client: expected a cluster with workers, got none")
-        limits = {w: info[w].get("memory_limit") or psutil.virtual_memory().total for w in workers}
+        if device:  # a GPU worker's total memory (its other arrays are the frame's, freed after it)
+            limits = {w: m[1] for w, m in client.run(_device_memory, backend).items()}
+        else:
+            limits = {w: info[w].get("memory_limit") or psutil.virtual_memory().total for w in workers}
     else:
         workers = ["local"]
-        limits = {"local": psutil.virtual_memory().available}
-    if int(ev.public_key.n).bit_length() < BATCH_BITS:
+        limits = {"local": get_backend(backend).memory()[0] if device else psutil.virtual_memory().available}
+    if batched(int(ev.public_key.n).bit_length(), backend):
         place = _slabs(bricks, cost, workers)
     else:  # mapped one task per brick: spread evenly over the image (measured 4 % faster at 2048 bits)
         place = {idx: workers[i % len(workers)] for i, idx in enumerate(bricks)}
@@ -206,10 +239,12 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     for w in workers:
         if share[w] > frac * limits[w]:
             raise MemoryLimitError(
-                f"persist: expected at most {frac:g} of worker {w}'s memory ({frac * limits[w] / 2**20:.0f} MiB), "
+                f"persist: expected at most {frac:g} of worker {w}'s {'device ' if device else ''}memory "
+                f"({frac * limits[w] / 2**20:.0f} MiB), "
                 f"got {share[w] / 2**20:.0f} MiB of resident bricks ({per_ct} bytes per ciphertext, "
                 f"channels {'+'.join(channels)}); add workers, persist fewer channels, or raise "
                 f"{RESIDENT_MEMORY_KEY}")
-    log.info("persist %s: %d bricks, %s, %.1f MiB in all, at most %.1f MiB per worker", ev.path, len(bricks),
-             "+".join(channels), sum(share.values()) / 2**20, max(share.values()) / 2**20)
+    log.info("persist %s: %d bricks, %s, %.1f MiB in all, at most %.1f MiB per worker%s", ev.path, len(bricks),
+             "+".join(channels), sum(share.values()) / 2**20, max(share.values()) / 2**20,
+             " (device memory)" if device else "")
     return channels, backend, place, share

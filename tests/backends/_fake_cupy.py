@@ -32,18 +32,34 @@ _COUNT = {"records_to_limbs": 3, "limbs_to_records": 3, "out_of_range": 3, "mont
 
 
 class FakeArray:
-    """A numpy array behind the CuPy array methods the launcher calls."""
+    """A numpy array behind the CuPy array methods the launcher calls. Like a CuPy array it refuses
+    to become a numpy array implicitly (``np.asarray``): the launcher must download with ``get()``."""
 
     def __init__(self, a: np.ndarray) -> None:
         self.a = a
 
     shape = property(lambda self: self.a.shape)
     dtype = property(lambda self: self.a.dtype)
+    flags = property(lambda self: self.a.flags)
+
+    def __array__(self, *args, **kwargs):
+        raise TypeError("Implicit conversion to a NumPy array is not allowed. Please use `.get()`")
+
+    def __len__(self) -> int:
+        return len(self.a)
 
     def __getitem__(self, key):
         return FakeArray(self.a[key])
 
+    def __setitem__(self, key, value) -> None:
+        assert isinstance(value, FakeArray), "device arrays take device values"
+        self.a[key] = value.a
+
+    def astype(self, dtype) -> FakeArray:
+        return FakeArray(self.a.astype(dtype))
+
     def get(self) -> np.ndarray:
+        FakeCupy.downloaded += self.a.nbytes
         return self.a.copy()
 
 
@@ -110,6 +126,10 @@ class FakeCupy:
             def getDeviceProperties(i: int) -> dict:
                 return {"name": b"FakeCupy on the host build"}
 
+            @staticmethod
+            def memGetInfo() -> tuple[int, int]:
+                return FakeCupy.memory
+
         class Device:
             def __init__(self, i: int = 0) -> None:
                 self.id = i
@@ -117,9 +137,26 @@ class FakeCupy:
             def use(self) -> None:
                 pass
 
+    memory = (60 << 30, 80 << 30)  # (free, total) device bytes
+    uploaded = downloaded = 0  # bytes through asarray / get(): what a frame moves over PCIe
+
     @staticmethod
     def asarray(a) -> FakeArray:
+        if isinstance(a, FakeArray):
+            return a
+        assert isinstance(a, np.ndarray), f"asarray of a {type(a).__name__}"
+        FakeCupy.uploaded += a.nbytes
         return FakeArray(np.ascontiguousarray(a).copy())
+
+    @staticmethod
+    def ascontiguousarray(a: FakeArray) -> FakeArray:
+        assert isinstance(a, FakeArray)
+        return FakeArray(np.ascontiguousarray(a.a))
+
+    @staticmethod
+    def take(a: FakeArray, index: FakeArray, axis: int) -> FakeArray:
+        assert isinstance(a, FakeArray) and isinstance(index, FakeArray)
+        return FakeArray(np.take(a.a, index.a, axis=axis))
 
     @staticmethod
     def empty(shape, dtype) -> FakeArray:

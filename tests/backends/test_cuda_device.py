@@ -22,7 +22,8 @@ import sys
 import dask
 import numpy as np
 import pytest
-from _fake_cupy import FakeCupy
+from _fake_cupy import FakeArray, FakeCupy
+from dask.sizeof import sizeof
 
 import hevr
 from hevr import MissingDependencyError, backends
@@ -124,6 +125,46 @@ def test_a_render_and_owner_encryption_on_fake_cupy(fake_cuda, tmp_path, keypair
     assert fake_cuda.decrypt(priv, fake_cuda.encrypt(pub, x)) == [int(v) % int(pub.n) for v in x.tolist()]
     assert launched._owner_fn.calls == launched._public_fn.calls == 1 and launched._decrypt_fn.calls == 2
     assert {n for n, f in fake_cuda._launch._fns.items() if f.calls} >= {"k_combine", "k_pack", "k_ray_tasks"}
+
+
+def test_resident_bricks_stay_on_the_device_between_frames(fake_cuda, tmp_path, keypair512, monkeypatch):
+    """persist(backend="cuda") keeps each brick as a device array in Montgomery form: a resident
+    frame uploads none of the bricks' ciphertexts (a streamed frame uploads all of them), maps the
+    bricks in one task per worker (local thread here), and gives the cpu image; residency is
+    planned against device memory."""
+    vol = np.random.default_rng(4).integers(0, 256, (16, 16, 16)).astype(np.uint8)
+    with dask.config.set(scheduler="sync"):
+        ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", keypair512[1], brick=8, progress=False)
+        cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=24, height=20)
+        want = hevr.render(ev, cam, backend="cpu", progress=False, cache=False)
+
+        def frame(volume):
+            before = FakeCupy.uploaded
+            img = hevr.render(volume, cam, backend="cuda", progress=False, cache=False)
+            assert img.stats["backend"] == "cuda"
+            for x, y in zip(want.ciphertexts, img.ciphertexts):
+                np.testing.assert_array_equal(x, y)
+            return FakeCupy.uploaded - before, img.stats
+
+        streamed, _ = frame(ev)
+        monkeypatch.setattr(FakeCupy, "memory", (1 << 19, 80 << 30))  # half of 512 KiB free < 8 bricks of 64 KiB
+        with pytest.raises(hevr.MemoryLimitError, match="device memory"):
+            ev.persist(backend="cuda")
+        monkeypatch.setattr(FakeCupy, "memory", (60 << 30, 80 << 30))
+        rv = ev.persist(backend="cuda")
+        first, _ = frame(rv)
+        second, stats = frame(rv)
+    bricks = 16**3 * 128  # the ciphertexts' bytes (512-bit key: 128-byte records)
+    assert streamed >= bricks and second <= streamed - bricks and second <= first, (streamed, first, second)
+    assert stats["resident"] and stats["map_tasks"] == min(8, dask.system.CPU_COUNT)  # not one per brick
+    for brick in rv.resident.bricks.values():
+        limbs, modulus = brick.channel("scalar").state
+        assert isinstance(limbs, FakeArray) and modulus == int(keypair512[0].nsquare)
+        # device memory in nbytes, but not in Dask's managed (host) memory, which would spill it
+        assert brick.device and brick.nbytes == 8**3 * 128 and sizeof(brick) < 8**3 * 128 // 4
+    assert rv.resident.nbytes == bricks
+    batch = next(iter(rv.resident.bricks.values())).channel("scalar")
+    assert isinstance(pickle.loads(pickle.dumps(batch)).state[0], np.ndarray)  # pickles carry numpy limbs
 
 
 def test_gpu_bench_on_fake_cupy(fake_cuda, tmp_path):

@@ -107,23 +107,21 @@ class KernelBackend(Backend):
         batch = self._batch(values)
         parts = batch.parts
         if parts is not None:
-            y = np.concatenate([self._mont(p, M) for p in parts]) if parts else np.zeros((0, M.nl), np.uint32)
+            y = self._launch.join([self._mont(p, M) for p in parts], M.nl)
             batch.state = (y, M.n)
             return y
         limbs, mod = batch.state
         if mod is not None and int(mod) == M.n:
             return limbs
         x = self._normal(batch)
-        if x.shape[1] > M.nl:
-            high = x[:, M.nl:].any(axis=1)
-            if high.any():  # values of more limbs than N has: reduce those (never from a store)
-                x = x.copy()
-                idx = np.flatnonzero(high)
-                x[idx, :] = limbs_of([v % M.n for v in limbs_to_ints(x[idx])], x.shape[1])
-            x = x[:, :M.nl]
+        if x.shape[1] > M.nl:  # values of more limbs than N has (never from a store): reduced on the host
+            x = self._launch.host(x).copy()
+            high = np.flatnonzero(x[:, M.nl:].any(axis=1))
+            x[high, :] = limbs_of([v % M.n for v in limbs_to_ints(x[high])], x.shape[1])
+            x = np.ascontiguousarray(x[:, :M.nl])
         elif x.shape[1] < M.nl:
-            x = np.pad(x, ((0, 0), (0, M.nl - x.shape[1])))
-        y = self._launch.mont_convert(np.ascontiguousarray(x), M.r2, M)
+            x = self._launch.join([x], M.nl)
+        y = self._launch.mont_convert(x, M.r2, M)
         batch.state = (y, M.n)
         return y
 
@@ -131,9 +129,7 @@ class KernelBackend(Backend):
         """Normal-form limbs of a batch (one CIOS product per value from Montgomery form)."""
         if batch.parts is not None:
             rows = [self._normal(p) for p in batch.parts]
-            nl = max((r.shape[1] for r in rows), default=1)
-            return np.concatenate([np.pad(r, ((0, 0), (0, nl - r.shape[1]))) for r in rows] or
-                                  [np.zeros((0, 1), np.uint32)])
+            return self._launch.join(rows, max((int(r.shape[1]) for r in rows), default=1))
         limbs, mod = batch.state
         if mod is None:
             return limbs
@@ -166,12 +162,21 @@ class KernelBackend(Backend):
         recs, over = self._launch.limbs_to_records(self._normal(batch), int(width))
         if over.any():
             i = int(np.flatnonzero(over)[0])
-            bits = limbs_to_ints(self._normal(batch)[i:i + 1])[0].bit_length()
+            bits = limbs_to_ints(self._launch.host(self._normal(batch)[i:i + 1]))[0].bit_length()
             raise ParameterError(f"values[{i}]: value of {bits} bits does not fit in {int(width)} bytes")
         return recs
 
+    @property
+    def residence(self) -> str:
+        """Where resident residues live: ``"host"`` (numpy limbs) or ``"device"`` (the GPU's memory)."""
+        return self._launch.residence
+
+    def memory(self) -> tuple[int, int] | None:
+        """(free, total) bytes of the device memory resident residues take, None for the host's."""
+        return self._launch.memory()
+
     def residue_bytes(self, width: int) -> int:
-        """Memory of one resident value: its limbs (a numpy row of 32-bit words).
+        """Memory of one resident value: its limbs, a row of 32-bit words (on the device for ``cuda``).
 
         >>> CudaHostBackend().residue_bytes(512), CudaHostBackend().residue_bytes(17)
         (512, 20)
@@ -208,7 +213,7 @@ class KernelBackend(Backend):
         mods = {int(b.modulus) for b in parts if b.parts is None and b.modulus is not None}
         M = self._modulus(mods.pop()) if len(mods) == 1 else None
         if M is not None:
-            return LimbBatch(np.concatenate([self._mont(b, M) for b in parts]), M.n)
+            return LimbBatch(self._launch.join([self._mont(b, M) for b in parts], M.nl), M.n)
         if mods:  # several moduli (not in a render): normal form now
             return LimbBatch(self._normal(LimbBatch.joined([LimbBatch(self._normal(b)) for b in parts])))
         return LimbBatch.joined(parts)
@@ -232,7 +237,7 @@ class KernelBackend(Backend):
         if (-(-(int(private_key.public_key.nsquare)).bit_length() // 32) > MAX_LIMBS  # beyond the kernels: gmpy2
                 or not self._launch.keyholder):
             return _CPU.decrypt(private_key, _CPU.from_bytes(self.to_bytes(batch, 4 * batch.nl)))
-        return decrypt_limbs(self._launch, private_key, self._normal(batch))
+        return decrypt_limbs(self._launch, private_key, self._launch.host(self._normal(batch)))
 
     # -- rendering -------------------------------------------------------------------------------
     def ray_products(self, plan: ProductPlan, components, nsquare: int,
@@ -246,7 +251,6 @@ class KernelBackend(Backend):
             mpz = [_CPU.from_bytes(self.to_bytes(c, 4 * self._batch(c).nl)) for c in components]
             return [LimbBatch(limbs_of(r)) for r in _CPU.ray_products(plan, mpz, nsquare, counter)]
         rep = t.rep
-        empty = rep < 0
         out = []
         for comp in components:
             if len(comp) != n_vox:
@@ -256,10 +260,7 @@ class KernelBackend(Backend):
             if counts.size and counts[:, 0].min() < 0:
                 q = int(np.flatnonzero(counts[:, 0] < 0)[0])
                 raise ParameterError(f"plan: task {q} has a weight with more digits than its windows")
-            rows = np.empty((rep.size, M.nl), np.uint32)
-            rows[~empty] = vals[rep[~empty]]
-            rows[empty] = M.one
-            out.append(LimbBatch(rows, M.n))
+            out.append(LimbBatch(self._launch.rows(vals, rep, M.one), M.n))
             if counter is not None:
                 mul, sq, bits = (int(v) for v in counts.sum(axis=0)) if counts.size else (0, 0, 0)
                 counter.add(OpCounter(mulmod=mul, squarings=sq + t.squarings_pre, powmod=t.powmod, powmod_bits=bits,

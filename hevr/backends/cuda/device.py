@@ -23,13 +23,18 @@ AddressSanitizer and UBSan. Until a device run passes ``tests/backends/test_cuda
 (``benchmarks/gpu-proof.sh``), :class:`~hevr.backends.cuda.backend.CudaBackend` encrypts and
 decrypts the CPU way on a device; the kernels stay reachable for that proof (set ``keyholder``).
 
-What is not here yet (issue 26): residues stay on the host between operations (each call
-copies its operands to the device and its results back), so a render pays PCIe transfers a
-resident device batch would not. Owner encryption, public-key encryption and CRT decryption have
-their kernels here (:meth:`CupyLauncher.owner_encrypt`, tables uploaded once per key), used only
-with ``keyholder`` set (above). The
-launcher is exercised only on a machine with CuPy and a GPU (``tests/backends/test_cuda_device.py``,
-marked ``gpu``); without them :class:`hevr.MissingDependencyError` says what is missing.
+Residence. Results stay on the device (``residence = "device"``): an operation returns CuPy
+arrays, and an operand that already is one is used where it is, so a chain of operations moves
+only what the host reads — records at the end (``limbs_to_records``), flags, operation counts and
+decrypted residues — plus each call's plan arrays. A resident volume (``persist(backend="cuda")``)
+keeps every brick on the GPU in Montgomery form from its first frame on; a frame uploads none of
+the bricks' ciphertexts, only its plan and the ray sums that map tasks hand to merges and finishing
+as records (``tests/backends/test_cuda_device.py`` counts the bytes on FakeCupy). The modulus
+constants are uploaded once per modulus. Owner encryption, public-key encryption and CRT
+decryption have their kernels here (:meth:`CupyLauncher.owner_encrypt`, tables uploaded once per
+key), used only with ``keyholder`` set (above). The launcher is exercised on a GPU only by the
+``gpu``-marked tests; everywhere else it runs on ``tests/backends/_fake_cupy.py`` (CuPy played by
+the host build); without CuPy or a device :class:`hevr.MissingDependencyError` says what is missing.
 """
 
 from __future__ import annotations
@@ -93,6 +98,7 @@ class CupyLauncher(Launcher):
     """
 
     keyholder = False  # owner.cuh wrong on an H200 (module docstring): the CPU way until proven
+    residence = "device"
 
     def __init__(self, device: int | None = None) -> None:
         self._device = device
@@ -101,6 +107,7 @@ class CupyLauncher(Launcher):
         self._owner_fn: Any = None
         self._decrypt_fn: Any = None
         self._public_fn: Any = None
+        self._moduli: dict[int, tuple] = {}
 
     def __reduce__(self):
         return (CupyLauncher, (self._device,))
@@ -149,11 +156,49 @@ class CupyLauncher(Launcher):
         if count > 0:
             self._fn(name)(((count + BLOCK - 1) // BLOCK,), (BLOCK,), args)
 
-    def _dev(self, arr: np.ndarray | None, dtype: Any) -> Any:
-        return _NULL if arr is None else self.cp.asarray(np.ascontiguousarray(arr, dtype=dtype))
+    def _dev(self, arr: Any, dtype: Any) -> Any:
+        """A contiguous device array of ``dtype``: a device array as it is (no copy where it already
+        is one), a numpy array uploaded; None as the NULL pointer."""
+        if arr is None:
+            return _NULL
+        cp = self.cp
+        if isinstance(arr, cp.ndarray):
+            if arr.dtype == dtype and arr.flags.c_contiguous:
+                return arr
+            return cp.ascontiguousarray(arr.astype(dtype))
+        return cp.asarray(np.ascontiguousarray(arr, dtype=dtype))
+
+    # -- where arrays live (Launcher): results stay on the device ----------------------------------
+    def host(self, limbs):
+        return limbs.get() if isinstance(limbs, self.cp.ndarray) else np.asarray(limbs)
+
+    def join(self, arrays, nl):
+        cp = self.cp
+        out = cp.zeros((sum(int(a.shape[0]) for a in arrays), nl), cp.uint32)
+        r = 0
+        for a in arrays:
+            m, k = int(a.shape[0]), int(a.shape[1])
+            if m:
+                out[r:r + m, :k] = self._dev(a, np.uint32)
+            r += m
+        return out
+
+    def take(self, limbs, index):
+        return self.cp.take(self._dev(limbs, np.uint32), self._dev(index, np.int64), axis=0)
+
+    def memory(self):
+        free, total = self.cp.cuda.runtime.memGetInfo()
+        return int(free), int(total)
 
     def _mod(self, M: Modulus) -> tuple:
-        return self._dev(M.limbs, np.uint32), self._dev(M.one, np.uint32), np.uint32(M.ninv), _i32(M.nl)
+        """The kernels' modulus arguments, its arrays uploaded once per modulus (the last few kept)."""
+        got = self._moduli.get(M.n)
+        if got is None:
+            if len(self._moduli) >= 8:
+                self._moduli.clear()
+            got = self._moduli[M.n] = (self._dev(M.limbs, np.uint32), self._dev(M.one, np.uint32),
+                                       np.uint32(M.ninv), _i32(M.nl))
+        return got
 
     # -- the operations --------------------------------------------------------------------
     def records_to_limbs(self, records, nl):
@@ -162,7 +207,7 @@ class CupyLauncher(Launcher):
         m, width = rec.shape
         x, over = cp.empty((m, nl), cp.uint32), cp.empty(m, cp.uint8)
         self._launch("k_records_to_limbs", m, rec, _i32(width), _i32(nl), _i64(m), x, over)
-        return x.get(), over.get()
+        return x, over.get()
 
     def limbs_to_records(self, limbs, width):
         cp = self.cp
@@ -182,9 +227,9 @@ class CupyLauncher(Launcher):
     def mont_convert(self, limbs, b, M):
         x = self._dev(limbs, np.uint32)
         out = self.cp.empty_like(x)
-        self._launch("k_mont_convert", x.shape[0], x, self._dev(b, np.uint32), self._dev(M.limbs, np.uint32),
-                     np.uint32(M.ninv), _i32(M.nl), _i64(x.shape[0]), out)
-        return out.get()
+        n, _, ninv, nl = self._mod(M)
+        self._launch("k_mont_convert", x.shape[0], x, self._dev(b, np.uint32), n, ninv, nl, _i64(x.shape[0]), out)
+        return out
 
     def ray_products(self, t: PlanTables, cts, shared_w, M):
         cp, nl = self.cp, M.nl
@@ -207,7 +252,7 @@ class CupyLauncher(Launcher):
         for first in range(0, T, chunk):
             count = min(chunk, T - first)
             self._launch("k_ray_tasks", count, *args, _i64(first), _i64(count), *tables)
-        return vals[:T].get(), counts[:T].get()
+        return vals[:T], counts[:T].get()
 
     def segments(self, vals, indptr, k, M):
         ip = np.ascontiguousarray(indptr, dtype=np.int64)
@@ -215,7 +260,7 @@ class CupyLauncher(Launcher):
         out = self.cp.empty((max(count, 1), M.nl), self.cp.uint32)
         self._launch("k_segments", count, self._dev(vals, np.uint32), self._dev(ip, np.int64), _i32(k), _i64(count),
                      out, *self._mod(M))
-        return out[:count].get()
+        return out[:count]
 
     def combine(self, vals, k, E, M):
         cp = self.cp
@@ -230,7 +275,7 @@ class CupyLauncher(Launcher):
             count = min(chunk, rows - first)
             self._launch("k_combine", count, v, _i32(k), _i32(C), e, _i32(ew), _i64(first), _i64(count), sub, out,
                          *mod)
-        return out[:rows * C].get()
+        return out[:rows * C]
 
     def pack(self, terms, R, per_pack, bits, offs, M):
         m, ew = R.shape
@@ -238,7 +283,7 @@ class CupyLauncher(Launcher):
         out = self.cp.empty((max(groups, 1), M.nl), self.cp.uint32)
         self._launch("k_pack", groups, self._dev(terms, np.uint32), self._dev(R, np.uint32), _i32(ew), _i64(m),
                      _i32(per_pack), _i32(bits), self._dev(offs, np.uint32), _i64(groups), out, *self._mod(M))
-        return out[:groups].get()
+        return out[:groups]
 
     def _owner_module(self) -> None:
         if self._owner_fn is None:
@@ -256,7 +301,7 @@ class CupyLauncher(Launcher):
             self._public_fn(((m + BLOCK - 1) // BLOCK,), (BLOCK,), (
                 self._dev(x, np.int64), self._dev(r, np.uint32), nd, _i32(nd.shape[0]), self._dev(M.limbs, np.uint32),
                 self._dev(M.one, np.uint32), self._dev(M.r2, np.uint32), np.uint32(M.ninv), _i32(M.nl), _i64(m), out))
-        return out[:m].get()
+        return out[:m]
 
     def decrypt(self, c, tables):
         cp = self.cp
@@ -296,4 +341,4 @@ class CupyLauncher(Launcher):
                 dev["R2p"],
                 dev["Tq"], _i32(q.rows), _i32(q.w), dev["Pq"], dev["oq"], np.uint32(q.P.ninv), _i32(q.P.nl), dev["NRq"],
                 dev["INV"], _i32(tables.NL), _i64(m), out))
-        return out[:m].get()
+        return out[:m]

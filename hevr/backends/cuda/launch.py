@@ -95,6 +95,45 @@ class Launcher:
     """
 
     keyholder = True
+    # Where this launcher's limb arrays live: "host" (numpy) or "device" (its own arrays, which
+    # stay there between operations: a resident brick in Montgomery form is uploaded once).
+    residence = "host"
+
+    # -- where arrays live: every operation takes numpy or this launcher's arrays and returns its own
+    # (flags, counts, records and decrypted residues come back as numpy: the host reads them)
+    def host(self, limbs: Any) -> np.ndarray:
+        """A numpy array of one of this launcher's arrays (a download on a device)."""
+        return np.asarray(limbs)
+
+    def join(self, arrays: list, nl: int) -> Any:
+        """The rows of ``arrays`` in order, each zero-extended to ``nl`` limbs (each at most ``nl``).
+
+        >>> HostLauncher().join([np.ones((1, 1), np.uint32), np.full((1, 2), 2, np.uint32)], 2).tolist()
+        [[1, 0], [2, 2]]
+        """
+        out = np.zeros((sum(int(a.shape[0]) for a in arrays), nl), np.uint32)
+        r = 0
+        for a in arrays:
+            out[r:r + a.shape[0], :a.shape[1]] = self.host(a)
+            r += a.shape[0]
+        return out
+
+    def take(self, limbs: Any, index: np.ndarray) -> Any:
+        """Rows ``index`` (int64, in range) of ``limbs``, as a new array."""
+        return np.ascontiguousarray(np.asarray(limbs)[index])
+
+    def rows(self, vals: Any, rep: np.ndarray, fill: np.ndarray) -> Any:
+        """Row ``i`` is ``vals[rep[i]]``, or ``fill`` where ``rep[i] < 0`` (a plan's empty rows).
+
+        >>> HostLauncher().rows(np.array([[7], [8]], np.uint32), np.array([1, -1, 0]), np.array([1], np.uint32)).tolist()
+        [[8], [1], [7]]
+        """
+        idx = np.where(rep < 0, vals.shape[0], rep).astype(np.int64)
+        return self.take(self.join([vals, fill.reshape(1, -1)], int(vals.shape[1])), idx)
+
+    def memory(self) -> tuple[int, int] | None:
+        """(free, total) bytes of the device memory residues live in; None on the host."""
+        return None
 
     def records_to_limbs(self, records: np.ndarray, nl: int) -> tuple[np.ndarray, np.ndarray]:
         """(limbs, overflow flags) of (m, W) big-endian uint8 records."""

@@ -104,7 +104,7 @@ def owner_tables(key: Any, launcher: Any) -> OwnerTables | None:
     for P2, n_mod, w, rows in spec[:2]:
         M = Modulus(int(P2))
         flat = [int(e) for row in rows for e in row]  # rows of 2^w entries; entry 0 is 1
-        T = launcher.mont_convert(to_limbs(flat, M.nl), M.r2, M)
+        T = launcher.host(launcher.mont_convert(to_limbs(flat, M.nl), M.r2, M))  # numpy: any launcher's
         NR = to_limbs([int(n_mod) * (1 << (32 * M.nl)) % M.n], M.nl)[0]
         halves.append(Half(M, T, len(rows), int(w), NR, _bound(int(P2))))
     Mp = halves[0].P

@@ -71,7 +71,10 @@ class LimbBatch:
     whole, so a worker's threads sharing a resident batch see either form, never half of one.
     A batch made by :meth:`joined` holds its parts until the backend first needs its limbs: it then
     converts the parts (in place: resident bricks keep their Montgomery form for the next frame)
-    and joins them.
+    and joins them. The limbs are the launcher's arrays: numpy on the host, device arrays for the
+    ``cuda`` backend (a resident brick stays on the GPU between frames); a pickled batch carries
+    numpy limbs wherever they lived, so any process can load it (a device launcher uploads them
+    on first use).
 
     >>> b = LimbBatch(np.zeros((3, 2), np.uint32))
     >>> len(b), b.nl, b.modulus is None
@@ -106,7 +109,7 @@ class LimbBatch:
         if parts is not None:
             if any(p.modulus is not None for p in parts):  # pragma: no cover - the backend joins those
                 raise ParameterError("batch: parts in Montgomery form are joined by the backend")
-            rows = [p.state[0] for p in parts]
+            rows = [_host(p.state[0]) for p in parts]
             nl = max((r.shape[1] for r in rows), default=1)
             return np.concatenate([np.pad(r, ((0, 0), (0, nl - r.shape[1]))) for r in rows] or
                                   [np.zeros((0, 1), np.uint32)]), None
@@ -140,7 +143,8 @@ class LimbBatch:
         return int(self._state[0].shape[0])
 
     def __getstate__(self):
-        return self._state, self._parts
+        limbs, mod = self._state
+        return (_host(limbs), mod), self._parts
 
     def __setstate__(self, state) -> None:
         self._state, self._parts = state
@@ -151,6 +155,15 @@ class LimbBatch:
         limbs, mod = self._state
         form = "normal form" if mod is None else f"Montgomery form mod a {int(mod).bit_length()}-bit modulus"
         return f"LimbBatch({limbs.shape[0]} values, {limbs.shape[1]} limbs, {form})"
+
+
+def _host(limbs) -> np.ndarray:
+    """numpy limbs of a numpy or device (CuPy) array: a device array is downloaded.
+
+    >>> _host(np.ones((1, 1), np.uint32)).tolist()
+    [[1]]
+    """
+    return limbs if isinstance(limbs, np.ndarray) else limbs.get()
 
 
 def exponent_words(values: Sequence[int] | np.ndarray, name: str = "exps") -> np.ndarray:
