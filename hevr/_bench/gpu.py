@@ -16,8 +16,13 @@ soon as it is known (``gpu.json`` and ``gpu.md`` in the output folder, naming th
 4. **throughput** — at 2048-bit keys (4096-bit products mod n²): independent running products
    (``ONES`` rows of 64 factors: products/s) and multi-exponentiation rows of 64 pairs with
    10-bit weights (pairs/s), each through ``Backend.ray_products`` end to end (host ↔ device
-   copies included), beside ``cpu`` on one core of this machine.
-5. **encryption** — the owner path in a kernel (``owner.cuh``): 64³ int64 mantissas under a
+   copies included), beside ``cpu`` on one core of this machine; on a kernel backend also split
+   into its stages (``KernelBackend.stage_times``: the plan's arrays on the host, the launcher with
+   them on the host, the kernels alone with them already on the device).
+5. **experiments** — each of the kernel source's experiments (:data:`EXPERIMENTS`, e.g.
+   ``HEVR_CIOS_REG`` in ``mont.cuh``) compiled in: step 2's checks and step 4's kernel rates, so
+   a GPU session decides from one run whether an experiment becomes the default;
+6. **encryption** — the owner path in a kernel (``owner.cuh``): 64³ int64 mantissas under a
    2048-bit key, values/s beside ``cpu`` on one core, the projected time of a 100³ volume (goal
    3 s), and a sample decrypted exactly;
 
@@ -64,6 +69,8 @@ __all__ = ["run_gpu_bench"]
 
 IDENTITY_BITS = (64, 256, 1024, 2048)
 GOALS = {"products_per_s": 1.0e8, "pairs_per_s": 2.0e7}
+# the kernel source's experiments (preprocessor names), each checked and timed beside the default
+EXPERIMENTS = ("HEVR_CIOS_REG",)
 CPU = CpuBackend()
 
 
@@ -219,7 +226,33 @@ def throughput(be: Any, quick: bool) -> dict:
         ccount = sub.n_rows * (63 if wbits == 1 else 64)
         res[label] = {"rows": rows, "per_row": 64, "seconds": dt, unit: count / dt, f"cpu_{unit}": ccount / cdt,
                       "goal": GOALS[unit], "speedup_vs_one_core": (count / dt) / (ccount / cdt)}
+        if hasattr(be, "stage_times"):  # where the end-to-end time goes: host plan, uploads, kernels
+            st = be.stage_times(plan if not quick else _plan(rows // 8, 64, pool, wbits), g, n2)
+            res[label]["stages_s"] = st
+            res[label][f"kernels_{unit}"] = count / (1 if not quick else 8) / st["kernels"] if st["kernels"] > 0 else None
     return res
+
+
+def experiments(be: Any, quick: bool) -> dict:
+    """Each of the kernel source's experiments (:data:`EXPERIMENTS`, compiled in with ``-D``) on
+    ``be``'s kind of launcher: identical to ``cpu`` on every operation (step 2's checks) and its
+    kernels' rates (step 4's plans, the plan already on the device), beside the default's. An
+    experiment that is not identical is reported, never used."""
+    out = {}
+    n = _modulus(2048)
+    n2 = n * n
+    pool, rows = 4096, (256 if quick else 131072)
+    rec = CPU.to_bytes([secrets.randbelow(n2 - 1) + 1 for _ in range(pool)], record_width(n))
+    for name in EXPERIMENTS:
+        var = be.with_defines((name,))
+        checks = identity(var, True)
+        r: dict = {"identical": all(v for row in checks for k, v in row.items() if k not in ("bits", "values"))}
+        for label, wbits in (("products_per_s", 1), ("pairs_per_s", 10)):
+            plan = _plan(rows, 64, pool, wbits)
+            st = var.stage_times(plan, var.from_bytes(rec), n2)
+            r[label] = rows * (63 if wbits == 1 else 64) / st["kernels"] if st["kernels"] > 0 else None
+        out[name] = r
+    return out
 
 
 def encryption(be: Any, quick: bool, bits: int = 2048) -> dict:
@@ -275,6 +308,28 @@ def _markdown(res: dict) -> str:
             lines.append(f"| {label} | {r['rows']} | {r[unit]:.3g} | {r['cpu_' + unit]:.3g} | "
                          f"{r['speedup_vs_one_core']:.3g} | {r['goal']:.1g} |")
         lines.append("")
+        staged = {k: r for k, r in res["throughput"].items() if "stages_s" in r}
+        if staged:
+            lines += [("Where one call's time goes (seconds; a quick run times an eighth of the rows): the plan's "
+                       "arrays on the host, the launcher with them on the host (uploads, kernels, counts back), the "
+                       "kernels with them on the device:"), "",
+                      "| what | end to end | plan | launch | kernels | kernels alone, per s |", "|---|---:|---:|---:|---:|---:|"]
+            for label, r in staged.items():
+                st, unit = r["stages_s"], "products_per_s" if label == "products" else "pairs_per_s"
+                rate = r.get("kernels_" + unit)
+                lines.append(f"| {label} | {r['seconds']:.3g} | {st['plan']:.3g} | {st['launch']:.3g} | "
+                             f"{st['kernels']:.3g} | {f'{rate:.3g}' if rate else '-'} |")
+            lines.append("")
+    if res.get("experiments"):
+        lines += ["## Experiments in the kernel source (compiled in with -D), kernels alone", "",
+                  "| experiment | identical to cpu | products per s | pairs per s |", "|---|---|---:|---:|"]
+        base = {u: r.get("kernels_" + u) for r, u in ((res.get("throughput", {}).get("products", {}), "products_per_s"),
+                                                      (res.get("throughput", {}).get("pairs", {}), "pairs_per_s"))}
+        lines.append(f"| (default) | yes | {base['products_per_s'] or 0:.3g} | {base['pairs_per_s'] or 0:.3g} |")
+        for name, r in res["experiments"].items():
+            lines.append(f"| {name} | {'yes' if r['identical'] else '**NO**'} | {r['products_per_s'] or 0:.3g} | "
+                         f"{r['pairs_per_s'] or 0:.3g} |")
+        lines.append("")
     if "encryption" in res:
         e = res["encryption"]
         lines += ["## Owner-side encryption (owner.cuh)", "",
@@ -321,8 +376,15 @@ def run_gpu_bench(out: Path, *, backend: str = "cuda", quick: bool = False, work
     res["throughput"] = throughput(be, quick)
     for label, r in res["throughput"].items():
         unit = "products_per_s" if label == "products" else "pairs_per_s"
-        log_line(f"{label}: {r[unit]:.3g}/s ({r['speedup_vs_one_core']:.3g}x one core; goal {r['goal']:.1g}/s)")
+        log_line(f"{label}: {r[unit]:.3g}/s ({r['speedup_vs_one_core']:.3g}x one core; goal {r['goal']:.1g}/s)"
+                 + (" stages " + ", ".join(f"{k} {v:.3g} s" for k, v in r["stages_s"].items()) if "stages_s" in r else ""))
     save()
+    if hasattr(be, "with_defines"):
+        res["experiments"] = experiments(be, quick)
+        for name, r in res["experiments"].items():
+            log_line(f"experiment {name}: {'identical' if r['identical'] else 'MISMATCH (not for use)'}; kernels "
+                     + ", ".join(f"{k} {r[k]:.3g}/s" for k in ("products_per_s", "pairs_per_s") if r.get(k)))
+        save()
     if not getattr(launcher, "keyholder", True):  # owner.cuh is off on a device (device.py): nothing to time
         res["encryption_skipped"] = ("the key holder's kernels are off on a device until they pass there "
                                      "(hevr/backends/cuda/device.py); benchmarks/gpu_diagnose.py checks them")

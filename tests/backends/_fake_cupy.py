@@ -40,6 +40,7 @@ class FakeArray:
 
     shape = property(lambda self: self.a.shape)
     dtype = property(lambda self: self.a.dtype)
+    size = property(lambda self: self.a.size)
     flags = property(lambda self: self.a.flags)
 
     def __array__(self, *args, **kwargs):
@@ -99,9 +100,11 @@ class FakeModule:
 
     def __init__(self, code: str, options=(), backend: str = "nvrtc") -> None:
         assert backend == "nvrtc" and '#include "mont.cuh"' not in code
-        self.code = code
+        self.code, self.options = code, tuple(options)
         owner = "k_owner_encrypt" in code
-        self.lib = build_library(launch.OWNER_SOURCE if owner else launch.RENDER_SOURCE, (MONT_SOURCE,))
+        defines = tuple(o[2:] for o in options if o.startswith("-D"))  # NVRTC's -D, the host build's too
+        self.lib = build_library(launch.OWNER_SOURCE if owner else launch.RENDER_SOURCE, (MONT_SOURCE,),
+                                 defines=defines)
         self.functions: dict[str, _Function] = {}
 
     def get_function(self, name: str) -> _Function:

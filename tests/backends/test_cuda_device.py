@@ -14,6 +14,7 @@ tests/backends/test_cuda_host_backend.py tests/backends/test_cuda_host_renders.p
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import secrets
@@ -27,6 +28,7 @@ from dask.sizeof import sizeof
 
 import hevr
 from hevr import MissingDependencyError, backends
+from hevr._bench.gpu import EXPERIMENTS
 from hevr.backends import CpuBackend, CudaBackend, ProductPlan, get_backend
 from hevr.backends.cuda import device as device_module
 from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source, owner_source
@@ -60,6 +62,10 @@ def test_device_source_compiles_with_nvrtc_for_hopper():
         ptx(device_source() + "\nint broken(\n", "compute_90")
     owner_ptx = ptx(owner_source(), "compute_90")
     assert all(f".entry {k}(" in owner_ptx for k in ("k_owner_encrypt", "k_public_encrypt", "k_decrypt"))
+    # the kernel source's experiments (hevr bench --gpu times them on a device) compile too
+    for name in EXPERIMENTS:
+        code = ptx(device_source(), "compute_90", ("--std=c++11", f"-D{name}"))
+        assert all(f".entry {kernel}(" in code for kernel in KERNELS), name
 
 
 def test_without_cupy_or_device_the_first_operation_says_what_is_missing(monkeypatch):
@@ -109,6 +115,20 @@ def test_the_launcher_on_fake_cupy_matches_cpu(fake_cuda, bits):
     _check_operations(fake_cuda, bits)
     fns = fake_cuda._launch._fns
     assert fns and all(f.calls > 0 for name, f in fns.items() if name not in ("k_combine", "k_pack"))
+
+
+def test_an_experiment_compiles_in_through_the_launchers_options(fake_cuda):
+    """``CudaBackend(defines=...)`` / ``with_defines``: NVRTC gets ``-D``; the experiment's module
+    (here the host build FakeCupy makes with the same -D) is bit-identical to cpu at 2048 bits."""
+    fake_cuda.check()  # the default module, for comparison
+    var = fake_cuda.with_defines(("HEVR_CIOS_REG",))
+    _check_operations(var, 2048)
+    module = next(iter(var._launch._fns.values())).module
+    assert "-DHEVR_CIOS_REG" in module.options and "-DHEVR_CIOS_REG" not in next(
+        iter(fake_cuda._launch._fns.values())).module.options
+    assert pickle.loads(pickle.dumps(CudaBackend(defines=("HEVR_CIOS_REG",))))._launch._options[-1] == "-DHEVR_CIOS_REG"
+    with pytest.raises(hevr.ParameterError, match="defines: expected preprocessor names"):
+        CudaBackend(defines=("A B",))
 
 
 def test_a_render_and_owner_encryption_on_fake_cupy(fake_cuda, tmp_path, keypair512):
@@ -169,7 +189,12 @@ def test_resident_bricks_stay_on_the_device_between_frames(fake_cuda, tmp_path, 
 
 def test_gpu_bench_on_fake_cupy(fake_cuda, tmp_path):
     assert main(["bench", "--gpu", "--quick", "--out", str(tmp_path)]) == 0
-    assert "# hevr bench --gpu: FakeCupy on the host build" in (tmp_path / "gpu.md").read_text()
+    md = (tmp_path / "gpu.md").read_text()
+    assert "# hevr bench --gpu: FakeCupy on the host build" in md
+    assert "| HEVR_CIOS_REG | yes |" in md and "Where one call's time goes" in md  # experiments, stages
+    js = json.loads((tmp_path / "gpu.json").read_text())
+    assert js["experiments"]["HEVR_CIOS_REG"]["products_per_s"] > 0
+    assert set(js["throughput"]["pairs"]["stages_s"]) == {"plan", "launch", "kernels"}
 
 
 def _check_operations(be, bits: int) -> None:
@@ -221,13 +246,18 @@ def _check_render(tmp_path, keypair512) -> None:
         ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", keypair512[1], brick=8, vector_dims=3, progress=False)
         cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=24, height=20)
         nodes = [(0.3, "red"), (0.8, "blue")]
+        rv = ev.persist(backend="cuda")  # every brick on the device, in Montgomery form after the first frame
         for mode, sampling, kw in (("xray", "nearest", {}), ("tf", "trilinear", {"nodes": nodes}),
                                    ("tf", "nearest", {"nodes": nodes, "finish": "server"})):  # combine on the server
             a = hevr.render(ev, cam, mode, sampling, backend="cpu", progress=False, cache=False, **kw)
-            b = hevr.render(ev, cam, mode, sampling, backend="cuda", progress=False, cache=False, **kw)
-            assert b.stats["backend"] == "cuda" and len(a.ciphertexts) == len(b.ciphertexts)
-            for x, y in zip(a.ciphertexts, b.ciphertexts):
-                np.testing.assert_array_equal(x, y)
+            for volume in (ev, rv, rv):  # streamed, then two resident frames
+                b = hevr.render(volume, cam, mode, sampling, backend="cuda", progress=False, cache=False, **kw)
+                assert b.stats["backend"] == "cuda" and len(a.ciphertexts) == len(b.ciphertexts)
+                assert b.stats["resident"] == (volume is rv)
+                for x, y in zip(a.ciphertexts, b.ciphertexts):
+                    np.testing.assert_array_equal(x, y)
+    limbs, modulus = next(iter(rv.resident.bricks.values())).channel("scalar").state
+    assert not isinstance(limbs, np.ndarray) and modulus is not None  # a device array (CuPy's, or FakeCupy's)
 
 
 @pytest.mark.gpu

@@ -23,6 +23,8 @@ from hevr.backends.cuda import (
     to_limbs,
 )
 from hevr.backends.cuda import host as host_module
+from hevr.backends.cuda.launch import HostLauncher
+from hevr.backends.cuda.residues import Modulus
 
 
 def _odd_modulus(bits: int) -> int:
@@ -116,3 +118,21 @@ def test_source_compiles_for_the_device(tmp_path):
     run = subprocess.run(["nvcc", "-x", "cu", "-arch=sm_90", "-c", str(host_module.SOURCE), "-o", str(tmp_path / "m.o")],
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
+
+
+@pytest.mark.parametrize("bits", [2017, 2048, 4065, 4096])  # 64 and 128 limbs: the sizes the experiment takes
+def test_register_cios_experiment_matches_gmpy2(bits):
+    """mont.cuh's HEVR_CIOS_REG body (an experiment ``hevr bench --gpu`` times on a device) against
+    gmpy2: random operands and every edge case of test_edge_operands, as both factors."""
+    launcher = HostLauncher(defines=("HEVR_CIOS_REG",))
+    n = _odd_modulus(bits)
+    M = Modulus(n)
+    edges = [0, 1, 2, n - 1, n - 2, (n - 1) // 2, n // 2 + 1]
+    edges += [(1 << (32 * k)) - 1 for k in range(1, M.nl) if (1 << (32 * k)) - 1 < n][::7]
+    edges += [n - (1 << (32 * k)) for k in range(M.nl) if (1 << (32 * k)) < n][::7]
+    a = edges + [secrets.randbelow(n) for _ in range(64)]
+    for b in edges + [secrets.randbelow(n)]:
+        got = from_limbs(launcher.mont_convert(to_limbs(a, M.nl), to_limbs([b], M.nl)[0], M))
+        assert got == [_mont(x, b, n) for x in a], b
+    with pytest.raises(ParameterError, match="defines: expected preprocessor names"):
+        host_module.build_library(host_module.SOURCE, (), defines=("X=1; rm -rf /",))

@@ -46,6 +46,7 @@ and a plan needing more than ``MAX_BUCKETS`` buckets per task run on gmpy2 inste
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -268,6 +269,31 @@ class KernelBackend(Backend):
                                       precomputed=t.precomputed))
         return out
 
+    def with_defines(self, defines: tuple[str, ...]) -> KernelBackend:
+        """This backend's kernels compiled with ``defines`` (the source's experiments, e.g.
+        ``HEVR_CIOS_REG``), for ``hevr bench --gpu`` to check and time beside the default."""
+        return KernelBackend(self._launch.with_defines(tuple(defines)))
+
+    def stage_times(self, plan: ProductPlan, component: Any, nsquare: int) -> dict[str, float]:
+        """Seconds of the stages of one :meth:`ray_products` call on one component (``hevr bench
+        --gpu`` splits its end-to-end rate with them): ``plan``, the plan's arrays made on the host;
+        ``launch``, the launcher with those arrays on the host (their uploads, the kernels, the
+        counts' download); ``kernels``, the same with the arrays already where the kernels run.
+        The component is converted to Montgomery form first (not timed)."""
+        M = self._modulus(nsquare)
+        cts = self._mont(component, M)
+        w = int(plan.shared_w or 0)
+        t0 = time.perf_counter()
+        t = plan_tables(plan, len(component))
+        t1 = time.perf_counter()
+        self._launch.ray_products(t, cts, w, M)
+        t2 = time.perf_counter()
+        dev = self._launch.device_tables(t)
+        self._launch.ray_products(dev, cts, w, M)  # warm: the device's allocations
+        t3 = time.perf_counter()
+        self._launch.ray_products(dev, cts, w, M)  # the counts' download waits for the kernels
+        return {"plan": t1 - t0, "launch": t2 - t1, "kernels": time.perf_counter() - t3}
+
     def segment_products(self, values: Any, indptr: np.ndarray, k: int, nsquare: int) -> LimbBatch:
         M = self._modulus(nsquare)
         ip = np.asarray(indptr, dtype=np.int64).reshape(-1)
@@ -350,12 +376,12 @@ class CudaBackend(KernelBackend):
 
     name = "cuda"
 
-    def __init__(self, device: int | None = None) -> None:
-        super().__init__(CupyLauncher(device))
-        self._device = device
+    def __init__(self, device: int | None = None, defines: tuple[str, ...] = ()) -> None:
+        super().__init__(CupyLauncher(device, defines))
+        self._device, self._defines = device, tuple(defines)
 
     def __reduce__(self):
-        return (CudaBackend, (self._device,))
+        return (CudaBackend, (self._device, self._defines))
 
     def check(self) -> bool:
         """CuPy and a device are there, and the module compiles: True, else

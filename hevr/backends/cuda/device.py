@@ -39,12 +39,14 @@ the host build); without CuPy or a device :class:`hevr.MissingDependencyError` s
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 
 from ...errors import MissingDependencyError
 from .host import SOURCE as MONT_SOURCE
+from .host import check_define
 from .launch import OWNER_SOURCE, RENDER_SOURCE, Launcher, decrypt_args
 from .residues import FOLD, Modulus, PlanTables
 
@@ -95,13 +97,18 @@ class CupyLauncher(Launcher):
     ----------
     device : int, optional
         The CUDA device to use (default: CuPy's current device, i.e. ``CUDA_VISIBLE_DEVICES``'s first).
+    defines : tuple of str
+        Preprocessor names the modules are compiled with (``-D``): the source's experiments, such as
+        ``HEVR_CIOS_REG`` (``mont.cuh``), which ``hevr bench --gpu`` measures against the default.
     """
 
     keyholder = False  # owner.cuh wrong on an H200 (module docstring): the CPU way until proven
     residence = "device"
 
-    def __init__(self, device: int | None = None) -> None:
+    def __init__(self, device: int | None = None, defines: tuple[str, ...] = ()) -> None:
         self._device = device
+        self._options = ("--std=c++11", *(f"-D{check_define(d)}" for d in defines))
+        self._defines = tuple(defines)
         self._cp: Any = None
         self._fns: dict[str, Any] = {}
         self._owner_fn: Any = None
@@ -110,7 +117,10 @@ class CupyLauncher(Launcher):
         self._moduli: dict[int, tuple] = {}
 
     def __reduce__(self):
-        return (CupyLauncher, (self._device,))
+        return (CupyLauncher, (self._device, self._defines))
+
+    def with_defines(self, defines):
+        return CupyLauncher(self._device, tuple(defines))
 
     # -- CuPy, the device and the module -----------------------------------------------------
     @property
@@ -148,7 +158,7 @@ class CupyLauncher(Launcher):
 
     def _fn(self, name: str) -> Any:
         if not self._fns:
-            mod = self.cp.RawModule(code=device_source(), options=("--std=c++11",), backend="nvrtc")
+            mod = self.cp.RawModule(code=device_source(), options=self._options, backend="nvrtc")
             self._fns = {k: mod.get_function(k) for k in KERNELS}
         return self._fns[name]
 
@@ -189,6 +199,12 @@ class CupyLauncher(Launcher):
     def memory(self):
         free, total = self.cp.cuda.runtime.memGetInfo()
         return int(free), int(total)
+
+    def device_tables(self, t):
+        dev = {f: self._dev(getattr(t, f), dt) for f, dt in (
+            ("vl", np.int64), ("wl", np.uint64), ("tasks", np.int64), ("pre_v", np.int64), ("pre_j", np.int64),
+            ("pre_start", np.int64), ("pw_off", np.int64), ("pw_n", np.int64))}
+        return dataclasses.replace(t, **dev)
 
     def _mod(self, M: Modulus) -> tuple:
         """The kernels' modulus arguments, its arrays uploaded once per modulus (the last few kept)."""
@@ -287,7 +303,7 @@ class CupyLauncher(Launcher):
 
     def _owner_module(self) -> None:
         if self._owner_fn is None:
-            mod = self.cp.RawModule(code=owner_source(), options=("--std=c++11",), backend="nvrtc")
+            mod = self.cp.RawModule(code=owner_source(), options=self._options, backend="nvrtc")
             fns = [mod.get_function(k) for k in ("k_decrypt", "k_public_encrypt", "k_owner_encrypt")]
             self._decrypt_fn, self._public_fn, self._owner_fn = fns  # _owner_fn, tested first, set last
 

@@ -34,7 +34,7 @@ from ...errors import MissingDependencyError, ParameterError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HostMontgomery", "build_host", "build_library", "from_limbs", "montgomery_params", "source", "to_limbs"]
+__all__ = ["HostMontgomery", "build_host", "build_library", "check_define", "from_limbs", "montgomery_params", "source", "to_limbs"]
 
 SOURCE = Path(__file__).with_name("mont.cuh")
 MAX_LIMBS = 128  # HEVR_MAX_LIMBS in the source: 4096-bit moduli (n² of a 2048-bit key)
@@ -48,7 +48,8 @@ def source() -> str:
     return SOURCE.read_text(encoding="utf-8")
 
 
-def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None = None) -> ctypes.CDLL:
+def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None = None,
+                  defines: Sequence[str] = ()) -> ctypes.CDLL:
     """Compile a kernel source for the host once per process and load it through ctypes.
 
     The shared library is cached on disk (a private folder in the temporary directory) under the
@@ -63,6 +64,8 @@ def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None
         The files it includes: part of the hash.
     compiler : str, optional
         The C compiler; default ``$CC``, else ``cc`` or ``gcc`` on PATH.
+    defines : sequence of str
+        Preprocessor names to define (``-D``), e.g. ``("HEVR_CIOS_REG",)``: part of the hash.
 
     Raises
     ------
@@ -72,16 +75,28 @@ def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None
     texts = [main.read_text(encoding="utf-8")] + [h.read_text(encoding="utf-8") for h in headers]
     cc = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or ""
     # the machine and the compiler too: a cache folder seen by other hosts or compilers never serves a foreign build
-    digest = hashlib.sha256("\0".join(texts + list(FLAGS) + [platform.machine(), platform.system(), cc]).encode()
+    flags = (*FLAGS, *(f"-D{check_define(d)}" for d in defines))
+    digest = hashlib.sha256("\0".join(texts + list(flags) + [platform.machine(), platform.system(), cc]).encode()
                             ).hexdigest()[:16]
     key = f"{main.stem}-{digest}"
     with _BUILD:
         if key not in _LIB:
-            _LIB[key] = _compile(main, key, compiler)
+            _LIB[key] = _compile(main, key, compiler, flags)
         return _LIB[key]
 
 
-def _compile(main: Path, key: str, compiler: str | None) -> ctypes.CDLL:
+def check_define(name: str) -> str:
+    """A preprocessor name for ``-D`` (letters, digits, underscores; no value).
+
+    >>> check_define("HEVR_CIOS_REG")
+    'HEVR_CIOS_REG'
+    """
+    if not isinstance(name, str) or not name.isidentifier() or not name.isascii():
+        raise ParameterError(f"defines: expected preprocessor names like 'HEVR_CIOS_REG', got {name!r}")
+    return name
+
+
+def _compile(main: Path, key: str, compiler: str | None, flags: Sequence[str] = FLAGS) -> ctypes.CDLL:
     cc = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if not cc:
         raise MissingDependencyError("compiler: expected a C compiler (cc, gcc or $CC) to build the kernel source "
@@ -95,7 +110,7 @@ def _compile(main: Path, key: str, compiler: str | None) -> ctypes.CDLL:
     if not lib.exists():
         tmp = folder / f".{key}-{os.getpid()}.so"
         try:
-            run = subprocess.run([cc, *FLAGS, str(main), "-o", str(tmp)], capture_output=True, text=True, check=False)
+            run = subprocess.run([cc, *flags, str(main), "-o", str(tmp)], capture_output=True, text=True, check=False)
         except OSError as exc:
             raise MissingDependencyError(f"compiler: expected a C compiler at {cc}, got {exc.strerror}") from None
         if run.returncode != 0:

@@ -135,6 +135,15 @@ class Launcher:
         """(free, total) bytes of the device memory residues live in; None on the host."""
         return None
 
+    def with_defines(self, defines: tuple[str, ...]) -> Launcher:
+        """A launcher of the same kind whose modules are compiled with ``defines`` (``-D``)."""
+        raise NotImplementedError
+
+    def device_tables(self, t: PlanTables) -> PlanTables:
+        """``t`` with the arrays the kernels read already where they run (uploaded once: the
+        benchmark's kernels-alone timing); on the host, ``t`` itself."""
+        return t
+
     def records_to_limbs(self, records: np.ndarray, nl: int) -> tuple[np.ndarray, np.ndarray]:
         """(limbs, overflow flags) of (m, W) big-endian uint8 records."""
         raise NotImplementedError
@@ -189,19 +198,22 @@ class Launcher:
 class HostLauncher(Launcher):
     """The kernels compiled for the host and called through ctypes (see the module docstring)."""
 
-    def __init__(self, compiler: str | None = None) -> None:
-        self._compiler = compiler
+    def __init__(self, compiler: str | None = None, defines: tuple[str, ...] = ()) -> None:
+        self._compiler, self._defines = compiler, tuple(defines)
         self._dll: ctypes.CDLL | None = None
         self._owner_dll: ctypes.CDLL | None = None
 
     def __reduce__(self):
-        return (HostLauncher, (self._compiler,))
+        return (HostLauncher, (self._compiler, self._defines))
+
+    def with_defines(self, defines):
+        return HostLauncher(self._compiler, tuple(defines))
 
     @property
     def lib(self) -> ctypes.CDLL:
         """The host build (compiled on first use; MissingDependencyError without a C compiler)."""
         if self._dll is None:
-            dll = build_library(RENDER_SOURCE, (MONT_SOURCE,), self._compiler)
+            dll = build_library(RENDER_SOURCE, (MONT_SOURCE,), self._compiler, self._defines)
             for name, args in _SIGNATURES.items():
                 fn = getattr(dll, name)
                 fn.argtypes, fn.restype = args, ctypes.c_int
@@ -216,7 +228,7 @@ class HostLauncher(Launcher):
     def owner_lib(self) -> ctypes.CDLL:
         """The host build of ``owner.cuh`` (compiled on first use)."""
         if self._owner_dll is None:
-            dll = build_library(OWNER_SOURCE, (MONT_SOURCE,), self._compiler)
+            dll = build_library(OWNER_SOURCE, (MONT_SOURCE,), self._compiler, self._defines)
             dll.hevr_owner_encrypt_host.argtypes, dll.hevr_owner_encrypt_host.restype = _OWNER_SIGNATURE, ctypes.c_int
             dll.hevr_decrypt_host.argtypes, dll.hevr_decrypt_host.restype = _DECRYPT_SIGNATURE, ctypes.c_int
             dll.hevr_public_encrypt_host.argtypes = _PUBLIC_SIGNATURE

@@ -79,6 +79,59 @@ HEVR_INLINE void hevr_cios(const hevr_u32 *a, const hevr_u32 *b, const hevr_u32 
     }
 }
 
+#ifdef HEVR_CIOS_REG
+/* An experiment for the GPU (off unless HEVR_CIOS_REG is defined; hevr bench --gpu measures it
+ * against the shipped body): the same CIOS for the 2048-bit key's sizes (nl = 64: p², 128: n²)
+ * with the accumulator t in a local array whose every index is a constant once the inner loop is
+ * unrolled, so it can live in registers, not in local memory; a and n are read through volatile
+ * pointers so the compiler does not hoist all 2·nl of their limbs into registers too (and spill),
+ * the trick of the measured prototype (../shared/reference/gpu-prototype). Same sums, same result. */
+#if defined(__CUDACC__) || defined(__CUDACC_RTC__)
+#define HEVR_UNROLL _Pragma("unroll")
+#else
+#define HEVR_UNROLL
+#endif
+#define HEVR_CIOS_FIXED(NLC)                                                                               \
+    HEVR_INLINE void hevr_cios_##NLC(const hevr_u32 *a, const hevr_u32 *b, const hevr_u32 *n, hevr_u32 ninv, \
+                                     hevr_u32 *out)                                                      \
+    {                                                                                                     \
+        hevr_u32 t[NLC + 2];                                                                              \
+        const volatile hevr_u32 *av = a, *nv = n;                                                         \
+        HEVR_UNROLL for (int i = 0; i < NLC + 2; i++) t[i] = 0;                                           \
+        for (int i = 0; i < NLC; i++) {                                                                   \
+            hevr_u32 bi = b[i];                                                                           \
+            hevr_u64 s = (hevr_u64)av[0] * bi + t[0], c = s >> 32;                                        \
+            hevr_u32 m = (hevr_u32)s * ninv;                                                              \
+            hevr_u64 r = (hevr_u64)m * nv[0] + (hevr_u32)s, d = r >> 32;                                  \
+            HEVR_UNROLL for (int j = 1; j < NLC; j++) {                                                   \
+                s = (hevr_u64)av[j] * bi + t[j] + c;                                                      \
+                c = s >> 32;                                                                              \
+                r = (hevr_u64)m * nv[j] + (hevr_u32)s + d;                                                \
+                d = r >> 32;                                                                              \
+                t[j - 1] = (hevr_u32)r;                                                                   \
+            }                                                                                             \
+            s = (hevr_u64)t[NLC] + c + d;                                                                 \
+            t[NLC - 1] = (hevr_u32)s;                                                                     \
+            t[NLC] = (hevr_u32)(s >> 32);                                                                 \
+        }                                                                                                 \
+        int ge = t[NLC] != 0, lt = 0;  /* t >= n, from the top limb down, without a data-dependent break */ \
+        HEVR_UNROLL for (int j = NLC - 1; j >= 0; j--) {                                                  \
+            hevr_u32 nj = nv[j];                                                                          \
+            ge |= !lt && t[j] > nj;                                                                       \
+            lt |= !ge && t[j] < nj;                                                                       \
+        }                                                                                                 \
+        ge |= !lt;                                                                                        \
+        hevr_u64 borrow = 0;                                                                              \
+        HEVR_UNROLL for (int j = 0; j < NLC; j++) {                                                       \
+            hevr_u64 dd = (hevr_u64)t[j] - (ge ? nv[j] : 0u) - borrow;                                    \
+            out[j] = (hevr_u32)dd;                                                                        \
+            borrow = (dd >> 63) & 1;                                                                      \
+        }                                                                                                 \
+    }
+HEVR_CIOS_FIXED(64)
+HEVR_CIOS_FIXED(128)
+#endif
+
 /* out = a·b·R^-1 mod n; a < 2^(32·nl), b < n; t: scratch of nl + 2 limbs. out may alias a or b (it is
  * written after their last read: acc = acc·b and acc = acc² in place), never n or t. The limb counts
  * of n² for 64- to 512-bit keys get their own unrolled copy of the same body. */
@@ -90,6 +143,10 @@ HEVR_CALL void hevr_mont_mul(const hevr_u32 *a, const hevr_u32 *b, const hevr_u3
     case 8: hevr_cios(a, b, n, ninv, 8, t, out); break;
     case 16: hevr_cios(a, b, n, ninv, 16, t, out); break;
     case 32: hevr_cios(a, b, n, ninv, 32, t, out); break;
+#ifdef HEVR_CIOS_REG
+    case 64: hevr_cios_64(a, b, n, ninv, out); break;
+    case 128: hevr_cios_128(a, b, n, ninv, out); break;
+#endif
     default: hevr_cios(a, b, n, ninv, nl, t, out);
     }
 }
