@@ -38,26 +38,33 @@ run)
   # source's experiments), the frame profile, then the diagnosis of owner.cuh
   : "${OUT:?run this through the device tool (it sets OUT)}"
   DEADLINE=${DEADLINE:-530}
-  left() { local l=$(( DEADLINE - SECONDS )); (( l > $1 )) && l=$1; (( l < 5 )) && l=5; echo $l; }
+  # step MAX CMD...: CMD under a timeout of MAX seconds or what is left before DEADLINE; skipped
+  # (and said so) when under 10 s are left
+  step() {
+    local left=$(( DEADLINE - SECONDS )) l=$1; shift
+    if (( left < 10 )); then echo "skipped at ${SECONDS}s (deadline ${DEADLINE}s): $*"; return 0; fi
+    (( l > left )) && l=$left
+    timeout -k 5 "$l" "$@"
+  }
   python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl || exit 1
   export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
   { nvidia-smi -L; df -hT /tmp /dev/shm "$PWD"; nproc; } 2>&1 | tee "$OUT/device.txt"
-  HEVR_TEST_KERNELS=cuda timeout "$(left 100)" python3 -m pytest -q -rs -p no:cacheprovider -o addopts= -m gpu \
+  HEVR_TEST_KERNELS=cuda step 130 python3 -m pytest -q -rs -p no:cacheprovider -o addopts= -m gpu \
     tests/backends/test_cuda_device.py > "$OUT/pytest.log" 2>&1
-  HEVR_TEST_KERNELS=cuda timeout "$(left 120)" python3 -m pytest -q -rs -p no:cacheprovider -o addopts= --maxfail=20 \
+  HEVR_TEST_KERNELS=cuda step 120 python3 -m pytest -q -rs -p no:cacheprovider -o addopts= --maxfail=20 \
     tests/backends/test_cuda_owner.py tests/backends/test_cuda_host_backend.py \
     tests/backends/test_cuda_host_renders.py >> "$OUT/pytest.log" 2>&1
   tail -3 "$OUT/pytest.log"
-  timeout "$(left 200)" python3 -c "import sys; from pathlib import Path; from hevr._bench.gpu import run_gpu_bench
+  step 200 python3 -c "import sys; from pathlib import Path; from hevr._bench.gpu import run_gpu_bench
 run_gpu_bench(Path(sys.argv[1]), work=Path("/tmp"), render_size=int(sys.argv[2]), log_line=print)" "$OUT" "${2:-16}" \
     2>&1 | tee "$OUT/bench.log"
-  timeout "$(left 60)" python3 benchmarks/gpu_profile_frame.py 16 > "$OUT/profile.log" 2>&1; grep "^==" "$OUT/profile.log"
+  step 60 python3 benchmarks/gpu_profile_frame.py 16 > "$OUT/profile.log" 2>&1; grep "^==" "$OUT/profile.log"
   # owner.cuh (wrong on an H200 on 2026-11-26): compute-sanitizer on the failing case first (it names
   # the faulting access), then the shipped build at several counts, then every compile/launch variant
-  { timeout "$(left 60)" compute-sanitizer --tool memcheck --print-limit 6 python3 benchmarks/gpu_diagnose.py \
+  { step 75 compute-sanitizer --tool memcheck --print-limit 6 python3 benchmarks/gpu_diagnose.py \
       --variant=shipped --keys 2048 --steps decrypt --counts 64
-    timeout "$(left 60)" python3 benchmarks/gpu_diagnose.py --variant=shipped --counts 64,4096,65536
-    timeout "$(left 150)" python3 benchmarks/gpu_diagnose.py --keys 1024,2048 --counts 64 --timeout 25; } \
+    step 60 python3 benchmarks/gpu_diagnose.py --variant=shipped --counts 64,4096,65536
+    step 150 python3 benchmarks/gpu_diagnose.py --keys 1024,2048 --counts 64 --timeout 25; } \
     > "$OUT/diagnose.log" 2>&1
   grep -E "wrong [1-9]|FAILED|timed out|ERROR SUMMARY|Invalid|at 0x" "$OUT/diagnose.log" | head -40
   echo "done in $SECONDS s" ;;

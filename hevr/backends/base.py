@@ -172,6 +172,11 @@ class Backend(ABC):
         """(free, total) bytes of the device memory resident residues take; None for the host's."""
         return None
 
+    def frame_bytes(self, resident: int) -> int:
+        """Bytes a frame needs beside ``resident`` bytes of resident residues, in the memory they
+        live in (what ``persist`` plans with on a device; 0 for the host's memory)."""
+        return 0
+
     # -- conversion, once per brick / tile --------------------------------------------
     @abstractmethod
     def from_bytes(self, records: np.ndarray) -> Residues:

@@ -29,8 +29,10 @@ fraction ``hevr.limits.resident-memory`` (Dask config, default 0.5) of its memor
 (on a single machine: of the memory available now). Where the backend keeps residues on a GPU
 (``cuda``: :attr:`hevr.backends.base.Backend.residence` is ``"device"``) the bricks are in the
 GPU's memory, in Montgomery form, and the share is of each worker's device memory (its total
-on a cluster, what is free now on a single machine); such bricks are always placed in slabs
-and mapped one task per worker (:func:`batched`).
+on a cluster, what is free now on a single machine), counting what a frame needs beside the
+bricks there (:meth:`~hevr.backends.base.Backend.frame_bytes`: for ``cuda`` one joined copy of
+them and the kernels' scratch); such bricks are always placed in slabs and mapped one task per
+worker (:func:`batched`).
 """
 
 from __future__ import annotations
@@ -67,6 +69,10 @@ class ResidentBrick:
     ``nbytes`` is the residues' memory wherever they are; on a GPU (``device``) that is device
     memory, which Dask's memory manager must not count as its own (it would spill the brick to
     disk to free host memory it never took): such a brick's ``__sizeof__`` is its host side only.
+    The price: the scheduler then sees moving one as cheap. A frame maps each worker's device
+    bricks in one task, which goes where all of them are; should work stealing still move one,
+    the brick travels as numpy limbs (pickled) and the thief uploads it for each frame: the same
+    image, more slowly.
     """
 
     __slots__ = ("index", "batches", "nbytes", "device")
@@ -212,7 +218,8 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
         raise ParameterError(f"channels: expected some of {list(stored)}, got none")
     backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), client=client)
     per_ct = residue_bytes(ev.meta.ciphertext_bytes, backend)
-    device = get_backend(backend).residence == "device"  # then the share is of each worker's GPU memory
+    be = get_backend(backend)
+    device = be.residence == "device"  # then the share is of each worker's GPU memory
     k = sum(ev.meta.components(c) for c in channels)
     bricks = ev.brick_indices()
     cost = {idx: int(np.prod(ev.brick_shape(idx))) * k * per_ct for idx in bricks}
@@ -221,13 +228,14 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
         workers = sorted(info)
         if not workers:
             raise ParameterError("client: expected a cluster with workers, got none")
-        if device:  # a GPU worker's total memory (its other arrays are the frame's, freed after it)
-            limits = {w: m[1] for w, m in client.run(_device_memory, backend).items()}
-        else:
-            limits = {w: info[w].get("memory_limit") or psutil.virtual_memory().total for w in workers}
+        limits = {w: info[w].get("memory_limit") or psutil.virtual_memory().total for w in workers}
+        if device:  # a GPU worker's total device memory (one worker per GPU: cluster/README.md)
+            got = client.run(_device_memory, backend, workers=workers)
+            limits = {w: got[w][1] if got.get(w) else limits[w] for w in workers}
     else:
         workers = ["local"]
-        limits = {"local": get_backend(backend).memory()[0] if device else psutil.virtual_memory().available}
+        here = be.memory() if device else None
+        limits = {"local": here[0] if here else psutil.virtual_memory().available}
     if batched(int(ev.public_key.n).bit_length(), backend):
         place = _slabs(bricks, cost, workers)
     else:  # mapped one task per brick: spread evenly over the image (measured 4 % faster at 2048 bits)
@@ -237,13 +245,15 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
         share[w] += cost[idx]
     frac = _memory_fraction()
     for w in workers:
-        if share[w] > frac * limits[w]:
+        frame = be.frame_bytes(share[w])  # what a frame takes beside the bricks, where they live
+        if share[w] + frame > frac * limits[w]:
             raise MemoryLimitError(
                 f"persist: expected at most {frac:g} of worker {w}'s {'device ' if device else ''}memory "
-                f"({frac * limits[w] / 2**20:.0f} MiB), "
-                f"got {share[w] / 2**20:.0f} MiB of resident bricks ({per_ct} bytes per ciphertext, "
-                f"channels {'+'.join(channels)}); add workers, persist fewer channels, or raise "
-                f"{RESIDENT_MEMORY_KEY}")
+                f"({frac * limits[w] / 2**20:.1f} MiB), "
+                f"got {share[w] / 2**20:.1f} MiB of resident bricks ({per_ct} bytes per ciphertext, "
+                f"channels {'+'.join(channels)})" + (f" and {frame / 2**20:.1f} MiB a frame needs beside them"
+                                                      if frame else "") +
+                f"; add workers, persist fewer channels, or raise {RESIDENT_MEMORY_KEY}")
     log.info("persist %s: %d bricks, %s, %.1f MiB in all, at most %.1f MiB per worker%s", ev.path, len(bricks),
              "+".join(channels), sum(share.values()) / 2**20, max(share.values()) / 2**20,
              " (device memory)" if device else "")

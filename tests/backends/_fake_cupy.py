@@ -151,6 +151,15 @@ class FakeCupy:
         FakeCupy.uploaded += a.nbytes
         return FakeArray(np.ascontiguousarray(a).copy())
 
+    class _Pool:
+        @staticmethod
+        def free_bytes() -> int:
+            return 0
+
+    @staticmethod
+    def get_default_memory_pool():
+        return FakeCupy._Pool
+
     @staticmethod
     def ascontiguousarray(a: FakeArray) -> FakeArray:
         assert isinstance(a, FakeArray)

@@ -18,6 +18,7 @@ import json
 import os
 import pickle
 import secrets
+import subprocess
 import sys
 
 import dask
@@ -124,8 +125,9 @@ def test_an_experiment_compiles_in_through_the_launchers_options(fake_cuda):
     var = fake_cuda.with_defines(("HEVR_CIOS_REG",))
     _check_operations(var, 2048)
     module = next(iter(var._launch._fns.values())).module
-    assert "-DHEVR_CIOS_REG" in module.options and "-DHEVR_CIOS_REG" not in next(
-        iter(fake_cuda._launch._fns.values())).module.options
+    default = next(iter(fake_cuda._launch._fns.values())).module
+    assert "-DHEVR_CIOS_REG" in module.options and "-DHEVR_CIOS_REG" not in default.options
+    assert hasattr(module.lib, "hevr_experiment_cios_reg") and not hasattr(default.lib, "hevr_experiment_cios_reg")
     assert pickle.loads(pickle.dumps(CudaBackend(defines=("HEVR_CIOS_REG",))))._launch._options[-1] == "-DHEVR_CIOS_REG"
     with pytest.raises(hevr.ParameterError, match="defines: expected preprocessor names"):
         CudaBackend(defines=("A B",))
@@ -145,6 +147,22 @@ def test_a_render_and_owner_encryption_on_fake_cupy(fake_cuda, tmp_path, keypair
     assert fake_cuda.decrypt(priv, fake_cuda.encrypt(pub, x)) == [int(v) % int(pub.n) for v in x.tolist()]
     assert launched._owner_fn.calls == launched._public_fn.calls == 1 and launched._decrypt_fn.calls == 2
     assert {n for n, f in fake_cuda._launch._fns.items() if f.calls} >= {"k_combine", "k_pack", "k_ray_tasks"}
+
+
+def test_the_kernel_suites_pass_on_fake_cupy():
+    """The three kernel suites (operations, the key holder's kernels, renders) on the ``cuda``
+    backend over FakeCupy, in a fresh interpreter (``tests/backends/conftest.py``): what a GPU run
+    of ``gpu-proof.sh`` runs, so a launcher that hands a device array where numpy is read fails here."""
+    here = os.path.dirname(__file__)
+    env = {**os.environ, "HEVR_TEST_FAKE_CUPY": "1"}
+    env.pop("HEVR_TEST_KERNELS", None)
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-o", "addopts=", "-x",
+                          *(os.path.join(here, f) for f in ("test_cuda_owner.py", "test_cuda_host_backend.py",
+                                                            "test_cuda_host_renders.py"))],
+                         capture_output=True, text=True, env=env, cwd=os.path.dirname(os.path.dirname(here)),
+                         timeout=600, check=False)
+    assert run.returncode == 0, run.stdout[-4000:] + run.stderr[-2000:]
+    assert " passed" in run.stdout and " skipped" not in run.stdout.splitlines()[-1], run.stdout[-500:]
 
 
 def test_resident_bricks_stay_on_the_device_between_frames(fake_cuda, tmp_path, keypair512, monkeypatch):
@@ -167,8 +185,9 @@ def test_resident_bricks_stay_on_the_device_between_frames(fake_cuda, tmp_path, 
             return FakeCupy.uploaded - before, img.stats
 
         streamed, _ = frame(ev)
-        monkeypatch.setattr(FakeCupy, "memory", (1 << 19, 80 << 30))  # half of 512 KiB free < 8 bricks of 64 KiB
-        with pytest.raises(hevr.MemoryLimitError, match="device memory"):
+        # 400 MiB free: half of it holds the 512 KiB of bricks, not also their joined copy and the kernels' scratch
+        monkeypatch.setattr(FakeCupy, "memory", (400 << 20, 80 << 30))
+        with pytest.raises(hevr.MemoryLimitError, match=r"device memory \(200.0 MiB\), got 0.5 MiB.* 256.5 MiB a frame needs beside them"):
             ev.persist(backend="cuda")
         monkeypatch.setattr(FakeCupy, "memory", (60 << 30, 80 << 30))
         rv = ev.persist(backend="cuda")

@@ -125,12 +125,14 @@ def test_register_cios_experiment_matches_gmpy2(bits):
     """mont.cuh's HEVR_CIOS_REG body (an experiment ``hevr bench --gpu`` times on a device) against
     gmpy2: random operands and every edge case of test_edge_operands, as both factors."""
     launcher = HostLauncher(defines=("HEVR_CIOS_REG",))
+    assert launcher.lib.hevr_experiment_cios_reg() == 1  # compiled in (the default build has no such symbol)
+    assert not hasattr(HostLauncher().lib, "hevr_experiment_cios_reg")
     n = _odd_modulus(bits)
     M = Modulus(n)
     edges = [0, 1, 2, n - 1, n - 2, (n - 1) // 2, n // 2 + 1]
     edges += [(1 << (32 * k)) - 1 for k in range(1, M.nl) if (1 << (32 * k)) - 1 < n][::7]
     edges += [n - (1 << (32 * k)) for k in range(M.nl) if (1 << (32 * k)) < n][::7]
-    a = edges + [secrets.randbelow(n) for _ in range(64)]
+    a = edges + [secrets.randbelow(n) for _ in range(64)] + [(1 << (32 * M.nl)) - 1]  # a may reach R - 1
     for b in edges + [secrets.randbelow(n)]:
         got = from_limbs(launcher.mont_convert(to_limbs(a, M.nl), to_limbs([b], M.nl)[0], M))
         assert got == [_mont(x, b, n) for x in a], b

@@ -176,6 +176,9 @@ class KernelBackend(Backend):
         """(free, total) bytes of the device memory resident residues take, None for the host's."""
         return self._launch.memory()
 
+    def frame_bytes(self, resident: int) -> int:
+        return self._launch.frame_bytes(resident)
+
     def residue_bytes(self, width: int) -> int:
         """Memory of one resident value: its limbs, a row of 32-bit words (on the device for ``cuda``).
 

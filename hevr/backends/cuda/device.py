@@ -139,9 +139,9 @@ class CupyLauncher(Launcher):
                 raise MissingDependencyError(f"backend: 'cuda' needs an NVIDIA GPU; CuPy sees none ({exc})") from None
             if count < 1:
                 raise MissingDependencyError("backend: 'cuda' needs an NVIDIA GPU; CuPy sees none")
-            if self._device is not None:
-                cupy.cuda.Device(self._device).use()
             self._cp = cupy
+        if self._device is not None:  # the current device is per thread: each of a worker's threads sets it
+            self._cp.cuda.Device(self._device).use()
         return self._cp
 
     def device_name(self) -> str:
@@ -197,8 +197,14 @@ class CupyLauncher(Launcher):
         return self.cp.take(self._dev(limbs, np.uint32), self._dev(index, np.int64), axis=0)
 
     def memory(self):
-        free, total = self.cp.cuda.runtime.memGetInfo()
-        return int(free), int(total)
+        cp = self.cp
+        free, total = cp.cuda.runtime.memGetInfo()
+        return int(free) + int(cp.get_default_memory_pool().free_bytes()), int(total)  # the pool's cache is free too
+
+    def frame_bytes(self, resident):
+        # a worker's resident bricks are joined into one array for its map task (KernelBackend.concat),
+        # and each launch takes up to SCRATCH_BYTES of buckets
+        return int(resident) + SCRATCH_BYTES
 
     def device_tables(self, t):
         dev = {f: self._dev(getattr(t, f), dt) for f, dt in (

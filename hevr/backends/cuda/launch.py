@@ -135,6 +135,10 @@ class Launcher:
         """(free, total) bytes of the device memory residues live in; None on the host."""
         return None
 
+    def frame_bytes(self, resident: int) -> int:
+        """Device bytes a frame needs beside ``resident`` bytes of resident residues (0 on the host)."""
+        return 0
+
     def with_defines(self, defines: tuple[str, ...]) -> Launcher:
         """A launcher of the same kind whose modules are compiled with ``defines`` (``-D``)."""
         raise NotImplementedError
