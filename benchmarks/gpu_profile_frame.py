@@ -6,12 +6,19 @@ This prints, per backend, the frame's wall time and the 25 functions with the mo
 Dask's synchronous scheduler in this process (no cluster), so the answer is the frame's own work.
 
     python benchmarks/gpu_profile_frame.py [size] [backend ...]     # default 24 cuda cpu
+    python benchmarks/gpu_profile_frame.py --fake 24 cuda             # no GPU: CuPy played by the host build
+
+After each profile it prints the frame's phases (``hevr._stats``: seconds and counts per map,
+merge and finish phase) and, for ``cuda``, its launches per kernel with their threads: a GPU
+thread runs a chain of 4096-bit products about 20x slower than a CPU core, so a frame of few,
+small launches is slow however fast the device is in bulk.
 """
 
 from __future__ import annotations
 
 import cProfile
 import io
+import os
 import pstats
 import sys
 import tempfile
@@ -21,10 +28,17 @@ import warnings
 import dask
 
 import hevr
+from hevr import _stats
 from hevr._bench.gpu import phantom
 
 
 def main(argv: list[str]) -> None:
+    if "--fake" in argv:  # the tests' FakeCupy: the launcher's path and launch counts on the host build
+        argv = [a for a in argv if a != "--fake"]
+        sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "backends"))
+        from _fake_cupy import FakeCupy
+
+        sys.modules["cupy"] = FakeCupy
     size = int(argv[0]) if argv else 24
     backends = argv[1:] or ["cuda", "cpu"]
     with warnings.catch_warnings():
@@ -46,6 +60,7 @@ def main(argv: list[str]) -> None:
                 resident = ev.persist(backend=be)
                 hevr.render(resident, cam, "xray", "nearest", backend=be, progress=False, cache=False)  # warm
                 prof = cProfile.Profile()
+                _stats.take()
                 t0 = time.perf_counter()
                 prof.enable()
                 img = hevr.render(resident, cam, "xray", "nearest", backend=be, progress=False, cache=False)
@@ -53,7 +68,16 @@ def main(argv: list[str]) -> None:
                 dt = time.perf_counter() - t0
             out = io.StringIO()
             pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(25)
+            phases = _stats.take()
             print(f"== {be}: resident frame {dt:.3f} s (stats: {img.stats})\n{out.getvalue()}", flush=True)
+            print(f"-- {be} phases (s, count): " + "; ".join(
+                f"{k} {v:.3f} ({phases['counts'].get(k, 0)})" for k, v in sorted(phases["seconds"].items())
+                if not k.startswith(("launch ", "threads "))), flush=True)
+            launches = {k[7:]: c for k, c in phases["counts"].items() if k.startswith("launch ")}
+            if launches:
+                print(f"-- {be} launches: " + "; ".join(
+                    f"{k} {c} x {phases['counts'].get('threads ' + k, 0) / c:.0f} threads" for k, c in
+                    sorted(launches.items())), flush=True)
 
 
 if __name__ == "__main__":

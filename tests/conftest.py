@@ -1,8 +1,14 @@
-"""Shared session fixtures: keys are generated once per test session."""
+"""Shared session fixtures: keys are generated once per test session.
+
+``HEVR_TEST_FAKE_CUPY=1``: the kernel suites (``HEVR_TEST_KERNELS``) run on the ``cuda`` backend
+over ``tests/backends/_fake_cupy.FakeCupy`` — CuPy played by the host build — so the CUDA
+launcher's whole path (device arrays, marshalling, the key holder's kernels) runs without a GPU;
+``tests/backends/test_cuda_device.py`` runs the three kernel suites so in a subprocess."""
 
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from pathlib import Path
 
@@ -14,6 +20,13 @@ import hevr
 from hevr.crypto.keys import generate_keypair
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+
+if os.environ.get("HEVR_TEST_FAKE_CUPY") == "1":  # before any test module asks for the cuda backend
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "backends"))
+    from _fake_cupy import FakeCupy
+
+    sys.modules["cupy"] = FakeCupy
+    os.environ["HEVR_TEST_KERNELS"] = "cuda"
 
 
 def _keypair(bits: int):

@@ -310,7 +310,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         # When they are cached they stay where they are: futures on a cluster (re-colouring
         # then runs next to them), values on a single machine.
         batch = resident is not None and _batch(int(ev.public_key.n).bit_length(), backend)
-        groups = resident_groups(resident, cl) if batch else None
+        groups = resident_groups(resident, cl, backend) if batch else None
         graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
                                  tile, n_tiles, backend, resident,
                                  bands=resident is not None and spec.sampling == "nearest"

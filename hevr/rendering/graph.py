@@ -170,10 +170,11 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
                     merge_partials(parts[t], n2, backend) if t in parts else empty) for t in tiles}
 
 
-def resident_groups(resident: dict, client: Any) -> list[list]:
+def resident_groups(resident: dict, client: Any, backend: str = "cpu") -> list[list]:
     """The resident bricks' indices grouped by the worker holding them (on a cluster), else
-    into as many slabs (runs of raster order) as the local scheduler has threads; brick order
-    kept in each group."""
+    into as many slabs (runs of raster order) as the local scheduler has threads — or one, where
+    the backend's residues are on a GPU (this process's one device: one launch over all rays beats
+    several small ones); brick order kept in each group."""
     keys = list(resident)
     if client is not None:
         futures = [resident[k] for k in keys]
@@ -183,7 +184,7 @@ def resident_groups(resident: dict, client: Any) -> list[list]:
             holders = sorted(where.get(f.key, ())) or ["?"]
             by.setdefault(holders[0], []).append(k)
         return [by[w] for w in sorted(by)]
-    n = max(1, min(len(keys), dask.system.CPU_COUNT))
+    n = 1 if get_backend(backend).residence == "device" else max(1, min(len(keys), dask.system.CPU_COUNT))
     return [keys[i * len(keys) // n:(i + 1) * len(keys) // n] for i in range(n)] if keys else []
 
 

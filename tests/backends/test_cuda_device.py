@@ -30,7 +30,13 @@ from dask.sizeof import sizeof
 import hevr
 from hevr import MissingDependencyError, backends
 from hevr._bench.gpu import EXPERIMENTS
-from hevr.backends import CpuBackend, CudaBackend, ProductPlan, get_backend
+from hevr.backends import (
+    CpuBackend,
+    CudaBackend,
+    CudaHostBackend,
+    ProductPlan,
+    get_backend,
+)
 from hevr.backends.cuda import device as device_module
 from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source, owner_source
 from hevr.backends.cuda.nvrtc import find_nvrtc, ptx
@@ -146,12 +152,32 @@ def test_a_render_and_owner_encryption_on_fake_cupy(fake_cuda, tmp_path, keypair
     assert fake_cuda.decrypt(priv, fake_cuda.encrypt(priv, x)) == [int(v) % int(pub.n) for v in x.tolist()]
     assert fake_cuda.decrypt(priv, fake_cuda.encrypt(pub, x)) == [int(v) % int(pub.n) for v in x.tolist()]
     assert launched._owner_fn.calls == launched._public_fn.calls == 1 and launched._decrypt_fn.calls == 2
-    assert {n for n, f in fake_cuda._launch._fns.items() if f.calls} >= {"k_combine", "k_pack", "k_ray_tasks"}
+    launched = {n for n, f in fake_cuda._launch._fns.items() if f.calls}
+    # a frame's few packed ciphertexts (2 per tile here) are the CPU's work: fewer than MIN_ITEMS
+    assert launched >= {"k_combine", "k_ray_tasks"} and "k_pack" not in launched
+
+
+def test_few_long_chains_go_to_the_cpu(fake_cuda):
+    """pack / combine / segment_products of fewer than ``min_items`` independent items run on gmpy2
+    (same bytes); from ``min_items`` on, the kernels."""
+    n = secrets.randbits(512) | 1 | (3 << 510)
+    n2, W = n * n, (n * n).bit_length() // 8 + 1
+    vals = [secrets.randbelow(n2 - 1) + 1 for _ in range(3 * device_module.MIN_ITEMS)]
+    rows = CPU.from_bytes(CPU.to_bytes(vals, W))
+    fake_cuda.check()  # the module, so that its kernels' launch counts exist
+    fns = fake_cuda._launch._fns
+    for m in (3 * (device_module.MIN_ITEMS - 1), 3 * device_module.MIN_ITEMS):  # groups of 3: 127, then 128
+        exps = [secrets.randbelow(1 << 40) + 1 for _ in range(m)]
+        before = fns["k_pack"].calls
+        got = fake_cuda.pack(fake_cuda.from_bytes(CPU.to_bytes(rows[:m], W)), exps, 20, 3, 7, n)
+        np.testing.assert_array_equal(fake_cuda.to_bytes(got, W), CPU.to_bytes(CPU.pack(rows[:m], exps, 20, 3, 7, n), W))
+        assert fns["k_pack"].calls - before == (m // 3 >= device_module.MIN_ITEMS)
+    assert CudaHostBackend()._launch.min_items == 0  # the host build always runs its kernels (CI checks them)
 
 
 def test_the_kernel_suites_pass_on_fake_cupy():
     """The three kernel suites (operations, the key holder's kernels, renders) on the ``cuda``
-    backend over FakeCupy, in a fresh interpreter (``tests/backends/conftest.py``): what a GPU run
+    backend over FakeCupy, in a fresh interpreter (``tests/conftest.py``): what a GPU run
     of ``gpu-proof.sh`` runs, so a launcher that hands a device array where numpy is read fails here."""
     here = os.path.dirname(__file__)
     env = {**os.environ, "HEVR_TEST_FAKE_CUPY": "1"}
@@ -167,8 +193,8 @@ def test_the_kernel_suites_pass_on_fake_cupy():
 
 def test_resident_bricks_stay_on_the_device_between_frames(fake_cuda, tmp_path, keypair512, monkeypatch):
     """persist(backend="cuda") keeps each brick as a device array in Montgomery form: a resident
-    frame uploads none of the bricks' ciphertexts (a streamed frame uploads all of them), maps the
-    bricks in one task per worker (local thread here), and gives the cpu image; residency is
+    frame uploads none of the bricks' ciphertexts (a streamed frame uploads all of them), maps all
+    the bricks in one task (the process's one device), and gives the cpu image; residency is
     planned against device memory."""
     vol = np.random.default_rng(4).integers(0, 256, (16, 16, 16)).astype(np.uint8)
     with dask.config.set(scheduler="sync"):
@@ -195,7 +221,7 @@ def test_resident_bricks_stay_on_the_device_between_frames(fake_cuda, tmp_path, 
         second, stats = frame(rv)
     bricks = 16**3 * 128  # the ciphertexts' bytes (512-bit key: 128-byte records)
     assert streamed >= bricks and second <= streamed - bricks and second <= first, (streamed, first, second)
-    assert stats["resident"] and stats["map_tasks"] == min(8, dask.system.CPU_COUNT)  # not one per brick
+    assert stats["resident"] and stats["map_tasks"] == 1  # one launch over all rays, not a task per brick or thread
     for brick in rv.resident.bricks.values():
         limbs, modulus = brick.channel("scalar").state
         assert isinstance(limbs, FakeArray) and modulus == int(keypair512[0].nsquare)

@@ -44,6 +44,13 @@ CPU, GPU = CpuBackend(), get_backend(KERNELS)
 BITS = [64, 96, 128, 256, 512, 1024]  # n; n² has twice as many bits (96: a short top limb)
 
 
+@pytest.fixture(autouse=True)
+def _every_operation_in_the_kernels(monkeypatch):
+    """This suite checks the kernels op by op, however small the batch: on a device, batches of fewer
+    than ``min_items`` items would go to gmpy2 (test_cuda_device.py checks that rule)."""
+    monkeypatch.setattr(GPU._launch, "min_items", 0)
+
+
 def _modulus(bits: int) -> int:
     """An odd n of exactly ``bits`` bits (primality does not matter to the arithmetic)."""
     return secrets.randbits(bits) | 1 | (3 << (bits - 2))

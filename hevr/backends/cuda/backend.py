@@ -36,6 +36,12 @@ the first operation that learns N converts a batch in place, once. Inputs are re
 ``2^(32·NL)``, so a value ≥ N that the CPU backend would pass through unreduced (a one-row
 segment, say) comes back reduced here. A modulus the kernels cannot take (even, or over 4096 bits)
 and a plan needing more than ``MAX_BUCKETS`` buckets per task run on gmpy2 instead — same results.
+So do ``segment_products``, ``combine`` and ``pack`` calls of fewer independent items than the
+launcher's ``min_items`` (``cuda``: 128; ``cuda-host``: 0, always the kernels): a GPU thread runs a
+chain of 4096-bit products tens of times slower than a CPU core, so a frame's few packed
+ciphertexts — two per tile, each a Horner chain of thousands of products — are the CPU's work
+(on an H200 such launches of 2 threads made a 24³ frame take 4.5 s; ``gpu_profile_frame.py``
+prints a frame's launches).
 
 >>> import numpy as np
 >>> be = CudaHostBackend()
@@ -136,6 +142,12 @@ class KernelBackend(Backend):
             return limbs
         M = self._modulus(int(mod))
         return self._launch.mont_convert(limbs, M.unit, M)
+
+    def _few(self, items: int) -> bool:
+        """Whether an operation of ``items`` independent chains runs on gmpy2 rather than the
+        launcher: fewer than its ``min_items`` (a GPU thread runs a chain of products tens of times
+        slower than a CPU core, so a launch of a few long chains loses to the CPU)."""
+        return 0 < int(items) < self._launch.min_items
 
     def _fallback(self, op: str, *args) -> LimbBatch:
         """The CPU backend's ``op`` on mpz copies of the LimbBatch arguments (rare paths only)."""
@@ -306,6 +318,8 @@ class KernelBackend(Backend):
             raise ParameterError(f"indptr: expected increasing offsets within the {len(values) // max(k, 1)} rows")
         if ip.size == 1:
             return LimbBatch(np.zeros((0, M.nl), np.uint32), M.n)
+        if self._few((ip.size - 1) * int(k)):
+            return self._fallback("segment_products", self._batch(values), ip, k, nsquare)
         return LimbBatch(self._launch.segments(self._mont(values, M), ip, int(k), M), M.n)
 
     def combine(self, values: Any, comb: Sequence[Sequence[int]], nsquare: int) -> LimbBatch:
@@ -318,6 +332,8 @@ class KernelBackend(Backend):
         E = exponent_words([comb[i][ch] for ch in range(C) for i in range(k)], "comb").reshape(C, k, -1)
         if not len(values):
             return LimbBatch(np.zeros((0, M.nl), np.uint32), M.n)
+        if self._few(len(values) // k):
+            return self._fallback("combine", self._batch(values), comb, nsquare)
         return LimbBatch(self._launch.combine(self._mont(values, M), k, np.ascontiguousarray(E), M), M.n)
 
     def pack(self, terms: Any, exps: Sequence[int], pack_bits: int, per_pack: int, offset: int,
@@ -332,6 +348,8 @@ class KernelBackend(Backend):
             raise ParameterError(f"exps: expected {m} exponents like terms, got {R.shape[0]}")
         if not m:
             return LimbBatch(np.zeros((0, M.nl), np.uint32), M.n)
+        if self._few(-(-m // J)):  # a frame's few packed ciphertexts: long Horner chains, few threads
+            return self._fallback("pack", self._batch(terms), exps, pack_bits, per_pack, offset, n)
         offs = None
         if offset:  # g^(O·Σ_j B^j) = 1 + O·Σ_j B^j·n, for a full group and for the last one
             lens = (J, m - (m - 1) // J * J)

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from ... import _stats
 from ...errors import MissingDependencyError
 from .host import SOURCE as MONT_SOURCE
 from .host import check_define
@@ -55,6 +56,9 @@ __all__ = ["BLOCK", "CupyLauncher", "device_source", "owner_source"]
 BLOCK = 128
 SCRATCH_BYTES = 256 << 20
 MIN_THREADS = 32768
+# Fewer independent items than this (segments, rows to combine, packed ciphertexts) go to gmpy2: a GPU
+# thread's chain of 4096-bit products runs tens of times slower than a CPU core's (backend.py)
+MIN_ITEMS = 128
 KERNELS = ("k_records_to_limbs", "k_limbs_to_records", "k_out_of_range", "k_mont_convert", "k_ray_powers",
            "k_ray_tasks", "k_segments", "k_combine", "k_pack")
 _NULL = np.uint64(0)
@@ -104,6 +108,7 @@ class CupyLauncher(Launcher):
 
     keyholder = False  # owner.cuh wrong on an H200 (module docstring): the CPU way until proven
     residence = "device"
+    min_items = MIN_ITEMS
 
     def __init__(self, device: int | None = None, defines: tuple[str, ...] = ()) -> None:
         self._device = device
@@ -165,6 +170,8 @@ class CupyLauncher(Launcher):
     def _launch(self, name: str, count: int, *args: Any) -> None:
         if count > 0:
             self._fn(name)(((count + BLOCK - 1) // BLOCK,), (BLOCK,), args)
+            _stats.add(f"launch {name}", 0.0, 1)  # how many launches of how many threads a frame makes
+            _stats.add(f"threads {name}", 0.0, count)
 
     def _dev(self, arr: Any, dtype: Any) -> Any:
         """A contiguous device array of ``dtype``: a device array as it is (no copy where it already

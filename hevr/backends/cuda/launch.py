@@ -98,6 +98,9 @@ class Launcher:
     # Where this launcher's limb arrays live: "host" (numpy) or "device" (its own arrays, which
     # stay there between operations: a resident brick in Montgomery form is uploaded once).
     residence = "host"
+    # Operations of fewer independent items than this run on gmpy2 (KernelBackend._few); the host
+    # build always runs its kernels (the CI's check of them).
+    min_items = 0
 
     # -- where arrays live: every operation takes numpy or this launcher's arrays and returns its own
     # (flags, counts, records and decrypted residues come back as numpy: the host reads them)
