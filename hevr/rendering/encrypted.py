@@ -37,7 +37,8 @@ from ..store.reader import EncryptedVolume
 from ..store.resident import batched
 from .bounds import error_bound
 from .camera import Camera
-from .graph import FinishGraph, build_sums_graph, resident_groups
+from .graph import FinishGraph, build_sums_graph
+from .maps import resident_groups
 from .modes import combination_matrix
 from .plane import Plane
 from .planner import check_render_size, plan_render

@@ -9,9 +9,10 @@ reduce  per image tile, a tree of merges (fan-in 4) multiplies the partials of t
         ray (fpAdd of partial sums that share one exponent); no task receives every partial.
 finish  per tile: per-pixel combination, reciprocal normalisation, offset and packing.
 
-Resident bricks below 1024-bit keys are mapped one task per worker (:func:`map_group`); every
-tile then has at most one partial per worker, and merge and finish run in one task per block of
-tiles instead (:mod:`hevr.rendering.reduce`).
+The map tasks themselves are :mod:`hevr.rendering.maps`. Resident bricks below 1024-bit keys, and
+on a GPU at any key size, are mapped one task per worker (:func:`~hevr.rendering.maps.map_group`);
+every tile then has at most one partial per worker, and merge and finish run in one task per block
+of tiles instead (:mod:`hevr.rendering.reduce`).
 
 The graph holds public data only (the volume handle, camera, plan) and the *name* of the
 arithmetic backend; every task resolves the backend in its own process
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import logging
 import operator
-import time
 import uuid
 from collections import deque
 from dataclasses import dataclass, field
@@ -33,20 +33,16 @@ import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
 
-from .. import _malloc, _stats
+from .. import _stats
 from .._tiles import TileLayout
-from ..backends import get_backend
 from ..crypto.records import record_width
-from ..crypto.tags import data_channel
 from ..store.reader import EncryptedVolume
 from .camera import Camera
 from .finishing import finish_tile, finish_units, merge_partials
-from .footprint import Footprint, brick_footprints
-from .group_weights import nearest_group_rows
-from .kernel import brick_ray_products_multi
+from .footprint import brick_footprints
+from .maps import map_brick, map_group
 from .planner import RenderPlan
-from .rays import RaySet, cast_rays
-from .weights import brick_weights
+from .rays import RaySet
 
 log = logging.getLogger(__name__)
 
@@ -70,122 +66,6 @@ class Priorities:
 
     def __call__(self, key: Any) -> int:
         return self.values.get(key, self.default)
-
-
-def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,
-              digits: int, channel: str, footprint: Footprint, tile: int,
-              backend: str = "cpu", data: Any = None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """One map task: partial encrypted ray sums of one brick, split by tile.
-
-    Casts only the rays of the brick's footprint rectangle (bit-identical to the same rays of
-    the whole image), so its geometry costs the rectangle's pixels plus the samples that reach
-    the brick. ``data`` is the brick's resident ciphertexts (:class:`ResidentBrick`, from
-    :meth:`hevr.EncryptedVolume.persist`); without it the brick is read from the store.
-    """
-    _malloc.tune()
-    t0 = time.perf_counter()
-    rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=footprint.pixels(camera.width))
-    bw = brick_weights(rays, ev.shape, ev.spacing, ev.brick, index, sampling, step, digits)
-    _stats.add("map.geometry", time.perf_counter() - t0, 1)
-    W = ev.meta.ciphertext_bytes
-    tiles = footprint.tiles
-    empty = (np.zeros(0, np.int64), np.zeros((0, ev.meta.components(channel), W), np.uint8))
-    if bw.rays.size == 0:
-        return {t: empty for t in tiles}
-    be = get_backend(backend)
-    if data is not None:
-        cts = data.channel(channel)
-    else:
-        with _stats.timed("map.read"):
-            cts = ev.read_brick(index, channel, backend=be)
-    comps = [cts] if data_channel(channel) == "scalar" else cts
-    with _stats.timed("map.kernel", int(bw.indptr[-1]) * len(comps)):
-        prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare, backend=be)
-    return _emit(prods, bw.rays, be, W, camera, tile, tiles, f"brick {index}")
-
-
-def _emit(prods: list, rays: np.ndarray, be: Any, width: int, camera: Camera, tile: int, tiles: Any,
-          what: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """A map task's output: the products of ``rays`` (one batch per component) as records,
-    split by image tile (every tile of ``tiles`` present, possibly empty)."""
-    t0 = time.perf_counter()
-    recs = np.stack([be.to_bytes(p, width) for p in prods], axis=1)  # (R, K, W)
-    tid = TileLayout(camera.width, camera.height, tile).ids(rays)
-    out = {}
-    for t in tiles:
-        m = tid == t
-        out[t] = (rays[m], recs[m])
-    _stats.add("map.emit", time.perf_counter() - t0)
-    extra = set(np.unique(tid).tolist()) - set(tiles)
-    if extra:  # pragma: no cover - footprint tiles hold every hit pixel of the rectangle
-        raise RuntimeError(f"{what}: rays in tiles {sorted(extra)} not planned")
-    return out
-
-
-def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, step: float, digits: int,
-              channel: str, tile: int, backend: str, *data: Any) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """One map task for several resident bricks of one worker, with one output per tile, so
-    that the per-task overhead and the merge tasks scale with workers, not bricks.
-
-    Nearest sampling: one product plan over the whole group — a row per ray holding its pairs in
-    all the group's bricks (:func:`~hevr.rendering.group_weights.nearest_group_rows`), over the
-    concatenation of the bricks' ciphertexts — so each ray's partial sum of the group comes out
-    of one multi-exponentiation, and neither per-brick plans nor in-task merges are needed.
-    Trilinear: each brick's :func:`map_brick`, then every tile's partials merged here.
-
-    ``items`` lists ``(index, footprint)`` per brick, ``data`` their :class:`ResidentBrick`
-    in the same order. The output is the same kind of dict by tile as :func:`map_brick`'s, with
-    every tile of any of the bricks' footprints.
-    """
-    _malloc.tune()
-    W, K = ev.meta.ciphertext_bytes, ev.meta.components(channel)
-    empty = (np.zeros(0, np.int64), np.zeros((0, K, W), np.uint8))
-    tiles = sorted({t for _, fp in items for t in fp.tiles})
-    n2 = int(ev.public_key.nsquare)
-    if sampling == "nearest":
-        t0 = time.perf_counter()
-        pixels = np.unique(np.concatenate([fp.pixels(camera.width) for _, fp in items]))
-        rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=pixels)
-        rows = nearest_group_rows(rays, ev.shape, ev.spacing, ev.brick, [idx for idx, _ in items], step)
-        sizes = [int(np.prod(ev.brick_shape(idx))) for idx, _ in items]
-        voxels = rows.voxels(sizes)
-        _stats.add("map.geometry", time.perf_counter() - t0, len(items))
-        if not rows.rays.size:
-            return {t: empty for t in tiles}
-        be = get_backend(backend)
-        batches = [d.channel(channel) for d in data]
-        comps = [be.concat(batches)] if data_channel(channel) == "scalar" else [be.concat([b[c] for b in batches])
-                                                                  for c in range(K)]
-        with _stats.timed("map.kernel", int(rows.indptr[-1]) * K):
-            prods = brick_ray_products_multi(comps, rows.indptr, voxels, rows.weights, n2, backend=be)
-        return _emit(prods, rows.rays, be, W, camera, tile, tiles, f"bricks {[idx for idx, _ in items]}")
-    parts: dict[int, list] = {}
-    for (idx, fp), brick in zip(items, data):
-        for t, part in map_brick(ev, camera, idx, sampling, step, digits, channel, fp, tile, backend,
-                                 brick).items():
-            if part[0].size:
-                parts.setdefault(t, []).append(part)
-    with _stats.timed("map.merge", len(tiles)):
-        return {t: (parts[t][0] if len(parts.get(t, ())) == 1 else
-                    merge_partials(parts[t], n2, backend) if t in parts else empty) for t in tiles}
-
-
-def resident_groups(resident: dict, client: Any, backend: str = "cpu") -> list[list]:
-    """The resident bricks' indices grouped by the worker holding them (on a cluster), else
-    into as many slabs (runs of raster order) as the local scheduler has threads — or one, where
-    the backend's residues are on a GPU (this process's one device: one launch over all rays beats
-    several small ones); brick order kept in each group."""
-    keys = list(resident)
-    if client is not None:
-        futures = [resident[k] for k in keys]
-        where = client.who_has(futures)
-        by: dict[str, list] = {}
-        for k, f in zip(keys, futures):
-            holders = sorted(where.get(f.key, ())) or ["?"]
-            by.setdefault(holders[0], []).append(k)
-        return [by[w] for w in sorted(by)]
-    n = 1 if get_backend(backend).residence == "device" else max(1, min(len(keys), dask.system.CPU_COUNT))
-    return [keys[i * len(keys) // n:(i + 1) * len(keys) // n] for i in range(n)] if keys else []
 
 
 def merge_task(nsquare: int, backend: str, tile: int, *parts):

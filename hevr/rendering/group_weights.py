@@ -3,7 +3,7 @@
 :func:`hevr.rendering.weights.brick_weights` builds one brick's (ray, voxel) weights: it clips
 every ray to the brick, generates the samples there and counts them per pair with
 ``np.unique`` — a fixed cost of about 2 ms per brick, and a sort. A map task that holds many
-resident bricks (:func:`hevr.rendering.graph.map_group`) needs the weights of all of them for
+resident bricks (:func:`hevr.rendering.maps.map_group`) needs the weights of all of them for
 the same rays; this module makes them in one pass:
 
 1. every ray is clipped once, to the box of the group's bricks (the region of influence of

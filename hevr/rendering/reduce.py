@@ -1,6 +1,6 @@
 """The reduce of a batched render: merge and finish a block of tiles in one task.
 
-When a worker maps all its resident bricks in one task (:func:`~hevr.rendering.graph.map_group`),
+When a worker maps all its resident bricks in one task (:func:`~hevr.rendering.maps.map_group`),
 a frame has G map tasks for G workers, and every tile then has at most G partial sums. The
 per-tile graph after them — a selection or a merge task per tile, then a finishing task per
 unit — is a few milliseconds of arithmetic spread over ~2 tasks per tile (50 for a 150² frame
