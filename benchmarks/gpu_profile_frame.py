@@ -2,7 +2,7 @@
 
 On an H200 (2026-11-26) a 24³ 2048-bit nearest X-ray frame of 48² took 4.5 s with ``cuda``, resident
 or not, and 13.8 s with ``cpu`` on 16 workers — against 0.25 s (``cpu``) on a 2-core machine here.
-This prints, per backend, the frame's wall time and the 25 functions with the most own time, on
+This prints, per backend, a nearest and a trilinear frame's wall time and the 25 functions with the most own time, on
 Dask's synchronous scheduler in this process (no cluster), so the answer is the frame's own work.
 
     python benchmarks/gpu_profile_frame.py [size] [backend ...]     # default 24 cuda cpu
@@ -58,27 +58,33 @@ def main(argv: list[str]) -> None:
         for be in backends:
             with dask.config.set(scheduler="sync"):
                 resident = ev.persist(backend=be)
-                hevr.render(resident, cam, "xray", "nearest", backend=be, progress=False, cache=False)  # warm
-                prof = cProfile.Profile()
-                _stats.take()
-                t0 = time.perf_counter()
-                prof.enable()
-                img = hevr.render(resident, cam, "xray", "nearest", backend=be, progress=False, cache=False)
-                prof.disable()
-                dt = time.perf_counter() - t0
-            out = io.StringIO()
-            pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(25)
-            phases = _stats.take()
-            print(f"== {be}: resident frame {dt:.3f} s (stats: {img.stats})\n{out.getvalue()}", flush=True)
-            print(f"-- {be} phases (s, count): " + "; ".join(
-                f"{k} {v:.3f} ({phases['counts'].get(k, 0)})" for k, v in sorted(phases["seconds"].items())
-                if not k.startswith(("launch ", "threads "))), flush=True)
-            launches = {k[7:]: c for k, c in phases["counts"].items() if k.startswith("launch ")}
-            if launches:
-                print(f"-- {be} launches: " + "; ".join(
-                    f"{k} {c} x {phases['counts'].get('threads ' + k, 0) / c:.0f} threads" for k, c in
-                    sorted(launches.items())), flush=True)
+            for sampling in ("nearest", "trilinear"):
+                _profile(resident, cam, be, sampling)
 
+
+def _profile(resident, cam, be: str, sampling: str) -> None:
+    """One warm resident X-ray frame under cProfile: its top functions, phases and launches."""
+    with dask.config.set(scheduler="sync"):
+        hevr.render(resident, cam, "xray", sampling, backend=be, progress=False, cache=False)  # warm
+        prof = cProfile.Profile()
+        _stats.take()
+        t0 = time.perf_counter()
+        prof.enable()
+        img = hevr.render(resident, cam, "xray", sampling, backend=be, progress=False, cache=False)
+        prof.disable()
+        dt = time.perf_counter() - t0
+    out = io.StringIO()
+    pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(25)
+    phases = _stats.take()
+    print(f"== {be}: resident xray {sampling} frame {dt:.3f} s (stats: {img.stats})\n{out.getvalue()}", flush=True)
+    print(f"-- {be} {sampling} phases (s, count): " + "; ".join(
+        f"{k} {v:.3f} ({phases['counts'].get(k, 0)})" for k, v in sorted(phases["seconds"].items())
+        if not k.startswith(("launch ", "threads "))), flush=True)
+    launches = {k[7:]: c for k, c in phases["counts"].items() if k.startswith("launch ")}
+    if launches:
+        print(f"-- {be} {sampling} launches: " + "; ".join(
+            f"{k} {c} x {phases['counts'].get('threads ' + k, 0) / c:.0f} threads" for k, c in sorted(launches.items())),
+            flush=True)
 
 if __name__ == "__main__":
     main(sys.argv[1:])
