@@ -4,8 +4,8 @@ A GPU thread runs a chain of 4096-bit products tens of times slower than a CPU c
 is fast on a device only when its launches are few and wide. This counts, per kernel, the
 launches and their threads of one warm resident frame of the ``size``³ phantom (2048-bit key,
 brick 8, image 2·size square), with CuPy played by the host build (``tests/backends/_fake_cupy``):
-under the rules before issue 26's second CPU session (per-brick map tasks at 2048 bits, every
-operation in the kernels) and now (one map task for the device's bricks, trilinear rows of every
+under the rules before issue 26's second CPU session (commit aa61989: per-brick map tasks at 2048
+bits, every operation in the kernels; residues already on the device here, which only moves bytes) and now (one map task for the device's bricks, trilinear rows of every
 brick in one plan, fewer than ``MIN_ITEMS`` items to gmpy2). Counts, not times: the host build's
 seconds say nothing about a GPU's.
 

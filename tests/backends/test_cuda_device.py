@@ -172,6 +172,21 @@ def test_few_long_chains_go_to_the_cpu(fake_cuda):
         got = fake_cuda.pack(fake_cuda.from_bytes(CPU.to_bytes(rows[:m], W)), exps, 20, 3, 7, n)
         np.testing.assert_array_equal(fake_cuda.to_bytes(got, W), CPU.to_bytes(CPU.pack(rows[:m], exps, 20, 3, 7, n), W))
         assert fns["k_pack"].calls - before == (m // 3 >= device_module.MIN_ITEMS)
+    comb = [[3, 0], [17, 2], [0, 1000]]  # rows of 3 values into 2 channels
+    for items in (device_module.MIN_ITEMS - 1, device_module.MIN_ITEMS):
+        seg = np.arange(items + 1)  # one-row segments
+        before = fns["k_segments"].calls, fns["k_combine"].calls
+        g = fake_cuda.from_bytes(CPU.to_bytes(rows[:3 * items], W))
+        np.testing.assert_array_equal(fake_cuda.to_bytes(fake_cuda.segment_products(g, seg, 1, n2), W),
+                                      CPU.to_bytes(CPU.segment_products(rows[:items], seg, 1, n2), W))
+        np.testing.assert_array_equal(fake_cuda.to_bytes(fake_cuda.combine(g, comb, n2), W),
+                                      CPU.to_bytes(CPU.combine(rows[:3 * items], comb, n2), W))
+        kernels = items >= device_module.MIN_ITEMS
+        assert (fns["k_segments"].calls - before[0], fns["k_combine"].calls - before[1]) == (kernels, kernels)
+        # a value >= n² (never from a store) comes back reduced either way, as the kernels reduce it
+        big = fake_cuda.from_bytes(CPU.to_bytes([n2 + 5] * items, W))
+        assert fake_cuda.to_bytes(fake_cuda.segment_products(big, seg, 1, n2), W).tolist() == \
+            CPU.to_bytes([5] * items, W).tolist()
     assert CudaHostBackend()._launch.min_items == 0  # the host build always runs its kernels (CI checks them)
 
 

@@ -48,7 +48,7 @@ BITS = [64, 96, 128, 256, 512, 1024]  # n; n² has twice as many bits (96: a sho
 def _every_operation_in_the_kernels(monkeypatch):
     """This suite checks the kernels op by op, however small the batch: on a device, batches of fewer
     than ``min_items`` items would go to gmpy2 (test_cuda_device.py checks that rule)."""
-    monkeypatch.setattr(GPU._launch, "min_items", 0)
+    monkeypatch.setattr(type(GPU._launch), "min_items", 0)
 
 
 def _modulus(bits: int) -> int:

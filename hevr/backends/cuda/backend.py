@@ -149,11 +149,13 @@ class KernelBackend(Backend):
         slower than a CPU core, so a launch of a few long chains loses to the CPU)."""
         return 0 < int(items) < self._launch.min_items
 
-    def _fallback(self, op: str, *args) -> LimbBatch:
-        """The CPU backend's ``op`` on mpz copies of the LimbBatch arguments (rare paths only)."""
+    def _fallback(self, op: str, *args, mod: int | None = None) -> LimbBatch:
+        """The CPU backend's ``op`` on mpz copies of the LimbBatch arguments (rare paths, and
+        :meth:`_few`'s); with ``mod`` the results reduced as the kernels reduce them (the CPU backend
+        passes a one-row segment's value through as it is)."""
         conv = [_CPU.from_bytes(self.to_bytes(a, 4 * a.nl)) if isinstance(a, LimbBatch) else a for a in args]
         out = getattr(_CPU, op)(*conv)
-        return LimbBatch(limbs_of(out))
+        return LimbBatch(limbs_of([int(v) % mod for v in out] if mod else out))
 
     # -- conversion ------------------------------------------------------------------------------
     def from_bytes(self, records: np.ndarray) -> LimbBatch:
@@ -319,7 +321,7 @@ class KernelBackend(Backend):
         if ip.size == 1:
             return LimbBatch(np.zeros((0, M.nl), np.uint32), M.n)
         if self._few((ip.size - 1) * int(k)):
-            return self._fallback("segment_products", self._batch(values), ip, k, nsquare)
+            return self._fallback("segment_products", self._batch(values), ip, k, nsquare, mod=M.n)
         return LimbBatch(self._launch.segments(self._mont(values, M), ip, int(k), M), M.n)
 
     def combine(self, values: Any, comb: Sequence[Sequence[int]], nsquare: int) -> LimbBatch:
@@ -333,7 +335,7 @@ class KernelBackend(Backend):
         if not len(values):
             return LimbBatch(np.zeros((0, M.nl), np.uint32), M.n)
         if self._few(len(values) // k):
-            return self._fallback("combine", self._batch(values), comb, nsquare)
+            return self._fallback("combine", self._batch(values), comb, nsquare, mod=M.n)
         return LimbBatch(self._launch.combine(self._mont(values, M), k, np.ascontiguousarray(E), M), M.n)
 
     def pack(self, terms: Any, exps: Sequence[int], pack_bits: int, per_pack: int, offset: int,
@@ -349,7 +351,7 @@ class KernelBackend(Backend):
         if not m:
             return LimbBatch(np.zeros((0, M.nl), np.uint32), M.n)
         if self._few(-(-m // J)):  # a frame's few packed ciphertexts: long Horner chains, few threads
-            return self._fallback("pack", self._batch(terms), exps, pack_bits, per_pack, offset, n)
+            return self._fallback("pack", self._batch(terms), exps, pack_bits, per_pack, offset, n, mod=M.n)
         offs = None
         if offset:  # g^(O·Σ_j B^j) = 1 + O·Σ_j B^j·n, for a full group and for the last one
             lens = (J, m - (m - 1) // J * J)
