@@ -42,6 +42,7 @@ from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source, owne
 from hevr.backends.cuda.nvrtc import find_nvrtc, ptx
 from hevr.cli.main import main
 from hevr.rendering.kernel import plan_products
+from hevr.store import resident as resident_module
 
 CPU = CpuBackend()
 
@@ -245,6 +246,37 @@ def test_resident_bricks_stay_on_the_device_between_frames(fake_cuda, tmp_path, 
     assert rv.resident.nbytes == bricks
     batch = next(iter(rv.resident.bricks.values())).channel("scalar")
     assert isinstance(pickle.loads(pickle.dumps(batch)).state[0], np.ndarray)  # pickles carry numpy limbs
+
+
+def test_device_residency_behind_a_scheduler(fake_cuda, tmp_path, keypair256, cluster, monkeypatch):
+    """Two GPU workers behind one scheduler (in-process workers sharing FakeCupy): persist plans
+    against each worker's device memory (asked on the workers), holds each worker's bricks on
+    its device, maps them in one task per worker, and the frames are the cpu image."""
+    monkeypatch.setattr(resident_module, "BATCH_BITS", 64)  # as at 2048 bits: host residues map per brick
+    vol = np.random.default_rng(5).integers(0, 256, (16, 16, 16)).astype(np.uint8)
+    with dask.config.set(scheduler="sync"):
+        ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", keypair256[1], brick=8, vector_dims=3, progress=False)
+    cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=24, height=20)
+    want = {s: hevr.render(ev, cam, "tf", s, nodes=[(0.3, "red"), (0.8, "blue")], backend="cpu", progress=False,
+                           cache=False) for s in ("nearest", "trilinear")}
+    monkeypatch.setattr(FakeCupy, "memory", (80 << 30, 256 << 20))  # 256 MiB a GPU: half of it < the scratch
+    with pytest.raises(hevr.MemoryLimitError, match="device memory"):
+        ev.persist(backend="cuda", client=cluster)
+    monkeypatch.setattr(FakeCupy, "memory", (60 << 30, 80 << 30))
+    rv = ev.persist(backend="cuda", client=cluster)
+    rv.resident.wait()
+    assert len(rv.resident.worker_bytes) == 2 and all(rv.resident.worker_bytes.values())
+    for s, a in want.items():
+        for _ in range(2):
+            b = hevr.render(rv, cam, "tf", s, nodes=[(0.3, "red"), (0.8, "blue")], backend="cuda", progress=False,
+                            cache=False, client=cluster)
+            assert b.stats["resident"] and b.stats["map_tasks"] == 2  # one task per worker (GPU)
+            for x, y in zip(a.ciphertexts, b.ciphertexts):
+                np.testing.assert_array_equal(x, y)
+    limbs = [f.result().channel("vector")[0].state[0] for f in rv.resident.bricks.values()]
+    assert all(isinstance(x, FakeArray) for x in limbs)  # on the devices, in Montgomery form
+    host = ev.persist(backend="cpu", client=cluster)  # the host rule at this key size: a task per brick
+    assert hevr.render(host, cam, backend="cpu", progress=False, cache=False, client=cluster).stats["map_tasks"] == 8
 
 
 def test_gpu_bench_on_fake_cupy(fake_cuda, tmp_path):
