@@ -57,7 +57,9 @@ BLOCK = 128
 SCRATCH_BYTES = 256 << 20
 MIN_THREADS = 32768
 # Fewer independent items than this (segments, rows to combine, packed ciphertexts) go to gmpy2: a GPU
-# thread's chain of 4096-bit products runs tens of times slower than a CPU core's (backend.py)
+# thread's chain of 4096-bit products runs tens of times slower than a CPU core's (backend.py). Estimated
+# from the H200's 24³ frame (benchmarks/results-gpu-h200-2026-11-26.md): ~0.5-0.8 ms a product on one
+# thread against ~5 µs on a core with gmpy2, so a launch beats one core from ~100 items. Not yet measured.
 MIN_ITEMS = 128
 KERNELS = ("k_records_to_limbs", "k_limbs_to_records", "k_out_of_range", "k_mont_convert", "k_ray_powers",
            "k_ray_tasks", "k_segments", "k_combine", "k_pack")
