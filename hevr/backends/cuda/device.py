@@ -205,6 +205,11 @@ class CupyLauncher(Launcher):
     def take(self, limbs, index):
         return self.cp.take(self._dev(limbs, np.uint32), self._dev(index, np.int64), axis=0)
 
+    def rows(self, vals, rep, fill):
+        # on the device one gather from vals with the fill row appended (no boolean-mask assignment)
+        idx = np.where(rep < 0, vals.shape[0], rep).astype(np.int64)
+        return self.take(self.join([vals, fill.reshape(1, -1)], int(vals.shape[1])), idx)
+
     def memory(self):
         cp = self.cp
         free, total = cp.cuda.runtime.memGetInfo()

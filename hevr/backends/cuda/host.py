@@ -34,7 +34,8 @@ from ...errors import MissingDependencyError, ParameterError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HostMontgomery", "build_host", "build_library", "check_define", "from_limbs", "montgomery_params", "source", "to_limbs"]
+__all__ = ["HostMontgomery", "build_host", "build_library", "check_define", "from_limbs", "montgomery_params",
+           "source", "to_limbs"]
 
 SOURCE = Path(__file__).with_name("mont.cuh")
 MAX_LIMBS = 128  # HEVR_MAX_LIMBS in the source: 4096-bit moduli (n² of a 2048-bit key)
