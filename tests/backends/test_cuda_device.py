@@ -138,6 +138,8 @@ def test_an_experiment_compiles_in_through_the_launchers_options(fake_cuda):
     assert pickle.loads(pickle.dumps(CudaBackend(defines=("HEVR_CIOS_REG",))))._launch._options[-1] == "-DHEVR_CIOS_REG"
     with pytest.raises(hevr.ParameterError, match="defines: expected preprocessor names"):
         CudaBackend(defines=("A B",))
+    with pytest.raises(hevr.ParameterError, match="defines: expected a sequence of preprocessor names, got the string"):
+        CudaBackend(defines="HEVR_CIOS_REG")  # not one define per letter
 
 
 def test_a_render_and_owner_encryption_on_fake_cupy(fake_cuda, tmp_path, keypair512):

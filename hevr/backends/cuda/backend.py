@@ -64,7 +64,7 @@ from ...errors import ParameterError
 from ..base import Backend, OpCounter, ProductPlan
 from ..cpu import CpuBackend
 from .device import CupyLauncher
-from .host import MAX_LIMBS
+from .host import MAX_LIMBS, check_defines
 from .launch import HostLauncher, Launcher
 from .owner import decrypt_limbs, owner_limbs, public_limbs
 from .residues import LimbBatch, Modulus, exponent_words, limbs_of, plan_tables
@@ -289,7 +289,7 @@ class KernelBackend(Backend):
     def with_defines(self, defines: tuple[str, ...]) -> KernelBackend:
         """This backend's kernels compiled with ``defines`` (the source's experiments, e.g.
         ``HEVR_CIOS_REG``), for ``hevr bench --gpu`` to check and time beside the default."""
-        return KernelBackend(self._launch.with_defines(tuple(defines)))
+        return KernelBackend(self._launch.with_defines(defines))
 
     def stage_times(self, plan: ProductPlan, component: Any, nsquare: int) -> dict[str, float]:
         """Seconds of the stages of one :meth:`ray_products` call on one component (``hevr bench
@@ -401,7 +401,7 @@ class CudaBackend(KernelBackend):
 
     def __init__(self, device: int | None = None, defines: tuple[str, ...] = ()) -> None:
         super().__init__(CupyLauncher(device, defines))
-        self._device, self._defines = device, tuple(defines)
+        self._device, self._defines = device, check_defines(defines)
 
     def __reduce__(self):
         return (CudaBackend, (self._device, self._defines))

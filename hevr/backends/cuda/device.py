@@ -47,7 +47,7 @@ import numpy as np
 from ... import _stats
 from ...errors import MissingDependencyError
 from .host import SOURCE as MONT_SOURCE
-from .host import check_define
+from .host import check_defines
 from .launch import OWNER_SOURCE, RENDER_SOURCE, Launcher, decrypt_args
 from .residues import FOLD, Modulus, PlanTables
 
@@ -114,8 +114,8 @@ class CupyLauncher(Launcher):
 
     def __init__(self, device: int | None = None, defines: tuple[str, ...] = ()) -> None:
         self._device = device
-        self._options = ("--std=c++11", *(f"-D{check_define(d)}" for d in defines))
-        self._defines = tuple(defines)
+        self._defines = check_defines(defines)
+        self._options = ("--std=c++11", *(f"-D{d}" for d in self._defines))
         self._cp: Any = None
         self._fns: dict[str, Any] = {}
         self._owner_fn: Any = None
@@ -127,7 +127,7 @@ class CupyLauncher(Launcher):
         return (CupyLauncher, (self._device, self._defines))
 
     def with_defines(self, defines):
-        return CupyLauncher(self._device, tuple(defines))
+        return CupyLauncher(self._device, defines)
 
     # -- CuPy, the device and the module -----------------------------------------------------
     @property

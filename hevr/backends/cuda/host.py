@@ -34,7 +34,7 @@ from ...errors import MissingDependencyError, ParameterError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HostMontgomery", "build_host", "build_library", "check_define", "from_limbs", "montgomery_params",
+__all__ = ["HostMontgomery", "build_host", "build_library", "check_defines", "from_limbs", "montgomery_params",
            "source", "to_limbs"]
 
 SOURCE = Path(__file__).with_name("mont.cuh")
@@ -76,7 +76,7 @@ def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None
     texts = [main.read_text(encoding="utf-8")] + [h.read_text(encoding="utf-8") for h in headers]
     cc = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or ""
     # the machine and the compiler too: a cache folder seen by other hosts or compilers never serves a foreign build
-    flags = (*FLAGS, *(f"-D{check_define(d)}" for d in defines))
+    flags = (*FLAGS, *(f"-D{d}" for d in check_defines(defines)))
     digest = hashlib.sha256("\0".join(texts + list(flags) + [platform.machine(), platform.system(), cc]).encode()
                             ).hexdigest()[:16]
     key = f"{main.stem}-{digest}"
@@ -86,15 +86,19 @@ def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None
         return _LIB[key]
 
 
-def check_define(name: str) -> str:
-    """A preprocessor name for ``-D`` (letters, digits, underscores; no value).
+def check_defines(defines: Sequence[str]) -> tuple[str, ...]:
+    """Preprocessor names for ``-D`` (letters, digits, underscores; no value), as a tuple.
 
-    >>> check_define("HEVR_CIOS_REG")
-    'HEVR_CIOS_REG'
+    >>> check_defines(["HEVR_CIOS_REG"])
+    ('HEVR_CIOS_REG',)
     """
-    if not isinstance(name, str) or not name.isidentifier() or not name.isascii():
-        raise ParameterError(f"defines: expected preprocessor names like 'HEVR_CIOS_REG', got {name!r}")
-    return name
+    if isinstance(defines, (str, bytes)):  # one name would otherwise become one define per letter
+        raise ParameterError(f"defines: expected a sequence of preprocessor names, got the string {defines!r}")
+    out = tuple(defines)
+    for name in out:
+        if not isinstance(name, str) or not name.isidentifier() or not name.isascii():
+            raise ParameterError(f"defines: expected preprocessor names like 'HEVR_CIOS_REG', got {name!r}")
+    return out
 
 
 def _compile(main: Path, key: str, compiler: str | None, flags: Sequence[str] = FLAGS) -> ctypes.CDLL:

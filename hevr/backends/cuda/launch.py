@@ -32,7 +32,7 @@ import numpy as np
 
 from ...errors import ParameterError
 from .host import SOURCE as MONT_SOURCE
-from .host import build_library
+from .host import build_library, check_defines
 from .residues import FOLD, Modulus, PlanTables
 
 __all__ = ["OWNER_SOURCE", "RENDER_SOURCE", "HostLauncher", "Launcher"]
@@ -209,7 +209,7 @@ class HostLauncher(Launcher):
     """The kernels compiled for the host and called through ctypes (see the module docstring)."""
 
     def __init__(self, compiler: str | None = None, defines: tuple[str, ...] = ()) -> None:
-        self._compiler, self._defines = compiler, tuple(defines)
+        self._compiler, self._defines = compiler, check_defines(defines)
         self._dll: ctypes.CDLL | None = None
         self._owner_dll: ctypes.CDLL | None = None
 
@@ -217,7 +217,7 @@ class HostLauncher(Launcher):
         return (HostLauncher, (self._compiler, self._defines))
 
     def with_defines(self, defines):
-        return HostLauncher(self._compiler, tuple(defines))
+        return HostLauncher(self._compiler, defines)
 
     @property
     def lib(self) -> ctypes.CDLL:
