@@ -124,9 +124,10 @@ def _bound(P2: int) -> int:
     return r - 1
 
 
-def owner_limbs(launcher: Any, key: Any, mantissas: Any) -> np.ndarray | None:
-    """Ciphertexts of ``mantissas`` under the private ``key`` as ``(m, NL)`` normal-form limbs, or
-    None where the kernel path does not apply (module docstring): the caller encrypts on the CPU."""
+def owner_limbs(launcher: Any, key: Any, mantissas: Any) -> Any:
+    """Ciphertexts of ``mantissas`` under the private ``key`` as ``(m, NL)`` normal-form limbs in the
+    launcher's arrays (on a device, a device array: ``launcher.host`` downloads it), or None where the
+    kernel path does not apply (module docstring): the caller encrypts on the CPU."""
     x = np.asarray(mantissas)
     if not _kernel_sized(x, int(key.public_key.n)):
         return None
@@ -211,8 +212,9 @@ def decrypt_limbs(launcher: Any, key: Any, limbs: np.ndarray) -> list[int]:
     return from_limbs(launcher.decrypt(c, tables))
 
 
-def public_limbs(launcher: Any, key: Any, mantissas: Any) -> np.ndarray | None:
-    """Ciphertexts of ``mantissas`` under the public ``key`` as ``(m, NL)`` normal-form limbs —
+def public_limbs(launcher: Any, key: Any, mantissas: Any) -> Any:
+    """Ciphertexts of ``mantissas`` under the public ``key`` as ``(m, NL)`` normal-form limbs in the
+    launcher's arrays —
     ``(1 + x·n)·r^n mod n²``, ``r`` uniform in ``Z_n^*`` from :func:`os.urandom` (``r = 0`` and
     ``gcd(r, n) ≠ 1`` redrawn, as :class:`hevr.PublicKey` does) — or None where the kernel path
     does not apply (mantissas beyond int64): the caller encrypts on the CPU."""
