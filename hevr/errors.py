@@ -35,6 +35,7 @@ __all__ = [
     "ExistingFileError",
     "NotRegularFileError",
     "FileSystemError",
+    "RemoteError",
     "InsecureKeyWarning",
     "KeyFilePermissionWarning",
 ]
@@ -179,6 +180,22 @@ class FileSystemError(HevrError, OSError):
 
     def __str__(self) -> str:
         return str(self.strerror)
+
+
+class RemoteError(HevrError, ConnectionError):
+    """A render server (``hevr serve``, :func:`hevr.connect`) failed, refused the request or sent
+    something that is not a valid answer: unreachable, timed out, a TLS failure, an error document,
+    a forged, truncated, oversized or compressed answer. ``status`` is the HTTP status (None when
+    none came) and ``problem`` the server's RFC 9457 problem document, parsed as data (or None).
+
+    >>> str(RemoteError("server: expected an image, got HTTP 503 (busy)", status=503))
+    'server: expected an image, got HTTP 503 (busy)'
+    """
+
+    def __init__(self, message: str, *, status: int | None = None, problem: dict | None = None) -> None:
+        super().__init__(message)
+        self.status = status
+        self.problem = problem
 
 
 class InsecureKeyWarning(UserWarning):

@@ -19,6 +19,7 @@ there the file is written in one request, which an object store makes visible wh
 from __future__ import annotations
 
 import base64
+import hashlib
 import io
 import json
 import logging
@@ -51,7 +52,7 @@ from .store.paths import (
     write_output,
 )
 
-__all__ = ["EncryptedImage", "load_image", "save_png"]
+__all__ = ["EncryptedImage", "image_from_bytes", "load_image", "save_png"]
 
 log = logging.getLogger(__name__)
 
@@ -312,12 +313,26 @@ class EncryptedImage:
             log.warning("a verified frame written to %s: its check is only as trustworthy as the file; whoever can "
                         "write there (the server?) can defeat it; keep verified frames where only you can write",
                         str(where).split("?")[0])
+        write_output(where, self._parts(), so, overwrite=overwrite, doing="writing the encrypted image")
+
+    def _parts(self) -> list:
+        """The file's bytes before its SHA-256 trailer: magic, header length, header, records."""
         head = json.dumps(self._header(), separators=(",", ":")).encode()
         parts = [MAGIC, struct.pack("<I", len(head)), head]
         parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in self.ciphertexts]
         if self.finish == "client":  # the public sample counts the client divides by
             parts.append(np.ascontiguousarray(self.samples, dtype="<u4").reshape(-1))
-        write_output(where, parts, so, overwrite=overwrite, doing="writing the encrypted image")
+        return parts
+
+    def to_bytes(self) -> bytes:
+        """The ``.hevr`` file as bytes (what :meth:`save` writes; :func:`image_from_bytes` reads it);
+        ``hevr serve`` answers a render with them. Checked first, as :meth:`save` does."""
+        check_image(self)
+        parts = self._parts()
+        digest = hashlib.sha256()
+        for part in parts:
+            digest.update(part)
+        return b"".join(bytes(memoryview(p).cast("B")) for p in parts) + digest.digest()
 
 
 def _unpack_checked(plain: list[int], need: int, pack_bits: int, per_pack: int,
@@ -381,6 +396,14 @@ def load_image(path: str | Path, *, storage_options: dict | None = None) -> Encr
     # never blocks: a FIFO, a folder or a device is a NotRegularFileError before a byte is read
     blob = read_regular(path, "path", "an encrypted image file")
     return _from_blob(blob, str(path))
+
+
+def image_from_bytes(blob: bytes, where: str = "image") -> EncryptedImage:
+    """The image in the bytes of a ``.hevr`` file, checked as :func:`load_image` checks a file
+    (``where`` names it in messages): data only, every field bounded before it is used."""
+    if not isinstance(blob, (bytes, bytearray, memoryview)):
+        raise ParameterError(f"blob: expected the bytes of a .hevr file, got {type(blob).__name__}")
+    return _from_blob(bytes(blob), where)
 
 
 def _from_blob(blob: bytes, path: str) -> EncryptedImage:

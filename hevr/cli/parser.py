@@ -75,6 +75,8 @@ COMMANDS: tuple[Command, ...] = (
             ".arguments:upgrade_store_arguments", ".commands:cmd_upgrade_store"),
     Command("pyramid", "add coarse levels (2x2x2 means) to a store, for quick previews (no key needed)",
             ".render_arguments:pyramid_arguments", ".pyramid:cmd_pyramid"),
+    Command("serve", "serve encrypted stores to key holders over HTTP(S) (renders on the cluster; no key)",
+            ".serve:serve_arguments", ".serve:cmd_serve"),
     Command("demo", "the whole pipeline on the paper's figures, no input needed",
             ".render_arguments:demo_arguments", ".demo:cmd_demo"),
     Command("bench", "benchmarks: the paper's Tables 1-3, limits, python-paillier, scaling",

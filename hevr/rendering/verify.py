@@ -78,7 +78,7 @@ log = logging.getLogger(__name__)
 _STORE_ID = re.compile(r"[0-9a-f]{16}")
 _WARNED: set = set()
 
-__all__ = ["Verification", "aggregate_tile", "level_betas", "resolve_verify", "tag_aggregate"]
+__all__ = ["Verification", "aggregate_for", "aggregate_tile", "level_betas", "resolve_verify", "tag_aggregate"]
 
 
 def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bool, stream: bool) -> bool:
@@ -177,10 +177,22 @@ def aggregate_tile(merged: Any, seed: bytes, width: int, components: int, nsquar
 def tag_aggregate(ev: Any, camera: Any, rays: RaySet, sampling: str, step: float, digits: int, channel: str,
                   tile: int, n_tiles: int, backend: str, client: Any, progress: bool,
                   exponent: int = 0) -> Verification:
-    """Steps 2-3 of the module docstring, after the image: a fresh seed, the tag channel's graph
-    with the image's plan and one aggregation task per tile; the :class:`Verification` to keep."""
+    """Steps 2-3 of the module docstring, after the image: a fresh seed drawn here, the tag
+    channel's graph with the image's plan and one aggregation task per tile; the
+    :class:`Verification` to keep."""
     seed = secrets.token_bytes(32)
     t0 = time.perf_counter()
+    A = aggregate_for(ev, camera, rays, sampling, step, digits, channel, tile, n_tiles, backend, client, progress,
+                      seed)
+    return Verification.of(ev, camera, sampling, step, digits, channel, exponent=exponent, aggregate=A, seed=seed,
+                           server_s=time.perf_counter() - t0)
+
+
+def aggregate_for(ev: Any, camera: Any, rays: RaySet, sampling: str, step: float, digits: int, channel: str,
+                  tile: int, n_tiles: int, backend: str, client: Any, progress: bool, seed: bytes) -> int:
+    """The server's half of the round for the coefficients of ``seed``: A = Π_t A_t mod n² over the
+    tag channel's ray sums of the image's plan (``hevr serve`` runs it for a seed the key holder sent
+    after it held the image)."""
     plain = ev._plain()  # the tags are always read from the store
     graph = build_sums_graph(plain, camera, rays, sampling, step, digits, tag_channel(channel), tile, n_tiles, backend)
     K, W, n2 = ev.meta.components(channel), ev.meta.ciphertext_bytes, int(ev.public_key.nsquare)
@@ -191,11 +203,7 @@ def tag_aggregate(ev: Any, camera: Any, rays: RaySet, sampling: str, step: float
     for rec in parts:
         if rec is not None:
             A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
-    return Verification(aggregate=int(A), seed=seed, store_id=ev.meta.store_id, channel=channel, shape=ev.shape,
-                        spacing=ev.spacing, brick=ev.brick, camera=camera, sampling=sampling, step=step, digits=digits,
-                        components=K, n=int(ev.public_key.n), level=ev.level, exponent=int(exponent),
-                        base_shape=tuple(ev.base.shape) if ev.level else tuple(ev.shape),
-                        server_s=time.perf_counter() - t0)
+    return int(A)
 
 
 @dataclass(frozen=True, repr=False)
@@ -223,6 +231,17 @@ class Verification:
 
     def __repr__(self) -> str:
         return f"Verification({self.channel}, {self.components} per ray, seed …)"
+
+    @classmethod
+    def of(cls, ev: Any, camera: Any, sampling: str, step: float, digits: int, channel: str, *, exponent: int,
+           aggregate: int, seed: bytes, server_s: float = 0.0) -> Verification:
+        """The record of a round on the volume (or level view) ``ev`` as the key holder knows it:
+        every field but the aggregate comes from this process, never from the server."""
+        return cls(aggregate=int(aggregate), seed=seed, store_id=ev.meta.store_id, channel=channel, shape=ev.shape,
+                   spacing=ev.spacing, brick=ev.brick, camera=camera, sampling=sampling, step=step, digits=digits,
+                   components=ev.meta.components(channel), n=int(ev.public_key.n), level=ev.level,
+                   exponent=int(exponent), base_shape=tuple(ev.base.shape) if ev.level else tuple(ev.shape),
+                   server_s=server_s)
 
     def to_dict(self) -> dict[str, Any]:
         """The record a ``.hevr`` file carries (public: a ciphertext, a seed, the request's geometry)."""

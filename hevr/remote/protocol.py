@@ -1,0 +1,278 @@
+"""The wire protocol between ``hevr serve`` and :func:`hevr.connect`: requests as strict JSON,
+answers as data only.
+
+Nothing that crosses the wire can carry code: requests are JSON objects checked field by field
+(unknown fields refused, every number bounded), answers are a ``.hevr`` image (its own strict
+parser, :mod:`hevr._image_header`), length-prefixed finishing units, JSON documents and RFC 9457
+problem documents. Neither side ever unpickles what the other sends.
+
+Endpoints (``/v1``; the OpenAPI document at ``/v1/openapi.json``, :mod:`hevr.serve.openapi`)::
+
+    GET  /v1                          the server's protocol version
+    GET  /v1/stores                   the stores this token may render: id and public metadata
+    GET  /v1/stores/{id}              one store's public metadata (its ``hevr`` attributes)
+    POST /v1/stores/{id}/render       RenderRequest          -> application/vnd.hevr.image
+    POST /v1/stores/{id}/stream       RenderRequest          -> application/vnd.hevr.units
+    POST /v1/stores/{id}/verify       VerifyRequest          -> {"aggregate": "<decimal>"}
+
+A render request names a *channel*, never a mode, a density or a transfer function: frames are
+finished on the client (:mod:`hevr.colour`), so the colouring never leaves the key holder.
+
+The units stream: one frame per finishing unit as it completes, ``index`` (u32, little-endian),
+``length`` (u32) and ``length`` bytes of ciphertext records; then an end frame, index
+``0xFFFFFFFF``, whose body is a JSON object: ``{"ok": true}`` or a problem document.
+
+>>> r = RenderRequest.from_dict({"view": {"position": [0, 0, 40], "focal_point": [0, 0, 0], "width": 8,
+...                                       "height": 8}, "channel": "scalar"})
+>>> RenderRequest.from_dict(r.to_dict()) == r, r.sampling, r.level
+(True, 'nearest', 0)
+>>> RenderRequest.from_dict(dict(r.to_dict(), colour="red"))
+Traceback (most recent call last):
+...
+hevr.errors.ParameterError: request: expected only the fields ['backend', 'channel', 'digits', 'level', 'pack', 'sampling', 'step', 'tile', 'view'], got extra fields ['colour']
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+from .._image_header import _no_duplicates, _small_int
+from ..errors import HevrError, ParameterError
+from ..rendering.camera import Camera
+from ..rendering.plane import Plane, view_from_dict
+
+__all__ = ["API_VERSION", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_SIDE", "PROBLEM_MEDIA", "UNITS_MEDIA",
+           "RenderRequest", "VerifyRequest", "pack_frame", "parse_json", "unpack_head"]
+
+API_VERSION = 1
+PREFIX = "/v1"
+IMAGE_MEDIA = "application/vnd.hevr.image"
+UNITS_MEDIA = "application/vnd.hevr.units"
+PROBLEM_MEDIA = "application/problem+json"
+MAX_BODY = 64 * 1024  # a request body: a camera and a few numbers are a few hundred bytes
+MAX_SIDE = 4096  # pixels per image side over the wire
+MAX_PIXELS = 4096 * 4096
+MAX_STEP = 1e6
+CHANNELS = ("scalar", "vector", "gradient")
+SAMPLINGS = ("nearest", "trilinear")
+BACKENDS = ("auto", "cpu", "cuda-host", "cuda")
+END = 0xFFFFFFFF  # the index of a units stream's end frame
+FRAME = struct.Struct("<II")
+MAX_JSON_DEPTH = 32
+
+
+def parse_json(raw: bytes, name: str) -> Any:
+    """Strict JSON of at most :data:`MAX_BODY` bytes: UTF-8, no duplicate keys, no NaN or
+    Infinity, integers of at most 40 digits, bounded nesting; a :class:`hevr.ParameterError`
+    naming ``name`` otherwise.
+
+    >>> parse_json(b'{"a": 1}', "body")
+    {'a': 1}
+    >>> parse_json(b'{"a": 1, "a": 2}', "body")
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: body: expected a JSON document, got duplicate key 'a'
+    """
+    if len(raw) > MAX_BODY:
+        raise ParameterError(f"{name}: expected at most {MAX_BODY} bytes of JSON, got {len(raw)}")
+    if raw.count(b"[") + raw.count(b"{") > 4 * MAX_JSON_DEPTH * 16:
+        raise ParameterError(f"{name}: expected a small JSON document, got too many '[' and '{{'")
+
+    def no_constant(text: str) -> Any:
+        raise ValueError(f"{text} (not JSON)")
+
+    try:
+        doc = json.loads(raw.decode("utf-8"), object_pairs_hook=_no_duplicates, parse_int=_small_int,
+                         parse_constant=no_constant)
+    except RecursionError:
+        raise ParameterError(f"{name}: expected a JSON document, got one nested too deeply") from None
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, the hooks'
+        raise ParameterError(f"{name}: expected a JSON document, got {str(exc)[:160]}") from None
+    if _depth(doc) > MAX_JSON_DEPTH:
+        raise ParameterError(f"{name}: expected a JSON document nested at most {MAX_JSON_DEPTH} deep")
+    return doc
+
+
+def _depth(doc: Any, level: int = 0) -> int:
+    if level > MAX_JSON_DEPTH:
+        return level
+    if isinstance(doc, dict):
+        return max([_depth(v, level + 1) for v in doc.values()] or [level + 1])
+    if isinstance(doc, list):
+        return max([_depth(v, level + 1) for v in doc] or [level + 1])
+    return level
+
+
+def _fields(d: Any, name: str, allowed: set[str], required: set[str]) -> dict:
+    if not isinstance(d, dict):
+        raise ParameterError(f"{name}: expected a JSON object, got {type(d).__name__}")
+    extra = sorted(set(d) - allowed)
+    if extra:
+        raise ParameterError(f"{name}: expected only the fields {sorted(allowed)}, got extra fields {extra}")
+    missing = sorted(required - set(d))
+    if missing:
+        raise ParameterError(f"{name}: expected the fields {sorted(required)}, missing {missing}")
+    return d
+
+
+def _int(d: dict, name: str, lo: int, hi: int, default: int) -> int:
+    v = d.get(name, default)
+    if type(v) is not int or not lo <= v <= hi:
+        raise ParameterError(f"{name}: expected an integer in [{lo}, {hi}], got {str(v)[:40]!r}")
+    return v
+
+
+def _choice(d: dict, name: str, choices: tuple, default: Any) -> Any:
+    v = d.get(name, default)
+    if v not in choices or (v is not None and not isinstance(v, str)):
+        raise ParameterError(f"{name}: expected one of {list(choices)}, got {str(v)[:40]!r}")
+    return v
+
+
+def _view(data: Any) -> Camera | Plane:
+    """A camera or plane from JSON, bounded before it is built (its own checks follow)."""
+    if not isinstance(data, dict):
+        raise ParameterError(f"view: expected a camera or plane object, got {type(data).__name__}")
+    for side in ("width", "height"):
+        v = data.get(side)
+        if v is not None and (type(v) is not int or not 1 <= v <= MAX_SIDE):
+            raise ParameterError(f"view.{side}: expected an integer in [1, {MAX_SIDE}], got {str(v)[:40]!r}")
+    for key, v in data.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ParameterError(f"view.{key}: expected a finite number, got {v!r}")
+    try:
+        view = view_from_dict(data)
+    except HevrError as exc:
+        raise ParameterError(f"view: expected a camera or plane ({exc})") from None
+    except (TypeError, ValueError, OverflowError) as exc:  # a constructor's own checks on odd JSON
+        raise ParameterError(f"view: expected a camera or plane, got {type(exc).__name__}: {str(exc)[:120]}") from None
+    if view.width * view.height > MAX_PIXELS:
+        raise ParameterError(f"view: expected at most {MAX_PIXELS} pixels, got {view.width}x{view.height}")
+    return view
+
+
+@dataclass(frozen=True)
+class RenderRequest:
+    """What the key holder asks ``hevr serve`` to render: a view and what to sum, nothing of the
+    colouring (module docstring). Validated in ``__post_init__``; ``to_dict``/``from_dict`` are the
+    wire form, :meth:`key` a stable identity.
+
+    Parameters
+    ----------
+    view : Camera or Plane
+        The camera (level 0's frame, as :func:`hevr.render` takes it) or the slice plane.
+    channel : {"scalar", "vector", "gradient"}
+    sampling : {"nearest", "trilinear"}
+    step : float
+        Sample spacing in world units (a plane: its slab step).
+    level : int
+        Pyramid level (0: the volume).
+    digits : int
+        Decimal digits of the trilinear weights.
+    pack : bool
+    tile : int
+    backend : str, optional
+        The server's arithmetic backend (None: the server's default).
+    """
+
+    view: Camera | Plane
+    channel: str
+    sampling: str = "nearest"
+    step: float = 1.0
+    level: int = 0
+    digits: int = 3
+    pack: bool = True
+    tile: int = 32
+    backend: str | None = None
+
+    FIELDS = ("view", "channel", "sampling", "step", "level", "digits", "pack", "tile", "backend")
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.view, (Camera, Plane)):
+            raise ParameterError(f"view: expected a hevr.Camera or hevr.Plane, got {type(self.view).__name__}")
+        _choice({"channel": self.channel}, "channel", CHANNELS, None)
+        _choice({"sampling": self.sampling}, "sampling", SAMPLINGS, None)
+        step = self.step
+        if type(step) not in (int, float) or not (0 < step <= MAX_STEP) or not math.isfinite(step):
+            raise ParameterError(f"step: expected a number in (0, {MAX_STEP:g}], got {str(step)[:40]!r}")
+        object.__setattr__(self, "step", float(step))
+        _int({"level": self.level}, "level", 0, 8, 0)
+        if isinstance(self.view, Plane) and self.level:
+            raise ParameterError(f"level: expected 0 for a plane (slices have no level), got {self.level}")
+        _int({"digits": self.digits}, "digits", 0, 9, 3)
+        _int({"tile": self.tile}, "tile", 1, MAX_SIDE, 32)
+        if type(self.pack) is not bool:
+            raise ParameterError(f"pack: expected true or false, got {str(self.pack)[:40]!r}")
+        _choice({"backend": self.backend}, "backend", (None, *BACKENDS), None)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"view": self.view.to_dict(), "channel": self.channel, "sampling": self.sampling, "step": self.step,
+                "level": self.level, "digits": self.digits, "pack": self.pack, "tile": self.tile,
+                "backend": self.backend}
+
+    @classmethod
+    def from_dict(cls, d: Any, name: str = "request") -> RenderRequest:
+        d = _fields(d, name, set(cls.FIELDS), {"view", "channel"})
+        return cls(view=_view(d["view"]), channel=d["channel"], sampling=d.get("sampling", "nearest"),
+                   step=d.get("step", 1.0), level=d.get("level", 0), digits=d.get("digits", 3),
+                   pack=d.get("pack", True), tile=d.get("tile", 32), backend=d.get("backend"))
+
+    def key(self) -> str:
+        """SHA-256 of the canonical JSON: equal across processes."""
+        text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    @property
+    def pixels(self) -> int:
+        return self.view.width * self.view.height
+
+
+@dataclass(frozen=True)
+class VerifyRequest:
+    """The verification round: the render asked before and the seed the key holder drew *after* it
+    held the image (:mod:`hevr.rendering.verify`); the server answers the tag aggregate.
+
+    >>> cam = {"position": [0, 0, 40], "focal_point": [0, 0, 0], "width": 4, "height": 4}
+    >>> v = VerifyRequest.from_dict({"render": {"view": cam, "channel": "scalar"}, "seed": "ab" * 32})
+    >>> len(v.seed), VerifyRequest.from_dict(v.to_dict()) == v
+    (32, True)
+    """
+
+    render: RenderRequest
+    seed: bytes
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.render, RenderRequest):
+            raise ParameterError(f"render: expected a RenderRequest, got {type(self.render).__name__}")
+        if not isinstance(self.seed, bytes) or len(self.seed) != 32:
+            raise ParameterError("seed: expected 32 bytes")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"render": self.render.to_dict(), "seed": self.seed.hex()}
+
+    @classmethod
+    def from_dict(cls, d: Any, name: str = "request") -> VerifyRequest:
+        d = _fields(d, name, {"render", "seed"}, {"render", "seed"})
+        seed = d["seed"]
+        if not (isinstance(seed, str) and len(seed) == 64 and all(c in "0123456789abcdef" for c in seed)):
+            raise ParameterError(f"seed: expected 64 lower-case hex digits, got {str(seed)[:80]!r}")
+        return cls(render=RenderRequest.from_dict(d["render"], "render"), seed=bytes.fromhex(seed))
+
+
+def pack_frame(index: int, body: bytes) -> bytes:
+    """One frame of the units stream: index and length (u32 LE each), then the bytes.
+
+    >>> unpack_head(pack_frame(3, b"abc")[:8])
+    (3, 3)
+    """
+    return FRAME.pack(index, len(body)) + body
+
+
+def unpack_head(head: bytes) -> tuple[int, int]:
+    """The (index, length) of a frame's 8-byte head."""
+    return FRAME.unpack(head)

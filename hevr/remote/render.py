@@ -1,0 +1,172 @@
+"""A render of a :class:`~hevr.remote.volume.RemoteVolume`: the request goes to ``hevr serve``, the
+image comes back as data, and the key holder decides whether it is the one it asked for.
+
+The key holder computes the whole public side of the answer itself — the rays, the render plan,
+the image's fields (shape, exponent, offset, bound, packing, hit mask, sample counts, info:
+:func:`~hevr.rendering.sums.image_fields`), the finishing units of a streamed frame — from the
+request and the store's public metadata, exactly as :func:`hevr.render` does in process. The
+server's ``.hevr`` answer is parsed by the format's strict reader and must agree field by field;
+only its ciphertexts are taken. So the image (and its file) is the in-process one, byte for byte,
+and a server cannot change what a frame means by editing its header.
+
+Verified renders: the key holder draws the seed *after* it holds the image (the server never
+sees it before it has committed to the ciphertexts) and sends it in a second request; the
+server's answer is one aggregate ciphertext; everything else of the
+:class:`~hevr.rendering.verify.Verification` — store id, view, level, step, channel, exponent —
+is this process's own request, never the server's word.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+import time
+from typing import Any
+
+import numpy as np
+
+from .._image_checks import check_image
+from .._tiles import TileLayout
+from .._validate import check_int
+from ..errors import HevrError, IntegrityError, ParameterError, RemoteError
+from ..image import EncryptedImage, image_from_bytes
+from ..rendering.graph import FinishGraph
+from ..rendering.planner import check_render_size, plan_render
+from ..rendering.rays import cast_rays
+from ..rendering.request import at_level, level_step
+from ..rendering.sums import image_fields, with_colouring
+from ..rendering.verify import Verification, resolve_verify
+from .protocol import MAX_BODY, RenderRequest, VerifyRequest, parse_json
+from .client import image_limit
+
+log = logging.getLogger(__name__)
+
+__all__ = ["render_remote"]
+
+_FIELDS = ("shape", "exponent", "offset", "fingerprint", "n", "tile", "pack_bits", "per_pack", "bound", "finish",
+           "channel", "components", "info")
+
+
+def _same(name: str, want: Any, got: Any) -> bool:
+    if name in ("hits", "samples"):
+        return got is not None and np.array_equal(np.asarray(want), np.asarray(got))
+    if name == "shape":
+        return tuple(want) == tuple(got)
+    return want == got
+
+
+def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: int, pack: bool, tile: int,
+                  client: Any, compute: bool, keep_sums: Any, finish: str, stream: Any, verify: Any,
+                  backend: str | None, progress: bool) -> EncryptedImage:
+    """:func:`hevr.render`'s work for a remote volume (``spec`` checked by the caller)."""
+    if client is not None:
+        raise ParameterError(f"client: expected None for a remote volume (the server renders on its own cluster), "
+                             f"got {type(client).__name__}")
+    if not compute:
+        raise ParameterError("compute: expected True for a remote volume (the server computes now), got False")
+    if keep_sums is not None:
+        raise ParameterError("keep_sums: expected None for a remote volume (the ray sums stay on the server)")
+    if finish != "client":
+        raise ParameterError(f"finish: expected 'client' for a remote volume (server finishing would send the "
+                             f"colouring to the server), got {finish!r}")
+    tile = check_int("tile", tile, 1, 4096)
+    t0 = time.perf_counter()
+    ev, cam = at_level(rv, view, level)
+    spec_l = level_step(spec, ev, cam)
+    verified = resolve_verify(verify, ev, finish, level=ev.level, compute=True, stream=stream is not None)
+    checked = check_render_size(cam, ev.shape, ev.spacing, spec_l.step)
+    rays = checked if checked is not None else cast_rays(cam, ev.shape, ev.spacing, spec_l.step)
+    n = int(ev.public_key.n)
+    plan = plan_render(n=n, spec=spec_l, meta=ev.meta, n_samples=rays.n_samples,
+                       digits=digits if spec_l.sampling == "trilinear" else 0, precision=0, comb_digits=1, pack=pack,
+                       combination=None, finish="client")
+    fields = image_fields(spec_l, plan, cam, rays.n_samples, ev.meta, tile, level=ev.level)
+    req = RenderRequest(view=view, channel=spec.channel, sampling=spec.sampling, step=spec.step, level=ev.level,
+                        digits=int(digits), pack=bool(pack), tile=tile, backend=backend)
+    H, W = cam.height, cam.width
+    limit = image_limit(H, W, plan.channels_out, ev.meta.ciphertext_bytes)
+    server, where = rv.server, f"/v1/stores/{rv.store_id}"
+    stats: dict = {"remote": server.url, "backend": "remote", "resident": None, "map_tasks": None}
+    if stream is not None:
+        layout = TileLayout(W, H, tile)
+        graph = FinishGraph.plan_units(plan, layout, rays.n_samples, n, "cpu")
+        stream.start(graph, fields)
+        units: list = [None] * len(graph.units)
+        width = ev.meta.ciphertext_bytes
+        for index, data in server.frames(f"{where}/stream", req.to_dict(), limit):
+            if not 0 <= index < len(units) or units[index] is not None or len(data) % width:
+                raise RemoteError(f"server {server.url}: the stream's unit {index}: expected a new unit of "
+                                  f"0-{len(units) - 1} of whole {width}-byte records")
+            unit = np.frombuffer(data, dtype=np.uint8).reshape(-1, width)
+            stream.unit(index, unit)
+            units[index] = unit
+        if any(u is None for u in units):
+            raise RemoteError(f"server {server.url}: the stream ended with {sum(u is None for u in units)} of "
+                              f"{len(units)} units missing")
+        cts = graph.assemble(units)
+        stats["gathered_bytes"] = sum(int(u.nbytes) for u in units)
+    else:
+        blob, headers = server.request("POST", f"{where}/render", body=req.to_dict(),
+                                       accept="application/vnd.hevr.image", limit=limit)
+        try:
+            got = image_from_bytes(blob, f"server {server.url}: the image")
+        except HevrError as exc:
+            raise RemoteError(f"server {server.url}: expected a valid .hevr image, got one that fails its checks "
+                              f"({exc})") from None
+        for name in _FIELDS + ("hits", "samples"):
+            if not _same(name, fields[name], getattr(got, name)):
+                raise RemoteError(f"server {server.url}: the image's {name!r} is not the one this request implies "
+                                  "(another render, or a forged header); no image is returned")
+        cts = got.ciphertexts
+        stats["gathered_bytes"] = len(blob)
+        stats.update(_server_stats(headers.get("x-hevr-stats")))
+    stats["seconds"] = time.perf_counter() - t0
+    img = EncryptedImage(ciphertexts=list(cts), stats=stats, **with_colouring(fields, spec_l))
+    try:
+        check_image(img)
+    except IntegrityError as exc:
+        raise RemoteError(f"server {server.url}: the image's ciphertexts do not fit the request ({exc})") from None
+    if verified:  # the image is fixed in this process: only now the seed (module docstring)
+        t1 = time.perf_counter()
+        seed = secrets.token_bytes(32)
+        body = VerifyRequest(render=req, seed=seed).to_dict()
+        raw, _ = server.request("POST", f"{where}/verify", body=body, limit=MAX_BODY)
+        aggregate = _aggregate(raw, n, server.url)
+        img.verification = Verification.of(ev, cam, spec_l.sampling, spec_l.step, plan.weight_digits, plan.channel,
+                                           exponent=plan.exponent, aggregate=aggregate, seed=seed,
+                                           server_s=time.perf_counter() - t1)
+        img.stats["verify_s"] = img.verification.server_s
+        img.stats["seconds"] = time.perf_counter() - t0
+    log.info("remote render %s %dx%d: %s", spec.channel, W, H, img.stats)
+    return img
+
+
+def _aggregate(raw: bytes, n: int, url: str) -> int:
+    try:
+        doc = parse_json(raw, "the verification answer")
+    except HevrError as exc:
+        raise RemoteError(f"server {url}: {exc}") from None
+    agg = doc.get("aggregate") if isinstance(doc, dict) and set(doc) == {"aggregate"} else None
+    if not (isinstance(agg, str) and agg.isdigit() and len(agg) <= 2 * len(str(n)) and 0 < int(agg) < n * n):
+        raise RemoteError(f"server {url}: the verification answer: expected {{\"aggregate\": a ciphertext in (0, n²) "
+                          "as a decimal string}")
+    return int(agg)
+
+
+def _server_stats(text: str | None) -> dict:
+    """The server's public statistics header, as data: only known keys of plain types."""
+    if not text or len(text) > 1024:
+        return {}
+    try:
+        doc = parse_json(text.encode("latin-1", "replace"), "X-Hevr-Stats")
+    except HevrError:
+        return {}
+    if not isinstance(doc, dict):
+        return {}
+    out = {}
+    for key, kinds in (("map_tasks", int), ("finish_tasks", int), ("reused_ray_sums", bool), ("resident", bool),
+                       ("backend", str), ("seconds", float)):
+        v = doc.get(key)
+        if isinstance(v, kinds) and not (kinds is int and isinstance(v, bool)):
+            out[("server_" + key) if key in ("seconds", "backend") else key] = v if not isinstance(v, str) else v[:32]
+    return out

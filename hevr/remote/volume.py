@@ -1,0 +1,103 @@
+"""A store served by ``hevr serve``, as the key holder sees it: :class:`RemoteVolume`.
+
+It is an :class:`hevr.EncryptedVolume` without a path to read: its public metadata came from the
+server (parsed by :meth:`hevr.store.metadata.VolumeMetadata.from_dict`, the same strict parser
+that opens a local store), so everything the key holder computes from public data — cameras
+(:meth:`hevr.Camera.orbit`), planes, error bounds, the render plan, the image's every public
+field — is computed here, in the key holder's process, and the server's answer must match it.
+:func:`hevr.render`, :func:`hevr.render_slice`, :func:`hevr.render_frame` and :class:`hevr.Viewer`
+take it as they take a local volume and send the request to the server
+(:mod:`hevr.remote.render`); the frames are the in-process ones, byte for byte.
+
+It holds no brick: :meth:`persist` and brick reads are refused (the server decides residency:
+``hevr serve --persist``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..errors import CorruptStoreError, ParameterError, RemoteError
+from ..store.metadata import VolumeMetadata
+from ..store.reader import EncryptedVolume
+from ..volume.pyramid import check_level
+
+__all__ = ["RemoteVolume", "parse_description"]
+
+MAX_N_DIGITS = 1300  # a 4096-bit modulus has 1234 decimal digits
+
+
+def parse_description(item: Any, url: str) -> tuple[str, VolumeMetadata]:
+    """(store id, metadata) of a store description ``{"id", "metadata"}`` from the server;
+    :class:`hevr.RemoteError` naming what is wrong."""
+    if not isinstance(item, dict) or set(item) != {"id", "metadata"}:
+        raise RemoteError(f"server {url}: a store description: expected an object with exactly 'id' and "
+                          "'metadata'")
+    sid, raw = item["id"], item["metadata"]
+    if not (isinstance(sid, str) and len(sid) == 16 and all(c in "0123456789abcdef" for c in sid)):
+        raise RemoteError(f"server {url}: a store description: id: expected 16 hex digits, got {str(sid)[:40]!r}")
+    pk = raw.get("public_key") if isinstance(raw, dict) else None
+    if not (isinstance(pk, dict) and isinstance(pk.get("n"), str) and 0 < len(pk["n"]) <= MAX_N_DIGITS):
+        raise RemoteError(f"server {url}: store {sid}: n: expected a modulus of at most {MAX_N_DIGITS} decimal digits")
+    try:
+        meta = VolumeMetadata.from_dict(raw, where=f"server {url}: store {sid}")
+    except CorruptStoreError as exc:
+        raise RemoteError(str(exc)) from None
+    except (ValueError, TypeError, OverflowError) as exc:
+        raise RemoteError(f"server {url}: store {sid}: metadata: {type(exc).__name__}") from None
+    if meta.store_id != sid:
+        raise RemoteError(f"server {url}: store {sid}: its metadata names the store {meta.store_id}")
+    if not meta.complete:
+        raise RemoteError(f"server {url}: store {sid}: expected a complete store, got an incomplete one")
+    try:
+        from ..crypto.keys import PublicKey
+        if PublicKey(int(meta.n)).fingerprint != meta.fingerprint:
+            raise RemoteError(f"server {url}: store {sid}: the key fingerprint does not match the modulus n")
+    except (ValueError, ParameterError) as exc:
+        raise RemoteError(f"server {url}: store {sid}: n: {exc}") from None
+    return sid, meta
+
+
+class RemoteVolume(EncryptedVolume):
+    """A store on a render server (:meth:`hevr.remote.client.Server.open`)."""
+
+    def __init__(self, server: Any, store_id: str, meta: VolumeMetadata, level: int = 0,
+                 base: VolumeMetadata | None = None) -> None:
+        super().__init__(f"{server.url}/v1/stores/{store_id}", meta, level, base)
+        self.server = server
+        self.store_id = store_id
+
+    @property
+    def remote(self) -> Any:
+        """The server this volume is rendered on."""
+        return self.server
+
+    def __repr__(self) -> str:
+        return f"RemoteVolume({self.path!r}, shape={self.shape}, brick={self.brick}, key={self.meta.fingerprint[:16]}…)"
+
+    def __getstate__(self) -> dict:
+        raise TypeError("a RemoteVolume is not pickled: it holds a connection (open it again with hevr.connect)")
+
+    def at_level(self, level: int) -> RemoteVolume:
+        base = self.base if self.level else self.meta
+        ev0 = self if not self.level else RemoteVolume(self.server, self.store_id, base)
+        level = check_level(level, ev0.levels)
+        if level == 0:
+            return RemoteVolume(self.server, self.store_id, base)
+        return RemoteVolume(self.server, self.store_id, base.level_meta(level), level, base)
+
+    def _plain(self) -> RemoteVolume:
+        return self
+
+    def persist(self, channels: Any = None, *, client: Any = None, backend: str | None = None) -> EncryptedVolume:
+        raise ParameterError("persist: expected a local volume; a remote store's residency is the server's "
+                             "(hevr serve --persist)")
+
+    def read_brick_bytes(self, *args: Any, **kwargs: Any) -> Any:
+        raise ParameterError("read_brick_bytes: a remote volume's bricks stay on the server")
+
+    def read_brick(self, *args: Any, **kwargs: Any) -> Any:
+        raise ParameterError("read_brick: a remote volume's bricks stay on the server")
+
+    def verify(self, coprime: bool = True) -> None:
+        raise ParameterError("verify: a remote store is checked by the server that reads it")

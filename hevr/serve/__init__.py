@@ -1,0 +1,25 @@
+"""``hevr serve``: the render service beside the cluster (``pip install 'hevr[serve]'``).
+
+The server side of the trust boundary (:mod:`hevr.remote` is the key holder's): a Starlette
+application run by uvicorn that renders the stores it was given on its Dask cluster and answers
+with data only. It never needs or accepts a private key, and no endpoint writes a store.
+
+==============================  ==========================================================
+:mod:`hevr.serve.app`           the ASGI application: endpoints, limits, problem documents
+:mod:`hevr.serve.jobs`          what a request runs: :func:`hevr.render`'s pipeline
+:mod:`hevr.serve.tokens`        bearer tokens per store (hashed, compared in constant time)
+:mod:`hevr.serve.openapi`       the protocol's OpenAPI document
+:mod:`hevr.serve.run`           opening the stores, the cluster and uvicorn (the CLI's)
+==============================  ==========================================================
+"""
+
+from __future__ import annotations
+
+__all__ = ["create_app"]
+
+
+def __getattr__(name: str):  # the app imports Starlette: only when asked for
+    if name == "create_app":
+        from .app import create_app
+        return create_app
+    raise AttributeError(name)

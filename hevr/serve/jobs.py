@@ -1,0 +1,84 @@
+"""What ``hevr serve`` runs for a request: the render pipeline of :func:`hevr.render`, on the
+server's Dask cluster, for a checked :class:`~hevr.remote.protocol.RenderRequest`.
+
+A request names a channel, not a mode (the colouring stays with the key holder), so a frame is
+always finished on the client: ``scalar`` is the X-ray's sums, ``vector`` and ``gradient`` the
+encoded density components that emphasis and transfer functions colour on the client. The
+server never holds a private key; these functions take none.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from .._tiles import TileLayout
+from ..backends import resolve_backend_name
+from ..errors import ParameterError
+from ..image import EncryptedImage
+from ..remote.protocol import RenderRequest
+from ..rendering.camera import Camera
+from ..rendering.encrypted import _render
+from ..rendering.plane import Plane
+from ..rendering.planner import check_render_size
+from ..rendering.rays import cast_rays
+from ..rendering.request import at_level, check_request, level_step
+from ..rendering.verify import aggregate_for
+
+__all__ = ["render_image", "stats_header", "verify_aggregate"]
+
+_PLACEHOLDER_DENSITY = 0.5  # make_spec wants one for a vector channel; client finishing never uses it
+
+
+def _mode(req: RenderRequest) -> tuple[str, float | None, bool]:
+    """The (mode, density, gradient) whose client-finished plan sums ``req.channel``."""
+    if req.channel == "scalar":
+        return "xray", None, False
+    return "emphasize", _PLACEHOLDER_DENSITY, req.channel == "gradient"
+
+
+def _step(req: RenderRequest) -> float:
+    if isinstance(req.view, Plane) and req.step != req.view.slab_step:
+        raise ParameterError(f"step: expected the plane's slab_step {req.view.slab_step:g} for a slice, "
+                             f"got {req.step:g}")
+    return req.step
+
+
+def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | None = None,
+                 stream: Any = None) -> EncryptedImage:
+    """The client-finished image of ``req`` on the store ``ev`` (``stream``: handed every
+    finishing unit as it completes, :class:`hevr.rendering.stream.StreamDecryptor`'s interface)."""
+    mode, density, gradient = _mode(req)
+    plane = isinstance(req.view, Plane)
+    return _render(ev, req.view, mode, req.sampling, _step(req), density, None, digits=req.digits, precision=4,
+                   comb_digits=4, pack=req.pack, tile=req.tile, cache=True, client=client, progress=False,
+                   backend=req.backend or backend, compute=True, keep_sums=None,
+                   views=(Plane,) if plane else (Camera,), level=req.level or None, gradient=gradient,
+                   finish="client", stream=stream, verify=False)
+
+
+def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, backend: str | None = None) -> int:
+    """The tag aggregate of ``req``'s render for the key holder's ``seed``
+    (:func:`hevr.rendering.verify.aggregate_for`; the store must have tags)."""
+    mode, density, gradient = _mode(req)
+    plane = isinstance(req.view, Plane)
+    spec, digits, _, _ = check_request(ev, req.view, mode, req.sampling, _step(req), density, None, req.digits, 4, 4,
+                                       (Plane,) if plane else (Camera,), gradient, "client")
+    ev_l, view = at_level(ev, req.view, req.level or None)
+    spec = level_step(spec, ev_l, view)
+    if not ev_l.meta.tags:
+        raise ParameterError(f"verify: expected a verifiable store, got the store {ev.meta.store_id} without tags")
+    checked = check_render_size(view, ev_l.shape, ev_l.spacing, spec.step)
+    rays = checked if checked is not None else cast_rays(view, ev_l.shape, ev_l.spacing, spec.step)
+    layout = TileLayout(view.width, view.height, req.tile)
+    name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
+    return aggregate_for(ev_l, view, rays, spec.sampling, spec.step, digits if spec.sampling == "trilinear" else 0,
+                         spec.channel, req.tile, layout.n_tiles, name, client, False, seed)
+
+
+def stats_header(stats: dict) -> str:
+    """The render's public statistics as one line of JSON (the ``X-Hevr-Stats`` header)."""
+    keep = {k: stats[k] for k in ("map_tasks", "finish_tasks", "reused_ray_sums", "resident", "backend", "seconds")
+            if k in stats}
+    return json.dumps(keep, separators=(",", ":"))
+
