@@ -11,7 +11,9 @@ Every size printed goes through :func:`~hevr.cli.util.xyz` / :func:`~hevr.cli.ut
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 from pathlib import Path
 from typing import Any
 
@@ -118,10 +120,11 @@ def resolve_mode(args: Any) -> str:
     return mode
 
 
-def open_for_mode(store: str, mode: str, verb: str, so: dict | None = None) -> Any:
-    """Open STORE (a folder or a URL, with storage options ``so``) and check that it has the channel
-    ``mode`` reads (``verb``: the command, for the hint)."""
-    ev = st.open_store(store, "STORE", so)
+def open_for_mode(store: str, mode: str, verb: str, so: dict | None = None, args: Any = None) -> Any:
+    """Open STORE (a folder or a URL, with storage options ``so``; with ``args.server``, the store id
+    on that ``hevr serve``: :func:`open_remote`) and check that it has the channel ``mode`` reads
+    (``verb``: the command, for the hint)."""
+    ev = open_remote(args) if getattr(args, "server", None) else st.open_store(store, "STORE", so)
     if mode != "xray" and not ev.vector_dims:
         raise UsageError(f"--mode {mode}: expected a store with the vector channel, got {store} without one; "
                          f"encrypt it with --vector-dims 4 (or {verb} --mode xray)")
@@ -129,6 +132,33 @@ def open_for_mode(store: str, mode: str, verb: str, so: dict | None = None) -> A
         raise UsageError(f"--mode xray: expected a store with the scalar channel, got {store} without one "
                          f"(encrypted with --no-scalar); {verb} --mode emphasize or --mode tf")
     return ev
+
+
+def open_remote(args: Any) -> Any:
+    """The store ``args.store`` (a store id) on the render server ``args.server``; the token from
+    ``$HEVR_TOKEN`` (never an argument: the process list shows arguments to every user)."""
+    if args.scheduler or args.workers:
+        raise UsageError("--server: expected no --scheduler or --workers (the server renders on its own cluster)")
+    from ..remote.client import connect
+
+    server = connect(args.server, token=os.environ.get("HEVR_TOKEN") or None, cafile=args.cafile,
+                     timeout=args.timeout)
+    return server.open(args.store)
+
+
+def compute_context(args: Any, ev: Any) -> Any:
+    """The Dask client of a local render (:func:`dask_client`), or none for a remote one."""
+    if getattr(ev, "remote", None) is not None:
+        print(f"compute: hevr serve at {ev.remote.url} (this process holds no Dask client)")
+        return contextlib.nullcontext(None)
+    return _local_client(args)
+
+
+@contextlib.contextmanager
+def _local_client(args: Any) -> Any:
+    with dask_client(args.scheduler, args.workers) as client:
+        print(f"compute: {describe_client(client)}")
+        yield client
 
 
 def cmd_render(args: Any) -> int:
@@ -139,7 +169,7 @@ def cmd_render(args: Any) -> int:
     sums = st.output_file(args.keep_sums, "--keep-sums", force=args.force, so=so) if args.keep_sums is not None else None
     if sums is not None and str(sums) == str(out):
         raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
-    ev = open_for_mode(args.store, mode, "render", so)
+    ev = open_for_mode(args.store, mode, "render", so, args)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     if args.view and ev.frame is None:
         warn_line(f"--view {args.view}: {args.store} records no patient frame (its input had no orientation); "
@@ -158,8 +188,7 @@ def cmd_render(args: Any) -> int:
     print(f"render:  {what}, {args.sampling} sampling, {wh(w, h)} px, "
           f"{f'{args.view} view, ' if args.view else ''}azimuth {args.azimuth:g}, "
           f"elevation {args.elevation:g}, step {args.step:g}{lvl}")
-    with dask_client(args.scheduler, args.workers) as client:
-        print(f"compute: {describe_client(client)}")
+    with compute_context(args, ev):
         with Timer() as t:
             img = render(ev, cam, mode=mode, sampling=args.sampling, step=args.step, density=args.density,
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,

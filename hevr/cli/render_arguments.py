@@ -41,6 +41,7 @@ from .render_options import (
     add_decrypt_colour_options,
     add_encrypt_scan_options,
     add_finish_option,
+    add_server_option,
     add_verify_option,
     add_view_option,
     format_tf,
@@ -200,6 +201,7 @@ def render_arguments(p: argparse.ArgumentParser) -> None:
                    help="decimal digits of the normalisation (--finish server; default 4)")
     add_finish_option(p)
     add_verify_option(p)
+    add_server_option(p)
     p.add_argument("--level", type=level_type, default=0, metavar="L",
                    help="render pyramid level L (hevr pyramid; default 0: the full volume)")
     p.add_argument("--keep-sums", metavar="SUMS", help="also write the view's encrypted ray sums (ciphertexts only: "
@@ -274,6 +276,7 @@ def slice_arguments(p: argparse.ArgumentParser) -> None:
                         "one plane in mode xray or emphasize; else 4)")
     add_finish_option(p)
     add_verify_option(p)
+    add_server_option(p)
 
 
 def decrypt_arguments(p: argparse.ArgumentParser) -> None:

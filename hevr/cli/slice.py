@@ -14,8 +14,7 @@ from ..paper import PAPER_TF1
 from ..rendering.plane import Plane
 from ..rendering.planner import check_render_size
 from ..rendering.slices import render_slice
-from .cluster import dask_client, describe_client
-from .commands import open_for_mode, resolve_mode, verify_argument
+from .commands import compute_context, open_for_mode, resolve_mode, verify_argument
 from .finish import report_finish
 from .render_options import format_tf
 from .scan import resolve_tf
@@ -59,7 +58,7 @@ def cmd_slice(args: Any) -> int:
         raise UsageError(f"--slab-step: only applies to a thick slab (--slab N > 1), got --slab {args.slab}")
     so = storage_options(args)
     out = output_file(args.out, force=args.force, so=so)
-    ev = open_for_mode(args.store, mode, "slice", so)
+    ev = open_for_mode(args.store, mode, "slice", so, args)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     plane, where = _plane(args, ev)
     finish = {"finish": args.finish}
@@ -72,8 +71,7 @@ def cmd_slice(args: Any) -> int:
     print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…")
     print(f"slice:   {where}, {wh(plane.width, plane.height)} px of {spacing} world units, {what}, "
           f"{args.sampling} sampling{slab}")
-    with dask_client(args.scheduler, args.workers) as client:
-        print(f"compute: {describe_client(client)}")
+    with compute_context(args, ev) as client:
         with Timer() as t:
             img = render_slice(ev, plane, mode=mode, sampling=args.sampling, density=args.density, nodes=nodes,
                                precision=args.precision, pack=not args.no_pack, client=client,

@@ -145,13 +145,14 @@ class Server:
         return answer
 
     def frames(self, path: str, body: dict, limit: int) -> Iterator[tuple[int, bytes]]:
-        """The frames (index, bytes) of a units stream, each as it arrives, up to the end frame
-        (whose JSON is checked here: a problem there is a RemoteError)."""
+        """The frames (index, bytes) of a units stream, each as it arrives, then (END, the end
+        frame's JSON object), checked here: a problem there is a RemoteError."""
         for index, data in self._exchange("POST", path, body, UNITS_MEDIA, limit, frames=True):
             if index == END:
                 status = self._json(data, "the stream's end")
                 if status.get("ok") is not True:
                     raise self._problem(200, status, "a finished stream")
+                yield END, status
                 return
             yield index, data
         raise RemoteError(f"server {self.url}: expected the stream's end frame, got the end of the answer")

@@ -36,7 +36,7 @@ from ..rendering.rays import cast_rays
 from ..rendering.request import at_level, level_step
 from ..rendering.sums import image_fields, with_colouring
 from ..rendering.verify import Verification, resolve_verify
-from .protocol import MAX_BODY, RenderRequest, VerifyRequest, parse_json
+from .protocol import END, MAX_BODY, RenderRequest, VerifyRequest, parse_json
 from .client import image_limit
 
 log = logging.getLogger(__name__)
@@ -86,7 +86,8 @@ def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: i
     H, W = cam.height, cam.width
     limit = image_limit(H, W, plan.channels_out, ev.meta.ciphertext_bytes)
     server, where = rv.server, f"/v1/stores/{rv.store_id}"
-    stats: dict = {"remote": server.url, "backend": "remote", "resident": None, "map_tasks": None}
+    stats: dict = {"remote": server.url, "backend": "remote", "resident": None, "map_tasks": None,
+                   "finish_tasks": None, "reused_ray_sums": False}
     if stream is not None:
         layout = TileLayout(W, H, tile)
         graph = FinishGraph.plan_units(plan, layout, rays.n_samples, n, "cpu")
@@ -94,6 +95,9 @@ def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: i
         units: list = [None] * len(graph.units)
         width = ev.meta.ciphertext_bytes
         for index, data in server.frames(f"{where}/stream", req.to_dict(), limit):
+            if index == END:
+                stats.update(_server_stats(data.get("stats") if isinstance(data.get("stats"), str) else None))
+                break
             if not 0 <= index < len(units) or units[index] is not None or len(data) % width:
                 raise RemoteError(f"server {server.url}: the stream's unit {index}: expected a new unit of "
                                   f"0-{len(units) - 1} of whole {width}-byte records")

@@ -1,0 +1,147 @@
+"""Remote renders through a real ``hevr serve`` (2 workers): byte for byte the in-process images,
+verified over the wire, and the key holder's process never unpickles or joins a Dask cluster."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+import hevr
+from hevr.cli.main import main
+from hevr.remote import connect
+from hevr.remote.volume import RemoteVolume
+
+NODES = [(0.2, "blue"), (0.8, "red")]
+
+
+@pytest.fixture(scope="module")
+def rv(served):
+    server = connect(served.url, timeout=120)
+    yield server.open(served.ev.meta.store_id)
+    server.close()
+
+
+def _cam(ev, **kw):
+    return hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=14, height=12, **kw)
+
+
+def test_open_describes_the_store(served, rv):
+    assert isinstance(rv, RemoteVolume) and isinstance(rv, hevr.EncryptedVolume)
+    assert rv.meta == served.ev.meta and rv.shape == served.ev.shape and rv.levels == 1
+    (item,) = rv.server.stores()
+    assert item["id"] == served.ev.meta.store_id and item["tags"] and item["channels"] == ["scalar", "vector"]
+    assert _cam(rv) == _cam(served.ev)
+    with pytest.raises(hevr.ParameterError, match="persist"):
+        rv.persist()
+
+
+@pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
+@pytest.mark.parametrize("mode", ["xray", "tf"])
+def test_render_is_the_in_process_image_byte_for_byte(served, rv, sampling, mode):
+    kw = dict(mode=mode, sampling=sampling, nodes=NODES if mode == "tf" else None, progress=False)
+    remote = hevr.render(rv, _cam(rv), verify=False, **kw)
+    local = hevr.render(served.ev, _cam(served.ev), verify=False, cache=False, **kw)
+    assert remote.to_bytes() == local.to_bytes()
+    arr = remote.decrypt(served.priv)
+    np.testing.assert_array_equal(arr, local.decrypt(served.priv))
+    ref = hevr.render_plain(served.vol, _cam(served.ev), mode=mode, sampling=sampling,
+                            nodes=NODES if mode == "tf" else None, vector_dims=3)
+    assert (np.abs(arr - ref) <= hevr.error_bound(served.ev, _cam(served.ev), mode=mode, sampling=sampling,
+                                                  nodes=NODES if mode == "tf" else None)).all()
+
+
+def test_verified_by_default_with_a_seed_drawn_here(served, rv):
+    img = hevr.render(rv, _cam(rv), sampling="trilinear", progress=False)  # the store has tags: verified
+    assert img.verification is not None and img.verification.store_id == served.ev.meta.store_id
+    assert img.verification.camera == _cam(rv)  # the key holder's own request, never the server's word
+    local = hevr.render(served.ev, _cam(served.ev), sampling="trilinear", verify=False, cache=False, progress=False)
+    np.testing.assert_array_equal(img.decrypt(served.priv), local.decrypt(served.priv))
+    pinned = hevr.render(rv, _cam(rv), progress=False, verify=served.ev.meta.store_id)
+    pinned.decrypt(served.priv)
+    with pytest.raises(hevr.VerificationError, match="another store"):
+        hevr.render(rv, _cam(rv), progress=False, verify="0123456789abcdef")
+
+
+def test_a_wrong_aggregate_is_caught(served, rv):
+    img = hevr.render(rv, _cam(rv), progress=False)
+    import dataclasses
+    img.verification = dataclasses.replace(img.verification, aggregate=img.verification.aggregate * 2 % int(rv.meta.n) ** 2)
+    with pytest.raises(hevr.VerificationError):
+        img.decrypt(served.priv)
+
+
+def test_slices_levels_and_frames(served, rv):
+    for plane in (hevr.Plane.axial(rv, 5), hevr.Plane.coronal(rv, 6.5, slab=3)):
+        remote = hevr.render_slice(rv, plane, progress=False, verify=False)
+        local = hevr.render_slice(served.ev, plane, progress=False, verify=False, cache=False)
+        assert remote.to_bytes() == local.to_bytes()
+        hevr.render_slice(rv, plane, progress=False).decrypt(served.priv)  # verified slice
+    small = hevr.Camera.orbit(rv, azimuth=10, width=8, height=8)
+    remote = hevr.render(rv, small, level=1, verify=False, progress=False)
+    assert remote.to_bytes() == hevr.render(served.ev, small, level=1, verify=False, cache=False,
+                                            progress=False).to_bytes()
+    hevr.render(rv, small, level=1, progress=False).decrypt(served.priv)  # a level verifies too
+    frame = hevr.render_frame(rv, _cam(rv), served.priv, mode="tf", nodes=NODES, progress=False)
+    here = hevr.render_frame(served.ev, _cam(served.ev), served.priv, mode="tf", nodes=NODES, progress=False,
+                             cache=False)
+    np.testing.assert_array_equal(frame.image, here.image)
+    assert frame.stats["ciphertexts"] == here.stats["ciphertexts"]
+
+
+def test_what_the_server_cannot_be_asked(rv):
+    cam = _cam(rv)
+    with pytest.raises(hevr.ParameterError, match="finish"):
+        hevr.render(rv, cam, mode="tf", nodes=NODES, finish="server", progress=False)
+    with pytest.raises(hevr.ParameterError, match="compute"):
+        hevr.render(rv, cam, compute=False, progress=False)
+    with pytest.raises(hevr.ParameterError, match="keep_sums"):
+        hevr.render(rv, cam, keep_sums="x.hevrsums", progress=False)
+
+
+def test_key_holder_never_unpickles_nor_joins_a_cluster(served, rv, monkeypatch):
+    import distributed
+
+    def refuse(*a, **k):
+        raise AssertionError("the key holder's process unpickled or made a Dask client")
+
+    class NoUnpickler:
+        def __init__(self, *a, **k):
+            refuse()
+
+    monkeypatch.setattr(pickle, "loads", refuse)
+    monkeypatch.setattr(pickle, "load", refuse)
+    monkeypatch.setattr(pickle, "Unpickler", NoUnpickler)
+    monkeypatch.setattr(distributed.Client, "__init__", refuse)
+    server = connect(served.url, timeout=120)
+    rv2 = server.open(served.ev.meta.store_id)
+    cam = hevr.Camera.orbit(rv2, azimuth=75, width=10, height=9)
+    img = hevr.render(rv2, cam, mode="tf", nodes=NODES, progress=False)
+    assert img.decrypt(served.priv).shape == (9, 10, 3)  # verified on decryption
+    hevr.render_slice(rv2, hevr.Plane.sagittal(rv2, 3), progress=False).decrypt(served.priv)
+    frame = hevr.render_frame(rv2, cam, served.priv, progress=False)
+    assert frame.image.shape == (9, 10)
+    server.close()
+
+
+def test_cli_render_and_slice_write_the_same_files(served, tmp_path, monkeypatch):
+    store = str(served.dir / "v.zarr")
+    sid = served.ev.meta.store_id
+    common = ["--size", "12x10", "--azimuth", "40", "--no-verify", "-q"]
+    assert main(["render", "--server", served.url, sid, "--out", str(tmp_path / "r.hevr"), *common]) == 0
+    assert main(["render", store, "--out", str(tmp_path / "l.hevr"), *common]) == 0
+    assert (tmp_path / "r.hevr").read_bytes() == (tmp_path / "l.hevr").read_bytes()
+    sl = ["--coronal", "5", "--no-verify", "-q"]
+    assert main(["slice", "--server", served.url, sid, "--out", str(tmp_path / "rs.hevr"), *sl]) == 0
+    assert main(["slice", store, "--out", str(tmp_path / "ls.hevr"), *sl]) == 0
+    assert (tmp_path / "rs.hevr").read_bytes() == (tmp_path / "ls.hevr").read_bytes()
+    # a verified remote frame decrypts as verified with the key
+    assert main(["render", "--server", served.url, sid, "--out", str(tmp_path / "v.hevr"), "--size", "8x8", "-q"]) == 0
+    served.priv.save(str(tmp_path / "key.json"))
+    assert main(["decrypt", str(tmp_path / "v.hevr"), "--key", str(tmp_path / "key.json"),
+                 "--out", str(tmp_path / "v.png"), "-q"]) == 0
+    # the server refuses what it does not serve; nothing is written
+    assert main(["render", "--server", served.url, "0" * 16, "--out", str(tmp_path / "x.hevr"), "-q"]) == 1
+    assert not (tmp_path / "x.hevr").exists()
+    assert main(["render", "--server", served.url, sid, "--workers", "2", "--out", str(tmp_path / "y.hevr")]) == 2
