@@ -20,7 +20,37 @@ from ._progress import Progress, TaskCounter
 
 log = logging.getLogger(__name__)
 
-__all__ = ["active_client", "compute"]
+__all__ = ["active_client", "compute", "warn_if_remote"]
+
+_WARNED_SCHEDULERS: set = set()
+_LOOPBACK = ("127.", "localhost", "[::1]", "::1")
+
+
+def warn_if_remote(client: Any) -> None:
+    """Once per scheduler: warn when this process is a Dask client of a scheduler that is not on
+    this machine's loopback. Dask's protocol unpickles what the cluster sends, so its workers can
+    run code in this process — the key holder's, where it renders and decrypts: the local Dask path
+    is for clusters the key holder runs; a server's cluster is reached through ``hevr serve`` and
+    :func:`hevr.connect`, which carries data only.
+
+    >>> warn_if_remote(None)  # Dask's default scheduler: nothing to say
+    """
+    if client is None:
+        return
+    try:
+        address = str(client.scheduler.address)
+    except Exception:  # pragma: no cover - a closed client: its render fails on its own
+        return
+    host = address.split("://", 1)[-1]
+    if address.startswith("inproc://") or host.startswith(_LOOPBACK) or address in _WARNED_SCHEDULERS:
+        return
+    _WARNED_SCHEDULERS.add(address)
+    import warnings
+    warnings.warn(f"this process is a Dask client of the scheduler at {address}, which is not on this machine: "
+                  "Dask unpickles what that cluster sends, so its workers can run code here, where your private key "
+                  "is. Use the Dask path only on a cluster you run; render on another party's cluster with "
+                  "'hevr serve' there and hevr.connect(URL) here (data only, never unpickled)", UserWarning,
+                  stacklevel=3)
 
 
 def active_client(client: Any = None) -> Any:

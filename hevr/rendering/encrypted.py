@@ -27,11 +27,12 @@ from dask.delayed import Delayed, delayed
 from .. import _malloc
 from .._dask import active_client
 from .._dask import compute as run_tasks
+from .._dask import warn_if_remote
 from .._tiles import TileLayout
 from .._validate import check_bool, check_int
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
-from ..image import EncryptedImage
+from ..image.encrypted import EncryptedImage
 from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
 from ..store.resident import batched
@@ -269,6 +270,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     if keep_sums is not None:
         keep_sums = check_sums_path(keep_sums, overwrite=overwrite)
     cl = active_client(client)
+    warn_if_remote(cl)  # the key holder joined another party's cluster? (hevr.connect is the safe way)
     check_reachable(ev.path, cl)  # memory:// stores only where the tasks run in this process
     backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length(),  # auto: the residency's, else by key
                                    resident=ev.resident.backend if ev.resident is not None and ev.resident.bricks else None,
