@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 from _machine import append, machine  # noqa: E402
 
 import hevr  # noqa: E402
-from hevr import image as image_mod  # noqa: E402
+from hevr.image import encrypted as image_mod  # noqa: E402
 from hevr.backends.cpu import CpuBackend  # noqa: E402
 
 _REAL_UNPACK = image_mod._unpack_checked

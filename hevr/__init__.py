@@ -10,6 +10,8 @@ The subpackages follow the data path; every public name is re-exported here, laz
 :mod:`hevr.rendering`  camera, modes, rays, weights, planner, kernel, graph,
                        finishing, :func:`render`, :func:`render_plain`
 :mod:`hevr.image`      :class:`EncryptedImage`: file format, decryption, PNG
+:mod:`hevr.remote`     :func:`connect`: the key holder's client of ``hevr serve`` (data only)
+:mod:`hevr.serve`      ``hevr serve``: the render service beside the cluster (Starlette)
 :mod:`hevr.viewer`     :class:`Viewer`: the key holder's notebook viewer (ipywidgets)
 :mod:`hevr.cli`        the ``hevr`` command
 :mod:`hevr.backends`   the arithmetic seam: bulk big-integer work (``cpu`` = gmpy2)
@@ -52,13 +54,17 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
         NotRegularFileError,
         ParameterError,
         PlaintextOverflowError,
+        RemoteError,
         RenderPlanError,
         StoreError,
         StoreExistsError,
         VerificationError,
         VolumeFormatError,
     )
-    from .image import EncryptedImage, load_image, save_png, to_uint8
+    from .image.display import save_png, to_uint8
+    from .image.encrypted import EncryptedImage
+    from .image.files import load_image
+    from .remote.client import connect
     from .rendering.camera import Camera
     from .rendering.encrypted import RaySums, clear_cache, error_bound, render
     from .rendering.plain import render_plain, render_slice_plain
@@ -100,10 +106,13 @@ _LAZY = {
         "CorruptStoreError", "CorruptVolumeError", "ExistingFileError", "FileSystemError", "HevrError", "IncompleteStoreError",
         "InsecureKeyWarning", "IntegrityError", "InvalidKeyError", "KeyFilePermissionWarning", "KeyMismatchError",
         "MemoryLimitError", "MissingDependencyError", "MissingFileError", "NotRegularFileError", "ParameterError",
-        "PlaintextOverflowError", "RenderPlanError", "StoreError", "StoreExistsError", "VerificationError",
+        "PlaintextOverflowError", "RemoteError", "RenderPlanError", "StoreError", "StoreExistsError", "VerificationError",
         "VolumeFormatError",
     ),
-    ".image": ("EncryptedImage", "load_image", "save_png", "to_uint8"),
+    ".image.display": ("save_png", "to_uint8"),
+    ".image.encrypted": ("EncryptedImage",),
+    ".image.files": ("load_image",),
+    ".remote.client": ("connect",),
     ".rendering.camera": ("Camera",),
     ".rendering.encrypted": ("RaySums", "clear_cache", "error_bound", "render"),
     ".rendering.plain": ("render_plain", "render_slice_plain"),
@@ -161,6 +170,7 @@ __all__ = [
     "PrivateKey",
     "PublicKey",
     "RaySums",
+    "RemoteError",
     "RenderPlanError",
     "SavedSums",
     "Scan",
@@ -170,6 +180,7 @@ __all__ = [
     "VolumeFormatError",
     "build_pyramid",
     "clear_cache",
+    "connect",
     "decode",
     "encode",
     "encode_density",

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, Sequence
 
@@ -45,7 +46,6 @@ def warn_if_remote(client: Any) -> None:
     if address.startswith("inproc://") or host.startswith(_LOOPBACK) or address in _WARNED_SCHEDULERS:
         return
     _WARNED_SCHEDULERS.add(address)
-    import warnings
     warnings.warn(f"this process is a Dask client of the scheduler at {address}, which is not on this machine: "
                   "Dask unpickles what that cluster sends, so its workers can run code here, where your private key "
                   "is. Use the Dask path only on a cluster you run; render on another party's cluster with "

@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PIL import Image
 
-from .image import to_uint8
+from .image.display import to_uint8
 
 if TYPE_CHECKING:
     from .viewer import Viewer

@@ -2,7 +2,7 @@
 
 A leaf module (standard library only), so that code that only tells one kind of file from
 another — ``hevr info PATH``, the command line's checks of a ``FRAME`` argument — does not import
-the readers (numpy, gmpy2, Dask) to learn eight bytes. The readers, :mod:`hevr._image_header`
+the readers (numpy, gmpy2, Dask) to learn eight bytes. The readers, :mod:`hevr.image.header`
 and :mod:`hevr.rendering.sums`, build their ``MAGIC`` from these.
 
 >>> IMAGE_MAGIC_PREFIX, SUMS_MAGIC_PREFIX

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import hevr
-from hevr._image_header import MAGIC
+from hevr.image.header import MAGIC
 from hevr._limits import FLOAT_MAX, fits_float
 from hevr.errors import HevrError
 from hevr.rendering.modes import combination_matrix, make_spec

@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 import hevr
-from hevr.image import to_uint8
+from hevr.image.display import to_uint8
 
 
 @pytest.fixture(scope="module")

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr import _image_header
-from hevr._image_header import MAGIC
+from hevr.image import header as image_header
+from hevr.image.header import MAGIC
 from hevr._limits import integrity_bits
 from hevr._tiles import TileLayout
 from hevr.crypto.records import mpz_to_bytes
@@ -100,7 +100,7 @@ def _targets(img):
 # -- the images used here are meaningful ---------------------------------------------------
 def test_integrity_margin_is_the_planners():
     """The header checks and the planner share hevr._limits: κ = 64 for real keys."""
-    assert _image_header.integrity_bits is integrity_bits and integrity_bits(256) == 64
+    assert image_header.integrity_bits is integrity_bits and integrity_bits(256) == 64
 
 
 def test_images_cover_the_cases(images):

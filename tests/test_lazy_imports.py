@@ -79,3 +79,21 @@ def test_a_fresh_interpreter_sees_the_eager_behaviour(tmp_path):
     out = subprocess.run([sys.executable, "-c", FRESH], cwd=tmp_path, capture_output=True, text=True, timeout=120,
                          check=False)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-3000:]
+
+
+def test_the_image_package_re_exports_its_modules_names():
+    """``hevr.image`` is a package of one-concept modules; its lazy table re-exports the names
+    the one-module ``hevr.image`` of before had, each the defining module's object."""
+    import hevr.image as image
+
+    table = exported(image._LAZY)
+    assert table == _type_checking_imports("hevr.image")
+    assert set(image.__all__) <= set(table)
+    assert {"_CORRUPT", "_unpack_checked", "_from_blob", "MAGIC", "image_from_bytes"} <= set(table)
+    for name, module in table.items():
+        assert getattr(image, name) is getattr(importlib.import_module(module, "hevr.image"), name), name
+        assert importlib.util.find_spec(f"hevr.image.{name}") is None, f"hevr.image.{name} is a submodule too"
+    assert hevr.EncryptedImage is image.EncryptedImage and hevr.load_image is image.load_image
+    ns: dict = {}
+    exec("from hevr.image import *", ns)
+    assert set(image.__all__) <= set(ns)

@@ -31,7 +31,7 @@ pytest.importorskip("jupytext")
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOK_DIR = ROOT / "notebooks"
-NOTEBOOKS = ["01_quickstart", "02_transfer_functions", "03_scaling", "04_slices_pyramid_gradient"]
+NOTEBOOKS = ["01_quickstart", "02_transfer_functions", "03_scaling", "04_slices_pyramid_gradient", "05_remote_server"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
@@ -121,11 +121,17 @@ def _check_beyond(s: dict) -> None:
     assert s["pyramid_over_encrypt"] > 0
 
 
+def _check_remote(s: dict) -> None:
+    assert s["tf_error_ok"] is True and s["same_bytes"] is True  # the in-process frame, byte for byte
+    assert s["slice_shape"][0] > 0 and s["streamed_ciphertexts"] > 0 and s["render_s"] > 0
+
+
 CHECKS = {
     "01_quickstart": _check_quickstart,
     "02_transfer_functions": _check_transfer,
     "03_scaling": _check_scaling,
     "04_slices_pyramid_gradient": _check_beyond,
+    "05_remote_server": _check_remote,
 }
 
 

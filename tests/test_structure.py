@@ -47,6 +47,8 @@ OPTIONAL_IMPORTS = frozenset({
     "nbclient",
     "jupytext",
     "tqdm",
+    "starlette",  # hevr serve's extra
+    "uvicorn",
 })  # optional extras only: required dependencies (distributed, pillow, zarr, ...) are imported at the top
 
 # The only modules that import by name (importlib, __import__), and why. Everything else imports at
@@ -82,6 +84,7 @@ PUBLIC_API = (
     "RenderPlanError", "StoreError", "StoreExistsError", "IncompleteStoreError", "CorruptStoreError", "CorruptVolumeError", "IntegrityError", "VerificationError",
     "VolumeFormatError", "MissingDependencyError", "MissingFileError", "MemoryLimitError", "ExistingFileError", "NotRegularFileError",
     "FileSystemError", "InsecureKeyWarning", "KeyFilePermissionWarning",
+    "connect", "RemoteError",  # hevr serve's key holder (issue 37)
     "VIEWS", "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
 )
 API_MD = ROOT.parent / "shared" / "API.md"

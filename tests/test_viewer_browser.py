@@ -29,6 +29,7 @@ this project's 2-core machine (half of it JupyterLab and the browser starting).
 from __future__ import annotations
 
 import base64
+import contextlib
 import hashlib
 import importlib.util
 import json
@@ -71,7 +72,7 @@ NOTEBOOK_CELLS = [
 import numpy as np
 import hevr
 warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
-ev = hevr.open_volume("v.zarr")
+ev = OPEN
 priv = hevr.load_key("key.json")
 vol = np.load("vol.npy")''',
     f'''viewer = hevr.Viewer(ev, priv, volume=vol, width={SIZE}, height={SIZE}, mode="tf", settle=0.5)
@@ -102,9 +103,11 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def lab(tmp_path_factory, keypair256):
-    """A JupyterLab server on 127.0.0.1 with the notebook and the store in its root: (url, root, ev, vol)."""
+@pytest.fixture(scope="module", params=["local", "remote"])
+def lab(request, tmp_path_factory, keypair256):
+    """A JupyterLab server on 127.0.0.1 with the notebook and the store in its root: (url, root, ev, vol).
+    ``remote``: the notebook opens the store through a real ``hevr serve`` (hevr.connect), as a key
+    holder whose kernel never joins the server's cluster."""
     nbformat = pytest.importorskip("nbformat")
     _need(_importable("jupyterlab"), "JupyterLab is not installed (pip install 'hevr[test]')")
     _pub, priv = keypair256
@@ -120,7 +123,14 @@ def lab(tmp_path_factory, keypair256):
         priv.save(root / "key.json")
     nb = nbformat.v4.new_notebook()
     nb.metadata["kernelspec"] = {"name": "hevr-test", "display_name": "hevr test", "language": "python"}
-    nb.cells = [nbformat.v4.new_code_cell(src) for src in NOTEBOOK_CELLS]
+    served = contextlib.ExitStack()
+    if request.param == "remote":
+        from _serving import hevr_serve
+        server_url, _, _ = served.enter_context(hevr_serve(str(root / "v.zarr")))
+        opener = f"hevr.connect({server_url!r}).open({ev.meta.store_id!r})"
+    else:
+        opener = 'hevr.open_volume("v.zarr")'
+    nb.cells = [nbformat.v4.new_code_cell(src.replace("OPEN", opener)) for src in NOTEBOOK_CELLS]
     nb.cells[1].metadata["jupyter"] = {"source_hidden": True}  # folded: the viewer shows in the screenshot
     nbformat.write(nb, root / "drag.ipynb")
     env = dict(os.environ)
@@ -165,6 +175,7 @@ def lab(tmp_path_factory, keypair256):
             proc.kill()
             proc.wait()
         server_log.close()
+        served.close()
 
 
 @pytest.fixture(scope="module")

@@ -23,6 +23,7 @@ from .._files import check_regular
 from ..crypto.keys import PrivateKey
 from ..image import load_image
 from ..paper import PAPER_DENSITIES, PAPER_TF1
+from ..remote.client import connect
 from ..rendering.camera import Camera
 from ..rendering.encrypted import render
 from ..rendering.planner import check_render_size
@@ -139,8 +140,6 @@ def open_remote(args: Any) -> Any:
     ``$HEVR_TOKEN`` (never an argument: the process list shows arguments to every user)."""
     if args.scheduler or args.workers:
         raise UsageError("--server: expected no --scheduler or --workers (the server renders on its own cluster)")
-    from ..remote.client import connect
-
     server = connect(args.server, token=os.environ.get("HEVR_TOKEN") or None, cafile=args.cafile,
                      timeout=args.timeout)
     return server.open(args.store)

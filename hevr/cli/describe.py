@@ -23,7 +23,8 @@ from .._files import check_regular
 from ..crypto.keys import SECURE_BITS
 from ..crypto.phe_keys import is_phe_dict
 from ..errors import MissingFileError, StoreError
-from ..image import MAGIC, load_image
+from ..image.files import load_image
+from ..image.header import MAGIC
 from ..rendering.sums import MAGIC as SUMS_MAGIC
 from ..rendering.sums import load_sums
 from ..store.layout import check_document

@@ -12,8 +12,14 @@ import json
 import sys
 from typing import Any
 
+from ..errors import ParameterError
+from ..serve.run import open_stores, serve
+from ..serve.tokens import TokenTable, hash_token, new_token
+from . import storage as st
+from .cluster import dask_client, describe_client
 from .options import add_general_options, add_storage_option, int_range
 from .parser import wrap
+from .util import UsageError
 
 __all__ = ["cmd_serve", "serve_arguments"]
 
@@ -48,10 +54,6 @@ def serve_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_serve(args: Any) -> int:
-    from ..errors import ParameterError
-    from ..serve.tokens import TokenTable, hash_token, new_token
-    from .util import UsageError
-
     if args.new_token is not None:
         token = new_token()
         entry = {"name": args.new_token, "sha256": hash_token(token), "stores": ["*"], "concurrent": 2}
@@ -69,10 +71,6 @@ def cmd_serve(args: Any) -> int:
     if (args.tls_cert is None) != (args.tls_key is None):
         raise UsageError("--tls-cert/--tls-key: expected both or neither, got one")
     tokens = TokenTable.load(args.tokens) if args.tokens else None
-    from . import storage as st
-    from ..serve.run import open_stores, serve
-    from .cluster import dask_client, describe_client
-
     stores = open_stores(args.stores, st.storage_options(args))
     if tokens is None and args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: serving on {args.host} without --tokens: anyone who reaches the port can render",

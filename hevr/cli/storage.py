@@ -32,7 +32,8 @@ import numpy as np
 
 from .._files import check_regular, write_file
 from ..errors import ExistingFileError, MissingFileError
-from ..image import MAGIC, save_png
+from ..image.display import save_png
+from ..image.header import MAGIC
 from ..rendering.sums import MAGIC as SUMS_MAGIC
 from ..store.paths import (
     normalise,

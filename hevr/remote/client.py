@@ -29,26 +29,17 @@ from collections.abc import Iterator
 from typing import Any
 from urllib.parse import urlsplit
 
+import httpx
+
 from ..errors import HevrError, ParameterError, RemoteError
-from .protocol import END, IMAGE_MEDIA, MAX_BODY, PROBLEM_MEDIA, UNITS_MEDIA, parse_json, unpack_head
+from .protocol import END, MAX_BODY, PROBLEM_MEDIA, UNITS_MEDIA, parse_json, unpack_head
+from .volume import RemoteVolume, parse_description
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Server", "connect", "image_limit"]
+__all__ = ["Server", "connect"]
 
-HEADER_ROOM = 1 << 20  # a .hevr header beyond its hit mask: the info, the plan, the numbers
 MAX_STORES_BYTES = 16 * MAX_BODY  # the store list: a few KiB of metadata per store
-
-
-def image_limit(height: int, width: int, components: int, record_width: int) -> int:
-    """The most bytes a client-finished image of this size can take: every pixel a ciphertext per
-    component (no packing), the sample counts, the hit mask and the header.
-
-    >>> image_limit(2, 2, 1, 512) > 4 * 512
-    True
-    """
-    pixels = int(height) * int(width)
-    return pixels * int(components) * int(record_width) + pixels * 4 + pixels // 4 + HEADER_ROOM
 
 
 def connect(url: str, token: str | None = None, cafile: str | None = None, timeout: float = 60.0) -> Server:
@@ -100,11 +91,6 @@ class Server:
             raise ParameterError(f"timeout: expected seconds in (0, 86400], got {timeout!r}")
         if cafile is not None and parts.scheme != "https":
             raise ParameterError("cafile: expected an https:// url with a CA file, got an http:// url")
-        try:
-            import httpx
-        except ImportError:  # pragma: no cover - a core dependency
-            from ..errors import MissingDependencyError
-            raise MissingDependencyError("hevr.connect needs httpx: pip install httpx") from None
         verify: Any = True
         if cafile is not None:
             try:
@@ -159,8 +145,6 @@ class Server:
 
     def _exchange(self, method: str, path: str, body: dict | None, accept: str, limit: int,
                   frames: bool) -> Iterator[Any]:
-        import httpx
-
         content = None if body is None else json.dumps(body, separators=(",", ":")).encode()
         headers = self._headers(accept)
         if content is not None:
@@ -273,7 +257,6 @@ class Server:
         items = doc.get("stores")
         if not isinstance(items, list):
             raise RemoteError(f"server {self.url}: GET /v1/stores: expected a 'stores' list")
-        from .volume import parse_description
         out = []
         for item in items:
             sid, meta = parse_description(item, self.url)
@@ -284,7 +267,6 @@ class Server:
 
     def open(self, store_id: str) -> Any:
         """A :class:`~hevr.remote.volume.RemoteVolume` of the store ``store_id``."""
-        from .volume import RemoteVolume, parse_description
         if not isinstance(store_id, str) or len(store_id) != 16 or any(c not in "0123456789abcdef" for c in store_id):
             raise ParameterError(f"store_id: expected 16 lower-case hex digits, got {str(store_id)[:40]!r}")
         sid, meta = parse_description(self.get_json(f"/v1/stores/{store_id}"), self.url)

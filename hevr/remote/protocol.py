@@ -3,7 +3,7 @@ answers as data only.
 
 Nothing that crosses the wire can carry code: requests are JSON objects checked field by field
 (unknown fields refused, every number bounded), answers are a ``.hevr`` image (its own strict
-parser, :mod:`hevr._image_header`), length-prefixed finishing units, JSON documents and RFC 9457
+parser, :mod:`hevr.image.header`), length-prefixed finishing units, JSON documents and RFC 9457
 problem documents. Neither side ever unpickles what the other sends.
 
 Endpoints (``/v1``; the OpenAPI document at ``/v1/openapi.json``, :mod:`hevr.serve.openapi`)::
@@ -41,13 +41,13 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
-from .._image_header import _no_duplicates, _small_int
 from ..errors import HevrError, ParameterError
+from ..image.header import _no_duplicates, _small_int
 from ..rendering.camera import Camera
 from ..rendering.plane import Plane, view_from_dict
 
 __all__ = ["API_VERSION", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_SIDE", "PROBLEM_MEDIA", "UNITS_MEDIA",
-           "RenderRequest", "VerifyRequest", "pack_frame", "parse_json", "unpack_head"]
+           "RenderRequest", "VerifyRequest", "image_limit", "pack_frame", "parse_json", "unpack_head"]
 
 API_VERSION = 1
 PREFIX = "/v1"
@@ -262,6 +262,21 @@ class VerifyRequest:
         if not (isinstance(seed, str) and len(seed) == 64 and all(c in "0123456789abcdef" for c in seed)):
             raise ParameterError(f"seed: expected 64 lower-case hex digits, got {str(seed)[:80]!r}")
         return cls(render=RenderRequest.from_dict(d["render"], "render"), seed=bytes.fromhex(seed))
+
+
+HEADER_ROOM = 1 << 20  # a .hevr header beyond its hit mask: the info, the plan, the numbers
+
+
+def image_limit(height: int, width: int, components: int, record_width: int) -> int:
+    """The most bytes a client-finished image of this size can take: every pixel a ciphertext per
+    component (no packing), the sample counts, the hit mask and the header. The key holder reads no
+    more of an answer than this (:mod:`hevr.remote.client`).
+
+    >>> image_limit(2, 2, 1, 512) > 4 * 512
+    True
+    """
+    pixels = int(height) * int(width)
+    return pixels * int(components) * int(record_width) + pixels * 4 + pixels // 4 + HEADER_ROOM
 
 
 def pack_frame(index: int, body: bytes) -> bytes:

@@ -25,19 +25,18 @@ from typing import Any
 
 import numpy as np
 
-from .._image_checks import check_image
 from .._tiles import TileLayout
 from .._validate import check_int
 from ..errors import HevrError, IntegrityError, ParameterError, RemoteError
 from ..image import EncryptedImage, image_from_bytes
+from ..image.checks import check_image
 from ..rendering.graph import FinishGraph
 from ..rendering.planner import check_render_size, plan_render
 from ..rendering.rays import cast_rays
 from ..rendering.request import at_level, level_step
 from ..rendering.sums import image_fields, with_colouring
 from ..rendering.verify import Verification, resolve_verify
-from .protocol import END, MAX_BODY, RenderRequest, VerifyRequest, parse_json
-from .client import image_limit
+from .protocol import END, MAX_BODY, RenderRequest, VerifyRequest, image_limit, parse_json
 
 log = logging.getLogger(__name__)
 

@@ -17,10 +17,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..crypto.keys import PublicKey
 from ..errors import CorruptStoreError, ParameterError, RemoteError
 from ..store.metadata import VolumeMetadata
 from ..store.reader import EncryptedVolume
 from ..volume.pyramid import check_level
+from .render import render_remote
 
 __all__ = ["RemoteVolume", "parse_description"]
 
@@ -50,7 +52,6 @@ def parse_description(item: Any, url: str) -> tuple[str, VolumeMetadata]:
     if not meta.complete:
         raise RemoteError(f"server {url}: store {sid}: expected a complete store, got an incomplete one")
     try:
-        from ..crypto.keys import PublicKey
         if PublicKey(int(meta.n)).fingerprint != meta.fingerprint:
             raise RemoteError(f"server {url}: store {sid}: the key fingerprint does not match the modulus n")
     except (ValueError, ParameterError) as exc:
@@ -85,6 +86,11 @@ class RemoteVolume(EncryptedVolume):
         if level == 0:
             return RemoteVolume(self.server, self.store_id, base)
         return RemoteVolume(self.server, self.store_id, base.level_meta(level), level, base)
+
+    def render_request(self, view: Any, spec: Any, **kwargs: Any) -> Any:
+        """:func:`hevr.render`'s work on this volume (:func:`hevr.remote.render.render_remote`):
+        the rendering layer hands a checked request here rather than importing the client."""
+        return render_remote(self, view, spec, **kwargs)
 
     def _plain(self) -> RemoteVolume:
         return self

@@ -255,10 +255,9 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     spec, digits, precision, comb_digits = check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, views, gradient, finish)
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the request goes there (remote/render.py)
-        from ..remote.render import render_remote
-        return render_remote(ev, camera, spec, level=level, digits=digits, pack=pack, tile=tile, client=client,
-                             compute=compute, keep_sums=keep_sums, finish=finish, stream=stream, verify=verify,
-                             backend=backend, progress=progress)
+        return ev.render_request(camera, spec, level=level, digits=digits, pack=pack, tile=tile, client=client,
+                                 compute=compute, keep_sums=keep_sums, finish=finish, stream=stream, verify=verify,
+                                 backend=backend, progress=progress)
     ev, camera = at_level(ev, camera, level)
     spec = level_step(spec, ev, camera)
     verified = resolve_verify(verify, ev, finish, level=ev.level, compute=compute, stream=stream is not None)

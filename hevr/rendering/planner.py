@@ -239,7 +239,7 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
         )
     per_pack = max(1, room // pack_bits) if pack else 1
     exponent = w_exp + ch_exp + comb_exp - G
-    if not fits_float(max(offset, m_bound), exponent):  # the image check (hevr._image_header) would refuse it
+    if not fits_float(max(offset, m_bound), exponent):  # the image check (hevr.image.checks) would refuse it
         raise RenderPlanError(
             f"overflow planner: value_range: expected values whose render fits a float64 (at most "
             f"{FLOAT_MAX:.4g}), got the store's value_range ({meta.value_range[0]:g}, {meta.value_range[1]:g}), "

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .._image_checks import FINISHES
+from ..image.checks import FINISHES
 from .._validate import check_choice, check_int
 from ..errors import ParameterError
 from ..store.reader import EncryptedVolume

@@ -24,7 +24,7 @@ from typing import Any
 from dask.delayed import Delayed
 
 from ..errors import ParameterError
-from ..image import EncryptedImage
+from ..image.encrypted import EncryptedImage
 from ..store.reader import EncryptedVolume
 from .encrypted import _render
 from .plane import Plane

@@ -23,12 +23,12 @@ from typing import Any
 
 import numpy as np
 
-from .._image_header import tile_name
 from ..backends import get_backend
 from ..colour import Frame, frame_from_sums, scaled_sums
 from ..crypto.keys import PrivateKey
 from ..errors import IntegrityError, KeyMismatchError, ParameterError
-from ..image import _CORRUPT, _unpack_checked
+from ..image.checks import tile_name
+from ..image.encrypted import _CORRUPT, _unpack_checked
 from .camera import Camera
 from .encrypted import _render, render
 from .plane import Plane

@@ -49,8 +49,6 @@ import numpy as np
 from .._dask import active_client
 from .._dask import compute as run_tasks
 from .._files import read_regular, require_file
-from .._image_checks import FINISHES
-from .._image_header import MAX_N_DIGITS, Fields, parse_json
 from .._limits import MAX_IMAGE_PIXELS
 from .._magic import SUMS_MAGIC_PREFIX
 from .._tiles import TileLayout
@@ -67,7 +65,9 @@ from ..errors import (
     MissingFileError,
     ParameterError,
 )
-from ..image import EncryptedImage
+from ..image.checks import FINISHES, Fields
+from ..image.encrypted import EncryptedImage
+from ..image.header import MAX_N_DIGITS, parse_json
 from ..store.metadata import VolumeMetadata
 from ..store.paths import (
     check_storage_options,

@@ -15,11 +15,4 @@ with data only. It never needs or accepts a private key, and no endpoint writes 
 
 from __future__ import annotations
 
-__all__ = ["create_app"]
-
-
-def __getattr__(name: str):  # the app imports Starlette: only when asked for
-    if name == "create_app":
-        from .app import create_app
-        return create_app
-    raise AttributeError(name)
+__all__: list[str] = []  # the modules are the API: hevr.serve.app.create_app, hevr.serve.run.serve, ...

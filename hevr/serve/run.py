@@ -6,12 +6,20 @@ program can serve too (:func:`serve`). Nothing here reads a private key: the ser
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..errors import MissingDependencyError, ParameterError
 from ..store.reader import EncryptedVolume, open_volume
+
+try:  # the 'serve' extra: Starlette and uvicorn
+    import uvicorn
+
+    from .app import create_app
+except ImportError:  # pragma: no cover - hevr serve says which extra
+    uvicorn = create_app = None
 
 log = logging.getLogger("hevr.serve")
 
@@ -36,12 +44,8 @@ def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: 
           backend: str | None = None, on_ready: Callable[[str], None] | None = None) -> None:
     """Serve ``stores`` until interrupted (uvicorn; TLS with ``tls_cert`` and ``tls_key``).
     ``on_ready(url)`` is called once the socket listens."""
-    try:
-        import uvicorn
-
-        from .app import create_app
-    except ImportError:
-        raise MissingDependencyError("hevr serve needs the 'serve' extra: pip install 'hevr[serve]'") from None
+    if uvicorn is None or create_app is None:
+        raise MissingDependencyError("hevr serve needs the 'serve' extra (Starlette, uvicorn): pip install 'hevr[serve]'")
     if (tls_cert is None) != (tls_key is None):
         raise ParameterError("--tls-cert/--tls-key: expected both or neither, got one")
     app = create_app(stores, client=client, tokens=tokens, max_concurrent=max_concurrent, backend=backend)
@@ -54,15 +58,12 @@ def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: 
 
         async def startup() -> None:
             while not server.started:  # pragma: no branch - polled until the socket listens
-                import asyncio
                 await asyncio.sleep(0.02)
             bound = port
             for s in getattr(server, "servers", []):
                 for sock in getattr(s, "sockets", []):
                     bound = sock.getsockname()[1]
             on_ready(f"{scheme}://{host if ':' not in host else f'[{host}]'}:{bound}")
-
-        import asyncio
 
         async def main() -> None:
             task = asyncio.create_task(startup())

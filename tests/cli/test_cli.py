@@ -16,7 +16,7 @@ from PIL import Image
 
 import hevr
 from hevr.cli.main import main
-from hevr.image import to_uint8
+from hevr.image.display import to_uint8
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
 

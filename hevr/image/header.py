@@ -1,5 +1,5 @@
-"""Private helpers of :mod:`hevr.image`: the ``.hevr`` file layout (version 3; version 2 is
-still read) and the checks of its header.
+"""The ``.hevr`` file layout of :mod:`hevr.image` (version 3; version 2 is still read): the
+header written (:func:`file_parts`) and the checks of a file's header (:func:`parse_file`).
 
 A file is checked in this order, and nothing sized by a header field is allocated before that
 field has been checked (errors come in milliseconds; memory stays a small multiple of the file
@@ -9,8 +9,8 @@ containers and strings, no duplicate keys, no integer of more than 40 digits), t
 (:class:`hevr.CorruptStoreError`, ``"<file>: header field 'tile': expected an int >= 1, got 0"``)
 and the size of the ciphertext body. The layout is in ``docs/image-format.md``.
 
-The numeric rules (:func:`~hevr._image_checks.check_numbers`) and the ciphertext counts per
-tile (:func:`~hevr._image_checks.check_image`) live in :mod:`hevr._image_checks`, shared with
+The numeric rules (:func:`~hevr.image.checks.check_numbers`) and the ciphertext counts per
+tile (:func:`~hevr.image.checks.check_image`) live in :mod:`hevr.image.checks`, shared with
 an image in memory, which is checked before it is decrypted or saved (:class:`hevr.IntegrityError`).
 """
 
@@ -24,7 +24,13 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from ._image_checks import (
+from .._limits import integrity_bits
+from .._magic import IMAGE_MAGIC_PREFIX
+from .._tiles import TileLayout
+from ..crypto.paillier import fingerprint
+from ..crypto.records import record_width
+from ..errors import CorruptStoreError, IntegrityError
+from .checks import (
     MAX_COMPONENTS,
     MAX_PIXELS,
     Fields,
@@ -40,15 +46,10 @@ from ._image_checks import (
     tile_hit_counts,
     tile_name,
 )
-from ._limits import integrity_bits
-from ._magic import IMAGE_MAGIC_PREFIX
-from ._tiles import TileLayout
-from .crypto.paillier import fingerprint
-from .crypto.records import record_width
-from .errors import CorruptStoreError, IntegrityError
 
 __all__ = ["DIGEST_BYTES", "FORMAT", "MAGIC", "MAGIC_PREFIX", "VERSION", "Fields", "check_image", "check_numbers",
-           "expected_counts", "integrity_bits", "parse_file", "parse_json", "tile_hit_counts", "tile_name"]
+           "expected_counts", "file_parts", "integrity_bits", "parse_file", "parse_json", "tile_hit_counts",
+           "tile_name"]
 
 MAGIC_PREFIX = IMAGE_MAGIC_PREFIX
 VERSION = 3
@@ -69,7 +70,37 @@ FIELDS = FIELDS_V2 + ("finish", "channel", "components")
 SAMPLE_BYTES = 4  # a client-finished frame's body ends with H·W little-endian uint32 sample counts
 
 
-# -- the file -----------------------------------------------------------------------------------
+# -- writing ------------------------------------------------------------------------------------
+def _header(img: Any) -> dict:
+    """The JSON header of an :class:`~hevr.image.EncryptedImage` (version 3)."""
+    hits = None if img.hits is None else np.packbits(img.hits.ravel())
+    return {
+        "format": FORMAT, "version": VERSION,
+        "shape": [int(x) for x in (img.shape[:2] if img.finish == "client" else img.shape)],
+        "exponent": int(img.exponent), "offset": str(int(img.offset)), "bound": str(int(img.bound)),
+        "fingerprint": img.fingerprint, "n": str(int(img.n)), "width": record_width(int(img.n)),
+        "tile": int(img.tile), "pack_bits": int(img.pack_bits), "per_pack": int(img.per_pack),
+        "counts": [len(c) for c in img.ciphertexts],
+        "hits": None if hits is None else base64.b64encode(hits.tobytes()).decode(), "info": img.info,
+        "finish": img.finish, "channel": img.channel,
+        "components": None if img.components is None else int(img.components),
+        **({"verification": img.verification.to_dict()} if img.verification is not None else {}),
+    }
+
+
+def file_parts(img: Any) -> list:
+    """The file's bytes before its SHA-256 trailer: magic, header length, header, records (and a
+    client-finished frame's sample counts). The image is not checked here: its writers do that
+    first (:func:`~hevr.image.checks.check_image`)."""
+    head = json.dumps(_header(img), separators=(",", ":")).encode()
+    parts = [MAGIC, LENGTH.pack(len(head)), head]
+    parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in img.ciphertexts]
+    if img.finish == "client":  # the public sample counts the client divides by
+        parts.append(np.ascontiguousarray(img.samples, dtype="<u4").reshape(-1))
+    return parts
+
+
+# -- reading ------------------------------------------------------------------------------------
 def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict:
     out = dict(pairs)
     if len(out) != len(pairs):

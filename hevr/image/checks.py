@@ -1,5 +1,5 @@
-"""Private helpers of :mod:`hevr.image`: the checks of every number an encrypted image carries,
-shared by a file's header (:mod:`hevr._image_header`, :class:`hevr.CorruptStoreError`) and an
+"""The checks of every number an encrypted image carries (:mod:`hevr.image`), shared by a file's
+header (:mod:`hevr.image.header`, :class:`hevr.CorruptStoreError`) and an
 image in memory before it is decrypted or saved (:class:`hevr.IntegrityError`): the render
 plan's numbers against the integrity margin (:func:`check_numbers`), finish / channel /
 components (:func:`check_frame`) and every tile's ciphertext count (:func:`check_image`).
@@ -13,11 +13,11 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from ._limits import MAX_IMAGE_PIXELS, fits_float, integrity_bits
-from ._tiles import TileLayout
-from ._validate import is_decimal
-from .crypto.records import record_width
-from .errors import HevrError, IntegrityError
+from .._limits import MAX_IMAGE_PIXELS, fits_float, integrity_bits
+from .._tiles import TileLayout
+from .._validate import is_decimal
+from ..crypto.records import record_width
+from ..errors import HevrError, IntegrityError
 
 __all__ = ["CHANNELS", "FINISHES", "MAX_COMPONENTS", "MAX_EXPONENT", "MAX_PIXELS", "Fields", "check_frame",
            "check_image", "check_numbers", "check_shape", "expected_counts", "tile_hit_counts", "tile_name"]

@@ -1,4 +1,4 @@
-"""The encrypted image the client downloads, decrypts and looks at.
+"""The encrypted image the client downloads, decrypts and looks at: :class:`EncryptedImage`.
 
 An :class:`EncryptedImage` holds, per image tile, the finished pixel ciphertexts — or, finished
 on the client (the default, :mod:`hevr.colour`), the ray sums of the stored components, which
@@ -8,23 +8,20 @@ packed ``per_pack`` values per ciphertext (Horner, B = 2^pack_bits) unless rende
 every pixel, a public offset, the render plan's bound, the key fingerprint.
 
 Nothing wrong reaches the screen: decryption checks every ciphertext and every plaintext
-against the bound and the planner's 64-bit integrity margin, and the ``.hevr`` file (version
-3) carries a SHA-256 of all its bytes and is validated field by field on loading
-(:mod:`hevr._image_header`); every fault is a :class:`hevr.HevrError`. File format:
-``docs/image-format.md``. An image file may live on object storage: :meth:`EncryptedImage.save`
-and :func:`load_image` take an fsspec URL and its ``storage_options`` (:mod:`hevr.store.paths`);
-there the file is written in one request, which an object store makes visible whole or not at all.
+against the bound and the planner's 64-bit integrity margin (:func:`_unpack_checked`, shared
+with :mod:`hevr.rendering.stream`); every fault is a :class:`hevr.HevrError`. The ``.hevr``
+file (:meth:`EncryptedImage.save`, :meth:`EncryptedImage.to_bytes`) is laid out by
+:mod:`hevr.image.header` and read back by :mod:`hevr.image.files`; an image is checked
+(:func:`hevr.image.checks.check_image`) before it is decrypted or written. An image file may
+live on object storage: :meth:`EncryptedImage.save` takes an fsspec URL and its
+``storage_options`` (:mod:`hevr.store.paths`); there the file is written in one request, which
+an object store makes visible whole or not at all.
 """
 
 from __future__ import annotations
 
-import base64
 import hashlib
-import io
-import json
 import logging
-import os
-import struct
 import time
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -32,27 +29,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
-from ._files import read_regular, write_file
-from ._image_header import FORMAT, MAGIC, VERSION, check_image, parse_file, tile_name
-from ._validate import check_bool
-from .backends import get_backend
-from .colour import colour, colouring_spec, frame_from_sums, scaled_sums
-from .crypto.keys import PrivateKey
-from .crypto.records import record_width
-from .errors import IntegrityError, KeyMismatchError, MissingFileError, ParameterError
-from .rendering.verify import Verification
-from .store.paths import (
-    check_storage_options,
-    is_local,
-    normalise,
-    output_location,
-    read_bytes,
-    write_output,
-)
+from .._validate import check_bool
+from ..backends import get_backend
+from ..colour import colour, colouring_spec, frame_from_sums, scaled_sums
+from ..crypto.keys import PrivateKey
+from ..errors import IntegrityError, KeyMismatchError, ParameterError
+from ..store.paths import check_storage_options, is_local, output_location, write_output
+from .checks import check_image, tile_name
+from .header import file_parts
 
-__all__ = ["EncryptedImage", "image_from_bytes", "load_image", "save_png"]
+__all__ = ["EncryptedImage"]
 
 log = logging.getLogger(__name__)
 
@@ -274,22 +261,7 @@ class EncryptedImage:
             block[mask] = np.array([float((v - offset) * scale) for v in vals], dtype=np.float64).reshape(-1, C)
         return out[..., 0] if len(self.shape) == 2 else out
 
-    # -- files --------------------------------------------------------------------------
-    def _header(self) -> dict:
-        hits = None if self.hits is None else np.packbits(self.hits.ravel())
-        return {
-            "format": FORMAT, "version": VERSION,
-            "shape": [int(x) for x in (self.shape[:2] if self.finish == "client" else self.shape)],
-            "exponent": int(self.exponent), "offset": str(int(self.offset)), "bound": str(int(self.bound)),
-            "fingerprint": self.fingerprint, "n": str(int(self.n)), "width": record_width(int(self.n)),
-            "tile": int(self.tile), "pack_bits": int(self.pack_bits), "per_pack": int(self.per_pack),
-            "counts": [len(c) for c in self.ciphertexts],
-            "hits": None if hits is None else base64.b64encode(hits.tobytes()).decode(), "info": self.info,
-            "finish": self.finish, "channel": self.channel,
-            "components": None if self.components is None else int(self.components),
-            **({"verification": self.verification.to_dict()} if self.verification is not None else {}),
-        }
-
+    # -- the .hevr file (layout: hevr.image.header; reading: hevr.image.files) ---------------
     def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None) -> None:
         """Write the ``.hevr`` file (format version 3, ``docs/image-format.md``): magic, header
         length, JSON header, ciphertext records, SHA-256 of all of it. The image is checked
@@ -313,22 +285,13 @@ class EncryptedImage:
             log.warning("a verified frame written to %s: its check is only as trustworthy as the file; whoever can "
                         "write there (the server?) can defeat it; keep verified frames where only you can write",
                         str(where).split("?")[0])
-        write_output(where, self._parts(), so, overwrite=overwrite, doing="writing the encrypted image")
-
-    def _parts(self) -> list:
-        """The file's bytes before its SHA-256 trailer: magic, header length, header, records."""
-        head = json.dumps(self._header(), separators=(",", ":")).encode()
-        parts = [MAGIC, struct.pack("<I", len(head)), head]
-        parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in self.ciphertexts]
-        if self.finish == "client":  # the public sample counts the client divides by
-            parts.append(np.ascontiguousarray(self.samples, dtype="<u4").reshape(-1))
-        return parts
+        write_output(where, file_parts(self), so, overwrite=overwrite, doing="writing the encrypted image")
 
     def to_bytes(self) -> bytes:
-        """The ``.hevr`` file as bytes (what :meth:`save` writes; :func:`image_from_bytes` reads it);
+        """The ``.hevr`` file as bytes (what :meth:`save` writes; :func:`hevr.image.image_from_bytes` reads it);
         ``hevr serve`` answers a render with them. Checked first, as :meth:`save` does."""
         check_image(self)
-        parts = self._parts()
+        parts = file_parts(self)
         digest = hashlib.sha256()
         for part in parts:
             digest.update(part)
@@ -371,91 +334,3 @@ def _pixels(mask: np.ndarray, r0: int, c0: int, channels: int, lo: int, hi: int)
     names = [f"({r0 + int(r)}, {c0 + int(c)})" for r, c in where[:8]]
     more = f", … {len(where)} in all" if len(where) > 8 else ""
     return ", ".join(names) + more
-
-
-def load_image(path: str | Path, *, storage_options: dict | None = None) -> EncryptedImage:
-    """Read an image written by :meth:`EncryptedImage.save` (format version 3; version-2 files are read as server-finished images).
-
-    The whole file is checked before an image is returned (``docs/image-format.md``): its
-    SHA-256 trailer (:class:`hevr.IntegrityError` on a mismatch: any flipped bit) and every
-    header field (:class:`hevr.CorruptStoreError` naming the field), each before anything
-    sized by it is allocated. Version-1 files are refused with a ``CorruptStoreError``.
-    ``path`` may be an fsspec URL, read with ``storage_options``.
-    """
-    so = check_storage_options(storage_options)
-    if "://" in str(path) and not is_local(normalise(path)):
-        path = normalise(path)
-        try:
-            blob = read_bytes(path, so)
-        except FileNotFoundError:
-            raise MissingFileError("path", "an encrypted image file", path) from None
-        except OSError as exc:
-            raise ParameterError(f"path: cannot read {path}: {type(exc).__name__}") from None
-        return _from_blob(blob, path)
-    path = normalise(path) if "://" in str(path) else path
-    # never blocks: a FIFO, a folder or a device is a NotRegularFileError before a byte is read
-    blob = read_regular(path, "path", "an encrypted image file")
-    return _from_blob(blob, str(path))
-
-
-def image_from_bytes(blob: bytes, where: str = "image") -> EncryptedImage:
-    """The image in the bytes of a ``.hevr`` file, checked as :func:`load_image` checks a file
-    (``where`` names it in messages): data only, every field bounded before it is used."""
-    if not isinstance(blob, (bytes, bytearray, memoryview)):
-        raise ParameterError(f"blob: expected the bytes of a .hevr file, got {type(blob).__name__}")
-    return _from_blob(bytes(blob), where)
-
-
-def _from_blob(blob: bytes, path: str) -> EncryptedImage:
-    """The image in the bytes of a ``.hevr`` file (``path`` names it in messages)."""
-    h, body = parse_file(blob, path)
-    width = h["width"]
-    cts, pos = [], 0
-    for c in h["counts"]:
-        cts.append(body[pos:pos + c * width].reshape(c, width))
-        pos += c * width
-    return EncryptedImage(shape=h["shape"], exponent=h["exponent"], offset=h["offset"],
-                          fingerprint=h["fingerprint"], n=h["n"], tile=h["tile"], pack_bits=h["pack_bits"],
-                          per_pack=h["per_pack"], ciphertexts=cts, hits=h["hits"], info=h["info"],
-                          bound=h["bound"], finish=h["finish"], channel=h["channel"], components=h["components"],
-                          samples=h["samples"], verification=None if h["verification"] is None else
-                          Verification.from_dict(h["verification"], int(h["n"]), path))
-
-
-def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None) -> np.ndarray:
-    """Window an image to uint8: grey by (lo, hi) (default 0 .. 99.9th percentile of
-    positive pixels); RGB jointly over all channels so colours keep their ratios."""
-    a = np.asarray(arr, dtype=np.float64)
-    if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] != 3):
-        raise ParameterError(f"arr: expected shape (H, W) or (H, W, 3), got {a.shape}")
-    if window is None:
-        pos = a[np.isfinite(a) & (a > 0)]
-        hi = float(np.percentile(pos, 99.9)) if pos.size else 1.0
-        lo = 0.0
-    else:
-        lo, hi = float(window[0]), float(window[1])
-    if not hi > lo:
-        hi = lo + 1.0
-    return (np.clip((a - lo) / (hi - lo), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-
-
-def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | None = None, *,
-             overwrite: bool = False) -> None:
-    """Save a decrypted (or plaintext) image as PNG with sensible windowing.
-
-    Encoded in memory, then written atomically (:func:`hevr._files.write_file`): never over an
-    existing file unless ``overwrite=True`` (:class:`hevr.ExistingFileError`), and a failed
-    write is a :class:`hevr.FileSystemError` that leaves nothing behind.
-
-    Examples
-    --------
-    >>> import tempfile, os, numpy as np
-    >>> save_png(np.linspace(0, 1, 12).reshape(3, 4), os.path.join(tempfile.mkdtemp(), "a.png"))
-    """
-
-    overwrite = check_bool("overwrite", overwrite)
-    if not isinstance(path, (str, os.PathLike)) or not str(path):
-        raise ParameterError(f"path: expected a file path, got {path!r}")
-    buf = io.BytesIO()
-    Image.fromarray(to_uint8(arr, window)).save(buf, format="PNG")
-    write_file(path, [buf.getbuffer()], overwrite=overwrite, doing="writing the PNG")

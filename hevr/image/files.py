@@ -1,0 +1,70 @@
+"""The ``.hevr`` file read back: :func:`load_image` (a path or an fsspec URL) and
+:func:`image_from_bytes` (the bytes ``hevr serve`` answers a render with).
+
+:meth:`hevr.image.EncryptedImage.save` and :meth:`~hevr.image.EncryptedImage.to_bytes` write
+them. The whole file is checked before an image is returned (:func:`hevr.image.header.parse_file`):
+its SHA-256 trailer, then every header field, each before anything sized by it is allocated.
+File format: ``docs/image-format.md``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .._files import read_regular
+from ..errors import MissingFileError, ParameterError
+from ..rendering.verify import Verification
+from ..store.paths import check_storage_options, is_local, normalise, read_bytes
+from .encrypted import EncryptedImage
+from .header import parse_file
+
+__all__ = ["image_from_bytes", "load_image"]
+
+
+def load_image(path: str | Path, *, storage_options: dict | None = None) -> EncryptedImage:
+    """Read an image written by :meth:`EncryptedImage.save` (format version 3; version-2 files are read as server-finished images).
+
+    The whole file is checked before an image is returned (``docs/image-format.md``): its
+    SHA-256 trailer (:class:`hevr.IntegrityError` on a mismatch: any flipped bit) and every
+    header field (:class:`hevr.CorruptStoreError` naming the field), each before anything
+    sized by it is allocated. Version-1 files are refused with a ``CorruptStoreError``.
+    ``path`` may be an fsspec URL, read with ``storage_options``.
+    """
+    so = check_storage_options(storage_options)
+    if "://" in str(path) and not is_local(normalise(path)):
+        path = normalise(path)
+        try:
+            blob = read_bytes(path, so)
+        except FileNotFoundError:
+            raise MissingFileError("path", "an encrypted image file", path) from None
+        except OSError as exc:
+            raise ParameterError(f"path: cannot read {path}: {type(exc).__name__}") from None
+        return _from_blob(blob, path)
+    path = normalise(path) if "://" in str(path) else path
+    # never blocks: a FIFO, a folder or a device is a NotRegularFileError before a byte is read
+    blob = read_regular(path, "path", "an encrypted image file")
+    return _from_blob(blob, str(path))
+
+
+def image_from_bytes(blob: bytes, where: str = "image") -> EncryptedImage:
+    """The image in the bytes of a ``.hevr`` file, checked as :func:`load_image` checks a file
+    (``where`` names it in messages): data only, every field bounded before it is used."""
+    if not isinstance(blob, (bytes, bytearray, memoryview)):
+        raise ParameterError(f"blob: expected the bytes of a .hevr file, got {type(blob).__name__}")
+    return _from_blob(bytes(blob), where)
+
+
+def _from_blob(blob: bytes, path: str) -> EncryptedImage:
+    """The image in the bytes of a ``.hevr`` file (``path`` names it in messages)."""
+    h, body = parse_file(blob, path)
+    width = h["width"]
+    cts, pos = [], 0
+    for c in h["counts"]:
+        cts.append(body[pos:pos + c * width].reshape(c, width))
+        pos += c * width
+    return EncryptedImage(shape=h["shape"], exponent=h["exponent"], offset=h["offset"],
+                          fingerprint=h["fingerprint"], n=h["n"], tile=h["tile"], pack_bits=h["pack_bits"],
+                          per_pack=h["per_pack"], ciphertexts=cts, hits=h["hits"], info=h["info"],
+                          bound=h["bound"], finish=h["finish"], channel=h["channel"], components=h["components"],
+                          samples=h["samples"], verification=None if h["verification"] is None else
+                          Verification.from_dict(h["verification"], int(h["n"]), path))
