@@ -273,9 +273,21 @@ def _drag_and_wheel(lab, browser, tmp_path) -> None:
     t0 = time.time()
     driver.get(url)
     # the notebook is open and its kernel idle; then Run → Run All Cells, as a person would
+    # focus the notebook (JupyterLab 4.6 may open it unfocused: then neither its status-bar items show
+    # nor does Run All apply to it)
+    from selenium.common.exceptions import WebDriverException
+
+    def focus() -> bool:
+        try:  # the cells re-render while the notebook loads: a stale one is clicked again
+            driver.find_elements(By.CSS_SELECTOR, ".jp-NotebookPanel .jp-Cell")[0].click()
+            return True
+        except (IndexError, WebDriverException):
+            return False
+
+    _wait("the notebook", focus, timeout=120)
     _wait("the notebook's kernel", lambda: driver.find_elements(  # the status bar: "hevr test | Idle"
         By.XPATH, "//*[contains(@class,'jp-StatusBar-TextItem') and normalize-space(.)='hevr test | Idle']"),
-        timeout=60)
+        timeout=180)  # a loaded 2-core machine starts the kernel slowly
     _wait("the Run menu", lambda: driver.find_elements(By.XPATH, "//li[contains(@class,'lm-MenuBar-item')]"
                                                                  "[normalize-space(.)='Run']"))[0].click()
     _wait("Run All Cells", lambda: driver.find_elements(
