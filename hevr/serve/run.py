@@ -14,12 +14,15 @@ from typing import Any
 from ..errors import MissingDependencyError, ParameterError
 from ..store.reader import EncryptedVolume, open_volume
 
-try:  # the 'serve' extra: Starlette and uvicorn
+try:  # the 'serve' extra: Starlette and uvicorn (only their absence is a missing extra)
+    import starlette
     import uvicorn
-
+except ModuleNotFoundError:  # pragma: no cover - hevr serve says which extra
+    starlette = uvicorn = None
+if uvicorn is not None and starlette is not None:
     from .app import create_app
-except ImportError:  # pragma: no cover - hevr serve says which extra
-    uvicorn = create_app = None
+else:  # pragma: no cover
+    create_app = None
 
 log = logging.getLogger("hevr.serve")
 
