@@ -118,20 +118,30 @@ def cli_store(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def served(tmp_path_factory, keypair256):
-    """A real ``hevr serve`` (2-worker LocalCluster, 127.0.0.1) of a 12³ verifiable store with a
-    3-dim vector channel, 27 bricks and one pyramid level: ``SimpleNamespace(url, ev, priv, vol,
-    lines, proc)``; ``ev`` is the same store opened in this process."""
+def served_store(tmp_path_factory, keypair256):
+    """A 12³ verifiable store with a 3-dim vector channel, 27 bricks and one pyramid level:
+    ``SimpleNamespace(ev, priv, vol, dir)`` (the store is ``dir / "v.zarr"``)."""
     import types
 
     import hevr
-    from _serving import hevr_serve
 
     pub, priv = keypair256
     d = tmp_path_factory.mktemp("served")
     vol = hevr.phantom(12)
-    ev = hevr.encrypt_volume(vol, str(d / "v.zarr"), priv, brick=4, vector_dims=3, verifiable=True, progress=False)
+    hevr.encrypt_volume(vol, str(d / "v.zarr"), priv, brick=4, vector_dims=3, verifiable=True, progress=False)
     hevr.build_pyramid(str(d / "v.zarr"), levels=1, progress=False)
-    ev = hevr.open_volume(str(d / "v.zarr"))
-    with hevr_serve(str(d / "v.zarr"), "--workers", "2") as (url, proc, lines):
-        yield types.SimpleNamespace(url=url, ev=ev, priv=priv, vol=vol, lines=lines, proc=proc, dir=d)
+    return types.SimpleNamespace(ev=hevr.open_volume(str(d / "v.zarr")), priv=priv, vol=vol, dir=d)
+
+
+@pytest.fixture(scope="module")
+def served(served_store):
+    """A real ``hevr serve`` of ``served_store`` (2-worker LocalCluster, 127.0.0.1), per test module
+    (an idle server and its cluster still cost a few % of a core: not kept for the whole session):
+    ``SimpleNamespace(url, ev, priv, vol, dir, lines, proc)``."""
+    import types
+
+    from _serving import hevr_serve
+
+    s = served_store
+    with hevr_serve(str(s.dir / "v.zarr"), "--workers", "2") as (url, proc, lines):
+        yield types.SimpleNamespace(url=url, ev=s.ev, priv=s.priv, vol=s.vol, dir=s.dir, lines=lines, proc=proc)

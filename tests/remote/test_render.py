@@ -122,6 +122,11 @@ def test_key_holder_never_unpickles_nor_joins_a_cluster(served, rv, monkeypatch)
     hevr.render_slice(rv2, hevr.Plane.sagittal(rv2, 3), progress=False).decrypt(served.priv)
     frame = hevr.render_frame(rv2, cam, served.priv, progress=False)
     assert frame.image.shape == (9, 10)
+    viewer = hevr.Viewer(rv2, served.priv, volume=served.vol, width=10, height=8, mode="tf", show=False, preview=0)
+    viewer.azimuth.value = 50  # a second frame from the server, then a colour change on the client alone
+    viewer.node_rows[0][1].value = "#00ff00"
+    assert len(viewer.history) == 2 and viewer.history[-1]["client_recolour"] is True  # show=False: no first frame
+    assert all(h["error"] <= h["bound"] for h in viewer.history)
     server.close()
 
 

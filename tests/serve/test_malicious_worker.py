@@ -61,7 +61,7 @@ CLUSTER = textwrap.dedent('''
 
 
 @pytest.fixture
-def hostile(tmp_path, served):
+def hostile(tmp_path, served_store):
     from _serving import hevr_serve
 
     script = tmp_path / "cluster.py"
@@ -72,14 +72,15 @@ def hostile(tmp_path, served):
     try:
         address = proc.stdout.readline().strip()
         assert address.startswith("tcp://"), address
-        with hevr_serve(str(served.dir / "v.zarr"), "--scheduler", address) as (url, server, lines):
+        with hevr_serve(str(served_store.dir / "v.zarr"), "--scheduler", address) as (url, server, lines):
             yield url, mark, server, lines
     finally:
         proc.stdin.close()
         proc.wait(30)
 
 
-def test_a_malicious_cluster_never_runs_code_in_the_key_holder(served, hostile, monkeypatch):
+def test_a_malicious_cluster_never_runs_code_in_the_key_holder(served_store, hostile, monkeypatch):
+    served = served_store
     url, mark, server, lines = hostile
     ran_here = []
 
