@@ -54,7 +54,8 @@ def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: 
     app = create_app(stores, client=client, tokens=tokens, max_concurrent=max_concurrent, backend=backend)
     config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
                             ssl_certfile=tls_cert, ssl_keyfile=tls_key, timeout_keep_alive=5,
-                            limit_concurrency=256, h11_max_incomplete_event_size=64 * 1024)
+                            limit_concurrency=256, h11_max_incomplete_event_size=64 * 1024,
+                            timeout_graceful_shutdown=3)  # Ctrl-C: open keep-alive connections get 3 s
     server = uvicorn.Server(config)
     if on_ready is not None:
         scheme = "https" if tls_cert else "http"
