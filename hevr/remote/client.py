@@ -226,9 +226,9 @@ class Server:
         if buf:
             raise RemoteError(f"server {self.url}: {what}: the stream ended inside a frame (truncated)")
 
-    def _json(self, raw: bytes, what: str) -> dict:
+    def _json(self, raw: bytes, what: str, limit: int = MAX_BODY) -> dict:
         try:
-            doc = parse_json(raw, what)
+            doc = parse_json(raw, what, limit)
         except HevrError as exc:
             raise RemoteError(f"server {self.url}: {exc}") from None
         if not isinstance(doc, dict):
@@ -247,7 +247,7 @@ class Server:
 
     def get_json(self, path: str, limit: int = MAX_BODY) -> dict:
         raw, _ = self.request("GET", path, limit=limit)
-        return self._json(raw, f"GET {path}")
+        return self._json(raw, f"GET {path}", limit)
 
     # -- the API --------------------------------------------------------------------
     def stores(self) -> list[dict]:

@@ -66,8 +66,8 @@ FRAME = struct.Struct("<II")
 MAX_JSON_DEPTH = 32
 
 
-def parse_json(raw: bytes, name: str) -> Any:
-    """Strict JSON of at most :data:`MAX_BODY` bytes: UTF-8, no duplicate keys, no NaN or
+def parse_json(raw: bytes, name: str, limit: int = MAX_BODY) -> Any:
+    """Strict JSON of at most ``limit`` bytes (default :data:`MAX_BODY`): UTF-8, no duplicate keys, no NaN or
     Infinity, integers of at most 40 digits, bounded nesting; a :class:`hevr.ParameterError`
     naming ``name`` otherwise.
 
@@ -78,9 +78,9 @@ def parse_json(raw: bytes, name: str) -> Any:
     ...
     hevr.errors.ParameterError: body: expected a JSON document, got duplicate key 'a'
     """
-    if len(raw) > MAX_BODY:
-        raise ParameterError(f"{name}: expected at most {MAX_BODY} bytes of JSON, got {len(raw)}")
-    if raw.count(b"[") + raw.count(b"{") > 4 * MAX_JSON_DEPTH * 16:
+    if len(raw) > limit:
+        raise ParameterError(f"{name}: expected at most {limit} bytes of JSON, got {len(raw)}")
+    if raw.count(b"[") + raw.count(b"{") > 4 * MAX_JSON_DEPTH * 16 * max(1, limit // MAX_BODY):
         raise ParameterError(f"{name}: expected a small JSON document, got too many '[' and '{{'")
 
     def no_constant(text: str) -> Any:

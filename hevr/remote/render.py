@@ -19,6 +19,7 @@ is this process's own request, never the server's word.
 from __future__ import annotations
 
 import logging
+import re
 import secrets
 import time
 from typing import Any
@@ -27,6 +28,7 @@ import numpy as np
 
 from .._tiles import TileLayout
 from .._validate import check_int
+from ..backends import get_backend
 from ..errors import HevrError, IntegrityError, ParameterError, RemoteError
 from ..image import EncryptedImage, image_from_bytes
 from ..image.checks import check_image
@@ -42,6 +44,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["render_remote"]
 
+_DECIMAL = re.compile(r"[0-9]{1,2800}")  # ASCII digits only: str.isdigit() also takes '²'
 _FIELDS = ("shape", "exponent", "offset", "fingerprint", "n", "tile", "pack_bits", "per_pack", "bound", "finish",
            "channel", "components", "info")
 
@@ -101,7 +104,11 @@ def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: i
                 raise RemoteError(f"server {server.url}: the stream's unit {index}: expected a new unit of "
                                   f"0-{len(units) - 1} of whole {width}-byte records")
             unit = np.frombuffer(data, dtype=np.uint8).reshape(-1, width)
-            stream.unit(index, unit)
+            try:  # its record count, range and plaintexts are checked there
+                stream.unit(index, unit)
+            except IntegrityError as exc:
+                raise RemoteError(f"server {server.url}: the stream's unit {index} does not fit the request "
+                                  f"({exc})") from None
             units[index] = unit
         if any(u is None for u in units):
             raise RemoteError(f"server {server.url}: the stream ended with {sum(u is None for u in units)} of "
@@ -129,6 +136,11 @@ def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: i
         check_image(img)
     except IntegrityError as exc:
         raise RemoteError(f"server {server.url}: the image's ciphertexts do not fit the request ({exc})") from None
+    be = get_backend("cpu")
+    for t, c in enumerate(img.ciphertexts):  # every ciphertext in (0, n²) before the image is handed out
+        if len(c) and be.first_out_of_range(be.from_bytes(np.ascontiguousarray(c)), n * n) is not None:
+            raise RemoteError(f"server {server.url}: tile {t} of the image holds a value that is not a ciphertext "
+                              "(outside (0, n²)); no image is returned")
     if verified:  # the image is fixed in this process: only now the seed (module docstring)
         t1 = time.perf_counter()
         seed = secrets.token_bytes(32)
@@ -150,7 +162,7 @@ def _aggregate(raw: bytes, n: int, url: str) -> int:
     except HevrError as exc:
         raise RemoteError(f"server {url}: {exc}") from None
     agg = doc.get("aggregate") if isinstance(doc, dict) and set(doc) == {"aggregate"} else None
-    if not (isinstance(agg, str) and agg.isdigit() and len(agg) <= 2 * len(str(n)) and 0 < int(agg) < n * n):
+    if not (isinstance(agg, str) and _DECIMAL.fullmatch(agg) and len(agg) <= 2 * len(str(n)) and 0 < int(agg) < n * n):
         raise RemoteError(f"server {url}: the verification answer: expected {{\"aggregate\": a ciphertext in (0, n²) "
                           "as a decimal string}")
     return int(agg)

@@ -216,3 +216,45 @@ def test_cli_writes_nothing_on_a_lie(truth, tmp_path):
                  "--azimuth", "20", "--timeout", "5", "-q"])
     double.shutdown()
     assert code == 1 and not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_review_findings_end_in_remote_errors(truth, keypair256, tmp_path):
+    """A Unicode-digit aggregate, a zeroed ciphertext, short or empty streamed units: RemoteError, never
+    a raw ValueError or an image holding non-ciphertexts; and a store list over 64 KiB is read."""
+    ev, cam, img, _, desc, priv = truth
+    W = ev.meta.ciphertext_bytes
+    from hevr.image import image_from_bytes
+
+    zeroed = image_from_bytes(img.to_bytes())
+    zeroed.ciphertexts[0] = np.zeros_like(zeroed.ciphertexts[0])
+    _expect(truth, answer(media=IMG, body=zeroed.to_bytes()), "not a ciphertext")
+
+    vev = hevr.encrypt_volume(hevr.phantom(6), str(tmp_path / "t.zarr"), priv, brick=6, verifiable=True,
+                              progress=False)
+    vcam = hevr.Camera.orbit(vev, width=5, height=4)
+    vimg = hevr.render(vev, vcam, progress=False, verify=False)
+    vdesc = json.dumps({"id": vev.meta.store_id, "metadata": vev.meta.to_dict()}).encode()
+    for agg in ("\u00b2", "1" * 3000, "0", "-5"):
+        double = Double({("GET", f"/v1/stores/{vev.meta.store_id}"): answer(body=vdesc),
+                         ("POST", "/render"): answer(media=IMG, body=vimg.to_bytes()),
+                         ("POST", "/verify"): answer(body=json.dumps({"aggregate": agg}).encode())})
+        rv = connect(double.url, timeout=5).open(vev.meta.store_id)
+        with pytest.raises(hevr.RemoteError, match="aggregate"):
+            hevr.render(rv, vcam, progress=False)
+        double.shutdown()
+
+    for records in (0, 1, 7):
+        frames = pack_frame(0, b"\1" * (W * records)) + pack_frame(END, json.dumps({"ok": True}).encode())
+        double = Double({("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=desc),
+                         ("POST", "/stream"): answer(media="application/vnd.hevr.units", body=frames)})
+        rv = connect(double.url, timeout=5).open(ev.meta.store_id)
+        with pytest.raises(hevr.RemoteError, match="unit 0"):
+            hevr.render_frame(rv, cam, priv, progress=False)
+        double.shutdown()
+
+    item = json.loads(desc)
+    many = json.dumps({"stores": [item] * 90}).encode()
+    assert len(many) > 65536
+    double = Double({("GET", "/v1/stores"): answer(body=many)})
+    assert len(connect(double.url, timeout=5).stores()) == 90
+    double.shutdown()
