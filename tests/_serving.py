@@ -56,3 +56,27 @@ def wait_until(predicate, timeout: float = 10.0) -> bool:
             return True
         time.sleep(0.05)
     return False
+
+
+def refuse_unpickling(monkeypatch) -> list:
+    """Make every unpickling (and every new ``distributed.Client``) in this process fail; returns the
+    list that records each attempt (a test asserts it stays empty)."""
+    import pickle
+
+    import distributed
+
+    attempts: list = []
+
+    def refuse(*a, **k):
+        attempts.append(True)
+        raise AssertionError("the key holder's process unpickled or made a Dask client")
+
+    class NoUnpickler:
+        def __init__(self, *a, **k):
+            refuse()
+
+    monkeypatch.setattr(pickle, "loads", refuse)
+    monkeypatch.setattr(pickle, "load", refuse)
+    monkeypatch.setattr(pickle, "Unpickler", NoUnpickler)
+    monkeypatch.setattr(distributed.Client, "__init__", refuse)
+    return attempts

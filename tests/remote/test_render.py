@@ -3,8 +3,6 @@ verified over the wire, and the key holder's process never unpickles or joins a 
 
 from __future__ import annotations
 
-import pickle
-
 import numpy as np
 import pytest
 
@@ -101,19 +99,9 @@ def test_what_the_server_cannot_be_asked(rv):
 
 
 def test_key_holder_never_unpickles_nor_joins_a_cluster(served, rv, monkeypatch):
-    import distributed
+    from _serving import refuse_unpickling
 
-    def refuse(*a, **k):
-        raise AssertionError("the key holder's process unpickled or made a Dask client")
-
-    class NoUnpickler:
-        def __init__(self, *a, **k):
-            refuse()
-
-    monkeypatch.setattr(pickle, "loads", refuse)
-    monkeypatch.setattr(pickle, "load", refuse)
-    monkeypatch.setattr(pickle, "Unpickler", NoUnpickler)
-    monkeypatch.setattr(distributed.Client, "__init__", refuse)
+    attempts = refuse_unpickling(monkeypatch)
     server = connect(served.url, timeout=120)
     rv2 = server.open(served.ev.meta.store_id)
     cam = hevr.Camera.orbit(rv2, azimuth=75, width=10, height=9)
@@ -127,6 +115,7 @@ def test_key_holder_never_unpickles_nor_joins_a_cluster(served, rv, monkeypatch)
     viewer.node_rows[0][1].value = "#00ff00"
     assert len(viewer.history) == 2 and viewer.history[-1]["client_recolour"] is True  # show=False: no first frame
     assert all(h["error"] <= h["bound"] for h in viewer.history)
+    assert not attempts
     server.close()
 
 

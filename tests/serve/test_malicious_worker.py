@@ -10,7 +10,6 @@ client — and the key holder, who talks to the server only through :mod:`hevr.r
 from __future__ import annotations
 
 import os
-import pickle
 import subprocess
 import sys
 import textwrap
@@ -82,19 +81,9 @@ def hostile(tmp_path, served_store):
 def test_a_malicious_cluster_never_runs_code_in_the_key_holder(served_store, hostile, monkeypatch):
     served = served_store
     url, mark, server, lines = hostile
-    ran_here = []
+    from _serving import refuse_unpickling
 
-    def refuse(*a, **k):
-        ran_here.append(True)
-        raise AssertionError("the key holder's process unpickled")
-
-    class NoUnpickler:
-        def __init__(self, *a, **k):
-            refuse()
-
-    monkeypatch.setattr(pickle, "loads", refuse)
-    monkeypatch.setattr(pickle, "load", refuse)
-    monkeypatch.setattr(pickle, "Unpickler", NoUnpickler)
+    ran_here = refuse_unpickling(monkeypatch)
     rv = connect(url, timeout=120).open(served.ev.meta.store_id)
     outcomes = []
     for az in (11,):
