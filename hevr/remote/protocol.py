@@ -41,10 +41,12 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
+from .._validate import check_choice, check_int
 from ..errors import HevrError, ParameterError
 from ..image.header import _no_duplicates, _small_int
 from ..rendering.camera import Camera
 from ..rendering.plane import Plane, view_from_dict
+from ..volume.pyramid import MAX_LEVELS
 
 __all__ = ["API_VERSION", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_SIDE", "PROBLEM_MEDIA", "UNITS_MEDIA",
            "RenderRequest", "VerifyRequest", "image_limit", "pack_frame", "parse_json", "unpack_head"]
@@ -120,20 +122,6 @@ def _fields(d: Any, name: str, allowed: set[str], required: set[str]) -> dict:
     return d
 
 
-def _int(d: dict, name: str, lo: int, hi: int, default: int) -> int:
-    v = d.get(name, default)
-    if type(v) is not int or not lo <= v <= hi:
-        raise ParameterError(f"{name}: expected an integer in [{lo}, {hi}], got {str(v)[:40]!r}")
-    return v
-
-
-def _choice(d: dict, name: str, choices: tuple, default: Any) -> Any:
-    v = d.get(name, default)
-    if v not in choices or (v is not None and not isinstance(v, str)):
-        raise ParameterError(f"{name}: expected one of {list(choices)}, got {str(v)[:40]!r}")
-    return v
-
-
 def _view(data: Any) -> Camera | Plane:
     """A camera or plane from JSON, bounded before it is built (its own checks follow)."""
     if not isinstance(data, dict):
@@ -195,20 +183,21 @@ class RenderRequest:
     def __post_init__(self) -> None:
         if not isinstance(self.view, (Camera, Plane)):
             raise ParameterError(f"view: expected a hevr.Camera or hevr.Plane, got {type(self.view).__name__}")
-        _choice({"channel": self.channel}, "channel", CHANNELS, None)
-        _choice({"sampling": self.sampling}, "sampling", SAMPLINGS, None)
+        check_choice("channel", self.channel, CHANNELS)
+        check_choice("sampling", self.sampling, SAMPLINGS)
         step = self.step
         if type(step) not in (int, float) or not (0 < step <= MAX_STEP) or not math.isfinite(step):
             raise ParameterError(f"step: expected a number in (0, {MAX_STEP:g}], got {str(step)[:40]!r}")
         object.__setattr__(self, "step", float(step))
-        _int({"level": self.level}, "level", 0, 8, 0)
+        check_int("level", self.level, 0, MAX_LEVELS)
         if isinstance(self.view, Plane) and self.level:
             raise ParameterError(f"level: expected 0 for a plane (slices have no level), got {self.level}")
-        _int({"digits": self.digits}, "digits", 0, 9, 3)
-        _int({"tile": self.tile}, "tile", 1, MAX_SIDE, 32)
+        check_int("digits", self.digits, 0, 9)
+        check_int("tile", self.tile, 1, MAX_SIDE)
         if type(self.pack) is not bool:
             raise ParameterError(f"pack: expected true or false, got {str(self.pack)[:40]!r}")
-        _choice({"backend": self.backend}, "backend", (None, *BACKENDS), None)
+        if self.backend is not None:
+            check_choice("backend", self.backend, BACKENDS)
 
     def to_dict(self) -> dict[str, Any]:
         return {"view": self.view.to_dict(), "channel": self.channel, "sampling": self.sampling, "step": self.step,
