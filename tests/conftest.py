@@ -19,8 +19,6 @@ from distributed import Client, LocalCluster
 import hevr
 from hevr.crypto.keys import generate_keypair
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-
 if os.environ.get("HEVR_TEST_FAKE_CUPY") == "1":  # before any test module asks for the cuda backend
     sys.path.insert(0, str(Path(__file__).resolve().parent / "backends"))
     from _fake_cupy import FakeCupy
@@ -53,11 +51,6 @@ def keypair2048():
 @pytest.fixture(scope="session", params=[256, 512], ids=["k256", "k512"])
 def keypair(request, keypair256, keypair512):
     return keypair256 if request.param == 256 else keypair512
-
-
-@pytest.fixture(scope="session")
-def shared_data() -> Path:
-    return SHARED / "data"
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -18,10 +18,9 @@ from hevr.errors import (
 )
 from hevr.volume.loaders import _format, load_volume, read_scan, save_volume
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"  # shipped with the tests (tests/data/README.md)
 TOOTH_SHA512 = "5ee3d77ae951e129d29062a4fd4d8730fd8670bd"
 
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared test data folder {DATA} is absent")
 
 
 def _volume(dtype: str | type, shape: tuple[int, int, int] = (5, 6, 7)) -> np.ndarray:
@@ -50,7 +49,6 @@ def _nrrd_header(**fields: str) -> str:
 # ----------------------------------------------------------------------------- tooth CT
 
 
-@needs_data
 @pytest.mark.parametrize("name", ["tooth.nhdr", "tooth_103x94x161_uint8.raw"])
 def test_tooth(name: str) -> None:
     vol, spacing = load_volume(DATA / name)
@@ -68,7 +66,6 @@ def test_tooth(name: str) -> None:
     assert digest == hashlib.sha512((DATA / "tooth_103x94x161_uint8.raw").read_bytes()).hexdigest()
 
 
-@needs_data
 def test_tooth_scan_geometry() -> None:
     scan = read_scan(DATA / "tooth.nhdr")
     assert scan.frame == "RAS" and scan.modality is None and scan.source.endswith("tooth.nhdr")
@@ -81,7 +78,6 @@ def test_tooth_scan_geometry() -> None:
     np.testing.assert_array_equal(scan.volume, raw.volume[:, ::-1, ::-1])
 
 
-@needs_data
 def test_tooth_with_str_path_and_spacing_override() -> None:
     vol, spacing = load_volume(str(DATA / "tooth.nhdr"), spacing=(0.5, 0.5, 2))
     assert vol.shape == (161, 94, 103)
