@@ -104,8 +104,44 @@ def cmd_encrypt(args: Any) -> int:
 
 # -- render --------------------------------------------------------------------------------
 def verify_argument(args: Any) -> bool | str | None:
-    """``render(verify=)`` from ``--verify [STORE_ID]`` / ``--no-verify`` (default None: the store decides)."""
-    return False if args.no_verify else args.verify
+    """``render(verify=)`` from ``--key``, ``--verify [STORE_ID]`` / ``--no-verify``: with the private
+    ``--key`` (read into ``args.private_key``) None lets the store decide; without it the frame is not
+    verified (only the key holder's process may draw the seed), and ``--verify`` is refused."""
+    args.private_key = read_key(args.key, private=True) if getattr(args, "key", None) else None
+    if args.no_verify:
+        return False
+    if args.private_key is None:
+        if args.verify is not None:
+            raise UsageError("--verify: expected --key KEY.json as well: only the key holder's process draws the "
+                             "verification seed and checks the frame (one that renders without the key, on the "
+                             "cluster, would know the seed before the frame is fixed)")
+        warn_line("not verified: no --key (the key holder's process verifies: give it --key, or render through "
+                  "hevr serve from the key holder's machine)")
+        return False
+    return args.verify
+
+
+def key_holder(args: Any, ev: Any) -> bool | str | None:
+    """:func:`verify_argument` for the store ``ev``, whose key ``--key`` must be."""
+    verify = verify_argument(args)
+    if args.private_key is not None and args.private_key.public_key.fingerprint != ev.meta.fingerprint:
+        raise UsageError(f"--key: expected the private key of the store (fingerprint {ev.meta.fingerprint[:16]}…), "
+                         f"got {args.key} (fingerprint {args.private_key.public_key.fingerprint[:16]}…)")
+    return verify
+
+
+def verified_line(img: Any) -> str | None:
+    """What a verified frame proves, for the CLI: its store, view and level (None: not verified)."""
+    v = img.verification
+    if v is None:
+        return None
+    view = v.camera
+    what = (f"plane {view.to_dict()}" if not hasattr(view, "position") else
+            f"camera at ({', '.join(f'{x:g}' for x in view.position)}) looking at "
+            f"({', '.join(f'{x:g}' for x in view.focal_point)}), {view.width}x{view.height} px")
+    return (f"verified: the frame is the render of store {v.store_id} (channel {v.channel}, {v.sampling} sampling, "
+            f"step {v.step:g}, level {v.level}) and its view, {what}; checked against the store's tags and its "
+            "owner-authenticated metadata")
 
 
 def resolve_mode(args: Any) -> str:
@@ -170,6 +206,7 @@ def cmd_render(args: Any) -> int:
         raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
     ev = open_for_mode(args.store, mode, "render", so, args)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
+    verify = key_holder(args, ev)
     if args.view and ev.frame is None:
         warn_line(f"--view {args.view}: {args.store} records no patient frame (its input had no orientation); "
                   "the view takes the stored axes as RAS+ (x right, y anterior, z superior)")
@@ -193,8 +230,10 @@ def cmd_render(args: Any) -> int:
                          nodes=nodes, precision=args.precision, pack=not args.no_pack,
                          progress=show_progress(args), keep_sums=sums, level=args.level or None,
                          gradient=args.gradient, overwrite=args.force, finish=args.finish,
-                         verify=verify_argument(args))
-    st.save_frame(img, out, force=args.force, so=so)
+                         verify=verify)
+    st.save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
+    if verified_line(img):
+        print(verified_line(img) + " (stamped with the key holder's MAC)")
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
     if sums is not None:
@@ -302,8 +341,10 @@ def cmd_decrypt(args: Any) -> int:
     key = read_key(args.key, private=True)
     img = load_image(frame, storage_options=so)
     colouring = decrypt_colouring(args, img)
+    need = args.require_verified
     with Timer() as t:
-        decrypted = img.decrypt_frame(key) if colouring is not None else img.decrypt(key)
+        decrypted = (img.decrypt_frame(key, require_verified=need) if colouring is not None else
+                     img.decrypt(key, require_verified=need))
     coloured = ""
     if colouring is not None:
         mode, density, nodes = colouring
@@ -319,11 +360,11 @@ def cmd_decrypt(args: Any) -> int:
     print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
     if img.verification is not None:
-        print(f"verified: the frame is the render of store {img.verification.store_id} and its view (checked "
-              "against the store's tags)")
+        print(verified_line(img) + " (the file carries the key holder's stamp)")
     else:
         print("not verified: the frame carries no check against a store's tags (a store encrypted without "
-              "--verifiable, or rendered with --no-verify or --finish server)")
+              "--verifiable, rendered without --key or with --no-verify or --finish server); --require-verified "
+              "refuses such a frame")
     print(f"wrote {out}")
     if npy is not None:
         print(f"wrote {npy} (float64 values)")

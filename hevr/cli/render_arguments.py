@@ -42,6 +42,7 @@ from .render_options import (
     add_encrypt_scan_options,
     add_finish_option,
     add_server_option,
+    add_require_verified_option,
     add_verify_option,
     add_view_option,
     format_tf,
@@ -292,6 +293,7 @@ def decrypt_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace an existing --out (or --npy) file")
     p.add_argument("--window", type=range_type, metavar="LO,HI",
                    help="grey/colour window of the PNG (default 0 .. 99.9th percentile)")
+    add_require_verified_option(p)
     add_decrypt_colour_options(p)
 
 

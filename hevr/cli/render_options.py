@@ -205,14 +205,25 @@ def _store_id(text: str) -> str:
 
 
 def add_verify_option(p: argparse.ArgumentParser) -> None:
-    """``--verify [STORE_ID]`` / ``--no-verify`` of render and slice."""
+    """``--key`` / ``--verify [STORE_ID]`` / ``--no-verify`` of render and slice."""
+    p.add_argument("--key", metavar="KEY.json",
+                   help="the private key: this process is then the key holder's, which draws the verification seed "
+                        "after the frame is rendered, checks the frame (a store encrypted with --verifiable) and "
+                        "stamps the file so that 'hevr decrypt' knows it was checked; without it the frame is not "
+                        "verified (the process that renders on the cluster must not draw the seed)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--verify", nargs="?", const=True, default=None, metavar="STORE_ID", type=_store_id,
-                   help="require the check against the store's tags (a store encrypted with --verifiable; on by "
-                        "default there): the cluster also sums the tags and the frame carries one aggregate that "
-                        "'hevr decrypt' checks (about twice the work); with the STORE_ID 'hevr encrypt' printed, "
-                        "any other store is refused")
+                   help="with --key: require the check against the store's tags (on by default for a verifiable "
+                        "store): the cluster also sums the tags (about twice the work); with the STORE_ID 'hevr "
+                        "encrypt' printed, any other store is refused")
     g.add_argument("--no-verify", action="store_true", help="skip the check against the store's tags")
+
+
+def add_require_verified_option(p: argparse.ArgumentParser) -> None:
+    """``hevr decrypt --require-verified [STORE_ID]``."""
+    p.add_argument("--require-verified", nargs="?", const=True, default=False, metavar="STORE_ID", type=_store_id,
+                   help="refuse (exit 1) a frame that the key holder did not verify (no check against a store's tags, "
+                        "or no valid stamp); with STORE_ID, also one of any other store")
 
 
 def add_decrypt_colour_options(p: argparse.ArgumentParser) -> None:

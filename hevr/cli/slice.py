@@ -14,7 +14,7 @@ from ..paper import PAPER_TF1
 from ..rendering.plane import Plane
 from ..rendering.planner import check_render_size
 from ..rendering.slices import render_slice
-from .commands import compute_context, open_for_mode, resolve_mode, verify_argument
+from .commands import compute_context, key_holder, open_for_mode, resolve_mode
 from .finish import report_finish
 from .render_options import format_tf
 from .scan import resolve_tf
@@ -60,6 +60,7 @@ def cmd_slice(args: Any) -> int:
     out = output_file(args.out, force=args.force, so=so)
     ev = open_for_mode(args.store, mode, "slice", so, args)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
+    verify = key_holder(args, ev)
     plane, where = _plane(args, ev)
     finish = {"finish": args.finish}
     check_render_size(plane, ev.shape, ev.spacing, plane.slab_step)  # refuse before a cluster starts
@@ -76,8 +77,8 @@ def cmd_slice(args: Any) -> int:
             img = render_slice(ev, plane, mode=mode, sampling=args.sampling, density=args.density, nodes=nodes,
                                precision=args.precision, pack=not args.no_pack, client=client,
                                progress=show_progress(args), gradient=args.gradient,
-                               verify=verify_argument(args), **finish)
-    save_frame(img, out, force=args.force, so=so)
+                               verify=verify, **finish)
+    save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
     inside = int(img.hits.sum())
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(size_of(out, so))}, {inside} of {plane.width * plane.height} pixels inside the volume, "

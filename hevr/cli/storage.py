@@ -108,11 +108,12 @@ def output_file(text: str, option: str = "--out", suffix: str | None = None, *, 
 
 
 def save_frame(img: Any, out: Path | str, option: str = "--out", *, force: bool = False,
-               so: dict | None = None) -> None:
+               so: dict | None = None, private_key: Any = None) -> None:
     """``img.save(out)``, replacing a file there only with ``force``; an existing file is
-    reported as ``option``'s (it may have appeared while the frame was rendered)."""
+    reported as ``option``'s (it may have appeared while the frame was rendered). With the
+    ``private_key`` a verified frame is checked and stamped (:meth:`hevr.EncryptedImage.save`)."""
     try:
-        img.save(out, overwrite=force, storage_options=so)
+        img.save(out, overwrite=force, storage_options=so, private_key=private_key)
     except ExistingFileError:
         raise ExistingFileError(option, out) from None
 

@@ -20,6 +20,7 @@ an object store makes visible whole or not at all.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import logging
 import time
@@ -34,10 +35,11 @@ from .._validate import check_bool
 from ..backends import get_backend
 from ..colour import colour, colouring_spec, frame_from_sums, scaled_sums
 from ..crypto.keys import PrivateKey
-from ..errors import IntegrityError, KeyMismatchError, ParameterError
-from ..store.paths import check_storage_options, is_local, output_location, write_output
+from ..errors import IntegrityError, KeyMismatchError, ParameterError, VerificationError
+from ..store.paths import check_storage_options, output_location, write_output
 from .checks import check_image, tile_name
 from .header import file_parts
+from .stamp import check_stamp
 
 __all__ = ["EncryptedImage"]
 
@@ -110,6 +112,8 @@ class EncryptedImage:
     samples: np.ndarray | None = None
     colouring: Any = field(default=None, repr=False, compare=False)
     verification: Any = field(default=None, repr=False, compare=False)
+    # (stamp, what it authenticates) of a file that carried the key holder's stamp (hevr.image.stamp)
+    stamp: Any = field(default=None, repr=False, compare=False)
 
     def __repr__(self) -> str:
         return (f"EncryptedImage(shape={self.shape}, finish={self.finish!r}, exponent={self.exponent}, "
@@ -133,8 +137,13 @@ class EncryptedImage:
     def channels(self) -> int:
         return self.shape[2] if len(self.shape) == 3 else 1
 
-    def decrypt_mantissas(self, private_key: Any, backend: str | None = None) -> np.ndarray:
+    def decrypt_mantissas(self, private_key: Any, backend: str | None = None, *,
+                          require_verified: bool | str = False) -> np.ndarray:
         """Integer mantissas (offset removed) as an object array of the image shape.
+
+        ``require_verified`` (True, or the store id that must have been proven): refuse
+        (:class:`hevr.VerificationError`) an image that carries no verification record drawn in
+        this process or stamped by the key holder (:mod:`hevr.image.stamp`), or one of another store.
 
         The batch decryption runs on ``backend`` (:mod:`hevr.backends`, default ``cpu``).
         Every ciphertext is checked before it is decrypted and every plaintext after: the
@@ -157,12 +166,12 @@ class EncryptedImage:
         H, W = self.shape[:2]
         out = np.zeros((H, W, C), dtype=object)
         offset = int(self.offset)
-        for r0, r1, c0, c1, mask, vals in self._checked_tiles(private_key, backend):
+        for r0, r1, c0, c1, mask, vals in self._checked_tiles(private_key, backend, require_verified):
             block = out[r0:r1, c0:c1, :]
             block[mask] = np.array([v - offset for v in vals], dtype=object).reshape(-1, C)
         return out[..., 0] if C == 1 and len(self.shape) == 2 else out
 
-    def _checked_tiles(self, private_key: Any, backend: str | None):
+    def _checked_tiles(self, private_key: Any, backend: str | None, require_verified: Any = False):
         """Check the image's numbers now, then return an iterator over the tiles with hits:
         (r0, r1, c0, c1, hit mask, checked values with the offset), in tile order, which raises
         on the first faulty ciphertext (the rules of :meth:`decrypt_mantissas`)."""
@@ -174,6 +183,7 @@ class EncryptedImage:
                 f"private_key: the image was encrypted under key {str(self.fingerprint)[:16]}…, "
                 f"got a key with fingerprint {private_key.public_key.fingerprint[:16]}…"
             )
+        self._check_provenance(private_key, require_verified)
         layout, hits, _ = check_image(self)  # eagerly: before the caller uses any number of the image
         n = private_key.public_key.n
         if int(self.n) != int(n):
@@ -187,6 +197,31 @@ class EncryptedImage:
         self.verification.check(private_key, self, np.concatenate(ids) if ids else np.zeros(0, np.int64),
                                 [v - offset for *_, vals in tiles for v in vals])
         return iter(tiles)
+
+    def _check_provenance(self, private_key: Any, require_verified: Any) -> None:
+        """Who vouches for the verification record (:mod:`hevr.image.stamp`): one drawn in this
+        process, or a file's with the key holder's valid stamp; ``require_verified`` (True, or the
+        store id that must have been proven) refuses an image without one."""
+        v = self.verification
+        if require_verified is not False and require_verified is not None:
+            if not (require_verified is True or isinstance(require_verified, str)):
+                raise ParameterError(f"require_verified: expected True, False or a store id, got {require_verified!r}")
+            if v is None:
+                raise VerificationError("image: not verified (it carries no check against a store's tags: a store "
+                                        "encrypted without verifiable=True, a render with verify=False, server "
+                                        "finishing, or a file saved without the key holder's stamp), and "
+                                        "require_verified was given; no image is returned")
+            if isinstance(require_verified, str) and v.store_id != require_verified:
+                raise VerificationError(f"image: expected a frame of the store {require_verified}, got one of the store "
+                                        f"{v.store_id}; no image is returned")
+        if v is None or v.drawn_here:
+            return
+        if self.stamp is None or not check_stamp(private_key, self.stamp[1], self.stamp[0]):
+            what = "carries no stamp" if self.stamp is None else "carries a stamp that does not match its bytes"
+            raise VerificationError(
+                f"image: its verification record {what} of the key holder (a verified frame is saved with the key: "
+                "img.save(path, private_key=...), hevr render --key): the record or the frame was written by someone "
+                "else, or altered; no image is returned")
 
     def _tile_values(self, private_key: Any, be: Any, layout: Any, hits: np.ndarray | None, n: int):
         """The iterator of :meth:`_checked_tiles`: range-check, decrypt and unpack tile by tile."""
@@ -216,10 +251,12 @@ class EncryptedImage:
                 raise IntegrityError(f"{tile_name(layout, t)}: {what}; {_CORRUPT}")
             yield r0, r1, c0, c1, mask, vals
 
-    def decrypt_frame(self, private_key: Any, backend: str | None = None) -> Any:
+    def decrypt_frame(self, private_key: Any, backend: str | None = None, *,
+                      require_verified: bool | str = False) -> Any:
         """Decrypt a client-finished image to a :class:`hevr.Frame`: the per-pixel means of the
         stored components, to colour (and re-colour) on this machine (:mod:`hevr.colour`).
-        The checks of :meth:`decrypt_mantissas` apply (``IntegrityError`` on any fault)."""
+        The checks of :meth:`decrypt_mantissas` apply (``IntegrityError`` on any fault, and
+        ``require_verified``)."""
         if self.finish != "client":
             raise ParameterError("finish: expected an image rendered with finish='client' (it holds the ray sums "
                                  "to colour), got one finished on the server: use decrypt()")
@@ -228,14 +265,14 @@ class EncryptedImage:
         H, W = self.shape[:2]
         sums = np.zeros((H, W, K), dtype=np.float64)
         offset = int(self.offset)
-        for r0, r1, c0, c1, mask, vals in self._checked_tiles(private_key, backend):
+        for r0, r1, c0, c1, mask, vals in self._checked_tiles(private_key, backend, require_verified):
             block = sums[r0:r1, c0:c1, :]
             block[mask] = scaled_sums([v - offset for v in vals], self.exponent).reshape(-1, K)
         stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts)
         return frame_from_sums(sums, self.samples, str(self.channel), self.colouring, stats)
 
     def decrypt(self, private_key: Any, backend: str | None = None, *, mode: str | None = None,
-                density: float | None = None, nodes: Any = None) -> np.ndarray:
+                density: float | None = None, nodes: Any = None, require_verified: bool | str = False) -> np.ndarray:
         """Decrypt to float64 pixel values (batch CRT decryption on ``backend``, then unpacking),
         after the checks of :meth:`decrypt_mantissas` (``IntegrityError`` on any fault). Only
         the hit pixels are converted (exactly rounded); pixels whose rays miss stay 0.0.
@@ -244,17 +281,19 @@ class EncryptedImage:
         with ``mode`` / ``density`` / ``nodes`` when given, else with the render's own
         colouring (held in this process only), else as an X-ray for the scalar channel
         (:meth:`decrypt_frame` keeps the sums to re-colour). A server-finished image is
-        already coloured: giving a colouring is a :class:`hevr.ParameterError`."""
+        already coloured: giving a colouring is a :class:`hevr.ParameterError`.
+        ``require_verified`` as for :meth:`decrypt_mantissas`."""
         if self.finish == "client":
             spec = colouring_spec(str(self.channel), self.values_per_pixel, mode, density, nodes, self.colouring)
-            return colour(self.decrypt_frame(private_key, backend).means, spec)  # checked once, above
+            frame = self.decrypt_frame(private_key, backend, require_verified=require_verified)  # checked once
+            return colour(frame.means, spec)
         if mode is not None or density is not None or nodes is not None:
             raise ParameterError("mode, density, nodes: expected none for an image finished on the server (its "
                                  "colouring was applied there); render with finish='client' to colour at decryption")
         C = self.channels
         H, W = self.shape[:2]
         out = np.zeros((H, W, C), dtype=np.float64)
-        tiles = self._checked_tiles(private_key, backend)  # checks the header numbers first
+        tiles = self._checked_tiles(private_key, backend, require_verified)  # checks the header numbers first
         offset, scale = int(self.offset), Fraction(10) ** self.exponent
         for r0, r1, c0, c1, mask, vals in tiles:
             block = out[r0:r1, c0:c1, :]
@@ -262,7 +301,8 @@ class EncryptedImage:
         return out[..., 0] if len(self.shape) == 2 else out
 
     # -- the .hevr file (layout: hevr.image.header; reading: hevr.image.files) ---------------
-    def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None) -> None:
+    def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None,
+             private_key: Any = None) -> None:
         """Write the ``.hevr`` file (format version 3, ``docs/image-format.md``): magic, header
         length, JSON header, ciphertext records, SHA-256 of all of it. The image is checked
         first (``IntegrityError`` for one that :meth:`decrypt` would refuse).
@@ -276,22 +316,41 @@ class EncryptedImage:
         old file as it was. ``path`` may be an fsspec URL, written with ``storage_options`` in
         one request (:func:`hevr.store.paths.write_new_bytes` says what an object store
         guarantees against a racing writer); a local name containing ``://`` is a
-        :class:`hevr.ParameterError`."""
+        :class:`hevr.ParameterError`.
+
+        A verified image keeps its proof in the file only with the key holder's stamp
+        (:mod:`hevr.image.stamp`): with ``private_key`` the image is checked now (as
+        :meth:`decrypt` does: :class:`hevr.VerificationError` if it does not verify) and stamped;
+        without it, one drawn in this process is written *without* its record (a warning says so:
+        a later :meth:`decrypt` could not tell who drew its seed), and one read from a stamped file
+        keeps its stamp."""
         so = check_storage_options(storage_options)
         overwrite = check_bool("overwrite", overwrite)
         where = output_location(path)
-        check_image(self)
-        if self.verification is not None and not is_local(str(where)):
-            log.warning("a verified frame written to %s: its check is only as trustworthy as the file; whoever can "
-                        "write there (the server?) can defeat it; keep verified frames where only you can write",
-                        str(where).split("?")[0])
-        write_output(where, file_parts(self), so, overwrite=overwrite, doing="writing the encrypted image")
+        img = self._for_file(private_key)
+        write_output(where, file_parts(img, private_key), so, overwrite=overwrite, doing="writing the encrypted image")
 
-    def to_bytes(self) -> bytes:
-        """The ``.hevr`` file as bytes (what :meth:`save` writes; :func:`hevr.image.image_from_bytes` reads it);
-        ``hevr serve`` answers a render with them. Checked first, as :meth:`save` does."""
+    def _for_file(self, private_key: Any) -> EncryptedImage:
+        """The image as a file holds it (checked; a verified one with the key checked now, or
+        without its record when there is no key and no stamp: :meth:`save`)."""
         check_image(self)
-        parts = file_parts(self)
+        if self.verification is None:
+            return self
+        if private_key is not None:
+            self.decrypt_mantissas(private_key, require_verified=True)  # the key holder checks it before stamping
+            return self
+        if self.verification.drawn_here:
+            log.warning("saving a verified frame without private_key: its verification record is left out (only the "
+                        "key holder's stamp makes a record in a file trustworthy); pass private_key= to keep it")
+            return dataclasses.replace(self, verification=None, stamp=None)
+        return self
+
+    def to_bytes(self, private_key: Any = None) -> bytes:
+        """The ``.hevr`` file as bytes (what :meth:`save` writes; :func:`hevr.image.image_from_bytes` reads it);
+        ``hevr serve`` answers a render with them. Checked first, as :meth:`save` does (and
+        ``private_key`` as there)."""
+        img = self._for_file(private_key)
+        parts = file_parts(img, private_key)
         digest = hashlib.sha256()
         for part in parts:
             digest.update(part)

@@ -67,4 +67,4 @@ def _from_blob(blob: bytes, path: str) -> EncryptedImage:
                           per_pack=h["per_pack"], ciphertexts=cts, hits=h["hits"], info=h["info"],
                           bound=h["bound"], finish=h["finish"], channel=h["channel"], components=h["components"],
                           samples=h["samples"], verification=None if h["verification"] is None else
-                          Verification.from_dict(h["verification"], int(h["n"]), path))
+                          Verification.from_dict(h["verification"], int(h["n"]), path), stamp=h["stamp"])

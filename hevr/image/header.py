@@ -30,6 +30,7 @@ from .._tiles import TileLayout
 from ..crypto.paillier import fingerprint
 from ..crypto.records import record_width
 from ..errors import CorruptStoreError, IntegrityError
+from .stamp import STAMP_PREFIX, make_stamp, message
 from .checks import (
     MAX_COMPONENTS,
     MAX_PIXELS,
@@ -88,16 +89,25 @@ def _header(img: Any) -> dict:
     }
 
 
-def file_parts(img: Any) -> list:
+def file_parts(img: Any, private_key: Any = None) -> list:
     """The file's bytes before its SHA-256 trailer: magic, header length, header, records (and a
     client-finished frame's sample counts). The image is not checked here: its writers do that
-    first (:func:`~hevr.image.checks.check_image`)."""
-    head = json.dumps(_header(img), separators=(",", ":")).encode()
-    parts = [MAGIC, LENGTH.pack(len(head)), head]
-    parts += [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in img.ciphertexts]
+    first (:func:`~hevr.image.checks.check_image`). A verified image carries the key holder's
+    stamp (:mod:`hevr.image.stamp`): made with ``private_key`` (whose holder checked it), else the
+    one it was read with, if any."""
+    header = _header(img)
+    body = [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in img.ciphertexts]
     if img.finish == "client":  # the public sample counts the client divides by
-        parts.append(np.ascontiguousarray(img.samples, dtype="<u4").reshape(-1))
-    return parts
+        body.append(np.ascontiguousarray(img.samples, dtype="<u4").reshape(-1))
+    if img.verification is not None and private_key is not None:
+        digest = hashlib.sha256()
+        for part in body:
+            digest.update(part)
+        header["stamp"] = make_stamp(private_key, message(header, digest.digest()))
+    elif img.verification is not None and img.stamp is not None:
+        header["stamp"] = img.stamp[0]
+    head = json.dumps(header, separators=(",", ":")).encode()
+    return [MAGIC, LENGTH.pack(len(head)), head, *body]
 
 
 # -- reading ------------------------------------------------------------------------------------
@@ -163,6 +173,13 @@ def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
     h = parse_json(bytes(view[HEAD:HEAD + hl]), where)
     if not isinstance(h, dict):
         raise CorruptStoreError(f"{where}: header: expected a JSON object, got a JSON {_kind(h)}")
+    stamp = None
+    if "stamp" in h:  # what it authenticates, before any field is rewritten below
+        if not (isinstance(h["stamp"], str) and h["stamp"].startswith(STAMP_PREFIX) and len(h["stamp"]) == 76
+                and "verification" in h):
+            raise CorruptStoreError(f"{where}: header field 'stamp': expected 'hmac-sha256:<64 hex>' beside a "
+                                    f"verification record, got {_show(h['stamp'])}")
+        stamp = (h["stamp"], message(h, hashlib.sha256(view[HEAD + hl:len(blob) - DIGEST_BYTES]).digest()))
     ctx = Fields(where, CorruptStoreError, "header field")
     out = _check_header(h, ctx, version)
     body = np.frombuffer(blob, dtype=np.uint8, count=len(blob) - HEAD - hl - DIGEST_BYTES, offset=HEAD + hl)
@@ -181,6 +198,7 @@ def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
             ctx.fail("hits", "the pixels whose sample count (after the records) is > 0", raw="another mask")
         out["samples"] = samples
         body = body[:size]
+    out["stamp"] = stamp
     return out, body
 
 
@@ -193,7 +211,7 @@ def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
     for name in fields:
         if name not in h:
             ctx.fail(name, "the field", raw="nothing")
-    extra = sorted(set(h) - set(fields) - ({"verification"} if version >= 3 else set()))  # verification: optional
+    extra = sorted(set(h) - set(fields) - ({"verification", "stamp"} if version >= 3 else set()))  # optional
     if extra:
         raise CorruptStoreError(f"{ctx.where}: header: unexpected field {_show(extra[0])}")
     shape = check_shape(ctx, h["shape"])

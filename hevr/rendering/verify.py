@@ -66,6 +66,8 @@ from ..crypto.tags import (
     weighted_beta_total,
 )
 from ..errors import HevrError, IntegrityError, ParameterError, VerificationError
+from ..store.authenticity import authenticated_fields, check_metadata_mac
+from ..store.metadata import VolumeMetadata
 from ..store.pyramid import LEVEL_FACTOR
 from ..volume.pyramid import MAX_LEVELS, level_shape
 from .graph import build_sums_graph
@@ -228,6 +230,8 @@ class Verification:
     base_shape: tuple = ()
     exponent: int = 0
     server_s: float = 0.0
+    meta: Any = None  # the store's (level-0) VolumeMetadata the render used; its owner's MAC is checked
+    drawn_here: bool = False  # the seed was drawn in this process (not read from a file)
 
     def __repr__(self) -> str:
         return f"Verification({self.channel}, {self.components} per ray, seed …)"
@@ -236,21 +240,24 @@ class Verification:
     def of(cls, ev: Any, camera: Any, sampling: str, step: float, digits: int, channel: str, *, exponent: int,
            aggregate: int, seed: bytes, server_s: float = 0.0) -> Verification:
         """The record of a round on the volume (or level view) ``ev`` as the key holder knows it:
-        every field but the aggregate comes from this process, never from the server."""
+        every field but the aggregate comes from this process, never from the server — with the
+        store's metadata this process rendered with, whose owner's MAC :meth:`check` verifies."""
+        base = ev.base if ev.level else ev.meta  # level 0's VolumeMetadata
         return cls(aggregate=int(aggregate), seed=seed, store_id=ev.meta.store_id, channel=channel, shape=ev.shape,
                    spacing=ev.spacing, brick=ev.brick, camera=camera, sampling=sampling, step=step, digits=digits,
                    components=ev.meta.components(channel), n=int(ev.public_key.n), level=ev.level,
-                   exponent=int(exponent), base_shape=tuple(ev.base.shape) if ev.level else tuple(ev.shape),
-                   server_s=server_s)
+                   exponent=int(exponent), base_shape=tuple(base.shape), server_s=server_s, meta=base,
+                   drawn_here=True)
 
     def to_dict(self) -> dict[str, Any]:
         """The record a ``.hevr`` file carries (public: a ciphertext, a seed, the request's geometry)."""
-        return {"version": 1, "aggregate": str(self.aggregate), "seed": self.seed.hex(), "store_id": self.store_id,
+        return {"version": 2, "aggregate": str(self.aggregate), "seed": self.seed.hex(), "store_id": self.store_id,
                 "channel": self.channel, "shape": [int(x) for x in self.shape],
                 "spacing": [float(x) for x in self.spacing], "brick": [int(x) for x in self.brick],
                 "view": self.camera.to_dict(), "sampling": self.sampling, "step": float(self.step),
                 "digits": int(self.digits), "components": int(self.components), "level": int(self.level),
-                "base_shape": [int(x) for x in (self.base_shape or self.shape)], "exponent": int(self.exponent)}
+                "base_shape": [int(x) for x in (self.base_shape or self.shape)], "exponent": int(self.exponent),
+                "metadata": self.meta.to_dict()}
 
     @classmethod
     def from_dict(cls, d: Any, n: int, where: str = "image") -> Verification:
@@ -262,11 +269,12 @@ class Verification:
                                   f"got {str(got)[:80]!r}")
 
         fields = {"version", "aggregate", "seed", "store_id", "channel", "shape", "spacing", "brick", "view",
-                  "sampling", "step", "digits", "components", "level", "base_shape", "exponent"}
+                  "sampling", "step", "digits", "components", "level", "base_shape", "exponent", "metadata"}
         if not isinstance(d, dict) or set(d) != fields:
-            raise bad("version", f"an object with exactly {sorted(fields)}")
-        if d["version"] != 1 or type(d["version"]) is not int:
-            raise bad("version", "1")
+            raise bad("version", f"an object with exactly {sorted(fields)} (version 2; a frame verified before "
+                                 "hevr bound the store's metadata: render it again)")
+        if d["version"] != 2 or type(d["version"]) is not int:
+            raise bad("version", "2")
         agg = d["aggregate"]
         if not (isinstance(agg, str) and agg.isdigit() and len(agg) <= 2 * len(str(n)) and 0 < int(agg) < n * n):
             raise bad("aggregate", "a decimal string of a ciphertext in (0, n²)")
@@ -293,11 +301,25 @@ class Verification:
             view = view_from_dict(d["view"])
         except HevrError as exc:
             raise bad("view", f"a camera or plane ({exc})") from None
+        try:
+            meta = VolumeMetadata.from_dict(d["metadata"], where=f"{where}: verification.metadata")
+        except HevrError as exc:
+            raise bad("metadata", f"a verifiable store's metadata ({exc})") from None
+        if not meta.tags or meta.store_id != d["store_id"] or int(meta.n) != int(n):
+            raise bad("metadata", "the metadata of the verifiable store the record names, under the image's key")
+        if tuple(d["base_shape"]) != meta.shape:
+            raise bad("base_shape", f"the store's shape {list(meta.shape)}")
+        if d["level"] > len(meta.levels) and d["level"]:
+            raise bad("level", f"a level of the store's pyramid (0 to {len(meta.levels)})")
+        lm = meta.level_meta(d["level"]) if d["level"] else meta
+        if tuple(d["shape"]) != tuple(lm.shape) or tuple(d["brick"]) != tuple(lm.brick):
+            raise bad("shape", f"the shape {list(lm.shape)} and brick {list(lm.brick)} of level {d['level']} of the "
+                               "store")
         return cls(aggregate=int(agg), seed=bytes.fromhex(seed), store_id=d["store_id"], channel=d["channel"],
                    shape=tuple(d["shape"]), spacing=tuple(float(x) for x in d["spacing"]), brick=tuple(d["brick"]),
                    camera=view, sampling=d["sampling"], step=float(d["step"]), digits=d["digits"],
                    components=d["components"], n=int(n), level=d["level"], base_shape=tuple(d["base_shape"]),
-                   exponent=d["exponent"])
+                   exponent=d["exponent"], meta=meta)
 
     def beta_sum(self, private_key: Any, rays: RaySet | None = None) -> int:
         """Σ_{r,k} ρ_{r,k}·B_{r,k} mod n from the public geometry and the PRF (module docstring):
@@ -327,12 +349,32 @@ class Verification:
             total += weighted_beta_total(beta, bw.indptr, local.reshape(-1), bw.weights, rho[:, k])
         return total
 
+    def check_metadata(self, private_key: Any, image: Any) -> None:
+        """Raise :class:`hevr.VerificationError` unless the store's metadata this render used carries
+        the owner's MAC (:mod:`hevr.store.authenticity`) and the record's geometry, channel and key
+        are the ones it gives at the record's level."""
+        m = self.meta
+        if m is None or not check_metadata_mac(private_key, authenticated_fields(m.to_dict()), m.auth):
+            raise VerificationError(
+                "store metadata: expected the owner's MAC over the shape, spacing, brick, channels, exponents, digits, "
+                f"value range and store id, got {'none' if m is None or not m.auth else 'a MAC that does not match'}: "
+                "the store's public metadata was altered (or is not this key's); no image is returned")
+        lm = m.level_meta(self.level) if self.level else m
+        want = (m.store_id, int(m.n), m.fingerprint, tuple(lm.shape), tuple(float(x) for x in lm.spacing),
+                tuple(lm.brick), tuple(m.shape), lm.components(self.channel))
+        got = (self.store_id, int(self.n), image.fingerprint, tuple(self.shape), tuple(float(x) for x in self.spacing),
+               tuple(self.brick), tuple(self.base_shape), self.components)
+        if want != got or getattr(lm, self.channel) is None:
+            raise VerificationError("image: its store id, key, shape, spacing, brick or channel are not those of the "
+                                    "store's authenticated metadata; no image is returned")
+
     def check(self, private_key: Any, image: Any, ray_ids: np.ndarray, sums: list[int]) -> None:
         """Raise :class:`hevr.VerificationError` unless the ``image``'s public fields are those of
         this view (shape, channel, exponent, components, sample counts, hit mask) and D(A) = α·Σρ·S' + Σρ·B
         (mod n); ``sums`` are its decrypted ray sums S' (offset removed), ``K`` per ray of
         ``ray_ids``."""
         t0 = time.perf_counter()
+        self.check_metadata(private_key, image)
         key = tag_key_of(private_key)
         K, n = self.components, self.n
         rays = cast_rays(self.camera, self.shape, self.spacing, self.step)

@@ -36,6 +36,7 @@ from .._validate import MAX_STORE_DIGITS, is_decimal
 from ..crypto.tags import data_channel, tag_channel
 from ..errors import CorruptStoreError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_spacing
+from .authenticity import is_auth
 
 __all__ = ["CHANNELS", "ChannelInfo", "LevelInfo", "VolumeMetadata", "ome_attribute", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
 
@@ -158,6 +159,8 @@ class VolumeMetadata:
     patient: dict = field(default_factory=dict)
     # a tag channel "<c>_tag" beside every channel c (encrypt_volume(verifiable=True), hevr.crypto.tags)
     tags: bool = False
+    # the owner's MAC over the fields that shape a picture (hevr.store.authenticity); verifiable stores only
+    auth: str = ""
 
     @property
     def grid(self) -> tuple[int, int, int]:
@@ -231,6 +234,7 @@ class VolumeMetadata:
             **({"patient": {"frame": self.patient["frame"], "origin": list(self.patient["origin"])}}
                if self.patient else {}),
             **({"tags": True} if self.tags else {}),
+            **({"auth": self.auth} if self.auth else {}),
         }
         if self.version >= 2:
             d["checksum"] = metadata_checksum(d)
@@ -368,6 +372,10 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     tags = d.get("tags", False)
     if type(tags) is not bool:
         raise _bad(where, "tags", "true or false", tags)
+    auth = d.get("auth", "")
+    if (tags or "auth" in d) and not (tags and is_auth(auth)):
+        raise _bad(where, "auth", "the owner's MAC 'hmac-sha256:<64 hex>' on a verifiable store (tags: true) and "
+                   "nothing else (a verifiable store written before hevr bound its metadata: encrypt it again)", auth)
     arrays = d.get("arrays", {})
     names = {*(k for k in CHANNELS if k in ch), *(tag_channel(k) for k in CHANNELS if k in ch and tags), "done"}
     if version >= 2 and not (isinstance(arrays, dict) and set(arrays) == names
@@ -376,7 +384,7 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     meta = cls(shape=shape, spacing=spacing, brick=brick, n=n, fingerprint=fingerprint, ciphertext_bytes=width,
                dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, gradient=gradient, base=base,
                complete=complete, store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {},
-               patient=patient, tags=tags)
+               patient=patient, tags=tags, auth=auth)
     levels = d.get("levels", [])
     if not isinstance(levels, list) or len(levels) > MAX_LEVELS:
         raise _bad(where, "levels", f"a list of at most {MAX_LEVELS} pyramid levels", levels)

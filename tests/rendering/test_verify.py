@@ -334,26 +334,35 @@ def test_pyramid_levels_of_a_verifiable_store_verify(stores, keypair256, tmp_pat
     _render(built).decrypt(priv)  # level 0 untouched
 
 
-def test_a_frame_file_carries_its_verification(stores, keypair256, tmp_path):
-    """Saved and loaded, the check still runs; a file whose ciphertexts were swapped for another
-    view's (its SHA-256 recomputed) is caught; a damaged verification record is named."""
+def test_a_frame_file_carries_its_verification(stores, keypair256, tmp_path, caplog):
+    """Saved with the key, the record travels with the key holder's stamp and the check runs again
+    on loading; without the key the record is left out (said in a warning); a file whose
+    ciphertexts were swapped for another view's (its SHA-256 recomputed) is caught by the stamp; a
+    frame that does not verify is refused before it is stamped; a damaged record is named."""
     ev, _ = stores
     _, priv = keypair256
     img = _render(ev)
-    img.save(tmp_path / "f.hevr")
+    img.save(tmp_path / "f.hevr", private_key=priv)
     back = hevr.load_image(tmp_path / "f.hevr")
     assert back.verification is not None and back.verification.to_dict() == img.verification.to_dict()
-    np.testing.assert_array_equal(back.decrypt(priv), img.decrypt(priv))
+    assert back.stamp is not None and not back.verification.drawn_here
+    np.testing.assert_array_equal(back.decrypt(priv, require_verified=ev.meta.store_id), img.decrypt(priv))
+    with caplog.at_level(logging.WARNING):
+        img.save(tmp_path / "nokey.hevr")
+    assert "its verification record is left out" in caplog.text
+    assert hevr.load_image(tmp_path / "nokey.hevr").verification is None
+    with pytest.raises(hevr.VerificationError, match="not verified"):
+        hevr.load_image(tmp_path / "nokey.hevr").decrypt(priv, require_verified=True)
     other = _render(ev, hevr.Camera.orbit(ev, azimuth=34, elevation=20, width=12, height=10))
     dataclasses.replace(back, ciphertexts=other.ciphertexts, hits=other.hits, samples=other.samples).save(
         tmp_path / "forged.hevr")
-    with pytest.raises(hevr.VerificationError):
+    with pytest.raises(hevr.VerificationError, match="stamp that does not match"):
         hevr.load_image(tmp_path / "forged.hevr").decrypt(priv)
-    dataclasses.replace(img, samples=img.samples * 2).save(tmp_path / "scaled.hevr")  # means halved, tags untouched
-    with pytest.raises(hevr.VerificationError, match="sample counts"):
-        hevr.load_image(tmp_path / "scaled.hevr").decrypt(priv)
-    dataclasses.replace(img, verification=dataclasses.replace(img.verification, seed=b"short")).save(
-        tmp_path / "bad.hevr")
+    with pytest.raises(hevr.VerificationError, match="sample counts"):  # means halved, tags untouched
+        dataclasses.replace(img, samples=img.samples * 2).save(tmp_path / "scaled.hevr", private_key=priv)
+    assert not (tmp_path / "scaled.hevr").exists()
+    bad = dataclasses.replace(img.verification, seed=b"short", drawn_here=False)
+    dataclasses.replace(img, verification=bad, stamp=("hmac-sha256:" + "0" * 64, b"")).save(tmp_path / "bad.hevr")
     with pytest.raises(hevr.IntegrityError, match="'verification.seed': expected 64 lower-case hex digits"):
         hevr.load_image(tmp_path / "bad.hevr")
     assert _render(ev, verify=False).verification is None
@@ -371,21 +380,33 @@ def test_the_command_line_verifies(tmp_path, capsys):
                          "--verifiable")
     assert code == 0 and "verifiable: store id" in out, err
     assert hevr.open_volume(tmp_path / "v.zarr").meta.tags
-    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "f.hevr", "--size", "8x8", "-q")
-    assert code == 0, err
+    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "n.hevr", "--size", "8x8", "-q")
+    assert code == 0 and "not verified: no --key" in err, err  # the cluster's process draws no seed
+    assert hevr.load_image(tmp_path / "n.hevr").verification is None
+    code, _, err = run("decrypt", tmp_path / "n.hevr", "--key", key, "--out", tmp_path / "n.png", "--require-verified")
+    assert code == 1 and "not verified" in err and not (tmp_path / "n.png").exists(), err
+    code, out, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "f.hevr", "--size", "8x8", "--key", key)
     sid = hevr.open_volume(tmp_path / "v.zarr").meta.store_id
-    code, out, err = run("decrypt", tmp_path / "f.hevr", "--key", key, "--out", tmp_path / "f.png")
     assert code == 0 and f"verified: the frame is the render of store {sid}" in out, err
-    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "u.hevr", "--size", "8x8", "--no-verify", "-q")
+    code, out, err = run("decrypt", tmp_path / "f.hevr", "--key", key, "--out", tmp_path / "f.png",
+                         "--require-verified", sid)
+    assert code == 0 and f"verified: the frame is the render of store {sid}" in out and "level 0" in out, err
+    code, out, err = run("decrypt", tmp_path / "f.hevr", "--key", key, "--out", tmp_path / "g.png",
+                         "--require-verified", "0" * 16)
+    assert code == 1 and "expected a frame of the store 0000000000000000" in err, err
+    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "u.hevr", "--size", "8x8", "--no-verify",
+                       "--key", key, "-q")
     assert code == 0 and hevr.load_image(tmp_path / "u.hevr").verification is None, err
     code, out, err = run("decrypt", tmp_path / "u.hevr", "--key", key, "--out", tmp_path / "u.png")
     assert code == 0 and "not verified" in out, err
     code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "p.hevr", "--size", "8x8", "--verify", sid,
-                       "-q")
+                       "--key", key, "-q")
     assert code == 0 and hevr.load_image(tmp_path / "p.hevr").verification.store_id == sid, err
     code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "q.hevr", "--size", "8x8", "--verify",
-                       "0" * 16, "-q")
+                       "0" * 16, "--key", key, "-q")
     assert code != 0 and "expected the store 0000000000000000" in err, err
+    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "q.hevr", "--size", "8x8", "--verify", sid)
+    assert code == 2 and "--verify: expected --key KEY.json as well" in err, err
     code, _, err = run("render", "--verify", tmp_path / "v.zarr", "--out", tmp_path / "r.hevr")
     assert code == 2 and "--verify: expected a store id of 16 lower-case hex digits" in err, err
     code, _, err = run("encrypt", "phantom:8", "--key", tmp_path / "key.pub.json", "--out", tmp_path / "p.zarr",
