@@ -115,10 +115,20 @@ def verify_argument(args: Any) -> bool | str | None:
             raise UsageError("--verify: expected --key KEY.json as well: only the key holder's process draws the "
                              "verification seed and checks the frame (one that renders without the key, on the "
                              "cluster, would know the seed before the frame is fixed)")
-        warn_line("not verified: no --key (the key holder's process verifies: give it --key, or render through "
-                  "hevr serve from the key holder's machine)")
         return False
     return args.verify
+
+
+def warn_unverified(args: Any, ev: Any, img: Any) -> None:
+    """After a frame is written: one warning line when it is not verified and --no-verify was not asked."""
+    if img.verification is not None or args.no_verify:
+        return
+    if not ev.meta.tags:
+        warn_line(f"not verified: {args.store} has no tags (encrypt it with --verifiable so that a lying server "
+                  "is caught; --no-verify silences this)")
+    elif args.private_key is None:
+        warn_line("not verified: no --key (the key holder's process verifies: give it --key, or render through "
+                  "hevr serve from the key holder's machine; --no-verify silences this)")
 
 
 def key_holder(args: Any, ev: Any) -> bool | str | None:
@@ -234,6 +244,7 @@ def cmd_render(args: Any) -> int:
     st.save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
     if verified_line(img):
         print(verified_line(img) + " (stamped with the key holder's MAC)")
+    warn_unverified(args, ev, img)
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
     if sums is not None:

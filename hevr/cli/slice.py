@@ -14,7 +14,7 @@ from ..paper import PAPER_TF1
 from ..rendering.plane import Plane
 from ..rendering.planner import check_render_size
 from ..rendering.slices import render_slice
-from .commands import compute_context, key_holder, open_for_mode, resolve_mode
+from .commands import compute_context, key_holder, open_for_mode, resolve_mode, verified_line, warn_unverified
 from .finish import report_finish
 from .render_options import format_tf
 from .scan import resolve_tf
@@ -79,6 +79,9 @@ def cmd_slice(args: Any) -> int:
                                progress=show_progress(args), gradient=args.gradient,
                                verify=verify, **finish)
     save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
+    if verified_line(img):
+        print(verified_line(img) + " (stamped with the key holder's MAC)")
+    warn_unverified(args, ev, img)
     inside = int(img.hits.sum())
     print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
           f"{human_bytes(size_of(out, so))}, {inside} of {plane.width * plane.height} pixels inside the volume, "
