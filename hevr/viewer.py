@@ -330,8 +330,9 @@ class Viewer:
                 frame = self.frame
                 arr = frame.recolour(kw["mode"], kw.get("density"), kw.get("nodes"))
             else:
+                # a preview is not verified (it must come fast); the settled full frame is
                 frame = render_frame(self.ev, cam, self._key, client=self.client, progress=False,
-                                     level=level or None, **kw)
+                                     level=level or None, verify=False if level else None, **kw)
                 arr = frame.image
         except HevrError as exc:  # e.g. two nodes at one density: say it, keep the last frame
             entry["error_message"] = str(exc)
@@ -364,6 +365,9 @@ class Viewer:
             how = f"{took} request → decrypted frame, {stats['map_tasks']} map tasks"
         what = f"preview at pyramid level {level}, " if level else ""
         text = f"{what}{kw['mode']}/{kw['sampling']}: {how}"
+        if not recolour:  # a full frame of a verifiable store is checked before it is shown
+            text += ", verified" if stats.get("verified") else ", not verified"
+        entry["verified"] = bool(stats.get("verified")) if not recolour else entry.get("verified")
         if err is not None:
             text += f"; max |error| vs plaintext {err:.2e} (bound {bound:.2e})"
         self.status.value = html.escape(text)

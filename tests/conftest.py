@@ -54,6 +54,13 @@ def keypair(request, keypair256, keypair512):
 
 
 @pytest.fixture(autouse=True, scope="session")
+def _known_stores(tmp_path_factory):
+    """The key holder's known stores of the test session: a temporary file, never ~/.config."""
+    os.environ["HEVR_KNOWN_STORES"] = str(tmp_path_factory.mktemp("known") / "known_stores.json")
+    yield os.environ["HEVR_KNOWN_STORES"]
+
+
+@pytest.fixture(autouse=True, scope="session")
 def _journal_dir(tmp_path_factory):
     """Resume journals of the test session go to a temporary folder, never ~/.cache."""
     folder = tmp_path_factory.mktemp("journals")

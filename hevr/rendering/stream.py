@@ -56,6 +56,7 @@ class StreamDecryptor:
         self.K = int(fields["components"])
         self.samples = np.asarray(fields["samples"]).ravel()
         self.sums = np.zeros((self.samples.size, self.K), dtype=np.float64)
+        self.exact = np.zeros((self.samples.size, self.K), dtype=object)  # the integer sums: a verified frame's check
         self.n = int(fields["n"])
         self.done = 0
 
@@ -82,10 +83,18 @@ class StreamDecryptor:
                 raise IntegrityError(f"{tile_name(layout, t)}: a value of pixels {a}-{b - 1} decrypts outside the "
                                      f"render plan's range; {_CORRUPT}")
             offset = int(self.fields["offset"])
-            self.sums[hit] = scaled_sums([v - offset for v in vals], self.fields["exponent"]).reshape(-1, self.K)
+            exact = [v - offset for v in vals]
+            self.sums[hit] = scaled_sums(exact, self.fields["exponent"]).reshape(-1, self.K)
+            self.exact[hit] = np.array(exact, dtype=object).reshape(-1, self.K)
         self.ciphertexts += int(packed.shape[0])
         self.done += 1
         self.decrypt_s += time.perf_counter() - t0
+
+    def verify(self, img: Any) -> None:
+        """The check of a verified frame (:meth:`hevr.rendering.verify.Verification.check`) on the
+        sums decrypted as the units came: :class:`hevr.VerificationError` before any frame is returned."""
+        rays = np.flatnonzero(self.samples > 0)
+        img.verification.check(self.key, img, rays, self.exact[rays].reshape(-1).tolist())
 
     def frame(self, stats: dict, t0: float, colouring: Any = None) -> Frame:
         if self.done != len(self.finish.units):  # pragma: no cover - compute returns every unit
@@ -119,6 +128,11 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
         Any other keyword of :func:`hevr.render` but ``finish``, ``compute`` and ``keep_sums``
         (``client``, ``level``, ``gradient``, ``backend``, ``cache``, ``tile``, ...).
 
+    A verifiable store's frame is verified (``verify``, as for :func:`hevr.render`): its units are
+    decrypted as they come, and when the whole frame has arrived the key holder draws the seed, the
+    server sums the tags and the frame is checked here before it is returned
+    (:class:`hevr.VerificationError` otherwise); ``frame.stats["verified"]`` says whether it was.
+
     Returns
     -------
     Frame
@@ -144,4 +158,9 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
     kw = {**_RENDER_KEYWORDS, **kwargs}  # hevr.render's own defaults: one home
     img = _render(ev, camera, mode, sampling, camera.slab_step if plane else step, density, nodes, compute=True,
                   keep_sums=None, views=(Plane,) if plane else (Camera,), finish="client", stream=stream, **kw)
-    return stream.frame(img.stats, t0, img.colouring)
+    stats = dict(img.stats, verified=img.verification is not None)
+    if img.verification is not None:  # the frame has settled: the tags' round ran, now the check here
+        t1 = time.perf_counter()
+        stream.verify(img)
+        stats["check_s"] = time.perf_counter() - t1
+    return stream.frame(stats, t0, img.colouring)

@@ -67,6 +67,7 @@ from ..crypto.tags import (
 )
 from ..errors import HevrError, IntegrityError, ParameterError, VerificationError
 from ..store.authenticity import authenticated_fields, check_metadata_mac
+from ..store.known import check_known
 from ..store.metadata import VolumeMetadata
 from ..store.pyramid import LEVEL_FACTOR
 from ..volume.pyramid import MAX_LEVELS, level_shape
@@ -85,8 +86,10 @@ __all__ = ["Verification", "aggregate_for", "aggregate_tile", "level_betas", "re
 
 def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bool, stream: bool) -> bool:
     """Whether a render is verified: ``verify`` checked against what the store and request allow
-    (module docstring); None: yes where the store is verifiable and the request supported; a store
-    id: yes, and only for that store (:class:`hevr.VerificationError` for another)."""
+    (module docstring); None: yes where the store is verifiable (or recorded so in the key holder's
+    known stores, :mod:`hevr.store.known`, which also refuses another store under a known name) and
+    the request supported; a store id: yes, and only for that store (:class:`hevr.VerificationError`
+    for another). ``stream``: a streamed frame (verified when it has settled: :func:`hevr.render_frame`)."""
     if isinstance(verify, str):  # the store id the owner recorded: verify, and refuse any other store
         if not _STORE_ID.fullmatch(verify):
             raise ParameterError(f"verify: expected True, False, None or a store id of 16 lower-case hex digits, "
@@ -98,16 +101,19 @@ def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bo
         raise ParameterError(f"verify: expected True, False, None or a store id, got {verify!r}")
     if verify is not None and not verify:
         return False
+    check_known(ev)  # another store, or one stripped of its tags, under a known name: refused here
     why = ("the store has no tags (encrypt it with verifiable=True)" if not ev.meta.tags else
            "finish='server' (verification checks the ray sums, which client finishing decrypts)"
            if finish != "client" else
-           "compute=False (the check needs a second round after the image)" if not compute else
-           "a streamed frame (the viewer's progressive decryption)" if stream else None)
+           "compute=False (the check needs a second round after the image)" if not compute else None)
     if why is None:
         return True
     if verify:
         raise ParameterError(f"verify: expected a request that can be verified, got {why}")
-    if ev.meta.tags and (ev.meta.store_id, why) not in _WARNED:  # once per store and reason (the viewer's frames)
+    if not ev.meta.tags:  # every render: a store without tags is a silent downgrade otherwise
+        log.warning("render: not verified: %s at %s (a lying server is not caught; verify=False silences this)",
+                    why, ev.path)
+    elif (ev.meta.store_id, why) not in _WARNED:  # once per store and reason
         _WARNED.add((ev.meta.store_id, why))
         log.warning("render: not verified: %s", why)
     return False

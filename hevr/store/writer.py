@@ -59,6 +59,7 @@ from ..backends import CpuBackend, get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
 from ..crypto.tags import tag_channel, tag_ciphertexts
 from .authenticity import authenticated_fields, metadata_mac
+from .known import record_quietly
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume import gradient as grad
 from ..volume.density import (
@@ -345,6 +346,7 @@ def encrypt_volume(
     if ev.meta.store_id != meta.store_id:
         raise StoreExistsError(f"path: the store at {path} was created or replaced by another run while this one "
                                "wrote it; this run's store is not there")
+    record_quietly(ev, replace=True)  # the owner made it: the key holder's known stores (hevr.store.known)
     return ev
 
 
