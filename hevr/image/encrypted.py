@@ -39,7 +39,8 @@ from ..errors import IntegrityError, KeyMismatchError, ParameterError, Verificat
 from ..store.paths import check_storage_options, output_location, write_output
 from .checks import check_image, tile_name
 from .header import file_parts
-from .stamp import check_stamp
+from ..store.known import retired_by
+from .stamp import check_stamp, saved_name
 
 __all__ = ["EncryptedImage"]
 
@@ -222,6 +223,17 @@ class EncryptedImage:
                 f"image: its verification record {what} of the key holder (a verified frame is saved with the key: "
                 "img.save(path, private_key=...), hevr render --key): the record or the frame was written by someone "
                 "else, or altered; no image is returned")
+        saved, read = self.stamp[2], self.stamp[3] if len(self.stamp) > 3 else None
+        if read is not None and saved != read:
+            raise VerificationError(
+                f"image: the key holder saved this verified frame as {saved!r}, and it was read as {read!r}: another "
+                "frame put in this one's place? (if you renamed it yourself, give it its name back); no image is "
+                "returned")
+        replaced = retired_by(v.store_id)
+        if replaced:
+            raise VerificationError(
+                f"image: a frame of the store {v.store_id}, which the owner replaced with the store {replaced[1]} at "
+                f"{replaced[0]} (the key holder's known stores): an old frame replayed?; no image is returned")
 
     def _tile_values(self, private_key: Any, be: Any, layout: Any, hits: np.ndarray | None, n: int):
         """The iterator of :meth:`_checked_tiles`: range-check, decrypt and unpack tile by tile."""
@@ -328,7 +340,8 @@ class EncryptedImage:
         overwrite = check_bool("overwrite", overwrite)
         where = output_location(path)
         img = self._for_file(private_key)
-        write_output(where, file_parts(img, private_key), so, overwrite=overwrite, doing="writing the encrypted image")
+        parts = file_parts(img, private_key, saved_name(where))
+        write_output(where, parts, so, overwrite=overwrite, doing="writing the encrypted image")
 
     def _for_file(self, private_key: Any) -> EncryptedImage:
         """The image as a file holds it (checked; a verified one with the key checked now, or

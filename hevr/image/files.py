@@ -17,8 +17,9 @@ from ..rendering.verify import Verification
 from ..store.paths import check_storage_options, is_local, normalise, read_bytes
 from .encrypted import EncryptedImage
 from .header import parse_file
+from .stamp import saved_name
 
-__all__ = ["image_from_bytes", "load_image"]
+__all__ = ["image_from_bytes", "load_image", "saved_name"]
 
 
 def load_image(path: str | Path, *, storage_options: dict | None = None) -> EncryptedImage:
@@ -39,11 +40,11 @@ def load_image(path: str | Path, *, storage_options: dict | None = None) -> Encr
             raise MissingFileError("path", "an encrypted image file", path) from None
         except OSError as exc:
             raise ParameterError(f"path: cannot read {path}: {type(exc).__name__}") from None
-        return _from_blob(blob, path)
+        return _from_blob(blob, path, saved_name(path))
     path = normalise(path) if "://" in str(path) else path
     # never blocks: a FIFO, a folder or a device is a NotRegularFileError before a byte is read
     blob = read_regular(path, "path", "an encrypted image file")
-    return _from_blob(blob, str(path))
+    return _from_blob(blob, str(path), saved_name(path))
 
 
 def image_from_bytes(blob: bytes, where: str = "image") -> EncryptedImage:
@@ -54,8 +55,9 @@ def image_from_bytes(blob: bytes, where: str = "image") -> EncryptedImage:
     return _from_blob(bytes(blob), where)
 
 
-def _from_blob(blob: bytes, path: str) -> EncryptedImage:
-    """The image in the bytes of a ``.hevr`` file (``path`` names it in messages)."""
+def _from_blob(blob: bytes, path: str, name: str | None = None) -> EncryptedImage:
+    """The image in the bytes of a ``.hevr`` file (``path`` names it in messages; ``name``: the
+    file name it was read under, which a stamp must have been made for)."""
     h, body = parse_file(blob, path)
     width = h["width"]
     cts, pos = [], 0
@@ -67,4 +69,5 @@ def _from_blob(blob: bytes, path: str) -> EncryptedImage:
                           per_pack=h["per_pack"], ciphertexts=cts, hits=h["hits"], info=h["info"],
                           bound=h["bound"], finish=h["finish"], channel=h["channel"], components=h["components"],
                           samples=h["samples"], verification=None if h["verification"] is None else
-                          Verification.from_dict(h["verification"], int(h["n"]), path), stamp=h["stamp"])
+                          Verification.from_dict(h["verification"], int(h["n"]), path),
+                          stamp=None if h["stamp"] is None else (*h["stamp"], name))

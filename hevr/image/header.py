@@ -89,12 +89,13 @@ def _header(img: Any) -> dict:
     }
 
 
-def file_parts(img: Any, private_key: Any = None) -> list:
+def file_parts(img: Any, private_key: Any = None, saved_as: str = "") -> list:
     """The file's bytes before its SHA-256 trailer: magic, header length, header, records (and a
     client-finished frame's sample counts). The image is not checked here: its writers do that
     first (:func:`~hevr.image.checks.check_image`). A verified image carries the key holder's
     stamp (:mod:`hevr.image.stamp`): made with ``private_key`` (whose holder checked it), else the
-    one it was read with, if any."""
+    one it was read with, if any; the stamp binds the file's name ``saved_as`` too (a stamped frame
+    put in another frame's place is refused: :meth:`hevr.EncryptedImage.decrypt`)."""
     header = _header(img)
     body = [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in img.ciphertexts]
     if img.finish == "client":  # the public sample counts the client divides by
@@ -103,9 +104,10 @@ def file_parts(img: Any, private_key: Any = None) -> list:
         digest = hashlib.sha256()
         for part in body:
             digest.update(part)
+        header["saved_as"] = str(saved_as)
         header["stamp"] = make_stamp(private_key, message(header, digest.digest()))
     elif img.verification is not None and img.stamp is not None:
-        header["stamp"] = img.stamp[0]
+        header["saved_as"], header["stamp"] = img.stamp[2], img.stamp[0]
     head = json.dumps(header, separators=(",", ":")).encode()
     return [MAGIC, LENGTH.pack(len(head)), head, *body]
 
@@ -174,12 +176,16 @@ def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
     if not isinstance(h, dict):
         raise CorruptStoreError(f"{where}: header: expected a JSON object, got a JSON {_kind(h)}")
     stamp = None
-    if "stamp" in h:  # what it authenticates, before any field is rewritten below
-        if not (isinstance(h["stamp"], str) and h["stamp"].startswith(STAMP_PREFIX) and len(h["stamp"]) == 76
+    if "stamp" in h or "saved_as" in h:  # what it authenticates, before any field is rewritten below
+        if not (isinstance(h.get("stamp"), str) and h["stamp"].startswith(STAMP_PREFIX) and len(h["stamp"]) == 76
                 and "verification" in h):
             raise CorruptStoreError(f"{where}: header field 'stamp': expected 'hmac-sha256:<64 hex>' beside a "
-                                    f"verification record, got {_show(h['stamp'])}")
-        stamp = (h["stamp"], message(h, hashlib.sha256(view[HEAD + hl:len(blob) - DIGEST_BYTES]).digest()))
+                                    f"verification record, got {_show(h.get('stamp'))}")
+        if not (isinstance(h.get("saved_as"), str) and len(h["saved_as"]) <= 1024):
+            raise CorruptStoreError(f"{where}: header field 'saved_as': expected the file name the key holder "
+                                    f"saved the frame as, got {_show(h.get('saved_as'))}")
+        stamp = (h["stamp"], message(h, hashlib.sha256(view[HEAD + hl:len(blob) - DIGEST_BYTES]).digest()),
+                 h["saved_as"])
     ctx = Fields(where, CorruptStoreError, "header field")
     out = _check_header(h, ctx, version)
     body = np.frombuffer(blob, dtype=np.uint8, count=len(blob) - HEAD - hl - DIGEST_BYTES, offset=HEAD + hl)
@@ -211,7 +217,7 @@ def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
     for name in fields:
         if name not in h:
             ctx.fail(name, "the field", raw="nothing")
-    extra = sorted(set(h) - set(fields) - ({"verification", "stamp"} if version >= 3 else set()))  # optional
+    extra = sorted(set(h) - set(fields) - ({"verification", "stamp", "saved_as"} if version >= 3 else set()))
     if extra:
         raise CorruptStoreError(f"{ctx.where}: header: unexpected field {_show(extra[0])}")
     shape = check_shape(ctx, h["shape"])

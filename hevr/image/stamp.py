@@ -9,6 +9,11 @@ key holder's own MAC over its bytes, made when the key holder's process had just
     K_stamp = HMAC-SHA256(k, "hevr-frame-stamp-v1")               (k: the tag key's PRF key)
     stamp   = HMAC-SHA256(K_stamp, SHA-256(canonical header without "stamp") ‖ SHA-256(body))
 
+The header's ``saved_as`` (the file name the key holder saved it as) is under the stamp too, and a
+stamped frame read under another name is refused: a genuine verified frame of another view, level
+or store put in this one's place. And a frame of a store that the owner has since replaced (the
+key holder's known stores, :mod:`hevr.store.known`) is refused: an old frame replayed.
+
 (the header's canonical form: ``json.dumps(header, sort_keys=True, separators=(",", ":"))``; the
 body: the ciphertext records and sample counts, without the file's SHA-256 trailer). Only the
 holder of the private key can make or check a stamp; :meth:`hevr.EncryptedImage.decrypt` refuses a
@@ -30,7 +35,7 @@ import json
 import re
 from typing import Any
 
-__all__ = ["STAMP_PREFIX", "check_stamp", "make_stamp", "message", "raw_check", "raw_stamp"]
+__all__ = ["STAMP_PREFIX", "check_stamp", "make_stamp", "message", "raw_check", "raw_stamp", "saved_name"]
 
 STAMP_PREFIX = "hmac-sha256:"
 _STAMP = re.compile(r"hmac-sha256:[0-9a-f]{64}")
@@ -42,6 +47,15 @@ def message(header: dict, body_digest: bytes) -> bytes:
     head = {k: v for k, v in header.items() if k != "stamp"}
     text = json.dumps(head, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
     return hashlib.sha256(text).digest() + bytes(body_digest)
+
+
+def saved_name(path: str | Path) -> str:
+    """The name a stamp binds (:mod:`hevr.image.stamp`): the file's last path component.
+
+    >>> saved_name("/a/b/f.hevr"), saved_name("s3://bucket/x/g.hevr?v=1")
+    ('f.hevr', 'g.hevr')
+    """
+    return str(path).split("?")[0].rstrip("/").rsplit("/", 1)[-1]
 
 
 def _key(prf_key: bytes) -> bytes:

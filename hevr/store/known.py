@@ -26,6 +26,7 @@ digests of public metadata) but says which stores this user renders, so it stays
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import fcntl
 import json
 import logging
@@ -39,7 +40,8 @@ from .._files import read_regular, write_atomic
 from ..errors import HevrError, ParameterError, VerificationError
 from .authenticity import authenticated_fields, metadata_digest
 
-__all__ = ["KnownStore", "check_known", "known_stores", "known_stores_path", "record_quietly", "trust_store"]
+__all__ = ["KnownStore", "check_known", "known_stores", "known_stores_path", "record_quietly", "retired_by",
+           "trust_store"]
 
 log = logging.getLogger(__name__)
 FORMAT = "hevr-known-stores"
@@ -55,6 +57,7 @@ class KnownStore:
     verifiable: bool
     fingerprint: str
     recorded: str = ""
+    retired: tuple = ()  # ids of the stores that were under this name before (replaced by the owner)
 
 
 def known_stores_path() -> Path:
@@ -90,7 +93,8 @@ def known_stores(path: str | os.PathLike | None = None) -> dict[str, KnownStore]
                 and isinstance(doc.get("stores"), dict)):
             raise ValueError("not a known-stores document of version 1")
         return {str(name): KnownStore(**{k: e[k] for k in ("store_id", "digest", "verifiable", "fingerprint")},
-                                      recorded=str(e.get("recorded", "")))
+                                      recorded=str(e.get("recorded", "")),
+                                      retired=tuple(str(x) for x in e.get("retired", ())))
                 for name, e in doc["stores"].items()}
     except (ValueError, TypeError, KeyError, UnicodeDecodeError) as exc:
         raise ParameterError(f"known stores: expected the key holder's known-stores file at {p}, got one that "
@@ -113,14 +117,30 @@ def _record(ev: Any, entry: KnownStore, replace: bool) -> None:
     p = known_stores_path()
     with _locked(p):
         stores = known_stores(p)
-        if not replace and _name(ev) in stores:
+        old = stores.get(_name(ev))
+        if not replace and old is not None:
             return
+        if old is not None and old.store_id != entry.store_id:  # the owner replaced it: its frames are old
+            entry = dataclasses.replace(entry, retired=tuple(dict.fromkeys(old.retired + (old.store_id,)))[-64:])
+        elif old is not None:
+            entry = dataclasses.replace(entry, retired=old.retired)
         stores[_name(ev)] = entry
-        doc = {"format": FORMAT, "version": 1, "stores": {k: asdict(v) for k, v in sorted(stores.items())}}
+        doc = {"format": FORMAT, "version": 1,
+               "stores": {k: dict(asdict(v), retired=list(v.retired)) for k, v in sorted(stores.items())}}
         write_atomic(p, json.dumps(doc, indent=1) + "\n", mode=0o600, name="known stores",
                      doing="recording a known store")
     log.info("known stores: %s recorded as the store %s (%s) in %s", _name(ev), entry.store_id,
              "verifiable" if entry.verifiable else "without tags", p)
+
+
+def retired_by(store_id: str) -> tuple[str, str] | None:
+    """(name, current store id) if ``store_id`` was under a name the owner has since given to
+    another store (its frames are of an old version), else None."""
+    try:
+        stores = known_stores()
+    except HevrError:
+        return None
+    return next(((name, e.store_id) for name, e in stores.items() if store_id in e.retired), None)
 
 
 def record_quietly(ev: Any, entry: KnownStore | None = None, replace: bool = False) -> None:
