@@ -147,9 +147,16 @@ def store_attacks(tmp, priv, key_file):
     def older_version(p):
         old = Path(tmp) / f"old-{os.urandom(3).hex()}.zarr"
         shutil.copytree(p, old)
-        encrypt(OTHER, p, priv, overwrite=True)  # the owner re-encrypts (new data) ...
+        sid = encrypt(OTHER, p, priv, overwrite=True).meta.store_id  # the owner re-encrypts (new data) ...
         shutil.rmtree(p)
         shutil.copytree(old, p)  # ... and the server serves the old version
+        return sid  # the id the owner now pins
+
+    def without_tags(p):  # the server encrypts other values with the public key: a store without tags
+        q = Path(tmp) / f"plain-{os.urandom(3).hex()}.zarr"
+        hevr.encrypt_volume(OTHER, q, priv.public_key, brick=4, vector_dims=3, progress=False)
+        shutil.rmtree(p)
+        shutil.copytree(q, p)
 
     def exponent(d):
         d["channels"]["scalar"]["exponent"] = -3
@@ -169,7 +176,7 @@ def store_attacks(tmp, priv, key_file):
         ("metadata: exponent 0 → −3", meta(exponent)),
         ("metadata: digits +1 (colours ÷10)", meta(digits)),
         ("metadata: value range", meta(value_range)),
-        ("tags stripped", strip_tags),
+        ("replaced by a store without tags", without_tags),
         ("another verifiable store of the key", another_store),
         ("older version of the store", older_version),
     ]
@@ -215,6 +222,10 @@ def file_attacks(tmp, priv, key_file, path):
     head["verification"]["exponent"] -= 3
     out.append(("file: header and record exponent raised", _rewrite(tmp, raw, head, head_len)))
     head = json.loads(raw[M + 4:M + 4 + head_len])
+    head.pop("stamp", None)
+    head.pop("saved_as", None)
+    out.append(("file: a record without the key holder's stamp", _rewrite(tmp, raw, head, head_len)))
+    head = json.loads(raw[M + 4:M + 4 + head_len])
     head.pop("verification")
     head.pop("stamp", None)
     head.pop("saved_as", None)
@@ -249,7 +260,7 @@ def main() -> int:
         for name, attack in store_attacks(tmp, priv, key_file):
             path = Path(tmp) / f"s-{os.urandom(3).hex()}.zarr"
             sid = encrypt(VOL, path, priv).meta.store_id
-            attack(path)
+            sid = attack(path) or sid
             row = {"attack": name}
             for col, verify, fresh in (("None", None, None), ("None, new machine", None, str(Path(tmp) / "fresh.json")),
                                        ("True", True, None), ("pinned", sid, None)):
