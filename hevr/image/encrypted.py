@@ -189,6 +189,8 @@ class EncryptedImage:
         n = private_key.public_key.n
         if int(self.n) != int(n):
             raise IntegrityError(f"image: its modulus n is not the one of its key fingerprint; {_CORRUPT}")
+        if self.verification is not None:  # the store's metadata first: it says what every number means
+            self.verification.check_metadata(private_key, self)
         tiles = self._tile_values(private_key, be, layout, hits, int(n))
         if self.verification is None:
             return tiles
