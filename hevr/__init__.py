@@ -73,6 +73,7 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
     from .rendering.stream import render_frame
     from .rendering.sums import SavedSums, load_sums, recolour
     from .rendering.views import VIEWS
+    from .store.known import known_stores, trust_store
     from .store.pyramid import build_pyramid
     from .store.reader import EncryptedVolume, open_volume
     from .store.upgrade import upgrade_store
@@ -121,6 +122,7 @@ _LAZY = {
     ".rendering.stream": ("render_frame",),
     ".rendering.sums": ("SavedSums", "load_sums", "recolour"),
     ".rendering.views": ("VIEWS",),
+    ".store.known": ("known_stores", "trust_store"),
     ".store.pyramid": ("build_pyramid",),
     ".store.reader": ("EncryptedVolume", "open_volume"),
     ".store.upgrade": ("upgrade_store",),
@@ -187,6 +189,7 @@ __all__ = [
     "encrypt_volume",
     "error_bound",
     "generate_keypair",
+    "known_stores",
     "load_image",
     "load_key",
     "load_sums",
@@ -198,6 +201,7 @@ __all__ = [
     "range_hint",
     "read_scan",
     "recolour",
+    "trust_store",
     "render",
     "render_frame",
     "render_plain",

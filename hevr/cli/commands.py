@@ -29,6 +29,7 @@ from ..rendering.encrypted import render
 from ..rendering.planner import check_render_size
 from ..rendering.sums import MAGIC as SUMS_MAGIC
 from ..rendering.sums import load_sums, recolour
+from ..store.known import known_stores_path, trust_store
 from ..store.paths import normalise
 from ..store.upgrade import upgrade_store
 from ..store.writer import encrypt_volume
@@ -137,6 +138,11 @@ def key_holder(args: Any, ev: Any) -> bool | str | None:
     if args.private_key is not None and args.private_key.public_key.fingerprint != ev.meta.fingerprint:
         raise UsageError(f"--key: expected the private key of the store (fingerprint {ev.meta.fingerprint[:16]}…), "
                          f"got {args.key} (fingerprint {args.private_key.public_key.fingerprint[:16]}…)")
+    if args.trust_store:
+        if args.private_key is None:
+            raise UsageError("--trust-store: expected --key KEY.json as well (the known stores are the key holder's)")
+        entry = trust_store(ev)
+        print(f"trusted: {ev.path} is now recorded as the store {entry.store_id} in {known_stores_path()}")
     return verify
 
 

@@ -211,6 +211,9 @@ def add_verify_option(p: argparse.ArgumentParser) -> None:
                         "after the frame is rendered, checks the frame (a store encrypted with --verifiable) and "
                         "stamps the file so that 'hevr decrypt' knows it was checked; without it the frame is not "
                         "verified (the process that renders on the cluster must not draw the seed)")
+    p.add_argument("--trust-store", action="store_true",
+                   help="with --key: accept STORE as it is now under its name in your known stores (the owner "
+                        "re-encrypted or replaced it), where another store or version is otherwise refused")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--verify", nargs="?", const=True, default=None, metavar="STORE_ID", type=_store_id,
                    help="with --key: require the check against the store's tags (on by default for a verifiable "

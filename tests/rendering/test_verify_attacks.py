@@ -316,3 +316,22 @@ def test_honest_renders_of_every_kind_verify(honest, keypair256, tmp_path, azimu
     img.save(tmp_path / "f.hevr", private_key=priv, overwrite=True)
     back = hevr.load_image(tmp_path / "f.hevr").decrypt_frame(priv, require_verified=ev.meta.store_id)
     np.testing.assert_array_equal(back.means, img.decrypt_frame(priv).means)
+
+
+def test_the_command_line_refuses_another_store_until_trusted(keypair256, tmp_path, known, capsys):
+    _, priv = keypair256
+    key = tmp_path / "key.json"
+    priv.save(key)
+    path = tmp_path / "v.zarr"
+    _encrypt(VOL, path, priv)
+    other = _encrypt(255 - VOL, tmp_path / "o.zarr", priv)
+    shutil.rmtree(path)
+    shutil.copytree(other.path, path)
+    argv = ["render", str(path), "--key", str(key), "--size", "8x8", "-q"]
+    assert main(argv + ["--out", str(tmp_path / "a.hevr")]) == 1
+    assert "another store, or another version of it, is under this name" in capsys.readouterr().err
+    assert not (tmp_path / "a.hevr").exists()
+    assert main(argv + ["--out", str(tmp_path / "b.hevr"), "--trust-store"]) == 0
+    out = capsys.readouterr().out
+    assert f"trusted: {path} is now recorded as the store {other.meta.store_id}" in out and "verified: the frame" in out
+    assert main(["render", str(path), "--size", "8x8", "--trust-store", "--out", str(tmp_path / "c.hevr")]) == 2
