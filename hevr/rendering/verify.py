@@ -75,7 +75,8 @@ from .graph import build_sums_graph
 from .kernel import plan_products
 from .plane import view_from_dict
 from .rays import RaySet, cast_rays
-from .weights import brick_bounds, brick_weights, touched_bricks
+from .footprint import brick_footprints
+from .weights import brick_bounds, brick_weights
 
 log = logging.getLogger(__name__)
 _STORE_ID = re.compile(r"[0-9a-f]{16}")
@@ -333,7 +334,11 @@ class Verification:
         key = tag_key_of(private_key)
         rays = rays if rays is not None else cast_rays(self.camera, self.shape, self.spacing, self.step)
         cache: dict = {}  # β blocks shared by neighbouring bricks (a race only recomputes a block)
-        bricks = touched_bricks(rays, self.shape, self.spacing, self.brick, self.sampling, self.step)
+        # the bricks whose footprint holds a hit pixel (O(bricks + pixels), as the render graph picks its
+        # map tasks): a superset of the touched ones, whose extra bricks add nothing (empty weights)
+        hit = np.asarray(rays.n_samples) > 0
+        bricks = list(brick_footprints(self.camera, self.shape, self.spacing, self.brick, hit,
+                                       max(self.camera.width, self.camera.height)))
         with ThreadPoolExecutor(max_workers=max(1, min(os.cpu_count() or 1, 8))) as pool:
             parts = list(pool.map(lambda index: self._brick_beta_sum(key, rays, index, cache), bricks))
         return sum(parts) % self.n
