@@ -44,7 +44,7 @@ log = logging.getLogger(__name__)
 __all__ = ["COMPILE_SECONDS_KEY", "DEFAULT_COMPILE_SECONDS", "compile_seconds", "load"]
 
 COMPILE_SECONDS_KEY = "hevr.limits.compile-seconds"
-DEFAULT_COMPILE_SECONDS = 300  # a build takes seconds; a stuck compiler must not hang a render
+DEFAULT_COMPILE_SECONDS = 120  # a build takes seconds; a stuck compiler must not hang a render
 _MAX_COMPILE_SECONDS = 86_400
 _DIGEST = ".sha256"
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
