@@ -398,3 +398,13 @@ def test_a_reader_that_leaves_ends_the_command_quietly(d):
     finally:
         os.close(w)
     assert proc.returncode == 141 and proc.stderr == b"", (proc.returncode, proc.stderr)
+
+
+@pytest.mark.parametrize("address", ["garbage://x", "tcp://"])
+def test_a_scheduler_address_dask_cannot_parse_names_the_option(d, capsys, address):
+    code, _, err = run(capsys, "encrypt", "phantom:8", "--key", d / "key.pub.json", "--out", d / "s.zarr",
+                       "--scheduler", address)
+    msg = one_error_line(err)
+    assert code == 2, msg
+    assert msg.startswith(f"--scheduler: expected a Dask scheduler address like tcp://10.0.0.5:8786, got {address!r}"), msg
+    assert not (d / "s.zarr").exists()
