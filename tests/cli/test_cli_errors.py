@@ -408,3 +408,19 @@ def test_a_scheduler_address_dask_cannot_parse_names_the_option(d, capsys, addre
     assert code == 2, msg
     assert msg.startswith(f"--scheduler: expected a Dask scheduler address like tcp://10.0.0.5:8786, got {address!r}"), msg
     assert not (d / "s.zarr").exists()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("command", ["encrypt", "demo"])
+def test_a_fifo_as_the_input_volume_is_named_as_the_input(d, capsys, tmp_path, command):
+    """A FIFO given as the volume was reported as --out (the loader's 'path')."""
+    import os
+
+    fifo = tmp_path / "in.fifo"
+    os.mkfifo(fifo)  # reading it would block forever
+    argv = (["encrypt", fifo, "--key", d / "key.pub.json", "--out", tmp_path / "o.zarr"] if command == "encrypt"
+            else ["demo", "--input", fifo, "--out", tmp_path / "demo"])
+    code, _, err = run(capsys, *argv)
+    msg = one_error_line(err)
+    word = "INPUT" if command == "encrypt" else "--input"
+    assert code == 2 and msg == f"{word}: expected a volume file (a regular file), got a FIFO at {fifo}", msg
