@@ -22,8 +22,9 @@ import json
 from pathlib import Path
 from typing import Iterable
 
-from .._files import read_regular, write_atomic
+from .._files import fs_errors, read_regular, write_atomic
 from ..errors import ExistingFileError, HevrError
+from .util import check_writable_dir, check_writable_folder
 
 __all__ = ["MARK", "OutputFolder"]
 
@@ -72,7 +73,11 @@ class OutputFolder:
                  option: str = "--out") -> None:
         self.path, self.command, self.names = Path(path), command, list(names)
         self.force, self.option = bool(force), option
-        self.path.mkdir(parents=True, exist_ok=True)
+        if not self.path.is_dir():  # its parent must take it: a read-only one fails the run, naming the option
+            check_writable_dir(self.path, option) if self.path.parent.is_dir() else None
+            with fs_errors(f"{option}: creating the folder", self.path):
+                self.path.mkdir(parents=True, exist_ok=True)
+        check_writable_folder(self.path, option)  # before any work, not at the first file written
         self.files, self.foreign_mark = self._read_mark()
 
     def _read_mark(self) -> tuple[dict[str, str], bool]:
