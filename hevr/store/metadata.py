@@ -43,7 +43,7 @@ FORMAT_NAME = "hevr-encrypted-volume"
 FORMAT_VERSION = 2
 DTYPES = ("bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64",
           "float16", "float32", "float64")
-MAX_N_DIGITS = 4300  # Python's int/str conversion limit (about a 14 000-bit modulus): longer ones are refused before int()
+MAX_N_DIGITS = 4300  # Python's int/str conversion limit (a 14 000-bit modulus): longer ones refused before int()
 _HEX64 = re.compile(r"[0-9a-f]{64}")
 _STORE_ID = re.compile(r"[0-9a-f]{16}")
 _DOC_DIGEST = re.compile(r"sha256:[0-9a-f]{64}")

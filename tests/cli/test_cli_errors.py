@@ -406,7 +406,8 @@ def test_a_scheduler_address_dask_cannot_parse_names_the_option(d, capsys, addre
                        "--scheduler", address)
     msg = one_error_line(err)
     assert code == 2, msg
-    assert msg.startswith(f"--scheduler: expected a Dask scheduler address like tcp://10.0.0.5:8786, got {address!r}"), msg
+    want = f"--scheduler: expected a Dask scheduler address like tcp://10.0.0.5:8786, got {address!r}"
+    assert msg.startswith(want), msg
     assert not (d / "s.zarr").exists()
 
 
