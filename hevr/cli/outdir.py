@@ -24,7 +24,7 @@ from typing import Iterable
 
 from .._files import fs_errors, read_regular, write_atomic
 from ..errors import ExistingFileError, HevrError
-from .util import check_writable_dir, check_writable_folder
+from .util import check_writable_folder
 
 __all__ = ["MARK", "OutputFolder"]
 
@@ -73,8 +73,10 @@ class OutputFolder:
                  option: str = "--out") -> None:
         self.path, self.command, self.names = Path(path), command, list(names)
         self.force, self.option = bool(force), option
-        if not self.path.is_dir():  # its parent must take it: a read-only one fails the run, naming the option
-            check_writable_dir(self.path, option) if self.path.parent.is_dir() else None
+        if not self.path.is_dir():  # the nearest existing folder above must take it (read-only: fails the run)
+            above = next((p for p in self.path.parents if p.is_dir()), None)
+            if above is not None:
+                check_writable_folder(above, option)
             with fs_errors(f"{option}: creating the folder", self.path):
                 self.path.mkdir(parents=True, exist_ok=True)
         check_writable_folder(self.path, option)  # before any work, not at the first file written

@@ -463,10 +463,11 @@ def _outputs_into(d, tmp_path, ro):
         (["convert-key", d / "key.json", "--out", ro / "k2.json"], "--out"),
         (["demo", "--out", ro, "--size", "4", "--bits", "256", "--image", "8x8"], "--out"),
         (["demo", "--out", ro / "demo", "--size", "4", "--bits", "256", "--image", "8x8"], "--out"),
+        (["demo", "--out", ro / "a" / "demo", "--size", "4", "--bits", "256", "--image", "8x8"], "--out"),
     ]
 
 
-@pytest.mark.parametrize("case", range(8))
+@pytest.mark.parametrize("case", range(9))
 def test_a_read_only_output_folder_fails_the_run_naming_the_option_and_the_cause(d, capsys, tmp_path, read_only,
                                                                                   case):
     """encrypt, render, decrypt, keygen and --keep-sums said 'permission denied' and exited 2, demo
