@@ -67,6 +67,7 @@ __all__ = [
     "OpCounter",
     "ProductPlan",
     "available_backends",
+    "check_backend",
     "get_backend",
     "register_backend",
     "resolve_backend_name",
@@ -164,3 +165,19 @@ def get_backend(backend: str | Backend | None = None) -> Backend:
     if inst is None:
         inst = _INSTANCES[name] = _FACTORIES[name]()
     return inst
+
+
+def check_backend(name: str, client: Any = None) -> None:
+    """Make sure backend ``name`` works in this process before any work is written, when the work
+    runs here (``client`` is None; a cluster's workers answer for themselves): CuPy and a device
+    for ``cuda``, a C compiler for ``cuda-host``.
+
+    Raises
+    ------
+    MissingDependencyError
+        What the backend needs and this machine lacks.
+    """
+    if client is None:
+        be = get_backend(name)
+        if hasattr(be, "check"):
+            be.check()

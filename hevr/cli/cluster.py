@@ -14,8 +14,12 @@ from collections.abc import Iterator
 from typing import Any
 
 from distributed import Client, LocalCluster
+from distributed.comm.addressing import parse_address
+from distributed.comm.registry import get_backend
 
-__all__ = ["dask_client", "describe_client"]
+from .util import UsageError
+
+__all__ = ["check_scheduler", "dask_client", "describe_client"]
 
 log = logging.getLogger(__name__)
 
@@ -27,7 +31,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     Yields the ``distributed.Client`` (or None); closes what it opened.
     """
     if scheduler:
-
+        check_scheduler(scheduler)
         log.info("connecting to the Dask scheduler at %s", scheduler)
         try:
             client = Client(scheduler, timeout="10s")
@@ -52,6 +56,24 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             cluster.close()
     else:
         yield None
+
+
+def check_scheduler(address: str) -> None:
+    """Refuse a ``--scheduler`` address Dask cannot parse (an unknown scheme, no host) before connecting.
+
+    >>> check_scheduler("garbage://x")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    hevr.cli.util.UsageError: --scheduler: expected a Dask scheduler address like ..., got 'garbage://x' (unknown ...)
+    """
+    try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+        if not location:
+            raise ValueError("no host")
+    except ValueError as exc:
+        raise UsageError(f"--scheduler: expected a Dask scheduler address like tcp://10.0.0.5:8786, got {address!r} "
+                         f"({exc})") from None
 
 
 def describe_client(client: Any) -> str:

@@ -50,7 +50,8 @@ exit status (every command):
        exists without --force/--overwrite, a key of another volume, a render refused by the
        planner (the message names the option to change)
   1    the data or the run failed: a corrupt, tampered or incomplete store, frame or scan, an
-       integrity check, an I/O error, a missing optional dependency, a crashed worker
+       integrity check, an I/O error (a full disk, an output folder on a read-only filesystem
+       or without write permission), a missing optional dependency, a crashed worker
   130  interrupted
 """
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 from typing import Any
 
 from .._validate import MAX_BRICK_EDGE, MAX_STORE_DIGITS, MAX_VECTOR_DIMS
@@ -94,7 +95,23 @@ def phantom_size_type(text: str) -> int:
     return v
 
 
-workers_type = int_range(0, MAX_WORKERS, f"at most {MAX_WORKERS} worker processes (0: none)")  # --workers
+# --workers: local worker processes beyond a few per core only compete for the cores (1,000 on 2
+# cores never finished); past WORKERS_PER_CORE × os.cpu_count() the count is refused.
+WORKERS_PER_CORE = 4
+
+
+def max_workers() -> int:
+    """The most ``--workers`` this machine takes: :data:`WORKERS_PER_CORE` per CPU core (at least
+    that many), at most :data:`MAX_WORKERS`."""
+    return min(MAX_WORKERS, WORKERS_PER_CORE * max(1, os.cpu_count() or 1))
+
+
+def workers_type(text: str) -> int:
+    """``--workers N``: an integer in [0, :func:`max_workers`], else a message that says what this machine has."""
+    cores, limit = os.cpu_count(), max_workers()
+    has = f"this machine has {cores} CPU core{'s' if cores != 1 else ''}" if cores else "its core count is unknown"
+    return int_range(0, limit, f"at most {limit} worker processes (0: none; {WORKERS_PER_CORE} per CPU core, "
+                               f"and {has})")(text)
 
 
 def finite_float(text: str) -> float:
@@ -181,7 +198,7 @@ def add_general_options(p: argparse.ArgumentParser, dask: bool,
                             "reachable from its workers)")
         g.add_argument("--workers", type=workers_type, metavar="N",
                        help="start a local Dask cluster of N worker processes (1 thread each) for this "
-                            f"command (0: none); default: {workers_default}")
+                            f"command (0: none; at most {WORKERS_PER_CORE} per CPU core); default: {workers_default}")
     g.add_argument("-v", "--verbose", action="store_true", help="INFO logging, and tracebacks on errors")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress bars (they are only drawn on a terminal anyway)")
 

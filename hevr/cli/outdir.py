@@ -22,8 +22,9 @@ import json
 from pathlib import Path
 from typing import Iterable
 
-from .._files import read_regular, write_atomic
+from .._files import fs_errors, read_regular, write_atomic
 from ..errors import ExistingFileError, HevrError
+from .util import check_writable_folder
 
 __all__ = ["MARK", "OutputFolder"]
 
@@ -72,7 +73,13 @@ class OutputFolder:
                  option: str = "--out") -> None:
         self.path, self.command, self.names = Path(path), command, list(names)
         self.force, self.option = bool(force), option
-        self.path.mkdir(parents=True, exist_ok=True)
+        if not self.path.is_dir():  # the nearest existing folder above must take it (read-only: fails the run)
+            above = next((p for p in self.path.parents if p.is_dir()), None)
+            if above is not None:
+                check_writable_folder(above, option)
+            with fs_errors(f"{option}: creating the folder", self.path):
+                self.path.mkdir(parents=True, exist_ok=True)
+        check_writable_folder(self.path, option)  # before any work, not at the first file written
         self.files, self.foreign_mark = self._read_mark()
 
     def _read_mark(self) -> tuple[dict[str, str], bool]:

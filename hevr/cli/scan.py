@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from .._files import check_regular
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from ..paper import PAPER_SIZE
 from ..volume.density import default_value_range, minmax
@@ -83,6 +84,8 @@ def load_scan(spec: str, spacing: Any = None, **read: Any) -> tuple[Scan, str]:
         path = Path(spec).expanduser()
     if not path.exists():
         raise MissingFileError("input", "a volume file, a DICOM folder, phantom:N or sample:mri", spec)
+    if not path.is_dir():
+        check_regular(path, "input", "a volume file")  # a FIFO or a device: named as the input, never read
     try:
         scan = read_scan(path, spacing=spacing, **read)
     except MissingFileError as exc:  # a file the input refers to (an .nhdr's detached data file)

@@ -12,6 +12,7 @@ command's parser import it, ``hevr --version`` too.
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import numbers
@@ -118,12 +119,29 @@ def show_warning(message: Any, category: Any, filename: str, lineno: int, file: 
 
 # -- what the command line names, checked in its words -----------------------------------------
 def check_writable_dir(path: Path, option: str = "--out") -> None:
-    """The folder ``path`` goes into exists and is writable (else a usage error naming ``option``)."""
+    """The folder ``path`` goes into exists (else :class:`hevr.MissingFileError` naming ``option``,
+    exit 2) and can be written (:func:`check_writable_folder`)."""
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise MissingFileError(option, "an existing directory", parent)
-    if not os.access(parent, os.W_OK):
-        raise UsageError(f"{option}: expected a writable directory, got {parent} (permission denied)")
+    check_writable_folder(parent, option)
+
+
+def check_writable_folder(folder: Path, option: str = "--out") -> None:
+    """The existing folder ``folder`` can be written into, before any work: else a
+    :class:`hevr.FileSystemError` naming ``option``, the folder and the true cause — a read-only
+    filesystem (``EROFS``) or no write permission (``EACCES``) — which fails the run (exit 1,
+    as the same refusal would in the middle of it), not the command line."""
+    err = None
+    try:
+        if os.statvfs(folder).f_flag & os.ST_RDONLY:
+            err = errno.EROFS
+    except (OSError, AttributeError):  # no statvfs (Windows): the write permission alone
+        pass
+    if err is None and not os.access(folder, os.W_OK):
+        err = errno.EACCES
+    if err is not None:
+        raise FileSystemError(err, f"{option}: writing into", folder)
 
 
 def check_output_file(path: Path, option: str = "--out", suffix: str | None = None) -> None:

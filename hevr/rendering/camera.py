@@ -50,7 +50,12 @@ _MIN_RELATIVE = 1e-9
 
 
 def _vec3(name: str, value: Any) -> tuple[float, float, float]:
-    """Validate a 3-vector of finite reals and return it as a tuple of Python floats."""
+    """Validate a 3-vector of finite reals and return it as a tuple of Python floats (a bool or a
+    string is no coordinate, though numpy would read True and "1" as 1.0)."""
+    items = value.tolist() if isinstance(value, np.ndarray) else value
+    if isinstance(items, (list, tuple)) and not all(
+            isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_)) for x in items):
+        raise ParameterError(f"{name}: expected 3 finite numbers (x, y, z), got {value!r}")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):

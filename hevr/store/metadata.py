@@ -44,7 +44,7 @@ FORMAT_NAME = "hevr-encrypted-volume"
 FORMAT_VERSION = 2
 DTYPES = ("bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64",
           "float16", "float32", "float64")
-MAX_N_DIGITS = 5000  # a 16 000-bit modulus; longer decimal strings are refused before int()
+MAX_N_DIGITS = 4300  # Python's int/str conversion limit (a 14 000-bit modulus): longer ones refused before int()
 _HEX64 = re.compile(r"[0-9a-f]{64}")
 _STORE_ID = re.compile(r"[0-9a-f]{16}")
 _DOC_DIGEST = re.compile(r"sha256:[0-9a-f]{64}")
@@ -329,7 +329,8 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
         raise _bad(where, "public_key", "an object", pk)
     n = _get(pk, "n", where, "public_key.")
     if not (is_decimal(n, MAX_N_DIGITS) and n[0] != "0"):
-        raise _bad(where, "public_key.n", "a decimal string (public_key.n must be a decimal string)", n)
+        raise _bad(where, "public_key.n", f"a decimal string of at most {MAX_N_DIGITS} digits "
+                   "(public_key.n must be a decimal string)", n)
     fingerprint = _get(pk, "fingerprint", where, "public_key.")
     if not (isinstance(fingerprint, str) and _HEX64.fullmatch(fingerprint)):
         raise _bad(where, "public_key.fingerprint", "64 lower-case hex digits", fingerprint)

@@ -55,7 +55,7 @@ from .._validate import (
     check_spacing,
     check_volume,
 )
-from ..backends import CpuBackend, get_backend, resolve_backend_name
+from ..backends import CpuBackend, check_backend, get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
 from ..crypto.tags import tag_channel, tag_ciphertexts
 from .authenticity import authenticated_fields, metadata_mac
@@ -288,6 +288,7 @@ def encrypt_volume(
     )
     path, so = normalise(path), check_storage_options(storage_options)
     check_reachable(path, active_client(client))
+    check_backend(backend, active_client(client))  # CuPy, a device, a compiler: before the disk is touched
     _warn_if_remote(client, key)
     exists = store_exists(path, so)
     if exists and not (resume or overwrite):

@@ -32,6 +32,7 @@ from hevr.backends import (
 from hevr.backends.base import HORNER, ONES, SHARED, SINGLE
 from hevr.backends.cuda import build_host
 from hevr.backends.cuda import host as host_module
+from hevr.backends.cuda import kernel_cache
 from hevr.backends.cuda import launch as launch_module
 from hevr.backends.cuda import residues as residues_module
 from hevr.backends.cuda.launch import HostLauncher
@@ -401,7 +402,7 @@ def test_concat_keeps_one_form():
 def test_a_kernel_folder_others_can_write_is_not_used(monkeypatch, tmp_path):
     """The compiled library is loaded only from a folder this user alone can write."""
     monkeypatch.setattr(host_module, "_LIB", {})
-    monkeypatch.setattr(host_module.tempfile, "gettempdir", lambda: str(tmp_path))
+    monkeypatch.setattr(kernel_cache.tempfile, "gettempdir", lambda: str(tmp_path))
     shared = tmp_path / f"hevr-kernels-{os.getuid()}"
     shared.mkdir()
     shared.chmod(0o777)

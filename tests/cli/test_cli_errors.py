@@ -398,3 +398,104 @@ def test_a_reader_that_leaves_ends_the_command_quietly(d):
     finally:
         os.close(w)
     assert proc.returncode == 141 and proc.stderr == b"", (proc.returncode, proc.stderr)
+
+
+@pytest.mark.parametrize("address", ["garbage://x", "tcp://"])
+def test_a_scheduler_address_dask_cannot_parse_names_the_option(d, capsys, address):
+    code, _, err = run(capsys, "encrypt", "phantom:8", "--key", d / "key.pub.json", "--out", d / "s.zarr",
+                       "--scheduler", address)
+    msg = one_error_line(err)
+    assert code == 2, msg
+    want = f"--scheduler: expected a Dask scheduler address like tcp://10.0.0.5:8786, got {address!r}"
+    assert msg.startswith(want), msg
+    assert not (d / "s.zarr").exists()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("command", ["encrypt", "demo"])
+def test_a_fifo_as_the_input_volume_is_named_as_the_input(d, capsys, tmp_path, command):
+    """A FIFO given as the volume was reported as --out (the loader's 'path')."""
+    import os
+
+    fifo = tmp_path / "in.fifo"
+    os.mkfifo(fifo)  # reading it would block forever
+    argv = (["encrypt", fifo, "--key", d / "key.pub.json", "--out", tmp_path / "o.zarr"] if command == "encrypt"
+            else ["demo", "--input", fifo, "--out", tmp_path / "demo"])
+    code, _, err = run(capsys, *argv)
+    msg = one_error_line(err)
+    word = "INPUT" if command == "encrypt" else "--input"
+    assert code == 2 and msg == f"{word}: expected a volume file (a regular file), got a FIFO at {fifo}", msg
+
+
+@pytest.fixture
+def read_only(tmp_path, monkeypatch):
+    """A folder on a read-only filesystem: mode 0555, and statvfs reports it mounted read-only
+    (root writes through 0555, and a test cannot mount; the check before any work reads both)."""
+    import os
+    import types
+    from pathlib import Path
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    real = os.statvfs
+
+    def statvfs(path):
+        st = real(path)
+        if Path(path).absolute() == ro:
+            return types.SimpleNamespace(f_flag=st.f_flag | os.ST_RDONLY)
+        return st
+
+    monkeypatch.setattr(os, "statvfs", statvfs)
+    yield ro
+    ro.chmod(0o755)
+
+
+def _outputs_into(d, tmp_path, ro):
+    """(argv, the option named) of every command that writes a file the command line names."""
+    return [
+        (["keygen", "--bits", "256", "--out", ro / "k.json"], "--out"),
+        (["encrypt", "phantom:8", "--key", d / "key.pub.json", "--out", ro / "x.zarr", "--brick", "4"], "--out"),
+        (["render", d / "vol.zarr", "--out", ro / "f.hevr", "--size", "8x8"], "--out"),
+        (["render", d / "vol.zarr", "--out", tmp_path / "f.hevr", "--size", "8x8", "--keep-sums", ro / "x.hevrsums"],
+         "--keep-sums"),
+        (["decrypt", d / "f.hevr", "--key", d / "key.json", "--out", ro / "f.png"], "--out"),
+        (["convert-key", d / "key.json", "--out", ro / "k2.json"], "--out"),
+        (["demo", "--out", ro, "--size", "4", "--bits", "256", "--image", "8x8"], "--out"),
+        (["demo", "--out", ro / "demo", "--size", "4", "--bits", "256", "--image", "8x8"], "--out"),
+        (["demo", "--out", ro / "a" / "demo", "--size", "4", "--bits", "256", "--image", "8x8"], "--out"),
+    ]
+
+
+@pytest.mark.parametrize("case", range(9))
+def test_a_read_only_output_folder_fails_the_run_naming_the_option_and_the_cause(d, capsys, tmp_path, read_only,
+                                                                                  case):
+    """encrypt, render, decrypt, keygen and --keep-sums said 'permission denied' and exited 2, demo
+    'Read-only file system' and 1: one rule now (an environment failure, exit 1) and the true cause."""
+    argv, option = _outputs_into(d, tmp_path, read_only)[case]
+    code, _, err = run(capsys, *argv)
+    msg = one_error_line(err)
+    assert code == 1, msg
+    assert msg == f"{option}: writing into {read_only}: Read-only file system (EROFS)", msg
+    assert list(read_only.iterdir()) == [] and not (tmp_path / "f.hevr").exists()
+
+
+def test_an_output_folder_without_write_permission_fails_the_run(d, capsys, tmp_path, monkeypatch):
+    """No write permission (0555): exit 1 and 'Permission denied (EACCES)' — also as root, whom
+    mode bits do not stop (os.access answers as for any other user there)."""
+    import os
+
+    ro = tmp_path / "locked"
+    ro.mkdir()
+    ro.chmod(0o555)
+    if os.geteuid() == 0:
+        real = os.access
+        monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if str(p) == str(ro) and mode & os.W_OK
+                            else real(p, mode, **kw))
+    try:
+        code, _, err = run(capsys, "render", d / "vol.zarr", "--out", ro / "f.hevr", "--size", "8x8")
+        msg = one_error_line(err)
+        assert code == 1 and msg == f"--out: writing into {ro}: Permission denied (EACCES)", msg
+        assert list(ro.iterdir()) == []
+    finally:
+        ro.chmod(0o755)

@@ -84,3 +84,21 @@ def test_render_refuses_before_starting_a_cluster(capsys, tmp_path, store, extra
     assert seconds < 1.0  # a 2-worker LocalCluster alone takes longer to start
     assert not (tmp_path / "f.hevr").exists()
 
+
+
+@pytest.mark.parametrize("cores", [2, 1, None])
+def test_workers_far_above_the_cores_are_refused(capsys, monkeypatch, cores):
+    """--workers 1000 on 2 cores was accepted and never finished: the message says what is
+    allowed and what the machine has."""
+    from hevr.cli import options
+
+    monkeypatch.setattr(options.os, "cpu_count", lambda: cores)
+    limit = 4 * (cores or 1)
+    assert options.workers_type(str(limit)) == limit and options.workers_type("0") == 0
+    code, line, seconds = run(capsys, "encrypt", "phantom:8", "--key", "k", "--out", "o", "--workers", "1000")
+    has = {2: "this machine has 2 CPU cores", 1: "this machine has 1 CPU core", None: "its core count is unknown"}
+    assert code == 2 and seconds < 1.0
+    assert line == (f"hevr: error: argument --workers: expected at most {limit} worker processes (0: none; 4 per "
+                    f"CPU core, and {has[cores]}), got '1000' (see 'hevr encrypt --help')"), line
+    code, line, _ = run(capsys, "encrypt", "phantom:8", "--key", "k", "--out", "o", "--workers", str(limit + 1))
+    assert code == 2 and f"expected at most {limit} worker processes" in line

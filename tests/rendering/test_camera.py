@@ -108,6 +108,9 @@ def test_from_dict_rejects(data: object, match: str) -> None:
         (dict(position=(0, 0)), "position"),
         (dict(position=(0, 0, float("inf"))), "position"),
         (dict(focal_point="origin"), "focal_point"),
+        (dict(position=(True, 0, 5)), r"position: expected 3 finite numbers \(x, y, z\), got \(True, 0, 5\)"),
+        (dict(view_up=np.array([False, True, False])), "view_up: expected 3 finite numbers"),
+        (dict(focal_point=("0", "0", "0")), "focal_point: expected 3 finite numbers"),
         (dict(parallel="yes"), "parallel"),
     ],
 )

@@ -113,6 +113,11 @@ def test_header_checks_name_the_field(scene, tmp_path):
     write({k: v for k, v in head.items() if k != "camera"})
     with pytest.raises(hevr.CorruptStoreError, match="'camera'"):
         hevr.load_sums(path)
+    for coordinate in (True, "1.0"):  # JSON true or a string is no coordinate (numpy would take both as 1.0)
+        camera = dict(head["camera"], position=[coordinate, *head["camera"]["position"][1:]])
+        write(dict(head, camera=camera))
+        with pytest.raises(hevr.CorruptStoreError, match=r"'camera': position: expected 3 finite numbers"):
+            hevr.load_sums(path)
 
 
 def test_compute_false_returns_the_image_unevaluated(scene, cluster):

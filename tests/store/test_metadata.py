@@ -164,6 +164,7 @@ def _set(path: str, value):
         (_set("public_key.n", "-17"), "public_key.n must be a decimal string"),
         (_set("public_key.n", "١٢٣"), "public_key.n must be a decimal string"),
         (_set("public_key.n", "9" * 6000), "public_key.n must be a decimal string"),
+        (_set("public_key.n", "9" * 4301), "public_key.n must be a decimal string"),  # past int()'s limit
         (_set("public_key.bits", 7), r"public_key.bits: expected \d+ \(the bit length of n\)"),
         (_set("public_key.fingerprint", "AB" * 32), "fingerprint: expected 64 lower-case hex digits"),
         (_set("dtype", "complex128"), "dtype: expected one of bool, int8"),

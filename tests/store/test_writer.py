@@ -419,3 +419,19 @@ def test_overwrite_deletes_the_replaced_stores_journal(tmp_path, keypair256):
                                      overwrite=True)
     assert sorted(p.name for p in folder.iterdir()) == [f"{second.meta.store_id}.json"]
     assert first.meta.store_id != second.meta.store_id
+
+
+def test_an_unusable_backend_is_refused_before_the_disk_is_touched(tmp_path, keypair256, monkeypatch):
+    """backend="cuda" without CuPy failed only after the store and its journal existed; the docs
+    promise inputs are checked first."""
+    from hevr import backends
+
+    monkeypatch.setitem(__import__("sys").modules, "cupy", None)  # CuPy not installed (import raises)
+    monkeypatch.delitem(backends._INSTANCES, "cuda", raising=False)
+    folder = tmp_path / "journals"
+    with dask.config.set({"hevr.journal-dir": str(folder)}), \
+            pytest.raises(hevr.MissingDependencyError, match="backend: 'cuda' needs CuPy"):
+        hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False,
+                            backend="cuda")
+    assert not (tmp_path / "v.zarr").exists()
+    assert not folder.exists() or not any(folder.iterdir())

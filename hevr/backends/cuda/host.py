@@ -22,8 +22,6 @@ import logging
 import os
 import platform
 import shutil
-import subprocess
-import tempfile
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import MissingDependencyError, ParameterError
+from . import kernel_cache
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +54,9 @@ def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None
 
     The shared library is cached on disk (a private folder in the temporary directory) under the
     hash of the source, the headers it includes and the compiler flags, so an edited source is
-    rebuilt and an unchanged one is compiled once per machine.
+    rebuilt and an unchanged one is compiled once per machine; a cached library is checked
+    against its digest before it is loaded, and the compiler has a time limit
+    (:mod:`hevr.backends.cuda.kernel_cache`).
 
     Parameters
     ----------
@@ -71,7 +72,8 @@ def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None
     Raises
     ------
     MissingDependencyError
-        No C compiler (``cc``/``gcc``, or ``$CC``) on this machine, or it cannot build the source.
+        No C compiler (``cc``/``gcc``, or ``$CC``) on this machine, or it cannot build the source
+        (fails, writes no loadable library, or runs past ``hevr.limits.compile-seconds``).
     """
     texts = [main.read_text(encoding="utf-8")] + [h.read_text(encoding="utf-8") for h in headers]
     cc = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or ""
@@ -106,23 +108,7 @@ def _compile(main: Path, key: str, compiler: str | None, flags: Sequence[str] = 
     if not cc:
         raise MissingDependencyError("compiler: expected a C compiler (cc, gcc or $CC) to build the kernel source "
                                      "for the host, got none on PATH")
-    folder = Path(tempfile.gettempdir()) / f"hevr-kernels-{os.getuid() if hasattr(os, 'getuid') else 0}"
-    folder.mkdir(mode=0o700, exist_ok=True)
-    st = folder.stat()
-    if hasattr(os, "getuid") and (st.st_uid != os.getuid() or st.st_mode & 0o022):
-        folder = Path(tempfile.mkdtemp(prefix="hevr-kernels-"))  # not ours alone: never load code from it
-    lib = folder / f"{key}.so"
-    if not lib.exists():
-        tmp = folder / f".{key}-{os.getpid()}.so"
-        try:
-            run = subprocess.run([cc, *flags, str(main), "-o", str(tmp)], capture_output=True, text=True, check=False)
-        except OSError as exc:
-            raise MissingDependencyError(f"compiler: expected a C compiler at {cc}, got {exc.strerror}") from None
-        if run.returncode != 0:
-            raise MissingDependencyError(f"compiler: {cc} could not build {main.name}: {run.stderr.strip()[:500]}")
-        os.replace(tmp, lib)
-        log.info("built %s with %s", lib, cc)
-    return ctypes.CDLL(str(lib))
+    return kernel_cache.load(main, key, cc, flags)
 
 
 def build_host(compiler: str | None = None) -> ctypes.CDLL:
