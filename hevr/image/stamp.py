@@ -35,6 +35,8 @@ import json
 import re
 from typing import Any
 
+from ..crypto.tags import tag_key_of
+
 __all__ = ["STAMP_PREFIX", "check_stamp", "make_stamp", "message", "raw_check", "raw_stamp", "saved_name"]
 
 STAMP_PREFIX = "hmac-sha256:"
@@ -75,13 +77,9 @@ def raw_check(prf_key: bytes, msg: bytes, stamp: Any) -> bool:
 
 def make_stamp(private_key: Any, msg: bytes) -> str:
     """The key holder's stamp of ``msg`` (:func:`message`)."""
-    from ..crypto.tags import tag_key_of
-
     return raw_stamp(tag_key_of(private_key).prf_key, msg)
 
 
 def check_stamp(private_key: Any, msg: bytes, stamp: Any) -> bool:
     """Whether ``stamp`` is the key holder's stamp of ``msg``."""
-    from ..crypto.tags import tag_key_of
-
     return raw_check(tag_key_of(private_key).prf_key, msg, stamp)

@@ -46,6 +46,8 @@ import json
 import re
 from typing import Any
 
+from ..crypto.tags import tag_key_of
+
 __all__ = ["AUTHENTICATED", "AUTH_PREFIX", "authenticated_fields", "check_metadata_mac", "is_auth", "metadata_digest",
            "metadata_mac", "raw_metadata_mac"]
 
@@ -98,8 +100,6 @@ def raw_metadata_mac(prf_key: bytes, fields: dict) -> str:
 
 def metadata_mac(private_key: Any, fields: dict) -> str:
     """The owner's MAC of the bound ``fields`` (:func:`raw_metadata_mac` under the private key's tag key)."""
-    from ..crypto.tags import tag_key_of  # the tag key: derived from p, q (hevr.crypto.tags)
-
     return raw_metadata_mac(tag_key_of(private_key).prf_key, fields)
 
 

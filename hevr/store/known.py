@@ -17,9 +17,9 @@ metadata differ from what was recorded under its name; a store recorded as verif
 (``verify=None`` then means True). Accept a store explicitly (the owner re-encrypted it) with
 :func:`trust_store` or ``hevr render --trust-store``.
 
-The file: ``$HEVR_KNOWN_STORES``, else ``$XDG_CONFIG_HOME/hevr/known_stores.json`` (default
-``~/.config/hevr/``); JSON ``{"format": "hevr-known-stores", "version": 1, "stores": {name: {...}}}``,
-mode 0600 in a 0700 folder, replaced atomically under an ``flock``. It holds no secret (ids,
+The file: ``$HEVR_KNOWN_STORES``, else ``known_stores.json`` in the ``hevr`` folder of
+``$XDG_CONFIG_HOME`` (default: ``.config`` in the home folder); JSON ``{"format": "hevr-known-stores",
+"version": 1, "stores": {name: {...}}}``, mode 0600 in a 0700 folder, replaced atomically under an ``flock``. It holds no secret (ids,
 digests of public metadata) but says which stores this user renders, so it stays private.
 """
 
