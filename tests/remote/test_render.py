@@ -86,6 +86,7 @@ def test_slices_levels_and_frames(served, rv):
                              cache=False)
     np.testing.assert_array_equal(frame.image, here.image)
     assert frame.stats["ciphertexts"] == here.stats["ciphertexts"]
+    assert frame.stats["verified"] and here.stats["verified"]  # streamed frames verified when they settle
 
 
 def test_what_the_server_cannot_be_asked(rv):

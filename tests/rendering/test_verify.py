@@ -362,7 +362,7 @@ def test_a_frame_file_carries_its_verification(stores, keypair256, tmp_path, cap
         dataclasses.replace(img, samples=img.samples * 2).save(tmp_path / "scaled.hevr", private_key=priv)
     assert not (tmp_path / "scaled.hevr").exists()
     bad = dataclasses.replace(img.verification, seed=b"short", drawn_here=False)
-    dataclasses.replace(img, verification=bad, stamp=("hmac-sha256:" + "0" * 64, b"")).save(tmp_path / "bad.hevr")
+    dataclasses.replace(img, verification=bad, stamp=("hmac-sha256:" + "0" * 64, b"", "bad.hevr", None)).save(tmp_path / "bad.hevr")
     with pytest.raises(hevr.IntegrityError, match="'verification.seed': expected 64 lower-case hex digits"):
         hevr.load_image(tmp_path / "bad.hevr")
     assert _render(ev, verify=False).verification is None
