@@ -243,11 +243,29 @@ def _rewrite(tmp, raw, head, head_len):
     return f
 
 
+def table(before: str, after: str) -> str:
+    """A markdown table of two runs' outcomes (``before → after`` per attack and column)."""
+    b, a = (json.loads(Path(p).read_text()) for p in (before, after))
+    cols = ("None", "None, new machine", "True", "pinned", "CLI", "CLI --require-verified")
+    lines = [f"Before: hevr {b.get('commit') or '?'}; after: hevr {a.get('commit') or '?'}. Cell: before → after.", "",
+             "| attack | " + " | ".join(f"`{c}`" for c in cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    old = {r["attack"]: r for r in b["rows"]}
+    for r in a["rows"]:
+        o = old.get(r["attack"], {})
+        cells = [f"{o[c][0] if c in o else '—'} → {r[c][0]}" if c in r else "—" for c in cols]
+        lines.append(f"| {r['attack']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> int:
     global KEY_OPTION
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", help="write the results as JSON")
+    ap.add_argument("--table", nargs=2, metavar=("BEFORE.json", "AFTER.json"), help="print the before/after table")
     args = ap.parse_args()
+    if args.table:
+        print(table(*args.table), end="")
+        return 0
     warnings.simplefilter("ignore")
     rows = []
     with tempfile.TemporaryDirectory() as tmp, dask.config.set(scheduler="sync"):
