@@ -98,8 +98,9 @@ def cmd_encrypt(args: Any) -> int:
     if not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
     if ev.meta.tags:
-        print(f"verifiable: store id {ev.meta.store_id}; keep it, and render with --verify {ev.meta.store_id} to "
-              "refuse any other store a server might answer with")
+        print(f"verifiable: store id {ev.meta.store_id}; keep it, and render with --key KEY --verify "
+              f"{ev.meta.store_id} to refuse any other store a server might answer with (recorded in your known "
+              "stores)")
     return 0
 
 
@@ -152,7 +153,9 @@ def verified_line(img: Any) -> str | None:
     if v is None:
         return None
     view = v.camera
-    what = (f"plane {view.to_dict()}" if not hasattr(view, "position") else
+    what = (f"plane through ({', '.join(f'{x:g}' for x in view.origin)}) along u ({', '.join(f'{x:g}' for x in view.u)})"
+            f" and v ({', '.join(f'{x:g}' for x in view.v)}), {view.width}x{view.height} px"
+            if not hasattr(view, "position") else
             f"camera at ({', '.join(f'{x:g}' for x in view.position)}) looking at "
             f"({', '.join(f'{x:g}' for x in view.focal_point)}), {view.width}x{view.height} px")
     return (f"verified: the frame is the render of store {v.store_id} (channel {v.channel}, {v.sampling} sampling, "
