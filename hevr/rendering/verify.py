@@ -49,6 +49,7 @@ import re
 import secrets
 import time
 from concurrent.futures import ThreadPoolExecutor
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -163,6 +164,21 @@ def level_betas(key: Any, store_id: str, channel: str, component: int, level: in
         cols.append(np.zeros_like(cols[0]))
     out = np.stack(cols, axis=1).astype("<u2")
     return np.ascontiguousarray(out).view("<u4")
+
+
+def _footprint_rays(rays: RaySet, rect: tuple, hit: np.ndarray) -> RaySet:
+    """The hit rays of the pixel rectangle ``rect`` (rows ``[r0, r1)``, columns ``[c0, c1)``) as a
+    subset of ``rays`` (global pixel ids kept): what a map task casts for its brick, so its weights
+    are the same (every ray's geometry is computed elementwise)."""
+    if rays.pixel_ids is not None:  # already a subset: as it is
+        return rays
+    r0, r1, c0, c1 = rect
+    W = rays.width
+    ids = (np.arange(r0, r1)[:, None] * W + np.arange(c0, c1)[None, :]).reshape(-1)
+    ids = ids[hit[ids]]
+    return dataclasses.replace(rays, origins=rays.origins[ids], directions=rays.directions[ids],
+                               t_enter=rays.t_enter[ids], t_exit=rays.t_exit[ids], n_samples=rays.n_samples[ids],
+                               pixel_ids=ids, t_index=None if rays.t_index is None else rays.t_index[ids])
 
 
 def aggregate_tile(merged: Any, seed: bytes, width: int, components: int, nsquare: int,
@@ -337,10 +353,11 @@ class Verification:
         # the bricks whose footprint holds a hit pixel (O(bricks + pixels), as the render graph picks its
         # map tasks): a superset of the touched ones, whose extra bricks add nothing (empty weights)
         hit = np.asarray(rays.n_samples) > 0
-        bricks = list(brick_footprints(self.camera, self.shape, self.spacing, self.brick, hit,
-                                       max(self.camera.width, self.camera.height)))
+        prints = brick_footprints(self.camera, self.shape, self.spacing, self.brick, hit,
+                                  max(self.camera.width, self.camera.height))
         with ThreadPoolExecutor(max_workers=max(1, min(os.cpu_count() or 1, 8))) as pool:
-            parts = list(pool.map(lambda index: self._brick_beta_sum(key, rays, index, cache), bricks))
+            parts = list(pool.map(lambda item: self._brick_beta_sum(key, _footprint_rays(rays, item[1].rect, hit),
+                                                                    item[0], cache), prints.items()))
         return sum(parts) % self.n
 
     def _brick_beta_sum(self, key: Any, rays: RaySet, index: tuple, cache: dict) -> int:
