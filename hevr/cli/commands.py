@@ -22,6 +22,7 @@ import numpy as np
 from .._files import check_regular
 from ..crypto.keys import PrivateKey
 from ..image import load_image
+from ..image.orient import describe_layout
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..remote.client import connect
 from ..rendering.camera import Camera
@@ -314,7 +315,9 @@ def cmd_decrypt(args: Any) -> int:
         coloured = f"; coloured on this machine in {1000 * tc.seconds:.1f} ms ({what})"
     else:
         arr = decrypted
-    st.save_decrypted(arr, out, npy, args.window, force=args.force)
+    cam = (img.info or {}).get("camera") or {}
+    plane = cam if cam.get("kind") == "plane" else None
+    st.save_decrypted(arr, out, npy, args.window, force=args.force, plane=plane)
     rgb = ", rgb" if arr.ndim == 3 else ""
     print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
@@ -324,9 +327,12 @@ def cmd_decrypt(args: Any) -> int:
     else:
         print("not verified: the frame carries no check against a store's tags (a store encrypted without "
               "--verifiable, or rendered with --no-verify or --finish server)")
+    if plane is not None:
+        print(f"shown:   {describe_layout(plane)}")
     print(f"wrote {out}")
     if npy is not None:
-        print(f"wrote {npy} (float64 values)")
+        order = ", in the plane's pixel order, not turned like the PNG" if plane else ""
+        print(f"wrote {npy} (float64 values{order})")
     return 0
 
 

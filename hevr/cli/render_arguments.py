@@ -246,7 +246,9 @@ def slice_arguments(p: argparse.ArgumentParser) -> None:
     add_storage_option(p)
     p.description = wrap("Resample the encrypted volume on a plane (multi-planar reformatting), optionally "
                          "averaging a thick slab of parallel planes, on the Dask cluster. Never needs the "
-                         "secret key: the result is an encrypted .hevr frame only the key holder can decrypt.")
+                         "secret key: the result is an encrypted .hevr frame only the key holder can decrypt. "
+                         "hevr decrypt writes its PNG in the radiological convention (axial: anterior at the top, "
+                         "the patient's right on the left; coronal, sagittal: superior at the top).")
     p.epilog = SLICE_EPILOG
     p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..image.orient import describe_layout
 from ..paper import PAPER_TF1
 from ..rendering.plane import Plane
 from ..rendering.planner import check_render_size
@@ -71,6 +72,7 @@ def cmd_slice(args: Any) -> int:
     print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…")
     print(f"slice:   {where}, {wh(plane.width, plane.height)} px of {spacing} world units, {what}, "
           f"{args.sampling} sampling{slab}")
+    print(f"shown:   {describe_layout(plane)} (in hevr decrypt's PNG)")
     with compute_context(args, ev) as client:
         with Timer() as t:
             img = render_slice(ev, plane, mode=mode, sampling=args.sampling, density=args.density, nodes=nodes,

@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image
@@ -14,6 +15,7 @@ from PIL import Image
 from .._files import write_file
 from .._validate import check_bool
 from ..errors import ParameterError
+from .orient import DEFAULT_CONVENTION, orient_slice
 
 __all__ = ["save_png", "to_uint8"]
 
@@ -36,8 +38,13 @@ def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None) -> np.n
 
 
 def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | None = None, *,
-             overwrite: bool = False) -> None:
+             overwrite: bool = False, plane: Any = None, convention: str = DEFAULT_CONVENTION) -> None:
     """Save a decrypted (or plaintext) image as PNG with sensible windowing.
+
+    Given the ``plane`` of a slice (a :class:`hevr.Plane` or its ``to_dict()``), the slice is
+    written the way radiology viewers show it (:func:`hevr.image.orient.orient_slice`:
+    radiological by default — an axial slice with anterior at the top and the patient's right on
+    the left, coronal and sagittal ones with superior at the top), not in the raw array order.
 
     Encoded in memory, then written atomically (:func:`hevr._files.write_file`): never over an
     existing file unless ``overwrite=True`` (:class:`hevr.ExistingFileError`), and a failed
@@ -52,6 +59,8 @@ def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | No
     overwrite = check_bool("overwrite", overwrite)
     if not isinstance(path, (str, os.PathLike)) or not str(path):
         raise ParameterError(f"path: expected a file path, got {path!r}")
+    if plane is not None:
+        arr = orient_slice(arr, plane, convention)
     buf = io.BytesIO()
     Image.fromarray(to_uint8(arr, window)).save(buf, format="PNG")
     write_file(path, [buf.getbuffer()], overwrite=overwrite, doing="writing the PNG")

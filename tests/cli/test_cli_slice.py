@@ -109,3 +109,24 @@ def test_help_lists_slice(capsys):
     assert main(["slice", "--help"]) == 0
     out = capsys.readouterr().out
     assert "--oblique CX,CY,CZ:NX,NY,NZ" in out and "no MIP" in out
+
+
+def test_slice_pngs_are_shown_the_radiological_way(tmp_path, capsys):
+    """Issue 39, item 6: a coronal or sagittal PNG has superior at the top, an axial one anterior
+    (raw array order put the head at the bottom); the banners say which convention."""
+    from PIL import Image
+
+    k, j, i = np.meshgrid(np.arange(6), np.arange(7), np.arange(8), indexing="ij")
+    np.save(tmp_path / "v.npy", (100 * k + 10 * j + i).astype(np.int16))  # grows to superior, anterior, right
+    key = tmp_path / "key.json"
+    _ok(capsys, "keygen", "--bits", "256", "--out", key, "-q")
+    _ok(capsys, "encrypt", tmp_path / "v.npy", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4", "-q")
+    for opt, top, left in (("--coronal", "superior", "the patient's right"), ("--sagittal", "superior", "anterior"),
+                           ("--axial", "anterior", "the patient's right")):
+        out = _ok(capsys, "slice", tmp_path / "v.zarr", "--out", tmp_path / f"{opt[2:]}.hevr", opt, "3", "-q")
+        assert f"radiological convention: {top} at the top, {left} on the left" in out
+        out = _ok(capsys, "decrypt", tmp_path / f"{opt[2:]}.hevr", "--key", key, "--out", tmp_path / f"{opt[2:]}.png")
+        assert f"{opt[2:]} slice, radiological convention: {top} at the top" in out
+        png = np.asarray(Image.open(tmp_path / f"{opt[2:]}.png")).astype(float)
+        assert png[0].mean() > png[-1].mean() + 20, (opt, png)  # the top row is superior / anterior
+        assert png[:, 0].mean() > png[:, -1].mean(), (opt, png)  # the left column: the patient's right / anterior
