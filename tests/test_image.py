@@ -117,3 +117,23 @@ def test_orient_slice_conventions_and_bad_input():
         hevr.image.orient_slice(vol[1], plane, "upside-down")
     with pytest.raises(hevr.ParameterError, match="plane: expected a hevr.Plane"):
         hevr.save_png(vol[1], "never.png", plane=hevr.Camera.orbit(vol.shape))
+
+
+def test_default_window_shows_negative_valued_images():
+    """Issue 39, item 7: a CT X-ray (air -1000, an object above it) is not black by default."""
+    from hevr.image.display import default_window
+
+    xray = np.full((8, 8), -1000.0)
+    xray[2:6, 2:6] = np.linspace(-885.0, 29.5, 16).reshape(4, 4)
+    img = to_uint8(xray)
+    assert img[2:6, 2:6].min() > img[0, 0] and img[0, 0] == 0 and img.max() >= 250
+    lo, hi = default_window(xray)
+    assert lo == -1000.0 and 20 < hi <= 29.5
+    hits = np.ones((8, 8), bool)
+    hits[0] = False  # a ray that misses: 0, black, and out of the statistics
+    xray[0] = 0.0
+    assert default_window(xray, hits)[1] <= 29.5 and (to_uint8(xray, hits=hits)[0] == 0).all()
+    mri = np.array([[0.0, 10.0], [20.0, 30.0]])
+    assert default_window(mri)[0] == 0.0 and to_uint8(mri)[0, 0] == 0  # positive images: as before
+    with pytest.raises(hevr.ParameterError, match=r"hits: expected a mask of shape \(8, 8\)"):
+        to_uint8(xray, hits=np.ones((2, 2), bool))

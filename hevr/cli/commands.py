@@ -22,6 +22,7 @@ import numpy as np
 from .._files import check_regular
 from ..crypto.keys import PrivateKey
 from ..image import load_image
+from ..image.display import default_window
 from ..image.orient import describe_layout
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..remote.client import connect
@@ -317,7 +318,9 @@ def cmd_decrypt(args: Any) -> int:
         arr = decrypted
     cam = (img.info or {}).get("camera") or {}
     plane = cam if cam.get("kind") == "plane" else None
-    st.save_decrypted(arr, out, npy, args.window, force=args.force, plane=plane)
+    hits = img.hits if img.hits is not None and img.hits.shape == arr.shape[:2] else None
+    window = args.window if args.window is not None else default_window(arr, hits)
+    st.save_decrypted(arr, out, npy, window, force=args.force, plane=plane, hits=hits)
     rgb = ", rgb" if arr.ndim == 3 else ""
     print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
@@ -327,6 +330,10 @@ def cmd_decrypt(args: Any) -> int:
     else:
         print("not verified: the frame carries no check against a store's tags (a store encrypted without "
               "--verifiable, or rendered with --no-verify or --finish server)")
+    if args.window is None and arr.ndim == 2:
+        how = ("the value range (0.1th .. 99.9th percentile), as the image has negative values" if window[0] < 0
+               else "0 .. the 99.9th percentile")
+        print(f"window:  {window[0]:.6g} .. {window[1]:.6g}: {how}; --window LO,HI sets another")
     if plane is not None:
         print(f"shown:   {describe_layout(plane)}")
     print(f"wrote {out}")

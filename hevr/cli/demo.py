@@ -24,7 +24,7 @@ import numpy as np
 from .._files import write_atomic
 from ..crypto.keys import SECURE_BITS, generate_keypair
 from ..errors import InsecureKeyWarning, MemoryLimitError
-from ..image.display import save_png
+from ..image.display import default_window, save_png
 from ..paper import (
     PAPER_DENSITIES,
     PAPER_TF1,
@@ -82,8 +82,7 @@ def paper_jobs() -> list[Job]:
 
 def _window(ref: np.ndarray) -> tuple[float, float]:
     """The default PNG window of :func:`hevr.image.display.to_uint8`, taken from the reference."""
-    pos = ref[np.isfinite(ref) & (ref > 0)]
-    return 0.0, float(np.percentile(pos, 99.9)) if pos.size else 1.0
+    return default_window(ref)
 
 
 def output_names(jobs: list[Job]) -> list[str]:

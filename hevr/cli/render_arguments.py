@@ -293,7 +293,8 @@ def decrypt_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--npy", metavar="FILE.npy", help="also save the float64 pixel values")
     p.add_argument("--force", action="store_true", help="replace an existing --out (or --npy) file")
     p.add_argument("--window", type=range_type, metavar="LO,HI",
-                   help="grey/colour window of the PNG (default 0 .. 99.9th percentile)")
+                   help="grey/colour window of the PNG (default 0 .. 99.9th percentile; for an image with "
+                        "negative values, e.g. a CT X-ray, its value range: 0.1th .. 99.9th percentile)")
     add_decrypt_colour_options(p)
 
 

@@ -251,3 +251,30 @@ def test_console_script_subprocess(work):
                         "--size", "10x10x10"], capture_output=True, text=True, env=env, timeout=60)
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.count("\n") == 1 and r.stderr.startswith("hevr: error: argument --size")
+
+
+def test_ct_xray_default_window_shows_the_object(tmp_path, capsys):
+    """Issue 39, item 7: an X-ray of a CT-like volume (air -1000, a positive object) is windowed
+    over its value range by default: the object brighter than the air around it, not black."""
+    from PIL import Image
+
+    vol = np.full((12, 12, 12), -1000, dtype=np.int16)
+    vol[3:9, 4:8, 4:8] = 400  # the object: every ray through it averages above the air's rays
+    np.save(tmp_path / "ct.npy", vol)
+    key = tmp_path / "key.json"
+    assert run(capsys, "keygen", "--bits", "256", "--out", key, "-q")[0] == 0
+    assert run(capsys, "encrypt", tmp_path / "ct.npy", "--key", key, "--out", tmp_path / "ct.zarr", "--brick", "6",
+               "-q")[0] == 0
+    assert run(capsys, "render", tmp_path / "ct.zarr", "--out", tmp_path / "x.hevr", "--mode", "xray",
+               "--size", "24x24", "-q")[0] == 0
+    code, out, err = run(capsys, "decrypt", tmp_path / "x.hevr", "--key", key, "--out", tmp_path / "x.png",
+                         "--npy", tmp_path / "x.npy")
+    assert code == 0, err
+    values = np.load(tmp_path / "x.npy")
+    hits = hevr.load_image(tmp_path / "x.hevr").hits
+    assert values[hits].max() < 0  # every ray's mean is negative: 0 .. p99.9 was a black picture
+    png = np.asarray(Image.open(tmp_path / "x.png")).astype(int)
+    obj, air = values == values[hits].max(), hits & (values == values[hits].min())
+    assert png[obj].min() > png[air].max() + 100, (png[obj], png[air])
+    assert (png[~hits] == 0).all()  # rays that miss the volume stay black
+    assert "window:  " in out and "negative values" in out
