@@ -61,6 +61,20 @@ def _setup_logging(verbose: bool) -> logging.Handler:
     return handler
 
 
+def _names_as_bytes(stream: Any) -> str | None:
+    """Let ``stream`` print a path that is not UTF-8 (argv holds its bytes as surrogate escapes,
+    :func:`os.fsdecode`) as those bytes, as ``printf`` would, instead of raising
+    ``UnicodeEncodeError``; returns its previous ``errors`` setting (None: left as it was)."""
+    old = getattr(stream, "errors", None)
+    if old != "strict" or not callable(getattr(stream, "reconfigure", None)):
+        return None
+    try:
+        stream.reconfigure(errors="surrogateescape")
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - a stream that cannot change
+        return None
+    return old
+
+
 def _run(args: Any) -> int:
     """Run the command ``args`` names: the CLI's one dispatch point. Its module (and with it Dask,
     Zarr, the readers, as it needs) is imported here, now that it is known to be needed."""
@@ -82,6 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         err_line(f"a command is required: {', '.join(names[:-1])} or {names[-1]} (see 'hevr --help')")
         return 2
     handler = _setup_logging(args.verbose)
+    errors = _names_as_bytes(sys.stdout)
     try:
         with warnings.catch_warnings():
             if not args.verbose:
@@ -104,6 +119,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exit_code(exc, args)
     finally:
         logging.getLogger("hevr").removeHandler(handler)
+        if errors is not None:
+            sys.stdout.reconfigure(errors=errors)
 
 
 if __name__ == "__main__":  # pragma: no cover

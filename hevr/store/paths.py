@@ -29,6 +29,7 @@ from typing import Any, Callable
 from zarr.storage import FsspecStore
 
 from .._files import (
+    check_name,
     fs_errors,
     read_regular,
     temp_sibling,
@@ -84,6 +85,7 @@ def normalise(path: str | os.PathLike, name: str = "path") -> str:
         if text.startswith("localhost/"):
             text = text[len("localhost"):]
     if is_local(text):
+        check_name(text, name)  # a lone surrogate: a ParameterError, not a UnicodeEncodeError
         return str(Path(text).resolve())
     _check_protocol(text, name)
     return text.rstrip("/")

@@ -278,3 +278,32 @@ def test_ct_xray_default_window_shows_the_object(tmp_path, capsys):
     assert png[obj].min() > png[air].max() + 100, (png[obj], png[air])
     assert (png[~hits] == 0).all()  # rays that miss the volume stay black
     assert "window:  " in out and "negative values" in out
+
+
+def test_names_that_are_not_utf8_work_from_the_command_line(tmp_path, capsys, monkeypatch):
+    """Issue 39, item 3: argv holds a non-UTF-8 name as surrogate escapes (os.fsdecode); every
+    command writes and reads it, and prints it as its bytes (it raised UnicodeEncodeError naming
+    neither option nor path)."""
+    import io
+    import sys
+
+    n = str(tmp_path / os.fsdecode(b"\xff"))
+    for argv in (["keygen", "--bits", "256", "--out", n + ".json", "-q"],
+                 ["encrypt", "phantom:8", "--key", n + ".json", "--out", n + ".zarr", "--brick", "4", "-q"],
+                 ["render", n + ".zarr", "--out", n + ".hevr", "--size", "6x6", "-q"],
+                 ["slice", n + ".zarr", "--out", n + ".s.hevr", "--coronal", "3", "-q"],
+                 ["decrypt", n + ".hevr", "--key", n + ".json", "--out", n + ".png", "--npy", n + ".npy", "-q"],
+                 ["decrypt", n + ".s.hevr", "--key", n + ".json", "-q"],
+                 ["info", n + ".zarr"]):
+        raw = io.BytesIO()
+        out = io.TextIOWrapper(raw, encoding="utf-8", errors="strict")  # a UTF-8 terminal's stdout
+        monkeypatch.setattr(sys, "stdout", out)
+        code = main(argv)
+        out.flush()
+        monkeypatch.undo()
+        err = capsys.readouterr().err
+        assert code == 0, (argv[0], err)
+        assert os.fsencode(n) in raw.getvalue() and out.errors == "strict", raw.getvalue()  # its bytes; restored
+    names = sorted(os.listdir(os.fsencode(str(tmp_path))))
+    assert names == sorted(b"\xff" + s for s in (b".json", b".pub.json", b".zarr", b".hevr", b".s.hevr", b".png",
+                                                 b".npy", b".s.png")), names
