@@ -17,6 +17,7 @@ import dask
 import dask.threaded
 from distributed import as_completed, default_client
 
+from . import _cancel
 from ._progress import Progress, TaskCounter
 
 log = logging.getLogger(__name__)
@@ -124,7 +125,11 @@ def _compute_local(tasks: list[Any]) -> list[Any]:
         return list(dask.compute(*tasks))
     workers = dask.config.get("num_workers", None) or dask.threaded.CPU_COUNT
     pool = ThreadPoolExecutor(max_workers=workers)
+    _cancel.clear()
     try:
         return list(dask.compute(*tasks, pool=pool))
+    except KeyboardInterrupt:  # Ctrl-C: the running tasks stop at their next check, not at their end
+        _cancel.stop()
+        raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

@@ -32,6 +32,7 @@ from ..store.metadata import VolumeMetadata
 from ..store.paths import normalise, zarr_store
 from ..store.reader import open_volume
 from . import storage as st
+from .exits import cli_phrases
 from .keys import info_key
 from .pyramid import level_rows
 from .render_options import format_tf
@@ -114,7 +115,7 @@ def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> i
         open_volume(path, storage_options=so)
         check = "ok (metadata checksum and documents, completeness, chunk sizes; digests are checked on every read)"
     except StoreError as exc:
-        check, failed = f"FAILED: {exc}", True
+        check, failed = f"FAILED: {cli_phrases(str(exc), 'info')}", True
     verify, damaged = None, []
     if getattr(args, "verify", False):
         verify, damaged, bad = verify_store(str(path), so, args)

@@ -37,7 +37,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from .._lazy import resolve
-from .exits import cli_message, exit_code
+from .exits import cli_message, exit_code, interrupted_message
 from .parser import (
     COMMANDS,
     build_parser,
@@ -107,7 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             sys.stdout.flush()  # here, so that a reader gone away (`hevr info … | head -1`) is caught below
             return code
     except KeyboardInterrupt:
-        err_line("interrupted")
+        err_line(interrupted_message(args))
         return 130
     except BrokenPipeError:  # the reader of stdout left: stop quietly, as Unix tools do
         silence_stdout()

@@ -67,6 +67,7 @@ from ..volume.density import (
 )
 from ..volume.mapped import task_array
 from ..volume.scan import Scan
+from .brick_crypto import encrypt_components as _encrypt_components
 from .digests import brick_digest, marker, written
 from .creation import create_store, new_store, resume_target  # noqa: F401 - create_store: hevr.store.upgrade
 from .exclusive import lock_store, remove_leftovers
@@ -93,16 +94,6 @@ log = logging.getLogger(__name__)
 __all__ = ["encrypt_volume", "open_volume", "EncryptedVolume"]
 
 _CPU = CpuBackend()  # the tags' records (owner-encrypted on the CPU whatever the data's backend)
-
-
-def _encrypt_components(be: Any, key: Any, q: np.ndarray, shape: tuple, width: int, unsafe: bool) -> np.ndarray:
-    """(k, bz, by, bx, W) records of the (k, voxels) mantissas ``q``."""
-    out = np.empty((q.shape[0],) + shape + (width,), dtype=np.uint8)
-    for j in range(q.shape[0]):
-        with _stats.timed("encrypt.crypto", q.shape[1]):
-            cts = be.encrypt(key, q[j], unsafe_no_obfuscation=unsafe)
-        out[j] = be.to_bytes(cts, width).reshape(shape + (width,))
-    return out
 
 
 def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
@@ -134,9 +125,7 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
     mantissas = {}  # channel -> (k, voxels) int64, for the tags of a verifiable store
     if meta.scalar is not None:
         q = quantise_scalar(block, meta.scalar)
-        with _stats.timed("encrypt.crypto", block.size):
-            cts = be.encrypt(key, q, unsafe_no_obfuscation=unsafe_no_obfuscation)
-        out = be.to_bytes(cts, width).reshape(block.shape + (width,))
+        out = _encrypt_components(be, key, [q], block.shape, width, unsafe_no_obfuscation)[0]
         digests.append(brick_digest(meta.store_id, "scalar", index, out))
         with _stats.timed("encrypt.write"):
             group["scalar"][sl] = out

@@ -307,3 +307,55 @@ def test_names_that_are_not_utf8_work_from_the_command_line(tmp_path, capsys, mo
     names = sorted(os.listdir(os.fsencode(str(tmp_path))))
     assert names == sorted(b"\xff" + s for s in (b".json", b".pub.json", b".zarr", b".hevr", b".s.hevr", b".png",
                                                  b".npy", b".s.png")), names
+
+
+@pytest.mark.parametrize("workers", [[], ["--workers", "2"]])
+def test_ctrl_c_during_encrypt_is_one_line_soon_that_says_how_to_resume(tmp_path, capsys, workers):
+    """Issue 39, item 5: Ctrl-C (SIGINT to the terminal's process group) during hevr encrypt
+    printed 63 lines of Dask tracebacks (--workers 2) or took 13 s to exit; now one line, within
+    seconds, naming --resume; hevr info on the half-written store names the CLI flag."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import hevr as _h
+
+    key = tmp_path / "k.pub.json"
+    _h.generate_keypair(1024)[0].save(key)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "hevr", "encrypt", "phantom:16", "--key", str(key), "--out",
+                             str(tmp_path / "v.zarr"), "--brick", "16", *workers], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True, env=env, cwd=tmp_path)
+    try:
+        while "compute:" not in proc.stdout.readline():  # the cluster is up; the bricks are being encrypted
+            assert proc.poll() is None, proc.stderr.read()
+        time.sleep(1.0)
+        t0 = time.monotonic()
+        os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole group
+        _, err = proc.communicate(timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert err.splitlines() == [f"hevr: error: interrupted: {tmp_path / 'v.zarr'} is not finished; the bricks written "
+                                "are kept: run the same hevr encrypt command with --resume to encrypt the rest"], err
+    assert took < 3.0, took
+    code, out, _ = run(capsys, "info", tmp_path / "v.zarr")
+    assert code == 1 and "finish it with 'hevr encrypt … --resume'" in out and "resume=True" not in out
+
+
+def test_local_cluster_workers_ignore_the_terminals_ctrl_c():
+    import signal
+    import subprocess
+    import sys
+
+    from hevr.cli.cluster import _sigint_ignored
+
+    probe = [sys.executable, "-c", "import signal; print(signal.getsignal(signal.SIGINT) is signal.SIG_IGN)"]
+    with _sigint_ignored():
+        inside = subprocess.run(probe, capture_output=True, text=True, check=True).stdout
+    outside = subprocess.run(probe, capture_output=True, text=True, check=True).stdout
+    assert inside.strip() == "True" and outside.strip() == "False"
+    assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # restored here
