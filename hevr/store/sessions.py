@@ -18,6 +18,8 @@ import threading
 import weakref
 from typing import Any
 
+from zarr.core.sync import sync
+
 __all__ = ["close_sessions", "track"]
 
 _OPEN: weakref.WeakSet = weakref.WeakSet()
@@ -73,8 +75,6 @@ def close_sessions() -> int:
 
 def _run(coro: Any) -> None:
     """Await ``coro`` on Zarr's event loop (where the store's filesystem made its session)."""
-    from zarr.core.sync import sync
-
     try:
         sync(coro, timeout=5)
     except BaseException:
