@@ -82,7 +82,8 @@ def cmd_encrypt(args: Any) -> int:
     print(f"key:     {key_label(pub)}")
     print("path:    " + ("owner-side fast path (private key: p, q speed up encryption; "
                           "the store still holds only the public key)" if private
-                          else "public-key path (g^m r^n mod n^2; slower than encrypting with the private key)"))
+                          else "public-key path ((1 + m·n)·h^s mod n², fixed base and short exponents after "
+                               "Damgård–Jurik–Nielsen; slower than encrypting with the private key)"))
     with dask_client(args.scheduler, args.workers) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
