@@ -324,8 +324,9 @@ def test_ctrl_c_during_encrypt_is_one_line_soon_that_says_how_to_resume(tmp_path
     key = tmp_path / "k.pub.json"
     _h.generate_keypair(1024)[0].save(key)
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "hevr", "encrypt", "phantom:16", "--key", str(key), "--out",
-                             str(tmp_path / "v.zarr"), "--brick", "16", *workers], stdout=subprocess.PIPE,
+    # one brick of 40³ values: ~15 s of encryption at 1024 bits, interrupted after 1 s
+    proc = subprocess.Popen([sys.executable, "-m", "hevr", "encrypt", "phantom:40", "--key", str(key), "--out",
+                             str(tmp_path / "v.zarr"), "--brick", "40", *workers], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True, env=env, cwd=tmp_path)
     try:
         while "compute:" not in proc.stdout.readline():  # the cluster is up; the bricks are being encrypted
