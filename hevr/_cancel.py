@@ -10,8 +10,9 @@ of a write), within a fraction of a second.
 
 The same loops report their batches to :func:`add_steps`: a progress display of this process
 (:class:`hevr._progress.Progress`, attached with :func:`counting`) then moves with every batch,
-not only when a whole task ends. Tasks on other processes (a ``distributed`` cluster) see
-neither: there the client cancels its futures and the cluster is closed.
+not only when a whole task ends; a task on a ``distributed`` worker sends its steps to the
+client as worker events. The stop flag reaches only this process's tasks: on a cluster the
+CLI ends its local workers (:mod:`hevr.cli.cluster`).
 """
 
 from __future__ import annotations
@@ -19,8 +20,14 @@ from __future__ import annotations
 import contextlib
 import threading
 from collections.abc import Callable, Iterator
+from typing import Any
 
-__all__ = ["add_steps", "check", "clear", "counting", "stop", "stopped"]
+from distributed import get_worker
+
+__all__ = ["TOPIC", "add_steps", "check", "clear", "counting", "stop", "stopped"]
+
+#: The worker event that carries a task's finer progress steps to its client.
+TOPIC = "hevr-steps"
 
 _STOP = threading.Event()
 _LOCK = threading.Lock()
@@ -59,11 +66,25 @@ def check() -> None:
 
 
 def add_steps(k: int) -> None:
-    """``k`` more fine steps (e.g. ciphertexts) are done, for the displays attached now."""
+    """``k`` more fine steps (e.g. ciphertexts) are done: for the displays of this process
+    attached now, and in a task on a ``distributed`` worker for its client (an event of
+    :data:`TOPIC`, which :func:`hevr._dask.compute` subscribes to)."""
+    worker = _worker()
+    if worker is not None:
+        worker.log_event(TOPIC, int(k))
+        return
     with _LOCK:
         sinks = list(_SINKS)
     for sink in sinks:
         sink(k)
+
+
+def _worker() -> Any:
+    """The ``distributed`` worker running the current task, or None."""
+    try:
+        return get_worker()
+    except ValueError:  # not in a worker's task
+        return None
 
 
 @contextlib.contextmanager

@@ -91,7 +91,7 @@ def cmd_encrypt(args: Any) -> int:
                                 vector_dims=args.vector_dims, value_range=value_range, digits=args.digits,
                                 overwrite=args.overwrite, resume=args.resume, gradient=args.gradient,
                                 storage_options=so, verifiable=args.verifiable,
-                                progress=show_progress(args))
+                                progress=show_progress(args, lines=True))
     n_ct = int(np.prod(ev.shape)) * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
     chans = channels(ev.meta)
     print(f"wrote {args.out}: {ev.meta.n_bricks} bricks of {xyz(ev.brick)}, channels {chans}, "

@@ -58,6 +58,8 @@ def _setup_logging(verbose: bool) -> logging.Handler:
     logger = logging.getLogger("hevr")
     logger.addHandler(handler)
     logger.setLevel(logging.INFO if verbose else logging.WARNING)
+    # the progress lines of a job shown off a terminal (only jobs asked to show them: show_progress)
+    logging.getLogger("hevr.progress").setLevel(logging.INFO)
     return handler
 
 
@@ -119,6 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exit_code(exc, args)
     finally:
         logging.getLogger("hevr").removeHandler(handler)
+        logging.getLogger("hevr.progress").setLevel(logging.NOTSET)
         if errors is not None:
             sys.stdout.reconfigure(errors=errors)
 

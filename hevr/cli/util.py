@@ -84,9 +84,11 @@ def print_rows(rows: list[tuple[str, Any]]) -> None:
         print(f"{k + ':':<{w + 1}} {v}")
 
 
-def show_progress(args: Any) -> bool:
-    """Progress bars unless --quiet, and only on a terminal (logs stay free of carriage returns)."""
-    return not getattr(args, "quiet", False) and sys.stderr.isatty()
+def show_progress(args: Any, lines: bool = False) -> bool:
+    """Progress bars unless --quiet, and only on a terminal (logs stay free of carriage returns);
+    with ``lines`` also elsewhere, as a few ``hevr: INFO: …`` lines with the rate and the time
+    left (``hevr encrypt``: minutes to hours of work that a log should show)."""
+    return not getattr(args, "quiet", False) and (lines or sys.stderr.isatty())
 
 
 def silence_stdout() -> None:

@@ -363,7 +363,9 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
                   storage_options=storage_options,
                   dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
              for idx, kw in zip(todo, extra)]
-    compute(tasks, client=client, progress=progress, desc="encrypt")
+    per_voxel = sum(c.dims or 1 for c in (meta.scalar, meta.vector, meta.gradient) if c is not None)
+    values = sum(int(np.prod([s.stop - s.start for s in brick_slices(meta, idx)])) for idx in todo) * per_voxel
+    compute(tasks, client=client, progress=progress, desc="encrypt", steps=values, unit="ciphertexts")
     with fs_errors("finishing the store", path):
         group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
         final = written(group["done"][...])

@@ -340,7 +340,9 @@ def test_ctrl_c_during_encrypt_is_one_line_soon_that_says_how_to_resume(tmp_path
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, err
-    assert err.splitlines() == [f"hevr: error: interrupted: {tmp_path / 'v.zarr'} is not finished; the bricks written "
+    progress = [line for line in err.splitlines() if line.startswith("hevr: INFO: encrypt: ")]
+    assert progress, err  # off a terminal: its progress lines, then the one error line
+    assert [line for line in err.splitlines() if line not in progress] == [f"hevr: error: interrupted: {tmp_path / 'v.zarr'} is not finished; the bricks written "
                                 "are kept: run the same hevr encrypt command with --resume to encrypt the rest"], err
     assert took < 3.0, took
     code, out, _ = run(capsys, "info", tmp_path / "v.zarr")
@@ -360,3 +362,16 @@ def test_local_cluster_workers_ignore_the_terminals_ctrl_c():
     outside = subprocess.run(probe, capture_output=True, text=True, check=True).stdout
     assert inside.strip() == "True" and outside.strip() == "False"
     assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # restored here
+
+
+def test_encrypt_off_a_terminal_logs_its_progress_with_rate_and_time_left(tmp_path, capsys):
+    """Issue 39, item 10: nothing at all was shown when stderr was not a terminal."""
+    key = tmp_path / "key.json"
+    assert run(capsys, "keygen", "--bits", "256", "--out", key, "-q")[0] == 0
+    code, out, err = run(capsys, "encrypt", "phantom:12", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "6")
+    assert code == 0, err
+    lines = [line for line in err.splitlines() if line.startswith("hevr: INFO: encrypt: ")]
+    assert len(lines) >= 5 and lines[-1].startswith("hevr: INFO: encrypt: 1,728/1,728 ciphertexts"), err
+    assert "ciphertexts/s" in lines[-1] and any(" left" in line for line in lines), err
+    code, out, err = run(capsys, "encrypt", "phantom:12", "--key", key, "--out", tmp_path / "w.zarr", "-q")
+    assert code == 0 and "INFO" not in err
