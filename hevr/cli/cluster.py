@@ -102,4 +102,4 @@ def describe_client(client: Any) -> str:
         board = f", dashboard {client.dashboard_link}" if client.dashboard_link else ""
     except Exception:  # pragma: no cover - no dashboard (bokeh missing, or disabled)
         board = ""
-    return f"Dask cluster {client.scheduler.address} ({n} workers{board})"
+    return f"Dask cluster {client.scheduler.address} ({n} worker{'' if n == 1 else 's'}{board})"

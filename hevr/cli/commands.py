@@ -50,6 +50,7 @@ from .util import (
     check_writable_dir,
     disk_usage,
     human_bytes,
+    plural,
     show_progress,
     warn_line,
     wh,
@@ -94,9 +95,17 @@ def cmd_encrypt(args: Any) -> int:
                                 progress=show_progress(args, lines=True))
     n_ct = int(np.prod(ev.shape)) * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
     chans = channels(ev.meta)
-    print(f"wrote {args.out}: {ev.meta.n_bricks} bricks of {xyz(ev.brick)}, channels {chans}, "
-          f"{n_ct} ciphertexts, {human_bytes(st.size_of(ev.path, so))}, in {t.seconds:.2f} s "
-          f"({n_ct / max(t.seconds, 1e-9):.0f} ciphertexts/s)")
+    now = getattr(ev, "written_now", {"bricks": ev.meta.n_bricks, "ciphertexts": n_ct})
+    bricks = plural(ev.meta.n_bricks, "brick")
+    size = human_bytes(st.size_of(ev.path, so))
+    if now["bricks"] == 0:
+        print(f"{args.out}: already complete ({bricks} of {xyz(ev.brick)}, channels {chans}, {n_ct:,} ciphertexts, "
+              f"{size}); nothing was left to encrypt")
+    else:
+        part = (f"; resumed: {plural(now['bricks'], 'brick')} ({now['ciphertexts']:,} ciphertexts) encrypted now"
+                if now["bricks"] < ev.meta.n_bricks else "")
+        print(f"wrote {args.out}: {bricks} of {xyz(ev.brick)}, channels {chans}, {n_ct:,} ciphertexts, {size}{part}, "
+              f"in {t.seconds:.2f} s ({now['ciphertexts'] / max(t.seconds, 1e-9):,.0f} ciphertexts/s)")
     if not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
     if ev.meta.tags:
@@ -198,7 +207,7 @@ def cmd_render(args: Any) -> int:
                          gradient=args.gradient, overwrite=args.force, finish=args.finish,
                          verify=verify_argument(args))
     st.save_frame(img, out, force=args.force, so=so)
-    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
+    print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
     if sums is not None:
         again = (" (X-ray sums: other --precision / --no-pack)" if mode == "xray" else " --tf NODES | --density D"
@@ -243,7 +252,7 @@ def cmd_recolour(args: Any) -> int:
                            finish=args.finish)
     st.save_frame(img, out, force=args.force, so=so)
     done = "re-coloured" if img.finish == "server" else "packed for colouring at decryption"
-    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts, {human_bytes(st.size_of(out, so))}, {done} in "
+    print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')}, {human_bytes(st.size_of(out, so))}, {done} in "
           f"{t.seconds:.2f} s (no map step)")
     report_finish(img, out, mode, args.density, nodes)
     return 0
@@ -323,7 +332,7 @@ def cmd_decrypt(args: Any) -> int:
     window = args.window if args.window is not None else default_window(arr, hits)
     st.save_decrypted(arr, out, npy, window, force=args.force, plane=plane, hits=hits)
     rgb = ", rgb" if arr.ndim == 3 else ""
-    print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
+    print(f"decrypted {plural(img.n_ciphertexts, 'ciphertext')} in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
     if img.verification is not None:
         print(f"verified: the frame is the render of store {img.verification.store_id} and its view (checked "
@@ -355,7 +364,7 @@ def cmd_upgrade_store(args: Any) -> int:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             ev = upgrade_store(args.src, args.dst, client=client, progress=show_progress(args))
-    print(f"wrote {args.dst}: format {ev.meta.version}, {ev.meta.n_bricks} bricks with digests, "
+    print(f"wrote {args.dst}: format {ev.meta.version}, {plural(ev.meta.n_bricks, 'brick')} with digests, "
           f"{human_bytes(disk_usage(ev.path))}, in {t.seconds:.2f} s; {args.src} is unchanged")
     return 0
 

@@ -46,6 +46,7 @@ from .util import (
     UsageError,
     disk_usage,
     human_bytes,
+    plural,
     show_progress,
     table,
     warn_line,
@@ -207,7 +208,7 @@ def cmd_demo(args: Any) -> int:
         stages["encrypt"] = t.seconds
         n_ct = int(np.prod(vol.shape)) * 5
         print(f"[encrypt] {t.seconds:.2f} s: {n_ct} ciphertexts (scalar + 4-dim vector, owner-side fast path), "
-              f"{ev.meta.n_bricks} bricks of {xyz(ev.brick)}, {human_bytes(disk_usage(ev.path))}")
+              f"{plural(ev.meta.n_bricks, 'brick')} of {xyz(ev.brick)}, {human_bytes(disk_usage(ev.path))}")
         if args.scheduler:
             with Timer() as t:
                 client = stack.enter_context(dask_client(args.scheduler, None))

@@ -240,6 +240,8 @@ def encrypt_volume(
     Returns
     -------
     EncryptedVolume
+        Its ``written_now`` dict says what this call encrypted: ``bricks`` and ``ciphertexts``
+        (with ``resume=True`` only the missing bricks: 0 for a store that was complete).
     """
     if not isinstance(key, (PublicKey, PrivateKey)):
         raise ParameterError(f"key: expected a PublicKey or PrivateKey, got {type(key).__name__}")
@@ -313,7 +315,7 @@ def encrypt_volume(
         todo = [idx for idx in bricks if not done[idx]]
         log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)
         try:
-            _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
+            values = _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
         except BaseException:
             if target != path:
                 log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
@@ -332,14 +334,15 @@ def encrypt_volume(
     if ev.meta.store_id != meta.store_id:
         raise StoreExistsError(f"path: the store at {path} was created or replaced by another run while this one "
                                "wrote it; this run's store is not there")
+    ev.written_now = {"bricks": len(todo), "ciphertexts": values}  # this call's share (resume: the missing ones)
     return ev
 
 
 def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: VolumeMetadata, key: Any,
          unsafe_no_obfuscation: bool, backend: str, client: Any, progress: bool,
-         storage_options: dict | None = None) -> None:
+         storage_options: dict | None = None) -> int:
     """Encrypt the bricks ``todo`` into the store at ``path`` (one impure task per brick), then
-    mark the store complete once every digest marker is written."""
+    mark the store complete once every digest marker is written; returns the ciphertexts written."""
     # A random name: dask's default is a hash of the array's content, which would put a value
     # that confirms a guessed volume into the task graph, the scheduler's logs and dashboard.
     darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(
@@ -372,6 +375,7 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
         if not final.all():  # pragma: no cover - tasks raise instead
             raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
         group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
+    return values
 
 
 def _warn_if_remote(client: Any, key: Any) -> None:

@@ -130,3 +130,18 @@ def test_slice_pngs_are_shown_the_radiological_way(tmp_path, capsys):
         png = np.asarray(Image.open(tmp_path / f"{opt[2:]}.png")).astype(float)
         assert png[0].mean() > png[-1].mean() + 20, (opt, png)  # the top row is superior / anterior
         assert png[:, 0].mean() > png[:, -1].mean(), (opt, png)  # the left column: the patient's right / anterior
+
+
+def test_slice_banner_places_the_plane_in_the_scans_frame(tmp_path, capsys):
+    """Issue 39, item 10: the banner said z = 2 for a scan whose voxel 0 lies at z = 30 mm."""
+    np.arange(6 * 6 * 6, dtype=np.uint8).tofile(tmp_path / "v.raw")
+    (tmp_path / "v.nhdr").write_text("NRRD0004\ntype: uint8\ndimension: 3\nspace: right-anterior-superior\n"
+                                     "sizes: 6 6 6\nspace directions: (1,0,0) (0,2,0) (0,0,1.5)\nkinds: domain domain "
+                                     "domain\nendian: little\nencoding: raw\nspace origin: (10,20,30)\ndata file: v.raw\n")
+    key = tmp_path / "key.json"
+    _ok(capsys, "keygen", "--bits", "256", "--out", key, "-q")
+    _ok(capsys, "encrypt", tmp_path / "v.nhdr", "--key", key, "--out", tmp_path / "v.zarr", "-q")
+    out = _ok(capsys, "slice", tmp_path / "v.zarr", "--out", tmp_path / "a.hevr", "--axial", "2", "-q")
+    assert "axial, k = 2 (z = 3 from voxel 0, z = 33 mm in the scan's RAS+ frame)" in out, out
+    out = _ok(capsys, "slice", tmp_path / "v.zarr", "--out", tmp_path / "c.hevr", "--coronal", "1", "-q")
+    assert "coronal, j = 1 (y = 2 from voxel 0, y = 22 mm in the scan's RAS+ frame)" in out, out
