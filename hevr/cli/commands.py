@@ -343,7 +343,7 @@ def cmd_decrypt(args: Any) -> int:
     if args.window is None and arr.ndim == 2:
         how = ("the value range (0.1th .. 99.9th percentile), as the image has negative values" if window[0] < 0
                else "0 .. the 99.9th percentile")
-        print(f"window:  {window[0]:.6g} .. {window[1]:.6g}: {how}; --window LO,HI sets another")
+        print(f"window:  {window[0]:.6g} .. {window[1]:.6g} ({how}; --window LO,HI sets another)")
     if plane is not None:
         print(f"shown:   {describe_layout(plane)}")
     print(f"wrote {out}")

@@ -94,7 +94,7 @@ def cmd_slice(args: Any) -> int:
     save_frame(img, out, force=args.force, so=so)
     inside = int(img.hits.sum())
     print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "
-          f"{human_bytes(size_of(out, so))}, {inside} of {plane.width * plane.height} pixels inside the volume, "
+          f"{human_bytes(size_of(out, so))}, {inside:,} of {plane.width * plane.height:,} pixels inside the volume, "
           f"rendered in {t.seconds:.2f} s")
     report_finish(img, out, mode, args.density, nodes)
     return 0
