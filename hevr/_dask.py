@@ -7,6 +7,7 @@ hevr never starts a cluster by itself: it uses the client it is given, else the 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 import warnings
@@ -17,6 +18,7 @@ import dask
 import dask.threaded
 from distributed import as_completed, default_client
 
+from . import _cancel
 from ._progress import Progress, TaskCounter
 
 log = logging.getLogger(__name__)
@@ -64,7 +66,8 @@ def active_client(client: Any = None) -> Any:
 
 
 def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, desc: str = "hevr",
-            keep: int = 0, on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
+            keep: int = 0, on_result: Callable[[int, Any], None] | None = None, steps: int = 0,
+            unit: str = "tasks") -> list[Any]:
     """Compute dask delayed ``tasks`` on the active scheduler; results in task order.
 
     On a distributed client the last ``keep`` tasks are computed but not gathered: their
@@ -74,6 +77,10 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     ``on_result(i, value)`` is called for every gathered task i: on a distributed client as
     each one completes (the client's work on it overlaps the tasks still running), on Dask's
     default scheduler once all have run.
+
+    ``steps`` (in ``unit``, e.g. the ciphertexts of an encryption): the tasks report finer
+    progress with :func:`hevr._cancel.add_steps`, shown with a rate and the time left; tasks on
+    a ``distributed`` worker send it as the worker's ``hevr-steps`` events.
     """
     tasks = list(tasks)
     if not tasks:
@@ -82,7 +89,9 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     t0 = time.perf_counter()
     if client is not None:
         futures = client.compute(tasks)
-        bar = Progress(len(futures), desc, progress)
+        bar = Progress(len(futures), desc, progress, steps=steps, unit=unit)
+        if steps:
+            client.subscribe_topic(_cancel.TOPIC, lambda event: bar.step(int(event[1])))
         failed = False
         cut = len(futures) - keep
         index = {f.key: i for i, f in enumerate(futures)}
@@ -96,13 +105,18 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
                     got[i] = fut.result()
                     on_result(i, got[i])
         finally:
+            if steps:
+                with contextlib.suppress(Exception):  # a client closing after an interrupt
+                    client.unsubscribe_topic(_cancel.TOPIC)
+                if not failed and all(f.status == "finished" for f in futures):
+                    bar.step(max(0, steps - bar.steps_done))  # the last events may still be on their way
             bar.close(failed=failed)
         rest = [i for i in range(cut) if i not in got]
         got.update(zip(rest, client.gather([futures[i] for i in rest])))
         results = [got[i] for i in range(cut)] + list(futures[cut:])
     else:
-        bar = Progress(0, desc, progress)  # the callback learns the number of graph tasks
-        with TaskCounter(bar):
+        bar = Progress(0, desc, progress, steps=steps, unit=unit)  # the callback learns the number of graph tasks
+        with TaskCounter(bar), _cancel.counting(bar.step):
             results = _compute_local(tasks)
         if on_result is not None:
             for i, value in enumerate(results[:len(results) - keep] if keep else results):
@@ -124,7 +138,11 @@ def _compute_local(tasks: list[Any]) -> list[Any]:
         return list(dask.compute(*tasks))
     workers = dask.config.get("num_workers", None) or dask.threaded.CPU_COUNT
     pool = ThreadPoolExecutor(max_workers=workers)
+    _cancel.clear()
     try:
         return list(dask.compute(*tasks, pool=pool))
+    except KeyboardInterrupt:  # Ctrl-C: the running tasks stop at their next check, not at their end
+        _cancel.stop()
+        raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

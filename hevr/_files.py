@@ -53,7 +53,7 @@ from .errors import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["require_file", "write_atomic", "write_checksummed", "write_file", "read_regular", "check_regular",
+__all__ = ["check_name", "require_file", "write_atomic", "write_checksummed", "write_file", "read_regular", "check_regular",
            "file_kind", "fs_errors", "os_error", "sibling_stem", "temp_sibling", "is_temporary", "remove_stale",
            "remove_if_abandoned", "held_lock"]
 
@@ -103,6 +103,25 @@ def fs_errors(doing: str, path: str | os.PathLike) -> Iterator[None]:
         raise FileSystemError(exc.errno, doing, exc.filename or path, exc.strerror) from exc
 
 
+def check_name(path: str | os.PathLike, name: str) -> None:
+    """Refuse a path no filesystem can store — a ``str`` with a lone surrogate that is not one
+    of :func:`os.fsdecode`'s escapes — with a :class:`hevr.ParameterError` naming ``name`` and
+    the path's ``repr``. Names that are not UTF-8 but came from the OS (argv, ``os.listdir``,
+    ``os.fsdecode(b"\\xff.hevr")``) encode back to their bytes and pass.
+
+    >>> check_name(os.fsdecode(b"\\xff.hevr"), "path")
+    >>> check_name(chr(0xD800) + ".hevr", "path")
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: path: expected a name the filesystem can store (UTF-8, or bytes decoded with os.fsdecode), got '\\ud800.hevr'
+    """
+    try:
+        os.fsencode(path)
+    except UnicodeEncodeError:
+        raise ParameterError(f"{name}: expected a name the filesystem can store (UTF-8, or bytes decoded with "
+                             f"os.fsdecode), got {os.fspath(path)!r}") from None
+
+
 def sibling_stem(name: str, room: int = len(_SUFFIX) + 4 + 1 + _TOKEN_CHARS + 1) -> str:
     """The stem of a temporary sibling's name ``.STEM.hevr-WHAT-TOKEN``: ``name`` itself, or a
     short hash of it when the sibling's name would not fit in :data:`NAME_MAX` bytes.
@@ -112,9 +131,10 @@ def sibling_stem(name: str, room: int = len(_SUFFIX) + 4 + 1 + _TOKEN_CHARS + 1)
     >>> len(sibling_stem("x" * 250)) <= 200
     True
     """
-    if len(name.encode()) + room <= NAME_MAX:
+    raw = os.fsencode(name)  # the bytes on disk: a name that is not UTF-8 (surrogate escapes) too
+    if len(raw) + room <= NAME_MAX:
         return name
-    return name.encode()[:40].decode(errors="ignore") + "~" + hashlib.sha256(name.encode()).hexdigest()[:16]
+    return raw[:40].decode(errors="ignore") + "~" + hashlib.sha256(raw).hexdigest()[:16]
 
 
 def temp_sibling(path: str | os.PathLike, what: str) -> Path:
@@ -208,6 +228,7 @@ def write_file(path: str | os.PathLike, parts: Iterable[Any], *, mode: int = 0o6
     ``OSError`` (disk full, read-only filesystem, …) becomes :class:`hevr.FileSystemError`
     naming ``doing`` and ``path``; the temporary is removed, and one left by a killed earlier
     writer of the same path is removed too."""
+    check_name(path, name)
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
     require_file(folder, name, "an existing folder", directory=True)

@@ -8,7 +8,9 @@ through :class:`Progress`; it picks where to draw once, when the job starts:
 * **a terminal** (stderr is a TTY): one line redrawn with carriage returns, at most five times
   a second, ended by a newline;
 * **anything else** (logs, CI, pipes): no drawing at all, only INFO records of the
-  ``hevr.progress`` logger at 0, 25, 50, 75 and 100 % (a handful of lines, never ``\\r`` frames).
+  ``hevr.progress`` logger at 0, 25, 50, 75 and 100 % (a handful of lines, never ``\\r`` frames);
+  a job with finer steps (the ciphertexts of ``encrypt``) at every tenth and at least once a
+  minute, each with its rate and the time left. The CLI shows them on stderr.
 
 Jobs on a ``distributed`` client count completed futures (:func:`hevr._dask.compute`); jobs on
 Dask's local schedulers count finished graph tasks through a Dask callback
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import threading
 import time
 from typing import Any
 
@@ -29,6 +32,7 @@ log = logging.getLogger("hevr.progress")
 __all__ = ["Progress", "TaskCounter", "sink_kind"]
 
 _QUARTERS = 4
+_LOG_EVERY = 60.0  # seconds between log lines of a long job (besides its tenths)
 
 
 def _in_jupyter() -> bool:
@@ -80,10 +84,14 @@ class Progress:
     (8, True)
     """
 
-    def __init__(self, total: int, desc: str, enabled: bool = True, kind: str | None = None) -> None:
+    def __init__(self, total: int, desc: str, enabled: bool = True, kind: str | None = None, *,
+                 steps: int = 0, unit: str = "tasks") -> None:
         self.total, self.desc = max(0, int(total)), desc
         self.kind = (kind or sink_kind()) if enabled else "off"
         self.done = 0
+        self.steps, self.unit, self.steps_done = max(0, int(steps)), unit, 0  # finer steps (:meth:`step`)
+        self._lock = threading.Lock()
+        self._logged_at = 0.0
         self.closed = False
         self.start = time.perf_counter()
         self._last = 0.0
@@ -110,9 +118,36 @@ class Progress:
         self._draw(force=True)
 
     def update(self, k: int = 1) -> None:
-        """``k`` more steps are done (a step that failed counts as done: :meth:`close` says so)."""
-        self.done += k
-        self._draw(force=self.done >= self.total)
+        """``k`` more tasks are done (a task that failed counts as done: :meth:`close` says so)."""
+        with self._lock:
+            self.done += k
+            self._draw(force=self.done >= self.total)
+
+    def step(self, k: int = 1) -> None:
+        """``k`` more of the job's finer ``steps`` (e.g. ciphertexts) are done; from any thread.
+        A job given ``steps`` is shown by them: its rate and the time left move within a task."""
+        with self._lock:
+            self.steps_done += k
+            self._draw()
+
+    def status(self, now: float | None = None) -> str:
+        """``done/total unit, elapsed``, and while it runs the rate and the time left.
+
+        >>> p = Progress(4, "enc", kind="off", steps=1000, unit="ciphertexts")
+        >>> p.start -= 10; p.step(250)
+        >>> p.status(p.start + 10)
+        '250/1,000 ciphertexts, 10.0 s, 25 ciphertexts/s, 30 s left'
+        """
+        el = (time.perf_counter() if now is None else now) - self.start
+        done, total, unit = ((min(self.steps_done, self.steps), self.steps, self.unit) if self.steps
+                             else (min(self.done, self.total), self.total, "tasks"))
+        text = f"{done:,}/{total:,} {unit}, {el:.1f} s"
+        if done and el > 0 and (self.steps or done < total):
+            rate = done / el
+            text += f", {_number(rate)} {unit}/s"
+            if done < total:
+                text += f", {_duration((total - done) / rate)} left"
+        return text
 
     def close(self, failed: bool = False) -> None:
         """End the display (idempotent): the terminal line gets its newline; the widget turns
@@ -122,7 +157,7 @@ class Progress:
         self._draw(force=True)
         self.closed = True
         if failed and self.kind == "log" and self.total:
-            log.info("%s: failed after %d/%d tasks", self.desc, min(self.done, self.total), self.total)
+            log.info("%s: stopped after %s", self.desc, self.status())
         if self.kind == "terminal" and self._drawn:
             if failed:
                 sys.stderr.write(" failed")
@@ -138,26 +173,42 @@ class Progress:
             self._open_widget()
         self._drawn = True
         now = time.perf_counter()
-        el = now - self.start
-        done = min(self.done, self.total)
-        if self.kind == "log":
-            quarter = _QUARTERS * done // self.total
-            if quarter != self._quarter:
-                self._quarter = quarter
-                log.info("%s: %d/%d tasks, %.1f s", self.desc, done, self.total, el)
+        if self.kind == "log":  # a line at every tenth (a quarter for a job of tasks only), or each minute
+            done, total = (self.steps_done, self.steps) if self.steps else (self.done, self.total)
+            parts = 10 if self.steps else _QUARTERS
+            part = parts * min(done, total) // max(total, 1)
+            if part != self._quarter or (self.steps and now - self._logged_at >= _LOG_EVERY and done < total):
+                self._quarter, self._logged_at = part, now
+                log.info("%s: %s", self.desc, self.status(now))
             return
         if not force and now - self._last < 0.2:
             return
         self._last = now
         if self.kind == "widget":
             bar, label = self._widget
-            bar.value = done
-            label.value = f"{done}/{self.total} tasks, {el:.1f} s"
+            bar.value = min(self.done, self.total)
+            label.value = self.status(now)
             return
         width = 30
-        fill = width * done // self.total
-        sys.stderr.write(f"\r{self.desc} [{'#' * fill}{'-' * (width - fill)}] {done}/{self.total} {el:6.1f}s")
+        done, total = (self.steps_done, self.steps) if self.steps else (self.done, self.total)
+        fill = width * min(done, total) // max(total, 1)
+        sys.stderr.write(f"\r{self.desc} [{'#' * fill}{'-' * (width - fill)}] {self.status(now)}\x1b[K")
         sys.stderr.flush()
+
+
+def _number(x: float) -> str:
+    """A rate, 3 significant digits, thousands separated: ``_number(1234.5)`` is ``'1,234'``."""
+    return f"{x:,.0f}" if x >= 100 else f"{x:.3g}"
+
+
+def _duration(seconds: float) -> str:
+    """``_duration(75)`` is ``'1 min 15 s'``; ``_duration(7300)`` is ``'2 h 2 min'``."""
+    s = int(round(seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60} s"
+    return f"{s // 3600} h {s % 3600 // 60} min"
 
 
 class TaskCounter(Callback):

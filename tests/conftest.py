@@ -96,6 +96,9 @@ def s3_server():
     try:
         yield "s3://hevr-test", options
     finally:
+        from hevr.store.sessions import close_sessions
+
+        close_sessions()  # the aiohttp sessions of the stores the tests opened (else "Unclosed client session")
         s3fs.S3FileSystem.clear_instance_cache()
         server.stop()
 

@@ -35,3 +35,71 @@ def test_render_on_a_local_cluster_does_not_warn(cluster, keypair256, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)
         hevr.render(ev, hevr.Camera.orbit(ev, width=4, height=4), client=cluster, progress=False)
+
+
+def _interrupt_main_in(seconds: float) -> None:
+    """A real SIGINT to the main thread after ``seconds`` (as a terminal's Ctrl-C)."""
+    import signal
+    import threading
+
+    main = threading.main_thread().ident
+    threading.Timer(seconds, lambda: signal.pthread_kill(main, signal.SIGINT)).start()
+
+
+def test_ctrl_c_stops_the_running_tasks_of_the_threaded_scheduler():
+    """Issue 39, item 5: the pool was waited for until its running tasks ended (13 s for a
+    brick); a task that checks hevr._cancel now stops at its next check."""
+    import time
+
+    import dask
+
+    from hevr import _cancel
+
+    def long_task(i):
+        end = time.monotonic() + 30
+        while time.monotonic() < end:
+            _cancel.check()
+            time.sleep(0.01)
+        return i
+
+    _interrupt_main_in(0.5)
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        _dask.compute([dask.delayed(long_task)(i) for i in range(2)], progress=False)
+    assert time.monotonic() - t0 < 3
+    assert _cancel.stopped()
+    assert _dask.compute([dask.delayed(lambda: 7)()], progress=False) == [7]  # a new job runs again
+    assert not _cancel.stopped()
+
+
+@pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
+def test_an_interrupted_encryption_stops_within_a_second_and_resumes(tmp_path, keypair256, monkeypatch):
+    """encrypt_volume stops soon after Ctrl-C, though its one brick needs seconds (each batch of
+    values slowed to 0.2 s here); resume=True finishes the store, and it decrypts to the volume."""
+    import time
+
+    import numpy as np
+
+    import hevr
+    from hevr.crypto.keys import PublicKey
+
+    pub, priv = keypair256
+    slow = PublicKey.encrypt_array
+
+    def encrypt_array(self, values, **kw):
+        time.sleep(0.2)
+        return slow(self, values, **kw)
+
+    monkeypatch.setattr(PublicKey, "encrypt_array", encrypt_array)
+    vol = hevr.phantom(12)
+    path = str(tmp_path / "v.zarr")
+    _interrupt_main_in(0.5)
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        hevr.encrypt_volume(vol, path, pub, brick=12, progress=False)  # 27 batches of 64: > 5.4 s
+    assert time.monotonic() - t0 < 2.5
+    with pytest.raises(hevr.IncompleteStoreError, match="resume=True"):
+        hevr.open_volume(path)
+    ev = hevr.encrypt_volume(vol, path, priv, brick=12, progress=False, resume=True)
+    img = hevr.render_slice(ev, hevr.Plane.axial(ev, 5), progress=False)
+    assert np.array_equal(img.decrypt(priv), vol[5])

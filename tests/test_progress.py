@@ -44,7 +44,7 @@ def test_terminal_bar_redraws_one_line_and_ends_it(monkeypatch):
         bar.update()
     bar.close()
     text = err.getvalue()
-    assert text.startswith("\renc [") and text.endswith("3/3    0.0s\n") and text.count("\n") == 1
+    assert text.startswith("\renc [") and text.endswith("3/3 tasks, 0.0 s\x1b[K\n") and text.count("\n") == 1
 
 
 def test_notebook_widget(monkeypatch):
@@ -95,3 +95,37 @@ def test_a_failing_job_on_a_cluster_is_not_shown_as_a_success(monkeypatch, clust
         _dask.compute([dask.delayed(boom)(1), dask.delayed(lambda: 2)()], client=cluster, desc="bad")
     (box,) = shown
     assert box.children[0].bar_style == "danger"
+
+
+def _stepping(k: int, per: int, pause: float = 0.0):
+    import time
+
+    from hevr import _cancel
+
+    def task(i):
+        for _ in range(per):
+            _cancel.add_steps(1)
+            time.sleep(pause)
+        return i
+
+    return [dask.delayed(task, pure=False)(i) for i in range(k)]
+
+
+def test_finer_steps_show_a_moving_rate_and_time_left(caplog):
+    """Issue 39, item 10: encryption showed progress once per brick; the steps inside a task
+    (its ciphertexts) now move the display, with a rate and the time left, off a terminal too."""
+    caplog.set_level(logging.INFO, logger="hevr.progress")
+    assert _dask.compute(_stepping(2, 50), desc="enc", steps=100, unit="ciphertexts") == [0, 1]
+    lines = [r.getMessage() for r in caplog.records if r.name == "hevr.progress"]
+    assert 5 <= len(lines) <= 12, lines  # a tenth at a time, though there are only 2 tasks
+    assert lines[-1].startswith("enc: 100/100 ciphertexts") and "ciphertexts/s" in lines[-1]
+    assert any("s left" in line for line in lines[1:-1]), lines
+
+
+def test_finer_steps_come_from_distributed_workers(cluster, caplog):
+    caplog.set_level(logging.INFO, logger="hevr.progress")
+    _dask.compute(_stepping(2, 40, pause=0.03), client=cluster, desc="enc", steps=80, unit="ciphertexts")
+    lines = [r.getMessage() for r in caplog.records if r.name == "hevr.progress"]
+    assert lines[-1].startswith("enc: 80/80 ciphertexts"), lines
+    counts = [int(line.split("/")[0].split()[-1].replace(",", "")) for line in lines]
+    assert any(0 < c < 80 for c in counts), lines  # worker events arrived while the tasks ran

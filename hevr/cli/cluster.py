@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
+import signal
+import threading
 from collections.abc import Iterator
 from typing import Any
 
@@ -44,12 +47,16 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     elif workers:
 
         log.info("starting a local Dask cluster: %d worker processes, 1 thread each", workers)
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+        with _sigint_ignored():  # the worker processes inherit it: Ctrl-C stops this one only
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", silence_logs=logging.ERROR)
         try:
             client = Client(cluster)
             try:
                 yield client
+            except KeyboardInterrupt:
+                _stop_workers(cluster)
+                raise
             finally:
                 client.close()
         finally:
@@ -76,6 +83,36 @@ def check_scheduler(address: str) -> None:
                          f"({exc})") from None
 
 
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT while the local cluster's worker processes are spawned. A terminal's Ctrl-C
+    goes to the whole process group: each worker would die with a page of Dask tracebacks. A
+    process started with SIGINT ignored keeps ignoring it (Python installs its handler only
+    over the default), so the interrupt reaches this process alone, which closes the cluster."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _stop_workers(cluster: Any) -> None:
+    """After Ctrl-C: end the local worker processes at once (SIGTERM) instead of waiting for
+    their running tasks — gmpy2 holds the GIL, so a worker answers a polite close only after its
+    brick — and keep Dask's complaints about the vanished workers off the terminal. A brick
+    being written is not marked done, so ``--resume`` encrypts it again; nothing finished is lost."""
+    for name in ("distributed", "tornado", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        pid = getattr(nanny, "pid", None)
+        if pid:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGTERM)
+
+
 def describe_client(client: Any) -> str:
     if client is None:
         return "Dask's default (threaded) scheduler"
@@ -87,4 +124,4 @@ def describe_client(client: Any) -> str:
         board = f", dashboard {client.dashboard_link}" if client.dashboard_link else ""
     except Exception:  # pragma: no cover - no dashboard (bokeh missing, or disabled)
         board = ""
-    return f"Dask cluster {client.scheduler.address} ({n} workers{board})"
+    return f"Dask cluster {client.scheduler.address} ({n} worker{'' if n == 1 else 's'}{board})"

@@ -22,6 +22,8 @@ import numpy as np
 from .._files import check_regular
 from ..crypto.keys import PrivateKey
 from ..image import load_image
+from ..image.display import default_window
+from ..image.orient import describe_layout
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..remote.client import connect
 from ..rendering.camera import Camera
@@ -49,6 +51,7 @@ from .util import (
     check_writable_dir,
     disk_usage,
     human_bytes,
+    plural,
     show_progress,
     warn_line,
     wh,
@@ -81,7 +84,8 @@ def cmd_encrypt(args: Any) -> int:
     print(f"key:     {key_label(pub)}")
     print("path:    " + ("owner-side fast path (private key: p, q speed up encryption; "
                           "the store still holds only the public key)" if private
-                          else "public-key path (g^m r^n mod n^2; slower than encrypting with the private key)"))
+                          else "public-key path ((1 + m·n)·h^s mod n², fixed base and short exponents after "
+                               "Damgård–Jurik–Nielsen; slower than encrypting with the private key)"))
     with dask_client(args.scheduler, args.workers) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
@@ -89,12 +93,20 @@ def cmd_encrypt(args: Any) -> int:
                                 vector_dims=args.vector_dims, value_range=value_range, digits=args.digits,
                                 overwrite=args.overwrite, resume=args.resume, gradient=args.gradient,
                                 storage_options=so, verifiable=args.verifiable,
-                                progress=show_progress(args))
+                                progress=show_progress(args, lines=True))
     n_ct = int(np.prod(ev.shape)) * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
     chans = channels(ev.meta)
-    print(f"wrote {args.out}: {ev.meta.n_bricks} bricks of {xyz(ev.brick)}, channels {chans}, "
-          f"{n_ct} ciphertexts, {human_bytes(st.size_of(ev.path, so))}, in {t.seconds:.2f} s "
-          f"({n_ct / max(t.seconds, 1e-9):.0f} ciphertexts/s)")
+    now = getattr(ev, "written_now", {"bricks": ev.meta.n_bricks, "ciphertexts": n_ct})
+    bricks = plural(ev.meta.n_bricks, "brick")
+    size = human_bytes(st.size_of(ev.path, so))
+    if now["bricks"] == 0:
+        print(f"{args.out}: already complete ({bricks} of {xyz(ev.brick)}, channels {chans}, {n_ct:,} ciphertexts, "
+              f"{size}); nothing was left to encrypt")
+    else:
+        part = (f"; resumed: {plural(now['bricks'], 'brick')} ({now['ciphertexts']:,} ciphertexts) encrypted now"
+                if now["bricks"] < ev.meta.n_bricks else "")
+        print(f"wrote {args.out}: {bricks} of {xyz(ev.brick)}, channels {chans}, {n_ct:,} ciphertexts, {size}{part}, "
+              f"in {t.seconds:.2f} s ({now['ciphertexts'] / max(t.seconds, 1e-9):,.0f} ciphertexts/s)")
     if not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
     if ev.meta.tags:
@@ -254,7 +266,7 @@ def cmd_render(args: Any) -> int:
     if verified_line(img):
         print(verified_line(img) + " (stamped with the key holder's MAC)")
     warn_unverified(args, ev, img)
-    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
+    print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
     if sums is not None:
         again = (" (X-ray sums: other --precision / --no-pack)" if mode == "xray" else " --tf NODES | --density D"
@@ -299,7 +311,7 @@ def cmd_recolour(args: Any) -> int:
                            finish=args.finish)
     st.save_frame(img, out, force=args.force, so=so)
     done = "re-coloured" if img.finish == "server" else "packed for colouring at decryption"
-    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts, {human_bytes(st.size_of(out, so))}, {done} in "
+    print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')}, {human_bytes(st.size_of(out, so))}, {done} in "
           f"{t.seconds:.2f} s (no map step)")
     report_finish(img, out, mode, args.density, nodes)
     return 0
@@ -375,9 +387,13 @@ def cmd_decrypt(args: Any) -> int:
         coloured = f"; coloured on this machine in {1000 * tc.seconds:.1f} ms ({what})"
     else:
         arr = decrypted
-    st.save_decrypted(arr, out, npy, args.window, force=args.force)
+    cam = (img.info or {}).get("camera") or {}
+    plane = cam if cam.get("kind") == "plane" else None
+    hits = img.hits if img.hits is not None and img.hits.shape == arr.shape[:2] else None
+    window = args.window if args.window is not None else default_window(arr, hits)
+    st.save_decrypted(arr, out, npy, window, force=args.force, plane=plane, hits=hits)
     rgb = ", rgb" if arr.ndim == 3 else ""
-    print(f"decrypted {img.n_ciphertexts} ciphertexts in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
+    print(f"decrypted {plural(img.n_ciphertexts, 'ciphertext')} in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
     if img.verification is not None:
         print(verified_line(img) + " (the file carries the key holder's stamp)")
@@ -385,9 +401,16 @@ def cmd_decrypt(args: Any) -> int:
         print("not verified: the frame carries no check against a store's tags (a store encrypted without "
               "--verifiable, rendered without --key or with --no-verify or --finish server); --require-verified "
               "refuses such a frame")
+    if args.window is None and arr.ndim == 2:
+        how = ("the value range (0.1th .. 99.9th percentile), as the image has negative values" if window[0] < 0
+               else "0 .. the 99.9th percentile")
+        print(f"window:  {window[0]:.6g} .. {window[1]:.6g} ({how}; --window LO,HI sets another)")
+    if plane is not None:
+        print(f"shown:   {describe_layout(plane)}")
     print(f"wrote {out}")
     if npy is not None:
-        print(f"wrote {npy} (float64 values)")
+        order = ", in the plane's pixel order, not turned like the PNG" if plane else ""
+        print(f"wrote {npy} (float64 values{order})")
     return 0
 
 
@@ -402,7 +425,7 @@ def cmd_upgrade_store(args: Any) -> int:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             ev = upgrade_store(args.src, args.dst, client=client, progress=show_progress(args))
-    print(f"wrote {args.dst}: format {ev.meta.version}, {ev.meta.n_bricks} bricks with digests, "
+    print(f"wrote {args.dst}: format {ev.meta.version}, {plural(ev.meta.n_bricks, 'brick')} with digests, "
           f"{human_bytes(disk_usage(ev.path))}, in {t.seconds:.2f} s; {args.src} is unchanged")
     return 0
 

@@ -24,7 +24,7 @@ import numpy as np
 from .._files import write_atomic
 from ..crypto.keys import SECURE_BITS, generate_keypair
 from ..errors import InsecureKeyWarning, MemoryLimitError
-from ..image.display import save_png
+from ..image.display import default_window, save_png
 from ..paper import (
     PAPER_DENSITIES,
     PAPER_TF1,
@@ -46,6 +46,7 @@ from .util import (
     UsageError,
     disk_usage,
     human_bytes,
+    plural,
     show_progress,
     table,
     warn_line,
@@ -82,8 +83,7 @@ def paper_jobs() -> list[Job]:
 
 def _window(ref: np.ndarray) -> tuple[float, float]:
     """The default PNG window of :func:`hevr.image.display.to_uint8`, taken from the reference."""
-    pos = ref[np.isfinite(ref) & (ref > 0)]
-    return 0.0, float(np.percentile(pos, 99.9)) if pos.size else 1.0
+    return default_window(ref)
 
 
 def output_names(jobs: list[Job]) -> list[str]:
@@ -208,7 +208,7 @@ def cmd_demo(args: Any) -> int:
         stages["encrypt"] = t.seconds
         n_ct = int(np.prod(vol.shape)) * 5
         print(f"[encrypt] {t.seconds:.2f} s: {n_ct} ciphertexts (scalar + 4-dim vector, owner-side fast path), "
-              f"{ev.meta.n_bricks} bricks of {xyz(ev.brick)}, {human_bytes(disk_usage(ev.path))}")
+              f"{plural(ev.meta.n_bricks, 'brick')} of {xyz(ev.brick)}, {human_bytes(disk_usage(ev.path))}")
         if args.scheduler:
             with Timer() as t:
                 client = stack.enter_context(dask_client(args.scheduler, None))

@@ -32,6 +32,7 @@ from ..store.metadata import VolumeMetadata
 from ..store.paths import normalise, zarr_store
 from ..store.reader import open_volume
 from . import storage as st
+from .exits import cli_phrases
 from .keys import info_key
 from .pyramid import level_rows
 from .render_options import format_tf
@@ -41,6 +42,7 @@ from .util import (
     check_frame_path,
     check_store_path,
     human_bytes,
+    plural,
     print_rows,
     wh,
     xyz,
@@ -114,7 +116,7 @@ def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> i
         open_volume(path, storage_options=so)
         check = "ok (metadata checksum and documents, completeness, chunk sizes; digests are checked on every read)"
     except StoreError as exc:
-        check, failed = f"FAILED: {exc}", True
+        check, failed = f"FAILED: {cli_phrases(str(exc), 'info')}", True
     verify, damaged = None, []
     if getattr(args, "verify", False):
         verify, damaged, bad = verify_store(str(path), so, args)
@@ -130,7 +132,7 @@ def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> i
         ("frame", f"RAS+, voxel (0, 0, 0) at {', '.join(f'{v:g}' for v in meta.patient['origin'])} mm"
          if meta.patient else "none recorded (axes as the input stored them)"),
         ("brick", f"{xyz(meta.brick)} voxels"),
-        ("grid", f"{xyz(meta.grid)} = {meta.n_bricks} bricks"),
+        ("grid", f"{xyz(meta.grid)} = {plural(meta.n_bricks, 'brick')}"),
         ("channels", channels(meta)),
         ("value range", meta.value_range),
         ("key", f"{bits}-bit public key" + (" (NOT secure: < 2048 bits)" if bits < SECURE_BITS else "")),
@@ -192,7 +194,7 @@ def _info_image(path: Path | str, so: dict | None = None) -> int:
         ("exponent", f"{img.exponent} ({'ray sum' if client else 'pixel'} = (m - offset) * 10^{img.exponent})"),
         ("packing", packing),
         ("bound", f"every value + offset in [0, {img.bound}] (checked at decryption)"),
-        ("ciphertexts", f"{img.n_ciphertexts} in {len(img.ciphertexts)} tiles of {img.tile}x{img.tile} px"),
+        ("ciphertexts", f"{img.n_ciphertexts} in {plural(len(img.ciphertexts), 'tile')} of {img.tile}x{img.tile} px"),
         ("checksum", "ok (SHA-256 over the whole file)"),
         ("key", f"{bits}-bit"),
         ("fingerprint", img.fingerprint),

@@ -17,6 +17,7 @@ respells Python phrases inside it (:data:`CLI_PHRASES`). A new command adds its 
 from __future__ import annotations
 
 import errno
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -40,7 +41,7 @@ from ..errors import (
 )
 from .util import UsageError
 
-__all__ = ["EXIT_RULE", "USAGE_ERRORS", "DATA_ERRORS", "CLI_NAMES", "CLI_SUBJECTS", "CLI_PHRASES", "exit_code", "cli_message"]
+__all__ = ["cli_phrases", "interrupted_message", "EXIT_RULE", "USAGE_ERRORS", "DATA_ERRORS", "CLI_NAMES", "CLI_SUBJECTS", "CLI_PHRASES", "exit_code", "cli_message"]
 
 EXIT_RULE = """\
 exit status (every command):
@@ -182,15 +183,37 @@ def exit_code(exc: BaseException, args: Any = None) -> int:
     return 1
 
 
+def interrupted_message(args: Any = None) -> str:
+    """The one line of a command stopped by Ctrl-C; for ``hevr encrypt`` with a store begun at
+    ``--out``, how to finish it."""
+    out = getattr(args, "out", None)
+    if getattr(args, "command", None) != "encrypt" or not out:
+        return "interrupted"
+    local = "://" not in str(out)
+    if local and not os.path.lexists(os.path.expanduser(str(out))):
+        return "interrupted before the store was created; nothing was written"
+    return (f"interrupted: {out} is not finished; the bricks written are kept: run the same hevr encrypt "
+            "command with --resume to encrypt the rest")
+
+
+def cli_phrases(text: str, command: str = "") -> str:
+    """``text`` with the Python phrases of :data:`CLI_PHRASES` in the command's words.
+
+    >>> cli_phrases("finish it with encrypt_volume(..., resume=True)")
+    "finish it with 'hevr encrypt … --resume'"
+    """
+    for python, cli in {**CLI_PHRASES["*"], **CLI_PHRASES.get(command, {})}.items():
+        text = text.replace(python, cli)
+    return text
+
+
 def cli_message(exc: BaseException, args: Any = None) -> str:
     """The one-line message of an error escaping a command, in the command's words: a leading
     Python parameter name (``vol: …``) becomes the option it came from (``INPUT: …``); a message
     about a file the command line names starts with that option."""
     command = getattr(args, "command", None) or ""
     names = {**_EVERY, **CLI_NAMES.get(command, {})}
-    text = _message(exc)
-    for python, cli in {**CLI_PHRASES["*"], **CLI_PHRASES.get(command, {})}.items():
-        text = text.replace(python, cli)
+    text = cli_phrases(_message(exc), command)
     for flag in ("overwrite", "resume"):
         if flag in names:
             text = text.replace(f"{flag}=True", names[flag])

@@ -37,7 +37,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from .._lazy import resolve
-from .exits import cli_message, exit_code
+from .exits import cli_message, exit_code, interrupted_message
 from .parser import (
     COMMANDS,
     build_parser,
@@ -58,7 +58,23 @@ def _setup_logging(verbose: bool) -> logging.Handler:
     logger = logging.getLogger("hevr")
     logger.addHandler(handler)
     logger.setLevel(logging.INFO if verbose else logging.WARNING)
+    # the progress lines of a job shown off a terminal (only jobs asked to show them: show_progress)
+    logging.getLogger("hevr.progress").setLevel(logging.INFO)
     return handler
+
+
+def _names_as_bytes(stream: Any) -> str | None:
+    """Let ``stream`` print a path that is not UTF-8 (argv holds its bytes as surrogate escapes,
+    :func:`os.fsdecode`) as those bytes, as ``printf`` would, instead of raising
+    ``UnicodeEncodeError``; returns its previous ``errors`` setting (None: left as it was)."""
+    old = getattr(stream, "errors", None)
+    if old != "strict" or not callable(getattr(stream, "reconfigure", None)):
+        return None
+    try:
+        stream.reconfigure(errors="surrogateescape")
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - a stream that cannot change
+        return None
+    return old
 
 
 def _run(args: Any) -> int:
@@ -82,6 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         err_line(f"a command is required: {', '.join(names[:-1])} or {names[-1]} (see 'hevr --help')")
         return 2
     handler = _setup_logging(args.verbose)
+    errors = _names_as_bytes(sys.stdout)
     try:
         with warnings.catch_warnings():
             if not args.verbose:
@@ -92,7 +109,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             sys.stdout.flush()  # here, so that a reader gone away (`hevr info … | head -1`) is caught below
             return code
     except KeyboardInterrupt:
-        err_line("interrupted")
+        err_line(interrupted_message(args))
         return 130
     except BrokenPipeError:  # the reader of stdout left: stop quietly, as Unix tools do
         silence_stdout()
@@ -104,6 +121,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exit_code(exc, args)
     finally:
         logging.getLogger("hevr").removeHandler(handler)
+        logging.getLogger("hevr.progress").setLevel(logging.NOTSET)
+        if errors is not None:
+            sys.stdout.reconfigure(errors=errors)
 
 
 if __name__ == "__main__":  # pragma: no cover

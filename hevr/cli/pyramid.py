@@ -15,6 +15,7 @@ from .storage import open_store, size_of, storage_options
 from .util import (
     Timer,
     human_bytes,
+    plural,
     show_progress,
     xyz,
 )
@@ -36,7 +37,7 @@ def cmd_pyramid(args: Any) -> int:
     ev = open_store(args.store, "STORE", so)
     store = ev.path
     before = ev.levels
-    print(f"store:   {args.store}, {xyz(ev.shape)} voxels, {ev.meta.n_bricks} bricks, "
+    print(f"store:   {args.store}, {xyz(ev.shape)} voxels, {plural(ev.meta.n_bricks, 'brick')}, "
           f"{before} pyramid level{'s' if before != 1 else ''} so far")
     if before >= args.levels:
         print(f"nothing to do: level{'s' if args.levels > 1 else ''} 1..{args.levels} exist")

@@ -120,16 +120,22 @@ def encrypt_arguments(p: argparse.ArgumentParser) -> None:
     add_storage_option(p)
     p.description = wrap("Encrypt a volume voxel by voxel into a Zarr v3 store of Paillier ciphertexts, "
                          "one Dask task per brick. The store holds the public key and ciphertexts only.")
-    p.epilog = ("examples:\n"
-                f"  hevr encrypt phantom:{PAPER_SIZE} --key key.pub.json --out vol.zarr --vector-dims 4\n"
+    p.epilog = ("examples (the owner encrypts with the private key: the fast path; key.pub.json for anyone else):\n"
+                f"  hevr encrypt phantom:{PAPER_SIZE} --key key.json --out vol.zarr --vector-dims 4\n"
                 "  hevr encrypt tooth_103x94x161_uint8.raw --key key.json --out tooth.zarr --workers 2\n"
-                "  hevr encrypt ct.nii.gz --key key.pub.json --out ct.zarr --modality CT --resume\n"
-                "  hevr encrypt dicom/ --key key.pub.json --out ct.zarr --series 1.2.840.1 --vector-dims 8\n"
+                "  hevr encrypt ct.nii.gz --key key.json --out ct.zarr --modality CT --resume\n"
+                "  hevr encrypt dicom/ --key key.json --out ct.zarr --series 1.2.840.1 --vector-dims 8\n"
+                "  hevr encrypt sample:mri --key key.json --out mri.zarr --vector-dims 4\n"
+                "  hevr encrypt ct.nii.gz --key key.pub.json --out ct.zarr   # not the owner: public key, slower\n"
                 "\nINPUT: .npy, .raw (shape/type from a name like tooth_103x94x161_uint8.raw), .nrrd, "
-                ".nhdr,\n.nii/.nii.gz, a DICOM folder, or phantom:N (the paper's test object, N^3 voxels).\n"
+                ".nhdr,\n.nii/.nii.gz, .mgz/.mgh, .tif/.tiff, a DICOM file (.dcm: that file alone), a DICOM "
+                "folder or\nDICOMDIR, a Zarr/OME-Zarr folder, phantom:N (the paper's test object, N^3 voxels) "
+                "or\nsample:mri (a small MRI that ships with nibabel).\n"
                 "Scans that record their orientation are read into the RAS+ patient frame (render --view).\n"
-                "A private --key selects the owner-side fast path (same ciphertexts, much faster).\n")
-    p.add_argument("input", metavar="INPUT", help="volume file or folder, or phantom:N")
+                "A private --key selects the owner-side fast path (exact textbook ciphertexts, faster).\n"
+                "Progress: ciphertexts done, the rate and the time left (log lines when stderr is not a "
+                "terminal).\n")
+    p.add_argument("input", metavar="INPUT", help="volume file or folder, phantom:N or sample:mri (formats below)")
     p.add_argument("--key", required=True, metavar="KEY", help="public key (key.pub.json) or private key file")
     p.add_argument("--out", required=True, metavar="STORE", help="target store, e.g. vol.zarr")
     p.add_argument("--vector-dims", type=vector_dims_type, metavar="K",
@@ -247,7 +253,9 @@ def slice_arguments(p: argparse.ArgumentParser) -> None:
     add_storage_option(p)
     p.description = wrap("Resample the encrypted volume on a plane (multi-planar reformatting), optionally "
                          "averaging a thick slab of parallel planes, on the Dask cluster. Never needs the "
-                         "secret key: the result is an encrypted .hevr frame only the key holder can decrypt.")
+                         "secret key: the result is an encrypted .hevr frame only the key holder can decrypt. "
+                         "hevr decrypt writes its PNG in the radiological convention (axial: anterior at the top, "
+                         "the patient's right on the left; coronal, sagittal: superior at the top).")
     p.epilog = SLICE_EPILOG
     p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
@@ -292,7 +300,8 @@ def decrypt_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--npy", metavar="FILE.npy", help="also save the float64 pixel values")
     p.add_argument("--force", action="store_true", help="replace an existing --out (or --npy) file")
     p.add_argument("--window", type=range_type, metavar="LO,HI",
-                   help="grey/colour window of the PNG (default 0 .. 99.9th percentile)")
+                   help="grey/colour window of the PNG (default 0 .. 99.9th percentile; for an image with "
+                        "negative values, e.g. a CT X-ray, its value range: 0.1th .. 99.9th percentile)")
     add_require_verified_option(p)
     add_decrypt_colour_options(p)
 

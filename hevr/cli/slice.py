@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..image.orient import describe_layout
 from ..paper import PAPER_TF1
 from ..rendering.plane import Plane
 from ..rendering.planner import check_render_size
@@ -23,6 +24,7 @@ from .util import (
     Timer,
     UsageError,
     human_bytes,
+    plural,
     show_progress,
     wh,
     xyz,
@@ -31,16 +33,27 @@ from .util import (
 __all__ = ["cmd_slice"]
 
 
+def _at(ev: Any, axis: int, index: float) -> str:
+    """Where layer ``index`` along world ``axis`` (0 x, 1 y, 2 z) lies: from voxel 0, and in the
+    scan's patient frame when the input recorded its origin."""
+    name = "xyz"[axis]
+    offset = index * ev.spacing[axis]
+    origin = getattr(ev, "patient_origin", None)
+    if not origin:
+        return f"{name} = {offset:g}"
+    return f"{name} = {offset:g} from voxel 0, {name} = {origin[axis] + offset:g} mm in the scan's RAS+ frame"
+
+
 def _plane(args: Any, ev: Any) -> tuple[Plane, str]:
     """The plane the options ask for, and its description."""
     w, h = args.size if args.size is not None else (None, None)
     kw = dict(width=w, height=h, pixel_spacing=args.pixel_spacing, slab=args.slab, slab_step=args.slab_step)
     if args.axial is not None:
-        return Plane.axial(ev, args.axial, **kw), f"axial, k = {args.axial:g} (z = {args.axial * ev.spacing[2]:g})"
+        return Plane.axial(ev, args.axial, **kw), f"axial, k = {args.axial:g} ({_at(ev, 2, args.axial)})"
     if args.coronal is not None:
-        return Plane.coronal(ev, args.coronal, **kw), f"coronal, j = {args.coronal:g} (y = {args.coronal * ev.spacing[1]:g})"
+        return Plane.coronal(ev, args.coronal, **kw), f"coronal, j = {args.coronal:g} ({_at(ev, 1, args.coronal)})"
     if args.sagittal is not None:
-        return Plane.sagittal(ev, args.sagittal, **kw), f"sagittal, i = {args.sagittal:g} (x = {args.sagittal * ev.spacing[0]:g})"
+        return Plane.sagittal(ev, args.sagittal, **kw), f"sagittal, i = {args.sagittal:g} ({_at(ev, 0, args.sagittal)})"
     centre, normal = args.oblique
     plane = Plane.oblique(ev, centre, normal, **kw)
     u, v, _ = plane.basis()
@@ -72,6 +85,7 @@ def cmd_slice(args: Any) -> int:
     print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…")
     print(f"slice:   {where}, {wh(plane.width, plane.height)} px of {spacing} world units, {what}, "
           f"{args.sampling} sampling{slab}")
+    print(f"shown:   {describe_layout(plane)} (in hevr decrypt's PNG)")
     with compute_context(args, ev) as client:
         with Timer() as t:
             img = render_slice(ev, plane, mode=mode, sampling=args.sampling, density=args.density, nodes=nodes,
@@ -83,8 +97,8 @@ def cmd_slice(args: Any) -> int:
         print(verified_line(img) + " (stamped with the key holder's MAC)")
     warn_unverified(args, ev, img)
     inside = int(img.hits.sum())
-    print(f"wrote {out}: {img.n_ciphertexts} ciphertexts ({img.per_pack} values each), "
-          f"{human_bytes(size_of(out, so))}, {inside} of {plane.width * plane.height} pixels inside the volume, "
+    print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "
+          f"{human_bytes(size_of(out, so))}, {inside:,} of {plane.width * plane.height:,} pixels inside the volume, "
           f"rendered in {t.seconds:.2f} s")
     report_finish(img, out, mode, args.density, nodes)
     return 0

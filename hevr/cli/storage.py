@@ -118,11 +118,14 @@ def save_frame(img: Any, out: Path | str, option: str = "--out", *, force: bool 
         raise ExistingFileError(option, out) from None
 
 
-def save_decrypted(arr: Any, out: Path, npy: Path | None, window: Any, *, force: bool = False) -> None:
+def save_decrypted(arr: Any, out: Path, npy: Path | None, window: Any, *, force: bool = False,
+                   plane: Any = None, hits: Any = None) -> None:
     """``hevr decrypt``'s PNG and (``--npy``) float64 values, each written atomically and over an
-    existing file only with ``force``; one that appeared meanwhile is reported as its option's."""
+    existing file only with ``force``; one that appeared meanwhile is reported as its option's.
+    A slice's PNG (``plane``: its plane) is turned for display (:func:`hevr.image.orient.orient_slice`);
+    the ``--npy`` values keep the plane's pixel order (that of :func:`hevr.render_slice_plain`)."""
     try:
-        save_png(arr, out, window=window, overwrite=force)
+        save_png(arr, out, window=window, overwrite=force, plane=plane, hits=hits)
     except ExistingFileError:
         raise ExistingFileError("--out", out) from None
     if npy is not None:

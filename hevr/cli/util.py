@@ -85,9 +85,20 @@ def print_rows(rows: list[tuple[str, Any]]) -> None:
         print(f"{k + ':':<{w + 1}} {v}")
 
 
-def show_progress(args: Any) -> bool:
-    """Progress bars unless --quiet, and only on a terminal (logs stay free of carriage returns)."""
-    return not getattr(args, "quiet", False) and sys.stderr.isatty()
+def plural(n: int, word: str, words: str | None = None) -> str:
+    """``n`` and the noun in the number it needs, thousands separated.
+
+    >>> plural(1, "brick"), plural(8, "brick"), plural(1234, "ciphertext")
+    ('1 brick', '8 bricks', '1,234 ciphertexts')
+    """
+    return f"{n:,} {word if n == 1 else (words or word + 's')}"
+
+
+def show_progress(args: Any, lines: bool = False) -> bool:
+    """Progress bars unless --quiet, and only on a terminal (logs stay free of carriage returns);
+    with ``lines`` also elsewhere, as a few ``hevr: INFO: …`` lines with the rate and the time
+    left (``hevr encrypt``: minutes to hours of work that a log should show)."""
+    return not getattr(args, "quiet", False) and (lines or sys.stderr.isatty())
 
 
 def silence_stdout() -> None:

@@ -16,7 +16,7 @@ from ..store.paths import interrupted_swaps, is_local
 from ..store.reader import open_volume
 from ..store.verify import verify_bricks
 from .cluster import dask_client
-from .util import disk_usage, human_bytes, show_progress, warn_line
+from .util import disk_usage, human_bytes, plural, show_progress, warn_line
 
 __all__ = ["leftovers", "warn_leftovers", "verify_store"]
 
@@ -58,7 +58,7 @@ def verify_store(path: str, so: dict | None, args: Any) -> tuple[str, list[str],
         report = verify_bricks(ev, client=client, progress=show_progress(args))
     levels = f" at level 0 and {ev.levels} pyramid level{'s' if ev.levels > 1 else ''}" if ev.levels else ""
     if report.ok:
-        return (f"ok: verified {report.bricks} bricks{levels} (every ciphertext of every channel read: chunk crc32c, "
+        return (f"ok: verified {plural(report.bricks, 'brick')}{levels} (every ciphertext of every channel read: chunk crc32c, "
                 "brick digests, 0 < c < n², coprime to n)"), [], False
     lines = [f"damaged: {p}" for p in report.problems]
     return f"FAILED: {len(report.damaged)} of {report.bricks} bricks damaged (listed below)", lines, True

@@ -17,7 +17,6 @@ from __future__ import annotations
 import base64
 import json
 import logging
-import secrets
 import warnings
 from numbers import Integral
 from typing import Iterable, Sequence
@@ -34,6 +33,7 @@ from .encoding import decode
 from .number import EncryptedNumber
 from .owner import OwnerEncryptor
 from .primes import is_probable_prime, random_prime_with_factors
+from .public_masks import public_mask
 from .records import record_width
 
 log = logging.getLogger(__name__)
@@ -160,16 +160,16 @@ class PublicKey:
 
     # -- encryption -----------------------------------------------------------------
     def _random_mask(self) -> mpz:
-        n = self.n
-        while True:
-            r = mpz(secrets.randbelow(int(n)))
-            if r > 0 and gmpy2.gcd(r, n) == 1:
-                return gmpy2.powmod(r, n, self.nsquare)
+        """h^s mod n²: a fixed base and a short random exponent (:mod:`hevr.crypto.public_masks`)."""
+        return public_mask(self.n, self.nsquare)
 
     def encrypt(self, m: int, *, unsafe_no_obfuscation: bool = False) -> mpz:
-        """Encrypt a signed integer |m| < n // 3: c = (1 + m·n)·r^n mod n².
+        """Encrypt a signed integer |m| < n // 3: c = (1 + m·n)·h^s mod n².
 
-        ``unsafe_no_obfuscation=True`` skips the random mask (r = 1). The result is NOT
+        The mask h^s (h = x^n a fixed random n-th residue, s a fresh ⌈bits(n)/2⌉-bit exponent
+        from :mod:`secrets`) replaces the textbook r^n: Damgård–Jurik–Nielsen's fixed-base,
+        short-exponent variant, ~15× faster at 2048 bits; its security assumption is stated in
+        :mod:`hevr.crypto.public_masks`. ``unsafe_no_obfuscation=True`` skips the random mask. The result is NOT
         secure — it exists only to reproduce the paper's "without obfuscation" rows.
         """
         c = raw.raw_encrypt_nude(raw.raw_encode_signed(m, self.n), self.n, self.nsquare)

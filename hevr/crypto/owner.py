@@ -55,10 +55,10 @@ class _FixedBase:
 
     __slots__ = ("modulus", "order", "window", "_rows")
 
-    def __init__(self, base: mpz, modulus: mpz, order: mpz) -> None:
+    def __init__(self, base: mpz, modulus: mpz, order: mpz, window: int | None = None) -> None:
         self.modulus = modulus
         self.order = order
-        w = _window_for(int(order).bit_length())
+        w = _window_for(int(order).bit_length()) if window is None else int(window)
         self.window = w
         nrows = -(-int(order).bit_length() // w)
         rows = []

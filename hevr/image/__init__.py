@@ -14,6 +14,7 @@ Module by module:
 ``checks``      the numbers of an image (render plan, finish, components, ciphertext counts),
                 shared by a file's header and an image in memory
 ``display``     :func:`to_uint8` and :func:`save_png`: a decrypted image windowed and written
+``orient``      :func:`orient_slice`: a slice turned the way radiology viewers show it
 ==============  ================================================================================
 
 The file format is in ``docs/image-format.md``. Each name below is imported from its module
@@ -33,13 +34,15 @@ if TYPE_CHECKING:  # what static tools read; at run time each name is imported o
     from .encrypted import _CORRUPT, EncryptedImage, _unpack_checked
     from .files import _from_blob, image_from_bytes, load_image
     from .header import MAGIC
+    from .orient import orient_slice, slice_layout
 
-__all__ = ["EncryptedImage", "image_from_bytes", "load_image", "save_png", "to_uint8"]
+__all__ = ["EncryptedImage", "image_from_bytes", "load_image", "orient_slice", "save_png", "slice_layout", "to_uint8"]
 
 # Name -> submodule, imported on first use. Equal to the TYPE_CHECKING imports above. The
 # private names are those the rest of hevr imported from the one-module hevr.image of before.
 _LAZY = {
     ".display": ("save_png", "to_uint8"),
+    ".orient": ("orient_slice", "slice_layout"),
     ".encrypted": ("EncryptedImage", "_CORRUPT", "_unpack_checked"),
     ".files": ("image_from_bytes", "load_image", "_from_blob"),
     ".header": ("MAGIC",),

@@ -25,8 +25,9 @@ finishing, packing, error bound) is the ray renderer's.
 Helpers keep the array's own index order, so nearest sampling reproduces array slices exactly:
 :meth:`Plane.axial` (k) is ``vol[k]`` (u = +x, v = +y), :meth:`Plane.coronal` (j) is
 ``vol[:, j, :]`` (u = +x, v = +z) and :meth:`Plane.sagittal` (i) is ``vol[:, :, i]``
-(u = +y, v = +z). Which way is anatomically "up" depends on how the data were stored, which
-hevr does not record; flip the decrypted image (``np.flipud``) for a display with +z at the top.
+(u = +y, v = +z): the raw array order, a coronal slice with the head at the bottom. For
+display, ``hevr decrypt`` and ``hevr.save_png(arr, path, plane=plane)`` turn a slice into the
+radiological convention (:func:`hevr.image.orient.orient_slice`).
 """
 
 from __future__ import annotations

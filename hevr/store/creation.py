@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from .._files import fs_errors
+from .._files import check_name, fs_errors
 from ..errors import ExistingFileError, FileSystemError, ParameterError, StoreError, StoreExistsError
 from .exclusive import StoreLock, locked_folder, remove_local_tree, rename_noreplace, swap_lock
 from .layout import check_document, check_documents, check_entry, chunk_key, compressors
@@ -62,6 +62,7 @@ def claim_store(path: str, meta: VolumeMetadata, storage_options: dict | None = 
             _claim_url(path, meta, storage_options, name)
             _check_owner(path, meta.store_id, storage_options, name)
             return _skeleton(path, meta, storage_options, claimed=True), StoreLock(None)
+    check_name(path, name)
     with fs_errors("creating the store", path):
         parent = Path(path).parent
         if not parent.is_dir() and (parent.exists() or parent.is_symlink()):

@@ -29,6 +29,7 @@ from typing import Any, Callable
 from zarr.storage import FsspecStore
 
 from .._files import (
+    check_name,
     fs_errors,
     read_regular,
     temp_sibling,
@@ -44,6 +45,7 @@ from ..errors import (
 )
 from .exclusive import lock_store, remove_local_tree, rename_noreplace, swap_lock
 from .metadata import FORMAT_NAME, sha256_tag
+from .sessions import track
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +86,7 @@ def normalise(path: str | os.PathLike, name: str = "path") -> str:
         if text.startswith("localhost/"):
             text = text[len("localhost"):]
     if is_local(text):
+        check_name(text, name)  # a lone surrogate: a ParameterError, not a UnicodeEncodeError
         return str(Path(text).resolve())
     _check_protocol(text, name)
     return text.rstrip("/")
@@ -141,7 +144,8 @@ def zarr_store(path: str, storage_options: dict[str, Any] | None = None, *, read
     if is_local(path):
         return path
     filesystem(path, storage_options)  # a clear error for a missing filesystem package
-    return FsspecStore.from_url(path, storage_options=dict(storage_options or {}), read_only=read_only)
+    store = FsspecStore.from_url(path, storage_options=dict(storage_options or {}), read_only=read_only)
+    return track(store)  # its session closed before exit (hevr.store.sessions)
 
 
 def check_reachable(path: str, client: Any) -> None:

@@ -69,6 +69,7 @@ from ..volume.density import (
 )
 from ..volume.mapped import task_array
 from ..volume.scan import Scan
+from .brick_crypto import encrypt_components as _encrypt_components
 from .digests import brick_digest, marker, written
 from .creation import create_store, new_store, resume_target  # noqa: F401 - create_store: hevr.store.upgrade
 from .exclusive import lock_store, remove_leftovers
@@ -95,16 +96,6 @@ log = logging.getLogger(__name__)
 __all__ = ["encrypt_volume", "open_volume", "EncryptedVolume"]
 
 _CPU = CpuBackend()  # the tags' records (owner-encrypted on the CPU whatever the data's backend)
-
-
-def _encrypt_components(be: Any, key: Any, q: np.ndarray, shape: tuple, width: int, unsafe: bool) -> np.ndarray:
-    """(k, bz, by, bx, W) records of the (k, voxels) mantissas ``q``."""
-    out = np.empty((q.shape[0],) + shape + (width,), dtype=np.uint8)
-    for j in range(q.shape[0]):
-        with _stats.timed("encrypt.crypto", q.shape[1]):
-            cts = be.encrypt(key, q[j], unsafe_no_obfuscation=unsafe)
-        out[j] = be.to_bytes(cts, width).reshape(shape + (width,))
-    return out
 
 
 def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
@@ -136,9 +127,7 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
     mantissas = {}  # channel -> (k, voxels) int64, for the tags of a verifiable store
     if meta.scalar is not None:
         q = quantise_scalar(block, meta.scalar)
-        with _stats.timed("encrypt.crypto", block.size):
-            cts = be.encrypt(key, q, unsafe_no_obfuscation=unsafe_no_obfuscation)
-        out = be.to_bytes(cts, width).reshape(block.shape + (width,))
+        out = _encrypt_components(be, key, [q], block.shape, width, unsafe_no_obfuscation)[0]
         digests.append(brick_digest(meta.store_id, "scalar", index, out))
         with _stats.timed("encrypt.write"):
             group["scalar"][sl] = out
@@ -253,6 +242,8 @@ def encrypt_volume(
     Returns
     -------
     EncryptedVolume
+        Its ``written_now`` dict says what this call encrypted: ``bricks`` and ``ciphertexts``
+        (with ``resume=True`` only the missing bricks: 0 for a store that was complete).
     """
     if not isinstance(key, (PublicKey, PrivateKey)):
         raise ParameterError(f"key: expected a PublicKey or PrivateKey, got {type(key).__name__}")
@@ -328,7 +319,7 @@ def encrypt_volume(
         todo = [idx for idx in bricks if not done[idx]]
         log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)
         try:
-            _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
+            values = _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
         except BaseException:
             if target != path:
                 log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
@@ -347,15 +338,16 @@ def encrypt_volume(
     if ev.meta.store_id != meta.store_id:
         raise StoreExistsError(f"path: the store at {path} was created or replaced by another run while this one "
                                "wrote it; this run's store is not there")
+    ev.written_now = {"bricks": len(todo), "ciphertexts": values}  # this call's share (resume: the missing ones)
     record_quietly(ev, replace=True)  # the owner made it: the key holder's known stores (hevr.store.known)
     return ev
 
 
 def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: VolumeMetadata, key: Any,
          unsafe_no_obfuscation: bool, backend: str, client: Any, progress: bool,
-         storage_options: dict | None = None) -> None:
+         storage_options: dict | None = None) -> int:
     """Encrypt the bricks ``todo`` into the store at ``path`` (one impure task per brick), then
-    mark the store complete once every digest marker is written."""
+    mark the store complete once every digest marker is written; returns the ciphertexts written."""
     # A random name: dask's default is a hash of the array's content, which would put a value
     # that confirms a guessed volume into the task graph, the scheduler's logs and dashboard.
     darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(
@@ -379,13 +371,16 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
                   storage_options=storage_options,
                   dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
              for idx, kw in zip(todo, extra)]
-    compute(tasks, client=client, progress=progress, desc="encrypt")
+    per_voxel = sum(c.dims or 1 for c in (meta.scalar, meta.vector, meta.gradient) if c is not None)
+    values = sum(int(np.prod([s.stop - s.start for s in brick_slices(meta, idx)])) for idx in todo) * per_voxel
+    compute(tasks, client=client, progress=progress, desc="encrypt", steps=values, unit="ciphertexts")
     with fs_errors("finishing the store", path):
         group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
         final = written(group["done"][...])
         if not final.all():  # pragma: no cover - tasks raise instead
             raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
         group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
+    return values
 
 
 def _authenticate(meta: VolumeMetadata, key: Any) -> VolumeMetadata:

@@ -96,15 +96,22 @@ def read_dicom(path: str | os.PathLike[str], *, series: str | None = None, allow
     pydicom = require("pydicom", path)
     name = path.name
     uid, images = choose_series(name, scan_images(path), series)
-    _check_images(images)
-    frames = [fr for im in images for fr in frames_of(im)]
-    _check_layout(frames, name)
-    stack = plan_stack(frames, name, allow_uneven=allow_uneven, oblique=oblique)
-    frames = [frames[i] for i in stack.order]
-    first = images[0].header
-    check_fits(name, (len(frames), *(max(1, v) for v in frames[0].shape),
-                      -(-_positive(first, "BitsAllocated") // 8)), np.uint8, "DICOM pixel data")
-    raw = _decode(pydicom, frames)
+    try:
+        _check_images(images)
+        frames = [fr for im in images for fr in frames_of(im)]
+        _check_layout(frames, name)
+        stack = plan_stack(frames, name, allow_uneven=allow_uneven, oblique=oblique)
+        frames = [frames[i] for i in stack.order]
+        first = images[0].header
+        check_fits(name, (len(frames), *(max(1, v) for v in frames[0].shape),
+                          -(-_positive(first, "BitsAllocated") // 8)), np.uint8, "DICOM pixel data")
+        raw = _decode(pydicom, frames)
+    except (VolumeFormatError, CorruptVolumeError) as exc:
+        if path.is_dir() or len(images) < 2:
+            raise
+        raise type(exc)(f"{exc} [{name} is one slice of series {uid or '?'}: a single-frame DICOM file stands "
+                        f"for its series, so the {len(images) - 1} other files of it in {path.parent} were read "
+                        f"too; to read {name} alone, put it in a folder of its own]") from None
     slopes, inters = [f.slope for f in frames], [f.intercept for f in frames]
     if len(set(slopes)) == 1 and len(set(inters)) == 1:  # one factor: the cheaper whole-array path
         slopes, inters = slopes[:1], inters[:1]

@@ -109,3 +109,39 @@ def test_help_lists_slice(capsys):
     assert main(["slice", "--help"]) == 0
     out = capsys.readouterr().out
     assert "--oblique CX,CY,CZ:NX,NY,NZ" in out and "no MIP" in out
+
+
+def test_slice_pngs_are_shown_the_radiological_way(tmp_path, capsys):
+    """Issue 39, item 6: a coronal or sagittal PNG has superior at the top, an axial one anterior
+    (raw array order put the head at the bottom); the banners say which convention."""
+    from PIL import Image
+
+    k, j, i = np.meshgrid(np.arange(6), np.arange(7), np.arange(8), indexing="ij")
+    np.save(tmp_path / "v.npy", (100 * k + 10 * j + i).astype(np.int16))  # grows to superior, anterior, right
+    key = tmp_path / "key.json"
+    _ok(capsys, "keygen", "--bits", "256", "--out", key, "-q")
+    _ok(capsys, "encrypt", tmp_path / "v.npy", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4", "-q")
+    for opt, top, left in (("--coronal", "superior", "the patient's right"), ("--sagittal", "superior", "anterior"),
+                           ("--axial", "anterior", "the patient's right")):
+        out = _ok(capsys, "slice", tmp_path / "v.zarr", "--out", tmp_path / f"{opt[2:]}.hevr", opt, "3", "-q")
+        assert f"radiological convention: {top} at the top, {left} on the left" in out
+        out = _ok(capsys, "decrypt", tmp_path / f"{opt[2:]}.hevr", "--key", key, "--out", tmp_path / f"{opt[2:]}.png")
+        assert f"{opt[2:]} slice, radiological convention: {top} at the top" in out
+        png = np.asarray(Image.open(tmp_path / f"{opt[2:]}.png")).astype(float)
+        assert png[0].mean() > png[-1].mean() + 20, (opt, png)  # the top row is superior / anterior
+        assert png[:, 0].mean() > png[:, -1].mean(), (opt, png)  # the left column: the patient's right / anterior
+
+
+def test_slice_banner_places_the_plane_in_the_scans_frame(tmp_path, capsys):
+    """Issue 39, item 10: the banner said z = 2 for a scan whose voxel 0 lies at z = 30 mm."""
+    np.arange(6 * 6 * 6, dtype=np.uint8).tofile(tmp_path / "v.raw")
+    (tmp_path / "v.nhdr").write_text("NRRD0004\ntype: uint8\ndimension: 3\nspace: right-anterior-superior\n"
+                                     "sizes: 6 6 6\nspace directions: (1,0,0) (0,2,0) (0,0,1.5)\nkinds: domain domain "
+                                     "domain\nendian: little\nencoding: raw\nspace origin: (10,20,30)\ndata file: v.raw\n")
+    key = tmp_path / "key.json"
+    _ok(capsys, "keygen", "--bits", "256", "--out", key, "-q")
+    _ok(capsys, "encrypt", tmp_path / "v.nhdr", "--key", key, "--out", tmp_path / "v.zarr", "-q")
+    out = _ok(capsys, "slice", tmp_path / "v.zarr", "--out", tmp_path / "a.hevr", "--axial", "2", "-q")
+    assert "axial, k = 2 (z = 3 from voxel 0, z = 33 mm in the scan's RAS+ frame)" in out, out
+    out = _ok(capsys, "slice", tmp_path / "v.zarr", "--out", tmp_path / "c.hevr", "--coronal", "1", "-q")
+    assert "coronal, j = 1 (y = 2 from voxel 0, y = 22 mm in the scan's RAS+ frame)" in out, out

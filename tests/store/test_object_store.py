@@ -251,3 +251,36 @@ def test_cli_round_trip_with_storage_options(s3_server, tmp_path, monkeypatch):
     monkeypatch.setenv("HEVR_STORAGE_OPTIONS", "not json")
     code, out, err = _cli("info", url, *opts)
     assert code == 2 and "HEVR_STORAGE_OPTIONS: expected a JSON object" in err
+
+
+def test_no_unclosed_client_session_at_exit(s3_server, tmp_path):
+    """Issue 39, item 9: Zarr's asynchronous s3fs filesystems kept their aiohttp sessions open;
+    each printed "Unclosed client session" at interpreter exit (12 after the test suite). A
+    process that encrypts to, opens and renders from S3 now exits without one."""
+    import subprocess
+    import sys
+
+    url, so = _url(s3_server, "v.zarr")
+    script = f"""
+import warnings; warnings.simplefilter("ignore")
+import hevr
+pub, priv = hevr.generate_keypair(256)
+ev = hevr.encrypt_volume(hevr.phantom(6), {url!r}, priv, brick=3, storage_options={so!r}, progress=False)
+ev = hevr.open_volume({url!r}, storage_options={so!r})
+img = hevr.render(ev, hevr.Camera.orbit(ev, width=4, height=4), progress=False)
+img.save({url + '.hevr'!r}, storage_options={so!r})
+print("done", hevr.load_image({url + '.hevr'!r}, storage_options={so!r}).shape)
+"""
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert run.returncode == 0 and "done (4, 4)" in run.stdout, run.stderr
+    assert "Unclosed" not in run.stderr and "client_session" not in run.stderr, run.stderr
+
+
+def test_closed_sessions_open_again_when_used(s3_server, keypair256):
+    from hevr.store.sessions import close_sessions
+
+    url, so = _url(s3_server, "v.zarr")
+    hevr.encrypt_volume(_vol(), url, keypair256[1], brick=BRICK, storage_options=so, progress=False)
+    assert close_sessions() >= 1  # what this process opened on S3
+    ev = hevr.open_volume(url, storage_options=so)  # the same cached filesystem: a new session
+    assert ev.shape == SHAPE and close_sessions() >= 1

@@ -209,3 +209,25 @@ def test_dicom_errors(tmp_path: Path) -> None:
         load_volume(one)
     with pytest.raises(VolumeFormatError, match=r"^single\.dcm: expected a DICOM image file.*got no DICOM file"):
         read_dicom(one)
+
+
+def test_a_single_file_that_stands_for_its_series_says_so_in_errors(tmp_path: Path) -> None:
+    """Issue 39, item 10: an error about a sibling file named a file the user never gave;
+    it now says why that file was read, and how to read the one file alone."""
+    pytest.importorskip("pydicom")
+    _dicom_series(tmp_path / "s")
+    write_slice(tmp_path / "s" / "big.dcm", np.zeros((4, 5), np.int16), position=[0, 0, 99], instance=9,
+                series="1.2.3.4")
+    with pytest.raises(VolumeFormatError) as info:
+        read_dicom(tmp_path / "s" / "IM0000.dcm")
+    text = str(info.value)
+    assert "big.dcm" in text and "4x5" in text  # the sibling at fault, as before
+    assert ("IM0000.dcm is one slice of series 1.2.3.4: a single-frame DICOM file stands for its series, so the "
+            "4 other files of it in") in text
+    assert "to read IM0000.dcm alone, put it in a folder of its own" in text
+    (tmp_path / "alone").mkdir()
+    (tmp_path / "s" / "IM0000.dcm").rename(tmp_path / "alone" / "IM0000.dcm")
+    assert read_dicom(tmp_path / "alone" / "IM0000.dcm").volume.shape[0] == 1  # the advice works
+    with pytest.raises(VolumeFormatError) as info:
+        read_dicom(tmp_path / "s")  # a folder the user named: no such note
+    assert "stands for its series" not in str(info.value)
