@@ -138,7 +138,7 @@ def warn_unverified(args: Any, ev: Any, img: Any) -> None:
     if img.verification is not None or args.no_verify:
         return
     if not ev.meta.tags:
-        warn_line(f"not verified: {args.store} has no tags (encrypt it with --verifiable so that a lying server "
+        warn_line("not verified: the store has no tags (encrypt it with --verifiable so that a lying server "
                   "is caught; --no-verify silences this)")
     elif args.private_key is None:
         warn_line("not verified: no --key (the key holder's process verifies: give it --key, or render through "
