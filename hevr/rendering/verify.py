@@ -113,8 +113,8 @@ def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bo
     if verify:
         raise ParameterError(f"verify: expected a request that can be verified, got {why}")
     if not ev.meta.tags:  # every render: a store without tags is a silent downgrade otherwise
-        log.warning("render: not verified: %s at %s (a lying server is not caught; verify=False silences this)",
-                    why, ev.path)
+        log.warning("render: not verified: %s, store %s (a lying server is not caught; verify=False silences this)",
+                    why, ev.meta.store_id)
     elif (ev.meta.store_id, why) not in _WARNED:  # once per store and reason
         _WARNED.add((ev.meta.store_id, why))
         log.warning("render: not verified: %s", why)
