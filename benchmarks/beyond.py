@@ -36,7 +36,7 @@ from distributed import Client, LocalCluster
 import hevr
 from hevr._bench.measure import machine
 from hevr.paper import TF_NODES
-from hevr.rendering.rays import cast_rays
+from hevr.rendering.geometry.rays import cast_rays
 
 warnings.simplefilter("ignore")
 

@@ -26,8 +26,8 @@ from distributed import Client, LocalCluster
 
 import hevr
 from hevr._bench.measure import machine
-from hevr.rendering.graph import build_sums_graph
-from hevr.rendering.rays import cast_rays
+from hevr.rendering.pipeline.graph import build_sums_graph
+from hevr.rendering.geometry.rays import cast_rays
 
 warnings.simplefilter("ignore")
 

@@ -30,9 +30,9 @@ import hevr
 from hevr._bench.finish_count import finishing_modmuls
 from hevr._bench.measure import machine
 from hevr.paper import PAPER_DENSITIES, PAPER_TF1, TF_NODES
-from hevr.rendering.modes import combination_matrix, make_spec
-from hevr.rendering.planner import plan_render
-from hevr.rendering.rays import cast_rays
+from hevr.rendering.planning.modes import combination_matrix, make_spec
+from hevr.rendering.planning.planner import plan_render
+from hevr.rendering.geometry.rays import cast_rays
 
 warnings.simplefilter("ignore")
 

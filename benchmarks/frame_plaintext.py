@@ -46,11 +46,11 @@ import hevr
 from hevr import _malloc
 from hevr._bench.measure import machine
 from hevr.paper import TF_NODES
-from hevr.rendering.footprint import brick_footprints
-from hevr.rendering.group_weights import nearest_group_rows
-from hevr.rendering.kernel import plan_products
-from hevr.rendering.rays import cast_rays
-from hevr.rendering.weights import brick_weights
+from hevr.rendering.geometry.footprint import brick_footprints
+from hevr.rendering.geometry.group_weights import nearest_group_rows
+from hevr.rendering.pipeline.kernel import plan_products
+from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.geometry.weights import brick_weights
 
 warnings.simplefilter("ignore")
 BATCH_KEY = "hevr.render.resident-batch"

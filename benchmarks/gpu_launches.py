@@ -31,7 +31,7 @@ import hevr
 from hevr import _stats
 from hevr._bench.gpu import phantom
 from hevr.backends.cuda import device
-from hevr.rendering import maps
+from hevr.rendering.pipeline import maps
 
 
 def launches(rv, cam, sampling: str) -> str:

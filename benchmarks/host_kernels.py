@@ -36,10 +36,10 @@ import numpy as np
 from hevr._bench.measure import machine
 from hevr.backends import CpuBackend, CudaHostBackend
 from hevr.crypto.records import record_width
-from hevr.rendering.camera import Camera
-from hevr.rendering.kernel import plan_products
-from hevr.rendering.rays import cast_rays
-from hevr.rendering.weights import brick_weights
+from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.pipeline.kernel import plan_products
+from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.geometry.weights import brick_weights
 
 HERE = Path(__file__).resolve().parent
 SIZE, IMAGE, BRICK = 100, 150, 25

@@ -52,7 +52,7 @@ def main(argv=None) -> None:
     vol = hevr.phantom(sc.shape[0])
     W = args.image
     cam = hevr.Camera.orbit(sc, azimuth=30, elevation=20, width=W, height=W)
-    rays = hevr.rendering.rays.cast_rays(cam, sc.shape, sc.spacing, 1.0)
+    rays = hevr.rendering.geometry.rays.cast_rays(cam, sc.shape, sc.spacing, 1.0)
     hits = int((rays.n_samples > 0).sum())
     samples = int(rays.n_samples.sum())
     rows, images = [], {}

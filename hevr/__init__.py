@@ -7,8 +7,9 @@ The subpackages follow the data path; every public name is re-exported here, laz
                        fixed-point encoding, :class:`EncryptedNumber`, byte records
 :mod:`hevr.volume`     plaintext volumes: loaders, phantom, densities, Alg. 4 encoding
 :mod:`hevr.store`      the encrypted Zarr v3 store: metadata, writer, reader
-:mod:`hevr.rendering`  camera, modes, rays, weights, planner, kernel, graph,
-                       finishing, :func:`render`, :func:`render_plain`
+:mod:`hevr.rendering`  geometry/ (camera, rays, weights), planning/ (modes, planner),
+                       pipeline/ (kernel, graph, finishing), reference/ (plain),
+                       :func:`render`, :func:`render_plain`
 :mod:`hevr.image`      :class:`EncryptedImage`: file format, decryption, PNG
 :mod:`hevr.remote`     :func:`connect`: the key holder's client of ``hevr serve`` (data only)
 :mod:`hevr.serve`      ``hevr serve``: the render service beside the cluster (Starlette)
@@ -65,14 +66,14 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
     from .image.encrypted import EncryptedImage
     from .image.files import load_image
     from .remote.client import connect
-    from .rendering.camera import Camera
     from .rendering.encrypted import RaySums, clear_cache, error_bound, render
-    from .rendering.plain import render_plain, render_slice_plain
-    from .rendering.plane import Plane
+    from .rendering.geometry.camera import Camera
+    from .rendering.geometry.plane import Plane
+    from .rendering.geometry.views import VIEWS
+    from .rendering.pipeline.stream import render_frame
+    from .rendering.pipeline.sums import SavedSums, load_sums, recolour
+    from .rendering.reference.plain import render_plain, render_slice_plain
     from .rendering.slices import render_slice
-    from .rendering.stream import render_frame
-    from .rendering.sums import SavedSums, load_sums, recolour
-    from .rendering.views import VIEWS
     from .store.known import known_stores, trust_store
     from .store.pyramid import build_pyramid
     from .store.reader import EncryptedVolume, open_volume
@@ -114,14 +115,14 @@ _LAZY = {
     ".image.encrypted": ("EncryptedImage",),
     ".image.files": ("load_image",),
     ".remote.client": ("connect",),
-    ".rendering.camera": ("Camera",),
+    ".rendering.geometry.camera": ("Camera",),
     ".rendering.encrypted": ("RaySums", "clear_cache", "error_bound", "render"),
-    ".rendering.plain": ("render_plain", "render_slice_plain"),
-    ".rendering.plane": ("Plane",),
+    ".rendering.reference.plain": ("render_plain", "render_slice_plain"),
+    ".rendering.geometry.plane": ("Plane",),
     ".rendering.slices": ("render_slice",),
-    ".rendering.stream": ("render_frame",),
-    ".rendering.sums": ("SavedSums", "load_sums", "recolour"),
-    ".rendering.views": ("VIEWS",),
+    ".rendering.pipeline.stream": ("render_frame",),
+    ".rendering.pipeline.sums": ("SavedSums", "load_sums", "recolour"),
+    ".rendering.geometry.views": ("VIEWS",),
     ".store.known": ("known_stores", "trust_store"),
     ".store.pyramid": ("build_pyramid",),
     ".store.reader": ("EncryptedVolume", "open_volume"),

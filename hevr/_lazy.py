@@ -65,7 +65,7 @@ def attach(package: str, table: Mapping[str, Iterable[str]]) -> tuple[Callable[[
     __getattr__, __dir__ : callable
         Assign them at the package's top level (PEP 562). ``__getattr__(name)`` imports the
         submodule, stores the attribute in the package's namespace and returns it; a submodule's
-        own name (``hevr.store``, ``hevr.rendering.kernel``) imports that submodule, which the
+        own name (``hevr.store``, ``hevr.rendering.pipeline.kernel``) imports that submodule, which the
         eager imports of before had done; any other name raises :class:`AttributeError` as
         usual. ``__dir__()`` lists the package's namespace and every exported name.
 

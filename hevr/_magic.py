@@ -3,7 +3,7 @@
 A leaf module (standard library only), so that code that only tells one kind of file from
 another — ``hevr info PATH``, the command line's checks of a ``FRAME`` argument — does not import
 the readers (numpy, gmpy2, Dask) to learn eight bytes. The readers, :mod:`hevr.image.header`
-and :mod:`hevr.rendering.sums`, build their ``MAGIC`` from these.
+and :mod:`hevr.rendering.pipeline.sums`, build their ``MAGIC`` from these.
 
 >>> IMAGE_MAGIC_PREFIX, SUMS_MAGIC_PREFIX
 (b'HEVRIMG', b'HEVRSUMS')
@@ -15,5 +15,5 @@ __all__ = ["IMAGE_MAGIC_PREFIX", "SUMS_MAGIC_PREFIX"]
 
 #: An encrypted image (``.hevr`` frame, :mod:`hevr.image`); then its format version byte.
 IMAGE_MAGIC_PREFIX = b"HEVRIMG"
-#: Encrypted ray sums (``.hevrsums``, :mod:`hevr.rendering.sums`); then its format version byte.
+#: Encrypted ray sums (``.hevrsums``, :mod:`hevr.rendering.pipeline.sums`); then its format version byte.
 SUMS_MAGIC_PREFIX = b"HEVRSUMS"

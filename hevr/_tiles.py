@@ -3,7 +3,7 @@
 An image of ``width x height`` pixels is cut into square tiles of ``tile`` pixels
 (smaller at the right and bottom edges), numbered row-major; inside a tile pixels are
 row-major too. A pixel's global index is ``row*width + col``. The render graph reduces and
-finishes per tile (:mod:`hevr.rendering.graph`), and :class:`hevr.EncryptedImage` unpacks its
+finishes per tile (:mod:`hevr.rendering.pipeline.graph`), and :class:`hevr.EncryptedImage` unpacks its
 per-tile ciphertexts with the same layout.
 
 This is a leaf module (numpy only) so that :mod:`hevr.image` can use it without importing

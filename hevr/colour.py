@@ -195,7 +195,7 @@ class Colouring:
 
     @classmethod
     def of(cls, spec: Any) -> Colouring:
-        """The colouring of a :class:`~hevr.rendering.modes.RenderSpec` (or anything with
+        """The colouring of a :class:`~hevr.rendering.planning.modes.RenderSpec` (or anything with
         ``mode``, ``density`` and ``nodes``)."""
         return cls(spec.mode, spec.density, spec.nodes)
 

@@ -56,11 +56,11 @@ from .colour import Frame
 from .crypto.keys import PrivateKey
 from .errors import HevrError, MissingDependencyError, ParameterError
 from .paper import PAPER_DENSITIES, PAPER_TF1
-from .rendering.camera import Camera
 from .rendering.encrypted import error_bound
-from .rendering.modes import parse_color
-from .rendering.plain import render_plain
-from .rendering.stream import render_frame
+from .rendering.geometry.camera import Camera
+from .rendering.pipeline.stream import render_frame
+from .rendering.planning.modes import parse_color
+from .rendering.reference.plain import render_plain
 from .store.reader import EncryptedVolume
 from .volume.pyramid import check_level
 

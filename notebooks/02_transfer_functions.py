@@ -48,7 +48,7 @@ from hevr.paper import PAPER_DENSITIES, PAPER_TF1, PAPER_TF2, TF_NODES, tf_text
 EMPHASIS_DENSITIES = list(PAPER_DENSITIES)
 
 # The paper's colour figure. Colours are (r, g, b) in [0, 1], '#rrggbb' or CSS names
-# (hevr.rendering.modes.parse_color); note that CSS "green" and "purple" are half-intensity
+# (hevr.rendering.planning.modes.parse_color); note that CSS "green" and "purple" are half-intensity
 # (0, 0.5, 0) and (0.5, 0, 0.5) - the Fig. 6(d) nodes use "lime", pure green.
 TRANSFER_FUNCTIONS = {
     "paper TF 1": PAPER_TF1,
@@ -74,7 +74,7 @@ import numpy as np
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr.rendering.modes import parse_color
+from hevr.rendering.planning.modes import parse_color
 
 WORKDIR = tempfile.mkdtemp(prefix="hevr-tf-")
 

@@ -20,8 +20,8 @@ import hevr
 from hevr.image.header import MAGIC
 from hevr._limits import FLOAT_MAX, fits_float
 from hevr.errors import HevrError
-from hevr.rendering.modes import combination_matrix, make_spec
-from hevr.rendering.planner import plan_render
+from hevr.rendering.planning.modes import combination_matrix, make_spec
+from hevr.rendering.planning.planner import plan_render
 from hevr.store.metadata import ChannelInfo, VolumeMetadata
 
 HYPO = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 import hevr
 from hevr._limits import integrity_bits
-from hevr.rendering.planner import _mantissa_range, plan_sums
+from hevr.rendering.planning.planner import _mantissa_range, plan_sums
 from hevr.store.metadata import ChannelInfo
 
 # values no render would produce by chance: found in pickled bytes if they leak
@@ -234,7 +234,7 @@ def test_render_frame_streams_the_same_frame(scene, cluster):
 
 def test_a_tampered_unit_is_an_integrity_error(scene, monkeypatch):
     ev, _, priv, cam = scene
-    from hevr.rendering import stream
+    from hevr.rendering.pipeline import stream
 
     real = stream.StreamDecryptor.unit
 

@@ -80,7 +80,7 @@ def _ras_volume() -> np.ndarray:
 @pytest.mark.parametrize("kind, index, top, left", [
     ("axial", 2, "anterior", "right"), ("coronal", 3, "superior", "right"), ("sagittal", 4, "superior", "anterior")])
 def test_save_png_turns_slices_the_radiological_way(tmp_path, kind, index, top, left):
-    from hevr.rendering.plain import render_slice_plain
+    from hevr.rendering.reference.plain import render_slice_plain
 
     vol = _ras_volume()
     plane = getattr(hevr.Plane, kind)(vol.shape, index)

@@ -18,7 +18,8 @@ import pytest
 import hevr
 from hevr._lazy import exported
 
-PACKAGES = ("hevr", "hevr.rendering")
+PACKAGES = ("hevr", "hevr.rendering", "hevr.rendering.geometry", "hevr.rendering.planning", "hevr.rendering.pipeline",
+            "hevr.rendering.reference")
 
 
 def _type_checking_imports(package: str) -> dict[str, str]:

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr.rendering.sums import load_sums, recolour
+from hevr.rendering.pipeline.sums import load_sums, recolour
 from hevr.store.verify import verify_bricks
 from hevr.volume.loaders import read_scan, save_volume
 

@@ -5,8 +5,9 @@
 * no import statement inside a function body, except of an optional dependency; and no import
   by name (importlib, ``__import__``) outside the modules in LAZY_IMPORTERS;
 * no docstring or comment in hevr/ pointing to a file outside the repository;
-* the module paths from before the crypto/volume/store/rendering/cli layout appear only in
-  CHANGELOG.md;
+* the module paths from before the crypto/volume/store/rendering/cli layout, and from before
+  the rendering rooms (geometry, planning, pipeline, reference), appear only in CHANGELOG.md;
+* ``hevr/rendering`` keeps its entry points on its floor and everything else in its rooms;
 * ``hevr.__all__`` is the public contract, and every name in it imports.
 
 Each failure lists every offender (module, line, function or cycle), not just the first.
@@ -70,6 +71,17 @@ OLD_MODULES = (
 OLD_FUNCTION_MODULES = ("phantom",)  # hevr.phantom( is the public function; hevr.phantom.x was the module
 NOW_PACKAGES = ("store", "volume", "cli")
 OLD_NAMES_ALLOWED_IN = frozenset({"CHANGELOG.md"})
+
+# hevr/rendering's rooms (issue 39): each holds these modules, and its __init__ names them in the
+# order the data flows. The floor keeps the entry points only; hevr.rendering.<module> of a
+# module now in a room is an old path (see CHANGELOG.md).
+RENDERING_ROOMS = {
+    "geometry": ("camera", "views", "plane", "rays", "footprint", "weights", "group_weights"),
+    "planning": ("modes", "request", "planner", "bounds"),
+    "pipeline": ("kernel", "_segments", "maps", "graph", "reduce", "finishing", "sums", "stream"),
+    "reference": ("plain",),
+}
+RENDERING_FLOOR = ("__init__", "encrypted", "slices", "verify")
 
 # The public names, as in hevr/__init__.py when the layout changed. A change here is a change
 # of the public contract (docs/api-contract.md): make it on purpose.
@@ -269,7 +281,7 @@ def _describe_cycle(cycle: list[str]) -> str:
 
 def test_the_scan_sees_the_package():
     """Guard for the checks below: they look at the real modules and real edges."""
-    assert {"hevr", "hevr.crypto.keys", "hevr.rendering.kernel", "hevr.store.reader"} <= set(MODULES)
+    assert {"hevr", "hevr.crypto.keys", "hevr.rendering.pipeline.kernel", "hevr.store.reader"} <= set(MODULES)
     assert "hevr.crypto.records" in GRAPH["hevr.store.reader"]  # from ..crypto.records import ...
     assert "hevr.store.metadata" in GRAPH["hevr.store.reader"]  # from .metadata import ...
     assert "hevr.errors" in GRAPH["hevr.store.reader"]  # from ..errors import ...
@@ -423,6 +435,12 @@ def _old_path_patterns() -> list[tuple[re.Pattern, str]]:
         (re.compile(rf"\bhevr/(?:{alt}|phantom|store|volume|cli)\.py\b"), "old file"),
         (re.compile(r"\bhevr[./]_cli_\w+"), "old CLI module"),
     ]
+    moved = "|".join(re.escape(m) for room in RENDERING_ROOMS.values() for m in room)
+    pats += [
+        (re.compile(rf"(?<![\w])rendering[./](?:{moved})(?![\w/])"), "old rendering module (now in a room)"),
+        (re.compile(rf"\bfrom\s+(?:hevr|\.+)\.?rendering\s+import\s+\(?\s*(?:{moved})\b"),
+         "old rendering module (now in a room)"),
+    ]
     for m in OLD_FUNCTION_MODULES:
         pats.append((re.compile(rf"\bhevr\.{m}\.(?=[A-Za-z_])|\bfrom\s+hevr\.{m}\s+import\b|\bimport\s+hevr\.{m}\b"),
                      f"old module hevr.{m} (the function hevr.{m}() is fine)"))
@@ -446,14 +464,19 @@ def test_old_path_patterns():
                 "hevr/_cli_sheet.py", "hevr.phantom.PHANTOM_LEVELS", "from hevr.phantom import phantom",
                 "monkeypatch.setattr('hevr.store._encrypt_brick', f)", "from hevr.cli import build_parser",
                 "hevr.volume.EncryptedVolume", "hevr.io.load_volume", "hevr.number.encode",
-                "`hevr.kernel`", "hevr.modes.make_spec"):
+                "`hevr.kernel`", "hevr.modes.make_spec", "hevr.rendering.camera", "from ..rendering.plain import x",
+                "hevr/rendering/maps.py", "from hevr.rendering import maps", "hevr.rendering._segments.to_host",
+                "from .rendering.stream import render_frame", "patch('hevr.rendering.kernel.plan_products')"):
         assert hits(old), old
     for new in ("hevr.phantom(100)", "hevr.phantom", "see hevr.phantom.", "hevr.crypto.keys", "hevr/crypto/keys.py",
                 "hevr.store.writer", "hevr.store.reader.open_volume", "from hevr.store import writer",
                 "hevr.store.open_volume", "hevr/store/reader.py", "hevr.volume.phantom.PHANTOM_LEVELS",
                 "hevr.volume.density", "hevr.cli.main", "from hevr.cli.main import main", "hevr.render(ev, cam)",
-                "hevr.Camera.orbit", "hevr.rendering.kernel", "hevr.render_plain", "hevr.kernel_micro",
-                "hevr._bench.kernel_micro", "hevr.encode(x)", "hevr.iodine", "hevr.errors"):
+                "hevr.Camera.orbit", "hevr.rendering.pipeline.kernel", "hevr.render_plain", "hevr.kernel_micro",
+                "hevr._bench.kernel_micro", "hevr.encode(x)", "hevr.iodine", "hevr.errors",
+                "hevr.rendering.geometry.camera", "hevr/rendering/pipeline/maps.py", "from hevr.rendering import Plane",
+                "from hevr.rendering.pipeline import maps", "tests/rendering/test_camera.py", "rendering.plainly",
+                "from .rendering.reference.plain import render_plain", "hevr.rendering.encrypted"):
         assert not hits(new), new
 
 
@@ -496,6 +519,25 @@ def test_changelog_exists_and_names_the_move():
     text = changelog.read_text(encoding="utf-8")
     for pkg in ("crypto", "volume", "store", "rendering", "cli"):
         assert f"hevr/{pkg}/" in text or f"hevr.{pkg}" in text, f"CHANGELOG.md does not mention hevr.{pkg}"
+
+
+def test_the_rendering_rooms():
+    """hevr/rendering is a floor of entry points and four rooms that follow the data path."""
+    rendering = PKG / "rendering"
+    floor = sorted(p.stem for p in rendering.glob("*.py"))
+    assert floor == sorted(RENDERING_FLOOR), f"modules on hevr/rendering's floor: {floor}, expected {sorted(RENDERING_FLOOR)}"
+    rooms = sorted(p.name for p in rendering.iterdir() if p.is_dir() and (p / "__init__.py").is_file())
+    assert rooms == sorted(RENDERING_ROOMS), f"rooms of hevr/rendering: {rooms}, expected {sorted(RENDERING_ROOMS)}"
+    wrong = []
+    for room, modules in RENDERING_ROOMS.items():
+        held = sorted(p.stem for p in (rendering / room).glob("*.py") if p.name != "__init__.py")
+        if held != sorted(modules):
+            wrong.append(f"hevr/rendering/{room}/ holds {held}, expected {sorted(modules)}")
+        doc = ast.get_docstring(_parse(rendering / room / "__init__.py")) or ""
+        at = [doc.find(f"``{m}``") for m in modules]
+        if -1 in at or at != sorted(at):
+            wrong.append(f"hevr/rendering/{room}/__init__.py's docstring does not name {list(modules)} in this order")
+    assert not wrong, "\n".join(wrong)
 
 
 # -- the public API ----------------------------------------------------------------------------

@@ -20,7 +20,7 @@ import hevr
 from hevr import _dask, _progress
 from hevr.cli.main import main
 from hevr.rendering import encrypted as encrypted_mod
-from hevr.rendering import sums as sums_mod
+from hevr.rendering.pipeline import sums as sums_mod
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
 

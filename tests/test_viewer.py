@@ -69,7 +69,7 @@ def test_a_tf_change_makes_no_render_call(viewer, monkeypatch):
     """After a render, TF and density edits re-colour the kept frame in the notebook: neither
     render_frame nor the render underneath is called; a camera move renders again."""
     import hevr.rendering.encrypted as encrypted
-    import hevr.rendering.stream as stream
+    import hevr.rendering.pipeline.stream as stream
     import hevr.viewer as viewer_module
 
     calls = []

@@ -23,7 +23,7 @@ import pytest
 
 import hevr
 from hevr import _files
-from hevr.rendering.sums import load_sums
+from hevr.rendering.pipeline.sums import load_sums
 
 
 @pytest.fixture(scope="module")

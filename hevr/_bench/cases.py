@@ -21,9 +21,9 @@ import numpy as np
 from .. import error_bound, render, render_frame, render_plain
 from ..crypto.keys import PrivateKey, generate_keypair
 from ..errors import InsecureKeyWarning, RenderPlanError
-from ..rendering.camera import Camera
-from ..rendering.rays import cast_rays
-from ..rendering.weights import brick_weights
+from ..rendering.geometry.camera import Camera
+from ..rendering.geometry.rays import cast_rays
+from ..rendering.geometry.weights import brick_weights
 from ..store.reader import EncryptedVolume
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom

@@ -39,7 +39,7 @@ def _combine_cost(comb: Sequence[Sequence[int]]) -> int:
 
 def finishing_modmuls(plan: Any, n_samples: Sequence[int]) -> int:
     """Modular multiplications (squarings included) of finishing every pixel of ``n_samples``
-    under ``plan`` (a :class:`~hevr.rendering.planner.RenderPlan`), one tile holding them all."""
+    under ``plan`` (a :class:`~hevr.rendering.planning.planner.RenderPlan`), one tile holding them all."""
     recips = [int(r) for r in plan.reciprocal(list(n_samples))]
     hits = [r for r in recips if r]
     C = plan.channels_out

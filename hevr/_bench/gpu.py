@@ -55,10 +55,10 @@ from ..crypto.keys import generate_keypair
 from ..crypto.records import record_width
 from ..errors import InsecureKeyWarning, IntegrityError
 from ..paper import TF_NODES
-from ..rendering.camera import Camera
 from ..rendering.encrypted import error_bound, render
-from ..rendering.kernel import plan_products
-from ..rendering.plain import render_plain
+from ..rendering.geometry.camera import Camera
+from ..rendering.pipeline.kernel import plan_products
+from ..rendering.reference.plain import render_plain
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
 from .measure import machine

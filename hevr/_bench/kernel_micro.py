@@ -1,4 +1,4 @@
-"""Benchmark of :mod:`hevr.rendering.kernel` on realistic per-brick CSR workloads.
+"""Benchmark of :mod:`hevr.rendering.pipeline.kernel` on realistic per-brick CSR workloads.
 
 Usage::
 
@@ -40,7 +40,7 @@ import numpy as np
 from gmpy2 import mpz
 
 from ..crypto.records import bytes_to_mpz, mpz_to_bytes, record_width
-from ..rendering.kernel import OpCounter, brick_ray_products
+from ..rendering.pipeline.kernel import OpCounter, brick_ray_products
 from .measure import cpu_model
 
 # CPU time of this process: other jobs on the machine do not count against the kernel.

@@ -24,7 +24,7 @@ Operations, in the order of the data path
 ``to_bytes(batch, W)``        batch -> (m, W) uint8
 ``first_out_of_range(b, u)``  the range check 0 < c < n² of every brick read
 ``ray_products(plan, comps)`` per-brick multi-exponentiation ``Π_v c_v^w_rv`` of a
-                              :class:`ProductPlan` (made by :mod:`hevr.rendering.kernel`)
+                              :class:`ProductPlan` (made by :mod:`hevr.rendering.pipeline.kernel`)
 ``segment_products(b, ip)``   ⊕ of consecutive rows (merging partial ray sums)
 ``combine(b, comb)``          per pixel ``Π_k S_k^Q[k,ch]`` (emphasis / transfer function)
 ``pack(T, R, ...)``           per value ``T^R`` (Eq. 1 normalisation), offset ``g^O`` and
@@ -124,7 +124,7 @@ class OpCounter:
 class ProductPlan:
     """What to multiply for one brick (or a worker's group of bricks): the plaintext half of the
     kernel, shared by all components and all backends (made by
-    :func:`hevr.rendering.kernel.plan_products` as numpy arrays, which an array backend passes
+    :func:`hevr.rendering.pipeline.kernel.plan_products` as numpy arrays, which an array backend passes
     to its kernels as they are; sequences of ints are accepted too).
 
     Attributes

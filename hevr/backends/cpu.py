@@ -3,7 +3,7 @@
 This is the reference implementation of :class:`hevr.backends.base.Backend`; every other
 backend must give bit-identical results. Its hot loops keep the Python work per modular
 multiplication to a few bytecodes (``a * b % n2`` on ``mpz``); the per-brick products run
-the bucket plans of :mod:`hevr.rendering.kernel` exactly as costed there.
+the bucket plans of :mod:`hevr.rendering.pipeline.kernel` exactly as costed there.
 
 >>> import numpy as np
 >>> from gmpy2 import mpz

@@ -26,11 +26,11 @@ from ..image.display import default_window
 from ..image.orient import describe_layout
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..remote.client import connect
-from ..rendering.camera import Camera
 from ..rendering.encrypted import render
-from ..rendering.planner import check_render_size
-from ..rendering.sums import MAGIC as SUMS_MAGIC
-from ..rendering.sums import load_sums, recolour
+from ..rendering.geometry.camera import Camera
+from ..rendering.pipeline.sums import MAGIC as SUMS_MAGIC
+from ..rendering.pipeline.sums import load_sums, recolour
+from ..rendering.planning.planner import check_render_size
 from ..store.known import known_stores_path, trust_store
 from ..store.paths import normalise
 from ..store.upgrade import upgrade_store

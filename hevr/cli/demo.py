@@ -31,9 +31,9 @@ from ..paper import (
     PAPER_TF2,
     tf_text,
 )
-from ..rendering.camera import Camera
 from ..rendering.encrypted import error_bound, render
-from ..rendering.plain import render_plain
+from ..rendering.geometry.camera import Camera
+from ..rendering.reference.plain import render_plain
 from ..store.writer import encrypt_volume
 from .cluster import dask_client, describe_client
 from .keys import key_label

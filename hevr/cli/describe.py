@@ -25,8 +25,8 @@ from ..crypto.phe_keys import is_phe_dict
 from ..errors import MissingFileError, StoreError
 from ..image.files import load_image
 from ..image.header import MAGIC
-from ..rendering.sums import MAGIC as SUMS_MAGIC
-from ..rendering.sums import load_sums
+from ..rendering.pipeline.sums import MAGIC as SUMS_MAGIC
+from ..rendering.pipeline.sums import load_sums
 from ..store.layout import check_document
 from ..store.metadata import VolumeMetadata
 from ..store.paths import normalise, zarr_store

@@ -18,7 +18,7 @@ from typing import Any
 from .._limits import MAX_PIXELS_KEY, render_limits
 from ..colour import parse_color
 from ..errors import ParameterError
-from ..rendering.views import VIEWS
+from ..rendering.geometry.views import VIEWS
 from ..volume.modality import MODALITY_RANGES, TF_PRESETS, UNSUPPORTED, modality_range
 from ..volume.pyramid import MAX_LEVELS
 from .options import (

@@ -12,8 +12,8 @@ from typing import Any
 
 from ..image.orient import describe_layout
 from ..paper import PAPER_TF1
-from ..rendering.plane import Plane
-from ..rendering.planner import check_render_size
+from ..rendering.geometry.plane import Plane
+from ..rendering.planning.planner import check_render_size
 from ..rendering.slices import render_slice
 from .commands import compute_context, key_holder, open_for_mode, resolve_mode, verified_line, warn_unverified
 from .finish import report_finish

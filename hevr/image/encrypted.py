@@ -9,7 +9,7 @@ every pixel, a public offset, the render plan's bound, the key fingerprint.
 
 Nothing wrong reaches the screen: decryption checks every ciphertext and every plaintext
 against the bound and the planner's 64-bit integrity margin (:func:`_unpack_checked`, shared
-with :mod:`hevr.rendering.stream`); every fault is a :class:`hevr.HevrError`. The ``.hevr``
+with :mod:`hevr.rendering.pipeline.stream`); every fault is a :class:`hevr.HevrError`. The ``.hevr``
 file (:meth:`EncryptedImage.save`, :meth:`EncryptedImage.to_bytes`) is laid out by
 :mod:`hevr.image.header` and read back by :mod:`hevr.image.files`; an image is checked
 (:func:`hevr.image.checks.check_image`) before it is decrypted or written. An image file may
@@ -77,7 +77,7 @@ class EncryptedImage:
         Public render parameters (mode, sampling, camera, precision, ...).
     bound : int, optional
         The render plan's bound: every value M + offset lies in [0, bound]. Decryption checks
-        every plaintext against it (see :mod:`hevr.rendering.planner`, integrity margin); an
+        every plaintext against it (see :mod:`hevr.rendering.planning.planner`, integrity margin); an
         image without it cannot be decrypted or saved.
     finish : {"server", "client"}
         ``"server"``: the values are the finished pixels (the paper's way). ``"client"``: they
@@ -161,7 +161,7 @@ class EncryptedImage:
             (a base-2^pack_bits digit, or an unpacked plaintext) is not in [0, bound]. The
             message names the tile and the pixels (row, col). A corrupted ciphertext decrypts
             to an essentially uniform element of Z_n and passes with probability below 2^-64
-            (the planner's integrity margin, :mod:`hevr.rendering.planner`).
+            (the planner's integrity margin, :mod:`hevr.rendering.planning.planner`).
         """
         C = self.values_per_pixel
         H, W = self.shape[:2]

@@ -1,7 +1,7 @@
 """Slices shown the way radiology viewers show them: :func:`orient_slice`.
 
 A slice comes back from :func:`hevr.render_slice` in the plane's own pixel order: row ``r``,
-column ``c`` at ``origin + c·du·u + r·dv·v`` (:mod:`hevr.rendering.plane`), so the helpers
+column ``c`` at ``origin + c·du·u + r·dv·v`` (:mod:`hevr.rendering.geometry.plane`), so the helpers
 :meth:`hevr.Plane.axial` / ``coronal`` / ``sagittal`` give the raw array order
 (``vol[k]``, ``vol[:, j, :]``, ``vol[:, :, i]``): a coronal slice with the head at the bottom,
 an axial one with the front at the bottom. The PNGs of ``hevr decrypt`` and
@@ -69,7 +69,7 @@ def slice_layout(plane: Any, convention: str = DEFAULT_CONVENTION) -> dict[str, 
 
     Examples
     --------
-    >>> from hevr.rendering.plane import Plane
+    >>> from hevr.rendering.geometry.plane import Plane
     >>> lay = slice_layout(Plane.coronal((4, 3, 2), 1))
     >>> lay["kind"], lay["top"], lay["left"], lay["flip_rows"], lay["flip_cols"]
     ('coronal', 'superior', "the patient's right", True, True)
@@ -112,7 +112,7 @@ def orient_slice(arr: np.ndarray, plane: Any, convention: str = DEFAULT_CONVENTI
 
     Examples
     --------
-    >>> from hevr.rendering.plane import Plane
+    >>> from hevr.rendering.geometry.plane import Plane
     >>> vol = np.arange(24.0).reshape(4, 3, 2)                    # z, y, x
     >>> shown = orient_slice(vol[:, 1, :], Plane.coronal(vol.shape, 1))
     >>> bool((shown[0] == vol[-1, 1, ::-1]).all())                # top row: the top layer (superior)
@@ -136,7 +136,7 @@ def describe_layout(plane: Any, convention: str = DEFAULT_CONVENTION) -> str:
 
     Examples
     --------
-    >>> from hevr.rendering.plane import Plane
+    >>> from hevr.rendering.geometry.plane import Plane
     >>> describe_layout(Plane.axial((4, 3, 2), 1))
     "axial slice, radiological convention: anterior at the top, the patient's right on the left"
     """

@@ -44,8 +44,8 @@ from typing import Any
 from .._validate import check_choice, check_int
 from ..errors import HevrError, ParameterError
 from ..image.header import _no_duplicates, _small_int
-from ..rendering.camera import Camera
-from ..rendering.plane import Plane, view_from_dict
+from ..rendering.geometry.camera import Camera
+from ..rendering.geometry.plane import Plane, view_from_dict
 from ..volume.pyramid import MAX_LEVELS
 
 __all__ = ["API_VERSION", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_SIDE", "PROBLEM_MEDIA", "UNITS_MEDIA",

@@ -3,7 +3,7 @@ image comes back as data, and the key holder decides whether it is the one it as
 
 The key holder computes the whole public side of the answer itself — the rays, the render plan,
 the image's fields (shape, exponent, offset, bound, packing, hit mask, sample counts, info:
-:func:`~hevr.rendering.sums.image_fields`), the finishing units of a streamed frame — from the
+:func:`~hevr.rendering.pipeline.sums.image_fields`), the finishing units of a streamed frame — from the
 request and the store's public metadata, exactly as :func:`hevr.render` does in process. The
 server's ``.hevr`` answer is parsed by the format's strict reader and must agree field by field;
 only its ciphertexts are taken. So the image (and its file) is the in-process one, byte for byte,
@@ -32,11 +32,11 @@ from ..backends import get_backend
 from ..errors import HevrError, IntegrityError, ParameterError, RemoteError
 from ..image import EncryptedImage, image_from_bytes
 from ..image.checks import check_image
-from ..rendering.graph import FinishGraph
-from ..rendering.planner import check_render_size, plan_render
-from ..rendering.rays import cast_rays
-from ..rendering.request import at_level, level_step
-from ..rendering.sums import image_fields, with_colouring
+from ..rendering.geometry.rays import cast_rays
+from ..rendering.pipeline.graph import FinishGraph
+from ..rendering.pipeline.sums import image_fields, with_colouring
+from ..rendering.planning.planner import check_render_size, plan_render
+from ..rendering.planning.request import at_level, level_step
 from ..rendering.verify import Verification, resolve_verify
 from .protocol import END, MAX_BODY, RenderRequest, VerifyRequest, image_limit, parse_json
 

@@ -1,26 +1,27 @@
 """Ray casting on encrypted bricks, as a MapReduce on Dask, and its plaintext reference.
 
-The data path of one frame, module by module:
+The data path of one frame reads from the folder names, room by room:
 
 =================  =============================================================
-``camera``         :class:`Camera`: the request's geometry (frozen, validated)
-``views``          anatomical presets of ``Camera.orbit(view=...)`` (RAS+ patient frame)
-``plane``          :class:`Plane`: a slice (and slab) as the second kind of view
-``modes``          ``RenderSpec``: mode, sampling, channels, combination matrix
-``request``        a request checked once where it enters; a view moved to a pyramid level
-``rays``           rays, slab tests and sample positions
-``weights``        per-brick sparse (ray, voxel, weight) matrices
-``planner``        overflow planning: fixed-point digits, packing bounds
-``kernel``         the per-brick multi-exponentiation (cost model in its docstring)
-``graph``          the Dask graph: map per brick, tree merge per tile
-``finishing``      combination, normalisation and packing of one tile (or of the sums only)
-``encrypted``      ``render`` (client or server finishing), the ray-sum cache
-``bounds``         ``error_bound``: a decrypted pixel against ``render_plain``
-``stream``         ``render_frame``: finishing units decrypted on the client as they complete
-``slices``         ``render_slice``: slices through the same pipeline
-``sums``           ray sums kept in memory or in a ``.hevrsums`` file; ``recolour``
-``plain``          ``render_plain`` / ``render_slice_plain``: the independent plaintext references
+``geometry/``      camera, views, plane, rays, footprint, weights, group_weights: where
+                   the rays go and which voxels each sample reads (plaintext numpy)
+``planning/``      modes, request, planner, bounds: the request checked once, every
+                   quantity bounded from public parameters before any ciphertext
+``pipeline/``      kernel, maps, graph, reduce, finishing, sums, stream: the MapReduce
+                   on Dask over ciphertext bricks, its ray sums, the streamed frame
+``reference/``     plain: ``render_plain`` / ``render_slice_plain``, the independent
+                   plaintext references
 =================  =============================================================
+
+The entry points stay here, beside the rooms they walk through:
+
+=================  =============================================================
+``encrypted``      ``render`` (client or server finishing), the ray-sum cache
+``slices``         ``render_slice``: slices through the same pipeline
+``verify``         verified renders: the tags' sums and the client's check
+=================  =============================================================
+
+Each room's ``__init__`` names its modules in the order the data flows through them.
 
 (The package is named ``rendering`` so that it does not shadow the :func:`hevr.render`
 function.)
@@ -33,24 +34,24 @@ from typing import TYPE_CHECKING
 from .._lazy import attach
 
 if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr._lazy)
-    from .camera import Camera
     from .encrypted import RaySums, clear_cache, error_bound, render
-    from .plain import render_plain, render_slice_plain
-    from .plane import Plane
+    from .geometry.camera import Camera
+    from .geometry.plane import Plane
+    from .pipeline.sums import SavedSums, load_sums, recolour
+    from .reference.plain import render_plain, render_slice_plain
     from .slices import render_slice
-    from .sums import SavedSums, load_sums, recolour
 
 __all__ = ["Camera", "Plane", "RaySums", "SavedSums", "clear_cache", "error_bound", "load_sums", "recolour", "render",
            "render_plain", "render_slice", "render_slice_plain"]
 
-# Name -> submodule, imported on first use: ``hevr.rendering.views`` or ``.camera`` alone (the
-# command line's --view choices) need numpy, not Dask. Equal to the TYPE_CHECKING imports above.
+# Name -> submodule, imported on first use: ``hevr.rendering.geometry.views`` or ``.camera`` alone
+# (the command line's --view choices) need numpy, not Dask. Equal to the TYPE_CHECKING imports above.
 _LAZY = {
-    ".camera": ("Camera",),
     ".encrypted": ("RaySums", "clear_cache", "error_bound", "render"),
-    ".plain": ("render_plain", "render_slice_plain"),
-    ".plane": ("Plane",),
+    ".geometry.camera": ("Camera",),
+    ".geometry.plane": ("Plane",),
+    ".pipeline.sums": ("SavedSums", "load_sums", "recolour"),
+    ".reference.plain": ("render_plain", "render_slice_plain"),
     ".slices": ("render_slice",),
-    ".sums": ("SavedSums", "load_sums", "recolour"),
 }
 __getattr__, __dir__ = attach(__name__, _LAZY)

@@ -8,8 +8,8 @@ never leave the client process — not in the task graph, the scheduler, a worke
 packs the finished pixels (bit for bit the images of earlier releases).
 
 The error bound of a decrypted pixel against :func:`hevr.render_plain` is
-:mod:`hevr.rendering.bounds` (:func:`error_bound`); a request is checked once, where it enters
-(:mod:`hevr.rendering.request`).
+:mod:`hevr.rendering.planning.bounds` (:func:`error_bound`); a request is checked once, where it enters
+(:mod:`hevr.rendering.planning.request`).
 """
 
 from __future__ import annotations
@@ -36,17 +36,17 @@ from ..image.encrypted import EncryptedImage
 from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
 from ..store.resident import batched
-from .bounds import error_bound
-from .camera import Camera
-from .graph import FinishGraph, build_sums_graph
-from .maps import resident_groups
-from .modes import combination_matrix
-from .plane import Plane
-from .planner import check_render_size, plan_render
-from .rays import cast_rays
-from .reduce import BlockedReduce
-from .request import at_level, check_request, level_step
-from .sums import RaySums, check_sums_path, image_fields, save_sums, with_colouring
+from .geometry.camera import Camera
+from .geometry.plane import Plane
+from .geometry.rays import cast_rays
+from .pipeline.graph import FinishGraph, build_sums_graph
+from .pipeline.maps import resident_groups
+from .pipeline.reduce import BlockedReduce
+from .pipeline.sums import RaySums, check_sums_path, image_fields, save_sums, with_colouring
+from .planning.bounds import error_bound
+from .planning.modes import combination_matrix
+from .planning.planner import check_render_size, plan_render
+from .planning.request import at_level, check_request, level_step
 from .verify import resolve_verify, tag_aggregate
 
 log = logging.getLogger(__name__)
@@ -176,7 +176,7 @@ def render(
         Also write this view's merged encrypted ray sums to a ``.hevrsums`` file (ciphertexts
         and public geometry only: safe on the server), from which :func:`hevr.recolour`
         finishes another density or transfer function without the map step
-        (:mod:`hevr.rendering.sums`). The sums travel to this process to be written. An
+        (:mod:`hevr.rendering.pipeline.sums`). The sums travel to this process to be written. An
         existing file there is refused before any work (:class:`hevr.ExistingFileError`)
         unless ``overwrite=True``.
     level : int, optional
@@ -227,7 +227,7 @@ def render(
     RenderPlanError
         The render could overflow the key's plaintext space, or is bigger than the size
         limits ``hevr.limits.max-pixels`` / ``hevr.limits.max-samples``
-        (:func:`hevr.rendering.planner.check_render_size`): refused before any work.
+        (:func:`hevr.rendering.planning.planner.check_render_size`): refused before any work.
     """
     if isinstance(camera, Plane):
         raise ParameterError("camera: expected a hevr.Camera, got a hevr.Plane (render slices with hevr.render_slice)")
@@ -247,10 +247,10 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``.
 
     With ``finish="client"`` nothing below this function sees ``spec``'s density or nodes: the
-    plan (:func:`~hevr.rendering.planner.plan_sums`), the graph and the image fields are built
+    plan (:func:`~hevr.rendering.planning.planner.plan_sums`), the graph and the image fields are built
     from the channel, the sampling and the step; the spec joins the image here, at the end.
 
-    ``stream`` (:class:`hevr.rendering.stream.StreamDecryptor`): told the plan before the graph
+    ``stream`` (:class:`hevr.rendering.pipeline.stream.StreamDecryptor`): told the plan before the graph
     runs and handed every finishing unit's ciphertexts as it completes."""
     spec, digits, precision, comb_digits = check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, views, gradient, finish)

@@ -1,7 +1,7 @@
 """``hevr.render_slice``: encrypted slices (multi-planar reformatting) through the render pipeline.
 
 A slice pixel is a short ray along the plane's normal whose samples are the slab's planes
-(:mod:`hevr.rendering.plane`), so a slice is one more kind of view for the ray renderer: the
+(:mod:`hevr.rendering.geometry.plane`), so a slice is one more kind of view for the ray renderer: the
 same weights, kernel, Dask graph, planner, finishing, packing, ray-sum cache and
 :func:`hevr.error_bound`. Its value is the mean over the pixel's slab samples inside the volume
 (one sample: the sampled value itself, exactly ``vol[k]`` for a nearest axial slice through
@@ -27,7 +27,7 @@ from ..errors import ParameterError
 from ..image.encrypted import EncryptedImage
 from ..store.reader import EncryptedVolume
 from .encrypted import _render
-from .plane import Plane
+from .geometry.plane import Plane
 
 __all__ = ["DEFAULT_PRECISION", "render_slice"]
 

@@ -7,7 +7,7 @@ channel ``c_tag`` of E(α·m_v + β_v). A render with ``verify`` (the default on
 1. renders the image as usual; its ciphertexts are then fixed, in the client's hands;
 2. draws a fresh seed (:func:`secrets.token_bytes`) and only then asks the server for one more
    graph: the tag channel's ray sums T_{r,k} with exactly the image's plan (same bricks, weights,
-   merges: :func:`~hevr.rendering.graph.build_sums_graph`), and per image tile one aggregation
+   merges: :func:`~hevr.rendering.pipeline.graph.build_sums_graph`), and per image tile one aggregation
    task, A_t = Π_{r,k} T_{r,k}^{ρ_{r,k}} mod n², ρ_{r,k} the 62-bit coefficient of index
    r·K + k of the seed's stream (:func:`hevr.crypto.tags.coefficients_at`), computed as one
    multi-exponentiation row by the backend;
@@ -16,7 +16,7 @@ channel ``c_tag`` of E(α·m_v + β_v). A render with ``verify`` (the default on
 Decryption checks before it returns any pixel (:meth:`Verification.check`): with S'_{r,k} the ray
 sums the image decrypts to (its values less the public offset, client finishing) and B_{r,k} =
 Σ_v w_{r,v}·β_{v,k} recomputed here from the public geometry (the same
-:func:`~hevr.rendering.weights.brick_weights` the map tasks use, brick by brick, and the PRF),
+:func:`~hevr.rendering.geometry.weights.brick_weights` the map tasks use, brick by brick, and the PRF),
 
     D(A) ≡ α·Σ ρ_{r,k}·S'_{r,k} + Σ ρ_{r,k}·B_{r,k}   (mod n),
 
@@ -72,12 +72,12 @@ from ..store.known import check_known
 from ..store.metadata import VolumeMetadata
 from ..store.pyramid import LEVEL_FACTOR
 from ..volume.pyramid import MAX_LEVELS, level_shape
-from .graph import build_sums_graph
-from .kernel import plan_products
-from .plane import view_from_dict
-from .rays import RaySet, cast_rays
-from .footprint import brick_footprints
-from .weights import brick_bounds, brick_weights
+from .geometry.footprint import brick_footprints
+from .geometry.plane import view_from_dict
+from .geometry.rays import RaySet, cast_rays
+from .geometry.weights import brick_bounds, brick_weights
+from .pipeline.graph import build_sums_graph
+from .pipeline.kernel import plan_products
 
 log = logging.getLogger(__name__)
 _STORE_ID = re.compile(r"[0-9a-f]{16}")

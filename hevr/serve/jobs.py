@@ -17,12 +17,12 @@ from ..backends import resolve_backend_name
 from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..remote.protocol import RenderRequest
-from ..rendering.camera import Camera
 from ..rendering.encrypted import _render
-from ..rendering.plane import Plane
-from ..rendering.planner import check_render_size
-from ..rendering.rays import cast_rays
-from ..rendering.request import at_level, check_request, level_step
+from ..rendering.geometry.camera import Camera
+from ..rendering.geometry.plane import Plane
+from ..rendering.geometry.rays import cast_rays
+from ..rendering.planning.planner import check_render_size
+from ..rendering.planning.request import at_level, check_request, level_step
 from ..rendering.verify import aggregate_for
 
 __all__ = ["render_image", "stats_header", "verify_aggregate"]
@@ -47,7 +47,7 @@ def _step(req: RenderRequest) -> float:
 def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | None = None,
                  stream: Any = None) -> EncryptedImage:
     """The client-finished image of ``req`` on the store ``ev`` (``stream``: handed every
-    finishing unit as it completes, :class:`hevr.rendering.stream.StreamDecryptor`'s interface)."""
+    finishing unit as it completes, :class:`hevr.rendering.pipeline.stream.StreamDecryptor`'s interface)."""
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)
     return _render(ev, req.view, mode, req.sampling, _step(req), density, None, digits=req.digits, precision=4,

@@ -9,7 +9,7 @@ Placement. On a ``distributed`` client, below :data:`BATCH_BITS`-bit keys the br
 order are cut into N runs of about equal bytes, run ``w`` loaded on worker ``w`` (the brick whose
 bytes straddle the middle of the cumulative total ``w·T/N`` decides by its midpoint): each worker
 holds one slab of whole bricks. A slab is one box, so a worker that maps all its bricks in one
-task (:func:`hevr.rendering.maps.map_group`) generates only the samples of rays inside its slab.
+task (:func:`hevr.rendering.pipeline.maps.map_group`) generates only the samples of rays inside its slab.
 From :data:`BATCH_BITS` on (one map task per brick) brick ``i`` goes to worker ``i mod N``, which
 spreads each worker's bricks over the whole image. Placement is a loose restriction: if a worker
 dies, any worker recomputes the brick from the store. Each :class:`ResidentBrick` reports its true

@@ -27,9 +27,9 @@ from hevr.backends import (
     resolve_backend_name,
 )
 from hevr.rendering.encrypted import error_bound
-from hevr.rendering.graph import build_sums_graph
-from hevr.rendering.kernel import plan_products
-from hevr.rendering.rays import cast_rays
+from hevr.rendering.pipeline.graph import build_sums_graph
+from hevr.rendering.pipeline.kernel import plan_products
+from hevr.rendering.geometry.rays import cast_rays
 
 SHAPE, BRICK, SPACING = (6, 7, 9), (3, 4, 4), (1.0, 0.9, 1.2)
 NODES = [(0.2, "blue"), (0.6, "red"), (0.9, "#00ff00")]

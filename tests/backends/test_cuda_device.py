@@ -41,7 +41,7 @@ from hevr.backends.cuda import device as device_module
 from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source, owner_source
 from hevr.backends.cuda.nvrtc import find_nvrtc, ptx
 from hevr.cli.main import main
-from hevr.rendering.kernel import plan_products
+from hevr.rendering.pipeline.kernel import plan_products
 from hevr.store import resident as resident_module
 
 CPU = CpuBackend()

@@ -38,7 +38,7 @@ from hevr.backends.cuda import residues as residues_module
 from hevr.backends.cuda.launch import HostLauncher
 from hevr.backends.cuda.residues import LimbBatch, exponent_words
 from hevr.crypto.records import record_width
-from hevr.rendering.kernel import plan_products
+from hevr.rendering.pipeline.kernel import plan_products
 
 KERNELS = os.environ.get("HEVR_TEST_KERNELS", "cuda-host")  # "cuda" on a GPU machine
 CPU, GPU = CpuBackend(), get_backend(KERNELS)

@@ -15,7 +15,7 @@ import hevr
 from hevr.cli.main import main
 from hevr.cli.options import MAX_PHANTOM, MAX_WORKERS
 from hevr.cli.render_options import size_type
-from hevr.rendering.planner import MAX_PIXELS_KEY
+from hevr.rendering.planning.planner import MAX_PIXELS_KEY
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
 

@@ -1,4 +1,4 @@
-"""Tests for hevr.rendering.camera.Camera (VTK conventions of API.md)."""
+"""Tests for hevr.rendering.geometry.camera.Camera (VTK conventions of API.md)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hevr.errors import ParameterError
-from hevr.rendering.camera import Camera
+from hevr.rendering.geometry.camera import Camera
 
 
 def test_basis_and_defaults() -> None:

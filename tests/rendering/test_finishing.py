@@ -1,4 +1,4 @@
-"""Tests of hevr.rendering.finishing: merging partial ray sums and finishing a tile, checked
+"""Tests of hevr.rendering.pipeline.finishing: merging partial ray sums and finishing a tile, checked
 against plaintext integer arithmetic on the decrypted inputs (an independent reference)."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import hevr
 from hevr._tiles import TileLayout
 from hevr.crypto.records import bytes_to_mpz, mpz_to_bytes
 from hevr.rendering import encrypted as render_mod
-from hevr.rendering.finishing import finish_tile, merge_partials, one_records
-from hevr.rendering.planner import RenderPlan
-from hevr.rendering.rays import cast_rays
+from hevr.rendering.pipeline.finishing import finish_tile, merge_partials, one_records
+from hevr.rendering.planning.planner import RenderPlan
+from hevr.rendering.geometry.rays import cast_rays
 
 SHAPE, BRICK = (5, 6, 7), (3, 3, 4)
 NODES = [(0.25, "blue"), (0.75, "red")]

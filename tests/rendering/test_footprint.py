@@ -8,10 +8,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hevr._tiles import TileLayout
-from hevr.rendering.camera import Camera
-from hevr.rendering.footprint import Footprint, brick_footprints
-from hevr.rendering.rays import cast_rays
-from hevr.rendering.weights import brick_grid, brick_weights
+from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.geometry.footprint import Footprint, brick_footprints
+from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.geometry.weights import brick_grid, brick_weights
 
 SPACINGS = [0.5, 0.8, 1.0, 1.3, 2.0]
 KINDS = ["orbit", "inside", "axis", "near"]

@@ -14,8 +14,8 @@ from distributed import Client, LocalCluster
 
 import hevr
 from hevr.rendering.encrypted import error_bound
-from hevr.rendering.graph import FAN_IN, build_sums_graph
-from hevr.rendering.rays import cast_rays
+from hevr.rendering.pipeline.graph import FAN_IN, build_sums_graph
+from hevr.rendering.geometry.rays import cast_rays
 
 SHAPE = (7, 9, 11)
 BRICK = (3, 4, 5)

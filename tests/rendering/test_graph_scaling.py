@@ -10,9 +10,9 @@ import pytest
 
 import hevr
 from hevr._tiles import TileLayout
-from hevr.rendering.footprint import Footprint, brick_footprints
-from hevr.rendering.graph import FAN_IN, build_sums_graph
-from hevr.rendering.rays import cast_rays
+from hevr.rendering.geometry.footprint import Footprint, brick_footprints
+from hevr.rendering.pipeline.graph import FAN_IN, build_sums_graph
+from hevr.rendering.geometry.rays import cast_rays
 
 SHAPE = (8, 8, 16)
 SPACING = (1.0, 0.8, 1.3)

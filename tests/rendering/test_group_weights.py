@@ -1,5 +1,5 @@
-"""Tests for hevr.rendering.group_weights: many bricks' nearest weights in one pass, checked
-pair for pair against the per-brick reference :func:`hevr.rendering.weights.brick_weights`."""
+"""Tests for hevr.rendering.geometry.group_weights: many bricks' nearest weights in one pass, checked
+pair for pair against the per-brick reference :func:`hevr.rendering.geometry.weights.brick_weights`."""
 
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ from array_api_compat import array_namespace
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hevr.rendering.camera import Camera
-from hevr.rendering.group_weights import nearest_group_weights
-from hevr.rendering.plane import Plane
-from hevr.rendering.rays import cast_rays
-from hevr.rendering.weights import brick_grid, brick_weights
+from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.geometry.group_weights import nearest_group_weights
+from hevr.rendering.geometry.plane import Plane
+from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.geometry.weights import brick_grid, brick_weights
 
 
 def _pairs(bw) -> list[tuple[int, int, int]]:
@@ -89,7 +89,7 @@ def test_geometry_is_namespace_generic(view):
     strictest implementation of the array API standard, standing in for CuPy on a GPU worker)
     and give the numpy result bit for bit."""
     xps = pytest.importorskip("array_api_strict")
-    from hevr.rendering.group_weights import nearest_group_rows
+    from hevr.rendering.geometry.group_weights import nearest_group_rows
 
     shape, spacing, brick = (11, 9, 10), (1.0, 0.9, 1.2), (4, 3, 5)
     if view == "plane":

@@ -1,4 +1,4 @@
-"""Tests of hevr.rendering.kernel: products against a naive prod-of-powmod, and operation counts."""
+"""Tests of hevr.rendering.pipeline.kernel: products against a naive prod-of-powmod, and operation counts."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hevr.errors import ParameterError
-from hevr.rendering.kernel import (
+from hevr.rendering.pipeline.kernel import (
     OpCounter,
     brick_ray_products,
     brick_ray_products_multi,
@@ -301,7 +301,7 @@ def _csr_with_repeats(rng: np.random.Generator, n_rows: int) -> tuple[np.ndarray
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(1, 80))
 def test_duplicate_rows_match_the_exact_byte_comparison(seed, n_rows):
-    from hevr.rendering.kernel import _duplicate_rows, _duplicate_rows_exact
+    from hevr.rendering.pipeline.kernel import _duplicate_rows, _duplicate_rows_exact
 
     ip, vox, wt = _csr_with_repeats(np.random.default_rng(seed), n_rows)
     rep, uniq = _duplicate_rows(ip, vox, wt)
@@ -311,7 +311,7 @@ def test_duplicate_rows_match_the_exact_byte_comparison(seed, n_rows):
 
 def test_duplicate_rows_survive_hash_collisions(monkeypatch):
     """With every hash equal, rows of one length collide: the exact comparison still decides."""
-    import hevr.rendering.kernel as kernel
+    import hevr.rendering.pipeline.kernel as kernel
 
     ip, vox, wt = _csr_with_repeats(np.random.default_rng(7), 50)
     expected = kernel._duplicate_rows_exact(ip, vox, wt)
@@ -339,9 +339,9 @@ def test_plan_is_bit_identical_under_array_api_strict(sampling):
     buckets among them) planned from numpy arrays and from ``array_api_strict`` arrays: the
     same plan, array for array (the plan code runs on any array-API namespace, CuPy included)."""
     xps = pytest.importorskip("array_api_strict")
-    from hevr.rendering.camera import Camera
-    from hevr.rendering.rays import cast_rays
-    from hevr.rendering.weights import brick_grid, brick_weights
+    from hevr.rendering.geometry.camera import Camera
+    from hevr.rendering.geometry.rays import cast_rays
+    from hevr.rendering.geometry.weights import brick_grid, brick_weights
 
     shape, brick = (10, 9, 11), (4, 5, 4)  # many rays per voxel: shared buckets pay off for trilinear rows
     cam = Camera.orbit(shape, 25, 15, width=48, height=44)

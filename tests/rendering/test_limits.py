@@ -1,4 +1,4 @@
-"""Size limits of a render (hevr.rendering.planner.check_render_size) and of a brick
+"""Size limits of a render (hevr.rendering.planning.planner.check_render_size) and of a brick
 (hevr._validate.check_brick): impossible work is refused with a hevr error naming the
 field, within a second and a few MB, before anything is allocated per pixel or sample."""
 
@@ -19,9 +19,9 @@ import pytest
 
 import hevr
 from hevr._validate import MAX_BRICK_EDGE, MAX_BRICK_VOXELS, check_brick
-from hevr.rendering import plain
-from hevr.rendering.camera import Camera
-from hevr.rendering.planner import (
+from hevr.rendering.reference import plain
+from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.planning.planner import (
     DEFAULT_MAX_PIXELS,
     DEFAULT_MAX_SAMPLES,
     MAX_PIXELS_KEY,
@@ -30,7 +30,7 @@ from hevr.rendering.planner import (
     max_ray_samples,
     render_limits,
 )
-from hevr.rendering.rays import cast_rays
+from hevr.rendering.geometry.rays import cast_rays
 
 SECONDS = 1.0  # generous: every refusal here takes milliseconds
 PEAK_BYTES = 4 << 20  # "a few MB" of Python-visible allocations
@@ -130,7 +130,7 @@ def test_bad_limit_in_config_is_a_parameter_error(value: Any) -> None:
 
 def test_limits_from_the_environment() -> None:
     code = ("import hevr, sys\n"
-            "from hevr.rendering.planner import render_limits\n"
+            "from hevr.rendering.planning.planner import render_limits\n"
             "print(render_limits())\n"
             "try:\n"
             "    hevr.render_plain(hevr.phantom(8), hevr.Camera.orbit((8, 8, 8), width=8, height=8))\n"

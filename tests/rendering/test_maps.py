@@ -1,4 +1,4 @@
-"""The map tasks (hevr.rendering.maps): a worker's group of resident bricks on a GPU-resident
+"""The map tasks (hevr.rendering.pipeline.maps): a worker's group of resident bricks on a GPU-resident
 backend — one group for the local device, and trilinear rows of every brick in one plan (one
 kernel call, not one per brick) — give the cpu image byte for byte. The ``cuda-host`` kernels
 stand in for a device here (their launcher's ``residence`` set to ``"device"``), so these paths
@@ -12,7 +12,7 @@ import pytest
 
 import hevr
 from hevr.backends.cuda.launch import HostLauncher
-from hevr.rendering import maps
+from hevr.rendering.pipeline import maps
 
 NODES = [(0.3, "red"), (0.8, "blue")]
 

@@ -1,4 +1,4 @@
-"""Tests for hevr.rendering.modes: colours, render-spec validation and combination matrices."""
+"""Tests for hevr.rendering.planning.modes: colours, render-spec validation and combination matrices."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hevr.errors import ParameterError
-from hevr.rendering.modes import (
+from hevr.rendering.planning.modes import (
     MODES,
     SAMPLINGS,
     RenderSpec,

@@ -1,4 +1,4 @@
-"""Tests for hevr.rendering.plain.render_plain, the plaintext reference renderer."""
+"""Tests for hevr.rendering.reference.plain.render_plain, the plaintext reference renderer."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import pytest
 
 import hevr
 from hevr.errors import HevrError, ParameterError
-from hevr.rendering.camera import Camera
-from hevr.rendering.modes import parse_color
-from hevr.rendering.plain import render_plain
-from hevr.rendering.rays import cast_rays
+from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.planning.modes import parse_color
+from hevr.rendering.reference.plain import render_plain
+from hevr.rendering.geometry.rays import cast_rays
 from hevr.volume.density import encode_density
 
 _NODES = [(0.279, (0, 0, 1)), (0.797, "red"), (0.5, "#00ff00")]
@@ -187,7 +187,7 @@ def test_degenerate_camera_is_a_hevr_error() -> None:
 
 
 def test_chunking_does_not_change_the_result(monkeypatch: pytest.MonkeyPatch) -> None:
-    import hevr.rendering.plain as plain
+    import hevr.rendering.reference.plain as plain
 
     shape = (6, 7, 8)
     vol = np.random.default_rng(4).random(shape)

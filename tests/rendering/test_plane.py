@@ -9,12 +9,12 @@ import pytest
 
 import hevr
 from hevr._tiles import TileLayout
-from hevr.rendering.camera import Camera
-from hevr.rendering.footprint import brick_footprints
-from hevr.rendering.plane import MAX_SLAB, Plane, view_from_dict
-from hevr.rendering.planner import check_render_size
-from hevr.rendering.rays import cast_rays
-from hevr.rendering.weights import brick_grid, brick_weights
+from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.geometry.footprint import brick_footprints
+from hevr.rendering.geometry.plane import MAX_SLAB, Plane, view_from_dict
+from hevr.rendering.planning.planner import check_render_size
+from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.geometry.weights import brick_grid, brick_weights
 
 X, Y, Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
 

@@ -1,4 +1,4 @@
-"""hevr.rendering.planner: refuses what could overflow, accepts what fits, tiny keys decrypt right;
+"""hevr.rendering.planning.planner: refuses what could overflow, accepts what fits, tiny keys decrypt right;
 plan_render's bounds against brute force and hand-computed values."""
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ import pytest
 import hevr
 from hevr._limits import integrity_bits
 from hevr.crypto.keys import generate_keypair
-from hevr.rendering.camera import Camera
-from hevr.rendering.modes import combination_matrix, make_spec
-from hevr.rendering.planner import RenderPlan, plan_render
-from hevr.rendering.rays import cast_rays
-from hevr.rendering.weights import brick_grid, brick_weights
+from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.planning.modes import combination_matrix, make_spec
+from hevr.rendering.planning.planner import RenderPlan, plan_render
+from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.geometry.weights import brick_grid, brick_weights
 from hevr.store.metadata import ChannelInfo, VolumeMetadata
 
 SHAPE = (6, 7, 8)

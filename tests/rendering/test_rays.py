@@ -1,4 +1,4 @@
-"""Tests for hevr.rendering.rays: ray/box clipping and the shared sample-position helpers."""
+"""Tests for hevr.rendering.geometry.rays: ray/box clipping and the shared sample-position helpers."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from hevr.errors import ParameterError
-from hevr.rendering.camera import Camera
-from hevr.rendering.rays import (
+from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.geometry.rays import (
     RaySet,
     cast_rays,
     check_shape,

@@ -1,4 +1,4 @@
-"""The reduce of a batched render (hevr.rendering.reduce): G map tasks, then B blocks that merge
+"""The reduce of a batched render (hevr.rendering.pipeline.reduce): G map tasks, then B blocks that merge
 and finish their tiles — the same packed ciphertexts as the per-tile graph of per-brick maps, and
 the same cached sums for re-colouring, saved sums, deferred renders and streamed frames."""
 
@@ -12,11 +12,11 @@ from distributed import get_task_stream
 import hevr
 from hevr._tiles import TileLayout
 from hevr.rendering.encrypted import error_bound
-from hevr.rendering.graph import BlockSums, FinishGraph, build_sums_graph
-from hevr.rendering.modes import make_spec
-from hevr.rendering.planner import plan_render
-from hevr.rendering.rays import cast_rays
-from hevr.rendering.reduce import BlockedReduce, reduce_block
+from hevr.rendering.pipeline.graph import BlockSums, FinishGraph, build_sums_graph
+from hevr.rendering.planning.modes import make_spec
+from hevr.rendering.planning.planner import plan_render
+from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.pipeline.reduce import BlockedReduce, reduce_block
 
 SHAPE, BRICK, SPACING, K = (7, 9, 11), (3, 4, 5), (1.0, 0.8, 1.3), 4
 NODES = [(0.279, "blue"), (0.797, "red")]

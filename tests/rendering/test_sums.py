@@ -9,7 +9,7 @@ import pytest
 from dask.delayed import Delayed
 
 import hevr
-from hevr.rendering import sums as sums_mod
+from hevr.rendering.pipeline import sums as sums_mod
 
 NODES = [(0.2, "red"), (0.8, "blue")]
 

@@ -13,7 +13,7 @@ import pytest
 
 import hevr
 from hevr import Camera
-from hevr.rendering.views import VIEWS, view_axes
+from hevr.rendering.geometry.views import VIEWS, view_axes
 
 N = 12
 SIZE = 24

@@ -1,4 +1,4 @@
-"""Tests for hevr.rendering.weights: per-brick integer weights of the encrypted path."""
+"""Tests for hevr.rendering.geometry.weights: per-brick integer weights of the encrypted path."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import hevr.rendering.weights as weights_mod
+import hevr.rendering.geometry.weights as weights_mod
 from hevr.errors import ParameterError
-from hevr.rendering.camera import Camera
-from hevr.rendering.modes import combination_matrix, make_spec, normalisation_factor
-from hevr.rendering.plain import render_plain
-from hevr.rendering.rays import cast_rays
-from hevr.rendering.weights import (
+from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.planning.modes import combination_matrix, make_spec, normalisation_factor
+from hevr.rendering.reference.plain import render_plain
+from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.geometry.weights import (
     BrickWeights,
     brick_bounds,
     brick_grid,

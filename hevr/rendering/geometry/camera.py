@@ -14,7 +14,7 @@ camera. All ray geometry is float64 numpy and follows VTK:
 
 :meth:`Camera.orbit` frames a volume; its ``view=`` presets (``"anterior"``, …,
 :data:`Camera.VIEWS`) put the camera on one side of the patient in hevr's RAS+ patient
-frame (:mod:`hevr.rendering.views`).
+frame (:mod:`hevr.rendering.geometry.views`).
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_int, check_pixel_ids, check_shape, check_spacing
-from ..errors import ParameterError
+from ..._validate import check_int, check_pixel_ids, check_shape, check_spacing
+from ...errors import ParameterError
 from .views import VIEWS, view_offset
 
 __all__ = ["Camera"]
@@ -132,7 +132,7 @@ class Camera:
     parallel: bool = False
     parallel_scale: float | None = None
 
-    #: The anatomical presets of :meth:`orbit` (``view=``), :data:`hevr.rendering.views.VIEWS`.
+    #: The anatomical presets of :meth:`orbit` (``view=``), :data:`hevr.rendering.geometry.views.VIEWS`.
     VIEWS = VIEWS
 
     def __post_init__(self) -> None:
@@ -350,7 +350,7 @@ class Camera:
             +z superior; what :func:`hevr.read_scan` returns): the side of the patient the
             camera is on. ``"anterior"`` looks at the patient's front with superior up and
             the patient's right on the image's left, as in radiology; the table of all six
-            is in :mod:`hevr.rendering.views`. ``None``: the plain orbit above.
+            is in :mod:`hevr.rendering.geometry.views`. ``None``: the plain orbit above.
 
         Examples
         --------

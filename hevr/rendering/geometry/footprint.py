@@ -23,7 +23,7 @@ Projection. With camera basis (d, right, up) and a point's coordinates
   corners' images, so again the corner rectangle bounds it. Samples have ``t >= 0``, hence
   ``z >= 0``: a box with every corner at ``z < 0`` is never sampled; a box that reaches
   ``z <= 0`` (the camera inside or beside it) gets the whole image;
-* slice plane (:class:`~hevr.rendering.plane.Plane`): pixel (r, c)'s samples are
+* slice plane (:class:`~hevr.rendering.geometry.plane.Plane`): pixel (r, c)'s samples are
   ``origin + c·du·u + r·dv·v + s·n`` for the slab's offsets s; the map to (c, r) is linear
   (:func:`_plane_extent`), and a box whose extent along n misses the slab is never sampled.
 
@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._tiles import TileLayout
+from ..._tiles import TileLayout
 from .camera import Camera
 from .plane import Plane
 

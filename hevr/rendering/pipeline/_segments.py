@@ -1,6 +1,6 @@
 """Array-API building blocks of the product plan: segmented reductions, bit counts, placement.
 
-The plan (:func:`hevr.rendering.kernel.plan_products`) works on CSR rows: contiguous segments
+The plan (:func:`hevr.rendering.pipeline.kernel.plan_products`) works on CSR rows: contiguous segments
 ``[start, stop)`` of a pair array. numpy has segmented reductions (``ufunc.reduceat``) and
 scattered updates (``ufunc.at``); the array API standard, which the plan is written against so
 that it runs on CuPy as on numpy, has neither. This module builds them from what the standard

@@ -45,14 +45,14 @@ import numpy as np
 from array_api_compat import array_namespace, is_numpy_namespace
 from gmpy2 import mpz
 
-from ..backends import get_backend
-from ..backends.base import HORNER as _HORNER
-from ..backends.base import ONES as _ONES
-from ..backends.base import SHARED as _SHARED
-from ..backends.base import SINGLE as _SINGLE
-from ..backends.base import SQR_COST as _SQR
-from ..backends.base import Backend, OpCounter, ProductPlan
-from ..errors import ParameterError
+from ...backends import get_backend
+from ...backends.base import Backend, OpCounter, ProductPlan
+from ...backends.base import HORNER as _HORNER
+from ...backends.base import ONES as _ONES
+from ...backends.base import SHARED as _SHARED
+from ...backends.base import SINGLE as _SINGLE
+from ...backends.base import SQR_COST as _SQR
+from ...errors import ParameterError
 from ._segments import (
     bit_length,
     partition_max,
@@ -180,7 +180,7 @@ def _as_int_array(name: str, a: Any) -> Any:
 def plan_products(indptr: Any, voxels: Any, weights: Any, n_vox: int) -> ProductPlan:
     """Validate the CSR arrays, find duplicate rows and choose a method per row.
 
-    Written against the array API (:mod:`hevr.rendering._segments` has the segmented
+    Written against the array API (:mod:`hevr.rendering.pipeline._segments` has the segmented
     reductions): the plan's arrays are in the namespace of ``voxels`` — numpy, or CuPy on a GPU
     worker — and equal, bit for bit, whatever the namespace.
 

@@ -1,16 +1,16 @@
 """Nearest-sampling weights of many bricks at once: one pass over the samples, no sort.
 
-:func:`hevr.rendering.weights.brick_weights` builds one brick's (ray, voxel) weights: it clips
+:func:`hevr.rendering.geometry.weights.brick_weights` builds one brick's (ray, voxel) weights: it clips
 every ray to the brick, generates the samples there and counts them per pair with
 ``np.unique`` — a fixed cost of about 2 ms per brick, and a sort. A map task that holds many
-resident bricks (:func:`hevr.rendering.maps.map_group`) needs the weights of all of them for
+resident bricks (:func:`hevr.rendering.pipeline.maps.map_group`) needs the weights of all of them for
 the same rays; this module makes them in one pass:
 
 1. every ray is clipped once, to the box of the group's bricks (the region of influence of
-   nearest sampling, as :func:`~hevr.rendering.weights.brick_weights` does per brick), and its
+   nearest sampling, as :func:`~hevr.rendering.geometry.weights.brick_weights` does per brick), and its
    samples are generated ray-major, k ascending, by the shared
-   :func:`~hevr.rendering.rays.sample_positions` and
-   :func:`~hevr.rendering.rays.nearest_voxels` — so every sample is where the per-brick path
+   :func:`~hevr.rendering.geometry.rays.sample_positions` and
+   :func:`~hevr.rendering.geometry.rays.nearest_voxels` — so every sample is where the per-brick path
    puts it, bit for bit;
 2. each sample gets its brick and its index in that brick's local array; samples of bricks
    outside the group are dropped;
@@ -23,7 +23,7 @@ the same rays; this module makes them in one pass:
 4. the runs are grouped by brick with a stable sort on the brick number (few distinct values:
    a radix sort), which keeps them ray-major: each brick's rows are its rays, ascending.
 
-The weights equal :func:`~hevr.rendering.weights.brick_weights`'s pair for pair; only the order
+The weights equal :func:`~hevr.rendering.geometry.weights.brick_weights`'s pair for pair; only the order
 of a row's pairs differs (sample order instead of voxel order), which no product depends on
 (multiplication mod n² commutes). Trilinear weights are float sums whose rounding depends on
 the order of their terms (corner, then k) and keep the per-brick path.
@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace
 
-from ._segments import to_host
+from ..pipeline._segments import to_host
 from .rays import RaySet, expand_samples, nearest_voxels, sample_positions
 from .weights import BrickWeights, _bounds, _check_request, _clip_rays, brick_grid
 
@@ -107,13 +107,13 @@ def nearest_group_weights(rays: RaySet, shape: Any, spacing: Any, brick: Any, in
     """The nearest-sampling :class:`BrickWeights` of every brick in ``indices``, in one pass
     (:func:`nearest_group_rows`, then grouped by brick).
 
-    Parameters are those of :func:`hevr.rendering.weights.brick_weights` (``indices``: a list
+    Parameters are those of :func:`hevr.rendering.geometry.weights.brick_weights` (``indices``: a list
     of brick indices (bz, by, bx)). A brick that no ray reaches gets an empty entry.
 
     Examples
     --------
-    >>> from hevr.rendering.camera import Camera
-    >>> from hevr.rendering.rays import cast_rays
+    >>> from hevr.rendering.geometry.camera import Camera
+    >>> from hevr.rendering.geometry.rays import cast_rays
     >>> cam = Camera((2, 2, 9), (2, 2, 0), width=1, height=1, parallel=True)
     >>> rs = cast_rays(cam, (5, 5, 5), (1, 1, 1), 1.0)
     >>> w = nearest_group_weights(rs, (5, 5, 5), (1, 1, 1), 3, [(1, 0, 0), (0, 0, 0)], 1.0)
@@ -127,8 +127,8 @@ def nearest_group_rows(rays: RaySet, shape: Any, spacing: Any, brick: Any, indic
                        ) -> GroupRows:
     """The nearest-sampling pairs of the bricks ``indices``, one row per ray (module docstring).
 
-    >>> from hevr.rendering.camera import Camera
-    >>> from hevr.rendering.rays import cast_rays
+    >>> from hevr.rendering.geometry.camera import Camera
+    >>> from hevr.rendering.geometry.rays import cast_rays
     >>> cam = Camera((2, 2, 9), (2, 2, 0), width=1, height=1, parallel=True)
     >>> rs = cast_rays(cam, (5, 5, 5), (1, 1, 1), 1.0)
     >>> g = nearest_group_rows(rs, (5, 5, 5), (1, 1, 1), 3, [(1, 0, 0), (0, 0, 0)], 1.0)

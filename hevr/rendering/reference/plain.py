@@ -11,14 +11,14 @@ where ``s`` is the sampled (nearest or trilinearly interpolated) encoded vector 
 voxels' normalised densities — with ``gradient=True`` the sampled ``g·e(d)`` instead, the
 field the writer stores in the gradient channel (:func:`hevr.volume.gradient.gradient_encoding`,
 the same float64 values before quantisation). Because both vector modes are linear in ``s`` the renderer
-first maps every voxel to ``e(density) @ M`` (M from :func:`hevr.rendering.modes.combination_matrix`)
+first maps every voxel to ``e(density) @ M`` (M from :func:`hevr.rendering.planning.modes.combination_matrix`)
 and then interpolates that 1- or 3-channel field, which is the same sum in another order.
 :func:`render_slice_plain` is the slices' reference: it evaluates every slab sample of every
 pixel directly from the plane's definition (no ray casting, its own nearest and trilinear
 lookups), so it checks :func:`hevr.render_slice` by a second implementation.
 Rays are processed in chunks of about ``_CHUNK_SAMPLES`` samples, and a ray longer than
 ``_RAY_PIECE`` samples in pieces, so memory stays bounded however long the rays are; renders
-above the size limits (:func:`hevr.rendering.planner.check_render_size`) are refused first.
+above the size limits (:func:`hevr.rendering.planning.planner.check_render_size`) are refused first.
 """
 
 from __future__ import annotations
@@ -30,17 +30,17 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_data_range, check_spacing, check_vector_dims, check_volume
-from ..errors import ParameterError
-from ..volume.density import default_value_range, encode_density, normalize_density
-from ..volume.gradient import gradient_encoding
-from ..volume.pyramid import check_level, downsample, level_origin, level_spacing
-from ..volume.scan import Scan
-from .camera import Camera
-from .modes import RenderSpec, combination_matrix, make_spec
-from .plane import Plane
-from .planner import check_render_size
-from .rays import (
+from ..._validate import check_data_range, check_spacing, check_vector_dims, check_volume
+from ...errors import ParameterError
+from ...volume.density import default_value_range, encode_density, normalize_density
+from ...volume.gradient import gradient_encoding
+from ...volume.pyramid import check_level, downsample, level_origin, level_spacing
+from ...volume.scan import Scan
+from ..geometry.camera import Camera
+from ..geometry.plane import Plane
+from ..planning.modes import RenderSpec, combination_matrix, make_spec
+from ..planning.planner import check_render_size
+from ..geometry.rays import (
     cast_rays,
     expand_samples,
     nearest_voxels,
@@ -158,7 +158,7 @@ def render_plain(
     density : float
         Emphasised density in [0, 1] (emphasize).
     nodes : list of (density, color)
-        Transfer-function nodes (tf); colours as accepted by :func:`hevr.rendering.modes.parse_color`.
+        Transfer-function nodes (tf); colours as accepted by :func:`hevr.rendering.planning.modes.parse_color`.
     level : int
         Render pyramid level ``level`` (:mod:`hevr.volume.pyramid`): the per-voxel field (values,
         or encoded density vectors times the combination matrix) averaged over 2×2×2 children
@@ -252,7 +252,7 @@ def render_slice_plain(
     voxel-centre box (1e-9 relative tolerance), sampled as API.md defines: nearest
     ``floor(p + 0.5)``, trilinear over the 8 surrounding voxels, indices clamped to the box.
     A pixel without such a sample is 0. Arguments as for :func:`render_plain`, ``plane`` a
-    :class:`~hevr.rendering.plane.Plane`.
+    :class:`~hevr.rendering.geometry.plane.Plane`.
 
     Returns
     -------

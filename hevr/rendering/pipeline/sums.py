@@ -4,7 +4,7 @@ and re-colouring from either.
 The map and merge steps of a render produce, per image tile, the merged encrypted ray sums of
 every stored component (scalar: one per ray; vector: k per ray). Everything after them — the
 combination matrix of an emphasis density or a transfer function, Eq. 1's normalisation, the
-offset and packing (:mod:`hevr.rendering.finishing`) — depends only on these sums and public
+offset and packing (:mod:`hevr.rendering.pipeline.finishing`) — depends only on these sums and public
 numbers. So another density or transfer function on the same view needs no map step: the
 sums are kept in memory (:class:`RaySums`, the render cache) or in a file
 (``hevr.render(..., keep_sums=PATH)``, ``hevr render --keep-sums``), and :func:`recolour`
@@ -46,18 +46,18 @@ from typing import Any
 
 import numpy as np
 
-from .._dask import active_client
-from .._dask import compute as run_tasks
-from .._files import read_regular, require_file
-from .._limits import MAX_IMAGE_PIXELS
-from .._magic import SUMS_MAGIC_PREFIX
-from .._tiles import TileLayout
-from .._validate import check_bool, check_choice, check_int, check_step
-from ..backends import get_backend, resolve_backend_name
-from ..colour import Colouring
-from ..crypto.paillier import fingerprint as fingerprint_of
-from ..crypto.records import record_width
-from ..errors import (
+from ..._dask import active_client
+from ..._dask import compute as run_tasks
+from ..._files import read_regular, require_file
+from ..._limits import MAX_IMAGE_PIXELS
+from ..._magic import SUMS_MAGIC_PREFIX
+from ..._tiles import TileLayout
+from ..._validate import check_bool, check_choice, check_int, check_step
+from ...backends import get_backend, resolve_backend_name
+from ...colour import Colouring
+from ...crypto.paillier import fingerprint as fingerprint_of
+from ...crypto.records import record_width
+from ...errors import (
     CorruptStoreError,
     ExistingFileError,
     HevrError,
@@ -65,11 +65,11 @@ from ..errors import (
     MissingFileError,
     ParameterError,
 )
-from ..image.checks import FINISHES, Fields
-from ..image.encrypted import EncryptedImage
-from ..image.header import MAX_N_DIGITS, parse_json
-from ..store.metadata import VolumeMetadata
-from ..store.paths import (
+from ...image.checks import FINISHES, Fields
+from ...image.encrypted import EncryptedImage
+from ...image.header import MAX_N_DIGITS, parse_json
+from ...store.metadata import VolumeMetadata
+from ...store.paths import (
     check_storage_options,
     is_local,
     normalise,
@@ -77,13 +77,13 @@ from ..store.paths import (
     read_bytes,
     write_output,
 )
-from ..volume.pyramid import MAX_LEVELS
-from .camera import Camera
+from ...volume.pyramid import MAX_LEVELS
+from ..geometry.camera import Camera
+from ..geometry.plane import Plane, view_from_dict
+from ..geometry.rays import cast_rays
+from ..planning.modes import RenderSpec, combination_matrix, make_spec
+from ..planning.planner import RenderPlan, check_render_size, plan_render
 from .graph import BlockSums, FinishGraph, block_sums
-from .modes import RenderSpec, combination_matrix, make_spec
-from .plane import Plane, view_from_dict
-from .planner import RenderPlan, check_render_size, plan_render
-from .rays import cast_rays
 
 log = logging.getLogger(__name__)
 

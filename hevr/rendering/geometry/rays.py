@@ -6,14 +6,14 @@ voxel centres ``[0, (nx-1)sx] x [0, (ny-1)sy] x [0, (nz-1)sz]``; a ray on a face
 inside. Rays start at ``t = 0`` (nothing behind the camera or the parallel image plane is
 rendered). Samples sit at ``t_enter + k*step`` for ``k = 0 .. n-1`` with
 ``n = floor((t_exit - t_enter)/step + 1e-9) + 1``. A slice plane's rays
-(:class:`~hevr.rendering.plane.Plane`) are its pixels' slabs: samples at ``t = k·slab_step``,
+(:class:`~hevr.rendering.geometry.plane.Plane`) are its pixels' slabs: samples at ``t = k·slab_step``,
 those inside the box (one run, the box being convex) kept.
 
 Casting allocates a few arrays per ray (memory linear in ``width*height``), never per
 sample; a ray of more than :data:`MAX_RAY_SAMPLES` samples (a step far below the volume's
 size) is refused with :class:`hevr.RenderPlanError` instead of overflowing int64. How many
 pixels and samples a render may have is decided before, by
-:func:`hevr.rendering.planner.check_render_size`.
+:func:`hevr.rendering.planning.planner.check_render_size`.
 
 Every consumer of sample positions -- the plaintext renderer and the per-brick weights of
 the encrypted path -- goes through :func:`sample_positions`, :func:`nearest_voxels` and
@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace
 
-from .._validate import check_shape, check_spacing, check_step
-from ..errors import ParameterError, RenderPlanError
+from ..._validate import check_shape, check_spacing, check_step
+from ...errors import ParameterError, RenderPlanError
 from .camera import Camera
 from .plane import Plane
 
@@ -109,7 +109,7 @@ def cast_rays(camera: Camera | Plane, shape: Any, spacing: Any, step: float, pix
     Parameters
     ----------
     camera : Camera or Plane
-        A :class:`~hevr.rendering.plane.Plane`'s rays are its pixels' slabs
+        A :class:`~hevr.rendering.geometry.plane.Plane`'s rays are its pixels' slabs
         (:func:`_cast_plane`); ``step`` must then be its ``slab_step``.
     shape : (nz, ny, nx)
     spacing : (sx, sy, sz)

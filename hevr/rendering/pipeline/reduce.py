@@ -1,6 +1,6 @@
 """The reduce of a batched render: merge and finish a block of tiles in one task.
 
-When a worker maps all its resident bricks in one task (:func:`~hevr.rendering.maps.map_group`),
+When a worker maps all its resident bricks in one task (:func:`~hevr.rendering.pipeline.maps.map_group`),
 a frame has G map tasks for G workers, and every tile then has at most G partial sums. The
 per-tile graph after them — a selection or a merge task per tile, then a finishing task per
 unit — is a few milliseconds of arithmetic spread over ~2 tasks per tile (50 for a 150² frame
@@ -9,9 +9,9 @@ the frame's tail (0.229 s in 32² tiles against 0.183 s in one tile, ``cuda-host
 
 Here the tiles are cut into B runs of raster order (B = G, so the blocks spread over the
 workers as the maps do), with about as many finishing units each; one task per block merges
-each of its tiles' partials (:func:`~hevr.rendering.finishing.merge_partials`) and finishes
-every unit of those tiles (:func:`~hevr.rendering.finishing.finish_tile`), in the order
-:class:`~hevr.rendering.graph.FinishGraph` lists them. A second, trivial task per block selects
+each of its tiles' partials (:func:`~hevr.rendering.pipeline.finishing.merge_partials`) and finishes
+every unit of those tiles (:func:`~hevr.rendering.pipeline.finishing.finish_tile`), in the order
+:class:`~hevr.rendering.pipeline.graph.FinishGraph` lists them. A second, trivial task per block selects
 the units' packed ciphertexts for the client, so the merged sums stay on the worker that made
 them (the render cache refers to them by :class:`BlockSums`). So a batched frame is G + 2B
 tasks whatever its size, and its packed units — each computed by the same functions from the
@@ -29,11 +29,11 @@ import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph
 
-from .. import _malloc, _stats
-from ..crypto.records import record_width
+from ... import _malloc, _stats
+from ...crypto.records import record_width
+from ..planning.planner import RenderPlan
 from .finishing import finish_tile, merge_partials
 from .graph import BlockSums, FinishGraph, Priorities, SumsGraph
-from .planner import RenderPlan
 
 __all__ = ["BlockedReduce", "reduce_block"]
 

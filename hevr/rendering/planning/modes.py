@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_choice, check_step, check_vector_dims
-from ..colour import CSS_COLORS, Colouring, parse_color, parse_nodes, unit_density
-from ..errors import ParameterError
+from ..._validate import check_choice, check_step, check_vector_dims
+from ...colour import CSS_COLORS, Colouring, parse_color, parse_nodes, unit_density
+from ...errors import ParameterError
 
 __all__ = [
     "MODES",

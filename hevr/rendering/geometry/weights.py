@@ -10,7 +10,7 @@ Bricks partition the voxel grid: brick ``(bz, by, bx)`` of brick shape ``(B0, B1
 only to voxels it owns (no halo), so the per-brick partial weights add up exactly to the
 whole-ray weights: for nearest sampling these are counts; for trilinear sampling every
 (ray, voxel) pair's float sum is formed from the same samples, by the same shared helpers
-(:mod:`hevr.rendering.rays`), in the same order (corner, then k), whatever the brick split, and
+(:mod:`hevr.rendering.geometry.rays`), in the same order (corner, then k), whatever the brick split, and
 is only then rounded.
 
 Weights
@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace
 
-from .._validate import (
+from ..._validate import (
     check_brick,
     check_brick_index,
     check_choice,
@@ -59,8 +59,8 @@ from .._validate import (
     check_spacing,
     check_step,
 )
-from ..errors import ParameterError
-from .modes import SAMPLINGS
+from ...errors import ParameterError
+from ..planning.modes import SAMPLINGS
 from .rays import (
     RaySet,
     corner_index,
@@ -164,7 +164,7 @@ def _bounds(shape: tuple[int, int, int], brick: tuple[int, int, int], brick_inde
 def _check_request(rays: Any, shape: Any, spacing: Any, brick: Any, sampling: Any, step: Any):
     """Check the arguments :func:`touched_bricks` and :func:`brick_weights` share, once."""
     if not isinstance(rays, RaySet):
-        raise ParameterError(f"rays: expected a hevr.rendering.rays.RaySet, got {type(rays).__name__}")
+        raise ParameterError(f"rays: expected a hevr.rendering.geometry.rays.RaySet, got {type(rays).__name__}")
     check_choice("sampling", sampling, SAMPLINGS)
     return check_shape(shape), np.asarray(check_spacing(spacing)), check_brick(brick), check_step(step)
 
@@ -179,8 +179,8 @@ def touched_bricks(
 
     Examples
     --------
-    >>> from hevr.rendering.camera import Camera
-    >>> from hevr.rendering.rays import cast_rays
+    >>> from hevr.rendering.geometry.camera import Camera
+    >>> from hevr.rendering.geometry.rays import cast_rays
     >>> cam = Camera((2, 2, 9), (2, 2, 0), width=1, height=1, parallel=True)
     >>> rs = cast_rays(cam, (5, 5, 5), (1, 1, 1), 1.0)
     >>> touched_bricks(rs, (5, 5, 5), (1, 1, 1), 3, "nearest", 1.0)
@@ -262,7 +262,7 @@ def brick_weights(
     Parameters
     ----------
     rays : RaySet
-        From :func:`hevr.rendering.rays.cast_rays` with the same shape, spacing and step.
+        From :func:`hevr.rendering.geometry.rays.cast_rays` with the same shape, spacing and step.
     shape : (nz, ny, nx)
     spacing : (sx, sy, sz)
     brick : int or (B0, B1, B2)
@@ -275,8 +275,8 @@ def brick_weights(
 
     Examples
     --------
-    >>> from hevr.rendering.camera import Camera
-    >>> from hevr.rendering.rays import cast_rays
+    >>> from hevr.rendering.geometry.camera import Camera
+    >>> from hevr.rendering.geometry.rays import cast_rays
     >>> cam = Camera((2, 2, 9), (2, 2, 0), width=1, height=1, parallel=True)
     >>> rs = cast_rays(cam, (5, 5, 5), (1, 1, 1), 1.0)
     >>> bw = brick_weights(rs, (5, 5, 5), (1, 1, 1), 3, (1, 0, 0), "nearest", 1.0)

@@ -18,7 +18,7 @@ conventions": voxel (k, j, i) sits at (i·sx, j·sy, k·sz)):
 
 So a slice pixel is a short ray: origin ``P(r, c) - (S - 1)/2·h·n``, direction ``n``, samples
 at ``t = k·h`` (:meth:`Plane.rays`); because the box is convex its inside samples are one run
-``k0 .. k1``, which :func:`hevr.rendering.rays.cast_rays` turns into ``t_enter = k0·h`` and
+``k0 .. k1``, which :func:`hevr.rendering.geometry.rays.cast_rays` turns into ``t_enter = k0·h`` and
 ``k1 - k0 + 1`` samples of step ``h``. Everything downstream (weights, kernel, planner,
 finishing, packing, error bound) is the ray renderer's.
 
@@ -41,9 +41,9 @@ from typing import Any
 
 import numpy as np
 
-from .._limits import MAX_IMAGE_PIXELS
-from .._validate import check_int, check_pixel_ids, check_step
-from ..errors import ParameterError
+from ..._limits import MAX_IMAGE_PIXELS
+from ..._validate import check_int, check_pixel_ids, check_step
+from ...errors import ParameterError
 from .camera import Camera, _orbit_geometry, _vec3
 
 __all__ = ["Plane", "MAX_SLAB", "view_from_dict"]

@@ -1,6 +1,6 @@
 """The MapReduce render graph on Dask (after Stuart et al.).
 
-map     one task per brick whose footprint (:mod:`hevr.rendering.footprint`) holds a hit
+map     one task per brick whose footprint (:mod:`hevr.rendering.geometry.footprint`) holds a hit
         pixel: cast the footprint's rays, compute the brick's plaintext weights, read the
         brick inside the task (or take it from worker memory when the volume is resident),
         run the encrypted kernel, and emit partial ray sums split by image tile, as compact
@@ -9,10 +9,10 @@ reduce  per image tile, a tree of merges (fan-in 4) multiplies the partials of t
         ray (fpAdd of partial sums that share one exponent); no task receives every partial.
 finish  per tile: per-pixel combination, reciprocal normalisation, offset and packing.
 
-The map tasks themselves are :mod:`hevr.rendering.maps`. Resident bricks below 1024-bit keys, and
-on a GPU at any key size, are mapped one task per worker (:func:`~hevr.rendering.maps.map_group`);
+The map tasks themselves are :mod:`hevr.rendering.pipeline.maps`. Resident bricks below 1024-bit keys, and
+on a GPU at any key size, are mapped one task per worker (:func:`~hevr.rendering.pipeline.maps.map_group`);
 every tile then has at most one partial per worker, and merge and finish run in one task per block
-of tiles instead (:mod:`hevr.rendering.reduce`).
+of tiles instead (:mod:`hevr.rendering.pipeline.reduce`).
 
 The graph holds public data only (the volume handle, camera, plan) and the *name* of the
 arithmetic backend; every task resolves the backend in its own process
@@ -33,16 +33,16 @@ import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
 
-from .. import _stats
-from .._tiles import TileLayout
-from ..crypto.records import record_width
-from ..store.reader import EncryptedVolume
-from .camera import Camera
+from ... import _stats
+from ..._tiles import TileLayout
+from ...crypto.records import record_width
+from ...store.reader import EncryptedVolume
+from ..geometry.camera import Camera
+from ..geometry.footprint import brick_footprints
+from ..geometry.rays import RaySet
+from ..planning.planner import RenderPlan
 from .finishing import finish_tile, finish_units, merge_partials
-from .footprint import brick_footprints
 from .maps import map_brick, map_group
-from .planner import RenderPlan
-from .rays import RaySet
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +107,7 @@ class SumsGraph:
     parts : dict
         Tile id -> the keys of the map tasks holding a partial of it (tiles some brick touches).
         Built with ``fuse=True`` the graph stops there (``merged`` is empty): the reduce blocks
-        of :mod:`hevr.rendering.reduce` merge and finish.
+        of :mod:`hevr.rendering.pipeline.reduce` merge and finish.
     """
 
     dsk: Any
@@ -131,7 +131,7 @@ class SumsGraph:
 @dataclass(frozen=True)
 class BlockSums:
     """Tile ``tile``'s merged sums inside a reduce block's output ``block`` (a future: they stay
-    on the worker that merged them; :mod:`hevr.rendering.reduce`)."""
+    on the worker that merged them; :mod:`hevr.rendering.pipeline.reduce`)."""
 
     block: Any
     tile: int
@@ -163,7 +163,7 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
     With ``groups`` (lists of resident brick indices, one per worker: :func:`resident_groups`)
     each group is one map task (:func:`map_group`), which merges its bricks' partials itself.
     With ``fuse`` the graph holds the map tasks only, and ``parts`` what each tile needs: the
-    caller reduces them in blocks (:class:`hevr.rendering.reduce.BlockedReduce`).
+    caller reduces them in blocks (:class:`hevr.rendering.pipeline.reduce.BlockedReduce`).
     """
     prints = brick_footprints(camera, ev.shape, ev.spacing, ev.brick, rays.n_samples > 0, tile)
     token = dask.base.tokenize(ev.path, ev.meta.store_id, camera.key(), sampling, step, digits, channel, tile,
@@ -223,7 +223,7 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
 
 @dataclass(frozen=True)
 class FinishGraph:
-    """The finishing tasks of one view: :func:`~hevr.rendering.finishing.finish_units` per tile.
+    """The finishing tasks of one view: :func:`~hevr.rendering.pipeline.finishing.finish_units` per tile.
 
     Attributes
     ----------

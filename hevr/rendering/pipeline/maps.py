@@ -1,10 +1,10 @@
 """The map tasks of a render: one brick's partial ray sums, or those of a worker's group of
 resident bricks (:func:`map_group`), split by image tile as compact records.
 
-A map task casts its footprint's rays (:mod:`hevr.rendering.footprint`), computes the plaintext
+A map task casts its footprint's rays (:mod:`hevr.rendering.geometry.footprint`), computes the plaintext
 weights, takes its bricks from worker memory (resident) or reads them inside the task, runs the
-encrypted kernel (:func:`hevr.rendering.kernel.brick_ray_products_multi`) and emits, per image tile,
-ray ids and fixed-width ciphertext records. :mod:`hevr.rendering.graph` wires them into the graph.
+encrypted kernel (:func:`hevr.rendering.pipeline.kernel.brick_ray_products_multi`) and emits, per image tile,
+ray ids and fixed-width ciphertext records. :mod:`hevr.rendering.pipeline.graph` wires them into the graph.
 """
 
 from __future__ import annotations
@@ -15,18 +15,18 @@ from typing import Any
 import dask
 import numpy as np
 
-from .. import _malloc, _stats
-from .._tiles import TileLayout
-from ..backends import get_backend
-from ..crypto.tags import data_channel
-from ..store.reader import EncryptedVolume
-from .camera import Camera
+from ... import _malloc, _stats
+from ..._tiles import TileLayout
+from ...backends import get_backend
+from ...crypto.tags import data_channel
+from ...store.reader import EncryptedVolume
+from ..geometry.camera import Camera
+from ..geometry.footprint import Footprint
+from ..geometry.group_weights import nearest_group_rows
+from ..geometry.rays import cast_rays
+from ..geometry.weights import brick_weights
 from .finishing import merge_partials
-from .footprint import Footprint
-from .group_weights import nearest_group_rows
 from .kernel import brick_ray_products_multi
-from .rays import cast_rays
-from .weights import brick_weights
 
 __all__ = ["map_brick", "map_group", "resident_groups"]
 
@@ -95,7 +95,7 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
     that the per-task overhead and the merge tasks scale with workers, not bricks.
 
     Nearest sampling: one product plan over the whole group — a row per ray holding its pairs in
-    all the group's bricks (:func:`~hevr.rendering.group_weights.nearest_group_rows`), over the
+    all the group's bricks (:func:`~hevr.rendering.geometry.group_weights.nearest_group_rows`), over the
     concatenation of the bricks' ciphertexts — so each ray's partial sum of the group comes out
     of one multi-exponentiation, and neither per-brick plans nor in-task merges are needed.
     Trilinear: each brick's :func:`map_brick`, then every tile's partials merged here.

@@ -1,7 +1,7 @@
 """A render request, checked once where it enters (:func:`hevr.render`, :func:`hevr.render_slice`,
 :func:`hevr.render_frame`, :func:`hevr.error_bound`), and the view moved to a pyramid level.
 
-The checked :class:`~hevr.rendering.modes.RenderSpec` is passed inward; nothing below asks
+The checked :class:`~hevr.rendering.planning.modes.RenderSpec` is passed inward; nothing below asks
 the user's arguments again.
 """
 
@@ -12,13 +12,13 @@ from typing import Any
 
 import numpy as np
 
-from ..image.checks import FINISHES
-from .._validate import check_choice, check_int
-from ..errors import ParameterError
-from ..store.reader import EncryptedVolume
-from .camera import Camera
+from ..._validate import check_choice, check_int
+from ...errors import ParameterError
+from ...image.checks import FINISHES
+from ...store.reader import EncryptedVolume
+from ..geometry.camera import Camera
+from ..geometry.plane import Plane
 from .modes import RenderSpec, make_spec
-from .plane import Plane
 
 __all__ = ["FINISHES", "at_level", "check_request", "level_step"]
 

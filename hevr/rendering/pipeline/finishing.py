@@ -25,7 +25,7 @@ modular multiplications of a 2048-bit key (a value costs ``pack_bits`` squarings
 no finishing task outlasts a typical map task and the finishing after the last map task is
 spread over every worker instead of waiting on one tile.
 
-Client finishing (:func:`~hevr.rendering.planner.plan_sums`, the default): the plan has no
+Client finishing (:func:`~hevr.rendering.planning.planner.plan_sums`, the default): the plan has no
 combination matrix and R = 1, so a tile's values are the K component sums S_k themselves,
 offset and packed (b squarings and one product per value); the client divides and colours
 (:mod:`hevr.colour`).
@@ -41,8 +41,8 @@ from typing import Sequence
 
 import numpy as np
 
-from ..backends import Backend, get_backend
-from .planner import RenderPlan
+from ...backends import Backend, get_backend
+from ..planning.planner import RenderPlan
 
 __all__ = ["finish_tile", "finish_units", "merge_partials", "one_records", "UNIT_MULS"]
 

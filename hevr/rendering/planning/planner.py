@@ -43,7 +43,7 @@ sample, a render is refused with :class:`hevr.RenderPlanError` when
   naming ``step``. Each ray takes at most ``diagonal/step + 1`` samples (the voxel-centre
   box's world diagonal), so ``pixels·(diagonal/step + 1)`` bounds the total from public
   data alone; only when that bound exceeds the limit are the exact per-ray counts computed
-  (:func:`~hevr.rendering.rays.cast_rays`, whose memory is linear in the — already
+  (:func:`~hevr.rendering.geometry.rays.cast_rays`, whose memory is linear in the — already
   bounded — pixel count).
 
 Both are Dask config keys: ``dask.config.set({"hevr.limits.max-pixels": 8192**2})``, a
@@ -68,7 +68,7 @@ from typing import Any
 
 import numpy as np
 
-from .._limits import (
+from ..._limits import (
     DEFAULT_MAX_PIXELS,
     DEFAULT_MAX_SAMPLES,
     FLOAT_MAX,
@@ -79,13 +79,13 @@ from .._limits import (
     integrity_bits,
     render_limits,
 )
-from .._validate import check_shape, check_spacing, check_step
-from ..errors import ParameterError, RenderPlanError
-from ..store.metadata import VolumeMetadata
-from .camera import Camera
+from ..._validate import check_shape, check_spacing, check_step
+from ...errors import ParameterError, RenderPlanError
+from ...store.metadata import VolumeMetadata
+from ..geometry.camera import Camera
+from ..geometry.plane import Plane
+from ..geometry.rays import RaySet, cast_rays
 from .modes import RenderSpec
-from .plane import Plane
-from .rays import RaySet, cast_rays
 
 __all__ = [
     "DEFAULT_MAX_PIXELS",
@@ -180,7 +180,7 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
     """Plan a render and refuse it when any mantissa could reach n/3.
 
     The arguments come checked from :func:`hevr.render`: the channel read, the number of
-    output channels and K are the :class:`~hevr.rendering.modes.RenderSpec`'s.
+    output channels and K are the :class:`~hevr.rendering.planning.modes.RenderSpec`'s.
     ``finish="client"`` plans :func:`plan_sums` instead (``combination`` and ``precision``
     unused: nothing of the colouring reaches the plan).
     """
@@ -357,7 +357,7 @@ def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> RaySe
     RenderPlanError
         Too many pixels (the message names ``width``/``height``) or samples (``step``).
     ParameterError
-        ``camera`` is not a :class:`~hevr.rendering.camera.Camera`, a bad shape, spacing or
+        ``camera`` is not a :class:`~hevr.rendering.geometry.camera.Camera`, a bad shape, spacing or
         step, or a bad limit in the Dask config.
 
     Examples

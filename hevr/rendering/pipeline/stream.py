@@ -1,7 +1,7 @@
 """``hevr.render_frame``: request → decrypted frame, decrypting each finished piece as it arrives.
 
 A client-finished render (:mod:`hevr.colour`) ends in finishing units — runs of a tile's hit
-pixels whose packed ray sums one task produces (:func:`~hevr.rendering.finishing.finish_units`).
+pixels whose packed ray sums one task produces (:func:`~hevr.rendering.pipeline.finishing.finish_units`).
 Each unit is a whole number of packing groups, so the client can check and decrypt it alone.
 On a distributed client :func:`render_frame` does so as each unit completes
 (:func:`hevr._dask.compute`'s ``on_result``): the client's CRT decryptions overlap the
@@ -23,15 +23,15 @@ from typing import Any
 
 import numpy as np
 
-from ..backends import get_backend
-from ..colour import Frame, frame_from_sums, scaled_sums
-from ..crypto.keys import PrivateKey
-from ..errors import IntegrityError, KeyMismatchError, ParameterError
-from ..image.checks import tile_name
-from ..image.encrypted import _CORRUPT, _unpack_checked
-from .camera import Camera
-from .encrypted import _render, render
-from .plane import Plane
+from ...backends import get_backend
+from ...colour import Frame, frame_from_sums, scaled_sums
+from ...crypto.keys import PrivateKey
+from ...errors import IntegrityError, KeyMismatchError, ParameterError
+from ...image.checks import tile_name
+from ...image.encrypted import _CORRUPT, _unpack_checked
+from ..encrypted import _render, render
+from ..geometry.camera import Camera
+from ..geometry.plane import Plane
 
 __all__ = ["StreamDecryptor", "render_frame"]
 
@@ -46,7 +46,7 @@ class StreamDecryptor:
         self.ciphertexts = 0
 
     def start(self, finish: Any, fields: dict) -> None:
-        """The plan of the render (its :class:`~hevr.rendering.graph.FinishGraph`) and image fields."""
+        """The plan of the render (its :class:`~hevr.rendering.pipeline.graph.FinishGraph`) and image fields."""
         if fields["finish"] != "client":  # pragma: no cover - render_frame asks for client finishing
             raise ParameterError("finish: expected 'client' for a streamed frame")
         if fields["fingerprint"] != self.key.public_key.fingerprint:

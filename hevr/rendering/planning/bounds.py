@@ -22,13 +22,13 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ParameterError
-from ..store.reader import EncryptedVolume
-from .camera import Camera
+from ...errors import ParameterError
+from ...store.reader import EncryptedVolume
+from ..geometry.camera import Camera
+from ..geometry.plane import Plane
+from ..geometry.rays import cast_rays
 from .modes import combination_matrix
-from .plane import Plane
 from .planner import check_render_size
-from .rays import cast_rays
 from .request import at_level, check_request, level_step
 
 __all__ = ["error_bound"]
@@ -47,7 +47,7 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
     ``hevr.render_plain(..., gradient=True)`` (the gradient channel's quantisation).
 
     ``level``: the bound of ``hevr.render(..., level=)`` against ``hevr.render_plain(..., level=)``.
-    ``camera`` may be a :class:`~hevr.rendering.plane.Plane`: the bound of
+    ``camera`` may be a :class:`~hevr.rendering.geometry.plane.Plane`: the bound of
     :func:`hevr.render_slice` against :func:`hevr.render_slice_plain` (same formula, n = the
     pixel's slab samples inside the volume); ``step`` is then ignored (it is the plane's ``slab_step``).
     """
