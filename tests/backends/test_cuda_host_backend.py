@@ -403,8 +403,8 @@ def test_a_kernel_folder_others_can_write_is_not_used(monkeypatch, tmp_path):
     """The compiled library is loaded only from a folder this user alone can write."""
     monkeypatch.setattr(host_module, "_LIB", {})
     monkeypatch.setattr(kernel_cache.tempfile, "gettempdir", lambda: str(tmp_path))
-    shared = tmp_path / f"hevr-kernels-{os.getuid()}"
-    shared.mkdir()
-    shared.chmod(0o777)
+    open_folder = tmp_path / f"hevr-kernels-{os.getuid()}"
+    open_folder.mkdir()
+    open_folder.chmod(0o777)
     build_host()
-    assert not any(shared.iterdir())
+    assert not any(open_folder.iterdir())
