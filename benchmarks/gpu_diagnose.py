@@ -56,7 +56,13 @@ VARIANTS = {
     "block32": {"block": 32},
     "block1": {"block": 1},
     "-G": {"options": ("-G",)},
+    # the per-thread stack raised to 16 KiB before any launch: owner.cuh's kernels take 2,576 bytes of
+    # stack frame (ptxas, sm_90, 2026-11-28) against at most 1,552 for render.cuh's, which pass
+    "stack16k": {"stack": 16384},
 }
+# CUfunction_attribute numbers (cuda.h): what each kernel takes per thread, as the driver sees it
+ATTRIBUTES = {"max_threads_per_block": 0, "shared_size_bytes": 1, "const_size_bytes": 2, "local_size_bytes": 3,
+              "num_regs": 4}
 
 
 class PyConvert:
@@ -89,9 +95,10 @@ class Variant(CupyLauncher):
 
     keyholder = True
 
-    def __init__(self, replace: tuple[str, str] | None = None, options: tuple[str, ...] = (), block: int = 0):
+    def __init__(self, replace: tuple[str, str] | None = None, options: tuple[str, ...] = (), block: int = 0,
+                 stack: int = 0):
         super().__init__()
-        self._replace, self._options, self._block = replace, options, block
+        self._replace, self._options, self._block, self._stack = replace, options, block, stack
 
     def _owner_module(self):
         if self._owner_fn is None:
@@ -102,9 +109,30 @@ class Variant(CupyLauncher):
                 src = src.replace(*self._replace)
             mod = self.cp.RawModule(code=src, options=("--std=c++11", *self._options), backend="nvrtc")
             fns = [mod.get_function(k) for k in ("k_decrypt", "k_public_encrypt", "k_owner_encrypt")]
+            _attributes(self.cp, fns, self._stack)
             if self._block:
                 fns = [_Block(f, self._block) for f in fns]
             self._decrypt_fn, self._public_fn, self._owner_fn = fns
+
+
+def _attributes(cp, fns, stack: int) -> None:
+    """Print each kernel's registers, local memory and limits as the driver reports them, and the
+    device's per-thread stack limit (after raising it to ``stack`` bytes where asked)."""
+    rt = cp.cuda.runtime
+    try:
+        if stack:
+            rt.deviceSetLimit(0, stack)  # cudaLimitStackSize
+        print(f"stack limit per thread: {rt.deviceGetLimit(0)} bytes", flush=True)
+    except Exception as exc:  # noqa: BLE001 - a diagnosis goes on (FakeCupy has no limits)
+        print(f"stack limit: not read ({type(exc).__name__}: {exc})", flush=True)
+    for fn in fns:
+        name = getattr(fn, "name", None) or getattr(fn, "_name", None) or repr(fn)[:40]
+        try:
+            from cupy_backends.cuda.api import driver
+            got = {k: driver.funcGetAttribute(v, fn.ptr) for k, v in ATTRIBUTES.items()}
+        except Exception as exc:  # noqa: BLE001
+            got = {"error": f"{type(exc).__name__}: {exc}"}
+        print(f"kernel {name}: " + ", ".join(f"{k}={v}" for k, v in got.items()), flush=True)
 
 
 def _key(pbits: int, qbits: int):
