@@ -72,6 +72,8 @@ run|goals)
     # 1. owner.cuh (wrong on an H200 on 2026-11-26): the faulting access, then the suite with the kernels on
     { step 70 compute-sanitizer --tool memcheck --print-limit 6 $PY benchmarks/gpu_diagnose.py \
         --variant=shipped --keys 2048 --steps decrypt --counts 64
+      step 40 compute-sanitizer --tool initcheck --print-limit 6 $PY benchmarks/gpu_diagnose.py \
+        --variant=shipped --keys 2048 --steps decrypt --counts 64
       step 30 $PY benchmarks/gpu_diagnose.py --variant=stack16k --keys 2048 --steps decrypt,owner --counts 64,65536; } \
       > "$OUT/diagnose.log" 2>&1
     HEVR_TEST_KERNELS=cuda step 70 $PY -m pytest -q -rs -p no:cacheprovider -o addopts= --maxfail=20 \
