@@ -24,8 +24,11 @@ def test_every_step_on_the_host_kernels_writes_the_goal_table(tmp_path):
     gpu_goals.run_step("stores", out, work, owner_kernels=True, **kw)  # owner.cuh's host build, in process
     gpu_goals.run_step("frames", out, work, **kw)
     gpu_goals.run_step("curve", out, work, **kw)
+    gpu_goals.run_step("throughput", out, work, quick=True, **kw)
     rows = [json.loads(line) for line in (out / "goals.jsonl").read_text().splitlines()]
-    assert {r["step"] for r in rows} == {"machine", "stores", "frames", "curve"}
+    assert {r["step"] for r in rows} == {"machine", "stores", "frames", "curve", "throughput"}
+    tp = {r["what"]: r for r in rows if r["step"] == "throughput"}
+    assert set(tp) == {"products", "pairs"} and all(r["end_to_end_per_s"] > 0 and r["kernels_per_s"] > 0 for r in tp.values())
     stores = [r for r in rows if r["step"] == "stores"]
     assert [r["what"] for r in stores] == ["encrypt scalar", "encrypt tf"]
     assert stores[0]["ciphertexts"] == 8 ** 3 and stores[1]["ciphertexts"] == 6 ** 3 * 5
@@ -42,6 +45,7 @@ def test_every_step_on_the_host_kernels_writes_the_goal_table(tmp_path):
     assert "identical to cpu" in text and "NOT identical" not in text and "OUT OF BOUND" not in text
     assert "8³ owner encryption" in text and "efficiency at 2 workers" in text
     assert text.count("| 2 |") == 3
+    assert "| 4096-bit products/s, kernels only | ≥ 1e8 | " in text and "| — | — |" not in text.split("products/s, kernels")[1].split("\n")[0]
 
 
 def test_the_table_says_what_was_not_measured_and_names_a_mismatch(tmp_path):

@@ -50,6 +50,7 @@ from typing import Any
 
 import dask
 import numpy as np
+from distributed import Client, LocalCluster
 
 from ..backends import get_backend
 from ..crypto.keyfile import load_key
@@ -62,6 +63,7 @@ from ..rendering.reference.plain import render_plain
 from ..store.reader import open_volume
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
+from .gpu import throughput
 from .measure import machine
 
 log = logging.getLogger(__name__)
@@ -123,16 +125,12 @@ def _camera(ev: Any, image: int) -> Camera:
 
 @contextlib.contextmanager
 def _cluster(workers: int) -> Iterator[Any]:
-    from distributed import Client, LocalCluster
-
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cl, \
             Client(cl, set_as_default=False) as client:
         yield client
 
 
 def throughput_step(out: Path, backend: str, quick: bool) -> None:
-    from .gpu import throughput
-
     res = throughput(get_backend(backend), quick)
     for label, r in res.items():
         unit = "products_per_s" if label == "products" else "pairs_per_s"
