@@ -3,5 +3,6 @@
 Modules: ``settings`` (quick / default / paper), ``paper`` (the published figures),
 ``measure`` (timers, machine, workers), ``cases`` (one function per kind of cell),
 ``crypto_micro`` and ``kernel_micro`` (one-core micro-benchmarks), ``runner`` (resumable
-orchestration, raw JSON), ``report`` and ``plot`` (markdown, goals, figure).
+orchestration, raw JSON), ``report`` and ``plot`` (markdown, goals, figure), ``gpu`` (``hevr bench
+--gpu``: the GPU backend's proof) and ``gpu_goals`` (issue 40's goal table, step by step on a GPU machine).
 """
