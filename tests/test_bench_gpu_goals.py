@@ -10,6 +10,8 @@ import json
 
 import pytest
 
+import hevr
+
 from hevr._bench import gpu_goals
 
 
@@ -64,7 +66,7 @@ def test_the_table_says_what_was_not_measured_and_names_a_mismatch(tmp_path):
 
 
 def test_an_unknown_step_and_a_missing_key_are_named(tmp_path):
-    with pytest.raises(ValueError, match="step: expected one of"):
+    with pytest.raises(hevr.ParameterError, match="step: expected one of"):
         gpu_goals.run_step("nope", tmp_path / "o", tmp_path / "w")
     with pytest.raises(FileNotFoundError, match="run the stores step first"):
         gpu_goals.run_step("frames", tmp_path / "o", tmp_path / "w", backend="cuda-host")

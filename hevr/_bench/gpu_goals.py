@@ -55,7 +55,7 @@ from distributed import Client, LocalCluster
 from ..backends import get_backend
 from ..crypto.keyfile import load_key
 from ..crypto.keys import generate_keypair
-from ..errors import InsecureKeyWarning
+from ..errors import InsecureKeyWarning, ParameterError
 from ..paper import TF_NODES
 from ..rendering.encrypted import error_bound, render
 from ..rendering.geometry.camera import Camera
@@ -284,7 +284,7 @@ def run_step(step: str, out: Path, work: Path, *, backend: str = "cuda", size: i
              owner_kernels: bool = False, quick: bool = False) -> None:
     """One step of the module docstring; rows go to ``out/goals.jsonl`` as they are measured."""
     if step not in STEPS:
-        raise ValueError(f"step: expected one of {', '.join(STEPS)}, got {step!r}")
+        raise ParameterError(f"step: expected one of {', '.join(STEPS)}, got {step!r}")
     out.mkdir(parents=True, exist_ok=True)
     work.mkdir(parents=True, exist_ok=True)
     if step == "table":
@@ -293,7 +293,7 @@ def run_step(step: str, out: Path, work: Path, *, backend: str = "cuda", size: i
     be = get_backend(backend)
     launcher = getattr(be, "_launch", None)
     if owner_kernels and launcher is not None:
-        type(launcher).keyholder = True  # the key holder's kernels, for this process (device.py keeps them off)
+        launcher.keyholder = True  # the key holder's kernels for this backend (device.py keeps them off by default)
     device = launcher.device_name() if hasattr(launcher, "device_name") else f"the host CPU ({backend})"
     _append(out, {"step": "machine", "for": step, "device": device, "machine": machine()})
     if step == "throughput":
@@ -326,8 +326,7 @@ def main(argv: list[str] | None = None) -> int:
     workers = tuple(sorted({int(w) for w in a.workers.split(",")}))
     run_step(a.step, a.out, a.work, backend=a.backend, size=a.size, tf_size=a.tf_size, image=a.image, bits=a.bits,
              repeats=a.repeats, workers=workers, owner_kernels=a.owner_kernels, quick=a.quick)
-    if a.step != "table":
-        print(table(a.out), flush=True)
+    log.info("goal table: %s", a.out / "goals.md")  # gpu-proof.sh prints it; no print() outside the CLI
     return 0
 
 
