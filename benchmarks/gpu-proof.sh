@@ -5,7 +5,8 @@
 #   device tool, call 1: carry [".whl"], command: bash benchmarks/gpu-proof.sh run     timeout_s 360
 #   device tool, call 2: carry [".whl"], command: bash benchmarks/gpu-proof.sh goals   timeout_s 430
 #                      (OWNER_KERNELS=1 bash ... goals once owner.cuh passes there: the stores then
-#                      encrypt in its kernels, the "100^3 encryption <= 3 s" row)
+#                      encrypt in its kernels, the "100^3 encryption <= 3 s" row; PREV=FILE: call 1's
+#                      goals.jsonl copied into the working tree, so goals.md holds the throughput too)
 #
 # The two calls and their starts fit one 15-minute lease, with minutes between them to fix what call 1
 # showed; each ends by itself (DEADLINE 330 s / 400 s) before its timeout_s, each step gets what is
@@ -20,9 +21,9 @@
 #   2. owner.cuh: compute-sanitizer on its failing case (2048-bit CRT decryption), the kernels'
 #      registers / local memory / the stack limit as the driver reports them, the same with a 16 KiB
 #      stack, then tests/backends/test_cuda_owner.py with the kernels on   -> diagnose.log, pytest.log
-#   3. the gpu-marked tests and the operation suite on the device (HEVR_TEST_KERNELS=cuda) -> pytest.log
-#   4. throughput at 2048-bit keys, end to end and kernels only          -> goals.jsonl / goals.md
-#      and the kernel source's experiment (HEVR_CIOS_REG) beside it     -> experiments.json
+#   3. throughput at 2048-bit keys, end to end and kernels only          -> goals.jsonl / goals.md
+#   4. the gpu-marked tests, the kernel source's experiment (HEVR_CIOS_REG) -> pytest.log, experiments.json
+#      and the operation suite on the device (HEVR_TEST_KERNELS=cuda)    -> pytest.log
 #   5. every compile/launch variant of owner.cuh in its own process      -> diagnose.log
 # goals: hevr/_bench/gpu_goals.py's steps, each its own process: the 100^3 scalar and 50^3 4-dim
 # stores (2048-bit key), the backend's resident 150^2 frames (X-ray nearest, trilinear, TF trilinear
@@ -69,7 +70,7 @@ run|goals)
   if [ "$1" = run ]; then
     { nvidia-smi -L; nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv; nproc; } 2>&1 \
       | tee "$OUT/device.txt"
-    # 1. owner.cuh (wrong on an H200 on 2026-11-26): the faulting access, then the suite with the kernels on
+    # 2. owner.cuh (wrong on an H200 on 2026-11-26): the faulting access, then the suite with the kernels on
     { step 70 compute-sanitizer --tool memcheck --print-limit 6 $PY benchmarks/gpu_diagnose.py \
         --variant=shipped --keys 2048 --steps decrypt --counts 64
       step 40 compute-sanitizer --tool initcheck --print-limit 6 $PY benchmarks/gpu_diagnose.py \
@@ -78,20 +79,23 @@ run|goals)
       > "$OUT/diagnose.log" 2>&1
     HEVR_TEST_KERNELS=cuda step 70 $PY -m pytest -q -rs -p no:cacheprovider -o addopts= --maxfail=20 \
       tests/backends/test_cuda_owner.py > "$OUT/pytest.log" 2>&1
-    # 2. the backend's verdict: operations, streamed and resident renders, the render kernels on the device
+    # 3. the throughput: end to end and kernels only (its caps above leave it time whatever came before)
+    step 60 $G throughput > "$OUT/goals.log" 2>&1
+    # 4. the backend's verdict: operations, streamed and resident renders, the render kernels on the device;
+    #    then the source's experiment (HEVR_CIOS_REG) and the operation suite on the device
     HEVR_TEST_KERNELS=cuda step 80 $PY -m pytest -q -rs -p no:cacheprovider -o addopts= -m gpu \
       tests/backends/test_cuda_device.py >> "$OUT/pytest.log" 2>&1
+    step 40 $PY -c "import json, sys; from hevr.backends import get_backend; from hevr._bench.gpu import experiments
+print(json.dumps(experiments(get_backend('cuda'), False)))" > "$OUT/experiments.json" 2>>"$OUT/goals.log"
     HEVR_TEST_KERNELS=cuda step 60 $PY -m pytest -q -rs -p no:cacheprovider -o addopts= --maxfail=20 \
       tests/backends/test_cuda_host_backend.py >> "$OUT/pytest.log" 2>&1
     grep -E "passed|failed|error" "$OUT/pytest.log" | tail -3
-    # 3. the throughput: end to end and kernels only; then the source's experiment (HEVR_CIOS_REG)
-    step 60 $G throughput > "$OUT/goals.log" 2>&1
-    step 40 $PY -c "import json, sys; from hevr.backends import get_backend; from hevr._bench.gpu import experiments
-print(json.dumps(experiments(get_backend('cuda'), False)))" > "$OUT/experiments.json" 2>>"$OUT/goals.log"
-    # 4. every compile/launch variant of owner.cuh, each in its own process, with what is left
+    # 5. every compile/launch variant of owner.cuh, each in its own process, with what is left
     step 150 $PY benchmarks/gpu_diagnose.py --keys 1024,2048 --counts 64 --timeout 25 >> "$OUT/diagnose.log" 2>&1
     grep -E "wrong [1-9]|FAILED|timed out|ERROR SUMMARY|Invalid|at 0x|stack limit|kernel k_" "$OUT/diagnose.log" | head -40
   else
+    # call 1's rows (its goals.jsonl copied into the working tree, named by PREV) head the table
+    if [ -n "${PREV:-}" ] && [ -f "$PREV" ]; then cp "$PREV" "$OUT/goals.jsonl"; fi
     # --owner-kernels once owner.cuh passes on the device (the stores then encrypt in its kernels)
     step 130 $G stores ${OWNER_KERNELS:+--owner-kernels} > "$OUT/goals.log" 2>&1
     step 110 $G frames >> "$OUT/goals.log" 2>&1
