@@ -14,7 +14,8 @@ binds them with a MAC under a key derived from the tag key:
 and the key holder recomputes it before any pixel of a verified render is returned
 (:meth:`hevr.rendering.verify.Verification.check`). Bound (:data:`AUTHENTICATED`): shape, spacing,
 brick, the key (n, fingerprint, record width), dtype, value range, base, the channels (exponent,
-digits, dims), the store id, the patient frame and origin, and the tags flag. Not bound, because
+digits, dims), the store id, the patient frame and origin, the tags flag and, for a packed store,
+its ``layout`` (axis, slots, slot bits, weight bits, offset: :mod:`hevr.store.packing`). Not bound, because
 they are derived from the bound fields and checked on reading (:mod:`hevr.store.metadata`), or carry
 no meaning for a picture: the pyramid levels' shapes and bricks (halvings of the shape, checked;
 their exponents e − 3·level and their tags 125 ⊗ the children's are fixed by the scheme), the
@@ -75,6 +76,8 @@ def authenticated_fields(d: dict) -> dict:
     out["base"] = d.get("base", 10)
     pk = d.get("public_key") or {}
     out["public_key"] = {"n": pk.get("n"), "fingerprint": pk.get("fingerprint")}
+    if d.get("layout") is not None:  # a packed store's slots (absent, as in every store before them, for per-voxel)
+        out["layout"] = d["layout"]
     return out
 
 

@@ -37,7 +37,7 @@ from .digests import DIGEST_BYTES
 from .metadata import VolumeMetadata, ome_attribute
 from .paths import document_digest, is_local, object_sizes, read_document, zarr_store
 
-__all__ = ["CRC_BYTES", "compressors", "array_layout", "brick_slices", "chunk_key", "check_entry", "check_document",
+__all__ = ["CRC_BYTES", "compressors", "array_layout", "array_slices", "brick_slices", "chunk_key", "check_entry", "check_document",
            "check_arrays",
            "check_chunk_files", "check_chunk_objects", "check_documents", "check_level_layout"]
 
@@ -63,8 +63,10 @@ def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple
     """``{array name: (shape, chunk shape)}`` of every array a store of ``meta`` has; the
     ``done`` array holds one digest per channel per brick (:mod:`hevr.store.digests`)."""
     w, out = meta.ciphertext_bytes, {}
-    if meta.scalar is not None:
-        out["scalar"] = (meta.shape + (w,), meta.brick + (w,))
+    if meta.scalar is not None:  # a packed store's scalar array: S voxels per record along its axis
+        shape, brick = ((meta.shape, meta.brick) if meta.packing is None else
+                        (meta.packing.array_shape(meta.shape), meta.packing.array_brick(meta.brick)))
+        out["scalar"] = (shape + (w,), brick + (w,))
     for name in ("vector", "gradient"):  # k components per voxel, one chunk holds all k of a brick
         if getattr(meta, name) is not None:
             k = meta.components(name)
@@ -79,6 +81,15 @@ def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple
 def brick_slices(meta: VolumeMetadata, index: tuple[int, int, int]) -> tuple[slice, slice, slice]:
     """Array slices (z, y, x) of the voxels owned by brick ``index``."""
     return tuple(slice(i * b, min((i + 1) * b, s)) for i, b, s in zip(index, meta.brick, meta.shape))  # type: ignore[return-value]
+
+
+def array_slices(meta: VolumeMetadata, index: tuple[int, int, int]) -> tuple[slice, slice, slice]:
+    """Slices of brick ``index``'s records in the scalar array (and its tags): the voxel slices of
+    a per-voxel store, pack units along the packing axis of a packed one (:mod:`hevr.store.packing`)."""
+    if meta.packing is None:
+        return brick_slices(meta, index)
+    shape, brick = meta.packing.array_shape(meta.shape), meta.packing.array_brick(meta.brick)
+    return tuple(slice(i * b, min((i + 1) * b, s)) for i, b, s in zip(index, brick, shape))  # type: ignore[return-value]
 
 
 def chunk_key(name: str, index: tuple[int, ...]) -> str:

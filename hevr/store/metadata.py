@@ -37,6 +37,7 @@ from ..crypto.tags import data_channel, tag_channel
 from ..errors import CorruptStoreError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_spacing
 from .authenticity import is_auth
+from .packing import PackingInfo, mantissa_range
 
 __all__ = ["CHANNELS", "ChannelInfo", "LevelInfo", "VolumeMetadata", "ome_attribute", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
 
@@ -161,6 +162,13 @@ class VolumeMetadata:
     tags: bool = False
     # the owner's MAC over the fields that shape a picture (hevr.store.authenticity); verifiable stores only
     auth: str = ""
+    # a slot-packed store (hevr.store.packing): S voxels along one axis per ciphertext; None: one per voxel
+    packing: PackingInfo | None = None
+
+    @property
+    def layout(self) -> str:
+        """``"packed"`` (:mod:`hevr.store.packing`) or ``"voxel"`` (one ciphertext per voxel)."""
+        return "voxel" if self.packing is None else "packed"
 
     @property
     def grid(self) -> tuple[int, int, int]:
@@ -235,6 +243,7 @@ class VolumeMetadata:
                if self.patient else {}),
             **({"tags": True} if self.tags else {}),
             **({"auth": self.auth} if self.auth else {}),
+            **({"layout": self.packing.to_dict()} if self.packing is not None else {}),
         }
         if self.version >= 2:
             d["checksum"] = metadata_checksum(d)
@@ -386,7 +395,11 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
                dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, gradient=gradient, base=base,
                complete=complete, store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {},
                patient=patient, tags=tags, auth=auth)
+    if "layout" in d:
+        meta = dataclasses.replace(meta, packing=_packing(d, meta, where))
     levels = d.get("levels", [])
+    if meta.packing is not None and levels:
+        raise _bad(where, "levels", "none in a packed store (its pyramid is not built yet)", levels)
     if not isinstance(levels, list) or len(levels) > MAX_LEVELS:
         raise _bad(where, "levels", f"a list of at most {MAX_LEVELS} pyramid levels", levels)
     parsed, below = [], shape
@@ -398,6 +411,20 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     if "n_bricks" in d and d["n_bricks"] != meta.n_bricks:
         raise _bad(where, "n_bricks", f"{meta.n_bricks} (the brick grid of shape and brick)", d["n_bricks"])
     return meta
+
+
+def _packing(d: dict, meta: VolumeMetadata, where: str) -> PackingInfo:
+    """The ``layout`` object of a packed store, checked against the rest of the metadata: a scalar
+    channel only, the offset the value range implies, slots that fit the key and the brick, and
+    a slot width that holds every frame's largest sum (:meth:`PackingInfo.check`)."""
+    packing = PackingInfo.from_dict(d["layout"], where)
+    if meta.scalar is None or meta.vector is not None:
+        raise _bad(where, "channels", "only 'scalar' in a packed store", d.get("channels"))
+    lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
+    if packing.offset != lo:
+        raise _bad(where, "layout.offset", f"{lo} (the lowest mantissa of value_range)", str(packing.offset))
+    packing.check(int(meta.n).bit_length(), meta.shape, meta.brick, hi - lo, where)
+    return packing
 
 
 def _patient(p: Any, where: str) -> dict:

@@ -37,6 +37,7 @@ from .digests import brick_digest, digest_hex, written
 from .layout import (
     CRC_BYTES,
     array_layout,
+    array_slices,
     brick_slices,
     check_arrays,
     check_chunk_files,
@@ -177,6 +178,17 @@ class EncryptedVolume:
         return PublicKey(int(self.meta.n))
 
     @property
+    def layout(self) -> str:
+        """``"voxel"`` (one ciphertext per voxel) or ``"packed"`` (S voxels per ciphertext along
+        ``packing.axis``: :mod:`hevr.store.packing`; rendered by :mod:`hevr.rendering.packed`)."""
+        return self.meta.layout
+
+    @property
+    def packing(self) -> Any:
+        """The :class:`~hevr.store.packing.PackingInfo` of a packed store, else None."""
+        return self.meta.packing
+
+    @property
     def has_scalar(self) -> bool:
         return self.meta.scalar is not None
 
@@ -205,8 +217,10 @@ class EncryptedVolume:
         if self.has_gradient:
             ch.append(f"gradient[{self.vector_dims}]")
         res = f", resident={'+'.join(self.resident.channels)}" if self.resident is not None else ""
+        packed = (f", layout=packed[{self.packing.slots}x{self.packing.slot_bits} bits, axis {self.packing.axis}]"
+                  if self.packing is not None else "")
         return (f"EncryptedVolume({self.path!r}, shape={self.shape}, brick={self.brick}, "
-                f"channels={'+'.join(ch)}, key={self.meta.fingerprint[:16]}…{res})")
+                f"channels={'+'.join(ch)}{packed}, key={self.meta.fingerprint[:16]}…{res})")
 
     def __getstate__(self) -> dict:
         return {"path": self.path, "meta": self.meta, "level": self.level, "base": self.base,  # never the bricks
@@ -288,7 +302,8 @@ class EncryptedVolume:
                                  f"'<channel>_tag'), got {channel!r}")
         if channel not in self.meta.channel_names:
             raise ParameterError(f"channel: this store has no {channel} channel")
-        sl = self.brick_slices(index)
+        self._check_index(index)
+        sl = array_slices(self.meta, index)  # a packed store's records: pack units along its axis
         index = tuple(int(i) for i in index)
         where = f"brick {index} of channel {channel!r}" + (f" of level {self.level}" if self.level else "")
         for name in (channel, "done") if verify else (channel,):  # a FIFO there would block Zarr's read

@@ -63,7 +63,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from fractions import Fraction
 from typing import Any
 
 import numpy as np
@@ -82,6 +81,7 @@ from ..._limits import (
 from ..._validate import check_shape, check_spacing, check_step
 from ...errors import ParameterError, RenderPlanError
 from ...store.metadata import VolumeMetadata
+from ...store.packing import mantissa_range as _mantissa_range
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
 from ..geometry.rays import RaySet, cast_rays
@@ -156,22 +156,6 @@ class RenderPlan:
 
 def _bits(x: int) -> int:
     return max(1, int(x).bit_length())
-
-
-def _mantissa_range(value_range: tuple[float, float], ch_exp: int) -> tuple[int, int]:
-    """floor(lo·10^-e), ceil(hi·10^-e): in float64 as always, exactly (never overflowing)
-    when the product leaves float64's range (a store's value_range beyond 1e100, written by
-    an older hevr or by hand).
-
-    >>> _mantissa_range((-1.5, 2.25), -1), _mantissa_range((0.0, 1e300), -30)[1] > 10**329
-    ((-15, 23), True)
-    """
-    lo, hi = (float(v) for v in value_range)
-    scale = 10 ** (-int(ch_exp))
-    try:
-        return math.floor(lo * scale), math.ceil(hi * scale)
-    except (OverflowError, ValueError):  # inf (or nan) from an overflowing product
-        return math.floor(Fraction(lo) * Fraction(scale)), math.ceil(Fraction(hi) * Fraction(scale))
 
 
 def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np.ndarray, digits: int,
