@@ -126,6 +126,7 @@ def render(
     overwrite: bool = False,
     finish: str = "client",
     verify: bool | str | None = None,
+    weight_bits: int | None = None,
 ) -> EncryptedImage | Delayed:
     """Render an encrypted volume to an :class:`EncryptedImage` on the active Dask scheduler.
 
@@ -213,10 +214,19 @@ def render(
         store id the owner recorded (``ev.meta.store_id`` from :func:`hevr.encrypt_volume`): the
         render is verified, and refused for any other store (a server could otherwise serve another
         verifiable store of the same key, or one without tags). About twice the server's work.
+    weight_bits : int, optional
+        Packed stores only: bits per axis of the in-slice bilinear weights (default: the store's,
+        which its slots were sized for; more is refused when a sum could carry into the next slot).
+
+    A packed store (``encrypt_volume(..., layout="packed")``, :mod:`hevr.store.packing`) renders
+    X-ray frames of parallel cameras slice by slice (:mod:`hevr.rendering.packed`): ``sampling``
+    ``"nearest"`` or ``"trilinear"`` (bilinear within each slice), ``step`` 1 (one sample per
+    slice), client finishing; it returns a :class:`hevr.rendering.packed.PackedImage`, which
+    ``decrypt`` s like an :class:`EncryptedImage`, compared with ``render_plain(..., slices=True)``.
 
     Returns
     -------
-    EncryptedImage or dask.delayed.Delayed
+    EncryptedImage, PackedImage or dask.delayed.Delayed
         Never touches the secret key. ``stats`` reports ``map_tasks``, ``finish_tasks``,
         ``reused_ray_sums``, ``resident`` (bricks taken from a persisted volume,
         :meth:`hevr.EncryptedVolume.persist`), ``backend`` (the one that ran: ``backend="auto"``
@@ -231,6 +241,17 @@ def render(
     """
     if isinstance(camera, Plane):
         raise ParameterError("camera: expected a hevr.Camera, got a hevr.Plane (render slices with hevr.render_slice)")
+    if getattr(getattr(ev, "meta", None), "packing", None) is not None:  # a packed store's frame plan
+        if not isinstance(camera, Camera):
+            raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
+        from .packed.request import render_packed_request
+        return render_packed_request(ev, camera, mode, sampling, step, density, nodes, tile=tile, client=client,
+                                     progress=progress, backend=backend, compute=compute, keep_sums=keep_sums,
+                                     level=level, gradient=gradient, finish=finish, verify=verify,
+                                     weight_bits=weight_bits)
+    if weight_bits is not None:
+        raise ParameterError(f"weight_bits: expected None for a per-voxel store (its trilinear weights have "
+                             f"'digits'), got {weight_bits!r}")
     return _render(ev, camera, mode, sampling, step, density, nodes, digits=digits, precision=precision,
                    comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
                    backend=backend, compute=compute, keep_sums=keep_sums, level=level, gradient=gradient,

@@ -1,0 +1,25 @@
+"""Frames of packed stores (:mod:`hevr.store.packing`): parallel projections sampled slice by slice.
+
+The data path of one packed frame, module by module:
+
+=================  =============================================================
+``shear``          the view's slices, slopes, intermediate rays and the warp to pixels
+``plan``           :class:`SlicePlan`, the frame plan: which pack serves which rays with which
+                   weight (accumulators by block, row and class), slot safety, the decoding
+``graph``          the Dask graph: map per brick, merge and Horner combine per tile
+``image``          :class:`PackedImage`: the key holder's checks, decoding and warp
+``reference``      ``render_plain(..., slices=True)`` and the error bound against it
+=================  =============================================================
+
+``hevr.render`` routes a packed store here; its request checks (which modes, options and views a
+packed store serves) are in :func:`hevr.rendering.packed.graph.render_packed`'s caller,
+:func:`hevr.rendering.packed.request.check_packed_request`.
+"""
+
+from __future__ import annotations
+
+from .image import PackedImage
+from .plan import SlicePlan
+from .shear import ShearGeometry
+
+__all__ = ["PackedImage", "ShearGeometry", "SlicePlan"]

@@ -1,0 +1,150 @@
+"""A packed store's frame as one Dask graph: map per brick, merge and combine per tile.
+
+* **map** (one task per brick): read the brick's packed ciphertexts (or take them from a resident
+  volume, :meth:`hevr.EncryptedVolume.persist`), and compute every accumulator the brick
+  contributes to, Π Enc(P[A])^w, as one multi-exponentiation per accumulator
+  (:func:`~hevr.rendering.pipeline.kernel.plan_products` on the backend: equal weights grouped,
+  buckets over distinct weights). Its output is cut by reduce tile.
+* **merge and combine** (one task per tile of the intermediate image: ``tile`` rows × ``tile // S``
+  blocks): the product of the bricks' partial accumulators with equal keys, then per (B, j) the
+  Horner combine of its classes (the backend's ``pack`` with exponents 1 and base 2^K).
+
+Modular operations are counted (map: the backend's :class:`~hevr.backends.base.OpCounter`;
+merge: one product per extra partial; combine: K·O squarings and O products per value) and
+reported in the image's ``stats``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import numpy as np
+from dask.delayed import delayed
+
+from ..._dask import active_client
+from ..._dask import compute as run_tasks
+from ..._dask import warn_if_remote
+from ...backends import get_backend, resolve_backend_name
+from ...backends.base import OpCounter
+from ...store.packing import mantissa_range
+from ...store.paths import check_reachable
+from ..pipeline.finishing import one_records
+from ..pipeline.kernel import plan_products
+from .image import PackedImage
+from .plan import SlicePlan
+
+log = logging.getLogger(__name__)
+
+__all__ = ["map_brick", "merge_tile", "render_packed"]
+
+
+def map_brick(ev: Any, plan: SlicePlan, index: tuple[int, int, int], backend: str, tiles: list[int],
+              resident: Any = None) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
+    """One brick's partial accumulators, cut by the tiles ``tiles`` (:meth:`SlicePlan.brick_tiles`):
+    a list of (keys, records) in that order, and the operations counted."""
+    be = get_backend(backend)
+    keys, local, weights = plan.brick_pairs(index)
+    width = ev.meta.ciphertext_bytes
+    empty = (np.zeros(0, np.int64), np.zeros((0, width), np.uint8))
+    if not len(keys):
+        return [empty for _ in tiles], {"map": 0, "pairs": 0}
+    batch = resident.batches["scalar"] if resident is not None else ev.read_brick(index, "scalar", backend=be)
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    uniq = keys[starts]
+    indptr = np.r_[starts, len(keys)].astype(np.int64)
+    counter = OpCounter()
+    pp = plan_products(indptr, local, weights, len(batch))
+    values = be.ray_products(pp, [batch], int(ev.public_key.nsquare), counter)[0]
+    recs = be.to_bytes(values, width)
+    where = plan.tile_of(uniq)
+    parts = [(uniq[where == t], recs[where == t]) for t in tiles]
+    if sum(len(k) for k, _ in parts) != len(uniq):  # pragma: no cover - brick_tiles is a superset by construction
+        raise AssertionError("packed map: a product fell outside the brick's tiles")
+    return parts, {"map": counter.modmuls, "pairs": int(len(keys))}
+
+
+def merge_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, *parts: Any) -> tuple[np.ndarray, dict]:
+    """Tile ``t``: the product of the bricks' partial accumulators per key, then the Horner
+    combine of every (B, j)'s classes; returns the tile's (values, W) records, (j, B) row-major."""
+    be = get_backend(backend)
+    j0, j1, b0, b1 = plan.tile_bounds(t)
+    nb, C = b1 - b0, plan.classes
+    n_acc = (j1 - j0) * nb * C
+    full = one_records((n_acc,), width)
+    merged_ops = 0
+    keys = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
+    if len(keys):
+        recs = np.concatenate([p[1] for p in parts])
+        order = np.argsort(keys, kind="stable")
+        keys, recs = keys[order], recs[order]
+        starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+        uniq = keys[starts]
+        nsq = n * n
+        merged = be.segment_products(be.from_bytes(recs), np.r_[starts, len(keys)].astype(np.int64), 1, nsq)
+        merged_ops = len(keys) - len(uniq)
+        # global key -> the tile's accumulator index (rows j, blocks B, classes), row-major
+        acc, c = uniq // C, uniq % C
+        jr, br = acc // plan.n_blocks - j0, acc % plan.n_blocks - b0
+        full[(jr * nb + br) * C + c] = be.to_bytes(merged, width)
+    out = be.pack(be.from_bytes(full), [1] * n_acc, plan.packing.slot_bits, C, 0, n)
+    n_out = (j1 - j0) * nb
+    K, O = plan.packing.slot_bits, C - 1
+    return be.to_bytes(out, width), {"merge": merged_ops, "combine_squarings": n_out * K * O, "combine": n_out * O}
+
+
+def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client: Any = None, progress: bool = True,
+                  backend: str | None = None, weight_bits: int | None = None) -> PackedImage:
+    """Render a packed store's X-ray of a parallel ``camera`` (:func:`hevr.render` routes here;
+    its request checks are done there)."""
+    cl = active_client(client)
+    warn_if_remote(cl)
+    check_reachable(ev.path, cl)
+    bits = int(ev.public_key.n).bit_length()
+    res = ev.resident.backend if ev.resident is not None and ev.resident.bricks else None
+    backend = resolve_backend_name(backend, bits, resident=res, client=cl)
+    t0 = time.perf_counter()
+    meta = ev.meta
+    plan = SlicePlan.build(camera, meta.shape, meta.spacing, meta.brick, meta.packing, sampling, tile, weight_bits)
+    lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
+    plan.check_slots(hi - lo)  # before any work: no sum may carry into the next slot
+    resident = None
+    if ev.resident is not None and ev.resident.bricks:
+        if ev.resident.usable("scalar", backend, cl):
+            resident = ev.resident.bricks
+        else:
+            log.warning("render: the resident bricks cannot serve this render (backend %s); streaming from the store",
+                        backend)
+    n = int(ev.public_key.n)
+    width = meta.ciphertext_bytes
+    plain = ev._plain()
+    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
+    maps = []
+    for idx in ev.brick_indices():
+        tiles = plan.brick_tiles(idx)
+        if not tiles:
+            continue
+        name = f"hevr-packed-map-{meta.store_id}-{idx[0]}-{idx[1]}-{idx[2]}-{camera.key()[:12]}-{sampling}"
+        task = delayed(map_brick, pure=True, nout=2)(plain, plan, idx, backend, tiles,
+                                                     resident.get(idx) if resident is not None else None,
+                                                     dask_key_name=name)
+        maps.append(task[1])
+        for pos, t in enumerate(tiles):
+            per_tile[t].append(task[0][pos])
+    fin = [delayed(merge_tile, pure=True, nout=2)(plan, t, n, width, backend, *per_tile[t],
+                                                  dask_key_name=f"hevr-packed-tile-{meta.store_id}-{t}-{camera.key()[:12]}-{sampling}")
+           for t in range(plan.n_tiles)]
+    results = run_tasks([f for f in fin] + maps, client=cl, progress=progress, desc="render")
+    tiles_out = [r[0] for r in results[:len(fin)]]
+    counts = {"map": sum(m["map"] for m in results[len(fin):]), "pairs": sum(m["pairs"] for m in results[len(fin):])}
+    for r in results[:len(fin)]:
+        for k, v in r[1].items():
+            counts[k] = counts.get(k, 0) + v
+    stats = {"layout": "packed", "backend": backend, "map_tasks": len(maps), "finish_tasks": len(fin),
+             "resident": resident is not None, "ops": counts, "rays": int(np.prod(plan.geometry.size)),
+             "ciphertexts": int(sum(len(t) for t in tiles_out)), "seconds": time.perf_counter() - t0}
+    log.info("render packed/%s %dx%d: %s", sampling, camera.width, camera.height, stats)
+    return PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
+                       offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles_out, store_id=meta.store_id,
+                       stats=stats)

@@ -1,0 +1,150 @@
+"""The key holder's side of a packed frame: :class:`PackedImage`, its decryption, decoding and warp.
+
+A packed frame's ciphertexts are, per reduce tile, one combined value per block of S rays and row
+(:mod:`hevr.rendering.packed.plan`). Decryption checks every ciphertext (in (0, n²)), every
+plaintext (no bit above its last slot: the 64-bit integrity margin; no slot above its ray's
+largest possible sum; nothing in the slots of rays outside the frame) before any pixel is formed,
+then adds the overlapping slots of neighbouring blocks into exact integer ray sums, undoes the
+store's offset (+ offset·W per ray, W the ray's public weight total), divides by the public
+sample count and the weight unit, and warps the intermediate image to the camera's pixels
+(:meth:`~hevr.rendering.packed.shear.ShearGeometry.warp`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ...backends import get_backend
+from ...crypto.keys import PrivateKey
+from ...errors import IntegrityError, KeyMismatchError, ParameterError, VerificationError
+from .plan import SlicePlan
+
+log = logging.getLogger(__name__)
+
+__all__ = ["PackedImage"]
+
+
+@dataclass
+class PackedImage:
+    """An encrypted X-ray frame of a packed store (``hevr.render`` on a store with ``layout="packed"``).
+
+    Attributes
+    ----------
+    plan : SlicePlan
+        The frame's public plan (geometry, slots, classes, tiles).
+    camera : Camera
+    fingerprint, n :
+        The key's fingerprint and modulus.
+    exponent : int
+        The scalar channel's exponent (a voxel value is mantissa·10^exponent).
+    offset, span : int
+        The store's slot offset (lowest mantissa) and mantissa span.
+    ciphertexts : list of np.ndarray
+        Per tile, (values, W) uint8 big-endian records.
+    store_id : str
+    stats : dict
+        ``ops``: modular operations counted (map, merge, combine), ``rays``, ``ciphertexts``, …
+    """
+
+    plan: SlicePlan = field(repr=False)
+    camera: Any = field(repr=False)
+    fingerprint: str
+    n: int = field(repr=False)
+    exponent: int
+    offset: int
+    span: int
+    ciphertexts: list = field(repr=False)
+    store_id: str = ""
+    stats: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.camera.height, self.camera.width)
+
+    @property
+    def n_ciphertexts(self) -> int:
+        return int(sum(len(c) for c in self.ciphertexts))
+
+    @property
+    def verified(self) -> bool:
+        """Packed frames are not verified yet (the tags are in a verifiable packed store; their check is issue 46's)."""
+        return False
+
+    def _key(self, private_key: Any) -> Any:
+        if not isinstance(private_key, PrivateKey):
+            raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
+        if private_key.public_key.fingerprint != self.fingerprint or int(private_key.public_key.n) != int(self.n):
+            raise KeyMismatchError(f"private_key: the image was encrypted under key {str(self.fingerprint)[:16]}…, got "
+                                   f"a key with fingerprint {private_key.public_key.fingerprint[:16]}…")
+        return private_key
+
+    def decrypt_sums(self, private_key: PrivateKey, backend: str | None = None) -> np.ndarray:
+        """The exact integer ray sums Σ w·(m − offset) of the intermediate image, (N_i, N_j) int64."""
+        key = self._key(private_key)
+        be = get_backend(backend)
+        n2 = int(key.public_key.nsquare)
+        width = key.public_key.ciphertext_bytes
+        tiles = []
+        for t, recs in enumerate(self.ciphertexts):
+            recs = np.asarray(recs)
+            if recs.ndim != 2 or recs.shape[1] != width or recs.dtype != np.uint8:
+                raise IntegrityError(f"image: tile {t}: expected (values, {width}) uint8 records, got {recs.shape} "
+                                     f"{recs.dtype}; no image is returned")
+            batch = be.from_bytes(recs)
+            bad = be.first_out_of_range(batch, n2)
+            if bad is not None:
+                raise IntegrityError(f"image: tile {t}: ciphertext {bad} is not in (0, n²): the image was corrupted "
+                                     "or tampered with; no image is returned")
+            tiles.append(be.decrypt(key, batch))
+        W = self.plan.weight_totals()
+        return self.plan.decode(tiles, self.span, W)
+
+    def decrypt_intermediate(self, private_key: PrivateKey, backend: str | None = None) -> np.ndarray:
+        """The intermediate image (rays along the packing axis × the other axis), float64 X-ray values."""
+        sums = self.decrypt_sums(private_key, backend)
+        return self._values(sums)
+
+    def _values(self, sums: np.ndarray) -> np.ndarray:
+        plan = self.plan
+        W = plan.weight_totals()
+        count = plan.geometry.sample_counts(plan.sampling)
+        total = sums.astype(object) + W.astype(object) * int(self.offset)
+        denom = count.astype(object) * plan.unit
+        out = np.zeros(sums.shape, np.float64)
+        hit = count > 0
+        e = int(self.exponent)
+        scale = 10 ** (-e) if e < 0 else 1
+        mult = 10 ** e if e > 0 else 1
+        out[hit] = [float(_ratio(t * mult, d * scale)) for t, d in zip(total[hit], denom[hit])]
+        return out
+
+    def decrypt(self, private_key: PrivateKey, backend: str | None = None, *,
+                require_verified: bool | str = False) -> np.ndarray:
+        """The camera's float64 (H, W) image (X-ray: the mean of the samples of every pixel's ray).
+
+        ``require_verified``: refused (:class:`hevr.VerificationError`) — packed frames are not
+        verified yet."""
+        if require_verified:
+            raise VerificationError("require_verified: a packed store's frame carries no verification (its check "
+                                    "against the store's tags is not built yet); decrypt it without "
+                                    "require_verified, or render a verifiable per-voxel store")
+        inter = self.decrypt_intermediate(private_key, backend)
+        geo = self.plan.geometry
+        return geo.warp(inter, geo.pixel_coords(self.camera)).reshape(self.shape)
+
+    def __repr__(self) -> str:
+        return (f"PackedImage(shape={self.shape}, sampling={self.plan.sampling!r}, slots={self.plan.packing.slots}, "
+                f"ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
+
+
+def _ratio(num: int, den: int) -> float:
+    """num/den correctly rounded for big integers (Python's int true division).
+
+    >>> _ratio(1, 3) == 1 / 3, _ratio(10**400, 10**399)
+    (True, 10.0)
+    """
+    return num / den

@@ -1,0 +1,93 @@
+"""The float64 reference of slice-sampled frames, and the bound of a packed frame against it.
+
+:func:`render_plain_slices` (``hevr.render_plain(..., slices=True)``) samples every slice of the
+view's principal axis once per intermediate ray, with float64 in-slice weights (nearest: the voxel
+at floor(x + 0.5); ``trilinear``: bilinear within the slice, zero outside the volume), divides by
+the sample count and warps to the pixels — the definitions of :mod:`hevr.rendering.packed.shear`,
+evaluated directly on the plaintext slice by slice (no packing, no quantised weights, no accumulators).
+The geometry (slopes, which rays, the warp) is the shared public part; the sums are its own.
+
+:func:`packed_error_bound`: per pixel, how far a decrypted packed frame may be from it. Per
+contributing slice the quantised bilinear weights (per axis within 0.5/Q of the true ones, Q =
+2^weight_bits) move a sample by at most D/Q, D = max(hi − lo, |lo|, |hi|) of the value range (the
+neighbours outside the volume count 0); a float store's mantissas by 0.5·10^exponent. A ray with
+n samples and C contributing slices (C > n only where samples fall just outside the box) is off
+by at most C·(D/Q + store)/n; the warp's convex weights carry the bound to the pixels.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..._validate import check_choice, check_spacing, check_volume
+from ...volume.scan import Scan
+from .plan import SlicePlan
+from .shear import ShearGeometry
+
+__all__ = ["render_plain_slices", "packed_error_bound"]
+
+
+def render_plain_slices(vol: Any, camera: Any, sampling: str = "nearest", spacing: Any = None,
+                        axis: int | None = None) -> np.ndarray:
+    """The X-ray of ``camera`` (parallel) on ``vol``, sampled slice by slice: (H, W) float64.
+
+    ``axis``: the packing axis of the store compared with (views along it are refused as the
+    store refuses them); None: any view."""
+    if isinstance(vol, Scan):
+        vol, spacing = vol.volume, vol.spacing if spacing is None else spacing
+    arr = check_volume(np.asarray(vol))
+    spacing = check_spacing((1.0, 1.0, 1.0) if spacing is None else spacing)
+    sampling = check_choice("sampling", sampling, ("nearest", "trilinear"))
+    geo = ShearGeometry.of(camera, arr.shape, spacing, axis=axis, packed=axis is not None)
+    inter = _intermediate(arr, geo, sampling)
+    return geo.warp(inter, geo.pixel_coords(camera)).reshape(camera.height, camera.width)
+
+
+def _intermediate(arr: np.ndarray, geo: ShearGeometry, sampling: str) -> np.ndarray:
+    """Σ samples / n of every intermediate ray, float64, slice by slice."""
+    vol = np.moveaxis(arr, (geo.principal, geo.axis, geo.other), (0, 1, 2))
+    na, nb = vol.shape[1], vol.shape[2]
+    i = np.arange(*geo.i_range, dtype=np.float64)
+    j = np.arange(*geo.j_range, dtype=np.float64)
+    total = np.zeros((len(i), len(j)), np.float64)
+    count = np.zeros((len(i), len(j)), np.int64)
+    for k in range(vol.shape[0]):
+        plane = vol[k].astype(np.float64)
+        x, y = i + k * geo.slope_a, j + k * geo.slope_b
+        if sampling == "nearest":
+            xi, yi = np.floor(x + 0.5).astype(np.int64), np.floor(y + 0.5).astype(np.int64)
+            oka, okb = (xi >= 0) & (xi < na), (yi >= 0) & (yi < nb)
+            total[np.ix_(oka, okb)] += plane[np.ix_(xi[oka], yi[okb])]
+            count += np.outer(oka, okb)
+            continue
+        x0, y0 = np.floor(x), np.floor(y)
+        fx, fy = x - x0, y - y0
+        x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+        for dx, wx in ((0, 1.0 - fx), (1, fx)):
+            for dy, wy in ((0, 1.0 - fy), (1, fy)):
+                xa, yb = x0 + dx, y0 + dy
+                oka, okb = (xa >= 0) & (xa < na), (yb >= 0) & (yb < nb)
+                total[np.ix_(oka, okb)] += np.outer(wx[oka], wy[okb]) * plane[np.ix_(xa[oka], yb[okb])]
+        count += np.outer((x >= 0) & (x <= na - 1), (y >= 0) & (y <= nb - 1))
+    out = np.zeros_like(total)
+    np.divide(total, count, out=out, where=count > 0)
+    return out
+
+
+def packed_error_bound(meta: Any, camera: Any, sampling: str, weight_bits: int | None = None) -> np.ndarray:
+    """Per-pixel bound (H, W) on |decrypted packed frame − :func:`render_plain_slices`| (module docstring)."""
+    plan = SlicePlan.build(camera, meta.shape, meta.spacing, meta.brick, meta.packing, sampling,
+                           weight_bits=weight_bits)
+    lo, hi = (float(v) for v in meta.value_range)
+    D = max(hi - lo, abs(lo), abs(hi))
+    weights = D / (1 << plan.weight_bits) if sampling == "trilinear" else 0.0
+    store = 0.5 * 10.0 ** meta.scalar.exponent if meta.scalar.digits is not None else 0.0
+    n = plan.geometry.sample_counts(sampling)
+    C = plan.contributing_slices()
+    per_ray = np.zeros(n.shape, np.float64)
+    np.divide(C * (weights + store), n, out=per_ray, where=n > 0)
+    per_ray = per_ray * 1.0001 + 1e-9 * max(D, 1.0)  # float64 rounding of sums of up to N_p terms
+    geo = plan.geometry
+    return geo.warp(per_ray, geo.pixel_coords(camera)).reshape(camera.height, camera.width) + 1e-9 * max(D, 1.0)

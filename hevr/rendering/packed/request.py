@@ -1,0 +1,61 @@
+"""What a packed store's frame may ask, checked where the request enters (``hevr.render``).
+
+A packed store serves X-ray frames (``mode="xray"``) of parallel cameras whose principal axis is
+not its packing axis, sampled once per slice (``sampling="nearest"``, or ``"trilinear"``: bilinear
+within the slice), finished on the client, streamed from the store or resident. Everything else is
+refused before any work, with a :class:`hevr.ParameterError` that names the option and the way to
+get it (a per-voxel store). A verifiable packed store's frames are not verified yet: the default
+renders them with a warning, ``verify=True`` or a store id is refused.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from ..._validate import check_int
+from ...errors import ParameterError
+from .graph import render_packed
+from .image import PackedImage
+
+log = logging.getLogger(__name__)
+
+__all__ = ["render_packed_request"]
+
+_OTHER = "encrypt a per-voxel store (encrypt_volume(..., layout='voxel')) for it"
+
+
+def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: Any, density: Any, nodes: Any, *,
+                          tile: Any, client: Any, progress: bool, backend: Any, compute: Any, keep_sums: Any,
+                          level: Any, gradient: Any, finish: Any, verify: Any, weight_bits: Any) -> PackedImage:
+    """Check a render request against what a packed store serves, then render it."""
+    if mode != "xray":
+        raise ParameterError(f"mode: expected 'xray' on a packed store (it holds the scalar channel only), got "
+                             f"{mode!r}; {_OTHER} with vector_dims")
+    if density is not None or nodes is not None:
+        raise ParameterError("density/nodes: expected None for an X-ray of a packed store, got a colouring")
+    if type(step) not in (int, float) or float(step) != 1.0:
+        raise ParameterError(f"step: expected 1.0 on a packed store (one sample per slice of the view's principal "
+                             f"axis), got {step!r}")
+    if level not in (None, 0):
+        raise ParameterError(f"level: expected None on a packed store (it has no pyramid yet), got {level!r}")
+    if gradient:
+        raise ParameterError("gradient: expected False on a packed store (no gradient channel)")
+    if finish != "client":
+        raise ParameterError(f"finish: expected 'client' on a packed store (the key holder decodes the slots and "
+                             f"warps the image), got {finish!r}")
+    if keep_sums is not None:
+        raise ParameterError("keep_sums: expected None on a packed store (its ray sums are not saved yet)")
+    if compute is not True:
+        raise ParameterError(f"compute: expected True on a packed store, got {compute!r}")
+    if verify not in (None, False):
+        raise ParameterError(f"verify: expected None or False on a packed store, got {verify!r}: its frames are not "
+                             "verified yet (the store's tags are written; their check is not built); render a "
+                             "verifiable per-voxel store for a verified frame")
+    if verify is None:
+        log.warning("render: store %s is packed; its frames are not verified yet: this image is not checked "
+                    "against a lying server", ev.meta.store_id)
+    if weight_bits is not None:
+        weight_bits = check_int("weight_bits", weight_bits, 0, 16)
+    return render_packed(ev, camera, sampling, tile=tile, client=client, progress=progress, backend=backend,
+                         weight_bits=weight_bits)
