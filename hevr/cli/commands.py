@@ -93,8 +93,10 @@ def cmd_encrypt(args: Any) -> int:
                                 vector_dims=args.vector_dims, value_range=value_range, digits=args.digits,
                                 overwrite=args.overwrite, resume=args.resume, gradient=args.gradient,
                                 storage_options=so, verifiable=args.verifiable,
+                                layout=args.layout, pack_axis=args.pack_axis,
                                 progress=show_progress(args, lines=True))
-    n_ct = int(np.prod(ev.shape)) * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
+    records = int(np.prod(ev.packing.array_shape(ev.shape))) if ev.packing is not None else int(np.prod(ev.shape))
+    n_ct = records * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
     chans = channels(ev.meta)
     now = getattr(ev, "written_now", {"bricks": ev.meta.n_bricks, "ciphertexts": n_ct})
     bricks = plural(ev.meta.n_bricks, "brick")
@@ -107,7 +109,10 @@ def cmd_encrypt(args: Any) -> int:
                 if now["bricks"] < ev.meta.n_bricks else "")
         print(f"wrote {args.out}: {bricks} of {xyz(ev.brick)}, channels {chans}, {n_ct:,} ciphertexts, {size}{part}, "
               f"in {t.seconds:.2f} s ({now['ciphertexts'] / max(t.seconds, 1e-9):,.0f} ciphertexts/s)")
-    if not ev.vector_dims:
+    if ev.packing is not None:
+        print(f"packed:  {ev.packing.slots} voxels per ciphertext along {'zyx'[ev.packing.axis]} ({ev.packing.slot_bits}-bit "
+              f"slots): X-ray frames of parallel cameras around that axis (hevr render --parallel)")
+    elif not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
     if ev.meta.tags:
         print(f"verifiable: store id {ev.meta.store_id}; keep it, and render with --key KEY --verify "
@@ -193,6 +198,10 @@ def open_for_mode(store: str, mode: str, verb: str, so: dict | None = None, args
     on that ``hevr serve``: :func:`open_remote`) and check that it has the channel ``mode`` reads
     (``verb``: the command, for the hint)."""
     ev = open_remote(args) if getattr(args, "server", None) else st.open_store(store, "STORE", so)
+    if getattr(ev, "packing", None) is not None:
+        raise UsageError(f"STORE: expected a per-voxel store for 'hevr {verb}', got the packed store {store}: packed "
+                         "frames are rendered in Python for now (hevr.render(ev, hevr.Camera.orbit(ev, azimuth=90, "
+                         "parallel=True)).decrypt(key)); their frame files and CLI come later")
     if mode != "xray" and not ev.vector_dims:
         raise UsageError(f"--mode {mode}: expected a store with the vector channel, got {store} without one; "
                          f"encrypt it with --vector-dims 4 (or {verb} --mode xray)")

@@ -134,6 +134,9 @@ def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> i
         ("brick", f"{xyz(meta.brick)} voxels"),
         ("grid", f"{xyz(meta.grid)} = {plural(meta.n_bricks, 'brick')}"),
         ("channels", channels(meta)),
+        ("layout", "one ciphertext per voxel" if meta.packing is None else
+         f"packed: {meta.packing.slots} voxels per ciphertext along {'zyx'[meta.packing.axis]} "
+         f"({meta.packing.slot_bits}-bit slots, {meta.packing.weight_bits}-bit in-slice weights)"),
         ("value range", meta.value_range),
         ("key", f"{bits}-bit public key" + (" (NOT secure: < 2048 bits)" if bits < SECURE_BITS else "")),
         ("fingerprint", meta.fingerprint),

@@ -152,6 +152,12 @@ def encrypt_arguments(p: argparse.ArgumentParser) -> None:
                    help="also store a tag channel beside every channel, so that renders are checked against a lying "
                         "server at 'hevr decrypt' (needs the private --key; twice the ciphertexts and about twice "
                         "the encryption time)")
+    p.add_argument("--layout", choices=("voxel", "packed"), default="voxel",
+                   help="'voxel': one ciphertext per voxel (default; every render); 'packed': S voxels per "
+                        "ciphertext along --pack-axis (about S times smaller and faster to encrypt; X-ray frames of "
+                        "parallel cameras around that axis, 'hevr render --parallel'; scalar channel only)")
+    p.add_argument("--pack-axis", choices=("z", "y", "x"), default=None,
+                   help="the packing axis of --layout packed (default z: the patient's superior axis in RAS+)")
     p.add_argument("--value-range", type=range_type, metavar="LO,HI",
                    help="density normalisation range (default: the --modality range, else the dtype's range "
                         "for integers, the data range for floats)")

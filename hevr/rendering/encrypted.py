@@ -273,6 +273,11 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
 
     ``stream`` (:class:`hevr.rendering.pipeline.stream.StreamDecryptor`): told the plan before the graph
     runs and handed every finishing unit's ciphertexts as it completes."""
+    if getattr(getattr(ev, "meta", None), "packing", None) is not None:
+        raise ParameterError(f"ev: expected a per-voxel store for a {'slice' if Plane in views else 'frame'} of this kind, "
+                             f"got the packed store {ev.meta.store_id}: a packed store renders X-ray frames of parallel "
+                             "cameras (hevr.render); slices, streamed frames and the rest need a per-voxel store "
+                             "(encrypt_volume(..., layout='voxel'))")
     spec, digits, precision, comb_digits = check_request(ev, camera, mode, sampling, step, density, nodes,
                                                           digits, precision, comb_digits, views, gradient, finish)
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the request goes there (remote/render.py)

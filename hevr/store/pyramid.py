@@ -187,6 +187,10 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
         raise StoreError(f"ev: the store at {ev.path} was replaced since this handle was opened (store id "
                          f"{fresh.meta.store_id}, the handle's {ev.meta.store_id}); open it again")
     ev = fresh
+    if ev.meta.packing is not None:
+        raise ParameterError(f"ev: expected a per-voxel store, got the packed store {ev.meta.store_id}: the server "
+                             "cannot downsample across slots (a packed store's levels must be encrypted by the owner, "
+                             "which hevr does not do yet)")
     if isinstance(levels, bool) or not isinstance(levels, int) or not 1 <= levels <= MAX_LEVELS:
         raise ParameterError(f"levels: expected an int in [1, {MAX_LEVELS}], got {levels!r}")
     meta = ev.meta

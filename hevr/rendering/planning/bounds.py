@@ -38,7 +38,8 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
                 step: float = 1.0, density: float | None = None, nodes: Any = None, *, digits: int = 3,
                 precision: int = 4, comb_digits: int = 4, level: int | None = None,
                 gradient: bool = False, finish: str = "client") -> np.ndarray:
-    """Per-pixel bound on |decrypted render − render_plain| (see the module docstring).
+    """Per-pixel bound on |decrypted render − render_plain| (see the module docstring); for a packed
+    store, against ``render_plain(..., slices=True)`` (:mod:`hevr.rendering.packed.reference`).
 
     ``finish``: the bound of a render with the same ``finish`` (client finishing has no
     combination-matrix or reciprocal error: :mod:`hevr.colour`).
@@ -51,6 +52,12 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
     :func:`hevr.render_slice` against :func:`hevr.render_slice_plain` (same formula, n = the
     pixel's slab samples inside the volume); ``step`` is then ignored (it is the plane's ``slab_step``).
     """
+    if getattr(getattr(ev, "meta", None), "packing", None) is not None:  # a packed store: slice-sampled frames
+        if mode != "xray" or level or gradient:
+            raise ParameterError(f"mode: expected an X-ray at level 0 for a packed store, got mode={mode!r}, "
+                                 f"level={level!r}, gradient={gradient!r}")
+        from ..packed.reference import packed_error_bound
+        return packed_error_bound(ev.meta, camera, sampling)
     if isinstance(camera, Plane):
         step = camera.slab_step
         if level:

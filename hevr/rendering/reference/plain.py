@@ -135,6 +135,7 @@ def render_plain(
     nodes: Any = None,
     level: int = 0,
     gradient: bool = False,
+    slices: bool = False,
 ) -> np.ndarray:
     """Render a plaintext volume; the reference for the encrypted renderer.
 
@@ -169,6 +170,11 @@ def render_plain(
         gradient magnitude (central differences in world units, ``spacing``) over the whole
         volume's largest (:mod:`hevr.volume.gradient`); the reference of
         ``hevr.render(..., gradient=True)``.
+    slices : bool
+        Sample slice by slice, as a packed store's frame does (:mod:`hevr.rendering.packed`): one
+        sample per slice of the view's principal axis, nearest or (``"trilinear"``) bilinear within
+        the slice, then the warp to the pixels; X-ray of a parallel camera only, ``step`` 1. The
+        reference of ``hevr.render`` on a packed store (:mod:`hevr.rendering.packed.reference`).
 
     Returns
     -------
@@ -182,6 +188,14 @@ def render_plain(
     >>> render_plain(vol, cam).shape
     (4, 4)
     """
+    if slices is not False:
+        if slices is not True:
+            raise ParameterError(f"slices: expected True or False, got {slices!r}")
+        if mode != "xray" or level or gradient or float(step) != 1.0:
+            raise ParameterError(f"slices: expected mode='xray', step=1, level=0 and gradient=False with slice "
+                                 f"sampling, got mode={mode!r}, step={step!r}, level={level!r}, gradient={gradient!r}")
+        from ..packed.reference import render_plain_slices
+        return render_plain_slices(vol, camera, sampling, spacing)
     arr, spacing = _check_volume(vol, spacing)
     dims = None
     if mode in ("emphasize", "tf"):
