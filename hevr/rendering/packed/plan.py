@@ -261,6 +261,9 @@ class SlicePlan:
         sums = np.zeros((ni, nj), np.int64)
         top = (np.asarray(W, dtype=object) * int(span)) if ni * nj else np.zeros((0, 0), object)
         limit = 1 << (n_out * K)
+        if len(tiles) != self.n_tiles:
+            raise IntegrityError(f"image: expected {self.n_tiles} tiles, got {len(tiles)}; the image was corrupted or "
+                                 "tampered with; no image is returned")
         for t, vals in enumerate(tiles):
             j0, j1, b0, b1 = self.tile_bounds(t)
             if len(vals) != (j1 - j0) * (b1 - b0):
