@@ -80,6 +80,7 @@ RENDERING_ROOMS = {
     "planning": ("modes", "request", "planner", "bounds"),
     "pipeline": ("kernel", "_segments", "maps", "graph", "reduce", "finishing", "sums", "stream"),
     "reference": ("plain",),
+    "packed": ("request", "shear", "plan", "graph", "image", "sliced"),
 }
 RENDERING_FLOOR = ("__init__", "encrypted", "slices", "verify")
 
@@ -522,7 +523,7 @@ def test_changelog_exists_and_names_the_move():
 
 
 def test_the_rendering_rooms():
-    """hevr/rendering is a floor of entry points and four rooms that follow the data path."""
+    """hevr/rendering is a floor of entry points and five rooms that follow the data path."""
     rendering = PKG / "rendering"
     floor = sorted(p.stem for p in rendering.glob("*.py"))
     assert floor == sorted(RENDERING_FLOOR), f"modules on hevr/rendering's floor: {floor}, expected {sorted(RENDERING_FLOOR)}"

@@ -11,6 +11,8 @@ The data path of one frame reads from the folder names, room by room:
                    on Dask over ciphertext bricks, its ray sums, the streamed frame
 ``reference/``     plain: ``render_plain`` / ``render_slice_plain``, the independent
                    plaintext references
+``packed/``        request, shear, plan, graph, image, sliced: a packed store's frame
+                   (:mod:`hevr.store.packing`), slice by slice, from request to pixels
 =================  =============================================================
 
 The entry points stay here, beside the rooms they walk through:

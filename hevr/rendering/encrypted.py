@@ -39,6 +39,7 @@ from ..store.resident import batched
 from .geometry.camera import Camera
 from .geometry.plane import Plane
 from .geometry.rays import cast_rays
+from .packed.request import render_packed_request
 from .pipeline.graph import FinishGraph, build_sums_graph
 from .pipeline.maps import resident_groups
 from .pipeline.reduce import BlockedReduce
@@ -244,7 +245,6 @@ def render(
     if getattr(getattr(ev, "meta", None), "packing", None) is not None:  # a packed store's frame plan
         if not isinstance(camera, Camera):
             raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
-        from .packed.request import render_packed_request
         return render_packed_request(ev, camera, mode, sampling, step, density, nodes, tile=tile, client=client,
                                      progress=progress, backend=backend, compute=compute, keep_sums=keep_sums,
                                      level=level, gradient=gradient, finish=finish, verify=verify,

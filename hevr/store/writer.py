@@ -44,7 +44,6 @@ from typing import Any, Sequence
 
 import dask
 import dask.array
-import gmpy2
 import numpy as np
 import zarr
 
@@ -59,7 +58,7 @@ from .._validate import (
 )
 from ..backends import CpuBackend, check_backend, get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
-from ..crypto.tags import betas, raw_tags, tag_channel, tag_ciphertexts, tag_key_of
+from ..crypto.tags import tag_channel, tag_ciphertexts
 from .authenticity import authenticated_fields, metadata_mac
 from .known import record_quietly
 from ..errors import ParameterError, StoreError, StoreExistsError
@@ -91,7 +90,8 @@ from .paths import (
     zarr_store,
 )
 from .layout import array_slices
-from .packing import choose_packing, mantissa_range, pack_columns
+from .packed_brick import pack_axis_of, write_packed_brick
+from .packing import choose_packing, mantissa_range
 from .quantise import plan_channels, quantise_scalar, quantise_vector
 from .reader import EncryptedVolume, brick_slices, open_volume
 
@@ -130,7 +130,7 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
     digests = []
     mantissas = {}  # channel -> (k, voxels) int64, for the tags of a verifiable store
     if meta.packing is not None:  # S voxels per ciphertext along the packing axis (hevr.store.packing)
-        return _write_packed_brick(be, block, group, index, meta, key, unsafe_no_obfuscation)
+        return write_packed_brick(be, block, group, index, meta, key, unsafe_no_obfuscation)
     if meta.scalar is not None:
         q = quantise_scalar(block, meta.scalar)
         out = _encrypt_components(be, key, [q], block.shape, width, unsafe_no_obfuscation)[0]
@@ -164,36 +164,6 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
             digests.append(brick_digest(meta.store_id, tag_channel(name), index, out))
             with _stats.timed("encrypt.write"):
                 group[tag_channel(name)][sl if name == "scalar" else (slice(None),) + sl] = out
-    group["done"][index] = marker(digests)
-    return index
-
-
-def _write_packed_brick(be: Any, block: np.ndarray, group: Any, index: tuple[int, int, int], meta: VolumeMetadata,
-                        key: Any, unsafe_no_obfuscation: bool) -> tuple[int, int, int]:
-    """A packed store's brick: its columns of S voxels packed into one plaintext each, encrypted,
-    written as the brick's chunk of the scalar array, then (a verifiable store) one tag per packed
-    ciphertext, E(α·P + β) at the packed array's flat index, then the digest marker."""
-    info = meta.packing
-    q = np.array(quantise_scalar(block, meta.scalar), dtype=object if block.dtype == np.uint64 else np.int64)
-    plain = pack_columns(q.reshape(block.shape), info)
-    shape = plain.shape
-    width = meta.ciphertext_bytes
-    out = _encrypt_components(be, key, [plain.ravel().tolist()], shape, width, unsafe_no_obfuscation)[0]
-    digests = [brick_digest(meta.store_id, "scalar", index, out)]
-    sl = array_slices(meta, index)
-    with _stats.timed("encrypt.write"):
-        group["scalar"][sl] = out
-    if meta.tags:
-        tk = tag_key_of(key)
-        packs = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
-                                     info.array_shape(meta.shape)).reshape(-1)
-        with _stats.timed("encrypt.tags", len(packs)):
-            plain_tags = raw_tags(tk, [int(p) % tk.n for p in plain.ravel()], betas(tk, meta.store_id, "scalar", 0, 0, packs))
-            tags = key.owner.encrypt_residues(gmpy2.mpz(t) for t in plain_tags)
-        rec = _CPU.to_bytes(tags, width).reshape(shape + (width,))
-        digests.append(brick_digest(meta.store_id, tag_channel("scalar"), index, rec))
-        with _stats.timed("encrypt.write"):
-            group[tag_channel("scalar")][sl] = rec
     group["done"][index] = marker(digests)
     return index
 
@@ -328,7 +298,7 @@ def encrypt_volume(
     sc, vc, vr = plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
     packing = None
     if layout == "packed":
-        axis = _pack_axis(pack_axis)
+        axis = pack_axis_of(pack_axis)
         packing = choose_packing(int(pub.n).bit_length(), tuple(int(s) for s in vol.shape), axis,
                                  mantissa_range(vr, sc.exponent))
         brick_t = tuple(-(-b // packing.slots) * packing.slots if i == axis else b for i, b in enumerate(brick_t))
@@ -442,22 +412,6 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
             raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
         group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
     return values
-
-
-def _pack_axis(value: Any) -> int:
-    """The packing axis as an array axis: 0, 1, 2 or "z", "y", "x"; None is 0 (z: superior in RAS+).
-
-    >>> _pack_axis(None), _pack_axis("x"), _pack_axis(1)
-    (0, 2, 1)
-    """
-    if value is None:
-        return 0
-    names = {"z": 0, "y": 1, "x": 2}
-    if isinstance(value, str) and value.lower() in names:
-        return names[value.lower()]
-    if type(value) is int and 0 <= value <= 2:
-        return value
-    raise ParameterError(f"pack_axis: expected 0, 1, 2 or 'z', 'y', 'x' (an array axis), got {value!r}")
 
 
 def _authenticate(meta: VolumeMetadata, key: Any) -> VolumeMetadata:

@@ -3,17 +3,16 @@
 The data path of one packed frame, module by module:
 
 =================  =============================================================
+``request``        what a packed store's frame may ask, checked where ``hevr.render`` routes it
 ``shear``          the view's slices, slopes, intermediate rays and the warp to pixels
 ``plan``           :class:`SlicePlan`, the frame plan: which pack serves which rays with which
                    weight (accumulators by block, row and class), slot safety, the decoding
 ``graph``          the Dask graph: map per brick, merge and Horner combine per tile
 ``image``          :class:`PackedImage`: the key holder's checks, decoding and warp
-``reference``      ``render_plain(..., slices=True)`` and the error bound against it
+``sliced``         ``render_plain(..., slices=True)`` and the error bound against it
 =================  =============================================================
 
-``hevr.render`` routes a packed store here; its request checks (which modes, options and views a
-packed store serves) are in :func:`hevr.rendering.packed.graph.render_packed`'s caller,
-:func:`hevr.rendering.packed.request.check_packed_request`.
+``hevr.render`` routes a packed store to :func:`hevr.rendering.packed.request.render_packed_request`.
 """
 
 from __future__ import annotations

@@ -27,6 +27,7 @@ from ...store.reader import EncryptedVolume
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
 from ..geometry.rays import cast_rays
+from ..packed.sliced import packed_error_bound
 from .modes import combination_matrix
 from .planner import check_render_size
 from .request import at_level, check_request, level_step
@@ -39,7 +40,7 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
                 precision: int = 4, comb_digits: int = 4, level: int | None = None,
                 gradient: bool = False, finish: str = "client") -> np.ndarray:
     """Per-pixel bound on |decrypted render − render_plain| (see the module docstring); for a packed
-    store, against ``render_plain(..., slices=True)`` (:mod:`hevr.rendering.packed.reference`).
+    store, against ``render_plain(..., slices=True)`` (:mod:`hevr.rendering.packed.sliced`).
 
     ``finish``: the bound of a render with the same ``finish`` (client finishing has no
     combination-matrix or reciprocal error: :mod:`hevr.colour`).
@@ -56,7 +57,6 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
         if mode != "xray" or level or gradient:
             raise ParameterError(f"mode: expected an X-ray at level 0 for a packed store, got mode={mode!r}, "
                                  f"level={level!r}, gradient={gradient!r}")
-        from ..packed.reference import packed_error_bound
         return packed_error_bound(ev.meta, camera, sampling)
     if isinstance(camera, Plane):
         step = camera.slab_step

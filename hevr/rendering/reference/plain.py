@@ -38,6 +38,7 @@ from ...volume.pyramid import check_level, downsample, level_origin, level_spaci
 from ...volume.scan import Scan
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
+from ..packed.sliced import render_plain_slices
 from ..planning.modes import RenderSpec, combination_matrix, make_spec
 from ..planning.planner import check_render_size
 from ..geometry.rays import (
@@ -174,7 +175,7 @@ def render_plain(
         Sample slice by slice, as a packed store's frame does (:mod:`hevr.rendering.packed`): one
         sample per slice of the view's principal axis, nearest or (``"trilinear"``) bilinear within
         the slice, then the warp to the pixels; X-ray of a parallel camera only, ``step`` 1. The
-        reference of ``hevr.render`` on a packed store (:mod:`hevr.rendering.packed.reference`).
+        reference of ``hevr.render`` on a packed store (:mod:`hevr.rendering.packed.sliced`).
 
     Returns
     -------
@@ -194,7 +195,6 @@ def render_plain(
         if mode != "xray" or level or gradient or float(step) != 1.0:
             raise ParameterError(f"slices: expected mode='xray', step=1, level=0 and gradient=False with slice "
                                  f"sampling, got mode={mode!r}, step={step!r}, level={level!r}, gradient={gradient!r}")
-        from ..packed.reference import render_plain_slices
         return render_plain_slices(vol, camera, sampling, spacing)
     arr, spacing = _check_volume(vol, spacing)
     dims = None
