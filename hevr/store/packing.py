@@ -15,11 +15,12 @@ sum of packed ciphertexts with public weights adds every slot at once, exactly, 
 reaches 2^K.
 
 Choosing K and S (public parameters only). A frame (:mod:`hevr.rendering.packed`) adds, per
-ray, at most one sample per slice of a non-packing axis, each with in-slice weights of
-``weight_bits`` bits per axis whose products sum to at most Q² = 4^weight_bits per slice. So
-every slot of every sum stays below
+ray, at most one sample per slice of a non-packing axis, each with in-slice bilinear weights of
+its 2×2 neighbours rounded to multiples of 1/U, U = 2^weight_bits, which sum to at most U + 2 per
+slice (four roundings of at most 1/2 each; nearest: weight 1). So every slot of every sum stays
+below
 
-    span · Q² · N,          N = the longest non-packing axis,
+    span · (U + 2) · N,          N = the longest non-packing axis,
 
 and K is the bit length of that bound (:func:`slot_bits`). A frame combines up to S slot classes
 into 2S − 1 slots (:mod:`hevr.rendering.packed.plan`), whose plaintext must stay below n with an
@@ -28,8 +29,8 @@ a value with non-zero top bits, except with probability 2^-64):
 
     K·(2S − 1) ≤ bits(n) − 1 − INTEGRITY_BITS                        (:func:`max_slots`).
 
-At 2048 bits, 12-bit values and 512 slices: K = 37, S = 27; 8-bit values and 64 slices: K = 30,
-S = 33.
+At 2048 bits with 10-bit weights: 12-bit values and 512 slices: K = 32, S = 31; 8-bit values and
+64 slices: K = 24, S = 41.
 
 >>> info = PackingInfo(axis=0, slots=4, slot_bits=10, weight_bits=2, offset=-3)
 >>> PackingInfo.from_dict(info.to_dict()) == info
@@ -58,7 +59,7 @@ __all__ = ["INTEGRITY_BITS", "DEFAULT_WEIGHT_BITS", "MAX_SLOT_BITS", "PackingInf
            "pack_columns", "slot_bits", "unpack_slots"]
 
 INTEGRITY_BITS = 64  # zero bits above the last slot of every decrypted frame value
-DEFAULT_WEIGHT_BITS = 8  # in-slice bilinear weights per axis, quantised to 1/2^8
+DEFAULT_WEIGHT_BITS = 10  # in-slice bilinear weights, quantised to 1/2^10 (the per-voxel store's 3 digits)
 MAX_WEIGHT_BITS = 16
 MAX_SLOT_BITS = 62  # slots are decoded into int64
 
@@ -80,19 +81,19 @@ def mantissa_range(value_range: tuple[float, float], ch_exp: int) -> tuple[int, 
 
 
 def slot_bits(span: int, weight_bits: int, max_slices: int) -> int:
-    """K: the bits of the largest slot sum of any frame, span·4^weight_bits·max_slices (module docstring).
+    """K: the bits of the largest slot sum of any frame, span·(2^weight_bits + 2)·max_slices (module docstring).
 
-    >>> slot_bits(255, 8, 64), slot_bits(4095, 8, 512)
-    (30, 37)
+    >>> slot_bits(255, 10, 64), slot_bits(4095, 10, 512), slot_bits(4095, 8, 512)
+    (24, 32, 30)
     """
-    return max(1, (int(span) * (1 << (2 * int(weight_bits))) * max(1, int(max_slices))).bit_length())
+    return max(1, (int(span) * ((1 << int(weight_bits)) + 2) * max(1, int(max_slices))).bit_length())
 
 
 def max_slots(key_bits: int, k: int) -> int:
     """The most slots S with K·(2S − 1) ≤ key_bits − 1 − INTEGRITY_BITS (0 when none fits).
 
-    >>> max_slots(2048, 30), max_slots(2048, 37), max_slots(256, 200)
-    (33, 27, 0)
+    >>> max_slots(2048, 24), max_slots(2048, 32), max_slots(256, 200)
+    (41, 31, 0)
     """
     room = int(key_bits) - 1 - INTEGRITY_BITS
     return max(0, (room // int(k) + 1) // 2) if room > 0 else 0
@@ -111,7 +112,7 @@ class PackingInfo:
     slot_bits : int
         K, bits per slot.
     weight_bits : int
-        Bits per axis of the in-slice bilinear weights K was sized for.
+        Bits of the in-slice bilinear weights K was sized for (multiples of 2^-weight_bits).
     offset : int
         The mantissa stored as slot value 0 (slot value = mantissa − offset).
     """
@@ -185,14 +186,14 @@ def choose_packing(key_bits: int, shape: tuple[int, int, int], axis: int, mantis
     non-packing axis; S the most slots that fit the key (module docstring).
 
     >>> choose_packing(2048, (64, 64, 64), 0, (0, 255))
-    PackingInfo(axis=0, slots=33, slot_bits=30, weight_bits=8, offset=0)
+    PackingInfo(axis=0, slots=41, slot_bits=24, weight_bits=10, offset=0)
     """
     lo, hi = (int(v) for v in mantissa_range)
     span = hi - lo
     longest = max(s for i, s in enumerate(shape) if i != axis)
     k = slot_bits(span, weight_bits, longest)
     if k > MAX_SLOT_BITS:
-        raise ParameterError(f"value_range: expected a mantissa span of at most {MAX_SLOT_BITS - 2 * weight_bits} "
+        raise ParameterError(f"value_range: expected a mantissa span of at most {MAX_SLOT_BITS - weight_bits - 1} "
                              f"bits less the {math.ceil(math.log2(longest + 1))} bits of {longest} slices for a packed "
                              f"store, got a span of {span.bit_length()} bits (give a narrower value_range, or fewer "
                              "digits, or layout='voxel')")

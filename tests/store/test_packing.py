@@ -57,17 +57,17 @@ def test_pack_refuses_values_outside_slots():
 
 
 def test_slot_choice_fits_key_and_margin():
-    # the design note's numbers: 12-bit values, 512 slices at 2048 bits -> S = 27
-    assert slot_bits(4095, 8, 512) == 37 and max_slots(2048, 37) == 27
+    # 12-bit values, 512 slices at 2048 bits: S = 31 with 10-bit weights (the design note's 8 + 8 bits: S = 27)
+    assert slot_bits(4095, 10, 512) == 32 and max_slots(2048, 32) == 31 and max_slots(2048, 37) == 27
     for bits in (256, 512, 1024, 2048):
         for k in (10, 30, 37):
             s = max_slots(bits, k)
             if s:
                 assert k * (2 * s - 1) <= bits - 1 - INTEGRITY_BITS < k * (2 * (s + 1) - 1)
     info = choose_packing(2048, (300, 512, 512), 0, (-1024, 3071))
-    assert (info.slots, info.slot_bits, info.offset) == (27, 37, -1024)
+    assert (info.slots, info.slot_bits, info.offset) == (31, 32, -1024)
     with pytest.raises(ParameterError, match="layout: expected a key with room"):
-        choose_packing(128, (8, 8, 8), 0, (0, 255))
+        choose_packing(96, (8, 8, 8), 0, (0, 255))
     with pytest.raises(ParameterError, match="value_range"):
         choose_packing(4096, (8, 8, 8), 0, (0, 2**60))
 
@@ -120,7 +120,7 @@ def test_packed_tags_one_per_pack(packed, keypair512):
     priv = keypair512[1]
     ev = packed
     key = tag_key_of(priv)
-    idx = (1, 0, 1)
+    idx = (0, 1, 1)
     data = [int(priv.raw_decrypt(c)) for c in ev.read_brick(idx)]
     tags = [int(priv.raw_decrypt(c)) for c in ev.read_brick(idx, "scalar_tag")]
     from hevr.store.layout import array_slices

@@ -20,9 +20,9 @@ combined by Horner,
 after which slot t of T[B, j] (t ∈ [0, S + O)) holds ray S·B + t − O − m_lo for every class. The
 key holder decrypts one number per (B, j), checks that the bits above slot S + O − 1 are zero (the
 integrity margin) and that every slot is at most the largest sum its ray can have, and adds the
-slots of the blocks that share a ray. Every slot sum is below span·W_r ≤ span·Q²·N_p < 2^K
-(:meth:`SlicePlan.check_slots`), so the sums are exact integers; the weights are W = w_a·w_b with
-w_a + w_a' = Q = 2^weight_bits per axis (nearest: 1).
+slots of the blocks that share a ray. Every slot sum is below span·W_r ≤ span·(U + 2)·N_p < 2^K
+(:meth:`SlicePlan.check_slots`), so the sums are exact integers; the weights are the bilinear
+factors' products rounded to multiples of 1/U, U = 2^weight_bits (nearest: 1).
 
 Work per frame: map ≈ (pairs)/S products of small exponents (nearest: one multiplication per
 pack and slice), merge one product per extra brick partial, combine K·O squarings per S rays,
@@ -63,7 +63,7 @@ class SlicePlan:
     sampling : {"nearest", "trilinear"}
         ``trilinear`` is bilinear within the slice.
     weight_bits : int
-        Per-axis bits of the bilinear weights (Q = 2^weight_bits; nearest weights are 1).
+        Bits of the bilinear weights (U = 2^weight_bits; nearest weights are 1).
     brick : (int, int, int)
         The store's voxel brick.
     tile : int
@@ -114,8 +114,8 @@ class SlicePlan:
 
     @property
     def unit(self) -> int:
-        """The weight of one whole sample: Q² (bilinear) or 1 (nearest)."""
-        return 1 << (2 * self.weight_bits) if self.sampling == "trilinear" else 1
+        """The weight of one whole sample: U = 2^weight_bits (bilinear) or 1 (nearest)."""
+        return 1 << self.weight_bits if self.sampling == "trilinear" else 1
 
     @property
     def n_blocks(self) -> int:
@@ -324,21 +324,22 @@ class SlicePlan:
 
 def _terms(geo: ShearGeometry, sampling: str, weight_bits: int) -> np.ndarray:
     """(k, m_a, m_b, w) of every slice's samples: one per slice (nearest, w = 1) or the 2×2 in-slice
-    neighbours with w = w_a·w_b, w_a = round(f_a·Q), w_a' = Q − w_a (zero weights dropped)."""
+    neighbours with w = round(φ_a·φ_b·U), φ ∈ {1 − f, f} the bilinear factors, U = 2^weight_bits
+    (zero weights dropped; the four sum to U ± 2)."""
     ca, cb = geo.offsets()
     k = np.arange(geo.slices, dtype=np.int64)
     if sampling == "nearest":
         ma, mb = np.floor(ca + 0.5).astype(np.int64), np.floor(cb + 0.5).astype(np.int64)
         return np.stack([k, ma, mb, np.ones_like(k)], axis=1)
-    Q = 1 << weight_bits
+    U = float(1 << weight_bits)
     fa0, fb0 = np.floor(ca), np.floor(cb)
-    wa1 = np.floor((ca - fa0) * Q + 0.5).astype(np.int64)
-    wb1 = np.floor((cb - fb0) * Q + 0.5).astype(np.int64)
+    fa, fb = ca - fa0, cb - fb0
     ma, mb = fa0.astype(np.int64), fb0.astype(np.int64)
     rows = []
-    for da, wa in ((0, Q - wa1), (1, wa1)):
-        for db, wb in ((0, Q - wb1), (1, wb1)):
-            rows.append(np.stack([k, ma + da, mb + db, wa * wb], axis=1))
+    for da, pa in ((0, 1.0 - fa), (1, fa)):
+        for db, pb in ((0, 1.0 - fb), (1, fb)):
+            w = np.floor(pa * pb * U + 0.5).astype(np.int64)
+            rows.append(np.stack([k, ma + da, mb + db, w], axis=1))
     t = np.concatenate(rows)
     t = t[t[:, 3] > 0]
     return t[np.lexsort((t[:, 2], t[:, 1], t[:, 0]))]

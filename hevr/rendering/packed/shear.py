@@ -120,7 +120,7 @@ class ShearGeometry:
             raise ParameterError("camera: expected a view direction, got a zero vector")
         a = axis if axis is not None else min(ax for ax in range(3) if ax != p)
         b = 3 - p - a
-        sa, sb = float(d[a] / d[p]), float(d[b] / d[p])
+        sa, sb = float(d[a] / d[p]) + 0.0, float(d[b] / d[p]) + 0.0  # + 0.0: no -0.0
         geo = cls(shape, spacing, a, p, b, sa, sb, (0, 0), (0, 0))
         i_rng, j_rng = geo._touching()
         ic, jc = geo.pixel_coords(camera)

@@ -8,11 +8,11 @@ evaluated directly on the plaintext slice by slice (no packing, no quantised wei
 The geometry (slopes, which rays, the warp) is the shared public part; the sums are its own.
 
 :func:`packed_error_bound`: per pixel, how far a decrypted packed frame may be from it. Per
-contributing slice the quantised bilinear weights (per axis within 0.5/Q of the true ones, Q =
-2^weight_bits) move a sample by at most D/Q, D = max(hi − lo, |lo|, |hi|) of the value range (the
-neighbours outside the volume count 0); a float store's mantissas by 0.5·10^exponent. A ray with
-n samples and C contributing slices (C > n only where samples fall just outside the box) is off
-by at most C·(D/Q + store)/n; the warp's convex weights carry the bound to the pixels.
+contributing slice the four bilinear weights, each rounded to a multiple of 1/U (U =
+2^weight_bits), move a sample by at most 4·(0.5/U)·V = 2V/U, V = max(|lo|, |hi|) of the value
+range; a float store's mantissas add 0.5·10^exponent·(1 + 2/U). A ray with n samples and C
+contributing slices (C > n only where samples fall just outside the box) is off by at most
+C·(2V/U + store)/n; the warp's convex weights carry the bound to the pixels.
 """
 
 from __future__ import annotations
@@ -81,9 +81,10 @@ def packed_error_bound(meta: Any, camera: Any, sampling: str, weight_bits: int |
     plan = SlicePlan.build(camera, meta.shape, meta.spacing, meta.brick, meta.packing, sampling,
                            weight_bits=weight_bits)
     lo, hi = (float(v) for v in meta.value_range)
-    D = max(hi - lo, abs(lo), abs(hi))
-    weights = D / (1 << plan.weight_bits) if sampling == "trilinear" else 0.0
-    store = 0.5 * 10.0 ** meta.scalar.exponent if meta.scalar.digits is not None else 0.0
+    D = max(abs(lo), abs(hi))
+    U = float(1 << plan.weight_bits)
+    weights = 2.0 * D / U if sampling == "trilinear" else 0.0
+    store = 0.5 * 10.0 ** meta.scalar.exponent * (1 + 2 / U) if meta.scalar.digits is not None else 0.0
     n = plan.geometry.sample_counts(sampling)
     C = plan.contributing_slices()
     per_ray = np.zeros(n.shape, np.float64)

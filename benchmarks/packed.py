@@ -1,0 +1,230 @@
+"""Issue 45: packed stores vs per-voxel stores, in one run on the same volume, image, key and workers.
+
+Usage::
+
+    python benchmarks/packed.py WORKDIR OUT.json [--bits 2048] [--sizes 64 128] [--image 128]
+
+For each size N (the N³ phantom, uint8, brick 32) on a 2-worker LocalCluster (1 thread each):
+
+* encrypt a per-voxel store and a packed store (owner path): seconds, ciphertexts, bytes on disk;
+* for two parallel views — a general one (azimuth 60, elevation 10: the view's shift along the
+  packing axis spans every slot class) and one orbiting the packing axis (azimuth 90, elevation
+  20: one class, no combine) — and for nearest and bilinear (``trilinear``) sampling: the frame
+  end to end (render + the key holder's decryption) on both stores, with the modular operations
+  counted (per-voxel: the workers' backend calls, patched in by ``client.run``; packed: the
+  image's own counts), the packed frame checked against ``render_plain(..., slices=True)`` within
+  ``error_bound``, and the mean absolute difference between the packed frame and the per-voxel
+  trilinear frame (fraction of the value range);
+* a projection to a 512 × 512 × 300 CT (12-bit values in int16, packed along z at 2048 bits:
+  S = 27, K = 37): bytes and encryption time from the measured per-ciphertext costs; per frame
+  the operations counted exactly from the plans (packed: every brick's pairs and the combine;
+  per-voxel: the rays' samples × the measured operations per sample) and the time from the
+  measured seconds per operation of each layout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from distributed import Client, LocalCluster
+
+import hevr
+from hevr._bench.measure import dir_bytes, machine, mulmod_seconds
+from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.packed import SlicePlan
+from hevr.store.packing import choose_packing
+
+warnings.simplefilter("ignore")
+
+VIEWS = {"general": (60.0, 10.0), "orbit": (90.0, 20.0)}
+SAMPLINGS = ("nearest", "trilinear")
+
+
+# -- counting the per-voxel pipeline's operations on the workers --------------------------------
+def _install_counter():  # runs on every worker (client.run)
+    from hevr.backends import cpu as cpu_mod
+    from hevr.backends.base import OpCounter
+    be = cpu_mod.CpuBackend
+    if getattr(be, "_counting", False):
+        return True
+    state = {"map": OpCounter(), "merge": 0, "pack": 0}
+    ray, seg, pack = be.ray_products, be.segment_products, be.pack
+
+    def ray_products(self, plan, components, nsquare, counter=None):
+        out = ray(self, plan, components, nsquare, state["map"])
+        if counter is not None:
+            counter.add(state["map"])
+        return out
+
+    def segment_products(self, values, indptr, k, nsquare):
+        ip = np.asarray(indptr)
+        state["merge"] += int((len(values) // k - (len(ip) - 1)) * k)
+        return seg(self, values, indptr, k, nsquare)
+
+    def pack_(self, terms, exps, pack_bits, per_pack, offset, n):
+        J = max(1, per_pack)
+        ops = 0
+        for s in range(0, len(terms), J):
+            rs = [int(r) for r in exps[s:s + J]]
+            ops += max(rs[-1].bit_length() - 1, 0) + max(bin(rs[-1]).count("1") - 1, 0)
+            ops += sum(pack_bits + bin(r).count("1") for r in rs[:-1]) + (1 if offset else 0)
+        state["pack"] += ops
+        return pack(self, terms, exps, pack_bits, per_pack, offset, n)
+
+    be.ray_products, be.segment_products, be.pack = ray_products, segment_products, pack_
+    be._counting, be._state = True, state
+    return True
+
+
+def _read_counter():
+    from hevr.backends import cpu as cpu_mod
+    from hevr.backends.base import OpCounter
+    st = cpu_mod.CpuBackend._state
+    out = {"map": st["map"].modmuls, "merge": st["merge"], "finish": st["pack"]}
+    st["map"], st["merge"], st["pack"] = OpCounter(), 0, 0
+    return out
+
+
+def _ops(client) -> dict:
+    got = client.run(_read_counter)
+    return {k: sum(v[k] for v in got.values()) for k in ("map", "merge", "finish")}
+
+
+# -- one size -----------------------------------------------------------------------------------
+def run_size(client, priv, n: int, image: int, work: Path) -> dict:
+    vol = hevr.phantom(n)
+    res: dict = {"size": n, "image": image}
+    stores = {}
+    for layout in ("voxel", "packed"):
+        path = work / f"{layout}-{n}.zarr"
+        t = time.perf_counter()
+        ev = hevr.encrypt_volume(vol, path, priv, brick=32, layout=layout, overwrite=path.exists(), progress=False)
+        dt = time.perf_counter() - t
+        cts = int(np.prod(ev.packing.array_shape(ev.shape) if ev.packing else ev.shape))
+        res[f"encrypt_{layout}"] = {"seconds": dt, "ciphertexts": cts, "bytes": dir_bytes(path),
+                                    "brick": list(ev.brick)}
+        if ev.packing is not None:
+            res["packing"] = {"slots": ev.packing.slots, "slot_bits": ev.packing.slot_bits, "axis": ev.packing.axis}
+        stores[layout] = ev
+        print(f"{n}³ {layout}: {cts} ciphertexts, {dt:.1f} s, {res[f'encrypt_{layout}']['bytes'] / 2**20:.1f} MiB",
+              flush=True)
+    res["frames"] = []
+    for view, (az, el) in VIEWS.items():
+        cam = hevr.Camera.orbit(vol.shape, azimuth=az, elevation=el, width=image, height=image, parallel=True)
+        pv_tri = None
+        for sampling in SAMPLINGS:
+            row: dict = {"view": view, "azimuth": az, "elevation": el, "sampling": sampling}
+            _ops(client)  # reset
+            t = time.perf_counter()
+            img = hevr.render(stores["voxel"], cam, sampling=sampling, verify=False, progress=False, cache=False)
+            r = time.perf_counter() - t
+            arr = img.decrypt(priv)
+            row["voxel"] = {"render_s": r, "frame_s": time.perf_counter() - t, "ops": _ops(client),
+                            "samples": int(cast_rays(cam, vol.shape, (1, 1, 1), 1.0).n_samples.sum())}
+            if sampling == "trilinear":
+                pv_tri = arr
+            t = time.perf_counter()
+            pimg = hevr.render(stores["packed"], cam, sampling=sampling, verify=False, progress=False)
+            r = time.perf_counter() - t
+            parr = pimg.decrypt(priv)
+            ref = hevr.render_plain(vol, cam, sampling=sampling, slices=True)
+            bound = hevr.error_bound(stores["packed"], cam, sampling=sampling)
+            row["packed"] = {"render_s": r, "frame_s": time.perf_counter() - t, "ops": pimg.stats["ops"],
+                             "classes": pimg.plan.classes, "rays": pimg.stats["rays"],
+                             "within_bound": bool((np.abs(parr - ref) <= bound).all()),
+                             "max_err": float(np.abs(parr - ref).max())}
+            if pv_tri is not None:
+                row["packed"]["mad_vs_voxel_trilinear"] = float(np.abs(parr - pv_tri).mean() / 255.0)
+            res["frames"].append(row)
+            v, p = row["voxel"], row["packed"]
+            print(f"{n}³ {view} {sampling}: voxel {v['frame_s']:.1f} s {sum(v['ops'].values()):,} ops | packed "
+                  f"{p['frame_s']:.1f} s {sum(p['ops'][k] for k in ('map', 'merge', 'combine', 'combine_squarings')):,}"
+                  f" ops | map {v['ops']['map'] / max(p['ops']['map'], 1):.1f}x fewer, frame "
+                  f"{v['frame_s'] / p['frame_s']:.1f}x", flush=True)
+    return res
+
+
+# -- the projection to a real-size CT ----------------------------------------------------------
+def packed_ops_of(plan: SlicePlan, shape, brick) -> dict:
+    grid = [-(-s // b) for s, b in zip(shape, brick)]
+    pairs = 0
+    for idx in np.ndindex(*grid):
+        pairs += len(plan.brick_pairs(idx)[0])
+    ni, nj = plan.geometry.size
+    n_out = plan.n_blocks * nj
+    O = plan.classes - 1
+    return {"pairs": pairs, "combine_squarings": n_out * plan.packing.slot_bits * O, "combine": n_out * O,
+            "decryptions": n_out, "rays": ni * nj}
+
+
+def project(measured: dict, image: int = 512) -> dict:
+    shape = (300, 512, 512)
+    info = choose_packing(2048, shape, 0, (-1024, 3071))  # 12-bit CT values in int16, packed along z
+    brick = (2 * info.slots, 64, 64)
+    vox = int(np.prod(shape))
+    packs = int(np.prod(info.array_shape(shape)))
+    big = measured[max(measured)]  # the largest measured size
+    enc_v = big["encrypt_voxel"]["seconds"] / big["encrypt_voxel"]["ciphertexts"]
+    enc_p = big["encrypt_packed"]["seconds"] / big["encrypt_packed"]["ciphertexts"]
+    b_v = big["encrypt_voxel"]["bytes"] / big["encrypt_voxel"]["ciphertexts"]
+    b_p = big["encrypt_packed"]["bytes"] / big["encrypt_packed"]["ciphertexts"]
+    out = {"shape": list(shape), "slots": info.slots, "slot_bits": info.slot_bits, "image": image,
+           "store_bytes": {"voxel": vox * b_v, "packed": packs * b_p},
+           "encrypt_s_2_workers": {"voxel": vox * enc_v, "packed": packs * enc_p}, "frames": []}
+    for view, (az, el) in VIEWS.items():
+        cam = hevr.Camera.orbit(shape, azimuth=az, elevation=el, width=image, height=image, parallel=True)
+        samples = int(cast_rays(cam, shape, (1, 1, 1), 1.0).n_samples.sum())
+        for sampling in SAMPLINGS:
+            rows = [f for f in big["frames"] if f["view"] == view and f["sampling"] == sampling]
+            f = rows[0]
+            v_ops_per_sample = sum(f["voxel"]["ops"].values()) / f["voxel"]["samples"]
+            v_s_per_op = f["voxel"]["frame_s"] / sum(f["voxel"]["ops"].values())
+            p_ops = f["packed"]["ops"]
+            p_map_per_pair = p_ops["map"] / max(p_ops["pairs"], 1)
+            p_total = p_ops["map"] + p_ops["merge"] + p_ops["combine"] + 0.85 * p_ops["combine_squarings"]
+            p_s_per_op = f["packed"]["frame_s"] / p_total
+            plan = SlicePlan.build(cam, shape, (1.0, 1.0, 1.0), brick, info, sampling)
+            c = packed_ops_of(plan, shape, brick)
+            merge_est = p_ops["merge"] / max(p_ops["pairs"], 1) * c["pairs"]
+            p_proj = c["pairs"] * p_map_per_pair + merge_est + c["combine"] + 0.85 * c["combine_squarings"]
+            v_proj = samples * v_ops_per_sample
+            out["frames"].append({
+                "view": view, "sampling": sampling, "samples": samples, "voxel_ops": v_proj,
+                "packed_ops": p_proj, "packed_pairs": c["pairs"], "combine_squarings": c["combine_squarings"],
+                "classes": plan.classes, "voxel_map": samples * f["voxel"]["ops"]["map"] / f["voxel"]["samples"],
+                "packed_map": c["pairs"] * p_map_per_pair,
+                "voxel_s_2_workers": v_proj * v_s_per_op, "packed_s_2_workers": p_proj * p_s_per_op})
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("work", type=Path)
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--bits", type=int, default=2048)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
+    ap.add_argument("--image", type=int, default=128)
+    a = ap.parse_args()
+    a.work.mkdir(parents=True, exist_ok=True)
+    result = {"machine": machine(), "bits": a.bits, "workers": "LocalCluster 2 workers x 1 thread",
+              "mulmod_s": mulmod_seconds(a.bits)}
+    pub, priv = hevr.generate_keypair(a.bits)
+    with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0") as lc, Client(lc) as client:
+        client.run(_install_counter)
+        measured = {}
+        for n in a.sizes:
+            measured[n] = run_size(client, priv, n, a.image, a.work)
+            result["sizes"] = {str(k): v for k, v in measured.items()}
+            a.out.write_text(json.dumps(result, indent=1))
+    result["projection_512x512x300"] = project(measured)
+    a.out.write_text(json.dumps(result, indent=1))
+    print(json.dumps(result["projection_512x512x300"], indent=1))
+
+
+if __name__ == "__main__":
+    main()
