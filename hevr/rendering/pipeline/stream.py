@@ -107,7 +107,8 @@ class StreamDecryptor:
 
 # the keywords of hevr.render that render_frame passes on, with render's defaults
 _RENDER_KEYWORDS = {name: p.default for name, p in inspect.signature(render).parameters.items()
-                    if p.kind is inspect.Parameter.KEYWORD_ONLY and name not in ("finish", "compute", "keep_sums")}
+                    if p.kind is inspect.Parameter.KEYWORD_ONLY
+                    and name not in ("finish", "compute", "keep_sums", "weight_bits")}  # weight_bits: packed stores
 
 
 def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xray", sampling: str = "nearest",
