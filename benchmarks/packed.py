@@ -37,6 +37,7 @@ import hevr
 from hevr._bench.measure import dir_bytes, machine, mulmod_seconds
 from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.packed import SlicePlan
+from hevr.rendering.packed.graph import brick_columns, column_pairs
 from hevr.store.packing import choose_packing
 
 warnings.simplefilter("ignore")
@@ -162,15 +163,18 @@ def packed_ops_of(plan: SlicePlan, shape, brick) -> dict:
     from hevr.rendering.pipeline.kernel import plan_products
     be, counter = CpuBackend(), OpCounter()
     n2 = mpz((1 << 61) - 1)
-    grid = [-(-s // b) for s, b in zip(shape, brick)]
+    grid = tuple(-(-s // b) for s, b in zip(shape, brick))
     pairs = partials = 0
     seen: set = set()
-    for idx in np.ndindex(*grid):
-        keys, local, w = plan.brick_pairs(idx)
+    for column in brick_columns(grid, plan.geometry.principal):  # the render's map tasks
+        sizes = [int(np.prod([-(-(min((i + 1) * b, s) - i * b) // plan.packing.slots) if ax == plan.packing.axis
+                              else min((i + 1) * b, s) - i * b for ax, (i, b, s) in enumerate(zip(idx, brick, shape))]))
+                 for idx in column]
+        keys, local, w = column_pairs(plan, column, sizes)
         if not len(keys):
             continue
         starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-        n_vox = int(local.max()) + 1
+        n_vox = sum(sizes)
         pp = plan_products(np.r_[starts, len(keys)], local, w, n_vox)
         be.ray_products(pp, [[mpz(3 + v) for v in range(n_vox)]], n2, counter)
         pairs += len(keys)
