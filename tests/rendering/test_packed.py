@@ -165,7 +165,7 @@ def test_slot_safety_worst_case(tmp_path, keypair256):
         n = img.plan.geometry.sample_counts(sampling)
         inside = (n > 0) & (img.plan.contributing_slices() == n)
         tol = 2 * 255 / img.plan.unit if sampling == "trilinear" else 0.0  # the rounded weights' sum: U ± 2
-        assert inside.sum() > 10 and (np.abs(inter[inside] - 255.0) <= tol).all()
+        assert inside.sum() >= 4 and (np.abs(inter[inside] - 255.0) <= tol).all()
     with pytest.raises(RenderPlanError, match="weight_bits: expected in-slice weights"):
         render(ev, cam(ev, 90, 0), "trilinear", weight_bits=11)
 

@@ -4,7 +4,9 @@ which public weights, and how the key holder decodes the result (:class:`SlicePl
 A packed store (:mod:`hevr.store.packing`) holds, per column A along the packing axis ``a``,
 Enc(P[A]) with slot s of P[A] the voxel S·A + s. A view's shear-warp geometry
 (:mod:`hevr.rendering.packed.shear`) has ray (i, j) read, on slice k, the voxel i + m along ``a``
-(m = m_k for nearest; m_k and m_k + 1 for bilinear) with public weight w. Write
+(m = m_k for nearest; m_k and m_k + 1 for bilinear) and the voxel y (or y, y + 1) of row j along
+``b``, with public weight w (the bilinear factors' product, rounded: it depends on k, on which
+neighbour, and on the row, never on i). Write
 m − m_lo = S·q + o (o ∈ [0, S), m_lo the smallest m of the frame). Pack A then serves, in its slot
 s, ray i = S·(A − q) + s − o − m_lo: so the product Enc(P[A])^w goes into the accumulator
 
@@ -68,8 +70,9 @@ class SlicePlan:
         The store's voxel brick.
     tile : int
         Rows ``j`` per reduce tile (and ``max(1, tile // S)`` blocks).
-    terms : (T, 4) int64
-        One (k, m_a, m_b, w) per slice and in-slice neighbour with a non-zero weight, sorted by k.
+    a_steps : (N_p, 2) int64, a_frac : (N_p,) float64
+        Per slice, the voxel offsets m (nearest: m_k and a disabled second, −2^40) and the
+        bilinear fraction f_a along ``a`` (the ``b`` side per slice and row: :meth:`b_table`).
     m_lo, classes : int
         The class labelling: m_lo, and O + 1.
     block_range : (int, int)
@@ -82,7 +85,8 @@ class SlicePlan:
     weight_bits: int
     brick: tuple[int, int, int]
     tile: int
-    terms: np.ndarray = field(repr=False)
+    a_steps: np.ndarray = field(repr=False)
+    a_frac: np.ndarray = field(repr=False)
     m_lo: int
     classes: int
     block_range: tuple[int, int]
@@ -95,16 +99,50 @@ class SlicePlan:
         tile = check_int("tile", tile, 1, 4096)
         wb = packing.weight_bits if weight_bits is None else check_int("weight_bits", weight_bits, 0, MAX_WEIGHT_BITS)
         geo = ShearGeometry.of(camera, shape, spacing, axis=packing.axis)
-        terms = _terms(geo, sampling, wb)
+        a_steps, a_frac = _a_side(geo, sampling, wb)
         S = packing.slots
-        if len(terms):
-            m_lo, m_hi = int(terms[:, 1].min()), int(terms[:, 1].max())
-        else:
-            m_lo = m_hi = 0
+        used = a_steps[a_steps > _OFF]
+        m_lo, m_hi = (int(used.min()), int(used.max())) if used.size else (0, 0)
         O = min(S - 1, m_hi - m_lo)
         i_lo, i_hi = geo.i_range
         blocks = (0, 0) if i_hi <= i_lo else ((i_lo + m_lo) // S, (i_hi - 1 + O + m_lo) // S + 1)
-        return cls(geo, packing, sampling, wb, tuple(int(b) for b in brick), tile, terms, m_lo, O + 1, blocks)
+        return cls(geo, packing, sampling, wb, tuple(int(b) for b in brick), tile, a_steps, a_frac, m_lo, O + 1,
+                   blocks)
+
+    def __getstate__(self) -> dict:  # the b side is recomputed where it is used, not pickled
+        return {k: v for k, v in self.__dict__.items() if k != "_b"}
+
+    def b_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ``b`` side: per slice and row, the voxel y of neighbour 0 (N_p, N_j) int64, and the
+        weights' ``b`` factors (N_p, N_j, 2) float64 (nearest: 1 and 0)."""
+        if "_b" not in self.__dict__:
+            g = self.geometry
+            _, cb = g.offsets()
+            y = g.row_positions()[None, :] + cb[:, None]
+            if self.sampling == "nearest":
+                yb = np.floor(y + 0.5)
+                phi = np.stack([np.ones_like(y), np.zeros_like(y)], axis=-1)
+            else:
+                yb = np.floor(y)
+                f = y - yb
+                phi = np.stack([1.0 - f, f], axis=-1)
+            object.__setattr__(self, "_b", (yb.astype(np.int64), phi))
+        return self.__dict__["_b"]
+
+    def a_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ``a`` side: per slice, the offsets m of neighbours 0 and 1 (N_p, 2) int64 (a
+        neighbour not used: a huge negative offset) and their factors (N_p, 2) float64."""
+        f = self.a_frac
+        phi = np.stack([1.0 - f, f], axis=-1) if self.sampling == "trilinear" else np.stack(
+            [np.ones_like(f), np.zeros_like(f)], axis=-1)
+        return self.a_steps, phi
+
+    def weights(self, phi_a: np.ndarray, phi_b: np.ndarray) -> np.ndarray:
+        """The integer weights of factors ``phi_a`` × ``phi_b`` (broadcast): round(φ_a·φ_b·U), or 1
+        for nearest's (1 × 1) and 0 for any zero factor."""
+        if self.sampling == "nearest":
+            return ((phi_a > 0) & (phi_b > 0)).astype(np.int64)
+        return np.floor(phi_a * phi_b * float(1 << self.weight_bits) + 0.5).astype(np.int64)
 
     # -- sizes ------------------------------------------------------------------------------
     @property
@@ -147,9 +185,12 @@ class SlicePlan:
     # -- slot safety -------------------------------------------------------------------------
     def weight_totals(self) -> np.ndarray:
         """W(i, j) = Σ of the weights of ray (i, j) on voxels inside the volume: (N_i, N_j) int64."""
-        ina, inb = self._term_masks()
-        w = self.terms[:, 3].astype(np.int64) if len(self.terms) else np.zeros(0, np.int64)
-        return (ina.astype(np.int64) * w[:, None]).T @ inb.astype(np.int64)
+        ina, inb, w = self._masks()
+        out = np.zeros(self.geometry.size, np.int64)
+        for da in range(2):
+            G = (w[:, da] * inb).sum(axis=-1)  # (N_p, N_j): Σ over the b neighbours
+            out += ina[:, da].astype(np.int64).T @ G
+        return out
 
     def check_slots(self, span: int) -> np.ndarray:
         """Refuse (:class:`hevr.RenderPlanError`, naming ``weight_bits``) a frame whose largest ray
@@ -165,15 +206,19 @@ class SlicePlan:
         return W
 
     # -- the map's pairs -------------------------------------------------------------------
-    def _term_masks(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per term, which rays' voxels exist along ``a`` (T, N_i) and along ``b`` (T, N_j)."""
+    def _masks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Whether the voxels exist: along ``a`` (N_p, 2, N_i), along ``b`` (N_p, N_j, 2); and the
+        weights (N_p, 2, N_j, 2)."""
         g = self.geometry
-        t = self.terms
+        m, pa = self.a_table()
+        yb, pb = self.b_table()
         i = np.arange(*g.i_range, dtype=np.int64)
-        j = np.arange(*g.j_range, dtype=np.int64)
-        xa = i[None, :] + t[:, 1:2]
-        xb = j[None, :] + t[:, 2:3]
-        return (xa >= 0) & (xa < g.shape[g.axis]), (xb >= 0) & (xb < g.shape[g.other])
+        xa = i[None, None, :] + m[:, :, None]
+        ina = (xa >= 0) & (xa < g.shape[g.axis])
+        y = yb[:, :, None] + np.arange(2)[None, None, :]
+        inb = (y >= 0) & (y < g.shape[g.other])
+        w = self.weights(pa[:, :, None, None], pb[:, None, :, :])
+        return ina, inb, w
 
     def _brick_box(self, index: Any) -> tuple[tuple[int, int], ...]:
         g = self.geometry
@@ -182,41 +227,46 @@ class SlicePlan:
     def brick_pairs(self, index: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(keys, local pack, weight) of every product of brick ``index``, sorted by key (stable).
 
-        A key numbers the accumulator (B, j, o) as ((j − j_lo)·N_B + (B − B_lo))·(O + 1) + (O − o),
-        so that a (B, j)'s classes are consecutive with the class to shift most last (the order
+        A key numbers the accumulator (B, r, o) (r: the row) as (r·N_B + (B − B_lo))·(O + 1) + (O − o),
+        so that a (B, r)'s classes are consecutive with the class to shift most last (the order
         the backend's Horner ``pack`` takes); the local pack indexes the brick's packed chunk in C order."""
         g, S = self.geometry, self.packing.slots
         box = self._brick_box(index)
         (k0, k1), (a0, a1), (y0, y1) = box[g.principal], box[g.axis], box[g.other]
-        t = self.terms
-        lo, hi = np.searchsorted(t[:, 0], [k0, k1])
-        t = t[lo:hi]
         empty = np.zeros(0, np.int64)
-        if not len(t) or self.n_blocks == 0:
+        if self.n_blocks == 0 or g.size[1] == 0:
             return empty, empty, empty
+        m_all, pa = self.a_table()
+        yb_all, pb = self.b_table()
         A = np.arange(a0 // S, -(-a1 // S), dtype=np.int64)
-        y = np.arange(y0, y1, dtype=np.int64)
-        mrel = t[:, 1] - self.m_lo
-        q, o = mrel // S, mrel % S
-        B = A[None, :, None] - q[:, None, None] + np.zeros((1, 1, len(y)), np.int64)
-        j = y[None, None, :] - t[:, 2][:, None, None] + np.zeros((1, len(A), 1), np.int64)
-        O = self.classes - 1
-        keep = (B >= self.block_range[0]) & (B < self.block_range[1]) & (j >= g.j_range[0]) & (j < g.j_range[1])
-        keys = ((j - g.j_range[0]) * self.n_blocks + (B - self.block_range[0])) * self.classes + (O - o)[:, None, None]
-        # the packed chunk's local coordinates, in array axis order
-        loc = [None, None, None]
-        loc[g.principal] = (t[:, 0] - k0)[:, None, None]
-        loc[g.axis] = (A - a0 // S)[None, :, None]
-        loc[g.other] = (y - y0)[None, None, :]
-        dims = [k1 - k0, len(A), y1 - y0]
-        cdims = [0, 0, 0]
-        cdims[g.principal], cdims[g.axis], cdims[g.other] = dims
-        local = (loc[0] * cdims[1] + loc[1]) * cdims[2] + loc[2]
-        w = np.broadcast_to(t[:, 3][:, None, None], keys.shape)
-        local = np.broadcast_to(local, keys.shape)
-        keys, local, w = keys[keep], local[keep], w[keep]
-        order = np.argsort(keys, kind="stable")
-        return keys[order], local[order], w[order]
+        dims = [0, 0, 0]
+        dims[g.principal], dims[g.axis], dims[g.other] = k1 - k0, len(A), y1 - y0
+        O, NB = self.classes - 1, self.n_blocks
+        keys, local, wts = [], [], []
+        for da in range(2):
+            for db in range(2):
+                y = yb_all[k0:k1] + db
+                w = self.weights(pa[k0:k1, da][:, None], pb[k0:k1, :, db])
+                kk, rr = np.nonzero((y >= y0) & (y < y1) & (w > 0) & (m_all[k0:k1, da] > _OFF)[:, None])
+                if not len(kk):
+                    continue
+                q, o = np.divmod(m_all[k0 + kk, da] - self.m_lo, S)
+                B = A[None, :] - q[:, None]
+                keep = (B >= self.block_range[0]) & (B < self.block_range[1])
+                key = (rr[:, None] * NB + (B - self.block_range[0])) * self.classes + (O - o)[:, None]
+                loc = [None, None, None]
+                loc[g.principal] = kk[:, None]
+                loc[g.axis] = (A - a0 // S)[None, :]
+                loc[g.other] = (y[kk, rr] - y0)[:, None]
+                flat = (loc[0] * dims[1] + loc[1]) * dims[2] + loc[2]
+                keys.append(key[keep])
+                local.append(np.broadcast_to(flat, key.shape)[keep])
+                wts.append(np.broadcast_to(w[kk, rr][:, None], key.shape)[keep])
+        if not keys:
+            return empty, empty, empty
+        keys_a, local_a, w_a = np.concatenate(keys), np.concatenate(local), np.concatenate(wts)
+        order = np.argsort(keys_a, kind="stable")
+        return keys_a[order], local_a[order], w_a[order]
 
     def tile_of(self, keys: np.ndarray) -> np.ndarray:
         """The reduce tile of every accumulator key."""
@@ -225,25 +275,26 @@ class SlicePlan:
         return (jr // self.tile) * self.tiles_shape[1] + br // self.tile_blocks
 
     def brick_tiles(self, index: Any) -> list[int]:
-        """The tiles brick ``index``'s products can reach (from the ranges of its slices' terms;
-        a superset: a tile may get no product)."""
+        """The tiles brick ``index``'s products can reach (from the ranges of its slices' offsets
+        and the rows that read its voxels; a superset: a tile may get no product)."""
         g, S = self.geometry, self.packing.slots
         box = self._brick_box(index)
         (k0, k1), (a0, a1), (y0, y1) = box[g.principal], box[g.axis], box[g.other]
-        t = self.terms
-        lo, hi = np.searchsorted(t[:, 0], [k0, k1])
-        t = t[lo:hi]
-        if not len(t) or self.n_blocks == 0:
+        if self.n_blocks == 0 or g.size[1] == 0:
             return []
-        q = (t[:, 1] - self.m_lo) // S
+        m = self.a_table()[0][k0:k1]
+        m = m[m > _OFF]
+        yb = self.b_table()[0][k0:k1]
+        rows = np.nonzero(((yb + 1 >= y0) & (yb < y1)).any(axis=0))[0]
+        if not m.size or not rows.size:
+            return []
+        q = (m - self.m_lo) // S
         B0 = max(a0 // S - int(q.max()), self.block_range[0])
         B1 = min(-(-a1 // S) - 1 - int(q.min()), self.block_range[1] - 1)
-        j0 = max(y0 - int(t[:, 2].max()), g.j_range[0])
-        j1 = min(y1 - 1 - int(t[:, 2].min()), g.j_range[1] - 1)
-        if B1 < B0 or j1 < j0:
+        if B1 < B0:
             return []
         tb0, tb1 = (B0 - self.block_range[0]) // self.tile_blocks, (B1 - self.block_range[0]) // self.tile_blocks
-        ty0, ty1 = (j0 - g.j_range[0]) // self.tile, (j1 - g.j_range[0]) // self.tile
+        ty0, ty1 = int(rows[0]) // self.tile, int(rows[-1]) // self.tile
         tx = self.tiles_shape[1]
         return [r * tx + c for r in range(ty0, ty1 + 1) for c in range(tb0, tb1 + 1)]
 
@@ -299,47 +350,50 @@ class SlicePlan:
         mantissas less the offset), int64 — the integers a frame must decrypt to, exactly."""
         g = self.geometry
         u = np.moveaxis(np.asarray(slot_values, dtype=np.int64), (g.principal, g.axis, g.other), (0, 1, 2))
+        m, pa = self.a_table()
+        yb, pb = self.b_table()
         i = np.arange(*g.i_range)
-        j = np.arange(*g.j_range)
         out = np.zeros(g.size, np.int64)
-        for k, ma, mb, w in self.terms.tolist():
-            xa, xb = i + ma, j + mb
-            oka, okb = (xa >= 0) & (xa < u.shape[1]), (xb >= 0) & (xb < u.shape[2])
-            out[np.ix_(oka, okb)] += w * u[k][np.ix_(xa[oka], xb[okb])]
+        for k in range(g.slices):
+            for da in range(2):
+                if m[k, da] <= _OFF:
+                    continue
+                xa = i + m[k, da]
+                oka = (xa >= 0) & (xa < u.shape[1])
+                for db in range(2):
+                    y = yb[k] + db
+                    w = self.weights(pa[k, da], pb[k, :, db])
+                    okb = (y >= 0) & (y < u.shape[2]) & (w > 0)
+                    out[np.ix_(oka, okb)] += w[okb][None, :] * u[k][np.ix_(xa[oka], y[okb])]
         return out
 
     # -- the bound against the float64 reference ------------------------------------------
     def contributing_slices(self) -> np.ndarray:
-        """Per ray, the slices whose sample reads some voxel with a non-zero weight: (N_i, N_j)."""
-        g = self.geometry
-        ina, inb = self._term_masks()
-        n = g.slices
-        k = self.terms[:, 0]
-        anya = np.zeros((n,) + ina.shape[1:], bool)
-        anyb = np.zeros((n,) + inb.shape[1:], bool)
-        np.logical_or.at(anya, k, ina)
-        np.logical_or.at(anyb, k, inb)
+        """Per ray, the slices whose sample has a non-zero factor on some voxel inside: (N_i, N_j)
+        (an upper bound of the slices where the frame's or the reference's sample is not zero)."""
+        ina, inb, _ = self._masks()
+        m, pa = self.a_table()
+        _, pb = self.b_table()
+        anya = (ina & ((pa > 0) & (m > _OFF))[:, :, None]).any(axis=1)
+        anyb = (inb & (pb > 0)).any(axis=-1)
         return anya.astype(np.int64).T @ anyb.astype(np.int64)
 
 
-def _terms(geo: ShearGeometry, sampling: str, weight_bits: int) -> np.ndarray:
-    """(k, m_a, m_b, w) of every slice's samples: one per slice (nearest, w = 1) or the 2×2 in-slice
-    neighbours with w = round(φ_a·φ_b·U), φ ∈ {1 − f, f} the bilinear factors, U = 2^weight_bits
-    (zero weights dropped; the four sum to U ± 2)."""
-    ca, cb = geo.offsets()
-    k = np.arange(geo.slices, dtype=np.int64)
+_OFF = -(1 << 40)  # the offset of a neighbour not used
+
+
+def _a_side(geo: ShearGeometry, sampling: str, weight_bits: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per slice the ``a`` offsets of neighbours 0 and 1 and the fraction f_a: nearest m_k =
+    floor(c_a + 0.5) alone; bilinear floor(c_a) and floor(c_a) + 1, each only where its factor
+    (1 − f_a or f_a) can give a non-zero rounded weight (≥ 1/2U)."""
+    ca, _ = geo.offsets()
     if sampling == "nearest":
-        ma, mb = np.floor(ca + 0.5).astype(np.int64), np.floor(cb + 0.5).astype(np.int64)
-        return np.stack([k, ma, mb, np.ones_like(k)], axis=1)
+        m = np.floor(ca + 0.5).astype(np.int64)
+        return np.stack([m, np.full_like(m, _OFF)], axis=1), np.zeros_like(ca)
+    m0 = np.floor(ca)
+    f = ca - m0
     U = float(1 << weight_bits)
-    fa0, fb0 = np.floor(ca), np.floor(cb)
-    fa, fb = ca - fa0, cb - fb0
-    ma, mb = fa0.astype(np.int64), fb0.astype(np.int64)
-    rows = []
-    for da, pa in ((0, 1.0 - fa), (1, fa)):
-        for db, pb in ((0, 1.0 - fb), (1, fb)):
-            w = np.floor(pa * pb * U + 0.5).astype(np.int64)
-            rows.append(np.stack([k, ma + da, mb + db, w], axis=1))
-    t = np.concatenate(rows)
-    t = t[t[:, 3] > 0]
-    return t[np.lexsort((t[:, 2], t[:, 1], t[:, 0]))]
+    m0 = m0.astype(np.int64)
+    steps = np.stack([np.where(np.floor((1.0 - f) * U + 0.5) > 0, m0, _OFF),
+                      np.where(np.floor(f * U + 0.5) > 0, m0 + 1, _OFF)], axis=1)
+    return steps, f

@@ -18,6 +18,10 @@ means *bilinear within the slice*: the 2×2 voxels around the point, zero outsid
 A ray's sample count n(i, j) is the number of slices whose sample reads a voxel (nearest) or lies
 in the closed box [0, n_a − 1] × [0, n_b − 1] (bilinear); its X-ray value is Σ / n (0 when n = 0).
 
+The rays along ``b`` need not be integers (only ``a`` is the packs' lattice): they are spaced as
+the camera's pixels where those are further apart than the voxels (a zoomed-out view computes no
+more rays than it has pixels), else one voxel apart.
+
 The warp: the camera's pixel ray meets slice 0 at real (i*, j*) (:meth:`ShearGeometry.pixel_coords`);
 its value is the bilinear interpolation of the intermediate image there, rays outside the image
 counting 0 (:meth:`ShearGeometry.warp`). Only the rays the camera's pixels need are computed.
@@ -45,6 +49,22 @@ AXIS_NAMES = ("z", "y", "x")
 _WORLD = (2, 1, 0)  # array axis -> index of its world coordinate (x, y, z)
 
 
+def _row_step(ic: np.ndarray, jc: np.ndarray, width: int, height: int) -> float:
+    """Δ: the rows' spacing along ``b``, the pixels' (the shorter of the steps to the next column and
+    to the next row, in voxels on slice 0), at least 1: rays no closer than the pixels need, nor
+    than the voxels.
+
+    >>> _row_step(np.array([0.0, 1.5, 0.0, 1.5]), np.array([0.0, 0.0, 2.5, 2.5]), 2, 2)
+    1.5
+    """
+    steps = []
+    if width > 1:
+        steps.append(math.hypot(float(ic[1] - ic[0]), float(jc[1] - jc[0])))
+    if height > 1:
+        steps.append(math.hypot(float(ic[width] - ic[0]), float(jc[width] - jc[0])))
+    return max(1.0, min(steps)) if steps else 1.0
+
+
 def index_vector(v: Any, spacing: Any) -> np.ndarray:
     """A world vector (x, y, z) in array index units (u0, u1, u2) = (z/sz, y/sy, x/sx).
 
@@ -70,9 +90,13 @@ class ShearGeometry:
         The array axes ``a`` (packing), ``p`` (slices) and ``b``.
     slope_a, slope_b : float
         s_a, s_b: the in-slice shift per slice.
-    i_range, j_range : (int, int)
-        The intermediate rays computed, ``[lo, hi)`` along ``a`` and ``b``: those that touch the
-        volume and that the camera's pixels need.
+    i_range : (int, int)
+        The intermediate rays computed along ``a``, ``[lo, hi)`` (integers: the packs' lattice).
+    rows : (float, float, int)
+        Along ``b``: the first ray's position, the spacing Δ and the count: rays at
+        j_r = j_0 + r·Δ (:meth:`row_positions`), Δ = 1 or, where the camera's pixels are further
+        apart than the voxels, their spacing. Only rays that touch the volume and that the pixels
+        need are computed.
     """
 
     shape: tuple[int, int, int]
@@ -83,7 +107,7 @@ class ShearGeometry:
     slope_a: float
     slope_b: float
     i_range: tuple[int, int]
-    j_range: tuple[int, int]
+    rows: tuple[float, float, int]
 
     @classmethod
     def of(cls, camera: Any, shape: Any, spacing: Any, axis: int | None = None,
@@ -121,15 +145,17 @@ class ShearGeometry:
         a = axis if axis is not None else min(ax for ax in range(3) if ax != p)
         b = 3 - p - a
         sa, sb = float(d[a] / d[p]) + 0.0, float(d[b] / d[p]) + 0.0  # + 0.0: no -0.0
-        geo = cls(shape, spacing, a, p, b, sa, sb, (0, 0), (0, 0))
+        geo = cls(shape, spacing, a, p, b, sa, sb, (0, 0), (0.0, 1.0, 0))
         i_rng, j_rng = geo._touching()
         ic, jc = geo.pixel_coords(camera)
-        if ic.size:  # only the rays the pixels interpolate between
-            i_rng = (max(i_rng[0], math.floor(float(ic.min()))), min(i_rng[1], math.floor(float(ic.max())) + 2))
-            j_rng = (max(j_rng[0], math.floor(float(jc.min()))), min(j_rng[1], math.floor(float(jc.max())) + 2))
+        # only the rays the pixels interpolate between
+        i_rng = (max(i_rng[0], math.floor(float(ic.min()))), min(i_rng[1], math.floor(float(ic.max())) + 2))
         i_rng = (i_rng[0], max(i_rng))
-        j_rng = (j_rng[0], max(j_rng))
-        return cls(shape, spacing, a, p, b, sa, sb, i_rng, j_rng)
+        step = _row_step(ic, jc, camera.width, camera.height)
+        j0 = float(math.floor(max(j_rng[0], float(jc.min()))))
+        top = min(float(j_rng[1] - 1), float(jc.max()))
+        count = max(0, math.floor((top - j0) / step) + 2) if top >= j0 else 0
+        return cls(shape, spacing, a, p, b, sa, sb, i_rng, (j0, step, count))
 
     # -- slices and rays ------------------------------------------------------------------
     @property
@@ -140,7 +166,12 @@ class ShearGeometry:
     @property
     def size(self) -> tuple[int, int]:
         """(N_i, N_j): the intermediate image's rays along ``a`` and ``b``."""
-        return self.i_range[1] - self.i_range[0], self.j_range[1] - self.j_range[0]
+        return self.i_range[1] - self.i_range[0], self.rows[2]
+
+    def row_positions(self) -> np.ndarray:
+        """j_r = j_0 + r·Δ of every row of rays, float64 (the one expression every user of rows takes)."""
+        j0, step, count = self.rows
+        return j0 + np.arange(count, dtype=np.float64) * step
 
     def offsets(self) -> tuple[np.ndarray, np.ndarray]:
         """(c_a(k), c_b(k)) for every slice k, float64."""
@@ -161,8 +192,9 @@ class ShearGeometry:
         (N_p, N_j) bools (module docstring: the voxel exists, or the point lies in the closed box)."""
         ca, cb = self.offsets()
         out = []
-        for c, (lo, hi), n in ((ca, self.i_range, self.shape[self.axis]), (cb, self.j_range, self.shape[self.other])):
-            x = np.arange(lo, hi, dtype=np.float64)[None, :] + c[:, None]
+        for c, pos, n in ((ca, np.arange(*self.i_range, dtype=np.float64), self.shape[self.axis]),
+                          (cb, self.row_positions(), self.shape[self.other])):
+            x = pos[None, :] + c[:, None]
             out.append((np.floor(x + 0.5) >= 0) & (np.floor(x + 0.5) < n) if sampling == "nearest"
                        else (x >= 0) & (x <= n - 1))
         return out[0], out[1]
@@ -187,10 +219,11 @@ class ShearGeometry:
         ic, jc = coords
         img = np.asarray(image, dtype=np.float64)
         ni, nj = img.shape
-        i0, j0 = np.floor(ic), np.floor(jc)
-        fi, fj = ic - i0, jc - j0
+        rj = (jc - self.rows[0]) / self.rows[1]  # in row units
+        i0, j0 = np.floor(ic), np.floor(rj)
+        fi, fj = ic - i0, rj - j0
         i0 = i0.astype(np.int64) - self.i_range[0]
-        j0 = j0.astype(np.int64) - self.j_range[0]
+        j0 = j0.astype(np.int64)
         out = np.zeros(ic.shape, dtype=np.float64)
         for di, wi in ((0, 1.0 - fi), (1, fi)):
             for dj, wj in ((0, 1.0 - fj), (1, fj)):

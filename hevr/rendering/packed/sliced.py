@@ -50,7 +50,7 @@ def _intermediate(arr: np.ndarray, geo: ShearGeometry, sampling: str) -> np.ndar
     vol = np.moveaxis(arr, (geo.principal, geo.axis, geo.other), (0, 1, 2))
     na, nb = vol.shape[1], vol.shape[2]
     i = np.arange(*geo.i_range, dtype=np.float64)
-    j = np.arange(*geo.j_range, dtype=np.float64)
+    j = geo.row_positions()
     total = np.zeros((len(i), len(j)), np.float64)
     count = np.zeros((len(i), len(j)), np.int64)
     for k in range(vol.shape[0]):
