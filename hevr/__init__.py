@@ -68,6 +68,7 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
     from .remote.client import connect
     from .rendering.encrypted import RaySums, clear_cache, error_bound, render
     from .rendering.geometry.camera import Camera
+    from .rendering.packed.image import PackedImage
     from .rendering.geometry.plane import Plane
     from .rendering.geometry.views import VIEWS
     from .rendering.pipeline.stream import render_frame
@@ -116,6 +117,7 @@ _LAZY = {
     ".image.files": ("load_image",),
     ".remote.client": ("connect",),
     ".rendering.geometry.camera": ("Camera",),
+    ".rendering.packed.image": ("PackedImage",),
     ".rendering.encrypted": ("RaySums", "clear_cache", "error_bound", "render"),
     ".rendering.reference.plain": ("render_plain", "render_slice_plain"),
     ".rendering.geometry.plane": ("Plane",),
@@ -168,6 +170,7 @@ __all__ = [
     "MissingFileError",
     "NotRegularFileError",
     "ParameterError",
+    "PackedImage",
     "PlaintextOverflowError",
     "Plane",
     "PrivateKey",

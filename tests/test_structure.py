@@ -100,6 +100,7 @@ PUBLIC_API = (
     "connect", "RemoteError",  # hevr serve's key holder (issue 37)
     "known_stores", "trust_store",  # the key holder's known stores (issue 38)
     "VIEWS", "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
+    "PackedImage",  # a packed store's frame (issue 45)
 )
 API_MD = ROOT / "docs" / "api-contract.md"  # the public contract, shipped with the repository
 

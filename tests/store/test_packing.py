@@ -229,3 +229,10 @@ def test_packed_store_keeps_metadata_for_other_readers(packed):
     from hevr.store.layout import array_layout
     assert array_layout(meta)["scalar"][0] != array_layout(packed.meta)["scalar"][0]
     assert dataclasses.replace(meta, packing=packed.packing) == dataclasses.replace(packed.meta)
+
+
+def test_packed_public_key_path(tmp_path, keypair256, volume):
+    """Anyone with the public key can write a packed store; the key holder reads every voxel back."""
+    pub, priv = keypair256
+    ev = hevr.encrypt_volume(volume, tmp_path / "pub.zarr", pub, brick=4, layout="packed", progress=False)
+    assert ev.layout == "packed" and (_voxels(ev, priv) == volume).all()

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import time
+import uuid
 from typing import Any
 
 import numpy as np
@@ -161,13 +162,14 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
     plain = ev._plain()
     per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
     maps = []
+    tag = f"{meta.store_id}-{uuid.uuid4().hex}"  # this render's tasks (never another render's results)
     for column in brick_columns(ev.grid, plan.geometry.principal):
         column = [idx for idx in column if plan.brick_tiles(idx)]
         if not column:
             continue
         tiles = sorted(set().union(*(plan.brick_tiles(idx) for idx in column)))
         idx = column[0]
-        name = f"hevr-packed-map-{meta.store_id}-{idx[0]}-{idx[1]}-{idx[2]}-{len(column)}-{camera.key()[:12]}-{sampling}"
+        name = f"hevr-packed-map-{tag}-{idx[0]}-{idx[1]}-{idx[2]}"
         task = delayed(map_column, pure=True, nout=2)(plain, plan, column, backend, tiles,
                                                       [resident.get(i) for i in column] if resident is not None
                                                       else None, dask_key_name=name)
@@ -175,7 +177,7 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
         for pos, t in enumerate(tiles):
             per_tile[t].append(task[0][pos])
     fin = [delayed(merge_tile, pure=True, nout=2)(plan, t, n, width, backend, *per_tile[t],
-                                                  dask_key_name=f"hevr-packed-tile-{meta.store_id}-{t}-{camera.key()[:12]}-{sampling}")
+                                                  dask_key_name=f"hevr-packed-tile-{tag}-{t}")
            for t in range(plan.n_tiles)]
     results = run_tasks([f for f in fin] + maps, client=cl, progress=progress, desc="render")
     tiles_out = [r[0] for r in results[:len(fin)]]

@@ -15,6 +15,7 @@ from typing import Any
 
 from ..._validate import check_int
 from ...errors import ParameterError
+from ..planning.planner import check_render_size
 from .graph import render_packed
 from .image import PackedImage
 
@@ -57,5 +58,6 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
                     "against a lying server", ev.meta.store_id)
     if weight_bits is not None:
         weight_bits = check_int("weight_bits", weight_bits, 0, 16)
+    check_render_size(camera, ev.shape, ev.spacing, 1.0)  # the size limits, before anything per pixel
     return render_packed(ev, camera, sampling, tile=tile, client=client, progress=progress, backend=backend,
                          weight_bits=weight_bits)

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..._validate import check_choice, check_spacing, check_volume
 from ...volume.scan import Scan
+from ..planning.planner import check_render_size
 from .plan import SlicePlan
 from .shear import ShearGeometry
 
@@ -40,6 +41,7 @@ def render_plain_slices(vol: Any, camera: Any, sampling: str = "nearest", spacin
     arr = check_volume(np.asarray(vol))
     spacing = check_spacing((1.0, 1.0, 1.0) if spacing is None else spacing)
     sampling = check_choice("sampling", sampling, ("nearest", "trilinear"))
+    check_render_size(camera, arr.shape, spacing, 1.0)
     geo = ShearGeometry.of(camera, arr.shape, spacing, axis=axis, packed=axis is not None)
     inter = _intermediate(arr, geo, sampling)
     return geo.warp(inter, geo.pixel_coords(camera)).reshape(camera.height, camera.width)
