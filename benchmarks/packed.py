@@ -57,9 +57,11 @@ def _install_counter():  # runs on every worker (client.run)
     ray, seg, pack = be.ray_products, be.segment_products, be.pack
 
     def ray_products(self, plan, components, nsquare, counter=None):
-        out = ray(self, plan, components, nsquare, state["map"])
+        mine = OpCounter()  # this call's operations: into the total, and into the caller's counter
+        out = ray(self, plan, components, nsquare, mine)
+        state["map"].add(mine)
         if counter is not None:
-            counter.add(state["map"])
+            counter.add(mine)
         return out
 
     def segment_products(self, values, indptr, k, nsquare):
