@@ -66,6 +66,22 @@ def test_exact_sums_and_reference(store, keypair256, volume, view, sampling):
     assert ops["pairs"] > 0 and img.stats["layout"] == "packed"
 
 
+@pytest.mark.parametrize("sampling", SAMPLINGS)
+def test_zoomed_camera(store, keypair256, volume, sampling):
+    """A camera that sees part of the volume: the blocks' slots of rays outside the frame hold real
+    sums (checked against their own bounds, not counted), and the frame is exact and within the bound."""
+    import dataclasses
+    priv = keypair256[1]
+    for view in ((90, 10), (60, 10)):
+        c = cam(store, *view, w=9, h=7)
+        c = dataclasses.replace(c, parallel_scale=c.parallel_scale / 4)
+        img = render(store, c, sampling)
+        assert img.plan.geometry.size[0] < SHAPE[0]  # fewer rays along z than the volume has
+        assert (img.decrypt_sums(priv) == img.plan.plain_sums(volume.astype(np.int64) - store.packing.offset)).all()
+        ref = hevr.render_plain(volume, c, sampling=sampling, spacing=SPACING, slices=True)
+        assert (np.abs(img.decrypt(priv) - ref) <= hevr.error_bound(store, c, sampling=sampling)).all()
+
+
 def test_one_product_serves_S_rays(store, keypair256):
     """An orbit around the packing axis needs one class (no combine) and about 1/S of the per-voxel
     store's products: one multiplication per pack and slice (nearest)."""

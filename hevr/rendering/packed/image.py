@@ -21,11 +21,12 @@ import numpy as np
 from ...backends import get_backend
 from ...crypto.keys import PrivateKey
 from ...errors import IntegrityError, KeyMismatchError, ParameterError, VerificationError
+from ...store.packing import INTEGRITY_BITS, unpack_slots
 from .plan import SlicePlan
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PackedImage"]
+__all__ = ["PackedImage", "decode"]
 
 
 @dataclass
@@ -100,8 +101,7 @@ class PackedImage:
                 raise IntegrityError(f"image: tile {t}: ciphertext {bad} is not in (0, n²): the image was corrupted "
                                      "or tampered with; no image is returned")
             tiles.append(be.decrypt(key, batch))
-        W = self.plan.weight_totals()
-        return self.plan.decode(tiles, self.span, W)
+        return decode(self.plan, tiles, self.span)
 
     def decrypt_intermediate(self, private_key: PrivateKey, backend: str | None = None) -> np.ndarray:
         """The intermediate image (rays along the packing axis × the other axis), float64 X-ray values."""
@@ -139,6 +139,46 @@ class PackedImage:
     def __repr__(self) -> str:
         return (f"PackedImage(shape={self.shape}, sampling={self.plan.sampling!r}, slots={self.plan.packing.slots}, "
                 f"ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
+
+
+def decode(plan: SlicePlan, tiles: list[list[int]], span: int) -> np.ndarray:
+    """The exact ray sums Σ w·u (slot values, before the offset) of the intermediate image,
+    (N_i, N_j) int64, from every tile's decrypted values (row-major (row, block) in the tile).
+
+    Raises :class:`hevr.IntegrityError` for a missing or extra tile or value, a value with a bit set
+    above its last slot (the integrity margin: a corrupted ciphertext), or a slot above the largest
+    sum its ray can have (span·W of that ray, which is 0 for a ray that reads no voxel)."""
+    g, S, K = plan.geometry, plan.packing.slots, plan.packing.slot_bits
+    O, n_out = plan.classes - 1, plan.slots_out
+    ni, nj = g.size
+    sums = np.zeros((ni, nj), np.int64)
+    lo, hi = plan.block_rays()  # every slot's ray, the frame's and its blocks' neighbours
+    top = plan.weight_totals((lo, hi)).astype(object) * int(span)
+    limit = 1 << (n_out * K)
+    if len(tiles) != plan.n_tiles:
+        raise IntegrityError(f"image: expected {plan.n_tiles} tiles, got {len(tiles)}; {_CORRUPT}")
+    for t, vals in enumerate(tiles):
+        j0, j1, b0, b1 = plan.tile_bounds(t)
+        if len(vals) != (j1 - j0) * (b1 - b0):
+            raise IntegrityError(f"image: tile {t} holds {len(vals)} values, expected {(j1 - j0) * (b1 - b0)}; "
+                                 f"{_CORRUPT}")
+        if any(not 0 <= int(v) < limit for v in vals):
+            raise IntegrityError(f"image: a value of tile {t} has bits set above its {n_out} slots of {K} bits "
+                                 f"(the {INTEGRITY_BITS}-bit integrity margin); {_CORRUPT}")
+        slots = unpack_slots(vals, n_out, K).reshape(j1 - j0, b1 - b0, n_out)
+        Bs = np.arange(b0, b1) + plan.block_range[0]
+        ray = S * Bs[:, None] + np.arange(n_out)[None, :] - O - plan.m_lo  # (blocks, slots): the ray of each slot
+        ext, frame = ray - lo, ray - g.i_range[0]
+        inside = (frame >= 0) & (frame < ni)
+        for jj in range(j1 - j0):
+            row, col = slots[jj], j0 + jj
+            if (row.astype(object) > top[ext, col]).any():
+                raise IntegrityError(f"image: tile {t} has a slot above the largest sum its ray can have; {_CORRUPT}")
+            np.add.at(sums[:, col], frame[inside], row[inside])
+    return sums
+
+
+_CORRUPT = "the image was corrupted or tampered with; no image is returned"
 
 
 def _ratio(num: int, den: int) -> float:

@@ -47,8 +47,8 @@ from typing import Any
 import numpy as np
 
 from ..._validate import check_choice, check_int
-from ...errors import IntegrityError, RenderPlanError
-from ...store.packing import INTEGRITY_BITS, MAX_WEIGHT_BITS, PackingInfo, unpack_slots
+from ...errors import RenderPlanError
+from ...store.packing import MAX_WEIGHT_BITS, PackingInfo
 from .shear import ShearGeometry
 
 __all__ = ["SlicePlan"]
@@ -183,10 +183,11 @@ class SlicePlan:
                 min((c + 1) * self.tile_blocks, self.n_blocks))
 
     # -- slot safety -------------------------------------------------------------------------
-    def weight_totals(self) -> np.ndarray:
-        """W(i, j) = Σ of the weights of ray (i, j) on voxels inside the volume: (N_i, N_j) int64."""
-        ina, inb, w = self._masks()
-        out = np.zeros(self.geometry.size, np.int64)
+    def weight_totals(self, i_range: tuple[int, int] | None = None) -> np.ndarray:
+        """W(i, j) = Σ of the weights of ray (i, j) on voxels inside the volume: (N_i, N_j) int64
+        (``i_range``: of these rays along ``a`` instead of the frame's)."""
+        ina, inb, w = self._masks(i_range)
+        out = np.zeros((ina.shape[-1], inb.shape[1]), np.int64)
         for da in range(2):
             G = (w[:, da] * inb).sum(axis=-1)  # (N_p, N_j): Σ over the b neighbours
             out += ina[:, da].astype(np.int64).T @ G
@@ -206,13 +207,13 @@ class SlicePlan:
         return W
 
     # -- the map's pairs -------------------------------------------------------------------
-    def _masks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _masks(self, i_range: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Whether the voxels exist: along ``a`` (N_p, 2, N_i), along ``b`` (N_p, N_j, 2); and the
         weights (N_p, 2, N_j, 2)."""
         g = self.geometry
         m, pa = self.a_table()
         yb, pb = self.b_table()
-        i = np.arange(*g.i_range, dtype=np.int64)
+        i = np.arange(*(g.i_range if i_range is None else i_range), dtype=np.int64)
         xa = i[None, None, :] + m[:, :, None]
         ina = (xa >= 0) & (xa < g.shape[g.axis])
         y = yb[:, :, None] + np.arange(2)[None, None, :]
@@ -268,6 +269,12 @@ class SlicePlan:
         order = np.argsort(keys_a, kind="stable")
         return keys_a[order], local_a[order], w_a[order]
 
+    def block_rays(self) -> tuple[int, int]:
+        """The rays along ``a`` whose sums the combined values hold, ``[lo, hi)``: slot t of block B
+        is ray S·B + t − O − m_lo (the frame's rays and the blocks' other slots)."""
+        S, O = self.packing.slots, self.classes - 1
+        return S * self.block_range[0] - O - self.m_lo, S * (self.block_range[1] - 1) + S - self.m_lo
+
     def tile_of(self, keys: np.ndarray) -> np.ndarray:
         """The reduce tile of every accumulator key."""
         acc = keys // self.classes
@@ -297,52 +304,6 @@ class SlicePlan:
         ty0, ty1 = int(rows[0]) // self.tile, int(rows[-1]) // self.tile
         tx = self.tiles_shape[1]
         return [r * tx + c for r in range(ty0, ty1 + 1) for c in range(tb0, tb1 + 1)]
-
-    # -- decoding (the key holder) ---------------------------------------------------------
-    def decode(self, tiles: list[list[int]], span: int, W: np.ndarray) -> np.ndarray:
-        """The exact ray sums Σ w·u (slot values, before the offset) of the intermediate image,
-        (N_i, N_j) int64, from every tile's decrypted values (row-major (j, B) in the tile).
-
-        Raises :class:`hevr.IntegrityError` for a value with a bit set above its last slot (the
-        integrity margin: a corrupted ciphertext), a slot above its ray's largest sum, or a slot
-        of a ray that reads no voxel holding anything."""
-        g, S, K = self.geometry, self.packing.slots, self.packing.slot_bits
-        O, n_out = self.classes - 1, self.slots_out
-        ni, nj = g.size
-        sums = np.zeros((ni, nj), np.int64)
-        top = (np.asarray(W, dtype=object) * int(span)) if ni * nj else np.zeros((0, 0), object)
-        limit = 1 << (n_out * K)
-        if len(tiles) != self.n_tiles:
-            raise IntegrityError(f"image: expected {self.n_tiles} tiles, got {len(tiles)}; the image was corrupted or "
-                                 "tampered with; no image is returned")
-        for t, vals in enumerate(tiles):
-            j0, j1, b0, b1 = self.tile_bounds(t)
-            if len(vals) != (j1 - j0) * (b1 - b0):
-                raise IntegrityError(f"image: tile {t} holds {len(vals)} values, expected {(j1 - j0) * (b1 - b0)}; "
-                                     "the image was corrupted or tampered with; no image is returned")
-            for v in vals:
-                if not 0 <= int(v) < limit:
-                    raise IntegrityError(f"image: a value of tile {t} has bits set above its {n_out} slots of {K} "
-                                         f"bits (the {INTEGRITY_BITS}-bit integrity margin): the image was corrupted "
-                                         "or tampered with; no image is returned")
-            slots = unpack_slots(vals, n_out, K).reshape(j1 - j0, b1 - b0, n_out)
-            Bs = np.arange(b0, b1) + self.block_range[0]
-            rays = S * Bs[:, None] + np.arange(n_out)[None, :] - O - self.m_lo - g.i_range[0]  # (blocks, slots)
-            inside = (rays >= 0) & (rays < ni)
-            for jj in range(j1 - j0):
-                row = slots[jj]
-                if (row[~inside] != 0).any():
-                    raise IntegrityError(f"image: tile {t} has a non-zero slot for a ray outside the frame; the image "
-                                         "was corrupted or tampered with; no image is returned")
-                r = rays[inside]
-                v = row[inside]
-                jcol = j0 + jj
-                bad = v.astype(object) > top[r, jcol]
-                if bad.any():
-                    raise IntegrityError(f"image: tile {t} has a slot above its ray's largest possible sum; the image "
-                                         "was corrupted or tampered with; no image is returned")
-                np.add.at(sums[:, jcol], r, v)
-        return sums
 
     # -- the plaintext twin (tests: the same sums without packing) -------------------------
     def plain_sums(self, slot_values: np.ndarray) -> np.ndarray:
