@@ -3,6 +3,8 @@
 Usage::
 
     python benchmarks/packed.py WORKDIR OUT.json [--bits 2048] [--sizes 64 128] [--image 128]
+    python benchmarks/packed.py --project OUT.json                  # the projection again, from the results
+    python benchmarks/packed.py --report OUT.json > RESULTS-packed.md
 
 For each size N (the N³ phantom, uint8, brick 32) on a 2-worker LocalCluster (1 thread each):
 
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -204,17 +207,28 @@ def project(measured: dict, image: int = 512) -> dict:
     out = {"shape": list(shape), "slots": info.slots, "slot_bits": info.slot_bits, "image": image,
            "store_bytes": {"voxel": vox * b_v, "packed": packs * b_p},
            "encrypt_s_2_workers": {"voxel": vox * enc_v, "packed": packs * enc_p}, "frames": []}
+    n_big = int(big["size"])
     for view, (az, el) in VIEWS.items():
         cam = hevr.Camera.orbit(shape, azimuth=az, elevation=el, width=image, height=image, parallel=True)
-        samples = int(cast_rays(cam, shape, (1, 1, 1), 1.0).n_samples.sum())
+        rays = cast_rays(cam, shape, (1, 1, 1), 1.0)
+        samples, hits = int(rays.n_samples.sum()), int((rays.n_samples > 0).sum())
+        small = hevr.Camera.orbit((n_big,) * 3, azimuth=az, elevation=el, width=big["image"], height=big["image"],
+                                  parallel=True)
+        small_hits = int((cast_rays(small, (n_big,) * 3, (1, 1, 1), 1.0).n_samples > 0).sum())
         for sampling in SAMPLINGS:
             rows = [f for f in big["frames"] if f["view"] == view and f["sampling"] == sampling]
             f = rows[0]
             v_ops_per_sample = sum(f["voxel"]["ops"].values()) / f["voxel"]["samples"]
-            v_s_per_op = f["voxel"]["frame_s"] / sum(f["voxel"]["ops"].values())
+            # the server's seconds per operation and the key holder's seconds per hit pixel / decrypted value
+            v_s_per_op = f["voxel"]["render_s"] / sum(f["voxel"]["ops"].values())
+            v_client = (f["voxel"]["frame_s"] - f["voxel"]["render_s"]) / small_hits
             p_ops = f["packed"]["ops"]
             p_total = p_ops["map"] + p_ops["merge"] + p_ops["combine"] + p_ops["combine_squarings"]
-            p_s_per_op = f["packed"]["frame_s"] / p_total
+            p_s_per_op = f["packed"]["render_s"] / p_total
+            small_plan = SlicePlan.build(small, (n_big,) * 3, (1.0, 1.0, 1.0), tuple(big["encrypt_packed"]["brick"]),
+                                         choose_packing(2048, (n_big,) * 3, 0, (0, 255)), sampling)
+            p_client = (f["packed"]["frame_s"] - f["packed"]["render_s"]) / (small_plan.n_blocks
+                                                                             * small_plan.geometry.size[1])
             plan = SlicePlan.build(cam, shape, (1.0, 1.0, 1.0), brick, info, sampling)
             t = time.perf_counter()
             c = packed_ops_of(plan, shape, brick)
@@ -224,14 +238,74 @@ def project(measured: dict, image: int = 512) -> dict:
                 "view": view, "sampling": sampling, "samples": samples, "voxel_ops": v_proj,
                 "packed_ops": p_proj, "packed_counts": c, "classes": plan.classes,
                 "voxel_map": samples * f["voxel"]["ops"]["map"] / f["voxel"]["samples"], "packed_map": c["map"],
-                "voxel_s_2_workers": v_proj * v_s_per_op, "packed_s_2_workers": p_proj * p_s_per_op,
+                "voxel_s_2_workers": v_proj * v_s_per_op + hits * v_client,
+                "packed_s_2_workers": p_proj * p_s_per_op + c["decryptions"] * p_client,
+                "voxel_client_s": hits * v_client, "packed_client_s": c["decryptions"] * p_client,
                 "count_s": time.perf_counter() - t})
             print(f"512x512x300 {view} {sampling}: map {out['frames'][-1]['voxel_map'] / c['map']:.1f}x fewer, "
                   f"all ops {v_proj / p_proj:.1f}x fewer", flush=True)
     return out
 
 
+def report(result: dict) -> str:
+    """A Markdown summary of a results file (``python benchmarks/packed.py --report OUT.json``)."""
+    m = result["machine"]
+    lines = [f"# Packed vs per-voxel stores at {result['bits']} bits (issue 45)", "",
+             f"{m['date']}, {m['cpu']}, {m['cores']} cores, {result['workers']}, commit {m.get('commit')}; "
+             f"one bare a·b mod n² {result['mulmod_s'] * 1e6:.2f} µs. Frames end to end: render + the key holder's "
+             "decryption; operations counted (squarings included, one each).", ""]
+    for n, r in result["sizes"].items():
+        ev, ep = r["encrypt_voxel"], r["encrypt_packed"]
+        lines += [f"## {n}³ phantom, {r['image']}² parallel camera, S = {r['packing']['slots']}, "
+                  f"K = {r['packing']['slot_bits']}", "",
+                  "| | per-voxel | packed | ratio |", "|---|---|---|---|",
+                  f"| ciphertexts | {ev['ciphertexts']:,} | {ep['ciphertexts']:,} | {ev['ciphertexts'] / ep['ciphertexts']:.1f} |",
+                  f"| store bytes | {ev['bytes'] / 2**20:.1f} MiB | {ep['bytes'] / 2**20:.2f} MiB | "
+                  f"{ev['bytes'] / ep['bytes']:.1f} |",
+                  f"| encryption | {ev['seconds']:.1f} s | {ep['seconds']:.1f} s | {ev['seconds'] / ep['seconds']:.1f} |", "",
+                  "| view | sampling | map ops voxel / packed | all ops voxel / packed | frame voxel / packed "
+                  "| within bound | vs per-voxel trilinear (MAD) |", "|---|---|---|---|---|---|---|"]
+        for f in r["frames"]:
+            v, p = f["voxel"], f["packed"]
+            vo, po = sum(v["ops"].values()), sum(p["ops"][k] for k in ("map", "merge", "combine", "combine_squarings"))
+            mad = f"{p['mad_vs_voxel_trilinear'] * 100:.2f} %" if "mad_vs_voxel_trilinear" in p else "—"
+            lines.append(f"| {f['view']} (az {f['azimuth']:g}, el {f['elevation']:g}) | {f['sampling']} | "
+                         f"{v['ops']['map']:,} / {p['ops']['map']:,} = {v['ops']['map'] / max(p['ops']['map'], 1):.1f}× | "
+                         f"{vo:,} / {po:,} = {vo / max(po, 1):.1f}× | {v['frame_s']:.2f} s / {p['frame_s']:.2f} s = "
+                         f"{v['frame_s'] / p['frame_s']:.1f}× | {p['within_bound']} | {mad} |")
+        lines.append("")
+    pj = result.get("projection_512x512x300")
+    if pj:
+        lines += [f"## Projection: {'×'.join(map(str, pj['shape'][::-1]))} CT (12-bit values), {pj['image']}² image, "
+                  f"S = {pj['slots']}, K = {pj['slot_bits']}", "",
+                  f"Store: {pj['store_bytes']['voxel'] / 1e9:.1f} GB per-voxel, {pj['store_bytes']['packed'] / 1e9:.2f} GB "
+                  f"packed; encryption on these 2 workers {pj['encrypt_s_2_workers']['voxel'] / 3600:.1f} h vs "
+                  f"{pj['encrypt_s_2_workers']['packed'] / 60:.1f} min (measured per-ciphertext costs × count).", "",
+                  "| view | sampling | map ops voxel / packed | all ops voxel / packed | frame on 2 workers voxel / packed |",
+                  "|---|---|---|---|---|"]
+        for f in pj["frames"]:
+            lines.append(f"| {f['view']} | {f['sampling']} | {f['voxel_map']:.3g} / {f['packed_map']:.3g} = "
+                         f"{f['voxel_map'] / f['packed_map']:.1f}× | {f['voxel_ops']:.3g} / {f['packed_ops']:.3g} = "
+                         f"{f['voxel_ops'] / f['packed_ops']:.1f}× | {f['voxel_s_2_workers']:.0f} s / "
+                         f"{f['packed_s_2_workers']:.0f} s = {f['voxel_s_2_workers'] / f['packed_s_2_workers']:.1f}× |")
+        lines += ["", "Packed operations are counted exactly for the real-size plan (each column's product plan "
+                  "run over a small modulus: the same choices and counts); per-voxel ones are the samples of the "
+                  "real-size camera × the operations per sample measured at the largest size. Seconds: operations × "
+                  "each layout's measured render seconds per operation at the largest size, plus the key holder's "
+                  "decryption (per hit pixel, per-voxel; per decrypted value, packed) measured there.", ""]
+    return "\n".join(lines)
+
+
 def main() -> None:
+    if len(sys.argv) == 3 and sys.argv[1] == "--report":
+        print(report(json.loads(Path(sys.argv[2]).read_text())))
+        return
+    if len(sys.argv) == 3 and sys.argv[1] == "--project":  # the projection again, from a results file
+        out = Path(sys.argv[2])
+        result = json.loads(out.read_text())
+        result["projection_512x512x300"] = project({int(k): v for k, v in result["sizes"].items()})
+        out.write_text(json.dumps(result, indent=1))
+        return
     ap = argparse.ArgumentParser()
     ap.add_argument("work", type=Path)
     ap.add_argument("out", type=Path)
