@@ -324,20 +324,20 @@ class PrivateKey:
         return self.p, self.q, self._hp, self._hq, self._p_inv_q
 
     def decrypt_array(self, ciphertexts: Iterable[int], signed: bool = True) -> list[int]:
-        """Decrypt many ciphertexts (CRT each); returns Python ints."""
+        """Decrypt many ciphertexts (CRT each, the exponentiations batched over the CPUs' threads:
+        :func:`hevr.crypto.paillier.raw_decrypt_crt_list`); returns Python ints."""
         n = self.public_key.n
         n2 = self.public_key.nsquare
         p, q, p2, q2 = self.p, self.q, self._psquare, self._qsquare
         hp, hq, piq = self._hp, self._hq, self._p_inv_q
-        dec = raw.raw_decrypt_crt
-        out = []
-        for c in ciphertexts:
+        cs = []
+        for c in ciphertexts:  # every ciphertext checked before any is decrypted
             c = mpz(c)
             if not 0 < c < n2:
                 raise ParameterError("ciphertext must lie in (0, n²); got a value outside that range")
-            m = dec(c, p, q, p2, q2, hp, hq, piq)
-            out.append(int(raw.raw_decode_signed(m, n)) if signed else int(m))
-        return out
+            cs.append(c)
+        ms = raw.raw_decrypt_crt_list(cs, p, q, p2, q2, hp, hq, piq)  # batched, on the CPUs' threads
+        return [int(raw.raw_decode_signed(m, n)) if signed else int(m) for m in ms]
 
     def decrypt_number(self, x: EncryptedNumber) -> float:
         """Decrypt an :class:`EncryptedNumber` to the nearest float."""

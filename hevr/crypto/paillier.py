@@ -19,6 +19,8 @@ True
 from __future__ import annotations
 
 import hashlib
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import gmpy2
 from gmpy2 import mpz
@@ -33,6 +35,7 @@ __all__ = [
     "raw_sub",
     "raw_mul",
     "raw_decrypt_crt",
+    "raw_decrypt_crt_list",
     "raw_decode_signed",
     "raw_encode_signed",
     "max_int",
@@ -131,3 +134,46 @@ def raw_decrypt_crt(
     mp = (gmpy2.powmod(c, p - 1, psquare) - 1) // p * hp % p
     mq = (gmpy2.powmod(c, q - 1, qsquare) - 1) // q * hq % q
     return mp + ((mq - mp) * p_inv_q % q) * p
+
+
+# Ciphertexts per thread below which a batch decrypts on one thread (a thread's start costs ~0.1 ms,
+# one 2048-bit CRT decryption ~2 ms).
+_PER_THREAD = 8
+
+
+def raw_decrypt_crt_list(cs: list, p: mpz, q: mpz, psquare: mpz, qsquare: mpz, hp: mpz, hq: mpz, p_inv_q: mpz,
+                         threads: int | None = None) -> list:
+    """:func:`raw_decrypt_crt` of every ciphertext of ``cs`` (positive, checked by the caller): the
+    same numbers, with the two exponentiations of all of them done by ``gmpy2.powmod_base_list``,
+    which releases the GIL, on up to ``threads`` threads (default: the CPUs, at most 8).
+
+    >>> from gmpy2 import mpz
+    >>> p, q = mpz(11), mpz(13); n = p * q
+    >>> hp, hq = gmpy2.invert(p - 1, p), gmpy2.invert(q - 1, q)   # L_p(g^(p-1)) = p - 1 for g = n + 1
+    >>> args = (p, q, p * p, q * q, hp, hq, gmpy2.invert(p, q))
+    >>> cs = [raw_encrypt_nude(m, n, n * n) for m in (0, 5, 77)]
+    >>> [int(m) for m in raw_decrypt_crt_list(cs, *args, threads=2)] == [int(raw_decrypt_crt(c, *args)) for c in cs]
+    True
+    """
+    cs = list(cs)
+    threads = max(1, min(os.cpu_count() or 1, 8) if threads is None else int(threads))
+    threads = min(threads, max(1, len(cs) // _PER_THREAD))
+    xp = _powmod_list(cs, p - 1, psquare, threads)
+    xq = _powmod_list(cs, q - 1, qsquare, threads)
+    out = []
+    for a, b in zip(xp, xq):
+        mp = (a - 1) // p * hp % p
+        mq = (b - 1) // q * hq % q
+        out.append(mp + ((mq - mp) * p_inv_q % q) * p)
+    return out
+
+
+def _powmod_list(bases: list, e: mpz, m: mpz, threads: int) -> list:
+    """``[b^e mod m for b in bases]`` in ``threads`` contiguous chunks, each one ``powmod_base_list``."""
+    if threads <= 1:
+        return gmpy2.powmod_base_list(bases, e, m)
+    step = -(-len(bases) // threads)
+    chunks = [bases[i:i + step] for i in range(0, len(bases), step)]
+    with ThreadPoolExecutor(len(chunks)) as pool:
+        parts = list(pool.map(lambda chunk: gmpy2.powmod_base_list(chunk, e, m), chunks))
+    return [x for part in parts for x in part]

@@ -126,3 +126,18 @@ def test_2048_bit_key_on_a_few_values(keypair2048):
     assert priv.decrypt_array(cs) == vals + vals
     s = pub.add(pub.mul(cs[3], 1000), cs[2])
     assert priv.decrypt(s) == 12345 * 1000 - 1
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3, None])
+def test_batched_crt_decryption_is_the_same(keypair512, threads):
+    """raw_decrypt_crt_list (powmod_base_list on threads) gives raw_decrypt_crt's numbers, in order."""
+    from hevr.crypto.paillier import raw_decrypt_crt, raw_decrypt_crt_list
+    pub, priv = keypair512
+    import random
+    rng = random.Random(7)
+    ms = [rng.randrange(int(pub.n) // 3) for _ in range(45)]
+    cs = [priv.encrypt(m) for m in ms]
+    args = (priv.p, priv.q, priv._psquare, priv._qsquare, priv._hp, priv._hq, priv._p_inv_q)
+    got = raw_decrypt_crt_list(cs, *args, threads=threads)
+    assert [int(g) for g in got] == [int(raw_decrypt_crt(c, *args)) for c in cs] == ms
+    assert priv.decrypt_array(cs, signed=False) == ms
