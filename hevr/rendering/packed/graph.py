@@ -150,6 +150,9 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
     plan = SlicePlan.build(camera, meta.shape, meta.spacing, meta.brick, meta.packing, sampling, tile, weight_bits)
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
     plan.check_slots(hi - lo)  # before any work: no sum may carry into the next slot
+    if plan.n_tiles == 0:  # public geometry: say so rather than hand back a black frame
+        log.warning("render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
+                    "volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height)
     resident = None
     if ev.resident is not None and ev.resident.bricks:
         if ev.resident.usable("scalar", backend, cl):
