@@ -111,10 +111,14 @@ def cmd_encrypt(args: Any) -> int:
               f"in {t.seconds:.2f} s ({now['ciphertexts'] / max(t.seconds, 1e-9):,.0f} ciphertexts/s)")
     if ev.packing is not None:
         print(f"packed:  {ev.packing.slots} voxels per ciphertext along {'zyx'[ev.packing.axis]} ({ev.packing.slot_bits}-bit "
-              f"slots): X-ray frames of parallel cameras around that axis (hevr render --parallel)")
+              f"slots): X-ray frames of parallel cameras around that axis, rendered in Python for now "
+              "(hevr.render(ev, hevr.Camera.orbit(ev, azimuth=90, parallel=True)))")
     elif not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
-    if ev.meta.tags:
+    if ev.meta.tags and ev.packing is not None:
+        print(f"verifiable: store id {ev.meta.store_id}; one tag per packed ciphertext is written, but packed "
+              "frames are not verified yet")
+    elif ev.meta.tags:
         print(f"verifiable: store id {ev.meta.store_id}; keep it, and render with --key KEY --verify "
               f"{ev.meta.store_id} to refuse any other store a server might answer with (recorded in your known "
               "stores)")

@@ -82,6 +82,20 @@ def test_zoomed_camera(store, keypair256, volume, sampling):
         assert (np.abs(img.decrypt(priv) - ref) <= hevr.error_bound(store, c, sampling=sampling)).all()
 
 
+@pytest.mark.parametrize("axis, view", [("y", dict(azimuth=30, elevation=0)), ("x", dict(azimuth=0, elevation=25))])
+def test_other_packing_axes(tmp_path, keypair256, volume, axis, view):
+    """Stores packed along y or x: exact sums, and within the bound of the reference for that axis."""
+    priv = keypair256[1]
+    ev = hevr.encrypt_volume(volume, tmp_path / "o.zarr", priv, brick=4, spacing=SPACING, layout="packed",
+                             pack_axis=axis, progress=False)
+    c = hevr.Camera.orbit(ev, width=13, height=11, parallel=True, **view)
+    for sampling in SAMPLINGS:
+        img = render(ev, c, sampling)
+        assert (img.decrypt_sums(priv) == img.plan.plain_sums(volume.astype(np.int64) - ev.packing.offset)).all()
+        ref = hevr.render_plain(volume, c, sampling=sampling, spacing=SPACING, slices=axis)
+        assert (np.abs(img.decrypt(priv) - ref) <= hevr.error_bound(ev, c, sampling=sampling)).all()
+
+
 def test_one_product_serves_S_rays(store, keypair256):
     """An orbit around the packing axis needs one class (no combine) and about 1/S of the per-voxel
     store's products: one multiplication per pack and slice (nearest)."""

@@ -31,18 +31,19 @@ __all__ = ["render_plain_slices", "packed_error_bound"]
 
 
 def render_plain_slices(vol: Any, camera: Any, sampling: str = "nearest", spacing: Any = None,
-                        axis: int | None = None) -> np.ndarray:
+                        axis: int = 0) -> np.ndarray:
     """The X-ray of ``camera`` (parallel) on ``vol``, sampled slice by slice: (H, W) float64.
 
-    ``axis``: the packing axis of the store compared with (views along it are refused as the
-    store refuses them); None: any view."""
+    ``axis``: the packing axis of the store compared with: its rays are one voxel apart (the packs'
+    lattice; the rows along the third axis follow the pixels), and views along it are refused as
+    the store refuses them."""
     if isinstance(vol, Scan):
         vol, spacing = vol.volume, vol.spacing if spacing is None else spacing
     arr = check_volume(np.asarray(vol))
     spacing = check_spacing((1.0, 1.0, 1.0) if spacing is None else spacing)
     sampling = check_choice("sampling", sampling, ("nearest", "trilinear"))
     check_render_size(camera, arr.shape, spacing, 1.0)
-    geo = ShearGeometry.of(camera, arr.shape, spacing, axis=axis, packed=axis is not None)
+    geo = ShearGeometry.of(camera, arr.shape, spacing, axis=axis)
     inter = _intermediate(arr, geo, sampling)
     return geo.warp(inter, geo.pixel_coords(camera)).reshape(camera.height, camera.width)
 

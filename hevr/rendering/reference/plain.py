@@ -38,6 +38,7 @@ from ...volume.pyramid import check_level, downsample, level_origin, level_spaci
 from ...volume.scan import Scan
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
+from ...store.packed_brick import pack_axis_of
 from ..packed.sliced import render_plain_slices
 from ..planning.modes import RenderSpec, combination_matrix, make_spec
 from ..planning.planner import check_render_size
@@ -136,7 +137,7 @@ def render_plain(
     nodes: Any = None,
     level: int = 0,
     gradient: bool = False,
-    slices: bool = False,
+    slices: bool | int | str = False,
 ) -> np.ndarray:
     """Render a plaintext volume; the reference for the encrypted renderer.
 
@@ -171,11 +172,13 @@ def render_plain(
         gradient magnitude (central differences in world units, ``spacing``) over the whole
         volume's largest (:mod:`hevr.volume.gradient`); the reference of
         ``hevr.render(..., gradient=True)``.
-    slices : bool
+    slices : bool, int or {"z", "y", "x"}
         Sample slice by slice, as a packed store's frame does (:mod:`hevr.rendering.packed`): one
         sample per slice of the view's principal axis, nearest or (``"trilinear"``) bilinear within
         the slice, then the warp to the pixels; X-ray of a parallel camera only, ``step`` 1. The
-        reference of ``hevr.render`` on a packed store (:mod:`hevr.rendering.packed.sliced`).
+        reference of ``hevr.render`` on a packed store (:mod:`hevr.rendering.packed.sliced`):
+        ``True`` for a store packed along z (the default), else its packing axis (the rays
+        along it are one voxel apart, as the packs' lattice makes them).
 
     Returns
     -------
@@ -190,12 +193,13 @@ def render_plain(
     (4, 4)
     """
     if slices is not False:
-        if slices is not True:
-            raise ParameterError(f"slices: expected True or False, got {slices!r}")
+        if slices is not True and not (isinstance(slices, str) or type(slices) is int):
+            raise ParameterError(f"slices: expected True, False or a packing axis (0, 1, 2, 'z', 'y', 'x'), "
+                                 f"got {slices!r}")
         if mode != "xray" or level or gradient or float(step) != 1.0:
             raise ParameterError(f"slices: expected mode='xray', step=1, level=0 and gradient=False with slice "
                                  f"sampling, got mode={mode!r}, step={step!r}, level={level!r}, gradient={gradient!r}")
-        return render_plain_slices(vol, camera, sampling, spacing)
+        return render_plain_slices(vol, camera, sampling, spacing, axis=pack_axis_of(None if slices is True else slices))
     arr, spacing = _check_volume(vol, spacing)
     dims = None
     if mode in ("emphasize", "tf"):
