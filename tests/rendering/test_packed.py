@@ -270,3 +270,14 @@ def test_plan_is_public_and_small(store):
         assert set(plan.tile_of(keys).tolist()) <= set(plan.brick_tiles(idx))
         tiles |= set(plan.brick_tiles(idx))
     assert tiles <= set(range(plan.n_tiles))
+
+
+def test_reference_refuses_bad_slices():
+    c = hevr.Camera.orbit(SHAPE, azimuth=90, width=5, height=5, parallel=True)
+    vol = np.zeros(SHAPE)
+    for bad in ("w", 3, 1.0, None, [0]):
+        with pytest.raises(ParameterError, match="slices: expected True, False or a packing axis"):
+            hevr.render_plain(vol, c, slices=bad)
+    with pytest.raises(ParameterError, match="slices: expected mode='xray', step=1"):
+        hevr.render_plain(vol, c, step="1", slices=True)
+    assert hevr.render_plain(vol, c, slices="z").shape == (5, 5)

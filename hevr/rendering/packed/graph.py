@@ -167,10 +167,11 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
     maps = []
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"  # this render's tasks (never another render's results)
     for column in brick_columns(ev.grid, plan.geometry.principal):
-        column = [idx for idx in column if plan.brick_tiles(idx)]
+        reach = {idx: plan.brick_tiles(idx) for idx in column}
+        column = [idx for idx in column if reach[idx]]
         if not column:
             continue
-        tiles = sorted(set().union(*(plan.brick_tiles(idx) for idx in column)))
+        tiles = sorted(set().union(*(reach[idx] for idx in column)))
         idx = column[0]
         name = f"hevr-packed-map-{tag}-{idx[0]}-{idx[1]}-{idx[2]}"
         task = delayed(map_column, pure=True, nout=2)(plain, plan, column, backend, tiles,

@@ -110,28 +110,21 @@ class ShearGeometry:
     rows: tuple[float, float, int]
 
     @classmethod
-    def of(cls, camera: Any, shape: Any, spacing: Any, axis: int | None = None,
-           packed: bool = True) -> "ShearGeometry":
-        """The geometry of ``camera`` (parallel) on a volume of ``shape`` and ``spacing``.
-
-        ``axis``: the packing axis, which must not be the principal one (a view within 45° of it
-        is refused with a :class:`hevr.ParameterError` saying which views the store serves);
-        ``None``: no packing (the plaintext reference), ``a`` is then the lower of the two
-        non-principal axes."""
+    def of(cls, camera: Any, shape: Any, spacing: Any, axis: int) -> "ShearGeometry":
+        """The geometry of ``camera`` (parallel) on a volume of ``shape`` and ``spacing`` packed along
+        ``axis``, which must not be the view's principal axis (a view within 45° of it is refused
+        with a :class:`hevr.ParameterError` saying which views the store serves)."""
         shape = tuple(int(s) for s in shape)
         spacing = tuple(float(s) for s in spacing)
-        where = "the packed store" if packed else "slice sampling"
         if not getattr(camera, "parallel", False):
             raise ParameterError(
-                f"camera: expected a parallel camera (parallel=True) for {where}, got a perspective one: a packed "
-                "store renders parallel projections slice by slice; pass hevr.Camera.orbit(..., parallel=True) "
-                "(hevr render --parallel), or render a per-voxel store (encrypt_volume(..., layout='voxel')) for "
-                "perspective views")
+                "camera: expected a parallel camera (parallel=True) for the packed store, got a perspective one: a "
+                "packed store renders parallel projections slice by slice; pass hevr.Camera.orbit(..., parallel=True), "
+                "or render a per-voxel store (encrypt_volume(..., layout='voxel')) for perspective views")
         d = index_vector(camera.basis()[0], spacing)
         mag = np.abs(d)
-        others = [ax for ax in range(3) if ax != axis] if axis is not None else [0, 1, 2]
-        p = max(others, key=lambda ax: (mag[ax], -ax))
-        if axis is not None and mag[axis] > mag[p]:
+        p = max((ax for ax in range(3) if ax != axis), key=lambda ax: (mag[ax], -ax))
+        if mag[axis] > mag[p]:
             name = AXIS_NAMES[axis]
             raise ParameterError(
                 f"camera: expected a view whose principal axis is not the packing axis {axis} ({name}) of this "
@@ -142,7 +135,7 @@ class ShearGeometry:
                 f"along another axis (pack_axis=...) or a per-voxel store (layout='voxel')")
         if mag[p] == 0:  # pragma: no cover - the camera's direction is a unit vector
             raise ParameterError("camera: expected a view direction, got a zero vector")
-        a = axis if axis is not None else min(ax for ax in range(3) if ax != p)
+        a = axis
         b = 3 - p - a
         sa, sb = float(d[a] / d[p]) + 0.0, float(d[b] / d[p]) + 0.0  # + 0.0: no -0.0
         geo = cls(shape, spacing, a, p, b, sa, sb, (0, 0), (0.0, 1.0, 0))

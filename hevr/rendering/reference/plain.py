@@ -38,7 +38,6 @@ from ...volume.pyramid import check_level, downsample, level_origin, level_spaci
 from ...volume.scan import Scan
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
-from ...store.packed_brick import pack_axis_of
 from ..packed.sliced import render_plain_slices
 from ..planning.modes import RenderSpec, combination_matrix, make_spec
 from ..planning.planner import check_render_size
@@ -193,13 +192,15 @@ def render_plain(
     (4, 4)
     """
     if slices is not False:
-        if slices is not True and not (isinstance(slices, str) or type(slices) is int):
+        axes = {"z": 0, "y": 1, "x": 2, 0: 0, 1: 1, 2: 2}  # True == 1 as a key: taken apart first
+        axis = 0 if slices is True else axes.get(slices) if isinstance(slices, str) or type(slices) is int else None
+        if axis is None:
             raise ParameterError(f"slices: expected True, False or a packing axis (0, 1, 2, 'z', 'y', 'x'), "
                                  f"got {slices!r}")
-        if mode != "xray" or level or gradient or float(step) != 1.0:
+        if mode != "xray" or level or gradient or type(step) not in (int, float) or float(step) != 1.0:
             raise ParameterError(f"slices: expected mode='xray', step=1, level=0 and gradient=False with slice "
                                  f"sampling, got mode={mode!r}, step={step!r}, level={level!r}, gradient={gradient!r}")
-        return render_plain_slices(vol, camera, sampling, spacing, axis=pack_axis_of(None if slices is True else slices))
+        return render_plain_slices(vol, camera, sampling, spacing, axis=axis)
     arr, spacing = _check_volume(vol, spacing)
     dims = None
     if mode in ("emphasize", "tf"):
