@@ -49,6 +49,7 @@ from .._validate import check_choice
 from ..backends import get_backend, resolve_backend_name
 from ..crypto.tags import data_channel
 from ..errors import MemoryLimitError, ParameterError
+from .layout import array_slices
 
 log = logging.getLogger(__name__)
 
@@ -222,7 +223,8 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     device = be.residence == "device"  # then the share is of each worker's GPU memory
     k = sum(ev.meta.components(c) for c in channels)
     bricks = ev.brick_indices()
-    cost = {idx: int(np.prod(ev.brick_shape(idx))) * k * per_ct for idx in bricks}
+    # records per brick: its voxels, or a packed store's packs (S voxels each)
+    cost = {idx: int(np.prod([s.stop - s.start for s in array_slices(ev.meta, idx)])) * k * per_ct for idx in bricks}
     if client is not None:
         info = client.scheduler_info()["workers"]
         workers = sorted(info)

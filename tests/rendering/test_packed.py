@@ -281,3 +281,13 @@ def test_reference_refuses_bad_slices():
     with pytest.raises(ParameterError, match="slices: expected mode='xray', step=1"):
         hevr.render_plain(vol, c, step="1", slices=True)
     assert hevr.render_plain(vol, c, slices="z").shape == (5, 5)
+
+
+def test_resident_packed_store_costs_its_records(store):
+    """persist plans a packed store's memory by its packed records (S voxels each), not its voxels."""
+    with dask.config.set(scheduler="sync"):
+        res = store.persist()
+    width = store.meta.ciphertext_bytes
+    records = int(np.prod(store.packing.array_shape(store.shape)))
+    from hevr.backends import get_backend
+    assert res.resident.nbytes == records * get_backend(res.resident.backend).residue_bytes(width)
