@@ -188,7 +188,7 @@ def encrypt_volume(
     unsafe_no_obfuscation: bool = False,
     backend: str | None = None,
     storage_options: dict | None = None,
-    verifiable: bool = False,
+    verifiable: bool | None = None,
     layout: str = "voxel",
     pack_axis: int | str | None = None,
 ) -> EncryptedVolume:
@@ -240,12 +240,13 @@ def encrypt_volume(
         backend encrypts in kernels yet).
     storage_options : dict, optional
         Options of the URL's fsspec filesystem (endpoint, credentials, …; :mod:`hevr.store.paths`).
-    verifiable : bool
-        Also store a tag channel ``<c>_tag`` beside every channel: per voxel and component
-        E(α·m + β_v), with α and the PRF key of β derived from the private key
+    verifiable : bool, optional
+        Also store a tag channel ``<c>_tag`` beside every channel: per voxel (per packed
+        ciphertext) and component E(α·m + β_v), with α and the PRF key of β derived from the private key
         (:mod:`hevr.crypto.tags`), so that renders can be checked against a lying server
         (:mod:`hevr.rendering.verify`). Needs the private key; twice the ciphertexts and about
-        twice the encryption time.
+        twice the encryption time. Default (None): True for a packed store encrypted with the
+        private key (opt out with False), False otherwise.
     layout : {"voxel", "packed"}
         ``"voxel"``: one ciphertext per voxel (every render, slice and pyramid works). ``"packed"``:
         S voxels along ``pack_axis`` in one ciphertext (:mod:`hevr.store.packing`; S and the slot
@@ -280,8 +281,8 @@ def encrypt_volume(
     pub = key.public_key if isinstance(key, PrivateKey) else key
     if not isinstance(gradient, (bool, np.bool_)):
         raise ParameterError(f"gradient: expected True or False, got {gradient!r}")
-    if not isinstance(verifiable, (bool, np.bool_)):
-        raise ParameterError(f"verifiable: expected True or False, got {verifiable!r}")
+    if verifiable is not None and not isinstance(verifiable, (bool, np.bool_)):
+        raise ParameterError(f"verifiable: expected True, False or None, got {verifiable!r}")
     if verifiable and not isinstance(key, PrivateKey):
         raise ParameterError("verifiable: expected a PrivateKey as key (the tags need its tag key, "
                              f"hevr.crypto.tags), got a {type(key).__name__}")
@@ -289,6 +290,11 @@ def encrypt_volume(
         raise ParameterError("gradient: expected vector_dims=k as well, got vector_dims=None (the gradient channel "
                              "holds g·e(d), the k-dimensional density encoding scaled by the gradient magnitude)")
     layout = check_choice("layout", layout, ("voxel", "packed"))
+    if verifiable is None:  # packed stores carry tags by default: one per packed ciphertext costs little
+        verifiable = layout == "packed" and isinstance(key, PrivateKey)
+        if layout == "packed" and not verifiable:
+            log.warning("encrypt_volume: a packed store encrypted with the public key has no tags (they need the "
+                        "private key), so its frames cannot be verified")
     if layout == "packed" and (vector_dims is not None or gradient or not scalar):
         raise ParameterError("layout: expected 'voxel' for a store with the vector or gradient channel (a packed "
                              f"store holds the scalar channel only), got 'packed' with vector_dims={vector_dims!r}, "

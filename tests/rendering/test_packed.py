@@ -156,8 +156,6 @@ def test_refusals(store):
         render(store, c, "nearest", step=0.5)
     with pytest.raises(ParameterError, match="level"):
         render(store, c, "nearest", level=1)
-    with pytest.raises(ParameterError, match="verify: expected None or False"):
-        render(store, c, "nearest", verify=True)
     with pytest.raises(ParameterError, match="finish: expected 'client'"):
         render(store, c, "nearest", finish="server")
     with pytest.raises(ParameterError, match="compute: expected True"):
@@ -170,10 +168,16 @@ def test_refusals(store):
         hevr.render_plain(np.zeros(SHAPE), c, mode="emphasize", density=0.5, slices=True)
 
 
-def test_unverified_default_warns(store, caplog):
-    with caplog.at_level(logging.WARNING, logger="hevr"):
-        hevr.render(store, cam(store, 90, 0), progress=False)
-    assert any("not verified" in r.getMessage() for r in caplog.records)
+def test_unverified_default_warns(tmp_path, keypair256, volume, caplog):
+    """A packed store without tags (opted out) renders unverified by default, saying so on every render."""
+    ev = hevr.encrypt_volume(volume, tmp_path / "u.zarr", keypair256[1], brick=4, layout="packed", verifiable=False,
+                             progress=False)
+    assert not ev.meta.tags
+    for _ in range(2):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="hevr"):
+            img = hevr.render(ev, cam(ev, 90, 0), progress=False)
+        assert not img.verified and any("not verified" in r.getMessage() for r in caplog.records)
 
 
 def test_slot_safety_worst_case(tmp_path, keypair256):
@@ -206,7 +210,7 @@ def test_integrity(store, keypair256, keypair512):
     with pytest.raises(KeyMismatchError):
         img.decrypt(keypair512[1])
     with pytest.raises(VerificationError, match="require_verified"):
-        img.decrypt(priv, require_verified=True)
+        img.decrypt(priv, require_verified=True)  # rendered with verify=False
     for t in range(len(img.ciphertexts)):  # a flipped byte anywhere: an error, never a picture
         bad = PackedImage(**{**img.__dict__, "ciphertexts": [c.copy() for c in img.ciphertexts]})
         bad.ciphertexts[t][0, -3] ^= 0x40

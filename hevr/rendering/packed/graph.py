@@ -56,14 +56,15 @@ def column_pairs(plan: SlicePlan, indices: list, sizes: list[int]) -> tuple[np.n
 
 
 def map_column(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles: list[int],
-               residents: list | None = None) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
+               residents: list | None = None, channel: str = "scalar") -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
     """The partial accumulators of a column of bricks along the view's principal axis, cut by the
     tiles ``tiles``: a list of (keys, records) in that order, and the operations counted. One
     product plan for the column: an accumulator's pairs from all its slices in one
-    multi-exponentiation (about 4·N_p/S pairs, not 4·brick/S: fewer operations per pair)."""
+    multi-exponentiation (about 4·N_p/S pairs, not 4·brick/S: fewer operations per pair).
+    ``channel``: ``"scalar"``, or its tags ``"scalar_tag"`` (the same products, :mod:`.verified`)."""
     be = get_backend(backend)
     width = ev.meta.ciphertext_bytes
-    batches = [r.batches["scalar"] if r is not None else ev.read_brick(idx, "scalar", backend=be)
+    batches = [r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
                for idx, r in zip(indices, residents or [None] * len(indices))]
     keys, local, weights = column_pairs(plan, indices, [len(b) for b in batches])
     empty = (np.zeros(0, np.int64), np.zeros((0, width), np.uint8))
@@ -84,6 +85,20 @@ def map_column(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles: lis
     return parts, {"map": counter.modmuls, "pairs": int(len(keys))}
 
 
+def merge_parts(be: Any, n: int, parts: Any) -> tuple[np.ndarray, Any, int]:
+    """The product per key of the bricks' partial accumulators ``parts`` ((keys, records) each):
+    the sorted distinct keys, their merged residues (the backend's form) and the products spent."""
+    keys = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
+    if not len(keys):
+        return keys, None, 0
+    recs = np.concatenate([p[1] for p in parts])
+    order = np.argsort(keys, kind="stable")
+    keys, recs = keys[order], recs[order]
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    merged = be.segment_products(be.from_bytes(recs), np.r_[starts, len(keys)].astype(np.int64), 1, n * n)
+    return keys[starts], merged, len(keys) - len(starts)
+
+
 def merge_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, *parts: Any) -> tuple[np.ndarray, dict]:
     """Tile ``t``: the product of the bricks' partial accumulators per key, then the Horner
     combine of every (B, j)'s classes; returns the tile's (values, W) records, (j, B) row-major."""
@@ -92,17 +107,8 @@ def merge_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, *parts
     nb, C = b1 - b0, plan.classes
     n_acc = (j1 - j0) * nb * C
     full = one_records((n_acc,), width)
-    merged_ops = 0
-    keys = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
-    if len(keys):
-        recs = np.concatenate([p[1] for p in parts])
-        order = np.argsort(keys, kind="stable")
-        keys, recs = keys[order], recs[order]
-        starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-        uniq = keys[starts]
-        nsq = n * n
-        merged = be.segment_products(be.from_bytes(recs), np.r_[starts, len(keys)].astype(np.int64), 1, nsq)
-        merged_ops = len(keys) - len(uniq)
+    uniq, merged, merged_ops = merge_parts(be, n, parts)
+    if len(uniq):
         # global key -> the tile's accumulator index (rows j, blocks B, classes), row-major
         acc, c = uniq // C, uniq % C
         jr, br = acc // plan.n_blocks - j0, acc % plan.n_blocks - b0
@@ -135,6 +141,29 @@ def brick_columns(grid: tuple[int, int, int], axis: int, most: int = COLUMN_BRIC
     return out
 
 
+def map_graph(ev: Any, plan: SlicePlan, backend: str, resident: dict | None, channel: str,
+              tag: str) -> tuple[dict[int, list], list]:
+    """The map tasks of a frame on ``channel``: per tile the delayed partial accumulators that
+    reach it, and every map task's operation counts (one task per column of bricks)."""
+    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
+    maps = []
+    for column in brick_columns(ev.grid, plan.geometry.principal):
+        reach = {idx: plan.brick_tiles(idx) for idx in column}
+        column = [idx for idx in column if reach[idx]]
+        if not column:
+            continue
+        tiles = sorted(set().union(*(reach[idx] for idx in column)))
+        idx = column[0]
+        name = f"hevr-packed-map-{channel}-{tag}-{idx[0]}-{idx[1]}-{idx[2]}"
+        task = delayed(map_column, pure=True, nout=2)(ev, plan, column, backend, tiles,
+                                                      [resident.get(i) for i in column] if resident is not None
+                                                      else None, channel, dask_key_name=name)
+        maps.append(task[1])
+        for pos, t in enumerate(tiles):
+            per_tile[t].append(task[0][pos])
+    return per_tile, maps
+
+
 def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client: Any = None, progress: bool = True,
                   backend: str | None = None, weight_bits: int | None = None) -> PackedImage:
     """Render a packed store's X-ray of a parallel ``camera`` (:func:`hevr.render` routes here;
@@ -163,23 +192,8 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
     n = int(ev.public_key.n)
     width = meta.ciphertext_bytes
     plain = ev._plain()
-    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
-    maps = []
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"  # this render's tasks (never another render's results)
-    for column in brick_columns(ev.grid, plan.geometry.principal):
-        reach = {idx: plan.brick_tiles(idx) for idx in column}
-        column = [idx for idx in column if reach[idx]]
-        if not column:
-            continue
-        tiles = sorted(set().union(*(reach[idx] for idx in column)))
-        idx = column[0]
-        name = f"hevr-packed-map-{tag}-{idx[0]}-{idx[1]}-{idx[2]}"
-        task = delayed(map_column, pure=True, nout=2)(plain, plan, column, backend, tiles,
-                                                      [resident.get(i) for i in column] if resident is not None
-                                                      else None, dask_key_name=name)
-        maps.append(task[1])
-        for pos, t in enumerate(tiles):
-            per_tile[t].append(task[0][pos])
+    per_tile, maps = map_graph(plain, plan, backend, resident, "scalar", tag)
     fin = [delayed(merge_tile, pure=True, nout=2)(plan, t, n, width, backend, *per_tile[t],
                                                   dask_key_name=f"hevr-packed-tile-{tag}-{t}")
            for t in range(plan.n_tiles)]

@@ -61,6 +61,7 @@ class PackedImage:
     ciphertexts: list = field(repr=False)
     store_id: str = ""
     stats: dict = field(default_factory=dict, repr=False)
+    verification: Any = field(default=None, repr=False, compare=False)  # a PackedVerification, or None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -72,8 +73,9 @@ class PackedImage:
 
     @property
     def verified(self) -> bool:
-        """Packed frames are not verified yet (the tags are in a verifiable packed store; their check is issue 46's)."""
-        return False
+        """Whether the frame carries a check against the store's tags (drawn in this process), which
+        every decryption runs before it forms a pixel (:mod:`hevr.rendering.packed.verified`)."""
+        return self.verification is not None
 
     def _key(self, private_key: Any) -> Any:
         if not isinstance(private_key, PrivateKey):
@@ -83,9 +85,31 @@ class PackedImage:
                                    f"a key with fingerprint {private_key.public_key.fingerprint[:16]}…")
         return private_key
 
-    def decrypt_sums(self, private_key: PrivateKey, backend: str | None = None) -> np.ndarray:
-        """The exact integer ray sums Σ w·(m − offset) of the intermediate image, (N_i, N_j) int64."""
+    def _provenance(self, require_verified: Any) -> None:
+        """``require_verified`` (True, or the store id that must have been proven) refuses a frame
+        without a verification record drawn in this process."""
+        if require_verified is False or require_verified is None:
+            return
+        if not (require_verified is True or isinstance(require_verified, str)):
+            raise ParameterError(f"require_verified: expected True, False or a store id, got {require_verified!r}")
+        v = self.verification
+        if v is None or not v.drawn_here:
+            raise VerificationError("image: not verified (it carries no check against the store's tags: a store "
+                                    "encrypted with verifiable=False, a render with verify=False, or a public-key "
+                                    "store), and require_verified was given; no image is returned")
+        if isinstance(require_verified, str) and v.store_id != require_verified:
+            raise VerificationError(f"image: expected a frame of the store {require_verified}, got one of the store "
+                                    f"{v.store_id}; no image is returned")
+
+    def decrypt_sums(self, private_key: PrivateKey, backend: str | None = None, *,
+                     require_verified: bool | str = False) -> np.ndarray:
+        """The exact integer ray sums Σ w·(m − offset) of the intermediate image, (N_i, N_j) int64:
+        a verified frame's values are checked against the store's tags first, and every value's
+        slots against their bounds (:func:`decode`), before any sum is returned."""
         key = self._key(private_key)
+        self._provenance(require_verified)
+        if self.verification is not None:  # the metadata first: it says what every number means
+            self.verification.check_metadata(key, self.plan, self.fingerprint)
         be = get_backend(backend)
         n2 = int(key.public_key.nsquare)
         width = key.public_key.ciphertext_bytes
@@ -101,11 +125,15 @@ class PackedImage:
                 raise IntegrityError(f"image: tile {t}: ciphertext {bad} is not in (0, n²): the image was corrupted "
                                      "or tampered with; no image is returned")
             tiles.append(be.decrypt(key, batch))
-        return decode(self.plan, tiles, self.span)
+        sums = decode(self.plan, tiles, self.span)
+        if self.verification is not None:
+            self.verification.check(key, self.plan, tiles, self.fingerprint)
+        return sums
 
-    def decrypt_intermediate(self, private_key: PrivateKey, backend: str | None = None) -> np.ndarray:
+    def decrypt_intermediate(self, private_key: PrivateKey, backend: str | None = None, *,
+                             require_verified: bool | str = False) -> np.ndarray:
         """The intermediate image (rays along the packing axis × the other axis), float64 X-ray values."""
-        sums = self.decrypt_sums(private_key, backend)
+        sums = self.decrypt_sums(private_key, backend, require_verified=require_verified)
         return self._values(sums)
 
     def _values(self, sums: np.ndarray) -> np.ndarray:
@@ -130,19 +158,17 @@ class PackedImage:
                 require_verified: bool | str = False) -> np.ndarray:
         """The camera's float64 (H, W) image (X-ray: the mean of the samples of every pixel's ray).
 
-        ``require_verified``: refused (:class:`hevr.VerificationError`) — packed frames are not
-        verified yet."""
-        if require_verified:
-            raise VerificationError("require_verified: a packed store's frame carries no verification (its check "
-                                    "against the store's tags is not built yet); decrypt it without "
-                                    "require_verified, or render a verifiable per-voxel store")
-        inter = self.decrypt_intermediate(private_key, backend)
+        A verified frame (the default on a verifiable store) is checked against the store's tags
+        before any pixel is formed (:class:`hevr.VerificationError` and no image otherwise);
+        ``require_verified`` (True, or the store id that must have been proven) refuses a frame
+        that carries no such check."""
+        inter = self.decrypt_intermediate(private_key, backend, require_verified=require_verified)
         geo = self.plan.geometry
         return geo.warp(inter, geo.pixel_coords(self.camera)).reshape(self.shape)
 
     def __repr__(self) -> str:
         return (f"PackedImage(shape={self.shape}, sampling={self.plan.sampling!r}, slots={self.plan.packing.slots}, "
-                f"ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
+                f"ciphertexts={self.n_ciphertexts}, verified={self.verified}, key={self.fingerprint[:16]}…)")
 
 
 def decode(plan: SlicePlan, tiles: list[list[int]], span: int) -> np.ndarray:

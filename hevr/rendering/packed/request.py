@@ -4,8 +4,9 @@ A packed store serves X-ray frames (``mode="xray"``) of parallel cameras whose p
 not its packing axis, sampled once per slice (``sampling="nearest"``, or ``"trilinear"``: bilinear
 within the slice), finished on the client, streamed from the store or resident. Everything else is
 refused before any work, with a :class:`hevr.ParameterError` that names the option and the way to
-get it (a per-voxel store). A verifiable packed store's frames are not verified yet: the default
-renders them with a warning, ``verify=True`` or a store id is refused.
+get it (a per-voxel store). ``verify`` is resolved as for a per-voxel store
+(:func:`hevr.rendering.verify.resolve_verify`): a verifiable packed store's frames are verified by
+default (:mod:`hevr.rendering.packed.verified`), a store id pins the store.
 """
 
 from __future__ import annotations
@@ -15,9 +16,12 @@ from typing import Any
 
 from ..._validate import check_int
 from ...errors import ParameterError
+from ..._dask import active_client
 from ..planning.planner import check_render_size
+from ..verify import resolve_verify
 from .graph import render_packed
 from .image import PackedImage
+from .verified import tag_aggregate
 
 log = logging.getLogger(__name__)
 
@@ -49,15 +53,13 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
         raise ParameterError("keep_sums: expected None on a packed store (its ray sums are not saved yet)")
     if compute is not True:
         raise ParameterError(f"compute: expected True on a packed store, got {compute!r}")
-    if verify not in (None, False):
-        raise ParameterError(f"verify: expected None or False on a packed store, got {verify!r}: its frames are not "
-                             "verified yet (the store's tags are written; their check is not built); render a "
-                             "verifiable per-voxel store for a verified frame")
-    if verify is None:
-        log.warning("render: store %s is packed; its frames are not verified yet: this image is not checked "
-                    "against a lying server", ev.meta.store_id)
     if weight_bits is not None:
         weight_bits = check_int("weight_bits", weight_bits, 0, 16)
     check_render_size(camera, ev.shape, ev.spacing, 1.0)  # the size limits, before anything per pixel
-    return render_packed(ev, camera, sampling, tile=tile, client=client, progress=progress, backend=backend,
-                         weight_bits=weight_bits)
+    verified = resolve_verify(verify, ev, "client", level=0, compute=True, stream=False)
+    image = render_packed(ev, camera, sampling, tile=tile, client=client, progress=progress, backend=backend,
+                          weight_bits=weight_bits)
+    if verified:  # the second round: the values are fixed in this process before the seed is drawn
+        image.verification = tag_aggregate(ev, image.plan, image.stats["backend"], active_client(client), progress)
+        image.stats["verify"] = {"server_s": image.verification.server_s, "ops": image.verification.ops}
+    return image

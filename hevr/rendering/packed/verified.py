@@ -1,0 +1,216 @@
+"""Verified packed frames: the tags' aggregate on the server and the key holder's check.
+
+A verifiable packed store holds beside every packed ciphertext Enc(P[A]) its tag
+t_A = Enc(α·P[A] + β_A mod n), β_A the PRF value of the pack's flat index in the packed array
+(:mod:`hevr.crypto.tags`, :mod:`hevr.store.packed_brick`). A frame's combined value of block B
+and row j is a public linear function of the packs,
+
+    V[j, B] = Σ_c 2^(K·c) · Σ_{(A, w) ∈ acc[j, B, c]} w·P[A]        (:mod:`.plan`),
+
+so the same map, merge and combine on the tags give Enc(α·V[j, B] + β[j, B]) with
+β[j, B] = Σ_c 2^(K·c) Σ w·β_A (all mod n). After the image's values are fixed (computed and in the
+key holder's hands) the key holder draws a fresh seed (:func:`secrets.token_bytes`), and the server
+returns one aggregate over the tag render, with ρ[j, B] the 62-bit coefficient of the value's
+global index j·N_B + (B − B_lo) (:func:`hevr.crypto.tags.coefficients_at`):
+
+    A = Π_{j,B} T[j, B]^ρ[j, B] = Π_c ( Π_{j,B} acc_tag[j, B, c]^ρ[j, B] )^(2^(K·c))   (mod n²),
+
+computed per tile as one multi-exponentiation per class and one Horner step over the classes
+(:func:`aggregate_tile`: the tags' K·O squarings once per tile, not per value). The key holder
+decrypts A once and checks, before any pixel is formed (:meth:`PackedVerification.check`),
+
+    D(A) ≡ α·Σ ρ[j, B]·V'[j, B] + Σ_c 2^(K·c) Σ_A β_A · Σ_{pairs (j, B, c, A, w)} ρ[j, B]·w   (mod n),
+
+with V' the values it decrypted from the image and the right-hand sum recomputed from the public
+plan (:meth:`~.plan.SlicePlan.brick_pairs`, brick by brick) and the PRF. The soundness argument is
+the per-voxel one (:mod:`hevr.crypto.tags`): whatever the server returns is a linear combination of
+ciphertexts with coefficients it fixed before it knew ρ; a wrong value passes with probability
+about 2^-62 per frame. The key holder's cost: the plan's pairs (numpy), the β of every pack the
+frame reads (SHAKE-256), exact weighted sums of 16-bit pieces in numpy, and one decryption.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Any
+
+import gmpy2
+import numpy as np
+from dask.delayed import delayed
+
+from ..._dask import compute as run_tasks
+from ...backends import get_backend
+from ...crypto.tags import betas, coefficients_at, tag_channel, tag_key_of, weighted_beta_total
+from ...errors import VerificationError
+from ...store.authenticity import authenticated_fields, check_metadata_mac
+from ...store.layout import array_slices
+from ..pipeline.kernel import plan_products
+from .graph import map_graph, merge_parts
+from .plan import SlicePlan
+
+log = logging.getLogger(__name__)
+
+__all__ = ["PackedVerification", "aggregate_tile", "tag_aggregate"]
+
+FLUSH_PAIRS = 1 << 21  # pairs gathered before their β sums are taken (bounded memory at real size)
+
+
+def aggregate_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, seed: bytes,
+                   *parts: Any) -> tuple[np.ndarray | None, dict]:
+    """One server task: tile ``t``'s tag accumulators merged per key, then
+    Π_c (Π acc[j, B, c]^ρ[j, B])^(2^(K·c)) mod n² as one ``(W,)`` record (None: the tile has no
+    product), and the operations spent."""
+    be = get_backend(backend)
+    uniq, merged, merged_ops = merge_parts(be, n, parts)
+    if not len(uniq):
+        return None, {"verify_merge": 0}
+    C = plan.classes
+    rho = coefficients_at(seed, uniq // C)
+    order = np.argsort(uniq % C, kind="stable")
+    indptr = np.searchsorted((uniq % C)[order], np.arange(C + 1)).astype(np.int64)
+    pp = plan_products(indptr, order.astype(np.int64), rho[order], len(uniq))
+    (per_class,) = be.ray_products(pp, [merged], n * n)
+    (out,) = be.to_bytes(be.pack(per_class, [1] * C, plan.packing.slot_bits, C, 0, n), width)
+    return out, {"verify_merge": merged_ops, "verify_values": int(len(uniq))}
+
+
+def tag_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool) -> "PackedVerification":
+    """The second round of a verified frame, after its values are in the key holder's hands: a
+    fresh seed drawn here, the tag channel's map tasks with the frame's plan and one aggregation
+    task per tile; the :class:`PackedVerification` to keep with the image."""
+    seed = secrets.token_bytes(32)
+    t0 = time.perf_counter()
+    meta = ev.meta
+    n, width = int(ev.public_key.n), meta.ciphertext_bytes
+    tag = f"{meta.store_id}-{uuid.uuid4().hex}"
+    plain = ev._plain()
+    per_tile, maps = map_graph(plain, plan, backend, None, tag_channel("scalar"), tag)  # tags: always streamed
+    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan, t, n, width, backend, seed, *per_tile[t],
+                                                        dask_key_name=f"hevr-packed-verify-{tag}-{t}")
+             for t in range(plan.n_tiles) if per_tile[t]]
+    results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
+    A = gmpy2.mpz(1)
+    n2 = gmpy2.mpz(n) * n
+    for rec, _ in results[:len(tasks)]:
+        if rec is not None:
+            A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
+    ops = {"map": sum(m["map"] for m in results[len(tasks):])}
+    for _, r in results[:len(tasks)]:
+        for k, v in r.items():
+            ops[k] = ops.get(k, 0) + v
+    return PackedVerification(aggregate=int(A), seed=seed, meta=meta, level=0, ops=ops,
+                              server_s=time.perf_counter() - t0, drawn_here=True)
+
+
+@dataclass(frozen=True, repr=False)
+class PackedVerification:
+    """What the key holder keeps of a verified packed frame: the aggregate A (a ciphertext), the
+    seed of the coefficients and the store's metadata the frame was planned with (no secret)."""
+
+    aggregate: int
+    seed: bytes
+    meta: Any  # the store's VolumeMetadata (its owner's MAC is checked)
+    level: int = 0
+    ops: Any = None
+    server_s: float = 0.0
+    drawn_here: bool = False
+
+    def __repr__(self) -> str:
+        return f"PackedVerification(store {self.meta.store_id}, seed …)"
+
+    @property
+    def store_id(self) -> str:
+        return self.meta.store_id
+
+    def check_metadata(self, private_key: Any, plan: SlicePlan, fingerprint: str) -> None:
+        """Raise :class:`hevr.VerificationError` unless the metadata carries the owner's MAC and the
+        frame's plan is the one its shape, spacing, brick and packing give."""
+        m = self.meta
+        if m is None or not check_metadata_mac(private_key, authenticated_fields(m.to_dict()), m.auth):
+            raise VerificationError(
+                "store metadata: expected the owner's MAC over the shape, spacing, brick, layout, value range and store "
+                f"id, got {'none' if m is None or not m.auth else 'a MAC that does not match'}: the store's public "
+                "metadata was altered (or is not this key's); no image is returned")
+        g = plan.geometry
+        same = (tuple(g.shape) == tuple(m.shape) and tuple(float(s) for s in g.spacing) == tuple(m.spacing)
+                and tuple(plan.brick) == tuple(m.brick) and plan.packing == m.packing and m.tags
+                and fingerprint == m.fingerprint and int(private_key.public_key.n) == int(m.n))
+        if not same:
+            raise VerificationError("image: its shape, spacing, brick, packing or key are not those of the store's "
+                                    "authenticated metadata; no image is returned")
+
+    def beta_sum(self, private_key: Any, plan: SlicePlan) -> int:
+        """Σ_c 2^(K·c) Σ_A β_A·Σ ρ·w over every product of the frame's plan, mod n (module docstring)."""
+        key = tag_key_of(private_key)
+        m = self.meta
+        info = m.packing
+        ashape = info.array_shape(m.shape)
+        K, C = info.slot_bits, plan.classes
+        grid = tuple(-(-s // b) for s, b in zip(m.shape, m.brick))
+        cache: dict = {}
+        total = 0
+        buf: list = []
+        size = 0
+
+        def flush() -> int:
+            packs = np.concatenate([b[0] for b in buf])
+            keys = np.concatenate([b[1] for b in buf])
+            w = np.concatenate([b[2] for b in buf])
+            uniq, inv = np.unique(packs, return_inverse=True)
+            beta = betas(key, m.store_id, "scalar", self.level, 0, uniq, cache)
+            rho = coefficients_at(self.seed, keys // C)
+            cls = keys % C
+            out = 0
+            for c in np.unique(cls).tolist():
+                sel = cls == c
+                count = int(sel.sum())
+                out += weighted_beta_total(beta, np.arange(count + 1), inv.reshape(-1)[sel], w[sel],
+                                           rho[sel]) << (K * c)
+            return out
+
+        for idx in np.ndindex(*grid):
+            keys, local, w = plan.brick_pairs(idx)
+            if not len(keys):
+                continue
+            sl = array_slices(m, idx)
+            dims = tuple(s.stop - s.start for s in sl)
+            coords = np.unravel_index(local, dims)
+            packs = np.ravel_multi_index(tuple(c + s.start for c, s in zip(coords, sl)), ashape)
+            buf.append((packs, keys, w))
+            size += len(keys)
+            if size >= FLUSH_PAIRS:
+                total += flush()
+                buf, size = [], 0
+        if buf:
+            total += flush()
+        return total % int(m.n)
+
+    def check(self, private_key: Any, plan: SlicePlan, values: list[list[int]], fingerprint: str) -> None:
+        """Raise :class:`hevr.VerificationError` unless D(A) = α·Σρ·V' + Σρ·β (mod n) for the
+        frame's decrypted values ``values`` (per tile, (j, B) row-major)."""
+        t0 = time.perf_counter()
+        self.check_metadata(private_key, plan, fingerprint)
+        key = tag_key_of(private_key)
+        n = int(private_key.public_key.n)
+        if len(values) != plan.n_tiles:
+            raise VerificationError(f"image: expected {plan.n_tiles} tiles, got {len(values)}; no image is returned")
+        s_sum = 0
+        for t, vals in enumerate(values):
+            j0, j1, b0, b1 = plan.tile_bounds(t)
+            ids = (np.arange(j0, j1)[:, None] * plan.n_blocks + np.arange(b0, b1)[None, :]).reshape(-1)
+            if len(vals) != ids.size:
+                raise VerificationError(f"image: tile {t} holds {len(vals)} values, expected {ids.size}; no image "
+                                        "is returned")
+            s_sum += sum(int(r) * int(v) for r, v in zip(coefficients_at(self.seed, ids).tolist(), vals))
+        want = (key.alpha * s_sum + self.beta_sum(private_key, plan)) % n
+        got = int(private_key.raw_decrypt(gmpy2.mpz(self.aggregate))) % n
+        log.info("verification of a packed frame: %.3f s on the key holder's side", time.perf_counter() - t0)
+        if got != want:
+            raise VerificationError(
+                "image: the packed frame does not verify: its values are not the ones the store's tags certify (an "
+                "altered, substituted or replayed image or store, or a server that did not render as asked); no "
+                "image is returned")
