@@ -32,9 +32,11 @@ frame reads (SHAKE-256), exact weighted sums of 16-bit pieces in numpy, and one 
 from __future__ import annotations
 
 import logging
+import os
 import secrets
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,8 +46,8 @@ from dask.delayed import delayed
 
 from ..._dask import compute as run_tasks
 from ...backends import get_backend
-from ...crypto.tags import betas, coefficients_at, tag_channel, tag_key_of, weighted_beta_total
-from ...errors import VerificationError
+from ...crypto.tags import betas, coefficients_at, tag_channel, tag_key_of
+from ...errors import ParameterError, VerificationError
 from ...store.authenticity import authenticated_fields, check_metadata_mac
 from ...store.layout import array_slices
 from ..pipeline.kernel import plan_products
@@ -54,9 +56,9 @@ from .plan import SlicePlan
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PackedVerification", "aggregate_tile", "tag_aggregate"]
+__all__ = ["PackedVerification", "aggregate_tile", "class_beta_total", "tag_aggregate"]
 
-FLUSH_PAIRS = 1 << 21  # pairs gathered before their β sums are taken (bounded memory at real size)
+WORKERS = max(1, min(os.cpu_count() or 1, 8))  # the key holder's threads for the check
 
 
 def aggregate_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, seed: bytes,
@@ -106,6 +108,54 @@ def tag_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress:
                               server_s=time.perf_counter() - t0, drawn_here=True)
 
 
+def class_beta_total(beta_limbs: np.ndarray, packs: np.ndarray, classes: np.ndarray, rho: np.ndarray,
+                     weights: np.ndarray, slot_bits: int) -> int:
+    """Σ_pairs 2^(K·c)·ρ·w·β_pack exactly, in numpy (``packs`` index the rows of ``beta_limbs``):
+    per (pack, class) the coefficient Σ ρ·w in 16-bit pieces of ρ (float64 sums stay below 2^53:
+    pieces below 2^16, weights below 2^16, fewer than 2^21 pairs per pack and class), then per
+    class one matrix product of the packs' 16-bit β pieces with the coefficients cut small enough
+    that every dot product stays an exact float64 integer (below 2^53).
+
+    >>> bl = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], np.uint32)      # β = 1 and 2^32
+    >>> rho, w = np.array([2**61 + 5, 3, 7]), np.array([3, 2, 1])
+    >>> got = class_beta_total(bl, np.array([0, 1, 1]), np.array([0, 0, 2]), rho, w, 10)
+    >>> got == (2**61 + 5) * 3 + 3 * 2 * 2**32 + (7 * 2**32 << 20)
+    True
+    """
+    w = np.asarray(weights, np.int64)
+    if not w.size:
+        return 0
+    if w.min() < 0 or w.max() >= 1 << 16:
+        raise ParameterError("weights: expected integers in [0, 2^16), got others")
+    U = beta_limbs.shape[0]
+    pair_key = np.asarray(classes, np.int64) * U + np.asarray(packs, np.int64)
+    uk, inv = np.unique(pair_key, return_inverse=True)  # (class, pack), class-major
+    if np.bincount(inv).max() >= 1 << 21:
+        raise ParameterError("pairs: expected fewer than 2^21 per pack and class")
+    r = np.asarray(rho, np.uint64)
+    wf = w.astype(np.float64)
+    coef = [np.bincount(inv, weights=((r >> np.uint64(16 * i)) & np.uint64(0xFFFF)).astype(np.float64) * wf,
+                        minlength=uk.size).astype(np.uint64) for i in range(4)]  # exact: < 2^53
+    pieces = np.ascontiguousarray(beta_limbs, dtype="<u4").view("<u2").astype(np.float64)  # (U, P) 16-bit
+    cls, pk = uk // U, uk % U
+    bounds = np.searchsorted(cls, np.arange(int(cls.max()) + 2))
+    total = 0
+    for c in range(int(cls.max()) + 1):
+        a, b = int(bounds[c]), int(bounds[c + 1])
+        if a == b:
+            continue
+        h = 53 - 16 - int(b - a).bit_length()  # bits of a coefficient piece: 16 + h + log2(rows) ≤ 53
+        cols, shifts = [], []
+        for i in range(4):
+            for j in range(-(-53 // h)):
+                cols.append(((coef[i][a:b] >> np.uint64(h * j)) & np.uint64((1 << h) - 1)).astype(np.float64))
+                shifts.append(16 * i + h * j)
+        S = (pieces[pk[a:b]].T @ np.stack(cols, axis=1)).astype(np.uint64)  # (P, columns): exact integers
+        part = sum(int(S[p, q]) << (16 * p + shifts[q]) for p in range(S.shape[0]) for q in range(S.shape[1]))
+        total += part << (int(slot_bits) * c)
+    return total
+
+
 @dataclass(frozen=True, repr=False)
 class PackedVerification:
     """What the key holder keeps of a verified packed frame: the aggregate A (a ciphertext), the
@@ -151,42 +201,31 @@ class PackedVerification:
         ashape = info.array_shape(m.shape)
         K, C = info.slot_bits, plan.classes
         grid = tuple(-(-s // b) for s, b in zip(m.shape, m.brick))
-        cache: dict = {}
-        total = 0
-        buf: list = []
-        size = 0
+        cache: dict = {}  # β blocks shared by neighbouring bricks (a race only recomputes a block)
 
-        def flush() -> int:
-            packs = np.concatenate([b[0] for b in buf])
-            keys = np.concatenate([b[1] for b in buf])
-            w = np.concatenate([b[2] for b in buf])
-            uniq, inv = np.unique(packs, return_inverse=True)
-            beta = betas(key, m.store_id, "scalar", self.level, 0, uniq, cache)
-            rho = coefficients_at(self.seed, keys // C)
-            cls = keys % C
-            out = 0
-            for c in np.unique(cls).tolist():
-                sel = cls == c
-                count = int(sel.sum())
-                out += weighted_beta_total(beta, np.arange(count + 1), inv.reshape(-1)[sel], w[sel],
-                                           rho[sel]) << (K * c)
-            return out
-
-        for idx in np.ndindex(*grid):
+        def pairs(idx: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             keys, local, w = plan.brick_pairs(idx)
-            if not len(keys):
-                continue
             sl = array_slices(m, idx)
-            dims = tuple(s.stop - s.start for s in sl)
-            coords = np.unravel_index(local, dims)
-            packs = np.ravel_multi_index(tuple(c + s.start for c, s in zip(coords, sl)), ashape)
-            buf.append((packs, keys, w))
-            size += len(keys)
-            if size >= FLUSH_PAIRS:
-                total += flush()
-                buf, size = [], 0
-        if buf:
-            total += flush()
+            coords = np.unravel_index(local, tuple(s.stop - s.start for s in sl))
+            return np.ravel_multi_index(tuple(c + s.start for c, s in zip(coords, sl)), ashape), keys, w
+
+        def part(bricks: list) -> int:  # a run of neighbouring bricks: their packs' β in one go
+            got = [p for p in map(pairs, bricks) if len(p[1])]
+            if not got:
+                return 0
+            packs, keys, w = (np.concatenate([g[i] for g in got]) for i in range(3))
+            lo = int(packs.min())
+            span = np.zeros(int(packs.max()) - lo + 1, bool)
+            span[packs - lo] = True
+            where = np.cumsum(span) - 1
+            beta = betas(key, m.store_id, "scalar", self.level, 0, np.flatnonzero(span) + lo, cache)
+            return class_beta_total(beta, where[packs - lo], keys % C, coefficients_at(self.seed, keys // C), w, K)
+
+        bricks = list(np.ndindex(*grid))
+        runs = max(1, min(len(bricks), 4 * WORKERS))
+        chunks = [bricks[i * len(bricks) // runs:(i + 1) * len(bricks) // runs] for i in range(runs)]
+        with ThreadPoolExecutor(max_workers=WORKERS) as pool:  # numpy's sorts and products release the GIL
+            total = sum(pool.map(part, chunks))
         return total % int(m.n)
 
     def check(self, private_key: Any, plan: SlicePlan, values: list[list[int]], fingerprint: str) -> None:
