@@ -23,6 +23,10 @@ of their value — the throughput, the store, the GPU frames, then the CPU curve
     ``cpu`` resident frames on LocalClusters of 1, 2, 4, 8, 16 single-threaded workers: nearest at
     each size (efficiency ``T(1) / (N·T(N))``), trilinear and TF trilinear at the largest; their
     SHA-256 against the backend's (the *identical image* rule).
+``packed``
+    issue 46: a packed store of the ``packed_size``³ phantom, its frames (two views, nearest and
+    bilinear) on the backend and on ``cpu`` from resident copies, identical ciphertexts checked,
+    seconds and operation counts kept (:mod:`hevr._bench.gpu_packed`).
 ``table``
     ``goals.md`` from ``goals.jsonl``: each goal with the figure measured beside it.
 
@@ -36,26 +40,19 @@ the figures, never asserted. ``tests/test_bench_gpu_goals.py`` runs every step o
 from __future__ import annotations
 
 import argparse
-import contextlib
-import hashlib
-import json
 import logging
 import os
 import statistics
 import time
-import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import dask
 import numpy as np
-from distributed import Client, LocalCluster
 
 from ..backends import get_backend
-from ..crypto.keyfile import load_key
-from ..crypto.keys import generate_keypair
-from ..errors import InsecureKeyWarning, ParameterError
+from ..errors import ParameterError
 from ..paper import TF_NODES
 from ..rendering.encrypted import error_bound, render
 from ..rendering.geometry.camera import Camera
@@ -64,6 +61,8 @@ from ..store.reader import open_volume
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
 from .gpu import throughput
+from .gpu_common import append_row, bench_key, image_digest, local_cluster, read_rows
+from .gpu_packed import packed_step, table_lines
 from .measure import machine
 
 log = logging.getLogger(__name__)
@@ -73,46 +72,9 @@ __all__ = ["GOALS", "STEPS", "main", "run_step"]
 # issue 40's goals; a frame's goal is its seconds, "efficiency" the cpu curve's at the largest cluster
 GOALS = {"products_per_s kernels": 1.0e8, "encrypt scalar": 3.0, "frame xray nearest": 0.10,
          "frame xray trilinear": 0.30, "frame tf trilinear": 1.0, "efficiency nearest": 0.80}
-STEPS = ("throughput", "stores", "frames", "curve", "table")
+STEPS = ("throughput", "stores", "frames", "curve", "packed", "table")
 SLOW = 5.0  # seconds: a first frame slower than this is timed once more, not ``repeats`` times
 FRAMES = (("xray", "nearest", "scalar"), ("xray", "trilinear", "scalar"), ("tf", "trilinear", "tf"))
-
-
-def _append(out: Path, row: dict) -> None:
-    """One measured row, appended at once (a later step's fault cannot lose it)."""
-    with open(out / "goals.jsonl", "a", encoding="utf-8") as f:
-        f.write(json.dumps(row, default=str) + "\n")
-
-
-def _rows(out: Path) -> list[dict]:
-    path = out / "goals.jsonl"
-    if not path.is_file():
-        return []
-    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
-
-
-def _digest(img: Any) -> str:
-    """SHA-256 over an encrypted image's ciphertext records (the identity of two backends' frames)."""
-    h = hashlib.sha256()
-    for c in img.ciphertexts:
-        h.update(np.ascontiguousarray(c).tobytes())
-    return h.hexdigest()
-
-
-def _key(work: Path, bits: int = 0) -> Any:
-    """The steps' one key (``work/key.json``, 0600), made by the ``stores`` step."""
-    path = work / "key.json"
-    if path.is_file():
-        with warnings.catch_warnings():  # the tests' small keys
-            warnings.simplefilter("ignore", InsecureKeyWarning)
-            return load_key(path)
-    if not bits:
-        raise FileNotFoundError(f"{path}: no key; run the stores step first")
-    with warnings.catch_warnings():  # the tests' small keys: insecure on purpose
-        warnings.simplefilter("ignore", InsecureKeyWarning)
-        _, priv = generate_keypair(bits)
-    priv.save(path)
-    return priv
 
 
 def _store(work: Path, kind: str) -> Path:
@@ -123,25 +85,18 @@ def _camera(ev: Any, image: int) -> Camera:
     return Camera.orbit(ev, azimuth=30, elevation=20, width=image, height=image)
 
 
-@contextlib.contextmanager
-def _cluster(workers: int) -> Iterator[Any]:
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cl, \
-            Client(cl, set_as_default=False) as client:
-        yield client
-
-
 def throughput_step(out: Path, backend: str, quick: bool) -> None:
     res = throughput(get_backend(backend), quick)
     for label, r in res.items():
         unit = "products_per_s" if label == "products" else "pairs_per_s"
-        _append(out, {"step": "throughput", "what": label, "backend": backend, "end_to_end_per_s": r[unit],
+        append_row(out, {"step": "throughput", "what": label, "backend": backend, "end_to_end_per_s": r[unit],
                       "kernels_per_s": r.get(f"kernels_{unit}"), "cpu_one_core_per_s": r[f"cpu_{unit}"],
                       "stages_s": r.get("stages_s")})
 
 
 def stores_step(out: Path, work: Path, backend: str, size: int, tf_size: int, bits: int, owner_kernels: bool,
                 workers: int) -> None:
-    priv = _key(work, bits)
+    priv = bench_key(work, bits)
     for kind, n, vdims in (("scalar", size, None), ("tf", tf_size, 4)):
         path = _store(work, kind)
         kw = dict(brick=max(4, n // 4), vector_dims=vdims, progress=False, overwrite=True)
@@ -151,13 +106,13 @@ def stores_step(out: Path, work: Path, backend: str, size: int, tf_size: int, bi
                 encrypt_volume(phantom(n), path, priv, backend=backend, **kw)
             how = f"{backend} owner kernels, one process"
         else:
-            with _cluster(workers) as client:
+            with local_cluster(workers) as client:
                 t0 = time.perf_counter()  # the cluster's start is not encryption
                 encrypt_volume(phantom(n), path, priv, client=client, backend="cpu", **kw)
             how = f"cpu, LocalCluster of {workers} processes"
         dt = time.perf_counter() - t0
         cts = n ** 3 * (1 + (vdims or 0))
-        _append(out, {"step": "stores", "what": f"encrypt {kind}", "size": n, "bits": bits, "seconds": dt,
+        append_row(out, {"step": "stores", "what": f"encrypt {kind}", "size": n, "bits": bits, "seconds": dt,
                       "ciphertexts": cts, "per_s": cts / dt, "how": how})
         log.info("encrypted %s %d^3: %.2f s (%s)", kind, n, dt, how)
 
@@ -187,7 +142,7 @@ def _within(ev: Any, cam: Camera, mode: str, sampling: str, plain: np.ndarray, v
 
 
 def frames_step(out: Path, work: Path, backend: str, image: int, repeats: int) -> None:
-    priv = _key(work)
+    priv = bench_key(work)
     for mode, sampling, kind in FRAMES:
         ev = open_volume(_store(work, kind))
         cam = _camera(ev, image)
@@ -201,17 +156,17 @@ def frames_step(out: Path, work: Path, backend: str, image: int, repeats: int) -
 
             times, img, plain = _frame(resident, cam, mode, sampling, priv, repeats, run)
         ok = _within(ev, cam, mode, sampling, plain, phantom(ev.shape[0]))
-        _append(out, {"step": "frames", "what": f"frame {mode} {sampling}", "backend": backend, "size": ev.shape[0],
+        append_row(out, {"step": "frames", "what": f"frame {mode} {sampling}", "backend": backend, "size": ev.shape[0],
                       "image": image, "seconds": statistics.median(times), "all_s": times, "persist_s": load_s,
-                      "sha256": _digest(img), "within_bound": ok, "end_to_end": mode == "tf"})
+                      "sha256": image_digest(img), "within_bound": ok, "end_to_end": mode == "tf"})
         log.info("%s frame %s %s: %.3f s (median of %d)", backend, mode, sampling, statistics.median(times), repeats)
 
 
 def curve_step(out: Path, work: Path, image: int, repeats: int, workers: tuple[int, ...]) -> None:
-    priv = _key(work)
+    priv = bench_key(work)
     for N in workers:
         cases = FRAMES if N == max(workers) else FRAMES[:1]
-        with _cluster(N) as client:
+        with local_cluster(N) as client:
             for mode, sampling, kind in cases:
                 ev = open_volume(_store(work, kind))
                 resident = ev.persist(client=client, backend="cpu")
@@ -222,9 +177,9 @@ def curve_step(out: Path, work: Path, image: int, repeats: int, workers: tuple[i
                     return render(*a, backend="cpu", client=client, **kw)
 
                 times, img, _ = _frame(resident, cam, mode, sampling, priv, repeats, run)
-                _append(out, {"step": "curve", "what": f"frame {mode} {sampling}", "backend": "cpu", "workers": N,
+                append_row(out, {"step": "curve", "what": f"frame {mode} {sampling}", "backend": "cpu", "workers": N,
                               "size": ev.shape[0], "image": image, "seconds": statistics.median(times),
-                              "all_s": times, "sha256": _digest(img), "end_to_end": mode == "tf"})
+                              "all_s": times, "sha256": image_digest(img), "end_to_end": mode == "tf"})
                 log.info("cpu on %d workers %s %s: %.3f s", N, mode, sampling, statistics.median(times))
 
 
@@ -234,7 +189,7 @@ def _fmt(v: Any, unit: str = "") -> str:
 
 def table(out: Path) -> str:
     """``goals.md``: the goal table (each goal, the figure measured, met or not) and the cpu curve."""
-    rows = _rows(out)
+    rows = read_rows(out)
     first = lambda **kw: next((r for r in rows if all(r.get(k) == v for k, v in kw.items())), None)  # noqa: E731
     mach = first(step="machine")
     lines = ["# Issue 40's goals, measured", ""]
@@ -274,6 +229,7 @@ def table(out: Path) -> str:
         for r in curve:
             eff = t1["seconds"] / (r["workers"] * r["seconds"]) if t1 and r["what"] == "frame xray nearest" else None
             lines.append(f"| {r['workers']} | {r['what'][6:]} | {r['seconds']:.3g} | {_fmt(eff)} |")
+    lines += table_lines(rows)
     text = "\n".join(lines) + "\n"
     (out / "goals.md").write_text(text, encoding="utf-8")
     return text
@@ -281,30 +237,35 @@ def table(out: Path) -> str:
 
 def run_step(step: str, out: Path, work: Path, *, backend: str = "cuda", size: int = 100, tf_size: int = 50,
              image: int = 150, bits: int = 2048, repeats: int = 3, workers: tuple[int, ...] = (1, 2, 4, 8, 16),
-             owner_kernels: bool = False, quick: bool = False) -> None:
-    """One step of the module docstring; rows go to ``out/goals.jsonl`` as they are measured."""
+             owner_kernels: bool = False, quick: bool = False, packed_size: int = 128, packed_image: int = 128) -> bool:
+    """One step of the module docstring; rows go to ``out/goals.jsonl`` as they are measured. Returns
+    False where the packed step found a frame not identical to cpu's or out of its bound."""
     if step not in STEPS:
         raise ParameterError(f"step: expected one of {', '.join(STEPS)}, got {step!r}")
     out.mkdir(parents=True, exist_ok=True)
     work.mkdir(parents=True, exist_ok=True)
     if step == "table":
         table(out)
-        return
+        return True
     be = get_backend(backend)
     launcher = getattr(be, "_launch", None)
     if owner_kernels and launcher is not None:
         launcher.keyholder = True  # the key holder's kernels for this backend (device.py keeps them off by default)
     device = launcher.device_name() if hasattr(launcher, "device_name") else f"the host CPU ({backend})"
-    _append(out, {"step": "machine", "for": step, "device": device, "machine": machine()})
+    append_row(out, {"step": "machine", "for": step, "device": device, "machine": machine()})
+    ok = True
     if step == "throughput":
         throughput_step(out, backend, quick)
     elif step == "stores":
         stores_step(out, work, backend, size, tf_size, bits, owner_kernels, max(workers))
     elif step == "frames":
         frames_step(out, work, backend, image, repeats)
+    elif step == "packed":
+        ok = packed_step(out, work, backend, packed_size, packed_image, bits, repeats, max(workers))
     else:
         curve_step(out, work, image, repeats, workers)
     table(out)
+    return ok
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -321,13 +282,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", default=f"1,2,4,8,{min(16, os.cpu_count() or 1)}")
     ap.add_argument("--owner-kernels", action="store_true", help="encrypt the stores with the backend's owner kernels")
     ap.add_argument("--quick", action="store_true", help="throughput on a small plan")
+    ap.add_argument("--packed-size", type=int, default=128, help="the packed step's phantom (voxels per edge)")
+    ap.add_argument("--packed-image", type=int, default=128, help="the packed step's frames (pixels per edge)")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     workers = tuple(sorted({int(w) for w in a.workers.split(",")}))
-    run_step(a.step, a.out, a.work, backend=a.backend, size=a.size, tf_size=a.tf_size, image=a.image, bits=a.bits,
-             repeats=a.repeats, workers=workers, owner_kernels=a.owner_kernels, quick=a.quick)
+    ok = run_step(a.step, a.out, a.work, backend=a.backend, size=a.size, tf_size=a.tf_size, image=a.image, bits=a.bits,
+             repeats=a.repeats, workers=workers, owner_kernels=a.owner_kernels, quick=a.quick,
+             packed_size=a.packed_size, packed_image=a.packed_image)
     log.info("goal table: %s", a.out / "goals.md")  # gpu-proof.sh prints it; no print() outside the CLI
-    return 0
+    if not ok:
+        log.error("packed frames: the backend's frames are NOT identical to cpu's (or out of bound): see goals.md")
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":  # pragma: no cover - the command line
