@@ -8,7 +8,8 @@ streamed and resident (``persist(backend=...)``), rendered with ``backend=KERNEL
 identical ciphertexts, decrypted slot sums and image as ``backend="cpu"`` — the sums the exact
 integers of the plan on the plaintext, the image within ``error_bound`` of the float64 slice
 reference. The kernels do the work (their operations are spied on; no silent gmpy2 fallback on
-``cuda-host``). The operations a packed frame adds — ``pack`` with up to ~40 classes of up to
+``cuda-host``). A verified frame (the store's default): the kernels' tag render and aggregate (62-bit
+coefficients) pass the key holder's check, and for one seed their aggregate is cpu's. The operations a packed frame adds — ``pack`` with up to ~40 classes of up to
 38-bit digits, ``segment_products`` over ragged segments — are checked at 2048 bits.
 
 ``KERNELS`` is ``cuda-host`` (the CUDA kernels compiled for the host: runs in CI); on a GPU machine
@@ -34,6 +35,7 @@ from hevr import MissingDependencyError, backends
 from hevr.backends import CpuBackend, CudaBackend, get_backend
 from hevr.backends.cuda.backend import KernelBackend
 from hevr.rendering.packed import PackedImage
+from hevr.rendering.packed.verified import aggregate_for
 
 KERNELS = os.environ.get("HEVR_TEST_KERNELS", "cuda-host")  # "cuda" on a GPU machine
 CPU = CpuBackend()
@@ -141,6 +143,28 @@ def test_resident_kernel_frames_are_the_cpu_frames(stores, calls):
     assert brick.modulus is not None  # converted once, kept in Montgomery form mod n²
 
 
+@pytest.mark.parametrize("sampling", SAMPLINGS)
+def test_verified_kernel_frames(stores, calls, sampling):
+    """A verifiable packed store's default (verified) frame on KERNELS: cpu's ciphertexts, and its tag
+    render and aggregate, on the kernels with 62-bit coefficients, pass the key holder's check; for one
+    seed the kernels' aggregate is cpu's, exactly."""
+    ev, vol, priv = stores[512]
+    assert ev.meta.tags  # verifiable by default (encrypted with the private key)
+    cam = _camera(ev, GENERAL[0])
+    with dask.config.set(scheduler="sync"):
+        ref = hevr.render(ev, cam, sampling=sampling, backend="cpu", progress=False)
+        img = hevr.render(ev, cam, sampling=sampling, backend=KERNELS, progress=False)
+    assert img.verified and ref.verified and img.stats["backend"] == KERNELS
+    _same(ref, img)
+    assert np.array_equal(img.decrypt(priv, require_verified=True), ref.decrypt(priv, require_verified=True))
+    seed = secrets.token_bytes(32)
+    with dask.config.set(scheduler="sync"):
+        a_cpu, ops_cpu = aggregate_for(ev, img.plan, "cpu", None, False, seed)
+        a_kern, ops_kern = aggregate_for(ev, img.plan, KERNELS, None, False, seed)
+    assert a_cpu == a_kern and ops_cpu == ops_kern and 1 < a_kern < int(ev.public_key.nsquare)
+    assert calls["ray_products"] >= 2 and calls["pack"] >= 2
+
+
 @pytest.mark.parametrize("classes, bits_per_slot", [(41, 24), (40, 32), (27, 38), (2, 22), (1, 24)])
 def test_horner_combine_of_many_classes_at_2048_bits(keypair2048, classes, bits_per_slot):
     """The combine of merge_tile: groups of C classes, exponents 1, base 2^K — with the 'one'
@@ -209,3 +233,10 @@ def test_packed_frames_on_the_device(stores):
         with dask.config.set(scheduler="sync"):
             res = ev.persist(backend="cuda")
         _check_frames(ev, vol, priv, "cuda", [ORBIT, *GENERAL], resident=res)
+    ev, vol, priv = stores[512]
+    cam = _camera(ev, GENERAL[0])
+    with dask.config.set(scheduler="sync"):
+        img = hevr.render(ev, cam, sampling="trilinear", backend="cuda", progress=False)  # verified (default)
+        ref = hevr.render(ev, cam, sampling="trilinear", backend="cpu", progress=False, verify=False)
+    _same(ref, img)
+    assert img.verified and np.array_equal(img.decrypt(priv, require_verified=True), ref.decrypt(priv))
