@@ -15,7 +15,8 @@ and the key holder recomputes it before any pixel of a verified render is return
 (:meth:`hevr.rendering.verify.Verification.check`). Bound (:data:`AUTHENTICATED`): shape, spacing,
 brick, the key (n, fingerprint, record width), dtype, value range, base, the channels (exponent,
 digits, dims), the store id, the patient frame and origin, the tags flag and, for a packed store,
-its ``layout`` (axis, slots, slot bits, weight bits, offset: :mod:`hevr.store.packing`). Not bound, because
+its ``layout`` (axis, slots, slot bits, weight bits, offset: :mod:`hevr.store.packing`) and its pyramid
+levels' layouts (``level_layouts``, level 1, 2, …: :mod:`hevr.store.packed_levels`). Not bound, because
 they are derived from the bound fields and checked on reading (:mod:`hevr.store.metadata`), or carry
 no meaning for a picture: the pyramid levels' shapes and bricks (halvings of the shape, checked;
 their exponents e − 3·level and their tags 125 ⊗ the children's are fixed by the scheme), the
@@ -78,6 +79,10 @@ def authenticated_fields(d: dict) -> dict:
     out["public_key"] = {"n": pk.get("n"), "fingerprint": pk.get("fingerprint")}
     if d.get("layout") is not None:  # a packed store's slots (absent, as in every store before them, for per-voxel)
         out["layout"] = d["layout"]
+    levels = d.get("levels") if isinstance(d.get("levels"), list) else []
+    layouts = [lv["layout"] for lv in levels if isinstance(lv, dict) and "layout" in lv]
+    if layouts:  # a packed store's levels' slots, level 1, 2, … (the owner encrypted them: hevr.store.packed_levels)
+        out["level_layouts"] = layouts
     return out
 
 

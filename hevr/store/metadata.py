@@ -99,38 +99,52 @@ class ChannelInfo:
 class LevelInfo:
     """One level of the encrypted multi-resolution pyramid (:mod:`hevr.store.pyramid`): its
     shape (``ceil`` halving of the level below), whether every brick is written, and the digests
-    of its arrays' metadata documents (``levels/<level>/<array>``, relative names)."""
+    of its arrays' metadata documents (``levels/<level>/<array>``, relative names). A packed
+    store's level (:mod:`hevr.store.packed_levels`, encrypted by the owner) has its own
+    ``packing`` (written as ``layout``) and a brick whose packing-axis edge is a multiple of its slots."""
 
     level: int
     shape: tuple[int, int, int]
     brick: tuple[int, int, int]
     complete: bool = False
     arrays: dict = field(default_factory=dict)
+    packing: PackingInfo | None = None
 
     def to_dict(self) -> dict:
         return {"level": self.level, "shape": list(self.shape), "brick": list(self.brick), "complete": self.complete,
-                "arrays": dict(self.arrays)}
+                "arrays": dict(self.arrays), **({"layout": self.packing.to_dict()} if self.packing is not None else {})}
 
     @classmethod
     def from_dict(cls, d: Any, where: str, expected_level: int, expected_shape: tuple, expected_brick: tuple,
-                  names: set) -> "LevelInfo":
+                  names: set, axis: int | None = None) -> "LevelInfo":
         name = f"levels[{expected_level - 1}]"
-        if not isinstance(d, dict) or set(d) != {"level", "shape", "brick", "complete", "arrays"}:
-            raise _bad(where, name, "an object with 'level', 'shape', 'brick', 'complete' and 'arrays'", d)
+        packed = axis is not None  # a packed store's level: its own layout, along the store's axis
+        keys = {"level", "shape", "brick", "complete", "arrays"} | ({"layout"} if packed else set())
+        if not isinstance(d, dict) or set(d) != keys:
+            raise _bad(where, name, f"an object with {', '.join(repr(k) for k in sorted(keys))}"
+                       + (" (a packed store's level has its own layout)" if packed else ""), d)
         _int(d["level"], f"{name}.level", where, expected_level, expected_level)
         shape = _triple(d["shape"], f"{name}.shape", where, "int")
         if shape != tuple(expected_shape):
             raise _bad(where, f"{name}.shape", f"{list(expected_shape)} (the level below, halved)", d["shape"])
+        packing = PackingInfo.from_dict(d["layout"], f"{where}: {name}") if packed else None
+        if packing is not None and packing.axis != axis:
+            raise _bad(where, f"{name}.layout.axis", f"{axis} (the store's packing axis)", packing.axis)
+        if packing is not None:  # the base brick, its packing-axis edge rounded up to the level's slots
+            expected_brick = tuple(-(-b // packing.slots) * packing.slots if i == packing.axis else b
+                                   for i, b in enumerate(expected_brick))
         brick = _triple(d["brick"], f"{name}.brick", where, "int")
         if brick != tuple(expected_brick):
-            raise _bad(where, f"{name}.brick", f"{list(expected_brick)} (hevr.volume.pyramid.level_brick)", d["brick"])
+            raise _bad(where, f"{name}.brick", f"{list(expected_brick)} (hevr.volume.pyramid.level_brick"
+                       + (", its packing-axis edge a multiple of the level's slots)" if packed else ")"), d["brick"])
         if type(d["complete"]) is not bool:
             raise _bad(where, f"{name}.complete", "true or false", d["complete"])
         arrays = d["arrays"]
         if not (isinstance(arrays, dict) and set(arrays) == names
                 and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())):
             raise _bad(where, f"{name}.arrays", f"a 'sha256:…' digest for each of {sorted(names)}", arrays)
-        return cls(level=expected_level, shape=shape, brick=brick, complete=d["complete"], arrays=dict(arrays))
+        return cls(level=expected_level, shape=shape, brick=brick, complete=d["complete"], arrays=dict(arrays),
+                   packing=packing)
 
 
 @dataclass(frozen=True)
@@ -183,7 +197,8 @@ class VolumeMetadata:
         """The metadata of pyramid level ``level`` (≥ 1) as a volume of its own: the level's shape,
         spacing ``2^level·s``, its bricks (:func:`~hevr.volume.pyramid.level_brick`), the key, channel exponents ``e − 3·level``
         (mantissas are 125·Σ of 8 children per level: :mod:`hevr.volume.pyramid`) and the
-        level's own array digests and completeness. Its voxel (0, 0, 0) sits at
+        level's own array digests and completeness; a packed store's level its own packing
+        (:mod:`hevr.store.packed_levels`). Its voxel (0, 0, 0) sits at
         :func:`hevr.volume.pyramid.level_origin`, not at the world origin."""
         info = self.levels[level - 1]
 
@@ -196,7 +211,7 @@ class VolumeMetadata:
         return dataclasses.replace(self, shape=info.shape, brick=info.brick, spacing=level_spacing(self.spacing, level),
                                    scalar=shifted(self.scalar), vector=shifted(self.vector),
                                    gradient=shifted(self.gradient), complete=info.complete,
-                                   arrays=dict(info.arrays), levels=())
+                                   arrays=dict(info.arrays), levels=(), packing=info.packing)
 
     @property
     def data_channels(self) -> tuple[str, ...]:
@@ -398,14 +413,16 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     if "layout" in d:
         meta = dataclasses.replace(meta, packing=_packing(d, meta, where))
     levels = d.get("levels", [])
-    if meta.packing is not None and levels:
-        raise _bad(where, "levels", "none in a packed store (its pyramid is not built yet)", levels)
     if not isinstance(levels, list) or len(levels) > MAX_LEVELS:
         raise _bad(where, "levels", f"a list of at most {MAX_LEVELS} pyramid levels", levels)
     parsed, below = [], shape
     for i, lv in enumerate(levels):
         below = tuple(-(-s // 2) for s in below)
-        parsed.append(LevelInfo.from_dict(lv, where, i + 1, below, level_brick(brick, i + 1), names))
+        info = LevelInfo.from_dict(lv, where, i + 1, below, level_brick(brick, i + 1), names,
+                                   None if meta.packing is None else meta.packing.axis)
+        if info.packing is not None:  # checked as level 0's: against the level's shape, exponent and key
+            _level_packing(meta, info, where)
+        parsed.append(info)
     if parsed:
         meta = dataclasses.replace(meta, levels=tuple(parsed))
     if "n_bricks" in d and d["n_bricks"] != meta.n_bricks:
@@ -425,6 +442,19 @@ def _packing(d: dict, meta: VolumeMetadata, where: str) -> PackingInfo:
         raise _bad(where, "layout.offset", f"{lo} (the lowest mantissa of value_range)", str(packing.offset))
     packing.check(int(meta.n).bit_length(), meta.shape, meta.brick, hi - lo, where)
     return packing
+
+
+def _level_packing(meta: VolumeMetadata, info: LevelInfo, where: str) -> None:
+    """A packed level's ``layout`` (its axis, the store's, checked on parsing): the offset of the level's exponent ``e − 3·level``
+    (:mod:`hevr.store.packed_levels`), slots that fit the key and the level's brick, and a slot width
+    that holds every frame's largest sum at the level's shape."""
+    name = f"levels[{info.level - 1}].layout"
+    packing = info.packing
+    lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent - 3 * info.level)
+    if packing.offset != lo:
+        raise _bad(where, f"{name}.offset", f"{lo} (the lowest mantissa of value_range at the level's exponent)",
+                   str(packing.offset))
+    packing.check(int(meta.n).bit_length(), info.shape, info.brick, hi - lo, f"{where}: {name}")
 
 
 def _patient(p: Any, where: str) -> dict:

@@ -47,7 +47,7 @@ from .reader import EncryptedVolume, array_layout, brick_slices, open_volume
 
 log = logging.getLogger(__name__)
 
-__all__ = ["build_pyramid", "LEVEL_FACTOR"]
+__all__ = ["build_pyramid", "LEVEL_FACTOR", "level_arrays_ok", "write_meta"]
 
 LEVEL_FACTOR = 125  # 10^3 / 8: the ⊗ that turns a sum of 8 children into their mean at exponent e − 3
 _MAX_DIGITS = 30  # hevr._validate.MAX_STORE_DIGITS: the most decimal digits a channel's metadata holds
@@ -115,7 +115,7 @@ def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int
     return index
 
 
-def _write_meta(path: str, meta: VolumeMetadata, so: dict | None) -> None:
+def write_meta(path: str, meta: VolumeMetadata, so: dict | None) -> None:
     """Record ``meta`` (and its OME attribute) — only over the same store (its id on disk)."""
     group = zarr.open_group(zarr_store(path, so), mode="r+")
     on_disk = (dict(group.attrs).get("hevr") or {}).get("store_id")
@@ -125,7 +125,7 @@ def _write_meta(path: str, meta: VolumeMetadata, so: dict | None) -> None:
     group.attrs.update({"hevr": meta.to_dict(), "ome": ome_attribute(meta)})
 
 
-def _level_arrays_ok(path: str, info: LevelInfo, so: dict | None) -> bool:
+def level_arrays_ok(path: str, info: LevelInfo, so: dict | None) -> bool:
     """Whether level ``info``'s arrays are all there with the documents its metadata pins."""
     try:
         return all(document_digest(path, f"levels/{info.level}/{name}", so) == want
@@ -137,7 +137,7 @@ def _level_arrays_ok(path: str, info: LevelInfo, so: dict | None) -> bool:
 def _start_level(path: str, meta: VolumeMetadata, level: int, so: dict | None) -> VolumeMetadata:
     """Create level ``level``'s arrays (if not there from an interrupted run, or gone since) and
     record them, the level incomplete."""
-    if len(meta.levels) >= level and _level_arrays_ok(path, meta.levels[level - 1], so):
+    if len(meta.levels) >= level and level_arrays_ok(path, meta.levels[level - 1], so):
         return meta
     shape, brick = level_shape(meta.shape, level), level_brick(meta.brick, level)
     layout = array_layout(dataclasses.replace(meta, shape=shape, brick=brick, levels=()))
@@ -148,7 +148,7 @@ def _start_level(path: str, meta: VolumeMetadata, level: int, so: dict | None) -
     digests = {name: document_digest(path, f"levels/{level}/{name}", so) for name in layout}
     info = LevelInfo(level, shape, brick, False, digests)
     meta = dataclasses.replace(meta, levels=meta.levels[:level - 1] + (info,))  # levels above it are rebuilt too
-    _write_meta(path, meta, so)
+    write_meta(path, meta, so)
     return meta
 
 
@@ -189,8 +189,9 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
     ev = fresh
     if ev.meta.packing is not None:
         raise ParameterError(f"ev: expected a per-voxel store, got the packed store {ev.meta.store_id}: the server "
-                             "cannot downsample across slots (a packed store's levels must be encrypted by the owner, "
-                             "which hevr does not do yet)")
+                             "cannot downsample across slots; a packed store's levels are encrypted by the owner with "
+                             "the volume: hevr.encrypt_volume(vol, path, key, layout='packed', levels=L) (hevr encrypt "
+                             "--layout packed --levels L)")
     if isinstance(levels, bool) or not isinstance(levels, int) or not 1 <= levels <= MAX_LEVELS:
         raise ParameterError(f"levels: expected an int in [1, {MAX_LEVELS}], got {levels!r}")
     meta = ev.meta
@@ -202,7 +203,7 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
     path, so = ev.path, ev.storage_options
     check_reachable(path, active_client(client))
     for level in range(1, levels + 1):
-        if len(meta.levels) >= level and meta.levels[level - 1].complete and _level_arrays_ok(
+        if len(meta.levels) >= level and meta.levels[level - 1].complete and level_arrays_ok(
                 path, meta.levels[level - 1], so):
             continue
         below = EncryptedVolume(path, meta, storage_options=so).at_level(level - 1)  # readable before anything starts
@@ -221,5 +222,5 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
         infos = list(meta.levels)
         infos[level - 1] = dataclasses.replace(infos[level - 1], complete=True)
         meta = dataclasses.replace(meta, levels=tuple(infos))
-        _write_meta(path, meta, so)
+        write_meta(path, meta, so)
     return open_volume(path, storage_options=so)

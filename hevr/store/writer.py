@@ -92,6 +92,8 @@ from .paths import (
 from .layout import array_slices
 from .packed_brick import pack_axis_of, write_packed_brick
 from .packing import choose_packing, mantissa_range
+from .packed_levels import check_levels, encrypt_levels, plan_levels, prepare_levels
+from .pyramid import build_pyramid
 from .quantise import plan_channels, quantise_scalar, quantise_vector
 from .reader import EncryptedVolume, brick_slices, open_volume
 
@@ -191,6 +193,7 @@ def encrypt_volume(
     verifiable: bool | None = None,
     layout: str = "voxel",
     pack_axis: int | str | None = None,
+    levels: int = 0,
 ) -> EncryptedVolume:
     """Encrypt a 3-D volume brick by brick into a Zarr v3 store, one Dask task per brick.
 
@@ -257,6 +260,11 @@ def encrypt_volume(
     pack_axis : int or {"z", "y", "x"}, optional
         The packing axis of a packed store, as an array axis (0 = z) or its name; default 0, the
         scan's z axis (the patient's superior axis in RAS+), which serves every view around the body.
+    levels : int
+        Pyramid levels 1 … ``levels`` (0 to 8; previews: ``hevr.render(..., level=L)``). A packed
+        store's levels are encrypted here by the owner, each packed with slots of its own
+        (:mod:`hevr.store.packed_levels`; the server cannot downsample across slots); a per-voxel
+        store's are built after level 0 by :func:`hevr.build_pyramid` (no key needed).
 
     Returns
     -------
@@ -301,6 +309,7 @@ def encrypt_volume(
                              f"gradient={bool(gradient)}, scalar={bool(scalar)}")
     if layout == "voxel" and pack_axis is not None:
         raise ParameterError(f"pack_axis: expected None for layout='voxel', got {pack_axis!r}")
+    levels = check_levels(levels)
     sc, vc, vr = plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
     packing = None
     if layout == "packed":
@@ -314,6 +323,7 @@ def encrypt_volume(
         value_range=vr, scalar=sc, vector=vc, gradient=vc if gradient else None, patient=patient,
         tags=bool(verifiable), packing=packing,
     )
+    planned = plan_levels(meta, levels) if packing is not None else ()  # the packed levels' slots, before the disk
     path, so = normalise(path), check_storage_options(storage_options)
     check_reachable(path, active_client(client))
     check_backend(backend, active_client(client))  # CuPy, a device, a compiler: before the disk is touched
@@ -356,7 +366,14 @@ def encrypt_volume(
         todo = [idx for idx in bricks if not done[idx]]
         log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)
         try:
+            if planned or meta.levels and meta.packing is not None:  # the owner's packed levels, recorded first
+                meta = prepare_levels(target, meta, planned, key, so)
             values = _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
+            if meta.levels and meta.packing is not None:
+                meta, more = encrypt_levels(vol, brick_t, target, dataclasses.replace(meta, complete=True), key,
+                                            unsafe_no_obfuscation=unsafe_no_obfuscation,
+                                            backend=backend, client=client, progress=progress, storage_options=so)
+                values += more
         except BaseException:
             if target != path:
                 log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
@@ -375,6 +392,8 @@ def encrypt_volume(
     if ev.meta.store_id != meta.store_id:
         raise StoreExistsError(f"path: the store at {path} was created or replaced by another run while this one "
                                "wrote it; this run's store is not there")
+    if levels and meta.packing is None:  # a per-voxel store's pyramid: the server's (no key needed)
+        ev = build_pyramid(ev, levels, client=client, progress=progress, backend=backend)
     ev.written_now = {"bricks": len(todo), "ciphertexts": values}  # this call's share (resume: the missing ones)
     record_quietly(ev, replace=True)  # the owner made it: the key holder's known stores (hevr.store.known)
     return ev

@@ -54,9 +54,10 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
     pixel's slab samples inside the volume); ``step`` is then ignored (it is the plane's ``slab_step``).
     """
     if getattr(getattr(ev, "meta", None), "packing", None) is not None:  # a packed store: slice-sampled frames
-        if mode != "xray" or level or gradient:
-            raise ParameterError(f"mode: expected an X-ray at level 0 for a packed store, got mode={mode!r}, "
-                                 f"level={level!r}, gradient={gradient!r}")
+        if mode != "xray" or gradient:
+            raise ParameterError(f"mode: expected an X-ray for a packed store, got mode={mode!r}, "
+                                 f"gradient={gradient!r}")
+        ev, camera = at_level(ev, camera, level)  # a level the owner encrypted packed: its own slots and exponent
         return packed_error_bound(ev.meta, camera, sampling)
     if isinstance(camera, Plane):
         step = camera.slab_step

@@ -197,9 +197,15 @@ def render_plain(
         if axis is None:
             raise ParameterError(f"slices: expected True, False or a packing axis (0, 1, 2, 'z', 'y', 'x'), "
                                  f"got {slices!r}")
-        if mode != "xray" or level or gradient or type(step) not in (int, float) or float(step) != 1.0:
-            raise ParameterError(f"slices: expected mode='xray', step=1, level=0 and gradient=False with slice "
-                                 f"sampling, got mode={mode!r}, step={step!r}, level={level!r}, gradient={gradient!r}")
+        if mode != "xray" or gradient or type(step) not in (int, float) or float(step) != 1.0:
+            raise ParameterError(f"slices: expected mode='xray', step=1 and gradient=False with slice "
+                                 f"sampling, got mode={mode!r}, step={step!r}, gradient={gradient!r}")
+        if check_level(level):  # a packed store's level (hevr.store.packed_levels): the means, on the level's grid
+            arr, sp = _check_volume(vol, spacing)
+            shift = np.asarray(level_origin(check_spacing(sp), level))
+            camera = dataclasses.replace(camera, position=tuple((np.asarray(camera.position) - shift).tolist()),
+                                         focal_point=tuple((np.asarray(camera.focal_point) - shift).tolist()))
+            vol, spacing = downsample(arr, level), level_spacing(check_spacing(sp), level)
         return render_plain_slices(vol, camera, sampling, spacing, axis=axis)
     arr, spacing = _check_volume(vol, spacing)
     dims = None
