@@ -18,6 +18,7 @@ from ..._validate import check_int
 from ...errors import ParameterError
 from ..._dask import active_client
 from ..planning.planner import check_render_size
+from ..planning.request import at_level
 from ..verify import resolve_verify
 from .graph import render_packed
 from .image import PackedImage
@@ -42,8 +43,7 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
     if type(step) not in (int, float) or float(step) != 1.0:
         raise ParameterError(f"step: expected 1.0 on a packed store (one sample per slice of the view's principal "
                              f"axis), got {step!r}")
-    if level not in (None, 0):
-        raise ParameterError(f"level: expected None on a packed store (it has no pyramid yet), got {level!r}")
+    ev, camera = at_level(ev, camera, level)  # a level the owner encrypted packed (hevr.store.packed_levels)
     if gradient:
         raise ParameterError("gradient: expected False on a packed store (no gradient channel)")
     if finish != "client":
