@@ -35,16 +35,21 @@ def test_the_packed_step_on_the_host_kernels(tmp_path, workers):
     assert enc["what"] == "encrypt packed" and enc["slots"] == 4 and enc["ciphertexts"] == 3 * 12 * 12
     assert enc["bytes"] > 0 and ("LocalCluster of 2" in enc["how"]) == (workers == (1, 2))
     frames = {r["what"]: r for r in rows[1:]}
-    assert set(frames) == {f"packed {v} {s}" for v in ("general", "orbit") for s in ("nearest", "trilinear")}
+    assert set(frames) == {f"packed {v} {s}" for v in ("general", "orbit") for s in ("nearest", "trilinear")} | {
+        "packed general trilinear verified"}
     for r in frames.values():
         assert r["identical"] and r["within_bound"] and r["sha256"] == r["cpu_sha256"]
         assert r["backend"] == "cuda-host" and r["cpu_workers"] == max(workers) and r["seconds"] > 0
         assert r["ops"] == r["cpu_ops"] and r["ops"]["map"] > 0 and r["ops"]["pairs"] > 0 and r["decrypt_s"] > 0
     assert frames["packed orbit nearest"]["classes"] == 1 and frames["packed orbit nearest"]["ops"]["combine"] == 0
     assert frames["packed general trilinear"]["classes"] > 1 and frames["packed general trilinear"]["ops"]["combine_squarings"] > 0
+    v = frames["packed general trilinear verified"]
+    assert v["verified"] is True and v["verify_ops"]["map"] > 0 and v["verify_server_s"] > 0
+    assert v["sha256"] == frames["packed general trilinear"]["sha256"]  # the same values, plus the tags' round
+    assert all("verified" not in r for w, r in frames.items() if not w.endswith("verified"))
     text = (out / "goals.md").read_text()
     assert "Packed store (issue 46)" in text and "12³ phantom at 256 bits: S = 4" in text
-    assert text.count("| yes | yes |") == 4 and "| NO" not in text
+    assert text.count("| yes | yes |") == 5 and "| NO" not in text and "general trilinear verified (cuda-host" in text
 
 
 def test_a_wrong_backend_is_reported_not_hidden(tmp_path):
@@ -71,7 +76,8 @@ def test_a_wrong_backend_is_reported_not_hidden(tmp_path):
         backends._INSTANCES.pop("wrong", None)
     assert calls and code == 1
     frames = [r for r in _rows(out) if r["step"] == "packed" and r["what"] != "encrypt packed"]
-    assert len(frames) == 4 and not any(r["identical"] for r in frames)
+    assert len(frames) == 5 and not any(r["identical"] for r in frames)
+    assert frames[-1]["verified"] is False and "error" in frames[-1]  # the key holder's check refused it
     assert all(r["sha256"] != r["cpu_sha256"] for r in frames)
     assert "| NO |" in (out / "goals.md").read_text()
 

@@ -15,7 +15,10 @@
 3. the identity rule checked, not assumed: both frames' ciphertexts byte for byte (their SHA-256
    kept), the decrypted slot sums and images equal, and the image within
    :func:`~hevr.rendering.encrypted.error_bound` of the float64 slice reference
-   (``render_plain(..., slices=True)``).
+   (``render_plain(..., slices=True)``);
+4. last, the general bilinear frame *verified* (the store's default: the tags rendered through the
+   same plan and aggregated on the backend, :mod:`hevr.rendering.packed.verified`), the key
+   holder's check passed (``decrypt(..., require_verified=True)``) and its seconds kept.
 
 One row per (view, sampling) is appended to ``OUT/goals.jsonl`` as soon as it is measured: both
 backends' seconds, the frame's modular operations (map products, ray-pack pairs, merge products,
@@ -52,10 +55,12 @@ from .measure import dir_bytes
 
 log = logging.getLogger(__name__)
 
-__all__ = ["VIEWS", "packed_step", "table_lines"]
+__all__ = ["CASES", "VIEWS", "packed_step", "table_lines"]
 
 VIEWS = {"general": (60.0, 10.0), "orbit": (90.0, 20.0)}
 SAMPLINGS = ("nearest", "trilinear")
+# (view, sampling, verified): the combine's cases first, the verified frame (a second round) last
+CASES = [(v, s, False) for v in VIEWS for s in SAMPLINGS] + [("general", "trilinear", True)]
 
 
 @contextlib.contextmanager
@@ -69,12 +74,13 @@ def _cpu_side(workers: int) -> Iterator[Any]:
         yield client
 
 
-def _frames(volume: Any, cam: Camera, sampling: str, backend: str, client: Any, repeats: int) -> tuple[list[float], Any]:
+def _frames(volume: Any, cam: Camera, sampling: str, backend: str, client: Any, repeats: int,
+            verify: bool = False) -> tuple[list[float], Any]:
     """A first frame, then ``repeats`` timed ones: (their seconds, the last image)."""
     def one() -> Any:
         with dask.config.set(scheduler="sync") if client is None else contextlib.nullcontext():
             return render(volume, cam, "xray", sampling, backend=backend, client=client, progress=False, cache=False,
-                          verify=False)
+                          verify=verify)
     img = one()
     times = []
     for _ in range(max(1, repeats)):
@@ -123,36 +129,41 @@ def packed_step(out: Path, work: Path, backend: str, size: int, image: int, bits
             on_cpu = ev.persist(client=client, backend="cpu")
             on_cpu.resident.wait()
         ok = True
-        for view, (az, el) in VIEWS.items():
+        for view, sampling, verify in CASES:
+            az, el = VIEWS[view]
             cam = Camera.orbit(ev, azimuth=az, elevation=el, width=image, height=image, parallel=True)
-            for sampling in SAMPLINGS:
-                be_s, img = _frames(on_backend, cam, sampling, backend, None, repeats)
-                cpu_s, ref = _frames(on_cpu, cam, sampling, "cpu", client, repeats)
-                st = img.stats
-                row = {"step": "packed", "what": f"packed {view} {sampling}", "backend": backend, "size": size,
-                       "image": image, "bits": bits, "slots": pk.slots, "slot_bits": pk.slot_bits,
-                       "classes": img.plan.classes, "seconds": statistics.median(be_s), "all_s": be_s,
-                       "cpu_seconds": statistics.median(cpu_s), "cpu_all_s": cpu_s, "cpu_workers": workers,
-                       "persist_s": persist_s, "identical": _same(img, ref), "within_bound": False,
-                       "sha256": image_digest(img), "cpu_sha256": image_digest(ref), "ops": st["ops"],
-                       "cpu_ops": ref.stats["ops"], "map_tasks": st["map_tasks"], "finish_tasks": st["finish_tasks"],
-                       "rays": st["rays"], "ciphertexts": st["ciphertexts"]}
-                row.update(_check(img, ref, ev, cam, sampling, vol, priv))
-                row["identical"] = bool(row["identical"] and row.pop("decrypted_equal"))
-                ok = ok and row["identical"] and row["within_bound"]
-                append_row(out, row)
-                log.info("packed %s %s: %s %.3f s, cpu %.3f s, identical %s, within bound %s, ops %s", view, sampling,
-                         backend, row["seconds"], row["cpu_seconds"], row["identical"], row["within_bound"], st["ops"])
+            be_s, img = _frames(on_backend, cam, sampling, backend, None, repeats, verify)
+            cpu_s, ref = _frames(on_cpu, cam, sampling, "cpu", client, repeats, verify)
+            st = img.stats
+            row = {"step": "packed", "what": f"packed {view} {sampling}{' verified' if verify else ''}",
+                   "backend": backend, "size": size, "image": image, "bits": bits, "slots": pk.slots,
+                   "slot_bits": pk.slot_bits, "classes": img.plan.classes, "seconds": statistics.median(be_s),
+                   "all_s": be_s, "cpu_seconds": statistics.median(cpu_s), "cpu_all_s": cpu_s, "cpu_workers": workers,
+                   "persist_s": persist_s, "identical": _same(img, ref), "within_bound": False,
+                   "sha256": image_digest(img), "cpu_sha256": image_digest(ref), "ops": st["ops"],
+                   "cpu_ops": ref.stats["ops"], "map_tasks": st["map_tasks"], "finish_tasks": st["finish_tasks"],
+                   "rays": st["rays"], "ciphertexts": st["ciphertexts"]}
+            if verify:
+                v = img.verification
+                row.update({"verified": False, "verify_ops": getattr(v, "ops", None),
+                            "verify_server_s": getattr(v, "server_s", None)})
+            row.update(_check(img, ref, ev, cam, sampling, vol, priv, verify))
+            row["identical"] = bool(row["identical"] and row.pop("decrypted_equal"))
+            ok = ok and row["identical"] and row["within_bound"] and row.get("verified", True)
+            append_row(out, row)
+            log.info("%s: %s %.3f s, cpu %.3f s, identical %s, within bound %s, ops %s", row["what"], backend,
+                     row["seconds"], row["cpu_seconds"], row["identical"], row["within_bound"], st["ops"])
     return ok
 
 
-def _check(img: Any, ref: Any, ev: Any, cam: Camera, sampling: str, vol: np.ndarray, priv: Any) -> dict:
-    """The key holder's side of one case: the backend's image decrypted (timed), its slot sums and
-    image equal to cpu's, within the bound of the slice reference; an image the key holder's checks
-    refuse (a wrong backend's) is recorded as such, not raised."""
+def _check(img: Any, ref: Any, ev: Any, cam: Camera, sampling: str, vol: np.ndarray, priv: Any,
+           verify: bool = False) -> dict:
+    """The key holder's side of one case: the backend's image decrypted (timed; a verified frame's
+    check included), its slot sums and image equal to cpu's, within the bound of the slice
+    reference; an image the key holder's checks refuse (a wrong backend's) is recorded as such."""
     try:
         t0 = time.perf_counter()
-        arr = img.decrypt(priv)
+        arr = img.decrypt(priv, require_verified=True) if verify else img.decrypt(priv)
         dec_s = time.perf_counter() - t0
         equal = (np.array_equal(img.decrypt_sums(priv), ref.decrypt_sums(priv))
                  and np.array_equal(arr, ref.decrypt(priv)))
@@ -160,7 +171,8 @@ def _check(img: Any, ref: Any, ev: Any, cam: Camera, sampling: str, vol: np.ndar
         within = bool(np.all(np.abs(arr - want) <= error_bound(ev, cam, "xray", sampling)))
     except HevrError as exc:
         return {"decrypted_equal": False, "within_bound": False, "error": f"{type(exc).__name__}: {exc}"}
-    return {"decrypted_equal": bool(equal), "within_bound": within, "decrypt_s": dec_s}
+    return {"decrypted_equal": bool(equal), "within_bound": within, "decrypt_s": dec_s,
+            **({"verified": True} if verify else {})}
 
 
 def table_lines(rows: list[dict]) -> list[str]:
