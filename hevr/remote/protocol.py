@@ -12,6 +12,7 @@ Endpoints (``/v1``; the OpenAPI document at ``/v1/openapi.json``, :mod:`hevr.ser
     GET  /v1/stores                   the stores this token may render: id and public metadata
     GET  /v1/stores/{id}              one store's public metadata (its ``hevr`` attributes)
     POST /v1/stores/{id}/render       RenderRequest          -> application/vnd.hevr.image
+                                                                (a packed store: application/vnd.hevr.units)
     POST /v1/stores/{id}/stream       RenderRequest          -> application/vnd.hevr.units
     POST /v1/stores/{id}/verify       VerifyRequest          -> {"aggregate": "<decimal>"}
 
@@ -20,7 +21,10 @@ finished on the client (:mod:`hevr.colour`), so the colouring never leaves the k
 
 The units stream: one frame per finishing unit as it completes, ``index`` (u32, little-endian),
 ``length`` (u32) and ``length`` bytes of ciphertext records; then an end frame, index
-``0xFFFFFFFF``, whose body is a JSON object: ``{"ok": true}`` or a problem document.
+``0xFFFFFFFF``, whose body is a JSON object: ``{"ok": true}`` or a problem document. A packed
+store's frame (:mod:`hevr.rendering.packed`) comes back in the same framing from ``render``: one
+frame per reduce tile of its plan, in tile order, each the tile's combined values as ciphertext
+records; the key holder, who plans the frame itself, knows how many records every tile must hold.
 
 >>> r = RenderRequest.from_dict({"view": {"position": [0, 0, 40], "focal_point": [0, 0, 0], "width": 8,
 ...                                       "height": 8}, "channel": "scalar"})
@@ -29,7 +33,7 @@ The units stream: one frame per finishing unit as it completes, ``index`` (u32, 
 >>> RenderRequest.from_dict(dict(r.to_dict(), colour="red"))
 Traceback (most recent call last):
 ...
-hevr.errors.ParameterError: request: expected only the fields ['backend', 'channel', 'digits', 'level', 'pack', 'sampling', 'step', 'tile', 'view'], got extra fields ['colour']
+hevr.errors.ParameterError: request: expected only the fields ['backend', 'channel', 'digits', 'level', 'pack', 'sampling', 'step', 'tile', 'view', 'weight_bits'], got extra fields ['colour']
 """
 
 from __future__ import annotations
@@ -46,10 +50,11 @@ from ..errors import HevrError, ParameterError
 from ..image.header import _no_duplicates, _small_int
 from ..rendering.geometry.camera import Camera
 from ..rendering.geometry.plane import Plane, view_from_dict
+from ..store.packing import MAX_WEIGHT_BITS
 from ..volume.pyramid import MAX_LEVELS
 
 __all__ = ["API_VERSION", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_SIDE", "PROBLEM_MEDIA", "UNITS_MEDIA",
-           "RenderRequest", "VerifyRequest", "image_limit", "pack_frame", "parse_json", "unpack_head"]
+           "RenderRequest", "VerifyRequest", "image_limit", "pack_frame", "packed_limit", "parse_json", "unpack_head"]
 
 API_VERSION = 1
 PREFIX = "/v1"
@@ -166,6 +171,8 @@ class RenderRequest:
     tile : int
     backend : str, optional
         The server's arithmetic backend (None: the server's default).
+    weight_bits : int, optional
+        A packed store's in-slice weight bits (None: the store's; per-voxel stores take None).
     """
 
     view: Camera | Plane
@@ -177,8 +184,9 @@ class RenderRequest:
     pack: bool = True
     tile: int = 32
     backend: str | None = None
+    weight_bits: int | None = None
 
-    FIELDS = ("view", "channel", "sampling", "step", "level", "digits", "pack", "tile", "backend")
+    FIELDS = ("view", "channel", "sampling", "step", "level", "digits", "pack", "tile", "backend", "weight_bits")
 
     def __post_init__(self) -> None:
         if not isinstance(self.view, (Camera, Plane)):
@@ -198,18 +206,21 @@ class RenderRequest:
             raise ParameterError(f"pack: expected true or false, got {str(self.pack)[:40]!r}")
         if self.backend is not None:
             check_choice("backend", self.backend, BACKENDS)
+        if self.weight_bits is not None:
+            check_int("weight_bits", self.weight_bits, 0, MAX_WEIGHT_BITS)
 
     def to_dict(self) -> dict[str, Any]:
         return {"view": self.view.to_dict(), "channel": self.channel, "sampling": self.sampling, "step": self.step,
                 "level": self.level, "digits": self.digits, "pack": self.pack, "tile": self.tile,
-                "backend": self.backend}
+                "backend": self.backend, "weight_bits": self.weight_bits}
 
     @classmethod
     def from_dict(cls, d: Any, name: str = "request") -> RenderRequest:
         d = _fields(d, name, set(cls.FIELDS), {"view", "channel"})
         return cls(view=_view(d["view"]), channel=d["channel"], sampling=d.get("sampling", "nearest"),
                    step=d.get("step", 1.0), level=d.get("level", 0), digits=d.get("digits", 3),
-                   pack=d.get("pack", True), tile=d.get("tile", 32), backend=d.get("backend"))
+                   pack=d.get("pack", True), tile=d.get("tile", 32), backend=d.get("backend"),
+                   weight_bits=d.get("weight_bits"))
 
     def key(self) -> str:
         """SHA-256 of the canonical JSON: equal across processes."""
@@ -266,6 +277,16 @@ def image_limit(height: int, width: int, components: int, record_width: int) -> 
     """
     pixels = int(height) * int(width)
     return pixels * int(components) * int(record_width) + pixels * 4 + pixels // 4 + HEADER_ROOM
+
+
+def packed_limit(counts: list[int], record_width: int) -> int:
+    """The bytes of a packed frame's answer: every tile's ``counts`` records as one frame, then the
+    end frame (its JSON status and statistics, at most :data:`MAX_BODY`).
+
+    >>> packed_limit([2, 3], 10) == 2 * 8 + 50 + 8 + MAX_BODY
+    True
+    """
+    return sum(FRAME.size + int(c) * int(record_width) for c in counts) + FRAME.size + MAX_BODY
 
 
 def pack_frame(index: int, body: bytes) -> bytes:

@@ -22,6 +22,7 @@ from ..errors import CorruptStoreError, ParameterError, RemoteError
 from ..store.metadata import VolumeMetadata
 from ..store.reader import EncryptedVolume
 from ..volume.pyramid import check_level
+from .packed import render_remote_packed
 from .render import render_remote
 
 __all__ = ["RemoteVolume", "parse_description"]
@@ -91,6 +92,10 @@ class RemoteVolume(EncryptedVolume):
         """:func:`hevr.render`'s work on this volume (:func:`hevr.remote.render.render_remote`):
         the rendering layer hands a checked request here rather than importing the client."""
         return render_remote(self, view, spec, **kwargs)
+
+    def render_packed_request(self, camera: Any, sampling: str, **kwargs: Any) -> Any:
+        """A packed store's frame on the server (:func:`hevr.remote.packed.render_remote_packed`)."""
+        return render_remote_packed(self, camera, sampling, **kwargs)
 
     def _plain(self) -> RemoteVolume:
         return self

@@ -32,6 +32,7 @@ from contextlib import contextmanager
 from typing import Any
 
 import anyio
+import numpy as np
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response, StreamingResponse
@@ -58,6 +59,7 @@ from ..remote.protocol import (
     pack_frame,
     parse_json,
 )
+from ..rendering.packed import PackedImage
 from .jobs import render_image, stats_header, verify_aggregate
 from .openapi import openapi_document
 from .tokens import TokenTable
@@ -219,17 +221,25 @@ def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = 
         ev = svc.store(request, token)
         req = RenderRequest.from_dict(parse_json(await _body(request), "body"))
 
-        def run() -> tuple[bytes, str]:
+        def run() -> tuple[bytes, str, str]:
             with svc.limits.slot(name, per_token):
                 img = render_image(ev, req, client=svc.client, backend=svc.backend)
-                return img.to_bytes(), stats_header(img.stats)
+                if isinstance(img, PackedImage):  # its tiles as frames, in tile order, then the end frame
+                    end = json.dumps({"ok": True, "stats": stats_header(img.stats)}).encode()
+                    blob = b"".join(pack_frame(t, np.ascontiguousarray(c).tobytes())
+                                    for t, c in enumerate(img.ciphertexts)) + pack_frame(END, end)
+                    return blob, stats_header(img.stats), UNITS_MEDIA
+                return img.to_bytes(), stats_header(img.stats), IMAGE_MEDIA
 
-        blob, stats = await anyio.to_thread.run_sync(run)
-        return Response(blob, media_type=IMAGE_MEDIA, headers={"X-Hevr-Stats": stats})
+        blob, stats, media = await anyio.to_thread.run_sync(run)
+        return Response(blob, media_type=media, headers={"X-Hevr-Stats": stats})
 
     async def stream(request: Request, token: Any, per_token: int, name: str) -> Response:
         ev = svc.store(request, token)
         req = RenderRequest.from_dict(parse_json(await _body(request), "body"))
+        if ev.meta.packing is not None:
+            raise Problem(400, "bad request", f"stream: expected a per-voxel store, got the packed store "
+                                              f"{ev.meta.store_id} (its frame comes whole from /render)")
         loop = asyncio.get_running_loop()
         queue: asyncio.Queue = asyncio.Queue()
         slot = svc.limits.slot(name, per_token)

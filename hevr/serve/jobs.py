@@ -3,8 +3,10 @@ server's Dask cluster, for a checked :class:`~hevr.remote.protocol.RenderRequest
 
 A request names a channel, not a mode (the colouring stays with the key holder), so a frame is
 always finished on the client: ``scalar`` is the X-ray's sums, ``vector`` and ``gradient`` the
-encoded density components that emphasis and transfer functions colour on the client. The
-server never holds a private key; these functions take none.
+encoded density components that emphasis and transfer functions colour on the client. A packed
+store's frame (:mod:`hevr.rendering.packed`) is planned from the same request by the same
+:meth:`~hevr.rendering.packed.plan.SlicePlan.of_store` the key holder calls. The server never
+holds a private key; these functions take none.
 """
 
 from __future__ import annotations
@@ -23,6 +25,10 @@ from ..rendering.geometry.plane import Plane
 from ..rendering.geometry.rays import cast_rays
 from ..rendering.planning.planner import check_render_size
 from ..rendering.planning.request import at_level, check_request, level_step
+from ..rendering.packed import PackedImage
+from ..rendering.packed.plan import SlicePlan
+from ..rendering.packed.request import render_packed_request
+from ..rendering.packed.verified import aggregate_for as packed_aggregate_for
 from ..rendering.verify import aggregate_for
 
 __all__ = ["render_image", "stats_header", "verify_aggregate"]
@@ -44,10 +50,31 @@ def _step(req: RenderRequest) -> float:
     return req.step
 
 
+def _packed_view(ev: Any, req: RenderRequest) -> Camera:
+    """The camera of a request on a packed store (which serves the scalar channel's X-rays only)."""
+    if req.channel != "scalar":
+        raise ParameterError(f"channel: expected 'scalar' on the packed store {ev.meta.store_id}, got {req.channel!r}")
+    if not isinstance(req.view, Camera):
+        raise ParameterError(f"view: expected a camera on the packed store {ev.meta.store_id} (its slices are not "
+                             "served), got a plane")
+    return req.view
+
+
 def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | None = None,
-                 stream: Any = None) -> EncryptedImage:
+                 stream: Any = None) -> EncryptedImage | PackedImage:
     """The client-finished image of ``req`` on the store ``ev`` (``stream``: handed every
-    finishing unit as it completes, :class:`hevr.rendering.pipeline.stream.StreamDecryptor`'s interface)."""
+    finishing unit as it completes, :class:`hevr.rendering.pipeline.stream.StreamDecryptor`'s interface);
+    a packed store's unverified :class:`~hevr.rendering.packed.PackedImage` (its tiles are the answer)."""
+    if ev.meta.packing is not None:
+        if stream is not None:
+            raise ParameterError(f"stream: expected a per-voxel store, got the packed store {ev.meta.store_id} "
+                                 "(its frame comes whole from /render)")
+        return render_packed_request(ev, _packed_view(ev, req), "xray", req.sampling, req.step, None, None,
+                                     tile=req.tile, client=client, progress=False, backend=req.backend or backend,
+                                     compute=True, keep_sums=None, level=req.level or None, gradient=False,
+                                     finish="client", verify=False, weight_bits=req.weight_bits)
+    if req.weight_bits is not None:
+        raise ParameterError(f"weight_bits: expected null for a per-voxel store, got {req.weight_bits}")
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)
     return _render(ev, req.view, mode, req.sampling, _step(req), density, None, digits=req.digits, precision=4,
@@ -60,6 +87,13 @@ def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | Non
 def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, backend: str | None = None) -> int:
     """The tag aggregate of ``req``'s render for the key holder's ``seed``
     (:func:`hevr.rendering.verify.aggregate_for`; the store must have tags)."""
+    if ev.meta.packing is not None:
+        view = _packed_view(ev, req)
+        if req.step != 1.0 or req.level:
+            raise ParameterError("step/level: expected 1.0 and 0 on a packed store")
+        plan = SlicePlan.of_store(ev.meta, view, req.sampling, req.tile, req.weight_bits)
+        name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
+        return packed_aggregate_for(ev, plan, name, client, False, seed)[0]
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)
     spec, digits, _, _ = check_request(ev, req.view, mode, req.sampling, _step(req), density, None, req.digits, 4, 4,

@@ -19,6 +19,7 @@ from ..remote.protocol import (
     SAMPLINGS,
     UNITS_MEDIA,
 )
+from ..store.packing import MAX_WEIGHT_BITS
 
 __all__ = ["openapi_document"]
 
@@ -48,6 +49,8 @@ _RENDER = {
         "pack": {"type": "boolean", "default": True},
         "tile": {"type": "integer", "minimum": 1, "maximum": MAX_SIDE, "default": 32},
         "backend": {"enum": [None, *BACKENDS], "default": None},
+        "weight_bits": {"type": ["integer", "null"], "minimum": 0, "maximum": MAX_WEIGHT_BITS, "default": None,
+                        "description": "a packed store's in-slice weight bits (null: the store's)"},
     },
 }
 _VERIFY = {
@@ -74,13 +77,14 @@ def _errors(*codes: int) -> dict:
             for c in codes}
 
 
-def _post(summary: str, schema: str, media: str, answer: dict) -> dict:
+def _post(summary: str, schema: str, media: str, answer: dict, also: str | None = None) -> dict:
+    content = {media: answer, **({also: answer} if also else {})}
     return {"post": {
         "summary": summary, "parameters": [{"name": "store_id", "in": "path", "required": True,
                                             "schema": {"type": "string"}}],
         "requestBody": {"required": True, "content": {"application/json": {
             "schema": {"$ref": f"#/components/schemas/{schema}"}}}},
-        "responses": {"200": {"description": "the answer", "content": {media: answer}},
+        "responses": {"200": {"description": "the answer", "content": content},
                       **_errors(400, 401, 404, 413, 415, 422, 429, 500, 503)}}}
 
 
@@ -111,8 +115,10 @@ def openapi_document() -> dict[str, Any]:
                 "parameters": [{"name": "store_id", "in": "path", "required": True, "schema": {"type": "string"}}],
                 "responses": {"200": {"description": "the store", "content": {"application/json": {
                     "schema": {"$ref": "#/components/schemas/Store"}}}}, **_errors(401, 404)}}},
-            "/v1/stores/{store_id}/render": _post("render a view or slice: a client-finished .hevr image",
-                                                  "RenderRequest", IMAGE_MEDIA, binary),
+            "/v1/stores/{store_id}/render": _post(
+                "render a view or slice: a client-finished .hevr image; of a packed store, its tiles' combined values "
+                "as frames of index (u32 LE), length (u32 LE) and ciphertext records, in tile order, then an end frame "
+                "of index 0xFFFFFFFF holding a JSON status", "RenderRequest", IMAGE_MEDIA, binary, UNITS_MEDIA),
             "/v1/stores/{store_id}/stream": _post(
                 "the same render as finishing units as they complete: frames of index (u32 LE), length (u32 LE) and "
                 "ciphertext records; an end frame of index 0xFFFFFFFF holds a JSON status", "RenderRequest",

@@ -35,9 +35,6 @@ def open_stores(paths: Sequence[str], storage_options: dict | None = None) -> di
     for path in paths:
         ev = open_volume(path, storage_options=storage_options)
         sid = ev.meta.store_id
-        if ev.meta.packing is not None:
-            raise ParameterError(f"STORE: expected per-voxel stores, got the packed store {sid} ({ev.path}): hevr serve "
-                                 "does not serve packed stores yet; render it in process (hevr.render)")
         if sid in stores:
             raise ParameterError(f"STORE: expected distinct stores, got the store {sid} twice ({stores[sid].path} and "
                                  f"{ev.path})")

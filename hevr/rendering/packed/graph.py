@@ -176,9 +176,8 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
     backend = resolve_backend_name(backend, bits, resident=res, client=cl)
     t0 = time.perf_counter()
     meta = ev.meta
-    plan = SlicePlan.build(camera, meta.shape, meta.spacing, meta.brick, meta.packing, sampling, tile, weight_bits)
+    plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)  # its slots checked before any work
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
-    plan.check_slots(hi - lo)  # before any work: no sum may carry into the next slot
     if plan.n_tiles == 0:  # public geometry: say so rather than hand back a black frame
         log.warning("render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
                     "volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height)
@@ -209,4 +208,4 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
     log.info("render packed/%s %dx%d: %s", sampling, camera.width, camera.height, stats)
     return PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
                        offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles_out, store_id=meta.store_id,
-                       stats=stats)
+                       stats=stats, meta=ev.base if getattr(ev, "level", 0) else meta, level=int(getattr(ev, "level", 0)))

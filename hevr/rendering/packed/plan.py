@@ -48,7 +48,7 @@ import numpy as np
 
 from ..._validate import check_choice, check_int
 from ...errors import RenderPlanError
-from ...store.packing import MAX_WEIGHT_BITS, PackingInfo
+from ...store.packing import MAX_WEIGHT_BITS, PackingInfo, mantissa_range
 from .shear import ShearGeometry
 
 __all__ = ["SlicePlan"]
@@ -108,6 +108,17 @@ class SlicePlan:
         blocks = (0, 0) if i_hi <= i_lo else ((i_lo + m_lo) // S, (i_hi - 1 + O + m_lo) // S + 1)
         return cls(geo, packing, sampling, wb, tuple(int(b) for b in brick), tile, a_steps, a_frac, m_lo, O + 1,
                    blocks)
+
+    @classmethod
+    def of_store(cls, meta: Any, camera: Any, sampling: str, tile: int = 32,
+                 weight_bits: int | None = None) -> "SlicePlan":
+        """The frame plan of ``camera`` on the packed store of metadata ``meta``, its slots checked
+        (:meth:`check_slots`): the one plan the in-process render, ``hevr serve`` and the remote key
+        holder each build from the same public request."""
+        plan = cls.build(camera, meta.shape, meta.spacing, meta.brick, meta.packing, sampling, tile, weight_bits)
+        lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
+        plan.check_slots(hi - lo)  # before any work: no sum may carry into the next slot
+        return plan
 
     def __getstate__(self) -> dict:  # the b side is recomputed where it is used, not pickled
         return {k: v for k, v in self.__dict__.items() if k != "_b"}

@@ -56,7 +56,10 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
     if weight_bits is not None:
         weight_bits = check_int("weight_bits", weight_bits, 0, 16)
     check_render_size(camera, ev.shape, ev.spacing, 1.0)  # the size limits, before anything per pixel
-    verified = resolve_verify(verify, ev, "client", level=0, compute=True, stream=False)
+    verified = resolve_verify(verify, ev, "client", level=ev.level, compute=True, stream=False)
+    if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the request goes there (remote/packed.py)
+        return ev.render_packed_request(camera, sampling, tile=tile, weight_bits=weight_bits, backend=backend,
+                                        client=client, verify=verified)
     image = render_packed(ev, camera, sampling, tile=tile, client=client, progress=progress, backend=backend,
                           weight_bits=weight_bits)
     if verified:  # the second round: the values are fixed in this process before the seed is drawn

@@ -56,7 +56,7 @@ from .plan import SlicePlan
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PackedVerification", "aggregate_tile", "class_beta_total", "tag_aggregate"]
+__all__ = ["PackedVerification", "aggregate_for", "aggregate_tile", "class_beta_total", "tag_aggregate"]
 
 WORKERS = max(1, min(os.cpu_count() or 1, 8))  # the key holder's threads for the check
 
@@ -80,17 +80,17 @@ def aggregate_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, se
     return out, {"verify_merge": merged_ops, "verify_values": int(len(uniq))}
 
 
-def tag_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool) -> "PackedVerification":
-    """The second round of a verified frame, after its values are in the key holder's hands: a
-    fresh seed drawn here, the tag channel's map tasks with the frame's plan and one aggregation
-    task per tile; the :class:`PackedVerification` to keep with the image."""
-    seed = secrets.token_bytes(32)
-    t0 = time.perf_counter()
+def aggregate_for(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool,
+                  seed: bytes) -> tuple[int, dict]:
+    """The server's half of the round for the coefficients of ``seed``: A = Π_t A_t mod n² over the
+    tag channel's map with the frame's plan (``hevr serve`` runs it for the seed the key holder sent
+    after it held the values), and the operations spent."""
     meta = ev.meta
+    if not meta.tags:
+        raise ParameterError(f"verify: expected a verifiable store, got the packed store {meta.store_id} without tags")
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
-    plain = ev._plain()
-    per_tile, maps = map_graph(plain, plan, backend, None, tag_channel("scalar"), tag)  # tags: always streamed
+    per_tile, maps = map_graph(ev._plain(), plan, backend, None, tag_channel("scalar"), tag)  # tags: streamed
     tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan, t, n, width, backend, seed, *per_tile[t],
                                                         dask_key_name=f"hevr-packed-verify-{tag}-{t}")
              for t in range(plan.n_tiles) if per_tile[t]]
@@ -104,7 +104,17 @@ def tag_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress:
     for _, r in results[:len(tasks)]:
         for k, v in r.items():
             ops[k] = ops.get(k, 0) + v
-    return PackedVerification(aggregate=int(A), seed=seed, meta=meta, level=0, ops=ops,
+    return int(A), ops
+
+
+def tag_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool) -> "PackedVerification":
+    """The second round of a verified frame, after its values are in the key holder's hands: a
+    fresh seed drawn here, then :func:`aggregate_for`; the :class:`PackedVerification` to keep."""
+    seed = secrets.token_bytes(32)
+    t0 = time.perf_counter()
+    A, ops = aggregate_for(ev, plan, backend, client, progress, seed)
+    level = int(getattr(ev, "level", 0) or 0)
+    return PackedVerification(aggregate=A, seed=seed, meta=ev.base if level else ev.meta, level=level, ops=ops,
                               server_s=time.perf_counter() - t0, drawn_here=True)
 
 
@@ -163,8 +173,8 @@ class PackedVerification:
 
     aggregate: int
     seed: bytes
-    meta: Any  # the store's VolumeMetadata (its owner's MAC is checked)
-    level: int = 0
+    meta: Any  # the store's (level 0's) VolumeMetadata: its owner's MAC is checked
+    level: int = 0  # the pyramid level the frame was rendered at (its own packing: meta.level_meta(level))
     ops: Any = None
     server_s: float = 0.0
     drawn_here: bool = False
@@ -176,6 +186,11 @@ class PackedVerification:
     def store_id(self) -> str:
         return self.meta.store_id
 
+    @property
+    def level_meta(self) -> Any:
+        """The metadata of the frame's level (level 0's own at level 0)."""
+        return self.meta.level_meta(self.level) if self.level else self.meta
+
     def check_metadata(self, private_key: Any, plan: SlicePlan, fingerprint: str) -> None:
         """Raise :class:`hevr.VerificationError` unless the metadata carries the owner's MAC and the
         frame's plan is the one its shape, spacing, brick and packing give."""
@@ -185,9 +200,9 @@ class PackedVerification:
                 "store metadata: expected the owner's MAC over the shape, spacing, brick, layout, value range and store "
                 f"id, got {'none' if m is None or not m.auth else 'a MAC that does not match'}: the store's public "
                 "metadata was altered (or is not this key's); no image is returned")
-        g = plan.geometry
-        same = (tuple(g.shape) == tuple(m.shape) and tuple(float(s) for s in g.spacing) == tuple(m.spacing)
-                and tuple(plan.brick) == tuple(m.brick) and plan.packing == m.packing and m.tags
+        g, lm = plan.geometry, self.level_meta
+        same = (tuple(g.shape) == tuple(lm.shape) and tuple(float(s) for s in g.spacing) == tuple(lm.spacing)
+                and tuple(plan.brick) == tuple(lm.brick) and plan.packing == lm.packing and m.tags
                 and fingerprint == m.fingerprint and int(private_key.public_key.n) == int(m.n))
         if not same:
             raise VerificationError("image: its shape, spacing, brick, packing or key are not those of the store's "
@@ -196,7 +211,8 @@ class PackedVerification:
     def beta_sum(self, private_key: Any, plan: SlicePlan) -> int:
         """Σ_c 2^(K·c) Σ_A β_A·Σ ρ·w over every product of the frame's plan, mod n (module docstring)."""
         key = tag_key_of(private_key)
-        m = self.meta
+        m = self.level_meta
+        sid = self.meta.store_id
         info = m.packing
         ashape = info.array_shape(m.shape)
         K, C = info.slot_bits, plan.classes
@@ -218,7 +234,7 @@ class PackedVerification:
             span = np.zeros(int(packs.max()) - lo + 1, bool)
             span[packs - lo] = True
             where = np.cumsum(span) - 1
-            beta = betas(key, m.store_id, "scalar", self.level, 0, np.flatnonzero(span) + lo, cache)
+            beta = betas(key, sid, "scalar", self.level, 0, np.flatnonzero(span) + lo, cache)
             return class_beta_total(beta, where[packs - lo], keys % C, coefficients_at(self.seed, keys // C), w, K)
 
         bricks = list(np.ndindex(*grid))
@@ -226,7 +242,7 @@ class PackedVerification:
         chunks = [bricks[i * len(bricks) // runs:(i + 1) * len(bricks) // runs] for i in range(runs)]
         with ThreadPoolExecutor(max_workers=WORKERS) as pool:  # numpy's sorts and products release the GIL
             total = sum(pool.map(part, chunks))
-        return total % int(m.n)
+        return total % int(self.meta.n)
 
     def check(self, private_key: Any, plan: SlicePlan, values: list[list[int]], fingerprint: str) -> None:
         """Raise :class:`hevr.VerificationError` unless D(A) = α·Σρ·V' + Σρ·β (mod n) for the

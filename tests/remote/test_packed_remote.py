@@ -1,0 +1,134 @@
+"""Packed stores on a real ``hevr serve``: the remote frame is the in-process one byte for byte,
+verified by default with a seed drawn after the values arrived, and a server's lie (a changed,
+missing or extra tile, a wrong aggregate) ends in an error, never a picture."""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+
+import numpy as np
+import pytest
+
+import hevr
+from hevr.remote import connect
+from hevr.remote.protocol import END
+
+
+@pytest.fixture(scope="module")
+def packed_served(tmp_path_factory, keypair256):
+    from _serving import hevr_serve
+
+    pub, priv = keypair256
+    d = tmp_path_factory.mktemp("packed-served")
+    vol = np.random.default_rng(3).integers(0, 256, (13, 9, 11)).astype(np.uint8)
+    ev = hevr.encrypt_volume(vol, str(d / "p.zarr"), priv, brick=4, spacing=(1.0, 0.8, 1.3), layout="packed",
+                             progress=False)
+    assert ev.meta.tags
+    with hevr_serve(str(d / "p.zarr"), "--workers", "1") as (url, proc, lines):
+        yield types.SimpleNamespace(url=url, ev=ev, priv=priv, vol=vol, lines=lines)
+
+
+@pytest.fixture(scope="module")
+def rv(packed_served):
+    server = connect(packed_served.url, timeout=120)
+    yield server.open(packed_served.ev.meta.store_id)
+    server.close()
+
+
+def _cam(ev, az=60, el=10):
+    return hevr.Camera.orbit(ev, azimuth=az, elevation=el, width=14, height=11, parallel=True)
+
+
+@pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
+def test_remote_frame_is_the_in_process_frame(packed_served, rv, sampling, monkeypatch):
+    from _serving import refuse_unpickling
+
+    s = packed_served
+    assert rv.packing == s.ev.packing and rv.meta == s.ev.meta
+    attempts = refuse_unpickling(monkeypatch)
+    remote = hevr.render(rv, _cam(rv), sampling=sampling, verify=False, tile=4, progress=False)
+    monkeypatch.undo()
+    assert not attempts and remote.stats["remote"] == s.url and not remote.verified
+    local = hevr.render(s.ev, _cam(s.ev), sampling=sampling, verify=False, tile=4, progress=False)
+    assert len(remote.ciphertexts) == len(local.ciphertexts) > 1
+    assert all(np.array_equal(a, b) for a, b in zip(remote.ciphertexts, local.ciphertexts))
+    arr = remote.decrypt(s.priv)
+    np.testing.assert_array_equal(arr, local.decrypt(s.priv))
+    ref = hevr.render_plain(s.vol, _cam(s.ev), sampling=sampling, spacing=(1.0, 0.8, 1.3), slices=True)
+    assert (np.abs(arr - ref) <= hevr.error_bound(s.ev, _cam(s.ev), sampling=sampling)).all()
+
+
+def test_verified_by_default(packed_served, rv):
+    s = packed_served
+    img = hevr.render(rv, _cam(rv, 120, -25), sampling="trilinear", progress=False)
+    assert img.verified and img.verification.drawn_here and img.verification.store_id == s.ev.meta.store_id
+    local = hevr.render(s.ev, _cam(s.ev, 120, -25), sampling="trilinear", verify=False, progress=False)
+    np.testing.assert_array_equal(img.decrypt(s.priv, require_verified=s.ev.meta.store_id), local.decrypt(s.priv))
+    with pytest.raises(hevr.VerificationError, match="another store"):
+        hevr.render(rv, _cam(rv), progress=False, verify="0123456789abcdef")
+
+
+def test_a_lying_server_is_caught(packed_served, rv, monkeypatch):
+    """What the server sends is checked against the key holder's own plan, and its values against
+    the tags: a changed tile, a missing or extra one, a tile of another view, a wrong aggregate."""
+    s = packed_served
+    honest_frames = rv.server.frames
+    cam = _cam(rv, 250, 30)
+
+    def lying(change):
+        def frames(path, body, limit):
+            got = list(honest_frames(path, body, limit))
+            yield from change(got)
+        return frames
+
+    def swap_values(got):  # two different records of a tile swapped: well-formed ciphertexts
+        w = s.ev.meta.ciphertext_bytes
+        out = [list(x) for x in got]
+        for item in out[:-1]:
+            recs = np.frombuffer(item[1], np.uint8).reshape(-1, w).copy()
+            distinct = np.unique(recs, axis=0, return_index=True)[1]
+            if len(distinct) > 1:
+                i, j = sorted(distinct[:2])
+                recs[[i, j]] = recs[[j, i]]
+                item[1] = recs.tobytes()
+                return [tuple(x) for x in out]
+        raise AssertionError("no tile with two different values")
+
+    other = list(honest_frames(f"/v1/stores/{rv.store_id}/render",
+                               dict(hevr.remote.protocol.RenderRequest(view=_cam(rv, 250, 31), channel="scalar",
+                                                                       sampling="trilinear", tile=4).to_dict()),
+                         1 << 24))
+    for change, error in ((swap_values, (hevr.VerificationError, hevr.IntegrityError)),
+                          (lambda got: got[:1] + got[2:], hevr.RemoteError),  # a tile missing
+                          (lambda got: got[:1] + got[:1] + got[1:], hevr.RemoteError),  # a tile twice
+                          (lambda got: [(i, d + b"\0") if i == 0 else (i, d) for i, d in got], hevr.RemoteError),
+                          (lambda got: other, (hevr.RemoteError, hevr.VerificationError, hevr.IntegrityError))):
+        monkeypatch.setattr(rv.server, "frames", lying(change))
+        with pytest.raises(error):
+            hevr.render(rv, cam, sampling="trilinear", tile=4, progress=False).decrypt(s.priv)
+    monkeypatch.setattr(rv.server, "frames", honest_frames)
+    img = hevr.render(rv, cam, sampling="trilinear", tile=4, progress=False)
+    assert img.plan.n_tiles > 2
+    bad = dataclasses.replace(img.verification, aggregate=img.verification.aggregate * 2 % int(rv.meta.n) ** 2)
+    with pytest.raises(hevr.VerificationError, match="does not verify"):
+        dataclasses.replace(img, verification=bad).decrypt(s.priv)
+    img.decrypt(s.priv, require_verified=True)  # the honest answer still verifies
+    assert END == 0xFFFFFFFF
+
+
+def test_what_a_packed_store_does_not_serve(packed_served, rv):
+    import httpx
+
+    s = packed_served
+    body = {"view": _cam(rv).to_dict(), "channel": "scalar"}
+    with httpx.Client(base_url=s.url, timeout=60) as http:
+        r = http.post(f"/v1/stores/{rv.store_id}/stream", json=body)
+        assert r.status_code == 400 and "packed store" in r.json()["detail"]
+        r = http.post(f"/v1/stores/{rv.store_id}/render", json={**body, "channel": "vector"})
+        assert r.status_code == 400 and "channel: expected 'scalar'" in r.json()["detail"]
+        r = http.post(f"/v1/stores/{rv.store_id}/render", json={**body, "view": hevr.Camera.orbit(
+            rv, azimuth=60, width=8, height=8).to_dict()})  # a perspective camera
+        assert r.status_code == 400 and "parallel" in r.json()["detail"]
+    with pytest.raises(hevr.ParameterError, match="client: expected None"):
+        hevr.render(rv, _cam(rv), progress=False, client=object())
