@@ -18,6 +18,7 @@ is linear and exact up to the fixed-point error bound.
 
 from __future__ import annotations
 
+import logging
 import os
 from typing import Any
 
@@ -28,8 +29,11 @@ from ..image.encrypted import EncryptedImage
 from ..store.reader import EncryptedVolume
 from .encrypted import _render
 from .geometry.plane import Plane
+from .packed.plane_image import PackedSlice, render_packed_slice
 
 __all__ = ["DEFAULT_PRECISION", "render_slice"]
+
+log = logging.getLogger(__name__)
 
 # Decimal digits of the normalisation when a slice needs one (a slab, or K > 1 transfer-function nodes).
 DEFAULT_PRECISION = 4
@@ -58,7 +62,7 @@ def render_slice(
     overwrite: bool = False,
     finish: str = "client",
     verify: bool | str | None = None,
-) -> EncryptedImage | Delayed:
+) -> EncryptedImage | PackedSlice | Delayed:
     """Render a slice of an encrypted volume to an :class:`EncryptedImage` (no key needed).
 
     Parameters
@@ -89,10 +93,14 @@ def render_slice(
 
     Returns
     -------
-    EncryptedImage or dask.delayed.Delayed
+    EncryptedImage, PackedSlice or dask.delayed.Delayed
         Shape (height, width) (``tf``: (height, width, 3)); ``hits`` marks the pixels with a
         value. :func:`hevr.error_bound` with the plane bounds its error against
-        :func:`hevr.render_slice_plain`.
+        :func:`hevr.render_slice_plain`. A packed store (``layout="packed"``) gives a
+        :class:`~hevr.rendering.packed.plane_image.PackedSlice` (:mod:`hevr.rendering.packed.planes`):
+        planes perpendicular to its packing axis or containing its direction, ``mode="xray"``,
+        nearest or trilinear, any slab; the per-voxel options (digits, precision, comb_digits,
+        pack, tile, cache, overwrite) do not apply there, and the slice is not verified yet.
 
     Raises
     ------
@@ -109,9 +117,40 @@ def render_slice(
     if not isinstance(plane, Plane):
         raise ParameterError(f"plane: expected a hevr.Plane (Plane.axial, Plane.oblique, ...), got "
                              f"{type(plane).__name__}")
+    if getattr(ev, "packing", None) is not None:  # a packed store: its own plan (hevr.rendering.packed.planes)
+        return _packed_slice(ev, plane, mode, sampling, density, nodes, client=client, progress=progress,
+                             backend=backend, compute=compute, keep_sums=keep_sums, gradient=gradient, finish=finish,
+                             verify=verify)
     if precision is None:
         precision = 0 if plane.slab == 1 and mode in ("xray", "emphasize") else DEFAULT_PRECISION
     return _render(ev, plane, mode, sampling, plane.slab_step, density, nodes, digits=digits, precision=precision,
                    comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
                    backend=backend, compute=compute, keep_sums=keep_sums, views=(Plane,),
                    gradient=gradient, overwrite=overwrite, finish=finish, verify=verify)
+
+
+def _packed_slice(ev: EncryptedVolume, plane: Plane, mode: str, sampling: str, density: Any, nodes: Any, *,
+                  client: Any, progress: bool, backend: str | None, compute: Any, keep_sums: Any, gradient: Any,
+                  finish: Any, verify: Any) -> PackedSlice:
+    """A packed store's slice: what it serves is checked before any work, then rendered."""
+    other = "a per-voxel store (encrypt_volume(..., layout='voxel')) serves it"
+    if mode != "xray":
+        raise ParameterError(f"mode: expected 'xray' on a packed store (it holds the scalar channel only), got "
+                             f"{mode!r}; {other}")
+    if density is not None or nodes is not None or gradient:
+        raise ParameterError("density/nodes/gradient: expected None, None and False for a slice of a packed store, "
+                             f"got a colouring; {other}")
+    if finish != "client":
+        raise ParameterError(f"finish: expected 'client' on a packed store (the key holder finishes the pixels), "
+                             f"got {finish!r}")
+    if keep_sums is not None or compute is not True:
+        raise ParameterError(f"keep_sums/compute: expected None and True on a packed store, got {keep_sums!r} and "
+                             f"{compute!r}")
+    if verify is True or isinstance(verify, str):
+        raise ParameterError(f"verify: expected None or False for a slice of a packed store (its slices are not "
+                             f"verified yet; its X-ray frames are), got {verify!r}")
+    if verify is None:  # as every unverified render: said, unless verify=False silences it
+        log.warning("render_slice: not verified: slices of a packed store carry no check against its tags yet (its "
+                    "X-ray frames do), store %s (a lying server is not caught; verify=False silences this)",
+                    ev.meta.store_id)
+    return render_packed_slice(ev, plane, sampling, client=client, progress=progress, backend=backend)

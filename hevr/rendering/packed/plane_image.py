@@ -1,0 +1,268 @@
+"""A packed store's slice: the Dask graph (map per column of bricks, merge per tile) and
+:class:`PackedSlice`, the key holder's checks, decoding and finishing.
+
+* **map** (one task per column of bricks along the packing axis, as packed frames): read the
+  bricks' packed ciphertexts (or take them from a resident volume) and compute every output value's
+  partial product Π Enc(P[A, b, c])^w over the footprint voxels in those bricks, one
+  multi-exponentiation per value (:func:`~hevr.rendering.pipeline.kernel.plan_products` on the
+  backend's ``ray_products``), cut by merge tile.
+* **merge** (one task per tile of :data:`~hevr.rendering.packed.planes.TILE_VALUES` values): the
+  product of the bricks' partials per value (a footprint can straddle bricks).
+
+The key holder (:meth:`PackedSlice.decrypt`) checks every ciphertext (in (0, n²)) and every
+plaintext (no bit above its S slots: the integrity margin; no slot above span·W of its footprint,
+none at all in a layer past the volume's end) before any pixel is formed, then finishes the pixels
+in float64 (:mod:`hevr.rendering.packed.planes`). Slices of packed stores are not verified yet.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from dask.delayed import delayed
+
+from ..._dask import active_client
+from ..._dask import compute as run_tasks
+from ..._dask import warn_if_remote
+from ...backends import get_backend, resolve_backend_name
+from ...backends.base import OpCounter
+from ...crypto.keys import PrivateKey
+from ...errors import IntegrityError, KeyMismatchError, ParameterError, VerificationError
+from ...store.packing import INTEGRITY_BITS, mantissa_range, unpack_slots
+from ...store.paths import check_reachable
+from ..pipeline.finishing import one_records
+from ..pipeline.kernel import plan_products
+from .graph import brick_columns, merge_parts
+from .planes import TILE_VALUES, PlanePlan
+
+log = logging.getLogger(__name__)
+
+__all__ = ["PackedSlice", "decode_slice", "render_packed_slice"]
+
+_CORRUPT = "the slice was corrupted or tampered with; no image is returned"
+
+
+def map_bricks(ev: Any, plan: Any, indices: list, backend: str, tiles: list[int],
+               residents: list | None = None) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
+    """The partial output values of bricks ``indices`` cut by the tiles ``tiles`` ((values, records)
+    each, in that order), and the operations counted."""
+    be = get_backend(backend)
+    width = ev.meta.ciphertext_bytes
+    batches = [r.batches["scalar"] if r is not None else ev.read_brick(idx, "scalar", backend=be)
+               for idx, r in zip(indices, residents or [None] * len(indices))]
+    parts, off = [], 0
+    for idx, batch in zip(indices, batches):
+        v, loc, w = plan.brick_pairs(idx)
+        parts.append((v, loc + off, w))
+        off += len(batch)
+    keys = np.concatenate([p[0] for p in parts])
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    local, weights = np.concatenate([p[1] for p in parts])[order], np.concatenate([p[2] for p in parts])[order]
+    if not len(keys):
+        return [(np.zeros(0, np.int64), np.zeros((0, width), np.uint8)) for _ in tiles], {"map": 0, "pairs": 0}
+    batch = batches[0] if len(batches) == 1 else be.concat(batches)
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    uniq = keys[starts]
+    counter = OpCounter()
+    pp = plan_products(np.r_[starts, len(keys)].astype(np.int64), local, weights, len(batch))
+    recs = be.to_bytes(be.ray_products(pp, [batch], int(ev.public_key.nsquare), counter)[0], width)
+    where = uniq // TILE_VALUES
+    return [(uniq[where == t], recs[where == t]) for t in tiles], {"map": counter.modmuls, "pairs": int(len(keys))}
+
+
+def merge_values(plan: Any, t: int, n: int, width: int, backend: str, *parts: Any) -> tuple[np.ndarray, int]:
+    """Tile ``t``'s output values, (values, W) records in value order, and the products spent."""
+    be = get_backend(backend)
+    v0, v1 = plan.tile_bounds(t)
+    out = one_records((v1 - v0,), width)
+    uniq, merged, ops = merge_parts(be, n, parts)
+    if len(uniq):
+        out[uniq - v0] = be.to_bytes(merged, width)
+    return out, ops
+
+
+def render_packed_slice(ev: Any, plane: Any, sampling: str = "nearest", *, client: Any = None, progress: bool = True,
+                        backend: str | None = None) -> "PackedSlice":
+    """Render ``plane`` of a packed store (:func:`hevr.render_slice` routes here after its checks)."""
+    cl = active_client(client)
+    warn_if_remote(cl)
+    check_reachable(ev.path, cl)
+    meta = ev.meta
+    plan = PlanePlan.build(plane, meta.shape, meta.spacing, meta.brick, meta.packing, sampling)
+    res = ev.resident.backend if ev.resident is not None and ev.resident.bricks else None
+    backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), resident=res, client=cl)
+    t0 = time.perf_counter()
+    lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
+    if not plan.hits.any():
+        log.warning("render_slice: no pixel of this %dx%d plane meets the packed volume: the slice is empty",
+                    plane.width, plane.height)
+    resident = None
+    if ev.resident is not None and ev.resident.bricks:
+        if ev.resident.usable("scalar", backend, cl):
+            resident = ev.resident.bricks
+        else:
+            log.warning("render_slice: the resident bricks cannot serve this slice (backend %s); streaming", backend)
+    n, width, plain = int(ev.public_key.n), meta.ciphertext_bytes, ev._plain()
+    tag = f"{meta.store_id}-{uuid.uuid4().hex}"
+    plan_d = delayed(plan, pure=True, name=f"hevr-packed-slice-plan-{tag}")  # one copy in the graph
+    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
+    maps = []
+    for column in brick_columns(ev.grid, meta.packing.axis):
+        reach = {idx: plan.brick_tiles(idx) for idx in column}
+        column = [idx for idx in column if reach[idx]]
+        if not column:
+            continue
+        tiles = sorted(set().union(*(reach[idx] for idx in column)))
+        name = f"hevr-packed-slice-map-{tag}-{'-'.join(map(str, column[0]))}"
+        task = delayed(map_bricks, pure=True, nout=2)(
+            plain, plan_d, column, backend, tiles,
+            [resident.get(i) for i in column] if resident is not None else None, dask_key_name=name)
+        maps.append(task[1])
+        for pos, t in enumerate(tiles):
+            per_tile[t].append(task[0][pos])
+    fin = [delayed(merge_values, pure=True, nout=2)(plan_d, t, n, width, backend, *per_tile[t],
+                                                    dask_key_name=f"hevr-packed-slice-tile-{tag}-{t}")
+           for t in range(plan.n_tiles)]
+    results = run_tasks(fin + maps, client=cl, progress=progress, desc="slice")
+    tiles_out = [r[0] for r in results[:len(fin)]]
+    ops = {"map": sum(m["map"] for m in results[len(fin):]), "pairs": sum(m["pairs"] for m in results[len(fin):]),
+           "merge": sum(r[1] for r in results[:len(fin)])}
+    stats = {"layout": "packed", "kind": plan.kind, "backend": backend, "map_tasks": len(maps),
+             "finish_tasks": len(fin), "resident": resident is not None, "ops": ops,
+             "footprints": plan.n_footprints, "ciphertexts": plan.n_values, "seconds": time.perf_counter() - t0}
+    log.info("slice packed/%s %dx%d (%s): %s", sampling, plane.width, plane.height, plan.kind, stats)
+    return PackedSlice(plan=plan, plane=plane, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
+                       offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles_out, store_id=meta.store_id,
+                       stats=stats)
+
+
+@dataclass
+class PackedSlice:
+    """An encrypted slice of a packed store (``hevr.render_slice`` on a store with ``layout="packed"``).
+
+    Attributes
+    ----------
+    plan : PlanePlan
+        The slice's public plan (footprints, packs, the finishing terms).
+    plane : Plane
+    fingerprint, n :
+        The key's fingerprint and modulus.
+    exponent, offset, span : int
+        The scalar channel's exponent, the store's slot offset (lowest mantissa) and mantissa span.
+    ciphertexts : list of np.ndarray
+        Per merge tile, (values, W) uint8 big-endian records.
+    store_id : str
+    stats : dict
+        ``ops`` (map, pairs, merge), ``footprints``, ``ciphertexts``, ``kind``, …
+    """
+
+    plan: Any = field(repr=False)
+    plane: Any = field(repr=False)
+    fingerprint: str
+    n: int = field(repr=False)
+    exponent: int
+    offset: int
+    span: int
+    ciphertexts: list = field(repr=False)
+    store_id: str = ""
+    stats: dict = field(default_factory=dict, repr=False)
+    verification: Any = field(default=None, repr=False, compare=False)  # slices of packed stores: not yet
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.plane.height, self.plane.width)
+
+    @property
+    def hits(self) -> np.ndarray:
+        """(H, W) bool: the pixels with a sample inside the volume (public geometry)."""
+        return self.plan.hits
+
+    @property
+    def n_ciphertexts(self) -> int:
+        return int(sum(len(c) for c in self.ciphertexts))
+
+    @property
+    def verified(self) -> bool:
+        return False
+
+    def decrypt_values(self, private_key: PrivateKey, backend: str | None = None) -> np.ndarray:
+        """(V, S) int64: every output value's slots, Σ w·u per layer, after every check (:func:`decode_slice`)."""
+        if not isinstance(private_key, PrivateKey):
+            raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
+        if private_key.public_key.fingerprint != self.fingerprint or int(private_key.public_key.n) != int(self.n):
+            raise KeyMismatchError(f"private_key: the slice was encrypted under key {str(self.fingerprint)[:16]}…, "
+                                   f"got a key with fingerprint {private_key.public_key.fingerprint[:16]}…")
+        be = get_backend(backend)
+        n2, width = int(private_key.public_key.nsquare), private_key.public_key.ciphertext_bytes
+        if len(self.ciphertexts) != self.plan.n_tiles:
+            raise IntegrityError(f"slice: expected {self.plan.n_tiles} tiles, got {len(self.ciphertexts)}; {_CORRUPT}")
+        tiles = []
+        for t, recs in enumerate(self.ciphertexts):
+            recs = np.asarray(recs)
+            v0, v1 = self.plan.tile_bounds(t)
+            if recs.shape != (v1 - v0, width) or recs.dtype != np.uint8:
+                raise IntegrityError(f"slice: tile {t}: expected ({v1 - v0}, {width}) uint8 records, got {recs.shape} "
+                                     f"{recs.dtype}; {_CORRUPT}")
+            batch = be.from_bytes(recs)
+            bad = be.first_out_of_range(batch, n2)
+            if bad is not None:
+                raise IntegrityError(f"slice: tile {t}: ciphertext {bad} is not in (0, n²); {_CORRUPT}")
+            tiles.append(be.decrypt(private_key, batch))
+        return decode_slice(self.plan, [int(v) for tile in tiles for v in tile], self.span)
+
+    def decrypt(self, private_key: PrivateKey, backend: str | None = None, *,
+                require_verified: bool | str = False) -> np.ndarray:
+        """The slice's float64 (H, W) pixels (the mean of each pixel's slab samples; 0 where none is
+        inside, see :attr:`hits`), after every check; ``require_verified`` refuses it (not verified)."""
+        if require_verified is not False and require_verified is not None:
+            raise VerificationError("slice: not verified (slices of packed stores carry no check against the "
+                                    "store's tags yet), and require_verified was given; no image is returned")
+        slots = self.decrypt_values(private_key, backend)
+        plan = self.plan
+        fp, _ = plan.value_layers()
+        W = plan.weight_totals()[fp]  # per value: offset·W_F undoes the store's offset
+        v = slots[plan.term_value, plan.term_slot]
+        off, e = int(self.offset), int(self.exponent)
+        if len(v) and abs(off) * int(W.max()) + int(v.max()) >= 1 << 53:  # pragma: no cover - huge float offsets
+            total = np.array([float(int(x) + int(w) * off) for x, w in zip(v, W[plan.term_value])])
+        else:
+            total = v.astype(np.float64) + W[plan.term_value].astype(np.float64) * float(off)
+        sums = np.zeros(plan.counts.shape, np.float64)
+        np.add.at(sums, plan.term_pixel, plan.term_alpha * total)
+        out = np.zeros_like(sums)
+        hit = plan.counts > 0
+        out[hit] = sums[hit] * 10.0 ** e / (plan.counts[hit] * float(plan.unit))
+        return out.reshape(self.shape)
+
+    def __repr__(self) -> str:
+        return (f"PackedSlice(shape={self.shape}, kind={self.plan.kind!r}, sampling={self.plan.sampling!r}, "
+                f"slots={self.plan.packing.slots}, ciphertexts={self.n_ciphertexts}, verified=False, "
+                f"key={self.fingerprint[:16]}…)")
+
+
+def decode_slice(plan: PlanePlan, values: list[int], span: int) -> np.ndarray:
+    """(V, S) int64 slot sums of the decrypted ``values`` (one per output value, in order).
+
+    Raises :class:`hevr.IntegrityError` for a missing or extra value, a value with a bit set above
+    its S slots (the integrity margin), a slot above span·W of its footprint, or a non-zero slot of a
+    layer past the volume's end (the store holds 0 there)."""
+    S, K = plan.packing.slots, plan.packing.slot_bits
+    if len(values) != plan.n_values:
+        raise IntegrityError(f"slice: expected {plan.n_values} values, got {len(values)}; {_CORRUPT}")
+    limit = 1 << (S * K)
+    if any(not 0 <= v < limit for v in values):
+        raise IntegrityError(f"slice: a value has bits set above its {S} slots of {K} bits (the "
+                             f"{INTEGRITY_BITS}-bit integrity margin and more); {_CORRUPT}")
+    slots = unpack_slots(values, S, K).reshape(len(values), S)
+    fp, first = plan.value_layers()
+    top = (plan.weight_totals()[fp] * int(span))[:, None] * np.ones((1, S), np.int64)
+    top[first[:, None] + np.arange(S)[None, :] >= plan.shape[plan.packing.axis]] = 0
+    if (slots > top).any():
+        raise IntegrityError(f"slice: a slot is above the largest sum its footprint can have; {_CORRUPT}")
+    return slots
