@@ -28,6 +28,7 @@ from ..geometry.camera import Camera
 from ..geometry.plane import Plane
 from ..geometry.rays import cast_rays
 from ..packed.sliced import packed_error_bound
+from ..packed.planes import packed_slice_error_bound
 from .modes import combination_matrix
 from .planner import check_render_size
 from .request import at_level, check_request, level_step
@@ -57,6 +58,10 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
         if mode != "xray" or gradient:
             raise ParameterError(f"mode: expected an X-ray for a packed store, got mode={mode!r}, "
                                  f"gradient={gradient!r}")
+        if isinstance(camera, Plane):  # a packed store's slice (hevr.rendering.packed.planes)
+            if level:
+                raise ParameterError(f"level: expected None for a hevr.Plane (render_slice has no level), got {level!r}")
+            return packed_slice_error_bound(ev.meta, camera, sampling)
         ev, camera = at_level(ev, camera, level)  # a level the owner encrypted packed: its own slots and exponent
         return packed_error_bound(ev.meta, camera, sampling)
     if isinstance(camera, Plane):
