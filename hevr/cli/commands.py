@@ -40,6 +40,7 @@ from .cluster import dask_client, describe_client
 from .describe import channels
 from .finish import report_finish
 from .keys import key_label, read_key
+from .pyramid import level_rows
 from .render_options import format_tf
 from .scan import encrypt_input, resolve_tf
 from .util import (
@@ -93,7 +94,7 @@ def cmd_encrypt(args: Any) -> int:
                                 vector_dims=args.vector_dims, value_range=value_range, digits=args.digits,
                                 overwrite=args.overwrite, resume=args.resume, gradient=args.gradient,
                                 storage_options=so, verifiable=args.verifiable,
-                                layout=args.layout, pack_axis=args.pack_axis,
+                                layout=args.layout, pack_axis=args.pack_axis, levels=args.levels,
                                 progress=show_progress(args, lines=True))
     records = int(np.prod(ev.packing.array_shape(ev.shape))) if ev.packing is not None else int(np.prod(ev.shape))
     n_ct = records * sum(ev.meta.components(ch) for ch in ev.meta.channel_names)
@@ -115,6 +116,8 @@ def cmd_encrypt(args: Any) -> int:
               "(hevr.render(ev, hevr.Camera.orbit(ev, azimuth=90, parallel=True)))")
     elif not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
+    for name, text in level_rows(ev.meta):
+        print(f"{name}: {text}")
     if ev.meta.tags and ev.packing is not None:
         print(f"verifiable: store id {ev.meta.store_id}; one tag per packed ciphertext is written, but packed "
               "frames are not verified yet")

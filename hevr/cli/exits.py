@@ -81,7 +81,7 @@ CLI_NAMES: dict[str, dict[str, str]] = {
                 "vector_dims": "--vector-dims", "scalar": "--no-scalar", "overwrite": "--overwrite",
                 "resume": "--resume", "series": "--series", "volume": "--volume", "modality": "--modality",
                 "oblique": "--oblique", "allow_uneven": "--allow-uneven", "read_scan": "--series, --allow-uneven",
-                "layout": "--layout", "pack_axis": "--pack-axis"},
+                "layout": "--layout", "pack_axis": "--pack-axis", "levels": "--levels"},
     "render": {"gradient": "--gradient", "verify": "--verify",
                "store": "STORE", "path": "STORE", "ev": "STORE", "out": "--out", "mode": "--mode",
                "nodes": "--tf", "density": "--density", "sampling": "--sampling", "camera": "--size",

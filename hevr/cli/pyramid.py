@@ -27,8 +27,11 @@ def level_rows(meta: Any) -> list[tuple[str, str]]:
     """``hevr info`` rows describing a store's pyramid levels (none without a pyramid)."""
     rows = []
     for lv in meta.levels:
-        state = "complete" if lv.complete else "INCOMPLETE (run hevr pyramid again to finish it)"
-        rows.append((f"level {lv.level}", f"{xyz(lv.shape)} voxels, {state}"))
+        again = "hevr encrypt ... --resume" if lv.packing is not None else "hevr pyramid"
+        state = "complete" if lv.complete else f"INCOMPLETE (run {again} again to finish it)"
+        packed = (f", packed: {lv.packing.slots} voxels per ciphertext ({lv.packing.slot_bits}-bit slots)"
+                  if lv.packing is not None else "")
+        rows.append((f"level {lv.level}", f"{xyz(lv.shape)} voxels{packed}, {state}"))
     return rows
 
 

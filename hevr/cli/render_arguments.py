@@ -158,6 +158,10 @@ def encrypt_arguments(p: argparse.ArgumentParser) -> None:
                         "parallel cameras around that axis, 'hevr render --parallel'; scalar channel only)")
     p.add_argument("--pack-axis", choices=("z", "y", "x"), default=None,
                    help="the packing axis of --layout packed (default z: the patient's superior axis in RAS+)")
+    p.add_argument("--levels", type=levels_type, default=0, metavar="L",
+                   help="also pyramid levels 1..L for previews ('hevr render --level'): a packed store's are "
+                        "encrypted here with slots of their own (the server cannot build them); a per-voxel "
+                        "store's are built after level 0 as 'hevr pyramid' does")
     p.add_argument("--value-range", type=range_type, metavar="LO,HI",
                    help="density normalisation range (default: the --modality range, else the dtype's range "
                         "for integers, the data range for floats)")

@@ -276,3 +276,49 @@ def test_voxel_store_levels_are_the_servers_pyramid(tmp_path, keypair256, volume
                                  progress=False)
     assert ev.layout == "voxel" and ev.levels == 1 and ev.meta.levels[0].packing is None
     assert dataclasses.replace(ev.meta.levels[0], complete=True) == ev.meta.levels[0]
+
+
+@pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
+def test_cli_encrypt_levels_info_and_pyramid(tmp_path, capsys):
+    """hevr encrypt --layout packed --levels L writes the levels; hevr info lists them with their
+    slots; hevr pyramid on a packed store says to encrypt with --levels."""
+    from hevr.cli.main import main
+
+    def run(*argv):
+        code = main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    key, store = tmp_path / "key.json", tmp_path / "p.zarr"
+    assert run("keygen", "--bits", "256", "--out", key)[0] == 0
+    code, out, _ = run("encrypt", "phantom:12", "--key", key, "--out", store, "--layout", "packed", "--brick", "4",
+                       "--levels", "2")
+    assert code == 0 and "level 2:" in out
+    ev = hevr.open_volume(store)
+    assert ev.levels == 2 and all(lv.packing is not None for lv in ev.meta.levels)
+    priv = hevr.load_key(key)
+    cam = hevr.Camera.orbit(ev, azimuth=90, elevation=15, width=9, height=9, parallel=True)
+    img = hevr.render(ev, cam, level=2, progress=False, verify=False)
+    ref = hevr.render_plain(hevr.phantom(12), cam, slices=True, level=2)
+    assert (np.abs(img.decrypt(priv) - ref) <= hevr.error_bound(ev, cam, level=2)).all()
+    code, out, _ = run("info", store)
+    lv1 = ev.meta.levels[0].packing
+    assert code == 0 and f"packed: {lv1.slots} voxels per ciphertext ({lv1.slot_bits}-bit slots), complete" in out
+    code, out, _ = run("pyramid", store, "--levels", "2")
+    assert code == 0 and "nothing to do" in out  # the owner's levels are there
+    code, _, err = run("pyramid", store, "--levels", "3")
+    assert code != 0 and "--levels" in err and "cannot downsample across slots" in err
+
+
+def test_verified_level_frames(store, keypair512, volume):
+    """A verifiable store's level frame passes the key holder's check (hevr.rendering.packed.verified)
+    with the level's own tags, and is the frame of the unverified render."""
+    priv = keypair512[1]
+    cam = hevr.Camera.orbit(store, azimuth=60, elevation=10, width=12, height=10, parallel=True)
+    for level in (1, 2):
+        img = hevr.render(store, cam, sampling="trilinear", level=level, verify=True, progress=False)
+        arr = img.decrypt(priv)  # checked against the tags before any pixel is returned
+        plain = hevr.render(store, cam, sampling="trilinear", level=level, verify=False, progress=False)
+        assert (arr == plain.decrypt(priv)).all()
+        ref = hevr.render_plain(volume, cam, sampling="trilinear", spacing=SPACING, slices=True, level=level)
+        assert (np.abs(arr - ref) <= hevr.error_bound(store, cam, sampling="trilinear", level=level)).all()
