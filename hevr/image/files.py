@@ -4,12 +4,15 @@
 :meth:`hevr.image.EncryptedImage.save` and :meth:`~hevr.image.EncryptedImage.to_bytes` write
 them. The whole file is checked before an image is returned (:func:`hevr.image.header.parse_file`):
 its SHA-256 trailer, then every header field, each before anything sized by it is allocated.
-File format: ``docs/image-format.md``.
+File format: ``docs/image-format.md``. A packed store's frame file (magic ``HEVRIMGP``,
+:meth:`hevr.PackedImage.save`) is read by :mod:`hevr.rendering.packed.files`: both readers
+return the frame the file holds, so one loader serves ``hevr decrypt`` and ``hevr info``.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from .._files import read_regular
 from ..errors import MissingFileError, ParameterError
@@ -22,8 +25,10 @@ from .stamp import saved_name
 __all__ = ["image_from_bytes", "load_image", "saved_name"]
 
 
-def load_image(path: str | Path, *, storage_options: dict | None = None) -> EncryptedImage:
-    """Read an image written by :meth:`EncryptedImage.save` (format version 3; version-2 files are read as server-finished images).
+def load_image(path: str | Path, *, storage_options: dict | None = None) -> Any:
+    """Read an image written by :meth:`EncryptedImage.save` (format version 3; version-2 files are read as server-finished images),
+    or a packed frame written by :meth:`hevr.PackedImage.save` (a :class:`hevr.PackedImage`,
+    checked by :func:`hevr.rendering.packed.files.packed_from_blob`: any fault an ``IntegrityError``).
 
     The whole file is checked before an image is returned (``docs/image-format.md``): its
     SHA-256 trailer (:class:`hevr.IntegrityError` on a mismatch: any flipped bit) and every
@@ -47,7 +52,7 @@ def load_image(path: str | Path, *, storage_options: dict | None = None) -> Encr
     return _from_blob(blob, str(path), saved_name(path))
 
 
-def image_from_bytes(blob: bytes, where: str = "image") -> EncryptedImage:
+def image_from_bytes(blob: bytes, where: str = "image") -> Any:
     """The image in the bytes of a ``.hevr`` file, checked as :func:`load_image` checks a file
     (``where`` names it in messages): data only, every field bounded before it is used."""
     if not isinstance(blob, (bytes, bytearray, memoryview)):
@@ -55,9 +60,14 @@ def image_from_bytes(blob: bytes, where: str = "image") -> EncryptedImage:
     return _from_blob(bytes(blob), where)
 
 
-def _from_blob(blob: bytes, path: str, name: str | None = None) -> EncryptedImage:
+def _from_blob(blob: bytes, path: str, name: str | None = None) -> Any:
     """The image in the bytes of a ``.hevr`` file (``path`` names it in messages; ``name``: the
-    file name it was read under, which a stamp must have been made for)."""
+    file name it was read under, which a stamp must have been made for); a packed frame's file
+    goes to its own reader."""
+    from ..rendering.packed import files as packed_files  # the packed reader imports the render side
+
+    if packed_files.is_packed_frame(blob):
+        return packed_files.packed_from_blob(blob, path, name)
     h, body = parse_file(blob, path)
     width = h["width"]
     cts, pos = [], 0

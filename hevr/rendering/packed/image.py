@@ -14,14 +14,17 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ...backends import get_backend
 from ...crypto.keys import PrivateKey
-from ...errors import IntegrityError, KeyMismatchError, ParameterError, VerificationError
+from ...errors import IntegrityError, KeyMismatchError, ParameterError
+from ...image.provenance import check_provenance
 from ...store.packing import INTEGRITY_BITS, unpack_slots
+from . import files
 from .plan import SlicePlan
 
 log = logging.getLogger(__name__)
@@ -49,6 +52,15 @@ class PackedImage:
     store_id : str
     stats : dict
         ``ops``: modular operations counted (map, merge, combine), ``rays``, ``ciphertexts``, …
+    verification : PackedVerification or None
+        The check against the store's tags (:mod:`hevr.rendering.packed.verified`).
+    meta : VolumeMetadata or None
+        The store's metadata (level 0's, with the owner's MAC on a verifiable store): what a frame
+        file holds to rebuild the plan (:meth:`save`).
+    level : int
+        The pyramid level rendered (``meta.level_meta(level)`` is the frame's volume).
+    stamp : tuple or None
+        A file's key holder stamp: (stamp, what it authenticates, saved as, read as).
     """
 
     plan: SlicePlan = field(repr=False)
@@ -62,6 +74,9 @@ class PackedImage:
     store_id: str = ""
     stats: dict = field(default_factory=dict, repr=False)
     verification: Any = field(default=None, repr=False, compare=False)  # a PackedVerification, or None
+    meta: Any = field(default=None, repr=False, compare=False)  # the store's VolumeMetadata (frame files)
+    level: int = 0
+    stamp: Any = field(default=None, repr=False, compare=False)  # a file's (stamp, message, saved as, read as)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -85,21 +100,14 @@ class PackedImage:
                                    f"a key with fingerprint {private_key.public_key.fingerprint[:16]}…")
         return private_key
 
-    def _provenance(self, require_verified: Any) -> None:
-        """``require_verified`` (True, or the store id that must have been proven) refuses a frame
-        without a verification record drawn in this process."""
-        if require_verified is False or require_verified is None:
-            return
-        if not (require_verified is True or isinstance(require_verified, str)):
-            raise ParameterError(f"require_verified: expected True, False or a store id, got {require_verified!r}")
-        v = self.verification
-        if v is None or not v.drawn_here:
-            raise VerificationError("image: not verified (it carries no check against the store's tags: a store "
-                                    "encrypted with verifiable=False, a render with verify=False, or a public-key "
-                                    "store), and require_verified was given; no image is returned")
-        if isinstance(require_verified, str) and v.store_id != require_verified:
-            raise VerificationError(f"image: expected a frame of the store {require_verified}, got one of the store "
-                                    f"{v.store_id}; no image is returned")
+    def _provenance(self, require_verified: Any, private_key: Any) -> None:
+        """Who vouches for the verification record (:func:`hevr.image.provenance.check_provenance`):
+        one drawn in this process, or a file's with the key holder's valid stamp, read under the name
+        it was saved as; ``require_verified`` (True, or the store id that must have been proven)
+        refuses a frame without one."""
+        check_provenance(private_key, self.verification, self.stamp, require_verified,
+                         "a store encrypted with verifiable=False, a render with verify=False, a public-key store, "
+                         "or a file saved without the key holder's stamp")
 
     def decrypt_sums(self, private_key: PrivateKey, backend: str | None = None, *,
                      require_verified: bool | str = False) -> np.ndarray:
@@ -107,7 +115,7 @@ class PackedImage:
         a verified frame's values are checked against the store's tags first, and every value's
         slots against their bounds (:func:`decode`), before any sum is returned."""
         key = self._key(private_key)
-        self._provenance(require_verified)
+        self._provenance(require_verified, key)
         if self.verification is not None:  # the metadata first: it says what every number means
             self.verification.check_metadata(key, self.plan, self.fingerprint)
         be = get_backend(backend)
@@ -165,6 +173,24 @@ class PackedImage:
         inter = self.decrypt_intermediate(private_key, backend, require_verified=require_verified)
         geo = self.plan.geometry
         return geo.warp(inter, geo.pixel_coords(self.camera)).reshape(self.shape)
+
+    # -- the frame file (format: hevr.rendering.packed.files; reading: hevr.load_image) --------
+    def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None,
+             private_key: Any = None) -> None:
+        """Write the packed frame file (``docs/format.md``, "Packed frame files"); ``hevr.load_image``
+        reads it back. Never over an existing file unless ``overwrite=True``
+        (:class:`hevr.ExistingFileError`), atomic either way; ``path`` may be an fsspec URL
+        (``storage_options``), as :meth:`hevr.EncryptedImage.save`.
+
+        A verified frame keeps its record only with the key holder's stamp: with ``private_key`` it is
+        checked now (:class:`hevr.VerificationError` if it does not verify) and stamped; without it, a
+        record drawn in this process is left out (a warning says so), and one read from a stamped file
+        keeps its stamp."""
+        files.save_packed(self, path, overwrite=overwrite, storage_options=storage_options, private_key=private_key)
+
+    def to_bytes(self, private_key: Any = None) -> bytes:
+        """The packed frame file as bytes (:meth:`save`'s rules; ``hevr.image_from_bytes`` reads them)."""
+        return files.packed_bytes(self, private_key)
 
     def __repr__(self) -> str:
         return (f"PackedImage(shape={self.shape}, sampling={self.plan.sampling!r}, slots={self.plan.packing.slots}, "
