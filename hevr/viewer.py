@@ -37,12 +37,19 @@ layer of widgets over :func:`hevr.render_frame` and :meth:`hevr.Frame.recolour`:
   sliders have been still for ``settle`` seconds (or on :meth:`Viewer.settle`) the full frame
   follows. Without a pyramid, sliders render on release.
 
+* **packed stores** (``encrypt_volume(..., layout="packed")``, :mod:`hevr.rendering.packed`): the
+  camera is parallel and orbits the packing axis, starting from an anatomical view the store can
+  serve (``"anterior"`` for a store packed along z, the patient's superior axis: azimuth turns about
+  it, elevation leans towards it, at most 44°); frames are :func:`hevr.render` X-rays (previews
+  from a level the owner encrypted, the settled frame verified on a verifiable store).
+
 Every widget change calls :meth:`Viewer.refresh` synchronously, so the viewer can be driven
 headlessly — set a widget's ``value`` in code, as a test does, and the render runs.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import html
 import logging
 import threading
@@ -56,7 +63,7 @@ from .colour import Frame
 from .crypto.keys import PrivateKey
 from .errors import HevrError, MissingDependencyError, ParameterError
 from .paper import PAPER_DENSITIES, PAPER_TF1
-from .rendering.encrypted import error_bound
+from .rendering.encrypted import error_bound, render
 from .rendering.geometry.camera import Camera
 from .rendering.pipeline.stream import render_frame
 from .rendering.planning.modes import parse_color
@@ -153,11 +160,14 @@ class Viewer:
         self.ev, self._key, self.volume, self.client, self.step = ev, private_key, volume, client, float(step)
         self.size = (width, height)
         Camera.orbit(ev, width=width, height=height)  # validates the size once, here
+        self.packed = ev.meta.packing is not None
+        # a packed store: parallel views orbiting its packing axis (superior z: "anterior", whose up is z)
+        self.view = {0: "anterior", 1: "superior"}.get(ev.meta.packing.axis) if self.packed else None
         self.history: list[dict] = []
         self.frame: Frame | None = None
         self._frame_view: tuple | None = None  # what the frame depends on: camera, level, sampling, channel
         self._held = False
-        modes = ["xray"] * ev.has_scalar + ["emphasize", "tf"] * bool(ev.vector_dims)
+        modes = ["xray"] * ev.has_scalar + ["emphasize", "tf"] * bool(ev.vector_dims and not self.packed)
         mode = modes[0] if mode is None else mode
         if mode not in modes:
             raise ParameterError(f"mode: expected one of {modes} (the store's channels), got {mode!r}")
@@ -171,8 +181,11 @@ class Viewer:
         self._lock = threading.RLock()
         # with a preview level, camera sliders report every move (cheap coarse frames); else on release
         slider = dict(continuous_update=bool(self.preview), readout_format=".0f")
-        self.azimuth = W.FloatSlider(value=30.0, min=-180.0, max=180.0, step=1.0, description="azimuth", **slider)
-        self.elevation = W.FloatSlider(value=20.0, min=-89.0, max=89.0, step=1.0, description="elevation", **slider)
+        self.azimuth = W.FloatSlider(value=0.0 if self.packed else 30.0, min=-180.0, max=180.0, step=1.0,
+                                     description="azimuth", **slider)
+        tilt = 44.0 if self.packed else 89.0  # a packed store's views lean less than 45° towards its axis
+        self.elevation = W.FloatSlider(value=10.0 if self.packed else 20.0, min=-tilt, max=tilt, step=1.0,
+                                       description="elevation", **slider)
         self.view_angle = W.FloatSlider(value=30.0, min=5.0, max=90.0, step=1.0, description="view angle", **slider)
         self.mode = W.ToggleButtons(options=modes, value=mode, description="mode")
         self.sampling = W.ToggleButtons(options=["nearest", "trilinear"], value=sampling, description="sampling")
@@ -212,6 +225,10 @@ class Viewer:
         """The camera of the current slider positions; for a preview at pyramid ``level``, with
         2^level times fewer pixels per axis (a level's voxels are 2^level times larger)."""
         w, h = (max(1, d >> level) for d in self.size)
+        if self.packed:  # the view angle zooms a parallel camera: the frame's half-height shrinks with it
+            cam = Camera.orbit(self.ev, azimuth=self.azimuth.value, elevation=self.elevation.value, width=w, height=h,
+                               parallel=True, view=self.view)
+            return dataclasses.replace(cam, parallel_scale=cam.parallel_scale * self.view_angle.value / 30.0)
         return Camera.orbit(self.ev, azimuth=self.azimuth.value, elevation=self.elevation.value,
                             width=w, height=h, view_angle=self.view_angle.value)
 
@@ -222,6 +239,8 @@ class Viewer:
     def request(self) -> dict:
         """Keyword arguments of :func:`hevr.render_frame` (and :func:`hevr.render_plain`) for the current state."""
         kw: dict[str, Any] = {"mode": self.mode.value, "sampling": self.sampling.value, "step": self.step}
+        if self.packed:  # one sample per slice: no step
+            del kw["step"]
         if self.mode.value == "emphasize":
             kw["density"] = float(self.density.value)
         elif self.mode.value == "tf":
@@ -316,7 +335,7 @@ class Viewer:
         """What a frame of component sums depends on (anything else is colouring): the camera,
         the level, the sampling, the step and the stored channel the mode reads."""
         channel = "scalar" if kw["mode"] == "xray" else "gradient" if kw.get("gradient") else "vector"
-        return cam.key(), level, kw["sampling"], kw["step"], channel
+        return cam.key(), level, kw["sampling"], kw.get("step", 1.0), channel
 
     def _refresh(self, level: int) -> dict:
         kw = self.request()
@@ -329,6 +348,12 @@ class Viewer:
             if recolour:  # only the colouring changed: numpy here, nothing sent anywhere
                 frame = self.frame
                 arr = frame.recolour(kw["mode"], kw.get("density"), kw.get("nodes"))
+            elif self.packed:  # a packed X-ray: rendered whole, decrypted (and checked) here
+                img = render(self.ev, cam, client=self.client, progress=False, level=level or None,
+                             verify=False if level else None, **kw)
+                arr = img.decrypt(self._key)
+                frame = _PackedFrame(arr, {"map_tasks": img.stats["map_tasks"], "reused_ray_sums": False,
+                                           "verified": img.verified})
             else:
                 # a preview is not verified (it must come fast); the settled full frame is
                 frame = render_frame(self.ev, cam, self._key, client=self.client, progress=False,
@@ -344,7 +369,12 @@ class Viewer:
             self.frame, self._frame_view = frame, view
         err = bound = None
         window = None
-        if self.volume is not None:
+        if self.volume is not None and self.packed and not level:  # the float64 slice reference
+            ref = render_plain(self.volume, cam, spacing=self.ev.spacing, slices=self.ev.meta.packing.axis, **kw)
+            err = float(np.abs(arr - ref).max()) if arr.size else 0.0
+            bound = float(error_bound(self.ev, cam, **kw).max())
+            window = (0.0, max(float(ref.max()), 1e-12))
+        elif self.volume is not None and not self.packed:
             ref = render_plain(self.volume, cam, spacing=self.ev.spacing, value_range=self.ev.value_range,
                                vector_dims=self.ev.vector_dims, level=level, **kw)
             err = float(np.abs(arr - ref).max()) if arr.size else 0.0
@@ -402,3 +432,13 @@ class _Hold:
         self.viewer._held = self.outer
         if not self.outer and exc[0] is None and hasattr(self.viewer, "widget"):
             self.viewer.refresh()
+
+
+class _PackedFrame:
+    """A packed store's decrypted X-ray as the viewer keeps it (no component means: X-ray only)."""
+
+    def __init__(self, image: np.ndarray, stats: dict) -> None:
+        self.image, self.stats = image, stats
+
+    def recolour(self, *args: Any) -> np.ndarray:  # the view is the same and the mode X-ray: nothing to change
+        return self.image

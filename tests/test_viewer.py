@@ -254,3 +254,27 @@ def test_gradient_box(scene, tmp_path):
     assert len(v.history) == n and "gradient" not in v.request()
     plain = Viewer(ev, priv, width=10, height=8, show=False)
     assert plain.gradient.layout.display == "none"
+
+
+def test_packed_store_orbits_its_axis_verified(tmp_path, keypair256):
+    """A packed store: a parallel camera from the anterior view (orbiting the packing axis z), X-ray
+    only, the settled frame verified and within error_bound of the slice reference; a drag along
+    azimuth keeps serving, elevation stays below 45°."""
+    pub, priv = keypair256
+    vol = np.random.default_rng(2).integers(0, 256, (9, 8, 10)).astype(np.uint8)
+    ev = hevr.encrypt_volume(vol, tmp_path / "p.zarr", priv, brick=4, layout="packed", progress=False)
+    v = Viewer(ev, priv, volume=vol, width=12, height=10)
+    first = v.history[-1]
+    assert v.mode.options == ("xray",) and v.view == "anterior" and v.elevation.max < 45
+    cam = v.camera()
+    assert cam.parallel and cam == hevr.Camera.orbit(ev, azimuth=0, elevation=10, width=12, height=10,
+                                                     parallel=True, view="anterior")
+    assert "error_message" not in first and first["verified"] and first["map_tasks"] > 0
+    assert first["error"] <= first["bound"] and "verified" in v.status.value
+    for az in (60.0, 135.0, -100.0):
+        v.azimuth.value = az
+        last = v.history[-1]
+        assert "error_message" not in last and last["verified"] and last["error"] <= last["bound"]
+    v.view_angle.value = 15.0  # zoom: half the frame's height
+    assert v.camera().parallel_scale == pytest.approx(cam.parallel_scale / 2)
+    assert v.history[-1]["error"] <= v.history[-1]["bound"]
