@@ -37,6 +37,7 @@ from ..crypto.tags import data_channel, tag_channel
 from ..errors import CorruptStoreError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_spacing
 from .authenticity import is_auth
+from .ome import ome_attribute  # noqa: F401 - re-exported: hevr.store.layout, hevr.store.pyramid
 from .packing import PackingInfo, mantissa_range
 
 __all__ = ["CHANNELS", "ChannelInfo", "LevelInfo", "VolumeMetadata", "ome_attribute", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
@@ -287,31 +288,6 @@ class VolumeMetadata:
         return _parse(cls, d, where, version)
 
 
-def ome_attribute(meta: VolumeMetadata) -> dict:
-    """The group's ``ome`` attribute: OME-Zarr (0.5) ``multiscales``, one per channel, listing
-    level 0 and every complete pyramid level with its scale and translation (array order,
-    z, y, x; the component and ciphertext-byte axes unscaled). Derived from the checksummed
-    ``hevr`` attribute, so it is checked byte for byte on opening; ciphertexts stay opaque to
-    OME tools, but the pyramid is discoverable the standard way (not a valid OME-NGFF image: the
-    arrays end in the ciphertext-byte axis, docs/format.md)."""
-    space = [{"name": a, "type": "space"} for a in ("z", "y", "x")]
-    record = [{"name": "ciphertext_byte", "type": "ciphertext"}]
-    done = [lv.level for lv in meta.levels if lv.complete]
-    out = []
-    for ch in meta.data_channels:  # tag channels are not images: not listed
-        lead = [{"name": "component", "type": "channel"}] if ch != "scalar" else []
-        datasets = []
-        for lv in [0] + done:
-            scale = [1.0] * len(lead) + [s * 2**lv for s in meta.spacing[::-1]] + [1.0]
-            transforms: list[dict] = [{"type": "scale", "scale": scale}]
-            if lv:
-                shift = [0.0] * len(lead) + [s * (2**lv - 1) / 2 for s in meta.spacing[::-1]] + [0.0]
-                transforms.append({"type": "translation", "translation": shift})
-            datasets.append({"path": f"levels/{lv}/{ch}" if lv else ch, "coordinateTransformations": transforms})
-        out.append({"name": ch, "axes": lead + space + record, "datasets": datasets})
-    return {"version": "0.5", "multiscales": out}
-
-
 # -- field validation ---------------------------------------------------------------------------
 def _bad(where: str, name: str, expected: str, got: Any) -> CorruptStoreError:
     text = repr(got)
@@ -445,9 +421,9 @@ def _packing(d: dict, meta: VolumeMetadata, where: str) -> PackingInfo:
 
 
 def _level_packing(meta: VolumeMetadata, info: LevelInfo, where: str) -> None:
-    """A packed level's ``layout`` (its axis, the store's, checked on parsing): the offset of the level's exponent ``e − 3·level``
-    (:mod:`hevr.store.packed_levels`), slots that fit the key and the level's brick, and a slot width
-    that holds every frame's largest sum at the level's shape."""
+    """A packed level's ``layout`` (:mod:`hevr.store.packed_levels`; its axis checked on parsing): the
+    offset at the level's exponent ``e − 3·level``, slots that fit the key and the level's brick, and a
+    slot width that holds every frame's largest sum at the level's shape."""
     name = f"levels[{info.level - 1}].layout"
     packing = info.packing
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent - 3 * info.level)

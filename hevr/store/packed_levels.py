@@ -63,7 +63,7 @@ from .layout import array_layout, array_slices, compressors
 from .metadata import ChannelInfo, LevelInfo, VolumeMetadata
 from .packing import choose_packing, mantissa_range, pack_columns
 from .paths import document_digest, token, zarr_store
-from .pyramid import level_arrays_ok, write_meta
+from .pyramid import build_pyramid, level_arrays_ok, write_meta  # noqa: F401 - build_pyramid: hevr.store.writer
 
 log = logging.getLogger(__name__)
 
@@ -116,9 +116,10 @@ def _authenticate(meta: VolumeMetadata, key: Any) -> VolumeMetadata:
 
 def prepare_levels(path: str, meta: VolumeMetadata, wanted: tuple[LevelInfo, ...], key: Any,
                    so: dict | None) -> VolumeMetadata:
-    """Record the levels ``wanted`` in the store at ``path`` (incomplete, their arrays created) unless
-    they are there with the same layout and arrays (a resume); levels recorded beyond them are kept.
-    Writes the metadata (and its OME attribute) only when something changed; returns it."""
+    """Record the levels ``wanted`` (:func:`plan_levels`; none: nothing to do) in the store at ``path``,
+    incomplete, their arrays created, unless they are there with the same layout and arrays (a
+    resume); levels recorded beyond them are kept. Writes the metadata (and its OME attribute)
+    only when something changed; returns it."""
     levels = list(meta.levels)
     changed = False
     for want in wanted:
@@ -211,13 +212,16 @@ def _encrypt_level_brick(block: np.ndarray, path: str, level: int, index: tuple[
     return index
 
 
-def encrypt_levels(vol: Any, brick: tuple[int, int, int], path: str, meta: VolumeMetadata, key: Any, *,
+def encrypt_levels(vol: Any, brick: tuple[int, int, int], path: str, meta: VolumeMetadata, key: Any,
                    unsafe_no_obfuscation: bool, backend: str, client: Any, progress: bool,
-                   storage_options: dict | None) -> tuple[VolumeMetadata, int]:
-    """Encrypt the bricks without markers of every recorded level of the packed store at ``path``
-    (one impure task per brick, all levels in one graph), then mark the levels complete; returns the
-    metadata written and the packed ciphertexts encrypted (tags not counted)."""
-    so = storage_options
+                   storage_options: dict | None, counted: int = 0) -> tuple[VolumeMetadata, int]:
+    """Encrypt the bricks without markers of every recorded level of the packed store at ``path``,
+    whose level 0 is complete (one impure task per brick, all levels in one graph), then mark the
+    levels complete; returns the metadata and ``counted`` plus the packed ciphertexts encrypted
+    (tags not counted). A per-voxel store's levels are the server's (:func:`hevr.build_pyramid`)."""
+    if meta.packing is None or not meta.levels:
+        return meta, counted
+    so, meta = storage_options, dataclasses.replace(meta, complete=True)
     group = zarr.open_group(zarr_store(path, so, read_only=True), mode="r")
     darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(
         vol, chunks=brick, name=f"hevr-plain-{token()}{token()}")  # a random name: never a hash of the voxels
@@ -246,4 +250,4 @@ def encrypt_levels(vol: Any, brick: tuple[int, int, int], path: str, meta: Volum
     if infos != meta.levels:
         meta = _authenticate(dataclasses.replace(meta, levels=infos), key)
         write_meta(path, meta, so)
-    return meta, values
+    return meta, counted + values

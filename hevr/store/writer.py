@@ -92,8 +92,7 @@ from .paths import (
 from .layout import array_slices
 from .packed_brick import pack_axis_of, write_packed_brick
 from .packing import choose_packing, mantissa_range
-from .packed_levels import check_levels, encrypt_levels, plan_levels, prepare_levels
-from .pyramid import build_pyramid
+from .packed_levels import build_pyramid, check_levels, encrypt_levels, plan_levels, prepare_levels
 from .quantise import plan_channels, quantise_scalar, quantise_vector
 from .reader import EncryptedVolume, brick_slices, open_volume
 
@@ -261,10 +260,8 @@ def encrypt_volume(
         The packing axis of a packed store, as an array axis (0 = z) or its name; default 0, the
         scan's z axis (the patient's superior axis in RAS+), which serves every view around the body.
     levels : int
-        Pyramid levels 1 … ``levels`` (0 to 8; previews: ``hevr.render(..., level=L)``). A packed
-        store's levels are encrypted here by the owner, each packed with slots of its own
-        (:mod:`hevr.store.packed_levels`; the server cannot downsample across slots); a per-voxel
-        store's are built after level 0 by :func:`hevr.build_pyramid` (no key needed).
+        Pyramid levels 1 … ``levels`` (0 to 8): a packed store's encrypted here, with slots of their own
+        (:mod:`hevr.store.packed_levels`), a per-voxel store's built by :func:`hevr.build_pyramid`.
 
     Returns
     -------
@@ -297,7 +294,7 @@ def encrypt_volume(
     if gradient and vector_dims is None:
         raise ParameterError("gradient: expected vector_dims=k as well, got vector_dims=None (the gradient channel "
                              "holds g·e(d), the k-dimensional density encoding scaled by the gradient magnitude)")
-    layout = check_choice("layout", layout, ("voxel", "packed"))
+    layout, levels = check_choice("layout", layout, ("voxel", "packed")), check_levels(levels)
     if verifiable is None:  # packed stores carry tags by default: one per packed ciphertext costs little
         verifiable = layout == "packed" and isinstance(key, PrivateKey)
         if layout == "packed" and not verifiable:
@@ -309,7 +306,6 @@ def encrypt_volume(
                              f"gradient={bool(gradient)}, scalar={bool(scalar)}")
     if layout == "voxel" and pack_axis is not None:
         raise ParameterError(f"pack_axis: expected None for layout='voxel', got {pack_axis!r}")
-    levels = check_levels(levels)
     sc, vc, vr = plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
     packing = None
     if layout == "packed":
@@ -366,14 +362,10 @@ def encrypt_volume(
         todo = [idx for idx in bricks if not done[idx]]
         log.info("encrypting %d of %d bricks into %s", len(todo), meta.n_bricks, target)
         try:
-            if planned or meta.levels and meta.packing is not None:  # the owner's packed levels, recorded first
-                meta = prepare_levels(target, meta, planned, key, so)
+            meta = prepare_levels(target, meta, planned, key, so)  # a packed store's levels: recorded first
             values = _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
-            if meta.levels and meta.packing is not None:
-                meta, more = encrypt_levels(vol, brick_t, target, dataclasses.replace(meta, complete=True), key,
-                                            unsafe_no_obfuscation=unsafe_no_obfuscation,
-                                            backend=backend, client=client, progress=progress, storage_options=so)
-                values += more
+            meta, values = encrypt_levels(vol, brick_t, target, meta, key, unsafe_no_obfuscation, backend, client,
+                                          progress, so, values)  # then encrypted: values + the levels' ciphertexts
         except BaseException:
             if target != path:
                 log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
@@ -392,8 +384,7 @@ def encrypt_volume(
     if ev.meta.store_id != meta.store_id:
         raise StoreExistsError(f"path: the store at {path} was created or replaced by another run while this one "
                                "wrote it; this run's store is not there")
-    if levels and meta.packing is None:  # a per-voxel store's pyramid: the server's (no key needed)
-        ev = build_pyramid(ev, levels, client=client, progress=progress, backend=backend)
+    ev = build_pyramid(ev, levels, client=client, progress=progress, backend=backend) if levels and not packing else ev
     ev.written_now = {"bricks": len(todo), "ciphertexts": values}  # this call's share (resume: the missing ones)
     record_quietly(ev, replace=True)  # the owner made it: the key holder's known stores (hevr.store.known)
     return ev
