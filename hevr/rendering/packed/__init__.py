@@ -10,6 +10,8 @@ The data path of one packed frame, module by module:
 ``graph``          the Dask graph: map per brick, merge and Horner combine per tile
 ``image``          :class:`PackedImage`: the key holder's checks, decoding and warp
 ``sliced``         ``render_plain(..., slices=True)`` and the error bound against it
+``planes``         slices (:class:`~hevr.rendering.geometry.plane.Plane`): the plan, the refusals, the bound
+``plane_image``    a slice's Dask graph and :class:`PackedSlice`, the key holder's checks and finishing
 =================  =============================================================
 
 ``hevr.render`` routes a packed store to :func:`hevr.rendering.packed.request.render_packed_request`.
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 from .image import PackedImage
 from .plan import SlicePlan
+from .plane_image import PackedSlice
 from .shear import ShearGeometry
 
-__all__ = ["PackedImage", "ShearGeometry", "SlicePlan"]
+__all__ = ["PackedImage", "PackedSlice", "ShearGeometry", "SlicePlan"]
