@@ -4,22 +4,33 @@ The server-side twin of ``hevr render`` for multi-planar reformatting
 (:func:`hevr.rendering.slices.render_slice`): never needs the secret key, writes a ``.hevr``
 frame that ``hevr decrypt`` opens. Errors follow the CLI's rule (:mod:`hevr.cli.exits`): a bad
 plane, size or slab is exit 2 with a message that starts with the option.
+
+A packed store (``hevr encrypt --layout packed``) has no ``.hevr`` frame file for its slices yet:
+with ``--key`` the slice is rendered and decrypted in this process and ``--out`` is the PNG (or
+``.npy`` values) to write; planes perpendicular to the packing axis or containing its direction,
+``--mode xray``, nearest or trilinear, any slab (:mod:`hevr.rendering.packed.planes`), not verified yet.
 """
 
 from __future__ import annotations
 
+import io
 from typing import Any
 
+import numpy as np
+
+from .._files import write_file
+from ..errors import ParameterError
 from ..image.orient import describe_layout
 from ..paper import PAPER_TF1
 from ..rendering.geometry.plane import Plane
+from ..rendering.packed.planes import plane_kind
 from ..rendering.planning.planner import check_render_size
 from ..rendering.slices import render_slice
 from .commands import compute_context, key_holder, open_for_mode, resolve_mode, verified_line, warn_unverified
 from .finish import report_finish
 from .render_options import format_tf
 from .scan import resolve_tf
-from .storage import output_file, save_frame, size_of, storage_options
+from .storage import open_store, output_file, save_decrypted, save_frame, size_of, storage_options
 from .util import (
     Timer,
     UsageError,
@@ -71,6 +82,10 @@ def cmd_slice(args: Any) -> int:
         raise UsageError(f"--slab-step: only applies to a thick slab (--slab N > 1), got --slab {args.slab}")
     so = storage_options(args)
     out = output_file(args.out, force=args.force, so=so)
+    if not getattr(args, "server", None):  # a packed store: rendered, then decrypted here (_packed_slice)
+        packed = open_store(args.store, "STORE", so)
+        if packed.packing is not None:
+            return _packed_slice(args, packed, mode, out)
     ev = open_for_mode(args.store, mode, "slice", so, args)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     verify = key_holder(args, ev)
@@ -101,4 +116,57 @@ def cmd_slice(args: Any) -> int:
           f"{human_bytes(size_of(out, so))}, {inside:,} of {plane.width * plane.height:,} pixels inside the volume, "
           f"rendered in {t.seconds:.2f} s")
     report_finish(img, out, mode, args.density, nodes)
+    return 0
+
+
+def _packed_slice(args: Any, ev: Any, mode: str, out: Any) -> int:
+    """``hevr slice`` on a packed store: checked before any work, rendered, decrypted with ``--key``
+    in this process, written as ``--out`` (``.png``, or ``.npy`` for the float64 values)."""
+    option = next(f"--{o}" for o in ("axial", "coronal", "sagittal", "oblique") if getattr(args, o) is not None)
+    store = args.store
+    if mode != "xray":
+        raise UsageError(f"--mode {mode}: expected xray on the packed store {store} (it holds the scalar channel "
+                         "only); encrypt a per-voxel store (--layout voxel --vector-dims 4) for it")
+    for flag, given in (("--gradient", args.gradient), ("--no-pack", args.no_pack),
+                        ("--precision", args.precision is not None), ("--finish server", args.finish != "client"),
+                        ("--verify", args.verify is not None)):
+        if given:
+            raise UsageError(f"{flag}: does not apply to a slice of the packed store {store} (decrypted in this "
+                             "process, not verified yet: slices of packed stores carry no check against its tags)")
+    if not args.key:
+        raise UsageError(f"--key: expected the private key KEY.json for a slice of the packed store {store}: packed "
+                         "slices have no .hevr frame file yet, so the slice is decrypted in this process and --out "
+                         "is the PNG (or .npy) to write")
+    suffix = str(out).lower().rsplit(".", 1)[-1]
+    if suffix not in ("png", "npy"):
+        raise UsageError(f"--out: expected a .png or .npy file for a slice of the packed store {store} (decrypted "
+                         f"here with --key; no .hevr frame file for packed slices yet), got {args.out}")
+    key_holder(args, ev)  # reads --key, which must be the store's
+    plane, where = _plane(args, ev)
+    try:
+        kind = plane_kind(plane, ev.packing.axis)
+    except ParameterError as exc:
+        raise UsageError(f"{option}: {str(exc).split(': ', 1)[1]}") from None
+    check_render_size(plane, ev.shape, ev.spacing, plane.slab_step)
+    slab = f", slab of {plane.slab} planes {plane.slab_step:g} apart (their mean)" if plane.slab > 1 else ""
+    axis = "zyx"[ev.packing.axis]
+    print(f"store:   {store}, {xyz(ev.shape)} voxels, packed ({ev.packing.slots} voxels per ciphertext along {axis}), "
+          f"key {ev.meta.fingerprint[:16]}…")
+    print(f"slice:   {where}, {wh(plane.width, plane.height)} px, value, {args.sampling} sampling{slab}; "
+          f"{'perpendicular to' if kind == 'perpendicular' else 'containing'} the packing axis {axis}")
+    with compute_context(args, ev) as client:
+        with Timer() as t:
+            img = render_slice(ev, plane, sampling=args.sampling, client=client, progress=show_progress(args),
+                               verify=False)
+    arr = img.decrypt(args.private_key)
+    if suffix == "npy":
+        buf = io.BytesIO()
+        np.save(buf, arr)
+        write_file(out, [buf.getbuffer()], overwrite=args.force, name="--out", doing="writing the pixel values")
+    else:
+        save_decrypted(arr, out, None, None, force=args.force, plane=plane, hits=img.hits)
+    print("not verified: slices of packed stores carry no check against the store's tags yet")
+    print(f"wrote {out}: decrypted here from {plural(img.n_ciphertexts, 'ciphertext')} ({img.plan.n_footprints:,} "
+          f"footprints, up to {ev.packing.slots} layers each), {int(img.hits.sum()):,} of "
+          f"{plane.width * plane.height:,} pixels inside the volume, rendered in {t.seconds:.2f} s")
     return 0
