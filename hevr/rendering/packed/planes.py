@@ -223,6 +223,9 @@ class PlanePlan:
         box = [(int(i) * b, min((int(i) + 1) * b, s)) for i, b, s in zip(index, self.brick, self.shape)]
         (b0, b1), (c0, c1), (a0, a1) = box[b_ax], box[c_ax], box[a]
         A0, A1 = a0 // S, -(-a1 // S)
+        if not self.n_footprints or A1 <= int(self.packs[:, 0].min()) or A0 >= int(self.packs[:, 1].max()):
+            empty = np.zeros(0, np.int64)  # no pack of this brick is computed (an axial slice's other layers)
+            return empty, empty, empty
         sel = (self.fp_b >= b0) & (self.fp_b < b1) & (self.fp_c >= c0) & (self.fp_c < c1)
         fp, fb, fc, fw = self.fp_id[sel], self.fp_b[sel], self.fp_c[sel], self.fp_w[sel]
         lo, hi = np.maximum(self.packs[fp, 0], A0), np.minimum(self.packs[fp, 1], A1)
