@@ -49,12 +49,13 @@ def check_level(level: Any, available: int | None = None, name: str = "level") -
     >>> check_level(3, 2)
     Traceback (most recent call last):
     ...
-    hevr.errors.ParameterError: level: expected a level of this store's pyramid, 0 to 2, got 3 (build more levels with hevr.build_pyramid)
+    hevr.errors.ParameterError: level: expected a level of this store's pyramid, 0 to 2, got 3 (build more levels with hevr.build_pyramid; a packed store's: encrypt_volume(..., levels=))
     """
     level = check_int(name, level, 0, MAX_LEVELS)
     if available is not None and level > available:
         raise ParameterError(f"{name}: expected a level of this store's pyramid, 0 to {available}, got {level} "
-                             "(build more levels with hevr.build_pyramid)")
+                             "(build more levels with hevr.build_pyramid; a packed store's: "
+                             "encrypt_volume(..., levels=))")
     return level
 
 

@@ -322,3 +322,17 @@ def test_verified_level_frames(store, keypair512, volume):
         assert (arr == plain.decrypt(priv)).all()
         ref = hevr.render_plain(volume, cam, sampling="trilinear", spacing=SPACING, slices=True, level=level)
         assert (np.abs(arr - ref) <= hevr.error_bound(store, cam, sampling="trilinear", level=level)).all()
+
+
+def test_overwrite_writes_levels_beside_then_swaps(tmp_path, keypair256, volume):
+    """overwrite=True: the new store's levels are written beside the old store and swapped in with it."""
+    priv = keypair256[1]
+    path = tmp_path / "o.zarr"
+    old = hevr.encrypt_volume(volume, path, priv, brick=4, layout="packed", levels=1, progress=False)
+    other = (255 - volume).astype(np.uint8)
+    new = hevr.encrypt_volume(other, path, priv, brick=4, layout="packed", levels=2, overwrite=True, progress=False)
+    assert new.meta.store_id != old.meta.store_id and new.levels == 2
+    for L in (1, 2):
+        want = np.rint(downsample(other, L) * 1000 ** L).astype(np.int64)
+        assert (level_mantissas(new.at_level(L), priv) == want).all()
+    assert [p.name for p in tmp_path.iterdir()] == ["o.zarr"]  # nothing left beside it

@@ -177,7 +177,8 @@ def render_plain(
         the slice, then the warp to the pixels; X-ray of a parallel camera only, ``step`` 1. The
         reference of ``hevr.render`` on a packed store (:mod:`hevr.rendering.packed.sliced`):
         ``True`` for a store packed along z (the default), else its packing axis (the rays
-        along it are one voxel apart, as the packs' lattice makes them).
+        along it are one voxel apart, as the packs' lattice makes them). With ``level``: the
+        slices of the level's means (a packed store's level, :mod:`hevr.store.packed_levels`).
 
     Returns
     -------
