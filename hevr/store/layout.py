@@ -63,14 +63,15 @@ def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple
     """``{array name: (shape, chunk shape)}`` of every array a store of ``meta`` has; the
     ``done`` array holds one digest per channel per brick (:mod:`hevr.store.digests`)."""
     w, out = meta.ciphertext_bytes, {}
-    if meta.scalar is not None:  # a packed store's scalar array: S voxels per record along its axis
-        shape, brick = ((meta.shape, meta.brick) if meta.packing is None else
-                        (meta.packing.array_shape(meta.shape), meta.packing.array_brick(meta.brick)))
+    # a packed store's arrays: S voxels per record along its axis (hevr.store.packing)
+    shape, brick = ((meta.shape, meta.brick) if meta.packing is None else
+                    (meta.packing.array_shape(meta.shape), meta.packing.array_brick(meta.brick)))
+    if meta.scalar is not None:
         out["scalar"] = (shape + (w,), brick + (w,))
-    for name in ("vector", "gradient"):  # k components per voxel, one chunk holds all k of a brick
+    for name in ("vector", "gradient"):  # k components per voxel (per pack), one chunk holds all k of a brick
         if getattr(meta, name) is not None:
             k = meta.components(name)
-            out[name] = ((k,) + meta.shape + (w,), (k,) + meta.brick + (w,))
+            out[name] = ((k,) + shape + (w,), (k,) + brick + (w,))
     if meta.tags:  # a verifiable store: each channel's tags, laid out as the channel
         out.update({tag_channel(name): out[name] for name in meta.data_channels})
     nch = len(meta.channel_names)

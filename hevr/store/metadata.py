@@ -38,7 +38,7 @@ from ..errors import CorruptStoreError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_spacing
 from .authenticity import is_auth
 from .ome import ome_attribute  # noqa: F401 - re-exported: hevr.store.layout, hevr.store.pyramid
-from .packing import PackingInfo, mantissa_range
+from .packing import PackingInfo, mantissa_range, store_span
 
 __all__ = ["CHANNELS", "ChannelInfo", "LevelInfo", "VolumeMetadata", "ome_attribute", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
 
@@ -407,16 +407,20 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
 
 
 def _packing(d: dict, meta: VolumeMetadata, where: str) -> PackingInfo:
-    """The ``layout`` object of a packed store, checked against the rest of the metadata: a scalar
-    channel only, the offset the value range implies, slots that fit the key and the brick, and
-    a slot width that holds every frame's largest sum (:meth:`PackingInfo.check`)."""
+    """The ``layout`` object of a packed store, checked against the rest of the metadata: the scalar
+    channel (and the vector channel, packed alike, :func:`~hevr.store.packing.store_span`; no
+    gradient channel), the offset the value range implies, slots that fit the key and the brick,
+    and a slot width that holds every frame's largest sum of either channel (:meth:`PackingInfo.check`)."""
     packing = PackingInfo.from_dict(d["layout"], where)
-    if meta.scalar is None or meta.vector is not None:
-        raise _bad(where, "channels", "only 'scalar' in a packed store", d.get("channels"))
+    if meta.scalar is None or meta.gradient is not None:
+        raise _bad(where, "channels", "'scalar' (and 'vector') in a packed store", d.get("channels"))
+    if meta.vector is not None and d.get("levels"):  # the owner encrypts a packed store's levels: scalar only
+        raise _bad(where, "levels", "none in a packed store with the vector channel", "a list of levels")
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
     if packing.offset != lo:
         raise _bad(where, "layout.offset", f"{lo} (the lowest mantissa of value_range)", str(packing.offset))
-    packing.check(int(meta.n).bit_length(), meta.shape, meta.brick, hi - lo, where)
+    span = store_span(hi - lo, None if meta.vector is None else meta.vector.digits)
+    packing.check(int(meta.n).bit_length(), meta.shape, meta.brick, span, where)
     return packing
 
 

@@ -3,13 +3,19 @@
 
 The brick's scalar mantissas (the per-voxel store's, :func:`~hevr.store.quantise.quantise_scalar`)
 are packed S to a plaintext along the packing axis, encrypted (the key's path: the owner's with a
-private key), written as the brick's chunk of the packed scalar array; a verifiable store then gets
-one tag per packed ciphertext, E(α·P + β) with β of the pack's flat index in the packed array
-(:mod:`hevr.crypto.tags`), and last the brick's digest marker, as for a per-voxel brick.
+private key), written as the brick's chunk of the packed scalar array. With the vector channel
+(``vector_dims=k``) the k components of the density encoding e(d) (the per-voxel store's mantissas,
+:func:`~hevr.store.quantise.quantise_vector`, in [0, 10^digits]) are packed alike, with the same S
+and K and offset 0, into the brick's chunk of the packed vector array (k, packs…). A verifiable
+store then gets one tag per packed ciphertext and component, E(α·P + β) with β =
+``betas(key, store_id, channel, 0, component, pack)`` of the pack's flat index in the packed array
+(:mod:`hevr.crypto.tags`), and last the brick's digest marker (scalar, vector, then their tags), as
+for a per-voxel brick.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import gmpy2
@@ -19,12 +25,13 @@ from .. import _stats
 from ..backends import CpuBackend
 from ..crypto.tags import betas, raw_tags, tag_channel, tag_key_of
 from ..errors import ParameterError
+from ..volume.density import encode_density, normalize_density
 from .brick_crypto import encrypt_components
 from .digests import brick_digest, marker
 from .layout import array_slices
 from .metadata import VolumeMetadata
 from .packing import pack_columns
-from .quantise import quantise_scalar
+from .quantise import quantise_scalar, quantise_vector
 
 __all__ = ["pack_axis_of", "write_packed_brick"]
 
@@ -32,31 +39,45 @@ _CPU = CpuBackend()  # the tags' records
 
 
 def write_packed_brick(be: Any, block: np.ndarray, group: Any, index: tuple[int, int, int], meta: VolumeMetadata,
-                        key: Any, unsafe_no_obfuscation: bool) -> tuple[int, int, int]:
-    """A packed store's brick: its columns of S voxels packed into one plaintext each, encrypted,
-    written as the brick's chunk of the scalar array, then (a verifiable store) one tag per packed
-    ciphertext, E(α·P + β) at the packed array's flat index, then the digest marker."""
+                       key: Any, unsafe_no_obfuscation: bool) -> tuple[int, int, int]:
+    """A packed store's brick: its columns of S voxels packed into one plaintext each (per channel
+    and component), encrypted, written as the brick's chunks of the scalar (and vector) arrays,
+    then (a verifiable store) one tag per packed ciphertext, E(α·P + β) at the packed array's flat
+    index, then the digest marker."""
     info = meta.packing
     q = np.array(quantise_scalar(block, meta.scalar), dtype=object if block.dtype == np.uint64 else np.int64)
-    plain = pack_columns(q.reshape(block.shape), info)
-    shape = plain.shape
+    plains = {"scalar": [pack_columns(q.reshape(block.shape), info)]}
+    if meta.vector is not None:  # e(d)'s k components, in [0, 10^digits]: slot value = mantissa (offset 0)
+        enc = encode_density(normalize_density(block, meta.value_range), meta.vector.dims)
+        vq = quantise_vector(enc, meta.vector)
+        vinfo = dataclasses.replace(info, offset=0)
+        plains["vector"] = [pack_columns(row.reshape(block.shape), vinfo) for row in vq]
+    shape = plains["scalar"][0].shape
     width = meta.ciphertext_bytes
-    out = encrypt_components(be, key, [plain.ravel().tolist()], shape, width, unsafe_no_obfuscation)[0]
-    digests = [brick_digest(meta.store_id, "scalar", index, out)]
     sl = array_slices(meta, index)
-    with _stats.timed("encrypt.write"):
-        group["scalar"][sl] = out
-    if meta.tags:
+    digests = []
+    for name, parts in plains.items():  # store order: scalar, vector
+        out = encrypt_components(be, key, [p.ravel().tolist() for p in parts], shape, width, unsafe_no_obfuscation)
+        out = out[0] if name == "scalar" else out
+        digests.append(brick_digest(meta.store_id, name, index, out))
+        with _stats.timed("encrypt.write"):
+            group[name][sl if name == "scalar" else (slice(None),) + sl] = out
+    if meta.tags:  # after every data channel: the digests' order (VolumeMetadata.channel_names)
         tk = tag_key_of(key)
         packs = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
                                      info.array_shape(meta.shape)).reshape(-1)
-        with _stats.timed("encrypt.tags", len(packs)):
-            plain_tags = raw_tags(tk, [int(p) % tk.n for p in plain.ravel()], betas(tk, meta.store_id, "scalar", 0, 0, packs))
-            tags = key.owner.encrypt_residues(gmpy2.mpz(t) for t in plain_tags)
-        rec = _CPU.to_bytes(tags, width).reshape(shape + (width,))
-        digests.append(brick_digest(meta.store_id, tag_channel("scalar"), index, rec))
-        with _stats.timed("encrypt.write"):
-            group[tag_channel("scalar")][sl] = rec
+        for name, parts in plains.items():
+            recs = []
+            for j, plain in enumerate(parts):
+                with _stats.timed("encrypt.tags", len(packs)):
+                    plain_tags = raw_tags(tk, [int(p) % tk.n for p in plain.ravel()],
+                                          betas(tk, meta.store_id, name, 0, j, packs))
+                    tags = key.owner.encrypt_residues(gmpy2.mpz(t) for t in plain_tags)
+                recs.append(_CPU.to_bytes(tags, width).reshape(shape + (width,)))
+            rec = recs[0] if name == "scalar" else np.stack(recs)
+            digests.append(brick_digest(meta.store_id, tag_channel(name), index, rec))
+            with _stats.timed("encrypt.write"):
+                group[tag_channel(name)][sl if name == "scalar" else (slice(None),) + sl] = rec
     group["done"][index] = marker(digests)
     return index
 

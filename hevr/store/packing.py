@@ -56,7 +56,7 @@ import numpy as np
 from ..errors import CorruptStoreError, ParameterError
 
 __all__ = ["INTEGRITY_BITS", "DEFAULT_WEIGHT_BITS", "MAX_SLOT_BITS", "PackingInfo", "choose_packing", "mantissa_range", "max_slots",
-           "pack_columns", "slot_bits", "unpack_slots"]
+           "pack_columns", "slot_bits", "store_span", "unpack_slots"]
 
 INTEGRITY_BITS = 64  # zero bits above the last slot of every decrypted frame value
 DEFAULT_WEIGHT_BITS = 10  # in-slice bilinear weights, quantised to 1/2^10 (the per-voxel store's 3 digits)
@@ -87,6 +87,18 @@ def slot_bits(span: int, weight_bits: int, max_slices: int) -> int:
     (24, 32, 30)
     """
     return max(1, (int(span) * ((1 << int(weight_bits)) + 2) * max(1, int(max_slices))).bit_length())
+
+
+def store_span(scalar_span: int, vector_digits: int | None = None) -> int:
+    """The span K is sized for: the scalar mantissas' (hi − lo), or the vector channel's 10^digits
+    when that is wider. The vector channel (the density encoding e(d), components in [0, 1], stored
+    as rint(c·10^digits), :mod:`hevr.store.quantise`) is packed with the scalar's S and K and offset 0,
+    so that one frame plan (:class:`hevr.rendering.packed.SlicePlan`) serves both channels.
+
+    >>> store_span(255), store_span(255, 3), store_span(4095, 3)
+    (255, 1000, 4095)
+    """
+    return max(int(scalar_span), 10 ** int(vector_digits) if vector_digits is not None else 0)
 
 
 def max_slots(key_bits: int, k: int) -> int:
@@ -181,15 +193,18 @@ class PackingInfo:
 
 
 def choose_packing(key_bits: int, shape: tuple[int, int, int], axis: int, mantissa_range: tuple[int, int],
-                   weight_bits: int = DEFAULT_WEIGHT_BITS) -> PackingInfo:
+                   weight_bits: int = DEFAULT_WEIGHT_BITS, vector_digits: int | None = None) -> PackingInfo:
     """The packing of a new store: K from the value span, the weights and the longest
-    non-packing axis; S the most slots that fit the key (module docstring).
+    non-packing axis; S the most slots that fit the key (module docstring). ``vector_digits``:
+    the store also holds the vector channel, packed alike (:func:`store_span`).
 
     >>> choose_packing(2048, (64, 64, 64), 0, (0, 255))
     PackingInfo(axis=0, slots=41, slot_bits=24, weight_bits=10, offset=0)
+    >>> choose_packing(2048, (64, 64, 64), 0, (0, 255), vector_digits=3).slot_bits
+    26
     """
     lo, hi = (int(v) for v in mantissa_range)
-    span = hi - lo
+    span = store_span(hi - lo, vector_digits)
     longest = max(s for i, s in enumerate(shape) if i != axis)
     k = slot_bits(span, weight_bits, longest)
     if k > MAX_SLOT_BITS:

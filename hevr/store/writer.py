@@ -255,7 +255,9 @@ def encrypt_volume(
         width from the key, the value range and the shape, recorded in the metadata): about S
         times fewer ciphertexts, bytes and encryption time, rendered as parallel projections
         slice by slice (:mod:`hevr.rendering.packed`; views along the packing axis, perspective
-        cameras, slices and the pyramid need a per-voxel store). Scalar channel only.
+        cameras, slices and the pyramid need a per-voxel store). The scalar channel, and with
+        ``vector_dims`` the vector channel packed alike (same S and K, for transfer-function and
+        emphasis frames: :mod:`hevr.rendering.packed.colour`); no gradient channel.
     pack_axis : int or {"z", "y", "x"}, optional
         The packing axis of a packed store, as an array axis (0 = z) or its name; default 0, the
         scan's z axis (the patient's superior axis in RAS+), which serves every view around the body.
@@ -300,10 +302,13 @@ def encrypt_volume(
         if layout == "packed" and not verifiable:
             log.warning("encrypt_volume: a packed store encrypted with the public key has no tags (they need the "
                         "private key), so its frames cannot be verified")
-    if layout == "packed" and (vector_dims is not None or gradient or not scalar):
-        raise ParameterError("layout: expected 'voxel' for a store with the vector or gradient channel (a packed "
-                             f"store holds the scalar channel only), got 'packed' with vector_dims={vector_dims!r}, "
-                             f"gradient={bool(gradient)}, scalar={bool(scalar)}")
+    if layout == "packed" and (gradient or not scalar):
+        raise ParameterError("layout: expected 'voxel' for a store with the gradient channel or without the scalar "
+                             "one (a packed store holds the scalar channel and, with vector_dims, the vector one), got "
+                             f"'packed' with gradient={bool(gradient)}, scalar={bool(scalar)}")
+    if layout == "packed" and vector_dims is not None and levels:
+        raise ParameterError(f"levels: expected 0 for a packed store with the vector channel (its levels are "
+                             f"encrypted scalar only), got {levels}; encrypt without vector_dims, or layout='voxel'")
     if layout == "voxel" and pack_axis is not None:
         raise ParameterError(f"pack_axis: expected None for layout='voxel', got {pack_axis!r}")
     sc, vc, vr = plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
@@ -311,7 +316,7 @@ def encrypt_volume(
     if layout == "packed":
         axis = pack_axis_of(pack_axis)
         packing = choose_packing(int(pub.n).bit_length(), tuple(int(s) for s in vol.shape), axis,
-                                 mantissa_range(vr, sc.exponent))
+                                 mantissa_range(vr, sc.exponent), vector_digits=None if vc is None else vc.digits)
         brick_t = tuple(-(-b // packing.slots) * packing.slots if i == axis else b for i, b in enumerate(brick_t))
     meta = VolumeMetadata(
         shape=tuple(int(s) for s in vol.shape), spacing=spacing_t, brick=brick_t, n=str(int(pub.n)),
