@@ -25,8 +25,9 @@ of their value — the throughput, the store, the GPU frames, then the CPU curve
     SHA-256 against the backend's (the *identical image* rule).
 ``packed``
     issue 46: a packed store of the ``packed_size``³ phantom, its frames (two views, nearest and
-    bilinear) on the backend and on ``cpu`` from resident copies, identical ciphertexts checked,
-    seconds and operation counts kept (:mod:`hevr._bench.gpu_packed`).
+    bilinear, and one verified) on the backend and on ``cpu`` from resident copies, identical
+    ciphertexts checked (the command exits 1 otherwise), seconds and operation counts kept
+    (:mod:`hevr._bench.gpu_packed`).
 ``table``
     ``goals.md`` from ``goals.jsonl``: each goal with the figure measured beside it.
 
@@ -287,9 +288,9 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     workers = tuple(sorted({int(w) for w in a.workers.split(",")}))
-    ok = run_step(a.step, a.out, a.work, backend=a.backend, size=a.size, tf_size=a.tf_size, image=a.image, bits=a.bits,
-             repeats=a.repeats, workers=workers, owner_kernels=a.owner_kernels, quick=a.quick,
-             packed_size=a.packed_size, packed_image=a.packed_image)
+    ok = run_step(a.step, a.out, a.work, backend=a.backend, size=a.size, tf_size=a.tf_size, image=a.image,
+                  bits=a.bits, repeats=a.repeats, workers=workers, owner_kernels=a.owner_kernels, quick=a.quick,
+                  packed_size=a.packed_size, packed_image=a.packed_image)
     log.info("goal table: %s", a.out / "goals.md")  # gpu-proof.sh prints it; no print() outside the CLI
     if not ok:
         log.error("packed frames: the backend's frames are NOT identical to cpu's (or out of bound): see goals.md")

@@ -113,9 +113,10 @@ def packed_step(out: Path, work: Path, backend: str, size: int, image: int, bits
         enc_s = time.perf_counter() - t0
         pk = ev.packing
         records = int(np.prod(pk.array_shape(ev.shape)))
+        how = "cpu, " + (f"LocalCluster of {workers} processes" if client else "one process")
         append_row(out, {"step": "packed", "what": "encrypt packed", "size": size, "bits": bits, "seconds": enc_s,
-                      "ciphertexts": records, "voxels": size ** 3, "slots": pk.slots, "slot_bits": pk.slot_bits,
-                      "bytes": dir_bytes(path), "how": f"cpu, {'LocalCluster of %d processes' % workers if client else 'one process'}"})
+                         "ciphertexts": records, "voxels": size ** 3, "slots": pk.slots, "slot_bits": pk.slot_bits,
+                         "bytes": dir_bytes(path), "how": how})
         log.info("packed %d^3 at %d bits: S=%d K=%d, %d ciphertexts, encrypted in %.2f s", size, bits, pk.slots,
                  pk.slot_bits, records, enc_s)
         with dask.config.set(scheduler="sync"):

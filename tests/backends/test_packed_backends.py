@@ -8,9 +8,10 @@ streamed and resident (``persist(backend=...)``), rendered with ``backend=KERNEL
 identical ciphertexts, decrypted slot sums and image as ``backend="cpu"`` — the sums the exact
 integers of the plan on the plaintext, the image within ``error_bound`` of the float64 slice
 reference. The kernels do the work (their operations are spied on; no silent gmpy2 fallback on
-``cuda-host``). A verified frame (the store's default): the kernels' tag render and aggregate (62-bit
-coefficients) pass the key holder's check, and for one seed their aggregate is cpu's. The operations a packed frame adds — ``pack`` with up to ~40 classes of up to
-38-bit digits, ``segment_products`` over ragged segments — are checked at 2048 bits.
+``cuda-host``). A verified frame (the store's default): the kernels' tag render and aggregate
+(62-bit coefficients) pass the key holder's check, and for one seed their aggregate is cpu's. The
+operations a packed frame adds — ``pack`` with up to ~40 classes of up to 38-bit digits,
+``segment_products`` over ragged segments — are checked at 2048 bits.
 
 ``KERNELS`` is ``cuda-host`` (the CUDA kernels compiled for the host: runs in CI); on a GPU machine
 ``HEVR_TEST_KERNELS=cuda`` runs the same tests on the device. The ``cuda`` launcher also runs here
