@@ -28,6 +28,7 @@ from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..remote.client import connect
 from ..rendering.encrypted import render
 from ..rendering.geometry.camera import Camera
+from ..rendering.packed.image import PackedImage
 from ..rendering.pipeline.sums import MAGIC as SUMS_MAGIC
 from ..rendering.pipeline.sums import load_sums, recolour
 from ..rendering.planning.planner import check_render_size
@@ -40,6 +41,13 @@ from .cluster import dask_client, describe_client
 from .describe import channels
 from .finish import report_finish
 from .keys import key_label, read_key
+from .packed import (
+    check_packed_render,
+    default_packed_view,
+    packed_camera,
+    packed_verified_line,
+    packed_wrote_line,
+)
 from .pyramid import level_rows
 from .render_options import format_tf
 from .scan import encrypt_input, resolve_tf
@@ -112,15 +120,18 @@ def cmd_encrypt(args: Any) -> int:
               f"in {t.seconds:.2f} s ({now['ciphertexts'] / max(t.seconds, 1e-9):,.0f} ciphertexts/s)")
     if ev.packing is not None:
         print(f"packed:  {ev.packing.slots} voxels per ciphertext along {'zyx'[ev.packing.axis]} ({ev.packing.slot_bits}-bit "
-              f"slots): X-ray frames of parallel cameras around that axis, rendered in Python for now "
-              "(hevr.render(ev, hevr.Camera.orbit(ev, azimuth=90, parallel=True)))")
+              f"slots): X-ray frames of parallel cameras around that axis (hevr render {args.out} --out FRAME.hevr "
+              f"--key KEY: --view {default_packed_view(ev)} unless you give a view)")
     elif not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
     for name, text in level_rows(ev.meta):
         print(f"{name}: {text}")
     if ev.meta.tags and ev.packing is not None:
-        print(f"verifiable: store id {ev.meta.store_id}; one tag per packed ciphertext is written, but packed "
-              "frames are not verified yet")
+        print(f"verifiable: store id {ev.meta.store_id}; one tag per packed ciphertext: frames rendered with --key "
+              f"KEY are verified (--verify {ev.meta.store_id} refuses any other store)")
+    elif ev.packing is not None and not ev.meta.tags:
+        print("not verifiable: no tags (--no-verifiable, or a public --key: only the owner's private key makes them); "
+              "packed frames of this store cannot be checked against a lying server")
     elif ev.meta.tags:
         print(f"verifiable: store id {ev.meta.store_id}; keep it, and render with --key KEY --verify "
               f"{ev.meta.store_id} to refuse any other store a server might answer with (recorded in your known "
@@ -200,15 +211,18 @@ def resolve_mode(args: Any) -> str:
     return mode
 
 
-def open_for_mode(store: str, mode: str, verb: str, so: dict | None = None, args: Any = None) -> Any:
+def open_for_mode(store: str, mode: str, verb: str, so: dict | None = None, args: Any = None,
+                  packed: bool = False) -> Any:
     """Open STORE (a folder or a URL, with storage options ``so``; with ``args.server``, the store id
     on that ``hevr serve``: :func:`open_remote`) and check that it has the channel ``mode`` reads
-    (``verb``: the command, for the hint)."""
+    (``verb``: the command, for the hint). A packed store only where the command serves one
+    (``packed``; its options are checked by the command: :mod:`hevr.cli.packed`)."""
     ev = open_remote(args) if getattr(args, "server", None) else st.open_store(store, "STORE", so)
     if getattr(ev, "packing", None) is not None:
-        raise UsageError(f"STORE: expected a per-voxel store for 'hevr {verb}', got the packed store {store}: packed "
-                         "frames are rendered in Python for now (hevr.render(ev, hevr.Camera.orbit(ev, azimuth=90, "
-                         "parallel=True)).decrypt(key)); their frame files and CLI come later")
+        if not packed:
+            raise UsageError(f"STORE: expected a per-voxel store for 'hevr {verb}', got the packed store {store}: a "
+                             "packed store serves X-ray frames ('hevr render'); encrypt a per-voxel store for it")
+        return ev
     if mode != "xray" and not ev.vector_dims:
         raise UsageError(f"--mode {mode}: expected a store with the vector channel, got {store} without one; "
                          f"encrypt it with --vector-dims 4 (or {verb} --mode xray)")
@@ -251,37 +265,58 @@ def cmd_render(args: Any) -> int:
     sums = st.output_file(args.keep_sums, "--keep-sums", force=args.force, so=so) if args.keep_sums is not None else None
     if sums is not None and str(sums) == str(out):
         raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
-    ev = open_for_mode(args.store, mode, "render", so, args)
+    ev = open_for_mode(args.store, mode, "render", so, args, packed=True)
+    packed = getattr(ev, "packing", None) is not None
+    if packed:
+        check_packed_render(args, mode)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     verify = key_holder(args, ev)
     if args.view and ev.frame is None:
         warn_line(f"--view {args.view}: {args.store} records no patient frame (its input had no orientation); "
                   "the view takes the stored axes as RAS+ (x right, y anterior, z superior)")
     w, h = args.size
-    cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h,
-                       view_angle=args.view_angle, parallel=args.parallel, view=args.view)
+    step = 1.0 if args.step is None else args.step
+    if packed:
+        cam, view = packed_camera(args, ev)
+    else:
+        view = args.view
+        cam = Camera.orbit(ev, azimuth=args.azimuth or 0.0, elevation=args.elevation or 0.0, width=w, height=h,
+                           view_angle=30.0 if args.view_angle is None else args.view_angle, parallel=args.parallel,
+                           view=view)
     if args.level > ev.levels:
         raise UsageError(f"--level {args.level}: expected a level of the store's pyramid (0 to {ev.levels}), got "
                          f"{args.level}; build it with: hevr pyramid {args.store} --levels {args.level}")
-    check_render_size(cam, ev.shape, ev.spacing, args.step)  # refuse before a cluster starts
+    check_render_size(cam, ev.shape, ev.spacing, step)  # refuse before a cluster starts
     what = {"xray": "X-ray", "emphasize": f"emphasis of density {args.density}",
             "tf": f"transfer function {format_tf(nodes) if nodes else ''}"}[mode]
-    print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…")
+    print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…"
+          + (f", packed along {'zyx'[ev.packing.axis]} ({ev.packing.slots} voxels per ciphertext)" if packed else ""))
     lvl = f", pyramid level {args.level} ({xyz(ev.meta.levels[args.level - 1].shape)})" if args.level else ""
+    how = "parallel, one sample per slice" if packed else f"step {step:g}"
+    default = " (the packed store's default)" if packed and view and not args.view else ""
     print(f"render:  {what}, {args.sampling} sampling, {wh(w, h)} px, "
-          f"{f'{args.view} view, ' if args.view else ''}azimuth {args.azimuth:g}, "
-          f"elevation {args.elevation:g}, step {args.step:g}{lvl}")
+          f"{f'{view} view{default}, ' if view else ''}azimuth {args.azimuth or 0.0:g}, "
+          f"elevation {args.elevation or 0.0:g}, {how}{lvl}")
     with compute_context(args, ev):
         with Timer() as t:
-            img = render(ev, cam, mode=mode, sampling=args.sampling, step=args.step, density=args.density,
-                         nodes=nodes, precision=args.precision, pack=not args.no_pack,
-                         progress=show_progress(args), keep_sums=sums, level=args.level or None,
-                         gradient=args.gradient, overwrite=args.force, finish=args.finish,
-                         verify=verify)
+            if packed:  # the packed request's own options only (hevr.rendering.packed.request)
+                img = render(ev, cam, sampling=args.sampling, progress=show_progress(args), level=args.level or None,
+                             verify=verify)
+            else:
+                img = render(ev, cam, mode=mode, sampling=args.sampling, step=step, density=args.density,
+                             nodes=nodes, precision=args.precision, pack=not args.no_pack,
+                             progress=show_progress(args), keep_sums=sums, level=args.level or None,
+                             gradient=args.gradient, overwrite=args.force, finish=args.finish,
+                             verify=verify)
     st.save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
-    if verified_line(img):
-        print(verified_line(img) + " (stamped with the key holder's MAC)")
+    line = packed_verified_line(img) if packed else verified_line(img)
+    if line:
+        print(line + " (stamped with the key holder's MAC)")
     warn_unverified(args, ev, img)
+    if packed:
+        print(packed_wrote_line(img, out, human_bytes(st.size_of(out, so)), t.seconds))
+        print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {st.png_name(out)}")
+        return 0
     print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
     if sums is not None:
@@ -388,7 +423,14 @@ def cmd_decrypt(args: Any) -> int:
             raise UsageError(f"--npy: expected another file than --out, got {args.npy} for both")
     key = read_key(args.key, private=True)
     img = load_image(frame, storage_options=so)
-    colouring = decrypt_colouring(args, img)
+    packed = isinstance(img, PackedImage)
+    colouring = None if packed else decrypt_colouring(args, img)
+    if packed:
+        given = [o for o, v in (("--mode", args.mode), ("--density", args.density), ("--tf", args.tf),
+                                ("--value-range", args.value_range)) if v is not None and (o != "--mode" or v != "xray")]
+        if given:
+            raise UsageError(f"{', '.join(given)}: expected no colouring for {args.frame}, a packed store's X-ray "
+                             "(it is decrypted as it is)")
     need = args.require_verified
     with Timer() as t:
         decrypted = (img.decrypt_frame(key, require_verified=need) if colouring is not None else
@@ -403,16 +445,17 @@ def cmd_decrypt(args: Any) -> int:
         coloured = f"; coloured on this machine in {1000 * tc.seconds:.1f} ms ({what})"
     else:
         arr = decrypted
-    cam = (img.info or {}).get("camera") or {}
+    cam = {} if packed else (img.info or {}).get("camera") or {}
     plane = cam if cam.get("kind") == "plane" else None
-    hits = img.hits if img.hits is not None and img.hits.shape == arr.shape[:2] else None
+    hits = None if packed else img.hits if img.hits is not None and img.hits.shape == arr.shape[:2] else None
     window = args.window if args.window is not None else default_window(arr, hits)
     st.save_decrypted(arr, out, npy, window, force=args.force, plane=plane, hits=hits)
     rgb = ", rgb" if arr.ndim == 3 else ""
     print(f"decrypted {plural(img.n_ciphertexts, 'ciphertext')} in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
     if img.verification is not None:
-        print(verified_line(img) + " (the file carries the key holder's stamp)")
+        print((packed_verified_line(img) if packed else verified_line(img)) + " (the file carries the key holder's "
+              "stamp)")
     else:
         print("not verified: the frame carries no check against a store's tags (a store encrypted without "
               "--verifiable, rendered without --key or with --no-verify or --finish server); --require-verified "

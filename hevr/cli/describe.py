@@ -25,6 +25,7 @@ from ..crypto.phe_keys import is_phe_dict
 from ..errors import MissingFileError, StoreError
 from ..image.files import load_image
 from ..image.header import MAGIC
+from ..rendering.packed.image import PackedImage
 from ..rendering.pipeline.sums import MAGIC as SUMS_MAGIC
 from ..rendering.pipeline.sums import load_sums
 from ..store.layout import check_document
@@ -34,6 +35,7 @@ from ..store.reader import open_volume
 from . import storage as st
 from .exits import cli_phrases
 from .keys import info_key
+from .packed import packed_info_rows
 from .pyramid import level_rows
 from .render_options import format_tf
 from .scan import scan_rows
@@ -155,6 +157,9 @@ def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> i
 
 def _info_image(path: Path | str, so: dict | None = None) -> int:
     img = load_image(path, storage_options=so)
+    if isinstance(img, PackedImage):  # a packed store's frame (hevr.rendering.packed.files)
+        print_rows([("path", path), *packed_info_rows(img), ("on disk", human_bytes(st.size_of(path, so)))])
+        return 0
     info = img.info or {}
     cam = info.get("camera") or {}
     bits = int(img.n).bit_length()

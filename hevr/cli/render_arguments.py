@@ -148,14 +148,15 @@ def encrypt_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gradient", action="store_true",
                    help="also store the gradient-modulated encoding g*e(d) (needs --vector-dims; k more ciphertexts "
                         "per voxel) for 'hevr render --gradient'")
-    p.add_argument("--verifiable", action="store_true",
+    p.add_argument("--verifiable", action=argparse.BooleanOptionalAction, default=None,
                    help="also store a tag channel beside every channel, so that renders are checked against a lying "
                         "server at 'hevr decrypt' (needs the private --key; twice the ciphertexts and about twice "
-                        "the encryption time)")
+                        "the encryption time); default: on for a packed store encrypted with the private key, off "
+                        "otherwise (--no-verifiable: no tags)")
     p.add_argument("--layout", choices=("voxel", "packed"), default="voxel",
                    help="'voxel': one ciphertext per voxel (default; every render); 'packed': S voxels per "
                         "ciphertext along --pack-axis (about S times smaller and faster to encrypt; X-ray frames of "
-                        "parallel cameras around that axis, 'hevr render --parallel'; scalar channel only)")
+                        "parallel cameras around that axis, 'hevr render STORE'; scalar channel only)")
     p.add_argument("--pack-axis", choices=("z", "y", "x"), default=None,
                    help="the packing axis of --layout packed (default z: the patient's superior axis in RAS+)")
     p.add_argument("--levels", type=levels_type, default=0, metavar="L",
@@ -188,26 +189,34 @@ def render_arguments(p: argparse.ArgumentParser) -> None:
                 f"  hevr render vol.zarr --out emph.hevr --mode emphasize --density {PAPER_DENSITIES[1]}\n"
                 f"  hevr render vol.zarr --out tf.hevr --mode tf --tf '{format_tf(PAPER_TF2)}'\n"
                 "  hevr render ct.zarr --out bone.hevr --view anterior --azimuth 30 --tf ct-bone\n"
+                "  hevr render ct-packed.zarr --out xray.hevr --key key.json --sampling trilinear"
+                "   # a packed store: a verified parallel X-ray\n"
                 f"  hevr render vol.zarr --out tf.hevr --tf '{format_tf(PAPER_TF2)}' --finish server"
                 "   # the paper's way\n"
-                "\n--mode defaults to emphasize with --density, tf with --tf, else xray.\n")
+                "\n--mode defaults to emphasize with --density, tf with --tf, else xray.\n"
+                "A packed store (hevr encrypt --layout packed) renders parallel X-ray frames of views around its\n"
+                "packing axis (default: --view anterior, or left for a store packed along y); options it cannot\n"
+                "serve (--mode emphasize/tf, --step, --finish server, --view-angle, --keep-sums, --no-pack,\n"
+                "--gradient) are refused.\n")
     p.add_argument("store", metavar="STORE", help="encrypted volume store (hevr encrypt)")
     p.add_argument("--out", required=True, metavar="FRAME.hevr", help="encrypted image file to write")
     p.add_argument("--force", action="store_true", help="replace an existing --out (and --keep-sums) file")
     p.add_argument("--mode", choices=("xray", "emphasize", "tf"), help="render mode (default: see below)")
     p.add_argument("--sampling", choices=("nearest", "trilinear"), default="nearest",
                    help="sampling along the rays (default nearest)")
-    p.add_argument("--azimuth", type=finite_float, default=0.0, metavar="DEG",
+    p.add_argument("--azimuth", type=finite_float, default=None, metavar="DEG",
                    help="camera azimuth about the y axis (default 0: looking from +z); with --view, about the "
                         "view's up axis")
-    p.add_argument("--elevation", type=finite_float, default=0.0, metavar="DEG", help="camera elevation (default 0)")
+    p.add_argument("--elevation", type=finite_float, default=None, metavar="DEG", help="camera elevation (default 0)")
     add_view_option(p)
     p.add_argument("--size", type=size_type, default=(PAPER_IMAGE, PAPER_IMAGE), metavar="WxH",
                    help=f"image size (default {PAPER_IMAGE}x{PAPER_IMAGE})")
-    p.add_argument("--view-angle", type=positive_float, default=30.0, metavar="DEG",
-                   help="vertical view angle (default 30)")
-    p.add_argument("--parallel", action="store_true", help="parallel projection instead of perspective")
-    p.add_argument("--step", type=positive_float, default=1.0, metavar="S", help="sample spacing in world units (default 1)")
+    p.add_argument("--view-angle", type=positive_float, default=None, metavar="DEG",
+                   help="vertical view angle (default 30; perspective cameras only)")
+    p.add_argument("--parallel", action="store_true",
+                   help="parallel projection instead of perspective (always, on a packed store)")
+    p.add_argument("--step", type=positive_float, default=None, metavar="S",
+                   help="sample spacing in world units (default 1; a packed store samples once per slice)")
     p.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
     p.add_argument("--tf", type=tf_type, metavar="NODES",
                    help=f"{TF_HELP}; default {tf_text(PAPER_TF1)}")

@@ -1,4 +1,5 @@
-"""``hevr encrypt --layout packed``, ``hevr info`` of a packed store, and the commands that refuse one."""
+"""``hevr encrypt --layout packed``, ``hevr info`` of a packed store, ``hevr render`` / ``decrypt`` /
+``info`` of packed frames, and the options and commands that refuse one."""
 
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ def test_encrypt_packed_info_and_refusals(tmp_path, capsys):
     assert run(capsys, "keygen", "--bits", "256", "--out", key)[0] == 0
     code, out, _ = run(capsys, "encrypt", "phantom:12", "--key", key, "--out", store, "--layout", "packed",
                        "--pack-axis", "x", "--brick", "4", "--verifiable")
-    assert code == 0 and "packed:" in out and "along x" in out and "not verified yet" in out
+    assert code == 0 and "packed:" in out and "along x" in out and "not verified yet" not in out
+    assert "frames rendered with --key KEY are verified" in out
     ev = hevr.open_volume(store)
     assert ev.layout == "packed" and ev.packing.axis == 2 and ev.meta.tags
     priv = hevr.load_key(key)
@@ -32,9 +34,103 @@ def test_encrypt_packed_info_and_refusals(tmp_path, capsys):
     assert (np.abs(img.decrypt(priv) - ref) <= hevr.error_bound(ev, c)).all()
     code, out, _ = run(capsys, "info", store)
     assert code == 0 and "packed:" in out and "voxels per ciphertext along x" in out
-    code, _, err = run(capsys, "render", store, "--out", tmp_path / "f.hevr", "--parallel")
-    assert code == 2 and "packed store" in err and "hevr.render" in err
+    code, out, err = run(capsys, "render", store, "--out", tmp_path / "f.hevr", "--size", "10x9", "--key", key, "-q")
+    assert code == 0, err
+    assert "anterior view (the packed store's default)" in out and "verified: the frame is the packed X-ray" in out
     code, _, err = run(capsys, "pyramid", store)
     assert code != 0 and "packed store" in err
     code, _, err = run(capsys, "encrypt", "phantom:12", "--key", key, "--out", tmp_path / "v.zarr", "--pack-axis", "z")
     assert code == 2 and "--pack-axis" in err and not (tmp_path / "v.zarr").exists()
+
+
+@pytest.fixture(scope="module")
+def packed_store(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli-packed")
+    key, store = d / "key.json", d / "z.zarr"
+    assert main(["keygen", "--bits", "256", "--out", str(key)]) == 0
+    assert main(["encrypt", "phantom:12", "--key", str(key), "--out", str(store), "--layout", "packed", "--brick",
+                 "4", "-q"]) == 0  # verifiable by default: the owner's private key
+    return key, store
+
+
+def test_render_decrypt_info_packed_frame(packed_store, tmp_path, capsys):
+    key, store = packed_store
+    ev, priv = hevr.open_volume(store), hevr.load_key(key)
+    assert ev.meta.tags and ev.packing.axis == 0
+    frame = tmp_path / "x.hevr"
+    code, out, err = run(capsys, "render", store, "--out", frame, "--key", key, "--size", "11x10", "--sampling",
+                         "trilinear", "--azimuth", "25", "--view", "anterior", "-q")
+    assert code == 0, err
+    assert "verified: the frame is the packed X-ray of store " + ev.meta.store_id in out
+    assert "stamped with the key holder's MAC" in out and f"hevr decrypt {frame}" in out
+    assert frame.read_bytes().startswith(b"HEVRIMGP\x01")
+    code, out, err = run(capsys, "info", frame)
+    assert code == 0, err
+    assert "encrypted packed frame" in out and "with the key holder's stamp, saved as 'x.hevr'" in out
+    assert "W×H = 11×10 px" in out and "trilinear" in out
+    png, npy = tmp_path / "x.png", tmp_path / "x.npy"
+    code, out, err = run(capsys, "decrypt", frame, "--key", key, "--out", png, "--npy", npy, "--require-verified",
+                         ev.meta.store_id)
+    assert code == 0, err
+    assert "verified: the frame is the packed X-ray" in out and png.is_file()
+    arr = np.load(npy)
+    cam = hevr.Camera.orbit(ev, view="anterior", azimuth=25, width=11, height=10, parallel=True)
+    ref = hevr.render_plain(hevr.phantom(12), cam, sampling="trilinear", slices=True)
+    assert arr.shape == (10, 11) and (np.abs(arr - ref) <= hevr.error_bound(ev, cam, sampling="trilinear")).all()
+    assert np.array_equal(arr, hevr.load_image(frame).decrypt(priv))
+    # colouring a packed X-ray: refused, one line naming the option
+    code, _, err = run(capsys, "decrypt", frame, "--key", key, "--out", tmp_path / "c.png", "--tf", "0.5:red")
+    assert code == 2 and err.count("\n") == 1 and "--tf" in err and "packed" in err
+    # a stamped frame in another frame's place: exit 1, no PNG
+    frame.rename(tmp_path / "y.hevr")
+    code, _, err = run(capsys, "decrypt", tmp_path / "y.hevr", "--key", key, "--out", tmp_path / "y.png")
+    assert code == 1 and "saved this verified frame as 'x.hevr'" in err and not (tmp_path / "y.png").exists()
+
+
+def test_unverified_packed_frame(packed_store, tmp_path, capsys):
+    key, store = packed_store
+    frame = tmp_path / "u.hevr"
+    code, out, err = run(capsys, "render", store, "--out", frame, "--size", "8", "-q")  # no key: not verified
+    assert code == 0, err
+    assert "not verified: no --key" in err and "verified: the frame" not in out
+    code, out, _ = run(capsys, "info", frame)
+    assert "no (no check against the store's tags" in out
+    code, _, err = run(capsys, "decrypt", frame, "--key", key, "--out", tmp_path / "u.png", "--require-verified")
+    assert code == 1 and "not verified" in err and not (tmp_path / "u.png").exists()
+    code, out, err = run(capsys, "decrypt", frame, "--key", key, "--out", tmp_path / "u.png")
+    assert code == 0 and "not verified" in out and (tmp_path / "u.png").is_file()
+
+
+@pytest.mark.parametrize("opts, named", [
+    (["--mode", "emphasize", "--density", "0.5"], "--mode emphasize"),
+    (["--tf", "0.5:red"], "--tf"),
+    (["--step", "2"], "--step"),
+    (["--finish", "server"], "--finish server"),
+    (["--view-angle", "20"], "--view-angle"),
+    (["--keep-sums", "{d}/s.hevrsums"], "--keep-sums"),
+    (["--no-pack"], "--no-pack"),
+    (["--view", "superior"], "--view"),                 # along the packing axis z
+    (["--azimuth", "0"], "--azimuth"),                  # the plain orbit at 0 looks along z
+    (["--view", "anterior", "--elevation", "60"], "--view/--elevation"),
+])
+def test_packed_render_refusals(packed_store, tmp_path, capsys, opts, named):
+    key, store = packed_store
+    opts = [o.replace("{d}", str(tmp_path)) for o in opts]
+    code, _, err = run(capsys, "render", store, "--out", tmp_path / "f.hevr", "--size", "8", *opts)
+    lines = [x for x in err.splitlines() if not x.startswith("hevr: warning: --view")]  # (a phantom: no RAS frame)
+    assert code == 2 and len(lines) == 1 and lines[0].startswith(f"hevr: error: {named}"), err
+    assert not (tmp_path / "f.hevr").exists()
+
+
+def test_encrypt_verifiable_pair(tmp_path, capsys):
+    key = tmp_path / "key.json"
+    assert run(capsys, "keygen", "--bits", "256", "--out", key)[0] == 0
+    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "n.zarr", "--layout",
+                       "packed", "--brick", "4", "--no-verifiable", "-q")
+    assert code == 0 and "not verifiable: no tags" in out and not hevr.open_volume(tmp_path / "n.zarr").meta.tags
+    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4",
+                       "--verifiable", "-q")
+    assert code == 0 and hevr.open_volume(tmp_path / "v.zarr").meta.tags  # a per-voxel store: on request
+    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "d.zarr", "--brick", "4",
+                       "-q")
+    assert code == 0 and not hevr.open_volume(tmp_path / "d.zarr").meta.tags  # the library's default

@@ -1,0 +1,129 @@
+"""Packed stores and their frames on the command line: what ``hevr render`` may ask of a packed
+store, the camera it renders, and the lines ``render``, ``decrypt`` and ``info`` print about a
+packed frame (:class:`hevr.PackedImage`, its file: :mod:`hevr.rendering.packed.files`).
+
+A packed store (``hevr encrypt --layout packed``) serves X-ray frames of parallel cameras whose
+principal axis is not its packing axis, one sample per slice, finished on the client. So ``hevr
+render`` on one renders a parallel camera whatever ``--parallel`` says; with no ``--view`` and no
+``--azimuth`` it takes an anatomical view the store serves (:func:`default_packed_view`); every
+option it cannot serve is refused before any work, with one line naming the option (exit 2).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..errors import ParameterError
+from ..rendering.geometry.camera import Camera
+from ..rendering.packed.shear import ShearGeometry
+from .util import UsageError, plural, wh
+
+__all__ = ["check_packed_render", "default_packed_view", "packed_camera", "packed_info_rows", "packed_verified_line",
+           "packed_wrote_line"]
+
+_VIEW_AXES = {"anterior": 1, "posterior": 1, "left": 2, "right": 2, "superior": 0, "inferior": 0}  # array axis seen along
+_PER_VOXEL = "render a per-voxel store for it (hevr encrypt without --layout packed)"
+
+
+def default_packed_view(ev: Any) -> str:
+    """The anatomical view ``hevr render`` takes on a packed store when none is given: ``anterior``
+    (looking along y), or ``left`` (along x) for a store packed along y, whose anterior view would
+    look along its packing axis.
+
+    >>> from types import SimpleNamespace as NS
+    >>> default_packed_view(NS(packing=NS(axis=0))), default_packed_view(NS(packing=NS(axis=1)))
+    ('anterior', 'left')
+    """
+    return "left" if int(ev.packing.axis) == 1 else "anterior"
+
+
+def check_packed_render(args: Any, mode: str) -> None:
+    """Refuse (:class:`UsageError`, exit 2) an option of ``hevr render`` that a packed store cannot
+    serve, naming it; before the store is read further or a cluster starts."""
+    if mode != "xray":
+        opt = f"--mode {mode}" if args.mode else "--tf" if args.tf is not None else "--density"
+        raise UsageError(f"{opt}: expected an X-ray on a packed store (it holds the scalar channel only); {_PER_VOXEL} "
+                         "with --vector-dims 4")
+    refused = [
+        (args.step is not None and args.step != 1.0, "--step", "a packed store samples once per slice of the "
+                                                               "view's principal axis (step 1)"),
+        (args.finish == "server", "--finish server", "a packed frame is finished on the client (the key holder "
+                                                     "decodes the slots and warps the image)"),
+        (args.view_angle is not None, "--view-angle", "a packed store renders parallel cameras only (the view angle "
+                                                      "is a perspective camera's)"),
+        (args.keep_sums is not None, "--keep-sums", "a packed frame's ray sums are not saved apart from it"),
+        (args.no_pack, "--no-pack", "a packed frame's values are packed by the store's slots"),
+        (args.gradient, "--gradient", "a packed store has no gradient channel"),
+    ]
+    for bad, opt, why in refused:
+        if bad:
+            raise UsageError(f"{opt}: not for a packed store ({why}); leave it out, or {_PER_VOXEL}")
+
+
+def packed_camera(args: Any, ev: Any) -> tuple[Camera, str]:
+    """The parallel camera of ``hevr render`` on the packed store ``ev`` and the view's name (the
+    default view when neither ``--view`` nor ``--azimuth`` is given); a view the store cannot serve
+    (along its packing axis) is a :class:`UsageError` naming the options that set it."""
+    view = args.view or (default_packed_view(ev) if args.azimuth is None else None)
+    w, h = args.size
+    cam = Camera.orbit(ev, azimuth=args.azimuth or 0.0, elevation=args.elevation or 0.0, width=w, height=h,
+                       parallel=True, view=view)
+    try:
+        ShearGeometry.of(cam, ev.shape, ev.spacing, axis=ev.packing.axis)
+    except ParameterError:
+        opts = "/".join(o for o, v in (("--view", args.view), ("--azimuth", args.azimuth),
+                                        ("--elevation", args.elevation)) if v is not None) or "--view"
+        a = int(ev.packing.axis)
+        around = ", ".join(v for v, ax in _VIEW_AXES.items() if ax != a)
+        raise UsageError(f"{opts}: expected a view within 45° of the plane across the packing axis {'zyx'[a]} of this "
+                         f"packed store, got one closer to {'zyx'[a]}: it serves views around {'zyx'[a]} (--view "
+                         f"{around}, turned by --azimuth, tilted by --elevation under 45°); for this view encrypt a "
+                         "store packed along another axis (--pack-axis) or a per-voxel store") from None
+    return cam, view or ""
+
+
+def packed_verified_line(img: Any) -> str | None:
+    """What a verified packed frame proves (None: not verified)."""
+    v = img.verification
+    if v is None:
+        return None
+    c = img.camera
+    return (f"verified: the frame is the packed X-ray of store {v.store_id} ({img.plan.sampling} sampling, level "
+            f"{img.level}) and its view, parallel camera at ({', '.join(f'{x:g}' for x in c.position)}) looking at "
+            f"({', '.join(f'{x:g}' for x in c.focal_point)}), {c.width}x{c.height} px; checked against the store's "
+            "tags and its owner-authenticated metadata")
+
+
+def packed_wrote_line(img: Any, out: Any, size: str, seconds: float) -> str:
+    """``hevr render``'s line about the packed frame file it wrote."""
+    p = img.plan.packing
+    return (f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} (up to {p.slots + img.plan.classes - 1} ray sums "
+            f"of {p.slot_bits} bits each), {size}, rendered in {seconds:.2f} s")
+
+
+def packed_info_rows(img: Any) -> list[tuple[str, Any]]:
+    """``hevr info``'s rows about a packed frame file (public facts only)."""
+    plan, c, v = img.plan, img.camera, img.verification
+    p = plan.packing
+    where = ", ".join(f"{x:g}" for x in c.position)
+    if v is None:
+        verified = "no (no check against the store's tags: --require-verified refuses it)"
+    else:
+        verified = (f"record of store {v.store_id}, " + ("with the key holder's stamp, saved as "
+                    f"{img.stamp[2]!r} (checked with the key at decryption)" if img.stamp is not None else
+                    "without the key holder's stamp (refused at decryption)"))
+    return [
+        ("kind", "encrypted packed frame (.hevr: an X-ray of a packed store, finished on the client)"),
+        ("shape", f"{wh(c.width, c.height)} px"),
+        ("rendered", f"X-ray, {plan.sampling} sampling ({'bilinear in each slice' if plan.sampling == 'trilinear' else 'one voxel per slice'}), "
+                     f"{plan.weight_bits}-bit weights, level {img.level}"),
+        ("camera", f"parallel, position {where}, scale {c.parallel_scale:g}"),
+        ("store", f"{img.store_id}, packed along {'zyx'[p.axis]}: {p.slots} voxels per ciphertext ({p.slot_bits}-bit "
+                  "slots)"),
+        ("ciphertexts", f"{img.n_ciphertexts} in {plural(len(img.ciphertexts), 'tile')} (one per block of "
+                        f"{p.slots} rays and row)"),
+        ("verified", verified),
+        ("checksum", "ok (SHA-256 over the whole file; every field checked, the frame's plan rebuilt)"),
+        ("key", f"{int(img.n).bit_length()}-bit"),
+        ("fingerprint", img.fingerprint),
+    ]
