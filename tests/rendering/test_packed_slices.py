@@ -34,7 +34,8 @@ def store(tmp_path_factory, keypair256, volume):
 
 def planes(ev):
     """Planes a z-packed store serves: perpendicular to z, and containing z's direction."""
-    rotated = hevr.Plane((1.0, 0.5, 2.0), (0.6, 0.0, 0.8), (-0.8, 0.0, 0.6), width=9, height=8)  # normal -y, grid turned
+    # normal -y, the pixel grid turned within the plane: one footprint per pixel
+    rotated = hevr.Plane((1.0, 0.5, 2.0), (0.6, 0.0, 0.8), (-0.8, 0.0, 0.6), width=9, height=8)
     return {
         "axial": hevr.Plane.axial(ev, 5),
         "axial-between-packs": hevr.Plane.axial(ev, 3.4),  # layers 3 and 4: two packs
@@ -109,8 +110,8 @@ def store_x(tmp_path_factory, keypair256, volume):
 @pytest.mark.parametrize("sampling", SAMPLINGS)
 def test_store_packed_along_x(store_x, keypair256, volume, sampling):
     """Packed along x: sagittal planes are perpendicular to the axis, axial and coronal ones contain it."""
-    for plane, kind in ((hevr.Plane.sagittal(store_x, 6.5), "perpendicular"), (hevr.Plane.axial(store_x, 4), "contains"),
-                        (hevr.Plane.coronal(store_x, 3.7), "contains")):
+    for plane, kind in ((hevr.Plane.sagittal(store_x, 6.5), "perpendicular"),
+                        (hevr.Plane.axial(store_x, 4), "contains"), (hevr.Plane.coronal(store_x, 3.7), "contains")):
         img = slice_(store_x, plane, sampling)
         assert img.plan.kind == kind
         assert np.array_equal(img.decrypt_values(keypair256[1]),
