@@ -134,6 +134,10 @@ def _packed_slice(ev: EncryptedVolume, plane: Plane, mode: str, sampling: str, d
                   finish: Any, verify: Any) -> PackedSlice:
     """A packed store's slice: what it serves is checked before any work, then rendered."""
     other = "a per-voxel store (encrypt_volume(..., layout='voxel')) serves it"
+    if getattr(ev, "remote", None) is not None:
+        raise ParameterError(f"ev: expected a packed store opened here (hevr.open_volume) for a slice, got the store "
+                             f"{ev.meta.store_id} on hevr serve, which serves a packed store's X-ray frames, not its "
+                             "slices yet")
     if mode != "xray":
         raise ParameterError(f"mode: expected 'xray' on a packed store (it holds the scalar channel only), got "
                              f"{mode!r}; {other}")
