@@ -1,6 +1,7 @@
 """What a packed store's frame may ask, checked where the request enters (``hevr.render``).
 
-A packed store serves X-ray frames (``mode="xray"``) of parallel cameras whose principal axis is
+A packed store serves X-ray frames (``mode="xray"``; with the vector channel also ``"tf"`` and
+``"emphasize"``, :mod:`hevr.rendering.packed.colour`) of parallel cameras whose principal axis is
 not its packing axis, sampled once per slice (``sampling="nearest"``, or ``"trilinear"``: bilinear
 within the slice), finished on the client, streamed from the store or resident. Everything else is
 refused before any work, with a :class:`hevr.ParameterError` that names the option and the way to
@@ -20,6 +21,7 @@ from ..._dask import active_client
 from ..planning.planner import check_render_size
 from ..planning.request import at_level
 from ..verify import resolve_verify
+from .colour import render_packed_colour_request
 from .graph import render_packed
 from .image import PackedImage
 from .verified import tag_aggregate
@@ -35,10 +37,10 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
                           tile: Any, client: Any, progress: bool, backend: Any, compute: Any, keep_sums: Any,
                           level: Any, gradient: Any, finish: Any, verify: Any, weight_bits: Any) -> PackedImage:
     """Check a render request against what a packed store serves, then render it."""
-    if mode != "xray":
-        raise ParameterError(f"mode: expected 'xray' on a packed store (it holds the scalar channel only), got "
-                             f"{mode!r}; {_OTHER} with vector_dims")
-    if density is not None or nodes is not None:
+    if mode != "xray" and ev.meta.vector is None:
+        raise ParameterError(f"mode: expected 'xray' on a packed store without the vector channel, got "
+                             f"{mode!r}; encrypt it again with vector_dims=k (packed too), or {_OTHER} with vector_dims")
+    if mode == "xray" and (density is not None or nodes is not None):
         raise ParameterError("density/nodes: expected None for an X-ray of a packed store, got a colouring")
     if type(step) not in (int, float) or float(step) != 1.0:
         raise ParameterError(f"step: expected 1.0 on a packed store (one sample per slice of the view's principal "
@@ -56,6 +58,9 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
     if weight_bits is not None:
         weight_bits = check_int("weight_bits", weight_bits, 0, 16)
     check_render_size(camera, ev.shape, ev.spacing, 1.0)  # the size limits, before anything per pixel
+    if mode != "xray":  # transfer function / emphasis: the vector channel's sums, coloured by the key holder
+        return render_packed_colour_request(ev, camera, mode, density, nodes, sampling, verify=verify, tile=tile,
+                                            client=client, progress=progress, backend=backend, weight_bits=weight_bits)
     verified = resolve_verify(verify, ev, "client", level=ev.level, compute=True, stream=False)
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the request goes there (remote/packed.py)
         return ev.render_packed_request(camera, sampling, tile=tile, weight_bits=weight_bits, backend=backend,

@@ -55,15 +55,15 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
     pixel's slab samples inside the volume); ``step`` is then ignored (it is the plane's ``slab_step``).
     """
     if getattr(getattr(ev, "meta", None), "packing", None) is not None:  # a packed store: slice-sampled frames
-        if mode != "xray" or gradient:
-            raise ParameterError(f"mode: expected an X-ray for a packed store, got mode={mode!r}, "
-                                 f"gradient={gradient!r}")
+        if gradient or (mode != "xray" and (ev.meta.vector is None or isinstance(camera, Plane))):
+            raise ParameterError(f"mode: expected an X-ray for a packed store (or 'emphasize' / 'tf' of a frame of one "
+                                 f"with the vector channel), got mode={mode!r}, gradient={gradient!r}")
         if isinstance(camera, Plane):  # a packed store's slice (hevr.rendering.packed.planes)
             if level:
                 raise ParameterError(f"level: expected None for a hevr.Plane (render_slice has no level), got {level!r}")
             return packed_slice_error_bound(ev.meta, camera, sampling)
         ev, camera = at_level(ev, camera, level)  # a level the owner encrypted packed: its own slots and exponent
-        return packed_error_bound(ev.meta, camera, sampling)
+        return packed_error_bound(ev.meta, camera, sampling, mode=mode, density=density, nodes=nodes)
     if isinstance(camera, Plane):
         step = camera.slab_step
         if level:

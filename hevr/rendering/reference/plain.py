@@ -38,7 +38,7 @@ from ...volume.pyramid import check_level, downsample, level_origin, level_spaci
 from ...volume.scan import Scan
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
-from ..packed.sliced import render_plain_slices
+from ..packed.sliced import render_plain_field_slices, render_plain_slices
 from ..planning.modes import RenderSpec, combination_matrix, make_spec
 from ..planning.planner import check_render_size
 from ..geometry.rays import (
@@ -174,7 +174,8 @@ def render_plain(
     slices : bool, int or {"z", "y", "x"}
         Sample slice by slice, as a packed store's frame does (:mod:`hevr.rendering.packed`): one
         sample per slice of the view's principal axis, nearest or (``"trilinear"``) bilinear within
-        the slice, then the warp to the pixels; X-ray of a parallel camera only, ``step`` 1. The
+        the slice, then the warp to the pixels; a parallel camera, ``step`` 1, X-ray, or emphasis
+        and transfer functions (the per-voxel field e(d)·M/N sampled alike, level 0). The
         reference of ``hevr.render`` on a packed store (:mod:`hevr.rendering.packed.sliced`):
         ``True`` for a store packed along z (the default), else its packing axis (the rays
         along it are one voxel apart, as the packs' lattice makes them). With ``level``: the
@@ -198,9 +199,21 @@ def render_plain(
         if axis is None:
             raise ParameterError(f"slices: expected True, False or a packing axis (0, 1, 2, 'z', 'y', 'x'), "
                                  f"got {slices!r}")
-        if mode != "xray" or gradient or type(step) not in (int, float) or float(step) != 1.0:
+        if gradient or type(step) not in (int, float) or float(step) != 1.0:
             raise ParameterError(f"slices: expected mode='xray', step=1 and gradient=False with slice "
-                                 f"sampling, got mode={mode!r}, step={step!r}, gradient={gradient!r}")
+                                 f"sampling ('emphasize' and 'tf' too: a packed store's vector channel), got "
+                                 f"mode={mode!r}, step={step!r}, gradient={gradient!r}")
+        if mode != "xray":  # the per-voxel field e(d)·M / N (as below), slice-sampled: hevr.rendering.packed.colour
+            if check_level(level):
+                raise ParameterError(f"level: expected 0 for mode={mode!r} with slice sampling (a packed store's "
+                                     f"levels hold the scalar channel only), got {level!r}")
+            arr, sp = _check_volume(vol, spacing)
+            dims = DEFAULT_VECTOR_DIMS if vector_dims is None else int(check_vector_dims(vector_dims))
+            spec = make_spec(mode, sampling, 1.0, density, nodes, dims)
+            field, channels = _make_field(arr, spec, value_range, dims)
+            values = field(np.arange(arr.size)).reshape(arr.shape + (channels,)) / spec.n_nodes
+            out = render_plain_field_slices(values, camera, spec.sampling, sp, axis=axis)
+            return out.reshape(spec.image_shape(camera.height, camera.width))
         if check_level(level):  # a packed store's level (hevr.store.packed_levels): the means, on the level's grid
             arr, sp = _check_volume(vol, spacing)
             shift = np.asarray(level_origin(check_spacing(sp), level))

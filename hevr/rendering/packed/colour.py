@@ -1,0 +1,293 @@
+"""Transfer-function and emphasis frames of packed stores: the vector channel's k ray sums per
+intermediate ray, coloured by the key holder (:mod:`hevr.colour`).
+
+A packed store encrypted with ``vector_dims=k`` (:mod:`hevr.store.packed_brick`) holds, beside the
+scalar packs, the k components of the density encoding e(d) packed alike: the same S slots of K
+bits along the same axis, slot value = the component's mantissa rint(e(d)_c·10^digits) (offset 0).
+A frame's weights depend on the view only, never on the channel, so the scalar frame's plan
+(:class:`~hevr.rendering.packed.plan.SlicePlan`) serves all k components:
+
+* **map** (one task per column of bricks, :func:`map_components`): the column's pairs and one
+  product plan (:func:`~hevr.rendering.pipeline.kernel.plan_products`), run on the k components'
+  batches at once (``ray_products`` takes k components for one plan);
+* **merge and combine** (one task per tile, :func:`merge_components`): the scalar frame's
+  :func:`~hevr.rendering.packed.graph.merge_tile`, once per component;
+* **the key holder** (:class:`PackedColourImage`): each component's values decoded and checked as
+  an X-ray frame's (:class:`~hevr.rendering.packed.image.PackedImage`: integrity margin, every slot
+  at most 10^digits·W of its ray), divided by the public sample count and weight unit — the ray's
+  mean x_c of component c — warped to the camera's pixels, then coloured exactly as a per-voxel
+  client-finished frame is (:func:`hevr.colour.colour`: emphasis x·e(density), transfer function
+  (1/N)·x·Σ_i e(d_i)·c_i^T). The warp is linear, so warping the means and colouring commute.
+
+The colouring never leaves the key holder's process (not pickled, never sent). Its reference is
+``hevr.render_plain(vol, cam, mode=..., vector_dims=k, slices=True)`` and its bound
+:func:`hevr.error_bound` (:mod:`hevr.rendering.packed.sliced`). Not yet: verification of these
+frames against the vector channel's tags (the tags are written; a verifiable store's colour frame
+is rendered unverified with a warning, ``verify=True`` is refused), frame files, ``hevr serve``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from dask.delayed import delayed
+
+from ..._dask import active_client
+from ..._dask import compute as run_tasks
+from ..._dask import warn_if_remote
+from ...backends import get_backend, resolve_backend_name
+from ...backends.base import OpCounter
+from ...colour import Colouring, Frame, colour, colouring_spec
+from ...errors import ParameterError
+from ...store.packing import mantissa_range
+from ...store.paths import check_reachable
+from ..pipeline.kernel import plan_products
+from .graph import brick_columns, column_pairs, merge_tile
+from .image import PackedImage
+from .plan import SlicePlan
+
+log = logging.getLogger(__name__)
+
+__all__ = ["PackedColourImage", "map_components", "merge_components", "render_packed_colour",
+           "render_packed_colour_request"]
+
+_WARNED: set = set()  # (store id) whose unverified colour frames were already warned about
+
+
+def map_components(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles: list[int],
+                   residents: list | None = None) -> tuple[list[list[tuple[np.ndarray, np.ndarray]]], dict]:
+    """The partial accumulators of a column of bricks for each of the vector channel's k components,
+    cut by the tiles ``tiles``: per tile a list of k (keys, records), and the operations counted.
+    One product plan for the column, run on the k components' batches together."""
+    be = get_backend(backend)
+    width = ev.meta.ciphertext_bytes
+    k = ev.meta.components("vector")
+    per_brick = [r.batches["vector"] if r is not None else ev.read_brick(idx, "vector", backend=be)
+                 for idx, r in zip(indices, residents or [None] * len(indices))]
+    keys, local, weights = column_pairs(plan, indices, [len(b[0]) for b in per_brick])
+    empty = (np.zeros(0, np.int64), np.zeros((0, width), np.uint8))
+    if not len(keys):
+        return [[empty] * k for _ in tiles], {"map": 0, "pairs": 0}
+    comps = [per_brick[0][c] if len(per_brick) == 1 else be.concat([b[c] for b in per_brick]) for c in range(k)]
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    uniq = keys[starts]
+    indptr = np.r_[starts, len(keys)].astype(np.int64)
+    counter = OpCounter()
+    pp = plan_products(indptr, local, weights, len(comps[0]))
+    values = be.ray_products(pp, comps, int(ev.public_key.nsquare), counter)
+    recs = [be.to_bytes(v, width) for v in values]
+    where = plan.tile_of(uniq)
+    parts = [[(uniq[where == t], r[where == t]) for r in recs] for t in tiles]
+    return parts, {"map": counter.modmuls, "pairs": int(len(keys)) * k}
+
+
+def merge_components(plan: SlicePlan, t: int, n: int, width: int, backend: str, k: int,
+                     *parts: Any) -> tuple[list[np.ndarray], dict]:
+    """Tile ``t`` of each component: :func:`~hevr.rendering.packed.graph.merge_tile` on the
+    component's partial accumulators (``parts``: per map task a list of k (keys, records))."""
+    out, ops = [], {}
+    for c in range(k):
+        recs, counts = merge_tile(plan, t, n, width, backend, *[p[c] for p in parts])
+        out.append(recs)
+        for name, v in counts.items():
+            ops[name] = ops.get(name, 0) + v
+    return out, ops
+
+
+@dataclass
+class PackedColourImage:
+    """An encrypted transfer-function or emphasis frame of a packed store (``hevr.render(ev, cam,
+    mode="tf", nodes=...)`` or ``mode="emphasize", density=...`` on a store with the vector channel).
+
+    Attributes
+    ----------
+    components : list of PackedImage
+        Per component c of e(d), its frame of ray sums (the plan, decoding and checks of an X-ray
+        frame; values are the component's means, in [0, 1]).
+    colouring : Colouring or None
+        The render's colouring: kept in this process only (never pickled, saved or sent);
+        :meth:`decrypt` applies it unless given another.
+    stats : dict
+        ``ops`` (map, merge, combine over all components), ``components``, ``ciphertexts``, …
+    """
+
+    components: list = field(repr=False)
+    colouring: Any = field(default=None, repr=False, compare=False)
+    stats: dict = field(default_factory=dict, repr=False)
+
+    def __getstate__(self) -> dict:
+        return dict(self.__dict__, colouring=None)
+
+    @property
+    def plan(self) -> SlicePlan:
+        return self.components[0].plan
+
+    @property
+    def camera(self) -> Any:
+        return self.components[0].camera
+
+    @property
+    def fingerprint(self) -> str:
+        return self.components[0].fingerprint
+
+    @property
+    def store_id(self) -> str:
+        return self.components[0].store_id
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.components[0].shape
+
+    @property
+    def n_ciphertexts(self) -> int:
+        return int(sum(c.n_ciphertexts for c in self.components))
+
+    @property
+    def verified(self) -> bool:
+        """Always False: colour frames are not checked against the vector channel's tags yet."""
+        return False
+
+    def decrypt_sums(self, private_key: Any, backend: str | None = None) -> np.ndarray:
+        """The exact integer ray sums Σ w·q_c of every component c and intermediate ray, (k, N_i, N_j)
+        int64, each component's values checked as an X-ray frame's before any sum is returned."""
+        return np.stack([c.decrypt_sums(private_key, backend) for c in self.components])
+
+    def decrypt_means(self, private_key: Any, backend: str | None = None) -> np.ndarray:
+        """Per pixel the mean of each component over its ray's samples, warped to the camera: (H, W, k) float64."""
+        geo = self.plan.geometry
+        coords = geo.pixel_coords(self.camera)
+        return np.stack([geo.warp(c.decrypt_intermediate(private_key, backend), coords).reshape(self.shape)
+                         for c in self.components], axis=-1)
+
+    def decrypt_frame(self, private_key: Any, backend: str | None = None) -> Frame:
+        """A :class:`hevr.Frame` of the warped means, to colour (and re-colour) on this machine;
+        its ``n_samples`` are the intermediate rays' sample counts warped to the pixels, rounded."""
+        t0 = time.perf_counter()
+        means = self.decrypt_means(private_key, backend)
+        plan = self.plan
+        geo = plan.geometry
+        counts = geo.warp(geo.sample_counts(plan.sampling).astype(np.float64), geo.pixel_coords(self.camera))
+        stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts)
+        return Frame(means=means, n_samples=np.rint(counts).astype(np.int64).reshape(self.shape), channel="vector",
+                     colouring=self.colouring, stats=stats)
+
+    def decrypt(self, private_key: Any, backend: str | None = None, *, mode: str | None = None,
+                density: float | None = None, nodes: Any = None, require_verified: bool | str = False) -> np.ndarray:
+        """The coloured (H, W) (emphasize) or (H, W, 3) (tf) float64 image: with ``mode`` /
+        ``density`` / ``nodes`` when given, else the render's own colouring (:func:`hevr.colour.colour`).
+        ``require_verified`` other than False is refused (:class:`hevr.VerificationError`): these
+        frames carry no check against the store's tags yet."""
+        spec = colouring_spec("vector", len(self.components), mode, density, nodes, self.colouring)
+        if require_verified is not False and require_verified is not None:
+            for c in self.components:  # the X-ray frames' refusal of a frame without a verification record
+                c._provenance(require_verified, c._key(private_key))
+        return colour(self.decrypt_means(private_key, backend), spec)
+
+    def save(self, *args: Any, **kwargs: Any) -> None:
+        """Refused: packed colour frames have no file format yet (:class:`hevr.ParameterError`)."""
+        raise ParameterError("image: expected an X-ray frame to save a packed store's frame, got a colour frame "
+                             "(transfer function / emphasis: no file format yet); decrypt it here, or render "
+                             "on a per-voxel store")
+
+    def __repr__(self) -> str:
+        return (f"PackedColourImage(shape={self.shape}, components={len(self.components)}, "
+                f"sampling={self.plan.sampling!r}, ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
+
+
+def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouring, *, tile: int = 32,
+                         client: Any = None, progress: bool = True, backend: str | None = None,
+                         weight_bits: int | None = None) -> PackedColourImage:
+    """Render the vector channel's k components of a packed store for a parallel ``camera`` with
+    the scalar frame's plan (module docstring); the request checks are :func:`render_packed_colour_request`'s."""
+    meta = ev.meta
+    if meta.vector is None:
+        raise ParameterError(f"ev: expected a packed store with the vector channel, got the store {meta.store_id} "
+                             "without it; encrypt it with vector_dims=k")
+    cl = active_client(client)
+    warn_if_remote(cl)
+    check_reachable(ev.path, cl)
+    bits = int(ev.public_key.n).bit_length()
+    res = ev.resident.backend if ev.resident is not None and ev.resident.bricks else None
+    backend = resolve_backend_name(backend, bits, resident=res, client=cl)
+    t0 = time.perf_counter()
+    plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)  # the scalar's slots checked
+    vlo, vhi = mantissa_range((0.0, 1.0), meta.vector.exponent)
+    plan.check_slots(vhi - vlo)  # and the components': no sum carries into the next slot
+    if plan.n_tiles == 0:
+        log.warning("render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
+                    "volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height)
+    resident = None
+    if ev.resident is not None and ev.resident.bricks:
+        if ev.resident.usable("vector", backend, cl):
+            resident = ev.resident.bricks
+        else:
+            log.warning("render: the resident bricks cannot serve this render (backend %s, the vector channel); "
+                        "streaming from the store", backend)
+    k = meta.components("vector")
+    n, width = int(ev.public_key.n), meta.ciphertext_bytes
+    plain = ev._plain()
+    tag = f"{meta.store_id}-{uuid.uuid4().hex}"
+    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
+    maps = []
+    for column in brick_columns(ev.grid, plan.geometry.principal):  # as graph.map_graph, k components per task
+        reach = {idx: plan.brick_tiles(idx) for idx in column}
+        column = [idx for idx in column if reach[idx]]
+        if not column:
+            continue
+        tiles = sorted(set().union(*(reach[idx] for idx in column)))
+        first = column[0]
+        task = delayed(map_components, pure=True, nout=2)(
+            plain, plan, column, backend, tiles, [resident.get(i) for i in column] if resident is not None else None,
+            dask_key_name=f"hevr-packed-map-vector-{tag}-{first[0]}-{first[1]}-{first[2]}")
+        maps.append(task[1])
+        for pos, t in enumerate(tiles):
+            per_tile[t].append(task[0][pos])
+    fin = [delayed(merge_components, pure=True, nout=2)(plan, t, n, width, backend, k, *per_tile[t],
+                                                        dask_key_name=f"hevr-packed-tile-vector-{tag}-{t}")
+           for t in range(plan.n_tiles)]
+    results = run_tasks(fin + maps, client=cl, progress=progress, desc="render")
+    counts = {"map": sum(m["map"] for m in results[len(fin):]), "pairs": sum(m["pairs"] for m in results[len(fin):])}
+    for r in results[:len(fin)]:
+        for name, v in r[1].items():
+            counts[name] = counts.get(name, 0) + v
+    per_comp = [[r[0][c] for r in results[:len(fin)]] for c in range(k)]
+    stats = {"layout": "packed", "channel": "vector", "components": k, "backend": backend, "map_tasks": len(maps),
+             "finish_tasks": len(fin), "resident": resident is not None, "ops": counts,
+             "rays": int(np.prod(plan.geometry.size)), "ciphertexts": int(sum(len(t) for c in per_comp for t in c)),
+             "seconds": time.perf_counter() - t0}
+    log.info("render packed %s/%s %dx%d: %s", colouring.mode, sampling, camera.width, camera.height, stats)
+    comps = [PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=meta.vector.exponent,
+                         offset=0, span=vhi - vlo, ciphertexts=tiles_c, store_id=meta.store_id, stats=stats,
+                         meta=meta, level=0) for tiles_c in per_comp]
+    return PackedColourImage(components=comps, colouring=colouring, stats=stats)
+
+
+def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, nodes: Any, sampling: Any, *,
+                                 verify: Any, tile: Any, client: Any, progress: bool, backend: Any,
+                                 weight_bits: Any) -> PackedColourImage:
+    """A transfer-function or emphasis frame of a packed store with the vector channel, after the
+    request checks every packed frame has (:func:`hevr.rendering.packed.request.render_packed_request`):
+    the colouring checked here (:class:`hevr.colour.Colouring`), ``verify`` refused when True (a
+    verifiable store's colour frames are rendered unverified, with a warning once per store)."""
+    colouring = Colouring(mode, density, nodes)  # mode, density, nodes: checked before any work
+    if getattr(ev, "remote", None) is not None:
+        raise ParameterError(f"mode: expected 'xray' for a packed store on hevr serve, got {mode!r} (colour frames "
+                             "of packed stores are rendered in process only, for now)")
+    if verify is not None and not isinstance(verify, (bool, np.bool_, str)):
+        raise ParameterError(f"verify: expected True, False, None or a store id, got {verify!r}")
+    if isinstance(verify, str) or (verify is not None and bool(verify)):
+        raise ParameterError(f"verify: expected False or None for a {mode!r} frame of a packed store (the vector "
+                             "channel's tags are stored, but colour frames are not checked against them yet), got "
+                             f"{verify!r}")
+    image = render_packed_colour(ev, camera, sampling, colouring, tile=tile, client=client, progress=progress,
+                                 backend=backend, weight_bits=weight_bits)
+    if verify is None and ev.meta.tags and ev.meta.store_id not in _WARNED:  # once per store
+        _WARNED.add(ev.meta.store_id)
+        log.warning("render: not verified: colour frames of packed stores are not checked against the store's tags "
+                    "yet (verify=False silences this)")
+    return image
