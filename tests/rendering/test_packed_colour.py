@@ -167,10 +167,8 @@ def test_refusals(store, keypair256, tmp_path, volume):
         render(store, cam(store, 0, 0), "nearest", mode="tf", nodes=NODES)
     with pytest.raises(ParameterError, match="gradient: expected False"):
         render(store, c, "nearest", mode="tf", nodes=NODES, gradient=True)
-    with pytest.raises(ParameterError, match="verify: expected False or None"):
-        render(store, c, "nearest", mode="tf", nodes=NODES, verify=True)
-    with pytest.raises(ParameterError, match="verify: expected False or None"):
-        render(store, c, "nearest", mode="tf", nodes=NODES, verify=store.meta.store_id)
+    with pytest.raises(VerificationError, match="expected the store 0123456789abcdef"):
+        render(store, c, "nearest", mode="tf", nodes=NODES, verify="0123456789abcdef")
     with pytest.raises(ParameterError, match="step: expected 1.0"):
         render(store, c, "nearest", mode="tf", nodes=NODES, step=0.5)
     with pytest.raises(ParameterError, match="finish: expected 'client'"):
@@ -185,7 +183,7 @@ def test_refusals(store, keypair256, tmp_path, volume):
     with pytest.raises(ParameterError, match="no file format yet"):
         img.save(tmp_path / "f.hevr")
     with pytest.raises(VerificationError, match="not verified"):
-        img.decrypt(keypair256[1], require_verified=True)
+        img.decrypt(keypair256[1], require_verified=True)  # rendered with verify=False
     priv = keypair256[1]
     with pytest.raises(ParameterError, match="layout: expected 'voxel' for a store with the gradient"):
         hevr.encrypt_volume(volume, tmp_path / "g.zarr", priv, layout="packed", vector_dims=K, gradient=True,
@@ -205,13 +203,37 @@ def test_scalar_only_store_still_refuses_colour(tmp_path, keypair256, volume):
         hevr.error_bound(ev, c, mode="tf", nodes=NODES)
 
 
-def test_unverified_default_warns(store, caplog):
-    from hevr.rendering.packed import colour as module
+@pytest.mark.parametrize("mode", ["tf", "emphasize"])
+def test_verified_by_default(store, keypair256, mode):
+    """A verifiable store's colour frame is verified per component (one seed each, drawn after the
+    values); it decrypts to the unverified picture, and a changed component or aggregate is caught."""
+    import dataclasses
 
-    module._WARNED.discard(store.meta.store_id)
-    with caplog.at_level(logging.WARNING, logger="hevr.rendering.packed.colour"):
-        hevr.render(store, cam(store, 90, 0), mode="tf", nodes=NODES, progress=False)
-    assert "not verified" in caplog.text
+    priv = keypair256[1]
+    c = cam(store, 60, 10)
+    kw = {"nodes": NODES} if mode == "tf" else {"density": 0.5}
+    img = hevr.render(store, c, mode=mode, sampling="trilinear", progress=False, tile=4, **kw)
+    assert img.verified and len({v.verification.seed for v in img.components}) == K
+    assert [v.verification.component for v in img.components] == list(range(K))
+    arr = img.decrypt(priv, require_verified=store.meta.store_id)
+    plain = render(store, c, "trilinear", mode=mode, tile=4, **kw)
+    np.testing.assert_array_equal(arr, plain.decrypt(priv))
+    comps = list(img.components)
+    v0, v1 = comps[0].verification, comps[1].verification
+    swapped = [dataclasses.replace(comps[0], verification=v1), dataclasses.replace(comps[1], verification=v0)]
+    with pytest.raises(VerificationError):  # component 0's values against component 1's aggregate and βs
+        dataclasses.replace(img, components=swapped + comps[2:]).decrypt(priv)
+    other = dataclasses.replace(comps[0], ciphertexts=comps[1].ciphertexts)  # another component's values
+    with pytest.raises((VerificationError, IntegrityError)):
+        dataclasses.replace(img, components=[other] + comps[1:]).decrypt(priv)
+
+
+def test_unverified_store_warns(tmp_path, keypair256, volume, caplog):
+    ev = hevr.encrypt_volume(volume, tmp_path / "u.zarr", keypair256[1], brick=4, layout="packed", vector_dims=K,
+                             verifiable=False, progress=False)
+    with caplog.at_level(logging.WARNING, logger="hevr"):
+        img = hevr.render(ev, cam(ev, 90, 0), mode="tf", nodes=NODES, progress=False)
+    assert not img.verified and "not verified" in caplog.text
 
 
 def test_metadata_checks(store):

@@ -21,19 +21,22 @@ A frame's weights depend on the view only, never on the channel, so the scalar f
 
 The colouring never leaves the key holder's process (not pickled, never sent). Its reference is
 ``hevr.render_plain(vol, cam, mode=..., vector_dims=k, slices=True)`` and its bound
-:func:`hevr.error_bound` (:mod:`hevr.rendering.packed.sliced`). Not yet: verification of these
-frames against the vector channel's tags (the tags are written; a verifiable store's colour frame
-is rendered unverified with a warning, ``verify=True`` is refused), frame files, ``hevr serve``.
+:func:`hevr.error_bound` (:mod:`hevr.rendering.packed.sliced`). A verifiable store's colour frame is
+verified by default as an X-ray is (:func:`colour_aggregates`): one seed per component drawn after
+the values, the vector tags' k components through the same plan, one aggregate per component, each
+component's values checked against it before any mean is formed. Not yet: frame files, ``hevr serve``.
 """
 
 from __future__ import annotations
 
 import logging
+import secrets
 import time
 import uuid
 from dataclasses import dataclass, field
 from typing import Any
 
+import gmpy2
 import numpy as np
 from dask.delayed import delayed
 
@@ -43,31 +46,35 @@ from ..._dask import warn_if_remote
 from ...backends import get_backend, resolve_backend_name
 from ...backends.base import OpCounter
 from ...colour import Colouring, Frame, colour, colouring_spec
+from ...crypto.tags import tag_channel
 from ...errors import ParameterError
 from ...store.packing import mantissa_range
 from ...store.paths import check_reachable
 from ..pipeline.kernel import plan_products
+from ..verify import resolve_verify
 from .graph import brick_columns, column_pairs, merge_tile
 from .image import PackedImage
 from .plan import SlicePlan
+from .verified import PackedVerification, aggregate_tile
 
 log = logging.getLogger(__name__)
 
 __all__ = ["PackedColourImage", "map_components", "merge_components", "render_packed_colour",
            "render_packed_colour_request"]
 
-_WARNED: set = set()  # (store id) whose unverified colour frames were already warned about
 
 
 def map_components(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles: list[int],
-                   residents: list | None = None) -> tuple[list[list[tuple[np.ndarray, np.ndarray]]], dict]:
-    """The partial accumulators of a column of bricks for each of the vector channel's k components,
-    cut by the tiles ``tiles``: per tile a list of k (keys, records), and the operations counted.
-    One product plan for the column, run on the k components' batches together."""
+                   residents: list | None = None,
+                   channel: str = "vector") -> tuple[list[list[tuple[np.ndarray, np.ndarray]]], dict]:
+    """The partial accumulators of a column of bricks for each of the vector channel's k components
+    (``channel="vector_tag"``: of their tags), cut by the tiles ``tiles``: per tile a list of k
+    (keys, records), and the operations counted. One product plan for the column, run on the k
+    components' batches together."""
     be = get_backend(backend)
     width = ev.meta.ciphertext_bytes
     k = ev.meta.components("vector")
-    per_brick = [r.batches["vector"] if r is not None else ev.read_brick(idx, "vector", backend=be)
+    per_brick = [r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
                  for idx, r in zip(indices, residents or [None] * len(indices))]
     keys, local, weights = column_pairs(plan, indices, [len(b[0]) for b in per_brick])
     empty = (np.zeros(0, np.int64), np.zeros((0, width), np.uint8))
@@ -149,8 +156,9 @@ class PackedColourImage:
 
     @property
     def verified(self) -> bool:
-        """Always False: colour frames are not checked against the vector channel's tags yet."""
-        return False
+        """Whether every component carries a check against the vector channel's tags (drawn in this
+        process), which its decryption runs before any mean is formed."""
+        return all(c.verification is not None for c in self.components)
 
     def decrypt_sums(self, private_key: Any, backend: str | None = None) -> np.ndarray:
         """The exact integer ray sums Σ w·q_c of every component c and intermediate ray, (k, N_i, N_j)
@@ -180,8 +188,8 @@ class PackedColourImage:
                 density: float | None = None, nodes: Any = None, require_verified: bool | str = False) -> np.ndarray:
         """The coloured (H, W) (emphasize) or (H, W, 3) (tf) float64 image: with ``mode`` /
         ``density`` / ``nodes`` when given, else the render's own colouring (:func:`hevr.colour.colour`).
-        ``require_verified`` other than False is refused (:class:`hevr.VerificationError`): these
-        frames carry no check against the store's tags yet."""
+        A verified frame's components are each checked against the vector channel's tags first;
+        ``require_verified`` (True or a store id) refuses a frame without those checks."""
         spec = colouring_spec("vector", len(self.components), mode, density, nodes, self.colouring)
         if require_verified is not False and require_verified is not None:
             for c in self.components:  # the X-ray frames' refusal of a frame without a verification record
@@ -267,27 +275,75 @@ def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouri
     return PackedColourImage(components=comps, colouring=colouring, stats=stats)
 
 
+def colour_aggregates(ev: Any, plan: SlicePlan, backend: str, client: Any,
+                      progress: bool) -> tuple[list[PackedVerification], dict]:
+    """The tags' round of a colour frame: one fresh seed per component (drawn here, after the
+    values), the vector tags' k components through the frame's plan in one map per column
+    (:func:`map_components` on ``vector_tag``), and per tile and component one aggregate
+    (:func:`~hevr.rendering.packed.verified.aggregate_tile`); a :class:`PackedVerification` per component."""
+    meta = ev.meta
+    k = meta.components("vector")
+    seeds = [secrets.token_bytes(32) for _ in range(k)]
+    n, width = int(ev.public_key.n), meta.ciphertext_bytes
+    tag = f"{meta.store_id}-{uuid.uuid4().hex}"
+    plain = ev._plain()
+    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
+    maps = []
+    for column in brick_columns(ev.grid, plan.geometry.principal):
+        reach = {idx: plan.brick_tiles(idx) for idx in column}
+        column = [idx for idx in column if reach[idx]]
+        if not column:
+            continue
+        tiles = sorted(set().union(*(reach[idx] for idx in column)))
+        first = column[0]
+        task = delayed(map_components, pure=True, nout=2)(
+            plain, plan, column, backend, tiles, None, tag_channel("vector"),
+            dask_key_name=f"hevr-packed-map-vector-tag-{tag}-{first[0]}-{first[1]}-{first[2]}")
+        maps.append(task[1])
+        for pos, t in enumerate(tiles):
+            per_tile[t].append(task[0][pos])
+    tasks, where = [], []
+    for t in range(plan.n_tiles):
+        if not per_tile[t]:
+            continue
+        for c in range(k):
+            tasks.append(delayed(aggregate_tile, pure=True, nout=2)(
+                plan, t, n, width, backend, seeds[c], *[p[c] for p in per_tile[t]],
+                dask_key_name=f"hevr-packed-verify-vector-{tag}-{t}-{c}"))
+            where.append(c)
+    results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
+    n2 = gmpy2.mpz(n) * n
+    agg = [gmpy2.mpz(1)] * k
+    ops = {"map": sum(m["map"] for m in results[len(tasks):])}
+    for c, (rec, counts) in zip(where, results[:len(tasks)]):
+        if rec is not None:
+            agg[c] = agg[c] * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
+        for name, v in counts.items():
+            ops[name] = ops.get(name, 0) + v
+    level = int(getattr(ev, "level", 0) or 0)
+    base = ev.base if level else meta
+    return [PackedVerification(aggregate=int(agg[c]), seed=seeds[c], meta=base, level=level, channel="vector",
+                               component=c, drawn_here=True) for c in range(k)], ops
+
+
 def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, nodes: Any, sampling: Any, *,
                                  verify: Any, tile: Any, client: Any, progress: bool, backend: Any,
                                  weight_bits: Any) -> PackedColourImage:
     """A transfer-function or emphasis frame of a packed store with the vector channel, after the
     request checks every packed frame has (:func:`hevr.rendering.packed.request.render_packed_request`):
-    the colouring checked here (:class:`hevr.colour.Colouring`), ``verify`` refused when True (a
-    verifiable store's colour frames are rendered unverified, with a warning once per store)."""
+    the colouring checked here (:class:`hevr.colour.Colouring`), ``verify`` resolved as for an X-ray
+    (a verifiable store's colour frames are verified by default: :func:`colour_aggregates`)."""
     colouring = Colouring(mode, density, nodes)  # mode, density, nodes: checked before any work
     if getattr(ev, "remote", None) is not None:
         raise ParameterError(f"mode: expected 'xray' for a packed store on hevr serve, got {mode!r} (colour frames "
                              "of packed stores are rendered in process only, for now)")
-    if verify is not None and not isinstance(verify, (bool, np.bool_, str)):
-        raise ParameterError(f"verify: expected True, False, None or a store id, got {verify!r}")
-    if isinstance(verify, str) or (verify is not None and bool(verify)):
-        raise ParameterError(f"verify: expected False or None for a {mode!r} frame of a packed store (the vector "
-                             "channel's tags are stored, but colour frames are not checked against them yet), got "
-                             f"{verify!r}")
+    verified = resolve_verify(verify, ev, "client", level=getattr(ev, "level", 0), compute=True, stream=False)
     image = render_packed_colour(ev, camera, sampling, colouring, tile=tile, client=client, progress=progress,
                                  backend=backend, weight_bits=weight_bits)
-    if verify is None and ev.meta.tags and ev.meta.store_id not in _WARNED:  # once per store
-        _WARNED.add(ev.meta.store_id)
-        log.warning("render: not verified: colour frames of packed stores are not checked against the store's tags "
-                    "yet (verify=False silences this)")
+    if verified:  # the second round, as for an X-ray: the values are fixed here before the seeds are drawn
+        t0 = time.perf_counter()
+        records, ops = colour_aggregates(ev, image.plan, image.stats["backend"], active_client(client), progress)
+        for comp, rec in zip(image.components, records):
+            comp.verification = rec
+        image.stats["verify"] = {"server_s": time.perf_counter() - t0, "ops": ops}
     return image

@@ -175,6 +175,8 @@ class PackedVerification:
     seed: bytes
     meta: Any  # the store's (level 0's) VolumeMetadata: its owner's MAC is checked
     level: int = 0  # the pyramid level the frame was rendered at (its own packing: meta.level_meta(level))
+    channel: str = "scalar"  # the channel whose tags certify the values ("vector": one record per component)
+    component: int = 0
     ops: Any = None
     server_s: float = 0.0
     drawn_here: bool = False
@@ -234,7 +236,7 @@ class PackedVerification:
             span = np.zeros(int(packs.max()) - lo + 1, bool)
             span[packs - lo] = True
             where = np.cumsum(span) - 1
-            beta = betas(key, sid, "scalar", self.level, 0, np.flatnonzero(span) + lo, cache)
+            beta = betas(key, sid, self.channel, self.level, self.component, np.flatnonzero(span) + lo, cache)
             return class_beta_total(beta, where[packs - lo], keys % C, coefficients_at(self.seed, keys // C), w, K)
 
         bricks = list(np.ndindex(*grid))
