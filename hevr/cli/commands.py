@@ -32,7 +32,6 @@ from ..rendering.packed.image import PackedImage
 from ..rendering.pipeline.sums import MAGIC as SUMS_MAGIC
 from ..rendering.pipeline.sums import load_sums, recolour
 from ..rendering.planning.planner import check_render_size
-from ..store.known import known_stores_path, trust_store
 from ..store.paths import normalise
 from ..store.upgrade import upgrade_store
 from ..store.writer import encrypt_volume
@@ -41,13 +40,9 @@ from .cluster import dask_client, describe_client
 from .describe import channels
 from .finish import report_finish
 from .keys import key_label, read_key
-from .packed import (
-    check_packed_render,
-    default_packed_view,
-    packed_camera,
-    packed_verified_line,
-    packed_wrote_line,
-)
+from .verifying import key_holder, verified_line, warn_unverified  # hevr.cli.slice takes them from here too
+from .packed import check_packed_decrypt, check_packed_render, packed_done, packed_encrypt_lines, packed_start
+from .packed import packed_verified_line
 from .pyramid import level_rows
 from .render_options import format_tf
 from .scan import encrypt_input, resolve_tf
@@ -119,20 +114,12 @@ def cmd_encrypt(args: Any) -> int:
         print(f"wrote {args.out}: {bricks} of {xyz(ev.brick)}, channels {chans}, {n_ct:,} ciphertexts, {size}{part}, "
               f"in {t.seconds:.2f} s ({now['ciphertexts'] / max(t.seconds, 1e-9):,.0f} ciphertexts/s)")
     if ev.packing is not None:
-        print(f"packed:  {ev.packing.slots} voxels per ciphertext along {'zyx'[ev.packing.axis]} ({ev.packing.slot_bits}-bit "
-              f"slots): X-ray frames of parallel cameras around that axis (hevr render {args.out} --out FRAME.hevr "
-              f"--key KEY: --view {default_packed_view(ev)} unless you give a view)")
+        packed_encrypt_lines(ev, args.out)
     elif not ev.vector_dims:
         print("note: scalar channel only (X-ray); add --vector-dims 4 to allow --mode emphasize/tf")
     for name, text in level_rows(ev.meta):
         print(f"{name}: {text}")
-    if ev.meta.tags and ev.packing is not None:
-        print(f"verifiable: store id {ev.meta.store_id}; one tag per packed ciphertext: frames rendered with --key "
-              f"KEY are verified (--verify {ev.meta.store_id} refuses any other store)")
-    elif ev.packing is not None and not ev.meta.tags:
-        print("not verifiable: no tags (--no-verifiable, or a public --key: only the owner's private key makes them); "
-              "packed frames of this store cannot be checked against a lying server")
-    elif ev.meta.tags:
+    if ev.meta.tags and ev.packing is None:  # a packed store's: packed_encrypt_lines
         print(f"verifiable: store id {ev.meta.store_id}; keep it, and render with --key KEY --verify "
               f"{ev.meta.store_id} to refuse any other store a server might answer with (recorded in your known "
               "stores)")
@@ -140,64 +127,6 @@ def cmd_encrypt(args: Any) -> int:
 
 
 # -- render --------------------------------------------------------------------------------
-def verify_argument(args: Any) -> bool | str | None:
-    """``render(verify=)`` from ``--key``, ``--verify [STORE_ID]`` / ``--no-verify``: with the private
-    ``--key`` (read into ``args.private_key``) None lets the store decide; without it the frame is not
-    verified (only the key holder's process may draw the seed), and ``--verify`` is refused."""
-    args.private_key = read_key(args.key, private=True) if getattr(args, "key", None) else None
-    if args.no_verify:
-        return False
-    if args.private_key is None:
-        if args.verify is not None:
-            raise UsageError("--verify: expected --key KEY.json as well: only the key holder's process draws the "
-                             "verification seed and checks the frame (one that renders without the key, on the "
-                             "cluster, would know the seed before the frame is fixed)")
-        return False
-    return args.verify
-
-
-def warn_unverified(args: Any, ev: Any, img: Any) -> None:
-    """After a frame is written: one warning line when it is not verified and --no-verify was not asked."""
-    if img.verification is not None or args.no_verify:
-        return
-    if not ev.meta.tags:
-        warn_line("not verified: the store has no tags (encrypt it with --verifiable so that a lying server "
-                  "is caught; --no-verify silences this)")
-    elif args.private_key is None:
-        warn_line("not verified: no --key (the key holder's process verifies: give it --key, or render through "
-                  "hevr serve from the key holder's machine; --no-verify silences this)")
-
-
-def key_holder(args: Any, ev: Any) -> bool | str | None:
-    """:func:`verify_argument` for the store ``ev``, whose key ``--key`` must be."""
-    verify = verify_argument(args)
-    if args.private_key is not None and args.private_key.public_key.fingerprint != ev.meta.fingerprint:
-        raise UsageError(f"--key: expected the private key of the store (fingerprint {ev.meta.fingerprint[:16]}…), "
-                         f"got {args.key} (fingerprint {args.private_key.public_key.fingerprint[:16]}…)")
-    if args.trust_store:
-        if args.private_key is None:
-            raise UsageError("--trust-store: expected --key KEY.json as well (the known stores are the key holder's)")
-        entry = trust_store(ev)
-        print(f"trusted: {ev.path} is now recorded as the store {entry.store_id} in {known_stores_path()}")
-    return verify
-
-
-def verified_line(img: Any) -> str | None:
-    """What a verified frame proves, for the CLI: its store, view and level (None: not verified)."""
-    v = img.verification
-    if v is None:
-        return None
-    view = v.camera
-    what = (f"plane through ({', '.join(f'{x:g}' for x in view.origin)}) along u ({', '.join(f'{x:g}' for x in view.u)})"
-            f" and v ({', '.join(f'{x:g}' for x in view.v)}), {view.width}x{view.height} px"
-            if not hasattr(view, "position") else
-            f"camera at ({', '.join(f'{x:g}' for x in view.position)}) looking at "
-            f"({', '.join(f'{x:g}' for x in view.focal_point)}), {view.width}x{view.height} px")
-    return (f"verified: the frame is the render of store {v.store_id} (channel {v.channel}, {v.sampling} sampling, "
-            f"step {v.step:g}, level {v.level}) and its view, {what}; checked against the store's tags and its "
-            "owner-authenticated metadata")
-
-
 def resolve_mode(args: Any) -> str:
     """The render mode: explicit --mode, else inferred from --density / --tf, else xray."""
     mode = args.mode or ("tf" if args.tf is not None else "emphasize" if args.density is not None else "xray")
@@ -266,9 +195,8 @@ def cmd_render(args: Any) -> int:
     if sums is not None and str(sums) == str(out):
         raise UsageError(f"--keep-sums: expected another file than --out, got {args.keep_sums} for both")
     ev = open_for_mode(args.store, mode, "render", so, args, packed=True)
-    packed = getattr(ev, "packing", None) is not None
-    if packed:
-        check_packed_render(args, mode)
+    if getattr(ev, "packing", None) is not None:
+        return _render_packed(args, ev, mode, out, so)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     verify = key_holder(args, ev)
     if args.view and ev.frame is None:
@@ -276,47 +204,31 @@ def cmd_render(args: Any) -> int:
                   "the view takes the stored axes as RAS+ (x right, y anterior, z superior)")
     w, h = args.size
     step = 1.0 if args.step is None else args.step
-    if packed:
-        cam, view = packed_camera(args, ev)
-    else:
-        view = args.view
-        cam = Camera.orbit(ev, azimuth=args.azimuth or 0.0, elevation=args.elevation or 0.0, width=w, height=h,
-                           view_angle=30.0 if args.view_angle is None else args.view_angle, parallel=args.parallel,
-                           view=view)
+    azimuth, elevation = args.azimuth or 0.0, args.elevation or 0.0
+    cam = Camera.orbit(ev, azimuth=azimuth, elevation=elevation, width=w, height=h, parallel=args.parallel,
+                       view_angle=30.0 if args.view_angle is None else args.view_angle, view=args.view)
     if args.level > ev.levels:
         raise UsageError(f"--level {args.level}: expected a level of the store's pyramid (0 to {ev.levels}), got "
                          f"{args.level}; build it with: hevr pyramid {args.store} --levels {args.level}")
     check_render_size(cam, ev.shape, ev.spacing, step)  # refuse before a cluster starts
     what = {"xray": "X-ray", "emphasize": f"emphasis of density {args.density}",
             "tf": f"transfer function {format_tf(nodes) if nodes else ''}"}[mode]
-    print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…"
-          + (f", packed along {'zyx'[ev.packing.axis]} ({ev.packing.slots} voxels per ciphertext)" if packed else ""))
+    print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…")
     lvl = f", pyramid level {args.level} ({xyz(ev.meta.levels[args.level - 1].shape)})" if args.level else ""
-    how = "parallel, one sample per slice" if packed else f"step {step:g}"
-    default = " (the packed store's default)" if packed and view and not args.view else ""
     print(f"render:  {what}, {args.sampling} sampling, {wh(w, h)} px, "
-          f"{f'{view} view{default}, ' if view else ''}azimuth {args.azimuth or 0.0:g}, "
-          f"elevation {args.elevation or 0.0:g}, {how}{lvl}")
+          f"{f'{args.view} view, ' if args.view else ''}azimuth {azimuth:g}, "
+          f"elevation {elevation:g}, step {step:g}{lvl}")
     with compute_context(args, ev):
         with Timer() as t:
-            if packed:  # the packed request's own options only (hevr.rendering.packed.request)
-                img = render(ev, cam, sampling=args.sampling, progress=show_progress(args), level=args.level or None,
-                             verify=verify)
-            else:
-                img = render(ev, cam, mode=mode, sampling=args.sampling, step=step, density=args.density,
-                             nodes=nodes, precision=args.precision, pack=not args.no_pack,
-                             progress=show_progress(args), keep_sums=sums, level=args.level or None,
-                             gradient=args.gradient, overwrite=args.force, finish=args.finish,
-                             verify=verify)
+            img = render(ev, cam, mode=mode, sampling=args.sampling, step=step, density=args.density,
+                         nodes=nodes, precision=args.precision, pack=not args.no_pack,
+                         progress=show_progress(args), keep_sums=sums, level=args.level or None,
+                         gradient=args.gradient, overwrite=args.force, finish=args.finish,
+                         verify=verify)
     st.save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
-    line = packed_verified_line(img) if packed else verified_line(img)
-    if line:
-        print(line + " (stamped with the key holder's MAC)")
+    if verified_line(img):
+        print(verified_line(img) + " (stamped with the key holder's MAC)")
     warn_unverified(args, ev, img)
-    if packed:
-        print(packed_wrote_line(img, out, human_bytes(st.size_of(out, so)), t.seconds))
-        print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {st.png_name(out)}")
-        return 0
     print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "
           f"{human_bytes(st.size_of(out, so))}, rendered in {t.seconds:.2f} s")
     if sums is not None:
@@ -326,6 +238,21 @@ def cmd_render(args: Any) -> int:
         print(f"wrote {sums}: the view's encrypted ray sums, {human_bytes(st.size_of(sums, so))}; "
               f"finish again with: hevr recolour {sums} --out FRAME.hevr{again}")
     report_finish(img, out, mode, args.density, nodes)
+    return 0
+
+
+def _render_packed(args: Any, ev: Any, mode: str, out: Any, so: dict | None) -> int:
+    """``hevr render`` on a packed store (:mod:`hevr.cli.packed`): a parallel X-ray, its file stamped
+    with ``--key``."""
+    check_packed_render(args, mode)
+    verify = key_holder(args, ev)
+    cam = packed_start(args, ev)  # the camera, its checks and the store / render lines
+    with compute_context(args, ev):
+        with Timer() as t:
+            img = render(ev, cam, sampling=args.sampling, progress=show_progress(args), level=args.level or None,
+                         verify=verify)
+    st.save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
+    packed_done(img, out, human_bytes(st.size_of(out, so)), t.seconds, lambda: warn_unverified(args, ev, img))
     return 0
 
 
@@ -424,13 +351,7 @@ def cmd_decrypt(args: Any) -> int:
     key = read_key(args.key, private=True)
     img = load_image(frame, storage_options=so)
     packed = isinstance(img, PackedImage)
-    colouring = None if packed else decrypt_colouring(args, img)
-    if packed:
-        given = [o for o, v in (("--mode", args.mode), ("--density", args.density), ("--tf", args.tf),
-                                ("--value-range", args.value_range)) if v is not None and (o != "--mode" or v != "xray")]
-        if given:
-            raise UsageError(f"{', '.join(given)}: expected no colouring for {args.frame}, a packed store's X-ray "
-                             "(it is decrypted as it is)")
+    colouring = check_packed_decrypt(args) if packed else decrypt_colouring(args, img)
     need = args.require_verified
     with Timer() as t:
         decrypted = (img.decrypt_frame(key, require_verified=need) if colouring is not None else

@@ -11,17 +11,20 @@ option it cannot serve is refused before any work, with one line naming the opti
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 from ..errors import ParameterError
 from ..rendering.geometry.camera import Camera
 from ..rendering.packed.shear import ShearGeometry
-from .util import UsageError, plural, wh
+from ..rendering.planning.planner import check_render_size
+from .storage import png_name
+from .util import UsageError, plural, warn_line, wh, xyz
 
-__all__ = ["check_packed_render", "default_packed_view", "packed_camera", "packed_info_rows", "packed_verified_line",
-           "packed_wrote_line"]
+__all__ = ["check_packed_decrypt", "check_packed_render", "default_packed_view", "packed_camera", "packed_done",
+           "packed_encrypt_lines", "packed_info_rows", "packed_start", "packed_verified_line"]
 
-_VIEW_AXES = {"anterior": 1, "posterior": 1, "left": 2, "right": 2, "superior": 0, "inferior": 0}  # array axis seen along
+# the array axis each anatomical view looks along
+_VIEW_AXES = {"anterior": 1, "posterior": 1, "left": 2, "right": 2, "superior": 0, "inferior": 0}
 _PER_VOXEL = "render a per-voxel store for it (hevr encrypt without --layout packed)"
 
 
@@ -82,6 +85,64 @@ def packed_camera(args: Any, ev: Any) -> tuple[Camera, str]:
     return cam, view or ""
 
 
+def packed_encrypt_lines(ev: Any, out: str) -> None:
+    """``hevr encrypt``'s lines about the packed store it wrote: its slots, how to render it, its tags."""
+    p = ev.packing
+    print(f"packed:  {p.slots} voxels per ciphertext along {'zyx'[p.axis]} ({p.slot_bits}-bit slots): X-ray frames of "
+          f"parallel cameras around that axis (hevr render {out} --out FRAME.hevr --key KEY: --view "
+          f"{default_packed_view(ev)} unless you give a view)")
+    if ev.meta.tags:
+        print(f"verifiable: store id {ev.meta.store_id}; one tag per packed ciphertext: frames rendered with --key "
+              f"KEY are verified (--verify {ev.meta.store_id} refuses any other store)")
+    else:
+        print("not verifiable: no tags (--no-verifiable, or a public --key: only the owner's private key makes them); "
+              "packed frames of this store cannot be checked against a lying server")
+
+
+def packed_start(args: Any, ev: Any) -> Camera:
+    """``hevr render`` on a packed store up to the render: the camera (:func:`packed_camera`), the
+    level and size checks, and the ``store:`` / ``render:`` lines."""
+    if args.view and ev.frame is None:
+        warn_line(f"--view {args.view}: {args.store} records no patient frame (its input had no orientation); "
+                  "the view takes the stored axes as RAS+ (x right, y anterior, z superior)")
+    cam, view = packed_camera(args, ev)
+    if args.level > ev.levels:
+        raise UsageError(f"--level {args.level}: expected a level of the store's pyramid (0 to {ev.levels}), got "
+                         f"{args.level}; encrypt the packed store with --levels {args.level}")
+    check_render_size(cam, ev.shape, ev.spacing, 1.0)  # refuse before a cluster starts
+    p = ev.packing
+    print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…, packed along "
+          f"{'zyx'[p.axis]} ({p.slots} voxels per ciphertext)")
+    lvl = f", pyramid level {args.level} ({xyz(ev.meta.levels[args.level - 1].shape)})" if args.level else ""
+    default = " (the packed store's default)" if view and not args.view else ""
+    print(f"render:  X-ray, {args.sampling} sampling{' (bilinear in each slice)' if args.sampling == 'trilinear' else ''}"
+          f", {wh(cam.width, cam.height)} px, {f'{view} view{default}, ' if view else ''}azimuth "
+          f"{args.azimuth or 0.0:g}, elevation {args.elevation or 0.0:g}, parallel, one sample per slice{lvl}")
+    return cam
+
+
+def packed_done(img: Any, out: Any, size: str, seconds: float, warn: Callable[[], None]) -> None:
+    """``hevr render``'s closing lines about the packed frame file it wrote (``warn``: the
+    command's one line when the frame is not verified)."""
+    line = packed_verified_line(img)
+    if line:
+        print(line + " (stamped with the key holder's MAC)")
+    warn()
+    p = img.plan.packing
+    print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} (up to {p.slots + img.plan.classes - 1} ray sums "
+          f"of {p.slot_bits} bits each), {size}, rendered in {seconds:.2f} s")
+    print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {png_name(out)}")
+
+
+def check_packed_decrypt(args: Any) -> None:
+    """``hevr decrypt`` of a packed frame: no colouring option (an X-ray is decrypted as it is)."""
+    given = [o for o, v in (("--mode", args.mode), ("--density", args.density), ("--tf", args.tf),
+                            ("--value-range", args.value_range)) if v is not None and (o != "--mode" or v != "xray")]
+    if given:
+        raise UsageError(f"{', '.join(given)}: expected no colouring for {args.frame}, a packed store's X-ray (it is "
+                         "decrypted as it is)")
+
+
 def packed_verified_line(img: Any) -> str | None:
     """What a verified packed frame proves (None: not verified)."""
     v = img.verification
@@ -92,13 +153,6 @@ def packed_verified_line(img: Any) -> str | None:
             f"{img.level}) and its view, parallel camera at ({', '.join(f'{x:g}' for x in c.position)}) looking at "
             f"({', '.join(f'{x:g}' for x in c.focal_point)}), {c.width}x{c.height} px; checked against the store's "
             "tags and its owner-authenticated metadata")
-
-
-def packed_wrote_line(img: Any, out: Any, size: str, seconds: float) -> str:
-    """``hevr render``'s line about the packed frame file it wrote."""
-    p = img.plan.packing
-    return (f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} (up to {p.slots + img.plan.classes - 1} ray sums "
-            f"of {p.slot_bits} bits each), {size}, rendered in {seconds:.2f} s")
 
 
 def packed_info_rows(img: Any) -> list[tuple[str, Any]]:
@@ -115,7 +169,8 @@ def packed_info_rows(img: Any) -> list[tuple[str, Any]]:
     return [
         ("kind", "encrypted packed frame (.hevr: an X-ray of a packed store, finished on the client)"),
         ("shape", f"{wh(c.width, c.height)} px"),
-        ("rendered", f"X-ray, {plan.sampling} sampling ({'bilinear in each slice' if plan.sampling == 'trilinear' else 'one voxel per slice'}), "
+        ("rendered", f"X-ray, {plan.sampling} sampling ("
+                     f"{'bilinear in each slice' if plan.sampling == 'trilinear' else 'one voxel per slice'}), "
                      f"{plan.weight_bits}-bit weights, level {img.level}"),
         ("camera", f"parallel, position {where}, scale {c.parallel_scale:g}"),
         ("store", f"{img.store_id}, packed along {'zyx'[p.axis]}: {p.slots} voxels per ciphertext ({p.slot_bits}-bit "

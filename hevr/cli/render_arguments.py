@@ -356,3 +356,6 @@ def demo_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--brick", type=brick_type, metavar="N|BZ,BY,BX", help="brick edge (default: a third of the volume)")
     p.add_argument("--azimuth", type=finite_float, default=30.0, metavar="DEG", help="camera azimuth (default 30)")
     p.add_argument("--elevation", type=finite_float, default=20.0, metavar="DEG", help="camera elevation (default 20)")
+    p.add_argument("--packed", action=argparse.BooleanOptionalAction, default=True,
+                   help="also encrypt the volume as a packed store (verifiable) and render a verified parallel X-ray "
+                        "of it beside the per-voxel store's (default; --no-packed leaves it out)")

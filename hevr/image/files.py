@@ -16,6 +16,9 @@ from typing import Any
 
 from .._files import read_regular
 from ..errors import MissingFileError, ParameterError
+from ..rendering.packed.files import is_packed_frame, parse_packed
+from ..rendering.packed.image import PackedImage
+from ..rendering.packed.verified import PackedVerification
 from ..rendering.verify import Verification
 from ..store.paths import check_storage_options, is_local, normalise, read_bytes
 from .encrypted import EncryptedImage
@@ -28,7 +31,7 @@ __all__ = ["image_from_bytes", "load_image", "saved_name"]
 def load_image(path: str | Path, *, storage_options: dict | None = None) -> Any:
     """Read an image written by :meth:`EncryptedImage.save` (format version 3; version-2 files are read as server-finished images),
     or a packed frame written by :meth:`hevr.PackedImage.save` (a :class:`hevr.PackedImage`,
-    checked by :func:`hevr.rendering.packed.files.packed_from_blob`: any fault an ``IntegrityError``).
+    checked by :func:`hevr.rendering.packed.files.parse_packed`: any fault an ``IntegrityError``).
 
     The whole file is checked before an image is returned (``docs/image-format.md``): its
     SHA-256 trailer (:class:`hevr.IntegrityError` on a mismatch: any flipped bit) and every
@@ -64,10 +67,11 @@ def _from_blob(blob: bytes, path: str, name: str | None = None) -> Any:
     """The image in the bytes of a ``.hevr`` file (``path`` names it in messages; ``name``: the
     file name it was read under, which a stamp must have been made for); a packed frame's file
     goes to its own reader."""
-    from ..rendering.packed import files as packed_files  # the packed reader imports the render side
-
-    if packed_files.is_packed_frame(blob):
-        return packed_files.packed_from_blob(blob, path, name)
+    if is_packed_frame(blob):
+        fields = parse_packed(blob, path)
+        v, stamp = fields.pop("verification"), fields.pop("stamp")
+        return PackedImage(**fields, verification=None if v is None else PackedVerification(**v, drawn_here=False),
+                           stamp=None if stamp is None else (*stamp, name))
     h, body = parse_file(blob, path)
     width = h["width"]
     cts, pos = [], 0

@@ -134,3 +134,28 @@ def test_encrypt_verifiable_pair(tmp_path, capsys):
     code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "d.zarr", "--brick", "4",
                        "-q")
     assert code == 0 and not hevr.open_volume(tmp_path / "d.zarr").meta.tags  # the library's default
+
+
+def test_demo_packed_store(tmp_path, capsys):
+    """The demo's packed store: smaller, its frame verified and within the error bound of its slice
+    reference, saved stamped; no repeated 'not verified' warning; --no-packed leaves it out."""
+    import json
+
+    out_dir = tmp_path / "demo"
+    code, out, err = run(capsys, "demo", "--out", out_dir, "--size", "8", "--image", "10x10", "--bits", "256",
+                         "--workers", "1", "-q")
+    assert code == 0, err
+    assert "not verified" not in err and out.count("not verified: the per-voxel demo store has no tags") == 1
+    packed = json.loads((out_dir / "summary.json").read_text())["packed"]
+    assert packed["verified"] and packed["within_bound"] and packed["slots"] > 1
+    assert packed["store_bytes"] < packed["voxel_store_bytes"] and packed["frame_s"] > 0 and packed["voxel_frame_s"] > 0
+    assert "parallel X-ray frame s" in (out_dir / "report.md").read_text() and "packed (" in out
+    img = hevr.load_image(out_dir / "xray-packed.hevr")
+    priv = hevr.load_key(out_dir / "demo-key.json")
+    assert img.stamp is not None and img.decrypt(priv, require_verified=True).shape == (10, 10)
+    assert (out_dir / "xray-packed.png").is_file() and hevr.open_volume(out_dir / "volume-packed.zarr").meta.tags
+    bare = tmp_path / "bare"
+    code, out, err = run(capsys, "demo", "--out", bare, "--size", "6", "--image", "6x6", "--bits", "256",
+                         "--workers", "1", "-q", "--no-packed")
+    assert code == 0, err
+    assert "packed" not in json.loads((bare / "summary.json").read_text()) and not (bare / "volume-packed.zarr").exists()

@@ -12,6 +12,8 @@ The data path of one packed frame, module by module:
 ``sliced``         ``render_plain(..., slices=True)`` and the error bound against it
 ``planes``         slices (:class:`~hevr.rendering.geometry.plane.Plane`): the plan, the refusals, the bound
 ``plane_image``    a slice's Dask graph and :class:`PackedSlice`, the key holder's checks and finishing
+``verified``       verified frames: the tags' aggregate on the server and the key holder's check
+``files``          packed frame files: :meth:`PackedImage.save`, read by ``hevr.load_image``
 =================  =============================================================
 
 ``hevr.render`` routes a packed store to :func:`hevr.rendering.packed.request.render_packed_request`.

@@ -1,5 +1,5 @@
 """Packed frames as files: :func:`save_packed` / :func:`packed_bytes` write a :class:`PackedImage`,
-:func:`packed_from_blob` reads one back (``hevr.load_image`` dispatches here on the magic).
+:func:`parse_packed` reads one back (``hevr.load_image`` dispatches here on the magic).
 
 A packed frame file is a ``.hevr`` file whose magic says "packed" (``HEVRIMG`` then ``P``, then a
 version byte), so that everything that tells a frame from other files by ``HEVRIMG`` (``hevr
@@ -55,7 +55,7 @@ from .plan import SlicePlan
 log = logging.getLogger(__name__)
 
 __all__ = ["FORMAT", "MAGIC", "MAGIC_PREFIX", "VERSION", "check_packed", "is_packed_frame", "packed_bytes",
-           "packed_from_blob", "save_packed"]
+           "parse_packed", "save_packed"]
 
 MAGIC_PREFIX = IMAGE_MAGIC_PREFIX + b"P"  # a frame file ("HEVRIMG"), packed ("P")
 VERSION = 1
@@ -200,12 +200,12 @@ class _Fields:
         return v
 
 
-def packed_from_blob(blob: bytes, where: str, name: str | None = None) -> Any:
-    """The :class:`PackedImage` in the bytes of a packed frame file (``where`` names it in
-    messages; ``name``: the file name it was read under, which a stamp must have been made for).
-    Checks in the module docstring's order."""
-    from .image import PackedImage  # image.py imports this module for its save methods
-
+def parse_packed(blob: bytes, where: str) -> dict:
+    """The fields of the :class:`~hevr.rendering.packed.image.PackedImage` in the bytes of a packed
+    frame file (``where`` names it in messages), checked in the module docstring's order:
+    ``PackedImage(**fields)`` but for ``verification`` (None, or the keyword arguments of a
+    :class:`~hevr.rendering.packed.verified.PackedVerification` read from a file) and ``stamp``
+    ((stamp, what it authenticates, saved as) or None). :func:`hevr.load_image` builds them."""
     if not is_packed_frame(blob):
         raise CorruptStoreError(f"{where}: not a packed frame file (bad magic)")
     version = blob[len(MAGIC_PREFIX)] if len(blob) > len(MAGIC_PREFIX) else None
@@ -258,11 +258,10 @@ def packed_from_blob(blob: bytes, where: str, name: str | None = None) -> Any:
     for c in counts:
         tiles.append(body[pos:pos + c * width].reshape(c, width))
         pos += c * width
-    verification = _verification(h, f, meta, int(h["level"]))
-    return PackedImage(plan=plan, camera=camera, fingerprint=fm.fingerprint, n=int(fm.n),
-                       exponent=fm.scalar.exponent, offset=fm.packing.offset, span=span, ciphertexts=tiles,
-                       store_id=fm.store_id, verification=verification, meta=meta, level=int(h["level"]),
-                       stamp=None if stamp is None else (*stamp, name))
+    return {"plan": plan, "camera": camera, "fingerprint": fm.fingerprint, "n": int(fm.n),
+            "exponent": fm.scalar.exponent, "offset": fm.packing.offset, "span": span, "ciphertexts": tiles,
+            "store_id": fm.store_id, "meta": meta, "level": int(h["level"]), "stamp": stamp,
+            "verification": _verification(h, f, meta, int(h["level"]))}
 
 
 def _stamp(h: dict, f: _Fields, body: np.ndarray) -> tuple | None:
@@ -323,10 +322,8 @@ def _plan(h: dict, f: _Fields, fm: VolumeMetadata) -> tuple[SlicePlan, int, Came
     return plan, hi - lo, cam
 
 
-def _verification(h: dict, f: _Fields, meta: VolumeMetadata, level: int) -> Any:
+def _verification(h: dict, f: _Fields, meta: VolumeMetadata, level: int) -> dict | None:
     """The record of a verified frame (or None): checked, never trusted before the stamp is."""
-    from .verified import PackedVerification
-
     if "verification" not in h:
         return None
     d = h["verification"]
@@ -342,4 +339,4 @@ def _verification(h: dict, f: _Fields, meta: VolumeMetadata, level: int) -> Any:
         raise f.fail("verification.seed", "64 lower-case hex digits", seed)
     if not meta.tags:
         raise f.fail("verification", "no record (the store's metadata has no tags)", "a record")
-    return PackedVerification(aggregate=int(agg), seed=bytes.fromhex(seed), meta=meta, level=level, drawn_here=False)
+    return {"aggregate": int(agg), "seed": bytes.fromhex(seed), "meta": meta, "level": level}
