@@ -45,8 +45,10 @@ def check_packed_render(args: Any, mode: str) -> None:
     serve, naming it; before the store is read further or a cluster starts."""
     if mode != "xray":
         opt = f"--mode {mode}" if args.mode else "--tf" if args.tf is not None else "--density"
-        raise UsageError(f"{opt}: expected an X-ray on a packed store (it holds the scalar channel only); {_PER_VOXEL} "
-                         "with --vector-dims 4")
+        raise UsageError(f"{opt}: expected an X-ray: 'hevr render' writes X-ray frames of packed stores (the "
+                         "emphasis and transfer-function frames of a packed store with the vector channel render in "
+                         "Python, hevr.render(ev, cam, mode='tf', ...), and have no frame file yet); or "
+                         f"{_PER_VOXEL} with --vector-dims 4")
     refused = [
         (args.step is not None and args.step != 1.0, "--step", "a packed store samples once per slice of the "
                                                                "view's principal axis (step 1)"),

@@ -117,7 +117,8 @@ def _header(img: Any) -> dict:
             "metadata": meta.to_dict(), "counts": [int(len(c)) for c in img.ciphertexts]}
     v = img.verification
     if v is not None:
-        if v.meta.to_dict() != meta.to_dict() or int(v.level) != int(img.level):
+        if (v.meta.to_dict() != meta.to_dict() or int(v.level) != int(img.level)
+                or getattr(v, "channel", "scalar") != "scalar"):
             raise ParameterError("image: its verification record is of another store or level than the frame; "
                                  "render it again")
         head["verification"] = {"aggregate": str(int(v.aggregate)), "seed": bytes(v.seed).hex()}
