@@ -80,7 +80,7 @@ RENDERING_ROOMS = {
     "planning": ("modes", "request", "planner", "bounds"),
     "pipeline": ("kernel", "_segments", "maps", "graph", "reduce", "finishing", "sums", "stream"),
     "reference": ("plain",),
-    "packed": ("request", "shear", "plan", "graph", "image", "sliced", "planes", "plane_image", "verified", "files"),
+    "packed": ("request", "shear", "plan", "graph", "image", "sliced", "planes", "plane_image", "verified", "files", "colour"),
 }
 RENDERING_FLOOR = ("__init__", "encrypted", "slices", "verify")
 

@@ -74,7 +74,7 @@ def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weig
     stats["seconds"] = time.perf_counter() - t0
     img = PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
                       offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles, store_id=meta.store_id,
-                      stats=stats)
+                      stats=stats, meta=meta, level=0)
     if verify:  # the values are fixed in this process: only now the seed
         t1 = time.perf_counter()
         seed = secrets.token_bytes(32)

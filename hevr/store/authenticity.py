@@ -42,6 +42,8 @@ False
 
 from __future__ import annotations
 
+import dataclasses
+
 import hashlib
 import hmac
 import json
@@ -116,3 +118,11 @@ def check_metadata_mac(private_key: Any, fields: dict, auth: Any) -> bool:
     if not is_auth(auth):
         return False
     return hmac.compare_digest(metadata_mac(private_key, fields), auth)
+
+
+def authenticate(meta: Any, key: Any) -> Any:
+    """A verifiable store's metadata with the owner's MAC over what shapes a picture; other
+    stores' unchanged (the writer's and the packed levels' one home for it)."""
+    if not meta.tags:
+        return meta
+    return dataclasses.replace(meta, auth=metadata_mac(key, authenticated_fields(meta.to_dict())))

@@ -1,12 +1,11 @@
 """Versioned, checksummed metadata of an encrypted volume store (see docs/format.md).
 
-Version 2 adds integrity: the ``hevr`` attribute carries ``checksum``, the SHA-256 of
-its own canonical JSON (every other field, keys sorted, no spaces), and every field is
-validated on reading — types exactly (a bool is not an int, a float is not an int),
-ranges (brick >= 1, value range ordered, known dtype), and consistency (fingerprint
-length, ``n_bricks`` and ``bits`` when present). :meth:`VolumeMetadata.from_dict` names
-the first field that is wrong. Version 1 stores (no digests) are refused with the
-one-line command that converts them (``hevr upgrade-store``).
+Version 2 adds integrity: the ``hevr`` attribute carries ``checksum``, the SHA-256 of its own
+canonical JSON (every other field, keys sorted, no spaces), and every field is validated on
+reading — types exactly (a bool is not an int, a float is not an int), ranges (brick >= 1, value
+range ordered, known dtype), and consistency (fingerprint length, ``n_bricks`` and ``bits`` when
+present). :meth:`VolumeMetadata.from_dict` names the first field that is wrong. Version 1 stores
+(no digests) are refused with the command that converts them (``hevr upgrade-store``).
 
 >>> m = VolumeMetadata(shape=(2, 2, 2), spacing=(1.0, 1.0, 1.0), brick=(2, 2, 2), n="3233",
 ...                    fingerprint="ab" * 32, ciphertext_bytes=3, dtype="uint8",
@@ -407,10 +406,9 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
 
 
 def _packing(d: dict, meta: VolumeMetadata, where: str) -> PackingInfo:
-    """The ``layout`` object of a packed store, checked against the rest of the metadata: the scalar
-    channel (and the vector channel, packed alike, :func:`~hevr.store.packing.store_span`; no
-    gradient channel), the offset the value range implies, slots that fit the key and the brick,
-    and a slot width that holds every frame's largest sum of either channel (:meth:`PackingInfo.check`)."""
+    """A packed store's ``layout``, checked against the rest: the scalar (and vector, packed alike:
+    :func:`~hevr.store.packing.store_span`) channel, no gradient, the value range's offset, slots that fit
+    the key and brick, a slot width for every frame's largest sum (:meth:`PackingInfo.check`)."""
     packing = PackingInfo.from_dict(d["layout"], where)
     if meta.scalar is None or meta.gradient is not None:
         raise _bad(where, "channels", "'scalar' (and 'vector') in a packed store", d.get("channels"))
@@ -425,9 +423,8 @@ def _packing(d: dict, meta: VolumeMetadata, where: str) -> PackingInfo:
 
 
 def _level_packing(meta: VolumeMetadata, info: LevelInfo, where: str) -> None:
-    """A packed level's ``layout`` (:mod:`hevr.store.packed_levels`; its axis checked on parsing): the
-    offset at the level's exponent ``e − 3·level``, slots that fit the key and the level's brick, and a
-    slot width that holds every frame's largest sum at the level's shape."""
+    """A packed level's ``layout`` (:mod:`hevr.store.packed_levels`; its axis checked on parsing): the offset
+    at the level's exponent e − 3·level, slots for the key and brick, a width for the level's largest sum."""
     name = f"levels[{info.level - 1}].layout"
     packing = info.packing
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent - 3 * info.level)

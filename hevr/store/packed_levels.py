@@ -56,7 +56,7 @@ from ..backends import CpuBackend, get_backend
 from ..crypto.tags import betas, raw_tags, tag_channel, tag_key_of
 from ..errors import ParameterError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_shape
-from .authenticity import authenticated_fields, metadata_mac
+from .authenticity import authenticate
 from .brick_crypto import encrypt_components
 from .digests import brick_digest, marker, written
 from .layout import array_layout, array_slices, compressors
@@ -107,13 +107,6 @@ def plan_levels(meta: VolumeMetadata, levels: int) -> tuple[LevelInfo, ...]:
     return tuple(out)
 
 
-def _authenticate(meta: VolumeMetadata, key: Any) -> VolumeMetadata:
-    """The owner's MAC again over the fields now recorded (the levels' layouts are bound)."""
-    if not meta.tags:
-        return meta
-    return dataclasses.replace(meta, auth=metadata_mac(key, authenticated_fields(meta.to_dict())))
-
-
 def prepare_levels(path: str, meta: VolumeMetadata, wanted: tuple[LevelInfo, ...], key: Any,
                    so: dict | None) -> VolumeMetadata:
     """Record the levels ``wanted`` (:func:`plan_levels`; none: nothing to do) in the store at ``path``,
@@ -139,7 +132,7 @@ def prepare_levels(path: str, meta: VolumeMetadata, wanted: tuple[LevelInfo, ...
         levels = levels[:i] + [dataclasses.replace(want, complete=False, arrays=digests)]  # levels above: again
         changed = True
     if changed:
-        meta = _authenticate(dataclasses.replace(meta, levels=tuple(levels)), key)
+        meta = authenticate(dataclasses.replace(meta, levels=tuple(levels)), key)
         write_meta(path, meta, so)
     return meta
 
@@ -248,6 +241,6 @@ def encrypt_levels(vol: Any, brick: tuple[int, int, int], path: str, meta: Volum
     infos = tuple(dataclasses.replace(info, complete=True) if written(group[f"levels/{info.level}/done"][...]).all()
                   else info for info in meta.levels)
     if infos != meta.levels:
-        meta = _authenticate(dataclasses.replace(meta, levels=infos), key)
+        meta = authenticate(dataclasses.replace(meta, levels=infos), key)
         write_meta(path, meta, so)
     return meta, counted + values

@@ -59,7 +59,7 @@ from .._validate import (
 from ..backends import CpuBackend, check_backend, get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
 from ..crypto.tags import tag_channel, tag_ciphertexts
-from .authenticity import authenticated_fields, metadata_mac
+from .authenticity import authenticate
 from .known import record_quietly
 from ..errors import ParameterError, StoreError, StoreExistsError
 from ..volume import gradient as grad
@@ -345,7 +345,7 @@ def encrypt_volume(
                 stack.enter_context(lock_store(path))
             old = resume_target(path, meta, so)
             # a finished store keeps everything built on it since (its pyramid levels)
-            meta = _authenticate(dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays, levels=old.levels),
+            meta = authenticate(dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays, levels=old.levels),
                                  key)
             check_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
             done = written(zarr.open_array(zarr_store(path, so, read_only=True), path="done", mode="r")[...])
@@ -355,7 +355,7 @@ def encrypt_volume(
                 check_replaceable(path, so)
                 if local:
                     lock_store(path, hold=False)  # refuse at once to replace a store another run writes now
-            meta = _authenticate(dataclasses.replace(meta, store_id=token() + token()), key)
+            meta = authenticate(dataclasses.replace(meta, store_id=token() + token()), key)
             write_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
             try:
                 target, meta, lock = new_store(path, meta, so, beside=exists)  # overwrite: beside, then swap
@@ -433,14 +433,6 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
             raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
         group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
     return values
-
-
-def _authenticate(meta: VolumeMetadata, key: Any) -> VolumeMetadata:
-    """A verifiable store's metadata with the owner's MAC over what shapes a picture
-    (:mod:`hevr.store.authenticity`); other stores' unchanged."""
-    if not meta.tags:
-        return meta
-    return dataclasses.replace(meta, auth=metadata_mac(key, authenticated_fields(meta.to_dict())))
 
 
 def _warn_if_remote(client: Any, key: Any) -> None:

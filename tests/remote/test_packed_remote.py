@@ -132,3 +132,19 @@ def test_what_a_packed_store_does_not_serve(packed_served, rv):
         assert r.status_code == 400 and "parallel" in r.json()["detail"]
     with pytest.raises(hevr.ParameterError, match="client: expected None"):
         hevr.render(rv, _cam(rv), progress=False, client=object())
+
+
+def test_remote_frames_save_and_load(packed_served, rv, tmp_path):
+    """A remote packed frame is saved like an in-process one: unverified as it is, verified only
+    with the key holder's stamp; both load and decrypt to the same picture."""
+    s = packed_served
+    cam = _cam(rv, 60, 10)
+    plain = hevr.render(rv, cam, verify=False, progress=False)
+    plain.save(tmp_path / "u.hevr")
+    img = hevr.render(rv, cam, progress=False)
+    img.save(tmp_path / "v.hevr", private_key=s.priv)
+    want = plain.decrypt(s.priv)
+    np.testing.assert_array_equal(hevr.load_image(tmp_path / "u.hevr").decrypt(s.priv), want)
+    again = hevr.load_image(tmp_path / "v.hevr")
+    assert again.verified
+    np.testing.assert_array_equal(again.decrypt(s.priv, require_verified=True), want)
