@@ -287,3 +287,16 @@ def test_resident_and_distributed(store, keypair256, cluster):
         for a, b in zip(base.components, other.components):
             assert all((x == y).all() for x, y in zip(a.ciphertexts, b.ciphertexts))
     assert np.array_equal(far.decrypt(keypair256[1]), base.decrypt(keypair256[1]))
+
+
+def test_render_frame_recolours_on_the_client(store, keypair256):
+    """hevr.render_frame on a packed store with the vector channel: a verified Frame of the k
+    components' means that re-colours in numpy, as the per-voxel client frame does."""
+    priv = keypair256[1]
+    c = cam(store, 60, 10)
+    frame = hevr.render_frame(store, c, priv, mode="tf", nodes=NODES, sampling="trilinear", progress=False)
+    assert frame.channel == "vector" and frame.components == K and frame.stats["verified"]
+    img = render(store, c, "trilinear", mode="tf", nodes=NODES)
+    np.testing.assert_allclose(frame.image, img.decrypt(priv), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(frame.recolour("emphasize", density=0.5),
+                               img.decrypt(priv, mode="emphasize", density=0.5), rtol=0, atol=1e-12)

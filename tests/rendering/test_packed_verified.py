@@ -161,3 +161,18 @@ def test_resident_distributed_and_one_value_tiles(store, keypair256, cluster):
     assert np.array_equal(img.decrypt(priv, require_verified=True), want)
     far = render(store, c, client=cluster)
     assert far.verified and np.array_equal(far.decrypt(priv, require_verified=True), want)
+
+
+def test_render_frame_on_a_packed_store(store, keypair256, volume):
+    """hevr.render_frame on a packed store: the verified X-ray as a Frame (one component), the
+    same picture as render + decrypt, with the key holder's check timed."""
+    priv = keypair256[1]
+    c = cam(store, 60, 10)
+    frame = hevr.render_frame(store, c, priv, sampling="trilinear", progress=False)
+    assert isinstance(frame, hevr.Frame) and frame.channel == "scalar" and frame.components == 1
+    assert frame.stats["verified"] and frame.stats["check_s"] >= 0 and frame.stats["map_tasks"] > 0
+    want = render(store, c, verify=False).decrypt(priv)
+    np.testing.assert_array_equal(frame.image, want)
+    np.testing.assert_array_equal(frame.recolour("xray"), want)
+    with pytest.raises(ParameterError, match="finish"):
+        hevr.render_frame(store, c, priv, finish="client")

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ...backends import get_backend
+from ...colour import Colouring, Frame
 from ...crypto.keys import PrivateKey
 from ...errors import IntegrityError, KeyMismatchError, ParameterError
 from ...image.provenance import check_provenance
@@ -194,6 +195,20 @@ class PackedImage:
     def to_bytes(self, private_key: Any = None) -> bytes:
         """The packed frame file as bytes (:meth:`save`'s rules; ``hevr.image_from_bytes`` reads them)."""
         return files.packed_bytes(self, private_key)
+
+    def decrypt_frame(self, private_key: PrivateKey, backend: str | None = None, *,
+                      require_verified: bool | str = False) -> Frame:
+        """A :class:`hevr.Frame` of the X-ray (one component: the mean of every pixel's samples),
+        checked as :meth:`decrypt` checks; its ``n_samples`` are the intermediate rays' sample
+        counts warped to the pixels, rounded."""
+        t0 = time.perf_counter()
+        arr = self.decrypt(private_key, backend, require_verified=require_verified)
+        geo = self.plan.geometry
+        counts = geo.warp(geo.sample_counts(self.plan.sampling).astype(np.float64), geo.pixel_coords(self.camera))
+        stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts,
+                     verified=self.verified)
+        return Frame(means=arr[..., None], n_samples=np.rint(counts).astype(np.int64).reshape(self.shape),
+                     channel="scalar", colouring=Colouring("xray"), stats=stats)
 
     def __repr__(self) -> str:
         return (f"PackedImage(shape={self.shape}, sampling={self.plan.sampling!r}, slots={self.plan.packing.slots}, "
