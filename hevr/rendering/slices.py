@@ -24,12 +24,14 @@ from typing import Any
 
 from dask.delayed import Delayed
 
+from .._dask import active_client
 from ..errors import ParameterError
 from ..image.encrypted import EncryptedImage
 from ..store.reader import EncryptedVolume
 from .encrypted import _render
 from .geometry.plane import Plane
-from .packed.plane_image import PackedSlice, render_packed_slice
+from .packed.plane_image import PackedSlice, render_packed_slice, slice_verification
+from .verify import resolve_verify
 
 __all__ = ["DEFAULT_PRECISION", "render_slice"]
 
@@ -150,11 +152,9 @@ def _packed_slice(ev: EncryptedVolume, plane: Plane, mode: str, sampling: str, d
     if keep_sums is not None or compute is not True:
         raise ParameterError(f"keep_sums/compute: expected None and True on a packed store, got {keep_sums!r} and "
                              f"{compute!r}")
-    if verify is True or isinstance(verify, str):
-        raise ParameterError(f"verify: expected None or False for a slice of a packed store (its slices are not "
-                             f"verified yet; its X-ray frames are), got {verify!r}")
-    if verify is None:  # as every unverified render: said, unless verify=False silences it
-        log.warning("render_slice: not verified: slices of a packed store carry no check against its tags yet (its "
-                    "X-ray frames do), store %s (a lying server is not caught; verify=False silences this)",
-                    ev.meta.store_id)
-    return render_packed_slice(ev, plane, sampling, client=client, progress=progress, backend=backend)
+    verified = resolve_verify(verify, ev, "client", level=0, compute=True, stream=False)
+    img = render_packed_slice(ev, plane, sampling, client=client, progress=progress, backend=backend)
+    if verified:  # the values are fixed in this process: only now the seed (hevr.rendering.packed.verified)
+        img.verification = slice_verification(ev, img.plan, img.stats["backend"], active_client(client), progress)
+    return img
+

@@ -160,8 +160,8 @@ def test_refusals(store):
         render(store, c, "nearest", finish="server")
     with pytest.raises(ParameterError, match="compute: expected True"):
         render(store, c, "nearest", compute=False)
-    with pytest.raises(ParameterError, match="ev: expected a per-voxel store"):
-        hevr.render_slice(store, hevr.Plane.axial(store, 3), progress=False)
+    with pytest.raises(ParameterError, match="plane: expected a plane perpendicular to the packing axis"):
+        hevr.render_slice(store, hevr.Plane.oblique(store, normal=(1, 0, 1)), progress=False)
     with pytest.raises(ParameterError, match="packed store"):
         hevr.build_pyramid(store, 1, progress=False)
     with pytest.raises(ParameterError, match="slices: expected mode='xray'"):

@@ -138,7 +138,7 @@ def test_other_planes_refused_before_any_work(store, monkeypatch):
     ({"mode": "emphasize", "density": 0.5}, "^mode: expected 'xray' on a packed store"),
     ({"gradient": True}, "^density/nodes/gradient"),
     ({"finish": "server"}, "^finish: expected 'client'"),
-    ({"verify": True}, "^verify: expected None or False for a slice of a packed store"),
+    ({"verify": True}, "^verify: expected a request that can be verified, got the store has no tags"),
     ({"compute": False}, "^keep_sums/compute"),
 ])
 def test_requests_refused(store, kw, match):
@@ -148,12 +148,52 @@ def test_requests_refused(store, kw, match):
 
 def test_unverified_warns_and_require_verified(store, keypair256, caplog):
     """The default (verify=None) says the slice is not verified; require_verified refuses it."""
-    with caplog.at_level(logging.WARNING, logger="hevr.rendering.slices"):
+    with caplog.at_level(logging.WARNING, logger="hevr"):
         img = hevr.render_slice(store, hevr.Plane.axial(store, 1), progress=False)
     assert "not verified" in caplog.text
     assert not img.verified and "verified=False" in repr(img) and "key=" in repr(img)
     with pytest.raises(VerificationError, match="not verified"):
         img.decrypt(keypair256[1], require_verified=True)
+
+
+@pytest.fixture(scope="module")
+def verifiable(tmp_path_factory, keypair256, volume):
+    path = tmp_path_factory.mktemp("packed-slices-verified") / "v.zarr"
+    return hevr.encrypt_volume(volume, path, keypair256[1], brick=4, spacing=SPACING, layout="packed", progress=False)
+
+
+@pytest.mark.parametrize("sampling", SAMPLINGS)
+@pytest.mark.parametrize("name", ["axial-between-packs", "coronal-slab", "oblique-containing-z"])
+def test_verified_slices(verifiable, keypair256, name, sampling):
+    """A verifiable store's slices are verified by default: the same pixels as unverified, and a
+    value changed within its bounds, or another slice's aggregate, is caught before any pixel."""
+    import dataclasses
+
+    priv = keypair256[1]
+    plane = planes(verifiable)[name]
+    img = hevr.render_slice(verifiable, plane, sampling=sampling, progress=False)
+    assert img.verified and "verified=True" in repr(img)
+    arr = img.decrypt(priv, require_verified=verifiable.meta.store_id)
+    np.testing.assert_array_equal(arr, slice_(verifiable, plane, sampling).decrypt(priv))
+    K = img.plan.packing.slot_bits
+    n = img.n
+    for t, recs in enumerate(img.ciphertexts):  # lower a non-zero slot by one: well-formed, within bounds
+        vals = [int(priv.raw_decrypt(int.from_bytes(r.tobytes(), "big"))) for r in recs]
+        hit = [(i, s) for i, v in enumerate(vals) for s in range(img.plan.packing.slots) if (v >> (K * s)) % (1 << K)]
+        if hit:
+            i, slot = hit[0]
+            bad = [r.copy() for r in img.ciphertexts]
+            c = int.from_bytes(recs[i].tobytes(), "big") * pow(1 + n, n - (1 << (K * slot)), n * n) % (n * n)
+            bad[t][i] = np.frombuffer(c.to_bytes(recs.shape[1], "big"), np.uint8)
+            with pytest.raises(VerificationError, match="does not verify"):
+                dataclasses.replace(img, ciphertexts=bad).decrypt(priv)
+            break
+    else:
+        raise AssertionError("no non-zero slot to lower")
+    other = hevr.render_slice(verifiable, plane, sampling=sampling, progress=False)
+    with pytest.raises(VerificationError, match="does not verify"):
+        dataclasses.replace(img, verification=dataclasses.replace(img.verification,
+                                                                  seed=other.verification.seed)).decrypt(priv)
 
 
 def _tampered(img, value, record):

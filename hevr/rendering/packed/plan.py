@@ -185,6 +185,16 @@ class SlicePlan:
         ty, tx = self.tiles_shape
         return ty * tx
 
+    def value_ids(self, t: int) -> np.ndarray:
+        """The global ids of tile ``t``'s combined values, in the tile's order ((j, B) row-major):
+        j·N_B + (B − B_lo), the indices of their verification coefficients."""
+        j0, j1, b0, b1 = self.tile_bounds(t)
+        return (np.arange(j0, j1)[:, None] * self.n_blocks + np.arange(b0, b1)[None, :]).reshape(-1)
+
+    def key_values(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per accumulator key its combined value's global id and its slot class (the Horner shift)."""
+        return keys // self.classes, keys % self.classes
+
     def tile_bounds(self, t: int) -> tuple[int, int, int, int]:
         """(j0, j1, B0, B1), offsets from the image's first row and block, of tile ``t``."""
         ty, tx = self.tiles_shape

@@ -12,17 +12,21 @@
 The key holder (:meth:`PackedSlice.decrypt`) checks every ciphertext (in (0, n²)) and every
 plaintext (no bit above its S slots: the integrity margin; no slot above span·W of its footprint,
 none at all in a layer past the volume's end) before any pixel is formed, then finishes the pixels
-in float64 (:mod:`hevr.rendering.packed.planes`). Slices of packed stores are not verified yet.
+in float64 (:mod:`hevr.rendering.packed.planes`). A verifiable store's slice is verified as a
+frame is (:func:`slice_verification`: a seed drawn after the values, the tags through the slice's
+plan, one aggregate; the key holder's check before any pixel).
 """
 
 from __future__ import annotations
 
 import logging
+import secrets
 import time
 import uuid
 from dataclasses import dataclass, field
 from typing import Any
 
+import gmpy2
 import numpy as np
 from dask.delayed import delayed
 
@@ -32,6 +36,7 @@ from ..._dask import warn_if_remote
 from ...backends import get_backend, resolve_backend_name
 from ...backends.base import OpCounter
 from ...crypto.keys import PrivateKey
+from ...crypto.tags import tag_channel
 from ...errors import IntegrityError, KeyMismatchError, ParameterError, VerificationError
 from ...store.packing import INTEGRITY_BITS, mantissa_range, unpack_slots
 from ...store.paths import check_reachable
@@ -39,6 +44,7 @@ from ..pipeline.finishing import one_records
 from ..pipeline.kernel import plan_products
 from .graph import brick_columns, merge_parts
 from .planes import TILE_VALUES, PlanePlan
+from .verified import PackedVerification, aggregate_tile
 
 log = logging.getLogger(__name__)
 
@@ -48,12 +54,12 @@ _CORRUPT = "the slice was corrupted or tampered with; no image is returned"
 
 
 def map_bricks(ev: Any, plan: Any, indices: list, backend: str, tiles: list[int],
-               residents: list | None = None) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
+               residents: list | None = None, channel: str = "scalar") -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
     """The partial output values of bricks ``indices`` cut by the tiles ``tiles`` ((values, records)
-    each, in that order), and the operations counted."""
+    each, in that order), and the operations counted (``channel="scalar_tag"``: the tags')."""
     be = get_backend(backend)
     width = ev.meta.ciphertext_bytes
-    batches = [r.batches["scalar"] if r is not None else ev.read_brick(idx, "scalar", backend=be)
+    batches = [r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
                for idx, r in zip(indices, residents or [None] * len(indices))]
     parts, off = [], 0
     for idx, batch in zip(indices, batches):
@@ -111,21 +117,7 @@ def render_packed_slice(ev: Any, plane: Any, sampling: str = "nearest", *, clien
     n, width, plain = int(ev.public_key.n), meta.ciphertext_bytes, ev._plain()
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     plan_d = delayed(plan, pure=True, name=f"hevr-packed-slice-plan-{tag}")  # one copy in the graph
-    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
-    maps = []
-    for column in brick_columns(ev.grid, meta.packing.axis):
-        reach = {idx: plan.brick_tiles(idx) for idx in column}
-        column = [idx for idx in column if reach[idx]]
-        if not column:
-            continue
-        tiles = sorted(set().union(*(reach[idx] for idx in column)))
-        name = f"hevr-packed-slice-map-{tag}-{'-'.join(map(str, column[0]))}"
-        task = delayed(map_bricks, pure=True, nout=2)(
-            plain, plan_d, column, backend, tiles,
-            [resident.get(i) for i in column] if resident is not None else None, dask_key_name=name)
-        maps.append(task[1])
-        for pos, t in enumerate(tiles):
-            per_tile[t].append(task[0][pos])
+    per_tile, maps = _map_graph(plain, plan, plan_d, backend, resident, "scalar", tag)
     fin = [delayed(merge_values, pure=True, nout=2)(plan_d, t, n, width, backend, *per_tile[t],
                                                     dask_key_name=f"hevr-packed-slice-tile-{tag}-{t}")
            for t in range(plan.n_tiles)]
@@ -140,6 +132,52 @@ def render_packed_slice(ev: Any, plane: Any, sampling: str = "nearest", *, clien
     return PackedSlice(plan=plan, plane=plane, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
                        offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles_out, store_id=meta.store_id,
                        stats=stats)
+
+
+def _map_graph(ev: Any, plan: PlanePlan, plan_d: Any, backend: str, resident: dict | None, channel: str,
+               tag: str) -> tuple[dict[int, list], list]:
+    """The map tasks of a slice on ``channel``: per merge tile the delayed partial values that reach
+    it, and every map task's operation counts (one task per column of bricks along the packing axis)."""
+    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
+    maps = []
+    for column in brick_columns(ev.grid, plan.packing.axis):
+        reach = {idx: plan.brick_tiles(idx) for idx in column}
+        column = [idx for idx in column if reach[idx]]
+        if not column:
+            continue
+        tiles = sorted(set().union(*(reach[idx] for idx in column)))
+        name = f"hevr-packed-slice-map-{channel}-{tag}-{'-'.join(map(str, column[0]))}"
+        task = delayed(map_bricks, pure=True, nout=2)(
+            ev, plan_d, column, backend, tiles,
+            [resident.get(i) for i in column] if resident is not None else None, channel, dask_key_name=name)
+        maps.append(task[1])
+        for pos, t in enumerate(tiles):
+            per_tile[t].append(task[0][pos])
+    return per_tile, maps
+
+
+def slice_verification(ev: Any, plan: PlanePlan, backend: str, client: Any, progress: bool) -> PackedVerification:
+    """The tags' round of a slice, after its values are in the key holder's hands: a fresh seed, the
+    tags through the slice's plan, one aggregate per merge tile (A = Π_v T_v^ρ_v, the values' ids as
+    indices: :func:`~hevr.rendering.packed.verified.aggregate_tile` with one class), the record to keep."""
+    seed = secrets.token_bytes(32)
+    t0 = time.perf_counter()
+    meta = ev.meta
+    n, width = int(ev.public_key.n), meta.ciphertext_bytes
+    tag = f"{meta.store_id}-{uuid.uuid4().hex}"
+    plan_d = delayed(plan, pure=True, name=f"hevr-packed-slice-plan-{tag}")
+    per_tile, maps = _map_graph(ev._plain(), plan, plan_d, backend, None, tag_channel("scalar"), tag)
+    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan_d, t, n, width, backend, seed, *per_tile[t],
+                                                        dask_key_name=f"hevr-packed-slice-verify-{tag}-{t}")
+             for t in range(plan.n_tiles) if per_tile[t]]
+    results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
+    A, n2 = gmpy2.mpz(1), gmpy2.mpz(n) * n
+    for rec, _ in results[:len(tasks)]:
+        if rec is not None:
+            A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
+    ops = {"map": sum(m["map"] for m in results[len(tasks):])}
+    return PackedVerification(aggregate=int(A), seed=seed, meta=meta, ops=ops, server_s=time.perf_counter() - t0,
+                              drawn_here=True)
 
 
 @dataclass
@@ -172,7 +210,7 @@ class PackedSlice:
     ciphertexts: list = field(repr=False)
     store_id: str = ""
     stats: dict = field(default_factory=dict, repr=False)
-    verification: Any = field(default=None, repr=False, compare=False)  # slices of packed stores: not yet
+    verification: Any = field(default=None, repr=False, compare=False)  # a PackedVerification, or None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -189,7 +227,8 @@ class PackedSlice:
 
     @property
     def verified(self) -> bool:
-        return False
+        """Whether the slice carries a check against the store's tags (drawn in this process)."""
+        return self.verification is not None
 
     def decrypt_values(self, private_key: PrivateKey, backend: str | None = None) -> np.ndarray:
         """(V, S) int64: every output value's slots, Σ w·u per layer, after every check (:func:`decode_slice`)."""
@@ -214,15 +253,26 @@ class PackedSlice:
             if bad is not None:
                 raise IntegrityError(f"slice: tile {t}: ciphertext {bad} is not in (0, n²); {_CORRUPT}")
             tiles.append(be.decrypt(private_key, batch))
-        return decode_slice(self.plan, [int(v) for tile in tiles for v in tile], self.span)
+        slots = decode_slice(self.plan, [int(v) for tile in tiles for v in tile], self.span)
+        if self.verification is not None:  # every value against the tags before any pixel
+            self.verification.check(private_key, self.plan, tiles, self.fingerprint)
+        return slots
 
     def decrypt(self, private_key: PrivateKey, backend: str | None = None, *,
                 require_verified: bool | str = False) -> np.ndarray:
         """The slice's float64 (H, W) pixels (the mean of each pixel's slab samples; 0 where none is
-        inside, see :attr:`hits`), after every check; ``require_verified`` refuses it (not verified)."""
+        inside, see :attr:`hits`), after every check (a verified slice: against the store's tags first);
+        ``require_verified`` (True, or the store id that must have been proven) refuses an unverified one."""
         if require_verified is not False and require_verified is not None:
-            raise VerificationError("slice: not verified (slices of packed stores carry no check against the "
-                                    "store's tags yet), and require_verified was given; no image is returned")
+            if not (require_verified is True or isinstance(require_verified, str)):
+                raise ParameterError(f"require_verified: expected True, False or a store id, got {require_verified!r}")
+            v = self.verification
+            if v is None or not v.drawn_here:
+                raise VerificationError("slice: not verified (a store without tags, or verify=False), and "
+                                        "require_verified was given; no image is returned")
+            if isinstance(require_verified, str) and v.store_id != require_verified:
+                raise VerificationError(f"slice: expected a slice of the store {require_verified}, got one of the "
+                                        f"store {v.store_id}; no image is returned")
         slots = self.decrypt_values(private_key, backend)
         plan = self.plan
         fp, _ = plan.value_layers()
@@ -242,7 +292,7 @@ class PackedSlice:
 
     def __repr__(self) -> str:
         return (f"PackedSlice(shape={self.shape}, kind={self.plan.kind!r}, sampling={self.plan.sampling!r}, "
-                f"slots={self.plan.packing.slots}, ciphertexts={self.n_ciphertexts}, verified=False, "
+                f"slots={self.plan.packing.slots}, ciphertexts={self.n_ciphertexts}, verified={self.verified}, "
                 f"key={self.fingerprint[:16]}…)")
 
 

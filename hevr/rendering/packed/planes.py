@@ -195,6 +195,16 @@ class PlanePlan:
     def n_tiles(self) -> int:
         return -(-self.n_values // TILE_VALUES)
 
+    classes = 1  # no combine: every output value is one accumulator (its verification's one class)
+
+    def value_ids(self, t: int) -> np.ndarray:
+        """The ids of merge tile ``t``'s output values, in order (their verification coefficients)."""
+        return np.arange(*self.tile_bounds(t))
+
+    def key_values(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per product key its output value and class 0 (a slice's values are not combined)."""
+        return keys, np.zeros_like(keys)
+
     def tile_bounds(self, t: int) -> tuple[int, int]:
         """The output values ``[v0, v1)`` of merge tile ``t``."""
         return int(t) * TILE_VALUES, min((int(t) + 1) * TILE_VALUES, self.n_values)

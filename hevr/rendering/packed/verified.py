@@ -71,9 +71,10 @@ def aggregate_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, se
     if not len(uniq):
         return None, {"verify_merge": 0}
     C = plan.classes
-    rho = coefficients_at(seed, uniq // C)
-    order = np.argsort(uniq % C, kind="stable")
-    indptr = np.searchsorted((uniq % C)[order], np.arange(C + 1)).astype(np.int64)
+    ids, cls = plan.key_values(uniq)
+    rho = coefficients_at(seed, ids)
+    order = np.argsort(cls, kind="stable")
+    indptr = np.searchsorted(cls[order], np.arange(C + 1)).astype(np.int64)
     pp = plan_products(indptr, order.astype(np.int64), rho[order], len(uniq))
     (per_class,) = be.ray_products(pp, [merged], n * n)
     (out,) = be.to_bytes(be.pack(per_class, [1] * C, plan.packing.slot_bits, C, 0, n), width)
@@ -202,8 +203,10 @@ class PackedVerification:
                 "store metadata: expected the owner's MAC over the shape, spacing, brick, layout, value range and store "
                 f"id, got {'none' if m is None or not m.auth else 'a MAC that does not match'}: the store's public "
                 "metadata was altered (or is not this key's); no image is returned")
-        g, lm = plan.geometry, self.level_meta
-        same = (tuple(g.shape) == tuple(lm.shape) and tuple(float(s) for s in g.spacing) == tuple(lm.spacing)
+        lm = self.level_meta
+        g = getattr(plan, "geometry", None)  # a frame's shear geometry; a slice's plan holds the shape itself
+        same = (tuple(g.shape if g is not None else plan.shape) == tuple(lm.shape)
+                and (g is None or tuple(float(s) for s in g.spacing) == tuple(lm.spacing))
                 and tuple(plan.brick) == tuple(lm.brick) and plan.packing == lm.packing and m.tags
                 and fingerprint == m.fingerprint and int(private_key.public_key.n) == int(m.n))
         if not same:
@@ -217,7 +220,7 @@ class PackedVerification:
         sid = self.meta.store_id
         info = m.packing
         ashape = info.array_shape(m.shape)
-        K, C = info.slot_bits, plan.classes
+        K = info.slot_bits
         grid = tuple(-(-s // b) for s, b in zip(m.shape, m.brick))
         cache: dict = {}  # β blocks shared by neighbouring bricks (a race only recomputes a block)
 
@@ -237,7 +240,8 @@ class PackedVerification:
             span[packs - lo] = True
             where = np.cumsum(span) - 1
             beta = betas(key, sid, self.channel, self.level, self.component, np.flatnonzero(span) + lo, cache)
-            return class_beta_total(beta, where[packs - lo], keys % C, coefficients_at(self.seed, keys // C), w, K)
+            ids, cls = plan.key_values(keys)
+            return class_beta_total(beta, where[packs - lo], cls, coefficients_at(self.seed, ids), w, K)
 
         bricks = list(np.ndindex(*grid))
         runs = max(1, min(len(bricks), 4 * WORKERS))
@@ -257,8 +261,7 @@ class PackedVerification:
             raise VerificationError(f"image: expected {plan.n_tiles} tiles, got {len(values)}; no image is returned")
         s_sum = 0
         for t, vals in enumerate(values):
-            j0, j1, b0, b1 = plan.tile_bounds(t)
-            ids = (np.arange(j0, j1)[:, None] * plan.n_blocks + np.arange(b0, b1)[None, :]).reshape(-1)
+            ids = plan.value_ids(t)
             if len(vals) != ids.size:
                 raise VerificationError(f"image: tile {t} holds {len(vals)} values, expected {ids.size}; no image "
                                         "is returned")
