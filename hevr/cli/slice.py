@@ -8,7 +8,9 @@ plane, size or slab is exit 2 with a message that starts with the option.
 A packed store (``hevr encrypt --layout packed``) has no ``.hevr`` frame file for its slices yet:
 with ``--key`` the slice is rendered and decrypted in this process and ``--out`` is the PNG (or
 ``.npy`` values) to write; planes perpendicular to the packing axis or containing its direction,
-``--mode xray``, nearest or trilinear, any slab (:mod:`hevr.rendering.packed.planes`), not verified yet.
+``--mode xray``, nearest or trilinear, any slab (:mod:`hevr.rendering.packed.planes`); a verifiable
+store's slice is checked against its tags before the file is written (``--verify [ID]`` pins the store,
+``--no-verify`` skips the check).
 """
 
 from __future__ import annotations
@@ -128,11 +130,10 @@ def _packed_slice(args: Any, ev: Any, mode: str, out: Any) -> int:
         raise UsageError(f"--mode {mode}: expected xray on the packed store {store} (it holds the scalar channel "
                          "only); encrypt a per-voxel store (--layout voxel --vector-dims 4) for it")
     for flag, given in (("--gradient", args.gradient), ("--no-pack", args.no_pack),
-                        ("--precision", args.precision is not None), ("--finish server", args.finish != "client"),
-                        ("--verify", args.verify is not None)):
+                        ("--precision", args.precision is not None), ("--finish server", args.finish != "client")):
         if given:
             raise UsageError(f"{flag}: does not apply to a slice of the packed store {store} (decrypted in this "
-                             "process, not verified yet: slices of packed stores carry no check against its tags)")
+                             "process from its X-ray values)")
     if not args.key:
         raise UsageError(f"--key: expected the private key KEY.json for a slice of the packed store {store}: packed "
                          "slices have no .hevr frame file yet, so the slice is decrypted in this process and --out "
@@ -141,7 +142,7 @@ def _packed_slice(args: Any, ev: Any, mode: str, out: Any) -> int:
     if suffix not in ("png", "npy"):
         raise UsageError(f"--out: expected a .png or .npy file for a slice of the packed store {store} (decrypted "
                          f"here with --key; no .hevr frame file for packed slices yet), got {args.out}")
-    key_holder(args, ev)  # reads --key, which must be the store's
+    verify = key_holder(args, ev)  # reads --key, which must be the store's; --verify [ID] / --no-verify
     plane, where = _plane(args, ev)
     try:
         kind = plane_kind(plane, ev.packing.axis)
@@ -157,7 +158,7 @@ def _packed_slice(args: Any, ev: Any, mode: str, out: Any) -> int:
     with compute_context(args, ev) as client:
         with Timer() as t:
             img = render_slice(ev, plane, sampling=args.sampling, client=client, progress=show_progress(args),
-                               verify=False)
+                               verify=verify)
     arr = img.decrypt(args.private_key)
     if suffix == "npy":
         buf = io.BytesIO()
@@ -165,7 +166,10 @@ def _packed_slice(args: Any, ev: Any, mode: str, out: Any) -> int:
         write_file(out, [buf.getbuffer()], overwrite=args.force, name="--out", doing="writing the pixel values")
     else:
         save_decrypted(arr, out, None, None, force=args.force, plane=plane, hits=img.hits)
-    print("not verified: slices of packed stores carry no check against the store's tags yet")
+    if img.verified:
+        print(f"verified: the slice's values are the store {ev.meta.store_id}'s (checked against its tags)")
+    else:
+        warn_unverified(args, ev, img)
     print(f"wrote {out}: decrypted here from {plural(img.n_ciphertexts, 'ciphertext')} ({img.plan.n_footprints:,} "
           f"footprints, up to {ev.packing.slots} layers each), {int(img.hits.sum()):,} of "
           f"{plane.width * plane.height:,} pixels inside the volume, rendered in {t.seconds:.2f} s")

@@ -37,7 +37,7 @@ def test_slices_decrypted_in_process(packed, tmp_path, capsys):
     code, out, _ = run(capsys, "slice", store, "--out", npy, "--coronal", "5.5", "--sampling", "trilinear",
                        "--key", key, "--no-verify", "--quiet")
     assert code == 0, out
-    assert "containing the packing axis z" in out and "not verified" in out and "wrote" in out
+    assert "containing the packing axis z" in out and "verified" not in out and "wrote" in out
     arr = np.load(npy)
     plane = hevr.Plane.coronal(ev, 5.5)
     ref = hevr.render_slice_plain(vol, plane, sampling="trilinear", spacing=ev.spacing)
@@ -46,6 +46,7 @@ def test_slices_decrypted_in_process(packed, tmp_path, capsys):
     png = tmp_path / "ax.png"
     code, out, _ = run(capsys, "slice", store, "--out", png, "--axial", "4", "--key", key, "--quiet")
     assert code == 0 and "perpendicular to the packing axis z" in out
+    assert f"verified: the slice's values are the store {ev.meta.store_id}'s" in out  # tags by default
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     code, _, err = run(capsys, "slice", store, "--out", png, "--axial", "4", "--key", key, "--quiet")
     assert code == 2 and "--force" in err  # never over an existing file
@@ -56,7 +57,6 @@ def test_slices_decrypted_in_process(packed, tmp_path, capsys):
     (["--oblique", ":1,0,1"], "--oblique", "perpendicular to the packing axis z or containing its direction"),
     (["--axial", "3", "--mode", "emphasize", "--density", "0.5"], "--mode", "xray"),
     (["--axial", "3", "--finish", "server"], "--finish server", "does not apply"),
-    (["--axial", "3", "--verify"], "--verify", "not verified yet"),
     (["--axial", "3", "--no-pack"], "--no-pack", "does not apply"),
 ])
 def test_refusals(packed, tmp_path, capsys, extra, where, needle):
@@ -65,6 +65,17 @@ def test_refusals(packed, tmp_path, capsys, extra, where, needle):
     code, _, err = run(capsys, "slice", store, "--out", out, "--key", key, "--quiet", *extra)
     assert code == 2 and where in err and needle in err, err
     assert not out.exists()
+
+
+def test_verify_pins_the_store(packed, tmp_path, capsys):
+    key, store = packed
+    out = tmp_path / "v.png"
+    code, _, err = run(capsys, "slice", store, "--out", out, "--key", key, "--quiet", "--axial", "3",
+                       "--verify", "0123456789abcdef")
+    assert code != 0 and "0123456789abcdef" in err and not out.exists()
+    sid = hevr.open_volume(store).meta.store_id
+    code, text, _ = run(capsys, "slice", store, "--out", out, "--key", key, "--quiet", "--axial", "3", "--verify", sid)
+    assert code == 0 and "verified:" in text and out.exists()
 
 
 def test_needs_key_and_an_image_file(packed, tmp_path, capsys):
