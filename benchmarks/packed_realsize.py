@@ -4,6 +4,7 @@ in process and through ``hevr serve``, verified and not.
 Usage::
 
     python benchmarks/packed_realsize.py WORKDIR OUT.json [--shape 150 256 256] [--image 256]
+    python benchmarks/packed_realsize.py --project-voxel OUT.json results-packed-2048.json   # per-voxel frames
     python benchmarks/packed_realsize.py --report OUT.json > RESULTS-packed-realsize.md
 
 Steps (one run, one key, one machine):
@@ -191,6 +192,27 @@ def serve_frames(path: Path, ev, priv, image: int, pictures: dict) -> list:
     return rows
 
 
+def project_per_voxel(res: dict, measured: dict) -> list:
+    """The per-voxel frames of the same cameras, projected: each view's samples (cast here, public
+    geometry) × the per-voxel seconds per sample measured in ``measured`` (issue 45's run,
+    ``results-packed-2048.json``: its largest size, the same sampling; the general view as the
+    general view, the orbit for the anterior one)."""
+    from hevr.rendering.geometry.rays import cast_rays
+
+    big = measured["sizes"][max(measured["sizes"], key=int)]
+    per = {(f["view"], f["sampling"]): f["voxel"]["frame_s"] / f["voxel"]["samples"] for f in big["frames"]}
+    shape = tuple(res["shape"])
+    rows = []
+    for view, (az, el) in VIEWS.items():
+        cam = hevr.Camera.orbit(shape, azimuth=az, elevation=el, width=res["image"], height=res["image"],
+                                parallel=True, spacing=tuple(res["spacing"]))
+        samples = int(cast_rays(cam, shape, tuple(res["spacing"]), 1.0).n_samples.sum())
+        for sampling in SAMPLINGS:
+            s_per = per[("general" if view == "general" else "orbit", sampling)]
+            rows.append({"view": view, "sampling": sampling, "samples": samples, "frame_s": samples * s_per})
+    return rows
+
+
 def report(res: dict) -> str:
     m, e = res["machine"], res["encrypt"]
     shape = "×".join(str(s) for s in reversed(res["shape"]))
@@ -210,12 +232,25 @@ def report(res: dict) -> str:
              f"{res['encrypt_tags_ratio']['without_tags_s']:.1f} s without = "
              f"**{res['encrypt_tags_ratio']['ratio']:.2f}×**.", "",
              "## Frames in process (render + decryption)", "",
-             "| view | sampling | unverified | verified | ratio | key holder's check | within bound |",
-             "|---|---|---|---|---|---|---|"]
+             "| view | sampling | unverified | verified | ratio | key holder's check | within bound "
+             "| per-voxel (projected, unverified) |",
+             "|---|---|---|---|---|---|---|---|"]
+    proj = {(p["view"], p["sampling"]): p for p in res.get("per_voxel_frames", [])}
     for r in res["frames"]:
+        pv = proj.get((r["view"], r["sampling"]))
+        voxel = f"{pv['frame_s']:.0f} s" if pv else "—"
         lines.append(f"| {r['view']} | {r['sampling']} | {r['unverified']['frame_s']:.1f} s | "
                      f"{r['verified']['frame_s']:.1f} s | {r['frame_ratio']:.2f}× | {r['check_s']:.2f} s | "
-                     f"{r['within_bound']} |")
+                     f"{r['within_bound']} | {voxel} |")
+    if proj:
+        lines += ["", "Per-voxel frames projected: each camera's samples (cast from the public geometry) × the "
+                      "per-voxel seconds per sample measured at 128³ in issue 45's run "
+                      "(`results-packed-2048.json`; the orbit view's for the anterior one)."]
+    ratios = [r["frame_ratio"] for r in res["frames"]]
+    lines += ["", f"Issue 46's goals: tags' encryption ≤ 1.5×: {res['encrypt_tags_ratio']['ratio']:.2f}× "
+                  f"({'met' if res['encrypt_tags_ratio']['ratio'] <= 1.5 else 'missed'}); verified frame ≤ 1.6×: "
+                  f"{sum(x <= 1.6 for x in ratios)} of {len(ratios)} frames (largest {max(ratios):.2f}×); the key "
+                  f"holder's check ≤ 2 s: largest {max(r['check_s'] for r in res['frames']):.2f} s."]
     lines += ["", "## Frames through `hevr serve` (verified; render + tags' round + decryption)", "",
               "| view | sampling | frame | the in-process picture |", "|---|---|---|---|"]
     for r in res["serve"]:
@@ -226,6 +261,12 @@ def report(res: dict) -> str:
 def main() -> None:
     if len(sys.argv) == 3 and sys.argv[1] == "--report":
         print(report(json.loads(Path(sys.argv[2]).read_text())), end="")
+        return
+    if len(sys.argv) == 4 and sys.argv[1] == "--project-voxel":  # OUT.json MEASURED.json: add the projection
+        out = Path(sys.argv[2])
+        res = json.loads(out.read_text())
+        res["per_voxel_frames"] = project_per_voxel(res, json.loads(Path(sys.argv[3]).read_text()))
+        out.write_text(json.dumps(res, indent=1))
         return
     ap = argparse.ArgumentParser()
     ap.add_argument("work", type=Path)
