@@ -35,12 +35,12 @@ from .._validate import check_bool
 from ..backends import get_backend
 from ..colour import colour, colouring_spec, frame_from_sums, scaled_sums
 from ..crypto.keys import PrivateKey
-from ..errors import IntegrityError, KeyMismatchError, ParameterError, VerificationError
+from ..errors import IntegrityError, KeyMismatchError, ParameterError
 from ..store.paths import check_storage_options, output_location, write_output
 from .checks import check_image, tile_name
 from .header import file_parts
-from ..store.known import retired_by
-from .stamp import check_stamp, saved_name
+from .provenance import check_provenance
+from .stamp import saved_name
 
 __all__ = ["EncryptedImage"]
 
@@ -202,40 +202,12 @@ class EncryptedImage:
         return iter(tiles)
 
     def _check_provenance(self, private_key: Any, require_verified: Any) -> None:
-        """Who vouches for the verification record (:mod:`hevr.image.stamp`): one drawn in this
+        """Who vouches for the verification record (:mod:`hevr.image.provenance`): one drawn in this
         process, or a file's with the key holder's valid stamp; ``require_verified`` (True, or the
         store id that must have been proven) refuses an image without one."""
-        v = self.verification
-        if require_verified is not False and require_verified is not None:
-            if not (require_verified is True or isinstance(require_verified, str)):
-                raise ParameterError(f"require_verified: expected True, False or a store id, got {require_verified!r}")
-            if v is None:
-                raise VerificationError("image: not verified (it carries no check against a store's tags: a store "
-                                        "encrypted without verifiable=True, a render with verify=False, server "
-                                        "finishing, or a file saved without the key holder's stamp), and "
-                                        "require_verified was given; no image is returned")
-            if isinstance(require_verified, str) and v.store_id != require_verified:
-                raise VerificationError(f"image: expected a frame of the store {require_verified}, got one of the store "
-                                        f"{v.store_id}; no image is returned")
-        if v is None or v.drawn_here:
-            return
-        if self.stamp is None or not check_stamp(private_key, self.stamp[1], self.stamp[0]):
-            what = "carries no stamp" if self.stamp is None else "carries a stamp that does not match its bytes"
-            raise VerificationError(
-                f"image: its verification record {what} of the key holder (a verified frame is saved with the key: "
-                "img.save(path, private_key=...), hevr render --key): the record or the frame was written by someone "
-                "else, or altered; no image is returned")
-        saved, read = self.stamp[2], self.stamp[3] if len(self.stamp) > 3 else None
-        if read is not None and saved != read:
-            raise VerificationError(
-                f"image: the key holder saved this verified frame as {saved!r}, and it was read as {read!r}: another "
-                "frame put in this one's place? (if you renamed it yourself, give it its name back); no image is "
-                "returned")
-        replaced = retired_by(v.store_id)
-        if replaced:
-            raise VerificationError(
-                f"image: a frame of the store {v.store_id}, which the owner replaced with the store {replaced[1]} at "
-                f"{replaced[0]} (the key holder's known stores): an old frame replayed?; no image is returned")
+        check_provenance(private_key, self.verification, self.stamp, require_verified,
+                         "a store encrypted without verifiable=True, a render with verify=False, server finishing, "
+                         "or a file saved without the key holder's stamp")
 
     def _tile_values(self, private_key: Any, be: Any, layout: Any, hits: np.ndarray | None, n: int):
         """The iterator of :meth:`_checked_tiles`: range-check, decrypt and unpack tile by tile."""

@@ -3,8 +3,8 @@ key holder's valid stamp (:mod:`hevr.image.stamp`), read under the name it was s
 the owner has not replaced since (:mod:`hevr.store.known`).
 
 One rule for every kind of frame that carries a record and may come from a file:
-:meth:`hevr.PackedImage.decrypt` calls :func:`check_provenance` before any ciphertext is touched
-(:meth:`hevr.EncryptedImage.decrypt` applies the same rule in ``_check_provenance``).
+:meth:`hevr.PackedImage.decrypt`, :meth:`hevr.EncryptedImage.decrypt` and a packed slice's
+decryption call :func:`check_provenance` before any ciphertext is touched.
 """
 
 from __future__ import annotations

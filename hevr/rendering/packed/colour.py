@@ -52,7 +52,7 @@ from ...store.packing import mantissa_range
 from ...store.paths import check_reachable
 from ..pipeline.kernel import plan_products
 from ..verify import resolve_verify
-from .graph import brick_columns, column_pairs, merge_tile
+from .graph import column_pairs, map_graph, merge_tile
 from .image import PackedImage
 from .plan import SlicePlan
 from .verified import PackedVerification, aggregate_tile
@@ -240,21 +240,7 @@ def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouri
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     plain = ev._plain()
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
-    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
-    maps = []
-    for column in brick_columns(ev.grid, plan.geometry.principal):  # as graph.map_graph, k components per task
-        reach = {idx: plan.brick_tiles(idx) for idx in column}
-        column = [idx for idx in column if reach[idx]]
-        if not column:
-            continue
-        tiles = sorted(set().union(*(reach[idx] for idx in column)))
-        first = column[0]
-        task = delayed(map_components, pure=True, nout=2)(
-            plain, plan, column, backend, tiles, [resident.get(i) for i in column] if resident is not None else None,
-            dask_key_name=f"hevr-packed-map-vector-{tag}-{first[0]}-{first[1]}-{first[2]}")
-        maps.append(task[1])
-        for pos, t in enumerate(tiles):
-            per_tile[t].append(task[0][pos])
+    per_tile, maps = map_graph(plain, plan, backend, resident, "vector", tag, map_components)  # k per task
     fin = [delayed(merge_components, pure=True, nout=2)(plan, t, n, width, backend, k, *per_tile[t],
                                                         dask_key_name=f"hevr-packed-tile-vector-{tag}-{t}")
            for t in range(plan.n_tiles)]
@@ -286,22 +272,7 @@ def colour_aggregates(ev: Any, plan: SlicePlan, backend: str, client: Any,
     seeds = [secrets.token_bytes(32) for _ in range(k)]
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
-    plain = ev._plain()
-    per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
-    maps = []
-    for column in brick_columns(ev.grid, plan.geometry.principal):
-        reach = {idx: plan.brick_tiles(idx) for idx in column}
-        column = [idx for idx in column if reach[idx]]
-        if not column:
-            continue
-        tiles = sorted(set().union(*(reach[idx] for idx in column)))
-        first = column[0]
-        task = delayed(map_components, pure=True, nout=2)(
-            plain, plan, column, backend, tiles, None, tag_channel("vector"),
-            dask_key_name=f"hevr-packed-map-vector-tag-{tag}-{first[0]}-{first[1]}-{first[2]}")
-        maps.append(task[1])
-        for pos, t in enumerate(tiles):
-            per_tile[t].append(task[0][pos])
+    per_tile, maps = map_graph(ev._plain(), plan, backend, None, tag_channel("vector"), tag, map_components)
     tasks, where = [], []
     for t in range(plan.n_tiles):
         if not per_tile[t]:

@@ -142,9 +142,11 @@ def brick_columns(grid: tuple[int, int, int], axis: int, most: int = COLUMN_BRIC
 
 
 def map_graph(ev: Any, plan: SlicePlan, backend: str, resident: dict | None, channel: str,
-              tag: str) -> tuple[dict[int, list], list]:
+              tag: str, fn: Any = None) -> tuple[dict[int, list], list]:
     """The map tasks of a frame on ``channel``: per tile the delayed partial accumulators that
-    reach it, and every map task's operation counts (one task per column of bricks)."""
+    reach it, and every map task's operation counts (one task per column of bricks). ``fn``: the
+    map task, called as :func:`map_column` is (default; the colour frames' k components:
+    :func:`~hevr.rendering.packed.colour.map_components`)."""
     per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
     maps = []
     for column in brick_columns(ev.grid, plan.geometry.principal):
@@ -155,7 +157,7 @@ def map_graph(ev: Any, plan: SlicePlan, backend: str, resident: dict | None, cha
         tiles = sorted(set().union(*(reach[idx] for idx in column)))
         idx = column[0]
         name = f"hevr-packed-map-{channel}-{tag}-{idx[0]}-{idx[1]}-{idx[2]}"
-        task = delayed(map_column, pure=True, nout=2)(ev, plan, column, backend, tiles,
+        task = delayed(fn or map_column, pure=True, nout=2)(ev, plan, column, backend, tiles,
                                                       [resident.get(i) for i in column] if resident is not None
                                                       else None, channel, dask_key_name=name)
         maps.append(task[1])

@@ -31,7 +31,7 @@ from .plan import SlicePlan
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PackedImage", "decode"]
+__all__ = ["PackedImage", "check_key", "decode"]
 
 
 @dataclass
@@ -95,12 +95,7 @@ class PackedImage:
         return self.verification is not None
 
     def _key(self, private_key: Any) -> Any:
-        if not isinstance(private_key, PrivateKey):
-            raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
-        if private_key.public_key.fingerprint != self.fingerprint or int(private_key.public_key.n) != int(self.n):
-            raise KeyMismatchError(f"private_key: the image was encrypted under key {str(self.fingerprint)[:16]}…, got "
-                                   f"a key with fingerprint {private_key.public_key.fingerprint[:16]}…")
-        return private_key
+        return check_key(private_key, self.fingerprint, self.n, "image")
 
     def _provenance(self, require_verified: Any, private_key: Any) -> None:
         """Who vouches for the verification record (:func:`hevr.image.provenance.check_provenance`):
@@ -213,6 +208,17 @@ class PackedImage:
     def __repr__(self) -> str:
         return (f"PackedImage(shape={self.shape}, sampling={self.plan.sampling!r}, slots={self.plan.packing.slots}, "
                 f"ciphertexts={self.n_ciphertexts}, verified={self.verified}, key={self.fingerprint[:16]}…)")
+
+
+def check_key(private_key: Any, fingerprint: str, n: int, what: str) -> PrivateKey:
+    """``private_key`` itself when it is the key ``what`` (an image, a slice) was encrypted under;
+    :class:`hevr.ParameterError` for another type, :class:`hevr.KeyMismatchError` for another key."""
+    if not isinstance(private_key, PrivateKey):
+        raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
+    if private_key.public_key.fingerprint != fingerprint or int(private_key.public_key.n) != int(n):
+        raise KeyMismatchError(f"private_key: the {what} was encrypted under key {str(fingerprint)[:16]}…, got a key "
+                               f"with fingerprint {private_key.public_key.fingerprint[:16]}…")
+    return private_key
 
 
 def decode(plan: SlicePlan, tiles: list[list[int]], span: int) -> np.ndarray:

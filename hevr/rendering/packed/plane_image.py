@@ -36,14 +36,16 @@ from ..._dask import warn_if_remote
 from ...backends import get_backend, resolve_backend_name
 from ...backends.base import OpCounter
 from ...crypto.keys import PrivateKey
+from ...image.provenance import check_provenance
 from ...crypto.tags import tag_channel
-from ...errors import IntegrityError, KeyMismatchError, ParameterError, VerificationError
+from ...errors import IntegrityError
 from ...store.packing import INTEGRITY_BITS, mantissa_range, unpack_slots
 from ...store.paths import check_reachable
 from ..pipeline.finishing import one_records
 from ..pipeline.kernel import plan_products
 from .graph import brick_columns, merge_parts
 from .planes import TILE_VALUES, PlanePlan
+from .image import check_key
 from .verified import PackedVerification, aggregate_tile
 
 log = logging.getLogger(__name__)
@@ -232,11 +234,7 @@ class PackedSlice:
 
     def decrypt_values(self, private_key: PrivateKey, backend: str | None = None) -> np.ndarray:
         """(V, S) int64: every output value's slots, Σ w·u per layer, after every check (:func:`decode_slice`)."""
-        if not isinstance(private_key, PrivateKey):
-            raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
-        if private_key.public_key.fingerprint != self.fingerprint or int(private_key.public_key.n) != int(self.n):
-            raise KeyMismatchError(f"private_key: the slice was encrypted under key {str(self.fingerprint)[:16]}…, "
-                                   f"got a key with fingerprint {private_key.public_key.fingerprint[:16]}…")
+        check_key(private_key, self.fingerprint, self.n, "slice")
         be = get_backend(backend)
         n2, width = int(private_key.public_key.nsquare), private_key.public_key.ciphertext_bytes
         if len(self.ciphertexts) != self.plan.n_tiles:
@@ -263,16 +261,8 @@ class PackedSlice:
         """The slice's float64 (H, W) pixels (the mean of each pixel's slab samples; 0 where none is
         inside, see :attr:`hits`), after every check (a verified slice: against the store's tags first);
         ``require_verified`` (True, or the store id that must have been proven) refuses an unverified one."""
-        if require_verified is not False and require_verified is not None:
-            if not (require_verified is True or isinstance(require_verified, str)):
-                raise ParameterError(f"require_verified: expected True, False or a store id, got {require_verified!r}")
-            v = self.verification
-            if v is None or not v.drawn_here:
-                raise VerificationError("slice: not verified (a store without tags, or verify=False), and "
-                                        "require_verified was given; no image is returned")
-            if isinstance(require_verified, str) and v.store_id != require_verified:
-                raise VerificationError(f"slice: expected a slice of the store {require_verified}, got one of the "
-                                        f"store {v.store_id}; no image is returned")
+        check_provenance(check_key(private_key, self.fingerprint, self.n, "slice"), self.verification, None,
+                         require_verified, "a store without tags, or verify=False")
         slots = self.decrypt_values(private_key, backend)
         plan = self.plan
         fp, _ = plan.value_layers()
