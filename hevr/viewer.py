@@ -40,8 +40,9 @@ layer of widgets over :func:`hevr.render_frame` and :meth:`hevr.Frame.recolour`:
 * **packed stores** (``encrypt_volume(..., layout="packed")``, :mod:`hevr.rendering.packed`): the
   camera is parallel and orbits the packing axis, starting from an anatomical view the store can
   serve (``"anterior"`` for a store packed along z, the patient's superior axis: azimuth turns about
-  it, elevation leans towards it, at most 44°); frames are :func:`hevr.render` X-rays (previews
-  from a level the owner encrypted, the settled frame verified on a verifiable store).
+  it, elevation leans towards it, at most 44°); frames come whole from :func:`hevr.render_frame`
+  (X-ray previews from a level the owner encrypted; the settled frame verified on a verifiable store;
+  a store with the vector channel offers emphasis and transfer functions, re-coloured in numpy).
 
 Every widget change calls :meth:`Viewer.refresh` synchronously, so the viewer can be driven
 headlessly — set a widget's ``value`` in code, as a test does, and the render runs.
@@ -63,7 +64,7 @@ from .colour import Frame
 from .crypto.keys import PrivateKey
 from .errors import HevrError, MissingDependencyError, ParameterError
 from .paper import PAPER_DENSITIES, PAPER_TF1
-from .rendering.encrypted import error_bound, render
+from .rendering.encrypted import error_bound
 from .rendering.geometry.camera import Camera
 from .rendering.pipeline.stream import render_frame
 from .rendering.planning.modes import parse_color
@@ -167,7 +168,7 @@ class Viewer:
         self.frame: Frame | None = None
         self._frame_view: tuple | None = None  # what the frame depends on: camera, level, sampling, channel
         self._held = False
-        modes = ["xray"] * ev.has_scalar + ["emphasize", "tf"] * bool(ev.vector_dims and not self.packed)
+        modes = ["xray"] * ev.has_scalar + ["emphasize", "tf"] * bool(ev.vector_dims)
         mode = modes[0] if mode is None else mode
         if mode not in modes:
             raise ParameterError(f"mode: expected one of {modes} (the store's channels), got {mode!r}")
@@ -348,12 +349,6 @@ class Viewer:
             if recolour:  # only the colouring changed: numpy here, nothing sent anywhere
                 frame = self.frame
                 arr = frame.recolour(kw["mode"], kw.get("density"), kw.get("nodes"))
-            elif self.packed:  # a packed X-ray: rendered whole, decrypted (and checked) here
-                img = render(self.ev, cam, client=self.client, progress=False, level=level or None,
-                             verify=False if level else None, **kw)
-                arr = img.decrypt(self._key)
-                frame = _PackedFrame(arr, {"map_tasks": img.stats["map_tasks"], "reused_ray_sums": False,
-                                           "verified": img.verified})
             else:
                 # a preview is not verified (it must come fast); the settled full frame is
                 frame = render_frame(self.ev, cam, self._key, client=self.client, progress=False,
@@ -369,14 +364,10 @@ class Viewer:
             self.frame, self._frame_view = frame, view
         err = bound = None
         window = None
-        if self.volume is not None and self.packed and not level:  # the float64 slice reference
-            ref = render_plain(self.volume, cam, spacing=self.ev.spacing, slices=self.ev.meta.packing.axis, **kw)
-            err = float(np.abs(arr - ref).max()) if arr.size else 0.0
-            bound = float(error_bound(self.ev, cam, **kw).max())
-            window = (0.0, max(float(ref.max()), 1e-12))
-        elif self.volume is not None and not self.packed:
+        if self.volume is not None:  # a packed store's reference samples slice by slice (slices=its axis)
+            slices = {"slices": self.ev.meta.packing.axis} if self.packed else {}
             ref = render_plain(self.volume, cam, spacing=self.ev.spacing, value_range=self.ev.value_range,
-                               vector_dims=self.ev.vector_dims, level=level, **kw)
+                               vector_dims=self.ev.vector_dims, level=level, **slices, **kw)
             err = float(np.abs(arr - ref).max()) if arr.size else 0.0
             bound = float(error_bound(self.ev, cam, level=level or None, **kw).max())
             window = (0.0, max(float(ref.max()), 1e-12))
@@ -432,13 +423,3 @@ class _Hold:
         self.viewer._held = self.outer
         if not self.outer and exc[0] is None and hasattr(self.viewer, "widget"):
             self.viewer.refresh()
-
-
-class _PackedFrame:
-    """A packed store's decrypted X-ray as the viewer keeps it (no component means: X-ray only)."""
-
-    def __init__(self, image: np.ndarray, stats: dict) -> None:
-        self.image, self.stats = image, stats
-
-    def recolour(self, *args: Any) -> np.ndarray:  # the view is the same and the mode X-ray: nothing to change
-        return self.image

@@ -278,3 +278,20 @@ def test_packed_store_orbits_its_axis_verified(tmp_path, keypair256):
     v.view_angle.value = 15.0  # zoom: half the frame's height
     assert v.camera().parallel_scale == pytest.approx(cam.parallel_scale / 2)
     assert v.history[-1]["error"] <= v.history[-1]["bound"]
+
+
+def test_packed_store_with_the_vector_channel_recolours(tmp_path, keypair256):
+    """A packed store with the vector channel: TF frames verified, a colour change re-coloured in
+    numpy (no map task), within error_bound of the slice reference."""
+    pub, priv = keypair256
+    vol = np.random.default_rng(4).integers(0, 256, (9, 8, 10)).astype(np.uint8)
+    ev = hevr.encrypt_volume(vol, tmp_path / "c.zarr", priv, brick=4, layout="packed", vector_dims=3, progress=False)
+    v = Viewer(ev, priv, volume=vol, width=12, height=10, mode="tf")
+    first = v.history[-1]
+    assert v.mode.options == ("xray", "emphasize", "tf") and "error_message" not in first
+    assert first["verified"] and first["map_tasks"] > 0 and first["error"] <= first["bound"]
+    v.node_rows[0][1].value = "#00ff00"
+    again = v.history[-1]
+    assert again["client_recolour"] and again["map_tasks"] == 0 and again["error"] <= again["bound"]
+    v.mode.value = "xray"  # another channel: a render
+    assert v.history[-1]["map_tasks"] > 0 and v.history[-1]["error"] <= v.history[-1]["bound"]
