@@ -22,9 +22,10 @@ A frame's weights depend on the view only, never on the channel, so the scalar f
 The colouring never leaves the key holder's process (not pickled, never sent). Its reference is
 ``hevr.render_plain(vol, cam, mode=..., vector_dims=k, slices=True)`` and its bound
 :func:`hevr.error_bound` (:mod:`hevr.rendering.packed.sliced`). A verifiable store's colour frame is
-verified by default as an X-ray is (:func:`colour_aggregates`): one seed per component drawn after
-the values, the vector tags' k components through the same plan, one aggregate per component, each
-component's values checked against it before any mean is formed. Not yet: frame files, ``hevr serve``.
+verified by default as an X-ray is (:func:`colour_aggregate`): one seed drawn after the values, the
+vector tags' k components through the same plan, one aggregate for all k (component j's coefficients
+from j·n_values), all components' values checked against it before any mean is formed. Not yet:
+frame files.
 """
 
 from __future__ import annotations
@@ -47,19 +48,20 @@ from ...backends import get_backend, resolve_backend_name
 from ...backends.base import OpCounter
 from ...colour import Colouring, Frame, colour, colouring_spec
 from ...crypto.tags import tag_channel
+from ...image.provenance import check_provenance
 from ...errors import ParameterError
 from ...store.packing import mantissa_range
 from ...store.paths import check_reachable
 from ..pipeline.kernel import plan_products
 from ..verify import resolve_verify
 from .graph import column_pairs, map_graph, merge_tile
-from .image import PackedImage
+from .image import PackedImage, decode
 from .plan import SlicePlan
 from .verified import PackedVerification, aggregate_tile
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PackedColourImage", "map_components", "merge_components", "render_packed_colour",
+__all__ = ["PackedColourImage", "colour_aggregate", "map_components", "merge_components", "render_packed_colour",
            "render_packed_colour_request"]
 
 
@@ -126,6 +128,7 @@ class PackedColourImage:
     components: list = field(repr=False)
     colouring: Any = field(default=None, repr=False, compare=False)
     stats: dict = field(default_factory=dict, repr=False)
+    verification: Any = field(default=None, repr=False, compare=False)  # one PackedVerification, all k components
 
     def __getstate__(self) -> dict:
         return dict(self.__dict__, colouring=None)
@@ -156,21 +159,37 @@ class PackedColourImage:
 
     @property
     def verified(self) -> bool:
-        """Whether every component carries a check against the vector channel's tags (drawn in this
-        process), which its decryption runs before any mean is formed."""
-        return all(c.verification is not None for c in self.components)
+        """Whether the frame carries a check of all k components against the vector channel's tags
+        (drawn in this process), which its decryption runs before any mean is formed."""
+        return self.verification is not None
 
-    def decrypt_sums(self, private_key: Any, backend: str | None = None) -> np.ndarray:
+    def decrypt_sums(self, private_key: Any, backend: str | None = None, *,
+                     require_verified: bool | str = False) -> np.ndarray:
         """The exact integer ray sums Σ w·q_c of every component c and intermediate ray, (k, N_i, N_j)
-        int64, each component's values checked as an X-ray frame's before any sum is returned."""
-        return np.stack([c.decrypt_sums(private_key, backend) for c in self.components])
+        int64: every component's values checked as an X-ray frame's, and a verified frame's all k
+        against the tags at once (one aggregate), before any sum is returned."""
+        first = self.components[0]
+        key = first._key(private_key)
+        check_provenance(key, self.verification, None, require_verified,
+                         "a store encrypted with verifiable=False, or a render with verify=False")
+        if self.verification is not None:  # the metadata first: it says what every number means
+            self.verification.check_metadata(key, self.plan, self.fingerprint)
+        tiles = [c.decrypted_tiles(key, backend) for c in self.components]
+        sums = np.stack([decode(self.plan, t, c.span) for t, c in zip(tiles, self.components)])
+        if self.verification is not None:
+            t0 = time.perf_counter()
+            self.verification.check(key, self.plan, tiles, self.fingerprint)
+            self.stats["check_s"] = time.perf_counter() - t0
+        return sums
 
-    def decrypt_means(self, private_key: Any, backend: str | None = None) -> np.ndarray:
+    def decrypt_means(self, private_key: Any, backend: str | None = None, *,
+                      require_verified: bool | str = False) -> np.ndarray:
         """Per pixel the mean of each component over its ray's samples, warped to the camera: (H, W, k) float64."""
         geo = self.plan.geometry
         coords = geo.pixel_coords(self.camera)
-        return np.stack([geo.warp(c.decrypt_intermediate(private_key, backend), coords).reshape(self.shape)
-                         for c in self.components], axis=-1)
+        sums = self.decrypt_sums(private_key, backend, require_verified=require_verified)
+        return np.stack([geo.warp(c._values(s), coords).reshape(self.shape) for c, s in zip(self.components, sums)],
+                        axis=-1)
 
     def decrypt_frame(self, private_key: Any, backend: str | None = None) -> Frame:
         """A :class:`hevr.Frame` of the warped means, to colour (and re-colour) on this machine;
@@ -191,10 +210,7 @@ class PackedColourImage:
         A verified frame's components are each checked against the vector channel's tags first;
         ``require_verified`` (True or a store id) refuses a frame without those checks."""
         spec = colouring_spec("vector", len(self.components), mode, density, nodes, self.colouring)
-        if require_verified is not False and require_verified is not None:
-            for c in self.components:  # the X-ray frames' refusal of a frame without a verification record
-                c._provenance(require_verified, c._key(private_key))
-        return colour(self.decrypt_means(private_key, backend), spec)
+        return colour(self.decrypt_means(private_key, backend, require_verified=require_verified), spec)
 
     def save(self, *args: Any, **kwargs: Any) -> None:
         """Refused: packed colour frames have no file format yet (:class:`hevr.ParameterError`)."""
@@ -261,40 +277,34 @@ def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouri
     return PackedColourImage(components=comps, colouring=colouring, stats=stats)
 
 
-def colour_aggregates(ev: Any, plan: SlicePlan, backend: str, client: Any,
-                      progress: bool) -> tuple[list[PackedVerification], dict]:
-    """The tags' round of a colour frame: one fresh seed per component (drawn here, after the
-    values), the vector tags' k components through the frame's plan in one map per column
-    (:func:`map_components` on ``vector_tag``), and per tile and component one aggregate
-    (:func:`~hevr.rendering.packed.verified.aggregate_tile`); a :class:`PackedVerification` per component."""
+def colour_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool,
+                     seed: bytes) -> tuple[int, dict]:
+    """The server's half of a colour frame's tags' round for ``seed``: the vector tags' k components
+    through the frame's plan in one map per column (:func:`map_components` on ``vector_tag``), per
+    tile and component one aggregate with component j's coefficients from j·``plan.n_values``
+    (:func:`~hevr.rendering.packed.verified.aggregate_tile`), and their product: one ciphertext for
+    all k, A = Π_j A_j (the key holder checks D(A) = Σ_j (α·Σρ·V_j + Σρ·β_j) at once)."""
     meta = ev.meta
+    if not meta.tags:
+        raise ParameterError(f"verify: expected a verifiable store, got the packed store {meta.store_id} without tags")
     k = meta.components("vector")
-    seeds = [secrets.token_bytes(32) for _ in range(k)]
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     per_tile, maps = map_graph(ev._plain(), plan, backend, None, tag_channel("vector"), tag, map_components)
-    tasks, where = [], []
-    for t in range(plan.n_tiles):
-        if not per_tile[t]:
-            continue
-        for c in range(k):
-            tasks.append(delayed(aggregate_tile, pure=True, nout=2)(
-                plan, t, n, width, backend, seeds[c], *[p[c] for p in per_tile[t]],
-                dask_key_name=f"hevr-packed-verify-vector-{tag}-{t}-{c}"))
-            where.append(c)
+    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan, t, n, width, backend, seed, c * plan.n_values,
+                                                        *[p[c] for p in per_tile[t]],
+                                                        dask_key_name=f"hevr-packed-verify-vector-{tag}-{t}-{c}")
+             for t in range(plan.n_tiles) if per_tile[t] for c in range(k)]
     results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
     n2 = gmpy2.mpz(n) * n
-    agg = [gmpy2.mpz(1)] * k
+    A = gmpy2.mpz(1)
     ops = {"map": sum(m["map"] for m in results[len(tasks):])}
-    for c, (rec, counts) in zip(where, results[:len(tasks)]):
+    for rec, counts in results[:len(tasks)]:
         if rec is not None:
-            agg[c] = agg[c] * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
+            A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
         for name, v in counts.items():
             ops[name] = ops.get(name, 0) + v
-    level = int(getattr(ev, "level", 0) or 0)
-    base = ev.base if level else meta
-    return [PackedVerification(aggregate=int(agg[c]), seed=seeds[c], meta=base, level=level, channel="vector",
-                               component=c, drawn_here=True) for c in range(k)], ops
+    return int(A), ops
 
 
 def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, nodes: Any, sampling: Any, *,
@@ -303,7 +313,7 @@ def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, 
     """A transfer-function or emphasis frame of a packed store with the vector channel, after the
     request checks every packed frame has (:func:`hevr.rendering.packed.request.render_packed_request`):
     the colouring checked here (:class:`hevr.colour.Colouring`), ``verify`` resolved as for an X-ray
-    (a verifiable store's colour frames are verified by default: :func:`colour_aggregates`)."""
+    (a verifiable store's colour frames are verified by default: :func:`colour_aggregate`)."""
     colouring = Colouring(mode, density, nodes)  # mode, density, nodes: checked before any work
     if getattr(ev, "remote", None) is not None:
         raise ParameterError(f"mode: expected 'xray' for a packed store on hevr serve, got {mode!r} (colour frames "
@@ -311,10 +321,13 @@ def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, 
     verified = resolve_verify(verify, ev, "client", level=getattr(ev, "level", 0), compute=True, stream=False)
     image = render_packed_colour(ev, camera, sampling, colouring, tile=tile, client=client, progress=progress,
                                  backend=backend, weight_bits=weight_bits)
-    if verified:  # the second round, as for an X-ray: the values are fixed here before the seeds are drawn
+    if verified:  # the second round, as for an X-ray: the values are fixed here before the seed is drawn
         t0 = time.perf_counter()
-        records, ops = colour_aggregates(ev, image.plan, image.stats["backend"], active_client(client), progress)
-        for comp, rec in zip(image.components, records):
-            comp.verification = rec
-        image.stats["verify"] = {"server_s": time.perf_counter() - t0, "ops": ops}
+        seed = secrets.token_bytes(32)
+        A, ops = colour_aggregate(ev, image.plan, image.stats["backend"], active_client(client), progress, seed)
+        level = int(getattr(ev, "level", 0) or 0)
+        image.verification = PackedVerification(aggregate=A, seed=seed, meta=ev.base if level else ev.meta,
+                                                level=level, channel="vector", components=len(image.components),
+                                                ops=ops, server_s=time.perf_counter() - t0, drawn_here=True)
+        image.stats["verify"] = {"server_s": image.verification.server_s, "ops": ops}
     return image

@@ -115,6 +115,17 @@ class PackedImage:
         self._provenance(require_verified, key)
         if self.verification is not None:  # the metadata first: it says what every number means
             self.verification.check_metadata(key, self.plan, self.fingerprint)
+        tiles = self.decrypted_tiles(key, backend)
+        sums = decode(self.plan, tiles, self.span)
+        if self.verification is not None:
+            t0 = time.perf_counter()
+            self.verification.check(key, self.plan, [tiles], self.fingerprint)
+            self.stats["check_s"] = time.perf_counter() - t0  # the key holder's check, measured
+        return sums
+
+    def decrypted_tiles(self, key: PrivateKey, backend: str | None = None) -> list:
+        """Every tile's plaintexts (residues mod n), after each record's shape and range (0, n²) are
+        checked: what :func:`decode` and the tags' check take (the key already checked: :meth:`_key`)."""
         be = get_backend(backend)
         n2 = int(key.public_key.nsquare)
         width = key.public_key.ciphertext_bytes
@@ -130,12 +141,7 @@ class PackedImage:
                 raise IntegrityError(f"image: tile {t}: ciphertext {bad} is not in (0, n²): the image was corrupted "
                                      "or tampered with; no image is returned")
             tiles.append(be.decrypt(key, batch))
-        sums = decode(self.plan, tiles, self.span)
-        if self.verification is not None:
-            t0 = time.perf_counter()
-            self.verification.check(key, self.plan, tiles, self.fingerprint)
-            self.stats["check_s"] = time.perf_counter() - t0  # the key holder's check, measured
-        return sums
+        return tiles
 
     def decrypt_intermediate(self, private_key: PrivateKey, backend: str | None = None, *,
                              require_verified: bool | str = False) -> np.ndarray:

@@ -185,6 +185,11 @@ class SlicePlan:
         ty, tx = self.tiles_shape
         return ty * tx
 
+    @property
+    def n_values(self) -> int:
+        """The frame's combined values (rows × blocks): one component's verification coefficients."""
+        return self.geometry.size[1] * self.n_blocks
+
     def value_ids(self, t: int) -> np.ndarray:
         """The global ids of tile ``t``'s combined values, in the tile's order ((j, B) row-major):
         j·N_B + (B − B_lo), the indices of their verification coefficients."""

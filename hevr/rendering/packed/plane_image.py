@@ -169,7 +169,7 @@ def slice_verification(ev: Any, plan: PlanePlan, backend: str, client: Any, prog
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     plan_d = delayed(plan, pure=True, name=f"hevr-packed-slice-plan-{tag}")
     per_tile, maps = _map_graph(ev._plain(), plan, plan_d, backend, None, tag_channel("scalar"), tag)
-    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan_d, t, n, width, backend, seed, *per_tile[t],
+    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan_d, t, n, width, backend, seed, 0, *per_tile[t],
                                                         dask_key_name=f"hevr-packed-slice-verify-{tag}-{t}")
              for t in range(plan.n_tiles) if per_tile[t]]
     results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
@@ -253,7 +253,7 @@ class PackedSlice:
             tiles.append(be.decrypt(private_key, batch))
         slots = decode_slice(self.plan, [int(v) for tile in tiles for v in tile], self.span)
         if self.verification is not None:  # every value against the tags before any pixel
-            self.verification.check(private_key, self.plan, tiles, self.fingerprint)
+            self.verification.check(private_key, self.plan, [tiles], self.fingerprint)
         return slots
 
     def decrypt(self, private_key: PrivateKey, backend: str | None = None, *,

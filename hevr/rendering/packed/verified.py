@@ -61,18 +61,19 @@ __all__ = ["PackedVerification", "aggregate_for", "aggregate_tile", "class_beta_
 WORKERS = max(1, min(os.cpu_count() or 1, 8))  # the key holder's threads for the check
 
 
-def aggregate_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, seed: bytes,
+def aggregate_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, seed: bytes, first: int,
                    *parts: Any) -> tuple[np.ndarray | None, dict]:
     """One server task: tile ``t``'s tag accumulators merged per key, then
     Π_c (Π acc[j, B, c]^ρ[j, B])^(2^(K·c)) mod n² as one ``(W,)`` record (None: the tile has no
-    product), and the operations spent."""
+    product), and the operations spent; ``first``: the coefficients' index of the component's value
+    0 (component j of a k-component frame: j·``plan.n_values``; 0 for one component)."""
     be = get_backend(backend)
     uniq, merged, merged_ops = merge_parts(be, n, parts)
     if not len(uniq):
         return None, {"verify_merge": 0}
     C = plan.classes
     ids, cls = plan.key_values(uniq)
-    rho = coefficients_at(seed, ids)
+    rho = coefficients_at(seed, ids + int(first))
     order = np.argsort(cls, kind="stable")
     indptr = np.searchsorted(cls[order], np.arange(C + 1)).astype(np.int64)
     pp = plan_products(indptr, order.astype(np.int64), rho[order], len(uniq))
@@ -92,7 +93,7 @@ def aggregate_for(ev: Any, plan: SlicePlan, backend: str, client: Any, progress:
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     per_tile, maps = map_graph(ev._plain(), plan, backend, None, tag_channel("scalar"), tag)  # tags: streamed
-    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan, t, n, width, backend, seed, *per_tile[t],
+    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan, t, n, width, backend, seed, 0, *per_tile[t],
                                                         dask_key_name=f"hevr-packed-verify-{tag}-{t}")
              for t in range(plan.n_tiles) if per_tile[t]]
     results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
@@ -176,8 +177,8 @@ class PackedVerification:
     seed: bytes
     meta: Any  # the store's (level 0's) VolumeMetadata: its owner's MAC is checked
     level: int = 0  # the pyramid level the frame was rendered at (its own packing: meta.level_meta(level))
-    channel: str = "scalar"  # the channel whose tags certify the values ("vector": one record per component)
-    component: int = 0
+    channel: str = "scalar"  # the channel whose tags certify the values
+    components: int = 1  # its components, checked together (component j's coefficients from j·n_values)
     ops: Any = None
     server_s: float = 0.0
     drawn_here: bool = False
@@ -239,9 +240,13 @@ class PackedVerification:
             span = np.zeros(int(packs.max()) - lo + 1, bool)
             span[packs - lo] = True
             where = np.cumsum(span) - 1
-            beta = betas(key, sid, self.channel, self.level, self.component, np.flatnonzero(span) + lo, cache)
             ids, cls = plan.key_values(keys)
-            return class_beta_total(beta, where[packs - lo], cls, coefficients_at(self.seed, ids), w, K)
+            total = 0
+            for j in range(self.components):  # the same products, each component's β and coefficients
+                beta = betas(key, sid, self.channel, self.level, j, np.flatnonzero(span) + lo, cache)
+                rho = coefficients_at(self.seed, ids + j * plan.n_values)
+                total += class_beta_total(beta, where[packs - lo], cls, rho, w, K)
+            return total
 
         bricks = list(np.ndindex(*grid))
         runs = max(1, min(len(bricks), 4 * WORKERS))
@@ -250,22 +255,25 @@ class PackedVerification:
             total = sum(pool.map(part, chunks))
         return total % int(self.meta.n)
 
-    def check(self, private_key: Any, plan: SlicePlan, values: list[list[int]], fingerprint: str) -> None:
+    def check(self, private_key: Any, plan: SlicePlan, values: list[list[list[int]]], fingerprint: str) -> None:
         """Raise :class:`hevr.VerificationError` unless D(A) = α·Σρ·V' + Σρ·β (mod n) for the
-        frame's decrypted values ``values`` (per tile, (j, B) row-major)."""
+        frame's decrypted values ``values`` (per component, per tile, in the tile's order)."""
         t0 = time.perf_counter()
         self.check_metadata(private_key, plan, fingerprint)
         key = tag_key_of(private_key)
         n = int(private_key.public_key.n)
-        if len(values) != plan.n_tiles:
-            raise VerificationError(f"image: expected {plan.n_tiles} tiles, got {len(values)}; no image is returned")
+        if len(values) != self.components or any(len(v) != plan.n_tiles for v in values):
+            raise VerificationError(f"image: expected {self.components} component(s) of {plan.n_tiles} tiles; no "
+                                    "image is returned")
         s_sum = 0
-        for t, vals in enumerate(values):
-            ids = plan.value_ids(t)
-            if len(vals) != ids.size:
-                raise VerificationError(f"image: tile {t} holds {len(vals)} values, expected {ids.size}; no image "
-                                        "is returned")
-            s_sum += sum(int(r) * int(v) for r, v in zip(coefficients_at(self.seed, ids).tolist(), vals))
+        for j, tiles in enumerate(values):
+            for t, vals in enumerate(tiles):
+                ids = plan.value_ids(t)
+                if len(vals) != ids.size:
+                    raise VerificationError(f"image: tile {t} holds {len(vals)} values, expected {ids.size}; no "
+                                            "image is returned")
+                rho = coefficients_at(self.seed, ids + j * plan.n_values).tolist()
+                s_sum += sum(int(r) * int(v) for r, v in zip(rho, vals))
         want = (key.alpha * s_sum + self.beta_sum(private_key, plan)) % n
         got = int(private_key.raw_decrypt(gmpy2.mpz(self.aggregate))) % n
         log.info("verification of a packed frame: %.3f s on the key holder's side", time.perf_counter() - t0)
