@@ -7,8 +7,10 @@ knows how many combined values every reduce tile holds. The server's answer
 (:mod:`hevr.remote.protocol`: one frame per tile, in tile order, then the end frame) is read
 with that bound and must hold exactly those records, each a ciphertext in (0, n²); everything
 else of the :class:`~hevr.rendering.packed.PackedImage` (plan, exponent, offset, span) is this
-process's. A verified frame's seed is drawn after the values are in hand and sent in a second
-request; the answer is one aggregate (:mod:`hevr.rendering.packed.verified`), and the
+process's. A transfer-function or emphasis frame asks for the vector channel: its k components
+come back component-major and the colouring never leaves this process. A verified frame's seed is
+drawn after the values are in hand and sent in a second request; the answer is one aggregate (all
+components at once: :mod:`hevr.rendering.packed.verified`), and the
 verification record's metadata is the store's as this process parsed it, whose owner's MAC the
 decryption checks.
 """
@@ -24,6 +26,7 @@ import numpy as np
 
 from ..backends import get_backend
 from ..errors import ParameterError, RemoteError
+from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.image import PackedImage
 from ..rendering.packed.plan import SlicePlan
 from ..rendering.packed.verified import PackedVerification
@@ -37,16 +40,24 @@ __all__ = ["render_remote_packed"]
 
 
 def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weight_bits: int | None,
-                         backend: str | None, client: Any, verify: bool) -> PackedImage:
-    """A packed frame of ``camera`` rendered by the server of ``rv`` (request checked by the caller)."""
+                         backend: str | None, client: Any, verify: bool,
+                         colouring: Any = None) -> PackedImage | PackedColourImage:
+    """A packed frame of ``camera`` rendered by the server of ``rv`` (request checked by the caller):
+    an X-ray, or with a ``colouring`` (kept here, never sent) the vector channel's k components,
+    answered component-major (component j's tiles are frames j·T … j·T + T − 1)."""
     if client is not None:
         raise ParameterError(f"client: expected None for a remote volume (the server renders on its own cluster), "
                              f"got {type(client).__name__}")
     t0 = time.perf_counter()
     meta = rv.meta
     plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)
-    counts = [(j1 - j0) * (b1 - b0) for j0, j1, b0, b1 in map(plan.tile_bounds, range(plan.n_tiles))]
-    req = RenderRequest(view=camera, channel="scalar", sampling=sampling, step=1.0, level=0, tile=plan.tile,
+    channel = "scalar" if colouring is None else "vector"
+    k = meta.components(channel)
+    if channel == "vector":
+        vlo, vhi = mantissa_range((0.0, 1.0), meta.vector.exponent)
+        plan.check_slots(vhi - vlo)  # as the server does: no component's sum may carry
+    counts = [(j1 - j0) * (b1 - b0) for j0, j1, b0, b1 in map(plan.tile_bounds, range(plan.n_tiles))] * k
+    req = RenderRequest(view=camera, channel=channel, sampling=sampling, step=1.0, level=0, tile=plan.tile,
                         backend=backend, weight_bits=weight_bits)
     server, where = rv.server, f"/v1/stores/{rv.store_id}"
     width, n = meta.ciphertext_bytes, int(rv.public_key.n)
@@ -58,30 +69,39 @@ def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weig
             stats.update(_server_stats(data.get("stats") if isinstance(data.get("stats"), str) else None))
             break
         t = len(tiles)
-        if index != t or t >= plan.n_tiles or len(data) != counts[t] * width:
+        if index != t or t >= len(counts) or len(data) != counts[t] * width:
             raise RemoteError(f"server {server.url}: the packed frame's tile {index}: expected tile {t} of "
-                              f"{plan.n_tiles} with {counts[t] if t < plan.n_tiles else 0} records of {width} bytes, "
+                              f"{len(counts)} with {counts[t] if t < len(counts) else 0} records of {width} bytes, "
                               f"got {len(data)} bytes; no image is returned")
         recs = np.frombuffer(data, np.uint8).reshape(-1, width).copy()
         if len(recs) and be.first_out_of_range(be.from_bytes(recs), n * n) is not None:
             raise RemoteError(f"server {server.url}: tile {t} of the packed frame holds a value that is not a "
                               "ciphertext (outside (0, n²)); no image is returned")
         tiles.append(recs)
-    if len(tiles) != plan.n_tiles:
-        raise RemoteError(f"server {server.url}: the packed frame: expected {plan.n_tiles} tiles, got {len(tiles)}; "
+    if len(tiles) != len(counts):
+        raise RemoteError(f"server {server.url}: the packed frame: expected {len(counts)} tiles, got {len(tiles)}; "
                           "no image is returned")
-    lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
     stats["seconds"] = time.perf_counter() - t0
-    img = PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
-                      offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles, store_id=meta.store_id,
-                      stats=stats, meta=meta, level=0)
+    T = plan.n_tiles
+    if channel == "scalar":
+        lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
+        img: Any = PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n,
+                               exponent=meta.scalar.exponent, offset=meta.packing.offset, span=hi - lo,
+                               ciphertexts=tiles, store_id=meta.store_id, stats=stats, meta=meta, level=0)
+    else:
+        comps = [PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n,
+                             exponent=meta.vector.exponent, offset=0, span=vhi - vlo,
+                             ciphertexts=tiles[j * T:(j + 1) * T], store_id=meta.store_id, stats=stats, meta=meta,
+                             level=0) for j in range(k)]
+        img = PackedColourImage(components=comps, colouring=colouring, stats=stats)
     if verify:  # the values are fixed in this process: only now the seed
         t1 = time.perf_counter()
         seed = secrets.token_bytes(32)
         raw, _ = server.request("POST", f"{where}/verify", body=VerifyRequest(render=req, seed=seed).to_dict(),
                                 limit=MAX_BODY)
         img.verification = PackedVerification(aggregate=_aggregate(raw, n, server.url), seed=seed, meta=meta,
-                                               server_s=time.perf_counter() - t1, drawn_here=True)
+                                               channel=channel, components=k, server_s=time.perf_counter() - t1,
+                                               drawn_here=True)
         img.stats["verify_s"] = img.verification.server_s
         img.stats["seconds"] = time.perf_counter() - t0
     log.info("remote packed render %dx%d: %s", camera.width, camera.height, img.stats)

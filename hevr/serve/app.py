@@ -60,6 +60,7 @@ from ..remote.protocol import (
     parse_json,
 )
 from ..rendering.packed import PackedImage
+from ..rendering.packed.colour import PackedColourImage
 from .jobs import render_image, stats_header, verify_aggregate
 from .openapi import openapi_document
 from .tokens import TokenTable
@@ -224,10 +225,11 @@ def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = 
         def run() -> tuple[bytes, str, str]:
             with svc.limits.slot(name, per_token):
                 img = render_image(ev, req, client=svc.client, backend=svc.backend)
-                if isinstance(img, PackedImage):  # its tiles as frames, in tile order, then the end frame
+                if isinstance(img, (PackedImage, PackedColourImage)):  # tiles as frames (component-major), then the end
                     end = json.dumps({"ok": True, "stats": stats_header(img.stats)}).encode()
-                    blob = b"".join(pack_frame(t, np.ascontiguousarray(c).tobytes())
-                                    for t, c in enumerate(img.ciphertexts)) + pack_frame(END, end)
+                    tiles = [t for c in getattr(img, "components", [img]) for t in c.ciphertexts]
+                    blob = b"".join(pack_frame(i, np.ascontiguousarray(t).tobytes())
+                                    for i, t in enumerate(tiles)) + pack_frame(END, end)
                     return blob, stats_header(img.stats), UNITS_MEDIA
                 return img.to_bytes(), stats_header(img.stats), IMAGE_MEDIA
 

@@ -26,6 +26,7 @@ from ..rendering.geometry.rays import cast_rays
 from ..rendering.planning.planner import check_render_size
 from ..rendering.planning.request import at_level, check_request, level_step
 from ..rendering.packed import PackedImage
+from ..rendering.packed.colour import PackedColourImage, colour_aggregate, render_packed_colour
 from ..rendering.packed.plan import SlicePlan
 from ..rendering.packed.request import render_packed_request
 from ..rendering.packed.verified import aggregate_for as packed_aggregate_for
@@ -51,9 +52,12 @@ def _step(req: RenderRequest) -> float:
 
 
 def _packed_view(ev: Any, req: RenderRequest) -> Camera:
-    """The camera of a request on a packed store (which serves the scalar channel's X-rays only)."""
-    if req.channel != "scalar":
-        raise ParameterError(f"channel: expected 'scalar' on the packed store {ev.meta.store_id}, got {req.channel!r}")
+    """The camera of a request on a packed store (the scalar channel's X-rays; the vector channel's
+    k components where the store has it)."""
+    offered = ("scalar", "vector") if ev.meta.vector is not None else ("scalar",)
+    if req.channel not in offered:
+        raise ParameterError(f"channel: expected {' or '.join(map(repr, offered))} on the packed store "
+                             f"{ev.meta.store_id}, got {req.channel!r}")
     if not isinstance(req.view, Camera):
         raise ParameterError(f"view: expected a camera on the packed store {ev.meta.store_id} (its slices are not "
                              "served), got a plane")
@@ -61,7 +65,7 @@ def _packed_view(ev: Any, req: RenderRequest) -> Camera:
 
 
 def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | None = None,
-                 stream: Any = None) -> EncryptedImage | PackedImage:
+                 stream: Any = None) -> EncryptedImage | PackedImage | PackedColourImage:
     """The client-finished image of ``req`` on the store ``ev`` (``stream``: handed every
     finishing unit as it completes, :class:`hevr.rendering.pipeline.stream.StreamDecryptor`'s interface);
     a packed store's unverified :class:`~hevr.rendering.packed.PackedImage` (its tiles are the answer)."""
@@ -69,7 +73,14 @@ def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | Non
         if stream is not None:
             raise ParameterError(f"stream: expected a per-voxel store, got the packed store {ev.meta.store_id} "
                                  "(its frame comes whole from /render)")
-        return render_packed_request(ev, _packed_view(ev, req), "xray", req.sampling, req.step, None, None,
+        view = _packed_view(ev, req)
+        if req.channel == "vector":  # the k components, coloured by the key holder (the server sees no colouring)
+            if req.step != 1.0 or req.level:
+                raise ParameterError("step/level: expected 1.0 and 0 for the vector channel of a packed store")
+            check_render_size(view, ev.shape, ev.spacing, 1.0)
+            return render_packed_colour(ev, view, req.sampling, None, tile=req.tile, client=client, progress=False,
+                                        backend=req.backend or backend, weight_bits=req.weight_bits)
+        return render_packed_request(ev, view, "xray", req.sampling, req.step, None, None,
                                      tile=req.tile, client=client, progress=False, backend=req.backend or backend,
                                      compute=True, keep_sums=None, level=req.level or None, gradient=False,
                                      finish="client", verify=False, weight_bits=req.weight_bits)
@@ -93,6 +104,8 @@ def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, b
             raise ParameterError("step/level: expected 1.0 and 0 on a packed store")
         plan = SlicePlan.of_store(ev.meta, view, req.sampling, req.tile, req.weight_bits)
         name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
+        if req.channel == "vector":
+            return colour_aggregate(ev, plan, name, client, False, seed)[0]
         return packed_aggregate_for(ev, plan, name, client, False, seed)[0]
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)

@@ -148,3 +148,37 @@ def test_remote_frames_save_and_load(packed_served, rv, tmp_path):
     again = hevr.load_image(tmp_path / "v.hevr")
     assert again.verified
     np.testing.assert_array_equal(again.decrypt(s.priv, require_verified=True), want)
+
+
+@pytest.fixture(scope="module")
+def colour_served(tmp_path_factory, keypair256):
+    from _serving import hevr_serve
+
+    pub, priv = keypair256
+    d = tmp_path_factory.mktemp("packed-colour-served")
+    vol = np.random.default_rng(8).integers(0, 256, (9, 8, 10)).astype(np.uint8)
+    ev = hevr.encrypt_volume(vol, str(d / "c.zarr"), priv, brick=4, layout="packed", vector_dims=3, progress=False)
+    with hevr_serve(str(d / "c.zarr"), "--workers", "1") as (url, proc, lines):
+        server = connect(url, timeout=120)
+        yield types.SimpleNamespace(ev=ev, priv=priv, vol=vol, rv=server.open(ev.meta.store_id), server=server)
+        server.close()
+
+
+@pytest.mark.parametrize("mode, kw", [("tf", {"nodes": [(0.2, "blue"), (0.8, "red")]}), ("emphasize",
+                                                                                         {"density": 0.5})])
+def test_colour_frames_through_the_server(colour_served, mode, kw):
+    """Transfer-function and emphasis frames of a packed store on hevr serve: the server sums the
+    vector channel's k components (it never sees the colouring), the key holder colours them: the
+    in-process frame exactly, verified by default with one aggregate for all k components."""
+    s = colour_served
+    cam = _cam(s.rv, 60, 10)
+    remote = hevr.render(s.rv, cam, mode=mode, sampling="trilinear", tile=4, progress=False, **kw)
+    local = hevr.render(s.ev, _cam(s.ev, 60, 10), mode=mode, sampling="trilinear", tile=4, verify=False,
+                        progress=False, **kw)
+    assert remote.verified and remote.verification.components == 3 and len(remote.components) == 3
+    for a, b in zip(remote.components, local.components):
+        assert all(np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts))
+    np.testing.assert_array_equal(remote.decrypt(s.priv, require_verified=True), local.decrypt(s.priv))
+    swapped = [remote.components[1], remote.components[0], remote.components[2]]
+    with pytest.raises(hevr.VerificationError, match="does not verify"):
+        dataclasses.replace(remote, components=swapped).decrypt(s.priv)

@@ -223,7 +223,7 @@ class PackedColourImage:
                 f"sampling={self.plan.sampling!r}, ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
 
 
-def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouring, *, tile: int = 32,
+def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouring | None, *, tile: int = 32,
                          client: Any = None, progress: bool = True, backend: str | None = None,
                          weight_bits: int | None = None) -> PackedColourImage:
     """Render the vector channel's k components of a packed store for a parallel ``camera`` with
@@ -270,7 +270,8 @@ def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouri
              "finish_tasks": len(fin), "resident": resident is not None, "ops": counts,
              "rays": int(np.prod(plan.geometry.size)), "ciphertexts": int(sum(len(t) for c in per_comp for t in c)),
              "seconds": time.perf_counter() - t0}
-    log.info("render packed %s/%s %dx%d: %s", colouring.mode, sampling, camera.width, camera.height, stats)
+    log.info("render packed %s/%s %dx%d: %s", colouring.mode if colouring is not None else "vector", sampling,
+             camera.width, camera.height, stats)
     comps = [PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=meta.vector.exponent,
                          offset=0, span=vhi - vlo, ciphertexts=tiles_c, store_id=meta.store_id, stats=stats,
                          meta=meta, level=0) for tiles_c in per_comp]
@@ -315,10 +316,10 @@ def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, 
     the colouring checked here (:class:`hevr.colour.Colouring`), ``verify`` resolved as for an X-ray
     (a verifiable store's colour frames are verified by default: :func:`colour_aggregate`)."""
     colouring = Colouring(mode, density, nodes)  # mode, density, nodes: checked before any work
-    if getattr(ev, "remote", None) is not None:
-        raise ParameterError(f"mode: expected 'xray' for a packed store on hevr serve, got {mode!r} (colour frames "
-                             "of packed stores are rendered in process only, for now)")
     verified = resolve_verify(verify, ev, "client", level=getattr(ev, "level", 0), compute=True, stream=False)
+    if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the k components come from there
+        return ev.render_packed_request(camera, sampling, tile=tile, weight_bits=weight_bits, backend=backend,
+                                        client=client, verify=verified, colouring=colouring)
     image = render_packed_colour(ev, camera, sampling, colouring, tile=tile, client=client, progress=progress,
                                  backend=backend, weight_bits=weight_bits)
     if verified:  # the second round, as for an X-ray: the values are fixed here before the seed is drawn
