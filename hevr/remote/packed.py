@@ -28,6 +28,8 @@ from ..backends import get_backend
 from ..errors import ParameterError, RemoteError
 from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.image import PackedImage
+from ..rendering.packed.plane_image import PackedSlice
+from ..rendering.packed.planes import PlanePlan
 from ..rendering.packed.plan import SlicePlan
 from ..rendering.packed.verified import PackedVerification
 from ..store.packing import mantissa_range
@@ -36,7 +38,47 @@ from .render import _aggregate, _server_stats
 
 log = logging.getLogger(__name__)
 
-__all__ = ["render_remote_packed"]
+__all__ = ["render_remote_packed", "render_remote_packed_slice"]
+
+
+def _tiles(server: Any, where: str, req: RenderRequest, counts: list[int], width: int,
+           n: int) -> tuple[list[np.ndarray], dict]:
+    """The answer of ``/render`` for a packed store: exactly ``len(counts)`` frames in order, frame t
+    of ``counts[t]`` records of ``width`` bytes, every record a ciphertext in (0, n²); and the
+    server's public statistics."""
+    be = get_backend("cpu")
+    tiles: list = []
+    stats: dict = {"layout": "packed", "remote": server.url, "backend": "remote"}
+    for index, data in server.frames(f"{where}/render", req.to_dict(), packed_limit(counts, width)):
+        if index == END:
+            stats.update(_server_stats(data.get("stats") if isinstance(data.get("stats"), str) else None))
+            break
+        t = len(tiles)
+        if index != t or t >= len(counts) or len(data) != counts[t] * width:
+            raise RemoteError(f"server {server.url}: the packed answer's tile {index}: expected tile {t} of "
+                              f"{len(counts)} with {counts[t] if t < len(counts) else 0} records of {width} bytes, "
+                              f"got {len(data)} bytes; no image is returned")
+        recs = np.frombuffer(data, np.uint8).reshape(-1, width).copy()
+        if len(recs) and be.first_out_of_range(be.from_bytes(recs), n * n) is not None:
+            raise RemoteError(f"server {server.url}: tile {t} of the packed answer holds a value that is not a "
+                              "ciphertext (outside (0, n²)); no image is returned")
+        tiles.append(recs)
+    if len(tiles) != len(counts):
+        raise RemoteError(f"server {server.url}: the packed answer: expected {len(counts)} tiles, got {len(tiles)}; "
+                          "no image is returned")
+    return tiles, stats
+
+
+def _verification(server: Any, where: str, req: RenderRequest, meta: Any, channel: str, k: int,
+                  n: int) -> PackedVerification:
+    """The second round, after the values are in this process: a fresh seed, the server's one
+    aggregate; the record's every other field is this process's own."""
+    t1 = time.perf_counter()
+    seed = secrets.token_bytes(32)
+    raw, _ = server.request("POST", f"{where}/verify", body=VerifyRequest(render=req, seed=seed).to_dict(),
+                            limit=MAX_BODY)
+    return PackedVerification(aggregate=_aggregate(raw, n, server.url), seed=seed, meta=meta, channel=channel,
+                              components=k, server_s=time.perf_counter() - t1, drawn_here=True)
 
 
 def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weight_bits: int | None,
@@ -60,27 +102,8 @@ def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weig
     req = RenderRequest(view=camera, channel=channel, sampling=sampling, step=1.0, level=0, tile=plan.tile,
                         backend=backend, weight_bits=weight_bits)
     server, where = rv.server, f"/v1/stores/{rv.store_id}"
-    width, n = meta.ciphertext_bytes, int(rv.public_key.n)
-    be = get_backend("cpu")
-    tiles: list = []
-    stats: dict = {"layout": "packed", "remote": server.url, "backend": "remote"}
-    for index, data in server.frames(f"{where}/render", req.to_dict(), packed_limit(counts, width)):
-        if index == END:
-            stats.update(_server_stats(data.get("stats") if isinstance(data.get("stats"), str) else None))
-            break
-        t = len(tiles)
-        if index != t or t >= len(counts) or len(data) != counts[t] * width:
-            raise RemoteError(f"server {server.url}: the packed frame's tile {index}: expected tile {t} of "
-                              f"{len(counts)} with {counts[t] if t < len(counts) else 0} records of {width} bytes, "
-                              f"got {len(data)} bytes; no image is returned")
-        recs = np.frombuffer(data, np.uint8).reshape(-1, width).copy()
-        if len(recs) and be.first_out_of_range(be.from_bytes(recs), n * n) is not None:
-            raise RemoteError(f"server {server.url}: tile {t} of the packed frame holds a value that is not a "
-                              "ciphertext (outside (0, n²)); no image is returned")
-        tiles.append(recs)
-    if len(tiles) != len(counts):
-        raise RemoteError(f"server {server.url}: the packed frame: expected {len(counts)} tiles, got {len(tiles)}; "
-                          "no image is returned")
+    n = int(rv.public_key.n)
+    tiles, stats = _tiles(server, where, req, counts, meta.ciphertext_bytes, n)
     stats["seconds"] = time.perf_counter() - t0
     T = plan.n_tiles
     if channel == "scalar":
@@ -95,14 +118,35 @@ def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weig
                              level=0) for j in range(k)]
         img = PackedColourImage(components=comps, colouring=colouring, stats=stats)
     if verify:  # the values are fixed in this process: only now the seed
-        t1 = time.perf_counter()
-        seed = secrets.token_bytes(32)
-        raw, _ = server.request("POST", f"{where}/verify", body=VerifyRequest(render=req, seed=seed).to_dict(),
-                                limit=MAX_BODY)
-        img.verification = PackedVerification(aggregate=_aggregate(raw, n, server.url), seed=seed, meta=meta,
-                                               channel=channel, components=k, server_s=time.perf_counter() - t1,
-                                               drawn_here=True)
+        img.verification = _verification(server, where, req, meta, channel, k, n)
         img.stats["verify_s"] = img.verification.server_s
         img.stats["seconds"] = time.perf_counter() - t0
     log.info("remote packed render %dx%d: %s", camera.width, camera.height, img.stats)
+    return img
+
+
+def render_remote_packed_slice(rv: Any, plane: Any, sampling: str, *, backend: str | None, client: Any,
+                               verify: bool) -> PackedSlice:
+    """A packed store's slice rendered by the server of ``rv``: planned here with the same
+    :class:`~hevr.rendering.packed.planes.PlanePlan` the server builds, its merge tiles read as
+    frames with exact sizes, every ciphertext checked; verified as a frame is (request checked by
+    the caller)."""
+    if client is not None:
+        raise ParameterError(f"client: expected None for a remote volume (the server renders on its own cluster), "
+                             f"got {type(client).__name__}")
+    t0 = time.perf_counter()
+    meta = rv.meta
+    plan = PlanePlan.build(plane, meta.shape, meta.spacing, meta.brick, meta.packing, sampling)
+    counts = [v1 - v0 for v0, v1 in map(plan.tile_bounds, range(plan.n_tiles))]
+    req = RenderRequest(view=plane, channel="scalar", sampling=sampling, step=plane.slab_step, level=0,
+                        backend=backend)
+    server, where = rv.server, f"/v1/stores/{rv.store_id}"
+    tiles, stats = _tiles(server, where, req, counts, meta.ciphertext_bytes, int(rv.public_key.n))
+    lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
+    stats["seconds"] = time.perf_counter() - t0
+    img = PackedSlice(plan=plan, plane=plane, fingerprint=meta.fingerprint, n=int(rv.public_key.n),
+                      exponent=meta.scalar.exponent, offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles,
+                      store_id=meta.store_id, stats=stats)
+    if verify:
+        img.verification = _verification(server, where, req, meta, "scalar", 1, int(rv.public_key.n))
     return img

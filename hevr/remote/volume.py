@@ -22,7 +22,7 @@ from ..errors import CorruptStoreError, ParameterError, RemoteError
 from ..store.metadata import VolumeMetadata
 from ..store.reader import EncryptedVolume
 from ..volume.pyramid import check_level
-from .packed import render_remote_packed
+from .packed import render_remote_packed, render_remote_packed_slice
 from .render import render_remote
 
 __all__ = ["RemoteVolume", "parse_description"]
@@ -96,6 +96,10 @@ class RemoteVolume(EncryptedVolume):
     def render_packed_request(self, camera: Any, sampling: str, **kwargs: Any) -> Any:
         """A packed store's frame on the server (:func:`hevr.remote.packed.render_remote_packed`)."""
         return render_remote_packed(self, camera, sampling, **kwargs)
+
+    def render_packed_slice_request(self, plane: Any, sampling: str, **kwargs: Any) -> Any:
+        """A packed store's slice on the server (:func:`hevr.remote.packed.render_remote_packed_slice`)."""
+        return render_remote_packed_slice(self, plane, sampling, **kwargs)
 
     def _plain(self) -> RemoteVolume:
         return self

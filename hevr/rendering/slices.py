@@ -136,10 +136,6 @@ def _packed_slice(ev: EncryptedVolume, plane: Plane, mode: str, sampling: str, d
                   finish: Any, verify: Any) -> PackedSlice:
     """A packed store's slice: what it serves is checked before any work, then rendered."""
     other = "a per-voxel store (encrypt_volume(..., layout='voxel')) serves it"
-    if getattr(ev, "remote", None) is not None:
-        raise ParameterError(f"ev: expected a packed store opened here (hevr.open_volume) for a slice, got the store "
-                             f"{ev.meta.store_id} on hevr serve, which serves a packed store's X-ray frames, not its "
-                             "slices yet")
     if mode != "xray":
         raise ParameterError(f"mode: expected 'xray' on a packed store (it holds the scalar channel only), got "
                              f"{mode!r}; {other}")
@@ -153,6 +149,8 @@ def _packed_slice(ev: EncryptedVolume, plane: Plane, mode: str, sampling: str, d
         raise ParameterError(f"keep_sums/compute: expected None and True on a packed store, got {keep_sums!r} and "
                              f"{compute!r}")
     verified = resolve_verify(verify, ev, "client", level=0, compute=True, stream=False)
+    if getattr(ev, "remote", None) is not None:  # a store on hevr serve: planned here, rendered there
+        return ev.render_packed_slice_request(plane, sampling, backend=backend, client=client, verify=verified)
     img = render_packed_slice(ev, plane, sampling, client=client, progress=progress, backend=backend)
     if verified:  # the values are fixed in this process: only now the seed (hevr.rendering.packed.verified)
         img.verification = slice_verification(ev, img.plan, img.stats["backend"], active_client(client), progress)

@@ -61,6 +61,7 @@ from ..remote.protocol import (
 )
 from ..rendering.packed import PackedImage
 from ..rendering.packed.colour import PackedColourImage
+from ..rendering.packed.plane_image import PackedSlice
 from .jobs import render_image, stats_header, verify_aggregate
 from .openapi import openapi_document
 from .tokens import TokenTable
@@ -225,7 +226,7 @@ def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = 
         def run() -> tuple[bytes, str, str]:
             with svc.limits.slot(name, per_token):
                 img = render_image(ev, req, client=svc.client, backend=svc.backend)
-                if isinstance(img, (PackedImage, PackedColourImage)):  # tiles as frames (component-major), then the end
+                if isinstance(img, (PackedImage, PackedColourImage, PackedSlice)):  # tiles as frames, then the end
                     end = json.dumps({"ok": True, "stats": stats_header(img.stats)}).encode()
                     tiles = [t for c in getattr(img, "components", [img]) for t in c.ciphertexts]
                     blob = b"".join(pack_frame(i, np.ascontiguousarray(t).tobytes())

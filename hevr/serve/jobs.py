@@ -28,6 +28,8 @@ from ..rendering.planning.request import at_level, check_request, level_step
 from ..rendering.packed import PackedImage
 from ..rendering.packed.colour import PackedColourImage, colour_aggregate, render_packed_colour
 from ..rendering.packed.plan import SlicePlan
+from ..rendering.packed.plane_image import PackedSlice, render_packed_slice, slice_aggregate
+from ..rendering.packed.planes import PlanePlan
 from ..rendering.packed.request import render_packed_request
 from ..rendering.packed.verified import aggregate_for as packed_aggregate_for
 from ..rendering.verify import aggregate_for
@@ -51,6 +53,15 @@ def _step(req: RenderRequest) -> float:
     return req.step
 
 
+def _packed_plane(ev: Any, req: RenderRequest) -> Plane:
+    """The plane of a slice request on a packed store (the scalar channel, its slab step)."""
+    if req.channel != "scalar":
+        raise ParameterError(f"channel: expected 'scalar' for a slice of the packed store {ev.meta.store_id}, got "
+                             f"{req.channel!r}")
+    _step(req)
+    return req.view
+
+
 def _packed_view(ev: Any, req: RenderRequest) -> Camera:
     """The camera of a request on a packed store (the scalar channel's X-rays; the vector channel's
     k components where the store has it)."""
@@ -65,7 +76,7 @@ def _packed_view(ev: Any, req: RenderRequest) -> Camera:
 
 
 def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | None = None,
-                 stream: Any = None) -> EncryptedImage | PackedImage | PackedColourImage:
+                 stream: Any = None) -> EncryptedImage | PackedImage | PackedColourImage | PackedSlice:
     """The client-finished image of ``req`` on the store ``ev`` (``stream``: handed every
     finishing unit as it completes, :class:`hevr.rendering.pipeline.stream.StreamDecryptor`'s interface);
     a packed store's unverified :class:`~hevr.rendering.packed.PackedImage` (its tiles are the answer)."""
@@ -73,6 +84,9 @@ def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | Non
         if stream is not None:
             raise ParameterError(f"stream: expected a per-voxel store, got the packed store {ev.meta.store_id} "
                                  "(its frame comes whole from /render)")
+        if isinstance(req.view, Plane):  # a slice: the same PlanePlan the key holder builds
+            return render_packed_slice(ev, _packed_plane(ev, req), req.sampling, client=client, progress=False,
+                                       backend=req.backend or backend)
         view = _packed_view(ev, req)
         if req.channel == "vector":  # the k components, coloured by the key holder (the server sees no colouring)
             if req.step != 1.0 or req.level:
@@ -98,6 +112,11 @@ def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | Non
 def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, backend: str | None = None) -> int:
     """The tag aggregate of ``req``'s render for the key holder's ``seed``
     (:func:`hevr.rendering.verify.aggregate_for`; the store must have tags)."""
+    if ev.meta.packing is not None and isinstance(req.view, Plane):
+        plane = _packed_plane(ev, req)
+        plan = PlanePlan.build(plane, ev.meta.shape, ev.meta.spacing, ev.meta.brick, ev.meta.packing, req.sampling)
+        name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
+        return slice_aggregate(ev, plan, name, client, False, seed)[0]
     if ev.meta.packing is not None:
         view = _packed_view(ev, req)
         if req.step != 1.0 or req.level:

@@ -182,3 +182,21 @@ def test_colour_frames_through_the_server(colour_served, mode, kw):
     swapped = [remote.components[1], remote.components[0], remote.components[2]]
     with pytest.raises(hevr.VerificationError, match="does not verify"):
         dataclasses.replace(remote, components=swapped).decrypt(s.priv)
+
+
+@pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
+def test_slices_through_the_server(packed_served, rv, sampling):
+    """Slices of a packed store on hevr serve: planned here with the server's PlanePlan, the same
+    ciphertexts and pixels as in process, verified by default; an unsupported plane refused here."""
+    s = packed_served
+    for plane in (hevr.Plane.axial(rv, 4), hevr.Plane.coronal(rv, 3.5, slab=2)):
+        remote = hevr.render_slice(rv, plane, sampling=sampling, progress=False)
+        local = hevr.render_slice(s.ev, plane, sampling=sampling, verify=False, progress=False)
+        assert remote.verified and len(remote.ciphertexts) == len(local.ciphertexts)
+        assert all(np.array_equal(a, b) for a, b in zip(remote.ciphertexts, local.ciphertexts))
+        np.testing.assert_array_equal(remote.decrypt(s.priv, require_verified=True), local.decrypt(s.priv))
+        bad = dataclasses.replace(remote.verification, seed=bytes(32))
+        with pytest.raises(hevr.VerificationError, match="does not verify"):
+            dataclasses.replace(remote, verification=bad).decrypt(s.priv)
+    with pytest.raises(hevr.ParameterError, match="plane: expected a plane perpendicular"):
+        hevr.render_slice(rv, hevr.Plane.oblique(rv, normal=(1, 0, 1)), progress=False)

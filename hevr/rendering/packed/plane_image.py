@@ -38,7 +38,7 @@ from ...backends.base import OpCounter
 from ...crypto.keys import PrivateKey
 from ...image.provenance import check_provenance
 from ...crypto.tags import tag_channel
-from ...errors import IntegrityError
+from ...errors import IntegrityError, ParameterError
 from ...store.packing import INTEGRITY_BITS, mantissa_range, unpack_slots
 from ...store.paths import check_reachable
 from ..pipeline.finishing import one_records
@@ -158,13 +158,14 @@ def _map_graph(ev: Any, plan: PlanePlan, plan_d: Any, backend: str, resident: di
     return per_tile, maps
 
 
-def slice_verification(ev: Any, plan: PlanePlan, backend: str, client: Any, progress: bool) -> PackedVerification:
-    """The tags' round of a slice, after its values are in the key holder's hands: a fresh seed, the
-    tags through the slice's plan, one aggregate per merge tile (A = Π_v T_v^ρ_v, the values' ids as
-    indices: :func:`~hevr.rendering.packed.verified.aggregate_tile` with one class), the record to keep."""
-    seed = secrets.token_bytes(32)
-    t0 = time.perf_counter()
+def slice_aggregate(ev: Any, plan: PlanePlan, backend: str, client: Any, progress: bool,
+                    seed: bytes) -> tuple[int, dict]:
+    """The server's half of a slice's tags' round for ``seed``: the tags through the slice's plan,
+    one aggregate per merge tile (A = Π_v T_v^ρ_v, the values' ids as indices:
+    :func:`~hevr.rendering.packed.verified.aggregate_tile` with one class), their product."""
     meta = ev.meta
+    if not meta.tags:
+        raise ParameterError(f"verify: expected a verifiable store, got the packed store {meta.store_id} without tags")
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     plan_d = delayed(plan, pure=True, name=f"hevr-packed-slice-plan-{tag}")
@@ -177,8 +178,16 @@ def slice_verification(ev: Any, plan: PlanePlan, backend: str, client: Any, prog
     for rec, _ in results[:len(tasks)]:
         if rec is not None:
             A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
-    ops = {"map": sum(m["map"] for m in results[len(tasks):])}
-    return PackedVerification(aggregate=int(A), seed=seed, meta=meta, ops=ops, server_s=time.perf_counter() - t0,
+    return int(A), {"map": sum(m["map"] for m in results[len(tasks):])}
+
+
+def slice_verification(ev: Any, plan: PlanePlan, backend: str, client: Any, progress: bool) -> PackedVerification:
+    """The tags' round of a slice, after its values are in the key holder's hands: a fresh seed
+    drawn here, then :func:`slice_aggregate`; the record to keep."""
+    seed = secrets.token_bytes(32)
+    t0 = time.perf_counter()
+    A, ops = slice_aggregate(ev, plan, backend, client, progress, seed)
+    return PackedVerification(aggregate=A, seed=seed, meta=ev.meta, ops=ops, server_s=time.perf_counter() - t0,
                               drawn_here=True)
 
 
