@@ -281,11 +281,12 @@ def test_packed_store_orbits_its_axis_verified(tmp_path, keypair256):
 
 
 def test_packed_store_with_the_vector_channel_recolours(tmp_path, keypair256):
-    """A packed store with the vector channel: TF frames verified, a colour change re-coloured in
-    numpy (no map task), within error_bound of the slice reference."""
+    """A packed store with the vector (and gradient) channel: TF frames verified, a colour change
+    re-coloured in numpy (no map task), gradient modulation, within error_bound of the slice reference."""
     pub, priv = keypair256
     vol = np.random.default_rng(4).integers(0, 256, (9, 8, 10)).astype(np.uint8)
-    ev = hevr.encrypt_volume(vol, tmp_path / "c.zarr", priv, brick=4, layout="packed", vector_dims=3, progress=False)
+    ev = hevr.encrypt_volume(vol, tmp_path / "c.zarr", priv, brick=4, layout="packed", vector_dims=3, gradient=True,
+                             progress=False)
     v = Viewer(ev, priv, volume=vol, width=12, height=10, mode="tf")
     first = v.history[-1]
     assert v.mode.options == ("xray", "emphasize", "tf") and "error_message" not in first
@@ -293,5 +294,8 @@ def test_packed_store_with_the_vector_channel_recolours(tmp_path, keypair256):
     v.node_rows[0][1].value = "#00ff00"
     again = v.history[-1]
     assert again["client_recolour"] and again["map_tasks"] == 0 and again["error"] <= again["bound"]
+    v.gradient.value = True  # the gradient channel: a render of g·e(d), verified
+    mod = v.history[-1]
+    assert mod["map_tasks"] > 0 and mod["verified"] and mod["error"] <= mod["bound"]
     v.mode.value = "xray"  # another channel: a render
     assert v.history[-1]["map_tasks"] > 0 and v.history[-1]["error"] <= v.history[-1]["bound"]

@@ -82,21 +82,21 @@ def _verification(server: Any, where: str, req: RenderRequest, meta: Any, channe
 
 
 def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weight_bits: int | None,
-                         backend: str | None, client: Any, verify: bool,
-                         colouring: Any = None) -> PackedImage | PackedColourImage:
+                         backend: str | None, client: Any, verify: bool, colouring: Any = None,
+                         channel: str = "vector") -> PackedImage | PackedColourImage:
     """A packed frame of ``camera`` rendered by the server of ``rv`` (request checked by the caller):
-    an X-ray, or with a ``colouring`` (kept here, never sent) the vector channel's k components,
-    answered component-major (component j's tiles are frames j·T … j·T + T − 1)."""
+    an X-ray, or with a ``colouring`` (kept here, never sent) the k components of ``channel``
+    (vector, or gradient), answered component-major (component j's tiles are frames j·T … j·T + T − 1)."""
     if client is not None:
         raise ParameterError(f"client: expected None for a remote volume (the server renders on its own cluster), "
                              f"got {type(client).__name__}")
     t0 = time.perf_counter()
     meta = rv.meta
     plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)
-    channel = "scalar" if colouring is None else "vector"
+    channel = "scalar" if colouring is None else channel
     k = meta.components(channel)
-    if channel == "vector":
-        vlo, vhi = mantissa_range((0.0, 1.0), meta.vector.exponent)
+    if channel != "scalar":
+        vlo, vhi = mantissa_range((0.0, 1.0), getattr(meta, channel).exponent)
         plan.check_slots(vhi - vlo)  # as the server does: no component's sum may carry
     counts = [(j1 - j0) * (b1 - b0) for j0, j1, b0, b1 in map(plan.tile_bounds, range(plan.n_tiles))] * k
     req = RenderRequest(view=camera, channel=channel, sampling=sampling, step=1.0, level=0, tile=plan.tile,
@@ -113,10 +113,10 @@ def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weig
                                ciphertexts=tiles, store_id=meta.store_id, stats=stats, meta=meta, level=0)
     else:
         comps = [PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n,
-                             exponent=meta.vector.exponent, offset=0, span=vhi - vlo,
+                             exponent=getattr(meta, channel).exponent, offset=0, span=vhi - vlo,
                              ciphertexts=tiles[j * T:(j + 1) * T], store_id=meta.store_id, stats=stats, meta=meta,
                              level=0) for j in range(k)]
-        img = PackedColourImage(components=comps, colouring=colouring, stats=stats)
+        img = PackedColourImage(components=comps, colouring=colouring, stats=stats, channel=channel)
     if verify:  # the values are fixed in this process: only now the seed
         img.verification = _verification(server, where, req, meta, channel, k, n)
         img.stats["verify_s"] = img.verification.server_s

@@ -65,7 +65,7 @@ def _packed_plane(ev: Any, req: RenderRequest) -> Plane:
 def _packed_view(ev: Any, req: RenderRequest) -> Camera:
     """The camera of a request on a packed store (the scalar channel's X-rays; the vector channel's
     k components where the store has it)."""
-    offered = ("scalar", "vector") if ev.meta.vector is not None else ("scalar",)
+    offered = ("scalar",) + tuple(ch for ch in ("vector", "gradient") if getattr(ev.meta, ch) is not None)
     if req.channel not in offered:
         raise ParameterError(f"channel: expected {' or '.join(map(repr, offered))} on the packed store "
                              f"{ev.meta.store_id}, got {req.channel!r}")
@@ -88,12 +88,13 @@ def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | Non
             return render_packed_slice(ev, _packed_plane(ev, req), req.sampling, client=client, progress=False,
                                        backend=req.backend or backend)
         view = _packed_view(ev, req)
-        if req.channel == "vector":  # the k components, coloured by the key holder (the server sees no colouring)
+        if req.channel != "scalar":  # the k components, coloured by the key holder (the server sees no colouring)
             if req.step != 1.0 or req.level:
-                raise ParameterError("step/level: expected 1.0 and 0 for the vector channel of a packed store")
+                raise ParameterError(f"step/level: expected 1.0 and 0 for the {req.channel} channel of a packed store")
             check_render_size(view, ev.shape, ev.spacing, 1.0)
             return render_packed_colour(ev, view, req.sampling, None, tile=req.tile, client=client, progress=False,
-                                        backend=req.backend or backend, weight_bits=req.weight_bits)
+                                        backend=req.backend or backend, weight_bits=req.weight_bits,
+                                        channel=req.channel)
         return render_packed_request(ev, view, "xray", req.sampling, req.step, None, None,
                                      tile=req.tile, client=client, progress=False, backend=req.backend or backend,
                                      compute=True, keep_sums=None, level=req.level or None, gradient=False,
@@ -123,8 +124,8 @@ def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, b
             raise ParameterError("step/level: expected 1.0 and 0 on a packed store")
         plan = SlicePlan.of_store(ev.meta, view, req.sampling, req.tile, req.weight_bits)
         name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
-        if req.channel == "vector":
-            return colour_aggregate(ev, plan, name, client, False, seed)[0]
+        if req.channel != "scalar":
+            return colour_aggregate(ev, plan, name, client, False, seed, req.channel)[0]
         return packed_aggregate_for(ev, plan, name, client, False, seed)[0]
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)

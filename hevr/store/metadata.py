@@ -406,12 +406,12 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
 
 
 def _packing(d: dict, meta: VolumeMetadata, where: str) -> PackingInfo:
-    """A packed store's ``layout``, checked against the rest: the scalar (and vector, packed alike:
-    :func:`~hevr.store.packing.store_span`) channel, no gradient, the value range's offset, slots that fit
+    """A packed store's ``layout``, checked against the rest: the scalar (and vector, gradient, packed
+    alike: :func:`~hevr.store.packing.store_span`) channel, the value range's offset, slots that fit
     the key and brick, a slot width for every frame's largest sum (:meth:`PackingInfo.check`)."""
     packing = PackingInfo.from_dict(d["layout"], where)
-    if meta.scalar is None or meta.gradient is not None:
-        raise _bad(where, "channels", "'scalar' (and 'vector') in a packed store", d.get("channels"))
+    if meta.scalar is None:
+        raise _bad(where, "channels", "'scalar' (and 'vector', 'gradient') in a packed store", d.get("channels"))
     if meta.vector is not None and d.get("levels"):  # the owner encrypts a packed store's levels: scalar only
         raise _bad(where, "levels", "none in a packed store with the vector channel", "a list of levels")
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)

@@ -39,11 +39,13 @@ _CPU = CpuBackend()  # the tags' records
 
 
 def write_packed_brick(be: Any, block: np.ndarray, group: Any, index: tuple[int, int, int], meta: VolumeMetadata,
-                       key: Any, unsafe_no_obfuscation: bool) -> tuple[int, int, int]:
+                       key: Any, unsafe_no_obfuscation: bool,
+                       gradient: np.ndarray | None = None) -> tuple[int, int, int]:
     """A packed store's brick: its columns of S voxels packed into one plaintext each (per channel
     and component), encrypted, written as the brick's chunks of the scalar (and vector) arrays,
     then (a verifiable store) one tag per packed ciphertext, E(α·P + β) at the packed array's flat
-    index, then the digest marker."""
+    index, then the digest marker. ``gradient``: the brick's g·e(d) (the writer computes it with the
+    brick's halo, :mod:`hevr.volume.gradient`), packed as the vector channel is."""
     info = meta.packing
     q = np.array(quantise_scalar(block, meta.scalar), dtype=object if block.dtype == np.uint64 else np.int64)
     plains = {"scalar": [pack_columns(q.reshape(block.shape), info)]}
@@ -52,11 +54,14 @@ def write_packed_brick(be: Any, block: np.ndarray, group: Any, index: tuple[int,
         vq = quantise_vector(enc, meta.vector)
         vinfo = dataclasses.replace(info, offset=0)
         plains["vector"] = [pack_columns(row.reshape(block.shape), vinfo) for row in vq]
+    if meta.gradient is not None:  # g·e(d)'s k components, in [0, 10^digits] like e(d)'s
+        gq = quantise_vector(gradient, meta.gradient)
+        plains["gradient"] = [pack_columns(row.reshape(block.shape), dataclasses.replace(info, offset=0)) for row in gq]
     shape = plains["scalar"][0].shape
     width = meta.ciphertext_bytes
     sl = array_slices(meta, index)
     digests = []
-    for name, parts in plains.items():  # store order: scalar, vector
+    for name, parts in plains.items():  # store order: scalar, vector, gradient
         out = encrypt_components(be, key, [p.ravel().tolist() for p in parts], shape, width, unsafe_no_obfuscation)
         out = out[0] if name == "scalar" else out
         digests.append(brick_digest(meta.store_id, name, index, out))

@@ -131,7 +131,9 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
     digests = []
     mantissas = {}  # channel -> (k, voxels) int64, for the tags of a verifiable store
     if meta.packing is not None:  # S voxels per ciphertext along the packing axis (hevr.store.packing)
-        return write_packed_brick(be, block, group, index, meta, key, unsafe_no_obfuscation)
+        genc = None if meta.gradient is None else grad.brick_gradient_encoding(
+            haloed, halo, meta.spacing, meta.value_range, meta.gradient.dims, m_max)
+        return write_packed_brick(be, block, group, index, meta, key, unsafe_no_obfuscation, genc)
     if meta.scalar is not None:
         q = quantise_scalar(block, meta.scalar)
         out = _encrypt_components(be, key, [q], block.shape, width, unsafe_no_obfuscation)[0]
@@ -257,7 +259,7 @@ def encrypt_volume(
         slice by slice (:mod:`hevr.rendering.packed`; views along the packing axis, perspective
         cameras, slices and the pyramid need a per-voxel store). The scalar channel, and with
         ``vector_dims`` the vector channel packed alike (same S and K, for transfer-function and
-        emphasis frames: :mod:`hevr.rendering.packed.colour`); no gradient channel.
+        emphasis frames: :mod:`hevr.rendering.packed.colour`); the gradient channel too.
     pack_axis : int or {"z", "y", "x"}, optional
         The packing axis of a packed store, as an array axis (0 = z) or its name; default 0, the
         scan's z axis (the patient's superior axis in RAS+), which serves every view around the body.
@@ -302,10 +304,9 @@ def encrypt_volume(
         if layout == "packed" and not verifiable:
             log.warning("encrypt_volume: a packed store encrypted with the public key has no tags (they need the "
                         "private key), so its frames cannot be verified")
-    if layout == "packed" and (gradient or not scalar):
-        raise ParameterError("layout: expected 'voxel' for a store with the gradient channel or without the scalar "
-                             "one (a packed store holds the scalar channel and, with vector_dims, the vector one), got "
-                             f"'packed' with gradient={bool(gradient)}, scalar={bool(scalar)}")
+    if layout == "packed" and not scalar:
+        raise ParameterError("layout: expected 'voxel' for a store without the scalar channel (a packed store "
+                             "packs every channel along the scalar's slots), got 'packed' with scalar=False")
     if layout == "packed" and vector_dims is not None and levels:
         raise ParameterError(f"levels: expected 0 for a packed store with the vector channel (its levels are "
                              f"encrypted scalar only), got {levels}; encrypt without vector_dims, or layout='voxel'")

@@ -157,15 +157,17 @@ def colour_served(tmp_path_factory, keypair256):
     pub, priv = keypair256
     d = tmp_path_factory.mktemp("packed-colour-served")
     vol = np.random.default_rng(8).integers(0, 256, (9, 8, 10)).astype(np.uint8)
-    ev = hevr.encrypt_volume(vol, str(d / "c.zarr"), priv, brick=4, layout="packed", vector_dims=3, progress=False)
+    ev = hevr.encrypt_volume(vol, str(d / "c.zarr"), priv, brick=4, layout="packed", vector_dims=3, gradient=True,
+                             progress=False)
     with hevr_serve(str(d / "c.zarr"), "--workers", "1") as (url, proc, lines):
         server = connect(url, timeout=120)
         yield types.SimpleNamespace(ev=ev, priv=priv, vol=vol, rv=server.open(ev.meta.store_id), server=server)
         server.close()
 
 
-@pytest.mark.parametrize("mode, kw", [("tf", {"nodes": [(0.2, "blue"), (0.8, "red")]}), ("emphasize",
-                                                                                         {"density": 0.5})])
+@pytest.mark.parametrize("mode, kw", [("tf", {"nodes": [(0.2, "blue"), (0.8, "red")]}),
+                                      ("emphasize", {"density": 0.5}),
+                                      ("tf", {"nodes": [(0.3, "white")], "gradient": True})])
 def test_colour_frames_through_the_server(colour_served, mode, kw):
     """Transfer-function and emphasis frames of a packed store on hevr serve: the server sums the
     vector channel's k components (it never sees the colouring), the key holder colours them: the

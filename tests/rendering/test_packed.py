@@ -165,7 +165,7 @@ def test_refusals(store):
     with pytest.raises(ParameterError, match="packed store"):
         hevr.build_pyramid(store, 1, progress=False)
     with pytest.raises(ParameterError, match="slices: expected mode='xray'"):
-        hevr.render_plain(np.zeros(SHAPE), c, mode="emphasize", density=0.5, gradient=True, slices=True)
+        hevr.render_plain(np.zeros(SHAPE), c, gradient=True, slices=True)
 
 
 def test_unverified_default_warns(tmp_path, keypair256, volume, caplog):

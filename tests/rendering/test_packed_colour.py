@@ -176,7 +176,7 @@ def test_refusals(store, keypair256, tmp_path, volume):
     with pytest.raises(ParameterError, match="mode: expected an X-ray"):
         hevr.error_bound(store, c, mode="tf", nodes=NODES, gradient=True)
     with pytest.raises(ParameterError, match="slices: expected mode='xray', step=1 and gradient=False"):
-        hevr.render_plain(volume, c, mode="tf", nodes=NODES, gradient=True, slices=True)
+        hevr.render_plain(volume, c, gradient=True, slices=True)  # an X-ray has no gradient modulation
     with pytest.raises(ParameterError, match="level: expected 0"):
         hevr.render_plain(volume, c, mode="tf", nodes=NODES, level=1, slices=True)
     img = render(store, c, "nearest", mode="tf", nodes=NODES)
@@ -185,8 +185,8 @@ def test_refusals(store, keypair256, tmp_path, volume):
     with pytest.raises(VerificationError, match="not verified"):
         img.decrypt(keypair256[1], require_verified=True)  # rendered with verify=False
     priv = keypair256[1]
-    with pytest.raises(ParameterError, match="layout: expected 'voxel' for a store with the gradient"):
-        hevr.encrypt_volume(volume, tmp_path / "g.zarr", priv, layout="packed", vector_dims=K, gradient=True,
+    with pytest.raises(ParameterError, match="layout: expected 'voxel' for a store without the scalar channel"):
+        hevr.encrypt_volume(volume, tmp_path / "g.zarr", priv, layout="packed", vector_dims=K, scalar=False,
                             progress=False)
     with pytest.raises(ParameterError, match="levels: expected 0 for a packed store with the vector channel"):
         hevr.encrypt_volume(volume, tmp_path / "l.zarr", priv, layout="packed", vector_dims=K, levels=1,
@@ -244,11 +244,12 @@ def test_metadata_checks(store):
     bad["checksum"] = metadata_checksum(bad)
     with pytest.raises(CorruptStoreError, match="layout.slot_bits: expected at least"):
         VolumeMetadata.from_dict(bad)
-    grad = dict(d, channels=dict(d["channels"], gradient=d["channels"]["vector"]),
-                arrays=dict(d["arrays"], gradient=d["arrays"]["vector"], gradient_tag=d["arrays"]["vector_tag"]))
-    grad["checksum"] = metadata_checksum(grad)
-    with pytest.raises(CorruptStoreError, match="channels: expected 'scalar' .and 'vector'. in a packed store"):
-        VolumeMetadata.from_dict(grad)
+    channels = {k: v for k, v in d["channels"].items() if k != "scalar"}
+    arrays = {k: v for k, v in d["arrays"].items() if k not in ("scalar", "scalar_tag")}
+    noscalar = dict(d, channels=channels, arrays=arrays)
+    noscalar["checksum"] = metadata_checksum(noscalar)
+    with pytest.raises(CorruptStoreError, match="channels: expected 'scalar' .and 'vector', 'gradient'. in a packed"):
+        VolumeMetadata.from_dict(noscalar)
     levels = dict(d, levels=[{"level": 1}])
     levels["checksum"] = metadata_checksum(levels)
     with pytest.raises(CorruptStoreError, match="levels: expected none in a packed store with the vector channel"):
@@ -299,3 +300,33 @@ def test_render_frame_recolours_on_the_client(store, keypair256):
     np.testing.assert_allclose(frame.image, img.decrypt(priv), rtol=0, atol=1e-12)
     np.testing.assert_allclose(frame.recolour("emphasize", density=0.5),
                                img.decrypt(priv, mode="emphasize", density=0.5), rtol=0, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def gradient_store(tmp_path_factory, keypair256, volume):
+    path = tmp_path_factory.mktemp("packed-gradient") / "g.zarr"
+    return hevr.encrypt_volume(volume, path, keypair256[1], brick=4, spacing=SPACING, layout="packed", vector_dims=K,
+                               gradient=True, progress=False)
+
+
+@pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
+@pytest.mark.parametrize("mode, kw", [("tf", {"nodes": NODES}), ("emphasize", {"density": 0.5})])
+def test_gradient_modulation(gradient_store, keypair256, volume, mode, kw, sampling):
+    """gradient=True on a packed store with the gradient channel: g·e(d)'s k components through the
+    same plan, verified, within error_bound of render_plain(..., gradient=True, slices=True), and not
+    the unmodulated frame; render_frame gives the same picture."""
+    priv = keypair256[1]
+    ev = gradient_store
+    assert ev.meta.channel_names == ("scalar", "vector", "gradient", "scalar_tag", "vector_tag", "gradient_tag")
+    c = cam(ev, 60, 10)
+    img = hevr.render(ev, c, mode=mode, sampling=sampling, gradient=True, progress=False, tile=4, **kw)
+    assert img.channel == "gradient" and img.verified and img.verification.channel == "gradient"
+    arr = img.decrypt(priv, require_verified=True)
+    ref = hevr.render_plain(volume, c, mode=mode, sampling=sampling, gradient=True, vector_dims=K, slices=True,
+                            value_range=ev.value_range, spacing=SPACING, **kw)
+    assert (np.abs(arr - ref) <= hevr.error_bound(ev, c, mode=mode, sampling=sampling, gradient=True, **kw)).all()
+    flat = hevr.render(ev, c, mode=mode, sampling=sampling, progress=False, verify=False, **kw).decrypt(priv)
+    assert np.abs(arr - flat).max() > 0.01  # the modulation shows
+    frame = hevr.render_frame(ev, c, priv, mode=mode, sampling=sampling, gradient=True, progress=False, **kw)
+    assert frame.channel == "gradient" and frame.stats["verified"]
+    np.testing.assert_allclose(frame.image, arr, rtol=0, atol=1e-12)

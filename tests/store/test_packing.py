@@ -173,8 +173,8 @@ def test_encrypt_packed_parameters(tmp_path, keypair256, volume):
     priv = keypair256[1]
     with pytest.raises(ParameterError, match="layout: expected one of"):
         hevr.encrypt_volume(volume, tmp_path / "a.zarr", priv, layout="slots", progress=False)
-    with pytest.raises(ParameterError, match="layout: expected 'voxel' for a store with the gradient"):
-        hevr.encrypt_volume(volume, tmp_path / "a.zarr", priv, layout="packed", vector_dims=4, gradient=True,
+    with pytest.raises(ParameterError, match="layout: expected 'voxel' for a store without the scalar channel"):
+        hevr.encrypt_volume(volume, tmp_path / "a.zarr", priv, layout="packed", vector_dims=4, scalar=False,
                             progress=False)
     with pytest.raises(ParameterError, match="pack_axis: expected None for layout='voxel'"):
         hevr.encrypt_volume(volume, tmp_path / "a.zarr", priv, pack_axis="x", progress=False)

@@ -47,7 +47,7 @@ from ..._dask import warn_if_remote
 from ...backends import get_backend, resolve_backend_name
 from ...backends.base import OpCounter
 from ...colour import Colouring, Frame, colour, colouring_spec
-from ...crypto.tags import tag_channel
+from ...crypto.tags import data_channel, tag_channel
 from ...image.provenance import check_provenance
 from ...errors import ParameterError
 from ...store.packing import mantissa_range
@@ -75,7 +75,7 @@ def map_components(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles:
     components' batches together."""
     be = get_backend(backend)
     width = ev.meta.ciphertext_bytes
-    k = ev.meta.components("vector")
+    k = ev.meta.components(data_channel(channel))
     per_brick = [r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
                  for idx, r in zip(indices, residents or [None] * len(indices))]
     keys, local, weights = column_pairs(plan, indices, [len(b[0]) for b in per_brick])
@@ -129,6 +129,7 @@ class PackedColourImage:
     colouring: Any = field(default=None, repr=False, compare=False)
     stats: dict = field(default_factory=dict, repr=False)
     verification: Any = field(default=None, repr=False, compare=False)  # one PackedVerification, all k components
+    channel: str = "vector"  # or "gradient": g·e(d), the gradient-modulated encoding
 
     def __getstate__(self) -> dict:
         return dict(self.__dict__, colouring=None)
@@ -200,7 +201,7 @@ class PackedColourImage:
         geo = plan.geometry
         counts = geo.warp(geo.sample_counts(plan.sampling).astype(np.float64), geo.pixel_coords(self.camera))
         stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts)
-        return Frame(means=means, n_samples=np.rint(counts).astype(np.int64).reshape(self.shape), channel="vector",
+        return Frame(means=means, n_samples=np.rint(counts).astype(np.int64).reshape(self.shape), channel=self.channel,
                      colouring=self.colouring, stats=stats)
 
     def decrypt(self, private_key: Any, backend: str | None = None, *, mode: str | None = None,
@@ -209,7 +210,7 @@ class PackedColourImage:
         ``density`` / ``nodes`` when given, else the render's own colouring (:func:`hevr.colour.colour`).
         A verified frame's components are each checked against the vector channel's tags first;
         ``require_verified`` (True or a store id) refuses a frame without those checks."""
-        spec = colouring_spec("vector", len(self.components), mode, density, nodes, self.colouring)
+        spec = colouring_spec(self.channel, len(self.components), mode, density, nodes, self.colouring)
         return colour(self.decrypt_means(private_key, backend, require_verified=require_verified), spec)
 
     def save(self, *args: Any, **kwargs: Any) -> None:
@@ -225,13 +226,15 @@ class PackedColourImage:
 
 def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouring | None, *, tile: int = 32,
                          client: Any = None, progress: bool = True, backend: str | None = None,
-                         weight_bits: int | None = None) -> PackedColourImage:
-    """Render the vector channel's k components of a packed store for a parallel ``camera`` with
-    the scalar frame's plan (module docstring); the request checks are :func:`render_packed_colour_request`'s."""
+                         weight_bits: int | None = None, channel: str = "vector") -> PackedColourImage:
+    """Render the vector (or gradient) channel's k components of a packed store for a parallel
+    ``camera`` with the scalar frame's plan (module docstring); the request checks are
+    :func:`render_packed_colour_request`'s."""
     meta = ev.meta
-    if meta.vector is None:
-        raise ParameterError(f"ev: expected a packed store with the vector channel, got the store {meta.store_id} "
-                             "without it; encrypt it with vector_dims=k")
+    if channel not in ("vector", "gradient") or getattr(meta, channel) is None:
+        extra = ", gradient=True" if channel == "gradient" else ""
+        raise ParameterError(f"ev: expected a packed store with the {channel} channel, got the store {meta.store_id} "
+                             f"without it; encrypt it with vector_dims=k{extra}")
     cl = active_client(client)
     warn_if_remote(cl)
     check_reachable(ev.path, cl)
@@ -240,25 +243,26 @@ def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouri
     backend = resolve_backend_name(backend, bits, resident=res, client=cl)
     t0 = time.perf_counter()
     plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)  # the scalar's slots checked
-    vlo, vhi = mantissa_range((0.0, 1.0), meta.vector.exponent)
+    info = getattr(meta, channel)
+    vlo, vhi = mantissa_range((0.0, 1.0), info.exponent)
     plan.check_slots(vhi - vlo)  # and the components': no sum carries into the next slot
     if plan.n_tiles == 0:
         log.warning("render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
                     "volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height)
     resident = None
     if ev.resident is not None and ev.resident.bricks:
-        if ev.resident.usable("vector", backend, cl):
+        if ev.resident.usable(channel, backend, cl):
             resident = ev.resident.bricks
         else:
             log.warning("render: the resident bricks cannot serve this render (backend %s, the vector channel); "
                         "streaming from the store", backend)
-    k = meta.components("vector")
+    k = meta.components(channel)
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     plain = ev._plain()
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
-    per_tile, maps = map_graph(plain, plan, backend, resident, "vector", tag, map_components)  # k per task
+    per_tile, maps = map_graph(plain, plan, backend, resident, channel, tag, map_components)  # k per task
     fin = [delayed(merge_components, pure=True, nout=2)(plan, t, n, width, backend, k, *per_tile[t],
-                                                        dask_key_name=f"hevr-packed-tile-vector-{tag}-{t}")
+                                                        dask_key_name=f"hevr-packed-tile-{channel}-{tag}-{t}")
            for t in range(plan.n_tiles)]
     results = run_tasks(fin + maps, client=cl, progress=progress, desc="render")
     counts = {"map": sum(m["map"] for m in results[len(fin):]), "pairs": sum(m["pairs"] for m in results[len(fin):])}
@@ -266,20 +270,20 @@ def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouri
         for name, v in r[1].items():
             counts[name] = counts.get(name, 0) + v
     per_comp = [[r[0][c] for r in results[:len(fin)]] for c in range(k)]
-    stats = {"layout": "packed", "channel": "vector", "components": k, "backend": backend, "map_tasks": len(maps),
+    stats = {"layout": "packed", "channel": channel, "components": k, "backend": backend, "map_tasks": len(maps),
              "finish_tasks": len(fin), "resident": resident is not None, "ops": counts,
              "rays": int(np.prod(plan.geometry.size)), "ciphertexts": int(sum(len(t) for c in per_comp for t in c)),
              "seconds": time.perf_counter() - t0}
-    log.info("render packed %s/%s %dx%d: %s", colouring.mode if colouring is not None else "vector", sampling,
+    log.info("render packed %s/%s %dx%d: %s", colouring.mode if colouring is not None else channel, sampling,
              camera.width, camera.height, stats)
-    comps = [PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=meta.vector.exponent,
+    comps = [PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=info.exponent,
                          offset=0, span=vhi - vlo, ciphertexts=tiles_c, store_id=meta.store_id, stats=stats,
                          meta=meta, level=0) for tiles_c in per_comp]
-    return PackedColourImage(components=comps, colouring=colouring, stats=stats)
+    return PackedColourImage(components=comps, colouring=colouring, stats=stats, channel=channel)
 
 
 def colour_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool,
-                     seed: bytes) -> tuple[int, dict]:
+                     seed: bytes, channel: str = "vector") -> tuple[int, dict]:
     """The server's half of a colour frame's tags' round for ``seed``: the vector tags' k components
     through the frame's plan in one map per column (:func:`map_components` on ``vector_tag``), per
     tile and component one aggregate with component j's coefficients from j·``plan.n_values``
@@ -288,13 +292,13 @@ def colour_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progre
     meta = ev.meta
     if not meta.tags:
         raise ParameterError(f"verify: expected a verifiable store, got the packed store {meta.store_id} without tags")
-    k = meta.components("vector")
+    k = meta.components(channel)
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
-    per_tile, maps = map_graph(ev._plain(), plan, backend, None, tag_channel("vector"), tag, map_components)
+    per_tile, maps = map_graph(ev._plain(), plan, backend, None, tag_channel(channel), tag, map_components)
     tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan, t, n, width, backend, seed, c * plan.n_values,
                                                         *[p[c] for p in per_tile[t]],
-                                                        dask_key_name=f"hevr-packed-verify-vector-{tag}-{t}-{c}")
+                                                        dask_key_name=f"hevr-packed-verify-{channel}-{tag}-{t}-{c}")
              for t in range(plan.n_tiles) if per_tile[t] for c in range(k)]
     results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
     n2 = gmpy2.mpz(n) * n
@@ -310,7 +314,7 @@ def colour_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progre
 
 def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, nodes: Any, sampling: Any, *,
                                  verify: Any, tile: Any, client: Any, progress: bool, backend: Any,
-                                 weight_bits: Any) -> PackedColourImage:
+                                 weight_bits: Any, channel: str = "vector") -> PackedColourImage:
     """A transfer-function or emphasis frame of a packed store with the vector channel, after the
     request checks every packed frame has (:func:`hevr.rendering.packed.request.render_packed_request`):
     the colouring checked here (:class:`hevr.colour.Colouring`), ``verify`` resolved as for an X-ray
@@ -319,16 +323,17 @@ def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, 
     verified = resolve_verify(verify, ev, "client", level=getattr(ev, "level", 0), compute=True, stream=False)
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the k components come from there
         return ev.render_packed_request(camera, sampling, tile=tile, weight_bits=weight_bits, backend=backend,
-                                        client=client, verify=verified, colouring=colouring)
+                                        client=client, verify=verified, colouring=colouring, channel=channel)
     image = render_packed_colour(ev, camera, sampling, colouring, tile=tile, client=client, progress=progress,
-                                 backend=backend, weight_bits=weight_bits)
+                                 backend=backend, weight_bits=weight_bits, channel=channel)
     if verified:  # the second round, as for an X-ray: the values are fixed here before the seed is drawn
         t0 = time.perf_counter()
         seed = secrets.token_bytes(32)
-        A, ops = colour_aggregate(ev, image.plan, image.stats["backend"], active_client(client), progress, seed)
+        A, ops = colour_aggregate(ev, image.plan, image.stats["backend"], active_client(client), progress, seed,
+                                  channel)
         level = int(getattr(ev, "level", 0) or 0)
         image.verification = PackedVerification(aggregate=A, seed=seed, meta=ev.base if level else ev.meta,
-                                                level=level, channel="vector", components=len(image.components),
+                                                level=level, channel=channel, components=len(image.components),
                                                 ops=ops, server_s=time.perf_counter() - t0, drawn_here=True)
         image.stats["verify"] = {"server_s": image.verification.server_s, "ops": ops}
     return image

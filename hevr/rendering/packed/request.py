@@ -46,8 +46,10 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
         raise ParameterError(f"step: expected 1.0 on a packed store (one sample per slice of the view's principal "
                              f"axis), got {step!r}")
     ev, camera = at_level(ev, camera, level)  # a level the owner encrypted packed (hevr.store.packed_levels)
-    if gradient:
-        raise ParameterError("gradient: expected False on a packed store (no gradient channel)")
+    if gradient and (mode == "xray" or ev.meta.gradient is None):
+        what = "an X-ray" if mode == "xray" else "a packed store without the gradient channel"
+        raise ParameterError(f"gradient: expected False on {what} (the gradient channel modulates emphasis and "
+                             "transfer functions; encrypt with gradient=True for it)")
     if finish != "client":
         raise ParameterError(f"finish: expected 'client' on a packed store (the key holder decodes the slots and "
                              f"warps the image), got {finish!r}")
@@ -60,7 +62,8 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
     check_render_size(camera, ev.shape, ev.spacing, 1.0)  # the size limits, before anything per pixel
     if mode != "xray":  # transfer function / emphasis: the vector channel's sums, coloured by the key holder
         return render_packed_colour_request(ev, camera, mode, density, nodes, sampling, verify=verify, tile=tile,
-                                            client=client, progress=progress, backend=backend, weight_bits=weight_bits)
+                                            client=client, progress=progress, backend=backend, weight_bits=weight_bits,
+                                            channel="gradient" if gradient else "vector")
     verified = resolve_verify(verify, ev, "client", level=ev.level, compute=True, stream=False)
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the request goes there (remote/packed.py)
         return ev.render_packed_request(camera, sampling, tile=tile, weight_bits=weight_bits, backend=backend,

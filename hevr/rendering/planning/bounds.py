@@ -55,9 +55,11 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
     pixel's slab samples inside the volume); ``step`` is then ignored (it is the plane's ``slab_step``).
     """
     if getattr(getattr(ev, "meta", None), "packing", None) is not None:  # a packed store: slice-sampled frames
-        if gradient or (mode != "xray" and (ev.meta.vector is None or isinstance(camera, Plane))):
+        has = ev.meta.gradient if gradient else ev.meta.vector
+        if (gradient and mode == "xray") or (mode != "xray" and (has is None or isinstance(camera, Plane))):
             raise ParameterError(f"mode: expected an X-ray for a packed store (or 'emphasize' / 'tf' of a frame of one "
-                                 f"with the vector channel), got mode={mode!r}, gradient={gradient!r}")
+                                 f"with the vector channel, or gradient=True with the gradient channel), got "
+                                 f"mode={mode!r}, gradient={gradient!r}")
         if isinstance(camera, Plane):  # a packed store's slice (hevr.rendering.packed.planes)
             if level:
                 raise ParameterError(f"level: expected None for a hevr.Plane (render_slice has no level), got {level!r}")

@@ -199,18 +199,19 @@ def render_plain(
         if axis is None:
             raise ParameterError(f"slices: expected True, False or a packing axis (0, 1, 2, 'z', 'y', 'x'), "
                                  f"got {slices!r}")
-        if gradient or type(step) not in (int, float) or float(step) != 1.0:
+        if (gradient and mode == "xray") or type(step) not in (int, float) or float(step) != 1.0:
             raise ParameterError(f"slices: expected mode='xray', step=1 and gradient=False with slice "
-                                 f"sampling ('emphasize' and 'tf' too: a packed store's vector channel), got "
-                                 f"mode={mode!r}, step={step!r}, gradient={gradient!r}")
+                                 f"sampling ('emphasize' and 'tf' too, with or without gradient: a packed store's "
+                                 f"vector and gradient channels), got mode={mode!r}, step={step!r}, "
+                                 f"gradient={gradient!r}")
         if mode != "xray":  # the per-voxel field e(d)·M / N (as below), slice-sampled: hevr.rendering.packed.colour
             if check_level(level):
                 raise ParameterError(f"level: expected 0 for mode={mode!r} with slice sampling (a packed store's "
                                      f"levels hold the scalar channel only), got {level!r}")
             arr, sp = _check_volume(vol, spacing)
             dims = DEFAULT_VECTOR_DIMS if vector_dims is None else int(check_vector_dims(vector_dims))
-            spec = make_spec(mode, sampling, 1.0, density, nodes, dims)
-            field, channels = _make_field(arr, spec, value_range, dims)
+            spec = make_spec(mode, sampling, 1.0, density, nodes, dims, gradient=gradient, has_gradient=True)
+            field, channels = _make_field(arr, spec, value_range, dims, check_spacing(sp))
             values = field(np.arange(arr.size)).reshape(arr.shape + (channels,)) / spec.n_nodes
             out = render_plain_field_slices(values, camera, spec.sampling, sp, axis=axis)
             return out.reshape(spec.image_shape(camera.height, camera.width))
