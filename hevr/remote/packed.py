@@ -70,28 +70,31 @@ def _tiles(server: Any, where: str, req: RenderRequest, counts: list[int], width
 
 
 def _verification(server: Any, where: str, req: RenderRequest, meta: Any, channel: str, k: int,
-                  n: int) -> PackedVerification:
+                  n: int, level: int = 0) -> PackedVerification:
     """The second round, after the values are in this process: a fresh seed, the server's one
     aggregate; the record's every other field is this process's own."""
     t1 = time.perf_counter()
     seed = secrets.token_bytes(32)
     raw, _ = server.request("POST", f"{where}/verify", body=VerifyRequest(render=req, seed=seed).to_dict(),
                             limit=MAX_BODY)
-    return PackedVerification(aggregate=_aggregate(raw, n, server.url), seed=seed, meta=meta, channel=channel,
-                              components=k, server_s=time.perf_counter() - t1, drawn_here=True)
+    return PackedVerification(aggregate=_aggregate(raw, n, server.url), seed=seed, meta=meta, level=level,
+                              channel=channel, components=k, server_s=time.perf_counter() - t1, drawn_here=True)
 
 
 def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weight_bits: int | None,
                          backend: str | None, client: Any, verify: bool, colouring: Any = None,
-                         channel: str = "vector") -> PackedImage | PackedColourImage:
+                         channel: str = "vector", asked: Any = None) -> PackedImage | PackedColourImage:
     """A packed frame of ``camera`` rendered by the server of ``rv`` (request checked by the caller):
     an X-ray, or with a ``colouring`` (kept here, never sent) the k components of ``channel``
-    (vector, or gradient), answered component-major (component j's tiles are frames j·T … j·T + T − 1)."""
+    (vector, or gradient), answered component-major (component j's tiles are frames j·T … j·T + T − 1).
+    ``rv`` may be a pyramid level's view (``camera`` in its frame); ``asked``: the camera as the
+    caller gave it, in level 0's frame, which the request names with the level."""
     if client is not None:
         raise ParameterError(f"client: expected None for a remote volume (the server renders on its own cluster), "
                              f"got {type(client).__name__}")
     t0 = time.perf_counter()
-    meta = rv.meta
+    meta = rv.meta  # the level's (its packing, exponent and offset); base: level 0's, with the owner's MAC
+    base = rv.base if rv.level else meta
     plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)
     channel = "scalar" if colouring is None else channel
     k = meta.components(channel)
@@ -99,8 +102,9 @@ def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weig
         vlo, vhi = mantissa_range((0.0, 1.0), getattr(meta, channel).exponent)
         plan.check_slots(vhi - vlo)  # as the server does: no component's sum may carry
     counts = [(j1 - j0) * (b1 - b0) for j0, j1, b0, b1 in map(plan.tile_bounds, range(plan.n_tiles))] * k
-    req = RenderRequest(view=camera, channel=channel, sampling=sampling, step=1.0, level=0, tile=plan.tile,
-                        backend=backend, weight_bits=weight_bits)
+    level = int(rv.level or 0)
+    req = RenderRequest(view=camera if asked is None else asked, channel=channel, sampling=sampling, step=1.0,
+                        level=level, tile=plan.tile, backend=backend, weight_bits=weight_bits)
     server, where = rv.server, f"/v1/stores/{rv.store_id}"
     n = int(rv.public_key.n)
     tiles, stats = _tiles(server, where, req, counts, meta.ciphertext_bytes, n)
@@ -110,7 +114,7 @@ def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weig
         lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
         img: Any = PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n,
                                exponent=meta.scalar.exponent, offset=meta.packing.offset, span=hi - lo,
-                               ciphertexts=tiles, store_id=meta.store_id, stats=stats, meta=meta, level=0)
+                               ciphertexts=tiles, store_id=meta.store_id, stats=stats, meta=base, level=level)
     else:
         comps = [PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n,
                              exponent=getattr(meta, channel).exponent, offset=0, span=vhi - vlo,
@@ -118,7 +122,7 @@ def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weig
                              level=0) for j in range(k)]
         img = PackedColourImage(components=comps, colouring=colouring, stats=stats, channel=channel)
     if verify:  # the values are fixed in this process: only now the seed
-        img.verification = _verification(server, where, req, meta, channel, k, n)
+        img.verification = _verification(server, where, req, base, channel, k, n, level)
         img.stats["verify_s"] = img.verification.server_s
         img.stats["seconds"] = time.perf_counter() - t0
     log.info("remote packed render %dx%d: %s", camera.width, camera.height, img.stats)

@@ -120,13 +120,14 @@ def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, b
         return slice_aggregate(ev, plan, name, client, False, seed)[0]
     if ev.meta.packing is not None:
         view = _packed_view(ev, req)
-        if req.step != 1.0 or req.level:
-            raise ParameterError("step/level: expected 1.0 and 0 on a packed store")
-        plan = SlicePlan.of_store(ev.meta, view, req.sampling, req.tile, req.weight_bits)
+        if req.step != 1.0 or (req.level and req.channel != "scalar"):
+            raise ParameterError("step/level: expected 1.0 on a packed store (and level 0 for its vector channels)")
+        ev_l, view = at_level(ev, view, req.level or None)  # a level the owner encrypted: its own plan and tags
+        plan = SlicePlan.of_store(ev_l.meta, view, req.sampling, req.tile, req.weight_bits)
         name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
         if req.channel != "scalar":
-            return colour_aggregate(ev, plan, name, client, False, seed, req.channel)[0]
-        return packed_aggregate_for(ev, plan, name, client, False, seed)[0]
+            return colour_aggregate(ev_l, plan, name, client, False, seed, req.channel)[0]
+        return packed_aggregate_for(ev_l, plan, name, client, False, seed)[0]
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)
     spec, digits, _, _ = check_request(ev, req.view, mode, req.sampling, _step(req), density, None, req.digits, 4, 4,

@@ -23,7 +23,7 @@ def packed_served(tmp_path_factory, keypair256):
     d = tmp_path_factory.mktemp("packed-served")
     vol = np.random.default_rng(3).integers(0, 256, (13, 9, 11)).astype(np.uint8)
     ev = hevr.encrypt_volume(vol, str(d / "p.zarr"), priv, brick=4, spacing=(1.0, 0.8, 1.3), layout="packed",
-                             progress=False)
+                             levels=1, progress=False)
     assert ev.meta.tags
     with hevr_serve(str(d / "p.zarr"), "--workers", "1") as (url, proc, lines):
         yield types.SimpleNamespace(url=url, ev=ev, priv=priv, vol=vol, lines=lines)
@@ -202,3 +202,16 @@ def test_slices_through_the_server(packed_served, rv, sampling):
             dataclasses.replace(remote, verification=bad).decrypt(s.priv)
     with pytest.raises(hevr.ParameterError, match="plane: expected a plane perpendicular"):
         hevr.render_slice(rv, hevr.Plane.oblique(rv, normal=(1, 0, 1)), progress=False)
+
+
+def test_a_pyramid_level_through_the_server(packed_served, rv):
+    """A level the owner encrypted, rendered on hevr serve: the request names level 0's camera and the
+    level, the key holder plans the level itself; the in-process level frame exactly, verified."""
+    s = packed_served
+    cam = _cam(rv, 60, 10)
+    remote = hevr.render(rv, cam, level=1, sampling="trilinear", progress=False)
+    local = hevr.render(s.ev, _cam(s.ev, 60, 10), level=1, sampling="trilinear", verify=False, progress=False)
+    assert remote.verified and remote.verification.level == 1
+    assert remote.plan.geometry.shape == local.plan.geometry.shape
+    assert all(np.array_equal(a, b) for a, b in zip(remote.ciphertexts, local.ciphertexts))
+    np.testing.assert_array_equal(remote.decrypt(s.priv, require_verified=True), local.decrypt(s.priv))

@@ -13,6 +13,7 @@ import pytest
 import hevr
 from hevr.errors import IntegrityError, ParameterError, VerificationError
 from hevr.rendering.packed import PackedImage
+from hevr.rendering.packed import SlicePlan
 from hevr.rendering.packed.verified import PackedVerification
 
 SHAPE = (13, 9, 11)
@@ -176,3 +177,29 @@ def test_render_frame_on_a_packed_store(store, keypair256, volume):
     np.testing.assert_array_equal(frame.recolour("xray"), want)
     with pytest.raises(ParameterError, match="finish"):
         hevr.render_frame(store, c, priv, finish="client")
+
+
+def test_weight_bits_16_verifies(tmp_path, keypair256):
+    """The most in-slice weight bits a request may ask (16): a sample on a voxel weighs 2^16, and the
+    key holder's check takes it (its coefficients stay exact)."""
+    priv = keypair256[1]
+    vol = np.random.default_rng(3).integers(0, 256, (8, 2, 256)).astype(np.uint8)  # K sized for x: 256
+    ev = hevr.encrypt_volume(vol, tmp_path / "w.zarr", priv, brick=4, layout="packed", progress=False)
+    c = hevr.Camera.orbit(ev, view="anterior", width=32, height=8, parallel=True)  # 2 slices along y
+    img = render(ev, c, weight_bits=16)
+    assert img.plan.weight_bits == 16 and img.verified
+    arr = img.decrypt(priv, require_verified=True)
+    np.testing.assert_array_equal(arr, render(ev, c, weight_bits=16, verify=False).decrypt(priv))
+
+
+def test_a_plan_too_big_is_refused_before_it_is_built():
+    """Metadata that claims millions of thin slices (anyone can write a checksum) is refused by the
+    plan's own size check, before any table per slice is allocated."""
+    from hevr.errors import RenderPlanError
+    from hevr.store.packing import PackingInfo
+
+    shape, spacing = (12, 2_000_000, 10), (1.0, 0.9 * 9 / 2_000_000, 1.2)
+    c = hevr.Camera.orbit(shape, view="anterior", azimuth=20, width=13, height=11, parallel=True, spacing=spacing)
+    info = PackingInfo(axis=0, slots=2, slot_bits=40, weight_bits=10, offset=0)
+    with pytest.raises(RenderPlanError, match="expected a packed frame whose plan fits"):
+        SlicePlan.build(c, shape, spacing, (4, 4, 4), info, "trilinear")

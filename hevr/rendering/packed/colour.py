@@ -175,7 +175,7 @@ class PackedColourImage:
                          "a store encrypted with verifiable=False, or a render with verify=False")
         if self.verification is not None:  # the metadata first: it says what every number means
             self.verification.check_metadata(key, self.plan, self.fingerprint)
-        tiles = [c.decrypted_tiles(key, backend) for c in self.components]
+        tiles = [c._decrypted_tiles(key, backend) for c in self.components]
         sums = np.stack([decode(self.plan, t, c.span) for t, c in zip(tiles, self.components)])
         if self.verification is not None:
             t0 = time.perf_counter()
@@ -192,11 +192,13 @@ class PackedColourImage:
         return np.stack([geo.warp(c._values(s), coords).reshape(self.shape) for c, s in zip(self.components, sums)],
                         axis=-1)
 
-    def decrypt_frame(self, private_key: Any, backend: str | None = None) -> Frame:
-        """A :class:`hevr.Frame` of the warped means, to colour (and re-colour) on this machine;
-        its ``n_samples`` are the intermediate rays' sample counts warped to the pixels, rounded."""
+    def decrypt_frame(self, private_key: Any, backend: str | None = None, *,
+                      require_verified: bool | str = False) -> Frame:
+        """A :class:`hevr.Frame` of the warped means, to colour (and re-colour) on this machine, checked
+        as :meth:`decrypt` checks; its ``n_samples`` are the intermediate rays' sample counts warped to
+        the pixels, rounded."""
         t0 = time.perf_counter()
-        means = self.decrypt_means(private_key, backend)
+        means = self.decrypt_means(private_key, backend, require_verified=require_verified)
         plan = self.plan
         geo = plan.geometry
         counts = geo.warp(geo.sample_counts(plan.sampling).astype(np.float64), geo.pixel_coords(self.camera))

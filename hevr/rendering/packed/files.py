@@ -320,6 +320,8 @@ def _plan(h: dict, f: _Fields, fm: VolumeMetadata) -> tuple[SlicePlan, int, Came
         plan.check_slots(hi - lo)
     except _BAD as exc:
         raise f.fail("camera", f"a view the store's packing serves ({exc})", "another") from None
+    except MemoryError:  # a backstop: the plan's own size check comes first (check_plan_size)
+        raise f.fail("metadata", "a store whose frame plan fits in memory", "one that does not") from None
     return plan, hi - lo, cam
 
 

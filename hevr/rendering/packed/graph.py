@@ -56,7 +56,8 @@ def column_pairs(plan: SlicePlan, indices: list, sizes: list[int]) -> tuple[np.n
 
 
 def map_column(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles: list[int],
-               residents: list | None = None, channel: str = "scalar") -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
+               residents: list | None = None,
+               channel: str = "scalar") -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
     """The partial accumulators of a column of bricks along the view's principal axis, cut by the
     tiles ``tiles``: a list of (keys, records) in that order, and the operations counted. One
     product plan for the column: an accumulator's pairs from all its slices in one
@@ -210,4 +211,5 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
     log.info("render packed/%s %dx%d: %s", sampling, camera.width, camera.height, stats)
     return PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
                        offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles_out, store_id=meta.store_id,
-                       stats=stats, meta=ev.base if getattr(ev, "level", 0) else meta, level=int(getattr(ev, "level", 0)))
+                       stats=stats, meta=ev.base if getattr(ev, "level", 0) else meta,
+                       level=int(getattr(ev, "level", 0)))

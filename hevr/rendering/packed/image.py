@@ -115,7 +115,7 @@ class PackedImage:
         self._provenance(require_verified, key)
         if self.verification is not None:  # the metadata first: it says what every number means
             self.verification.check_metadata(key, self.plan, self.fingerprint)
-        tiles = self.decrypted_tiles(key, backend)
+        tiles = self._decrypted_tiles(key, backend)
         sums = decode(self.plan, tiles, self.span)
         if self.verification is not None:
             t0 = time.perf_counter()
@@ -123,9 +123,10 @@ class PackedImage:
             self.stats["check_s"] = time.perf_counter() - t0  # the key holder's check, measured
         return sums
 
-    def decrypted_tiles(self, key: PrivateKey, backend: str | None = None) -> list:
+    def _decrypted_tiles(self, key: PrivateKey, backend: str | None = None) -> list:
         """Every tile's plaintexts (residues mod n), after each record's shape and range (0, n²) are
-        checked: what :func:`decode` and the tags' check take (the key already checked: :meth:`_key`)."""
+        checked: what :func:`decode` and the tags' check take (the key already checked: :meth:`_key`).
+        Not checked against the tags here: callers run the verification before using them."""
         be = get_backend(backend)
         n2 = int(key.public_key.nsquare)
         width = key.public_key.ciphertext_bytes

@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from ..._limits import render_limits
 from ..._validate import check_choice, check_int
 from ...errors import RenderPlanError
 from ...store.packing import MAX_WEIGHT_BITS, PackingInfo, mantissa_range
@@ -99,6 +100,7 @@ class SlicePlan:
         tile = check_int("tile", tile, 1, 4096)
         wb = packing.weight_bits if weight_bits is None else check_int("weight_bits", weight_bits, 0, MAX_WEIGHT_BITS)
         geo = ShearGeometry.of(camera, shape, spacing, axis=packing.axis)
+        check_plan_size(geo)  # before any array per slice and row: metadata may come from anyone
         a_steps, a_frac = _a_side(geo, sampling, wb)
         S = packing.slots
         used = a_steps[a_steps > _OFF]
@@ -367,6 +369,28 @@ class SlicePlan:
 
 
 _OFF = -(1 << 40)  # the offset of a neighbour not used
+MAX_PLAN_CELLS = 1 << 24  # slices × (rays along a + rows): the plan's tables (~80 bytes a cell, ~1.3 GB at most)
+
+
+def check_plan_size(geo: ShearGeometry) -> None:
+    """Refuse (:class:`hevr.RenderPlanError`) a plan whose tables would be too big: slices × (rays
+    along the packing axis + rows) above :data:`MAX_PLAN_CELLS` (or the render sample limit), or an
+    intermediate image above the pixel limit — what a store's metadata of millions of thin slices
+    would ask, before anything is allocated per slice.
+
+    >>> from hevr.rendering.geometry.camera import Camera
+    >>> g = ShearGeometry.of(Camera.orbit((8, 8, 8), azimuth=90, width=4, height=4, parallel=True),
+    ...                      (8, 8, 8), (1.0, 1.0, 1.0), axis=0)
+    >>> check_plan_size(g) is None
+    True
+    """
+    max_pixels, max_samples = render_limits()
+    n_i, n_j = geo.size
+    cells = int(geo.slices) * (int(n_i) + int(n_j))
+    if cells > min(MAX_PLAN_CELLS, max_samples) or int(n_i) * int(n_j) > max_pixels:
+        raise RenderPlanError(f"camera: expected a packed frame whose plan fits (slices × (rays + rows) at most "
+                              f"{min(MAX_PLAN_CELLS, max_samples)}, rays × rows at most {max_pixels}), got "
+                              f"{geo.slices} slices, {n_i} rays and {n_j} rows for the store's shape {geo.shape}")
 
 
 def _a_side(geo: ShearGeometry, sampling: str, weight_bits: int) -> tuple[np.ndarray, np.ndarray]:

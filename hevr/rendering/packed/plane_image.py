@@ -56,7 +56,8 @@ _CORRUPT = "the slice was corrupted or tampered with; no image is returned"
 
 
 def map_bricks(ev: Any, plan: Any, indices: list, backend: str, tiles: list[int],
-               residents: list | None = None, channel: str = "scalar") -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
+               residents: list | None = None,
+               channel: str = "scalar") -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
     """The partial output values of bricks ``indices`` cut by the tiles ``tiles`` ((values, records)
     each, in that order), and the operations counted (``channel="scalar_tag"``: the tags')."""
     be = get_backend(backend)

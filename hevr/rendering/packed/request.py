@@ -45,6 +45,7 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
     if type(step) not in (int, float) or float(step) != 1.0:
         raise ParameterError(f"step: expected 1.0 on a packed store (one sample per slice of the view's principal "
                              f"axis), got {step!r}")
+    asked = camera  # level 0's frame: what a request to hevr serve names (with the level)
     ev, camera = at_level(ev, camera, level)  # a level the owner encrypted packed (hevr.store.packed_levels)
     if gradient and (mode == "xray" or ev.meta.gradient is None):
         what = "an X-ray" if mode == "xray" else "a packed store without the gradient channel"
@@ -67,7 +68,7 @@ def render_packed_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: 
     verified = resolve_verify(verify, ev, "client", level=ev.level, compute=True, stream=False)
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the request goes there (remote/packed.py)
         return ev.render_packed_request(camera, sampling, tile=tile, weight_bits=weight_bits, backend=backend,
-                                        client=client, verify=verified)
+                                        client=client, verify=verified, asked=asked)
     image = render_packed(ev, camera, sampling, tile=tile, client=client, progress=progress, backend=backend,
                           weight_bits=weight_bits)
     if verified:  # the second round: the values are fixed in this process before the seed is drawn

@@ -124,7 +124,7 @@ def class_beta_total(beta_limbs: np.ndarray, packs: np.ndarray, classes: np.ndar
                      weights: np.ndarray, slot_bits: int) -> int:
     """Σ_pairs 2^(K·c)·ρ·w·β_pack exactly, in numpy (``packs`` index the rows of ``beta_limbs``):
     per (pack, class) the coefficient Σ ρ·w in 16-bit pieces of ρ (float64 sums stay below 2^53:
-    pieces below 2^16, weights below 2^16, fewer than 2^21 pairs per pack and class), then per
+    pieces below 2^16, weights at most 2^16, fewer than 2^21 pairs per pack and class), then per
     class one matrix product of the packs' 16-bit β pieces with the coefficients cut small enough
     that every dot product stays an exact float64 integer (below 2^53).
 
@@ -137,8 +137,8 @@ def class_beta_total(beta_limbs: np.ndarray, packs: np.ndarray, classes: np.ndar
     w = np.asarray(weights, np.int64)
     if not w.size:
         return 0
-    if w.min() < 0 or w.max() >= 1 << 16:
-        raise ParameterError("weights: expected integers in [0, 2^16), got others")
+    if w.min() < 0 or w.max() > 1 << 16:  # 2^16: a whole sample at weight_bits 16 (ρ pieces·w < 2^32)
+        raise ParameterError("weights: expected integers in [0, 2^16], got others")
     U = beta_limbs.shape[0]
     pair_key = np.asarray(classes, np.int64) * U + np.asarray(packs, np.int64)
     uk, inv = np.unique(pair_key, return_inverse=True)  # (class, pack), class-major
@@ -201,7 +201,8 @@ class PackedVerification:
         m = self.meta
         if m is None or not check_metadata_mac(private_key, authenticated_fields(m.to_dict()), m.auth):
             raise VerificationError(
-                "store metadata: expected the owner's MAC over the shape, spacing, brick, layout, value range and store "
+                "store metadata: expected the owner's MAC over the shape, spacing, brick, layout, value range and "
+                "store "
                 f"id, got {'none' if m is None or not m.auth else 'a MAC that does not match'}: the store's public "
                 "metadata was altered (or is not this key's); no image is returned")
         lm = self.level_meta
