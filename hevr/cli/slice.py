@@ -32,7 +32,7 @@ from .commands import compute_context, key_holder, open_for_mode, resolve_mode, 
 from .finish import report_finish
 from .render_options import format_tf
 from .scan import resolve_tf
-from .storage import open_store, output_file, save_decrypted, save_frame, size_of, storage_options
+from .storage import output_file, save_decrypted, save_frame, size_of, storage_options
 from .util import (
     Timer,
     UsageError,
@@ -84,11 +84,10 @@ def cmd_slice(args: Any) -> int:
         raise UsageError(f"--slab-step: only applies to a thick slab (--slab N > 1), got --slab {args.slab}")
     so = storage_options(args)
     out = output_file(args.out, force=args.force, so=so)
-    if not getattr(args, "server", None):  # a packed store: rendered, then decrypted here (_packed_slice)
-        packed = open_store(args.store, "STORE", so)
-        if packed.packing is not None:
-            return _packed_slice(args, packed, mode, out)
-    ev = open_for_mode(args.store, mode, "slice", so, args)
+    # a packed store (here or on hevr serve): rendered, then decrypted in this process (_packed_slice)
+    ev = open_for_mode(args.store, mode, "slice", so, args, packed=True)
+    if ev.packing is not None:
+        return _packed_slice(args, ev, mode, out)
     nodes = resolve_tf(nodes, ev.value_range)  # a --tf preset: in the store's value range
     verify = key_holder(args, ev)
     plane, where = _plane(args, ev)
