@@ -58,7 +58,8 @@ def check_packed_render(args: Any, mode: str) -> None:
                                                       "is a perspective camera's)"),
         (args.keep_sums is not None, "--keep-sums", "a packed frame's ray sums are not saved apart from it"),
         (args.no_pack, "--no-pack", "a packed frame's values are packed by the store's slots"),
-        (args.gradient, "--gradient", "a packed store has no gradient channel"),
+        (args.gradient, "--gradient", "'hevr render' writes X-rays of packed stores; gradient-modulated colour "
+                                      "frames render in Python: hevr.render(ev, cam, mode='tf', gradient=True, ...)"),
     ]
     for bad, opt, why in refused:
         if bad:
