@@ -156,7 +156,8 @@ def encrypt_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--layout", choices=("voxel", "packed"), default="voxel",
                    help="'voxel': one ciphertext per voxel (default; every render); 'packed': S voxels per "
                         "ciphertext along --pack-axis (about S times smaller and faster to encrypt; X-ray frames of "
-                        "parallel cameras around that axis, 'hevr render STORE'; scalar channel only)")
+                        "parallel cameras around that axis, 'hevr render STORE'; with --vector-dims and --gradient "
+                        "their channels packed alike, for colour frames in Python)")
     p.add_argument("--pack-axis", choices=("z", "y", "x"), default=None,
                    help="the packing axis of --layout packed (default z: the patient's superior axis in RAS+)")
     p.add_argument("--levels", type=levels_type, default=0, metavar="L",
