@@ -28,6 +28,7 @@ from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..remote.client import connect
 from ..rendering.encrypted import render
 from ..rendering.geometry.camera import Camera
+from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.image import PackedImage
 from ..rendering.pipeline.sums import MAGIC as SUMS_MAGIC
 from ..rendering.pipeline.sums import load_sums, recolour
@@ -38,7 +39,7 @@ from ..store.writer import encrypt_volume
 from . import storage as st
 from .cluster import dask_client, describe_client
 from .describe import channels
-from .finish import report_finish
+from .finish import colour_options, report_finish
 from .keys import key_label, read_key
 from .verifying import key_holder, verified_line, warn_unverified  # hevr.cli.slice takes them from here too
 from .packed import check_packed_decrypt, check_packed_render, packed_done, packed_encrypt_lines, packed_start
@@ -244,15 +245,19 @@ def cmd_render(args: Any) -> int:
 def _render_packed(args: Any, ev: Any, mode: str, out: Any, so: dict | None) -> int:
     """``hevr render`` on a packed store (:mod:`hevr.cli.packed`): a parallel X-ray, its file stamped
     with ``--key``."""
-    check_packed_render(args, mode)
+    check_packed_render(args, mode, ev)
     verify = key_holder(args, ev)
     cam = packed_start(args, ev)  # the camera, its checks and the store / render lines
+    colour = {} if mode == "xray" else {"mode": mode, "density": args.density, "gradient": bool(args.gradient),
+                                        "nodes": resolve_tf((args.tf if args.tf is not None else list(PAPER_TF1))
+                                                            if mode == "tf" else None, ev.value_range)}
     with compute_context(args, ev):
         with Timer() as t:
             img = render(ev, cam, sampling=args.sampling, progress=show_progress(args), level=args.level or None,
-                         verify=verify)
+                         verify=verify, **colour)
     st.save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
-    packed_done(img, out, human_bytes(st.size_of(out, so)), t.seconds, lambda: warn_unverified(args, ev, img))
+    opts = colour_options(mode, args.density, colour.get("nodes")) if colour else ""
+    packed_done(img, out, human_bytes(st.size_of(out, so)), t.seconds, lambda: warn_unverified(args, ev, img), opts)
     return 0
 
 
@@ -350,8 +355,8 @@ def cmd_decrypt(args: Any) -> int:
             raise UsageError(f"--npy: expected another file than --out, got {args.npy} for both")
     key = read_key(args.key, private=True)
     img = load_image(frame, storage_options=so)
-    packed = isinstance(img, PackedImage)
-    colouring = check_packed_decrypt(args) if packed else decrypt_colouring(args, img)
+    packed = isinstance(img, (PackedImage, PackedColourImage))
+    colouring = check_packed_decrypt(args) if isinstance(img, PackedImage) else decrypt_colouring(args, img)
     need = args.require_verified
     with Timer() as t:
         decrypted = (img.decrypt_frame(key, require_verified=need) if colouring is not None else

@@ -25,6 +25,7 @@ from ..crypto.phe_keys import is_phe_dict
 from ..errors import MissingFileError, StoreError
 from ..image.files import load_image
 from ..image.header import MAGIC
+from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.image import PackedImage
 from ..rendering.pipeline.sums import MAGIC as SUMS_MAGIC
 from ..rendering.pipeline.sums import load_sums
@@ -157,7 +158,7 @@ def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> i
 
 def _info_image(path: Path | str, so: dict | None = None) -> int:
     img = load_image(path, storage_options=so)
-    if isinstance(img, PackedImage):  # a packed store's frame (hevr.rendering.packed.files)
+    if isinstance(img, (PackedImage, PackedColourImage)):  # a packed store's frame (hevr.rendering.packed.files)
         print_rows([("path", path), *packed_info_rows(img), ("on disk", human_bytes(st.size_of(path, so)))])
         return 0
     info = img.info or {}

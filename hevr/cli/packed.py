@@ -40,14 +40,15 @@ def default_packed_view(ev: Any) -> str:
     return "left" if int(ev.packing.axis) == 1 else "anterior"
 
 
-def check_packed_render(args: Any, mode: str) -> None:
+def check_packed_render(args: Any, mode: str, ev: Any = None) -> None:
     """Refuse (:class:`UsageError`, exit 2) an option of ``hevr render`` that a packed store cannot
-    serve, naming it; before the store is read further or a cluster starts."""
-    if mode != "xray":
+    serve, naming it; before the store is read further or a cluster starts. Emphasis and transfer
+    functions need the vector channel (``--gradient``: the gradient channel) in the store."""
+    has = (lambda ch: ev is not None and getattr(ev.meta, ch) is not None)
+    if mode != "xray" and not has("vector"):
         opt = f"--mode {mode}" if args.mode else "--tf" if args.tf is not None else "--density"
-        raise UsageError(f"{opt}: expected an X-ray: 'hevr render' writes X-ray frames of packed stores (the "
-                         "emphasis and transfer-function frames of a packed store with the vector channel render in "
-                         "Python, hevr.render(ev, cam, mode='tf', ...), and have no frame file yet); or "
+        raise UsageError(f"{opt}: expected an X-ray of this packed store, which has no vector channel (encrypt it "
+                         f"with --layout packed --vector-dims 4 for emphasis and transfer functions); or "
                          f"{_PER_VOXEL} with --vector-dims 4")
     refused = [
         (args.step is not None and args.step != 1.0, "--step", "a packed store samples once per slice of the "
@@ -58,8 +59,8 @@ def check_packed_render(args: Any, mode: str) -> None:
                                                       "is a perspective camera's)"),
         (args.keep_sums is not None, "--keep-sums", "a packed frame's ray sums are not saved apart from it"),
         (args.no_pack, "--no-pack", "a packed frame's values are packed by the store's slots"),
-        (args.gradient, "--gradient", "'hevr render' writes X-rays of packed stores; gradient-modulated colour "
-                                      "frames render in Python: hevr.render(ev, cam, mode='tf', gradient=True, ...)"),
+        (args.gradient and (mode == "xray" or not has("gradient")), "--gradient",
+         "gradient modulation needs --mode emphasize/tf and a store encrypted with --gradient"),
     ]
     for bad, opt, why in refused:
         if bad:
@@ -118,15 +119,19 @@ def packed_start(args: Any, ev: Any) -> Camera:
           f"{'zyx'[p.axis]} ({p.slots} voxels per ciphertext)")
     lvl = f", pyramid level {args.level} ({xyz(ev.meta.levels[args.level - 1].shape)})" if args.level else ""
     default = " (the packed store's default)" if view and not args.view else ""
-    print(f"render:  X-ray, {args.sampling} sampling{' (bilinear in each slice)' if args.sampling == 'trilinear' else ''}"
+    mode = args.mode or ("tf" if args.tf is not None else "emphasize" if args.density is not None else "xray")
+    what = {"xray": "X-ray", "emphasize": "emphasis", "tf": "transfer function"}[mode]
+    what += " (coloured at decryption)" if mode != "xray" else ""
+    print(f"render:  {what}{', gradient-modulated' if args.gradient else ''}, {args.sampling} sampling"
+          f"{' (bilinear in each slice)' if args.sampling == 'trilinear' else ''}"
           f", {wh(cam.width, cam.height)} px, {f'{view} view{default}, ' if view else ''}azimuth "
           f"{args.azimuth or 0.0:g}, elevation {args.elevation or 0.0:g}, parallel, one sample per slice{lvl}")
     return cam
 
 
-def packed_done(img: Any, out: Any, size: str, seconds: float, warn: Callable[[], None]) -> None:
+def packed_done(img: Any, out: Any, size: str, seconds: float, warn: Callable[[], None], opts: str = "") -> None:
     """``hevr render``'s closing lines about the packed frame file it wrote (``warn``: the
-    command's one line when the frame is not verified)."""
+    command's one line when the frame is not verified; ``opts``: a colour frame's decrypt options)."""
     line = packed_verified_line(img)
     if line:
         print(line + " (stamped with the key holder's MAC)")
@@ -134,11 +139,15 @@ def packed_done(img: Any, out: Any, size: str, seconds: float, warn: Callable[[]
     p = img.plan.packing
     print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} (up to {p.slots + img.plan.classes - 1} ray sums "
           f"of {p.slot_bits} bits each), {size}, rendered in {seconds:.2f} s")
-    print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {png_name(out)}")
+    if hasattr(img, "components"):
+        print(f"colour:  applied at decryption: {out} holds the {img.channel} channel's {len(img.components)} "
+              "components' ray sums, not the colouring (neither sent to the server nor written)")
+    print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {png_name(out)}{opts}")
 
 
 def check_packed_decrypt(args: Any) -> None:
-    """``hevr decrypt`` of a packed frame: no colouring option (an X-ray is decrypted as it is)."""
+    """``hevr decrypt`` of a packed X-ray: no colouring option (decrypted as it is; a packed colour
+    frame takes them as a per-voxel client-finished frame does: ``decrypt_colouring``)."""
     given = [o for o, v in (("--mode", args.mode), ("--density", args.density), ("--tf", args.tf),
                             ("--value-range", args.value_range)) if v is not None and (o != "--mode" or v != "xray")]
     if given:
@@ -152,7 +161,9 @@ def packed_verified_line(img: Any) -> str | None:
     if v is None:
         return None
     c = img.camera
-    return (f"verified: the frame is the packed X-ray of store {v.store_id} ({img.plan.sampling} sampling, level "
+    kind = ("X-ray" if getattr(v, "channel", "scalar") == "scalar" else
+            f"{v.channel} channel's {v.components} components")
+    return (f"verified: the frame is the packed {kind} of store {v.store_id} ({img.plan.sampling} sampling, level "
             f"{img.level}) and its view, parallel camera at ({', '.join(f'{x:g}' for x in c.position)}) looking at "
             f"({', '.join(f'{x:g}' for x in c.focal_point)}), {c.width}x{c.height} px; checked against the store's "
             "tags and its owner-authenticated metadata")
@@ -170,9 +181,12 @@ def packed_info_rows(img: Any) -> list[tuple[str, Any]]:
                     f"{img.stamp[2]!r} (checked with the key at decryption)" if img.stamp is not None else
                     "without the key holder's stamp (refused at decryption)"))
     return [
-        ("kind", "encrypted packed frame (.hevr: an X-ray of a packed store, finished on the client)"),
+        ("kind", "encrypted packed frame (.hevr: " + ("an X-ray of a packed store" if not hasattr(img, "components")
+                 else f"the {img.channel} channel's {len(img.components)} components of a packed store, coloured at "
+                 "decryption with --tf / --density") + ", finished on the client)"),
         ("shape", f"{wh(c.width, c.height)} px"),
-        ("rendered", f"X-ray, {plan.sampling} sampling ("
+        ("rendered", f"{'X-ray' if not hasattr(img, 'components') else img.channel + ' channel'}, "
+                     f"{plan.sampling} sampling ("
                      f"{'bilinear in each slice' if plan.sampling == 'trilinear' else 'one voxel per slice'}), "
                      f"{plan.weight_bits}-bit weights, level {img.level}"),
         ("camera", f"parallel, position {where}, scale {c.parallel_scale:g}"),

@@ -16,6 +16,7 @@ from typing import Any
 
 from .._files import read_regular
 from ..errors import MissingFileError, ParameterError
+from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.files import is_packed_frame, parse_packed
 from ..rendering.packed.image import PackedImage
 from ..rendering.packed.verified import PackedVerification
@@ -70,8 +71,14 @@ def _from_blob(blob: bytes, path: str, name: str | None = None) -> Any:
     if is_packed_frame(blob):
         fields = parse_packed(blob, path)
         v, stamp = fields.pop("verification"), fields.pop("stamp")
-        return PackedImage(**fields, verification=None if v is None else PackedVerification(**v, drawn_here=False),
-                           stamp=None if stamp is None else (*stamp, name))
+        channel, k = fields.pop("channel"), fields.pop("components")
+        v = None if v is None else PackedVerification(**v, drawn_here=False)
+        stamp = None if stamp is None else (*stamp, name)
+        if channel == "scalar":
+            return PackedImage(**fields, verification=v, stamp=stamp)
+        tiles, T = fields.pop("ciphertexts"), fields["plan"].n_tiles  # a colour frame: component-major
+        comps = [PackedImage(**fields, ciphertexts=tiles[j * T:(j + 1) * T]) for j in range(k)]
+        return PackedColourImage(components=comps, verification=v, stamp=stamp, channel=channel)
     h, body = parse_file(blob, path)
     width = h["width"]
     cts, pos = [], 0

@@ -109,6 +109,7 @@ def test_unverified_packed_frame(packed_store, tmp_path, capsys):
     (["--view-angle", "20"], "--view-angle"),
     (["--keep-sums", "{d}/s.hevrsums"], "--keep-sums"),
     (["--no-pack"], "--no-pack"),
+    (["--gradient"], "--gradient"),                      # an X-ray has no gradient modulation
     (["--view", "superior"], "--view"),                 # along the packing axis z
     (["--azimuth", "0"], "--azimuth"),                  # the plain orbit at 0 looks along z
     (["--view", "anterior", "--elevation", "60"], "--view/--elevation"),
@@ -159,3 +160,34 @@ def test_demo_packed_store(tmp_path, capsys):
                          "--workers", "1", "-q", "--no-packed")
     assert code == 0, err
     assert "packed" not in json.loads((bare / "summary.json").read_text()) and not (bare / "volume-packed.zarr").exists()
+
+
+def test_packed_colour_frames_on_the_command_line(tmp_path, capsys):
+    """hevr render --tf / --density [--gradient] on a packed store with the vector (and gradient)
+    channel: a verified, stamped colour frame file; hevr decrypt colours it (the colouring stays
+    here); hevr info describes it; decrypt without a colouring is refused naming the options."""
+    key, store = tmp_path / "k.json", tmp_path / "c.zarr"
+    assert main(["keygen", "--bits", "256", "--out", str(key)]) == 0
+    assert main(["encrypt", "phantom:12", "--key", str(key), "--out", str(store), "--layout", "packed",
+                 "--vector-dims", "3", "--gradient", "--brick", "4", "-q"]) == 0
+    capsys.readouterr()
+    priv, ev = hevr.load_key(key), hevr.open_volume(store)
+    for extra in (["--tf", "0.3:red,0.8:white"], ["--density", "0.5", "--gradient"]):
+        frame = tmp_path / "f.hevr"
+        code, out, err = run(capsys, "render", store, "--out", frame, "--key", key, "--size", "12x10", "-q",
+                             "--force", *extra)
+        assert code == 0, err
+        assert "verified: the frame is the packed" in out and "decrypt it with:" in out and f"{extra[0]} " in out.split("decrypt it with:")[1]
+        png = tmp_path / "f.png"
+        code, out, err = run(capsys, "decrypt", frame, "--key", key, "--out", png, "--npy", tmp_path / "f.npy",
+                             "--force", "--require-verified", *extra[:2])
+        assert code == 0 and "coloured on this machine" in out, err
+        cam = hevr.Camera.orbit(ev, view="anterior", width=12, height=10, parallel=True)
+        kw = {"mode": "tf", "nodes": [(0.3, "red"), (0.8, "white")]} if extra[0] == "--tf" else {
+            "mode": "emphasize", "density": 0.5, "gradient": True}
+        want = hevr.render(ev, cam, progress=False, verify=False, **kw).decrypt(priv)
+        np.testing.assert_allclose(np.load(tmp_path / "f.npy"), want, rtol=0, atol=1e-12)
+        code, out, _ = run(capsys, "info", frame)
+        assert code == 0 and "components of a packed store, coloured at decryption" in out
+    code, _, err = run(capsys, "decrypt", frame, "--key", key, "--out", tmp_path / "x.png")
+    assert code == 2 and "--tf, --density" in err and not (tmp_path / "x.png").exists()

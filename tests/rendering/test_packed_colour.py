@@ -16,6 +16,7 @@ import hevr
 from hevr.colour import Colouring, colour
 from hevr.crypto.tags import betas, raw_tags, tag_key_of
 from hevr.errors import CorruptStoreError, IntegrityError, ParameterError, VerificationError
+from hevr.image import image_from_bytes
 from hevr.rendering.packed.colour import PackedColourImage
 from hevr.store.metadata import VolumeMetadata
 from hevr.store.packing import slot_bits, unpack_slots
@@ -180,8 +181,6 @@ def test_refusals(store, keypair256, tmp_path, volume):
     with pytest.raises(ParameterError, match="level: expected 0"):
         hevr.render_plain(volume, c, mode="tf", nodes=NODES, level=1, slices=True)
     img = render(store, c, "nearest", mode="tf", nodes=NODES)
-    with pytest.raises(ParameterError, match="no file format yet"):
-        img.save(tmp_path / "f.hevr")
     with pytest.raises(VerificationError, match="not verified"):
         img.decrypt(keypair256[1], require_verified=True)  # rendered with verify=False
     priv = keypair256[1]
@@ -330,3 +329,33 @@ def test_gradient_modulation(gradient_store, keypair256, volume, mode, kw, sampl
     frame = hevr.render_frame(ev, c, priv, mode=mode, sampling=sampling, gradient=True, progress=False, **kw)
     assert frame.channel == "gradient" and frame.stats["verified"]
     np.testing.assert_allclose(frame.image, arr, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("gradient", [False, True])
+def test_colour_frame_files(gradient_store, keypair256, tmp_path, gradient):
+    """A packed colour frame as a file: the k components' tiles with the channel, verified only with
+    the key holder's stamp and under its name, coloured at decryption; a flipped byte is an error."""
+    priv = keypair256[1]
+    ev = gradient_store
+    c = cam(ev, 60, 10)
+    img = hevr.render(ev, c, mode="tf", nodes=NODES, gradient=gradient, sampling="trilinear", tile=4, progress=False)
+    want = img.decrypt(priv)
+    path = tmp_path / "c.hevr"
+    img.save(path, private_key=priv)
+    back = hevr.load_image(path)
+    assert isinstance(back, PackedColourImage) and back.channel == ("gradient" if gradient else "vector")
+    assert back.verified and back.verification.components == K and back.stamp is not None
+    np.testing.assert_array_equal(back.decrypt(priv, mode="tf", nodes=NODES, require_verified=True), want)
+    np.testing.assert_allclose(back.decrypt_frame(priv).recolour("emphasize", density=0.5),
+                               img.decrypt(priv, mode="emphasize", density=0.5), rtol=0, atol=1e-12)
+    moved = tmp_path / "moved.hevr"
+    path.rename(moved)
+    with pytest.raises(VerificationError, match="saved this verified frame as"):
+        hevr.load_image(moved).decrypt(priv, mode="tf", nodes=NODES)
+    blob = bytearray(img.to_bytes(private_key=priv))
+    blob[-40] ^= 1
+    with pytest.raises(IntegrityError):
+        image_from_bytes(bytes(blob)).decrypt(priv, mode="tf", nodes=NODES)
+    bare = tmp_path / "bare.hevr"
+    img.save(bare)  # without the key: the record is left out
+    assert not hevr.load_image(bare).verified

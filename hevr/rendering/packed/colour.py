@@ -55,6 +55,7 @@ from ...store.paths import check_reachable
 from ..pipeline.kernel import plan_products
 from ..verify import resolve_verify
 from .graph import column_pairs, map_graph, merge_tile
+from . import files
 from .image import PackedImage, decode
 from .plan import SlicePlan
 from .verified import PackedVerification, aggregate_tile
@@ -130,6 +131,7 @@ class PackedColourImage:
     stats: dict = field(default_factory=dict, repr=False)
     verification: Any = field(default=None, repr=False, compare=False)  # one PackedVerification, all k components
     channel: str = "vector"  # or "gradient": g·e(d), the gradient-modulated encoding
+    stamp: Any = field(default=None, repr=False, compare=False)  # a file's (stamp, message, saved as, read as)
 
     def __getstate__(self) -> dict:
         return dict(self.__dict__, colouring=None)
@@ -137,6 +139,19 @@ class PackedColourImage:
     @property
     def plan(self) -> SlicePlan:
         return self.components[0].plan
+
+    @property
+    def meta(self) -> Any:
+        """The store's metadata (level 0's; colour frames have no level)."""
+        return self.components[0].meta
+
+    level = 0
+    finish = "client"  # coloured by the key holder, as a per-voxel client-finished frame
+
+    @property
+    def ciphertexts(self) -> list:
+        """Every component's tiles, component-major (the frame file's order)."""
+        return [t for c in self.components for t in c.ciphertexts]
 
     @property
     def camera(self) -> Any:
@@ -149,6 +164,10 @@ class PackedColourImage:
     @property
     def store_id(self) -> str:
         return self.components[0].store_id
+
+    @property
+    def n(self) -> int:
+        return self.components[0].n
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -171,7 +190,7 @@ class PackedColourImage:
         against the tags at once (one aggregate), before any sum is returned."""
         first = self.components[0]
         key = first._key(private_key)
-        check_provenance(key, self.verification, None, require_verified,
+        check_provenance(key, self.verification, self.stamp, require_verified,
                          "a store encrypted with verifiable=False, or a render with verify=False")
         if self.verification is not None:  # the metadata first: it says what every number means
             self.verification.check_metadata(key, self.plan, self.fingerprint)
@@ -215,11 +234,16 @@ class PackedColourImage:
         spec = colouring_spec(self.channel, len(self.components), mode, density, nodes, self.colouring)
         return colour(self.decrypt_means(private_key, backend, require_verified=require_verified), spec)
 
-    def save(self, *args: Any, **kwargs: Any) -> None:
-        """Refused: packed colour frames have no file format yet (:class:`hevr.ParameterError`)."""
-        raise ParameterError("image: expected an X-ray frame to save a packed store's frame, got a colour frame "
-                             "(transfer function / emphasis: no file format yet); decrypt it here, or render "
-                             "on a per-voxel store")
+    def save(self, path: Any, *, overwrite: bool = False, storage_options: dict | None = None,
+             private_key: Any = None) -> None:
+        """Write the frame file (a packed frame file with the ``channel`` field: the k components'
+        tiles, component-major; ``docs/format.md``), as :meth:`PackedImage.save` does; the colouring
+        is not saved (``hevr decrypt --tf / --density`` colours at decryption)."""
+        files.save_packed(self, path, overwrite=overwrite, storage_options=storage_options, private_key=private_key)
+
+    def to_bytes(self, private_key: Any = None) -> bytes:
+        """The frame file as bytes (:meth:`save`'s rules)."""
+        return files.packed_bytes(self, private_key)
 
     def __repr__(self) -> str:
         return (f"PackedColourImage(shape={self.shape}, components={len(self.components)}, "

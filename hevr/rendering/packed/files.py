@@ -67,7 +67,8 @@ DIGEST_BYTES = 32
 MAX_HEADER = 1 << 22  # 4 MiB: the metadata, camera and one count per tile take a few KiB
 MAX_TILE = 4096  # SlicePlan.build's bound
 FIELDS = frozenset({"format", "version", "camera", "sampling", "weight_bits", "tile", "level", "metadata", "counts"})
-OPTIONAL = frozenset({"verification", "saved_as", "stamp"})
+OPTIONAL = frozenset({"verification", "saved_as", "stamp", "channel"})
+COLOUR_CHANNELS = ("vector", "gradient")  # a colour frame's components (absent: the scalar X-ray)
 RECORD = frozenset({"aggregate", "seed"})
 _BAD = (HevrError, TypeError, ValueError, OverflowError)  # what a hand-made field may raise on the way
 
@@ -99,9 +100,11 @@ def check_packed(img: Any) -> None:
     plan = img.plan
     _, fm = frame_metadata(img)
     width = int(fm.ciphertext_bytes)
-    if len(img.ciphertexts) != plan.n_tiles:
-        raise IntegrityError(f"image: expected {plan.n_tiles} tiles (its plan's), got {len(img.ciphertexts)}")
-    for t, recs in enumerate(img.ciphertexts):
+    k = len(getattr(img, "components", [img]))  # a colour frame: k components' tiles, component-major
+    if len(img.ciphertexts) != k * plan.n_tiles:
+        raise IntegrityError(f"image: expected {k * plan.n_tiles} tiles (its plan's), got {len(img.ciphertexts)}")
+    for i, recs in enumerate(img.ciphertexts):
+        t = i % plan.n_tiles
         j0, j1, b0, b1 = plan.tile_bounds(t)
         want = (j1 - j0) * (b1 - b0)
         a = np.asarray(recs)
@@ -115,10 +118,13 @@ def _header(img: Any) -> dict:
     head = {"format": FORMAT, "version": VERSION, "camera": img.camera.to_dict(), "sampling": plan.sampling,
             "weight_bits": int(plan.weight_bits), "tile": int(plan.tile), "level": int(img.level),
             "metadata": meta.to_dict(), "counts": [int(len(c)) for c in img.ciphertexts]}
+    channel = getattr(img, "channel", "scalar") if hasattr(img, "components") else "scalar"
+    if channel != "scalar":
+        head["channel"] = channel
     v = img.verification
     if v is not None:
         if (v.meta.to_dict() != meta.to_dict() or int(v.level) != int(img.level)
-                or getattr(v, "channel", "scalar") != "scalar"):
+                or getattr(v, "channel", "scalar") != channel):
             raise ParameterError("image: its verification record is of another store or level than the frame; "
                                  "render it again")
         head["verification"] = {"aggregate": str(int(v.aggregate)), "seed": bytes(v.seed).hex()}
@@ -243,11 +249,26 @@ def parse_packed(blob: bytes, where: str) -> dict:
     meta, fm = _metadata(h, f)
     plan, span, camera = _plan(h, f, fm)
     width = int(fm.ciphertext_bytes)
+    channel, k, exponent, offset = "scalar", 1, fm.scalar.exponent, fm.packing.offset
+    if "channel" in h:  # a colour frame: the k components of the vector or gradient channel
+        channel = h["channel"]
+        if channel not in COLOUR_CHANNELS or getattr(fm, channel) is None or int(h["level"]):
+            raise f.fail("channel", f"one of {list(COLOUR_CHANNELS)} that the store holds, at level 0", channel)
+        k, exponent, offset = fm.components(channel), getattr(fm, channel).exponent, 0
+        lo, hi = mantissa_range((0.0, 1.0), exponent)
+        span = hi - lo
+        try:
+            plan.check_slots(span)
+        except _BAD as exc:
+            raise f.fail("channel", f"a channel whose sums fit the store's slots ({exc})", channel) from None
     counts = h["counts"]
-    if not isinstance(counts, list) or len(counts) != plan.n_tiles:
-        raise f.fail("counts", f"a list of {plan.n_tiles} integers (the frame plan's tiles)",
+    T = plan.n_tiles
+    if not isinstance(counts, list) or len(counts) != k * T:
+        per = f", for {k} components" if k > 1 else ""
+        raise f.fail("counts", f"a list of {k * T} integers (the frame plan's tiles{per})",
                      f"a list of {len(counts)}" if isinstance(counts, list) else counts)
-    for t, c in enumerate(counts):
+    for i, c in enumerate(counts):
+        t = i % T
         j0, j1, b0, b1 = plan.tile_bounds(t)
         if type(c) is not int or c != (j1 - j0) * (b1 - b0):
             raise f.fail(f"counts[{t}]", f"{(j1 - j0) * (b1 - b0)} (rows × blocks of the plan's tile {t})", c)
@@ -259,10 +280,13 @@ def parse_packed(blob: bytes, where: str) -> dict:
     for c in counts:
         tiles.append(body[pos:pos + c * width].reshape(c, width))
         pos += c * width
+    v = _verification(h, f, meta, int(h["level"]))
+    if v is not None and channel != "scalar":
+        v = dict(v, channel=channel, components=k)
     return {"plan": plan, "camera": camera, "fingerprint": fm.fingerprint, "n": int(fm.n),
-            "exponent": fm.scalar.exponent, "offset": fm.packing.offset, "span": span, "ciphertexts": tiles,
+            "exponent": exponent, "offset": offset, "span": span, "ciphertexts": tiles,
             "store_id": fm.store_id, "meta": meta, "level": int(h["level"]), "stamp": stamp,
-            "verification": _verification(h, f, meta, int(h["level"]))}
+            "verification": v, "channel": channel, "components": k}
 
 
 def _stamp(h: dict, f: _Fields, body: np.ndarray) -> tuple | None:
