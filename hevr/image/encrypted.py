@@ -20,7 +20,6 @@ an object store makes visible whole or not at all.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import logging
 import time
@@ -39,7 +38,7 @@ from ..errors import IntegrityError, KeyMismatchError, ParameterError
 from ..store.paths import check_storage_options, output_location, write_output
 from .checks import check_image, tile_name
 from .header import file_parts
-from .provenance import check_provenance
+from .provenance import check_provenance, for_file
 from .stamp import saved_name
 
 __all__ = ["EncryptedImage"]
@@ -321,16 +320,7 @@ class EncryptedImage:
         """The image as a file holds it (checked; a verified one with the key checked now, or
         without its record when there is no key and no stamp: :meth:`save`)."""
         check_image(self)
-        if self.verification is None:
-            return self
-        if private_key is not None:
-            self.decrypt_mantissas(private_key, require_verified=True)  # the key holder checks it before stamping
-            return self
-        if self.verification.drawn_here:
-            log.warning("saving a verified frame without private_key: its verification record is left out (only the "
-                        "key holder's stamp makes a record in a file trustworthy); pass private_key= to keep it")
-            return dataclasses.replace(self, verification=None, stamp=None)
-        return self
+        return for_file(self, private_key, lambda key: self.decrypt_mantissas(key, require_verified=True))
 
     def to_bytes(self, private_key: Any = None) -> bytes:
         """The ``.hevr`` file as bytes (what :meth:`save` writes; :func:`hevr.image.image_from_bytes` reads it);

@@ -30,7 +30,7 @@ from .._tiles import TileLayout
 from ..crypto.paillier import fingerprint
 from ..crypto.records import record_width
 from ..errors import CorruptStoreError, IntegrityError
-from .stamp import STAMP_PREFIX, make_stamp, message
+from .stamp import STAMP_PREFIX, message, stamp_header
 from .checks import (
     MAX_COMPONENTS,
     MAX_PIXELS,
@@ -100,14 +100,7 @@ def file_parts(img: Any, private_key: Any = None, saved_as: str = "") -> list:
     body = [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in img.ciphertexts]
     if img.finish == "client":  # the public sample counts the client divides by
         body.append(np.ascontiguousarray(img.samples, dtype="<u4").reshape(-1))
-    if img.verification is not None and private_key is not None:
-        digest = hashlib.sha256()
-        for part in body:
-            digest.update(part)
-        header["saved_as"] = str(saved_as)
-        header["stamp"] = make_stamp(private_key, message(header, digest.digest()))
-    elif img.verification is not None and img.stamp is not None:
-        header["saved_as"], header["stamp"] = img.stamp[2], img.stamp[0]
+    stamp_header(header, body, img, private_key, saved_as)
     head = json.dumps(header, separators=(",", ":")).encode()
     return [MAGIC, LENGTH.pack(len(head)), head, *body]
 

@@ -9,13 +9,17 @@ decryption call :func:`check_provenance` before any ciphertext is touched.
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 from typing import Any
 
 from ..errors import ParameterError, VerificationError
 from ..store.known import retired_by
 from .stamp import check_stamp
 
-__all__ = ["check_provenance", "check_require_verified"]
+log = logging.getLogger(__name__)
+
+__all__ = ["check_provenance", "check_require_verified", "for_file"]
 
 
 def check_require_verified(require_verified: Any) -> bool:
@@ -76,3 +80,20 @@ def check_provenance(private_key: Any, verification: Any, stamp: Any, require_ve
         raise VerificationError(
             f"image: a frame of the store {v.store_id}, which the owner replaced with the store {replaced[1]} at "
             f"{replaced[0]} (the key holder's known stores): an old frame replayed?; no image is returned")
+
+
+def for_file(img: Any, private_key: Any, check_with_key: Any) -> Any:
+    """The frame as a file holds it: a verified one checked now with the key (``check_with_key``:
+    the frame's decryption with ``require_verified=True``) before it is stamped, or, drawn in this
+    process and saved without the key, without its record (a warning: only the key holder's stamp
+    makes a record in a file trustworthy); a record read from a stamped file keeps its stamp."""
+    if img.verification is None:
+        return img
+    if private_key is not None:
+        check_with_key(private_key)  # the key holder checks it before stamping
+        return img
+    if img.verification.drawn_here:
+        log.warning("saving a verified frame without private_key: its verification record is left out (only the "
+                    "key holder's stamp makes a record in a file trustworthy); pass private_key= to keep it")
+        return dataclasses.replace(img, verification=None, stamp=None)
+    return img

@@ -37,7 +37,8 @@ from typing import Any
 
 from ..crypto.tags import tag_key_of
 
-__all__ = ["STAMP_PREFIX", "check_stamp", "make_stamp", "message", "raw_check", "raw_stamp", "saved_name"]
+__all__ = ["STAMP_PREFIX", "check_stamp", "make_stamp", "message", "raw_check", "raw_stamp", "saved_name",
+           "stamp_header"]
 
 STAMP_PREFIX = "hmac-sha256:"
 _STAMP = re.compile(r"hmac-sha256:[0-9a-f]{64}")
@@ -83,3 +84,20 @@ def make_stamp(private_key: Any, msg: bytes) -> str:
 def check_stamp(private_key: Any, msg: bytes, stamp: Any) -> bool:
     """Whether ``stamp`` is the key holder's stamp of ``msg``."""
     return raw_check(tag_key_of(private_key).prf_key, msg, stamp)
+
+
+def stamp_header(header: dict, body: list, img: Any, private_key: Any, saved_as: str) -> None:
+    """Add ``saved_as`` and ``stamp`` to the ``header`` of a verified frame file whose record body
+    parts are ``body``: a fresh stamp with ``private_key`` (whose holder checked the frame), else the
+    stamp the frame was read with; nothing for a frame without a verification record. The one rule
+    of every frame file (per-voxel and packed)."""
+    if img.verification is None:
+        return
+    if private_key is not None:
+        digest = hashlib.sha256()
+        for part in body:
+            digest.update(part)
+        header["saved_as"] = str(saved_as)
+        header["stamp"] = make_stamp(private_key, message(header, digest.digest()))
+    elif img.stamp is not None:
+        header["saved_as"], header["stamp"] = img.stamp[2], img.stamp[0]

@@ -27,7 +27,6 @@ was written by hand); another magic is a :class:`hevr.CorruptStoreError` (not a 
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import logging
@@ -43,7 +42,8 @@ from ...crypto.paillier import fingerprint as fingerprint_of
 from ...crypto.records import record_width
 from ...errors import CorruptStoreError, HevrError, IntegrityError, ParameterError
 from ...image.header import parse_json
-from ...image.stamp import STAMP_PREFIX, make_stamp, message, saved_name
+from ...image.provenance import for_file as keep_record
+from ...image.stamp import STAMP_PREFIX, message, saved_name, stamp_header
 from ...store.metadata import VolumeMetadata
 from ...store.packing import MAX_WEIGHT_BITS, mantissa_range
 from ...store.paths import check_storage_options, output_location, write_output
@@ -137,14 +137,7 @@ def file_parts(img: Any, private_key: Any = None, saved_as: str = "") -> list:
     stamp it was read with (bound to ``saved_as``, the file's name)."""
     header = _header(img)
     body = [np.ascontiguousarray(c, dtype=np.uint8).reshape(-1) for c in img.ciphertexts]
-    if img.verification is not None and private_key is not None:
-        digest = hashlib.sha256()
-        for part in body:
-            digest.update(part)
-        header["saved_as"] = str(saved_as)
-        header["stamp"] = make_stamp(private_key, message(header, digest.digest()))
-    elif img.verification is not None and img.stamp is not None:
-        header["saved_as"], header["stamp"] = img.stamp[2], img.stamp[0]
+    stamp_header(header, body, img, private_key, saved_as)
     head = json.dumps(header, separators=(",", ":"), ensure_ascii=True).encode()
     if len(head) > MAX_HEADER:
         raise ParameterError(f"image: expected a header of at most {MAX_HEADER} bytes, got {len(head)}")
@@ -155,16 +148,7 @@ def for_file(img: Any, private_key: Any) -> Any:
     """The frame as a file holds it: checked; a verified one checked now with the key (and
     stamped), or, drawn here and saved without the key, without its record (a warning)."""
     check_packed(img)
-    if img.verification is None:
-        return img
-    if private_key is not None:
-        img.decrypt_sums(private_key, require_verified=True)  # the key holder checks it before stamping
-        return img
-    if img.verification.drawn_here:
-        log.warning("saving a verified packed frame without private_key: its verification record is left out (only "
-                    "the key holder's stamp makes a record in a file trustworthy); pass private_key= to keep it")
-        return dataclasses.replace(img, verification=None, stamp=None)
-    return img
+    return keep_record(img, private_key, lambda key: img.decrypt_sums(key, require_verified=True))
 
 
 def save_packed(img: Any, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None,
