@@ -43,18 +43,16 @@ from dask.delayed import delayed
 
 from ..._dask import active_client
 from ..._dask import compute as run_tasks
-from ..._dask import warn_if_remote
-from ...backends import get_backend, resolve_backend_name
+from ...backends import get_backend
 from ...backends.base import OpCounter
 from ...colour import Colouring, Frame, colour, colouring_spec
 from ...crypto.tags import data_channel, tag_channel
 from ...image.provenance import check_provenance
 from ...errors import ParameterError
 from ...store.packing import mantissa_range
-from ...store.paths import check_reachable
 from ..pipeline.kernel import plan_products
 from ..verify import resolve_verify
-from .graph import column_pairs, map_graph, merge_tile
+from .graph import column_pairs, map_graph, merge_tile, render_context, resident_bricks
 from . import files
 from .image import PackedImage, decode
 from .plan import SlicePlan
@@ -261,12 +259,7 @@ def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouri
         extra = ", gradient=True" if channel == "gradient" else ""
         raise ParameterError(f"ev: expected a packed store with the {channel} channel, got the store {meta.store_id} "
                              f"without it; encrypt it with vector_dims=k{extra}")
-    cl = active_client(client)
-    warn_if_remote(cl)
-    check_reachable(ev.path, cl)
-    bits = int(ev.public_key.n).bit_length()
-    res = ev.resident.backend if ev.resident is not None and ev.resident.bricks else None
-    backend = resolve_backend_name(backend, bits, resident=res, client=cl)
+    cl, backend = render_context(ev, backend, client)
     t0 = time.perf_counter()
     plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)  # the scalar's slots checked
     info = getattr(meta, channel)
@@ -275,13 +268,7 @@ def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouri
     if plan.n_tiles == 0:
         log.warning("render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
                     "volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height)
-    resident = None
-    if ev.resident is not None and ev.resident.bricks:
-        if ev.resident.usable(channel, backend, cl):
-            resident = ev.resident.bricks
-        else:
-            log.warning("render: the resident bricks cannot serve this render (backend %s, the vector channel); "
-                        "streaming from the store", backend)
+    resident = resident_bricks(ev, channel, backend, cl)
     k = meta.components(channel)
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     plain = ev._plain()

@@ -167,16 +167,33 @@ def map_graph(ev: Any, plan: SlicePlan, backend: str, resident: dict | None, cha
     return per_tile, maps
 
 
+def render_context(ev: Any, backend: str | None, client: Any) -> tuple[Any, str]:
+    """The Dask client of a packed render (the given or active one; a remote scheduler warned of,
+    the store reachable from its workers) and the backend's name (the residency's, else by key)."""
+    cl = active_client(client)
+    warn_if_remote(cl)
+    check_reachable(ev.path, cl)
+    res = ev.resident.backend if ev.resident is not None and ev.resident.bricks else None
+    return cl, resolve_backend_name(backend, int(ev.public_key.n).bit_length(), resident=res, client=cl)
+
+
+def resident_bricks(ev: Any, channel: str, backend: str, client: Any) -> dict | None:
+    """The resident bricks that can serve ``channel`` on ``backend`` (None: stream from the store,
+    said when a residency exists but cannot serve)."""
+    if ev.resident is None or not ev.resident.bricks:
+        return None
+    if ev.resident.usable(channel, backend, client):
+        return ev.resident.bricks
+    log.warning("render: the resident bricks cannot serve this render (backend %s, the %s channel); streaming from "
+                "the store", backend, channel)
+    return None
+
+
 def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client: Any = None, progress: bool = True,
                   backend: str | None = None, weight_bits: int | None = None) -> PackedImage:
     """Render a packed store's X-ray of a parallel ``camera`` (:func:`hevr.render` routes here;
     its request checks are done there)."""
-    cl = active_client(client)
-    warn_if_remote(cl)
-    check_reachable(ev.path, cl)
-    bits = int(ev.public_key.n).bit_length()
-    res = ev.resident.backend if ev.resident is not None and ev.resident.bricks else None
-    backend = resolve_backend_name(backend, bits, resident=res, client=cl)
+    cl, backend = render_context(ev, backend, client)
     t0 = time.perf_counter()
     meta = ev.meta
     plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)  # its slots checked before any work
@@ -184,13 +201,7 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
     if plan.n_tiles == 0:  # public geometry: say so rather than hand back a black frame
         log.warning("render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
                     "volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height)
-    resident = None
-    if ev.resident is not None and ev.resident.bricks:
-        if ev.resident.usable("scalar", backend, cl):
-            resident = ev.resident.bricks
-        else:
-            log.warning("render: the resident bricks cannot serve this render (backend %s); streaming from the store",
-                        backend)
+    resident = resident_bricks(ev, "scalar", backend, cl)
     n = int(ev.public_key.n)
     width = meta.ciphertext_bytes
     plain = ev._plain()

@@ -30,20 +30,17 @@ import gmpy2
 import numpy as np
 from dask.delayed import delayed
 
-from ..._dask import active_client
 from ..._dask import compute as run_tasks
-from ..._dask import warn_if_remote
-from ...backends import get_backend, resolve_backend_name
+from ...backends import get_backend
 from ...backends.base import OpCounter
 from ...crypto.keys import PrivateKey
 from ...image.provenance import check_provenance
 from ...crypto.tags import tag_channel
 from ...errors import IntegrityError, ParameterError
 from ...store.packing import INTEGRITY_BITS, mantissa_range, unpack_slots
-from ...store.paths import check_reachable
 from ..pipeline.finishing import one_records
 from ..pipeline.kernel import plan_products
-from .graph import brick_columns, merge_parts
+from .graph import brick_columns, merge_parts, render_context, resident_bricks
 from .planes import TILE_VALUES, PlanePlan
 from .image import check_key
 from .verified import PackedVerification, aggregate_tile
@@ -99,24 +96,15 @@ def merge_values(plan: Any, t: int, n: int, width: int, backend: str, *parts: An
 def render_packed_slice(ev: Any, plane: Any, sampling: str = "nearest", *, client: Any = None, progress: bool = True,
                         backend: str | None = None) -> "PackedSlice":
     """Render ``plane`` of a packed store (:func:`hevr.render_slice` routes here after its checks)."""
-    cl = active_client(client)
-    warn_if_remote(cl)
-    check_reachable(ev.path, cl)
+    cl, backend = render_context(ev, backend, client)
     meta = ev.meta
     plan = PlanePlan.build(plane, meta.shape, meta.spacing, meta.brick, meta.packing, sampling)
-    res = ev.resident.backend if ev.resident is not None and ev.resident.bricks else None
-    backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), resident=res, client=cl)
     t0 = time.perf_counter()
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
     if not plan.hits.any():
         log.warning("render_slice: no pixel of this %dx%d plane meets the packed volume: the slice is empty",
                     plane.width, plane.height)
-    resident = None
-    if ev.resident is not None and ev.resident.bricks:
-        if ev.resident.usable("scalar", backend, cl):
-            resident = ev.resident.bricks
-        else:
-            log.warning("render_slice: the resident bricks cannot serve this slice (backend %s); streaming", backend)
+    resident = resident_bricks(ev, "scalar", backend, cl)
     n, width, plain = int(ev.public_key.n), meta.ciphertext_bytes, ev._plain()
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     plan_d = delayed(plan, pure=True, name=f"hevr-packed-slice-plan-{tag}")  # one copy in the graph
