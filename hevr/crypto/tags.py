@@ -63,7 +63,7 @@ import numpy as np
 from .._recent import Recent
 from ..errors import ParameterError
 
-__all__ = ["BLOCK", "RHO_BITS", "TAG_SUFFIX", "TagKey", "betas", "coefficients", "coefficients_at", "data_channel", "generate_tag_key", "raw_check",
+__all__ = ["BLOCK", "RHO_BITS", "aggregate_holds", "TAG_SUFFIX", "TagKey", "betas", "coefficients", "coefficients_at", "data_channel", "generate_tag_key", "raw_check",
            "raw_tags", "tag_channel", "tag_ciphertexts", "tag_key_of", "weighted_beta_sums", "weighted_beta_total"]
 
 TAG_SUFFIX = "_tag"  # the tag channel of channel c is c + TAG_SUFFIX (its own array in the store)
@@ -332,6 +332,16 @@ def coefficients_at(seed: bytes, ids: Any) -> np.ndarray:
         sel = blocks == b
         out[sel] = np.frombuffer(stream, "<u8")[ids[sel] - b * BLOCK]
     return out & np.uint64((1 << RHO_BITS) - 1)
+
+
+def aggregate_holds(private_key: Any, weighted_sum: int, beta_total: int, aggregate: int) -> bool:
+    """Whether the decrypted ``aggregate`` is α·Σρ·S + Σρ·B (mod n), given Σρ·S (``weighted_sum``,
+    from the values the key holder decrypted) and Σρ·B (``beta_total``, from the public plan and
+    the PRF): the last step of every verified render (per-voxel and packed)."""
+    key = tag_key_of(private_key)
+    n = int(private_key.public_key.n)
+    got = int(private_key.raw_decrypt(gmpy2.mpz(aggregate))) % n
+    return got == (key.alpha * int(weighted_sum) + int(beta_total)) % n
 
 
 def raw_check(key: TagKey, sums: list[int], beta_sums: list[int], rho: list[int], aggregate: int) -> bool:

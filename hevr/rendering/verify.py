@@ -60,6 +60,7 @@ import numpy as np
 from .._dask import compute as run_tasks
 from ..backends import get_backend
 from ..crypto.tags import (
+    aggregate_holds,
     betas,
     coefficients_at,
     tag_channel,
@@ -403,8 +404,7 @@ class Verification:
         ``ray_ids``."""
         t0 = time.perf_counter()
         self.check_metadata(private_key, image)
-        key = tag_key_of(private_key)
-        K, n = self.components, self.n
+        K = self.components
         rays = cast_rays(self.camera, self.shape, self.spacing, self.step)
         H, W = self.camera.height, self.camera.width
         samples = np.asarray(rays.n_samples).reshape(H, W)
@@ -423,10 +423,9 @@ class Verification:
                                     "no image is returned")
         rho = coefficients_at(self.seed, ids).tolist()
         s_sum = sum(int(r) * int(s) for r, s in zip(rho, sums))
-        want = (key.alpha * s_sum + self.beta_sum(private_key, rays)) % n
-        got = int(private_key.raw_decrypt(gmpy2.mpz(self.aggregate))) % n
+        holds = aggregate_holds(private_key, s_sum, self.beta_sum(private_key, rays), self.aggregate)
         log.info("verification: %.3f s on the client", time.perf_counter() - t0)
-        if got != want:
+        if not holds:
             raise VerificationError(
                 "image: the render does not verify: its ray sums are not the ones the store's tags certify (an "
                 "altered, substituted or replayed image or store, or a server that did not render as asked); "

@@ -46,7 +46,7 @@ from dask.delayed import delayed
 
 from ..._dask import compute as run_tasks
 from ...backends import get_backend
-from ...crypto.tags import betas, coefficients_at, tag_channel, tag_key_of
+from ...crypto.tags import aggregate_holds, betas, coefficients_at, tag_channel, tag_key_of
 from ...errors import ParameterError, VerificationError
 from ...store.authenticity import authenticated_fields, check_metadata_mac
 from ...store.layout import array_slices
@@ -261,8 +261,6 @@ class PackedVerification:
         frame's decrypted values ``values`` (per component, per tile, in the tile's order)."""
         t0 = time.perf_counter()
         self.check_metadata(private_key, plan, fingerprint)
-        key = tag_key_of(private_key)
-        n = int(private_key.public_key.n)
         if len(values) != self.components or any(len(v) != plan.n_tiles for v in values):
             raise VerificationError(f"image: expected {self.components} component(s) of {plan.n_tiles} tiles; no "
                                     "image is returned")
@@ -275,10 +273,9 @@ class PackedVerification:
                                             "image is returned")
                 rho = coefficients_at(self.seed, ids + j * plan.n_values).tolist()
                 s_sum += sum(int(r) * int(v) for r, v in zip(rho, vals))
-        want = (key.alpha * s_sum + self.beta_sum(private_key, plan)) % n
-        got = int(private_key.raw_decrypt(gmpy2.mpz(self.aggregate))) % n
+        holds = aggregate_holds(private_key, s_sum, self.beta_sum(private_key, plan), self.aggregate)
         log.info("verification of a packed frame: %.3f s on the key holder's side", time.perf_counter() - t0)
-        if got != want:
+        if not holds:
             raise VerificationError(
                 "image: the packed frame does not verify: its values are not the ones the store's tags certify (an "
                 "altered, substituted or replayed image or store, or a server that did not render as asked); no "
