@@ -123,6 +123,7 @@ def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, b
         if req.step != 1.0 or (req.level and req.channel != "scalar"):
             raise ParameterError("step/level: expected 1.0 on a packed store (and level 0 for its vector channels)")
         ev_l, view = at_level(ev, view, req.level or None)  # a level the owner encrypted: its own plan and tags
+        check_render_size(view, ev_l.shape, ev_l.spacing, 1.0)  # the render's size limits, before any work
         plan = SlicePlan.of_store(ev_l.meta, view, req.sampling, req.tile, req.weight_bits)
         name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
         if req.channel != "scalar":

@@ -238,3 +238,21 @@ def test_cli_slice_and_render_through_the_server(packed_served, rv, tmp_path, ca
                  "-q"]) == 0
     img = hevr.load_image(frame)
     assert img.verified and img.plan.geometry.principal != 0
+
+
+def test_verify_requests_have_the_render_size_limits(packed_served, rv):
+    """/verify on a packed store refuses what /render refuses for its size, before any work."""
+    import dask
+    import httpx
+
+    s = packed_served
+    body = {"render": {"view": _cam(rv).to_dict(), "channel": "scalar"}, "seed": "ab" * 32}
+    with httpx.Client(base_url=s.url, timeout=60) as http:
+        ok = http.post(f"/v1/stores/{rv.store_id}/verify", json=body)
+        assert ok.status_code == 200 and int(ok.json()["aggregate"]) > 0
+    from hevr.serve.jobs import verify_aggregate
+    from hevr.remote.protocol import RenderRequest
+    big = hevr.Camera.orbit(rv, azimuth=60, elevation=10, width=64, height=64, parallel=True)
+    with dask.config.set({"hevr.limits.max-samples": 2000}):  # the plan (~340 cells) fits; its ~10^4 samples do not
+        with pytest.raises(hevr.RenderPlanError, match="step"):
+            verify_aggregate(s.ev, RenderRequest(view=big, channel="scalar"), bytes(32), client=None)
