@@ -242,12 +242,14 @@ def add_decrypt_colour_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_server_option(p: argparse.ArgumentParser) -> None:
-    """``--server URL`` / ``--cafile``: render on ``hevr serve`` (STORE is then a store id); the token
-    comes from the environment (``HEVR_TOKEN``), never the command line (other users see it)."""
+    """``--server URL`` / ``--cafile``: render on ``hevr serve`` (STORE is then the name or id it
+    serves the store under; ``--key`` verifies the answer); the token comes from the environment
+    (``HEVR_TOKEN``), never the command line (other users see it)."""
     g = p.add_argument_group("render server (hevr serve)")
     g.add_argument("--server", metavar="URL", help="render on this hevr serve (http(s)://host:port) as its key holder: "
-                   "STORE is then the store id it printed; the token comes from the environment variable "
-                   "HEVR_TOKEN; nothing the server sends is run or unpickled")
+                   "STORE is then the name (or store id) it printed; with --key KEY.json the answer is verified "
+                   "here; the token comes from the environment variable HEVR_TOKEN; nothing the server sends is "
+                   "run or unpickled")
     g.add_argument("--cafile", metavar="PEM", help="CA bundle to trust for an https --server")
     g.add_argument("--timeout", type=float, default=600.0, metavar="S",
                    help="seconds for the server's whole answer (default 600)")

@@ -38,6 +38,9 @@ def warn_unverified(args: Any, ev: Any, img: Any) -> None:
     if not ev.meta.tags:
         warn_line("not verified: the store has no tags (encrypt it with --verifiable so that a lying server "
                   "is caught; --no-verify silences this)")
+    elif args.private_key is None and getattr(ev, "remote", None) is not None:  # hevr render|slice --server
+        warn_line("not verified: no --key: pass --key KEY.json, the key holder's private key, to verify the "
+                  "server's answer (the seed is drawn here after the frame has arrived; --no-verify silences this)")
     elif args.private_key is None:
         warn_line("not verified: no --key (the key holder's process verifies: give it --key, or render through "
                   "hevr serve from the key holder's machine; --no-verify silences this)")
