@@ -37,11 +37,13 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
     from .crypto.keyfile import load_key
     from .crypto.keys import PrivateKey, PublicKey, generate_keypair
     from .crypto.number import EncryptedNumber
+    from ._dask import own_cluster
     from .errors import (
         CorruptStoreError,
         CorruptVolumeError,
         ExistingFileError,
         FileSystemError,
+        ForeignClusterError,
         HevrError,
         IncompleteStoreError,
         InsecureKeyWarning,
@@ -100,13 +102,14 @@ __version__ = "0.1.0"
 # Public name -> the submodule it is imported from, on first use (module docstring). Keep it
 # equal to the TYPE_CHECKING imports above (tests/test_lazy_imports.py checks).
 _LAZY = {
+    "._dask": ("own_cluster",),
     ".colour": ("Colouring", "Frame"),
     ".crypto.encoding": ("BASE", "decode", "encode"),
     ".crypto.keyfile": ("load_key",),
     ".crypto.keys": ("PrivateKey", "PublicKey", "generate_keypair"),
     ".crypto.number": ("EncryptedNumber",),
     ".errors": (
-        "CorruptStoreError", "CorruptVolumeError", "ExistingFileError", "FileSystemError", "HevrError", "IncompleteStoreError",
+        "CorruptStoreError", "CorruptVolumeError", "ExistingFileError", "FileSystemError", "ForeignClusterError", "HevrError", "IncompleteStoreError",
         "InsecureKeyWarning", "IntegrityError", "InvalidKeyError", "KeyFilePermissionWarning", "KeyMismatchError",
         "MemoryLimitError", "MissingDependencyError", "MissingFileError", "NotRegularFileError", "ParameterError",
         "PlaintextOverflowError", "RemoteError", "RenderPlanError", "StoreError", "StoreExistsError", "VerificationError",
@@ -156,6 +159,7 @@ __all__ = [
     "EncryptedVolume",
     "ExistingFileError",
     "FileSystemError",
+    "ForeignClusterError",
     "Frame",
     "HevrError",
     "IncompleteStoreError",
@@ -201,6 +205,7 @@ __all__ = [
     "modality_range",
     "normalize_density",
     "open_volume",
+    "own_cluster",
     "phantom",
     "range_hint",
     "read_scan",

@@ -3,12 +3,18 @@
 
 hevr never starts a cluster by itself: it uses the client it is given, else the active
 ``distributed`` client (``default_client()``), else Dask's default scheduler.
+
+The Dask path is for the key holder's own cluster: Dask unpickles what a cluster sends, so a private
+key is used only beside a cluster this process started or the user declared its own
+(:func:`own_cluster`, ``$HEVR_OWN_CLUSTER``); :func:`refuse_foreign_cluster` says no otherwise, and
+another party's cluster is reached through ``hevr serve`` and :func:`hevr.connect` (data only).
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -23,36 +29,170 @@ from ._progress import Progress, TaskCounter
 
 log = logging.getLogger(__name__)
 
-__all__ = ["active_client", "compute", "warn_if_remote"]
+__all__ = ["OWN_CLUSTER_ENV", "active_client", "compute", "declared_own", "is_own_cluster", "own_cluster", "refuse_foreign_cluster",
+           "scheduler_address", "warn_if_remote"]
 
-_WARNED_SCHEDULERS: set = set()
-_LOOPBACK = ("127.", "localhost", "[::1]", "::1")
+OWN_CLUSTER_ENV = "HEVR_OWN_CLUSTER"  # <address>[,<address>…]: the opt-in of own_cluster, for the command line
+_OWN_SCHEDULERS: set[str] = set()  # the scheduler addresses declared with own_cluster in this process
+_WARNED_SCHEDULERS: set[str] = set()
+
+
+def _normal(address: str) -> str:
+    """A scheduler address as Dask's client reports it (``127.0.0.1:8786`` -> ``tcp://127.0.0.1:8786``);
+    compared exactly afterwards, never by its host's spelling."""
+    from distributed.comm.addressing import normalize_address
+
+    try:
+        return normalize_address(address.strip())
+    except (ValueError, TypeError):
+        return address.strip()
+
+
+def scheduler_address(client: Any) -> str | None:
+    """The address of ``client``'s scheduler (None: Dask's default scheduler, or a closed client)."""
+    if client is None:
+        return None
+    try:
+        address = client.scheduler.address
+    except Exception:  # a closed client: its work fails on its own
+        return None
+    return str(address) if address else None
+
+
+def own_cluster(client_or_address: Any) -> str:
+    """Declare a Dask cluster this process's own: the key holder's private key may be used beside it.
+
+    Dask's protocol unpickles what a cluster sends, so its scheduler and its workers (a worker
+    plugin, a crafted result) can run code in this process. hevr therefore refuses to use a private
+    key (:func:`hevr.encrypt_volume` with a :class:`PrivateKey`, :func:`hevr.render_frame`, any
+    decryption) while this process is a client of a scheduler it did not start
+    (:class:`hevr.ForeignClusterError`) unless the cluster is declared here. Declaring it says:
+    **this scheduler and its workers are mine; code they send runs in this process.** Declare only a
+    cluster you run on machines you control; render on another party's cluster through its
+    ``hevr serve`` with :func:`hevr.connect` instead (data only, never unpickled).
+
+    Clusters this process started need no declaration: Dask's default scheduler (no client), a
+    client of a cluster object made here (``Client()``, ``Client(LocalCluster(...))``) and an
+    ``inproc://`` scheduler. The address is never judged by its spelling: ``tcp://127.0.0.1:8786``
+    may be an ``ssh -L`` tunnel to another party's cluster.
+
+    The same opt-in without code: the environment variable ``HEVR_OWN_CLUSTER=ADDRESS[,ADDRESS…]``
+    (``hevr … --scheduler ADDRESS --own-cluster`` on the command line).
+
+    Parameters
+    ----------
+    client_or_address : distributed.Client or str
+        A client of the cluster (its scheduler's address is recorded) or the scheduler's address,
+        e.g. ``"tcp://10.0.0.5:8786"``.
+
+    Returns
+    -------
+    str
+        The scheduler address recorded (for the rest of this process's life).
+
+    Raises
+    ------
+    hevr.ParameterError
+        For anything else (a closed client, an empty address).
+
+    >>> own_cluster("tcp://10.0.0.5:8786")
+    'tcp://10.0.0.5:8786'
+    >>> _OWN_SCHEDULERS.discard("tcp://10.0.0.5:8786")
+    """
+    from .errors import ParameterError
+
+    address = client_or_address if isinstance(client_or_address, str) else scheduler_address(client_or_address)
+    if not address or not address.strip():
+        raise ParameterError("client_or_address: expected a distributed.Client or a scheduler address such as "
+                             f"tcp://10.0.0.5:8786, got {client_or_address!r}")
+    address = _normal(address)
+    _OWN_SCHEDULERS.add(address)
+    log.info("the Dask cluster at %s is declared this process's own: the private key may be used beside it", address)
+    return address
+
+
+def _declared() -> set[str]:
+    """The addresses declared own: with :func:`own_cluster`, and in ``$HEVR_OWN_CLUSTER`` (read each time)."""
+    env = os.environ.get(OWN_CLUSTER_ENV, "")
+    return _OWN_SCHEDULERS | {_normal(a) for a in env.split(",") if a.strip()}
+
+
+def declared_own(address: str) -> bool:
+    """Whether the scheduler ``address`` was declared this process's own (:func:`own_cluster`,
+    ``$HEVR_OWN_CLUSTER``), compared exactly after :func:`_normal`.
+
+    >>> declared_own("tcp://192.0.2.7:8786")
+    False
+    """
+    return _normal(address) in _declared()
+
+
+def is_own_cluster(client: Any) -> bool:
+    """Whether ``client``'s cluster is this process's own (no address guessing).
+
+    Own: no client (Dask's default scheduler, in this process), an ``inproc://`` scheduler (only
+    this process can reach one), a client of a cluster object made in this process
+    (``client.cluster`` is set by ``Client()`` and ``Client(LocalCluster(...))``, not by
+    ``Client(address)``), or a scheduler address declared with :func:`own_cluster` or
+    ``$HEVR_OWN_CLUSTER``. Anything else is foreign, whatever its host is called: a loopback
+    address may be a tunnel, ``localhost.example.org`` is just a name.
+
+    >>> is_own_cluster(None)
+    True
+    """
+    if client is None:
+        return True
+    if getattr(client, "cluster", None) is not None:
+        return True
+    address = scheduler_address(client)
+    if address is None:  # a closed client: nothing will run on it
+        return True
+    return address.startswith("inproc://") or declared_own(address)
+
+
+def refuse_foreign_cluster(client: Any = None, doing: str = "using the private key") -> None:
+    """Raise :class:`hevr.ForeignClusterError` when a private key is about to be used while the given
+    client (default: the active one, ``distributed.default_client()``, if any) is a client of a
+    cluster that is not this process's own (:func:`is_own_cluster`); nothing otherwise.
+
+    Call it before the private key is used: at the start of every decryption, of an encryption
+    with a :class:`PrivateKey`, of a key holder's render.
+
+    >>> refuse_foreign_cluster(None)  # Dask's default scheduler, or no client at all: nothing to say
+    """
+    client = active_client(client)
+    if is_own_cluster(client):
+        return
+    from .errors import ForeignClusterError
+
+    address = scheduler_address(client)
+    raise ForeignClusterError(
+        f"client: expected a Dask cluster this process started or declared its own, got the scheduler at {address} "
+        f"while {doing}: Dask unpickles what that cluster sends, so its scheduler and workers can run code in this "
+        "process, where the private key is. Render on another party's cluster through its 'hevr serve' with "
+        "hevr.connect(URL) (data only, never unpickled); if the cluster is yours, declare it with "
+        f"hevr.own_cluster(client) (or {OWN_CLUSTER_ENV}={address}, or --own-cluster with --scheduler)")
 
 
 def warn_if_remote(client: Any) -> None:
-    """Once per scheduler: warn when this process is a Dask client of a scheduler that is not on
-    this machine's loopback. Dask's protocol unpickles what the cluster sends, so its workers can
-    run code in this process — the key holder's, where it renders and decrypts: the local Dask path
-    is for clusters the key holder runs; a server's cluster is reached through ``hevr serve`` and
-    :func:`hevr.connect`, which carries data only.
+    """Once per scheduler: warn when this process is a Dask client of a cluster that is not its own
+    (:func:`is_own_cluster`; no address guessing) and renders there without holding a key. Dask's
+    protocol unpickles what the cluster sends, so its workers can run code in this process; a key
+    holder's steps beside such a client are refused (:func:`refuse_foreign_cluster`).
 
     >>> warn_if_remote(None)  # Dask's default scheduler: nothing to say
     """
-    if client is None:
+    if is_own_cluster(client):
         return
-    try:
-        address = str(client.scheduler.address)
-    except Exception:  # pragma: no cover - a closed client: its render fails on its own
+    address = scheduler_address(client)
+    if address in _WARNED_SCHEDULERS:
         return
-    host = address.split("://", 1)[-1]
-    if address.startswith("inproc://") or host.startswith(_LOOPBACK) or address in _WARNED_SCHEDULERS:
-        return
-    _WARNED_SCHEDULERS.add(address)
-    warnings.warn(f"this process is a Dask client of the scheduler at {address}, which is not on this machine: "
-                  "Dask unpickles what that cluster sends, so its workers can run code here, where your private key "
-                  "is. Use the Dask path only on a cluster you run; render on another party's cluster with "
-                  "'hevr serve' there and hevr.connect(URL) here (data only, never unpickled)", UserWarning,
-                  stacklevel=3)
+    _WARNED_SCHEDULERS.add(str(address))
+    warnings.warn(f"this process is a Dask client of the scheduler at {address}, which it did not start: Dask "
+                  "unpickles what that cluster sends, so its workers can run code here; keep private keys out of "
+                  "this process (hevr refuses to use one beside this client). Render on another party's cluster "
+                  "with 'hevr serve' there and hevr.connect(URL) here (data only, never unpickled); if the cluster "
+                  "is yours, declare it with hevr.own_cluster(client)", UserWarning, stacklevel=3)
 
 
 def active_client(client: Any = None) -> Any:

@@ -36,6 +36,7 @@ __all__ = [
     "NotRegularFileError",
     "FileSystemError",
     "RemoteError",
+    "ForeignClusterError",
     "InsecureKeyWarning",
     "KeyFilePermissionWarning",
 ]
@@ -196,6 +197,19 @@ class RemoteError(HevrError, ConnectionError):
         super().__init__(message)
         self.status = status
         self.problem = problem
+
+
+class ForeignClusterError(HevrError, PermissionError):
+    """A private key was about to be used while this process is a Dask client of a cluster it did not
+    start and that was not declared its own (:func:`hevr.own_cluster`, ``$HEVR_OWN_CLUSTER``). Dask
+    unpickles what a cluster sends, so that cluster's scheduler and workers could run code where the
+    key is. Refused before the key is used; the message names the scheduler and the two ways out:
+    :func:`hevr.connect` to another party's ``hevr serve`` (data only), or :func:`hevr.own_cluster`
+    for a cluster that is yours. Also a :class:`PermissionError`.
+
+    >>> str(ForeignClusterError("client: expected a cluster of this process's own, got tcp://h:8786"))
+    "client: expected a cluster of this process's own, got tcp://h:8786"
+    """
 
 
 class InsecureKeyWarning(UserWarning):

@@ -59,6 +59,7 @@ from typing import Any
 
 import numpy as np
 
+from ._dask import refuse_foreign_cluster
 from ._drag import Orbit, drag_image, png
 from .colour import Frame
 from .crypto.keys import PrivateKey
@@ -109,7 +110,8 @@ class Viewer:
     density : float, optional
         Initial emphasised density (default 0.653, the paper's small sphere).
     client : distributed.Client, optional
-        Passed to :func:`hevr.render_frame`: a LocalCluster's or a remote scheduler's client.
+        Passed to :func:`hevr.render_frame`: a LocalCluster's, or another scheduler's declared
+        with :func:`hevr.own_cluster` (else :class:`hevr.ForeignClusterError`).
     step : float
         Sample spacing along the rays.
     preview : int, optional
@@ -156,6 +158,8 @@ class Viewer:
         if private_key.public_key.fingerprint != ev.meta.fingerprint:
             raise ParameterError("private_key: expected the key of this volume (fingerprint "
                                  f"{ev.meta.fingerprint[:16]}…), got {private_key.public_key.fingerprint[:16]}…")
+        if getattr(ev, "remote", None) is None:  # its frames decrypted here, beside the Dask client
+            refuse_foreign_cluster(client, "hevr.Viewer with the private key")
         if volume is not None and tuple(np.shape(volume)) != tuple(ev.shape):
             raise ParameterError(f"volume: expected the plaintext of shape {tuple(ev.shape)}, got {np.shape(volume)}")
         self.ev, self._key, self.volume, self.client, self.step = ev, private_key, volume, client, float(step)

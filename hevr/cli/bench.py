@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from .._bench.gpu import run_gpu_bench
+from .._dask import own_cluster
 from .._bench.runner import rewrite_report, run_bench
 from ..backends import available_backends
 from .util import UsageError, show_progress, warn_line
@@ -38,6 +39,11 @@ def cmd_bench(args: Any) -> int:
         md = rewrite_report(setting, out)
         print(f"wrote {md}")
         return 0
+    if args.own_cluster:  # the benchmark decrypts with its key beside the --scheduler cluster
+        if not args.scheduler:
+            raise UsageError("--own-cluster: expected --scheduler ADDRESS as well (a cluster this command starts is "
+                             "this process's own already)")
+        own_cluster(args.scheduler)
     md = run_bench(setting, out, resume=args.resume, only=only, workers=workers, scheduler=args.scheduler,
                    work=args.work, progress=show_progress(args), overwrite=args.force,
                    log_line=lambda s: print(s, flush=True))

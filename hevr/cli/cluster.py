@@ -1,4 +1,5 @@
-"""The Dask client of a command: ``--scheduler ADDRESS`` joins a running cluster, ``--workers N``
+"""The Dask client of a command: ``--scheduler ADDRESS`` joins a running cluster (``--own-cluster``:
+declared this process's own, so that a private key may be used beside it), ``--workers N``
 starts a local one of N worker processes (1 thread each) for the command, neither uses Dask's
 default threaded scheduler; and the ``compute:`` line that says which.
 
@@ -20,6 +21,7 @@ from distributed import Client, LocalCluster
 from distributed.comm.addressing import parse_address
 from distributed.comm.registry import get_backend
 
+from .._dask import own_cluster
 from .util import UsageError
 
 __all__ = ["check_scheduler", "dask_client", "describe_client"]
@@ -28,11 +30,19 @@ log = logging.getLogger(__name__)
 
 
 @contextlib.contextmanager
-def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+def dask_client(scheduler: str | None = None, workers: int | None = None, own: bool = False) -> Iterator[Any]:
     """Join ``scheduler``, or start ``workers`` local worker processes, or use Dask's default.
+
+    ``own`` (``--own-cluster``): declare the ``scheduler``'s cluster this process's own
+    (:func:`hevr.own_cluster`), so that a private key may be used beside it; a cluster joined
+    otherwise is foreign (:class:`hevr.ForeignClusterError` where the key would be used), unless
+    ``$HEVR_OWN_CLUSTER`` names it. A local cluster started here is this process's own anyway.
 
     Yields the ``distributed.Client`` (or None); closes what it opened.
     """
+    if own and not scheduler:
+        raise UsageError("--own-cluster: expected --scheduler ADDRESS as well (a cluster this command starts, "
+                         "or Dask's default scheduler, is this process's own already)")
     if scheduler:
         check_scheduler(scheduler)
         log.info("connecting to the Dask scheduler at %s", scheduler)
@@ -40,6 +50,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             client = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError) as exc:
             raise OSError(f"--scheduler: cannot connect to the Dask scheduler at {scheduler}: {exc}") from None
+        if own:
+            own_cluster(client)
         try:
             yield client
         finally:

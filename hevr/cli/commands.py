@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from .._dask import declared_own
 from .._files import check_regular
 from ..crypto.keys import PrivateKey
 from ..image import load_image
@@ -81,17 +82,19 @@ def cmd_encrypt(args: Any) -> int:
     key = read_key(args.key)
     private = isinstance(key, PrivateKey)
     pub = key.public_key if private else key
-    if private and args.scheduler and not args.trust_scheduler:
+    own = args.own_cluster or (bool(args.scheduler) and args.trust_scheduler)  # --trust-scheduler: its old name
+    if private and args.scheduler and not (own or declared_own(args.scheduler)):
         raise UsageError(
             f"--key: {args.key} is a private key and --scheduler is set: the owner-side fast path would send "
-            "p and q to the cluster's workers; encrypt with the public key (.pub.json) or pass --trust-scheduler")
+            "p and q to the cluster's workers, and Dask lets that cluster run code in this process; encrypt with "
+            "the public key (.pub.json), or pass --own-cluster if the cluster is yours")
     scan, value_range = encrypt_input(args)  # prints input, scan and value-range lines
     print(f"key:     {key_label(pub)}")
     print("path:    " + ("owner-side fast path (private key: p, q speed up encryption; "
                           "the store still holds only the public key)" if private
                           else "public-key path ((1 + m·n)·h^s mod n², fixed base and short exponents after "
                                "Damgård–Jurik–Nielsen; slower than encrypting with the private key)"))
-    with dask_client(args.scheduler, args.workers) as client:
+    with dask_client(args.scheduler, args.workers, own=own) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             ev = encrypt_volume(scan, store, key, brick=args.brick, scalar=not args.no_scalar,
@@ -182,7 +185,7 @@ def compute_context(args: Any, ev: Any) -> Any:
 
 @contextlib.contextmanager
 def _local_client(args: Any) -> Any:
-    with dask_client(args.scheduler, args.workers) as client:
+    with dask_client(args.scheduler, args.workers, own=getattr(args, "own_cluster", False)) as client:
         print(f"compute: {describe_client(client)}")
         yield client
 
@@ -286,7 +289,7 @@ def cmd_recolour(args: Any) -> int:
     cam = saved.camera
     print(f"sums:    {args.sums}, {saved.sampling} sampling, {wh(cam.width, cam.height)} px, key "
           f"{saved.meta.fingerprint[:16]}… (from {saved.store or 'an unnamed store'})")
-    with dask_client(args.scheduler, args.workers) as client:
+    with dask_client(args.scheduler, args.workers, own=getattr(args, "own_cluster", False)) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             img = recolour(saved, mode=mode, density=args.density, nodes=nodes, precision=args.precision,
@@ -406,7 +409,7 @@ def cmd_upgrade_store(args: Any) -> int:
     if dst.exists():
         raise UsageError(f"NEW: {args.dst} already exists; choose a new path for the upgraded store")
     check_writable_dir(dst, "NEW")
-    with dask_client(args.scheduler, args.workers) as client:
+    with dask_client(args.scheduler, args.workers, own=getattr(args, "own_cluster", False)) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             ev = upgrade_store(args.src, args.dst, client=client, progress=show_progress(args))

@@ -225,7 +225,7 @@ def cmd_demo(args: Any) -> int:
               f"{plural(ev.meta.n_bricks, 'brick')} of {xyz(ev.brick)}, {human_bytes(disk_usage(ev.path))}")
         if args.scheduler:
             with Timer() as t:
-                client = stack.enter_context(dask_client(args.scheduler, None))
+                client = stack.enter_context(dask_client(args.scheduler, None, own=getattr(args, "own_cluster", False)))
             stages["connect"] = t.seconds
             print(f"[cluster] {t.seconds:.2f} s: {describe_client(client)}")
         with Timer() as t:  # open once, render many: the jobs below read no brick from the store

@@ -196,6 +196,11 @@ def add_general_options(p: argparse.ArgumentParser, dask: bool,
         g.add_argument("--scheduler", metavar="ADDRESS",
                        help="join a running Dask cluster, e.g. tcp://10.0.0.5:8786 (store paths must be "
                             "reachable from its workers)")
+        g.add_argument("--own-cluster", action="store_true",
+                       help="declare the --scheduler cluster yours: its scheduler and workers may run code in this "
+                            "process (Dask unpickles what they send), so a private key may be used beside it; "
+                            "without it a private key is refused with another party's cluster (render there "
+                            "with --server). Env HEVR_OWN_CLUSTER=ADDRESS[,ADDRESS] does the same")
         g.add_argument("--workers", type=workers_type, metavar="N",
                        help="start a local Dask cluster of N worker processes (1 thread each) for this "
                             f"command (0: none; at most {WORKERS_PER_CORE} per CPU core); default: {workers_default}")

@@ -46,7 +46,7 @@ def cmd_pyramid(args: Any) -> int:
         print(f"nothing to do: level{'s' if args.levels > 1 else ''} 1..{args.levels} exist")
         return 0
     size = size_of(store, so)
-    with dask_client(args.scheduler, args.workers) as client:
+    with dask_client(args.scheduler, args.workers, own=getattr(args, "own_cluster", False)) as client:
         print(f"compute: {describe_client(client)}")
         with Timer() as t:
             ev = build_pyramid(ev, args.levels, client=client, progress=show_progress(args))

@@ -54,7 +54,8 @@ def verify_store(path: str, so: dict | None, args: Any) -> tuple[str, list[str],
         ev = open_volume(path, verify="none", storage_options=so)
     except StoreError as exc:
         return f"FAILED: the bricks cannot be read ({exc})", [], True
-    with dask_client(getattr(args, "scheduler", None), getattr(args, "workers", None)) as client:
+    with dask_client(getattr(args, "scheduler", None), getattr(args, "workers", None),
+                     own=getattr(args, "own_cluster", False)) as client:
         report = verify_bricks(ev, client=client, progress=show_progress(args))
     levels = f" at level 0 and {ev.levels} pyramid level{'s' if ev.levels > 1 else ''}" if ev.levels else ""
     if report.ok:

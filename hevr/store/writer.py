@@ -48,7 +48,7 @@ import numpy as np
 import zarr
 
 from .. import _stats
-from .._dask import active_client, compute
+from .._dask import active_client, compute, is_own_cluster, refuse_foreign_cluster, scheduler_address
 from .._files import fs_errors
 from .._validate import (
     check_brick,
@@ -207,8 +207,10 @@ def encrypt_volume(
         Target store: a local path or an fsspec URL (``file://`` is local; ``memory://`` not on a cluster).
     key : PublicKey or PrivateKey
         A private key selects the owner-side fast path (same ciphertext distribution); it is
-        shipped to the Dask workers that encrypt, so use it only on machines the data owner
-        controls (see docs/security.md), else pass the public key.
+        shipped to the Dask workers that encrypt, so it is used only on a cluster this process
+        started or declared its own (:func:`hevr.own_cluster`), else
+        :class:`hevr.ForeignClusterError` before anything is written (docs/security.md); on
+        another party's cluster pass the public key.
     spacing : 3 floats, optional
         Voxel spacing in world order (sx, sy, sz); default the Scan's, else (1, 1, 1).
     brick : int or 3 ints
@@ -327,9 +329,9 @@ def encrypt_volume(
     )
     planned = plan_levels(meta, levels) if packing is not None else ()  # the packed levels' slots, before the disk
     path, so = normalise(path), check_storage_options(storage_options)
+    _check_cluster(client, key)  # a private key beside another party's cluster: refused before any work
     check_reachable(path, active_client(client))
     check_backend(backend, active_client(client))  # CuPy, a device, a compiler: before the disk is touched
-    _warn_if_remote(client, key)
     exists = store_exists(path, so)
     if exists and not (resume or overwrite):
         raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
@@ -436,13 +438,16 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
     return values
 
 
-def _warn_if_remote(client: Any, key: Any) -> None:
-    """Encryption tasks carry plaintext bricks (and p, q with a PrivateKey): say so loudly
-    when they are about to go to a scheduler that is not on this machine."""
-
+def _check_cluster(client: Any, key: Any) -> None:
+    """Encryption tasks carry plaintext bricks (and p, q with a PrivateKey). A private key beside a
+    cluster this process did not start (or declare its own, :func:`hevr.own_cluster`) is refused
+    (:class:`hevr.ForeignClusterError`: its workers could run code here, where the key is); with a
+    public key, say loudly that plaintext bricks go to that cluster. No address guessing: a loopback
+    address may be a tunnel to another party's cluster."""
     c = active_client(client)
-    addr = getattr(getattr(c, "scheduler", None), "address", "") or ""
-    if addr and not any(h in addr for h in ("127.0.0.1", "localhost", "inproc://", "[::1]")):
-        what = "plaintext bricks and the private key's p, q" if isinstance(key, PrivateKey) else "plaintext bricks"
-        log.warning("encrypt_volume sends %s to the Dask workers of %s; encrypt only on machines the "
-                    "data owner controls", what, addr)
+    if isinstance(key, PrivateKey):
+        refuse_foreign_cluster(c, "encrypt_volume with a PrivateKey (its tasks carry p and q)")
+    elif not is_own_cluster(c):
+        log.warning("encrypt_volume sends plaintext bricks to the Dask workers of %s, a cluster this process did not "
+                    "start; encrypt only on machines the data owner controls (hevr.own_cluster(client) declares it "
+                    "yours)", scheduler_address(c))

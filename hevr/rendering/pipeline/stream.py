@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from ..._dask import refuse_foreign_cluster
 from ...backends import get_backend
 from ...colour import Frame, frame_from_sums, scaled_sums
 from ...crypto.keys import PrivateKey
@@ -122,7 +123,10 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
         As for :func:`hevr.render` (``camera`` may be a :class:`hevr.Plane`: a slice). The
         density and nodes stay in this process: they colour the frame (:attr:`Frame.colouring`).
     private_key : PrivateKey
-        Decrypts the finished units here; it never enters the graph.
+        Decrypts the finished units here; it never enters the graph. Refused
+        (:class:`hevr.ForeignClusterError`) beside a Dask client of a cluster this process did not
+        start or declare its own (:func:`hevr.own_cluster`); a store of :func:`hevr.connect` renders
+        on its server's cluster, data only.
     decrypt_backend : str, optional
         Backend of the client's decryption (default ``cpu``).
     **kwargs
@@ -151,6 +155,8 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
                              f"got {unknown[0]}={kwargs[unknown[0]]!r}")
     if not isinstance(private_key, PrivateKey):
         raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
+    if getattr(ev, "remote", None) is None:  # rendered here, on a Dask client, decrypted beside it
+        refuse_foreign_cluster(kwargs.get("client"), "render_frame with the private key")
     plane = isinstance(camera, Plane)
     if not plane and getattr(getattr(ev, "meta", None), "packing", None) is not None:
         return _packed_frame(ev, camera, private_key, mode, sampling, step, density, nodes, decrypt_backend, kwargs)
