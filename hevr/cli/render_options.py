@@ -214,6 +214,9 @@ def add_verify_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trust-store", action="store_true",
                    help="with --key: accept STORE as it is now under its name in your known stores (the owner "
                         "re-encrypted or replaced it), where another store or version is otherwise refused")
+    p.add_argument("--untagged", action="store_true",
+                   help="with --trust-store: accept a store without tags (made with the public key) although the "
+                        "key's policy requires tags; its frames are not verified")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--verify", nargs="?", const=True, default=None, metavar="STORE_ID", type=_store_id,
                    help="with --key: require the check against the store's tags (on by default for a verifiable "

@@ -55,8 +55,11 @@ def key_holder(args: Any, ev: Any) -> bool | str | None:
     if args.trust_store:
         if args.private_key is None:
             raise UsageError("--trust-store: expected --key KEY.json as well (the known stores are the key holder's)")
-        entry = trust_store(ev)
-        print(f"trusted: {ev.path} is now recorded as the store {entry.store_id} in {known_stores_path()}")
+        entry = trust_store(ev, args.private_key, untagged=getattr(args, "untagged", False))
+        print(f"trusted: {ev.path} is now recorded as the store {entry.store_id} in {known_stores_path()}"
+              + (" (accepted without tags)" if entry.accepted_untagged else ""))
+    elif getattr(args, "untagged", False):
+        raise UsageError("--untagged: expected --trust-store as well (it accepts a store without tags explicitly)")
     return verify
 
 

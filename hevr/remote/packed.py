@@ -70,7 +70,7 @@ def _tiles(server: Any, where: str, req: RenderRequest, counts: list[int], width
 
 
 def _verification(server: Any, where: str, req: RenderRequest, meta: Any, channel: str, k: int,
-                  n: int, level: int = 0) -> PackedVerification:
+                  n: int, level: int = 0, name: str = "") -> PackedVerification:
     """The second round, after the values are in this process: a fresh seed, the server's one
     aggregate; the record's every other field is this process's own."""
     t1 = time.perf_counter()
@@ -78,7 +78,8 @@ def _verification(server: Any, where: str, req: RenderRequest, meta: Any, channe
     raw, _ = server.request("POST", f"{where}/verify", body=VerifyRequest(render=req, seed=seed).to_dict(),
                             limit=MAX_BODY)
     return PackedVerification(aggregate=_aggregate(raw, n, server.url), seed=seed, meta=meta, level=level,
-                              channel=channel, components=k, server_s=time.perf_counter() - t1, drawn_here=True)
+                              channel=channel, components=k, server_s=time.perf_counter() - t1, drawn_here=True,
+                              known_name=name)
 
 
 def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weight_bits: int | None,
@@ -122,7 +123,7 @@ def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weig
                              level=0) for j in range(k)]
         img = PackedColourImage(components=comps, colouring=colouring, stats=stats, channel=channel)
     if verify:  # the values are fixed in this process: only now the seed
-        img.verification = _verification(server, where, req, base, channel, k, n, level)
+        img.verification = _verification(server, where, req, base, channel, k, n, level, str(rv.path))
         img.stats["verify_s"] = img.verification.server_s
         img.stats["seconds"] = time.perf_counter() - t0
     log.info("remote packed render %dx%d: %s", camera.width, camera.height, img.stats)
@@ -152,5 +153,6 @@ def render_remote_packed_slice(rv: Any, plane: Any, sampling: str, *, backend: s
                       exponent=meta.scalar.exponent, offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles,
                       store_id=meta.store_id, stats=stats)
     if verify:
-        img.verification = _verification(server, where, req, meta, "scalar", 1, int(rv.public_key.n))
+        img.verification = _verification(server, where, req, meta, "scalar", 1, int(rv.public_key.n),
+                                         name=str(rv.path))
     return img

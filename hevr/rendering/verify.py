@@ -69,7 +69,7 @@ from ..crypto.tags import (
 )
 from ..errors import HevrError, IntegrityError, ParameterError, VerificationError
 from ..store.authenticity import authenticated_fields, check_metadata_mac
-from ..store.known import check_known
+from ..store.known import check_known, record_verified
 from ..store.metadata import VolumeMetadata
 from ..store.pyramid import LEVEL_FACTOR
 from ..volume.pyramid import MAX_LEVELS, level_shape
@@ -256,6 +256,7 @@ class Verification:
     server_s: float = 0.0
     meta: Any = None  # the store's (level-0) VolumeMetadata the render used; its owner's MAC is checked
     drawn_here: bool = False  # the seed was drawn in this process (not read from a file)
+    known_name: str = dataclasses.field(default="", compare=False)  # rendered under (known stores; not in files)
 
     def __repr__(self) -> str:
         return f"Verification({self.channel}, {self.components} per ray, seed …)"
@@ -271,7 +272,7 @@ class Verification:
                    spacing=ev.spacing, brick=ev.brick, camera=camera, sampling=sampling, step=step, digits=digits,
                    components=ev.meta.components(channel), n=int(ev.public_key.n), level=ev.level,
                    exponent=int(exponent), base_shape=tuple(base.shape), server_s=server_s, meta=base,
-                   drawn_here=True)
+                   drawn_here=True, known_name=str(ev.path))
 
     def to_dict(self) -> dict[str, Any]:
         """The record a ``.hevr`` file carries (public: a ciphertext, a seed, the request's geometry)."""
@@ -430,4 +431,5 @@ class Verification:
                 "image: the render does not verify: its ray sums are not the ones the store's tags certify (an "
                 "altered, substituted or replayed image or store, or a server that did not render as asked); "
                 "no image is returned")
+        record_verified(self, private_key)  # proven: the store under its name is the one the key holder knows
 

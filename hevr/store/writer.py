@@ -394,7 +394,7 @@ def encrypt_volume(
                                "wrote it; this run's store is not there")
     ev = build_pyramid(ev, levels, client=client, progress=progress, backend=backend) if levels and not packing else ev
     ev.written_now = {"bricks": len(todo), "ciphertexts": values}  # this call's share (resume: the missing ones)
-    record_quietly(ev, replace=True)  # the owner made it: the key holder's known stores (hevr.store.known)
+    record_quietly(ev, key if isinstance(key, PrivateKey) else None, replace=True)  # the owner's: hevr.store.known
     return ev
 
 

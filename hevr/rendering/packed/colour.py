@@ -347,6 +347,7 @@ def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, 
         level = int(getattr(ev, "level", 0) or 0)
         image.verification = PackedVerification(aggregate=A, seed=seed, meta=ev.base if level else ev.meta,
                                                 level=level, channel=channel, components=len(image.components),
-                                                ops=ops, server_s=time.perf_counter() - t0, drawn_here=True)
+                                                ops=ops, server_s=time.perf_counter() - t0, drawn_here=True,
+                                                known_name=str(ev.path))
         image.stats["verify"] = {"server_s": image.verification.server_s, "ops": ops}
     return image

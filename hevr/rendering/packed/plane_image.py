@@ -177,7 +177,7 @@ def slice_verification(ev: Any, plan: PlanePlan, backend: str, client: Any, prog
     t0 = time.perf_counter()
     A, ops = slice_aggregate(ev, plan, backend, client, progress, seed)
     return PackedVerification(aggregate=A, seed=seed, meta=ev.meta, ops=ops, server_s=time.perf_counter() - t0,
-                              drawn_here=True)
+                              drawn_here=True, known_name=str(ev.path))
 
 
 @dataclass

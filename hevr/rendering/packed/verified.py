@@ -37,7 +37,7 @@ import secrets
 import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import gmpy2
@@ -49,6 +49,7 @@ from ...backends import get_backend
 from ...crypto.tags import aggregate_holds, betas, coefficients_at, tag_channel, tag_key_of
 from ...errors import ParameterError, VerificationError
 from ...store.authenticity import authenticated_fields, check_metadata_mac
+from ...store.known import record_verified
 from ...store.layout import array_slices
 from ..pipeline.kernel import plan_products
 from .graph import map_graph, merge_parts
@@ -117,7 +118,7 @@ def tag_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress:
     A, ops = aggregate_for(ev, plan, backend, client, progress, seed)
     level = int(getattr(ev, "level", 0) or 0)
     return PackedVerification(aggregate=A, seed=seed, meta=ev.base if level else ev.meta, level=level, ops=ops,
-                              server_s=time.perf_counter() - t0, drawn_here=True)
+                              server_s=time.perf_counter() - t0, drawn_here=True, known_name=str(ev.path))
 
 
 def class_beta_total(beta_limbs: np.ndarray, packs: np.ndarray, classes: np.ndarray, rho: np.ndarray,
@@ -182,6 +183,7 @@ class PackedVerification:
     ops: Any = None
     server_s: float = 0.0
     drawn_here: bool = False
+    known_name: str = field(default="", compare=False)  # rendered under (known stores; not in files)
 
     def __repr__(self) -> str:
         return f"PackedVerification(store {self.meta.store_id}, seed …)"
@@ -280,3 +282,4 @@ class PackedVerification:
                 "image: the packed frame does not verify: its values are not the ones the store's tags certify (an "
                 "altered, substituted or replayed image or store, or a server that did not render as asked); no "
                 "image is returned")
+        record_verified(self, private_key)  # proven: the store under its name is the one the key holder knows
