@@ -77,7 +77,7 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
     from .rendering.pipeline.sums import SavedSums, load_sums, recolour
     from .rendering.reference.plain import render_plain, render_slice_plain
     from .rendering.slices import render_slice
-    from .store.known import known_stores, trust_store
+    from .store.known import export_known_stores, import_known_stores, known_stores, trust_store
     from .store.pyramid import build_pyramid
     from .store.reader import EncryptedVolume, open_volume
     from .store.upgrade import upgrade_store
@@ -128,7 +128,7 @@ _LAZY = {
     ".rendering.pipeline.stream": ("render_frame",),
     ".rendering.pipeline.sums": ("SavedSums", "load_sums", "recolour"),
     ".rendering.geometry.views": ("VIEWS",),
-    ".store.known": ("known_stores", "trust_store"),
+    ".store.known": ("export_known_stores", "import_known_stores", "known_stores", "trust_store"),
     ".store.pyramid": ("build_pyramid",),
     ".store.reader": ("EncryptedVolume", "open_volume"),
     ".store.upgrade": ("upgrade_store",),
@@ -196,7 +196,9 @@ __all__ = [
     "encode_density",
     "encrypt_volume",
     "error_bound",
+    "export_known_stores",
     "generate_keypair",
+    "import_known_stores",
     "known_stores",
     "load_image",
     "load_key",

@@ -99,6 +99,7 @@ PUBLIC_API = (
     "FileSystemError", "InsecureKeyWarning", "KeyFilePermissionWarning",
     "connect", "RemoteError",  # hevr serve's key holder (issue 37)
     "known_stores", "trust_store",  # the key holder's known stores (issue 38)
+    "export_known_stores", "import_known_stores",  # portable, MAC'd known stores (issue 47)
     "VIEWS", "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
     "PackedImage",  # a packed store's frame (issue 45)
 )
