@@ -109,6 +109,7 @@ CLI_NAMES: dict[str, dict[str, str]] = {
              "volume": "--volume", "oblique": "--oblique", "allow_uneven": "--allow-uneven",
              "read_scan": "--series, --allow-uneven"},
     "upgrade-store": {"src": "OLD", "dst": "NEW"},
+    "known": {"key": "--key", "private_key": "--key", "path": "FILE", "file": "FILE", "overwrite": "--force"},
     "demo": {"input": "--input", "vol": "--input", "load_volume": "--input", "out": "--out", "bits": "--bits",
              "brick": "--brick", "camera": "--image", "width": "--image", "height": "--image", "size": "--size",
              "overwrite": "--force"},

@@ -71,6 +71,8 @@ COMMANDS: tuple[Command, ...] = (
             ".render_arguments:decrypt_arguments", ".commands:cmd_decrypt"),
     Command("info", "describe a store, a frame, a key or a volume file; list a DICOM folder's series",
             ".arguments:info_arguments", ".info:cmd_info"),
+    Command("known", "the key holder's known stores: list, export, import (MAC'd under the private key)",
+            ".known:known_arguments", ".known:cmd_known"),
     Command("upgrade-store", "convert a format-1 store (no integrity digests) into a new format-2 store",
             ".arguments:upgrade_store_arguments", ".commands:cmd_upgrade_store"),
     Command("pyramid", "add coarse levels (2x2x2 means) to a store, for quick previews (no key needed)",
