@@ -44,6 +44,7 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
         ExistingFileError,
         FileSystemError,
         ForeignClusterError,
+        FrameMovedWarning,
         HevrError,
         IncompleteStoreError,
         InsecureKeyWarning,
@@ -67,6 +68,7 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
     from .image.display import save_png, to_uint8
     from .image.encrypted import EncryptedImage
     from .image.files import load_image
+    from .image.proof import Expect, FrameProof, proof_of
     from .remote.client import connect
     from .rendering.encrypted import RaySums, clear_cache, error_bound, render
     from .rendering.geometry.camera import Camera
@@ -109,7 +111,7 @@ _LAZY = {
     ".crypto.keys": ("PrivateKey", "PublicKey", "generate_keypair"),
     ".crypto.number": ("EncryptedNumber",),
     ".errors": (
-        "CorruptStoreError", "CorruptVolumeError", "ExistingFileError", "FileSystemError", "ForeignClusterError", "HevrError", "IncompleteStoreError",
+        "CorruptStoreError", "CorruptVolumeError", "ExistingFileError", "FileSystemError", "ForeignClusterError", "FrameMovedWarning", "HevrError", "IncompleteStoreError",
         "InsecureKeyWarning", "IntegrityError", "InvalidKeyError", "KeyFilePermissionWarning", "KeyMismatchError",
         "MemoryLimitError", "MissingDependencyError", "MissingFileError", "NotRegularFileError", "ParameterError",
         "PlaintextOverflowError", "RemoteError", "RenderPlanError", "StoreError", "StoreExistsError", "VerificationError",
@@ -118,6 +120,7 @@ _LAZY = {
     ".image.display": ("save_png", "to_uint8"),
     ".image.encrypted": ("EncryptedImage",),
     ".image.files": ("load_image",),
+    ".image.proof": ("Expect", "FrameProof", "proof_of"),
     ".remote.client": ("connect",),
     ".rendering.geometry.camera": ("Camera",),
     ".rendering.packed.image": ("PackedImage",),
@@ -158,9 +161,12 @@ __all__ = [
     "EncryptedNumber",
     "EncryptedVolume",
     "ExistingFileError",
+    "Expect",
     "FileSystemError",
     "ForeignClusterError",
     "Frame",
+    "FrameMovedWarning",
+    "FrameProof",
     "HevrError",
     "IncompleteStoreError",
     "InsecureKeyWarning",
@@ -209,6 +215,7 @@ __all__ = [
     "open_volume",
     "own_cluster",
     "phantom",
+    "proof_of",
     "range_hint",
     "read_scan",
     "recolour",

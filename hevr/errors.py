@@ -27,6 +27,7 @@ __all__ = [
     "CorruptStoreError",
     "IntegrityError",
     "VerificationError",
+    "FrameMovedWarning",
     "VolumeFormatError",
     "CorruptVolumeError",
     "MissingDependencyError",
@@ -210,6 +211,12 @@ class ForeignClusterError(HevrError, PermissionError):
     >>> str(ForeignClusterError("client: expected a cluster of this process's own, got tcp://h:8786"))
     "client: expected a cluster of this process's own, got tcp://h:8786"
     """
+
+
+class FrameMovedWarning(UserWarning):
+    """A verified frame was read from another place than the key holder saved it: it proves its
+    store and view (:mod:`hevr.image.proof`), not that it belongs where it was found; decrypt with
+    ``require_verified=hevr.Expect(store=..., view=...)`` to check that it is the frame you expect."""
 
 
 class InsecureKeyWarning(UserWarning):

@@ -27,10 +27,20 @@ if os.environ.get("HEVR_TEST_FAKE_CUPY") == "1":  # before any test module asks 
     os.environ["HEVR_TEST_KERNELS"] = "cuda"
 
 
-def _keypair(bits: int):
+def _keypair(bits: int, require_tags: bool = False):
+    """The session's keys are made without the key policy (``require_tags``, on by default for new
+    keys since issue 47): the suites of the render pipeline build stores with and without tags on
+    purpose. ``policy_keypair256`` has it; tests/crypto/test_key_policy.py tests the default."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
-        return generate_keypair(bits)
+        return generate_keypair(bits, require_tags=require_tags)
+
+
+@pytest.fixture(scope="session")
+def policy_keypair256(keypair256):
+    """The 256-bit session key with the policy that every store of it carries tags."""
+    pub, priv = keypair256
+    return pub, priv.with_policy(require_tags=True)
 
 
 @pytest.fixture(scope="session")

@@ -21,7 +21,7 @@ from .options import (
 )
 from .parser import wrap
 
-__all__ = ["BENCH_EPILOG", "bench_arguments", "convert_key_arguments", "info_arguments", "keygen_arguments",
+__all__ = ["BENCH_EPILOG", "bench_arguments", "convert_key_arguments", "info_arguments", "key_policy_arguments", "keygen_arguments",
            "upgrade_store_arguments"]
 
 BENCH_EPILOG = f"""\
@@ -53,6 +53,26 @@ def keygen_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="overwrite existing key files")
     p.add_argument("--format", choices=("hevr", "phe"), default="hevr",
                    help="file format: hevr's (default) or python-paillier's pheutil JSON (phe)")
+    p.add_argument("--no-require-tags", dest="require_tags", action="store_false",
+                   help="a key without the policy that every store of it carries tags (default: with it; hevr "
+                        "key-policy changes it later)")
+
+
+def key_policy_arguments(p: argparse.ArgumentParser) -> None:
+    """``hevr key-policy``: its description, examples and arguments."""
+    add_general_options(p, dask=False)
+    p.description = wrap("Show or set the private key's policy: with --require-tags every store of this key must "
+                         "carry tags, so that a store without them (made with the public key only, or stripped by a "
+                         "server) is refused before it is rendered and never decrypts to an image; keys made by "
+                         "'hevr keygen' have it. The key file is rewritten in place (mode 0600, atomically).")
+    p.epilog = ("examples:\n  hevr key-policy key.json                   # show it\n"
+                "  hevr key-policy key.json --require-tags    # an existing key opts in\n")
+    p.add_argument("key", metavar="KEY.json", help="the private key file (hevr's format)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--require-tags", dest="require_tags", action="store_true", default=None,
+                   help="every store of this key carries tags")
+    g.add_argument("--no-require-tags", dest="require_tags", action="store_false",
+                   help="stores without tags are accepted (with a warning at each render)")
 
 
 def convert_key_arguments(p: argparse.ArgumentParser) -> None:

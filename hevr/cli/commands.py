@@ -25,6 +25,7 @@ from ..crypto.keys import PrivateKey
 from ..image import load_image
 from ..image.display import default_window
 from ..image.orient import describe_layout
+from ..image.proof import Expect, proof_of
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..remote.client import connect
 from ..rendering.encrypted import render
@@ -346,6 +347,24 @@ def decrypt_colouring(args: Any, img: Any) -> tuple[str, float | None, Any] | No
     return mode, args.density, nodes
 
 
+def expected(args: Any) -> Any:
+    """``hevr decrypt``'s ``require_verified``: None (the key's policy), False (``--unverified``), True,
+    a store id, or an :class:`hevr.Expect` of ``--expect-store / --expect-view / --max-age / --moved``."""
+    if args.unverified:
+        if args.require_verified or args.expect_store or args.expect_view or args.max_age or args.moved:
+            raise UsageError("--unverified: expected alone, got it with --require-verified or an --expect option")
+        return False
+    if not (args.expect_store or args.expect_view or args.max_age or args.moved):
+        return args.require_verified
+    store = args.expect_store
+    if isinstance(args.require_verified, str):
+        if store is not None and store != args.require_verified:
+            raise UsageError(f"--expect-store {store}: expected the store --require-verified names, got "
+                             f"{args.require_verified} there")
+        store = args.require_verified
+    return Expect(store=store, view=args.expect_view, max_age=args.max_age, moved=args.moved)
+
+
 def cmd_decrypt(args: Any) -> int:
     so = st.storage_options(args)
     frame = normalise(args.frame) if st.is_url(args.frame) else check_frame_path(st.local_path(args.frame), "FRAME")
@@ -360,7 +379,7 @@ def cmd_decrypt(args: Any) -> int:
     img = load_image(frame, storage_options=so)
     packed = isinstance(img, (PackedImage, PackedColourImage))
     colouring = check_packed_decrypt(args) if isinstance(img, PackedImage) else decrypt_colouring(args, img)
-    need = args.require_verified
+    need = expected(args)
     with Timer() as t:
         decrypted = (img.decrypt_frame(key, require_verified=need) if colouring is not None else
                      img.decrypt(key, require_verified=need))
@@ -383,8 +402,14 @@ def cmd_decrypt(args: Any) -> int:
     print(f"decrypted {plural(img.n_ciphertexts, 'ciphertext')} in {t.seconds:.3f} s: {wh(arr.shape[1], arr.shape[0])} px"
           f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}")
     if img.verification is not None:
-        print((packed_verified_line(img) if packed else verified_line(img)) + " (the file carries the key holder's "
-              "stamp)")
+        proof = proof_of(img)
+        if proof.moved and need is None:
+            print(f"NOT verified for {frame}: the key holder saved this frame as {proof.saved_as}; it proves only "
+                  f"that it is {proof.describe().split(';')[0]} (name what you expect: --expect-store "
+                  f"{proof.store_id} --expect-view {proof.view_key})")
+        else:
+            print((packed_verified_line(img) if packed else verified_line(img)) + " (the file carries the key "
+                  f"holder's stamp)\nproof:   {proof.describe()}")
     else:
         print("not verified: the frame carries no check against a store's tags (a store encrypted without "
               "--verifiable, rendered without --key or with --no-verify or --finish server); --require-verified "

@@ -73,6 +73,7 @@ _EVERY = {"workers": "--workers", "scheduler": "--scheduler", "client": "--sched
 # command's argparse dest is listed too (a path it names is matched to its option).
 CLI_NAMES: dict[str, dict[str, str]] = {
     "keygen": {"bits": "--bits", "out": "--out", "path": "--out", "overwrite": "--force"},
+    "key-policy": {"key": "KEY.json", "path": "KEY.json"},
     "convert-key": {"key": "KEY", "out": "--out", "path": "--out", "overwrite": "--force", "format": "--format"},
     "encrypt": {"gradient": "--gradient", "verifiable": "--verifiable",
                 "input": "INPUT", "vol": "INPUT", "data": "INPUT", "load_volume": "INPUT",

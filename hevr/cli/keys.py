@@ -11,6 +11,7 @@ no Dask or Zarr): ``hevr info KEY`` runs from here.
 from __future__ import annotations
 
 import stat
+import json
 import warnings
 from pathlib import Path
 from typing import Any
@@ -45,13 +46,44 @@ def cmd_keygen(args: Any) -> int:
         warn_line(f"a {args.bits}-bit key is NOT secure; use --bits {SECURE_BITS} or more for real data")
     with Timer() as t, warnings.catch_warnings():
         warnings.simplefilter("ignore", InsecureKeyWarning)
-        pub, priv = generate_keypair(args.bits)
+        pub, priv = generate_keypair(args.bits, require_tags=args.require_tags)
     priv.save(out, overwrite=args.force, format=args.format)
     pub.save(pub_out, overwrite=args.force, format=args.format)
     print(f"generated a {args.bits}-bit Paillier key pair in {t.seconds:.2f} s ({FORMAT_NAMES[args.format]})")
     print(f"  private key: {out}  (mode 0600 - keep it secret, it decrypts every image)")
     print(f"  public key:  {pub_out}  (give this one to whoever encrypts)")
     print(f"  fingerprint: {pub.fingerprint}")
+    print(f"  policy:      {policy_text(priv, args.format)}")
+    return 0
+
+
+def policy_text(priv: PrivateKey, fmt: str = "hevr") -> str:
+    """The key's policy, for a person."""
+    if fmt == "phe":
+        return ("none (a pheutil file cannot hold it; 'hevr convert-key' to hevr's format and 'hevr key-policy "
+                "--require-tags' give it one)")
+    return ("every store of this key carries tags (a store without them is refused; 'hevr key-policy "
+            "--no-require-tags' turns it off)" if priv.require_tags else
+            "stores without tags are accepted with a warning ('hevr key-policy --require-tags' requires tags)")
+
+
+# -- key-policy ----------------------------------------------------------------------------
+def cmd_key_policy(args: Any) -> int:
+    key = read_key(args.key, private=True)
+    path = Path(args.key).expanduser()
+    if args.require_tags is None or args.require_tags == key.require_tags:
+        print(f"{path}: {policy_text(key)}")
+        return 0
+    check_output_file(path)
+    try:
+        hevr_format = json.loads(path.read_text(encoding="utf-8")).get("format") == "hevr-key"
+    except (OSError, ValueError, AttributeError):
+        hevr_format = False
+    if not hevr_format:
+        raise UsageError(f"KEY: expected a key file in hevr's format (a pheutil file cannot hold a policy), got {path}; "
+                         "'hevr convert-key KEY --out key.json --format hevr' first")
+    key.with_policy(require_tags=args.require_tags).save(path, overwrite=True)  # asked for: rewritten in place
+    print(f"wrote {path}: {policy_text(key.with_policy(require_tags=args.require_tags))}")
     return 0
 
 

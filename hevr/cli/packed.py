@@ -19,6 +19,7 @@ from ..rendering.packed.shear import ShearGeometry
 from ..rendering.planning.planner import check_render_size
 from .storage import png_name
 from .util import UsageError, plural, warn_line, wh, xyz
+from ..image.proof import proof_of
 
 __all__ = ["check_packed_decrypt", "check_packed_render", "default_packed_view", "packed_camera", "packed_done",
            "packed_encrypt_lines", "packed_info_rows", "packed_start", "packed_verified_line"]
@@ -165,8 +166,8 @@ def packed_verified_line(img: Any) -> str | None:
             f"{v.channel} channel's {v.components} components")
     return (f"verified: the frame is the packed {kind} of store {v.store_id} ({img.plan.sampling} sampling, level "
             f"{img.level}) and its view, parallel camera at ({', '.join(f'{x:g}' for x in c.position)}) looking at "
-            f"({', '.join(f'{x:g}' for x in c.focal_point)}), {c.width}x{c.height} px; checked against the store's "
-            "tags and its owner-authenticated metadata")
+            f"({', '.join(f'{x:g}' for x in c.focal_point)}), {c.width}x{c.height} px (view key "
+            f"{proof_of(img).view_key}); checked against the store's tags and its owner-authenticated metadata")
 
 
 def packed_info_rows(img: Any) -> list[tuple[str, Any]]:
@@ -178,7 +179,7 @@ def packed_info_rows(img: Any) -> list[tuple[str, Any]]:
         verified = "no (no check against the store's tags: --require-verified refuses it)"
     else:
         verified = (f"record of store {v.store_id}, " + ("with the key holder's stamp, saved as "
-                    f"{img.stamp[2]!r} (checked with the key at decryption)" if img.stamp is not None else
+                    f"{img.stamp.saved_as!r} (checked with the key at decryption)" if img.stamp is not None else
                     "without the key holder's stamp (refused at decryption)"))
     return [
         ("kind", "encrypted packed frame (.hevr: " + ("an X-ray of a packed store" if not hasattr(img, "components")

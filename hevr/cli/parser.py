@@ -57,6 +57,8 @@ class Command(NamedTuple):
 COMMANDS: tuple[Command, ...] = (
     Command("keygen", "generate a Paillier key pair",
             ".arguments:keygen_arguments", ".keys:cmd_keygen"),
+    Command("key-policy", "show or set a private key's policy (every store of it carries tags)",
+            ".arguments:key_policy_arguments", ".keys:cmd_key_policy"),
     Command("convert-key", "convert a key file between hevr's and python-paillier's (pheutil) formats",
             ".arguments:convert_key_arguments", ".keys:cmd_convert_key"),
     Command("encrypt", "encrypt a volume into a Zarr store",

@@ -11,6 +11,7 @@ from typing import Any
 from ..store.known import known_stores_path, trust_store
 from .keys import read_key
 from .util import UsageError, warn_line
+from ..image.proof import proof_of
 
 __all__ = ["key_holder", "verified_line", "verify_argument", "warn_unverified"]
 
@@ -75,5 +76,5 @@ def verified_line(img: Any) -> str | None:
             f"camera at ({', '.join(f'{x:g}' for x in view.position)}) looking at "
             f"({', '.join(f'{x:g}' for x in view.focal_point)}), {view.width}x{view.height} px")
     return (f"verified: the frame is the render of store {v.store_id} (channel {v.channel}, {v.sampling} sampling, "
-            f"step {v.step:g}, level {v.level}) and its view, {what}; checked against the store's tags and its "
-            "owner-authenticated metadata")
+            f"step {v.step:g}, level {v.level}) and its view, {what} (view key {proof_of(img).view_key}); checked "
+            "against the store's tags and its owner-authenticated metadata")

@@ -3,7 +3,9 @@ private files 0600, atomically).
 
 A key file is a JSON object ``{"format": "hevr-key", "version": 1, "kind":
 "public"|"private", "bits": …, "n": "…", "fingerprint": "…"}`` plus ``"p"`` and ``"q"``
-(decimal strings) for private keys. Loading checks everything that can be checked —
+(decimal strings) and ``"policy": {"require_tags": true|false}`` (:class:`hevr.PrivateKey`: every
+store of this key carries tags; a file without it, written before issue 47, has no policy) for
+private keys. Loading checks everything that can be checked —
 format, sizes, p·q = n, primality, fingerprint — and reports problems without ever
 quoting a secret value. What a file claims is checked too: a public key's n must be able to
 be a Paillier modulus (:func:`modulus_problem`: odd, not a square, not prime, no factor below
@@ -204,9 +206,21 @@ def load_key(path) -> PublicKey | PrivateKey:
     problem = factor_problem(n, p, q)
     if problem is not None:
         raise InvalidKeyError(f"key file {path}: {problem}")
-    key = PrivateKey(pub, p, q)
+    key = PrivateKey(pub, p, q, require_tags=_policy(d, path))
     _check_claims(key, path)
     return key
+
+
+def _policy(d: dict, path: Path) -> bool:
+    """The key's ``require_tags`` policy (:class:`hevr.PrivateKey`): the file's ``policy`` object;
+    a file without one (written before issue 47) has none."""
+    pol = d.get("policy")
+    if pol is None:
+        return False
+    if not (isinstance(pol, dict) and set(pol) == {"require_tags"} and isinstance(pol["require_tags"], bool)):
+        raise InvalidKeyError(f"key file {path}: field 'policy': expected {{\"require_tags\": true|false}}, got "
+                              f"{json.dumps(pol)[:60]}")
+    return pol["require_tags"]
 
 
 def _check_claims(key: PublicKey | PrivateKey, path: Path) -> None:

@@ -232,16 +232,30 @@ class PublicKey:
 
 
 class PrivateKey:
-    """Paillier private key (p, q) with precomputed CRT constants.
+    """Paillier private key (p, q) with precomputed CRT constants, and the key holder's policy.
 
     Encryption with a private key (:meth:`encrypt`) uses the owner-side fast path of
     :mod:`hevr.crypto.owner`: the same ciphertext distribution as :meth:`PublicKey.encrypt`,
     many times faster.
+
+    ``require_tags`` (the key's policy, kept in its file): every store of this key carries tags
+    (:mod:`hevr.crypto.tags`), so that every frame of it can be verified. The owner's encryption
+    with such a key writes tags without being asked; a store without tags under this key — made
+    with the public key only, or stripped by a server — is refused before it is rendered where the
+    process knows the key, and at the latest when the key holder decrypts: never an image, unless
+    the key holder accepted that store explicitly (``hevr.trust_store(ev, key, untagged=True)``)
+    or asks for an unverified image by name (``decrypt(..., require_verified=False)``). On by
+    default for keys made by :func:`generate_keypair`; an existing key opts in with
+    :meth:`with_policy` (``hevr key-policy KEY --require-tags``). A constructed or
+    python-paillier key has no policy unless given one.
     """
 
-    __slots__ = ("public_key", "p", "q", "_psquare", "_qsquare", "_hp", "_hq", "_p_inv_q", "_owner")
+    __slots__ = ("public_key", "p", "q", "_psquare", "_qsquare", "_hp", "_hq", "_p_inv_q", "_owner", "require_tags")
 
-    def __init__(self, public_key: PublicKey, p: int, q: int) -> None:
+    def __init__(self, public_key: PublicKey, p: int, q: int, *, require_tags: bool = False) -> None:
+        if not isinstance(require_tags, bool):
+            raise ParameterError(f"require_tags: expected True or False, got {require_tags!r:.40}")
+        self.require_tags = require_tags
         p, q = mpz(p), mpz(q)
         if p > q:
             p, q = q, p
@@ -270,7 +284,20 @@ class PrivateKey:
 
     def __reduce__(self):
         # Tables are rebuilt where they are needed rather than shipped.
-        return (PrivateKey, (self.public_key, int(self.p), int(self.q)))
+        return (_private_key, (self.public_key, int(self.p), int(self.q), self.require_tags))
+
+    def with_policy(self, *, require_tags: bool) -> PrivateKey:
+        """The same key with the policy ``require_tags`` (class docstring); save it with
+        ``save(path, overwrite=True)`` to keep the policy in its file.
+
+        >>> import warnings
+        >>> with warnings.catch_warnings():
+        ...     warnings.simplefilter("ignore")
+        ...     pub, priv = generate_keypair(64, require_tags=False)
+        >>> priv.require_tags, priv.with_policy(require_tags=True).require_tags, priv.with_policy(require_tags=True) == priv
+        (False, True, True)
+        """
+        return PrivateKey(self.public_key, int(self.p), int(self.q), require_tags=require_tags)
 
     @property
     def fingerprint(self) -> str:
@@ -358,7 +385,8 @@ class PrivateKey:
         if format == "phe":  # checked by the line above
             return {"kty": "DAJ", "key_ops": ["decrypt"], "p": _b64url(self.p), "q": _b64url(self.q), "pub": pub,
                     "kid": f"Paillier private key exported by hevr, fingerprint {self.fingerprint}"}
-        pub.update(kind="private", p=str(int(self.p)), q=str(int(self.q)))
+        pub.update(kind="private", p=str(int(self.p)), q=str(int(self.q)),
+                   policy={"require_tags": self.require_tags})
         return pub
 
     def save(self, path, overwrite: bool = False, format: str = "hevr") -> None:
@@ -368,6 +396,11 @@ class PrivateKey:
         ``format="phe"`` writes python-paillier's ``pheutil`` JSON instead of hevr's."""
         text = json.dumps(self.to_dict(format), indent=1) + "\n"
         write_atomic(path, text, mode=0o600, overwrite=overwrite)
+
+
+def _private_key(public_key: PublicKey, p: int, q: int, require_tags: bool) -> PrivateKey:
+    """Unpickling (:meth:`PrivateKey.__reduce__`): the policy is keyword-only."""
+    return PrivateKey(public_key, p, q, require_tags=require_tags)
 
 
 _OWNER_CACHE = Recent(2)  # n -> OwnerEncryptor
@@ -382,8 +415,11 @@ def _owner_tables(p: mpz, q: mpz) -> OwnerEncryptor:
     return enc if enc is not None else _OWNER_CACHE.keep(n, OwnerEncryptor(p, q))
 
 
-def generate_keypair(bits: int = 2048) -> tuple[PublicKey, PrivateKey]:
+def generate_keypair(bits: int = 2048, *, require_tags: bool = True) -> tuple[PublicKey, PrivateKey]:
     """Generate a Paillier key pair (supplementary Alg. "Create Keys").
+
+    ``require_tags`` (default True): the private key's policy that every store of this key
+    carries tags (:class:`PrivateKey`); False makes a key without it.
 
     p ≠ q are random primes of bits/2 bits from :mod:`secrets`, n has exactly ``bits``
     bits, g = n + 1 and gcd(n, (p-1)(q-1)) = 1. Sizes below 2048 bits emit
@@ -400,6 +436,8 @@ def generate_keypair(bits: int = 2048) -> tuple[PublicKey, PrivateKey]:
     """
     if isinstance(bits, bool) or not isinstance(bits, Integral) or bits % 2 or not MIN_BITS <= bits <= MAX_BITS:
         raise ParameterError(f"bits must be an even integer in [{MIN_BITS}, {MAX_BITS}]; got {bits!r}")
+    if not isinstance(require_tags, bool):
+        raise ParameterError(f"require_tags: expected True or False, got {require_tags!r:.40}")
     bits = int(bits)
     if bits < SECURE_BITS:
         warnings.warn(f"a {bits}-bit Paillier key is not secure; use at least {SECURE_BITS} bits",
@@ -415,4 +453,4 @@ def generate_keypair(bits: int = 2048) -> tuple[PublicKey, PrivateKey]:
             continue
         pub = PublicKey(n)
         log.info("generated a %d-bit Paillier key %s", bits, pub.fingerprint[:16])
-        return pub, PrivateKey(pub, p, q)
+        return pub, PrivateKey(pub, p, q, require_tags=require_tags)

@@ -38,6 +38,7 @@ from ..errors import IntegrityError, KeyMismatchError, ParameterError
 from ..store.paths import check_storage_options, output_location, write_output
 from .checks import check_image, tile_name
 from .header import file_parts
+from .proof import Expect
 from .provenance import check_provenance, for_file
 from .stamp import saved_name
 
@@ -138,7 +139,7 @@ class EncryptedImage:
         return self.shape[2] if len(self.shape) == 3 else 1
 
     def decrypt_mantissas(self, private_key: Any, backend: str | None = None, *,
-                          require_verified: bool | str = False) -> np.ndarray:
+                          require_verified: bool | str | None = None) -> np.ndarray:
         """Integer mantissas (offset removed) as an object array of the image shape.
 
         ``require_verified`` (True, or the store id that must have been proven): refuse
@@ -204,7 +205,7 @@ class EncryptedImage:
         """Who vouches for the verification record (:mod:`hevr.image.provenance`): one drawn in this
         process, or a file's with the key holder's valid stamp; ``require_verified`` (True, or the
         store id that must have been proven) refuses an image without one."""
-        check_provenance(private_key, self.verification, self.stamp, require_verified,
+        check_provenance(private_key, self, require_verified,
                          "a store encrypted without verifiable=True, a render with verify=False, server finishing, "
                          "or a file saved without the key holder's stamp")
 
@@ -237,7 +238,7 @@ class EncryptedImage:
             yield r0, r1, c0, c1, mask, vals
 
     def decrypt_frame(self, private_key: Any, backend: str | None = None, *,
-                      require_verified: bool | str = False) -> Any:
+                      require_verified: bool | str | None = None) -> Any:
         """Decrypt a client-finished image to a :class:`hevr.Frame`: the per-pixel means of the
         stored components, to colour (and re-colour) on this machine (:mod:`hevr.colour`).
         The checks of :meth:`decrypt_mantissas` apply (``IntegrityError`` on any fault, and
@@ -257,7 +258,7 @@ class EncryptedImage:
         return frame_from_sums(sums, self.samples, str(self.channel), self.colouring, stats)
 
     def decrypt(self, private_key: Any, backend: str | None = None, *, mode: str | None = None,
-                density: float | None = None, nodes: Any = None, require_verified: bool | str = False) -> np.ndarray:
+                density: float | None = None, nodes: Any = None, require_verified: bool | str | None = None) -> np.ndarray:
         """Decrypt to float64 pixel values (batch CRT decryption on ``backend``, then unpacking),
         after the checks of :meth:`decrypt_mantissas` (``IntegrityError`` on any fault). Only
         the hit pixels are converted (exactly rounded); pixels whose rays miss stay 0.0.
@@ -320,7 +321,7 @@ class EncryptedImage:
         """The image as a file holds it (checked; a verified one with the key checked now, or
         without its record when there is no key and no stamp: :meth:`save`)."""
         check_image(self)
-        return for_file(self, private_key, lambda key: self.decrypt_mantissas(key, require_verified=True))
+        return for_file(self, private_key, lambda key: self.decrypt_mantissas(key, require_verified=Expect(moved=True)))
 
     def to_bytes(self, private_key: Any = None) -> bytes:
         """The ``.hevr`` file as bytes (what :meth:`save` writes; :func:`hevr.image.image_from_bytes` reads it);

@@ -73,7 +73,7 @@ def _from_blob(blob: bytes, path: str, name: str | None = None) -> Any:
         v, stamp = fields.pop("verification"), fields.pop("stamp")
         channel, k = fields.pop("channel"), fields.pop("components")
         v = None if v is None else PackedVerification(**v, drawn_here=False)
-        stamp = None if stamp is None else (*stamp, name)
+        stamp = None if stamp is None else stamp._replace(read_as=name)
         if channel == "scalar":
             return PackedImage(**fields, verification=v, stamp=stamp)
         tiles, T = fields.pop("ciphertexts"), fields["plan"].n_tiles  # a colour frame: component-major
@@ -91,4 +91,4 @@ def _from_blob(blob: bytes, path: str, name: str | None = None) -> Any:
                           bound=h["bound"], finish=h["finish"], channel=h["channel"], components=h["components"],
                           samples=h["samples"], verification=None if h["verification"] is None else
                           Verification.from_dict(h["verification"], int(h["n"]), path),
-                          stamp=None if h["stamp"] is None else (*h["stamp"], name))
+                          stamp=None if h["stamp"] is None else h["stamp"]._replace(read_as=name))

@@ -30,7 +30,7 @@ from .._tiles import TileLayout
 from ..crypto.paillier import fingerprint
 from ..crypto.records import record_width
 from ..errors import CorruptStoreError, IntegrityError
-from .stamp import STAMP_PREFIX, message, stamp_header
+from .stamp import STAMP_FIELDS, read_stamp, stamp_header
 from .checks import (
     MAX_COMPONENTS,
     MAX_PIXELS,
@@ -168,18 +168,8 @@ def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
     h = parse_json(bytes(view[HEAD:HEAD + hl]), where)
     if not isinstance(h, dict):
         raise CorruptStoreError(f"{where}: header: expected a JSON object, got a JSON {_kind(h)}")
-    stamp = None
-    if "stamp" in h or "saved_as" in h:  # what it authenticates, before any field is rewritten below
-        if not (isinstance(h.get("stamp"), str) and h["stamp"].startswith(STAMP_PREFIX) and len(h["stamp"]) == 76
-                and "verification" in h):
-            raise CorruptStoreError(f"{where}: header field 'stamp': expected 'hmac-sha256:<64 hex>' beside a "
-                                    f"verification record, got {_show(h.get('stamp'))}")
-        if not (isinstance(h.get("saved_as"), str) and len(h["saved_as"]) <= 1024):
-            raise CorruptStoreError(f"{where}: header field 'saved_as': expected the file name the key holder "
-                                    f"saved the frame as, got {_show(h.get('saved_as'))}")
-        stamp = (h["stamp"], message(h, hashlib.sha256(view[HEAD + hl:len(blob) - DIGEST_BYTES]).digest()),
-                 h["saved_as"])
     ctx = Fields(where, CorruptStoreError, "header field")
+    stamp = read_stamp(h, hashlib.sha256(view[HEAD + hl:len(blob) - DIGEST_BYTES]).digest(), ctx.fail)
     out = _check_header(h, ctx, version)
     body = np.frombuffer(blob, dtype=np.uint8, count=len(blob) - HEAD - hl - DIGEST_BYTES, offset=HEAD + hl)
     size = sum(out["counts"]) * out["width"]
@@ -210,7 +200,7 @@ def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
     for name in fields:
         if name not in h:
             ctx.fail(name, "the field", raw="nothing")
-    extra = sorted(set(h) - set(fields) - ({"verification", "stamp", "saved_as"} if version >= 3 else set()))
+    extra = sorted(set(h) - set(fields) - ({"verification", *STAMP_FIELDS} if version >= 3 else set()))
     if extra:
         raise CorruptStoreError(f"{ctx.where}: header: unexpected field {_show(extra[0])}")
     shape = check_shape(ctx, h["shape"])

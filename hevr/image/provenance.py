@@ -1,6 +1,8 @@
 """Who vouches for a frame's verification record: one drawn in this process, or a file's with the
-key holder's valid stamp (:mod:`hevr.image.stamp`), read under the name it was saved as, of a store
-the owner has not replaced since (:mod:`hevr.store.known`).
+key holder's valid stamp (:mod:`hevr.image.stamp`), of a store the owner has not replaced since
+(:mod:`hevr.store.known`); what the frame proves and whether it is what the caller expects
+(:mod:`hevr.image.proof`: a frame read from another place than it was saved is *moved*); and the
+key's policy for a frame without a record (:func:`check_policy`).
 
 One rule for every kind of frame that carries a record and may come from a file:
 :meth:`hevr.PackedImage.decrypt`, :meth:`hevr.EncryptedImage.decrypt` and a packed slice's
@@ -11,75 +13,101 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import warnings
 from typing import Any
 
-from ..errors import ParameterError, VerificationError
-from ..store.known import retired_by
+from ..errors import FrameMovedWarning, VerificationError
+from ..store import known
+from .proof import as_expect, check_expect, proof_of
 from .stamp import check_stamp
 
 log = logging.getLogger(__name__)
 
-__all__ = ["check_provenance", "check_require_verified", "for_file"]
+__all__ = ["check_policy", "check_provenance", "check_require_verified", "for_file"]
 
 
 def check_require_verified(require_verified: Any) -> bool:
-    """Whether ``require_verified`` asks for a verified frame (True or a store id); False/None do not.
+    """Whether ``require_verified`` asks for a verified frame (True, a store id or a
+    :class:`hevr.Expect`); False/None do not.
 
     >>> check_require_verified(False), check_require_verified("0123456789abcdef")
     (False, True)
     """
-    if require_verified is False or require_verified is None:
-        return False
-    if not (require_verified is True or isinstance(require_verified, str)):
-        raise ParameterError(f"require_verified: expected True, False or a store id, got {require_verified!r}")
-    return True
+    return as_expect(require_verified) is not None
 
 
-def check_provenance(private_key: Any, verification: Any, stamp: Any, require_verified: Any,
-                     unverified: str) -> None:
-    """Refuse (:class:`hevr.VerificationError`, no image) a frame whose record nobody vouches for.
+def _store_of(img: Any) -> str | None:
+    """The store id an image names (public, unproven without a record)."""
+    sid = getattr(img, "store_id", None) or (getattr(img, "info", None) or {}).get("store")
+    return sid if isinstance(sid, str) else None
+
+
+def check_policy(private_key: Any, img: Any, require_verified: Any, unverified: str) -> None:
+    """The key's policy (:class:`hevr.PrivateKey` ``require_tags``): an image without a verification
+    record is refused, unless the caller asked for an unverified image by name
+    (``require_verified=False``) or the key holder accepted its store without tags
+    (``hevr.trust_store(ev, key, untagged=True)``)."""
+    if img.verification is not None or require_verified is False or not getattr(private_key, "require_tags", False):
+        return
+    sid = _store_of(img)
+    accepted = getattr(known, "accepted_untagged", None)
+    if sid is not None and accepted is not None and accepted(sid, private_key):
+        return
+    raise VerificationError(
+        f"image: not verified ({unverified}), and this key's policy is that every store of it carries tags "
+        f"(require_tags): a store without tags{f' ({sid})' if sid else ''} — made with the public key only, or "
+        "stripped by a server — or a render with verify=False; accept such a store explicitly "
+        "(hevr.trust_store(ev, key, untagged=True); hevr render --trust-store --untagged), or ask for an "
+        "unverified image by name (require_verified=False; hevr decrypt --unverified); no image is returned")
+
+
+def check_provenance(private_key: Any, img: Any, require_verified: Any, unverified: str) -> None:
+    """Refuse (:class:`hevr.VerificationError`, no image) a frame whose record nobody vouches for,
+    or that is not what the caller expects (:mod:`hevr.image.proof`).
 
     Parameters
     ----------
     private_key : PrivateKey
-        The key holder's key (its tag key checks the stamp).
-    verification :
-        The frame's record (``store_id`` and ``drawn_here`` are read), or None.
-    stamp : tuple or None
-        ``(stamp, message, saved_as, read_as)`` of a file that carried one (``read_as`` may be
-        missing or None: bytes not read from a named file).
-    require_verified : bool or str
-        True, or the store id that must have been proven: a frame without a record is refused.
+        The key holder's key (its tag key checks the stamp; its policy, unverified frames).
+    img :
+        The frame: its ``verification`` (``store_id`` and ``drawn_here`` are read) and, from a file,
+        its ``stamp`` (:class:`hevr.image.stamp.Stamp`).
+    require_verified : bool, str, Expect or None
+        True, the store id that must have been proven, or an :class:`hevr.Expect`: a frame without
+        a record is refused, and one read from another place than it was saved unless the caller
+        named its store and view. None (the default): the key's policy decides about a frame
+        without a record; False: an unverified frame is asked for by name.
     unverified : str
         Why a frame may carry no record, for the message (the frame kind's own reasons).
     """
-    v = verification
-    if check_require_verified(require_verified):
-        if v is None:
+    expect = as_expect(require_verified)
+    v = img.verification
+    if v is None:
+        if expect is not None:
             raise VerificationError(f"image: not verified (it carries no check against a store's tags: {unverified}), "
                                     "and require_verified was given; no image is returned")
-        if isinstance(require_verified, str) and v.store_id != require_verified:
-            raise VerificationError(f"image: expected a frame of the store {require_verified}, got one of the store "
-                                    f"{v.store_id}; no image is returned")
-    if v is None or v.drawn_here:
+        check_policy(private_key, img, require_verified, unverified)
         return
-    if stamp is None or not check_stamp(private_key, stamp[1], stamp[0]):
+    stamp = getattr(img, "stamp", None)
+    if not v.drawn_here and (stamp is None or not check_stamp(private_key, stamp.message, stamp.stamp)):
         what = "carries no stamp" if stamp is None else "carries a stamp that does not match its bytes"
         raise VerificationError(
             f"image: its verification record {what} of the key holder (a verified frame is saved with the key: "
             "img.save(path, private_key=...), hevr render --key): the record or the frame was written by someone "
             "else, or altered; no image is returned")
-    saved, read = stamp[2], stamp[3] if len(stamp) > 3 else None
-    if read is not None and saved != read:
-        raise VerificationError(
-            f"image: the key holder saved this verified frame as {saved!r}, and it was read as {read!r}: another "
-            "frame put in this one's place? (if you renamed it yourself, give it its name back); no image is "
-            "returned")
-    replaced = retired_by(v.store_id)
+    replaced = None if v.drawn_here else known.retired_by(v.store_id)  # a file's: an old frame replayed?
     if replaced:
         raise VerificationError(
             f"image: a frame of the store {v.store_id}, which the owner replaced with the store {replaced[1]} at "
             f"{replaced[0]} (the key holder's known stores): an old frame replayed?; no image is returned")
+    proof = proof_of(img)
+    if expect is not None:
+        check_expect(proof, expect)
+    elif proof is not None and proof.moved:
+        warnings.warn(f"image: not verified for {proof.read_as}: the key holder saved this frame as "
+                      f"{proof.saved_as}; it is {proof.describe().split(';')[0]} (require_verified with "
+                      "hevr.Expect(store=..., view=...) checks that it is the frame you expect)",
+                      FrameMovedWarning, stacklevel=4)
 
 
 def for_file(img: Any, private_key: Any, check_with_key: Any) -> Any:

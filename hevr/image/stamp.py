@@ -9,16 +9,22 @@ key holder's own MAC over its bytes, made when the key holder's process had just
     K_stamp = HMAC-SHA256(k, "hevr-frame-stamp-v1")               (k: the tag key's PRF key)
     stamp   = HMAC-SHA256(K_stamp, SHA-256(canonical header without "stamp") ‖ SHA-256(body))
 
-The header's ``saved_as`` (the file name the key holder saved it as) is under the stamp too, and a
-stamped frame read under another name is refused: a genuine verified frame of another view, level
-or store put in this one's place. And a frame of a store that the owner has since replaced (the
-key holder's known stores, :mod:`hevr.store.known`) is refused: an old frame replayed.
+The header's ``saved_as`` (where the key holder saved it: a local file's absolute real path, a
+URL without its query) and ``rendered_at`` (when its seed was drawn, UTC) are under the stamp too.
+A stamped frame read from another place proves what it shows (its store and view:
+:mod:`hevr.image.proof`), not that it belongs where it was found — a genuine verified frame of
+another patient, view or render copied over this one: :mod:`hevr.image.provenance` says so, and
+``require_verified`` refuses it unless the caller states what it expects. And a frame of a store
+that the owner has since replaced (the key holder's known stores, :mod:`hevr.store.known`) is
+refused: an old frame replayed.
 
 (the header's canonical form: ``json.dumps(header, sort_keys=True, separators=(",", ":"))``; the
 body: the ciphertext records and sample counts, without the file's SHA-256 trailer). Only the
 holder of the private key can make or check a stamp; :meth:`hevr.EncryptedImage.decrypt` refuses a
 record without a valid stamp (:class:`hevr.VerificationError`), and checks the record again.
 
+>>> saved_name("s3://bucket/x/g.hevr?v=1"), saved_name("/a/../b/f.hevr")
+('s3://bucket/x/g.hevr', '/b/f.hevr')
 >>> m = message({"a": 1, "stamp": "x"}, b"body-digest".ljust(32, b"."))
 >>> m == message({"a": 1}, b"body-digest".ljust(32, b".")), len(m)
 (True, 64)
@@ -32,16 +38,56 @@ from __future__ import annotations
 import hashlib
 import hmac
 import json
+import os
 import re
-from typing import Any
+import time
+from pathlib import Path
+from typing import Any, NamedTuple
 
 from ..crypto.tags import tag_key_of
 
-__all__ = ["STAMP_PREFIX", "check_stamp", "make_stamp", "message", "raw_check", "raw_stamp", "saved_name",
+__all__ = ["STAMP_FIELDS", "STAMP_PREFIX", "Stamp", "check_stamp", "read_stamp", "rendered_at", "utc", "make_stamp", "message", "raw_check", "raw_stamp", "saved_name",
            "stamp_header"]
 
 STAMP_PREFIX = "hmac-sha256:"
 _STAMP = re.compile(r"hmac-sha256:[0-9a-f]{64}")
+TIME_FORMAT = "%Y-%m-%dT%H:%M:%SZ"
+
+
+class Stamp(NamedTuple):
+    """A file's key holder stamp as read: the stamp, what it authenticates (:func:`message`), where
+    the key holder saved the file, when the frame was rendered (UTC, ``""`` for files of before issue
+    47) and where it was read from (None: bytes not read from a named file)."""
+
+    stamp: str
+    message: bytes
+    saved_as: str
+    rendered_at: str = ""
+    read_as: str | None = None
+
+
+def utc(seconds: float) -> str:
+    """``seconds`` since the epoch as the stamp's UTC time.
+
+    >>> utc(0)
+    '1970-01-01T00:00:00Z'
+    """
+    return time.strftime(TIME_FORMAT, time.gmtime(seconds))
+
+
+def rendered_field(value: Any) -> str:
+    """A header's ``rendered_at`` if it is a stamp time, else ``""`` (a file's field is checked by its reader).
+
+    >>> rendered_field("2026-11-28T18:00:00Z"), rendered_field(3)
+    ('2026-11-28T18:00:00Z', '')
+    """
+    if isinstance(value, str) and len(value) == 20:
+        try:
+            time.strptime(value, TIME_FORMAT)
+            return value
+        except ValueError:
+            return ""
+    return ""
 
 
 def message(header: dict, body_digest: bytes) -> bytes:
@@ -53,12 +99,14 @@ def message(header: dict, body_digest: bytes) -> bytes:
 
 
 def saved_name(path: str | Path) -> str:
-    """The name a stamp binds (:mod:`hevr.image.stamp`): the file's last path component.
-
-    >>> saved_name("/a/b/f.hevr"), saved_name("s3://bucket/x/g.hevr?v=1")
-    ('f.hevr', 'g.hevr')
-    """
-    return str(path).split("?")[0].rstrip("/").rsplit("/", 1)[-1]
+    """The place a stamp binds (:mod:`hevr.image.stamp`): a local file's absolute real path
+    (symbolic links resolved), a URL without its query (module docstring)."""
+    text = str(path)
+    if text.startswith("file://"):
+        text = text[len("file://"):]
+    elif "://" in text:
+        return text.split("?")[0]
+    return os.path.realpath(os.path.expanduser(text))
 
 
 def _key(prf_key: bytes) -> bytes:
@@ -86,11 +134,41 @@ def check_stamp(private_key: Any, msg: bytes, stamp: Any) -> bool:
     return raw_check(tag_key_of(private_key).prf_key, msg, stamp)
 
 
+STAMP_FIELDS = ("stamp", "saved_as", "rendered_at")  # a stamped file's header fields beside its record
+
+
+def read_stamp(h: dict, body_digest: bytes, fail: Any) -> Stamp | None:
+    """A file header's stamp (None: not stamped), checked before any field is rewritten; a bad
+    field is ``fail(name, expected, got)`` (which raises: the reader's own error). The one reader of
+    every frame file's stamp (per-voxel and packed)."""
+    if not any(k in h for k in STAMP_FIELDS):
+        return None
+    s = h.get("stamp")
+    if not (isinstance(s, str) and _STAMP.fullmatch(s) and "verification" in h):
+        raise fail("stamp", f"'{STAMP_PREFIX}<64 hex>' beside a verification record", s)
+    if not (isinstance(h.get("saved_as"), str) and len(h["saved_as"]) <= 4096):
+        raise fail("saved_as", "where the key holder saved the frame (a string of at most 4096 characters)",
+                   h.get("saved_as"))
+    when = h.get("rendered_at", "")
+    if when != "" and not rendered_field(when):
+        raise fail("rendered_at", "a UTC time YYYY-MM-DDTHH:MM:SSZ", when)
+    return Stamp(s, message(h, body_digest), h["saved_as"], when)
+
+
+def rendered_at(img: Any) -> str:
+    """When a frame with a verification record was rendered: its stamp's time (a frame read from a
+    file keeps it when stamped again), else when its seed was drawn in this process."""
+    if img.stamp is not None:
+        return img.stamp.rendered_at
+    drawn = getattr(img.verification, "drawn_at", 0.0)
+    return utc(drawn) if drawn else ""
+
+
 def stamp_header(header: dict, body: list, img: Any, private_key: Any, saved_as: str) -> None:
-    """Add ``saved_as`` and ``stamp`` to the ``header`` of a verified frame file whose record body
-    parts are ``body``: a fresh stamp with ``private_key`` (whose holder checked the frame), else the
-    stamp the frame was read with; nothing for a frame without a verification record. The one rule
-    of every frame file (per-voxel and packed)."""
+    """Add ``saved_as``, ``rendered_at`` and ``stamp`` to the ``header`` of a verified frame file whose
+    record body parts are ``body``: a fresh stamp with ``private_key`` (whose holder checked the
+    frame), else the stamp the frame was read with; nothing for a frame without a verification
+    record. The one rule of every frame file (per-voxel and packed)."""
     if img.verification is None:
         return
     if private_key is not None:
@@ -98,6 +176,11 @@ def stamp_header(header: dict, body: list, img: Any, private_key: Any, saved_as:
         for part in body:
             digest.update(part)
         header["saved_as"] = str(saved_as)
+        when = rendered_at(img)
+        if when:
+            header["rendered_at"] = when
         header["stamp"] = make_stamp(private_key, message(header, digest.digest()))
     elif img.stamp is not None:
-        header["saved_as"], header["stamp"] = img.stamp[2], img.stamp[0]
+        header["saved_as"], header["stamp"] = img.stamp.saved_as, img.stamp.stamp
+        if img.stamp.rendered_at:
+            header["rendered_at"] = img.stamp.rendered_at

@@ -79,7 +79,7 @@ def _verification(server: Any, where: str, req: RenderRequest, meta: Any, channe
                             limit=MAX_BODY)
     return PackedVerification(aggregate=_aggregate(raw, n, server.url), seed=seed, meta=meta, level=level,
                               channel=channel, components=k, server_s=time.perf_counter() - t1, drawn_here=True,
-                              known_name=name)
+                              drawn_at=time.time(), known_name=name)
 
 
 def render_remote_packed(rv: Any, camera: Any, sampling: str, *, tile: int, weight_bits: int | None,

@@ -257,6 +257,7 @@ class Verification:
     meta: Any = None  # the store's (level-0) VolumeMetadata the render used; its owner's MAC is checked
     drawn_here: bool = False  # the seed was drawn in this process (not read from a file)
     known_name: str = dataclasses.field(default="", compare=False)  # rendered under (known stores; not in files)
+    drawn_at: float = 0.0  # when (seconds since the epoch; a file's stamp keeps it as rendered_at)
 
     def __repr__(self) -> str:
         return f"Verification({self.channel}, {self.components} per ray, seed …)"
@@ -272,7 +273,7 @@ class Verification:
                    spacing=ev.spacing, brick=ev.brick, camera=camera, sampling=sampling, step=step, digits=digits,
                    components=ev.meta.components(channel), n=int(ev.public_key.n), level=ev.level,
                    exponent=int(exponent), base_shape=tuple(base.shape), server_s=server_s, meta=base,
-                   drawn_here=True, known_name=str(ev.path))
+                   drawn_here=True, drawn_at=time.time(), known_name=str(ev.path))
 
     def to_dict(self) -> dict[str, Any]:
         """The record a ``.hevr`` file carries (public: a ciphertext, a seed, the request's geometry)."""

@@ -48,7 +48,7 @@ import numpy as np
 import zarr
 
 from .. import _stats
-from .._dask import active_client, compute, is_own_cluster, refuse_foreign_cluster, scheduler_address
+from .._dask import active_client, check_encryption_client, compute
 from .._files import fs_errors
 from .._validate import (
     check_brick,
@@ -252,7 +252,9 @@ def encrypt_volume(
         (:mod:`hevr.crypto.tags`), so that renders can be checked against a lying server
         (:mod:`hevr.rendering.verify`). Needs the private key; twice the ciphertexts and about
         twice the encryption time. Default (None): True for a packed store encrypted with the
-        private key (opt out with False), False otherwise.
+        private key (opt out with False), and for any store encrypted with a private key whose policy
+        is that every store of it carries tags (``require_tags``, the default of new keys: False is
+        refused then), False otherwise.
     layout : {"voxel", "packed"}
         ``"voxel"``: one ciphertext per voxel (every render, slice and pyramid works). ``"packed"``:
         S voxels along ``pack_axis`` in one ciphertext (:mod:`hevr.store.packing`; S and the slot
@@ -301,8 +303,13 @@ def encrypt_volume(
         raise ParameterError("gradient: expected vector_dims=k as well, got vector_dims=None (the gradient channel "
                              "holds g·e(d), the k-dimensional density encoding scaled by the gradient magnitude)")
     layout, levels = check_choice("layout", layout, ("voxel", "packed")), check_levels(levels)
-    if verifiable is None:  # packed stores carry tags by default: one per packed ciphertext costs little
-        verifiable = layout == "packed" and isinstance(key, PrivateKey)
+    policy = isinstance(key, PrivateKey) and key.require_tags  # the key's policy: every store carries tags
+    if policy and verifiable is not None and not verifiable:
+        raise ParameterError("verifiable: expected True or None under a key whose policy is that every store of it "
+                             "carries tags (PrivateKey.require_tags), got False: its key holder would refuse the "
+                             "store; encrypt with key.with_policy(require_tags=False) to make one without tags")
+    if verifiable is None:  # packed stores carry tags by default (one per packed ciphertext costs little), and
+        verifiable = policy or (layout == "packed" and isinstance(key, PrivateKey))  # every store of a policy key
         if layout == "packed" and not verifiable:
             log.warning("encrypt_volume: a packed store encrypted with the public key has no tags (they need the "
                         "private key), so its frames cannot be verified")
@@ -329,7 +336,7 @@ def encrypt_volume(
     )
     planned = plan_levels(meta, levels) if packing is not None else ()  # the packed levels' slots, before the disk
     path, so = normalise(path), check_storage_options(storage_options)
-    _check_cluster(client, key)  # a private key beside another party's cluster: refused before any work
+    check_encryption_client(client, isinstance(key, PrivateKey))  # another party's cluster: before any work
     check_reachable(path, active_client(client))
     check_backend(backend, active_client(client))  # CuPy, a device, a compiler: before the disk is touched
     exists = store_exists(path, so)
@@ -436,18 +443,3 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
             raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
         group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()
     return values
-
-
-def _check_cluster(client: Any, key: Any) -> None:
-    """Encryption tasks carry plaintext bricks (and p, q with a PrivateKey). A private key beside a
-    cluster this process did not start (or declare its own, :func:`hevr.own_cluster`) is refused
-    (:class:`hevr.ForeignClusterError`: its workers could run code here, where the key is); with a
-    public key, say loudly that plaintext bricks go to that cluster. No address guessing: a loopback
-    address may be a tunnel to another party's cluster."""
-    c = active_client(client)
-    if isinstance(key, PrivateKey):
-        refuse_foreign_cluster(c, "encrypt_volume with a PrivateKey (its tasks carry p and q)")
-    elif not is_own_cluster(c):
-        log.warning("encrypt_volume sends plaintext bricks to the Dask workers of %s, a cluster this process did not "
-                    "start; encrypt only on machines the data owner controls (hevr.own_cluster(client) declares it "
-                    "yours)", scheduler_address(c))

@@ -103,11 +103,26 @@ def test_verified_frame_keeps_its_proof_with_the_stamp(frames, keypair256, tmp_p
     assert img.verification.store_id == verified.verification.store_id and img.verification.seed == \
         verified.verification.seed
     assert np.array_equal(img.decrypt(priv, require_verified=verified.store_id), want)
-    # a stamped file copied as it is keeps its stamp (saved again without the key, same name)
+    # a stamped file copied as it is keeps its stamp (saved again without the key, same name): it
+    # proves its store and view, not that it belongs in the other folder
     other = tmp_path / "copy"
     other.mkdir()
     img.save(other / "v.hevr")
-    assert np.array_equal(hevr.load_image(other / "v.hevr").decrypt(priv, require_verified=True), want)
+    moved = hevr.load_image(other / "v.hevr")
+    with pytest.raises(VerificationError, match="saved this verified frame as .*v.hevr, and it was read from"):
+        moved.decrypt(priv, require_verified=True)
+    proof = hevr.proof_of(moved)
+    assert proof.moved and proof.store_id == verified.store_id and proof.rendered_at
+    expect = hevr.Expect(store=verified.store_id, view=proof.view_key)
+    assert np.array_equal(moved.decrypt(priv, require_verified=expect), want)
+    assert np.array_equal(moved.decrypt(priv, require_verified=hevr.Expect(store=verified.store_id,
+                                                                            view=verified.camera)), want)
+    assert np.array_equal(moved.decrypt(priv, require_verified=hevr.Expect(moved=True)), want)
+    # saved again with the key there: stamped for its new place, its render time kept
+    moved.save(other / "w.hevr", private_key=priv)
+    again = hevr.load_image(other / "w.hevr")
+    assert np.array_equal(again.decrypt(priv, require_verified=True), want)
+    assert hevr.proof_of(again).rendered_at == proof.rendered_at
     # without the key, a record drawn here is left out, with a warning
     with caplog.at_level(logging.WARNING, logger="hevr"):
         verified.save(tmp_path / "nokey.hevr")
@@ -124,11 +139,13 @@ def test_renamed_or_forged_proof_is_refused(frames, keypair256, tmp_path):
     path = tmp_path / "a.hevr"
     verified.save(path, private_key=priv)
     shutil.copy(path, tmp_path / "b.hevr")  # another frame's place
-    with pytest.raises(VerificationError, match="saved this verified frame as 'a.hevr'.*read as 'b.hevr'"):
+    with pytest.raises(VerificationError, match="saved this verified frame as .*a.hevr, and it was read from .*b.hevr"):
+        hevr.load_image(tmp_path / "b.hevr").decrypt(priv, require_verified=True)
+    with pytest.warns(hevr.FrameMovedWarning, match="not verified for .*b.hevr"):
         hevr.load_image(tmp_path / "b.hevr").decrypt(priv)
     header, body = parts(path.read_bytes())
     # a record without a stamp: refused, even though it is genuine
-    bare = {k: v for k, v in header.items() if k not in ("stamp", "saved_as")}
+    bare = {k: v for k, v in header.items() if k not in ("stamp", "saved_as", "rendered_at")}
     (tmp_path / "c.hevr").write_bytes(rebuild(bare, body))
     with pytest.raises(VerificationError, match="carries no stamp"):
         hevr.load_image(tmp_path / "c.hevr").decrypt(priv)
@@ -279,6 +296,6 @@ def test_level_frame_round_trip(tmp_path, keypair256, volume):
     assert back.level == 1 and back.plan.geometry.shape == img.plan.geometry.shape != tuple(ev.shape)
     assert np.array_equal(back.decrypt(priv, require_verified=True), want)
     header, body = parts((tmp_path / "l.hevr").read_bytes())
-    (tmp_path / "m.hevr").write_bytes(rebuild(_edit(header, level=0, stamp=None, saved_as=None), body))
+    (tmp_path / "m.hevr").write_bytes(rebuild(_edit(header, level=0, stamp=None, saved_as=None, rendered_at=None), body))
     with pytest.raises(IntegrityError, match="'counts|'camera"):  # level 0's plan: other tiles
         hevr.load_image(tmp_path / "m.hevr")

@@ -24,6 +24,7 @@ import hevr
 from hevr.backends import CpuBackend
 from hevr.cli.main import main
 from hevr.crypto.tags import betas, tag_key_of
+from hevr.image.stamp import Stamp
 from hevr.rendering import verify as verify_module
 from hevr.store.digests import brick_digest, marker
 from hevr.store.metadata import VolumeMetadata, metadata_checksum
@@ -362,7 +363,7 @@ def test_a_frame_file_carries_its_verification(stores, keypair256, tmp_path, cap
         dataclasses.replace(img, samples=img.samples * 2).save(tmp_path / "scaled.hevr", private_key=priv)
     assert not (tmp_path / "scaled.hevr").exists()
     bad = dataclasses.replace(img.verification, seed=b"short", drawn_here=False)
-    dataclasses.replace(img, verification=bad, stamp=("hmac-sha256:" + "0" * 64, b"", "bad.hevr", None)).save(tmp_path / "bad.hevr")
+    dataclasses.replace(img, verification=bad, stamp=Stamp("hmac-sha256:" + "0" * 64, b"", "bad.hevr")).save(tmp_path / "bad.hevr")
     with pytest.raises(hevr.IntegrityError, match="'verification.seed': expected 64 lower-case hex digits"):
         hevr.load_image(tmp_path / "bad.hevr")
     assert _render(ev, verify=False).verification is None
@@ -398,6 +399,8 @@ def test_the_command_line_verifies(tmp_path, capsys):
                        "--key", key, "-q")
     assert code == 0 and hevr.load_image(tmp_path / "u.hevr").verification is None, err
     code, out, err = run("decrypt", tmp_path / "u.hevr", "--key", key, "--out", tmp_path / "u.png")
+    assert code == 1 and "policy" in err and "--unverified" in err, err  # a new key requires tags: asked by name
+    code, out, err = run("decrypt", tmp_path / "u.hevr", "--key", key, "--out", tmp_path / "u.png", "--unverified")
     assert code == 0 and "not verified" in out, err
     code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "p.hevr", "--size", "8x8", "--verify", sid,
                        "--key", key, "-q")

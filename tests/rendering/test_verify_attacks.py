@@ -210,15 +210,33 @@ def test_frame_files_put_in_place_edited_or_stripped(keypair256, tmp_path, known
         "replay": _render(gone),
     }
     _encrypt(255 - VOL, tmp_path / "r.zarr", priv, overwrite=True)  # the owner replaced it
+    want = hevr.Expect(store=ev.meta.store_id, view=hevr.proof_of(hevr.load_image(asked)).view_key)
     for name, img in substitutes.items():
-        src = _frame_file(img, priv, tmp_path / f"{name}.hevr")
-        (tmp_path / name).mkdir()
+        (tmp_path / name / "src").mkdir(parents=True)
+        src = _frame_file(img, priv, tmp_path / name / "src" / "frame.hevr")  # the same file name, elsewhere
         shutil.copyfile(src, tmp_path / name / "frame.hevr")  # put in place of the key holder's frame
-        with pytest.raises(hevr.VerificationError, match="saved this verified frame as"):
-            hevr.load_image(tmp_path / name / "frame.hevr").decrypt(priv)
-        assert main(["decrypt", str(tmp_path / name / "frame.hevr"), "--key", str(key), "-q"]) == 1
+        moved = hevr.load_image(tmp_path / name / "frame.hevr")
+        if name != "replay":  # by default: the image, and a warning saying what it proves, not "verified"
+            with pytest.warns(hevr.FrameMovedWarning, match="not verified for .*saved this frame as"):
+                moved.decrypt(priv)
+            code = main(["decrypt", str(tmp_path / name / "frame.hevr"), "--key", str(key), "-q",
+                         "--out", str(tmp_path / name / "f.png")])
+            assert code == 0
+        with pytest.raises(hevr.VerificationError, match="saved this verified frame as|which the owner replaced"):
+            moved.decrypt(priv, require_verified=True)
+        with pytest.raises(hevr.VerificationError, match="expected the view|expected a frame of the store|which "
+                                                         "the owner replaced"):
+            moved.decrypt(priv, require_verified=want)  # what the key holder asked for: not this frame
+        for flags in (["--require-verified"], ["--expect-store", want.store, "--expect-view", want.view]):
+            assert main(["decrypt", str(tmp_path / name / "frame.hevr"), "--key", str(key), "-q", *flags,
+                         "--out", str(tmp_path / name / "g.png")]) == 1
+    # the frame the key holder asked for, moved on purpose: what it proves is what is expected
+    (tmp_path / "archive").mkdir()
+    shutil.copyfile(asked, tmp_path / "archive" / "frame.hevr")
+    np.testing.assert_array_equal(hevr.load_image(tmp_path / "archive" / "frame.hevr").decrypt(
+        priv, require_verified=want), _render(ev).decrypt(priv))
     with pytest.raises(hevr.VerificationError, match="which the owner replaced"):
-        hevr.load_image(tmp_path / "replay.hevr").decrypt(priv)
+        hevr.load_image(tmp_path / "replay" / "src" / "frame.hevr").decrypt(priv)  # where it was saved
 
     def raise_exponent(h):
         h["exponent"] -= 3
@@ -226,13 +244,13 @@ def test_frame_files_put_in_place_edited_or_stripped(keypair256, tmp_path, known
 
     (tmp_path / "edit").mkdir()
     for change, match in ((raise_exponent, "stamp that does not match"),
-                          (lambda h: (h.pop("stamp"), h.pop("saved_as")), "carries no stamp")):
+                          (lambda h: [h.pop(k, None) for k in ("stamp", "saved_as", "rendered_at")], "carries no stamp")):
         bad = _rewrite_header(asked, tmp_path / "edit" / "frame.hevr", change)
         with pytest.raises(hevr.VerificationError, match=match):
             hevr.load_image(bad).decrypt(priv)
         assert main(["decrypt", str(bad), "--key", str(key), "--out", str(tmp_path / "x.png"), "-q"]) == 1
     bare = _rewrite_header(asked, tmp_path / "edit" / "frame.hevr",
-                           lambda h: [h.pop(k) for k in ("verification", "stamp", "saved_as")])
+                           lambda h: [h.pop(k, None) for k in ("verification", "stamp", "saved_as", "rendered_at")])
     assert hevr.load_image(bare).decrypt(priv).shape == (9, 10)  # not verified, and says so
     with pytest.raises(hevr.VerificationError, match="not verified"):
         hevr.load_image(bare).decrypt(priv, require_verified=True)

@@ -182,13 +182,13 @@ class PackedColourImage:
         return self.verification is not None
 
     def decrypt_sums(self, private_key: Any, backend: str | None = None, *,
-                     require_verified: bool | str = False) -> np.ndarray:
+                     require_verified: bool | str | None = None) -> np.ndarray:
         """The exact integer ray sums Σ w·q_c of every component c and intermediate ray, (k, N_i, N_j)
         int64: every component's values checked as an X-ray frame's, and a verified frame's all k
         against the tags at once (one aggregate), before any sum is returned."""
         first = self.components[0]
         key = first._key(private_key)
-        check_provenance(key, self.verification, self.stamp, require_verified,
+        check_provenance(key, self, require_verified,
                          "a store encrypted with verifiable=False, or a render with verify=False")
         if self.verification is not None:  # the metadata first: it says what every number means
             self.verification.check_metadata(key, self.plan, self.fingerprint)
@@ -201,7 +201,7 @@ class PackedColourImage:
         return sums
 
     def decrypt_means(self, private_key: Any, backend: str | None = None, *,
-                      require_verified: bool | str = False) -> np.ndarray:
+                      require_verified: bool | str | None = None) -> np.ndarray:
         """Per pixel the mean of each component over its ray's samples, warped to the camera: (H, W, k) float64."""
         geo = self.plan.geometry
         coords = geo.pixel_coords(self.camera)
@@ -210,7 +210,7 @@ class PackedColourImage:
                         axis=-1)
 
     def decrypt_frame(self, private_key: Any, backend: str | None = None, *,
-                      require_verified: bool | str = False) -> Frame:
+                      require_verified: bool | str | None = None) -> Frame:
         """A :class:`hevr.Frame` of the warped means, to colour (and re-colour) on this machine, checked
         as :meth:`decrypt` checks; its ``n_samples`` are the intermediate rays' sample counts warped to
         the pixels, rounded."""
@@ -224,7 +224,7 @@ class PackedColourImage:
                      colouring=self.colouring, stats=stats)
 
     def decrypt(self, private_key: Any, backend: str | None = None, *, mode: str | None = None,
-                density: float | None = None, nodes: Any = None, require_verified: bool | str = False) -> np.ndarray:
+                density: float | None = None, nodes: Any = None, require_verified: bool | str | None = None) -> np.ndarray:
         """The coloured (H, W) (emphasize) or (H, W, 3) (tf) float64 image: with ``mode`` /
         ``density`` / ``nodes`` when given, else the render's own colouring (:func:`hevr.colour.colour`).
         A verified frame's components are each checked against the vector channel's tags first;
@@ -348,6 +348,6 @@ def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, 
         image.verification = PackedVerification(aggregate=A, seed=seed, meta=ev.base if level else ev.meta,
                                                 level=level, channel=channel, components=len(image.components),
                                                 ops=ops, server_s=time.perf_counter() - t0, drawn_here=True,
-                                                known_name=str(ev.path))
+                                                drawn_at=time.time(), known_name=str(ev.path))
         image.stats["verify"] = {"server_s": image.verification.server_s, "ops": ops}
     return image

@@ -42,8 +42,9 @@ from ...crypto.paillier import fingerprint as fingerprint_of
 from ...crypto.records import record_width
 from ...errors import CorruptStoreError, HevrError, IntegrityError, ParameterError
 from ...image.header import parse_json
+from ...image.proof import Expect
 from ...image.provenance import for_file as keep_record
-from ...image.stamp import STAMP_PREFIX, message, saved_name, stamp_header
+from ...image.stamp import STAMP_FIELDS, read_stamp, saved_name, stamp_header
 from ...store.metadata import VolumeMetadata
 from ...store.packing import MAX_WEIGHT_BITS, mantissa_range
 from ...store.paths import check_storage_options, output_location, write_output
@@ -67,7 +68,7 @@ DIGEST_BYTES = 32
 MAX_HEADER = 1 << 22  # 4 MiB: the metadata, camera and one count per tile take a few KiB
 MAX_TILE = 4096  # SlicePlan.build's bound
 FIELDS = frozenset({"format", "version", "camera", "sampling", "weight_bits", "tile", "level", "metadata", "counts"})
-OPTIONAL = frozenset({"verification", "saved_as", "stamp", "channel"})
+OPTIONAL = frozenset({"verification", *STAMP_FIELDS, "channel"})
 COLOUR_CHANNELS = ("vector", "gradient")  # a colour frame's components (absent: the scalar X-ray)
 RECORD = frozenset({"aggregate", "seed"})
 _BAD = (HevrError, TypeError, ValueError, OverflowError)  # what a hand-made field may raise on the way
@@ -148,7 +149,7 @@ def for_file(img: Any, private_key: Any) -> Any:
     """The frame as a file holds it: checked; a verified one checked now with the key (and
     stamped), or, drawn here and saved without the key, without its record (a warning)."""
     check_packed(img)
-    return keep_record(img, private_key, lambda key: img.decrypt_sums(key, require_verified=True))
+    return keep_record(img, private_key, lambda key: img.decrypt_sums(key, require_verified=Expect(moved=True)))
 
 
 def save_packed(img: Any, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None,
@@ -229,7 +230,7 @@ def parse_packed(blob: bytes, where: str) -> dict:
         raise f.fail("format", repr(FORMAT), h["format"])
     f.integer(h, "version", VERSION, VERSION)
     body = np.frombuffer(blob, np.uint8, count=len(blob) - HEAD - hl - DIGEST_BYTES, offset=HEAD + hl)
-    stamp = _stamp(h, f, body)
+    stamp = read_stamp(h, hashlib.sha256(body).digest(), f.fail)
     meta, fm = _metadata(h, f)
     plan, span, camera = _plan(h, f, fm)
     width = int(fm.ciphertext_bytes)
@@ -271,19 +272,6 @@ def parse_packed(blob: bytes, where: str) -> dict:
             "exponent": exponent, "offset": offset, "span": span, "ciphertexts": tiles,
             "store_id": fm.store_id, "meta": meta, "level": int(h["level"]), "stamp": stamp,
             "verification": v, "channel": channel, "components": k}
-
-
-def _stamp(h: dict, f: _Fields, body: np.ndarray) -> tuple | None:
-    """(stamp, what it authenticates, saved_as), before any field is rewritten; None without one."""
-    if "stamp" not in h and "saved_as" not in h:
-        return None
-    s = h.get("stamp")
-    if not (isinstance(s, str) and s.startswith(STAMP_PREFIX) and len(s) == len(STAMP_PREFIX) + 64
-            and "verification" in h):
-        raise f.fail("stamp", f"'{STAMP_PREFIX}<64 hex>' beside a verification record", s)
-    if not (isinstance(h.get("saved_as"), str) and len(h["saved_as"]) <= 1024):
-        raise f.fail("saved_as", "the file name the key holder saved the frame as", h.get("saved_as"))
-    return s, message(h, hashlib.sha256(body).digest()), h["saved_as"]
 
 
 def _metadata(h: dict, f: _Fields) -> tuple[VolumeMetadata, VolumeMetadata]:

@@ -102,12 +102,12 @@ class PackedImage:
         one drawn in this process, or a file's with the key holder's valid stamp, read under the name
         it was saved as; ``require_verified`` (True, or the store id that must have been proven)
         refuses a frame without one."""
-        check_provenance(private_key, self.verification, self.stamp, require_verified,
+        check_provenance(private_key, self, require_verified,
                          "a store encrypted with verifiable=False, a render with verify=False, a public-key store, "
                          "or a file saved without the key holder's stamp")
 
     def decrypt_sums(self, private_key: PrivateKey, backend: str | None = None, *,
-                     require_verified: bool | str = False) -> np.ndarray:
+                     require_verified: bool | str | None = None) -> np.ndarray:
         """The exact integer ray sums Σ w·(m − offset) of the intermediate image, (N_i, N_j) int64:
         a verified frame's values are checked against the store's tags first, and every value's
         slots against their bounds (:func:`decode`), before any sum is returned."""
@@ -145,7 +145,7 @@ class PackedImage:
         return tiles
 
     def decrypt_intermediate(self, private_key: PrivateKey, backend: str | None = None, *,
-                             require_verified: bool | str = False) -> np.ndarray:
+                             require_verified: bool | str | None = None) -> np.ndarray:
         """The intermediate image (rays along the packing axis × the other axis), float64 X-ray values."""
         sums = self.decrypt_sums(private_key, backend, require_verified=require_verified)
         return self._values(sums)
@@ -169,7 +169,7 @@ class PackedImage:
         return out
 
     def decrypt(self, private_key: PrivateKey, backend: str | None = None, *,
-                require_verified: bool | str = False) -> np.ndarray:
+                require_verified: bool | str | None = None) -> np.ndarray:
         """The camera's float64 (H, W) image (X-ray: the mean of the samples of every pixel's ray).
 
         A verified frame (the default on a verifiable store) is checked against the store's tags
@@ -199,7 +199,7 @@ class PackedImage:
         return files.packed_bytes(self, private_key)
 
     def decrypt_frame(self, private_key: PrivateKey, backend: str | None = None, *,
-                      require_verified: bool | str = False) -> Frame:
+                      require_verified: bool | str | None = None) -> Frame:
         """A :class:`hevr.Frame` of the X-ray (one component: the mean of every pixel's samples),
         checked as :meth:`decrypt` checks; its ``n_samples`` are the intermediate rays' sample
         counts warped to the pixels, rounded."""

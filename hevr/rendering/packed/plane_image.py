@@ -177,7 +177,7 @@ def slice_verification(ev: Any, plan: PlanePlan, backend: str, client: Any, prog
     t0 = time.perf_counter()
     A, ops = slice_aggregate(ev, plan, backend, client, progress, seed)
     return PackedVerification(aggregate=A, seed=seed, meta=ev.meta, ops=ops, server_s=time.perf_counter() - t0,
-                              drawn_here=True, known_name=str(ev.path))
+                              drawn_here=True, drawn_at=time.time(), known_name=str(ev.path))
 
 
 @dataclass
@@ -255,11 +255,11 @@ class PackedSlice:
         return slots
 
     def decrypt(self, private_key: PrivateKey, backend: str | None = None, *,
-                require_verified: bool | str = False) -> np.ndarray:
+                require_verified: bool | str | None = None) -> np.ndarray:
         """The slice's float64 (H, W) pixels (the mean of each pixel's slab samples; 0 where none is
         inside, see :attr:`hits`), after every check (a verified slice: against the store's tags first);
         ``require_verified`` (True, or the store id that must have been proven) refuses an unverified one."""
-        check_provenance(check_key(private_key, self.fingerprint, self.n, "slice"), self.verification, None,
+        check_provenance(check_key(private_key, self.fingerprint, self.n, "slice"), self,
                          require_verified, "a store without tags, or verify=False")
         slots = self.decrypt_values(private_key, backend)
         plan = self.plan

@@ -118,7 +118,8 @@ def tag_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress:
     A, ops = aggregate_for(ev, plan, backend, client, progress, seed)
     level = int(getattr(ev, "level", 0) or 0)
     return PackedVerification(aggregate=A, seed=seed, meta=ev.base if level else ev.meta, level=level, ops=ops,
-                              server_s=time.perf_counter() - t0, drawn_here=True, known_name=str(ev.path))
+                              server_s=time.perf_counter() - t0, drawn_here=True, drawn_at=time.time(),
+                              known_name=str(ev.path))
 
 
 def class_beta_total(beta_limbs: np.ndarray, packs: np.ndarray, classes: np.ndarray, rho: np.ndarray,
@@ -183,6 +184,7 @@ class PackedVerification:
     ops: Any = None
     server_s: float = 0.0
     drawn_here: bool = False
+    drawn_at: float = 0.0  # when the seed was drawn here (seconds since the epoch)
     known_name: str = field(default="", compare=False)  # rendered under (known stores; not in files)
 
     def __repr__(self) -> str:
