@@ -23,14 +23,16 @@ from typing import Any, Callable, Sequence
 import dask
 import dask.threaded
 from distributed import as_completed, default_client
+from distributed.comm.addressing import normalize_address
 
 from . import _cancel
 from ._progress import Progress, TaskCounter
+from .errors import ForeignClusterError, ParameterError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["OWN_CLUSTER_ENV", "active_client", "compute", "declared_own", "is_own_cluster", "own_cluster", "refuse_foreign_cluster",
-           "scheduler_address", "warn_if_remote"]
+__all__ = ["OWN_CLUSTER_ENV", "active_client", "check_encryption_client", "compute", "declared_own", "is_own_cluster",
+           "own_cluster", "refuse_foreign_cluster", "scheduler_address", "warn_if_remote"]
 
 OWN_CLUSTER_ENV = "HEVR_OWN_CLUSTER"  # <address>[,<address>…]: the opt-in of own_cluster, for the command line
 _OWN_SCHEDULERS: set[str] = set()  # the scheduler addresses declared with own_cluster in this process
@@ -40,8 +42,6 @@ _WARNED_SCHEDULERS: set[str] = set()
 def _normal(address: str) -> str:
     """A scheduler address as Dask's client reports it (``127.0.0.1:8786`` -> ``tcp://127.0.0.1:8786``);
     compared exactly afterwards, never by its host's spelling."""
-    from distributed.comm.addressing import normalize_address
-
     try:
         return normalize_address(address.strip())
     except (ValueError, TypeError):
@@ -99,8 +99,6 @@ def own_cluster(client_or_address: Any) -> str:
     'tcp://10.0.0.5:8786'
     >>> _OWN_SCHEDULERS.discard("tcp://10.0.0.5:8786")
     """
-    from .errors import ParameterError
-
     address = client_or_address if isinstance(client_or_address, str) else scheduler_address(client_or_address)
     if not address or not address.strip():
         raise ParameterError("client_or_address: expected a distributed.Client or a scheduler address such as "
@@ -163,8 +161,6 @@ def refuse_foreign_cluster(client: Any = None, doing: str = "using the private k
     client = active_client(client)
     if is_own_cluster(client):
         return
-    from .errors import ForeignClusterError
-
     address = scheduler_address(client)
     raise ForeignClusterError(
         f"client: expected a Dask cluster this process started or declared its own, got the scheduler at {address} "
@@ -172,6 +168,20 @@ def refuse_foreign_cluster(client: Any = None, doing: str = "using the private k
         "process, where the private key is. Render on another party's cluster through its 'hevr serve' with "
         "hevr.connect(URL) (data only, never unpickled); if the cluster is yours, declare it with "
         f"hevr.own_cluster(client) (or {OWN_CLUSTER_ENV}={address}, or --own-cluster with --scheduler)")
+
+
+def check_encryption_client(client: Any, private: bool) -> None:
+    """Before :func:`hevr.encrypt_volume` sends its tasks (plaintext bricks; with a private key also
+    p and q) to ``client`` (default: the active one): a private key beside a cluster that is not this
+    process's own is refused (:func:`refuse_foreign_cluster`); a public key's plaintext bricks going
+    to one are logged as a warning. No address guessing."""
+    client = active_client(client)
+    if private:
+        refuse_foreign_cluster(client, "encrypt_volume with a PrivateKey (its tasks carry p and q)")
+    elif not is_own_cluster(client):
+        log.warning("encrypt_volume sends plaintext bricks to the Dask workers of %s, a cluster this process did not "
+                    "start; encrypt only on machines the data owner controls (hevr.own_cluster(client) declares it "
+                    "yours)", scheduler_address(client))
 
 
 def warn_if_remote(client: Any) -> None:
