@@ -201,22 +201,25 @@ def read_file(p: Path, *, strict: bool = True, known: tuple | None = None) -> tu
         os.close(fd)
 
 
+_ALL = frozenset(_FIELDS) | {"mac"}
+_V1 = frozenset({"store_id", "digest", "verifiable", "fingerprint"})
+
+
 def _entry(name: Any, e: Any, signed: bool) -> KnownStore:
-    if not isinstance(name, str) or not isinstance(e, dict):
+    """One entry, every field's type checked (a few µs: 50 000 entries parse in well under a second)."""
+    if type(name) is not str or type(e) is not dict:
         raise ValueError(f"entry {str(name)[:60]!r} is not an object")
-    need = set(_FIELDS) | {"mac"} if signed else {"store_id", "digest", "verifiable", "fingerprint"}
-    if not need <= set(e) or not set(e) <= set(_FIELDS) | {"mac"}:
-        raise ValueError(f"entry {name[:60]!r} has the fields {sorted(e)[:10]}, expected {sorted(need)}")
-    strs = ("store_id", "digest", "fingerprint", "recorded")
-    retired = e.get("retired", [])
-    if (not all(isinstance(e.get(k, ""), str) for k in strs) or type(e["verifiable"]) is not bool
-            or type(e.get("accepted_untagged", False)) is not bool or not isinstance(retired, list)
-            or not all(isinstance(x, str) for x in retired) or (signed and not _MAC.fullmatch(str(e["mac"])))):
+    keys = e.keys()
+    if (keys != _ALL) if signed else not (_V1 <= keys <= _ALL):
+        raise ValueError(f"entry {name[:60]!r} has the fields {sorted(keys)[:10]}, expected {sorted(_ALL if signed else _V1)}")
+    sid, digest, fp, rec = e["store_id"], e["digest"], e["fingerprint"], e.get("recorded", "")
+    retired, untagged, mac = e.get("retired", []), e.get("accepted_untagged", False), e.get("mac", "")
+    if (type(sid) is not str or type(digest) is not str or type(fp) is not str or type(rec) is not str
+            or type(e["verifiable"]) is not bool or type(untagged) is not bool or type(retired) is not list
+            or any(type(x) is not str for x in retired) or (signed and (type(mac) is not str or not _MAC.fullmatch(mac)))):
         raise ValueError(f"entry {name[:60]!r} has a field of the wrong type")
-    return KnownStore(store_id=e["store_id"], digest=e["digest"], verifiable=e["verifiable"],
-                      fingerprint=e["fingerprint"], recorded=e.get("recorded", ""), retired=tuple(retired),
-                      accepted_untagged=e.get("accepted_untagged", False) if signed else False,
-                      mac=e["mac"] if signed else "")
+    return KnownStore(sid, digest, e["verifiable"], fp, rec, tuple(retired), untagged if signed else False,
+                      mac if signed else "")
 
 
 def parse(p: Path, raw: bytes) -> KnownFile:
