@@ -1,8 +1,9 @@
 """``hevr serve``: the render service beside the cluster (:mod:`hevr.serve`).
 
-Run where the stores and the Dask cluster are; it prints each store's id and the URL, and the key
-holder connects with ``hevr render --server URL STORE_ID`` or ``hevr.connect(URL)``. It never
-needs or accepts a private key.
+Run where the stores and the Dask cluster are; it prints each store's name, id and the URL, and the
+key holder connects with ``hevr render --server URL NAME`` (or the store id) or ``hevr.connect(URL)``.
+A store is served under the name ``NAME=PATH`` gives it, else its folder's name without ``.zarr``.
+It never needs or accepts a private key.
 """
 
 from __future__ import annotations
@@ -34,13 +35,19 @@ def serve_arguments(p: argparse.ArgumentParser) -> None:
     p.description = wrap("Serve encrypted stores to key holders over HTTP(S): renders, slices, streamed frames and "
                          "the verification round run on the Dask cluster; answers are data only (.hevr images, "
                          "length-prefixed units, JSON). Read-only, and no private key is ever needed or accepted. "
-                         "The key holder connects with hevr.connect(URL) or 'hevr render --server URL STORE_ID'.")
+                         "Each store is served under a name (NAME=PATH, or its folder's name without .zarr) and "
+                         "its id; "
+                         "the key holder connects with hevr.connect(URL).open(NAME) or 'hevr render --server URL "
+                         "NAME --key KEY.json' (verified with the key holder's key).")
     p.epilog = ("examples:\n"
                 "  hevr serve vol.zarr --workers 2                      # http://127.0.0.1:8750, this machine only\n"
+                "  hevr serve ct=scans/2024-ct.zarr mr=scans/mr.zarr    # served as 'ct' and 'mr'\n"
                 "  hevr serve a.zarr s3://bucket/b.zarr --scheduler tcp://10.0.0.5:8786 --host 0.0.0.0 \\\n"
                 "      --tokens tokens.json --tls-cert cert.pem --tls-key key.pem\n"
                 "  hevr serve --new-token radiology                     # a token and its tokens-file entry\n")
-    p.add_argument("stores", metavar="STORE", nargs="*", help="encrypted volume stores (paths or URLs)")
+    p.add_argument("stores", metavar="STORE", nargs="*",
+                   help="encrypted volume stores (paths or URLs; NAME=PATH serves one under NAME, else under its "
+                        "folder's name without .zarr; names unique, of letters, digits and _.@-, not 16 hex digits)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=port_type, default=8750, help="TCP port (default 8750; 0: any free port)")
     p.add_argument("--tokens", metavar="FILE", help="bearer tokens per store (JSON; hevr serve --new-token NAME)")
@@ -83,10 +90,11 @@ def cmd_serve(args: Any) -> int:
         if args.persist:
             if client is None:
                 raise ParameterError("--persist: expected --workers N or --scheduler (resident bricks live on workers)")
-            stores = {sid: ev.persist(client=client, backend=args.backend) for sid, ev in stores.items()}
-        for sid, ev in stores.items():
+            stores = {name: ev.persist(client=client, backend=args.backend) for name, ev in stores.items()}
+        for name, ev in stores.items():
             tags = ", verifiable" if ev.meta.tags else ""
-            print(f"store:   {sid}  {ev.path}  ({'x'.join(map(str, ev.shape[::-1]))} voxels{tags})")
+            size = "x".join(map(str, ev.shape[::-1]))
+            print(f"store:   {ev.meta.store_id}  {name}  {ev.path}  ({size} voxels{tags})")
 
         def ready(url: str) -> None:
             print(f"serving: {url}  (Ctrl-C stops)", flush=True)

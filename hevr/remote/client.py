@@ -32,8 +32,8 @@ from urllib.parse import urlsplit
 import httpx
 
 from ..errors import HevrError, ParameterError, RemoteError
-from .protocol import END, MAX_BODY, PROBLEM_MEDIA, UNITS_MEDIA, parse_json, unpack_head
-from .volume import RemoteVolume, parse_description
+from .protocol import END, MAX_BODY, PROBLEM_MEDIA, UNITS_MEDIA, check_store_name, is_store_id, parse_json, unpack_head
+from .volume import RemoteVolume, parse_description, parse_name
 
 log = logging.getLogger(__name__)
 
@@ -60,12 +60,13 @@ def connect(url: str, token: str | None = None, cafile: str | None = None, timeo
     Returns
     -------
     Server
-        ``server.stores()`` lists what it serves, ``server.open(store_id)`` gives a
+        ``server.stores()`` lists what it serves, ``server.open(name_or_id)`` gives a
         :class:`~hevr.remote.volume.RemoteVolume` for :func:`hevr.render` and friends.
 
     Examples
     --------
-    ``rv = hevr.connect("https://render.example.org:8750", token=tok).open("3f2a9c0d1e4b5a67")``,
+    ``rv = hevr.connect("https://render.example.org:8750", token=tok).open("ct")`` (the name
+    ``hevr serve`` printed, or the store id),
     then ``hevr.render(rv, hevr.Camera.orbit(rv, azimuth=30))`` and ``img.decrypt(priv)``.
     """
     return Server(url, token=token, cafile=cafile, timeout=timeout)
@@ -251,8 +252,9 @@ class Server:
 
     # -- the API --------------------------------------------------------------------
     def stores(self) -> list[dict]:
-        """The stores this token may render: ``[{"id": ..., "shape": ..., "channels": ..., "tags": ...}]``
-        summarised from each store's public metadata (checked as :meth:`open` checks it)."""
+        """The stores this token may render: ``[{"id", "name", "shape", "channels", "tags", ...}]``
+        summarised from each store's public metadata (checked as :meth:`open` checks it); ``name``:
+        the name it is served under (None: by id only)."""
         doc = self.get_json("/v1/stores", limit=MAX_STORES_BYTES)
         items = doc.get("stores")
         if not isinstance(items, list):
@@ -260,16 +262,42 @@ class Server:
         out = []
         for item in items:
             sid, meta = parse_description(item, self.url)
-            out.append({"id": sid, "shape": tuple(meta.shape[::-1]), "spacing": meta.spacing,
+            out.append({"id": sid, "name": parse_name(item, self.url), "shape": tuple(meta.shape[::-1]),
+                        "spacing": meta.spacing,
                         "channels": [c for c in ("scalar", "vector", "gradient") if getattr(meta, c) is not None],
                         "levels": len(meta.levels), "tags": bool(meta.tags), "fingerprint": meta.fingerprint})
         return out
 
-    def open(self, store_id: str) -> Any:
-        """A :class:`~hevr.remote.volume.RemoteVolume` of the store ``store_id``."""
-        if not isinstance(store_id, str) or len(store_id) != 16 or any(c not in "0123456789abcdef" for c in store_id):
-            raise ParameterError(f"store_id: expected 16 lower-case hex digits, got {str(store_id)[:40]!r}")
-        sid, meta = parse_description(self.get_json(f"/v1/stores/{store_id}"), self.url)
-        if sid != store_id:
-            raise RemoteError(f"server {self.url}: expected the store {store_id}, got the description of {sid}")
-        return RemoteVolume(self, store_id, meta)
+    def open(self, name_or_id: str) -> Any:
+        """A :class:`~hevr.remote.volume.RemoteVolume` of the store served under ``name_or_id``.
+
+        Parameters
+        ----------
+        name_or_id : str
+            A store id (16 lower-case hex digits): that store, its path ``<url>/v1/stores/<id>``.
+            Or the name ``hevr serve`` serves a store under: the volume's path is then
+            ``<url>/v1/stores/<name>`` (what the key holder's known stores record, so that another
+            version under the name is noticed), and every request names the id of the metadata
+            checked here (pinned: a server that swaps the store later is refused).
+
+        Returns
+        -------
+        RemoteVolume
+        """
+        if is_store_id(name_or_id):
+            sid, meta = parse_description(self.get_json(f"/v1/stores/{name_or_id}"), self.url)
+            if sid != name_or_id:
+                raise RemoteError(f"server {self.url}: expected the store {name_or_id}, got the description of {sid}")
+            return RemoteVolume(self, sid, meta)
+        try:
+            name = check_store_name(name_or_id, "name_or_id")
+        except ParameterError:
+            raise ParameterError(f"name_or_id: expected a store id (16 lower-case hex digits) or a store name (1-64 "
+                                 f"letters, digits or _.@-), got {str(name_or_id)[:40]!r}") from None
+        item = self.get_json(f"/v1/stores/{name}")
+        sid, meta = parse_description(item, self.url)
+        got = parse_name(item, self.url)
+        if got != name:
+            raise RemoteError(f"server {self.url}: expected the description of the store named {name!r}, got "
+                              f"{'one named ' + repr(got) if got else 'one without a name'} (store {sid})")
+        return RemoteVolume(self, sid, meta, name=name)

@@ -9,12 +9,21 @@ problem documents. Neither side ever unpickles what the other sends.
 Endpoints (``/v1``; the OpenAPI document at ``/v1/openapi.json``, :mod:`hevr.serve.openapi`)::
 
     GET  /v1                          the server's protocol version
-    GET  /v1/stores                   the stores this token may render: id and public metadata
-    GET  /v1/stores/{id}              one store's public metadata (its ``hevr`` attributes)
+    GET  /v1/stores                   the stores this token may render: id, name and public metadata
+    GET  /v1/stores/{id or name}      one store's description: its id, its served name and its
+                                      public metadata (its ``hevr`` attributes)
     POST /v1/stores/{id}/render       RenderRequest          -> application/vnd.hevr.image
                                                                 (a packed store: application/vnd.hevr.units)
     POST /v1/stores/{id}/stream       RenderRequest          -> application/vnd.hevr.units
     POST /v1/stores/{id}/verify       VerifyRequest          -> {"aggregate": "<decimal>"}
+
+A store is served under its id (16 hex digits, :attr:`~hevr.store.metadata.VolumeMetadata.store_id`)
+and under a *name* the operator controls (:data:`STORE_NAME`: ``hevr serve NAME=PATH``, or the
+store's folder name without ``.zarr``). A name never looks like an id (:func:`check_store_name`),
+so ``/v1/stores/{x}`` is never ambiguous. The key holder opens a store by either and then sends
+every render to its id, so a server that swaps the store under a name mid-session is caught
+(404), and a new version under a known name is caught by the key holder's known stores
+(:mod:`hevr.store.known`: a store opened by name is recorded under ``<server>/v1/stores/<name>``).
 
 A render request names a *channel*, never a mode, a density or a transfer function: frames are
 finished on the client (:mod:`hevr.colour`), so the colouring never leaves the key holder.
@@ -41,6 +50,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 import struct
 from dataclasses import dataclass
 from typing import Any
@@ -53,8 +63,9 @@ from ..rendering.geometry.plane import Plane, view_from_dict
 from ..store.packing import MAX_WEIGHT_BITS
 from ..volume.pyramid import MAX_LEVELS
 
-__all__ = ["API_VERSION", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_SIDE", "PROBLEM_MEDIA", "UNITS_MEDIA",
-           "RenderRequest", "VerifyRequest", "image_limit", "pack_frame", "packed_limit", "parse_json", "unpack_head"]
+__all__ = ["API_VERSION", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_SIDE", "PROBLEM_MEDIA", "STORE_ID", "STORE_NAME",
+           "UNITS_MEDIA", "RenderRequest", "VerifyRequest", "check_store_name", "image_limit", "is_store_id",
+           "pack_frame", "packed_limit", "parse_json", "unpack_head"]
 
 API_VERSION = 1
 PREFIX = "/v1"
@@ -71,6 +82,34 @@ BACKENDS = ("auto", "cpu", "cuda-host", "cuda")
 END = 0xFFFFFFFF  # the index of a units stream's end frame
 FRAME = struct.Struct("<II")
 MAX_JSON_DEPTH = 32
+STORE_ID = re.compile(r"[0-9a-f]{16}")  # a store id as the server and the key holder write it
+STORE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.@-]{0,63}")  # a served name: safe in a URL path, no '/'
+_ID_LIKE = re.compile(r"[0-9a-fA-F]{16}")
+
+
+def is_store_id(text: Any) -> bool:
+    """Whether ``text`` is a store id (16 lower-case hex digits)."""
+    return isinstance(text, str) and STORE_ID.fullmatch(text) is not None
+
+
+def check_store_name(name: Any, where: str = "name") -> str:
+    """``name`` if it can name a served store (:data:`STORE_NAME`, and not 16 hex digits, which
+    would read as a store id); a :class:`hevr.ParameterError` naming ``where`` otherwise.
+
+    >>> check_store_name("ct-2024.v2")
+    'ct-2024.v2'
+    >>> check_store_name("0123456789abcdef")
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: name: expected a store name that is not 16 hex digits (those read as a store id), got '0123456789abcdef'
+    """
+    if not isinstance(name, str) or not STORE_NAME.fullmatch(name):
+        raise ParameterError(f"{where}: expected a store name of 1-64 letters, digits or _.@- (starting with a "
+                             f"letter or digit), got {str(name)[:70]!r}")
+    if _ID_LIKE.fullmatch(name):
+        raise ParameterError(f"{where}: expected a store name that is not 16 hex digits (those read as a store "
+                             f"id), got {name!r}")
+    return name
 
 
 def parse_json(raw: bytes, name: str, limit: int = MAX_BODY) -> Any:

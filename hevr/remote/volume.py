@@ -9,6 +9,12 @@ field — is computed here, in the key holder's process, and the server's answer
 take it as they take a local volume and send the request to the server
 (:mod:`hevr.remote.render`); the frames are the in-process ones, byte for byte.
 
+Opened by name (``server.open("ct")``, the name ``hevr serve`` gives the store), its
+:attr:`~RemoteVolume.path` is ``<server>/v1/stores/<name>``: the name the owner controls, which the
+key holder's known stores (:mod:`hevr.store.known`) record, so that another version served under
+that name later is noticed. Every request goes to :attr:`~RemoteVolume.store_id`, the id of the
+metadata checked at opening (pinned for the session). Opened by id, the path names the id.
+
 It holds no brick: :meth:`persist` and brick reads are refused (the server decides residency:
 ``hevr serve --persist``).
 """
@@ -23,21 +29,35 @@ from ..store.metadata import VolumeMetadata
 from ..store.reader import EncryptedVolume
 from ..volume.pyramid import check_level
 from .packed import render_remote_packed, render_remote_packed_slice
+from .protocol import check_store_name, is_store_id
 from .render import render_remote
 
-__all__ = ["RemoteVolume", "parse_description"]
+__all__ = ["RemoteVolume", "parse_description", "parse_name"]
 
 MAX_N_DIGITS = 1300  # a 4096-bit modulus has 1234 decimal digits
 
 
+def parse_name(item: Any, url: str) -> str | None:
+    """The served name of a store description (None: the server gave none, as servers before
+    issue 47 did, or serves it by id only); :class:`hevr.RemoteError` for one that is not a name."""
+    name = item.get("name") if isinstance(item, dict) else None
+    if name is None:
+        return None
+    try:
+        return check_store_name(name, f"server {url}: a store description: name")
+    except ParameterError as exc:
+        raise RemoteError(str(exc)) from None
+
+
 def parse_description(item: Any, url: str) -> tuple[str, VolumeMetadata]:
-    """(store id, metadata) of a store description ``{"id", "metadata"}`` from the server;
-    :class:`hevr.RemoteError` naming what is wrong."""
-    if not isinstance(item, dict) or set(item) != {"id", "metadata"}:
-        raise RemoteError(f"server {url}: a store description: expected an object with exactly 'id' and "
+    """(store id, metadata) of a store description ``{"id", "name", "metadata"}`` from the server
+    (``name`` optional: :func:`parse_name`); :class:`hevr.RemoteError` naming what is wrong."""
+    if not isinstance(item, dict) or not {"id", "metadata"} <= set(item) <= {"id", "name", "metadata"}:
+        raise RemoteError(f"server {url}: a store description: expected an object with exactly 'id', 'name' and "
                           "'metadata'")
+    parse_name(item, url)
     sid, raw = item["id"], item["metadata"]
-    if not (isinstance(sid, str) and len(sid) == 16 and all(c in "0123456789abcdef" for c in sid)):
+    if not is_store_id(sid):
         raise RemoteError(f"server {url}: a store description: id: expected 16 hex digits, got {str(sid)[:40]!r}")
     pk = raw.get("public_key") if isinstance(raw, dict) else None
     if not (isinstance(pk, dict) and isinstance(pk.get("n"), str) and 0 < len(pk["n"]) <= MAX_N_DIGITS):
@@ -61,13 +81,27 @@ def parse_description(item: Any, url: str) -> tuple[str, VolumeMetadata]:
 
 
 class RemoteVolume(EncryptedVolume):
-    """A store on a render server (:meth:`hevr.remote.client.Server.open`)."""
+    """A store on a render server (:meth:`hevr.remote.client.Server.open`).
+
+    Parameters
+    ----------
+    server : Server
+        The connection it renders on.
+    store_id : str
+        The id every request names (the checked metadata's).
+    meta : VolumeMetadata
+        Its public metadata (of ``level``; ``base``: level 0's).
+    name : str, optional
+        The served name it was opened by: its :attr:`path` is then ``<server>/v1/stores/<name>``
+        (module docstring); None: opened by id.
+    """
 
     def __init__(self, server: Any, store_id: str, meta: VolumeMetadata, level: int = 0,
-                 base: VolumeMetadata | None = None) -> None:
-        super().__init__(f"{server.url}/v1/stores/{store_id}", meta, level, base)
+                 base: VolumeMetadata | None = None, name: str | None = None) -> None:
+        super().__init__(f"{server.url}/v1/stores/{name or store_id}", meta, level, base)
         self.server = server
         self.store_id = store_id
+        self.name = name
 
     @property
     def remote(self) -> Any:
@@ -82,11 +116,11 @@ class RemoteVolume(EncryptedVolume):
 
     def at_level(self, level: int) -> RemoteVolume:
         base = self.base if self.level else self.meta
-        ev0 = self if not self.level else RemoteVolume(self.server, self.store_id, base)
+        ev0 = self if not self.level else RemoteVolume(self.server, self.store_id, base, name=self.name)
         level = check_level(level, ev0.levels)
         if level == 0:
-            return RemoteVolume(self.server, self.store_id, base)
-        return RemoteVolume(self.server, self.store_id, base.level_meta(level), level, base)
+            return RemoteVolume(self.server, self.store_id, base, name=self.name)
+        return RemoteVolume(self.server, self.store_id, base.level_meta(level), level, base, name=self.name)
 
     def render_request(self, view: Any, spec: Any, **kwargs: Any) -> Any:
         """:func:`hevr.render`'s work on this volume (:func:`hevr.remote.render.render_remote`):

@@ -56,6 +56,7 @@ from ..remote.protocol import (
     UNITS_MEDIA,
     RenderRequest,
     VerifyRequest,
+    check_store_name,
     pack_frame,
     parse_json,
 )
@@ -132,11 +133,11 @@ class Limits:
 
 
 class Service:
-    """The served stores, the Dask client, the tokens and the limits."""
+    """The served stores (by id, and their names), the Dask client, the tokens and the limits."""
 
     def __init__(self, stores: dict, *, client: Any = None, tokens: TokenTable | None = None,
                  max_concurrent: int = 4, backend: str | None = None) -> None:
-        self.stores = dict(stores)
+        self.stores, self.names, self.name_of = served_stores(stores)
         self.client = client
         self.tokens = tokens
         self.limits = Limits(max_concurrent)
@@ -154,15 +155,43 @@ class Service:
                           {"WWW-Authenticate": 'Bearer realm="hevr"'})
         return token.name, token.concurrent, token
 
+    def resolve(self, request: Request, token: Any) -> tuple[str, Any]:
+        """(store id, opened store) of the request's ``{store}``: a store id or a served name."""
+        key = request.path_params["store"]
+        sid = key if key in self.stores else self.names.get(key)
+        if sid is None or (token is not None and not token.may_render(sid)):
+            raise Problem(404, "no such store", f"store: expected the id or name of a served store, got {key[:40]!r}")
+        return sid, self.stores[sid]
+
     def store(self, request: Request, token: Any) -> Any:
-        sid = request.path_params["store_id"]
-        ev = self.stores.get(sid)
-        if ev is None or (token is not None and not token.may_render(sid)):
-            raise Problem(404, "no such store", f"store: expected the id of a served store, got {sid[:40]!r}")
-        return ev
+        return self.resolve(request, token)[1]
 
     def visible(self, token: Any) -> list[str]:
         return [sid for sid in self.stores if token is None or token.may_render(sid)]
+
+    def description(self, sid: str) -> dict:
+        """What ``/v1/stores`` says of a store: its id, its name (None: served by id only) and its
+        public metadata."""
+        return {"id": sid, "name": self.name_of.get(sid), "metadata": self.stores[sid].meta.to_dict()}
+
+
+def served_stores(stores: dict) -> tuple[dict, dict, dict]:
+    """(store id -> store, name -> store id, store id -> name) of ``create_app``'s ``stores``: a
+    key that is its store's id serves it without a name; any other key is its name
+    (:func:`~hevr.remote.protocol.check_store_name`). Names and stores are unique."""
+    by_id: dict = {}
+    names: dict = {}
+    name_of: dict = {}
+    for key, ev in stores.items():
+        sid = ev.meta.store_id
+        if sid in by_id:
+            raise ParameterError(f"stores: expected distinct stores, got the store {sid} twice ({by_id[sid].path} "
+                                 f"and {ev.path})")
+        by_id[sid] = ev
+        if key != sid:
+            names[check_store_name(key, "stores: a name")] = sid
+            name_of[sid] = key
+    return by_id, names, name_of
 
 
 async def _body(request: Request) -> bytes:
@@ -181,14 +210,11 @@ async def _body(request: Request) -> bytes:
     return bytes(data)
 
 
-def _description(sid: str, ev: Any) -> dict:
-    return {"id": sid, "metadata": ev.meta.to_dict()}
-
-
 def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = None, max_concurrent: int = 4,
                backend: str | None = None) -> Starlette:
-    """The application serving ``stores`` (store id -> opened :class:`hevr.EncryptedVolume`) on the
-    Dask ``client`` (None: Dask's default scheduler in this process)."""
+    """The application serving ``stores`` (name -> opened :class:`hevr.EncryptedVolume`, as
+    :func:`hevr.serve.run.open_stores` gives them; a key that is its store's id serves that store
+    without a name) on the Dask ``client`` (None: Dask's default scheduler in this process)."""
     svc = Service(stores, client=client, tokens=tokens, max_concurrent=max_concurrent, backend=backend)
 
     def endpoint(fn):
@@ -213,11 +239,11 @@ def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = 
         return JSONResponse(openapi_document())
 
     async def list_stores(request: Request, token: Any, per_token: int, name: str) -> Response:
-        return JSONResponse({"stores": [_description(sid, svc.stores[sid]) for sid in svc.visible(token)]})
+        return JSONResponse({"stores": [svc.description(sid) for sid in svc.visible(token)]})
 
     async def one_store(request: Request, token: Any, per_token: int, name: str) -> Response:
-        ev = svc.store(request, token)
-        return JSONResponse(_description(request.path_params["store_id"], ev))
+        sid, _ = svc.resolve(request, token)
+        return JSONResponse(svc.description(sid))
 
     async def render(request: Request, token: Any, per_token: int, name: str) -> Response:
         ev = svc.store(request, token)
@@ -292,10 +318,10 @@ def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = 
         Route("/v1", endpoint(version), methods=["GET"]),
         Route("/v1/openapi.json", endpoint(openapi), methods=["GET"]),
         Route("/v1/stores", endpoint(list_stores), methods=["GET"]),
-        Route("/v1/stores/{store_id}", endpoint(one_store), methods=["GET"]),
-        Route("/v1/stores/{store_id}/render", endpoint(render), methods=["POST"]),
-        Route("/v1/stores/{store_id}/stream", endpoint(stream), methods=["POST"]),
-        Route("/v1/stores/{store_id}/verify", endpoint(verify), methods=["POST"]),
+        Route("/v1/stores/{store}", endpoint(one_store), methods=["GET"]),
+        Route("/v1/stores/{store}/render", endpoint(render), methods=["POST"]),
+        Route("/v1/stores/{store}/stream", endpoint(stream), methods=["POST"]),
+        Route("/v1/stores/{store}/verify", endpoint(verify), methods=["POST"]),
     ]
 
     async def not_found(request: Request, exc: Exception) -> Response:

@@ -16,6 +16,7 @@ from ..remote.protocol import (
     MAX_SIDE,
     MAX_STEP,
     PROBLEM_MEDIA,
+    STORE_NAME,
     SAMPLINGS,
     UNITS_MEDIA,
 )
@@ -63,8 +64,12 @@ _PROBLEM = {
     "properties": {"type": {"type": "string"}, "title": {"type": "string"}, "status": {"type": "integer"},
                    "detail": {"type": "string"}},
 }
-_STORE = {"type": "object", "required": ["id", "metadata"],
+_NAME = {"type": "string", "pattern": f"^{STORE_NAME.pattern}$", "not": {"pattern": "^[0-9a-fA-F]{16}$"}}
+_STORE = {"type": "object", "additionalProperties": False, "required": ["id", "name", "metadata"],
           "properties": {"id": {"type": "string", "pattern": "^[0-9a-f]{16}$"},
+                         "name": {"oneOf": [_NAME, {"type": "null"}],
+                                  "description": "the name the operator serves the store under (hevr serve "
+                                                 "NAME=PATH, or its folder's name without .zarr); null: by id only"},
                          "metadata": {"type": "object", "description": "the store's public 'hevr' attributes "
                                                                        "(docs/store-format.md)"}}}
 
@@ -77,11 +82,15 @@ def _errors(*codes: int) -> dict:
             for c in codes}
 
 
+_PATH_STORE = [{"name": "store", "in": "path", "required": True,
+                "description": "the store's id (16 hex digits) or the name it is served under",
+                "schema": {"type": "string", "maxLength": 64}}]
+
+
 def _post(summary: str, schema: str, media: str, answer: dict, also: str | None = None) -> dict:
     content = {media: answer, **({also: answer} if also else {})}
     return {"post": {
-        "summary": summary, "parameters": [{"name": "store_id", "in": "path", "required": True,
-                                            "schema": {"type": "string"}}],
+        "summary": summary, "parameters": _PATH_STORE,
         "requestBody": {"required": True, "content": {"application/json": {
             "schema": {"$ref": f"#/components/schemas/{schema}"}}}},
         "responses": {"200": {"description": "the answer", "content": content},
@@ -110,20 +119,20 @@ def openapi_document() -> dict[str, Any]:
                                        "schema": {"type": "object", "properties": {"stores": {
                                            "type": "array", "items": {"$ref": "#/components/schemas/Store"}}}}}}},
                                        **_errors(401)}}},
-            "/v1/stores/{store_id}": {"get": {
-                "summary": "one store's public metadata",
-                "parameters": [{"name": "store_id", "in": "path", "required": True, "schema": {"type": "string"}}],
+            "/v1/stores/{store}": {"get": {
+                "summary": "one store's id, name and public metadata, by its id or its name",
+                "parameters": _PATH_STORE,
                 "responses": {"200": {"description": "the store", "content": {"application/json": {
                     "schema": {"$ref": "#/components/schemas/Store"}}}}, **_errors(401, 404)}}},
-            "/v1/stores/{store_id}/render": _post(
+            "/v1/stores/{store}/render": _post(
                 "render a view or slice: a client-finished .hevr image; of a packed store, its tiles' combined values "
                 "as frames of index (u32 LE), length (u32 LE) and ciphertext records, in tile order, then an end frame "
                 "of index 0xFFFFFFFF holding a JSON status", "RenderRequest", IMAGE_MEDIA, binary, UNITS_MEDIA),
-            "/v1/stores/{store_id}/stream": _post(
+            "/v1/stores/{store}/stream": _post(
                 "the same render as finishing units as they complete: frames of index (u32 LE), length (u32 LE) and "
                 "ciphertext records; an end frame of index 0xFFFFFFFF holds a JSON status", "RenderRequest",
                 UNITS_MEDIA, binary),
-            "/v1/stores/{store_id}/verify": _post(
+            "/v1/stores/{store}/verify": _post(
                 "the tag aggregate of a render for the key holder's seed (drawn after it held the image)",
                 "VerifyRequest", "application/json",
                 {"schema": {"type": "object", "additionalProperties": False, "required": ["aggregate"],

@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..errors import MissingDependencyError, ParameterError
+from ..remote.protocol import check_store_name
 from ..store.reader import EncryptedVolume, open_volume
 
 try:  # the 'serve' extra: Starlette and uvicorn (only their absence is a missing extra)
@@ -26,26 +27,61 @@ else:  # pragma: no cover
 
 log = logging.getLogger("hevr.serve")
 
-__all__ = ["open_stores", "serve"]
+__all__ = ["open_stores", "serve", "store_name"]
 
 
-def open_stores(paths: Sequence[str], storage_options: dict | None = None) -> dict[str, EncryptedVolume]:
-    """Store id -> opened store, for every path or URL (two paths of one store are refused)."""
+def store_name(spec: str) -> tuple[str, str]:
+    """(name, path) of one ``hevr serve`` STORE argument: ``NAME=PATH``, where NAME is a store name
+    (:func:`~hevr.remote.protocol.check_store_name`; a path whose first ``=`` follows a ``/`` or
+    ``:`` is a path), or a path or URL, named after its last component without ``.zarr``.
+
+    >>> store_name("/data/ct/vol.zarr/"), store_name("s3://bucket/b.zarr"), store_name("ct=/data/vol.zarr")
+    (('vol', '/data/ct/vol.zarr/'), ('b', 's3://bucket/b.zarr'), ('ct', '/data/vol.zarr'))
+    """
+    if not isinstance(spec, str) or not spec:
+        raise ParameterError(f"STORE: expected a path, a URL or NAME=PATH, got {str(spec)[:70]!r}")
+    left, eq, right = spec.partition("=")
+    if eq and left and not any(c in left for c in "/:\\"):
+        if not right:
+            raise ParameterError(f"STORE: expected NAME=PATH with a path, got {spec[:100]!r}")
+        return check_store_name(left, f"STORE {spec[:100]!r}: NAME"), right
+    last = spec.rstrip("/").rsplit("/", 1)[-1]
+    name = last[:-len(".zarr")] if last.endswith(".zarr") else last
+    try:
+        return check_store_name(name, f"STORE {spec[:100]!r}: its name"), spec
+    except ParameterError as exc:
+        raise ParameterError(f"{exc}; name it explicitly with NAME=PATH") from None
+
+
+def open_stores(specs: Sequence[str], storage_options: dict | None = None) -> dict[str, EncryptedVolume]:
+    """Name -> opened store, for every ``hevr serve`` STORE argument (:func:`store_name`: a path or
+    URL, or ``NAME=PATH``); two arguments of one name, or of one store, are refused before any is
+    served. :func:`hevr.serve.app.create_app` takes the result as it is."""
     stores: dict[str, EncryptedVolume] = {}
-    for path in paths:
+    named = [store_name(spec) for spec in specs]  # every name checked before any store is opened
+    seen: dict[str, str] = {}
+    for name, path in named:
+        if name in seen:
+            raise ParameterError(f"STORE: expected distinct store names, got the name {name!r} twice ({seen[name]} "
+                                 f"and {path}); name one of them with NAME=PATH")
+        seen[name] = path
+    ids: dict[str, str] = {}
+    for name, path in named:
         ev = open_volume(path, storage_options=storage_options)
         sid = ev.meta.store_id
-        if sid in stores:
-            raise ParameterError(f"STORE: expected distinct stores, got the store {sid} twice ({stores[sid].path} and "
-                                 f"{ev.path})")
-        stores[sid] = ev
+        if sid in ids:
+            raise ParameterError(f"STORE: expected distinct stores, got the store {sid} twice ({stores[ids[sid]].path} "
+                                 f"and {ev.path})")
+        ids[sid] = name
+        stores[name] = ev
     return stores
 
 
 def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: int = 8750, client: Any = None,
           tokens: Any = None, tls_cert: str | None = None, tls_key: str | None = None, max_concurrent: int = 4,
           backend: str | None = None, on_ready: Callable[[str], None] | None = None) -> None:
-    """Serve ``stores`` until interrupted (uvicorn; TLS with ``tls_cert`` and ``tls_key``).
+    """Serve ``stores`` (name or store id -> opened store: :func:`open_stores`,
+    :func:`~hevr.serve.app.create_app`) until interrupted (uvicorn; TLS with ``tls_cert`` and ``tls_key``).
     ``on_ready(url)`` is called once the socket listens."""
     if uvicorn is None or create_app is None:
         raise MissingDependencyError("hevr serve needs the 'serve' extra (Starlette, uvicorn): pip install 'hevr[serve]'")

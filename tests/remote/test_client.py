@@ -190,6 +190,28 @@ def test_bad_store_descriptions(truth):
         double.shutdown()
 
 
+def test_store_names_in_descriptions(truth):
+    """A description's name (issue 47) is checked; opened by name, the answer must be the store of
+    that name, and the volume renders by the id of its checked metadata."""
+    ev, _, _, _, desc, _ = truth
+    d, sid = json.loads(desc), ev.meta.store_id
+    routes = {("GET", "/v1/stores/ct"): answer(body=json.dumps(dict(d, name="ct")).encode()),
+              ("GET", "/v1/stores/mr"): answer(body=json.dumps(dict(d, name="ct")).encode()),
+              ("GET", "/v1/stores/us"): answer(body=desc),
+              ("GET", "/v1/stores/xx"): answer(body=json.dumps(dict(d, name="a/b")).encode()),
+              ("GET", "/v1/stores/yy"): answer(body=json.dumps(dict(d, name="0123456789abcdef")).encode()),
+              ("GET", "/v1/stores/zz"): answer(body=json.dumps(dict(d, name="zz", extra=1)).encode())}
+    double = Double(routes)
+    server = connect(double.url, timeout=5)
+    rv = server.open("ct")
+    assert (rv.name, rv.store_id, rv.path) == ("ct", sid, f"{double.url}/v1/stores/ct")
+    for name, match in (("mr", "named 'mr', got one named 'ct'"), ("us", "one without a name"),
+                        ("xx", "name: expected a store name"), ("yy", "not 16 hex digits"), ("zz", "exactly")):
+        with pytest.raises(hevr.RemoteError, match=match):
+            server.open(name)
+    double.shutdown()
+
+
 def test_unreachable_and_bad_arguments():
     s = socket.socket()
     s.bind(("127.0.0.1", 0))

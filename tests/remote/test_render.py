@@ -131,12 +131,56 @@ def test_cli_render_and_slice_write_the_same_files(served, tmp_path, monkeypatch
     assert main(["slice", "--server", served.url, sid, "--out", str(tmp_path / "rs.hevr"), *sl]) == 0
     assert main(["slice", store, "--out", str(tmp_path / "ls.hevr"), *sl]) == 0
     assert (tmp_path / "rs.hevr").read_bytes() == (tmp_path / "ls.hevr").read_bytes()
-    # a verified remote frame decrypts as verified with the key
-    assert main(["render", "--server", served.url, sid, "--out", str(tmp_path / "v.hevr"), "--size", "8x8", "-q"]) == 0
+    # a verified remote frame (the key holder's --key) decrypts as verified
     served.priv.save(str(tmp_path / "key.json"))
-    assert main(["decrypt", str(tmp_path / "v.hevr"), "--key", str(tmp_path / "key.json"),
+    assert main(["render", "--server", served.url, sid, "--key", str(tmp_path / "key.json"), "--out",
+                 str(tmp_path / "v.hevr"), "--size", "8x8", "-q"]) == 0
+    assert main(["decrypt", str(tmp_path / "v.hevr"), "--key", str(tmp_path / "key.json"), "--require-verified",
                  "--out", str(tmp_path / "v.png"), "-q"]) == 0
     # the server refuses what it does not serve; nothing is written
     assert main(["render", "--server", served.url, "0" * 16, "--out", str(tmp_path / "x.hevr"), "-q"]) == 1
     assert not (tmp_path / "x.hevr").exists()
     assert main(["render", "--server", served.url, sid, "--workers", "2", "--out", str(tmp_path / "y.hevr")]) == 2
+
+
+def test_cli_remote_render_verifies_with_the_key_holders_key(served, tmp_path, capsys):
+    """The README's remote flow (issue 47): ``hevr render|slice --server URL NAME --key KEY.json``
+    verifies the server's answer here and stamps the file; ``hevr decrypt --require-verified`` takes
+    it. Without --key the warning says to pass it."""
+    sid, key = served.ev.meta.store_id, str(tmp_path / "key.json")
+    served.priv.save(key)
+    capsys.readouterr()
+    for i, argv in enumerate((["render", "--size", "8x8", "--azimuth", "20"], ["slice", "--axial", "5"])):
+        out = str(tmp_path / f"k{i}.hevr")
+        assert main([argv[0], "--server", served.url, "v", "--key", key, "--out", out, *argv[1:]]) == 0
+        text = capsys.readouterr()
+        assert f"verified: the frame is the render of store {sid}" in text.out and "not verified" not in text.err
+        assert main(["decrypt", out, "--key", key, "--require-verified", sid, "--out", str(tmp_path / f"k{i}.png")]) == 0
+        assert "verified: the frame is the render" in capsys.readouterr().out
+    out = str(tmp_path / "nokey.hevr")
+    assert main(["render", "--server", served.url, "v", "--out", out, "--size", "8x8"]) == 0
+    err = capsys.readouterr().err
+    assert "not verified" in err and "pass --key KEY.json, the key holder's private key, to verify the server's " \
+                                      "answer" in err
+    assert main(["decrypt", out, "--key", key, "--require-verified", "--out", str(tmp_path / "nokey.png")]) == 1
+    assert "not verified" in capsys.readouterr().err
+
+
+def test_a_store_is_served_under_its_name(served, rv):
+    """``hevr serve v.zarr`` serves the store as "v" too: listed with its name, opened by it (the
+    volume's path names it, every request its id), and a name never taken for an id."""
+    sid = served.ev.meta.store_id
+    assert [(s["id"], s["name"]) for s in rv.server.stores()] == [(sid, "v")]
+    assert any(line.split()[1:3] == [sid, "v"] for line in served.lines if line.startswith("store:"))
+    by_name = rv.server.open("v")
+    assert by_name.path == f"{served.url}/v1/stores/v" and by_name.store_id == sid and by_name.name == "v"
+    assert rv.path == f"{served.url}/v1/stores/{sid}" and rv.name is None
+    assert by_name.at_level(1).path == by_name.path and by_name.at_level(1).store_id == sid
+    cam = _cam(by_name)
+    assert hevr.render(by_name, cam, verify=False, progress=False).to_bytes() == \
+        hevr.render(rv, cam, verify=False, progress=False).to_bytes()
+    with pytest.raises(hevr.RemoteError, match="404"):
+        rv.server.open("w")
+    for bad in ("a/b", "", "x" * 65, "0123456789ABCDEF", 7):
+        with pytest.raises(hevr.ParameterError, match="name_or_id"):
+            rv.server.open(bad)

@@ -40,10 +40,13 @@ def _problem(r, status, *words):
 def test_version_openapi_and_stores(served, http):
     assert http.get("/v1").json()["api"] == 1
     doc = http.get("/v1/openapi.json").json()
-    assert doc["openapi"].startswith("3.1") and "/v1/stores/{store_id}/render" in doc["paths"]
+    assert doc["openapi"].startswith("3.1") and "/v1/stores/{store}/render" in doc["paths"]
     assert doc["components"]["schemas"]["RenderRequest"]["additionalProperties"] is False
+    assert doc["components"]["schemas"]["Store"]["required"] == ["id", "name", "metadata"]
     (item,) = http.get("/v1/stores").json()["stores"]
     assert item["id"] == served.ev.meta.store_id and item["metadata"] == served.ev.meta.to_dict()
+    assert item["name"] == "v" and http.get("/v1/stores/v").json() == item  # by its name (issue 47) and its id
+    assert http.get(f"/v1/stores/{served.ev.meta.store_id}").json() == item
     _problem(http.get("/v2/anything"), 404, "/v1")
     _problem(http.get(f"/v1/stores/{served.ev.meta.store_id}/render"), 405)
 

@@ -76,6 +76,9 @@ def test_tls_and_tokens(secure):
     with pytest.raises(hevr.RemoteError, match="404") as e:
         connect(url, token=alice, cafile=ca).open(b.meta.store_id)  # not hers: as if it did not exist
     assert e.value.status == 404
+    assert connect(url, token=alice, cafile=ca).open("a").store_id == a.meta.store_id  # by its served name
+    with pytest.raises(hevr.RemoteError, match="404"):
+        connect(url, token=alice, cafile=ca).open("b")  # nor by its name
     for token in (None, "wrong", bob + "x"):
         with pytest.raises(hevr.RemoteError, match="401") as e:
             connect(url, token=token, cafile=ca).stores()
