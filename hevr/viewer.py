@@ -72,6 +72,7 @@ from .rendering.planning.modes import parse_color
 from .rendering.reference.plain import render_plain
 from .store.reader import EncryptedVolume
 from .volume.pyramid import check_level
+from .image.provenance import refuse_untagged
 
 log = logging.getLogger(__name__)
 
@@ -158,6 +159,7 @@ class Viewer:
         if private_key.public_key.fingerprint != ev.meta.fingerprint:
             raise ParameterError("private_key: expected the key of this volume (fingerprint "
                                  f"{ev.meta.fingerprint[:16]}…), got {private_key.public_key.fingerprint[:16]}…")
+        refuse_untagged(ev, private_key)  # the key's policy (hevr.PrivateKey.require_tags), before any frame
         if getattr(ev, "remote", None) is None:  # its frames decrypted here, beside the Dask client
             refuse_foreign_cluster(client, "hevr.Viewer with the private key")
         if volume is not None and tuple(np.shape(volume)) != tuple(ev.shape):

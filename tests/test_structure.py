@@ -101,6 +101,7 @@ PUBLIC_API = (
     "known_stores", "trust_store",  # the key holder's known stores (issue 38)
     "export_known_stores", "import_known_stores",  # portable, MAC'd known stores (issue 47)
     "own_cluster", "ForeignClusterError",  # the Dask path only on the key holder's own cluster (issue 47)
+    "Expect", "FrameProof", "proof_of", "FrameMovedWarning",  # what a verified frame proves (issue 47)
     "VIEWS", "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
     "PackedImage",  # a packed store's frame (issue 45)
 )

@@ -103,6 +103,9 @@ def cmd_convert_key(args: Any) -> int:
     kind = "private" if private else "public"
     mode = " (mode 0600)" if private else ""
     print(f"wrote {out}: the {pub.bits}-bit {kind} key as {FORMAT_NAMES[args.format]}{mode}")
+    if private and args.format == "phe" and key.require_tags:
+        print("  policy:      not kept: a pheutil file cannot hold the key's policy (every store carries tags); a key "
+              "read back from it has none ('hevr key-policy KEY --require-tags' gives it back)")
     print(f"  fingerprint: {pub.fingerprint}")
     if pub.bits < SECURE_BITS:
         warn_line(f"a {pub.bits}-bit key is NOT secure; use {SECURE_BITS} bits or more for real data")

@@ -12,6 +12,7 @@ from ..store.known import known_stores_path, trust_store
 from .keys import read_key
 from .util import UsageError, warn_line
 from ..image.proof import proof_of
+from ..image.provenance import refuse_untagged
 
 __all__ = ["key_holder", "verified_line", "verify_argument", "warn_unverified"]
 
@@ -61,6 +62,7 @@ def key_holder(args: Any, ev: Any) -> bool | str | None:
               + (" (accepted without tags)" if entry.accepted_untagged else ""))
     elif getattr(args, "untagged", False):
         raise UsageError("--untagged: expected --trust-store as well (it accepts a store without tags explicitly)")
+    refuse_untagged(ev, args.private_key)  # the key's policy: a store without tags, before anything is rendered
     return verify
 
 

@@ -238,16 +238,11 @@ class PrivateKey:
     :mod:`hevr.crypto.owner`: the same ciphertext distribution as :meth:`PublicKey.encrypt`,
     many times faster.
 
-    ``require_tags`` (the key's policy, kept in its file): every store of this key carries tags
-    (:mod:`hevr.crypto.tags`), so that every frame of it can be verified. The owner's encryption
-    with such a key writes tags without being asked; a store without tags under this key — made
-    with the public key only, or stripped by a server — is refused before it is rendered where the
-    process knows the key, and at the latest when the key holder decrypts: never an image, unless
-    the key holder accepted that store explicitly (``hevr.trust_store(ev, key, untagged=True)``)
-    or asks for an unverified image by name (``decrypt(..., require_verified=False)``). On by
-    default for keys made by :func:`generate_keypair`; an existing key opts in with
-    :meth:`with_policy` (``hevr key-policy KEY --require-tags``). A constructed or
-    python-paillier key has no policy unless given one.
+    ``require_tags``, the key's policy (kept in its file; on for :func:`generate_keypair`'s keys,
+    :meth:`with_policy` or ``hevr key-policy`` for others): every store of this key carries tags, so
+    the owner's encryption writes them unasked, and a store without them is refused before a render
+    where the key is known and at decryption (:mod:`hevr.image.provenance`), unless accepted
+    explicitly (``hevr.trust_store(ev, key, untagged=True)``).
     """
 
     __slots__ = ("public_key", "p", "q", "_psquare", "_qsquare", "_hp", "_hq", "_p_inv_q", "_owner", "require_tags")
@@ -287,8 +282,7 @@ class PrivateKey:
         return (_private_key, (self.public_key, int(self.p), int(self.q), self.require_tags))
 
     def with_policy(self, *, require_tags: bool) -> PrivateKey:
-        """The same key with the policy ``require_tags`` (class docstring); save it with
-        ``save(path, overwrite=True)`` to keep the policy in its file.
+        """The same key with the policy ``require_tags`` (class docstring; ``save(path, overwrite=True)`` keeps it).
 
         >>> import warnings
         >>> with warnings.catch_warnings():

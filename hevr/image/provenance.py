@@ -16,6 +16,7 @@ import logging
 import warnings
 from typing import Any
 
+from .._dask import refuse_foreign_cluster
 from ..errors import FrameMovedWarning, VerificationError
 from ..store import known
 from .proof import as_expect, check_expect, proof_of
@@ -23,7 +24,7 @@ from .stamp import check_stamp
 
 log = logging.getLogger(__name__)
 
-__all__ = ["check_policy", "check_provenance", "check_require_verified", "for_file"]
+__all__ = ["check_policy", "check_provenance", "check_require_verified", "for_file", "refuse_untagged"]
 
 
 def check_require_verified(require_verified: Any) -> bool:
@@ -42,16 +43,32 @@ def _store_of(img: Any) -> str | None:
     return sid if isinstance(sid, str) else None
 
 
+def _store_tags(img: Any) -> bool | None:
+    """Whether the store an image is of carries tags, as the image says (None: it does not say, a
+    file of before issue 47)."""
+    first = img.components[0] if isinstance(getattr(img, "components", None), list) else img
+    meta = getattr(first, "meta", None)
+    if meta is not None:
+        return bool(meta.tags)
+    said = getattr(first, "tags", None)
+    if said is None:
+        said = (getattr(first, "info", None) or {}).get("tags")
+    return said if isinstance(said, bool) else None
+
+
 def check_policy(private_key: Any, img: Any, require_verified: Any, unverified: str) -> None:
     """The key's policy (:class:`hevr.PrivateKey` ``require_tags``): an image without a verification
-    record is refused, unless the caller asked for an unverified image by name
-    (``require_verified=False``) or the key holder accepted its store without tags
-    (``hevr.trust_store(ev, key, untagged=True)``)."""
+    record of a store without tags (or that does not say) is refused, unless the caller asked for an
+    unverified image by name (``require_verified=False``) or the key holder accepted that store
+    (``hevr.trust_store(ev, key, untagged=True)``). An unverified frame of a store with tags (a render
+    with ``verify=False``, a frame rendered where the key is not) decrypts as "not verified": the
+    policy keeps a store without tags from passing for one, not every frame from being unverified."""
     if img.verification is not None or require_verified is False or not getattr(private_key, "require_tags", False):
         return
+    if _store_tags(img):
+        return
     sid = _store_of(img)
-    accepted = getattr(known, "accepted_untagged", None)
-    if sid is not None and accepted is not None and accepted(sid, private_key):
+    if sid is not None and known.accepted_untagged(sid, private_key):
         return
     raise VerificationError(
         f"image: not verified ({unverified}), and this key's policy is that every store of it carries tags "
@@ -59,6 +76,22 @@ def check_policy(private_key: Any, img: Any, require_verified: Any, unverified: 
         "stripped by a server — or a render with verify=False; accept such a store explicitly "
         "(hevr.trust_store(ev, key, untagged=True); hevr render --trust-store --untagged), or ask for an "
         "unverified image by name (require_verified=False; hevr decrypt --unverified); no image is returned")
+
+
+def refuse_untagged(ev: Any, private_key: Any) -> None:
+    """Before a render where the process knows the key: refuse (:class:`hevr.VerificationError`,
+    nothing rendered) a store without tags under a key whose policy requires them, unless the key
+    holder accepted that store explicitly (:func:`check_policy`'s rule, a step earlier)."""
+    if private_key is None or not getattr(private_key, "require_tags", False) or ev.meta.tags:
+        return
+    sid = ev.meta.store_id
+    if known.accepted_untagged(sid, private_key):
+        return
+    raise VerificationError(
+        f"{ev.path}: expected a store with tags (this key's policy is that every store of it carries them: "
+        f"require_tags), got the store {sid} without tags — made with the public key only, or stripped by a "
+        "server; if it is yours, accept it explicitly (hevr.trust_store(ev, key, untagged=True); hevr render "
+        "--trust-store --untagged); nothing was rendered")
 
 
 def check_provenance(private_key: Any, img: Any, require_verified: Any, unverified: str) -> None:
@@ -80,6 +113,7 @@ def check_provenance(private_key: Any, img: Any, require_verified: Any, unverifi
     unverified : str
         Why a frame may carry no record, for the message (the frame kind's own reasons).
     """
+    refuse_foreign_cluster(doing="decrypting")  # the key beside another party's Dask client: refused first
     expect = as_expect(require_verified)
     v = img.verification
     if v is None:

@@ -23,7 +23,7 @@ body: the ciphertext records and sample counts, without the file's SHA-256 trail
 holder of the private key can make or check a stamp; :meth:`hevr.EncryptedImage.decrypt` refuses a
 record without a valid stamp (:class:`hevr.VerificationError`), and checks the record again.
 
->>> saved_name("s3://bucket/x/g.hevr?v=1"), saved_name("/a/../b/f.hevr")
+>>> saved_name("s3://bucket/x/g.hevr?v=1"), saved_name("/b/./f.hevr")
 ('s3://bucket/x/g.hevr', '/b/f.hevr')
 >>> m = message({"a": 1, "stamp": "x"}, b"body-digest".ljust(32, b"."))
 >>> m == message({"a": 1}, b"body-digest".ljust(32, b".")), len(m)
@@ -158,8 +158,9 @@ def read_stamp(h: dict, body_digest: bytes, fail: Any) -> Stamp | None:
 def rendered_at(img: Any) -> str:
     """When a frame with a verification record was rendered: its stamp's time (a frame read from a
     file keeps it when stamped again), else when its seed was drawn in this process."""
-    if img.stamp is not None:
-        return img.stamp.rendered_at
+    stamp = getattr(img, "stamp", None)  # a slice is never read from a file
+    if stamp is not None:
+        return stamp.rendered_at
     drawn = getattr(img.verification, "drawn_at", 0.0)
     return utc(drawn) if drawn else ""
 

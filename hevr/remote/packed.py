@@ -151,7 +151,7 @@ def render_remote_packed_slice(rv: Any, plane: Any, sampling: str, *, backend: s
     stats["seconds"] = time.perf_counter() - t0
     img = PackedSlice(plan=plan, plane=plane, fingerprint=meta.fingerprint, n=int(rv.public_key.n),
                       exponent=meta.scalar.exponent, offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles,
-                      store_id=meta.store_id, stats=stats)
+                      store_id=meta.store_id, stats=stats, tags=bool(meta.tags))
     if verify:
         img.verification = _verification(server, where, req, meta, "scalar", 1, int(rv.public_key.n),
                                          name=str(rv.path))

@@ -56,6 +56,8 @@ def work(tmp_path_factory):
     call("encrypt", "phantom:12", "--key", d / "key.pub.json", "--out", d / "vol.zarr", "--brick", "5",
          "--vector-dims", "4", "-q")
     common = ["--azimuth", AZ, "--elevation", EL, "--size", f"{W}x{H}", "-q"]
+    # a store made with the public key has no tags: the key holder (whose new key requires them) accepts it once
+    call("render", d / "vol.zarr", "--out", d / "accept.hevr", "--key", key, "--trust-store", "--untagged", *common)
     call("render", d / "vol.zarr", "--out", d / "xray.hevr", "--mode", "xray", "--sampling", "nearest", *common)
     call("render", d / "vol.zarr", "--out", d / "tf.hevr", "--tf", "0.279:#0000ff,0.797:red", *common)
     call("decrypt", d / "xray.hevr", "--key", key, "--out", d / "xray.png", "--npy", d / "xray.npy")

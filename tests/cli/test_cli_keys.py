@@ -56,12 +56,15 @@ def test_a_pheutil_key_drives_every_command(tmp_path, capsys):
 
 def test_convert_key_round_trip(tmp_path, capsys):
     _ok(capsys, "keygen", "--bits", "256", "--out", tmp_path / "k.json", "-q")
-    _ok(capsys, "convert-key", tmp_path / "k.json", "--out", tmp_path / "p.json")
+    out = _ok(capsys, "convert-key", tmp_path / "k.json", "--out", tmp_path / "p.json")
+    assert "cannot hold the key's policy" in str(out)  # pheutil's file has no place for require_tags
     _ok(capsys, "convert-key", tmp_path / "p.json", "--out", tmp_path / "back.json", "--format", "hevr")
     _ok(capsys, "convert-key", tmp_path / "k.pub.json", "--out", tmp_path / "p.pub.json")
     a, b = hevr.load_key(tmp_path / "k.json"), hevr.load_key(tmp_path / "back.json")
     assert (a.p, a.q) == (b.p, b.q)
-    assert json.loads((tmp_path / "back.json").read_text()) == json.loads((tmp_path / "k.json").read_text())
+    back, orig = json.loads((tmp_path / "back.json").read_text()), json.loads((tmp_path / "k.json").read_text())
+    assert orig.pop("policy") == {"require_tags": True} and back.pop("policy") == {"require_tags": False}
+    assert back == orig
     assert stat.S_IMODE((tmp_path / "p.json").stat().st_mode) == 0o600
     assert stat.S_IMODE((tmp_path / "p.pub.json").stat().st_mode) == 0o644
     assert isinstance(hevr.load_key(tmp_path / "p.pub.json"), hevr.PublicKey)

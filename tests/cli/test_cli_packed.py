@@ -66,7 +66,7 @@ def test_render_decrypt_info_packed_frame(packed_store, tmp_path, capsys):
     assert frame.read_bytes().startswith(b"HEVRIMGP\x01")
     code, out, err = run(capsys, "info", frame)
     assert code == 0, err
-    assert "encrypted packed frame" in out and "with the key holder's stamp, saved as 'x.hevr'" in out
+    assert "encrypted packed frame" in out and f"with the key holder's stamp, saved as '{frame.resolve()}'" in out
     assert "W×H = 11×10 px" in out and "trilinear" in out
     png, npy = tmp_path / "x.png", tmp_path / "x.npy"
     code, out, err = run(capsys, "decrypt", frame, "--key", key, "--out", png, "--npy", npy, "--require-verified",
@@ -81,10 +81,13 @@ def test_render_decrypt_info_packed_frame(packed_store, tmp_path, capsys):
     # colouring a packed X-ray: refused, one line naming the option
     code, _, err = run(capsys, "decrypt", frame, "--key", key, "--out", tmp_path / "c.png", "--tf", "0.5:red")
     assert code == 2 and err.count("\n") == 1 and "--tf" in err and "packed" in err
-    # a stamped frame in another frame's place: exit 1, no PNG
+    # a stamped frame in another frame's place: not "verified" for it; with --require-verified exit 1, no PNG
     frame.rename(tmp_path / "y.hevr")
-    code, _, err = run(capsys, "decrypt", tmp_path / "y.hevr", "--key", key, "--out", tmp_path / "y.png")
-    assert code == 1 and "saved this verified frame as 'x.hevr'" in err and not (tmp_path / "y.png").exists()
+    code, out, err = run(capsys, "decrypt", tmp_path / "y.hevr", "--key", key, "--out", tmp_path / "y.png")
+    assert code == 0 and "NOT verified for" in out and "--expect-view" in out, out  # an image, not "verified"
+    code, _, err = run(capsys, "decrypt", tmp_path / "y.hevr", "--key", key, "--out", tmp_path / "z.png",
+                       "--require-verified")
+    assert code == 1 and f"saved this verified frame as {frame.resolve()}" in err and not (tmp_path / "z.png").exists()
 
 
 def test_unverified_packed_frame(packed_store, tmp_path, capsys):
@@ -126,15 +129,23 @@ def test_packed_render_refusals(packed_store, tmp_path, capsys, opts, named):
 def test_encrypt_verifiable_pair(tmp_path, capsys):
     key = tmp_path / "key.json"
     assert run(capsys, "keygen", "--bits", "256", "--out", key)[0] == 0
+    # a new key's policy: every store carries tags, per-voxel ones too, and --no-verifiable is refused
+    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "d.zarr", "--brick", "4",
+                       "-q")
+    assert code == 0 and hevr.open_volume(tmp_path / "d.zarr").meta.tags
+    code, out, err = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "n.zarr", "--layout",
+                         "packed", "--brick", "4", "--no-verifiable", "-q")
+    assert code == 2 and "require_tags" in err and not (tmp_path / "n.zarr").exists(), err
+    assert run(capsys, "key-policy", key, "--no-require-tags")[0] == 0  # a key without the policy
     code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "n.zarr", "--layout",
                        "packed", "--brick", "4", "--no-verifiable", "-q")
     assert code == 0 and "not verifiable: no tags" in out and not hevr.open_volume(tmp_path / "n.zarr").meta.tags
     code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4",
                        "--verifiable", "-q")
     assert code == 0 and hevr.open_volume(tmp_path / "v.zarr").meta.tags  # a per-voxel store: on request
-    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "d.zarr", "--brick", "4",
+    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "e.zarr", "--brick", "4",
                        "-q")
-    assert code == 0 and not hevr.open_volume(tmp_path / "d.zarr").meta.tags  # the library's default
+    assert code == 0 and not hevr.open_volume(tmp_path / "e.zarr").meta.tags  # the library's default without it
 
 
 def test_demo_packed_store(tmp_path, capsys):

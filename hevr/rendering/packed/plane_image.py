@@ -122,7 +122,7 @@ def render_packed_slice(ev: Any, plane: Any, sampling: str = "nearest", *, clien
     log.info("slice packed/%s %dx%d (%s): %s", sampling, plane.width, plane.height, plan.kind, stats)
     return PackedSlice(plan=plan, plane=plane, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
                        offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles_out, store_id=meta.store_id,
-                       stats=stats)
+                       stats=stats, tags=bool(meta.tags))
 
 
 def _map_graph(ev: Any, plan: PlanePlan, plan_d: Any, backend: str, resident: dict | None, channel: str,
@@ -210,6 +210,7 @@ class PackedSlice:
     ciphertexts: list = field(repr=False)
     store_id: str = ""
     stats: dict = field(default_factory=dict, repr=False)
+    tags: bool | None = None  # whether the store carries tags (the key's policy: hevr.image.provenance)
     verification: Any = field(default=None, repr=False, compare=False)  # a PackedVerification, or None
 
     @property

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..._dask import refuse_foreign_cluster
+from ...image.provenance import refuse_untagged
 from ...backends import get_backend
 from ...colour import Frame, frame_from_sums, scaled_sums
 from ...crypto.keys import PrivateKey
@@ -157,6 +158,7 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
         raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
     if getattr(ev, "remote", None) is None:  # rendered here, on a Dask client, decrypted beside it
         refuse_foreign_cluster(kwargs.get("client"), "render_frame with the private key")
+    refuse_untagged(ev, private_key)  # the key's policy: a store without tags is refused before any work
     plane = isinstance(camera, Plane)
     if not plane and getattr(getattr(ev, "meta", None), "packing", None) is not None:
         return _packed_frame(ev, camera, private_key, mode, sampling, step, density, nodes, decrypt_backend, kwargs)

@@ -170,7 +170,7 @@ def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: 
                 n=int(meta.n), tile=tile, pack_bits=plan.pack_bits, per_pack=plan.per_pack,
                 hits=counts > 0, bound=plan.bound, finish=plan.finish, channel=plan.channel,
                 components=plan.channels_out, samples=counts.astype(np.int64) if client else None,
-                info={"sampling": spec.sampling, "step": spec.step, **colouring, "store": meta.store_id,
+                info={"sampling": spec.sampling, "step": spec.step, **colouring, "store": meta.store_id, "tags": bool(meta.tags),
                       "camera": camera.to_dict(), "plan": plan.to_dict(), "finish": plan.finish,
                       **({"gradient": True} if spec.gradient else {}),
                       **({"level": level} if level else {})})  # a level's camera is in the level's frame
