@@ -351,6 +351,8 @@ def test_colour_frame_files(gradient_store, keypair256, tmp_path, gradient):
     moved = tmp_path / "moved.hevr"
     path.rename(moved)
     with pytest.raises(VerificationError, match="saved this verified frame as"):
+        hevr.load_image(moved).decrypt(priv, mode="tf", nodes=NODES, require_verified=True)
+    with pytest.warns(hevr.FrameMovedWarning):  # by default: the image, not "verified" for this file
         hevr.load_image(moved).decrypt(priv, mode="tf", nodes=NODES)
     blob = bytearray(img.to_bytes(private_key=priv))
     blob[-40] ^= 1

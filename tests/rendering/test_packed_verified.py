@@ -90,7 +90,7 @@ def test_verify_arguments(store, tmp_path, keypair256, volume):
     img = render(store, c)
     with pytest.raises(VerificationError, match="expected a frame of the store 0123456789abcdef"):
         img.decrypt(priv, require_verified="0123456789abcdef")
-    with pytest.raises(ParameterError, match="require_verified: expected True, False or a store id"):
+    with pytest.raises(ParameterError, match="require_verified: expected True, False, a store id or a hevr.Expect"):
         img.decrypt(priv, require_verified=1)
 
 
