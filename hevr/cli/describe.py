@@ -51,6 +51,7 @@ from .util import (
     xyz,
 )
 from .verify import verify_store, warn_leftovers
+from .verifying import verified_row
 
 __all__ = ["channels", "describe"]
 
@@ -204,6 +205,7 @@ def _info_image(path: Path | str, so: dict | None = None) -> int:
         ("packing", packing),
         ("bound", f"every value + offset in [0, {img.bound}] (checked at decryption)"),
         ("ciphertexts", f"{img.n_ciphertexts} in {plural(len(img.ciphertexts), 'tile')} of {img.tile}x{img.tile} px"),
+        ("verified", verified_row(img)),
         ("checksum", "ok (SHA-256 over the whole file)"),
         ("key", f"{bits}-bit"),
         ("fingerprint", img.fingerprint),

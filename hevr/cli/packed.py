@@ -14,12 +14,13 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from ..errors import ParameterError
+from ..image.proof import proof_of
 from ..rendering.geometry.camera import Camera
 from ..rendering.packed.shear import ShearGeometry
 from ..rendering.planning.planner import check_render_size
 from .storage import png_name
 from .util import UsageError, plural, warn_line, wh, xyz
-from ..image.proof import proof_of
+from .verifying import verified_row
 
 __all__ = ["check_packed_decrypt", "check_packed_render", "default_packed_view", "packed_camera", "packed_done",
            "packed_encrypt_lines", "packed_info_rows", "packed_start", "packed_verified_line"]
@@ -172,15 +173,10 @@ def packed_verified_line(img: Any) -> str | None:
 
 def packed_info_rows(img: Any) -> list[tuple[str, Any]]:
     """``hevr info``'s rows about a packed frame file (public facts only)."""
-    plan, c, v = img.plan, img.camera, img.verification
+    plan, c = img.plan, img.camera
     p = plan.packing
     where = ", ".join(f"{x:g}" for x in c.position)
-    if v is None:
-        verified = "no (no check against the store's tags: --require-verified refuses it)"
-    else:
-        verified = (f"record of store {v.store_id}, " + ("with the key holder's stamp, saved as "
-                    f"{img.stamp.saved_as!r} (checked with the key at decryption)" if img.stamp is not None else
-                    "without the key holder's stamp (refused at decryption)"))
+    verified = verified_row(img)
     return [
         ("kind", "encrypted packed frame (.hevr: " + ("an X-ray of a packed store" if not hasattr(img, "components")
                  else f"the {img.channel} channel's {len(img.components)} components of a packed store, coloured at "

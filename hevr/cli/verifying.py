@@ -8,11 +8,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..image.proof import proof_of
+from ..image.provenance import refuse_untagged
 from ..store.known import known_stores_path, trust_store
 from .keys import read_key
 from .util import UsageError, warn_line
-from ..image.proof import proof_of
-from ..image.provenance import refuse_untagged
 
 __all__ = ["key_holder", "verified_line", "verify_argument", "warn_unverified"]
 
@@ -80,3 +80,18 @@ def verified_line(img: Any) -> str | None:
     return (f"verified: the frame is the render of store {v.store_id} (channel {v.channel}, {v.sampling} sampling, "
             f"step {v.step:g}, level {v.level}) and its view, {what} (view key {proof_of(img).view_key}); checked "
             "against the store's tags and its owner-authenticated metadata")
+
+
+def verified_row(img: Any) -> str:
+    """``hevr info``'s "verified" row of a frame file: what its record would prove (public facts; the
+    stamp is checked with the key at decryption)."""
+    if img.verification is None:
+        return "no (no check against the store's tags: --require-verified refuses it)"
+    if img.stamp is None:
+        return f"record of store {img.verification.store_id}, without the key holder's stamp (refused at decryption)"
+    p = proof_of(img)
+    moved = (f"; read from {p.read_as}: moved, so not verified for this file unless you name its store and view"
+             if p.moved else "")
+    return (f"record of store {p.store_id} ({p.store_version[:19]}…), view key {p.view_key}, rendered "
+            f"{p.rendered_at or 'at an unrecorded time'}; with the key holder's stamp, saved as {p.saved_as} (checked "
+            f"with the key at decryption){moved}")

@@ -66,7 +66,7 @@ def test_render_decrypt_info_packed_frame(packed_store, tmp_path, capsys):
     assert frame.read_bytes().startswith(b"HEVRIMGP\x01")
     code, out, err = run(capsys, "info", frame)
     assert code == 0, err
-    assert "encrypted packed frame" in out and f"with the key holder's stamp, saved as '{frame.resolve()}'" in out
+    assert "encrypted packed frame" in out and f"with the key holder's stamp, saved as {frame.resolve()}" in out and "view key" in out
     assert "W×H = 11×10 px" in out and "trilinear" in out
     png, npy = tmp_path / "x.png", tmp_path / "x.npy"
     code, out, err = run(capsys, "decrypt", frame, "--key", key, "--out", png, "--npy", npy, "--require-verified",
