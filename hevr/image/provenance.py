@@ -43,9 +43,9 @@ def _store_of(img: Any) -> str | None:
     return sid if isinstance(sid, str) else None
 
 
-def _store_tags(img: Any) -> bool | None:
-    """Whether the store an image is of carries tags, as the image says (None: it does not say, a
-    file of before issue 47)."""
+def _store_tags(img: Any) -> bool:
+    """Whether the image says its store carries tags: in this process, what the render read of the
+    store; from a file, a claim anybody could write (what an unverified frame is anyway)."""
     first = img.components[0] if isinstance(getattr(img, "components", None), list) else img
     meta = getattr(first, "meta", None)
     if meta is not None:
@@ -53,29 +53,33 @@ def _store_tags(img: Any) -> bool | None:
     said = getattr(first, "tags", None)
     if said is None:
         said = (getattr(first, "info", None) or {}).get("tags")
-    return said if isinstance(said, bool) else None
+    return said is True
 
 
 def check_policy(private_key: Any, img: Any, require_verified: Any, unverified: str) -> None:
     """The key's policy (:class:`hevr.PrivateKey` ``require_tags``): an image without a verification
-    record of a store without tags (or that does not say) is refused, unless the caller asked for an
-    unverified image by name (``require_verified=False``) or the key holder accepted that store
-    (``hevr.trust_store(ev, key, untagged=True)``). An unverified frame of a store with tags (a render
-    with ``verify=False``, a frame rendered where the key is not) decrypts as "not verified": the
-    policy keeps a store without tags from passing for one, not every frame from being unverified."""
+    record decrypts only if the key holder's own record (MAC'd under the key: :mod:`hevr.store.known`)
+    holds its store as verifiable — encrypted or verified on this machine, or imported — and the image
+    says its store carries tags (a store relabelled with a known id says it has none), or its store
+    was accepted without tags (``hevr.trust_store(ev, key, untagged=True)``), or the caller asks for
+    an unverified image by name (``require_verified=False``). A frame file's own word is not enough:
+    so a store without tags never yields an image by default, first contact included, and an
+    unverified frame of a known verifiable store (a render with ``verify=False``, or one rendered
+    where the key is not) decrypts as "not verified"."""
     if img.verification is not None or require_verified is False or not getattr(private_key, "require_tags", False):
         return
-    if _store_tags(img):
-        return
     sid = _store_of(img)
-    if sid is not None and known.accepted_untagged(sid, private_key):
+    if sid is not None and (known.accepted_untagged(sid, private_key) or (
+            _store_tags(img) and known.known_verifiable(sid, private_key))):
         return
     raise VerificationError(
         f"image: not verified ({unverified}), and this key's policy is that every store of it carries tags "
-        f"(require_tags): a store without tags{f' ({sid})' if sid else ''} — made with the public key only, or "
-        "stripped by a server — or a render with verify=False; accept such a store explicitly "
-        "(hevr.trust_store(ev, key, untagged=True); hevr render --trust-store --untagged), or ask for an "
-        "unverified image by name (require_verified=False; hevr decrypt --unverified); no image is returned")
+        f"(require_tags), but the store {sid or '(not named)'} is not one your known stores hold as verifiable: a "
+        "store without tags — made with the public key only, or stripped by a server — or one this machine never "
+        "verified; render it verified once with the key (or import your known stores: hevr known import), accept a "
+        "store without tags explicitly (hevr.trust_store(ev, key, untagged=True); hevr render --trust-store "
+        "--untagged), or ask for an unverified image by name (require_verified=False; hevr decrypt --unverified); "
+        "no image is returned")
 
 
 def refuse_untagged(ev: Any, private_key: Any) -> None:

@@ -76,7 +76,7 @@ from .known_file import (
 from .known_merge import merge_entry
 
 __all__ = ["KnownStore", "accepted_untagged", "check_known", "export_known_stores", "import_known_stores",
-           "known_stores", "known_stores_path", "record_quietly", "record_verified", "retired_by", "trust_store"]
+           "known_stores", "known_stores_path", "known_verifiable", "record_quietly", "record_verified", "retired_by", "trust_store"]
 
 log = logging.getLogger(__name__)
 
@@ -234,15 +234,27 @@ def trust_store(ev: Any, private_key: Any = None, *, untagged: bool = False) -> 
                    replace=True)
 
 
-def accepted_untagged(store_id: str, private_key: Any) -> bool:
-    """Whether the key holder accepted the store ``store_id`` without tags (:func:`trust_store`
-    with ``untagged=True``), by a MAC-checked entry of its key."""
-    _need_key(private_key, "accepted_untagged")
+def _vouched(store_id: str, private_key: Any, what: str) -> list[KnownStore]:
+    """The MAC-checked entries of ``private_key`` that record the store ``store_id``."""
+    _need_key(private_key, what)
     kf = load()
     verify_entries(kf, private_key)
     fp = private_key.public_key.fingerprint
-    return any((e := kf.signed.get(n)) is not None and e.store_id == store_id and e.accepted_untagged
-               and e.fingerprint == fp for n in kf.by_id.get(store_id, ()))
+    return [e for n in kf.by_id.get(store_id, ()) if (e := kf.signed.get(n)) is not None and e.store_id == store_id
+            and e.fingerprint == fp]
+
+
+def accepted_untagged(store_id: str, private_key: Any) -> bool:
+    """Whether the key holder accepted the store ``store_id`` without tags (:func:`trust_store`
+    with ``untagged=True``), by a MAC-checked entry of its key."""
+    return any(e.accepted_untagged for e in _vouched(store_id, private_key, "accepted_untagged"))
+
+
+def known_verifiable(store_id: str, private_key: Any) -> bool:
+    """Whether the key holder's record holds the store ``store_id`` as verifiable (encrypted here with
+    tags, or verified here before), by a MAC-checked entry of its key: what lets an unverified frame
+    of it decrypt under the key's policy (:func:`hevr.image.provenance.check_policy`)."""
+    return any(e.verifiable for e in _vouched(store_id, private_key, "known_verifiable"))
 
 
 def retired_by(store_id: str) -> tuple[str, str] | None:

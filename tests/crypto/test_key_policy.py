@@ -4,6 +4,7 @@ the process knows the key, at the latest when the key holder decrypts: never an 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import pickle
 import shutil
@@ -113,6 +114,20 @@ def test_first_contact_with_a_relabelled_tagless_store(policy_keypair256, tmp_pa
     hevr.trust_store(ev, priv, untagged=True)
     assert img.decrypt(priv).shape == (7, 8)
     assert hevr.render_frame(ev, _cam(ev), priv).image.shape == (7, 8)
+
+
+def test_a_tagless_store_relabelled_with_a_known_id(policy_keypair256, tmp_path, known):
+    """The server serves a tagless store under the id of a store the key holder knows as verifiable:
+    a render with verify=False (which skips the known-stores check) still gives no image."""
+    pub, priv = policy_keypair256
+    real = _encrypt(tmp_path / "ct.zarr", priv)  # recorded here (the owner's machine), verifiable
+    fake = _encrypt(tmp_path / "fake.zarr", pub)
+    img = _render(fake, verify=False)
+    relabelled = dataclasses.replace(img, info={**img.info, "store": real.meta.store_id})  # what its frame says
+    assert relabelled.info["tags"] is False
+    with pytest.raises(hevr.VerificationError, match="policy"):
+        relabelled.decrypt(priv)
+    assert _render(real, verify=False).decrypt(priv).shape == (7, 8)  # the real one: "not verified", an image
 
 
 def test_unverified_frames_of_a_store_with_tags_still_decrypt(policy_keypair256, tmp_path, known):
