@@ -22,7 +22,7 @@ from typing import Any, Callable, Sequence
 
 import dask
 import dask.threaded
-from distributed import as_completed, default_client
+from distributed import LocalCluster, as_completed, default_client
 from distributed.comm.addressing import normalize_address
 
 from . import _cancel
@@ -129,9 +129,10 @@ def is_own_cluster(client: Any) -> bool:
     """Whether ``client``'s cluster is this process's own (no address guessing).
 
     Own: no client (Dask's default scheduler, in this process), an ``inproc://`` scheduler (only
-    this process can reach one), a client of a cluster object made in this process
-    (``client.cluster`` is set by ``Client()`` and ``Client(LocalCluster(...))``, not by
-    ``Client(address)``), or a scheduler address declared with :func:`own_cluster` or
+    this process can reach one), a client of a ``LocalCluster`` made in this process
+    (``client.cluster``, set by ``Client()`` and ``Client(LocalCluster(...))``, not by
+    ``Client(address)``; other cluster objects — dask-gateway, SSH, Kubernetes — run on machines
+    that may not be yours: declare them), or a scheduler address declared with :func:`own_cluster` or
     ``$HEVR_OWN_CLUSTER``. Anything else is foreign, whatever its host is called: a loopback
     address may be a tunnel, ``localhost.example.org`` is just a name.
 
@@ -140,7 +141,7 @@ def is_own_cluster(client: Any) -> bool:
     """
     if client is None:
         return True
-    if getattr(client, "cluster", None) is not None:
+    if isinstance(getattr(client, "cluster", None), LocalCluster):  # started by this process (Client(), or given)
         return True
     address = scheduler_address(client)
     if address is None:  # a closed client: nothing will run on it

@@ -90,9 +90,14 @@ def test_max_age(store, tmp_path, monkeypatch):
     _render(ev).save(tmp_path / "f.hevr", private_key=priv)
     img = hevr.load_image(tmp_path / "f.hevr")
     assert img.decrypt(priv, require_verified=hevr.Expect(max_age=3600)).shape == (7, 8)
-    later = time.time() + 7200
+    now = time.time()
+    later = now + 7200
     monkeypatch.setattr(proof_module.time, "time", lambda: later)
     with pytest.raises(hevr.VerificationError, match="rendered at most 3600 s ago, got one rendered 7"):
+        img.decrypt(priv, require_verified=hevr.Expect(max_age=3600))
+    earlier = now - 7200  # this machine's clock behind the stamp: a render time in the future
+    monkeypatch.setattr(proof_module.time, "time", lambda: earlier)
+    with pytest.raises(hevr.VerificationError, match="stamped 7.* s in the future"):
         img.decrypt(priv, require_verified=hevr.Expect(max_age=3600))
 
 

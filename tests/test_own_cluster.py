@@ -77,7 +77,9 @@ def test_no_address_is_trusted_by_its_spelling():
 def test_what_this_process_started_is_its_own():
     assert _dask.is_own_cluster(None)  # Dask's default scheduler
     assert _dask.is_own_cluster(_fake("inproc://10.0.0.5/1/2"))  # reachable from this process only
-    assert _dask.is_own_cluster(_fake("tcp://10.0.0.5:8786", cluster=object()))  # Client(LocalCluster(...))
+    local = object.__new__(LocalCluster)  # what Client(LocalCluster(...)) holds (not started: a type check)
+    assert _dask.is_own_cluster(_fake("tcp://10.0.0.5:8786", cluster=local))  # Client(LocalCluster(...))
+    assert not _dask.is_own_cluster(_fake("tcp://10.0.0.5:8786", cluster=object()))  # a gateway's, an SSH one
     _dask.refuse_foreign_cluster(None)  # no client at all (none active in this test): nothing to say
 
 

@@ -28,7 +28,7 @@ it again with the key stamps it for its new place, keeping its render time).
 >>> Expect(view="x")
 Traceback (most recent call last):
 ...
-hevr.errors.ParameterError: view: expected a Camera, a Plane or a view key of 16 lower-case hex digits, got 'x'
+hevr.errors.ParameterError: view: expected a view key of 16 lower-case hex digits (hevr.proof_of(img).view_key; a camera alone does not fix sampling, level and channel), got 'x'
 >>> view_key({"camera": {"kind": "plane"}, "level": 0}) == view_key({"level": 0, "camera": {"kind": "plane"}})
 True
 """
@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import calendar
 import hashlib
-import json
 import math
 import re
 import time
@@ -45,18 +44,18 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import ParameterError, VerificationError
-from ..store.authenticity import authenticated_fields, metadata_digest
+from ..store.authenticity import authenticated_fields, canonical, metadata_digest
 from .stamp import TIME_FORMAT, rendered_at
 
 __all__ = ["Expect", "FrameProof", "as_expect", "check_expect", "proof_of", "view_key", "view_of"]
 
 _HEX16 = re.compile(r"[0-9a-f]{16}")
+CLOCK_SKEW = 300.0  # seconds a stamp's render time may lie ahead of this machine's clock
 
 
 def view_key(view: dict) -> str:
     """The 16-hex-digit key of a view (module docstring)."""
-    text = json.dumps(view, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
-    return hashlib.sha256(text.encode("ascii")).hexdigest()[:16]
+    return hashlib.sha256(canonical(view)).hexdigest()[:16]
 
 
 @dataclass(frozen=True)
@@ -67,9 +66,10 @@ class Expect:
     ----------
     store : str, optional
         The store id (16 hex digits) the frame must be of.
-    view : Camera, Plane or str, optional
-        The view it must show: a camera or plane (compared with the frame's), or a view key
-        (:func:`view_key`: ``hevr render`` prints it, ``hevr info FRAME`` shows it).
+    view : str, optional
+        The view it must show, as its view key (:func:`view_key` of the camera or plane, level,
+        channel and sampling: ``hevr.proof_of(img).view_key``; ``hevr render`` prints it,
+        ``hevr info FRAME`` shows it).
     max_age : float, optional
         Seconds: a frame rendered longer ago (or whose render time is unknown) is refused.
     moved : bool
@@ -85,9 +85,9 @@ class Expect:
         if self.store is not None and not (isinstance(self.store, str) and _HEX16.fullmatch(self.store)):
             raise ParameterError(f"store: expected a store id of 16 lower-case hex digits, got {self.store!r:.40}")
         v = self.view
-        if v is not None and not (isinstance(v, str) and _HEX16.fullmatch(v)) and not callable(getattr(v, "to_dict", None)):
-            raise ParameterError(f"view: expected a Camera, a Plane or a view key of 16 lower-case hex digits, "
-                                 f"got {v!r:.40}")
+        if v is not None and not (isinstance(v, str) and _HEX16.fullmatch(v)):
+            raise ParameterError(f"view: expected a view key of 16 lower-case hex digits (hevr.proof_of(img).view_key; "
+                                 f"a camera alone does not fix sampling, level and channel), got {v!r:.40}")
         if self.max_age is not None:
             if isinstance(self.max_age, bool) or not isinstance(self.max_age, (int, float)) or not (
                     math.isfinite(self.max_age) and self.max_age > 0):
@@ -97,9 +97,8 @@ class Expect:
             raise ParameterError(f"moved: expected True or False, got {self.moved!r:.40}")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able (a camera or plane as its dict)."""
-        view = self.view.to_dict() if callable(getattr(self.view, "to_dict", None)) else self.view
-        return {"store": self.store, "view": view, "max_age": self.max_age, "moved": self.moved}
+        """JSON-able."""
+        return {"store": self.store, "view": self.view, "max_age": self.max_age, "moved": self.moved}
 
 
 def as_expect(require_verified: Any) -> Expect | None:
@@ -188,26 +187,20 @@ def check_expect(proof: FrameProof, expect: Expect, now: float | None = None) ->
     if expect.store is not None and proof.store_id != expect.store:
         raise VerificationError(f"image: expected a frame of the store {expect.store}, got one of the store "
                                 f"{proof.store_id}; no image is returned")
-    if expect.view is not None:
-        want = expect.view if isinstance(expect.view, str) else None
-        if want is None:
-            same = _camera_dict(expect.view) == proof.view.get("camera")
-        else:
-            same = want == proof.view_key
-        if not same:
-            raise VerificationError(f"image: expected the view {want or 'of the camera given'}, got the view "
-                                    f"{proof.view_key} ({proof.describe()}); no image is returned")
+    if expect.view is not None and expect.view != proof.view_key:
+        raise VerificationError(f"image: expected the view {expect.view}, got the view {proof.view_key} "
+                                f"({proof.describe()}); no image is returned")
     if expect.max_age is not None:
         age = _age(proof.rendered_at, time.time() if now is None else now)
-        if age is None or age > expect.max_age:
+        if age is None or age > expect.max_age or age < -CLOCK_SKEW:  # a render time in the future: not trusted
             got = ("one without a render time (stamped before issue 47)" if age is None else
-                   f"one rendered {age:.0f} s ago")
+                   f"one rendered {age:.0f} s ago" if age >= 0 else f"one stamped {-age:.0f} s in the future")
             raise VerificationError(f"image: expected a frame rendered at most {expect.max_age:.0f} s ago, got {got}: "
                                     "an old frame replayed?; no image is returned")
     if proof.moved and not expect.moved and (expect.store is None or expect.view is None):
         raise VerificationError(
             f"image: the key holder saved this verified frame as {proof.saved_as}, and it was read from "
             f"{proof.read_as}: another frame put in this one's place? It proves {proof.describe().split(';')[0]}; "
-            "state what you expect (require_verified=hevr.Expect(store=ID, view=KEY_OR_CAMERA); hevr decrypt "
+            "state what you expect (require_verified=hevr.Expect(store=ID, view=KEY); hevr decrypt "
             "--expect-store ID --expect-view KEY), or accept a frame you moved yourself (Expect(moved=True), "
             "--moved); no image is returned")

@@ -23,8 +23,6 @@ body: the ciphertext records and sample counts, without the file's SHA-256 trail
 holder of the private key can make or check a stamp; :meth:`hevr.EncryptedImage.decrypt` refuses a
 record without a valid stamp (:class:`hevr.VerificationError`), and checks the record again.
 
->>> saved_name("s3://bucket/x/g.hevr?v=1"), saved_name("/b/./f.hevr")
-('s3://bucket/x/g.hevr', '/b/f.hevr')
 >>> m = message({"a": 1, "stamp": "x"}, b"body-digest".ljust(32, b"."))
 >>> m == message({"a": 1}, b"body-digest".ljust(32, b".")), len(m)
 (True, 64)
@@ -42,9 +40,11 @@ import os
 import re
 import time
 from pathlib import Path
+from urllib.parse import urlsplit, urlunsplit
 from typing import Any, NamedTuple
 
 from ..crypto.tags import tag_key_of
+from ..store.authenticity import canonical
 
 __all__ = ["STAMP_FIELDS", "STAMP_PREFIX", "Stamp", "check_stamp", "read_stamp", "rendered_at", "utc", "make_stamp", "message", "raw_check", "raw_stamp", "saved_name",
            "stamp_header"]
@@ -94,18 +94,26 @@ def message(header: dict, body_digest: bytes) -> bytes:
     """What a stamp authenticates: SHA-256 of the canonical header (its ``stamp`` left out) and the
     body's SHA-256."""
     head = {k: v for k, v in header.items() if k != "stamp"}
-    text = json.dumps(head, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
-    return hashlib.sha256(text).digest() + bytes(body_digest)
+    return hashlib.sha256(canonical(head)).digest() + bytes(body_digest)
 
 
 def saved_name(path: str | Path) -> str:
     """The place a stamp binds (:mod:`hevr.image.stamp`): a local file's absolute real path
-    (symbolic links resolved), a URL without its query (module docstring)."""
+    (symbolic links resolved), a URL as scheme, host and path — without user, password, query or
+    fragment, which never go into a file.
+
+    >>> saved_name("https://user:pw@Host.org:8/x/f.hevr?sig=1#a"), saved_name("S3://b/x.hevr")
+    ('https://host.org:8/x/f.hevr', 's3://b/x.hevr')
+    >>> saved_name("file://localhost/b/f.hevr") == saved_name("file:///b/f.hevr") == saved_name("/b/f.hevr")
+    True
+    """
     text = str(path)
-    if text.startswith("file://"):
-        text = text[len("file://"):]
-    elif "://" in text:
-        return text.split("?")[0]
+    if "://" in text:
+        u = urlsplit(text)
+        if u.scheme.lower() != "file":
+            host = (u.hostname or "") + (f":{u.port}" if u.port else "")
+            return urlunsplit((u.scheme.lower(), host, u.path, "", ""))
+        text = u.path
     return os.path.realpath(os.path.expanduser(text))
 
 

@@ -88,8 +88,13 @@ def authenticated_fields(d: dict) -> dict:
     return out
 
 
-def _canonical(fields: dict) -> bytes:
-    return json.dumps(fields, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
+def canonical(doc: Any) -> bytes:
+    """The canonical JSON bytes every digest and MAC of hevr is taken over (sorted keys, no spaces, ASCII).
+
+    >>> canonical({"b": 1, "a": [2.5, None]})
+    b'{"a":[2.5,null],"b":1}'
+    """
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
 
 
 def metadata_digest(fields: dict) -> str:
@@ -99,13 +104,13 @@ def metadata_digest(fields: dict) -> str:
     >>> metadata_digest({"a": 1}) == metadata_digest({"a": 1}), metadata_digest({"a": 1})[:7]
     (True, 'sha256:')
     """
-    return "sha256:" + hashlib.sha256(_canonical(fields)).hexdigest()
+    return "sha256:" + hashlib.sha256(canonical(fields)).hexdigest()
 
 
 def raw_metadata_mac(prf_key: bytes, fields: dict) -> str:
     """The MAC of the bound ``fields`` under the tag key's PRF key (module docstring)."""
     k_meta = hmac.new(bytes(prf_key), b"hevr-metadata-mac-v1", hashlib.sha256).digest()
-    return AUTH_PREFIX + hmac.new(k_meta, _canonical(fields), hashlib.sha256).hexdigest()
+    return AUTH_PREFIX + hmac.new(k_meta, canonical(fields), hashlib.sha256).hexdigest()
 
 
 def metadata_mac(private_key: Any, fields: dict) -> str:

@@ -31,6 +31,7 @@ from typing import Any, Iterator
 from .._files import file_kind, write_atomic
 from ..crypto.tags import tag_key_of
 from ..errors import FileSystemError, NotRegularFileError, ParameterError, VerificationError
+from .authenticity import canonical
 
 __all__ = ["FORMAT", "KnownFile", "KnownStore", "MAX_BYTES", "MAX_RETIRED", "entry_mac", "known_key", "known_stores_path",
            "load", "locked", "parse", "read_file", "signed_by", "store_file", "verify_entries"]
@@ -118,8 +119,7 @@ def entry_mac(key: bytes, name: str, entry: KnownStore) -> str:
     >>> m.startswith("hmac-sha256:"), m == entry_mac(bytes(32), "w.zarr", e)
     (True, False)
     """
-    text = json.dumps([name, entry.fields()], sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
-    return MAC_PREFIX + hmac.new(key, text, hashlib.sha256).hexdigest()
+    return MAC_PREFIX + hmac.new(key, canonical([name, entry.fields()]), hashlib.sha256).hexdigest()
 
 
 def signed_by(private_key: Any, name: str, entry: KnownStore) -> KnownStore:
@@ -270,9 +270,9 @@ def load(p: Path | None = None, *, strict: bool = True) -> KnownFile:
 @contextlib.contextmanager
 def locked(p: Path) -> Iterator[None]:
     """Hold the known-stores file's lock (a ``.lock`` file beside it) while the block runs."""
-    with contextlib.suppress(FileExistsError):
-        p.parent.mkdir(mode=0o700, parents=True)
     try:
+        with contextlib.suppress(FileExistsError):
+            p.parent.mkdir(mode=0o700, parents=True)
         fd = os.open(p.parent / (p.name + ".lock"), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600)
     except OSError as exc:
         raise FileSystemError(exc.errno, "locking the known-stores file", p, exc.strerror) from None

@@ -160,3 +160,24 @@ def test_key_policy_command(tmp_path, capsys):
     assert main(["convert-key", str(key), "--out", str(tmp_path / "p.json"), "-q"]) == 0
     code = main(["key-policy", str(tmp_path / "p.json"), "--require-tags"])  # pheutil: no room for it
     assert code == 2 and "hevr's format" in capsys.readouterr().err
+
+
+def test_a_frame_file_saying_its_store_has_tags(policy_keypair256, tmp_path, known, monkeypatch):
+    """An unverified frame file is anybody's to write: its header's word that the store carries
+    tags (the SHA-256 trailer recomputed) does not make a tagless store's frame decrypt."""
+    import hashlib
+
+    from hevr.image.header import HEAD, LENGTH, MAGIC
+
+    pub, priv = policy_keypair256
+    img = _render(_encrypt(tmp_path / "p.zarr", pub))
+    img.save(tmp_path / "f.hevr")
+    raw = (tmp_path / "f.hevr").read_bytes()
+    (hl,) = LENGTH.unpack_from(raw, len(MAGIC))
+    header = json.loads(raw[HEAD:HEAD + hl])
+    for info in ({**header["info"], "tags": True}, {k: v for k, v in header["info"].items() if k != "store"}):
+        head = json.dumps(dict(header, info=info)).encode()
+        body = MAGIC + LENGTH.pack(len(head)) + head + raw[HEAD + hl:-32]
+        (tmp_path / "g.hevr").write_bytes(body + hashlib.sha256(body).digest())
+        with pytest.raises(hevr.VerificationError, match="policy"):
+            hevr.load_image(tmp_path / "g.hevr").decrypt(priv)
