@@ -25,6 +25,7 @@ from typing import Any
 from ..errors import (
     CorruptVolumeError,
     ExistingFileError,
+    ForeignClusterError,
     HevrError,
     IntegrityError,
     InvalidKeyError,
@@ -49,7 +50,8 @@ exit status (every command):
   2    the command line asks for something that cannot be done as given: a bad option value
        or combination, a named file that is missing or of the wrong kind, an output that
        exists without --force/--overwrite, a key of another volume, a render refused by the
-       planner (the message names the option to change)
+       planner (the message names the option to change), the private key beside another
+       party's Dask scheduler (--own-cluster if it is yours)
   1    the data or the run failed: a corrupt, tampered or incomplete store, frame or scan, an
        integrity check, an I/O error (a full disk, an output folder on a read-only filesystem
        or without write permission), a missing optional dependency, a crashed worker
@@ -60,7 +62,7 @@ exit status (every command):
 # Everything else that escapes a command is exit 1: the data or the run failed.
 USAGE_ERRORS: tuple[type[BaseException], ...] = (
     UsageError, ParameterError, MissingFileError, NotRegularFileError, ExistingFileError, StoreExistsError, KeyMismatchError,
-    RenderPlanError, InvalidKeyError, VolumeFormatError,
+    RenderPlanError, InvalidKeyError, VolumeFormatError, ForeignClusterError,
 )
 # Subclasses of a usage error that are failed data all the same (exit 1).
 DATA_ERRORS: tuple[type[BaseException], ...] = (CorruptVolumeError,)
