@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 import time
 import uuid
 from collections import OrderedDict
@@ -95,11 +96,36 @@ def _batch(bits: int, backend: str = "cpu") -> bool:
 
 _CACHE: "OrderedDict[tuple, RaySums]" = OrderedDict()
 CACHE_SIZE = 2
+_CACHE_LOCK = threading.Lock()  # renders run on several threads at once (hevr serve, a notebook's threads)
 
 
 def clear_cache() -> None:
     """Forget every cached set of ray sums."""
-    _CACHE.clear()
+    with _CACHE_LOCK:
+        _CACHE.clear()
+
+
+def _cached(key: tuple, client: Any) -> RaySums | None:
+    """The cached ray sums of ``key`` usable on ``client`` (now the most recent), else None; sums
+    whose futures belong to another (or a closed) client are dropped. One step under the lock: a
+    render on another thread cannot evict them between the look-up and the use."""
+    with _CACHE_LOCK:
+        sums = _CACHE.get(key)
+        if sums is not None and not sums.usable(client):
+            del _CACHE[key]
+            sums = None
+        if sums is not None:
+            _CACHE.move_to_end(key)
+        return sums
+
+
+def _keep(key: tuple, sums: RaySums) -> None:
+    """Cache ``sums`` under ``key``, dropping the least recently used beyond :data:`CACHE_SIZE`."""
+    with _CACHE_LOCK:
+        _CACHE[key] = sums
+        _CACHE.move_to_end(key)
+        while len(_CACHE) > CACHE_SIZE:
+            _CACHE.popitem(last=False)
 
 
 def render(
@@ -318,10 +344,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     n_tiles = layout.n_tiles
     key = (ev.path, ev.meta.store_id, ev.meta.fingerprint, ev.level, camera.key(), spec.sampling, spec.step,
            plan.weight_digits, plan.channel, tile)
-    sums = _CACHE.get(key) if cache else None
-    if sums is not None and not sums.usable(cl):
-        del _CACHE[key]  # its futures belong to another (or a closed) client
-        sums = None
+    sums = _cached(key, cl) if cache else None
     reused = sums is not None
     finish = FinishGraph.plan_units(plan, layout, rays.n_samples, int(ev.public_key.n), backend)
 
@@ -373,11 +396,8 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         else:
             sums.tiles.update(dict(zip(live, results[len(fin):])))
         if cache:
-            _CACHE[key] = sums
-            while len(_CACHE) > CACHE_SIZE:
-                _CACHE.popitem(last=False)
+            _keep(key, sums)
     elif compute and plan in sums.packed:  # finished on the client: the same packed sums for any colouring
-        _CACHE.move_to_end(key)
         fin = []
         units = [u.copy() for u in sums.packed[plan]]
         for i, unit in enumerate(units):
@@ -385,7 +405,6 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                 on_unit(i, unit)
         packed = finish.assemble(units)
     else:
-        _CACHE.move_to_end(key)
         fin = finish.tasks(sums.tiles)
         if not compute:
             return _deferred(fin, finish, fields, {"map_tasks": 0, "reused_ray_sums": True, "backend": backend,

@@ -177,3 +177,33 @@ def test_cache_never_serves_another_volume_at_the_same_path(tmp_path, keypair256
     img = hevr.render(ev2, cam, progress=False)
     assert not img.stats["reused_ray_sums"]
     assert np.allclose(img.decrypt(priv), hevr.render_plain(other, cam), atol=0.01)
+
+
+def test_renders_from_many_threads_share_the_cache(store, volume, keypair256, monkeypatch):
+    """hevr serve renders on several threads at once: the ray-sum cache (2 entries) is looked up,
+    evicted and refilled by all of them, and no render may read what another just evicted
+    (a KeyError before the cache had a lock, issue 48); every image still matches its reference."""
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    _, priv = keypair256
+    cams = [hevr.Camera.orbit(store, azimuth=a, elevation=10, width=8, height=7) for a in (10, 70, 130, 190)]
+    refs = [hevr.render_plain(volume, c, spacing=SPACING) for c in cams]
+    bounds = [error_bound(store, c) for c in cams]
+    render_mod.clear_cache()
+    fields = render_mod.image_fields
+
+    def slow_fields(*a, **kw):  # widens the window between a render's cache look-up and its use
+        time.sleep(0.02)
+        return fields(*a, **kw)
+
+    monkeypatch.setattr(render_mod, "image_fields", slow_fields)
+
+    def one(i):
+        k = i % len(cams)
+        got = hevr.render(store, cams[k], progress=False).decrypt(priv)
+        return bool(np.all(np.abs(got - refs[k]) <= bounds[k]))
+
+    with ThreadPoolExecutor(max_workers=8) as pool:
+        assert all(pool.map(one, range(32)))
+    assert len(render_mod._CACHE) <= render_mod.CACHE_SIZE
