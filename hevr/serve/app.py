@@ -26,6 +26,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import re
 import threading
 import time
 from contextlib import contextmanager
@@ -86,21 +87,40 @@ def problem(status: int, title: str, detail: str, headers: dict | None = None) -
     return JSONResponse(body, status_code=status, media_type=PROBLEM_MEDIA, headers=headers)
 
 
+# An absolute path of the server's filesystem in a message: never sent (the log keeps it).
+_SERVER_PATH = re.compile(r"(?<![\w.:/])/(?:[\w.@+~=-]+/)*[\w.@+~=-]+/?")
+
+
+def public_text(text: str) -> str:
+    """A message as a client may see it: the server's file paths replaced by ``<server path>``.
+
+    >>> public_text("/srv/stores/ct.zarr: brick (1, 1, 1) of channel 'scalar': digest mismatch; W/H 1/2")
+    "<server path>: brick (1, 1, 1) of channel 'scalar': digest mismatch; W/H 1/2"
+    >>> public_text("path: cannot read /data/x y.zarr/zarr.json (ENOENT)")
+    'path: cannot read <server path> y.zarr/zarr.json (ENOENT)'
+    """
+    return _SERVER_PATH.sub("<server path>", text)
+
+
 def _as_problem(exc: BaseException) -> Problem:
-    """The problem document of a failed request: hevr's own errors with their message, anything
-    else as an internal error (logged here with its traceback, never sent)."""
+    """The problem document of a failed request: hevr's own errors with their message, less the
+    server's file paths (:func:`public_text`; the whole message in the log), anything else as an
+    internal error (logged here with its traceback, never sent)."""
     if isinstance(exc, Problem):
         return exc
+    text = public_text(str(exc))
     if isinstance(exc, RenderPlanError):
-        return Problem(422, "render refused by the planner", str(exc))
+        return Problem(422, "render refused by the planner", text)
     if isinstance(exc, ParameterError):
-        return Problem(400, "bad request", str(exc))
+        return Problem(400, "bad request", text)
     if isinstance(exc, MemoryLimitError):
-        return Problem(503, "server out of memory for this render", str(exc), {"Retry-After": "5"})
+        return Problem(503, "server out of memory for this render", text, {"Retry-After": "5"})
     if isinstance(exc, (StoreError, IntegrityError)):
-        return Problem(500, "store failed a check", str(exc))
+        log.error("store failed a check: %s", exc)
+        return Problem(500, "store failed a check", text)
     if isinstance(exc, HevrError):
-        return Problem(500, "render failed", str(exc))
+        log.error("render failed: %s", exc)
+        return Problem(500, "render failed", text)
     log.error("internal error", exc_info=exc)
     return Problem(500, "internal error", "the server failed to render; its log has the details")
 
