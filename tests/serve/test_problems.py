@@ -41,3 +41,10 @@ def test_public_text_leaves_no_absolute_path(text):
     from hevr.serve.app import public_text
 
     assert "/" not in public_text(text).replace("<server path>", "")
+
+
+def test_public_text_keeps_what_is_not_a_path():
+    from hevr.serve.app import public_text
+
+    text = "brick (1, 1, 1): W/H 1/2, a/b, https://host/v1/stores/ct"
+    assert public_text(text) == text
