@@ -405,7 +405,7 @@ def cmd_decrypt(args: Any) -> int:
         proof = proof_of(img)
         if proof.moved and need is None:
             print(f"NOT verified for {frame}: the key holder saved this frame as {proof.saved_as}; it proves only "
-                  f"that it is {proof.describe().split(';')[0]} (name what you expect: --expect-store "
+                  f"that it is {proof.what} (name what you expect: --expect-store "
                   f"{proof.store_id} --expect-view {proof.view_key})")
         else:
             print((packed_verified_line(img) if packed else verified_line(img)) + " (the file carries the key "

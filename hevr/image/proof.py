@@ -47,7 +47,7 @@ from ..errors import ParameterError, VerificationError
 from ..store.authenticity import authenticated_fields, canonical, metadata_digest
 from .stamp import TIME_FORMAT, rendered_at
 
-__all__ = ["Expect", "FrameProof", "as_expect", "check_expect", "proof_of", "view_key", "view_of"]
+__all__ = ["Expect", "FrameProof", "as_expect", "check_expect", "first_frame", "proof_of", "view_key", "view_of"]
 
 _HEX16 = re.compile(r"[0-9a-f]{16}")
 CLOCK_SKEW = 300.0  # seconds a stamp's render time may lie ahead of this machine's clock
@@ -136,16 +136,27 @@ class FrameProof:
         """Read from another place than the key holder saved it."""
         return self.saved_as is not None and self.read_as is not None and self.saved_as != self.read_as
 
-    def describe(self) -> str:
-        """One line: what the frame proves (for a person)."""
+    @property
+    def what(self) -> str:
+        """What the frame is, for a person: its store, version, view and render time."""
         when = f", rendered {self.rendered_at}" if self.rendered_at else ""
+        return f"a frame of the store {self.store_id} ({self.store_version[:19]}…), view {self.view_key}{when}"
+
+    def describe(self) -> str:
+        """One line: what the frame proves, and where it was saved if it was read elsewhere."""
         where = (f"; saved by the key holder as {self.saved_as}, read from {self.read_as}: it proves what it shows, "
                  "not that it belongs here" if self.moved else "")
-        return f"a frame of the store {self.store_id} ({self.store_version[:19]}…), view {self.view_key}{when}{where}"
+        return self.what + where
 
 
 def _camera_dict(cam: Any) -> Any:
     return cam.to_dict() if callable(getattr(cam, "to_dict", None)) else cam
+
+
+def first_frame(img: Any) -> Any:
+    """A frame, or the first component frame of a colour frame (which share camera, plan and store)."""
+    comps = getattr(img, "components", None)
+    return comps[0] if isinstance(comps, list) else img
 
 
 def view_of(img: Any) -> dict:
@@ -154,7 +165,7 @@ def view_of(img: Any) -> dict:
     if hasattr(v, "camera"):  # a per-voxel frame's record holds its whole geometry
         return {"camera": _camera_dict(v.camera), "sampling": v.sampling, "step": float(v.step),
                 "level": int(v.level), "channel": v.channel}
-    first = img.components[0] if hasattr(img, "components") and isinstance(img.components, list) else img
+    first = first_frame(img)
     cam = getattr(first, "camera", None) or getattr(first, "plane", None)
     plan = getattr(first, "plan", None)
     return {"camera": _camera_dict(cam), "sampling": getattr(plan, "sampling", None), "level": int(v.level),
@@ -200,7 +211,7 @@ def check_expect(proof: FrameProof, expect: Expect, now: float | None = None) ->
     if proof.moved and not expect.moved and (expect.store is None or expect.view is None):
         raise VerificationError(
             f"image: the key holder saved this verified frame as {proof.saved_as}, and it was read from "
-            f"{proof.read_as}: another frame put in this one's place? It proves {proof.describe().split(';')[0]}; "
+            f"{proof.read_as}: another frame put in this one's place? It proves {proof.what}; "
             "state what you expect (require_verified=hevr.Expect(store=ID, view=KEY); hevr decrypt "
             "--expect-store ID --expect-view KEY), or accept a frame you moved yourself (Expect(moved=True), "
             "--moved); no image is returned")

@@ -19,7 +19,7 @@ from typing import Any
 from .._dask import refuse_foreign_cluster
 from ..errors import FrameMovedWarning, VerificationError
 from ..store import known
-from .proof import as_expect, check_expect, proof_of
+from .proof import as_expect, check_expect, first_frame, proof_of
 from .stamp import check_stamp
 
 log = logging.getLogger(__name__)
@@ -46,7 +46,7 @@ def _store_of(img: Any) -> str | None:
 def _store_tags(img: Any) -> bool:
     """Whether the image says its store carries tags: in this process, what the render read of the
     store; from a file, a claim anybody could write (what an unverified frame is anyway)."""
-    first = img.components[0] if isinstance(getattr(img, "components", None), list) else img
+    first = first_frame(img)
     meta = getattr(first, "meta", None)
     if meta is not None:
         return bool(meta.tags)
@@ -143,16 +143,18 @@ def check_provenance(private_key: Any, img: Any, require_verified: Any, unverifi
         check_expect(proof, expect)
     elif proof is not None and proof.moved:
         warnings.warn(f"image: not verified for {proof.read_as}: the key holder saved this frame as "
-                      f"{proof.saved_as}; it is {proof.describe().split(';')[0]} (require_verified with "
+                      f"{proof.saved_as}; it is {proof.what} (require_verified with "
                       "hevr.Expect(store=..., view=...) checks that it is the frame you expect)",
                       FrameMovedWarning, stacklevel=4)
 
 
 def for_file(img: Any, private_key: Any, check_with_key: Any) -> Any:
     """The frame as a file holds it: a verified one checked now with the key (``check_with_key``:
-    the frame's decryption with ``require_verified=True``) before it is stamped, or, drawn in this
+    the frame's decryption, its record required) before it is stamped, or, drawn in this
     process and saved without the key, without its record (a warning: only the key holder's stamp
-    makes a record in a file trustworthy); a record read from a stamped file keeps its stamp."""
+    makes a record in a file trustworthy); a record read from a stamped file keeps its stamp. The
+    check accepts a frame read from another place (``Expect(moved=True)``): saving it again with
+    the key is how a frame moved on purpose is stamped for its new place."""
     if img.verification is None:
         return img
     if private_key is not None:

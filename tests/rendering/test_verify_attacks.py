@@ -25,10 +25,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import hevr
+from _stores import edit_meta
 from hevr.cli.main import main
 from hevr.image.header import MAGIC
 from hevr.store.known import check_known, known_stores, trust_store
-from hevr.store.metadata import metadata_checksum
 
 VOL = np.random.default_rng(5).integers(0, 256, (9, 8, 8)).astype(np.uint8)
 NODES = [(0.3, "red"), (0.8, "blue")]
@@ -51,15 +51,6 @@ def _render(ev, cam=None, **kw):
     cam = cam or hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=10, height=9)
     with dask.config.set(scheduler="sync"):
         return hevr.render(ev, cam, progress=False, cache=False, **kw)
-
-
-def _edit_meta(path, change):
-    """Change the store's metadata and recompute its keyless checksum, as a server with write access can."""
-    group = zarr.open_group(str(path), mode="r+")
-    d = dict(group.attrs["hevr"])
-    change(d)
-    d["checksum"] = metadata_checksum(d)
-    group.attrs["hevr"] = d
 
 
 def _spacing(d):
@@ -94,7 +85,7 @@ def test_edited_metadata_is_refused_or_caught(edit, keypair256, tmp_path, known)
     _, priv = keypair256
     ev = _encrypt(VOL, tmp_path / "v.zarr", priv)
     sid = ev.meta.store_id
-    _edit_meta(ev.path, edit)
+    edit_meta(ev.path, edit)
     for verify in (None, True, sid):
         with pytest.raises(hevr.VerificationError, match="metadata"):
             _render(hevr.open_volume(ev.path), verify=verify)
@@ -110,7 +101,7 @@ def test_the_metadata_mac_is_required_on_a_verifiable_store(keypair256, tmp_path
     _, priv = keypair256
     ev = _encrypt(VOL, tmp_path / "v.zarr", priv)
     assert ev.meta.auth.startswith("hmac-sha256:")
-    _edit_meta(ev.path, lambda d: d.pop("auth"))
+    edit_meta(ev.path, lambda d: d.pop("auth"))
     with pytest.raises(hevr.CorruptStoreError, match="auth: expected the owner's MAC"):
         hevr.open_volume(ev.path)
 

@@ -15,9 +15,9 @@ import stat
 import dask
 import numpy as np
 import pytest
-import zarr
 
 import hevr
+from _stores import edit_meta
 from hevr.store import known_file
 from hevr.store.known import (
     accepted_untagged,
@@ -30,7 +30,6 @@ from hevr.store.known import (
     trust_store,
 )
 from hevr.store.known_file import KnownStore, document, known_stores_path, signed_by
-from hevr.store.metadata import metadata_checksum
 
 VOL = np.random.default_rng(7).integers(0, 256, (8, 8, 8)).astype(np.uint8)
 
@@ -58,14 +57,6 @@ def _render(ev, **kw):
         return hevr.render(ev, cam, progress=False, cache=False, **kw)
 
 
-def _edit_meta(path, change):
-    group = zarr.open_group(str(path), mode="r+")
-    d = dict(group.attrs["hevr"])
-    change(d)
-    d["checksum"] = metadata_checksum(d)
-    group.attrs["hevr"] = d
-
-
 def test_an_altered_first_answer_is_not_recorded(keypair256, tmp_path, machine):
     """First contact on a machine that never saw the store: the server alters the metadata. The
     frame fails its check, nothing is recorded, and the honest store renders afterwards (issue 38
@@ -75,7 +66,7 @@ def test_an_altered_first_answer_is_not_recorded(keypair256, tmp_path, machine):
     honest = tmp_path / "honest.zarr"
     shutil.copytree(ev.path, honest)
     known = machine("b")
-    _edit_meta(ev.path, lambda d: d.update(spacing=[2 * s for s in d["spacing"]]))
+    edit_meta(ev.path, lambda d: d.update(spacing=[2 * s for s in d["spacing"]]))
     img = _render(hevr.open_volume(ev.path))
     with pytest.raises(hevr.VerificationError, match="owner's MAC"):
         img.decrypt(priv)
