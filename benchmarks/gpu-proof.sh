@@ -69,7 +69,9 @@ run|goals|packed)
     python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl || exit 1
   fi
   PY=${PYTHON:-python3}
-  export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1 HEVR_KNOWN_STORES=${HEVR_KNOWN_STORES:-/tmp/hevr-known-stores.json}
+  export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1 HEVR_KNOWN_STORES=${HEVR_KNOWN_STORES:-/tmp/hevr-known/known-stores.json}
+  # the key holder's record refuses a folder others may write (/tmp is 1777): a private one
+  mkdir -p -m 700 "$(dirname "$HEVR_KNOWN_STORES")"
   WORK=${WORK:-/tmp/hevr-goals}
   G="$PY -m hevr._bench.gpu_goals --out $OUT --work $WORK ${GOALS_ARGS:-}"
   if [ "$1" = run ]; then
