@@ -59,6 +59,9 @@ VARIANTS = {
     # the per-thread stack raised to 16 KiB before any launch: owner.cuh's kernels take 2,576 bytes of
     # stack frame (ptxas, sm_90, 2026-11-28) against at most 1,552 for render.cuh's, which pass
     "stack16k": {"stack": 16384},
+    # the launcher before reserve_stack (device.py): the stack left at the driver's 1,024 bytes, grown by
+    # the driver at a launch; wrong or faulting in some runs on an H200 (2026-11-28)
+    "noreserve": {"reserve": False},
 }
 # CUfunction_attribute numbers (cuda.h): what each kernel takes per thread, as the driver sees it
 ATTRIBUTES = {"max_threads_per_block": 0, "shared_size_bytes": 1, "const_size_bytes": 2, "local_size_bytes": 3,
@@ -96,9 +99,10 @@ class Variant(CupyLauncher):
     keyholder = True
 
     def __init__(self, replace: tuple[str, str] | None = None, options: tuple[str, ...] = (), block: int = 0,
-                 stack: int = 0):
+                 stack: int = 0, reserve: bool = True):
         super().__init__()
         self._replace, self._options, self._block, self._stack = replace, options, block, stack
+        self._reserve = reserve
 
     def _owner_module(self):
         if self._owner_fn is None:
@@ -110,6 +114,8 @@ class Variant(CupyLauncher):
             mod = self.cp.RawModule(code=src, options=("--std=c++11", *self._options), backend="nvrtc")
             fns = [mod.get_function(k) for k in ("k_decrypt", "k_public_encrypt", "k_owner_encrypt")]
             _attributes(self.cp, fns, self._stack)
+            if self._reserve and not self._stack:  # as the shipped launcher does (device.reserve_stack)
+                print(f"stack limit after reserve_stack: {device_module.reserve_stack(self.cp, fns)} bytes", flush=True)
             if self._block:
                 fns = [_Block(f, self._block) for f in fns]
             self._decrypt_fn, self._public_fn, self._owner_fn = fns
@@ -127,9 +133,9 @@ def _attributes(cp, fns, stack: int) -> None:
         print(f"stack limit: not read ({type(exc).__name__}: {exc})", flush=True)
     for fn in fns:
         name = getattr(fn, "name", None) or getattr(fn, "_name", None) or repr(fn)[:40]
-        try:
-            from cupy_backends.cuda.api import driver
-            got = {k: driver.funcGetAttribute(v, fn.ptr) for k, v in ATTRIBUTES.items()}
+        try:  # CuPy's RawKernel.attributes (a RawKernel has no .ptr under cupy-cuda13x, 2026-11-28)
+            attrs = fn.attributes
+            got = {k: attrs[k] for k in ATTRIBUTES}
         except Exception as exc:  # noqa: BLE001
             got = {"error": f"{type(exc).__name__}: {exc}"}
         print(f"kernel {name}: " + ", ".join(f"{k}={v}" for k, v in got.items()), flush=True)

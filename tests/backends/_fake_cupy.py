@@ -69,6 +69,9 @@ class _Function:
         self.module, self.name = module, name
         self.host = "hevr_" + name[2:] + "_host"
         self.calls = 0
+        # ptxas's stack frames at sm_90 (2026-11-28): owner.cuh's kernels over the default limit
+        frame = {"k_decrypt": 2576, "k_owner_encrypt": 2576, "k_public_encrypt": 2064}.get(name, 520)
+        self.attributes = {"local_size_bytes": frame, "num_regs": 64}
 
     def __call__(self, grid, block, args) -> None:
         sig = _SIGS[self.host]
@@ -87,6 +90,7 @@ class _Function:
                 assert type(arg) is want, f"{self.name} argument {i}: {type(arg).__name__}, the kernel takes {want.__name__}"
                 c_args.append(int(arg))
         count = int(args[_COUNT[self.name[2:]]])
+        assert self.attributes["local_size_bytes"] <= FakeCupy.stack, f"{self.name}: stack limit under its frame"
         assert grid[0] * block[0] >= count and (grid[0] - 1) * block[0] < max(count, 1), \
             f"{self.name}: grid {grid} x block {block} for {count} items"
         fn = getattr(self.module.lib, self.host)
@@ -133,6 +137,16 @@ class FakeCupy:
             def memGetInfo() -> tuple[int, int]:
                 return FakeCupy.memory
 
+            @staticmethod
+            def deviceGetLimit(what: int) -> int:
+                assert what == 0, "only cudaLimitStackSize"
+                return FakeCupy.stack
+
+            @staticmethod
+            def deviceSetLimit(what: int, value: int) -> None:
+                assert what == 0 and FakeCupy.synchronized, "the stack re-sized with the device idle"
+                FakeCupy.stack = value
+
         class Device:
             def __init__(self, i: int = 0) -> None:
                 self.id = i
@@ -140,7 +154,11 @@ class FakeCupy:
             def use(self) -> None:
                 pass
 
+            def synchronize(self) -> None:
+                FakeCupy.synchronized = True
+
     memory = (60 << 30, 80 << 30)  # (free, total) device bytes
+    stack, synchronized = 1024, False  # the per-thread stack limit (the driver's default) and a sync seen
     uploaded = downloaded = 0  # bytes through asarray / get(): what a frame moves over PCIe
 
     @staticmethod

@@ -113,9 +113,34 @@ def test_null_pointers_are_passed_as_zero_not_none():
 def fake_cuda(monkeypatch):
     """The cuda backend on FakeCupy (a fresh instance, registered for the test's renders)."""
     monkeypatch.setitem(sys.modules, "cupy", FakeCupy)
+    monkeypatch.setattr(FakeCupy, "stack", 1024)  # the driver's default per-thread stack, not yet raised
+    monkeypatch.setattr(FakeCupy, "synchronized", False)
     be = CudaBackend()
     monkeypatch.setitem(backends._INSTANCES, "cuda", be)
     return be
+
+
+def test_the_stack_is_raised_for_the_deepest_kernel_before_any_launch(fake_cuda, keypair512):
+    """owner.cuh's kernels take 2,576 bytes of stack frame (over the default 1,024): the launcher raises
+    the device's limit when the module loads, with the device idle, not at a launch (device.py's
+    reserve_stack: on an H200, exact with the limit raised first, wrong or faulting in some runs
+    without). The fake refuses a launch whose frame is over the limit."""
+    pub, priv = keypair512
+    launched = fake_cuda._launch
+    launched.keyholder = True
+    x = np.array([0, 1, -1, 12345], np.int64)
+    assert fake_cuda.decrypt(priv, fake_cuda.encrypt(priv, x)) == [int(v) % int(pub.n) for v in x.tolist()]
+    assert FakeCupy.synchronized and FakeCupy.stack == 3072  # 2,576 rounded up to whole KiB
+    # a limit already high enough is left as it is
+    assert device_module.reserve_stack(FakeCupy, [launched._decrypt_fn]) == 3072
+
+
+def test_a_kernel_over_the_stack_limit_is_refused_by_the_fake(fake_cuda, keypair512, monkeypatch):
+    """The fake's check is real: without reserve_stack, the first owner launch trips it."""
+    monkeypatch.setattr(device_module, "reserve_stack", lambda cp, fns: 1024)
+    fake_cuda._launch.keyholder = True
+    with pytest.raises(AssertionError, match="stack limit under its frame"):
+        fake_cuda.encrypt(keypair512[1], np.array([1, 2], np.int64))
 
 
 @pytest.mark.parametrize("bits", [64, 512, 2048])

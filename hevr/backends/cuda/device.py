@@ -51,7 +51,7 @@ from .host import check_defines
 from .launch import OWNER_SOURCE, RENDER_SOURCE, Launcher, decrypt_args
 from .residues import FOLD, Modulus, PlanTables
 
-__all__ = ["BLOCK", "CupyLauncher", "device_source", "owner_source"]
+__all__ = ["BLOCK", "CupyLauncher", "device_source", "owner_source", "reserve_stack"]
 
 BLOCK = 128
 SCRATCH_BYTES = 256 << 20
@@ -64,6 +64,23 @@ MIN_ITEMS = 128
 KERNELS = ("k_records_to_limbs", "k_limbs_to_records", "k_out_of_range", "k_mont_convert", "k_ray_powers",
            "k_ray_tasks", "k_segments", "k_combine", "k_pack")
 _NULL = np.uint64(0)
+
+
+def reserve_stack(cp: Any, fns: Any) -> int:
+    """Raise the device's per-thread stack limit to the deepest frame of ``fns`` before any of them
+    runs, with the device idle; the limit after. ``owner.cuh``'s kernels take 2,576 bytes of stack
+    frame at sm_90 (ptxas), over the default limit of 1,024: on an H200 (2026-11-28) they were exact
+    in every run with the limit raised before any launch and wrong or faulting (illegal address,
+    ``cudaErrorInvalidAddressSpace``) in some runs without, exact under ``compute-sanitizer``, which
+    serialises launches; so the driver's own growing of the stack at a launch is not relied on."""
+    rt = cp.cuda.runtime
+    need = max((int(f.attributes["local_size_bytes"]) for f in fns), default=0)
+    have = int(rt.deviceGetLimit(0))  # cudaLimitStackSize
+    if need > have:
+        cp.cuda.Device().synchronize()  # no kernel in flight while the driver re-sizes local memory
+        rt.deviceSetLimit(0, -(-need // 1024) * 1024)
+        have = int(rt.deviceGetLimit(0))
+    return have
 
 
 def device_source() -> str:
@@ -166,7 +183,9 @@ class CupyLauncher(Launcher):
     def _fn(self, name: str) -> Any:
         if not self._fns:
             mod = self.cp.RawModule(code=device_source(), options=self._options, backend="nvrtc")
-            self._fns = {k: mod.get_function(k) for k in KERNELS}
+            fns = {k: mod.get_function(k) for k in KERNELS}
+            reserve_stack(self.cp, fns.values())
+            self._fns = fns
         return self._fns[name]
 
     def _launch(self, name: str, count: int, *args: Any) -> None:
@@ -325,6 +344,7 @@ class CupyLauncher(Launcher):
         if self._owner_fn is None:
             mod = self.cp.RawModule(code=owner_source(), options=self._options, backend="nvrtc")
             fns = [mod.get_function(k) for k in ("k_decrypt", "k_public_encrypt", "k_owner_encrypt")]
+            reserve_stack(self.cp, fns)
             self._decrypt_fn, self._public_fn, self._owner_fn = fns  # _owner_fn, tested first, set last
 
     def public_encrypt(self, x, r, n, M):
