@@ -22,6 +22,9 @@ encryption of 262,144 values faulted while 64 were exact, and one public-key cip
 AddressSanitizer and UBSan. Until a device run passes ``tests/backends/test_cuda_owner.py``
 (``benchmarks/gpu-proof.sh``), :class:`~hevr.backends.cuda.backend.CudaBackend` encrypts and
 decrypts the CPU way on a device; the kernels stay reachable for that proof (set ``keyholder``).
+The second run (2026-11-28, ``benchmarks/results-gpu-h200-2026-11-28.md``) found them exact with the
+device's stack limit raised before any launch and wrong or faulting in some runs without:
+:func:`reserve_stack` now does so when a module loads; ``keyholder`` stays off until a device run passes.
 
 Residence. Results stay on the device (``residence = "device"``): an operation returns CuPy
 arrays, and an operand that already is one is used where it is, so a chain of operations moves
