@@ -5,7 +5,10 @@ application run by uvicorn that renders the stores it was given on its Dask clus
 with data only. It never needs or accepts a private key, and no endpoint writes a store.
 
 ==============================  ==========================================================
-:mod:`hevr.serve.app`           the ASGI application: endpoints, limits, problem documents
+:mod:`hevr.serve.app`           the ASGI application: routes, exception handlers, state
+:mod:`hevr.serve.routes`        the endpoints, one module per resource (meta, stores, render)
+:mod:`hevr.serve.service`       what the server holds: stores, client, tokens, limits; bodies
+:mod:`hevr.serve.problems`      problem documents (RFC 9457), with no server internals
 :mod:`hevr.serve.jobs`          what a request runs: :func:`hevr.render`'s pipeline
 :mod:`hevr.serve.tokens`        bearer tokens per store (hashed, compared in constant time)
 :mod:`hevr.serve.openapi`       the protocol's OpenAPI document

@@ -1,0 +1,132 @@
+"""What ``hevr serve`` holds while it runs: the served stores, the Dask client, the tokens and the
+limits (:class:`Service`, on the application's ``state``), and the bounded reading of a request body.
+
+* **Concurrent renders**: per token (its ``concurrent``), and for the whole server
+  (``max_concurrent``): one more is a 429 with ``Retry-After``, so a client cannot queue
+  unbounded work on the cluster (:class:`Limits`).
+* **Tokens** (:mod:`hevr.serve.tokens`): a missing or unknown token is a 401; a store the token
+  may not render is a 404, as an unknown one (ids are not disclosed).
+* **Request size** (:data:`~hevr.remote.protocol.MAX_BODY`): a ``Content-Length`` above it is
+  refused (413) before a byte of the body is read, and a body without one is read only that far
+  (:func:`read_body`).
+"""
+
+from __future__ import annotations
+
+import threading
+from contextlib import contextmanager
+from typing import Any
+
+from starlette.requests import Request
+
+from ..errors import ParameterError
+from ..remote.protocol import MAX_BODY, check_store_name
+from .problems import Problem
+from .tokens import TokenTable
+
+__all__ = ["Limits", "Service", "read_body", "served_stores"]
+
+
+class Limits:
+    """Concurrent renders per token name and in all (thread-safe: released from render threads)."""
+
+    def __init__(self, max_concurrent: int) -> None:
+        self.max_concurrent = int(max_concurrent)
+        self.lock = threading.Lock()
+        self.running: dict[str, int] = {}
+        self.total = 0
+
+    @contextmanager
+    def slot(self, name: str, per_token: int):
+        with self.lock:
+            if self.total >= self.max_concurrent or self.running.get(name, 0) >= per_token:
+                raise Problem(429, "too many concurrent renders",
+                              f"concurrent renders: expected at most {per_token} for this token and "
+                              f"{self.max_concurrent} on this server, got one more; retry shortly",
+                              {"Retry-After": "1"})
+            self.running[name] = self.running.get(name, 0) + 1
+            self.total += 1
+        try:
+            yield
+        finally:
+            with self.lock:
+                self.running[name] -= 1
+                self.total -= 1
+
+
+class Service:
+    """The served stores (by id, and their names), the Dask client, the tokens and the limits."""
+
+    def __init__(self, stores: dict, *, client: Any = None, tokens: TokenTable | None = None,
+                 max_concurrent: int = 4, backend: str | None = None) -> None:
+        self.stores, self.names, self.name_of = served_stores(stores)
+        self.client = client
+        self.tokens = tokens
+        self.limits = Limits(max_concurrent)
+        self.backend = backend
+
+    def who(self, request: Request) -> tuple[str, int, Any]:
+        """(name, concurrent limit, token entry or None) of the request's bearer token."""
+        if self.tokens is None:
+            return "anonymous", self.limits.max_concurrent, None
+        auth = request.headers.get("authorization", "")
+        scheme, _, presented = auth.partition(" ")
+        token = self.tokens.lookup(presented.strip()) if scheme.lower() == "bearer" else None
+        if token is None:
+            raise Problem(401, "unauthorised", "Authorization: expected 'Bearer <token>' with a token of this server",
+                          {"WWW-Authenticate": 'Bearer realm="hevr"'})
+        return token.name, token.concurrent, token
+
+    def resolve(self, request: Request, token: Any) -> tuple[str, Any]:
+        """(store id, opened store) of the request's ``{store}``: a store id or a served name."""
+        key = request.path_params["store"]
+        sid = key if key in self.stores else self.names.get(key)
+        if sid is None or (token is not None and not token.may_render(sid)):
+            raise Problem(404, "no such store", f"store: expected the id or name of a served store, got {key[:40]!r}")
+        return sid, self.stores[sid]
+
+    def store(self, request: Request, token: Any) -> Any:
+        return self.resolve(request, token)[1]
+
+    def visible(self, token: Any) -> list[str]:
+        return [sid for sid in self.stores if token is None or token.may_render(sid)]
+
+    def description(self, sid: str) -> dict:
+        """What ``/v1/stores`` says of a store: its id, its name (None: served by id only) and its
+        public metadata."""
+        return {"id": sid, "name": self.name_of.get(sid), "metadata": self.stores[sid].meta.to_dict()}
+
+
+def served_stores(stores: dict) -> tuple[dict, dict, dict]:
+    """(store id -> store, name -> store id, store id -> name) of ``create_app``'s ``stores``: a
+    key that is its store's id serves it without a name; any other key is its name
+    (:func:`~hevr.remote.protocol.check_store_name`). Names and stores are unique."""
+    by_id: dict = {}
+    names: dict = {}
+    name_of: dict = {}
+    for key, ev in stores.items():
+        sid = ev.meta.store_id
+        if sid in by_id:
+            raise ParameterError(f"stores: expected distinct stores, got the store {sid} twice ({by_id[sid].path} "
+                                 f"and {ev.path})")
+        by_id[sid] = ev
+        if key != sid:
+            names[check_store_name(key, "stores: a name")] = sid
+            name_of[sid] = key
+    return by_id, names, name_of
+
+
+async def read_body(request: Request) -> bytes:
+    """The request body, at most MAX_BODY bytes, refused from its Content-Length when that says more."""
+    declared = request.headers.get("content-length")
+    if declared is not None and (not declared.isdigit() or int(declared) > MAX_BODY):
+        raise Problem(413, "request too large", f"body: expected at most {MAX_BODY} bytes, got "
+                                                f"Content-Length {declared[:20]}")
+    data = bytearray()
+    async for chunk in request.stream():
+        data += chunk
+        if len(data) > MAX_BODY:
+            raise Problem(413, "request too large", f"body: expected at most {MAX_BODY} bytes, got more")
+    if request.headers.get("content-type", "").split(";")[0].strip() != "application/json":
+        raise Problem(415, "unsupported media type", "Content-Type: expected application/json")
+    return bytes(data)
