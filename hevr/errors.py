@@ -37,6 +37,13 @@ __all__ = [
     "NotRegularFileError",
     "FileSystemError",
     "RemoteError",
+    "RemoteTimeoutError",
+    "RemoteConnectError",
+    "RemoteBusyError",
+    "RemoteUnauthorisedError",
+    "RemoteNotFoundError",
+    "RemoteRefusedError",
+    "RemoteAnswerError",
     "ForeignClusterError",
     "InsecureKeyWarning",
     "KeyFilePermissionWarning",
@@ -198,6 +205,70 @@ class RemoteError(HevrError, ConnectionError):
         super().__init__(message)
         self.status = status
         self.problem = problem
+
+
+class RemoteTimeoutError(RemoteError, TimeoutError):
+    """No answer (or no connection) came from the render server within the caller's deadline:
+    ``timeout`` seconds for the whole exchange (connecting, the answer's head and body, waits
+    before a retry), ``connect_timeout`` for the connection. The key holder's decryption is not
+    counted. The server may be busy, slow or gone; nothing it sent was taken. Also a
+    :class:`TimeoutError`.
+
+    >>> isinstance(RemoteTimeoutError("server: timeout: expected an answer within 2 s, got none"), TimeoutError)
+    True
+    """
+
+
+class RemoteConnectError(RemoteError):
+    """No HTTP exchange could be made with the render server: the connection was refused, the name
+    did not resolve, the TLS handshake failed (a certificate this process does not trust: pass
+    ``cafile=``; ``http://`` to a TLS port or ``https://`` to a plain one: the message says which
+    scheme), or the server closed the connection without an answer."""
+
+
+class RemoteBusyError(RemoteError):
+    """The render server is busy (HTTP 429 or 503) and stayed busy through the bounded retries, or
+    asked to wait longer than the deadline leaves; ``retry_after`` is the seconds it asked for
+    (None: it named none). Nothing is wrong with the request or the server's honesty: try later.
+
+    >>> e = RemoteBusyError("server: HTTP 429: too many renders", status=429, retry_after=1.0)
+    >>> e.status, e.retry_after
+    (429, 1.0)
+    """
+
+    def __init__(self, message: str, *, status: int | None = None, problem: dict | None = None,
+                 retry_after: float | None = None) -> None:
+        super().__init__(message, status=status, problem=problem)
+        self.retry_after = retry_after
+
+
+class RemoteUnauthorisedError(RemoteError, PermissionError):
+    """The render server refused the token (HTTP 401, or 403): none was sent (pass ``token=``; the
+    CLI reads ``HEVR_TOKEN``) or it is not one of the server's. Also a :class:`PermissionError`."""
+
+
+class RemoteNotFoundError(RemoteError, LookupError):
+    """The render server serves no store under that name or id, or not to this token (HTTP 404:
+    the server does not tell the two apart). Also a :class:`LookupError`."""
+
+
+class RemoteRefusedError(RemoteError, ValueError):
+    """The render server refused the request as asked (HTTP 400, 405, 413, 415 or 422: malformed,
+    too large, or refused by its render planner: a larger step or a smaller image may do). Also a
+    :class:`ValueError`."""
+
+
+class RemoteAnswerError(RemoteError, IntegrityError):
+    """The render server's answer is not a valid answer to the request — what the key holder's
+    checks caught: malformed, truncated, oversized, compressed, of another media type, another
+    store or another render, a header field other than the request implies, a value that is not
+    a ciphertext, a malformed aggregate. A faulty or lying server; no image is returned. Both a
+    :class:`RemoteError` and an :class:`IntegrityError`. (A verified image whose ray sums fail
+    their tags is refused at decryption with :class:`VerificationError`, remote or not.)
+
+    >>> isinstance(RemoteAnswerError("server: the image's 'shape' is not the one asked for"), IntegrityError)
+    True
+    """
 
 
 class ForeignClusterError(HevrError, PermissionError):

@@ -98,6 +98,8 @@ PUBLIC_API = (
     "VolumeFormatError", "MissingDependencyError", "MissingFileError", "MemoryLimitError", "ExistingFileError", "NotRegularFileError",
     "FileSystemError", "InsecureKeyWarning", "KeyFilePermissionWarning",
     "connect", "RemoteError",  # hevr serve's key holder (issue 37)
+    "RemoteTimeoutError", "RemoteConnectError", "RemoteBusyError", "RemoteUnauthorisedError",  # typed remote
+    "RemoteNotFoundError", "RemoteRefusedError", "RemoteAnswerError",  # failures (issue 48)
     "known_stores", "trust_store",  # the key holder's known stores (issue 38)
     "export_known_stores", "import_known_stores",  # portable, MAC'd known stores (issue 47)
     "own_cluster", "ForeignClusterError",  # the Dask path only on the key holder's own cluster (issue 47)

@@ -9,18 +9,25 @@ Everything the server sends is untrusted data, read with bounds:
 * the raw bytes are read, never decompressed: an answer with a ``Content-Encoding`` is refused
   (a compression bomb cannot expand here);
 * redirects are not followed (a server cannot send the token, or the request, elsewhere);
-* one deadline (``timeout`` seconds) bounds a whole answer, so a server dribbling bytes cannot
-  hold the caller longer;
+* one deadline (``timeout`` seconds) bounds a whole exchange — connecting (within
+  ``connect_timeout``), the status line, the headers, the body, the waits before retries — at the
+  socket (:mod:`hevr.remote.transport`), so a server dribbling bytes, even of its headers, cannot
+  hold the caller longer; the key holder's checks and decryption are not counted;
+* a busy answer (429, 503) is retried at most ``retries`` times, after the ``Retry-After`` it
+  asks for, within the deadline; nothing else is retried;
 * JSON is parsed strictly (:func:`~hevr.remote.protocol.parse_json`), images by the ``.hevr``
   parser, and nothing is ever unpickled.
 
 Every failure — unreachable, TLS, timeout, a problem document, a malformed answer — is a
-:class:`hevr.RemoteError` naming the server and what was expected; ``httpx``, ``ssl`` and
-``json`` exceptions never reach the caller.
+:class:`hevr.RemoteError` naming the server and what was expected, typed so that an application
+can tell them apart (:mod:`hevr.remote.failures`: busy, timed out, unreachable, unauthorised, not
+found, refused, and :class:`hevr.RemoteAnswerError` for an answer the checks refused); ``httpx``,
+``ssl`` and ``json`` exceptions never reach the caller.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import ssl
@@ -31,8 +38,10 @@ from urllib.parse import urlsplit
 
 import httpx
 
-from ..errors import HevrError, ParameterError, RemoteError
+from ..errors import HevrError, ParameterError, RemoteAnswerError, RemoteBusyError, RemoteError, RemoteTimeoutError
+from .failures import refusal, retry_wait, transport_failure
 from .protocol import END, MAX_BODY, PROBLEM_MEDIA, UNITS_MEDIA, check_store_name, is_store_id, parse_json, unpack_head
+from .transport import Deadline, DeadlineTransport
 from .volume import RemoteVolume, parse_description, parse_name
 
 log = logging.getLogger(__name__)
@@ -42,7 +51,8 @@ __all__ = ["Server", "connect"]
 MAX_STORES_BYTES = 16 * MAX_BODY  # the store list: a few KiB of metadata per store
 
 
-def connect(url: str, token: str | None = None, cafile: str | None = None, timeout: float = 60.0) -> Server:
+def connect(url: str, token: str | None = None, cafile: str | None = None, timeout: float = 60.0, *,
+            connect_timeout: float = 10.0, retries: int = 2, transport: Any = None) -> Server:
     """Connect to a render server (``hevr serve``) as the key holder.
 
     Parameters
@@ -55,7 +65,22 @@ def connect(url: str, token: str | None = None, cafile: str | None = None, timeo
     cafile : str, optional
         A CA bundle (PEM) to trust for an ``https`` server, instead of the system's.
     timeout : float
-        Seconds for a whole answer (a render included).
+        Seconds for each whole exchange with the server: connecting, sending the request, the
+        answer's status line, headers and body, and the waits before retries — one deadline, not
+        per read (a server dribbling bytes cannot hold the caller longer). The key holder's own
+        work (checking the answer, decrypting, also between a stream's frames) is not counted. A
+        verified render makes two exchanges (the image, then the aggregate).
+    connect_timeout : float
+        Seconds for the connection (TCP, then the TLS handshake), within ``timeout``.
+    retries : int
+        Retries (0-10) of an answer 429 or 503 (busy: the server did not do the work), after the
+        ``Retry-After`` it asks for (plus up to 20 % jitter), within ``timeout``; nothing else is
+        retried (a refused connection, a timeout or a broken answer could double the cost or hide
+        a fault). :class:`hevr.RemoteBusyError` when the server stays busy.
+    transport : httpx.BaseTransport, optional
+        The HTTP transport (tests: ``httpx.MockTransport``); then ``cafile`` is the transport's
+        business and the deadline is checked between the chunks it gives. By default, one whose
+        sockets obey the deadline (:mod:`hevr.remote.transport`).
 
     Returns
     -------
@@ -63,13 +88,29 @@ def connect(url: str, token: str | None = None, cafile: str | None = None, timeo
         ``server.stores()`` lists what it serves, ``server.open(name_or_id)`` gives a
         :class:`~hevr.remote.volume.RemoteVolume` for :func:`hevr.render` and friends.
 
+    Raises
+    ------
+    RemoteError
+        From the requests, typed: :class:`hevr.RemoteTimeoutError`, :class:`hevr.RemoteConnectError`,
+        :class:`hevr.RemoteBusyError`, :class:`hevr.RemoteUnauthorisedError`,
+        :class:`hevr.RemoteNotFoundError`, :class:`hevr.RemoteRefusedError`,
+        :class:`hevr.RemoteAnswerError` (what the key holder's checks caught: a faulty or lying
+        server), else a plain :class:`hevr.RemoteError` (a server failure).
+
     Examples
     --------
     ``rv = hevr.connect("https://render.example.org:8750", token=tok).open("ct")`` (the name
     ``hevr serve`` printed, or the store id),
     then ``hevr.render(rv, hevr.Camera.orbit(rv, azimuth=30))`` and ``img.decrypt(priv)``.
     """
-    return Server(url, token=token, cafile=cafile, timeout=timeout)
+    return Server(url, token=token, cafile=cafile, timeout=timeout, connect_timeout=connect_timeout,
+                  retries=retries, transport=transport)
+
+
+def _seconds(name: str, value: Any) -> float:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 < value <= 86400:
+        raise ParameterError(f"{name}: expected seconds in (0, 86400], got {value!r}")
+    return float(value)
 
 
 class Server:
@@ -77,7 +118,8 @@ class Server:
     it as a context manager) to release its connections."""
 
     def __init__(self, url: str, token: str | None = None, cafile: str | None = None,
-                 timeout: float = 60.0) -> None:
+                 timeout: float = 60.0, *, connect_timeout: float = 10.0, retries: int = 2,
+                 transport: Any = None) -> None:
         if not isinstance(url, str):
             raise ParameterError(f"url: expected 'http(s)://host:port', got {type(url).__name__}")
         parts = urlsplit(url)
@@ -88,23 +130,28 @@ class Server:
         if token is not None and (not isinstance(token, str) or not token or not token.isprintable()
                                   or len(token) > 4096 or any(c.isspace() for c in token)):
             raise ParameterError("token: expected the server's bearer token (printable, no spaces)")
-        if not isinstance(timeout, (int, float)) or isinstance(timeout, bool) or not 0 < timeout <= 86400:
-            raise ParameterError(f"timeout: expected seconds in (0, 86400], got {timeout!r}")
+        self.timeout = _seconds("timeout", timeout)
+        self.connect_timeout = _seconds("connect_timeout", connect_timeout)
+        if not isinstance(retries, int) or isinstance(retries, bool) or not 0 <= retries <= 10:
+            raise ParameterError(f"retries: expected an int in [0, 10], got {retries!r}")
+        if transport is not None and not isinstance(transport, httpx.BaseTransport):
+            raise ParameterError(f"transport: expected an httpx.BaseTransport, got {type(transport).__name__}")
         if cafile is not None and parts.scheme != "https":
             raise ParameterError("cafile: expected an https:// url with a CA file, got an http:// url")
-        verify: Any = True
-        if cafile is not None:
+        if transport is None:
             try:
-                verify = ssl.create_default_context(cafile=str(cafile))
+                context = (ssl.create_default_context(cafile=str(cafile)) if cafile is not None
+                           else httpx.create_ssl_context(trust_env=False))
             except (OSError, ssl.SSLError) as exc:
                 raise ParameterError(f"cafile: expected a PEM CA bundle, got {str(cafile)[:100]!r} "
                                      f"({type(exc).__name__})") from None
+            transport = DeadlineTransport(context)
         self.url = url.rstrip("/")
-        self.timeout = float(timeout)
+        self.retries = retries
         self._token = token
         headers = {"Accept-Encoding": "identity", "User-Agent": "hevr"}
-        self._http = httpx.Client(base_url=self.url, headers=headers, verify=verify, follow_redirects=False,
-                                  timeout=httpx.Timeout(self.timeout), trust_env=False)
+        self._http = httpx.Client(base_url=self.url, headers=headers, transport=transport, follow_redirects=False,
+                                  timeout=httpx.Timeout(self.timeout, connect=self.connect_timeout), trust_env=False)
 
     def __repr__(self) -> str:  # never the token
         return f"Server({self.url!r})"
@@ -133,7 +180,8 @@ class Server:
 
     def frames(self, path: str, body: dict, limit: int) -> Iterator[tuple[int, bytes]]:
         """The frames (index, bytes) of a units stream, each as it arrives, then (END, the end
-        frame's JSON object), checked here: a problem there is a RemoteError."""
+        frame's JSON object), checked here: a problem there is a RemoteError. The deadline counts
+        only the time spent waiting here, not the caller's between frames."""
         for index, data in self._exchange("POST", path, body, UNITS_MEDIA, limit, frames=True):
             if index == END:
                 status = self._json(data, "the stream's end")
@@ -142,7 +190,7 @@ class Server:
                 yield END, status
                 return
             yield index, data
-        raise RemoteError(f"server {self.url}: expected the stream's end frame, got the end of the answer")
+        raise RemoteAnswerError(f"server {self.url}: expected the stream's end frame, got the end of the answer")
 
     def _exchange(self, method: str, path: str, body: dict | None, accept: str, limit: int,
                   frames: bool) -> Iterator[Any]:
@@ -150,71 +198,110 @@ class Server:
         headers = self._headers(accept)
         if content is not None:
             headers["Content-Type"] = "application/json"
-        deadline = time.monotonic() + self.timeout
+        clock = Deadline(self.timeout)
         what = f"{method} {path}"
         try:
-            with self._http.stream(method, path, content=content, headers=headers) as r:
+            with self._answer(method, path, content, headers, clock, what) as r:
                 status = r.status_code
-                encoding = r.headers.get("content-encoding", "identity").strip().lower()
-                if encoding not in ("", "identity"):
-                    raise RemoteError(f"server {self.url}: {what}: expected an answer without Content-Encoding, "
-                                      f"got {encoding[:40]!r} (refused unread)", status=status)
-                if 300 <= status < 400:
-                    raise RemoteError(f"server {self.url}: {what}: expected an answer, got a redirect (HTTP "
-                                      f"{status}) to {r.headers.get('location', '?')[:100]!r}, not followed",
-                                      status=status)
                 media = r.headers.get("content-type", "").split(";")[0].strip().lower()
-                if status != 200:
-                    raw = self._read(r, MAX_BODY, deadline, what)
-                    doc = None
-                    if media in (PROBLEM_MEDIA, "application/json"):
-                        try:
-                            doc = parse_json(raw, "problem")
-                        except HevrError:
-                            doc = None
-                    raise self._problem(status, doc, what)
                 if media != accept:
-                    raise RemoteError(f"server {self.url}: {what}: expected {accept}, got {media[:60]!r}",
-                                      status=status)
+                    raise RemoteAnswerError(f"server {self.url}: {what}: expected {accept}, got {media[:60]!r}",
+                                            status=status)
                 declared = r.headers.get("content-length")
                 if declared is not None and (not declared.isdigit() or int(declared) > limit):
-                    raise RemoteError(f"server {self.url}: {what}: expected at most {limit} bytes, got "
-                                      f"Content-Length {declared[:20]} (refused unread)", status=status)
+                    raise RemoteAnswerError(f"server {self.url}: {what}: expected at most {limit} bytes, got "
+                                            f"Content-Length {declared[:20]} (refused unread)", status=status)
                 if not frames:
-                    yield self._read(r, limit, deadline, what), dict(r.headers)
+                    yield self._read(r, limit, clock, what), dict(r.headers)
                     return
-                yield from self._frames(r, limit, deadline, what)
+                yield from self._frames(r, limit, clock, what)
         except RemoteError:
             raise
         except (httpx.HTTPError, ssl.SSLError, OSError, ValueError) as exc:
-            kind = "timed out" if isinstance(exc, httpx.TimeoutException) else type(exc).__name__
-            raise RemoteError(f"server {self.url}: {what}: {kind}: {str(exc)[:200]}") from None
+            raise transport_failure(self.url, what, exc, expired=clock.expired(), timeout=self.timeout,
+                                    connect_timeout=self.connect_timeout) from None
 
-    def _read(self, r: Any, limit: int, deadline: float, what: str) -> bytes:
+    @contextlib.contextmanager
+    def _answer(self, method: str, path: str, content: bytes | None, headers: dict, clock: Deadline,
+                what: str) -> Iterator[Any]:
+        """The open response of status 200, its head checked; an error status is a typed error, a
+        busy one (429, 503) retried at most ``retries`` times within the deadline."""
+        for attempt in range(self.retries + 1):
+            with contextlib.ExitStack() as stack:
+                with clock.running():
+                    r = stack.enter_context(self._http.stream(method, path, content=content, headers=headers))
+                status = r.status_code
+                encoding = r.headers.get("content-encoding", "identity").strip().lower()
+                if encoding not in ("", "identity"):
+                    raise RemoteAnswerError(f"server {self.url}: {what}: expected an answer without "
+                                            f"Content-Encoding, got {encoding[:40]!r} (refused unread)", status=status)
+                if 300 <= status < 400:
+                    location = r.headers.get("location", "?")[:100]
+                    hint = (f" (use {self.url.replace('http://', 'https://', 1)})"
+                            if self.url.startswith("http://") and location.startswith("https://") else "")
+                    raise RemoteError(f"server {self.url}: {what}: expected an answer, got a redirect (HTTP {status}) "
+                                      f"to {location!r}, not followed{hint}", status=status)
+                if status == 200:
+                    yield r
+                    return
+                err = self._refusal(r, clock, what, attempt + 1)
+            if not isinstance(err, RemoteBusyError) or attempt >= self.retries:
+                raise err
+            wait = retry_wait(attempt, err.retry_after)
+            if wait >= clock.remaining():  # not worth waiting to time out: say busy now
+                raise err
+            log.info("server %s: %s: HTTP %s (busy), retrying in %.1f s", self.url, what, status, wait)
+            with clock.running():
+                time.sleep(wait)
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _refusal(self, r: Any, clock: Deadline, what: str, tries: int) -> RemoteError:
+        media = r.headers.get("content-type", "").split(";")[0].strip().lower()
+        raw = self._read(r, MAX_BODY, clock, what)
+        doc = None
+        if media in (PROBLEM_MEDIA, "application/json"):
+            try:
+                doc = parse_json(raw, "problem")
+            except HevrError:
+                doc = None
+        return refusal(self.url, what, r.status_code, doc, r.headers, self._token is not None, tries,
+                       clock.spent())
+
+    def _late(self, what: str) -> RemoteTimeoutError:
+        return transport_failure(self.url, what, httpx.ReadTimeout("deadline"), expired=True,
+                                 timeout=self.timeout, connect_timeout=self.connect_timeout)
+
+    def _read(self, r: Any, limit: int, clock: Deadline, what: str) -> bytes:
         buf = bytearray()
-        for chunk in r.iter_raw():
-            buf += chunk
-            if len(buf) > limit:
-                raise RemoteError(f"server {self.url}: {what}: expected at most {limit} bytes, got more "
-                                  "(the rest refused unread)", status=r.status_code)
-            if time.monotonic() > deadline:
-                raise RemoteError(f"server {self.url}: {what}: timed out after {self.timeout:g} s (slow answer)")
+        with clock.running():
+            for chunk in r.iter_raw():
+                buf += chunk
+                if len(buf) > limit:
+                    raise RemoteAnswerError(f"server {self.url}: {what}: expected at most {limit} bytes, got more "
+                                            "(the rest refused unread)", status=r.status_code)
+                if clock.expired():
+                    raise self._late(what)
         return bytes(buf)
 
-    def _frames(self, r: Any, limit: int, deadline: float, what: str) -> Iterator[tuple[int, bytes]]:
+    def _frames(self, r: Any, limit: int, clock: Deadline, what: str) -> Iterator[tuple[int, bytes]]:
         buf = bytearray()
         total = 0
-        for chunk in r.iter_raw():
+        chunks = r.iter_raw()
+        while True:
+            with clock.running():
+                chunk = next(chunks, None)
+                if chunk is not None and clock.expired():
+                    raise self._late(what)
+            if chunk is None:
+                break
             total += len(chunk)
             if total > limit:
-                raise RemoteError(f"server {self.url}: {what}: expected at most {limit} bytes of units, got more")
-            if time.monotonic() > deadline:
-                raise RemoteError(f"server {self.url}: {what}: timed out after {self.timeout:g} s (slow stream)")
+                raise RemoteAnswerError(f"server {self.url}: {what}: expected at most {limit} bytes of units, got more")
             buf += chunk
             while len(buf) >= 8:
                 index, length = unpack_head(bytes(buf[:8]))
                 if length > limit:
-                    raise RemoteError(f"server {self.url}: {what}: a frame of {length} bytes (at most {limit})")
+                    raise RemoteAnswerError(f"server {self.url}: {what}: a frame of {length} bytes (at most {limit})")
                 if len(buf) < 8 + length:
                     break
                 data = bytes(buf[8:8 + length])
@@ -222,18 +309,18 @@ class Server:
                 yield index, data
                 if index == END:
                     if buf:
-                        raise RemoteError(f"server {self.url}: {what}: expected nothing after the end frame")
+                        raise RemoteAnswerError(f"server {self.url}: {what}: expected nothing after the end frame")
                     return
         if buf:
-            raise RemoteError(f"server {self.url}: {what}: the stream ended inside a frame (truncated)")
+            raise RemoteAnswerError(f"server {self.url}: {what}: the stream ended inside a frame (truncated)")
 
     def _json(self, raw: bytes, what: str, limit: int = MAX_BODY) -> dict:
         try:
             doc = parse_json(raw, what, limit)
         except HevrError as exc:
-            raise RemoteError(f"server {self.url}: {exc}") from None
+            raise RemoteAnswerError(f"server {self.url}: {exc}") from None
         if not isinstance(doc, dict):
-            raise RemoteError(f"server {self.url}: {what}: expected a JSON object, got {type(doc).__name__}")
+            raise RemoteAnswerError(f"server {self.url}: {what}: expected a JSON object, got {type(doc).__name__}")
         return doc
 
     def _problem(self, status: int, doc: Any, what: str) -> RemoteError:
@@ -258,7 +345,7 @@ class Server:
         doc = self.get_json("/v1/stores", limit=MAX_STORES_BYTES)
         items = doc.get("stores")
         if not isinstance(items, list):
-            raise RemoteError(f"server {self.url}: GET /v1/stores: expected a 'stores' list")
+            raise RemoteAnswerError(f"server {self.url}: GET /v1/stores: expected a 'stores' list")
         out = []
         for item in items:
             sid, meta = parse_description(item, self.url)
@@ -287,7 +374,7 @@ class Server:
         if is_store_id(name_or_id):
             sid, meta = parse_description(self.get_json(f"/v1/stores/{name_or_id}"), self.url)
             if sid != name_or_id:
-                raise RemoteError(f"server {self.url}: expected the store {name_or_id}, got the description of {sid}")
+                raise RemoteAnswerError(f"server {self.url}: expected the store {name_or_id}, got the description of {sid}")
             return RemoteVolume(self, sid, meta)
         try:
             name = check_store_name(name_or_id, "name_or_id")
@@ -298,6 +385,6 @@ class Server:
         sid, meta = parse_description(item, self.url)
         got = parse_name(item, self.url)
         if got != name:
-            raise RemoteError(f"server {self.url}: expected the description of the store named {name!r}, got "
+            raise RemoteAnswerError(f"server {self.url}: expected the description of the store named {name!r}, got "
                               f"{'one named ' + repr(got) if got else 'one without a name'} (store {sid})")
         return RemoteVolume(self, sid, meta, name=name)

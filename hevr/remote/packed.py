@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..backends import get_backend
-from ..errors import ParameterError, RemoteError
+from ..errors import ParameterError, RemoteAnswerError
 from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.image import PackedImage
 from ..rendering.packed.plane_image import PackedSlice
@@ -55,16 +55,16 @@ def _tiles(server: Any, where: str, req: RenderRequest, counts: list[int], width
             break
         t = len(tiles)
         if index != t or t >= len(counts) or len(data) != counts[t] * width:
-            raise RemoteError(f"server {server.url}: the packed answer's tile {index}: expected tile {t} of "
+            raise RemoteAnswerError(f"server {server.url}: the packed answer's tile {index}: expected tile {t} of "
                               f"{len(counts)} with {counts[t] if t < len(counts) else 0} records of {width} bytes, "
                               f"got {len(data)} bytes; no image is returned")
         recs = np.frombuffer(data, np.uint8).reshape(-1, width).copy()
         if len(recs) and be.first_out_of_range(be.from_bytes(recs), n * n) is not None:
-            raise RemoteError(f"server {server.url}: tile {t} of the packed answer holds a value that is not a "
+            raise RemoteAnswerError(f"server {server.url}: tile {t} of the packed answer holds a value that is not a "
                               "ciphertext (outside (0, n²)); no image is returned")
         tiles.append(recs)
     if len(tiles) != len(counts):
-        raise RemoteError(f"server {server.url}: the packed answer: expected {len(counts)} tiles, got {len(tiles)}; "
+        raise RemoteAnswerError(f"server {server.url}: the packed answer: expected {len(counts)} tiles, got {len(tiles)}; "
                           "no image is returned")
     return tiles, stats
 

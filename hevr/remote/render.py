@@ -29,7 +29,7 @@ import numpy as np
 from .._tiles import TileLayout
 from .._validate import check_int
 from ..backends import get_backend
-from ..errors import HevrError, IntegrityError, ParameterError, RemoteError
+from ..errors import HevrError, IntegrityError, ParameterError, RemoteAnswerError
 from ..image import EncryptedImage, image_from_bytes
 from ..image.checks import check_image
 from ..rendering.geometry.rays import cast_rays
@@ -101,17 +101,17 @@ def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: i
                 stats.update(_server_stats(data.get("stats") if isinstance(data.get("stats"), str) else None))
                 break
             if not 0 <= index < len(units) or units[index] is not None or len(data) % width:
-                raise RemoteError(f"server {server.url}: the stream's unit {index}: expected a new unit of "
+                raise RemoteAnswerError(f"server {server.url}: the stream's unit {index}: expected a new unit of "
                                   f"0-{len(units) - 1} of whole {width}-byte records")
             unit = np.frombuffer(data, dtype=np.uint8).reshape(-1, width)
             try:  # its record count, range and plaintexts are checked there
                 stream.unit(index, unit)
             except IntegrityError as exc:
-                raise RemoteError(f"server {server.url}: the stream's unit {index} does not fit the request "
+                raise RemoteAnswerError(f"server {server.url}: the stream's unit {index} does not fit the request "
                                   f"({exc})") from None
             units[index] = unit
         if any(u is None for u in units):
-            raise RemoteError(f"server {server.url}: the stream ended with {sum(u is None for u in units)} of "
+            raise RemoteAnswerError(f"server {server.url}: the stream ended with {sum(u is None for u in units)} of "
                               f"{len(units)} units missing")
         cts = graph.assemble(units)
         stats["gathered_bytes"] = sum(int(u.nbytes) for u in units)
@@ -121,11 +121,11 @@ def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: i
         try:
             got = image_from_bytes(blob, f"server {server.url}: the image")
         except HevrError as exc:
-            raise RemoteError(f"server {server.url}: expected a valid .hevr image, got one that fails its checks "
+            raise RemoteAnswerError(f"server {server.url}: expected a valid .hevr image, got one that fails its checks "
                               f"({exc})") from None
         for name in _FIELDS + ("hits", "samples"):
             if not _same(name, fields[name], getattr(got, name)):
-                raise RemoteError(f"server {server.url}: the image's {name!r} is not the one this request implies "
+                raise RemoteAnswerError(f"server {server.url}: the image's {name!r} is not the one this request implies "
                                   "(another render, or a forged header); no image is returned")
         cts = got.ciphertexts
         stats["gathered_bytes"] = len(blob)
@@ -135,11 +135,11 @@ def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: i
     try:
         check_image(img)
     except IntegrityError as exc:
-        raise RemoteError(f"server {server.url}: the image's ciphertexts do not fit the request ({exc})") from None
+        raise RemoteAnswerError(f"server {server.url}: the image's ciphertexts do not fit the request ({exc})") from None
     be = get_backend("cpu")
     for t, c in enumerate(img.ciphertexts):  # every ciphertext in (0, n²) before the image is handed out
         if len(c) and be.first_out_of_range(be.from_bytes(np.ascontiguousarray(c)), n * n) is not None:
-            raise RemoteError(f"server {server.url}: tile {t} of the image holds a value that is not a ciphertext "
+            raise RemoteAnswerError(f"server {server.url}: tile {t} of the image holds a value that is not a ciphertext "
                               "(outside (0, n²)); no image is returned")
     if verified:  # the image is fixed in this process: only now the seed (module docstring)
         t1 = time.perf_counter()
@@ -160,10 +160,10 @@ def _aggregate(raw: bytes, n: int, url: str) -> int:
     try:
         doc = parse_json(raw, "the verification answer")
     except HevrError as exc:
-        raise RemoteError(f"server {url}: {exc}") from None
+        raise RemoteAnswerError(f"server {url}: {exc}") from None
     agg = doc.get("aggregate") if isinstance(doc, dict) and set(doc) == {"aggregate"} else None
     if not (isinstance(agg, str) and _DECIMAL.fullmatch(agg) and len(agg) <= 2 * len(str(n)) and 0 < int(agg) < n * n):
-        raise RemoteError(f"server {url}: the verification answer: expected {{\"aggregate\": a ciphertext in (0, n²) "
+        raise RemoteAnswerError(f"server {url}: the verification answer: expected {{\"aggregate\": a ciphertext in (0, n²) "
                           "as a decimal string}")
     return int(agg)
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..crypto.keys import PublicKey
-from ..errors import CorruptStoreError, ParameterError, RemoteError
+from ..errors import CorruptStoreError, ParameterError, RemoteAnswerError
 from ..store.metadata import VolumeMetadata
 from ..store.reader import EncryptedVolume
 from ..volume.pyramid import check_level
@@ -39,44 +39,44 @@ MAX_N_DIGITS = 1300  # a 4096-bit modulus has 1234 decimal digits
 
 def parse_name(item: Any, url: str) -> str | None:
     """The served name of a store description (None: the server gave none, as servers before
-    issue 47 did, or serves it by id only); :class:`hevr.RemoteError` for one that is not a name."""
+    issue 47 did, or serves it by id only); :class:`hevr.RemoteAnswerError` for one that is not a name."""
     name = item.get("name") if isinstance(item, dict) else None
     if name is None:
         return None
     try:
         return check_store_name(name, f"server {url}: a store description: name")
     except ParameterError as exc:
-        raise RemoteError(str(exc)) from None
+        raise RemoteAnswerError(str(exc)) from None
 
 
 def parse_description(item: Any, url: str) -> tuple[str, VolumeMetadata]:
     """(store id, metadata) of a store description ``{"id", "name", "metadata"}`` from the server
-    (``name`` optional: :func:`parse_name`); :class:`hevr.RemoteError` naming what is wrong."""
+    (``name`` optional: :func:`parse_name`); :class:`hevr.RemoteAnswerError` naming what is wrong."""
     if not isinstance(item, dict) or not {"id", "metadata"} <= set(item) <= {"id", "name", "metadata"}:
-        raise RemoteError(f"server {url}: a store description: expected an object with exactly 'id', 'name' and "
+        raise RemoteAnswerError(f"server {url}: a store description: expected an object with exactly 'id', 'name' and "
                           "'metadata'")
     parse_name(item, url)
     sid, raw = item["id"], item["metadata"]
     if not is_store_id(sid):
-        raise RemoteError(f"server {url}: a store description: id: expected 16 hex digits, got {str(sid)[:40]!r}")
+        raise RemoteAnswerError(f"server {url}: a store description: id: expected 16 hex digits, got {str(sid)[:40]!r}")
     pk = raw.get("public_key") if isinstance(raw, dict) else None
     if not (isinstance(pk, dict) and isinstance(pk.get("n"), str) and 0 < len(pk["n"]) <= MAX_N_DIGITS):
-        raise RemoteError(f"server {url}: store {sid}: n: expected a modulus of at most {MAX_N_DIGITS} decimal digits")
+        raise RemoteAnswerError(f"server {url}: store {sid}: n: expected a modulus of at most {MAX_N_DIGITS} decimal digits")
     try:
         meta = VolumeMetadata.from_dict(raw, where=f"server {url}: store {sid}")
     except CorruptStoreError as exc:
-        raise RemoteError(str(exc)) from None
+        raise RemoteAnswerError(str(exc)) from None
     except (ValueError, TypeError, OverflowError) as exc:
-        raise RemoteError(f"server {url}: store {sid}: metadata: {type(exc).__name__}") from None
+        raise RemoteAnswerError(f"server {url}: store {sid}: metadata: {type(exc).__name__}") from None
     if meta.store_id != sid:
-        raise RemoteError(f"server {url}: store {sid}: its metadata names the store {meta.store_id}")
+        raise RemoteAnswerError(f"server {url}: store {sid}: its metadata names the store {meta.store_id}")
     if not meta.complete:
-        raise RemoteError(f"server {url}: store {sid}: expected a complete store, got an incomplete one")
+        raise RemoteAnswerError(f"server {url}: store {sid}: expected a complete store, got an incomplete one")
     try:
         if PublicKey(int(meta.n)).fingerprint != meta.fingerprint:
-            raise RemoteError(f"server {url}: store {sid}: the key fingerprint does not match the modulus n")
+            raise RemoteAnswerError(f"server {url}: store {sid}: the key fingerprint does not match the modulus n")
     except (ValueError, ParameterError) as exc:
-        raise RemoteError(f"server {url}: store {sid}: n: {exc}") from None
+        raise RemoteAnswerError(f"server {url}: store {sid}: n: {exc}") from None
     return sid, meta
 
 

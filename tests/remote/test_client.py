@@ -147,8 +147,8 @@ def test_slow_servers_hit_the_deadline(truth):
     def silent(w, _):
         time.sleep(8)
 
-    _expect(truth, dribble, "timed out", timeout=2.0)
-    _expect(truth, silent, "timed out", timeout=2.0)
+    _expect(truth, dribble, "timeout: expected an answer within 2 s", timeout=2.0)
+    _expect(truth, silent, "timeout: expected an answer within 2 s", timeout=2.0)
 
 
 def test_forged_streams_and_aggregates(truth):
