@@ -49,23 +49,22 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import re
 import struct
 from dataclasses import dataclass
 from typing import Any
 
-from .._validate import check_choice, check_int
 from ..errors import HevrError, ParameterError
 from ..image.header import _no_duplicates, _small_int
 from ..rendering.geometry.camera import Camera
 from ..rendering.geometry.plane import Plane, view_from_dict
-from ..store.packing import MAX_WEIGHT_BITS
-from ..volume.pyramid import MAX_LEVELS
+from . import schema
+from .schema import BACKENDS, CHANNELS, MAX_PIXELS, MAX_SIDE, MAX_STEP, SAMPLINGS, check
 
-__all__ = ["API_VERSION", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_SIDE", "PROBLEM_MEDIA", "STORE_ID", "STORE_NAME",
-           "UNITS_MEDIA", "RenderRequest", "VerifyRequest", "check_store_name", "image_limit", "is_store_id",
-           "pack_frame", "packed_limit", "parse_json", "unpack_head"]
+__all__ = ["API_VERSION", "BACKENDS", "CHANNELS", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_PIXELS", "MAX_SIDE",
+           "MAX_STEP", "PROBLEM_MEDIA", "SAMPLINGS", "STORE_ID", "STORE_NAME", "UNITS_MEDIA", "RenderRequest",
+           "VerifyRequest", "check_store_name", "image_limit", "is_store_id", "pack_frame", "packed_limit",
+           "parse_json", "unpack_head"]
 
 API_VERSION = 1
 PREFIX = "/v1"
@@ -73,18 +72,12 @@ IMAGE_MEDIA = "application/vnd.hevr.image"
 UNITS_MEDIA = "application/vnd.hevr.units"
 PROBLEM_MEDIA = "application/problem+json"
 MAX_BODY = 64 * 1024  # a request body: a camera and a few numbers are a few hundred bytes
-MAX_SIDE = 4096  # pixels per image side over the wire
-MAX_PIXELS = 4096 * 4096
-MAX_STEP = 1e6
-CHANNELS = ("scalar", "vector", "gradient")
-SAMPLINGS = ("nearest", "trilinear")
-BACKENDS = ("auto", "cpu", "cuda-host", "cuda")
 END = 0xFFFFFFFF  # the index of a units stream's end frame
 FRAME = struct.Struct("<II")
 MAX_JSON_DEPTH = 32
-STORE_ID = re.compile(r"[0-9a-f]{16}")  # a store id as the server and the key holder write it
-STORE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.@-]{0,63}")  # a served name: safe in a URL path, no '/'
-_ID_LIKE = re.compile(r"[0-9a-fA-F]{16}")
+STORE_ID = re.compile(schema.STORE_ID_PATTERN)  # a store id as the server and the key holder write it
+STORE_NAME = re.compile(schema.STORE_NAME_PATTERN)  # a served name: safe in a URL path, no '/'
+_ID_LIKE = re.compile(schema.ID_LIKE)
 
 
 def is_store_id(text: Any) -> bool:
@@ -154,29 +147,9 @@ def _depth(doc: Any, level: int = 0) -> int:
     return level
 
 
-def _fields(d: Any, name: str, allowed: set[str], required: set[str]) -> dict:
-    if not isinstance(d, dict):
-        raise ParameterError(f"{name}: expected a JSON object, got {type(d).__name__}")
-    extra = sorted(set(d) - allowed)
-    if extra:
-        raise ParameterError(f"{name}: expected only the fields {sorted(allowed)}, got extra fields {extra}")
-    missing = sorted(required - set(d))
-    if missing:
-        raise ParameterError(f"{name}: expected the fields {sorted(required)}, missing {missing}")
-    return d
-
-
-def _view(data: Any) -> Camera | Plane:
-    """A camera or plane from JSON, bounded before it is built (its own checks follow)."""
-    if not isinstance(data, dict):
-        raise ParameterError(f"view: expected a camera or plane object, got {type(data).__name__}")
-    for side in ("width", "height"):
-        v = data.get(side)
-        if v is not None and (type(v) is not int or not 1 <= v <= MAX_SIDE):
-            raise ParameterError(f"view.{side}: expected an integer in [1, {MAX_SIDE}], got {str(v)[:40]!r}")
-    for key, v in data.items():
-        if isinstance(v, float) and not math.isfinite(v):
-            raise ParameterError(f"view.{key}: expected a finite number, got {v!r}")
+def _view(data: dict) -> Camera | Plane:
+    """A camera or plane from its checked JSON (:class:`schema.Camera` or :class:`schema.Plane`),
+    by its own domain checks (a view direction, orthogonal axes), at most :data:`MAX_PIXELS`."""
     try:
         view = view_from_dict(data)
     except HevrError as exc:
@@ -188,11 +161,25 @@ def _view(data: Any) -> Camera | Plane:
     return view
 
 
+def _plain(value: Any) -> Any:
+    """A NumPy integer or float of a request built in Python as the Python number (strict models
+    take only those); anything else as it is (a bool stays a bool, and is refused as a number)."""
+    if type(value).__module__ == "numpy" and hasattr(value, "item"):
+        return value.item()
+    return value
+
+
+_OPTIONS = tuple(name for name in schema.RenderRequest.model_fields if name != "view")
+_DEFAULT = {name: f.default for name, f in schema.RenderRequest.model_fields.items()}
+
+
 @dataclass(frozen=True)
 class RenderRequest:
     """What the key holder asks ``hevr serve`` to render: a view and what to sum, nothing of the
-    colouring (module docstring). Validated in ``__post_init__``; ``to_dict``/``from_dict`` are the
-    wire form, :meth:`key` a stable identity.
+    colouring (module docstring). Its fields, their bounds and defaults are those of the wire
+    model :class:`hevr.remote.schema.RenderRequest`, which checks them in ``__post_init__`` (and
+    the whole JSON in :meth:`from_dict`); ``to_dict``/``from_dict`` are the wire form, :meth:`key`
+    a stable identity.
 
     Parameters
     ----------
@@ -216,50 +203,33 @@ class RenderRequest:
 
     view: Camera | Plane
     channel: str
-    sampling: str = "nearest"
-    step: float = 1.0
-    level: int = 0
-    digits: int = 3
-    pack: bool = True
-    tile: int = 32
-    backend: str | None = None
-    weight_bits: int | None = None
+    sampling: str = _DEFAULT["sampling"]
+    step: float = _DEFAULT["step"]
+    level: int = _DEFAULT["level"]
+    digits: int = _DEFAULT["digits"]
+    pack: bool = _DEFAULT["pack"]
+    tile: int = _DEFAULT["tile"]
+    backend: str | None = _DEFAULT["backend"]
+    weight_bits: int | None = _DEFAULT["weight_bits"]
 
-    FIELDS = ("view", "channel", "sampling", "step", "level", "digits", "pack", "tile", "backend", "weight_bits")
+    FIELDS = tuple(schema.RenderRequest.model_fields)
 
     def __post_init__(self) -> None:
         if not isinstance(self.view, (Camera, Plane)):
             raise ParameterError(f"view: expected a hevr.Camera or hevr.Plane, got {type(self.view).__name__}")
-        check_choice("channel", self.channel, CHANNELS)
-        check_choice("sampling", self.sampling, SAMPLINGS)
-        step = self.step
-        if type(step) not in (int, float) or not (0 < step <= MAX_STEP) or not math.isfinite(step):
-            raise ParameterError(f"step: expected a number in (0, {MAX_STEP:g}], got {str(step)[:40]!r}")
-        object.__setattr__(self, "step", float(step))
-        check_int("level", self.level, 0, MAX_LEVELS)
+        options = check(schema.RenderOptions, {name: _plain(getattr(self, name)) for name in _OPTIONS})
+        for name in _OPTIONS:
+            object.__setattr__(self, name, getattr(options, name))
         if isinstance(self.view, Plane) and self.level:
             raise ParameterError(f"level: expected 0 for a plane (slices have no level), got {self.level}")
-        check_int("digits", self.digits, 0, 9)
-        check_int("tile", self.tile, 1, MAX_SIDE)
-        if type(self.pack) is not bool:
-            raise ParameterError(f"pack: expected true or false, got {str(self.pack)[:40]!r}")
-        if self.backend is not None:
-            check_choice("backend", self.backend, BACKENDS)
-        if self.weight_bits is not None:
-            check_int("weight_bits", self.weight_bits, 0, MAX_WEIGHT_BITS)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"view": self.view.to_dict(), "channel": self.channel, "sampling": self.sampling, "step": self.step,
-                "level": self.level, "digits": self.digits, "pack": self.pack, "tile": self.tile,
-                "backend": self.backend, "weight_bits": self.weight_bits}
+        return {"view": self.view.to_dict(), **{name: getattr(self, name) for name in _OPTIONS}}
 
     @classmethod
     def from_dict(cls, d: Any, name: str = "request") -> RenderRequest:
-        d = _fields(d, name, set(cls.FIELDS), {"view", "channel"})
-        return cls(view=_view(d["view"]), channel=d["channel"], sampling=d.get("sampling", "nearest"),
-                   step=d.get("step", 1.0), level=d.get("level", 0), digits=d.get("digits", 3),
-                   pack=d.get("pack", True), tile=d.get("tile", 32), backend=d.get("backend"),
-                   weight_bits=d.get("weight_bits"))
+        wire = check(schema.RenderRequest, d, name)
+        return cls(view=_view(d["view"]), **{k: getattr(wire, k) for k in _OPTIONS})
 
     def key(self) -> str:
         """SHA-256 of the canonical JSON: equal across processes."""
@@ -274,7 +244,8 @@ class RenderRequest:
 @dataclass(frozen=True)
 class VerifyRequest:
     """The verification round: the render asked before and the seed the key holder drew *after* it
-    held the image (:mod:`hevr.rendering.verify`); the server answers the tag aggregate.
+    held the image (:mod:`hevr.rendering.verify`); the server answers the tag aggregate. The wire
+    model: :class:`hevr.remote.schema.VerifyRequest`.
 
     >>> cam = {"position": [0, 0, 40], "focal_point": [0, 0, 0], "width": 4, "height": 4}
     >>> v = VerifyRequest.from_dict({"render": {"view": cam, "channel": "scalar"}, "seed": "ab" * 32})
@@ -296,11 +267,8 @@ class VerifyRequest:
 
     @classmethod
     def from_dict(cls, d: Any, name: str = "request") -> VerifyRequest:
-        d = _fields(d, name, {"render", "seed"}, {"render", "seed"})
-        seed = d["seed"]
-        if not (isinstance(seed, str) and len(seed) == 64 and all(c in "0123456789abcdef" for c in seed)):
-            raise ParameterError(f"seed: expected 64 lower-case hex digits, got {str(seed)[:80]!r}")
-        return cls(render=RenderRequest.from_dict(d["render"], "render"), seed=bytes.fromhex(seed))
+        wire = check(schema.VerifyRequest, d, name)
+        return cls(render=RenderRequest.from_dict(d["render"], "render"), seed=bytes.fromhex(wire.seed))
 
 
 HEADER_ROOM = 1 << 20  # a .hevr header beyond its hit mask: the info, the plan, the numbers

@@ -53,7 +53,7 @@ def test_verify_requests_round_trip(req, seed):
 
 @pytest.mark.parametrize("change, match", [
     ({"view": dict(CAM, width=MAX_SIDE + 1)}, "width"),
-    ({"view": dict(CAM, colour="red")}, "extra keys"),
+    ({"view": dict(CAM, colour="red")}, r"view: .*extra fields \[.colour.\]"),
     ({"view": [1, 2, 3]}, "view"),
     ({"channel": "scalar_tag"}, "channel"),
     ({"sampling": "cubic"}, "sampling"),
