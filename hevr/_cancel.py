@@ -13,6 +13,12 @@ The same loops report their batches to :func:`add_steps`: a progress display of 
 not only when a whole task ends; a task on a ``distributed`` worker sends its steps to the
 client as worker events. The stop flag reaches only this process's tasks: on a cluster the
 CLI ends its local workers (:mod:`hevr.cli.cluster`).
+
+One job among several (a render of ``hevr serve`` whose client left) is stopped with its own
+:class:`Scope`: the thread that runs the job enters it (:func:`scope`), and
+:func:`hevr._dask.compute` there cancels that job's futures on a ``distributed`` cluster, or starts
+none of its remaining tasks on Dask's threaded scheduler, once :meth:`Scope.cancel` is called (from
+any thread); the job then raises :class:`Cancelled`.
 """
 
 from __future__ import annotations
@@ -24,7 +30,8 @@ from typing import Any
 
 from distributed import get_worker
 
-__all__ = ["TOPIC", "add_steps", "check", "clear", "counting", "stop", "stopped"]
+__all__ = ["TOPIC", "Cancelled", "Scope", "add_steps", "check", "clear", "counting", "current", "scope", "stop",
+           "stopped"]
 
 #: The worker event that carries a task's finer progress steps to its client.
 TOPIC = "hevr-steps"
@@ -32,6 +39,87 @@ TOPIC = "hevr-steps"
 _STOP = threading.Event()
 _LOCK = threading.Lock()
 _SINKS: list[Callable[[int], None]] = []
+_LOCAL = threading.local()
+
+
+class Cancelled(Exception):
+    """A job's :class:`Scope` was cancelled: its work stopped (not a failure of the work)."""
+
+
+class Scope:
+    """One job's cancellation: :meth:`cancel` (any thread) runs the callbacks registered with
+    :meth:`on_cancel` (e.g. ``client.cancel(futures)``) once, and :meth:`check` raises from then on.
+
+    >>> s = Scope(); seen = []
+    >>> undo = s.on_cancel(lambda: seen.append("cancel futures"))
+    >>> s.check(); s.cancel("client left"); s.cancel(); seen, s.cancelled, s.reason
+    (['cancel futures'], True, 'client left')
+    >>> try:
+    ...     s.check()
+    ... except Cancelled as exc:
+    ...     print(exc)
+    cancelled: client left
+    """
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        self._lock = threading.Lock()
+        self._callbacks: list[Callable[[], None]] = []
+        self.reason = ""
+
+    @property
+    def cancelled(self) -> bool:
+        return self._event.is_set()
+
+    def cancel(self, reason: str = "cancelled") -> None:
+        with self._lock:
+            if self._event.is_set():
+                return
+            self.reason = reason
+            self._event.set()
+            callbacks, self._callbacks = self._callbacks, []
+        for fn in callbacks:
+            with contextlib.suppress(Exception):  # a closed client: its work is gone anyway
+                fn()
+
+    def on_cancel(self, fn: Callable[[], None]) -> Callable[[], None]:
+        """Run ``fn`` at :meth:`cancel` (at once if cancelled already); returns its removal."""
+        with self._lock:
+            if not self._event.is_set():
+                self._callbacks.append(fn)
+                return lambda: self._discard(fn)
+        fn()
+        return lambda: None
+
+    def _discard(self, fn: Callable[[], None]) -> None:
+        with self._lock:
+            if fn in self._callbacks:
+                self._callbacks.remove(fn)
+
+    def check(self) -> None:
+        """Raise :class:`Cancelled` once :meth:`cancel` was called."""
+        if self._event.is_set():
+            raise Cancelled(f"cancelled: {self.reason}")
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait until cancelled (at most ``timeout`` seconds); whether it was."""
+        return self._event.wait(timeout)
+
+
+@contextlib.contextmanager
+def scope(s: Scope) -> Iterator[Scope]:
+    """Run the block (in this thread) as the job of ``s``: :func:`current` returns it."""
+    before = getattr(_LOCAL, "scope", None)
+    _LOCAL.scope = s
+    try:
+        yield s
+    finally:
+        _LOCAL.scope = before
+
+
+def current() -> Scope | None:
+    """The :class:`Scope` this thread's job runs in (:func:`scope`), or None."""
+    return getattr(_LOCAL, "scope", None)
 
 
 def stop() -> None:

@@ -233,13 +233,28 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     progress with :func:`hevr._cancel.add_steps`, shown with a rate and the time left; tasks on
     a ``distributed`` worker send it as the worker's ``hevr-steps`` events.
     """
-    tasks = list(tasks)
+    job = _cancel.current()  # a job of its own (hevr serve's render): cancellable alone
+    if job is None:
+        return _compute(list(tasks), client, progress, desc, keep, on_result, steps, unit, None)
+    job.check()
+    try:
+        return _compute(list(tasks), client, progress, desc, keep, on_result, steps, unit, job)
+    except Exception:
+        if job.cancelled:  # the futures' cancellation, a task that found the job cancelled
+            raise _cancel.Cancelled(f"cancelled: {job.reason}") from None
+        raise
+
+
+def _compute(tasks: list[Any], client: Any, progress: bool, desc: str, keep: int,
+             on_result: Callable[[int, Any], None] | None, steps: int, unit: str, job: Any) -> list[Any]:
+    """:func:`compute`'s work; ``job`` (a :class:`hevr._cancel.Scope` or None) cancels its futures."""
     if not tasks:
         return []
     client = active_client(client)
     t0 = time.perf_counter()
     if client is not None:
         futures = client.compute(tasks)
+        undo = job.on_cancel(lambda: client.cancel(futures)) if job is not None else (lambda: None)
         bar = Progress(len(futures), desc, progress, steps=steps, unit=unit)
         if steps:
             client.subscribe_topic(_cancel.TOPIC, lambda event: bar.step(int(event[1])))
@@ -256,6 +271,7 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
                     got[i] = fut.result()
                     on_result(i, got[i])
         finally:
+            undo()
             if steps:
                 with contextlib.suppress(Exception):  # a client closing after an interrupt
                     client.unsubscribe_topic(_cancel.TOPIC)
@@ -268,7 +284,7 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     else:
         bar = Progress(0, desc, progress, steps=steps, unit=unit)  # the callback learns the number of graph tasks
         with TaskCounter(bar), _cancel.counting(bar.step):
-            results = _compute_local(tasks)
+            results = _compute_local(tasks, job)
         if on_result is not None:
             for i, value in enumerate(results[:len(results) - keep] if keep else results):
                 on_result(i, value)
@@ -277,7 +293,22 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     return results
 
 
-def _compute_local(tasks: list[Any]) -> list[Any]:
+class _JobPool(ThreadPoolExecutor):
+    """The threaded scheduler's pool for a cancellable job: a task submitted after the job's
+    cancellation raises :class:`hevr._cancel.Cancelled` instead of running (dask then raises it)."""
+
+    def __init__(self, max_workers: int, job: Any) -> None:
+        super().__init__(max_workers=max_workers)
+        self.job = job
+
+    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Any:
+        def run() -> Any:
+            self.job.check()
+            return fn(*args, **kwargs)
+        return super().submit(run)
+
+
+def _compute_local(tasks: list[Any], job: Any = None) -> list[Any]:
     """``dask.compute`` on Dask's default scheduler. The threaded scheduler gets a pool of its
     own that is shut down before this returns or raises: when a task fails, dask raises at
     once while the tasks already running go on in the pool's threads, and a clean-up of what
@@ -288,7 +319,7 @@ def _compute_local(tasks: list[Any]) -> list[Any]:
     if scheduler is not dask.threaded.get or dask.config.get("pool", None) is not None:
         return list(dask.compute(*tasks))
     workers = dask.config.get("num_workers", None) or dask.threaded.CPU_COUNT
-    pool = ThreadPoolExecutor(max_workers=workers)
+    pool = ThreadPoolExecutor(max_workers=workers) if job is None else _JobPool(workers, job)
     _cancel.clear()
     try:
         return list(dask.compute(*tasks, pool=pool))
