@@ -7,14 +7,23 @@ program can serve too (:func:`serve`). Nothing here reads a private key: the ser
 from __future__ import annotations
 
 import asyncio
+import dataclasses
+import errno
 import logging
+import os
+import socket
+import ssl
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from ..errors import MissingDependencyError, ParameterError
+from ..errors import MissingDependencyError, MissingFileError, ParameterError
 from ..remote.protocol import check_store_name
 from ..store.reader import EncryptedVolume, open_volume
 
+try:
+    import resource
+except ImportError:  # pragma: no cover - Windows
+    resource = None
 try:  # the 'serve' extra: Starlette and uvicorn (only their absence is a missing extra)
     import starlette
     import uvicorn
@@ -22,12 +31,13 @@ except ModuleNotFoundError:  # pragma: no cover - hevr serve says which extra
     starlette = uvicorn = None
 if uvicorn is not None and starlette is not None:
     from .app import create_app
+    from .guard import Deadlines, guarded_protocol
 else:  # pragma: no cover
-    create_app = None
+    create_app = guarded_protocol = Deadlines = None
 
 log = logging.getLogger("hevr.serve")
 
-__all__ = ["open_stores", "serve", "store_name"]
+__all__ = ["bind", "check_tls", "open_stores", "serve", "store_name"]
 
 
 def store_name(spec: str) -> tuple[str, str]:
@@ -77,39 +87,181 @@ def open_stores(specs: Sequence[str], storage_options: dict | None = None) -> di
     return stores
 
 
+def check_tls(cert: str, key: str) -> None:
+    """Refuse TLS files uvicorn could not load, in one line naming the option (``--tls-cert``,
+    ``--tls-key``): missing, not PEM, swapped, encrypted, or a key of another certificate."""
+    texts = {}
+    for option, path in (("--tls-cert", cert), ("--tls-key", key)):
+        if not os.path.isfile(path):
+            raise MissingFileError(option, "a PEM file", path)
+        try:
+            with open(path, "rb") as f:
+                texts[option] = f.read(1 << 20).decode("ascii", "replace")
+        except OSError as exc:
+            raise ParameterError(f"{option}: expected a readable PEM file, got {path} ({exc.strerror})") from None
+    c, k = texts["--tls-cert"], texts["--tls-key"]
+    if "-----BEGIN CERTIFICATE-----" not in c or "PRIVATE KEY-----" not in k:
+        swapped = "PRIVATE KEY-----" in c and "-----BEGIN CERTIFICATE-----" in k
+        which = ("--tls-cert", cert, "a certificate") if "-----BEGIN CERTIFICATE-----" not in c else \
+            ("--tls-key", key, "a private key")
+        hint = "; --tls-cert and --tls-key look swapped" if swapped else ""
+        raise ParameterError(f"{which[0]}: expected {which[2]} in PEM, got {which[1]} without one{hint}")
+    if "ENCRYPTED" in k:
+        raise ParameterError(f"--tls-key: expected an unencrypted private key (hevr serve asks for no "
+                             f"password), got an encrypted one in {key}")
+
+    def no_password() -> bytes:
+        raise ValueError("encrypted")
+
+    try:
+        ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(cert, key, password=no_password)
+    except (ssl.SSLError, ValueError) as exc:
+        reason = getattr(exc, "reason", None) or str(exc)[:80]
+        raise ParameterError(f"--tls-cert/--tls-key: expected a certificate chain and its own private key in PEM, "
+                             f"got {cert} and {key} ({str(reason).lower().replace('_', ' ')})") from None
+
+
+def bind(host: str, port: int) -> list[socket.socket]:
+    """Sockets bound to every address ``host`` resolves to, at ``port`` (0: one free port for all),
+    not yet listening; a bad host or a port in use is one :class:`ParameterError` naming the option."""
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+        raise ParameterError(f"--port: expected a TCP port from 0 to 65535, got {port!r}")
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (socket.gaierror, UnicodeError, TypeError) as exc:
+        why = getattr(exc, "strerror", None) or str(exc)
+        raise ParameterError(f"--host: expected an address of this machine or a name that resolves to one, got "
+                             f"{str(host)[:100]!r} ({why})") from None
+    socks: list[socket.socket] = []
+    seen = set()
+    try:
+        for family, kind, proto, _, addr in infos:
+            if addr in seen:
+                continue
+            seen.add(addr)
+            s = socket.socket(family, kind, proto)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == getattr(socket, "AF_INET6", None):
+                s.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            if socks and port == 0:
+                addr = (addr[0], socks[0].getsockname()[1], *addr[2:])
+            try:
+                s.bind(addr)
+            except OSError as exc:
+                s.close()
+                if socks and exc.errno in (errno.EADDRNOTAVAIL, errno.EAFNOSUPPORT):
+                    continue  # "localhost" on a machine without IPv6: its IPv4 address serves
+                raise _bind_error(exc, host, port) from None
+            socks.append(s)
+    except BaseException:
+        for s in socks:
+            s.close()
+        raise
+    return socks
+
+
+def _bind_error(exc: OSError, host: str, port: int) -> ParameterError:
+    if exc.errno == errno.EADDRINUSE:
+        return ParameterError(f"--port: expected a free port, got {port} (in use on {host})")
+    if exc.errno == errno.EACCES:
+        return ParameterError(f"--port: expected a port this user may listen on, got {port} (permission denied; "
+                              f"ports below 1024 need privileges)")
+    if exc.errno == errno.EADDRNOTAVAIL:
+        return ParameterError(f"--host: expected an address of this machine, got {host!r} (not one of its "
+                              f"addresses)")
+    return ParameterError(f"--host/--port: expected an address and port to listen on, got {host}:{port} "
+                          f"({exc.strerror or exc})")
+
+
+def _room_for(deadlines: Deadlines) -> Deadlines:
+    """``deadlines`` with at most as many connections as the open-files limit leaves room for (the
+    soft limit raised towards the hard one first)."""
+    if resource is None:  # pragma: no cover - Windows
+        return deadlines
+    need = deadlines.connections + 256  # the stores, the cluster's sockets, the log
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < need:
+        want = need if hard == resource.RLIM_INFINITY else min(need, hard)
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+            soft = want
+        except (ValueError, OSError):  # pragma: no cover - not allowed here
+            pass
+        if soft < need:
+            fit = max(16, soft - 256)
+            log.warning("serve: %d open files allowed: at most %d connections (not %d); raise 'ulimit -n'",
+                        soft, fit, deadlines.connections)
+            deadlines = dataclasses.replace(deadlines, connections=fit, per_address=min(deadlines.per_address, fit))
+    return deadlines
+
+
+if uvicorn is not None:
+    class _Server(uvicorn.Server):
+        """uvicorn's server on sockets bound beforehand (:func:`bind`), with a TLS handshake deadline."""
+
+        def __init__(self, config: Any, sockets: list[socket.socket], handshake: float) -> None:
+            super().__init__(config)
+            self.bound, self.handshake = sockets, handshake
+
+        async def startup(self, sockets: Any = None) -> None:
+            await self.lifespan.startup()
+            if self.lifespan.should_exit:
+                raise RuntimeError("hevr serve: the application did not start (its log says why)")
+            loop, config = asyncio.get_running_loop(), self.config
+
+            def protocol(_loop: Any = None) -> asyncio.Protocol:
+                return config.http_protocol_class(config=config, server_state=self.server_state,
+                                                  app_state=self.lifespan.state, _loop=_loop)
+
+            self.servers = []
+            for sock in self.bound:
+                self.servers.append(await loop.create_server(
+                    protocol, sock=sock, ssl=config.ssl, backlog=config.backlog,
+                    ssl_handshake_timeout=self.handshake if config.ssl else None))
+            self.started = True
+
+
 def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: int = 8750, client: Any = None,
           tokens: Any = None, tls_cert: str | None = None, tls_key: str | None = None, max_concurrent: int = 4,
-          backend: str | None = None, on_ready: Callable[[str], None] | None = None) -> None:
+          backend: str | None = None, on_ready: Callable[[str], None] | None = None,
+          deadlines: Deadlines | None = None) -> None:
     """Serve ``stores`` (name or store id -> opened store: :func:`open_stores`,
     :func:`~hevr.serve.app.create_app`) until interrupted (uvicorn; TLS with ``tls_cert`` and ``tls_key``).
-    ``on_ready(url)`` is called once the socket listens."""
+    ``on_ready(url)`` is called once the socket listens. Every connection keeps ``deadlines``
+    (default: :meth:`Deadlines.from_config`; :mod:`hevr.serve.guard`). The TLS files, the host and
+    the port are checked before anything starts (:func:`check_tls`, :func:`bind`)."""
     if uvicorn is None or create_app is None:
         raise MissingDependencyError("hevr serve needs the 'serve' extra (Starlette, uvicorn): pip install 'hevr[serve]'")
     if (tls_cert is None) != (tls_key is None):
         raise ParameterError("--tls-cert/--tls-key: expected both or neither, got one")
-    app = create_app(stores, client=client, tokens=tokens, max_concurrent=max_concurrent, backend=backend)
-    config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
-                            ssl_certfile=tls_cert, ssl_keyfile=tls_key, timeout_keep_alive=5,
-                            limit_concurrency=256, h11_max_incomplete_event_size=64 * 1024,
-                            timeout_graceful_shutdown=3)  # Ctrl-C: open keep-alive connections get 3 s
-    server = uvicorn.Server(config)
-    if on_ready is not None:
-        scheme = "https" if tls_cert else "http"
+    deadlines = _room_for(Deadlines.from_config() if deadlines is None else deadlines)
+    if tls_cert is not None:
+        check_tls(tls_cert, tls_key)
+    sockets = bind(host, port)
+    try:
+        app = create_app(stores, client=client, tokens=tokens, max_concurrent=max_concurrent, backend=backend)
+        protocol, _ = guarded_protocol(deadlines)
+        config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False, http=protocol,
+                                ssl_certfile=tls_cert, ssl_keyfile=tls_key, timeout_keep_alive=deadlines.idle,
+                                limit_concurrency=None, h11_max_incomplete_event_size=64 * 1024,
+                                timeout_graceful_shutdown=3)  # Ctrl-C: open keep-alive connections get 3 s
+        server = _Server(config, sockets, deadlines.handshake)
+    except BaseException:
+        for s in sockets:
+            s.close()
+        raise
+    scheme = "https" if tls_cert else "http"
+    bound = sockets[0].getsockname()[1]
 
-        async def startup() -> None:
-            while not server.started:  # pragma: no branch - polled until the socket listens
-                await asyncio.sleep(0.02)
-            bound = port
-            for s in getattr(server, "servers", []):
-                for sock in getattr(s, "sockets", []):
-                    bound = sock.getsockname()[1]
-            on_ready(f"{scheme}://{host if ':' not in host else f'[{host}]'}:{bound}")
-
-        async def main() -> None:
-            task = asyncio.create_task(startup())
-            await server.serve()
+    async def main() -> None:
+        task = asyncio.create_task(startup()) if on_ready is not None else None
+        await server.serve()
+        if task is not None:
             task.cancel()
 
-        asyncio.run(main())
-    else:
-        server.run()
+    async def startup() -> None:
+        while not server.started:  # pragma: no branch - polled until the socket listens
+            await asyncio.sleep(0.02)
+        on_ready(f"{scheme}://{host if ':' not in host else f'[{host}]'}:{bound}")
+
+    asyncio.run(main())
