@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +26,6 @@ from ..image.display import default_window
 from ..image.orient import describe_layout
 from ..image.proof import Expect, proof_of
 from ..paper import PAPER_DENSITIES, PAPER_TF1
-from ..remote.client import connect
 from ..rendering.encrypted import render
 from ..rendering.geometry.camera import Camera
 from ..rendering.packed.colour import PackedColourImage
@@ -47,6 +45,7 @@ from .verifying import key_holder, verified_line, warn_unverified  # hevr.cli.sl
 from .packed import check_packed_decrypt, check_packed_render, packed_done, packed_encrypt_lines, packed_start
 from .packed import packed_verified_line
 from .pyramid import level_rows
+from .remote import open_remote
 from .render_options import format_tf
 from .scan import encrypt_input, resolve_tf
 from .util import (
@@ -164,16 +163,6 @@ def open_for_mode(store: str, mode: str, verb: str, so: dict | None = None, args
         raise UsageError(f"--mode xray: expected a store with the scalar channel, got {store} without one "
                          f"(encrypted with --no-scalar); {verb} --mode emphasize or --mode tf")
     return ev
-
-
-def open_remote(args: Any) -> Any:
-    """The store ``args.store`` (a store id) on the render server ``args.server``; the token from
-    ``$HEVR_TOKEN`` (never an argument: the process list shows arguments to every user)."""
-    if args.scheduler or args.workers:
-        raise UsageError("--server: expected no --scheduler or --workers (the server renders on its own cluster)")
-    server = connect(args.server, token=os.environ.get("HEVR_TOKEN") or None, cafile=args.cafile,
-                     timeout=args.timeout)
-    return server.open(args.store)
 
 
 def compute_context(args: Any, ev: Any) -> Any:

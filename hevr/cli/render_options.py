@@ -282,7 +282,7 @@ def add_decrypt_colour_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_server_option(p: argparse.ArgumentParser) -> None:
-    """``--server URL`` / ``--cafile``: render on ``hevr serve`` (STORE is then the name or id it
+    """``--server URL`` / ``--cafile`` / ``--timeout`` / ``--connect-timeout``: render on ``hevr serve`` (STORE is then the name or id it
     serves the store under; ``--key`` verifies the answer); the token comes from the environment
     (``HEVR_TOKEN``), never the command line (other users see it)."""
     g = p.add_argument_group("render server (hevr serve)")
@@ -292,4 +292,7 @@ def add_server_option(p: argparse.ArgumentParser) -> None:
                    "run or unpickled")
     g.add_argument("--cafile", metavar="PEM", help="CA bundle to trust for an https --server")
     g.add_argument("--timeout", type=float, default=600.0, metavar="S",
-                   help="seconds for the server's whole answer (default 600)")
+                   help="seconds for each whole exchange with the server: connecting, the answer's head and body, "
+                        "waits for a busy server (default 600; decryption here is not counted)")
+    g.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds for the connection to the server (TCP and TLS; default 10)")
