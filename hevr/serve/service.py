@@ -22,6 +22,7 @@ from starlette.requests import Request
 from ..errors import ParameterError
 from ..remote.protocol import MAX_BODY, check_store_name
 from .problems import Problem
+from .store_watch import StoreWatch
 from .tokens import TokenTable
 
 __all__ = ["Limits", "Service", "read_body", "served_stores"]
@@ -60,6 +61,7 @@ class Service:
     def __init__(self, stores: dict, *, client: Any = None, tokens: TokenTable | None = None,
                  max_concurrent: int = 4, backend: str | None = None) -> None:
         self.stores, self.names, self.name_of = served_stores(stores)
+        self.watch = StoreWatch(self.stores)  # a store rewritten on disk is opened again (re-encrypted)
         self.client = client
         self.tokens = tokens
         self.limits = Limits(max_concurrent)
@@ -81,6 +83,9 @@ class Service:
         """(store id, opened store) of the request's ``{store}``: a store id or a served name."""
         key = request.path_params["store"]
         sid = key if key in self.stores else self.names.get(key)
+        if sid is not None:
+            self.watch.refresh(self, [sid])
+            sid = key if key in self.stores else self.names.get(key)
         if sid is None or (token is not None and not token.may_render(sid)):
             raise Problem(404, "no such store", f"store: expected the id or name of a served store, got {key[:40]!r}")
         return sid, self.stores[sid]
@@ -89,6 +94,7 @@ class Service:
         return self.resolve(request, token)[1]
 
     def visible(self, token: Any) -> list[str]:
+        self.watch.refresh(self)
         return [sid for sid in self.stores if token is None or token.may_render(sid)]
 
     def description(self, sid: str) -> dict:

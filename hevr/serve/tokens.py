@@ -9,7 +9,12 @@ copy of the file (a backup, a container image) grants nothing::
 
 ``stores`` lists store ids or ``"*"`` (every served store); ``concurrent`` bounds the renders a
 token runs at once (default :data:`DEFAULT_CONCURRENT`; more are answered 429 with
-``Retry-After``). ``hevr serve --new-token NAME`` prints a fresh token and its entry.
+``Retry-After``). ``hevr serve --new-token NAME --tokens FILE`` adds a fresh token's entry to the
+file (:func:`hevr.serve.token_file.add_token`) and prints the token once.
+
+A running server re-reads its file when it changes (:class:`hevr.serve.token_file.TokenFile`:
+rotation and revocation without a restart); a new file that does not parse keeps the previous
+table in force.
 
 A presented token is hashed and compared with *every* entry in constant time
 (:func:`hmac.compare_digest`), so the time of a refusal says nothing about how close a guess was.

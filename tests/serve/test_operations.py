@@ -1,0 +1,189 @@
+"""Operating ``hevr serve`` (issue 48, item 7), in process (Starlette's test client): the health
+endpoint, the request log's format (a client that left included), tokens re-read without a
+restart, and a store re-encrypted under the running server opened again."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+
+import dask
+import numpy as np
+import pytest
+from starlette.testclient import TestClient
+
+import hevr
+from hevr.serve.app import create_app
+from hevr.serve.token_file import TokenFile
+from hevr.serve.tokens import TokenTable, hash_token, new_token
+
+LINE = re.compile(r"^(\S+) (GET|HEAD|POST) (\S+) (\d{3}) (\d+) (\S+) (\d+\.\d{3})( client left)?$")
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory, keypair256):
+    pub, _ = keypair256
+    d = tmp_path_factory.mktemp("ops")
+    with dask.config.set(scheduler="sync"):
+        ev = hevr.encrypt_volume(hevr.phantom(8), str(d / "ct.zarr"), pub, brick=4, progress=False)
+    return d, ev
+
+
+def _tokens(path, **names):
+    path.write_text(json.dumps({"version": 1, "tokens": [{"name": n, "sha256": hash_token(t), "stores": ["*"]}
+                                                         for n, t in names.items()]}))
+
+
+class Clock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+@pytest.mark.parametrize("tokens", [False, True])
+def test_health_needs_no_token_and_names_no_store(store, tmp_path, tokens, caplog):
+    d, ev = store
+    table = None
+    if tokens:
+        _tokens(tmp_path / "t.json", alice=new_token())
+        table = TokenTable.load(tmp_path / "t.json")
+    app = create_app({"ct": hevr.open_volume(d / "ct.zarr")}, tokens=table)
+    with TestClient(app) as http, caplog.at_level(logging.INFO, logger="hevr.serve"):
+        r = http.get("/v1/health")
+        assert r.status_code == 200 and r.json() == {"status": "ok"}
+        assert ev.meta.store_id not in r.text and "ct" not in r.text
+        assert r.headers["cache-control"] == "no-store"
+        assert http.head("/v1/health").status_code == 200
+        assert http.get("/v1/stores").status_code == (401 if tokens else 200)
+        assert http.post("/v1/health").status_code == 405
+    lines = [rec.getMessage() for rec in caplog.records if rec.name == "hevr.serve"]
+    assert any(re.fullmatch(r"testclient GET /v1/health 200 \d+ - \d+\.\d{3}", x) for x in lines), lines
+    assert any(x.startswith("testclient HEAD /v1/health 200 0 - ") for x in lines), lines
+
+
+def test_the_request_log_line(store, tmp_path, caplog):
+    d, ev = store
+    alice = new_token()
+    _tokens(tmp_path / "t.json", alice=alice)
+    app = create_app({"ct": hevr.open_volume(d / "ct.zarr")}, tokens=TokenTable.load(tmp_path / "t.json"))
+    with TestClient(app) as http, caplog.at_level(logging.INFO, logger="hevr.serve"):
+        r = http.get("/v1/stores?secret=xyz", headers={"Authorization": f"Bearer {alice}"})
+        http.get("/v1/stores/a%0Ab")  # a newline in the path stays escaped: one line
+        http.get("/v1/stores", headers={"Authorization": "Bearer nope"})
+    lines = [rec.getMessage() for rec in caplog.records if rec.name == "hevr.serve"]
+    assert len(lines) == 3 and all(LINE.match(x) for x in lines), lines
+    m = LINE.match(lines[0])
+    assert m.group(3) == "/v1/stores" and m.group(4) == "200" and int(m.group(5)) == len(r.content)
+    assert m.group(6) == "alice"
+    assert LINE.match(lines[1]).group(3) == "/v1/stores/a%0Ab" and LINE.match(lines[1]).group(4) == "401"
+    assert LINE.match(lines[2]).group(6) == "-"
+    text = "\n".join(lines)
+    assert alice not in text and "nope" not in text and "secret" not in text and hash_token(alice) not in text
+
+
+def test_a_stream_whose_client_left_is_logged_as_such(caplog):
+    import anyio
+    from starlette.requests import Request
+    from starlette.responses import StreamingResponse
+
+    from hevr.serve.routes.base import endpoint
+
+    async def chunks():
+        yield b"abcd"
+        await anyio.sleep(30)
+        yield b"never"
+
+    async def fn(request, caller):
+        return StreamingResponse(chunks())
+
+    scope = {"type": "http", "method": "POST", "path": "/v1/stores/x/stream", "raw_path": b"/v1/stores/x/stream",
+             "query_string": b"", "headers": [], "client": ("10.0.0.7", 5000), "asgi": {"spec_version": "2.3"}}
+    messages = [{"type": "http.request", "body": b"", "more_body": False}, {"type": "http.disconnect"}]
+    sent = []
+
+    async def receive():
+        if len(messages) == 1:
+            await anyio.sleep(0.2)  # the client leaves after the first unit
+        return messages.pop(0)
+
+    async def send(message):
+        sent.append(message)
+
+    async def run():
+        handler = endpoint(fn, public=True)
+        response = await handler(Request(scope, receive, send))
+        await response(scope, receive, send)
+
+    with caplog.at_level(logging.INFO, logger="hevr.serve"):
+        anyio.run(run)
+    (line,) = [rec.getMessage() for rec in caplog.records if rec.name == "hevr.serve"]
+    assert re.fullmatch(r"10\.0\.0\.7 POST /v1/stores/x/stream 499 4 - \d+\.\d{3} client left", line), line
+
+
+def test_tokens_are_read_again_when_the_file_changes(store, tmp_path, caplog):
+    d, _ = store
+    path = tmp_path / "t.json"
+    alice, bob = new_token(), new_token()
+    _tokens(path, alice=alice)
+    clock = Clock()
+    tf = TokenFile(path, clock=clock)
+    app = create_app({"ct": hevr.open_volume(d / "ct.zarr")}, tokens=tf)
+
+    def status(token):
+        return http.get("/v1/stores", headers={"Authorization": f"Bearer {token}"}).status_code
+
+    with TestClient(app) as http, caplog.at_level(logging.INFO, logger="hevr.serve"):
+        assert (status(alice), status(bob)) == (200, 401)
+        _tokens(path, bob=bob)  # alice revoked, bob added
+        assert status(alice) == 200  # looked at no more than once a second
+        clock.t += 1.5
+        assert (status(alice), status(bob)) == (401, 200)
+        assert any("added: bob; removed: alice" in r.getMessage() for r in caplog.records)
+        path.write_text("{not json")  # a bad file keeps the tokens in force, and says so once
+        clock.t += 1.5
+        assert status(bob) == 200
+        clock.t += 1.5
+        assert status(bob) == 200 and status(alice) == 401
+        errors = [r for r in caplog.records if r.levelno == logging.ERROR]
+        assert len(errors) == 1 and "stay in force" in errors[0].getMessage(), errors
+        os.unlink(path)  # so does a file gone
+        clock.t += 1.5
+        assert status(bob) == 200
+        _tokens(path, alice=alice)
+        tf.reread()  # SIGHUP: at once, whatever the clock
+        assert (status(alice), status(bob)) == (200, 401)
+
+
+def test_a_store_re_encrypted_under_the_server_is_opened_again(store, tmp_path, keypair256, caplog):
+    _, priv = keypair256
+    path = tmp_path / "ct.zarr"
+    vol = hevr.phantom(8)
+    with dask.config.set(scheduler="sync"):
+        old = hevr.encrypt_volume(vol, str(path), priv.public_key, brick=4, progress=False)
+    app = create_app({"ct": hevr.open_volume(path)})
+    clock = Clock()
+    watch = app.state.service.watch
+    watch._clock, watch._checked = clock, dict.fromkeys(watch._checked, 0.0)
+    cam = hevr.Camera.orbit(old, azimuth=5, width=6, height=5)
+    body = {"view": cam.to_dict(), "channel": "scalar"}
+    with TestClient(app) as http, caplog.at_level(logging.INFO, logger="hevr.serve"):
+        before = http.post("/v1/stores/ct/render", json=body)
+        assert before.status_code == 200
+        with dask.config.set(scheduler="sync"):
+            new = hevr.encrypt_volume(np.flip(vol, 0).copy(), str(path), priv.public_key, brick=4, overwrite=True,
+                                      progress=False)
+        assert new.meta.store_id != old.meta.store_id
+        clock.t += 1.5
+        r = http.post("/v1/stores/ct/render", json=body)
+        assert r.status_code == 200, r.text
+        with TestClient(create_app({"ct": hevr.open_volume(path)})) as fresh:  # as a restarted server answers
+            assert r.content == fresh.post("/v1/stores/ct/render", json=body).content != before.content
+        (item,) = http.get("/v1/stores").json()["stores"]
+        assert (item["id"], item["name"]) == (new.meta.store_id, "ct")
+        assert http.post(f"/v1/stores/{old.meta.store_id}/render", json=body).status_code == 404
+        assert http.post(f"/v1/stores/{new.meta.store_id}/render", json=body).status_code == 200
+    assert any("re-encrypted" in r.getMessage() and new.meta.store_id in r.getMessage() for r in caplog.records)
