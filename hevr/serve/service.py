@@ -3,7 +3,11 @@ limits (:class:`Service`, on the application's ``state``), and the bounded readi
 
 * **Concurrent renders**: per token (its ``concurrent``), and for the whole server
   (``max_concurrent``): one more is a 429 with ``Retry-After``, so a client cannot queue
-  unbounded work on the cluster (:class:`Limits`).
+  unbounded work on the cluster (:class:`~hevr.serve.budget.Limits`).
+* **Cost**: every render's modular products, its pixels, step and tile, checked before any work
+  against the server's :class:`~hevr.serve.budget.Budget`; the products a token and the server
+  have in flight; a render whose client left, or at the server's shutdown (:meth:`Service.close`),
+  is cancelled on the cluster (:mod:`hevr.serve.budget`).
 * **Tokens** (:mod:`hevr.serve.tokens`): a missing or unknown token is a 401; a store the token
   may not render is a 404, as an unknown one (ids are not disclosed).
 * **Request size** (:data:`~hevr.remote.protocol.MAX_BODY`): a ``Content-Length`` above it is
@@ -13,14 +17,13 @@ limits (:class:`Service`, on the application's ``state``), and the bounded readi
 
 from __future__ import annotations
 
-import threading
-from contextlib import contextmanager
 from typing import Any
 
 from starlette.requests import Request
 
 from ..errors import ParameterError
 from ..remote.protocol import MAX_BODY, check_store_name
+from .budget import Budget, Limits
 from .problems import Problem
 from .store_watch import StoreWatch
 from .tokens import TokenTable
@@ -28,44 +31,23 @@ from .tokens import TokenTable
 __all__ = ["Limits", "Service", "read_body", "served_stores"]
 
 
-class Limits:
-    """Concurrent renders per token name and in all (thread-safe: released from render threads)."""
-
-    def __init__(self, max_concurrent: int) -> None:
-        self.max_concurrent = int(max_concurrent)
-        self.lock = threading.Lock()
-        self.running: dict[str, int] = {}
-        self.total = 0
-
-    @contextmanager
-    def slot(self, name: str, per_token: int):
-        with self.lock:
-            if self.total >= self.max_concurrent or self.running.get(name, 0) >= per_token:
-                raise Problem(429, "too many concurrent renders",
-                              f"concurrent renders: expected at most {per_token} for this token and "
-                              f"{self.max_concurrent} on this server, got one more; retry shortly",
-                              {"Retry-After": "1"})
-            self.running[name] = self.running.get(name, 0) + 1
-            self.total += 1
-        try:
-            yield
-        finally:
-            with self.lock:
-                self.running[name] -= 1
-                self.total -= 1
-
-
 class Service:
     """The served stores (by id, and their names), the Dask client, the tokens and the limits."""
 
     def __init__(self, stores: dict, *, client: Any = None, tokens: TokenTable | None = None,
-                 max_concurrent: int = 4, backend: str | None = None) -> None:
+                 max_concurrent: int = 4, backend: str | None = None, budget: Budget | None = None) -> None:
         self.stores, self.names, self.name_of = served_stores(stores)
         self.watch = StoreWatch(self.stores)  # a store rewritten on disk is opened again (re-encrypted)
         self.client = client
         self.tokens = tokens
-        self.limits = Limits(max_concurrent)
+        self.budget = budget if budget is not None else Budget.from_config()
+        self.limits = Limits(max_concurrent, self.budget)
         self.backend = backend
+
+    def close(self, timeout: float = 5.0) -> bool:
+        """The server stops: refuse new renders, cancel the running ones on the cluster and wait up
+        to ``timeout`` seconds for them to end (the app's lifespan calls it); whether they did."""
+        return self.limits.close(timeout)
 
     def who(self, request: Request) -> tuple[str, int, Any]:
         """(name, concurrent limit, token entry or None) of the request's bearer token."""
