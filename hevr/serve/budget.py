@@ -1,0 +1,209 @@
+"""The cost bound of every request of ``hevr serve``: what one render may cost, what a token and the
+server may have in flight, and the running renders' cancellation (issue 48).
+
+Checked from the request's public parameters before any work (:meth:`Budget.check`), each refusal a
+422 problem document naming the parameter and the server's option:
+
+1. ``step``: a camera's step at least ``min_step`` of the smallest voxel spacing (default 0.25: four
+   samples a voxel; a slice's samples are its slab, whatever its step);
+2. ``width, height``: at most ``max_pixels`` pixels (``--max-pixels``, default 1024² = 1 048 576,
+   four times the viewer's 512² frame; the planner's own limit allows 4096²);
+3. ``tile``: at least ``ceil(max(W, H) / 64)`` (at most 64 tiles a side, 4096 in all: a tile is a
+   task of the graph per brick it meets);
+4. ``products``: the render's modular products P (:mod:`hevr.rendering.planning.cost`:
+   P = C·c·Σ_r n_r) at most ``max_products`` (``--max-products``, default 2^33 ≈ 8.6·10^9).
+
+The default of ``max_products`` serves the viewer: a 512² trilinear frame of the 4 vector components
+through a 512×512×300 CT at step 1 takes P = 9.3·10^8 at the viewer's orbit and at most
+512²·785·8·4 = 6.6·10^9 (every ray as long as the diagonal). Refused by the defaults: a 2048² or
+4096² image (pixels), ``tile`` 1 at 256² (tile), ``step`` 10^-6 (step), a 1024² trilinear frame of
+that CT's vector channel (P ≈ 2.6·10^10).
+
+In flight (:class:`Limits`, a 429 with ``Retry-After``): the renders at once (``--max-concurrent``,
+a token's ``concurrent``), the products of one token's running renders
+(``--max-token-products``, default 2·``max_products``) and of all (``max_concurrent``·``max_products``).
+A running render holds a :class:`hevr._cancel.Scope`: a client that leaves, or the server's
+shutdown (:meth:`Limits.close`), cancels its tasks on the cluster.
+
+The settings are Dask config keys (``hevr.serve.max-products``, ``hevr.serve.max-token-products``,
+``hevr.serve.max-pixels``; ``DASK_HEVR__SERVE__MAX_PRODUCTS`` … in the environment), which the CLI's
+options set, or a :class:`Budget` given to :func:`hevr.serve.app.create_app`.
+
+>>> b = Budget.from_config()
+>>> b.max_products == 2**33 and b.token_products == 2**34 and b.max_pixels == 1024**2
+True
+>>> b.min_tile(256, 256), b.min_tile(512, 512), b.min_tile(1024, 100)
+(4, 8, 16)
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import dask
+
+from .._cancel import Scope
+from .._limits import MAX_IMAGE_PIXELS
+from .._validate import check_int
+from ..rendering.geometry.camera import Camera
+from ..rendering.planning.cost import RenderCost, request_cost
+from .problems import Problem
+
+__all__ = ["Budget", "Limits", "MAX_PRODUCTS_KEY", "MAX_PIXELS_KEY", "MAX_TOKEN_PRODUCTS_KEY"]
+
+MAX_PRODUCTS_KEY = "hevr.serve.max-products"
+MAX_TOKEN_PRODUCTS_KEY = "hevr.serve.max-token-products"
+MAX_PIXELS_KEY = "hevr.serve.max-pixels"
+DEFAULT_MAX_PRODUCTS = 2**33
+DEFAULT_MAX_PIXELS = 1024 * 1024
+MAX_PRODUCTS_CAP = 2**62
+TILES_SIDE = 64
+MIN_STEP = 0.25  # of the smallest voxel spacing
+
+
+def _setting(key: str, default: int | None, cap: int) -> int | None:
+    value = dask.config.get(key, None)
+    if value is None:
+        return default
+    if isinstance(value, str):
+        try:
+            value = float(value.strip()) if any(c in value for c in ".eE") else int(value.strip())
+        except ValueError:
+            pass
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    return check_int(key, value, 1, cap)
+
+
+@dataclass(frozen=True)
+class Budget:
+    """What one render may cost on this server (module docstring); ``max_token_products`` None:
+    twice ``max_products``."""
+
+    max_products: int = DEFAULT_MAX_PRODUCTS
+    max_pixels: int = DEFAULT_MAX_PIXELS
+    max_token_products: int | None = None
+    min_step: float = MIN_STEP
+
+    @classmethod
+    def from_config(cls) -> "Budget":
+        """The budget of the Dask config keys (module docstring), else the defaults."""
+        return cls(_setting(MAX_PRODUCTS_KEY, DEFAULT_MAX_PRODUCTS, MAX_PRODUCTS_CAP),
+                   _setting(MAX_PIXELS_KEY, DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS),
+                   _setting(MAX_TOKEN_PRODUCTS_KEY, None, MAX_PRODUCTS_CAP))
+
+    @property
+    def token_products(self) -> int:
+        return self.max_token_products if self.max_token_products is not None else 2 * self.max_products
+
+    @staticmethod
+    def min_tile(width: int, height: int) -> int:
+        return max(1, -(-max(width, height) // TILES_SIDE))
+
+    def check(self, ev: Any, req: Any) -> RenderCost:
+        """The cost of the :class:`~hevr.remote.protocol.RenderRequest` ``req`` on the store ``ev``,
+        or a 422 :class:`~hevr.serve.problems.Problem` naming the limit it passes (module docstring)."""
+        view = req.view
+        floor = self.min_step * min(ev.spacing)
+        if isinstance(view, Camera) and req.step < floor:
+            raise _over(f"step: expected at least {floor:g} on this server ({self.min_step:g} of the smallest voxel "
+                        f"spacing, {min(ev.spacing):g}), got {req.step:g}")
+        w, h = view.width, view.height
+        if w * h > self.max_pixels:
+            raise _over(f"width, height: expected an image of at most {self.max_pixels} pixels on this server "
+                        f"(--max-pixels), got {w}x{h} = {w * h} pixels")
+        if req.tile < self.min_tile(w, h):
+            raise _over(f"tile: expected at least {self.min_tile(w, h)} for a {w}x{h} image on this server (at most "
+                        f"{TILES_SIDE} tiles a side), got {req.tile}")
+        cost = request_cost(ev, view, req.channel, req.sampling, req.step, req.level)
+        if cost.products > self.max_products:
+            raise _over(f"products: expected at most {self.max_products:.3g} for one render on this server "
+                        f"(--max-products), got an estimated {cost.products:.3g} ({cost.describe()})")
+        if cost.products > self.token_products:
+            raise _over(f"products: expected at most {self.token_products:.3g} in flight for a token on this server "
+                        f"(--max-token-products), got an estimated {cost.products:.3g} for one render")
+        return cost
+
+
+def _over(detail: str) -> Problem:
+    return Problem(422, "render over the server's budget", detail)
+
+
+class Limits:
+    """What runs now: renders and their products per token name and in all, and each render's
+    cancellation :class:`~hevr._cancel.Scope` (thread-safe: released from render threads)."""
+
+    def __init__(self, max_concurrent: int, budget: Budget | None = None) -> None:
+        self.max_concurrent = int(max_concurrent)
+        self.budget = budget if budget is not None else Budget()
+        self.lock = threading.Lock()
+        self.idle = threading.Condition(self.lock)
+        self.running: dict[str, int] = {}
+        self.products: dict[str, int] = {}
+        self.total = 0
+        self.total_products = 0
+        self.scopes: set[Scope] = set()
+        self.closed = False
+
+    @contextmanager
+    def slot(self, name: str, per_token: int, products: int = 0) -> Iterator[Scope]:
+        """A render's place (a 429 when there is none now; a 503 once closed) and its scope."""
+        scope = Scope()
+        with self.lock:
+            self._admit(name, per_token, int(products))
+            self.running[name] = self.running.get(name, 0) + 1
+            self.products[name] = self.products.get(name, 0) + int(products)
+            self.total += 1
+            self.total_products += int(products)
+            self.scopes.add(scope)
+        try:
+            yield scope
+        finally:
+            with self.lock:
+                self.running[name] -= 1
+                self.products[name] -= int(products)
+                self.total -= 1
+                self.total_products -= int(products)
+                self.scopes.discard(scope)
+                self.idle.notify_all()
+
+    def _admit(self, name: str, per_token: int, products: int) -> None:
+        if self.closed:
+            raise Problem(503, "server shutting down", "render: expected a running server, got one shutting down",
+                          {"Retry-After": "5"})
+        if self.total >= self.max_concurrent or self.running.get(name, 0) >= per_token:
+            raise Problem(429, "too many concurrent renders",
+                          f"concurrent renders: expected at most {per_token} for this token and "
+                          f"{self.max_concurrent} on this server, got one more; retry shortly",
+                          {"Retry-After": "1"})
+        mine, limit = self.products.get(name, 0), self.budget.token_products
+        if mine and mine + products > limit:
+            raise Problem(429, "too much work in flight",
+                          f"products in flight: expected at most {limit:.3g} for this token (--max-token-products), "
+                          f"got {mine:.3g} running and an estimated {products:.3g} more; retry when a render ends",
+                          {"Retry-After": "5"})
+        limit = self.max_concurrent * self.budget.max_products
+        if self.total_products and self.total_products + products > limit:
+            raise Problem(429, "too much work in flight",
+                          f"products in flight: expected at most {limit:.3g} on this server (--max-concurrent × "
+                          f"--max-products), got {self.total_products:.3g} running and an estimated {products:.3g} "
+                          "more; retry when a render ends", {"Retry-After": "5"})
+
+    def close(self, timeout: float = 5.0, reason: str = "the server is shutting down") -> bool:
+        """Refuse new renders, cancel the running ones, and wait up to ``timeout`` seconds for their
+        threads to end; whether they all did."""
+        with self.lock:
+            self.closed = True
+            scopes = list(self.scopes)
+        for scope in scopes:
+            scope.cancel(reason)
+        deadline = time.monotonic() + timeout
+        with self.lock:
+            while self.total and time.monotonic() < deadline:
+                self.idle.wait(max(0.01, deadline - time.monotonic()))
+            return self.total == 0
