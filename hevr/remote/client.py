@@ -107,6 +107,11 @@ def connect(url: str, token: str | None = None, cafile: str | None = None, timeo
                   retries=retries, transport=transport)
 
 
+def _raw(r: Any) -> Iterator[bytes]:
+    """The answer's raw bytes as they come (an injected transport's answer may be read already)."""
+    return iter((r.content,)) if r.is_stream_consumed else r.iter_raw()
+
+
 def _seconds(name: str, value: Any) -> float:
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 < value <= 86400:
         raise ParameterError(f"{name}: expected seconds in (0, 86400], got {value!r}")
@@ -274,7 +279,7 @@ class Server:
     def _read(self, r: Any, limit: int, clock: Deadline, what: str) -> bytes:
         buf = bytearray()
         with clock.running():
-            for chunk in r.iter_raw():
+            for chunk in _raw(r):
                 buf += chunk
                 if len(buf) > limit:
                     raise RemoteAnswerError(f"server {self.url}: {what}: expected at most {limit} bytes, got more "
@@ -286,7 +291,7 @@ class Server:
     def _frames(self, r: Any, limit: int, clock: Deadline, what: str) -> Iterator[tuple[int, bytes]]:
         buf = bytearray()
         total = 0
-        chunks = r.iter_raw()
+        chunks = _raw(r)
         while True:
             with clock.running():
                 chunk = next(chunks, None)
