@@ -1,0 +1,195 @@
+"""Deadlines for every byte (issue 48, item 1): ``hevr serve`` closes idle, head-dribbling and
+body-dribbling connections within their deadlines, bounds the connections from one address, and
+serves an authorised client all the while (:mod:`hevr.serve.guard`).
+
+The server runs with short deadlines (idle 2 s, head 4 s, body 4 s) so the test takes seconds; the
+mechanism is the one the defaults (5, 10, 10 s) use. Bounds are "deadline + slack" with a generous
+slack for a loaded 2-core machine (the server can only be late, never early: the lower bounds hold
+anywhere); nothing here asserts speed.
+"""
+
+from __future__ import annotations
+
+import json
+import selectors
+import socket
+import sys
+import threading
+import time
+import types
+from urllib.parse import urlsplit
+
+import httpx
+import pytest
+
+import hevr
+from hevr.remote import connect
+from hevr.serve.guard import Connections, Deadlines
+from hevr.serve.tokens import hash_token, new_token
+
+IDLE, HEAD, BODY = 2.0, 4.0, 4.0
+PER_ADDRESS = 120
+SLACK = 8.0  # a loaded machine: the event loop may be late by seconds, never early
+EARLY = 0.3  # timer granularity and clock differences between the two processes
+ENV = {"DASK_HEVR__SERVE__IDLE_TIMEOUT": str(IDLE), "DASK_HEVR__SERVE__HEAD_TIMEOUT": str(HEAD),
+       "DASK_HEVR__SERVE__BODY_TIMEOUT": str(BODY), "DASK_HEVR__SERVE__PER_ADDRESS": str(PER_ADDRESS)}
+
+pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="sources 127.0.0.2-7 need Linux's loopback /8")
+
+
+def _raise_open_files(n: int) -> None:
+    resource = pytest.importorskip("resource")
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < n:
+        want = n if hard == resource.RLIM_INFINITY else min(n, hard)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+        if want < n:
+            pytest.skip(f"{n} open files needed, {want} allowed")
+
+
+@pytest.fixture(scope="module")
+def guarded(served_store, tmp_path_factory):
+    """``hevr serve`` (Dask's threaded scheduler in its process) with short deadlines and a token."""
+    from _serving import hevr_serve
+
+    d = tmp_path_factory.mktemp("deadlines")
+    token = new_token()
+    (d / "tokens.json").write_text(json.dumps({"version": 1, "tokens": [
+        {"name": "owner", "sha256": hash_token(token), "stores": ["*"], "concurrent": 2}]}))
+    with hevr_serve(str(served_store.dir / "v.zarr"), "--tokens", str(d / "tokens.json"), env=ENV) as (url, proc, lines):
+        yield types.SimpleNamespace(url=url, token=token, proc=proc, lines=lines, s=served_store)
+
+
+def _open(url: str, source: str) -> socket.socket:
+    parts = urlsplit(url)
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.bind((source, 0))
+    s.connect((parts.hostname, parts.port))
+    s.setblocking(False)
+    return s
+
+
+def _closed(s: socket.socket) -> bool:
+    """Whether the server closed ``s`` (EOF or reset); an answer's bytes are read and dropped."""
+    try:
+        while True:
+            data = s.recv(65536)
+            if not data:
+                return True
+    except BlockingIOError:
+        return False
+    except OSError:
+        return True
+
+
+def test_500_idle_and_dribbling_connections_are_closed_while_an_authorised_render_succeeds(guarded):
+    _raise_open_files(2048)
+    url, token = guarded.url, guarded.token
+    head = b"GET /v1/stores HTTP/1.1\r\nHost: x\r\nAccept: application/json\r\nX-Padding: " + b"a" * 64
+    post = b"POST /v1/stores/v/render HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 900\r\n\r\n"
+    conns = []  # [socket, kind, opened at, closed at, bytes left to dribble]
+    kinds = ("idle", "head", "body", "kept")
+    for i in range(500):
+        s = _open(url, f"127.0.0.{2 + i % 5}")  # 100 from each of five addresses: under the per-address bound
+        kind = kinds[i % 4]
+        if kind == "body":
+            s.send(post)  # a valid head, then the body a byte a second
+        elif kind == "kept":
+            s.send(b"GET /v1/stores HTTP/1.1\r\nHost: x\r\n\r\n")  # answered (401), then idle on keep-alive
+        conns.append([s, kind, time.monotonic(), None, head])
+
+    outcome: dict = {}
+
+    def authorised() -> None:  # while all 500 are open
+        t0 = time.monotonic()
+        r = httpx.get(f"{url}/v1/stores", headers={"Authorization": f"Bearer {token}"}, timeout=30)
+        outcome["stores"] = (r.status_code, time.monotonic() - t0)
+        rv = connect(url, token=token, timeout=120).open("v")
+        cam = hevr.Camera.orbit(rv, azimuth=20, width=8, height=8)
+        img = hevr.render(rv, cam, progress=False)
+        outcome["render"] = (img.decrypt(guarded.s.priv), time.monotonic() - t0)  # verified: a tagged store
+
+    worker = threading.Thread(target=authorised)
+    worker.start()
+    t_start = time.monotonic()
+    last = 0.0
+    while any(c[3] is None for c in conns) and time.monotonic() - t_start < max(HEAD, BODY) + SLACK + 5:
+        now = time.monotonic()
+        if now - last >= 1.0:  # one byte a second from every dribbler
+            last = now
+            for c in conns:
+                if c[3] is None and c[1] in ("head", "body"):
+                    try:
+                        c[0].send(c[4][:1] if c[1] == "head" else b"x")
+                        c[4] = c[4][1:] or b"a"
+                    except OSError:
+                        c[3] = time.monotonic()
+        for c in conns:
+            if c[3] is None and _closed(c[0]):
+                c[3] = time.monotonic()
+        time.sleep(0.1)
+    worker.join(180)
+    for c in conns:
+        c[0].close()
+
+    assert outcome.get("stores", (None,))[0] == 200, outcome
+    frame, took = outcome["render"]
+    print(f"authorised: stores in {outcome['stores'][1]:.2f} s, a verified 8x8 render by {took:.2f} s")
+    ref = hevr.render_plain(guarded.s.vol, hevr.Camera.orbit(guarded.s.ev, azimuth=20, width=8, height=8))
+    assert (abs(frame - ref) <= hevr.error_bound(guarded.s.ev, hevr.Camera.orbit(guarded.s.ev, azimuth=20, width=8,
+                                                                                  height=8))).all()
+    for kind, deadline in (("idle", IDLE), ("kept", IDLE), ("head", HEAD), ("body", BODY)):
+        lived = sorted(c[3] - c[2] for c in conns if c[1] == kind and c[3] is not None)
+        print(f"{kind}: closed after {lived[0]:.2f} .. {lived[-1]:.2f} s (deadline {deadline} s)")
+        assert len(lived) == 125, (kind, len(lived))  # every one closed by the server
+        assert deadline - EARLY <= lived[0] and lived[-1] <= deadline + SLACK, (kind, lived[0], lived[-1])
+
+
+def test_connections_from_one_address_are_bounded_and_a_prompt_client_gets_through(guarded):
+    _raise_open_files(1024)
+    url, token = guarded.url, guarded.token
+    idle = [_open(url, "127.0.0.7") for _ in range(PER_ADDRESS + 60)]
+    t0 = time.monotonic()
+    # the same address, a request at once: it makes room by closing the oldest waiting connection
+    transport = httpx.HTTPTransport(local_address="127.0.0.7")
+    with httpx.Client(transport=transport, timeout=30) as c:
+        r = c.get(f"{url}/v1/stores", headers={"Authorization": f"Bearer {token}"})
+    assert r.status_code == 200
+    closed: set[int] = set()
+    while time.monotonic() - t0 < IDLE - EARLY - 0.2 and len(closed) < 61:  # before any idle deadline
+        closed |= {i for i, s in enumerate(idle) if i not in closed and _closed(s)}
+        time.sleep(0.05)
+    for s in idle:
+        s.close()
+    assert len(closed) == 61, sorted(closed)  # 60 over the bound, and one for the prompt client
+    assert closed == set(range(61))  # the oldest first
+
+
+def test_the_bounds_close_the_oldest_waiting_connection_and_refuse_only_when_none_waits():
+    reg = Connections(Deadlines(per_address=2, connections=3))
+
+    class Conn:
+        def __init__(self, address: str, since: float) -> None:
+            self.address, self.since, self.waiting, self.dropped = address, since, True, False
+
+        def drop(self) -> None:
+            self.dropped = True
+            reg.remove(self)
+
+    a1, a2, a3 = Conn("a", 1), Conn("a", 2), Conn("a", 3)
+    assert reg.admit(a1) and reg.admit(a2) and reg.admit(a3)
+    assert a1.dropped and not a2.dropped and len(reg.by_address["a"]) == 2  # per address: the oldest waiting
+    b1, c1 = Conn("b", 4), Conn("c", 5)
+    assert reg.admit(b1) and reg.admit(c1)  # in all: 3; the oldest waiting anywhere (a2) made room
+    assert a2.dropped and set(reg.open) == {a3, b1, c1}
+    for c in (a3, b1, c1):
+        c.waiting = False  # all inside a request: nothing to close, the new one is refused
+    assert not reg.admit(Conn("d", 6)) and "d" not in reg.by_address and reg.closed["refused"] == 1
+
+
+@pytest.mark.parametrize("value", [0, -1, "x", float("nan"), 1e9])
+def test_deadlines_are_checked(value):
+    with pytest.raises(hevr.ParameterError, match="hevr.serve.head-timeout: expected seconds"):
+        Deadlines(head=value)
+    with pytest.raises(hevr.ParameterError, match="hevr.serve.per-address: expected a whole number"):
+        Deadlines(per_address=value if value != 1e9 else 10**7)
