@@ -20,10 +20,14 @@ Read-only: no endpoint writes a store; renders keep ray sums in memory (the rend
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import AsyncIterator
 from typing import Any
 
+import anyio
 from starlette.applications import Starlette
 
+from .budget import Budget
 from .problems import Problem, as_problem, not_found, problem, public_text
 from .routes import ROUTES
 from .service import Service
@@ -33,11 +37,21 @@ __all__ = ["Problem", "as_problem", "create_app", "problem", "public_text"]
 
 
 def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = None, max_concurrent: int = 4,
-               backend: str | None = None) -> Starlette:
+               backend: str | None = None, budget: Budget | None = None) -> Starlette:
     """The application serving ``stores`` (name -> opened :class:`hevr.EncryptedVolume`, as
     :func:`hevr.serve.run.open_stores` gives them; a key that is its store's id serves that store
-    without a name) on the Dask ``client`` (None: Dask's default scheduler in this process)."""
-    svc = Service(stores, client=client, tokens=tokens, max_concurrent=max_concurrent, backend=backend)
-    app = Starlette(routes=ROUTES, exception_handlers={404: not_found, 405: not_found})
+    without a name) on the Dask ``client`` (None: Dask's default scheduler in this process).
+    ``budget``: what one render may cost (:class:`~hevr.serve.budget.Budget`; None: the Dask config's);
+    at the app's shutdown (its lifespan) the running renders are cancelled (:meth:`Service.close`)."""
+    svc = Service(stores, client=client, tokens=tokens, max_concurrent=max_concurrent, backend=backend, budget=budget)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: Starlette) -> AsyncIterator[None]:
+        try:
+            yield
+        finally:  # Ctrl-C: renders still running are cancelled on the cluster, their threads end
+            await anyio.to_thread.run_sync(svc.close)
+
+    app = Starlette(routes=ROUTES, exception_handlers={404: not_found, 405: not_found}, lifespan=lifespan)
     app.state.service = svc
     return app
