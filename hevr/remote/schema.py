@@ -116,8 +116,17 @@ def _view_kind(value: Any) -> str:
 View = Annotated[Union[Annotated[Camera, Tag("Camera")], Annotated[Plane, Tag("Plane")]], Discriminator(_view_kind)]
 
 
+_CAMERA_EXAMPLE = {"position": [3.5, 3.5, 40.0], "focal_point": [3.5, 3.5, 3.5], "width": 8, "height": 8}
+_PLANE_EXAMPLE = {"kind": "plane", "origin": [0.0, 0.0, 3.0], "u": [1.0, 0.0, 0.0], "v": [0.0, 1.0, 0.0], "width": 8,
+                  "height": 8}
+
+
 class RenderRequest(Wire):
     """What the key holder asks to render: a view and what to sum, nothing of the colouring."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"view": _CAMERA_EXAMPLE, "channel": "scalar"},
+        {"view": _PLANE_EXAMPLE, "channel": "scalar", "sampling": "trilinear", "pack": False}]})
 
     view: View
     channel: Literal[CHANNELS]
@@ -141,6 +150,9 @@ RenderOptions = create_model("RenderOptions", __base__=Wire, **{
 
 class VerifyRequest(Wire):
     """The verification round: the render asked before and the seed drawn after holding it."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"render": {"view": _CAMERA_EXAMPLE, "channel": "scalar"}, "seed": "5e" * 32}]})
 
     render: RenderRequest
     seed: str = Field(pattern="^[0-9a-f]{64}$", description="64 lower-case hex digits (32 bytes)")
