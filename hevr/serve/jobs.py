@@ -7,13 +7,25 @@ encoded density components that emphasis and transfer functions colour on the cl
 store's frame (:mod:`hevr.rendering.packed`) is planned from the same request by the same
 :meth:`~hevr.rendering.packed.plan.SlicePlan.of_store` the key holder calls. The server never
 holds a private key; these functions take none.
+
+A render runs on a worker thread in its slot of the server's limits (:func:`run_job`): it is
+cancelled on the cluster (:class:`hevr._cancel.Scope`, :func:`hevr._dask.compute`) when its client
+leaves (:data:`CLIENT_LEFT`; polled every :data:`POLL_S` seconds), when the request's task is
+cancelled, or when the server shuts down (:meth:`hevr.serve.budget.Limits.close`).
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
-from typing import Any
+import threading
+from collections.abc import Callable
+from typing import Any, TypeVar
 
+import anyio
+from starlette.requests import Request
+
+from .. import _cancel
 from .._tiles import TileLayout
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
@@ -34,7 +46,53 @@ from ..rendering.packed.request import render_packed_request
 from ..rendering.packed.verified import aggregate_for as packed_aggregate_for
 from ..rendering.verify import aggregate_for
 
-__all__ = ["render_image", "stats_header", "verify_aggregate"]
+__all__ = ["CLIENT_LEFT", "POLL_S", "cancel_soon", "render_image", "run_job", "stats_header", "verify_aggregate"]
+
+CLIENT_LEFT = "client left"  # the reason of a render cancelled because its client went away
+POLL_S = 0.25  # how often a running render asks whether its client is still there
+T = TypeVar("T")
+
+
+def cancel_soon(job: _cancel.Scope, reason: str) -> None:
+    """Cancel ``job`` from a thread of its own (cancelling a distributed client's futures blocks on
+    that client's loop, never on the server's)."""
+    if not job.cancelled:
+        threading.Thread(target=job.cancel, args=(reason,), name="hevr-cancel", daemon=True).start()
+
+
+async def run_job(request: Request, slot: Any, work: Callable[[], T]) -> T:
+    """``work()`` on a worker thread inside ``slot`` (a :meth:`~hevr.serve.budget.Limits.slot`, entered
+    here: its 429 comes before any work), as the job of the slot's scope: cancelled when the client
+    leaves, when the awaiting task is cancelled, or when the server closes its limits; then
+    :class:`~hevr._cancel.Cancelled` with the reason (``exc.args[0]``; :data:`CLIENT_LEFT`)."""
+    job = slot.__enter__()
+
+    def thread() -> T:
+        try:
+            with _cancel.scope(job):
+                return work()
+        except Exception:
+            if job.cancelled:  # whatever the cancelled work raised: the reason
+                raise _cancel.Cancelled(job.reason) from None
+            raise
+        finally:
+            slot.__exit__(None, None, None)
+
+    async def watch() -> None:
+        while not job.cancelled:
+            await asyncio.sleep(POLL_S)
+            if await request.is_disconnected():
+                cancel_soon(job, CLIENT_LEFT)
+
+    watcher = asyncio.ensure_future(watch())
+    try:
+        return await anyio.to_thread.run_sync(thread, abandon_on_cancel=True)
+    except BaseException as exc:
+        if not isinstance(exc, Exception):  # the request's task cancelled (a shutdown): the work goes too
+            cancel_soon(job, "the request was cancelled")
+        raise
+    finally:
+        watcher.cancel()
 
 _PLACEHOLDER_DENSITY = 0.5  # make_spec wants one for a vector channel; client finishing never uses it
 
