@@ -4,17 +4,27 @@ Run where the stores and the Dask cluster are; it prints each store's name, id a
 key holder connects with ``hevr render --server URL NAME`` (or the store id) or ``hevr.connect(URL)``.
 A store is served under the name ``NAME=PATH`` gives it, else its folder's name without ``.zarr``.
 It never needs or accepts a private key.
+
+It logs one line per request to stderr (``--no-request-log``: warnings and errors only; the format:
+:mod:`hevr.serve.routes.base`, ``cluster/README.md``), re-reads ``--tokens FILE`` when it changes
+or on ``SIGHUP``, and ``--new-token NAME --tokens FILE`` adds a token to the file itself.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import logging
+import signal
 import sys
+import time
+from collections.abc import Iterator
 from typing import Any
 
 from ..errors import ParameterError
 from ..serve.run import open_stores, serve
+from ..serve.token_file import TokenFile, add_token
 from ..serve.tokens import TokenTable, hash_token, new_token
 from . import storage as st
 from .cluster import dask_client, describe_client
@@ -44,7 +54,8 @@ def serve_arguments(p: argparse.ArgumentParser) -> None:
                 "  hevr serve ct=scans/2024-ct.zarr mr=scans/mr.zarr    # served as 'ct' and 'mr'\n"
                 "  hevr serve a.zarr s3://bucket/b.zarr --scheduler tcp://10.0.0.5:8786 --host 0.0.0.0 \\\n"
                 "      --tokens tokens.json --tls-cert cert.pem --tls-key key.pem\n"
-                "  hevr serve --new-token radiology                     # a token and its tokens-file entry\n")
+                "  hevr serve --new-token radiology --tokens tokens.json  # a token; its entry added to the file\n"
+                "  kill -HUP PID                               # hevr serve's PID: read --tokens now, not in 1 s\n")
     p.add_argument("stores", metavar="STORE", nargs="*",
                    help="encrypted volume stores (paths or URLs; NAME=PATH serves one under NAME, else under its "
                         "folder's name without .zarr; names unique, of letters, digits and _.@-, not 16 hex digits)")
@@ -57,27 +68,89 @@ def serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=("auto", "cpu", "cuda-host", "cuda"), help="arithmetic backend (default auto)")
     p.add_argument("--max-concurrent", type=concurrent_type, default=4, metavar="N",
                    help="renders at once on this server (default 4; per token: its 'concurrent')")
-    p.add_argument("--new-token", metavar="NAME", help="print a fresh token and its tokens-file entry, then exit")
+    p.add_argument("--new-token", metavar="NAME",
+                   help="make a fresh token named NAME, add its entry to --tokens FILE (created if missing; mode "
+                        "0600; the other entries kept as they are; a running server reads it within a second), "
+                        "print the token once and exit (without --tokens: print the entry to add by hand)")
+    p.add_argument("--stores", dest="token_stores", nargs="+", metavar="ID", default=None,
+                   help="with --new-token: the store ids the token may render (default '*': every served store)")
+    p.add_argument("--no-request-log", dest="request_log", action="store_false",
+                   help="log warnings and errors only (default: also one line per request, on stderr)")
+
+
+def _new_token(args: Any) -> int:
+    """``--new-token NAME``: the token printed once (never logged); its entry added to ``--tokens
+    FILE`` (:func:`hevr.serve.token_file.add_token`), or printed to add by hand."""
+    if args.stores:
+        raise UsageError(f"STORE: expected none with --new-token, got {args.stores[0]!r} (--stores ID ... names the "
+                         "store ids the token may render)")
+    stores = args.token_stores or ["*"]
+    if args.tokens:
+        token, entry = add_token(args.tokens, args.new_token, stores)
+        print(f"token:  {token}")
+        print("give it to the key holder over a channel you trust (hevr.connect(URL, token=...) or HEVR_TOKEN=... "
+              "hevr render --server ...); it is not shown again.")
+        print(f"added {entry['name']!r} (stores: {', '.join(entry['stores'])}) to {args.tokens}; a running "
+              "hevr serve --tokens on that file takes it within a second")
+        return 0
+    token = new_token()
+    entry = {"name": args.new_token, "sha256": hash_token(token), "stores": stores, "concurrent": 2}
+    TokenTable.from_dict({"version": 1, "tokens": [entry]}, "--new-token")  # the name and stores are checked here
+    print(f"token:  {token}")
+    print("give it to the key holder (hevr.connect(URL, token=...) or HEVR_TOKEN=... hevr render --server ...);")
+    print("add this entry to the tokens file's \"tokens\" list (it holds the token's SHA-256 only), or run "
+          "hevr serve --new-token NAME --tokens FILE to have it added:")
+    print(json.dumps(entry))
+    return 0
+
+
+@contextlib.contextmanager
+def server_log(requests: bool) -> Iterator[None]:
+    """The server's log on stderr, each line stamped with the UTC time: the request lines
+    (``requests``) and the warnings and errors of ``hevr.serve``."""
+    logger = logging.getLogger("hevr.serve")
+    handler = logging.StreamHandler(sys.stderr)
+    fmt = logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%Y-%m-%dT%H:%M:%SZ")
+    fmt.converter = time.gmtime
+    handler.setFormatter(fmt)
+    saved = logger.level, logger.propagate
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO if requests else logging.WARNING)
+    logger.propagate = False
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(saved[0])
+        logger.propagate = saved[1]
+
+
+@contextlib.contextmanager
+def reread_on_hangup(tokens: Any) -> Iterator[None]:
+    """``SIGHUP`` reads the tokens file again (at the next request) while the block runs."""
+    if tokens is None or not hasattr(signal, "SIGHUP"):
+        yield
+        return
+    previous = signal.signal(signal.SIGHUP, lambda signum, frame: tokens.reread())
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGHUP, previous)
 
 
 def cmd_serve(args: Any) -> int:
     if args.new_token is not None:
-        token = new_token()
-        entry = {"name": args.new_token, "sha256": hash_token(token), "stores": ["*"], "concurrent": 2}
-        TokenTable.from_dict({"version": 1, "tokens": [entry]}, "--new-token")  # the name is checked here
-        print(f"token:  {token}")
-        print("give it to the key holder (hevr.connect(URL, token=...) or HEVR_TOKEN=... hevr render --server ...);")
-        print("add this entry to the tokens file's \"tokens\" list (it holds the token's SHA-256 only); narrow "
-              "\"stores\" to their ids:")
-        print(json.dumps(entry))
-        return 0
+        return _new_token(args)
+    if args.token_stores is not None:
+        raise UsageError("--stores: expected --new-token NAME with it (the tokens file says which stores a token "
+                         "may render)")
     if not args.stores:
         raise UsageError("STORE: expected at least one store to serve, got none")
     if args.scheduler and args.workers:
         raise UsageError("--scheduler/--workers: expected one of them, got both")
     if (args.tls_cert is None) != (args.tls_key is None):
         raise UsageError("--tls-cert/--tls-key: expected both or neither, got one")
-    tokens = TokenTable.load(args.tokens) if args.tokens else None
+    tokens = TokenFile(args.tokens) if args.tokens else None  # re-read when it changes (and on SIGHUP)
     stores = open_stores(args.stores, st.storage_options(args))
     if tokens is None and args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: serving on {args.host} without --tokens: anyone who reaches the port can render",
@@ -101,8 +174,9 @@ def cmd_serve(args: Any) -> int:
 
         sys.stdout.flush()
         try:
-            serve(stores, host=args.host, port=args.port, client=client, tokens=tokens, tls_cert=args.tls_cert,
-                  tls_key=args.tls_key, max_concurrent=args.max_concurrent, backend=args.backend, on_ready=ready)
+            with server_log(args.request_log), reread_on_hangup(tokens):
+                serve(stores, host=args.host, port=args.port, client=client, tokens=tokens, tls_cert=args.tls_cert,
+                      tls_key=args.tls_key, max_concurrent=args.max_concurrent, backend=args.backend, on_ready=ready)
         except KeyboardInterrupt:
             pass
     return 0

@@ -4,12 +4,19 @@ never logged), TLS with a throw-away CA, per-token limits on concurrent renders.
 from __future__ import annotations
 
 import json
+import os
+import re
+import signal
+import stat
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import pytest
 
 import hevr
+from _serving import hevr_serve, wait_until
 from hevr.remote import connect
+from hevr.serve.token_file import add_token
 from hevr.serve.tokens import TokenTable, hash_token, new_token
 
 
@@ -43,8 +50,6 @@ def test_token_table_is_strict(tmp_path):
 @pytest.fixture(scope="module")
 def secure(tmp_path_factory, keypair256):
     trustme = pytest.importorskip("trustme")
-    from _serving import hevr_serve
-
     d = tmp_path_factory.mktemp("secure")
     pub, priv = keypair256
     a = hevr.encrypt_volume(hevr.phantom(8), str(d / "a.zarr"), priv, brick=4, progress=False)
@@ -61,11 +66,11 @@ def secure(tmp_path_factory, keypair256):
     with hevr_serve(str(d / "a.zarr"), str(d / "b.zarr"), "--tokens", str(d / "tokens.json"), "--tls-cert",
                     str(d / "cert.pem"), "--tls-key", str(d / "key.pem"), "-v") as (url, proc, lines):
         assert url.startswith("https://")
-        yield url, str(d / "ca.pem"), a, b, alice, bob, priv, lines
+        yield url, str(d / "ca.pem"), a, b, alice, bob, priv, lines, proc
 
 
 def test_tls_and_tokens(secure):
-    url, ca, a, b, alice, bob, priv, lines = secure
+    url, ca, a, b, alice, bob, priv, lines, proc = secure
     ids = {s["id"] for s in connect(url, token=bob, cafile=ca).stores()}
     assert ids == {a.meta.store_id, b.meta.store_id}
     assert {s["id"] for s in connect(url, token=alice, cafile=ca).stores()} == {a.meta.store_id}
@@ -90,10 +95,10 @@ def test_tls_and_tokens(secure):
 
 
 def test_per_token_concurrency_is_429_with_retry_after(secure):
-    url, ca, a, b, alice, bob, priv, lines = secure
+    url, ca, a, b, alice, bob, priv, lines, proc = secure
 
     def one(i):
-        rv = connect(url, token=alice, cafile=ca, timeout=120).open(a.meta.store_id)
+        rv = connect(url, token=alice, cafile=ca, timeout=120, retries=0).open(a.meta.store_id)  # no retry of a 429
         try:
             hevr.render(rv, hevr.Camera.orbit(rv, azimuth=100 + i, width=24, height=24), sampling="trilinear",
                         progress=False, verify=False)
@@ -108,8 +113,109 @@ def test_per_token_concurrency_is_429_with_retry_after(secure):
 
 
 def test_logs_name_the_token_never_the_token(secure):
-    url, ca, a, b, alice, bob, priv, lines = secure
+    url, ca, a, b, alice, bob, priv, lines, proc = secure
     connect(url, token=alice, cafile=ca).stores()
+    assert wait_until(lambda: any(" GET /v1/stores 200 " in x and " alice " in x for x in lines))
     text = "\n".join(lines)
-    assert "GET /v1/stores 200 alice" in text
+    line = r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ INFO 127\.0\.0\.1 GET /v1/stores 200 \d+ alice \d+\.\d{3}$"
+    assert re.search(line, text, re.MULTILINE), text[-2000:]
     assert alice not in text and bob not in text and hash_token(alice) not in text
+
+
+def test_a_token_added_to_the_running_server_works_without_a_restart(secure, tmp_path):
+    url, ca, a, b, alice, bob, priv, lines, proc = secure
+    path = Path(ca).parent / "tokens.json"
+    before = path.read_bytes()
+    carol, entry = add_token(path, "carol", [b.meta.store_id])
+    assert path.read_bytes().startswith(before.rstrip(b"]}\n")) and stat.S_IMODE(path.stat().st_mode) == 0o600
+    assert wait_until(lambda: _ok(url, carol, ca), timeout=20)  # read again within a second of the change
+    assert {s["id"] for s in connect(url, token=carol, cafile=ca).stores()} == {b.meta.store_id}
+    path.write_bytes(before)  # carol revoked: SIGHUP reads the file at the next request (and keeps the server up)
+    os.kill(proc.pid, signal.SIGHUP)
+    assert wait_until(lambda: not _ok(url, carol, ca), timeout=20)
+    assert proc.poll() is None and _ok(url, bob, ca)
+    assert any("removed: carol" in x for x in lines)
+    assert carol not in "\n".join(lines)
+
+
+def _ok(url, token, ca):
+    try:
+        connect(url, token=token, cafile=ca, timeout=20).stores()
+        return True
+    except hevr.RemoteError as exc:
+        assert exc.status == 401
+        return False
+
+
+README_FILE = '''{"version": 1,
+ "tokens": [{"name": "radiology", "sha256": "%s", "stores": ["3f2a9c0d1e4b5a67"], "concurrent": 2},
+            {"name": "research",  "sha256": "%s", "stores": ["*"]}]}
+''' % (hash_token("r1"), hash_token("r2"))
+
+
+def test_add_token_keeps_every_other_byte(tmp_path):
+    path = tmp_path / "tokens.json"
+    path.write_text(README_FILE)
+    path.chmod(0o644)
+    token, entry = add_token(path, "carol", ["0123456789abcdef"])
+    text = path.read_text()
+    head, tail = README_FILE.rsplit("]}", 1)
+    assert text.startswith(head) and text.endswith("]}" + tail)  # the entries there, byte for byte
+    assert text[len(head):].startswith(',\n            {"name": "carol"')  # indented as the first entry
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    table = TokenTable.load(path)
+    assert [t.name for t in table.tokens] == ["radiology", "research", "carol"]
+    assert table.lookup(token).stores == {"0123456789abcdef"} and entry["sha256"] == hash_token(token)
+    assert token not in text
+    assert [p.name for p in tmp_path.iterdir()] == ["tokens.json"]  # no temporary left
+
+
+def test_add_token_creates_refuses_and_never_half_writes(tmp_path):
+    path = tmp_path / "new.json"
+    token, _ = add_token(path, "first")
+    assert TokenTable.load(path).lookup(token).name == "first" and stat.S_IMODE(path.stat().st_mode) == 0o600
+    before = path.read_bytes()
+    for name, stores, match in [("first", ["*"], "not yet in"), ("a b", ["*"], "name"), ("x", ["../etc"], "stores")]:
+        with pytest.raises(hevr.ParameterError, match=match):
+            add_token(path, name, stores)
+    assert path.read_bytes() == before
+    link = tmp_path / "link.json"
+    link.symlink_to(path)
+    with pytest.raises(hevr.ParameterError, match="symbolic link"):
+        add_token(link, "second")
+    path.chmod(0o664)
+    with pytest.raises(hevr.ParameterError, match="your group may write"):
+        add_token(path, "second")
+    path.chmod(0o600)
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(hevr.ParameterError, match="JSON"):
+        add_token(tmp_path / "bad.json", "second")
+    with pytest.raises(hevr.ParameterError, match="existing folder"):
+        add_token(tmp_path / "nowhere" / "t.json", "second")
+    open_dir = tmp_path / "open"
+    open_dir.mkdir()
+    open_dir.chmod(0o777)
+    with pytest.raises(hevr.ParameterError, match="anyone may write"):
+        add_token(open_dir / "t.json", "second")
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == \
+        ["bad.json", "link.json", "new.json", "open"]
+
+
+def test_new_token_on_the_command_line(tmp_path, capsys, caplog):
+    from hevr.cli.main import main
+
+    path = tmp_path / "tokens.json"
+    assert main(["serve", "--new-token", "radiology", "--tokens", str(path), "--stores", "3f2a9c0d1e4b5a67"]) == 0
+    out = capsys.readouterr().out
+    token = re.search(r"^token:  (\S{43})$", out, re.MULTILINE).group(1)
+    assert out.count(token) == 1 and "added 'radiology'" in out
+    assert TokenTable.load(path).lookup(token).stores == {"3f2a9c0d1e4b5a67"}
+    assert token not in caplog.text and token not in path.read_text()
+    assert main(["serve", "--new-token", "radiology", "--tokens", str(path)]) == 2  # the name is there already
+    assert "not yet in" in capsys.readouterr().err
+    assert main(["serve", "--new-token", "legacy"]) == 0  # without --tokens: the entry, to add by hand
+    out = capsys.readouterr().out
+    entry = json.loads(out.strip().splitlines()[-1])
+    assert entry["name"] == "legacy" and entry["stores"] == ["*"]
+    assert main(["serve", "vol.zarr", "--stores", "3f2a9c0d1e4b5a67"]) == 2
+    assert "--new-token" in capsys.readouterr().err
