@@ -196,6 +196,10 @@ class RemoteError(HevrError, ConnectionError):
     something that is not a valid answer: unreachable, timed out, a TLS failure, an error document,
     a forged, truncated, oversized or compressed answer. ``status`` is the HTTP status (None when
     none came) and ``problem`` the server's RFC 9457 problem document, parsed as data (or None).
+    Typed by cause (issue 48): :class:`RemoteTimeoutError`, :class:`RemoteConnectError`,
+    :class:`RemoteBusyError`, :class:`RemoteUnauthorisedError`, :class:`RemoteNotFoundError`,
+    :class:`RemoteRefusedError`, :class:`RemoteAnswerError` (an answer the key holder's checks
+    refused); this class itself for a server failure (HTTP 500) or a redirect.
 
     >>> str(RemoteError("server: expected an image, got HTTP 503 (busy)", status=503))
     'server: expected an image, got HTTP 503 (busy)'
