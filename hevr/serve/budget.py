@@ -17,7 +17,7 @@ The default of ``max_products`` serves the viewer: a 512² trilinear frame of th
 through a 512×512×300 CT at step 1 takes P = 9.3·10^8 at the viewer's orbit and at most
 512²·785·8·4 = 6.6·10^9 (every ray as long as the diagonal). Refused by the defaults: a 2048² or
 4096² image (pixels), ``tile`` 1 at 256² (tile), ``step`` 10^-6 (step), a 1024² trilinear frame of
-that CT's vector channel (P ≈ 2.6·10^10).
+that CT's vector channel close up (distance 400, the CT filling the frame: P = 1.26·10^10).
 
 In flight (:class:`Limits`, a 429 with ``Retry-After``): the renders at once (``--max-concurrent``,
 a token's ``concurrent``), the products of one token's running renders

@@ -1,0 +1,184 @@
+"""A cost bound for every request of ``hevr serve`` (issue 48, item 2): the bombs of the issue — a
+tiny ``step``, ``tile`` 1, 2048² and 4096² images — are refused from their public parameters before
+any work, with a problem document naming the limit; the viewer's 512² frame of a 512×512×300 CT
+passes the default budget; a token's products in flight are bounded. In process (Starlette's test
+client); the render itself is replaced where only its admission is under test."""
+
+from __future__ import annotations
+
+import threading
+import time
+import types
+
+import pytest
+from starlette.testclient import TestClient
+
+import hevr
+from hevr.remote.protocol import RenderRequest
+from hevr.rendering.planning.cost import ray_cost
+from hevr.serve import jobs
+from hevr.serve.app import create_app
+from hevr.serve.budget import Budget, Limits
+from hevr.serve.problems import Problem
+from hevr.serve.run import open_stores
+
+CT = (300, 512, 512)  # (nz, ny, nx)
+
+
+def _ct(vector_dims=4):
+    """A store's public face as the budget reads it: a 512×512×300 CT with 4 vector components."""
+    meta = types.SimpleNamespace(packing=None, vector=types.SimpleNamespace(dims=vector_dims), gradient=None)
+    return types.SimpleNamespace(meta=meta, shape=CT, spacing=(1.0, 1.0, 1.0), level=0)
+
+
+@pytest.fixture(scope="module")
+def app(served_store):
+    return create_app(open_stores([str(served_store.dir / "v.zarr")]))
+
+
+@pytest.fixture(scope="module")
+def http(app):
+    with TestClient(app) as c:
+        yield c
+
+
+@pytest.fixture
+def no_render(monkeypatch):
+    """Any render that starts fails the test: a refusal must come before any work."""
+    def render_image(*a, **k):
+        raise AssertionError("a refused request started a render")
+    monkeypatch.setattr("hevr.serve.routes.render.render_image", render_image)
+    monkeypatch.setattr("hevr.serve.routes.render.verify_aggregate", render_image)
+
+
+def _body(ev, w, h, **kw):
+    return {"view": hevr.Camera.orbit(ev, azimuth=5, width=w, height=h).to_dict(), "channel": "scalar", **kw}
+
+
+@pytest.mark.parametrize("w, h, kw, words", [
+    (8, 8, {"step": 1e-6}, ["step: expected at least 0.25", "got 1e-06"]),
+    (256, 256, {"tile": 1}, ["tile: expected at least 4 for a 256x256 image", "got 1"]),
+    (2048, 2048, {}, ["width, height: expected an image of at most 1048576 pixels", "--max-pixels", "2048x2048"]),
+    (4096, 4096, {}, ["--max-pixels", "4096x4096"]),
+    (8, 8, {"step": 1e-6, "sampling": "trilinear"}, ["step"]),
+])
+@pytest.mark.parametrize("endpoint", ["render", "stream"])
+def test_the_issues_bombs_are_refused_before_any_work(served_store, app, http, no_render, w, h, kw, words, endpoint):
+    t0 = time.perf_counter()
+    r = http.post(f"/v1/stores/v/{endpoint}", json=_body(served_store.ev, w, h, **kw))
+    took = time.perf_counter() - t0
+    assert r.status_code == 422 and r.headers["content-type"].startswith("application/problem+json"), r.text
+    doc = r.json()
+    assert doc["title"] == "render over the server's budget"
+    for word in words:
+        assert word in doc["detail"], doc["detail"]
+    assert took < 30, took  # milliseconds when idle; generous on a loaded machine
+    assert app.state.service.limits.total == 0
+
+
+def test_a_verify_request_has_the_same_budget(served_store, http, no_render):
+    body = {"render": _body(served_store.ev, 2048, 2048), "seed": "00" * 32}
+    r = http.post("/v1/stores/v/verify", json=body)
+    assert r.status_code == 422 and "--max-pixels" in r.json()["detail"], r.text
+
+
+def test_products_over_the_budget_name_the_limit_and_the_estimate(served_store, no_render):
+    app = create_app(open_stores([str(served_store.dir / "v.zarr")]), budget=Budget(max_products=10**5))
+    with TestClient(app) as http:
+        r = http.post("/v1/stores/v/render", json=_body(served_store.ev, 64, 64, sampling="trilinear",
+                                                         channel="vector"))
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert detail.startswith("products: expected at most 1e+05 for one render on this server (--max-products), "
+                             "got an estimated "), detail
+    assert "64x64 rays" in detail and "8 voxels a sample, 3 ciphertexts a voxel" in detail, detail
+
+
+def test_the_viewers_512_frame_of_a_ct_passes_the_default_budget():
+    b = Budget()
+    for az, el in ((30, 20), (0, 0), (45, 35), (90, 0)):
+        cam = hevr.Camera.orbit(CT, azimuth=az, elevation=el, width=512, height=512)
+        req = RenderRequest(view=cam, channel="vector", sampling="trilinear")
+        cost = b.check(_ct(), req)
+        assert cost.products <= b.max_products and cost.rays == 512 * 512
+    # every ray as long as the box's diagonal: the bound the default was sized for
+    assert 512 * 512 * 785 * 8 * 4 <= b.max_products
+    # four times the pixels, close up (the volume fills the frame): over it
+    cam = hevr.Camera.orbit(CT, azimuth=30, elevation=20, width=1024, height=1024, distance=400)
+    with pytest.raises(Problem) as err:
+        b.check(_ct(), RenderRequest(view=cam, channel="vector", sampling="trilinear", tile=32))
+    assert err.value.status == 422 and "--max-products" in err.value.detail
+
+
+def test_the_estimate_is_the_formula():
+    cam = hevr.Camera.orbit((16, 16, 16), azimuth=10, width=16, height=16)
+    near = ray_cost(cam, (16, 16, 16), (1, 1, 1), 1.0, "nearest", 1)
+    tri = ray_cost(cam, (16, 16, 16), (1, 1, 1), 1.0, "trilinear", 3)
+    half = ray_cost(cam, (16, 16, 16), (1, 1, 1), 0.5, "nearest", 1)
+    assert near.products == near.samples > 0 and tri.products == 24 * tri.samples == 24 * near.samples
+    assert 1.8 * near.samples <= half.samples <= 2.2 * near.samples + 256
+    packed = ray_cost(cam, (16, 16, 16), (1, 1, 1), 1.0, "trilinear", 1, packed=True)
+    assert packed.products == 16 * 16 * 16 * 4
+
+
+def test_a_tokens_products_in_flight_are_bounded(served_store, monkeypatch):
+    """Two renders at once from one token: the second is over the token's products in flight (429,
+    Retry-After); once the first ends, it is accepted."""
+    body = _body(served_store.ev, 16, 16)
+    one = Budget().check(served_store.ev, RenderRequest.from_dict(body)).products
+    budget = Budget(max_products=one, max_token_products=one + one // 2)
+    release, entered = threading.Event(), threading.Event()
+
+    def render_image(ev, req, *, client, backend=None, stream=None):
+        entered.set()
+        assert release.wait(60)
+        raise Problem(503, "held", "held: the test's render ends here")
+
+    monkeypatch.setattr("hevr.serve.routes.render.render_image", render_image)
+    app = create_app(open_stores([str(served_store.dir / "v.zarr")]), budget=budget)
+    with TestClient(app) as http:
+        first: dict = {}
+        t = threading.Thread(target=lambda: first.setdefault("r", http.post("/v1/stores/v/render", json=body)))
+        t.start()
+        assert entered.wait(60)
+        r = http.post("/v1/stores/v/render", json=body)
+        assert r.status_code == 429 and r.headers["retry-after"] == "5", r.text
+        assert "products in flight: expected at most" in r.json()["detail"] and "--max-token-products" in r.text
+        release.set()
+        t.join(60)
+        assert first["r"].status_code == 503 and app.state.service.limits.total == 0
+        entered.clear()
+        monkeypatch.setattr(jobs, "POLL_S", 0.05)
+        t = threading.Thread(target=lambda: first.setdefault("s", http.post("/v1/stores/v/render", json=body)))
+        t.start()
+        assert entered.wait(60)  # the slot and the products were freed: accepted
+        t.join(60)
+
+
+def test_limits_count_products_per_token_and_in_all():
+    lim = Limits(2, Budget(max_products=100, max_token_products=150))
+    with lim.slot("a", 2, 100):
+        with pytest.raises(Problem) as err:
+            with lim.slot("a", 2, 60):
+                pass
+        assert err.value.status == 429 and "for this token" in err.value.detail
+        with lim.slot("b", 2, 100):
+            assert lim.total == 2 and lim.total_products == 200
+    assert lim.total == lim.total_products == 0 and lim.products == {"a": 0, "b": 0}
+    lim = Limits(4, Budget(max_products=100))
+    with lim.slot("a", 4, 100), lim.slot("b", 4, 100), lim.slot("c", 4, 100), lim.slot("d", 4, 100):
+        with pytest.raises(Problem) as err:
+            with lim.slot("e", 4, 1):
+                pass
+    assert "--max-concurrent" in err.value.detail or "concurrent renders" in err.value.detail
+
+
+def test_the_budget_comes_from_the_dask_config():
+    import dask
+
+    with dask.config.set({"hevr.serve.max-products": "1e6", "hevr.serve.max-pixels": 4096,
+                          "hevr.serve.max-token-products": 3 * 10**6}):
+        b = Budget.from_config()
+    assert (b.max_products, b.max_pixels, b.token_products) == (10**6, 4096, 3 * 10**6)
+    with dask.config.set({"hevr.serve.max-pixels": 2**40}), pytest.raises(hevr.ParameterError, match="max-pixels"):
+        Budget.from_config()
