@@ -81,6 +81,8 @@ COMMANDS: tuple[Command, ...] = (
             ".render_arguments:pyramid_arguments", ".pyramid:cmd_pyramid"),
     Command("serve", "serve encrypted stores to key holders over HTTP(S) (renders on the cluster; no key)",
             ".serve:serve_arguments", ".serve:cmd_serve"),
+    Command("stores", "list the stores a hevr serve serves to your token (name, id, size, packed, verifiable)",
+            ".stores:stores_arguments", ".stores:cmd_stores"),
     Command("demo", "the whole pipeline on the paper's figures, no input needed",
             ".render_arguments:demo_arguments", ".demo:cmd_demo"),
     Command("bench", "benchmarks: the paper's Tables 1-3, limits, python-paillier, scaling",
