@@ -50,7 +50,7 @@ from ..volume.pyramid import MAX_LEVELS
 
 __all__ = ["BACKENDS", "CHANNELS", "MAX_DIGITS", "MAX_PIXELS", "MAX_SIDE", "MAX_STEP", "SAMPLINGS", "STORE_ID_PATTERN",
            "STORE_NAME_PATTERN", "Aggregate", "Camera", "Health", "Plane", "Problem", "RenderRequest", "Store", "Stores",
-           "VerifyRequest", "Version", "check", "components"]
+           "VerifyRequest", "Version", "check", "components", "expected", "field_table", "message"]
 
 MAX_SIDE = 4096  # pixels per image side over the wire
 MAX_PIXELS = MAX_SIDE * MAX_SIDE
@@ -83,29 +83,32 @@ Positive = Annotated[float, Field(gt=0)]
 class Camera(Wire):
     """A perspective or parallel camera (hevr.Camera.to_dict(); level 0's frame)."""
 
-    position: Vec3
-    focal_point: Vec3
-    view_up: Vec3 = _default(_Camera, "view_up")
-    view_angle: Annotated[float, Field(gt=0, lt=180, description="degrees")] = _default(_Camera, "view_angle")
-    width: Side = _default(_Camera, "width")
-    height: Side = _default(_Camera, "height")
-    parallel: bool = _default(_Camera, "parallel")
-    parallel_scale: Annotated[float, Field(gt=0, le=MAX_COORDINATE)] | None = None
+    position: Vec3 = Field(description="the eye, world (x, y, z)")
+    focal_point: Vec3 = Field(description="the point looked at")
+    view_up: Vec3 = Field(_default(_Camera, "view_up"), description="roughly up; not along the view")
+    view_angle: Annotated[float, Field(gt=0, lt=180)] = Field(_default(_Camera, "view_angle"),
+                                                              description="full vertical angle, degrees")
+    width: Side = Field(_default(_Camera, "width"), description="pixels")
+    height: Side = Field(_default(_Camera, "height"), description="pixels")
+    parallel: bool = Field(_default(_Camera, "parallel"), description="orthographic projection")
+    parallel_scale: Annotated[float, Field(gt=0, le=MAX_COORDINATE)] | None = Field(
+        None, description="half the view's height, world units (null: what the view angle sees at the focal point)")
 
 
 class Plane(Wire):
     """A slice plane (hevr.Plane.to_dict()): pixel (r, c) at origin + c·du·u + r·dv·v."""
 
-    kind: Literal["plane"]
-    origin: Vec3
-    u: Vec3
-    v: Vec3
-    width: Side
-    height: Side
-    pixel_spacing: Positive | Annotated[list[Positive], Field(min_length=1, max_length=2)] = \
-        _default(_Plane, "pixel_spacing")
-    slab: Annotated[int, Field(ge=1, le=MAX_SLAB)] = _default(_Plane, "slab")
-    slab_step: Positive = _default(_Plane, "slab_step")
+    kind: Literal["plane"] = Field(description="tells a plane from a camera")
+    origin: Vec3 = Field(description="the centre of pixel (0, 0), world (x, y, z)")
+    u: Vec3 = Field(description="the direction of increasing column")
+    v: Vec3 = Field(description="the direction of increasing row; orthogonal to u")
+    width: Side = Field(description="pixels")
+    height: Side = Field(description="pixels")
+    pixel_spacing: Positive | Annotated[list[Positive], Field(min_length=1, max_length=2)] = Field(
+        _default(_Plane, "pixel_spacing"), description="world units per pixel: du, or (du, dv)")
+    slab: Annotated[int, Field(ge=1, le=MAX_SLAB)] = Field(_default(_Plane, "slab"),
+                                                           description="parallel planes averaged per pixel")
+    slab_step: Positive = Field(_default(_Plane, "slab_step"), description="world units between the slab's planes")
 
 
 def _view_kind(value: Any) -> str:
@@ -128,15 +131,15 @@ class RenderRequest(Wire):
         {"view": _CAMERA_EXAMPLE, "channel": "scalar"},
         {"view": _PLANE_EXAMPLE, "channel": "scalar", "sampling": "trilinear", "pack": False}]})
 
-    view: View
-    channel: Literal[CHANNELS]
-    sampling: Literal[SAMPLINGS] = "nearest"
+    view: View = Field(description="a camera (level 0's frame) or a slice plane")
+    channel: Literal[CHANNELS] = Field(description="the store's channel to sum")
+    sampling: Literal[SAMPLINGS] = Field("nearest", description="how a sample reads the voxels")
     step: Annotated[float, Field(gt=0, le=MAX_STEP, description="sample spacing in world units (a plane: its "
                                                                  "slab step)")] = 1.0
     level: Annotated[int, Field(ge=0, le=MAX_LEVELS, description="pyramid level (0: the volume)")] = 0
     digits: Annotated[int, Field(ge=0, le=MAX_DIGITS, description="decimal digits of trilinear weights")] = 3
-    pack: bool = True
-    tile: Annotated[int, Field(ge=1, le=MAX_SIDE)] = 32
+    pack: bool = Field(True, description="pack many pixels per ciphertext")
+    tile: Annotated[int, Field(ge=1, le=MAX_SIDE)] = Field(32, description="image tile edge (pixels) of the reduce")
     backend: Literal[BACKENDS] | None = Field(None, description="the server's arithmetic backend (null: its default)")
     weight_bits: Annotated[int, Field(ge=0, le=MAX_WEIGHT_BITS)] | None = Field(
         None, description="a packed store's in-slice weight bits (null: the store's)")
@@ -154,7 +157,7 @@ class VerifyRequest(Wire):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"render": {"view": _CAMERA_EXAMPLE, "channel": "scalar"}, "seed": "5e" * 32}]})
 
-    render: RenderRequest
+    render: RenderRequest = Field(description="the render asked before")
     seed: str = Field(pattern="^[0-9a-f]{64}$", description="64 lower-case hex digits (32 bytes)")
 
 
@@ -311,6 +314,25 @@ def expected(s: dict) -> str:
     if kind == "object":
         return f"a {s['title']} object" if "title" in s else "a JSON object"
     return {"boolean": "true or false", "null": "null"}.get(kind, "a JSON value")
+
+
+def field_table(model: type[BaseModel]) -> str:
+    """A Markdown table of ``model``'s fields: its default (or that it is required), what it
+    accepts and what it means (docs/protocol.md holds these tables; a test keeps them current).
+
+    >>> print(field_table(Health))
+    | field | default | accepts | meaning |
+    |---|---|---|---|
+    | `status` | required | "ok" |  |
+    """
+    s = _SCHEMAS[model.__name__]
+    rows = ["| field | default | accepts | meaning |", "|---|---|---|---|"]
+    for name, prop in s["properties"].items():
+        default = "required" if name in s.get("required", ()) else f"`{json.dumps(prop.get('default'))}`"
+        said = prop.get("type") == "string" and not {"enum", "const"} & set(prop)  # the description is `accepts`
+        meaning = "" if said else prop.get("description", "")
+        rows.append(f"| `{name}` | {default} | {expected(prop)} | {meaning} |")
+    return "\n".join(rows)
 
 
 def message(exc: ValidationError, root: str, name: str) -> str:

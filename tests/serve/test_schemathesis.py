@@ -21,6 +21,7 @@ import time
 import dask
 import pytest
 import schemathesis
+from _serving import hevr_serve
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 from hypothesis.errors import Unsatisfiable
@@ -120,8 +121,6 @@ def test_schemathesis_in_process(tiny):
 
 @pytest.mark.slow
 def test_schemathesis_against_hevr_serve(tiny):
-    from _serving import hevr_serve
-
     ev, path = tiny
     env = {"DASK_HEVR__LIMITS__MAX_PIXELS": "256", "DASK_HEVR__LIMITS__MAX_SAMPLES": str(1 << 16)}
     with hevr_serve(str(path), "--workers", "1", env=env) as (url, proc, lines):
