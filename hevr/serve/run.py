@@ -37,6 +37,11 @@ else:  # pragma: no cover
 
 log = logging.getLogger("hevr.serve")
 
+#: Ctrl-C: seconds for the answers in flight before their requests are cancelled (an answer being
+#: written takes milliseconds; a render is cancelled, not waited for), and at most for the application's
+#: own shutdown after that (:class:`_Server`).
+GRACE, LIFESPAN_STOP = 1.0, 5.0
+
 __all__ = ["bind", "check_tls", "open_stores", "serve", "store_name"]
 
 
@@ -220,6 +225,22 @@ if uvicorn is not None:
                     ssl_handshake_timeout=self.handshake if config.ssl else None))
             self.started = True
 
+        async def shutdown(self, sockets: Any = None) -> None:
+            """uvicorn's shutdown (stop listening, close idle connections, wait :data:`GRACE` s for answers
+            in flight, cancel the rest, the application's lifespan shutdown: renders cancelled), with the
+            lifespan's part bounded by :data:`LIFESPAN_STOP` s, so Ctrl-C never waits on a stuck cluster."""
+            lifespan_shutdown = self.lifespan.shutdown
+
+            async def bounded() -> None:
+                try:
+                    await asyncio.wait_for(lifespan_shutdown(), LIFESPAN_STOP)
+                except asyncio.TimeoutError:
+                    log.warning("serve: the application's shutdown took over %g s; stopping without it",
+                                LIFESPAN_STOP)
+
+            self.lifespan.shutdown = bounded
+            await super().shutdown(sockets)
+
 
 def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: int = 8750, client: Any = None,
           tokens: Any = None, tls_cert: str | None = None, tls_key: str | None = None, max_concurrent: int = 4,
@@ -244,7 +265,7 @@ def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: 
         config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False, http=protocol,
                                 ssl_certfile=tls_cert, ssl_keyfile=tls_key, timeout_keep_alive=deadlines.idle,
                                 limit_concurrency=None, h11_max_incomplete_event_size=64 * 1024,
-                                timeout_graceful_shutdown=3)  # Ctrl-C: open keep-alive connections get 3 s
+                                timeout_graceful_shutdown=GRACE)
         server = _Server(config, sockets, deadlines.handshake)
     except BaseException:
         for s in sockets:
