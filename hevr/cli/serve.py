@@ -22,7 +22,10 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
+import dask
+
 from ..errors import ParameterError
+from ..serve.budget import MAX_PIXELS_KEY, MAX_PRODUCTS_KEY, MAX_TOKEN_PRODUCTS_KEY
 from ..serve.run import open_stores, serve
 from ..serve.token_file import TokenFile, add_token
 from ..serve.tokens import TokenTable, hash_token, new_token
@@ -36,6 +39,28 @@ __all__ = ["cmd_serve", "serve_arguments"]
 
 port_type = int_range(0, 65535, "a TCP port (0: any free one)")
 concurrent_type = int_range(1, 256, "1 to 256 renders at once")
+
+
+def products_type(text: str) -> int:
+    """``--max-products``, ``--max-token-products``: a count in [1, 2^62], as an integer or in
+    scientific notation (``8e9``)."""
+    try:
+        value = float(text) if any(c in text for c in ".eE") else int(text)
+    except ValueError:
+        value = 0
+    if not (1 <= value <= 2**62) or value != int(value):
+        raise argparse.ArgumentTypeError(f"expected a whole number of products in [1, 2^62] (e.g. 8e9), got {text!r}")
+    return int(value)
+
+
+pixels_type = int_range(1, 1 << 26, "a number of pixels in [1, 2^26] (e.g. 1048576 = 1024x1024)")
+
+
+def budget_config(args: Any) -> dict:
+    """The Dask config of the budget options given (:mod:`hevr.serve.budget`; absent: its defaults)."""
+    given = {MAX_PRODUCTS_KEY: args.max_products, MAX_TOKEN_PRODUCTS_KEY: args.max_token_products,
+             MAX_PIXELS_KEY: args.max_pixels}
+    return {k: v for k, v in given.items() if v is not None}
 
 
 def serve_arguments(p: argparse.ArgumentParser) -> None:
@@ -68,6 +93,14 @@ def serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=("auto", "cpu", "cuda-host", "cuda"), help="arithmetic backend (default auto)")
     p.add_argument("--max-concurrent", type=concurrent_type, default=4, metavar="N",
                    help="renders at once on this server (default 4; per token: its 'concurrent')")
+    p.add_argument("--max-products", type=products_type, metavar="N",
+                   help="modular products one render may cost, estimated before any work (default 2^33 = 8.6e9: a "
+                        "512x512 trilinear frame of a 512x512x300 CT's 4 vector components passes)")
+    p.add_argument("--max-token-products", type=products_type, metavar="N",
+                   help="products of one token's renders in flight (default twice --max-products; the server's: "
+                        "--max-concurrent times --max-products)")
+    p.add_argument("--max-pixels", type=pixels_type, metavar="N",
+                   help="pixels of one rendered image (default 1048576 = 1024x1024)")
     p.add_argument("--new-token", metavar="NAME",
                    help="make a fresh token named NAME, add its entry to --tokens FILE (created if missing; mode "
                         "0600; the other entries kept as they are; a running server reads it within a second), "
@@ -174,7 +207,7 @@ def cmd_serve(args: Any) -> int:
 
         sys.stdout.flush()
         try:
-            with server_log(args.request_log), reread_on_hangup(tokens):
+            with server_log(args.request_log), reread_on_hangup(tokens), dask.config.set(budget_config(args)):
                 serve(stores, host=args.host, port=args.port, client=client, tokens=tokens, tls_cert=args.tls_cert,
                       tls_key=args.tls_key, max_concurrent=args.max_concurrent, backend=args.backend, on_ready=ready)
         except KeyboardInterrupt:
