@@ -48,8 +48,8 @@ from ..store.metadata import CHANNELS
 from ..store.packing import MAX_WEIGHT_BITS
 from ..volume.pyramid import MAX_LEVELS
 
-__all__ = ["BACKENDS", "CHANNELS", "MAX_DIGITS", "MAX_PIXELS", "MAX_SIDE", "MAX_STEP", "SAMPLINGS", "STORE_ID_PATTERN",
-           "STORE_NAME_PATTERN", "Aggregate", "Camera", "Health", "Plane", "Problem", "RenderRequest", "Store", "Stores",
+__all__ = ["BACKENDS", "CHANNELS", "MAX_DIGITS", "MAX_PIXELS", "MAX_SIDE", "MAX_STEP", "SAMPLINGS",
+           "STORE_ID_PATTERN", "STORE_NAME_PATTERN", "Aggregate", "Camera", "Health", "Plane", "Problem", "RenderRequest", "Store", "Stores",
            "VerifyRequest", "Version", "check", "components", "expected", "field_table", "message"]
 
 MAX_SIDE = 4096  # pixels per image side over the wire

@@ -81,8 +81,9 @@ def openapi_document() -> dict[str, Any]:
         "info": {"title": "hevr serve", "version": __version__,
                  "description": "Renders Paillier-encrypted volumes for the key holder, who never sends a key. "
                                 "Requests are strict JSON (unknown fields, duplicate keys, NaN and out-of-range "
-                                "numbers refused; an integer is written as one: 1, not 1.0); answers are data only: .hevr images, length-prefixed frames of "
-                                "ciphertext records, JSON."},
+                                "numbers refused; an integer is written as one: 1, not 1.0); answers are data only: "
+                                ".hevr images, length-prefixed frames of ciphertext records, JSON. In words: "
+                                "docs/protocol.md in hevr's repository."},
         "components": {"schemas": components(),
                        "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer",
                                                       "description": "a token of the server's token table "

@@ -20,7 +20,17 @@ from starlette.testclient import TestClient
 
 import hevr
 from hevr.remote import schema
-from hevr.remote.protocol import IMAGE_MEDIA, PROBLEM_MEDIA, UNITS_MEDIA, RenderRequest, VerifyRequest, parse_json
+from hevr.image.header import MAX_INT_DIGITS
+from hevr.remote.protocol import (
+    IMAGE_MEDIA,
+    MAX_BODY,
+    MAX_JSON_DEPTH,
+    PROBLEM_MEDIA,
+    UNITS_MEDIA,
+    RenderRequest,
+    VerifyRequest,
+    parse_json,
+)
 from hevr.rendering.geometry.camera import MAX_COORDINATE
 from hevr.rendering.geometry.plane import MAX_SLAB
 from hevr.serve.app import create_app
@@ -92,6 +102,18 @@ def test_bounds_are_the_codes_own():
     for name in ("Camera", "Plane", "RenderRequest", "VerifyRequest", "Store", "Stores", "Version", "Health"):
         assert SCHEMAS[name]["additionalProperties"] is False, name
     assert SCHEMAS["Store"]["required"] == ["id", "name", "metadata"]
+
+
+def test_the_protocols_doc_has_the_models_tables():
+    """docs/protocol.md's field tables are :func:`~hevr.remote.schema.field_table`'s, between
+    ``<!-- fields: NAME -->`` and ``<!-- end fields -->`` (rewrite them from it when a model changes)."""
+    text = (ROOT / "docs" / "protocol.md").read_text(encoding="utf-8")
+    tables = dict(re.findall(r"<!-- fields: (\w+) -->\n(.*?)\n<!-- end fields -->", text, re.S))
+    assert set(tables) == {"RenderRequest", "Camera", "Plane", "VerifyRequest"}
+    for number in (MAX_BODY, MAX_INT_DIGITS, MAX_JSON_DEPTH):  # the parser's bounds, as the prose says them
+        assert f"at most {number} " in text, number
+    for name, table in tables.items():
+        assert table == schema.field_table(getattr(schema, name)), name
 
 
 def test_no_link_to_a_missing_file():
