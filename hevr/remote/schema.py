@@ -49,8 +49,9 @@ from ..store.packing import MAX_WEIGHT_BITS
 from ..volume.pyramid import MAX_LEVELS
 
 __all__ = ["BACKENDS", "CHANNELS", "MAX_DIGITS", "MAX_PIXELS", "MAX_SIDE", "MAX_STEP", "SAMPLINGS",
-           "STORE_ID_PATTERN", "STORE_NAME_PATTERN", "Aggregate", "Camera", "Health", "Plane", "Problem", "RenderRequest", "Store", "Stores",
-           "VerifyRequest", "Version", "check", "components", "expected", "field_table", "message"]
+           "STORE_ID_PATTERN", "STORE_NAME_PATTERN", "Aggregate", "Camera", "Health", "Plane", "Problem",
+           "RenderRequest", "Store", "Stores", "VerifyRequest", "Version", "check", "components", "expected",
+           "field_table", "message"]
 
 MAX_SIDE = 4096  # pixels per image side over the wire
 MAX_PIXELS = MAX_SIDE * MAX_SIDE
