@@ -38,7 +38,7 @@ from urllib.parse import urlsplit
 
 import httpx
 
-from ..errors import HevrError, ParameterError, RemoteAnswerError, RemoteBusyError, RemoteError, RemoteTimeoutError
+from ..errors import HevrError, ParameterError, RemoteAnswerError, RemoteBusyError, RemoteError
 from .failures import refusal, retry_wait, transport_failure
 from .protocol import END, MAX_BODY, PROBLEM_MEDIA, UNITS_MEDIA, check_store_name, is_store_id, parse_json, unpack_head
 from .transport import Deadline, DeadlineTransport
@@ -272,7 +272,7 @@ class Server:
         return refusal(self.url, what, r.status_code, doc, r.headers, self._token is not None, tries,
                        clock.spent())
 
-    def _late(self, what: str) -> RemoteTimeoutError:
+    def _late(self, what: str) -> RemoteError:
         return transport_failure(self.url, what, httpx.ReadTimeout("deadline"), expired=True,
                                  timeout=self.timeout, connect_timeout=self.connect_timeout)
 
