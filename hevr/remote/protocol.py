@@ -2,13 +2,16 @@
 answers as data only.
 
 Nothing that crosses the wire can carry code: requests are JSON objects checked field by field
-(unknown fields refused, every number bounded), answers are a ``.hevr`` image (its own strict
+(unknown fields refused, every number bounded) by the protocol's models, written once in
+:mod:`hevr.remote.schema` (the OpenAPI document is generated from them; docs/protocol.md says it
+in words), answers are a ``.hevr`` image (its own strict
 parser, :mod:`hevr.image.header`), length-prefixed finishing units, JSON documents and RFC 9457
 problem documents. Neither side ever unpickles what the other sends.
 
 Endpoints (``/v1``; the OpenAPI document at ``/v1/openapi.json``, :mod:`hevr.serve.openapi`)::
 
     GET  /v1                          the server's protocol version
+    GET  /v1/health                   {"status": "ok"}, no token asked
     GET  /v1/stores                   the stores this token may render: id, name and public metadata
     GET  /v1/stores/{id or name}      one store's description: its id, its served name and its
                                       public metadata (its ``hevr`` attributes)
