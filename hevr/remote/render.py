@@ -8,6 +8,9 @@ request and the store's public metadata, exactly as :func:`hevr.render` does in 
 server's ``.hevr`` answer is parsed by the format's strict reader and must agree field by field;
 only its ciphertexts are taken. So the image (and its file) is the in-process one, byte for byte,
 and a server cannot change what a frame means by editing its header.
+Any answer these checks refuse is a :class:`hevr.RemoteAnswerError` (a :class:`hevr.RemoteError`
+and an :class:`hevr.IntegrityError`: a faulty or lying server), never a busy or failed server's
+error, so that an application can tell the two apart.
 
 Verified renders: the key holder draws the seed *after* it holds the image (the server never
 sees it before it has committed to the ciphertexts) and sends it in a second request; the
