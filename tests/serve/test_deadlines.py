@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import selectors
 import socket
+import ssl
 import sys
 import threading
 import time
@@ -76,7 +77,7 @@ def _closed(s: socket.socket) -> bool:
             data = s.recv(65536)
             if not data:
                 return True
-    except BlockingIOError:
+    except (BlockingIOError, ssl.SSLWantReadError):
         return False
     except OSError:
         return True
@@ -193,3 +194,45 @@ def test_deadlines_are_checked(value):
         Deadlines(head=value)
     with pytest.raises(hevr.ParameterError, match="hevr.serve.per-address: expected a whole number"):
         Deadlines(per_address=value if value != 1e9 else 10**7)
+
+
+def test_over_tls_a_handshake_and_a_head_have_deadlines_too(served_store, tmp_path):
+    """TLS: a connection that never starts its handshake is closed at the handshake deadline (asyncio's
+    default is 60 s), an idle or head-dribbling one after its handshake as over plain HTTP."""
+    trustme = pytest.importorskip("trustme")
+    from _serving import hevr_serve
+
+    ca = trustme.CA()
+    cert = ca.issue_cert("127.0.0.1")
+    cert.cert_chain_pems[0].write_to_path(str(tmp_path / "cert.pem"))
+    cert.private_key_pem.write_to_path(str(tmp_path / "key.pem"))
+    ca.cert_pem.write_to_path(str(tmp_path / "ca.pem"))
+    env = dict(ENV, DASK_HEVR__SERVE__HANDSHAKE_TIMEOUT="3")
+    with hevr_serve(str(served_store.dir / "v.zarr"), "--tls-cert", str(tmp_path / "cert.pem"), "--tls-key",
+                    str(tmp_path / "key.pem"), env=env) as (url, proc, lines):
+        context = ssl.create_default_context(cafile=str(tmp_path / "ca.pem"))
+        conns = []
+        for i in range(60):
+            s = _open(url, f"127.0.0.{2 + i % 3}")
+            kind = ("raw", "idle", "head")[i % 3]
+            if kind != "raw":
+                s.setblocking(True)
+                s = context.wrap_socket(s, server_hostname="127.0.0.1")
+                s.setblocking(False)
+                if kind == "head":
+                    s.send(b"GET /v1/stores HTTP/1.1\r\n")
+            conns.append([s, kind, time.monotonic(), None])
+        r = httpx.get(f"{url}/v1/stores", verify=context, timeout=30)  # no token needed here: 200
+        assert r.status_code == 200
+        t0 = time.monotonic()
+        while any(c[3] is None for c in conns) and time.monotonic() - t0 < HEAD + SLACK + 2:
+            for c in conns:
+                if c[3] is None and _closed(c[0]):
+                    c[3] = time.monotonic()
+            time.sleep(0.1)
+        for c in conns:
+            c[0].close()
+    for kind, deadline in (("raw", 3.0), ("idle", IDLE), ("head", HEAD)):
+        lived = sorted(c[3] - c[2] for c in conns if c[1] == kind and c[3] is not None)
+        assert len(lived) == 20, (kind, len(lived))
+        assert deadline - EARLY <= lived[0] and lived[-1] <= deadline + SLACK, (kind, lived[0], lived[-1])
