@@ -75,6 +75,11 @@ class TokenFile:
             key = None  # load says what is wrong
         self.table = TokenTable.load(self.path)
         self._key, self._failed, self._checked, self._asked = key, None, clock(), False
+        mode = os.stat(self.path).st_mode
+        if mode & 0o022:
+            log.warning("tokens: %s may be written by %s (mode %04o): whoever writes it may grant themselves a "
+                        "token; chmod go-w it", self.path, "anyone" if mode & 0o002 else "your group",
+                        stat.S_IMODE(mode))
 
     @property
     def tokens(self) -> tuple:
@@ -113,8 +118,8 @@ class TokenFile:
                 return False
             try:
                 table = TokenTable.load(self.path)
-            except HevrError as exc:
-                self._fail(key, str(exc))
+            except (HevrError, OSError, ValueError) as exc:  # whatever it is, the table in force stays
+                self._fail(key, str(exc) if isinstance(exc, HevrError) else f"{type(exc).__name__}: {exc}")
                 return False
             old = {t.name for t in self.table.tokens}
             new = {t.name for t in table.tokens}

@@ -187,3 +187,12 @@ def test_a_store_re_encrypted_under_the_server_is_opened_again(store, tmp_path, 
         assert http.post(f"/v1/stores/{old.meta.store_id}/render", json=body).status_code == 404
         assert http.post(f"/v1/stores/{new.meta.store_id}/render", json=body).status_code == 200
     assert any("re-encrypted" in r.getMessage() and new.meta.store_id in r.getMessage() for r in caplog.records)
+
+
+def test_a_tokens_file_others_may_write_is_warned_of(tmp_path, caplog):
+    path = tmp_path / "t.json"
+    _tokens(path, alice=new_token())
+    path.chmod(0o666)
+    with caplog.at_level(logging.WARNING, logger="hevr.serve"):
+        TokenFile(path)
+    assert any("anyone" in r.getMessage() and "chmod go-w" in r.getMessage() for r in caplog.records)
