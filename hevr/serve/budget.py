@@ -194,7 +194,7 @@ class Limits:
                           f"--max-products), got {self.total_products:.3g} running and an estimated {products:.3g} "
                           "more; retry when a render ends", {"Retry-After": "5"})
 
-    def close(self, timeout: float = 5.0, reason: str = "the server is shutting down") -> bool:
+    def close(self, timeout: float = 5.0, reason: str = "the server is shutting down") -> bool:  # jobs.SHUTDOWN
         """Refuse new renders, cancel the running ones, and wait up to ``timeout`` seconds for their
         threads to end; whether they all did."""
         with self.lock:

@@ -46,9 +46,10 @@ from ..rendering.packed.request import render_packed_request
 from ..rendering.packed.verified import aggregate_for as packed_aggregate_for
 from ..rendering.verify import aggregate_for
 
-__all__ = ["CLIENT_LEFT", "POLL_S", "cancel_soon", "render_image", "run_job", "stats_header", "verify_aggregate"]
+__all__ = ["CLIENT_LEFT", "POLL_S", "SHUTDOWN", "cancel_soon", "render_image", "run_job", "stats_header", "verify_aggregate"]
 
 CLIENT_LEFT = "client left"  # the reason of a render cancelled because its client went away
+SHUTDOWN = "the server is shutting down"  # the reason of a render cancelled as the server stops
 POLL_S = 0.25  # how often a running render asks whether its client is still there
 T = TypeVar("T")
 
@@ -63,8 +64,8 @@ def cancel_soon(job: _cancel.Scope, reason: str) -> None:
 async def run_job(request: Request, slot: Any, work: Callable[[], T]) -> T:
     """``work()`` on a worker thread inside ``slot`` (a :meth:`~hevr.serve.budget.Limits.slot`, entered
     here: its 429 comes before any work), as the job of the slot's scope: cancelled when the client
-    leaves, when the awaiting task is cancelled, or when the server closes its limits; then
-    :class:`~hevr._cancel.Cancelled` with the reason (``exc.args[0]``; :data:`CLIENT_LEFT`)."""
+    leaves, when the server cancels the awaiting task or closes its limits (:data:`SHUTDOWN`); then
+    :class:`~hevr._cancel.Cancelled` with the reason (``exc.args[0]``: :data:`CLIENT_LEFT`, ...)."""
     job = slot.__enter__()
 
     def thread() -> T:
@@ -87,10 +88,9 @@ async def run_job(request: Request, slot: Any, work: Callable[[], T]) -> T:
     watcher = asyncio.ensure_future(watch())
     try:
         return await anyio.to_thread.run_sync(thread, abandon_on_cancel=True)
-    except BaseException as exc:
-        if not isinstance(exc, Exception):  # the request's task cancelled (a shutdown): the work goes too
-            cancel_soon(job, "the request was cancelled")
-        raise
+    except asyncio.CancelledError:  # the server cancels its requests' tasks as it stops: the work goes too,
+        cancel_soon(job, SHUTDOWN)  # and the client is told so (a 503, not a dropped connection)
+        raise _cancel.Cancelled(SHUTDOWN) from None
     finally:
         watcher.cancel()
 
