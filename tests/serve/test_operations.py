@@ -10,11 +10,13 @@ import os
 import re
 
 import dask
+import httpx
 import numpy as np
 import pytest
 from starlette.testclient import TestClient
 
 import hevr
+from _serving import hevr_serve, wait_until
 from hevr.serve.app import create_app
 from hevr.serve.token_file import TokenFile
 from hevr.serve.tokens import TokenTable, hash_token, new_token
@@ -196,3 +198,19 @@ def test_a_tokens_file_others_may_write_is_warned_of(tmp_path, caplog):
     with caplog.at_level(logging.WARNING, logger="hevr.serve"):
         TokenFile(path)
     assert any("anyone" in r.getMessage() and "chmod go-w" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_hevr_serve_logs_each_request_by_default(store, quiet):
+    d, _ = store
+    with hevr_serve(str(d / "ct.zarr"), *(["--no-request-log"] if quiet else [])) as (url, proc, lines):
+        assert httpx.get(f"{url}/v1/health", timeout=30).json() == {"status": "ok"}
+        httpx.get(f"{url}/v1/stores", timeout=30)
+        seen = wait_until(lambda: any(" GET /v1/stores " in x for x in lines), timeout=2 if quiet else 30)
+    stamp = r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ INFO "
+    logged = [x for x in lines if re.match(stamp, x)]
+    if quiet:
+        assert not seen and not logged, lines
+    else:
+        assert re.fullmatch(stamp + r"127\.0\.0\.1 GET /v1/health 200 15 - \d+\.\d{3}", logged[0]), lines
+        assert re.fullmatch(stamp + r"127\.0\.0\.1 GET /v1/stores 200 \d+ anonymous \d+\.\d{3}", logged[1]), lines
