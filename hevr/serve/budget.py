@@ -10,7 +10,7 @@ Checked from the request's public parameters before any work (:meth:`Budget.chec
    four times the viewer's 512² frame; the planner's own limit allows 4096²);
 3. ``tile``: at least ``ceil(max(W, H) / 64)`` (at most 64 tiles a side, 4096 in all: a tile is a
    task of the graph per brick it meets);
-4. ``products``: the render's modular products P (:mod:`hevr.rendering.planning.cost`:
+4. ``products``: the render's modular products P (:func:`hevr.rendering.planning.request.request_cost`:
    P = C·c·Σ_r n_r) at most ``max_products`` (``--max-products``, default 2^33 ≈ 8.6·10^9).
 
 The default of ``max_products`` serves the viewer: a 512² trilinear frame of the 4 vector components
@@ -51,7 +51,7 @@ from .._cancel import Scope
 from .._limits import MAX_IMAGE_PIXELS
 from .._validate import check_int
 from ..rendering.geometry.camera import Camera
-from ..rendering.planning.cost import RenderCost, request_cost
+from ..rendering.planning.request import RenderCost, request_cost
 from .problems import Problem
 
 __all__ = ["Budget", "Limits", "MAX_PRODUCTS_KEY", "MAX_PIXELS_KEY", "MAX_TOKEN_PRODUCTS_KEY"]

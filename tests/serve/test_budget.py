@@ -15,7 +15,7 @@ from starlette.testclient import TestClient
 
 import hevr
 from hevr.remote.protocol import RenderRequest
-from hevr.rendering.planning.cost import ray_cost
+from hevr.rendering.planning.request import ray_cost
 from hevr.serve import jobs
 from hevr.serve.app import create_app
 from hevr.serve.budget import Budget, Limits

@@ -3,24 +3,60 @@
 
 The checked :class:`~hevr.rendering.planning.modes.RenderSpec` is passed inward; nothing below asks
 the user's arguments again.
+
+**Cost.** What a request costs, from public parameters alone, before any work (:func:`request_cost`).
+
+``hevr serve`` refuses a request whose cost is above its budget (:mod:`hevr.serve.budget`); the
+unit is one *product*: a (ciphertext, public weight) pair the map kernel multiplies into a ray's
+accumulator (:mod:`hevr.rendering.pipeline.kernel`; a nearest pair is one modular multiplication
+mod n², a trilinear pair of 10-bit weights about 2.4 after the kernel's bucketing).
+
+A per-voxel store, a view (camera or plane) at pyramid level L:
+
+.. math::
+
+    P = C \\cdot c \\cdot \\sum_r n_r
+
+with n_r the samples of ray r (:func:`~hevr.rendering.geometry.rays.cast_rays` at ``step·2^L``
+through level L's voxel-centre box; a plane's pixel: its slab), c the voxels one sample reads
+(nearest 1, trilinear 8) and C the ciphertexts per voxel of the channel (scalar 1, vector and
+gradient their ``dims``). The kernel merges the pairs of a voxel that consecutive samples share,
+so P bounds the pairs from above. A packed store takes one sample per slice, at most
+N = max(nz, ny, nx) of them, and bilinear sampling in the slice reads 4 voxels (c = 1 or 4):
+P = C·c·R·N for R pixels, again an upper bound (one packed product serves S rays).
+
+Counting costs the per-pixel arrays of :func:`cast_rays` (memory linear in the pixels), so the
+server bounds the pixels first. A 512² frame through a 512×512×300 CT (unit spacing, step 1),
+trilinear, the vector channel's 4 components (the viewer's emphasis): at the viewer's orbit
+(azimuth 30°, elevation 20°) 2.90·10^7 samples, P = 9.29·10^8; with every ray as long as the
+box's diagonal (785 samples) P = 512²·785·8·4 = 6.58·10^9.
+
+>>> from hevr.rendering.geometry.camera import Camera
+>>> cam = Camera.orbit((300, 512, 512), azimuth=30, elevation=20, width=512, height=512)
+>>> c = ray_cost(cam, (300, 512, 512), (1, 1, 1), 1.0, "trilinear", 4)
+>>> c.rays, c.samples, c.products
+(262144, 29028505, 928912160)
+>>> c.describe()
+'512x512 rays, 2.9e+07 samples, 8 voxels a sample, 4 ciphertexts a voxel'
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..._validate import check_choice, check_int
+from ..._validate import check_choice, check_int, check_shape
 from ...errors import ParameterError
 from ...image.checks import FINISHES
 from ...store.reader import EncryptedVolume
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
+from ..geometry.rays import cast_rays
 from .modes import RenderSpec, make_spec
 
-__all__ = ["FINISHES", "at_level", "check_request", "level_step"]
+__all__ = ["FINISHES", "RenderCost", "at_level", "check_request", "level_step", "ray_cost", "request_cost"]
 
 
 def check_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: Any, density: Any, nodes: Any,
@@ -61,3 +97,56 @@ def level_step(spec: RenderSpec, ev: EncryptedVolume, view: Camera | Plane) -> R
     if not ev.level or isinstance(view, Plane):
         return spec
     return dataclasses.replace(spec, step=spec.step * 2**ev.level)
+
+
+VOXELS_PER_SAMPLE = {"nearest": 1, "trilinear": 8}
+PACKED_VOXELS_PER_SAMPLE = {"nearest": 1, "trilinear": 4}  # bilinear within the slice
+
+
+class RenderCost(NamedTuple):
+    """A render's products ``P = components · per_sample · samples`` (module docstring)."""
+
+    width: int
+    height: int
+    samples: int  # Σ_r n_r (a packed store: R·N)
+    per_sample: int  # c
+    components: int  # C
+    products: int
+
+    @property
+    def rays(self) -> int:
+        return self.width * self.height
+
+    def describe(self) -> str:
+        """The formula's factors, for a message."""
+        return (f"{self.width}x{self.height} rays, {self.samples:.2g} samples, {self.per_sample} voxel"
+                f"{'s' if self.per_sample > 1 else ''} a sample, {self.components} ciphertext"
+                f"{'s' if self.components > 1 else ''} a voxel")
+
+
+def ray_cost(view: Camera | Plane, shape: Any, spacing: Any, step: float, sampling: str, components: int,
+             packed: bool = False) -> RenderCost:
+    """The cost of ``view`` through a volume of ``shape`` (nz, ny, nx) and ``spacing`` at ``step``
+    (world units of this volume), ``components`` ciphertexts a voxel; ``packed``: a packed store's
+    public bound R·N (module docstring)."""
+    w, h = view.width, view.height
+    if packed and isinstance(view, Camera):
+        samples = w * h * max(check_shape(shape))
+        c = PACKED_VOXELS_PER_SAMPLE[sampling]
+    else:
+        counts = cast_rays(view, shape, spacing, step).n_samples
+        samples = int(counts.sum(dtype=np.float64)) if counts.size else 0
+        c = VOXELS_PER_SAMPLE[sampling]
+    return RenderCost(w, h, samples, c, int(components), int(components) * c * samples)
+
+
+def request_cost(ev: Any, view: Camera | Plane, channel: str, sampling: str, step: float,
+                 level: int | None = None) -> RenderCost:
+    """The cost of rendering ``channel`` of the store ``ev`` (an opened store: per-voxel or packed)
+    as ``view`` at ``level`` (``step`` in level 0's world units, as :func:`hevr.render` takes it)."""
+    ev_l, view_l = at_level(ev, view, level or None)
+    if isinstance(view_l, Camera) and ev_l.level:
+        step = step * 2**ev_l.level  # a level is sampled in its own voxels (level_step)
+    info = getattr(ev.meta, channel, None) if channel != "scalar" else None
+    components = int(getattr(info, "dims", 1) or 1)
+    return ray_cost(view_l, ev_l.shape, ev_l.spacing, step, sampling, components, ev.meta.packing is not None)
