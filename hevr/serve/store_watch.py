@@ -11,7 +11,9 @@ when its inode, size or modification time changed, the store is opened again
 (:func:`hevr.open_volume`) and served under the same name: its new id from then on, the old id no
 longer (a token lists ids: give it the new one). A store resident on the workers
 (``hevr serve --persist``) is made resident again. A new version that cannot be opened yet (still
-being written) is logged, and the old handle stays until the file changes again.
+being written) is logged, and the old handle stays until the file changes again. A brick that
+fails its check has every store looked at by the next request (:meth:`StoreWatch.soon`), so a
+render that came within the second after a rewrite costs one failed request at most.
 
 Only stores on a local (or mounted) filesystem are watched; a store behind a URL (``s3://``, ...)
 is served as opened: restart ``hevr serve`` after re-encrypting it.
@@ -66,6 +68,11 @@ class StoreWatch:
         self._key = {sid: _key(ev.path) for sid, ev in stores.items()}
         self._checked = {sid: clock() for sid in stores}
         self._failed: dict[str, tuple] = {}
+
+    def soon(self) -> None:
+        """Look at every store at the next request, whenever it comes (a brick just failed its
+        check: its store may have been rewritten a moment ago)."""
+        self._checked = dict.fromkeys(self._checked, float("-inf"))
 
     def refresh(self, svc: Any, sids: Any = None) -> None:
         """Open again every store of ``svc`` (a :class:`~hevr.serve.service.Service`; ``sids``:

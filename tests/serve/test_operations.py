@@ -179,8 +179,10 @@ def test_a_store_re_encrypted_under_the_server_is_opened_again(store, tmp_path, 
             new = hevr.encrypt_volume(np.flip(vol, 0).copy(), str(path), priv.public_key, brick=4, overwrite=True,
                                       progress=False)
         assert new.meta.store_id != old.meta.store_id
-        clock.t += 1.5
-        r = http.post("/v1/stores/ct/render", json=body)
+        other = {"view": hevr.Camera.orbit(old, azimuth=50, width=6, height=5).to_dict(), "channel": "scalar"}
+        within = http.post("/v1/stores/ct/render", json=other)  # within the second: the old handle's digests
+        assert within.status_code == 500 and "digest mismatch" in within.text, within.text  # (the 500)
+        r = http.post("/v1/stores/ct/render", json=body)  # the failed check had the store looked at: opened again
         assert r.status_code == 200, r.text
         with TestClient(create_app({"ct": hevr.open_volume(path)})) as fresh:  # as a restarted server answers
             assert r.content == fresh.post("/v1/stores/ct/render", json=body).content != before.content

@@ -27,6 +27,7 @@ from starlette.requests import ClientDisconnect, Request
 from starlette.responses import Response
 from starlette.types import Message, Receive, Scope, Send
 
+from ...errors import CorruptStoreError
 from ..problems import as_problem
 from ..service import Service
 
@@ -106,6 +107,8 @@ def endpoint(fn: Callable[[Request, Caller], Awaitable[Response]], *, public: bo
             log_line(request, CLIENT_LEFT, 0, name, time.perf_counter() - t0, "client left")
             return Response(status_code=CLIENT_LEFT)
         except Exception as exc:  # every failure is a problem document
+            if isinstance(exc, CorruptStoreError):  # rewritten under the server? looked at by the next request
+                service(request).watch.soon()
             response = as_problem(exc).response()
         return _Logged(response, request, name, t0)
     handler.__name__ = handler.__qualname__ = fn.__name__
