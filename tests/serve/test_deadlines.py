@@ -28,12 +28,13 @@ from hevr.remote import connect
 from hevr.serve.guard import Connections, Deadlines
 from hevr.serve.tokens import hash_token, new_token
 
-IDLE, HEAD, BODY = 2.0, 4.0, 4.0
+IDLE, HEAD, BODY, SEND = 2.0, 4.0, 4.0, 2.0
 PER_ADDRESS = 120
 SLACK = 8.0  # a loaded machine: the event loop may be late by seconds, never early
 EARLY = 0.3  # timer granularity and clock differences between the two processes
 ENV = {"DASK_HEVR__SERVE__IDLE_TIMEOUT": str(IDLE), "DASK_HEVR__SERVE__HEAD_TIMEOUT": str(HEAD),
-       "DASK_HEVR__SERVE__BODY_TIMEOUT": str(BODY), "DASK_HEVR__SERVE__PER_ADDRESS": str(PER_ADDRESS)}
+       "DASK_HEVR__SERVE__BODY_TIMEOUT": str(BODY), "DASK_HEVR__SERVE__PER_ADDRESS": str(PER_ADDRESS),
+       "DASK_HEVR__SERVE__SEND_TIMEOUT": str(SEND)}
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="sources 127.0.0.2-7 need Linux's loopback /8")
 
@@ -164,6 +165,30 @@ def test_connections_from_one_address_are_bounded_and_a_prompt_client_gets_throu
         s.close()
     assert len(closed) == 61, sorted(closed)  # 60 over the bound, and one for the prompt client
     assert closed == set(range(61))  # the oldest first
+
+
+def test_a_client_that_stops_reading_its_answers_is_cut_off(guarded):
+    """300 pipelined requests for the OpenAPI document (19 KB each), none of the answers read, a 4 KiB
+    receive buffer: the server's write buffer fills, and SEND s later the connection is cut."""
+    auth = {"Authorization": f"Bearer {guarded.token}"}
+    one = len(httpx.get(f"{guarded.url}/v1/openapi.json", headers=auth, timeout=30).content)
+    assert one > 10_000
+    parts = urlsplit(guarded.url)
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    s.connect((parts.hostname, parts.port))
+    s.sendall(f"GET /v1/openapi.json HTTP/1.1\r\nHost: x\r\nAuthorization: {auth['Authorization']}\r\n\r\n".encode()
+              * 300)
+    time.sleep(SEND + 4.0)  # the deadline, and time to fill the buffers first
+    s.settimeout(30)
+    got = 0
+    try:
+        while data := s.recv(1 << 16):
+            got += len(data)
+    except ConnectionResetError:
+        pass
+    s.close()
+    assert got < 0.9 * 300 * one, (got, 300 * one)  # without the deadline: all 300 answers, then the idle close
 
 
 def test_the_bounds_close_the_oldest_waiting_connection_and_refuse_only_when_none_waits():
