@@ -87,17 +87,13 @@ def test_the_request_log_line(store, tmp_path, caplog):
     assert alice not in text and "nope" not in text and "secret" not in text and hash_token(alice) not in text
 
 
-def test_a_stream_whose_client_left_is_logged_as_such(caplog):
+def _stream_line(chunks, caplog, leave: bool) -> str:
+    """The log line of a stream of ``chunks()`` whose client leaves after 0.2 s (``leave``) or stays."""
     import anyio
     from starlette.requests import Request
     from starlette.responses import StreamingResponse
 
     from hevr.serve.routes.base import endpoint
-
-    async def chunks():
-        yield b"abcd"
-        await anyio.sleep(30)
-        yield b"never"
 
     async def fn(request, caller):
         return StreamingResponse(chunks())
@@ -105,25 +101,47 @@ def test_a_stream_whose_client_left_is_logged_as_such(caplog):
     scope = {"type": "http", "method": "POST", "path": "/v1/stores/x/stream", "raw_path": b"/v1/stores/x/stream",
              "query_string": b"", "headers": [], "client": ("10.0.0.7", 5000), "asgi": {"spec_version": "2.3"}}
     messages = [{"type": "http.request", "body": b"", "more_body": False}, {"type": "http.disconnect"}]
-    sent = []
 
     async def receive():
         if len(messages) == 1:
-            await anyio.sleep(0.2)  # the client leaves after the first unit
+            await anyio.sleep(0.2 if leave else 60)
         return messages.pop(0)
 
     async def send(message):
-        sent.append(message)
+        pass
 
     async def run():
-        handler = endpoint(fn, public=True)
-        response = await handler(Request(scope, receive, send))
+        response = await endpoint(fn, public=True)(Request(scope, receive, send))
         await response(scope, receive, send)
 
     with caplog.at_level(logging.INFO, logger="hevr.serve"):
-        anyio.run(run)
+        try:
+            anyio.run(run)
+        except RuntimeError:
+            pass
     (line,) = [rec.getMessage() for rec in caplog.records if rec.name == "hevr.serve"]
+    return line
+
+
+def test_a_stream_whose_client_left_is_logged_as_such(caplog):
+    import anyio
+
+    async def chunks():
+        yield b"abcd"
+        await anyio.sleep(30)
+        yield b"never"
+
+    line = _stream_line(chunks, caplog, leave=True)
     assert re.fullmatch(r"10\.0\.0\.7 POST /v1/stores/x/stream 499 4 - \d+\.\d{3} client left", line), line
+
+
+def test_a_stream_the_server_broke_off_is_logged_as_failed(caplog):
+    async def chunks():
+        yield b"abcdef"
+        raise RuntimeError("a bug")
+
+    line = _stream_line(chunks, caplog, leave=False)
+    assert re.fullmatch(r"10\.0\.0\.7 POST /v1/stores/x/stream 500 6 - \d+\.\d{3} failed", line), line
 
 
 def test_tokens_are_read_again_when_the_file_changes(store, tmp_path, caplog):

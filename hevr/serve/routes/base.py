@@ -13,7 +13,8 @@ method, the path (percent-encoded as sent, no query string, at most 200 characte
 the body bytes sent, the token's *name* (``-``: none asked, as on ``/v1/health``; ``anonymous``:
 a server without tokens; never a token), the seconds from the request to its last byte, and an
 optional note: ``client left`` when the client went away before the whole answer (status 499,
-as nginx logs it; the bytes are those sent until then).
+as nginx logs it; the bytes are those sent until then), ``failed`` when the server broke the
+answer off (status 500; an ERROR line says why).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import time
 from collections.abc import Awaitable, Callable
 from typing import Any, NamedTuple
 
+import anyio
 from starlette.requests import ClientDisconnect, Request
 from starlette.responses import Response
 from starlette.types import Message, Receive, Scope, Send
@@ -84,13 +86,18 @@ class _Logged:
                 done = done or not message.get("more_body", False)
             await send(message)
 
+        failed: BaseException | None = None
         try:
             await self.response(scope, receive, counted)
-        finally:  # an answer cut short (a stream whose client went away, a failed send) is a client that left
+        except BaseException as exc:
+            failed = exc
+            raise
+        finally:  # cut short by a client that went away (a failed send included), or by the server's own failure
+            left = failed is None or isinstance(failed, (ClientDisconnect, OSError, anyio.get_cancelled_exc_class()))
             if self.request.method == "HEAD":
                 sent = 0
-            log_line(self.request, status if done else CLIENT_LEFT, sent, self.name, time.perf_counter() - self.t0,
-                     "" if done else "client left")
+            code, note = (status, "") if done else (CLIENT_LEFT, "client left") if left else (500, "failed")
+            log_line(self.request, code, sent, self.name, time.perf_counter() - self.t0, note)
 
 
 def endpoint(fn: Callable[[Request, Caller], Awaitable[Response]], *, public: bool = False) -> Callable:
