@@ -11,7 +11,6 @@ anywhere); nothing here asserts speed.
 from __future__ import annotations
 
 import json
-import selectors
 import socket
 import ssl
 import sys
