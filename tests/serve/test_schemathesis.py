@@ -8,10 +8,11 @@ ones the document declares for the operation; every failure is a problem documen
 schema (most still fail the domain checks or the planner: a 4xx naming the field, never a 5xx);
 negative cases break the schema and must be refused (4xx).
 
-What it costs: the in-process pass (the app under Starlette's test client, an 8³ phantom under
-a 256-bit key, no cluster: Dask's synchronous scheduler, the planner capped at 256 pixels) takes
-a few seconds; the pass against a real ``hevr serve`` subprocess (one worker) about 15-30 s on a
-loaded 2-core machine, marked ``slow``. Both are derandomised: the same cases every run.
+What it costs (:data:`EXAMPLES` cases per operation and mode, about 500 requests a pass): the
+in-process pass (the app under Starlette's test client, an 8³ phantom under a 256-bit key, no
+cluster: Dask's synchronous scheduler, the planner capped at 256 pixels) about 5-10 s; the pass
+against a real ``hevr serve`` subprocess (one worker, the same caps) about 10-20 s, marked
+``slow``; measured on a loaded 2-core machine. Both are derandomised: the same cases every run.
 """
 
 from __future__ import annotations
@@ -102,6 +103,7 @@ def run(schema, stores: list[str], counts: dict) -> None:
                 assert mode.is_negative, op.label
 
 
+@pytest.mark.timeout(300)
 def test_schemathesis_in_process(tiny):
     ev, path = tiny
     app = create_app({"tiny": hevr.open_volume(str(path))})
@@ -110,9 +112,7 @@ def test_schemathesis_in_process(tiny):
     t0 = time.perf_counter()
     with dask.config.set({"scheduler": "sync", **LIMITS}):
         run(schema, ["tiny", ev.meta.store_id], counts)
-    seconds = time.perf_counter() - t0
-    assert seconds < 120, seconds
-    print(f"{seconds:.1f} s", counts)
+    print(f"{time.perf_counter() - t0:.1f} s", counts)
     answered = {code for c in counts.values() for code in c}
     # the run reached past the store lookup: renders answered, and bodies refused by name
     assert 200 in answered and 400 in answered and 404 in answered, counts
@@ -120,6 +120,7 @@ def test_schemathesis_in_process(tiny):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_schemathesis_against_hevr_serve(tiny):
     ev, path = tiny
     env = {"DASK_HEVR__LIMITS__MAX_PIXELS": "256", "DASK_HEVR__LIMITS__MAX_SAMPLES": str(1 << 16)}
