@@ -70,7 +70,8 @@ class Wire(BaseModel):
 
 
 def _default(cls: type, name: str) -> Any:
-    """The default of dataclass ``cls``'s field ``name`` (the object's own, not a copy of it)."""
+    """The default of dataclass ``cls``'s field ``name`` as JSON has it (a tuple as a list): the
+    wire's defaults are the objects' own, never a second copy of them."""
     f = next(f for f in fields(cls) if f.name == name)
     return list(f.default) if isinstance(f.default, tuple) else None if f.default is MISSING else f.default
 
