@@ -281,15 +281,16 @@ def add_decrypt_colour_options(p: argparse.ArgumentParser) -> None:
                    help="the store's value range (hevr info STORE), for a --tf preset: a frame does not record it")
 
 
-def add_server_option(p: argparse.ArgumentParser) -> None:
+def add_server_option(p: argparse.ArgumentParser, server_help: str | None = None) -> None:
     """``--server URL`` / ``--cafile`` / ``--timeout`` / ``--connect-timeout``: render on ``hevr serve`` (STORE is then the name or id it
     serves the store under; ``--key`` verifies the answer); the token comes from the environment
-    (``HEVR_TOKEN``), never the command line (other users see it)."""
+    (``HEVR_TOKEN``), never the command line (other users see it). ``server_help``: another
+    command's words for ``--server`` (``hevr stores``)."""
     g = p.add_argument_group("render server (hevr serve)")
-    g.add_argument("--server", metavar="URL", help="render on this hevr serve (http(s)://host:port) as its key holder: "
-                   "STORE is then the name (or store id) it printed; with --key KEY.json the answer is verified "
-                   "here; the token comes from the environment variable HEVR_TOKEN; nothing the server sends is "
-                   "run or unpickled")
+    g.add_argument("--server", metavar="URL", help=server_help or "render on this hevr serve (http(s)://host:port) as "
+                   "its key holder: STORE is then the name (or store id) it printed; with --key KEY.json the answer "
+                   "is verified here; the token comes from the environment variable HEVR_TOKEN; nothing the server "
+                   "sends is run or unpickled")
     g.add_argument("--cafile", metavar="PEM", help="CA bundle to trust for an https --server")
     g.add_argument("--timeout", type=float, default=600.0, metavar="S",
                    help="seconds for each whole exchange with the server: connecting, the answer's head and body, "

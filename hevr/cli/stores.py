@@ -30,7 +30,8 @@ __all__ = ["cmd_stores", "describe", "stores_arguments"]
 def stores_arguments(p: argparse.ArgumentParser) -> None:
     """``hevr stores``: its description, examples and arguments."""
     add_general_options(p, dask=False)
-    add_server_option(p)
+    add_server_option(p, "the hevr serve to ask (http(s)://host:port; required); the token comes from the "
+                         "environment variable HEVR_TOKEN")
     p.description = wrap("List the stores a render server (hevr serve) serves to your token: name, id, size, "
                          "per-voxel or packed, verifiable or not, channels, pyramid levels and the key's "
                          "fingerprint. The token comes from the environment variable HEVR_TOKEN.")
