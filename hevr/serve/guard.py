@@ -193,6 +193,10 @@ class GuardedH11Protocol(H11Protocol):
 
     def on_response_complete(self) -> None:
         super().on_response_complete()  # arms the keep-alive timer (timeout_keep_alive_handler)
+        if self.transport.is_closing():  # closed after this answer: its unsent bytes get the send deadline
+            if self.transport.get_write_buffer_size() and self._stall is None:
+                self._stall = self.loop.call_later(self.registry.deadlines.send, self._expire, "send")
+            return
         self._enter()
 
     def pause_writing(self) -> None:
