@@ -345,7 +345,7 @@ class Server:
     # -- the API --------------------------------------------------------------------
     def stores(self) -> list[dict]:
         """The stores this token may render: ``[{"id", "name", "shape", "channels", "tags", ...}]``
-        summarised from each store's public metadata (checked as :meth:`open` checks it); ``name``:
+        (``shape`` in ``rv.shape``'s order, z, y, x, as :attr:`hevr.EncryptedVolume.shape`) summarised from each store's public metadata (checked as :meth:`open` checks it); ``name``:
         the name it is served under (None: by id only)."""
         doc = self.get_json("/v1/stores", limit=MAX_STORES_BYTES)
         items = doc.get("stores")
@@ -354,7 +354,7 @@ class Server:
         out = []
         for item in items:
             sid, meta = parse_description(item, self.url)
-            out.append({"id": sid, "name": parse_name(item, self.url), "shape": tuple(meta.shape[::-1]),
+            out.append({"id": sid, "name": parse_name(item, self.url), "shape": tuple(meta.shape),
                         "spacing": meta.spacing,
                         "channels": [c for c in ("scalar", "vector", "gradient") if getattr(meta, c) is not None],
                         "levels": len(meta.levels), "tags": bool(meta.tags), "fingerprint": meta.fingerprint})

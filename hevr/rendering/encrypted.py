@@ -342,8 +342,9 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     H, W = camera.height, camera.width
     layout = TileLayout(W, H, tile)
     n_tiles = layout.n_tiles
-    key = (ev.path, ev.meta.store_id, ev.meta.fingerprint, ev.level, camera.key(), spec.sampling, spec.step,
-           plan.weight_digits, plan.channel, tile)
+    # the metadata's own MAC too: a store written again at the same path (hevr serve reopens it) misses
+    key = (ev.path, ev.meta.store_id, ev.meta.auth, ev.meta.fingerprint, ev.level, camera.key(), spec.sampling,
+           spec.step, plan.weight_digits, plan.channel, tile)
     sums = _cached(key, cl) if cache else None
     reused = sums is not None
     finish = FinishGraph.plan_units(plan, layout, rays.n_samples, int(ev.public_key.n), backend)

@@ -30,6 +30,7 @@ def test_open_describes_the_store(served, rv):
     assert rv.meta == served.ev.meta and rv.shape == served.ev.shape and rv.levels == 1
     (item,) = rv.server.stores()
     assert item["id"] == served.ev.meta.store_id and item["tags"] and item["channels"] == ["scalar", "vector"]
+    assert item["shape"] == rv.shape  # one order for sizes: rv.shape's (z, y, x), issue 48
     assert _cam(rv) == _cam(served.ev)
     with pytest.raises(hevr.ParameterError, match="persist"):
         rv.persist()
