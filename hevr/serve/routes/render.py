@@ -34,7 +34,7 @@ log = logging.getLogger("hevr.serve")
 __all__ = ["ROUTES"]
 
 
-async def _checked(request: Request, svc: Service, ev: Any, req: RenderRequest) -> int:
+async def _checked(svc: Service, ev: Any, req: RenderRequest) -> int:
     """The request's products, or its refusal by the server's budget (on a thread: it casts the rays)."""
     return (await anyio.to_thread.run_sync(svc.budget.check, ev, req)).products
 
@@ -60,7 +60,7 @@ async def render(request: Request, caller: Caller) -> Response:
     svc = service(request)
     ev = svc.store(request, caller.token)
     req = RenderRequest.from_dict(parse_json(await read_body(request), "body"))
-    products = await _checked(request, svc, ev, req)
+    products = await _checked(svc, ev, req)
 
     def run() -> tuple[bytes, str, str]:
         img = render_image(ev, req, client=svc.client, backend=svc.backend)
@@ -83,7 +83,7 @@ async def stream(request: Request, caller: Caller) -> Response:
     if ev.meta.packing is not None:
         raise Problem(400, "bad request", f"stream: expected a per-voxel store, got the packed store "
                                           f"{ev.meta.store_id} (its frame comes whole from /render)")
-    products = await _checked(request, svc, ev, req)
+    products = await _checked(svc, ev, req)
     loop = asyncio.get_running_loop()
     queue: asyncio.Queue = asyncio.Queue()
     slot = svc.limits.slot(caller.name, caller.per_token, products)
@@ -101,9 +101,9 @@ async def stream(request: Request, caller: Caller) -> Response:
             with scope(job):
                 img = render_image(ev, req, client=svc.client, backend=svc.backend, stream=Sink())
             end = {"ok": True, "stats": stats_header(img.stats)}
-        except Exception as exc:
-            end = (_cancelled(request, caller, job.reason) if job.cancelled else as_problem(exc))
-            end = end.document() if isinstance(end, Problem) else {"detail": CLIENT_LEFT}
+        except Exception as exc:  # the end frame says why (a client that left reads nothing more)
+            answer = _cancelled(request, caller, job.reason) if job.cancelled else as_problem(exc)
+            end = answer.document() if isinstance(answer, Problem) else {"ok": False, "detail": CLIENT_LEFT}
         finally:
             slot.__exit__(None, None, None)
         loop.call_soon_threadsafe(queue.put_nowait, pack_frame(END, json.dumps(end).encode()))
@@ -128,7 +128,7 @@ async def verify(request: Request, caller: Caller) -> Response:
     svc = service(request)
     ev = svc.store(request, caller.token)
     vr = VerifyRequest.from_dict(parse_json(await read_body(request), "body"))
-    products = await _checked(request, svc, ev, vr.render)
+    products = await _checked(svc, ev, vr.render)
 
     def run() -> int:
         return verify_aggregate(ev, vr.render, vr.seed, client=svc.client, backend=svc.backend)
