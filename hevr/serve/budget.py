@@ -194,6 +194,11 @@ class Limits:
                           f"--max-products), got {self.total_products:.3g} running and an estimated {products:.3g} "
                           "more; retry when a render ends", {"Retry-After": "5"})
 
+    def open(self) -> None:
+        """Admit renders again (an application started anew after a :meth:`close`)."""
+        with self.lock:
+            self.closed = False
+
     def close(self, timeout: float = 5.0, reason: str = "the server is shutting down") -> bool:  # jobs.SHUTDOWN
         """Refuse new renders, cancel the running ones, and wait up to ``timeout`` seconds for their
         threads to end; whether they all did."""
