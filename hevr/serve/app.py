@@ -47,6 +47,7 @@ def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = 
 
     @contextlib.asynccontextmanager
     async def lifespan(app: Starlette) -> AsyncIterator[None]:
+        svc.limits.open()
         try:
             yield
         finally:  # Ctrl-C: renders still running are cancelled on the cluster, their threads end
