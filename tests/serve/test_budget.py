@@ -182,3 +182,29 @@ def test_the_budget_comes_from_the_dask_config():
     assert (b.max_products, b.max_pixels, b.token_products) == (10**6, 4096, 3 * 10**6)
     with dask.config.set({"hevr.serve.max-pixels": 2**40}), pytest.raises(hevr.ParameterError, match="max-pixels"):
         Budget.from_config()
+
+
+def test_limits_close_cancels_the_running_and_refuses_until_opened():
+    lim = Limits(2)
+    jobs_seen: list = []
+
+    def hold():
+        with lim.slot("a", 2, 1) as job:
+            jobs_seen.append(job)
+            job.wait(60)
+
+    t = threading.Thread(target=hold)
+    t.start()
+    for _ in range(600):
+        if lim.total:
+            break
+        time.sleep(0.05)
+    assert lim.close(timeout=60) and jobs_seen[0].cancelled and lim.total == 0
+    t.join(60)
+    with pytest.raises(Problem) as err:
+        with lim.slot("a", 2, 1):
+            pass
+    assert err.value.status == 503
+    lim.open()
+    with lim.slot("a", 2, 1) as job:
+        assert not job.cancelled
