@@ -10,6 +10,10 @@ limits). What each limit answers:
 * **Strict JSON** (:func:`~hevr.remote.protocol.parse_json`, :class:`~hevr.remote.protocol.RenderRequest`):
   unknown fields, duplicate keys, NaN, 40-digit integers, deep nesting and out-of-range sizes are
   400s before any work; the render's own planner (pixels, samples, overflow) is the second line.
+* **Cost**: every render's step, pixels, tile and modular products against the server's budget
+  (422s before any work), the products a token and the server have in flight (429s); a render
+  whose client left, or at shutdown (the lifespan), is cancelled on the cluster
+  (:mod:`hevr.serve.budget`, :func:`hevr.serve.jobs.run_job`).
 * **Errors** are RFC 9457 problem documents naming the parameter; an unexpected failure says only
   "internal error" (the server's log has the traceback), so the answer never carries the server's
   internals (:mod:`hevr.serve.problems`). The log holds method, path, status and the token's
