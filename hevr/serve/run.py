@@ -2,6 +2,19 @@
 
 The CLI (:mod:`hevr.cli.serve`) parses the arguments; this module does the work so that a Python
 program can serve too (:func:`serve`). Nothing here reads a private key: the server has none.
+
+* **Before anything starts** the TLS files are loaded once (:func:`check_tls`: missing, not PEM,
+  swapped, encrypted, or a key of another certificate) and the sockets are bound (:func:`bind`: a
+  host that does not resolve or is not this machine's, a port out of range, in use or privileged);
+  each failure is one :class:`~hevr.errors.ParameterError` naming the option (``hevr serve`` exit 2),
+  never uvicorn's own line, ``[SSL] PEM lib`` or exit 3.
+* **Every connection** keeps the deadlines of :mod:`hevr.serve.guard` (idle, head, body, send,
+  TLS handshake; connections per address and in all).
+* **Ctrl-C** (or SIGTERM): the sockets stop listening, idle connections close, answers in flight
+  get :data:`GRACE` (1 s), then their requests are cancelled and the application's shutdown runs
+  (renders cancelled there), for at most :data:`LIFESPAN_STOP` (5 s). Measured with a render in
+  flight: 1.2-2.1 s to exit on Dask's threaded scheduler, 2.2-3.0 s with a 2-worker cluster
+  (3.9-6.2 s before, with uvicorn's 3 s grace).
 """
 
 from __future__ import annotations
