@@ -10,6 +10,9 @@ import threading
 import time
 import types
 
+import dask
+
+import numpy as np
 import pytest
 from starlette.testclient import TestClient
 
@@ -174,8 +177,6 @@ def test_limits_count_products_per_token_and_in_all():
 
 
 def test_the_budget_comes_from_the_dask_config():
-    import dask
-
     with dask.config.set({"hevr.serve.max-products": "1e6", "hevr.serve.max-pixels": 4096,
                           "hevr.serve.max-token-products": 3 * 10**6}):
         b = Budget.from_config()
@@ -208,3 +209,26 @@ def test_limits_close_cancels_the_running_and_refuses_until_opened():
     lim.open()
     with lim.slot("a", 2, 1) as job:
         assert not job.cancelled
+
+
+def test_a_level_costs_its_own_samples_and_a_packed_store_its_slices(served_store, keypair256, tmp_path):
+    ev = served_store.ev
+    cam = hevr.Camera.orbit(ev, azimuth=5, width=16, height=16)
+    full = Budget().check(ev, RenderRequest(view=cam, channel="scalar", level=0))
+    half = Budget().check(ev, RenderRequest(view=cam, channel="scalar", level=1))
+    assert 0 < half.samples < full.samples  # step·2 through a level of half the voxels
+    _, priv = keypair256
+    vol = np.random.default_rng(3).integers(0, 256, (13, 9, 11)).astype(np.uint8)
+    pk = hevr.encrypt_volume(vol, str(tmp_path / "p.zarr"), priv, brick=4, spacing=(1.0, 0.8, 1.3),
+                             layout="packed", progress=False)
+    cam = hevr.Camera.orbit(pk, azimuth=60, elevation=10, width=14, height=11, parallel=True)
+    for sampling, c in (("nearest", 1), ("trilinear", 4)):
+        cost = Budget().check(pk, RenderRequest(view=cam, channel="scalar", sampling=sampling, tile=4))
+        assert cost.products == 14 * 11 * 13 * c
+    app = create_app({"p": hevr.open_volume(str(tmp_path / "p.zarr"))})
+    with TestClient(app) as http:
+        body = {"view": cam.to_dict(), "channel": "scalar", "sampling": "trilinear", "tile": 4}
+        assert http.post("/v1/stores/p/render", json=body).status_code == 200
+        r = http.post("/v1/stores/p/render", json=dict(body, tile=1, view=hevr.Camera.orbit(
+            pk, azimuth=60, width=128, height=128, parallel=True).to_dict()))
+        assert r.status_code == 422 and r.json()["detail"].startswith("tile: expected at least 2"), r.text
