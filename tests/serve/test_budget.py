@@ -11,7 +11,6 @@ import time
 import types
 
 import dask
-
 import numpy as np
 import pytest
 from starlette.testclient import TestClient
