@@ -232,6 +232,10 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     ``steps`` (in ``unit``, e.g. the ciphertexts of an encryption): the tasks report finer
     progress with :func:`hevr._cancel.add_steps`, shown with a rate and the time left; tasks on
     a ``distributed`` worker send it as the worker's ``hevr-steps`` events.
+
+    In a job's :class:`hevr._cancel.Scope` (:func:`hevr._cancel.scope`), cancelling the scope
+    cancels these futures, or starts none of the remaining tasks on the threaded scheduler, and
+    this raises :class:`hevr._cancel.Cancelled` (``hevr serve``'s render whose client left).
     """
     job = _cancel.current()  # a job of its own (hevr serve's render): cancellable alone
     if job is None:
