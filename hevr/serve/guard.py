@@ -35,7 +35,8 @@ bound. A deadline per phase of the exchange, not per read, is what bounds a drib
 these few hooks on uvicorn's protocol (``connection_made``, ``data_received``,
 ``on_response_complete``, ``pause_writing``), which h11's connection state makes exact. With this
 protocol every one of 500 such connections is closed within its deadline while an authorised
-render succeeds (tests/serve/test_deadlines.py).
+render succeeds (tests/serve/test_deadlines.py; run with uvicorn 0.54 and 0.29, the oldest the
+``serve`` extra allows). The h11 protocol serves whether or not httptools is installed.
 """
 
 from __future__ import annotations
