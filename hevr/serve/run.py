@@ -55,7 +55,7 @@ log = logging.getLogger("hevr.serve")
 #: own shutdown after that (:class:`_Server`).
 GRACE, LIFESPAN_STOP = 1.0, 5.0
 
-__all__ = ["bind", "check_tls", "open_stores", "serve", "store_name"]
+__all__ = ["bind", "check_listen", "check_tls", "open_stores", "serve", "store_name"]
 
 
 def store_name(spec: str) -> tuple[str, str]:
@@ -176,6 +176,23 @@ def bind(host: str, port: int) -> list[socket.socket]:
             s.close()
         raise
     return socks
+
+
+def check_listen(host: str, port: int, tls_cert: str | None = None, tls_key: str | None = None) -> None:
+    """What :func:`serve` checks before it starts (:func:`check_tls`, :func:`bind`), for a caller that
+    wants the answer before it starts a cluster; the port is bound and released again.
+
+    >>> check_listen("127.0.0.1", 0)
+    >>> check_listen("127.0.0.1", 70000)
+    Traceback (most recent call last):
+    hevr.errors.ParameterError: --port: expected a TCP port from 0 to 65535, got 70000
+    """
+    if (tls_cert is None) != (tls_key is None):
+        raise ParameterError("--tls-cert/--tls-key: expected both or neither, got one")
+    if tls_cert is not None:
+        check_tls(tls_cert, tls_key)
+    for s in bind(host, port):
+        s.close()
 
 
 def _bind_error(exc: OSError, host: str, port: int) -> ParameterError:
