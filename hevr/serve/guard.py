@@ -118,19 +118,16 @@ class Connections:
 
     def admit(self, conn: GuardedH11Protocol) -> bool:
         """Whether ``conn`` may stay open; makes room by closing the oldest waiting connection."""
-        mine = self.by_address.setdefault(conn.address, {})
-        for pool, bound, what in ((mine, self.deadlines.per_address, "from one address"),
-                                  (self.open, self.deadlines.connections, "in all")):
+        for bound, what in ((self.deadlines.per_address, "from one address"), (self.deadlines.connections, "in all")):
+            pool = self.open if what == "in all" else self.by_address.get(conn.address, {})
             if len(pool) >= bound:
                 waiting = [c for c in pool if c.waiting]
                 if not waiting:
                     self._note("refused", f"{bound} connections {what} (all inside a request)", conn.address)
-                    if not mine:
-                        del self.by_address[conn.address]
                     return False
                 self._note("evicted", f"{bound} connections {what}", conn.address)
-                min(waiting, key=lambda c: c.since).drop()
-        mine[conn] = None
+                min(waiting, key=lambda c: c.since).drop()  # removes it from both pools
+        self.by_address.setdefault(conn.address, {})[conn] = None
         self.open[conn] = None
         return True
 

@@ -210,6 +210,10 @@ def test_the_bounds_close_the_oldest_waiting_connection_and_refuse_only_when_non
     for c in (a3, b1, c1):
         c.waiting = False  # all inside a request: nothing to close, the new one is refused
     assert not reg.admit(Conn("d", 6)) and "d" not in reg.by_address and reg.closed["refused"] == 1
+    one = reg = Connections(Deadlines(per_address=1))  # a dropped Conn leaves this registry now
+    first, second = Conn("e", 1), Conn("e", 2)
+    assert one.admit(first) and one.admit(second) and first.dropped
+    assert list(one.by_address["e"]) == [second] and list(one.open) == [second]
 
 
 @pytest.mark.parametrize("value", [0, -1, "x", float("nan"), 1e9])
