@@ -10,11 +10,10 @@ program can serve too (:func:`serve`). Nothing here reads a private key: the ser
   never uvicorn's own line, ``[SSL] PEM lib`` or exit 3.
 * **Every connection** keeps the deadlines of :mod:`hevr.serve.guard` (idle, head, body, send,
   TLS handshake; connections per address and in all).
-* **Ctrl-C** (or SIGTERM): the sockets stop listening, idle connections close, answers in flight
-  get :data:`GRACE` (1 s), then their requests are cancelled and the application's shutdown runs
-  (renders cancelled there), for at most :data:`LIFESPAN_STOP` (5 s). Measured with a render in
-  flight: 1.2-2.1 s to exit on Dask's threaded scheduler, 2.2-3.0 s with a 2-worker cluster
-  (3.9-6.2 s before, with uvicorn's 3 s grace).
+* **Ctrl-C** (or SIGTERM): the sockets stop listening, idle connections close, and the
+  application's shutdown runs at once (renders cancelled there, their requests answer 503), for at
+  most :data:`LIFESPAN_STOP` (5 s); a request still running :data:`GRACE` (1 s) after that is
+  cancelled (:class:`_Server`).
 """
 
 from __future__ import annotations
@@ -50,9 +49,9 @@ else:  # pragma: no cover
 
 log = logging.getLogger("hevr.serve")
 
-#: Ctrl-C: seconds for the answers in flight before their requests are cancelled (an answer being
-#: written takes milliseconds; a render is cancelled, not waited for), and at most for the application's
-#: own shutdown after that (:class:`_Server`).
+#: Ctrl-C: at most LIFESPAN_STOP seconds for the application's shutdown (it cancels the running renders
+#: and waits for their threads), and GRACE seconds more for the answers in flight before their requests
+#: are cancelled (an answer being written takes milliseconds) (:class:`_Server`).
 GRACE, LIFESPAN_STOP = 1.0, 5.0
 
 __all__ = ["bind", "check_listen", "check_tls", "open_stores", "serve", "store_name"]
@@ -256,20 +255,35 @@ if uvicorn is not None:
             self.started = True
 
         async def shutdown(self, sockets: Any = None) -> None:
-            """uvicorn's shutdown (stop listening, close idle connections, wait :data:`GRACE` s for answers
-            in flight, cancel the rest, the application's lifespan shutdown: renders cancelled), with the
-            lifespan's part bounded by :data:`LIFESPAN_STOP` s, so Ctrl-C never waits on a stuck cluster."""
-            lifespan_shutdown = self.lifespan.shutdown
-
-            async def bounded() -> None:
-                try:
-                    await asyncio.wait_for(lifespan_shutdown(), LIFESPAN_STOP)
-                except asyncio.TimeoutError:
-                    log.warning("serve: the application's shutdown took over %g s; stopping without it",
-                                LIFESPAN_STOP)
-
-            self.lifespan.shutdown = bounded
-            await super().shutdown(sockets)
+            """Stop: no more connections, idle ones closed, then the application's shutdown at once
+            (its running renders are cancelled, and their requests answer 503) while the answers in
+            flight are written; a request still running after :data:`GRACE` s more than that
+            shutdown took (at most :data:`LIFESPAN_STOP` s) is cancelled. uvicorn's own order waits
+            for the requests before the application hears of the shutdown, so a render's client got
+            no answer and Ctrl-C waited on the render. A second Ctrl-C stops at once."""
+            for server in self.servers:
+                server.close()
+            for connection in list(self.server_state.connections):
+                connection.shutdown()
+            app_stop = asyncio.ensure_future(asyncio.wait_for(self.lifespan.shutdown(), LIFESPAN_STOP))
+            t0 = asyncio.get_running_loop().time()
+            while self.server_state.tasks and not self.force_exit:
+                now = asyncio.get_running_loop().time()
+                if (app_stop.done() and now - t0 >= GRACE) or now - t0 >= GRACE + LIFESPAN_STOP:
+                    break
+                await asyncio.sleep(0.05)
+            if self.server_state.tasks:
+                log.warning("serve: stopping; %d request(s) still running cancelled", len(self.server_state.tasks))
+                for task in list(self.server_state.tasks):
+                    task.cancel()
+            if self.force_exit:
+                app_stop.cancel()
+            try:
+                await app_stop
+            except asyncio.TimeoutError:
+                log.warning("serve: the application's shutdown took over %g s; stopping without it", LIFESPAN_STOP)
+            except asyncio.CancelledError:
+                pass
 
 
 def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: int = 8750, client: Any = None,
