@@ -220,7 +220,7 @@ def _room_for(deadlines: Deadlines) -> Deadlines:
         try:
             resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
             soft = want
-        except (ValueError, OSError):  # pragma: no cover - not allowed here
+        except (ValueError, OSError):  # not allowed here
             pass
         if soft < need:
             fit = max(16, soft - 256)

@@ -264,3 +264,21 @@ def test_over_tls_a_handshake_and_a_head_have_deadlines_too(served_store, tmp_pa
         lived = sorted(c[3] - c[2] for c in conns if c[1] == kind and c[3] is not None)
         assert len(lived) == 20, (kind, len(lived))
         assert deadline - EARLY <= lived[0] and lived[-1] <= deadline + SLACK, (kind, lived[0], lived[-1])
+
+
+def test_the_connection_bound_fits_the_open_files_limit(monkeypatch, caplog):
+    """With 300 open files allowed and no way to raise it, the server takes 44 connections (256 are
+    kept for the stores, the cluster and the log), and says so."""
+    resource = pytest.importorskip("resource")
+    from hevr.serve import run
+
+    def refuse(*args):
+        raise ValueError("not allowed")
+
+    monkeypatch.setattr(resource, "getrlimit", lambda which: (300, 300))
+    monkeypatch.setattr(resource, "setrlimit", refuse)
+    with caplog.at_level("WARNING", logger="hevr.serve"):
+        fitted = run._room_for(Deadlines())
+    assert (fitted.connections, fitted.per_address) == (44, 44)
+    assert "at most 44 connections (not 1024)" in caplog.text
+    assert run._room_for(Deadlines(connections=40)) == Deadlines(connections=40)  # room enough: as it was
