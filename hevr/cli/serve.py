@@ -26,7 +26,7 @@ import dask
 
 from ..errors import ParameterError
 from ..serve.budget import MAX_PIXELS_KEY, MAX_PRODUCTS_KEY, MAX_TOKEN_PRODUCTS_KEY
-from ..serve.run import open_stores, serve
+from ..serve.run import check_listen, open_stores, serve
 from ..serve.token_file import TokenFile, add_token
 from ..serve.tokens import TokenTable, hash_token, new_token
 from . import storage as st
@@ -183,6 +183,7 @@ def cmd_serve(args: Any) -> int:
         raise UsageError("--scheduler/--workers: expected one of them, got both")
     if (args.tls_cert is None) != (args.tls_key is None):
         raise UsageError("--tls-cert/--tls-key: expected both or neither, got one")
+    check_listen(args.host, args.port, args.tls_cert, args.tls_key)  # TLS files, host, port: before a cluster starts
     tokens = TokenFile(args.tokens) if args.tokens else None  # re-read when it changes (and on SIGHUP)
     stores = open_stores(args.stores, st.storage_options(args))
     if tokens is None and args.host not in ("127.0.0.1", "localhost", "::1"):
