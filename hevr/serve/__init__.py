@@ -9,11 +9,13 @@ with data only. It never needs or accepts a private key, and no endpoint writes 
 :mod:`hevr.serve.routes`        the endpoints, one module per resource (meta, stores, render)
 :mod:`hevr.serve.service`       what the server holds: stores, client, tokens, limits; bodies
 :mod:`hevr.serve.problems`      problem documents (RFC 9457), with no server internals
-:mod:`hevr.serve.jobs`          what a request runs: :func:`hevr.render`'s pipeline
+:mod:`hevr.serve.budget`        a cost bound for every request, from public parameters
+:mod:`hevr.serve.jobs`          what a request runs: :func:`hevr.render`'s pipeline, cancellable
 :mod:`hevr.serve.tokens`        bearer tokens per store (hashed, compared in constant time)
 :mod:`hevr.serve.token_file`    the tokens file re-read when it changes; --new-token adds to it
 :mod:`hevr.serve.store_watch`   a store re-encrypted under the server, noticed and opened again
 :mod:`hevr.serve.openapi`       the protocol's OpenAPI document
+:mod:`hevr.serve.guard`         deadlines for every byte; connections per address and in all
 :mod:`hevr.serve.run`           opening the stores, the cluster and uvicorn (the CLI's)
 ==============================  ==========================================================
 """
