@@ -202,6 +202,21 @@ class RenderRequest:
         The server's arithmetic backend (None: the server's default).
     weight_bits : int, optional
         A packed store's in-slice weight bits (None: the store's; per-voxel stores take None).
+
+    Examples
+    --------
+    A request built in Python is checked as one from the wire, by the same model, and refused
+    with a :class:`hevr.ParameterError` naming the field:
+
+    >>> cam = Camera((0, 0, 9), (0, 0, 0), width=4, height=4)
+    >>> RenderRequest(view=cam, channel="scalar", step=-1.0)
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: step: expected a number in (0, 1e+06], got -1.0
+    >>> RenderRequest(view=cam, channel="scalar", tile=0)
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: tile: expected an integer in [1, 4096], got 0
     """
 
     view: Camera | Plane

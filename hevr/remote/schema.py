@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import MISSING, fields
+from functools import cache
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, create_model
@@ -230,7 +231,20 @@ def components(ref: str = "#/components/schemas/{model}") -> dict[str, dict]:
     return doc["$defs"]
 
 
-_SCHEMAS = components("#/$defs/{model}")
+@cache
+def _defs(model: type[BaseModel]) -> dict[str, dict]:
+    """The JSON Schema of ``model`` and of every model it refers to, by name (references
+    ``#/$defs/NAME``): what :func:`message` walks, derived from the model itself, so that any model
+    :func:`check` is given (``RenderOptions`` included) has its schema.
+
+    >>> sorted(_defs(RenderOptions))
+    ['RenderOptions']
+    """
+    _, doc = models_json_schema([(model, "validation")], ref_template="#/$defs/{model}", schema_generator=_NoTitles)
+    return doc["$defs"]
+
+
+_SCHEMAS = components("#/$defs/{model}")  # the protocol's models (field tables, expected())
 
 
 # ----------------------------------------------------------------------------------- errors
@@ -240,7 +254,7 @@ def check(model: type[BaseModel], data: Any, name: str = "request") -> Any:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise ParameterError(message(exc, model.__name__, name)) from None
+        raise ParameterError(message(exc, model, name)) from None
 
 
 def _show(value: Any) -> str:
@@ -248,22 +262,23 @@ def _show(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
-def _deref(s: dict) -> dict:
+def _deref(s: dict, defs: dict | None = None) -> dict:
     while "$ref" in s:
-        s = _SCHEMAS[s["$ref"].rsplit("/", 1)[1]]
+        s = (defs or _SCHEMAS)[s["$ref"].rsplit("/", 1)[1]]
     return s
 
 
-def _walk(root: str, loc: tuple) -> tuple[str, dict, dict, bool]:
+def _walk(model: type[BaseModel], loc: tuple) -> tuple[str, dict, dict, bool]:
     """(the field's path, the schema of the field, the schema of the node the error is at,
-    whether the walk stopped at a union's member) of a pydantic error location."""
-    node = field = _SCHEMAS[root]
+    whether the walk stopped at a union's member) of a pydantic error location in ``model``."""
+    defs = _defs(model)
+    node = field = defs[model.__name__]
     path = ""
     for part in loc:
-        node = _deref(node)
+        node = _deref(node, defs)
         options = node.get("oneOf") or node.get("anyOf")
         if options and isinstance(part, str) and {"$ref": f"#/$defs/{part}"} in options:
-            node = _SCHEMAS[part]  # a tagged member: the same field
+            node = defs[part]  # a tagged member: the same field
         elif isinstance(part, int) and "items" in node:
             node = field = node["items"]
             path += f"[{part}]"
@@ -272,29 +287,30 @@ def _walk(root: str, loc: tuple) -> tuple[str, dict, dict, bool]:
             path += f".{part}" if path else part
         else:  # inside an untagged union (its members' names): the field as a whole
             return path, field, field, True
-    return path, field, _deref(node), False
+    return path, field, _deref(node, defs), False
 
 
 def _number(x: Any) -> str:
     return str(x) if isinstance(x, int) else f"{x:g}"
 
 
-def expected(s: dict) -> str:
-    """What a JSON Schema accepts, in words.
+def expected(s: dict, defs: dict | None = None) -> str:
+    """What a JSON Schema accepts, in words (``defs``: the schemas its references name; None: the
+    protocol's models).
 
     >>> expected({"type": "integer", "minimum": 0, "maximum": 8})
     'an integer in [0, 8]'
     >>> expected({"anyOf": [{"type": "number", "exclusiveMinimum": 0}, {"type": "null"}]})
     'a number > 0 or null'
     """
-    s = _deref(s)
+    s = _deref(s, defs)
     if "const" in s:
         return json.dumps(s["const"])
     if "enum" in s:
         return "one of " + ", ".join(map(str, s["enum"]))
     options = s.get("oneOf") or s.get("anyOf")
     if options:
-        return " or ".join(expected(o) for o in options)
+        return " or ".join(expected(o, defs) for o in options)
     kind = s.get("type")
     if kind in ("integer", "number"):
         lo = (f"[{_number(s['minimum'])}" if "minimum" in s else
@@ -310,7 +326,7 @@ def expected(s: dict) -> str:
     if kind == "array":
         lo, hi = s.get("minItems", 0), s.get("maxItems")
         count = f"{lo}" if lo == hi else f"{lo} to {hi}" if hi is not None else f"at least {lo}"
-        return f"an array of {count} items, each {expected(s.get('items', {}))}"
+        return f"an array of {count} items, each {expected(s.get('items', {}), defs)}"
     if kind == "string":
         return s.get("description") or (f"a string matching {s['pattern']}" if "pattern" in s else "a string")
     if kind == "object":
@@ -337,20 +353,28 @@ def field_table(model: type[BaseModel]) -> str:
     return "\n".join(rows)
 
 
-def message(exc: ValidationError, root: str, name: str) -> str:
-    """The one-line message of a pydantic error of model ``root``: unknown fields first, then
-    missing ones, then the first field refused, each as ``field: expected X, got Y``."""
+def message(exc: ValidationError, model: type[BaseModel], name: str) -> str:
+    """The one-line message of a pydantic error of ``model`` (any model: its schema is derived
+    from it): unknown fields first, then missing ones, then the first field refused, each as
+    ``field: expected X, got Y``.
+
+    >>> try:
+    ...     RenderOptions.model_validate({"channel": "scalar", "step": -1.0})
+    ... except ValidationError as exc:
+    ...     message(exc, RenderOptions, "request")
+    'step: expected a number in (0, 1e+06], got -1.0'
+    """
     errors = exc.errors(include_url=False)
     for kind in ("extra_forbidden", "missing"):
         found = [e for e in errors if e["type"] == kind]
         if found:
-            where = min((_walk(root, e["loc"][:-1]) for e in found), key=lambda w: w[0].count("."))
-            names = sorted(str(e["loc"][-1]) for e in found if _walk(root, e["loc"][:-1])[0] == where[0])
+            where = min((_walk(model, e["loc"][:-1]) for e in found), key=lambda w: w[0].count("."))
+            names = sorted(str(e["loc"][-1]) for e in found if _walk(model, e["loc"][:-1])[0] == where[0])
             node = where[2]
             if kind == "extra_forbidden":
                 return (f"{where[0] or name}: expected only the fields {sorted(node.get('properties', {}))}, "
                         f"got extra fields {names}")
             return f"{where[0] or name}: expected the fields {sorted(node.get('required', []))}, missing {names}"
     e = errors[0]
-    path, field, node, _ = _walk(root, e["loc"])
-    return f"{path or name}: expected {expected(field if path else node)}, got {_show(e['input'])}"
+    path, field, node, _ = _walk(model, e["loc"])
+    return f"{path or name}: expected {expected(field if path else node, _defs(model))}, got {_show(e['input'])}"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -95,3 +96,44 @@ def test_parse_json_bounds():
 
 def test_frames():
     assert unpack_head(pack_frame(7, b"x" * 300)[:8]) == (7, 300)
+
+
+# -- a request built in Python: every refusal a ParameterError naming the field (review H4: it was
+# a KeyError, the schema helper knew only the wire models, not RenderOptions)
+PY_CAM = hevr.Camera((0.0, 0.0, 40.0), (0.0, 0.0, 0.0), width=8, height=6)
+OPTIONS = ("channel", "sampling", "step", "level", "digits", "pack", "tile", "backend", "weight_bits")
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"step": -1.0}, r"^step: expected a number in \(0, 1e\+06\], got -1.0$"),
+    ({"tile": 0}, rf"^tile: expected an integer in \[1, {MAX_SIDE}\], got 0$"),
+    ({"digits": 99}, r"^digits: expected an integer in \[0, 9\], got 99$"),
+    ({"channel": "bogus"}, r"^channel: expected one of scalar, vector, gradient, got 'bogus'$"),
+    ({"step": True}, r"^step: expected a number .*got True$"),
+    ({"step": float("nan")}, r"^step: expected a number .*got nan$"),
+    ({"level": np.int64(99)}, r"^level: expected an integer in \[0, 8\], got 99$"),
+])
+def test_a_request_built_in_python_is_refused_by_name(change, match):
+    with pytest.raises(hevr.ParameterError, match=match):
+        RenderRequest(view=PY_CAM, **{"channel": "scalar", **change})
+
+
+anything = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=20)
+    | st.sampled_from([np.int64(3), np.float64("nan"), np.float32(1.5), np.bool_(True), 2**70, -0.0, 1e999]),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=5), inner, max_size=3),
+    max_leaves=6)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(OPTIONS), anything)
+def test_any_field_value_is_accepted_or_refused_by_name(name, value):
+    """Whatever a caller passes for a field: a request, or a ParameterError naming that field
+    (never a KeyError, TypeError, ...); what is accepted round-trips through the wire."""
+    kwargs = {"channel": "scalar", name: value}
+    try:
+        req = RenderRequest(view=PY_CAM, **kwargs)
+    except hevr.ParameterError as exc:
+        assert str(exc).startswith(f"{name}: expected "), str(exc)
+    else:
+        assert RenderRequest.from_dict(parse_json(json.dumps(req.to_dict()).encode(), "body")) == req
