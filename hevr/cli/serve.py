@@ -181,8 +181,6 @@ def cmd_serve(args: Any) -> int:
         raise UsageError("STORE: expected at least one store to serve, got none")
     if args.scheduler and args.workers:
         raise UsageError("--scheduler/--workers: expected one of them, got both")
-    if (args.tls_cert is None) != (args.tls_key is None):
-        raise UsageError("--tls-cert/--tls-key: expected both or neither, got one")
     check_listen(args.host, args.port, args.tls_cert, args.tls_key)  # TLS files, host, port: before a cluster starts
     tokens = TokenFile(args.tokens) if args.tokens else None  # re-read when it changes (and on SIGHUP)
     stores = open_stores(args.stores, st.storage_options(args))
