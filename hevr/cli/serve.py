@@ -28,7 +28,7 @@ from ..errors import ParameterError
 from ..serve.budget import MAX_PIXELS_KEY, MAX_PRODUCTS_KEY, MAX_TOKEN_PRODUCTS_KEY
 from ..serve.run import check_listen, open_stores, serve
 from ..serve.token_file import TokenFile, add_token
-from ..serve.tokens import TokenTable, hash_token, new_token
+from ..serve.tokens import DEFAULT_CONCURRENT, TokenTable, hash_token, new_token
 from . import storage as st
 from .cluster import dask_client, describe_client
 from .options import add_general_options, add_storage_option, int_range
@@ -127,7 +127,7 @@ def _new_token(args: Any) -> int:
               "hevr serve --tokens on that file takes it within a second")
         return 0
     token = new_token()
-    entry = {"name": args.new_token, "sha256": hash_token(token), "stores": stores, "concurrent": 2}
+    entry = {"name": args.new_token, "sha256": hash_token(token), "stores": stores, "concurrent": DEFAULT_CONCURRENT}
     TokenTable.from_dict({"version": 1, "tokens": [entry]}, "--new-token")  # the name and stores are checked here
     print(f"token:  {token}")
     print("give it to the key holder (hevr.connect(URL, token=...) or HEVR_TOKEN=... hevr render --server ...);")
