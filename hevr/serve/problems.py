@@ -2,15 +2,19 @@
 
 Every failure becomes ``application/problem+json`` with a title, a status and a detail naming the
 parameter (:class:`Problem`, :func:`as_problem`). hevr's own errors keep their message, less the
-server's absolute file paths (:func:`public_text`; the whole message goes to the server's log); an
+server's absolute file paths, URLs and the served stores' locations as given (:func:`public_text`;
+the whole message goes to the server's log); an
 unexpected failure says only "internal error" and its traceback stays in the log, so an answer never
 carries the server's internals.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import re
+from collections.abc import Iterable
 
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
@@ -20,7 +24,7 @@ from ..remote.protocol import PROBLEM_MEDIA
 
 log = logging.getLogger("hevr.serve")
 
-__all__ = ["Problem", "as_problem", "not_found", "problem", "public_text"]
+__all__ = ["Problem", "as_problem", "not_found", "problem", "private_locations", "public_text"]
 
 
 class Problem(Exception):
@@ -46,12 +50,53 @@ def problem(status: int, title: str, detail: str, headers: dict | None = None) -
 
 # An absolute path of the server's filesystem in a message: never sent (the log keeps it).
 _SERVER_PATH = re.compile(r"(?<![\w.:/])/(?:[\w.@+~=-]+/)*[\w.@+~=-]+/?")
+# A URL (s3://bucket/key, gs://..., http(s)://..., file://...): where a store lives, never sent either.
+_URL = re.compile(r"\b[A-Za-z][A-Za-z0-9+.-]{0,15}://[^\s'\"<>()\[\]{},;]*[^\s'\"<>()\[\]{},;:.]")
+_PART = r"[\w.@+~=-]+"
+_PRIVATE: set[str] = set()  # the served stores' locations as given (private_locations)
+_private: tuple[frozenset, re.Pattern | None] = (frozenset(), None)
+
+
+def private_locations(paths: Iterable[str]) -> None:
+    """Add the locations of served stores (``ev.path``: a local path or a URL) to what
+    :func:`public_text` replaces, with the forms a message may hold them in: a URL without its
+    scheme (``bucket/key``: fsspec's), a local path relative to the working folder
+    (``data/ct.zarr``: as the operator typed it). The service registers its own stores."""
+    for p in map(str, paths):
+        forms = {p.rstrip("/")}
+        if "://" in p:
+            forms.add(p.split("://", 1)[1].rstrip("/"))
+        elif os.path.isabs(p):
+            with contextlib.suppress(ValueError):
+                rel = os.path.relpath(p)
+                if not rel.startswith(".."):
+                    forms.add(rel)
+        _PRIVATE.update(f for f in forms if f and f != ".")
+
+
+def _private_pattern() -> re.Pattern | None:
+    global _private
+    names = frozenset(_PRIVATE)
+    if names != _private[0]:
+        # a one-word location (``ct``) only with a part after it (``ct/scalar/c/0``): alone, it is a word
+        alts = [re.escape(n) + (f"(?:/{_PART})*/?" if "/" in n or "." in n else f"(?:/{_PART})+/?")
+                for n in sorted(names, key=len, reverse=True)]
+        _private = names, (re.compile(rf"(?<![\w.@+~=/-])(?:{'|'.join(alts)})(?![\w.@+~=-])") if alts else None)
+    return _private[1]
 
 
 def public_text(text: str) -> str:
-    """A message as a client may see it: the server's absolute file paths replaced by ``<server
-    path>`` (relative fractions such as ``W/H`` or ``1/2`` stay; tests/serve/test_problems.py)."""
-    return _SERVER_PATH.sub("<server path>", text)
+    """A message as a client may see it: the served stores' locations (:func:`private_locations`),
+    URLs and the server's absolute file paths replaced by ``<server path>`` (relative fractions
+    such as ``W/H`` or ``1/2`` stay).
+
+    >>> public_text("brick at s3://bucket/ct.zarr/scalar/c/0: gone (W/H 1/2, see /srv/x)")
+    'brick at <server path>: gone (W/H 1/2, see <server path>)'
+    """
+    private = _private_pattern()
+    if private is not None:
+        text = private.sub("<server path>", text)
+    return _SERVER_PATH.sub("<server path>", _URL.sub("<server path>", text))
 
 
 def as_problem(exc: BaseException) -> Problem:

@@ -10,6 +10,8 @@ limits (:class:`Service`, on the application's ``state``), and the bounded readi
   is cancelled on the cluster (:mod:`hevr.serve.budget`).
 * **Tokens** (:mod:`hevr.serve.tokens`): a missing or unknown token is a 401; a store the token
   may not render is a 404, as an unknown one (ids are not disclosed).
+* **A store changed on disk** (:mod:`hevr.serve.store_watch`): opened again on a thread of its
+  own; a request naming it meanwhile is a 503 with ``Retry-After``.
 * **Request size** (:data:`~hevr.remote.protocol.MAX_BODY`): a ``Content-Length`` above it is
   refused (413) before a byte of the body is read, and a body without one is read only that far
   (:func:`read_body`).
@@ -24,8 +26,8 @@ from starlette.requests import Request
 from ..errors import ParameterError
 from ..remote.protocol import MAX_BODY, check_store_name
 from .budget import Budget, Limits
-from .problems import Problem
-from .store_watch import StoreWatch
+from .problems import Problem, private_locations
+from .store_watch import RETRY_AFTER, StoreWatch
 from .tokens import TokenTable
 
 __all__ = ["Limits", "Service", "read_body", "served_stores"]
@@ -38,6 +40,7 @@ class Service:
                  max_concurrent: int = 4, backend: str | None = None, budget: Budget | None = None) -> None:
         self.stores, self.names, self.name_of = served_stores(stores)
         self.watch = StoreWatch(self.stores)  # a store rewritten on disk is opened again (re-encrypted)
+        private_locations(ev.path for ev in self.stores.values())  # never in an answer (problems.public_text)
         self.client = client
         self.tokens = tokens
         self.budget = budget if budget is not None else Budget.from_config()
@@ -70,6 +73,10 @@ class Service:
             sid = key if key in self.stores else self.names.get(key)
         if sid is None or (token is not None and not token.may_render(sid)):
             raise Problem(404, "no such store", f"store: expected the id or name of a served store, got {key[:40]!r}")
+        if self.watch.reopening(sid):  # changed on disk: the handle in force reads bricks no longer there
+            raise Problem(503, "store being reopened", f"store: expected a store ready to render, got {key[:40]!r}, "
+                          "which changed on disk and is being opened again; retry in a moment",
+                          {"Retry-After": str(RETRY_AFTER)})
         return sid, self.stores[sid]
 
     def store(self, request: Request, token: Any) -> Any:

@@ -6,14 +6,22 @@ adds pyramid levels to it (``hevr pyramid``: the same id, new metadata). The han
 opened still holds the old metadata and digests, so every brick it reads from the new store fails
 its digest check ("corrupted, truncated, swapped with another brick or copied from another
 store"). Before a request names a store, the server ``stat``\\ s that store's ``zarr.json`` (the
-root document that holds its metadata), at most once a second per store (:data:`CHECK_SECONDS`);
-when its inode, size or modification time changed, the store is opened again
-(:func:`hevr.open_volume`) and served under the same name: its new id from then on, the old id no
-longer (a token lists ids: give it the new one). A store resident on the workers
-(``hevr serve --persist``) is made resident again. A new version that cannot be opened yet (still
-being written) is logged, and the old handle stays until the file changes again. A brick that
-fails its check has every store looked at by the next request (:meth:`StoreWatch.soon`), so a
-render that came within the second after a rewrite costs one failed request at most.
+root document that holds its metadata), at most once a second per store
+(:class:`~hevr.serve.file_watch.FileWatch`); when its inode, size or modification time changed,
+the store is opened again (:func:`hevr.open_volume`) and served under the same name: its new id
+from then on, the old id no longer (a token lists ids: give it the new one). A store resident on
+the workers (``hevr serve --persist``) is made resident again.
+
+Opening it again runs on a thread of its own, one at a time per store, never on the server's
+event loop (loading every brick onto the workers can take minutes: the other requests, the
+connection deadlines and ``/v1/health`` go on meanwhile). Until it is done, a request naming that
+store is answered 503 with ``Retry-After`` ("store being reopened"): the old handle reads bricks
+that are no longer there, and the old resident copy, though consistent with the old metadata, is
+what the owner replaced (re-encryption is how a store is withdrawn). The listing keeps the store
+under its old id until then. A new version that cannot be opened yet (still being written) is
+logged, and the old handle stays until the file changes again. A brick that fails its check has
+every store looked at by the next request (:meth:`StoreWatch.soon`), so a render that came within
+the second after a rewrite costs one failed request at most.
 
 Only stores on a local (or mounted) filesystem are watched; a store behind a URL (``s3://``, ...)
 is served as opened: restart ``hevr serve`` after re-encrypting it.
@@ -23,33 +31,33 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 from ..errors import HevrError
 from ..store.reader import open_volume
+from .file_watch import CHECK_SECONDS, FileWatch, is_missing
 
 log = logging.getLogger("hevr.serve")
 
-__all__ = ["CHECK_SECONDS", "StoreWatch"]
+__all__ = ["CHECK_SECONDS", "RETRY_AFTER", "StoreWatch"]
 
-CHECK_SECONDS = 1.0
+RETRY_AFTER = 2  # seconds a client is asked to wait for a store being opened again
 
 
-def _key(path: str) -> tuple | None:
-    """The stat key of a local store's ``zarr.json`` (None: not a local store, or nothing there)."""
-    if "://" in str(path):
-        return None
-    try:
-        st = os.stat(os.path.join(path, "zarr.json"))
-    except OSError:
-        return None
-    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
+def _watched(path: str) -> str | None:
+    """The ``zarr.json`` of a local store (None: a store behind a URL, not watched).
+
+    >>> _watched("s3://bucket/ct.zarr") is None, _watched("ct.zarr")
+    (True, 'ct.zarr/zarr.json')
+    """
+    return None if "://" in str(path) else os.path.join(path, "zarr.json")
 
 
 class StoreWatch:
-    """The stat keys of the served stores' ``zarr.json`` and when each was last looked at.
+    """The served local stores' ``zarr.json`` watched, and the stores being opened again.
 
     Parameters
     ----------
@@ -63,47 +71,79 @@ class StoreWatch:
 
     def __init__(self, stores: dict, *, interval: float = CHECK_SECONDS,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        self.interval = float(interval)
-        self._clock = clock
-        self._key = {sid: _key(ev.path) for sid, ev in stores.items()}
-        self._checked = {sid: clock() for sid in stores}
-        self._failed: dict[str, tuple] = {}
+        self.interval, self.clock = float(interval), clock
+        self._files = {sid: FileWatch(f, interval=interval, clock=clock) for sid, ev in stores.items()
+                       if (f := _watched(ev.path)) is not None}
+        self._lock = threading.Lock()
+        self._reopening: dict[str, tuple] = {}  # store id -> the stat key of the version being opened
+        self._done: dict[str, Any] = {}  # store id -> the opened store, or the exception (the reopen ended)
+
+    def reopening(self, sid: str) -> bool:
+        """Whether the store ``sid`` is being opened again (a request naming it is a 503)."""
+        return sid in self._reopening
 
     def soon(self) -> None:
         """Look at every store at the next request, whenever it comes (a brick just failed its
         check: its store may have been rewritten a moment ago)."""
-        self._checked = dict.fromkeys(self._checked, float("-inf"))
+        for w in self._files.values():
+            w.soon()
 
     def refresh(self, svc: Any, sids: Any = None) -> None:
-        """Open again every store of ``svc`` (a :class:`~hevr.serve.service.Service`; ``sids``:
-        these only) whose ``zarr.json`` changed, at most once per ``interval`` each."""
-        now = self._clock()
+        """Put in place the stores of ``svc`` (a :class:`~hevr.serve.service.Service`) whose
+        reopen ended, then start a reopen of every store (``sids``: these only) whose
+        ``zarr.json`` changed, at most one look per ``interval`` each. Call it from one thread
+        (the event loop's): it never blocks."""
+        self._finish(svc)
         for sid in list(svc.stores if sids is None else sids):
-            if sid not in svc.stores or now - self._checked.get(sid, now) < self.interval:
+            w = self._files.get(sid)
+            if w is None or sid not in svc.stores or sid in self._reopening:
                 continue
-            self._checked[sid] = now
-            key = _key(svc.stores[sid].path)
-            if key is None or key == self._key.get(sid) or key == self._failed.get(sid):
+            key = w.look()
+            if key is None:
                 continue
-            self._reopen(svc, sid, key, now)
+            if is_missing(key):  # being swapped: looked at again when it changes
+                w.fail(key)
+                continue
+            self._reopening[sid] = key
+            threading.Thread(target=self._reopen, args=(svc, sid, svc.stores[sid]), name=f"hevr-reopen-{sid}",
+                             daemon=True).start()
 
-    def _reopen(self, svc: Any, sid: str, key: tuple, now: float) -> None:
-        old = svc.stores[sid]
+    def _reopen(self, svc: Any, sid: str, old: Any) -> None:
+        """Open the store ``sid`` (served now as ``old``) again, on its own thread; :meth:`_finish`
+        puts it in place."""
         try:
             ev = open_volume(old.path)
             if old.resident is not None:
                 ev = ev.persist(old.resident.channels, client=svc.client, backend=svc.backend)
-        except (HevrError, OSError, ValueError) as exc:
-            if self._failed.get(sid) != key:
+            result: Any = ev
+        except BaseException as exc:  # noqa: BLE001 -- said by _finish, on the event loop's thread
+            result = exc
+        with self._lock:
+            self._done[sid] = result
+
+    def _finish(self, svc: Any) -> None:
+        with self._lock:
+            done, self._done = self._done, {}
+        for sid, result in done.items():
+            key = self._reopening.pop(sid)
+            if sid in svc.stores:
+                self._put(svc, sid, key, result)
+
+    def _put(self, svc: Any, sid: str, key: tuple, ev: Any) -> None:
+        old, w = svc.stores[sid], self._files[sid]
+        if isinstance(ev, BaseException):
+            if not isinstance(ev, (HevrError, OSError, ValueError)):
+                log.error("store %s: opening it again failed", old.path, exc_info=ev)
+            elif w.fail(key):
                 log.error("store %s changed on disk but cannot be opened yet (%s); still serving the store %s as "
-                          "opened", old.path, exc, sid)
-            self._failed[sid] = key
+                          "opened", old.path, ev, sid)
+            w.fail(key)
             return
         new = ev.meta.store_id
         if new != sid and new in svc.stores:
             log.error("store %s changed on disk into the store %s, which is already served (from %s); still "
                       "serving the store %s as opened", old.path, new, svc.stores[new].path, sid)
-            self._failed[sid] = key
+            w.fail(key)
             return
         name = svc.name_of.pop(sid, None)
         items = list(svc.stores.items())  # in place, in its order: the listing keeps it
@@ -112,9 +152,8 @@ class StoreWatch:
         if name is not None:
             svc.names[name] = new
             svc.name_of[new] = name
-        for table in (self._key, self._checked, self._failed):
-            table.pop(sid, None)
-        self._key[new], self._checked[new] = key, now
+        w.accept(key)
+        self._files[new] = self._files.pop(sid)
         if new != sid:
             log.warning("store %s was re-encrypted: now serving the store %s%s in place of %s (tokens that list "
                         "store ids need the new one)", old.path, new, f" as {name!r}" if name else "", sid)

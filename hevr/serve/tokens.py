@@ -14,7 +14,7 @@ file (:func:`hevr.serve.token_file.add_token`) and prints the token once.
 
 A running server re-reads its file when it changes (:class:`hevr.serve.token_file.TokenFile`:
 rotation and revocation without a restart); a new file that does not parse keeps the previous
-table in force.
+table in force, and an empty list revokes every token.
 
 A presented token is hashed and compared with *every* entry in constant time
 (:func:`hmac.compare_digest`), so the time of a refusal says nothing about how close a guess was.
@@ -82,15 +82,21 @@ class TokenTable:
     tokens: tuple
 
     @classmethod
-    def from_dict(cls, d: Any, where: str = "tokens") -> TokenTable:
+    def from_dict(cls, d: Any, where: str = "tokens", *, empty: bool = False) -> TokenTable:
+        """The table of a parsed tokens file; ``empty``: an empty list too (a running server's
+        re-read: every token revoked), else 1 to :data:`MAX_TOKENS` entries."""
         if not isinstance(d, dict) or set(d) != {"version", "tokens"}:
             raise ParameterError(f"{where}: expected an object with exactly 'version' and 'tokens', got "
                                  f"{sorted(d) if isinstance(d, dict) else type(d).__name__}")
         if d["version"] != 1 or type(d["version"]) is not int:
             raise ParameterError(f"{where}: version: expected 1, got {d['version']!r}")
         entries = d["tokens"]
-        if not isinstance(entries, list) or not 1 <= len(entries) <= MAX_TOKENS:
-            raise ParameterError(f"{where}: tokens: expected a list of 1 to {MAX_TOKENS} entries")
+        least = 0 if empty else 1
+        if not isinstance(entries, list) or not least <= len(entries) <= MAX_TOKENS:
+            got = f"{len(entries)} entries" if isinstance(entries, list) else type(entries).__name__
+            hint = " (a server starts with a token at least; emptied under a running server, the file revokes them all)"
+            raise ParameterError(f"{where}: tokens: expected a list of {least} to {MAX_TOKENS} entries, got {got}"
+                                 + (hint if entries == [] else ""))
         out, names, digests = [], set(), set()
         for i, e in enumerate(entries):
             at = f"{where}: tokens[{i}]"

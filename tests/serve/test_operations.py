@@ -1,6 +1,7 @@
 """Operating ``hevr serve`` (issue 48, item 7), in process (Starlette's test client): the health
 endpoint, the request log's format (a client that left included), tokens re-read without a
-restart, and a store re-encrypted under the running server opened again."""
+restart, and a store re-encrypted under the running server opened again (off the event loop:
+a 503 meanwhile)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,9 @@ import json
 import logging
 import os
 import re
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
 
 import dask
 import httpx
@@ -36,6 +40,7 @@ def store(tmp_path_factory, keypair256):
 def _tokens(path, **names):
     path.write_text(json.dumps({"version": 1, "tokens": [{"name": n, "sha256": hash_token(t), "stores": ["*"]}
                                                          for n, t in names.items()]}))
+    path.chmod(0o600)
 
 
 class Clock:
@@ -178,6 +183,22 @@ def test_tokens_are_read_again_when_the_file_changes(store, tmp_path, caplog):
         assert (status(alice), status(bob)) == (200, 401)
 
 
+def _watched_by(app, clock):
+    for w in app.state.service.watch._files.values():
+        w.clock, w.checked = clock, 0.0
+
+
+def _ready(http, url, body=None):
+    """The answer to ``url`` once the store is no longer being reopened (503s until then)."""
+    answers = []
+
+    def done():
+        answers.append(http.post(url, json=body) if body is not None else http.get(url))
+        return answers[-1].status_code != 503
+    assert wait_until(done, timeout=60), answers[-1].text
+    return answers[-1]
+
+
 def test_a_store_re_encrypted_under_the_server_is_opened_again(store, tmp_path, keypair256, caplog):
     _, priv = keypair256
     path = tmp_path / "ct.zarr"
@@ -186,8 +207,7 @@ def test_a_store_re_encrypted_under_the_server_is_opened_again(store, tmp_path, 
         old = hevr.encrypt_volume(vol, str(path), priv.public_key, brick=4, progress=False)
     app = create_app({"ct": hevr.open_volume(path)})
     clock = Clock()
-    watch = app.state.service.watch
-    watch._clock, watch._checked = clock, dict.fromkeys(watch._checked, 0.0)
+    _watched_by(app, clock)
     cam = hevr.Camera.orbit(old, azimuth=5, width=6, height=5)
     body = {"view": cam.to_dict(), "channel": "scalar"}
     with TestClient(app) as http, caplog.at_level(logging.INFO, logger="hevr.serve"):
@@ -200,7 +220,7 @@ def test_a_store_re_encrypted_under_the_server_is_opened_again(store, tmp_path, 
         other = {"view": hevr.Camera.orbit(old, azimuth=50, width=6, height=5).to_dict(), "channel": "scalar"}
         within = http.post("/v1/stores/ct/render", json=other)  # within the second: the old handle's digests
         assert within.status_code == 500 and "digest mismatch" in within.text, within.text  # (the issue's 500)
-        r = http.post("/v1/stores/ct/render", json=body)  # the failed check had the store looked at: opened again
+        r = _ready(http, "/v1/stores/ct/render", body)  # the failed check had the store looked at: opened again
         assert r.status_code == 200, r.text
         with TestClient(create_app({"ct": hevr.open_volume(path)})) as fresh:  # as a restarted server answers
             assert r.content == fresh.post("/v1/stores/ct/render", json=body).content != before.content
@@ -211,13 +231,48 @@ def test_a_store_re_encrypted_under_the_server_is_opened_again(store, tmp_path, 
     assert any("re-encrypted" in r.getMessage() and new.meta.store_id in r.getMessage() for r in caplog.records)
 
 
-def test_a_tokens_file_others_may_write_is_warned_of(tmp_path, caplog):
-    path = tmp_path / "t.json"
-    _tokens(path, alice=new_token())
-    path.chmod(0o666)
-    with caplog.at_level(logging.WARNING, logger="hevr.serve"):
-        TokenFile(path)
-    assert any("anyone" in r.getMessage() and "chmod go-w" in r.getMessage() for r in caplog.records)
+def test_a_slow_reopen_blocks_neither_the_server_nor_a_second_reopen(store, tmp_path, monkeypatch, caplog):
+    """Opening a changed store again (``--persist``: minutes) runs off the event loop: /v1/health
+    answers meanwhile, the store is a 503 with Retry-After, and one reopen runs at a time."""
+    from hevr.serve import store_watch
+
+    d, ev = store
+    gate, entered, calls = threading.Event(), threading.Event(), []
+    real = store_watch.open_volume
+
+    def slow_open(path, *args, **kwargs):
+        calls.append(path)
+        entered.set()
+        gate.wait(60)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(store_watch, "open_volume", slow_open)
+    app = create_app({"ct": hevr.open_volume(d / "ct.zarr")})
+    clock = Clock()
+    _watched_by(app, clock)
+    meta = d / "ct.zarr" / "zarr.json"
+    st = meta.stat()
+    with TestClient(app) as http, caplog.at_level(logging.INFO, logger="hevr.serve"), ThreadPoolExecutor(2) as pool:
+        try:
+            os.utime(meta, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # changed on disk (the same store)
+            clock.t += 1.5
+            first = pool.submit(http.get, "/v1/stores/ct")
+            assert entered.wait(30)
+            t0 = time.monotonic()
+            health = pool.submit(http.get, "/v1/health").result(timeout=20)  # the loop is not blocked
+            assert health.status_code == 200 and time.monotonic() - t0 < 20
+            r = first.result(timeout=20)
+            assert r.status_code == 503 and r.headers["retry-after"] == "2", r.text
+            assert "being opened again" in r.json()["detail"] and str(d) not in r.text
+            clock.t += 1.5
+            assert http.get("/v1/stores/ct").status_code == 503 and len(calls) == 1  # one reopen at a time
+            assert http.get("/v1/stores/nope").status_code == 404
+        finally:
+            gate.set()
+        assert _ready(http, "/v1/stores/ct").json()["id"] == ev.meta.store_id
+        assert len(calls) == 1
+    os.utime(meta, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert any("changed on disk: opened again" in r.getMessage() for r in caplog.records)
 
 
 @pytest.mark.parametrize("quiet", [False, True])

@@ -46,5 +46,35 @@ def test_public_text_leaves_no_absolute_path(text):
 def test_public_text_keeps_what_is_not_a_path():
     from hevr.serve.app import public_text
 
-    text = "brick (1, 1, 1): W/H 1/2, a/b, https://host/v1/stores/ct"
+    text = "brick (1, 1, 1): W/H 1/2, a/b, step 0.5/voxel, -v/--verbose"
     assert public_text(text) == text
+
+
+@pytest.mark.parametrize("text", ["s3://hospital-bucket/scans/ct.zarr", "store gs://b/k: missing",
+                                  "at https://minio.internal:9000/b/k.zarr/scalar/c/0/0/0, status 403",
+                                  "file:///srv/share/ct.zarr (gone)", "'s3://b/k.zarr'"])
+def test_public_text_leaves_no_url(text):
+    from hevr.serve.app import public_text
+
+    out = public_text(text)
+    assert "://" not in out and "bucket" not in out and "minio" not in out and "<server path>" in out, out
+
+
+def test_the_served_stores_locations_as_given_are_not_said(keypair256, tmp_path, monkeypatch):
+    """A relative path (as the operator typed it) or a URL's key without its scheme (as fsspec
+    says it) of a served store is replaced too; the same words elsewhere stay."""
+    from hevr.serve.app import public_text
+    from hevr.serve.problems import private_locations
+
+    pub, _ = keypair256
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "ward7").mkdir()
+    with dask.config.set(scheduler="sync"):
+        ev = hevr.encrypt_volume(hevr.phantom(8), "ward7/ct.zarr", pub, brick=4, progress=False)
+    create_app({"ct": hevr.open_volume("ward7/ct.zarr")})  # the service registers its stores' locations
+    private_locations(["s3://secret-bucket/scans/mr.zarr", "scans"])
+    for said in ["ward7/ct.zarr", "ward7/ct.zarr/scalar/c/0/0/1", "secret-bucket/scans/mr.zarr/zarr.json",
+                 "scans/mr.zarr"]:
+        assert public_text(f"brick at {said}: gone") == "brick at <server path>: gone", said
+    kept = f"the scans of {ev.meta.store_id}: W/H 1/2 (ct.zarr)"
+    assert public_text(kept) == kept  # a one-word location alone is a word; a file name alone is no location

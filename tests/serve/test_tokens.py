@@ -4,6 +4,7 @@ never logged), TLS with a throw-away CA, per-token limits on concurrent renders.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import signal
@@ -219,3 +220,125 @@ def test_new_token_on_the_command_line(tmp_path, capsys, caplog):
     assert entry["name"] == "legacy" and entry["stores"] == ["*"]
     assert main(["serve", "vol.zarr", "--stores", "3f2a9c0d1e4b5a67"]) == 2
     assert "--new-token" in capsys.readouterr().err
+
+
+# -- the one policy of the tokens file: at the start, at every re-read, in add_token ---------------
+def _file(path, **names):
+    path.write_text(json.dumps({"version": 1, "tokens": [{"name": n, "sha256": hash_token(t), "stores": ["*"]}
+                                                         for n, t in names.items()]}))
+    path.chmod(0o600)
+    return path
+
+
+def _another_users(path, monkeypatch):
+    """``path`` as another user's (chown as root; else this process pretends to be someone else)."""
+    if os.geteuid() == 0:
+        os.chown(path, 54321, -1)
+    else:
+        uid = os.geteuid()
+        monkeypatch.setattr(os, "geteuid", lambda: uid + 1)
+
+
+class _Clock:
+    t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+@pytest.mark.parametrize("bad", ["group", "anyone", "owner"])
+def test_a_server_does_not_start_on_a_tokens_file_others_may_write(tmp_path, monkeypatch, bad):
+    from hevr.serve.token_file import TokenFile
+
+    path = _file(tmp_path / "t.json", alice=new_token())
+    if bad == "owner":
+        _another_users(path, monkeypatch)
+    else:
+        path.chmod(0o620 if bad == "group" else 0o602)
+    match = {"group": "your group may write", "anyone": "anyone may write", "owner": "owned by another user"}[bad]
+    with pytest.raises(hevr.ParameterError, match=match):
+        TokenFile(path)
+    with pytest.raises(hevr.ParameterError, match=match):  # add_token: the same policy
+        add_token(path, "second")
+
+
+@pytest.mark.parametrize("bad", ["group", "anyone", "owner", "empty then bad"])
+def test_a_re_read_keeps_the_tokens_when_the_file_breaks_the_policy(tmp_path, monkeypatch, caplog, bad):
+    from hevr.serve.token_file import TokenFile
+
+    alice, mallory = new_token(), new_token()
+    path = _file(tmp_path / "t.json", alice=alice)
+    clock = _Clock()
+    tf = TokenFile(path, clock=clock)
+    if bad == "empty then bad":
+        path.write_text('{"version": 1, "tokens": []}')
+        clock.t += 1.5
+        assert tf.lookup(alice) is None
+        bad = "anyone"
+    mode = {"group": 0o620, "anyone": 0o606, "owner": 0o600}[bad]
+    _file(path, alice=alice, mallory=mallory)
+    path.chmod(mode)
+    if bad == "owner":
+        _another_users(path, monkeypatch)
+    clock.t += 1.5
+    with caplog.at_level(logging.ERROR, logger="hevr.serve"):
+        assert tf.lookup(mallory) is None and tf.lookup(mallory) is None  # refused, and said once
+    errors = [r.getMessage() for r in caplog.records if r.levelno == logging.ERROR]
+    assert len(errors) == 1 and "stay in force" in errors[0], errors
+    assert ("another user" if bad == "owner" else "chmod go-w") in errors[0], errors
+    monkeypatch.undo()
+    path.unlink()
+    _file(path, alice=alice, mallory=mallory)  # put right: read at the next look
+    clock.t += 1.5
+    assert tf.lookup(mallory).name == "mallory"
+
+
+def test_an_emptied_tokens_file_revokes_every_token(tmp_path, caplog):
+    from hevr.serve.token_file import TokenFile
+
+    alice = new_token()
+    path = _file(tmp_path / "t.json", alice=alice)
+    clock = _Clock()
+    tf = TokenFile(path, clock=clock)
+    path.write_text('{"version": 1, "tokens": []}')
+    clock.t += 1.5
+    with caplog.at_level(logging.WARNING, logger="hevr.serve"):
+        assert tf.lookup(alice) is None and tf.tokens == ()
+    assert any("lists no tokens" in r.getMessage() and "401" in r.getMessage() for r in caplog.records)
+    with pytest.raises(hevr.ParameterError, match="1 to 256 entries, got 0 entries"):
+        TokenFile(path)  # a server does not start with none
+
+
+def test_a_tokens_file_mounted_as_a_kubernetes_secret_is_followed(tmp_path, monkeypatch):
+    """A Secret volume: ``t.json -> ..data/t.json``, ``..data -> ..2026_01``, swapped on update."""
+    from hevr.serve.token_file import TokenFile
+
+    alice, bob = new_token(), new_token()
+    (tmp_path / "..v1").mkdir()
+    _file(tmp_path / "..v1" / "t.json", alice=alice)
+    (tmp_path / "..data").symlink_to("..v1")
+    (tmp_path / "t.json").symlink_to("..data/t.json")
+    clock = _Clock()
+    tf = TokenFile(tmp_path / "t.json", clock=clock)
+    assert tf.lookup(alice).name == "alice"
+    (tmp_path / "..v2").mkdir()
+    _file(tmp_path / "..v2" / "t.json", bob=bob)
+    (tmp_path / "..tmp").symlink_to("..v2")
+    os.replace(tmp_path / "..tmp", tmp_path / "..data")  # the kubelet's atomic update
+    clock.t += 1.5
+    assert tf.lookup(alice) is None and tf.lookup(bob).name == "bob"
+    (tmp_path / "..v2" / "t.json").chmod(0o666)  # the target is what is checked
+    with pytest.raises(hevr.ParameterError, match="anyone may write"):
+        TokenFile(tmp_path / "t.json")
+    with pytest.raises(hevr.ParameterError, match="symbolic link"):
+        add_token(tmp_path / "t.json", "carol")  # it would replace the link, not the target
+
+
+def test_add_token_refuses_a_folder_its_group_may_write(tmp_path):
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o770)
+    with pytest.raises(hevr.ParameterError, match="a folder your group may write"):
+        add_token(shared / "t.json", "first")
+    shared.chmod(0o750)
+    assert add_token(shared / "t.json", "first")[1]["concurrent"] == 2
