@@ -132,12 +132,13 @@ class StoreWatch:
     def _put(self, svc: Any, sid: str, key: tuple, ev: Any) -> None:
         old, w = svc.stores[sid], self._files[sid]
         if isinstance(ev, BaseException):
-            if not isinstance(ev, (HevrError, OSError, ValueError)):
-                log.error("store %s: opening it again failed", old.path, exc_info=ev)
+            if not isinstance(ev, (HevrError, OSError, ValueError)):  # a bug: its traceback
+                log.error("store %s: opening it again failed; still serving the store %s as opened", old.path, sid,
+                          exc_info=ev)
             elif w.fail(key):
                 log.error("store %s changed on disk but cannot be opened yet (%s); still serving the store %s as "
                           "opened", old.path, ev, sid)
-            w.fail(key)
+            w.fail(key)  # tried again once the file changes again
             return
         new = ev.meta.store_id
         if new != sid and new in svc.stores:

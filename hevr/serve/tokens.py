@@ -125,7 +125,9 @@ class TokenTable:
 
     @classmethod
     def load(cls, path: str | Path) -> TokenTable:
-        """Read and check a tokens file (a regular file of at most 64 KiB)."""
+        """Read and check a tokens file (a regular file of at most 64 KiB). Who owns it and may
+        write it is not checked here: ``hevr serve`` reads its file through
+        :class:`hevr.serve.token_file.TokenFile`, which does."""
         raw = read_regular(path, "tokens", "a tokens file (JSON)", limit=MAX_BODY)
         return cls.from_dict(parse_json(raw, f"tokens {path}"), f"tokens {path}")
 

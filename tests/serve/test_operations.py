@@ -275,6 +275,38 @@ def test_a_slow_reopen_blocks_neither_the_server_nor_a_second_reopen(store, tmp_
     assert any("changed on disk: opened again" in r.getMessage() for r in caplog.records)
 
 
+def test_a_store_that_cannot_be_opened_again_yet_keeps_its_handle(store, monkeypatch, caplog):
+    from hevr.serve import store_watch
+
+    d, ev = store
+    real, calls = store_watch.open_volume, []
+
+    def failing_once(path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 1:
+            raise hevr.ParameterError("zarr.json: expected a whole document, got half of one")
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(store_watch, "open_volume", failing_once)
+    app = create_app({"ct": hevr.open_volume(d / "ct.zarr")})
+    clock = Clock()
+    _watched_by(app, clock)
+    meta = d / "ct.zarr" / "zarr.json"
+    st = meta.stat()
+    try:
+        with TestClient(app) as http, caplog.at_level(logging.INFO, logger="hevr.serve"):
+            for shift in (1, 2):  # still being written; then whole
+                os.utime(meta, ns=(st.st_atime_ns, st.st_mtime_ns + shift * 10**9))
+                clock.t += 1.5
+                assert _ready(http, "/v1/stores/ct").json()["id"] == ev.meta.store_id
+                clock.t += 1.5
+                assert http.get("/v1/stores/ct").status_code == 200 and len(calls) == shift  # tried once per version
+    finally:
+        os.utime(meta, ns=(st.st_atime_ns, st.st_mtime_ns))
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert sum("cannot be opened yet" in x for x in said) == 1 and any("opened again" in x for x in said), said
+
+
 @pytest.mark.parametrize("quiet", [False, True])
 def test_hevr_serve_logs_each_request_by_default(store, quiet):
     d, _ = store

@@ -18,7 +18,7 @@ import hevr
 from _serving import hevr_serve, wait_until
 from hevr.remote import connect
 from hevr.serve.token_file import add_token
-from hevr.serve.tokens import TokenTable, hash_token, new_token
+from hevr.serve.tokens import DEFAULT_CONCURRENT, TokenTable, hash_token, new_token
 
 
 def test_token_table_is_strict(tmp_path):
@@ -217,7 +217,7 @@ def test_new_token_on_the_command_line(tmp_path, capsys, caplog):
     assert main(["serve", "--new-token", "legacy"]) == 0  # without --tokens: the entry, to add by hand
     out = capsys.readouterr().out
     entry = json.loads(out.strip().splitlines()[-1])
-    assert entry["name"] == "legacy" and entry["stores"] == ["*"]
+    assert entry["name"] == "legacy" and entry["stores"] == ["*"] and entry["concurrent"] == DEFAULT_CONCURRENT
     assert main(["serve", "vol.zarr", "--stores", "3f2a9c0d1e4b5a67"]) == 2
     assert "--new-token" in capsys.readouterr().err
 
