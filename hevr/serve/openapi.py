@@ -23,14 +23,25 @@ __all__ = ["ERRORS", "openapi_document"]
 
 JSON = "application/json"
 
-#: What each failure status means; every one is a problem document (``application/problem+json``).
-ERRORS = {400: "bad request: the parameter named in detail", 401: "missing or unknown bearer token",
-          404: "no such store (or not one this token may render)", 413: f"body over {MAX_BODY} bytes",
-          415: "Content-Type not application/json", 422: "refused by the render planner (too many pixels, "
-                                                          "samples, or a value range it cannot hold)",
-          429: "too many concurrent renders (retry after Retry-After seconds)",
-          500: "server failure (the server's log has the details)", 503: "out of memory for this render (retry "
-                                                                           "after Retry-After seconds)"}
+#: What each failure status means, by the titles of its problem documents (every one
+#: ``application/problem+json``; tests/serve/test_openapi.py keeps the titles the server sends here).
+ERRORS = {400: "bad request: the parameter named in detail",
+          401: "unauthorised: missing or unknown bearer token (a server with a token table)",
+          404: "no such store (or not one this token may render)",
+          413: f"request too large: body over {MAX_BODY} bytes",
+          415: "unsupported media type: Content-Type not application/json",
+          422: "render refused by the planner (too many pixels or samples, or a value range it cannot hold); "
+               "backend not offered (a backend other than the server's own); or "
+               "render over the server's budget (before any work: a step under its minimum, a fraction of the voxel "
+               "spacing; more pixels than --max-pixels, a tile too small for the image, more modular products than "
+               "--max-products or --max-token-products; detail names step, width, height, tile or products)",
+          429: "too many concurrent renders (--max-concurrent, the token's concurrent); or too much work in flight "
+               "(the products of this token's running renders over --max-token-products, or of all over "
+               "--max-concurrent × --max-products); retry after Retry-After seconds",
+          500: "internal error, render failed or store failed a check (the server's log has the details)",
+          503: "server out of memory for this render; render cancelled (the server stopped while it ran); "
+               "server shutting down (no new render); or store being reopened (it changed on disk); retry after "
+               "Retry-After seconds"}
 _HEADERS = {401: {"WWW-Authenticate": "Bearer realm"}, 429: {"Retry-After": "seconds"},
             503: {"Retry-After": "seconds"}}
 _FRAMES = ("frames of index (u32 LE), length (u32 LE) and that many bytes of ciphertext records, then an end frame "
@@ -65,7 +76,15 @@ _STATS = {"X-Hevr-Stats": {"description": "the render's public statistics, one l
 
 
 def _get(summary: str, answer: dict, *codes: int, **more: Any) -> dict:
-    return {"get": {"summary": summary, "responses": {"200": answer, **_errors(*codes, 500)}, **more}}
+    """A GET operation and its HEAD (Starlette answers HEAD on every GET route: the same status and
+    headers, no body)."""
+    head = {"description": f"as GET, without the body: {answer['description']}",
+            **({"headers": answer["headers"]} if "headers" in answer else {})}
+    errors = _errors(*codes, 500)
+    return {"get": {"summary": summary, "responses": {"200": answer, **errors}, **more},
+            "head": {"summary": f"{summary} (the answer's head only)",
+                     "responses": {"200": head, **{c: {k: v for k, v in e.items() if k != "content"}
+                                                   for c, e in errors.items()}}, **more}}
 
 
 def _post(summary: str, body: str, answer: dict) -> dict:
@@ -83,12 +102,15 @@ def openapi_document() -> dict[str, Any]:
                                 "Requests are strict JSON (unknown fields, duplicate keys, NaN and out-of-range "
                                 "numbers refused; an integer is written as one: 1, not 1.0); answers are data only: "
                                 ".hevr images, length-prefixed frames of ciphertext records, JSON. In words: "
-                                "docs/protocol.md in hevr's repository."},
+                                "docs/protocol.md in hevr's repository. Every operation but /v1/health asks for a "
+                                "bearer token when the server runs with a token table (hevr serve --tokens); "
+                                "without one it asks for none."},
         "components": {"schemas": components(),
                        "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer",
-                                                      "description": "a token of the server's token table "
-                                                                     "(none: a server started without one)"}}},
-        "security": [{"bearer": []}, {}],
+                                                      "description": "a token of the server's token table; "
+                                                                     "a server started without a token table "
+                                                                     "asks for none (and ignores one sent)"}}},
+        "security": [{"bearer": []}],
         "paths": {
             PREFIX: _get("the protocol's version and the server's hevr", _json("Version", "versions"), 401),
             f"{PREFIX}/health": _get("the server is up", _json("Health", "up"), security=[]),
@@ -97,7 +119,7 @@ def openapi_document() -> dict[str, Any]:
             f"{PREFIX}/stores": _get("the stores this token may render", _json("Stores", "their ids, names and "
                                                                                      "public metadata"), 401),
             f"{PREFIX}/stores/{{store}}": _get("one store's id, name and public metadata, by its id or its name",
-                                               _json("Store", "the store"), 401, 404, parameters=[_STORE]),
+                                               _json("Store", "the store"), 401, 404, 503, parameters=[_STORE]),
             f"{PREFIX}/stores/{{store}}/render": _post(
                 "render a view or slice", "RenderRequest",
                 {"description": f"a per-voxel store's client-finished .hevr image ({IMAGE_MEDIA}); a packed "

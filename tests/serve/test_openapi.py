@@ -65,11 +65,60 @@ def test_the_document_is_valid_openapi_3_1():
 
 
 def test_the_app_serves_the_document_and_exactly_its_routes(app):
-    served = {(r.path, m) for r in app.routes if isinstance(r, Route) for m in r.methods if m != "HEAD"}
+    """Every route and method, HEAD included (Starlette answers HEAD on every GET route; /v1/health
+    asks for it by name), is documented, and nothing else is."""
+    served = {(r.path, m) for r in app.routes if isinstance(r, Route) for m in r.methods}
     documented = {(path, m.upper()) for path, item in DOC["paths"].items() for m in item}
+    assert ("/v1/health", "HEAD") in served and ("/v1/health", "HEAD") in documented
     assert served == documented
     with TestClient(app) as http:
         assert http.get("/v1/openapi.json").json() == json.loads(json.dumps(DOC))
+        head = http.head("/v1/health")
+        assert head.status_code == 200 and head.content == b""
+        assert str(http.head("/v1/stores").status_code) in DOC["paths"]["/v1/stores"]["head"]["responses"]
+
+
+def _titles() -> dict[int, set[str]]:
+    """The problem titles ``hevr serve`` sends, by status, as its source writes them."""
+    out: dict[int, set[str]] = {}
+    for path in (ROOT / "hevr" / "serve").rglob("*.py"):
+        for status, title in re.findall(r'Problem\(\s*(\d{3}),\s*"([^"]+)"', path.read_text(encoding="utf-8")):
+            out.setdefault(int(status), set()).add(title)
+    return out
+
+
+def test_every_problem_the_server_sends_is_documented():
+    """Each title the server's code sends under a status is in that status's description (review
+    L5: 422 lacked the budget's refusal, 429 the work in flight, 503 cancelled renders and shutdown)."""
+    titles = _titles()
+    assert {"render over the server's budget", "render refused by the planner"} <= titles[422], titles
+    assert {"too many concurrent renders", "too much work in flight"} <= titles[429], titles
+    assert {"render cancelled", "server shutting down"} <= titles[503], titles
+    for status, said in titles.items():
+        assert status in ERRORS, status
+        for title in said:
+            assert title in ERRORS[status], (status, title)
+    posted = DOC["paths"]["/v1/stores/{store}/render"]["post"]["responses"]
+    for name in ("step", "tile", "products", "--max-pixels", "--max-token-products"):
+        assert name in posted["422"]["description"], name
+    assert "Retry-After" in posted["429"]["headers"] and "Retry-After" in posted["503"]["headers"]
+
+
+def test_the_protocols_doc_has_the_documents_statuses():
+    """docs/protocol.md's table of failures says what the document says, status by status."""
+    text = (ROOT / "docs" / "protocol.md").read_text(encoding="utf-8")
+    rows = dict(re.findall(r"^\| (\d{3}) \| (.*) \|$", text, re.M))
+    assert {int(c): t for c, t in rows.items()} == ERRORS
+
+
+def test_security_is_the_token_unless_the_server_has_none():
+    """One requirement, the bearer token (an empty alternative would make it optional on every
+    server); the description says a server without a token table asks for none."""
+    assert DOC["security"] == [{"bearer": []}]
+    assert "without" in DOC["components"]["securitySchemes"]["bearer"]["description"]
+    assert "token table" in DOC["info"]["description"]
+    for method in ("get", "head"):
+        assert DOC["paths"]["/v1/health"][method]["security"] == []
 
 
 def test_every_operation_documents_its_answers():
@@ -78,14 +127,16 @@ def test_every_operation_documents_its_answers():
             answers = op["responses"]
             assert "200" in answers and "500" in answers, (path, method)
             for code, answer in answers.items():
-                if code != "200":
+                if code != "200" and method != "head":
                     assert int(code) in ERRORS and list(answer["content"]) == [PROBLEM_MEDIA], (path, code)
             if method == "post":
                 assert {"400", "401", "404", "413", "415", "422", "429", "503"} <= set(answers), path
+            if method == "head":
+                assert set(answers) == set(item["get"]["responses"]), path
+                assert not any("content" in a for a in answers.values()), path
     render = DOC["paths"]["/v1/stores/{store}/render"]["post"]["responses"]["200"]["content"]
     assert set(render) == {IMAGE_MEDIA, UNITS_MEDIA}
     assert DOC["paths"]["/v1/health"]["get"]["security"] == []  # no token asked
-    assert {"bearer": []} in DOC["security"]
 
 
 def test_bounds_are_the_codes_own():
