@@ -5,22 +5,20 @@ sizes), per-voxel or packed, verifiable or not, its channels, its pyramid levels
 fingerprint (compare it with your key's: ``hevr info key.json``). ``--json`` prints the list as
 JSON, sizes in :attr:`hevr.EncryptedVolume.shape`'s order (z, y, x: NumPy's, what
 ``server.open(name).shape`` gives). Each description is checked as :meth:`hevr.connect`'s
-``open`` checks it. The token comes from ``HEVR_TOKEN``, never the command line.
+``open`` checks it. The token comes from ``HEVR_TOKEN``, never the command line; the connection
+is :func:`hevr.cli.remote.connect_remote`'s, as ``hevr render --server`` makes it (a refused
+setting names its option).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 from typing import Any
 
-from ..errors import RemoteAnswerError
-from ..remote import connect
-from ..remote.client import MAX_STORES_BYTES
-from ..remote.volume import parse_description, parse_name
 from .options import add_general_options
 from .parser import wrap
+from .remote import connect_remote
 from .render_options import add_server_option
 from .util import UsageError
 
@@ -62,15 +60,8 @@ def _table(rows: list[dict]) -> list[str]:
 def cmd_stores(args: Any) -> int:
     if not args.server:
         raise UsageError("--server: expected the URL of a hevr serve (http(s)://host:port), got none")
-    server = connect(args.server, token=os.environ.get("HEVR_TOKEN") or None, cafile=args.cafile,
-                     timeout=args.timeout, connect_timeout=args.connect_timeout)
-    items = server.get_json("/v1/stores", limit=MAX_STORES_BYTES).get("stores")
-    if not isinstance(items, list):
-        raise RemoteAnswerError(f"server {server.url}: GET /v1/stores: expected a 'stores' list")
-    rows = []
-    for item in items:
-        sid, meta = parse_description(item, server.url)
-        rows.append(describe(meta, sid, parse_name(item, server.url)))
+    server = connect_remote(args)
+    rows = [describe(meta, sid, name) for sid, name, meta in server.described()]
     if args.json:
         print(json.dumps({"server": server.url, "stores": rows}, indent=1))
     elif not rows:

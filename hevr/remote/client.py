@@ -39,10 +39,10 @@ from urllib.parse import urlsplit
 import httpx
 
 from ..errors import HevrError, ParameterError, RemoteAnswerError, RemoteBusyError, RemoteError
-from .failures import refusal, retry_wait, transport_failure
+from .failures import problem_text, refusal, retry_wait, transport_failure
 from .protocol import END, MAX_BODY, PROBLEM_MEDIA, UNITS_MEDIA, check_store_name, is_store_id, parse_json, unpack_head
 from .transport import Deadline, DeadlineTransport
-from .volume import RemoteVolume, parse_description, parse_name
+from .volume import RemoteVolume, parse_description, parse_name, parse_stores
 
 log = logging.getLogger(__name__)
 
@@ -329,13 +329,7 @@ class Server:
         return doc
 
     def _problem(self, status: int, doc: Any, what: str) -> RemoteError:
-        detail = title = None
-        if isinstance(doc, dict):
-            detail = doc.get("detail") if isinstance(doc.get("detail"), str) else None
-            title = doc.get("title") if isinstance(doc.get("title"), str) else None
-        text = "; ".join(x[:500] for x in (title, detail) if x) or "no problem document"
-        clean = "".join(c if c.isprintable() else "?" for c in text)
-        return RemoteError(f"server {self.url}: {what}: HTTP {status}: {clean}", status=status,
+        return RemoteError(f"server {self.url}: {what}: HTTP {status}: {problem_text(doc)}", status=status,
                            problem=doc if isinstance(doc, dict) else None)
 
     def get_json(self, path: str, limit: int = MAX_BODY) -> dict:
@@ -345,20 +339,18 @@ class Server:
     # -- the API --------------------------------------------------------------------
     def stores(self) -> list[dict]:
         """The stores this token may render: ``[{"id", "name", "shape", "channels", "tags", ...}]``
-        (``shape`` in ``rv.shape``'s order, z, y, x, as :attr:`hevr.EncryptedVolume.shape`) summarised from each store's public metadata (checked as :meth:`open` checks it); ``name``:
+        (``shape`` in ``rv.shape``'s order, z, y, x, as :attr:`hevr.EncryptedVolume.shape`)
+        summarised from each store's public metadata (checked as :meth:`open` checks it); ``name``:
         the name it is served under (None: by id only)."""
-        doc = self.get_json("/v1/stores", limit=MAX_STORES_BYTES)
-        items = doc.get("stores")
-        if not isinstance(items, list):
-            raise RemoteAnswerError(f"server {self.url}: GET /v1/stores: expected a 'stores' list")
-        out = []
-        for item in items:
-            sid, meta = parse_description(item, self.url)
-            out.append({"id": sid, "name": parse_name(item, self.url), "shape": tuple(meta.shape),
-                        "spacing": meta.spacing,
-                        "channels": [c for c in ("scalar", "vector", "gradient") if getattr(meta, c) is not None],
-                        "levels": len(meta.levels), "tags": bool(meta.tags), "fingerprint": meta.fingerprint})
-        return out
+        return [{"id": sid, "name": name, "shape": tuple(meta.shape), "spacing": meta.spacing,
+                 "channels": [c for c in ("scalar", "vector", "gradient") if getattr(meta, c) is not None],
+                 "levels": len(meta.levels), "tags": bool(meta.tags), "fingerprint": meta.fingerprint}
+                for sid, name, meta in self.described()]
+
+    def described(self) -> list[tuple[str, str | None, Any]]:
+        """(id, served name, checked :class:`~hevr.store.metadata.VolumeMetadata`) of every store this
+        token may render (:func:`~hevr.remote.volume.parse_stores`)."""
+        return parse_stores(self.get_json("/v1/stores", limit=MAX_STORES_BYTES), self.url)
 
     def open(self, name_or_id: str) -> Any:
         """A :class:`~hevr.remote.volume.RemoteVolume` of the store served under ``name_or_id``.

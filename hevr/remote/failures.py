@@ -9,7 +9,9 @@ failure without an answer into :class:`~hevr.RemoteTimeoutError` or
 :class:`~hevr.RemoteConnectError`; for a TLS failure it says ``pass --cafile`` (a certificate
 not trusted) or which scheme to use (``http://`` to a TLS port, ``https://`` to a plain one: a
 short probe of the port tells). :func:`retry_after` and :func:`retry_wait`: the bounded retry's
-waits.
+waits. :func:`check_answer`: a JSON answer checked by its model of :mod:`hevr.remote.schema` (the
+one definition of the protocol's documents, answers too), a :class:`~hevr.RemoteAnswerError`
+naming the field otherwise.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ from urllib.parse import urlsplit
 import httpx
 
 from ..errors import (
+    ParameterError,
+    RemoteAnswerError,
     RemoteBusyError,
     RemoteConnectError,
     RemoteError,
@@ -33,8 +37,9 @@ from ..errors import (
     RemoteTimeoutError,
     RemoteUnauthorisedError,
 )
+from .schema import check
 
-__all__ = ["BUSY", "refusal", "retry_after", "retry_wait", "transport_failure"]
+__all__ = ["BUSY", "check_answer", "problem_text", "refusal", "retry_after", "retry_wait", "transport_failure"]
 
 BUSY = (429, 503)  # the statuses retried: the server did not do the work (or gave up on it)
 MAX_WAIT = 86400.0
@@ -80,7 +85,34 @@ def retry_wait(attempt: int, asked: float | None, jitter: float | None = None) -
     return min(0.5 * 2.0 ** attempt * (0.5 + u), MAX_WAIT)
 
 
-def _problem_text(doc: Any) -> str:
+def check_answer(model: Any, doc: Any, url: str, what: str) -> Any:
+    """``doc`` (parsed JSON from the server at ``url``) validated by ``model``, a model of
+    :mod:`hevr.remote.schema`; a :class:`hevr.RemoteAnswerError` naming the field otherwise.
+
+    >>> from hevr.remote.schema import Aggregate
+    >>> check_answer(Aggregate, {"aggregate": "42"}, "http://s", "the verification answer").aggregate
+    '42'
+    >>> check_answer(Aggregate, {"aggregate": "-5"}, "http://s", "the verification answer")
+    Traceback (most recent call last):
+    ...
+    hevr.errors.RemoteAnswerError: server http://s: the verification answer: aggregate: expected a string matching ^[0-9]+$, got '-5'
+    """
+    try:
+        return check(model, doc, what)
+    except ParameterError as exc:
+        text = str(exc)
+        raise RemoteAnswerError(f"server {url}: {text if text.startswith(what) else f'{what}: {text}'}") from None
+
+
+def problem_text(doc: Any) -> str:
+    """What a problem document says, as one printable line: its title and detail (each at most 500
+    characters), or that there was none; anything else in it is ignored (it is the server's data).
+
+    >>> problem_text({"title": "bad request", "detail": "step: expected a number", "status": 400})
+    'bad request; step: expected a number'
+    >>> problem_text({"title": "x\\ny", "detail": 5}), problem_text(None)
+    ('x?y', 'no problem document')
+    """
     detail = title = None
     if isinstance(doc, dict):
         detail = doc.get("detail") if isinstance(doc.get("detail"), str) else None
@@ -94,7 +126,7 @@ def refusal(url: str, what: str, status: int, doc: Any, headers: Any, token_sent
     """The typed error of an HTTP error ``status`` (module docstring); ``doc`` the problem
     document (or None), ``tries`` and ``waited`` what the bounded retry did before it."""
     problem = doc if isinstance(doc, dict) else None
-    base = f"server {url}: {what}: HTTP {status}: {_problem_text(doc)}"
+    base = f"server {url}: {what}: HTTP {status}: {problem_text(doc)}"
     if status in BUSY:
         asked = retry_after(headers.get("retry-after") if headers is not None else None)
         after = f"; the server asks to retry after {asked:g} s" if asked is not None else ""

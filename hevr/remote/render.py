@@ -41,6 +41,8 @@ from ..rendering.pipeline.sums import image_fields, with_colouring
 from ..rendering.planning.planner import check_render_size, plan_render
 from ..rendering.planning.request import at_level, level_step
 from ..rendering.verify import Verification, resolve_verify
+from . import schema
+from .failures import check_answer
 from .protocol import END, MAX_BODY, RenderRequest, VerifyRequest, image_limit, parse_json
 
 log = logging.getLogger(__name__)
@@ -74,7 +76,7 @@ def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: i
     if finish != "client":
         raise ParameterError(f"finish: expected 'client' for a remote volume (server finishing would send the "
                              f"colouring to the server), got {finish!r}")
-    tile = check_int("tile", tile, 1, 4096)
+    tile = check_int("tile", tile, 1, schema.MAX_SIDE)
     t0 = time.perf_counter()
     ev, cam = at_level(rv, view, level)
     spec_l = level_step(spec, ev, cam)
@@ -160,14 +162,17 @@ def render_remote(rv: Any, view: Any, spec: Any, *, level: int | None, digits: i
 
 
 def _aggregate(raw: bytes, n: int, url: str) -> int:
+    """The aggregate of a verification answer: :class:`hevr.remote.schema.Aggregate` (exactly
+    ``{"aggregate": "<decimal>"}``), a ciphertext in (0, n²) (its length bounded before it is read
+    as an integer)."""
     try:
         doc = parse_json(raw, "the verification answer")
     except HevrError as exc:
         raise RemoteAnswerError(f"server {url}: {exc}") from None
-    agg = doc.get("aggregate") if isinstance(doc, dict) and set(doc) == {"aggregate"} else None
-    if not (isinstance(agg, str) and _DECIMAL.fullmatch(agg) and len(agg) <= 2 * len(str(n)) and 0 < int(agg) < n * n):
-        raise RemoteAnswerError(f"server {url}: the verification answer: expected {{\"aggregate\": a ciphertext in (0, n²) "
-                          "as a decimal string}")
+    agg = check_answer(schema.Aggregate, doc, url, "the verification answer").aggregate
+    if not (_DECIMAL.fullmatch(agg) and len(agg) <= 2 * len(str(n)) and 0 < int(agg) < n * n):
+        raise RemoteAnswerError(f"server {url}: the verification answer: aggregate: expected a ciphertext in (0, n²) "
+                                f"as a decimal string, got {len(agg)} digits")
     return int(agg)
 
 

@@ -28,11 +28,13 @@ from ..errors import CorruptStoreError, ParameterError, RemoteAnswerError
 from ..store.metadata import VolumeMetadata
 from ..store.reader import EncryptedVolume
 from ..volume.pyramid import check_level
+from . import schema
+from .failures import check_answer
 from .packed import render_remote_packed, render_remote_packed_slice
-from .protocol import check_store_name, is_store_id
+from .protocol import check_store_name
 from .render import render_remote
 
-__all__ = ["RemoteVolume", "parse_description", "parse_name"]
+__all__ = ["RemoteVolume", "parse_description", "parse_name", "parse_stores"]
 
 MAX_N_DIGITS = 1300  # a 4096-bit modulus has 1234 decimal digits
 
@@ -50,16 +52,16 @@ def parse_name(item: Any, url: str) -> str | None:
 
 
 def parse_description(item: Any, url: str) -> tuple[str, VolumeMetadata]:
-    """(store id, metadata) of a store description ``{"id", "name", "metadata"}`` from the server
-    (``name`` optional: :func:`parse_name`); :class:`hevr.RemoteAnswerError` naming what is wrong."""
-    if not isinstance(item, dict) or not {"id", "metadata"} <= set(item) <= {"id", "name", "metadata"}:
-        raise RemoteAnswerError(f"server {url}: a store description: expected an object with exactly 'id', 'name' and "
-                          "'metadata'")
-    parse_name(item, url)
-    sid, raw = item["id"], item["metadata"]
-    if not is_store_id(sid):
-        raise RemoteAnswerError(f"server {url}: a store description: id: expected 16 hex digits, got {str(sid)[:40]!r}")
-    pk = raw.get("public_key") if isinstance(raw, dict) else None
+    """(store id, metadata) of a store description ``{"id", "name", "metadata"}`` from the server,
+    checked by :class:`hevr.remote.schema.Store` (``name`` may be absent: servers before issue 47
+    sent none; :func:`parse_name`) and then the metadata by its own strict parser;
+    :class:`hevr.RemoteAnswerError` naming what is wrong."""
+    if isinstance(item, dict) and "name" not in item:
+        item = {**item, "name": None}
+    parse_name(item, url)  # in a name's own words, and not one that reads as a store id
+    wire = check_answer(schema.Store, item, url, "a store description")
+    sid, raw = wire.id, wire.metadata
+    pk = raw.get("public_key")
     if not (isinstance(pk, dict) and isinstance(pk.get("n"), str) and 0 < len(pk["n"]) <= MAX_N_DIGITS):
         raise RemoteAnswerError(f"server {url}: store {sid}: n: expected a modulus of at most {MAX_N_DIGITS} decimal digits")
     try:
@@ -78,6 +80,21 @@ def parse_description(item: Any, url: str) -> tuple[str, VolumeMetadata]:
     except (ValueError, ParameterError) as exc:
         raise RemoteAnswerError(f"server {url}: store {sid}: n: {exc}") from None
     return sid, meta
+
+
+def parse_stores(doc: Any, url: str) -> list[tuple[str, str | None, VolumeMetadata]]:
+    """(id, served name, metadata) of every store of a store list ``{"stores": [...]}`` (``GET
+    /v1/stores``, :class:`hevr.remote.schema.Stores`), each description checked by
+    :func:`parse_description`; :class:`hevr.RemoteAnswerError` naming what is wrong."""
+    items = doc.get("stores") if isinstance(doc, dict) else None
+    if isinstance(items, list):
+        doc = {**doc, "stores": [{**i, "name": None} if isinstance(i, dict) and "name" not in i else i for i in items]}
+    check_answer(schema.Stores, doc, url, "GET /v1/stores")
+    out = []
+    for item in doc["stores"]:
+        sid, meta = parse_description(item, url)
+        out.append((sid, parse_name(item, url), meta))
+    return out
 
 
 class RemoteVolume(EncryptedVolume):

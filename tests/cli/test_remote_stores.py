@@ -91,3 +91,21 @@ def test_hevr_stores_takes_the_token_from_the_environment(two, capsys, monkeypat
 def test_hevr_stores_needs_a_server(capsys):
     assert main(["stores"]) == 2
     assert "--server" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, option", [(["--timeout", "-1"], "--timeout"), (["--connect-timeout", "0"],
+                                                                              "--connect-timeout"),
+                                          (["--cafile", "ca.pem"], "--cafile")])
+def test_hevr_stores_names_the_option_it_refuses(argv, option, capsys, monkeypatch):
+    """``hevr stores`` connects as ``hevr render --server`` does (hevr.cli.remote.connect_remote): a
+    refused setting is a usage error naming the option, not the library's parameter name."""
+    monkeypatch.delenv("HEVR_TOKEN", raising=False)
+    assert main(["stores", "--server", "http://127.0.0.1:9", *argv]) == 2
+    err = capsys.readouterr().err
+    assert f"{option}: expected" in err, err
+
+
+def test_hevr_stores_names_hevr_token(capsys, monkeypatch):
+    monkeypatch.setenv("HEVR_TOKEN", "two words")
+    assert main(["stores", "--server", "http://127.0.0.1:9"]) == 2
+    assert "HEVR_TOKEN: expected" in capsys.readouterr().err

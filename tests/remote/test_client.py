@@ -185,8 +185,17 @@ def test_bad_store_descriptions(truth):
     d = json.loads(desc)
     forged = dict(d, metadata=dict(d["metadata"], shape=[9, 9, 9]))  # keyless checksum now wrong
     other = dict(d, id="0" * 16)
-    for body, match in ((json.dumps(forged).encode(), "checksum"), (json.dumps(other).encode(), "names the store"),
-                        (b"[]", "JSON object"), (b'{"id": 1}', "exactly 'id'")):
+    cases = ((forged, "checksum"), (other, "names the store"), ([], "JSON object"),
+             # checked by the schema's Store model (hevr.remote.schema), each naming the field
+             ({"id": 1}, r"description: expected the fields \['id', 'metadata', 'name'\], missing \['metadata'\]"),
+             (dict(d, id=1), r"a store description: id: expected 16 lower-case hex digits, got 1"),
+             (dict(d, id="ABCDEF0123456789"), "id: expected 16 lower-case hex digits"),
+             (dict(d, colour="red"), r"a store description: expected only the fields .*got extra fields \['colour'\]"),
+             (dict(d, metadata=[1]), "metadata: expected"),
+             (dict(d, name="a/b"), "name: expected a store name of 1-64"),
+             (dict(d, name="0123456789abcdef"), "name: expected a store name that is not 16 hex digits"))
+    for doc, match in cases:
+        body = json.dumps(doc).encode()
         double = Double({("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=body)})
         with pytest.raises(hevr.RemoteError, match=match):
             connect(double.url, timeout=5).open(ev.meta.store_id)
@@ -209,7 +218,8 @@ def test_store_names_in_descriptions(truth):
     rv = server.open("ct")
     assert (rv.name, rv.store_id, rv.path) == ("ct", sid, f"{double.url}/v1/stores/ct")
     for name, match in (("mr", "named 'mr', got one named 'ct'"), ("us", "one without a name"),
-                        ("xx", "name: expected a store name"), ("yy", "not 16 hex digits"), ("zz", "exactly")):
+                        ("xx", "name: expected a store name"), ("yy", "not 16 hex digits"),
+                        ("zz", r"expected only the fields .*got extra fields \['extra'\]")):
         with pytest.raises(hevr.RemoteError, match=match):
             server.open(name)
     double.shutdown()
@@ -283,3 +293,27 @@ def test_review_findings_end_in_remote_errors(truth, keypair256, tmp_path):
     double = Double({("GET", "/v1/stores"): answer(body=many)})
     assert len(connect(double.url, timeout=5).stores()) == 90
     double.shutdown()
+
+
+def test_store_lists_and_aggregates_are_checked_by_the_schema(truth):
+    """The answers' models of hevr.remote.schema are the client's definition too: a store list or a
+    verification answer that breaks them is a RemoteAnswerError naming the field (no hand parsing)."""
+    from hevr.remote.render import _aggregate
+    from hevr.remote.volume import parse_stores
+
+    ev, _, _, _, desc, _ = truth
+    item, url = json.loads(desc), "http://s"
+    assert [(sid, name) for sid, name, _ in parse_stores({"stores": [item, dict(item, name="ct")]}, url)] == \
+        [(ev.meta.store_id, None), (ev.meta.store_id, "ct")]
+    for doc, match in (({"stores": "x"}, r"stores: expected an array"), ({}, r"missing \['stores'\]"),
+                       ({"stores": [], "more": 1}, r"extra fields \['more'\]"),
+                       ({"stores": [dict(item, id="x")]}, r"stores\[0\]\.id: expected 16 lower-case hex")):
+        with pytest.raises(hevr.RemoteAnswerError, match=match):
+            parse_stores(doc, url)
+    n = 1000003 * 1000033
+    assert _aggregate(b'{"aggregate": "12345"}', n, url) == 12345
+    for raw, match in ((b'{"aggregate": "5", "seed": "00"}', r"extra fields \['seed'\]"),
+                       (b'{"aggregate": 5}', "aggregate: expected a string"), (b'{}', r"missing \['aggregate'\]"),
+                       (b'{"aggregate": "5\\n"}', "aggregate: expected"), (b'{"aggregate": "0"}', r"in \(0, n²\)")):
+        with pytest.raises(hevr.RemoteAnswerError, match=match):
+            _aggregate(raw, n, url)
