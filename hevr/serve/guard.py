@@ -15,14 +15,20 @@ key under ``hevr.serve``, e.g. ``DASK_HEVR__SERVE__HEAD_TIMEOUT=20``):
   and the handler sees the client gone.
 * **Send** (``send-timeout``, 30 s): a client that stops reading its answer (the transport's write
   buffer stays above its high-water mark) for 30 s is cut off.
-* **TLS handshake** (``handshake-timeout``, 10 s; asyncio's default is 60 s).
-* **Connections** (``max-connections``, 1024, and ``per-address``, 64 from one client address):
-  a new connection beyond either bound closes the oldest connection that is waiting for a request
-  head (idle, or dribbling one) — from the same address for the per-address bound; only when every
-  such connection is inside a request is the new one refused. So a flood of idle connections from
-  one address (or all addresses) costs its sender its oldest ones, and a client that sends its
-  request at once still gets through. Connections no longer count against a concurrency limit that
-  answers 503: renders are bounded by the app (``--max-concurrent``, each token's ``concurrent``).
+* **TLS handshake** (``handshake-timeout``, 10 s; asyncio's default is 60 s). A TLS connection
+  counts against the bounds below from its TCP accept (:func:`over_tls`), not from the end of its
+  handshake, so connections that never finish one cannot exhaust the open files.
+* **Connections** (``max-connections``, 1024, and ``per-address``, 64 from one client address: an
+  IPv6 client's /64, :func:`address_group`): a new connection beyond either bound closes the oldest
+  connection that is waiting for a request head (idle, dribbling one, or in its TLS handshake) —
+  from the same address for the per-address bound; only when every such connection is inside a
+  request is the new one refused. So a flood of idle connections costs its sender its oldest ones,
+  and a client that sends its request at once still gets through. Renders are bounded by the app
+  (``--max-concurrent``, each token's ``concurrent``), not here.
+* **Answered early**: a request answered before its body came (a 401 before the body of a
+  ``POST``) closes the connection once the answer is written; it is not left waiting for a body.
+* **No upgrades**: a WebSocket upgrade request is served as a plain HTTP request (the protocol never
+  hands its connection to another), so every connection leaves the bounds when it closes.
 
 Why uvicorn with these rules, not another server (measured on loopback, 2026-11-28, 300
 connections: 100 idle, 100 sending one head byte a second, 100 one body byte a second after a
@@ -41,8 +47,12 @@ render succeeds (tests/serve/test_deadlines.py; run with uvicorn 0.54 and 0.29, 
 
 from __future__ import annotations
 
+import ipaddress
 import logging
+import ssl
 import time
+from asyncio.sslproto import SSLProtocol
+from collections import OrderedDict
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -50,11 +60,12 @@ import dask
 import h11
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
+from .._validate import check_int
 from ..errors import ParameterError
 
 log = logging.getLogger("hevr.serve")
 
-__all__ = ["Deadlines", "Connections", "GuardedH11Protocol", "guarded_protocol"]
+__all__ = ["Deadlines", "Connections", "GuardedH11Protocol", "address_group", "guarded_protocol", "over_tls"]
 
 _KEYS = {"idle": "idle-timeout", "head": "head-timeout", "body": "body-timeout", "send": "send-timeout",
          "handshake": "handshake-timeout", "per_address": "per-address", "connections": "max-connections"}
@@ -80,8 +91,7 @@ class Deadlines:
         for f in fields(self):
             value, key = getattr(self, f.name), f"hevr.serve.{_KEYS[f.name]}"
             if f.type == "int":
-                if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 1_000_000:
-                    raise ParameterError(f"{key}: expected a whole number from 1 to 1000000, got {value!r}")
+                check_int(key, value, 1, 1_000_000)
             else:
                 try:
                     seconds = float(value)
@@ -103,41 +113,89 @@ class Deadlines:
         return cls(**given)
 
 
-class Connections:
-    """The open connections, per client address, in the order they began waiting for a head.
+def address_group(host: Any) -> str:
+    """The key of the per-address bound for a client's address: an IPv4 address as it is, an IPv6
+    address's /64 (what one subscriber is given), an IPv4-mapped IPv6 address its IPv4 address;
+    anything else (a Unix socket's peer) as it is.
 
-    :meth:`admit` keeps both bounds (module docstring); counters of what was closed are kept for the
-    log and the tests (``closed``)."""
+    >>> address_group("10.0.0.7"), address_group("::ffff:10.0.0.7")
+    ('10.0.0.7', '10.0.0.7')
+    >>> address_group("2001:db8:1:2:aaaa::1"), address_group("2001:DB8:1:2::ffff%eth0"), address_group("?")
+    ('2001:db8:1:2::/64', '2001:db8:1:2::/64', '?')
+    """
+    try:
+        ip = ipaddress.ip_address(str(host).split("%", 1)[0])
+    except ValueError:
+        return str(host)
+    if ip.version == 4:
+        return str(ip)
+    if ip.ipv4_mapped is not None:
+        return str(ip.ipv4_mapped)
+    return str(ipaddress.IPv6Network((int(ip) >> 64 << 64, 64)))
+
+
+class Connections:
+    """The open connections, per client address (:func:`address_group`), and those waiting for a
+    request head in the order they began waiting (so the oldest is found at once under a flood).
+
+    :meth:`admit` keeps both bounds (module docstring); a connection reports each change of whether
+    it waits with :meth:`mark`. Counters of what was closed are kept for the log and the tests
+    (``closed``)."""
 
     def __init__(self, deadlines: Deadlines) -> None:
         self.deadlines = deadlines
         self.open: dict[Any, None] = {}
         self.by_address: dict[str, dict[Any, None]] = {}
+        self.waiting: OrderedDict[Any, None] = OrderedDict()
+        self.waiting_by: dict[str, OrderedDict[Any, None]] = {}
         self.closed = {"idle": 0, "head": 0, "body": 0, "send": 0, "evicted": 0, "refused": 0}
         self._warned = 0.0
 
-    def admit(self, conn: GuardedH11Protocol) -> bool:
+    def admit(self, conn: Any) -> bool:
         """Whether ``conn`` may stay open; makes room by closing the oldest waiting connection."""
         for bound, what in ((self.deadlines.per_address, "from one address"), (self.deadlines.connections, "in all")):
-            pool = self.open if what == "in all" else self.by_address.get(conn.address, {})
-            if len(pool) >= bound:
-                waiting = [c for c in pool if c.waiting]
+            per = what != "in all"
+            if len(self.by_address.get(conn.address, ()) if per else self.open) >= bound:
+                waiting = self.waiting_by.get(conn.address) if per else self.waiting
                 if not waiting:
                     self._note("refused", f"{bound} connections {what} (all inside a request)", conn.address)
                     return False
                 self._note("evicted", f"{bound} connections {what}", conn.address)
-                min(waiting, key=lambda c: c.since).drop()  # removes it from both pools
+                next(iter(waiting)).drop()  # removes it from every pool
         self.by_address.setdefault(conn.address, {})[conn] = None
         self.open[conn] = None
+        self.mark(conn, conn.waiting)
         return True
 
-    def remove(self, conn: GuardedH11Protocol) -> None:
+    def mark(self, conn: Any, waiting: bool) -> None:
+        """``conn`` (open) began waiting for a request head (the newest waiting), or stopped waiting."""
+        if conn not in self.open:
+            return
+        if waiting:
+            self.waiting[conn] = None
+            self.waiting.move_to_end(conn)
+            mine = self.waiting_by.setdefault(conn.address, OrderedDict())
+            mine[conn] = None
+            mine.move_to_end(conn)
+        else:
+            self._unwait(conn)
+
+    def remove(self, conn: Any) -> None:
+        self._unwait(conn)
         self.open.pop(conn, None)
         mine = self.by_address.get(conn.address)
         if mine is not None:
             mine.pop(conn, None)
             if not mine:
                 del self.by_address[conn.address]
+
+    def _unwait(self, conn: Any) -> None:
+        self.waiting.pop(conn, None)
+        mine = self.waiting_by.get(conn.address)
+        if mine is not None:
+            mine.pop(conn, None)
+            if not mine:
+                del self.waiting_by[conn.address]
 
     def _note(self, what: str, bound: str, address: str) -> None:
         self.closed[what] += 1
@@ -157,7 +215,9 @@ class GuardedH11Protocol(H11Protocol):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.limit_concurrency = None  # connections are bounded here; renders by the app
+        self.ws_protocol_class = None  # never hand the connection to another protocol (module docstring)
         self.address = "?"
+        self.handshake: _Handshake | None = None  # the TLS connection's entry until its handshake was done
         self.phase: str | None = None  # "head", "body" or None (inside the app, or closed)
         self.since = 0.0
         self._deadline: Any = None
@@ -171,7 +231,10 @@ class GuardedH11Protocol(H11Protocol):
     # asyncio.Protocol and uvicorn's hooks
     def connection_made(self, transport: Any) -> None:  # type: ignore[override]
         super().connection_made(transport)
-        self.address = self.client[0] if self.client else "?"
+        self.address = address_group(self.client[0]) if self.client else "?"
+        if self.handshake is not None:  # its place in the bounds, taken at the TCP accept
+            self.registry.remove(self.handshake)
+            self.handshake = None
         self._enter()
         if not self.registry.admit(self):
             self._close(None)
@@ -190,8 +253,11 @@ class GuardedH11Protocol(H11Protocol):
         self._enter()
 
     def on_response_complete(self) -> None:
+        if self.conn.their_state is h11.SEND_BODY and not self.transport.is_closing():
+            self.transport.close()  # answered before its body came (a 401, a 413): read no more of it
         super().on_response_complete()  # arms the keep-alive timer (timeout_keep_alive_handler)
         if self.transport.is_closing():  # closed after this answer: its unsent bytes get the send deadline
+            self._leave()
             if self.transport.get_write_buffer_size() and self._stall is None:
                 self._stall = self.loop.call_later(self.registry.deadlines.send, self._expire, "send")
             return
@@ -211,6 +277,17 @@ class GuardedH11Protocol(H11Protocol):
     def timeout_keep_alive_handler(self) -> None:
         self._idle()
 
+    def handle_websocket_upgrade(self, event: Any) -> None:
+        """Not reached (``ws_protocol_class`` is ``None``); should a uvicorn upgrade anyway, the
+        request is answered 400 and the connection closed, never handed to another protocol."""
+        self.registry.remove(self)
+        self._cancel()
+        self.phase = None
+        self.send_400_response("hevr serve: expected an HTTP request, got a WebSocket upgrade")  # and closes
+
+    def _unsupported_upgrade_warning(self) -> None:  # uvicorn's two WARNING lines for each: a stranger's log flood
+        log.debug("%s: an upgrade request, served as plain HTTP", self.address)
+
     # the deadlines
     def _enter(self) -> None:
         """Start the phase h11's state of the client's side says (a head or a body to wait for)."""
@@ -220,13 +297,21 @@ class GuardedH11Protocol(H11Protocol):
         phase = "head" if state is h11.IDLE else "body" if state is h11.SEND_BODY else None
         if phase == self.phase:
             return
-        if self._deadline is not None:
-            self._deadline.cancel()
-            self._deadline = None
+        self._leave()
         self.phase, self.since = phase, time.monotonic()
+        self.registry.mark(self, phase == "head")
         if phase is not None:
             seconds = self.registry.deadlines.head if phase == "head" else self.registry.deadlines.body
             self._deadline = self.loop.call_later(seconds, self._expire, phase)
+
+    def _leave(self) -> None:
+        """End the current phase (its deadline cancelled; no longer waiting for a head)."""
+        if self._deadline is not None:
+            self._deadline.cancel()
+            self._deadline = None
+        if self.phase == "head":
+            self.registry.mark(self, False)
+        self.phase = None
 
     def _idle(self) -> None:
         self.timeout_keep_alive_task = None
@@ -274,3 +359,44 @@ def guarded_protocol(deadlines: Deadlines) -> tuple[type[GuardedH11Protocol], Co
     """A protocol class for one server (uvicorn's ``Config(http=...)``) and its connection registry."""
     registry = Connections(deadlines)
     return type("HevrH11Protocol", (GuardedH11Protocol,), {"registry": registry}), registry
+
+
+class _Handshake(SSLProtocol):
+    """A TLS connection from its TCP accept to the end of its handshake, in the bounds as a
+    connection waiting for a head (the oldest is closed first to make room); asyncio's own TLS
+    server calls the protocol only once the handshake is done (:func:`over_tls`)."""
+
+    waiting = True
+
+    def __init__(self, app: GuardedH11Protocol, context: ssl.SSLContext, seconds: float) -> None:
+        super().__init__(app.loop, app, context, None, server_side=True, ssl_handshake_timeout=seconds)
+        self.registry, self.address, self.raw, self.refused = app.registry, "?", None, False
+        app.handshake = self
+
+    def connection_made(self, transport: Any) -> None:
+        self.raw = transport
+        peer = transport.get_extra_info("peername")
+        self.address = address_group(peer[0]) if isinstance(peer, tuple) and peer else "?"
+        if not self.registry.admit(self):
+            self.refused = True
+            transport.abort()
+            return
+        super().connection_made(transport)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.registry.remove(self)
+        if not self.refused:
+            super().connection_lost(exc)
+
+    def drop(self) -> None:
+        """Close this connection now to make room for a new one (:meth:`Connections.admit`)."""
+        self.registry.remove(self)
+        self.raw.abort()
+
+
+def over_tls(app: GuardedH11Protocol, context: ssl.SSLContext, seconds: float) -> SSLProtocol:
+    """The protocol for a TLS connection to ``app`` (a server's ``loop.create_server(..., ssl=None)``
+    factory returns it): the TLS handshake, with a deadline of ``seconds``, counted in ``app``'s
+    bounds from the TCP accept; then ``app`` as over plain TCP. The same
+    :class:`asyncio.sslproto.SSLProtocol` as asyncio's own TLS servers use."""
+    return _Handshake(app, context, seconds)

@@ -44,9 +44,9 @@ except ModuleNotFoundError:  # pragma: no cover - hevr serve says which extra
     starlette = uvicorn = None
 if uvicorn is not None and starlette is not None:
     from .app import create_app
-    from .guard import Deadlines, guarded_protocol
+    from .guard import Deadlines, guarded_protocol, over_tls
 else:  # pragma: no cover
-    create_app = guarded_protocol = Deadlines = None
+    create_app = guarded_protocol = over_tls = Deadlines = None
 
 log = logging.getLogger("hevr.serve")
 
@@ -105,9 +105,20 @@ def open_stores(specs: Sequence[str], storage_options: dict | None = None) -> di
     return stores
 
 
-def check_tls(cert: str, key: str) -> None:
+def check_tls(cert: str | None, key: str | None) -> None:
     """Refuse TLS files uvicorn could not load, in one line naming the option (``--tls-cert``,
-    ``--tls-key``): missing, not PEM, swapped, encrypted, or a key of another certificate."""
+    ``--tls-key``): one without the other, missing, not PEM, swapped, encrypted, or a key of another
+    certificate. Neither given: nothing to check.
+
+    >>> check_tls(None, None)
+    >>> check_tls("cert.pem", None)
+    Traceback (most recent call last):
+    hevr.errors.ParameterError: --tls-cert/--tls-key: expected both or neither, got one
+    """
+    if (cert is None) != (key is None):
+        raise ParameterError("--tls-cert/--tls-key: expected both or neither, got one")
+    if cert is None:
+        return
     texts = {}
     for option, path in (("--tls-cert", cert), ("--tls-key", key)):
         if not os.path.isfile(path):
@@ -187,10 +198,7 @@ def check_listen(host: str, port: int, tls_cert: str | None = None, tls_key: str
     Traceback (most recent call last):
     hevr.errors.ParameterError: --port: expected a TCP port from 0 to 65535, got 70000
     """
-    if (tls_cert is None) != (tls_key is None):
-        raise ParameterError("--tls-cert/--tls-key: expected both or neither, got one")
-    if tls_cert is not None:
-        check_tls(tls_cert, tls_key)
+    check_tls(tls_cert, tls_key)
     for s in bind(host, port):
         s.close()
 
@@ -232,7 +240,8 @@ def _room_for(deadlines: Deadlines) -> Deadlines:
 
 if uvicorn is not None:
     class _Server(uvicorn.Server):
-        """uvicorn's server on sockets bound beforehand (:func:`bind`), with a TLS handshake deadline."""
+        """uvicorn's server on sockets bound beforehand (:func:`bind`), with TLS in the guarded
+        protocol (:func:`~hevr.serve.guard.over_tls`: bounds from the TCP accept, a handshake deadline)."""
 
         def __init__(self, config: Any, sockets: list[socket.socket], handshake: float) -> None:
             super().__init__(config)
@@ -245,14 +254,13 @@ if uvicorn is not None:
             loop, config = asyncio.get_running_loop(), self.config
 
             def protocol(_loop: Any = None) -> asyncio.Protocol:
-                return config.http_protocol_class(config=config, server_state=self.server_state,
-                                                  app_state=self.lifespan.state, _loop=_loop)
+                app = config.http_protocol_class(config=config, server_state=self.server_state,
+                                                 app_state=self.lifespan.state, _loop=_loop)
+                return app if config.ssl is None else over_tls(app, config.ssl, self.handshake)
 
-            self.servers = []
+            self.servers = []  # TLS in the protocol (over_tls): a connection counts from its TCP accept
             for sock in self.bound:
-                self.servers.append(await loop.create_server(
-                    protocol, sock=sock, ssl=config.ssl, backlog=config.backlog,
-                    ssl_handshake_timeout=self.handshake if config.ssl else None))
+                self.servers.append(await loop.create_server(protocol, sock=sock, backlog=config.backlog))
             self.started = True
 
         async def shutdown(self, sockets: Any = None) -> None:
@@ -300,18 +308,18 @@ def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: 
     the port are checked before anything starts (:func:`check_tls`, :func:`bind`)."""
     if uvicorn is None or create_app is None:
         raise MissingDependencyError("hevr serve needs the 'serve' extra (Starlette, uvicorn): pip install 'hevr[serve]'")
-    if (tls_cert is None) != (tls_key is None):
-        raise ParameterError("--tls-cert/--tls-key: expected both or neither, got one")
+    check_tls(tls_cert, tls_key)
     deadlines = _room_for(Deadlines.from_config() if deadlines is None else deadlines)
-    if tls_cert is not None:
-        check_tls(tls_cert, tls_key)
     sockets = bind(host, port)
     try:
         app = create_app(stores, client=client, tokens=tokens, max_concurrent=max_concurrent, backend=backend)
         protocol, _ = guarded_protocol(deadlines)
+        # ws="none": no upgrade takes a connection out of the guard; proxy_headers=False: the TCP peer,
+        # never X-Forwarded-For (uvicorn's default reads it from 127.0.0.1 and ::1: any local user's)
         config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False, http=protocol,
-                                ssl_certfile=tls_cert, ssl_keyfile=tls_key, timeout_keep_alive=deadlines.idle,
-                                limit_concurrency=None, h11_max_incomplete_event_size=64 * 1024)
+                                ws="none", proxy_headers=False, ssl_certfile=tls_cert, ssl_keyfile=tls_key,
+                                timeout_keep_alive=deadlines.idle, limit_concurrency=None,
+                                h11_max_incomplete_event_size=64 * 1024)
         server = _Server(config, sockets, deadlines.handshake)
     except BaseException:
         for s in sockets:

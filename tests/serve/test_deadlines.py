@@ -24,7 +24,7 @@ import pytest
 
 import hevr
 from hevr.remote import connect
-from hevr.serve.guard import Connections, Deadlines
+from hevr.serve.guard import Connections, Deadlines, address_group
 from hevr.serve.tokens import hash_token, new_token
 
 IDLE, HEAD, BODY, SEND = 2.0, 4.0, 4.0, 2.0
@@ -87,7 +87,8 @@ def test_500_idle_and_dribbling_connections_are_closed_while_an_authorised_rende
     _raise_open_files(2048)
     url, token = guarded.url, guarded.token
     head = b"GET /v1/stores HTTP/1.1\r\nHost: x\r\nAccept: application/json\r\nX-Padding: " + b"a" * 64
-    post = b"POST /v1/stores/v/render HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 900\r\n\r\n"
+    post = (b"POST /v1/stores/v/render HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 900\r\n"
+            b"Authorization: Bearer " + token.encode() + b"\r\n\r\n")  # the body is read (without a token: a 401 at once)
     conns = []  # [socket, kind, opened at, closed at, bytes left to dribble]
     kinds = ("idle", "head", "body", "kept")
     for i in range(500):
@@ -190,37 +191,160 @@ def test_a_client_that_stops_reading_its_answers_is_cut_off(guarded):
     assert got < 0.9 * 300 * one, (got, 300 * one)  # without the deadline: all 300 answers, then the idle close
 
 
+@pytest.fixture(scope="module")
+def tight(served_store, tmp_path_factory):
+    """``hevr serve`` with tokens and 2 connections from one address (the review's repros)."""
+    from _serving import hevr_serve
+
+    d = tmp_path_factory.mktemp("tight")
+    (d / "tokens.json").write_text(json.dumps({"version": 1, "tokens": [
+        {"name": "owner", "sha256": hash_token(new_token()), "stores": ["*"]}]}))
+    env = dict(ENV, DASK_HEVR__SERVE__PER_ADDRESS="2")
+    with hevr_serve(str(served_store.dir / "v.zarr"), "--tokens", str(d / "tokens.json"), env=env) as (url, proc, lines):
+        yield url
+
+
+def _answer(s: socket.socket) -> bytes:
+    """The first bytes the server sends on ``s`` (b"": closed without an answer)."""
+    s.setblocking(True)
+    s.settimeout(30)
+    try:
+        return s.recv(4096)
+    except OSError:
+        return b""
+
+
+def test_websocket_upgrades_leave_no_connection_behind(tight):
+    """Two WebSocket upgrade requests (the bound: 2 from one address), then a plain request from the
+    same address: the upgrades were served as plain HTTP and left the bound when they closed (before,
+    uvicorn handed them to its WebSocket protocol and they stayed counted for good)."""
+    upgrade = (b"GET /v1/health HTTP/1.1\r\nHost: a\r\nConnection: Upgrade\r\nUpgrade: websocket\r\n"
+               b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n")
+    for _ in range(2):
+        s = _open(tight, "127.0.0.8")
+        s.send(upgrade)
+        assert not _answer(s).startswith(b"HTTP/1.1 101"), "upgraded"
+        s.close()
+    time.sleep(0.5)  # the server sees both closed
+    for _ in range(2):
+        s = _open(tight, "127.0.0.8")
+        s.send(b"GET /v1/health HTTP/1.1\r\nHost: a\r\n\r\n")
+        assert _answer(s).startswith(b"HTTP/1.1 200"), "a plain request after two upgrades"
+        s.close()
+
+
+def test_a_request_answered_before_its_body_does_not_hold_its_connection(tight):
+    """POSTs without a token, a 1000-byte body announced and never sent: each is answered 401 and
+    its connection closed, so a prompt client from the same address gets through (before, each
+    stayed in the body phase, not to be closed for room, until the body deadline)."""
+    post = (b"POST /v1/stores/v/render HTTP/1.1\r\nHost: a\r\nContent-Type: application/json\r\n"
+            b"Content-Length: 1000\r\n\r\n")
+    pins = []
+    for _ in range(2):
+        s = _open(tight, "127.0.0.9")
+        s.send(post)
+        assert _answer(s).startswith(b"HTTP/1.1 401")
+        pins.append(s)
+    s = _open(tight, "127.0.0.9")
+    s.send(b"GET /v1/health HTTP/1.1\r\nHost: a\r\n\r\n")
+    assert _answer(s).startswith(b"HTTP/1.1 200"), "a prompt client behind two unread bodies"
+    s.close()
+    for p in pins:  # closed by the server after the 401: the rest of its answer, then EOF
+        while data := _answer(p):
+            assert len(data) < 4096
+    for p in pins:
+        p.close()
+
+
+def test_tls_connections_count_from_their_tcp_accept(served_store, tmp_path):
+    """10 TCP connections to a TLS server from one address, sending nothing (no handshake): with 4
+    allowed from one address, the 6 oldest are closed at once, long before the handshake deadline
+    (20 s here); before, a connection counted only once its handshake was done, so a flood of them
+    ran the server out of open files. A TLS client from another address, and one from the same, get
+    through all the while."""
+    trustme = pytest.importorskip("trustme")
+    from _serving import hevr_serve
+
+    ca = trustme.CA()
+    cert = ca.issue_cert("127.0.0.1")
+    cert.cert_chain_pems[0].write_to_path(str(tmp_path / "cert.pem"))
+    cert.private_key_pem.write_to_path(str(tmp_path / "key.pem"))
+    ca.cert_pem.write_to_path(str(tmp_path / "ca.pem"))
+    env = dict(ENV, DASK_HEVR__SERVE__HANDSHAKE_TIMEOUT="20", DASK_HEVR__SERVE__PER_ADDRESS="4")
+    with hevr_serve(str(served_store.dir / "v.zarr"), "--tls-cert", str(tmp_path / "cert.pem"), "--tls-key",
+                    str(tmp_path / "key.pem"), env=env) as (url, proc, lines):
+        context = ssl.create_default_context(cafile=str(tmp_path / "ca.pem"))
+        raw = []
+        for _ in range(10):
+            raw.append(_open(url, "127.0.0.10"))
+            time.sleep(0.05)  # accepted in this order
+        t0 = time.monotonic()
+        closed: set[int] = set()
+        while time.monotonic() - t0 < 12 and len(closed) < 6:  # well inside the 20 s handshake deadline
+            closed |= {i for i, s in enumerate(raw) if i not in closed and _closed(s)}
+            time.sleep(0.05)
+        assert closed == set(range(6)), sorted(closed)
+        for source in ("127.0.0.11", "127.0.0.10"):
+            transport = httpx.HTTPTransport(local_address=source, verify=context)
+            with httpx.Client(transport=transport, timeout=30) as c:
+                assert c.get(f"{url}/v1/health").status_code == 200, source
+        for s in raw:
+            s.close()
+
+
 def test_the_bounds_close_the_oldest_waiting_connection_and_refuse_only_when_none_waits():
     reg = Connections(Deadlines(per_address=2, connections=3))
 
     class Conn:
-        def __init__(self, address: str, since: float) -> None:
-            self.address, self.since, self.waiting, self.dropped = address, since, True, False
+        def __init__(self, address: str) -> None:
+            self.address, self.waiting, self.dropped = address, True, False
 
         def drop(self) -> None:
             self.dropped = True
             reg.remove(self)
 
-    a1, a2, a3 = Conn("a", 1), Conn("a", 2), Conn("a", 3)
-    assert reg.admit(a1) and reg.admit(a2) and reg.admit(a3)
-    assert a1.dropped and not a2.dropped and len(reg.by_address["a"]) == 2  # per address: the oldest waiting
-    b1, c1 = Conn("b", 4), Conn("c", 5)
-    assert reg.admit(b1) and reg.admit(c1)  # in all: 3; the oldest waiting anywhere (a2) made room
-    assert a2.dropped and set(reg.open) == {a3, b1, c1}
+    a1, a2, a3 = Conn("a"), Conn("a"), Conn("a")
+    assert reg.admit(a1) and reg.admit(a2)
+    reg.mark(a1, False)
+    reg.mark(a1, True)  # a1 waits again (a kept-alive connection after its answer): now the newest waiting
+    assert reg.admit(a3)
+    assert a2.dropped and not a1.dropped and len(reg.by_address["a"]) == 2  # per address: the oldest waiting
+    b1, c1 = Conn("b"), Conn("c")
+    assert reg.admit(b1) and reg.admit(c1)  # in all: 3; the oldest waiting anywhere (a1) made room
+    assert a1.dropped and set(reg.open) == {a3, b1, c1} and list(reg.waiting) == [a3, b1, c1]
     for c in (a3, b1, c1):
-        c.waiting = False  # all inside a request: nothing to close, the new one is refused
-    assert not reg.admit(Conn("d", 6)) and "d" not in reg.by_address and reg.closed["refused"] == 1
+        reg.mark(c, False)  # all inside a request: nothing to close, the new one is refused
+    assert not reg.admit(Conn("d")) and "d" not in reg.by_address and reg.closed["refused"] == 1
+    assert not reg.waiting and not reg.waiting_by
     one = reg = Connections(Deadlines(per_address=1))  # a dropped Conn leaves this registry now
-    first, second = Conn("e", 1), Conn("e", 2)
+    first, second = Conn("e"), Conn("e")
     assert one.admit(first) and one.admit(second) and first.dropped
-    assert list(one.by_address["e"]) == [second] and list(one.open) == [second]
+    assert list(one.by_address["e"]) == [second] and list(one.open) == [second] and list(one.waiting) == [second]
+
+
+def test_one_ipv6_slash_64_is_one_address_for_the_bound():
+    reg = Connections(Deadlines(per_address=2))
+    class Conn:
+        waiting = True
+
+        def __init__(self, host: str) -> None:
+            self.address = address_group(host)
+
+        def drop(self) -> None:
+            reg.remove(self)
+
+    conns = [Conn(f"2001:db8:0:7::{i:x}") for i in range(1, 4)]
+    assert all(reg.admit(c) for c in conns)
+    assert list(reg.open) == conns[1:]  # the third from the same /64 closed the first
+    assert address_group("2001:db8:0:8::1") != conns[0].address
+    assert address_group("::ffff:127.0.0.9") == "127.0.0.9"
 
 
 @pytest.mark.parametrize("value", [0, -1, "x", float("nan"), 1e9])
 def test_deadlines_are_checked(value):
     with pytest.raises(hevr.ParameterError, match="hevr.serve.head-timeout: expected seconds"):
         Deadlines(head=value)
-    with pytest.raises(hevr.ParameterError, match="hevr.serve.per-address: expected a whole number"):
+    with pytest.raises(hevr.ParameterError, match="hevr.serve.per-address: expected an integer"):
         Deadlines(per_address=value if value != 1e9 else 10**7)
 
 
