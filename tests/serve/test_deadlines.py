@@ -233,6 +233,50 @@ def test_websocket_upgrades_leave_no_connection_behind(tight):
         s.close()
 
 
+def test_the_guard_serves_an_upgrade_as_http_whatever_uvicorn_is_told():
+    """With uvicorn told to serve WebSockets (``ws="wsproto"``), the guarded protocol still answers an
+    upgrade request itself and its connection leaves the bounds when it closes."""
+    pytest.importorskip("wsproto")
+    import asyncio
+
+    import uvicorn
+    from uvicorn.server import ServerState
+
+    from hevr.serve.guard import guarded_protocol
+
+    async def app(scope, receive, send):
+        if scope["type"] == "websocket":  # pragma: no cover - reached only if the guard let it upgrade
+            await send({"type": "websocket.accept"})
+            return
+        await send({"type": "http.response.start", "status": 200, "headers": [(b"content-length", b"2")]})
+        await send({"type": "http.response.body", "body": b"ok"})
+
+    protocol, registry = guarded_protocol(Deadlines())
+    config = uvicorn.Config(app, http=protocol, ws="wsproto", log_level="warning")
+    config.load()
+
+    async def main() -> bytes:
+        state = ServerState()
+        server = await asyncio.get_running_loop().create_server(
+            lambda: protocol(config=config, server_state=state, app_state={}), "127.0.0.1", 0)
+        port = server.sockets[0].getsockname()[1]
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(b"GET / HTTP/1.1\r\nHost: a\r\nConnection: Upgrade\r\nUpgrade: websocket\r\n"
+                     b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n")
+        answer = await asyncio.wait_for(reader.read(4096), 30)
+        writer.close()
+        for _ in range(200):  # the server sees it closed
+            if not registry.open:
+                break
+            await asyncio.sleep(0.05)
+        server.close()
+        return answer
+
+    answer = asyncio.run(main())
+    assert answer.startswith(b"HTTP/1.1 200") and answer.endswith(b"ok"), answer
+    assert not registry.open and not registry.by_address and not registry.waiting
+
+
 def test_a_request_answered_before_its_body_does_not_hold_its_connection(tight):
     """POSTs without a token, a 1000-byte body announced and never sent: each is answered 401 and
     its connection closed, so a prompt client from the same address gets through (before, each
