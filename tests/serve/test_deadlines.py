@@ -10,6 +10,7 @@ anywhere); nothing here asserts speed.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import socket
 import ssl
@@ -24,7 +25,7 @@ import pytest
 
 import hevr
 from hevr.remote import connect
-from hevr.serve.guard import Connections, Deadlines, address_group
+from hevr.serve.guard import Connections, Deadlines, address_group, guarded_protocol
 from hevr.serve.tokens import hash_token, new_token
 
 IDLE, HEAD, BODY, SEND = 2.0, 4.0, 4.0, 2.0
@@ -68,6 +69,15 @@ def _open(url: str, source: str) -> socket.socket:
     s.connect((parts.hostname, parts.port))
     s.setblocking(False)
     return s
+
+
+def _pems(d) -> None:
+    """cert.pem, key.pem (for 127.0.0.1) and ca.pem, their authority's, in ``d``."""
+    ca = pytest.importorskip("trustme").CA()
+    cert = ca.issue_cert("127.0.0.1")
+    cert.cert_chain_pems[0].write_to_path(str(d / "cert.pem"))
+    cert.private_key_pem.write_to_path(str(d / "key.pem"))
+    ca.cert_pem.write_to_path(str(d / "ca.pem"))
 
 
 def _closed(s: socket.socket) -> bool:
@@ -237,38 +247,29 @@ def test_the_guard_serves_an_upgrade_as_http_whatever_uvicorn_is_told():
     """With uvicorn told to serve WebSockets (``ws="wsproto"``), the guarded protocol still answers an
     upgrade request itself and its connection leaves the bounds when it closes."""
     pytest.importorskip("wsproto")
-    import asyncio
-
     import uvicorn
     from uvicorn.server import ServerState
 
-    from hevr.serve.guard import guarded_protocol
-
-    async def app(scope, receive, send):
-        if scope["type"] == "websocket":  # pragma: no cover - reached only if the guard let it upgrade
-            await send({"type": "websocket.accept"})
-            return
+    async def app(scope, receive, send):  # a WebSocket: accepted if the guard lets it through (it did before)
+        if scope["type"] == "websocket":
+            return await send({"type": "websocket.accept"})
         await send({"type": "http.response.start", "status": 200, "headers": [(b"content-length", b"2")]})
         await send({"type": "http.response.body", "body": b"ok"})
 
     protocol, registry = guarded_protocol(Deadlines())
-    config = uvicorn.Config(app, http=protocol, ws="wsproto", log_level="warning")
+    config, state = uvicorn.Config(app, http=protocol, ws="wsproto", log_level="warning"), ServerState()
     config.load()
 
     async def main() -> bytes:
-        state = ServerState()
         server = await asyncio.get_running_loop().create_server(
             lambda: protocol(config=config, server_state=state, app_state={}), "127.0.0.1", 0)
-        port = server.sockets[0].getsockname()[1]
-        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        reader, writer = await asyncio.open_connection("127.0.0.1", server.sockets[0].getsockname()[1])
         writer.write(b"GET / HTTP/1.1\r\nHost: a\r\nConnection: Upgrade\r\nUpgrade: websocket\r\n"
                      b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n")
         answer = await asyncio.wait_for(reader.read(4096), 30)
         writer.close()
-        for _ in range(200):  # the server sees it closed
-            if not registry.open:
-                break
-            await asyncio.sleep(0.05)
+        for _ in range(200):  # until the server sees it closed
+            await asyncio.sleep(0.05 if registry.open else 0)
         server.close()
         return answer
 
@@ -306,14 +307,9 @@ def test_tls_connections_count_from_their_tcp_accept(served_store, tmp_path):
     (20 s here); before, a connection counted only once its handshake was done, so a flood of them
     ran the server out of open files. A TLS client from another address, and one from the same, get
     through all the while."""
-    trustme = pytest.importorskip("trustme")
     from _serving import hevr_serve
 
-    ca = trustme.CA()
-    cert = ca.issue_cert("127.0.0.1")
-    cert.cert_chain_pems[0].write_to_path(str(tmp_path / "cert.pem"))
-    cert.private_key_pem.write_to_path(str(tmp_path / "key.pem"))
-    ca.cert_pem.write_to_path(str(tmp_path / "ca.pem"))
+    _pems(tmp_path)
     env = dict(ENV, DASK_HEVR__SERVE__HANDSHAKE_TIMEOUT="20", DASK_HEVR__SERVE__PER_ADDRESS="4")
     with hevr_serve(str(served_store.dir / "v.zarr"), "--tls-cert", str(tmp_path / "cert.pem"), "--tls-key",
                     str(tmp_path / "key.pem"), env=env) as (url, proc, lines):
@@ -395,14 +391,9 @@ def test_deadlines_are_checked(value):
 def test_over_tls_a_handshake_and_a_head_have_deadlines_too(served_store, tmp_path):
     """TLS: a connection that never starts its handshake is closed at the handshake deadline (asyncio's
     default is 60 s), an idle or head-dribbling one after its handshake as over plain HTTP."""
-    trustme = pytest.importorskip("trustme")
     from _serving import hevr_serve
 
-    ca = trustme.CA()
-    cert = ca.issue_cert("127.0.0.1")
-    cert.cert_chain_pems[0].write_to_path(str(tmp_path / "cert.pem"))
-    cert.private_key_pem.write_to_path(str(tmp_path / "key.pem"))
-    ca.cert_pem.write_to_path(str(tmp_path / "ca.pem"))
+    _pems(tmp_path)
     env = dict(ENV, DASK_HEVR__SERVE__HANDSHAKE_TIMEOUT="3")
     with hevr_serve(str(served_store.dir / "v.zarr"), "--tls-cert", str(tmp_path / "cert.pem"), "--tls-key",
                     str(tmp_path / "key.pem"), env=env) as (url, proc, lines):
