@@ -90,7 +90,7 @@ def public_text(text: str) -> str:
     URLs and the server's absolute file paths replaced by ``<server path>`` (relative fractions
     such as ``W/H`` or ``1/2`` stay).
 
-    >>> public_text("brick at s3://bucket/ct.zarr/scalar/c/0: gone (W/H 1/2, see /srv/x)")
+    >>> public_text("brick at s3://bucket/ct.zarr/scalar/c/0: gone (W/H 1/2, see /data/x)")
     'brick at <server path>: gone (W/H 1/2, see <server path>)'
     """
     private = _private_pattern()
