@@ -30,8 +30,8 @@ from typing import Any
 
 from distributed import get_worker
 
-__all__ = ["TOPIC", "Cancelled", "Scope", "add_steps", "check", "clear", "counting", "current", "scope", "stop",
-           "stopped"]
+__all__ = ["TOPIC", "Cancelled", "Scope", "add_steps", "cancel_soon", "check", "clear", "counting", "current", "scope",
+           "stop", "stopped"]
 
 #: The worker event that carries a task's finer progress steps to its client.
 TOPIC = "hevr-steps"
@@ -104,6 +104,17 @@ class Scope:
     def wait(self, timeout: float | None = None) -> bool:
         """Wait until cancelled (at most ``timeout`` seconds); whether it was."""
         return self._event.wait(timeout)
+
+
+def cancel_soon(job: Scope, reason: str) -> None:
+    """Cancel ``job`` from a thread of its own, returning at once (a callback such as a distributed
+    client's ``cancel`` blocks on that client's loop, never on the caller's).
+
+    >>> s = Scope(); cancel_soon(s, "client left"); s.wait(10), s.reason
+    (True, 'client left')
+    """
+    if not job.cancelled:
+        threading.Thread(target=job.cancel, args=(reason,), name="hevr-cancel", daemon=True).start()
 
 
 @contextlib.contextmanager

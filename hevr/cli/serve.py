@@ -25,7 +25,7 @@ from typing import Any
 import dask
 
 from ..errors import ParameterError
-from ..serve.budget import MAX_PIXELS_KEY, MAX_PRODUCTS_KEY, MAX_TOKEN_PRODUCTS_KEY
+from ..serve.budget import MAX_PIXELS_KEY, MAX_PRODUCTS_CAP, MAX_PRODUCTS_KEY, MAX_TOKEN_PRODUCTS_KEY, parse_count
 from ..serve.run import check_listen, open_stores, serve
 from ..serve.token_file import TokenFile, add_token
 from ..serve.tokens import DEFAULT_CONCURRENT, TokenTable, hash_token, new_token
@@ -43,14 +43,12 @@ concurrent_type = int_range(1, 256, "1 to 256 renders at once")
 
 def products_type(text: str) -> int:
     """``--max-products``, ``--max-token-products``: a count in [1, 2^62], as an integer or in
-    scientific notation (``8e9``)."""
+    scientific notation (``8e9``; :func:`hevr.serve.budget.parse_count`)."""
     try:
-        value = float(text) if any(c in text for c in ".eE") else int(text)
-    except ValueError:
-        value = 0
-    if not (1 <= value <= 2**62) or value != int(value):
-        raise argparse.ArgumentTypeError(f"expected a whole number of products in [1, 2^62] (e.g. 8e9), got {text!r}")
-    return int(value)
+        return parse_count("products", text, MAX_PRODUCTS_CAP)
+    except ParameterError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of products in [1, 2^62] (e.g. 8e9), "
+                                         f"got {text!r}") from None
 
 
 pixels_type = int_range(1, 1 << 26, "a number of pixels in [1, 2^26] (e.g. 1048576 = 1024x1024)")

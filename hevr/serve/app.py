@@ -24,14 +24,16 @@ Read-only: no endpoint writes a store; renders keep ray sums in memory (the rend
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import threading
 from collections.abc import AsyncIterator
 from typing import Any
 
-import anyio
 from starlette.applications import Starlette
 
 from .budget import Budget
+from .jobs import SHUTDOWN
 from .problems import Problem, as_problem, not_found, problem, public_text
 from .routes import ROUTES
 from .service import Service
@@ -55,8 +57,25 @@ def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = 
         try:
             yield
         finally:  # Ctrl-C: renders still running are cancelled on the cluster, their threads end
-            await anyio.to_thread.run_sync(svc.close)
+            await _stop(svc)
 
     app = Starlette(routes=ROUTES, exception_handlers={404: not_found, 405: not_found}, lifespan=lifespan)
     app.state.service = svc
     return app
+
+
+async def _stop(svc: Service) -> None:
+    """Cancel the running renders at once (no thread needed: each scope is cancelled from a thread of
+    its own), then wait for them on a dedicated thread: never on anyio's pool, which renders may fill."""
+    svc.limits.cancel_all(SHUTDOWN)
+    loop = asyncio.get_running_loop()
+    done = loop.create_future()
+
+    def wait() -> None:
+        try:
+            svc.close()
+        finally:
+            loop.call_soon_threadsafe(lambda: done.done() or done.set_result(None))
+
+    threading.Thread(target=wait, name="hevr-shutdown", daemon=True).start()
+    await done

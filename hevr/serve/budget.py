@@ -10,8 +10,11 @@ Checked from the request's public parameters before any work (:meth:`Budget.chec
    four times the viewer's 512² frame; the planner's own limit allows 4096²);
 3. ``tile``: at least ``ceil(max(W, H) / 64)`` (at most 64 tiles a side, 4096 in all: a tile is a
    task of the graph per brick it meets);
-4. ``products``: the render's modular products P (:func:`hevr.rendering.planning.request.request_cost`:
-   P = C·c·Σ_r n_r) at most ``max_products`` (``--max-products``, default 2^33 ≈ 8.6·10^9).
+4. ``backend``: null or the server's own (``--backend``; a client cannot move a server sized for
+   ``cuda`` onto its CPU);
+5. ``products``: the render's modular products P (:func:`hevr.rendering.planning.request.request_cost`:
+   P = ⌈C·c·Σ_r n_r·max(b, 10)/10⌉, b the weights' bits: ``digits`` 9 costs three times the
+   default 3) at most ``max_products`` (``--max-products``, default 2^33 ≈ 8.6·10^9).
 
 The default of ``max_products`` serves the viewer: a 512² trilinear frame of the 4 vector components
 through a 512×512×300 CT at step 1 takes P = 9.3·10^8 at the viewer's orbit and at most
@@ -22,8 +25,12 @@ that CT's vector channel close up (distance 400, the CT filling the frame: P = 1
 In flight (:class:`Limits`, a 429 with ``Retry-After``): the renders at once (``--max-concurrent``,
 a token's ``concurrent``), the products of one token's running renders
 (``--max-token-products``, default 2·``max_products``) and of all (``max_concurrent``·``max_products``).
-A running render holds a :class:`hevr._cancel.Scope`: a client that leaves, or the server's
-shutdown (:meth:`Limits.close`), cancels its tasks on the cluster.
+The count comes first (:meth:`Limits.enter`, free), then the estimate (:meth:`Budget.estimate`:
+it casts the rays, 0.26 s of CPU at 512², 0.77 s at 1024² on a loaded 2-core machine; so at most
+``max_concurrent`` run at once, and the last :data:`CACHED` estimates are kept by store and
+request), then the products (:meth:`Limits.charge`). A running render holds a
+:class:`hevr._cancel.Scope`: a client that leaves, or the server's shutdown (:meth:`Limits.close`),
+cancels its tasks on the cluster.
 
 The settings are Dask config keys (``hevr.serve.max-products``, ``hevr.serve.max-token-products``,
 ``hevr.serve.max-pixels``; ``DASK_HEVR__SERVE__MAX_PRODUCTS`` … in the environment), which the CLI's
@@ -40,6 +47,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -47,14 +55,17 @@ from typing import Any
 
 import dask
 
-from .._cancel import Scope
+from .._cancel import Scope, cancel_soon
 from .._limits import MAX_IMAGE_PIXELS
 from .._validate import check_int
+from ..backends import AUTO
+from ..errors import ParameterError
 from ..rendering.geometry.camera import Camera
 from ..rendering.planning.request import RenderCost, request_cost
 from .problems import Problem
 
-__all__ = ["Budget", "Limits", "MAX_PRODUCTS_KEY", "MAX_PIXELS_KEY", "MAX_TOKEN_PRODUCTS_KEY"]
+__all__ = ["Budget", "Limits", "MAX_PRODUCTS_KEY", "MAX_PIXELS_KEY", "MAX_TOKEN_PRODUCTS_KEY", "Slot", "check_backend",
+           "parse_count"]
 
 MAX_PRODUCTS_KEY = "hevr.serve.max-products"
 MAX_TOKEN_PRODUCTS_KEY = "hevr.serve.max-token-products"
@@ -64,20 +75,52 @@ DEFAULT_MAX_PIXELS = 1024 * 1024
 MAX_PRODUCTS_CAP = 2**62
 TILES_SIDE = 64
 MIN_STEP = 0.25  # of the smallest voxel spacing
+CACHED = 256  # estimates kept (by store and request)
 
 
-def _setting(key: str, default: int | None, cap: int) -> int | None:
-    value = dask.config.get(key, None)
-    if value is None:
-        return default
+def parse_count(name: str, value: Any, cap: int) -> int:
+    """A count in [1, ``cap``] of a setting or an option: an integer, a whole float, or their text
+    (``"8e9"``, ``"1048576"``); else a :class:`~hevr.errors.ParameterError` naming ``name``.
+
+    >>> parse_count("--max-products", "8e9", 2**62), parse_count("k", 1e6, 2**62), parse_count("k", " 42 ", 99)
+    (8000000000, 1000000, 42)
+    >>> parse_count("--max-products", "8.5", 2**62)
+    Traceback (most recent call last):
+    ...
+    hevr.errors.ParameterError: --max-products: expected a whole number in [1, 4611686018427387904], got '8.5'
+    """
+    given = value
     if isinstance(value, str):
         try:
             value = float(value.strip()) if any(c in value for c in ".eE") else int(value.strip())
         except ValueError:
             pass
-    if isinstance(value, float) and value.is_integer():
+    if isinstance(value, float) and value.is_integer() and abs(value) <= 2.0**63:
         value = int(value)
-    return check_int(key, value, 1, cap)
+    if isinstance(given, str) and not isinstance(value, int):
+        raise ParameterError(f"{name}: expected a whole number in [1, {cap}], got {given!r}")
+    return check_int(name, value, 1, cap)
+
+
+def _setting(key: str, default: int | None, cap: int) -> int | None:
+    value = dask.config.get(key, None)
+    return default if value is None else parse_count(key, value, cap)
+
+
+def check_backend(requested: str | None, server: str | None) -> None:
+    """Refuse (422, naming ``backend``) a request's backend other than the server's: null, or the
+    one the server runs (``auto`` when it was given none).
+
+    >>> check_backend(None, "cuda"); check_backend("cuda", "cuda"); check_backend("auto", None)
+    >>> check_backend("cpu", "cuda")
+    Traceback (most recent call last):
+    ...
+    hevr.serve.problems.Problem: backend: expected null or 'cuda' (this server's), got 'cpu'
+    """
+    own = server or AUTO
+    if requested is not None and requested != own:
+        raise Problem(422, "backend not offered", f"backend: expected null or {own!r} (this server's), "
+                                                  f"got {requested!r}")
 
 
 @dataclass(frozen=True)
@@ -107,7 +150,13 @@ class Budget:
 
     def check(self, ev: Any, req: Any) -> RenderCost:
         """The cost of the :class:`~hevr.remote.protocol.RenderRequest` ``req`` on the store ``ev``,
-        or a 422 :class:`~hevr.serve.problems.Problem` naming the limit it passes (module docstring)."""
+        or a 422 :class:`~hevr.serve.problems.Problem` naming the limit it passes (module docstring):
+        :meth:`check_request`, then :meth:`estimate`."""
+        self.check_request(ev, req)
+        return self.estimate(ev, req)
+
+    def check_request(self, ev: Any, req: Any) -> None:
+        """The limits of the request's parameters (step, pixels, tile): free, before any work."""
         view = req.view
         floor = self.min_step * min(ev.spacing)
         if isinstance(view, Camera) and req.step < floor:
@@ -120,7 +169,22 @@ class Budget:
         if req.tile < self.min_tile(w, h):
             raise _over(f"tile: expected at least {self.min_tile(w, h)} for a {w}x{h} image on this server (at most "
                         f"{TILES_SIDE} tiles a side), got {req.tile}")
-        cost = request_cost(ev, view, req.channel, req.sampling, req.step, req.level)
+
+    def estimate(self, ev: Any, req: Any) -> RenderCost:
+        """The request's cost (:func:`~hevr.rendering.planning.request.request_cost`; it casts the
+        rays: call it after :meth:`check_request`, on a thread), or a 422 over ``max_products``; the
+        last :data:`CACHED` are kept by store and request."""
+        key = _cost_key(ev, req)
+        with _LOCK:
+            cost = _COSTS.get(key) if key is not None else None
+        if cost is None:
+            cost = request_cost(ev, req.view, req.channel, req.sampling, req.step, req.level, req.digits,
+                                req.weight_bits)
+            if key is not None:
+                with _LOCK:
+                    _COSTS[key] = cost
+                    while len(_COSTS) > CACHED:
+                        _COSTS.popitem(last=False)
         if cost.products > self.max_products:
             raise _over(f"products: expected at most {self.max_products:.3g} for one render on this server "
                         f"(--max-products), got an estimated {cost.products:.3g} ({cost.describe()})")
@@ -130,8 +194,30 @@ class Budget:
         return cost
 
 
+_LOCK = threading.Lock()
+_COSTS: OrderedDict = OrderedDict()
+
+
+def _cost_key(ev: Any, req: Any) -> tuple | None:
+    """What an estimate depends on: the store (its id and geometry) and the request (its key)."""
+    sid = getattr(ev.meta, "store_id", None)
+    if sid is None:
+        return None
+    return sid, tuple(ev.shape), tuple(ev.spacing), req.key()
+
+
 def _over(detail: str) -> Problem:
     return Problem(422, "render over the server's budget", detail)
+
+
+class Slot:
+    """One admitted render (:meth:`Limits.enter`): its token's name, the products charged to it
+    and its cancellation scope; released once (:meth:`Limits.release`, from any path)."""
+
+    __slots__ = ("name", "products", "scope", "released")
+
+    def __init__(self, name: str) -> None:
+        self.name, self.products, self.scope, self.released = name, 0, Scope(), False
 
 
 class Limits:
@@ -150,29 +236,52 @@ class Limits:
         self.scopes: set[Scope] = set()
         self.closed = False
 
+    def enter(self, name: str, per_token: int) -> Slot:
+        """A render's place, counted (a 429 when the token or the server runs its most renders now;
+        a 503 once closed): before any work, its estimate included."""
+        held = Slot(name)
+        with self.lock:
+            self._admit(name, per_token)
+            self.running[name] = self.running.get(name, 0) + 1
+            self.total += 1
+            self.scopes.add(held.scope)
+        return held
+
+    def charge(self, held: Slot, products: int) -> None:
+        """Add the render's estimated ``products`` to its token's and the server's in flight (a 429
+        over :attr:`Budget.token_products` or ``max_concurrent``·``max_products``)."""
+        products = int(products)
+        with self.lock:
+            self._afford(held.name, products)
+            held.products += products
+            self.products[held.name] = self.products.get(held.name, 0) + products
+            self.total_products += products
+
+    def release(self, held: Slot) -> None:
+        """Free the render's place and products (once: a second call does nothing)."""
+        with self.lock:
+            if held.released:
+                return
+            held.released = True
+            self.running[held.name] -= 1
+            self.products[held.name] = self.products.get(held.name, 0) - held.products
+            self.total -= 1
+            self.total_products -= held.products
+            self.scopes.discard(held.scope)
+            self.idle.notify_all()
+
     @contextmanager
     def slot(self, name: str, per_token: int, products: int = 0) -> Iterator[Scope]:
-        """A render's place (a 429 when there is none now; a 503 once closed) and its scope."""
-        scope = Scope()
-        with self.lock:
-            self._admit(name, per_token, int(products))
-            self.running[name] = self.running.get(name, 0) + 1
-            self.products[name] = self.products.get(name, 0) + int(products)
-            self.total += 1
-            self.total_products += int(products)
-            self.scopes.add(scope)
+        """:meth:`enter`, :meth:`charge` and, at the block's end, :meth:`release`: the block runs in
+        the slot's scope."""
+        held = self.enter(name, per_token)
         try:
-            yield scope
+            self.charge(held, products)
+            yield held.scope
         finally:
-            with self.lock:
-                self.running[name] -= 1
-                self.products[name] -= int(products)
-                self.total -= 1
-                self.total_products -= int(products)
-                self.scopes.discard(scope)
-                self.idle.notify_all()
+            self.release(held)
 
-    def _admit(self, name: str, per_token: int, products: int) -> None:
+    def _admit(self, name: str, per_token: int) -> None:
         if self.closed:
             raise Problem(503, "server shutting down", "render: expected a running server, got one shutting down",
                           {"Retry-After": "5"})
@@ -181,6 +290,8 @@ class Limits:
                           f"concurrent renders: expected at most {per_token} for this token and "
                           f"{self.max_concurrent} on this server, got one more; retry shortly",
                           {"Retry-After": "1"})
+
+    def _afford(self, name: str, products: int) -> None:
         mine, limit = self.products.get(name, 0), self.budget.token_products
         if mine and mine + products > limit:
             raise Problem(429, "too much work in flight",
@@ -199,14 +310,19 @@ class Limits:
         with self.lock:
             self.closed = False
 
-    def close(self, timeout: float = 5.0, reason: str = "the server is shutting down") -> bool:  # jobs.SHUTDOWN
-        """Refuse new renders, cancel the running ones, and wait up to ``timeout`` seconds for their
-        threads to end; whether they all did."""
+    def cancel_all(self, reason: str = "the server is shutting down") -> None:  # jobs.SHUTDOWN
+        """Refuse new renders and cancel the running ones, each from a thread of its own: returns at
+        once (the app's lifespan calls it on the event loop)."""
         with self.lock:
             self.closed = True
             scopes = list(self.scopes)
         for scope in scopes:
-            scope.cancel(reason)
+            cancel_soon(scope, reason)
+
+    def close(self, timeout: float = 5.0, reason: str = "the server is shutting down") -> bool:
+        """:meth:`cancel_all`, then wait up to ``timeout`` seconds for the renders' threads to end
+        (blocks: call it on a thread of its own); whether they all did."""
+        self.cancel_all(reason)
         deadline = time.monotonic() + timeout
         with self.lock:
             while self.total and time.monotonic() < deadline:

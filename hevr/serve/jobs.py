@@ -8,10 +8,15 @@ store's frame (:mod:`hevr.rendering.packed`) is planned from the same request by
 :meth:`~hevr.rendering.packed.plan.SlicePlan.of_store` the key holder calls. The server never
 holds a private key; these functions take none.
 
-A render runs on a worker thread in its slot of the server's limits (:func:`run_job`): it is
-cancelled on the cluster (:class:`hevr._cancel.Scope`, :func:`hevr._dask.compute`) when its client
-leaves (:data:`CLIENT_LEFT`; polled every :data:`POLL_S` seconds), when the request's task is
-cancelled, or when the server shuts down (:meth:`hevr.serve.budget.Limits.close`).
+A render runs on a worker thread of anyio's pool in its slot of the server's limits
+(:func:`run_job`; a /stream's too): it is cancelled on the cluster (:class:`hevr._cancel.Scope`,
+:func:`hevr._dask.compute`) when its client leaves (:data:`CLIENT_GONE`; polled every
+:data:`POLL_S` seconds), when the request's task is cancelled, or when the server shuts down
+(:meth:`hevr.serve.budget.Limits.cancel_all`). Its slot is released on every path, the thread's
+end or, when the thread never started (cancelled while waiting for one), :func:`run_job`'s.
+
+The render runs with the server's backend only (:func:`hevr.serve.budget.check_backend` refuses
+another), and its public statistics (:func:`stats_header`) say nothing of other tokens' renders.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import anyio
 from starlette.requests import Request
 
 from .. import _cancel
+from .._cancel import cancel_soon
 from .._tiles import TileLayout
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
@@ -46,29 +52,30 @@ from ..rendering.packed.request import render_packed_request
 from ..rendering.packed.verified import aggregate_for as packed_aggregate_for
 from ..rendering.verify import aggregate_for
 
-__all__ = ["CLIENT_LEFT", "POLL_S", "SHUTDOWN", "cancel_soon", "render_image", "run_job", "stats_header", "verify_aggregate"]
+__all__ = ["CLIENT_GONE", "POLL_S", "SHUTDOWN", "cancel_soon", "render_image", "run_job", "stats_header",
+           "verify_aggregate"]
 
-CLIENT_LEFT = "client left"  # the reason of a render cancelled because its client went away
+CLIENT_GONE = "client left"  # the reason of a render cancelled because its client went away (its log status: 499)
 SHUTDOWN = "the server is shutting down"  # the reason of a render cancelled as the server stops
 POLL_S = 0.25  # how often a running render asks whether its client is still there
 T = TypeVar("T")
 
 
-def cancel_soon(job: _cancel.Scope, reason: str) -> None:
-    """Cancel ``job`` from a thread of its own (cancelling a distributed client's futures blocks on
-    that client's loop, never on the server's)."""
-    if not job.cancelled:
-        threading.Thread(target=job.cancel, args=(reason,), name="hevr-cancel", daemon=True).start()
-
-
-async def run_job(request: Request, slot: Any, work: Callable[[], T]) -> T:
-    """``work()`` on a worker thread inside ``slot`` (a :meth:`~hevr.serve.budget.Limits.slot`, entered
-    here: its 429 comes before any work), as the job of the slot's scope: cancelled when the client
-    leaves, when the server cancels the awaiting task or closes its limits (:data:`SHUTDOWN`); then
-    :class:`~hevr._cancel.Cancelled` with the reason (``exc.args[0]``: :data:`CLIENT_LEFT`, ...)."""
-    job = slot.__enter__()
+async def run_job(request: Request, limits: Any, held: Any, work: Callable[[], T]) -> T:
+    """``work()`` on a worker thread of anyio's pool as the job of ``held`` (a
+    :class:`~hevr.serve.budget.Slot` of ``limits``, entered and charged before: its 429s come before
+    any work), released when the work ends, or here if its thread never started. Cancelled when the
+    client leaves, when the server cancels the awaiting task or closes its limits (:data:`SHUTDOWN`);
+    then :class:`~hevr._cancel.Cancelled` with the reason (``exc.args[0]``: :data:`CLIENT_GONE`, ...)."""
+    job = held.scope
+    gate = threading.Lock()
+    state = {"started": False, "dropped": False}
 
     def thread() -> T:
+        with gate:
+            if state["dropped"]:  # the awaiting task gave up before a thread took this
+                raise _cancel.Cancelled(job.reason or SHUTDOWN)
+            state["started"] = True
         try:
             with _cancel.scope(job):
                 return work()
@@ -77,13 +84,13 @@ async def run_job(request: Request, slot: Any, work: Callable[[], T]) -> T:
                 raise _cancel.Cancelled(job.reason) from None
             raise
         finally:
-            slot.__exit__(None, None, None)
+            limits.release(held)
 
     async def watch() -> None:
         while not job.cancelled:
             await asyncio.sleep(POLL_S)
             if await request.is_disconnected():
-                cancel_soon(job, CLIENT_LEFT)
+                cancel_soon(job, CLIENT_GONE)
 
     watcher = asyncio.ensure_future(watch())
     try:
@@ -93,6 +100,11 @@ async def run_job(request: Request, slot: Any, work: Callable[[], T]) -> T:
         raise _cancel.Cancelled(SHUTDOWN) from None
     finally:
         watcher.cancel()
+        with gate:
+            if not state["started"]:  # no thread took it (cancelled while waiting for one): release here
+                state["dropped"] = True
+                limits.release(held)
+
 
 _PLACEHOLDER_DENSITY = 0.5  # make_spec wants one for a vector channel; client finishing never uses it
 
@@ -144,17 +156,17 @@ def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | Non
                                  "(its frame comes whole from /render)")
         if isinstance(req.view, Plane):  # a slice: the same PlanePlan the key holder builds
             return render_packed_slice(ev, _packed_plane(ev, req), req.sampling, client=client, progress=False,
-                                       backend=req.backend or backend)
+                                       backend=backend)
         view = _packed_view(ev, req)
         if req.channel != "scalar":  # the k components, coloured by the key holder (the server sees no colouring)
             if req.step != 1.0 or req.level:
                 raise ParameterError(f"step/level: expected 1.0 and 0 for the {req.channel} channel of a packed store")
             check_render_size(view, ev.shape, ev.spacing, 1.0)
             return render_packed_colour(ev, view, req.sampling, None, tile=req.tile, client=client, progress=False,
-                                        backend=req.backend or backend, weight_bits=req.weight_bits,
+                                        backend=backend, weight_bits=req.weight_bits,
                                         channel=req.channel)
         return render_packed_request(ev, view, "xray", req.sampling, req.step, None, None,
-                                     tile=req.tile, client=client, progress=False, backend=req.backend or backend,
+                                     tile=req.tile, client=client, progress=False, backend=backend,
                                      compute=True, keep_sums=None, level=req.level or None, gradient=False,
                                      finish="client", verify=False, weight_bits=req.weight_bits)
     if req.weight_bits is not None:
@@ -163,7 +175,7 @@ def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | Non
     plane = isinstance(req.view, Plane)
     return _render(ev, req.view, mode, req.sampling, _step(req), density, None, digits=req.digits, precision=4,
                    comb_digits=4, pack=req.pack, tile=req.tile, cache=True, client=client, progress=False,
-                   backend=req.backend or backend, compute=True, keep_sums=None,
+                   backend=backend, compute=True, keep_sums=None,
                    views=(Plane,) if plane else (Camera,), level=req.level or None, gradient=gradient,
                    finish="client", stream=stream, verify=False)
 
@@ -174,7 +186,7 @@ def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, b
     if ev.meta.packing is not None and isinstance(req.view, Plane):
         plane = _packed_plane(ev, req)
         plan = PlanePlan.build(plane, ev.meta.shape, ev.meta.spacing, ev.meta.brick, ev.meta.packing, req.sampling)
-        name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
+        name = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), client=client)
         return slice_aggregate(ev, plan, name, client, False, seed)[0]
     if ev.meta.packing is not None:
         view = _packed_view(ev, req)
@@ -183,7 +195,7 @@ def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, b
         ev_l, view = at_level(ev, view, req.level or None)  # a level the owner encrypted: its own plan and tags
         check_render_size(view, ev_l.shape, ev_l.spacing, 1.0)  # the render's size limits, before any work
         plan = SlicePlan.of_store(ev_l.meta, view, req.sampling, req.tile, req.weight_bits)
-        name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
+        name = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), client=client)
         if req.channel != "scalar":
             return colour_aggregate(ev_l, plan, name, client, False, seed, req.channel)[0]
         return packed_aggregate_for(ev_l, plan, name, client, False, seed)[0]
@@ -198,14 +210,22 @@ def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, b
     checked = check_render_size(view, ev_l.shape, ev_l.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(view, ev_l.shape, ev_l.spacing, spec.step)
     layout = TileLayout(view.width, view.height, req.tile)
-    name = resolve_backend_name(req.backend or backend, int(ev.public_key.n).bit_length(), client=client)
+    name = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), client=client)
     return aggregate_for(ev_l, view, rays, spec.sampling, spec.step, digits if spec.sampling == "trilinear" else 0,
                          spec.channel, req.tile, layout.n_tiles, name, client, False, seed)
 
 
+STATS = ("finish_tasks", "resident", "backend", "seconds")  # not map_tasks nor reused_ray_sums: see stats_header
+
+
 def stats_header(stats: dict) -> str:
-    """The render's public statistics as one line of JSON (the ``X-Hevr-Stats`` header)."""
-    keep = {k: stats[k] for k in ("map_tasks", "finish_tasks", "reused_ray_sums", "resident", "backend", "seconds")
-            if k in stats}
+    """The render's public statistics as one line of JSON (the ``X-Hevr-Stats`` header): the
+    :data:`STATS` only. The render cache is the server's, across tokens: ``reused_ray_sums`` (and
+    ``map_tasks``, 0 for a reused render) would tell a token that another just rendered this view.
+
+    >>> stats_header({"map_tasks": 0, "reused_ray_sums": True, "finish_tasks": 2, "backend": "cpu"})
+    '{"finish_tasks":2,"backend":"cpu"}'
+    """
+    keep = {k: stats[k] for k in STATS if k in stats}
     return json.dumps(keep, separators=(",", ":"))
 

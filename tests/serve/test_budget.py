@@ -6,6 +6,8 @@ client); the render itself is replaced where only its admission is under test.""
 
 from __future__ import annotations
 
+import contextlib
+import json
 import threading
 import time
 import types
@@ -20,7 +22,8 @@ from hevr.remote.protocol import RenderRequest
 from hevr.rendering.planning.request import ray_cost
 from hevr.serve import jobs
 from hevr.serve.app import create_app
-from hevr.serve.budget import Budget, Limits
+from hevr.serve import budget as budget_module
+from hevr.serve.budget import Budget, Limits, parse_count
 from hevr.serve.problems import Problem
 from hevr.serve.run import open_stores
 
@@ -231,3 +234,122 @@ def test_a_level_costs_its_own_samples_and_a_packed_store_its_slices(served_stor
         r = http.post("/v1/stores/p/render", json=dict(body, tile=1, view=hevr.Camera.orbit(
             pk, azimuth=60, width=128, height=128, parallel=True).to_dict()))
         assert r.status_code == 422 and r.json()["detail"].startswith("tile: expected at least 2"), r.text
+
+
+def _holding(monkeypatch):
+    """A render_image that holds its slot until released; (entered, release)."""
+    release, entered = threading.Event(), threading.Event()
+
+    def render_image(ev, req, *, client, backend=None, stream=None):
+        entered.set()
+        assert release.wait(60)
+        raise Problem(503, "held", "held: the test's render ends here")
+
+    monkeypatch.setattr("hevr.serve.routes.render.render_image", render_image)
+    return entered, release
+
+
+@contextlib.contextmanager
+def _released(release: threading.Event):
+    """Release the held render however the block ends (a failed assert does not hang the test)."""
+    try:
+        yield
+    finally:
+        release.set()
+
+
+def _counting(monkeypatch) -> list:
+    """Count the estimates (request_cost calls) the budget makes."""
+    calls: list = []
+    real = budget_module.request_cost
+
+    def counted(*a, **k):
+        calls.append(a[1])
+        return real(*a, **k)
+
+    monkeypatch.setattr(budget_module, "request_cost", counted)
+    budget_module._COSTS.clear()  # no estimate kept from another test
+    return calls
+
+
+def test_a_token_at_its_limit_is_refused_before_any_estimate(served_store, monkeypatch):
+    """M2: the concurrency count comes before the estimate (which casts every ray): a token at its
+    ``concurrent`` limit gets its 429 for free; the same request again is not estimated twice."""
+    entered, release = _holding(monkeypatch)
+    calls = _counting(monkeypatch)
+    app = create_app(open_stores([str(served_store.dir / "v.zarr")]), max_concurrent=1)
+    with TestClient(app) as http, _released(release):
+        first: dict = {}
+        body = _body(served_store.ev, 16, 16)
+        t = threading.Thread(target=lambda: first.setdefault("r", http.post("/v1/stores/v/render", json=body)))
+        t.start()
+        assert entered.wait(60) and len(calls) == 1
+        for w in (32, 48, 64):  # other views: each would be a fresh estimate
+            r = http.post("/v1/stores/v/render", json=_body(served_store.ev, w, w))
+            assert r.status_code == 429 and r.headers["retry-after"] == "1", r.text
+            assert "concurrent renders: expected at most 1" in r.json()["detail"]
+        assert len(calls) == 1  # none of them was estimated
+        release.set()
+        t.join(60)
+        assert first["r"].status_code == 503 and app.state.service.limits.total == 0
+        entered.clear()
+        t = threading.Thread(target=lambda: first.setdefault("s", http.post("/v1/stores/v/render", json=body)))
+        t.start()
+        assert entered.wait(60)
+        release.set()
+        t.join(60)
+        assert len(calls) == 1  # the same request on the same store: its estimate was kept
+
+
+def test_the_weights_bits_scale_the_estimate(served_store):
+    """M3: ``digits`` 9 (30-bit trilinear weights) costs three times the default 3 (10 bits);
+    nearest weights are unaffected; a packed store's ``weight_bits`` 16 costs 1.6 times its 8."""
+    cam = hevr.Camera.orbit(CT, azimuth=30, elevation=20, width=64, height=64)
+    b = Budget()
+    three = b.check(_ct(), RenderRequest(view=cam, channel="vector", sampling="trilinear", digits=3))
+    nine = b.check(_ct(), RenderRequest(view=cam, channel="vector", sampling="trilinear", digits=9))
+    assert (three.bits, nine.bits) == (10, 30) and nine.products == 3 * three.products
+    assert "30-bit weights" in nine.describe() and "bit" not in three.describe()
+    near = [b.check(_ct(), RenderRequest(view=cam, channel="vector", sampling="nearest", digits=d)).products
+            for d in (3, 9)]
+    assert near[0] == near[1]
+    packing = types.SimpleNamespace(weight_bits=8)
+    pk = types.SimpleNamespace(meta=types.SimpleNamespace(packing=packing, store_id=None), shape=CT,
+                               spacing=(1.0, 1.0, 1.0), level=0)
+    eight = b.check(pk, RenderRequest(view=cam, channel="scalar", sampling="trilinear", tile=8))
+    sixteen = b.check(pk, RenderRequest(view=cam, channel="scalar", sampling="trilinear", tile=8, weight_bits=16))
+    assert eight.products == 64 * 64 * 512 * 4 and sixteen.products == -(-eight.products * 16 // 10)
+
+
+def test_a_request_cannot_choose_another_backend(served_store, no_render):
+    """M3: a request's ``backend`` other than the server's is refused (422 naming it), before any work."""
+    app = create_app(open_stores([str(served_store.dir / "v.zarr")]), backend="cpu")
+    with TestClient(app) as http:
+        for endpoint in ("render", "stream"):
+            r = http.post(f"/v1/stores/v/{endpoint}", json=_body(served_store.ev, 8, 8, backend="auto"))
+            assert r.status_code == 422, r.text
+            assert r.json()["detail"] == "backend: expected null or 'cpu' (this server's), got 'auto'"
+        assert app.state.service.limits.total == 0
+
+
+def test_the_stats_header_tells_nothing_of_other_tokens(served_store):
+    """L3: the render cache is shared across tokens, so the header has no ``reused_ray_sums`` nor
+    ``map_tasks`` (0 for a reused render): the same view twice answers the same keys."""
+    app = create_app(open_stores([str(served_store.dir / "v.zarr")]))
+    with TestClient(app) as http:
+        body = _body(served_store.ev, 8, 8)
+        seen = [json.loads(http.post("/v1/stores/v/render", json=body).headers["x-hevr-stats"]) for _ in range(2)]
+    assert set(seen[0]) == set(seen[1]) and set(seen[0]) <= set(jobs.STATS), seen
+    assert "reused_ray_sums" not in seen[1] and "map_tasks" not in seen[1]
+
+
+def test_one_parser_for_counts():
+    """The CLI's ``--max-products`` and the Dask config's keys read "8e9" alike (budget.parse_count)."""
+    from hevr.cli.serve import products_type
+
+    assert products_type("8e9") == parse_count("k", "8e9", 2**62) == 8 * 10**9
+    with dask.config.set({"hevr.serve.max-products": "8e9"}):
+        assert Budget.from_config().max_products == 8 * 10**9
+    for bad in ("8.5", "0", "x", "1e30"):
+        with pytest.raises(hevr.ParameterError):
+            parse_count("k", bad, 2**62)

@@ -49,9 +49,10 @@ def _slow_render(started: list, done: threading.Event):
     return render_image
 
 
-async def _leave(app, path: str, body: dict, leave: threading.Event | None) -> list:
+async def _leave(app, path: str, body: dict, leave: threading.Event | None, slow_send: bool = False) -> list:
     """Call ``app`` as a client that goes away once its request is sent, when ``leave`` is set
-    (None: never); the messages it was sent."""
+    (None: never); the messages it was sent (``slow_send``: each send yields to the loop first, as a
+    server's write may)."""
     raw = json.dumps(body).encode()
     sent: list = []
     gone = asyncio.Event()
@@ -66,6 +67,8 @@ async def _leave(app, path: str, body: dict, leave: threading.Event | None) -> l
         return {"type": "http.disconnect"}
 
     async def send(message):
+        if slow_send:
+            await asyncio.sleep(0.05)
         sent.append(message)
 
     async def trigger():
@@ -197,3 +200,103 @@ def test_a_render_on_a_cluster_is_cancelled_there(served_store, monkeypatch, cap
                  "channel": "scalar"}
         with TestClient(app) as http:
             assert http.post("/v1/stores/v/render", json=small).status_code == 200
+
+
+def _freed(limits, seconds: float) -> bool:
+    deadline = time.monotonic() + seconds
+    while limits.total and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return limits.total == 0 and limits.total_products == 0
+
+
+@pytest.mark.parametrize("endpoint", ["stream", "render"])
+def test_a_client_that_closes_right_after_its_request_cancels_its_render(served_store, monkeypatch, caplog,
+                                                                        endpoint):
+    """M5: the client is gone before the answer starts (Starlette then cancels a stream's response
+    before its frames' generator runs): the render is cancelled all the same, its slot freed within
+    seconds (uncancelled, its 1000 tasks take 25 s)."""
+    monkeypatch.setattr(jobs, "POLL_S", 60.0)  # not the watcher: the answer's own end cancels a stream
+    if endpoint == "render":
+        monkeypatch.setattr(jobs, "POLL_S", 0.05)
+    started: list = []
+    done = threading.Event()
+    monkeypatch.setattr("hevr.serve.routes.render.render_image", _slow_render(started, done))
+    app = create_app(open_stores([str(served_store.dir / "v.zarr")]))
+    gone = threading.Event()
+    gone.set()
+    with caplog.at_level(logging.INFO, logger="hevr.serve"):
+        asyncio.run(_leave(app, f"/v1/stores/v/{endpoint}", _body(served_store.ev), gone, slow_send=True))
+        assert _freed(app.state.service.limits, 15), f"the render was not cancelled ({len(started)} tasks ran)"
+    assert len(started) < N_TASKS // 2
+    text = "\n".join(r.getMessage() for r in caplog.records)
+    assert "client left; render cancelled" in text and f"/v1/stores/v/{endpoint} 499" in text, text
+
+
+def test_a_job_cancelled_while_waiting_for_a_thread_frees_its_slot(served_store):
+    """L1: the server cancels a request whose render waits for a thread of anyio's pool (all busy):
+    its slot is freed at once, and its work never runs."""
+    import anyio
+
+    from hevr._cancel import Cancelled
+    from hevr.serve.budget import Limits
+
+    class Present:
+        async def is_disconnected(self):
+            return False
+
+    limits, ran = Limits(2), []
+
+    async def main():
+        anyio.to_thread.current_default_thread_limiter().total_tokens = 1
+        busy = threading.Event()
+        blocker = asyncio.ensure_future(anyio.to_thread.run_sync(busy.wait, 60))
+        await asyncio.sleep(0.1)
+        job = asyncio.ensure_future(jobs.run_job(Present(), limits, limits.enter("a", 2), lambda: ran.append(1)))
+        await asyncio.sleep(0.2)
+        assert limits.total == 1
+        job.cancel()
+        with pytest.raises(Cancelled):
+            await job
+        freed = limits.total
+        busy.set()
+        await blocker
+        await asyncio.sleep(0.2)
+        return freed
+
+    assert asyncio.run(main()) == 0 and limits.total == 0 and not ran
+
+
+def test_shutdown_is_not_stalled_by_a_full_thread_pool(served_store, monkeypatch, quick_poll):
+    """L2: renders hold every thread of anyio's pool (here its one): the lifespan's shutdown cancels
+    them and waits on a thread of its own, so it ends (on the pool, it would wait forever)."""
+    import anyio
+
+    started: list = []
+    done = threading.Event()
+    monkeypatch.setattr("hevr.serve.routes.render.render_image", _slow_render(started, done))
+    app = create_app(open_stores([str(served_store.dir / "v.zarr")]))
+
+    async def main():
+        anyio.to_thread.current_default_thread_limiter().total_tokens = 1
+        events: asyncio.Queue = asyncio.Queue()
+        said: list = []
+
+        async def send(message):
+            said.append(message["type"])
+
+        await events.put({"type": "lifespan.startup"})
+        life = asyncio.ensure_future(app({"type": "lifespan", "asgi": {"version": "3.0"}, "state": {}},
+                                         events.get, send))
+        call = asyncio.ensure_future(_leave(app, "/v1/stores/v/render", _body(served_store.ev), None))
+        for _ in range(1200):
+            if started:
+                break
+            await asyncio.sleep(0.05)
+        assert started
+        await events.put({"type": "lifespan.shutdown"})
+        await asyncio.wait_for(life, 30)
+        return await call, said
+
+    sent, said = asyncio.run(main())
+    assert said == ["lifespan.startup.complete", "lifespan.shutdown.complete"]
+    assert done.is_set() and len(started) < N_TASKS and sent[0]["status"] == 503
