@@ -26,9 +26,9 @@ In flight (:class:`Limits`, a 429 with ``Retry-After``): the renders at once (``
 a token's ``concurrent``), the products of one token's running renders
 (``--max-token-products``, default 2·``max_products``) and of all (``max_concurrent``·``max_products``).
 The count comes first (:meth:`Limits.enter`, free), then the estimate (:meth:`Budget.estimate`:
-it casts the rays, 0.26 s of CPU at 512², 0.77 s at 1024² on a loaded 2-core machine; so at most
-``max_concurrent`` run at once, and the last :data:`CACHED` estimates are kept by store and
-request), then the products (:meth:`Limits.charge`). A running render holds a
+it casts the rays: 0.07 s of CPU at 512² and 0.27 s at 1024², idle, 0.26 and 0.77 s on a loaded
+2-core machine, half the pipeline's own cast; so at most ``max_concurrent`` run at once, and the
+last :data:`CACHED` are kept by store and request, a 0.1 ms hit), then the products (:meth:`Limits.charge`). A running render holds a
 :class:`hevr._cancel.Scope`: a client that leaves, or the server's shutdown (:meth:`Limits.close`),
 cancels its tasks on the cluster.
 
