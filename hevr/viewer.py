@@ -127,7 +127,8 @@ class Viewer:
     Attributes
     ----------
     history : list of dict
-        One entry per refresh: the request, ``map_tasks``, ``reused_ray_sums``,
+        One entry per refresh: the request, ``map_tasks`` (None for a remote frame: the server
+        does not say), ``reused_ray_sums``,
         ``client_recolour`` (True: re-coloured in the notebook, no request to the cluster),
         ``seconds`` (end to end: request to the image on show), ``error`` (or None) and
         ``bound``; or ``error_message`` when the render (or colouring) was refused.
@@ -378,18 +379,22 @@ class Viewer:
             bound = float(error_bound(self.ev, cam, level=level or None, **kw).max())
             window = (0.0, max(float(ref.max()), 1e-12))
         stats = frame.stats
-        entry.update(map_tasks=0 if recolour else stats["map_tasks"],
-                     reused_ray_sums=True if recolour else stats["reused_ray_sums"], client_recolour=recolour,
+        # a remote frame's server does not say (issue 48: what it reused would tell of other tokens' views)
+        tasks, reused = stats.get("map_tasks"), bool(stats.get("reused_ray_sums"))
+        entry.update(map_tasks=0 if recolour else tasks, reused_ray_sums=True if recolour else reused,
+                     client_recolour=recolour,
                      seconds=seconds, error=err, bound=bound)
         self.history.append(entry)  # before the image: an observer of image.value sees this entry last
         self.image.value = png(arr, window, self.size)
         took = f"{seconds:.2f} s" if seconds >= 1 else f"{1000 * seconds:.0f} ms"
         if recolour:
             how = f"re-coloured on the client in {1000 * seconds:.1f} ms, no server"
-        elif stats["reused_ray_sums"]:
+        elif reused:
             how = f"{took} request → decrypted frame, ray sums reused on the cluster (no map step)"
+        elif tasks is None:
+            how = f"{took} request → decrypted frame"
         else:
-            how = f"{took} request → decrypted frame, {stats['map_tasks']} map tasks"
+            how = f"{took} request → decrypted frame, {tasks} map tasks"
         what = f"preview at pyramid level {level}, " if level else ""
         text = f"{what}{kw['mode']}/{kw['sampling']}: {how}"
         if not recolour:  # a full frame of a verifiable store is checked before it is shown
