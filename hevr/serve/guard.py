@@ -50,6 +50,7 @@ from __future__ import annotations
 import ipaddress
 import logging
 import ssl
+import sys
 import time
 from asyncio.sslproto import SSLProtocol
 from collections import OrderedDict
@@ -218,6 +219,7 @@ class GuardedH11Protocol(H11Protocol):
         self.ws_protocol_class = None  # never hand the connection to another protocol (module docstring)
         self.address = "?"
         self.handshake: _Handshake | None = None  # the TLS connection's entry until its handshake was done
+        self.tls = False  # over TLS: a connection the guard closes is aborted (no close_notify is owed)
         self.phase: str | None = None  # "head", "body" or None (inside the app, or closed)
         self.since = 0.0
         self._deadline: Any = None
@@ -341,8 +343,10 @@ class GuardedH11Protocol(H11Protocol):
         self.phase = None
         if self.cycle is not None and not self.cycle.response_complete:
             self.cycle.keep_alive = False
-        if self.transport.get_write_buffer_size() or why in ("send", "body"):
-            self.transport.abort()  # nothing polite to wait for: unsent bytes, or a request cut short
+        if self.tls or self.transport.get_write_buffer_size() or why in ("send", "body"):
+            # nothing polite to wait for: unsent bytes, a request cut short, or TLS, whose polite close
+            # waits for the peer's close_notify with the socket open (30 s on 3.11, for ever on 3.10)
+            self.transport.abort()
         else:
             self.transport.close()
 
@@ -369,9 +373,12 @@ class _Handshake(SSLProtocol):
     waiting = True
 
     def __init__(self, app: GuardedH11Protocol, context: ssl.SSLContext, seconds: float) -> None:
-        super().__init__(app.loop, app, context, None, server_side=True, ssl_handshake_timeout=seconds)
+        # the close after an answer (a 401 before its body) waits for the peer's close_notify at most
+        # as long as a handshake (asyncio's default: 30 s; 3.10 has no such bound)
+        shutdown = {"ssl_shutdown_timeout": seconds} if sys.version_info >= (3, 11) else {}
+        super().__init__(app.loop, app, context, None, server_side=True, ssl_handshake_timeout=seconds, **shutdown)
         self.registry, self.address, self.raw, self.refused = app.registry, "?", None, False
-        app.handshake = self
+        app.handshake, app.tls = self, True
 
     def connection_made(self, transport: Any) -> None:
         self.raw = transport
