@@ -177,6 +177,8 @@ class Budget:
         key = _cost_key(ev, req)
         with _LOCK:
             cost = _COSTS.get(key) if key is not None else None
+            if cost is not None:
+                _COSTS.move_to_end(key)  # least recently used goes first, not the oldest
         if cost is None:
             cost = request_cost(ev, req.view, req.channel, req.sampling, req.step, req.level, req.digits,
                                 req.weight_bits)

@@ -114,13 +114,17 @@ class Deadlines:
         return cls(**given)
 
 
+_NAT64 = ipaddress.IPv6Network("64:ff9b::/96")
+
+
 def address_group(host: Any) -> str:
     """The key of the per-address bound for a client's address: an IPv4 address as it is, an IPv6
-    address's /64 (what one subscriber is given), an IPv4-mapped IPv6 address its IPv4 address;
+    address's /64 (what one subscriber is given), an IPv4-mapped IPv6 address or one of NAT64's
+    well-known prefix (64:ff9b::/96, IPv4 clients of an IPv6-only server) its IPv4 address;
     anything else (a Unix socket's peer) as it is.
 
-    >>> address_group("10.0.0.7"), address_group("::ffff:10.0.0.7")
-    ('10.0.0.7', '10.0.0.7')
+    >>> address_group("10.0.0.7"), address_group("::ffff:10.0.0.7"), address_group("64:ff9b::a00:7")
+    ('10.0.0.7', '10.0.0.7', '10.0.0.7')
     >>> address_group("2001:db8:1:2:aaaa::1"), address_group("2001:DB8:1:2::ffff%eth0"), address_group("?")
     ('2001:db8:1:2::/64', '2001:db8:1:2::/64', '?')
     """
@@ -132,6 +136,8 @@ def address_group(host: Any) -> str:
         return str(ip)
     if ip.ipv4_mapped is not None:
         return str(ip.ipv4_mapped)
+    if ip in _NAT64:
+        return str(ipaddress.IPv4Address(int(ip) & 0xFFFFFFFF))
     return str(ipaddress.IPv6Network((int(ip) >> 64 << 64, 64)))
 
 
