@@ -19,7 +19,10 @@ store is answered 503 with ``Retry-After`` ("store being reopened"): the old han
 that are no longer there, and the old resident copy, though consistent with the old metadata, is
 what the owner replaced (re-encryption is how a store is withdrawn). The listing keeps the store
 under its old id until then. A new version that cannot be opened yet (still being written) is
-logged, and the old handle stays until the file changes again. A brick that fails its check has
+logged, and the old handle stays until the file changes again. A new version that opens but cannot
+be made resident (the workers' memory, a worker lost) is tried again after 5 s, 10 s, ... at most
+:data:`RETRY_MAX` s apart, the store answered 503 meanwhile (its old resident copy is what the
+owner replaced; the file will not change again to say so). A brick that fails its check has
 every store looked at by the next request (:meth:`StoreWatch.soon`), so a render that came within
 the second after a rewrite costs one failed request at most.
 
@@ -45,6 +48,11 @@ log = logging.getLogger("hevr.serve")
 __all__ = ["CHECK_SECONDS", "RETRY_AFTER", "StoreWatch"]
 
 RETRY_AFTER = 2  # seconds a client is asked to wait for a store being opened again
+RETRY_FIRST, RETRY_MAX = 5.0, 300.0  # seconds before a failed persist of a new version is tried again
+
+
+class _PersistFailed(Exception):
+    """A new version opened but not made resident: tried again after a while (module docstring)."""
 
 
 def _watched(path: str) -> str | None:
@@ -77,10 +85,12 @@ class StoreWatch:
         self._lock = threading.Lock()
         self._reopening: dict[str, tuple] = {}  # store id -> the stat key of the version being opened
         self._done: dict[str, Any] = {}  # store id -> the opened store, or the exception (the reopen ended)
+        self._retry: dict[str, tuple[tuple, float, float]] = {}  # store id -> (its version, when, the wait after)
 
     def reopening(self, sid: str) -> bool:
-        """Whether the store ``sid`` is being opened again (a request naming it is a 503)."""
-        return sid in self._reopening
+        """Whether the store ``sid`` is being opened again, or waits to be after a failed persist
+        (a request naming it is a 503)."""
+        return sid in self._reopening or sid in self._retry
 
     def soon(self) -> None:
         """Look at every store at the next request, whenever it comes (a brick just failed its
@@ -98,7 +108,13 @@ class StoreWatch:
             w = self._files.get(sid)
             if w is None or sid not in svc.stores or sid in self._reopening:
                 continue
-            key = w.look()
+            retry = self._retry.get(sid)
+            if retry is not None:
+                if self.clock() < retry[1]:
+                    continue
+                key = retry[0]
+            else:
+                key = w.look()
             if key is None:
                 continue
             if is_missing(key):  # being swapped: looked at again when it changes
@@ -114,7 +130,10 @@ class StoreWatch:
         try:
             ev = open_volume(old.path)
             if old.resident is not None:
-                ev = ev.persist(old.resident.channels, client=svc.client, backend=svc.backend)
+                try:
+                    ev = ev.persist(old.resident.channels, client=svc.client, backend=svc.backend)
+                except Exception as exc:  # noqa: BLE001 -- said by _put; tried again after a while
+                    raise _PersistFailed(f"{type(exc).__name__}: {exc}") from exc
             result: Any = ev
         except BaseException as exc:  # noqa: BLE001 -- said by _finish, on the event loop's thread
             result = exc
@@ -131,6 +150,13 @@ class StoreWatch:
 
     def _put(self, svc: Any, sid: str, key: tuple, ev: Any) -> None:
         old, w = svc.stores[sid], self._files[sid]
+        retry = self._retry.pop(sid, None)
+        if isinstance(ev, _PersistFailed):
+            wait = RETRY_FIRST if retry is None else min(2 * retry[2], RETRY_MAX)
+            self._retry[sid] = (key, self.clock() + wait, wait)
+            log.error("store %s changed on disk and opened again, but could not be made resident (%s); the store %s "
+                      "is answered 503 and tried again in %g s", old.path, ev, sid, wait)
+            return
         if isinstance(ev, BaseException):
             if not isinstance(ev, (HevrError, OSError, ValueError)):  # a bug: its traceback
                 log.error("store %s: opening it again failed; still serving the store %s as opened", old.path, sid,

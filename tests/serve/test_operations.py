@@ -321,3 +321,43 @@ def test_hevr_serve_logs_each_request_by_default(store, quiet):
     else:
         assert re.fullmatch(stamp + r"127\.0\.0\.1 GET /v1/health 200 15 - \d+\.\d{3}", logged[0]), lines
         assert re.fullmatch(stamp + r"127\.0\.0\.1 GET /v1/stores 200 \d+ anonymous \d+\.\d{3}", logged[1]), lines
+
+
+def test_a_new_version_that_cannot_be_made_resident_is_a_503_and_tried_again(store, monkeypatch, caplog):
+    """``--persist``: a changed store that opens but cannot be made resident (the workers' memory) is not
+    served from its old resident copy (what the owner replaced) nor left to fail every render: 503 while
+    it waits, tried again after RETRY_FIRST seconds, then served (the file does not change again)."""
+    from hevr.serve import store_watch
+    from hevr.store.reader import EncryptedVolume
+
+    d, ev = store
+    res = hevr.open_volume(d / "ct.zarr").persist()
+    app = create_app({"ct": res})
+    clock = Clock()
+    _watched_by(app, clock)
+    app.state.service.watch.clock = clock
+    real, calls = EncryptedVolume.persist, []
+
+    def fails_once(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise hevr.MemoryLimitError("persist: expected room on the workers, got none")
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(EncryptedVolume, "persist", fails_once)
+    meta = d / "ct.zarr" / "zarr.json"
+    st = meta.stat()
+    try:
+        with TestClient(app) as http, caplog.at_level(logging.INFO, logger="hevr.serve"):
+            os.utime(meta, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+            clock.t += 1.5
+            assert http.get("/v1/stores/ct").status_code == 503
+            said = lambda: any("could not be made resident" in r.getMessage() for r in caplog.records)  # noqa: E731
+            assert wait_until(lambda: http.get("/v1/stores/ct").status_code == 503 and said(), timeout=60)
+            clock.t += 1.5
+            assert http.get("/v1/stores/ct").status_code == 503 and len(calls) == 1  # waits: not the old copy
+            clock.t += store_watch.RETRY_FIRST
+            assert _ready(http, "/v1/stores/ct").json()["id"] == ev.meta.store_id
+            assert len(calls) == 2
+    finally:
+        os.utime(meta, ns=(st.st_atime_ns, st.st_mtime_ns))
