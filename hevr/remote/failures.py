@@ -17,7 +17,7 @@ naming the field otherwise.
 from __future__ import annotations
 
 import email.utils
-import random
+import secrets
 import socket
 import ssl
 import time
@@ -79,7 +79,7 @@ def retry_wait(attempt: int, asked: float | None, jitter: float | None = None) -
     >>> retry_wait(0, 1.0, jitter=0.5), retry_wait(0, None, jitter=0.5), retry_wait(2, None, jitter=1.0)
     (1.1, 0.5, 3.0)
     """
-    u = random.random() if jitter is None else jitter
+    u = secrets.randbelow(2**53) / 2**53 if jitter is None else jitter  # the project's one source of randomness
     if asked is not None:
         return min(asked * (1.0 + 0.2 * u), MAX_WAIT)
     return min(0.5 * 2.0 ** attempt * (0.5 + u), MAX_WAIT)
