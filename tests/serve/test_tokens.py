@@ -335,10 +335,10 @@ def test_a_tokens_file_mounted_as_a_kubernetes_secret_is_followed(tmp_path, monk
 
 
 def test_add_token_refuses_a_folder_its_group_may_write(tmp_path):
-    shared = tmp_path / "shared"
-    shared.mkdir()
-    shared.chmod(0o770)
+    team = tmp_path / "team"
+    team.mkdir()
+    team.chmod(0o770)
     with pytest.raises(hevr.ParameterError, match="a folder your group may write"):
-        add_token(shared / "t.json", "first")
-    shared.chmod(0o750)
-    assert add_token(shared / "t.json", "first")[1]["concurrent"] == 2
+        add_token(team / "t.json", "first")
+    team.chmod(0o750)
+    assert add_token(team / "t.json", "first")[1]["concurrent"] == 2
