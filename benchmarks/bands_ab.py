@@ -15,8 +15,8 @@ import warnings
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr._bench.measure import machine
-from hevr._bench.pipeline import trace_frame
+from hevr.bench.measure import machine
+from hevr.bench.pipeline import trace_frame
 from hevr.paper import TF_NODES
 from hevr.rendering import encrypted as render_mod
 

@@ -34,7 +34,7 @@ import numpy as np
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr._bench.measure import machine
+from hevr.bench.measure import machine
 from hevr.paper import TF_NODES
 from hevr.rendering.geometry.rays import cast_rays
 

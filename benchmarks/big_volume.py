@@ -25,7 +25,7 @@ import numpy as np
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr._bench.measure import machine
+from hevr.bench.measure import machine
 from hevr.rendering.pipeline.graph import build_sums_graph
 from hevr.rendering.geometry.rays import cast_rays
 

@@ -12,7 +12,7 @@ render from scratch (``cache=False``); the two arms alternate within each round.
 End to end = request → decrypted float image on the client (one core): for the server arm
 ``render(finish="server")`` then ``decrypt``; for the client arm ``render_frame`` (units
 decrypted as they complete) then colouring. Finishing multiplications are counted from the
-plans (:mod:`hevr._bench.finish_count`). Writes raw numbers to OUT.json.
+plans (:mod:`hevr.bench.finish_count`). Writes raw numbers to OUT.json.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ import numpy as np
 from distributed import Client, LocalCluster, get_task_stream
 
 import hevr
-from hevr._bench.finish_count import finishing_modmuls
-from hevr._bench.measure import machine
+from hevr.bench.finish_count import finishing_modmuls
+from hevr.bench.measure import machine
 from hevr.paper import PAPER_DENSITIES, PAPER_TF1, TF_NODES
 from hevr.rendering.planning.modes import combination_matrix, make_spec
 from hevr.rendering.planning.planner import plan_render

@@ -15,7 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _machine import append, machine  # noqa: E402
 
-from hevr._bench.crypto_micro import crypto_micro  # noqa: E402
+from hevr.bench.crypto_micro import crypto_micro  # noqa: E402
 
 
 def main(argv=None) -> None:

@@ -9,7 +9,7 @@ the 4-dim vector channel, under a 64-bit key, so the arithmetic is nearly free a
 is the plaintext work and the task graph. Measured, in one run on one machine:
 
 * ``plain``: :func:`hevr.render_plain` of the same view (the reference the issue compares with),
-  in a fresh process (``plain_fresh_s``) and in this one after :func:`hevr._malloc.tune`
+  in a fresh process (``plain_fresh_s``) and in this one after :func:`hevr.runtime.malloc.tune`
   (``plain_nearest_s``, the faster: the ratios are taken against it);
 * ``geometry``: the plaintext work of one frame in one process, all bricks — casting the rays,
   the brick weights and the product plans — as the tasks do it (CPU seconds);
@@ -43,8 +43,8 @@ import numpy as np
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr import _malloc
-from hevr._bench.measure import machine
+from hevr.runtime import malloc as _malloc
+from hevr.bench.measure import machine
 from hevr.paper import TF_NODES
 from hevr.rendering.geometry.footprint import brick_footprints
 from hevr.rendering.geometry.group_weights import nearest_group_rows

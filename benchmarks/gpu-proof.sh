@@ -26,10 +26,10 @@
 #   4. the gpu-marked tests, the kernel source's experiment (HEVR_CIOS_REG) -> pytest.log, experiments.json
 #      and the operation suite on the device (HEVR_TEST_KERNELS=cuda)    -> pytest.log
 #   5. every compile/launch variant of owner.cuh in its own process      -> diagnose.log
-# goals: hevr/_bench/gpu_goals.py's steps, each its own process: the 100^3 scalar and 50^3 4-dim
+# goals: hevr/bench/gpu_goals.py's steps, each its own process: the 100^3 scalar and 50^3 4-dim
 # stores (2048-bit key), the backend's resident 150^2 frames (X-ray nearest, trilinear, TF trilinear
 # end to end), issue 46's packed frames (a 128^3 packed store at 2048 bits, two views x nearest and
-# bilinear, on the backend and on cpu, identical ciphertexts asserted; hevr/_bench/gpu_packed.py: about a
+# bilinear, on the backend and on cpu, identical ciphertexts asserted; hevr/bench/gpu_packed.py: about a
 # minute), the cpu curve on 1, 2, 4, 8, 16 workers; then where a frame's time goes
 # (benchmarks/gpu_profile_frame.py)                                     -> goals.jsonl, goals.md, profile.log
 # packed: the packed step alone (DEADLINE 150 s), for a lease that has already run the other two.
@@ -49,7 +49,7 @@ run|goals|packed)
   # names owner.cuh's faulting access, the kernel attributes, then the owner suite with them on), the
   # gpu-marked tests (the backend's verdict), the throughput (products/s, pairs/s: end to end and
   # kernels only, HEVR_CIOS_REG beside the default), then the compile/launch variants of owner.cuh.
-  # goals (call 2, under 7 minutes: DEADLINE 400 s): issue 40's goal table (hevr/_bench/gpu_goals.py):
+  # goals (call 2, under 7 minutes: DEADLINE 400 s): issue 40's goal table (hevr/bench/gpu_goals.py):
   # the 100^3 and 50^3 (4-dim) stores, the GPU's resident frames, the cpu curve on 1-16 workers.
   # Leaves room in a 15-minute lease for both calls and their starts; each step gets what is left.
   : "${OUT:?run this through the device tool (it sets OUT)}"
@@ -73,7 +73,7 @@ run|goals|packed)
   # the key holder's record refuses a folder others may write (/tmp is 1777): a private one
   mkdir -p -m 700 "$(dirname "$HEVR_KNOWN_STORES")"
   WORK=${WORK:-/tmp/hevr-goals}
-  G="$PY -m hevr._bench.gpu_goals --out $OUT --work $WORK ${GOALS_ARGS:-}"
+  G="$PY -m hevr.bench.gpu_goals --out $OUT --work $WORK ${GOALS_ARGS:-}"
   if [ "$1" = run ]; then
     { nvidia-smi -L; nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv; nproc; } 2>&1 \
       | tee "$OUT/device.txt"
@@ -92,7 +92,7 @@ run|goals|packed)
     #    then the source's experiment (HEVR_CIOS_REG) and the operation suite on the device
     HEVR_TEST_KERNELS=cuda step 80 $PY -m pytest -q -rs -p no:cacheprovider -o addopts= -m gpu \
       tests/backends/test_cuda_device.py tests/backends/test_packed_backends.py >> "$OUT/pytest.log" 2>&1
-    step 40 $PY -c "import json, sys; from hevr.backends import get_backend; from hevr._bench.gpu import experiments
+    step 40 $PY -c "import json, sys; from hevr.backends import get_backend; from hevr.bench.gpu import experiments
 print(json.dumps(experiments(get_backend('cuda'), False)))" > "$OUT/experiments.json" 2>>"$OUT/goals.log"
     HEVR_TEST_KERNELS=cuda step 60 $PY -m pytest -q -rs -p no:cacheprovider -o addopts= --maxfail=20 \
       tests/backends/test_cuda_host_backend.py >> "$OUT/pytest.log" 2>&1

@@ -28,8 +28,8 @@ from _fake_cupy import FakeCupy
 sys.modules["cupy"] = FakeCupy
 
 import hevr
-from hevr import _stats
-from hevr._bench.gpu import phantom
+from hevr.runtime import stats
+from hevr.bench.gpu import phantom
 from hevr.backends.cuda import device
 from hevr.rendering.pipeline import maps
 
@@ -37,9 +37,9 @@ from hevr.rendering.pipeline import maps
 def launches(rv, cam, sampling: str) -> str:
     with dask.config.set(scheduler="sync"):
         hevr.render(rv, cam, "xray", sampling, backend="cuda", progress=False, cache=False)  # warm
-        _stats.take()
+        stats.take()
         img = hevr.render(rv, cam, "xray", sampling, backend="cuda", progress=False, cache=False)
-    c = _stats.take()["counts"]
+    c = stats.take()["counts"]
     runs = {k[7:]: n for k, n in c.items() if k.startswith("launch ")}
     text = ", ".join(f"{k[2:]} {n}×{c['threads ' + k] / n:.0f}" for k, n in sorted(runs.items()))
     return f"{img.stats['map_tasks']} | {sum(runs.values())} | {text}"

@@ -8,7 +8,7 @@ Dask's synchronous scheduler in this process (no cluster), so the answer is the 
     python benchmarks/gpu_profile_frame.py [size] [backend ...]     # default 24 cuda cpu
     python benchmarks/gpu_profile_frame.py --fake 24 cuda             # no GPU: CuPy played by the host build
 
-After each profile it prints the frame's phases (``hevr._stats``: seconds and counts per map,
+After each profile it prints the frame's phases (``hevr.runtime.stats``: seconds and counts per map,
 merge and finish phase) and, for ``cuda``, its launches per kernel with their threads: a GPU
 thread runs a chain of 4096-bit products about 20x slower than a CPU core, so a frame of few,
 small launches is slow however fast the device is in bulk.
@@ -28,8 +28,8 @@ import warnings
 import dask
 
 import hevr
-from hevr import _stats
-from hevr._bench.gpu import phantom
+from hevr.runtime import stats as _stats
+from hevr.bench.gpu import phantom
 
 
 def main(argv: list[str]) -> None:

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hevr._bench.measure import machine
+from hevr.bench.measure import machine
 from hevr.backends import CpuBackend, CudaHostBackend
 from hevr.crypto.records import record_width
 from hevr.rendering.geometry.camera import Camera

@@ -1,6 +1,6 @@
 """Kernel micro-benchmark: python benchmarks/kernel.py [--bits B] [--quick] [--no-append].
 
-The workloads and the measurement live in hevr/_bench/kernel_micro.py (``hevr bench`` runs
+The workloads and the measurement live in hevr/bench/kernel_micro.py (``hevr bench`` runs
 them too and puts the ratios beside the render benchmarks in RESULTS.md); run alone, this
 script prints the table and appends it to benchmarks/history.md.
 """
@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from hevr._bench.kernel_micro import kernel_micro, report
+from hevr.bench.kernel_micro import kernel_micro, report
 
 
 def main(argv=None) -> int:

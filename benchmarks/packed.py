@@ -37,7 +37,7 @@ import numpy as np
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr._bench.measure import dir_bytes, machine, mulmod_seconds
+from hevr.bench.measure import dir_bytes, machine, mulmod_seconds
 from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.packed import SlicePlan
 from hevr.rendering.packed.graph import brick_columns, column_pairs

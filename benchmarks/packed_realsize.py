@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 import hevr
-from hevr._bench.measure import dir_bytes, machine
+from hevr.bench.measure import dir_bytes, machine
 
 warnings.simplefilter("ignore")
 

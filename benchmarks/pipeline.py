@@ -23,8 +23,8 @@ import numpy as np
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr._bench.measure import machine
-from hevr._bench.pipeline import predict, trace_frame
+from hevr.bench.measure import machine
+from hevr.bench.pipeline import predict, trace_frame
 from hevr.paper import TF_NODES
 
 warnings.simplefilter("ignore")

@@ -30,7 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from hevr._bench.measure import machine
+from hevr.bench.measure import machine
 
 HERE = Path(__file__).resolve().parent
 HEAVY = ("zarr", "dask", "distributed", "fsspec", "numcodecs", "numpy", "PIL", "gmpy2")

@@ -33,7 +33,7 @@ import numpy as np
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr._bench.measure import machine
+from hevr.bench.measure import machine
 
 warnings.simplefilter("ignore")
 

@@ -19,7 +19,7 @@ The subpackages follow the data path; every public name is re-exported here, laz
 =====================  ==========================================================
 
 ``import hevr`` imports none of them: a public name is imported from its submodule when it is
-first used (:mod:`hevr._lazy`, PEP 562), so that ``import hevr`` and the ``hevr`` command start
+first used (:mod:`hevr.core.lazy`, PEP 562), so that ``import hevr`` and the ``hevr`` command start
 in a few tens of milliseconds instead of half a second (Zarr, Dask, distributed, numpy).
 ``hevr.render`` and ``from hevr import render`` work as before; the ``if TYPE_CHECKING:``
 imports below are what static tools and IDEs read.
@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ._lazy import attach
+from .core.lazy import attach
 
 if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is imported on first use
     from .colour import Colouring, Frame
@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
     from .crypto.keyfile import load_key
     from .crypto.keys import PrivateKey, PublicKey, generate_keypair
     from .crypto.number import EncryptedNumber
-    from ._dask import own_cluster
+    from .runtime.scheduler import own_cluster
     from .errors import (
         CorruptStoreError,
         CorruptVolumeError,
@@ -111,7 +111,7 @@ __version__ = "0.1.0"
 # Public name -> the submodule it is imported from, on first use (module docstring). Keep it
 # equal to the TYPE_CHECKING imports above (tests/test_lazy_imports.py checks).
 _LAZY = {
-    "._dask": ("own_cluster",),
+    ".runtime.scheduler": ("own_cluster",),
     ".colour": ("Colouring", "Frame"),
     ".crypto.encoding": ("BASE", "decode", "encode"),
     ".crypto.keyfile": ("load_key",),

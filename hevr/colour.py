@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 from PIL import ImageColor
 
-from ._validate import check_choice
+from .core.validate import check_choice
 from .errors import ParameterError
 from .volume.density import encode_density
 
@@ -352,7 +352,7 @@ def scaled_sums(values: list[int], exponent: int) -> np.ndarray:
     """The decrypted integer sums ``values`` (offset removed) times 10^exponent, as float64: one
     rounding (10^k is exact in float64 for k <= 22) — or, for sums beyond float64 or exponents
     below -300, exactly rounded through fractions (the planner only promises that the scaled
-    values fit: :func:`hevr._limits.fits_float`).
+    values fit: :func:`hevr.core.limits.fits_float`).
 
     >>> scaled_sums([12345, -5], -3).tolist(), scaled_sums([10**400], -398).tolist()
     ([12.345, -0.005], [100.0])

@@ -67,7 +67,7 @@ class KeyMismatchError(HevrError, ValueError):
 
 
 class PlaintextOverflowError(HevrError, OverflowError):
-    """A decrypted value lies in the ambiguous middle band of Z_n (|m| >= n/3)."""
+    """A decrypted value lies in the ambiguous middle band of Z_n (``|m| >= n/3``)."""
 
 
 class RenderPlanError(HevrError, ValueError):

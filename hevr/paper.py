@@ -1,9 +1,9 @@
 """The paper's render settings, in one place (Mazza, Patel, Viola, TVCG 2020).
 
 Public constants only — the settings the paper's figures and tables use — shared by the
-command line (:mod:`hevr.cli`), the demo, the benchmarks (:mod:`hevr._bench`), the phantom
+command line (:mod:`hevr.cli`), the demo, the benchmarks (:mod:`hevr.bench`), the phantom
 and the notebooks. The paper's *measured* numbers (Tables 1-3) are in
-:mod:`hevr._bench.paper`.
+:mod:`hevr.bench.paper`.
 
 Transfer functions are tuples of ``(normalised density, colour)`` nodes, colours as CSS
 names, so they can be passed to :func:`hevr.render` and :func:`hevr.render_plain` as they

@@ -6,10 +6,10 @@ import json
 
 import pytest
 
-from hevr._bench import report
-from hevr._bench.pipeline import predict, simulate
-from hevr._bench.runner import rewrite_report, run_bench
-from hevr._bench.settings import PAPER, QUICK, SETTINGS
+from hevr.bench import report
+from hevr.bench.pipeline import predict, simulate
+from hevr.bench.runner import rewrite_report, run_bench
+from hevr.bench.settings import PAPER, QUICK, SETTINGS
 from hevr.cli.main import main
 from hevr.errors import ParameterError
 

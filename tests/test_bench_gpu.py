@@ -1,4 +1,4 @@
-"""``hevr bench --gpu`` (hevr._bench.gpu): the one command that proves the GPU backend. Here it runs
+"""``hevr bench --gpu`` (hevr.bench.gpu): the one command that proves the GPU backend. Here it runs
 on the host build of the same kernels (``--gpu-backend cuda-host``): it must find every operation
 and render identical, write gpu.md/gpu.json naming the device, and exit 1 when a backend is off by
 one product; without CuPy the ``cuda`` backend is refused with what is missing."""

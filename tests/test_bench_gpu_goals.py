@@ -1,4 +1,4 @@
-"""Issue 40's goal table (hevr/_bench/gpu_goals.py) on the host build: every step, tiny sizes.
+"""Issue 40's goal table (hevr/bench/gpu_goals.py) on the host build: every step, tiny sizes.
 
 What a GPU session runs (``benchmarks/gpu-proof.sh goals``) must work before a device is lent: the
 stores, the backend's frames, the cpu curve and the table, with the identity of the backend's and
@@ -12,7 +12,7 @@ import pytest
 
 import hevr
 
-from hevr._bench import gpu_goals
+from hevr.bench import gpu_goals
 
 
 @pytest.fixture(autouse=True)

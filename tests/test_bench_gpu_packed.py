@@ -1,4 +1,4 @@
-"""Issue 46's packed frame in the GPU proof (hevr/_bench/gpu_packed.py, ``gpu_goals packed``) on the
+"""Issue 46's packed frame in the GPU proof (hevr/bench/gpu_packed.py, ``gpu_goals packed``) on the
 host build, tiny sizes: what ``benchmarks/gpu-proof.sh goals`` / ``packed`` runs on a lent GPU must
 work before one is lent — the packed store, its frames on the backend and on cpu (in this process
 and on a LocalCluster), the identity and the bound checked, the rows and the table written — and a
@@ -11,7 +11,7 @@ import json
 import pytest
 
 from hevr import backends
-from hevr._bench import gpu_goals
+from hevr.bench import gpu_goals
 from hevr.backends import CudaHostBackend, register_backend
 
 

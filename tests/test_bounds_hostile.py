@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 import hevr
 from hevr.image.header import MAGIC
-from hevr._limits import FLOAT_MAX, fits_float
+from hevr.core.limits import FLOAT_MAX, fits_float
 from hevr.errors import HevrError
 from hevr.rendering.planning.modes import combination_matrix, make_spec
 from hevr.rendering.planning.planner import plan_render
@@ -129,7 +129,7 @@ def test_the_planner_plans_or_refuses_every_accepted_request(lo, width, digits, 
     hi = min(lo + width, 1e100)
     if not hi > lo:
         return
-    vr = hevr._validate.check_value_range((lo, hi))
+    vr = hevr.core.validate.check_value_range((lo, hi))
     nodes = [(0.1, "red"), (density, "blue")] if mode == "tf" else None
     spec = make_spec(mode, sampling, 1.0, density if mode == "emphasize" else None, nodes, 4)
     comb = combination_matrix(spec, 4) if mode != "xray" else None

@@ -19,8 +19,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hevr
-from hevr._limits import integrity_bits
-from hevr.rendering.planning.planner import _mantissa_range, plan_sums
+from hevr.core.limits import integrity_bits
+from hevr.rendering.planning.planner import plan_sums
+from hevr.store.packing import mantissa_range as _mantissa_range
 from hevr.store.metadata import ChannelInfo
 
 # values no render would produce by chance: found in pickled bytes if they leak

@@ -1,4 +1,4 @@
-"""hevr._dask: the one-time warning when the key holder is a Dask client of another machine's scheduler."""
+"""hevr.runtime.scheduler: the one-time warning when the key holder is a Dask client of another machine's scheduler."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import warnings
 
 import pytest
 
-from hevr import _dask
+from hevr.runtime import scheduler as _dask
 
 
 def _client(address):
@@ -49,17 +49,17 @@ def _interrupt_main_in(seconds: float) -> None:
 
 def test_ctrl_c_stops_the_running_tasks_of_the_threaded_scheduler():
     """Issue 39, item 5: the pool was waited for until its running tasks ended (13 s for a
-    brick); a task that checks hevr._cancel now stops at its next check."""
+    brick); a task that checks hevr.runtime.cancel now stops at its next check."""
     import time
 
     import dask
 
-    from hevr import _cancel
+    from hevr.runtime import cancel
 
     def long_task(i):
         end = time.monotonic() + 30
         while time.monotonic() < end:
-            _cancel.check()
+            cancel.check()
             time.sleep(0.01)
         return i
 
@@ -68,9 +68,9 @@ def test_ctrl_c_stops_the_running_tasks_of_the_threaded_scheduler():
     with pytest.raises(KeyboardInterrupt):
         _dask.compute([dask.delayed(long_task)(i) for i in range(2)], progress=False)
     assert time.monotonic() - t0 < 3
-    assert _cancel.stopped()
+    assert cancel.stopped()
     assert _dask.compute([dask.delayed(lambda: 7)()], progress=False) == [7]  # a new job runs again
-    assert not _cancel.stopped()
+    assert not cancel.stopped()
 
 
 @pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")

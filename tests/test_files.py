@@ -1,4 +1,4 @@
-"""hevr._files: atomic writes with a fixed mode, and the one missing-file error."""
+"""hevr.core.files: atomic writes with a fixed mode, and the one missing-file error."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr._files import require_file, write_atomic
+from hevr.core.files import require_file, write_atomic
 
 
 def test_write_atomic_mode_and_no_leftovers(tmp_path):

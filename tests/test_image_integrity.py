@@ -21,8 +21,8 @@ import pytest
 import hevr
 from hevr.image import header as image_header
 from hevr.image.header import MAGIC
-from hevr._limits import integrity_bits
-from hevr._tiles import TileLayout
+from hevr.core.limits import integrity_bits
+from hevr.image.tiles import TileLayout
 from hevr.crypto.records import mpz_to_bytes
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
@@ -99,7 +99,7 @@ def _targets(img):
 
 # -- the images used here are meaningful ---------------------------------------------------
 def test_integrity_margin_is_the_planners():
-    """The header checks and the planner share hevr._limits: κ = 64 for real keys."""
+    """The header checks and the planner share hevr.core.limits: κ = 64 for real keys."""
     assert image_header.integrity_bits is integrity_bits and integrity_bits(256) == 64
 
 

@@ -1,4 +1,4 @@
-"""The lazy re-exports of ``hevr`` and ``hevr.rendering`` (:mod:`hevr._lazy`): they behave as the
+"""The lazy re-exports of ``hevr`` and ``hevr.rendering`` (:mod:`hevr.core.lazy`): they behave as the
 eager imports of before, and their tables say what their ``if TYPE_CHECKING:`` imports say.
 
 What the command line imports at start-up is checked in ``tests/cli/test_startup.py``.
@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 import hevr
-from hevr._lazy import exported
+from hevr.core.lazy import exported
 
 PACKAGES = ("hevr", "hevr.rendering", "hevr.rendering.geometry", "hevr.rendering.planning", "hevr.rendering.pipeline",
             "hevr.rendering.reference")

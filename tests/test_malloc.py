@@ -1,4 +1,4 @@
-"""The render processes' allocator thresholds (hevr._malloc): set once per process with glibc's
+"""The render processes' allocator thresholds (hevr.runtime.malloc): set once per process with glibc's
 mallopt, never when ``hevr.malloc-tuning`` is false, and in Dask workers by the first render task."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr import _malloc
+from hevr.runtime import malloc
 
 glibc = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="mallopt is glibc's (Linux)")
 
@@ -31,37 +31,37 @@ class _Calls:
 @glibc
 def test_tune_sets_both_thresholds_once(monkeypatch):
     fake = _Calls()
-    monkeypatch.setattr(_malloc, "_DONE", [])
+    monkeypatch.setattr(malloc, "_DONE", [])
     monkeypatch.setattr(ctypes, "CDLL", lambda name: type("Libc", (), {"mallopt": fake})())
-    assert _malloc.tune() is True and _malloc.tune() is True
-    assert fake.calls == [(_malloc.M_MMAP_THRESHOLD, 32 << 20), (_malloc.M_TRIM_THRESHOLD, 64 << 20)]
+    assert malloc.tune() is True and malloc.tune() is True
+    assert fake.calls == [(malloc.M_MMAP_THRESHOLD, 32 << 20), (malloc.M_TRIM_THRESHOLD, 64 << 20)]
 
 
 @pytest.mark.parametrize("off", [False, "false", "0", "off"])
 def test_config_off_leaves_the_allocator_alone(monkeypatch, off):
     fake = _Calls()
-    monkeypatch.setattr(_malloc, "_DONE", [])
+    monkeypatch.setattr(malloc, "_DONE", [])
     monkeypatch.setattr(ctypes, "CDLL", lambda name: type("Libc", (), {"mallopt": fake})())
     with dask.config.set({"hevr.malloc-tuning": off}):
-        assert _malloc.tune() is False
-    assert fake.calls == [] and _malloc._DONE == []  # asked again once the setting allows it
+        assert malloc.tune() is False
+    assert fake.calls == [] and malloc._DONE == []  # asked again once the setting allows it
 
 
 @glibc
 def test_a_refused_mallopt_or_no_glibc_is_false(monkeypatch):
-    monkeypatch.setattr(_malloc, "_DONE", [])
+    monkeypatch.setattr(malloc, "_DONE", [])
     monkeypatch.setattr(ctypes, "CDLL", lambda name: type("Libc", (), {"mallopt": _Calls(0)})())
-    assert _malloc.tune() is False
-    monkeypatch.setattr(_malloc, "_DONE", [])
+    assert malloc.tune() is False
+    monkeypatch.setattr(malloc, "_DONE", [])
 
     def missing(name):
         raise OSError("no libc")
     monkeypatch.setattr(ctypes, "CDLL", missing)
-    assert _malloc.tune() is False
+    assert malloc.tune() is False
 
 
 def _tuned() -> list:
-    return list(_malloc._DONE)
+    return list(malloc._DONE)
 
 
 @glibc
@@ -81,7 +81,7 @@ def test_render_tasks_tune_their_worker(tmp_path, keypair256):
 
 
 def test_a_misspelt_setting_is_refused_by_name(monkeypatch):
-    monkeypatch.setattr(_malloc, "_DONE", [])
+    monkeypatch.setattr(malloc, "_DONE", [])
     with dask.config.set({"hevr.malloc-tuning": "flase"}), pytest.raises(hevr.ParameterError,
                                                                      match="hevr.malloc-tuning: expected true or false"):
-        _malloc.tune()
+        malloc.tune()

@@ -21,7 +21,7 @@ import pytest
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr import _dask
+from hevr.runtime import scheduler as _dask
 
 SCHEDULER = textwrap.dedent('''
     import asyncio, sys

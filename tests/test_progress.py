@@ -9,8 +9,10 @@ import logging
 import dask
 import pytest
 
-from hevr import _dask, _progress
-from hevr._progress import Progress, TaskCounter, sink_kind
+from hevr.runtime import scheduler as _dask
+
+from hevr.runtime import progress as _progress
+from hevr.runtime.progress import Progress, TaskCounter, sink_kind
 
 
 def _tasks(k: int):
@@ -100,11 +102,11 @@ def test_a_failing_job_on_a_cluster_is_not_shown_as_a_success(monkeypatch, clust
 def _stepping(k: int, per: int, pause: float = 0.0):
     import time
 
-    from hevr import _cancel
+    from hevr.runtime import cancel
 
     def task(i):
         for _ in range(per):
-            _cancel.add_steps(1)
+            cancel.add_steps(1)
             time.sleep(pause)
         return i
 

@@ -53,10 +53,10 @@ OPTIONAL_IMPORTS = frozenset({
 })  # optional extras only: required dependencies (distributed, pillow, zarr, ...) are imported at the top
 
 # The only modules that import by name (importlib, __import__), and why. Everything else imports at
-# its top; a lazy import is an entry in one of hevr._lazy's tables (hevr.__init__'s re-exports, the
+# its top; a lazy import is an entry in one of hevr.core.lazy's tables (hevr.__init__'s re-exports, the
 # CLI's table of commands), not a call hidden in a function body.
 LAZY_IMPORTERS = {
-    "hevr._lazy": "PEP 562 re-exports and the CLI's 'module:function' table: start-up time (issue 29)",
+    "hevr.core.lazy": "PEP 562 re-exports and the CLI's 'module:function' table: start-up time (issue 29)",
     "hevr.volume._optional": "optional dependencies (nibabel, pydicom, ...) named in one message",
 }
 
@@ -373,7 +373,7 @@ def test_imports_by_name_only_in_the_lazy_modules():
     found = [f"{_rel(path)}:{line}: {text}" for name, path in MODULES.items() if name not in LAZY_IMPORTERS
              for line, text in _imports_by_name(_parse(path))]
     assert not found, ("imports by name outside LAZY_IMPORTERS (import at the top of the module, or name the "
-                       "object in one of hevr._lazy's tables):\n" + "\n".join(found))
+                       "object in one of hevr.core.lazy's tables):\n" + "\n".join(found))
 
 
 def _docstrings_and_comments(path: Path):
@@ -480,7 +480,7 @@ def test_old_path_patterns():
                 "hevr.store.open_volume", "hevr/store/reader.py", "hevr.volume.phantom.PHANTOM_LEVELS",
                 "hevr.volume.density", "hevr.cli.main", "from hevr.cli.main import main", "hevr.render(ev, cam)",
                 "hevr.Camera.orbit", "hevr.rendering.pipeline.kernel", "hevr.render_plain", "hevr.kernel_micro",
-                "hevr._bench.kernel_micro", "hevr.encode(x)", "hevr.iodine", "hevr.errors",
+                "hevr.bench.kernel_micro", "hevr.encode(x)", "hevr.iodine", "hevr.errors",
                 "hevr.rendering.geometry.camera", "hevr/rendering/pipeline/maps.py", "from hevr.rendering import Plane",
                 "from hevr.rendering.pipeline import maps", "tests/rendering/test_camera.py", "rendering.plainly",
                 "from .rendering.reference.plain import render_plain", "hevr.rendering.encrypted"):

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr import _dask, _progress
+from hevr.runtime import scheduler as _dask
+from hevr.runtime import progress as _progress
 from hevr.cli.main import main
 from hevr.rendering import encrypted as encrypted_mod
 from hevr.rendering.pipeline import sums as sums_mod

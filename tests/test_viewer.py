@@ -70,7 +70,7 @@ def test_a_tf_change_makes_no_render_call(viewer, monkeypatch):
     render_frame nor the render underneath is called; a camera move renders again."""
     import hevr.rendering.encrypted as encrypted
     import hevr.rendering.pipeline.stream as stream
-    import hevr.viewer as viewer_module
+    import hevr.viewer.widget as viewer_module
 
     calls = []
 

@@ -1,5 +1,5 @@
 """Dragging on hevr.Viewer's image, headlessly: the front end's messages (``{"type": "camera",
-"dx", "dy", "wheel", "release"}``, hevr/_drag.py) are handed to the image widget as the kernel
+"dx", "dy", "wheel", "release"}``, hevr/viewer/drag.py) are handed to the image widget as the kernel
 would hand them, and the camera sliders, the frames rendered (preview level during a drag, the
 full frame on release) and the answers to the front end are checked. Every frame is compared
 with render_plain within error_bound at its level. The browser drags in
@@ -17,7 +17,7 @@ import pytest
 from PIL import Image
 
 import hevr
-from hevr._drag import DEGREES_PER_WIDTH, WHEEL_PIXELS_PER_DOUBLING
+from hevr.viewer.drag import DEGREES_PER_WIDTH, WHEEL_PIXELS_PER_DOUBLING
 from hevr.viewer import Viewer
 
 pytest.importorskip("ipywidgets")  # the notebook extra; installed with the test extra
@@ -220,7 +220,7 @@ def test_bad_messages_are_ignored_and_answered(stores, caplog):
     pyr, _flat, priv, vol = stores
     v = _viewer(pyr, priv, vol, settle=None)
     n = len(v.history)
-    with caplog.at_level(logging.WARNING, logger="hevr._drag"):
+    with caplog.at_level(logging.WARNING, logger="hevr.viewer.drag"):
         _message(v, dx="left")
         _message(v, dx=float("nan"))
         _message(v, dy=True)

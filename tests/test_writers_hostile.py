@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr import _files
+from hevr.core import files as _files
 from hevr.rendering.pipeline.sums import load_sums
 
 

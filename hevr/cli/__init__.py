@@ -21,7 +21,7 @@
 ``util``              shared checks, messages and formatting (light)
 ``demo``              ``hevr demo``: the whole data path on a phantom
 ``sheet``             the demo's contact sheet
-``bench``             ``hevr bench`` (the engine is :mod:`hevr._bench`)
+``bench``             ``hevr bench`` (the engine is :mod:`hevr.bench`)
 ====================  ==========================================================
 
 Start-up: ``main``, ``parser``, ``exits`` and ``util`` import no Dask, Zarr or numpy; a command's

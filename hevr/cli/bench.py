@@ -1,13 +1,14 @@
-"""``hevr bench``: the paper's Tables 1-3, the limits, python-paillier and scaling (hevr._bench)."""
+"""``hevr bench``: the paper's Tables 1-3, the limits, python-paillier and scaling (hevr.bench)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
-from .._bench.gpu import run_gpu_bench
-from .._dask import own_cluster
-from .._bench.runner import rewrite_report, run_bench
+from ..bench.gpu import run_gpu_bench
+from ..runtime.scheduler import own_cluster
+from ..bench.runner import rewrite_report
+from ..bench.runner import run_bench
 from ..backends import available_backends
 from .util import UsageError, show_progress, warn_line
 

@@ -21,7 +21,7 @@ from distributed import Client, LocalCluster
 from distributed.comm.addressing import parse_address
 from distributed.comm.registry import get_backend
 
-from .._dask import own_cluster
+from ..runtime.scheduler import own_cluster
 from .util import UsageError
 
 __all__ = ["check_scheduler", "dask_client", "describe_client"]

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from .._dask import declared_own
-from .._files import check_regular
+from ..runtime.scheduler import declared_own
+from ..core.files import check_regular
 from ..crypto.keys import PrivateKey
 from ..image import load_image
 from ..image.display import default_window

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from .._files import write_atomic
+from ..core.files import write_atomic
 from ..crypto.keys import SECURE_BITS, generate_keypair
 from ..errors import InsecureKeyWarning, MemoryLimitError
 from ..image.display import default_window, save_png

@@ -19,7 +19,7 @@ from typing import Any
 
 import zarr
 
-from .._files import check_regular
+from ..core.files import check_regular
 from ..crypto.keys import SECURE_BITS
 from ..crypto.phe_keys import is_phe_dict
 from ..errors import MissingFileError, StoreError

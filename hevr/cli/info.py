@@ -5,11 +5,11 @@ Describing a store, frame, sums file or scan needs Zarr, Dask or the readers
 (:mod:`hevr.cli.describe`, half a second of imports); a key file needs the key code only. So a
 local key file is recognised here, by the same tests and in the same order as
 :func:`hevr.cli.describe.describe` applies them: a regular file, not named ``.hevr`` or
-``.hevrsums``, not starting with a frame's or a sums file's signature (:mod:`hevr._magic`),
+``.hevrsums``, not starting with a frame's or a sums file's signature (:mod:`hevr.core.magic`),
 whose text is a JSON object that is an hevr or a python-paillier key. It is described by
 :func:`hevr.cli.keys.info_key`. Every other PATH, and anything unusual on the way (a URL, a
 folder, a FIFO, an unreadable file), goes to :func:`~hevr.cli.describe.describe`, imported then
-(:func:`hevr._lazy.resolve`), which decides and reports exactly as before.
+(:func:`hevr.core.lazy.resolve`), which decides and reports exactly as before.
 """
 
 from __future__ import annotations
@@ -19,8 +19,9 @@ import stat
 from pathlib import Path
 from typing import Any
 
-from .._lazy import resolve
-from .._magic import IMAGE_MAGIC_PREFIX, SUMS_MAGIC_PREFIX
+from ..core.lazy import resolve
+from ..core.magic import IMAGE_MAGIC_PREFIX
+from ..core.magic import SUMS_MAGIC_PREFIX
 from ..crypto.phe_keys import is_phe_dict
 from .keys import info_key
 

@@ -36,7 +36,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
-from .._lazy import resolve
+from ..core.lazy import resolve
 from .exits import cli_message, exit_code, interrupted_message
 from .parser import (
     COMMANDS,

@@ -22,7 +22,11 @@ import math
 import os
 from typing import Any
 
-from .._validate import MAX_BRICK_EDGE, MAX_STORE_DIGITS, MAX_VECTOR_DIMS
+from ..core.validate import MAX_BRICK_EDGE
+
+from ..core.validate import MAX_STORE_DIGITS
+
+from ..core.validate import MAX_VECTOR_DIMS
 from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
 
 # Environment variable: a JSON object of fsspec options, beside --storage-option (hevr.cli.storage).

@@ -12,7 +12,7 @@ other names in the folder are never touched. Private keys keep mode 0600 (they a
 :meth:`hevr.PrivateKey.save`).
 
 Each write itself is atomic and exclusive where nothing may be replaced
-(:func:`hevr._files.write_file`); a name the command owns is replaced by a rename.
+(:func:`hevr.core.files.write_file`); a name the command owns is replaced by a rename.
 """
 
 from __future__ import annotations
@@ -22,7 +22,11 @@ import json
 from pathlib import Path
 from typing import Iterable
 
-from .._files import fs_errors, read_regular, write_atomic
+from ..core.files import fs_errors
+
+from ..core.files import read_regular
+
+from ..core.files import write_atomic
 from ..errors import ExistingFileError, HevrError
 from .util import check_writable_folder
 

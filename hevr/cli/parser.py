@@ -17,7 +17,7 @@ imports before anything happens. ``hevr --version`` and ``hevr --help`` need non
   :mod:`hevr.cli.render_arguments` and nothing of the other commands.
 
 The handler is imported when the command runs (:func:`hevr.cli.main.main`). Both go through
-:func:`hevr._lazy.resolve`, the package's one place that imports by name; a test checks that
+:func:`hevr.core.lazy.resolve`, the package's one place that imports by name; a test checks that
 every string in the table names a function.
 
 This module imports the standard library, :mod:`hevr.paper` and the light CLI helpers only.
@@ -32,7 +32,7 @@ from collections.abc import Collection, Sequence
 from typing import NamedTuple
 
 from .. import __version__
-from .._lazy import resolve
+from ..core.lazy import resolve
 from ..paper import PAPER_TF1, tf_text
 from .exits import EXIT_RULE
 from .util import err_line

@@ -15,7 +15,9 @@ import math
 import re
 from typing import Any
 
-from .._limits import MAX_PIXELS_KEY, render_limits
+from ..core.limits import MAX_PIXELS_KEY
+
+from ..core.limits import render_limits
 from ..colour import parse_color
 from ..errors import ParameterError
 from ..rendering.geometry.views import VIEWS
@@ -39,7 +41,7 @@ MODALITY_CHOICES = ("auto",) + tuple(MODALITY_RANGES)
 # -- image sizes ------------------------------------------------------------------------------
 def size_type(text: str) -> tuple[int, int]:
     """``WxH`` (or a single ``N`` for a square) -> (width, height), at most the render
-    pixel limit (``hevr.limits.max-pixels``, :mod:`hevr._limits`) in all."""
+    pixel limit (``hevr.limits.max-pixels``, :mod:`hevr.core.limits`) in all."""
     parts = text.lower().replace("×", "x").split("x")
     try:
         vals = [int(p) for p in parts if p.strip().isascii()]

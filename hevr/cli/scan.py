@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from .._files import check_regular
+from ..core.files import check_regular
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from ..paper import PAPER_SIZE
 from ..volume.density import default_value_range, minmax
@@ -207,7 +207,7 @@ def scan_rows(path: Path, spec: str | None = None, **read: Any) -> list[tuple[st
               "none recorded (axes as stored)"),
              ("origin", ", ".join(f"{v:g}" for v in scan.origin)), ("modality", scan.modality or "-"),
              ("values", _values_row(vol, nans))]
-    if min(vol.shape) < 2:  # the rule of encrypt_volume (hevr._validate.check_volume, thick=True)
+    if min(vol.shape) < 2:  # the rule of encrypt_volume (hevr.core.validate.check_volume, thick=True)
         rows.append(("encrypt", "refused: a single slice (an axis of 1 voxel) has no thickness for the rays to "
                                 "cross; hevr renders volumes (give the folder or file of the whole series)"))
         return rows

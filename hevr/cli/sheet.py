@@ -9,7 +9,7 @@ from typing import Any
 
 from PIL import Image, ImageDraw, ImageFont
 
-from .._files import write_file
+from ..core.files import write_file
 
 __all__ = ["contact_sheet", "drawable"]
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .._files import write_file
+from ..core.files import write_file
 from ..errors import ParameterError
 from ..image.orient import describe_layout
 from ..paper import PAPER_TF1

@@ -30,7 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from .._files import check_regular, write_file
+from ..core.files import check_regular
+
+from ..core.files import write_file
 from ..errors import ExistingFileError, MissingFileError
 from ..image.display import save_png
 from ..image.header import MAGIC

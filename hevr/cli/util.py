@@ -22,8 +22,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .._files import check_regular, fs_errors
-from .._magic import IMAGE_MAGIC_PREFIX
+from ..core.files import check_regular
+
+from ..core.files import fs_errors
+from ..core.magic import IMAGE_MAGIC_PREFIX
 from ..errors import (
     ExistingFileError,
     FileSystemError,

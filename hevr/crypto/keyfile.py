@@ -32,8 +32,8 @@ from pathlib import Path
 import gmpy2
 from gmpy2 import mpz
 
-from .._files import require_file
-from .._validate import is_decimal
+from ..core.files import require_file
+from ..core.validate import is_decimal
 from ..errors import InsecureKeyWarning, InvalidKeyError, KeyFilePermissionWarning
 from .keys import MAX_BITS, MIN_BITS, SECURE_BITS, PrivateKey, PublicKey, factor_problem
 from .phe_keys import is_phe_dict, key_from_phe_dict

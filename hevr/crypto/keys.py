@@ -25,8 +25,8 @@ import gmpy2
 import numpy as np
 from gmpy2 import mpz
 
-from .._files import write_atomic
-from .._recent import Recent
+from ..core.files import write_atomic
+from ..runtime.recent import Recent
 from ..errors import InsecureKeyWarning, KeyMismatchError, ParameterError
 from . import paillier as raw
 from .encoding import decode
@@ -164,7 +164,7 @@ class PublicKey:
         return public_mask(self.n, self.nsquare)
 
     def encrypt(self, m: int, *, unsafe_no_obfuscation: bool = False) -> mpz:
-        """Encrypt a signed integer |m| < n // 3: c = (1 + m·n)·h^s mod n².
+        """Encrypt a signed integer ``|m| < n // 3``: ``c = (1 + m·n)·h^s mod n²``.
 
         The mask h^s (h = x^n a fixed random n-th residue, s a fresh ⌈bits(n)/2⌉-bit exponent
         from :mod:`secrets`) replaces the textbook r^n: Damgård–Jurik–Nielsen's fixed-base,

@@ -60,7 +60,7 @@ from typing import Any
 import gmpy2
 import numpy as np
 
-from .._recent import Recent
+from ..runtime.recent import Recent
 from ..errors import ParameterError
 
 __all__ = ["BLOCK", "RHO_BITS", "aggregate_holds", "TAG_SUFFIX", "TagKey", "betas", "coefficients", "coefficients_at", "data_channel", "generate_tag_key", "raw_check",

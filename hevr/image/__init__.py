@@ -18,7 +18,7 @@ Module by module:
 ==============  ================================================================================
 
 The file format is in ``docs/image-format.md``. Each name below is imported from its module
-when it is first used (:mod:`hevr._lazy`, as :mod:`hevr.rendering` does), so that the light
+when it is first used (:mod:`hevr.core.lazy`, as :mod:`hevr.rendering` does), so that the light
 modules (``header``, ``checks``: numpy and the key code) can be imported without the
 decryption and PNG stack.
 """
@@ -27,9 +27,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .._lazy import attach
+from ..core.lazy import attach
 
-if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr._lazy)
+if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr.core.lazy)
     from .display import save_png, to_uint8
     from .encrypted import _CORRUPT, EncryptedImage, _unpack_checked
     from .files import _from_blob, image_from_bytes, load_image

@@ -13,9 +13,13 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from .._limits import MAX_IMAGE_PIXELS, fits_float, integrity_bits
-from .._tiles import TileLayout
-from .._validate import is_decimal
+from ..core.limits import MAX_IMAGE_PIXELS
+
+from ..core.limits import fits_float
+
+from ..core.limits import integrity_bits
+from .tiles import TileLayout
+from ..core.validate import is_decimal
 from ..crypto.records import record_width
 from ..errors import HevrError, IntegrityError
 
@@ -103,10 +107,10 @@ def check_numbers(ctx: Fields, *, n: int, exponent: Any, bound: Any, offset: Any
     """The render plan's numbers against each other and against the integrity margin:
     |exponent| <= 1000, 0 <= offset <= bound, bits(bound) <= room, every pixel
     (m − offset)·10^exponent (m in [0, bound]) a finite float64
-    (:func:`hevr._limits.fits_float`), tile >= 1, pack_bits >= 0,
+    (:func:`hevr.core.limits.fits_float`), tile >= 1, pack_bits >= 0,
     per_pack >= 1, pack_bits >= 1 when per_pack > 1, pack_bits·per_pack <= room and
     bound < 2^pack_bits when pack_bits > 0, with room = bits(n) − 1 − κ (κ =
-    :func:`hevr._limits.integrity_bits`, the planner's margin)."""
+    :func:`hevr.core.limits.integrity_bits`, the planner's margin)."""
     kappa = integrity_bits(int(n).bit_length())
     room = int(n).bit_length() - 1 - kappa
     ctx.integer("exponent", exponent, -MAX_EXPONENT, MAX_EXPONENT)

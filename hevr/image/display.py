@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from .._files import write_file
-from .._validate import check_bool
+from ..core.files import write_file
+from ..core.validate import check_bool
 from ..errors import ParameterError
 from .orient import DEFAULT_CONVENTION, orient_slice
 
@@ -78,7 +78,7 @@ def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | No
     radiological by default — an axial slice with anterior at the top and the patient's right on
     the left, coronal and sagittal ones with superior at the top), not in the raw array order.
 
-    Encoded in memory, then written atomically (:func:`hevr._files.write_file`): never over an
+    Encoded in memory, then written atomically (:func:`hevr.core.files.write_file`): never over an
     existing file unless ``overwrite=True`` (:class:`hevr.ExistingFileError`), and a failed
     write is a :class:`hevr.FileSystemError` that leaves nothing behind.
 

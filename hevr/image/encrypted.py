@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_bool
+from ..core.validate import check_bool
 from ..backends import get_backend
 from ..colour import colour, colouring_spec, frame_from_sums, scaled_sums
 from ..crypto.keys import PrivateKey

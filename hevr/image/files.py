@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from .._files import read_regular
+from ..core.files import read_regular
 from ..errors import MissingFileError, ParameterError
 from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.files import is_packed_frame, parse_packed

@@ -24,9 +24,9 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from .._limits import integrity_bits
-from .._magic import IMAGE_MAGIC_PREFIX
-from .._tiles import TileLayout
+from ..core.limits import integrity_bits
+from ..core.magic import IMAGE_MAGIC_PREFIX
+from .tiles import TileLayout
 from ..crypto.paillier import fingerprint
 from ..crypto.records import record_width
 from ..errors import CorruptStoreError, IntegrityError

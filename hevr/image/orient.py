@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_choice
+from ..core.validate import check_choice
 from ..errors import ParameterError
 
 __all__ = ["CONVENTIONS", "DEFAULT_CONVENTION", "describe_layout", "orient_slice", "slice_layout"]

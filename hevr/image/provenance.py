@@ -16,7 +16,7 @@ import logging
 import warnings
 from typing import Any
 
-from .._dask import refuse_foreign_cluster
+from ..runtime.scheduler import refuse_foreign_cluster
 from ..errors import FrameMovedWarning, VerificationError
 from ..store import known
 from .proof import as_expect, check_expect, first_frame, proof_of

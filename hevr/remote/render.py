@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from .._tiles import TileLayout
-from .._validate import check_int
+from ..image.tiles import TileLayout
+from ..core.validate import check_int
 from ..backends import get_backend
 from ..errors import HevrError, IntegrityError, ParameterError, RemoteAnswerError
 from ..image import EncryptedImage, image_from_bytes

@@ -33,9 +33,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .._lazy import attach
+from ..core.lazy import attach
 
-if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr._lazy)
+if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr.core.lazy)
     from .encrypted import RaySums, clear_cache, error_bound, render
     from .geometry.camera import Camera
     from .geometry.plane import Plane

@@ -25,12 +25,13 @@ from typing import Any
 import dask
 from dask.delayed import Delayed, delayed
 
-from .. import _malloc
-from .._dask import active_client
-from .._dask import compute as run_tasks
-from .._dask import warn_if_remote
-from .._tiles import TileLayout
-from .._validate import check_bool, check_int
+from ..runtime import malloc
+from ..runtime.scheduler import active_client
+from ..runtime.scheduler import compute as run_tasks
+from ..runtime.scheduler import warn_if_remote
+from ..image.tiles import TileLayout
+from ..core.validate import check_bool
+from ..core.validate import check_int
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
 from ..image.encrypted import EncryptedImage
@@ -327,7 +328,7 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
                                    resident=ev.resident.backend if ev.resident is not None and ev.resident.bricks else None,
                                    client=cl)
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
-    _malloc.tune()  # the client's rays and plan too
+    malloc.tune()  # the client's rays and plan too
     t0 = time.perf_counter()
     rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
     if not rays.n_samples.any():  # public geometry: say so rather than hand back a black frame

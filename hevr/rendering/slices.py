@@ -24,7 +24,7 @@ from typing import Any
 
 from dask.delayed import Delayed
 
-from .._dask import active_client
+from ..runtime.scheduler import active_client
 from ..errors import ParameterError
 from ..image.encrypted import EncryptedImage
 from ..store.reader import EncryptedVolume

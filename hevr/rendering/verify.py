@@ -57,7 +57,7 @@ import dask
 import gmpy2
 import numpy as np
 
-from .._dask import compute as run_tasks
+from ..runtime.scheduler import compute as run_tasks
 from ..backends import get_backend
 from ..crypto.tags import (
     aggregate_holds,

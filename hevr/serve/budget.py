@@ -29,7 +29,7 @@ The count comes first (:meth:`Limits.enter`, free), then the estimate (:meth:`Bu
 it casts the rays: 0.07 s of CPU at 512² and 0.27 s at 1024², idle, 0.26 and 0.77 s on a loaded
 2-core machine, half the pipeline's own cast; so at most ``max_concurrent`` run at once, and the
 last :data:`CACHED` are kept by store and request, a 0.1 ms hit), then the products (:meth:`Limits.charge`). A running render holds a
-:class:`hevr._cancel.Scope`: a client that leaves, or the server's shutdown (:meth:`Limits.close`),
+:class:`hevr.runtime.cancel.Scope`: a client that leaves, or the server's shutdown (:meth:`Limits.close`),
 cancels its tasks on the cluster.
 
 The settings are Dask config keys (``hevr.serve.max-products``, ``hevr.serve.max-token-products``,
@@ -55,9 +55,11 @@ from typing import Any
 
 import dask
 
-from .._cancel import Scope, cancel_soon
-from .._limits import MAX_IMAGE_PIXELS
-from .._validate import check_int
+from ..runtime.cancel import Scope
+
+from ..runtime.cancel import cancel_soon
+from ..core.limits import MAX_IMAGE_PIXELS
+from ..core.validate import check_int
 from ..backends import AUTO
 from ..errors import ParameterError
 from ..rendering.geometry.camera import Camera
@@ -224,7 +226,7 @@ class Slot:
 
 class Limits:
     """What runs now: renders and their products per token name and in all, and each render's
-    cancellation :class:`~hevr._cancel.Scope` (thread-safe: released from render threads)."""
+    cancellation :class:`~hevr.runtime.cancel.Scope` (thread-safe: released from render threads)."""
 
     def __init__(self, max_concurrent: int, budget: Budget | None = None) -> None:
         self.max_concurrent = int(max_concurrent)

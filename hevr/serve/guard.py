@@ -61,7 +61,7 @@ import dask
 import h11
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from .._validate import check_int
+from ..core.validate import check_int
 from ..errors import ParameterError
 
 log = logging.getLogger("hevr.serve")

@@ -9,8 +9,8 @@ store's frame (:mod:`hevr.rendering.packed`) is planned from the same request by
 holds a private key; these functions take none.
 
 A render runs on a worker thread of anyio's pool in its slot of the server's limits
-(:func:`run_job`; a /stream's too): it is cancelled on the cluster (:class:`hevr._cancel.Scope`,
-:func:`hevr._dask.compute`) when its client leaves (:data:`CLIENT_GONE`; polled every
+(:func:`run_job`; a /stream's too): it is cancelled on the cluster (:class:`hevr.runtime.cancel.Scope`,
+:func:`hevr.runtime.scheduler.compute`) when its client leaves (:data:`CLIENT_GONE`; polled every
 :data:`POLL_S` seconds), when the request's task is cancelled, or when the server shuts down
 (:meth:`hevr.serve.budget.Limits.cancel_all`). Its slot is released on every path, the thread's
 end or, when the thread never started (cancelled while waiting for one), :func:`run_job`'s.
@@ -30,9 +30,9 @@ from typing import Any, TypeVar
 import anyio
 from starlette.requests import Request
 
-from .. import _cancel
-from .._cancel import cancel_soon
-from .._tiles import TileLayout
+from ..runtime import cancel
+from ..runtime.cancel import cancel_soon
+from ..image.tiles import TileLayout
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
 from ..image import EncryptedImage
@@ -66,7 +66,7 @@ async def run_job(request: Request, limits: Any, held: Any, work: Callable[[], T
     :class:`~hevr.serve.budget.Slot` of ``limits``, entered and charged before: its 429s come before
     any work), released when the work ends, or here if its thread never started. Cancelled when the
     client leaves, when the server cancels the awaiting task or closes its limits (:data:`SHUTDOWN`);
-    then :class:`~hevr._cancel.Cancelled` with the reason (``exc.args[0]``: :data:`CLIENT_GONE`, ...)."""
+    then :class:`~hevr.runtime.cancel.Cancelled` with the reason (``exc.args[0]``: :data:`CLIENT_GONE`, ...)."""
     job = held.scope
     gate = threading.Lock()
     state = {"started": False, "dropped": False}
@@ -74,14 +74,14 @@ async def run_job(request: Request, limits: Any, held: Any, work: Callable[[], T
     def thread() -> T:
         with gate:
             if state["dropped"]:  # the awaiting task gave up before a thread took this
-                raise _cancel.Cancelled(job.reason or SHUTDOWN)
+                raise cancel.Cancelled(job.reason or SHUTDOWN)
             state["started"] = True
         try:
-            with _cancel.scope(job):
+            with cancel.scope(job):
                 return work()
         except Exception:
             if job.cancelled:  # whatever the cancelled work raised: the reason
-                raise _cancel.Cancelled(job.reason) from None
+                raise cancel.Cancelled(job.reason) from None
             raise
         finally:
             limits.release(held)
@@ -97,7 +97,7 @@ async def run_job(request: Request, limits: Any, held: Any, work: Callable[[], T
         return await anyio.to_thread.run_sync(thread, abandon_on_cancel=True)
     except asyncio.CancelledError:  # the server cancels its requests' tasks as it stops: the work goes too,
         cancel_soon(job, SHUTDOWN)  # and the client is told so (a 503, not a dropped connection)
-        raise _cancel.Cancelled(SHUTDOWN) from None
+        raise cancel.Cancelled(SHUTDOWN) from None
     finally:
         watcher.cancel()
         with gate:

@@ -40,7 +40,13 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from .._files import file_kind, fs_errors, held_lock, temp_sibling
+from ..core.files import file_kind
+
+from ..core.files import fs_errors
+
+from ..core.files import held_lock
+
+from ..core.files import temp_sibling
 from ..errors import FileSystemError, HevrError, MissingFileError, ParameterError
 from ..remote.protocol import MAX_BODY, parse_json
 from .file_watch import CHECK_SECONDS, FileWatch, is_missing

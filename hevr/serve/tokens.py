@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .._files import read_regular
+from ..core.files import read_regular
 from ..errors import ParameterError
 from ..remote.protocol import MAX_BODY, parse_json
 

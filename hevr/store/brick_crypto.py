@@ -1,6 +1,6 @@
 """The ciphertexts of one brick: its mantissas encrypted in small batches.
 
-Between two batches an interrupted job stops (:mod:`hevr._cancel`: Ctrl-C ends ``hevr encrypt``
+Between two batches an interrupted job stops (:mod:`hevr.runtime.cancel`: Ctrl-C ends ``hevr encrypt``
 within a batch, not a brick) and a progress display of this process counts the values done, so
 it moves while a brick is encrypted, not only when a brick is written.
 """
@@ -11,7 +11,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .. import _cancel, _stats
+from ..runtime import cancel
+
+from ..runtime import stats
 
 __all__ = ["BATCH", "encrypt_components"]
 
@@ -23,22 +25,22 @@ BATCH = 64
 def encrypt_components(be: Any, key: Any, q: Sequence[Any], shape: tuple, width: int, unsafe: bool) -> np.ndarray:
     """(k, bz, by, bx, W) records of the k rows of mantissas ``q`` (a (k, voxels) array, or a
     list of lists), encrypted in batches of :data:`BATCH` on the CPU: between two an
-    interrupted job stops (:func:`hevr._cancel.check`) and a progress display of this process
-    moves (:func:`hevr._cancel.add_steps`)."""
+    interrupted job stops (:func:`hevr.runtime.cancel.check`) and a progress display of this process
+    moves (:func:`hevr.runtime.cancel.add_steps`)."""
     out = np.empty((len(q),) + shape + (width,), dtype=np.uint8)
     for j, row in enumerate(q):
-        _cancel.check()
+        cancel.check()
         if be.name != "cpu":  # one batch (an accelerator's); its own type of result
-            with _stats.timed("encrypt.crypto", len(row)):
+            with stats.timed("encrypt.crypto", len(row)):
                 cts = be.encrypt(key, row, unsafe_no_obfuscation=unsafe)
-            _cancel.add_steps(len(row))
+            cancel.add_steps(len(row))
         else:
             cts = []
             for lo in range(0, len(row), BATCH):
-                _cancel.check()
+                cancel.check()
                 part = row[lo:lo + BATCH]
-                with _stats.timed("encrypt.crypto", len(part)):
+                with stats.timed("encrypt.crypto", len(part)):
                     cts.extend(be.encrypt(key, part, unsafe_no_obfuscation=unsafe))
-                _cancel.add_steps(len(part))
+                cancel.add_steps(len(part))
         out[j] = be.to_bytes(cts, width).reshape(shape + (width,))
     return out

@@ -19,7 +19,9 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from .._files import check_name, fs_errors
+from ..core.files import check_name
+
+from ..core.files import fs_errors
 from ..errors import ExistingFileError, FileSystemError, ParameterError, StoreError, StoreExistsError
 from .exclusive import StoreLock, locked_folder, remove_local_tree, rename_noreplace, swap_lock
 from .layout import check_document, check_documents, check_entry, chunk_key, compressors

@@ -39,8 +39,10 @@ import dask
 import dask.array
 import numpy as np
 
-from .._dask import compute
-from .._files import fs_errors, read_regular, write_atomic
+from ..runtime.scheduler import compute
+from ..core.files import fs_errors
+from ..core.files import read_regular
+from ..core.files import write_atomic
 from ..errors import ParameterError
 
 log = logging.getLogger(__name__)

@@ -59,7 +59,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .._files import write_atomic
+from ..core.files import write_atomic
 from ..errors import FileSystemError, HevrError, ParameterError, VerificationError
 from .authenticity import authenticated_fields, check_metadata_mac, metadata_digest
 from .known_file import (

@@ -28,7 +28,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
 
-from .._files import file_kind, write_atomic
+from ..core.files import file_kind
+
+from ..core.files import write_atomic
 from ..crypto.tags import tag_key_of
 from ..errors import FileSystemError, NotRegularFileError, ParameterError, VerificationError
 from .authenticity import canonical

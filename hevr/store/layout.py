@@ -30,7 +30,9 @@ import numpy as np
 import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
-from .._files import check_regular, file_kind
+from ..core.files import check_regular
+
+from ..core.files import file_kind
 from ..crypto.tags import data_channel, tag_channel
 from ..errors import CorruptStoreError, MissingFileError
 from .digests import DIGEST_BYTES

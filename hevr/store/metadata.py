@@ -31,7 +31,9 @@ import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from .._validate import MAX_STORE_DIGITS, is_decimal
+from ..core.validate import MAX_STORE_DIGITS
+
+from ..core.validate import is_decimal
 from ..crypto.tags import data_channel, tag_channel
 from ..errors import CorruptStoreError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_spacing

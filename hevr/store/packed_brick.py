@@ -21,7 +21,7 @@ from typing import Any
 import gmpy2
 import numpy as np
 
-from .. import _stats
+from ..runtime import stats
 from ..backends import CpuBackend
 from ..crypto.tags import betas, raw_tags, tag_channel, tag_key_of
 from ..errors import ParameterError
@@ -65,7 +65,7 @@ def write_packed_brick(be: Any, block: np.ndarray, group: Any, index: tuple[int,
         out = encrypt_components(be, key, [p.ravel().tolist() for p in parts], shape, width, unsafe_no_obfuscation)
         out = out[0] if name == "scalar" else out
         digests.append(brick_digest(meta.store_id, name, index, out))
-        with _stats.timed("encrypt.write"):
+        with stats.timed("encrypt.write"):
             group[name][sl if name == "scalar" else (slice(None),) + sl] = out
     if meta.tags:  # after every data channel: the digests' order (VolumeMetadata.channel_names)
         tk = tag_key_of(key)
@@ -74,14 +74,14 @@ def write_packed_brick(be: Any, block: np.ndarray, group: Any, index: tuple[int,
         for name, parts in plains.items():
             recs = []
             for j, plain in enumerate(parts):
-                with _stats.timed("encrypt.tags", len(packs)):
+                with stats.timed("encrypt.tags", len(packs)):
                     plain_tags = raw_tags(tk, [int(p) % tk.n for p in plain.ravel()],
                                           betas(tk, meta.store_id, name, 0, j, packs))
                     tags = key.owner.encrypt_residues(gmpy2.mpz(t) for t in plain_tags)
                 recs.append(_CPU.to_bytes(tags, width).reshape(shape + (width,)))
             rec = recs[0] if name == "scalar" else np.stack(recs)
             digests.append(brick_digest(meta.store_id, tag_channel(name), index, rec))
-            with _stats.timed("encrypt.write"):
+            with stats.timed("encrypt.write"):
                 group[tag_channel(name)][sl if name == "scalar" else (slice(None),) + sl] = rec
     group["done"][index] = marker(digests)
     return index

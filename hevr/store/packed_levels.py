@@ -49,9 +49,9 @@ import gmpy2
 import numpy as np
 import zarr
 
-from .. import _stats
-from .._dask import compute
-from .._files import fs_errors
+from ..runtime import stats
+from ..runtime.scheduler import compute
+from ..core.files import fs_errors
 from ..backends import CpuBackend, get_backend
 from ..crypto.tags import betas, raw_tags, tag_channel, tag_key_of
 from ..errors import ParameterError
@@ -70,7 +70,7 @@ log = logging.getLogger(__name__)
 __all__ = ["check_levels", "encrypt_levels", "level_values", "plan_levels", "prepare_levels"]
 
 _CPU = CpuBackend()  # the tags' records
-_MAX_DIGITS = 30  # hevr._validate.MAX_STORE_DIGITS
+_MAX_DIGITS = 30  # hevr.core.validate.MAX_STORE_DIGITS
 
 
 def check_levels(levels: Any) -> int:
@@ -187,19 +187,19 @@ def _encrypt_level_brick(block: np.ndarray, path: str, level: int, index: tuple[
         digests = [brick_digest(meta.store_id, prefix + "scalar", index, out)]
         sl = array_slices(meta, index)
         group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
-        with _stats.timed("encrypt.write"):
+        with stats.timed("encrypt.write"):
             group[prefix + "scalar"][sl] = out
         if meta.tags:
             tk = tag_key_of(key)
             packs = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
                                          info.array_shape(meta.shape)).reshape(-1)
-            with _stats.timed("encrypt.tags", len(packs)):
+            with stats.timed("encrypt.tags", len(packs)):
                 plain_tags = raw_tags(tk, [int(p) % tk.n for p in plain.ravel()],
                                       betas(tk, meta.store_id, "scalar", level, 0, packs))
                 tags = key.owner.encrypt_residues(gmpy2.mpz(t) for t in plain_tags)
             rec = _CPU.to_bytes(tags, width).reshape(shape + (width,))
             digests.append(brick_digest(meta.store_id, prefix + tag_channel("scalar"), index, rec))
-            with _stats.timed("encrypt.write"):
+            with stats.timed("encrypt.write"):
                 group[prefix + tag_channel("scalar")][sl] = rec
         group[prefix + "done"][index] = marker(digests)
     return index

@@ -28,7 +28,7 @@ from typing import Any, Callable
 
 from zarr.storage import FsspecStore
 
-from .._files import (
+from ..core.files import (
     check_name,
     fs_errors,
     read_regular,
@@ -183,7 +183,7 @@ def _exists_strict(path: str) -> bool:
 
 def interrupted_swaps(path: str) -> list[str]:
     """Stores an interrupted or failed overwrite left beside a local ``path`` (see :func:`swap`):
-    its ``.NAME.hevr-old-TOKEN`` and ``.NAME.hevr-new-TOKEN`` siblings (hevr._files naming; a
+    its ``.NAME.hevr-old-TOKEN`` and ``.NAME.hevr-new-TOKEN`` siblings (hevr.core.files naming; a
     name near the filesystem's limit has a hashed stem)."""
     if not is_local(path):
         return []
@@ -207,7 +207,7 @@ def document_digest(path: str, name: str, storage_options: dict[str, Any] | None
 
 def read_bytes(path: str, storage_options: dict[str, Any] | None = None) -> bytes:
     """The bytes of the file or object ``path`` (local, or a URL); ``FileNotFoundError`` if absent
-    (a local path must be a regular file: :func:`hevr._files.read_regular`)."""
+    (a local path must be a regular file: :func:`hevr.core.files.read_regular`)."""
     if is_local(path):
         return read_regular(path, "path", "a file")
     fs, root = filesystem(path, storage_options)
@@ -226,7 +226,7 @@ def object_sizes(path: str, storage_options: dict[str, Any] | None = None) -> di
 
 def sibling(path: str, what: str) -> str:
     """A fresh path beside ``path`` (same folder or bucket prefix) for a new or an old store:
-    locally ``.NAME.hevr-WHAT-TOKEN`` (:func:`hevr._files.temp_sibling`)."""
+    locally ``.NAME.hevr-WHAT-TOKEN`` (:func:`hevr.core.files.temp_sibling`)."""
     if is_local(path):
         return str(temp_sibling(path, what))
     return f"{path.rstrip('/')}.hevr-{what}-{token()}"
@@ -378,7 +378,7 @@ def write_output(where: Path | str, parts: list[Any], storage_options: dict[str,
                  overwrite: bool = False, name: str = "path", doing: str = "writing") -> int:
     """Write ``parts`` and the SHA-256 of all of them (the trailer of ``.hevr`` and ``.hevrsums``
     files) to ``where`` (:func:`output_location`): a local file through
-    :func:`hevr._files.write_checksummed`, an object in one request (:func:`write_new_bytes`);
+    :func:`hevr.core.files.write_checksummed`, an object in one request (:func:`write_new_bytes`);
     an existing one only with ``overwrite``. Returns the bytes written."""
     if isinstance(where, Path):
         write_checksummed(where, parts, overwrite=overwrite, name=name, doing=doing)

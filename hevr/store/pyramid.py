@@ -34,7 +34,9 @@ import dask
 import numpy as np
 import zarr
 
-from .._dask import active_client, compute
+from ..runtime.scheduler import active_client
+
+from ..runtime.scheduler import compute
 from ..backends import get_backend, resolve_backend_name
 from ..crypto.tags import data_channel
 from ..errors import ParameterError, StoreError
@@ -50,7 +52,7 @@ log = logging.getLogger(__name__)
 __all__ = ["build_pyramid", "LEVEL_FACTOR", "level_arrays_ok", "write_meta"]
 
 LEVEL_FACTOR = 125  # 10^3 / 8: the ⊗ that turns a sum of 8 children into their mean at exponent e − 3
-_MAX_DIGITS = 30  # hevr._validate.MAX_STORE_DIGITS: the most decimal digits a channel's metadata holds
+_MAX_DIGITS = 30  # hevr.core.validate.MAX_STORE_DIGITS: the most decimal digits a channel's metadata holds
 
 
 def _children(shape_below: tuple, coarse: tuple[slice, slice, slice]) -> np.ndarray:

@@ -24,7 +24,15 @@ import dask
 import dask.array
 import numpy as np
 
-from .._validate import MAX_STORE_DIGITS, check_data_range, check_int, check_value_range, check_vector_dims
+from ..core.validate import MAX_STORE_DIGITS
+
+from ..core.validate import check_data_range
+
+from ..core.validate import check_int
+
+from ..core.validate import check_value_range
+
+from ..core.validate import check_vector_dims
 from ..errors import ParameterError
 from ..volume.density import default_value_range, minmax
 from .metadata import ChannelInfo

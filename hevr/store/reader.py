@@ -20,8 +20,9 @@ import dask
 import numpy as np
 import zarr
 
-from .._dask import active_client
-from .._validate import check_brick_index, check_choice
+from ..runtime.scheduler import active_client
+from ..core.validate import check_brick_index
+from ..core.validate import check_choice
 from ..backends import Backend, get_backend
 from ..crypto.keys import PublicKey
 from ..crypto.records import record_width

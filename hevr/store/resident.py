@@ -45,7 +45,7 @@ import dask
 import numpy as np
 import psutil
 
-from .._validate import check_choice
+from ..core.validate import check_choice
 from ..backends import get_backend, resolve_backend_name
 from ..crypto.tags import data_channel
 from ..errors import MemoryLimitError, ParameterError

@@ -24,8 +24,10 @@ import dask
 import numpy as np
 import zarr
 
-from .._dask import compute
-from .._files import held_lock, os_error, temp_sibling
+from ..runtime.scheduler import compute
+from ..core.files import held_lock
+from ..core.files import os_error
+from ..core.files import temp_sibling
 from ..backends import get_backend
 from ..crypto.keys import PublicKey
 from ..errors import (

@@ -22,7 +22,9 @@ from typing import Any
 import dask
 import gmpy2
 
-from .._dask import active_client, compute
+from ..runtime.scheduler import active_client
+
+from ..runtime.scheduler import compute
 from ..crypto.tags import data_channel
 from ..errors import CorruptStoreError
 from .paths import check_reachable
@@ -109,7 +111,7 @@ def verify_bricks(ev: Any, *, client: Any = None, coprime: bool = True, levels: 
     levels : bool
         Also the complete pyramid levels.
     progress : bool
-        Show progress (:mod:`hevr._progress`).
+        Show progress (:mod:`hevr.runtime.progress`).
 
     Returns
     -------

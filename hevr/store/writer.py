@@ -47,10 +47,12 @@ import dask.array
 import numpy as np
 import zarr
 
-from .. import _stats
-from .._dask import active_client, check_encryption_client, compute
-from .._files import fs_errors
-from .._validate import (
+from ..runtime import stats
+from ..runtime.scheduler import active_client
+from ..runtime.scheduler import check_encryption_client
+from ..runtime.scheduler import compute
+from ..core.files import fs_errors
+from ..core.validate import (
     check_brick,
     check_choice,
     check_spacing,
@@ -70,7 +72,7 @@ from ..volume.density import (
 )
 from ..volume.mapped import task_array
 from ..volume.scan import Scan
-from .brick_crypto import encrypt_components as _encrypt_components
+from .brick_crypto import encrypt_components
 from .digests import brick_digest, marker, written
 from .creation import create_store, new_store, resume_target  # noqa: F401 - create_store: hevr.store.upgrade
 from .exclusive import lock_store, remove_leftovers
@@ -136,9 +138,9 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
         return write_packed_brick(be, block, group, index, meta, key, unsafe_no_obfuscation, genc)
     if meta.scalar is not None:
         q = quantise_scalar(block, meta.scalar)
-        out = _encrypt_components(be, key, [q], block.shape, width, unsafe_no_obfuscation)[0]
+        out = encrypt_components(be, key, [q], block.shape, width, unsafe_no_obfuscation)[0]
         digests.append(brick_digest(meta.store_id, "scalar", index, out))
-        with _stats.timed("encrypt.write"):
+        with stats.timed("encrypt.write"):
             group["scalar"][sl] = out
         mantissas["scalar"] = np.asarray(q).reshape(1, -1)
     fields = {}
@@ -151,21 +153,21 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
                                                           meta.gradient.dims, m_max)
     for name, enc in fields.items():  # store order: vector, then gradient
         q = quantise_vector(enc, getattr(meta, name))
-        out = _encrypt_components(be, key, q, block.shape, width, unsafe_no_obfuscation)
+        out = encrypt_components(be, key, q, block.shape, width, unsafe_no_obfuscation)
         digests.append(brick_digest(meta.store_id, name, index, out))
-        with _stats.timed("encrypt.write"):
+        with stats.timed("encrypt.write"):
             group[name][(slice(None),) + sl] = out
         mantissas[name] = np.asarray(q)
     if meta.tags:  # after every data channel: the digests' order (VolumeMetadata.channel_names)
         voxels = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
                                       meta.shape).reshape(-1)
         for name, q in mantissas.items():
-            with _stats.timed("encrypt.tags", q.size):
+            with stats.timed("encrypt.tags", q.size):
                 tags = tag_ciphertexts(key, meta.store_id, name, 0, q, voxels)
             out = np.stack([_CPU.to_bytes(t, width).reshape(block.shape + (width,)) for t in tags])
             out = out[0] if name == "scalar" else out
             digests.append(brick_digest(meta.store_id, tag_channel(name), index, out))
-            with _stats.timed("encrypt.write"):
+            with stats.timed("encrypt.write"):
                 group[tag_channel(name)][sl if name == "scalar" else (slice(None),) + sl] = out
     group["done"][index] = marker(digests)
     return index
@@ -231,7 +233,7 @@ def encrypt_volume(
         plaintext, in world units, over the whole volume), for ``hevr.render(...,
         gradient=True)``. Needs ``vector_dims``; same k and ``vector_digits``; costs k more
         ciphertexts per voxel (as much again as the vector channel) and one more read of the
-        plaintext (the whole volume's max |∇d|, which stays with the owner).
+        plaintext (the whole volume's max ``|∇d|``, which stays with the owner).
     overwrite, resume : bool
         Replace an existing store, or finish an interrupted run (only missing bricks).
     progress : bool

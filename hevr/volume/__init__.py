@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .._lazy import attach
+from ..core.lazy import attach
 
 if TYPE_CHECKING:
     from .density import encode_density, normalize_density
@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from .scan import Scan
 
 # Eager, and light (numpy): hevr.volume.phantom stays the function even once the submodule of
-# that name is imported (a lazy name that is also a submodule would be either; hevr._lazy.attach).
+# that name is imported (a lazy name that is also a submodule would be either; hevr.core.lazy.attach).
 from .phantom import PHANTOM_LEVELS, phantom  # noqa: E402
 
 __all__ = ["PHANTOM_LEVELS", "encode_density", "gradient_encoding", "load_volume", "normalize_density", "phantom", "save_volume",

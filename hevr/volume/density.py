@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import (
+from ..core.validate import (
     check_data_range,
     check_value_range,
     check_vector_dims,

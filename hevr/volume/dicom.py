@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_choice
+from ..core.validate import check_choice
 from ..errors import CorruptVolumeError, MissingDependencyError, VolumeFormatError
 from ._memory import check_fits
 from ._optional import require

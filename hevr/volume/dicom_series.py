@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .._files import require_file
+from ..core.files import require_file
 from ..errors import MissingDependencyError, VolumeFormatError
 from ._optional import require
 from .dicom_mosaic import is_mosaic, mosaic_of

@@ -48,7 +48,7 @@ from typing import Any
 import dask
 import numpy as np
 
-from .._validate import check_spacing
+from ..core.validate import check_spacing
 from .density import encode_density, normalize_density
 
 __all__ = ["brick_gradient_encoding", "gradient_encoding", "gradient_magnitude", "halo_of", "max_gradient_magnitude"]

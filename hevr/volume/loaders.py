@@ -36,8 +36,16 @@ from typing import Any, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from .._files import check_regular, require_file, write_file
-from .._validate import check_bool, check_choice, check_int, check_spacing, check_volume
+from ..core.files import check_regular
+
+from ..core.files import require_file
+
+from ..core.files import write_file
+from ..core.validate import check_bool
+from ..core.validate import check_choice
+from ..core.validate import check_int
+from ..core.validate import check_spacing
+from ..core.validate import check_volume
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from .dicom import read_dicom
 from .nifti import read_nifti

@@ -59,7 +59,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from .._validate import check_value_range
+from ..core.validate import check_value_range
 from ..errors import ParameterError
 
 __all__ = ["MODALITY_RANGES", "UNSUPPORTED", "TF_PRESETS", "TFPreset", "HINT_FRACTION",

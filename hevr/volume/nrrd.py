@@ -31,8 +31,11 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from .._files import check_regular, write_file
-from .._validate import check_dtype, check_shape
+from ..core.files import check_regular
+
+from ..core.files import write_file
+from ..core.validate import check_dtype
+from ..core.validate import check_shape
 from ..errors import ExistingFileError, MissingFileError, ParameterError
 from .nrrd_encodings import (
     BLOCK,
@@ -160,7 +163,7 @@ def load_raw(path: Path, shape: object, dtype: object, byte_order: str) -> np.nd
 
 def write_raw(path: Path, vol: np.ndarray, byte_order: str = "little", *, overwrite: bool = False) -> None:
     """Write ``vol`` as headerless x-fastest data, refusing names that describe another layout
-    (atomically; an existing file only with ``overwrite``: :func:`hevr._files.write_file`)."""
+    (atomically; an existing file only with ``overwrite``: :func:`hevr.core.files.write_file`)."""
     name_shape, name_dtype = raw_layout(path)
     if name_shape not in (None, vol.shape) or name_dtype not in (None, vol.dtype.name):
         raise ParameterError(f"save_volume: the name {path.name} says shape {name_shape} (z, y, x) "

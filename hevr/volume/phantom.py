@@ -18,7 +18,9 @@ from typing import Mapping
 import numpy as np
 import numpy.typing as npt
 
-from .._validate import check_dtype, check_int
+from ..core.validate import check_dtype
+
+from ..core.validate import check_int
 from ..paper import PAPER_DENSITIES, PAPER_SIZE
 
 __all__ = ["phantom", "PHANTOM_LEVELS"]

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_int
+from ..core.validate import check_int
 from ..errors import ParameterError
 
 __all__ = ["MAX_LEVELS", "downsample", "level_brick", "level_origin", "level_shape", "level_spacing",

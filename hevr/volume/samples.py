@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .._validate import check_choice
+from ..core.validate import check_choice
 from ..errors import MissingFileError
 from ._optional import require
 

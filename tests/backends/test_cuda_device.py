@@ -29,7 +29,7 @@ from dask.sizeof import sizeof
 
 import hevr
 from hevr import MissingDependencyError, backends
-from hevr._bench.gpu import EXPERIMENTS
+from hevr.bench.gpu import EXPERIMENTS
 from hevr.backends import (
     CpuBackend,
     CudaBackend,

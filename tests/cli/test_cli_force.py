@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr import _files
+from hevr.core import files as _files
 from hevr.cli.exits import exit_code
 from hevr.cli.main import main
 

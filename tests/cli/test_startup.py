@@ -16,13 +16,13 @@ import sys
 
 import pytest
 
-from hevr._lazy import resolve
+from hevr.core.lazy import resolve
 from hevr.cli.parser import COMMANDS, build_parser
 
 # The data path's dependencies: half a second of imports together.
 HEAVY = ("zarr", "numcodecs", "dask", "distributed", "fsspec", "PIL", "tifffile", "pydicom", "nibabel", "scipy")
 # hevr's own heavy subpackages (each imports some of HEAVY).
-HEAVY_HEVR = ("hevr.volume", "hevr.store", "hevr.image", "hevr.rendering.encrypted", "hevr._dask", "hevr.backends")
+HEAVY_HEVR = ("hevr.volume", "hevr.store", "hevr.image", "hevr.rendering.encrypted", "hevr.runtime.scheduler", "hevr.backends")
 NOTHING = HEAVY + HEAVY_HEVR + ("numpy", "gmpy2", "hevr.crypto")
 
 PROBE = """\

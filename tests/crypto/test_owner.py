@@ -6,7 +6,7 @@ import gmpy2
 import pytest
 from gmpy2 import mpz
 
-from hevr.crypto import primes as _primes
+from hevr.crypto import primes
 from hevr.crypto.owner import OwnerEncryptor
 
 
@@ -32,7 +32,7 @@ def test_generator_really_generates(keypair):
         G = half.table._rows[0][1]
         # G has order exactly p-1 in (Z/p²)^*: G^(p-1) = 1 and G^((p-1)/ℓ) ≠ 1 for every ℓ
         assert gmpy2.powmod(G, p - 1, half.psquare) == 1
-        factors = _primes.factor_p_minus_1(p)
+        factors = primes.factor_p_minus_1(p)
         assert factors is not None
         for ell in factors:
             assert gmpy2.powmod(G, (p - 1) // ell, half.psquare) != 1
@@ -67,11 +67,11 @@ def test_fallback_without_factorisation_is_exact(keypair256, monkeypatch):
 
 @pytest.mark.parametrize("bits", [16, 32, 48, 64, 128, 512])
 def test_prime_generation_sizes_and_factors(bits):
-    p, factors = _primes.random_prime_with_factors(bits)
-    assert p.bit_length() == bits and _primes.is_probable_prime(p)
+    p, factors = primes.random_prime_with_factors(bits)
+    assert p.bit_length() == bits and primes.is_probable_prime(p)
     m = p - 1
     for ell in factors:
-        assert _primes.is_probable_prime(ell)
+        assert primes.is_probable_prime(ell)
         while m % ell == 0:
             m //= ell
     assert m == 1

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr._tiles import TileLayout
+from hevr.image.tiles import TileLayout
 from hevr.crypto.records import bytes_to_mpz, mpz_to_bytes
 from hevr.rendering import encrypted as render_mod
 from hevr.rendering.pipeline.finishing import finish_tile, merge_partials, one_records

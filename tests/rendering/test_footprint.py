@@ -7,7 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hevr._tiles import TileLayout
+from hevr.image.tiles import TileLayout
 from hevr.rendering.geometry.camera import Camera
 from hevr.rendering.geometry.footprint import Footprint, brick_footprints
 from hevr.rendering.geometry.rays import cast_rays

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr._tiles import TileLayout
+from hevr.image.tiles import TileLayout
 from hevr.rendering.geometry.footprint import Footprint, brick_footprints
 from hevr.rendering.pipeline.graph import FAN_IN, build_sums_graph
 from hevr.rendering.geometry.rays import cast_rays

@@ -1,5 +1,5 @@
 """Size limits of a render (hevr.rendering.planning.planner.check_render_size) and of a brick
-(hevr._validate.check_brick): impossible work is refused with a hevr error naming the
+(hevr.core.validate.check_brick): impossible work is refused with a hevr error naming the
 field, within a second and a few MB, before anything is allocated per pixel or sample."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr._validate import MAX_BRICK_EDGE, MAX_BRICK_VOXELS, check_brick
+from hevr.core.validate import MAX_BRICK_EDGE, MAX_BRICK_VOXELS, check_brick
 from hevr.rendering.reference import plain
 from hevr.rendering.geometry.camera import Camera
 from hevr.rendering.planning.planner import (

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr._tiles import TileLayout
+from hevr.image.tiles import TileLayout
 from hevr.rendering.geometry.camera import Camera
 from hevr.rendering.geometry.footprint import brick_footprints
 from hevr.rendering.geometry.plane import MAX_SLAB, Plane, view_from_dict

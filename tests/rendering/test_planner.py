@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr._limits import integrity_bits
+from hevr.core.limits import integrity_bits
 from hevr.crypto.keys import generate_keypair
 from hevr.rendering.geometry.camera import Camera
 from hevr.rendering.planning.modes import combination_matrix, make_spec

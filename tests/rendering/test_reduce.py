@@ -10,7 +10,7 @@ import pytest
 from distributed import get_task_stream
 
 import hevr
-from hevr._tiles import TileLayout
+from hevr.image.tiles import TileLayout
 from hevr.rendering.encrypted import error_bound
 from hevr.rendering.pipeline.graph import BlockSums, FinishGraph, build_sums_graph
 from hevr.rendering.planning.modes import make_spec

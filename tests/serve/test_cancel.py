@@ -18,7 +18,7 @@ from distributed import Client, LocalCluster
 from starlette.testclient import TestClient
 
 import hevr
-from hevr._dask import compute
+from hevr.runtime.scheduler import compute
 from hevr.serve import jobs
 from hevr.serve.app import create_app
 from hevr.serve.run import open_stores
@@ -237,7 +237,7 @@ def test_a_job_cancelled_while_waiting_for_a_thread_frees_its_slot(served_store)
     its slot is freed at once, and its work never runs."""
     import anyio
 
-    from hevr._cancel import Cancelled
+    from hevr.runtime.cancel import Cancelled
     from hevr.serve.budget import Limits
 
     class Present:

@@ -20,7 +20,7 @@ import pytest
 import hevr
 import hevr.store.upgrade as upgrade_mod
 import hevr.store.writer as store_mod
-from hevr._files import held_lock, temp_sibling
+from hevr.core.files import held_lock, temp_sibling
 
 SHAPE, BRICK = (4, 4, 6), 2
 

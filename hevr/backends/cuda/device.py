@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from ... import _stats
+from ...runtime import stats
 from ...errors import MissingDependencyError
 from .host import SOURCE as MONT_SOURCE
 from .host import check_defines
@@ -194,8 +194,8 @@ class CupyLauncher(Launcher):
     def _launch(self, name: str, count: int, *args: Any) -> None:
         if count > 0:
             self._fn(name)(((count + BLOCK - 1) // BLOCK,), (BLOCK,), args)
-            _stats.add(f"launch {name}", 0.0, 1)  # how many launches of how many threads a frame makes
-            _stats.add(f"threads {name}", 0.0, count)
+            stats.add(f"launch {name}", 0.0, 1)  # how many launches of how many threads a frame makes
+            stats.add(f"threads {name}", 0.0, count)
 
     def _dev(self, arr: Any, dtype: Any) -> Any:
         """A contiguous device array of ``dtype``: a device array as it is (no copy where it already

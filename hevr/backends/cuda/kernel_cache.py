@@ -36,7 +36,7 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..._limits import _limit
+from ...core.limits import _limit
 from ...errors import MissingDependencyError
 
 log = logging.getLogger(__name__)

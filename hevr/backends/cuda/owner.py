@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._recent import Recent
+from ...runtime.recent import Recent
 from ...crypto.paillier import raw_encode_signed
 from .host import MAX_LIMBS, from_limbs, to_limbs
 from .residues import Modulus

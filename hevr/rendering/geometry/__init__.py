@@ -19,9 +19,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..._lazy import attach
+from ...core.lazy import attach
 
-if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr._lazy)
+if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr.core.lazy)
     from .camera import Camera
     from .footprint import Footprint, brick_footprints
     from .group_weights import nearest_group_rows

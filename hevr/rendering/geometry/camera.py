@@ -28,7 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from ..._validate import check_int, check_pixel_ids, check_shape, check_spacing
+from ...core.validate import check_int
+
+from ...core.validate import check_pixel_ids
+
+from ...core.validate import check_shape
+
+from ...core.validate import check_spacing
 from ...errors import ParameterError
 from .views import VIEWS, view_offset
 

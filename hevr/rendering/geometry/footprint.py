@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..._tiles import TileLayout
+from ...image.tiles import TileLayout
 from .camera import Camera
 from .plane import Plane
 
@@ -55,7 +55,7 @@ class Footprint:
         Pixel rows ``[r0, r1)`` and columns ``[c0, c1)``; every pixel whose ray can touch the
         brick lies inside.
     tiles : tuple of int
-        Tiles (:class:`hevr._tiles.TileLayout` numbering) overlapping the rectangle that hold
+        Tiles (:class:`hevr.image.tiles.TileLayout` numbering) overlapping the rectangle that hold
         a hit pixel inside it, ascending.
     """
 

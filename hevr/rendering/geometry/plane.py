@@ -41,8 +41,10 @@ from typing import Any
 
 import numpy as np
 
-from ..._limits import MAX_IMAGE_PIXELS
-from ..._validate import check_int, check_pixel_ids, check_step
+from ...core.limits import MAX_IMAGE_PIXELS
+from ...core.validate import check_int
+from ...core.validate import check_pixel_ids
+from ...core.validate import check_step
 from ...errors import ParameterError
 from .camera import Camera, _orbit_geometry, _vec3
 

@@ -29,7 +29,11 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace
 
-from ..._validate import check_shape, check_spacing, check_step
+from ...core.validate import check_shape
+
+from ...core.validate import check_spacing
+
+from ...core.validate import check_step
 from ...errors import ParameterError, RenderPlanError
 from .camera import Camera
 from .plane import Plane

@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from ..._validate import check_choice
+from ...core.validate import check_choice
 
 __all__ = ["VIEWS", "view_axes", "view_offset"]
 

@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace
 
-from ..._validate import (
+from ...core.validate import (
     check_brick,
     check_brick_index,
     check_choice,

@@ -41,8 +41,8 @@ import gmpy2
 import numpy as np
 from dask.delayed import delayed
 
-from ..._dask import active_client
-from ..._dask import compute as run_tasks
+from ...runtime.scheduler import active_client
+from ...runtime.scheduler import compute as run_tasks
 from ...backends import get_backend
 from ...backends.base import OpCounter
 from ...colour import Colouring, Frame, colour, colouring_spec

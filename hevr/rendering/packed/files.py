@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from ..._magic import IMAGE_MAGIC_PREFIX
-from ..._validate import check_bool
+from ...core.magic import IMAGE_MAGIC_PREFIX
+from ...core.validate import check_bool
 from ...crypto.paillier import fingerprint as fingerprint_of
 from ...crypto.records import record_width
 from ...errors import CorruptStoreError, HevrError, IntegrityError, ParameterError

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 from dask.delayed import delayed
 
-from ..._dask import active_client
-from ..._dask import compute as run_tasks
-from ..._dask import warn_if_remote
+from ...runtime.scheduler import active_client
+from ...runtime.scheduler import compute as run_tasks
+from ...runtime.scheduler import warn_if_remote
 from ...backends import get_backend, resolve_backend_name
 from ...backends.base import OpCounter
 from ...store.packing import mantissa_range

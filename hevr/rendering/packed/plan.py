@@ -46,8 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from ..._limits import render_limits
-from ..._validate import check_choice, check_int
+from ...core.limits import render_limits
+from ...core.validate import check_choice
+from ...core.validate import check_int
 from ...errors import RenderPlanError
 from ...store.packing import MAX_WEIGHT_BITS, PackingInfo, mantissa_range
 from .shear import ShearGeometry

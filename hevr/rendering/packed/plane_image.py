@@ -30,7 +30,7 @@ import gmpy2
 import numpy as np
 from dask.delayed import delayed
 
-from ..._dask import compute as run_tasks
+from ...runtime.scheduler import compute as run_tasks
 from ...backends import get_backend
 from ...backends.base import OpCounter
 from ...crypto.keys import PrivateKey

@@ -47,7 +47,11 @@ from typing import Any
 
 import numpy as np
 
-from ..._validate import check_choice, check_int, check_spacing
+from ...core.validate import check_choice
+
+from ...core.validate import check_int
+
+from ...core.validate import check_spacing
 from ...errors import ParameterError
 from ...store.packing import MAX_WEIGHT_BITS, PackingInfo
 from ..geometry.plane import Plane

@@ -15,9 +15,9 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from ..._validate import check_int
+from ...core.validate import check_int
 from ...errors import ParameterError
-from ..._dask import active_client
+from ...runtime.scheduler import active_client
 from ..planning.planner import check_render_size
 from ..planning.request import at_level
 from ..verify import resolve_verify

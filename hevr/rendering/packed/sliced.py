@@ -21,7 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from ..._validate import check_choice, check_spacing, check_volume
+from ...core.validate import check_choice
+
+from ...core.validate import check_spacing
+
+from ...core.validate import check_volume
 from ...colour import Colouring
 from ...errors import ParameterError
 from ...volume.scan import Scan

@@ -44,7 +44,7 @@ import gmpy2
 import numpy as np
 from dask.delayed import delayed
 
-from ..._dask import compute as run_tasks
+from ...runtime.scheduler import compute as run_tasks
 from ...backends import get_backend
 from ...crypto.tags import aggregate_holds, betas, coefficients_at, tag_channel, tag_key_of
 from ...errors import ParameterError, VerificationError

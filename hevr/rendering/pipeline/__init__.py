@@ -22,9 +22,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..._lazy import attach
+from ...core.lazy import attach
 
-if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr._lazy)
+if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr.core.lazy)
     from .finishing import finish_tile, merge_partials
     from .graph import build_sums_graph
     from .kernel import brick_ray_products_multi, plan_products

@@ -33,8 +33,8 @@ import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
 
-from ... import _stats
-from ..._tiles import TileLayout
+from ...runtime import stats
+from ...image.tiles import TileLayout
 from ...crypto.records import record_width
 from ...store.reader import EncryptedVolume
 from ..geometry.camera import Camera
@@ -72,14 +72,14 @@ def merge_task(nsquare: int, backend: str, tile: int, *parts):
     """One merge task: ⊕ per ray of up to ``FAN_IN`` partial results of tile ``tile``: a map
     task's output (its dict by tile: this tile's entry is taken here, so no selection task
     stands between map and merge) or an earlier merge's ``(rays, records)``."""
-    with _stats.timed("merge", 1):
+    with stats.timed("merge", 1):
         return merge_partials([p[tile] if isinstance(p, dict) else p for p in parts], nsquare, backend)
 
 
 def finish_task(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
                 n_samples: np.ndarray, n: int, width_bytes: int, backend: str = "cpu") -> np.ndarray:
     """One finish task: (P, W) uint8 packed ciphertexts of one tile."""
-    with _stats.timed("finish", 1):
+    with stats.timed("finish", 1):
         return finish_tile(plan, merged, pixels, n_samples, n, width_bytes, backend)
 
 

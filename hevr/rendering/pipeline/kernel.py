@@ -47,10 +47,10 @@ from gmpy2 import mpz
 
 from ...backends import get_backend
 from ...backends.base import Backend, OpCounter, ProductPlan
-from ...backends.base import HORNER as _HORNER
-from ...backends.base import ONES as _ONES
-from ...backends.base import SHARED as _SHARED
-from ...backends.base import SINGLE as _SINGLE
+from ...backends.base import HORNER
+from ...backends.base import ONES
+from ...backends.base import SHARED
+from ...backends.base import SINGLE
 from ...backends.base import SQR_COST as _SQR
 from ...errors import ParameterError
 from ._segments import (
@@ -216,22 +216,22 @@ def plan_products(indptr: Any, voxels: Any, weights: Any, n_vox: int) -> Product
         return plan
     u_s, u_e = xp.take(ip, u_rows), xp.take(ip, u_rows + 1)
     u_max = segment_max(wt, u_s, u_e)
-    kinds = xp.full(u_rows.shape, _HORNER, dtype=xp.int64)
-    kinds = xp.where(u_e - u_s == 1, _SINGLE, xp.where(u_max == 1, _ONES, kinds))
-    gen = xp.nonzero(kinds == _HORNER)[0]
+    kinds = xp.full(u_rows.shape, HORNER, dtype=xp.int64)
+    kinds = xp.where(u_e - u_s == 1, SINGLE, xp.where(u_max == 1, ONES, kinds))
+    gen = xp.nonzero(kinds == HORNER)[0]
     # One pair: binary powering is Horner with w = 1, (b - 1) S + popcount - 1; else powmod.
     b = bit_length(u_max)
     bf = xp.astype(b, xp.float64)
-    binary = (kinds == _SINGLE) & ((bf - 1) * _SQR + xp.astype(popcount(u_max) - 1, xp.float64)
+    binary = (kinds == SINGLE) & ((bf - 1) * _SQR + xp.astype(popcount(u_max) - 1, xp.float64)
                                    <= _POW_BIT * bf + _POW_BASE)
-    kinds = xp.where(binary, _HORNER, kinds)
+    kinds = xp.where(binary, HORNER, kinds)
     w_r = xp.astype(binary, xp.int64)
     if gen.shape[0]:
         w_gen, shared = _choose_windows(vox, wt, xp.take(u_s, gen), xp.take(u_e, gen), xp.take(u_max, gen))
         w_r = place(w_r, gen, w_gen)
         if shared is not None:
             use, plan.shared_w, plan.pre = shared
-            kinds = place(kinds, gen[use], xp.full(int(xp.sum(xp.astype(use, xp.int64))), _SHARED, dtype=kinds.dtype))
+            kinds = place(kinds, gen[use], xp.full(int(xp.sum(xp.astype(use, xp.int64))), SHARED, dtype=kinds.dtype))
     n_win = xp.where(w_r > 0, -(-b // xp.maximum(w_r, 1)), 0)
     plan.tasks = xp.astype(xp.stack([kinds, u_s, u_e, w_r, n_win], axis=1), xp.int64)
     return plan

@@ -15,8 +15,10 @@ from typing import Any
 import dask
 import numpy as np
 
-from ... import _malloc, _stats
-from ..._tiles import TileLayout
+from ...runtime import malloc
+
+from ...runtime import stats
+from ...image.tiles import TileLayout
 from ...backends import get_backend
 from ...crypto.tags import data_channel
 from ...store.reader import EncryptedVolume
@@ -41,11 +43,11 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     the brick. ``data`` is the brick's resident ciphertexts (:class:`ResidentBrick`, from
     :meth:`hevr.EncryptedVolume.persist`); without it the brick is read from the store.
     """
-    _malloc.tune()
+    malloc.tune()
     t0 = time.perf_counter()
     rays = cast_rays(camera, ev.shape, ev.spacing, step, pixels=footprint.pixels(camera.width))
     bw = brick_weights(rays, ev.shape, ev.spacing, ev.brick, index, sampling, step, digits)
-    _stats.add("map.geometry", time.perf_counter() - t0, 1)
+    stats.add("map.geometry", time.perf_counter() - t0, 1)
     W = ev.meta.ciphertext_bytes
     tiles = footprint.tiles
     empty = (np.zeros(0, np.int64), np.zeros((0, ev.meta.components(channel), W), np.uint8))
@@ -55,10 +57,10 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     if data is not None:
         cts = data.channel(channel)
     else:
-        with _stats.timed("map.read"):
+        with stats.timed("map.read"):
             cts = ev.read_brick(index, channel, backend=be)
     comps = [cts] if data_channel(channel) == "scalar" else cts
-    with _stats.timed("map.kernel", int(bw.indptr[-1]) * len(comps)):
+    with stats.timed("map.kernel", int(bw.indptr[-1]) * len(comps)):
         prods = brick_ray_products_multi(comps, bw.indptr, bw.voxels, bw.weights, ev.public_key.nsquare, backend=be)
     return _emit(prods, bw.rays, be, W, camera, tile, tiles, f"brick {index}")
 
@@ -69,7 +71,7 @@ def _emit(prods: list, rays: np.ndarray, be: Any, width: int, camera: Camera, ti
     split by image tile (every tile of ``tiles`` present, possibly empty)."""
     t0 = time.perf_counter()
     recs = np.stack([be.to_bytes(p, width) for p in prods], axis=1)  # (R, K, W)
-    _stats.add("map.emit", time.perf_counter() - t0)
+    stats.add("map.emit", time.perf_counter() - t0)
     return _by_tile(rays, recs, camera, tile, tiles, what)
 
 
@@ -82,7 +84,7 @@ def _by_tile(rays: np.ndarray, recs: np.ndarray, camera: Camera, tile: int, tile
     for t in tiles:
         m = tid == t
         out[t] = (rays[m], recs[m])
-    _stats.add("map.emit", time.perf_counter() - t0)
+    stats.add("map.emit", time.perf_counter() - t0)
     extra = set(np.unique(tid).tolist()) - set(tiles)
     if extra:  # pragma: no cover - footprint tiles hold every hit pixel of the rectangle
         raise RuntimeError(f"{what}: rays in tiles {sorted(extra)} not planned")
@@ -104,7 +106,7 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
     in the same order. The output is the same kind of dict by tile as :func:`map_brick`'s, with
     every tile of any of the bricks' footprints.
     """
-    _malloc.tune()
+    malloc.tune()
     W, K = ev.meta.ciphertext_bytes, ev.meta.components(channel)
     empty = (np.zeros(0, np.int64), np.zeros((0, K, W), np.uint8))
     tiles = sorted({t for _, fp in items for t in fp.tiles})
@@ -116,14 +118,14 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
         rows = nearest_group_rows(rays, ev.shape, ev.spacing, ev.brick, [idx for idx, _ in items], step)
         sizes = [int(np.prod(ev.brick_shape(idx))) for idx, _ in items]
         voxels = rows.voxels(sizes)
-        _stats.add("map.geometry", time.perf_counter() - t0, len(items))
+        stats.add("map.geometry", time.perf_counter() - t0, len(items))
         if not rows.rays.size:
             return {t: empty for t in tiles}
         be = get_backend(backend)
         batches = [d.channel(channel) for d in data]
         comps = [be.concat(batches)] if data_channel(channel) == "scalar" else [be.concat([b[c] for b in batches])
                                                                   for c in range(K)]
-        with _stats.timed("map.kernel", int(rows.indptr[-1]) * K):
+        with stats.timed("map.kernel", int(rows.indptr[-1]) * K):
             prods = brick_ray_products_multi(comps, rows.indptr, voxels, rows.weights, n2, backend=be)
         return _emit(prods, rows.rays, be, W, camera, tile, tiles, f"bricks {[idx for idx, _ in items]}")
     parts: dict[int, list] = {}
@@ -135,7 +137,7 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
         for t, part in out.items():
             if part[0].size:
                 parts.setdefault(t, []).append(part)
-    with _stats.timed("map.merge", len(tiles)):
+    with stats.timed("map.merge", len(tiles)):
         return {t: (parts[t][0] if len(parts.get(t, ())) == 1 else
                     merge_partials(parts[t], n2, backend) if t in parts else empty) for t in tiles}
 
@@ -158,7 +160,7 @@ def _fused_bricks(ev: EncryptedVolume, camera: Camera, items: list, sampling: st
         weights.append(np.asarray(bw.weights))
         at_v += int(np.prod(ev.brick_shape(idx)))
         at_p += int(bw.indptr[-1])
-    _stats.add("map.geometry", time.perf_counter() - t0, len(items))
+    stats.add("map.geometry", time.perf_counter() - t0, len(items))
     W, K = ev.meta.ciphertext_bytes, ev.meta.components(channel)
     be = get_backend(backend)
     batches = [d.channel(channel) for d in data]
@@ -167,7 +169,7 @@ def _fused_bricks(ev: EncryptedVolume, camera: Camera, items: list, sampling: st
     ip = np.concatenate(indptr)
     recs = np.zeros((0, K, W), np.uint8)
     if ip[-1]:
-        with _stats.timed("map.kernel", int(ip[-1]) * K):
+        with stats.timed("map.kernel", int(ip[-1]) * K):
             prods = brick_ray_products_multi(comps, ip, np.concatenate(voxels), np.concatenate(weights),
                                              int(ev.public_key.nsquare), backend=be)
         recs = np.stack([be.to_bytes(p, W) for p in prods], axis=1)  # (R, K, W): every brick's rows in turn

@@ -29,7 +29,9 @@ import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph
 
-from ... import _malloc, _stats
+from ...runtime import malloc
+
+from ...runtime import stats
 from ...crypto.records import record_width
 from ..planning.planner import RenderPlan
 from .finishing import finish_tile, merge_partials
@@ -46,14 +48,14 @@ def reduce_block(plan: RenderPlan, nsquare: int, n: int, backend: str, tiles: li
     hold a partial of the tile, none for a tile no brick touches; ``units`` lists ``(tile,
     pixels, n_samples)`` per finishing unit, in order.
     """
-    _malloc.tune()
+    malloc.tune()
     width = record_width(n)
-    with _stats.timed("merge", len(tiles)):
+    with stats.timed("merge", len(tiles)):
         merged = {t: (outputs[idx[0]][t] if len(idx) == 1 else merge_partials([outputs[i][t] for i in idx], nsquare,
                                                                               backend))
                   for t, idx in tiles if idx}
     empty = (np.zeros(0, np.int64), np.zeros((0, 1, width), np.uint8))
-    with _stats.timed("finish", len(units)):
+    with stats.timed("finish", len(units)):
         packed = [finish_tile(plan, merged.get(t, empty), pix, ns, n, width, backend) for t, pix, ns in units]
     return packed, merged
 
@@ -119,7 +121,7 @@ class BlockedReduce:
         return [Delayed(self.key(b), self.hlg, layer=self.layer) for b in range(len(self.tiles))]
 
     def on_block(self, on_unit: Any) -> Any:
-        """An ``on_result`` for :func:`hevr._dask.compute` over :meth:`unit_tasks` that hands
+        """An ``on_result`` for :func:`hevr.runtime.scheduler.compute` over :meth:`unit_tasks` that hands
         each unit to ``on_unit(i, packed)`` under its index among all units (None: None)."""
         if on_unit is None:
             return None

@@ -4,7 +4,7 @@ A client-finished render (:mod:`hevr.colour`) ends in finishing units — runs o
 pixels whose packed ray sums one task produces (:func:`~hevr.rendering.pipeline.finishing.finish_units`).
 Each unit is a whole number of packing groups, so the client can check and decrypt it alone.
 On a distributed client :func:`render_frame` does so as each unit completes
-(:func:`hevr._dask.compute`'s ``on_result``): the client's CRT decryptions overlap the
+(:func:`hevr.runtime.scheduler.compute`'s ``on_result``): the client's CRT decryptions overlap the
 server's remaining map, merge and finishing work, and the frame's time is measured end to
 end — from the request to the decrypted means. On Dask's default scheduler (one machine) the
 units are decrypted after the graph has run.
@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._dask import refuse_foreign_cluster
+from ...runtime.scheduler import refuse_foreign_cluster
 from ...image.provenance import refuse_untagged
 from ...backends import get_backend
 from ...colour import Frame, frame_from_sums, scaled_sums

@@ -46,13 +46,17 @@ from typing import Any
 
 import numpy as np
 
-from ..._dask import active_client
-from ..._dask import compute as run_tasks
-from ..._files import read_regular, require_file
-from ..._limits import MAX_IMAGE_PIXELS
-from ..._magic import SUMS_MAGIC_PREFIX
-from ..._tiles import TileLayout
-from ..._validate import check_bool, check_choice, check_int, check_step
+from ...runtime.scheduler import active_client
+from ...runtime.scheduler import compute as run_tasks
+from ...core.files import read_regular
+from ...core.files import require_file
+from ...core.limits import MAX_IMAGE_PIXELS
+from ...core.magic import SUMS_MAGIC_PREFIX
+from ...image.tiles import TileLayout
+from ...core.validate import check_bool
+from ...core.validate import check_choice
+from ...core.validate import check_int
+from ...core.validate import check_step
 from ...backends import get_backend, resolve_backend_name
 from ...colour import Colouring
 from ...crypto.paillier import fingerprint as fingerprint_of

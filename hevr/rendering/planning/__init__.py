@@ -17,9 +17,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..._lazy import attach
+from ...core.lazy import attach
 
-if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr._lazy)
+if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr.core.lazy)
     from .bounds import error_bound
     from .modes import RenderSpec, combination_matrix, make_spec
     from .planner import RenderPlan, check_render_size, plan_render

@@ -40,7 +40,7 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
                 step: float = 1.0, density: float | None = None, nodes: Any = None, *, digits: int = 3,
                 precision: int = 4, comb_digits: int = 4, level: int | None = None,
                 gradient: bool = False, finish: str = "client") -> np.ndarray:
-    """Per-pixel bound on |decrypted render − render_plain| (see the module docstring); for a packed
+    """Per-pixel bound on ``|decrypted render − render_plain|`` (see the module docstring); for a packed
     store, against ``render_plain(..., slices=True)`` (:mod:`hevr.rendering.packed.sliced`).
 
     ``finish``: the bound of a render with the same ``finish`` (client finishing has no

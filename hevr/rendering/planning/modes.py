@@ -20,7 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from ..._validate import check_choice, check_step, check_vector_dims
+from ...core.validate import check_choice
+
+from ...core.validate import check_step
+
+from ...core.validate import check_vector_dims
 from ...colour import CSS_COLORS, Colouring, parse_color, parse_nodes, unit_density
 from ...errors import ParameterError
 

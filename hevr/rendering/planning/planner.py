@@ -28,7 +28,7 @@ Integrity margin. Every decrypted plaintext is checked by the client (``Encrypte
 a packed plaintext must lie below B^J (J = ``per_pack``) and each of its digits in
 [0, bound]; an unpacked one in [0, bound]. The planner keeps κ bits of every plaintext
 unused (κ = 64 for keys of 256 bits and more, a quarter of the bits of toy keys:
-:func:`hevr._limits.integrity_bits`): J·b + κ <= bits(n) − 1, so B^J·2^κ <= n/2 < n, and a
+:func:`hevr.core.limits.integrity_bits`): J·b + κ <= bits(n) − 1, so B^J·2^κ <= n/2 < n, and a
 plaintext that is uniform in Z_n (what a corrupted ciphertext decrypts to, see
 docs/security.md) passes the check with probability below 2^-κ. Renders whose bound needs
 more than bits(n) − 1 − κ bits are refused; the intermediate sums S and T, never decrypted,
@@ -49,7 +49,7 @@ sample, a render is refused with :class:`hevr.RenderPlanError` when
 Both are Dask config keys: ``dask.config.set({"hevr.limits.max-pixels": 8192**2})``, a
 ``dask.yaml``, or ``DASK_HEVR__LIMITS__MAX_PIXELS`` / ``DASK_HEVR__LIMITS__MAX_SAMPLES`` in
 the environment; values are integers in [1, 2^26] (pixels: the largest image a ``.hevr`` file
-holds) and [1, 2^53] (samples); :mod:`hevr._limits` holds them. The defaults leave every setting this
+holds) and [1, 2^53] (samples); :mod:`hevr.core.limits` holds them. The defaults leave every setting this
 project uses far inside (the paper's 150² image of a 100³ volume at step 1 takes < 4·10^6
 samples; the largest benchmark, 150² through 200³, < 8·10^6) while refusing in
 milliseconds what could not finish anyway: the plaintext renderer needs ~100 bytes and the
@@ -67,7 +67,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._limits import (
+from ...core.limits import (
     DEFAULT_MAX_PIXELS,
     DEFAULT_MAX_SAMPLES,
     FLOAT_MAX,
@@ -78,10 +78,12 @@ from ..._limits import (
     integrity_bits,
     render_limits,
 )
-from ..._validate import check_shape, check_spacing, check_step
+from ...core.validate import check_shape
+from ...core.validate import check_spacing
+from ...core.validate import check_step
 from ...errors import ParameterError, RenderPlanError
 from ...store.metadata import VolumeMetadata
-from ...store.packing import mantissa_range as _mantissa_range
+from ...store.packing import mantissa_range
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
 from ..geometry.rays import RaySet, cast_rays
@@ -177,7 +179,7 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
     info = getattr(meta, channel)
     ch_exp = int(info.exponent)
     if channel == "scalar":
-        lo_m, hi_m = _mantissa_range(meta.value_range, ch_exp)
+        lo_m, hi_m = mantissa_range(meta.value_range, ch_exp)
     else:  # vector and gradient components lie in [0, 1]: mantissas in [0, 10^digits]
         lo_m, hi_m = 0, 10 ** int(info.digits)
     amax = max(abs(lo_m), abs(hi_m))
@@ -263,7 +265,7 @@ def plan_sums(*, n: int, channel: str, sampling: str, meta: VolumeMetadata, n_sa
     info = getattr(meta, channel)
     ch_exp = int(info.exponent)
     if channel == "scalar":
-        lo_m, hi_m = _mantissa_range(meta.value_range, ch_exp)
+        lo_m, hi_m = mantissa_range(meta.value_range, ch_exp)
         comps = 1
     else:  # vector and gradient components lie in [0, 1]: mantissas in [0, 10^digits]
         lo_m, hi_m = 0, 10 ** int(info.digits)

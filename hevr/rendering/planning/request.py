@@ -54,7 +54,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..._validate import check_choice, check_int, check_shape
+from ...core.validate import check_choice
+
+from ...core.validate import check_int
+
+from ...core.validate import check_shape
 from ...errors import ParameterError
 from ...image.checks import FINISHES
 from ...store.reader import EncryptedVolume

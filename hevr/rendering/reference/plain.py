@@ -30,7 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from ..._validate import check_data_range, check_spacing, check_vector_dims, check_volume
+from ...core.validate import check_data_range
+
+from ...core.validate import check_spacing
+
+from ...core.validate import check_vector_dims
+
+from ...core.validate import check_volume
 from ...errors import ParameterError
 from ...volume.density import default_value_range, encode_density, normalize_density
 from ...volume.gradient import gradient_encoding

@@ -27,7 +27,8 @@ from ...remote.protocol import END, IMAGE_MEDIA, UNITS_MEDIA, RenderRequest, Ver
 from ...rendering.packed import PackedImage
 from ...rendering.packed.colour import PackedColourImage
 from ...rendering.packed.plane_image import PackedSlice
-from ..._cancel import Cancelled, cancel_soon
+from ...runtime.cancel import Cancelled
+from ...runtime.cancel import cancel_soon
 from ..budget import Slot, check_backend
 from ..jobs import CLIENT_GONE, SHUTDOWN, render_image, run_job, stats_header, verify_aggregate
 from ..problems import Problem, as_problem

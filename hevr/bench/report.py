@@ -6,10 +6,11 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
-from .._files import write_atomic
+from ..core.files import write_atomic
 from . import paper
 from .plot import plot_scaling
-from .settings import BenchSettings, block_names
+from .settings import BenchSettings
+from .settings import block_names
 
 DASH = "–"
 
@@ -398,7 +399,7 @@ def _pipeline(doc: dict) -> list[str]:
              f"Resident {s['size']}³ phantom, {s['pipeline_bits']}-bit key, {s['image']}² X-ray nearest, second frame "
              "of each cluster (N processes × 1 thread). Serial = client time before the first task (rays, "
              "footprints, graph, submission) + after the last (gather, assembly); tail = graph time after the "
-             "last map task. Model: the traced graph replayed on N simulated workers (`hevr/_bench/pipeline.py`)"
+             "last map task. Model: the traced graph replayed on N simulated workers (`hevr/bench/pipeline.py`)"
              + (f", fitted on the {model['from_workers']}-worker run." if model else "."), "",
              "| N | measured s | serial before / after s | tail s | busy s | model s | model efficiency |",
              "|---:|---:|---:|---:|---:|---:|---:|"]

@@ -1,6 +1,6 @@
 """Stopping an interrupted job's tasks in this process, and counting their finer steps.
 
-Ctrl-C reaches the thread that waits for Dask (:func:`hevr._dask.compute`); the tasks of Dask's
+Ctrl-C reaches the thread that waits for Dask (:func:`hevr.runtime.scheduler.compute`); the tasks of Dask's
 threaded scheduler run on in their pool, and the pool is waited for before the error goes on
 (so that nothing is cleaned up while a task still writes). A long task — the encryption of a
 brick, thousands of modular exponentiations — would hold the interrupt for many seconds. So
@@ -9,14 +9,14 @@ brick, thousands of modular exponentiations — would hold the interrupt for man
 of a write), within a fraction of a second.
 
 The same loops report their batches to :func:`add_steps`: a progress display of this process
-(:class:`hevr._progress.Progress`, attached with :func:`counting`) then moves with every batch,
+(:class:`hevr.runtime.progress.Progress`, attached with :func:`counting`) then moves with every batch,
 not only when a whole task ends; a task on a ``distributed`` worker sends its steps to the
 client as worker events. The stop flag reaches only this process's tasks: on a cluster the
 CLI ends its local workers (:mod:`hevr.cli.cluster`).
 
 One job among several (a render of ``hevr serve`` whose client left) is stopped with its own
 :class:`Scope`: the thread that runs the job enters it (:func:`scope`), and
-:func:`hevr._dask.compute` there cancels that job's futures on a ``distributed`` cluster, or starts
+:func:`hevr.runtime.scheduler.compute` there cancels that job's futures on a ``distributed`` cluster, or starts
 none of its remaining tasks on Dask's threaded scheduler, once :meth:`Scope.cancel` is called (from
 any thread); the job then raises :class:`Cancelled`.
 """
@@ -167,7 +167,7 @@ def check() -> None:
 def add_steps(k: int) -> None:
     """``k`` more fine steps (e.g. ciphertexts) are done: for the displays of this process
     attached now, and in a task on a ``distributed`` worker for its client (an event of
-    :data:`TOPIC`, which :func:`hevr._dask.compute` subscribes to)."""
+    :data:`TOPIC`, which :func:`hevr.runtime.scheduler.compute` subscribes to)."""
     worker = _worker()
     if worker is not None:
         worker.log_event(TOPIC, int(k))

@@ -29,7 +29,7 @@ import sys
 
 import dask
 
-from ._validate import check_int
+from .validate import check_int
 
 __all__ = [
     "FLOAT_MAX",

@@ -1,6 +1,6 @@
 """Issue 46's packed frame in the GPU proof: a packed store's frames on the backend and on ``cpu``.
 
-``python -m hevr._bench.gpu_goals packed`` (``benchmarks/gpu-proof.sh goals`` or ``packed``) runs
+``python -m hevr.bench.gpu_goals packed`` (``benchmarks/gpu-proof.sh goals`` or ``packed``) runs
 :func:`packed_step`:
 
 1. the ``size``³ phantom (uint8) encrypted as a packed store (``layout="packed"``, S voxels of a
@@ -50,7 +50,10 @@ from ..rendering.geometry.camera import Camera
 from ..rendering.reference.plain import render_plain
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
-from .gpu_common import append_row, bench_key, image_digest, local_cluster
+from .gpu_common import append_row
+from .gpu_common import bench_key
+from .gpu_common import image_digest
+from .gpu_common import local_cluster
 from .measure import dir_bytes
 
 log = logging.getLogger(__name__)

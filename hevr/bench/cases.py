@@ -1,7 +1,7 @@
 """The measurements behind ``hevr bench``: one function per kind of table cell.
 
 Every function returns a JSON-able dict of raw numbers; ratios against the paper and the
-limits are derived in :mod:`hevr._bench.report`. Renders are always from scratch
+limits are derived in :mod:`hevr.bench.report`. Renders are always from scratch
 (``cache=False``) and timed end to end on the client: graph building, map, reduce,
 finishing and packing, as a user waits for them.
 """
@@ -212,7 +212,7 @@ def hevr_small_case(ctx: Context, size: int, image: int, bits: int) -> dict:
 
 def pipeline_case(workers: Workers, ev: EncryptedVolume, camera: Camera) -> dict:
     """A resident volume's second X-ray nearest frame on ``workers``, traced
-    (:func:`hevr._bench.pipeline.trace_frame`); the first frame is the warm-up."""
+    (:func:`hevr.bench.pipeline.trace_frame`); the first frame is the warm-up."""
     rv = ev.persist(client=workers.client)
     rv.resident.wait()
     try:

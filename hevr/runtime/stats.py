@@ -2,7 +2,7 @@
 
 Every map / merge / finish task adds its phase times here (a few ``perf_counter`` calls
 per task, negligible next to one modular multiplication per pair). The benchmark reads
-and resets the totals on every worker with ``client.run(hevr._stats.take)`` to split a
+and resets the totals on every worker with ``client.run(hevr.runtime.stats.take)`` to split a
 render's wall time into the encrypted kernel and everything else. Nothing secret is
 recorded: only seconds and counts of public work.
 """

@@ -42,7 +42,7 @@ import stat
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from .errors import (
+from ..errors import (
     ExistingFileError,
     FileSystemError,
     HevrError,

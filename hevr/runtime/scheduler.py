@@ -1,5 +1,5 @@
 """Running task lists on the active Dask scheduler, with hevr's progress display
-(:mod:`hevr._progress`: a widget in Jupyter, a bar on a terminal, log lines otherwise).
+(:mod:`hevr.runtime.progress`: a widget in Jupyter, a bar on a terminal, log lines otherwise).
 
 hevr never starts a cluster by itself: it uses the client it is given, else the active
 ``distributed`` client (``default_client()``), else Dask's default scheduler.
@@ -25,9 +25,10 @@ import dask.threaded
 from distributed import LocalCluster, as_completed, default_client
 from distributed.comm.addressing import normalize_address
 
-from . import _cancel
-from ._progress import Progress, TaskCounter
-from .errors import ForeignClusterError, ParameterError
+from . import cancel
+from .progress import Progress
+from .progress import TaskCounter
+from ..errors import ForeignClusterError, ParameterError
 
 log = logging.getLogger(__name__)
 
@@ -230,14 +231,14 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
     default scheduler once all have run.
 
     ``steps`` (in ``unit``, e.g. the ciphertexts of an encryption): the tasks report finer
-    progress with :func:`hevr._cancel.add_steps`, shown with a rate and the time left; tasks on
+    progress with :func:`hevr.runtime.cancel.add_steps`, shown with a rate and the time left; tasks on
     a ``distributed`` worker send it as the worker's ``hevr-steps`` events.
 
-    In a job's :class:`hevr._cancel.Scope` (:func:`hevr._cancel.scope`), cancelling the scope
+    In a job's :class:`hevr.runtime.cancel.Scope` (:func:`hevr.runtime.cancel.scope`), cancelling the scope
     cancels these futures, or starts none of the remaining tasks on the threaded scheduler, and
-    this raises :class:`hevr._cancel.Cancelled` (``hevr serve``'s render whose client left).
+    this raises :class:`hevr.runtime.cancel.Cancelled` (``hevr serve``'s render whose client left).
     """
-    job = _cancel.current()  # a job of its own (hevr serve's render): cancellable alone
+    job = cancel.current()  # a job of its own (hevr serve's render): cancellable alone
     if job is None:
         return _compute(list(tasks), client, progress, desc, keep, on_result, steps, unit, None)
     job.check()
@@ -245,13 +246,13 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
         return _compute(list(tasks), client, progress, desc, keep, on_result, steps, unit, job)
     except Exception:
         if job.cancelled:  # the futures' cancellation, a task that found the job cancelled
-            raise _cancel.Cancelled(f"cancelled: {job.reason}") from None
+            raise cancel.Cancelled(f"cancelled: {job.reason}") from None
         raise
 
 
 def _compute(tasks: list[Any], client: Any, progress: bool, desc: str, keep: int,
              on_result: Callable[[int, Any], None] | None, steps: int, unit: str, job: Any) -> list[Any]:
-    """:func:`compute`'s work; ``job`` (a :class:`hevr._cancel.Scope` or None) cancels its futures."""
+    """:func:`compute`'s work; ``job`` (a :class:`hevr.runtime.cancel.Scope` or None) cancels its futures."""
     if not tasks:
         return []
     client = active_client(client)
@@ -261,7 +262,7 @@ def _compute(tasks: list[Any], client: Any, progress: bool, desc: str, keep: int
         undo = job.on_cancel(lambda: client.cancel(futures)) if job is not None else (lambda: None)
         bar = Progress(len(futures), desc, progress, steps=steps, unit=unit)
         if steps:
-            client.subscribe_topic(_cancel.TOPIC, lambda event: bar.step(int(event[1])))
+            client.subscribe_topic(cancel.TOPIC, lambda event: bar.step(int(event[1])))
         failed = False
         cut = len(futures) - keep
         index = {f.key: i for i, f in enumerate(futures)}
@@ -278,7 +279,7 @@ def _compute(tasks: list[Any], client: Any, progress: bool, desc: str, keep: int
             undo()
             if steps:
                 with contextlib.suppress(Exception):  # a client closing after an interrupt
-                    client.unsubscribe_topic(_cancel.TOPIC)
+                    client.unsubscribe_topic(cancel.TOPIC)
                 if not failed and all(f.status == "finished" for f in futures):
                     bar.step(max(0, steps - bar.steps_done))  # the last events may still be on their way
             bar.close(failed=failed)
@@ -287,7 +288,7 @@ def _compute(tasks: list[Any], client: Any, progress: bool, desc: str, keep: int
         results = [got[i] for i in range(cut)] + list(futures[cut:])
     else:
         bar = Progress(0, desc, progress, steps=steps, unit=unit)  # the callback learns the number of graph tasks
-        with TaskCounter(bar), _cancel.counting(bar.step):
+        with TaskCounter(bar), cancel.counting(bar.step):
             results = _compute_local(tasks, job)
         if on_result is not None:
             for i, value in enumerate(results[:len(results) - keep] if keep else results):
@@ -299,7 +300,7 @@ def _compute(tasks: list[Any], client: Any, progress: bool, desc: str, keep: int
 
 class _JobPool(ThreadPoolExecutor):
     """The threaded scheduler's pool for a cancellable job: a task submitted after the job's
-    cancellation raises :class:`hevr._cancel.Cancelled` instead of running (dask then raises it)."""
+    cancellation raises :class:`hevr.runtime.cancel.Cancelled` instead of running (dask then raises it)."""
 
     def __init__(self, max_workers: int, job: Any) -> None:
         super().__init__(max_workers=max_workers)
@@ -324,11 +325,11 @@ def _compute_local(tasks: list[Any], job: Any = None) -> list[Any]:
         return list(dask.compute(*tasks))
     workers = dask.config.get("num_workers", None) or dask.threaded.CPU_COUNT
     pool = ThreadPoolExecutor(max_workers=workers) if job is None else _JobPool(workers, job)
-    _cancel.clear()
+    cancel.clear()
     try:
         return list(dask.compute(*tasks, pool=pool))
     except KeyboardInterrupt:  # Ctrl-C: the running tasks stop at their next check, not at their end
-        _cancel.stop()
+        cancel.stop()
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

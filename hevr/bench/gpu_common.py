@@ -1,4 +1,4 @@
-"""What the GPU proof's steps share (:mod:`hevr._bench.gpu_goals`, :mod:`hevr._bench.gpu_packed`):
+"""What the GPU proof's steps share (:mod:`hevr.bench.gpu_goals`, :mod:`hevr.bench.gpu_packed`):
 rows appended to ``goals.jsonl`` as they are measured, the digest of an encrypted image (the identity
 of two backends' frames), the steps' key, and a LocalCluster of single-threaded processes.
 

@@ -7,7 +7,7 @@ of their value — the throughput, the store, the GPU frames, then the CPU curve
 ``throughput``
     4096-bit products/s and 10-bit multi-exponentiation pairs/s at 2048-bit keys, end to end
     (``Backend.ray_products``: plan, uploads, kernels, downloads) and kernel-only (the plan already
-    on the device), beside ``cpu`` on one core (:func:`hevr._bench.gpu.throughput`).
+    on the device), beside ``cpu`` on one core (:func:`hevr.bench.gpu.throughput`).
 ``stores``
     the ``size``³ phantom (scalar) and the ``tf_size``³ phantom (scalar + 4-dim vector, for the
     transfer function) under one key in ``work``; the scalar store's seconds are the "100³
@@ -27,7 +27,7 @@ of their value — the throughput, the store, the GPU frames, then the CPU curve
     issue 46: a packed store of the ``packed_size``³ phantom, its frames (two views, nearest and
     bilinear, and one verified) on the backend and on ``cpu`` from resident copies, identical
     ciphertexts checked (the command exits 1 otherwise), seconds and operation counts kept
-    (:mod:`hevr._bench.gpu_packed`).
+    (:mod:`hevr.bench.gpu_packed`).
 ``table``
     ``goals.md`` from ``goals.jsonl``: each goal with the figure measured beside it.
 
@@ -35,7 +35,7 @@ Every row is appended to ``OUT/goals.jsonl`` the moment it is measured. Goals ar
 the figures, never asserted. ``tests/test_bench_gpu_goals.py`` runs every step on the host build
 (``cuda-host``) with tiny sizes.
 
-    python -m hevr._bench.gpu_goals STEP --out OUT --work WORK [--backend cuda] [--size 100] ...
+    python -m hevr.bench.gpu_goals STEP --out OUT --work WORK [--backend cuda] [--size 100] ...
 """
 
 from __future__ import annotations
@@ -62,8 +62,13 @@ from ..store.reader import open_volume
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
 from .gpu import throughput
-from .gpu_common import append_row, bench_key, image_digest, local_cluster, read_rows
-from .gpu_packed import packed_step, table_lines
+from .gpu_common import append_row
+from .gpu_common import bench_key
+from .gpu_common import image_digest
+from .gpu_common import local_cluster
+from .gpu_common import read_rows
+from .gpu_packed import packed_step
+from .gpu_packed import table_lines
 from .measure import machine
 
 log = logging.getLogger(__name__)
@@ -270,7 +275,7 @@ def run_step(step: str, out: Path, work: Path, *, backend: str = "cuda", size: i
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m hevr._bench.gpu_goals", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m hevr.bench.gpu_goals", description=__doc__.split("\n\n")[0])
     ap.add_argument("step", choices=STEPS)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--work", type=Path, required=True, help="the key and the stores (reused by later steps)")

@@ -23,7 +23,9 @@ import zarr
 from distributed import Client, LocalCluster
 from gmpy2 import mpz
 
-from .. import __version__, _stats
+from .. import __version__
+
+from ..runtime import stats
 
 
 def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
@@ -147,7 +149,7 @@ class Workers:
     def take_stats(self) -> dict[str, dict]:
         """Sum of the per-process task phase totals of every worker (and reset them)."""
         out: dict[str, dict] = {"seconds": {}, "counts": {}}
-        for snap in self._run(_stats.take):
+        for snap in self._run(stats.take):
             for kind in out:
                 for k, v in snap[kind].items():
                     out[kind][k] = out[kind].get(k, 0) + v
@@ -159,7 +161,7 @@ class Workers:
 
 
 def _warm() -> None:
-    _stats.take()  # hevr is imported on the worker with this module: imports are not part of any timing
+    stats.take()  # hevr is imported on the worker with this module: imports are not part of any timing
 
 
 @contextlib.contextmanager

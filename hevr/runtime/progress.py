@@ -12,7 +12,7 @@ through :class:`Progress`; it picks where to draw once, when the job starts:
   a job with finer steps (the ciphertexts of ``encrypt``) at every tenth and at least once a
   minute, each with its rate and the time left. The CLI shows them on stderr.
 
-Jobs on a ``distributed`` client count completed futures (:func:`hevr._dask.compute`); jobs on
+Jobs on a ``distributed`` client count completed futures (:func:`hevr.runtime.scheduler.compute`); jobs on
 Dask's local schedulers count finished graph tasks through a Dask callback
 (:class:`TaskCounter`), so the same bar serves both.
 """

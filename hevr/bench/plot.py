@@ -6,7 +6,7 @@ import io
 import logging
 from pathlib import Path
 
-from .._files import write_file
+from ..core.files import write_file
 
 log = logging.getLogger(__name__)
 

@@ -17,16 +17,21 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from .._files import read_regular, write_atomic
+from ..core.files import read_regular
+
+from ..core.files import write_atomic
 from ..errors import ExistingFileError, MissingDependencyError, ParameterError
 from ..paper import TF_NODES
 from ..volume.phantom import phantom
-from . import cases, measure
+from . import cases
+from . import measure
 from .crypto_micro import crypto_micro
 from .kernel_micro import kernel_micro
 from .pipeline import predict
 from .report import write_report
-from .settings import SETTINGS, BenchSettings, block_names
+from .settings import SETTINGS
+from .settings import BenchSettings
+from .settings import block_names
 
 log = logging.getLogger(__name__)
 
@@ -172,7 +177,7 @@ def _scaling(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
 
 def _pipeline(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
     """Resident X-ray nearest frames on 1 … cores workers (and 2·cores, oversubscribed), each
-    traced; the model (:mod:`hevr._bench.pipeline`) fitted on the largest run that is not
+    traced; the model (:mod:`hevr.bench.pipeline`) fitted on the largest run that is not
     oversubscribed predicts 1 … 64 workers."""
     vol = phantom(s.size)
     _pub, priv, _ = ctx.keypair(s.pipeline_bits)

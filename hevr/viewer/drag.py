@@ -46,10 +46,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PIL import Image
 
-from .image.display import to_uint8
+from ..image.display import to_uint8
 
 if TYPE_CHECKING:
-    from .viewer import Viewer
+    from .widget import Viewer
 
 log = logging.getLogger(__name__)
 

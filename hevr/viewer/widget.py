@@ -9,7 +9,7 @@ layer of widgets over :func:`hevr.render_frame` and :meth:`hevr.Frame.recolour`:
 * **camera**: azimuth, elevation and view-angle sliders (:meth:`hevr.Camera.orbit`); a frame
   is rendered when a slider is released (``continuous_update=False``), one render per move;
 * **dragging on the image** orbits the camera and the wheel zooms (the view angle): the frame is
-  an anywidget (:mod:`hevr._drag`) whose pointer events set the camera sliders — one source of
+  an anywidget (:mod:`hevr.viewer.drag`) whose pointer events set the camera sliders — one source of
   truth, the sliders follow the drag — and take the sliders' path below: coarse frames while
   dragging, the full frame on release; one message in flight at a time, the pointer's
   movements meanwhile added up (the latest position is rendered, no render queue);
@@ -59,20 +59,22 @@ from typing import Any
 
 import numpy as np
 
-from ._dask import refuse_foreign_cluster
-from ._drag import Orbit, drag_image, png
-from .colour import Frame
-from .crypto.keys import PrivateKey
-from .errors import HevrError, MissingDependencyError, ParameterError
-from .paper import PAPER_DENSITIES, PAPER_TF1
-from .rendering.encrypted import error_bound
-from .rendering.geometry.camera import Camera
-from .rendering.pipeline.stream import render_frame
-from .rendering.planning.modes import parse_color
-from .rendering.reference.plain import render_plain
-from .store.reader import EncryptedVolume
-from .volume.pyramid import check_level
-from .image.provenance import refuse_untagged
+from ..runtime.scheduler import refuse_foreign_cluster
+from .drag import Orbit
+from .drag import drag_image
+from .drag import png
+from ..colour import Frame
+from ..crypto.keys import PrivateKey
+from ..errors import HevrError, MissingDependencyError, ParameterError
+from ..paper import PAPER_DENSITIES, PAPER_TF1
+from ..rendering.encrypted import error_bound
+from ..rendering.geometry.camera import Camera
+from ..rendering.pipeline.stream import render_frame
+from ..rendering.planning.modes import parse_color
+from ..rendering.reference.plain import render_plain
+from ..store.reader import EncryptedVolume
+from ..volume.pyramid import check_level
+from ..image.provenance import refuse_untagged
 
 log = logging.getLogger(__name__)
 
@@ -136,7 +138,7 @@ class Viewer:
         The last decrypted frame of component means, re-coloured while only the colouring changes.
     image : anywidget.AnyWidget
         The frame on show (PNG bytes in ``value``); dragging on it orbits, the wheel zooms.
-    orbit : hevr._drag.Orbit
+    orbit : hevr.viewer.drag.Orbit
         Turns drags and wheel turns on :attr:`image` into slider values (``orbit.drag(dx, dy)``,
         ``orbit.zoom(wheel)`` drive it from code).
     widget : ipywidgets.VBox
@@ -148,7 +150,7 @@ class Viewer:
                  nodes: Any = None, density: float | None = None, client: Any = None, step: float = 1.0,
                  preview: int | None = None, settle: float | None = 0.6, show: bool = True) -> None:
         try:
-            import anywidget  # noqa: F401  (the drag surface, hevr._drag)
+            import anywidget  # noqa: F401  (the drag surface, hevr.viewer.drag)
             import ipywidgets as widgets
         except ImportError as exc:
             raise MissingDependencyError(f"Viewer: expected ipywidgets and anywidget (pip install 'hevr[notebook]'), "

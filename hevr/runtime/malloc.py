@@ -27,7 +27,7 @@ import threading
 
 import dask
 
-from .errors import ParameterError
+from ..errors import ParameterError
 
 log = logging.getLogger(__name__)
 
