@@ -19,8 +19,10 @@ def machine() -> str:
         pass
     import gmpy2
 
-    return (f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC · {cpu} · {os.cpu_count()} cores · "
-            f"{platform.system()} {platform.release()} · Python {platform.python_version()} · gmpy2 {gmpy2.version()}")
+    return (
+        f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC · {cpu} · {os.cpu_count()} cores · "
+        f"{platform.system()} {platform.release()} · Python {platform.python_version()} · gmpy2 {gmpy2.version()}"
+    )
 
 
 def append(section: str) -> None:

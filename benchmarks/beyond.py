@@ -62,8 +62,17 @@ def frames(ev, vol, priv, res):
         lv = ev.at_level(level)
         for size in sorted({IMAGE, IMAGE >> level}, reverse=True):
             cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=size, height=size)
-            moved = cam if not level else hevr.Camera(**{**cam.to_dict(), "position": tuple(
-                np.subtract(cam.position, lv.origin)), "focal_point": tuple(np.subtract(cam.focal_point, lv.origin))})
+            moved = (
+                cam
+                if not level
+                else hevr.Camera(
+                    **{
+                        **cam.to_dict(),
+                        "position": tuple(np.subtract(cam.position, lv.origin)),
+                        "focal_point": tuple(np.subtract(cam.focal_point, lv.origin)),
+                    }
+                )
+            )
             samples = int(cast_rays(moved, lv.shape, lv.spacing, 2.0**level).n_samples.sum())
             for sampling in ("nearest", "trilinear"):
                 hevr.clear_cache()
@@ -71,10 +80,20 @@ def frames(ev, vol, priv, res):
                 arr, dsec = timed(img.decrypt, priv)
                 ref = hevr.render_plain(vol, cam, sampling=sampling, level=level)
                 err = check(arr, ref, hevr.error_bound(ev, cam, sampling=sampling, level=level), f"level {level}")
-                rows.append({"level": level, "image": size, "sampling": sampling, "shape": list(lv.shape),
-                             "brick": list(lv.brick), "seconds": sec, "decrypt_s": dsec,
-                             "pairs": samples * (8 if sampling == "trilinear" else 1),
-                             "map_tasks": img.stats["map_tasks"], "max_error": err})
+                rows.append(
+                    {
+                        "level": level,
+                        "image": size,
+                        "sampling": sampling,
+                        "shape": list(lv.shape),
+                        "brick": list(lv.brick),
+                        "seconds": sec,
+                        "decrypt_s": dsec,
+                        "pairs": samples * (8 if sampling == "trilinear" else 1),
+                        "map_tasks": img.stats["map_tasks"],
+                        "max_error": err,
+                    }
+                )
                 print(rows[-1], flush=True)
     res["frames"] = rows
 
@@ -96,8 +115,17 @@ def slices(ev, vol, priv, res, client):
                 total = time.perf_counter() - t
                 ref = hevr.render_slice_plain(vol, plane, sampling=sampling)
                 err = check(arr, ref, hevr.error_bound(ev, plane, sampling=sampling), "slice")
-                rows.append({"sampling": sampling, "resident": resident, "repeat": rep, "render_s": rsec,
-                             "end_to_end_s": total, "ciphertexts": img.n_ciphertexts, "max_error": err})
+                rows.append(
+                    {
+                        "sampling": sampling,
+                        "resident": resident,
+                        "repeat": rep,
+                        "render_s": rsec,
+                        "end_to_end_s": total,
+                        "ciphertexts": img.n_ciphertexts,
+                        "max_error": err,
+                    }
+                )
                 print(rows[-1], flush=True)
         if resident:
             src.resident.release()
@@ -112,16 +140,33 @@ def gradient(work, res):
     vol = hevr.phantom(32)
     rows = []
     for grad in (False, True):
-        ev, sec = timed(hevr.encrypt_volume, vol, work / f"g{int(grad)}.zarr", priv, brick=16, vector_dims=4,
-                        gradient=grad, overwrite=True, progress=False)
+        ev, sec = timed(
+            hevr.encrypt_volume,
+            vol,
+            work / f"g{int(grad)}.zarr",
+            priv,
+            brick=16,
+            vector_dims=4,
+            gradient=grad,
+            overwrite=True,
+            progress=False,
+        )
         cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=64, height=64)
         hevr.clear_cache()
         img, rsec = timed(hevr.render, ev, cam, mode="tf", nodes=TF_NODES, gradient=grad, cache=False, progress=False)
         ref = hevr.render_plain(vol, cam, mode="tf", nodes=TF_NODES, vector_dims=4, gradient=grad)
-        err = check(img.decrypt(priv), ref, hevr.error_bound(ev, cam, mode="tf", nodes=TF_NODES, gradient=grad),
-                    "gradient")
-        rows.append({"gradient": grad, "encrypt_s": sec, "ciphertexts_per_voxel": 1 + 4 * (2 if grad else 1),
-                     "tf_render_s": rsec, "max_error": err})
+        err = check(
+            img.decrypt(priv), ref, hevr.error_bound(ev, cam, mode="tf", nodes=TF_NODES, gradient=grad), "gradient"
+        )
+        rows.append(
+            {
+                "gradient": grad,
+                "encrypt_s": sec,
+                "ciphertexts_per_voxel": 1 + 4 * (2 if grad else 1),
+                "tf_render_s": rsec,
+                "max_error": err,
+            }
+        )
         print(rows[-1], flush=True)
     res["gradient"] = rows
 
@@ -139,8 +184,9 @@ def main(work: str, out: str, reuse: bool) -> None:
         else:
             pub, priv = hevr.generate_keypair(BITS)
             priv.save(work_p / "key.json", overwrite=True)
-            ev, res["encrypt_s"] = timed(hevr.encrypt_volume, vol, work_p / "scalar.zarr", priv, brick=BRICK,
-                                         overwrite=True, progress=False)
+            ev, res["encrypt_s"] = timed(
+                hevr.encrypt_volume, vol, work_p / "scalar.zarr", priv, brick=BRICK, overwrite=True, progress=False
+            )
             print("encrypt", res["encrypt_s"], flush=True)
         res["pyramid_s"] = {}
         for level in (1, 2):

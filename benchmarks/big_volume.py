@@ -26,8 +26,8 @@ from distributed import Client, LocalCluster
 
 import hevr
 from hevr.bench.measure import machine
-from hevr.rendering.pipeline.graph import build_sums_graph
 from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.pipeline.graph import build_sums_graph
 
 warnings.simplefilter("ignore")
 
@@ -41,8 +41,16 @@ def graph_cost(ev, size: int) -> dict:
     dt = time.perf_counter() - t
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    return {"pixels": size * size, "bricks": int(np.prod(ev.grid)), "map_tasks": g.map_tasks, "edges": g.edges,
-            "tasks": len(dict(g.dsk)), "seconds": dt, "peak_bytes": peak, "samples": int(rays.n_samples.sum())}
+    return {
+        "pixels": size * size,
+        "bricks": int(np.prod(ev.grid)),
+        "map_tasks": g.map_tasks,
+        "edges": g.edges,
+        "tasks": len(dict(g.dsk)),
+        "seconds": dt,
+        "peak_bytes": peak,
+        "samples": int(rays.n_samples.sum()),
+    }
 
 
 def main(work: str, out: str, mask: bool) -> None:
@@ -58,11 +66,19 @@ def main(work: str, out: str, mask: bool) -> None:
         else:
             pub, priv = hevr.generate_keypair(512)
             t = time.perf_counter()
-            ev = hevr.encrypt_volume(vol, work_p / "big.zarr", priv, brick=32, overwrite=True, progress=False,
-                                     unsafe_no_obfuscation=not mask)
+            ev = hevr.encrypt_volume(
+                vol, work_p / "big.zarr", priv, brick=32, overwrite=True, progress=False, unsafe_no_obfuscation=not mask
+            )
             res["encrypt_s"] = time.perf_counter() - t
-            small = hevr.encrypt_volume(vol[:128, :128, :128], work_p / "crop.zarr", priv, brick=32, overwrite=True,
-                                        progress=False, unsafe_no_obfuscation=not mask)
+            small = hevr.encrypt_volume(
+                vol[:128, :128, :128],
+                work_p / "crop.zarr",
+                priv,
+                brick=32,
+                overwrite=True,
+                progress=False,
+                unsafe_no_obfuscation=not mask,
+            )
             priv.save(work_p / "key.json")
         res["graph"] = [graph_cost(ev, s) for s in (64, 128, 256)] + [graph_cost(small, s) for s in (64, 128, 256)]
         for g in res["graph"]:

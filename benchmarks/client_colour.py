@@ -30,9 +30,9 @@ import hevr
 from hevr.bench.finish_count import finishing_modmuls
 from hevr.bench.measure import machine
 from hevr.paper import PAPER_DENSITIES, PAPER_TF1, TF_NODES
+from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.planning.modes import combination_matrix, make_spec
 from hevr.rendering.planning.planner import plan_render
-from hevr.rendering.geometry.rays import cast_rays
 
 warnings.simplefilter("ignore")
 
@@ -47,9 +47,18 @@ def count(ev, cam, mode, sampling, finish, **kw) -> int:
     spec = make_spec(mode, sampling, 1.0, kw.get("density"), kw.get("nodes"), ev.vector_dims, ev.has_scalar)
     rays = cast_rays(cam, ev.shape, ev.spacing, 1.0)
     comb = combination_matrix(spec, ev.vector_dims) if spec.needs_vector and finish == "server" else None
-    plan = plan_render(n=int(ev.public_key.n), spec=spec, meta=ev.meta, n_samples=rays.n_samples,
-                       digits=3 if sampling == "trilinear" else 0, precision=4, comb_digits=4, pack=True,
-                       combination=comb, finish=finish)
+    plan = plan_render(
+        n=int(ev.public_key.n),
+        spec=spec,
+        meta=ev.meta,
+        n_samples=rays.n_samples,
+        digits=3 if sampling == "trilinear" else 0,
+        precision=4,
+        comb_digits=4,
+        pack=True,
+        combination=comb,
+        finish=finish,
+    )
     return finishing_modmuls(plan, rays.n_samples.tolist())
 
 
@@ -68,33 +77,52 @@ def main(store: str, key: str, out: str, rounds: int = 2) -> None:
     with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as lc, Client(lc) as cl:
         for name, (mode, kw) in cases.items():
             ref = hevr.render_plain(vol, cam, mode=mode, vector_dims=4, **kw)
-            cell: dict = {"server": [], "client": [],
-                          "finish_modmuls": {f: count(ev, cam, mode, "nearest", f, **kw) for f in ("server", "client")}}
+            cell: dict = {
+                "server": [],
+                "client": [],
+                "finish_modmuls": {f: count(ev, cam, mode, "nearest", f, **kw) for f in ("server", "client")},
+            }
             for r in range(rounds):
-                for arm in (("server", "client") if r % 2 == 0 else ("client", "server")):
+                for arm in ("server", "client") if r % 2 == 0 else ("client", "server"):
                     t0 = time.perf_counter()
                     if arm == "server":
-                        img = hevr.render(ev, cam, mode=mode, client=cl, cache=False, progress=False, finish="server",
-                                          **kw)
+                        img = hevr.render(
+                            ev, cam, mode=mode, client=cl, cache=False, progress=False, finish="server", **kw
+                        )
                         rendered = time.perf_counter() - t0
                         arr, dec = timed(lambda: img.decrypt(priv))
                         total = time.perf_counter() - t0
-                        row = {"render_s": rendered, "decrypt_s": dec, "end_to_end_s": total,
-                               "ciphertexts": img.n_ciphertexts, "per_pack": img.per_pack, "pack_bits": img.pack_bits}
+                        row = {
+                            "render_s": rendered,
+                            "decrypt_s": dec,
+                            "end_to_end_s": total,
+                            "ciphertexts": img.n_ciphertexts,
+                            "per_pack": img.per_pack,
+                            "pack_bits": img.pack_bits,
+                        }
                     else:
-                        frame = hevr.render_frame(ev, cam, priv, mode=mode, client=cl, cache=False, progress=False,
-                                                  **kw)
+                        frame = hevr.render_frame(
+                            ev, cam, priv, mode=mode, client=cl, cache=False, progress=False, **kw
+                        )
                         arr = frame.image
                         total = time.perf_counter() - t0
-                        row = {"end_to_end_s": total, "frame_seconds": frame.stats["seconds"],
-                               "decrypt_s": frame.stats["decrypt_s"], "ciphertexts": frame.stats["ciphertexts"]}
+                        row = {
+                            "end_to_end_s": total,
+                            "frame_seconds": frame.stats["seconds"],
+                            "decrypt_s": frame.stats["decrypt_s"],
+                            "ciphertexts": frame.stats["ciphertexts"],
+                        }
                     bound = hevr.error_bound(ev, cam, mode, finish=arm, **kw)
                     err = np.abs(arr - ref)
-                    row.update(max_abs_err=float(err.max()), within_bound=bool((err <= bound).all()),
-                               bound_max=float(bound.max()))
+                    row.update(
+                        max_abs_err=float(err.max()),
+                        within_bound=bool((err <= bound).all()),
+                        bound_max=float(bound.max()),
+                    )
                     cell[arm].append(row)
-                    print(name, arm, {k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()},
-                          flush=True)
+                    print(
+                        name, arm, {k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()}, flush=True
+                    )
                     save()
                     if name == "tf4-nearest" and arm == "client" and r == 0:
                         res["recolour"] = recolour_case(frame, cl, ref_args=(vol, cam))
@@ -119,8 +147,12 @@ def recolour_case(frame, cl, ref_args) -> dict:
     for mode, kw in others:
         ref = hevr.render_plain(vol, cam, mode=mode, vector_dims=4, **kw)
         errs[f"{mode}:{kw}"] = float(np.abs(frame.recolour(mode, **kw) - ref).max())
-    return {"median_s": statistics.median(times), "max_s": max(times), "cluster_tasks": len(ts.data),
-            "max_abs_err": errs}
+    return {
+        "median_s": statistics.median(times),
+        "max_s": max(times),
+        "cluster_tasks": len(ts.data),
+        "max_abs_err": errs,
+    }
 
 
 def accuracy(ev, vol, cam, priv, cl) -> dict:
@@ -132,10 +164,12 @@ def accuracy(ev, vol, cam, priv, cl) -> dict:
     for mode, kw in (("emphasize", {"density": PAPER_DENSITIES[1]}), ("tf", {"nodes": PAPER_TF1})):
         ref = hevr.render_plain(vol, cam, mode=mode, vector_dims=4, **kw)
         server = hevr.render(ev, cam, mode=mode, client=cl, progress=False, finish="server", **kw).decrypt(priv)
-        out[mode] = {"server": float(np.abs(server - ref).max()),
-                     "client": float(np.abs(frame.recolour(mode, **kw) - ref).max()),
-                     "bound_server": float(hevr.error_bound(ev, cam, mode, finish="server", **kw).max()),
-                     "bound_client": float(hevr.error_bound(ev, cam, mode, finish="client", **kw).max())}
+        out[mode] = {
+            "server": float(np.abs(server - ref).max()),
+            "client": float(np.abs(frame.recolour(mode, **kw) - ref).max()),
+            "bound_server": float(hevr.error_bound(ev, cam, mode, finish="server", **kw).max()),
+            "bound_client": float(hevr.error_bound(ev, cam, mode, finish="client", **kw).max()),
+        }
     return out
 
 

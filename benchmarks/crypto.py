@@ -23,20 +23,26 @@ def main(argv=None) -> None:
     ap.add_argument("--bits", type=int, nargs="+", default=[1024, 2048, 3072])
     ap.add_argument("--n", type=int, default=200, help="operations per measurement")
     args = ap.parse_args(argv)
-    lines = [f"## crypto.py — Paillier primitives\n\nMachine: {machine()}\n",
-             "| bits | operation | hevr µs | phe µs | phe / hevr | bare a·b mod n² µs | hevr / bare |",
-             "|---:|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"## crypto.py — Paillier primitives\n\nMachine: {machine()}\n",
+        "| bits | operation | hevr µs | phe µs | phe / hevr | bare a·b mod n² µs | hevr / bare |",
+        "|---:|---|---:|---:|---:|---:|---:|",
+    ]
     for bits in args.bits:
         res = crypto_micro(bits, args.n)
         table_s = res["table_s"]
         for r in res["rows"]:
             name, h, p, bare = r["name"], r["hevr_s"], r["phe_s"], r["bare_s"]
-            lines.append(f"| {bits} | {name} | {h * 1e6:,.1f} | {p * 1e6:,.1f} | {p / h:,.2f}× | {bare * 1e6:,.2f} | {h / bare:,.2f} |")
+            lines.append(
+                f"| {bits} | {name} | {h * 1e6:,.1f} | {p * 1e6:,.1f} | {p / h:,.2f}× | {bare * 1e6:,.2f} | {h / bare:,.2f} |"
+            )
         lines.append(f"| {bits} | owner tables (once per key and process) | {table_s * 1e6:,.0f} | | | | |")
         print("\n".join(lines[-7:]), flush=True)
-    lines.append("\nphe columns: `raw_encrypt` (random r, r^n mod n² with gmpy2), `raw_decrypt` (CRT), "
-                 "`_raw_add`, `_raw_mul`. Goals at 2048 bits: owner encrypt ≥ 20× phe; decrypt no slower "
-                 "than phe; ⊕ within 1.2× of the bare multiplication.")
+    lines.append(
+        "\nphe columns: `raw_encrypt` (random r, r^n mod n² with gmpy2), `raw_decrypt` (CRT), "
+        "`_raw_add`, `_raw_mul`. Goals at 2048 bits: owner encrypt ≥ 20× phe; decrypt no slower "
+        "than phe; ⊕ within 1.2× of the bare multiplication."
+    )
     text = "\n".join(lines)
     print(text)
     append(text)

@@ -26,8 +26,11 @@ import hevr
 from hevr.paper import TF_NODES
 
 warnings.simplefilter("ignore")
-CASES = {"xray-nearest": ("xray", "nearest", {}), "xray-trilinear": ("xray", "trilinear", {}),
-         "tf4-nearest": ("tf", "nearest", {"nodes": TF_NODES})}
+CASES = {
+    "xray-nearest": ("xray", "nearest", {}),
+    "xray-trilinear": ("xray", "trilinear", {}),
+    "tf4-nearest": ("tf", "nearest", {"nodes": TF_NODES}),
+}
 
 
 def main() -> None:
@@ -52,7 +55,10 @@ def main() -> None:
                 t = time.perf_counter()
                 img = hevr.render(ev, cam, mode, sampling, cache=False, progress=False, client=cl, **kw, **extra)
                 ts.append(time.perf_counter() - t)
-            res[name] = {"s": ts, "image_sha": hashlib.sha256(b"".join(x.tobytes() for x in img.ciphertexts)).hexdigest()}
+            res[name] = {
+                "s": ts,
+                "image_sha": hashlib.sha256(b"".join(x.tobytes() for x in img.ciphertexts)).hexdigest(),
+            }
     with open(a.out, "a") as f:
         f.write(json.dumps(res) + "\n")
 

@@ -43,14 +43,14 @@ import numpy as np
 from distributed import Client, LocalCluster
 
 import hevr
-from hevr.runtime import malloc as _malloc
 from hevr.bench.measure import machine
 from hevr.paper import TF_NODES
 from hevr.rendering.geometry.footprint import brick_footprints
 from hevr.rendering.geometry.group_weights import nearest_group_rows
-from hevr.rendering.pipeline.kernel import plan_products
 from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.geometry.weights import brick_weights
+from hevr.rendering.pipeline.kernel import plan_products
+from hevr.runtime import malloc as _malloc
 
 warnings.simplefilter("ignore")
 BATCH_KEY = "hevr.render.resident-batch"
@@ -72,15 +72,24 @@ def geometry_seconds(ev, cam, sampling: str) -> dict:
     rays = cast_rays(cam, ev.shape, ev.spacing, 1.0)
     t1 = time.process_time()
     prints = brick_footprints(cam, ev.shape, ev.spacing, ev.brick, rays.n_samples > 0, 32)
-    weights = [brick_weights(rays, ev.shape, ev.spacing, ev.brick, idx, sampling, 1.0, 3)
-               for idx, fp in prints.items() if fp.tiles]
+    weights = [
+        brick_weights(rays, ev.shape, ev.spacing, ev.brick, idx, sampling, 1.0, 3)
+        for idx, fp in prints.items()
+        if fp.tiles
+    ]
     t2 = time.process_time()
     n_vox = int(np.prod(ev.brick))
     for bw in weights:
         plan_products(bw.indptr, bw.voxels, bw.weights, n_vox)
     t3 = time.process_time()
-    return {"rays_s": t1 - t0, "weights_s": t2 - t1, "plans_s": t3 - t2, "total_s": t3 - t0,
-            "bricks": len(weights), "pairs": int(sum(bw.n_pairs for bw in weights))}
+    return {
+        "rays_s": t1 - t0,
+        "weights_s": t2 - t1,
+        "plans_s": t3 - t2,
+        "total_s": t3 - t0,
+        "bricks": len(weights),
+        "pairs": int(sum(bw.n_pairs for bw in weights)),
+    }
 
 
 def frames(vols: dict, cam, priv, cases, arms, n: int, client) -> dict:
@@ -97,12 +106,20 @@ def frames(vols: dict, cam, priv, cases, arms, n: int, client) -> dict:
             ref = hevr.render_plain(hevr.phantom(100), cam, mode, sampling, **kw)
             bound = hevr.error_bound(any_ev, cam, mode, sampling, **kw)
             images = {}
-            for label, batch, backend, *own in (arms if r % 2 == 0 else arms[::-1]):
+            for label, batch, backend, *own in arms if r % 2 == 0 else arms[::-1]:
                 with dask.config.set({BATCH_KEY: batch}):
                     t = time.perf_counter()
-                    img = hevr.render(vols[label if own or backend is None else backend], cam, mode, sampling,
-                                      cache=False, progress=False, client=own[0] if own else client,
-                                      backend=backend, **kw)
+                    img = hevr.render(
+                        vols[label if own or backend is None else backend],
+                        cam,
+                        mode,
+                        sampling,
+                        cache=False,
+                        progress=False,
+                        client=own[0] if own else client,
+                        backend=backend,
+                        **kw,
+                    )
                     dt = time.perf_counter() - t
                 diff = np.abs(img.decrypt(priv) - ref)
                 assert np.all(diff <= bound), (name, label, float(diff.max()))
@@ -126,29 +143,38 @@ def group_geometry_seconds(ev, cam, workers: int = 2) -> dict:
     t0 = time.process_time()
     rays = cast_rays(cam, ev.shape, ev.spacing, 1.0)
     t1 = time.process_time()
-    groups = [idx[i * len(idx) // workers:(i + 1) * len(idx) // workers] for i in range(workers)]
+    groups = [idx[i * len(idx) // workers : (i + 1) * len(idx) // workers] for i in range(workers)]
     rows = [nearest_group_rows(rays, ev.shape, ev.spacing, ev.brick, g, 1.0) for g in groups]
     t2 = time.process_time()
     for g, rw in zip(groups, rows):
         sizes = [int(np.prod(ev.brick_shape(i))) for i in g]
         plan_products(rw.indptr, rw.voxels(sizes), rw.weights, sum(sizes))
     t3 = time.process_time()
-    return {"rays_s": t1 - t0, "weights_s": t2 - t1, "plans_s": t3 - t2, "total_s": t3 - t0,
-            "groups": workers, "pairs": int(sum(int(rw.indptr[-1]) for rw in rows))}
+    return {
+        "rays_s": t1 - t0,
+        "weights_s": t2 - t1,
+        "plans_s": t3 - t2,
+        "total_s": t3 - t0,
+        "groups": workers,
+        "pairs": int(sum(int(rw.indptr[-1]) for rw in rows)),
+    }
 
 
 def plain_fresh(cam) -> float:
     """``render_plain`` of the view ``cam`` in a fresh process (its allocator untouched)."""
-    code = ("import json, statistics, sys, time, hevr\n"
-            "vol = hevr.phantom(100)\n"
-            "cam = hevr.Camera.from_dict(json.loads(sys.argv[1]))\n"
-            "t = []\n"
-            "for _ in range(5):\n"
-            "    t0 = time.perf_counter(); hevr.render_plain(vol, cam, 'xray', 'nearest'); "
-            "t.append(time.perf_counter() - t0)\n"
-            "print(statistics.median(t))\n")
-    run = subprocess.run([sys.executable, "-c", code, json.dumps(cam.to_dict())], capture_output=True, text=True,
-                         check=True)
+    code = (
+        "import json, statistics, sys, time, hevr\n"
+        "vol = hevr.phantom(100)\n"
+        "cam = hevr.Camera.from_dict(json.loads(sys.argv[1]))\n"
+        "t = []\n"
+        "for _ in range(5):\n"
+        "    t0 = time.perf_counter(); hevr.render_plain(vol, cam, 'xray', 'nearest'); "
+        "t.append(time.perf_counter() - t0)\n"
+        "print(statistics.median(t))\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code, json.dumps(cam.to_dict())], capture_output=True, text=True, check=True
+    )
     return float(run.stdout)
 
 
@@ -173,11 +199,17 @@ def main() -> None:
         hevr.render_plain(vol, cam, "xray", "nearest")
         t.append(time.perf_counter() - t0)
     res["plain_nearest_s"] = statistics.median(t)
-    res["geometry"] = {s: min((geometry_seconds(ev, cam, s) for _ in range(3)), key=lambda d: d["total_s"])
-                       for s in ("nearest", "trilinear")}
+    res["geometry"] = {
+        s: min((geometry_seconds(ev, cam, s) for _ in range(3)), key=lambda d: d["total_s"])
+        for s in ("nearest", "trilinear")
+    }
     res["geometry_batched"] = min((group_geometry_seconds(ev, cam) for _ in range(5)), key=lambda d: d["total_s"])
-    arms = [("per-brick cpu", False, "cpu"), ("batched cpu", True, "cpu"), ("batched cuda-host", True, "cuda-host"),
-            ("default", "auto", None)]
+    arms = [
+        ("per-brick cpu", False, "cpu"),
+        ("batched cpu", True, "cpu"),
+        ("batched cuda-host", True, "cuda-host"),
+        ("default", "auto", None),
+    ]
     with contextlib.ExitStack() as stack:
         c = stack.enter_context(LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None))
         cl = stack.enter_context(Client(c))
@@ -191,25 +223,46 @@ def main() -> None:
             arms.append(("default, malloc untuned", "auto", None, cl2))
         for v in vols.values():
             v.resident.wait()
-        res["small"] = frames(vols, cam, priv, [("xray-nearest-64", "xray", "nearest", {}),
-                                               ("xray-trilinear-64", "xray", "trilinear", {}),
-                                               ("tf4-nearest-64", "tf", "nearest", {"nodes": TF_NODES})],
-                              arms, a.frames, cl)
+        res["small"] = frames(
+            vols,
+            cam,
+            priv,
+            [
+                ("xray-nearest-64", "xray", "nearest", {}),
+                ("xray-trilinear-64", "xray", "trilinear", {}),
+                ("tf4-nearest-64", "tf", "nearest", {"nodes": TF_NODES}),
+            ],
+            arms,
+            a.frames,
+            cl,
+        )
         for v in vols.values():
             v.resident.release()
         if a.big:
             big = hevr.open_volume(a.big[0]).persist(client=cl)
             big.resident.wait()
             bpriv = hevr.load_key(a.big[1])
-            res["big"] = frames({"cpu": big}, cam, bpriv, [("xray-nearest-2048", "xray", "nearest", {}),
-                                                          ("xray-trilinear-2048", "xray", "trilinear", {}),
-                                                          ("tf4-nearest-2048", "tf", "nearest", {"nodes": TF_NODES})],
-                                arms[:2], max(2, a.frames // 2), cl)
+            res["big"] = frames(
+                {"cpu": big},
+                cam,
+                bpriv,
+                [
+                    ("xray-nearest-2048", "xray", "nearest", {}),
+                    ("xray-trilinear-2048", "xray", "trilinear", {}),
+                    ("tf4-nearest-2048", "tf", "nearest", {"nodes": TF_NODES}),
+                ],
+                arms[:2],
+                max(2, a.frames // 2),
+                cl,
+            )
     a.out.write_text(json.dumps(res, indent=1, sort_keys=True))
     for name, rec in res["small"].items():
         print(name, "  ".join(f"{k}: {v['median_s']:.3f} s ({v['map_tasks']} maps)" for k, v in rec.items()))
-    print(f"plain {res['plain_nearest_s']:.3f} s (fresh process {res['plain_fresh_s']:.3f} s); geometry per-brick {res['geometry']['nearest']['total_s']:.3f} s, "
-          f"batched {res['geometry_batched']['total_s']:.3f} s")
+    print(
+        f"plain {res['plain_nearest_s']:.3f} s (fresh process {res['plain_fresh_s']:.3f} s); geometry per-brick {res['geometry']['nearest']['total_s']:.3f} s, "
+        f"batched {res['geometry_batched']['total_s']:.3f} s"
+    )
+
 
 if __name__ == "__main__":
     main()

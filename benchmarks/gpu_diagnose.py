@@ -52,7 +52,9 @@ VARIANTS = {
     "shipped": {},
     "norestrict": {"replace": ("#define HEVR_RESTRICT __restrict__", "#define HEVR_RESTRICT")},
     "nounroll": {"replace": ("switch (nl) {", "switch (-1) {")},
-    "inline": {"replace": ("#define HEVR_CALL __device__ __noinline__", "#define HEVR_CALL __device__ __forceinline__")},
+    "inline": {
+        "replace": ("#define HEVR_CALL __device__ __noinline__", "#define HEVR_CALL __device__ __forceinline__")
+    },
     "block32": {"block": 32},
     "block1": {"block": 1},
     "-G": {"options": ("-G",)},
@@ -64,8 +66,13 @@ VARIANTS = {
     "noreserve": {"reserve": False},
 }
 # CUfunction_attribute numbers (cuda.h): what each kernel takes per thread, as the driver sees it
-ATTRIBUTES = {"max_threads_per_block": 0, "shared_size_bytes": 1, "const_size_bytes": 2, "local_size_bytes": 3,
-              "num_regs": 4}
+ATTRIBUTES = {
+    "max_threads_per_block": 0,
+    "shared_size_bytes": 1,
+    "const_size_bytes": 2,
+    "local_size_bytes": 3,
+    "num_regs": 4,
+}
 
 
 class PyConvert:
@@ -98,8 +105,14 @@ class Variant(CupyLauncher):
 
     keyholder = True
 
-    def __init__(self, replace: tuple[str, str] | None = None, options: tuple[str, ...] = (), block: int = 0,
-                 stack: int = 0, reserve: bool = True):
+    def __init__(
+        self,
+        replace: tuple[str, str] | None = None,
+        options: tuple[str, ...] = (),
+        block: int = 0,
+        stack: int = 0,
+        reserve: bool = True,
+    ):
         super().__init__()
         self._replace, self._options, self._block, self._stack = replace, options, block, stack
         self._reserve = reserve
@@ -168,7 +181,7 @@ def _records(limbs: np.ndarray, n: int):
 
 def _values(count: int, n: int) -> np.ndarray:
     x = (np.arange(count, dtype=np.int64) - count // 2) * 7919
-    x[:min(count, 4)] = [0, 1, -1, -2][:min(count, 4)]
+    x[: min(count, 4)] = [0, 1, -1, -2][: min(count, 4)]
     return np.clip(x, -(n // 3 - 1), n // 3 - 1)
 
 
@@ -185,8 +198,13 @@ def _tables(launcher, variant, label, pub, priv) -> tuple:
         a_, b_ = getattr(ref, half).T, getattr(dev, half).T
         bad = np.flatnonzero((a_ != b_).any(axis=1))
         h = getattr(ref, half)
-        _line(variant, label, f"tables {half}", a_.shape[0],
-              f"wrong {bad.size}/{a_.shape[0]} first {bad[:6].tolist()} (w={h.w}, rows={h.rows}, nl={h.P.nl})")
+        _line(
+            variant,
+            label,
+            f"tables {half}",
+            a_.shape[0],
+            f"wrong {bad.size}/{a_.shape[0]} first {bad[:6].tolist()} (w={h.w}, rows={h.rows}, nl={h.P.nl})",
+        )
     return ref, dev
 
 
@@ -207,10 +225,17 @@ def _owner(launcher, variant, label, pub, priv, count, tables) -> None:
     c3 = launcher.host(launcher.owner_encrypt(x[sample], a[sample], b[sample], dev))
     _report(variant, label, "owner+devtables", CPU.decrypt(priv, _records(c3, n)), want[sample])
     ones = range(min(count, 4))
-    single = [from_limbs(launcher.host(launcher.owner_encrypt(x[i:i + 1], a[i:i + 1], b[i:i + 1], ref)))[0]
-              for i in ones]
-    _report(variant, label, "owner single", [int(s == from_limbs(c1[i:i + 1])[0]) for i, s in zip(ones, single)],
-            [1] * len(ones))
+    single = [
+        from_limbs(launcher.host(launcher.owner_encrypt(x[i : i + 1], a[i : i + 1], b[i : i + 1], ref)))[0]
+        for i in ones
+    ]
+    _report(
+        variant,
+        label,
+        "owner single",
+        [int(s == from_limbs(c1[i : i + 1])[0]) for i, s in zip(ones, single)],
+        [1] * len(ones),
+    )
 
 
 def _public(launcher, variant, label, pub, priv, count, tables) -> None:
@@ -225,8 +250,9 @@ def _decrypt(launcher, variant, label, pub, priv, count, tables) -> None:
     x = _values(min(count, 1024), n)  # cpu encrypts them all
     cts = CPU.encrypt(priv, x)
     limbs = np.asarray(to_limbs([int(v) for v in cts], -(-(n * n).bit_length() // 32)))
-    _report(variant, label, "decrypt", owner_module.decrypt_limbs(launcher, priv, limbs),
-            [int(v) % n for v in x.tolist()])
+    _report(
+        variant, label, "decrypt", owner_module.decrypt_limbs(launcher, priv, limbs), [int(v) % n for v in x.tolist()]
+    )
 
 
 STEPS = {"owner": _owner, "public": _public, "decrypt": _decrypt}
@@ -237,6 +263,7 @@ def run_variant(name: str, keys: list[str], steps: list[str], counts: list[int],
     if fake:  # on a machine without a GPU: the launcher over the host build (the tests' FakeCupy)
         sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "backends"))
         from _fake_cupy import FakeCupy
+
         launcher._cp = FakeCupy()
     for label in keys:
         pub, priv = _key(*KEYS[label])
@@ -272,8 +299,17 @@ def main(argv: list[str] | None = None) -> None:
         run_variant(args.variant, keys, steps, counts, args.fake)
         return
     for name in VARIANTS:
-        cmd = [sys.executable, __file__, f"--variant={name}", "--keys", args.keys, "--steps", args.steps,
-               "--counts", args.counts] + (["--fake"] if args.fake else [])
+        cmd = [
+            sys.executable,
+            __file__,
+            f"--variant={name}",
+            "--keys",
+            args.keys,
+            "--steps",
+            args.steps,
+            "--counts",
+            args.counts,
+        ] + (["--fake"] if args.fake else [])
         try:
             subprocess.run(cmd, timeout=args.timeout, check=False)
         except subprocess.TimeoutExpired:

@@ -28,10 +28,10 @@ from _fake_cupy import FakeCupy
 sys.modules["cupy"] = FakeCupy
 
 import hevr
-from hevr.runtime import stats
-from hevr.bench.gpu import phantom
 from hevr.backends.cuda import device
+from hevr.bench.gpu import phantom
 from hevr.rendering.pipeline import maps
+from hevr.runtime import stats
 
 
 def launches(rv, cam, sampling: str) -> str:
@@ -50,8 +50,10 @@ def main(size: int) -> None:
         warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
         _, priv = hevr.generate_keypair(2048)
     print(f"# Launches of one resident 2048-bit frame on `cuda` ({size}³ phantom, brick 8, {2 * size}² image)\n")
-    print(f"Counted with FakeCupy on {platform.processor() or platform.machine()}, {os.cpu_count()} cores "
-          f"(`python benchmarks/gpu_launches.py {size}`); a cell lists kernel launches×threads per launch.\n")
+    print(
+        f"Counted with FakeCupy on {platform.processor() or platform.machine()}, {os.cpu_count()} cores "
+        f"(`python benchmarks/gpu_launches.py {size}`); a cell lists kernel launches×threads per launch.\n"
+    )
     print("| rules | sampling | map tasks | launches | kernel launches × threads |\n|---|---|---:|---:|---|")
     with tempfile.TemporaryDirectory() as folder:
         with dask.config.set(scheduler="threads"):
@@ -63,7 +65,8 @@ def main(size: int) -> None:
             fused = maps._fused_bricks
             if old:  # per-brick trilinear maps: the host path
                 maps._fused_bricks = lambda ev, camera, items, s, st, d, ch, tile, be, data: [
-                    maps.map_brick(ev, camera, idx, s, st, d, ch, fp, tile, be, b) for (idx, fp), b in zip(items, data)]
+                    maps.map_brick(ev, camera, idx, s, st, d, ch, fp, tile, be, b) for (idx, fp), b in zip(items, data)
+                ]
             with dask.config.set({"hevr.render.resident-batch": not old}):
                 with dask.config.set(scheduler="sync"):
                     rv = ev.persist(backend="cuda")

@@ -28,8 +28,8 @@ import warnings
 import dask
 
 import hevr
-from hevr.runtime import stats as _stats
 from hevr.bench.gpu import phantom
+from hevr.runtime import stats as _stats
 
 
 def main(argv: list[str]) -> None:
@@ -77,14 +77,26 @@ def _profile(resident, cam, be: str, sampling: str) -> None:
     pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(25)
     phases = _stats.take()
     print(f"== {be}: resident xray {sampling} frame {dt:.3f} s (stats: {img.stats})\n{out.getvalue()}", flush=True)
-    print(f"-- {be} {sampling} phases (s, count): " + "; ".join(
-        f"{k} {v:.3f} ({phases['counts'].get(k, 0)})" for k, v in sorted(phases["seconds"].items())
-        if not k.startswith(("launch ", "threads "))), flush=True)
+    print(
+        f"-- {be} {sampling} phases (s, count): "
+        + "; ".join(
+            f"{k} {v:.3f} ({phases['counts'].get(k, 0)})"
+            for k, v in sorted(phases["seconds"].items())
+            if not k.startswith(("launch ", "threads "))
+        ),
+        flush=True,
+    )
     launches = {k[7:]: c for k, c in phases["counts"].items() if k.startswith("launch ")}
     if launches:
-        print(f"-- {be} {sampling} launches: " + "; ".join(
-            f"{k} {c} x {phases['counts'].get('threads ' + k, 0) / c:.0f} threads" for k, c in sorted(launches.items())),
-            flush=True)
+        print(
+            f"-- {be} {sampling} launches: "
+            + "; ".join(
+                f"{k} {c} x {phases['counts'].get('threads ' + k, 0) / c:.0f} threads"
+                for k, c in sorted(launches.items())
+            ),
+            flush=True,
+        )
+
 
 if __name__ == "__main__":
     main(sys.argv[1:])

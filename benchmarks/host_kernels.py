@@ -33,13 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
-from hevr.bench.measure import machine
 from hevr.backends import CpuBackend, CudaHostBackend
+from hevr.bench.measure import machine
 from hevr.crypto.records import record_width
 from hevr.rendering.geometry.camera import Camera
-from hevr.rendering.pipeline.kernel import plan_products
 from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.geometry.weights import brick_weights
+from hevr.rendering.pipeline.kernel import plan_products
 
 HERE = Path(__file__).resolve().parent
 SIZE, IMAGE, BRICK = 100, 150, 25
@@ -117,20 +117,36 @@ def frame_case(plans: list, bits: int, K: int, repeat: int) -> dict:
 
 def report(res: dict) -> str:
     m = res["machine"]
-    head = (f"Machine: {m['cpu']} · {m['cores']} cores · {m['os']} · Python {m['versions']['python']} · gmpy2 "
-            f"{m['versions']['gmpy2']} · {m['date']} · commit {m['commit']} · load average "
-            f"{m['load_average_start']:.2f}. CPU seconds of this process, best of {res['repeat']}, both backends in "
-            "one run (ratio = cpu / cuda-host: > 1 means cuda-host is faster).")
-    lines = ["## host_kernels.py — the CUDA kernels' host build (cuda-host) against gmpy2 (cpu)", "", head, "",
-             "| case | bits | pairs | cpu ms | cuda-host ms | ratio |", "|---|---:|---:|---:|---:|---:|"]
+    head = (
+        f"Machine: {m['cpu']} · {m['cores']} cores · {m['os']} · Python {m['versions']['python']} · gmpy2 "
+        f"{m['versions']['gmpy2']} · {m['date']} · commit {m['commit']} · load average "
+        f"{m['load_average_start']:.2f}. CPU seconds of this process, best of {res['repeat']}, both backends in "
+        "one run (ratio = cpu / cuda-host: > 1 means cuda-host is faster)."
+    )
+    lines = [
+        "## host_kernels.py — the CUDA kernels' host build (cuda-host) against gmpy2 (cpu)",
+        "",
+        head,
+        "",
+        "| case | bits | pairs | cpu ms | cuda-host ms | ratio |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     for r in res["brick"]:
-        lines.append(f"| one brick, {r['sampling']} | {r['bits']} | {r['pairs']:,} | {1e3 * r['cpu']:.1f} | "
-                     f"{1e3 * r['cuda-host']:.1f} | **{r['ratio']:.2f}** |")
+        lines.append(
+            f"| one brick, {r['sampling']} | {r['bits']} | {r['pairs']:,} | {1e3 * r['cpu']:.1f} | "
+            f"{1e3 * r['cuda-host']:.1f} | **{r['ratio']:.2f}** |"
+        )
     for r in res["frame"]:
-        lines.append(f"| frame map, {r['sampling']}, K={r['K']} ({r['bricks']} bricks) | {r['bits']} | "
-                     f"{r['pairs']:,} | {1e3 * r['cpu']:.0f} | {1e3 * r['cuda-host']:.0f} | **{r['ratio']:.2f}** |")
-    lines += ["", "Plans (shared by both backends, not in the frame times): "
-              + ", ".join(f"{s} {1e3 * t:.0f} ms" for s, t in res["plans_s"].items()) + "."]
+        lines.append(
+            f"| frame map, {r['sampling']}, K={r['K']} ({r['bricks']} bricks) | {r['bits']} | "
+            f"{r['pairs']:,} | {1e3 * r['cpu']:.0f} | {1e3 * r['cuda-host']:.0f} | **{r['ratio']:.2f}** |"
+        )
+    lines += [
+        "",
+        "Plans (shared by both backends, not in the frame times): "
+        + ", ".join(f"{s} {1e3 * t:.0f} ms" for s, t in res["plans_s"].items())
+        + ".",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -139,14 +155,21 @@ def main(argv=None) -> int:
     ap.add_argument("--bits", type=int, default=64, help="key bits of the frame-map case")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="a 60² image, brick cases at 64 and 256 bits only")
-    ap.add_argument("--no-append", action="store_true",
-                    help="only print: write neither history.md nor results-host-kernels.json")
+    ap.add_argument(
+        "--no-append", action="store_true", help="only print: write neither history.md nor results-host-kernels.json"
+    )
     args = ap.parse_args(argv)
-    res: dict = {"machine": machine(), "repeat": args.repeat, "case": f"{SIZE}^3, brick {BRICK}, image {IMAGE}^2",
-                 "brick": [], "frame": [], "plans_s": {}}
+    res: dict = {
+        "machine": machine(),
+        "repeat": args.repeat,
+        "case": f"{SIZE}^3, brick {BRICK}, image {IMAGE}^2",
+        "brick": [],
+        "frame": [],
+        "plans_s": {},
+    }
     for sampling in ("nearest", "trilinear"):
         plans, res["plans_s"][sampling] = geometry(sampling, args.quick)
-        for bits in ((64, 256) if args.quick else (64, 256, 1024, 2048)):
+        for bits in (64, 256) if args.quick else (64, 256, 1024, 2048):
             res["brick"].append({"sampling": sampling, **brick_case(plans, bits, args.repeat)})
             print(res["brick"][-1], file=sys.stderr)
         for K in (1, 4):

@@ -29,8 +29,8 @@ import numpy as np  # noqa: E402
 from _machine import append, machine  # noqa: E402
 
 import hevr  # noqa: E402
-from hevr.image import encrypted as image_mod  # noqa: E402
 from hevr.backends.cpu import CpuBackend  # noqa: E402
+from hevr.image import encrypted as image_mod  # noqa: E402
 
 _REAL_UNPACK = image_mod._unpack_checked
 _REAL_RANGE = CpuBackend.first_out_of_range
@@ -103,7 +103,7 @@ def _read_cost(ev, repeats: int) -> tuple[float, float]:
     for idx in ev.brick_indices():
         best = {True: float("inf"), False: float("inf")}
         for r in range(repeats):
-            for verify in ((True, False) if r % 2 == 0 else (False, True)):
+            for verify in (True, False) if r % 2 == 0 else (False, True):
                 t = time.process_time()
                 ev.read_brick_bytes(idx, "scalar", verify=verify)
                 best[verify] = min(best[verify], time.process_time() - t)
@@ -133,13 +133,16 @@ def main(argv=None) -> None:
         images: dict = {}
         for r in range(args.rounds):
             for sampling in ("nearest", "trilinear") if r < args.trilinear_rounds else ("nearest",):
-                for on in ((True, False) if r % 2 == 0 else (False, True)):
+                for on in (True, False) if r % 2 == 0 else (False, True):
                     client.run(_set_store_checks, on)
                     t = time.perf_counter()
                     img = hevr.render(ev, cam, sampling=sampling, cache=False, progress=False, client=client)
                     times.setdefault(("render", sampling, on), []).append(time.perf_counter() - t)
-                    for check in ((True, False, True, False, True, False) if r % 2 == 0 else
-                                  (False, True, False, True, False, True)):
+                    for check in (
+                        (True, False, True, False, True, False)
+                        if r % 2 == 0
+                        else (False, True, False, True, False, True)
+                    ):
                         _set_decrypt_checks(check)
                         t = time.perf_counter()
                         pix = img.decrypt(priv)
@@ -148,8 +151,11 @@ def main(argv=None) -> None:
                         assert np.array_equal(images[sampling], pix), "checks changed the image"
                     _set_decrypt_checks(True)
                 skipped = client.run(_set_store_checks, True)
-                print(f"round {r + 1} (reads without digest check so far: {skipped}): " + ", ".join(f"{k[0]}/{k[1]}/{'on' if k[2] else 'off'} {v[-1]:.2f}s"
-                                                   for k, v in times.items()), flush=True)
+                print(
+                    f"round {r + 1} (reads without digest check so far: {skipped}): "
+                    + ", ".join(f"{k[0]}/{k[1]}/{'on' if k[2] else 'off'} {v[-1]:.2f}s" for k, v in times.items()),
+                    flush=True,
+                )
         crc = _crc_seconds(args.dir / "scalar.zarr")
         read_on, read_off = _read_cost(ev, 5)
     med = {k: statistics.median(v) for k, v in times.items()}
@@ -160,19 +166,21 @@ def main(argv=None) -> None:
             lines.append(f"| {what} {sampling} | {on:.2f} | {off:.2f} | {100 * (on / off - 1):+.1f} % |")
     text = "\n".join(lines)
     print(text)
-    append(f"## Integrity checks: cost on the paper case (issue 12)\n\nMachine: {machine()}\n\n"
-           f"100³ phantom, 2048-bit key, owner-encrypted, brick 25, 150² px X-ray, 2-worker LocalCluster "
-           f"(1 thread each); {args.rounds} rounds of nearest and {args.trilinear_rounds} of trilinear renders, arms alternated within each round, images identical in "
-           f"both arms. Store checks = each brick's digest (on every read); decrypt checks = "
-           f"the plaintext range checks of EncryptedImage (one core, the client).\n\n{text}\n\n"
-           f"crc32c (Zarr codec, always on) over all {ev.meta.n_bricks} scalar chunks "
-           f"({ev.meta.n_bricks * 25**3 * ev.meta.ciphertext_bytes / 1e6:.0f} MB): {crc:.2f} s of CPU in one "
-           f"process, i.e. about {crc / 2:.2f} s of wall time spread over 2 workers.\n\n"
-           f"Reading all {ev.meta.n_bricks} bricks once in one process (best of 5 per brick, CPU time): "
-           f"{read_on:.3f} s with the digest check, {read_off:.3f} s without; the check costs "
-           f"{read_on - read_off:.3f} s of CPU per render, i.e. {100 * (read_on - read_off) / (2 * med[('render', 'nearest', True)]):.1f} % "
-           f"of the 2 workers' time in a nearest render and "
-           f"{100 * (read_on - read_off) / (2 * med[('render', 'trilinear', True)]):.1f} % in a trilinear one.\n")
+    append(
+        f"## Integrity checks: cost on the paper case (issue 12)\n\nMachine: {machine()}\n\n"
+        f"100³ phantom, 2048-bit key, owner-encrypted, brick 25, 150² px X-ray, 2-worker LocalCluster "
+        f"(1 thread each); {args.rounds} rounds of nearest and {args.trilinear_rounds} of trilinear renders, arms alternated within each round, images identical in "
+        f"both arms. Store checks = each brick's digest (on every read); decrypt checks = "
+        f"the plaintext range checks of EncryptedImage (one core, the client).\n\n{text}\n\n"
+        f"crc32c (Zarr codec, always on) over all {ev.meta.n_bricks} scalar chunks "
+        f"({ev.meta.n_bricks * 25**3 * ev.meta.ciphertext_bytes / 1e6:.0f} MB): {crc:.2f} s of CPU in one "
+        f"process, i.e. about {crc / 2:.2f} s of wall time spread over 2 workers.\n\n"
+        f"Reading all {ev.meta.n_bricks} bricks once in one process (best of 5 per brick, CPU time): "
+        f"{read_on:.3f} s with the digest check, {read_off:.3f} s without; the check costs "
+        f"{read_on - read_off:.3f} s of CPU per render, i.e. {100 * (read_on - read_off) / (2 * med[('render', 'nearest', True)]):.1f} % "
+        f"of the 2 workers' time in a nearest render and "
+        f"{100 * (read_on - read_off) / (2 * med[('render', 'trilinear', True)]):.1f} % in a trilinear one.\n"
+    )
 
 
 if __name__ == "__main__":

@@ -55,18 +55,35 @@ def main() -> None:
             warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
             _, priv = hevr.generate_keypair(512)
         with dask.config.set(scheduler="sync"):
-            ev = hevr.encrypt_volume(np.zeros((8, 8, 8), np.uint8), Path(tmp) / "v.zarr", priv, brick=4,
-                                     progress=False)  # recorded (signed) at encryption
+            ev = hevr.encrypt_volume(
+                np.zeros((8, 8, 8), np.uint8), Path(tmp) / "v.zarr", priv, brick=4, progress=False
+            )  # recorded (signed) at encryption
         mine = known.known_stores()
         fp = priv.public_key.fingerprint
-        many = {f"/stores/{i}.zarr": signed_by(priv, f"/stores/{i}.zarr", KnownStore(
-            f"{i:016x}", "sha256:" + "0" * 64, True, fp, "2026-01-01T00:00:00Z", retired=(f"{i + 10**9:016x}",)))
-            for i in range(args.entries)}
+        many = {
+            f"/stores/{i}.zarr": signed_by(
+                priv,
+                f"/stores/{i}.zarr",
+                KnownStore(
+                    f"{i:016x}", "sha256:" + "0" * 64, True, fp, "2026-01-01T00:00:00Z", retired=(f"{i + 10**9:016x}",)
+                ),
+            )
+            for i in range(args.entries)
+        }
         path.write_text(document({**many, **{k: v for k, v in mine.items() if v.mac}}))
         os.chmod(path, 0o600)
-        rows: dict[str, list[float]] = {k: [] for k in (
-            "first look-up (parse)", "look-up (cached)", "first MAC check of all entries", "MAC check (cached)",
-            "retired_by", "record_verified (already recorded)", "trust_store (rewrites the file)")}
+        rows: dict[str, list[float]] = {
+            k: []
+            for k in (
+                "first look-up (parse)",
+                "look-up (cached)",
+                "first MAC check of all entries",
+                "MAC check (cached)",
+                "retired_by",
+                "record_verified (already recorded)",
+                "trust_store (rewrites the file)",
+            )
+        }
         img = hevr.render(ev, hevr.Camera.orbit(ev, azimuth=20, width=6, height=6), progress=False)
         for _ in range(args.rounds):
             known_file._CACHE.clear()
@@ -76,19 +93,32 @@ def main() -> None:
             rows["first MAC check of all entries"].append(_timed(lambda: known.accepted_untagged("0" * 16, priv)))
             rows["MAC check (cached)"].append(_timed(lambda: known.accepted_untagged("0" * 16, priv)))
             rows["retired_by"].append(_timed(lambda: known.retired_by(f"{123 + 10**9:016x}")))
-            rows["record_verified (already recorded)"].append(_timed(lambda: known.record_verified(img.verification,
-                                                                                                    priv)))
+            rows["record_verified (already recorded)"].append(
+                _timed(lambda: known.record_verified(img.verification, priv))
+            )
             rows["trust_store (rewrites the file)"].append(_timed(lambda: known.trust_store(ev, priv)))
         assert known.retired_by(f"{123 + 10**9:016x}") == ("/stores/123.zarr", f"{123:016x}")
         size = path.stat().st_size
     med = {k: statistics.median(v) for k, v in rows.items()}
     where = machine()
-    result = {"machine": where, "entries": args.entries, "rounds": args.rounds, "file_bytes": size,
-              "median_seconds": med}
+    result = {
+        "machine": where,
+        "entries": args.entries,
+        "rounds": args.rounds,
+        "file_bytes": size,
+        "median_seconds": med,
+    }
     out = Path(__file__).resolve().parent / "results-known-stores.json"
     out.write_text(json.dumps(result, indent=1) + "\n")
-    lines = [f"## benchmarks/known_stores.py: {args.entries} entries ({size / 2**20:.1f} MiB), median of "
-             f"{args.rounds} rounds", "", where, "", "| operation | median |", "|---|---|"]
+    lines = [
+        f"## benchmarks/known_stores.py: {args.entries} entries ({size / 2**20:.1f} MiB), median of "
+        f"{args.rounds} rounds",
+        "",
+        where,
+        "",
+        "| operation | median |",
+        "|---|---|",
+    ]
     for k, v in med.items():
         lines.append(f"| {k} | {v * 1e3:.3f} ms |" if v < 1 else f"| {k} | {v:.2f} s |")
     text = "\n".join(lines)

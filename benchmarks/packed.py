@@ -53,6 +53,7 @@ SAMPLINGS = ("nearest", "trilinear")
 def _install_counter():  # runs on every worker (client.run)
     from hevr.backends import cpu as cpu_mod
     from hevr.backends.base import OpCounter
+
     be = cpu_mod.CpuBackend
     if getattr(be, "_counting", False):
         return True
@@ -76,7 +77,7 @@ def _install_counter():  # runs on every worker (client.run)
         J = max(1, per_pack)
         ops = 0
         for s in range(0, len(terms), J):
-            rs = [int(r) for r in exps[s:s + J]]
+            rs = [int(r) for r in exps[s : s + J]]
             ops += max(rs[-1].bit_length() - 1, 0) + max(bin(rs[-1]).count("1") - 1, 0)
             ops += sum(pack_bits + bin(r).count("1") for r in rs[:-1]) + (1 if offset else 0)
         state["pack"] += ops
@@ -90,6 +91,7 @@ def _install_counter():  # runs on every worker (client.run)
 def _read_counter():
     from hevr.backends import cpu as cpu_mod
     from hevr.backends.base import OpCounter
+
     st = cpu_mod.CpuBackend._state
     out = {"map": st["map"].modmuls, "merge": st["merge"], "finish": st["pack"]}
     st["map"], st["merge"], st["pack"] = OpCounter(), 0, 0
@@ -112,13 +114,19 @@ def run_size(client, priv, n: int, image: int, work: Path) -> dict:
         ev = hevr.encrypt_volume(vol, path, priv, brick=32, layout=layout, overwrite=path.exists(), progress=False)
         dt = time.perf_counter() - t
         cts = int(np.prod(ev.packing.array_shape(ev.shape) if ev.packing else ev.shape))
-        res[f"encrypt_{layout}"] = {"seconds": dt, "ciphertexts": cts, "bytes": dir_bytes(path),
-                                    "brick": list(ev.brick)}
+        res[f"encrypt_{layout}"] = {
+            "seconds": dt,
+            "ciphertexts": cts,
+            "bytes": dir_bytes(path),
+            "brick": list(ev.brick),
+        }
         if ev.packing is not None:
             res["packing"] = {"slots": ev.packing.slots, "slot_bits": ev.packing.slot_bits, "axis": ev.packing.axis}
         stores[layout] = ev
-        print(f"{n}³ {layout}: {cts} ciphertexts, {dt:.1f} s, {res[f'encrypt_{layout}']['bytes'] / 2**20:.1f} MiB",
-              flush=True)
+        print(
+            f"{n}³ {layout}: {cts} ciphertexts, {dt:.1f} s, {res[f'encrypt_{layout}']['bytes'] / 2**20:.1f} MiB",
+            flush=True,
+        )
     res["frames"] = []
     for view, (az, el) in VIEWS.items():
         cam = hevr.Camera.orbit(vol.shape, azimuth=az, elevation=el, width=image, height=image, parallel=True)
@@ -130,8 +138,12 @@ def run_size(client, priv, n: int, image: int, work: Path) -> dict:
             img = hevr.render(stores["voxel"], cam, sampling=sampling, verify=False, progress=False, cache=False)
             r = time.perf_counter() - t
             arr = img.decrypt(priv)
-            row["voxel"] = {"render_s": r, "frame_s": time.perf_counter() - t, "ops": _ops(client),
-                            "samples": int(cast_rays(cam, vol.shape, (1, 1, 1), 1.0).n_samples.sum())}
+            row["voxel"] = {
+                "render_s": r,
+                "frame_s": time.perf_counter() - t,
+                "ops": _ops(client),
+                "samples": int(cast_rays(cam, vol.shape, (1, 1, 1), 1.0).n_samples.sum()),
+            }
             if sampling == "trilinear":
                 pv_tri = arr
             t = time.perf_counter()
@@ -140,18 +152,26 @@ def run_size(client, priv, n: int, image: int, work: Path) -> dict:
             parr = pimg.decrypt(priv)
             ref = hevr.render_plain(vol, cam, sampling=sampling, slices=True)
             bound = hevr.error_bound(stores["packed"], cam, sampling=sampling)
-            row["packed"] = {"render_s": r, "frame_s": time.perf_counter() - t, "ops": pimg.stats["ops"],
-                             "classes": pimg.plan.classes, "rays": pimg.stats["rays"],
-                             "within_bound": bool((np.abs(parr - ref) <= bound).all()),
-                             "max_err": float(np.abs(parr - ref).max())}
+            row["packed"] = {
+                "render_s": r,
+                "frame_s": time.perf_counter() - t,
+                "ops": pimg.stats["ops"],
+                "classes": pimg.plan.classes,
+                "rays": pimg.stats["rays"],
+                "within_bound": bool((np.abs(parr - ref) <= bound).all()),
+                "max_err": float(np.abs(parr - ref).max()),
+            }
             if pv_tri is not None:
                 row["packed"]["mad_vs_voxel_trilinear"] = float(np.abs(parr - pv_tri).mean() / 255.0)
             res["frames"].append(row)
             v, p = row["voxel"], row["packed"]
-            print(f"{n}³ {view} {sampling}: voxel {v['frame_s']:.1f} s {sum(v['ops'].values()):,} ops | packed "
-                  f"{p['frame_s']:.1f} s {sum(p['ops'][k] for k in ('map', 'merge', 'combine', 'combine_squarings')):,}"
-                  f" ops | map {v['ops']['map'] / max(p['ops']['map'], 1):.1f}x fewer, frame "
-                  f"{v['frame_s'] / p['frame_s']:.1f}x", flush=True)
+            print(
+                f"{n}³ {view} {sampling}: voxel {v['frame_s']:.1f} s {sum(v['ops'].values()):,} ops | packed "
+                f"{p['frame_s']:.1f} s {sum(p['ops'][k] for k in ('map', 'merge', 'combine', 'combine_squarings')):,}"
+                f" ops | map {v['ops']['map'] / max(p['ops']['map'], 1):.1f}x fewer, frame "
+                f"{v['frame_s'] / p['frame_s']:.1f}x",
+                flush=True,
+            )
     return res
 
 
@@ -166,15 +186,26 @@ def packed_ops_of(plan: SlicePlan, shape, brick) -> dict:
     from hevr.backends.base import OpCounter
     from hevr.backends.cpu import CpuBackend
     from hevr.rendering.pipeline.kernel import plan_products
+
     be, counter = CpuBackend(), OpCounter()
     n2 = mpz((1 << 61) - 1)
     grid = tuple(-(-s // b) for s, b in zip(shape, brick))
     pairs = partials = 0
     seen: set = set()
     for column in brick_columns(grid, plan.geometry.principal):  # the render's map tasks
-        sizes = [int(np.prod([-(-(min((i + 1) * b, s) - i * b) // plan.packing.slots) if ax == plan.packing.axis
-                              else min((i + 1) * b, s) - i * b for ax, (i, b, s) in enumerate(zip(idx, brick, shape))]))
-                 for idx in column]
+        sizes = [
+            int(
+                np.prod(
+                    [
+                        -(-(min((i + 1) * b, s) - i * b) // plan.packing.slots)
+                        if ax == plan.packing.axis
+                        else min((i + 1) * b, s) - i * b
+                        for ax, (i, b, s) in enumerate(zip(idx, brick, shape))
+                    ]
+                )
+            )
+            for idx in column
+        ]
         keys, local, w = column_pairs(plan, column, sizes)
         if not len(keys):
             continue
@@ -188,9 +219,15 @@ def packed_ops_of(plan: SlicePlan, shape, brick) -> dict:
     ni, nj = plan.geometry.size
     n_out = plan.n_blocks * nj
     O = plan.classes - 1
-    return {"pairs": pairs, "map": counter.modmuls, "merge": partials - len(seen),
-            "combine_squarings": n_out * plan.packing.slot_bits * O, "combine": n_out * O,
-            "decryptions": n_out, "rays": ni * nj}
+    return {
+        "pairs": pairs,
+        "map": counter.modmuls,
+        "merge": partials - len(seen),
+        "combine_squarings": n_out * plan.packing.slot_bits * O,
+        "combine": n_out * O,
+        "decryptions": n_out,
+        "rays": ni * nj,
+    }
 
 
 def project(measured: dict, image: int = 512) -> dict:
@@ -204,16 +241,23 @@ def project(measured: dict, image: int = 512) -> dict:
     enc_p = big["encrypt_packed"]["seconds"] / big["encrypt_packed"]["ciphertexts"]
     b_v = big["encrypt_voxel"]["bytes"] / big["encrypt_voxel"]["ciphertexts"]
     b_p = big["encrypt_packed"]["bytes"] / big["encrypt_packed"]["ciphertexts"]
-    out = {"shape": list(shape), "slots": info.slots, "slot_bits": info.slot_bits, "image": image,
-           "store_bytes": {"voxel": vox * b_v, "packed": packs * b_p},
-           "encrypt_s_2_workers": {"voxel": vox * enc_v, "packed": packs * enc_p}, "frames": []}
+    out = {
+        "shape": list(shape),
+        "slots": info.slots,
+        "slot_bits": info.slot_bits,
+        "image": image,
+        "store_bytes": {"voxel": vox * b_v, "packed": packs * b_p},
+        "encrypt_s_2_workers": {"voxel": vox * enc_v, "packed": packs * enc_p},
+        "frames": [],
+    }
     n_big = int(big["size"])
     for view, (az, el) in VIEWS.items():
         cam = hevr.Camera.orbit(shape, azimuth=az, elevation=el, width=image, height=image, parallel=True)
         rays = cast_rays(cam, shape, (1, 1, 1), 1.0)
         samples, hits = int(rays.n_samples.sum()), int((rays.n_samples > 0).sum())
-        small = hevr.Camera.orbit((n_big,) * 3, azimuth=az, elevation=el, width=big["image"], height=big["image"],
-                                  parallel=True)
+        small = hevr.Camera.orbit(
+            (n_big,) * 3, azimuth=az, elevation=el, width=big["image"], height=big["image"], parallel=True
+        )
         small_hits = int((cast_rays(small, (n_big,) * 3, (1, 1, 1), 1.0).n_samples > 0).sum())
         for sampling in SAMPLINGS:
             rows = [f for f in big["frames"] if f["view"] == view and f["sampling"] == sampling]
@@ -225,74 +269,116 @@ def project(measured: dict, image: int = 512) -> dict:
             p_ops = f["packed"]["ops"]
             p_total = p_ops["map"] + p_ops["merge"] + p_ops["combine"] + p_ops["combine_squarings"]
             p_s_per_op = f["packed"]["render_s"] / p_total
-            small_plan = SlicePlan.build(small, (n_big,) * 3, (1.0, 1.0, 1.0), tuple(big["encrypt_packed"]["brick"]),
-                                         choose_packing(2048, (n_big,) * 3, 0, (0, 255)), sampling)
-            p_client = (f["packed"]["frame_s"] - f["packed"]["render_s"]) / (small_plan.n_blocks
-                                                                             * small_plan.geometry.size[1])
+            small_plan = SlicePlan.build(
+                small,
+                (n_big,) * 3,
+                (1.0, 1.0, 1.0),
+                tuple(big["encrypt_packed"]["brick"]),
+                choose_packing(2048, (n_big,) * 3, 0, (0, 255)),
+                sampling,
+            )
+            p_client = (f["packed"]["frame_s"] - f["packed"]["render_s"]) / (
+                small_plan.n_blocks * small_plan.geometry.size[1]
+            )
             plan = SlicePlan.build(cam, shape, (1.0, 1.0, 1.0), brick, info, sampling)
             t = time.perf_counter()
             c = packed_ops_of(plan, shape, brick)
             p_proj = c["map"] + c["merge"] + c["combine"] + c["combine_squarings"]
             v_proj = samples * v_ops_per_sample
-            out["frames"].append({
-                "view": view, "sampling": sampling, "samples": samples, "voxel_ops": v_proj,
-                "packed_ops": p_proj, "packed_counts": c, "classes": plan.classes,
-                "voxel_map": samples * f["voxel"]["ops"]["map"] / f["voxel"]["samples"], "packed_map": c["map"],
-                "voxel_s_2_workers": v_proj * v_s_per_op + hits * v_client,
-                "packed_s_2_workers": p_proj * p_s_per_op + c["decryptions"] * p_client,
-                "voxel_client_s": hits * v_client, "packed_client_s": c["decryptions"] * p_client,
-                "count_s": time.perf_counter() - t})
-            print(f"512x512x300 {view} {sampling}: map {out['frames'][-1]['voxel_map'] / c['map']:.1f}x fewer, "
-                  f"all ops {v_proj / p_proj:.1f}x fewer", flush=True)
+            out["frames"].append(
+                {
+                    "view": view,
+                    "sampling": sampling,
+                    "samples": samples,
+                    "voxel_ops": v_proj,
+                    "packed_ops": p_proj,
+                    "packed_counts": c,
+                    "classes": plan.classes,
+                    "voxel_map": samples * f["voxel"]["ops"]["map"] / f["voxel"]["samples"],
+                    "packed_map": c["map"],
+                    "voxel_s_2_workers": v_proj * v_s_per_op + hits * v_client,
+                    "packed_s_2_workers": p_proj * p_s_per_op + c["decryptions"] * p_client,
+                    "voxel_client_s": hits * v_client,
+                    "packed_client_s": c["decryptions"] * p_client,
+                    "count_s": time.perf_counter() - t,
+                }
+            )
+            print(
+                f"512x512x300 {view} {sampling}: map {out['frames'][-1]['voxel_map'] / c['map']:.1f}x fewer, "
+                f"all ops {v_proj / p_proj:.1f}x fewer",
+                flush=True,
+            )
     return out
 
 
 def report(result: dict) -> str:
     """A Markdown summary of a results file (``python benchmarks/packed.py --report OUT.json``)."""
     m = result["machine"]
-    lines = [f"# Packed vs per-voxel stores at {result['bits']} bits (issue 45)", "",
-             f"{m['date']}, {m['cpu']}, {m['cores']} cores, {result['workers']}, commit {m.get('commit')}; "
-             f"one bare a·b mod n² {result['mulmod_s'] * 1e6:.2f} µs. Frames end to end: render + the key holder's "
-             "decryption; operations counted (squarings included, one each).", ""]
+    lines = [
+        f"# Packed vs per-voxel stores at {result['bits']} bits (issue 45)",
+        "",
+        f"{m['date']}, {m['cpu']}, {m['cores']} cores, {result['workers']}, commit {m.get('commit')}; "
+        f"one bare a·b mod n² {result['mulmod_s'] * 1e6:.2f} µs. Frames end to end: render + the key holder's "
+        "decryption; operations counted (squarings included, one each).",
+        "",
+    ]
     for n, r in result["sizes"].items():
         ev, ep = r["encrypt_voxel"], r["encrypt_packed"]
-        lines += [f"## {n}³ phantom, {r['image']}² parallel camera, S = {r['packing']['slots']}, "
-                  f"K = {r['packing']['slot_bits']}", "",
-                  "| | per-voxel | packed | ratio |", "|---|---|---|---|",
-                  f"| ciphertexts | {ev['ciphertexts']:,} | {ep['ciphertexts']:,} | {ev['ciphertexts'] / ep['ciphertexts']:.1f} |",
-                  f"| store bytes | {ev['bytes'] / 2**20:.1f} MiB | {ep['bytes'] / 2**20:.2f} MiB | "
-                  f"{ev['bytes'] / ep['bytes']:.1f} |",
-                  f"| encryption | {ev['seconds']:.1f} s | {ep['seconds']:.1f} s | {ev['seconds'] / ep['seconds']:.1f} |", "",
-                  "| view | sampling | map ops voxel / packed | all ops voxel / packed | frame voxel / packed "
-                  "| within bound | vs per-voxel trilinear (MAD) |", "|---|---|---|---|---|---|---|"]
+        lines += [
+            f"## {n}³ phantom, {r['image']}² parallel camera, S = {r['packing']['slots']}, "
+            f"K = {r['packing']['slot_bits']}",
+            "",
+            "| | per-voxel | packed | ratio |",
+            "|---|---|---|---|",
+            f"| ciphertexts | {ev['ciphertexts']:,} | {ep['ciphertexts']:,} | {ev['ciphertexts'] / ep['ciphertexts']:.1f} |",
+            f"| store bytes | {ev['bytes'] / 2**20:.1f} MiB | {ep['bytes'] / 2**20:.2f} MiB | "
+            f"{ev['bytes'] / ep['bytes']:.1f} |",
+            f"| encryption | {ev['seconds']:.1f} s | {ep['seconds']:.1f} s | {ev['seconds'] / ep['seconds']:.1f} |",
+            "",
+            "| view | sampling | map ops voxel / packed | all ops voxel / packed | frame voxel / packed "
+            "| within bound | vs per-voxel trilinear (MAD) |",
+            "|---|---|---|---|---|---|---|",
+        ]
         for f in r["frames"]:
             v, p = f["voxel"], f["packed"]
             vo, po = sum(v["ops"].values()), sum(p["ops"][k] for k in ("map", "merge", "combine", "combine_squarings"))
             mad = f"{p['mad_vs_voxel_trilinear'] * 100:.2f} %" if "mad_vs_voxel_trilinear" in p else "—"
-            lines.append(f"| {f['view']} (az {f['azimuth']:g}, el {f['elevation']:g}) | {f['sampling']} | "
-                         f"{v['ops']['map']:,} / {p['ops']['map']:,} = {v['ops']['map'] / max(p['ops']['map'], 1):.1f}× | "
-                         f"{vo:,} / {po:,} = {vo / max(po, 1):.1f}× | {v['frame_s']:.2f} s / {p['frame_s']:.2f} s = "
-                         f"{v['frame_s'] / p['frame_s']:.1f}× | {p['within_bound']} | {mad} |")
+            lines.append(
+                f"| {f['view']} (az {f['azimuth']:g}, el {f['elevation']:g}) | {f['sampling']} | "
+                f"{v['ops']['map']:,} / {p['ops']['map']:,} = {v['ops']['map'] / max(p['ops']['map'], 1):.1f}× | "
+                f"{vo:,} / {po:,} = {vo / max(po, 1):.1f}× | {v['frame_s']:.2f} s / {p['frame_s']:.2f} s = "
+                f"{v['frame_s'] / p['frame_s']:.1f}× | {p['within_bound']} | {mad} |"
+            )
         lines.append("")
     pj = result.get("projection_512x512x300")
     if pj:
-        lines += [f"## Projection: {'×'.join(map(str, pj['shape'][::-1]))} CT (12-bit values), {pj['image']}² image, "
-                  f"S = {pj['slots']}, K = {pj['slot_bits']}", "",
-                  f"Store: {pj['store_bytes']['voxel'] / 1e9:.1f} GB per-voxel, {pj['store_bytes']['packed'] / 1e9:.2f} GB "
-                  f"packed; encryption on these 2 workers {pj['encrypt_s_2_workers']['voxel'] / 3600:.1f} h vs "
-                  f"{pj['encrypt_s_2_workers']['packed'] / 60:.1f} min (measured per-ciphertext costs × count).", "",
-                  "| view | sampling | map ops voxel / packed | all ops voxel / packed | frame on 2 workers voxel / packed |",
-                  "|---|---|---|---|---|"]
+        lines += [
+            f"## Projection: {'×'.join(map(str, pj['shape'][::-1]))} CT (12-bit values), {pj['image']}² image, "
+            f"S = {pj['slots']}, K = {pj['slot_bits']}",
+            "",
+            f"Store: {pj['store_bytes']['voxel'] / 1e9:.1f} GB per-voxel, {pj['store_bytes']['packed'] / 1e9:.2f} GB "
+            f"packed; encryption on these 2 workers {pj['encrypt_s_2_workers']['voxel'] / 3600:.1f} h vs "
+            f"{pj['encrypt_s_2_workers']['packed'] / 60:.1f} min (measured per-ciphertext costs × count).",
+            "",
+            "| view | sampling | map ops voxel / packed | all ops voxel / packed | frame on 2 workers voxel / packed |",
+            "|---|---|---|---|---|",
+        ]
         for f in pj["frames"]:
-            lines.append(f"| {f['view']} | {f['sampling']} | {f['voxel_map']:.3g} / {f['packed_map']:.3g} = "
-                         f"{f['voxel_map'] / f['packed_map']:.1f}× | {f['voxel_ops']:.3g} / {f['packed_ops']:.3g} = "
-                         f"{f['voxel_ops'] / f['packed_ops']:.1f}× | {f['voxel_s_2_workers']:.0f} s / "
-                         f"{f['packed_s_2_workers']:.0f} s = {f['voxel_s_2_workers'] / f['packed_s_2_workers']:.1f}× |")
-        lines += ["", "Packed operations are counted exactly for the real-size plan (each column's product plan "
-                  "run over a small modulus: the same choices and counts); per-voxel ones are the samples of the "
-                  "real-size camera × the operations per sample measured at the largest size. Seconds: operations × "
-                  "each layout's measured render seconds per operation at the largest size, plus the key holder's "
-                  "decryption (per hit pixel, per-voxel; per decrypted value, packed) measured there.", ""]
+            lines.append(
+                f"| {f['view']} | {f['sampling']} | {f['voxel_map']:.3g} / {f['packed_map']:.3g} = "
+                f"{f['voxel_map'] / f['packed_map']:.1f}× | {f['voxel_ops']:.3g} / {f['packed_ops']:.3g} = "
+                f"{f['voxel_ops'] / f['packed_ops']:.1f}× | {f['voxel_s_2_workers']:.0f} s / "
+                f"{f['packed_s_2_workers']:.0f} s = {f['voxel_s_2_workers'] / f['packed_s_2_workers']:.1f}× |"
+            )
+        lines += [
+            "",
+            "Packed operations are counted exactly for the real-size plan (each column's product plan "
+            "run over a small modulus: the same choices and counts); per-voxel ones are the samples of the "
+            "real-size camera × the operations per sample measured at the largest size. Seconds: operations × "
+            "each layout's measured render seconds per operation at the largest size, plus the key holder's "
+            "decryption (per hit pixel, per-voxel; per decrypted value, packed) measured there.",
+            "",
+        ]
     return "\n".join(lines)
 
 
@@ -314,8 +400,12 @@ def main() -> None:
     ap.add_argument("--image", type=int, default=128)
     a = ap.parse_args()
     a.work.mkdir(parents=True, exist_ok=True)
-    result = {"machine": machine(), "bits": a.bits, "workers": "LocalCluster 2 workers x 1 thread",
-              "mulmod_s": mulmod_seconds(a.bits)}
+    result = {
+        "machine": machine(),
+        "bits": a.bits,
+        "workers": "LocalCluster 2 workers x 1 thread",
+        "mulmod_s": mulmod_seconds(a.bits),
+    }
     pub, priv = hevr.generate_keypair(a.bits)
     with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0") as lc, Client(lc) as client:
         client.run(_install_counter)

@@ -57,9 +57,11 @@ def main(scalar: str, vector: str, key: str, small: str, out: str) -> None:
     # 1. The paper case on 2 workers, streamed and resident; the model from the traced frames.
     c, cl = cluster(2)
     with c, cl:
-        for name, path, mode, sampling in (("xray-nearest", scalar, "xray", "nearest"),
-                                           ("xray-trilinear", scalar, "xray", "trilinear"),
-                                           ("tf4-nearest", vector, "tf", "nearest")):
+        for name, path, mode, sampling in (
+            ("xray-nearest", scalar, "xray", "nearest"),
+            ("xray-trilinear", scalar, "xray", "trilinear"),
+            ("tf4-nearest", vector, "tf", "nearest"),
+        ):
             ev = hevr.open_volume(path)
             cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20)
             kw = {"mode": mode, "sampling": sampling} | ({"nodes": TF_NODES} if mode == "tf" else {})
@@ -68,16 +70,22 @@ def main(scalar: str, vector: str, key: str, small: str, out: str) -> None:
             (_, wait_s) = timed(rv.resident.wait)
             first = trace_frame(cl, rv, cam, **kw)
             second = trace_frame(cl, rv, cam, **kw)
-            cell = {"streamed": slim(streamed), "resident_first": slim(first), "resident_second": slim(second),
-                    "persist_s": persist_s + wait_s, "resident_bytes": dict(rv.resident.worker_bytes),
-                    "model": predict(second, [1, 2, 4, 8, 16, 32, 64]),
-                    "model_streamed": predict(streamed, [1, 2, 4, 8, 16, 32, 64])}
+            cell = {
+                "streamed": slim(streamed),
+                "resident_first": slim(first),
+                "resident_second": slim(second),
+                "persist_s": persist_s + wait_s,
+                "resident_bytes": dict(rv.resident.worker_bytes),
+                "model": predict(second, [1, 2, 4, 8, 16, 32, 64]),
+                "model_streamed": predict(streamed, [1, 2, 4, 8, 16, 32, 64]),
+            }
             if mode == "tf":  # re-colouring: the sums stay on the workers
                 hevr.clear_cache()
                 img = hevr.render(rv, cam, client=cl, progress=False, **kw)
                 ref = img.decrypt(priv)
-                again, t_re = timed(lambda: hevr.render(rv, cam, mode="tf", nodes=TF_NODES[:2], client=cl,
-                                                        progress=False))
+                again, t_re = timed(
+                    lambda: hevr.render(rv, cam, mode="tf", nodes=TF_NODES[:2], client=cl, progress=False)
+                )
                 cell["recolour"] = {"seconds": t_re, "stats": {k: v for k, v in again.stats.items()}}
                 cell["recolour"]["ok"] = bool(np.isfinite(again.decrypt(priv)).all() and np.isfinite(ref).all())
                 hevr.clear_cache()
@@ -86,8 +94,13 @@ def main(scalar: str, vector: str, key: str, small: str, out: str) -> None:
             cell["identical"] = bool(np.array_equal(img.decrypt(priv), img2.decrypt(priv)))
             rv.resident.release()
             res["cases"][name] = cell
-            print(name, {k: round(cell[k]["wall"], 2) for k in ("streamed", "resident_first", "resident_second")},
-                  "tail", round(cell["resident_second"]["tail"], 2), flush=True)
+            print(
+                name,
+                {k: round(cell[k]["wall"], 2) for k in ("streamed", "resident_first", "resident_second")},
+                "tail",
+                round(cell["resident_second"]["tail"], 2),
+                flush=True,
+            )
             save()
     # 2. Measured frame time against N (N > cores marked oversubscribed), resident X-ray nearest.
     res["workers"] = {}
@@ -99,8 +112,11 @@ def main(scalar: str, vector: str, key: str, small: str, out: str) -> None:
             cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20)
             trace_frame(cl, ev, cam)  # warm
             tr = trace_frame(cl, ev, cam)
-            res["workers"][str(n)] = {"trace": slim(tr), "oversubscribed": n > cores,
-                                      "model_from_this": predict(tr, [1, 2, 4, 8, 16, 64])}
+            res["workers"][str(n)] = {
+                "trace": slim(tr),
+                "oversubscribed": n > cores,
+                "model_from_this": predict(tr, [1, 2, 4, 8, 16, 64]),
+            }
             print("workers", n, round(tr["wall"], 2), flush=True)
             save()
     # 3. Small frames: 64-bit key, 150² nearest, streamed and resident.

@@ -39,8 +39,9 @@ if __name__ == "__main__":
 
 def run(root: str, args: list[str]) -> dict:
     env = dict(os.environ, PYTHONPATH=root)
-    out = subprocess.run([sys.executable, "-c", CHILD, *args], env=env, cwd=root, capture_output=True, text=True,
-                         check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, *args], env=env, cwd=root, capture_output=True, text=True, check=True
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

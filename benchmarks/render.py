@@ -23,9 +23,14 @@ from _machine import append, machine  # noqa: E402
 import hevr  # noqa: E402
 from hevr.paper import TF_NODES  # noqa: E402
 
-PAPER_RENDER = {("xray", "nearest"): 94.30, ("xray", "trilinear"): 1182.48,
-                ("tf1", "nearest"): 2292.48, ("tf2", "nearest"): 3234.38, ("tf3", "nearest"): 4251.69,
-                ("tf4", "nearest"): 5217.38}
+PAPER_RENDER = {
+    ("xray", "nearest"): 94.30,
+    ("xray", "trilinear"): 1182.48,
+    ("tf1", "nearest"): 2292.48,
+    ("tf2", "nearest"): 3234.38,
+    ("tf3", "nearest"): 4251.69,
+    ("tf4", "nearest"): 5217.38,
+}
 PAPER_DECRYPT_RGB = 190.49
 
 
@@ -59,8 +64,10 @@ def main(argv=None) -> None:
     paper_case = sc.shape == (100, 100, 100) and W == 150 and sc.public_key.bits == 2048
     if not paper_case:
         PAPER_RENDER.clear()  # the paper's numbers only apply to its own case
-    with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cl, \
-            Client(cl) as client:
+    with (
+        LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cl,
+        Client(cl) as client,
+    ):
         client.run(lambda: __import__("hevr"))  # warm the workers' imports
         for sampling in ("nearest", "trilinear"):
             img, s = timed(lambda: hevr.render(sc, cam, sampling=sampling, cache=False, client=client, progress=False))
@@ -71,12 +78,21 @@ def main(argv=None) -> None:
         for sampling in ("nearest", "trilinear"):
             for k in range(1, 5):
                 nodes = TF_NODES[:k]
-                img, s = timed(lambda: hevr.render(vec, cam, mode="tf", nodes=nodes, sampling=sampling,
-                                                   cache=False, client=client, progress=False))
+                img, s = timed(
+                    lambda: hevr.render(
+                        vec, cam, mode="tf", nodes=nodes, sampling=sampling, cache=False, client=client, progress=False
+                    )
+                )
                 ref = hevr.render_plain(vol, cam, mode="tf", nodes=nodes, sampling=sampling, vector_dims=4)
                 err = float(np.abs(img.decrypt(priv) - ref).max())
-                rows.append((f"TF 4-dim, {k} colour{'s' if k > 1 else ''}, {sampling}", s,
-                             PAPER_RENDER.get((f"tf{k}", sampling)), err))
+                rows.append(
+                    (
+                        f"TF 4-dim, {k} colour{'s' if k > 1 else ''}, {sampling}",
+                        s,
+                        PAPER_RENDER.get((f"tf{k}", sampling)),
+                        err,
+                    )
+                )
                 images[("tf", sampling, k)] = img
                 print(rows[-1], flush=True)
         hevr.render(vec, cam, mode="tf", nodes=TF_NODES, client=client, progress=False)  # fills the cache
@@ -93,30 +109,43 @@ def main(argv=None) -> None:
     # scaling: the same render on 1 and on 2 workers
     scale = {}
     for nw in (1, 2):
-        with LocalCluster(n_workers=nw, threads_per_worker=1, processes=True, dashboard_address=":0") as cl, \
-                Client(cl) as client:
+        with (
+            LocalCluster(n_workers=nw, threads_per_worker=1, processes=True, dashboard_address=":0") as cl,
+            Client(cl) as client,
+        ):
             client.run(lambda: __import__("hevr"))
-            _, scale[nw] = timed(lambda: hevr.render(sc, cam, sampling="trilinear", cache=False, client=client,
-                                                     progress=False))
-    lines = [f"## render.py — {sc.shape[0]}³ phantom, {W}² image, {sc.public_key.bits}-bit key, "
-             f"{args.workers}-worker LocalCluster (1 thread each)\n",
-             f"Machine: {machine()}\n",
-             f"Camera: `Camera.orbit(ev, azimuth=30, elevation=20, width={W}, height={W})` (default framing), "
-             f"{hits:,} of {W * W:,} rays hit the volume, {samples:,} samples (step 1). Every render from "
-             "scratch (`cache=False`), timed end to end (graph, map, reduce, finishing, packing).\n",
-             "| render | hevr s | paper s (Table 1/3) | speed-up | max abs error vs render_plain |",
-             "|---|---:|---:|---:|---:|"]
+            _, scale[nw] = timed(
+                lambda: hevr.render(sc, cam, sampling="trilinear", cache=False, client=client, progress=False)
+            )
+    lines = [
+        f"## render.py — {sc.shape[0]}³ phantom, {W}² image, {sc.public_key.bits}-bit key, "
+        f"{args.workers}-worker LocalCluster (1 thread each)\n",
+        f"Machine: {machine()}\n",
+        f"Camera: `Camera.orbit(ev, azimuth=30, elevation=20, width={W}, height={W})` (default framing), "
+        f"{hits:,} of {W * W:,} rays hit the volume, {samples:,} samples (step 1). Every render from "
+        "scratch (`cache=False`), timed end to end (graph, map, reduce, finishing, packing).\n",
+        "| render | hevr s | paper s (Table 1/3) | speed-up | max abs error vs render_plain |",
+        "|---|---:|---:|---:|---:|",
+    ]
     for name, s, paper, err in rows:
-        lines.append(f"| {name} | {s:,.1f} | {paper:,.0f} | {paper / s:,.0f}× | {err:.2e} |" if paper else
-                     f"| {name} | {s:,.1f} | – | – | {err:.2e} |")
-    lines += [f"\nRe-colouring the cached 4-dim ray sums with a new 2-node transfer function: {recolour:.2f} s.\n",
-              "| client decryption (1 core) | ciphertexts | seconds | paper s |", "|---|---:|---:|---:|",
-              f"| {W}² RGB, packed ({rgb.per_pack} values per ciphertext) | {rgb.n_ciphertexts:,} | {dec_packed:.2f} | {p_rgb} |",
-              f"| {W}² grey, unpacked | {grey_unpacked.n_ciphertexts:,} | {dec_grey_unpacked:.2f} | {p_grey} |"]
+        lines.append(
+            f"| {name} | {s:,.1f} | {paper:,.0f} | {paper / s:,.0f}× | {err:.2e} |"
+            if paper
+            else f"| {name} | {s:,.1f} | – | – | {err:.2e} |"
+        )
+    lines += [
+        f"\nRe-colouring the cached 4-dim ray sums with a new 2-node transfer function: {recolour:.2f} s.\n",
+        "| client decryption (1 core) | ciphertexts | seconds | paper s |",
+        "|---|---:|---:|---:|",
+        f"| {W}² RGB, packed ({rgb.per_pack} values per ciphertext) | {rgb.n_ciphertexts:,} | {dec_packed:.2f} | {p_rgb} |",
+        f"| {W}² grey, unpacked | {grey_unpacked.n_ciphertexts:,} | {dec_grey_unpacked:.2f} | {p_grey} |",
+    ]
     if dec_unpacked is not None:
         lines.append(f"| {W}² RGB, unpacked | {unpacked.n_ciphertexts:,} | {dec_unpacked:.2f} | {p_rgb} |")
-    lines.append(f"\nScaling, trilinear X-ray: 1 worker {scale[1]:.1f} s, 2 workers {scale[2]:.1f} s, "
-                 f"speed-up {scale[1] / scale[2]:.2f}×.")
+    lines.append(
+        f"\nScaling, trilinear X-ray: 1 worker {scale[1]:.1f} s, 2 workers {scale[2]:.1f} s, "
+        f"speed-up {scale[1] / scale[2]:.2f}×."
+    )
     text = "\n".join(lines)
     print(text)
     append(text)

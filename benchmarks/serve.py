@@ -77,8 +77,9 @@ def store(cfg: dict, root: Path, client) -> tuple:
     pub.save(d / "pub.json")
     print(f"encrypting {cfg['size']}³ at {cfg['bits']} bits into {path} ...", flush=True)
     t = time.perf_counter()
-    ev = hevr.encrypt_volume(hevr.phantom(cfg["size"]), path, priv, brick=cfg["brick"], progress=False,
-                             client=client, verifiable=True)
+    ev = hevr.encrypt_volume(
+        hevr.phantom(cfg["size"]), path, priv, brick=cfg["brick"], progress=False, client=client, verifiable=True
+    )
     return priv, ev, time.perf_counter() - t
 
 
@@ -87,8 +88,13 @@ def start_server(stores: dict, client) -> str:
     from hevr.serve.run import serve
 
     ready: list = []
-    t = threading.Thread(target=serve, args=(stores,), daemon=True, name="hevr-serve",
-                         kwargs={"host": "127.0.0.1", "port": 0, "client": client, "on_ready": ready.append})
+    t = threading.Thread(
+        target=serve,
+        args=(stores,),
+        daemon=True,
+        name="hevr-serve",
+        kwargs={"host": "127.0.0.1", "port": 0, "client": client, "on_ready": ready.append},
+    )
     t.start()
     deadline = time.monotonic() + 30
     while not ready:
@@ -143,9 +149,16 @@ def throughput(url: str, sid: str, ev, W: int, clients: int, seconds: float) -> 
         c.close()
     wall = max(r[1] for r in records) - t0 if records else float("nan")
     lat = [r[2] for r in records]
-    return {"clients": clients, "frames": len(records), "wall_s": wall, "fps": len(records) / wall,
-            "latency": summary(lat) if lat else None, "reused": sum(r[3] for r in records),
-            "busy_429": busy[0], "errors": errors}
+    return {
+        "clients": clients,
+        "frames": len(records),
+        "wall_s": wall,
+        "fps": len(records) / wall,
+        "latency": summary(lat) if lat else None,
+        "reused": sum(r[3] for r in records),
+        "busy_429": busy[0],
+        "errors": errors,
+    }
 
 
 def main(argv=None) -> None:
@@ -168,11 +181,20 @@ def main(argv=None) -> None:
     from distributed import Client, LocalCluster
 
     t_run = time.perf_counter()
-    out: dict = {"config": cfg, "machine": machine(), "hevr": hevr.__version__, "dask": dask.__version__,
-                 "python": platform.python_version(), "cores": os.cpu_count(), "workers": args.workers,
-                 "load_average_start": os.getloadavg()}
-    with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cl, \
-            Client(cl) as client:
+    out: dict = {
+        "config": cfg,
+        "machine": machine(),
+        "hevr": hevr.__version__,
+        "dask": dask.__version__,
+        "python": platform.python_version(),
+        "cores": os.cpu_count(),
+        "workers": args.workers,
+        "load_average_start": os.getloadavg(),
+    }
+    with (
+        LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cl,
+        Client(cl) as client,
+    ):
         client.run(lambda: __import__("hevr"))
         priv, ev, enc_s = store(cfg, args.store_dir, client)
         out["store"] = {"path": str(ev.path), "id": ev.meta.store_id, "encrypt_s": enc_s, "reused": enc_s is None}
@@ -192,32 +214,54 @@ def main(argv=None) -> None:
         (a, ta), (b, tb) = timed(lambda: local(cam, verify=False)), timed(lambda: remote(cam, verify=False))
         pa, pb = a.decrypt(priv), b.decrypt(priv)
         ref = hevr.render_plain(hevr.phantom(cfg["size"]), cam)
-        out["check"] = {"local_s": ta, "remote_s": tb, "same_image": bool(np.array_equal(pa, pb)),
-                        "same_ciphertexts": len(a.ciphertexts) == len(b.ciphertexts) and all(
-                            np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts)),
-                        "max_abs_error": float(np.abs(pa - ref).max()), "ciphertexts": a.n_ciphertexts}
+        out["check"] = {
+            "local_s": ta,
+            "remote_s": tb,
+            "same_image": bool(np.array_equal(pa, pb)),
+            "same_ciphertexts": len(a.ciphertexts) == len(b.ciphertexts)
+            and all(np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts)),
+            "max_abs_error": float(np.abs(pa - ref).max()),
+            "ciphertexts": a.n_ciphertexts,
+        }
         print("check", out["check"], flush=True)
 
         # 1. remote against in-process, alternating, a new camera each frame
-        arms = {"remote": remote, "local": local, "local_cached": lambda cam, **kw: hevr.render(
-            res, cam, client=client, cache=True, progress=False, **kw)}  # the server's own call keeps the sums
+        arms = {
+            "remote": remote,
+            "local": local,
+            "local_cached": lambda cam, **kw: hevr.render(res, cam, client=client, cache=True, progress=False, **kw),
+        }  # the server's own call keeps the sums
         rec: dict = {p: [] for p in arms}
         for r in range(cfg["frames"]):
-            for path in list(arms)[r % 3:] + list(arms)[:r % 3]:
+            for path in list(arms)[r % 3 :] + list(arms)[: r % 3]:
                 img, s = timed(lambda: arms[path](camera(ev, W), verify=False))
                 st = img.stats
-                rec[path].append({"s": s, "reused": bool(st.get("reused_ray_sums")), "map_tasks": st.get("map_tasks"),
-                                  "server_s": st.get("server_seconds"), "bytes": st.get("gathered_bytes")})
+                rec[path].append(
+                    {
+                        "s": s,
+                        "reused": bool(st.get("reused_ray_sums")),
+                        "map_tasks": st.get("map_tasks"),
+                        "server_s": st.get("server_seconds"),
+                        "bytes": st.get("gathered_bytes"),
+                    }
+                )
                 print(path, f"{s:.3f} s", rec[path][-1], flush=True)
         sm = {p: summary([x["s"] for x in v]) for p, v in rec.items()}
         sm["remote_server"] = summary([x["server_s"] for x in rec["remote"] if x["server_s"] is not None] or [0.0])
         sm["paired_diff"] = summary([r["s"] - q["s"] for r, q in zip(rec["remote"], rec["local"])])  # same round
-        sm["client_http"] = summary([x["s"] - x["server_s"] for x in rec["remote"] if x["server_s"] is not None]
-                                    or [0.0])  # the key holder's rays, plan and checks, HTTP, parsing
+        sm["client_http"] = summary(
+            [x["s"] - x["server_s"] for x in rec["remote"] if x["server_s"] is not None] or [0.0]
+        )  # the key holder's rays, plan and checks, HTTP, parsing
         lm, rm = sm["local"]["median"], sm["remote"]["median"]
-        out["frame"] = {"records": rec, "summary": sm, "ratio": rm / lm, "diff_s": rm - lm,
-                        "goal_s": 1.05 * lm + 0.030, "ok": rm <= 1.05 * lm + 0.030,
-                        "reused_any": any(x["reused"] for v in rec.values() for x in v)}
+        out["frame"] = {
+            "records": rec,
+            "summary": sm,
+            "ratio": rm / lm,
+            "diff_s": rm - lm,
+            "goal_s": 1.05 * lm + 0.030,
+            "ok": rm <= 1.05 * lm + 0.030,
+            "reused_any": any(x["reused"] for v in rec.values() for x in v),
+        }
         if not args.no_verified:
             ver = {}
             for path, fn in (("local", local), ("remote", remote)):
@@ -248,43 +292,65 @@ def report(out: dict, args) -> str:
     enc = out["store"]["encrypt_s"]
     cmd = " ".join(["python benchmarks/serve.py"] + [a for a in sys.argv[1:] if a != "--no-history"])
     la = " → ".join(", ".join(f"{x:.2f}" for x in out[k]) for k in ("load_average_start", "load_average"))
-    lines = [f"## serve.py — `hevr serve` vs in-process, {cfg['size']}³ phantom, {cfg['image']}² px, {cfg['bits']}-bit "
-             f"key, {out['workers']}-worker LocalCluster (1 thread each){' (quick)' if args.quick else ''}\n",
-             f"Machine: {out['machine']} · hevr {out['hevr']} · dask {out['dask']}\n",
-             f"Command: `{cmd}` · wall {out['wall_s']:.0f} s · load average (1, 5, 15 min) start → end {la} · store "
-             f"(scalar, brick {cfg['brick']}, verifiable) {'reused' if enc is None else f'encrypted in {enc:.0f} s'}, "
-             f"bricks resident ({out['persist_s']:.1f} s to load). Server in-process (uvicorn thread, 127.0.0.1), "
-             "same Dask client. X-ray nearest, `verify=False`; a new camera for every frame, the three arms "
-             f"taken in turn. Check frame: images identical "
-             f"{out['check']['same_image']}, ciphertexts identical {out['check']['same_ciphertexts']}, max abs "
-             f"error vs render_plain {out['check']['max_abs_error']:.2e}.\n",
-             "| path | frames | median s | min s | max s |", "|---|---:|---:|---:|---:|"]
-    for name, key in (("in-process (`cache=False`)", "local"), ("remote", "remote"),
-                      ("remote: the server's render (X-Hevr-Stats seconds)", "remote_server"),
-                      ("in-process, `cache=True` (as the server renders)", "local_cached")):
+    lines = [
+        f"## serve.py — `hevr serve` vs in-process, {cfg['size']}³ phantom, {cfg['image']}² px, {cfg['bits']}-bit "
+        f"key, {out['workers']}-worker LocalCluster (1 thread each){' (quick)' if args.quick else ''}\n",
+        f"Machine: {out['machine']} · hevr {out['hevr']} · dask {out['dask']}\n",
+        f"Command: `{cmd}` · wall {out['wall_s']:.0f} s · load average (1, 5, 15 min) start → end {la} · store "
+        f"(scalar, brick {cfg['brick']}, verifiable) {'reused' if enc is None else f'encrypted in {enc:.0f} s'}, "
+        f"bricks resident ({out['persist_s']:.1f} s to load). Server in-process (uvicorn thread, 127.0.0.1), "
+        "same Dask client. X-ray nearest, `verify=False`; a new camera for every frame, the three arms "
+        f"taken in turn. Check frame: images identical "
+        f"{out['check']['same_image']}, ciphertexts identical {out['check']['same_ciphertexts']}, max abs "
+        f"error vs render_plain {out['check']['max_abs_error']:.2e}.\n",
+        "| path | frames | median s | min s | max s |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for name, key in (
+        ("in-process (`cache=False`)", "local"),
+        ("remote", "remote"),
+        ("remote: the server's render (X-Hevr-Stats seconds)", "remote_server"),
+        ("in-process, `cache=True` (as the server renders)", "local_cached"),
+    ):
         s = sm[key]
         lines.append(f"| {name} | {s['n']} | {s['median']:.3f} | {s['min']:.3f} | {s['max']:.3f} |")
-    for name, key in (("remote − in-process, same round (paired)", "paired_diff"),
-                      ("remote − the server's render (key holder + HTTP)", "client_http")):
+    for name, key in (
+        ("remote − in-process, same round (paired)", "paired_diff"),
+        ("remote − the server's render (key holder + HTTP)", "client_http"),
+    ):
         s = sm[key]
         lines.append(f"| {name} | {s['n']} | {s['median']:+.3f} | {s['min']:+.3f} | {s['max']:+.3f} |")
-    lines.append(f"\nRemote / in-process (medians) {f['ratio']:.3f}×, difference {1000 * f['diff_s']:+.0f} ms; goal "
-                 f"≤ 1.05× + 30 ms = {f['goal_s']:.3f} s: **{'ok' if f['ok'] else 'missed'}**"
-                 f"{'' if not f['reused_any'] else ' (WARNING: some frame reused cached ray sums)'}.")
+    lines.append(
+        f"\nRemote / in-process (medians) {f['ratio']:.3f}×, difference {1000 * f['diff_s']:+.0f} ms; goal "
+        f"≤ 1.05× + 30 ms = {f['goal_s']:.3f} s: **{'ok' if f['ok'] else 'missed'}**"
+        f"{'' if not f['reused_any'] else ' (WARNING: some frame reused cached ray sums)'}."
+    )
     if "verified" in out:
         v = out["verified"]
-        lines.append("Verified frame (one each, `verify=True`): " + "; ".join(
-            f"{p} {v[p]['s']:.2f} s (of it the tag round {v[p]['verify_s'] or 0:.2f} s), decrypt with check "
-            f"{v[p]['decrypt_s']:.2f} s" for p in ("local", "remote")) + ".")
-    lines += ["\n| key holders | frames | wall s | frames/s | latency median s | latency min / max s | 429s |",
-              "|---:|---:|---:|---:|---:|---:|---:|"]
+        lines.append(
+            "Verified frame (one each, `verify=True`): "
+            + "; ".join(
+                f"{p} {v[p]['s']:.2f} s (of it the tag round {v[p]['verify_s'] or 0:.2f} s), decrypt with check "
+                f"{v[p]['decrypt_s']:.2f} s"
+                for p in ("local", "remote")
+            )
+            + "."
+        )
+    lines += [
+        "\n| key holders | frames | wall s | frames/s | latency median s | latency min / max s | 429s |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for t in out["throughput"]:
         la_ = t["latency"] or {"median": float("nan"), "min": float("nan"), "max": float("nan")}
-        lines.append(f"| {t['clients']} | {t['frames']} | {t['wall_s']:.1f} | {t['fps']:.3f} | {la_['median']:.3f} | "
-                     f"{la_['min']:.3f} / {la_['max']:.3f} | {t['busy_429']} |")
-    lines.append(f"\nThroughput: each key holder a thread with its own `connect`, new cameras for "
-                 f"{cfg['seconds']:g} s (the frame running then finishes; wall = until the last one ends); "
-                 "server default `max_concurrent` 4, no tokens.")
+        lines.append(
+            f"| {t['clients']} | {t['frames']} | {t['wall_s']:.1f} | {t['fps']:.3f} | {la_['median']:.3f} | "
+            f"{la_['min']:.3f} / {la_['max']:.3f} | {t['busy_429']} |"
+        )
+    lines.append(
+        f"\nThroughput: each key holder a thread with its own `connect`, new cameras for "
+        f"{cfg['seconds']:g} s (the frame running then finishes; wall = until the last one ends); "
+        "server default `max_concurrent` 4, no tokens."
+    )
     return "\n".join(lines)
 
 

@@ -71,10 +71,25 @@ def stores(cfg: dict, root: Path, client) -> tuple:
     _, priv = hevr.generate_keypair(cfg["bits"])
     priv.save(key_path)
     t = time.perf_counter()
-    evs = {"scalar": hevr.encrypt_volume(hevr.phantom(cfg["size"]), paths["scalar"], priv, brick=max(4, cfg["size"] // 2),
-                                         progress=False, client=client),
-           "tf": hevr.encrypt_volume(hevr.phantom(cfg["tf_size"]), paths["tf"], priv, brick=max(4, cfg["tf_size"] // 2),
-                                     vector_dims=4, progress=False, client=client)}
+    evs = {
+        "scalar": hevr.encrypt_volume(
+            hevr.phantom(cfg["size"]),
+            paths["scalar"],
+            priv,
+            brick=max(4, cfg["size"] // 2),
+            progress=False,
+            client=client,
+        ),
+        "tf": hevr.encrypt_volume(
+            hevr.phantom(cfg["tf_size"]),
+            paths["tf"],
+            priv,
+            brick=max(4, cfg["tf_size"] // 2),
+            vector_dims=4,
+            progress=False,
+            client=client,
+        ),
+    }
     return priv, evs, time.perf_counter() - t
 
 
@@ -94,10 +109,17 @@ def main(argv=None) -> None:
     from distributed import Client, LocalCluster
 
     t_run = time.perf_counter()
-    out: dict = {"config": cfg, "machine": machine(), "workers": args.workers, "load_average_start": os.getloadavg(),
-                 "cases": []}
-    with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cl, \
-            Client(cl) as client:
+    out: dict = {
+        "config": cfg,
+        "machine": machine(),
+        "workers": args.workers,
+        "load_average_start": os.getloadavg(),
+        "cases": [],
+    }
+    with (
+        LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cl,
+        Client(cl) as client,
+    ):
         client.run(lambda: __import__("hevr"))
         priv, evs, enc_s = stores(cfg, args.store_dir, client)
         hevr.trust_store(evs["scalar"], priv)  # the key holder's own stores, recorded as verifiable
@@ -113,16 +135,20 @@ def main(argv=None) -> None:
             W = cfg["nearest"] if sampling == "nearest" else cfg["image"]
             kw = {"nodes": TF_NODES} if mode == "tf" else {}
             for verify in (False, True):
-                arms = {"remote": lambda cam: hevr.render(remote[kind], cam, mode, sampling, progress=False,
-                                                          verify=verify, **kw),
-                        "in-process": lambda cam: hevr.render(res[kind], cam, mode, sampling, client=client, cache=True,
-                                                              progress=False, verify=verify, **kw)}
+                arms = {
+                    "remote": lambda cam: hevr.render(
+                        remote[kind], cam, mode, sampling, progress=False, verify=verify, **kw
+                    ),
+                    "in-process": lambda cam: hevr.render(
+                        res[kind], cam, mode, sampling, client=client, cache=True, progress=False, verify=verify, **kw
+                    ),
+                }
                 for fn in arms.values():  # warm-up: imports, the server's first request, the plan caches
                     fn(camera(evs[kind], W))
                 times: dict = {a: [] for a in arms}
                 server_s: list = []
                 for r in range(cfg["frames"]):
-                    for a in (list(arms) if r % 2 == 0 else list(arms)[::-1]):
+                    for a in list(arms) if r % 2 == 0 else list(arms)[::-1]:
                         img, s = timed(lambda: arms[a](camera(evs[kind], W)))
                         times[a].append(s)
                         if a == "remote" and img.stats.get("server_seconds") is not None:
@@ -130,13 +156,24 @@ def main(argv=None) -> None:
                 _, dec_s = timed(lambda: img.decrypt(priv))
                 med = {a: statistics.median(v) for a, v in times.items()}
                 diffs = [x - y for x, y in zip(times["remote"], times["in-process"])]
-                row = {"mode": mode, "sampling": sampling, "image": W, "verify": verify, "times": times,
-                       "median": med, "ratio": med["remote"] / med["in-process"],
-                       "overhead_ms": 1000 * statistics.median(diffs), "server_s": server_s, "decrypt_s": dec_s}
+                row = {
+                    "mode": mode,
+                    "sampling": sampling,
+                    "image": W,
+                    "verify": verify,
+                    "times": times,
+                    "median": med,
+                    "ratio": med["remote"] / med["in-process"],
+                    "overhead_ms": 1000 * statistics.median(diffs),
+                    "server_s": server_s,
+                    "decrypt_s": dec_s,
+                }
                 out["cases"].append(row)
-                print(f"{mode} {sampling} {W}² verify={verify}: remote {med['remote']:.3f} s, in-process "
-                      f"{med['in-process']:.3f} s, ratio {row['ratio']:.3f}, overhead {row['overhead_ms']:+.0f} ms",
-                      flush=True)
+                print(
+                    f"{mode} {sampling} {W}² verify={verify}: remote {med['remote']:.3f} s, in-process "
+                    f"{med['in-process']:.3f} s, ratio {row['ratio']:.3f}, overhead {row['overhead_ms']:+.0f} ms",
+                    flush=True,
+                )
         server.close()
     out["wall_s"] = time.perf_counter() - t_run
     out["load_average"] = os.getloadavg()
@@ -151,19 +188,24 @@ def main(argv=None) -> None:
 def report(out: dict, args) -> str:
     cfg = out["config"]
     la = " → ".join(", ".join(f"{x:.2f}" for x in out[k]) for k in ("load_average_start", "load_average"))
-    lines = [f"## serve_ratio.py — a frame through `hevr serve` / in process, {cfg['bits']}-bit key, "
-             f"{cfg['size']}³ scalar and {cfg['tf_size']}³ TF phantom, {out['workers']}-worker LocalCluster"
-             f"{' (quick)' if args.quick else ''}\n",
-             f"Machine: {out['machine']}\n",
-             f"Command: `python benchmarks/serve_ratio.py{' --quick' if args.quick else ''}` · wall {out['wall_s']:.0f} s "
-             f"· load average (1, 5, 15 min) start → end {la}. {cfg['frames']} frames an arm, alternating, each on a "
-             "camera of its own; overhead = median of the paired differences remote − in-process.\n",
-             "| frame | verified | in-process s | remote s | remote / in-process | service overhead ms | "
-             "decrypt s (apart) |", "|---|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"## serve_ratio.py — a frame through `hevr serve` / in process, {cfg['bits']}-bit key, "
+        f"{cfg['size']}³ scalar and {cfg['tf_size']}³ TF phantom, {out['workers']}-worker LocalCluster"
+        f"{' (quick)' if args.quick else ''}\n",
+        f"Machine: {out['machine']}\n",
+        f"Command: `python benchmarks/serve_ratio.py{' --quick' if args.quick else ''}` · wall {out['wall_s']:.0f} s "
+        f"· load average (1, 5, 15 min) start → end {la}. {cfg['frames']} frames an arm, alternating, each on a "
+        "camera of its own; overhead = median of the paired differences remote − in-process.\n",
+        "| frame | verified | in-process s | remote s | remote / in-process | service overhead ms | "
+        "decrypt s (apart) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
     for r in out["cases"]:
-        lines.append(f"| {r['mode']} {r['sampling']} {r['image']}² | {'yes' if r['verify'] else 'no'} | "
-                     f"{r['median']['in-process']:.3f} | {r['median']['remote']:.3f} | {r['ratio']:.3f} | "
-                     f"{r['overhead_ms']:+.0f} | {r['decrypt_s']:.3f} |")
+        lines.append(
+            f"| {r['mode']} {r['sampling']} {r['image']}² | {'yes' if r['verify'] else 'no'} | "
+            f"{r['median']['in-process']:.3f} | {r['median']['remote']:.3f} | {r['ratio']:.3f} | "
+            f"{r['overhead_ms']:+.0f} | {r['decrypt_s']:.3f} |"
+        )
     return "\n".join(lines)
 
 

@@ -27,15 +27,26 @@ if __name__ == "__main__":
         rows = []
         for resident in (False, True):
             src = ev.persist(client=cl) if resident else ev
-            if resident: src.resident.wait()
+            if resident:
+                src.resident.wait()
             for size in (100, 150):
                 plane = hevr.Plane.axial(ev, 50) if size == 100 else hevr.Plane.axial(ev, 50, width=150, height=150)
                 for rep in range(3):
-                    hevr.clear_cache(); t = time.perf_counter()
+                    hevr.clear_cache()
+                    t = time.perf_counter()
                     img = hevr.render_slice(src, plane, cache=False, progress=False)
                     r = time.perf_counter() - t
-                    arr = img.decrypt(priv); tot = time.perf_counter() - t
+                    arr = img.decrypt(priv)
+                    tot = time.perf_counter() - t
                     assert np.abs(arr - hevr.render_slice_plain(vol, plane)).max() < 1e-9
-                    rows.append({"resident": resident, "image": size, "render_s": round(r, 3), "end_to_end_s": round(tot, 3), "ciphertexts": img.n_ciphertexts})
+                    rows.append(
+                        {
+                            "resident": resident,
+                            "image": size,
+                            "render_s": round(r, 3),
+                            "end_to_end_s": round(tot, 3),
+                            "ciphertexts": img.n_ciphertexts,
+                        }
+                    )
                     print(rows[-1], flush=True)
         Path(out).write_text(json.dumps(rows, indent=1) + "\n")

@@ -37,8 +37,10 @@ HEAVY = ("zarr", "dask", "distributed", "fsspec", "numcodecs", "numpy", "PIL", "
 GOALS = {"--version": 0.3, "--help": 0.3, "render --help": 0.3, "info KEY": 0.5}
 
 # Run a command as the console script does, then print the heavy modules it left imported.
-PROBE = ("import sys\nfrom hevr.cli.main import main\nsys.argv[0] = 'hevr'\ntry:\n    main(sys.argv[1:])\n"
-         "finally:\n    print('MODULES', ','.join(m for m in " + repr(HEAVY) + " if m in sys.modules), file=sys.stderr)\n")
+PROBE = (
+    "import sys\nfrom hevr.cli.main import main\nsys.argv[0] = 'hevr'\ntry:\n    main(sys.argv[1:])\n"
+    "finally:\n    print('MODULES', ','.join(m for m in " + repr(HEAVY) + " if m in sys.modules), file=sys.stderr)\n"
+)
 
 
 def hevr_script() -> list[str]:
@@ -68,10 +70,11 @@ def once(argv: list[str], cwd: Path) -> float:
 def heavy_modules(argv: list[str], cwd: Path) -> list[str] | None:
     """The heavy modules a ``hevr`` command leaves imported (None for the other cases)."""
     hevr = hevr_script()
-    if argv[:len(hevr)] != hevr:
+    if argv[: len(hevr)] != hevr:
         return None
-    out = subprocess.run([sys.executable, "-c", PROBE, *argv[len(hevr):]], cwd=cwd, capture_output=True,
-                         text=True, check=False)
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, *argv[len(hevr) :]], cwd=cwd, capture_output=True, text=True, check=False
+    )
     line = next((x for x in out.stderr.splitlines() if x.startswith("MODULES")), "MODULES ")
     return [m for m in line.partition(" ")[2].split(",") if m]
 
@@ -84,8 +87,13 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        subprocess.run(hevr_script() + ["keygen", "--bits", "1024", "--out", "key.json"], cwd=work, check=True,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        subprocess.run(
+            hevr_script() + ["keygen", "--bits", "1024", "--out", "key.json"],
+            cwd=work,
+            check=True,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         todo = cases(work / "key.json")
         times: dict[str, list[float]] = {name: [] for name in todo}
         for rnd in range(args.runs + 1):  # round 0 warms the file cache and is not kept
@@ -97,12 +105,27 @@ def main() -> None:
     rows = []
     for name, ts in times.items():
         med = statistics.median(ts)
-        rows.append({"case": name, "median_s": round(med, 4), "min_s": round(min(ts), 4), "max_s": round(max(ts), 4),
-                     "goal_s": GOALS.get(name), "meets_goal": None if name not in GOALS else med <= GOALS[name],
-                     "heavy_modules": modules[name], "times_s": [round(t, 4) for t in ts]})
+        rows.append(
+            {
+                "case": name,
+                "median_s": round(med, 4),
+                "min_s": round(min(ts), 4),
+                "max_s": round(max(ts), 4),
+                "goal_s": GOALS.get(name),
+                "meets_goal": None if name not in GOALS else med <= GOALS[name],
+                "heavy_modules": modules[name],
+                "times_s": [round(t, 4) for t in ts],
+            }
+        )
     how = "the hevr console script" if len(hevr_script()) == 1 else "python -m hevr"
-    run = {"label": args.label, "machine": machine(), "runs": args.runs, "hevr": how,
-           "load_average_end": os.getloadavg()[0], "cases": rows}
+    run = {
+        "label": args.label,
+        "machine": machine(),
+        "runs": args.runs,
+        "hevr": how,
+        "load_average_end": os.getloadavg()[0],
+        "cases": rows,
+    }
     doc = json.loads(args.out.read_text()) if args.out.is_file() else {"runs": []}
     doc["runs"] = [r for r in doc["runs"] if r["label"] != args.label] + [run]
     args.out.write_text(json.dumps(doc, indent=1) + "\n")

@@ -48,13 +48,19 @@ if __name__ == "__main__":
         legacy = mock.patch.object(writer, "compressors", lambda name: [Crc32cCodec()])
         with legacy if label == "before" else mock.MagicMock():
             t = time.perf_counter()
-            ev = hevr.encrypt_volume(vol, work / f"{label}.zarr", key, spacing=spacing, brick=32, overwrite=True,
-                                     progress=False)
+            ev = hevr.encrypt_volume(
+                vol, work / f"{label}.zarr", key, spacing=spacing, brick=32, overwrite=True, progress=False
+            )
             enc = time.perf_counter() - t
         cipher = int(np.prod(vol.shape)) * key.public_key.ciphertext_bytes
         store = du(Path(ev.path))
-        rows[label] = {"store_bytes": store, "ciphertext_bytes": cipher, "overhead": (store - cipher) / cipher,
-                       "scalar_array_bytes": du(Path(ev.path) / "scalar"), "encrypt_s": enc}
+        rows[label] = {
+            "store_bytes": store,
+            "ciphertext_bytes": cipher,
+            "overhead": (store - cipher) / cipher,
+            "scalar_array_bytes": du(Path(ev.path) / "scalar"),
+            "encrypt_s": enc,
+        }
         evs[label] = ev
     reads = {k: [] for k in evs}
     for _ in range(5):
@@ -71,7 +77,14 @@ if __name__ == "__main__":
         rows[k]["open_quick_s"] = min(opens[k])
     sys.path.insert(0, str(Path(__file__).parent))
     from _machine import machine
-    res = {"machine": machine(), "key_bits": key.public_key.bits, "shape_zyx": list(vol.shape), "brick": 32,
-           "bricks": len(evs["after"].brick_indices()), "rows": rows}
+
+    res = {
+        "machine": machine(),
+        "key_bits": key.public_key.bits,
+        "shape_zyx": list(vol.shape),
+        "brick": 32,
+        "bricks": len(evs["after"].brick_indices()),
+        "rows": rows,
+    }
     out.write_text(json.dumps(res, indent=1) + "\n")
     print(json.dumps(res, indent=1))

@@ -37,8 +37,7 @@ def _worker(rank: int, key_path: str, folder: str, rounds: int, barrier, results
     for r in range(rounds):
         barrier.wait()
         try:
-            ev = hevr.encrypt_volume(vol, f"{folder}/v{r}.zarr", key, brick=BRICK, progress=False,
-                                     client=None)
+            ev = hevr.encrypt_volume(vol, f"{folder}/v{r}.zarr", key, brick=BRICK, progress=False, client=None)
             results.put((r, rank, "won", ev.meta.store_id))
         except hevr.StoreExistsError:
             results.put((r, rank, "lost", ""))
@@ -63,8 +62,10 @@ def main() -> int:
     stores.mkdir()
     ctx = mp.get_context("spawn")
     barrier, results = ctx.Barrier(args.procs), ctx.Queue()
-    procs = [ctx.Process(target=_worker, args=(i, str(args.dir / "key.json"), str(stores), args.rounds, barrier,
-                                               results)) for i in range(args.procs)]
+    procs = [
+        ctx.Process(target=_worker, args=(i, str(args.dir / "key.json"), str(stores), args.rounds, barrier, results))
+        for i in range(args.procs)
+    ]
     t0 = time.perf_counter()
     for p in procs:
         p.start()
@@ -92,9 +93,11 @@ def main() -> int:
         failures.append(f"left beside the stores: {left[:5]} ({len(left)} in all)")
     for f in failures:
         print("FAIL", f)
-    summary = (f"{args.rounds} rounds × {args.procs} processes, {args.bits}-bit key, {SHAPE} voxels in "
-               f"{int(np.prod([-(-s // BRICK) for s in SHAPE]))} bricks: {len(failures)} failures, "
-               f"{wall:.1f} s ({args.rounds / wall:.1f} rounds/s)")
+    summary = (
+        f"{args.rounds} rounds × {args.procs} processes, {args.bits}-bit key, {SHAPE} voxels in "
+        f"{int(np.prod([-(-s // BRICK) for s in SHAPE]))} bricks: {len(failures)} failures, "
+        f"{wall:.1f} s ({args.rounds / wall:.1f} rounds/s)"
+    )
     print(summary)
     append(f"## stress_exclusive.py — concurrent creators of one store\n\n{machine()}\n\n{summary}\n")
     return 1 if failures else 0

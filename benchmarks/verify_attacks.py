@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import io
 import json
 import os
@@ -66,6 +65,7 @@ def strip_tags(path):
         d.pop("tags", None)
         d.pop("auth", None)
         d["arrays"] = {k: v for k, v in d["arrays"].items() if not k.endswith("_tag")}
+
     edit_meta(path, change)
     for name in os.listdir(path):
         if name.endswith("_tag"):
@@ -114,8 +114,9 @@ def has_key_option():
 def cli_column(path, key_file, tmp):
     frame = Path(tmp) / f"cli-{os.urandom(4).hex()}.hevr"
     extra = ["--key", key_file] if KEY_OPTION else []
-    code, out, err = run_cli("render", path, "--out", frame, "--size", "10x9", "--azimuth", "30", "--elevation", "20",
-                             "-q", *extra)
+    code, out, err = run_cli(
+        "render", path, "--out", frame, "--size", "10x9", "--azimuth", "30", "--elevation", "20", "-q", *extra
+    )
     if code:
         return "refused", err.strip()[:100]
     return cli_decrypt(frame, key_file, tmp)
@@ -132,6 +133,7 @@ def cli_decrypt(frame, key_file, tmp, *extra):
 
 def store_attacks(tmp, priv, key_file):
     """Attacks on the store: (name, how it changes the store at the path)."""
+
     def meta(change):
         return lambda p: edit_meta(p, change)
 
@@ -216,16 +218,16 @@ def file_attacks(tmp, priv, key_file, path):
     out.append(("file: an old frame replayed after re-encryption", f_old))
     f, img = verified(asked)
     raw = bytearray(f.read_bytes())
-    head_len = int.from_bytes(raw[M:M + 4], "little")
-    head = json.loads(raw[M + 4:M + 4 + head_len])
+    head_len = int.from_bytes(raw[M : M + 4], "little")
+    head = json.loads(raw[M + 4 : M + 4 + head_len])
     head["exponent"] -= 3
     head["verification"]["exponent"] -= 3
     out.append(("file: header and record exponent raised", _rewrite(tmp, raw, head, head_len)))
-    head = json.loads(raw[M + 4:M + 4 + head_len])
+    head = json.loads(raw[M + 4 : M + 4 + head_len])
     head.pop("stamp", None)
     head.pop("saved_as", None)
     out.append(("file: a record without the key holder's stamp", _rewrite(tmp, raw, head, head_len)))
-    head = json.loads(raw[M + 4:M + 4 + head_len])
+    head = json.loads(raw[M + 4 : M + 4 + head_len])
     head.pop("verification")
     head.pop("stamp", None)
     head.pop("saved_as", None)
@@ -237,7 +239,7 @@ def _rewrite(tmp, raw, head, head_len):
     import hashlib
 
     text = json.dumps(head, separators=(",", ":")).encode()
-    body = bytes(raw[:M]) + len(text).to_bytes(4, "little") + text + bytes(raw[M + 4 + head_len:-32])
+    body = bytes(raw[:M]) + len(text).to_bytes(4, "little") + text + bytes(raw[M + 4 + head_len : -32])
     f = Path(tmp) / f"edit-{os.urandom(4).hex()}.hevr"
     f.write_bytes(body + hashlib.sha256(body).digest())
     return f
@@ -247,8 +249,12 @@ def table(before: str, after: str) -> str:
     """A markdown table of two runs' outcomes (``before → after`` per attack and column)."""
     b, a = (json.loads(Path(p).read_text()) for p in (before, after))
     cols = ("None", "None, new machine", "True", "pinned", "CLI", "CLI --require-verified")
-    lines = [f"Before: hevr {b.get('commit') or '?'}; after: hevr {a.get('commit') or '?'}. Cell: before → after.", "",
-             "| attack | " + " | ".join(f"`{c}`" for c in cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    lines = [
+        f"Before: hevr {b.get('commit') or '?'}; after: hevr {a.get('commit') or '?'}. Cell: before → after.",
+        "",
+        "| attack | " + " | ".join(f"`{c}`" for c in cols) + " |",
+        "|---" * (len(cols) + 1) + "|",
+    ]
     old = {r["attack"]: r for r in b["rows"]}
     for r in a["rows"]:
         o = old.get(r["attack"], {})
@@ -280,8 +286,12 @@ def main() -> int:
             sid = encrypt(VOL, path, priv).meta.store_id
             sid = attack(path) or sid
             row = {"attack": name}
-            for col, verify, fresh in (("None", None, None), ("None, new machine", None, str(Path(tmp) / "fresh.json")),
-                                       ("True", True, None), ("pinned", sid, None)):
+            for col, verify, fresh in (
+                ("None", None, None),
+                ("None, new machine", None, str(Path(tmp) / "fresh.json")),
+                ("True", True, None),
+                ("pinned", sid, None),
+            ):
                 if fresh and os.path.exists(fresh):
                     os.remove(fresh)
                 row[col] = py_column(path, priv, verify, fresh)
@@ -303,11 +313,15 @@ def main() -> int:
                 row["CLI --require-verified"] = cli_decrypt(f, key_file, tmp, "--require-verified")
             rows.append(row)
             req = row.get("CLI --require-verified", ("-",))[0]
-            print(f"{name:48s} {row['None'][0]} | CLI: {row['CLI'][0]} | --require-verified: {req}: "
-                  f"{row['CLI'][1][:90]}", flush=True)
+            print(
+                f"{name:48s} {row['None'][0]} | CLI: {row['CLI'][0]} | --require-verified: {req}: {row['CLI'][1][:90]}",
+                flush=True,
+            )
     if args.out:
-        Path(args.out).write_text(json.dumps({"hevr": hevr.__version__, "commit": os.environ.get("COMMIT", ""),
-                                              "rows": rows}, indent=1) + "\n")
+        Path(args.out).write_text(
+            json.dumps({"hevr": hevr.__version__, "commit": os.environ.get("COMMIT", ""), "rows": rows}, indent=1)
+            + "\n"
+        )
     return 0
 
 

@@ -52,12 +52,19 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
-    res: dict = {"machine": machine(), "size": args.size, "encrypt_size": args.encrypt_size, "bits": args.bits,
-                 "rounds": args.rounds}
+    res: dict = {
+        "machine": machine(),
+        "size": args.size,
+        "encrypt_size": args.encrypt_size,
+        "bits": args.bits,
+        "rounds": args.rounds,
+    }
     _, priv = hevr.generate_keypair(args.bits)
     vol = hevr.phantom(args.size)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc, \
-            Client(lc) as client:
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc,
+        Client(lc) as client,
+    ):
         client.run(lambda: __import__("hevr"))
         stores = {}
         for label, verifiable in (("plain", False), ("verifiable", True)):
@@ -65,8 +72,15 @@ def main(argv: list[str]) -> None:
             if path.exists():
                 shutil.rmtree(path)
             t0 = time.perf_counter()
-            stores[label] = hevr.encrypt_volume(hevr.phantom(args.encrypt_size), path, priv, brick=25, progress=False,
-                                                client=client, verifiable=verifiable)
+            stores[label] = hevr.encrypt_volume(
+                hevr.phantom(args.encrypt_size),
+                path,
+                priv,
+                brick=25,
+                progress=False,
+                client=client,
+                verifiable=verifiable,
+            )
             res.setdefault("encrypt", {})[label] = {"seconds": time.perf_counter() - t0, "bytes": _bytes(path)}
             print(label, res["encrypt"][label], flush=True)
         ev = stores["verifiable"]
@@ -85,10 +99,11 @@ def main(argv: list[str]) -> None:
             times: dict = {"verified": [], "unverified": []}
             client_s: dict = {"verified": [], "unverified": []}
             for r in range(args.rounds):
-                for arm in (("verified", "unverified") if r % 2 == 0 else ("unverified", "verified")):
+                for arm in ("verified", "unverified") if r % 2 == 0 else ("unverified", "verified"):
                     t0 = time.perf_counter()
-                    img = hevr.render(ev, cam, "xray", sampling, client=client, progress=False, cache=False,
-                                      verify=arm == "verified")
+                    img = hevr.render(
+                        ev, cam, "xray", sampling, client=client, progress=False, cache=False, verify=arm == "verified"
+                    )
                     times[arm].append(time.perf_counter() - t0)
                     t0 = time.perf_counter()
                     got = img.decrypt(priv)
@@ -97,17 +112,23 @@ def main(argv: list[str]) -> None:
                         last = img
                     if not np.all(np.abs(got - ref) <= bound):
                         raise SystemExit(f"{sampling} {arm}: outside the error bound")
-                    print(sampling, arm, f"{times[arm][-1]:.2f} s render, {client_s[arm][-1]:.3f} s decrypt",
-                          flush=True)
+                    print(
+                        sampling, arm, f"{times[arm][-1]:.2f} s render, {client_s[arm][-1]:.3f} s decrypt", flush=True
+                    )
             t0 = time.perf_counter()
             last.verification.beta_sum(priv)
             beta_s = time.perf_counter() - t0
             med = {k: statistics.median(v) for k, v in times.items()}
             cmed = {k: statistics.median(v) for k, v in client_s.items()}
             res.setdefault("render", {})[sampling] = {
-                "render_s": times, "decrypt_s": client_s, "median_render_s": med, "median_decrypt_s": cmed,
+                "render_s": times,
+                "decrypt_s": client_s,
+                "median_render_s": med,
+                "median_decrypt_s": cmed,
                 "render_ratio": med["verified"] / med["unverified"],
-                "check_s": cmed["verified"] - cmed["unverified"], "beta_sum_s": beta_s}
+                "check_s": cmed["verified"] - cmed["unverified"],
+                "beta_sum_s": beta_s,
+            }
             print(sampling, res["render"][sampling]["render_ratio"], res["render"][sampling]["check_s"], flush=True)
     res["storage_ratio"] = res["encrypt"]["verifiable"]["bytes"] / res["encrypt"]["plain"]["bytes"]
     res["encrypt_ratio"] = res["encrypt"]["verifiable"]["seconds"] / res["encrypt"]["plain"]["seconds"]

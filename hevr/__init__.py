@@ -37,7 +37,6 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
     from .crypto.keyfile import load_key
     from .crypto.keys import PrivateKey, PublicKey, generate_keypair
     from .crypto.number import EncryptedNumber
-    from .runtime.scheduler import own_cluster
     from .errors import (
         CorruptStoreError,
         CorruptVolumeError,
@@ -79,13 +78,14 @@ if TYPE_CHECKING:  # what static tools and IDEs read; at run time each name is i
     from .remote.client import connect
     from .rendering.encrypted import RaySums, clear_cache, error_bound, render
     from .rendering.geometry.camera import Camera
-    from .rendering.packed.image import PackedImage
     from .rendering.geometry.plane import Plane
     from .rendering.geometry.views import VIEWS
+    from .rendering.packed.image import PackedImage
     from .rendering.pipeline.stream import render_frame
     from .rendering.pipeline.sums import SavedSums, load_sums, recolour
     from .rendering.reference.plain import render_plain, render_slice_plain
     from .rendering.slices import render_slice
+    from .runtime.scheduler import own_cluster
     from .store.known import export_known_stores, import_known_stores, known_stores, trust_store
     from .store.pyramid import build_pyramid
     from .store.reader import EncryptedVolume, open_volume
@@ -118,11 +118,37 @@ _LAZY = {
     ".crypto.keys": ("PrivateKey", "PublicKey", "generate_keypair"),
     ".crypto.number": ("EncryptedNumber",),
     ".errors": (
-        "CorruptStoreError", "CorruptVolumeError", "ExistingFileError", "FileSystemError", "ForeignClusterError", "FrameMovedWarning", "HevrError", "IncompleteStoreError",
-        "InsecureKeyWarning", "IntegrityError", "InvalidKeyError", "KeyFilePermissionWarning", "KeyMismatchError",
-        "MemoryLimitError", "MissingDependencyError", "MissingFileError", "NotRegularFileError", "ParameterError",
-        "PlaintextOverflowError", "RemoteAnswerError", "RemoteBusyError", "RemoteConnectError", "RemoteError",
-        "RemoteNotFoundError", "RemoteRefusedError", "RemoteTimeoutError", "RemoteUnauthorisedError", "RenderPlanError", "StoreError", "StoreExistsError", "VerificationError",
+        "CorruptStoreError",
+        "CorruptVolumeError",
+        "ExistingFileError",
+        "FileSystemError",
+        "ForeignClusterError",
+        "FrameMovedWarning",
+        "HevrError",
+        "IncompleteStoreError",
+        "InsecureKeyWarning",
+        "IntegrityError",
+        "InvalidKeyError",
+        "KeyFilePermissionWarning",
+        "KeyMismatchError",
+        "MemoryLimitError",
+        "MissingDependencyError",
+        "MissingFileError",
+        "NotRegularFileError",
+        "ParameterError",
+        "PlaintextOverflowError",
+        "RemoteAnswerError",
+        "RemoteBusyError",
+        "RemoteConnectError",
+        "RemoteError",
+        "RemoteNotFoundError",
+        "RemoteRefusedError",
+        "RemoteTimeoutError",
+        "RemoteUnauthorisedError",
+        "RenderPlanError",
+        "StoreError",
+        "StoreExistsError",
+        "VerificationError",
         "VolumeFormatError",
     ),
     ".image.display": ("save_png", "to_uint8"),
@@ -147,7 +173,14 @@ _LAZY = {
     ".viewer": ("Viewer",),
     ".volume.density": ("encode_density", "normalize_density"),
     ".volume.loaders": ("load_volume", "read_scan", "save_volume"),
-    ".volume.modality": ("MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density"),
+    ".volume.modality": (
+        "MODALITY_RANGES",
+        "TF_PRESETS",
+        "modality_range",
+        "range_hint",
+        "tf_preset",
+        "window_density",
+    ),
     ".volume.phantom": ("PHANTOM_LEVELS", "phantom"),
     ".volume.samples": ("sample_scan",),
     ".volume.scan": ("Scan",),

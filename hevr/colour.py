@@ -47,8 +47,18 @@ from .core.validate import check_choice
 from .errors import ParameterError
 from .volume.density import encode_density
 
-__all__ = ["CSS_COLORS", "Colouring", "Frame", "colour", "colouring_spec", "frame_from_sums", "parse_color",
-           "parse_nodes", "scaled_sums", "unit_density"]
+__all__ = [
+    "CSS_COLORS",
+    "Colouring",
+    "Frame",
+    "colour",
+    "colouring_spec",
+    "frame_from_sums",
+    "parse_color",
+    "parse_nodes",
+    "scaled_sums",
+    "unit_density",
+]
 
 MODES = ("xray", "emphasize", "tf")
 
@@ -93,7 +103,7 @@ def parse_color(c: Any) -> tuple[float, float, float]:
             h = m.group(1)
             if len(h) == 3:
                 h = "".join(ch * 2 for ch in h)
-            return tuple(int(h[i:i + 2], 16) / 255 for i in (0, 2, 4))  # type: ignore[return-value]
+            return tuple(int(h[i : i + 2], 16) / 255 for i in (0, 2, 4))  # type: ignore[return-value]
         name = text.lower()
         if name in CSS_COLORS:
             return CSS_COLORS[name]
@@ -108,14 +118,11 @@ def parse_color(c: Any) -> tuple[float, float, float]:
     except TypeError:
         vals = []
     if len(vals) != 3 or any(isinstance(x, bool) or not isinstance(x, numbers.Real) for x in vals):
-        raise ParameterError(
-            f"color: expected (r, g, b) in [0, 1], '#rrggbb' or a CSS name, got {c!r}"
-        )
+        raise ParameterError(f"color: expected (r, g, b) in [0, 1], '#rrggbb' or a CSS name, got {c!r}")
     rgb = tuple(float(x) + 0.0 for x in vals)
     if not all(0.0 <= x <= 1.0 for x in rgb):  # also rejects NaN
         raise ParameterError(f"color: expected components in [0, 1], got {c!r}")
     return rgb  # type: ignore[return-value]
-
 
 
 def unit_density(name: str, value: Any) -> float:
@@ -126,9 +133,7 @@ def unit_density(name: str, value: Any) -> float:
 
 def parse_nodes(nodes: Any) -> tuple[tuple[float, tuple[float, float, float]], ...]:
     if nodes is None:
-        raise ParameterError(
-            "nodes: expected a list of (density, color) pairs for mode='tf', got None"
-        )
+        raise ParameterError("nodes: expected a list of (density, color) pairs for mode='tf', got None")
     try:
         items = list(nodes)
     except TypeError:
@@ -149,11 +154,12 @@ def parse_nodes(nodes: Any) -> tuple[tuple[float, tuple[float, float, float]], .
     seen: dict[float, int] = {}
     for i, (d, _) in enumerate(out):
         if d in seen:
-            raise ParameterError(f"nodes: expected distinct densities, got {d:g} twice (nodes[{seen[d]}] and "
-                                 f"nodes[{i}]); give each density one colour")
+            raise ParameterError(
+                f"nodes: expected distinct densities, got {d:g} twice (nodes[{seen[d]}] and "
+                f"nodes[{i}]); give each density one colour"
+            )
         seen[d] = i
     return tuple(out)
-
 
 
 @dataclass(frozen=True)
@@ -217,12 +223,16 @@ class Colouring:
             dens = np.array([d for d, _ in self.nodes], dtype=np.float64)
             cols = np.array([c for _, c in self.nodes], dtype=np.float64)
             return encode_density(dens, k).T @ cols
-        raise ParameterError("mode: expected 'emphasize' or 'tf' for a combination matrix (an X-ray has none), "
-                             "got 'xray'")
+        raise ParameterError(
+            "mode: expected 'emphasize' or 'tf' for a combination matrix (an X-ray has none), got 'xray'"
+        )
 
     def to_dict(self) -> dict:
-        return {"mode": self.mode, "density": self.density,
-                "nodes": [[d, list(c)] for d, c in self.nodes] if self.nodes else None}
+        return {
+            "mode": self.mode,
+            "density": self.density,
+            "nodes": [[d, list(c)] for d, c in self.nodes] if self.nodes else None,
+        }
 
     @classmethod
     def from_dict(cls, d: Any) -> Colouring:
@@ -234,9 +244,14 @@ class Colouring:
         return (self.mode, self.density, self.nodes)
 
 
-
-def colouring_spec(channel: str, components: int, mode: Any = None, density: Any = None, nodes: Any = None,
-                   default: Colouring | None = None) -> Colouring:
+def colouring_spec(
+    channel: str,
+    components: int,
+    mode: Any = None,
+    density: Any = None,
+    nodes: Any = None,
+    default: Colouring | None = None,
+) -> Colouring:
     """The checked colouring of a frame of ``channel``'s sums (``components`` per pixel): the
     arguments when any is given (``nodes`` alone means ``mode="tf"``, ``density`` alone
     ``"emphasize"``), else ``default`` (the render's own), else X-ray for the scalar channel.
@@ -256,16 +271,21 @@ def colouring_spec(channel: str, components: int, mode: Any = None, density: Any
         else:
             raise ParameterError(
                 f"nodes: expected a transfer function (nodes=[(density, colour), ...]) or an emphasised density "
-                f"(density=...) to colour a frame of the {channel} channel's ray sums, got neither")
+                f"(density=...) to colour a frame of the {channel} channel's ray sums, got neither"
+            )
     if mode is None:
         mode = "tf" if nodes is not None else "emphasize"
     check_choice("mode", mode, MODES)
     if channel == "scalar" and mode != "xray":
-        raise ParameterError(f"mode: expected 'xray' for a frame of the scalar channel's ray sums, got {mode!r} "
-                             "(emphasis and transfer functions colour the vector channel: render mode='tf')")
+        raise ParameterError(
+            f"mode: expected 'xray' for a frame of the scalar channel's ray sums, got {mode!r} "
+            "(emphasis and transfer functions colour the vector channel: render mode='tf')"
+        )
     if channel != "scalar" and mode == "xray":
-        raise ParameterError(f"mode: expected 'emphasize' or 'tf' for a frame of the {channel} channel's ray sums, "
-                             "got 'xray' (an X-ray reads the scalar channel: render mode='xray')")
+        raise ParameterError(
+            f"mode: expected 'emphasize' or 'tf' for a frame of the {channel} channel's ray sums, "
+            "got 'xray' (an X-ray reads the scalar channel: render mode='xray')"
+        )
     return Colouring(mode, density, nodes)
 
 
@@ -364,13 +384,19 @@ def scaled_sums(values: list[int], exponent: int) -> np.ndarray:
         except OverflowError:  # a sum beyond float64 whose scaled value fits
             pass
         else:
-            return S / 10.0 ** -e if -22 <= e < 0 else S * 10.0 ** e
+            return S / 10.0**-e if -22 <= e < 0 else S * 10.0**e
     scale = Fraction(10) ** e
     return np.array([float(v * scale) for v in values], dtype=np.float64)
 
 
-def frame_from_sums(scaled: np.ndarray, n_samples: np.ndarray, channel: str,
-                    colouring: Colouring | None, stats: dict, t0: float | None = None) -> Frame:
+def frame_from_sums(
+    scaled: np.ndarray,
+    n_samples: np.ndarray,
+    channel: str,
+    colouring: Colouring | None,
+    stats: dict,
+    t0: float | None = None,
+) -> Frame:
     """A :class:`Frame` from the scaled sums S·10^exponent (H, W, K) (:func:`scaled_sums`) and
     the public sample counts: x = S·10^exponent / n (module docstring)."""
     t = time.perf_counter()

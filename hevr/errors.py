@@ -146,8 +146,11 @@ class ExistingFileError(HevrError, FileExistsError):
     """
 
     def __init__(self, name: str, path: str | os.PathLike) -> None:
-        super().__init__(errno.EEXIST, f"{name}: expected no file at {path} (pass overwrite=True to replace it), "
-                                       "found one", str(path))
+        super().__init__(
+            errno.EEXIST,
+            f"{name}: expected no file at {path} (pass overwrite=True to replace it), found one",
+            str(path),
+        )
 
     def __str__(self) -> str:
         return str(self.strerror)
@@ -163,8 +166,7 @@ class NotRegularFileError(HevrError, OSError):
     """
 
     def __init__(self, name: str, expected: str, path: str | os.PathLike, kind: str) -> None:
-        super().__init__(errno.EINVAL, f"{name}: expected {expected} (a regular file), got {kind} at {path}",
-                         str(path))
+        super().__init__(errno.EINVAL, f"{name}: expected {expected} (a regular file), got {kind} at {path}", str(path))
 
     def __str__(self) -> str:
         return str(self.strerror)
@@ -240,8 +242,9 @@ class RemoteBusyError(RemoteError):
     (429, 1.0)
     """
 
-    def __init__(self, message: str, *, status: int | None = None, problem: dict | None = None,
-                 retry_after: float | None = None) -> None:
+    def __init__(
+        self, message: str, *, status: int | None = None, problem: dict | None = None, retry_after: float | None = None
+    ) -> None:
         super().__init__(message, status=status, problem=problem)
         self.retry_after = retry_after
 

@@ -17,12 +17,20 @@ _URL = re.compile(r"serving: (https?://\S+)")
 
 
 @contextmanager
-def hevr_serve(*args: str, timeout: float = 90.0, env: dict | None = None, cwd: str | Path | None = None,
-               port: int = 0):
+def hevr_serve(
+    *args: str, timeout: float = 90.0, env: dict | None = None, cwd: str | Path | None = None, port: int = 0
+):
     """``hevr serve ARGS --port PORT`` (default 0: an ephemeral one) as a subprocess; yields (url,
     process, lines printed so far)."""
-    proc = subprocess.Popen([*HEVR, "serve", *args, "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env={**os.environ, **(env or {})}, cwd=cwd, start_new_session=True)
+    proc = subprocess.Popen(
+        [*HEVR, "serve", *args, "--port", str(port)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, **(env or {})},
+        cwd=cwd,
+        start_new_session=True,
+    )
     lines: list[str] = []
     url: list[str] = []
     ready = threading.Event()

@@ -83,8 +83,10 @@ def _journal_dir(tmp_path_factory):
 def cluster():
     """Two in-process workers (1 thread each) behind a client that is NOT the global default:
     hevr must use the client it is given (tests enter ``as_current`` where they want the default)."""
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as lc, \
-            Client(lc, set_as_default=False) as c:
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as lc,
+        Client(lc, set_as_default=False) as c,
+    ):
         yield c
 
 
@@ -123,8 +125,24 @@ def cli_store(tmp_path_factory):
     def make(name: str, size: int = 10, brick: int = 4, dims: int = 3, store: str = "vol.zarr"):
         d = tmp_path_factory.mktemp(name)
         assert main(["keygen", "--bits", "256", "--out", str(d / "key.json"), "-q"]) == 0
-        assert main(["encrypt", f"phantom:{size}", "--key", str(d / "key.json"), "--out", str(d / store),
-                     "--brick", str(brick), "--vector-dims", str(dims), "-q"]) == 0
+        assert (
+            main(
+                [
+                    "encrypt",
+                    f"phantom:{size}",
+                    "--key",
+                    str(d / "key.json"),
+                    "--out",
+                    str(d / store),
+                    "--brick",
+                    str(brick),
+                    "--vector-dims",
+                    str(dims),
+                    "-q",
+                ]
+            )
+            == 0
+        )
         return d
 
     return make

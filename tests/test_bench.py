@@ -20,8 +20,15 @@ def test_bench_quick_cli_writes_everything(tmp_path, capsys):
     md = (tmp_path / "RESULTS-quick.md").read_text()
     doc = json.loads((tmp_path / "results-quick.json").read_text())
     assert (tmp_path / "scaling-quick.png").stat().st_size > 1000
-    for heading in ("Table 1", "Table 2", "Table 3", "Against the limit", "python-paillier", "Scaling",
-                    "Pipeline: frame time against workers"):
+    for heading in (
+        "Table 1",
+        "Table 2",
+        "Table 3",
+        "Against the limit",
+        "python-paillier",
+        "Scaling",
+        "Pipeline: frame time against workers",
+    ):
         assert heading in md
     assert "Not (yet) run" not in md
     cells = doc["cells"]
@@ -82,8 +89,14 @@ def _doc(**cells):
 
 
 def test_goals_judged_from_cells():
-    doc = _doc(**{"t1.2048.obf.nearest": {"seconds": 5.0}, "t1.2048.obf.trilinear": {"seconds": 50.0},
-                  "scale.workers.1": {"seconds": 95.0}, "t1.2048.obf.encrypt": {"seconds": 200.0}})
+    doc = _doc(
+        **{
+            "t1.2048.obf.nearest": {"seconds": 5.0},
+            "t1.2048.obf.trilinear": {"seconds": 50.0},
+            "scale.workers.1": {"seconds": 95.0},
+            "t1.2048.obf.encrypt": {"seconds": 200.0},
+        }
+    )
     g = {goal: (value, ok) for _i, goal, _t, value, ok in report.goals(doc)}
     assert g["X-ray nearest render ≤ 6 s"] == (5.0, True)
     assert g["X-ray trilinear render ≤ 40 s"] == (50.0, False)
@@ -92,8 +105,16 @@ def test_goals_judged_from_cells():
     assert g["TF 4-dim, 4 colours, nearest ≤ 25 s"] == (None, None)
 
 
-@pytest.mark.parametrize("ours, theirs, text", [(2.0, 94.3, "2.00 / 94.3 (**47×**)"), (2.79, 3.49, "2.79 / 3.49 (**1.25×**)"), (10.0, 5.0, "10.0 / 5.00 (**0.50×**)"),
-                                                (None, 3.0, "– / 3.00"), (1.5, None, "1.50")])
+@pytest.mark.parametrize(
+    "ours, theirs, text",
+    [
+        (2.0, 94.3, "2.00 / 94.3 (**47×**)"),
+        (2.79, 3.49, "2.79 / 3.49 (**1.25×**)"),
+        (10.0, 5.0, "10.0 / 5.00 (**0.50×**)"),
+        (None, 3.0, "– / 3.00"),
+        (1.5, None, "1.50"),
+    ],
+)
 def test_cell_format(ours, theirs, text):
     assert report._cmp(ours, theirs) == text
 
@@ -103,8 +124,15 @@ def test_pipeline_model_replays_a_graph():
     deps = {f"m{i}": [] for i in range(8)} | {"f": [f"m{i}" for i in range(8)]}
     dur = {f"m{i}": 1.0 for i in range(8)} | {"f": 1.0}
     assert simulate(deps, dur, 2) == 5.0 and simulate(deps, dur, 8) == 2.0 and simulate(deps, dur, 64) == 2.0
-    trace = {"deps": deps, "durations": dur, "workers": 2, "span": 5.9, "serial_before": 0.1, "serial_after": 0.0,
-             "tasks": 9}
+    trace = {
+        "deps": deps,
+        "durations": dur,
+        "workers": 2,
+        "span": 5.9,
+        "serial_before": 0.1,
+        "serial_after": 0.0,
+        "tasks": 9,
+    }
     out = predict(trace, [1, 2, 8])
     assert out["frame"]["2"] == pytest.approx(6.0, abs=1e-3)  # the overhead is fitted to the traced span
     assert out["efficiency"]["2"] < 1 and out["efficiency"]["8"] < out["efficiency"]["2"]

@@ -11,8 +11,8 @@ import json
 import pytest
 
 from hevr import backends
-from hevr.bench import gpu_goals
 from hevr.backends import CudaHostBackend, register_backend
+from hevr.bench import gpu_goals
 
 
 @pytest.fixture(autouse=True)
@@ -27,8 +27,9 @@ def _rows(out):
 @pytest.mark.parametrize("workers", [(1,), (1, 2)])
 def test_the_packed_step_on_the_host_kernels(tmp_path, workers):
     out, work = tmp_path / "out", tmp_path / "work"
-    ok = gpu_goals.run_step("packed", out, work, backend="cuda-host", bits=256, repeats=1, workers=workers,
-                            packed_size=12, packed_image=12)
+    ok = gpu_goals.run_step(
+        "packed", out, work, backend="cuda-host", bits=256, repeats=1, workers=workers, packed_size=12, packed_image=12
+    )
     assert ok is True
     rows = [r for r in _rows(out) if r["step"] == "packed"]
     enc = rows[0]
@@ -36,7 +37,8 @@ def test_the_packed_step_on_the_host_kernels(tmp_path, workers):
     assert enc["bytes"] > 0 and ("LocalCluster of 2" in enc["how"]) == (workers == (1, 2))
     frames = {r["what"]: r for r in rows[1:]}
     assert set(frames) == {f"packed {v} {s}" for v in ("general", "orbit") for s in ("nearest", "trilinear")} | {
-        "packed general trilinear verified"}
+        "packed general trilinear verified"
+    }
     for r in frames.values():
         assert r["identical"] and r["within_bound"] and r["sha256"] == r["cpu_sha256"]
         assert r["backend"] == "cuda-host" and r["cpu_workers"] == max(workers) and r["seconds"] > 0
@@ -70,8 +72,27 @@ def test_a_wrong_backend_is_reported_not_hidden(tmp_path):
     register_backend("wrong", Wrong)
     out, work = tmp_path / "out", tmp_path / "work"
     try:
-        code = gpu_goals.main(["packed", "--out", str(out), "--work", str(work), "--backend", "wrong", "--bits", "256",
-                               "--repeats", "1", "--workers", "1", "--packed-size", "12", "--packed-image", "12"])
+        code = gpu_goals.main(
+            [
+                "packed",
+                "--out",
+                str(out),
+                "--work",
+                str(work),
+                "--backend",
+                "wrong",
+                "--bits",
+                "256",
+                "--repeats",
+                "1",
+                "--workers",
+                "1",
+                "--packed-size",
+                "12",
+                "--packed-image",
+                "12",
+            ]
+        )
     finally:
         backends._FACTORIES.pop("wrong", None)
         backends._INSTANCES.pop("wrong", None)

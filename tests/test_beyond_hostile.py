@@ -23,8 +23,7 @@ pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
 
 def _render_ok(ev, vol, priv, cam, **kw):
     got = hevr.render(ev, cam, progress=False, **kw).decrypt(priv)
-    ref = hevr.render_plain(vol, cam, spacing=ev.spacing, value_range=ev.value_range, vector_dims=ev.vector_dims,
-                            **kw)
+    ref = hevr.render_plain(vol, cam, spacing=ev.spacing, value_range=ev.value_range, vector_dims=ev.vector_dims, **kw)
     return bool((np.abs(got - ref) <= hevr.error_bound(ev, cam, **kw)).all())
 
 
@@ -72,8 +71,10 @@ def test_thick_slab_nearest_ties_match_the_reference(tmp_path, keypair256):
     far beyond ``error_bound`` (0.013), on ordinary thick slabs with anisotropic spacing."""
     _, priv = keypair256
     vol = np.random.default_rng(0).integers(0, 256, (6, 7, 8)).astype(np.uint8)
-    for sp, make in [((1.0, 0.1, 0.1), lambda s: hevr.Plane.coronal((6, 7, 8), 0.5, spacing=s, slab=6, slab_step=1.0)),
-                     ((2.0, 0.1, 0.3), lambda s: hevr.Plane.axial((6, 7, 8), 4, spacing=s, slab=6, slab_step=0.7))]:
+    for sp, make in [
+        ((1.0, 0.1, 0.1), lambda s: hevr.Plane.coronal((6, 7, 8), 0.5, spacing=s, slab=6, slab_step=1.0)),
+        ((2.0, 0.1, 0.3), lambda s: hevr.Plane.axial((6, 7, 8), 4, spacing=s, slab=6, slab_step=0.7)),
+    ]:
         ev = hevr.encrypt_volume(vol, tmp_path / f"{sp[2]}.zarr", priv, brick=4, spacing=sp, progress=False)
         plane = make(sp)
         got = hevr.render_slice(ev, plane, progress=False).decrypt(priv)
@@ -94,8 +95,9 @@ def test_a_tiny_pixel_spacing_is_a_parameter_error(tmp_path, capsys, keypair256)
 
     path = tmp_path / "v.zarr"
     hevr.encrypt_volume(hevr.phantom(8), path, keypair256[0], brick=4, progress=False)
-    code = main(["slice", str(path), "--out", str(tmp_path / "s.hevr"), "--axial", "2", "--pixel-spacing", "1e-320",
-                 "-q"])
+    code = main(
+        ["slice", str(path), "--out", str(tmp_path / "s.hevr"), "--axial", "2", "--pixel-spacing", "1e-320", "-q"]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "--pixel-spacing" in err, (code, err)
 
@@ -109,8 +111,9 @@ def test_recolour_of_level_sums_keeps_the_level(tmp_path, keypair256):
     ev = hevr.encrypt_volume(hevr.phantom(8), tmp_path / "v.zarr", priv, brick=4, vector_dims=3, progress=False)
     ev = build_pyramid(ev, 1, progress=False)
     cam = hevr.Camera.orbit(ev, width=6, height=6)
-    a = hevr.render(ev, cam, mode="tf", nodes=[(0.3, "red")], level=1, keep_sums=tmp_path / "l1.hevrsums",
-                    progress=False)
+    a = hevr.render(
+        ev, cam, mode="tf", nodes=[(0.3, "red")], level=1, keep_sums=tmp_path / "l1.hevrsums", progress=False
+    )
     b = hevr.recolour(tmp_path / "l1.hevrsums", mode="tf", nodes=[(0.3, "red")], progress=False)
     assert [c.tobytes() for c in a.ciphertexts] == [c.tobytes() for c in b.ciphertexts]
     assert a.info.get("level") == 1
@@ -175,12 +178,17 @@ def test_level_renders_from_inside_the_volume_with_odd_steps(tmp_path, keypair25
     ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", priv, brick=4, vector_dims=3, spacing=sp, progress=False)
     ev = build_pyramid(ev, 2, progress=False)
     centre = np.array([10 * 0.7, 6 * 1.3, 8 * 2.1]) / 2
-    cam = hevr.Camera(position=tuple(centre), focal_point=tuple(centre + [1, 0.3, 0.2]), view_up=(0, 0, 1),
-                      width=7, height=6, view_angle=80)
+    cam = hevr.Camera(
+        position=tuple(centre),
+        focal_point=tuple(centre + [1, 0.3, 0.2]),
+        view_up=(0, 0, 1),
+        width=7,
+        height=6,
+        view_angle=80,
+    )
     for level, step, sampling in ((1, 0.37, "trilinear"), (2, 2.3, "nearest"), (1, 1.0, "nearest")):
         assert _render_ok(ev, vol, priv, cam, level=level, step=step, sampling=sampling)
-        assert _render_ok(ev, vol, priv, cam, level=level, step=step, sampling=sampling, mode="emphasize",
-                          density=0.4)
+        assert _render_ok(ev, vol, priv, cam, level=level, step=step, sampling=sampling, mode="emphasize", density=0.4)
 
 
 def test_gradient_of_a_memmap_in_one_voxel_bricks_is_the_whole_array_definition(tmp_path, keypair256):
@@ -191,8 +199,18 @@ def test_gradient_of_a_memmap_in_one_voxel_bricks_is_the_whole_array_definition(
     np.save(tmp_path / "m.npy", vol)
     mm = np.load(tmp_path / "m.npy", mmap_mode="r")
     sp, vr = (0.3, 1.7, 2.2), (0.0, 101.0)
-    ev = hevr.encrypt_volume(mm, tmp_path / "g.zarr", priv, brick=(1, 1, 3), scalar=False, vector_dims=3,
-                             gradient=True, spacing=sp, value_range=vr, progress=False)
+    ev = hevr.encrypt_volume(
+        mm,
+        tmp_path / "g.zarr",
+        priv,
+        brick=(1, 1, 3),
+        scalar=False,
+        vector_dims=3,
+        gradient=True,
+        spacing=sp,
+        value_range=vr,
+        progress=False,
+    )
     got = np.zeros(ev.shape + (3,))
     for idx in ev.brick_indices():
         for j, batch in enumerate(ev.read_brick(idx, "gradient")):

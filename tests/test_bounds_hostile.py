@@ -17,9 +17,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import hevr
-from hevr.image.header import MAGIC
 from hevr.core.limits import FLOAT_MAX, fits_float
 from hevr.errors import HevrError
+from hevr.image.header import MAGIC
 from hevr.rendering.planning.modes import combination_matrix, make_spec
 from hevr.rendering.planning.planner import plan_render
 from hevr.store.metadata import ChannelInfo, VolumeMetadata
@@ -31,8 +31,9 @@ HYPO = settings(max_examples=60, deadline=None, suppress_health_check=[HealthChe
 def scene(tmp_path_factory, keypair256):
     _, priv = keypair256
     vol = np.random.default_rng(3).uniform(-50.0, 80.0, (6, 7, 8))
-    ev = hevr.encrypt_volume(vol, tmp_path_factory.mktemp("b") / "v.zarr", priv, brick=4, value_range=(-50, 80),
-                             digits=2, progress=False)
+    ev = hevr.encrypt_volume(
+        vol, tmp_path_factory.mktemp("b") / "v.zarr", priv, brick=4, value_range=(-50, 80), digits=2, progress=False
+    )
     cam = hevr.Camera.orbit(ev, azimuth=20, elevation=10, width=6, height=5)
     img = hevr.render(ev, cam, progress=False)
     return ev, priv, cam, img
@@ -43,10 +44,10 @@ def _rewrite(path, **fields) -> None:
     blob = path.read_bytes()
     (hl,) = struct.unpack_from("<I", blob, len(MAGIC))
     start = len(MAGIC) + 4
-    head = json.loads(blob[start:start + hl])
+    head = json.loads(blob[start : start + hl])
     head.update(fields)
     raw = json.dumps(head, separators=(",", ":")).encode()
-    data = MAGIC + struct.pack("<I", len(raw)) + raw + blob[start + hl:-32]
+    data = MAGIC + struct.pack("<I", len(raw)) + raw + blob[start + hl : -32]
     path.write_bytes(data + hashlib.sha256(data).digest())
 
 
@@ -55,8 +56,11 @@ def test_an_exponent_inside_1000_that_overflows_float64_is_refused(scene, tmp_pa
     path = tmp_path / "x.hevr"
     img.save(path)
     _rewrite(path, exponent=308)  # |exponent| <= 1000, but bound·10^308 > 1.8e308
-    with pytest.raises(hevr.CorruptStoreError, match=r"header field 'exponent': expected an int with "
-                                                     r"max\(offset, bound − offset\)·10\^exponent <= 1\.798e\+308"):
+    with pytest.raises(
+        hevr.CorruptStoreError,
+        match=r"header field 'exponent': expected an int with "
+        r"max\(offset, bound − offset\)·10\^exponent <= 1\.798e\+308",
+    ):
         hevr.load_image(path)
     with pytest.raises(hevr.IntegrityError, match="field 'exponent'"):
         dataclasses.replace(img, exponent=308).decrypt(priv)
@@ -88,17 +92,25 @@ def test_any_header_exponent_decrypts_finite_or_is_refused(scene, exponent):
 # -- item 4: value_range at encryption and in the planner ---------------------------------------
 def test_value_range_beyond_float_arithmetic_is_refused_before_anything_is_written(tmp_path, keypair256):
     vol = np.random.default_rng(1).uniform(0, 1, (4, 4, 4))
-    for vr in [(-1e308, 1e308), (0, 1e101), (-10**400, 1), (0, 10**5000), (float("inf"), 10**400)]:
+    for vr in [(-1e308, 1e308), (0, 1e101), (-(10**400), 1), (0, 10**5000), (float("inf"), 10**400)]:
         with pytest.raises(hevr.ParameterError, match=r"^value_range: expected .*\|lo\|, \|hi\| <= 1e\+100"):
             hevr.encrypt_volume(vol, tmp_path / "v.zarr", keypair256[1], brick=2, value_range=vr, progress=False)
         assert not (tmp_path / "v.zarr").exists()
 
 
 def _meta(value_range, digits=3, vector=False):
-    return VolumeMetadata(shape=(4, 4, 4), spacing=(1.0, 1.0, 1.0), brick=(2, 2, 2), n="1", fingerprint="",
-                          ciphertext_bytes=0, dtype="float64", value_range=value_range,
-                          scalar=ChannelInfo(exponent=-digits, digits=digits),
-                          vector=ChannelInfo(exponent=-3, digits=3, dims=4) if vector else None)
+    return VolumeMetadata(
+        shape=(4, 4, 4),
+        spacing=(1.0, 1.0, 1.0),
+        brick=(2, 2, 2),
+        n="1",
+        fingerprint="",
+        ciphertext_bytes=0,
+        dtype="float64",
+        value_range=value_range,
+        scalar=ChannelInfo(exponent=-digits, digits=digits),
+        vector=ChannelInfo(exponent=-3, digits=3, dims=4) if vector else None,
+    )
 
 
 def test_a_stores_huge_value_range_is_a_plan_error_not_an_overflow():
@@ -107,25 +119,53 @@ def test_a_stores_huge_value_range_is_a_plan_error_not_an_overflow():
     spec = make_spec("xray", "nearest", 1.0, None, None, None)
 
     def plan(vr, precision=4):
-        return plan_render(n=n, spec=spec, meta=_meta(vr, digits=30), n_samples=np.array([1, 5]), digits=3,
-                           precision=precision, comb_digits=4, pack=True, combination=None)
+        return plan_render(
+            n=n,
+            spec=spec,
+            meta=_meta(vr, digits=30),
+            n_samples=np.array([1, 5]),
+            digits=3,
+            precision=precision,
+            comb_digits=4,
+            pack=True,
+            combination=None,
+        )
 
     p = plan((-1e308, 1e308))  # exact mantissas; an average of such values is still a float64
     assert fits_float(max(p.offset, p.bound - p.offset), p.exponent)
     with pytest.raises(hevr.RenderPlanError, match=r"value_range: expected values whose render fits a float64"):
         plan((-1.5e308, 1.5e308), precision=0)  # the rounded reciprocal's margin (x1.5) passes 1.797e308
     with pytest.raises(hevr.RenderPlanError, match="bits"):
-        plan_render(n=(1 << 1023) + 1, spec=spec, meta=_meta((-1e308, 1e308), digits=30), n_samples=np.array([5]),
-                    digits=3, precision=4, comb_digits=4, pack=True, combination=None)
+        plan_render(
+            n=(1 << 1023) + 1,
+            spec=spec,
+            meta=_meta((-1e308, 1e308), digits=30),
+            n_samples=np.array([5]),
+            digits=3,
+            precision=4,
+            comb_digits=4,
+            pack=True,
+            combination=None,
+        )
 
 
 @HYPO
-@given(lo=st.floats(-1e100, 1e100), width=st.floats(1e-300, 2e100), digits=st.integers(0, 30),
-       mode=st.sampled_from(["xray", "emphasize", "tf"]), sampling=st.sampled_from(["nearest", "trilinear"]),
-       wdigits=st.integers(0, 9), precision=st.integers(0, 30), comb_digits=st.integers(1, 12),
-       n_max=st.integers(0, 2**53), density=st.floats(0, 1), bits=st.sampled_from([64, 256, 2048, 4096]))
-def test_the_planner_plans_or_refuses_every_accepted_request(lo, width, digits, mode, sampling, wdigits, precision,
-                                                            comb_digits, n_max, density, bits):
+@given(
+    lo=st.floats(-1e100, 1e100),
+    width=st.floats(1e-300, 2e100),
+    digits=st.integers(0, 30),
+    mode=st.sampled_from(["xray", "emphasize", "tf"]),
+    sampling=st.sampled_from(["nearest", "trilinear"]),
+    wdigits=st.integers(0, 9),
+    precision=st.integers(0, 30),
+    comb_digits=st.integers(1, 12),
+    n_max=st.integers(0, 2**53),
+    density=st.floats(0, 1),
+    bits=st.sampled_from([64, 256, 2048, 4096]),
+)
+def test_the_planner_plans_or_refuses_every_accepted_request(
+    lo, width, digits, mode, sampling, wdigits, precision, comb_digits, n_max, density, bits
+):
     hi = min(lo + width, 1e100)
     if not hi > lo:
         return
@@ -135,8 +175,17 @@ def test_the_planner_plans_or_refuses_every_accepted_request(lo, width, digits, 
     comb = combination_matrix(spec, 4) if mode != "xray" else None
     n = (1 << (bits - 1)) + 1
     try:
-        plan = plan_render(n=n, spec=spec, meta=_meta(vr, digits, vector=True), n_samples=np.array([n_max, 1]),
-                           digits=wdigits, precision=precision, comb_digits=comb_digits, pack=True, combination=comb)
+        plan = plan_render(
+            n=n,
+            spec=spec,
+            meta=_meta(vr, digits, vector=True),
+            n_samples=np.array([n_max, 1]),
+            digits=wdigits,
+            precision=precision,
+            comb_digits=comb_digits,
+            pack=True,
+            combination=comb,
+        )
     except hevr.RenderPlanError:
         return
     assert fits_float(max(plan.offset, plan.bound - plan.offset), plan.exponent)
@@ -168,8 +217,12 @@ coord = st.floats(allow_nan=False, allow_infinity=False)
 
 
 @HYPO
-@given(pos=st.tuples(coord, coord, coord), foc=st.tuples(coord, coord, coord), up=st.tuples(coord, coord, coord),
-       parallel=st.booleans())
+@given(
+    pos=st.tuples(coord, coord, coord),
+    foc=st.tuples(coord, coord, coord),
+    up=st.tuples(coord, coord, coord),
+    parallel=st.booleans(),
+)
 def test_every_camera_is_refused_by_field_or_casts_finite_rays(pos, foc, up, parallel):
     try:
         cam = hevr.Camera(pos, foc, view_up=up, width=3, height=2, parallel=parallel)

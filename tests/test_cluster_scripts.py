@@ -53,8 +53,9 @@ def _dask_defaults() -> dict:
 
 
 def test_launch_help():
-    res = subprocess.run([sys.executable, str(LAUNCH), "--help"], capture_output=True, text=True,
-                         timeout=30, env=_env())
+    res = subprocess.run(
+        [sys.executable, str(LAUNCH), "--help"], capture_output=True, text=True, timeout=30, env=_env()
+    )
     assert res.returncode == 0, res.stderr
     for flag in ("--workers", "--memory-limit", "--dashboard-port", "--scheduler-only", "--check"):
         assert flag in res.stdout
@@ -62,18 +63,24 @@ def test_launch_help():
 
 
 def test_launch_import_starts_nothing():
-    code = ("import runpy, threading; runpy.run_path(%r, run_name='not_main'); "
-            "print(threading.active_count())" % str(LAUNCH))
+    code = "import runpy, threading; runpy.run_path(%r, run_name='not_main'); print(threading.active_count())" % str(
+        LAUNCH
+    )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30, env=_env())
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "1"  # no cluster, no event-loop thread
 
 
 def test_launch_rejects_bad_arguments():
-    for bad in (["--workers", "0"], ["--memory-limit", "lots"], ["--port", "70000"],
-                ["--scheduler-only", "--check", "tcp://x:1"]):
-        res = subprocess.run([sys.executable, str(LAUNCH), *bad], capture_output=True, text=True,
-                             timeout=30, env=_env())
+    for bad in (
+        ["--workers", "0"],
+        ["--memory-limit", "lots"],
+        ["--port", "70000"],
+        ["--scheduler-only", "--check", "tcp://x:1"],
+    ):
+        res = subprocess.run(
+            [sys.executable, str(LAUNCH), *bad], capture_output=True, text=True, timeout=30, env=_env()
+        )
         assert res.returncode == 2, (bad, res.stderr)
 
 
@@ -102,10 +109,17 @@ def test_dask_yaml_is_picked_up_via_dask_config(tmp_path):
     """DASK_CONFIG=cluster/ really applies every value (as the README tells users)."""
     user = yaml.safe_load(DASK_YAML.read_text())
     keys = [k for k, _ in _leaf_keys(user, _dask_defaults())]
-    code = ("import json, sys, dask, distributed; "
-            "print(json.dumps({k: dask.config.get(k) for k in json.loads(sys.argv[1])}))")
-    res = subprocess.run([sys.executable, "-c", code, json.dumps(keys)], capture_output=True, text=True,
-                         timeout=30, env=_env(DASK_CONFIG=str(CLUSTER), HOME=str(tmp_path)))
+    code = (
+        "import json, sys, dask, distributed; "
+        "print(json.dumps({k: dask.config.get(k) for k in json.loads(sys.argv[1])}))"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", code, json.dumps(keys)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env=_env(DASK_CONFIG=str(CLUSTER), HOME=str(tmp_path)),
+    )
     assert res.returncode == 0, res.stderr
     got = json.loads(res.stdout)
     expected = dict(_leaf_keys(user, _dask_defaults()))
@@ -118,7 +132,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _reader(stream, q: "queue.Queue[str | None]") -> None:
+def _reader(stream, q: queue.Queue[str | None]) -> None:
     for line in iter(stream.readline, ""):
         q.put(line)
     q.put(None)
@@ -129,7 +143,11 @@ def _launch(*args: str, port: int):
     queues of its stdout and stderr lines (None at the end)."""
     proc = subprocess.Popen(
         [sys.executable, str(LAUNCH), *args, "--port", str(port), "--dashboard-port", "0", "--memory-limit", "1GiB"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(ROOT),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=_env(),
+        cwd=str(ROOT),
     )
     lines: queue.Queue = queue.Queue()
     errs: queue.Queue = queue.Queue()
@@ -175,8 +193,13 @@ def test_launch_local_cluster_one_worker():
             assert w["memory_limit"] == 2**30
             assert client.submit(sum, [1, 2, 3], pure=False).result(timeout=10) == 6
 
-        check = subprocess.run([sys.executable, str(LAUNCH), "--check", address, "--timeout", "5"],
-                               capture_output=True, text=True, timeout=20, env=_env())
+        check = subprocess.run(
+            [sys.executable, str(LAUNCH), "--check", address, "--timeout", "5"],
+            capture_output=True,
+            text=True,
+            timeout=20,
+            env=_env(),
+        )
         assert check.returncode == 0, check.stderr
         assert "Workers:   1   threads: 1" in check.stdout
 

@@ -21,8 +21,8 @@ from hypothesis import strategies as st
 import hevr
 from hevr.core.limits import integrity_bits
 from hevr.rendering.planning.planner import plan_sums
-from hevr.store.packing import mantissa_range as _mantissa_range
 from hevr.store.metadata import ChannelInfo
+from hevr.store.packing import mantissa_range as _mantissa_range
 
 # values no render would produce by chance: found in pickled bytes if they leak
 SECRET_DENSITY = 0.613579
@@ -35,15 +35,26 @@ def scene(tmp_path_factory, keypair256):
     rng = np.random.default_rng(3)
     vol = rng.integers(0, 256, (9, 10, 11)).astype(np.uint8)
     with dask.config.set(scheduler="sync"):
-        ev = hevr.encrypt_volume(vol, tmp_path_factory.mktemp("c") / "v.zarr", keypair256[1], brick=4, vector_dims=3,
-                                 gradient=True, progress=False)
+        ev = hevr.encrypt_volume(
+            vol,
+            tmp_path_factory.mktemp("c") / "v.zarr",
+            keypair256[1],
+            brick=4,
+            vector_dims=3,
+            gradient=True,
+            progress=False,
+        )
         hevr.build_pyramid(ev, levels=1, progress=False)
     ev = hevr.open_volume(ev.path)
     return ev, vol, keypair256[1], hevr.Camera.orbit(ev, azimuth=35, elevation=15, width=9, height=8)
 
 
-MODES = [("xray", {}), ("emphasize", {"density": 0.45}), ("tf", {"nodes": [(0.2, "red"), (0.7, "#00f")]}),
-         ("tf", {"nodes": [(0.3, "lime"), (0.9, "white")], "gradient": True})]
+MODES = [
+    ("xray", {}),
+    ("emphasize", {"density": 0.45}),
+    ("tf", {"nodes": [(0.2, "red"), (0.7, "#00f")]}),
+    ("tf", {"nodes": [(0.3, "lime"), (0.9, "white")], "gradient": True}),
+]
 
 
 @pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
@@ -99,14 +110,19 @@ def test_recolour_on_the_client_equals_a_render(scene):
 def test_server_finishing_is_unchanged_and_recolours_from_sums(scene, tmp_path):
     ev, vol, priv, cam = scene
     nodes = MODES[2][1]["nodes"]
-    a = hevr.render(ev, cam, mode="tf", nodes=nodes, progress=False, cache=False, finish="server",
-                    keep_sums=tmp_path / "s.hevrsums")
+    a = hevr.render(
+        ev, cam, mode="tf", nodes=nodes, progress=False, cache=False, finish="server", keep_sums=tmp_path / "s.hevrsums"
+    )
     b = hevr.recolour(tmp_path / "s.hevrsums", mode="tf", nodes=nodes, finish="server", progress=False)
-    assert a.finish == "server" and a.info["nodes"] and [c.tobytes() for c in a.ciphertexts] == \
-        [c.tobytes() for c in b.ciphertexts]
+    assert (
+        a.finish == "server"
+        and a.info["nodes"]
+        and [c.tobytes() for c in a.ciphertexts] == [c.tobytes() for c in b.ciphertexts]
+    )
     c = hevr.recolour(tmp_path / "s.hevrsums", mode="tf", nodes=nodes, progress=False)  # client by default
-    assert c.finish == "client" and np.array_equal(c.decrypt(priv), hevr.render(
-        ev, cam, mode="tf", nodes=nodes, progress=False, cache=False).decrypt(priv))
+    assert c.finish == "client" and np.array_equal(
+        c.decrypt(priv), hevr.render(ev, cam, mode="tf", nodes=nodes, progress=False, cache=False).decrypt(priv)
+    )
 
 
 # -- the colouring stays on the client -------------------------------------------------------
@@ -191,14 +207,26 @@ def test_the_colouring_never_reaches_a_cluster(scene, cluster):
     out = {}
 
     def client_finished():
-        out["frame"] = hevr.render_frame(ev, cam, priv, mode="tf", nodes=SECRET_NODES, client=cluster,
-                                         progress=False, cache=False)
+        out["frame"] = hevr.render_frame(
+            ev, cam, priv, mode="tf", nodes=SECRET_NODES, client=cluster, progress=False, cache=False
+        )
         hevr.render(ev, cam, mode="emphasize", density=SECRET_DENSITY, client=cluster, progress=False, cache=False)
 
     seen = _worker_specs(cluster, client_finished)
     assert len(seen) > 10000 and not _leaks(seen) and b"emphasize" not in seen  # the tasks ran; nothing leaked
-    server = _worker_specs(cluster, lambda: hevr.render(ev, cam, mode="emphasize", density=SECRET_DENSITY,
-                                                        client=cluster, progress=False, cache=False, finish="server"))
+    server = _worker_specs(
+        cluster,
+        lambda: hevr.render(
+            ev,
+            cam,
+            mode="emphasize",
+            density=SECRET_DENSITY,
+            client=cluster,
+            progress=False,
+            cache=False,
+            finish="server",
+        ),
+    )
     # the check sees what the paper's way sends to the workers: its plan names the mode and carries
     # the density as the quantised combination matrix (integers, so no float of it travels either way)
     assert b"emphasize" in server and not _leaks(server)
@@ -214,8 +242,9 @@ def test_render_frame_streams_the_same_frame(scene, cluster):
     nodes = MODES[2][1]["nodes"]
     want = hevr.render(ev, cam, mode="tf", nodes=nodes, progress=False, cache=False, tile=4).decrypt(priv)
     for client in (None, cluster):
-        frame = hevr.render_frame(ev, cam, priv, mode="tf", nodes=nodes, client=client, progress=False, tile=4,
-                                  cache=False)
+        frame = hevr.render_frame(
+            ev, cam, priv, mode="tf", nodes=nodes, client=client, progress=False, tile=4, cache=False
+        )
         assert np.array_equal(frame.image, want) and frame.stats["finish_tasks"] > 1
     hevr.clear_cache()  # a cached view: another colouring is served from the packed sums, with no task
     a = hevr.render_frame(ev, cam, priv, mode="tf", nodes=nodes, progress=False, tile=4)
@@ -253,13 +282,13 @@ def test_a_tampered_unit_is_an_integrity_error(scene, monkeypatch):
 # -- the v3 file ---------------------------------------------------------------------------------
 def _header(blob: bytes) -> tuple[dict, int]:
     (hl,) = struct.unpack("<I", blob[8:12])
-    return json.loads(blob[12:12 + hl]), hl
+    return json.loads(blob[12 : 12 + hl]), hl
 
 
 def _rewrite(blob: bytes, head: dict, body: bytes | None = None, magic: bytes | None = None) -> bytes:
     _, hl = _header(blob)
     raw = json.dumps(head).encode()
-    out = (magic or blob[:8]) + struct.pack("<I", len(raw)) + raw + (blob[12 + hl:-32] if body is None else body)
+    out = (magic or blob[:8]) + struct.pack("<I", len(raw)) + raw + (blob[12 + hl : -32] if body is None else body)
     return out + hashlib.sha256(out).digest()
 
 
@@ -273,19 +302,21 @@ def test_client_frame_file_round_trip_and_samples_checked(scene, tmp_path):
     assert blob[:8] == b"HEVRIMG\x03" and head["finish"] == "client" and head["components"] == 1
     back = hevr.load_image(path)
     assert np.array_equal(back.samples, img.samples) and np.array_equal(back.decrypt(priv), img.decrypt(priv))
-    body = bytearray(blob[12 + hl:-32])
+    body = bytearray(blob[12 + hl : -32])
     H, W = img.shape
     miss = int(np.flatnonzero(img.samples.ravel() == 0)[0])
     body[len(body) - 4 * (H * W - miss)] = 1  # a missed pixel given a sample: the mask disagrees
     (tmp_path / "bad.hevr").write_bytes(_rewrite(blob, head, bytes(body)))
     with pytest.raises(hevr.CorruptStoreError, match="header field 'hits': expected the pixels whose sample count"):
         hevr.load_image(tmp_path / "bad.hevr")
-    (tmp_path / "short.hevr").write_bytes(_rewrite(blob, head, blob[12 + hl:-36]))
+    (tmp_path / "short.hevr").write_bytes(_rewrite(blob, head, blob[12 + hl : -36]))
     with pytest.raises(hevr.CorruptStoreError, match="truncated: .* bytes of sample counts"):
         hevr.load_image(tmp_path / "short.hevr")
-    for field, value, pattern in (("finish", "edge", "'finish': expected 'server' or 'client'"),
-                                  ("components", 3, "'components': expected an int in \\[1, 1\\]"),
-                                  ("channel", "colour", "'channel': expected one of")):
+    for field, value, pattern in (
+        ("finish", "edge", "'finish': expected 'server' or 'client'"),
+        ("components", 3, "'components': expected an int in \\[1, 1\\]"),
+        ("channel", "colour", "'channel': expected one of"),
+    ):
         (tmp_path / "f.hevr").write_bytes(_rewrite(blob, dict(head, **{field: value})))
         with pytest.raises(hevr.CorruptStoreError, match=pattern):
             hevr.load_image(tmp_path / "f.hevr")
@@ -305,17 +336,30 @@ def test_version_2_files_still_load(scene, tmp_path):
 
 # -- the planner of the sums -------------------------------------------------------------------------
 @settings(max_examples=60, deadline=None)
-@given(lo=st.integers(-10**6, 10**6), span=st.integers(0, 10**6), exp=st.integers(-6, 2),
-       counts=st.lists(st.integers(0, 400), min_size=1, max_size=20), trilinear=st.booleans(),
-       bits=st.sampled_from([256, 512, 2048]))
+@given(
+    lo=st.integers(-(10**6), 10**6),
+    span=st.integers(0, 10**6),
+    exp=st.integers(-6, 2),
+    counts=st.lists(st.integers(0, 400), min_size=1, max_size=20),
+    trilinear=st.booleans(),
+    bits=st.sampled_from([256, 512, 2048]),
+)
 def test_plan_sums_bounds_every_sum(lo, span, exp, counts, trilinear, bits):
     hi = lo + span
-    meta = type("M", (), {"scalar": ChannelInfo(exponent=exp, digits=None), "value_range": (lo * 10.0**exp,
-                                                                                              hi * 10.0**exp)})()
+    meta = type(
+        "M", (), {"scalar": ChannelInfo(exponent=exp, digits=None), "value_range": (lo * 10.0**exp, hi * 10.0**exp)}
+    )()
     n = (1 << (bits - 1)) + 1
     try:
-        p = plan_sums(n=n, channel="scalar", sampling="trilinear" if trilinear else "nearest", meta=meta,
-                      n_samples=np.array(counts), digits=3 if trilinear else 0, pack=True)
+        p = plan_sums(
+            n=n,
+            channel="scalar",
+            sampling="trilinear" if trilinear else "nearest",
+            meta=meta,
+            n_samples=np.array(counts),
+            digits=3 if trilinear else 0,
+            pack=True,
+        )
     except hevr.RenderPlanError:
         return
     per = (10**3 + 4) if trilinear else 1
@@ -339,5 +383,7 @@ def test_cached_packed_sums_are_not_shared_with_an_image(scene):
     assert again.stats["finish_tasks"] == 0 and np.array_equal(again.decrypt(priv), want)
     for c in again.ciphertexts:
         c[...] = 0
-    assert np.array_equal(hevr.render(ev, cam, density=0.3, mode="emphasize", progress=False).decrypt(priv),
-                          hevr.render(ev, cam, density=0.3, mode="emphasize", progress=False, cache=False).decrypt(priv))
+    assert np.array_equal(
+        hevr.render(ev, cam, density=0.3, mode="emphasize", progress=False).decrypt(priv),
+        hevr.render(ev, cam, density=0.3, mode="emphasize", progress=False, cache=False).decrypt(priv),
+    )

@@ -15,8 +15,10 @@ def test_bokeh_is_recent_enough():
 
 
 def test_the_dashboard_serves_its_status_page():
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address="127.0.0.1:0") as lc, \
-            Client(lc, set_as_default=False) as client:
+    with (
+        LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address="127.0.0.1:0") as lc,
+        Client(lc, set_as_default=False) as client,
+    ):
         assert client.dashboard_link.endswith("/status")
         port = lc.scheduler.http_server.port
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/status", timeout=30) as resp:

@@ -142,8 +142,7 @@ def test_swapped_bricks_are_detected(clean, names):
 def test_a_brick_from_another_store_of_the_same_key_is_detected(clean, tmp_path, keypair256):
     """Even the same volume, encrypted again under the same key: chunk and marker copied."""
     path, cam, priv, ref, vol = clean
-    other = hevr.encrypt_volume(vol, tmp_path / "other.zarr", keypair256[0], brick=BRICK, vector_dims=3,
-                                progress=False)
+    other = hevr.encrypt_volume(vol, tmp_path / "other.zarr", keypair256[0], brick=BRICK, vector_dims=3, progress=False)
     copy = tmp_path / "copy.zarr"
     shutil.copytree(path, copy)
     for name in ("scalar", "vector", "done"):
@@ -171,8 +170,12 @@ def test_a_truncated_or_missing_chunk_is_detected_without_quick_verify(clean, tm
 
 # -- the image file -------------------------------------------------------------------------------
 
-IMAGES = {"xray-packed": ("xray", True), "xray-unpacked": ("xray", False),
-          "emphasize-packed": ("emphasize", True), "emphasize-unpacked": ("emphasize", False)}
+IMAGES = {
+    "xray-packed": ("xray", True),
+    "xray-unpacked": ("xray", False),
+    "emphasize-packed": ("emphasize", True),
+    "emphasize-unpacked": ("emphasize", False),
+}
 
 
 @pytest.mark.parametrize("name", list(IMAGES))
@@ -203,9 +206,11 @@ def test_impossible_work_is_refused_at_once(clean):
     path, cam, _, _, vol = clean
     ev = hevr.open_volume(path)
     big = hevr.Camera.orbit(ev, width=16384, height=16384)
-    for call in (lambda: hevr.render(ev, cam, step=1e-9, progress=False),
-                 lambda: hevr.render_plain(vol, cam, step=1e-9),
-                 lambda: hevr.render(ev, big, progress=False)):
+    for call in (
+        lambda: hevr.render(ev, cam, step=1e-9, progress=False),
+        lambda: hevr.render_plain(vol, cam, step=1e-9),
+        lambda: hevr.render(ev, big, progress=False),
+    ):
         with pytest.raises(hevr.RenderPlanError, match="step|width, height"):
             call()
 

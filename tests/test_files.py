@@ -26,8 +26,10 @@ def test_missing_folder_is_a_missing_file_error_naming_the_folder(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
         _, priv = hevr.generate_keypair(128)
-    for call in (lambda: priv.save(tmp_path / "nodir" / "k.json"),
-                 lambda: hevr.save_volume(tmp_path / "nodir" / "v.npy", np.ones((2, 2, 2)))):
+    for call in (
+        lambda: priv.save(tmp_path / "nodir" / "k.json"),
+        lambda: hevr.save_volume(tmp_path / "nodir" / "v.npy", np.ones((2, 2, 2))),
+    ):
         with pytest.raises(hevr.MissingFileError, match="path: expected an existing folder") as info:
             call()
         assert isinstance(info.value, FileNotFoundError) and info.value.filename == str(tmp_path / "nodir")
@@ -52,7 +54,9 @@ def test_names_that_are_not_utf8_are_written_and_read_back(tmp_path, keypair256)
     pub.save(d + name + ".pub.json")
     vol = hevr.phantom(8)
     ev = hevr.encrypt_volume(vol, d + name + ".zarr", priv, brick=4, progress=False)
-    ev = hevr.encrypt_volume(vol, d + name + ".zarr", priv, brick=4, progress=False, overwrite=True)  # beside, then swapped
+    ev = hevr.encrypt_volume(
+        vol, d + name + ".zarr", priv, brick=4, progress=False, overwrite=True
+    )  # beside, then swapped
     cam = hevr.Camera.orbit(ev, width=6, height=5)
     img = hevr.render(ev, cam, progress=False, keep_sums=d + name + ".hevrsums")
     img.save(d + name + ".hevr")
@@ -62,16 +66,18 @@ def test_names_that_are_not_utf8_are_written_and_read_back(tmp_path, keypair256)
     hevr.save_volume(d + name + ".npy", vol)
     assert hevr.load_key(d + name + ".pub.json").fingerprint == pub.fingerprint
     written = sorted(os.listdir(os.fsencode(str(tmp_path))))
-    assert written == sorted(b"\xff\xfe" + s for s in (b".json", b".pub.json", b".zarr", b".hevrsums", b".hevr",
-                                                       b".png", b".npy")), written
+    assert written == sorted(
+        b"\xff\xfe" + s for s in (b".json", b".pub.json", b".zarr", b".hevrsums", b".hevr", b".png", b".npy")
+    ), written
 
 
 def test_a_name_no_filesystem_can_store_is_a_parameter_error(tmp_path, keypair256):
     bad = str(tmp_path / (chr(0xD800) + "x"))  # a lone surrogate that no bytes decode to
-    for call, name in ((lambda: keypair256[1].save(bad + ".json"), "path"),
-                       (lambda: hevr.save_png(np.ones((2, 2)), bad + ".png"), "path"),
-                       (lambda: hevr.encrypt_volume(hevr.phantom(4), bad + ".zarr", keypair256[1], progress=False),
-                        "path")):
+    for call, name in (
+        (lambda: keypair256[1].save(bad + ".json"), "path"),
+        (lambda: hevr.save_png(np.ones((2, 2)), bad + ".png"), "path"),
+        (lambda: hevr.encrypt_volume(hevr.phantom(4), bad + ".zarr", keypair256[1], progress=False), "path"),
+    ):
         with pytest.raises(hevr.ParameterError) as info:
             call()
         assert str(info.value).startswith(f"{name}: expected a name the filesystem can store")

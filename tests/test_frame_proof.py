@@ -29,18 +29,25 @@ def store(policy_keypair256, tmp_path, monkeypatch):
 
 def _render(ev, azimuth=30):
     with dask.config.set(scheduler="sync"):
-        return hevr.render(ev, hevr.Camera.orbit(ev, azimuth=azimuth, elevation=20, width=8, height=7),
-                           progress=False, cache=False)
+        return hevr.render(
+            ev, hevr.Camera.orbit(ev, azimuth=azimuth, elevation=20, width=8, height=7), progress=False, cache=False
+        )
 
 
 def test_expect_is_validated():
     assert hevr.Expect(store="0123456789abcdef", view="fedcba9876543210", max_age=60).max_age == 60.0
-    for kw, name in (({"store": "nope"}, "store"), ({"view": 3}, "view"), ({"max_age": -1}, "max_age"),
-                     ({"max_age": float("nan")}, "max_age"), ({"moved": "yes"}, "moved")):
+    for kw, name in (
+        ({"store": "nope"}, "store"),
+        ({"view": 3}, "view"),
+        ({"max_age": -1}, "max_age"),
+        ({"max_age": float("nan")}, "max_age"),
+        ({"moved": "yes"}, "moved"),
+    ):
         with pytest.raises(hevr.ParameterError, match=f"^{name}: expected"):
             hevr.Expect(**kw)
-    with pytest.raises(hevr.ParameterError, match="require_verified: expected True, False, a store id or a "
-                                                  "hevr.Expect"):
+    with pytest.raises(
+        hevr.ParameterError, match="require_verified: expected True, False, a store id or a hevr.Expect"
+    ):
         proof_module.as_expect(3)
 
 

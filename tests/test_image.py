@@ -14,8 +14,9 @@ from hevr.image.display import to_uint8
 def frame(tmp_path_factory, keypair256):
     rng = np.random.default_rng(1)
     vol = rng.integers(0, 256, (5, 6, 7)).astype(np.uint8)
-    ev = hevr.encrypt_volume(vol, tmp_path_factory.mktemp("i") / "v.zarr", keypair256[1], brick=3,
-                             vector_dims=2, progress=False)
+    ev = hevr.encrypt_volume(
+        vol, tmp_path_factory.mktemp("i") / "v.zarr", keypair256[1], brick=3, vector_dims=2, progress=False
+    )
     cam = hevr.Camera.orbit(ev, azimuth=10, width=9, height=8)
     return hevr.render(ev, cam, mode="tf", nodes=[(0.2, "red"), (0.8, "blue")], progress=False)
 
@@ -32,7 +33,9 @@ def test_save_load_round_trip(tmp_path, frame, keypair256):
     assert frame.shape == (8, 9, 3) and back.shape == (8, 9)  # the file does not say it is a transfer function
     assert back.exponent == frame.exponent and back.fingerprint == frame.fingerprint
     # the transfer function is not in the file: the client gives it again
-    assert np.array_equal(back.decrypt(keypair256[1], nodes=[(0.2, "red"), (0.8, "blue")]), frame.decrypt(keypair256[1]))
+    assert np.array_equal(
+        back.decrypt(keypair256[1], nodes=[(0.2, "red"), (0.8, "blue")]), frame.decrypt(keypair256[1])
+    )
     # compact: header + ciphertext bytes only
     w = keypair256[0].ciphertext_bytes
     assert path.stat().st_size < frame.n_ciphertexts * w + 4096
@@ -77,8 +80,10 @@ def _ras_volume() -> np.ndarray:
     return (100 * k + 10 * j + i).astype(np.float64)
 
 
-@pytest.mark.parametrize("kind, index, top, left", [
-    ("axial", 2, "anterior", "right"), ("coronal", 3, "superior", "right"), ("sagittal", 4, "superior", "anterior")])
+@pytest.mark.parametrize(
+    "kind, index, top, left",
+    [("axial", 2, "anterior", "right"), ("coronal", 3, "superior", "right"), ("sagittal", 4, "superior", "anterior")],
+)
 def test_save_png_turns_slices_the_radiological_way(tmp_path, kind, index, top, left):
     from hevr.rendering.reference.plain import render_slice_plain
 
@@ -94,10 +99,15 @@ def test_save_png_turns_slices_the_radiological_way(tmp_path, kind, index, top, 
     shown = hevr.image.orient_slice(raw, plane)
     k, j, i = np.meshgrid(*map(np.arange, vol.shape), indexing="ij")
     grid = (k, j, i)
-    cut = {"axial": (index, slice(None), slice(None)), "coronal": (slice(None), index, slice(None)),
-           "sagittal": (slice(None), slice(None), index)}[kind]
-    coords = {a: hevr.image.orient_slice(render_slice_plain(grid[ax].astype(float), plane), plane)
-              for a, ax in axis_of.items()}
+    cut = {
+        "axial": (index, slice(None), slice(None)),
+        "coronal": (slice(None), index, slice(None)),
+        "sagittal": (slice(None), slice(None), index),
+    }[kind]
+    coords = {
+        a: hevr.image.orient_slice(render_slice_plain(grid[ax].astype(float), plane), plane)
+        for a, ax in axis_of.items()
+    }
     assert (np.diff(coords[top], axis=0) < 0).all() and (np.diff(coords[left], axis=1) < 0).all()
     assert np.array_equal(np.sort(shown, axis=None), np.sort(vol[cut], axis=None))
     lay = hevr.image.slice_layout(plane)
@@ -112,7 +122,9 @@ def test_orient_slice_conventions_and_bad_input():
     assert np.array_equal(radio, neuro[:, ::-1]) and radio[0, 0] == vol[1, -1, -1]
     assert hevr.image.slice_layout(plane.to_dict())["left"] == "the patient's right"  # a frame's info["camera"]
     oblique = hevr.Plane.oblique(vol.shape, None, (0.1, 1, 0.2), width=5, height=5)
-    assert hevr.image.slice_layout(oblique)["kind"] == "coronal" and hevr.image.slice_layout(oblique)["top"] == "superior"
+    assert (
+        hevr.image.slice_layout(oblique)["kind"] == "coronal" and hevr.image.slice_layout(oblique)["top"] == "superior"
+    )
     with pytest.raises(hevr.ParameterError, match="convention: expected one of radiological, neurological"):
         hevr.image.orient_slice(vol[1], plane, "upside-down")
     with pytest.raises(hevr.ParameterError, match="plane: expected a hevr.Plane"):

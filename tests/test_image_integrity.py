@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 
 import hevr
+from hevr.core.limits import integrity_bits
+from hevr.crypto.records import mpz_to_bytes
 from hevr.image import header as image_header
 from hevr.image.header import MAGIC
-from hevr.core.limits import integrity_bits
 from hevr.image.tiles import TileLayout
-from hevr.crypto.records import mpz_to_bytes
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
 
@@ -51,8 +51,10 @@ def volumes():
 def stores(tmp_path_factory, keypair256, volumes):
     d = tmp_path_factory.mktemp("integrity")
     priv = keypair256[1]
-    return (hevr.encrypt_volume(volumes[0], d / "u.zarr", priv, brick=3, vector_dims=2, progress=False),
-            hevr.encrypt_volume(volumes[1], d / "s.zarr", priv, brick=(3, 4, 5), progress=False))
+    return (
+        hevr.encrypt_volume(volumes[0], d / "u.zarr", priv, brick=3, vector_dims=2, progress=False),
+        hevr.encrypt_volume(volumes[1], d / "s.zarr", priv, brick=(3, 4, 5), progress=False),
+    )
 
 
 def _camera(ev):
@@ -93,8 +95,7 @@ def _fresh(n, m):
 
 def _targets(img):
     """(tile, ciphertext) pairs spread over every tile: first, middle and last ciphertext."""
-    return sorted({(t, j) for t, c in enumerate(img.ciphertexts) if len(c)
-                   for j in (0, len(c) // 2, len(c) - 1)})
+    return sorted({(t, j) for t, c in enumerate(img.ciphertexts) if len(c) for j in (0, len(c) // 2, len(c) - 1)})
 
 
 # -- the images used here are meaningful ---------------------------------------------------
@@ -105,16 +106,20 @@ def test_integrity_margin_is_the_planners():
 
 def test_images_cover_the_cases(images):
     packed = [img for img in images.values() if img.per_pack > 1]
-    assert len(packed) == 5 and all(img.pack_bits * img.per_pack + integrity_bits(int(img.n).bit_length())
-                                    <= int(img.n).bit_length() - 1 for img in packed)
+    assert len(packed) == 5 and all(
+        img.pack_bits * img.per_pack + integrity_bits(int(img.n).bit_length()) <= int(img.n).bit_length() - 1
+        for img in packed
+    )
     assert images["xray-unpacked"].per_pack == images["tf-unpacked"].per_pack == 1
     assert images["signed-xray-trilinear"].offset > 0
     for img in images.values():
         assert img.bound is not None and len(img.ciphertexts) == 9
         assert sum(1 for c in img.ciphertexts if len(c)) >= 4
         # some tile ends with a partly filled group
-        need = [int(img.hits[r0:r1, c0:c1].sum()) * img.values_per_pixel for r0, r1, c0, c1 in
-                (TileLayout(9, 10, 4).bounds(t) for t in range(9))]
+        need = [
+            int(img.hits[r0:r1, c0:c1].sum()) * img.values_per_pixel
+            for r0, r1, c0, c1 in (TileLayout(9, 10, 4).bounds(t) for t in range(9))
+        ]
         if img.per_pack > 1:
             assert any(k % img.per_pack for k in need)
 
@@ -128,8 +133,9 @@ def test_valid_image_matches_plain(name, images, stores, volumes, keypair256):
     ev, vol = (stores[1], volumes[1]) if signed else (stores[0], volumes[0])
     cam = _camera(ev)
     got = images[name].decrypt(keypair256[1])
-    ref = hevr.render_plain(vol, cam, value_range=ev.meta.value_range,
-                            vector_dims=ev.vector_dims if kw["mode"] == "tf" else None, **kw)
+    ref = hevr.render_plain(
+        vol, cam, value_range=ev.meta.value_range, vector_dims=ev.vector_dims if kw["mode"] == "tf" else None, **kw
+    )
     err = hevr.error_bound(ev, cam, finish=finish, **kw)
     assert got.shape == ref.shape and np.count_nonzero(ref) > 10
     assert np.all(np.abs(got - ref) <= err), np.abs(got - ref).max()
@@ -164,11 +170,17 @@ def test_tile_with_one_ciphertext_too_many_or_too_few(name, images, keypair256):
     t = max(range(len(img.ciphertexts)), key=lambda i: len(img.ciphertexts[i]))
     recs = img.ciphertexts[t]
     for changed in (np.concatenate([recs, recs[:1]]), recs[:-1]):
-        with pytest.raises(hevr.IntegrityError, match=rf"image tile {t} \(rows \d+-\d+, cols \d+-\d+\): "
-                                                       rf"expected {len(recs)} ciphertexts"):
+        with pytest.raises(
+            hevr.IntegrityError,
+            match=rf"image tile {t} \(rows \d+-\d+, cols \d+-\d+\): "
+            rf"expected {len(recs)} ciphertexts",
+        ):
             _replace(img, t, changed).decrypt(keypair256[1])
-    empty = next(i for i, c in enumerate(img.ciphertexts) if len(c) == 0) if any(
-        len(c) == 0 for c in img.ciphertexts) else None
+    empty = (
+        next(i for i, c in enumerate(img.ciphertexts) if len(c) == 0)
+        if any(len(c) == 0 for c in img.ciphertexts)
+        else None
+    )
     if empty is not None:
         with pytest.raises(hevr.IntegrityError, match=f"image tile {empty} "):
             _replace(img, empty, recs[:1]).decrypt(keypair256[1])
@@ -207,10 +219,16 @@ def test_image_without_bound_or_with_bad_numbers(tmp_path, images, keypair256):
     with pytest.raises(hevr.IntegrityError, match="carries no bound"):
         dataclasses.replace(img, bound=None).save(tmp_path / "never.hevr")
     bits = int(img.n).bit_length()
-    for change, field in [({"bound": 1 << (bits - integrity_bits(bits))}, "bound"), ({"offset": -1}, "offset"),
-                          ({"exponent": 10**9}, "exponent"), ({"per_pack": img.per_pack * 10}, "per_pack"),
-                          ({"tile": 0}, "tile"), ({"shape": (10, 9, 4)}, "shape"),
-                          ({"hits": img.hits[:, :-1]}, "hits"), ({"n": int(img.n) + 2}, "modulus n")]:
+    for change, field in [
+        ({"bound": 1 << (bits - integrity_bits(bits))}, "bound"),
+        ({"offset": -1}, "offset"),
+        ({"exponent": 10**9}, "exponent"),
+        ({"per_pack": img.per_pack * 10}, "per_pack"),
+        ({"tile": 0}, "tile"),
+        ({"shape": (10, 9, 4)}, "shape"),
+        ({"hits": img.hits[:, :-1]}, "hits"),
+        ({"n": int(img.n) + 2}, "modulus n"),
+    ]:
         with pytest.raises(hevr.IntegrityError, match=field):
             dataclasses.replace(img, **change).decrypt(priv)
 
@@ -236,9 +254,13 @@ def test_every_flipped_bit_of_the_file_is_detected(tmp_path, images):
     images["tf-packed"].save(path)
     blob = path.read_bytes()
     (hl,) = struct.unpack("<I", blob[8:12])
-    regions = {"magic": range(8), "length": range(8, 12), "header": range(12, 12 + hl, max(1, hl // 60)),
-               "body": range(12 + hl, len(blob) - 32, max(1, (len(blob) - 44 - hl) // 60)),
-               "checksum": range(len(blob) - 32, len(blob))}
+    regions = {
+        "magic": range(8),
+        "length": range(8, 12),
+        "header": range(12, 12 + hl, max(1, hl // 60)),
+        "body": range(12 + hl, len(blob) - 32, max(1, (len(blob) - 44 - hl) // 60)),
+        "checksum": range(len(blob) - 32, len(blob)),
+    }
     trials = 0
     for region, positions in regions.items():
         for pos in positions:
@@ -273,7 +295,7 @@ def valid(tmp_path_factory, images):
     images["tf-server"].save(path)  # the header rules; a client frame's samples: tests/test_colour.py
     blob = path.read_bytes()
     (hl,) = struct.unpack("<I", blob[8:12])
-    return json.loads(blob[12:12 + hl]), blob[12 + hl:-32]
+    return json.loads(blob[12 : 12 + hl]), blob[12 + hl : -32]
 
 
 def _edit(h, **changes):
@@ -316,8 +338,19 @@ def _cases(h, body):
         yield f"version-{v}", _file(_edit(h, version=v), body), "header field 'version'"
     yield "missing-bound", _file(_edit(h, bound=_DROP), body), "header field 'bound': expected the field"
     yield "extra", _file(_edit(h, colour="red"), body), "unexpected field 'colour'"
-    for v in ("10x9", [10], [10, 9, 4], [0, 9], [-1, 9], [10.0, 9], [True, 9], [10, "9"], None,
-              [1 << 20, 1 << 20], [10, 9, 3, 1]):
+    for v in (
+        "10x9",
+        [10],
+        [10, 9, 4],
+        [0, 9],
+        [-1, 9],
+        [10.0, 9],
+        [True, 9],
+        [10, "9"],
+        None,
+        [1 << 20, 1 << 20],
+        [10, 9, 3, 1],
+    ):
         yield f"shape-{v!r:.20}", _file(_edit(h, shape=v), body), "header field 'shape'"
     yield "n-int", _file(_edit(h, n=int(h["n"])), body), r"invalid JSON \(an integer of \d+ digits"
     for v in ("", "-1" + h["n"], "0x1f", "1_0", " " + h["n"], "0" + h["n"], _BIG, "١٢٣", None):
@@ -356,8 +389,11 @@ def _cases(h, body):
         yield f"info-{v!r}", _file(_edit(h, info=v), body), "header field 'info'"
     yield "body-short", _file(h, body[:-1]), "truncated: expected"
     yield "body-long", _file(h, body + b"\x00"), "too long: expected"
-    yield "huge-image", _file(_edit(h, shape=[8192, 8192], tile=1, hits=None), body), \
-        f"header field 'counts': expected a list of {8192 * 8192} ints"
+    yield (
+        "huge-image",
+        _file(_edit(h, shape=[8192, 8192], tile=1, hits=None), body),
+        f"header field 'counts': expected a list of {8192 * 8192} ints",
+    )
     yield "many-tiles", _file(_edit(h, counts=[0] * n_tiles * 1000), body), "header field 'counts'"
 
 
@@ -399,8 +435,9 @@ def test_large_hits_mask_memory(tmp_path, valid):
     H = W = 2048
     mask = np.packbits(np.zeros(H * W, bool))
     tiles = (H // 64) ** 2
-    head = _edit(h, shape=[H, W], tile=64, hits=base64.b64encode(mask.tobytes()).decode(),
-                 counts=[0] * tiles, components=1)
+    head = _edit(
+        h, shape=[H, W], tile=64, hits=base64.b64encode(mask.tobytes()).decode(), counts=[0] * tiles, components=1
+    )
     data = _file(head)
     path = tmp_path / "big.hevr"
     path.write_bytes(data)

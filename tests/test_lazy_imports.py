@@ -18,8 +18,14 @@ import pytest
 import hevr
 from hevr.core.lazy import exported
 
-PACKAGES = ("hevr", "hevr.rendering", "hevr.rendering.geometry", "hevr.rendering.planning", "hevr.rendering.pipeline",
-            "hevr.rendering.reference")
+PACKAGES = (
+    "hevr",
+    "hevr.rendering",
+    "hevr.rendering.geometry",
+    "hevr.rendering.planning",
+    "hevr.rendering.pipeline",
+    "hevr.rendering.reference",
+)
 
 
 def _type_checking_imports(package: str) -> dict[str, str]:
@@ -77,8 +83,9 @@ print("ok")
 
 
 def test_a_fresh_interpreter_sees_the_eager_behaviour(tmp_path):
-    out = subprocess.run([sys.executable, "-c", FRESH], cwd=tmp_path, capture_output=True, text=True, timeout=120,
-                         check=False)
+    out = subprocess.run(
+        [sys.executable, "-c", FRESH], cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False
+    )
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-3000:]
 
 

@@ -56,6 +56,7 @@ def test_a_refused_mallopt_or_no_glibc_is_false(monkeypatch):
 
     def missing(name):
         raise OSError("no libc")
+
     monkeypatch.setattr(ctypes, "CDLL", missing)
     assert malloc.tune() is False
 
@@ -68,13 +69,16 @@ def _tuned() -> list:
 def test_render_tasks_tune_their_worker(tmp_path, keypair256):
     """Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_ set; the first render task there
     sets the thresholds (and a worker of a cluster started with the setting off does not)."""
-    ev = hevr.encrypt_volume(np.arange(60, dtype=np.uint8).reshape(3, 4, 5), tmp_path / "v.zarr", keypair256[1],
-                             brick=2, progress=False)
+    ev = hevr.encrypt_volume(
+        np.arange(60, dtype=np.uint8).reshape(3, 4, 5), tmp_path / "v.zarr", keypair256[1], brick=2, progress=False
+    )
     cam = hevr.Camera.orbit(ev, width=5, height=4)
     for setting, want in ((True, [True]), (False, [])):
-        with dask.config.set({"hevr.malloc-tuning": setting}), \
-                LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as lc, \
-                Client(lc) as c:
+        with (
+            dask.config.set({"hevr.malloc-tuning": setting}),
+            LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as lc,
+            Client(lc) as c,
+        ):
             assert list(c.run(_tuned).values()) == [[]]  # a fresh worker: nothing set yet
             hevr.render(ev, cam, progress=False, cache=False, client=c)
             assert list(c.run(_tuned).values()) == [want]
@@ -82,6 +86,8 @@ def test_render_tasks_tune_their_worker(tmp_path, keypair256):
 
 def test_a_misspelt_setting_is_refused_by_name(monkeypatch):
     monkeypatch.setattr(malloc, "_DONE", [])
-    with dask.config.set({"hevr.malloc-tuning": "flase"}), pytest.raises(hevr.ParameterError,
-                                                                     match="hevr.malloc-tuning: expected true or false"):
+    with (
+        dask.config.set({"hevr.malloc-tuning": "flase"}),
+        pytest.raises(hevr.ParameterError, match="hevr.malloc-tuning: expected true or false"),
+    ):
         malloc.tune()

@@ -54,14 +54,18 @@ def _committed(name: str):
 def _summary(nb) -> dict:
     cells = [c for c in nb.cells if "summary" in c.get("metadata", {}).get("tags", [])]
     assert len(cells) == 1, "expected exactly one cell tagged 'summary'"
-    text = "".join(o.get("text", "") for o in cells[0].outputs
-                   if o.output_type == "stream" and o.name == "stdout")
+    text = "".join(o.get("text", "") for o in cells[0].outputs if o.output_type == "stream" and o.name == "stdout")
     return json.loads(text.strip().splitlines()[-1])
 
 
 def _pngs(nb) -> list[bytes]:
-    return [base64.b64decode(o.data["image/png"]) for c in nb.cells if c.cell_type == "code"
-            for o in c.outputs if "image/png" in o.get("data", {})]
+    return [
+        base64.b64decode(o.data["image/png"])
+        for c in nb.cells
+        if c.cell_type == "code"
+        for o in c.outputs
+        if "image/png" in o.get("data", {})
+    ]
 
 
 def _check_quickstart(s: dict) -> None:
@@ -101,7 +105,7 @@ def _check_scaling(s: dict) -> None:
     tasks = [r["map_tasks"] for r in bricks]
     assert tasks == sorted(tasks, reverse=True) and len(set(tasks)) == 3, tasks
     assert all(r["map_tasks"] <= r["bricks"] for r in bricks)
-    assert s["brick_images_identical"] is True   # exact integer ray sums: bricking changes nothing
+    assert s["brick_images_identical"] is True  # exact integer ray sums: bricking changes nothing
     keys = s["keys"]
     assert [r["bits"] for r in keys] == [256, 512, 1024]
     assert all(r["render_s"] > 0 and r["decrypt_s"] > 0 and r["volume_us_per_voxel"] > 0 for r in keys)
@@ -144,7 +148,7 @@ def test_sources_are_python_with_one_summary_cell():
     assert sorted(srcs) == NOTEBOOKS
     for name, path in srcs.items():
         text = path.read_text(encoding="utf-8")
-        compile(text, str(path), "exec")   # SyntaxError if the source is not Python
+        compile(text, str(path), "exec")  # SyntaxError if the source is not Python
         nb = build.notebook_from_source(path)
         code = [c for c in nb.cells if c.cell_type == "code"]
         assert len(code) >= 5 and any(c.cell_type == "markdown" for c in nb.cells), name
@@ -166,9 +170,9 @@ def test_check_detects_stale_and_unexecuted_notebooks(tmp_path):
 
     original = src.read_text(encoding="utf-8")
     edits = [
-        original.replace("KEY_BITS = 512", "KEY_BITS = 1024", 1),                 # code
-        original.replace("# # hevr quick start", "# # hevr quickstart", 1),       # markdown
-        original.replace('# %% tags=["summary"]', "# %%", 1),                     # tags
+        original.replace("KEY_BITS = 512", "KEY_BITS = 1024", 1),  # code
+        original.replace("# # hevr quick start", "# # hevr quickstart", 1),  # markdown
+        original.replace('# %% tags=["summary"]', "# %%", 1),  # tags
     ]
     for edited in edits:
         assert edited != original
@@ -207,7 +211,7 @@ def test_committed_summary_passes_the_checks(name):
 
 def test_output_problems_flags_paths_and_key_numbers():
     """Guard for the output check used by the build and by --check."""
-    p = 2**127 - 1   # a (Mersenne) prime, standing in for a key's secret prime
+    p = 2**127 - 1  # a (Mersenne) prime, standing in for a key's secret prime
     bad = [
         f"temporary files in {ROOT / 'x'}",
         "EncryptedVolume('/tmp/hevr-quickstart-abc/phantom.zarr')",
@@ -251,12 +255,12 @@ def test_output_problems_flags_paths_and_key_numbers():
 def test_notebook_runs(name, record_property):
     nb = _committed(name)
     t0 = time.perf_counter()
-    build.execute(nb)   # CellExecutionError on the first failing cell; NotebookOutputError on a leak
+    build.execute(nb)  # CellExecutionError on the first failing cell; NotebookOutputError on a leak
     seconds = time.perf_counter() - t0
     record_property("seconds", round(seconds, 1))
     print(f"{name}: {seconds:.1f} s")
 
-    assert all(c.get("id") != "probe" for c in nb.cells)   # the probe is never kept
+    assert all(c.get("id") != "probe" for c in nb.cells)  # the probe is never kept
     for cell in nb.cells:
         if cell.cell_type == "code":
             errors = [o for o in cell.outputs if o.output_type == "error"]
@@ -270,12 +274,16 @@ def test_notebook_runs(name, record_property):
 def test_execute_rejects_a_notebook_that_prints_a_private_prime():
     """The probe in the kernel finds the live private key; a printed prime fails the build."""
     nb = nbformat.v4.new_notebook()
-    for i, src in enumerate([
-        ("import warnings\nimport hevr\nwarnings.simplefilter('ignore', hevr.InsecureKeyWarning)\n"
-         "pub, priv = hevr.generate_keypair(256)"),
-        "print('modulus bits:', pub.bits)",
-        "print('q =', priv.q)",
-    ]):
+    for i, src in enumerate(
+        [
+            (
+                "import warnings\nimport hevr\nwarnings.simplefilter('ignore', hevr.InsecureKeyWarning)\n"
+                "pub, priv = hevr.generate_keypair(256)"
+            ),
+            "print('modulus bits:', pub.bits)",
+            "print('q =', priv.q)",
+        ]
+    ):
         cell = nbformat.v4.new_code_cell(src)
         cell.id = f"t-{i:02d}"
         nb.cells.append(cell)

@@ -23,7 +23,7 @@ from distributed import Client, LocalCluster
 import hevr
 from hevr.runtime import scheduler as _dask
 
-SCHEDULER = textwrap.dedent('''
+SCHEDULER = textwrap.dedent("""
     import asyncio, sys
     from distributed import Scheduler
 
@@ -33,7 +33,7 @@ SCHEDULER = textwrap.dedent('''
             await asyncio.get_running_loop().run_in_executor(None, sys.stdin.read)  # until stdin closes
 
     asyncio.run(main())
-''')
+""")
 
 
 @pytest.fixture(autouse=True)
@@ -52,8 +52,7 @@ def _fake(address, cluster=None):
 def tcp_cluster():
     """An in-process cluster reached by its tcp address: ``Client(address)`` has no cluster object,
     the "this process did not start it" case by the rule, cheap to run for real."""
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp",
-                      dashboard_address=None) as lc:
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp", dashboard_address=None) as lc:
         assert lc.scheduler_address.startswith("tcp://127.0.0.1:")
         yield lc
 
@@ -67,8 +66,15 @@ def joined(tcp_cluster):
 
 # -- the decision, without a cluster --------------------------------------------------------------
 def test_no_address_is_trusted_by_its_spelling():
-    for address in ("tcp://127.0.0.1:8786", "tcp://localhost:8786", "tcp://[::1]:8786", "tls://127.0.0.2:1",
-                    "tcp://localhost.example.org:8786", "tcp://127.0.0.1.nip.io:8786", "tcp://10.0.0.5:8786"):
+    for address in (
+        "tcp://127.0.0.1:8786",
+        "tcp://localhost:8786",
+        "tcp://[::1]:8786",
+        "tls://127.0.0.2:1",
+        "tcp://localhost.example.org:8786",
+        "tcp://127.0.0.1.nip.io:8786",
+        "tcp://10.0.0.5:8786",
+    ):
         assert not _dask.is_own_cluster(_fake(address)), address
         with pytest.raises(hevr.ForeignClusterError, match=r"hevr\.connect"):
             _dask.refuse_foreign_cluster(_fake(address))
@@ -105,8 +111,16 @@ def test_the_refusal_names_the_scheduler_the_reason_and_both_ways_out():
     assert isinstance(err, hevr.HevrError) and isinstance(err, PermissionError)
     text = str(err)
     assert text.startswith("client: expected ")
-    for part in ("tcp://127.0.0.1:8786", "while decrypting", "unpickles", "private key", "hevr.connect(URL)",
-                 "hevr serve", "hevr.own_cluster(client)", "HEVR_OWN_CLUSTER=tcp://127.0.0.1:8786"):
+    for part in (
+        "tcp://127.0.0.1:8786",
+        "while decrypting",
+        "unpickles",
+        "private key",
+        "hevr.connect(URL)",
+        "hevr serve",
+        "hevr.own_cluster(client)",
+        "HEVR_OWN_CLUSTER=tcp://127.0.0.1:8786",
+    ):
         assert part in text, part
 
 
@@ -122,8 +136,7 @@ def test_warn_if_remote_has_no_prefix_guessing():
 # -- a scheduler in a separate process, on loopback: the tunnel case --------------------------------
 @pytest.fixture(scope="module")
 def other_scheduler():
-    proc = subprocess.Popen([sys.executable, "-c", SCHEDULER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen([sys.executable, "-c", SCHEDULER], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         address = proc.stdout.readline().strip()
         assert address.startswith("tcp://127.0.0.1:"), address
@@ -142,8 +155,7 @@ def test_a_loopback_scheduler_of_another_process_is_refused_until_declared(other
     with Client(other_scheduler, set_as_default=False, timeout="20s") as client:
         assert client.cluster is None
         with pytest.raises(hevr.ForeignClusterError, match=r"hevr\.connect") as info:
-            hevr.encrypt_volume(np.zeros((2, 2, 2), np.uint8), str(path), priv, brick=2, progress=False,
-                                client=client)
+            hevr.encrypt_volume(np.zeros((2, 2, 2), np.uint8), str(path), priv, brick=2, progress=False, client=client)
         assert other_scheduler in str(info.value)
         assert not path.exists()  # refused before anything was written
         with client.as_current():  # the active client is the one checked when none is given
@@ -169,8 +181,9 @@ def test_encrypting_with_the_private_key_needs_the_opt_in(joined, keypair256, tm
 def test_public_key_encryption_is_warned_of_not_refused(joined, keypair256, tmp_path, caplog):
     pub, _ = keypair256
     with caplog.at_level(logging.WARNING, logger="hevr.store.writer"):
-        hevr.encrypt_volume(np.zeros((2, 2, 2), np.uint8), str(tmp_path / "p.zarr"), pub, brick=2,
-                            progress=False, client=joined)
+        hevr.encrypt_volume(
+            np.zeros((2, 2, 2), np.uint8), str(tmp_path / "p.zarr"), pub, brick=2, progress=False, client=joined
+        )
     assert any("plaintext bricks" in r.getMessage() and "did not start" in r.getMessage() for r in caplog.records)
 
 
@@ -186,10 +199,10 @@ def test_a_cluster_object_made_here_keeps_working(tcp_cluster, keypair256, tmp_p
     pub, priv = keypair256
     with Client(tcp_cluster, set_as_default=False) as client:  # the README's Client(LocalCluster(...))
         assert client.cluster is tcp_cluster
-        ev = hevr.encrypt_volume(hevr.phantom(4), str(tmp_path / "c.zarr"), priv, brick=4, progress=False,
-                                 client=client)
-        frame = hevr.render_frame(ev, hevr.Camera.orbit(ev, width=3, height=3), priv, client=client,
-                                  progress=False)
+        ev = hevr.encrypt_volume(
+            hevr.phantom(4), str(tmp_path / "c.zarr"), priv, brick=4, progress=False, client=client
+        )
+        frame = hevr.render_frame(ev, hevr.Camera.orbit(ev, width=3, height=3), priv, client=client, progress=False)
     assert frame.image.shape[:2] == (3, 3)
 
 

@@ -9,9 +9,8 @@ import logging
 import dask
 import pytest
 
-from hevr.runtime import scheduler as _dask
-
 from hevr.runtime import progress as _progress
+from hevr.runtime import scheduler as _dask
 from hevr.runtime.progress import Progress, TaskCounter, sink_kind
 
 

@@ -95,16 +95,22 @@ def store(tmp_path, keypair256):
 
 # -- stores ------------------------------------------------------------------------------------
 DOCUMENTS = ["zarr.json", "scalar/zarr.json", "vector/zarr.json", "done/zarr.json"]
-CHUNKS = {"scalar/c/0/1/1/0": ("scalar", (0, 1, 1)), "vector/c/0/2/0/1/0": ("vector", (2, 0, 1)),
-          "done/c/1/2/0/0/0": ("scalar", (1, 2, 0))}
+CHUNKS = {
+    "scalar/c/0/1/1/0": ("scalar", (0, 1, 1)),
+    "vector/c/0/2/0/1/0": ("vector", (2, 0, 1)),
+    "done/c/1/2/0/0/0": ("scalar", (1, 2, 0)),
+}
 
 
 @pytest.mark.parametrize("kind", ["fifo", "folder", "socket"])
 @pytest.mark.parametrize("rel", DOCUMENTS)
 def test_a_metadata_document_that_is_not_a_file_is_a_corrupt_store(store, rel, kind):
     f = _replace(store / rel, kind)
-    with pytest.raises(hevr.CorruptStoreError, match=rf"expected the metadata document {rel} \(a regular file\), "
-                                                     rf"got a {'FIFO' if kind == 'fifo' else kind}"):
+    with pytest.raises(
+        hevr.CorruptStoreError,
+        match=rf"expected the metadata document {rel} \(a regular file\), "
+        rf"got a {'FIFO' if kind == 'fifo' else kind}",
+    ):
         _bounded(lambda: hevr.open_volume(store), f)
 
 
@@ -117,8 +123,11 @@ def test_a_chunk_that_is_not_a_file_is_named_at_open_and_on_read(store, rel, kin
     with pytest.raises(hevr.CorruptStoreError, match=rf"brick \({brick[0]}, {brick[1]}, {brick[2]}\).*{got}"):
         _bounded(lambda: hevr.open_volume(store), f)  # the quick check
     ev = hevr.open_volume(store, verify="none")
-    with pytest.raises(hevr.CorruptStoreError, match=rf"brick \({brick[0]}, {brick[1]}, {brick[2]}\) of channel "
-                                                     rf"'{channel}'.*{got} at {re.escape(str(f))}"):
+    with pytest.raises(
+        hevr.CorruptStoreError,
+        match=rf"brick \({brick[0]}, {brick[1]}, {brick[2]}\) of channel "
+        rf"'{channel}'.*{got} at {re.escape(str(f))}",
+    ):
         _bounded(lambda: ev.read_brick(brick, channel), f)
     with pytest.raises(hevr.CorruptStoreError, match=rf"brick \({brick[0]}, {brick[1]}, {brick[2]}\)"):
         _bounded(lambda: hevr.open_volume(store, verify="full"), f)
@@ -162,8 +171,9 @@ def test_load_sums_and_recolour_refuse_what_is_not_a_file(tmp_path, kind):
 
 
 # -- volume inputs -----------------------------------------------------------------------------
-@pytest.mark.parametrize("name", ["a.npy", "b_4x4x4_uint8.raw", "c.nrrd", "d.nhdr", "e.nii", "f.nii.gz",
-                                  "g.mgz", "h.tif", "i.dcm"])
+@pytest.mark.parametrize(
+    "name", ["a.npy", "b_4x4x4_uint8.raw", "c.nrrd", "d.nhdr", "e.nii", "f.nii.gz", "g.mgz", "h.tif", "i.dcm"]
+)
 def test_a_volume_input_that_is_a_fifo_is_refused(tmp_path, name):
     f = _replace(tmp_path / name, "fifo")
     with pytest.raises(hevr.NotRegularFileError, match=r"expected a volume file \(a regular file\), got a FIFO"):
@@ -191,17 +201,23 @@ def test_a_fifo_chunk_in_a_zarr_input_is_refused(tmp_path):
     z = tmp_path / "in.zarr"
     zarr.create_array(z, shape=(4, 4, 4), chunks=(2, 2, 2), dtype="int16")[:] = 1
     f = _replace(z / "c/1/0/1", "fifo")
-    with pytest.raises(hevr.VolumeFormatError, match=r"a file of the Zarr input in.zarr \(a regular file\), got a FIFO"):
+    with pytest.raises(
+        hevr.VolumeFormatError, match=r"a file of the Zarr input in.zarr \(a regular file\), got a FIFO"
+    ):
         _bounded(lambda: read_scan(z), f)
 
 
 # -- a zstd chunk that does not parse ----------------------------------------------------------
-@pytest.mark.parametrize("damage, words", [
-    (lambda b: b"\0\0\0\0" + b[4:], "does not start with the zstd magic number"),
-    (lambda b: b[:8], r"a block header was due at byte 7, but the file has 8 bytes \(truncated\)"),
-    (lambda b: b[:7] + bytes([b[7] | 0b110]) + b[8:], "the block header at byte 7 has the reserved block type 3"),
-    (lambda b: b[:3], "too few for a zstd frame header"),
-], ids=["magic", "cut-in-a-block-header", "reserved-block-type", "cut-in-the-frame-header"])
+@pytest.mark.parametrize(
+    "damage, words",
+    [
+        (lambda b: b"\0\0\0\0" + b[4:], "does not start with the zstd magic number"),
+        (lambda b: b[:8], r"a block header was due at byte 7, but the file has 8 bytes \(truncated\)"),
+        (lambda b: b[:7] + bytes([b[7] | 0b110]) + b[8:], "the block header at byte 7 has the reserved block type 3"),
+        (lambda b: b[:3], "too few for a zstd frame header"),
+    ],
+    ids=["magic", "cut-in-a-block-header", "reserved-block-type", "cut-in-the-frame-header"],
+)
 def test_a_zstd_chunk_that_does_not_parse_says_what_is_wrong(store, damage, words):
     """Not "expected 3 bytes" (the frame length -1 plus the crc): the chunk, and why. The chunk
     is one raw zstd block behind a 7-byte frame header (single segment, 2-byte content size)."""
@@ -211,8 +227,9 @@ def test_a_zstd_chunk_that_does_not_parse_says_what_is_wrong(store, damage, word
         hevr.open_volume(store)
     text = str(info.value)
     assert "expected 3 bytes" not in text
-    assert "chunk scalar/c/0/1/1/0 of brick (0, 1, 1) in channel 'scalar' is damaged (not a complete zstd frame: " \
-        in text
+    assert (
+        "chunk scalar/c/0/1/1/0 of brick (0, 1, 1) in channel 'scalar' is damaged (not a complete zstd frame: " in text
+    )
     assert re.search(words, text), text
 
 
@@ -245,8 +262,7 @@ def test_overwriting_or_resuming_a_store_whose_zarr_json_is_a_fifo_does_not_bloc
     vol = np.zeros(SHAPE, np.uint8)
     for kw in ({"overwrite": True}, {"resume": True}):
         with pytest.raises(hevr.HevrError):
-            _bounded(lambda: hevr.encrypt_volume(vol, store, keypair256[0], brick=BRICK, progress=False, **kw),
-                     fifo)
+            _bounded(lambda: hevr.encrypt_volume(vol, store, keypair256[0], brick=BRICK, progress=False, **kw), fifo)
     assert fifo.is_fifo()  # refused, not replaced: it is no hevr store
 
 
@@ -263,8 +279,12 @@ def test_resuming_a_store_with_a_fifo_digest_marker_does_not_block(store, keypai
     vol = np.random.default_rng(5).integers(0, 256, SHAPE).astype(np.uint8)  # the fixture's volume
     fifo = _replace(store / "done/c/1/2/0/0/0", "fifo")
     with pytest.raises(hevr.CorruptStoreError, match=r"brick \(1, 2, 0\).*got a FIFO"):
-        _bounded(lambda: hevr.encrypt_volume(vol, store, keypair256[0], brick=BRICK, vector_dims=3, progress=False,
-                                             resume=True), fifo)
+        _bounded(
+            lambda: hevr.encrypt_volume(
+                vol, store, keypair256[0], brick=BRICK, vector_dims=3, progress=False, resume=True
+            ),
+            fifo,
+        )
 
 
 # -- review: upgrade_store reads its source through the same checks ------------------------------

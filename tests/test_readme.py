@@ -14,8 +14,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 # (as printed, for this test): keep the run to seconds; each must be found in the README
-SMALLER = [("bits=2048", "bits=256"), ("hevr.phantom(64)", "hevr.phantom(12)"), ("brick=32", "brick=6"),
-           ("width=150, height=150", "width=20, height=16")]
+SMALLER = [
+    ("bits=2048", "bits=256"),
+    ("hevr.phantom(64)", "hevr.phantom(12)"),
+    ("brick=32", "brick=6"),
+    ("width=150, height=150", "width=20, height=16"),
+]
 
 
 def _example() -> str:

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr.runtime import scheduler as _dask
-from hevr.runtime import progress as _progress
 from hevr.cli.main import main
 from hevr.rendering import encrypted as encrypted_mod
 from hevr.rendering.pipeline import sums as sums_mod
+from hevr.runtime import progress as _progress
+from hevr.runtime import scheduler as _dask
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
 
@@ -34,17 +34,24 @@ def stores(tmp_path_factory, keypair256):
     d = tmp_path_factory.mktemp("review17")
     both = hevr.encrypt_volume(hevr.phantom(8), d / "both.zarr", priv, brick=4, vector_dims=4, progress=False)
     fvol = (np.random.default_rng(1).random((8, 8, 8)) * 7 - 3).astype(np.float32)
-    flt = hevr.encrypt_volume(fvol, d / "float.zarr", priv, brick=4, vector_dims=3, value_range=(-3, 4.5),
-                              progress=False)
-    vonly = hevr.encrypt_volume(hevr.phantom(8), d / "vonly.zarr", priv, brick=4, vector_dims=2, scalar=False,
-                                progress=False)
+    flt = hevr.encrypt_volume(
+        fvol, d / "float.zarr", priv, brick=4, vector_dims=3, value_range=(-3, 4.5), progress=False
+    )
+    vonly = hevr.encrypt_volume(
+        hevr.phantom(8), d / "vonly.zarr", priv, brick=4, vector_dims=2, scalar=False, progress=False
+    )
     return {"both": both, "float": flt, "vonly": vonly, "dir": d}
 
 
 def _same(a: hevr.EncryptedImage, b: hevr.EncryptedImage) -> bool:
-    return (a.shape[:2] == b.shape[:2] and a.exponent == b.exponent and a.offset == b.offset and a.per_pack == b.per_pack
-            and len(a.ciphertexts) == len(b.ciphertexts)
-            and all(np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts)))
+    return (
+        a.shape[:2] == b.shape[:2]
+        and a.exponent == b.exponent
+        and a.offset == b.offset
+        and a.per_pack == b.per_pack
+        and len(a.ciphertexts) == len(b.ciphertexts)
+        and all(np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts))
+    )
 
 
 def _sums_file(ev, cam, path, **kw):
@@ -52,7 +59,7 @@ def _sums_file(ev, cam, path, **kw):
     hevr.render(ev, cam, keep_sums=path, cache=False, progress=False, **kw)
     blob = path.read_bytes()
     (hl,) = struct.unpack_from("<I", blob, 9)
-    return json.loads(blob[13:13 + hl]), blob[13 + hl:-32]
+    return json.loads(blob[13 : 13 + hl]), blob[13 + hl : -32]
 
 
 def _write(path, head, body):
@@ -88,11 +95,15 @@ def test_recolour_is_bit_identical_across_modes_and_parameters(stores, tmp_path,
     ev = stores[name]
     cam = _camera(camkind, ev)
     path = tmp_path / "v.hevrsums"
-    common = dict(sampling=sampling, step=step, tile=tile, pack=pack, precision=precision, comb_digits=comb,
-                  digits=digits)
+    common = dict(
+        sampling=sampling, step=step, tile=tile, pack=pack, precision=precision, comb_digits=comb, digits=digits
+    )
     hevr.clear_cache()
     hevr.render(ev, cam, mode="tf", nodes=NODES, keep_sums=path, cache=False, progress=False, **common)
-    for mode, kw in [("tf", {"nodes": [(0.0, "lime"), (0.5, "#ff0"), (1.0, "white")]}), ("emphasize", {"density": 0.4})]:
+    for mode, kw in [
+        ("tf", {"nodes": [(0.0, "lime"), (0.5, "#ff0"), (1.0, "white")]}),
+        ("emphasize", {"density": 0.4}),
+    ]:
         again = hevr.recolour(path, mode=mode, precision=precision, comb_digits=comb, pack=pack, progress=False, **kw)
         full = hevr.render(ev, cam, mode=mode, cache=False, progress=False, **common, **kw)
         assert again.stats["map_tasks"] == 0
@@ -127,8 +138,12 @@ def test_load_sums_refuses_a_camera_bigger_than_any_image(stores, tmp_path):
     ev = stores["both"]
     head, _ = _sums_file(ev, hevr.Camera.orbit(ev, width=9, height=7), tmp_path / "a.hevrsums")
     side, tile = 16384, 4096  # 268 M pixels, 4x the image cap; 16 tiles
-    head = dict(head, camera=dict(head["camera"], width=side, height=side), tile=tile,
-                tiles=[[i, -1] for i in range((side // tile) ** 2)])
+    head = dict(
+        head,
+        camera=dict(head["camera"], width=side, height=side),
+        tile=tile,
+        tiles=[[i, -1] for i in range((side // tile) ** 2)],
+    )
     _write(tmp_path / "b.hevrsums", head, b"")
     t0 = time.perf_counter()
     with pytest.raises(hevr.CorruptStoreError, match="camera"):
@@ -155,8 +170,14 @@ def test_load_sums_refuses_weight_digits_with_nearest_sampling(stores, tmp_path)
     [0, 9] is accepted; recolour then trips its 'pragma: no cover' branch and raises a bare
     HevrError ('sums: expected weights of 0 digits, got 3') instead of the loader's CorruptStoreError."""
     ev = stores["both"]
-    head, body = _sums_file(ev, hevr.Camera.orbit(ev, width=9, height=7), tmp_path / "a.hevrsums",
-                            mode="tf", nodes=NODES, sampling="nearest")
+    head, body = _sums_file(
+        ev,
+        hevr.Camera.orbit(ev, width=9, height=7),
+        tmp_path / "a.hevrsums",
+        mode="tf",
+        nodes=NODES,
+        sampling="nearest",
+    )
     assert head["sampling"] == "nearest" and head["weight_digits"] == 0
     _write(tmp_path / "b.hevrsums", dict(head, weight_digits=3), body)
     with pytest.raises(hevr.CorruptStoreError, match="'weight_digits'"):
@@ -189,13 +210,42 @@ def test_cli_keep_sums_same_path_as_out_is_refused(stores, tmp_path, capsys):
     although F is now a frame. Expected: exit 2, '--keep-sums: ...' (same for recolour --out SUMS,
     which silently replaces the sums it read)."""
     f = tmp_path / "same.hevr"
-    code = main(["render", str(stores["both"].path), "--out", str(f), "--keep-sums", str(f), "--size", "6x5",
-                 "--tf", "0.3:red", "-q"])
+    code = main(
+        [
+            "render",
+            str(stores["both"].path),
+            "--out",
+            str(f),
+            "--keep-sums",
+            str(f),
+            "--size",
+            "6x5",
+            "--tf",
+            "0.3:red",
+            "-q",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "--keep-sums" in err
     sums = tmp_path / "s.hevrsums"
-    assert main(["render", str(stores["both"].path), "--out", str(tmp_path / "a.hevr"), "--keep-sums", str(sums),
-                 "--size", "6x5", "--tf", "0.3:red", "-q"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(stores["both"].path),
+                "--out",
+                str(tmp_path / "a.hevr"),
+                "--keep-sums",
+                str(sums),
+                "--size",
+                "6x5",
+                "--tf",
+                "0.3:red",
+                "-q",
+            ]
+        )
+        == 0
+    )
     before = sums.read_bytes()
     code = main(["recolour", str(sums), "--out", str(sums), "--tf", "0.6:blue", "-q"])
     capsys.readouterr()
@@ -226,8 +276,14 @@ def test_viewer_remove_buttons_after_a_middle_removal(stores, keypair256):
     """Pins the TF editor: after removing a middle row, the remaining rows' buttons still remove their
     own row; the last node cannot be removed (status says so, no exception)."""
     hevr.clear_cache()
-    v = hevr.Viewer(stores["both"], keypair256[1], width=6, height=5, mode="tf",
-                    nodes=[(0.1, "red"), (0.3, "lime"), (0.5, "blue"), (0.7, "white")])
+    v = hevr.Viewer(
+        stores["both"],
+        keypair256[1],
+        width=6,
+        height=5,
+        mode="tf",
+        nodes=[(0.1, "red"), (0.3, "lime"), (0.5, "blue"), (0.7, "white")],
+    )
     rows = list(v.node_rows)
     rows[1][2].click()
     assert [d for d, _ in v.nodes()] == [0.1, 0.5, 0.7]

@@ -78,6 +78,7 @@ def test_a_tf_change_makes_no_render_call(viewer, monkeypatch):
         def wrapper(*a, **kw):
             calls.append(name)
             return fn(*a, **kw)
+
         return wrapper
 
     monkeypatch.setattr(viewer_module, "render_frame", counting(viewer_module.render_frame, "render_frame"))
@@ -94,8 +95,9 @@ def test_a_tf_change_makes_no_render_call(viewer, monkeypatch):
     assert all(e["client_recolour"] and e["map_tasks"] == 0 for e in viewer.history[-5:])
     cam, kw = viewer.camera(), viewer.request()
     shown = viewer.frame.recolour(kw["mode"], kw.get("density"), kw.get("nodes"))
-    ref = hevr.render_plain(viewer.volume, cam, value_range=viewer.ev.value_range, vector_dims=viewer.ev.vector_dims,
-                            **kw)
+    ref = hevr.render_plain(
+        viewer.volume, cam, value_range=viewer.ev.value_range, vector_dims=viewer.ev.vector_dims, **kw
+    )
     assert (np.abs(shown - ref) <= hevr.error_bound(viewer.ev, cam, **kw)).all()
     viewer.mode.value = "tf"
     assert calls == [] and viewer.history[-1]["request"]["nodes"][0] == (0.35, "#0000ff")
@@ -130,8 +132,10 @@ def test_duplicate_density_is_reported_not_raised(viewer):
 def test_camera_sampling_and_mode_changes(viewer):
     viewer.azimuth.value = 75.0
     assert viewer.history[-1]["map_tasks"] > 0  # a new view needs the map step
-    assert viewer.history[-1]["camera"] == hevr.Camera.orbit(viewer.ev, azimuth=75, elevation=20, width=10,
-                                                             height=8).to_dict()
+    assert (
+        viewer.history[-1]["camera"]
+        == hevr.Camera.orbit(viewer.ev, azimuth=75, elevation=20, width=10, height=8).to_dict()
+    )
     viewer.mode.value = "emphasize"  # same camera, same (vector) channel: re-coloured
     assert viewer.history[-1]["map_tasks"] == 0 and viewer.history[-1]["request"]["density"] == 0.653
     assert viewer.density.layout.display is None and viewer.tf_box.layout.display == "none"
@@ -267,8 +271,9 @@ def test_packed_store_orbits_its_axis_verified(tmp_path, keypair256):
     first = v.history[-1]
     assert v.mode.options == ("xray",) and v.view == "anterior" and v.elevation.max < 45
     cam = v.camera()
-    assert cam.parallel and cam == hevr.Camera.orbit(ev, azimuth=0, elevation=10, width=12, height=10,
-                                                     parallel=True, view="anterior")
+    assert cam.parallel and cam == hevr.Camera.orbit(
+        ev, azimuth=0, elevation=10, width=12, height=10, parallel=True, view="anterior"
+    )
     assert "error_message" not in first and first["verified"] and first["map_tasks"] > 0
     assert first["error"] <= first["bound"] and "verified" in v.status.value
     for az in (60.0, 135.0, -100.0):
@@ -285,8 +290,9 @@ def test_packed_store_with_the_vector_channel_recolours(tmp_path, keypair256):
     re-coloured in numpy (no map task), gradient modulation, within error_bound of the slice reference."""
     pub, priv = keypair256
     vol = np.random.default_rng(4).integers(0, 256, (9, 8, 10)).astype(np.uint8)
-    ev = hevr.encrypt_volume(vol, tmp_path / "c.zarr", priv, brick=4, layout="packed", vector_dims=3, gradient=True,
-                             progress=False)
+    ev = hevr.encrypt_volume(
+        vol, tmp_path / "c.zarr", priv, brick=4, layout="packed", vector_dims=3, gradient=True, progress=False
+    )
     v = Viewer(ev, priv, volume=vol, width=12, height=10, mode="tf")
     first = v.history[-1]
     assert v.mode.options == ("xray", "emphasize", "tf") and "error_message" not in first

@@ -68,13 +68,13 @@ def _need(ok: bool, reason: str) -> None:
 
 
 NOTEBOOK_CELLS = [
-    '''import hashlib, json, warnings
+    """import hashlib, json, warnings
 import numpy as np
 import hevr
 warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
 ev = OPEN
 priv = hevr.load_key("key.json")
-vol = np.load("vol.npy")''',
+vol = np.load("vol.npy")""",
     f'''viewer = hevr.Viewer(ev, priv, volume=vol, width={SIZE}, height={SIZE}, mode="tf", settle=0.5)
 
 def record(change):
@@ -126,6 +126,7 @@ def lab(request, tmp_path_factory, keypair256):
     served = contextlib.ExitStack()
     if request.param == "remote":
         from _serving import hevr_serve
+
         server_url, _, _ = served.enter_context(hevr_serve(str(root / "v.zarr")))
         opener = f"hevr.connect({server_url!r}).open({ev.meta.store_id!r})"
     else:
@@ -142,17 +143,36 @@ def lab(request, tmp_path_factory, keypair256):
     (news / "notification.jupyterlab-settings").write_text('{"fetchNews": "false"}')
     spec = base / "data" / "kernels" / "hevr-test"
     spec.mkdir(parents=True)
-    (spec / "kernel.json").write_text(json.dumps({
-        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
-        "display_name": "hevr test", "language": "python"}))
+    (spec / "kernel.json").write_text(
+        json.dumps(
+            {
+                "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
+                "display_name": "hevr test",
+                "language": "python",
+            }
+        )
+    )
     port, token = _free_port(), secrets.token_hex(16)
     server_log = open(base / "lab.log", "wb")  # noqa: SIM115 (closed below)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "jupyterlab", "--no-browser", "--ip=127.0.0.1", f"--port={port}",
-         "--ServerApp.port_retries=0", f"--IdentityProvider.token={token}", f"--ServerApp.root_dir={root}",
-         "--LabApp.check_for_updates_class=jupyterlab.NeverCheckForUpdate",
-         *(["--allow-root"] if hasattr(os, "geteuid") and os.geteuid() == 0 else [])],  # CI runs as root
-        cwd=root, env=env, stdout=server_log, stderr=subprocess.STDOUT)
+        [
+            sys.executable,
+            "-m",
+            "jupyterlab",
+            "--no-browser",
+            "--ip=127.0.0.1",
+            f"--port={port}",
+            "--ServerApp.port_retries=0",
+            f"--IdentityProvider.token={token}",
+            f"--ServerApp.root_dir={root}",
+            "--LabApp.check_for_updates_class=jupyterlab.NeverCheckForUpdate",
+            *(["--allow-root"] if hasattr(os, "geteuid") and os.geteuid() == 0 else []),
+        ],  # CI runs as root
+        cwd=root,
+        env=env,
+        stdout=server_log,
+        stderr=subprocess.STDOUT,
+    )
     url = f"http://127.0.0.1:{port}"
     try:
         deadline = time.time() + 60
@@ -181,18 +201,29 @@ def lab(request, tmp_path_factory, keypair256):
 @pytest.fixture(scope="module")
 def browser(tmp_path_factory):
     """Debian's headless Chromium through its chromedriver (nothing downloaded)."""
-    _need(CHROMIUM.exists() and CHROMEDRIVER.exists(),
-          "Debian's chromium and chromium-driver are not installed (apt-get install chromium chromium-driver)")
+    _need(
+        CHROMIUM.exists() and CHROMEDRIVER.exists(),
+        "Debian's chromium and chromium-driver are not installed (apt-get install chromium chromium-driver)",
+    )
     _need(_importable("selenium"), "selenium is not installed (pip install 'hevr[test]')")
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
     opts = webdriver.ChromeOptions()
     opts.binary_location = str(CHROMIUM)
-    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--disable-dev-shm-usage", "--window-size=1200,720",
-                 f"--user-data-dir={tmp_path_factory.mktemp('chromium')}"):
+    for flag in (
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--disable-dev-shm-usage",
+        "--window-size=1200,720",
+        f"--user-data-dir={tmp_path_factory.mktemp('chromium')}",
+    ):
         opts.add_argument(flag)
     driver = webdriver.Chrome(service=Service(executable_path=str(CHROMEDRIVER)), options=opts)
     try:
@@ -225,7 +256,9 @@ def _shown_png(driver, img) -> bytes:
         "fetch(arguments[0].src).then(r => r.arrayBuffer()).then(b => {"
         "  let s = ''; const u = new Uint8Array(b);"
         "  for (let i = 0; i < u.length; i++) s += String.fromCharCode(u[i]);"
-        "  done(btoa(s)); }).catch(e => done('error: ' + e));", img)
+        "  done(btoa(s)); }).catch(e => done('error: ' + e));",
+        img,
+    )
     assert not b64.startswith("error"), b64
     return base64.b64decode(b64)
 
@@ -250,7 +283,9 @@ def _readout(driver, name: str) -> str:
         "  const l = s.querySelector('.widget-label');"
         "  if (l && l.textContent.trim() === arguments[0]) {"
         "    const r = s.querySelector('.widget-readout'); return r.value ?? r.textContent; } }"
-        "return null;", name).replace("\u2212", "-")  # d3-format writes a minus sign
+        "return null;",
+        name,
+    ).replace("\u2212", "-")  # d3-format writes a minus sign
 
 
 def test_drag_and_wheel_in_jupyterlab(lab, browser, tmp_path):
@@ -285,23 +320,36 @@ def _drag_and_wheel(lab, browser, tmp_path) -> None:
             return False
 
     _wait("the notebook", focus, timeout=120)
-    _wait("the notebook's kernel", lambda: driver.find_elements(  # the status bar: "hevr test | Idle"
-        By.XPATH, "//*[contains(@class,'jp-StatusBar-TextItem') and normalize-space(.)='hevr test | Idle']"),
-        timeout=180)  # a loaded 2-core machine starts the kernel slowly
-    _wait("the Run menu", lambda: driver.find_elements(By.XPATH, "//li[contains(@class,'lm-MenuBar-item')]"
-                                                                 "[normalize-space(.)='Run']"))[0].click()
-    _wait("Run All Cells", lambda: driver.find_elements(
-        By.CSS_SELECTOR, "li.lm-Menu-item[data-command='runmenu:run-all']"))[0].click()
-    _wait("the file browser's tab", lambda: driver.find_elements(  # fold the file browser away
-        By.CSS_SELECTOR, ".jp-SideBar li.lm-TabBar-tab[data-id='filebrowser']"))[0].click()
+    _wait(
+        "the notebook's kernel",
+        lambda: driver.find_elements(  # the status bar: "hevr test | Idle"
+            By.XPATH, "//*[contains(@class,'jp-StatusBar-TextItem') and normalize-space(.)='hevr test | Idle']"
+        ),
+        timeout=180,
+    )  # a loaded 2-core machine starts the kernel slowly
+    _wait(
+        "the Run menu",
+        lambda: driver.find_elements(By.XPATH, "//li[contains(@class,'lm-MenuBar-item')][normalize-space(.)='Run']"),
+    )[0].click()
+    _wait(
+        "Run All Cells",
+        lambda: driver.find_elements(By.CSS_SELECTOR, "li.lm-Menu-item[data-command='runmenu:run-all']"),
+    )[0].click()
+    _wait(
+        "the file browser's tab",
+        lambda: driver.find_elements(  # fold the file browser away
+            By.CSS_SELECTOR, ".jp-SideBar li.lm-TabBar-tab[data-id='filebrowser']"
+        ),
+    )[0].click()
     img = _wait("the viewer's frame", lambda: driver.find_elements(By.CSS_SELECTOR, "img.hevr-drag"), timeout=90)[0]
     _wait("the first frame in the page", lambda: int(img.get_attribute("data-frames") or 0) >= 1)
     # the observer was attached after the first frame: that one is checked through the kernel's history
     assert _frames(root) == []
     assert img.size["width"] == 256 and _readout(driver, "azimuth") in ("30", "30.0")
     driver.execute_script("arguments[0].scrollIntoView({block: 'center'});", img)
-    driver.execute_script("window.__moves = 0; arguments[0].addEventListener('pointermove', "
-                          "() => { window.__moves += 1; });", img)
+    driver.execute_script(
+        "window.__moves = 0; arguments[0].addEventListener('pointermove', () => { window.__moves += 1; });", img
+    )
 
     # -- the drag: press, a burst of moves, release ------------------------------------------
     before = int(img.get_attribute("data-frames"))
@@ -321,8 +369,12 @@ def _drag_and_wheel(lab, browser, tmp_path) -> None:
     width, height = img.size["width"], img.size["height"]
     az, el = round(30.0 - 180.0 * dx / width), round(20.0 + 180.0 * dy / height)  # on the sliders' 1° steps
     assert full["sliders"][:2] == [az, el]  # every pointer move counted, once
-    assert full["camera"] == hevr.Camera.orbit(ev, azimuth=full["sliders"][0], elevation=full["sliders"][1],
-                                               width=SIZE, height=SIZE).to_dict()  # the sliders' camera
+    assert (
+        full["camera"]
+        == hevr.Camera.orbit(
+            ev, azimuth=full["sliders"][0], elevation=full["sliders"][1], width=SIZE, height=SIZE
+        ).to_dict()
+    )  # the sliders' camera
     assert full["camera"]["width"] == SIZE and previews[0]["camera"]["width"] == SIZE // 2
     moves = driver.execute_script("return window.__moves;")
     sent = int(img.get_attribute("data-sent"))

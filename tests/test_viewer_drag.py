@@ -17,8 +17,8 @@ import pytest
 from PIL import Image
 
 import hevr
-from hevr.viewer.drag import DEGREES_PER_WIDTH, WHEEL_PIXELS_PER_DOUBLING
 from hevr.viewer import Viewer
+from hevr.viewer.drag import DEGREES_PER_WIDTH, WHEEL_PIXELS_PER_DOUBLING
 
 pytest.importorskip("ipywidgets")  # the notebook extra; installed with the test extra
 pytest.importorskip("anywidget")
@@ -44,11 +44,9 @@ def _viewer(ev, priv, vol, **kw) -> Viewer:
     return v
 
 
-def _message(v: Viewer, dx: float = 0.0, dy: float = 0.0, wheel: float = 0.0, release: bool = False,
-             **extra) -> None:
+def _message(v: Viewer, dx: float = 0.0, dy: float = 0.0, wheel: float = 0.0, release: bool = False, **extra) -> None:
     """What the front end sends, delivered as the kernel delivers a widget's custom message."""
-    v.image._handle_custom_msg({"type": "camera", "dx": dx, "dy": dy, "wheel": wheel, "release": release,
-                                **extra}, [])
+    v.image._handle_custom_msg({"type": "camera", "dx": dx, "dy": dy, "wheel": wheel, "release": release, **extra}, [])
 
 
 def _right(v: Viewer, entry: dict) -> None:
@@ -59,8 +57,9 @@ def _right(v: Viewer, entry: dict) -> None:
     assert entry["camera"] == cam.to_dict()  # the sliders are the camera that was rendered
     assert entry is v.history[-1] and entry["error"] <= entry["bound"]
     kw = v.request()
-    ref = hevr.render_plain(v.volume, cam, value_range=v.ev.value_range, vector_dims=v.ev.vector_dims, level=level,
-                            **kw)
+    ref = hevr.render_plain(
+        v.volume, cam, value_range=v.ev.value_range, vector_dims=v.ev.vector_dims, level=level, **kw
+    )
     bound = hevr.error_bound(v.ev, cam, level=level or None, **kw)
     assert v.frame.image.shape == (cam.height, cam.width) == ref.shape
     assert (np.abs(v.frame.image - ref) <= bound).all()
@@ -236,6 +235,9 @@ def test_bad_messages_are_ignored_and_answered(stores, caplog):
 def test_without_anywidget_the_viewer_names_it(stores, monkeypatch):
     pyr, _flat, priv, _vol = stores
     monkeypatch.setitem(sys.modules, "anywidget", None)  # what an environment without it gives: ImportError
-    with pytest.raises(hevr.MissingDependencyError, match=r"expected ipywidgets and anywidget \(pip install "
-                                                          r"'hevr\[notebook\]'\), got an environment without anywidget"):
+    with pytest.raises(
+        hevr.MissingDependencyError,
+        match=r"expected ipywidgets and anywidget \(pip install "
+        r"'hevr\[notebook\]'\), got an environment without anywidget",
+    ):
         Viewer(pyr, priv, show=False)

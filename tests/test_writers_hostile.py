@@ -29,8 +29,9 @@ from hevr.rendering.pipeline.sums import load_sums
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory, keypair256):
     vol = np.random.default_rng(3).integers(0, 256, (5, 6, 7)).astype(np.uint8)
-    ev = hevr.encrypt_volume(vol, tmp_path_factory.mktemp("w") / "v.zarr", keypair256[1], brick=3,
-                             vector_dims=2, progress=False)
+    ev = hevr.encrypt_volume(
+        vol, tmp_path_factory.mktemp("w") / "v.zarr", keypair256[1], brick=3, vector_dims=2, progress=False
+    )
     cam = hevr.Camera.orbit(ev, azimuth=10, width=9, height=8)
     img = hevr.render(ev, cam, progress=False)
     return ev, cam, img, img.decrypt(keypair256[1])
@@ -45,8 +46,11 @@ def test_a_frame_saved_over_the_private_key_is_refused(tmp_path, scene, keypair2
     key = tmp_path / "key.json"
     keypair256[1].save(key)
     before = key.read_bytes()
-    with pytest.raises(hevr.ExistingFileError, match=r"^path: expected no file at .*key\.json \(pass "
-                                                     r"overwrite=True to replace it\), found one$"):
+    with pytest.raises(
+        hevr.ExistingFileError,
+        match=r"^path: expected no file at .*key\.json \(pass "
+        r"overwrite=True to replace it\), found one$",
+    ):
         scene[2].save(key)
     assert key.read_bytes() == before and stat.S_IMODE(key.stat().st_mode) == 0o600
     assert hevr.load_key(key).public_key.fingerprint == keypair256[0].fingerprint
@@ -126,14 +130,16 @@ def _writers(scene, keypair256):
 def _raise(code: int):
     def fake(*args, **kwargs):
         raise OSError(code, os.strerror(code))
+
     return fake
 
 
 @pytest.mark.parametrize("code", [errno.ENOSPC, errno.EFBIG, errno.EROFS], ids=errno.errorcode.get)
 @pytest.mark.parametrize("step", ["write", "replace", "link"])
 @pytest.mark.parametrize("writer", ["image", "png", "private key", "public key"])
-def test_a_failed_write_is_a_filesystem_error_and_leaves_the_old_file(tmp_path, scene, keypair256, monkeypatch,
-                                                                       writer, step, code):
+def test_a_failed_write_is_a_filesystem_error_and_leaves_the_old_file(
+    tmp_path, scene, keypair256, monkeypatch, writer, step, code
+):
     write = _writers(scene, keypair256)[writer]
     path = tmp_path / "out.bin"
     overwrite = step != "link"  # a new file is linked into place, a replaced one renamed over the old
@@ -186,7 +192,7 @@ def test_a_real_file_size_limit_is_efbig(tmp_path):
         resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
         noise = np.random.default_rng(0).random((300, 300))
         try:
-            hevr.save_png(noise, {str(tmp_path / 'big.png')!r})
+            hevr.save_png(noise, {str(tmp_path / "big.png")!r})
         except hevr.FileSystemError as exc:
             print("FileSystemError", errno.errorcode[exc.errno], exc)
     """)
@@ -272,6 +278,7 @@ def test_a_concurrent_clean_up_keeps_off_a_temporary_until_it_is_in_place(tmp_pa
         def run(src, dst, *rest):
             assert _files.remove_stale(path) == []  # the writer holds the lock: nothing removed
             return fn(src, dst, *rest)
+
         return run
 
     monkeypatch.setattr(_files, "_link_new", cleaned_first(link))

@@ -101,8 +101,9 @@ def available_backends() -> tuple[str, ...]:
     return tuple(_FACTORIES)
 
 
-def resolve_backend_name(backend: str | Backend | None, bits: int | None = None,
-                         resident: str | None = None, client: Any = None) -> str:
+def resolve_backend_name(
+    backend: str | Backend | None, bits: int | None = None, resident: str | None = None, client: Any = None
+) -> str:
     """The backend name to use: ``backend``, else the Dask config ``hevr.backend``, else ``'auto'``.
 
     ``'auto'`` (module docstring) resolves to ``resident`` — the backend of the volume's
@@ -120,8 +121,9 @@ def resolve_backend_name(backend: str | Backend | None, bits: int | None = None,
         small = bits is not None and bits < COMPILED_BELOW_BITS
         return COMPILED if small and _compiled_ok() and (client is None or _workers_ok(client)) else "cpu"
     if not isinstance(name, str) or name not in _FACTORIES:
-        raise ParameterError(f"backend: expected {AUTO!r} or one of {', '.join(repr(k) for k in _FACTORIES)}, "
-                             f"got {name!r}")
+        raise ParameterError(
+            f"backend: expected {AUTO!r} or one of {', '.join(repr(k) for k in _FACTORIES)}, got {name!r}"
+        )
     return name
 
 

@@ -197,8 +197,9 @@ class Backend(ABC):
 
     # -- encryption and decryption -------------------------------------------------------
     @abstractmethod
-    def encrypt(self, key: Any, mantissas: Sequence[int] | np.ndarray, *,
-                unsafe_no_obfuscation: bool = False) -> Residues:
+    def encrypt(
+        self, key: Any, mantissas: Sequence[int] | np.ndarray, *, unsafe_no_obfuscation: bool = False
+    ) -> Residues:
         """Ciphertexts of signed integer mantissas under ``key`` (owner path for a private key)."""
 
     @abstractmethod
@@ -216,8 +217,9 @@ class Backend(ABC):
 
     # -- rendering ------------------------------------------------------------------------
     @abstractmethod
-    def ray_products(self, plan: ProductPlan, components: Sequence[Residues], nsquare: int,
-                     counter: OpCounter | None = None) -> list[Residues]:
+    def ray_products(
+        self, plan: ProductPlan, components: Sequence[Residues], nsquare: int, counter: OpCounter | None = None
+    ) -> list[Residues]:
         """Per component, ``Π_v c_v^w_rv mod n²`` for every row of ``plan``."""
 
     @abstractmethod
@@ -231,7 +233,8 @@ class Backend(ABC):
         ``Π_i v_i^comb[i][ch]``. Returns rows of ``len(comb[0])`` values, row-major."""
 
     @abstractmethod
-    def pack(self, terms: Residues, exps: Sequence[int], pack_bits: int, per_pack: int, offset: int,
-             n: int) -> Residues:
+    def pack(
+        self, terms: Residues, exps: Sequence[int], pack_bits: int, per_pack: int, offset: int, n: int
+    ) -> Residues:
         """Groups of ``per_pack`` consecutive terms: ``Π_j (T_j^R_j · g^O)^(2^(b·j))`` mod n²
         (``R_j = exps[j]``, ``b = pack_bits``, ``O = offset``, ``g = n + 1``)."""

@@ -69,8 +69,9 @@ class CpuBackend(Backend):
         return private_key.decrypt_array(values, signed=False)
 
     # -- rendering -------------------------------------------------------------------------
-    def ray_products(self, plan: ProductPlan, components, nsquare: int,
-                     counter: OpCounter | None = None) -> list[list[mpz]]:
+    def ray_products(
+        self, plan: ProductPlan, components, nsquare: int, counter: OpCounter | None = None
+    ) -> list[list[mpz]]:
         n2 = mpz(nsquare)
         listed = _ListedPlan.of(plan)  # once for all components
         return [_execute(listed, comp, n2, counter) for comp in components]
@@ -80,9 +81,9 @@ class CpuBackend(Backend):
         out: list[mpz] = []
         ip = np.asarray(indptr).tolist()
         for s, e in zip(ip[:-1], ip[1:]):
-            acc = list(values[s * k:(s + 1) * k])
+            acc = list(values[s * k : (s + 1) * k])
             for i in range(s + 1, e):
-                acc = [a * b % n2 for a, b in zip(acc, values[i * k:(i + 1) * k])]
+                acc = [a * b % n2 for a, b in zip(acc, values[i * k : (i + 1) * k])]
             out.extend(acc)
         return out
 
@@ -93,7 +94,7 @@ class CpuBackend(Backend):
         one = mpz(1)
         out: list[mpz] = []
         for start in range(0, len(values), k):
-            s = values[start:start + k]
+            s = values[start : start + k]
             sub = _subset_products(s, n2) if k <= 8 else None
             for exps in cols:
                 if not any(exps):
@@ -108,8 +109,9 @@ class CpuBackend(Backend):
                     out.append(t)
         return out
 
-    def pack(self, terms: Sequence[mpz], exps: Sequence[int], pack_bits: int, per_pack: int, offset: int,
-             n: int) -> list[mpz]:
+    def pack(
+        self, terms: Sequence[mpz], exps: Sequence[int], pack_bits: int, per_pack: int, offset: int, n: int
+    ) -> list[mpz]:
         """Horner from the highest digit, acc ← acc^B · T_j^R_j, with the b squarings of
         acc^B and the square-and-multiply of T_j^R_j interleaved (Shamir): a value costs b
         squarings plus popcount(R_j) multiplications; the offset is one product per
@@ -121,7 +123,7 @@ class CpuBackend(Backend):
         out: list[mpz] = []
         powmod = gmpy2.powmod
         for start in range(0, len(terms), J):
-            group_t, group_r = terms[start:start + J], exps[start:start + J]
+            group_t, group_r = terms[start : start + J], exps[start : start + J]
             acc = _small_pow(group_t[-1], group_r[-1], n2)
             for T, R in zip(reversed(group_t[:-1]), reversed(group_r[:-1])):
                 r = R.bit_length()
@@ -202,8 +204,11 @@ class _ListedPlan(NamedTuple):
 
     @classmethod
     def of(cls, plan: ProductPlan) -> _ListedPlan:
-        return cls(plan, *(_listed(a) for a in (plan.vl, plan.wl, plan.tasks, plan.rep)),
-                   _listed(plan.pre) if plan.pre is not None else [])
+        return cls(
+            plan,
+            *(_listed(a) for a in (plan.vl, plan.wl, plan.tasks, plan.rep)),
+            _listed(plan.pre) if plan.pre is not None else [],
+        )
 
 
 def _execute(listed: _ListedPlan, cts: Sequence[mpz], n2: mpz, counter: OpCounter | None) -> list[mpz]:
@@ -232,12 +237,18 @@ def _execute(listed: _ListedPlan, cts: Sequence[mpz], n2: mpz, counter: OpCounte
     one = mpz(1)
     out = [one if u < 0 else vals[u] for u in rep]
     if counter is not None:
-        counter.add(OpCounter(
-            mulmod=mul, squarings=sq, powmod=n_pow, powmod_bits=pow_bits,
-            pairs=plan.n_pairs, rows=plan.n_rows,
-            duplicate_rows=sum(1 for u in rep if u >= 0) - len(tasks),
-            precomputed=sum(j - 1 for _, j in pre),
-        ))
+        counter.add(
+            OpCounter(
+                mulmod=mul,
+                squarings=sq,
+                powmod=n_pow,
+                powmod_bits=pow_bits,
+                pairs=plan.n_pairs,
+                rows=plan.n_rows,
+                duplicate_rows=sum(1 for u in rep if u >= 0) - len(tasks),
+                precomputed=sum(j - 1 for _, j in pre),
+            )
+        )
     return out
 
 

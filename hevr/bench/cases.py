@@ -41,8 +41,14 @@ log = logging.getLogger(__name__)
 # Tried in order when the planner refuses a render at a tiny key (64 bits cannot hold
 # 4 reciprocal digits times 100 samples times 10-bit weights): the first that plans is used
 # and recorded in the cell.
-PARAM_LADDER = ({"precision": 4, "digits": 3}, {"precision": 3, "digits": 2}, {"precision": 2, "digits": 2},
-                {"precision": 2, "digits": 1}, {"precision": 1, "digits": 1}, {"precision": 0, "digits": 1})
+PARAM_LADDER = (
+    {"precision": 4, "digits": 3},
+    {"precision": 3, "digits": 2},
+    {"precision": 2, "digits": 2},
+    {"precision": 2, "digits": 1},
+    {"precision": 1, "digits": 1},
+    {"precision": 0, "digits": 1},
+)
 
 
 @dataclass
@@ -74,30 +80,68 @@ class Context:
         return self.workers.fresh()
 
 
-def encrypt_case(ctx: Context, vol: np.ndarray, private_key: PrivateKey, path: Path, *, dims: int = 1,
-                 obfuscate: bool = True, brick: int | None = None) -> tuple[EncryptedVolume, dict]:
+def encrypt_case(
+    ctx: Context,
+    vol: np.ndarray,
+    private_key: PrivateKey,
+    path: Path,
+    *,
+    dims: int = 1,
+    obfuscate: bool = True,
+    brick: int | None = None,
+) -> tuple[EncryptedVolume, dict]:
     """Encrypt ``vol`` (scalar if ``dims == 1`` else a ``dims``-vector encoding) on the workers."""
     reset = ctx.fresh()
     brick = brick or ctx.brick
-    ev, wall = timed(lambda: encrypt_volume(
-        vol, path, private_key, brick=brick, scalar=dims == 1, vector_dims=None if dims == 1 else dims,
-        overwrite=True, progress=ctx.progress, client=ctx.workers.client, unsafe_no_obfuscation=not obfuscate))
+    ev, wall = timed(
+        lambda: encrypt_volume(
+            vol,
+            path,
+            private_key,
+            brick=brick,
+            scalar=dims == 1,
+            vector_dims=None if dims == 1 else dims,
+            overwrite=True,
+            progress=ctx.progress,
+            client=ctx.workers.client,
+            unsafe_no_obfuscation=not obfuscate,
+        )
+    )
     st = ctx.workers.take_stats()
     n_ct = int(vol.size) * dims
-    cell = {"seconds": wall, "ciphertexts": n_ct, "workers": ctx.workers.n_workers, "brick": brick,
-            "obfuscated": obfuscate, "dims": dims, "crypto_core_s": st["seconds"].get("encrypt.crypto", 0.0),
-            "write_core_s": st["seconds"].get("encrypt.write", 0.0), "peak_rss": ctx.workers.peak_rss(),
-            # the ciphertexts themselves; store_bytes is what the store occupies (zstd, crc, metadata)
-            "ciphertext_bytes": n_ct * private_key.public_key.ciphertext_bytes,
-            "store_bytes": dir_bytes(path), "bits": private_key.public_key.bits, "peak_reset": reset}
+    cell = {
+        "seconds": wall,
+        "ciphertexts": n_ct,
+        "workers": ctx.workers.n_workers,
+        "brick": brick,
+        "obfuscated": obfuscate,
+        "dims": dims,
+        "crypto_core_s": st["seconds"].get("encrypt.crypto", 0.0),
+        "write_core_s": st["seconds"].get("encrypt.write", 0.0),
+        "peak_rss": ctx.workers.peak_rss(),
+        # the ciphertexts themselves; store_bytes is what the store occupies (zstd, crc, metadata)
+        "ciphertext_bytes": n_ct * private_key.public_key.ciphertext_bytes,
+        "store_bytes": dir_bytes(path),
+        "bits": private_key.public_key.bits,
+        "peak_reset": reset,
+    }
     if obfuscate:
         cell["fixed_base_s"] = fixed_base_seconds(private_key)
     log.info("encrypt %s-bit dims=%d obf=%s: %.2f s", cell["bits"], dims, obfuscate, wall)
     return ev, cell
 
 
-def render_case(ctx: Context, ev: EncryptedVolume, vol: np.ndarray, private_key: PrivateKey, *,
-                mode: str = "xray", sampling: str = "nearest", nodes: Any = None, finish: str = "server") -> dict:
+def render_case(
+    ctx: Context,
+    ev: EncryptedVolume,
+    vol: np.ndarray,
+    private_key: PrivateKey,
+    *,
+    mode: str = "xray",
+    sampling: str = "nearest",
+    nodes: Any = None,
+    finish: str = "server",
+) -> dict:
     """Render, decrypt on the client (one core), compare with ``render_plain`` and its bound.
 
     ``finish="server"`` (the paper's way: the Tables) times the render, then the decryption;
@@ -111,12 +155,34 @@ def render_case(ctx: Context, ev: EncryptedVolume, vol: np.ndarray, private_key:
         t_mul = mulmod_seconds(ev.public_key.bits)
         try:
             if finish == "client":
-                frame, wall = timed(lambda: render_frame(ev, cam, private_key, mode=mode, sampling=sampling,
-                                                         nodes=nodes, cache=False, client=ctx.workers.client,
-                                                         progress=ctx.progress, **params))
+                frame, wall = timed(
+                    lambda: render_frame(
+                        ev,
+                        cam,
+                        private_key,
+                        mode=mode,
+                        sampling=sampling,
+                        nodes=nodes,
+                        cache=False,
+                        client=ctx.workers.client,
+                        progress=ctx.progress,
+                        **params,
+                    )
+                )
             else:
-                img, wall = timed(lambda: render(ev, cam, mode=mode, sampling=sampling, nodes=nodes, cache=False,
-                                                 client=ctx.workers.client, progress=ctx.progress, **params))
+                img, wall = timed(
+                    lambda: render(
+                        ev,
+                        cam,
+                        mode=mode,
+                        sampling=sampling,
+                        nodes=nodes,
+                        cache=False,
+                        client=ctx.workers.client,
+                        progress=ctx.progress,
+                        **params,
+                    )
+                )
         except RenderPlanError as exc:
             last = exc
             continue
@@ -130,20 +196,43 @@ def render_case(ctx: Context, ev: EncryptedVolume, vol: np.ndarray, private_key:
         img = SimpleNamespace(n_ciphertexts=frame.stats["ciphertexts"], per_pack=None, stats=frame.stats)
     else:
         dec, dec_s = timed(lambda: img.decrypt(private_key))
-    ref, plain_s = timed(lambda: render_plain(vol, cam, mode=mode, sampling=sampling, nodes=nodes,
-                                              vector_dims=vector_dims))
+    ref, plain_s = timed(
+        lambda: render_plain(vol, cam, mode=mode, sampling=sampling, nodes=nodes, vector_dims=vector_dims)
+    )
     bound = error_bound(ev, cam, mode, sampling, nodes=nodes, finish=finish, **params)
     err = np.abs(dec - ref)
     rays = cast_rays(cam, ev.shape, ev.spacing, 1.0)
-    cell = {"seconds": wall, "decrypt_s": dec_s, "plain_s": plain_s, "params": params,
-            "max_abs_err": float(err.max()), "within_bound": bool((err <= bound).all()),
-            "ciphertexts": img.n_ciphertexts, "per_pack": img.per_pack, "workers": ctx.workers.n_workers,
-            "samples": int(rays.n_samples.sum()), "hit_rays": int((rays.n_samples > 0).sum()),
-            "pairs": int(st["counts"].get("map.kernel", 0)), "kernel_core_s": st["seconds"].get("map.kernel", 0.0),
-            "phases_core_s": st["seconds"], "mulmod_s": t_mul, "peak_rss": peak, "bits": ev.public_key.bits,
-            "map_tasks": img.stats.get("map_tasks"), "peak_reset": reset, "finish": finish}
-    log.info("render %s/%s %d-bit: %.2f s (decrypt %.2f s, max err %.2e)", mode, sampling, cell["bits"], wall,
-             dec_s, cell["max_abs_err"])
+    cell = {
+        "seconds": wall,
+        "decrypt_s": dec_s,
+        "plain_s": plain_s,
+        "params": params,
+        "max_abs_err": float(err.max()),
+        "within_bound": bool((err <= bound).all()),
+        "ciphertexts": img.n_ciphertexts,
+        "per_pack": img.per_pack,
+        "workers": ctx.workers.n_workers,
+        "samples": int(rays.n_samples.sum()),
+        "hit_rays": int((rays.n_samples > 0).sum()),
+        "pairs": int(st["counts"].get("map.kernel", 0)),
+        "kernel_core_s": st["seconds"].get("map.kernel", 0.0),
+        "phases_core_s": st["seconds"],
+        "mulmod_s": t_mul,
+        "peak_rss": peak,
+        "bits": ev.public_key.bits,
+        "map_tasks": img.stats.get("map_tasks"),
+        "peak_reset": reset,
+        "finish": finish,
+    }
+    log.info(
+        "render %s/%s %d-bit: %.2f s (decrypt %.2f s, max err %.2e)",
+        mode,
+        sampling,
+        cell["bits"],
+        wall,
+        dec_s,
+        cell["max_abs_err"],
+    )
     return cell
 
 
@@ -158,17 +247,22 @@ def naive_phe_case(size: int, image: int, bits: int) -> dict:
     holding the whole volume (so per ray, not split by brick), 6 decimal digits; one core."""
     import phe
 
-
     vol = phantom(size)
     cam = Camera.orbit(vol.shape, azimuth=30, elevation=20, width=image, height=image)
     rays = cast_rays(cam, vol.shape, (1.0, 1.0, 1.0), 1.0)
     (ppub, ppriv), keygen_s = timed(lambda: phe.generate_paillier_keypair(n_length=bits))
     encs, enc_s = timed(lambda: [ppub.encrypt(int(v)) for v in vol.ravel().tolist()])
-    out: dict[str, Any] = {"size": size, "image": image, "bits": bits, "keygen_s": keygen_s, "encrypt_s": enc_s,
-                           "ciphertexts": len(encs)}
+    out: dict[str, Any] = {
+        "size": size,
+        "image": image,
+        "bits": bits,
+        "keygen_s": keygen_s,
+        "encrypt_s": enc_s,
+        "ciphertexts": len(encs),
+    }
     for sampling in ("nearest", "trilinear"):
         bw = brick_weights(rays, vol.shape, (1.0, 1.0, 1.0), vol.shape, (0, 0, 0), sampling, 1.0, 6)
-        scale = 10.0 ** bw.exponent
+        scale = 10.0**bw.exponent
         ip, vx, wt = bw.indptr.tolist(), bw.voxels.tolist(), (bw.weights * scale).tolist()
         inv = (1.0 / rays.n_samples[bw.rays]).tolist()
 
@@ -185,9 +279,14 @@ def naive_phe_case(size: int, image: int, bits: int) -> dict:
         vals, dec_s = timed(lambda: [ppriv.decrypt(p) for p in pixels])
         ref = bw.apply(vol.astype(np.float64)) / rays.n_samples[bw.rays]
         plain = render_plain(vol, cam, sampling=sampling).ravel()[bw.rays]
-        out[sampling] = {"render_s": render_s, "decrypt_s": dec_s, "pixels": len(pixels), "pairs": bw.n_pairs,
-                         "max_abs_err": float(np.abs(np.asarray(vals) - ref).max()),
-                         "max_abs_err_plain": float(np.abs(np.asarray(vals) - plain).max())}
+        out[sampling] = {
+            "render_s": render_s,
+            "decrypt_s": dec_s,
+            "pixels": len(pixels),
+            "pairs": bw.n_pairs,
+            "max_abs_err": float(np.abs(np.asarray(vals) - ref).max()),
+            "max_abs_err_plain": float(np.abs(np.asarray(vals) - plain).max()),
+        }
         log.info("phe naive %s: render %.2f s, decrypt %.2f s", sampling, render_s, dec_s)
     return out
 

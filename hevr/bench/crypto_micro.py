@@ -24,6 +24,7 @@ def per_op(fn, args, repeat=3):
 def crypto_micro(bits: int, n: int = 200) -> dict:
     """Seconds per operation: ``{"table_s", "rows": [{name, hevr_s, phe_s, bare_s}]}``."""
     import phe
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InsecureKeyWarning)
         pub, priv = generate_keypair(bits)
@@ -41,19 +42,35 @@ def crypto_micro(bits: int, n: int = 200) -> dict:
     bare = per_op(lambda a, b: a * b % n2, list(zip(cts, reversed(cts))))
     few = max(20, n // 10)
     rows = [
-        ("encrypt (public key)", per_op(pub.encrypt, [(m,) for m in ms[:few]]),
-         per_op(ppub.raw_encrypt, [(m,) for m in ms[:few]])),
-        ("encrypt (owner, PrivateKey)", per_op(priv.encrypt, [(m,) for m in ms]),
-         per_op(ppub.raw_encrypt, [(m,) for m in ms[:few]])),
+        (
+            "encrypt (public key)",
+            per_op(pub.encrypt, [(m,) for m in ms[:few]]),
+            per_op(ppub.raw_encrypt, [(m,) for m in ms[:few]]),
+        ),
+        (
+            "encrypt (owner, PrivateKey)",
+            per_op(priv.encrypt, [(m,) for m in ms]),
+            per_op(ppub.raw_encrypt, [(m,) for m in ms[:few]]),
+        ),
         ("decrypt", per_op(priv.decrypt, [(c,) for c in cts]), per_op(ppriv.raw_decrypt, [(int(c),) for c in cts])),
-        ("⊕ add", per_op(pub.add, list(zip(cts, reversed(cts)))),
-         per_op(lambda a, b: a._raw_add(a.ciphertext(False), b.ciphertext(False)), list(zip(pcts, reversed(pcts))))),
-        ("⊗ 10-bit int", per_op(pub.mul, list(zip(cts, k10))),
-         per_op(lambda a, k: a._raw_mul(k), list(zip(pcts, k10)))),
-        ("⊗ 64-bit int", per_op(pub.mul, list(zip(cts, k64))),
-         per_op(lambda a, k: a._raw_mul(k), list(zip(pcts, k64)))),
+        (
+            "⊕ add",
+            per_op(pub.add, list(zip(cts, reversed(cts)))),
+            per_op(lambda a, b: a._raw_add(a.ciphertext(False), b.ciphertext(False)), list(zip(pcts, reversed(pcts)))),
+        ),
+        (
+            "⊗ 10-bit int",
+            per_op(pub.mul, list(zip(cts, k10))),
+            per_op(lambda a, k: a._raw_mul(k), list(zip(pcts, k10))),
+        ),
+        (
+            "⊗ 64-bit int",
+            per_op(pub.mul, list(zip(cts, k64))),
+            per_op(lambda a, k: a._raw_mul(k), list(zip(pcts, k64))),
+        ),
     ]
-    return {"bits": bits, "table_s": table_s,
-            "rows": [{"name": name, "hevr_s": h, "phe_s": p, "bare_s": bare} for name, h, p in rows]}
-
-
+    return {
+        "bits": bits,
+        "table_s": table_s,
+        "rows": [{"name": name, "hevr_s": h, "phe_s": p, "bare_s": bare} for name, h, p in rows],
+    }

@@ -20,7 +20,8 @@ Per hit pixel with K stored components, C values and reciprocal R (1 for client 
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 __all__ = ["finishing_modmuls"]
 
@@ -48,7 +49,7 @@ def finishing_modmuls(plan: Any, n_samples: Sequence[int]) -> int:
     J, b = max(1, plan.per_pack), plan.pack_bits
     total = per_pixel * len(hits)
     for start in range(0, len(exps), J):
-        group = exps[start:start + J]
+        group = exps[start : start + J]
         first = group[-1]
         total += max(first.bit_length() - 1, 0) + max(bin(first).count("1") - 1, 0)
         total += sum(b + bin(r).count("1") for r in group[:-1])

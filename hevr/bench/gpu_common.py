@@ -70,6 +70,8 @@ def bench_key(work: Path, bits: int = 0) -> Any:
 @contextlib.contextmanager
 def local_cluster(workers: int) -> Iterator[Any]:
     """A client of a LocalCluster of ``workers`` single-threaded processes (not the default client)."""
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cl, \
-            Client(cl, set_as_default=False) as client:
+    with (
+        LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cl,
+        Client(cl, set_as_default=False) as client,
+    ):
         yield client

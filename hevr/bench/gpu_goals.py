@@ -62,13 +62,8 @@ from ..store.reader import open_volume
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
 from .gpu import throughput
-from .gpu_common import append_row
-from .gpu_common import bench_key
-from .gpu_common import image_digest
-from .gpu_common import local_cluster
-from .gpu_common import read_rows
-from .gpu_packed import packed_step
-from .gpu_packed import table_lines
+from .gpu_common import append_row, bench_key, image_digest, local_cluster, read_rows
+from .gpu_packed import packed_step, table_lines
 from .measure import machine
 
 log = logging.getLogger(__name__)
@@ -76,8 +71,14 @@ log = logging.getLogger(__name__)
 __all__ = ["GOALS", "STEPS", "main", "run_step"]
 
 # issue 40's goals; a frame's goal is its seconds, "efficiency" the cpu curve's at the largest cluster
-GOALS = {"products_per_s kernels": 1.0e8, "encrypt scalar": 3.0, "frame xray nearest": 0.10,
-         "frame xray trilinear": 0.30, "frame tf trilinear": 1.0, "efficiency nearest": 0.80}
+GOALS = {
+    "products_per_s kernels": 1.0e8,
+    "encrypt scalar": 3.0,
+    "frame xray nearest": 0.10,
+    "frame xray trilinear": 0.30,
+    "frame tf trilinear": 1.0,
+    "efficiency nearest": 0.80,
+}
 STEPS = ("throughput", "stores", "frames", "curve", "packed", "table")
 SLOW = 5.0  # seconds: a first frame slower than this is timed once more, not ``repeats`` times
 FRAMES = (("xray", "nearest", "scalar"), ("xray", "trilinear", "scalar"), ("tf", "trilinear", "tf"))
@@ -95,13 +96,23 @@ def throughput_step(out: Path, backend: str, quick: bool) -> None:
     res = throughput(get_backend(backend), quick)
     for label, r in res.items():
         unit = "products_per_s" if label == "products" else "pairs_per_s"
-        append_row(out, {"step": "throughput", "what": label, "backend": backend, "end_to_end_per_s": r[unit],
-                      "kernels_per_s": r.get(f"kernels_{unit}"), "cpu_one_core_per_s": r[f"cpu_{unit}"],
-                      "stages_s": r.get("stages_s")})
+        append_row(
+            out,
+            {
+                "step": "throughput",
+                "what": label,
+                "backend": backend,
+                "end_to_end_per_s": r[unit],
+                "kernels_per_s": r.get(f"kernels_{unit}"),
+                "cpu_one_core_per_s": r[f"cpu_{unit}"],
+                "stages_s": r.get("stages_s"),
+            },
+        )
 
 
-def stores_step(out: Path, work: Path, backend: str, size: int, tf_size: int, bits: int, owner_kernels: bool,
-                workers: int) -> None:
+def stores_step(
+    out: Path, work: Path, backend: str, size: int, tf_size: int, bits: int, owner_kernels: bool, workers: int
+) -> None:
     priv = bench_key(work, bits)
     for kind, n, vdims in (("scalar", size, None), ("tf", tf_size, 4)):
         path = _store(work, kind)
@@ -117,14 +128,26 @@ def stores_step(out: Path, work: Path, backend: str, size: int, tf_size: int, bi
                 encrypt_volume(phantom(n), path, priv, client=client, backend="cpu", **kw)
             how = f"cpu, LocalCluster of {workers} processes"
         dt = time.perf_counter() - t0
-        cts = n ** 3 * (1 + (vdims or 0))
-        append_row(out, {"step": "stores", "what": f"encrypt {kind}", "size": n, "bits": bits, "seconds": dt,
-                      "ciphertexts": cts, "per_s": cts / dt, "how": how})
+        cts = n**3 * (1 + (vdims or 0))
+        append_row(
+            out,
+            {
+                "step": "stores",
+                "what": f"encrypt {kind}",
+                "size": n,
+                "bits": bits,
+                "seconds": dt,
+                "ciphertexts": cts,
+                "per_s": cts / dt,
+                "how": how,
+            },
+        )
         log.info("encrypted %s %d^3: %.2f s (%s)", kind, n, dt, how)
 
 
-def _frame(ev: Any, cam: Camera, mode: str, sampling: str, priv: Any, repeats: int,
-           run: Callable[..., Any]) -> tuple[list[float], Any, Any]:
+def _frame(
+    ev: Any, cam: Camera, mode: str, sampling: str, priv: Any, repeats: int, run: Callable[..., Any]
+) -> tuple[list[float], Any, Any]:
     """The first frame, then ``repeats`` timed ones (one where the first took over ``SLOW`` seconds,
     so a slow backend still finishes its step): (their seconds, the last image, its decryption)."""
     kw = {"nodes": TF_NODES} if mode == "tf" else {}
@@ -162,9 +185,22 @@ def frames_step(out: Path, work: Path, backend: str, image: int, repeats: int) -
 
             times, img, plain = _frame(resident, cam, mode, sampling, priv, repeats, run)
         ok = _within(ev, cam, mode, sampling, plain, phantom(ev.shape[0]))
-        append_row(out, {"step": "frames", "what": f"frame {mode} {sampling}", "backend": backend, "size": ev.shape[0],
-                      "image": image, "seconds": statistics.median(times), "all_s": times, "persist_s": load_s,
-                      "sha256": image_digest(img), "within_bound": ok, "end_to_end": mode == "tf"})
+        append_row(
+            out,
+            {
+                "step": "frames",
+                "what": f"frame {mode} {sampling}",
+                "backend": backend,
+                "size": ev.shape[0],
+                "image": image,
+                "seconds": statistics.median(times),
+                "all_s": times,
+                "persist_s": load_s,
+                "sha256": image_digest(img),
+                "within_bound": ok,
+                "end_to_end": mode == "tf",
+            },
+        )
         log.info("%s frame %s %s: %.3f s (median of %d)", backend, mode, sampling, statistics.median(times), repeats)
 
 
@@ -183,9 +219,21 @@ def curve_step(out: Path, work: Path, image: int, repeats: int, workers: tuple[i
                     return render(*a, backend="cpu", client=client, **kw)
 
                 times, img, _ = _frame(resident, cam, mode, sampling, priv, repeats, run)
-                append_row(out, {"step": "curve", "what": f"frame {mode} {sampling}", "backend": "cpu", "workers": N,
-                              "size": ev.shape[0], "image": image, "seconds": statistics.median(times),
-                              "all_s": times, "sha256": image_digest(img), "end_to_end": mode == "tf"})
+                append_row(
+                    out,
+                    {
+                        "step": "curve",
+                        "what": f"frame {mode} {sampling}",
+                        "backend": "cpu",
+                        "workers": N,
+                        "size": ev.shape[0],
+                        "image": image,
+                        "seconds": statistics.median(times),
+                        "all_s": times,
+                        "sha256": image_digest(img),
+                        "end_to_end": mode == "tf",
+                    },
+                )
                 log.info("cpu on %d workers %s %s: %.3f s", N, mode, sampling, statistics.median(times))
 
 
@@ -200,38 +248,78 @@ def table(out: Path) -> str:
     mach = first(step="machine")
     lines = ["# Issue 40's goals, measured", ""]
     if mach:
-        lines += [f"Device: {mach.get('device')}; machine: {mach['machine'].get('cpu')}, {mach['machine'].get('cores')} "
-                  f"cores, {mach['machine'].get('date')}, commit {mach['machine'].get('commit')}.", ""]
+        lines += [
+            f"Device: {mach.get('device')}; machine: {mach['machine'].get('cpu')}, {mach['machine'].get('cores')} "
+            f"cores, {mach['machine'].get('date')}, commit {mach['machine'].get('commit')}.",
+            "",
+        ]
     lines += ["| goal | target | measured | met |", "|---|---:|---:|---|"]
 
     def goal(name: str, target: str, value: float | None, met: bool | None, note: str = "") -> None:
-        lines.append(f"| {name} | {target} | {_fmt(value)}{note} | {'—' if met is None else ('yes' if met else 'no')} |")
+        lines.append(
+            f"| {name} | {target} | {_fmt(value)}{note} | {'—' if met is None else ('yes' if met else 'no')} |"
+        )
 
     p = first(step="throughput", what="products")
     k = p and p.get("kernels_per_s")
     goal("4096-bit products/s, kernels only", "≥ 1e8", k, None if not k else k >= GOALS["products_per_s kernels"])
     goal("4096-bit products/s, end to end", "—", p and p["end_to_end_per_s"], None)
     q = first(step="throughput", what="pairs")
-    goal("pairs/s (10-bit), end to end / kernels", "—", q and q["end_to_end_per_s"], None,
-         f" / {_fmt(q and q.get('kernels_per_s'))}")
+    goal(
+        "pairs/s (10-bit), end to end / kernels",
+        "—",
+        q and q["end_to_end_per_s"],
+        None,
+        f" / {_fmt(q and q.get('kernels_per_s'))}",
+    )
     e = first(step="stores", what="encrypt scalar")
-    goal(f"{e['size'] if e else 100}³ owner encryption, s" + (f" ({e['how']})" if e else ""), "≤ 3", e and e["seconds"],
-         None if not e else e["seconds"] <= GOALS["encrypt scalar"])
+    goal(
+        f"{e['size'] if e else 100}³ owner encryption, s" + (f" ({e['how']})" if e else ""),
+        "≤ 3",
+        e and e["seconds"],
+        None if not e else e["seconds"] <= GOALS["encrypt scalar"],
+    )
     curve = [r for r in rows if r["step"] == "curve"]
     top = max((r["workers"] for r in curve), default=None)
-    for what, target in (("frame xray nearest", "≤ 0.10"), ("frame xray trilinear", "≤ 0.30"),
-                         ("frame tf trilinear", "≤ 1 (end to end)")):
+    for what, target in (
+        ("frame xray nearest", "≤ 0.10"),
+        ("frame xray trilinear", "≤ 0.30"),
+        ("frame tf trilinear", "≤ 1 (end to end)"),
+    ):
         f = first(step="frames", what=what)
         c = first(step="curve", what=what, workers=top) if top else None
-        same = "" if not (f and c) else ("; identical to cpu" if f["sha256"] == c["sha256"] else "; NOT identical to cpu")
-        note = "" if not f else f" ({f['backend']}, {f['size']}³, {f['image']}²{same}{'' if f['within_bound'] else '; OUT OF BOUND'})"
-        goal(what.replace("frame ", "frame: "), target, f and f["seconds"], None if not f else f["seconds"] <= GOALS[what], note)
+        same = (
+            "" if not (f and c) else ("; identical to cpu" if f["sha256"] == c["sha256"] else "; NOT identical to cpu")
+        )
+        note = (
+            ""
+            if not f
+            else f" ({f['backend']}, {f['size']}³, {f['image']}²{same}{'' if f['within_bound'] else '; OUT OF BOUND'})"
+        )
+        goal(
+            what.replace("frame ", "frame: "),
+            target,
+            f and f["seconds"],
+            None if not f else f["seconds"] <= GOALS[what],
+            note,
+        )
     t1 = first(step="curve", what="frame xray nearest", workers=1)
     tn = first(step="curve", what="frame xray nearest", workers=top) if top else None
     eff = t1["seconds"] / (top * tn["seconds"]) if t1 and tn and top else None
-    goal(f"cpu nearest, efficiency at {top} workers", "≥ 0.80", eff, None if eff is None else eff >= GOALS["efficiency nearest"])
+    goal(
+        f"cpu nearest, efficiency at {top} workers",
+        "≥ 0.80",
+        eff,
+        None if eff is None else eff >= GOALS["efficiency nearest"],
+    )
     if curve:
-        lines += ["", "`cpu` resident frames (median s) by workers:", "", "| workers | frame | s | efficiency |", "|---:|---|---:|---:|"]
+        lines += [
+            "",
+            "`cpu` resident frames (median s) by workers:",
+            "",
+            "| workers | frame | s | efficiency |",
+            "|---:|---|---:|---:|",
+        ]
         for r in curve:
             eff = t1["seconds"] / (r["workers"] * r["seconds"]) if t1 and r["what"] == "frame xray nearest" else None
             lines.append(f"| {r['workers']} | {r['what'][6:]} | {r['seconds']:.3g} | {_fmt(eff)} |")
@@ -241,9 +329,23 @@ def table(out: Path) -> str:
     return text
 
 
-def run_step(step: str, out: Path, work: Path, *, backend: str = "cuda", size: int = 100, tf_size: int = 50,
-             image: int = 150, bits: int = 2048, repeats: int = 3, workers: tuple[int, ...] = (1, 2, 4, 8, 16),
-             owner_kernels: bool = False, quick: bool = False, packed_size: int = 128, packed_image: int = 128) -> bool:
+def run_step(
+    step: str,
+    out: Path,
+    work: Path,
+    *,
+    backend: str = "cuda",
+    size: int = 100,
+    tf_size: int = 50,
+    image: int = 150,
+    bits: int = 2048,
+    repeats: int = 3,
+    workers: tuple[int, ...] = (1, 2, 4, 8, 16),
+    owner_kernels: bool = False,
+    quick: bool = False,
+    packed_size: int = 128,
+    packed_image: int = 128,
+) -> bool:
     """One step of the module docstring; rows go to ``out/goals.jsonl`` as they are measured. Returns
     False where the packed step found a frame not identical to cpu's or out of its bound."""
     if step not in STEPS:
@@ -293,9 +395,22 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     workers = tuple(sorted({int(w) for w in a.workers.split(",")}))
-    ok = run_step(a.step, a.out, a.work, backend=a.backend, size=a.size, tf_size=a.tf_size, image=a.image,
-                  bits=a.bits, repeats=a.repeats, workers=workers, owner_kernels=a.owner_kernels, quick=a.quick,
-                  packed_size=a.packed_size, packed_image=a.packed_image)
+    ok = run_step(
+        a.step,
+        a.out,
+        a.work,
+        backend=a.backend,
+        size=a.size,
+        tf_size=a.tf_size,
+        image=a.image,
+        bits=a.bits,
+        repeats=a.repeats,
+        workers=workers,
+        owner_kernels=a.owner_kernels,
+        quick=a.quick,
+        packed_size=a.packed_size,
+        packed_image=a.packed_image,
+    )
     log.info("goal table: %s", a.out / "goals.md")  # gpu-proof.sh prints it; no print() outside the CLI
     if not ok:
         log.error("packed frames: the backend's frames are NOT identical to cpu's (or out of bound): see goals.md")

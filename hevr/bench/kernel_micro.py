@@ -99,8 +99,7 @@ class _Rng:
         return np.array(secrets.SystemRandom().sample(range(n), size))
 
 
-def trilinear_workload(rng, size=26, n_side=28, pixel=0.8, step=0.5,
-                       direction=(0.1, 0.06, 1.0), uniform=True):
+def trilinear_workload(rng, size=26, n_side=28, pixel=0.8, step=0.5, direction=(0.1, 0.06, 1.0), uniform=True):
     rows = []
     for o, d in _rays(n_side, pixel, direction, size):
         row: dict[int, float] = {}
@@ -116,8 +115,7 @@ def trilinear_workload(rng, size=26, n_side=28, pixel=0.8, step=0.5,
                     for dx in (0, 1):
                         v = base + (dx, dy, dz)
                         if (v >= 0).all() and (v < size).all():
-                            w = (f[0] if dx else 1 - f[0]) * (f[1] if dy else 1 - f[1]) * (
-                                f[2] if dz else 1 - f[2])
+                            w = (f[0] if dx else 1 - f[0]) * (f[1] if dy else 1 - f[1]) * (f[2] if dz else 1 - f[2])
                             key = int((v[2] * size + v[1]) * size + v[0])
                             row[key] = row.get(key, 0.0) + w
             t += step
@@ -165,8 +163,7 @@ def kernel_micro(bits: int = 2048, quick: bool = False) -> dict:
     number = 2000 if args.quick else 10000
 
     def time_mulmod(rep: int) -> float:
-        return min(timeit.repeat(lambda: a * b % n2, number=number, repeat=rep,
-                                 timer=CLOCK)) / number
+        return min(timeit.repeat(lambda: a * b % n2, number=number, repeat=rep, timer=CLOCK)) / number
 
     # Other processes may share the CPU: times are CPU times of this process, the
     # baseline is re-measured between kernel runs and minima are used throughout.
@@ -174,11 +171,9 @@ def kernel_micro(bits: int = 2048, quick: bool = False) -> dict:
 
     workloads = {
         "nearest": nearest_workload(**({"n_side": 30} if args.quick else {})),
-        "nearest-nodup": nearest_workload(
-            direction=(0.02, 0.012, 1.0), **({"n_side": 30} if args.quick else {})),
+        "nearest-nodup": nearest_workload(direction=(0.02, 0.012, 1.0), **({"n_side": 30} if args.quick else {})),
         "trilinear": trilinear_workload(rng, **({"n_side": 12} if args.quick else {})),
-        "trilinear-real": trilinear_workload(
-            rng, uniform=False, **({"n_side": 12} if args.quick else {})),
+        "trilinear-real": trilinear_workload(rng, uniform=False, **({"n_side": 12} if args.quick else {})),
     }
     results = []
     measured = []
@@ -204,31 +199,43 @@ def kernel_micro(bits: int = 2048, quick: bool = False) -> dict:
         t_naive = best_time(lambda: naive(cts, ip, vx, wt, n2, sub), 1)
         nz = wt[wt > 0]
         measured.append((t_kernel, t_naive, t_conv, sub_pairs))
-        results.append({
-            "name": name, "rows": n_rows, "pairs": n_pairs,
-            "pairs_per_row": n_pairs / max(n_rows, 1),
-            "weights": f"{nz.min()}..{nz.max()}, {np.mean(nz == 1):.0%} ones",
-            "dup": counter.duplicate_rows / max(n_rows, 1),
-            "ops": counter.modmuls / n_pairs,
-            "pre": counter.precomputed,
-        })
+        results.append(
+            {
+                "name": name,
+                "rows": n_rows,
+                "pairs": n_pairs,
+                "pairs_per_row": n_pairs / max(n_rows, 1),
+                "weights": f"{nz.min()}..{nz.max()}, {np.mean(nz == 1):.0%} ones",
+                "dup": counter.duplicate_rows / max(n_rows, 1),
+                "ops": counter.modmuls / n_pairs,
+                "pre": counter.precomputed,
+            }
+        )
     t_mul = min(t_mul, time_mulmod(7))
     for r, (t_kernel, t_naive, t_conv, sub_pairs) in zip(results, measured):
         r["ratio"] = t_kernel / r["pairs"] / t_mul
         r["naive"] = t_naive / sub_pairs / t_mul
         r["conv"] = t_conv / t_mul
-    return {"bits": bits, "quick": quick, "mulmod_s": t_mul, "goals": GOALS,
-            "workloads": [{k: (float(v) if isinstance(v, (np.floating, np.integer)) else v) for k, v in r.items()}
-                          for r in results]}
+    return {
+        "bits": bits,
+        "quick": quick,
+        "mulmod_s": t_mul,
+        "goals": GOALS,
+        "workloads": [
+            {k: (float(v) if isinstance(v, (np.floating, np.integer)) else v) for k, v in r.items()} for r in results
+        ],
+    }
 
 
 def report(res: dict) -> str:
-    args = argparse.Namespace(bits=res['bits'], quick=res['quick'])
-    results, t_mul = res['workloads'], res['mulmod_s']
+    args = argparse.Namespace(bits=res["bits"], quick=res["quick"])
+    results, t_mul = res["workloads"], res["mulmod_s"]
     when = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
-    machine = (f"{platform.platform()}; CPU {cpu_model()} ({platform.machine()}); "
-               f"Python {platform.python_version()}; gmpy2 {gmpy2.version()}; numpy {np.__version__}; "
-               f"{os.cpu_count()} logical CPUs, load average {os.getloadavg()[0]:.2f} at the end")
+    machine = (
+        f"{platform.platform()}; CPU {cpu_model()} ({platform.machine()}); "
+        f"Python {platform.python_version()}; gmpy2 {gmpy2.version()}; numpy {np.__version__}; "
+        f"{os.cpu_count()} logical CPUs, load average {os.getloadavg()[0]:.2f} at the end"
+    )
     lines = [
         f"## kernel: brick_ray_products ({when})",
         "",
@@ -248,7 +255,7 @@ def report(res: dict) -> str:
         lines.append(
             f"| {r['name']} | {r['rows']} | {r['pairs_per_row']:.1f} | {r['weights']} | "
             f"{r['dup']:.1%} | {r['ops']:.3f} | {r['pre']} | **{r['ratio']:.3f}** | {verdict} | "
-            f"{r['naive']:.2f} |")
-    lines += ["", f"- bytes_to_mpz: {results[0]['conv']:.3f} `a * b % n2` per ciphertext "
-              "(once per brick)", ""]
+            f"{r['naive']:.2f} |"
+        )
+    lines += ["", f"- bytes_to_mpz: {results[0]['conv']:.3f} `a * b % n2` per ciphertext (once per brick)", ""]
     return "\n".join(lines)

@@ -12,8 +12,9 @@ import secrets
 import subprocess
 import time
 import timeit
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import dask
 import distributed
@@ -24,7 +25,6 @@ from distributed import Client, LocalCluster
 from gmpy2 import mpz
 
 from .. import __version__
-
 from ..runtime import stats
 
 
@@ -68,8 +68,9 @@ def _git_commit() -> str | None:
     if not (root / ".git").exists():
         return None
     try:
-        out = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty"], capture_output=True,
-                             text=True, timeout=10)
+        out = subprocess.run(
+            ["git", "-C", str(root), "describe", "--always", "--dirty"], capture_output=True, text=True, timeout=10
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout.strip() or None
@@ -78,19 +79,28 @@ def _git_commit() -> str | None:
 def machine() -> dict[str, Any]:
     """Date, CPU, cores, OS and the versions of everything on the hot path."""
 
-
     try:
         import phe
+
         phe_version = phe.__version__
     except ImportError:  # pragma: no cover - phe is in the test extra
         phe_version = None
     return {
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "cpu": cpu_model(), "cores": os.cpu_count(), "os": f"{platform.system()} {platform.release()}",
+        "cpu": cpu_model(),
+        "cores": os.cpu_count(),
+        "os": f"{platform.system()} {platform.release()}",
         "memory_gib": round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1),
-        "versions": {"python": platform.python_version(), "hevr": __version__, "gmpy2": gmpy2.version(),
-                     "numpy": numpy.__version__, "dask": dask.__version__, "distributed": distributed.__version__,
-                     "zarr": zarr.__version__, "phe": phe_version},
+        "versions": {
+            "python": platform.python_version(),
+            "hevr": __version__,
+            "gmpy2": gmpy2.version(),
+            "numpy": numpy.__version__,
+            "dask": dask.__version__,
+            "distributed": distributed.__version__,
+            "zarr": zarr.__version__,
+            "phe": phe_version,
+        },
         "load_average_start": os.getloadavg()[0],
         "commit": _git_commit(),
     }
@@ -169,7 +179,6 @@ def workers(n_workers: int, scheduler: str | None = None) -> Iterator[Workers]:
     """A ``Workers`` on a new LocalCluster (1 thread per process), on ``scheduler``, or with
     ``n_workers=0`` in this process on Dask's threaded scheduler (no cluster at all)."""
 
-
     if not scheduler and n_workers == 0:
         yield Workers(None, False, 1)
         return
@@ -182,7 +191,9 @@ def workers(n_workers: int, scheduler: str | None = None) -> Iterator[Workers]:
     # distributed logs every restart at INFO; the benchmark's own log says what happens
     logging.getLogger("distributed").setLevel(logging.WARNING)
     logging.getLogger("distributed.nanny").setLevel(logging.ERROR)  # "Restarting worker" is expected here
-    with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
-            Client(cluster) as client:
+    with (
+        LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        Client(cluster) as client,
+    ):
         client.run(_warm)
         yield Workers(client, True, n_workers)

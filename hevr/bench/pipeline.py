@@ -98,11 +98,20 @@ def trace_frame(client: Any, ev: Any, camera: Any, **kw: Any) -> dict:
     n_workers = len(client.scheduler_info()["workers"])
     # Task times come from the workers' clocks (the same clock on one machine; a cluster's are
     # offset-corrected by distributed): a few ms of skew can make the serial parts slightly negative.
-    return {"wall": t1 - t0, "workers": n_workers, "serial_before": max(0.0, first - t0),
-            "serial_after": max(0.0, t1 - last),
-            "span": last - first, "tail": last - last_map, "busy": sum(dur.values()), "tasks": len(dur),
-            "kinds": {k: {"n": len(v), "sum": sum(v), "max": max(v)} for k, v in sorted(by_kind.items())},
-            "durations": dur, "deps": deps, "image_stats": {k: v for k, v in img.stats.items() if k != "seconds"}}
+    return {
+        "wall": t1 - t0,
+        "workers": n_workers,
+        "serial_before": max(0.0, first - t0),
+        "serial_after": max(0.0, t1 - last),
+        "span": last - first,
+        "tail": last - last_map,
+        "busy": sum(dur.values()),
+        "tasks": len(dur),
+        "kinds": {k: {"n": len(v), "sum": sum(v), "max": max(v)} for k, v in sorted(by_kind.items())},
+        "durations": dur,
+        "deps": deps,
+        "image_stats": {k: v for k, v in img.stats.items() if k != "seconds"},
+    }
 
 
 def simulate(deps: dict[str, list[str]], dur: dict[str, float], n_workers: int, overhead: float = 0.0) -> float:
@@ -162,6 +171,9 @@ def predict(trace: dict, workers: list[int]) -> dict:
     overhead = lo
     serial = trace["serial_before"] + trace["serial_after"]
     t = {n: serial + simulate(deps, dur, n, overhead) for n in sorted(set(workers) | {1})}
-    return {"overhead_per_task": overhead, "serial": serial,
-            "frame": {str(n): t[n] for n in workers},
-            "efficiency": {str(n): t[1] / (n * t[n]) for n in workers}}
+    return {
+        "overhead_per_task": overhead,
+        "serial": serial,
+        "frame": {str(n): t[n] for n in workers},
+        "efficiency": {str(n): t[1] / (n * t[n]) for n in workers},
+    }

@@ -44,8 +44,11 @@ def plot_scaling(doc: dict, path: Path) -> Path | None:
     pts = _points(doc)
     if not pts:
         return None
-    runs = sorted((int(k.split(".")[1]), v["wall"]) for k, v in doc["cells"].items()
-                  if k.startswith("pipeline.") and k[9:].isdigit())
+    runs = sorted(
+        (int(k.split(".")[1]), v["wall"])
+        for k, v in doc["cells"].items()
+        if k.startswith("pipeline.") and k[9:].isdigit()
+    )
     model = doc["cells"].get("pipeline.model")
     if runs:
         fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(15, 4.3), gridspec_kw={"width_ratios": [2.3, 1, 1.4]})
@@ -69,8 +72,10 @@ def plot_scaling(doc: dict, path: Path) -> Path | None:
     two = c.get(f"t1.{s['workers_bits']}.obf.trilinear")
     if one and two and "seconds" in one and "seconds" in two:
         bx.bar(["1 worker", f"{two['workers']} workers"], [one["seconds"], two["seconds"]], color=["#999", "#37c"])
-        bx.set_title(f"Trilinear X-ray, {s['size']}³, {s['workers_bits']} bits\n"
-                     f"speed-up {one['seconds'] / two['seconds']:.2f}×", fontsize=9)
+        bx.set_title(
+            f"Trilinear X-ray, {s['size']}³, {s['workers_bits']} bits\nspeed-up {one['seconds'] / two['seconds']:.2f}×",
+            fontsize=9,
+        )
         bx.set_ylabel("s")
     else:
         bx.axis("off")
@@ -87,8 +92,13 @@ def _pipeline_panel(ax, runs: list[tuple[int, float]], model: dict | None, s: di
     ax.loglog([n for n, _ in runs], [t for _, t in runs], "o", color="#37c", label="measured")
     if model:
         ns = sorted(int(n) for n in model["frame"])
-        ax.loglog(ns, [model["frame"][str(n)] for n in ns], "-", color="#c53",
-                  label=f"model (from {model['from_workers']} workers)")
+        ax.loglog(
+            ns,
+            [model["frame"][str(n)] for n in ns],
+            "-",
+            color="#c53",
+            label=f"model (from {model['from_workers']} workers)",
+        )
         t1 = model["frame"].get("1")
         if t1:
             ax.loglog(ns, [t1 / n for n in ns], "k:", lw=1, label="perfect scaling")

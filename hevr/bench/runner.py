@@ -14,24 +14,20 @@ import logging
 import os
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-from ..core.files import read_regular
-
-from ..core.files import write_atomic
+from ..core.files import read_regular, write_atomic
 from ..errors import ExistingFileError, MissingDependencyError, ParameterError
 from ..paper import TF_NODES
 from ..volume.phantom import phantom
-from . import cases
-from . import measure
+from . import cases, measure
 from .crypto_micro import crypto_micro
 from .kernel_micro import kernel_micro
 from .pipeline import predict
 from .report import write_report
-from .settings import SETTINGS
-from .settings import BenchSettings
-from .settings import block_names
+from .settings import SETTINGS, BenchSettings, block_names
 
 log = logging.getLogger(__name__)
 
@@ -57,11 +53,17 @@ class Results:
         if resume and path.exists():
             doc = json.loads(read_regular(path, "resume", "the results of an earlier run"))  # never a FIFO
             if doc.get("setting", {}).get("name") != settings.name:
-                raise ParameterError(f"resume: {path} holds a {doc.get('setting', {}).get('name')!r} run, "
-                                     f"not {settings.name!r}")
+                raise ParameterError(
+                    f"resume: {path} holds a {doc.get('setting', {}).get('name')!r} run, not {settings.name!r}"
+                )
         if doc is None:
-            doc = {"setting": settings.to_dict(), "machine": measure.machine(), "cells": {}, "blocks_done": [],
-                   "block_seconds": {}}
+            doc = {
+                "setting": settings.to_dict(),
+                "machine": measure.machine(),
+                "cells": {},
+                "blocks_done": [],
+                "block_seconds": {},
+            }
         doc.setdefault("machines", []).append(measure.machine())  # one entry per (re)start
         self.doc = doc
         self.save()
@@ -75,21 +77,28 @@ class Results:
         self.save()
 
     def save(self) -> None:
-        write_atomic(self.path, json.dumps(self.doc, indent=1, sort_keys=True) + "\n", overwrite=self._replace,
-                     name="out", doing="writing the benchmark results")
+        write_atomic(
+            self.path,
+            json.dumps(self.doc, indent=1, sort_keys=True) + "\n",
+            overwrite=self._replace,
+            name="out",
+            doing="writing the benchmark results",
+        )
         self._replace = True  # this run's own file from now on
 
 
 def outputs(out: Path, name: str) -> list[Path]:
     """The files a run of the setting ``name`` writes into ``out``: results JSON, markdown, plot."""
-    return [out / f"results-{name}.json", out / ("RESULTS.md" if name == "paper" else f"RESULTS-{name}.md"),
-            out / f"scaling-{name}.png"]
+    return [
+        out / f"results-{name}.json",
+        out / ("RESULTS.md" if name == "paper" else f"RESULTS-{name}.md"),
+        out / f"scaling-{name}.png",
+    ]
 
 
 def _blocks(s: BenchSettings) -> list[tuple[str, str, Callable[..., None]]]:
     """(name, kind, function) in the run order of :func:`block_names`."""
-    fns: dict[str, Callable[..., None]] = {"micro": _micro, "naive": _naive, "scaling": _scaling,
-                                           "pipeline": _pipeline}
+    fns: dict[str, Callable[..., None]] = {"micro": _micro, "naive": _naive, "scaling": _scaling, "pipeline": _pipeline}
     table = {"t1": _table1, "t3": _table3, "t2": _table2_extra}
     out = []
     for name, kind in block_names(s):
@@ -135,11 +144,14 @@ def _table3(ctx: cases.Context, r: Results, s: BenchSettings, bits: int) -> None
         for k in range(1, dims + 1):
             r.put(f"t3.{bits}.{dims}.{k}", cases.render_case(ctx, ev, vol, priv, mode="tf", nodes=TF_NODES[:k]))
         if dims == 4:  # beside the paper's way: the same frame coloured on the client, end to end
-            r.put(f"client.{bits}.tf4", cases.render_case(ctx, ev, vol, priv, mode="tf", nodes=TF_NODES,
-                                                          finish="client"))
+            r.put(
+                f"client.{bits}.tf4", cases.render_case(ctx, ev, vol, priv, mode="tf", nodes=TF_NODES, finish="client")
+            )
         if bits == s.goal_bits and dims == 4:
-            r.put(f"goal.tf4_trilinear.{bits}", cases.render_case(ctx, ev, vol, priv, mode="tf", sampling="trilinear",
-                                                                  nodes=TF_NODES))
+            r.put(
+                f"goal.tf4_trilinear.{bits}",
+                cases.render_case(ctx, ev, vol, priv, mode="tf", sampling="trilinear", nodes=TF_NODES),
+            )
         cases.remove(path)
 
 
@@ -153,8 +165,10 @@ def _table2_extra(ctx: cases.Context, r: Results, s: BenchSettings, bits: int) -
             continue
         path = ctx.work / f"t2-{bits}-{dims}.zarr"
         _ev, cell = cases.encrypt_case(ctx, vol, priv, path, dims=dims, obfuscate=False)
-        r.put(f"t2.{bits}.{dims}", {k: cell[k] for k in ("ciphertext_bytes", "store_bytes")}
-              | {"source": "unobfuscated, for Table 2 only"})
+        r.put(
+            f"t2.{bits}.{dims}",
+            {k: cell[k] for k in ("ciphertext_bytes", "store_bytes")} | {"source": "unobfuscated, for Table 2 only"},
+        )
         cases.remove(path)
 
 
@@ -187,7 +201,7 @@ def _pipeline(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
     counts = sorted({1, 2, cores, 2 * cores}) if ctx.workers.own else [ctx.workers.n_workers]
     best = None
     for n in counts:
-        with (measure.workers(n) if ctx.workers.own else contextlib.nullcontext(ctx.workers)) as w:
+        with measure.workers(n) if ctx.workers.own else contextlib.nullcontext(ctx.workers) as w:
             tr = cases.pipeline_case(w, ev, ctx.camera(ev.shape))
         tr["oversubscribed"] = n > cores
         r.put(f"pipeline.{n}", {k: v for k, v in tr.items() if k not in ("durations", "deps")})
@@ -198,10 +212,19 @@ def _pipeline(ctx: cases.Context, r: Results, s: BenchSettings) -> None:
     cases.remove(path)
 
 
-def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, resume: bool = False,
-              only: tuple[str, ...] | None = None, workers: int = 2, scheduler: str | None = None,
-              work: str | Path | None = None, progress: bool = False, overwrite: bool = False,
-              log_line: Callable[[str], None] = lambda _: None) -> Path:
+def run_bench(
+    setting: str | BenchSettings = "quick",
+    out: str | Path = ".",
+    *,
+    resume: bool = False,
+    only: tuple[str, ...] | None = None,
+    workers: int = 2,
+    scheduler: str | None = None,
+    work: str | Path | None = None,
+    progress: bool = False,
+    overwrite: bool = False,
+    log_line: Callable[[str], None] = lambda _: None,
+) -> Path:
     """Run the benchmark ``setting`` and write ``RESULTS*.md``, ``results-*.json`` and the
     scaling plot into ``out``. Returns the markdown path. Files of an earlier run of the
     setting there are continued with ``resume=True``, replaced with ``overwrite=True``, and
@@ -216,8 +239,10 @@ def run_bench(setting: str | BenchSettings = "quick", out: str | Path = ".", *, 
         try:
             import phe  # noqa: F401
         except ImportError:
-            raise MissingDependencyError("hevr bench compares with python-paillier: pip install phe (or "
-                                         "'hevr[test]'), or leave out the micro and naive blocks with --only") from None
+            raise MissingDependencyError(
+                "hevr bench compares with python-paillier: pip install phe (or "
+                "'hevr[test]'), or leave out the micro and naive blocks with --only"
+            ) from None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     results = Results(out / f"results-{s.name}.json", s, resume, overwrite)

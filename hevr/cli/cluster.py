@@ -41,8 +41,10 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, own: b
     Yields the ``distributed.Client`` (or None); closes what it opened.
     """
     if own and not scheduler:
-        raise UsageError("--own-cluster: expected --scheduler ADDRESS as well (a cluster this command starts, "
-                         "or Dask's default scheduler, is this process's own already)")
+        raise UsageError(
+            "--own-cluster: expected --scheduler ADDRESS as well (a cluster this command starts, "
+            "or Dask's default scheduler, is this process's own already)"
+        )
     if scheduler:
         check_scheduler(scheduler)
         log.info("connecting to the Dask scheduler at %s", scheduler)
@@ -57,11 +59,15 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, own: b
         finally:
             client.close()
     elif workers:
-
         log.info("starting a local Dask cluster: %d worker processes, 1 thread each", workers)
         with _sigint_ignored():  # the worker processes inherit it: Ctrl-C stops this one only
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", silence_logs=logging.ERROR)
+            cluster = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",
+                silence_logs=logging.ERROR,
+            )
         try:
             client = Client(cluster)
             try:
@@ -91,8 +97,9 @@ def check_scheduler(address: str) -> None:
         if not location:
             raise ValueError("no host")
     except ValueError as exc:
-        raise UsageError(f"--scheduler: expected a Dask scheduler address like tcp://10.0.0.5:8786, got {address!r} "
-                         f"({exc})") from None
+        raise UsageError(
+            f"--scheduler: expected a Dask scheduler address like tcp://10.0.0.5:8786, got {address!r} ({exc})"
+        ) from None
 
 
 @contextlib.contextmanager

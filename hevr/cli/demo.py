@@ -80,8 +80,10 @@ class Job:
 
 def paper_jobs() -> list[Job]:
     """The paper's figure set (X-ray, emphasis at three densities, two transfer functions)."""
-    jobs = [Job("xray-nearest", "X-ray, nearest", "xray", "nearest"),
-            Job("xray-trilinear", "X-ray, trilinear", "xray", "trilinear")]
+    jobs = [
+        Job("xray-nearest", "X-ray, nearest", "xray", "nearest"),
+        Job("xray-trilinear", "X-ray, trilinear", "xray", "trilinear"),
+    ]
     for d in PAPER_DENSITIES:
         jobs.append(Job(f"emphasize-{d}", f"emphasis of density {d}, trilinear", "emphasize", "trilinear", density=d))
     for i, tf in enumerate((PAPER_TF1, PAPER_TF2), 1):
@@ -101,13 +103,32 @@ def packed_job() -> Job:
 
 def output_names(jobs: list[Job], packed: bool = True) -> list[str]:
     """Every name the demo writes into its folder (``packed``: the packed store's too)."""
-    frames = [f"{j.name}{ext}" for j in jobs + ([packed_job()] if packed else []) for ext in (".hevr", ".png", ".ref.png")]
-    return ["demo-key.json", "demo-key.pub.json", "volume.zarr", *(["volume-packed.zarr"] if packed else []), *frames,
-            "contact-sheet.png", "summary.json", "report.md"]
+    frames = [
+        f"{j.name}{ext}" for j in jobs + ([packed_job()] if packed else []) for ext in (".hevr", ".png", ".ref.png")
+    ]
+    return [
+        "demo-key.json",
+        "demo-key.pub.json",
+        "volume.zarr",
+        *(["volume-packed.zarr"] if packed else []),
+        *frames,
+        "contact-sheet.png",
+        "summary.json",
+        "report.md",
+    ]
 
 
-def run_jobs(ev: Any, vol: np.ndarray, priv: Any, jobs: list[Job], cam: Any, *, progress: bool,
-             outdir: OutputFolder | None = None, log: Any = print) -> None:
+def run_jobs(
+    ev: Any,
+    vol: np.ndarray,
+    priv: Any,
+    jobs: list[Job],
+    cam: Any,
+    *,
+    progress: bool,
+    outdir: OutputFolder | None = None,
+    log: Any = print,
+) -> None:
     """Render, decrypt and compare every job (results in ``job.result``); optionally write files
     into ``outdir`` (what it may replace: :class:`hevr.cli.outdir.OutputFolder`)."""
 
@@ -118,37 +139,71 @@ def run_jobs(ev: Any, vol: np.ndarray, priv: Any, jobs: list[Job], cam: Any, *, 
         with Timer() as td:
             arr = img.decrypt(priv)
         with Timer() as tp:
-            ref = render_plain(vol, cam, spacing=ev.spacing, value_range=ev.value_range,
-                               vector_dims=ev.vector_dims, **kw)
+            ref = render_plain(
+                vol, cam, spacing=ev.spacing, value_range=ev.value_range, vector_dims=ev.vector_dims, **kw
+            )
         err = np.abs(arr - ref)
         bound = error_bound(ev, cam, **kw)
         scale = float(np.abs(ref).max()) or 1.0
-        job.result = {"render_s": tr.seconds, "decrypt_s": td.seconds, "frame_s": tr.seconds + td.seconds,
-                      "reference_s": tp.seconds, "finish": img.finish,
-                      "max_abs_error": float(err.max()), "max_rel_error": float(err.max()) / scale,
-                      "within_bound": bool((err <= bound).all()), "ciphertexts": img.n_ciphertexts,
-                      "reused_ray_sums": bool(img.stats.get("reused_ray_sums")),
-                      "resident": bool(img.stats.get("resident"))}
+        job.result = {
+            "render_s": tr.seconds,
+            "decrypt_s": td.seconds,
+            "frame_s": tr.seconds + td.seconds,
+            "reference_s": tp.seconds,
+            "finish": img.finish,
+            "max_abs_error": float(err.max()),
+            "max_rel_error": float(err.max()) / scale,
+            "within_bound": bool((err <= bound).all()),
+            "ciphertexts": img.n_ciphertexts,
+            "reused_ray_sums": bool(img.stats.get("reused_ray_sums")),
+            "resident": bool(img.stats.get("resident")),
+        }
         if outdir is not None:
             win = _window(ref)
-            for name, write in ((f"{job.name}.hevr", lambda p, o: img.save(p, overwrite=o)),
-                                (f"{job.name}.png", lambda p, o: save_png(arr, p, window=win, overwrite=o)),
-                                (f"{job.name}.ref.png", lambda p, o: save_png(ref, p, window=win, overwrite=o))):
+            for name, write in (
+                (f"{job.name}.hevr", lambda p, o: img.save(p, overwrite=o)),
+                (f"{job.name}.png", lambda p, o: save_png(arr, p, window=win, overwrite=o)),
+                (f"{job.name}.ref.png", lambda p, o: save_png(ref, p, window=win, overwrite=o)),
+            ):
                 write(outdir.path / name, outdir.overwrite(name))
                 outdir.wrote(name)
             job.result["window"] = list(win)
-        log(f"  {job.name:<16} frame {tr.seconds + td.seconds:6.2f} s (render {tr.seconds:.2f} + decrypt "
+        log(
+            f"  {job.name:<16} frame {tr.seconds + td.seconds:6.2f} s (render {tr.seconds:.2f} + decrypt "
             f"{td.seconds:.2f})  "
-            f"max|err| {err.max():.2e}{'' if job.result['within_bound'] else '  (ABOVE the error bound!)'}")
+            f"max|err| {err.max():.2e}{'' if job.result['within_bound'] else '  (ABOVE the error bound!)'}"
+        )
 
 
 def _jobs_table(jobs: list[Job]) -> str:
-    rows = [[j.name, f"{j.result['max_abs_error']:.2e}", f"{j.result['max_rel_error']:.1e}",
-             "yes" if j.result["within_bound"] else "NO", f"{j.result['frame_s']:.2f}", f"{j.result['render_s']:.2f}",
-             f"{j.result['decrypt_s']:.3f}", j.result["ciphertexts"],
-             "yes" if j.result["reused_ray_sums"] else "no"] for j in jobs]
-    return table(rows, ["image", "max|err|", "rel.err", "in bound", "frame s (request → image)", "render s",
-                        "decrypt s", "ciphertexts", "cached sums"])
+    rows = [
+        [
+            j.name,
+            f"{j.result['max_abs_error']:.2e}",
+            f"{j.result['max_rel_error']:.1e}",
+            "yes" if j.result["within_bound"] else "NO",
+            f"{j.result['frame_s']:.2f}",
+            f"{j.result['render_s']:.2f}",
+            f"{j.result['decrypt_s']:.3f}",
+            j.result["ciphertexts"],
+            "yes" if j.result["reused_ray_sums"] else "no",
+        ]
+        for j in jobs
+    ]
+    return table(
+        rows,
+        [
+            "image",
+            "max|err|",
+            "rel.err",
+            "in bound",
+            "frame s (request → image)",
+            "render s",
+            "decrypt s",
+            "ciphertexts",
+            "cached sums",
+        ],
+    )
 
 
 def _stages_table(stages: dict) -> str:
@@ -216,13 +271,24 @@ def cmd_demo(args: Any) -> int:
             stages["start cluster"] = t.seconds
             print(f"[cluster] {t.seconds:.2f} s: {describe_client(client)}")
         with Timer() as t:
-            ev = encrypt_volume(vol, out / "volume.zarr", priv, spacing=spacing, brick=brick, vector_dims=4,
-                                value_range=value_range, overwrite=folder.overwrite("volume.zarr"), progress=progress)
+            ev = encrypt_volume(
+                vol,
+                out / "volume.zarr",
+                priv,
+                spacing=spacing,
+                brick=brick,
+                vector_dims=4,
+                value_range=value_range,
+                overwrite=folder.overwrite("volume.zarr"),
+                progress=progress,
+            )
             folder.wrote("volume.zarr")
         stages["encrypt"] = t.seconds
         n_ct = int(np.prod(vol.shape)) * 5
-        print(f"[encrypt] {t.seconds:.2f} s: {n_ct} ciphertexts (scalar + 4-dim vector, owner-side fast path), "
-              f"{plural(ev.meta.n_bricks, 'brick')} of {xyz(ev.brick)}, {human_bytes(disk_usage(ev.path))}")
+        print(
+            f"[encrypt] {t.seconds:.2f} s: {n_ct} ciphertexts (scalar + 4-dim vector, owner-side fast path), "
+            f"{plural(ev.meta.n_bricks, 'brick')} of {xyz(ev.brick)}, {human_bytes(disk_usage(ev.path))}"
+        )
         if args.scheduler:
             with Timer() as t:
                 client = stack.enter_context(dask_client(args.scheduler, None, own=getattr(args, "own_cluster", False)))
@@ -239,8 +305,10 @@ def cmd_demo(args: Any) -> int:
         print(f"[persist] {t.seconds:.2f} s: {resident}")
         cam = Camera.orbit(ev, azimuth=args.azimuth, elevation=args.elevation, width=w, height=h)
         jobs = paper_jobs()
-        print(f"[render]  {len(jobs)} images on {describe_client(client)}; decrypt and compare with render_plain "
-              "(not verified: the per-voxel demo store has no tags; the packed store's frame is verified):")
+        print(
+            f"[render]  {len(jobs)} images on {describe_client(client)}; decrypt and compare with render_plain "
+            "(not verified: the per-voxel demo store has no tags; the packed store's frame is verified):"
+        )
         run_jobs(ev, vol, priv, jobs, cam, progress=progress, outdir=folder)
         pjob = packed_job()
         packed_result = run_packed(ev, vol, priv, args, client, folder, stages, pjob, brick) if packed else None
@@ -256,20 +324,43 @@ def cmd_demo(args: Any) -> int:
     stages["write images"] = t.seconds
     total = time.perf_counter() - t_start
     summary = {
-        "input": what, "shape": list(vol.shape), "spacing": list(ev.spacing), "value_range": list(ev.value_range),
-        "bits": args.bits, "fingerprint": pub.fingerprint, "image": [w, h], "brick": list(ev.brick),
-        "camera": cam.to_dict(), "compute": describe_client(None) if client is None else "distributed",
-        "workers": None if args.scheduler else workers, "stages_s": stages, "total_s": total,
-        "images": [{"name": j.name, "title": j.title, "mode": j.mode, "sampling": j.sampling, "density": j.density,
-                    "tf": format_tf(j.nodes) if j.nodes else None, "png": f"{j.name}.png",
-                    "reference_png": f"{j.name}.ref.png", "frame": f"{j.name}.hevr", **j.result} for j in jobs],
+        "input": what,
+        "shape": list(vol.shape),
+        "spacing": list(ev.spacing),
+        "value_range": list(ev.value_range),
+        "bits": args.bits,
+        "fingerprint": pub.fingerprint,
+        "image": [w, h],
+        "brick": list(ev.brick),
+        "camera": cam.to_dict(),
+        "compute": describe_client(None) if client is None else "distributed",
+        "workers": None if args.scheduler else workers,
+        "stages_s": stages,
+        "total_s": total,
+        "images": [
+            {
+                "name": j.name,
+                "title": j.title,
+                "mode": j.mode,
+                "sampling": j.sampling,
+                "density": j.density,
+                "tf": format_tf(j.nodes) if j.nodes else None,
+                "png": f"{j.name}.png",
+                "reference_png": f"{j.name}.ref.png",
+                "frame": f"{j.name}.hevr",
+                **j.result,
+            }
+            for j in jobs
+        ],
     }
     if packed_result is not None:
         summary["packed"] = packed_result
     jt, st = _jobs_table(jobs), _stages_table(stages)
     pt = _packed_table(packed_result) if packed_result is not None else None
-    for name, text in (("summary.json", json.dumps(summary, indent=1) + "\n"),
-                       ("report.md", _report(summary, jt, st, pt))):
+    for name, text in (
+        ("summary.json", json.dumps(summary, indent=1) + "\n"),
+        ("report.md", _report(summary, jt, st, pt)),
+    ):
         write_atomic(out / name, text, overwrite=folder.overwrite(name), name="--out", doing="writing the demo's")
         folder.wrote(name)
     print()
@@ -279,8 +370,7 @@ def cmd_demo(args: Any) -> int:
     if pt is not None:
         print()
         print(pt)
-    print(f"\nwrote {out}/contact-sheet.png, report.md, summary.json and {3 * len(sheet)} image files "
-          f"in {total:.1f} s")
+    print(f"\nwrote {out}/contact-sheet.png, report.md, summary.json and {3 * len(sheet)} image files in {total:.1f} s")
     bad = [j.name for j in sheet if not j.result["within_bound"]]
     if bad:
         warn_line(f"decrypted images above the error bound: {', '.join(bad)}")
@@ -288,23 +378,42 @@ def cmd_demo(args: Any) -> int:
     return 0
 
 
-def run_packed(ev: Any, vol: np.ndarray, priv: Any, args: Any, client: Any, folder: OutputFolder,
-               stages: dict, job: Job, brick: Any) -> dict:
+def run_packed(
+    ev: Any,
+    vol: np.ndarray,
+    priv: Any,
+    args: Any,
+    client: Any,
+    folder: OutputFolder,
+    stages: dict,
+    job: Job,
+    brick: Any,
+) -> dict:
     """The packed store of the same volume (verifiable: the private key; ``brick`` as the per-voxel
     one's), persisted as that one is, and one verified parallel X-ray of it beside the per-voxel
     store's frame of the same camera; files into ``folder``, results in ``job.result`` and returned
     for the summary."""
     out, progress = folder.path, show_progress(args)
     with Timer() as t:
-        pev = encrypt_volume(vol, out / "volume-packed.zarr", priv, spacing=ev.spacing, brick=brick,
-                             value_range=ev.value_range, layout="packed", overwrite=folder.overwrite("volume-packed.zarr"),
-                             progress=progress)
+        pev = encrypt_volume(
+            vol,
+            out / "volume-packed.zarr",
+            priv,
+            spacing=ev.spacing,
+            brick=brick,
+            value_range=ev.value_range,
+            layout="packed",
+            overwrite=folder.overwrite("volume-packed.zarr"),
+            progress=progress,
+        )
         folder.wrote("volume-packed.zarr")
     stages["encrypt packed"] = t.seconds
     info = pev.packing
     size, size_voxel = disk_usage(pev.path), disk_usage(ev.path)
-    print(f"[packed]  {t.seconds:.2f} s: {info.slots} voxels per ciphertext along {'zyx'[info.axis]}, with tags "
-          f"(verifiable), {human_bytes(size)} (the per-voxel store: {human_bytes(size_voxel)})")
+    print(
+        f"[packed]  {t.seconds:.2f} s: {info.slots} voxels per ciphertext along {'zyx'[info.axis]}, with tags "
+        f"(verifiable), {human_bytes(size)} (the per-voxel store: {human_bytes(size_voxel)})"
+    )
     try:
         pev = pev.persist(client=client)
         pev.resident.wait()
@@ -312,8 +421,9 @@ def run_packed(ev: Any, vol: np.ndarray, priv: Any, args: Any, client: Any, fold
         pass  # streamed from the store, as the per-voxel one would be
     el = args.elevation if abs(args.elevation) < 40 else 0.0  # a packed store serves views around its axis
     w, h = args.image
-    cam = Camera.orbit(pev, view=default_packed_view(pev), azimuth=args.azimuth, elevation=el, width=w, height=h,
-                       parallel=True)
+    cam = Camera.orbit(
+        pev, view=default_packed_view(pev), azimuth=args.azimuth, elevation=el, width=w, height=h, parallel=True
+    )
     with Timer() as tr:
         img = render(pev, cam, sampling=job.sampling, progress=progress)
     with Timer() as td:
@@ -324,52 +434,101 @@ def run_packed(ev: Any, vol: np.ndarray, priv: Any, args: Any, client: Any, fold
     with Timer() as tv:  # the per-voxel store's frame of the same camera, for comparison
         vimg = render(ev, cam, mode="xray", sampling=job.sampling, progress=progress, verify=False)
         vimg.decrypt(priv)
-    job.result = {"render_s": tr.seconds, "decrypt_s": td.seconds, "frame_s": tr.seconds + td.seconds,
-                  "finish": "client", "max_abs_error": float(err.max()),
-                  "max_rel_error": float(err.max()) / (float(np.abs(ref).max()) or 1.0),
-                  "within_bound": bool((err <= bound).all()), "ciphertexts": img.n_ciphertexts,
-                  "reused_ray_sums": False, "resident": bool(img.stats.get("resident")), "verified": img.verified,
-                  "window": list(_window(ref))}
-    for name, write in (("xray-packed.hevr", lambda p, o: img.save(p, overwrite=o, private_key=priv)),
-                        ("xray-packed.png", lambda p, o: save_png(arr, p, window=job.result["window"], overwrite=o)),
-                        ("xray-packed.ref.png", lambda p, o: save_png(ref, p, window=job.result["window"], overwrite=o))):
+    job.result = {
+        "render_s": tr.seconds,
+        "decrypt_s": td.seconds,
+        "frame_s": tr.seconds + td.seconds,
+        "finish": "client",
+        "max_abs_error": float(err.max()),
+        "max_rel_error": float(err.max()) / (float(np.abs(ref).max()) or 1.0),
+        "within_bound": bool((err <= bound).all()),
+        "ciphertexts": img.n_ciphertexts,
+        "reused_ray_sums": False,
+        "resident": bool(img.stats.get("resident")),
+        "verified": img.verified,
+        "window": list(_window(ref)),
+    }
+    for name, write in (
+        ("xray-packed.hevr", lambda p, o: img.save(p, overwrite=o, private_key=priv)),
+        ("xray-packed.png", lambda p, o: save_png(arr, p, window=job.result["window"], overwrite=o)),
+        ("xray-packed.ref.png", lambda p, o: save_png(ref, p, window=job.result["window"], overwrite=o)),
+    ):
         write(out / name, folder.overwrite(name))
         folder.wrote(name)
     stages["render packed"], stages["decrypt packed"] = tr.seconds, td.seconds
-    print(f"  {job.name:<16} frame {tr.seconds + td.seconds:6.2f} s (render {tr.seconds:.2f} + decrypt and verify "
-          f"{td.seconds:.2f}), verified; max|err| {err.max():.2e}"
-          f"{'' if job.result['within_bound'] else '  (ABOVE the error bound!)'}; the per-voxel store's frame of the "
-          f"same camera: {tv.seconds:.2f} s, not verified")
-    return {"store": "volume-packed.zarr", "axis": "zyx"[info.axis], "slots": info.slots, "slot_bits": info.slot_bits,
-            "store_bytes": size, "voxel_store_bytes": size_voxel, "encrypt_s": t.seconds, "camera": cam.to_dict(),
-            "voxel_frame_s": tv.seconds, "frame": "xray-packed.hevr", "png": "xray-packed.png",
-            "reference_png": "xray-packed.ref.png", **job.result}
+    print(
+        f"  {job.name:<16} frame {tr.seconds + td.seconds:6.2f} s (render {tr.seconds:.2f} + decrypt and verify "
+        f"{td.seconds:.2f}), verified; max|err| {err.max():.2e}"
+        f"{'' if job.result['within_bound'] else '  (ABOVE the error bound!)'}; the per-voxel store's frame of the "
+        f"same camera: {tv.seconds:.2f} s, not verified"
+    )
+    return {
+        "store": "volume-packed.zarr",
+        "axis": "zyx"[info.axis],
+        "slots": info.slots,
+        "slot_bits": info.slot_bits,
+        "store_bytes": size,
+        "voxel_store_bytes": size_voxel,
+        "encrypt_s": t.seconds,
+        "camera": cam.to_dict(),
+        "voxel_frame_s": tv.seconds,
+        "frame": "xray-packed.hevr",
+        "png": "xray-packed.png",
+        "reference_png": "xray-packed.ref.png",
+        **job.result,
+    }
 
 
 def _packed_table(r: dict) -> str:
-    rows = [["per-voxel (scalar + vector[4])", human_bytes(r["voxel_store_bytes"]), f"{r['voxel_frame_s']:.2f}", "no",
-             "-"],
-            [f"packed ({r['slots']} voxels/ciphertext along {r['axis']}, tags)", human_bytes(r["store_bytes"]),
-             f"{r['frame_s']:.2f}", "yes" if r["verified"] else "no", f"{r['max_abs_error']:.2e}"]]
+    rows = [
+        ["per-voxel (scalar + vector[4])", human_bytes(r["voxel_store_bytes"]), f"{r['voxel_frame_s']:.2f}", "no", "-"],
+        [
+            f"packed ({r['slots']} voxels/ciphertext along {r['axis']}, tags)",
+            human_bytes(r["store_bytes"]),
+            f"{r['frame_s']:.2f}",
+            "yes" if r["verified"] else "no",
+            f"{r['max_abs_error']:.2e}",
+        ],
+    ]
     return table(rows, ["store", "size", "parallel X-ray frame s", "verified", "max|err| (slice reference)"])
 
 
 def _report(summary: dict, jobs_table: str, stages_table: str, packed_table: str | None = None) -> str:
     lines = [
-        "# hevr demo", "",
+        "# hevr demo",
+        "",
         f"Input: {summary['input']}, spacing {xyz(summary['spacing'][::-1], sep=', ')}, value range "
         f"{tuple(summary['value_range'])}.  ",
         f"Key: {summary['bits']} bits, fingerprint `{summary['fingerprint']}`.  ",
         f"Images: {wh(*summary['image'])} px; bricks {xyz(summary['brick'])}; "
-        f"workers: {summary['workers'] if summary['workers'] is not None else 'external scheduler'}.", "",
-        "![contact sheet](contact-sheet.png)", "",
+        f"workers: {summary['workers'] if summary['workers'] is not None else 'external scheduler'}.",
+        "",
+        "![contact sheet](contact-sheet.png)",
+        "",
         "Each encrypted render was decrypted and compared with `hevr.render_plain` on the plaintext volume "
-        "(same camera, mode and sampling). *in bound*: every pixel is within `hevr.rendering.encrypted.error_bound`.", "",
-        "```", jobs_table, "```", "", "Time per stage:", "", "```", stages_table, "```", "",
+        "(same camera, mode and sampling). *in bound*: every pixel is within `hevr.rendering.encrypted.error_bound`.",
+        "",
+        "```",
+        jobs_table,
+        "```",
+        "",
+        "Time per stage:",
+        "",
+        "```",
+        stages_table,
+        "```",
+        "",
     ]
     if packed_table is not None:
-        lines += ["The same volume as a packed store (S voxels per ciphertext, verifiable) and one parallel X-ray "
-                  "(bilinear in each slice; compared with `render_plain(..., slices=True)`), beside the per-voxel "
-                  "store's frame of the same camera (frame: render, decrypt and, for the packed one, the check "
-                  "against the store's tags):", "", "```", packed_table, "```", ""]
+        lines += [
+            "The same volume as a packed store (S voxels per ciphertext, verifiable) and one parallel X-ray "
+            "(bilinear in each slice; compared with `render_plain(..., slices=True)`), beside the per-voxel "
+            "store's frame of the same camera (frame: render, decrypt and, for the packed one, the check "
+            "against the store's tags):",
+            "",
+            "```",
+            packed_table,
+            "```",
+            "",
+        ]
     return "\n".join(lines)

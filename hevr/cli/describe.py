@@ -74,7 +74,9 @@ def describe(args: Any) -> int:
     if st.is_url(args.path):  # a store, frame or sums file on object storage
         url, so = normalise(args.path), st.storage_options(args)
         kind = st.url_kind(url, so)
-        return _info_store(url, so, args) if kind == "store" else {"frame": _info_image, "sums": _info_sums}[kind](url, so)
+        return (
+            _info_store(url, so, args) if kind == "store" else {"frame": _info_image, "sums": _info_sums}[kind](url, so)
+        )
     path = st.local_path(args.path)
     if str(args.path).startswith("sample:") and not path.exists():  # a real scan a package ships
         return _info_volume(path, args, spec=str(args.path))
@@ -89,7 +91,7 @@ def describe(args: Any) -> int:
         head = fh.read(len(MAGIC))
     if head[:-1] == MAGIC[:-1] or path.suffix == ".hevr":  # any version: load_image names an unsupported one
         return _info_image(check_frame_path(path, "PATH"))
-    if head == SUMS_MAGIC[:len(MAGIC)] or path.suffix == ".hevrsums":
+    if head == SUMS_MAGIC[: len(MAGIC)] or path.suffix == ".hevrsums":
         return _info_sums(path)
     if head.lstrip()[:1] == b"{":
         try:
@@ -100,8 +102,9 @@ def describe(args: Any) -> int:
             return info_key(path, "python-paillier (pheutil)" if is_phe_dict(doc) else "hevr")
         if isinstance(doc, dict) and doc.get("zarr_format") is not None:
             return _info_store(check_store_path(path.parent, "PATH"), None, args)
-        raise UsageError(f"PATH: expected a key, store, frame or volume file, got a JSON file that is not an "
-                         f"hevr key ({args.path})")
+        raise UsageError(
+            f"PATH: expected a key, store, frame or volume file, got a JSON file that is not an hevr key ({args.path})"
+        )
     return _info_volume(path, args)
 
 
@@ -126,31 +129,41 @@ def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> i
         verify, damaged, bad = verify_store(str(path), so, args)
         failed = failed or bad
     bits = int(meta.n).bit_length()
-    print_rows([
-        ("path", path),
-        ("kind", "encrypted volume store"),
-        ("format", f"{meta.format} version {meta.version}"),
-        ("shape", f"{xyz(meta.shape)} voxels"),
-        ("dtype", meta.dtype),
-        ("spacing", xyz(tuple(meta.spacing)[::-1], sep=", ")),
-        ("frame", f"RAS+, voxel (0, 0, 0) at {', '.join(f'{v:g}' for v in meta.patient['origin'])} mm"
-         if meta.patient else "none recorded (axes as the input stored them)"),
-        ("brick", f"{xyz(meta.brick)} voxels"),
-        ("grid", f"{xyz(meta.grid)} = {plural(meta.n_bricks, 'brick')}"),
-        ("channels", channels(meta)),
-        ("layout", "one ciphertext per voxel" if meta.packing is None else
-         f"packed: {meta.packing.slots} voxels per ciphertext along {'zyx'[meta.packing.axis]} "
-         f"({meta.packing.slot_bits}-bit slots, {meta.packing.weight_bits}-bit in-slice weights)"),
-        ("value range", meta.value_range),
-        ("key", f"{bits}-bit public key" + (" (NOT secure: < 2048 bits)" if bits < SECURE_BITS else "")),
-        ("fingerprint", meta.fingerprint),
-        ("ciphertext", f"{meta.ciphertext_bytes} bytes each"),
-        ("complete", meta.complete),
-        *level_rows(meta),
-        ("check", check),
-        *([("verify", verify)] if verify else []),
-        ("on disk", human_bytes(st.size_of(path, so))),
-    ])
+    print_rows(
+        [
+            ("path", path),
+            ("kind", "encrypted volume store"),
+            ("format", f"{meta.format} version {meta.version}"),
+            ("shape", f"{xyz(meta.shape)} voxels"),
+            ("dtype", meta.dtype),
+            ("spacing", xyz(tuple(meta.spacing)[::-1], sep=", ")),
+            (
+                "frame",
+                f"RAS+, voxel (0, 0, 0) at {', '.join(f'{v:g}' for v in meta.patient['origin'])} mm"
+                if meta.patient
+                else "none recorded (axes as the input stored them)",
+            ),
+            ("brick", f"{xyz(meta.brick)} voxels"),
+            ("grid", f"{xyz(meta.grid)} = {plural(meta.n_bricks, 'brick')}"),
+            ("channels", channels(meta)),
+            (
+                "layout",
+                "one ciphertext per voxel"
+                if meta.packing is None
+                else f"packed: {meta.packing.slots} voxels per ciphertext along {'zyx'[meta.packing.axis]} "
+                f"({meta.packing.slot_bits}-bit slots, {meta.packing.weight_bits}-bit in-slice weights)",
+            ),
+            ("value range", meta.value_range),
+            ("key", f"{bits}-bit public key" + (" (NOT secure: < 2048 bits)" if bits < SECURE_BITS else "")),
+            ("fingerprint", meta.fingerprint),
+            ("ciphertext", f"{meta.ciphertext_bytes} bytes each"),
+            ("complete", meta.complete),
+            *level_rows(meta),
+            ("check", check),
+            *([("verify", verify)] if verify else []),
+            ("on disk", human_bytes(st.size_of(path, so))),
+        ]
+    )
     for line in damaged:
         print(line)
     warn_leftovers(path)
@@ -174,32 +187,47 @@ def _info_image(path: Path | str, so: dict | None = None) -> int:
         ("shape", f"{wh(img.shape[1], img.shape[0])} px{', rgb' if len(img.shape) == 3 and not client else ''}"),
     ]
     if client:
-        colour = ("an X-ray: decrypted as it is" if img.channel == "scalar" else
-                  "coloured at decryption: hevr decrypt --tf NODES | --density D (the frame holds neither)")
-        rows += [("finish", f"client: the ray sums of the {img.channel} channel, {colour}"),
-                 ("components", f"{img.values_per_pixel} per pixel the ray hits (each sum / its samples = the "
-                                f"mean of a stored component)"),
-                 ("rendered", f"{img.channel} channel, {view}")]
+        colour = (
+            "an X-ray: decrypted as it is"
+            if img.channel == "scalar"
+            else "coloured at decryption: hevr decrypt --tf NODES | --density D (the frame holds neither)"
+        )
+        rows += [
+            ("finish", f"client: the ray sums of the {img.channel} channel, {colour}"),
+            (
+                "components",
+                f"{img.values_per_pixel} per pixel the ray hits (each sum / its samples = the "
+                f"mean of a stored component)",
+            ),
+            ("rendered", f"{img.channel} channel, {view}"),
+        ]
         if img.samples is not None and img.hits is not None and img.hits.any():
-            rows.append(("samples", f"{int(img.samples[img.hits].min())} .. {int(img.samples.max())} per ray "
-                                    "(public geometry)"))
+            rows.append(
+                ("samples", f"{int(img.samples[img.hits].min())} .. {int(img.samples.max())} per ray (public geometry)")
+            )
     else:
-        rows += [("finish", "server: finished pixels (the paper's way: colouring applied on the cluster)"),
-                 ("components", f"{img.values_per_pixel} per pixel the ray hits"),
-                 ("mode", f"{info.get('mode', '?')}, {view}")]
+        rows += [
+            ("finish", "server: finished pixels (the paper's way: colouring applied on the cluster)"),
+            ("components", f"{img.values_per_pixel} per pixel the ray hits"),
+            ("mode", f"{info.get('mode', '?')}, {view}"),
+        ]
     if info.get("density") is not None:
         rows.append(("density", info["density"]))
     if info.get("nodes"):
         rows.append(("transfer fn", format_tf(info["nodes"])))
     if cam.get("kind") == "plane":  # a slice (hevr slice / hevr.render_slice)
         org = tuple(round(float(v), 3) for v in cam.get("origin", ()))
-        rows.append(("plane", f"pixel (0, 0) at {xyz(org[::-1], sep=', ') if len(org) == 3 else '?'}, "
-                              f"slab {cam.get('slab')} x {cam.get('slab_step')}"))
+        rows.append(
+            (
+                "plane",
+                f"pixel (0, 0) at {xyz(org[::-1], sep=', ') if len(org) == 3 else '?'}, "
+                f"slab {cam.get('slab')} x {cam.get('slab_step')}",
+            )
+        )
     elif cam:
         pos = tuple(round(float(v), 3) for v in cam.get("position", ()))
         where = xyz(pos[::-1], sep=", ") if len(pos) == 3 else "?"
-        rows.append(("camera", f"position {where}, "
-                               f"view angle {cam.get('view_angle')}, parallel {cam.get('parallel')}"))
+        rows.append(("camera", f"position {where}, view angle {cam.get('view_angle')}, parallel {cam.get('parallel')}"))
     rows += [
         ("exponent", f"{img.exponent} ({'ray sum' if client else 'pixel'} = (m - offset) * 10^{img.exponent})"),
         ("packing", packing),
@@ -219,17 +247,28 @@ def _info_sums(path: Path | str, so: dict | None = None) -> int:
     saved = load_sums(path, storage_options=so)
     cam = saved.camera
     kept = sum(1 for v in saved.tiles.values() if v is not None)
-    print_rows([("path", path), ("kind", f"encrypted ray sums ({saved.channel} channel: "
-                                    f"{'X-ray' if saved.channel == 'scalar' else 'emphasis / transfer function'})"),
-           ("store", saved.store or "-"), ("volume", f"{xyz(saved.meta.shape)} voxels"),
-           ("view", f"{wh(cam.width, cam.height)} px, {saved.sampling} sampling, step {saved.step:g}"),
-           ("tiles", f"{kept} of {len(saved.tiles)} with sums (tile {saved.tile})"),
-           ("key", f"{int(saved.meta.n).bit_length()}-bit, fingerprint {saved.meta.fingerprint}"),
-           ("checks", "passed (checksum, header, ciphertext ranges)")])
+    print_rows(
+        [
+            ("path", path),
+            (
+                "kind",
+                f"encrypted ray sums ({saved.channel} channel: "
+                f"{'X-ray' if saved.channel == 'scalar' else 'emphasis / transfer function'})",
+            ),
+            ("store", saved.store or "-"),
+            ("volume", f"{xyz(saved.meta.shape)} voxels"),
+            ("view", f"{wh(cam.width, cam.height)} px, {saved.sampling} sampling, step {saved.step:g}"),
+            ("tiles", f"{kept} of {len(saved.tiles)} with sums (tile {saved.tile})"),
+            ("key", f"{int(saved.meta.n).bit_length()}-bit, fingerprint {saved.meta.fingerprint}"),
+            ("checks", "passed (checksum, header, ciphertext ranges)"),
+        ]
+    )
     return 0
 
 
 def _info_volume(path: Path, args: Any, spec: str | None = None) -> int:
     read = {k: getattr(args, k, None) for k in ("series", "volume", "allow_uneven", "oblique")}
-    print_rows(scan_rows(path, spec=spec, **read))  # a DICOM folder: its series; a scan: frame, modality, default value range
+    print_rows(
+        scan_rows(path, spec=spec, **read)
+    )  # a DICOM folder: its series; a scan: frame, modality, default value range
     return 0

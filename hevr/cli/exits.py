@@ -42,7 +42,18 @@ from ..errors import (
 )
 from .util import UsageError
 
-__all__ = ["cli_phrases", "interrupted_message", "EXIT_RULE", "USAGE_ERRORS", "DATA_ERRORS", "CLI_NAMES", "CLI_SUBJECTS", "CLI_PHRASES", "exit_code", "cli_message"]
+__all__ = [
+    "cli_phrases",
+    "interrupted_message",
+    "EXIT_RULE",
+    "USAGE_ERRORS",
+    "DATA_ERRORS",
+    "CLI_NAMES",
+    "CLI_SUBJECTS",
+    "CLI_PHRASES",
+    "exit_code",
+    "cli_message",
+]
 
 EXIT_RULE = """\
 exit status (every command):
@@ -61,8 +72,17 @@ exit status (every command):
 # Exit 2: the command line asks for something that cannot be done as given (module docstring).
 # Everything else that escapes a command is exit 1: the data or the run failed.
 USAGE_ERRORS: tuple[type[BaseException], ...] = (
-    UsageError, ParameterError, MissingFileError, NotRegularFileError, ExistingFileError, StoreExistsError, KeyMismatchError,
-    RenderPlanError, InvalidKeyError, VolumeFormatError, ForeignClusterError,
+    UsageError,
+    ParameterError,
+    MissingFileError,
+    NotRegularFileError,
+    ExistingFileError,
+    StoreExistsError,
+    KeyMismatchError,
+    RenderPlanError,
+    InvalidKeyError,
+    VolumeFormatError,
+    ForeignClusterError,
 )
 # Subclasses of a usage error that are failed data all the same (exit 1).
 DATA_ERRORS: tuple[type[BaseException], ...] = (CorruptVolumeError,)
@@ -77,75 +97,198 @@ CLI_NAMES: dict[str, dict[str, str]] = {
     "keygen": {"bits": "--bits", "out": "--out", "path": "--out", "overwrite": "--force"},
     "key-policy": {"key": "KEY.json", "path": "KEY.json"},
     "convert-key": {"key": "KEY", "out": "--out", "path": "--out", "overwrite": "--force", "format": "--format"},
-    "encrypt": {"gradient": "--gradient", "verifiable": "--verifiable",
-                "input": "INPUT", "vol": "INPUT", "data": "INPUT", "load_volume": "INPUT",
-                "key": "--key", "public_key": "--key", "private_key": "--key", "out": "--out", "path": "--out",
-                "brick": "--brick", "spacing": "--spacing", "value_range": "--value-range", "digits": "--digits",
-                "vector_dims": "--vector-dims", "scalar": "--no-scalar", "overwrite": "--overwrite",
-                "resume": "--resume", "series": "--series", "volume": "--volume", "modality": "--modality",
-                "oblique": "--oblique", "allow_uneven": "--allow-uneven", "read_scan": "--series, --allow-uneven",
-                "layout": "--layout", "pack_axis": "--pack-axis", "levels": "--levels"},
-    "render": {"gradient": "--gradient", "verify": "--verify",
-               "store": "STORE", "path": "STORE", "ev": "STORE", "out": "--out", "mode": "--mode",
-               "nodes": "--tf", "density": "--density", "sampling": "--sampling", "camera": "--size",
-               "width": "--size", "height": "--size", "view_angle": "--view-angle", "parallel": "--parallel",
-               "step": "--step", "precision": "--precision", "pack": "--no-pack", "keep_sums": "--keep-sums",
-               "level": "--level", "view": "--view", "azimuth": "--azimuth", "elevation": "--elevation",
-               "overwrite": "--force", "finish": "--finish"},
+    "encrypt": {
+        "gradient": "--gradient",
+        "verifiable": "--verifiable",
+        "input": "INPUT",
+        "vol": "INPUT",
+        "data": "INPUT",
+        "load_volume": "INPUT",
+        "key": "--key",
+        "public_key": "--key",
+        "private_key": "--key",
+        "out": "--out",
+        "path": "--out",
+        "brick": "--brick",
+        "spacing": "--spacing",
+        "value_range": "--value-range",
+        "digits": "--digits",
+        "vector_dims": "--vector-dims",
+        "scalar": "--no-scalar",
+        "overwrite": "--overwrite",
+        "resume": "--resume",
+        "series": "--series",
+        "volume": "--volume",
+        "modality": "--modality",
+        "oblique": "--oblique",
+        "allow_uneven": "--allow-uneven",
+        "read_scan": "--series, --allow-uneven",
+        "layout": "--layout",
+        "pack_axis": "--pack-axis",
+        "levels": "--levels",
+    },
+    "render": {
+        "gradient": "--gradient",
+        "verify": "--verify",
+        "store": "STORE",
+        "path": "STORE",
+        "ev": "STORE",
+        "out": "--out",
+        "mode": "--mode",
+        "nodes": "--tf",
+        "density": "--density",
+        "sampling": "--sampling",
+        "camera": "--size",
+        "width": "--size",
+        "height": "--size",
+        "view_angle": "--view-angle",
+        "parallel": "--parallel",
+        "step": "--step",
+        "precision": "--precision",
+        "pack": "--no-pack",
+        "keep_sums": "--keep-sums",
+        "level": "--level",
+        "view": "--view",
+        "azimuth": "--azimuth",
+        "elevation": "--elevation",
+        "overwrite": "--force",
+        "finish": "--finish",
+    },
     "pyramid": {"store": "STORE", "path": "STORE", "ev": "STORE", "levels": "--levels", "level": "--levels"},
-    "recolour": {"gradient": "--gradient",
-                 "sums": "SUMS", "path": "SUMS", "out": "--out", "mode": "--mode", "nodes": "--tf",
-                 "density": "--density", "precision": "--precision", "pack": "--no-pack", "overwrite": "--force",
-                 "finish": "--finish"},
-    "slice": {"gradient": "--gradient", "verify": "--verify",
-              "store": "STORE", "path": "STORE", "ev": "STORE", "out": "--out", "mode": "--mode", "nodes": "--tf",
-              "density": "--density", "sampling": "--sampling", "k": "--axial", "j": "--coronal", "i": "--sagittal",
-              "axial": "--axial", "coronal": "--coronal", "sagittal": "--sagittal", "oblique": "--oblique",
-              "center": "--oblique", "normal": "--oblique", "v": "--oblique", "camera": "--size", "plane": "--size",
-              "width": "--size", "height": "--size", "pixel_spacing": "--pixel-spacing", "slab": "--slab",
-              "slab_step": "--slab-step", "step": "--slab-step", "precision": "--precision", "pack": "--no-pack",
-              "overwrite": "--force", "finish": "--finish"},
-    "decrypt": {"frame": "FRAME", "path": "FRAME", "image": "FRAME", "key": "--key", "private_key": "--key",
-                "out": "--out", "npy": "--npy", "window": "--window", "overwrite": "--force", "mode": "--mode",
-                "nodes": "--tf", "density": "--density", "value_range": "--value-range"},
-    "info": {"path": "PATH", "input": "PATH", "key": "PATH", "image": "PATH", "series": "--series",
-             "volume": "--volume", "oblique": "--oblique", "allow_uneven": "--allow-uneven",
-             "read_scan": "--series, --allow-uneven"},
+    "recolour": {
+        "gradient": "--gradient",
+        "sums": "SUMS",
+        "path": "SUMS",
+        "out": "--out",
+        "mode": "--mode",
+        "nodes": "--tf",
+        "density": "--density",
+        "precision": "--precision",
+        "pack": "--no-pack",
+        "overwrite": "--force",
+        "finish": "--finish",
+    },
+    "slice": {
+        "gradient": "--gradient",
+        "verify": "--verify",
+        "store": "STORE",
+        "path": "STORE",
+        "ev": "STORE",
+        "out": "--out",
+        "mode": "--mode",
+        "nodes": "--tf",
+        "density": "--density",
+        "sampling": "--sampling",
+        "k": "--axial",
+        "j": "--coronal",
+        "i": "--sagittal",
+        "axial": "--axial",
+        "coronal": "--coronal",
+        "sagittal": "--sagittal",
+        "oblique": "--oblique",
+        "center": "--oblique",
+        "normal": "--oblique",
+        "v": "--oblique",
+        "camera": "--size",
+        "plane": "--size",
+        "width": "--size",
+        "height": "--size",
+        "pixel_spacing": "--pixel-spacing",
+        "slab": "--slab",
+        "slab_step": "--slab-step",
+        "step": "--slab-step",
+        "precision": "--precision",
+        "pack": "--no-pack",
+        "overwrite": "--force",
+        "finish": "--finish",
+    },
+    "decrypt": {
+        "frame": "FRAME",
+        "path": "FRAME",
+        "image": "FRAME",
+        "key": "--key",
+        "private_key": "--key",
+        "out": "--out",
+        "npy": "--npy",
+        "window": "--window",
+        "overwrite": "--force",
+        "mode": "--mode",
+        "nodes": "--tf",
+        "density": "--density",
+        "value_range": "--value-range",
+    },
+    "info": {
+        "path": "PATH",
+        "input": "PATH",
+        "key": "PATH",
+        "image": "PATH",
+        "series": "--series",
+        "volume": "--volume",
+        "oblique": "--oblique",
+        "allow_uneven": "--allow-uneven",
+        "read_scan": "--series, --allow-uneven",
+    },
     "upgrade-store": {"src": "OLD", "dst": "NEW"},
     "known": {"key": "--key", "private_key": "--key", "path": "FILE", "file": "FILE", "overwrite": "--force"},
-    "demo": {"input": "--input", "vol": "--input", "load_volume": "--input", "out": "--out", "bits": "--bits",
-             "brick": "--brick", "camera": "--image", "width": "--image", "height": "--image", "size": "--size",
-             "overwrite": "--force"},
+    "demo": {
+        "input": "--input",
+        "vol": "--input",
+        "load_volume": "--input",
+        "out": "--out",
+        "bits": "--bits",
+        "brick": "--brick",
+        "camera": "--image",
+        "width": "--image",
+        "height": "--image",
+        "size": "--size",
+        "overwrite": "--force",
+    },
     "bench": {"only": "--only", "out": "--out", "work": "--work", "resume": "--resume", "overwrite": "--force"},
 }
 # A message that starts with a file name instead: the argument that named that file, by error class.
 CLI_SUBJECTS: dict[str, dict[type, str]] = {
-    "encrypt": {InvalidKeyError: "--key", KeyMismatchError: "--key", VolumeFormatError: "INPUT",
-                MissingDependencyError: "INPUT", StoreError: "--out"},
+    "encrypt": {
+        InvalidKeyError: "--key",
+        KeyMismatchError: "--key",
+        VolumeFormatError: "INPUT",
+        MissingDependencyError: "INPUT",
+        StoreError: "--out",
+    },
     "convert-key": {InvalidKeyError: "KEY"},
     "render": {StoreError: "STORE"},
     "pyramid": {StoreError: "STORE"},
     "recolour": {StoreError: "SUMS", IntegrityError: "SUMS"},
     "slice": {StoreError: "STORE"},
-    "decrypt": {InvalidKeyError: "--key", KeyMismatchError: "--key", StoreError: "FRAME",
-                IntegrityError: "FRAME", PlaintextOverflowError: "FRAME"},
+    "decrypt": {
+        InvalidKeyError: "--key",
+        KeyMismatchError: "--key",
+        StoreError: "FRAME",
+        IntegrityError: "FRAME",
+        PlaintextOverflowError: "FRAME",
+    },
     "info": {HevrError: "PATH"},
     "upgrade-store": {StoreError: "OLD"},
     "demo": {VolumeFormatError: "--input", MissingDependencyError: "--input"},
 }
 # Python spellings inside library messages, as the CLI spells them ("*": every command).
 # how a scan is read: hevr encrypt and hevr info take the same options (cli/scan.py)
-_SCAN_PHRASES = {"pass series=UID (CLI --series UID;": "pass --series UID (", "volume=i (CLI --volume i)": "--volume i",
-                 "volume= only applies": "--volume only applies",
-                 "oblique='snap' (CLI --oblique snap)": "--oblique snap", "allow_uneven=True": "--allow-uneven",
-                 "series and allow_uneven only apply to DICOM": "they only apply to a DICOM INPUT"}
+_SCAN_PHRASES = {
+    "pass series=UID (CLI --series UID;": "pass --series UID (",
+    "volume=i (CLI --volume i)": "--volume i",
+    "volume= only applies": "--volume only applies",
+    "oblique='snap' (CLI --oblique snap)": "--oblique snap",
+    "allow_uneven=True": "--allow-uneven",
+    "series and allow_uneven only apply to DICOM": "they only apply to a DICOM INPUT",
+}
 
 CLI_PHRASES: dict[str, dict[str, str]] = {
-    "*": {"encrypt_volume(..., resume=True)": "'hevr encrypt … --resume'",
-          "hevr.encrypt_volume(..., vector_dims=k, gradient=True)": "'hevr encrypt … --vector-dims K --gradient'",
-          "a store encrypted with gradient=True": "a store encrypted with --gradient",
-          "with gradient=True (the gradient channel": "with --gradient (the gradient channel",
-          "vector_dims=k as well": "--vector-dims K as well"},
+    "*": {
+        "encrypt_volume(..., resume=True)": "'hevr encrypt … --resume'",
+        "hevr.encrypt_volume(..., vector_dims=k, gradient=True)": "'hevr encrypt … --vector-dims K --gradient'",
+        "a store encrypted with gradient=True": "a store encrypted with --gradient",
+        "with gradient=True (the gradient channel": "with --gradient (the gradient channel",
+        "vector_dims=k as well": "--vector-dims K as well",
+    },
     "render": {"use a larger step or a smaller image": "use a larger --step or a smaller --size"},
     "encrypt": _SCAN_PHRASES,
     "info": _SCAN_PHRASES,  # reads a scan with encrypt's options
@@ -170,8 +313,11 @@ def _named_path(exc: BaseException, args: Any, names: dict[str, str]) -> str | N
         return None
     for dest, word in names.items():
         value = getattr(args, dest, None)
-        if isinstance(value, str) and value and \
-                (value == str(filename) or Path(value).expanduser().absolute() == Path(filename).absolute()):
+        if (
+            isinstance(value, str)
+            and value
+            and (value == str(filename) or Path(value).expanduser().absolute() == Path(filename).absolute())
+        ):
             return word
     return None
 
@@ -197,8 +343,10 @@ def interrupted_message(args: Any = None) -> str:
     local = "://" not in str(out)
     if local and not os.path.lexists(os.path.expanduser(str(out))):
         return "interrupted before the store was created; nothing was written"
-    return (f"interrupted: {out} is not finished; the bricks written are kept: run the same hevr encrypt "
-            "command with --resume to encrypt the rest")
+    return (
+        f"interrupted: {out} is not finished; the bricks written are kept: run the same hevr encrypt "
+        "command with --resume to encrypt the rest"
+    )
 
 
 def cli_phrases(text: str, command: str = "") -> str:
@@ -226,11 +374,10 @@ def cli_message(exc: BaseException, args: Any = None) -> str:
     if m:
         words = [names.get(re.sub(r"\[\d+\]$", "", part)) for part in re.split(r", |/", m.group(1))]
         if all(words):
-            return ", ".join(dict.fromkeys(w for w in words if w)) + ": " + text[m.end():]
+            return ", ".join(dict.fromkeys(w for w in words if w)) + ": " + text[m.end() :]
     subjects = CLI_SUBJECTS.get(command, {})
     known = set(names.values()) | set(subjects.values())
     if text.startswith("--") or re.split(r"[: ]", text, maxsplit=1)[0] in known:
         return text
-    subject = _named_path(exc, args, names) or next(
-        (subjects[c] for c in type(exc).__mro__ if c in subjects), None)
+    subject = _named_path(exc, args, names) or next((subjects[c] for c in type(exc).__mro__ if c in subjects), None)
     return f"{subject}: {text}" if subject else text

@@ -39,6 +39,8 @@ def report_finish(img: Any, out: Any, mode: str, density: float | None, nodes: A
     opts = colour_options(mode, density, nodes) if img.finish == "client" else ""
     if img.finish == "client" and mode != "xray":
         what = "density" if mode == "emphasize" else "transfer function"
-        print(f"colour:  applied at decryption: {out} holds the {img.channel} channel's ray sums "
-              f"({img.values_per_pixel} per pixel), not the {what} (neither sent to the workers nor written)")
+        print(
+            f"colour:  applied at decryption: {out} holds the {img.channel} channel's ray sums "
+            f"({img.values_per_pixel} per pixel), not the {what} (neither sent to the workers nor written)"
+        )
     print(f"decrypt it with: hevr decrypt {out} --key KEY.json --out {png_name(out)}{opts}")

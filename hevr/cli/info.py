@@ -20,8 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.lazy import resolve
-from ..core.magic import IMAGE_MAGIC_PREFIX
-from ..core.magic import SUMS_MAGIC_PREFIX
+from ..core.magic import IMAGE_MAGIC_PREFIX, SUMS_MAGIC_PREFIX
 from ..crypto.phe_keys import is_phe_dict
 from .keys import info_key
 

@@ -10,8 +10,8 @@ no Dask or Zarr): ``hevr info KEY`` runs from here.
 
 from __future__ import annotations
 
-import stat
 import json
+import stat
 import warnings
 from pathlib import Path
 from typing import Any
@@ -60,11 +60,16 @@ def cmd_keygen(args: Any) -> int:
 def policy_text(priv: PrivateKey, fmt: str = "hevr") -> str:
     """The key's policy, for a person."""
     if fmt == "phe":
-        return ("none (a pheutil file cannot hold it; 'hevr convert-key' to hevr's format and 'hevr key-policy "
-                "--require-tags' give it one)")
-    return ("every store of this key carries tags (a store without them is refused; 'hevr key-policy "
-            "--no-require-tags' turns it off)" if priv.require_tags else
-            "stores without tags are accepted with a warning ('hevr key-policy --require-tags' requires tags)")
+        return (
+            "none (a pheutil file cannot hold it; 'hevr convert-key' to hevr's format and 'hevr key-policy "
+            "--require-tags' give it one)"
+        )
+    return (
+        "every store of this key carries tags (a store without them is refused; 'hevr key-policy "
+        "--no-require-tags' turns it off)"
+        if priv.require_tags
+        else "stores without tags are accepted with a warning ('hevr key-policy --require-tags' requires tags)"
+    )
 
 
 # -- key-policy ----------------------------------------------------------------------------
@@ -80,8 +85,10 @@ def cmd_key_policy(args: Any) -> int:
     except (OSError, ValueError, AttributeError):
         hevr_format = False
     if not hevr_format:
-        raise UsageError(f"KEY: expected a key file in hevr's format (a pheutil file cannot hold a policy), got {path}; "
-                         "'hevr convert-key KEY --out key.json --format hevr' first")
+        raise UsageError(
+            f"KEY: expected a key file in hevr's format (a pheutil file cannot hold a policy), got {path}; "
+            "'hevr convert-key KEY --out key.json --format hevr' first"
+        )
     key.with_policy(require_tags=args.require_tags).save(path, overwrite=True)  # asked for: rewritten in place
     print(f"wrote {path}: {policy_text(key.with_policy(require_tags=args.require_tags))}")
     return 0
@@ -104,8 +111,10 @@ def cmd_convert_key(args: Any) -> int:
     mode = " (mode 0600)" if private else ""
     print(f"wrote {out}: the {pub.bits}-bit {kind} key as {FORMAT_NAMES[args.format]}{mode}")
     if private and args.format == "phe" and key.require_tags:
-        print("  policy:      not kept: a pheutil file cannot hold the key's policy (every store carries tags); a key "
-              "read back from it has none ('hevr key-policy KEY --require-tags' gives it back)")
+        print(
+            "  policy:      not kept: a pheutil file cannot hold the key's policy (every store carries tags); a key "
+            "read back from it has none ('hevr key-policy KEY --require-tags' gives it back)"
+        )
     print(f"  fingerprint: {pub.fingerprint}")
     if pub.bits < SECURE_BITS:
         warn_line(f"a {pub.bits}-bit key is NOT secure; use {SECURE_BITS} bits or more for real data")
@@ -147,10 +156,13 @@ def info_key(path: Path, fmt: str = "hevr") -> int:
     key = read_key(str(path))
     private = isinstance(key, PrivateKey)
     pub = key.public_key if private else key
-    rows = [("path", path), ("kind", "private key (holds the secret primes; not shown)" if private else "public key"),
-            ("format", fmt),
-            ("bits", f"{pub.bits}" + (" (NOT secure: < 2048 bits)" if pub.bits < SECURE_BITS else "")),
-            ("fingerprint", pub.fingerprint)]
+    rows = [
+        ("path", path),
+        ("kind", "private key (holds the secret primes; not shown)" if private else "public key"),
+        ("format", fmt),
+        ("bits", f"{pub.bits}" + (" (NOT secure: < 2048 bits)" if pub.bits < SECURE_BITS else "")),
+        ("fingerprint", pub.fingerprint),
+    ]
     rows.append(("file mode", f"{stat.S_IMODE(path.stat().st_mode):04o}"))
     print_rows(rows)  # a private key others may read: load_key warned already (KeyFilePermissionWarning)
     return 0

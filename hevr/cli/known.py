@@ -27,13 +27,17 @@ _KEY_HELP = "the private key (KEY.json) whose entries are MAC'd, checked and car
 
 def known_arguments(p: argparse.ArgumentParser) -> None:
     """``hevr known``: its description, examples and sub-commands."""
-    p.description = wrap("The key holder's known stores (like SSH's known_hosts): per store name, the store id, "
-                         "the digest of its owner-bound metadata, whether it is verifiable and the ids the owner "
-                         "retired (re-encrypted). Renders refuse another store under a known name. Entries are "
-                         "MAC'd under the private key, so they can be exported on one machine and imported on "
-                         "another. The file: $HEVR_KNOWN_STORES, else ~/.config/hevr/known_stores.json.")
-    p.epilog = ("examples:\n  hevr known list\n  hevr known list --key key.json      # and check every entry's MAC\n"
-                "  hevr known export laptop.json --key key.json\n  hevr known import laptop.json --key key.json\n")
+    p.description = wrap(
+        "The key holder's known stores (like SSH's known_hosts): per store name, the store id, "
+        "the digest of its owner-bound metadata, whether it is verifiable and the ids the owner "
+        "retired (re-encrypted). Renders refuse another store under a known name. Entries are "
+        "MAC'd under the private key, so they can be exported on one machine and imported on "
+        "another. The file: $HEVR_KNOWN_STORES, else ~/.config/hevr/known_stores.json."
+    )
+    p.epilog = (
+        "examples:\n  hevr known list\n  hevr known list --key key.json      # and check every entry's MAC\n"
+        "  hevr known export laptop.json --key key.json\n  hevr known import laptop.json --key key.json\n"
+    )
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True, parser_class=type(p))
     ls = sub.add_parser("list", help="print the recorded stores", formatter_class=p.formatter_class)
     ls.add_argument("--key", metavar="KEY.json", help=_KEY_HELP + " (optional here)")
@@ -43,8 +47,9 @@ def known_arguments(p: argparse.ArgumentParser) -> None:
     ex.add_argument("--key", metavar="KEY.json", required=True, help=_KEY_HELP)
     ex.add_argument("--force", action="store_true", help="replace FILE if it exists")
     add_general_options(ex, dask=False)
-    im = sub.add_parser("import", help="merge an exported FILE into this machine's known stores",
-                        formatter_class=p.formatter_class)
+    im = sub.add_parser(
+        "import", help="merge an exported FILE into this machine's known stores", formatter_class=p.formatter_class
+    )
     im.add_argument("file", metavar="FILE")
     im.add_argument("--key", metavar="KEY.json", required=True, help=_KEY_HELP)
     add_general_options(im, dask=False)
@@ -59,12 +64,21 @@ def _list(args: Any) -> int:
     print(f"known stores in {kf.path}: {len(rows)} {'entry' if len(rows) == 1 else 'entries'}")
     fp = key.public_key.fingerprint if key is not None else None
     for name, e in sorted(rows.items()):
-        mac = ("unsigned (version 1: used only to refuse)" if not e.signed else
-               "MAC ok" if e.fingerprint == fp else "MAC'd (another key)" if fp else "MAC'd (not checked: no --key)")
+        mac = (
+            "unsigned (version 1: used only to refuse)"
+            if not e.signed
+            else "MAC ok"
+            if e.fingerprint == fp
+            else "MAC'd (another key)"
+            if fp
+            else "MAC'd (not checked: no --key)"
+        )
         kind = "verifiable" if e.verifiable else "accepted without tags" if e.accepted_untagged else "without tags"
         retired = f", {len(e.retired)} retired" if e.retired else ""
-        print(f"{name}\n  store {e.store_id}, {kind}, key {e.fingerprint[:16]}…, recorded {e.recorded or '?'}"
-              f"{retired}, {mac}")
+        print(
+            f"{name}\n  store {e.store_id}, {kind}, key {e.fingerprint[:16]}…, recorded {e.recorded or '?'}"
+            f"{retired}, {mac}"
+        )
     return 0
 
 
@@ -78,8 +92,10 @@ def cmd_known(args: Any) -> int:
         if path.is_dir():
             raise UsageError(f"FILE: expected a file name, got a folder ({path})")
         n = export_known_stores(path, key, overwrite=args.force)
-        print(f"exported {n} {'entry' if n == 1 else 'entries'} of the key {key.public_key.fingerprint[:16]}… "
-              f"from {known_stores_path()} to {path}")
+        print(
+            f"exported {n} {'entry' if n == 1 else 'entries'} of the key {key.public_key.fingerprint[:16]}… "
+            f"from {known_stores_path()} to {path}"
+        )
         return 0
     n = import_known_stores(path, key)
     print(f"imported {path}: {n} {'name' if n == 1 else 'names'} added or changed in {known_stores_path()}")

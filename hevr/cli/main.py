@@ -53,8 +53,11 @@ __all__ = ["build_parser", "main"]
 
 def _setup_logging(verbose: bool) -> logging.Handler:
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("hevr: %(levelname)s: %(message)s" if not verbose
-                                           else "%(asctime)s %(name)s %(levelname)s: %(message)s"))
+    handler.setFormatter(
+        logging.Formatter(
+            "hevr: %(levelname)s: %(message)s" if not verbose else "%(asctime)s %(name)s %(levelname)s: %(message)s"
+        )
+    )
     logger = logging.getLogger("hevr")
     logger.addHandler(handler)
     logger.setLevel(logging.INFO if verbose else logging.WARNING)

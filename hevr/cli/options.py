@@ -22,11 +22,7 @@ import math
 import os
 from typing import Any
 
-from ..core.validate import MAX_BRICK_EDGE
-
-from ..core.validate import MAX_STORE_DIGITS
-
-from ..core.validate import MAX_VECTOR_DIMS
+from ..core.validate import MAX_BRICK_EDGE, MAX_STORE_DIGITS, MAX_VECTOR_DIMS
 from ..crypto.keys import MAX_BITS, MIN_BITS, SECURE_BITS
 
 # Environment variable: a JSON object of fsspec options, beside --storage-option (hevr.cli.storage).
@@ -42,12 +38,14 @@ def bits_type(text: str) -> int:
         bits = -1
     if bits < MIN_BITS or bits > MAX_BITS or bits % 2:
         raise argparse.ArgumentTypeError(
-            f"expected an even number of bits in [{MIN_BITS}, {MAX_BITS}] (e.g. {SECURE_BITS}), got {text!r}")
+            f"expected an even number of bits in [{MIN_BITS}, {MAX_BITS}] (e.g. {SECURE_BITS}), got {text!r}"
+        )
     return bits
 
 
 def _int_at_least(lo: int, expected: str):
     """An argparse type: an integer >= ``lo``, else "expected <expected>, got '<text>'"."""
+
     def parse(text: str) -> int:
         try:
             v = int(text)
@@ -56,6 +54,7 @@ def _int_at_least(lo: int, expected: str):
         if v < lo:
             raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
         return v
+
     return parse
 
 
@@ -74,11 +73,13 @@ nonneg_int = _int_at_least(0, "a non-negative integer")
 
 def int_range(lo: int, hi: int, expected: str):
     """An argparse type: an integer in [lo, hi]; anything else names ``expected`` and the text."""
+
     def parse(text: str) -> int:
         v = _int_at_least(lo, expected)(text)
         if v > hi:
             raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
         return v
+
     return parse
 
 
@@ -114,8 +115,9 @@ def workers_type(text: str) -> int:
     """``--workers N``: an integer in [0, :func:`max_workers`], else a message that says what this machine has."""
     cores, limit = os.cpu_count(), max_workers()
     has = f"this machine has {cores} CPU core{'s' if cores != 1 else ''}" if cores else "its core count is unknown"
-    return int_range(0, limit, f"at most {limit} worker processes (0: none; {WORKERS_PER_CORE} per CPU core, "
-                               f"and {has})")(text)
+    return int_range(
+        0, limit, f"at most {limit} worker processes (0: none; {WORKERS_PER_CORE} per CPU core, and {has})"
+    )(text)
 
 
 def finite_float(text: str) -> float:
@@ -183,8 +185,10 @@ def storage_option_type(text: str) -> tuple[str, Any]:
     key, sep, value = str(text).partition("=")
     key = key.strip()
     if not sep or not key or not key.replace("_", "a").replace("-", "a").isalnum():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE with a KEY of letters, digits and '_' "
-                                         f"(e.g. endpoint_url=http://127.0.0.1:9000), got {key or 'no key'!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected KEY=VALUE with a KEY of letters, digits and '_' "
+            f"(e.g. endpoint_url=http://127.0.0.1:9000), got {key or 'no key'!r}"
+        )
     try:
         return key, json.loads(value)
     except ValueError:
@@ -192,45 +196,78 @@ def storage_option_type(text: str) -> tuple[str, Any]:
 
 
 # -- option groups ----------------------------------------------------------------------------
-def add_general_options(p: argparse.ArgumentParser, dask: bool,
-                        workers_default: str = "Dask's default threaded scheduler") -> None:
+def add_general_options(
+    p: argparse.ArgumentParser, dask: bool, workers_default: str = "Dask's default threaded scheduler"
+) -> None:
     """Every command's ``-v``/``-q``; with ``dask``, ``--scheduler`` and ``--workers`` too."""
     g = p.add_argument_group("general options")
     if dask:
-        g.add_argument("--scheduler", metavar="ADDRESS",
-                       help="join a running Dask cluster, e.g. tcp://10.0.0.5:8786 (store paths must be "
-                            "reachable from its workers)")
-        g.add_argument("--own-cluster", action="store_true",
-                       help="declare the --scheduler cluster yours: its scheduler and workers may run code in this "
-                            "process (Dask unpickles what they send), so a private key may be used beside it; "
-                            "without it a private key is refused with another party's cluster (render there "
-                            "with --server). Env HEVR_OWN_CLUSTER=ADDRESS[,ADDRESS] does the same")
-        g.add_argument("--workers", type=workers_type, metavar="N",
-                       help="start a local Dask cluster of N worker processes (1 thread each) for this "
-                            f"command (0: none; at most {WORKERS_PER_CORE} per CPU core); default: {workers_default}")
+        g.add_argument(
+            "--scheduler",
+            metavar="ADDRESS",
+            help="join a running Dask cluster, e.g. tcp://10.0.0.5:8786 (store paths must be "
+            "reachable from its workers)",
+        )
+        g.add_argument(
+            "--own-cluster",
+            action="store_true",
+            help="declare the --scheduler cluster yours: its scheduler and workers may run code in this "
+            "process (Dask unpickles what they send), so a private key may be used beside it; "
+            "without it a private key is refused with another party's cluster (render there "
+            "with --server). Env HEVR_OWN_CLUSTER=ADDRESS[,ADDRESS] does the same",
+        )
+        g.add_argument(
+            "--workers",
+            type=workers_type,
+            metavar="N",
+            help="start a local Dask cluster of N worker processes (1 thread each) for this "
+            f"command (0: none; at most {WORKERS_PER_CORE} per CPU core); default: {workers_default}",
+        )
     g.add_argument("-v", "--verbose", action="store_true", help="INFO logging, and tracebacks on errors")
-    g.add_argument("-q", "--quiet", action="store_true", help="no progress bars (they are only drawn on a terminal anyway)")
+    g.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress bars (they are only drawn on a terminal anyway)"
+    )
 
 
 def add_storage_option(p: argparse.ArgumentParser) -> None:
     """``--storage-option``: stores, frames and sums on object storage (:mod:`hevr.cli.storage`)."""
     g = p.add_argument_group("object storage")
-    g.add_argument("--storage-option", dest="storage_option", action="append", type=storage_option_type,
-                   metavar="KEY=VALUE",
-                   help="an fsspec option of the URL's filesystem (repeatable), e.g. endpoint_url=http://host:9000, "
-                        f"anon=true, profile=NAME; JSON values are parsed. Env {STORAGE_OPTIONS_ENV}: a JSON object "
-                        "of options. STORE, FRAME and SUMS may be URLs (s3://, gs://, az://, file://)")
+    g.add_argument(
+        "--storage-option",
+        dest="storage_option",
+        action="append",
+        type=storage_option_type,
+        metavar="KEY=VALUE",
+        help="an fsspec option of the URL's filesystem (repeatable), e.g. endpoint_url=http://host:9000, "
+        f"anon=true, profile=NAME; JSON values are parsed. Env {STORAGE_OPTIONS_ENV}: a JSON object "
+        "of options. STORE, FRAME and SUMS may be URLs (s3://, gs://, az://, file://)",
+    )
 
 
 def add_scan_read_options(p: argparse.ArgumentParser) -> None:
     """How a scan is read — ``hevr encrypt`` and ``hevr info`` alike, so that info describes
     exactly what encrypt reads."""
-    p.add_argument("--series", metavar="UID", help="DICOM: the series to read from a folder holding several "
-                   "(a SeriesInstanceUID, a unique prefix or a SeriesNumber; 'hevr info FOLDER' lists them)")
-    p.add_argument("--volume", type=int, metavar="INDEX",
-                   help="4-D NIfTI/NRRD/TIFF/OME-Zarr: the time point or component to encrypt")
-    p.add_argument("--allow-uneven", action="store_true",
-                   help="DICOM: accept unevenly spaced slices (read at their median spacing)")
-    p.add_argument("--oblique", choices=("refuse", "snap"), default="refuse",
-                   help="a scan tilted more than 1 degree off the patient axes: refuse (default; hevr does not "
-                        "resample) or snap to the nearest axes")
+    p.add_argument(
+        "--series",
+        metavar="UID",
+        help="DICOM: the series to read from a folder holding several "
+        "(a SeriesInstanceUID, a unique prefix or a SeriesNumber; 'hevr info FOLDER' lists them)",
+    )
+    p.add_argument(
+        "--volume",
+        type=int,
+        metavar="INDEX",
+        help="4-D NIfTI/NRRD/TIFF/OME-Zarr: the time point or component to encrypt",
+    )
+    p.add_argument(
+        "--allow-uneven",
+        action="store_true",
+        help="DICOM: accept unevenly spaced slices (read at their median spacing)",
+    )
+    p.add_argument(
+        "--oblique",
+        choices=("refuse", "snap"),
+        default="refuse",
+        help="a scan tilted more than 1 degree off the patient axes: refuse (default; hevr does not "
+        "resample) or snap to the nearest axes",
+    )

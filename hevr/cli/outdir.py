@@ -19,14 +19,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
-from ..core.files import fs_errors
-
-from ..core.files import read_regular
-
-from ..core.files import write_atomic
+from ..core.files import fs_errors, read_regular, write_atomic
 from ..errors import ExistingFileError, HevrError
 from .util import check_writable_folder
 
@@ -73,8 +69,9 @@ class OutputFolder:
         The option that named the folder, for messages.
     """
 
-    def __init__(self, path: Path, command: str, names: Iterable[str], *, force: bool = False,
-                 option: str = "--out") -> None:
+    def __init__(
+        self, path: Path, command: str, names: Iterable[str], *, force: bool = False, option: str = "--out"
+    ) -> None:
         self.path, self.command, self.names = Path(path), command, list(names)
         self.force, self.option = bool(force), option
         if not self.path.is_dir():  # the nearest existing folder above must take it (read-only: fails the run)

@@ -37,8 +37,16 @@ from ..paper import PAPER_TF1, tf_text
 from .exits import EXIT_RULE
 from .util import err_line
 
-__all__ = ["COMMANDS", "Command", "build_parser", "command_named", "join_negative_values", "requested_command",
-           "value_options", "wrap"]
+__all__ = [
+    "COMMANDS",
+    "Command",
+    "build_parser",
+    "command_named",
+    "join_negative_values",
+    "requested_command",
+    "value_options",
+    "wrap",
+]
 
 _RAW = argparse.RawDescriptionHelpFormatter
 
@@ -55,52 +63,111 @@ class Command(NamedTuple):
 
 
 COMMANDS: tuple[Command, ...] = (
-    Command("keygen", "generate a Paillier key pair",
-            ".arguments:keygen_arguments", ".keys:cmd_keygen"),
-    Command("key-policy", "show or set a private key's policy (every store of it carries tags)",
-            ".arguments:key_policy_arguments", ".keys:cmd_key_policy"),
-    Command("convert-key", "convert a key file between hevr's and python-paillier's (pheutil) formats",
-            ".arguments:convert_key_arguments", ".keys:cmd_convert_key"),
-    Command("encrypt", "encrypt a volume into a Zarr store",
-            ".render_arguments:encrypt_arguments", ".commands:cmd_encrypt"),
-    Command("render", "render an encrypted volume to an encrypted image (no key needed)",
-            ".render_arguments:render_arguments", ".commands:cmd_render"),
-    Command("recolour", "re-colour saved ray sums with another density or transfer function (no map step)",
-            ".render_arguments:recolour_arguments", ".commands:cmd_recolour"),
-    Command("slice", "an encrypted slice (axial, coronal, sagittal, oblique) of an encrypted volume (no key needed)",
-            ".render_arguments:slice_arguments", ".slice:cmd_slice"),
-    Command("decrypt", "decrypt an encrypted image to PNG (and colour a client-finished frame)",
-            ".render_arguments:decrypt_arguments", ".commands:cmd_decrypt"),
-    Command("info", "describe a store, a frame, a key or a volume file; list a DICOM folder's series",
-            ".arguments:info_arguments", ".info:cmd_info"),
-    Command("known", "the key holder's known stores: list, export, import (MAC'd under the private key)",
-            ".known:known_arguments", ".known:cmd_known"),
-    Command("upgrade-store", "convert a format-1 store (no integrity digests) into a new format-2 store",
-            ".arguments:upgrade_store_arguments", ".commands:cmd_upgrade_store"),
-    Command("pyramid", "add coarse levels (2x2x2 means) to a store, for quick previews (no key needed)",
-            ".render_arguments:pyramid_arguments", ".pyramid:cmd_pyramid"),
-    Command("serve", "serve encrypted stores to key holders over HTTP(S) (renders on the cluster; no key)",
-            ".serve:serve_arguments", ".serve:cmd_serve"),
-    Command("stores", "list the stores a hevr serve serves to your token (name, id, size, packed, verifiable)",
-            ".stores:stores_arguments", ".stores:cmd_stores"),
-    Command("demo", "the whole pipeline on the paper's figures, no input needed",
-            ".render_arguments:demo_arguments", ".demo:cmd_demo"),
-    Command("bench", "benchmarks: the paper's Tables 1-3, limits, python-paillier, scaling",
-            ".arguments:bench_arguments", ".bench:cmd_bench"),
+    Command("keygen", "generate a Paillier key pair", ".arguments:keygen_arguments", ".keys:cmd_keygen"),
+    Command(
+        "key-policy",
+        "show or set a private key's policy (every store of it carries tags)",
+        ".arguments:key_policy_arguments",
+        ".keys:cmd_key_policy",
+    ),
+    Command(
+        "convert-key",
+        "convert a key file between hevr's and python-paillier's (pheutil) formats",
+        ".arguments:convert_key_arguments",
+        ".keys:cmd_convert_key",
+    ),
+    Command(
+        "encrypt", "encrypt a volume into a Zarr store", ".render_arguments:encrypt_arguments", ".commands:cmd_encrypt"
+    ),
+    Command(
+        "render",
+        "render an encrypted volume to an encrypted image (no key needed)",
+        ".render_arguments:render_arguments",
+        ".commands:cmd_render",
+    ),
+    Command(
+        "recolour",
+        "re-colour saved ray sums with another density or transfer function (no map step)",
+        ".render_arguments:recolour_arguments",
+        ".commands:cmd_recolour",
+    ),
+    Command(
+        "slice",
+        "an encrypted slice (axial, coronal, sagittal, oblique) of an encrypted volume (no key needed)",
+        ".render_arguments:slice_arguments",
+        ".slice:cmd_slice",
+    ),
+    Command(
+        "decrypt",
+        "decrypt an encrypted image to PNG (and colour a client-finished frame)",
+        ".render_arguments:decrypt_arguments",
+        ".commands:cmd_decrypt",
+    ),
+    Command(
+        "info",
+        "describe a store, a frame, a key or a volume file; list a DICOM folder's series",
+        ".arguments:info_arguments",
+        ".info:cmd_info",
+    ),
+    Command(
+        "known",
+        "the key holder's known stores: list, export, import (MAC'd under the private key)",
+        ".known:known_arguments",
+        ".known:cmd_known",
+    ),
+    Command(
+        "upgrade-store",
+        "convert a format-1 store (no integrity digests) into a new format-2 store",
+        ".arguments:upgrade_store_arguments",
+        ".commands:cmd_upgrade_store",
+    ),
+    Command(
+        "pyramid",
+        "add coarse levels (2x2x2 means) to a store, for quick previews (no key needed)",
+        ".render_arguments:pyramid_arguments",
+        ".pyramid:cmd_pyramid",
+    ),
+    Command(
+        "serve",
+        "serve encrypted stores to key holders over HTTP(S) (renders on the cluster; no key)",
+        ".serve:serve_arguments",
+        ".serve:cmd_serve",
+    ),
+    Command(
+        "stores",
+        "list the stores a hevr serve serves to your token (name, id, size, packed, verifiable)",
+        ".stores:stores_arguments",
+        ".stores:cmd_stores",
+    ),
+    Command(
+        "demo",
+        "the whole pipeline on the paper's figures, no input needed",
+        ".render_arguments:demo_arguments",
+        ".demo:cmd_demo",
+    ),
+    Command(
+        "bench",
+        "benchmarks: the paper's Tables 1-3, limits, python-paillier, scaling",
+        ".arguments:bench_arguments",
+        ".bench:cmd_bench",
+    ),
 )
 _BY_NAME = {c.name: c for c in COMMANDS}
 
-DESCRIPTION = ("Privacy-preserving remote volume rendering on Paillier-encrypted volumes "
-               "(after Mazza, Patel, Viola, TVCG 2020).")
-EPILOG = ("typical session:\n"
-          "  hevr keygen --bits 2048 --out key.json             # data owner: key pair\n"
-          "  hevr encrypt phantom:64 --key key.json --out vol.zarr --vector-dims 4\n"
-          "  hevr render vol.zarr --out frame.hevr --mode tf        # server side: the ray sums, no colours\n"
-          f"  hevr decrypt frame.hevr --key key.json --out frame.png --tf '{tf_text(PAPER_TF1)}'\n"
-          "                                                     # client: colours it; only the key holder sees it\n"
-          "  hevr demo                                          # all of the above on the paper's figures\n"
-          "\nsizes are printed in world order, labelled: x×y×z for volumes, W×H for images.\n"
-          "\n" + EXIT_RULE)
+DESCRIPTION = (
+    "Privacy-preserving remote volume rendering on Paillier-encrypted volumes (after Mazza, Patel, Viola, TVCG 2020)."
+)
+EPILOG = (
+    "typical session:\n"
+    "  hevr keygen --bits 2048 --out key.json             # data owner: key pair\n"
+    "  hevr encrypt phantom:64 --key key.json --out vol.zarr --vector-dims 4\n"
+    "  hevr render vol.zarr --out frame.hevr --mode tf        # server side: the ray sums, no colours\n"
+    f"  hevr decrypt frame.hevr --key key.json --out frame.png --tf '{tf_text(PAPER_TF1)}'\n"
+    "                                                     # client: colours it; only the key holder sees it\n"
+    "  hevr demo                                          # all of the above on the paper's figures\n"
+    "\nsizes are printed in world order, labelled: x×y×z for volumes, W×H for images.\n"
+    "\n" + EXIT_RULE
+)
 
 
 def wrap(text: str) -> str:

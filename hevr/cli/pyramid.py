@@ -29,8 +29,11 @@ def level_rows(meta: Any) -> list[tuple[str, str]]:
     for lv in meta.levels:
         again = "hevr encrypt ... --resume" if lv.packing is not None else "hevr pyramid"
         state = "complete" if lv.complete else f"INCOMPLETE (run {again} again to finish it)"
-        packed = (f", packed: {lv.packing.slots} voxels per ciphertext ({lv.packing.slot_bits}-bit slots)"
-                  if lv.packing is not None else "")
+        packed = (
+            f", packed: {lv.packing.slots} voxels per ciphertext ({lv.packing.slot_bits}-bit slots)"
+            if lv.packing is not None
+            else ""
+        )
         rows.append((f"level {lv.level}", f"{xyz(lv.shape)} voxels{packed}, {state}"))
     return rows
 
@@ -40,8 +43,10 @@ def cmd_pyramid(args: Any) -> int:
     ev = open_store(args.store, "STORE", so)
     store = ev.path
     before = ev.levels
-    print(f"store:   {args.store}, {xyz(ev.shape)} voxels, {plural(ev.meta.n_bricks, 'brick')}, "
-          f"{before} pyramid level{'s' if before != 1 else ''} so far")
+    print(
+        f"store:   {args.store}, {xyz(ev.shape)} voxels, {plural(ev.meta.n_bricks, 'brick')}, "
+        f"{before} pyramid level{'s' if before != 1 else ''} so far"
+    )
     if before >= args.levels:
         print(f"nothing to do: level{'s' if args.levels > 1 else ''} 1..{args.levels} exist")
         return 0
@@ -52,6 +57,8 @@ def cmd_pyramid(args: Any) -> int:
             ev = build_pyramid(ev, args.levels, client=client, progress=show_progress(args))
     for name, text in level_rows(ev.meta):
         print(f"{name}: {text}")
-    print(f"built levels {before + 1}..{args.levels} in {t.seconds:.2f} s; the store grew by "
-          f"{human_bytes(size_of(store, so) - size)}")
+    print(
+        f"built levels {before + 1}..{args.levels} in {t.seconds:.2f} s; the store grew by "
+        f"{human_bytes(size_of(store, so) - size)}"
+    )
     return 0

@@ -19,8 +19,13 @@ from .util import UsageError
 
 __all__ = ["connect_remote", "open_remote"]
 
-_REMOTE_OPTIONS = (("url", "--server"), ("token", "HEVR_TOKEN"), ("cafile", "--cafile"), ("timeout", "--timeout"),
-                   ("connect_timeout", "--connect-timeout"))
+_REMOTE_OPTIONS = (
+    ("url", "--server"),
+    ("token", "HEVR_TOKEN"),
+    ("cafile", "--cafile"),
+    ("timeout", "--timeout"),
+    ("connect_timeout", "--connect-timeout"),
+)
 
 
 def connect_remote(args: Any) -> Any:
@@ -30,13 +35,18 @@ def connect_remote(args: Any) -> Any:
     or variable (``--timeout: expected seconds in (0, 86400], got -1.0``), as the command line
     says it. ``hevr render|slice --server`` and ``hevr stores`` connect here."""
     try:
-        return connect(args.server, token=os.environ.get("HEVR_TOKEN") or None, cafile=args.cafile,
-                       timeout=args.timeout, connect_timeout=args.connect_timeout)
+        return connect(
+            args.server,
+            token=os.environ.get("HEVR_TOKEN") or None,
+            cafile=args.cafile,
+            timeout=args.timeout,
+            connect_timeout=args.connect_timeout,
+        )
     except ParameterError as exc:  # in the command line's words
         text = str(exc)
         for name, option in _REMOTE_OPTIONS:
             if text.startswith(f"{name}: "):
-                raise UsageError(f"{option}: {text[len(name) + 2:]}") from None
+                raise UsageError(f"{option}: {text[len(name) + 2 :]}") from None
         raise
 
 

@@ -15,10 +15,8 @@ import math
 import re
 from typing import Any
 
-from ..core.limits import MAX_PIXELS_KEY
-
-from ..core.limits import render_limits
 from ..colour import parse_color
+from ..core.limits import MAX_PIXELS_KEY, render_limits
 from ..errors import ParameterError
 from ..rendering.geometry.views import VIEWS
 from ..volume.modality import MODALITY_RANGES, TF_PRESETS, UNSUPPORTED, modality_range
@@ -31,9 +29,22 @@ from .options import (
     unit_float,
 )
 
-__all__ = ["MODALITY_CHOICES", "TF_HELP", "add_decrypt_colour_options", "add_encrypt_scan_options", "add_finish_option",
-           "add_view_option", "format_tf", "level_type", "levels_type", "modality_type", "oblique_type", "parse_tf",
-           "size_type", "tf_type"]
+__all__ = [
+    "MODALITY_CHOICES",
+    "TF_HELP",
+    "add_decrypt_colour_options",
+    "add_encrypt_scan_options",
+    "add_finish_option",
+    "add_view_option",
+    "format_tf",
+    "level_type",
+    "levels_type",
+    "modality_type",
+    "oblique_type",
+    "parse_tf",
+    "size_type",
+    "tf_type",
+]
 
 MODALITY_CHOICES = ("auto",) + tuple(MODALITY_RANGES)
 
@@ -53,9 +64,11 @@ def size_type(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels such as 150x150, got {text!r}")
     max_pixels = render_limits()[0]
     if vals[0] * vals[1] > max_pixels:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT of at most {max_pixels} pixels in all "
-                                         f"(Dask config {MAX_PIXELS_KEY}), got {text!r} = "
-                                         f"{vals[0] * vals[1]} pixels")
+        raise argparse.ArgumentTypeError(
+            f"expected WIDTHxHEIGHT of at most {max_pixels} pixels in all "
+            f"(Dask config {MAX_PIXELS_KEY}), got {text!r} = "
+            f"{vals[0] * vals[1]} pixels"
+        )
     return vals[0], vals[1]
 
 
@@ -80,13 +93,17 @@ def parse_tf(text: str) -> list[tuple[float, tuple[float, float, float]]]:
             raise ParameterError(f"transfer-function node {i + 1} {item!r}: density must be a number in [0, 1]")
         twin = next((j for j, (dj, _) in enumerate(nodes) if dj == d), None)
         if twin is not None:
-            raise ParameterError(f"transfer-function node {i + 1} {item!r}: density {d:g} is node {twin + 1}'s "
-                                 "as well; give each density one colour")
+            raise ParameterError(
+                f"transfer-function node {i + 1} {item!r}: density {d:g} is node {twin + 1}'s "
+                "as well; give each density one colour"
+            )
         try:
             nodes.append((d, parse_color(col.strip())))
         except ParameterError:
-            raise ParameterError(f"transfer-function node {i + 1} {item!r}: unknown colour {col.strip()!r} "
-                                 "(use #rrggbb, #rgb or a CSS name such as red, blue, green)") from None
+            raise ParameterError(
+                f"transfer-function node {i + 1} {item!r}: unknown colour {col.strip()!r} "
+                "(use #rrggbb, #rgb or a CSS name such as red, blue, green)"
+            ) from None
     return nodes
 
 
@@ -100,8 +117,9 @@ def tf_type(text: str) -> list[tuple[float, tuple[float, float, float]]] | str:
     if text.strip().lower() in TF_PRESETS:
         return text.strip().lower()
     if ":" not in text:
-        raise argparse.ArgumentTypeError(f"expected a preset ({', '.join(TF_PRESETS)}) or DENSITY:COLOR,... "
-                                         f"such as 0.279:blue, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected a preset ({', '.join(TF_PRESETS)}) or DENSITY:COLOR,... such as 0.279:blue, got {text!r}"
+        )
     try:
         return parse_tf(text)
     except ParameterError as exc:
@@ -121,8 +139,10 @@ def format_tf(nodes: Any) -> str:
     return ",".join(out)
 
 
-TF_HELP = (f"transfer function: a preset ({', '.join(TF_PRESETS)}: windows in the modality's units, converted "
-           "with the store's value range) or DENSITY:COLOR,... (colours #rrggbb, #rgb or CSS names)")
+TF_HELP = (
+    f"transfer function: a preset ({', '.join(TF_PRESETS)}: windows in the modality's units, converted "
+    "with the store's value range) or DENSITY:COLOR,... (colours #rrggbb, #rgb or CSS names)"
+)
 
 
 # -- pyramid levels, modalities, planes -------------------------------------------------------
@@ -141,10 +161,14 @@ def modality_type(text: str) -> str:
     try:
         modality_range(text)
     except ParameterError as exc:
-        reason = f"; {text.strip().upper()} has no fixed value range, give --value-range LO,HI" \
-            if text.strip().upper() in UNSUPPORTED else ""
-        raise argparse.ArgumentTypeError(f"expected one of {', '.join(MODALITY_CHOICES)}, got {text!r}{reason}") \
-            from exc
+        reason = (
+            f"; {text.strip().upper()} has no fixed value range, give --value-range LO,HI"
+            if text.strip().upper() in UNSUPPORTED
+            else ""
+        )
+        raise argparse.ArgumentTypeError(
+            f"expected one of {', '.join(MODALITY_CHOICES)}, got {text!r}{reason}"
+        ) from exc
     return text.strip().upper()
 
 
@@ -161,8 +185,13 @@ def oblique_type(text: str) -> tuple[tuple[float, float, float] | None, tuple[fl
         normal = tuple(float(p) for p in normal_text.split(","))
     except ValueError:
         centre, normal = (), ()
-    ok = (sep and len(normal) == 3 and (centre is None or len(centre) == 3)
-          and all(math.isfinite(v) for v in (centre or ()) + normal) and any(v != 0 for v in normal))
+    ok = (
+        sep
+        and len(normal) == 3
+        and (centre is None or len(centre) == 3)
+        and all(math.isfinite(v) for v in (centre or ()) + normal)
+        and any(v != 0 for v in normal)
+    )
     if not ok:
         raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
     return centre, normal  # type: ignore[return-value]
@@ -171,67 +200,103 @@ def oblique_type(text: str) -> tuple[tuple[float, float, float] | None, tuple[fl
 # -- option groups ----------------------------------------------------------------------------
 def add_view_option(p: argparse.ArgumentParser) -> None:
     """``hevr render --view``."""
-    p.add_argument("--view", choices=VIEWS, metavar="VIEW",
-                   help=f"anatomical view of a scan in the RAS+ patient frame: {', '.join(VIEWS)} (anterior: "
-                        "facing the patient, their right on the image's left); --azimuth/--elevation then "
-                        "turn about the view's up axis / tilt towards it")
+    p.add_argument(
+        "--view",
+        choices=VIEWS,
+        metavar="VIEW",
+        help=f"anatomical view of a scan in the RAS+ patient frame: {', '.join(VIEWS)} (anterior: "
+        "facing the patient, their right on the image's left); --azimuth/--elevation then "
+        "turn about the view's up axis / tilt towards it",
+    )
 
 
 def add_encrypt_scan_options(p: argparse.ArgumentParser) -> None:
     """``hevr encrypt``'s options for real scans."""
-    p.add_argument("--modality", type=modality_type, default="auto", metavar="|".join(MODALITY_CHOICES),
-                   help="value range of the modality when --value-range is not given: CT (-1024, 3071) HU, "
-                        "MR (0, 4095), US (0, 255); auto (default): the modality the file records (DICOM), else "
-                        "the dtype's range (integers) or the data range (floats)")
+    p.add_argument(
+        "--modality",
+        type=modality_type,
+        default="auto",
+        metavar="|".join(MODALITY_CHOICES),
+        help="value range of the modality when --value-range is not given: CT (-1024, 3071) HU, "
+        "MR (0, 4095), US (0, 255); auto (default): the modality the file records (DICOM), else "
+        "the dtype's range (integers) or the data range (floats)",
+    )
     add_scan_read_options(p)
-    p.add_argument("--nan-as", type=finite_float, metavar="VALUE",
-                   help="float scans: encrypt NaN voxels (no measurement) as VALUE; without it a scan with NaN "
-                        "voxels is refused")
+    p.add_argument(
+        "--nan-as",
+        type=finite_float,
+        metavar="VALUE",
+        help="float scans: encrypt NaN voxels (no measurement) as VALUE; without it a scan with NaN voxels is refused",
+    )
 
 
 def add_finish_option(p: argparse.ArgumentParser) -> None:
     """``--finish`` of render, recolour and slice."""
-    p.add_argument("--finish", choices=("client", "server"), default="client",
-                   help="client (default): the cluster packs only the ray sums of the stored channel; the density "
-                        "or transfer function stays in this process, is not written to the frame and is applied "
-                        "at 'hevr decrypt' (the command is printed); server: the paper's way, the cluster combines, "
-                        "normalises and packs finished pixels (the colouring goes to the workers and into the frame)")
+    p.add_argument(
+        "--finish",
+        choices=("client", "server"),
+        default="client",
+        help="client (default): the cluster packs only the ray sums of the stored channel; the density "
+        "or transfer function stays in this process, is not written to the frame and is applied "
+        "at 'hevr decrypt' (the command is printed); server: the paper's way, the cluster combines, "
+        "normalises and packs finished pixels (the colouring goes to the workers and into the frame)",
+    )
 
 
 def _store_id(text: str) -> str:
     """``--verify``'s optional STORE_ID: 16 lower-case hex digits (a path there is a mistake: STORE first)."""
     if not re.fullmatch(r"[0-9a-f]{16}", text):
-        raise argparse.ArgumentTypeError(f"expected a store id of 16 lower-case hex digits (the one 'hevr encrypt "
-                                         f"printed; put STORE before --verify), got {text[:40]!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected a store id of 16 lower-case hex digits (the one 'hevr encrypt "
+            f"printed; put STORE before --verify), got {text[:40]!r}"
+        )
     return text
 
 
 def add_verify_option(p: argparse.ArgumentParser) -> None:
     """``--key`` / ``--verify [STORE_ID]`` / ``--no-verify`` of render and slice."""
-    p.add_argument("--key", metavar="KEY.json",
-                   help="the private key: this process is then the key holder's, which draws the verification seed "
-                        "after the frame is rendered, checks the frame (a store encrypted with --verifiable) and "
-                        "stamps the file so that 'hevr decrypt' knows it was checked; without it the frame is not "
-                        "verified (the process that renders on the cluster must not draw the seed)")
-    p.add_argument("--trust-store", action="store_true",
-                   help="with --key: accept STORE as it is now under its name in your known stores (the owner "
-                        "re-encrypted or replaced it), where another store or version is otherwise refused")
-    p.add_argument("--untagged", action="store_true",
-                   help="with --trust-store: accept a store without tags (made with the public key) although the "
-                        "key's policy requires tags; its frames are not verified")
+    p.add_argument(
+        "--key",
+        metavar="KEY.json",
+        help="the private key: this process is then the key holder's, which draws the verification seed "
+        "after the frame is rendered, checks the frame (a store encrypted with --verifiable) and "
+        "stamps the file so that 'hevr decrypt' knows it was checked; without it the frame is not "
+        "verified (the process that renders on the cluster must not draw the seed)",
+    )
+    p.add_argument(
+        "--trust-store",
+        action="store_true",
+        help="with --key: accept STORE as it is now under its name in your known stores (the owner "
+        "re-encrypted or replaced it), where another store or version is otherwise refused",
+    )
+    p.add_argument(
+        "--untagged",
+        action="store_true",
+        help="with --trust-store: accept a store without tags (made with the public key) although the "
+        "key's policy requires tags; its frames are not verified",
+    )
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--verify", nargs="?", const=True, default=None, metavar="STORE_ID", type=_store_id,
-                   help="with --key: require the check against the store's tags (on by default for a verifiable "
-                        "store): the cluster also sums the tags (about twice the work); with the STORE_ID 'hevr "
-                        "encrypt' printed, any other store is refused")
+    g.add_argument(
+        "--verify",
+        nargs="?",
+        const=True,
+        default=None,
+        metavar="STORE_ID",
+        type=_store_id,
+        help="with --key: require the check against the store's tags (on by default for a verifiable "
+        "store): the cluster also sums the tags (about twice the work); with the STORE_ID 'hevr "
+        "encrypt' printed, any other store is refused",
+    )
     g.add_argument("--no-verify", action="store_true", help="skip the check against the store's tags")
 
 
 def _view_key(text: str) -> str:
     """``--expect-view``'s KEY: 16 lower-case hex digits (``hevr render`` prints it)."""
     if not re.fullmatch(r"[0-9a-f]{16}", text):
-        raise argparse.ArgumentTypeError(f"expected a view key of 16 lower-case hex digits (the one 'hevr render' "
-                                         f"printed, or 'hevr info FRAME' shows), got {text[:40]!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected a view key of 16 lower-case hex digits (the one 'hevr render' "
+            f"printed, or 'hevr info FRAME' shows), got {text[:40]!r}"
+        )
     return text
 
 
@@ -253,34 +318,65 @@ def age_type(text: str) -> float:
 def add_require_verified_option(p: argparse.ArgumentParser) -> None:
     """``hevr decrypt --require-verified [STORE_ID]`` and what the reader expects of the frame."""
     g = p.add_argument_group("what the frame must prove (hevr.Expect)")
-    g.add_argument("--require-verified", nargs="?", const=True, default=None, metavar="STORE_ID", type=_store_id,
-                   help="refuse (exit 1) a frame that the key holder did not verify (no check against a store's tags, "
-                        "or no valid stamp), or that was saved elsewhere (copied or moved here: name its store and view "
-                        "with --expect-store and --expect-view); with STORE_ID, also one of any other store")
-    g.add_argument("--expect-store", type=_store_id, metavar="STORE_ID",
-                   help="refuse (exit 1) a frame that is not a verified frame of this store")
-    g.add_argument("--expect-view", type=_view_key, metavar="KEY",
-                   help="refuse (exit 1) a frame that is not a verified frame of this view (the view key 'hevr render' "
-                        "printed); with --expect-store, a frame saved elsewhere is accepted for what it proves")
-    g.add_argument("--max-age", type=age_type, metavar="AGE",
-                   help="refuse (exit 1) a verified frame rendered longer ago than AGE (seconds, or 90m, 12h, 7d)")
-    g.add_argument("--moved", action="store_true",
-                   help="accept a verified frame that was saved elsewhere (you moved it yourself)")
-    g.add_argument("--unverified", action="store_true",
-                   help="decrypt a frame without a verification record although the key's policy requires tags "
-                        "(an unverified image, asked for by name)")
+    g.add_argument(
+        "--require-verified",
+        nargs="?",
+        const=True,
+        default=None,
+        metavar="STORE_ID",
+        type=_store_id,
+        help="refuse (exit 1) a frame that the key holder did not verify (no check against a store's tags, "
+        "or no valid stamp), or that was saved elsewhere (copied or moved here: name its store and view "
+        "with --expect-store and --expect-view); with STORE_ID, also one of any other store",
+    )
+    g.add_argument(
+        "--expect-store",
+        type=_store_id,
+        metavar="STORE_ID",
+        help="refuse (exit 1) a frame that is not a verified frame of this store",
+    )
+    g.add_argument(
+        "--expect-view",
+        type=_view_key,
+        metavar="KEY",
+        help="refuse (exit 1) a frame that is not a verified frame of this view (the view key 'hevr render' "
+        "printed); with --expect-store, a frame saved elsewhere is accepted for what it proves",
+    )
+    g.add_argument(
+        "--max-age",
+        type=age_type,
+        metavar="AGE",
+        help="refuse (exit 1) a verified frame rendered longer ago than AGE (seconds, or 90m, 12h, 7d)",
+    )
+    g.add_argument(
+        "--moved", action="store_true", help="accept a verified frame that was saved elsewhere (you moved it yourself)"
+    )
+    g.add_argument(
+        "--unverified",
+        action="store_true",
+        help="decrypt a frame without a verification record although the key's policy requires tags "
+        "(an unverified image, asked for by name)",
+    )
 
 
 def add_decrypt_colour_options(p: argparse.ArgumentParser) -> None:
     """``hevr decrypt --mode / --density / --tf / --value-range``: the colouring of a client frame."""
     g = p.add_argument_group("colouring a client-finished frame (hevr render --finish client, the default)")
-    g.add_argument("--mode", choices=("xray", "emphasize", "tf"),
-                   help="default: emphasize with --density, tf with --tf, xray for an X-ray frame")
+    g.add_argument(
+        "--mode",
+        choices=("xray", "emphasize", "tf"),
+        help="default: emphasize with --density, tf with --tf, xray for an X-ray frame",
+    )
     g.add_argument("--density", type=unit_float, metavar="D", help="emphasised normalised density in [0, 1]")
-    g.add_argument("--tf", type=tf_type, metavar="NODES", help=TF_HELP.replace("the store's value range",
-                                                                           "--value-range"))
-    g.add_argument("--value-range", type=range_type, metavar="LO,HI",
-                   help="the store's value range (hevr info STORE), for a --tf preset: a frame does not record it")
+    g.add_argument(
+        "--tf", type=tf_type, metavar="NODES", help=TF_HELP.replace("the store's value range", "--value-range")
+    )
+    g.add_argument(
+        "--value-range",
+        type=range_type,
+        metavar="LO,HI",
+        help="the store's value range (hevr info STORE), for a --tf preset: a frame does not record it",
+    )
 
 
 def add_server_option(p: argparse.ArgumentParser, server_help: str | None = None) -> None:
@@ -289,13 +385,28 @@ def add_server_option(p: argparse.ArgumentParser, server_help: str | None = None
     (``HEVR_TOKEN``), never the command line (other users see it). ``server_help``: another
     command's words for ``--server`` (``hevr stores``)."""
     g = p.add_argument_group("render server (hevr serve)")
-    g.add_argument("--server", metavar="URL", help=server_help or "render on this hevr serve (http(s)://host:port) as "
-                   "its key holder: STORE is then the name (or store id) it printed; with --key KEY.json the answer "
-                   "is verified here; the token comes from the environment variable HEVR_TOKEN; nothing the server "
-                   "sends is run or unpickled")
+    g.add_argument(
+        "--server",
+        metavar="URL",
+        help=server_help
+        or "render on this hevr serve (http(s)://host:port) as "
+        "its key holder: STORE is then the name (or store id) it printed; with --key KEY.json the answer "
+        "is verified here; the token comes from the environment variable HEVR_TOKEN; nothing the server "
+        "sends is run or unpickled",
+    )
     g.add_argument("--cafile", metavar="PEM", help="CA bundle to trust for an https --server")
-    g.add_argument("--timeout", type=float, default=600.0, metavar="S",
-                   help="seconds for each whole exchange with the server: connecting, the answer's head and body, "
-                        "waits for a busy server (default 600; decryption here is not counted)")
-    g.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
-                   help="seconds for the connection to the server (TCP and TLS; default 10)")
+    g.add_argument(
+        "--timeout",
+        type=float,
+        default=600.0,
+        metavar="S",
+        help="seconds for each whole exchange with the server: connecting, the answer's head and body, "
+        "waits for a busy server (default 600; decryption here is not counted)",
+    )
+    g.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="seconds for the connection to the server (TCP and TLS; default 10)",
+    )

@@ -67,8 +67,10 @@ def load_scan(spec: str, spacing: Any = None, **read: Any) -> tuple[Scan, str]:
         try:
             size = phantom_size_type(size_text)
         except argparse.ArgumentTypeError:
-            raise UsageError(f"input: expected phantom:N with an integer N in [4, {MAX_PHANTOM}] "
-                             f"(e.g. phantom:{PAPER_SIZE}), got {spec!r}") from None
+            raise UsageError(
+                f"input: expected phantom:N with an integer N in [4, {MAX_PHANTOM}] "
+                f"(e.g. phantom:{PAPER_SIZE}), got {spec!r}"
+            ) from None
         given = [k for k, v in read.items() if v not in (None, False, "refuse")]
         if given:
             raise UsageError(f"{', '.join(given)}: expected a scan file or folder as INPUT, got {spec!r}")
@@ -90,8 +92,13 @@ def load_scan(spec: str, spacing: Any = None, **read: Any) -> tuple[Scan, str]:
         scan = read_scan(path, spacing=spacing, **read)
     except MissingFileError as exc:  # a file the input refers to (an .nhdr's detached data file)
         raise VolumeFormatError(f"input: {spec} refers to {exc.filename}, which does not exist") from None
-    log.info("%s: %s, modality %s, origin %s mm", spec, "RAS+ patient frame" if scan.frame else "axes as stored "
-             "(no patient frame recorded)", scan.modality or "not recorded", scan.origin)
+    log.info(
+        "%s: %s, modality %s, origin %s mm",
+        spec,
+        "RAS+ patient frame" if scan.frame else "axes as stored (no patient frame recorded)",
+        scan.modality or "not recorded",
+        scan.origin,
+    )
     vol = scan.volume
     return scan, f"{path.name}, {xyz(vol.shape)} voxels ({vol.dtype})"
 
@@ -129,14 +136,22 @@ def encrypt_input(args: Any) -> tuple[Scan, Any]:
     """Load ``hevr encrypt``'s INPUT, print what it is and the value range it gets; warn (stderr)
     when the data occupy a tiny band of that range. Returns (scan, value_range): the scan brings
     its spacing and patient frame to the store."""
-    scan, what = load_scan(args.input, args.spacing, series=args.series, volume=args.volume,
-                           allow_uneven=args.allow_uneven, oblique=args.oblique)
+    scan, what = load_scan(
+        args.input,
+        args.spacing,
+        series=args.series,
+        volume=args.volume,
+        allow_uneven=args.allow_uneven,
+        oblique=args.oblique,
+    )
     print(f"input:   {what}, spacing {xyz(tuple(scan.spacing)[::-1], sep=', ')}")
     scan = _fill_nan(scan, args.nan_as)
     if scan.frame or scan.modality:
-        print(f"scan:    {scan.modality or 'modality not recorded'}, "
-              f"{'RAS+ patient frame' if scan.frame else 'axes as stored'}, origin "
-              f"{', '.join(f'{v:g}' for v in scan.origin)} mm")
+        print(
+            f"scan:    {scan.modality or 'modality not recorded'}, "
+            f"{'RAS+ patient frame' if scan.frame else 'axes as stored'}, origin "
+            f"{', '.join(f'{v:g}' for v in scan.origin)} mm"
+        )
     value_range, how, fixed = _effective_range(scan, args.value_range, args.modality)
     if fixed:
         lo, hi = value_range if value_range is not None else default_value_range(scan.volume)
@@ -161,8 +176,10 @@ def _fill_nan(scan: Scan, value: float | None) -> Scan:
     if not nans:
         return scan
     if value is None:
-        raise UsageError(f"INPUT: expected finite voxel values, got {nans} NaN voxels of {scan.volume.size}; "
-                         "give them a value with --nan-as VALUE (e.g. --nan-as 0, or the scan's background)")
+        raise UsageError(
+            f"INPUT: expected finite voxel values, got {nans} NaN voxels of {scan.volume.size}; "
+            "give them a value with --nan-as VALUE (e.g. --nan-as 0, or the scan's background)"
+        )
     vol = scan.volume
     print(f"nan:     {nans} NaN voxels of {vol.size} encrypted as {value:g} (--nan-as)")
     return dataclasses.replace(scan, volume=np.where(np.isnan(vol), np.asarray(value, vol.dtype), vol))
@@ -201,15 +218,29 @@ def scan_rows(path: Path, spec: str | None = None, **read: Any) -> list[tuple[st
         scan, _ = load_scan(str(path), **read)
     vol = scan.volume
     nans = _nan_count(vol)  # one pass, for the values row and the encrypt row
-    rows += [("kind", "plaintext volume"), ("shape", f"{xyz(vol.shape)} voxels"), ("dtype", vol.dtype),
-             ("spacing", xyz(tuple(scan.spacing)[::-1], sep=", ")),
-             ("frame", "RAS+ patient frame (+x right, +y anterior, +z superior)" if scan.frame else
-              "none recorded (axes as stored)"),
-             ("origin", ", ".join(f"{v:g}" for v in scan.origin)), ("modality", scan.modality or "-"),
-             ("values", _values_row(vol, nans))]
+    rows += [
+        ("kind", "plaintext volume"),
+        ("shape", f"{xyz(vol.shape)} voxels"),
+        ("dtype", vol.dtype),
+        ("spacing", xyz(tuple(scan.spacing)[::-1], sep=", ")),
+        (
+            "frame",
+            "RAS+ patient frame (+x right, +y anterior, +z superior)"
+            if scan.frame
+            else "none recorded (axes as stored)",
+        ),
+        ("origin", ", ".join(f"{v:g}" for v in scan.origin)),
+        ("modality", scan.modality or "-"),
+        ("values", _values_row(vol, nans)),
+    ]
     if min(vol.shape) < 2:  # the rule of encrypt_volume (hevr.core.validate.check_volume, thick=True)
-        rows.append(("encrypt", "refused: a single slice (an axis of 1 voxel) has no thickness for the rays to "
-                                "cross; hevr renders volumes (give the folder or file of the whole series)"))
+        rows.append(
+            (
+                "encrypt",
+                "refused: a single slice (an axis of 1 voxel) has no thickness for the rays to "
+                "cross; hevr renders volumes (give the folder or file of the whole series)",
+            )
+        )
         return rows
     if nans:
         rows.append(("encrypt", "needs --nan-as VALUE: hevr encrypts measurements, and a NaN is none"))

@@ -69,8 +69,12 @@ def contact_sheet(folder: Path, jobs: list, caption: str, out: Path, *, overwrit
         y = _PAD + line + _PAD + r * (cell_h + _PAD)
         res = job.result
         draw.text((x, y), drawable(job.title), fill=(0, 0, 0), font=small)
-        draw.text((x, y + line), f"max|err| {res['max_abs_error']:.1e}   render {res['render_s']:.2f} s   "
-                                 f"decrypt {res['decrypt_s']:.2f} s", fill=(90, 90, 90), font=small)
+        draw.text(
+            (x, y + line),
+            f"max|err| {res['max_abs_error']:.1e}   render {res['render_s']:.2f} s   decrypt {res['decrypt_s']:.2f} s",
+            fill=(90, 90, 90),
+            font=small,
+        )
         top = y + 2 * line + _GAP
         sheet.paste(enc.resize((cw, ch), Image.NEAREST), (x, top))
         sheet.paste(ref.resize((cw, ch), Image.NEAREST), (x + cw + _GAP, top))

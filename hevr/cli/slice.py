@@ -70,8 +70,11 @@ def _plane(args: Any, ev: Any) -> tuple[Plane, str]:
     centre, normal = args.oblique
     plane = Plane.oblique(ev, centre, normal, **kw)
     u, v, _ = plane.basis()
-    c = (plane.origin + (plane.width - 1) / 2 * plane.pixel_spacing[0] * u
-         + (plane.height - 1) / 2 * plane.pixel_spacing[1] * v)
+    c = (
+        plane.origin
+        + (plane.width - 1) / 2 * plane.pixel_spacing[0] * u
+        + (plane.height - 1) / 2 * plane.pixel_spacing[1] * v
+    )
     where = xyz(tuple(round(float(x), 3) for x in c)[::-1], sep=", ")
     n = tuple(round(float(x), 4) for x in plane.normal)
     return plane, f"oblique through {where}, normal {xyz(n[::-1], sep=', ')}"
@@ -93,29 +96,47 @@ def cmd_slice(args: Any) -> int:
     plane, where = _plane(args, ev)
     finish = {"finish": args.finish}
     check_render_size(plane, ev.shape, ev.spacing, plane.slab_step)  # refuse before a cluster starts
-    what = {"xray": "value", "emphasize": f"emphasis of density {args.density}",
-            "tf": f"transfer function {format_tf(nodes) if nodes else ''}"}[mode]
+    what = {
+        "xray": "value",
+        "emphasize": f"emphasis of density {args.density}",
+        "tf": f"transfer function {format_tf(nodes) if nodes else ''}",
+    }[mode]
     du, dv = plane.pixel_spacing
     spacing = f"{du:g}" if du == dv else f"{du:g} × {dv:g}"
     slab = f", slab of {plane.slab} planes {plane.slab_step:g} apart (their mean)" if plane.slab > 1 else ""
     print(f"store:   {args.store}, {xyz(ev.shape)} voxels, key {ev.meta.fingerprint[:16]}…")
-    print(f"slice:   {where}, {wh(plane.width, plane.height)} px of {spacing} world units, {what}, "
-          f"{args.sampling} sampling{slab}")
+    print(
+        f"slice:   {where}, {wh(plane.width, plane.height)} px of {spacing} world units, {what}, "
+        f"{args.sampling} sampling{slab}"
+    )
     print(f"shown:   {describe_layout(plane)} (in hevr decrypt's PNG)")
     with compute_context(args, ev) as client:
         with Timer() as t:
-            img = render_slice(ev, plane, mode=mode, sampling=args.sampling, density=args.density, nodes=nodes,
-                               precision=args.precision, pack=not args.no_pack, client=client,
-                               progress=show_progress(args), gradient=args.gradient,
-                               verify=verify, **finish)
+            img = render_slice(
+                ev,
+                plane,
+                mode=mode,
+                sampling=args.sampling,
+                density=args.density,
+                nodes=nodes,
+                precision=args.precision,
+                pack=not args.no_pack,
+                client=client,
+                progress=show_progress(args),
+                gradient=args.gradient,
+                verify=verify,
+                **finish,
+            )
     save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
     if verified_line(img):
         print(verified_line(img) + " (stamped with the key holder's MAC)")
     warn_unverified(args, ev, img)
     inside = int(img.hits.sum())
-    print(f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "
-          f"{human_bytes(size_of(out, so))}, {inside:,} of {plane.width * plane.height:,} pixels inside the volume, "
-          f"rendered in {t.seconds:.2f} s")
+    print(
+        f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "
+        f"{human_bytes(size_of(out, so))}, {inside:,} of {plane.width * plane.height:,} pixels inside the volume, "
+        f"rendered in {t.seconds:.2f} s"
+    )
     report_finish(img, out, mode, args.density, nodes)
     return 0
 
@@ -126,21 +147,33 @@ def _packed_slice(args: Any, ev: Any, mode: str, out: Any) -> int:
     option = next(f"--{o}" for o in ("axial", "coronal", "sagittal", "oblique") if getattr(args, o) is not None)
     store = args.store
     if mode != "xray":
-        raise UsageError(f"--mode {mode}: expected xray on the packed store {store} (it holds the scalar channel "
-                         "only); encrypt a per-voxel store (--layout voxel --vector-dims 4) for it")
-    for flag, given in (("--gradient", args.gradient), ("--no-pack", args.no_pack),
-                        ("--precision", args.precision is not None), ("--finish server", args.finish != "client")):
+        raise UsageError(
+            f"--mode {mode}: expected xray on the packed store {store} (it holds the scalar channel "
+            "only); encrypt a per-voxel store (--layout voxel --vector-dims 4) for it"
+        )
+    for flag, given in (
+        ("--gradient", args.gradient),
+        ("--no-pack", args.no_pack),
+        ("--precision", args.precision is not None),
+        ("--finish server", args.finish != "client"),
+    ):
         if given:
-            raise UsageError(f"{flag}: does not apply to a slice of the packed store {store} (decrypted in this "
-                             "process from its X-ray values)")
+            raise UsageError(
+                f"{flag}: does not apply to a slice of the packed store {store} (decrypted in this "
+                "process from its X-ray values)"
+            )
     if not args.key:
-        raise UsageError(f"--key: expected the private key KEY.json for a slice of the packed store {store}: packed "
-                         "slices have no .hevr frame file yet, so the slice is decrypted in this process and --out "
-                         "is the PNG (or .npy) to write")
+        raise UsageError(
+            f"--key: expected the private key KEY.json for a slice of the packed store {store}: packed "
+            "slices have no .hevr frame file yet, so the slice is decrypted in this process and --out "
+            "is the PNG (or .npy) to write"
+        )
     suffix = str(out).lower().rsplit(".", 1)[-1]
     if suffix not in ("png", "npy"):
-        raise UsageError(f"--out: expected a .png or .npy file for a slice of the packed store {store} (decrypted "
-                         f"here with --key; no .hevr frame file for packed slices yet), got {args.out}")
+        raise UsageError(
+            f"--out: expected a .png or .npy file for a slice of the packed store {store} (decrypted "
+            f"here with --key; no .hevr frame file for packed slices yet), got {args.out}"
+        )
     verify = key_holder(args, ev)  # reads --key, which must be the store's; --verify [ID] / --no-verify
     plane, where = _plane(args, ev)
     try:
@@ -150,14 +183,19 @@ def _packed_slice(args: Any, ev: Any, mode: str, out: Any) -> int:
     check_render_size(plane, ev.shape, ev.spacing, plane.slab_step)
     slab = f", slab of {plane.slab} planes {plane.slab_step:g} apart (their mean)" if plane.slab > 1 else ""
     axis = "zyx"[ev.packing.axis]
-    print(f"store:   {store}, {xyz(ev.shape)} voxels, packed ({ev.packing.slots} voxels per ciphertext along {axis}), "
-          f"key {ev.meta.fingerprint[:16]}…")
-    print(f"slice:   {where}, {wh(plane.width, plane.height)} px, value, {args.sampling} sampling{slab}; "
-          f"{'perpendicular to' if kind == 'perpendicular' else 'containing'} the packing axis {axis}")
+    print(
+        f"store:   {store}, {xyz(ev.shape)} voxels, packed ({ev.packing.slots} voxels per ciphertext along {axis}), "
+        f"key {ev.meta.fingerprint[:16]}…"
+    )
+    print(
+        f"slice:   {where}, {wh(plane.width, plane.height)} px, value, {args.sampling} sampling{slab}; "
+        f"{'perpendicular to' if kind == 'perpendicular' else 'containing'} the packing axis {axis}"
+    )
     with compute_context(args, ev) as client:
         with Timer() as t:
-            img = render_slice(ev, plane, sampling=args.sampling, client=client, progress=show_progress(args),
-                               verify=verify)
+            img = render_slice(
+                ev, plane, sampling=args.sampling, client=client, progress=show_progress(args), verify=verify
+            )
     arr = img.decrypt(args.private_key)
     if suffix == "npy":
         buf = io.BytesIO()
@@ -169,7 +207,9 @@ def _packed_slice(args: Any, ev: Any, mode: str, out: Any) -> int:
         print(f"verified: the slice's values are the store {ev.meta.store_id}'s (checked against its tags)")
     else:
         warn_unverified(args, ev, img)
-    print(f"wrote {out}: decrypted here from {plural(img.n_ciphertexts, 'ciphertext')} ({img.plan.n_footprints:,} "
-          f"footprints, up to {ev.packing.slots} layers each), {int(img.hits.sum()):,} of "
-          f"{plane.width * plane.height:,} pixels inside the volume, rendered in {t.seconds:.2f} s")
+    print(
+        f"wrote {out}: decrypted here from {plural(img.n_ciphertexts, 'ciphertext')} ({img.plan.n_footprints:,} "
+        f"footprints, up to {ev.packing.slots} layers each), {int(img.hits.sum()):,} of "
+        f"{plane.width * plane.height:,} pixels inside the volume, rendered in {t.seconds:.2f} s"
+    )
     return 0

@@ -30,9 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.files import check_regular
-
-from ..core.files import write_file
+from ..core.files import check_regular, write_file
 from ..errors import ExistingFileError, MissingFileError
 from ..image.display import save_png
 from ..image.header import MAGIC
@@ -54,8 +52,21 @@ from .util import (
     disk_usage,
 )
 
-__all__ = ["storage_options", "is_url", "local_path", "open_store", "output_file", "save_frame", "save_decrypted",
-           "size_of", "head_of", "png_name", "url_kind", "encrypt_target"]
+__all__ = [
+    "storage_options",
+    "is_url",
+    "local_path",
+    "open_store",
+    "output_file",
+    "save_frame",
+    "save_decrypted",
+    "size_of",
+    "head_of",
+    "png_name",
+    "url_kind",
+    "encrypt_target",
+]
+
 
 def storage_options(args: Any) -> dict | None:
     """The options of this command: ``$HEVR_STORAGE_OPTIONS``, then ``--storage-option`` (None if none)."""
@@ -67,8 +78,10 @@ def storage_options(args: Any) -> dict | None:
         except ValueError:
             doc = None
         if not isinstance(doc, dict):
-            raise UsageError(f"{STORAGE_OPTIONS_ENV}: expected a JSON object of fsspec options, got something "
-                             "else (its value is not shown)")
+            raise UsageError(
+                f"{STORAGE_OPTIONS_ENV}: expected a JSON object of fsspec options, got something "
+                "else (its value is not shown)"
+            )
         out.update(doc)
     out.update(dict(getattr(args, "storage_option", None) or []))
     return out or None
@@ -93,8 +106,9 @@ def open_store(text: str, word: str = "STORE", so: dict | None = None) -> Encryp
     return open_volume(check_store_path(local_path(text), word).absolute())
 
 
-def output_file(text: str, option: str = "--out", suffix: str | None = None, *, force: bool = False,
-                so: dict | None = None) -> Path | str:
+def output_file(
+    text: str, option: str = "--out", suffix: str | None = None, *, force: bool = False, so: dict | None = None
+) -> Path | str:
     """Where a frame or sums file goes: a checked local path, or a URL (written in one request).
     A file (or object) already there is refused here, before any work, unless ``force``
     (:class:`hevr.ExistingFileError` naming ``option``; exit 2, the message says ``--force``);
@@ -109,8 +123,15 @@ def output_file(text: str, option: str = "--out", suffix: str | None = None, *, 
     return path
 
 
-def save_frame(img: Any, out: Path | str, option: str = "--out", *, force: bool = False,
-               so: dict | None = None, private_key: Any = None) -> None:
+def save_frame(
+    img: Any,
+    out: Path | str,
+    option: str = "--out",
+    *,
+    force: bool = False,
+    so: dict | None = None,
+    private_key: Any = None,
+) -> None:
     """``img.save(out)``, replacing a file there only with ``force``; an existing file is
     reported as ``option``'s (it may have appeared while the frame was rendered). With the
     ``private_key`` a verified frame is checked and stamped (:meth:`hevr.EncryptedImage.save`)."""
@@ -120,8 +141,9 @@ def save_frame(img: Any, out: Path | str, option: str = "--out", *, force: bool 
         raise ExistingFileError(option, out) from None
 
 
-def save_decrypted(arr: Any, out: Path, npy: Path | None, window: Any, *, force: bool = False,
-                   plane: Any = None, hits: Any = None) -> None:
+def save_decrypted(
+    arr: Any, out: Path, npy: Path | None, window: Any, *, force: bool = False, plane: Any = None, hits: Any = None
+) -> None:
     """``hevr decrypt``'s PNG and (``--npy``) float64 values, each written atomically and over an
     existing file only with ``force``; one that appeared meanwhile is reported as its option's.
     A slice's PNG (``plane``: its plane) is turned for display (:func:`hevr.image.orient.orient_slice`);
@@ -181,7 +203,7 @@ def url_kind(url: str, so: dict | None = None) -> str:
     head = head_of(url, len(MAGIC), "PATH", what, so)
     if head[:-1] == MAGIC[:-1]:
         return "frame"
-    if head == SUMS_MAGIC[:len(MAGIC)]:
+    if head == SUMS_MAGIC[: len(MAGIC)]:
         return "sums"
     raise UsageError(f"PATH: expected {what}, got an object that is none of them ({url})")
 
@@ -195,8 +217,9 @@ def encrypt_target(args: Any, so: dict | None) -> Path | str:
     if exists and not url and not store.is_dir():
         raise UsageError(f"--out: expected a store folder (e.g. vol.zarr), got a file ({args.out})")
     if exists and not (args.resume or args.overwrite):
-        raise UsageError(f"--out: {args.out} exists; pass --overwrite to replace it or --resume to finish "
-                         "an interrupted run")
+        raise UsageError(
+            f"--out: {args.out} exists; pass --overwrite to replace it or --resume to finish an interrupted run"
+        )
     if not exists and args.resume:
         raise MissingFileError("--resume", "the interrupted store named by --out", args.out)
     if not url:

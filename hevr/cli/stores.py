@@ -28,31 +28,58 @@ __all__ = ["cmd_stores", "describe", "stores_arguments"]
 def stores_arguments(p: argparse.ArgumentParser) -> None:
     """``hevr stores``: its description, examples and arguments."""
     add_general_options(p, dask=False)
-    add_server_option(p, "the hevr serve to ask (http(s)://host:port; required); the token comes from the "
-                         "environment variable HEVR_TOKEN")
-    p.description = wrap("List the stores a render server (hevr serve) serves to your token: name, id, size, "
-                         "per-voxel or packed, verifiable or not, channels, pyramid levels and the key's "
-                         "fingerprint. The token comes from the environment variable HEVR_TOKEN.")
-    p.epilog = ("examples:\n"
-                "  HEVR_TOKEN=... hevr stores --server https://render.example.org:8750 --cafile ca.pem\n"
-                "  hevr stores --server http://127.0.0.1:8750 --json     # for scripts; shape in (z, y, x) order\n")
-    p.add_argument("--json", action="store_true", help="print the list as JSON (shape in (z, y, x) order, as "
-                                                       "server.open(NAME).shape)")
+    add_server_option(
+        p,
+        "the hevr serve to ask (http(s)://host:port; required); the token comes from the "
+        "environment variable HEVR_TOKEN",
+    )
+    p.description = wrap(
+        "List the stores a render server (hevr serve) serves to your token: name, id, size, "
+        "per-voxel or packed, verifiable or not, channels, pyramid levels and the key's "
+        "fingerprint. The token comes from the environment variable HEVR_TOKEN."
+    )
+    p.epilog = (
+        "examples:\n"
+        "  HEVR_TOKEN=... hevr stores --server https://render.example.org:8750 --cafile ca.pem\n"
+        "  hevr stores --server http://127.0.0.1:8750 --json     # for scripts; shape in (z, y, x) order\n"
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the list as JSON (shape in (z, y, x) order, as server.open(NAME).shape)",
+    )
 
 
 def describe(meta: Any, sid: str, name: str | None) -> dict:
     """What ``hevr stores`` says of one store (its checked public metadata)."""
-    return {"name": name, "id": sid, "shape": list(meta.shape), "spacing": list(meta.spacing),
-            "packed": meta.packing is not None, "verifiable": bool(meta.tags),
-            "channels": [c for c in ("scalar", "vector", "gradient") if getattr(meta, c) is not None],
-            "levels": len(meta.levels), "fingerprint": meta.fingerprint}
+    return {
+        "name": name,
+        "id": sid,
+        "shape": list(meta.shape),
+        "spacing": list(meta.spacing),
+        "packed": meta.packing is not None,
+        "verifiable": bool(meta.tags),
+        "channels": [c for c in ("scalar", "vector", "gradient") if getattr(meta, c) is not None],
+        "levels": len(meta.levels),
+        "fingerprint": meta.fingerprint,
+    }
 
 
 def _table(rows: list[dict]) -> list[str]:
     head = ("NAME", "ID", "SIZE x*y*z", "LAYOUT", "VERIFIABLE", "CHANNELS", "LEVELS", "KEY")
-    body = [(r["name"] or "-", r["id"], "x".join(map(str, r["shape"][::-1])),
-             "packed" if r["packed"] else "per-voxel", "yes" if r["verifiable"] else "no",
-             ",".join(r["channels"]), str(r["levels"]), r["fingerprint"][:16]) for r in rows]
+    body = [
+        (
+            r["name"] or "-",
+            r["id"],
+            "x".join(map(str, r["shape"][::-1])),
+            "packed" if r["packed"] else "per-voxel",
+            "yes" if r["verifiable"] else "no",
+            ",".join(r["channels"]),
+            str(r["levels"]),
+            r["fingerprint"][:16],
+        )
+        for r in rows
+    ]
     widths = [max(len(row[i]) for row in [head, *body]) for i in range(len(head))]
     return ["  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip() for row in [head, *body]]
 

@@ -22,9 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..core.files import check_regular
-
-from ..core.files import fs_errors
+from ..core.files import check_regular, fs_errors
 from ..core.magic import IMAGE_MAGIC_PREFIX
 from ..errors import (
     ExistingFileError,

@@ -43,8 +43,10 @@ def warn_leftovers(path: str | Path) -> None:
         return
     listed = ", ".join(f"{p.name} ({human_bytes(size)})" for p, size in found)
     total = human_bytes(sum(size for _, size in found))
-    warn_line(f"beside {path}: {listed}, {total} in all: left by a write to {Path(path).name} that was interrupted "
-              "(or is still running); the next write to it removes them, or remove them by hand")
+    warn_line(
+        f"beside {path}: {listed}, {total} in all: left by a write to {Path(path).name} that was interrupted "
+        "(or is still running); the next write to it removes them, or remove them by hand"
+    )
 
 
 def verify_store(path: str, so: dict | None, args: Any) -> tuple[str, list[str], bool]:
@@ -54,12 +56,19 @@ def verify_store(path: str, so: dict | None, args: Any) -> tuple[str, list[str],
         ev = open_volume(path, verify="none", storage_options=so)
     except StoreError as exc:
         return f"FAILED: the bricks cannot be read ({exc})", [], True
-    with dask_client(getattr(args, "scheduler", None), getattr(args, "workers", None),
-                     own=getattr(args, "own_cluster", False)) as client:
+    with dask_client(
+        getattr(args, "scheduler", None), getattr(args, "workers", None), own=getattr(args, "own_cluster", False)
+    ) as client:
         report = verify_bricks(ev, client=client, progress=show_progress(args))
     levels = f" at level 0 and {ev.levels} pyramid level{'s' if ev.levels > 1 else ''}" if ev.levels else ""
     if report.ok:
-        return (f"ok: verified {plural(report.bricks, 'brick')}{levels} (every ciphertext of every channel read: chunk crc32c, "
-                "brick digests, 0 < c < n², coprime to n)"), [], False
+        return (
+            (
+                f"ok: verified {plural(report.bricks, 'brick')}{levels} (every ciphertext of every channel read: chunk crc32c, "
+                "brick digests, 0 < c < n², coprime to n)"
+            ),
+            [],
+            False,
+        )
     lines = [f"damaged: {p}" for p in report.problems]
     return f"FAILED: {len(report.damaged)} of {report.bricks} bricks damaged (listed below)", lines, True

@@ -26,9 +26,11 @@ def verify_argument(args: Any) -> bool | str | None:
         return False
     if args.private_key is None:
         if args.verify is not None:
-            raise UsageError("--verify: expected --key KEY.json as well: only the key holder's process draws the "
-                             "verification seed and checks the frame (one that renders without the key, on the "
-                             "cluster, would know the seed before the frame is fixed)")
+            raise UsageError(
+                "--verify: expected --key KEY.json as well: only the key holder's process draws the "
+                "verification seed and checks the frame (one that renders without the key, on the "
+                "cluster, would know the seed before the frame is fixed)"
+            )
         return False
     return args.verify
 
@@ -38,28 +40,38 @@ def warn_unverified(args: Any, ev: Any, img: Any) -> None:
     if img.verification is not None or args.no_verify:
         return
     if not ev.meta.tags:
-        warn_line("not verified: the store has no tags (encrypt it with --verifiable so that a lying server "
-                  "is caught; --no-verify silences this)")
+        warn_line(
+            "not verified: the store has no tags (encrypt it with --verifiable so that a lying server "
+            "is caught; --no-verify silences this)"
+        )
     elif args.private_key is None and getattr(ev, "remote", None) is not None:  # hevr render|slice --server
-        warn_line("not verified: no --key: pass --key KEY.json, the key holder's private key, to verify the "
-                  "server's answer (the seed is drawn here after the frame has arrived; --no-verify silences this)")
+        warn_line(
+            "not verified: no --key: pass --key KEY.json, the key holder's private key, to verify the "
+            "server's answer (the seed is drawn here after the frame has arrived; --no-verify silences this)"
+        )
     elif args.private_key is None:
-        warn_line("not verified: no --key (the key holder's process verifies: give it --key, or render through "
-                  "hevr serve from the key holder's machine; --no-verify silences this)")
+        warn_line(
+            "not verified: no --key (the key holder's process verifies: give it --key, or render through "
+            "hevr serve from the key holder's machine; --no-verify silences this)"
+        )
 
 
 def key_holder(args: Any, ev: Any) -> bool | str | None:
     """:func:`verify_argument` for the store ``ev``, whose key ``--key`` must be."""
     verify = verify_argument(args)
     if args.private_key is not None and args.private_key.public_key.fingerprint != ev.meta.fingerprint:
-        raise UsageError(f"--key: expected the private key of the store (fingerprint {ev.meta.fingerprint[:16]}…), "
-                         f"got {args.key} (fingerprint {args.private_key.public_key.fingerprint[:16]}…)")
+        raise UsageError(
+            f"--key: expected the private key of the store (fingerprint {ev.meta.fingerprint[:16]}…), "
+            f"got {args.key} (fingerprint {args.private_key.public_key.fingerprint[:16]}…)"
+        )
     if args.trust_store:
         if args.private_key is None:
             raise UsageError("--trust-store: expected --key KEY.json as well (the known stores are the key holder's)")
         entry = trust_store(ev, args.private_key, untagged=getattr(args, "untagged", False))
-        print(f"trusted: {ev.path} is now recorded as the store {entry.store_id} in {known_stores_path()}"
-              + (" (accepted without tags)" if entry.accepted_untagged else ""))
+        print(
+            f"trusted: {ev.path} is now recorded as the store {entry.store_id} in {known_stores_path()}"
+            + (" (accepted without tags)" if entry.accepted_untagged else "")
+        )
     elif getattr(args, "untagged", False):
         raise UsageError("--untagged: expected --trust-store as well (it accepts a store without tags explicitly)")
     refuse_untagged(ev, args.private_key)  # the key's policy: a store without tags, before anything is rendered
@@ -72,14 +84,18 @@ def verified_line(img: Any) -> str | None:
     if v is None:
         return None
     view = v.camera
-    what = (f"plane through ({', '.join(f'{x:g}' for x in view.origin)}) along u ({', '.join(f'{x:g}' for x in view.u)})"
-            f" and v ({', '.join(f'{x:g}' for x in view.v)}), {view.width}x{view.height} px"
-            if not hasattr(view, "position") else
-            f"camera at ({', '.join(f'{x:g}' for x in view.position)}) looking at "
-            f"({', '.join(f'{x:g}' for x in view.focal_point)}), {view.width}x{view.height} px")
-    return (f"verified: the frame is the render of store {v.store_id} (channel {v.channel}, {v.sampling} sampling, "
-            f"step {v.step:g}, level {v.level}) and its view, {what} (view key {proof_of(img).view_key}); checked "
-            "against the store's tags and its owner-authenticated metadata")
+    what = (
+        f"plane through ({', '.join(f'{x:g}' for x in view.origin)}) along u ({', '.join(f'{x:g}' for x in view.u)})"
+        f" and v ({', '.join(f'{x:g}' for x in view.v)}), {view.width}x{view.height} px"
+        if not hasattr(view, "position")
+        else f"camera at ({', '.join(f'{x:g}' for x in view.position)}) looking at "
+        f"({', '.join(f'{x:g}' for x in view.focal_point)}), {view.width}x{view.height} px"
+    )
+    return (
+        f"verified: the frame is the render of store {v.store_id} (channel {v.channel}, {v.sampling} sampling, "
+        f"step {v.step:g}, level {v.level}) and its view, {what} (view key {proof_of(img).view_key}); checked "
+        "against the store's tags and its owner-authenticated metadata"
+    )
 
 
 def verified_row(img: Any) -> str:
@@ -90,8 +106,13 @@ def verified_row(img: Any) -> str:
     if img.stamp is None:
         return f"record of store {img.verification.store_id}, without the key holder's stamp (refused at decryption)"
     p = proof_of(img)
-    moved = (f"; read from {p.read_as}: moved, so not verified for this file unless you name its store and view"
-             if p.moved else "")
-    return (f"record of store {p.store_id} ({p.store_version[:19]}…), view key {p.view_key}, rendered "
-            f"{p.rendered_at or 'at an unrecorded time'}; with the key holder's stamp, saved as {p.saved_as} (checked "
-            f"with the key at decryption){moved}")
+    moved = (
+        f"; read from {p.read_as}: moved, so not verified for this file unless you name its store and view"
+        if p.moved
+        else ""
+    )
+    return (
+        f"record of store {p.store_id} ({p.store_version[:19]}…), view key {p.view_key}, rendered "
+        f"{p.rendered_at or 'at an unrecorded time'}; with the key holder's stamp, saved as {p.saved_as} (checked "
+        f"with the key at decryption){moved}"
+    )

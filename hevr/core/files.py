@@ -39,8 +39,9 @@ import os
 import secrets
 import shutil
 import stat
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 
 from ..errors import (
     ExistingFileError,
@@ -53,9 +54,24 @@ from ..errors import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["check_name", "require_file", "write_atomic", "write_checksummed", "write_file", "read_regular", "check_regular",
-           "file_kind", "fs_errors", "os_error", "sibling_stem", "temp_sibling", "is_temporary", "remove_stale",
-           "remove_if_abandoned", "held_lock"]
+__all__ = [
+    "check_name",
+    "require_file",
+    "write_atomic",
+    "write_checksummed",
+    "write_file",
+    "read_regular",
+    "check_regular",
+    "file_kind",
+    "fs_errors",
+    "os_error",
+    "sibling_stem",
+    "temp_sibling",
+    "is_temporary",
+    "remove_stale",
+    "remove_if_abandoned",
+    "held_lock",
+]
 
 #: The longest file name written beside a target: NAME_MAX of every common filesystem is 255.
 NAME_MAX = 255
@@ -69,9 +85,14 @@ def file_kind(mode: int) -> str:
     >>> file_kind(stat.S_IFIFO), file_kind(stat.S_IFREG)
     ('a FIFO', 'a regular file')
     """
-    for test, words in ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO"),
-                        (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
-                        (stat.S_ISBLK, "a block device")):
+    for test, words in (
+        (stat.S_ISREG, "a regular file"),
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+    ):
         if test(mode):
             return words
     return "not a regular file"
@@ -118,8 +139,10 @@ def check_name(path: str | os.PathLike, name: str) -> None:
     try:
         os.fsencode(path)
     except UnicodeEncodeError:
-        raise ParameterError(f"{name}: expected a name the filesystem can store (UTF-8, or bytes decoded with "
-                             f"os.fsdecode), got {os.fspath(path)!r}") from None
+        raise ParameterError(
+            f"{name}: expected a name the filesystem can store (UTF-8, or bytes decoded with "
+            f"os.fsdecode), got {os.fspath(path)!r}"
+        ) from None
 
 
 def sibling_stem(name: str, room: int = len(_SUFFIX) + 4 + 1 + _TOKEN_CHARS + 1) -> str:
@@ -149,7 +172,7 @@ def is_temporary(path: str | os.PathLike, of: str | os.PathLike, kinds: Iterable
     head = f".{sibling_stem(o.name)}{_SUFFIX}"
     if p.parent != o.parent or not p.name.startswith(head):
         return False
-    what, _, tok = p.name[len(head):].rpartition("-")
+    what, _, tok = p.name[len(head) :].rpartition("-")
     return what in tuple(kinds) and len(tok) == _TOKEN_CHARS
 
 
@@ -218,8 +241,16 @@ def remove_stale(path: str | os.PathLike, kinds: Iterable[str] = ("tmp",)) -> li
     return removed
 
 
-def write_file(path: str | os.PathLike, parts: Iterable[Any], *, mode: int = 0o644, overwrite: bool = False,
-               name: str = "path", doing: str = "writing", checksum: bool = False) -> None:
+def write_file(
+    path: str | os.PathLike,
+    parts: Iterable[Any],
+    *,
+    mode: int = 0o644,
+    overwrite: bool = False,
+    name: str = "path",
+    doing: str = "writing",
+    checksum: bool = False,
+) -> None:
     """Write the bytes-like ``parts`` to ``path`` atomically: through a locked temporary sibling,
     then ``os.replace`` (``overwrite=True``) or an exclusive link (otherwise; an existing
     ``path`` raises :class:`hevr.ExistingFileError` naming ``name``, and is never touched). The
@@ -280,8 +311,11 @@ def _locked_temporary(path: Path) -> tuple[Path, int]:
                 os.unlink(tmp)
             raise
         os.close(fd)
-    raise OSError(errno.EAGAIN, "a temporary file was removed again and again by another process",  # pragma: no cover
-                  str(path))
+    raise OSError(
+        errno.EAGAIN,
+        "a temporary file was removed again and again by another process",  # pragma: no cover
+        str(path),
+    )
 
 
 def _write_all(fd: int, view: memoryview) -> None:
@@ -290,15 +324,28 @@ def _write_all(fd: int, view: memoryview) -> None:
         view = view[n:]
 
 
-def write_atomic(path: str | os.PathLike, text: str, mode: int = 0o644, *, overwrite: bool = True,
-                 name: str = "path", doing: str = "writing") -> None:
+def write_atomic(
+    path: str | os.PathLike,
+    text: str,
+    mode: int = 0o644,
+    *,
+    overwrite: bool = True,
+    name: str = "path",
+    doing: str = "writing",
+) -> None:
     """Write ``text`` (UTF-8) to ``path`` with :func:`write_file` (``overwrite=True`` by default
     here: journals; key files pass ``overwrite`` through)."""
     write_file(path, [text.encode()], mode=mode, overwrite=overwrite, name=name, doing=doing)
 
 
-def write_checksummed(path: str | os.PathLike, parts: Iterable[Any], *, overwrite: bool = False,
-                      name: str = "path", doing: str = "writing") -> None:
+def write_checksummed(
+    path: str | os.PathLike,
+    parts: Iterable[Any],
+    *,
+    overwrite: bool = False,
+    name: str = "path",
+    doing: str = "writing",
+) -> None:
     """Write ``parts`` and then the SHA-256 of all of them to ``path`` with :func:`write_file`:
     the layout of ``.hevr`` images and ``.hevrsums`` files, whose readers check the trailer
     before anything else. An existing ``path`` is replaced only with ``overwrite=True``."""
@@ -337,8 +384,7 @@ def require_file(path: str | os.PathLike, name: str, expected: str, *, directory
     return p
 
 
-def check_regular(path: str | os.PathLike, name: str, expected: str, *,
-                  error: Any = None) -> os.stat_result:
+def check_regular(path: str | os.PathLike, name: str, expected: str, *, error: Any = None) -> os.stat_result:
     """``stat`` of ``path`` if it is a regular file (never opens it: a FIFO would block);
     :class:`MissingFileError` if absent, :class:`NotRegularFileError` (or ``error(message)``
     when given, e.g. ``CorruptStoreError`` for a chunk inside a store) for anything else."""
@@ -349,16 +395,18 @@ def check_regular(path: str | os.PathLike, name: str, expected: str, *,
     except (OSError, ValueError) as exc:
         if isinstance(exc, OSError) and exc.errno == errno.ENOTDIR:
             raise MissingFileError(name, expected, path) from None
-        raise FileSystemError(getattr(exc, "errno", None), f"reading {expected}", path,
-                              getattr(exc, "strerror", None) or str(exc)) from None
+        raise FileSystemError(
+            getattr(exc, "errno", None), f"reading {expected}", path, getattr(exc, "strerror", None) or str(exc)
+        ) from None
     if not stat.S_ISREG(st.st_mode):
         exc = NotRegularFileError(name, expected, path, file_kind(st.st_mode))
         raise (error(str(exc)) if error is not None else exc)
     return st
 
 
-def read_regular(path: str | os.PathLike, name: str, expected: str, *, limit: int | None = None,
-                 error: Any = None) -> bytes:
+def read_regular(
+    path: str | os.PathLike, name: str, expected: str, *, limit: int | None = None, error: Any = None
+) -> bytes:
     """The bytes of the regular file ``path``, refusing anything else before reading a byte
     (:func:`check_regular`'s errors, checked on the opened file with ``fstat``); ``limit``
     bounds the size (a :class:`hevr.ParameterError` beyond it, before reading)."""
@@ -378,8 +426,9 @@ def read_regular(path: str | os.PathLike, name: str, expected: str, *, limit: in
             err = NotRegularFileError(name, expected, path, file_kind(st.st_mode))
             raise (error(str(err)) if error is not None else err)
         if limit is not None and st.st_size > limit:
-            raise ParameterError(f"{name}: expected {expected} of at most {limit} bytes, got {st.st_size} bytes "
-                                 f"at {path}")
+            raise ParameterError(
+                f"{name}: expected {expected} of at most {limit} bytes, got {st.st_size} bytes at {path}"
+            )
         os.set_blocking(fd, True)
         with fs_errors(f"reading {expected}", path), os.fdopen(os.dup(fd), "rb") as fh:
             return fh.read()

@@ -62,7 +62,7 @@ def fits_float(magnitude: int, exponent: int) -> bool:
     magnitude, exponent = int(magnitude), int(exponent)
     if exponent >= 0:
         return magnitude * 10**exponent <= FLOAT_MAX
-    return magnitude <= FLOAT_MAX * 10**(-exponent)
+    return magnitude <= FLOAT_MAX * 10 ** (-exponent)
 
 
 # Size limits: Dask config keys, defaults and the hard caps a setting may not pass.
@@ -99,5 +99,7 @@ def render_limits() -> tuple[int, int]:
     ...     render_limits()[0]
     100
     """
-    return (_limit(MAX_PIXELS_KEY, DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS),
-            _limit(MAX_SAMPLES_KEY, DEFAULT_MAX_SAMPLES, MAX_SAMPLES_CAP))
+    return (
+        _limit(MAX_PIXELS_KEY, DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS),
+        _limit(MAX_SAMPLES_KEY, DEFAULT_MAX_SAMPLES, MAX_SAMPLES_CAP),
+    )

@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import math
 import numbers
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -219,8 +220,10 @@ def check_step(step: Any, name: str = "step") -> float:
     try:
         value = float(step)
     except OverflowError:
-        raise ParameterError(f"{name}: expected a positive finite number (world units), got an integer of "
-                             f"{len(str(abs(int(step))))} digits") from None
+        raise ParameterError(
+            f"{name}: expected a positive finite number (world units), got an integer of "
+            f"{len(str(abs(int(step))))} digits"
+        ) from None
     if not math.isfinite(value) or value <= 0:
         raise ParameterError(f"{name}: expected a positive finite number (world units), got {step!r}")
     return value
@@ -263,8 +266,10 @@ def check_brick(brick: Any, name: str = "brick", *, shape: Any = None) -> tuple[
     if shape is not None:
         out = tuple(min(b, s) for b, s in zip(out, check_shape(shape)))
     if math.prod(out) > MAX_BRICK_VOXELS:
-        raise ParameterError(f"{name}: expected at most {MAX_BRICK_VOXELS} voxels per brick (2^24, e.g. 256^3), "
-                             f"got {tuple(int(b) for b in out)} = {math.prod(out)} voxels")
+        raise ParameterError(
+            f"{name}: expected at most {MAX_BRICK_VOXELS} voxels per brick (2^24, e.g. 256^3), "
+            f"got {tuple(int(b) for b in out)} = {math.prod(out)} voxels"
+        )
     return tuple(int(b) for b in out)  # type: ignore[return-value]
 
 
@@ -300,8 +305,9 @@ def check_brick_index(index: Any, grid: Sequence[int], name: str = "brick_index"
     except (TypeError, ValueError):
         out = ()
     if len(out) != 3 or not all(0 <= i < g for i, g in zip(out, grid)):
-        raise ParameterError(f"{name}: expected a brick index (bz, by, bx) inside the grid {tuple(grid)}, "
-                             f"got {index!r}")
+        raise ParameterError(
+            f"{name}: expected a brick index (bz, by, bx) inside the grid {tuple(grid)}, got {index!r}"
+        )
     return out  # type: ignore[return-value]
 
 
@@ -332,8 +338,9 @@ def check_dtype(dtype: Any, name: str = "dtype", *, kinds: str = "uif") -> np.dt
     return out
 
 
-def check_volume(vol: Any, name: str = "vol", *, kinds: str = "biuf",
-                 error: type[Exception] = ParameterError, thick: bool = False) -> Any:
+def check_volume(
+    vol: Any, name: str = "vol", *, kinds: str = "biuf", error: type[Exception] = ParameterError, thick: bool = False
+) -> Any:
     """A non-empty 3-D voxel array whose dtype kind is one of ``kinds`` (at most 8 bytes);
     with ``thick=True`` (a scan read from a file, before it is encrypted) at least 2 voxels along
     every axis: rays are clipped to the box of the voxel centres, which a single slice leaves
@@ -369,8 +376,10 @@ def check_volume(vol: Any, name: str = "vol", *, kinds: str = "biuf",
     if thick and min(shape) < 2:
         nz, ny, nx = shape
         got = f"{nz} slice of {nx}x{ny} voxels" if nz == 1 else f"{nx}x{ny}x{nz} voxels"
-        raise error(f"{name}: expected a volume at least 2 voxels thick along every axis (a single slice has no "
-                    f"thickness for the rays to cross: every frame would be empty), got {got} (shape {shape})")
+        raise error(
+            f"{name}: expected a volume at least 2 voxels thick along every axis (a single slice has no "
+            f"thickness for the rays to cross: every frame would be empty), got {got} (shape {shape})"
+        )
     return vol
 
 
@@ -390,8 +399,10 @@ def check_data_range(lo: Any, hi: Any, name: str = "vol") -> tuple[float, float]
     """
     lo, hi = float(lo), float(hi)
     if not (math.isfinite(lo) and math.isfinite(hi)):
-        raise ParameterError(f"{name}: expected finite values, got NaN or infinity (min {lo}, max {hi}); give NaN "
-                             "voxels a value first (np.nan_to_num(vol, nan=VALUE); hevr encrypt --nan-as VALUE)")
+        raise ParameterError(
+            f"{name}: expected finite values, got NaN or infinity (min {lo}, max {hi}); give NaN "
+            "voxels a value first (np.nan_to_num(vol, nan=VALUE); hevr encrypt --nan-as VALUE)"
+        )
     return lo, hi
 
 
@@ -420,8 +431,9 @@ def check_value_range(value_range: Any, name: str = "value_range") -> tuple[floa
     try:
         lo, hi = (float(x) for x in value_range)
     except OverflowError:  # an int beyond float64 (never str() it: 4300+ digits raise ValueError)
-        raise ParameterError(f"{name}: expected (lo, hi) with |lo|, |hi| <= {MAX_VALUE:g}, got a number "
-                             "beyond float64") from None
+        raise ParameterError(
+            f"{name}: expected (lo, hi) with |lo|, |hi| <= {MAX_VALUE:g}, got a number beyond float64"
+        ) from None
     except (TypeError, ValueError):
         raise ParameterError(f"{name}: expected two numbers (lo, hi), got {value_range!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):

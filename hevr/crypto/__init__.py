@@ -23,5 +23,15 @@ from .keys import PrivateKey, PublicKey, generate_keypair
 from .number import EncryptedNumber
 from .phe_keys import key_from_phe_dict, phe_key_dict
 
-__all__ = ["BASE", "EncryptedNumber", "PrivateKey", "PublicKey", "decode", "encode", "generate_keypair",
-           "key_from_phe_dict", "load_key", "phe_key_dict"]
+__all__ = [
+    "BASE",
+    "EncryptedNumber",
+    "PrivateKey",
+    "PublicKey",
+    "decode",
+    "encode",
+    "generate_keypair",
+    "key_from_phe_dict",
+    "load_key",
+    "phe_key_dict",
+]

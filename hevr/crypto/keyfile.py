@@ -94,9 +94,13 @@ def _warn_if_exposed(path: Path) -> None:
     except OSError:  # pragma: no cover - it was just read
         return
     if mode & 0o077:
-        warnings.warn(f"UNPROTECTED PRIVATE KEY FILE: key file {path} has permissions {mode:04o}, readable or "
-                      f"writable by others than its owner, who could decrypt every volume and image of this key; "
-                      f"run: chmod 600 {path}", KeyFilePermissionWarning, stacklevel=4)
+        warnings.warn(
+            f"UNPROTECTED PRIVATE KEY FILE: key file {path} has permissions {mode:04o}, readable or "
+            f"writable by others than its owner, who could decrypt every volume and image of this key; "
+            f"run: chmod 600 {path}",
+            KeyFilePermissionWarning,
+            stacklevel=4,
+        )
 
 
 def _int_field(d: dict, name: str, path: Path) -> mpz:
@@ -112,8 +116,10 @@ def _int_field(d: dict, name: str, path: Path) -> mpz:
         got = f"a {len(v)}-character string with characters other than 0-9"
     else:
         got = f"{len(v)} digits"
-    raise InvalidKeyError(f"key file {path}: field {name!r}: expected a decimal string of at most "
-                          f"{_MAX_DIGITS} ASCII digits 0-9, got {got}")
+    raise InvalidKeyError(
+        f"key file {path}: field {name!r}: expected a decimal string of at most "
+        f"{_MAX_DIGITS} ASCII digits 0-9, got {got}"
+    )
 
 
 def _read_text(path: Path) -> str:
@@ -124,13 +130,15 @@ def _read_text(path: Path) -> str:
     except OSError as exc:
         raise InvalidKeyError(f"key file {path} cannot be read: {exc.strerror}") from None
     if len(data) > MAX_KEY_FILE_BYTES:
-        raise InvalidKeyError(f"key file {path}: expected at most {MAX_KEY_FILE_BYTES} bytes, got a "
-                              "larger file (not a key file?)")
+        raise InvalidKeyError(
+            f"key file {path}: expected at most {MAX_KEY_FILE_BYTES} bytes, got a larger file (not a key file?)"
+        )
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise InvalidKeyError(f"key file {path}: expected UTF-8 JSON text, got a byte that is not UTF-8 "
-                              f"at offset {exc.start}") from None
+        raise InvalidKeyError(
+            f"key file {path}: expected UTF-8 JSON text, got a byte that is not UTF-8 at offset {exc.start}"
+        ) from None
 
 
 def _parse(text: str, path: Path) -> object:
@@ -140,8 +148,7 @@ def _parse(text: str, path: Path) -> object:
     except json.JSONDecodeError as exc:
         raise InvalidKeyError(f"key file {path} is not valid JSON (line {exc.lineno})") from None
     except ValueError:  # a JSON number of more than 4300 digits (Python's int limit)
-        raise InvalidKeyError(f"key file {path} is not a key file: its JSON holds a number too long to "
-                              "read") from None
+        raise InvalidKeyError(f"key file {path} is not a key file: its JSON holds a number too long to read") from None
     except RecursionError:  # "[[[[…" deeper than the parser's stack
         raise InvalidKeyError(f"key file {path} is not a key file: its JSON is nested too deeply") from None
 
@@ -171,12 +178,12 @@ def load_key(path) -> PublicKey | PrivateKey:
         _check_claims(key, path)
         bits = key.public_key.bits if isinstance(key, PrivateKey) else key.bits
         if bits < SECURE_BITS:
-            warnings.warn(f"key file {path} holds a {bits}-bit key, which is not secure", InsecureKeyWarning,
-                          stacklevel=2)
+            warnings.warn(
+                f"key file {path} holds a {bits}-bit key, which is not secure", InsecureKeyWarning, stacklevel=2
+            )
         return key
     if not isinstance(d, dict) or d.get("format") != "hevr-key":
-        raise InvalidKeyError(f"key file {path}: expected format 'hevr-key' (or a python-paillier key, "
-                              "kty 'DAJ')")
+        raise InvalidKeyError(f"key file {path}: expected format 'hevr-key' (or a python-paillier key, kty 'DAJ')")
     if type(d.get("version")) is not int or d.get("version") != 1:
         raise InvalidKeyError(f"key file {path}: unsupported version {d.get('version')!r}, expected 1")
     kind = d.get("kind")
@@ -184,13 +191,17 @@ def load_key(path) -> PublicKey | PrivateKey:
         raise InvalidKeyError(f"key file {path}: kind must be 'public' or 'private'; got {kind!r}")
     held = [f for f in PRIVATE_FIELDS if f in d]
     if kind == "public" and held:
-        raise InvalidKeyError(f"key file {path}: field 'kind': expected 'private' for a file holding the private "
-                              f"field{'s' if len(held) > 1 else ''} {', '.join(repr(f) for f in held)}, got "
-                              "'public' (a private key file edited? a public key file holds no p or q)")
+        raise InvalidKeyError(
+            f"key file {path}: field 'kind': expected 'private' for a file holding the private "
+            f"field{'s' if len(held) > 1 else ''} {', '.join(repr(f) for f in held)}, got "
+            "'public' (a private key file edited? a public key file holds no p or q)"
+        )
     n = _int_field(d, "n", path)
     bits = int(n.bit_length())
     if bits % 2 or not MIN_BITS <= bits <= MAX_BITS:
-        raise InvalidKeyError(f"key file {path}: n must have an even number of bits in [{MIN_BITS}, {MAX_BITS}]; got {bits}")
+        raise InvalidKeyError(
+            f"key file {path}: n must have an even number of bits in [{MIN_BITS}, {MAX_BITS}]; got {bits}"
+        )
     if d.get("bits") is not None and (type(d.get("bits")) is not int or d.get("bits") != bits):
         raise InvalidKeyError(f"key file {path}: 'bits' says {d.get('bits')} but n has {bits} bits")
     pub = PublicKey(n)
@@ -218,8 +229,9 @@ def _policy(d: dict, path: Path) -> bool:
     if pol is None:
         return False
     if not (isinstance(pol, dict) and set(pol) == {"require_tags"} and isinstance(pol["require_tags"], bool)):
-        raise InvalidKeyError(f"key file {path}: field 'policy': expected {{\"require_tags\": true|false}}, got "
-                              f"{json.dumps(pol)[:60]}")
+        raise InvalidKeyError(
+            f"key file {path}: field 'policy': expected {{\"require_tags\": true|false}}, got {json.dumps(pol)[:60]}"
+        )
     return pol["require_tags"]
 
 
@@ -231,5 +243,7 @@ def _check_claims(key: PublicKey | PrivateKey, path: Path) -> None:
         return
     problem = modulus_problem(key.n)
     if problem is not None:
-        raise InvalidKeyError(f"key file {path}: field 'n': expected a product of two distinct odd primes of "
-                              f"{key.bits // 2} bits each, got {problem}")
+        raise InvalidKeyError(
+            f"key file {path}: field 'n': expected a product of two distinct odd primes of "
+            f"{key.bits // 2} bits each, got {problem}"
+        )

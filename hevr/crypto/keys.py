@@ -18,16 +18,16 @@ import base64
 import json
 import logging
 import warnings
+from collections.abc import Iterable, Sequence
 from numbers import Integral
-from typing import Iterable, Sequence
 
 import gmpy2
 import numpy as np
 from gmpy2 import mpz
 
 from ..core.files import write_atomic
-from ..runtime.recent import Recent
 from ..errors import InsecureKeyWarning, KeyMismatchError, ParameterError
+from ..runtime.recent import Recent
 from . import paillier as raw
 from .encoding import decode
 from .number import EncryptedNumber
@@ -44,8 +44,16 @@ MIN_BITS, MAX_BITS, SECURE_BITS = 64, 4096, 2048
 # JSON of python-paillier's ``pheutil`` (described in :mod:`hevr.crypto.phe_keys`).
 KEY_FORMATS = ("hevr", "phe")
 
-__all__ = ["PublicKey", "PrivateKey", "generate_keypair", "factor_problem", "KEY_FORMATS", "MIN_BITS", "MAX_BITS",
-           "SECURE_BITS"]
+__all__ = [
+    "PublicKey",
+    "PrivateKey",
+    "generate_keypair",
+    "factor_problem",
+    "KEY_FORMATS",
+    "MIN_BITS",
+    "MAX_BITS",
+    "SECURE_BITS",
+]
 
 
 def _as_int_list(values: np.ndarray | Iterable[int], name: str) -> list[int]:
@@ -177,9 +185,7 @@ class PublicKey:
             return c
         return raw.raw_obfuscate(c, self._random_mask(), self.nsquare)
 
-    def encrypt_array(
-        self, values: np.ndarray | Sequence[int], *, unsafe_no_obfuscation: bool = False
-    ) -> list[mpz]:
+    def encrypt_array(self, values: np.ndarray | Sequence[int], *, unsafe_no_obfuscation: bool = False) -> list[mpz]:
         """Encrypt every integer of ``values`` (flattened, C order); returns a list of mpz."""
         return [self.encrypt(v, unsafe_no_obfuscation=unsafe_no_obfuscation) for v in _as_int_list(values, "values")]
 
@@ -218,10 +224,21 @@ class PublicKey:
     def to_dict(self, format: str = "hevr") -> dict:
         """The JSON object of the key file: ``format="hevr"`` (hevr's) or ``"phe"`` (pheutil's)."""
         if _check_format(format) == "phe":
-            return {"kty": "DAJ", "alg": "PAI-GN1", "key_ops": ["encrypt"], "n": _b64url(self.n),
-                    "kid": f"Paillier public key exported by hevr, fingerprint {self.fingerprint}"}
-        return {"format": "hevr-key", "version": 1, "kind": "public", "bits": self.bits,
-                "n": str(int(self.n)), "fingerprint": self.fingerprint}
+            return {
+                "kty": "DAJ",
+                "alg": "PAI-GN1",
+                "key_ops": ["encrypt"],
+                "n": _b64url(self.n),
+                "kid": f"Paillier public key exported by hevr, fingerprint {self.fingerprint}",
+            }
+        return {
+            "format": "hevr-key",
+            "version": 1,
+            "kind": "public",
+            "bits": self.bits,
+            "n": str(int(self.n)),
+            "fingerprint": self.fingerprint,
+        }
 
     def save(self, path, overwrite: bool = False, format: str = "hevr") -> None:
         """Write the public key as JSON (world-readable is fine); read it with :func:`hevr.load_key`.
@@ -312,9 +329,7 @@ class PrivateKey:
             return raw.raw_encrypt_nude(residue, pub.n, pub.nsquare)
         return self.owner.encrypt_residues((residue,))[0]
 
-    def encrypt_array(
-        self, values: np.ndarray | Sequence[int], *, unsafe_no_obfuscation: bool = False
-    ) -> list[mpz]:
+    def encrypt_array(self, values: np.ndarray | Sequence[int], *, unsafe_no_obfuscation: bool = False) -> list[mpz]:
         """Encrypt every integer of ``values`` (flattened, C order) on the fast path."""
         pub = self.public_key
         n = pub.n
@@ -332,8 +347,7 @@ class PrivateKey:
         c = mpz(c)
         if not 0 < c < self.public_key.nsquare:
             raise ParameterError("ciphertext must lie in (0, n²); got a value outside that range")
-        return raw.raw_decrypt_crt(c, self.p, self.q, self._psquare, self._qsquare,
-                                   self._hp, self._hq, self._p_inv_q)
+        return raw.raw_decrypt_crt(c, self.p, self.q, self._psquare, self._qsquare, self._hp, self._hq, self._p_inv_q)
 
     def decrypt(self, c: int) -> int:
         """Signed plaintext; :class:`hevr.PlaintextOverflowError` in the ambiguous band."""
@@ -377,10 +391,15 @@ class PrivateKey:
         """The JSON object of the key file (secret): ``format="hevr"`` or ``"phe"`` (pheutil's)."""
         pub = self.public_key.to_dict(format)
         if format == "phe":  # checked by the line above
-            return {"kty": "DAJ", "key_ops": ["decrypt"], "p": _b64url(self.p), "q": _b64url(self.q), "pub": pub,
-                    "kid": f"Paillier private key exported by hevr, fingerprint {self.fingerprint}"}
-        pub.update(kind="private", p=str(int(self.p)), q=str(int(self.q)),
-                   policy={"require_tags": self.require_tags})
+            return {
+                "kty": "DAJ",
+                "key_ops": ["decrypt"],
+                "p": _b64url(self.p),
+                "q": _b64url(self.q),
+                "pub": pub,
+                "kid": f"Paillier private key exported by hevr, fingerprint {self.fingerprint}",
+            }
+        pub.update(kind="private", p=str(int(self.p)), q=str(int(self.q)), policy={"require_tags": self.require_tags})
         return pub
 
     def save(self, path, overwrite: bool = False, format: str = "hevr") -> None:
@@ -434,8 +453,11 @@ def generate_keypair(bits: int = 2048, *, require_tags: bool = True) -> tuple[Pu
         raise ParameterError(f"require_tags: expected True or False, got {require_tags!r:.40}")
     bits = int(bits)
     if bits < SECURE_BITS:
-        warnings.warn(f"a {bits}-bit Paillier key is not secure; use at least {SECURE_BITS} bits",
-                      InsecureKeyWarning, stacklevel=2)
+        warnings.warn(
+            f"a {bits}-bit Paillier key is not secure; use at least {SECURE_BITS} bits",
+            InsecureKeyWarning,
+            stacklevel=2,
+        )
     half = bits // 2
     while True:
         p, _ = random_prime_with_factors(half)

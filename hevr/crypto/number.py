@@ -18,8 +18,9 @@ rounded reciprocal of Eq. 1.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from numbers import Integral, Real
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 from gmpy2 import mpz
 
@@ -47,7 +48,7 @@ class EncryptedNumber:
 
     __slots__ = ("public_key", "ciphertext", "exponent")
 
-    def __init__(self, public_key: "PublicKey", ciphertext: int, exponent: int = 0) -> None:
+    def __init__(self, public_key: PublicKey, ciphertext: int, exponent: int = 0) -> None:
         if not isinstance(exponent, Integral) or isinstance(exponent, bool):
             raise ParameterError(f"exponent must be an int; got {type(exponent).__name__}")
         self.public_key = public_key
@@ -55,8 +56,9 @@ class EncryptedNumber:
         self.exponent = int(exponent)
 
     @classmethod
-    def encrypt(cls, public_key: "PublicKey", value: Real, exponent: int | None,
-                encrypt_int: Callable[[int], mpz]) -> "EncryptedNumber":
+    def encrypt(
+        cls, public_key: PublicKey, value: Real, exponent: int | None, encrypt_int: Callable[[int], mpz]
+    ) -> EncryptedNumber:
         mantissa, exp = encode(value, exponent)
         return cls(public_key, encrypt_int(mantissa), exp)
 
@@ -64,7 +66,7 @@ class EncryptedNumber:
         return f"EncryptedNumber(exponent={self.exponent}, key={self.public_key.fingerprint[:16]}…)"
 
     # -- exponent handling ------------------------------------------------------------
-    def decrease_exponent_to(self, new_exponent: int) -> "EncryptedNumber":
+    def decrease_exponent_to(self, new_exponent: int) -> EncryptedNumber:
         """Same value with a smaller (or equal) exponent: mantissa ⊗ 10**(e − new)."""
         if not isinstance(new_exponent, Integral):
             raise ParameterError(f"new_exponent must be an int; got {type(new_exponent).__name__}")
@@ -79,7 +81,7 @@ class EncryptedNumber:
         c = raw.raw_mul(self.ciphertext, BASE ** (self.exponent - int(new_exponent)), pk.n, pk.nsquare)
         return EncryptedNumber(pk, c, int(new_exponent))
 
-    def _same_key(self, other: "EncryptedNumber") -> None:
+    def _same_key(self, other: EncryptedNumber) -> None:
         if other.public_key != self.public_key:
             raise KeyMismatchError(
                 f"cannot combine numbers under keys {self.public_key.fingerprint[:16]}… and "
@@ -87,7 +89,7 @@ class EncryptedNumber:
             )
 
     # -- fpAdd --------------------------------------------------------------------------
-    def __add__(self, other: "EncryptedNumber | Real") -> "EncryptedNumber":
+    def __add__(self, other: EncryptedNumber | Real) -> EncryptedNumber:
         pk = self.public_key
         if isinstance(other, EncryptedNumber):
             self._same_key(other)
@@ -106,21 +108,21 @@ class EncryptedNumber:
 
     __radd__ = __add__
 
-    def __neg__(self) -> "EncryptedNumber":
+    def __neg__(self) -> EncryptedNumber:
         return EncryptedNumber(self.public_key, raw.raw_neg(self.ciphertext, self.public_key.nsquare), self.exponent)
 
-    def __sub__(self, other: "EncryptedNumber | Real") -> "EncryptedNumber":
+    def __sub__(self, other: EncryptedNumber | Real) -> EncryptedNumber:
         if isinstance(other, EncryptedNumber):
             return self + (-other)
         if isinstance(other, (Integral, Real)) and not isinstance(other, bool):
             return self + (-other)
         return NotImplemented
 
-    def __rsub__(self, other: Real) -> "EncryptedNumber":
+    def __rsub__(self, other: Real) -> EncryptedNumber:
         return (-self) + other
 
     # -- fpMultiply ------------------------------------------------------------------------
-    def __mul__(self, other: Real) -> "EncryptedNumber":
+    def __mul__(self, other: Real) -> EncryptedNumber:
         if isinstance(other, EncryptedNumber):
             raise ParameterError("Paillier cannot multiply two encrypted numbers; other must be plain")
         if isinstance(other, bool) or not isinstance(other, (Integral, Real)):
@@ -134,7 +136,7 @@ class EncryptedNumber:
 
     __rmul__ = __mul__
 
-    def divide(self, divisor: Real, digits: int = 6) -> "EncryptedNumber":
+    def divide(self, divisor: Real, digits: int = 6) -> EncryptedNumber:
         """Divide by a plain number via its rounded reciprocal (Eq. 1).
 
         The reciprocal is exact to a relative error of at most 0.5·10**-digits
@@ -144,5 +146,5 @@ class EncryptedNumber:
         pk = self.public_key
         return EncryptedNumber(pk, raw.raw_mul(self.ciphertext, mant, pk.n, pk.nsquare), self.exponent + exp)
 
-    def __truediv__(self, divisor: Real) -> "EncryptedNumber":
+    def __truediv__(self, divisor: Real) -> EncryptedNumber:
         return self.divide(divisor)

@@ -33,7 +33,7 @@ exact computation r^n mod p² = (r mod p)^(n mod p(p-1)) mod p², still via the 
 from __future__ import annotations
 
 import secrets
-from typing import Iterable
+from collections.abc import Iterable
 
 import gmpy2
 from gmpy2 import mpz

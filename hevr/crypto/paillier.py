@@ -125,9 +125,7 @@ def raw_mul(c: mpz, k: int, n: mpz, nsquare: mpz) -> mpz:
     return gmpy2.powmod(c, k, nsquare)
 
 
-def raw_decrypt_crt(
-    c: mpz, p: mpz, q: mpz, psquare: mpz, qsquare: mpz, hp: mpz, hq: mpz, p_inv_q: mpz
-) -> mpz:
+def raw_decrypt_crt(c: mpz, p: mpz, q: mpz, psquare: mpz, qsquare: mpz, hp: mpz, hq: mpz, p_inv_q: mpz) -> mpz:
     """CRT decryption (supplementary Alg. "Decrypt"): returns m in [0, n)."""
     if c <= 0:
         raise ParameterError("ciphertext must be a positive integer below n²; got a non-positive value")
@@ -141,8 +139,9 @@ def raw_decrypt_crt(
 _PER_THREAD = 8
 
 
-def raw_decrypt_crt_list(cs: list, p: mpz, q: mpz, psquare: mpz, qsquare: mpz, hp: mpz, hq: mpz, p_inv_q: mpz,
-                         threads: int | None = None) -> list:
+def raw_decrypt_crt_list(
+    cs: list, p: mpz, q: mpz, psquare: mpz, qsquare: mpz, hp: mpz, hq: mpz, p_inv_q: mpz, threads: int | None = None
+) -> list:
     """:func:`raw_decrypt_crt` of every ciphertext of ``cs`` (positive, checked by the caller): the
     same numbers, with the two exponentiations of all of them done by ``gmpy2.powmod_base_list``,
     which releases the GIL, on up to ``threads`` threads (default: the CPUs, at most 8).
@@ -173,7 +172,7 @@ def _powmod_list(bases: list, e: mpz, m: mpz, threads: int) -> list:
     if threads <= 1:
         return gmpy2.powmod_base_list(bases, e, m)
     step = -(-len(bases) // threads)
-    chunks = [bases[i:i + step] for i in range(0, len(bases), step)]
+    chunks = [bases[i : i + step] for i in range(0, len(bases), step)]
     with ThreadPoolExecutor(len(chunks)) as pool:
         parts = list(pool.map(lambda chunk: gmpy2.powmod_base_list(chunk, e, m), chunks))
     return [x for part in parts for x in part]

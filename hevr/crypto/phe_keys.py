@@ -135,7 +135,9 @@ def key_from_phe_dict(d: object, source: object) -> PublicKey | PrivateKey:
     if "alg" in d:
         _expect(d, "alg", PHE_ALG, "", where)
     if not isinstance(d.get("pub"), dict):
-        raise InvalidKeyError(f"{where}: field 'pub': expected a JSON object (the public key), got {_show(d.get('pub'))}")
+        raise InvalidKeyError(
+            f"{where}: field 'pub': expected a JSON object (the public key), got {_show(d.get('pub'))}"
+        )
     pub = _public(d["pub"], "pub.", where)
     return _private(d, pub, where)
 
@@ -202,8 +204,9 @@ def _public(d: dict, prefix: str, where: str) -> PublicKey:
     n = _b64_int(d, "n", where, prefix)
     bits = int(n.bit_length())
     if bits % 2 or not MIN_BITS <= bits <= MAX_BITS:
-        raise InvalidKeyError(f"{where}: field '{prefix}n': expected an even number of bits in [{MIN_BITS}, "
-                              f"{MAX_BITS}], got {bits} bits")
+        raise InvalidKeyError(
+            f"{where}: field '{prefix}n': expected an even number of bits in [{MIN_BITS}, {MAX_BITS}], got {bits} bits"
+        )
     return PublicKey(n)
 
 
@@ -217,15 +220,19 @@ def _private(d: dict, pub: PublicKey, where: str) -> PrivateKey:
     else:
         factors = factor_from_lambda(n, lam)
         if factors is None:
-            raise InvalidKeyError(f"{where}: field 'lambda': expected (p-1)(q-1) or a multiple of "
-                                  "lcm(p-1, q-1), got a value from which n does not factor")
+            raise InvalidKeyError(
+                f"{where}: field 'lambda': expected (p-1)(q-1) or a multiple of "
+                "lcm(p-1, q-1), got a value from which n does not factor"
+            )
         p, q = factors
     problem = factor_problem(n, p, q)
     if problem is not None:
         raise InvalidKeyError(f"{where}: {problem}" + ("" if has_pq else " (p and q recovered from field 'lambda')"))
     if lam is not None and lam % gmpy2.lcm(p - 1, q - 1):
-        raise InvalidKeyError(f"{where}: field 'lambda': expected a multiple of lcm(p-1, q-1) for the p and q "
-                              "of the file, got a value that is not")
+        raise InvalidKeyError(
+            f"{where}: field 'lambda': expected a multiple of lcm(p-1, q-1) for the p and q "
+            "of the file, got a value that is not"
+        )
     return PrivateKey(pub, p, q)
 
 
@@ -235,8 +242,7 @@ def _lambda_mu(d: dict, n: mpz, where: str) -> mpz:
     if lam >= n:
         raise InvalidKeyError(f"{where}: field 'lambda': expected a value below n, got a larger one")
     if mu >= n or (lam * mu) % n != 1:
-        raise InvalidKeyError(f"{where}: field 'mu': expected the inverse of lambda modulo n, got a value "
-                              "that is not")
+        raise InvalidKeyError(f"{where}: field 'mu': expected the inverse of lambda modulo n, got a value that is not")
     return lam
 
 

@@ -90,9 +90,7 @@ def bytes_to_mpz(arr: np.ndarray) -> list[mpz]:
     if arr.dtype != np.uint8:
         raise ParameterError(f"arr: expected dtype uint8, got {arr.dtype}")
     if arr.ndim < 1 or arr.shape[-1] < 1:
-        raise ParameterError(
-            f"arr: expected shape (..., width) with width >= 1, got {arr.shape}"
-        )
+        raise ParameterError(f"arr: expected shape (..., width) with width >= 1, got {arr.shape}")
     width = int(arr.shape[-1])
     # One contiguous bytes copy: slicing bytes is cheaper than slicing numpy rows.
     blob = np.ascontiguousarray(arr).tobytes()
@@ -161,14 +159,10 @@ def _checked_join(values: Sequence, width: int) -> bytes:
         try:
             x = mpz(v)
         except (TypeError, ValueError):
-            raise ParameterError(
-                f"values[{i}]: expected an integer, got {type(v).__name__}"
-            ) from None
+            raise ParameterError(f"values[{i}]: expected an integer, got {type(v).__name__}") from None
         if x < 0:
             raise ParameterError(f"values[{i}]: expected a non-negative integer, got a negative one")
         if x >= limit:
-            raise ParameterError(
-                f"values[{i}]: value of {gmpy2.bit_length(x)} bits does not fit in {width} bytes"
-            )
+            raise ParameterError(f"values[{i}]: value of {gmpy2.bit_length(x)} bits does not fit in {width} bytes")
         parts.append(int(x).to_bytes(width, "big"))
     return b"".join(parts)

@@ -60,11 +60,28 @@ from typing import Any
 import gmpy2
 import numpy as np
 
-from ..runtime.recent import Recent
 from ..errors import ParameterError
+from ..runtime.recent import Recent
 
-__all__ = ["BLOCK", "RHO_BITS", "aggregate_holds", "TAG_SUFFIX", "TagKey", "betas", "coefficients", "coefficients_at", "data_channel", "generate_tag_key", "raw_check",
-           "raw_tags", "tag_channel", "tag_ciphertexts", "tag_key_of", "weighted_beta_sums", "weighted_beta_total"]
+__all__ = [
+    "BLOCK",
+    "RHO_BITS",
+    "aggregate_holds",
+    "TAG_SUFFIX",
+    "TagKey",
+    "betas",
+    "coefficients",
+    "coefficients_at",
+    "data_channel",
+    "generate_tag_key",
+    "raw_check",
+    "raw_tags",
+    "tag_channel",
+    "tag_ciphertexts",
+    "tag_key_of",
+    "weighted_beta_sums",
+    "weighted_beta_total",
+]
 
 TAG_SUFFIX = "_tag"  # the tag channel of channel c is c + TAG_SUFFIX (its own array in the store)
 
@@ -117,7 +134,9 @@ def tag_key_of(private_key: Any) -> TagKey:
         return got
     p, q = sorted((int(private_key.p), int(private_key.q)))
     width = (n.bit_length() + 7) // 8
-    secret = b"".join(len(b).to_bytes(4, "little") + b for b in (p.to_bytes(width, "little"), q.to_bytes(width, "little")))
+    secret = b"".join(
+        len(b).to_bytes(4, "little") + b for b in (p.to_bytes(width, "little"), q.to_bytes(width, "little"))
+    )
     prf_key = hashlib.shake_256(b"hevr-tag-prf-key-v1" + secret).digest(32)
     for counter in range(1 << 16):  # gcd(α, n) > 1 has probability about 2/sqrt(n): never in practice
         raw = hashlib.shake_256(b"hevr-tag-alpha-v1" + counter.to_bytes(4, "little") + secret).digest(width + 16)
@@ -142,13 +161,19 @@ def data_channel(channel: str) -> str:
 
 
 def _domain(store_id: str, channel: str, level: int, component: int, block: int) -> bytes:
-    parts = [str(store_id).encode(), str(channel).encode(), int(level).to_bytes(4, "little"),
-             int(component).to_bytes(4, "little"), int(block).to_bytes(8, "little")]
+    parts = [
+        str(store_id).encode(),
+        str(channel).encode(),
+        int(level).to_bytes(4, "little"),
+        int(component).to_bytes(4, "little"),
+        int(block).to_bytes(8, "little"),
+    ]
     return b"hevr-tag-beta-v1" + b"".join(len(p).to_bytes(4, "little") + p for p in parts)
 
 
-def betas(key: TagKey, store_id: str, channel: str, level: int, component: int, voxels: Any,
-          cache: dict | None = None) -> np.ndarray:
+def betas(
+    key: TagKey, store_id: str, channel: str, level: int, component: int, voxels: Any, cache: dict | None = None
+) -> np.ndarray:
     """β of the flat voxel indices ``voxels``: ``(len, 4)`` uint32 limbs, little-endian (128 bits each).
     ``cache`` (a dict the caller keeps, cleared beyond 1024 blocks) keeps the blocks computed, for
     callers that ask brick by brick: neighbouring bricks share blocks.
@@ -173,7 +198,8 @@ def betas(key: TagKey, store_id: str, channel: str, level: int, component: int, 
         words = None if cache is None else cache.get((store_id, channel, level, component, b))
         if words is None:
             stream = hashlib.shake_256(key.prf_key + _domain(store_id, channel, level, component, b)).digest(
-                BLOCK * BETA_BYTES)
+                BLOCK * BETA_BYTES
+            )
             words = np.frombuffer(stream, "<u4").reshape(BLOCK, 4)
             if cache is not None:
                 if len(cache) >= 1024:
@@ -194,8 +220,9 @@ def raw_tags(key: TagKey, residues: Any, beta_limbs: np.ndarray) -> list[int]:
     return [(a * int(m) + b) % n for m, b in zip(residues, _ints(beta_limbs))]
 
 
-def tag_ciphertexts(private_key: Any, store_id: str, channel: str, level: int, mantissas: Any,
-                    voxels: Any) -> list[list]:
+def tag_ciphertexts(
+    private_key: Any, store_id: str, channel: str, level: int, mantissas: Any, voxels: Any
+) -> list[list]:
     """The tag ciphertexts E(α·m + β) of a brick's mantissas ``(k, V)`` (int64, component-major) at
     the flat voxel indices ``voxels`` ``(V,)`` of ``channel`` at ``level``: ``k`` lists of ``V``
     ciphertexts, encrypted the owner's way (``private_key.owner``, fresh masks).
@@ -272,8 +299,9 @@ def weighted_beta_total(beta_limbs: np.ndarray, indptr: Any, voxels: Any, weight
         raise ParameterError("weights: expected non-negative integers, got a negative one")
     if w.max() >= 1 << 31:  # linear in w: its low 31 bits, plus the rest shifted (trilinear with many digits)
         low = w & ((1 << 31) - 1)
-        return (weighted_beta_total(beta_limbs, ip, vox, low, r)
-                + (weighted_beta_total(beta_limbs, ip, vox, w >> 31, r) << 31))
+        return weighted_beta_total(beta_limbs, ip, vox, low, r) + (
+            weighted_beta_total(beta_limbs, ip, vox, w >> 31, r) << 31
+        )
     row = np.repeat(np.arange(ip.size - 1), np.diff(ip))
     U = beta_limbs.shape[0]
     per_voxel = int(np.bincount(vox, minlength=U).max())
@@ -327,8 +355,9 @@ def coefficients_at(seed: bytes, ids: Any) -> np.ndarray:
         raise ParameterError("ids: expected non-negative indices, got a negative one")
     blocks = ids // BLOCK
     for b in np.unique(blocks).tolist():
-        stream = hashlib.shake_256(b"hevr-tag-rho-v3" + len(seed).to_bytes(4, "little") + seed
-                                   + int(b).to_bytes(8, "little")).digest(8 * BLOCK)
+        stream = hashlib.shake_256(
+            b"hevr-tag-rho-v3" + len(seed).to_bytes(4, "little") + seed + int(b).to_bytes(8, "little")
+        ).digest(8 * BLOCK)
         sel = blocks == b
         out[sel] = np.frombuffer(stream, "<u8")[ids[sel] - b * BLOCK]
     return out & np.uint64((1 << RHO_BITS) - 1)
@@ -354,8 +383,9 @@ def raw_check(key: TagKey, sums: list[int], beta_sums: list[int], rho: list[int]
     False
     """
     if not len(sums) == len(beta_sums) == len(rho):
-        raise ParameterError(f"sums: expected as many sums, β sums and coefficients, got {len(sums)}, "
-                             f"{len(beta_sums)} and {len(rho)}")
+        raise ParameterError(
+            f"sums: expected as many sums, β sums and coefficients, got {len(sums)}, {len(beta_sums)} and {len(rho)}"
+        )
     n = key.n
     want = (key.alpha * sum(r * s for r, s in zip(rho, sums)) + sum(r * b for r, b in zip(rho, beta_sums))) % n
     return int(aggregate) % n == want

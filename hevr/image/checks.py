@@ -13,18 +13,27 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from ..core.limits import MAX_IMAGE_PIXELS
-
-from ..core.limits import fits_float
-
-from ..core.limits import integrity_bits
-from .tiles import TileLayout
+from ..core.limits import MAX_IMAGE_PIXELS, fits_float, integrity_bits
 from ..core.validate import is_decimal
 from ..crypto.records import record_width
 from ..errors import HevrError, IntegrityError
+from .tiles import TileLayout
 
-__all__ = ["CHANNELS", "FINISHES", "MAX_COMPONENTS", "MAX_EXPONENT", "MAX_PIXELS", "Fields", "check_frame",
-           "check_image", "check_numbers", "check_shape", "expected_counts", "tile_hit_counts", "tile_name"]
+__all__ = [
+    "CHANNELS",
+    "FINISHES",
+    "MAX_COMPONENTS",
+    "MAX_EXPONENT",
+    "MAX_PIXELS",
+    "Fields",
+    "check_frame",
+    "check_image",
+    "check_numbers",
+    "check_shape",
+    "expected_counts",
+    "tile_hit_counts",
+    "tile_name",
+]
 
 MAX_PIXELS = MAX_IMAGE_PIXELS  # H·W of one image: 67 million pixels, the renderer's cap too
 MAX_EXPONENT = 1000  # |exponent|: 10**exponent must stay cheap
@@ -102,8 +111,9 @@ def check_shape(ctx: Fields, shape: Any) -> tuple[int, ...]:
     return (H, W) if len(shape) == 2 else (H, W, 3)
 
 
-def check_numbers(ctx: Fields, *, n: int, exponent: Any, bound: Any, offset: Any, tile: Any, pack_bits: Any,
-                  per_pack: Any) -> None:
+def check_numbers(
+    ctx: Fields, *, n: int, exponent: Any, bound: Any, offset: Any, tile: Any, pack_bits: Any, per_pack: Any
+) -> None:
     """The render plan's numbers against each other and against the integrity margin:
     |exponent| <= 1000, 0 <= offset <= bound, bits(bound) <= room, every pixel
     (m − offset)·10^exponent (m in [0, bound]) a finite float64
@@ -115,24 +125,37 @@ def check_numbers(ctx: Fields, *, n: int, exponent: Any, bound: Any, offset: Any
     room = int(n).bit_length() - 1 - kappa
     ctx.integer("exponent", exponent, -MAX_EXPONENT, MAX_EXPONENT)
     if room < 1:
-        ctx.fail("n", f"a modulus of at least {kappa + 2} bits (the integrity margin keeps {kappa})",
-                 raw=f"{int(n).bit_length()} bits")
+        ctx.fail(
+            "n",
+            f"a modulus of at least {kappa + 2} bits (the integrity margin keeps {kappa})",
+            raw=f"{int(n).bit_length()} bits",
+        )
     bound = ctx.integer("bound", bound, 0)
     if bound.bit_length() > room:
-        ctx.fail("bound", f"an int below 2^{room} (bits(n) − 1 − {kappa}: the integrity margin)",
-                 raw=f"an int of {bound.bit_length()} bits")
+        ctx.fail(
+            "bound",
+            f"an int below 2^{room} (bits(n) − 1 − {kappa}: the integrity margin)",
+            raw=f"an int of {bound.bit_length()} bits",
+        )
     offset = ctx.integer("offset", offset, 0, bound)
     if not fits_float(max(offset, bound - offset), exponent):
-        ctx.fail("exponent", f"an int with max(offset, bound − offset)·10^exponent <= {sys.float_info.max:.4g} "
-                 f"(every pixel a finite float64)", exponent)
+        ctx.fail(
+            "exponent",
+            f"an int with max(offset, bound − offset)·10^exponent <= {sys.float_info.max:.4g} "
+            f"(every pixel a finite float64)",
+            exponent,
+        )
     ctx.integer("tile", tile, 1, MAX_PIXELS)
     pack_bits = ctx.integer("pack_bits", pack_bits, 0, room)
     per_pack = ctx.integer("per_pack", per_pack, 1, room)
     if per_pack > 1 and pack_bits < 1:
         ctx.fail("pack_bits", "an int >= 1 when per_pack > 1", pack_bits)
     if pack_bits * per_pack > room:
-        ctx.fail("per_pack", f"pack_bits·per_pack <= {room} (bits(n) − 1 − {kappa})",
-                 raw=f"{per_pack} (pack_bits·per_pack = {pack_bits * per_pack})")
+        ctx.fail(
+            "per_pack",
+            f"pack_bits·per_pack <= {room} (bits(n) − 1 − {kappa})",
+            raw=f"{per_pack} (pack_bits·per_pack = {pack_bits * per_pack})",
+        )
     if pack_bits and bound.bit_length() > pack_bits:
         ctx.fail("bound", f"an int below 2^pack_bits = 2^{pack_bits}", raw=f"an int of {bound.bit_length()} bits")
 
@@ -188,24 +211,40 @@ def check_image(img: Any) -> tuple[TileLayout, np.ndarray | None, int]:
     """
     ctx = Fields("image", IntegrityError, "field")
     if img.bound is None:
-        raise IntegrityError("image: it carries no bound (the render plan's range of every value), so its "
-                             "decrypted values cannot be checked; render it again with this hevr")
+        raise IntegrityError(
+            "image: it carries no bound (the render plan's range of every value), so its "
+            "decrypted values cannot be checked; render it again with this hevr"
+        )
     shape = check_shape(ctx, tuple(img.shape) if isinstance(img.shape, (list, tuple)) else img.shape)
     if not _is_int(img.n) or img.n < 3:
         ctx.fail("n", "an int modulus", raw=_kind(img.n))
-    check_numbers(ctx, n=int(img.n), exponent=img.exponent, bound=img.bound, offset=img.offset, tile=img.tile,
-                  pack_bits=img.pack_bits, per_pack=img.per_pack)
+    check_numbers(
+        ctx,
+        n=int(img.n),
+        exponent=img.exponent,
+        bound=img.bound,
+        offset=img.offset,
+        tile=img.tile,
+        pack_bits=img.pack_bits,
+        per_pack=img.per_pack,
+    )
     H, W = shape[:2]
     hits = img.hits
     if hits is not None and not (isinstance(hits, np.ndarray) and hits.dtype == bool and hits.shape == (H, W)):
-        ctx.fail("hits", f"a bool array of shape ({H}, {W}) or None",
-                 raw=f"{type(hits).__name__} {getattr(hits, 'dtype', '')}{getattr(hits, 'shape', '')}")
+        ctx.fail(
+            "hits",
+            f"a bool array of shape ({H}, {W}) or None",
+            raw=f"{type(hits).__name__} {getattr(hits, 'dtype', '')}{getattr(hits, 'shape', '')}",
+        )
     per_pixel = check_frame(ctx, img.finish, img.channel, img.components, shape)
     if img.finish == "client":
         samples = img.samples
         if not (isinstance(samples, np.ndarray) and samples.dtype.kind in "iu" and samples.shape == (H, W)):
-            ctx.fail("samples", f"an int array of shape ({H}, {W}) (client finishing divides by it)",
-                     raw=f"{type(samples).__name__} {getattr(samples, 'dtype', '')}{getattr(samples, 'shape', '')}")
+            ctx.fail(
+                "samples",
+                f"an int array of shape ({H}, {W}) (client finishing divides by it)",
+                raw=f"{type(samples).__name__} {getattr(samples, 'dtype', '')}{getattr(samples, 'shape', '')}",
+            )
         if samples.size and (samples.min() < 0 or samples.max() >= 2**32):
             ctx.fail("samples", "counts in [0, 2^32)", raw="others")
         if hits is None or not np.array_equal(hits, samples > 0):
@@ -214,18 +253,25 @@ def check_image(img: Any) -> tuple[TileLayout, np.ndarray | None, int]:
     width = record_width(int(img.n))
     cts = img.ciphertexts
     if not isinstance(cts, (list, tuple)) or len(cts) != layout.n_tiles:
-        ctx.fail("ciphertexts", f"a list of {layout.n_tiles} arrays (one per tile)",
-                 raw=f"{_kind(cts)} of {len(cts) if isinstance(cts, (list, tuple)) else '?'}")
+        ctx.fail(
+            "ciphertexts",
+            f"a list of {layout.n_tiles} arrays (one per tile)",
+            raw=f"{_kind(cts)} of {len(cts) if isinstance(cts, (list, tuple)) else '?'}",
+        )
     want = expected_counts(tile_hit_counts(hits, (H, W), int(img.tile)), per_pixel, int(img.per_pack))
     for t, (c, e) in enumerate(zip(cts, want.tolist())):
         if not (isinstance(c, np.ndarray) and c.dtype == np.uint8 and c.ndim == 2 and c.shape[1] == width):
-            raise IntegrityError(f"{tile_name(layout, t)}: ciphertexts: expected a uint8 array of shape "
-                                 f"({e}, {width}), got {type(c).__name__} {getattr(c, 'dtype', '')}"
-                                 f"{getattr(c, 'shape', '')}")
+            raise IntegrityError(
+                f"{tile_name(layout, t)}: ciphertexts: expected a uint8 array of shape "
+                f"({e}, {width}), got {type(c).__name__} {getattr(c, 'dtype', '')}"
+                f"{getattr(c, 'shape', '')}"
+            )
         if c.shape[0] != e:
-            raise IntegrityError(f"{tile_name(layout, t)}: expected {e} ciphertexts (its hit pixels × channels / "
-                                 f"per_pack, rounded up), got {c.shape[0]}: the image was corrupted or tampered "
-                                 f"with; no image is returned")
+            raise IntegrityError(
+                f"{tile_name(layout, t)}: expected {e} ciphertexts (its hit pixels × channels / "
+                f"per_pack, rounded up), got {c.shape[0]}: the image was corrupted or tampered "
+                f"with; no image is returned"
+            )
     return layout, hits, width
 
 

@@ -47,8 +47,7 @@ def default_window(arr: np.ndarray, hits: np.ndarray | None = None) -> tuple[flo
     return 0.0, round(float(np.percentile(pos, 99.9)), 12) if pos.size else 1.0
 
 
-def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None,
-             hits: np.ndarray | None = None) -> np.ndarray:
+def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None, hits: np.ndarray | None = None) -> np.ndarray:
     """Window an image to uint8: grey by (lo, hi) (default: :func:`default_window` — 0 .. the
     99.9th percentile of positive pixels, or the value range of an image with negative values);
     RGB jointly over all channels so colours keep their ratios. Pixels outside ``hits`` (rays
@@ -67,9 +66,16 @@ def to_uint8(arr: np.ndarray, window: tuple[float, float] | None = None,
     return out
 
 
-def save_png(arr: np.ndarray, path: str | Path, window: tuple[float, float] | None = None, *,
-             overwrite: bool = False, plane: Any = None, convention: str = DEFAULT_CONVENTION,
-             hits: np.ndarray | None = None) -> None:
+def save_png(
+    arr: np.ndarray,
+    path: str | Path,
+    window: tuple[float, float] | None = None,
+    *,
+    overwrite: bool = False,
+    plane: Any = None,
+    convention: str = DEFAULT_CONVENTION,
+    hits: np.ndarray | None = None,
+) -> None:
     """Save a decrypted (or plaintext) image as PNG with sensible windowing (:func:`default_window`;
     ``hits``: the pixels with a value, the others black and left out of the window).
 

@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from ..core.validate import check_bool
 from ..backends import get_backend
 from ..colour import colour, colouring_spec, frame_from_sums, scaled_sums
+from ..core.validate import check_bool
 from ..crypto.keys import PrivateKey
 from ..errors import IntegrityError, KeyMismatchError, ParameterError
 from ..store.paths import check_storage_options, output_location, write_output
@@ -117,8 +117,10 @@ class EncryptedImage:
     stamp: Any = field(default=None, repr=False, compare=False)
 
     def __repr__(self) -> str:
-        return (f"EncryptedImage(shape={self.shape}, finish={self.finish!r}, exponent={self.exponent}, "
-                f"per_pack={self.per_pack}, ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
+        return (
+            f"EncryptedImage(shape={self.shape}, finish={self.finish!r}, exponent={self.exponent}, "
+            f"per_pack={self.per_pack}, ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)"
+        )
 
     def __getstate__(self) -> dict:
         """Pickled — to a worker, another process, a file — without the colouring, which stays in
@@ -138,8 +140,9 @@ class EncryptedImage:
     def channels(self) -> int:
         return self.shape[2] if len(self.shape) == 3 else 1
 
-    def decrypt_mantissas(self, private_key: Any, backend: str | None = None, *,
-                          require_verified: bool | str | None = None) -> np.ndarray:
+    def decrypt_mantissas(
+        self, private_key: Any, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> np.ndarray:
         """Integer mantissas (offset removed) as an object array of the image shape.
 
         ``require_verified`` (True, or the store id that must have been proven): refuse
@@ -197,17 +200,25 @@ class EncryptedImage:
         tiles = list(tiles)  # a verified render: every value checked against the tags before any is used
         W, offset = self.shape[1], int(self.offset)
         ids = [(r0 + rr) * W + c0 + cc for r0, _, c0, _, mask, _ in tiles for rr, cc in [np.nonzero(mask)]]
-        self.verification.check(private_key, self, np.concatenate(ids) if ids else np.zeros(0, np.int64),
-                                [v - offset for *_, vals in tiles for v in vals])
+        self.verification.check(
+            private_key,
+            self,
+            np.concatenate(ids) if ids else np.zeros(0, np.int64),
+            [v - offset for *_, vals in tiles for v in vals],
+        )
         return iter(tiles)
 
     def _check_provenance(self, private_key: Any, require_verified: Any) -> None:
         """Who vouches for the verification record (:mod:`hevr.image.provenance`): one drawn in this
         process, or a file's with the key holder's valid stamp; ``require_verified`` (True, or the
         store id that must have been proven) refuses an image without one."""
-        check_provenance(private_key, self, require_verified,
-                         "a store encrypted without verifiable=True, a render with verify=False, server finishing, "
-                         "or a file saved without the key holder's stamp")
+        check_provenance(
+            private_key,
+            self,
+            require_verified,
+            "a store encrypted without verifiable=True, a render with verify=False, server finishing, "
+            "or a file saved without the key holder's stamp",
+        )
 
     def _tile_values(self, private_key: Any, be: Any, layout: Any, hits: np.ndarray | None, n: int):
         """The iterator of :meth:`_checked_tiles`: range-check, decrypt and unpack tile by tile."""
@@ -223,29 +234,36 @@ class EncryptedImage:
             recs = be.from_bytes(self.ciphertexts[t])
             bad = be.first_out_of_range(recs, nsquare)
             if bad is not None:
-                raise IntegrityError(f"{tile_name(layout, t)}: ciphertext {bad} (pixels "
-                                     f"{_pixels(mask, r0, c0, C, bad * J, min(need, bad * J + J))}) is not in "
-                                     f"(0, n²); {_CORRUPT}")
+                raise IntegrityError(
+                    f"{tile_name(layout, t)}: ciphertext {bad} (pixels "
+                    f"{_pixels(mask, r0, c0, C, bad * J, min(need, bad * J + J))}) is not in "
+                    f"(0, n²); {_CORRUPT}"
+                )
             vals, fault = _unpack_checked(be.decrypt(private_key, recs), need, b, J, bound)
             if fault is not None:
                 wide, j, lo, hi = fault
                 pix = _pixels(mask, r0, c0, C, lo, hi)
-                what = (f"ciphertext {j} (pixels {pix}) decrypts to a plaintext wider than its {hi - lo} packed "
-                        f"values ({b * (hi - lo)} bits)" if wide else
-                        f"pixel {pix} (ciphertext {j}) decrypts to a value outside the render plan's range "
-                        f"[0, bound]")
+                what = (
+                    f"ciphertext {j} (pixels {pix}) decrypts to a plaintext wider than its {hi - lo} packed "
+                    f"values ({b * (hi - lo)} bits)"
+                    if wide
+                    else f"pixel {pix} (ciphertext {j}) decrypts to a value outside the render plan's range [0, bound]"
+                )
                 raise IntegrityError(f"{tile_name(layout, t)}: {what}; {_CORRUPT}")
             yield r0, r1, c0, c1, mask, vals
 
-    def decrypt_frame(self, private_key: Any, backend: str | None = None, *,
-                      require_verified: bool | str | None = None) -> Any:
+    def decrypt_frame(
+        self, private_key: Any, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> Any:
         """Decrypt a client-finished image to a :class:`hevr.Frame`: the per-pixel means of the
         stored components, to colour (and re-colour) on this machine (:mod:`hevr.colour`).
         The checks of :meth:`decrypt_mantissas` apply (``IntegrityError`` on any fault, and
         ``require_verified``)."""
         if self.finish != "client":
-            raise ParameterError("finish: expected an image rendered with finish='client' (it holds the ray sums "
-                                 "to colour), got one finished on the server: use decrypt()")
+            raise ParameterError(
+                "finish: expected an image rendered with finish='client' (it holds the ray sums "
+                "to colour), got one finished on the server: use decrypt()"
+            )
         t0 = time.perf_counter()
         K = self.values_per_pixel
         H, W = self.shape[:2]
@@ -257,8 +275,16 @@ class EncryptedImage:
         stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts)
         return frame_from_sums(sums, self.samples, str(self.channel), self.colouring, stats)
 
-    def decrypt(self, private_key: Any, backend: str | None = None, *, mode: str | None = None,
-                density: float | None = None, nodes: Any = None, require_verified: bool | str | None = None) -> np.ndarray:
+    def decrypt(
+        self,
+        private_key: Any,
+        backend: str | None = None,
+        *,
+        mode: str | None = None,
+        density: float | None = None,
+        nodes: Any = None,
+        require_verified: bool | str | None = None,
+    ) -> np.ndarray:
         """Decrypt to float64 pixel values (batch CRT decryption on ``backend``, then unpacking),
         after the checks of :meth:`decrypt_mantissas` (``IntegrityError`` on any fault). Only
         the hit pixels are converted (exactly rounded); pixels whose rays miss stay 0.0.
@@ -274,8 +300,10 @@ class EncryptedImage:
             frame = self.decrypt_frame(private_key, backend, require_verified=require_verified)  # checked once
             return colour(frame.means, spec)
         if mode is not None or density is not None or nodes is not None:
-            raise ParameterError("mode, density, nodes: expected none for an image finished on the server (its "
-                                 "colouring was applied there); render with finish='client' to colour at decryption")
+            raise ParameterError(
+                "mode, density, nodes: expected none for an image finished on the server (its "
+                "colouring was applied there); render with finish='client' to colour at decryption"
+            )
         C = self.channels
         H, W = self.shape[:2]
         out = np.zeros((H, W, C), dtype=np.float64)
@@ -287,8 +315,9 @@ class EncryptedImage:
         return out[..., 0] if len(self.shape) == 2 else out
 
     # -- the .hevr file (layout: hevr.image.header; reading: hevr.image.files) ---------------
-    def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None,
-             private_key: Any = None) -> None:
+    def save(
+        self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None, private_key: Any = None
+    ) -> None:
         """Write the ``.hevr`` file (format version 3, ``docs/image-format.md``): magic, header
         length, JSON header, ciphertext records, SHA-256 of all of it. The image is checked
         first (``IntegrityError`` for one that :meth:`decrypt` would refuse).
@@ -335,8 +364,9 @@ class EncryptedImage:
         return b"".join(bytes(memoryview(p).cast("B")) for p in parts) + digest.digest()
 
 
-def _unpack_checked(plain: list[int], need: int, pack_bits: int, per_pack: int,
-                    bound: int) -> tuple[list[int], tuple[bool, int, int, int] | None]:
+def _unpack_checked(
+    plain: list[int], need: int, pack_bits: int, per_pack: int, bound: int
+) -> tuple[list[int], tuple[bool, int, int, int] | None]:
     """The ``need`` values of a tile's plaintexts, and the first fault or None.
 
     A fault is (wide, ciphertext, first value, end value): ``wide`` when a packed plaintext of L
@@ -367,7 +397,7 @@ def _unpack_checked(plain: list[int], need: int, pack_bits: int, per_pack: int,
 
 def _pixels(mask: np.ndarray, r0: int, c0: int, channels: int, lo: int, hi: int) -> str:
     """The pixels (row, col) of a tile's values ``lo:hi`` (hit pixels row-major, channels inside)."""
-    where = np.argwhere(mask)[lo // channels:(hi - 1) // channels + 1]
+    where = np.argwhere(mask)[lo // channels : (hi - 1) // channels + 1]
     names = [f"({r0 + int(r)}, {c0 + int(c)})" for r, c in where[:8]]
     more = f", … {len(where)} in all" if len(where) > 8 else ""
     return ", ".join(names) + more

@@ -77,18 +77,33 @@ def _from_blob(blob: bytes, path: str, name: str | None = None) -> Any:
         if channel == "scalar":
             return PackedImage(**fields, verification=v, stamp=stamp)
         tiles, T = fields.pop("ciphertexts"), fields["plan"].n_tiles  # a colour frame: component-major
-        comps = [PackedImage(**fields, ciphertexts=tiles[j * T:(j + 1) * T]) for j in range(k)]
+        comps = [PackedImage(**fields, ciphertexts=tiles[j * T : (j + 1) * T]) for j in range(k)]
         return PackedColourImage(components=comps, verification=v, stamp=stamp, channel=channel)
     h, body = parse_file(blob, path)
     width = h["width"]
     cts, pos = [], 0
     for c in h["counts"]:
-        cts.append(body[pos:pos + c * width].reshape(c, width))
+        cts.append(body[pos : pos + c * width].reshape(c, width))
         pos += c * width
-    return EncryptedImage(shape=h["shape"], exponent=h["exponent"], offset=h["offset"],
-                          fingerprint=h["fingerprint"], n=h["n"], tile=h["tile"], pack_bits=h["pack_bits"],
-                          per_pack=h["per_pack"], ciphertexts=cts, hits=h["hits"], info=h["info"],
-                          bound=h["bound"], finish=h["finish"], channel=h["channel"], components=h["components"],
-                          samples=h["samples"], verification=None if h["verification"] is None else
-                          Verification.from_dict(h["verification"], int(h["n"]), path),
-                          stamp=None if h["stamp"] is None else h["stamp"]._replace(read_as=name))
+    return EncryptedImage(
+        shape=h["shape"],
+        exponent=h["exponent"],
+        offset=h["offset"],
+        fingerprint=h["fingerprint"],
+        n=h["n"],
+        tile=h["tile"],
+        pack_bits=h["pack_bits"],
+        per_pack=h["per_pack"],
+        ciphertexts=cts,
+        hits=h["hits"],
+        info=h["info"],
+        bound=h["bound"],
+        finish=h["finish"],
+        channel=h["channel"],
+        components=h["components"],
+        samples=h["samples"],
+        verification=None
+        if h["verification"] is None
+        else Verification.from_dict(h["verification"], int(h["n"]), path),
+        stamp=None if h["stamp"] is None else h["stamp"]._replace(read_as=name),
+    )

@@ -26,11 +26,9 @@ import numpy as np
 
 from ..core.limits import integrity_bits
 from ..core.magic import IMAGE_MAGIC_PREFIX
-from .tiles import TileLayout
 from ..crypto.paillier import fingerprint
 from ..crypto.records import record_width
 from ..errors import CorruptStoreError, IntegrityError
-from .stamp import STAMP_FIELDS, read_stamp, stamp_header
 from .checks import (
     MAX_COMPONENTS,
     MAX_PIXELS,
@@ -47,10 +45,26 @@ from .checks import (
     tile_hit_counts,
     tile_name,
 )
+from .stamp import STAMP_FIELDS, read_stamp, stamp_header
+from .tiles import TileLayout
 
-__all__ = ["DIGEST_BYTES", "FORMAT", "MAGIC", "MAGIC_PREFIX", "VERSION", "Fields", "check_image", "check_numbers",
-           "expected_counts", "file_parts", "integrity_bits", "parse_file", "parse_json", "tile_hit_counts",
-           "tile_name"]
+__all__ = [
+    "DIGEST_BYTES",
+    "FORMAT",
+    "MAGIC",
+    "MAGIC_PREFIX",
+    "VERSION",
+    "Fields",
+    "check_image",
+    "check_numbers",
+    "expected_counts",
+    "file_parts",
+    "integrity_bits",
+    "parse_file",
+    "parse_json",
+    "tile_hit_counts",
+    "tile_name",
+]
 
 MAGIC_PREFIX = IMAGE_MAGIC_PREFIX
 VERSION = 3
@@ -65,8 +79,23 @@ MAX_N_DIGITS = 4300  # Python's default int/str conversion limit (about a 14 000
 MAX_INT_DIGITS = 40  # any JSON integer of the header (counts, shape, exponent, ...)
 MAX_CONTAINERS = 16384  # '[' plus '{' in the header
 MAX_QUOTES = 65536  # '"' in the header (two per string)
-FIELDS_V2 = ("format", "version", "shape", "exponent", "offset", "bound", "fingerprint", "n", "width",
-             "tile", "pack_bits", "per_pack", "counts", "hits", "info")
+FIELDS_V2 = (
+    "format",
+    "version",
+    "shape",
+    "exponent",
+    "offset",
+    "bound",
+    "fingerprint",
+    "n",
+    "width",
+    "tile",
+    "pack_bits",
+    "per_pack",
+    "counts",
+    "hits",
+    "info",
+)
 FIELDS = FIELDS_V2 + ("finish", "channel", "components")
 SAMPLE_BYTES = 4  # a client-finished frame's body ends with H·W little-endian uint32 sample counts
 
@@ -76,14 +105,23 @@ def _header(img: Any) -> dict:
     """The JSON header of an :class:`~hevr.image.EncryptedImage` (version 3)."""
     hits = None if img.hits is None else np.packbits(img.hits.ravel())
     return {
-        "format": FORMAT, "version": VERSION,
+        "format": FORMAT,
+        "version": VERSION,
         "shape": [int(x) for x in (img.shape[:2] if img.finish == "client" else img.shape)],
-        "exponent": int(img.exponent), "offset": str(int(img.offset)), "bound": str(int(img.bound)),
-        "fingerprint": img.fingerprint, "n": str(int(img.n)), "width": record_width(int(img.n)),
-        "tile": int(img.tile), "pack_bits": int(img.pack_bits), "per_pack": int(img.per_pack),
+        "exponent": int(img.exponent),
+        "offset": str(int(img.offset)),
+        "bound": str(int(img.bound)),
+        "fingerprint": img.fingerprint,
+        "n": str(int(img.n)),
+        "width": record_width(int(img.n)),
+        "tile": int(img.tile),
+        "pack_bits": int(img.pack_bits),
+        "per_pack": int(img.per_pack),
         "counts": [len(c) for c in img.ciphertexts],
-        "hits": None if hits is None else base64.b64encode(hits.tobytes()).decode(), "info": img.info,
-        "finish": img.finish, "channel": img.channel,
+        "hits": None if hits is None else base64.b64encode(hits.tobytes()).decode(),
+        "info": img.info,
+        "finish": img.finish,
+        "channel": img.channel,
         "components": None if img.components is None else int(img.components),
         **({"verification": img.verification.to_dict()} if img.verification is not None else {}),
     }
@@ -150,26 +188,33 @@ def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
         raise CorruptStoreError(f"{where}: not an hevr encrypted image (bad magic)")
     version = blob[len(MAGIC_PREFIX)]
     if version == 1:
-        raise CorruptStoreError(f"{where}: image format version 1 is no longer read (it has no checksum and "
-                                f"no value bound to check decryption against); render the image again")
+        raise CorruptStoreError(
+            f"{where}: image format version 1 is no longer read (it has no checksum and "
+            f"no value bound to check decryption against); render the image again"
+        )
     if version not in READS:
-        raise CorruptStoreError(f"{where}: unsupported image format version {version}; this hevr reads "
-                                f"versions {READS[0]} and {READS[-1]}")
+        raise CorruptStoreError(
+            f"{where}: unsupported image format version {version}; this hevr reads versions {READS[0]} and {READS[-1]}"
+        )
     if len(blob) < HEAD + DIGEST_BYTES:
         raise CorruptStoreError(f"{where}: truncated: {len(blob)} bytes, shorter than any version-{version} image")
     view = memoryview(blob)
     if hashlib.sha256(view[:-DIGEST_BYTES]).digest() != bytes(view[-DIGEST_BYTES:]):
-        raise IntegrityError(f"{where}: checksum mismatch: the file was corrupted, truncated or altered after "
-                             f"it was written; no image is returned")
+        raise IntegrityError(
+            f"{where}: checksum mismatch: the file was corrupted, truncated or altered after "
+            f"it was written; no image is returned"
+        )
     (hl,) = LENGTH.unpack_from(blob, len(MAGIC))
     if hl > len(blob) - HEAD - DIGEST_BYTES:
-        raise CorruptStoreError(f"{where}: header length: expected at most {len(blob) - HEAD - DIGEST_BYTES} "
-                                f"bytes (the file's size), got {hl}")
-    h = parse_json(bytes(view[HEAD:HEAD + hl]), where)
+        raise CorruptStoreError(
+            f"{where}: header length: expected at most {len(blob) - HEAD - DIGEST_BYTES} "
+            f"bytes (the file's size), got {hl}"
+        )
+    h = parse_json(bytes(view[HEAD : HEAD + hl]), where)
     if not isinstance(h, dict):
         raise CorruptStoreError(f"{where}: header: expected a JSON object, got a JSON {_kind(h)}")
     ctx = Fields(where, CorruptStoreError, "header field")
-    stamp = read_stamp(h, hashlib.sha256(view[HEAD + hl:len(blob) - DIGEST_BYTES]).digest(), ctx.fail)
+    stamp = read_stamp(h, hashlib.sha256(view[HEAD + hl : len(blob) - DIGEST_BYTES]).digest(), ctx.fail)
     out = _check_header(h, ctx, version)
     body = np.frombuffer(blob, dtype=np.uint8, count=len(blob) - HEAD - hl - DIGEST_BYTES, offset=HEAD + hl)
     size = sum(out["counts"]) * out["width"]
@@ -178,8 +223,9 @@ def parse_file(blob: bytes, where: str) -> tuple[dict, np.ndarray]:
     if body.size != size + extra:
         what = "truncated" if body.size < size + extra else "too long"
         more = f" and {extra} bytes of sample counts" if extra else ""
-        raise CorruptStoreError(f"{where}: {what}: expected {size} ciphertext bytes (sum of counts × width){more}, "
-                                f"got {body.size}")
+        raise CorruptStoreError(
+            f"{where}: {what}: expected {size} ciphertext bytes (sum of counts × width){more}, got {body.size}"
+        )
     out["samples"] = None
     if extra:
         samples = body[size:].view("<u4").reshape(H, W).astype(np.int64)
@@ -213,8 +259,16 @@ def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
         ctx.fail("fingerprint", "the SHA-256 of n (64 hex digits)", fp)
     bound = ctx.decimal("bound", h["bound"], MAX_N_DIGITS)
     offset = ctx.decimal("offset", h["offset"], MAX_N_DIGITS)
-    check_numbers(ctx, n=n, exponent=h["exponent"], bound=bound, offset=offset, tile=h["tile"],
-                  pack_bits=h["pack_bits"], per_pack=h["per_pack"])
+    check_numbers(
+        ctx,
+        n=n,
+        exponent=h["exponent"],
+        bound=bound,
+        offset=offset,
+        tile=h["tile"],
+        pack_bits=h["pack_bits"],
+        per_pack=h["per_pack"],
+    )
     H, W = shape[:2]
     tile, per_pack = h["tile"], h["per_pack"]
     hits = _check_hits(ctx, h["hits"], H, W)
@@ -222,15 +276,22 @@ def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
     layout = TileLayout(W, H, tile)
     counts = h["counts"]
     if not isinstance(counts, list) or len(counts) != layout.n_tiles:
-        ctx.fail("counts", f"a list of {layout.n_tiles} ints (one per tile)",
-                 raw=f"a list of {len(counts)}" if isinstance(counts, list) else _kind(counts))
+        ctx.fail(
+            "counts",
+            f"a list of {layout.n_tiles} ints (one per tile)",
+            raw=f"a list of {len(counts)}" if isinstance(counts, list) else _kind(counts),
+        )
     top = MAX_COMPONENTS * MAX_PIXELS  # no tile needs more ciphertexts
     for t, c in enumerate(counts):
         if not _is_int(c) or not 0 <= c <= top:
-            ctx.fail(f"counts[{t}]", "an int >= 0 (ciphertexts of the tile)",
-                     raw=f"{_show(c)}" + ("" if _is_int(c) else f" ({_kind(c)})"))
-    finish, channel, components = (h["finish"], h["channel"], h["components"]) if version >= 3 else \
-        ("server", None, None)
+            ctx.fail(
+                f"counts[{t}]",
+                "an int >= 0 (ciphertexts of the tile)",
+                raw=f"{_show(c)}" + ("" if _is_int(c) else f" ({_kind(c)})"),
+            )
+    finish, channel, components = (
+        (h["finish"], h["channel"], h["components"]) if version >= 3 else ("server", None, None)
+    )
     per_pixel = check_frame(ctx, finish, channel, components, shape)
     if finish == "client" and len(shape) != 2:
         ctx.fail("shape", "[H, W] for a frame finished on the client (its colouring is not in the file)", shape)
@@ -240,14 +301,32 @@ def _check_header(h: dict, ctx: Fields, version: int = VERSION) -> dict:
     bad = np.flatnonzero(np.array(counts, dtype=np.int32) != want)
     if bad.size:
         t = int(bad[0])
-        ctx.fail(f"counts[{t}]", f"{int(want[t])} (the hit pixels of {tile_name(layout, t)} × channels / "
-                 f"per_pack, rounded up)", counts[t])
+        ctx.fail(
+            f"counts[{t}]",
+            f"{int(want[t])} (the hit pixels of {tile_name(layout, t)} × channels / per_pack, rounded up)",
+            counts[t],
+        )
     if not isinstance(h["info"], dict):
         ctx.fail("info", "a JSON object", raw=_kind(h["info"]))
-    return {"shape": shape, "n": n, "width": width, "fingerprint": fp, "bound": bound, "offset": offset,
-            "exponent": int(h["exponent"]), "tile": int(tile), "pack_bits": int(h["pack_bits"]),
-            "per_pack": int(per_pack), "counts": counts, "hits": hits, "info": h["info"], "finish": finish,
-            "channel": channel, "components": components, "verification": h.get("verification")}
+    return {
+        "shape": shape,
+        "n": n,
+        "width": width,
+        "fingerprint": fp,
+        "bound": bound,
+        "offset": offset,
+        "exponent": int(h["exponent"]),
+        "tile": int(tile),
+        "pack_bits": int(h["pack_bits"]),
+        "per_pack": int(per_pack),
+        "counts": counts,
+        "hits": hits,
+        "info": h["info"],
+        "finish": finish,
+        "channel": channel,
+        "components": components,
+        "verification": h.get("verification"),
+    }
 
 
 def _check_hits(ctx: Fields, text: Any, H: int, W: int) -> np.ndarray | None:
@@ -259,8 +338,11 @@ def _check_hits(ctx: Fields, text: Any, H: int, W: int) -> np.ndarray | None:
     if not isinstance(text, str):
         ctx.fail("hits", f"a base64 string of {length} characters or null", raw=f"{_show(text)} ({_kind(text)})")
     if len(text) != length:
-        ctx.fail("hits", f"a base64 string of {length} characters (ceil(H·W/8) = {nbytes} bytes)",
-                 raw=f"{len(text)} characters")
+        ctx.fail(
+            "hits",
+            f"a base64 string of {length} characters (ceil(H·W/8) = {nbytes} bytes)",
+            raw=f"{len(text)} characters",
+        )
     try:
         packed = base64.b64decode(text, validate=True)
     except ValueError:

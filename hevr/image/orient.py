@@ -40,8 +40,14 @@ DEFAULT_CONVENTION = "radiological"
 _X, _Y, _Z = np.eye(3)
 # plane kind (the world axis its normal is closest to) -> (image right, image down), radiological.
 _SCREEN = {"sagittal": (-_Y, -_Z), "coronal": (-_X, -_Z), "axial": (-_X, -_Y)}
-_WORDS = {(0, 1): "the patient's right", (0, -1): "the patient's left", (1, 1): "anterior", (1, -1): "posterior",
-          (2, 1): "superior", (2, -1): "inferior"}
+_WORDS = {
+    (0, 1): "the patient's right",
+    (0, -1): "the patient's left",
+    (1, 1): "anterior",
+    (1, -1): "posterior",
+    (2, 1): "superior",
+    (2, -1): "inferior",
+}
 
 
 def _axes(plane: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -90,8 +96,15 @@ def slice_layout(plane: Any, convention: str = DEFAULT_CONVENTION) -> dict[str, 
         a = int(np.argmax(np.abs(d)))
         return _WORDS[(a, 1 if d[a] > 0 else -1)]
 
-    return {"kind": kind, "transpose": transpose, "flip_rows": flip_rows, "flip_cols": flip_cols,
-            "top": word(-down), "left": word(-right), "convention": convention}
+    return {
+        "kind": kind,
+        "transpose": transpose,
+        "flip_rows": flip_rows,
+        "flip_cols": flip_cols,
+        "top": word(-down),
+        "left": word(-right),
+        "convention": convention,
+    }
 
 
 def orient_slice(arr: np.ndarray, plane: Any, convention: str = DEFAULT_CONVENTION) -> np.ndarray:
@@ -141,5 +154,4 @@ def describe_layout(plane: Any, convention: str = DEFAULT_CONVENTION) -> str:
     "axial slice, radiological convention: anterior at the top, the patient's right on the left"
     """
     lay = slice_layout(plane, convention)
-    return (f"{lay['kind']} slice, {lay['convention']} convention: {lay['top']} at the top, "
-            f"{lay['left']} on the left")
+    return f"{lay['kind']} slice, {lay['convention']} convention: {lay['top']} at the top, {lay['left']} on the left"

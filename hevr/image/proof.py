@@ -86,11 +86,16 @@ class Expect:
             raise ParameterError(f"store: expected a store id of 16 lower-case hex digits, got {self.store!r:.40}")
         v = self.view
         if v is not None and not (isinstance(v, str) and _HEX16.fullmatch(v)):
-            raise ParameterError(f"view: expected a view key of 16 lower-case hex digits (hevr.proof_of(img).view_key; "
-                                 f"a camera alone does not fix sampling, level and channel), got {v!r:.40}")
+            raise ParameterError(
+                f"view: expected a view key of 16 lower-case hex digits (hevr.proof_of(img).view_key; "
+                f"a camera alone does not fix sampling, level and channel), got {v!r:.40}"
+            )
         if self.max_age is not None:
-            if isinstance(self.max_age, bool) or not isinstance(self.max_age, (int, float)) or not (
-                    math.isfinite(self.max_age) and self.max_age > 0):
+            if (
+                isinstance(self.max_age, bool)
+                or not isinstance(self.max_age, (int, float))
+                or not (math.isfinite(self.max_age) and self.max_age > 0)
+            ):
                 raise ParameterError(f"max_age: expected a positive number of seconds, got {self.max_age!r:.40}")
             object.__setattr__(self, "max_age", float(self.max_age))
         if not isinstance(self.moved, bool):
@@ -115,8 +120,9 @@ def as_expect(require_verified: Any) -> Expect | None:
         return require_verified
     if isinstance(require_verified, str):
         return Expect(store=require_verified)
-    raise ParameterError(f"require_verified: expected True, False, a store id or a hevr.Expect, got "
-                         f"{require_verified!r:.60}")
+    raise ParameterError(
+        f"require_verified: expected True, False, a store id or a hevr.Expect, got {require_verified!r:.60}"
+    )
 
 
 @dataclass(frozen=True)
@@ -144,8 +150,12 @@ class FrameProof:
 
     def describe(self) -> str:
         """One line: what the frame proves, and where it was saved if it was read elsewhere."""
-        where = (f"; saved by the key holder as {self.saved_as}, read from {self.read_as}: it proves what it shows, "
-                 "not that it belongs here" if self.moved else "")
+        where = (
+            f"; saved by the key holder as {self.saved_as}, read from {self.read_as}: it proves what it shows, "
+            "not that it belongs here"
+            if self.moved
+            else ""
+        )
         return self.what + where
 
 
@@ -163,13 +173,22 @@ def view_of(img: Any) -> dict:
     """The view a verified frame shows, from what its check fixed (module docstring)."""
     v = img.verification
     if hasattr(v, "camera"):  # a per-voxel frame's record holds its whole geometry
-        return {"camera": _camera_dict(v.camera), "sampling": v.sampling, "step": float(v.step),
-                "level": int(v.level), "channel": v.channel}
+        return {
+            "camera": _camera_dict(v.camera),
+            "sampling": v.sampling,
+            "step": float(v.step),
+            "level": int(v.level),
+            "channel": v.channel,
+        }
     first = first_frame(img)
     cam = getattr(first, "camera", None) or getattr(first, "plane", None)
     plan = getattr(first, "plan", None)
-    return {"camera": _camera_dict(cam), "sampling": getattr(plan, "sampling", None), "level": int(v.level),
-            "channel": v.channel}
+    return {
+        "camera": _camera_dict(cam),
+        "sampling": getattr(plan, "sampling", None),
+        "level": int(v.level),
+        "channel": v.channel,
+    }
 
 
 def proof_of(img: Any) -> FrameProof | None:
@@ -181,9 +200,15 @@ def proof_of(img: Any) -> FrameProof | None:
     stamp = getattr(img, "stamp", None)
     view = view_of(img)
     version = metadata_digest(authenticated_fields(v.meta.to_dict())) if v.meta is not None else ""
-    return FrameProof(store_id=v.store_id, store_version=version, view=view, view_key=view_key(view),
-                      rendered_at=rendered_at(img), saved_as=None if stamp is None else stamp.saved_as,
-                      read_as=None if stamp is None else stamp.read_as)
+    return FrameProof(
+        store_id=v.store_id,
+        store_version=version,
+        view=view,
+        view_key=view_key(view),
+        rendered_at=rendered_at(img),
+        saved_as=None if stamp is None else stamp.saved_as,
+        read_as=None if stamp is None else stamp.read_as,
+    )
 
 
 def _age(rendered: str, now: float) -> float | None:
@@ -196,22 +221,34 @@ def check_expect(proof: FrameProof, expect: Expect, now: float | None = None) ->
     """Refuse (:class:`hevr.VerificationError`, no image) a verified frame that is not what the
     caller expects; a moved frame only when the caller named its store and view (or ``moved``)."""
     if expect.store is not None and proof.store_id != expect.store:
-        raise VerificationError(f"image: expected a frame of the store {expect.store}, got one of the store "
-                                f"{proof.store_id}; no image is returned")
+        raise VerificationError(
+            f"image: expected a frame of the store {expect.store}, got one of the store "
+            f"{proof.store_id}; no image is returned"
+        )
     if expect.view is not None and expect.view != proof.view_key:
-        raise VerificationError(f"image: expected the view {expect.view}, got the view {proof.view_key} "
-                                f"({proof.describe()}); no image is returned")
+        raise VerificationError(
+            f"image: expected the view {expect.view}, got the view {proof.view_key} "
+            f"({proof.describe()}); no image is returned"
+        )
     if expect.max_age is not None:
         age = _age(proof.rendered_at, time.time() if now is None else now)
         if age is None or age > expect.max_age or age < -CLOCK_SKEW:  # a render time in the future: not trusted
-            got = ("one without a render time (stamped before issue 47)" if age is None else
-                   f"one rendered {age:.0f} s ago" if age >= 0 else f"one stamped {-age:.0f} s in the future")
-            raise VerificationError(f"image: expected a frame rendered at most {expect.max_age:.0f} s ago, got {got}: "
-                                    "an old frame replayed?; no image is returned")
+            got = (
+                "one without a render time (stamped before issue 47)"
+                if age is None
+                else f"one rendered {age:.0f} s ago"
+                if age >= 0
+                else f"one stamped {-age:.0f} s in the future"
+            )
+            raise VerificationError(
+                f"image: expected a frame rendered at most {expect.max_age:.0f} s ago, got {got}: "
+                "an old frame replayed?; no image is returned"
+            )
     if proof.moved and not expect.moved and (expect.store is None or expect.view is None):
         raise VerificationError(
             f"image: the key holder saved this verified frame as {proof.saved_as}, and it was read from "
             f"{proof.read_as}: another frame put in this one's place? It proves {proof.what}; "
             "state what you expect (require_verified=hevr.Expect(store=ID, view=KEY); hevr decrypt "
             "--expect-store ID --expect-view KEY), or accept a frame you moved yourself (Expect(moved=True), "
-            "--moved); no image is returned")
+            "--moved); no image is returned"
+        )

@@ -16,8 +16,8 @@ import logging
 import warnings
 from typing import Any
 
-from ..runtime.scheduler import refuse_foreign_cluster
 from ..errors import FrameMovedWarning, VerificationError
+from ..runtime.scheduler import refuse_foreign_cluster
 from ..store import known
 from .proof import as_expect, check_expect, first_frame, proof_of
 from .stamp import check_stamp
@@ -69,8 +69,9 @@ def check_policy(private_key: Any, img: Any, require_verified: Any, unverified: 
     if img.verification is not None or require_verified is False or not getattr(private_key, "require_tags", False):
         return
     sid = _store_of(img)
-    if sid is not None and (known.accepted_untagged(sid, private_key) or (
-            _store_tags(img) and known.known_verifiable(sid, private_key))):
+    if sid is not None and (
+        known.accepted_untagged(sid, private_key) or (_store_tags(img) and known.known_verifiable(sid, private_key))
+    ):
         return
     raise VerificationError(
         f"image: not verified ({unverified}), and this key's policy is that every store of it carries tags "
@@ -79,7 +80,8 @@ def check_policy(private_key: Any, img: Any, require_verified: Any, unverified: 
         "verified; render it verified once with the key (or import your known stores: hevr known import), accept a "
         "store without tags explicitly (hevr.trust_store(ev, key, untagged=True); hevr render --trust-store "
         "--untagged), or ask for an unverified image by name (require_verified=False; hevr decrypt --unverified); "
-        "no image is returned")
+        "no image is returned"
+    )
 
 
 def refuse_untagged(ev: Any, private_key: Any) -> None:
@@ -95,7 +97,8 @@ def refuse_untagged(ev: Any, private_key: Any) -> None:
         f"{ev.path}: expected a store with tags (this key's policy is that every store of it carries them: "
         f"require_tags), got the store {sid} without tags — made with the public key only, or stripped by a "
         "server; if it is yours, accept it explicitly (hevr.trust_store(ev, key, untagged=True); hevr render "
-        "--trust-store --untagged); nothing was rendered")
+        "--trust-store --untagged); nothing was rendered"
+    )
 
 
 def check_provenance(private_key: Any, img: Any, require_verified: Any, unverified: str) -> None:
@@ -122,8 +125,10 @@ def check_provenance(private_key: Any, img: Any, require_verified: Any, unverifi
     v = img.verification
     if v is None:
         if expect is not None:
-            raise VerificationError(f"image: not verified (it carries no check against a store's tags: {unverified}), "
-                                    "and require_verified was given; no image is returned")
+            raise VerificationError(
+                f"image: not verified (it carries no check against a store's tags: {unverified}), "
+                "and require_verified was given; no image is returned"
+            )
         check_policy(private_key, img, require_verified, unverified)
         return
     stamp = getattr(img, "stamp", None)
@@ -132,20 +137,25 @@ def check_provenance(private_key: Any, img: Any, require_verified: Any, unverifi
         raise VerificationError(
             f"image: its verification record {what} of the key holder (a verified frame is saved with the key: "
             "img.save(path, private_key=...), hevr render --key): the record or the frame was written by someone "
-            "else, or altered; no image is returned")
+            "else, or altered; no image is returned"
+        )
     replaced = None if v.drawn_here else known.retired_by(v.store_id)  # a file's: an old frame replayed?
     if replaced:
         raise VerificationError(
             f"image: a frame of the store {v.store_id}, which the owner replaced with the store {replaced[1]} at "
-            f"{replaced[0]} (the key holder's known stores): an old frame replayed?; no image is returned")
+            f"{replaced[0]} (the key holder's known stores): an old frame replayed?; no image is returned"
+        )
     proof = proof_of(img)
     if expect is not None:
         check_expect(proof, expect)
     elif proof is not None and proof.moved:
-        warnings.warn(f"image: not verified for {proof.read_as}: the key holder saved this frame as "
-                      f"{proof.saved_as}; it is {proof.what} (require_verified with "
-                      "hevr.Expect(store=..., view=...) checks that it is the frame you expect)",
-                      FrameMovedWarning, stacklevel=4)
+        warnings.warn(
+            f"image: not verified for {proof.read_as}: the key holder saved this frame as "
+            f"{proof.saved_as}; it is {proof.what} (require_verified with "
+            "hevr.Expect(store=..., view=...) checks that it is the frame you expect)",
+            FrameMovedWarning,
+            stacklevel=4,
+        )
 
 
 def for_file(img: Any, private_key: Any, check_with_key: Any) -> Any:
@@ -161,7 +171,9 @@ def for_file(img: Any, private_key: Any, check_with_key: Any) -> Any:
         check_with_key(private_key)  # the key holder checks it before stamping
         return img
     if img.verification.drawn_here:
-        log.warning("saving a verified frame without private_key: its verification record is left out (only the "
-                    "key holder's stamp makes a record in a file trustworthy); pass private_key= to keep it")
+        log.warning(
+            "saving a verified frame without private_key: its verification record is left out (only the "
+            "key holder's stamp makes a record in a file trustworthy); pass private_key= to keep it"
+        )
         return dataclasses.replace(img, verification=None, stamp=None)
     return img

@@ -39,14 +39,27 @@ import os
 import re
 import time
 from pathlib import Path
-from urllib.parse import urlsplit, urlunsplit
 from typing import Any, NamedTuple
+from urllib.parse import urlsplit, urlunsplit
 
 from ..crypto.tags import tag_key_of
 from ..store.authenticity import canonical
 
-__all__ = ["STAMP_FIELDS", "STAMP_PREFIX", "Stamp", "check_stamp", "read_stamp", "rendered_at", "utc", "make_stamp", "message", "raw_check", "raw_stamp", "saved_name",
-           "stamp_header"]
+__all__ = [
+    "STAMP_FIELDS",
+    "STAMP_PREFIX",
+    "Stamp",
+    "check_stamp",
+    "read_stamp",
+    "rendered_at",
+    "utc",
+    "make_stamp",
+    "message",
+    "raw_check",
+    "raw_stamp",
+    "saved_name",
+    "stamp_header",
+]
 
 STAMP_PREFIX = "hmac-sha256:"
 _STAMP = re.compile(r"hmac-sha256:[0-9a-f]{64}")
@@ -127,8 +140,11 @@ def raw_stamp(prf_key: bytes, msg: bytes) -> str:
 
 def raw_check(prf_key: bytes, msg: bytes, stamp: Any) -> bool:
     """Whether ``stamp`` is the stamp of ``msg`` (constant-time comparison)."""
-    return isinstance(stamp, str) and _STAMP.fullmatch(stamp) is not None and hmac.compare_digest(
-        raw_stamp(prf_key, msg), stamp)
+    return (
+        isinstance(stamp, str)
+        and _STAMP.fullmatch(stamp) is not None
+        and hmac.compare_digest(raw_stamp(prf_key, msg), stamp)
+    )
 
 
 def make_stamp(private_key: Any, msg: bytes) -> str:
@@ -154,8 +170,9 @@ def read_stamp(h: dict, body_digest: bytes, fail: Any) -> Stamp | None:
     if not (isinstance(s, str) and _STAMP.fullmatch(s) and "verification" in h):
         raise fail("stamp", f"'{STAMP_PREFIX}<64 hex>' beside a verification record", s)
     if not (isinstance(h.get("saved_as"), str) and len(h["saved_as"]) <= 4096):
-        raise fail("saved_as", "where the key holder saved the frame (a string of at most 4096 characters)",
-                   h.get("saved_as"))
+        raise fail(
+            "saved_as", "where the key holder saved the frame (a string of at most 4096 characters)", h.get("saved_as")
+        )
     when = h.get("rendered_at", "")
     if when != "" and not rendered_field(when):
         raise fail("rendered_at", "a UTC time YYYY-MM-DDTHH:MM:SSZ", when)

@@ -68,8 +68,9 @@ class TileLayout:
     def pixels(self, t: int) -> np.ndarray:
         """Global pixel indices (int64) of tile ``t``, row-major inside the tile."""
         r0, r1, c0, c1 = self.bounds(t)
-        return (np.arange(r0, r1, dtype=np.int64)[:, None] * self.width
-                + np.arange(c0, c1, dtype=np.int64)[None, :]).ravel()
+        return (
+            np.arange(r0, r1, dtype=np.int64)[:, None] * self.width + np.arange(c0, c1, dtype=np.int64)[None, :]
+        ).ravel()
 
     def ids(self, pixels: Any) -> np.ndarray:
         """Tile index (int64) of each global pixel index."""

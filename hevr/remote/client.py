@@ -51,8 +51,16 @@ __all__ = ["Server", "connect"]
 MAX_STORES_BYTES = 16 * MAX_BODY  # the store list: a few KiB of metadata per store
 
 
-def connect(url: str, token: str | None = None, cafile: str | None = None, timeout: float = 60.0, *,
-            connect_timeout: float = 10.0, retries: int = 2, transport: Any = None) -> Server:
+def connect(
+    url: str,
+    token: str | None = None,
+    cafile: str | None = None,
+    timeout: float = 60.0,
+    *,
+    connect_timeout: float = 10.0,
+    retries: int = 2,
+    transport: Any = None,
+) -> Server:
     """Connect to a render server (``hevr serve``) as the key holder.
 
     Parameters
@@ -103,8 +111,15 @@ def connect(url: str, token: str | None = None, cafile: str | None = None, timeo
     ``hevr serve`` printed, or the store id),
     then ``hevr.render(rv, hevr.Camera.orbit(rv, azimuth=30))`` and ``img.decrypt(priv)``.
     """
-    return Server(url, token=token, cafile=cafile, timeout=timeout, connect_timeout=connect_timeout,
-                  retries=retries, transport=transport)
+    return Server(
+        url,
+        token=token,
+        cafile=cafile,
+        timeout=timeout,
+        connect_timeout=connect_timeout,
+        retries=retries,
+        transport=transport,
+    )
 
 
 def _raw(r: Any) -> Iterator[bytes]:
@@ -122,9 +137,17 @@ class Server:
     """A connection to ``hevr serve`` (:func:`connect`). Thread-safe for requests; close it (or use
     it as a context manager) to release its connections."""
 
-    def __init__(self, url: str, token: str | None = None, cafile: str | None = None,
-                 timeout: float = 60.0, *, connect_timeout: float = 10.0, retries: int = 2,
-                 transport: Any = None) -> None:
+    def __init__(
+        self,
+        url: str,
+        token: str | None = None,
+        cafile: str | None = None,
+        timeout: float = 60.0,
+        *,
+        connect_timeout: float = 10.0,
+        retries: int = 2,
+        transport: Any = None,
+    ) -> None:
         if not isinstance(url, str):
             raise ParameterError(f"url: expected 'http(s)://host:port', got {type(url).__name__}")
         parts = urlsplit(url)
@@ -132,8 +155,13 @@ class Server:
             raise ParameterError(f"url: expected 'http(s)://host[:port]', got {url[:100]!r}")
         if parts.username or parts.password:
             raise ParameterError("url: expected no user or password in the URL (pass token=)")
-        if token is not None and (not isinstance(token, str) or not token or not token.isprintable()
-                                  or len(token) > 4096 or any(c.isspace() for c in token)):
+        if token is not None and (
+            not isinstance(token, str)
+            or not token
+            or not token.isprintable()
+            or len(token) > 4096
+            or any(c.isspace() for c in token)
+        ):
             raise ParameterError("token: expected the server's bearer token (printable, no spaces)")
         self.timeout = _seconds("timeout", timeout)
         self.connect_timeout = _seconds("connect_timeout", connect_timeout)
@@ -145,18 +173,28 @@ class Server:
             raise ParameterError("cafile: expected an https:// url with a CA file, got an http:// url")
         if transport is None:
             try:
-                context = (ssl.create_default_context(cafile=str(cafile)) if cafile is not None
-                           else httpx.create_ssl_context(trust_env=False))
+                context = (
+                    ssl.create_default_context(cafile=str(cafile))
+                    if cafile is not None
+                    else httpx.create_ssl_context(trust_env=False)
+                )
             except (OSError, ssl.SSLError) as exc:
-                raise ParameterError(f"cafile: expected a PEM CA bundle, got {str(cafile)[:100]!r} "
-                                     f"({type(exc).__name__})") from None
+                raise ParameterError(
+                    f"cafile: expected a PEM CA bundle, got {str(cafile)[:100]!r} ({type(exc).__name__})"
+                ) from None
             transport = DeadlineTransport(context)
         self.url = url.rstrip("/")
         self.retries = retries
         self._token = token
         headers = {"Accept-Encoding": "identity", "User-Agent": "hevr"}
-        self._http = httpx.Client(base_url=self.url, headers=headers, transport=transport, follow_redirects=False,
-                                  timeout=httpx.Timeout(self.timeout, connect=self.connect_timeout), trust_env=False)
+        self._http = httpx.Client(
+            base_url=self.url,
+            headers=headers,
+            transport=transport,
+            follow_redirects=False,
+            timeout=httpx.Timeout(self.timeout, connect=self.connect_timeout),
+            trust_env=False,
+        )
 
     def __repr__(self) -> str:  # never the token
         return f"Server({self.url!r})"
@@ -177,8 +215,15 @@ class Server:
             h["Authorization"] = f"Bearer {self._token}"
         return h
 
-    def request(self, method: str, path: str, *, body: dict | None = None, accept: str = "application/json",
-                limit: int = MAX_BODY) -> tuple[bytes, dict]:
+    def request(
+        self,
+        method: str,
+        path: str,
+        *,
+        body: dict | None = None,
+        accept: str = "application/json",
+        limit: int = MAX_BODY,
+    ) -> tuple[bytes, dict]:
         """One request; the answer's bytes (at most ``limit``) and headers, or a RemoteError."""
         (answer,) = list(self._exchange(method, path, body, accept, limit, frames=False))
         return answer
@@ -197,8 +242,9 @@ class Server:
             yield index, data
         raise RemoteAnswerError(f"server {self.url}: expected the stream's end frame, got the end of the answer")
 
-    def _exchange(self, method: str, path: str, body: dict | None, accept: str, limit: int,
-                  frames: bool) -> Iterator[Any]:
+    def _exchange(
+        self, method: str, path: str, body: dict | None, accept: str, limit: int, frames: bool
+    ) -> Iterator[Any]:
         content = None if body is None else json.dumps(body, separators=(",", ":")).encode()
         headers = self._headers(accept)
         if content is not None:
@@ -210,12 +256,16 @@ class Server:
                 status = r.status_code
                 media = r.headers.get("content-type", "").split(";")[0].strip().lower()
                 if media != accept:
-                    raise RemoteAnswerError(f"server {self.url}: {what}: expected {accept}, got {media[:60]!r}",
-                                            status=status)
+                    raise RemoteAnswerError(
+                        f"server {self.url}: {what}: expected {accept}, got {media[:60]!r}", status=status
+                    )
                 declared = r.headers.get("content-length")
                 if declared is not None and (not declared.isdigit() or int(declared) > limit):
-                    raise RemoteAnswerError(f"server {self.url}: {what}: expected at most {limit} bytes, got "
-                                            f"Content-Length {declared[:20]} (refused unread)", status=status)
+                    raise RemoteAnswerError(
+                        f"server {self.url}: {what}: expected at most {limit} bytes, got "
+                        f"Content-Length {declared[:20]} (refused unread)",
+                        status=status,
+                    )
                 if not frames:
                     yield self._read(r, limit, clock, what), dict(r.headers)
                     return
@@ -223,12 +273,14 @@ class Server:
         except RemoteError:
             raise
         except (httpx.HTTPError, ssl.SSLError, OSError, ValueError) as exc:
-            raise transport_failure(self.url, what, exc, expired=clock.expired(), timeout=self.timeout,
-                                    connect_timeout=self.connect_timeout) from None
+            raise transport_failure(
+                self.url, what, exc, expired=clock.expired(), timeout=self.timeout, connect_timeout=self.connect_timeout
+            ) from None
 
     @contextlib.contextmanager
-    def _answer(self, method: str, path: str, content: bytes | None, headers: dict, clock: Deadline,
-                what: str) -> Iterator[Any]:
+    def _answer(
+        self, method: str, path: str, content: bytes | None, headers: dict, clock: Deadline, what: str
+    ) -> Iterator[Any]:
         """The open response of status 200, its head checked; an error status is a typed error, a
         busy one (429, 503) retried at most ``retries`` times within the deadline."""
         for attempt in range(self.retries + 1):
@@ -238,14 +290,23 @@ class Server:
                 status = r.status_code
                 encoding = r.headers.get("content-encoding", "identity").strip().lower()
                 if encoding not in ("", "identity"):
-                    raise RemoteAnswerError(f"server {self.url}: {what}: expected an answer without "
-                                            f"Content-Encoding, got {encoding[:40]!r} (refused unread)", status=status)
+                    raise RemoteAnswerError(
+                        f"server {self.url}: {what}: expected an answer without "
+                        f"Content-Encoding, got {encoding[:40]!r} (refused unread)",
+                        status=status,
+                    )
                 if 300 <= status < 400:
                     location = r.headers.get("location", "?")[:100]
-                    hint = (f" (use {self.url.replace('http://', 'https://', 1)})"
-                            if self.url.startswith("http://") and location.startswith("https://") else "")
-                    raise RemoteError(f"server {self.url}: {what}: expected an answer, got a redirect (HTTP {status}) "
-                                      f"to {location!r}, not followed{hint}", status=status)
+                    hint = (
+                        f" (use {self.url.replace('http://', 'https://', 1)})"
+                        if self.url.startswith("http://") and location.startswith("https://")
+                        else ""
+                    )
+                    raise RemoteError(
+                        f"server {self.url}: {what}: expected an answer, got a redirect (HTTP {status}) "
+                        f"to {location!r}, not followed{hint}",
+                        status=status,
+                    )
                 if status == 200:
                     yield r
                     return
@@ -269,12 +330,17 @@ class Server:
                 doc = parse_json(raw, "problem")
             except HevrError:
                 doc = None
-        return refusal(self.url, what, r.status_code, doc, r.headers, self._token is not None, tries,
-                       clock.spent())
+        return refusal(self.url, what, r.status_code, doc, r.headers, self._token is not None, tries, clock.spent())
 
     def _late(self, what: str) -> RemoteError:
-        return transport_failure(self.url, what, httpx.ReadTimeout("deadline"), expired=True,
-                                 timeout=self.timeout, connect_timeout=self.connect_timeout)
+        return transport_failure(
+            self.url,
+            what,
+            httpx.ReadTimeout("deadline"),
+            expired=True,
+            timeout=self.timeout,
+            connect_timeout=self.connect_timeout,
+        )
 
     def _read(self, r: Any, limit: int, clock: Deadline, what: str) -> bytes:
         buf = bytearray()
@@ -282,8 +348,11 @@ class Server:
             for chunk in _raw(r):
                 buf += chunk
                 if len(buf) > limit:
-                    raise RemoteAnswerError(f"server {self.url}: {what}: expected at most {limit} bytes, got more "
-                                            "(the rest refused unread)", status=r.status_code)
+                    raise RemoteAnswerError(
+                        f"server {self.url}: {what}: expected at most {limit} bytes, got more "
+                        "(the rest refused unread)",
+                        status=r.status_code,
+                    )
                 if clock.expired():
                     raise self._late(what)
         return bytes(buf)
@@ -309,8 +378,8 @@ class Server:
                     raise RemoteAnswerError(f"server {self.url}: {what}: a frame of {length} bytes (at most {limit})")
                 if len(buf) < 8 + length:
                     break
-                data = bytes(buf[8:8 + length])
-                del buf[:8 + length]
+                data = bytes(buf[8 : 8 + length])
+                del buf[: 8 + length]
                 yield index, data
                 if index == END:
                     if buf:
@@ -329,8 +398,11 @@ class Server:
         return doc
 
     def _problem(self, status: int, doc: Any, what: str) -> RemoteError:
-        return RemoteError(f"server {self.url}: {what}: HTTP {status}: {problem_text(doc)}", status=status,
-                           problem=doc if isinstance(doc, dict) else None)
+        return RemoteError(
+            f"server {self.url}: {what}: HTTP {status}: {problem_text(doc)}",
+            status=status,
+            problem=doc if isinstance(doc, dict) else None,
+        )
 
     def get_json(self, path: str, limit: int = MAX_BODY) -> dict:
         raw, _ = self.request("GET", path, limit=limit)
@@ -342,10 +414,19 @@ class Server:
         (``shape`` in ``rv.shape``'s order, z, y, x, as :attr:`hevr.EncryptedVolume.shape`)
         summarised from each store's public metadata (checked as :meth:`open` checks it); ``name``:
         the name it is served under (None: by id only)."""
-        return [{"id": sid, "name": name, "shape": tuple(meta.shape), "spacing": meta.spacing,
-                 "channels": [c for c in ("scalar", "vector", "gradient") if getattr(meta, c) is not None],
-                 "levels": len(meta.levels), "tags": bool(meta.tags), "fingerprint": meta.fingerprint}
-                for sid, name, meta in self.described()]
+        return [
+            {
+                "id": sid,
+                "name": name,
+                "shape": tuple(meta.shape),
+                "spacing": meta.spacing,
+                "channels": [c for c in ("scalar", "vector", "gradient") if getattr(meta, c) is not None],
+                "levels": len(meta.levels),
+                "tags": bool(meta.tags),
+                "fingerprint": meta.fingerprint,
+            }
+            for sid, name, meta in self.described()
+        ]
 
     def described(self) -> list[tuple[str, str | None, Any]]:
         """(id, served name, checked :class:`~hevr.store.metadata.VolumeMetadata`) of every store this
@@ -371,17 +452,23 @@ class Server:
         if is_store_id(name_or_id):
             sid, meta = parse_description(self.get_json(f"/v1/stores/{name_or_id}"), self.url)
             if sid != name_or_id:
-                raise RemoteAnswerError(f"server {self.url}: expected the store {name_or_id}, got the description of {sid}")
+                raise RemoteAnswerError(
+                    f"server {self.url}: expected the store {name_or_id}, got the description of {sid}"
+                )
             return RemoteVolume(self, sid, meta)
         try:
             name = check_store_name(name_or_id, "name_or_id")
         except ParameterError:
-            raise ParameterError(f"name_or_id: expected a store id (16 lower-case hex digits) or a store name (1-64 "
-                                 f"letters, digits or _.@-), got {str(name_or_id)[:40]!r}") from None
+            raise ParameterError(
+                f"name_or_id: expected a store id (16 lower-case hex digits) or a store name (1-64 "
+                f"letters, digits or _.@-), got {str(name_or_id)[:40]!r}"
+            ) from None
         item = self.get_json(f"/v1/stores/{name}")
         sid, meta = parse_description(item, self.url)
         got = parse_name(item, self.url)
         if got != name:
-            raise RemoteAnswerError(f"server {self.url}: expected the description of the store named {name!r}, got "
-                              f"{'one named ' + repr(got) if got else 'one without a name'} (store {sid})")
+            raise RemoteAnswerError(
+                f"server {self.url}: expected the description of the store named {name!r}, got "
+                f"{'one named ' + repr(got) if got else 'one without a name'} (store {sid})"
+            )
         return RemoteVolume(self, sid, meta, name=name)

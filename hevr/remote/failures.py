@@ -82,7 +82,7 @@ def retry_wait(attempt: int, asked: float | None, jitter: float | None = None) -
     u = secrets.randbelow(2**53) / 2**53 if jitter is None else jitter  # the project's one source of randomness
     if asked is not None:
         return min(asked * (1.0 + 0.2 * u), MAX_WAIT)
-    return min(0.5 * 2.0 ** attempt * (0.5 + u), MAX_WAIT)
+    return min(0.5 * 2.0**attempt * (0.5 + u), MAX_WAIT)
 
 
 def check_answer(model: Any, doc: Any, url: str, what: str) -> Any:
@@ -121,8 +121,9 @@ def problem_text(doc: Any) -> str:
     return "".join(c if c.isprintable() else "?" for c in text)
 
 
-def refusal(url: str, what: str, status: int, doc: Any, headers: Any, token_sent: bool,
-            tries: int = 1, waited: float = 0.0) -> RemoteError:
+def refusal(
+    url: str, what: str, status: int, doc: Any, headers: Any, token_sent: bool, tries: int = 1, waited: float = 0.0
+) -> RemoteError:
     """The typed error of an HTTP error ``status`` (module docstring); ``doc`` the problem
     document (or None), ``tries`` and ``waited`` what the bounded retry did before it."""
     problem = doc if isinstance(doc, dict) else None
@@ -131,45 +132,66 @@ def refusal(url: str, what: str, status: int, doc: Any, headers: Any, token_sent
         asked = retry_after(headers.get("retry-after") if headers is not None else None)
         after = f"; the server asks to retry after {asked:g} s" if asked is not None else ""
         tried = f" (busy through {tries} tries over {waited:.1f} s)" if tries > 1 else ""
-        return RemoteBusyError(f"{base}{after}{tried}: busy, retry later", status=status, problem=problem,
-                               retry_after=asked)
+        return RemoteBusyError(
+            f"{base}{after}{tried}: busy, retry later", status=status, problem=problem, retry_after=asked
+        )
     if status in (401, 403):
-        hint = (f"no token was sent: {_TOKEN_HINT}" if not token_sent else
-                "the token was not accepted: check HEVR_TOKEN / token= (expected a token this server's operator gave)")
+        hint = (
+            f"no token was sent: {_TOKEN_HINT}"
+            if not token_sent
+            else "the token was not accepted: check HEVR_TOKEN / token= (expected a token this server's operator gave)"
+        )
         return RemoteUnauthorisedError(f"{base} ({hint})", status=status, problem=problem)
     if status == 404:
-        return RemoteNotFoundError(f"{base} (no store served under that name or id, or not to this token)",
-                                   status=status, problem=problem)
+        return RemoteNotFoundError(
+            f"{base} (no store served under that name or id, or not to this token)", status=status, problem=problem
+        )
     if status in (400, 405, 413, 415, 422):
         return RemoteRefusedError(base, status=status, problem=problem)
     return RemoteError(base, status=status, problem=problem)
 
 
-def transport_failure(url: str, what: str, exc: BaseException, *, expired: bool, timeout: float,
-                      connect_timeout: float) -> RemoteError:
+def transport_failure(
+    url: str, what: str, exc: BaseException, *, expired: bool, timeout: float, connect_timeout: float
+) -> RemoteError:
     """The typed error of an exchange that got no valid HTTP answer (module docstring)."""
     where = f"server {url}: {what}"
     text = "".join(c if c.isprintable() else "?" for c in str(exc)[:200])
     if isinstance(exc, httpx.ConnectTimeout) and not expired:
-        return RemoteTimeoutError(f"{where}: timeout: expected a connection within {connect_timeout:g} s, got none "
-                                  "(is the server up and reachable? connect_timeout / --connect-timeout)")
+        return RemoteTimeoutError(
+            f"{where}: timeout: expected a connection within {connect_timeout:g} s, got none "
+            "(is the server up and reachable? connect_timeout / --connect-timeout)"
+        )
     if expired or isinstance(exc, httpx.TimeoutException):
-        return RemoteTimeoutError(f"{where}: timeout: expected an answer within {timeout:g} s, got none (the "
-                                  "server may be busy, slow or gone; the key holder's decryption is not counted; a "
-                                  "larger timeout / --timeout may do)")
+        return RemoteTimeoutError(
+            f"{where}: timeout: expected an answer within {timeout:g} s, got none (the "
+            "server may be busy, slow or gone; the key holder's decryption is not counted; a "
+            "larger timeout / --timeout may do)"
+        )
     parts = urlsplit(url)
     host, port = parts.hostname or "", parts.port or (443 if parts.scheme == "https" else 80)
     probe = min(connect_timeout, 3.0)
     if parts.scheme == "https" and ("CERTIFICATE_VERIFY_FAILED" in text or "certificate verify failed" in text):
         return RemoteConnectError(f"{where}: TLS: the server's certificate is not trusted ({text}): {_CAFILE_HINT}")
-    if parts.scheme == "https" and isinstance(exc, httpx.ConnectError) and "SSL" in text and \
-            _speaks_http(host, port, probe):
-        return RemoteConnectError(f"{where}: TLS failed ({text}): the server speaks plain HTTP on port {port}: use "
-                                  f"http://{parts.netloc} (or serve TLS: hevr serve --tls-cert/--tls-key)")
-    if parts.scheme == "http" and isinstance(exc, (httpx.ReadError, httpx.RemoteProtocolError)) and \
-            _speaks_tls(host, port, probe):
-        return RemoteConnectError(f"{where}: the server closed the connection without an HTTP answer: it speaks TLS "
-                                  f"on port {port}: use https://{parts.netloc}")
+    if (
+        parts.scheme == "https"
+        and isinstance(exc, httpx.ConnectError)
+        and "SSL" in text
+        and _speaks_http(host, port, probe)
+    ):
+        return RemoteConnectError(
+            f"{where}: TLS failed ({text}): the server speaks plain HTTP on port {port}: use "
+            f"http://{parts.netloc} (or serve TLS: hevr serve --tls-cert/--tls-key)"
+        )
+    if (
+        parts.scheme == "http"
+        and isinstance(exc, (httpx.ReadError, httpx.RemoteProtocolError))
+        and _speaks_tls(host, port, probe)
+    ):
+        return RemoteConnectError(
+            f"{where}: the server closed the connection without an HTTP answer: it speaks TLS "
+            f"on port {port}: use https://{parts.netloc}"
+        )
     kind = type(exc).__name__
     if isinstance(exc, httpx.ConnectError):
         return RemoteConnectError(f"{where}: ConnectError: {text} (is the server up at this address?)")

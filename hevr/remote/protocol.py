@@ -64,10 +64,31 @@ from ..rendering.geometry.plane import Plane, view_from_dict
 from . import schema
 from .schema import BACKENDS, CHANNELS, MAX_PIXELS, MAX_SIDE, MAX_STEP, SAMPLINGS, check
 
-__all__ = ["API_VERSION", "BACKENDS", "CHANNELS", "END", "IMAGE_MEDIA", "MAX_BODY", "MAX_PIXELS", "MAX_SIDE",
-           "MAX_STEP", "PROBLEM_MEDIA", "SAMPLINGS", "STORE_ID", "STORE_NAME", "UNITS_MEDIA", "RenderRequest",
-           "VerifyRequest", "check_store_name", "image_limit", "is_store_id", "pack_frame", "packed_limit",
-           "parse_json", "unpack_head"]
+__all__ = [
+    "API_VERSION",
+    "BACKENDS",
+    "CHANNELS",
+    "END",
+    "IMAGE_MEDIA",
+    "MAX_BODY",
+    "MAX_PIXELS",
+    "MAX_SIDE",
+    "MAX_STEP",
+    "PROBLEM_MEDIA",
+    "SAMPLINGS",
+    "STORE_ID",
+    "STORE_NAME",
+    "UNITS_MEDIA",
+    "RenderRequest",
+    "VerifyRequest",
+    "check_store_name",
+    "image_limit",
+    "is_store_id",
+    "pack_frame",
+    "packed_limit",
+    "parse_json",
+    "unpack_head",
+]
 
 API_VERSION = 1
 PREFIX = "/v1"
@@ -100,11 +121,14 @@ def check_store_name(name: Any, where: str = "name") -> str:
     hevr.errors.ParameterError: name: expected a store name that is not 16 hex digits (those read as a store id), got '0123456789abcdef'
     """
     if not isinstance(name, str) or not STORE_NAME.fullmatch(name):
-        raise ParameterError(f"{where}: expected a store name of 1-64 letters, digits or _.@- (starting with a "
-                             f"letter or digit), got {str(name)[:70]!r}")
+        raise ParameterError(
+            f"{where}: expected a store name of 1-64 letters, digits or _.@- (starting with a "
+            f"letter or digit), got {str(name)[:70]!r}"
+        )
     if _ID_LIKE.fullmatch(name):
-        raise ParameterError(f"{where}: expected a store name that is not 16 hex digits (those read as a store "
-                             f"id), got {name!r}")
+        raise ParameterError(
+            f"{where}: expected a store name that is not 16 hex digits (those read as a store id), got {name!r}"
+        )
     return name
 
 
@@ -129,8 +153,9 @@ def parse_json(raw: bytes, name: str, limit: int = MAX_BODY) -> Any:
         raise ValueError(f"{text} (not JSON)")
 
     try:
-        doc = json.loads(raw.decode("utf-8"), object_pairs_hook=_no_duplicates, parse_int=_small_int,
-                         parse_constant=no_constant)
+        doc = json.loads(
+            raw.decode("utf-8"), object_pairs_hook=_no_duplicates, parse_int=_small_int, parse_constant=no_constant
+        )
     except RecursionError:
         raise ParameterError(f"{name}: expected a JSON document, got one nested too deeply") from None
     except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, the hooks'

@@ -35,24 +35,48 @@ from __future__ import annotations
 import json
 from dataclasses import MISSING, fields
 from functools import cache
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, create_model
 from pydantic.json_schema import GenerateJsonSchema, models_json_schema
 
 from ..backends import AUTO, available_backends
 from ..errors import ParameterError
-from ..rendering.geometry.camera import MAX_COORDINATE, Camera as _Camera
-from ..rendering.geometry.plane import MAX_SLAB, Plane as _Plane
+from ..rendering.geometry.camera import MAX_COORDINATE
+from ..rendering.geometry.camera import Camera as _Camera
+from ..rendering.geometry.plane import MAX_SLAB
+from ..rendering.geometry.plane import Plane as _Plane
 from ..rendering.planning.modes import SAMPLINGS
 from ..store.metadata import CHANNELS
 from ..store.packing import MAX_WEIGHT_BITS
 from ..volume.pyramid import MAX_LEVELS
 
-__all__ = ["BACKENDS", "CHANNELS", "MAX_DIGITS", "MAX_PIXELS", "MAX_SIDE", "MAX_STEP", "SAMPLINGS",
-           "STORE_ID_PATTERN", "STORE_NAME_PATTERN", "Aggregate", "Camera", "Health", "Plane", "Problem",
-           "RenderRequest", "Store", "Stores", "VerifyRequest", "Version", "check", "components", "expected",
-           "field_table", "message"]
+__all__ = [
+    "BACKENDS",
+    "CHANNELS",
+    "MAX_DIGITS",
+    "MAX_PIXELS",
+    "MAX_SIDE",
+    "MAX_STEP",
+    "SAMPLINGS",
+    "STORE_ID_PATTERN",
+    "STORE_NAME_PATTERN",
+    "Aggregate",
+    "Camera",
+    "Health",
+    "Plane",
+    "Problem",
+    "RenderRequest",
+    "Store",
+    "Stores",
+    "VerifyRequest",
+    "Version",
+    "check",
+    "components",
+    "expected",
+    "field_table",
+    "message",
+]
 
 MAX_SIDE = 4096  # pixels per image side over the wire
 MAX_PIXELS = MAX_SIDE * MAX_SIDE
@@ -89,13 +113,15 @@ class Camera(Wire):
     position: Vec3 = Field(description="the eye, world (x, y, z)")
     focal_point: Vec3 = Field(description="the point looked at")
     view_up: Vec3 = Field(_default(_Camera, "view_up"), description="roughly up; not along the view")
-    view_angle: Annotated[float, Field(gt=0, lt=180)] = Field(_default(_Camera, "view_angle"),
-                                                              description="full vertical angle, degrees")
+    view_angle: Annotated[float, Field(gt=0, lt=180)] = Field(
+        _default(_Camera, "view_angle"), description="full vertical angle, degrees"
+    )
     width: Side = Field(_default(_Camera, "width"), description="pixels")
     height: Side = Field(_default(_Camera, "height"), description="pixels")
     parallel: bool = Field(_default(_Camera, "parallel"), description="orthographic projection")
     parallel_scale: Annotated[float, Field(gt=0, le=MAX_COORDINATE)] | None = Field(
-        None, description="half the view's height, world units (null: what the view angle sees at the focal point)")
+        None, description="half the view's height, world units (null: what the view angle sees at the focal point)"
+    )
 
 
 class Plane(Wire):
@@ -108,9 +134,11 @@ class Plane(Wire):
     width: Side = Field(description="pixels")
     height: Side = Field(description="pixels")
     pixel_spacing: Positive | Annotated[list[Positive], Field(min_length=1, max_length=2)] = Field(
-        _default(_Plane, "pixel_spacing"), description="world units per pixel: du, or (du, dv)")
-    slab: Annotated[int, Field(ge=1, le=MAX_SLAB)] = Field(_default(_Plane, "slab"),
-                                                           description="parallel planes averaged per pixel")
+        _default(_Plane, "pixel_spacing"), description="world units per pixel: du, or (du, dv)"
+    )
+    slab: Annotated[int, Field(ge=1, le=MAX_SLAB)] = Field(
+        _default(_Plane, "slab"), description="parallel planes averaged per pixel"
+    )
     slab_step: Positive = Field(_default(_Plane, "slab_step"), description="world units between the slab's planes")
 
 
@@ -119,46 +147,63 @@ def _view_kind(value: Any) -> str:
     return "Plane" if isinstance(value, dict) and value.get("kind") == "plane" else "Camera"
 
 
-View = Annotated[Union[Annotated[Camera, Tag("Camera")], Annotated[Plane, Tag("Plane")]], Discriminator(_view_kind)]
+View = Annotated[Annotated[Camera, Tag("Camera")] | Annotated[Plane, Tag("Plane")], Discriminator(_view_kind)]
 
 
 _CAMERA_EXAMPLE = {"position": [3.5, 3.5, 40.0], "focal_point": [3.5, 3.5, 3.5], "width": 8, "height": 8}
-_PLANE_EXAMPLE = {"kind": "plane", "origin": [0.0, 0.0, 3.0], "u": [1.0, 0.0, 0.0], "v": [0.0, 1.0, 0.0], "width": 8,
-                  "height": 8}
+_PLANE_EXAMPLE = {
+    "kind": "plane",
+    "origin": [0.0, 0.0, 3.0],
+    "u": [1.0, 0.0, 0.0],
+    "v": [0.0, 1.0, 0.0],
+    "width": 8,
+    "height": 8,
+}
 
 
 class RenderRequest(Wire):
     """What the key holder asks to render: a view and what to sum, nothing of the colouring."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": [
-        {"view": _CAMERA_EXAMPLE, "channel": "scalar"},
-        {"view": _PLANE_EXAMPLE, "channel": "scalar", "sampling": "trilinear", "pack": False}]})
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {"view": _CAMERA_EXAMPLE, "channel": "scalar"},
+                {"view": _PLANE_EXAMPLE, "channel": "scalar", "sampling": "trilinear", "pack": False},
+            ]
+        }
+    )
 
     view: View = Field(description="a camera (level 0's frame) or a slice plane")
     channel: Literal[CHANNELS] = Field(description="the store's channel to sum")
     sampling: Literal[SAMPLINGS] = Field("nearest", description="how a sample reads the voxels")
-    step: Annotated[float, Field(gt=0, le=MAX_STEP, description="sample spacing in world units (a plane: its "
-                                                                 "slab step)")] = 1.0
+    step: Annotated[
+        float, Field(gt=0, le=MAX_STEP, description="sample spacing in world units (a plane: its slab step)")
+    ] = 1.0
     level: Annotated[int, Field(ge=0, le=MAX_LEVELS, description="pyramid level (0: the volume)")] = 0
     digits: Annotated[int, Field(ge=0, le=MAX_DIGITS, description="decimal digits of trilinear weights")] = 3
     pack: bool = Field(True, description="pack many pixels per ciphertext")
     tile: Annotated[int, Field(ge=1, le=MAX_SIDE)] = Field(32, description="image tile edge (pixels) of the reduce")
     backend: Literal[BACKENDS] | None = Field(None, description="the server's arithmetic backend (null: its default)")
     weight_bits: Annotated[int, Field(ge=0, le=MAX_WEIGHT_BITS)] | None = Field(
-        None, description="a packed store's in-slice weight bits (null: the store's)")
+        None, description="a packed store's in-slice weight bits (null: the store's)"
+    )
 
 
 #: A render request's fields but its view: what ``RenderRequest.__post_init__`` checks of a request
 #: built in Python (its view is a Camera or Plane object, checked by itself).
-RenderOptions = create_model("RenderOptions", __base__=Wire, **{
-    name: (f.annotation, f) for name, f in RenderRequest.model_fields.items() if name != "view"})
+RenderOptions = create_model(
+    "RenderOptions",
+    __base__=Wire,
+    **{name: (f.annotation, f) for name, f in RenderRequest.model_fields.items() if name != "view"},
+)
 
 
 class VerifyRequest(Wire):
     """The verification round: the render asked before and the seed drawn after holding it."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": [
-        {"render": {"view": _CAMERA_EXAMPLE, "channel": "scalar"}, "seed": "5e" * 32}]})
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"render": {"view": _CAMERA_EXAMPLE, "channel": "scalar"}, "seed": "5e" * 32}]}
+    )
 
     render: RenderRequest = Field(description="the render asked before")
     seed: str = Field(pattern="^[0-9a-f]{64}$", description="64 lower-case hex digits (32 bytes)")
@@ -181,10 +226,12 @@ class Store(Wire):
     """A served store: its id, the name it is served under, its public metadata."""
 
     id: str = Field(pattern=f"^{STORE_ID_PATTERN}$", description="16 lower-case hex digits")
-    name: str | None = Field(pattern=f"^{STORE_NAME_PATTERN}$",
-                             json_schema_extra={"not": {"type": "string", "pattern": f"^{ID_LIKE}$"}},
-                             description="the name the operator serves the store under (hevr serve NAME=PATH, or "
-                                         "its folder's name without .zarr); null: by id only")
+    name: str | None = Field(
+        pattern=f"^{STORE_NAME_PATTERN}$",
+        json_schema_extra={"not": {"type": "string", "pattern": f"^{ID_LIKE}$"}},
+        description="the name the operator serves the store under (hevr serve NAME=PATH, or "
+        "its folder's name without .zarr); null: by id only",
+    )
     metadata: dict[str, Any] = Field(description="the store's public 'hevr' attributes (docs/format.md)")
 
 
@@ -226,8 +273,7 @@ def components(ref: str = "#/components/schemas/{model}") -> dict[str, dict]:
     >>> sorted(components())[:4]
     ['Aggregate', 'Camera', 'Health', 'Plane']
     """
-    _, doc = models_json_schema([(m, "validation") for m in MODELS], ref_template=ref,
-                                schema_generator=_NoTitles)
+    _, doc = models_json_schema([(m, "validation") for m in MODELS], ref_template=ref, schema_generator=_NoTitles)
     return doc["$defs"]
 
 
@@ -313,10 +359,20 @@ def expected(s: dict, defs: dict | None = None) -> str:
         return " or ".join(expected(o, defs) for o in options)
     kind = s.get("type")
     if kind in ("integer", "number"):
-        lo = (f"[{_number(s['minimum'])}" if "minimum" in s else
-              f"({_number(s['exclusiveMinimum'])}" if "exclusiveMinimum" in s else None)
-        hi = (f"{_number(s['maximum'])}]" if "maximum" in s else
-              f"{_number(s['exclusiveMaximum'])})" if "exclusiveMaximum" in s else None)
+        lo = (
+            f"[{_number(s['minimum'])}"
+            if "minimum" in s
+            else f"({_number(s['exclusiveMinimum'])}"
+            if "exclusiveMinimum" in s
+            else None
+        )
+        hi = (
+            f"{_number(s['maximum'])}]"
+            if "maximum" in s
+            else f"{_number(s['exclusiveMaximum'])})"
+            if "exclusiveMaximum" in s
+            else None
+        )
         what = "an integer" if kind == "integer" else "a number"
         if lo and hi:
             return f"{what} in {lo}, {hi}"
@@ -372,8 +428,10 @@ def message(exc: ValidationError, model: type[BaseModel], name: str) -> str:
             names = sorted(str(e["loc"][-1]) for e in found if _walk(model, e["loc"][:-1])[0] == where[0])
             node = where[2]
             if kind == "extra_forbidden":
-                return (f"{where[0] or name}: expected only the fields {sorted(node.get('properties', {}))}, "
-                        f"got extra fields {names}")
+                return (
+                    f"{where[0] or name}: expected only the fields {sorted(node.get('properties', {}))}, "
+                    f"got extra fields {names}"
+                )
             return f"{where[0] or name}: expected the fields {sorted(node.get('required', []))}, missing {names}"
     e = errors[0]
     path, field, node, _ = _walk(model, e["loc"])

@@ -63,7 +63,9 @@ def parse_description(item: Any, url: str) -> tuple[str, VolumeMetadata]:
     sid, raw = wire.id, wire.metadata
     pk = raw.get("public_key")
     if not (isinstance(pk, dict) and isinstance(pk.get("n"), str) and 0 < len(pk["n"]) <= MAX_N_DIGITS):
-        raise RemoteAnswerError(f"server {url}: store {sid}: n: expected a modulus of at most {MAX_N_DIGITS} decimal digits")
+        raise RemoteAnswerError(
+            f"server {url}: store {sid}: n: expected a modulus of at most {MAX_N_DIGITS} decimal digits"
+        )
     try:
         meta = VolumeMetadata.from_dict(raw, where=f"server {url}: store {sid}")
     except CorruptStoreError as exc:
@@ -113,8 +115,15 @@ class RemoteVolume(EncryptedVolume):
         (module docstring); None: opened by id.
     """
 
-    def __init__(self, server: Any, store_id: str, meta: VolumeMetadata, level: int = 0,
-                 base: VolumeMetadata | None = None, name: str | None = None) -> None:
+    def __init__(
+        self,
+        server: Any,
+        store_id: str,
+        meta: VolumeMetadata,
+        level: int = 0,
+        base: VolumeMetadata | None = None,
+        name: str | None = None,
+    ) -> None:
         super().__init__(f"{server.url}/v1/stores/{name or store_id}", meta, level, base)
         self.server = server
         self.store_id = store_id
@@ -156,8 +165,9 @@ class RemoteVolume(EncryptedVolume):
         return self
 
     def persist(self, channels: Any = None, *, client: Any = None, backend: str | None = None) -> EncryptedVolume:
-        raise ParameterError("persist: expected a local volume; a remote store's residency is the server's "
-                             "(hevr serve --persist)")
+        raise ParameterError(
+            "persist: expected a local volume; a remote store's residency is the server's (hevr serve --persist)"
+        )
 
     def read_brick_bytes(self, *args: Any, **kwargs: Any) -> Any:
         raise ParameterError("read_brick_bytes: a remote volume's bricks stay on the server")

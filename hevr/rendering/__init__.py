@@ -43,8 +43,20 @@ if TYPE_CHECKING:  # what static tools read; at run time each name is imported o
     from .reference.plain import render_plain, render_slice_plain
     from .slices import render_slice
 
-__all__ = ["Camera", "Plane", "RaySums", "SavedSums", "clear_cache", "error_bound", "load_sums", "recolour", "render",
-           "render_plain", "render_slice", "render_slice_plain"]
+__all__ = [
+    "Camera",
+    "Plane",
+    "RaySums",
+    "SavedSums",
+    "clear_cache",
+    "error_bound",
+    "load_sums",
+    "recolour",
+    "render",
+    "render_plain",
+    "render_slice",
+    "render_slice_plain",
+]
 
 # Name -> submodule, imported on first use: ``hevr.rendering.geometry.views`` or ``.camera`` alone
 # (the command line's --view choices) need numpy, not Dask. Equal to the TYPE_CHECKING imports above.

@@ -25,16 +25,14 @@ from typing import Any
 import dask
 from dask.delayed import Delayed, delayed
 
-from ..runtime import malloc
-from ..runtime.scheduler import active_client
-from ..runtime.scheduler import compute as run_tasks
-from ..runtime.scheduler import warn_if_remote
-from ..image.tiles import TileLayout
-from ..core.validate import check_bool
-from ..core.validate import check_int
 from ..backends import resolve_backend_name
+from ..core.validate import check_bool, check_int
 from ..errors import ParameterError
 from ..image.encrypted import EncryptedImage
+from ..image.tiles import TileLayout
+from ..runtime import malloc
+from ..runtime.scheduler import active_client, warn_if_remote
+from ..runtime.scheduler import compute as run_tasks
 from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
 from ..store.resident import batched
@@ -95,7 +93,8 @@ def _batch(bits: int, backend: str = "cpu") -> bool:
         raise ParameterError(f"{RESIDENT_BATCH_KEY}: expected true, false or 'auto', got {value!r}")
     return value
 
-_CACHE: "OrderedDict[tuple, RaySums]" = OrderedDict()
+
+_CACHE: OrderedDict[tuple, RaySums] = OrderedDict()
 CACHE_SIZE = 2
 _CACHE_LOCK = threading.Lock()  # renders run on several threads at once (hevr serve, a notebook's threads)
 
@@ -272,26 +271,87 @@ def render(
     if getattr(getattr(ev, "meta", None), "packing", None) is not None:  # a packed store's frame plan
         if not isinstance(camera, Camera):
             raise ParameterError(f"camera: expected a hevr.Camera, got {type(camera).__name__}")
-        return render_packed_request(ev, camera, mode, sampling, step, density, nodes, tile=tile, client=client,
-                                     progress=progress, backend=backend, compute=compute, keep_sums=keep_sums,
-                                     level=level, gradient=gradient, finish=finish, verify=verify,
-                                     weight_bits=weight_bits)
+        return render_packed_request(
+            ev,
+            camera,
+            mode,
+            sampling,
+            step,
+            density,
+            nodes,
+            tile=tile,
+            client=client,
+            progress=progress,
+            backend=backend,
+            compute=compute,
+            keep_sums=keep_sums,
+            level=level,
+            gradient=gradient,
+            finish=finish,
+            verify=verify,
+            weight_bits=weight_bits,
+        )
     if weight_bits is not None:
-        raise ParameterError(f"weight_bits: expected None for a per-voxel store (its trilinear weights have "
-                             f"'digits'), got {weight_bits!r}")
-    return _render(ev, camera, mode, sampling, step, density, nodes, digits=digits, precision=precision,
-                   comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
-                   backend=backend, compute=compute, keep_sums=keep_sums, level=level, gradient=gradient,
-                   overwrite=overwrite, finish=finish, verify=verify)
+        raise ParameterError(
+            f"weight_bits: expected None for a per-voxel store (its trilinear weights have "
+            f"'digits'), got {weight_bits!r}"
+        )
+    return _render(
+        ev,
+        camera,
+        mode,
+        sampling,
+        step,
+        density,
+        nodes,
+        digits=digits,
+        precision=precision,
+        comb_digits=comb_digits,
+        pack=pack,
+        tile=tile,
+        cache=cache,
+        client=client,
+        progress=progress,
+        backend=backend,
+        compute=compute,
+        keep_sums=keep_sums,
+        level=level,
+        gradient=gradient,
+        overwrite=overwrite,
+        finish=finish,
+        verify=verify,
+    )
 
 
 # -- the render of one view (a Camera, or a Plane: hevr.render_slice) ----------------------------
-def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: str, step: float,
-            density: float | None, nodes: Any, *, digits: int, precision: int, comb_digits: int, pack: bool,
-            tile: int, cache: bool, client: Any, progress: bool, backend: str | None, compute: bool,
-            keep_sums: str | os.PathLike | None, views: tuple[type, ...] = (Camera,),
-            level: int | None = None, gradient: bool = False, overwrite: bool = False,
-            finish: str = "client", stream: Any = None, verify: bool | str | None = None) -> EncryptedImage | Delayed:
+def _render(
+    ev: EncryptedVolume,
+    camera: Camera | Plane,
+    mode: str,
+    sampling: str,
+    step: float,
+    density: float | None,
+    nodes: Any,
+    *,
+    digits: int,
+    precision: int,
+    comb_digits: int,
+    pack: bool,
+    tile: int,
+    cache: bool,
+    client: Any,
+    progress: bool,
+    backend: str | None,
+    compute: bool,
+    keep_sums: str | os.PathLike | None,
+    views: tuple[type, ...] = (Camera,),
+    level: int | None = None,
+    gradient: bool = False,
+    overwrite: bool = False,
+    finish: str = "client",
+    stream: Any = None,
+    verify: bool | str | None = None,
+) -> EncryptedImage | Delayed:
     """:func:`render`'s work for a view of the kinds ``views``; a plane's ``step`` is its ``slab_step``.
 
     With ``finish="client"`` nothing below this function sees ``spec``'s density or nodes: the
@@ -301,51 +361,97 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     ``stream`` (:class:`hevr.rendering.pipeline.stream.StreamDecryptor`): told the plan before the graph
     runs and handed every finishing unit's ciphertexts as it completes."""
     if getattr(getattr(ev, "meta", None), "packing", None) is not None:
-        raise ParameterError(f"ev: expected a per-voxel store for a {'slice' if Plane in views else 'frame'} of this kind, "
-                             f"got the packed store {ev.meta.store_id}: a packed store renders X-ray frames of parallel "
-                             "cameras (hevr.render); slices, streamed frames and the rest need a per-voxel store "
-                             "(encrypt_volume(..., layout='voxel'))")
-    spec, digits, precision, comb_digits = check_request(ev, camera, mode, sampling, step, density, nodes,
-                                                          digits, precision, comb_digits, views, gradient, finish)
+        raise ParameterError(
+            f"ev: expected a per-voxel store for a {'slice' if Plane in views else 'frame'} of this kind, "
+            f"got the packed store {ev.meta.store_id}: a packed store renders X-ray frames of parallel "
+            "cameras (hevr.render); slices, streamed frames and the rest need a per-voxel store "
+            "(encrypt_volume(..., layout='voxel'))"
+        )
+    spec, digits, precision, comb_digits = check_request(
+        ev, camera, mode, sampling, step, density, nodes, digits, precision, comb_digits, views, gradient, finish
+    )
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the request goes there (remote/render.py)
-        return ev.render_request(camera, spec, level=level, digits=digits, pack=pack, tile=tile, client=client,
-                                 compute=compute, keep_sums=keep_sums, finish=finish, stream=stream, verify=verify,
-                                 backend=backend, progress=progress)
+        return ev.render_request(
+            camera,
+            spec,
+            level=level,
+            digits=digits,
+            pack=pack,
+            tile=tile,
+            client=client,
+            compute=compute,
+            keep_sums=keep_sums,
+            finish=finish,
+            stream=stream,
+            verify=verify,
+            backend=backend,
+            progress=progress,
+        )
     ev, camera = at_level(ev, camera, level)
     spec = level_step(spec, ev, camera)
     verified = resolve_verify(verify, ev, finish, level=ev.level, compute=compute, stream=stream is not None)
     tile = check_int("tile", tile, 1, 4096)
     if keep_sums is not None and not compute:
-        raise ParameterError("keep_sums: expected None with compute=False (the sums are written after the "
-                             f"render runs), got {str(keep_sums)!r}")
+        raise ParameterError(
+            "keep_sums: expected None with compute=False (the sums are written after the "
+            f"render runs), got {str(keep_sums)!r}"
+        )
     overwrite = check_bool("overwrite", overwrite)
     if keep_sums is not None:
         keep_sums = check_sums_path(keep_sums, overwrite=overwrite)
     cl = active_client(client)
     warn_if_remote(cl)  # the key holder joined another party's cluster? (hevr.connect is the safe way)
     check_reachable(ev.path, cl)  # memory:// stores only where the tasks run in this process
-    backend = resolve_backend_name(backend, int(ev.public_key.n).bit_length(),  # auto: the residency's, else by key
-                                   resident=ev.resident.backend if ev.resident is not None and ev.resident.bricks else None,
-                                   client=cl)
+    backend = resolve_backend_name(
+        backend,
+        int(ev.public_key.n).bit_length(),  # auto: the residency's, else by key
+        resident=ev.resident.backend if ev.resident is not None and ev.resident.bricks else None,
+        client=cl,
+    )
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)  # before anything per pixel or sample
     malloc.tune()  # the client's rays and plan too
     t0 = time.perf_counter()
     rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
     if not rays.n_samples.any():  # public geometry: say so rather than hand back a black frame
-        log.warning("render: no ray of this %dx%d %s hits the volume (%s voxels, spacing %s): the image is empty; "
-                    "aim it at the volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height,
-                    "plane" if isinstance(camera, Plane) else "camera", "x".join(map(str, ev.shape[::-1])),
-                    ", ".join(f"{s:g}" for s in ev.spacing))
+        log.warning(
+            "render: no ray of this %dx%d %s hits the volume (%s voxels, spacing %s): the image is empty; "
+            "aim it at the volume (hevr.Camera.orbit looks at its centre)",
+            camera.width,
+            camera.height,
+            "plane" if isinstance(camera, Plane) else "camera",
+            "x".join(map(str, ev.shape[::-1])),
+            ", ".join(f"{s:g}" for s in ev.spacing),
+        )
     comb = combination_matrix(spec, ev.vector_dims) if spec.needs_vector and finish == "server" else None
-    plan = plan_render(n=int(ev.public_key.n), spec=spec, meta=ev.meta, n_samples=rays.n_samples,
-                       digits=digits if spec.sampling == "trilinear" else 0, precision=precision,
-                       comb_digits=comb_digits, pack=pack, combination=comb, finish=finish)
+    plan = plan_render(
+        n=int(ev.public_key.n),
+        spec=spec,
+        meta=ev.meta,
+        n_samples=rays.n_samples,
+        digits=digits if spec.sampling == "trilinear" else 0,
+        precision=precision,
+        comb_digits=comb_digits,
+        pack=pack,
+        combination=comb,
+        finish=finish,
+    )
     H, W = camera.height, camera.width
     layout = TileLayout(W, H, tile)
     n_tiles = layout.n_tiles
     # the metadata's own MAC too: a store written again at the same path (hevr serve reopens it) misses
-    key = (ev.path, ev.meta.store_id, ev.meta.auth, ev.meta.fingerprint, ev.level, camera.key(), spec.sampling,
-           spec.step, plan.weight_digits, plan.channel, tile)
+    key = (
+        ev.path,
+        ev.meta.store_id,
+        ev.meta.auth,
+        ev.meta.fingerprint,
+        ev.level,
+        camera.key(),
+        spec.sampling,
+        spec.step,
+        plan.weight_digits,
+        plan.channel,
+        tile,
+    )
     sums = _cached(key, cl) if cache else None
     reused = sums is not None
     finish = FinishGraph.plan_units(plan, layout, rays.n_samples, int(ev.public_key.n), backend)
@@ -355,9 +461,15 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         if ev.resident.usable(plan.channel, backend, cl):
             resident = ev.resident.bricks
         else:
-            log.warning("render: the resident bricks (%s, backend %s) cannot serve this render (channel %s, backend "
-                        "%s, %s client); streaming from the store", "+".join(ev.resident.channels),
-                        ev.resident.backend, plan.channel, backend, "another" if cl is not ev.resident.client else "a")
+            log.warning(
+                "render: the resident bricks (%s, backend %s) cannot serve this render (channel %s, backend "
+                "%s, %s client); streaming from the store",
+                "+".join(ev.resident.channels),
+                ev.resident.backend,
+                plan.channel,
+                backend,
+                "another" if cl is not ev.resident.client else "a",
+            )
     fields = image_fields(spec, plan, camera, rays.n_samples, ev.meta, tile, level=ev.level)
     on_unit = None
     if stream is not None:
@@ -369,11 +481,24 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
         # then runs next to them), values on a single machine.
         batch = resident is not None and _batch(int(ev.public_key.n).bit_length(), backend)
         groups = resident_groups(resident, cl, backend) if batch else None
-        graph = build_sums_graph(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
-                                 tile, n_tiles, backend, resident,
-                                 bands=resident is not None and spec.sampling == "nearest"
-                                 and int(ev.public_key.n).bit_length() >= BAND_BITS,
-                                 groups=groups, fuse=groups is not None)
+        graph = build_sums_graph(
+            ev,
+            camera,
+            rays,
+            spec.sampling,
+            spec.step,
+            plan.weight_digits,
+            plan.channel,
+            tile,
+            n_tiles,
+            backend,
+            resident,
+            bands=resident is not None
+            and spec.sampling == "nearest"
+            and int(ev.public_key.n).bit_length() >= BAND_BITS,
+            groups=groups,
+            fuse=groups is not None,
+        )
         keep = cache or keep_sums is not None
         if groups is not None:  # G map tasks: merge and finish in G blocks of tiles (reduce.py)
             red = BlockedReduce(graph, finish, len(groups))
@@ -384,19 +509,30 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
             kept = [graph.delayed(t) for t in live]
         map_tasks = graph.map_tasks
         if not compute:
-            return _deferred(fin, finish, fields, {"map_tasks": map_tasks, "reused_ray_sums": False, "backend": backend,
-                                                   "resident": resident is not None}, nested=red is not None)
-        results = run_tasks(fin + kept, client=cl, progress=progress, desc="render", keep=len(kept),
-                            on_result=on_result)
-        units = results[:len(fin)] if red is None else red.units(results[:len(fin)])
+            return _deferred(
+                fin,
+                finish,
+                fields,
+                {
+                    "map_tasks": map_tasks,
+                    "reused_ray_sums": False,
+                    "backend": backend,
+                    "resident": resident is not None,
+                },
+                nested=red is not None,
+            )
+        results = run_tasks(
+            fin + kept, client=cl, progress=progress, desc="render", keep=len(kept), on_result=on_result
+        )
+        units = results[: len(fin)] if red is None else red.units(results[: len(fin)])
         packed = finish.assemble(units)
         sums = RaySums(key, dict.fromkeys(range(n_tiles)), map_tasks, cl, backend=backend)
         if plan.finish == "client":  # copies: the image's arrays are the caller's to change
             sums.packed[plan] = [u.copy() for u in units]
         if red is not None:
-            sums.tiles.update(red.sums(results[len(fin):], cl) if kept else {})
+            sums.tiles.update(red.sums(results[len(fin) :], cl) if kept else {})
         else:
-            sums.tiles.update(dict(zip(live, results[len(fin):])))
+            sums.tiles.update(dict(zip(live, results[len(fin) :])))
         if cache:
             _keep(key, sums)
     elif compute and plan in sums.packed:  # finished on the client: the same packed sums for any colouring
@@ -409,30 +545,65 @@ def _render(ev: EncryptedVolume, camera: Camera | Plane, mode: str, sampling: st
     else:
         fin = finish.tasks(sums.tiles)
         if not compute:
-            return _deferred(fin, finish, fields, {"map_tasks": 0, "reused_ray_sums": True, "backend": backend,
-                                                   "resident": resident is not None})
+            return _deferred(
+                fin,
+                finish,
+                fields,
+                {"map_tasks": 0, "reused_ray_sums": True, "backend": backend, "resident": resident is not None},
+            )
         units = run_tasks(fin, client=cl, progress=False, desc="finish", on_result=on_unit)
         packed = finish.assemble(units)
         if plan.finish == "client":
             sums.packed[plan] = [u.copy() for u in units]
     if keep_sums is not None:
-        save_sums(keep_sums, sums, meta=ev.meta, camera=camera, sampling=spec.sampling, step=spec.step,
-                  weight_digits=plan.weight_digits, channel=plan.channel, tile=tile, store=str(ev.path),
-                  level=ev.level, storage_options=ev.storage_options,  # a URL: written with the store's options
-                  overwrite=overwrite, name="keep_sums")
-    stats = {"map_tasks": 0 if reused else sums.map_tasks, "finish_tasks": len(fin), "reused_ray_sums": reused,
-             "resident": resident is not None, "backend": backend if fin else sums.backend,  # no task: the sums' own
-             "gathered_bytes": _gathered_bytes(packed, sums, cl, reused) if fin else 0,
-             "seconds": time.perf_counter() - t0}
+        save_sums(
+            keep_sums,
+            sums,
+            meta=ev.meta,
+            camera=camera,
+            sampling=spec.sampling,
+            step=spec.step,
+            weight_digits=plan.weight_digits,
+            channel=plan.channel,
+            tile=tile,
+            store=str(ev.path),
+            level=ev.level,
+            storage_options=ev.storage_options,  # a URL: written with the store's options
+            overwrite=overwrite,
+            name="keep_sums",
+        )
+    stats = {
+        "map_tasks": 0 if reused else sums.map_tasks,
+        "finish_tasks": len(fin),
+        "reused_ray_sums": reused,
+        "resident": resident is not None,
+        "backend": backend if fin else sums.backend,  # no task: the sums' own
+        "gathered_bytes": _gathered_bytes(packed, sums, cl, reused) if fin else 0,
+        "seconds": time.perf_counter() - t0,
+    }
     verification = None
     if verified:  # the image is fixed: now the coefficients, then the tags' aggregate (verify.py)
-        verification = tag_aggregate(ev, camera, rays, spec.sampling, spec.step, plan.weight_digits, plan.channel,
-                                     tile, n_tiles, backend, cl, progress, exponent=plan.exponent)
+        verification = tag_aggregate(
+            ev,
+            camera,
+            rays,
+            spec.sampling,
+            spec.step,
+            plan.weight_digits,
+            plan.channel,
+            tile,
+            n_tiles,
+            backend,
+            cl,
+            progress,
+            exponent=plan.exponent,
+        )
         stats["verify_s"] = verification.server_s
         stats["seconds"] = time.perf_counter() - t0
     log.info("render %s/%s %dx%d: %s", spec.mode, spec.sampling, W, H, stats)
-    return EncryptedImage(ciphertexts=list(packed), stats=stats, verification=verification,
-                          **with_colouring(fields, spec))
+    return EncryptedImage(
+        ciphertexts=list(packed), stats=stats, verification=verification, **with_colouring(fields, spec)
+    )
 
 
 def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict, nested: bool = False) -> EncryptedImage:
@@ -445,5 +616,6 @@ def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict, nes
 
 def _deferred(fin: list, finish: FinishGraph, fields: dict, stats: dict, nested: bool = False) -> Delayed:
     """A ``Delayed`` of the image: one more task over the finishing tasks (tile-sized outputs)."""
-    return delayed(_image_from, pure=True)(fin, finish, fields, stats, nested,
-                                           dask_key_name=f"hevr-image-{uuid.uuid4().hex}")
+    return delayed(_image_from, pure=True)(
+        fin, finish, fields, stats, nested, dask_key_name=f"hevr-image-{uuid.uuid4().hex}"
+    )

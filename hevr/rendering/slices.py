@@ -24,9 +24,9 @@ from typing import Any
 
 from dask.delayed import Delayed
 
-from ..runtime.scheduler import active_client
 from ..errors import ParameterError
 from ..image.encrypted import EncryptedImage
+from ..runtime.scheduler import active_client
 from ..store.reader import EncryptedVolume
 from .encrypted import _render
 from .geometry.plane import Plane
@@ -117,37 +117,91 @@ def render_slice(
     ``img.decrypt(priv)`` is layer 50 of the volume, as a (ny, nx) float64 image.
     """
     if not isinstance(plane, Plane):
-        raise ParameterError(f"plane: expected a hevr.Plane (Plane.axial, Plane.oblique, ...), got "
-                             f"{type(plane).__name__}")
+        raise ParameterError(
+            f"plane: expected a hevr.Plane (Plane.axial, Plane.oblique, ...), got {type(plane).__name__}"
+        )
     if getattr(ev, "packing", None) is not None:  # a packed store: its own plan (hevr.rendering.packed.planes)
-        return _packed_slice(ev, plane, mode, sampling, density, nodes, client=client, progress=progress,
-                             backend=backend, compute=compute, keep_sums=keep_sums, gradient=gradient, finish=finish,
-                             verify=verify)
+        return _packed_slice(
+            ev,
+            plane,
+            mode,
+            sampling,
+            density,
+            nodes,
+            client=client,
+            progress=progress,
+            backend=backend,
+            compute=compute,
+            keep_sums=keep_sums,
+            gradient=gradient,
+            finish=finish,
+            verify=verify,
+        )
     if precision is None:
         precision = 0 if plane.slab == 1 and mode in ("xray", "emphasize") else DEFAULT_PRECISION
-    return _render(ev, plane, mode, sampling, plane.slab_step, density, nodes, digits=digits, precision=precision,
-                   comb_digits=comb_digits, pack=pack, tile=tile, cache=cache, client=client, progress=progress,
-                   backend=backend, compute=compute, keep_sums=keep_sums, views=(Plane,),
-                   gradient=gradient, overwrite=overwrite, finish=finish, verify=verify)
+    return _render(
+        ev,
+        plane,
+        mode,
+        sampling,
+        plane.slab_step,
+        density,
+        nodes,
+        digits=digits,
+        precision=precision,
+        comb_digits=comb_digits,
+        pack=pack,
+        tile=tile,
+        cache=cache,
+        client=client,
+        progress=progress,
+        backend=backend,
+        compute=compute,
+        keep_sums=keep_sums,
+        views=(Plane,),
+        gradient=gradient,
+        overwrite=overwrite,
+        finish=finish,
+        verify=verify,
+    )
 
 
-def _packed_slice(ev: EncryptedVolume, plane: Plane, mode: str, sampling: str, density: Any, nodes: Any, *,
-                  client: Any, progress: bool, backend: str | None, compute: Any, keep_sums: Any, gradient: Any,
-                  finish: Any, verify: Any) -> PackedSlice:
+def _packed_slice(
+    ev: EncryptedVolume,
+    plane: Plane,
+    mode: str,
+    sampling: str,
+    density: Any,
+    nodes: Any,
+    *,
+    client: Any,
+    progress: bool,
+    backend: str | None,
+    compute: Any,
+    keep_sums: Any,
+    gradient: Any,
+    finish: Any,
+    verify: Any,
+) -> PackedSlice:
     """A packed store's slice: what it serves is checked before any work, then rendered."""
     other = "a per-voxel store (encrypt_volume(..., layout='voxel')) serves it"
     if mode != "xray":
-        raise ParameterError(f"mode: expected 'xray' on a packed store (it holds the scalar channel only), got "
-                             f"{mode!r}; {other}")
+        raise ParameterError(
+            f"mode: expected 'xray' on a packed store (it holds the scalar channel only), got {mode!r}; {other}"
+        )
     if density is not None or nodes is not None or gradient:
-        raise ParameterError("density/nodes/gradient: expected None, None and False for a slice of a packed store, "
-                             f"got a colouring; {other}")
+        raise ParameterError(
+            "density/nodes/gradient: expected None, None and False for a slice of a packed store, "
+            f"got a colouring; {other}"
+        )
     if finish != "client":
-        raise ParameterError(f"finish: expected 'client' on a packed store (the key holder finishes the pixels), "
-                             f"got {finish!r}")
+        raise ParameterError(
+            f"finish: expected 'client' on a packed store (the key holder finishes the pixels), got {finish!r}"
+        )
     if keep_sums is not None or compute is not True:
-        raise ParameterError(f"keep_sums/compute: expected None and True on a packed store, got {keep_sums!r} and "
-                             f"{compute!r}")
+        raise ParameterError(
+            f"keep_sums/compute: expected None and True on a packed store, got {keep_sums!r} and {compute!r}"
+        )
     verified = resolve_verify(verify, ev, "client", level=0, compute=True, stream=False)
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: planned here, rendered there
         return ev.render_packed_slice_request(plane, sampling, backend=backend, client=client, verify=verified)
@@ -155,4 +209,3 @@ def _packed_slice(ev: EncryptedVolume, plane: Plane, mode: str, sampling: str, d
     if verified:  # the values are fixed in this process: only now the seed (hevr.rendering.packed.verified)
         img.verification = slice_verification(ev, img.plan, img.stats["backend"], active_client(client), progress)
     return img
-

@@ -43,13 +43,13 @@ its pixels are not the ray sums the tags protect), ``compute=False`` and the str
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import re
 import secrets
 import time
 from concurrent.futures import ThreadPoolExecutor
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -57,7 +57,6 @@ import dask
 import gmpy2
 import numpy as np
 
-from ..runtime.scheduler import compute as run_tasks
 from ..backends import get_backend
 from ..crypto.tags import (
     aggregate_holds,
@@ -68,6 +67,7 @@ from ..crypto.tags import (
     weighted_beta_total,
 )
 from ..errors import HevrError, IntegrityError, ParameterError, VerificationError
+from ..runtime.scheduler import compute as run_tasks
 from ..store.authenticity import authenticated_fields, check_metadata_mac
 from ..store.known import check_known, record_verified
 from ..store.metadata import VolumeMetadata
@@ -95,27 +95,38 @@ def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bo
     for another). ``stream``: a streamed frame (verified when it has settled: :func:`hevr.render_frame`)."""
     if isinstance(verify, str):  # the store id the owner recorded: verify, and refuse any other store
         if not _STORE_ID.fullmatch(verify):
-            raise ParameterError(f"verify: expected True, False, None or a store id of 16 lower-case hex digits, "
-                                 f"got {verify[:40]!r}")
+            raise ParameterError(
+                f"verify: expected True, False, None or a store id of 16 lower-case hex digits, got {verify[:40]!r}"
+            )
         if ev.meta.store_id != verify:
-            raise VerificationError(f"verify: expected the store {verify}, got the store {ev.meta.store_id} at "
-                                    f"{ev.path}: another store (of the same key?) was served; nothing was rendered")
+            raise VerificationError(
+                f"verify: expected the store {verify}, got the store {ev.meta.store_id} at "
+                f"{ev.path}: another store (of the same key?) was served; nothing was rendered"
+            )
     elif verify is not None and not isinstance(verify, (bool, np.bool_)):
         raise ParameterError(f"verify: expected True, False, None or a store id, got {verify!r}")
     if verify is not None and not verify:
         return False
     check_known(ev)  # another store, or one stripped of its tags, under a known name: refused here
-    why = ("the store has no tags (encrypt it with verifiable=True)" if not ev.meta.tags else
-           "finish='server' (verification checks the ray sums, which client finishing decrypts)"
-           if finish != "client" else
-           "compute=False (the check needs a second round after the image)" if not compute else None)
+    why = (
+        "the store has no tags (encrypt it with verifiable=True)"
+        if not ev.meta.tags
+        else "finish='server' (verification checks the ray sums, which client finishing decrypts)"
+        if finish != "client"
+        else "compute=False (the check needs a second round after the image)"
+        if not compute
+        else None
+    )
     if why is None:
         return True
     if verify:
         raise ParameterError(f"verify: expected a request that can be verified, got {why}")
     if not ev.meta.tags:  # every render: a store without tags is a silent downgrade otherwise
-        log.warning("render: not verified: %s, store %s (a lying server is not caught; verify=False silences this)",
-                    why, ev.meta.store_id)
+        log.warning(
+            "render: not verified: %s, store %s (a lying server is not caught; verify=False silences this)",
+            why,
+            ev.meta.store_id,
+        )
     elif (ev.meta.store_id, why) not in _WARNED:  # once per store and reason
         _WARNED.add((ev.meta.store_id, why))
         log.warning("render: not verified: %s", why)
@@ -125,8 +136,16 @@ def resolve_verify(verify: Any, ev: Any, finish: str, *, level: int, compute: bo
 _CHILDREN = np.array([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])  # z, y, x offsets of 8 children
 
 
-def level_betas(key: Any, store_id: str, channel: str, component: int, level: int, voxels: Any,
-                base_shape: tuple, cache: dict | None = None) -> np.ndarray:
+def level_betas(
+    key: Any,
+    store_id: str,
+    channel: str,
+    component: int,
+    level: int,
+    voxels: Any,
+    base_shape: tuple,
+    cache: dict | None = None,
+) -> np.ndarray:
     """β of the flat voxel indices ``voxels`` of pyramid ``level`` as ``(len, nl)`` uint32 limbs: the
     level's tags are built as its values are (:mod:`hevr.store.pyramid`), 125 ⊗ the product of the 8
     children's (clamped at the far edges, as there), so β_L(v) = 125·Σ β_{L−1}(child), down to level
@@ -177,13 +196,21 @@ def _footprint_rays(rays: RaySet, rect: tuple, hit: np.ndarray) -> RaySet:
     W = rays.width
     ids = (np.arange(r0, r1)[:, None] * W + np.arange(c0, c1)[None, :]).reshape(-1)
     ids = ids[hit[ids]]
-    return dataclasses.replace(rays, origins=rays.origins[ids], directions=rays.directions[ids],
-                               t_enter=rays.t_enter[ids], t_exit=rays.t_exit[ids], n_samples=rays.n_samples[ids],
-                               pixel_ids=ids, t_index=None if rays.t_index is None else rays.t_index[ids])
+    return dataclasses.replace(
+        rays,
+        origins=rays.origins[ids],
+        directions=rays.directions[ids],
+        t_enter=rays.t_enter[ids],
+        t_exit=rays.t_exit[ids],
+        n_samples=rays.n_samples[ids],
+        pixel_ids=ids,
+        t_index=None if rays.t_index is None else rays.t_index[ids],
+    )
 
 
-def aggregate_tile(merged: Any, seed: bytes, width: int, components: int, nsquare: int,
-                   backend: str = "cpu") -> np.ndarray | None:
+def aggregate_tile(
+    merged: Any, seed: bytes, width: int, components: int, nsquare: int, backend: str = "cpu"
+) -> np.ndarray | None:
     """One server task: A_t = Π T_{r,k}^{ρ_{r,k}} mod n² over a tile's merged tag sums ``(rays,
     records)`` as one ``(W,)`` record (None: no ray of the tile has tag sums)."""
     if merged is None:
@@ -200,22 +227,56 @@ def aggregate_tile(merged: Any, seed: bytes, width: int, components: int, nsquar
     return be.to_bytes(out, width)[0]
 
 
-def tag_aggregate(ev: Any, camera: Any, rays: RaySet, sampling: str, step: float, digits: int, channel: str,
-                  tile: int, n_tiles: int, backend: str, client: Any, progress: bool,
-                  exponent: int = 0) -> Verification:
+def tag_aggregate(
+    ev: Any,
+    camera: Any,
+    rays: RaySet,
+    sampling: str,
+    step: float,
+    digits: int,
+    channel: str,
+    tile: int,
+    n_tiles: int,
+    backend: str,
+    client: Any,
+    progress: bool,
+    exponent: int = 0,
+) -> Verification:
     """Steps 2-3 of the module docstring, after the image: a fresh seed drawn here, the tag
     channel's graph with the image's plan and one aggregation task per tile; the
     :class:`Verification` to keep."""
     seed = secrets.token_bytes(32)
     t0 = time.perf_counter()
-    A = aggregate_for(ev, camera, rays, sampling, step, digits, channel, tile, n_tiles, backend, client, progress,
-                      seed)
-    return Verification.of(ev, camera, sampling, step, digits, channel, exponent=exponent, aggregate=A, seed=seed,
-                           server_s=time.perf_counter() - t0)
+    A = aggregate_for(ev, camera, rays, sampling, step, digits, channel, tile, n_tiles, backend, client, progress, seed)
+    return Verification.of(
+        ev,
+        camera,
+        sampling,
+        step,
+        digits,
+        channel,
+        exponent=exponent,
+        aggregate=A,
+        seed=seed,
+        server_s=time.perf_counter() - t0,
+    )
 
 
-def aggregate_for(ev: Any, camera: Any, rays: RaySet, sampling: str, step: float, digits: int, channel: str,
-                  tile: int, n_tiles: int, backend: str, client: Any, progress: bool, seed: bytes) -> int:
+def aggregate_for(
+    ev: Any,
+    camera: Any,
+    rays: RaySet,
+    sampling: str,
+    step: float,
+    digits: int,
+    channel: str,
+    tile: int,
+    n_tiles: int,
+    backend: str,
+    client: Any,
+    progress: bool,
+    seed: bytes,
+) -> int:
     """The server's half of the round for the coefficients of ``seed``: A = Π_t A_t mod n² over the
     tag channel's ray sums of the image's plan (``hevr serve`` runs it for a seed the key holder sent
     after it held the image)."""
@@ -263,42 +324,106 @@ class Verification:
         return f"Verification({self.channel}, {self.components} per ray, seed …)"
 
     @classmethod
-    def of(cls, ev: Any, camera: Any, sampling: str, step: float, digits: int, channel: str, *, exponent: int,
-           aggregate: int, seed: bytes, server_s: float = 0.0) -> Verification:
+    def of(
+        cls,
+        ev: Any,
+        camera: Any,
+        sampling: str,
+        step: float,
+        digits: int,
+        channel: str,
+        *,
+        exponent: int,
+        aggregate: int,
+        seed: bytes,
+        server_s: float = 0.0,
+    ) -> Verification:
         """The record of a round on the volume (or level view) ``ev`` as the key holder knows it:
         every field but the aggregate comes from this process, never from the server — with the
         store's metadata this process rendered with, whose owner's MAC :meth:`check` verifies."""
         base = ev.base if ev.level else ev.meta  # level 0's VolumeMetadata
-        return cls(aggregate=int(aggregate), seed=seed, store_id=ev.meta.store_id, channel=channel, shape=ev.shape,
-                   spacing=ev.spacing, brick=ev.brick, camera=camera, sampling=sampling, step=step, digits=digits,
-                   components=ev.meta.components(channel), n=int(ev.public_key.n), level=ev.level,
-                   exponent=int(exponent), base_shape=tuple(base.shape), server_s=server_s, meta=base,
-                   drawn_here=True, drawn_at=time.time(), known_name=str(ev.path))
+        return cls(
+            aggregate=int(aggregate),
+            seed=seed,
+            store_id=ev.meta.store_id,
+            channel=channel,
+            shape=ev.shape,
+            spacing=ev.spacing,
+            brick=ev.brick,
+            camera=camera,
+            sampling=sampling,
+            step=step,
+            digits=digits,
+            components=ev.meta.components(channel),
+            n=int(ev.public_key.n),
+            level=ev.level,
+            exponent=int(exponent),
+            base_shape=tuple(base.shape),
+            server_s=server_s,
+            meta=base,
+            drawn_here=True,
+            drawn_at=time.time(),
+            known_name=str(ev.path),
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """The record a ``.hevr`` file carries (public: a ciphertext, a seed, the request's geometry)."""
-        return {"version": 2, "aggregate": str(self.aggregate), "seed": self.seed.hex(), "store_id": self.store_id,
-                "channel": self.channel, "shape": [int(x) for x in self.shape],
-                "spacing": [float(x) for x in self.spacing], "brick": [int(x) for x in self.brick],
-                "view": self.camera.to_dict(), "sampling": self.sampling, "step": float(self.step),
-                "digits": int(self.digits), "components": int(self.components), "level": int(self.level),
-                "base_shape": [int(x) for x in (self.base_shape or self.shape)], "exponent": int(self.exponent),
-                "metadata": self.meta.to_dict()}
+        return {
+            "version": 2,
+            "aggregate": str(self.aggregate),
+            "seed": self.seed.hex(),
+            "store_id": self.store_id,
+            "channel": self.channel,
+            "shape": [int(x) for x in self.shape],
+            "spacing": [float(x) for x in self.spacing],
+            "brick": [int(x) for x in self.brick],
+            "view": self.camera.to_dict(),
+            "sampling": self.sampling,
+            "step": float(self.step),
+            "digits": int(self.digits),
+            "components": int(self.components),
+            "level": int(self.level),
+            "base_shape": [int(x) for x in (self.base_shape or self.shape)],
+            "exponent": int(self.exponent),
+            "metadata": self.meta.to_dict(),
+        }
 
     @classmethod
     def from_dict(cls, d: Any, n: int, where: str = "image") -> Verification:
         """Parse :meth:`to_dict`'s record under the image's modulus ``n``;
         :class:`hevr.IntegrityError` names the first wrong field."""
+
         def bad(name: str, expected: str) -> IntegrityError:
             got = d.get(name) if isinstance(d, dict) else d
-            return IntegrityError(f"{where}: header field 'verification.{name}': expected {expected}, "
-                                  f"got {str(got)[:80]!r}")
+            return IntegrityError(
+                f"{where}: header field 'verification.{name}': expected {expected}, got {str(got)[:80]!r}"
+            )
 
-        fields = {"version", "aggregate", "seed", "store_id", "channel", "shape", "spacing", "brick", "view",
-                  "sampling", "step", "digits", "components", "level", "base_shape", "exponent", "metadata"}
+        fields = {
+            "version",
+            "aggregate",
+            "seed",
+            "store_id",
+            "channel",
+            "shape",
+            "spacing",
+            "brick",
+            "view",
+            "sampling",
+            "step",
+            "digits",
+            "components",
+            "level",
+            "base_shape",
+            "exponent",
+            "metadata",
+        }
         if not isinstance(d, dict) or set(d) != fields:
-            raise bad("version", f"an object with exactly {sorted(fields)} (version 2; a frame verified before "
-                                 "hevr bound the store's metadata: render it again)")
+            raise bad(
+                "version",
+                f"an object with exactly {sorted(fields)} (version 2; a frame verified before "
+                "hevr bound the store's metadata: render it again)",
+            )
         if d["version"] != 2 or type(d["version"]) is not int:
             raise bad("version", "2")
         agg = d["aggregate"]
@@ -313,8 +438,12 @@ class Verification:
             raise bad("channel", "'scalar', 'vector' or 'gradient'")
         for name, kind in (("shape", int), ("brick", int), ("spacing", float), ("base_shape", int)):
             v = d[name]
-            if not (isinstance(v, list) and len(v) == 3 and all(type(x) is kind or (kind is float and type(x) is int)
-                                                                 for x in v) and all(x > 0 for x in v)):
+            if not (
+                isinstance(v, list)
+                and len(v) == 3
+                and all(type(x) is kind or (kind is float and type(x) is int) for x in v)
+                and all(x > 0 for x in v)
+            ):
                 raise bad(name, f"three positive {kind.__name__}s")
         if d["sampling"] not in ("nearest", "trilinear"):
             raise bad("sampling", "'nearest' or 'trilinear'")
@@ -339,13 +468,28 @@ class Verification:
             raise bad("level", f"a level of the store's pyramid (0 to {len(meta.levels)})")
         lm = meta.level_meta(d["level"]) if d["level"] else meta
         if tuple(d["shape"]) != tuple(lm.shape) or tuple(d["brick"]) != tuple(lm.brick):
-            raise bad("shape", f"the shape {list(lm.shape)} and brick {list(lm.brick)} of level {d['level']} of the "
-                               "store")
-        return cls(aggregate=int(agg), seed=bytes.fromhex(seed), store_id=d["store_id"], channel=d["channel"],
-                   shape=tuple(d["shape"]), spacing=tuple(float(x) for x in d["spacing"]), brick=tuple(d["brick"]),
-                   camera=view, sampling=d["sampling"], step=float(d["step"]), digits=d["digits"],
-                   components=d["components"], n=int(n), level=d["level"], base_shape=tuple(d["base_shape"]),
-                   exponent=d["exponent"], meta=meta)
+            raise bad(
+                "shape", f"the shape {list(lm.shape)} and brick {list(lm.brick)} of level {d['level']} of the store"
+            )
+        return cls(
+            aggregate=int(agg),
+            seed=bytes.fromhex(seed),
+            store_id=d["store_id"],
+            channel=d["channel"],
+            shape=tuple(d["shape"]),
+            spacing=tuple(float(x) for x in d["spacing"]),
+            brick=tuple(d["brick"]),
+            camera=view,
+            sampling=d["sampling"],
+            step=float(d["step"]),
+            digits=d["digits"],
+            components=d["components"],
+            n=int(n),
+            level=d["level"],
+            base_shape=tuple(d["base_shape"]),
+            exponent=d["exponent"],
+            meta=meta,
+        )
 
     def beta_sum(self, private_key: Any, rays: RaySet | None = None) -> int:
         """Σ_{r,k} ρ_{r,k}·B_{r,k} mod n from the public geometry and the PRF (module docstring):
@@ -356,11 +500,16 @@ class Verification:
         # the bricks whose footprint holds a hit pixel (O(bricks + pixels), as the render graph picks its
         # map tasks): a superset of the touched ones, whose extra bricks add nothing (empty weights)
         hit = np.asarray(rays.n_samples) > 0
-        prints = brick_footprints(self.camera, self.shape, self.spacing, self.brick, hit,
-                                  max(self.camera.width, self.camera.height))
+        prints = brick_footprints(
+            self.camera, self.shape, self.spacing, self.brick, hit, max(self.camera.width, self.camera.height)
+        )
         with ThreadPoolExecutor(max_workers=max(1, min(os.cpu_count() or 1, 8))) as pool:
-            parts = list(pool.map(lambda item: self._brick_beta_sum(key, _footprint_rays(rays, item[1].rect, hit),
-                                                                    item[0], cache), prints.items()))
+            parts = list(
+                pool.map(
+                    lambda item: self._brick_beta_sum(key, _footprint_rays(rays, item[1].rect, hit), item[0], cache),
+                    prints.items(),
+                )
+            )
         return sum(parts) % self.n
 
     def _brick_beta_sum(self, key: Any, rays: RaySet, index: tuple, cache: dict) -> int:
@@ -389,15 +538,34 @@ class Verification:
             raise VerificationError(
                 "store metadata: expected the owner's MAC over the shape, spacing, brick, channels, exponents, digits, "
                 f"value range and store id, got {'none' if m is None or not m.auth else 'a MAC that does not match'}: "
-                "the store's public metadata was altered (or is not this key's); no image is returned")
+                "the store's public metadata was altered (or is not this key's); no image is returned"
+            )
         lm = m.level_meta(self.level) if self.level else m
-        want = (m.store_id, int(m.n), m.fingerprint, tuple(lm.shape), tuple(float(x) for x in lm.spacing),
-                tuple(lm.brick), tuple(m.shape), lm.components(self.channel))
-        got = (self.store_id, int(self.n), image.fingerprint, tuple(self.shape), tuple(float(x) for x in self.spacing),
-               tuple(self.brick), tuple(self.base_shape), self.components)
+        want = (
+            m.store_id,
+            int(m.n),
+            m.fingerprint,
+            tuple(lm.shape),
+            tuple(float(x) for x in lm.spacing),
+            tuple(lm.brick),
+            tuple(m.shape),
+            lm.components(self.channel),
+        )
+        got = (
+            self.store_id,
+            int(self.n),
+            image.fingerprint,
+            tuple(self.shape),
+            tuple(float(x) for x in self.spacing),
+            tuple(self.brick),
+            tuple(self.base_shape),
+            self.components,
+        )
         if want != got or getattr(lm, self.channel) is None:
-            raise VerificationError("image: its store id, key, shape, spacing, brick or channel are not those of the "
-                                    "store's authenticated metadata; no image is returned")
+            raise VerificationError(
+                "image: its store id, key, shape, spacing, brick or channel are not those of the "
+                "store's authenticated metadata; no image is returned"
+            )
 
     def check(self, private_key: Any, image: Any, ray_ids: np.ndarray, sums: list[int]) -> None:
         """Raise :class:`hevr.VerificationError` unless the ``image``'s public fields are those of
@@ -410,19 +578,28 @@ class Verification:
         rays = cast_rays(self.camera, self.shape, self.spacing, self.step)
         H, W = self.camera.height, self.camera.width
         samples = np.asarray(rays.n_samples).reshape(H, W)
-        same = (tuple(image.shape[:2]) == (H, W) and image.finish == "client" and image.channel == self.channel
-                and int(image.exponent) == self.exponent
-                and int(image.components or 0) == K and image.samples is not None and image.hits is not None
-                and np.array_equal(np.asarray(image.samples).reshape(H, W), samples)
-                and np.array_equal(np.asarray(image.hits, bool), samples > 0))
+        same = (
+            tuple(image.shape[:2]) == (H, W)
+            and image.finish == "client"
+            and image.channel == self.channel
+            and int(image.exponent) == self.exponent
+            and int(image.components or 0) == K
+            and image.samples is not None
+            and image.hits is not None
+            and np.array_equal(np.asarray(image.samples).reshape(H, W), samples)
+            and np.array_equal(np.asarray(image.hits, bool), samples > 0)
+        )
         if not same:
-            raise VerificationError("image: its shape, channel, exponent, components, sample counts or hit mask are "
-                                    f"not those of the verified view ({W}x{H}, channel {self.channel!r}); no image is "
-                                    "returned")
+            raise VerificationError(
+                "image: its shape, channel, exponent, components, sample counts or hit mask are "
+                f"not those of the verified view ({W}x{H}, channel {self.channel!r}); no image is "
+                "returned"
+            )
         ids = (np.asarray(ray_ids, np.int64)[:, None] * K + np.arange(K)).reshape(-1)
         if ids.size != len(sums):
-            raise VerificationError(f"image: expected {ids.size} ray sums for its hit pixels, got {len(sums)}; "
-                                    "no image is returned")
+            raise VerificationError(
+                f"image: expected {ids.size} ray sums for its hit pixels, got {len(sums)}; no image is returned"
+            )
         rho = coefficients_at(self.seed, ids).tolist()
         s_sum = sum(int(r) * int(s) for r, s in zip(rho, sums))
         holds = aggregate_holds(private_key, s_sum, self.beta_sum(private_key, rays), self.aggregate)
@@ -431,6 +608,6 @@ class Verification:
             raise VerificationError(
                 "image: the render does not verify: its ray sums are not the ones the store's tags certify (an "
                 "altered, substituted or replayed image or store, or a server that did not render as asked); "
-                "no image is returned")
+                "no image is returned"
+            )
         record_verified(self, private_key)  # proven: the store under its name is the one the key holder knows
-

@@ -30,8 +30,20 @@ from typing import Any
 
 from distributed import get_worker
 
-__all__ = ["TOPIC", "Cancelled", "Scope", "add_steps", "cancel_soon", "check", "clear", "counting", "current", "scope",
-           "stop", "stopped"]
+__all__ = [
+    "TOPIC",
+    "Cancelled",
+    "Scope",
+    "add_steps",
+    "cancel_soon",
+    "check",
+    "clear",
+    "counting",
+    "current",
+    "scope",
+    "stop",
+    "stopped",
+]
 
 #: The worker event that carries a task's finer progress steps to its client.
 TOPIC = "hevr-steps"

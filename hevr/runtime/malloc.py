@@ -84,6 +84,7 @@ def _set() -> bool:
         return False
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     ok = bool(mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and bool(mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD))
-    log.debug("malloc thresholds: mmap %d, trim %d bytes (%s)", MMAP_THRESHOLD, TRIM_THRESHOLD,
-              "set" if ok else "refused")
+    log.debug(
+        "malloc thresholds: mmap %d, trim %d bytes (%s)", MMAP_THRESHOLD, TRIM_THRESHOLD, "set" if ok else "refused"
+    )
     return ok

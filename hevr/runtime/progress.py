@@ -84,8 +84,16 @@ class Progress:
     (8, True)
     """
 
-    def __init__(self, total: int, desc: str, enabled: bool = True, kind: str | None = None, *,
-                 steps: int = 0, unit: str = "tasks") -> None:
+    def __init__(
+        self,
+        total: int,
+        desc: str,
+        enabled: bool = True,
+        kind: str | None = None,
+        *,
+        steps: int = 0,
+        unit: str = "tasks",
+    ) -> None:
         self.total, self.desc = max(0, int(total)), desc
         self.kind = (kind or sink_kind()) if enabled else "off"
         self.done = 0
@@ -104,8 +112,9 @@ class Progress:
         import ipywidgets as widgets
         from IPython.display import display
 
-        bar = widgets.IntProgress(value=0, min=0, max=self.total, description=self.desc,
-                                  layout=widgets.Layout(width="60%"))
+        bar = widgets.IntProgress(
+            value=0, min=0, max=self.total, description=self.desc, layout=widgets.Layout(width="60%")
+        )
         label = widgets.Label(value=f"0/{self.total}")
         self._widget = (bar, label)
         display(widgets.HBox([bar, label]))
@@ -139,8 +148,11 @@ class Progress:
         '250/1,000 ciphertexts, 10.0 s, 25 ciphertexts/s, 30 s left'
         """
         el = (time.perf_counter() if now is None else now) - self.start
-        done, total, unit = ((min(self.steps_done, self.steps), self.steps, self.unit) if self.steps
-                             else (min(self.done, self.total), self.total, "tasks"))
+        done, total, unit = (
+            (min(self.steps_done, self.steps), self.steps, self.unit)
+            if self.steps
+            else (min(self.done, self.total), self.total, "tasks")
+        )
         text = f"{done:,}/{total:,} {unit}, {el:.1f} s"
         if done and el > 0 and (self.steps or done < total):
             rate = done / el

@@ -17,23 +17,33 @@ import logging
 import os
 import time
 import warnings
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import dask
 import dask.threaded
 from distributed import LocalCluster, as_completed, default_client
 from distributed.comm.addressing import normalize_address
 
-from . import cancel
-from .progress import Progress
-from .progress import TaskCounter
 from ..errors import ForeignClusterError, ParameterError
+from . import cancel
+from .progress import Progress, TaskCounter
 
 log = logging.getLogger(__name__)
 
-__all__ = ["OWN_CLUSTER_ENV", "active_client", "check_encryption_client", "compute", "declared_own", "is_own_cluster",
-           "own_cluster", "refuse_foreign_cluster", "scheduler_address", "warn_if_remote"]
+__all__ = [
+    "OWN_CLUSTER_ENV",
+    "active_client",
+    "check_encryption_client",
+    "compute",
+    "declared_own",
+    "is_own_cluster",
+    "own_cluster",
+    "refuse_foreign_cluster",
+    "scheduler_address",
+    "warn_if_remote",
+]
 
 OWN_CLUSTER_ENV = "HEVR_OWN_CLUSTER"  # <address>[,<address>…]: the opt-in of own_cluster, for the command line
 _OWN_SCHEDULERS: set[str] = set()  # the scheduler addresses declared with own_cluster in this process
@@ -102,8 +112,10 @@ def own_cluster(client_or_address: Any) -> str:
     """
     address = client_or_address if isinstance(client_or_address, str) else scheduler_address(client_or_address)
     if not address or not address.strip():
-        raise ParameterError("client_or_address: expected a distributed.Client or a scheduler address such as "
-                             f"tcp://10.0.0.5:8786, got {client_or_address!r}")
+        raise ParameterError(
+            "client_or_address: expected a distributed.Client or a scheduler address such as "
+            f"tcp://10.0.0.5:8786, got {client_or_address!r}"
+        )
     address = _normal(address)
     _OWN_SCHEDULERS.add(address)
     log.info("the Dask cluster at %s is declared this process's own: the private key may be used beside it", address)
@@ -169,7 +181,8 @@ def refuse_foreign_cluster(client: Any = None, doing: str = "using the private k
         f"while {doing}: Dask unpickles what that cluster sends, so its scheduler and workers can run code in this "
         "process, where the private key is. Render on another party's cluster through its 'hevr serve' with "
         "hevr.connect(URL) (data only, never unpickled); if the cluster is yours, declare it with "
-        f"hevr.own_cluster(client) (or {OWN_CLUSTER_ENV}={address}, or --own-cluster with --scheduler)")
+        f"hevr.own_cluster(client) (or {OWN_CLUSTER_ENV}={address}, or --own-cluster with --scheduler)"
+    )
 
 
 def check_encryption_client(client: Any, private: bool) -> None:
@@ -181,9 +194,12 @@ def check_encryption_client(client: Any, private: bool) -> None:
     if private:
         refuse_foreign_cluster(client, "encrypt_volume with a PrivateKey (its tasks carry p and q)")
     elif not is_own_cluster(client):
-        log.warning("encrypt_volume sends plaintext bricks to the Dask workers of %s, a cluster this process did not "
-                    "start; encrypt only on machines the data owner controls (hevr.own_cluster(client) declares it "
-                    "yours)", scheduler_address(client))
+        log.warning(
+            "encrypt_volume sends plaintext bricks to the Dask workers of %s, a cluster this process did not "
+            "start; encrypt only on machines the data owner controls (hevr.own_cluster(client) declares it "
+            "yours)",
+            scheduler_address(client),
+        )
 
 
 def warn_if_remote(client: Any) -> None:
@@ -200,11 +216,15 @@ def warn_if_remote(client: Any) -> None:
     if address in _WARNED_SCHEDULERS:
         return
     _WARNED_SCHEDULERS.add(str(address))
-    warnings.warn(f"this process is a Dask client of the scheduler at {address}, which it did not start: Dask "
-                  "unpickles what that cluster sends, so its workers can run code here; keep private keys out of "
-                  "this process (hevr refuses to use one beside this client). Render on another party's cluster "
-                  "with 'hevr serve' there and hevr.connect(URL) here (data only, never unpickled); if the cluster "
-                  "is yours, declare it with hevr.own_cluster(client)", UserWarning, stacklevel=3)
+    warnings.warn(
+        f"this process is a Dask client of the scheduler at {address}, which it did not start: Dask "
+        "unpickles what that cluster sends, so its workers can run code here; keep private keys out of "
+        "this process (hevr refuses to use one beside this client). Render on another party's cluster "
+        "with 'hevr serve' there and hevr.connect(URL) here (data only, never unpickled); if the cluster "
+        "is yours, declare it with hevr.own_cluster(client)",
+        UserWarning,
+        stacklevel=3,
+    )
 
 
 def active_client(client: Any = None) -> Any:
@@ -217,9 +237,17 @@ def active_client(client: Any = None) -> Any:
         return None
 
 
-def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, desc: str = "hevr",
-            keep: int = 0, on_result: Callable[[int, Any], None] | None = None, steps: int = 0,
-            unit: str = "tasks") -> list[Any]:
+def compute(
+    tasks: Sequence[Any],
+    *,
+    client: Any = None,
+    progress: bool = True,
+    desc: str = "hevr",
+    keep: int = 0,
+    on_result: Callable[[int, Any], None] | None = None,
+    steps: int = 0,
+    unit: str = "tasks",
+) -> list[Any]:
     """Compute dask delayed ``tasks`` on the active scheduler; results in task order.
 
     On a distributed client the last ``keep`` tasks are computed but not gathered: their
@@ -250,8 +278,17 @@ def compute(tasks: Sequence[Any], *, client: Any = None, progress: bool = True, 
         raise
 
 
-def _compute(tasks: list[Any], client: Any, progress: bool, desc: str, keep: int,
-             on_result: Callable[[int, Any], None] | None, steps: int, unit: str, job: Any) -> list[Any]:
+def _compute(
+    tasks: list[Any],
+    client: Any,
+    progress: bool,
+    desc: str,
+    keep: int,
+    on_result: Callable[[int, Any], None] | None,
+    steps: int,
+    unit: str,
+    job: Any,
+) -> list[Any]:
     """:func:`compute`'s work; ``job`` (a :class:`hevr.runtime.cancel.Scope` or None) cancels its futures."""
     if not tasks:
         return []
@@ -291,10 +328,15 @@ def _compute(tasks: list[Any], client: Any, progress: bool, desc: str, keep: int
         with TaskCounter(bar), cancel.counting(bar.step):
             results = _compute_local(tasks, job)
         if on_result is not None:
-            for i, value in enumerate(results[:len(results) - keep] if keep else results):
+            for i, value in enumerate(results[: len(results) - keep] if keep else results):
                 on_result(i, value)
-    log.info("%s: %d tasks in %.2f s (%s)", desc, len(tasks), time.perf_counter() - t0,
-             "distributed" if client is not None else "default scheduler")
+    log.info(
+        "%s: %d tasks in %.2f s (%s)",
+        desc,
+        len(tasks),
+        time.perf_counter() - t0,
+        "distributed" if client is not None else "default scheduler",
+    )
     return results
 
 
@@ -310,6 +352,7 @@ class _JobPool(ThreadPoolExecutor):
         def run() -> Any:
             self.job.check()
             return fn(*args, **kwargs)
+
         return super().submit(run)
 
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 _LOCK = threading.Lock()
 _SECONDS: defaultdict[str, float] = defaultdict(float)

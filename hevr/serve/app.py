@@ -42,8 +42,15 @@ from .tokens import TokenTable
 __all__ = ["Problem", "as_problem", "create_app", "problem", "public_text"]
 
 
-def create_app(stores: dict, *, client: Any = None, tokens: TokenTable | None = None, max_concurrent: int = 4,
-               backend: str | None = None, budget: Budget | None = None) -> Starlette:
+def create_app(
+    stores: dict,
+    *,
+    client: Any = None,
+    tokens: TokenTable | None = None,
+    max_concurrent: int = 4,
+    backend: str | None = None,
+    budget: Budget | None = None,
+) -> Starlette:
     """The application serving ``stores`` (name -> opened :class:`hevr.EncryptedVolume`, as
     :func:`hevr.serve.run.open_stores` gives them; a key that is its store's id serves that store
     without a name) on the Dask ``client`` (None: Dask's default scheduler in this process).

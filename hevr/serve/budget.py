@@ -55,19 +55,25 @@ from typing import Any
 
 import dask
 
-from ..runtime.cancel import Scope
-
-from ..runtime.cancel import cancel_soon
+from ..backends import AUTO
 from ..core.limits import MAX_IMAGE_PIXELS
 from ..core.validate import check_int
-from ..backends import AUTO
 from ..errors import ParameterError
 from ..rendering.geometry.camera import Camera
 from ..rendering.planning.request import RenderCost, request_cost
+from ..runtime.cancel import Scope, cancel_soon
 from .problems import Problem
 
-__all__ = ["Budget", "Limits", "MAX_PRODUCTS_KEY", "MAX_PIXELS_KEY", "MAX_TOKEN_PRODUCTS_KEY", "Slot", "check_backend",
-           "parse_count"]
+__all__ = [
+    "Budget",
+    "Limits",
+    "MAX_PRODUCTS_KEY",
+    "MAX_PIXELS_KEY",
+    "MAX_TOKEN_PRODUCTS_KEY",
+    "Slot",
+    "check_backend",
+    "parse_count",
+]
 
 MAX_PRODUCTS_KEY = "hevr.serve.max-products"
 MAX_TOKEN_PRODUCTS_KEY = "hevr.serve.max-token-products"
@@ -121,8 +127,9 @@ def check_backend(requested: str | None, server: str | None) -> None:
     """
     own = server or AUTO
     if requested is not None and requested != own:
-        raise Problem(422, "backend not offered", f"backend: expected null or {own!r} (this server's), "
-                                                  f"got {requested!r}")
+        raise Problem(
+            422, "backend not offered", f"backend: expected null or {own!r} (this server's), got {requested!r}"
+        )
 
 
 @dataclass(frozen=True)
@@ -136,11 +143,13 @@ class Budget:
     min_step: float = MIN_STEP
 
     @classmethod
-    def from_config(cls) -> "Budget":
+    def from_config(cls) -> Budget:
         """The budget of the Dask config keys (module docstring), else the defaults."""
-        return cls(_setting(MAX_PRODUCTS_KEY, DEFAULT_MAX_PRODUCTS, MAX_PRODUCTS_CAP),
-                   _setting(MAX_PIXELS_KEY, DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS),
-                   _setting(MAX_TOKEN_PRODUCTS_KEY, None, MAX_PRODUCTS_CAP))
+        return cls(
+            _setting(MAX_PRODUCTS_KEY, DEFAULT_MAX_PRODUCTS, MAX_PRODUCTS_CAP),
+            _setting(MAX_PIXELS_KEY, DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS),
+            _setting(MAX_TOKEN_PRODUCTS_KEY, None, MAX_PRODUCTS_CAP),
+        )
 
     @property
     def token_products(self) -> int:
@@ -162,15 +171,21 @@ class Budget:
         view = req.view
         floor = self.min_step * min(ev.spacing)
         if isinstance(view, Camera) and req.step < floor:
-            raise _over(f"step: expected at least {floor:g} on this server ({self.min_step:g} of the smallest voxel "
-                        f"spacing, {min(ev.spacing):g}), got {req.step:g}")
+            raise _over(
+                f"step: expected at least {floor:g} on this server ({self.min_step:g} of the smallest voxel "
+                f"spacing, {min(ev.spacing):g}), got {req.step:g}"
+            )
         w, h = view.width, view.height
         if w * h > self.max_pixels:
-            raise _over(f"width, height: expected an image of at most {self.max_pixels} pixels on this server "
-                        f"(--max-pixels), got {w}x{h} = {w * h} pixels")
+            raise _over(
+                f"width, height: expected an image of at most {self.max_pixels} pixels on this server "
+                f"(--max-pixels), got {w}x{h} = {w * h} pixels"
+            )
         if req.tile < self.min_tile(w, h):
-            raise _over(f"tile: expected at least {self.min_tile(w, h)} for a {w}x{h} image on this server (at most "
-                        f"{TILES_SIDE} tiles a side), got {req.tile}")
+            raise _over(
+                f"tile: expected at least {self.min_tile(w, h)} for a {w}x{h} image on this server (at most "
+                f"{TILES_SIDE} tiles a side), got {req.tile}"
+            )
 
     def estimate(self, ev: Any, req: Any) -> RenderCost:
         """The request's cost (:func:`~hevr.rendering.planning.request.request_cost`; it casts the
@@ -182,19 +197,24 @@ class Budget:
             if cost is not None:
                 _COSTS.move_to_end(key)  # least recently used goes first, not the oldest
         if cost is None:
-            cost = request_cost(ev, req.view, req.channel, req.sampling, req.step, req.level, req.digits,
-                                req.weight_bits)
+            cost = request_cost(
+                ev, req.view, req.channel, req.sampling, req.step, req.level, req.digits, req.weight_bits
+            )
             if key is not None:
                 with _LOCK:
                     _COSTS[key] = cost
                     while len(_COSTS) > CACHED:
                         _COSTS.popitem(last=False)
         if cost.products > self.max_products:
-            raise _over(f"products: expected at most {self.max_products:.3g} for one render on this server "
-                        f"(--max-products), got an estimated {cost.products:.3g} ({cost.describe()})")
+            raise _over(
+                f"products: expected at most {self.max_products:.3g} for one render on this server "
+                f"(--max-products), got an estimated {cost.products:.3g} ({cost.describe()})"
+            )
         if cost.products > self.token_products:
-            raise _over(f"products: expected at most {self.token_products:.3g} in flight for a token on this server "
-                        f"(--max-token-products), got an estimated {cost.products:.3g} for one render")
+            raise _over(
+                f"products: expected at most {self.token_products:.3g} in flight for a token on this server "
+                f"(--max-token-products), got an estimated {cost.products:.3g} for one render"
+            )
         return cost
 
 
@@ -287,27 +307,41 @@ class Limits:
 
     def _admit(self, name: str, per_token: int) -> None:
         if self.closed:
-            raise Problem(503, "server shutting down", "render: expected a running server, got one shutting down",
-                          {"Retry-After": "5"})
+            raise Problem(
+                503,
+                "server shutting down",
+                "render: expected a running server, got one shutting down",
+                {"Retry-After": "5"},
+            )
         if self.total >= self.max_concurrent or self.running.get(name, 0) >= per_token:
-            raise Problem(429, "too many concurrent renders",
-                          f"concurrent renders: expected at most {per_token} for this token and "
-                          f"{self.max_concurrent} on this server, got one more; retry shortly",
-                          {"Retry-After": "1"})
+            raise Problem(
+                429,
+                "too many concurrent renders",
+                f"concurrent renders: expected at most {per_token} for this token and "
+                f"{self.max_concurrent} on this server, got one more; retry shortly",
+                {"Retry-After": "1"},
+            )
 
     def _afford(self, name: str, products: int) -> None:
         mine, limit = self.products.get(name, 0), self.budget.token_products
         if mine and mine + products > limit:
-            raise Problem(429, "too much work in flight",
-                          f"products in flight: expected at most {limit:.3g} for this token (--max-token-products), "
-                          f"got {mine:.3g} running and an estimated {products:.3g} more; retry when a render ends",
-                          {"Retry-After": "5"})
+            raise Problem(
+                429,
+                "too much work in flight",
+                f"products in flight: expected at most {limit:.3g} for this token (--max-token-products), "
+                f"got {mine:.3g} running and an estimated {products:.3g} more; retry when a render ends",
+                {"Retry-After": "5"},
+            )
         limit = self.max_concurrent * self.budget.max_products
         if self.total_products and self.total_products + products > limit:
-            raise Problem(429, "too much work in flight",
-                          f"products in flight: expected at most {limit:.3g} on this server (--max-concurrent × "
-                          f"--max-products), got {self.total_products:.3g} running and an estimated {products:.3g} "
-                          "more; retry when a render ends", {"Retry-After": "5"})
+            raise Problem(
+                429,
+                "too much work in flight",
+                f"products in flight: expected at most {limit:.3g} on this server (--max-concurrent × "
+                f"--max-products), got {self.total_products:.3g} running and an estimated {products:.3g} "
+                "more; retry when a render ends",
+                {"Retry-After": "5"},
+            )
 
     def open(self) -> None:
         """Admit renders again (an application started anew after a :meth:`close`)."""

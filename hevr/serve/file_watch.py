@@ -73,8 +73,14 @@ class FileWatch:
         The stat key of the version in force (default: the file's now).
     """
 
-    def __init__(self, path: str | os.PathLike, *, interval: float = CHECK_SECONDS,
-                 clock: Callable[[], float] = time.monotonic, key: object = _UNSET) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        interval: float = CHECK_SECONDS,
+        clock: Callable[[], float] = time.monotonic,
+        key: object = _UNSET,
+    ) -> None:
         self.path = path
         self.interval = float(interval)
         self.clock = clock

@@ -68,8 +68,15 @@ log = logging.getLogger("hevr.serve")
 
 __all__ = ["Deadlines", "Connections", "GuardedH11Protocol", "address_group", "guarded_protocol", "over_tls"]
 
-_KEYS = {"idle": "idle-timeout", "head": "head-timeout", "body": "body-timeout", "send": "send-timeout",
-         "handshake": "handshake-timeout", "per_address": "per-address", "connections": "max-connections"}
+_KEYS = {
+    "idle": "idle-timeout",
+    "head": "head-timeout",
+    "body": "body-timeout",
+    "send": "send-timeout",
+    "handshake": "handshake-timeout",
+    "per_address": "per-address",
+    "connections": "max-connections",
+}
 
 
 @dataclass(frozen=True)
@@ -109,8 +116,11 @@ class Deadlines:
         for name, key in _KEYS.items():
             value = dask.config.get(f"hevr.serve.{key}", None)
             if value is not None:
-                given[name] = int(value) if isinstance(value, str) and name in ("per_address", "connections") \
-                    and value.strip().isdigit() else value
+                given[name] = (
+                    int(value)
+                    if isinstance(value, str) and name in ("per_address", "connections") and value.strip().isdigit()
+                    else value
+                )
         return cls(**given)
 
 
@@ -209,8 +219,13 @@ class Connections:
         now = time.monotonic()
         if now - self._warned >= 60:  # one line a minute under a flood, not one per connection
             self._warned = now
-            log.warning("connections: at the bound of %s; the oldest waiting one closed or the new one "
-                        "refused (latest: %s; %s so far)", bound, address, self.closed)
+            log.warning(
+                "connections: at the bound of %s; the oldest waiting one closed or the new one "
+                "refused (latest: %s; %s so far)",
+                bound,
+                address,
+                self.closed,
+            )
 
 
 class GuardedH11Protocol(H11Protocol):

@@ -30,19 +30,15 @@ from typing import Any, TypeVar
 import anyio
 from starlette.requests import Request
 
-from ..runtime import cancel
-from ..runtime.cancel import cancel_soon
-from ..image.tiles import TileLayout
 from ..backends import resolve_backend_name
 from ..errors import ParameterError
 from ..image import EncryptedImage
+from ..image.tiles import TileLayout
 from ..remote.protocol import RenderRequest
 from ..rendering.encrypted import _render
 from ..rendering.geometry.camera import Camera
 from ..rendering.geometry.plane import Plane
 from ..rendering.geometry.rays import cast_rays
-from ..rendering.planning.planner import check_render_size
-from ..rendering.planning.request import at_level, check_request, level_step
 from ..rendering.packed import PackedImage
 from ..rendering.packed.colour import PackedColourImage, colour_aggregate, render_packed_colour
 from ..rendering.packed.plan import SlicePlan
@@ -50,10 +46,22 @@ from ..rendering.packed.plane_image import PackedSlice, render_packed_slice, sli
 from ..rendering.packed.planes import PlanePlan
 from ..rendering.packed.request import render_packed_request
 from ..rendering.packed.verified import aggregate_for as packed_aggregate_for
+from ..rendering.planning.planner import check_render_size
+from ..rendering.planning.request import at_level, check_request, level_step
 from ..rendering.verify import aggregate_for
+from ..runtime import cancel
+from ..runtime.cancel import cancel_soon
 
-__all__ = ["CLIENT_GONE", "POLL_S", "SHUTDOWN", "cancel_soon", "render_image", "run_job", "stats_header",
-           "verify_aggregate"]
+__all__ = [
+    "CLIENT_GONE",
+    "POLL_S",
+    "SHUTDOWN",
+    "cancel_soon",
+    "render_image",
+    "run_job",
+    "stats_header",
+    "verify_aggregate",
+]
 
 CLIENT_GONE = "client left"  # the reason of a render cancelled because its client went away (its log status: 499)
 SHUTDOWN = "the server is shutting down"  # the reason of a render cancelled as the server stops
@@ -118,16 +126,18 @@ def _mode(req: RenderRequest) -> tuple[str, float | None, bool]:
 
 def _step(req: RenderRequest) -> float:
     if isinstance(req.view, Plane) and req.step != req.view.slab_step:
-        raise ParameterError(f"step: expected the plane's slab_step {req.view.slab_step:g} for a slice, "
-                             f"got {req.step:g}")
+        raise ParameterError(
+            f"step: expected the plane's slab_step {req.view.slab_step:g} for a slice, got {req.step:g}"
+        )
     return req.step
 
 
 def _packed_plane(ev: Any, req: RenderRequest) -> Plane:
     """The plane of a slice request on a packed store (the scalar channel, its slab step)."""
     if req.channel != "scalar":
-        raise ParameterError(f"channel: expected 'scalar' for a slice of the packed store {ev.meta.store_id}, got "
-                             f"{req.channel!r}")
+        raise ParameterError(
+            f"channel: expected 'scalar' for a slice of the packed store {ev.meta.store_id}, got {req.channel!r}"
+        )
     _step(req)
     return req.view
 
@@ -137,47 +147,100 @@ def _packed_view(ev: Any, req: RenderRequest) -> Camera:
     k components where the store has it)."""
     offered = ("scalar",) + tuple(ch for ch in ("vector", "gradient") if getattr(ev.meta, ch) is not None)
     if req.channel not in offered:
-        raise ParameterError(f"channel: expected {' or '.join(map(repr, offered))} on the packed store "
-                             f"{ev.meta.store_id}, got {req.channel!r}")
+        raise ParameterError(
+            f"channel: expected {' or '.join(map(repr, offered))} on the packed store "
+            f"{ev.meta.store_id}, got {req.channel!r}"
+        )
     if not isinstance(req.view, Camera):
-        raise ParameterError(f"view: expected a camera on the packed store {ev.meta.store_id} (its slices are not "
-                             "served), got a plane")
+        raise ParameterError(
+            f"view: expected a camera on the packed store {ev.meta.store_id} (its slices are not served), got a plane"
+        )
     return req.view
 
 
-def render_image(ev: Any, req: RenderRequest, *, client: Any, backend: str | None = None,
-                 stream: Any = None) -> EncryptedImage | PackedImage | PackedColourImage | PackedSlice:
+def render_image(
+    ev: Any, req: RenderRequest, *, client: Any, backend: str | None = None, stream: Any = None
+) -> EncryptedImage | PackedImage | PackedColourImage | PackedSlice:
     """The client-finished image of ``req`` on the store ``ev`` (``stream``: handed every
     finishing unit as it completes, :class:`hevr.rendering.pipeline.stream.StreamDecryptor`'s interface);
     a packed store's unverified :class:`~hevr.rendering.packed.PackedImage` (its tiles are the answer)."""
     if ev.meta.packing is not None:
         if stream is not None:
-            raise ParameterError(f"stream: expected a per-voxel store, got the packed store {ev.meta.store_id} "
-                                 "(its frame comes whole from /render)")
+            raise ParameterError(
+                f"stream: expected a per-voxel store, got the packed store {ev.meta.store_id} "
+                "(its frame comes whole from /render)"
+            )
         if isinstance(req.view, Plane):  # a slice: the same PlanePlan the key holder builds
-            return render_packed_slice(ev, _packed_plane(ev, req), req.sampling, client=client, progress=False,
-                                       backend=backend)
+            return render_packed_slice(
+                ev, _packed_plane(ev, req), req.sampling, client=client, progress=False, backend=backend
+            )
         view = _packed_view(ev, req)
         if req.channel != "scalar":  # the k components, coloured by the key holder (the server sees no colouring)
             if req.step != 1.0 or req.level:
                 raise ParameterError(f"step/level: expected 1.0 and 0 for the {req.channel} channel of a packed store")
             check_render_size(view, ev.shape, ev.spacing, 1.0)
-            return render_packed_colour(ev, view, req.sampling, None, tile=req.tile, client=client, progress=False,
-                                        backend=backend, weight_bits=req.weight_bits,
-                                        channel=req.channel)
-        return render_packed_request(ev, view, "xray", req.sampling, req.step, None, None,
-                                     tile=req.tile, client=client, progress=False, backend=backend,
-                                     compute=True, keep_sums=None, level=req.level or None, gradient=False,
-                                     finish="client", verify=False, weight_bits=req.weight_bits)
+            return render_packed_colour(
+                ev,
+                view,
+                req.sampling,
+                None,
+                tile=req.tile,
+                client=client,
+                progress=False,
+                backend=backend,
+                weight_bits=req.weight_bits,
+                channel=req.channel,
+            )
+        return render_packed_request(
+            ev,
+            view,
+            "xray",
+            req.sampling,
+            req.step,
+            None,
+            None,
+            tile=req.tile,
+            client=client,
+            progress=False,
+            backend=backend,
+            compute=True,
+            keep_sums=None,
+            level=req.level or None,
+            gradient=False,
+            finish="client",
+            verify=False,
+            weight_bits=req.weight_bits,
+        )
     if req.weight_bits is not None:
         raise ParameterError(f"weight_bits: expected null for a per-voxel store, got {req.weight_bits}")
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)
-    return _render(ev, req.view, mode, req.sampling, _step(req), density, None, digits=req.digits, precision=4,
-                   comb_digits=4, pack=req.pack, tile=req.tile, cache=True, client=client, progress=False,
-                   backend=backend, compute=True, keep_sums=None,
-                   views=(Plane,) if plane else (Camera,), level=req.level or None, gradient=gradient,
-                   finish="client", stream=stream, verify=False)
+    return _render(
+        ev,
+        req.view,
+        mode,
+        req.sampling,
+        _step(req),
+        density,
+        None,
+        digits=req.digits,
+        precision=4,
+        comb_digits=4,
+        pack=req.pack,
+        tile=req.tile,
+        cache=True,
+        client=client,
+        progress=False,
+        backend=backend,
+        compute=True,
+        keep_sums=None,
+        views=(Plane,) if plane else (Camera,),
+        level=req.level or None,
+        gradient=gradient,
+        finish="client",
+        stream=stream,
+        verify=False,
+    )
 
 
 def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, backend: str | None = None) -> int:
@@ -201,8 +264,21 @@ def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, b
         return packed_aggregate_for(ev_l, plan, name, client, False, seed)[0]
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)
-    spec, digits, _, _ = check_request(ev, req.view, mode, req.sampling, _step(req), density, None, req.digits, 4, 4,
-                                       (Plane,) if plane else (Camera,), gradient, "client")
+    spec, digits, _, _ = check_request(
+        ev,
+        req.view,
+        mode,
+        req.sampling,
+        _step(req),
+        density,
+        None,
+        req.digits,
+        4,
+        4,
+        (Plane,) if plane else (Camera,),
+        gradient,
+        "client",
+    )
     ev_l, view = at_level(ev, req.view, req.level or None)
     spec = level_step(spec, ev_l, view)
     if not ev_l.meta.tags:
@@ -211,8 +287,21 @@ def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, b
     rays = checked if checked is not None else cast_rays(view, ev_l.shape, ev_l.spacing, spec.step)
     layout = TileLayout(view.width, view.height, req.tile)
     name = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), client=client)
-    return aggregate_for(ev_l, view, rays, spec.sampling, spec.step, digits if spec.sampling == "trilinear" else 0,
-                         spec.channel, req.tile, layout.n_tiles, name, client, False, seed)
+    return aggregate_for(
+        ev_l,
+        view,
+        rays,
+        spec.sampling,
+        spec.step,
+        digits if spec.sampling == "trilinear" else 0,
+        spec.channel,
+        req.tile,
+        layout.n_tiles,
+        name,
+        client,
+        False,
+        seed,
+    )
 
 
 STATS = ("finish_tasks", "resident", "backend", "seconds")  # not map_tasks nor reused_ray_sums: see stats_header
@@ -228,4 +317,3 @@ def stats_header(stats: dict) -> str:
     """
     keep = {k: stats[k] for k in STATS if k in stats}
     return json.dumps(keep, separators=(",", ":"))
-

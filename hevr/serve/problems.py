@@ -79,8 +79,10 @@ def _private_pattern() -> re.Pattern | None:
     names = frozenset(_PRIVATE)
     if names != _private[0]:
         # a one-word location (``ct``) only with a part after it (``ct/scalar/c/0``): alone, it is a word
-        alts = [re.escape(n) + (f"(?:/{_PART})*/?" if "/" in n or "." in n else f"(?:/{_PART})+/?")
-                for n in sorted(names, key=len, reverse=True)]
+        alts = [
+            re.escape(n) + (f"(?:/{_PART})*/?" if "/" in n or "." in n else f"(?:/{_PART})+/?")
+            for n in sorted(names, key=len, reverse=True)
+        ]
         _private = names, (re.compile(rf"(?<![\w.@+~=/-])(?:{'|'.join(alts)})(?![\w.@+~=-])") if alts else None)
     return _private[1]
 
@@ -125,6 +127,8 @@ def as_problem(exc: BaseException) -> Problem:
 async def not_found(request: Request, exc: Exception) -> Response:
     """Starlette's 404 and 405 as problem documents (the app's exception handlers)."""
     status = getattr(exc, "status_code", 404)
-    return problem(status, "not found" if status == 404 else "method not allowed",
-                   f"{request.method} {request.url.path}: expected one of the /v1 endpoints "
-                   "(/v1/openapi.json lists them)")
+    return problem(
+        status,
+        "not found" if status == 404 else "method not allowed",
+        f"{request.method} {request.url.path}: expected one of the /v1 endpoints (/v1/openapi.json lists them)",
+    )

@@ -74,7 +74,7 @@ def store_name(spec: str) -> tuple[str, str]:
             raise ParameterError(f"STORE: expected NAME=PATH with a path, got {spec[:100]!r}")
         return check_store_name(left, f"STORE {spec[:100]!r}: NAME"), right
     last = spec.rstrip("/").rsplit("/", 1)[-1]
-    name = last[:-len(".zarr")] if last.endswith(".zarr") else last
+    name = last[: -len(".zarr")] if last.endswith(".zarr") else last
     try:
         return check_store_name(name, f"STORE {spec[:100]!r}: its name"), spec
     except ParameterError as exc:
@@ -90,16 +90,19 @@ def open_stores(specs: Sequence[str], storage_options: dict | None = None) -> di
     seen: dict[str, str] = {}
     for name, path in named:
         if name in seen:
-            raise ParameterError(f"STORE: expected distinct store names, got the name {name!r} twice ({seen[name]} "
-                                 f"and {path}); name one of them with NAME=PATH")
+            raise ParameterError(
+                f"STORE: expected distinct store names, got the name {name!r} twice ({seen[name]} "
+                f"and {path}); name one of them with NAME=PATH"
+            )
         seen[name] = path
     ids: dict[str, str] = {}
     for name, path in named:
         ev = open_volume(path, storage_options=storage_options)
         sid = ev.meta.store_id
         if sid in ids:
-            raise ParameterError(f"STORE: expected distinct stores, got the store {sid} twice ({stores[ids[sid]].path} "
-                                 f"and {ev.path})")
+            raise ParameterError(
+                f"STORE: expected distinct stores, got the store {sid} twice ({stores[ids[sid]].path} and {ev.path})"
+            )
         ids[sid] = name
         stores[name] = ev
     return stores
@@ -131,13 +134,18 @@ def check_tls(cert: str | None, key: str | None) -> None:
     c, k = texts["--tls-cert"], texts["--tls-key"]
     if "-----BEGIN CERTIFICATE-----" not in c or "PRIVATE KEY-----" not in k:
         swapped = "PRIVATE KEY-----" in c and "-----BEGIN CERTIFICATE-----" in k
-        which = ("--tls-cert", cert, "a certificate") if "-----BEGIN CERTIFICATE-----" not in c else \
-            ("--tls-key", key, "a private key")
+        which = (
+            ("--tls-cert", cert, "a certificate")
+            if "-----BEGIN CERTIFICATE-----" not in c
+            else ("--tls-key", key, "a private key")
+        )
         hint = "; --tls-cert and --tls-key look swapped" if swapped else ""
         raise ParameterError(f"{which[0]}: expected {which[2]} in PEM, got {which[1]} without one{hint}")
     if "ENCRYPTED" in k:
-        raise ParameterError(f"--tls-key: expected an unencrypted private key (hevr serve asks for no "
-                             f"password), got an encrypted one in {key}")
+        raise ParameterError(
+            f"--tls-key: expected an unencrypted private key (hevr serve asks for no "
+            f"password), got an encrypted one in {key}"
+        )
 
     def no_password() -> bytes:
         raise ValueError("encrypted")
@@ -146,8 +154,10 @@ def check_tls(cert: str | None, key: str | None) -> None:
         ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(cert, key, password=no_password)
     except (ssl.SSLError, ValueError) as exc:
         reason = getattr(exc, "reason", None) or str(exc)[:80]
-        raise ParameterError(f"--tls-cert/--tls-key: expected a certificate chain and its own private key in PEM, "
-                             f"got {cert} and {key} ({str(reason).lower().replace('_', ' ')})") from None
+        raise ParameterError(
+            f"--tls-cert/--tls-key: expected a certificate chain and its own private key in PEM, "
+            f"got {cert} and {key} ({str(reason).lower().replace('_', ' ')})"
+        ) from None
 
 
 def bind(host: str, port: int) -> list[socket.socket]:
@@ -159,8 +169,10 @@ def bind(host: str, port: int) -> list[socket.socket]:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
     except (socket.gaierror, UnicodeError, TypeError) as exc:
         why = getattr(exc, "strerror", None) or str(exc)
-        raise ParameterError(f"--host: expected an address of this machine or a name that resolves to one, got "
-                             f"{str(host)[:100]!r} ({why})") from None
+        raise ParameterError(
+            f"--host: expected an address of this machine or a name that resolves to one, got "
+            f"{str(host)[:100]!r} ({why})"
+        ) from None
     socks: list[socket.socket] = []
     seen = set()
     try:
@@ -207,13 +219,15 @@ def _bind_error(exc: OSError, host: str, port: int) -> ParameterError:
     if exc.errno == errno.EADDRINUSE:
         return ParameterError(f"--port: expected a free port, got {port} (in use on {host})")
     if exc.errno == errno.EACCES:
-        return ParameterError(f"--port: expected a port this user may listen on, got {port} (permission denied; "
-                              f"ports below 1024 need privileges)")
+        return ParameterError(
+            f"--port: expected a port this user may listen on, got {port} (permission denied; "
+            f"ports below 1024 need privileges)"
+        )
     if exc.errno == errno.EADDRNOTAVAIL:
-        return ParameterError(f"--host: expected an address of this machine, got {host!r} (not one of its "
-                              f"addresses)")
-    return ParameterError(f"--host/--port: expected an address and port to listen on, got {host}:{port} "
-                          f"({exc.strerror or exc})")
+        return ParameterError(f"--host: expected an address of this machine, got {host!r} (not one of its addresses)")
+    return ParameterError(
+        f"--host/--port: expected an address and port to listen on, got {host}:{port} ({exc.strerror or exc})"
+    )
 
 
 def _room_for(deadlines: Deadlines) -> Deadlines:
@@ -232,13 +246,18 @@ def _room_for(deadlines: Deadlines) -> Deadlines:
             pass
         if soft < need:
             fit = max(16, soft - 256)
-            log.warning("serve: %d open files allowed: at most %d connections (not %d); raise 'ulimit -n'",
-                        soft, fit, deadlines.connections)
+            log.warning(
+                "serve: %d open files allowed: at most %d connections (not %d); raise 'ulimit -n'",
+                soft,
+                fit,
+                deadlines.connections,
+            )
             deadlines = dataclasses.replace(deadlines, connections=fit, per_address=min(deadlines.per_address, fit))
     return deadlines
 
 
 if uvicorn is not None:
+
     class _Server(uvicorn.Server):
         """uvicorn's server on sockets bound beforehand (:func:`bind`), with TLS in the guarded
         protocol (:func:`~hevr.serve.guard.over_tls`: bounds from the TCP accept, a handshake deadline)."""
@@ -254,8 +273,9 @@ if uvicorn is not None:
             loop, config = asyncio.get_running_loop(), self.config
 
             def protocol(_loop: Any = None) -> asyncio.Protocol:
-                app = config.http_protocol_class(config=config, server_state=self.server_state,
-                                                 app_state=self.lifespan.state, _loop=_loop)
+                app = config.http_protocol_class(
+                    config=config, server_state=self.server_state, app_state=self.lifespan.state, _loop=_loop
+                )
                 return app if config.ssl is None else over_tls(app, config.ssl, self.handshake)
 
             self.servers = []  # TLS in the protocol (over_tls): a connection counts from its TCP accept
@@ -297,17 +317,29 @@ if uvicorn is not None:
                 pass
 
 
-def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: int = 8750, client: Any = None,
-          tokens: Any = None, tls_cert: str | None = None, tls_key: str | None = None, max_concurrent: int = 4,
-          backend: str | None = None, on_ready: Callable[[str], None] | None = None,
-          deadlines: Deadlines | None = None) -> None:
+def serve(
+    stores: dict[str, EncryptedVolume],
+    *,
+    host: str = "127.0.0.1",
+    port: int = 8750,
+    client: Any = None,
+    tokens: Any = None,
+    tls_cert: str | None = None,
+    tls_key: str | None = None,
+    max_concurrent: int = 4,
+    backend: str | None = None,
+    on_ready: Callable[[str], None] | None = None,
+    deadlines: Deadlines | None = None,
+) -> None:
     """Serve ``stores`` (name or store id -> opened store: :func:`open_stores`,
     :func:`~hevr.serve.app.create_app`) until interrupted (uvicorn; TLS with ``tls_cert`` and ``tls_key``).
     ``on_ready(url)`` is called once the socket listens. Every connection keeps ``deadlines``
     (default: :meth:`Deadlines.from_config`; :mod:`hevr.serve.guard`). The TLS files, the host and
     the port are checked before anything starts (:func:`check_tls`, :func:`bind`)."""
     if uvicorn is None or create_app is None:
-        raise MissingDependencyError("hevr serve needs the 'serve' extra (Starlette, uvicorn): pip install 'hevr[serve]'")
+        raise MissingDependencyError(
+            "hevr serve needs the 'serve' extra (Starlette, uvicorn): pip install 'hevr[serve]'"
+        )
     check_tls(tls_cert, tls_key)
     deadlines = _room_for(Deadlines.from_config() if deadlines is None else deadlines)
     sockets = bind(host, port)
@@ -316,10 +348,21 @@ def serve(stores: dict[str, EncryptedVolume], *, host: str = "127.0.0.1", port: 
         protocol, _ = guarded_protocol(deadlines)
         # ws="none": no upgrade takes a connection out of the guard; proxy_headers=False: the TCP peer,
         # never X-Forwarded-For (uvicorn's default reads it from 127.0.0.1 and ::1: any local user's)
-        config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False, http=protocol,
-                                ws="none", proxy_headers=False, ssl_certfile=tls_cert, ssl_keyfile=tls_key,
-                                timeout_keep_alive=deadlines.idle, limit_concurrency=None,
-                                h11_max_incomplete_event_size=64 * 1024)
+        config = uvicorn.Config(
+            app,
+            host=host,
+            port=port,
+            log_level="warning",
+            access_log=False,
+            http=protocol,
+            ws="none",
+            proxy_headers=False,
+            ssl_certfile=tls_cert,
+            ssl_keyfile=tls_key,
+            timeout_keep_alive=deadlines.idle,
+            limit_concurrency=None,
+            h11_max_incomplete_event_size=64 * 1024,
+        )
         server = _Server(config, sockets, deadlines.handshake)
     except BaseException:
         for s in sockets:

@@ -36,8 +36,16 @@ __all__ = ["Limits", "Service", "read_body", "served_stores"]
 class Service:
     """The served stores (by id, and their names), the Dask client, the tokens and the limits."""
 
-    def __init__(self, stores: dict, *, client: Any = None, tokens: TokenTable | None = None,
-                 max_concurrent: int = 4, backend: str | None = None, budget: Budget | None = None) -> None:
+    def __init__(
+        self,
+        stores: dict,
+        *,
+        client: Any = None,
+        tokens: TokenTable | None = None,
+        max_concurrent: int = 4,
+        backend: str | None = None,
+        budget: Budget | None = None,
+    ) -> None:
         self.stores, self.names, self.name_of = served_stores(stores)
         self.watch = StoreWatch(self.stores)  # a store rewritten on disk is opened again (re-encrypted)
         private_locations(ev.path for ev in self.stores.values())  # never in an answer (problems.public_text)
@@ -60,8 +68,12 @@ class Service:
         scheme, _, presented = auth.partition(" ")
         token = self.tokens.lookup(presented.strip()) if scheme.lower() == "bearer" else None
         if token is None:
-            raise Problem(401, "unauthorised", "Authorization: expected 'Bearer <token>' with a token of this server",
-                          {"WWW-Authenticate": 'Bearer realm="hevr"'})
+            raise Problem(
+                401,
+                "unauthorised",
+                "Authorization: expected 'Bearer <token>' with a token of this server",
+                {"WWW-Authenticate": 'Bearer realm="hevr"'},
+            )
         return token.name, token.concurrent, token
 
     def resolve(self, request: Request, token: Any) -> tuple[str, Any]:
@@ -74,9 +86,13 @@ class Service:
         if sid is None or (token is not None and not token.may_render(sid)):
             raise Problem(404, "no such store", f"store: expected the id or name of a served store, got {key[:40]!r}")
         if self.watch.reopening(sid):  # changed on disk: the handle in force reads bricks no longer there
-            raise Problem(503, "store being reopened", f"store: expected a store ready to render, got {key[:40]!r}, "
-                          "which changed on disk and is being opened again; retry in a moment",
-                          {"Retry-After": str(RETRY_AFTER)})
+            raise Problem(
+                503,
+                "store being reopened",
+                f"store: expected a store ready to render, got {key[:40]!r}, "
+                "which changed on disk and is being opened again; retry in a moment",
+                {"Retry-After": str(RETRY_AFTER)},
+            )
         return sid, self.stores[sid]
 
     def store(self, request: Request, token: Any) -> Any:
@@ -102,8 +118,9 @@ def served_stores(stores: dict) -> tuple[dict, dict, dict]:
     for key, ev in stores.items():
         sid = ev.meta.store_id
         if sid in by_id:
-            raise ParameterError(f"stores: expected distinct stores, got the store {sid} twice ({by_id[sid].path} "
-                                 f"and {ev.path})")
+            raise ParameterError(
+                f"stores: expected distinct stores, got the store {sid} twice ({by_id[sid].path} and {ev.path})"
+            )
         by_id[sid] = ev
         if key != sid:
             names[check_store_name(key, "stores: a name")] = sid
@@ -115,8 +132,9 @@ async def read_body(request: Request) -> bytes:
     """The request body, at most MAX_BODY bytes, refused from its Content-Length when that says more."""
     declared = request.headers.get("content-length")
     if declared is not None and (not declared.isdigit() or int(declared) > MAX_BODY):
-        raise Problem(413, "request too large", f"body: expected at most {MAX_BODY} bytes, got "
-                                                f"Content-Length {declared[:20]}")
+        raise Problem(
+            413, "request too large", f"body: expected at most {MAX_BODY} bytes, got Content-Length {declared[:20]}"
+        )
     data = bytearray()
     async for chunk in request.stream():
         data += chunk

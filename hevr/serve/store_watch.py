@@ -77,11 +77,15 @@ class StoreWatch:
         The monotonic clock (tests pass their own).
     """
 
-    def __init__(self, stores: dict, *, interval: float = CHECK_SECONDS,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, stores: dict, *, interval: float = CHECK_SECONDS, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.interval, self.clock = float(interval), clock
-        self._files = {sid: FileWatch(f, interval=interval, clock=clock) for sid, ev in stores.items()
-                       if (f := _watched(ev.path)) is not None}
+        self._files = {
+            sid: FileWatch(f, interval=interval, clock=clock)
+            for sid, ev in stores.items()
+            if (f := _watched(ev.path)) is not None
+        }
         self._lock = threading.Lock()
         self._reopening: dict[str, tuple] = {}  # store id -> the stat key of the version being opened
         self._done: dict[str, Any] = {}  # store id -> the opened store, or the exception (the reopen ended)
@@ -121,8 +125,9 @@ class StoreWatch:
                 w.fail(key)
                 continue
             self._reopening[sid] = key
-            threading.Thread(target=self._reopen, args=(svc, sid, svc.stores[sid]), name=f"hevr-reopen-{sid}",
-                             daemon=True).start()
+            threading.Thread(
+                target=self._reopen, args=(svc, sid, svc.stores[sid]), name=f"hevr-reopen-{sid}", daemon=True
+            ).start()
 
     def _reopen(self, svc: Any, sid: str, old: Any) -> None:
         """Open the store ``sid`` (served now as ``old``) again, on its own thread; :meth:`_finish`
@@ -154,22 +159,42 @@ class StoreWatch:
         if isinstance(ev, _PersistFailed):
             wait = RETRY_FIRST if retry is None else min(2 * retry[2], RETRY_MAX)
             self._retry[sid] = (key, self.clock() + wait, wait)
-            log.error("store %s changed on disk and opened again, but could not be made resident (%s); the store %s "
-                      "is answered 503 and tried again in %g s", old.path, ev, sid, wait)
+            log.error(
+                "store %s changed on disk and opened again, but could not be made resident (%s); the store %s "
+                "is answered 503 and tried again in %g s",
+                old.path,
+                ev,
+                sid,
+                wait,
+            )
             return
         if isinstance(ev, BaseException):
             if not isinstance(ev, (HevrError, OSError, ValueError)):  # a bug: its traceback
-                log.error("store %s: opening it again failed; still serving the store %s as opened", old.path, sid,
-                          exc_info=ev)
+                log.error(
+                    "store %s: opening it again failed; still serving the store %s as opened",
+                    old.path,
+                    sid,
+                    exc_info=ev,
+                )
             elif w.fail(key):
-                log.error("store %s changed on disk but cannot be opened yet (%s); still serving the store %s as "
-                          "opened", old.path, ev, sid)
+                log.error(
+                    "store %s changed on disk but cannot be opened yet (%s); still serving the store %s as opened",
+                    old.path,
+                    ev,
+                    sid,
+                )
             w.fail(key)  # tried again once the file changes again
             return
         new = ev.meta.store_id
         if new != sid and new in svc.stores:
-            log.error("store %s changed on disk into the store %s, which is already served (from %s); still "
-                      "serving the store %s as opened", old.path, new, svc.stores[new].path, sid)
+            log.error(
+                "store %s changed on disk into the store %s, which is already served (from %s); still "
+                "serving the store %s as opened",
+                old.path,
+                new,
+                svc.stores[new].path,
+                sid,
+            )
             w.fail(key)
             return
         name = svc.name_of.pop(sid, None)
@@ -182,7 +207,13 @@ class StoreWatch:
         w.accept(key)
         self._files[new] = self._files.pop(sid)
         if new != sid:
-            log.warning("store %s was re-encrypted: now serving the store %s%s in place of %s (tokens that list "
-                        "store ids need the new one)", old.path, new, f" as {name!r}" if name else "", sid)
+            log.warning(
+                "store %s was re-encrypted: now serving the store %s%s in place of %s (tokens that list "
+                "store ids need the new one)",
+                old.path,
+                new,
+                f" as {name!r}" if name else "",
+                sid,
+            )
         else:
             log.warning("store %s (%s) changed on disk: opened again", sid, old.path)

@@ -40,13 +40,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from ..core.files import file_kind
-
-from ..core.files import fs_errors
-
-from ..core.files import held_lock
-
-from ..core.files import temp_sibling
+from ..core.files import file_kind, fs_errors, held_lock, temp_sibling
 from ..errors import FileSystemError, HevrError, MissingFileError, ParameterError
 from ..remote.protocol import MAX_BODY, parse_json
 from .file_watch import CHECK_SECONDS, FileWatch, is_missing
@@ -60,8 +54,9 @@ _TOKENS_LIST = re.compile(r'"tokens"\s*:\s*\[')
 
 
 def _refuse(path: Path, what: str) -> ParameterError:
-    return ParameterError(f"--tokens: expected a tokens file that only you (or root) own and may write, at {path}, "
-                          f"got {what}")
+    return ParameterError(
+        f"--tokens: expected a tokens file that only you (or root) own and may write, at {path}, got {what}"
+    )
 
 
 def check_tokens_stat(path: str | os.PathLike, st: os.stat_result, kind: str = "file") -> None:
@@ -85,8 +80,11 @@ at t.json, got a file your group may write (mode 0664): whoever writes it may gr
         raise _refuse(path, f"a {kind} owned by another user (uid {st.st_uid})")
     if st.st_mode & 0o022:
         who = "anyone" if st.st_mode & 0o002 else "your group"
-        raise _refuse(path, f"a {kind} {who} may write (mode {stat.S_IMODE(st.st_mode):04o}): whoever writes it may "
-                            "grant themselves a token; chmod go-w it")
+        raise _refuse(
+            path,
+            f"a {kind} {who} may write (mode {stat.S_IMODE(st.st_mode):04o}): whoever writes it may "
+            "grant themselves a token; chmod go-w it",
+        )
 
 
 def read_tokens_file(path: str | os.PathLike, *, follow_links: bool = True) -> tuple[bytes, tuple]:
@@ -144,8 +142,9 @@ class TokenFile:
         The monotonic clock (tests pass their own).
     """
 
-    def __init__(self, path: str | Path, *, interval: float = CHECK_SECONDS,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, path: str | Path, *, interval: float = CHECK_SECONDS, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.path = Path(path)
         raw, key = read_tokens_file(self.path)
         self.table = _table(raw, self.path)
@@ -197,20 +196,23 @@ class TokenFile:
             new = {t.name for t in table.tokens}
             self.table = table
             w.accept(key)
-            log.warning("tokens: read %s again%s: %d tokens in force (added: %s; removed: %s)", self.path,
-                        " (SIGHUP)" if asked else "", len(table.tokens), ", ".join(sorted(new - old)) or "none",
-                        ", ".join(sorted(old - new)) or "none")
+            log.warning(
+                "tokens: read %s again%s: %d tokens in force (added: %s; removed: %s)",
+                self.path,
+                " (SIGHUP)" if asked else "",
+                len(table.tokens),
+                ", ".join(sorted(new - old)) or "none",
+                ", ".join(sorted(old - new)) or "none",
+            )
             if not table.tokens:
-                log.warning("tokens: %s lists no tokens: every request is refused (401) until one is added",
-                            self.path)
+                log.warning("tokens: %s lists no tokens: every request is refused (401) until one is added", self.path)
             return True
         finally:
             self._lock.release()
 
     def _fail(self, key: tuple, why: str) -> None:
         if self._watch.fail(key):
-            log.error("tokens: %s: %s; the %d tokens read before stay in force", self.path, why,
-                      len(self.table.tokens))
+            log.error("tokens: %s: %s; the %d tokens read before stay in force", self.path, why, len(self.table.tokens))
 
 
 # -- adding an entry ----------------------------------------------------------------------------
@@ -242,9 +244,9 @@ def _appended(text: str, entry: dict) -> str:
     first = start + 1
     while text[first].isspace():
         first += 1
-    gap = text[start + 1:first]
+    gap = text[start + 1 : first]
     indent = gap.rsplit("\n", 1)[1] if "\n" in gap else " " * (first - text.rfind("\n", 0, first) - 1)
-    return text[:last + 1] + ",\n" + indent + json.dumps(entry) + text[last + 1:]
+    return text[: last + 1] + ",\n" + indent + json.dumps(entry) + text[last + 1 :]
 
 
 def _write(path: Path, data: bytes, replace: bool) -> None:
@@ -258,7 +260,7 @@ def _write(path: Path, data: bytes, replace: bool) -> None:
                 os.fchmod(fd, 0o600)
                 view = memoryview(data)
                 while view:
-                    view = view[os.write(fd, view):]
+                    view = view[os.write(fd, view) :]
                 os.fsync(fd)
             finally:
                 os.close(fd)
@@ -282,8 +284,9 @@ def _write(path: Path, data: bytes, replace: bool) -> None:
                 os.close(dfd)
 
 
-def add_token(path: str | Path, name: str, stores: Sequence[str] = ("*",),
-              concurrent: int = DEFAULT_CONCURRENT) -> tuple[str, dict]:
+def add_token(
+    path: str | Path, name: str, stores: Sequence[str] = ("*",), concurrent: int = DEFAULT_CONCURRENT
+) -> tuple[str, dict]:
     """Add a fresh token named ``name`` to the tokens file ``path`` (created, mode 0600, if there
     is none); returns (the token, its entry). The token is not written anywhere: give it to its
     holder and forget it (the file keeps its SHA-256).
@@ -311,8 +314,10 @@ def add_token(path: str | Path, name: str, stores: Sequence[str] = ("*",),
         else:
             old = TokenTable.from_dict(parse_json(raw, f"tokens {path}"), f"--tokens {path}").tokens
             if any(t.name == name for t in old):
-                raise ParameterError(f"--new-token: expected a name not yet in {path}, got {name!r} (remove its entry "
-                                     "first to give it a new token)")
+                raise ParameterError(
+                    f"--new-token: expected a name not yet in {path}, got {name!r} (remove its entry "
+                    "first to give it a new token)"
+                )
             text = _appended(raw.decode("utf-8"), entry)
         data = text.encode("utf-8")
         try:
@@ -320,7 +325,9 @@ def add_token(path: str | Path, name: str, stores: Sequence[str] = ("*",),
         except ParameterError:
             ok = False
         if not ok:
-            raise ParameterError(f"--tokens: could not add the entry to {path} keeping every other byte (at most "
-                                 f"{MAX_BODY} bytes and 256 tokens); add it by hand: {json.dumps(entry)}")
+            raise ParameterError(
+                f"--tokens: could not add the entry to {path} keeping every other byte (at most "
+                f"{MAX_BODY} bytes and 256 tokens); add it by hand: {json.dumps(entry)}"
+            )
         _write(path, data, replace=raw is not None)
     return token, entry

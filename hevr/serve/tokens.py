@@ -86,8 +86,10 @@ class TokenTable:
         """The table of a parsed tokens file; ``empty``: an empty list too (a running server's
         re-read: every token revoked), else 1 to :data:`MAX_TOKENS` entries."""
         if not isinstance(d, dict) or set(d) != {"version", "tokens"}:
-            raise ParameterError(f"{where}: expected an object with exactly 'version' and 'tokens', got "
-                                 f"{sorted(d) if isinstance(d, dict) else type(d).__name__}")
+            raise ParameterError(
+                f"{where}: expected an object with exactly 'version' and 'tokens', got "
+                f"{sorted(d) if isinstance(d, dict) else type(d).__name__}"
+            )
         if d["version"] != 1 or type(d["version"]) is not int:
             raise ParameterError(f"{where}: version: expected 1, got {d['version']!r}")
         entries = d["tokens"]
@@ -95,26 +97,41 @@ class TokenTable:
         if not isinstance(entries, list) or not least <= len(entries) <= MAX_TOKENS:
             got = f"{len(entries)} entries" if isinstance(entries, list) else type(entries).__name__
             hint = " (a server starts with a token at least; emptied under a running server, the file revokes them all)"
-            raise ParameterError(f"{where}: tokens: expected a list of {least} to {MAX_TOKENS} entries, got {got}"
-                                 + (hint if entries == [] else ""))
+            raise ParameterError(
+                f"{where}: tokens: expected a list of {least} to {MAX_TOKENS} entries, got {got}"
+                + (hint if entries == [] else "")
+            )
         out, names, digests = [], set(), set()
         for i, e in enumerate(entries):
             at = f"{where}: tokens[{i}]"
-            if not isinstance(e, dict) or not {"name", "sha256", "stores"} <= set(e) <= {"name", "sha256", "stores",
-                                                                                          "concurrent"}:
-                raise ParameterError(f"{at}: expected the fields name, sha256, stores (and concurrent), got "
-                                     f"{sorted(e) if isinstance(e, dict) else type(e).__name__}")
+            if not isinstance(e, dict) or not {"name", "sha256", "stores"} <= set(e) <= {
+                "name",
+                "sha256",
+                "stores",
+                "concurrent",
+            }:
+                raise ParameterError(
+                    f"{at}: expected the fields name, sha256, stores (and concurrent), got "
+                    f"{sorted(e) if isinstance(e, dict) else type(e).__name__}"
+                )
             if not isinstance(e["name"], str) or not _NAME.fullmatch(e["name"]) or e["name"] in names:
-                raise ParameterError(f"{at}.name: expected a unique name of 1-64 letters, digits or _.@-, "
-                                     f"got {str(e['name'])[:70]!r}")
+                raise ParameterError(
+                    f"{at}.name: expected a unique name of 1-64 letters, digits or _.@-, got {str(e['name'])[:70]!r}"
+                )
             if not isinstance(e["sha256"], str) or not _HEX64.fullmatch(e["sha256"]) or e["sha256"] in digests:
-                raise ParameterError(f"{at}.sha256: expected a unique SHA-256 of the token as 64 lower-case hex digits "
-                                     "(hevr serve --new-token NAME prints one)")
+                raise ParameterError(
+                    f"{at}.sha256: expected a unique SHA-256 of the token as 64 lower-case hex digits "
+                    "(hevr serve --new-token NAME prints one)"
+                )
             stores = e["stores"]
-            if not isinstance(stores, list) or not stores or not all(isinstance(s, str) and _STORE.fullmatch(s)
-                                                                     for s in stores):
-                raise ParameterError(f"{at}.stores: expected a list of store ids (16 hex digits) or '*', "
-                                     f"got {str(stores)[:80]!r}")
+            if (
+                not isinstance(stores, list)
+                or not stores
+                or not all(isinstance(s, str) and _STORE.fullmatch(s) for s in stores)
+            ):
+                raise ParameterError(
+                    f"{at}.stores: expected a list of store ids (16 hex digits) or '*', got {str(stores)[:80]!r}"
+                )
             conc = e.get("concurrent", DEFAULT_CONCURRENT)
             if type(conc) is not int or not 1 <= conc <= 64:
                 raise ParameterError(f"{at}.concurrent: expected an integer in [1, 64], got {str(conc)[:40]!r}")

@@ -43,7 +43,6 @@ False
 from __future__ import annotations
 
 import dataclasses
-
 import hashlib
 import hmac
 import json
@@ -52,14 +51,34 @@ from typing import Any
 
 from ..crypto.tags import tag_key_of
 
-__all__ = ["AUTHENTICATED", "AUTH_PREFIX", "authenticated_fields", "check_metadata_mac", "is_auth", "metadata_digest",
-           "metadata_mac", "raw_metadata_mac"]
+__all__ = [
+    "AUTHENTICATED",
+    "AUTH_PREFIX",
+    "authenticated_fields",
+    "check_metadata_mac",
+    "is_auth",
+    "metadata_digest",
+    "metadata_mac",
+    "raw_metadata_mac",
+]
 
 AUTH_PREFIX = "hmac-sha256:"
 _AUTH = re.compile(r"hmac-sha256:[0-9a-f]{64}")
 # the fields of the metadata (VolumeMetadata.to_dict's names) that the owner's MAC binds
-AUTHENTICATED = ("shape", "spacing", "brick", "public_key", "ciphertext_bytes", "dtype", "value_range", "base",
-                 "channels", "store_id", "patient", "tags")
+AUTHENTICATED = (
+    "shape",
+    "spacing",
+    "brick",
+    "public_key",
+    "ciphertext_bytes",
+    "dtype",
+    "value_range",
+    "base",
+    "channels",
+    "store_id",
+    "patient",
+    "tags",
+)
 
 
 def is_auth(value: Any) -> bool:

@@ -7,13 +7,12 @@ it moves while a brick is encrypted, not only when a brick is written.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from ..runtime import cancel
-
-from ..runtime import stats
+from ..runtime import cancel, stats
 
 __all__ = ["BATCH", "encrypt_components"]
 
@@ -38,7 +37,7 @@ def encrypt_components(be: Any, key: Any, q: Sequence[Any], shape: tuple, width:
             cts = []
             for lo in range(0, len(row), BATCH):
                 cancel.check()
-                part = row[lo:lo + BATCH]
+                part = row[lo : lo + BATCH]
                 with stats.timed("encrypt.crypto", len(part)):
                     cts.extend(be.encrypt(key, part, unsafe_no_obfuscation=unsafe))
                 cancel.add_steps(len(part))

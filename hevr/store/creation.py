@@ -19,9 +19,7 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from ..core.files import check_name
-
-from ..core.files import fs_errors
+from ..core.files import check_name, fs_errors
 from ..errors import ExistingFileError, FileSystemError, ParameterError, StoreError, StoreExistsError
 from .exclusive import StoreLock, locked_folder, remove_local_tree, rename_noreplace, swap_lock
 from .layout import check_document, check_documents, check_entry, chunk_key, compressors
@@ -34,8 +32,9 @@ __all__ = ["create_store", "claim_store", "new_store", "resume_target"]
 _URL_CLAIMS = threading.Lock()  # memory:// lives in this process: its claims are atomic under this lock
 
 
-def create_store(path: str, meta: VolumeMetadata, storage_options: dict | None = None, *,
-                 name: str = "path") -> VolumeMetadata:
+def create_store(
+    path: str, meta: VolumeMetadata, storage_options: dict | None = None, *, name: str = "path"
+) -> VolumeMetadata:
     """Create a new store at ``path`` exclusively (:func:`claim_store`; its lock is not kept).
     Returns the metadata written."""
     meta, lock = claim_store(path, meta, storage_options, name=name)
@@ -43,8 +42,9 @@ def create_store(path: str, meta: VolumeMetadata, storage_options: dict | None =
     return meta
 
 
-def claim_store(path: str, meta: VolumeMetadata, storage_options: dict | None = None, *,
-                name: str = "path") -> tuple[VolumeMetadata, StoreLock]:
+def claim_store(
+    path: str, meta: VolumeMetadata, storage_options: dict | None = None, *, name: str = "path"
+) -> tuple[VolumeMetadata, StoreLock]:
     """Create the group and arrays of a new store (incomplete) at ``path``, only if nothing is
     there: of several creators exactly one wins, the others get :class:`hevr.StoreExistsError`
     naming ``name`` and nothing of theirs is written there. Returns the metadata written and
@@ -79,8 +79,10 @@ def claim_store(path: str, meta: VolumeMetadata, storage_options: dict | None = 
             remove_local_tree(tmp)
             lock.release()
             if isinstance(exc, FileExistsError) and not isinstance(exc, StoreError):
-                raise StoreExistsError(f"{name}: {path} already exists (created by another run at the same time); "
-                                       "nothing was written there") from None
+                raise StoreExistsError(
+                    f"{name}: {path} already exists (created by another run at the same time); "
+                    "nothing was written there"
+                ) from None
             raise
     return meta, lock
 
@@ -94,8 +96,9 @@ def _claim_url(path: str, meta: VolumeMetadata, storage_options: dict | None, na
         try:  # the conditional create of hevr.store.paths.write_new_bytes
             write_new_bytes(f"{path.rstrip('/')}/zarr.json", [doc], storage_options, name=name)
         except ExistingFileError:
-            raise StoreExistsError(f"{name}: {path} already exists (created by another run at the same time); "
-                                   "nothing was written there") from None
+            raise StoreExistsError(
+                f"{name}: {path} already exists (created by another run at the same time); nothing was written there"
+            ) from None
 
 
 def _check_owner(path: str, store_id: str, storage_options: dict | None, name: str) -> None:
@@ -105,8 +108,10 @@ def _check_owner(path: str, store_id: str, storage_options: dict | None, name: s
     except (OSError, ValueError, KeyError, TypeError):
         found = None
     if found != store_id:
-        raise StoreExistsError(f"{name}: {path} was created or replaced by another run at the same time (its store "
-                               f"id is not this run's); this run stopped")
+        raise StoreExistsError(
+            f"{name}: {path} was created or replaced by another run at the same time (its store "
+            f"id is not this run's); this run stopped"
+        )
 
 
 def _skeleton(path: str, meta: VolumeMetadata, storage_options: dict | None, claimed: bool = False) -> VolumeMetadata:
@@ -115,10 +120,10 @@ def _skeleton(path: str, meta: VolumeMetadata, storage_options: dict | None, cla
     ``hevr`` attribute, written last. Returns the metadata written."""
     group = zarr.open_group(zarr_store(path, storage_options), mode="r+" if claimed else "w-")
     for name, (shape, chunks) in array_layout(meta).items():
-        group.create_array(name, shape=shape, chunks=chunks, dtype="uint8", compressors=compressors(name),
-                           fill_value=0)
-    meta = dataclasses.replace(meta, arrays={name: document_digest(path, name, storage_options)
-                                             for name in array_layout(meta)})
+        group.create_array(name, shape=shape, chunks=chunks, dtype="uint8", compressors=compressors(name), fill_value=0)
+    meta = dataclasses.replace(
+        meta, arrays={name: document_digest(path, name, storage_options) for name in array_layout(meta)}
+    )
     group.attrs["hevr"] = meta.to_dict()
     return meta
 

@@ -41,22 +41,24 @@ import logging
 import os
 import shutil
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
-from ..core.files import read_regular
-
-from ..core.files import remove_if_abandoned
-
-from ..core.files import temp_sibling
-
-from ..core.files import temporaries
+from ..core.files import read_regular, remove_if_abandoned, temp_sibling, temporaries
 from ..errors import FileSystemError, StoreError, StoreExistsError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["rename_noreplace", "StoreLock", "lock_store", "locked_folder", "swap_lock", "is_complete",
-           "remove_leftovers", "remove_local_tree"]
+__all__ = [
+    "rename_noreplace",
+    "StoreLock",
+    "lock_store",
+    "locked_folder",
+    "swap_lock",
+    "is_complete",
+    "remove_leftovers",
+    "remove_local_tree",
+]
 
 _AT_FDCWD = -100
 _RENAME_NOREPLACE = 1
@@ -97,7 +99,7 @@ class StoreLock:
             os.close(self.fd)
             self.fd = None
 
-    def __enter__(self) -> "StoreLock":
+    def __enter__(self) -> StoreLock:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -115,13 +117,13 @@ def _flock(fd: int, blocking: bool) -> bool:
     except OSError as exc:
         if exc.errno not in _NO_LOCKS:
             raise
-        log.warning("this filesystem has no flock (%s): concurrent writers of one store are not excluded",
-                    exc.strerror)
+        log.warning("this filesystem has no flock (%s): concurrent writers of one store are not excluded", exc.strerror)
         return True
 
 
-def lock_store(path: str | os.PathLike, *, name: str = "path", error: type[StoreError] = StoreExistsError,
-               hold: bool = True) -> StoreLock:
+def lock_store(
+    path: str | os.PathLike, *, name: str = "path", error: type[StoreError] = StoreExistsError, hold: bool = True
+) -> StoreLock:
     """The lock of the local store folder ``path``, taken at once, or ``error`` (default
     :class:`hevr.StoreExistsError`) naming ``name`` when another run holds it (writes the store
     now). ``hold=False`` only checks (the lock is dropped at once)."""
@@ -137,8 +139,10 @@ def lock_store(path: str | os.PathLike, *, name: str = "path", error: type[Store
         raise
     if not free:
         lock.release()
-        raise error(f"{name}: {path} is being written by another run right now (encrypt_volume, an overwrite or "
-                    "build_pyramid); wait for it to finish")
+        raise error(
+            f"{name}: {path} is being written by another run right now (encrypt_volume, an overwrite or "
+            "build_pyramid); wait for it to finish"
+        )
     if not hold:
         lock.release()
     return lock
@@ -167,8 +171,12 @@ def locked_folder(path: str | os.PathLike, what: str) -> tuple[str, StoreLock]:
                 os.rmdir(tmp)
             raise
         os.close(fd)
-    raise FileSystemError(errno.EAGAIN, "creating a temporary folder beside", path,  # pragma: no cover
-                          "removed again and again by another process")
+    raise FileSystemError(
+        errno.EAGAIN,
+        "creating a temporary folder beside",
+        path,  # pragma: no cover
+        "removed again and again by another process",
+    )
 
 
 @contextlib.contextmanager
@@ -218,8 +226,11 @@ def remove_leftovers(path: str | os.PathLike) -> list[Path]:
     """Remove the temporary folders of earlier runs beside the local store ``path`` whose
     writer is gone (module docstring); returns what was removed. Best effort (logged)."""
     kinds = ("tmp", "new", "old") if is_complete(path) else ("tmp",)
-    removed = [t for t in temporaries(path, kinds)
-               if t.is_dir() and not t.is_symlink() and remove_if_abandoned(t, remove_local_tree)]
+    removed = [
+        t
+        for t in temporaries(path, kinds)
+        if t.is_dir() and not t.is_symlink() and remove_if_abandoned(t, remove_local_tree)
+    ]
     for t in removed:
         log.info("removed %s, left beside %s by an earlier run that did not finish", t, path)
     return removed

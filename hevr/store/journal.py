@@ -32,23 +32,29 @@ import hashlib
 import json
 import logging
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import dask
 import dask.array
 import numpy as np
 
-from ..runtime.scheduler import compute
-from ..core.files import fs_errors
-from ..core.files import read_regular
-from ..core.files import write_atomic
+from ..core.files import fs_errors, read_regular, write_atomic
 from ..errors import ParameterError
+from ..runtime.scheduler import compute
 
 log = logging.getLogger(__name__)
 
-__all__ = ["journal_dir", "journal_path", "plain_digest", "input_digests", "write_journal", "check_journal",
-           "remove_journal"]
+__all__ = [
+    "journal_dir",
+    "journal_path",
+    "plain_digest",
+    "input_digests",
+    "write_journal",
+    "check_journal",
+    "remove_journal",
+]
 
 FORMAT = "hevr-resume-journal"
 
@@ -75,13 +81,13 @@ def plain_digest(block: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def input_digests(vol: Any, brick: tuple[int, int, int], bricks: Sequence[tuple[int, int, int]],
-                  client: Any = None) -> dict[tuple[int, int, int], str]:
+def input_digests(
+    vol: Any, brick: tuple[int, int, int], bricks: Sequence[tuple[int, int, int]], client: Any = None
+) -> dict[tuple[int, int, int], str]:
     """Per-brick plaintext digests of ``vol``: in this process for in-memory arrays, one task
     per brick (read inside the task) for dask arrays."""
     if not isinstance(vol, dask.array.Array):
-        return {idx: plain_digest(vol[tuple(slice(i * b, (i + 1) * b) for i, b in zip(idx, brick))])
-                for idx in bricks}
+        return {idx: plain_digest(vol[tuple(slice(i * b, (i + 1) * b) for i, b in zip(idx, brick))]) for idx in bricks}
     blocks = vol.rechunk(brick).to_delayed()
     task = dask.delayed(plain_digest, pure=True)
     out = compute([task(blocks[idx]) for idx in bricks], client=client, progress=False, desc="digest")
@@ -93,8 +99,14 @@ def write_journal(store_id: str, path: str, fingerprint: str, digests: dict) -> 
     folder = journal_dir()
     with fs_errors("creating the resume journal folder", folder):
         folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-    doc = {"format": FORMAT, "version": 1, "store": path, "store_id": store_id, "fingerprint": fingerprint,
-           "bricks": {",".join(map(str, k)): v for k, v in digests.items()}}
+    doc = {
+        "format": FORMAT,
+        "version": 1,
+        "store": path,
+        "store_id": store_id,
+        "fingerprint": fingerprint,
+        "bricks": {",".join(map(str, k)): v for k, v in digests.items()},
+    }
     target = journal_path(store_id)
     write_atomic(target, json.dumps(doc, indent=1) + "\n", mode=0o600)
     log.info("resume journal of %s: %s", path, target)
@@ -123,8 +135,9 @@ def check_journal(store_id: str, path: str, fingerprint: str, digests: dict) -> 
             "overwrite=True (or point the Dask config key hevr.journal-dir at the journal's folder)"
         ) from None
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise ParameterError(f"resume: the resume journal {target} cannot be read ({type(exc).__name__}); "
-                             "start over with overwrite=True") from None
+        raise ParameterError(
+            f"resume: the resume journal {target} cannot be read ({type(exc).__name__}); start over with overwrite=True"
+        ) from None
     if recorded is None or doc.get("fingerprint") != fingerprint:
         raise ParameterError(f"resume: the resume journal {target} does not belong to the store {path}")
     for idx, digest in digests.items():

@@ -75,8 +75,20 @@ from .known_file import (
 )
 from .known_merge import merge_entry
 
-__all__ = ["KnownStore", "accepted_untagged", "check_known", "export_known_stores", "import_known_stores",
-           "known_stores", "known_stores_path", "known_verifiable", "record_quietly", "record_verified", "retired_by", "trust_store"]
+__all__ = [
+    "KnownStore",
+    "accepted_untagged",
+    "check_known",
+    "export_known_stores",
+    "import_known_stores",
+    "known_stores",
+    "known_stores_path",
+    "known_verifiable",
+    "record_quietly",
+    "record_verified",
+    "retired_by",
+    "trust_store",
+]
 
 log = logging.getLogger(__name__)
 
@@ -86,8 +98,14 @@ def _now() -> str:
 
 
 def _of_meta(base: Any, **kw: Any) -> KnownStore:
-    return KnownStore(store_id=base.store_id, digest=metadata_digest(authenticated_fields(base.to_dict())),
-                      verifiable=bool(base.tags), fingerprint=base.fingerprint, recorded=_now(), **kw)
+    return KnownStore(
+        store_id=base.store_id,
+        digest=metadata_digest(authenticated_fields(base.to_dict())),
+        verifiable=bool(base.tags),
+        fingerprint=base.fingerprint,
+        recorded=_now(),
+        **kw,
+    )
 
 
 def _base(ev: Any) -> Any:
@@ -96,9 +114,11 @@ def _base(ev: Any) -> Any:
 
 def _need_key(private_key: Any, what: str) -> None:
     if private_key is None or not hasattr(private_key, "p"):
-        raise ParameterError(f"private_key: expected the key holder's PrivateKey ({what}: each entry of the known "
-                             "stores is MAC'd under it, so that an edited or forged entry is caught), got "
-                             f"{type(private_key).__name__}")
+        raise ParameterError(
+            f"private_key: expected the key holder's PrivateKey ({what}: each entry of the known "
+            "stores is MAC'd under it, so that an edited or forged entry is caught), got "
+            f"{type(private_key).__name__}"
+        )
 
 
 def known_stores(path: str | os.PathLike | None = None) -> dict[str, KnownStore]:
@@ -120,29 +140,41 @@ def check_known(ev: Any) -> KnownStore | None:
     if not olds:
         replaced = kf.retired.get(entry.store_id)
         if replaced is not None and replaced[1] != entry.store_id:  # an old version, moved to a new name
-            raise VerificationError(f"{name}: the store {entry.store_id} is one the owner replaced with the store "
-                                    f"{replaced[1]} at {replaced[0]} (recorded {where}): an old version served?; if "
-                                    "you mean it, accept it with hevr.trust_store(volume, private_key) or hevr render "
-                                    "--key K --trust-store; nothing was rendered")
+            raise VerificationError(
+                f"{name}: the store {entry.store_id} is one the owner replaced with the store "
+                f"{replaced[1]} at {replaced[0]} (recorded {where}): an old version served?; if "
+                "you mean it, accept it with hevr.trust_store(volume, private_key) or hevr render "
+                "--key K --trust-store; nothing was rendered"
+            )
         for other in kf.by_id.get(entry.store_id, ()):
             if any(e.store_id == entry.store_id and e.digest != entry.digest for e in kf.entries(other)):
-                raise VerificationError(f"store {entry.store_id}: its metadata differ from what was recorded for it "
-                                        f"under {other} {where}: altered metadata; nothing was rendered")
+                raise VerificationError(
+                    f"store {entry.store_id}: its metadata differ from what was recorded for it "
+                    f"under {other} {where}: altered metadata; nothing was rendered"
+                )
         return None
     for old in olds:
-        how = (f"(recorded {old.recorded or 'earlier'} {where}; if the owner re-encrypted or replaced it, accept it "
-               "with hevr.trust_store(volume, private_key) or hevr render --key K --trust-store)")
+        how = (
+            f"(recorded {old.recorded or 'earlier'} {where}; if the owner re-encrypted or replaced it, accept it "
+            "with hevr.trust_store(volume, private_key) or hevr render --key K --trust-store)"
+        )
         if old.store_id != entry.store_id:
-            raise VerificationError(f"{name}: expected the store {old.store_id}, got the store {entry.store_id}: "
-                                    f"another store, or another version of it, is under this name {how}; nothing "
-                                    "was rendered")
+            raise VerificationError(
+                f"{name}: expected the store {old.store_id}, got the store {entry.store_id}: "
+                f"another store, or another version of it, is under this name {how}; nothing "
+                "was rendered"
+            )
         if old.verifiable and not entry.verifiable:
-            raise VerificationError(f"{name}: expected the verifiable store {old.store_id} (recorded with tags), got "
-                                    f"it without tags: they were stripped, so that renders would go unverified "
-                                    f"{how}; nothing was rendered")
+            raise VerificationError(
+                f"{name}: expected the verifiable store {old.store_id} (recorded with tags), got "
+                f"it without tags: they were stripped, so that renders would go unverified "
+                f"{how}; nothing was rendered"
+            )
         if old.digest != entry.digest or old.fingerprint != entry.fingerprint:
-            raise VerificationError(f"{name}: the store's metadata (shape, spacing, channels, exponents, value range, "
-                                    f"key or tags) are not the ones recorded {how}; nothing was rendered")
+            raise VerificationError(
+                f"{name}: the store's metadata (shape, spacing, channels, exponents, value range, "
+                f"key or tags) are not the ones recorded {how}; nothing was rendered"
+            )
     return olds[0]
 
 
@@ -165,8 +197,13 @@ def _record(name: str, entry: KnownStore, private_key: Any, replace: bool) -> Kn
         retired = [x for x in dict.fromkeys(retired) if x != entry.store_id][-MAX_RETIRED:]
         new = signed_by(private_key, name, dataclasses.replace(entry, retired=tuple(retired)))
         store_file(kf, {**kf.signed, name: new}, {k: v for k, v in kf.unsigned.items() if k != name}, private_key)
-    log.info("known stores: %s recorded as the store %s (%s) in %s", name, new.store_id,
-             "verifiable" if new.verifiable else "without tags", kf.path)
+    log.info(
+        "known stores: %s recorded as the store %s (%s) in %s",
+        name,
+        new.store_id,
+        "verifiable" if new.verifiable else "without tags",
+        kf.path,
+    )
     return new
 
 
@@ -184,8 +221,13 @@ def record_verified(verification: Any, private_key: Any) -> KnownStore | None:
     old = kf.signed.get(name)
     if old is not None:
         if (old.store_id, old.digest, old.fingerprint) != (entry.store_id, entry.digest, entry.fingerprint):
-            log.warning("known stores: %s was recorded as another store (%s) while the store %s rendered; not "
-                        "recorded (hevr.trust_store accepts it)", name, old.store_id, entry.store_id)
+            log.warning(
+                "known stores: %s was recorded as another store (%s) while the store %s rendered; not "
+                "recorded (hevr.trust_store accepts it)",
+                name,
+                old.store_id,
+                entry.store_id,
+            )
         return old
     try:
         return _record(name, entry, private_key, replace=False)
@@ -218,20 +260,27 @@ def trust_store(ev: Any, private_key: Any = None, *, untagged: bool = False) -> 
     _need_key(private_key, "trust_store")
     base = _base(ev)
     if private_key.public_key.fingerprint != base.fingerprint:
-        raise ParameterError(f"private_key: expected the private key of the store (fingerprint "
-                             f"{base.fingerprint[:16]}…), got one of fingerprint "
-                             f"{private_key.public_key.fingerprint[:16]}…")
+        raise ParameterError(
+            f"private_key: expected the private key of the store (fingerprint "
+            f"{base.fingerprint[:16]}…), got one of fingerprint "
+            f"{private_key.public_key.fingerprint[:16]}…"
+        )
     if base.tags and not check_metadata_mac(private_key, authenticated_fields(base.to_dict()), base.auth):
-        raise VerificationError(f"{ev.path}: expected the owner's MAC over the store's metadata, got "
-                                f"{'none' if not base.auth else 'one that does not match'}: altered metadata; not "
-                                "trusted")
+        raise VerificationError(
+            f"{ev.path}: expected the owner's MAC over the store's metadata, got "
+            f"{'none' if not base.auth else 'one that does not match'}: altered metadata; not "
+            "trusted"
+        )
     if not base.tags and getattr(private_key, "require_tags", False) and not untagged:
-        raise VerificationError(f"{ev.path}: the key requires tags (require_tags) and the store {base.store_id} has "
-                                "none, so its frames cannot be verified; if it is a store made with the public key "
-                                "that you accept as it is, pass untagged=True (hevr render --trust-store --untagged); "
-                                "not trusted")
-    return _record(str(ev.path), _of_meta(base, accepted_untagged=bool(untagged and not base.tags)), private_key,
-                   replace=True)
+        raise VerificationError(
+            f"{ev.path}: the key requires tags (require_tags) and the store {base.store_id} has "
+            "none, so its frames cannot be verified; if it is a store made with the public key "
+            "that you accept as it is, pass untagged=True (hevr render --trust-store --untagged); "
+            "not trusted"
+        )
+    return _record(
+        str(ev.path), _of_meta(base, accepted_untagged=bool(untagged and not base.tags)), private_key, replace=True
+    )
 
 
 def _vouched(store_id: str, private_key: Any, what: str) -> list[KnownStore]:
@@ -240,8 +289,11 @@ def _vouched(store_id: str, private_key: Any, what: str) -> list[KnownStore]:
     kf = load()
     verify_entries(kf, private_key)
     fp = private_key.public_key.fingerprint
-    return [e for n in kf.by_id.get(store_id, ()) if (e := kf.signed.get(n)) is not None and e.store_id == store_id
-            and e.fingerprint == fp]
+    return [
+        e
+        for n in kf.by_id.get(store_id, ())
+        if (e := kf.signed.get(n)) is not None and e.store_id == store_id and e.fingerprint == fp
+    ]
 
 
 def accepted_untagged(store_id: str, private_key: Any) -> bool:
@@ -273,8 +325,7 @@ def export_known_stores(path: str | os.PathLike, private_key: Any, *, overwrite:
     verify_entries(kf, private_key)
     fp = private_key.public_key.fingerprint
     mine = {n: e for n, e in kf.signed.items() if e.fingerprint == fp}
-    write_atomic(path, document(mine), mode=0o600, overwrite=overwrite, name="path",
-                 doing="exporting the known stores")
+    write_atomic(path, document(mine), mode=0o600, overwrite=overwrite, name="path", doing="exporting the known stores")
     log.info("known stores: %d entries of the key %s… exported to %s", len(mine), fp[:16], path)
     return len(mine)
 
@@ -292,8 +343,10 @@ def import_known_stores(path: str | os.PathLike, private_key: Any) -> int:
     fp = private_key.public_key.fingerprint
     for name, e in {**other.unsigned, **other.signed}.items():
         if not e.signed or e.fingerprint != fp:
-            raise VerificationError(f"known stores: the entry {name!r} in {p} is not MAC'd under this key (fingerprint "
-                                    f"{fp[:16]}…): {'unsigned' if not e.signed else 'another key'}; nothing imported")
+            raise VerificationError(
+                f"known stores: the entry {name!r} in {p} is not MAC'd under this key (fingerprint "
+                f"{fp[:16]}…): {'unsigned' if not e.signed else 'another key'}; nothing imported"
+            )
     verify_entries(other, private_key, where=str(p))
     changed = 0
     with locked(known_stores_path()):
@@ -311,4 +364,3 @@ def import_known_stores(path: str | os.PathLike, private_key: Any) -> int:
             store_file(kf, signed, unsigned, private_key)
     log.info("known stores: %d of %d entries of %s merged into %s", changed, len(other.signed), p, kf.path)
     return changed
-

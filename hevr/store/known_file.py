@@ -24,19 +24,33 @@ import os
 import re
 import stat
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
-from ..core.files import file_kind
-
-from ..core.files import write_atomic
+from ..core.files import file_kind, write_atomic
 from ..crypto.tags import tag_key_of
 from ..errors import FileSystemError, NotRegularFileError, ParameterError, VerificationError
 from .authenticity import canonical
 
-__all__ = ["FORMAT", "KnownFile", "KnownStore", "MAX_BYTES", "MAX_RETIRED", "entry_mac", "known_key", "known_stores_path",
-           "load", "locked", "parse", "read_file", "signed_by", "store_file", "verify_entries"]
+__all__ = [
+    "FORMAT",
+    "KnownFile",
+    "KnownStore",
+    "MAX_BYTES",
+    "MAX_RETIRED",
+    "entry_mac",
+    "known_key",
+    "known_stores_path",
+    "load",
+    "locked",
+    "parse",
+    "read_file",
+    "signed_by",
+    "store_file",
+    "verify_entries",
+]
 
 log = logging.getLogger(__name__)
 FORMAT = "hevr-known-stores"
@@ -46,7 +60,7 @@ MAX_RETIRED = 64  # retired ids kept per name (the newest)
 MAC_PREFIX = "hmac-sha256:"
 _MAC = re.compile(r"hmac-sha256:[0-9a-f]{64}")
 _FIELDS = ("store_id", "digest", "verifiable", "fingerprint", "recorded", "retired", "accepted_untagged")
-_CACHE: dict[str, tuple[tuple, "KnownFile"]] = {}
+_CACHE: dict[str, tuple[tuple, KnownFile]] = {}
 _LOCK = threading.Lock()
 _WARNED_V1: set = set()
 
@@ -71,9 +85,15 @@ class KnownStore:
 
     def fields(self) -> dict[str, Any]:
         """The entry as the file holds it, without its MAC."""
-        return {"store_id": self.store_id, "digest": self.digest, "verifiable": bool(self.verifiable),
-                "fingerprint": self.fingerprint, "recorded": self.recorded, "retired": list(self.retired),
-                "accepted_untagged": bool(self.accepted_untagged)}
+        return {
+            "store_id": self.store_id,
+            "digest": self.digest,
+            "verifiable": bool(self.verifiable),
+            "fingerprint": self.fingerprint,
+            "recorded": self.recorded,
+            "retired": list(self.retired),
+            "accepted_untagged": bool(self.accepted_untagged),
+        }
 
 
 @dataclass
@@ -141,7 +161,8 @@ def verify_entries(kf: KnownFile, private_key: Any, where: str | None = None) ->
             raise VerificationError(
                 f"known stores: the entry {name!r} in {where or kf.path} does not carry the key holder's MAC: it was "
                 "edited, forged or copied from another file; nothing is trusted from it (remove that entry, or the "
-                "file, and trust your stores again)")
+                "file, and trust your stores again)"
+            )
     kf.checked.add(mark)
 
 
@@ -151,12 +172,18 @@ def _bad(p: Path, what: str) -> ParameterError:
 
 def _check_owner(p: Path, st: os.stat_result, kind: str, writable_bits: int) -> None:
     if st.st_uid != os.getuid() and not (kind == "folder" and st.st_uid == 0):
-        raise _bad(p, f"a {kind} owned by another user (uid {st.st_uid}); another user could edit what protects "
-                      "you: make it yours (chown) or set HEVR_KNOWN_STORES to a file of your own")
+        raise _bad(
+            p,
+            f"a {kind} owned by another user (uid {st.st_uid}); another user could edit what protects "
+            "you: make it yours (chown) or set HEVR_KNOWN_STORES to a file of your own",
+        )
     if st.st_mode & writable_bits:
         who = "anyone" if st.st_mode & 0o002 else "your group"
-        raise _bad(p, f"a {kind} {who} may write (mode {stat.S_IMODE(st.st_mode):04o}); another user could edit what "
-                      "protects you: chmod go-w it")
+        raise _bad(
+            p,
+            f"a {kind} {who} may write (mode {stat.S_IMODE(st.st_mode):04o}); another user could edit what "
+            "protects you: chmod go-w it",
+        )
 
 
 def read_file(p: Path, *, strict: bool = True, known: tuple | None = None) -> tuple[tuple, bytes | None] | None:
@@ -177,8 +204,11 @@ def read_file(p: Path, *, strict: bool = True, known: tuple | None = None) -> tu
         return None
     except OSError as exc:
         if strict and (exc.errno == errno.ELOOP or p.is_symlink()):
-            raise _bad(p, "a symbolic link (to {}); hevr reads and replaces only a regular file there, so point "
-                          "HEVR_KNOWN_STORES at the file itself".format(os.readlink(p) if p.is_symlink() else "?"))
+            raise _bad(
+                p,
+                "a symbolic link (to {}); hevr reads and replaces only a regular file there, so point "
+                "HEVR_KNOWN_STORES at the file itself".format(os.readlink(p) if p.is_symlink() else "?"),
+            )
         if exc.errno in (errno.ENXIO, errno.EOPNOTSUPP):  # a socket
             raise NotRegularFileError("known stores", "the key holder's known-stores file", p, "a socket") from None
         raise FileSystemError(exc.errno, "reading the known-stores file", p, exc.strerror) from None
@@ -213,15 +243,26 @@ def _entry(name: Any, e: Any, signed: bool) -> KnownStore:
         raise ValueError(f"entry {str(name)[:60]!r} is not an object")
     keys = e.keys()
     if (keys != _ALL) if signed else not (_V1 <= keys <= _ALL):
-        raise ValueError(f"entry {name[:60]!r} has the fields {sorted(keys)[:10]}, expected {sorted(_ALL if signed else _V1)}")
+        raise ValueError(
+            f"entry {name[:60]!r} has the fields {sorted(keys)[:10]}, expected {sorted(_ALL if signed else _V1)}"
+        )
     sid, digest, fp, rec = e["store_id"], e["digest"], e["fingerprint"], e.get("recorded", "")
     retired, untagged, mac = e.get("retired", []), e.get("accepted_untagged", False), e.get("mac", "")
-    if (type(sid) is not str or type(digest) is not str or type(fp) is not str or type(rec) is not str
-            or type(e["verifiable"]) is not bool or type(untagged) is not bool or type(retired) is not list
-            or any(type(x) is not str for x in retired) or (signed and (type(mac) is not str or not _MAC.fullmatch(mac)))):
+    if (
+        type(sid) is not str
+        or type(digest) is not str
+        or type(fp) is not str
+        or type(rec) is not str
+        or type(e["verifiable"]) is not bool
+        or type(untagged) is not bool
+        or type(retired) is not list
+        or any(type(x) is not str for x in retired)
+        or (signed and (type(mac) is not str or not _MAC.fullmatch(mac)))
+    ):
         raise ValueError(f"entry {name[:60]!r} has a field of the wrong type")
-    return KnownStore(sid, digest, e["verifiable"], fp, rec, tuple(retired), untagged if signed else False,
-                      mac if signed else "")
+    return KnownStore(
+        sid, digest, e["verifiable"], fp, rec, tuple(retired), untagged if signed else False, mac if signed else ""
+    )
 
 
 def parse(p: Path, raw: bytes) -> KnownFile:
@@ -230,24 +271,40 @@ def parse(p: Path, raw: bytes) -> KnownFile:
     are read as unsigned (a warning, once per file)."""
     try:
         doc = json.loads(raw.decode("utf-8"))
-        if not (isinstance(doc, dict) and doc.get("format") == FORMAT and doc.get("version") in (1, VERSION)
-                and isinstance(doc.get("stores"), dict) and isinstance(doc.get("unsigned", {}), dict)):
+        if not (
+            isinstance(doc, dict)
+            and doc.get("format") == FORMAT
+            and doc.get("version") in (1, VERSION)
+            and isinstance(doc.get("stores"), dict)
+            and isinstance(doc.get("unsigned", {}), dict)
+        ):
             raise ValueError(f"not a known-stores document of version 1 or {VERSION}")
         if doc["version"] == 1:
             if str(p) not in _WARNED_V1:
                 _WARNED_V1.add(str(p))
-                log.warning("known stores: %s is of version 1 (no MACs): its entries are used only to refuse a store, "
-                            "never to accept one; each is recorded again, MAC'd, after the next verified render of "
-                            "its store (or hevr.trust_store(volume, private_key))", p)
+                log.warning(
+                    "known stores: %s is of version 1 (no MACs): its entries are used only to refuse a store, "
+                    "never to accept one; each is recorded again, MAC'd, after the next verified render of "
+                    "its store (or hevr.trust_store(volume, private_key))",
+                    p,
+                )
             return KnownFile(p, unsigned={n: _entry(n, e, False) for n, e in doc["stores"].items()})
-        return KnownFile(p, signed={n: _entry(n, e, True) for n, e in doc["stores"].items()},
-                         unsigned={n: _entry(n, e, False) for n, e in doc.get("unsigned", {}).items()})
+        return KnownFile(
+            p,
+            signed={n: _entry(n, e, True) for n, e in doc["stores"].items()},
+            unsigned={n: _entry(n, e, False) for n, e in doc.get("unsigned", {}).items()},
+        )
     except RecursionError:
-        raise _bad(p, "JSON nested too deeply to read (an attack on the parser?); repair or remove it (and "
-                      "re-trust your stores)") from None
+        raise _bad(
+            p,
+            "JSON nested too deeply to read (an attack on the parser?); repair or remove it (and re-trust your stores)",
+        ) from None
     except (ValueError, TypeError, KeyError, UnicodeDecodeError) as exc:
-        raise _bad(p, f"one that cannot be read ({type(exc).__name__}: {str(exc)[:100]}); repair or remove it (and "
-                      "re-trust your stores)") from None
+        raise _bad(
+            p,
+            f"one that cannot be read ({type(exc).__name__}: {str(exc)[:100]}); repair or remove it (and "
+            "re-trust your stores)",
+        ) from None
 
 
 def load(p: Path | None = None, *, strict: bool = True) -> KnownFile:
@@ -287,24 +344,37 @@ def locked(p: Path) -> Iterator[None]:
 
 def document(signed: dict[str, KnownStore], unsigned: dict[str, KnownStore] | None = None) -> str:
     """The text of a version-2 file: one entry a line."""
+
     def lines(table: dict[str, KnownStore], with_mac: bool) -> str:
-        return ",\n".join(json.dumps(n) + ": " + json.dumps(dict(e.fields(), **({"mac": e.mac} if with_mac else {})),
-                                                             separators=(",", ":"))
-                          for n, e in sorted(table.items()))
+        return ",\n".join(
+            json.dumps(n)
+            + ": "
+            + json.dumps(dict(e.fields(), **({"mac": e.mac} if with_mac else {})), separators=(",", ":"))
+            for n, e in sorted(table.items())
+        )
+
     head = json.dumps({"format": FORMAT, "version": VERSION})[:-1]
-    return (head + ', "stores": {\n' + lines(signed, True) + '\n}, "unsigned": {\n' + lines(unsigned or {}, False)
-            + "\n}}\n")
+    return (
+        head
+        + ', "stores": {\n'
+        + lines(signed, True)
+        + '\n}, "unsigned": {\n'
+        + lines(unsigned or {}, False)
+        + "\n}}\n"
+    )
 
 
-def store_file(kf: KnownFile, signed: dict[str, KnownStore], unsigned: dict[str, KnownStore],
-               private_key: Any) -> KnownFile:
+def store_file(
+    kf: KnownFile, signed: dict[str, KnownStore], unsigned: dict[str, KnownStore], private_key: Any
+) -> KnownFile:
     """Replace the file of ``kf`` (under :func:`locked`, after :func:`load` refused a symbolic link
     there) by these entries, mode 0600; the new file is cached as parsed, its entries of the key
     (checked or signed just now by the caller) as checked."""
     p = kf.path
     write_atomic(p, document(signed, unsigned), mode=0o600, name="known stores", doing="recording a known store")
-    new = KnownFile(p, signed=dict(signed), unsigned=dict(unsigned),
-                    checked={hashlib.sha256(known_key(private_key)).digest()})
+    new = KnownFile(
+        p, signed=dict(signed), unsigned=dict(unsigned), checked={hashlib.sha256(known_key(private_key)).digest()}
+    )
     try:
         st = os.stat(p, follow_symlinks=False)
     except OSError:

@@ -30,18 +30,28 @@ import numpy as np
 import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
-from ..core.files import check_regular
-
-from ..core.files import file_kind
+from ..core.files import check_regular, file_kind
 from ..crypto.tags import data_channel, tag_channel
 from ..errors import CorruptStoreError, MissingFileError
 from .digests import DIGEST_BYTES
 from .metadata import VolumeMetadata, ome_attribute
 from .paths import document_digest, is_local, object_sizes, read_document, zarr_store
 
-__all__ = ["CRC_BYTES", "compressors", "array_layout", "array_slices", "brick_slices", "chunk_key", "check_entry", "check_document",
-           "check_arrays",
-           "check_chunk_files", "check_chunk_objects", "check_documents", "check_level_layout"]
+__all__ = [
+    "CRC_BYTES",
+    "compressors",
+    "array_layout",
+    "array_slices",
+    "brick_slices",
+    "chunk_key",
+    "check_entry",
+    "check_document",
+    "check_arrays",
+    "check_chunk_files",
+    "check_chunk_objects",
+    "check_documents",
+    "check_level_layout",
+]
 
 CRC_BYTES = 4  # Zarr's crc32c codec appends 4 bytes to every chunk
 ZSTD_LEVEL = 1  # ciphertexts do not compress; level 1 only has to squeeze out the edge padding
@@ -66,8 +76,11 @@ def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple
     ``done`` array holds one digest per channel per brick (:mod:`hevr.store.digests`)."""
     w, out = meta.ciphertext_bytes, {}
     # a packed store's arrays: S voxels per record along its axis (hevr.store.packing)
-    shape, brick = ((meta.shape, meta.brick) if meta.packing is None else
-                    (meta.packing.array_shape(meta.shape), meta.packing.array_brick(meta.brick)))
+    shape, brick = (
+        (meta.shape, meta.brick)
+        if meta.packing is None
+        else (meta.packing.array_shape(meta.shape), meta.packing.array_brick(meta.brick))
+    )
     if meta.scalar is not None:
         out["scalar"] = (shape + (w,), brick + (w,))
     for name in ("vector", "gradient"):  # k components per voxel (per pack), one chunk holds all k of a brick
@@ -143,20 +156,26 @@ def check_chunk_files(path: str, meta: VolumeMetadata, prefix: str = "") -> None
             brick = tuple(int(i) for i in idx)
             where = "the digest markers 'done'" if name == "done" else f"channel {name!r}"
             try:
-                size = check_regular(Path(path) / rel, str(path), f"the chunk of brick {brick} in {where}",
-                                     error=CorruptStoreError).st_size
+                size = check_regular(
+                    Path(path) / rel, str(path), f"the chunk of brick {brick} in {where}", error=CorruptStoreError
+                ).st_size
             except MissingFileError:
                 raise CorruptStoreError(f"{path}: missing chunk for brick {brick} in {where}") from None
             if not exact:  # the zstd frame's own length (walked from its block headers) + the crc
                 try:
-                    expected = _zstd_frame_length(root / name / chunk_key(name, idx), int(np.prod(chunks)),
-                                                  size - CRC_BYTES) + CRC_BYTES
+                    expected = (
+                        _zstd_frame_length(root / name / chunk_key(name, idx), int(np.prod(chunks)), size - CRC_BYTES)
+                        + CRC_BYTES
+                    )
                 except _DamagedFrame as exc:
-                    raise CorruptStoreError(f"{path}: chunk {rel} of brick {brick} in {where} is damaged "
-                                            f"(not a complete zstd frame: {exc})") from None
+                    raise CorruptStoreError(
+                        f"{path}: chunk {rel} of brick {brick} in {where} is damaged (not a complete zstd frame: {exc})"
+                    ) from None
             if size != expected:
-                raise CorruptStoreError(f"{path}: chunk {rel} of brick {brick} in {where} is truncated "
-                                        f"or padded ({size} bytes, expected {expected})")
+                raise CorruptStoreError(
+                    f"{path}: chunk {rel} of brick {brick} in {where} is truncated "
+                    f"or padded ({size} bytes, expected {expected})"
+                )
 
 
 _GROUP_KEYS = {"attributes": None, "zarr_format": 3, "node_type": "group", "consolidated_metadata": None}
@@ -174,22 +193,32 @@ def check_documents(path: str, meta: VolumeMetadata, storage_options: dict | Non
                 check_document(path, name)
                 got = document_digest(path, name, storage_options)
             except FileNotFoundError:
-                raise CorruptStoreError(f"{path}: " + (f"channel {name!r} is declared but its array is missing"
-                                        if name != "done" else "the digest array 'done' is missing")) from None
+                raise CorruptStoreError(
+                    f"{path}: "
+                    + (
+                        f"channel {name!r} is declared but its array is missing"
+                        if name != "done"
+                        else "the digest array 'done' is missing"
+                    )
+                ) from None
             if got != want:
-                raise CorruptStoreError(f"{path}: the metadata document of array {name!r} was modified or "
-                                        "corrupted (digest mismatch)")
+                raise CorruptStoreError(
+                    f"{path}: the metadata document of array {name!r} was modified or corrupted (digest mismatch)"
+                )
     except (OSError, ValueError) as exc:
         raise CorruptStoreError(f"{path}: a metadata document cannot be read ({type(exc).__name__}: {exc})") from None
     extra = set(doc) - set(_GROUP_KEYS)
     wrong = [k for k, v in _GROUP_KEYS.items() if k != "attributes" and doc.get(k, v) != v]
     attrs = doc.get("attributes", {})
     if meta.levels and attrs.get("ome") != ome_attribute(meta):  # the multiscales follow the metadata
-        raise CorruptStoreError(f"{path}: the group's 'ome' attribute (OME-Zarr multiscales) does not match "
-                                "the store's pyramid levels")
+        raise CorruptStoreError(
+            f"{path}: the group's 'ome' attribute (OME-Zarr multiscales) does not match the store's pyramid levels"
+        )
     if extra or wrong or set(attrs) != ({"hevr", "ome"} if meta.levels else {"hevr"}):
-        raise CorruptStoreError(f"{path}: the group's zarr.json has unexpected content "
-                                f"({sorted(extra) + wrong or 'attributes other than hevr'})")
+        raise CorruptStoreError(
+            f"{path}: the group's zarr.json has unexpected content "
+            f"({sorted(extra) + wrong or 'attributes other than hevr'})"
+        )
 
 
 def check_level_layout(view: Any) -> None:
@@ -201,14 +230,19 @@ def check_level_layout(view: Any) -> None:
             check_document(path, prefix + name)
             got = document_digest(path, prefix + name, so)
         except (OSError, ValueError):
-            raise CorruptStoreError(f"{path}: array {prefix + name!r} of pyramid level {view.level} is missing") from None
+            raise CorruptStoreError(
+                f"{path}: array {prefix + name!r} of pyramid level {view.level} is missing"
+            ) from None
         if got != want:
-            raise CorruptStoreError(f"{path}: the metadata document of array {prefix + name!r} was modified or "
-                                    "corrupted (digest mismatch)")
+            raise CorruptStoreError(
+                f"{path}: the metadata document of array {prefix + name!r} was modified or corrupted (digest mismatch)"
+            )
     try:
         group = zarr.open_group(zarr_store(path, so, read_only=True), path=prefix.rstrip("/"), mode="r")
     except Exception as exc:
-        raise CorruptStoreError(f"{path}: pyramid level {view.level} cannot be opened ({type(exc).__name__}: {exc})") from None
+        raise CorruptStoreError(
+            f"{path}: pyramid level {view.level} cannot be opened ({type(exc).__name__}: {exc})"
+        ) from None
     check_arrays(path, group, meta)
     if is_local(path):
         check_chunk_files(path, meta, prefix)
@@ -227,12 +261,20 @@ def check_arrays(path: str, group: Any, meta: VolumeMetadata) -> None:
             raise CorruptStoreError(f"{path}: array {name!r} cannot be opened ({type(exc).__name__}: {exc})") from None
         codecs = [c.to_dict().get("name") for c in arr.metadata.codecs] if hasattr(arr.metadata, "codecs") else None
         got = (tuple(arr.shape), tuple(arr.chunks), str(arr.dtype), arr.metadata.fill_value, codecs, dict(arr.attrs))
-        want = (shape, chunks, "uint8", 0, _LEGACY_CODECS if name == "done" or codecs == _LEGACY_CODECS
-                else _BRICK_CODECS, {})
+        want = (
+            shape,
+            chunks,
+            "uint8",
+            0,
+            _LEGACY_CODECS if name == "done" or codecs == _LEGACY_CODECS else _BRICK_CODECS,
+            {},
+        )
         if got != want or getattr(arr.metadata, "dimension_names", None) is not None:
             labels = ("shape", "chunks", "dtype", "fill_value", "codecs", "attributes")
             diff = "; ".join(f"{lab} {g!r} (expected {w!r})" for lab, g, w in zip(labels, got, want) if g != w)
-            raise CorruptStoreError(f"{path}: array {name!r} has {diff or 'dimension names'}, inconsistent with the metadata")
+            raise CorruptStoreError(
+                f"{path}: array {name!r} has {diff or 'dimension names'}, inconsistent with the metadata"
+            )
 
 
 def _codec_names(array_dir: Path) -> list[str] | None:
@@ -290,8 +332,9 @@ def _walk_frame(fh: Any, content: int, observed: int) -> int:
     if len(head) < 6:
         raise _DamagedFrame(f"the file holds {len(head)} bytes, too few for a zstd frame header (truncated)")
     if int.from_bytes(head[:4], "little") != _ZSTD_MAGIC:
-        raise _DamagedFrame(f"it does not start with the zstd magic number (its first bytes are {head[:4].hex()}, "
-                            "expected 28b52ffd)")
+        raise _DamagedFrame(
+            f"it does not start with the zstd magic number (its first bytes are {head[:4].hex()}, expected 28b52ffd)"
+        )
     fhd = head[4]
     single, fcs_flag = (fhd >> 5) & 1, fhd >> 6
     pos = 5 + (0 if single else 1) + _ZSTD_DICT_BYTES[fhd & 3]
@@ -299,7 +342,7 @@ def _walk_frame(fh: Any, content: int, observed: int) -> int:
     if fcs_len:
         if len(head) < pos + fcs_len:
             raise _DamagedFrame(f"the file ends inside the frame header after {len(head)} bytes (truncated)")
-        fcs = int.from_bytes(head[pos:pos + fcs_len], "little") + (256 if fcs_len == 2 else 0)
+        fcs = int.from_bytes(head[pos : pos + fcs_len], "little") + (256 if fcs_len == 2 else 0)
         if fcs != content:
             raise _DamagedFrame(f"its header says the brick holds {fcs} bytes, expected {content}")
     pos += fcs_len
@@ -337,16 +380,20 @@ def check_chunk_objects(path: str, meta: VolumeMetadata, prefix: str = "", stora
             codecs = [c.get("name") for c in json.loads(read_document(path, prefix + name, storage_options))["codecs"]]
             sizes = object_sizes(f"{path}/{prefix}{name}/c", storage_options)
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-            raise CorruptStoreError(f"{path}: array {prefix + name!r} cannot be listed ({type(exc).__name__})") from None
+            raise CorruptStoreError(
+                f"{path}: array {prefix + name!r} cannot be listed ({type(exc).__name__})"
+            ) from None
         exact = name == "done" or codecs == _LEGACY_CODECS
         lo, hi = (raw + CRC_BYTES,) * 2 if exact else (CRC_BYTES + 6, raw + 3 * (raw // 131072 + 1) + 18 + CRC_BYTES)
         where = "the digest markers 'done'" if name == "done" else f"channel {name!r}"
         for idx in np.ndindex(*meta.grid):
-            key = chunk_key(name, idx)[len("c/"):]
+            key = chunk_key(name, idx)[len("c/") :]
             brick = tuple(int(i) for i in idx)
             size = sizes.get(key)
             if size is None:
                 raise CorruptStoreError(f"{path}: missing chunk for brick {brick} in {where}")
             if not lo <= size <= hi:
-                raise CorruptStoreError(f"{path}: chunk of brick {brick} in {where} is truncated or padded "
-                                        f"({size} bytes, expected {lo if exact else f'{lo} to {hi}'})")
+                raise CorruptStoreError(
+                    f"{path}: chunk of brick {brick} in {where} is truncated or padded "
+                    f"({size} bytes, expected {lo if exact else f'{lo} to {hi}'})"
+                )

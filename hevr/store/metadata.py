@@ -31,9 +31,7 @@ import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from ..core.validate import MAX_STORE_DIGITS
-
-from ..core.validate import is_decimal
+from ..core.validate import MAX_STORE_DIGITS, is_decimal
 from ..crypto.tags import data_channel, tag_channel
 from ..errors import CorruptStoreError
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_spacing
@@ -41,12 +39,34 @@ from .authenticity import is_auth
 from .ome import ome_attribute  # noqa: F401 - re-exported: hevr.store.layout, hevr.store.pyramid
 from .packing import PackingInfo, mantissa_range, store_span
 
-__all__ = ["CHANNELS", "ChannelInfo", "LevelInfo", "VolumeMetadata", "ome_attribute", "FORMAT_NAME", "FORMAT_VERSION", "metadata_checksum", "sha256_tag"]
+__all__ = [
+    "CHANNELS",
+    "ChannelInfo",
+    "LevelInfo",
+    "VolumeMetadata",
+    "ome_attribute",
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "metadata_checksum",
+    "sha256_tag",
+]
 
 FORMAT_NAME = "hevr-encrypted-volume"
 FORMAT_VERSION = 2
-DTYPES = ("bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64",
-          "float16", "float32", "float64")
+DTYPES = (
+    "bool",
+    "int8",
+    "int16",
+    "int32",
+    "int64",
+    "uint8",
+    "uint16",
+    "uint32",
+    "uint64",
+    "float16",
+    "float32",
+    "float64",
+)
 MAX_N_DIGITS = 4300  # Python's int/str conversion limit (a 14 000-bit modulus): longer ones refused before int()
 _HEX64 = re.compile(r"[0-9a-f]{64}")
 _STORE_ID = re.compile(r"[0-9a-f]{16}")
@@ -86,9 +106,11 @@ class ChannelInfo:
         return {k: v for k, v in asdict(self).items() if v is not None}
 
     @classmethod
-    def from_dict(cls, d: Any, where: str = "store", name: str = "channels") -> "ChannelInfo":
+    def from_dict(cls, d: Any, where: str = "store", name: str = "channels") -> ChannelInfo:
         if not isinstance(d, dict) or "exponent" not in d or set(d) - {"exponent", "digits", "dims"}:
-            raise CorruptStoreError(f"{where}: {name}: expected an object with 'exponent' (and 'digits', 'dims'), got {d!r}")
+            raise CorruptStoreError(
+                f"{where}: {name}: expected an object with 'exponent' (and 'digits', 'dims'), got {d!r}"
+            )
         exponent = _int(d["exponent"], f"{name}.exponent", where, -MAX_STORE_DIGITS, MAX_STORE_DIGITS)
         digits = _int(d["digits"], f"{name}.digits", where, 0, MAX_STORE_DIGITS) if "digits" in d else None
         dims = _int(d["dims"], f"{name}.dims", where, 2, 64) if "dims" in d else None
@@ -113,18 +135,37 @@ class LevelInfo:
     packing: PackingInfo | None = None
 
     def to_dict(self) -> dict:
-        return {"level": self.level, "shape": list(self.shape), "brick": list(self.brick), "complete": self.complete,
-                "arrays": dict(self.arrays), **({"layout": self.packing.to_dict()} if self.packing is not None else {})}
+        return {
+            "level": self.level,
+            "shape": list(self.shape),
+            "brick": list(self.brick),
+            "complete": self.complete,
+            "arrays": dict(self.arrays),
+            **({"layout": self.packing.to_dict()} if self.packing is not None else {}),
+        }
 
     @classmethod
-    def from_dict(cls, d: Any, where: str, expected_level: int, expected_shape: tuple, expected_brick: tuple,
-                  names: set, axis: int | None = None) -> "LevelInfo":
+    def from_dict(
+        cls,
+        d: Any,
+        where: str,
+        expected_level: int,
+        expected_shape: tuple,
+        expected_brick: tuple,
+        names: set,
+        axis: int | None = None,
+    ) -> LevelInfo:
         name = f"levels[{expected_level - 1}]"
         packed = axis is not None  # a packed store's level: its own layout, along the store's axis
         keys = {"level", "shape", "brick", "complete", "arrays"} | ({"layout"} if packed else set())
         if not isinstance(d, dict) or set(d) != keys:
-            raise _bad(where, name, f"an object with {', '.join(repr(k) for k in sorted(keys))}"
-                       + (" (a packed store's level has its own layout)" if packed else ""), d)
+            raise _bad(
+                where,
+                name,
+                f"an object with {', '.join(repr(k) for k in sorted(keys))}"
+                + (" (a packed store's level has its own layout)" if packed else ""),
+                d,
+            )
         _int(d["level"], f"{name}.level", where, expected_level, expected_level)
         shape = _triple(d["shape"], f"{name}.shape", where, "int")
         if shape != tuple(expected_shape):
@@ -133,20 +174,30 @@ class LevelInfo:
         if packing is not None and packing.axis != axis:
             raise _bad(where, f"{name}.layout.axis", f"{axis} (the store's packing axis)", packing.axis)
         if packing is not None:  # the base brick, its packing-axis edge rounded up to the level's slots
-            expected_brick = tuple(-(-b // packing.slots) * packing.slots if i == packing.axis else b
-                                   for i, b in enumerate(expected_brick))
+            expected_brick = tuple(
+                -(-b // packing.slots) * packing.slots if i == packing.axis else b for i, b in enumerate(expected_brick)
+            )
         brick = _triple(d["brick"], f"{name}.brick", where, "int")
         if brick != tuple(expected_brick):
-            raise _bad(where, f"{name}.brick", f"{list(expected_brick)} (hevr.volume.pyramid.level_brick"
-                       + (", its packing-axis edge a multiple of the level's slots)" if packed else ")"), d["brick"])
+            raise _bad(
+                where,
+                f"{name}.brick",
+                f"{list(expected_brick)} (hevr.volume.pyramid.level_brick"
+                + (", its packing-axis edge a multiple of the level's slots)" if packed else ")"),
+                d["brick"],
+            )
         if type(d["complete"]) is not bool:
             raise _bad(where, f"{name}.complete", "true or false", d["complete"])
         arrays = d["arrays"]
-        if not (isinstance(arrays, dict) and set(arrays) == names
-                and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())):
+        if not (
+            isinstance(arrays, dict)
+            and set(arrays) == names
+            and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())
+        ):
             raise _bad(where, f"{name}.arrays", f"a 'sha256:…' digest for each of {sorted(names)}", arrays)
-        return cls(level=expected_level, shape=shape, brick=brick, complete=d["complete"], arrays=dict(arrays),
-                   packing=packing)
+        return cls(
+            level=expected_level, shape=shape, brick=brick, complete=d["complete"], arrays=dict(arrays), packing=packing
+        )
 
 
 @dataclass(frozen=True)
@@ -195,7 +246,7 @@ class VolumeMetadata:
         g = self.grid
         return g[0] * g[1] * g[2]
 
-    def level_meta(self, level: int) -> "VolumeMetadata":
+    def level_meta(self, level: int) -> VolumeMetadata:
         """The metadata of pyramid level ``level`` (≥ 1) as a volume of its own: the level's shape,
         spacing ``2^level·s``, its bricks (:func:`~hevr.volume.pyramid.level_brick`), the key, channel exponents ``e − 3·level``
         (mantissas are 125·Σ of 8 children per level: :mod:`hevr.volume.pyramid`) and the
@@ -210,10 +261,19 @@ class VolumeMetadata:
             digits = None if ch.digits is None else ch.digits + 3 * level
             return ChannelInfo(exponent=ch.exponent - 3 * level, digits=digits, dims=ch.dims)
 
-        return dataclasses.replace(self, shape=info.shape, brick=info.brick, spacing=level_spacing(self.spacing, level),
-                                   scalar=shifted(self.scalar), vector=shifted(self.vector),
-                                   gradient=shifted(self.gradient), complete=info.complete,
-                                   arrays=dict(info.arrays), levels=(), packing=info.packing)
+        return dataclasses.replace(
+            self,
+            shape=info.shape,
+            brick=info.brick,
+            spacing=level_spacing(self.spacing, level),
+            scalar=shifted(self.scalar),
+            vector=shifted(self.vector),
+            gradient=shifted(self.gradient),
+            complete=info.complete,
+            arrays=dict(info.arrays),
+            levels=(),
+            packing=info.packing,
+        )
 
     @property
     def data_channels(self) -> tuple[str, ...]:
@@ -256,8 +316,11 @@ class VolumeMetadata:
             **({"extra": self.extra} if self.extra else {}),
             **({"arrays": dict(self.arrays)} if self.arrays else {}),
             **({"levels": [lv.to_dict() for lv in self.levels]} if self.levels else {}),
-            **({"patient": {"frame": self.patient["frame"], "origin": list(self.patient["origin"])}}
-               if self.patient else {}),
+            **(
+                {"patient": {"frame": self.patient["frame"], "origin": list(self.patient["origin"])}}
+                if self.patient
+                else {}
+            ),
             **({"tags": True} if self.tags else {}),
             **({"auth": self.auth} if self.auth else {}),
             **({"layout": self.packing.to_dict()} if self.packing is not None else {}),
@@ -267,12 +330,14 @@ class VolumeMetadata:
         return d
 
     @classmethod
-    def from_dict(cls, d: Any, where: str = "store", *, accept_v1: bool = False) -> "VolumeMetadata":
+    def from_dict(cls, d: Any, where: str = "store", *, accept_v1: bool = False) -> VolumeMetadata:
         """Parse and validate the ``hevr`` attribute; :class:`hevr.CorruptStoreError` names
         the first field that is wrong. ``accept_v1`` (for ``hevr upgrade-store`` only) also
         reads version 1, which has no checksum and no digests."""
         if not isinstance(d, dict) or d.get("format") != FORMAT_NAME:
-            raise CorruptStoreError(f"{where}: not an hevr encrypted volume (attribute 'hevr.format' is not {FORMAT_NAME!r})")
+            raise CorruptStoreError(
+                f"{where}: not an hevr encrypted volume (attribute 'hevr.format' is not {FORMAT_NAME!r})"
+            )
         version = d.get("version")
         if version == 1 and type(version) is int and not accept_v1:
             raise CorruptStoreError(
@@ -330,8 +395,12 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
         raise _bad(where, "public_key", "an object", pk)
     n = _get(pk, "n", where, "public_key.")
     if not (is_decimal(n, MAX_N_DIGITS) and n[0] != "0"):
-        raise _bad(where, "public_key.n", f"a decimal string of at most {MAX_N_DIGITS} digits "
-                   "(public_key.n must be a decimal string)", n)
+        raise _bad(
+            where,
+            "public_key.n",
+            f"a decimal string of at most {MAX_N_DIGITS} digits (public_key.n must be a decimal string)",
+            n,
+        )
     fingerprint = _get(pk, "fingerprint", where, "public_key.")
     if not (isinstance(fingerprint, str) and _HEX64.fullmatch(fingerprint)):
         raise _bad(where, "public_key.fingerprint", "64 lower-case hex digits", fingerprint)
@@ -359,8 +428,9 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
         raise _bad(where, "channels.vector", "'digits' and 'dims'", ch["vector"])
     gradient = ChannelInfo.from_dict(ch["gradient"], where, "channels.gradient") if "gradient" in ch else None
     if gradient is not None and (vector is None or gradient != vector):
-        raise _bad(where, "channels.gradient", "the same 'exponent', 'digits' and 'dims' as channels.vector",
-                   ch["gradient"])
+        raise _bad(
+            where, "channels.gradient", "the same 'exponent', 'digits' and 'dims' as channels.vector", ch["gradient"]
+        )
     complete = d.get("complete", False)
     if type(complete) is not bool:
         raise _bad(where, "complete", "true or false", complete)
@@ -376,17 +446,43 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
         raise _bad(where, "tags", "true or false", tags)
     auth = d.get("auth", "")
     if (tags or "auth" in d) and not (tags and is_auth(auth)):
-        raise _bad(where, "auth", "the owner's MAC 'hmac-sha256:<64 hex>' on a verifiable store (tags: true) and "
-                   "nothing else (a verifiable store written before hevr bound its metadata: encrypt it again)", auth)
+        raise _bad(
+            where,
+            "auth",
+            "the owner's MAC 'hmac-sha256:<64 hex>' on a verifiable store (tags: true) and "
+            "nothing else (a verifiable store written before hevr bound its metadata: encrypt it again)",
+            auth,
+        )
     arrays = d.get("arrays", {})
     names = {*(k for k in CHANNELS if k in ch), *(tag_channel(k) for k in CHANNELS if k in ch and tags), "done"}
-    if version >= 2 and not (isinstance(arrays, dict) and set(arrays) == names
-                             and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())):
+    if version >= 2 and not (
+        isinstance(arrays, dict)
+        and set(arrays) == names
+        and all(isinstance(v, str) and _DOC_DIGEST.fullmatch(v) for v in arrays.values())
+    ):
         raise _bad(where, "arrays", f"a 'sha256:…' digest for each of {sorted(names)}", arrays)
-    meta = cls(shape=shape, spacing=spacing, brick=brick, n=n, fingerprint=fingerprint, ciphertext_bytes=width,
-               dtype=dtype, value_range=(lo, hi), scalar=scalar, vector=vector, gradient=gradient, base=base,
-               complete=complete, store_id=store_id, version=version, extra=dict(extra), arrays=dict(arrays) if version >= 2 else {},
-               patient=patient, tags=tags, auth=auth)
+    meta = cls(
+        shape=shape,
+        spacing=spacing,
+        brick=brick,
+        n=n,
+        fingerprint=fingerprint,
+        ciphertext_bytes=width,
+        dtype=dtype,
+        value_range=(lo, hi),
+        scalar=scalar,
+        vector=vector,
+        gradient=gradient,
+        base=base,
+        complete=complete,
+        store_id=store_id,
+        version=version,
+        extra=dict(extra),
+        arrays=dict(arrays) if version >= 2 else {},
+        patient=patient,
+        tags=tags,
+        auth=auth,
+    )
     if "layout" in d:
         meta = dataclasses.replace(meta, packing=_packing(d, meta, where))
     levels = d.get("levels", [])
@@ -395,8 +491,15 @@ def _parse(cls: type, d: dict, where: str, version: int) -> VolumeMetadata:
     parsed, below = [], shape
     for i, lv in enumerate(levels):
         below = tuple(-(-s // 2) for s in below)
-        info = LevelInfo.from_dict(lv, where, i + 1, below, level_brick(brick, i + 1), names,
-                                   None if meta.packing is None else meta.packing.axis)
+        info = LevelInfo.from_dict(
+            lv,
+            where,
+            i + 1,
+            below,
+            level_brick(brick, i + 1),
+            names,
+            None if meta.packing is None else meta.packing.axis,
+        )
         if info.packing is not None:  # checked as level 0's: against the level's shape, exponent and key
             _level_packing(meta, info, where)
         parsed.append(info)
@@ -431,8 +534,12 @@ def _level_packing(meta: VolumeMetadata, info: LevelInfo, where: str) -> None:
     packing = info.packing
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent - 3 * info.level)
     if packing.offset != lo:
-        raise _bad(where, f"{name}.offset", f"{lo} (the lowest mantissa of value_range at the level's exponent)",
-                   str(packing.offset))
+        raise _bad(
+            where,
+            f"{name}.offset",
+            f"{lo} (the lowest mantissa of value_range at the level's exponent)",
+            str(packing.offset),
+        )
     packing.check(int(meta.n).bit_length(), info.shape, info.brick, hi - lo, f"{where}: {name}")
 
 
@@ -445,8 +552,13 @@ def _patient(p: Any, where: str) -> dict:
     """
     if p == {}:
         return {}
-    if not (isinstance(p, dict) and set(p) == {"frame", "origin"} and p["frame"] == "RAS"
-            and isinstance(p["origin"], list) and len(p["origin"]) == 3):
+    if not (
+        isinstance(p, dict)
+        and set(p) == {"frame", "origin"}
+        and p["frame"] == "RAS"
+        and isinstance(p["origin"], list)
+        and len(p["origin"]) == 3
+    ):
         raise _bad(where, "patient", '{"frame": "RAS", "origin": [x, y, z]}', p)
     origin = tuple(_number(v, "patient.origin", where) for v in p["origin"])
     return {"frame": "RAS", "origin": origin}

@@ -21,10 +21,10 @@ from typing import Any
 import gmpy2
 import numpy as np
 
-from ..runtime import stats
 from ..backends import CpuBackend
 from ..crypto.tags import betas, raw_tags, tag_channel, tag_key_of
 from ..errors import ParameterError
+from ..runtime import stats
 from ..volume.density import encode_density, normalize_density
 from .brick_crypto import encrypt_components
 from .digests import brick_digest, marker
@@ -38,9 +38,16 @@ __all__ = ["pack_axis_of", "write_packed_brick"]
 _CPU = CpuBackend()  # the tags' records
 
 
-def write_packed_brick(be: Any, block: np.ndarray, group: Any, index: tuple[int, int, int], meta: VolumeMetadata,
-                       key: Any, unsafe_no_obfuscation: bool,
-                       gradient: np.ndarray | None = None) -> tuple[int, int, int]:
+def write_packed_brick(
+    be: Any,
+    block: np.ndarray,
+    group: Any,
+    index: tuple[int, int, int],
+    meta: VolumeMetadata,
+    key: Any,
+    unsafe_no_obfuscation: bool,
+    gradient: np.ndarray | None = None,
+) -> tuple[int, int, int]:
     """A packed store's brick: its columns of S voxels packed into one plaintext each (per channel
     and component), encrypted, written as the brick's chunks of the scalar (and vector) arrays,
     then (a verifiable store) one tag per packed ciphertext, E(α·P + β) at the packed array's flat
@@ -69,14 +76,16 @@ def write_packed_brick(be: Any, block: np.ndarray, group: Any, index: tuple[int,
             group[name][sl if name == "scalar" else (slice(None),) + sl] = out
     if meta.tags:  # after every data channel: the digests' order (VolumeMetadata.channel_names)
         tk = tag_key_of(key)
-        packs = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
-                                     info.array_shape(meta.shape)).reshape(-1)
+        packs = np.ravel_multi_index(
+            np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"), info.array_shape(meta.shape)
+        ).reshape(-1)
         for name, parts in plains.items():
             recs = []
             for j, plain in enumerate(parts):
                 with stats.timed("encrypt.tags", len(packs)):
-                    plain_tags = raw_tags(tk, [int(p) % tk.n for p in plain.ravel()],
-                                          betas(tk, meta.store_id, name, 0, j, packs))
+                    plain_tags = raw_tags(
+                        tk, [int(p) % tk.n for p in plain.ravel()], betas(tk, meta.store_id, name, 0, j, packs)
+                    )
                     tags = key.owner.encrypt_residues(gmpy2.mpz(t) for t in plain_tags)
                 recs.append(_CPU.to_bytes(tags, width).reshape(shape + (width,)))
             rec = recs[0] if name == "scalar" else np.stack(recs)

@@ -49,12 +49,12 @@ import gmpy2
 import numpy as np
 import zarr
 
-from ..runtime import stats
-from ..runtime.scheduler import compute
-from ..core.files import fs_errors
 from ..backends import CpuBackend, get_backend
+from ..core.files import fs_errors
 from ..crypto.tags import betas, raw_tags, tag_channel, tag_key_of
 from ..errors import ParameterError
+from ..runtime import stats
+from ..runtime.scheduler import compute
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_shape
 from .authenticity import authenticate
 from .brick_crypto import encrypt_components
@@ -89,26 +89,34 @@ def plan_levels(meta: VolumeMetadata, levels: int) -> tuple[LevelInfo, ...]:
     from public parameters only; :class:`hevr.ParameterError` when a level's slots do not fit."""
     info0, sc = meta.packing, meta.scalar
     if sc.digits is not None and sc.digits + 3 * levels > _MAX_DIGITS:
-        raise ParameterError(f"levels: expected at most {(_MAX_DIGITS - sc.digits) // 3} levels for a channel of "
-                             f"{sc.digits} digits (each level adds 3), got {levels}")
+        raise ParameterError(
+            f"levels: expected at most {(_MAX_DIGITS - sc.digits) // 3} levels for a channel of "
+            f"{sc.digits} digits (each level adds 3), got {levels}"
+        )
     bits = int(meta.n).bit_length()
     out = []
     for level in range(1, levels + 1):
         shape = level_shape(meta.shape, level)
         try:
-            packing = choose_packing(bits, shape, info0.axis, mantissa_range(meta.value_range, sc.exponent - 3 * level),
-                                     info0.weight_bits)
+            packing = choose_packing(
+                bits, shape, info0.axis, mantissa_range(meta.value_range, sc.exponent - 3 * level), info0.weight_bits
+            )
         except ParameterError as exc:
-            raise ParameterError(f"levels: expected at most {level - 1} levels for this key and value range (level "
-                                 f"{level}'s values carry 3 more digits each: {exc})") from None
-        brick = tuple(-(-b // packing.slots) * packing.slots if i == packing.axis else b
-                      for i, b in enumerate(level_brick(meta.brick, level)))
+            raise ParameterError(
+                f"levels: expected at most {level - 1} levels for this key and value range (level "
+                f"{level}'s values carry 3 more digits each: {exc})"
+            ) from None
+        brick = tuple(
+            -(-b // packing.slots) * packing.slots if i == packing.axis else b
+            for i, b in enumerate(level_brick(meta.brick, level))
+        )
         out.append(LevelInfo(level, shape, brick, False, {}, packing))  # type: ignore[arg-type]
     return tuple(out)
 
 
-def prepare_levels(path: str, meta: VolumeMetadata, wanted: tuple[LevelInfo, ...], key: Any,
-                   so: dict | None) -> VolumeMetadata:
+def prepare_levels(
+    path: str, meta: VolumeMetadata, wanted: tuple[LevelInfo, ...], key: Any, so: dict | None
+) -> VolumeMetadata:
     """Record the levels ``wanted`` (:func:`plan_levels`; none: nothing to do) in the store at ``path``,
     incomplete, their arrays created, unless they are there with the same layout and arrays (a
     resume); levels recorded beyond them are kept. Writes the metadata (and its OME attribute)
@@ -117,17 +125,29 @@ def prepare_levels(path: str, meta: VolumeMetadata, wanted: tuple[LevelInfo, ...
     changed = False
     for want in wanted:
         i = want.level - 1
-        if i < len(levels) and levels[i].packing == want.packing and levels[i].brick == want.brick \
-                and level_arrays_ok(path, levels[i], so):
+        if (
+            i < len(levels)
+            and levels[i].packing == want.packing
+            and levels[i].brick == want.brick
+            and level_arrays_ok(path, levels[i], so)
+        ):
             continue
         lmeta = dataclasses.replace(meta, shape=want.shape, brick=want.brick, packing=want.packing, levels=())
         layout = array_layout(lmeta)
         with fs_errors("creating a pyramid level of the store", path):
-            group = zarr.open_group(zarr_store(path, so), mode="r+").require_group("levels").require_group(
-                str(want.level))
+            group = (
+                zarr.open_group(zarr_store(path, so), mode="r+").require_group("levels").require_group(str(want.level))
+            )
             for name, (ashape, chunks) in layout.items():
-                group.create_array(name, shape=ashape, chunks=chunks, dtype="uint8", compressors=compressors(name),
-                                   fill_value=0, overwrite=True)
+                group.create_array(
+                    name,
+                    shape=ashape,
+                    chunks=chunks,
+                    dtype="uint8",
+                    compressors=compressors(name),
+                    fill_value=0,
+                    overwrite=True,
+                )
         digests = {name: document_digest(path, f"levels/{want.level}/{name}", so) for name in layout}
         levels = levels[:i] + [dataclasses.replace(want, complete=False, arrays=digests)]  # levels above: again
         changed = True
@@ -140,7 +160,7 @@ def prepare_levels(path: str, meta: VolumeMetadata, wanted: tuple[LevelInfo, ...
 def level_values(means: np.ndarray, scalar: ChannelInfo) -> np.ndarray:
     """A float volume's level mantissas: the level's means rounded at the level channel's digits
     (``digits + 3·level``; NumPy's ``rint``, as level 0's :func:`~hevr.store.quantise.quantise_scalar`)."""
-    return np.rint(np.asarray(means, np.float64) * 10.0 ** scalar.digits)
+    return np.rint(np.asarray(means, np.float64) * 10.0**scalar.digits)
 
 
 def _level_array(darr: Any, meta: VolumeMetadata, info: LevelInfo) -> Any:
@@ -167,9 +187,18 @@ def _level_array(darr: Any, meta: VolumeMetadata, info: LevelInfo) -> Any:
     return x.rechunk(info.brick)
 
 
-def _encrypt_level_brick(block: np.ndarray, path: str, level: int, index: tuple[int, int, int], meta_dict: dict,
-                         delta: int, key: Any, unsafe_no_obfuscation: bool, backend: str,
-                         storage_options: dict | None) -> tuple[int, int, int]:
+def _encrypt_level_brick(
+    block: np.ndarray,
+    path: str,
+    level: int,
+    index: tuple[int, int, int],
+    meta_dict: dict,
+    delta: int,
+    key: Any,
+    unsafe_no_obfuscation: bool,
+    backend: str,
+    storage_options: dict | None,
+) -> tuple[int, int, int]:
     """One task: brick ``index`` of level ``level`` packed, encrypted and written with its tags and marker."""
     with fs_errors("writing a brick of a pyramid level", path):
         base = VolumeMetadata.from_dict(meta_dict)
@@ -182,8 +211,9 @@ def _encrypt_level_brick(block: np.ndarray, path: str, level: int, index: tuple[
             u = (np.clip(level_values(block, meta.scalar), lo, hi) - lo).astype(np.int64)
         plain = pack_columns(u, dataclasses.replace(info, offset=0))
         shape, width, prefix = plain.shape, meta.ciphertext_bytes, f"levels/{level}/"
-        out = encrypt_components(get_backend(backend), key, [plain.ravel().tolist()], shape, width,
-                                 unsafe_no_obfuscation)[0]
+        out = encrypt_components(
+            get_backend(backend), key, [plain.ravel().tolist()], shape, width, unsafe_no_obfuscation
+        )[0]
         digests = [brick_digest(meta.store_id, prefix + "scalar", index, out)]
         sl = array_slices(meta, index)
         group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
@@ -191,11 +221,13 @@ def _encrypt_level_brick(block: np.ndarray, path: str, level: int, index: tuple[
             group[prefix + "scalar"][sl] = out
         if meta.tags:
             tk = tag_key_of(key)
-            packs = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
-                                         info.array_shape(meta.shape)).reshape(-1)
+            packs = np.ravel_multi_index(
+                np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"), info.array_shape(meta.shape)
+            ).reshape(-1)
             with stats.timed("encrypt.tags", len(packs)):
-                plain_tags = raw_tags(tk, [int(p) % tk.n for p in plain.ravel()],
-                                      betas(tk, meta.store_id, "scalar", level, 0, packs))
+                plain_tags = raw_tags(
+                    tk, [int(p) % tk.n for p in plain.ravel()], betas(tk, meta.store_id, "scalar", level, 0, packs)
+                )
                 tags = key.owner.encrypt_residues(gmpy2.mpz(t) for t in plain_tags)
             rec = _CPU.to_bytes(tags, width).reshape(shape + (width,))
             digests.append(brick_digest(meta.store_id, prefix + tag_channel("scalar"), index, rec))
@@ -205,9 +237,19 @@ def _encrypt_level_brick(block: np.ndarray, path: str, level: int, index: tuple[
     return index
 
 
-def encrypt_levels(vol: Any, brick: tuple[int, int, int], path: str, meta: VolumeMetadata, key: Any,
-                   unsafe_no_obfuscation: bool, backend: str, client: Any, progress: bool,
-                   storage_options: dict | None, counted: int = 0) -> tuple[VolumeMetadata, int]:
+def encrypt_levels(
+    vol: Any,
+    brick: tuple[int, int, int],
+    path: str,
+    meta: VolumeMetadata,
+    key: Any,
+    unsafe_no_obfuscation: bool,
+    backend: str,
+    client: Any,
+    progress: bool,
+    storage_options: dict | None,
+    counted: int = 0,
+) -> tuple[VolumeMetadata, int]:
     """Encrypt the bricks without markers of every recorded level of the packed store at ``path``,
     whose level 0 is complete (one impure task per brick, all levels in one graph), then mark the
     levels complete; returns the metadata and ``counted`` plus the packed ciphertexts encrypted
@@ -216,8 +258,11 @@ def encrypt_levels(vol: Any, brick: tuple[int, int, int], path: str, meta: Volum
         return meta, counted
     so, meta = storage_options, dataclasses.replace(meta, complete=True)
     group = zarr.open_group(zarr_store(path, so, read_only=True), mode="r")
-    darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(
-        vol, chunks=brick, name=f"hevr-plain-{token()}{token()}")  # a random name: never a hash of the voxels
+    darr = (
+        vol
+        if isinstance(vol, dask.array.Array)
+        else dask.array.from_array(vol, chunks=brick, name=f"hevr-plain-{token()}{token()}")
+    )  # a random name: never a hash of the voxels
     darr = darr.rechunk(brick)
     task = dask.delayed(_encrypt_level_brick, pure=False)
     meta_dict, tasks, values = meta.to_dict(), [], 0
@@ -229,17 +274,32 @@ def encrypt_levels(vol: Any, brick: tuple[int, int, int], path: str, meta: Volum
         todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*lmeta.grid) if not done[idx]]
         log.info("packed level %d: %d of %d bricks to encrypt", info.level, len(todo), lmeta.n_bricks)
         blocks = _level_array(darr, meta, info).to_delayed() if todo else None
-        delta = (1000 ** info.level) * meta.packing.offset - info.packing.offset
+        delta = (1000**info.level) * meta.packing.offset - info.packing.offset
         for idx in todo:
-            tasks.append(task(blocks[idx], path, info.level, idx, meta_dict, delta, key, unsafe_no_obfuscation,
-                              backend, so, dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-L{info.level}-"
-                              f"{idx[0]}-{idx[1]}-{idx[2]}-{token()}"))
+            tasks.append(
+                task(
+                    blocks[idx],
+                    path,
+                    info.level,
+                    idx,
+                    meta_dict,
+                    delta,
+                    key,
+                    unsafe_no_obfuscation,
+                    backend,
+                    so,
+                    dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-L{info.level}-"
+                    f"{idx[0]}-{idx[1]}-{idx[2]}-{token()}",
+                )
+            )
             values += int(np.prod([s.stop - s.start for s in array_slices(lmeta, idx)]))
     if tasks:
         compute(tasks, client=client, progress=progress, desc="encrypt levels", steps=values, unit="ciphertexts")
     group = zarr.open_group(zarr_store(path, so, read_only=True), mode="r")
-    infos = tuple(dataclasses.replace(info, complete=True) if written(group[f"levels/{info.level}/done"][...]).all()
-                  else info for info in meta.levels)
+    infos = tuple(
+        dataclasses.replace(info, complete=True) if written(group[f"levels/{info.level}/done"][...]).all() else info
+        for info in meta.levels
+    )
     if infos != meta.levels:
         meta = authenticate(dataclasses.replace(meta, levels=infos), key)
         write_meta(path, meta, so)

@@ -47,16 +47,27 @@ True
 from __future__ import annotations
 
 import math
-from fractions import Fraction
 from dataclasses import dataclass
+from fractions import Fraction
 from typing import Any
 
 import numpy as np
 
 from ..errors import CorruptStoreError, ParameterError
 
-__all__ = ["INTEGRITY_BITS", "DEFAULT_WEIGHT_BITS", "MAX_SLOT_BITS", "PackingInfo", "choose_packing", "mantissa_range", "max_slots",
-           "pack_columns", "slot_bits", "store_span", "unpack_slots"]
+__all__ = [
+    "INTEGRITY_BITS",
+    "DEFAULT_WEIGHT_BITS",
+    "MAX_SLOT_BITS",
+    "PackingInfo",
+    "choose_packing",
+    "mantissa_range",
+    "max_slots",
+    "pack_columns",
+    "slot_bits",
+    "store_span",
+    "unpack_slots",
+]
 
 INTEGRITY_BITS = 64  # zero bits above the last slot of every decrypted frame value
 DEFAULT_WEIGHT_BITS = 10  # in-slice bilinear weights, quantised to 1/2^10 (the per-voxel store's 3 digits)
@@ -152,15 +163,22 @@ class PackingInfo:
         return tuple(out)  # type: ignore[return-value]
 
     def to_dict(self) -> dict:
-        return {"kind": "packed", "axis": self.axis, "slots": self.slots, "slot_bits": self.slot_bits,
-                "weight_bits": self.weight_bits, "offset": str(self.offset)}
+        return {
+            "kind": "packed",
+            "axis": self.axis,
+            "slots": self.slots,
+            "slot_bits": self.slot_bits,
+            "weight_bits": self.weight_bits,
+            "offset": str(self.offset),
+        }
 
     @classmethod
-    def from_dict(cls, d: Any, where: str = "store") -> "PackingInfo":
+    def from_dict(cls, d: Any, where: str = "store") -> PackingInfo:
         keys = {"kind", "axis", "slots", "slot_bits", "weight_bits", "offset"}
         if not isinstance(d, dict) or set(d) != keys or d.get("kind") != "packed":
-            raise CorruptStoreError(f"{where}: layout: expected an object with {sorted(keys)} and kind 'packed', "
-                                    f"got {str(d)[:80]!r}")
+            raise CorruptStoreError(
+                f"{where}: layout: expected an object with {sorted(keys)} and kind 'packed', got {str(d)[:80]!r}"
+            )
 
         def integer(name: str, lo: int, hi: int) -> int:
             v = d[name]
@@ -171,29 +189,46 @@ class PackingInfo:
         off = d["offset"]
         if not (isinstance(off, str) and 0 < len(off) <= 40 and off.lstrip("-").isdigit() and off.isascii()):
             raise CorruptStoreError(f"{where}: layout.offset: expected a decimal integer string, got {off!r}")
-        return cls(axis=integer("axis", 0, 2), slots=integer("slots", 1, 4096),
-                   slot_bits=integer("slot_bits", 1, MAX_SLOT_BITS), weight_bits=integer("weight_bits", 0, MAX_WEIGHT_BITS),
-                   offset=int(off))
+        return cls(
+            axis=integer("axis", 0, 2),
+            slots=integer("slots", 1, 4096),
+            slot_bits=integer("slot_bits", 1, MAX_SLOT_BITS),
+            weight_bits=integer("weight_bits", 0, MAX_WEIGHT_BITS),
+            offset=int(off),
+        )
 
-    def check(self, key_bits: int, shape: tuple[int, ...], brick: tuple[int, ...], span: int,
-              where: str = "store") -> None:
+    def check(
+        self, key_bits: int, shape: tuple[int, ...], brick: tuple[int, ...], span: int, where: str = "store"
+    ) -> None:
         """Consistency with the rest of the metadata: S slots fit the key, the brick's packing-axis
         edge is a multiple of S, and K holds every frame's largest slot sum (a K edited smaller
         would let sums carry into the next slot): :class:`hevr.CorruptStoreError` otherwise."""
         if self.slot_bits * (2 * self.slots - 1) > key_bits - 1 - INTEGRITY_BITS:
-            raise CorruptStoreError(f"{where}: layout.slots: expected at most {max_slots(key_bits, self.slot_bits)} "
-                                    f"slots of {self.slot_bits} bits for a {key_bits}-bit key, got {self.slots}")
+            raise CorruptStoreError(
+                f"{where}: layout.slots: expected at most {max_slots(key_bits, self.slot_bits)} "
+                f"slots of {self.slot_bits} bits for a {key_bits}-bit key, got {self.slots}"
+            )
         if brick[self.axis] % self.slots:
-            raise CorruptStoreError(f"{where}: brick: expected a multiple of layout.slots ({self.slots}) along the "
-                                    f"packing axis {self.axis}, got {brick[self.axis]}")
+            raise CorruptStoreError(
+                f"{where}: brick: expected a multiple of layout.slots ({self.slots}) along the "
+                f"packing axis {self.axis}, got {brick[self.axis]}"
+            )
         need = slot_bits(span, self.weight_bits, max(s for i, s in enumerate(shape) if i != self.axis))
         if self.slot_bits < need:
-            raise CorruptStoreError(f"{where}: layout.slot_bits: expected at least {need} (the largest slot sum of "
-                                    f"this shape and value range), got {self.slot_bits}")
+            raise CorruptStoreError(
+                f"{where}: layout.slot_bits: expected at least {need} (the largest slot sum of "
+                f"this shape and value range), got {self.slot_bits}"
+            )
 
 
-def choose_packing(key_bits: int, shape: tuple[int, int, int], axis: int, mantissa_range: tuple[int, int],
-                   weight_bits: int = DEFAULT_WEIGHT_BITS, vector_digits: int | None = None) -> PackingInfo:
+def choose_packing(
+    key_bits: int,
+    shape: tuple[int, int, int],
+    axis: int,
+    mantissa_range: tuple[int, int],
+    weight_bits: int = DEFAULT_WEIGHT_BITS,
+    vector_digits: int | None = None,
+) -> PackingInfo:
     """The packing of a new store: K from the value span, the weights and the longest
     non-packing axis; S the most slots that fit the key (module docstring). ``vector_digits``:
     the store also holds the vector channel, packed alike (:func:`store_span`).
@@ -208,15 +243,19 @@ def choose_packing(key_bits: int, shape: tuple[int, int, int], axis: int, mantis
     longest = max(s for i, s in enumerate(shape) if i != axis)
     k = slot_bits(span, weight_bits, longest)
     if k > MAX_SLOT_BITS:
-        raise ParameterError(f"value_range: expected a mantissa span of at most {MAX_SLOT_BITS - weight_bits - 1} "
-                             f"bits less the {math.ceil(math.log2(longest + 1))} bits of {longest} slices for a packed "
-                             f"store, got a span of {span.bit_length()} bits (give a narrower value_range, or fewer "
-                             "digits, or layout='voxel')")
+        raise ParameterError(
+            f"value_range: expected a mantissa span of at most {MAX_SLOT_BITS - weight_bits - 1} "
+            f"bits less the {math.ceil(math.log2(longest + 1))} bits of {longest} slices for a packed "
+            f"store, got a span of {span.bit_length()} bits (give a narrower value_range, or fewer "
+            "digits, or layout='voxel')"
+        )
     s = max_slots(key_bits, k)
     if s < 2:
-        raise ParameterError(f"layout: expected a key with room for at least 2 slots of {k} bits plus "
-                             f"{INTEGRITY_BITS} integrity bits, got a {key_bits}-bit key (use a larger key or "
-                             "layout='voxel')")
+        raise ParameterError(
+            f"layout: expected a key with room for at least 2 slots of {k} bits plus "
+            f"{INTEGRITY_BITS} integrity bits, got a {key_bits}-bit key (use a larger key or "
+            "layout='voxel')"
+        )
     return PackingInfo(axis=int(axis), slots=s, slot_bits=k, weight_bits=int(weight_bits), offset=lo)
 
 
@@ -253,6 +292,8 @@ def unpack_slots(values: Any, n_slots: int, k: int) -> np.ndarray:
     vals = [int(v) for v in values]
     nbytes = max(1, -(-(n_slots * k) // 8))
     mask = (1 << (n_slots * k)) - 1
-    raw = np.frombuffer(b"".join((v & mask).to_bytes(nbytes, "little") for v in vals), np.uint8).reshape(len(vals), nbytes)
-    bits = np.unpackbits(raw, axis=1, bitorder="little")[:, :n_slots * k].reshape(len(vals), n_slots, k)
+    raw = np.frombuffer(b"".join((v & mask).to_bytes(nbytes, "little") for v in vals), np.uint8).reshape(
+        len(vals), nbytes
+    )
+    bits = np.unpackbits(raw, axis=1, bitorder="little")[:, : n_slots * k].reshape(len(vals), n_slots, k)
     return (bits.astype(np.int64) << np.arange(k, dtype=np.int64)).sum(axis=2)

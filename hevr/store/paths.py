@@ -23,8 +23,9 @@ import json
 import logging
 import os
 import secrets
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from zarr.storage import FsspecStore
 
@@ -49,10 +50,28 @@ from .sessions import track
 
 log = logging.getLogger(__name__)
 
-__all__ = ["token", "is_local", "normalise", "store_exists", "interrupted_swaps", "sibling", "check_replaceable",
-           "remove_tree", "swap", "read_document", "document_digest", "check_storage_options", "filesystem",
-           "zarr_store", "check_reachable", "read_bytes", "object_sizes", "output_location",
-           "write_new_bytes", "write_output"]
+__all__ = [
+    "token",
+    "is_local",
+    "normalise",
+    "store_exists",
+    "interrupted_swaps",
+    "sibling",
+    "check_replaceable",
+    "remove_tree",
+    "swap",
+    "read_document",
+    "document_digest",
+    "check_storage_options",
+    "filesystem",
+    "zarr_store",
+    "check_reachable",
+    "read_bytes",
+    "object_sizes",
+    "output_location",
+    "write_new_bytes",
+    "write_output",
+]
 
 
 def token() -> str:
@@ -84,7 +103,7 @@ def normalise(path: str | os.PathLike, name: str = "path") -> str:
     if text[:7].lower() == "file://":
         text = text[7:]
         if text.startswith("localhost/"):
-            text = text[len("localhost"):]
+            text = text[len("localhost") :]
     if is_local(text):
         check_name(text, name)  # a lone surrogate: a ParameterError, not a UnicodeEncodeError
         return str(Path(text).resolve())
@@ -101,9 +120,11 @@ def _check_protocol(url: str, name: str) -> None:
     known = set(fsspec.available_protocols())
     protocols = url.split("://", 1)[0].split("::")
     if not all(p in known for p in protocols):
-        raise ParameterError(f"{name}: expected a local path or an fsspec URL (s3://, gs://, az://, memory://, "
-                             f"file://, …), got {url!r}: {protocols[-1]!r} is no protocol fsspec knows (a local "
-                             "name may not contain '://')")
+        raise ParameterError(
+            f"{name}: expected a local path or an fsspec URL (s3://, gs://, az://, memory://, "
+            f"file://, …), got {url!r}: {protocols[-1]!r} is no protocol fsspec knows (a local "
+            "name may not contain '://')"
+        )
 
 
 def check_storage_options(storage_options: Any) -> dict[str, Any] | None:
@@ -117,8 +138,10 @@ def check_storage_options(storage_options: Any) -> dict[str, Any] | None:
     if storage_options is None:
         return None
     if not isinstance(storage_options, dict) or not all(isinstance(k, str) for k in storage_options):
-        raise ParameterError(f"storage_options: expected a dict of fsspec options with string keys or None, "
-                             f"got {type(storage_options).__name__}")
+        raise ParameterError(
+            f"storage_options: expected a dict of fsspec options with string keys or None, "
+            f"got {type(storage_options).__name__}"
+        )
     return dict(storage_options)
 
 
@@ -128,13 +151,13 @@ def filesystem(path: str, storage_options: dict[str, Any] | None = None) -> tupl
     try:
         import fsspec.core
     except ImportError:
-        raise MissingDependencyError(f"path: {path} is a URL; reading it needs fsspec "
-                                     "(pip install 'hevr[cloud]')") from None
+        raise MissingDependencyError(
+            f"path: {path} is a URL; reading it needs fsspec (pip install 'hevr[cloud]')"
+        ) from None
     try:
         fs, root = fsspec.core.url_to_fs(path, **(storage_options or {}))
     except ImportError as exc:  # fsspec names the package of the protocol (s3fs, gcsfs, adlfs)
-        raise MissingDependencyError(f"path: {path} needs a filesystem package that is not installed "
-                                     f"({exc})") from None
+        raise MissingDependencyError(f"path: {path} needs a filesystem package that is not installed ({exc})") from None
     return fs, root
 
 
@@ -156,8 +179,10 @@ def check_reachable(path: str, client: Any) -> None:
     address = str(getattr(getattr(client, "scheduler", None), "address", "") or "")
     if address.startswith("inproc://"):  # the workers are threads of this process
         return
-    raise ParameterError(f"path: {path}: memory:// stores live in this process; workers of a distributed "
-                         "cluster cannot see them — use a local path or an object store URL")
+    raise ParameterError(
+        f"path: {path}: memory:// stores live in this process; workers of a distributed "
+        "cluster cannot see them — use a local path or an object store URL"
+    )
 
 
 def store_exists(path: str, storage_options: dict[str, Any] | None = None) -> bool:
@@ -221,7 +246,7 @@ def object_sizes(path: str, storage_options: dict[str, Any] | None = None) -> di
     root = root.rstrip("/")
     fs.invalidate_cache(root)  # a listing cached by this process may predate other writers
     found = fs.find(root, detail=True)
-    return {k[len(root) + 1:]: int(v.get("size") or 0) for k, v in found.items() if k.startswith(root + "/")}
+    return {k[len(root) + 1 :]: int(v.get("size") or 0) for k, v in found.items() if k.startswith(root + "/")}
 
 
 def sibling(path: str, what: str) -> str:
@@ -243,8 +268,10 @@ def check_replaceable(path: str, storage_options: dict[str, Any] | None = None) 
     except (OSError, ValueError, AttributeError):
         ok, attrs = False, {}
     if not ok:
-        raise StoreExistsError(f"path: {path} exists and is not an hevr store (no readable zarr.json with an "
-                               "'hevr' attribute); refusing to replace it")
+        raise StoreExistsError(
+            f"path: {path} exists and is not an hevr store (no readable zarr.json with an "
+            "'hevr' attribute); refusing to replace it"
+        )
     store_id = attrs.get("store_id", "")
     return store_id if isinstance(store_id, str) else ""
 
@@ -262,8 +289,14 @@ def remove_tree(path: str, storage_options: dict[str, Any] | None = None) -> Non
         log.warning("could not remove %s: %s", path, exc)
 
 
-def swap(new: str, path: str, storage_options: dict[str, Any] | None = None, *, lock: Any = None,
-         then: Callable[[], Any] | None = None) -> tuple[str, Any]:
+def swap(
+    new: str,
+    path: str,
+    storage_options: dict[str, Any] | None = None,
+    *,
+    lock: Any = None,
+    then: Callable[[], Any] | None = None,
+) -> tuple[str, Any]:
     """Put the complete store ``new`` at ``path``; the old store is moved aside first and
     deleted only once the new one is in place (restored if the second move fails). Returns
     the replaced store's ``store_id`` and what ``then()`` (run right after the swap) returned.
@@ -327,14 +360,15 @@ def _move_objects(fs: Any, src: str, dst: str) -> None:
     fs.invalidate_cache(src)
     files = [f for f in fs.find(src) if f.startswith(src + "/")]
     if files:
-        fs.copy(files, [dst + f[len(src):] for f in files])
+        fs.copy(files, [dst + f[len(src) :] for f in files])
         fs.rm(files)
     fs.invalidate_cache(src)
     fs.invalidate_cache(dst)
 
 
-def write_new_bytes(path: str, parts: Any, storage_options: dict[str, Any] | None = None, *,
-                    overwrite: bool = False, name: str = "path") -> None:
+def write_new_bytes(
+    path: str, parts: Any, storage_options: dict[str, Any] | None = None, *, overwrite: bool = False, name: str = "path"
+) -> None:
     """Write the concatenated ``parts`` to the object ``path`` in one request (an object store
     makes an object visible whole or not at all), refusing an existing object with
     :class:`hevr.ExistingFileError` naming ``name`` unless ``overwrite``.
@@ -374,8 +408,15 @@ def output_location(path: Any, name: str = "path") -> Path | str:
     return Path(where) if is_local(where) else where
 
 
-def write_output(where: Path | str, parts: list[Any], storage_options: dict[str, Any] | None = None, *,
-                 overwrite: bool = False, name: str = "path", doing: str = "writing") -> int:
+def write_output(
+    where: Path | str,
+    parts: list[Any],
+    storage_options: dict[str, Any] | None = None,
+    *,
+    overwrite: bool = False,
+    name: str = "path",
+    doing: str = "writing",
+) -> int:
     """Write ``parts`` and the SHA-256 of all of them (the trailer of ``.hevr`` and ``.hevrsums``
     files) to ``where`` (:func:`output_location`): a local file through
     :func:`hevr.core.files.write_checksummed`, an object in one request (:func:`write_new_bytes`);

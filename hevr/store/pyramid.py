@@ -34,12 +34,10 @@ import dask
 import numpy as np
 import zarr
 
-from ..runtime.scheduler import active_client
-
-from ..runtime.scheduler import compute
 from ..backends import get_backend, resolve_backend_name
 from ..crypto.tags import data_channel
 from ..errors import ParameterError, StoreError
+from ..runtime.scheduler import active_client, compute
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_shape
 from .digests import brick_digest, marker, written
 from .layout import compressors
@@ -69,8 +67,9 @@ def _children(shape_below: tuple, coarse: tuple[slice, slice, slice]) -> np.ndar
     return np.minimum(out, np.asarray(shape_below) - 1)
 
 
-def _level_brick(below: EncryptedVolume, path: str, level: int, index: tuple[int, int, int], meta: VolumeMetadata,
-                 backend: str) -> tuple[int, int, int]:
+def _level_brick(
+    below: EncryptedVolume, path: str, level: int, index: tuple[int, int, int], meta: VolumeMetadata, backend: str
+) -> tuple[int, int, int]:
     """One task: the brick ``index`` of ``level`` from the level below, written with its marker."""
     be = get_backend(backend)
     n2 = int(below.public_key.nsquare)
@@ -122,16 +121,19 @@ def write_meta(path: str, meta: VolumeMetadata, so: dict | None) -> None:
     group = zarr.open_group(zarr_store(path, so), mode="r+")
     on_disk = (dict(group.attrs).get("hevr") or {}).get("store_id")
     if on_disk != meta.store_id:
-        raise StoreError(f"ev: the store at {path} was replaced while its pyramid was being built (store id "
-                         f"{on_disk!r}, expected {meta.store_id!r}); nothing was written; open it again")
+        raise StoreError(
+            f"ev: the store at {path} was replaced while its pyramid was being built (store id "
+            f"{on_disk!r}, expected {meta.store_id!r}); nothing was written; open it again"
+        )
     group.attrs.update({"hevr": meta.to_dict(), "ome": ome_attribute(meta)})
 
 
 def level_arrays_ok(path: str, info: LevelInfo, so: dict | None) -> bool:
     """Whether level ``info``'s arrays are all there with the documents its metadata pins."""
     try:
-        return all(document_digest(path, f"levels/{info.level}/{name}", so) == want
-                   for name, want in info.arrays.items())
+        return all(
+            document_digest(path, f"levels/{info.level}/{name}", so) == want for name, want in info.arrays.items()
+        )
     except (OSError, ValueError, KeyError):
         return False
 
@@ -145,17 +147,31 @@ def _start_level(path: str, meta: VolumeMetadata, level: int, so: dict | None) -
     layout = array_layout(dataclasses.replace(meta, shape=shape, brick=brick, levels=()))
     group = zarr.open_group(zarr_store(path, so), mode="r+").require_group("levels").require_group(str(level))
     for name, (ashape, chunks) in layout.items():
-        group.create_array(name, shape=ashape, chunks=chunks, dtype="uint8", compressors=compressors(name),
-                           fill_value=0, overwrite=True)
+        group.create_array(
+            name,
+            shape=ashape,
+            chunks=chunks,
+            dtype="uint8",
+            compressors=compressors(name),
+            fill_value=0,
+            overwrite=True,
+        )
     digests = {name: document_digest(path, f"levels/{level}/{name}", so) for name in layout}
     info = LevelInfo(level, shape, brick, False, digests)
-    meta = dataclasses.replace(meta, levels=meta.levels[:level - 1] + (info,))  # levels above it are rebuilt too
+    meta = dataclasses.replace(meta, levels=meta.levels[: level - 1] + (info,))  # levels above it are rebuilt too
     write_meta(path, meta, so)
     return meta
 
 
-def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = None, progress: bool = True,
-                  backend: str | None = None, storage_options: dict | None = None) -> EncryptedVolume:
+def build_pyramid(
+    ev: EncryptedVolume | str,
+    levels: int = 1,
+    *,
+    client: Any = None,
+    progress: bool = True,
+    backend: str | None = None,
+    storage_options: dict | None = None,
+) -> EncryptedVolume:
     """Add pyramid levels 1 … ``levels`` to an encrypted store, on the cluster, without a key.
 
     Parameters
@@ -186,27 +202,36 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
     # never build from a stale handle
     fresh = open_volume(ev.path if isinstance(ev, EncryptedVolume) else ev, storage_options=storage_options)
     if isinstance(ev, EncryptedVolume) and fresh.meta.store_id != ev.meta.store_id:
-        raise StoreError(f"ev: the store at {ev.path} was replaced since this handle was opened (store id "
-                         f"{fresh.meta.store_id}, the handle's {ev.meta.store_id}); open it again")
+        raise StoreError(
+            f"ev: the store at {ev.path} was replaced since this handle was opened (store id "
+            f"{fresh.meta.store_id}, the handle's {ev.meta.store_id}); open it again"
+        )
     ev = fresh
     if ev.meta.packing is not None:
-        raise ParameterError(f"ev: expected a per-voxel store, got the packed store {ev.meta.store_id}: the server "
-                             "cannot downsample across slots; a packed store's levels are encrypted by the owner with "
-                             "the volume: hevr.encrypt_volume(vol, path, key, layout='packed', levels=L) (hevr encrypt "
-                             "--layout packed --levels L)")
+        raise ParameterError(
+            f"ev: expected a per-voxel store, got the packed store {ev.meta.store_id}: the server "
+            "cannot downsample across slots; a packed store's levels are encrypted by the owner with "
+            "the volume: hevr.encrypt_volume(vol, path, key, layout='packed', levels=L) (hevr encrypt "
+            "--layout packed --levels L)"
+        )
     if isinstance(levels, bool) or not isinstance(levels, int) or not 1 <= levels <= MAX_LEVELS:
         raise ParameterError(f"levels: expected an int in [1, {MAX_LEVELS}], got {levels!r}")
     meta = ev.meta
     for ch in (meta.scalar, meta.vector, meta.gradient):
         if ch is not None and ch.digits is not None and ch.digits + 3 * levels > _MAX_DIGITS:
-            raise ParameterError(f"levels: expected at most {(_MAX_DIGITS - ch.digits) // 3} levels for a channel of "
-                                 f"{ch.digits} digits (each level adds 3), got {levels}")
+            raise ParameterError(
+                f"levels: expected at most {(_MAX_DIGITS - ch.digits) // 3} levels for a channel of "
+                f"{ch.digits} digits (each level adds 3), got {levels}"
+            )
     backend = resolve_backend_name(backend, int(meta.n).bit_length(), client=active_client(client))
     path, so = ev.path, ev.storage_options
     check_reachable(path, active_client(client))
     for level in range(1, levels + 1):
-        if len(meta.levels) >= level and meta.levels[level - 1].complete and level_arrays_ok(
-                path, meta.levels[level - 1], so):
+        if (
+            len(meta.levels) >= level
+            and meta.levels[level - 1].complete
+            and level_arrays_ok(path, meta.levels[level - 1], so)
+        ):
             continue
         below = EncryptedVolume(path, meta, storage_options=so).at_level(level - 1)  # readable before anything starts
         meta = _start_level(path, meta, level, so)
@@ -215,11 +240,26 @@ def build_pyramid(ev: EncryptedVolume | str, levels: int = 1, *, client: Any = N
         todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*lmeta.grid) if not done[idx]]
         log.info("pyramid level %d: %d of %d bricks to compute", level, len(todo), lmeta.n_bricks)
         task = dask.delayed(_level_brick, pure=False)
-        compute([task(below, path, level, idx, lmeta, backend, dask_key_name=f"hevr-pyramid-{meta.store_id}-{level}-"
-                      f"{idx[0]}-{idx[1]}-{idx[2]}") for idx in todo],
-                client=client, progress=progress, desc=f"pyramid level {level}")
-        if not written(zarr.open_group(zarr_store(path, so, read_only=True),
-                                       mode="r")[f"levels/{level}/done"][...]).all():  # pragma: no cover
+        compute(
+            [
+                task(
+                    below,
+                    path,
+                    level,
+                    idx,
+                    lmeta,
+                    backend,
+                    dask_key_name=f"hevr-pyramid-{meta.store_id}-{level}-{idx[0]}-{idx[1]}-{idx[2]}",
+                )
+                for idx in todo
+            ],
+            client=client,
+            progress=progress,
+            desc=f"pyramid level {level}",
+        )
+        if not written(
+            zarr.open_group(zarr_store(path, so, read_only=True), mode="r")[f"levels/{level}/done"][...]
+        ).all():  # pragma: no cover
             raise StoreError(f"ev: level {level} of {path} still has missing bricks")
         infos = list(meta.levels)
         infos[level - 1] = dataclasses.replace(infos[level - 1], complete=True)

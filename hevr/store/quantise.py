@@ -24,15 +24,7 @@ import dask
 import dask.array
 import numpy as np
 
-from ..core.validate import MAX_STORE_DIGITS
-
-from ..core.validate import check_data_range
-
-from ..core.validate import check_int
-
-from ..core.validate import check_value_range
-
-from ..core.validate import check_vector_dims
+from ..core.validate import MAX_STORE_DIGITS, check_data_range, check_int, check_value_range, check_vector_dims
 from ..errors import ParameterError
 from ..volume.density import default_value_range, minmax
 from .metadata import ChannelInfo
@@ -54,8 +46,9 @@ def data_range(vol: Any) -> tuple[float, float]:
     return check_data_range(lo, hi)
 
 
-def plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_range: Any,
-                   digits: Any, vector_digits: Any) -> tuple[ChannelInfo | None, ChannelInfo | None, tuple[float, float]]:
+def plan_channels(
+    vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_range: Any, digits: Any, vector_digits: Any
+) -> tuple[ChannelInfo | None, ChannelInfo | None, tuple[float, float]]:
     """The scalar and vector channels' fixed point and the value range (the gradient channel,
     when asked for, is the vector one's twin: same dims and digits)."""
     is_float = np.dtype(vol.dtype).kind == "f"
@@ -67,8 +60,11 @@ def plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_ra
     if value_range is None:
         value_range = default_value_range(vol, (lo, hi))
         if is_float:
-            log.warning("value_range not given for a float volume; using the data range %s, which "
-                        "is then visible in the store metadata", value_range)
+            log.warning(
+                "value_range not given for a float volume; using the data range %s, which "
+                "is then visible in the store metadata",
+                value_range,
+            )
     vr = check_value_range(value_range)
     if lo < vr[0] or hi > vr[1]:
         raise ParameterError(f"vol: values must lie inside value_range {vr}; got data range [{lo}, {hi}]")
@@ -85,8 +81,10 @@ def plan_channels(vol: Any, key_n: int, scalar: bool, vector_dims: Any, value_ra
                 raise ParameterError("digits: integer volumes are stored exactly; digits applies to float volumes only")
             top = max(abs(int(lo)), abs(int(hi)))
             if top >= max_int:
-                raise ParameterError(f"vol: values up to {top} do not fit a "
-                                     f"{int(key_n).bit_length()}-bit key (|value| must stay below n/3); use a larger key")
+                raise ParameterError(
+                    f"vol: values up to {top} do not fit a "
+                    f"{int(key_n).bit_length()}-bit key (|value| must stay below n/3); use a larger key"
+                )
             sc = ChannelInfo(exponent=0)
     if vector_dims is not None:
         vd = check_int("vector_digits", vector_digits, 1, 12)

@@ -20,10 +20,8 @@ import dask
 import numpy as np
 import zarr
 
-from ..runtime.scheduler import active_client
-from ..core.validate import check_brick_index
-from ..core.validate import check_choice
 from ..backends import Backend, get_backend
+from ..core.validate import check_brick_index, check_choice
 from ..crypto.keys import PublicKey
 from ..crypto.records import record_width
 from ..crypto.tags import data_channel
@@ -33,6 +31,7 @@ from ..errors import (
     MissingFileError,
     ParameterError,
 )
+from ..runtime.scheduler import active_client
 from ..volume.pyramid import check_level, level_origin
 from .digests import brick_digest, digest_hex, written
 from .layout import (
@@ -97,8 +96,14 @@ class EncryptedVolume:
     cheaply into Dask tasks; the Zarr arrays are opened lazily wherever the handle is used.
     """
 
-    def __init__(self, path: str, meta: VolumeMetadata, level: int = 0, base: VolumeMetadata | None = None,
-                 storage_options: dict | None = None) -> None:
+    def __init__(
+        self,
+        path: str,
+        meta: VolumeMetadata,
+        level: int = 0,
+        base: VolumeMetadata | None = None,
+        storage_options: dict | None = None,
+    ) -> None:
         self.path = str(path)
         self.storage_options = check_storage_options(storage_options)  # never in repr or messages
         self.meta = meta
@@ -218,14 +223,24 @@ class EncryptedVolume:
         if self.has_gradient:
             ch.append(f"gradient[{self.vector_dims}]")
         res = f", resident={'+'.join(self.resident.channels)}" if self.resident is not None else ""
-        packed = (f", layout=packed[{self.packing.slots}x{self.packing.slot_bits} bits, axis {self.packing.axis}]"
-                  if self.packing is not None else "")
-        return (f"EncryptedVolume({self.path!r}, shape={self.shape}, brick={self.brick}, "
-                f"channels={'+'.join(ch)}{packed}, key={self.meta.fingerprint[:16]}…{res})")
+        packed = (
+            f", layout=packed[{self.packing.slots}x{self.packing.slot_bits} bits, axis {self.packing.axis}]"
+            if self.packing is not None
+            else ""
+        )
+        return (
+            f"EncryptedVolume({self.path!r}, shape={self.shape}, brick={self.brick}, "
+            f"channels={'+'.join(ch)}{packed}, key={self.meta.fingerprint[:16]}…{res})"
+        )
 
     def __getstate__(self) -> dict:
-        return {"path": self.path, "meta": self.meta, "level": self.level, "base": self.base,  # never the bricks
-                "storage_options": self.storage_options}
+        return {
+            "path": self.path,
+            "meta": self.meta,
+            "level": self.level,
+            "base": self.base,  # never the bricks
+            "storage_options": self.storage_options,
+        }
 
     def __setstate__(self, state: dict) -> None:
         self.path, self.meta = state["path"], state["meta"]
@@ -263,14 +278,30 @@ class EncryptedVolume:
         channels, backend, place, share = plan_residency(self, channels, backend, client)
         plain = self._plain()
         if client is None:
-            bricks = dict(zip(place, dask.compute(*[dask.delayed(load_brick, pure=False)(plain, idx, channels, backend)
-                                                    for idx in place])))
+            bricks = dict(
+                zip(
+                    place,
+                    dask.compute(
+                        *[dask.delayed(load_brick, pure=False)(plain, idx, channels, backend) for idx in place]
+                    ),
+                )
+            )
         else:
             tag = f"{self.meta.store_id}-{'+'.join(channels)}-{backend}"
-            bricks = {idx: client.submit(load_brick, plain, idx, channels, backend, workers=[w],
-                                         allow_other_workers=True, pure=False,
-                                         key=f"hevr-brick-{tag}-{idx[0]}-{idx[1]}-{idx[2]}")
-                      for idx, w in place.items()}
+            bricks = {
+                idx: client.submit(
+                    load_brick,
+                    plain,
+                    idx,
+                    channels,
+                    backend,
+                    workers=[w],
+                    allow_other_workers=True,
+                    pure=False,
+                    key=f"hevr-brick-{tag}-{idx[0]}-{idx[1]}-{idx[2]}",
+                )
+                for idx, w in place.items()
+            }
         out = self._plain()
         out.resident = Residency(channels, backend, bricks, client, sum(share.values()), share)
         return out
@@ -289,8 +320,7 @@ class EncryptedVolume:
     def _check_index(self, index: Any) -> None:
         check_brick_index(index, self.grid, "index")
 
-    def read_brick_bytes(self, index: tuple[int, int, int], channel: str = "scalar",
-                         verify: bool = True) -> np.ndarray:
+    def read_brick_bytes(self, index: tuple[int, int, int], channel: str = "scalar", verify: bool = True) -> np.ndarray:
         """Raw ciphertext records of one brick: (bz, by, bx, W) (``scalar``) or (k, bz, by, bx, W)
         (``vector``, ``gradient``).
 
@@ -299,8 +329,10 @@ class EncryptedVolume:
         naming the brick. Zarr's crc32c codec checks the chunk file itself in any case.
         """
         if not isinstance(channel, str) or data_channel(channel) not in CHANNELS:
-            raise ParameterError(f"channel: expected 'scalar', 'vector' or 'gradient' (or its tag channel "
-                                 f"'<channel>_tag'), got {channel!r}")
+            raise ParameterError(
+                f"channel: expected 'scalar', 'vector' or 'gradient' (or its tag channel "
+                f"'<channel>_tag'), got {channel!r}"
+            )
         if channel not in self.meta.channel_names:
             raise ParameterError(f"channel: this store has no {channel} channel")
         self._check_index(index)
@@ -314,16 +346,23 @@ class EncryptedVolume:
             so = self.storage_options
             arr = _array(self.path, self.meta.store_id, self.prefix + channel, so)
             data = np.asarray(arr[sl if data_channel(channel) == "scalar" else (slice(None),) + sl])
-            stored = np.asarray(_array(self.path, self.meta.store_id, self.prefix + "done", so)[index]) if verify else None
+            stored = (
+                np.asarray(_array(self.path, self.meta.store_id, self.prefix + "done", so)[index]) if verify else None
+            )
         except Exception as exc:
-            why = ("its chunk fails its crc32c check: the file was damaged" if "checksum" in str(exc).lower()
-                   else f"{type(exc).__name__}: {exc}")
+            why = (
+                "its chunk fails its crc32c check: the file was damaged"
+                if "checksum" in str(exc).lower()
+                else f"{type(exc).__name__}: {exc}"
+            )
             raise CorruptStoreError(f"{self.path}: {where} cannot be read ({why})") from None
         if verify:
             want = stored[self.meta.channel_names.index(channel)]
             if not want.any():
-                raise CorruptStoreError(f"{self.path}: {where} has no digest "
-                                        "(its marker is missing: the brick was never finished or was removed)")
+                raise CorruptStoreError(
+                    f"{self.path}: {where} has no digest "
+                    "(its marker is missing: the brick was never finished or was removed)"
+                )
             got = brick_digest(self.meta.store_id, self.prefix + channel, index, data)
             if got != want.tobytes():
                 raise CorruptStoreError(
@@ -333,8 +372,13 @@ class EncryptedVolume:
                 )
         return data
 
-    def read_brick(self, index: tuple[int, int, int], channel: str = "scalar", check: bool = True,
-                   backend: str | Backend | None = None):
+    def read_brick(
+        self,
+        index: tuple[int, int, int],
+        channel: str = "scalar",
+        check: bool = True,
+        backend: str | Backend | None = None,
+    ):
         """Ciphertexts of one brick in the backend's form, converted once: one batch (scalar)
         or k batches (vector, gradient). For the default ``cpu`` backend a batch is a list of mpz.
 
@@ -369,8 +413,9 @@ class EncryptedVolume:
                 raise CorruptStoreError(f"{self.path}: {problems[0]}")
 
 
-def open_volume(path: str | os.PathLike, verify: str = "quick", *,
-                storage_options: dict | None = None) -> EncryptedVolume:
+def open_volume(
+    path: str | os.PathLike, verify: str = "quick", *, storage_options: dict | None = None
+) -> EncryptedVolume:
     """Open an encrypted volume store.
 
     Parameters
@@ -399,8 +444,14 @@ def open_volume(path: str | os.PathLike, verify: str = "quick", *,
         raise MissingFileError("path", "an encrypted volume store", path)
     if is_local(path) and not Path(path).exists():
         left = interrupted_swaps(path)
-        hint = (f" (an interrupted overwrite left {', '.join(Path(q).name for q in left)} beside it: rename "
-                f"one of them to {Path(path).name})") if left else ""
+        hint = (
+            (
+                f" (an interrupted overwrite left {', '.join(Path(q).name for q in left)} beside it: rename "
+                f"one of them to {Path(path).name})"
+            )
+            if left
+            else ""
+        )
         raise MissingFileError("path", "an encrypted volume store" + hint, path)
     check_document(path, "")  # a FIFO there would block Zarr's open
     try:
@@ -422,7 +473,9 @@ def open_volume(path: str | os.PathLike, verify: str = "quick", *,
         raise CorruptStoreError(f"{path}: the stored key fingerprint does not match the stored modulus n")
     w_expected = record_width(int(meta.n))
     if meta.ciphertext_bytes != w_expected:
-        raise CorruptStoreError(f"{path}: ciphertext_bytes is {meta.ciphertext_bytes}, expected {w_expected} for this key")
+        raise CorruptStoreError(
+            f"{path}: ciphertext_bytes is {meta.ciphertext_bytes}, expected {w_expected} for this key"
+        )
     check_documents(path, meta, so)
     check_arrays(path, group, meta)
     if verify != "none":

@@ -45,8 +45,8 @@ import dask
 import numpy as np
 import psutil
 
-from ..core.validate import check_choice
 from ..backends import get_backend, resolve_backend_name
+from ..core.validate import check_choice
 from ..crypto.tags import data_channel
 from ..errors import MemoryLimitError, ParameterError
 from .layout import array_slices
@@ -80,8 +80,7 @@ class ResidentBrick:
 
     HOST_SIDE = 4096  # bytes of Python objects around a device brick's arrays
 
-    def __init__(self, index: tuple[int, int, int], batches: dict[str, Any], nbytes: int,
-                 device: bool = False) -> None:
+    def __init__(self, index: tuple[int, int, int], batches: dict[str, Any], nbytes: int, device: bool = False) -> None:
         self.index, self.batches, self.nbytes, self.device = index, batches, int(nbytes), bool(device)
 
     def channel(self, name: str) -> Any:
@@ -128,8 +127,9 @@ def load_brick(ev: Any, index: tuple[int, int, int], channels: tuple[str, ...], 
     be = get_backend(backend)
     batches = {ch: ev.read_brick(index, ch, backend=be) for ch in channels}
     n_cts = sum(len(b) if data_channel(ch) == "scalar" else sum(len(x) for x in b) for ch, b in batches.items())
-    return ResidentBrick(tuple(index), batches, n_cts * be.residue_bytes(ev.meta.ciphertext_bytes),
-                         device=be.residence == "device")
+    return ResidentBrick(
+        tuple(index), batches, n_cts * be.residue_bytes(ev.meta.ciphertext_bytes), device=be.residence == "device"
+    )
 
 
 @dataclass
@@ -160,8 +160,13 @@ class Residency:
 
     def usable(self, channel: str, backend: str, client: Any) -> bool:
         """Whether a render of ``channel`` with ``backend`` on ``client`` can use these bricks."""
-        return bool(self.bricks) and channel in self.channels and backend == self.backend and (
-            client is self.client) and (client is None or client.status == "running")
+        return (
+            bool(self.bricks)
+            and channel in self.channels
+            and backend == self.backend
+            and (client is self.client)
+            and (client is None or client.status == "running")
+        )
 
     def wait(self) -> None:
         """Block until every brick is loaded (re-raises a brick's read error)."""
@@ -213,7 +218,9 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     elif isinstance(channels, str):
         channels = (channels,)
     elif not isinstance(channels, (list, tuple)):
-        raise ParameterError(f"channels: expected 'scalar', 'vector', 'gradient' or a list of them, got {type(channels).__name__}")
+        raise ParameterError(
+            f"channels: expected 'scalar', 'vector', 'gradient' or a list of them, got {type(channels).__name__}"
+        )
     channels = tuple(dict.fromkeys(check_choice("channels", c, stored) for c in channels))
     if not channels:
         raise ParameterError(f"channels: expected some of {list(stored)}, got none")
@@ -253,10 +260,17 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
                 f"persist: expected at most {frac:g} of worker {w}'s {'device ' if device else ''}memory "
                 f"({frac * limits[w] / 2**20:.1f} MiB), "
                 f"got {share[w] / 2**20:.1f} MiB of resident bricks ({per_ct} bytes per ciphertext, "
-                f"channels {'+'.join(channels)})" + (f" and {frame / 2**20:.1f} MiB a frame needs beside them"
-                                                      if frame else "") +
-                f"; add workers, persist fewer channels, or raise {RESIDENT_MEMORY_KEY}")
-    log.info("persist %s: %d bricks, %s, %.1f MiB in all, at most %.1f MiB per worker%s", ev.path, len(bricks),
-             "+".join(channels), sum(share.values()) / 2**20, max(share.values()) / 2**20,
-             " (device memory)" if device else "")
+                f"channels {'+'.join(channels)})"
+                + (f" and {frame / 2**20:.1f} MiB a frame needs beside them" if frame else "")
+                + f"; add workers, persist fewer channels, or raise {RESIDENT_MEMORY_KEY}"
+            )
+    log.info(
+        "persist %s: %d bricks, %s, %.1f MiB in all, at most %.1f MiB per worker%s",
+        ev.path,
+        len(bricks),
+        "+".join(channels),
+        sum(share.values()) / 2**20,
+        max(share.values()) / 2**20,
+        " (device memory)" if device else "",
+    )
     return channels, backend, place, share

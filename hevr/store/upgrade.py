@@ -24,11 +24,8 @@ import dask
 import numpy as np
 import zarr
 
-from ..runtime.scheduler import compute
-from ..core.files import held_lock
-from ..core.files import os_error
-from ..core.files import temp_sibling
 from ..backends import get_backend
+from ..core.files import held_lock, os_error, temp_sibling
 from ..crypto.keys import PublicKey
 from ..errors import (
     CorruptStoreError,
@@ -37,6 +34,7 @@ from ..errors import (
     ParameterError,
     StoreExistsError,
 )
+from ..runtime.scheduler import compute
 from .digests import brick_digest, marker
 from .exclusive import rename_noreplace, swap_lock
 from .layout import check_document, check_entry, chunk_key
@@ -83,8 +81,9 @@ def _copy_brick(src: str, dst: str, index: tuple[int, int, int], meta_dict: dict
         try:
             data = np.asarray(zarr.open_array(f"{src}/{name}", mode="r")[key])
         except Exception as exc:  # noqa: BLE001 - whatever a damaged chunk raises, name the brick
-            raise CorruptStoreError(f"{src}: brick {index} of channel {name!r} cannot be read "
-                                    f"({type(exc).__name__}: {exc})") from None
+            raise CorruptStoreError(
+                f"{src}: brick {index} of channel {name!r} cannot be read ({type(exc).__name__}: {exc})"
+            ) from None
         flat = data.reshape(-1, data.shape[-1])
         bad = be.first_out_of_range(be.from_bytes(flat), n2)
         if bad is not None:
@@ -95,8 +94,9 @@ def _copy_brick(src: str, dst: str, index: tuple[int, int, int], meta_dict: dict
     return index
 
 
-def upgrade_store(src: str | os.PathLike, dst: str | os.PathLike, *, client: Any = None,
-                  progress: bool = True) -> EncryptedVolume:
+def upgrade_store(
+    src: str | os.PathLike, dst: str | os.PathLike, *, client: Any = None, progress: bool = True
+) -> EncryptedVolume:
     """Copy the format-1 store ``src`` into a new format-2 store ``dst`` (module docstring).
 
     Parameters
@@ -135,8 +135,10 @@ def upgrade_store(src: str | os.PathLike, dst: str | os.PathLike, *, client: Any
     meta = create_store(build, meta)
     meta_dict = meta.to_dict()
     task = dask.delayed(_copy_brick, pure=False)
-    tasks = [task(src, build, idx, meta_dict, dask_key_name=f"hevr-upgrade-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
-             for idx in (tuple(int(i) for i in ix) for ix in np.ndindex(*meta.grid))]
+    tasks = [
+        task(src, build, idx, meta_dict, dask_key_name=f"hevr-upgrade-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
+        for idx in (tuple(int(i) for i in ix) for ix in np.ndindex(*meta.grid))
+    ]
     try:
         with held_lock(build) if is_local(build) else contextlib.nullcontext():
             compute(tasks, client=client, progress=progress, desc="upgrade")
@@ -160,6 +162,7 @@ def _move_new(build: str, dst: str) -> None:
             rename_noreplace(build, dst)
     except OSError as exc:
         if exc.errno in (errno.EEXIST, errno.ENOTEMPTY):
-            raise StoreExistsError(f"dst: {dst} already exists (created while the upgrade ran); choose a new path "
-                                   "for the upgraded store") from None
+            raise StoreExistsError(
+                f"dst: {dst} already exists (created while the upgrade ran); choose a new path for the upgraded store"
+            ) from None
         raise os_error(exc, "moving the upgraded store to", dst) from None

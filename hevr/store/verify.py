@@ -22,11 +22,9 @@ from typing import Any
 import dask
 import gmpy2
 
-from ..runtime.scheduler import active_client
-
-from ..runtime.scheduler import compute
 from ..crypto.tags import data_channel
 from ..errors import CorruptStoreError
+from ..runtime.scheduler import active_client, compute
 from .paths import check_reachable
 
 log = logging.getLogger(__name__)
@@ -69,7 +67,7 @@ class VerifyReport:
 def _reason(exc: CorruptStoreError, path: str) -> str:
     """The message of a brick's read error without the store path it starts with."""
     text = str(exc)
-    return text[len(path) + 2:] if text.startswith(path + ": ") else text
+    return text[len(path) + 2 :] if text.startswith(path + ": ") else text
 
 
 def check_brick(ev: Any, index: tuple[int, int, int], coprime: bool = True) -> list[BrickProblem]:
@@ -82,21 +80,23 @@ def check_brick(ev: Any, index: tuple[int, int, int], coprime: bool = True) -> l
             res = ev.read_brick(index, ch, backend="cpu")  # digest and range; the gcd below works on mpz
             if coprime:
                 n = ev.public_key.n
-                for cts in ([res] if data_channel(ch) == "scalar" else res):
+                for cts in [res] if data_channel(ch) == "scalar" else res:
                     prod = gmpy2.mpz(1)
                     for c in cts:
                         prod = prod * c % n
                     if gmpy2.gcd(prod, n) != 1:
                         lv = f" of level {ev.level}" if ev.level else ""
-                        raise CorruptStoreError(f"{ev.path}: brick {index} of channel {ch!r}{lv} holds a "
-                                                "ciphertext not coprime to n")
+                        raise CorruptStoreError(
+                            f"{ev.path}: brick {index} of channel {ch!r}{lv} holds a ciphertext not coprime to n"
+                        )
         except CorruptStoreError as exc:
             out.append(BrickProblem(ev.level, index, ch, _reason(exc, ev.path)))  # type: ignore[arg-type]
     return out
 
 
-def verify_bricks(ev: Any, *, client: Any = None, coprime: bool = True, levels: bool = True,
-                  progress: bool = False) -> VerifyReport:
+def verify_bricks(
+    ev: Any, *, client: Any = None, coprime: bool = True, levels: bool = True, progress: bool = False
+) -> VerifyReport:
     """Read every brick of ``ev`` (and, with ``levels``, of every complete pyramid level) and
     check it (module docstring).
 

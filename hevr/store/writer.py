@@ -39,18 +39,16 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import dask
 import dask.array
 import numpy as np
 import zarr
 
-from ..runtime import stats
-from ..runtime.scheduler import active_client
-from ..runtime.scheduler import check_encryption_client
-from ..runtime.scheduler import compute
+from ..backends import CpuBackend, check_backend, get_backend, resolve_backend_name
 from ..core.files import fs_errors
 from ..core.validate import (
     check_brick,
@@ -58,12 +56,11 @@ from ..core.validate import (
     check_spacing,
     check_volume,
 )
-from ..backends import CpuBackend, check_backend, get_backend, resolve_backend_name
 from ..crypto.keys import PrivateKey, PublicKey
 from ..crypto.tags import tag_channel, tag_ciphertexts
-from .authenticity import authenticate
-from .known import record_quietly
 from ..errors import ParameterError, StoreError, StoreExistsError
+from ..runtime import stats
+from ..runtime.scheduler import active_client, check_encryption_client, compute
 from ..volume import gradient as grad
 from ..volume.density import (
     check_brick_range,
@@ -72,12 +69,18 @@ from ..volume.density import (
 )
 from ..volume.mapped import task_array
 from ..volume.scan import Scan
+from .authenticity import authenticate
 from .brick_crypto import encrypt_components
-from .digests import brick_digest, marker, written
 from .creation import create_store, new_store, resume_target  # noqa: F401 - create_store: hevr.store.upgrade
+from .digests import brick_digest, marker, written
 from .exclusive import lock_store, remove_leftovers
 from .journal import check_journal, input_digests, remove_journal, write_journal
+from .known import record_quietly
+from .layout import array_slices
 from .metadata import VolumeMetadata
+from .packed_brick import pack_axis_of, write_packed_brick
+from .packed_levels import build_pyramid, check_levels, encrypt_levels, plan_levels, prepare_levels
+from .packing import choose_packing, mantissa_range
 from .paths import (
     check_reachable,
     check_replaceable,
@@ -91,10 +94,6 @@ from .paths import (
     token,
     zarr_store,
 )
-from .layout import array_slices
-from .packed_brick import pack_axis_of, write_packed_brick
-from .packing import choose_packing, mantissa_range
-from .packed_levels import build_pyramid, check_levels, encrypt_levels, plan_levels, prepare_levels
 from .quantise import plan_channels, quantise_scalar, quantise_vector
 from .reader import EncryptedVolume, brick_slices, open_volume
 
@@ -105,9 +104,18 @@ __all__ = ["encrypt_volume", "open_volume", "EncryptedVolume"]
 _CPU = CpuBackend()  # the tags' records (owner-encrypted on the CPU whatever the data's backend)
 
 
-def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
-                   unsafe_no_obfuscation: bool, backend: str = "cpu", halo: grad.Halo | None = None,
-                   m_max: float = 0.0, storage_options: dict | None = None) -> tuple[int, int, int]:
+def _encrypt_brick(
+    block: np.ndarray,
+    path: str,
+    index: tuple[int, int, int],
+    meta_dict: dict,
+    key: Any,
+    unsafe_no_obfuscation: bool,
+    backend: str = "cpu",
+    halo: grad.Halo | None = None,
+    m_max: float = 0.0,
+    storage_options: dict | None = None,
+) -> tuple[int, int, int]:
     """One task: encrypt one plaintext brick and write its chunks, then its digest marker.
 
     With the gradient channel ``block`` carries a one-voxel ``halo`` of its neighbours
@@ -115,13 +123,23 @@ def _encrypt_brick(block: np.ndarray, path: str, index: tuple[int, int, int], me
     An ``OSError`` (disk full, read-only filesystem, …) becomes :class:`hevr.FileSystemError`
     naming the store and the reason only (never a value of the brick)."""
     with fs_errors("writing a brick of the store", path):
-        return _write_brick(block, path, index, meta_dict, key, unsafe_no_obfuscation, backend, halo, m_max,
-                            storage_options)
+        return _write_brick(
+            block, path, index, meta_dict, key, unsafe_no_obfuscation, backend, halo, m_max, storage_options
+        )
 
 
-def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta_dict: dict, key: Any,
-                 unsafe_no_obfuscation: bool, backend: str, halo: grad.Halo | None, m_max: float,
-                 storage_options: dict | None) -> tuple[int, int, int]:
+def _write_brick(
+    block: np.ndarray,
+    path: str,
+    index: tuple[int, int, int],
+    meta_dict: dict,
+    key: Any,
+    unsafe_no_obfuscation: bool,
+    backend: str,
+    halo: grad.Halo | None,
+    m_max: float,
+    storage_options: dict | None,
+) -> tuple[int, int, int]:
     be = get_backend(backend)
     meta = VolumeMetadata.from_dict(meta_dict)
     haloed = np.asarray(block)
@@ -133,8 +151,11 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
     digests = []
     mantissas = {}  # channel -> (k, voxels) int64, for the tags of a verifiable store
     if meta.packing is not None:  # S voxels per ciphertext along the packing axis (hevr.store.packing)
-        genc = None if meta.gradient is None else grad.brick_gradient_encoding(
-            haloed, halo, meta.spacing, meta.value_range, meta.gradient.dims, m_max)
+        genc = (
+            None
+            if meta.gradient is None
+            else grad.brick_gradient_encoding(haloed, halo, meta.spacing, meta.value_range, meta.gradient.dims, m_max)
+        )
         return write_packed_brick(be, block, group, index, meta, key, unsafe_no_obfuscation, genc)
     if meta.scalar is not None:
         q = quantise_scalar(block, meta.scalar)
@@ -149,8 +170,9 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
     if meta.gradient is not None:
         if halo is None:  # pragma: no cover - _run always passes the halo with the gradient channel
             raise StoreError(f"brick {index}: the gradient channel needs the brick's halo")
-        fields["gradient"] = grad.brick_gradient_encoding(haloed, halo, meta.spacing, meta.value_range,
-                                                          meta.gradient.dims, m_max)
+        fields["gradient"] = grad.brick_gradient_encoding(
+            haloed, halo, meta.spacing, meta.value_range, meta.gradient.dims, m_max
+        )
     for name, enc in fields.items():  # store order: vector, then gradient
         q = quantise_vector(enc, getattr(meta, name))
         out = encrypt_components(be, key, q, block.shape, width, unsafe_no_obfuscation)
@@ -159,8 +181,9 @@ def _write_brick(block: np.ndarray, path: str, index: tuple[int, int, int], meta
             group[name][(slice(None),) + sl] = out
         mantissas[name] = np.asarray(q)
     if meta.tags:  # after every data channel: the digests' order (VolumeMetadata.channel_names)
-        voxels = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
-                                      meta.shape).reshape(-1)
+        voxels = np.ravel_multi_index(
+            np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"), meta.shape
+        ).reshape(-1)
         for name, q in mantissas.items():
             with stats.timed("encrypt.tags", q.size):
                 tags = tag_ciphertexts(key, meta.store_id, name, 0, q, voxels)
@@ -299,42 +322,69 @@ def encrypt_volume(
     if verifiable is not None and not isinstance(verifiable, (bool, np.bool_)):
         raise ParameterError(f"verifiable: expected True, False or None, got {verifiable!r}")
     if verifiable and not isinstance(key, PrivateKey):
-        raise ParameterError("verifiable: expected a PrivateKey as key (the tags need its tag key, "
-                             f"hevr.crypto.tags), got a {type(key).__name__}")
+        raise ParameterError(
+            "verifiable: expected a PrivateKey as key (the tags need its tag key, "
+            f"hevr.crypto.tags), got a {type(key).__name__}"
+        )
     if gradient and vector_dims is None:
-        raise ParameterError("gradient: expected vector_dims=k as well, got vector_dims=None (the gradient channel "
-                             "holds g·e(d), the k-dimensional density encoding scaled by the gradient magnitude)")
+        raise ParameterError(
+            "gradient: expected vector_dims=k as well, got vector_dims=None (the gradient channel "
+            "holds g·e(d), the k-dimensional density encoding scaled by the gradient magnitude)"
+        )
     layout, levels = check_choice("layout", layout, ("voxel", "packed")), check_levels(levels)
     policy = isinstance(key, PrivateKey) and key.require_tags  # the key's policy: every store carries tags
     if policy and verifiable is not None and not verifiable:
-        raise ParameterError("verifiable: expected True or None under a key whose policy is that every store of it "
-                             "carries tags (PrivateKey.require_tags), got False: its key holder would refuse the "
-                             "store; encrypt with key.with_policy(require_tags=False) to make one without tags")
+        raise ParameterError(
+            "verifiable: expected True or None under a key whose policy is that every store of it "
+            "carries tags (PrivateKey.require_tags), got False: its key holder would refuse the "
+            "store; encrypt with key.with_policy(require_tags=False) to make one without tags"
+        )
     if verifiable is None:  # packed stores carry tags by default (one per packed ciphertext costs little), and
         verifiable = policy or (layout == "packed" and isinstance(key, PrivateKey))  # every store of a policy key
         if layout == "packed" and not verifiable:
-            log.warning("encrypt_volume: a packed store encrypted with the public key has no tags (they need the "
-                        "private key), so its frames cannot be verified")
+            log.warning(
+                "encrypt_volume: a packed store encrypted with the public key has no tags (they need the "
+                "private key), so its frames cannot be verified"
+            )
     if layout == "packed" and not scalar:
-        raise ParameterError("layout: expected 'voxel' for a store without the scalar channel (a packed store "
-                             "packs every channel along the scalar's slots), got 'packed' with scalar=False")
+        raise ParameterError(
+            "layout: expected 'voxel' for a store without the scalar channel (a packed store "
+            "packs every channel along the scalar's slots), got 'packed' with scalar=False"
+        )
     if layout == "packed" and vector_dims is not None and levels:
-        raise ParameterError(f"levels: expected 0 for a packed store with the vector channel (its levels are "
-                             f"encrypted scalar only), got {levels}; encrypt without vector_dims, or layout='voxel'")
+        raise ParameterError(
+            f"levels: expected 0 for a packed store with the vector channel (its levels are "
+            f"encrypted scalar only), got {levels}; encrypt without vector_dims, or layout='voxel'"
+        )
     if layout == "voxel" and pack_axis is not None:
         raise ParameterError(f"pack_axis: expected None for layout='voxel', got {pack_axis!r}")
     sc, vc, vr = plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
     packing = None
     if layout == "packed":
         axis = pack_axis_of(pack_axis)
-        packing = choose_packing(int(pub.n).bit_length(), tuple(int(s) for s in vol.shape), axis,
-                                 mantissa_range(vr, sc.exponent), vector_digits=None if vc is None else vc.digits)
+        packing = choose_packing(
+            int(pub.n).bit_length(),
+            tuple(int(s) for s in vol.shape),
+            axis,
+            mantissa_range(vr, sc.exponent),
+            vector_digits=None if vc is None else vc.digits,
+        )
         brick_t = tuple(-(-b // packing.slots) * packing.slots if i == axis else b for i, b in enumerate(brick_t))
     meta = VolumeMetadata(
-        shape=tuple(int(s) for s in vol.shape), spacing=spacing_t, brick=brick_t, n=str(int(pub.n)),
-        fingerprint=pub.fingerprint, ciphertext_bytes=pub.ciphertext_bytes, dtype=str(np.dtype(vol.dtype)),
-        value_range=vr, scalar=sc, vector=vc, gradient=vc if gradient else None, patient=patient,
-        tags=bool(verifiable), packing=packing,
+        shape=tuple(int(s) for s in vol.shape),
+        spacing=spacing_t,
+        brick=brick_t,
+        n=str(int(pub.n)),
+        fingerprint=pub.fingerprint,
+        ciphertext_bytes=pub.ciphertext_bytes,
+        dtype=str(np.dtype(vol.dtype)),
+        value_range=vr,
+        scalar=sc,
+        vector=vc,
+        gradient=vc if gradient else None,
+        patient=patient,
+        tags=bool(verifiable),
+        packing=packing,
     )
     planned = plan_levels(meta, levels) if packing is not None else ()  # the packed levels' slots, before the disk
     path, so = normalise(path), check_storage_options(storage_options)
@@ -343,7 +393,9 @@ def encrypt_volume(
     check_backend(backend, active_client(client))  # CuPy, a device, a compiler: before the disk is touched
     exists = store_exists(path, so)
     if exists and not (resume or overwrite):
-        raise StoreExistsError(f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it")
+        raise StoreExistsError(
+            f"path: {path} already exists; pass overwrite=True to replace it or resume=True to finish it"
+        )
     local = is_local(path)
     if local:
         remove_leftovers(path)  # of killed or failed earlier runs (hevr.store.exclusive)
@@ -357,8 +409,9 @@ def encrypt_volume(
                 stack.enter_context(lock_store(path))
             old = resume_target(path, meta, so)
             # a finished store keeps everything built on it since (its pyramid levels)
-            meta = authenticate(dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays, levels=old.levels),
-                                 key)
+            meta = authenticate(
+                dataclasses.replace(meta, store_id=old.store_id, arrays=old.arrays, levels=old.levels), key
+            )
             check_journal(meta.store_id, path, meta.fingerprint, input_digests(vol, brick_t, bricks, client))
             done = written(zarr.open_array(zarr_store(path, so, read_only=True), path="done", mode="r")[...])
             target = path
@@ -381,12 +434,14 @@ def encrypt_volume(
         try:
             meta = prepare_levels(target, meta, planned, key, so)  # a packed store's levels: recorded first
             values = _run(vol, brick_t, todo, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so)
-            meta, values = encrypt_levels(vol, brick_t, target, meta, key, unsafe_no_obfuscation, backend, client,
-                                          progress, so, values)  # then encrypted: values + the levels' ciphertexts
+            meta, values = encrypt_levels(
+                vol, brick_t, target, meta, key, unsafe_no_obfuscation, backend, client, progress, so, values
+            )  # then encrypted: values + the levels' ciphertexts
         except BaseException:
             if target != path:
-                log.warning("encryption failed; removing the partial new store %s, the old store %s is untouched",
-                            target, path)
+                log.warning(
+                    "encryption failed; removing the partial new store %s, the old store %s is untouched", target, path
+                )
                 remove_tree(target, so)
             raise
         if target == path:
@@ -399,23 +454,38 @@ def encrypt_volume(
                 raise
             remove_journal(old_id)  # the replaced store's resume evidence is of no more use
     if ev.meta.store_id != meta.store_id:
-        raise StoreExistsError(f"path: the store at {path} was created or replaced by another run while this one "
-                               "wrote it; this run's store is not there")
+        raise StoreExistsError(
+            f"path: the store at {path} was created or replaced by another run while this one "
+            "wrote it; this run's store is not there"
+        )
     ev = build_pyramid(ev, levels, client=client, progress=progress, backend=backend) if levels and not packing else ev
     ev.written_now = {"bricks": len(todo), "ciphertexts": values}  # this call's share (resume: the missing ones)
     record_quietly(ev, key if isinstance(key, PrivateKey) else None, replace=True)  # the owner's: hevr.store.known
     return ev
 
 
-def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: VolumeMetadata, key: Any,
-         unsafe_no_obfuscation: bool, backend: str, client: Any, progress: bool,
-         storage_options: dict | None = None) -> int:
+def _run(
+    vol: Any,
+    brick: tuple[int, int, int],
+    todo: list,
+    path: str,
+    meta: VolumeMetadata,
+    key: Any,
+    unsafe_no_obfuscation: bool,
+    backend: str,
+    client: Any,
+    progress: bool,
+    storage_options: dict | None = None,
+) -> int:
     """Encrypt the bricks ``todo`` into the store at ``path`` (one impure task per brick), then
     mark the store complete once every digest marker is written; returns the ciphertexts written."""
     # A random name: dask's default is a hash of the array's content, which would put a value
     # that confirms a guessed volume into the task graph, the scheduler's logs and dashboard.
-    darr = vol if isinstance(vol, dask.array.Array) else dask.array.from_array(
-        vol, chunks=brick, name=f"hevr-plain-{token()}{token()}")
+    darr = (
+        vol
+        if isinstance(vol, dask.array.Array)
+        else dask.array.from_array(vol, chunks=brick, name=f"hevr-plain-{token()}{token()}")
+    )
     darr = darr.rechunk(brick)
     extra: list[dict] = [{} for _ in todo]
     if meta.gradient is not None and todo:
@@ -424,17 +494,34 @@ def _run(vol: Any, brick: tuple[int, int, int], todo: list, path: str, meta: Vol
         # (the halo blocks' names are hashes of the array's name, random above, not of the data)
         darr = dask.array.overlap.overlap(darr, depth=1, boundary="none")
         blocks = darr.to_delayed()
-        m_max = grad.max_gradient_magnitude(blocks, meta.grid, meta.spacing, meta.value_range, lambda tasks: compute(
-            tasks, client=client, progress=progress, desc="gradient"), token() + token())
+        m_max = grad.max_gradient_magnitude(
+            blocks,
+            meta.grid,
+            meta.spacing,
+            meta.value_range,
+            lambda tasks: compute(tasks, client=client, progress=progress, desc="gradient"),
+            token() + token(),
+        )
         extra = [{"halo": grad.halo_of(idx, meta.grid), "m_max": m_max} for idx in todo]
     else:
         blocks = darr.to_delayed()
     task = dask.delayed(_encrypt_brick, pure=False)
     meta_dict = meta.to_dict()
-    tasks = [task(blocks[idx], path, idx, meta_dict, key, unsafe_no_obfuscation, backend, **kw,
-                  storage_options=storage_options,
-                  dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{token()}")
-             for idx, kw in zip(todo, extra)]
+    tasks = [
+        task(
+            blocks[idx],
+            path,
+            idx,
+            meta_dict,
+            key,
+            unsafe_no_obfuscation,
+            backend,
+            **kw,
+            storage_options=storage_options,
+            dask_key_name=f"hevr-encrypt-{meta.fingerprint[:8]}-{idx[0]}-{idx[1]}-{idx[2]}-{token()}",
+        )
+        for idx, kw in zip(todo, extra)
+    ]
     per_voxel = sum(c.dims or 1 for c in (meta.scalar, meta.vector, meta.gradient) if c is not None)
     values = sum(int(np.prod([s.stop - s.start for s in array_slices(meta, idx)])) for idx in todo) * per_voxel
     compute(tasks, client=client, progress=progress, desc="encrypt", steps=values, unit="ciphertexts")

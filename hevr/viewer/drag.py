@@ -245,8 +245,9 @@ class Orbit:
 
     def _snap(self, exact: tuple[float, float, float]) -> tuple[float, ...]:
         """The slider values of an exact camera: on the sliders' steps, in their ranges."""
-        return tuple(min(max(s.min + round((x - s.min) / s.step) * s.step, s.min), s.max)
-                     for s, x in zip(self._sliders(), exact))
+        return tuple(
+            min(max(s.min + round((x - s.min) / s.step) * s.step, s.min), s.max) for s, x in zip(self._sliders(), exact)
+        )
 
     def move(self, dx: float = 0.0, dy: float = 0.0, wheel: float = 0.0, release: bool = False) -> dict | None:
         """Apply one message: orbit by a pointer movement of (``dx``, ``dy``) image widths and

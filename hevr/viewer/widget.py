@@ -59,22 +59,20 @@ from typing import Any
 
 import numpy as np
 
-from ..runtime.scheduler import refuse_foreign_cluster
-from .drag import Orbit
-from .drag import drag_image
-from .drag import png
 from ..colour import Frame
 from ..crypto.keys import PrivateKey
 from ..errors import HevrError, MissingDependencyError, ParameterError
+from ..image.provenance import refuse_untagged
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..rendering.encrypted import error_bound
 from ..rendering.geometry.camera import Camera
 from ..rendering.pipeline.stream import render_frame
 from ..rendering.planning.modes import parse_color
 from ..rendering.reference.plain import render_plain
+from ..runtime.scheduler import refuse_foreign_cluster
 from ..store.reader import EncryptedVolume
 from ..volume.pyramid import check_level
-from ..image.provenance import refuse_untagged
+from .drag import Orbit, drag_image, png
 
 log = logging.getLogger(__name__)
 
@@ -145,23 +143,41 @@ class Viewer:
         The whole viewer (displayed by the notebook when the viewer is the cell's value).
     """
 
-    def __init__(self, ev: EncryptedVolume, private_key: PrivateKey, *, volume: np.ndarray | None = None,
-                 width: int = 128, height: int = 128, mode: str | None = None, sampling: str = "nearest",
-                 nodes: Any = None, density: float | None = None, client: Any = None, step: float = 1.0,
-                 preview: int | None = None, settle: float | None = 0.6, show: bool = True) -> None:
+    def __init__(
+        self,
+        ev: EncryptedVolume,
+        private_key: PrivateKey,
+        *,
+        volume: np.ndarray | None = None,
+        width: int = 128,
+        height: int = 128,
+        mode: str | None = None,
+        sampling: str = "nearest",
+        nodes: Any = None,
+        density: float | None = None,
+        client: Any = None,
+        step: float = 1.0,
+        preview: int | None = None,
+        settle: float | None = 0.6,
+        show: bool = True,
+    ) -> None:
         try:
             import anywidget  # noqa: F401  (the drag surface, hevr.viewer.drag)
             import ipywidgets as widgets
         except ImportError as exc:
-            raise MissingDependencyError(f"Viewer: expected ipywidgets and anywidget (pip install 'hevr[notebook]'), "
-                                         f"got an environment without {exc.name}") from None
+            raise MissingDependencyError(
+                f"Viewer: expected ipywidgets and anywidget (pip install 'hevr[notebook]'), "
+                f"got an environment without {exc.name}"
+            ) from None
         if not isinstance(ev, EncryptedVolume):
             raise ParameterError(f"ev: expected an EncryptedVolume (hevr.open_volume), got {type(ev).__name__}")
         if not isinstance(private_key, PrivateKey):
             raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
         if private_key.public_key.fingerprint != ev.meta.fingerprint:
-            raise ParameterError("private_key: expected the key of this volume (fingerprint "
-                                 f"{ev.meta.fingerprint[:16]}…), got {private_key.public_key.fingerprint[:16]}…")
+            raise ParameterError(
+                "private_key: expected the key of this volume (fingerprint "
+                f"{ev.meta.fingerprint[:16]}…), got {private_key.public_key.fingerprint[:16]}…"
+            )
         refuse_untagged(ev, private_key)  # the key's policy (hevr.PrivateKey.require_tags), before any frame
         if getattr(ev, "remote", None) is None:  # its frames decrypted here, beside the Dask client
             refuse_foreign_cluster(client, "hevr.Viewer with the private key")
@@ -191,19 +207,31 @@ class Viewer:
         self._lock = threading.RLock()
         # with a preview level, camera sliders report every move (cheap coarse frames); else on release
         slider = dict(continuous_update=bool(self.preview), readout_format=".0f")
-        self.azimuth = W.FloatSlider(value=0.0 if self.packed else 30.0, min=-180.0, max=180.0, step=1.0,
-                                     description="azimuth", **slider)
+        self.azimuth = W.FloatSlider(
+            value=0.0 if self.packed else 30.0, min=-180.0, max=180.0, step=1.0, description="azimuth", **slider
+        )
         tilt = 44.0 if self.packed else 89.0  # a packed store's views lean less than 45° towards its axis
-        self.elevation = W.FloatSlider(value=10.0 if self.packed else 20.0, min=-tilt, max=tilt, step=1.0,
-                                       description="elevation", **slider)
+        self.elevation = W.FloatSlider(
+            value=10.0 if self.packed else 20.0, min=-tilt, max=tilt, step=1.0, description="elevation", **slider
+        )
         self.view_angle = W.FloatSlider(value=30.0, min=5.0, max=90.0, step=1.0, description="view angle", **slider)
         self.mode = W.ToggleButtons(options=modes, value=mode, description="mode")
         self.sampling = W.ToggleButtons(options=["nearest", "trilinear"], value=sampling, description="sampling")
-        self.gradient = W.Checkbox(value=False, description="gradient", indent=False,
-                                   layout=W.Layout(display=None if ev.meta.gradient is not None else "none"))
-        self.density = W.FloatSlider(value=PAPER_DENSITIES[1] if density is None else float(density), min=0.0,
-                                     max=1.0, step=0.001, readout_format=".3f", description="density",
-                                     continuous_update=False)
+        self.gradient = W.Checkbox(
+            value=False,
+            description="gradient",
+            indent=False,
+            layout=W.Layout(display=None if ev.meta.gradient is not None else "none"),
+        )
+        self.density = W.FloatSlider(
+            value=PAPER_DENSITIES[1] if density is None else float(density),
+            min=0.0,
+            max=1.0,
+            step=0.001,
+            readout_format=".3f",
+            description="density",
+            continuous_update=False,
+        )
         self._W = W
         self._rows = W.VBox()
         self.add_button = W.Button(description="add node", icon="plus")
@@ -213,7 +241,7 @@ class Viewer:
         self.status = W.HTML(value="")
         self.node_rows: list[tuple[Any, Any, Any]] = []
         with self.hold():
-            for d, c in (PAPER_TF1 if nodes is None else nodes):
+            for d, c in PAPER_TF1 if nodes is None else nodes:
                 self.add_node(d, c)
         for w in (self.azimuth, self.elevation, self.view_angle):
             w.observe(self._moved, names="value")
@@ -222,10 +250,28 @@ class Viewer:
         self.gradient.observe(lambda ch: self._changed(ch, only="vector"), names="value")
         self.density.observe(lambda ch: self._changed(ch, only="emphasize"), names="value")
         self.tf_box = W.VBox([self._rows, self.add_button])
-        self.widget = W.VBox([
-            W.HBox([self.image, W.VBox([self.azimuth, self.elevation, self.view_angle, self.mode, self.sampling,
-                                        self.gradient, self.density, self.tf_box])]),
-            self.status])
+        self.widget = W.VBox(
+            [
+                W.HBox(
+                    [
+                        self.image,
+                        W.VBox(
+                            [
+                                self.azimuth,
+                                self.elevation,
+                                self.view_angle,
+                                self.mode,
+                                self.sampling,
+                                self.gradient,
+                                self.density,
+                                self.tf_box,
+                            ]
+                        ),
+                    ]
+                ),
+                self.status,
+            ]
+        )
         self._layout()
         if show:
             self.refresh()
@@ -236,11 +282,24 @@ class Viewer:
         2^level times fewer pixels per axis (a level's voxels are 2^level times larger)."""
         w, h = (max(1, d >> level) for d in self.size)
         if self.packed:  # the view angle zooms a parallel camera: the frame's half-height shrinks with it
-            cam = Camera.orbit(self.ev, azimuth=self.azimuth.value, elevation=self.elevation.value, width=w, height=h,
-                               parallel=True, view=self.view)
+            cam = Camera.orbit(
+                self.ev,
+                azimuth=self.azimuth.value,
+                elevation=self.elevation.value,
+                width=w,
+                height=h,
+                parallel=True,
+                view=self.view,
+            )
             return dataclasses.replace(cam, parallel_scale=cam.parallel_scale * self.view_angle.value / 30.0)
-        return Camera.orbit(self.ev, azimuth=self.azimuth.value, elevation=self.elevation.value,
-                            width=w, height=h, view_angle=self.view_angle.value)
+        return Camera.orbit(
+            self.ev,
+            azimuth=self.azimuth.value,
+            elevation=self.elevation.value,
+            width=w,
+            height=h,
+            view_angle=self.view_angle.value,
+        )
 
     def nodes(self) -> list[tuple[float, str]]:
         """The transfer function of the editor: (density, '#rrggbb') per row, in row order."""
@@ -263,8 +322,15 @@ class Viewer:
     def add_node(self, density: float = 0.5, colour: Any = "white") -> None:
         """Append a node row (density slider, colour picker, remove button); renders once."""
         W = self._W
-        d = W.FloatSlider(value=float(density), min=0.0, max=1.0, step=0.001, readout_format=".3f",
-                          description="node", continuous_update=False)
+        d = W.FloatSlider(
+            value=float(density),
+            min=0.0,
+            max=1.0,
+            step=0.001,
+            readout_format=".3f",
+            description="node",
+            continuous_update=False,
+        )
         c = W.ColorPicker(value=_hex(colour), concise=True)
         rm = W.Button(icon="trash", tooltip="remove this node", layout=W.Layout(width="36px"))
         row = (d, c, rm)
@@ -287,7 +353,7 @@ class Viewer:
         self._changed(only="tf")
 
     # -- rendering --------------------------------------------------------------------------
-    def hold(self) -> "_Hold":
+    def hold(self) -> _Hold:
         """Context manager: change several widgets, then render once (``with viewer.hold(): ...``)."""
         return _Hold(self)
 
@@ -360,8 +426,16 @@ class Viewer:
                 arr = frame.recolour(kw["mode"], kw.get("density"), kw.get("nodes"))
             else:
                 # a preview is not verified (it must come fast); the settled full frame is
-                frame = render_frame(self.ev, cam, self._key, client=self.client, progress=False,
-                                     level=level or None, verify=False if level else None, **kw)
+                frame = render_frame(
+                    self.ev,
+                    cam,
+                    self._key,
+                    client=self.client,
+                    progress=False,
+                    level=level or None,
+                    verify=False if level else None,
+                    **kw,
+                )
                 arr = frame.image
         except HevrError as exc:  # e.g. two nodes at one density: say it, keep the last frame
             entry["error_message"] = str(exc)
@@ -375,17 +449,30 @@ class Viewer:
         window = None
         if self.volume is not None:  # a packed store's reference samples slice by slice (slices=its axis)
             slices = {"slices": self.ev.meta.packing.axis} if self.packed else {}
-            ref = render_plain(self.volume, cam, spacing=self.ev.spacing, value_range=self.ev.value_range,
-                               vector_dims=self.ev.vector_dims, level=level, **slices, **kw)
+            ref = render_plain(
+                self.volume,
+                cam,
+                spacing=self.ev.spacing,
+                value_range=self.ev.value_range,
+                vector_dims=self.ev.vector_dims,
+                level=level,
+                **slices,
+                **kw,
+            )
             err = float(np.abs(arr - ref).max()) if arr.size else 0.0
             bound = float(error_bound(self.ev, cam, level=level or None, **kw).max())
             window = (0.0, max(float(ref.max()), 1e-12))
         stats = frame.stats
         # a remote frame's server does not say (issue 48: what it reused would tell of other tokens' views)
         tasks, reused = stats.get("map_tasks"), bool(stats.get("reused_ray_sums"))
-        entry.update(map_tasks=0 if recolour else tasks, reused_ray_sums=True if recolour else reused,
-                     client_recolour=recolour,
-                     seconds=seconds, error=err, bound=bound)
+        entry.update(
+            map_tasks=0 if recolour else tasks,
+            reused_ray_sums=True if recolour else reused,
+            client_recolour=recolour,
+            seconds=seconds,
+            error=err,
+            bound=bound,
+        )
         self.history.append(entry)  # before the image: an observer of image.value sees this entry last
         self.image.value = png(arr, window, self.size)
         took = f"{seconds:.2f} s" if seconds >= 1 else f"{1000 * seconds:.0f} ms"
@@ -411,8 +498,10 @@ class Viewer:
     def __repr__(self) -> str:
         kw = self.request()
         extra = {"emphasize": f", density {kw.get('density')}", "tf": f", {len(self.node_rows)} TF nodes"}
-        return (f"hevr.Viewer({kw['mode']}/{kw['sampling']}{extra.get(kw['mode'], '')}, {self.size[0]}x{self.size[1]}"
-                f", azimuth {self.azimuth.value:g}, elevation {self.elevation.value:g}; {len(self.history)} frames)")
+        return (
+            f"hevr.Viewer({kw['mode']}/{kw['sampling']}{extra.get(kw['mode'], '')}, {self.size[0]}x{self.size[1]}"
+            f", azimuth {self.azimuth.value:g}, elevation {self.elevation.value:g}; {len(self.history)} frames)"
+        )
 
     def _repr_mimebundle_(self, **kwargs: Any) -> dict:
         """The widget for Jupyter front ends; this short text where widgets cannot show."""

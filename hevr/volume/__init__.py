@@ -28,12 +28,12 @@ if TYPE_CHECKING:
     from .gradient import gradient_encoding
     from .loaders import load_volume, read_scan, save_volume
     from .modality import (
-               MODALITY_RANGES,
-               TF_PRESETS,
-               modality_range,
-               range_hint,
-               tf_preset,
-               window_density,
+        MODALITY_RANGES,
+        TF_PRESETS,
+        modality_range,
+        range_hint,
+        tf_preset,
+        window_density,
     )
     from .scan import Scan
 
@@ -41,9 +41,23 @@ if TYPE_CHECKING:
 # that name is imported (a lazy name that is also a submodule would be either; hevr.core.lazy.attach).
 from .phantom import PHANTOM_LEVELS, phantom  # noqa: E402
 
-__all__ = ["PHANTOM_LEVELS", "encode_density", "gradient_encoding", "load_volume", "normalize_density", "phantom", "save_volume",
-           "MODALITY_RANGES", "TF_PRESETS", "modality_range", "range_hint", "tf_preset", "window_density",
-           "read_scan", "Scan"]
+__all__ = [
+    "PHANTOM_LEVELS",
+    "encode_density",
+    "gradient_encoding",
+    "load_volume",
+    "normalize_density",
+    "phantom",
+    "save_volume",
+    "MODALITY_RANGES",
+    "TF_PRESETS",
+    "modality_range",
+    "range_hint",
+    "tf_preset",
+    "window_density",
+    "read_scan",
+    "Scan",
+]
 
 _LAZY = {
     ".density": ("encode_density", "normalize_density"),

@@ -42,5 +42,7 @@ def check_fits(name: str, shape: Any, dtype: Any, what: str) -> None:
     need = math.prod(int(s) for s in shape) * dt.itemsize
     memory = physical_memory()
     if memory is not None and need > memory:
-        raise VolumeFormatError(f"{name}: too big: {need} bytes of {what} (shape {tuple(int(s) for s in shape)} "
-                                f"of {dt.name}) declared, more than this machine's {memory} bytes of memory")
+        raise VolumeFormatError(
+            f"{name}: too big: {need} bytes of {what} (shape {tuple(int(s) for s in shape)} "
+            f"of {dt.name}) declared, more than this machine's {memory} bytes of memory"
+        )

@@ -17,5 +17,5 @@ def require(module: str, path: Path) -> ModuleType:
         return importlib.import_module(module)
     except ImportError as exc:
         raise MissingDependencyError(
-            f"reading {path.name} needs the optional package '{module}', which is not "
-            "installed: pip install 'hevr[io]'") from exc
+            f"reading {path.name} needs the optional package '{module}', which is not installed: pip install 'hevr[io]'"
+        ) from exc

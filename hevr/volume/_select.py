@@ -16,8 +16,9 @@ from ..errors import ParameterError, VolumeFormatError
 __all__ = ["select_index", "reject_index"]
 
 
-def select_index(volume: int | None, count: int, path: Path, what: str = "volumes",
-                 axis: str = "its 4th dimension") -> int:
+def select_index(
+    volume: int | None, count: int, path: Path, what: str = "volumes", axis: str = "its 4th dimension"
+) -> int:
     """The index to read along a file's extra axis of ``count`` entries.
 
     >>> select_index(None, 1, Path("a.nii"))
@@ -33,16 +34,20 @@ volume: pick one with volume=i (CLI --volume i), 0 <= i < 5
     if volume is None:
         if count == 1:
             return 0
-        raise VolumeFormatError(f"{path.name}: holds {count} {what} along {axis}; hevr encrypts one 3-D "
-                                f"volume: pick one with volume=i (CLI --volume i), 0 <= i < {count}")
+        raise VolumeFormatError(
+            f"{path.name}: holds {count} {what} along {axis}; hevr encrypts one 3-D "
+            f"volume: pick one with volume=i (CLI --volume i), 0 <= i < {count}"
+        )
     if not 0 <= volume < count:
-        raise ParameterError(f"volume: expected an index in [0, {count - 1}] ({path.name} holds {count} "
-                             f"{what}), got {volume}")
+        raise ParameterError(
+            f"volume: expected an index in [0, {count - 1}] ({path.name} holds {count} {what}), got {volume}"
+        )
     return volume
 
 
 def reject_index(volume: Any, path: Path) -> None:
     """Refuse ``volume=`` for a file that holds a single 3-D volume."""
     if volume is not None:
-        raise ParameterError(f"volume: {path.name} holds a single 3-D volume; volume= only applies to "
-                             f"4-D files, got volume={volume!r}")
+        raise ParameterError(
+            f"volume: {path.name} holds a single 3-D volume; volume= only applies to 4-D files, got volume={volume!r}"
+        )

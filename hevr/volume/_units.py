@@ -20,16 +20,24 @@ _log = logging.getLogger(__name__)
 
 #: Metres per unit, by the spellings OME (symbols) and NGFF (UDUNITS names) use.
 LENGTH_UNITS: dict[str, float] = {}
-for _names, _metres in (("km kilometer kilometre", 1e3), ("m meter metre", 1.0), ("cm centimeter centimetre", 1e-2),
-                        ("mm millimeter millimetre", 1e-3),
-                        ("µm μm um micrometer micrometre micron", 1e-6), ("nm nanometer nanometre", 1e-9),
-                        ("Å angstrom ångström", 1e-10), ("pm picometer picometre", 1e-12),
-                        ("in inch", 0.0254), ("ft foot", 0.3048)):
+for _names, _metres in (
+    ("km kilometer kilometre", 1e3),
+    ("m meter metre", 1.0),
+    ("cm centimeter centimetre", 1e-2),
+    ("mm millimeter millimetre", 1e-3),
+    ("µm μm um micrometer micrometre micron", 1e-6),
+    ("nm nanometer nanometre", 1e-9),
+    ("Å angstrom ångström", 1e-10),
+    ("pm picometer picometre", 1e-12),
+    ("in inch", 0.0254),
+    ("ft foot", 0.3048),
+):
     LENGTH_UNITS.update(dict.fromkeys(_names.split(), _metres))
 
 
-def common_unit(name: str, sizes: Sequence[float], units: Sequence[str | None]
-                ) -> tuple[tuple[float, float, float], str | None]:
+def common_unit(
+    name: str, sizes: Sequence[float], units: Sequence[str | None]
+) -> tuple[tuple[float, float, float], str | None]:
     """Voxel sizes (x, y, z) in one unit (x's), given each axis's unit (None: not recorded).
 
     A missing unit is taken to be the others' (logged); two different recorded units are
@@ -51,8 +59,10 @@ expected one unit or known length units (m, cm, mm, µm, nm, ...)
         return out, (known[0] if known else None)  # type: ignore[return-value]
     target = units[0] or known[0]
     if not all(u is None or u in LENGTH_UNITS for u in units):
-        raise VolumeFormatError(f"{name}: voxel sizes in different units {tuple(units)!r}; expected one unit or "
-                                "known length units (m, cm, mm, µm, nm, ...)")
+        raise VolumeFormatError(
+            f"{name}: voxel sizes in different units {tuple(units)!r}; expected one unit or "
+            "known length units (m, cm, mm, µm, nm, ...)"
+        )
     scaled = tuple(v * LENGTH_UNITS[u or target] / LENGTH_UNITS[target] for v, u in zip(out, units))
     _log.info("%s: voxel sizes %s in units %s, converted to %s %s", name, out, tuple(units), scaled, target)
     return scaled, target  # type: ignore[return-value]

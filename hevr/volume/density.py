@@ -84,7 +84,7 @@ def minmax(vol: Any, slab_bytes: int = 64 << 20) -> tuple[Any, Any]:
     step = max(1, slab_bytes // max(1, int(np.prod(vol.shape[1:])) * vol.dtype.itemsize))
     lo = hi = None
     for k in range(0, vol.shape[0], step):
-        slab = np.asarray(vol[k:k + step])
+        slab = np.asarray(vol[k : k + step])
         a, b = slab.min(), slab.max()
         lo, hi = (a, b) if lo is None else (np.minimum(lo, a), np.maximum(hi, b))
     return lo.item(), hi.item()
@@ -111,9 +111,11 @@ def check_brick_range(block: np.ndarray, value_range: tuple[float, float], index
         return
     lo, hi = arr.min(), arr.max()
     if not (value_range[0] <= lo and hi <= value_range[1]):  # NaN fails both
-        raise ParameterError(f"vol: brick {tuple(int(i) for i in index)}: expected values inside value_range "
-                             f"{tuple(float(v) for v in value_range)} as checked before encryption, got values "
-                             "outside it (the input changed while it was encrypted?)")
+        raise ParameterError(
+            f"vol: brick {tuple(int(i) for i in index)}: expected values inside value_range "
+            f"{tuple(float(v) for v in value_range)} as checked before encryption, got values "
+            "outside it (the input changed while it was encrypted?)"
+        )
 
 
 def normalize_density(values: Any, value_range: Any) -> np.ndarray:

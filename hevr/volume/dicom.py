@@ -48,8 +48,9 @@ _log = logging.getLogger(__name__)
 _Spacing = tuple[float, float, float]
 
 
-def read_dicom(path: str | os.PathLike[str], *, series: str | None = None, allow_uneven: bool = False,
-               oblique: str = "refuse") -> Scan:
+def read_dicom(
+    path: str | os.PathLike[str], *, series: str | None = None, allow_uneven: bool = False, oblique: str = "refuse"
+) -> Scan:
     """Read one DICOM series as a volume in the RAS+ patient frame.
 
     Parameters
@@ -103,15 +104,21 @@ def read_dicom(path: str | os.PathLike[str], *, series: str | None = None, allow
         stack = plan_stack(frames, name, allow_uneven=allow_uneven, oblique=oblique)
         frames = [frames[i] for i in stack.order]
         first = images[0].header
-        check_fits(name, (len(frames), *(max(1, v) for v in frames[0].shape),
-                          -(-_positive(first, "BitsAllocated") // 8)), np.uint8, "DICOM pixel data")
+        check_fits(
+            name,
+            (len(frames), *(max(1, v) for v in frames[0].shape), -(-_positive(first, "BitsAllocated") // 8)),
+            np.uint8,
+            "DICOM pixel data",
+        )
         raw = _decode(pydicom, frames)
     except (VolumeFormatError, CorruptVolumeError) as exc:
         if path.is_dir() or len(images) < 2:
             raise
-        raise type(exc)(f"{exc} [{name} is one slice of series {uid or '?'}: a single-frame DICOM file stands "
-                        f"for its series, so the {len(images) - 1} other files of it in {path.parent} were read "
-                        f"too; to read {name} alone, put it in a folder of its own]") from None
+        raise type(exc)(
+            f"{exc} [{name} is one slice of series {uid or '?'}: a single-frame DICOM file stands "
+            f"for its series, so the {len(images) - 1} other files of it in {path.parent} were read "
+            f"too; to read {name} alone, put it in a folder of its own]"
+        ) from None
     slopes, inters = [f.slope for f in frames], [f.intercept for f in frames]
     if len(set(slopes)) == 1 and len(set(inters)) == 1:  # one factor: the cheaper whole-array path
         slopes, inters = slopes[:1], inters[:1]
@@ -160,22 +167,29 @@ def _check_images(images: list[Image]) -> None:
         ds = im.header
         spp, photometric = ds.get("SamplesPerPixel", 1), _text(ds.get("PhotometricInterpretation"))
         if spp not in (1, None) or photometric.startswith(("RGB", "YBR", "PALETTE")):
-            raise VolumeFormatError(f"{im.path.name}: expected greyscale images (SamplesPerPixel 1, MONOCHROME), "
-                                    f"got colour ({spp} sample(s) per pixel, {photometric or '?'}); a colour "
-                                    "picture is not a density volume")
+            raise VolumeFormatError(
+                f"{im.path.name}: expected greyscale images (SamplesPerPixel 1, MONOCHROME), "
+                f"got colour ({spp} sample(s) per pixel, {photometric or '?'}); a colour "
+                "picture is not a density volume"
+            )
         if (ds.get("Rows"), ds.get("Columns")) != size:
-            raise VolumeFormatError(f"{im.path.name}: slice size {ds.get('Rows')}x{ds.get('Columns')} differs "
-                                    f"from {size[0]}x{size[1]} in {images[0].path.name}")
+            raise VolumeFormatError(
+                f"{im.path.name}: slice size {ds.get('Rows')}x{ds.get('Columns')} differs "
+                f"from {size[0]}x{size[1]} in {images[0].path.name}"
+            )
 
 
 def _check_layout(frames: list[Frame], name: str) -> None:
     """One slice layout throughout: all Siemens MOSAICs of one tiling, or none."""
     layouts = {None if f.mosaic is None else (f.mosaic.slices, f.mosaic.grid) for f in frames}
     if len(layouts) > 1:
-        what = [f"{f.image.path.name}: " + ("not a mosaic" if f.mosaic is None else
-                                            f"a mosaic of {f.mosaic.slices} slices") for f in frames]
-        raise VolumeFormatError(f"{name}: expected one slice layout for the whole series, got "
-                                f"{'; '.join(sorted(set(what))[:2])}")
+        what = [
+            f"{f.image.path.name}: " + ("not a mosaic" if f.mosaic is None else f"a mosaic of {f.mosaic.slices} slices")
+            for f in frames
+        ]
+        raise VolumeFormatError(
+            f"{name}: expected one slice layout for the whole series, got {'; '.join(sorted(set(what))[:2])}"
+        )
 
 
 def _decode(pydicom: Any, frames: list[Frame]) -> np.ndarray:
@@ -195,17 +209,28 @@ def _decode(pydicom: Any, frames: list[Frame]) -> np.ndarray:
             text = str(exc)
             if "missing dependencies" in text:  # pydicom has decoders for it, none installed: exit 1, not 2
                 needs = "; ".join(line.strip() for line in text.splitlines()[1:] if line.strip())
-                raise MissingDependencyError(f"{file.name}: decoding its pixel data (transfer syntax {syntax}) needs "
-                                             f"a pydicom plugin that is not installed — one of: {needs}") from None
+                raise MissingDependencyError(
+                    f"{file.name}: decoding its pixel data (transfer syntax {syntax}) needs "
+                    f"a pydicom plugin that is not installed — one of: {needs}"
+                ) from None
             text = " ".join(line.strip() for line in text.splitlines() if line.strip())  # one line for the CLI
-            hint = ("; another pydicom plugin (pylibjpeg with its libjpeg/openjpeg packages, or python-gdcm) "
-                    "may decode it") if "all available plugins" in text else ""
-            raise CorruptVolumeError(f"{file.name}: cannot decode the pixel data (transfer syntax {syntax}): "
-                                     f"{text}{hint}") from None
+            hint = (
+                (
+                    "; another pydicom plugin (pylibjpeg with its libjpeg/openjpeg packages, or python-gdcm) "
+                    "may decode it"
+                )
+                if "all available plugins" in text
+                else ""
+            )
+            raise CorruptVolumeError(
+                f"{file.name}: cannot decode the pixel data (transfer syntax {syntax}): {text}{hint}"
+            ) from None
         rows, cols = int(image.header.Rows), int(image.header.Columns)
         if arr.size != image.frames * rows * cols:
-            raise CorruptVolumeError(f"{file.name}: expected {image.frames} frame(s) of {rows}x{cols} pixels, "
-                                     f"got pixel data of shape {arr.shape}")
+            raise CorruptVolumeError(
+                f"{file.name}: expected {image.frames} frame(s) of {rows}x{cols} pixels, "
+                f"got pixel data of shape {arr.shape}"
+            )
         mosaic = frames[pairs[0][0]].mosaic
         if mosaic is not None:  # one image of tiles: its slices
             arr = untile(arr.reshape(rows, cols), mosaic)

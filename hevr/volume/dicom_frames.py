@@ -161,14 +161,21 @@ def _check_frame_count(image: Image) -> int:
     meta = getattr(ds, "file_meta", None) or {}
     syntax = str(meta.get("TransferSyntaxUID", "1.2.840.10008.1.2"))
     if syntax in _NATIVE:
-        per = _count(ds, "Rows") * _count(ds, "Columns") * _count(ds, "SamplesPerPixel") * \
-            min(_count(ds, "BitsAllocated"), 64) / 8
+        per = (
+            _count(ds, "Rows")
+            * _count(ds, "Columns")
+            * _count(ds, "SamplesPerPixel")
+            * min(_count(ds, "BitsAllocated"), 64)
+            / 8
+        )
     else:
         per = 8
     size = image.path.stat().st_size
     if n * per > size:
-        raise VolumeFormatError(f"{image.path.name}: NumberOfFrames: {n} frames need at least {math.ceil(n * per)} "
-                                f"bytes of pixel data, the file holds {size} bytes")
+        raise VolumeFormatError(
+            f"{image.path.name}: NumberOfFrames: {n} frames need at least {math.ceil(n * per)} "
+            f"bytes of pixel data, the file holds {size} bytes"
+        )
     return n
 
 
@@ -186,8 +193,9 @@ def frames_of(image: Image) -> list[Frame]:
     shared = shared_seq[0] if shared_seq else None
     per = _items(name, "PerFrameFunctionalGroupsSequence", ds.get("PerFrameFunctionalGroupsSequence"))
     if per and len(per) != n:
-        raise VolumeFormatError(f"{name}: PerFrameFunctionalGroupsSequence: expected {n} items "
-                                f"(NumberOfFrames), got {len(per)}")
+        raise VolumeFormatError(
+            f"{name}: PerFrameFunctionalGroupsSequence: expected {n} items (NumberOfFrames), got {len(per)}"
+        )
     detector = _items(name, "DetectorInformationSequence", ds.get("DetectorInformationSequence"))
     top = [ds] + detector[:1]  # NM keeps IPP/IOP per detector
     legacy_offsets = None
@@ -204,19 +212,22 @@ def frames_of(image: Image) -> list[Frame]:
         pos = _floats(label, "ImagePositionPatient", _get([plane_pos] + top, "ImagePositionPatient"), 3)
         iop = _floats(label, "ImageOrientationPatient", _get([plane_ori] + top, "ImageOrientationPatient"), 6)
         spacing = _floats(label, "PixelSpacing", _get([measures, ds], "PixelSpacing"), 2)
-        thick = _floats(label, "SpacingBetweenSlices", _get([measures, ds], "SpacingBetweenSlices"), 1) or \
-            _floats(label, "SliceThickness", _get([measures, ds], "SliceThickness"), 1)
+        thick = _floats(label, "SpacingBetweenSlices", _get([measures, ds], "SpacingBetweenSlices"), 1) or _floats(
+            label, "SliceThickness", _get([measures, ds], "SliceThickness"), 1
+        )
         if n > 1 and not per:
             pos = _legacy_position(label, pos, iop, k, legacy_offsets, thick)
-        slope = _floats(label, "RescaleSlope", _get([values, ds], "RescaleSlope"), 1) or \
-            _floats(label, "DoseGridScaling", ds.get("DoseGridScaling"), 1) or (1.0,)  # RT dose: Gy
+        slope = (
+            _floats(label, "RescaleSlope", _get([values, ds], "RescaleSlope"), 1)
+            or _floats(label, "DoseGridScaling", ds.get("DoseGridScaling"), 1)
+            or (1.0,)
+        )  # RT dose: Gy
         inter = _floats(label, "RescaleIntercept", _get([values, ds], "RescaleIntercept"), 1) or (0.0,)
         try:
             instance = int(ds.get("InstanceNumber")) * n + k if ds.get("InstanceNumber") is not None else None
         except (TypeError, ValueError):
             instance = None
-        out.append(Frame(image, k, pos, iop, spacing, thick[0] if thick else None,
-                         slope[0] or 1.0, inter[0], instance))
+        out.append(Frame(image, k, pos, iop, spacing, thick[0] if thick else None, slope[0] or 1.0, inter[0], instance))
     mosaic = mosaic_of(ds, image.path) if n == 1 else None
     return _tiles(out[0], mosaic) if mosaic is not None else out
 
@@ -226,12 +237,13 @@ def _tiles(whole: Frame, mosaic: Mosaic) -> list[Frame]:
     placed = whole.position is not None and whole.orientation is not None and whole.pixel_spacing is not None
     gap = abs(whole.thickness or 1.0)
     if placed and not whole.thickness:
-        _log.warning("%s: a MOSAIC without SpacingBetweenSlices or SliceThickness; assuming its slices 1 mm apart",
-                     whole.image.path.name)
+        _log.warning(
+            "%s: a MOSAIC without SpacingBetweenSlices or SliceThickness; assuming its slices 1 mm apart",
+            whole.image.path.name,
+        )
     out = []
     for k in range(mosaic.slices):
-        pos = tile_position(mosaic, whole.position, whole.orientation, whole.pixel_spacing, gap, k) \
-            if placed else None
+        pos = tile_position(mosaic, whole.position, whole.orientation, whole.pixel_spacing, gap, k) if placed else None
         instance = None if whole.instance is None else whole.instance * mosaic.slices + k
         out.append(dataclasses.replace(whole, index=k, position=pos, instance=instance, mosaic=mosaic))
     return out
@@ -248,8 +260,9 @@ def _legacy_position(label: str, ipp: Any, iop: Any, k: int, offsets: Any, thick
         step = k * thick[0]
     else:
         if k == 1:
-            _log.warning("%s: multi-frame file without GridFrameOffsetVector or slice spacing; "
-                         "assuming frames 1 mm apart", label)
+            _log.warning(
+                "%s: multi-frame file without GridFrameOffsetVector or slice spacing; assuming frames 1 mm apart", label
+            )
         step = float(k)
     return tuple(float(v) for v in np.asarray(ipp) + step * normal)
 
@@ -262,7 +275,8 @@ def _check_same(frames: list[Frame], name: str, attr: str, what: str, tol: float
             raise VolumeFormatError(
                 f"{name}: {what}: expected one value for the whole series, got {first} in {frames[0].label} "
                 f"and {v} in {f.label}; a series with several stacks (a localizer?) cannot be one volume, "
-                "choose another series")
+                "choose another series"
+            )
 
 
 def plan_stack(frames: list[Frame], name: str, *, allow_uneven: bool, oblique: str) -> Stack:
@@ -276,16 +290,19 @@ def plan_stack(frames: list[Frame], name: str, *, allow_uneven: bool, oblique: s
     if not all(placed):
         if any(placed):  # some frames placed, others not: a damaged file, not "no geometry"
             lost = frames[placed.index(False)]
-            raise VolumeFormatError(f"{name}: {lost.label} lacks ImagePositionPatient/ImageOrientationPatient "
-                                    f"that {frames[placed.index(True)].label} has; expected patient geometry for "
-                                    "every slice of the series, or for none")
+            raise VolumeFormatError(
+                f"{name}: {lost.label} lacks ImagePositionPatient/ImageOrientationPatient "
+                f"that {frames[placed.index(True)].label} has; expected patient geometry for "
+                "every slice of the series, or for none"
+            )
         return _by_instance(frames, name, ps)
     _check_same(frames, name, "orientation", "ImageOrientationPatient", 1e-3)
     iop = np.asarray(frames[0].orientation)
     row, col = iop[:3], iop[3:]
     if abs(np.linalg.norm(row) - 1) > 1e-2 or abs(np.linalg.norm(col) - 1) > 1e-2 or abs(row @ col) > 1e-2:
-        raise VolumeFormatError(f"{name}: ImageOrientationPatient: expected two orthogonal unit vectors, "
-                                f"got {iop.tolist()}")
+        raise VolumeFormatError(
+            f"{name}: ImageOrientationPatient: expected two orthogonal unit vectors, got {iop.tolist()}"
+        )
     row, col = row / np.linalg.norm(row), col / np.linalg.norm(col)
     normal = np.cross(row, col)
     pos = np.array([f.position for f in frames], np.float64)
@@ -302,18 +319,21 @@ def plan_stack(frames: list[Frame], name: str, *, allow_uneven: bool, oblique: s
             raise VolumeFormatError(
                 f"{name}: slices {frames[order[i]].label} and {frames[order[i + 1]].label} lie at the same "
                 f"position {d[order[i]]:.4g} mm; expected one slice per position (several echoes, phases or "
-                f"b-values in one series cannot be one volume){_one_file_hint(frames)}")
+                f"b-values in one series cannot be one volume){_one_file_hint(frames)}"
+            )
         g = float(np.median(gaps))
         off = np.flatnonzero(np.abs(gaps - g) > GAP_TOLERANCE * g / 2)
         if gaps.max() - gaps.min() > GAP_TOLERANCE * g:
             uneven = True
-            pairs = ", ".join(f"{frames[order[i]].label} to {frames[order[i + 1]].label}: {gaps[i]:.4g} mm"
-                              for i in off[:3]) + (f" and {len(off) - 3} more" if len(off) > 3 else "")
+            pairs = ", ".join(
+                f"{frames[order[i]].label} to {frames[order[i + 1]].label}: {gaps[i]:.4g} mm" for i in off[:3]
+            ) + (f" and {len(off) - 3} more" if len(off) > 3 else "")
             if not allow_uneven:
                 raise VolumeFormatError(
                     f"{name}: uneven slice spacing: expected the slices {g:.4g} mm apart (the median gap), "
                     f"got {pairs} (a missing slice?); pass allow_uneven=True to stack them {g:.4g} mm apart "
-                    "anyway (distorts distances)")
+                    "anyway (distorts distances)"
+                )
             _log.warning("%s: uneven slice spacing (%s); stacking them %.4g mm apart", name, pairs, g)
         step = np.median(np.diff(pos[order], axis=0) / gaps[:, None], axis=0) * g
         _check_line(frames, pos, d, order, step, g, name, ps)
@@ -323,9 +343,9 @@ def plan_stack(frames: list[Frame], name: str, *, allow_uneven: bool, oblique: s
                 raise VolumeFormatError(
                     f"{name}: the slices are sheared by a gantry tilt of {tilt:.2f} degrees (at most "
                     f"{OBLIQUE_TOLERANCE_DEG} accepted); hevr does not resample encrypted data, so pass "
-                    "oblique='snap' (CLI --oblique snap) to stack them unsheared")
-            _log.warning("%s: gantry tilt of %.2f degrees; stacking the slices unsheared, %.4g mm apart",
-                         name, tilt, g)
+                    "oblique='snap' (CLI --oblique snap) to stack them unsheared"
+                )
+            _log.warning("%s: gantry tilt of %.2f degrees; stacking the slices unsheared, %.4g mm apart", name, tilt, g)
             step = g * normal
     spacing = (float(ps[1]), float(ps[0]), float(np.linalg.norm(step)))
     if not (ps[0] > 0 and ps[1] > 0):  # passed on as recorded: the caller rejects it or overrides it
@@ -344,24 +364,40 @@ def _one_file_hint(frames: list[Frame]) -> str:
     return ""
 
 
-def _check_line(frames: list[Frame], pos: np.ndarray, d: np.ndarray, order: np.ndarray, step: np.ndarray,
-                g: float, name: str, ps: tuple[float, ...]) -> None:
+def _check_line(
+    frames: list[Frame],
+    pos: np.ndarray,
+    d: np.ndarray,
+    order: np.ndarray,
+    step: np.ndarray,
+    g: float,
+    name: str,
+    ps: tuple[float, ...],
+) -> None:
     """Refuse slices whose in-plane offsets do not follow one line (stacks of different fields)."""
     residual = pos[order] - np.outer((d[order] - d[order[0]]) / g, step)
     err = np.linalg.norm(residual - np.median(residual, axis=0), axis=1)
     k = int(np.argmax(err))
     if err[k] > 0.5 * max(min(abs(v) for v in ps), 1e-3):
-        raise VolumeFormatError(f"{name}: slice {frames[order[k]].label} is shifted {err[k]:.3g} mm within its "
-                                "plane against the others; expected one stack of aligned slices")
+        raise VolumeFormatError(
+            f"{name}: slice {frames[order[k]].label} is shifted {err[k]:.3g} mm within its "
+            "plane against the others; expected one stack of aligned slices"
+        )
 
 
 def _by_instance(frames: list[Frame], name: str, ps: tuple[float, ...]) -> Stack:
     """No patient geometry: order by InstanceNumber (frames in file order), axes as stored."""
     if len(frames) > 1 and any(f.instance is None for f in frames) and len({f.image.path for f in frames}) > 1:
-        raise VolumeFormatError(f"{name}: cannot order the DICOM slices: expected "
-                                "ImagePositionPatient/ImageOrientationPatient or InstanceNumber")
+        raise VolumeFormatError(
+            f"{name}: cannot order the DICOM slices: expected "
+            "ImagePositionPatient/ImageOrientationPatient or InstanceNumber"
+        )
     order = sorted(range(len(frames)), key=lambda i: (frames[i].instance or 0, i))
     sz = abs(frames[0].thickness or 1.0)
-    _log.warning("%s: no ImagePositionPatient/ImageOrientationPatient; slices in InstanceNumber order, "
-                 "%.4g mm apart, axes as stored (no patient frame)", name, sz)
+    _log.warning(
+        "%s: no ImagePositionPatient/ImageOrientationPatient; slices in InstanceNumber order, "
+        "%.4g mm apart, axes as stored (no patient frame)",
+        name,
+        sz,
+    )
     return Stack(order, None, (float(ps[1]), float(ps[0]), float(sz)))

@@ -98,20 +98,26 @@ def mosaic_of(ds: Any, path: Path) -> Mosaic | None:
         n = csareader.get_n_mosaic(csa) if csa else None
         normal = csareader.get_slice_normal(csa) if csa else None
     except Exception as exc:  # noqa: BLE001  # a damaged private header: nibabel raises several types
-        raise VolumeFormatError(f"{name}: a Siemens MOSAIC whose CSA image header (0029,1010) cannot be "
-                                f"read ({exc}); expected it to say how many slices the mosaic holds") from None
+        raise VolumeFormatError(
+            f"{name}: a Siemens MOSAIC whose CSA image header (0029,1010) cannot be "
+            f"read ({exc}); expected it to say how many slices the mosaic holds"
+        ) from None
     try:
         n = int(n)
     except (TypeError, ValueError):
         n = 0
     if n < 1:
-        raise VolumeFormatError(f"{name}: a Siemens MOSAIC (ImageType): expected NumberOfImagesInMosaic in "
-                                f"its CSA image header (0029,1010), got {'none' if not n else n}")
+        raise VolumeFormatError(
+            f"{name}: a Siemens MOSAIC (ImageType): expected NumberOfImagesInMosaic in "
+            f"its CSA image header (0029,1010), got {'none' if not n else n}"
+        )
     rows, cols, m = int(ds.get("Rows") or 0), int(ds.get("Columns") or 0), grid_of(n)
     if rows < m or cols < m or rows % m or cols % m:
-        raise CorruptVolumeError(f"{name}: a Siemens MOSAIC of {n} slices on a {m}x{m} grid: expected rows and "
-                                f"columns that are multiples of {m}, got {rows}x{cols} pixels (pixel data "
-                                "that cannot hold the slices it declares)")
+        raise CorruptVolumeError(
+            f"{name}: a Siemens MOSAIC of {n} slices on a {m}x{m} grid: expected rows and "
+            f"columns that are multiples of {m}, got {rows}x{cols} pixels (pixel data "
+            "that cannot hold the slices it declares)"
+        )
     vec = None
     if normal is not None:
         v = np.asarray(normal, np.float64).ravel()
@@ -120,8 +126,9 @@ def mosaic_of(ds: Any, path: Path) -> Mosaic | None:
     return Mosaic(n, m, rows // m, cols // m, vec)
 
 
-def tile_position(mosaic: Mosaic, ipp: tuple[float, ...], iop: tuple[float, ...],
-                  pixel_spacing: tuple[float, ...], gap: float, k: int) -> tuple[float, ...]:
+def tile_position(
+    mosaic: Mosaic, ipp: tuple[float, ...], iop: tuple[float, ...], pixel_spacing: tuple[float, ...], gap: float, k: int
+) -> tuple[float, ...]:
     """``ImagePositionPatient`` of slice ``k`` (the formula of the module docstring).
 
     >>> m = Mosaic(4, 2, 2, 2, (0.0, 0.0, 1.0))
@@ -131,8 +138,11 @@ def tile_position(mosaic: Mosaic, ipp: tuple[float, ...], iop: tuple[float, ...]
     x, y = np.asarray(iop[:3], np.float64), np.asarray(iop[3:], np.float64)
     normal = np.asarray(mosaic.normal) if mosaic.normal is not None else np.cross(x, y)
     big_r, big_c = mosaic.rows * mosaic.grid, mosaic.columns * mosaic.grid
-    p0 = (np.asarray(ipp, np.float64) + (big_c - mosaic.columns) / 2 * pixel_spacing[1] * x
-          + (big_r - mosaic.rows) / 2 * pixel_spacing[0] * y)
+    p0 = (
+        np.asarray(ipp, np.float64)
+        + (big_c - mosaic.columns) / 2 * pixel_spacing[1] * x
+        + (big_r - mosaic.rows) / 2 * pixel_spacing[0] * y
+    )
     return tuple(float(v) for v in p0 + k * gap * normal)
 
 
@@ -145,4 +155,4 @@ def untile(arr: np.ndarray, mosaic: Mosaic) -> np.ndarray:
     """
     m, r, c = mosaic.grid, mosaic.rows, mosaic.columns
     tiles = arr.reshape(m, r, m, c).transpose(0, 2, 1, 3).reshape(m * m, r, c)
-    return tiles[:mosaic.slices]
+    return tiles[: mosaic.slices]

@@ -63,8 +63,10 @@ class Image:
         try:
             return max(1, int(self.header.get("NumberOfFrames") or 1))
         except (TypeError, ValueError):
-            raise VolumeFormatError(f"{self.path.name}: NumberOfFrames: expected a positive integer, got "
-                                    f"{str(self.header.get('NumberOfFrames'))[:40]!r}") from None
+            raise VolumeFormatError(
+                f"{self.path.name}: NumberOfFrames: expected a positive integer, got "
+                f"{str(self.header.get('NumberOfFrames'))[:40]!r}"
+            ) from None
 
 
 @dataclass(frozen=True)
@@ -107,8 +109,10 @@ class SeriesInfo:
         if self.frames != self.images:
             count += f" ({self.frames} frames)"
         number = "-" if self.number is None else str(self.number)
-        return (f"{self.uid or '(no SeriesInstanceUID)'}  #{number} {self.modality or '?'} {self.description!r}: "
-                f"{count}, {self.rows}x{self.columns}, in {self.path.parent}")
+        return (
+            f"{self.uid or '(no SeriesInstanceUID)'}  #{number} {self.modality or '?'} {self.description!r}: "
+            f"{count}, {self.rows}x{self.columns}, in {self.path.parent}"
+        )
 
 
 def _read_header(pydicom: Any, f: Path, *, quiet: bool, named: bool = True) -> Any | None:
@@ -158,8 +162,9 @@ def _dicomdir_files(pydicom: Any, path: Path) -> list[Path]:
         fs = FileSet(pydicom.dcmread(path))
         files = [Path(inst.path) for inst in fs]
     except Exception as exc:  # noqa: BLE001  # pydicom raises ValueError, InvalidDicomError, KeyError, ...
-        raise VolumeFormatError(f"{path.name}: expected a DICOMDIR (a DICOM file-set index), "
-                                f"cannot read it ({exc})") from None
+        raise VolumeFormatError(
+            f"{path.name}: expected a DICOMDIR (a DICOM file-set index), cannot read it ({exc})"
+        ) from None
     missing = [f for f in files if not f.is_file()]
     if missing:
         _log.warning("%s: %d referenced file(s) are missing, e.g. %s", path.name, len(missing), missing[0])
@@ -184,21 +189,23 @@ def scan_images(path: Path) -> list[Image]:
     if ds is not None and "DirectoryRecordSequence" in ds:
         return _distinct(path.name, _images(pydicom, _dicomdir_files(pydicom, path), quiet=True))
     if ds is None or not _is_image(ds):
-        raise VolumeFormatError(f"{path.name}: expected a DICOM image file (or a folder or DICOMDIR), got "
-                                f"{'no DICOM file' if ds is None else 'a DICOM file without an image'}")
+        raise VolumeFormatError(
+            f"{path.name}: expected a DICOM image file (or a folder or DICOMDIR), got "
+            f"{'no DICOM file' if ds is None else 'a DICOM file without an image'}"
+        )
     one = Image(path, ds)
     if one.frames > 1 or is_mosaic(ds):  # a volume by itself
         return [one]
     uid = one.series_uid
-    siblings = [f for f in sorted(path.parent.iterdir()) if f.is_file() and not f.name.startswith(".")
-                and f != path]
+    siblings = [f for f in sorted(path.parent.iterdir()) if f.is_file() and not f.name.startswith(".") and f != path]
     with warnings.catch_warnings():  # files the user did not name: their readers' complaints are not theirs
         warnings.simplefilter("ignore")
         found = _images(pydicom, siblings, quiet=True, named=False)
     images = _distinct(path.name, [one] + [im for im in found if im.series_uid == uid and im.frames == 1])
     if len(images) > 1:
-        _log.info("%s: one slice of series %s; reading its %d files in %s", path.name, uid or "?",
-                  len(images), path.parent)
+        _log.info(
+            "%s: one slice of series %s; reading its %d files in %s", path.name, uid or "?", len(images), path.parent
+        )
     return images
 
 
@@ -214,8 +221,11 @@ def _distinct(name: str, images: list[Image]) -> list[Image]:
         seen.add(uid)
         out.append(im)
     if len(out) < len(images):
-        _log.info("%s: %d file(s) repeat an image already read (same SOPInstanceUID): not read twice", name,
-                  len(images) - len(out))
+        _log.info(
+            "%s: %d file(s) repeat an image already read (same SOPInstanceUID): not read twice",
+            name,
+            len(images) - len(out),
+        )
     return out
 
 
@@ -249,9 +259,17 @@ def _info(uid: str, images: list[Image]) -> SeriesInfo:
         mosaic = None
     if mosaic is not None:
         frames, rows, cols = len(images) * mosaic.slices, mosaic.rows, mosaic.columns
-    return SeriesInfo(uid=uid, number=number, modality=str(ds.get("Modality", "") or ""),
-                      description=str(ds.get("SeriesDescription", "") or ""), images=len(images),
-                      frames=frames, rows=rows, columns=cols, path=images[0].path)
+    return SeriesInfo(
+        uid=uid,
+        number=number,
+        modality=str(ds.get("Modality", "") or ""),
+        description=str(ds.get("SeriesDescription", "") or ""),
+        images=len(images),
+        frames=frames,
+        rows=rows,
+        columns=cols,
+        path=images[0].path,
+    )
 
 
 def list_series(path: str | os.PathLike[str]) -> list[SeriesInfo]:
@@ -293,8 +311,7 @@ def choose_series(name: str, images: list[Image], series: str | None) -> tuple[s
         if len(groups) == 1:
             uid = next(iter(groups))
             return uid, groups[uid]
-        raise VolumeFormatError(f"{name}: expected one DICOM series, found {len(groups)}; {how}:\n"
-                                f"{_listing(groups)}")
+        raise VolumeFormatError(f"{name}: expected one DICOM series, found {len(groups)}; {how}:\n{_listing(groups)}")
     wanted = str(series).strip()
     if wanted in groups:
         return wanted, groups[wanted]
@@ -306,5 +323,7 @@ def choose_series(name: str, images: list[Image], series: str | None) -> tuple[s
             return uid, matches[uid]
     matches = by_number or by_prefix
     what = f"matches {len(matches)} series" if matches else "matches no series"
-    raise VolumeFormatError(f"{name}: series={wanted!r} {what}; expected a SeriesInstanceUID, SeriesNumber "
-                            f"or unique UID prefix of one of:\n{_listing(matches or groups)}")
+    raise VolumeFormatError(
+        f"{name}: series={wanted!r} {what}; expected a SeriesInstanceUID, SeriesNumber "
+        f"or unique UID prefix of one of:\n{_listing(matches or groups)}"
+    )

@@ -78,8 +78,9 @@ def gradient_magnitude(d: np.ndarray, spacing: Any, halo: Halo = NO_HALO) -> np.
     return np.sqrt(total[inner])
 
 
-def brick_gradient_encoding(block: np.ndarray, halo: Halo, spacing: Any, value_range: Any, dims: int,
-                            m_max: float) -> np.ndarray:
+def brick_gradient_encoding(
+    block: np.ndarray, halo: Halo, spacing: Any, value_range: Any, dims: int, m_max: float
+) -> np.ndarray:
     """``G = g·e(d)`` of a brick's voxels, float64 (bz, by, bx, k), from the brick with its
     ``halo`` and the whole volume's ``m_max`` (the owner's; ``0``: G = 0)."""
     d = normalize_density(block, value_range)
@@ -103,14 +104,20 @@ def _brick_max(block: np.ndarray, halo: Halo, spacing: Any, value_range: Any) ->
     return float(m.max()) if m.size else 0.0
 
 
-def max_gradient_magnitude(haloed: np.ndarray, grid: Any, spacing: Any, value_range: Any, run: Any,
-                           tag: str) -> float:
+def max_gradient_magnitude(haloed: np.ndarray, grid: Any, spacing: Any, value_range: Any, run: Any, tag: str) -> float:
     """The whole volume's ``max(m)``, one task per haloed brick (``haloed``: the grid of Dask
     delayed blocks, bricks with their one-voxel halo). ``run(tasks)`` computes the tasks (the
     writer's scheduler and progress); ``tag`` is a random token for the task names — keys never
     carry a value derived from the plaintext. The result stays in the owner's process."""
     task = dask.delayed(_brick_max, pure=False)
-    tasks = [task(haloed[idx], halo_of(idx, grid), spacing, value_range,
-                  dask_key_name=f"hevr-gradient-max-{tag}-{idx[0]}-{idx[1]}-{idx[2]}")
-             for idx in np.ndindex(*haloed.shape)]
+    tasks = [
+        task(
+            haloed[idx],
+            halo_of(idx, grid),
+            spacing,
+            value_range,
+            dask_key_name=f"hevr-gradient-max-{tag}-{idx[0]}-{idx[1]}-{idx[2]}",
+        )
+        for idx in np.ndindex(*haloed.shape)
+    ]
     return max(run(tasks), default=0.0)

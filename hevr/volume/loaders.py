@@ -30,22 +30,15 @@ import itertools
 import logging
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from ..core.files import check_regular
-
-from ..core.files import require_file
-
-from ..core.files import write_file
-from ..core.validate import check_bool
-from ..core.validate import check_choice
-from ..core.validate import check_int
-from ..core.validate import check_spacing
-from ..core.validate import check_volume
+from ..core.files import check_regular, require_file, write_file
+from ..core.validate import check_bool, check_choice, check_int, check_spacing, check_volume
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from .dicom import read_dicom
 from .nifti import read_nifti
@@ -61,8 +54,10 @@ _log = logging.getLogger(__name__)
 
 _Spacing = tuple[float, float, float]
 
-_EXTENSIONS = (".npy, .raw, .nrrd, .nhdr, .nii, .nii.gz, .mgz, .mgh, .tif, .tiff, .dcm, DICOMDIR, a DICOM "
-               "folder or a Zarr/OME-Zarr folder")
+_EXTENSIONS = (
+    ".npy, .raw, .nrrd, .nhdr, .nii, .nii.gz, .mgz, .mgh, .tif, .tiff, .dcm, DICOMDIR, a DICOM "
+    "folder or a Zarr/OME-Zarr folder"
+)
 _DICOM_SUFFIXES = (".dcm", ".dicom", ".ima")
 _MULTI = ("nifti", "nrrd", "zarr", "tiff")  # formats that may hold several volumes (volume=)
 
@@ -84,8 +79,9 @@ def _format(path: Path) -> str:
         return "tiff"
     if suffix in _DICOM_SUFFIXES or path.name.upper() == "DICOMDIR":
         return "dicom"
-    raise VolumeFormatError(f"{path.name}: unknown volume file extension {suffix or '(none)'!r}; "
-                            f"expected {_EXTENSIONS}")
+    raise VolumeFormatError(
+        f"{path.name}: unknown volume file extension {suffix or '(none)'!r}; expected {_EXTENSIONS}"
+    )
 
 
 def _check_volume(arr: np.ndarray, path: Path) -> np.ndarray:
@@ -99,33 +95,49 @@ def _check_folder_files(folder: Path) -> None:
     for root, _, files in os.walk(folder):
         for f in files:
             try:
-                check_regular(Path(root) / f, "path", f"a file of the Zarr input {folder.name}",
-                              error=VolumeFormatError)
+                check_regular(
+                    Path(root) / f, "path", f"a file of the Zarr input {folder.name}", error=VolumeFormatError
+                )
             except MissingFileError:  # removed while we looked: Zarr says what that means
                 continue
 
 
-def _check_keywords(kind: str, path: Path, shape: Any, dtype: Any, series: Any, allow_uneven: Any,
-                    volume: Any) -> int | None:
+def _check_keywords(
+    kind: str, path: Path, shape: Any, dtype: Any, series: Any, allow_uneven: Any, volume: Any
+) -> int | None:
     """Refuse keywords that do not apply to ``kind``; return ``volume`` checked."""
     if kind != "raw" and (shape is not None or dtype is not None):
-        raise ParameterError(f"load_volume: shape and dtype only apply to .raw files, got "
-                             f"shape={shape!r}, dtype={dtype!r} for {path.name}")
+        raise ParameterError(
+            f"load_volume: shape and dtype only apply to .raw files, got "
+            f"shape={shape!r}, dtype={dtype!r} for {path.name}"
+        )
     if kind != "dicom" and (series is not None or allow_uneven):
-        raise ParameterError(f"read_scan: series and allow_uneven only apply to DICOM, got series={series!r}, "
-                             f"allow_uneven={allow_uneven!r} for {path.name}")
+        raise ParameterError(
+            f"read_scan: series and allow_uneven only apply to DICOM, got series={series!r}, "
+            f"allow_uneven={allow_uneven!r} for {path.name}"
+        )
     if volume is None:
         return None
     if kind not in _MULTI:
-        raise ParameterError(f"volume: only applies to 4-D NIfTI/MGH, NRRD, TIFF or OME-Zarr files, got "
-                             f"volume={volume!r} for {path.name}")
+        raise ParameterError(
+            f"volume: only applies to 4-D NIfTI/MGH, NRRD, TIFF or OME-Zarr files, got "
+            f"volume={volume!r} for {path.name}"
+        )
     return check_int("volume", volume, 0)
 
 
-def read_scan(path: str | os.PathLike[str], *, shape: Sequence[int] | None = None,
-              dtype: npt.DTypeLike | None = None, spacing: Sequence[float] | None = None,
-              byte_order: str = "little", series: str | None = None, volume: int | None = None,
-              allow_uneven: bool = False, oblique: str = "refuse") -> Scan:
+def read_scan(
+    path: str | os.PathLike[str],
+    *,
+    shape: Sequence[int] | None = None,
+    dtype: npt.DTypeLike | None = None,
+    spacing: Sequence[float] | None = None,
+    byte_order: str = "little",
+    series: str | None = None,
+    volume: int | None = None,
+    allow_uneven: bool = False,
+    oblique: str = "refuse",
+) -> Scan:
     """Read a 3-D scan from a file or folder, in hevr's RAS+ patient frame when the file has one.
 
     Parameters
@@ -215,17 +227,27 @@ def read_scan(path: str | os.PathLike[str], *, shape: Sequence[int] | None = Non
     vol = _check_volume(scan.volume, path)
     file_spacing = tuple(float(v) for v in scan.spacing)
     if override is None and not all(math.isfinite(v) and v > 0 for v in file_spacing):
-        raise VolumeFormatError(f"{path.name}: spacing: expected 3 positive finite voxel sizes in the file, got "
-                                f"{file_spacing}; pass spacing= to override")
+        raise VolumeFormatError(
+            f"{path.name}: spacing: expected 3 positive finite voxel sizes in the file, got "
+            f"{file_spacing}; pass spacing= to override"
+        )
     result = override or file_spacing
     _log.debug("loaded %s: shape %s, %s, spacing %s, frame %s", path, vol.shape, vol.dtype, result, scan.frame)
     return dataclasses.replace(scan, volume=vol, spacing=result)
 
 
-def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None,
-                dtype: npt.DTypeLike | None = None, spacing: Sequence[float] | None = None,
-                byte_order: str = "little", *, series: str | None = None, volume: int | None = None,
-                allow_uneven: bool = False, oblique: str = "refuse") -> tuple[np.ndarray, _Spacing]:
+def load_volume(
+    path: str | os.PathLike[str],
+    shape: Sequence[int] | None = None,
+    dtype: npt.DTypeLike | None = None,
+    spacing: Sequence[float] | None = None,
+    byte_order: str = "little",
+    *,
+    series: str | None = None,
+    volume: int | None = None,
+    allow_uneven: bool = False,
+    oblique: str = "refuse",
+) -> tuple[np.ndarray, _Spacing]:
     """Read a 3-D volume: :func:`read_scan` reduced to ``(volume, spacing)``.
 
     Files with patient geometry come back in hevr's RAS+ frame (NRRD with an anatomical
@@ -262,8 +284,17 @@ def load_volume(path: str | os.PathLike[str], shape: Sequence[int] | None = None
     >>> vol.shape, vol.dtype, spacing
     ((4, 5, 6), dtype('int16'), (0.5, 1.0, 2.0))
     """
-    scan = read_scan(path, shape=shape, dtype=dtype, spacing=spacing, byte_order=byte_order, series=series,
-                     volume=volume, allow_uneven=allow_uneven, oblique=oblique)
+    scan = read_scan(
+        path,
+        shape=shape,
+        dtype=dtype,
+        spacing=spacing,
+        byte_order=byte_order,
+        series=series,
+        volume=volume,
+        allow_uneven=allow_uneven,
+        oblique=oblique,
+    )
     return scan.volume, scan.spacing
 
 
@@ -284,9 +315,15 @@ def _load_npy(path: Path) -> np.ndarray:
     return arr
 
 
-def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
-                spacing: Sequence[float] = (1.0, 1.0, 1.0), *, encoding: str = "raw",
-                byte_order: str = "little", overwrite: bool = False) -> Path:
+def save_volume(
+    path: str | os.PathLike[str],
+    vol: npt.ArrayLike,
+    spacing: Sequence[float] = (1.0, 1.0, 1.0),
+    *,
+    encoding: str = "raw",
+    byte_order: str = "little",
+    overwrite: bool = False,
+) -> Path:
     """Write a 3-D volume as ``.npy``, ``.raw``, NRRD ``.nhdr`` (+ data file) or ``.nrrd``.
 
     Parameters
@@ -342,14 +379,18 @@ def save_volume(path: str | os.PathLike[str], vol: npt.ArrayLike,
     if encoding != "raw":
         raise ParameterError(f"save_volume: encoding={encoding!r} needs an NRRD file, got {path.name}")
     if spacing != (1.0, 1.0, 1.0):
-        _log.warning("save_volume: %s cannot store spacing %s; it will load as (1, 1, 1)",
-                     path.name, spacing)
+        _log.warning("save_volume: %s cannot store spacing %s; it will load as (1, 1, 1)", path.name, spacing)
     if suffix == ".npy":
         head = io.BytesIO()  # C order whatever arr's layout: data_parts writes x fastest
-        np.lib.format.write_array_header_1_0(head, {"descr": np.lib.format.dtype_to_descr(arr.dtype),
-                                                    "fortran_order": False, "shape": arr.shape})
-        write_file(path, itertools.chain([head.getvalue()], data_parts(arr, None, "raw")), overwrite=overwrite,
-                   doing="writing the volume")
+        np.lib.format.write_array_header_1_0(
+            head, {"descr": np.lib.format.dtype_to_descr(arr.dtype), "fortran_order": False, "shape": arr.shape}
+        )
+        write_file(
+            path,
+            itertools.chain([head.getvalue()], data_parts(arr, None, "raw")),
+            overwrite=overwrite,
+            doing="writing the volume",
+        )
         return path
     write_raw(path, arr, byte_order, overwrite=overwrite)
     return path

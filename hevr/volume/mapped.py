@@ -54,8 +54,9 @@ class MappedFile:
     (True, True)
     """
 
-    def __init__(self, filename: str, offset: int, shape: tuple[int, ...], strides: tuple[int, ...],
-                 dtype: Any) -> None:
+    def __init__(
+        self, filename: str, offset: int, shape: tuple[int, ...], strides: tuple[int, ...], dtype: Any
+    ) -> None:
         self.filename, self.offset = str(filename), int(offset)
         self.shape, self.strides = tuple(int(s) for s in shape), tuple(int(s) for s in strides)
         self.file_dtype = np.dtype(dtype)
@@ -113,8 +114,7 @@ def task_array(vol: Any, brick: tuple[int, int, int], name: str) -> Any:
     """
     src = file_backed(vol)
     if src is not None:
-        return dask.array.from_array(src, chunks=brick, name=name, lock=False,
-                                     meta=np.empty((0, 0, 0), src.dtype))
+        return dask.array.from_array(src, chunks=brick, name=name, lock=False, meta=np.empty((0, 0, 0), src.dtype))
     dtype = np.dtype(vol.dtype)
     if dtype.isnative:
         return vol

@@ -62,8 +62,18 @@ from typing import Any
 from ..core.validate import check_value_range
 from ..errors import ParameterError
 
-__all__ = ["MODALITY_RANGES", "UNSUPPORTED", "TF_PRESETS", "TFPreset", "HINT_FRACTION",
-           "modality_range", "normalize_modality", "tf_preset", "window_density", "range_hint"]
+__all__ = [
+    "MODALITY_RANGES",
+    "UNSUPPORTED",
+    "TF_PRESETS",
+    "TFPreset",
+    "HINT_FRACTION",
+    "modality_range",
+    "normalize_modality",
+    "tf_preset",
+    "window_density",
+    "range_hint",
+]
 
 _log = logging.getLogger(__name__)
 
@@ -150,19 +160,40 @@ class TFPreset:
 
 #: The presets by name (module docstring).
 TF_PRESETS: dict[str, TFPreset] = {
-    "ct-bone": TFPreset("CT", 500.0, 2000.0, ((300.0, "#d9b38c"), (700.0, "#f2e6d0"), (1500.0, "#ffffff")),
-                        description="CT bone window (W 2000 / L 500): bone >= ~300 HU, tan to white"),
-    "ct-soft-tissue": TFPreset("CT", 40.0, 400.0, ((-100.0, "#e6c86e"), (40.0, "#c0504d"), (200.0, "#ffd8d0")),
-                               description="CT soft-tissue window (W 400 / L 40): fat yellow, muscle red"),
-    "ct-lung": TFPreset("CT", -600.0, 1500.0, ((-850.0, "#5b8fd9"), (-500.0, "#a8c8ff"), (40.0, "#ff9090")),
-                        description="CT lung window (W 1500 / L -600): lung blue, vessels pink"),
-    "mr-generic": TFPreset("MR", 0.45, 0.9, ((0.15, "#404080"), (0.40, "#b0b0b0"), (0.75, "#ffffff")),
-                           relative=True, description="MR, relative to the value range: dark blue to white"),
+    "ct-bone": TFPreset(
+        "CT",
+        500.0,
+        2000.0,
+        ((300.0, "#d9b38c"), (700.0, "#f2e6d0"), (1500.0, "#ffffff")),
+        description="CT bone window (W 2000 / L 500): bone >= ~300 HU, tan to white",
+    ),
+    "ct-soft-tissue": TFPreset(
+        "CT",
+        40.0,
+        400.0,
+        ((-100.0, "#e6c86e"), (40.0, "#c0504d"), (200.0, "#ffd8d0")),
+        description="CT soft-tissue window (W 400 / L 40): fat yellow, muscle red",
+    ),
+    "ct-lung": TFPreset(
+        "CT",
+        -600.0,
+        1500.0,
+        ((-850.0, "#5b8fd9"), (-500.0, "#a8c8ff"), (40.0, "#ff9090")),
+        description="CT lung window (W 1500 / L -600): lung blue, vessels pink",
+    ),
+    "mr-generic": TFPreset(
+        "MR",
+        0.45,
+        0.9,
+        ((0.15, "#404080"), (0.40, "#b0b0b0"), (0.75, "#ffffff")),
+        relative=True,
+        description="MR, relative to the value range: dark blue to white",
+    ),
 }
 
 
 def _rgb(hex_colour: str) -> tuple[float, float, float]:
-    return tuple(int(hex_colour[i:i + 2], 16) / 255 for i in (1, 3, 5))  # type: ignore[return-value]
+    return tuple(int(hex_colour[i : i + 2], 16) / 255 for i in (1, 3, 5))  # type: ignore[return-value]
 
 
 def window_density(center: float, width: float, value_range: Any) -> tuple[float, float]:
@@ -222,9 +253,11 @@ def tf_preset(name: str, value_range: Any) -> list[tuple[float, tuple[float, flo
         if all(d != other for other, _ in nodes):
             nodes.append((d, _rgb(colour)))
     if not nodes:
-        raise ParameterError(f"name: the {preset.modality} preset {name!r} has no node inside the value range "
-                             f"({lo:g}, {hi:g}) (its nodes are at {', '.join(f'{v:g}' for v, _ in preset.nodes)}); "
-                             "was the volume encrypted with its modality's range?")
+        raise ParameterError(
+            f"name: the {preset.modality} preset {name!r} has no node inside the value range "
+            f"({lo:g}, {hi:g}) (its nodes are at {', '.join(f'{v:g}' for v, _ in preset.nodes)}); "
+            "was the volume encrypted with its modality's range?"
+        )
     return nodes
 
 
@@ -251,9 +284,13 @@ def range_hint(data_lo: float, data_hi: float, value_range: Any) -> str | None:
     fix = "set the modality (--modality CT|MR) or the value range (--value-range LO,HI)"
     covered = max(0.0, min(hi, dhi) - max(lo, dlo)) / (hi - lo)
     if covered < HINT_FRACTION:
-        return (f"the data span {dlo:g} .. {dhi:g}, only {100 * covered:.2g} % of the value range ({lo:g}, {hi:g}): "
-                f"the render will look nearly flat; {fix}")
+        return (
+            f"the data span {dlo:g} .. {dhi:g}, only {100 * covered:.2g} % of the value range ({lo:g}, {hi:g}): "
+            f"the render will look nearly flat; {fix}"
+        )
     if dhi > hi:
-        return (f"the data reach {dhi:g}, above the value range ({lo:g}, {hi:g}): every value above {hi:g} gets "
-                f"density 1; {fix}")
+        return (
+            f"the data reach {dhi:g}, above the value range ({lo:g}, {hi:g}): every value above {hi:g} gets "
+            f"density 1; {fix}"
+        )
     return None

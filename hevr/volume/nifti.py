@@ -79,8 +79,10 @@ def _check_size(nib: Any, img: Any, path: Path, shape: tuple[int, ...], dtype: n
     elif offset is not None:
         need, have = int(offset) + math.prod(shape) * dtype.itemsize, path.stat().st_size
         if have < need:
-            raise CorruptVolumeError(f"{path.name}: truncated: the header declares shape {shape} of {dtype} "
-                                    f"(data ending at byte {need}), the file holds {have} bytes")
+            raise CorruptVolumeError(
+                f"{path.name}: truncated: the header declares shape {shape} of {dtype} "
+                f"(data ending at byte {need}), the file holds {have} bytes"
+            )
 
 
 def read_nifti(path: Path, *, volume: int | None = None, oblique: str = "refuse") -> Scan:
@@ -91,9 +93,11 @@ def read_nifti(path: Path, *, volume: int | None = None, oblique: str = "refuse"
     except Exception as exc:  # nibabel raises many types for broken files
         raise VolumeFormatError(f"{path.name}: cannot read NIfTI/MGH file ({exc})") from None
     if not hasattr(img, "affine"):  # CIFTI-2 (greyordinates × series) is no voxel grid
-        raise VolumeFormatError(f"{path.name}: expected a NIfTI-1/2 or MGH volume on a voxel grid, got a "
-                                f"{type(img).__name__.replace('Image', '')} file (surface and greyordinate data, "
-                                "no voxel grid): hevr renders volumes")
+        raise VolumeFormatError(
+            f"{path.name}: expected a NIfTI-1/2 or MGH volume on a voxel grid, got a "
+            f"{type(img).__name__.replace('Image', '')} file (surface and greyordinate data, "
+            "no voxel grid): hevr renders volumes"
+        )
     try:
         shape = tuple(int(s) for s in img.shape)
         dtype = np.dtype(img.get_data_dtype())
@@ -105,8 +109,10 @@ def read_nifti(path: Path, *, volume: int | None = None, oblique: str = "refuse"
     while len(kept) > 3 and kept[-1] == 1:  # tools often write (x, y, z, 1)
         kept = kept[:-1]
     if len(kept) not in (3, 4):
-        raise VolumeFormatError(f"{path.name}: expected a 3-D volume (or a 4-D series with volume=), got a "
-                                f"{len(shape)}-D image of shape {shape}")
+        raise VolumeFormatError(
+            f"{path.name}: expected a 3-D volume (or a 4-D series with volume=), got a "
+            f"{len(shape)}-D image of shape {shape}"
+        )
     if dtype.kind not in "iuf":
         raise VolumeFormatError(f"{path.name}: expected integer or floating-point voxels, got dtype {dtype}")
     details: dict[str, Any] = {"format": type(img).__name__}

@@ -26,16 +26,14 @@ import itertools
 import logging
 import math
 import re
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 
-from ..core.files import check_regular
-
-from ..core.files import write_file
-from ..core.validate import check_dtype
-from ..core.validate import check_shape
+from ..core.files import check_regular, write_file
+from ..core.validate import check_dtype, check_shape
 from ..errors import ExistingFileError, MissingFileError, ParameterError
 from .nrrd_encodings import (
     BLOCK,
@@ -65,8 +63,18 @@ for _names, _np in (
     _TYPES.update(dict.fromkeys(_names.split("|"), _np))
 
 # Canonical names written by ``write_nrrd`` (the stdint spellings teem itself prefers).
-_TYPE_NAMES = {"i1": "int8", "u1": "uint8", "i2": "int16", "u2": "uint16", "i4": "int32",
-               "u4": "uint32", "i8": "int64", "u8": "uint64", "f4": "float", "f8": "double"}
+_TYPE_NAMES = {
+    "i1": "int8",
+    "u1": "uint8",
+    "i2": "int16",
+    "u2": "uint16",
+    "i4": "int32",
+    "u4": "uint32",
+    "i8": "int64",
+    "u8": "uint64",
+    "f4": "float",
+    "f8": "double",
+}
 
 # Type tokens recognised in raw file names like "tooth_103x94x161_uint8.raw".
 RAW_DTYPES = ("int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64")
@@ -110,8 +118,9 @@ def to_native(arr: np.ndarray) -> np.ndarray:
     return arr.astype(arr.dtype.newbyteorder("="))
 
 
-def read_raw(path: Path, offset: int, shape: tuple[int, int, int], dtype: np.dtype,
-             *, exact: bool = True, what: str = "") -> np.ndarray:
+def read_raw(
+    path: Path, offset: int, shape: tuple[int, int, int], dtype: np.dtype, *, exact: bool = True, what: str = ""
+) -> np.ndarray:
     """Memory-map ``prod(shape)`` values of ``dtype`` at ``offset`` of ``path``, read-only.
 
     ``exact`` demands that the data end exactly at the end of the file: a size mismatch
@@ -121,11 +130,18 @@ def read_raw(path: Path, offset: int, shape: tuple[int, int, int], dtype: np.dty
     have = path.stat().st_size - offset
     where = f" after {offset} header/skip bytes" if offset else ""
     if have < need:
-        raise _fail(path, f"truncated: {what}expected {need} bytes of data{where} "
-                          f"(shape {shape} of {dtype.name}), the file holds {max(have, 0)}", corrupt=True)
+        raise _fail(
+            path,
+            f"truncated: {what}expected {need} bytes of data{where} "
+            f"(shape {shape} of {dtype.name}), the file holds {max(have, 0)}",
+            corrupt=True,
+        )
     if exact and have != need:
-        raise _fail(path, f"size mismatch: {what}expected {need} bytes of data{where} "
-                          f"(shape {shape} of {dtype.name}), the file holds {have}")
+        raise _fail(
+            path,
+            f"size mismatch: {what}expected {need} bytes of data{where} "
+            f"(shape {shape} of {dtype.name}), the file holds {have}",
+        )
     return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape, order="C")
 
 
@@ -146,8 +162,11 @@ def load_raw(path: Path, shape: object, dtype: object, byte_order: str) -> np.nd
         shape = name_shape
         if shape is not None and min(shape) < 1:
             sizes = "x".join(str(v) for v in reversed(shape))
-            raise _fail(path, f"shape: expected positive sizes in the name's XxYxZ token, got {sizes}; "
-                              "rename the file or pass shape=(nz, ny, nx)")
+            raise _fail(
+                path,
+                f"shape: expected positive sizes in the name's XxYxZ token, got {sizes}; "
+                "rename the file or pass shape=(nz, ny, nx)",
+            )
     dt: np.dtype | None = None
     if dtype is not None:
         dt = check_dtype(dtype)
@@ -155,9 +174,12 @@ def load_raw(path: Path, shape: object, dtype: object, byte_order: str) -> np.nd
         dt = np.dtype(name_dtype)
     if shape is None or dt is None:
         missing = " and ".join(w for w, v in (("shape", shape), ("dtype", dt)) if v is None)
-        raise _fail(path, f"cannot tell the {missing} of this raw file: name it like "
-                          f"'name_XxYxZ_uint8.raw' (sizes x, y, z; type one of "
-                          f"{', '.join(RAW_DTYPES)}) or pass shape=(nz, ny, nx) and dtype=")
+        raise _fail(
+            path,
+            f"cannot tell the {missing} of this raw file: name it like "
+            f"'name_XxYxZ_uint8.raw' (sizes x, y, z; type one of "
+            f"{', '.join(RAW_DTYPES)}) or pass shape=(nz, ny, nx) and dtype=",
+        )
     return read_raw(path, 0, shape, dt.newbyteorder("<" if byte_order == "little" else ">"))
 
 
@@ -166,8 +188,10 @@ def write_raw(path: Path, vol: np.ndarray, byte_order: str = "little", *, overwr
     (atomically; an existing file only with ``overwrite``: :func:`hevr.core.files.write_file`)."""
     name_shape, name_dtype = raw_layout(path)
     if name_shape not in (None, vol.shape) or name_dtype not in (None, vol.dtype.name):
-        raise ParameterError(f"save_volume: the name {path.name} says shape {name_shape} (z, y, x) "
-                             f"of {name_dtype}, but vol has shape {vol.shape} of {vol.dtype}")
+        raise ParameterError(
+            f"save_volume: the name {path.name} says shape {name_shape} (z, y, x) "
+            f"of {name_dtype}, but vol has shape {vol.shape} of {vol.dtype}"
+        )
     write_file(path, data_parts(vol, byte_order, "raw"), overwrite=overwrite, doing="writing the volume")
 
 
@@ -198,13 +222,13 @@ def _read_header(path: Path) -> tuple[dict[str, str], int]:
     with open(path, "rb") as fh:
         magic = fh.readline(64).rstrip(b"\r\n")
         if not re.fullmatch(rb"NRRD000[1-5]", magic):
-            raise _fail(path, f"not an NRRD file: expected a first line 'NRRD0001'..'NRRD0005', "
-                              f"got {magic[:20]!r}")
+            raise _fail(path, f"not an NRRD file: expected a first line 'NRRD0001'..'NRRD0005', got {magic[:20]!r}")
         while True:
             raw = fh.readline(_MAX_HEADER_BYTES)
             if fh.tell() > _MAX_HEADER_BYTES:
-                raise _fail(path, f"NRRD header is longer than {_MAX_HEADER_BYTES} bytes "
-                                  "(missing blank line before the data?)")
+                raise _fail(
+                    path, f"NRRD header is longer than {_MAX_HEADER_BYTES} bytes (missing blank line before the data?)"
+                )
             line = raw.rstrip(b"\r\n").decode("latin-1")
             if not line:  # a blank line (or EOF for a detached header) ends the header
                 return fields, fh.tell()
@@ -212,8 +236,7 @@ def _read_header(path: Path) -> tuple[dict[str, str], int]:
                 continue  # comments and key/value pairs carry nothing we need
             key, sep, value = line.partition(": ")
             if not sep:
-                raise _fail(path, f"malformed NRRD header line {line[:80]!r}: "
-                                  "expected 'field: value'")
+                raise _fail(path, f"malformed NRRD header line {line[:80]!r}: expected 'field: value'")
             fields[key.strip().lower()] = value.strip()
             if key.strip().lower() in ("data file", "datafile") and value.upper().startswith("LIST"):
                 return fields, fh.tell()  # file names follow; read_nrrd rejects the form
@@ -230,8 +253,9 @@ def _ints(path: Path, field: str, value: str, count: int) -> list[int]:
     return out
 
 
-def read_nrrd(path: Path, before_data: Callable[[dict[str, str], tuple[int, ...]], Any] | None = None
-              ) -> tuple[np.ndarray, dict[str, str], Any]:
+def read_nrrd(
+    path: Path, before_data: Callable[[dict[str, str], tuple[int, ...]], Any] | None = None
+) -> tuple[np.ndarray, dict[str, str], Any]:
     """Read the data of a 3-D or 4-D ``.nrrd``/``.nhdr`` file.
 
     ``before_data(fields, shape)``, when given, runs once the header is checked and before
@@ -251,12 +275,14 @@ def read_nrrd(path: Path, before_data: Callable[[dict[str, str], tuple[int, ...]
 
     type_name = " ".join(fields["type"].lower().split())
     if type_name not in _TYPES:
-        raise _fail(path, f"NRRD type {fields['type']!r} is not supported: expected an integer "
-                          "or floating-point type (e.g. uint8, int16, float)")
+        raise _fail(
+            path,
+            f"NRRD type {fields['type']!r} is not supported: expected an integer "
+            "or floating-point type (e.g. uint8, int16, float)",
+        )
     dim = _ints(path, "dimension", fields["dimension"], 1)[0]
     if dim not in (3, 4):
-        raise _fail(path, f"expected a 3-D volume (dimension: 3, or 4 with one non-spatial axis), "
-                          f"got dimension: {dim}")
+        raise _fail(path, f"expected a 3-D volume (dimension: 3, or 4 with one non-spatial axis), got dimension: {dim}")
     sizes = _ints(path, "sizes", fields["sizes"], dim)
     if min(sizes) < 1:
         raise _fail(path, f"NRRD sizes must be positive, got {fields['sizes']!r}")
@@ -264,14 +290,18 @@ def read_nrrd(path: Path, before_data: Callable[[dict[str, str], tuple[int, ...]
 
     encoding = ENCODINGS.get(fields["encoding"].lower())
     if encoding is None:
-        raise _fail(path, f"NRRD encoding {fields['encoding']!r} is not supported: expected raw, gzip, "
-                          "bzip2, ascii or hex")
+        raise _fail(
+            path, f"NRRD encoding {fields['encoding']!r} is not supported: expected raw, gzip, bzip2, ascii or hex"
+        )
     dtype = np.dtype(_TYPES[type_name])
     endian = fields.get("endian", "").lower()
     if dtype.itemsize > 1 and encoding != "ascii":
         if endian not in ("little", "big"):
-            raise _fail(path, f"NRRD field 'endian' must be 'little' or 'big' for type "
-                              f"{fields['type']}, got {fields.get('endian')!r}")
+            raise _fail(
+                path,
+                f"NRRD field 'endian' must be 'little' or 'big' for type "
+                f"{fields['type']}, got {fields.get('endian')!r}",
+            )
         dtype = dtype.newbyteorder("<" if endian == "little" else ">")
 
     data_path, offset = path, header_end
@@ -281,16 +311,14 @@ def read_nrrd(path: Path, before_data: Callable[[dict[str, str], tuple[int, ...]
         # The multi-file forms are "LIST" and "<printf format> <min> <max> <step> [<subdim>]";
         # anything else is one file name (which may contain spaces).
         if spec.upper().startswith("LIST") or (len(parts) in (4, 5) and "%" in parts[0]):
-            raise _fail(path, f"NRRD 'data file: {spec}' names several files; only a "
-                              "single data file is supported")
+            raise _fail(path, f"NRRD 'data file: {spec}' names several files; only a single data file is supported")
         data_path = check_file((path.parent / spec) if not Path(spec).is_absolute() else Path(spec))
         offset = 0
 
     line_skip = _ints(path, "line skip", fields.get("line skip", "0"), 1)[0]
     byte_skip = _ints(path, "byte skip", fields.get("byte skip", "0"), 1)[0]
     if line_skip < 0 or byte_skip < -1:
-        raise _fail(path, f"NRRD 'line skip' must be >= 0 and 'byte skip' >= -1, "
-                          f"got {line_skip} and {byte_skip}")
+        raise _fail(path, f"NRRD 'line skip' must be >= 0 and 'byte skip' >= -1, got {line_skip} and {byte_skip}")
     if line_skip:
         offset = _skip_lines(data_path, offset, line_skip)
     if byte_skip == -1 and encoding != "raw":
@@ -324,8 +352,15 @@ def _skip_lines(path: Path, offset: int, count: int) -> int:
         return fh.tell()
 
 
-def write_nrrd(path: Path, vol: np.ndarray, spacing: tuple[float, float, float], *,
-               encoding: str = "raw", byte_order: str = "little", overwrite: bool = False) -> Path | None:
+def write_nrrd(
+    path: Path,
+    vol: np.ndarray,
+    spacing: tuple[float, float, float],
+    *,
+    encoding: str = "raw",
+    byte_order: str = "little",
+    overwrite: bool = False,
+) -> Path | None:
     """Write ``vol`` (z, y, x) as NRRD; detached (``.nhdr`` + data file) or attached (``.nrrd``).
     Each file is written atomically; existing files are replaced only with ``overwrite``.
 
@@ -333,26 +368,41 @@ def write_nrrd(path: Path, vol: np.ndarray, spacing: tuple[float, float, float],
     """
     type_name = _TYPE_NAMES.get(vol.dtype.str[1:])
     if type_name is None:
-        raise ParameterError(f"save_volume: NRRD cannot store {vol.dtype} ({path.name}); "
-                             "expected an integer type, float32 or float64")
+        raise ParameterError(
+            f"save_volume: NRRD cannot store {vol.dtype} ({path.name}); expected an integer type, float32 or float64"
+        )
     nz, ny, nx = vol.shape
     sx, sy, sz = (repr(float(s)) for s in spacing)
-    lines = ["NRRD0004", "# written by hevr", f"type: {type_name}", "dimension: 3",
-             f"sizes: {nx} {ny} {nz}", "space dimension: 3",
-             f"space directions: ({sx},0,0) (0,{sy},0) (0,0,{sz})",
-             "kinds: domain domain domain", f"endian: {byte_order}", f"encoding: {encoding}"]
+    lines = [
+        "NRRD0004",
+        "# written by hevr",
+        f"type: {type_name}",
+        "dimension: 3",
+        f"sizes: {nx} {ny} {nz}",
+        "space dimension: 3",
+        f"space directions: ({sx},0,0) (0,{sy},0) (0,0,{sz})",
+        "kinds: domain domain domain",
+        f"endian: {byte_order}",
+        f"encoding: {encoding}",
+    ]
     data_path = None
     if path.suffix.lower() == ".nhdr":
         data_path = path.with_suffix(".raw.gz" if encoding == "gzip" else ".raw")
         lines.append(f"data file: {data_path.name}")
         if not overwrite and data_path.exists():  # neither file is written when one is there
             raise ExistingFileError("path", data_path)
-        write_file(data_path, data_parts(vol, byte_order, encoding), overwrite=overwrite,
-                   doing="writing the volume data")
-        write_file(path, [("\n".join(lines) + "\n").encode("ascii")], overwrite=overwrite,
-                   doing="writing the volume header")
+        write_file(
+            data_path, data_parts(vol, byte_order, encoding), overwrite=overwrite, doing="writing the volume data"
+        )
+        write_file(
+            path, [("\n".join(lines) + "\n").encode("ascii")], overwrite=overwrite, doing="writing the volume header"
+        )
         return data_path
     head = ("\n".join(lines) + "\n\n").encode("ascii")  # attached: a blank line separates header and data
-    write_file(path, itertools.chain([head], data_parts(vol, byte_order, encoding)), overwrite=overwrite,
-               doing="writing the volume")
+    write_file(
+        path,
+        itertools.chain([head], data_parts(vol, byte_order, encoding)),
+        overwrite=overwrite,
+        doing="writing the volume",
+    )
     return None

@@ -51,12 +51,20 @@ _log = logging.getLogger(__name__)
 
 #: RAS+ signs of each anatomical NRRD space (long and short names, with and without -time).
 SPACE_SIGNS: dict[str, tuple[float, float, float]] = {}
-for _long, _short, _signs in (("right-anterior-superior", "ras", (1.0, 1.0, 1.0)),
-                              ("left-anterior-superior", "las", (-1.0, 1.0, 1.0)),
-                              ("left-posterior-superior", "lps", (-1.0, -1.0, 1.0))):
+for _long, _short, _signs in (
+    ("right-anterior-superior", "ras", (1.0, 1.0, 1.0)),
+    ("left-anterior-superior", "las", (-1.0, 1.0, 1.0)),
+    ("left-posterior-superior", "lps", (-1.0, -1.0, 1.0)),
+):
     SPACE_SIGNS.update(dict.fromkeys((_long, _short, _long + "-time", _short + "t"), _signs))
-_NO_PATIENT = {"scanner-xyz", "3d-right-handed", "3d-left-handed", "scanner-xyz-time",
-               "3d-right-handed-time", "3d-left-handed-time"}
+_NO_PATIENT = {
+    "scanner-xyz",
+    "3d-right-handed",
+    "3d-left-handed",
+    "scanner-xyz-time",
+    "3d-right-handed-time",
+    "3d-left-handed-time",
+}
 _SPATIAL_KINDS = {"domain", "space"}
 _SCALAR_KINDS = {"domain", "space", "time", "none", "???"}  # a 3-D file with another kind is not scalar
 _VOLUME_KINDS = {"time", "domain", "space", "none", "???", ""}
@@ -82,8 +90,11 @@ def _directions(path: Path, fields: dict[str, str], dim: int) -> list[list[float
     out = [None if none else _vector(path, "space directions", vec) for vec, none in _TOKEN.findall(value)]
     spatial = [v for v in out if v is not None]
     if len(out) != dim or len(spatial) != 3 or len({len(v) for v in spatial}) != 1 or len(spatial[0]) not in (3, 4):
-        raise _fail(path, f"NRRD field 'space directions' must hold three vectors like '(1,0,0) (0,1,0) (0,0,1)' "
-                          f"for the three spatial axes ('none' for a {dim}-D file's other axis), got {value!r}")
+        raise _fail(
+            path,
+            f"NRRD field 'space directions' must hold three vectors like '(1,0,0) (0,1,0) (0,0,1)' "
+            f"for the three spatial axes ('none' for a {dim}-D file's other axis), got {value!r}",
+        )
     return out
 
 
@@ -91,8 +102,9 @@ def _extra_axis(path: Path, dim: int, kinds: list[str], dirs: list | None) -> in
     """The non-spatial axis of a 4-D file (file order, fastest first); None for 3-D."""
     if dim == 3:
         if any(k not in _SCALAR_KINDS for k in kinds):
-            raise _fail(path, f"expected a scalar 3-D volume, got axis kinds {' '.join(kinds)!r} "
-                              "(a vector or colour axis)")
+            raise _fail(
+                path, f"expected a scalar 3-D volume, got axis kinds {' '.join(kinds)!r} (a vector or colour axis)"
+            )
         return None
     if dirs is not None:
         return next(a for a, d in enumerate(dirs) if d is None)
@@ -120,18 +132,23 @@ def _plan(path: Path, fields: dict[str, str], shape: tuple[int, ...], volume: in
         if kind in _VOLUME_KINDS:
             what, axis = "volumes", f"its axis {extra} (kind {kind or 'unknown'})"
         else:
-            what, axis = f"{kind} components", (f"its axis {extra}; hevr encrypts one scalar per voxel, so pick "
-                                                "a component")
+            what, axis = (
+                f"{kind} components",
+                (f"its axis {extra}; hevr encrypts one scalar per voxel, so pick a component"),
+            )
         take[dim - 1 - extra] = select_index(volume, count, path, what, axis)
         details.update(volume=take[dim - 1 - extra], volumes=count)
         if dirs is not None:
-            dirs = dirs[:extra] + dirs[extra + 1:]
+            dirs = dirs[:extra] + dirs[extra + 1 :]
     steps = None if dirs is None else np.array([d[:3] for d in dirs], np.float64).T  # type: ignore[index]
     space = " ".join(fields.get("space", "").lower().split())
     if space and space not in SPACE_SIGNS and space not in _NO_PATIENT:
-        raise _fail(path, f"NRRD field 'space': expected one of right-anterior-superior, left-anterior-superior, "
-                          f"left-posterior-superior (RAS/LAS/LPS), scanner-xyz, 3D-right-handed or "
-                          f"3D-left-handed, got {fields['space']!r}")
+        raise _fail(
+            path,
+            f"NRRD field 'space': expected one of right-anterior-superior, left-anterior-superior, "
+            f"left-posterior-superior (RAS/LAS/LPS), scanner-xyz, 3D-right-handed or "
+            f"3D-left-handed, got {fields['space']!r}",
+        )
     details["space"] = space or None
     origin = np.zeros(3)
     origin_text = fields.get("space origin", "").strip()
@@ -140,8 +157,14 @@ def _plan(path: Path, fields: dict[str, str], shape: tuple[int, ...], volume: in
         if len(values) not in (3, 4) or not all(math.isfinite(v) for v in values):
             raise _fail(path, f"NRRD field 'space origin' must be a finite 3-vector like (0,0,0), got {origin_text!r}")
         origin = np.array(values[:3])
-    return {"take": tuple(take), "steps": steps, "spacing": _spacing(path, fields, steps, extra),
-            "space": space, "origin": origin, "details": details}
+    return {
+        "take": tuple(take),
+        "steps": steps,
+        "spacing": _spacing(path, fields, steps, extra),
+        "space": space,
+        "origin": origin,
+        "details": details,
+    }
 
 
 def read_nrrd_scan(path: Path, *, volume: int | None = None, oblique: str = "refuse") -> Scan:
@@ -152,8 +175,15 @@ def read_nrrd_scan(path: Path, *, volume: int | None = None, oblique: str = "ref
     if space not in SPACE_SIGNS or steps is None:
         if space in SPACE_SIGNS:
             _log.warning("%s: space %s but no 'space directions'; axes kept as stored", path.name, space)
-        return Scan(arr, plan["spacing"], tuple(float(v) for v in origin), None, None, str(path),  # type: ignore[arg-type]
-                    details)
+        return Scan(
+            arr,
+            plan["spacing"],
+            tuple(float(v) for v in origin),
+            None,
+            None,
+            str(path),  # type: ignore[arg-type]
+            details,
+        )
     signs = np.array(SPACE_SIGNS[space])
     affine = np.eye(4)
     affine[:3, :3] = signs[:, None] * steps
@@ -162,15 +192,21 @@ def read_nrrd_scan(path: Path, *, volume: int | None = None, oblique: str = "ref
     return Scan(vol, spacing, org, FRAME, None, str(path), details)
 
 
-def _spacing(path: Path, fields: dict[str, str], steps: np.ndarray | None,
-             extra: int | None) -> tuple[float, float, float]:
+def _spacing(
+    path: Path, fields: dict[str, str], steps: np.ndarray | None, extra: int | None
+) -> tuple[float, float, float]:
     """Voxel sizes (sx, sy, sz) of the stored axes: direction lengths, else ``spacings``, else 1."""
     if steps is not None:
         out = [float(v) for v in np.linalg.norm(steps, axis=0)]
         if fields.get("space", "").lower() not in SPACE_SIGNS and not all(
-                abs(steps[i, i]) >= out[i] * (1 - 1e-9) for i in range(3)):
-            _log.info("%s: non-axis-aligned space directions %s without a patient space; only their "
-                      "lengths %s are used", path.name, fields["space directions"], out)
+            abs(steps[i, i]) >= out[i] * (1 - 1e-9) for i in range(3)
+        ):
+            _log.info(
+                "%s: non-axis-aligned space directions %s without a patient space; only their lengths %s are used",
+                path.name,
+                fields["space directions"],
+                out,
+            )
     elif "spacings" in fields:
         try:
             # NaN means "unknown" in NRRD: fall back to 1 like teem's tools do.
@@ -178,8 +214,9 @@ def _spacing(path: Path, fields: dict[str, str], steps: np.ndarray | None,
         except ValueError:
             out = []
         if len(out) != 3 + (extra is not None):
-            raise _fail(path, f"NRRD field 'spacings' must hold {3 + (extra is not None)} numbers, "
-                              f"got {fields['spacings']!r}")
+            raise _fail(
+                path, f"NRRD field 'spacings' must hold {3 + (extra is not None)} numbers, got {fields['spacings']!r}"
+            )
         if extra is not None:
             del out[extra]
     else:

@@ -86,9 +86,9 @@ def _match_axes(directions: np.ndarray) -> list[int]:
     return world_of
 
 
-def to_patient_frame(vol: np.ndarray, affine: Any, *, name: str,
-                     oblique: str = "refuse") -> tuple[np.ndarray, tuple[float, float, float],
-                                                       tuple[float, float, float]]:
+def to_patient_frame(
+    vol: np.ndarray, affine: Any, *, name: str, oblique: str = "refuse"
+) -> tuple[np.ndarray, tuple[float, float, float], tuple[float, float, float]]:
     """Reorient ``vol`` (nz, ny, nx) with voxel→RAS+ ``affine`` into the RAS+ frame.
 
     Parameters
@@ -130,11 +130,14 @@ def to_patient_frame(vol: np.ndarray, affine: Any, *, name: str,
     with np.errstate(over="ignore"):
         lengths = np.linalg.norm(steps, axis=0)
     if not np.isfinite(lengths).all():  # finite entries whose squares overflow (1e300 mm voxels)
-        raise VolumeFormatError(f"{name}: expected voxel sizes within floating-point range, got step vectors "
-                                f"{steps.tolist()!r}")
+        raise VolumeFormatError(
+            f"{name}: expected voxel sizes within floating-point range, got step vectors {steps.tolist()!r}"
+        )
     if not (lengths > 0).all() or abs(np.linalg.det(steps)) < 1e-12 * float(np.prod(lengths)):
-        raise VolumeFormatError(f"{name}: the voxel axes in the file's geometry are degenerate "
-                                f"(directions {np.round(steps, 6).tolist()}); expected 3 independent axes")
+        raise VolumeFormatError(
+            f"{name}: the voxel axes in the file's geometry are degenerate "
+            f"(directions {np.round(steps, 6).tolist()}); expected 3 independent axes"
+        )
     directions = steps / lengths
     world_of = _match_axes(directions)  # world axis w <- voxel axis world_of[w]
     worst = max(math.degrees(math.acos(min(1.0, abs(directions[w, world_of[w]])))) for w in range(3))
@@ -144,9 +147,9 @@ def to_patient_frame(vol: np.ndarray, affine: Any, *, name: str,
                 f"{name}: the scan is oblique: a voxel axis is {worst:.2f} degrees off the patient axes "
                 f"(at most {OBLIQUE_TOLERANCE_DEG} accepted); hevr does not resample encrypted data, so "
                 "reslice it to axial/coronal/sagittal first, or pass oblique='snap' (CLI --oblique snap) "
-                "to take the nearest axes")
-        _log.warning("%s: oblique scan, snapped to the nearest patient axes (up to %.2f degrees off)",
-                     name, worst)
+                "to take the nearest axes"
+            )
+        _log.warning("%s: oblique scan, snapped to the nearest patient axes (up to %.2f degrees off)", name, worst)
     ijk = vol.transpose(2, 1, 0)  # axes (i, j, k)
     xyz = ijk.transpose(world_of)  # axis w is voxel axis world_of[w]
     corner = np.zeros(3)

@@ -12,15 +12,13 @@ high y, low x and high z.
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Mapping
 
 import numpy as np
 import numpy.typing as npt
 
-from ..core.validate import check_dtype
-
-from ..core.validate import check_int
+from ..core.validate import check_dtype, check_int
 from ..paper import PAPER_DENSITIES, PAPER_SIZE
 
 __all__ = ["phantom", "PHANTOM_LEVELS"]
@@ -29,9 +27,7 @@ _log = logging.getLogger(__name__)
 
 #: Densities of the three objects as fractions of the dtype's range (background is 0).
 #: They equal the paper's emphasis densities so that ``density=0.331`` etc. hit them.
-PHANTOM_LEVELS: Mapping[str, float] = MappingProxyType(
-    dict(zip(("sphere", "small_sphere", "cube"), PAPER_DENSITIES))
-)
+PHANTOM_LEVELS: Mapping[str, float] = MappingProxyType(dict(zip(("sphere", "small_sphere", "cube"), PAPER_DENSITIES)))
 
 # Geometry as fractions of ``size``.  The cube's half-diagonal (0.16 * sqrt(3) = 0.277)
 # stays inside the outer sphere (0.32), and the small sphere (centre 0.3 per axis from the

@@ -35,8 +35,7 @@ import numpy as np
 from ..core.validate import check_int
 from ..errors import ParameterError
 
-__all__ = ["MAX_LEVELS", "downsample", "level_brick", "level_origin", "level_shape", "level_spacing",
-           "check_level"]
+__all__ = ["MAX_LEVELS", "downsample", "level_brick", "level_origin", "level_shape", "level_spacing", "check_level"]
 
 MAX_LEVELS = 8  # 2^8 = 256 voxels per axis fold into one: more is never useful
 
@@ -53,9 +52,11 @@ def check_level(level: Any, available: int | None = None, name: str = "level") -
     """
     level = check_int(name, level, 0, MAX_LEVELS)
     if available is not None and level > available:
-        raise ParameterError(f"{name}: expected a level of this store's pyramid, 0 to {available}, got {level} "
-                             "(build more levels with hevr.build_pyramid; a packed store's: "
-                             "encrypt_volume(..., levels=))")
+        raise ParameterError(
+            f"{name}: expected a level of this store's pyramid, 0 to {available}, got {level} "
+            "(build more levels with hevr.build_pyramid; a packed store's: "
+            "encrypt_volume(..., levels=))"
+        )
     return level
 
 

@@ -36,8 +36,10 @@ def rescale(raw: np.ndarray, slope: Any, inter: Any) -> np.ndarray:
         lo, hi = np.array([raw.min()], np.float64), np.array([raw.max()], np.float64)
     s, b = slope.ravel(), inter.ravel()
     ends = np.concatenate([lo, hi, lo * s, hi * s, lo * s + b, hi * s + b])
-    target = next((t for t in (np.int16, np.int32, np.int64)
-                   if np.iinfo(t).min <= ends.min() and ends.max() <= np.iinfo(t).max), None)
+    target = next(
+        (t for t in (np.int16, np.int32, np.int64) if np.iinfo(t).min <= ends.min() and ends.max() <= np.iinfo(t).max),
+        None,
+    )
     if target is None:  # beyond int64: exact integers are out of reach anyway
         return _float(raw, slope, inter, np.float64)
     out = raw.astype(target)

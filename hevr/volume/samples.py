@@ -20,8 +20,11 @@ __all__ = ["SAMPLES", "sample_scan"]
 
 # name -> (package, path inside it, what it is)
 SAMPLES = {
-    "mri": ("nibabel", "tests/data/anatomical.nii",
-            "a crop of a real T1-weighted brain MRI, 33×41×25 voxels of 2 mm (nibabel's test data, MIT licence)"),
+    "mri": (
+        "nibabel",
+        "tests/data/anatomical.nii",
+        "a crop of a real T1-weighted brain MRI, 33×41×25 voxels of 2 mm (nibabel's test data, MIT licence)",
+    ),
 }
 
 

@@ -48,5 +48,7 @@ class Scan:
     details: dict[str, Any] = field(default_factory=dict)
 
     def __repr__(self) -> str:  # never the voxels
-        return (f"Scan(shape={tuple(self.volume.shape)}, dtype={self.volume.dtype}, spacing={self.spacing}, "
-                f"origin={self.origin}, frame={self.frame!r}, modality={self.modality!r}, source={self.source!r})")
+        return (
+            f"Scan(shape={tuple(self.volume.shape)}, dtype={self.volume.dtype}, spacing={self.spacing}, "
+            f"origin={self.origin}, frame={self.frame!r}, modality={self.modality!r}, source={self.source!r})"
+        )

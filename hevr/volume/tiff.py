@@ -77,8 +77,11 @@ def _spacing(path: Path, tif: Any) -> tuple[tuple[float, float, float], str | No
     page = tif.pages[0]
     if tif.is_imagej and tif.imagej_metadata is not None:
         meta = tif.imagej_metadata
-        return (_ratio(page, "XResolution"), _ratio(page, "YResolution"),
-                _number(path, "ImageJ spacing", meta.get("spacing", 1.0))), meta.get("unit")
+        return (
+            _ratio(page, "XResolution"),
+            _ratio(page, "YResolution"),
+            _number(path, "ImageJ spacing", meta.get("spacing", 1.0)),
+        ), meta.get("unit")
     if tif.is_ome and tif.ome_metadata:
         found = _ome_spacing(path, tif.ome_metadata)
         if found is not None:
@@ -95,7 +98,8 @@ def _index(path: Path, axes: str, shape: tuple, volume: int | None) -> tuple[tup
         if ax in "CS" and size > 1:
             raise VolumeFormatError(
                 f"{path.name}: expected greyscale pages, got {size} {'channels' if ax == 'C' else 'samples per pixel'} "
-                f"(axes {axes}, shape {shape}); hevr encrypts one scalar per voxel: convert to one channel first")
+                f"(axes {axes}, shape {shape}); hevr encrypts one scalar per voxel: convert to one channel first"
+            )
         if ax == "T" and size > 1:
             picked = select_index(volume, size, path, "time points", "its T axis")
             index.append(picked)
@@ -106,13 +110,16 @@ def _index(path: Path, axes: str, shape: tuple, volume: int | None) -> tuple[tup
             index.append(slice(None))
             kept += "Z" if ax in _DEPTH else ax
         else:
-            raise VolumeFormatError(f"{path.name}: unexpected TIFF axis {ax!r} of size {size} (axes {axes}, "
-                                    f"shape {shape}); expected pages (Z) of Y x X pixels")
+            raise VolumeFormatError(
+                f"{path.name}: unexpected TIFF axis {ax!r} of size {size} (axes {axes}, "
+                f"shape {shape}); expected pages (Z) of Y x X pixels"
+            )
     if "volume" not in details:
         reject_index(volume, path)
     if kept != "ZYX":
-        raise VolumeFormatError(f"{path.name}: expected a 3-D stack of pages (Z, Y, X), got axes {axes} of "
-                                f"shape {shape}")
+        raise VolumeFormatError(
+            f"{path.name}: expected a 3-D stack of pages (Z, Y, X), got axes {axes} of shape {shape}"
+        )
     return tuple(index), details
 
 

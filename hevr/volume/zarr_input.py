@@ -72,8 +72,10 @@ def _refuse_hevr_store(path: Path) -> None:
     for folder in (path, *list(path.resolve().parents)[:4]):
         if "hevr" in _attributes(folder):
             where = "" if folder == path else f" (inside {folder.name})"
-            raise VolumeFormatError(f"{path.name}: this is an encrypted hevr store{where}, not a plaintext "
-                                    "volume; open it with hevr.open_volume or render it with hevr render")
+            raise VolumeFormatError(
+                f"{path.name}: this is an encrypted hevr store{where}, not a plaintext "
+                "volume; open it with hevr.open_volume or render it with hevr render"
+            )
 
 
 def _multiscale(attrs: dict[str, Any]) -> dict[str, Any] | None:
@@ -90,10 +92,14 @@ def _transform(path: Path, items: Any, kind: str, n: int) -> np.ndarray:
     for t in items if isinstance(items, list) else []:
         if isinstance(t, dict) and t.get("type") == kind:
             values = t.get(kind)
-            if not (isinstance(values, list) and len(values) == n and all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)):
-                raise VolumeFormatError(f"{path.name}: OME-Zarr {kind}: expected {n} numbers (one per axis), got "
-                                        f"{str(values)[:80]}")
+            if not (
+                isinstance(values, list)
+                and len(values) == n
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+            ):
+                raise VolumeFormatError(
+                    f"{path.name}: OME-Zarr {kind}: expected {n} numbers (one per axis), got {str(values)[:80]}"
+                )
             return np.array(values, np.float64)
     return np.full(n, 1.0 if kind == "scale" else 0.0)
 
@@ -101,15 +107,18 @@ def _transform(path: Path, items: Any, kind: str, n: int) -> np.ndarray:
 def _ome(path: Path, group: Any, ms: dict[str, Any], volume: int | None) -> Scan:
     datasets = ms.get("datasets") or []
     if not datasets or not isinstance(datasets[0], dict) or "path" not in datasets[0]:
-        raise VolumeFormatError(f"{path.name}: OME-Zarr multiscales: expected a list of datasets with a 'path', "
-                                f"got {datasets!r}"[:300])
+        raise VolumeFormatError(
+            f"{path.name}: OME-Zarr multiscales: expected a list of datasets with a 'path', got {datasets!r}"[:300]
+        )
     arr = group[str(datasets[0]["path"])]
     n = arr.ndim
     axes = ms.get("axes") or ["t", "c", "z", "y", "x"][-n:]
     axes = [a if isinstance(a, dict) else {"name": str(a)} for a in axes]
     if len(axes) != n:
-        raise VolumeFormatError(f"{path.name}: OME-Zarr axes {[a.get('name') for a in axes]} do not match the "
-                                f"dataset's {n} dimensions {arr.shape}")
+        raise VolumeFormatError(
+            f"{path.name}: OME-Zarr axes {[a.get('name') for a in axes]} do not match the "
+            f"dataset's {n} dimensions {arr.shape}"
+        )
     scale = _transform(path, datasets[0].get("coordinateTransformations"), "scale", n)
     scale = scale * _transform(path, ms.get("coordinateTransformations"), "scale", n)
     shift = _transform(path, datasets[0].get("coordinateTransformations"), "translation", n)
@@ -123,8 +132,10 @@ def _ome(path: Path, group: Any, ms: dict[str, Any], volume: int | None) -> Scan
             index.append(slice(None))
             space.append(i)
         elif kind == "channel" and size > 1:
-            raise VolumeFormatError(f"{path.name}: expected one channel, got {size} along axis {name!r}; hevr "
-                                    "encrypts one scalar per voxel: pick or combine a channel first")
+            raise VolumeFormatError(
+                f"{path.name}: expected one channel, got {size} along axis {name!r}; hevr "
+                "encrypts one scalar per voxel: pick or combine a channel first"
+            )
         elif kind == "time" and size > 1:
             picked = select_index(volume, size, path, "time points", f"its axis {name!r}")
             index.append(picked)
@@ -132,19 +143,21 @@ def _ome(path: Path, group: Any, ms: dict[str, Any], volume: int | None) -> Scan
         elif size == 1:
             index.append(0)
         else:
-            raise VolumeFormatError(f"{path.name}: OME-Zarr axis {name!r} (type {kind or 'unknown'}) has {size} "
-                                    "entries; expected time, channel or space axes")
+            raise VolumeFormatError(
+                f"{path.name}: OME-Zarr axis {name!r} (type {kind or 'unknown'}) has {size} "
+                "entries; expected time, channel or space axes"
+            )
     if "volume" not in details:
         reject_index(volume, path)
     if len(space) != 3:
-        raise VolumeFormatError(f"{path.name}: expected 3 space axes (z, y, x), got {len(space)} in "
-                                f"{details['axes']}")
+        raise VolumeFormatError(f"{path.name}: expected 3 space axes (z, y, x), got {len(space)} in {details['axes']}")
     names = [str(axes[i].get("name", "")).lower() for i in space]
     order = [names.index(a) for a in "zyx"] if sorted(names) == ["x", "y", "z"] else [0, 1, 2]
     zyx = [space[o] for o in order]
     units = [axes[zyx[2 - w]].get("unit") for w in range(3)]
-    spacing, details["unit"] = common_unit(path.name, [float(scale[zyx[2 - w]]) for w in range(3)],
-                                           [str(u) if u else None for u in units])
+    spacing, details["unit"] = common_unit(
+        path.name, [float(scale[zyx[2 - w]]) for w in range(3)], [str(u) if u else None for u in units]
+    )
     check_fits(path.name, [arr.shape[i] for i in space], arr.dtype, "Zarr data")
     vol = np.asarray(arr[tuple(index)]).transpose(order)
     origin = tuple(float(shift[zyx[2 - w]]) for w in range(3))
@@ -163,12 +176,21 @@ def read_zarr(path: Path, *, volume: int | None = None) -> Scan:
             if node.ndim != 3:
                 raise VolumeFormatError(f"{path.name}: expected a 3-D Zarr array (z, y, x), got shape {node.shape}")
             check_fits(path.name, node.shape, node.dtype, "Zarr data")
-            return Scan(np.asarray(node[...]), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), None, None, str(path),
-                        {"zarr_format": node.metadata.zarr_format})
+            return Scan(
+                np.asarray(node[...]),
+                (1.0, 1.0, 1.0),
+                (0.0, 0.0, 0.0),
+                None,
+                None,
+                str(path),
+                {"zarr_format": node.metadata.zarr_format},
+            )
         ms = _multiscale(dict(node.attrs))
         if ms is None:
-            raise VolumeFormatError(f"{path.name}: a Zarr group without OME-NGFF 'multiscales' metadata; "
-                                    "expected an OME-Zarr image or the path of one 3-D array")
+            raise VolumeFormatError(
+                f"{path.name}: a Zarr group without OME-NGFF 'multiscales' metadata; "
+                "expected an OME-Zarr image or the path of one 3-D array"
+            )
         return _ome(path, node, ms, volume)
     except HevrError:
         raise

@@ -23,12 +23,27 @@ from hevr.backends.cuda.host import SOURCE as MONT_SOURCE
 from hevr.backends.cuda.host import build_library
 
 _C = {launch._P: "pointer", launch._I: np.int32, launch._LL: np.int64, launch._U32: np.uint32}
-_SIGS = {**launch._SIGNATURES, "hevr_owner_encrypt_host": launch._OWNER_SIGNATURE,
-         "hevr_decrypt_host": launch._DECRYPT_SIGNATURE, "hevr_public_encrypt_host": launch._PUBLIC_SIGNATURE}
+_SIGS = {
+    **launch._SIGNATURES,
+    "hevr_owner_encrypt_host": launch._OWNER_SIGNATURE,
+    "hevr_decrypt_host": launch._DECRYPT_SIGNATURE,
+    "hevr_public_encrypt_host": launch._PUBLIC_SIGNATURE,
+}
 # the position of each kernel's item count (what one thread per item covers)
-_COUNT = {"records_to_limbs": 3, "limbs_to_records": 3, "out_of_range": 3, "mont_convert": 5, "ray_powers": 5,
-          "ray_tasks": 2, "segments": 3, "combine": 6, "pack": 7, "owner_encrypt": 24,
-          "decrypt": 29, "public_encrypt": 9}
+_COUNT = {
+    "records_to_limbs": 3,
+    "limbs_to_records": 3,
+    "out_of_range": 3,
+    "mont_convert": 5,
+    "ray_powers": 5,
+    "ray_tasks": 2,
+    "segments": 3,
+    "combine": 6,
+    "pack": 7,
+    "owner_encrypt": 24,
+    "decrypt": 29,
+    "public_encrypt": 9,
+}
 
 
 class FakeArray:
@@ -87,12 +102,15 @@ class _Function:
                     assert type(arg) is np.uint64 and int(arg) == 0, f"{self.name} argument {i}: {arg!r} is no pointer"
                     c_args.append(None)
             else:
-                assert type(arg) is want, f"{self.name} argument {i}: {type(arg).__name__}, the kernel takes {want.__name__}"
+                assert type(arg) is want, (
+                    f"{self.name} argument {i}: {type(arg).__name__}, the kernel takes {want.__name__}"
+                )
                 c_args.append(int(arg))
         count = int(args[_COUNT[self.name[2:]]])
         assert self.attributes["local_size_bytes"] <= FakeCupy.stack, f"{self.name}: stack limit under its frame"
-        assert grid[0] * block[0] >= count and (grid[0] - 1) * block[0] < max(count, 1), \
+        assert grid[0] * block[0] >= count and (grid[0] - 1) * block[0] < max(count, 1), (
             f"{self.name}: grid {grid} x block {block} for {count} items"
+        )
         fn = getattr(self.module.lib, self.host)
         fn.argtypes, fn.restype = sig, ctypes.c_int
         assert fn(*c_args) == 0
@@ -107,8 +125,9 @@ class FakeModule:
         self.code, self.options = code, tuple(options)
         owner = "k_owner_encrypt" in code
         defines = tuple(o[2:] for o in options if o.startswith("-D"))  # NVRTC's -D, the host build's too
-        self.lib = build_library(launch.OWNER_SOURCE if owner else launch.RENDER_SOURCE, (MONT_SOURCE,),
-                                 defines=defines)
+        self.lib = build_library(
+            launch.OWNER_SOURCE if owner else launch.RENDER_SOURCE, (MONT_SOURCE,), defines=defines
+        )
         self.functions: dict[str, _Function] = {}
 
     def get_function(self, name: str) -> _Function:

@@ -49,8 +49,10 @@ def test_auto_without_a_compiler_is_cpu(monkeypatch, caplog):
 
 def test_auto_with_a_library_that_does_not_load_is_cpu(monkeypatch, caplog):
     """An OSError on loading (a temporary folder mounted noexec, say) is no compiler either."""
+
     def noexec(*args, **kwargs):
         raise OSError("failed to map segment from shared object")
+
     monkeypatch.setattr(backends, "_COMPILED_OK", [])
     monkeypatch.delitem(backends._INSTANCES, "cuda-host", raising=False)
     monkeypatch.setattr(launch, "build_library", noexec)
@@ -73,8 +75,15 @@ class _Client:
         return self.answer
 
 
-@pytest.mark.parametrize("answer,want", [({"w1": True, "w2": True}, "cuda-host"), ({"w1": True, "w2": False}, "cpu"),
-                                         ({}, "cpu"), (OSError("worker gone"), "cpu")])
+@pytest.mark.parametrize(
+    "answer,want",
+    [
+        ({"w1": True, "w2": True}, "cuda-host"),
+        ({"w1": True, "w2": False}, "cpu"),
+        ({}, "cpu"),
+        (OSError("worker gone"), "cpu"),
+    ],
+)
 def test_auto_asks_every_worker_once_per_scheduler(monkeypatch, answer, want):
     """A worker without a C compiler would fail every task of a cuda-host render: auto asks the
     workers (once per scheduler) and takes cpu unless all of them build the kernels."""
@@ -91,8 +100,15 @@ def small_key_store(tmp_path_factory):
         _, priv = hevr.generate_keypair(64)  # the arithmetic nearly free: what auto is for
     vol = np.random.default_rng(3).integers(0, 200, SHAPE).astype(np.uint8)
     with dask.config.set(scheduler="sync"):
-        ev = hevr.encrypt_volume(vol, tmp_path_factory.mktemp("auto") / "v.zarr", priv, brick=BRICK,
-                                 vector_dims=3, value_range=(0, 255), progress=False)
+        ev = hevr.encrypt_volume(
+            vol,
+            tmp_path_factory.mktemp("auto") / "v.zarr",
+            priv,
+            brick=BRICK,
+            vector_dims=3,
+            value_range=(0, 255),
+            progress=False,
+        )
     return ev, vol, priv
 
 

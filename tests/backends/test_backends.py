@@ -27,9 +27,9 @@ from hevr.backends import (
     resolve_backend_name,
 )
 from hevr.rendering.encrypted import error_bound
+from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.pipeline.graph import build_sums_graph
 from hevr.rendering.pipeline.kernel import plan_products
-from hevr.rendering.geometry.rays import cast_rays
 
 SHAPE, BRICK, SPACING = (6, 7, 9), (3, 4, 4), (1.0, 0.9, 1.2)
 NODES = [(0.2, "blue"), (0.6, "red"), (0.9, "#00ff00")]
@@ -52,7 +52,9 @@ class NaiveBackend(Backend):
 
     def to_bytes(self, values, width):
         self._count("to_bytes")
-        return np.frombuffer(b"".join(int(v).to_bytes(width, "big") for v in values), np.uint8).reshape(-1, width).copy()
+        return (
+            np.frombuffer(b"".join(int(v).to_bytes(width, "big") for v in values), np.uint8).reshape(-1, width).copy()
+        )
 
     def residue_bytes(self, width):
         return sys.getsizeof(1 << (8 * width - 1)) + 8  # a Python int and its list slot
@@ -64,8 +66,10 @@ class NaiveBackend(Backend):
     def encrypt(self, key, mantissas, *, unsafe_no_obfuscation=False):
         self._count("encrypt")
         pub = key.public_key if isinstance(key, hevr.PrivateKey) else key
-        return [int(pub.encrypt(int(m), unsafe_no_obfuscation=unsafe_no_obfuscation))
-                for m in np.asarray(mantissas).ravel().tolist()]
+        return [
+            int(pub.encrypt(int(m), unsafe_no_obfuscation=unsafe_no_obfuscation))
+            for m in np.asarray(mantissas).ravel().tolist()
+        ]
 
     def decrypt(self, private_key, values):
         self._count("decrypt")
@@ -119,7 +123,7 @@ class NaiveBackend(Backend):
         out = []
         for start in range(0, len(terms), J):
             acc = 1
-            for j, (t, r) in enumerate(zip(terms[start:start + J], exps[start:start + J])):
+            for j, (t, r) in enumerate(zip(terms[start : start + J], exps[start : start + J])):
                 value = pow(int(t), int(r), n2) * pow(n + 1, offset, n2) % n2  # T^R ⊕ O
                 acc = acc * pow(value, 1 << (pack_bits * j), n2) % n2
             out.append(acc)
@@ -148,12 +152,24 @@ def volume():
 def store(tmp_path_factory, keypair256, volume):
     path = tmp_path_factory.mktemp("backends") / "v.zarr"
     with dask.config.set(scheduler="sync"):
-        return hevr.encrypt_volume(volume, path, keypair256[1], brick=BRICK, spacing=SPACING, vector_dims=3,
-                                   value_range=(-300, 900), progress=False)
+        return hevr.encrypt_volume(
+            volume,
+            path,
+            keypair256[1],
+            brick=BRICK,
+            spacing=SPACING,
+            vector_dims=3,
+            value_range=(-300, 900),
+            progress=False,
+        )
 
 
-CASES = [("xray", "nearest", {}), ("xray", "trilinear", {}), ("emphasize", "nearest", {"density": 0.5}),
-         ("tf", "trilinear", {"nodes": NODES})]
+CASES = [
+    ("xray", "nearest", {}),
+    ("xray", "trilinear", {}),
+    ("emphasize", "nearest", {"density": 0.5}),
+    ("tf", "trilinear", {"nodes": NODES}),
+]
 
 
 @pytest.mark.parametrize("mode, sampling, kw", CASES, ids=[f"{m}-{s}" for m, s, _ in CASES])
@@ -169,8 +185,9 @@ def test_second_backend_gives_the_identical_image(store, volume, keypair256, nai
         np.testing.assert_array_equal(ta, tb)
     got = b.decrypt(priv, backend="naive")
     np.testing.assert_array_equal(got, a.decrypt(priv))
-    ref = hevr.render_plain(volume, cam, mode=mode, sampling=sampling, spacing=SPACING, vector_dims=3,
-                            value_range=(-300, 900), **kw)
+    ref = hevr.render_plain(
+        volume, cam, mode=mode, sampling=sampling, spacing=SPACING, vector_dims=3, value_range=(-300, 900), **kw
+    )
     assert np.all(np.abs(got - ref) <= error_bound(store, cam, mode, sampling, **kw))
     assert np.count_nonzero(ref) > 5
 
@@ -213,8 +230,9 @@ def test_unknown_backend_is_refused_by_name(store, keypair256, tmp_path):
     with pytest.raises(hevr.ParameterError, match="backend: expected 'auto' or one of 'cpu'.*got 'abacus'"):
         hevr.render(store, cam, backend="abacus", progress=False)
     with pytest.raises(hevr.ParameterError, match="backend: expected"):
-        hevr.encrypt_volume(np.zeros((2, 2, 2), np.uint8), tmp_path / "x.zarr", keypair256[0], backend="abacus",
-                            progress=False)
+        hevr.encrypt_volume(
+            np.zeros((2, 2, 2), np.uint8), tmp_path / "x.zarr", keypair256[0], backend="abacus", progress=False
+        )
     assert not (tmp_path / "x.zarr").exists()  # refused before anything was written
     with dask.config.set({"hevr.backend": "abacus"}), pytest.raises(hevr.ParameterError, match="got 'abacus'"):
         get_backend()
@@ -274,7 +292,9 @@ def test_cpu_pack(data, per_pack, bits, offset):
     terms = data.draw(st.lists(st.integers(1, N2 - 1), min_size=m, max_size=m))
     exps = data.draw(st.lists(st.integers(0, (1 << bits) - 1), min_size=m, max_size=m))
     cpu = CpuBackend()
-    got = [int(v) for v in cpu.pack(cpu.from_bytes(NaiveBackend().to_bytes(terms, 16)), exps, bits, per_pack, offset, N)]
+    got = [
+        int(v) for v in cpu.pack(cpu.from_bytes(NaiveBackend().to_bytes(terms, 16)), exps, bits, per_pack, offset, N)
+    ]
     assert got == NaiveBackend().pack(terms, exps, bits, per_pack, offset, N)
 
 
@@ -284,10 +304,13 @@ def test_cpu_ray_products(data, n_vox, rows, wmax):
     comps = [data.draw(st.lists(st.integers(1, N2 - 1), min_size=n_vox, max_size=n_vox)) for _ in range(2)]
     lens = data.draw(st.lists(st.integers(0, 10), min_size=rows, max_size=rows))
     indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
-    voxels = np.array(data.draw(st.lists(st.integers(0, n_vox - 1), min_size=int(indptr[-1]),
-                                         max_size=int(indptr[-1]))), dtype=np.int64)
-    weights = np.array(data.draw(st.lists(st.integers(0, wmax), min_size=voxels.size, max_size=voxels.size)),
-                       dtype=np.int64)
+    voxels = np.array(
+        data.draw(st.lists(st.integers(0, n_vox - 1), min_size=int(indptr[-1]), max_size=int(indptr[-1]))),
+        dtype=np.int64,
+    )
+    weights = np.array(
+        data.draw(st.lists(st.integers(0, wmax), min_size=voxels.size, max_size=voxels.size)), dtype=np.int64
+    )
     plan = plan_products(indptr, voxels, weights, n_vox)
     cpu = CpuBackend()
     got = cpu.ray_products(plan, [cpu.from_bytes(NaiveBackend().to_bytes(c, 16)) for c in comps], N2)

@@ -29,7 +29,6 @@ from dask.sizeof import sizeof
 
 import hevr
 from hevr import MissingDependencyError, backends
-from hevr.bench.gpu import EXPERIMENTS
 from hevr.backends import (
     CpuBackend,
     CudaBackend,
@@ -40,6 +39,7 @@ from hevr.backends import (
 from hevr.backends.cuda import device as device_module
 from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source, owner_source
 from hevr.backends.cuda.nvrtc import find_nvrtc, ptx
+from hevr.bench.gpu import EXPERIMENTS
 from hevr.cli.main import main
 from hevr.rendering.pipeline.kernel import plan_products
 from hevr.store import resident as resident_module
@@ -88,8 +88,10 @@ def test_without_cupy_or_device_the_first_operation_says_what_is_missing(monkeyp
                 def getDeviceCount():
                     raise RuntimeError("cudaErrorNoDevice: no CUDA-capable device is detected")
 
-    for fake, match in ((None, "CuPy is not installed: pip install 'hevr\\[gpu\\]'"),
-                        (NoDevice, "needs an NVIDIA GPU; CuPy sees none")):
+    for fake, match in (
+        (None, "CuPy is not installed: pip install 'hevr\\[gpu\\]'"),
+        (NoDevice, "needs an NVIDIA GPU; CuPy sees none"),
+    ):
         launcher = CupyLauncher()
         if fake is None:
             monkeypatch.setitem(sys.modules, "cupy", None)  # import cupy -> ImportError
@@ -198,23 +200,31 @@ def test_few_long_chains_go_to_the_cpu(fake_cuda):
         exps = [secrets.randbelow(1 << 40) + 1 for _ in range(m)]
         before = fns["k_pack"].calls
         got = fake_cuda.pack(fake_cuda.from_bytes(CPU.to_bytes(rows[:m], W)), exps, 20, 3, 7, n)
-        np.testing.assert_array_equal(fake_cuda.to_bytes(got, W), CPU.to_bytes(CPU.pack(rows[:m], exps, 20, 3, 7, n), W))
+        np.testing.assert_array_equal(
+            fake_cuda.to_bytes(got, W), CPU.to_bytes(CPU.pack(rows[:m], exps, 20, 3, 7, n), W)
+        )
         assert fns["k_pack"].calls - before == (m // 3 >= device_module.MIN_ITEMS)
     comb = [[3, 0], [17, 2], [0, 1000]]  # rows of 3 values into 2 channels
     for items in (device_module.MIN_ITEMS - 1, device_module.MIN_ITEMS):
         seg = np.arange(items + 1)  # one-row segments
         before = fns["k_segments"].calls, fns["k_combine"].calls
-        g = fake_cuda.from_bytes(CPU.to_bytes(rows[:3 * items], W))
-        np.testing.assert_array_equal(fake_cuda.to_bytes(fake_cuda.segment_products(g, seg, 1, n2), W),
-                                      CPU.to_bytes(CPU.segment_products(rows[:items], seg, 1, n2), W))
-        np.testing.assert_array_equal(fake_cuda.to_bytes(fake_cuda.combine(g, comb, n2), W),
-                                      CPU.to_bytes(CPU.combine(rows[:3 * items], comb, n2), W))
+        g = fake_cuda.from_bytes(CPU.to_bytes(rows[: 3 * items], W))
+        np.testing.assert_array_equal(
+            fake_cuda.to_bytes(fake_cuda.segment_products(g, seg, 1, n2), W),
+            CPU.to_bytes(CPU.segment_products(rows[:items], seg, 1, n2), W),
+        )
+        np.testing.assert_array_equal(
+            fake_cuda.to_bytes(fake_cuda.combine(g, comb, n2), W),
+            CPU.to_bytes(CPU.combine(rows[: 3 * items], comb, n2), W),
+        )
         kernels = items >= device_module.MIN_ITEMS
         assert (fns["k_segments"].calls - before[0], fns["k_combine"].calls - before[1]) == (kernels, kernels)
         # a value >= n² (never from a store) comes back reduced either way, as the kernels reduce it
         big = fake_cuda.from_bytes(CPU.to_bytes([n2 + 5] * items, W))
-        assert fake_cuda.to_bytes(fake_cuda.segment_products(big, seg, 1, n2), W).tolist() == \
-            CPU.to_bytes([5] * items, W).tolist()
+        assert (
+            fake_cuda.to_bytes(fake_cuda.segment_products(big, seg, 1, n2), W).tolist()
+            == CPU.to_bytes([5] * items, W).tolist()
+        )
     assert CudaHostBackend()._launch.min_items == 0  # the host build always runs its kernels (CI checks them)
 
 
@@ -225,11 +235,29 @@ def test_the_kernel_suites_pass_on_fake_cupy():
     here = os.path.dirname(__file__)
     env = {**os.environ, "HEVR_TEST_FAKE_CUPY": "1"}
     env.pop("HEVR_TEST_KERNELS", None)
-    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-o", "addopts=", "-x",
-                          *(os.path.join(here, f) for f in ("test_cuda_owner.py", "test_cuda_host_backend.py",
-                                                            "test_cuda_host_renders.py"))],
-                         capture_output=True, text=True, env=env, cwd=os.path.dirname(os.path.dirname(here)),
-                         timeout=600, check=False)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-o",
+            "addopts=",
+            "-x",
+            *(
+                os.path.join(here, f)
+                for f in ("test_cuda_owner.py", "test_cuda_host_backend.py", "test_cuda_host_renders.py")
+            ),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=os.path.dirname(os.path.dirname(here)),
+        timeout=600,
+        check=False,
+    )
     assert run.returncode == 0, run.stdout[-4000:] + run.stderr[-2000:]
     assert " passed" in run.stdout and " skipped" not in run.stdout.splitlines()[-1], run.stdout[-500:]
 
@@ -256,7 +284,10 @@ def test_resident_bricks_stay_on_the_device_between_frames(fake_cuda, tmp_path, 
         streamed, _ = frame(ev)
         # 400 MiB free: half of it holds the 512 KiB of bricks, not also their joined copy and the kernels' scratch
         monkeypatch.setattr(FakeCupy, "memory", (400 << 20, 80 << 30))
-        with pytest.raises(hevr.MemoryLimitError, match=r"device memory \(200.0 MiB\), got 0.5 MiB.* 256.5 MiB a frame needs beside them"):
+        with pytest.raises(
+            hevr.MemoryLimitError,
+            match=r"device memory \(200.0 MiB\), got 0.5 MiB.* 256.5 MiB a frame needs beside them",
+        ):
             ev.persist(backend="cuda")
         monkeypatch.setattr(FakeCupy, "memory", (60 << 30, 80 << 30))
         rv = ev.persist(backend="cuda")
@@ -284,8 +315,12 @@ def test_device_residency_behind_a_scheduler(fake_cuda, tmp_path, keypair256, cl
     with dask.config.set(scheduler="sync"):
         ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", keypair256[1], brick=8, vector_dims=3, progress=False)
     cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=24, height=20)
-    want = {s: hevr.render(ev, cam, "tf", s, nodes=[(0.3, "red"), (0.8, "blue")], backend="cpu", progress=False,
-                           cache=False) for s in ("nearest", "trilinear")}
+    want = {
+        s: hevr.render(
+            ev, cam, "tf", s, nodes=[(0.3, "red"), (0.8, "blue")], backend="cpu", progress=False, cache=False
+        )
+        for s in ("nearest", "trilinear")
+    }
     monkeypatch.setattr(FakeCupy, "memory", (80 << 30, 256 << 20))  # 256 MiB a GPU: half of it < the scratch
     with pytest.raises(hevr.MemoryLimitError, match="device memory"):
         ev.persist(backend="cuda", client=cluster)
@@ -295,8 +330,17 @@ def test_device_residency_behind_a_scheduler(fake_cuda, tmp_path, keypair256, cl
     assert len(rv.resident.worker_bytes) == 2 and all(rv.resident.worker_bytes.values())
     for s, a in want.items():
         for _ in range(2):
-            b = hevr.render(rv, cam, "tf", s, nodes=[(0.3, "red"), (0.8, "blue")], backend="cuda", progress=False,
-                            cache=False, client=cluster)
+            b = hevr.render(
+                rv,
+                cam,
+                "tf",
+                s,
+                nodes=[(0.3, "red"), (0.8, "blue")],
+                backend="cuda",
+                progress=False,
+                cache=False,
+                client=cluster,
+            )
             assert b.stats["resident"] and b.stats["map_tasks"] == 2  # one task per worker (GPU)
             for x, y in zip(a.ciphertexts, b.ciphertexts):
                 np.testing.assert_array_equal(x, y)
@@ -326,25 +370,33 @@ def _check_operations(be, bits: int) -> None:
     np.testing.assert_array_equal(be.to_bytes(g, W), rec)
     assert be.first_out_of_range(g, n2) is None and be.first_out_of_range(g, n2 - 1) == 2
     rng = np.random.default_rng(bits)
-    rows = [(np.sort(rng.choice(len(vals), size=rng.integers(1, 40), replace=False)),
-             rng.integers(1, 1 << 12, size=40)) for _ in range(300)]
+    rows = [
+        (np.sort(rng.choice(len(vals), size=rng.integers(1, 40), replace=False)), rng.integers(1, 1 << 12, size=40))
+        for _ in range(300)
+    ]
     indptr = np.cumsum([0] + [r.size for r, _ in rows])
     vox = np.concatenate([r for r, _ in rows])
-    w = np.concatenate([x[:r.size] for r, x in rows]).astype(np.uint64)
+    w = np.concatenate([x[: r.size] for r, x in rows]).astype(np.uint64)
     plan = plan_products(indptr, vox, w, len(vals))
     assert isinstance(plan, ProductPlan)
-    np.testing.assert_array_equal(CPU.to_bytes(CPU.ray_products(plan, [c], n2)[0], W),
-                                  be.to_bytes(be.ray_products(plan, [g], n2)[0], W))
+    np.testing.assert_array_equal(
+        CPU.to_bytes(CPU.ray_products(plan, [c], n2)[0], W), be.to_bytes(be.ray_products(plan, [g], n2)[0], W)
+    )
     seg = np.arange(0, 1001, 7)
-    np.testing.assert_array_equal(CPU.to_bytes(CPU.segment_products(c, seg, 1, n2), W),
-                                  be.to_bytes(be.segment_products(g, seg, 1, n2), W))
+    np.testing.assert_array_equal(
+        CPU.to_bytes(CPU.segment_products(c, seg, 1, n2), W), be.to_bytes(be.segment_products(g, seg, 1, n2), W)
+    )
     comb = [[3, 0], [17, 2], [0, 1000]]
     rows = c[:999]
-    np.testing.assert_array_equal(CPU.to_bytes(CPU.combine(rows, comb, n2), W),
-                                  be.to_bytes(be.combine(be.from_bytes(CPU.to_bytes(rows, W)), comb, n2), W))
+    np.testing.assert_array_equal(
+        CPU.to_bytes(CPU.combine(rows, comb, n2), W),
+        be.to_bytes(be.combine(be.from_bytes(CPU.to_bytes(rows, W)), comb, n2), W),
+    )
     exps = [secrets.randbelow(1 << 40) + 1 for _ in range(len(rows))]
-    np.testing.assert_array_equal(CPU.to_bytes(CPU.pack(rows, exps, 20, 3, 7, n), W),
-                                  be.to_bytes(be.pack(be.from_bytes(CPU.to_bytes(rows, W)), exps, 20, 3, 7, n), W))
+    np.testing.assert_array_equal(
+        CPU.to_bytes(CPU.pack(rows, exps, 20, 3, 7, n), W),
+        be.to_bytes(be.pack(be.from_bytes(CPU.to_bytes(rows, W)), exps, 20, 3, 7, n), W),
+    )
 
 
 @pytest.mark.gpu
@@ -366,8 +418,11 @@ def _check_render(tmp_path, keypair512) -> None:
         cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=24, height=20)
         nodes = [(0.3, "red"), (0.8, "blue")]
         rv = ev.persist(backend="cuda")  # every brick on the device, in Montgomery form after the first frame
-        for mode, sampling, kw in (("xray", "nearest", {}), ("tf", "trilinear", {"nodes": nodes}),
-                                   ("tf", "nearest", {"nodes": nodes, "finish": "server"})):  # combine on the server
+        for mode, sampling, kw in (
+            ("xray", "nearest", {}),
+            ("tf", "trilinear", {"nodes": nodes}),
+            ("tf", "nearest", {"nodes": nodes, "finish": "server"}),
+        ):  # combine on the server
             a = hevr.render(ev, cam, mode, sampling, backend="cpu", progress=False, cache=False, **kw)
             for volume in (ev, rv, rv):  # streamed, then two resident frames
                 b = hevr.render(volume, cam, mode, sampling, backend="cuda", progress=False, cache=False, **kw)

@@ -115,8 +115,12 @@ def test_a_missing_compiler_is_named(monkeypatch, tmp_path):
 @pytest.mark.skipif(shutil.which("nvcc") is None, reason="nvcc (CUDA toolkit) is not installed: device compile check")
 def test_source_compiles_for_the_device(tmp_path):
     """The same source builds as CUDA device code (sm_90, Hopper) — a compile check, no GPU needed."""
-    run = subprocess.run(["nvcc", "-x", "cu", "-arch=sm_90", "-c", str(host_module.SOURCE), "-o", str(tmp_path / "m.o")],
-                         capture_output=True, text=True, timeout=300)
+    run = subprocess.run(
+        ["nvcc", "-x", "cu", "-arch=sm_90", "-c", str(host_module.SOURCE), "-o", str(tmp_path / "m.o")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert run.returncode == 0, run.stderr[-2000:]
 
 

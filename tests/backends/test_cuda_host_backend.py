@@ -30,9 +30,8 @@ from hevr.backends import (
     get_backend,
 )
 from hevr.backends.base import HORNER, ONES, SHARED, SINGLE
-from hevr.backends.cuda import build_host
+from hevr.backends.cuda import build_host, kernel_cache
 from hevr.backends.cuda import host as host_module
-from hevr.backends.cuda import kernel_cache
 from hevr.backends.cuda import launch as launch_module
 from hevr.backends.cuda import residues as residues_module
 from hevr.backends.cuda.launch import HostLauncher
@@ -141,13 +140,18 @@ def _csr(rows: int, n_vox: int, max_len: int, weights: str):
     P = int(ip[-1])
     vox = (_u64(P) % np.uint64(n_vox)).astype(np.int64)
     w = _u64(P)
-    w = {"nearest": w % np.uint64(2) + np.uint64(1), "trilinear": w % np.uint64(1024),
-         "wide": w % np.uint64(70000) + np.uint64(1), "u64": w | np.uint64(1 << 63), "mixed": w >> (w % np.uint64(64)),
-         "shared": (w % np.uint64(4096)) | np.uint64(1)}[weights]
+    w = {
+        "nearest": w % np.uint64(2) + np.uint64(1),
+        "trilinear": w % np.uint64(1024),
+        "wide": w % np.uint64(70000) + np.uint64(1),
+        "u64": w | np.uint64(1 << 63),
+        "mixed": w >> (w % np.uint64(64)),
+        "shared": (w % np.uint64(4096)) | np.uint64(1),
+    }[weights]
     if weights == "shared":
         vox %= 6  # few voxels under many rays: the planner picks shared buckets
     if rows > 3:  # row 3 repeats row 1 (a duplicate row), row 2 is empty
-        parts = [(vox[ip[r]:ip[r + 1]], w[ip[r]:ip[r + 1]]) for r in range(rows)]
+        parts = [(vox[ip[r] : ip[r + 1]], w[ip[r] : ip[r + 1]]) for r in range(rows)]
         parts[3], parts[2] = parts[1], (vox[:0], w[:0])
         ip = np.concatenate([[0], np.cumsum([len(p[0]) for p in parts])]).astype(np.int64)
         vox, w = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
@@ -190,12 +194,26 @@ def test_every_task_kind_and_the_fold():
     n = _modulus(128)
     n2, W = n * n, record_width(n)
     vl, wl = [0, 1, 2, 3, 0, 1, 2, 3, 0], [1, 1, 1, 1, 31, 30, 2**40 + 5, 1, 2**64 - 1]
-    tasks = [(ONES, 0, 4, 0, 0), (HORNER, 4, 8, 5, 9), (HORNER, 4, 6, 1, 5), (SINGLE, 8, 9, 0, 0),
-             (HORNER, 6, 7, 3, 14), (HORNER, 8, 9, 16, 4)]
+    tasks = [
+        (ONES, 0, 4, 0, 0),
+        (HORNER, 4, 8, 5, 9),
+        (HORNER, 4, 6, 1, 5),
+        (SINGLE, 8, 9, 0, 0),
+        (HORNER, 6, 7, 3, 14),
+        (HORNER, 8, 9, 16, 4),
+    ]
     plan = ProductPlan(8, 9, [0, 1, -1, 2, 3, 4, 5, 1], vl, wl, tasks)
     _check_rays(plan, n2, W, 4)
-    shared = ProductPlan(2, 3, [0, 1], [0, 1, 2], [5, 2**20 + 7, 63], [(SHARED, 0, 2, 0, 0), (SHARED, 2, 3, 0, 0)],
-                         shared_w=3, pre=[(0, 1), (1, 7), (2, 2)])
+    shared = ProductPlan(
+        2,
+        3,
+        [0, 1],
+        [0, 1, 2],
+        [5, 2**20 + 7, 63],
+        [(SHARED, 0, 2, 0, 0), (SHARED, 2, 3, 0, 0)],
+        shared_w=3,
+        pre=[(0, 1), (1, 7), (2, 2)],
+    )
     _check_rays(shared, n2, W, 3)
     _check_rays(ProductPlan(3, 0, [-1, -1, -1], [], [], []), n2, W, 4)  # no pairs: every row is 1
     assert GPU.ray_products(plan, [], n2) == []
@@ -210,12 +228,14 @@ def test_malformed_plans_are_refused_not_run():
     no_powers = ProductPlan(1, 1, [0], [1], [9], [(SHARED, 0, 1, 0, 0)], shared_w=2, pre=[(0, 2)])
     with pytest.raises(ParameterError, match="task 0 has a weight with more digits"):
         GPU.ray_products(no_powers, [cts], n2)
-    for bad, match in [(ProductPlan(1, 1, [0], [5], [1], [(ONES, 0, 1, 0, 0)]), "voxels in"),
-                       (ProductPlan(1, 1, [1], [0], [1], [(ONES, 0, 1, 0, 0)]), "row tasks"),
-                       (ProductPlan(1, 1, [0], [0], [1], [(ONES, 0, 2, 0, 0)]), "start < stop <= pairs"),
-                       (ProductPlan(1, 1, [0], [0], [1], [(HORNER, 0, 1, 0, 1)]), "w >= 1"),
-                       (ProductPlan(1, 1, [0], [0], [1], [(HORNER, 0, 1, 20, 2**40)]), "J <= 64"),
-                       (ProductPlan(1, 1, [0], [0], [1], [(SHARED, 0, 1, 0, 0)], 2, [(0, 65)]), "J <= 64")]:
+    for bad, match in [
+        (ProductPlan(1, 1, [0], [5], [1], [(ONES, 0, 1, 0, 0)]), "voxels in"),
+        (ProductPlan(1, 1, [1], [0], [1], [(ONES, 0, 1, 0, 0)]), "row tasks"),
+        (ProductPlan(1, 1, [0], [0], [1], [(ONES, 0, 2, 0, 0)]), "start < stop <= pairs"),
+        (ProductPlan(1, 1, [0], [0], [1], [(HORNER, 0, 1, 0, 1)]), "w >= 1"),
+        (ProductPlan(1, 1, [0], [0], [1], [(HORNER, 0, 1, 20, 2**40)]), "J <= 64"),
+        (ProductPlan(1, 1, [0], [0], [1], [(SHARED, 0, 1, 0, 0)], 2, [(0, 65)]), "J <= 64"),
+    ]:
         with pytest.raises(ParameterError, match=match):
             GPU.ray_products(bad, [cts], n2)
 
@@ -228,13 +248,20 @@ def test_plans_beyond_the_kernels_and_even_moduli_run_on_gmpy2(monkeypatch):
     x = GPU.from_bytes(np.array([[0, 2], [0, 3]], np.uint8))
     assert GPU.to_bytes(GPU.segment_products(x, np.array([0, 2]), 1, 1000), 2).tolist() == [[0, 6]]
     assert GPU.to_bytes(GPU.combine(x, [[3], [1]], 1000), 2).tolist() == [[0, 24]]
-    assert GPU.to_bytes(GPU.pack(x, [1, 2], 4, 2, 1, 10), 2).tolist() == CPU.to_bytes(
-        CPU.pack(CPU.from_bytes(np.array([[0, 2], [0, 3]], np.uint8)), [1, 2], 4, 2, 1, 10), 2).tolist()
+    assert (
+        GPU.to_bytes(GPU.pack(x, [1, 2], 4, 2, 1, 10), 2).tolist()
+        == CPU.to_bytes(CPU.pack(CPU.from_bytes(np.array([[0, 2], [0, 3]], np.uint8)), [1, 2], 4, 2, 1, 10), 2).tolist()
+    )
 
 
 @settings(max_examples=30, deadline=None)
-@given(data=st.data(), bits=st.sampled_from([64, 128, 256]), n_vox=st.integers(1, 8), rows=st.integers(1, 6),
-       wmax=st.sampled_from([1, 2, 5, 1023, 70000, 2**64 - 1]))
+@given(
+    data=st.data(),
+    bits=st.sampled_from([64, 128, 256]),
+    n_vox=st.integers(1, 8),
+    rows=st.integers(1, 6),
+    wmax=st.sampled_from([1, 2, 5, 1023, 70000, 2**64 - 1]),
+)
 def test_ray_products_property(data, bits, n_vox, rows, wmax):
     n = _modulus(bits)
     lens = data.draw(st.lists(st.integers(0, 10), min_size=rows, max_size=rows))
@@ -299,8 +326,13 @@ def test_pack(bits):
 
 
 @settings(max_examples=25, deadline=None)
-@given(data=st.data(), per_pack=st.integers(1, 5), b=st.integers(1, 24), offset=st.integers(0, 99),
-       bits=st.sampled_from([64, 160, 256]))
+@given(
+    data=st.data(),
+    per_pack=st.integers(1, 5),
+    b=st.integers(1, 24),
+    offset=st.integers(0, 99),
+    bits=st.sampled_from([64, 160, 256]),
+)
 def test_pack_and_combine_property(data, per_pack, b, offset, bits):
     n = data.draw(st.integers(1 << (bits - 1), (1 << bits) - 1)) | 1
     n2, W = n * n, record_width(n)
@@ -361,15 +393,35 @@ def test_exponent_words():
 def test_render_kernels_compile_for_the_device(tmp_path):
     """render.cuh (with mont.cuh) builds as CUDA device code, PTX for sm_90 (Hopper): no GPU needed."""
     out = tmp_path / "render.ptx"
-    run = subprocess.run(["nvcc", "-ptx", "-arch=sm_90", "-x", "cu", str(launch_module.RENDER_SOURCE), "-o", str(out)],
-                         capture_output=True, text=True, timeout=300, check=False)
+    run = subprocess.run(
+        ["nvcc", "-ptx", "-arch=sm_90", "-x", "cu", str(launch_module.RENDER_SOURCE), "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     ptx = out.read_text()
-    for kernel in ("k_records_to_limbs", "k_limbs_to_records", "k_out_of_range", "k_mont_convert", "k_ray_powers",
-                   "k_ray_tasks", "k_segments", "k_combine", "k_pack", "k_mont_mul"):
+    for kernel in (
+        "k_records_to_limbs",
+        "k_limbs_to_records",
+        "k_out_of_range",
+        "k_mont_convert",
+        "k_ray_powers",
+        "k_ray_tasks",
+        "k_segments",
+        "k_combine",
+        "k_pack",
+        "k_mont_mul",
+    ):
         assert f".entry {kernel}(" in ptx, kernel
-    run = subprocess.run(["nvcc", "-ptx", "-arch=sm_90", "-x", "cu", str(launch_module.OWNER_SOURCE), "-o", str(out)],
-                         capture_output=True, text=True, timeout=300, check=False)
+    run = subprocess.run(
+        ["nvcc", "-ptx", "-arch=sm_90", "-x", "cu", str(launch_module.OWNER_SOURCE), "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     assert all(f".entry {k}(" in out.read_text() for k in ("k_owner_encrypt", "k_public_encrypt", "k_decrypt"))
 

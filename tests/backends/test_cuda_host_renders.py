@@ -33,8 +33,18 @@ def scene(tmp_path_factory, keypair256):
     d = tmp_path_factory.mktemp("cuda-host")
     vol = np.random.default_rng(5).integers(-200, 900, SHAPE).astype(np.int16)
     with dask.config.set(scheduler="sync"):
-        ev = hevr.encrypt_volume(vol, d / "v.zarr", priv, brick=BRICK, spacing=SPACING, vector_dims=3, gradient=True,
-                                 value_range=(-200, 900), backend=KERNELS, progress=False)
+        ev = hevr.encrypt_volume(
+            vol,
+            d / "v.zarr",
+            priv,
+            brick=BRICK,
+            spacing=SPACING,
+            vector_dims=3,
+            gradient=True,
+            value_range=(-200, 900),
+            backend=KERNELS,
+            progress=False,
+        )
     shutil.copytree(d / "v.zarr", d / "w.zarr")
     with dask.config.set(scheduler="sync"):
         ev = build_pyramid(ev, 1, backend="cpu", progress=False)
@@ -46,12 +56,14 @@ def scene(tmp_path_factory, keypair256):
 def calls(monkeypatch):
     """Counts the kernel backend's operations (so a test sees that cuda-host did the work)."""
     seen: dict[str, int] = {}
+
     def counting(op: str):
         fn = getattr(KernelBackend, op)
 
         def spy(self, *a, **kw):
             seen[op] = seen.get(op, 0) + 1
             return fn(self, *a, **kw)
+
         return spy
 
     for op in ("ray_products", "segment_products", "combine", "pack", "decrypt", "first_out_of_range"):
@@ -85,8 +97,9 @@ def test_renders_are_byte_identical(scene, calls, mode, sampling, finish):
     assert calls["ray_products"] >= 4 and calls["segment_products"] and calls["pack"] and calls["decrypt"]
     assert calls.get("combine", 0) == (finish == "server" and mode != "xray")
     np.testing.assert_array_equal(got, a.decrypt(priv, backend="cpu"))
-    ref = hevr.render_plain(vol, cam, mode=mode, sampling=sampling, spacing=SPACING, vector_dims=3,
-                            value_range=(-200, 900), **KW[mode])
+    ref = hevr.render_plain(
+        vol, cam, mode=mode, sampling=sampling, spacing=SPACING, vector_dims=3, value_range=(-200, 900), **KW[mode]
+    )
     assert np.all(np.abs(got - ref) <= hevr.error_bound(ev, cam, mode, sampling, finish=finish, **KW[mode]))
     assert np.count_nonzero(ref) > 5
 
@@ -95,10 +108,21 @@ def test_renders_are_byte_identical(scene, calls, mode, sampling, finish):
 def test_a_slice_a_level_and_the_gradient(scene, finish):
     ev, _, cam, priv, _ = scene
     plane = hevr.Plane.oblique(ev, normal=(0.3, -1, 0.5), width=8, height=7, slab=3, slab_step=0.7)
-    for fn in (lambda backend: hevr.render_slice(ev, plane, mode="tf", nodes=NODES, sampling="trilinear", progress=False,
-                                                 cache=False, backend=backend, finish=finish),
-               _render(ev, cam, mode="emphasize", density=0.4, level=1, finish=finish),
-               _render(ev, cam, mode="tf", nodes=NODES, sampling="trilinear", gradient=True, finish=finish)):
+    for fn in (
+        lambda backend: hevr.render_slice(
+            ev,
+            plane,
+            mode="tf",
+            nodes=NODES,
+            sampling="trilinear",
+            progress=False,
+            cache=False,
+            backend=backend,
+            finish=finish,
+        ),
+        _render(ev, cam, mode="emphasize", density=0.4, level=1, finish=finish),
+        _render(ev, cam, mode="tf", nodes=NODES, sampling="trilinear", gradient=True, finish=finish),
+    ):
         a, b = _pair(fn)
         _same_image(a, b)
         np.testing.assert_array_equal(a.decrypt(priv), b.decrypt(priv, backend=KERNELS))
@@ -119,8 +143,11 @@ def test_recolour_and_resident_bricks(scene, tmp_path):
     path = tmp_path / "view.hevrsums"
     with dask.config.set(scheduler="sync"):
         hevr.render(ev, cam, mode="tf", nodes=NODES, keep_sums=path, cache=False, progress=False, backend=KERNELS)
-    a, b = _pair(lambda backend: hevr.recolour(path, mode="emphasize", density=0.3, progress=False, backend=backend,
-                                               finish="server"))
+    a, b = _pair(
+        lambda backend: hevr.recolour(
+            path, mode="emphasize", density=0.3, progress=False, backend=backend, finish="server"
+        )
+    )
     _same_image(a, b)
     resident = hevr.open_volume(ev.path).persist(backend=KERNELS)
     brick = next(iter(resident.resident.bricks.values()))

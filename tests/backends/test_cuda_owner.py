@@ -40,6 +40,8 @@ def _keyholder_kernels(monkeypatch):
     """On a device these kernels are off by default (device.py); here they are the subject, for this
     module's tests only (the other kernel suites run the shipped setting)."""
     monkeypatch.setattr(BE._launch, "keyholder", True)
+
+
 EDGES = np.array([0, 1, -1, 2, -2, 12345, -(2**31), 2**40, -(2**40), 2**62, 2**63 - 1, -(2**63)], np.int64)
 
 
@@ -126,9 +128,13 @@ def test_what_the_kernel_does_not_take_goes_the_cpu_way(keypair256, monkeypatch)
         real = getattr(backend_module, name)
         monkeypatch.setattr(backend_module, name, lambda *a, _real=real, _name=name: calls.append(_name) or _real(*a))
     big = np.array([2**80, -(2**90), 3], dtype=object)  # beyond int64
-    for key, values, kw, path in ((priv, big, {}, ["owner_limbs"]), (pub, big, {}, ["public_limbs"]),
-                                  (priv, EDGES[:4], {"unsafe_no_obfuscation": True}, []),
-                                  (priv, EDGES[:4], {}, ["owner_limbs"]), (pub, EDGES[:4], {}, ["public_limbs"])):
+    for key, values, kw, path in (
+        (priv, big, {}, ["owner_limbs"]),
+        (pub, big, {}, ["public_limbs"]),
+        (priv, EDGES[:4], {"unsafe_no_obfuscation": True}, []),
+        (priv, EDGES[:4], {}, ["owner_limbs"]),
+        (pub, EDGES[:4], {}, ["public_limbs"]),
+    ):
         calls.clear()
         cts = BE.encrypt(key, values, **kw)
         assert calls == path and BE.decrypt(priv, cts) == [int(v) % int(pub.n) for v in values.tolist()]

@@ -15,8 +15,7 @@ from pathlib import Path
 import dask
 import pytest
 
-from hevr import MissingDependencyError
-from hevr import backends
+from hevr import MissingDependencyError, backends
 from hevr.backends.cuda import host as host_module
 from hevr.backends.cuda import kernel_cache
 
@@ -64,11 +63,18 @@ def test_a_truncated_cached_library_is_rebuilt_not_loaded(tmpdir_cache, tmp_path
     (lib,) = folder.glob("answer-*.so")
     assert lib.with_suffix(".sha256").read_text().strip() == __import__("hashlib").sha256(lib.read_bytes()).hexdigest()
     _damage(lib, lib.read_bytes()[: lib.stat().st_size // 2])
-    code = ("import sys, tempfile; tempfile.gettempdir = lambda: sys.argv[1]\n"
-            "from pathlib import Path\nfrom hevr.backends.cuda import host\n"
-            "print(host.build_library(Path(sys.argv[2])).hevr_answer())")
-    run = subprocess.run([sys.executable, "-c", code, str(tmp_path), str(src)], capture_output=True, text=True,
-                         timeout=120, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    code = (
+        "import sys, tempfile; tempfile.gettempdir = lambda: sys.argv[1]\n"
+        "from pathlib import Path\nfrom hevr.backends.cuda import host\n"
+        "print(host.build_library(Path(sys.argv[2])).hevr_answer())"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path), str(src)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )
     assert run.returncode == 0, (run.returncode, run.stderr[-2000:])
     assert run.stdout.strip() == "42"
     assert lib.stat().st_size > 0 and kernel_cache._intact(lib)  # rebuilt in place, intact again
@@ -87,17 +93,24 @@ def test_a_cached_library_without_its_digest_is_rebuilt(tmpdir_cache):
 def test_a_compiler_that_writes_nothing_is_named(tmpdir_cache, tmp_path):
     folder, src = tmpdir_cache
     cc = _script(tmp_path, "silent-cc", "exit 0\n")
-    with pytest.raises(MissingDependencyError, match=r"compiler: expected .*silent-cc to write a library for "
-                                                     r"answer\.c, it exited 0 without one"):
+    with pytest.raises(
+        MissingDependencyError,
+        match=r"compiler: expected .*silent-cc to write a library for "
+        r"answer\.c, it exited 0 without one",
+    ):
         _build(src, cc)
 
 
 def test_a_compiler_that_writes_garbage_leaves_nothing_cached(tmpdir_cache, tmp_path):
     folder, src = tmpdir_cache
-    cc = _script(tmp_path, "garbage-cc", """\
+    cc = _script(
+        tmp_path,
+        "garbage-cc",
+        """\
         while [ "$1" != "-o" ]; do shift; done
         echo garbage > "$2"
-        """)
+        """,
+    )
     with pytest.raises(MissingDependencyError, match="compiler: expected a loadable library from .*garbage-cc"):
         _build(src, cc)
     assert list(folder.iterdir()) == []  # the garbage does not stay cached
@@ -162,16 +175,23 @@ def _alive(pid: int) -> bool:
 def test_a_stuck_compiler_is_stopped_with_its_children(tmpdir_cache, tmp_path):
     folder, src = tmpdir_cache
     pids = tmp_path / "pids"
-    cc = _script(tmp_path, "stuck-cc", f"""\
+    cc = _script(
+        tmp_path,
+        "stuck-cc",
+        f"""\
         sleep 600 &
         echo $! >> {pids}
         echo $$ >> {pids}
         exec sleep 600
-        """)
+        """,
+    )
     start = time.monotonic()
     with dask.config.set({"hevr.limits.compile-seconds": 1}):
-        with pytest.raises(MissingDependencyError, match=r"compiler: expected .*stuck-cc to build answer\.c within "
-                                                         r"1 s \(hevr\.limits\.compile-seconds\)"):
+        with pytest.raises(
+            MissingDependencyError,
+            match=r"compiler: expected .*stuck-cc to build answer\.c within "
+            r"1 s \(hevr\.limits\.compile-seconds\)",
+        ):
             _build(src, cc)
     assert time.monotonic() - start < 30
     listed = [int(p) for p in pids.read_text().split()]

@@ -71,6 +71,7 @@ def calls(monkeypatch):
         def spy(self, *a, **kw):
             seen[op] = seen.get(op, 0) + 1
             return fn(self, *a, **kw)
+
         return spy
 
     for op in ("ray_products", "segment_products", "pack", "concat", "_fallback"):
@@ -106,7 +107,7 @@ def _check_frames(ev, vol, priv, backend: str, views, resident=None) -> list[int
             arr = ref.decrypt(priv)
             plain = hevr.render_plain(vol, cam, sampling=sampling, spacing=SPACING, slices=True)
             assert (np.abs(arr - plain) <= hevr.error_bound(ev, cam, sampling=sampling)).all() and plain.max() > 10
-            for volume in ((ev,) if resident is None else (ev, resident, resident)):  # resident: twice (converted once)
+            for volume in (ev,) if resident is None else (ev, resident, resident):  # resident: twice (converted once)
                 img = _render(volume, cam, sampling, backend)
                 assert img.stats["backend"] == backend and img.stats["resident"] == (volume is resident)
                 _same(ref, img)

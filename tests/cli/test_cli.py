@@ -53,8 +53,19 @@ def work(tmp_path_factory):
 
     key = d / "key.json"
     call("keygen", "--bits", "256", "--out", key)
-    call("encrypt", "phantom:12", "--key", d / "key.pub.json", "--out", d / "vol.zarr", "--brick", "5",
-         "--vector-dims", "4", "-q")
+    call(
+        "encrypt",
+        "phantom:12",
+        "--key",
+        d / "key.pub.json",
+        "--out",
+        d / "vol.zarr",
+        "--brick",
+        "5",
+        "--vector-dims",
+        "4",
+        "-q",
+    )
     common = ["--azimuth", AZ, "--elevation", EL, "--size", f"{W}x{H}", "-q"]
     # a store made with the public key has no tags: the key holder (whose new key requires them) accepts it once
     call("render", d / "vol.zarr", "--out", d / "accept.hevr", "--key", key, "--trust-store", "--untagged", *common)
@@ -96,15 +107,30 @@ def test_encrypt_reports_path(work, capsys):
     # exists -> refused; --overwrite replaces it
     code, out, err = run(capsys, "encrypt", "phantom:6", "--key", d / "key.json", "--out", d / "small.zarr", "-q")
     assert code == 2 and "--overwrite" in err_lines(err)[-1]
-    code, out, err = run(capsys, "encrypt", "phantom:6", "--key", d / "key.json", "--out", d / "small.zarr",
-                         "--overwrite", "--no-scalar", "--vector-dims", "3", "-q")
+    code, out, err = run(
+        capsys,
+        "encrypt",
+        "phantom:6",
+        "--key",
+        d / "key.json",
+        "--out",
+        d / "small.zarr",
+        "--overwrite",
+        "--no-scalar",
+        "--vector-dims",
+        "3",
+        "-q",
+    )
     assert code == 0 and hevr.open_volume(d / "small.zarr").vector_dims == 3
 
 
-@pytest.mark.parametrize("name, mode, kw", [
-    ("xray", "xray", {}),
-    ("tf", "tf", {"nodes": [(0.279, "#0000ff"), (0.797, "red")]}),
-])
+@pytest.mark.parametrize(
+    "name, mode, kw",
+    [
+        ("xray", "xray", {}),
+        ("tf", "tf", {"nodes": [(0.279, "#0000ff"), (0.797, "red")]}),
+    ],
+)
 def test_png_matches_plaintext_reference(work, name, mode, kw):
     d, _ = work
     vol = hevr.phantom(12)
@@ -135,8 +161,12 @@ def test_info_never_prints_secrets(work, capsys):
     priv = hevr.load_key(d / "key.json")
     fp = priv.fingerprint
     secrets = (str(priv.p), str(priv.q))
-    for path, what in [(d / "vol.zarr", "store"), (d / "tf.hevr", "image"), (d / "key.pub.json", "public key"),
-                       (d / "key.json", "private key")]:
+    for path, what in [
+        (d / "vol.zarr", "store"),
+        (d / "tf.hevr", "image"),
+        (d / "key.pub.json", "public key"),
+        (d / "key.json", "private key"),
+    ]:
         code, out, err = run(capsys, "info", path)
         assert code == 0, err
         assert fp in out and what in out
@@ -209,13 +239,21 @@ def test_mode_inference_and_tf_parsing():
 
 def test_demo_tiny(tmp_path, capsys):
     out_dir = tmp_path / "demo"
-    code, out, err = run(capsys, "demo", "--out", out_dir, "--size", "10", "--image", "12x12", "--bits", "256",
-                         "--workers", "1", "-q")
+    code, out, err = run(
+        capsys, "demo", "--out", out_dir, "--size", "10", "--image", "12x12", "--bits", "256", "--workers", "1", "-q"
+    )
     assert code == 0, err
     summary = json.loads((out_dir / "summary.json").read_text())
     names = [im["name"] for im in summary["images"]]
-    assert names == ["xray-nearest", "xray-trilinear", "emphasize-0.331", "emphasize-0.653", "emphasize-0.781",
-                     "tf1", "tf2"]
+    assert names == [
+        "xray-nearest",
+        "xray-trilinear",
+        "emphasize-0.331",
+        "emphasize-0.653",
+        "emphasize-0.781",
+        "tf1",
+        "tf2",
+    ]
     for im in summary["images"]:
         assert im["within_bound"] and im["max_abs_error"] < 0.05
         for f in (im["png"], im["reference_png"], im["frame"]):
@@ -227,8 +265,9 @@ def test_demo_tiny(tmp_path, capsys):
     assert "max|err|" in out and "keygen" in out and "encrypt" in out
     assert stat.S_IMODE((out_dir / "demo-key.json").stat().st_mode) == 0o600
     # run again into the same folder: the demo replaces its own run (key included)
-    code, out, err = run(capsys, "demo", "--out", out_dir, "--size", "6", "--image", "6x6", "--bits", "256",
-                         "--workers", "1", "-q")
+    code, out, err = run(
+        capsys, "demo", "--out", out_dir, "--size", "6", "--image", "6x6", "--bits", "256", "--workers", "1", "-q"
+    )
     assert code == 0, err
 
 
@@ -246,11 +285,17 @@ def _hevr_exe() -> list[str]:
 def test_console_script_subprocess(work):
     d, _ = work
     env = dict(os.environ, PYTHONWARNINGS="ignore")
-    r = subprocess.run(_hevr_exe() + ["info", str(d / "key.pub.json")], capture_output=True, text=True, env=env,
-                       timeout=60)
+    r = subprocess.run(
+        _hevr_exe() + ["info", str(d / "key.pub.json")], capture_output=True, text=True, env=env, timeout=60
+    )
     assert r.returncode == 0 and hevr.load_key(d / "key.pub.json").fingerprint in r.stdout
-    r = subprocess.run([sys.executable, "-m", "hevr", "render", str(d / "vol.zarr"), "--out", str(d / "y.hevr"),
-                        "--size", "10x10x10"], capture_output=True, text=True, env=env, timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-m", "hevr", "render", str(d / "vol.zarr"), "--out", str(d / "y.hevr"), "--size", "10x10x10"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+    )
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.count("\n") == 1 and r.stderr.startswith("hevr: error: argument --size")
 
@@ -265,12 +310,30 @@ def test_ct_xray_default_window_shows_the_object(tmp_path, capsys):
     np.save(tmp_path / "ct.npy", vol)
     key = tmp_path / "key.json"
     assert run(capsys, "keygen", "--bits", "256", "--out", key, "-q")[0] == 0
-    assert run(capsys, "encrypt", tmp_path / "ct.npy", "--key", key, "--out", tmp_path / "ct.zarr", "--brick", "6",
-               "-q")[0] == 0
-    assert run(capsys, "render", tmp_path / "ct.zarr", "--out", tmp_path / "x.hevr", "--mode", "xray",
-               "--size", "24x24", "-q")[0] == 0
-    code, out, err = run(capsys, "decrypt", tmp_path / "x.hevr", "--key", key, "--out", tmp_path / "x.png",
-                         "--npy", tmp_path / "x.npy")
+    assert (
+        run(capsys, "encrypt", tmp_path / "ct.npy", "--key", key, "--out", tmp_path / "ct.zarr", "--brick", "6", "-q")[
+            0
+        ]
+        == 0
+    )
+    assert (
+        run(
+            capsys,
+            "render",
+            tmp_path / "ct.zarr",
+            "--out",
+            tmp_path / "x.hevr",
+            "--mode",
+            "xray",
+            "--size",
+            "24x24",
+            "-q",
+        )[0]
+        == 0
+    )
+    code, out, err = run(
+        capsys, "decrypt", tmp_path / "x.hevr", "--key", key, "--out", tmp_path / "x.png", "--npy", tmp_path / "x.npy"
+    )
     assert code == 0, err
     values = np.load(tmp_path / "x.npy")
     hits = hevr.load_image(tmp_path / "x.hevr").hits
@@ -290,13 +353,15 @@ def test_names_that_are_not_utf8_work_from_the_command_line(tmp_path, capsys, mo
     import sys
 
     n = str(tmp_path / os.fsdecode(b"\xff"))
-    for argv in (["keygen", "--bits", "256", "--out", n + ".json", "-q"],
-                 ["encrypt", "phantom:8", "--key", n + ".json", "--out", n + ".zarr", "--brick", "4", "-q"],
-                 ["render", n + ".zarr", "--out", n + ".hevr", "--size", "6x6", "-q"],
-                 ["slice", n + ".zarr", "--out", n + ".s.hevr", "--coronal", "3", "-q"],
-                 ["decrypt", n + ".hevr", "--key", n + ".json", "--out", n + ".png", "--npy", n + ".npy", "-q"],
-                 ["decrypt", n + ".s.hevr", "--key", n + ".json", "-q"],
-                 ["info", n + ".zarr"]):
+    for argv in (
+        ["keygen", "--bits", "256", "--out", n + ".json", "-q"],
+        ["encrypt", "phantom:8", "--key", n + ".json", "--out", n + ".zarr", "--brick", "4", "-q"],
+        ["render", n + ".zarr", "--out", n + ".hevr", "--size", "6x6", "-q"],
+        ["slice", n + ".zarr", "--out", n + ".s.hevr", "--coronal", "3", "-q"],
+        ["decrypt", n + ".hevr", "--key", n + ".json", "--out", n + ".png", "--npy", n + ".npy", "-q"],
+        ["decrypt", n + ".s.hevr", "--key", n + ".json", "-q"],
+        ["info", n + ".zarr"],
+    ):
         raw = io.BytesIO()
         out = io.TextIOWrapper(raw, encoding="utf-8", errors="strict")  # a UTF-8 terminal's stdout
         monkeypatch.setattr(sys, "stdout", out)
@@ -307,8 +372,9 @@ def test_names_that_are_not_utf8_work_from_the_command_line(tmp_path, capsys, mo
         assert code == 0, (argv[0], err)
         assert os.fsencode(n) in raw.getvalue() and out.errors == "strict", raw.getvalue()  # its bytes; restored
     names = sorted(os.listdir(os.fsencode(str(tmp_path))))
-    assert names == sorted(b"\xff" + s for s in (b".json", b".pub.json", b".zarr", b".hevr", b".s.hevr", b".png",
-                                                 b".npy", b".s.png")), names
+    assert names == sorted(
+        b"\xff" + s for s in (b".json", b".pub.json", b".zarr", b".hevr", b".s.hevr", b".png", b".npy", b".s.png")
+    ), names
 
 
 @pytest.mark.parametrize("workers", [[], ["--workers", "2"]])
@@ -327,9 +393,28 @@ def test_ctrl_c_during_encrypt_is_one_line_soon_that_says_how_to_resume(tmp_path
     _h.generate_keypair(1024)[0].save(key)
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     # one brick of 40³ values: ~15 s of encryption at 1024 bits, interrupted after 1 s
-    proc = subprocess.Popen([sys.executable, "-m", "hevr", "encrypt", "phantom:40", "--key", str(key), "--out",
-                             str(tmp_path / "v.zarr"), "--brick", "40", *workers], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True, env=env, cwd=tmp_path)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "hevr",
+            "encrypt",
+            "phantom:40",
+            "--key",
+            str(key),
+            "--out",
+            str(tmp_path / "v.zarr"),
+            "--brick",
+            "40",
+            *workers,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env=env,
+        cwd=tmp_path,
+    )
     try:
         while "compute:" not in proc.stdout.readline():  # the cluster is up; the bricks are being encrypted
             assert proc.poll() is None, proc.stderr.read()
@@ -344,8 +429,10 @@ def test_ctrl_c_during_encrypt_is_one_line_soon_that_says_how_to_resume(tmp_path
     assert proc.returncode == 130, err
     progress = [line for line in err.splitlines() if line.startswith("hevr: INFO: encrypt: ")]
     assert progress, err  # off a terminal: its progress lines, then the one error line
-    assert [line for line in err.splitlines() if line not in progress] == [f"hevr: error: interrupted: {tmp_path / 'v.zarr'} is not finished; the bricks written "
-                                "are kept: run the same hevr encrypt command with --resume to encrypt the rest"], err
+    assert [line for line in err.splitlines() if line not in progress] == [
+        f"hevr: error: interrupted: {tmp_path / 'v.zarr'} is not finished; the bricks written "
+        "are kept: run the same hevr encrypt command with --resume to encrypt the rest"
+    ], err
     assert took < 5.0, took  # 1.2-1.3 s measured; before: 13 s (threads) and a page of tracebacks (workers)
     code, out, _ = run(capsys, "info", tmp_path / "v.zarr")
     assert code == 1 and "finish it with 'hevr encrypt … --resume'" in out and "resume=True" not in out
@@ -383,11 +470,13 @@ def test_one_brick_is_singular_and_resuming_a_complete_store_reports_no_rate(tmp
     """Issue 39, item 10: "1 bricks"; --resume on a complete store printed 5,992,941 ciphertexts/s."""
     key = tmp_path / "key.json"
     assert run(capsys, "keygen", "--bits", "256", "--out", key, "-q")[0] == 0
-    code, out, err = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "8",
-                         "-q")
+    code, out, err = run(
+        capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "8", "-q"
+    )
     assert code == 0 and "wrote " in out and ": 1 brick of" in out and "1 bricks" not in out, out
-    code, out, err = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "8",
-                         "--resume", "-q")
+    code, out, err = run(
+        capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "8", "--resume", "-q"
+    )
     assert code == 0, err
     assert "already complete (1 brick of" in out and "nothing was left to encrypt" in out
     assert "ciphertexts/s" not in out and "wrote" not in out

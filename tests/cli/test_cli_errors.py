@@ -39,7 +39,7 @@ def one_error_line(err: str) -> str:
     assert len(lines) == 1, err
     assert lines[0].startswith("hevr: error: "), err
     assert "Traceback" not in err
-    return lines[0][len("hevr: error: "):]
+    return lines[0][len("hevr: error: ") :]
 
 
 @pytest.fixture(scope="module")
@@ -52,14 +52,48 @@ def d(tmp_path_factory):
 
     ok("keygen", "--bits", "256", "--out", d / "key.json", "-q")
     ok("keygen", "--bits", "256", "--out", d / "other.json", "-q")
-    ok("encrypt", "phantom:8", "--key", d / "key.json", "--out", d / "vol.zarr", "--brick", "4",
-       "--vector-dims", "2", "-q")
+    ok(
+        "encrypt",
+        "phantom:8",
+        "--key",
+        d / "key.json",
+        "--out",
+        d / "vol.zarr",
+        "--brick",
+        "4",
+        "--vector-dims",
+        "2",
+        "-q",
+    )
     ok("encrypt", "phantom:8", "--key", d / "key.json", "--out", d / "scalar.zarr", "--brick", "4", "-q")
-    ok("encrypt", "phantom:8", "--key", d / "key.json", "--out", d / "vec.zarr", "--brick", "4", "--no-scalar",
-       "--vector-dims", "2", "-q")
+    ok(
+        "encrypt",
+        "phantom:8",
+        "--key",
+        d / "key.json",
+        "--out",
+        d / "vec.zarr",
+        "--brick",
+        "4",
+        "--no-scalar",
+        "--vector-dims",
+        "2",
+        "-q",
+    )
     ok("render", d / "vol.zarr", "--out", d / "f.hevr", "--size", "8x8", "-q")
-    ok("render", d / "vol.zarr", "--out", d / "t.hevr", "--size", "8x8", "--mode", "tf", "--keep-sums",
-       d / "v.hevrsums", "-q")
+    ok(
+        "render",
+        d / "vol.zarr",
+        "--out",
+        d / "t.hevr",
+        "--size",
+        "8x8",
+        "--mode",
+        "tf",
+        "--keep-sums",
+        d / "v.hevrsums",
+        "-q",
+    )
     ok("render", d / "vol.zarr", "--out", d / "xr.hevr", "--size", "8x8", "--keep-sums", d / "x.hevrsums", "-q")
     sums = bytearray((d / "v.hevrsums").read_bytes())
     sums[40] ^= 0x01
@@ -75,8 +109,9 @@ def d(tmp_path_factory):
     chunk = next(p for p in sorted((d / "corrupt.zarr" / "scalar" / "c").rglob("*")) if p.is_file())
     chunk.write_bytes(chunk.read_bytes()[:-7])  # truncated: the store's own chunk-size check fails
     shutil.copytree(d / "vol.zarr", d / "foreign.zarr")
-    (d / "foreign.zarr" / "zarr.json").write_text(json.dumps({"zarr_format": 3, "node_type": "group",
-                                                              "attributes": {}}))
+    (d / "foreign.zarr" / "zarr.json").write_text(
+        json.dumps({"zarr_format": 3, "node_type": "group", "attributes": {}})
+    )
     blob = bytearray((d / "f.hevr").read_bytes())
     blob[-5] ^= 0xFF
     (d / "tampered.hevr").write_bytes(bytes(blob))
@@ -92,7 +127,12 @@ CASES = [
     ("keygen-exists", ["keygen", "--bits", "256", "--out", "{d}/key.json"], 2, "--out"),
     ("keygen-no-dir", ["keygen", "--bits", "256", "--out", "{d}/nodir/k.json"], 2, "--out"),
     ("keygen-out-is-folder", ["keygen", "--bits", "256", "--out", "{d}/adir"], 2, "--out"),
-    ("keygen-bad-format", ["keygen", "--bits", "256", "--out", "{d}/k.json", "--format", "pem"], 2, "argument --format"),
+    (
+        "keygen-bad-format",
+        ["keygen", "--bits", "256", "--out", "{d}/k.json", "--format", "pem"],
+        2,
+        "argument --format",
+    ),
     # convert-key
     ("convert-missing-key", ["convert-key", "{d}/none.json", "--out", "{d}/k2.json"], 2, "KEY"),
     ("convert-garbage-key", ["convert-key", "{d}/bad.json", "--out", "{d}/k2.json"], 2, "KEY"),
@@ -107,8 +147,7 @@ CASES = [
     ("encrypt-phantom-text", [E, "phantom:x", "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr"], 2, "INPUT"),
     ("encrypt-missing-input", [E, "{d}/none.npy", "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr"], 2, "INPUT"),
     ("encrypt-unknown-input", [E, "{d}/notes.txt", "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr"], 2, "INPUT"),
-    ("encrypt-garbage-input", [E, "{d}/garbage.npy", "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr"], 2,
-     "INPUT"),
+    ("encrypt-garbage-input", [E, "{d}/garbage.npy", "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr"], 2, "INPUT"),
     ("encrypt-2d-input", [E, "{d}/v2d.npy", "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr"], 2, "INPUT"),
     ("encrypt-empty-folder", [E, "{d}/adir", "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr"], 2, "INPUT"),
     # encrypt: the key
@@ -116,43 +155,101 @@ CASES = [
     ("encrypt-garbage-key", [E, P8, "--key", "{d}/bad.json", "--out", "{d}/x.zarr"], 2, "--key"),
     ("encrypt-json-not-key", [E, P8, "--key", "{d}/plain.json", "--out", "{d}/x.zarr"], 2, "--key"),
     ("encrypt-key-is-folder", [E, P8, "--key", "{d}/adir", "--out", "{d}/x.zarr"], 2, "--key"),
-    ("encrypt-no-trust-scheduler", [E, P8, "--key", "{d}/key.json", "--out", "{d}/x.zarr", "--scheduler",
-                                    "tcp://127.0.0.1:1"], 2, "--key"),
-    ("encrypt-resume-other-key", [E, P8, "--key", "{d}/other.pub.json", "--out", "{d}/vol.zarr", "--resume",
-                                  "--brick", "4", "--vector-dims", "2"], 2, "--key"),
+    (
+        "encrypt-no-trust-scheduler",
+        [E, P8, "--key", "{d}/key.json", "--out", "{d}/x.zarr", "--scheduler", "tcp://127.0.0.1:1"],
+        2,
+        "--key",
+    ),
+    (
+        "encrypt-resume-other-key",
+        [
+            E,
+            P8,
+            "--key",
+            "{d}/other.pub.json",
+            "--out",
+            "{d}/vol.zarr",
+            "--resume",
+            "--brick",
+            "4",
+            "--vector-dims",
+            "2",
+        ],
+        2,
+        "--key",
+    ),
     # encrypt: the store and the options
     ("encrypt-exists", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/vol.zarr"], 2, "--out"),
-    ("encrypt-out-is-file", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/notes.txt", "--overwrite"], 2,
-     "--out"),
+    ("encrypt-out-is-file", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/notes.txt", "--overwrite"], 2, "--out"),
     ("encrypt-no-dir", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/nodir/x.zarr"], 2, "--out"),
-    ("encrypt-resume-missing", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr", "--resume"], 2,
-     "--resume"),
-    ("encrypt-resume-overwrite", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/vol.zarr", "--resume",
-                                  "--overwrite"], 2, "--resume"),
-    ("encrypt-resume-other-brick", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/vol.zarr", "--resume",
-                                    "--brick", "3", "--vector-dims", "2"], 2, "--brick"),
-    ("encrypt-no-channel", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr", "--no-scalar"], 2,
-     "--no-scalar"),
+    ("encrypt-resume-missing", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr", "--resume"], 2, "--resume"),
+    (
+        "encrypt-resume-overwrite",
+        [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/vol.zarr", "--resume", "--overwrite"],
+        2,
+        "--resume",
+    ),
+    (
+        "encrypt-resume-other-brick",
+        [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/vol.zarr", "--resume", "--brick", "3", "--vector-dims", "2"],
+        2,
+        "--brick",
+    ),
+    (
+        "encrypt-no-channel",
+        [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr", "--no-scalar"],
+        2,
+        "--no-scalar",
+    ),
     ("encrypt-bad-brick", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr", "--brick", "0"], 2, "--brick"),
-    ("encrypt-bad-spacing", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr", "--spacing", "1,1"], 2,
-     "--spacing"),
-    ("encrypt-bad-range", [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr", "--value-range", "1,0"], 2,
-     "--value-range"),
+    (
+        "encrypt-bad-spacing",
+        [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr", "--spacing", "1,1"],
+        2,
+        "--spacing",
+    ),
+    (
+        "encrypt-bad-range",
+        [E, P8, "--key", "{d}/key.pub.json", "--out", "{d}/x.zarr", "--value-range", "1,0"],
+        2,
+        "--value-range",
+    ),
     # render --keep-sums and recolour
-    ("render-keep-sums-folder", [R, "{d}/vol.zarr", "--out", "{d}/y.hevr", "--size", "8x8", "--keep-sums",
-                                 "{d}/adir"], 2, "--keep-sums"),
+    (
+        "render-keep-sums-folder",
+        [R, "{d}/vol.zarr", "--out", "{d}/y.hevr", "--size", "8x8", "--keep-sums", "{d}/adir"],
+        2,
+        "--keep-sums",
+    ),
     ("recolour-missing-sums", ["recolour", "{d}/none.hevrsums", "--out", "{d}/y.hevr"], 2, "SUMS"),
     ("recolour-not-sums", ["recolour", "{d}/notes.txt", "--out", "{d}/y.hevr"], 2, "SUMS"),
     ("recolour-sums-is-folder", ["recolour", "{d}/adir", "--out", "{d}/y.hevr"], 2, "SUMS"),
     ("recolour-tampered-sums", ["recolour", "{d}/tampered.hevrsums", "--out", "{d}/y.hevr"], 1, "SUMS"),
-    ("recolour-tf-on-xray-sums", ["recolour", "{d}/x.hevrsums", "--out", "{d}/y.hevr", "--tf", "0.5:red"], 2,
-     "--mode tf"),
-    ("recolour-xray-on-vector-sums", ["recolour", "{d}/v.hevrsums", "--out", "{d}/y.hevr", "--mode", "xray"], 2,
-     "--mode xray"),
-    ("recolour-density-with-tf", ["recolour", "{d}/v.hevrsums", "--out", "{d}/y.hevr", "--mode", "tf",
-                                  "--density", "0.5"], 2, "--density"),
-    ("recolour-duplicate-tf", ["recolour", "{d}/v.hevrsums", "--out", "{d}/y.hevr", "--tf", "0.5:red,0.5:blue"], 2,
-     "argument --tf"),
+    (
+        "recolour-tf-on-xray-sums",
+        ["recolour", "{d}/x.hevrsums", "--out", "{d}/y.hevr", "--tf", "0.5:red"],
+        2,
+        "--mode tf",
+    ),
+    (
+        "recolour-xray-on-vector-sums",
+        ["recolour", "{d}/v.hevrsums", "--out", "{d}/y.hevr", "--mode", "xray"],
+        2,
+        "--mode xray",
+    ),
+    (
+        "recolour-density-with-tf",
+        ["recolour", "{d}/v.hevrsums", "--out", "{d}/y.hevr", "--mode", "tf", "--density", "0.5"],
+        2,
+        "--density",
+    ),
+    (
+        "recolour-duplicate-tf",
+        ["recolour", "{d}/v.hevrsums", "--out", "{d}/y.hevr", "--tf", "0.5:red,0.5:blue"],
+        2,
+        "argument --tf",
+    ),
     ("recolour-out-is-folder", ["recolour", "{d}/v.hevrsums", "--out", "{d}/adir"], 2, "--out"),
     # render: the store
     ("render-missing-store", [R, "{d}/missing.zarr", "--out", "{d}/x.hevr", "--size", "8x8"], 2, "STORE"),
@@ -160,23 +257,33 @@ CASES = [
     ("render-store-empty-folder", [R, "{d}/adir", "--out", "{d}/x.hevr", "--size", "8x8"], 2, "STORE"),
     ("render-foreign-zarr", [R, "{d}/foreign.zarr", "--out", "{d}/x.hevr", "--size", "8x8"], 2, "STORE"),
     ("render-corrupt-store", [R, "{d}/corrupt.zarr", "--out", "{d}/x.hevr", "--size", "8x8"], 1, "STORE"),
-    ("render-tf-without-vector", [R, "{d}/scalar.zarr", "--out", "{d}/x.hevr", "--size", "8x8", "--mode", "tf"], 2,
-     "--mode"),
-    ("render-density-without-vector", [R, "{d}/scalar.zarr", "--out", "{d}/x.hevr", "--size", "8x8", "--density",
-                                       "0.5"], 2, "--mode"),
+    (
+        "render-tf-without-vector",
+        [R, "{d}/scalar.zarr", "--out", "{d}/x.hevr", "--size", "8x8", "--mode", "tf"],
+        2,
+        "--mode",
+    ),
+    (
+        "render-density-without-vector",
+        [R, "{d}/scalar.zarr", "--out", "{d}/x.hevr", "--size", "8x8", "--density", "0.5"],
+        2,
+        "--mode",
+    ),
     ("render-xray-without-scalar", [R, "{d}/vec.zarr", "--out", "{d}/x.hevr", "--size", "8x8"], 2, "--mode"),
     # render: options
-    ("render-density-with-xray", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--mode", "xray", "--density", "0.5"],
-     2, "--density"),
+    (
+        "render-density-with-xray",
+        [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--mode", "xray", "--density", "0.5"],
+        2,
+        "--density",
+    ),
     ("render-emphasize-no-density", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--mode", "emphasize"], 2, "--mode"),
-    ("render-tf-with-xray", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--mode", "xray", "--tf", "0.5:red"], 2,
-     "--tf"),
+    ("render-tf-with-xray", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--mode", "xray", "--tf", "0.5:red"], 2, "--tf"),
     ("render-bad-tf", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--tf", "0.5-red"], 2, "--tf"),
     ("render-tf-colour", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--tf", "0.5:notacolour"], 2, "--tf"),
     ("render-tf-density", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--tf", "1.5:red"], 2, "--tf"),
     ("render-tf-duplicate", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--tf", "0.5:red,0.5:blue"], 2, "--tf"),
-    ("render-planner-step", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--size", "8x8", "--step", "1e-9"], 2,
-     "--step"),
+    ("render-planner-step", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--size", "8x8", "--step", "1e-9"], 2, "--step"),
     ("render-precision", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--precision", "40"], 2, "--precision"),
     ("render-bad-size", [R, "{d}/vol.zarr", "--out", "{d}/x.hevr", "--size", "0x5"], 2, "--size"),
     ("render-out-is-folder", [R, "{d}/vol.zarr", "--out", "{d}/adir", "--size", "8x8"], 2, "--out"),
@@ -193,8 +300,12 @@ CASES = [
     ("decrypt-garbage-key", [DE, "{d}/f.hevr", "--key", "{d}/bad.json"], 2, "--key"),
     ("decrypt-out-is-folder", [DE, "{d}/f.hevr", "--key", "{d}/key.json", "--out", "{d}/adir"], 2, "--out"),
     ("decrypt-out-not-png", [DE, "{d}/f.hevr", "--key", "{d}/key.json", "--out", "{d}/x.txt"], 2, "--out"),
-    ("decrypt-npy-no-dir", [DE, "{d}/f.hevr", "--key", "{d}/key.json", "--out", "{d}/x.png", "--npy",
-                            "{d}/nodir/x.npy"], 2, "--npy"),
+    (
+        "decrypt-npy-no-dir",
+        [DE, "{d}/f.hevr", "--key", "{d}/key.json", "--out", "{d}/x.png", "--npy", "{d}/nodir/x.npy"],
+        2,
+        "--npy",
+    ),
     ("decrypt-bad-window", [DE, "{d}/f.hevr", "--key", "{d}/key.json", "--window", "1,0"], 2, "--window"),
     # info
     ("info-missing", [I, "{d}/nothing-here"], 2, "PATH"),
@@ -244,7 +355,11 @@ def test_the_failed_commands_left_the_fixtures_alone(d):
     """The refused runs above wrote nothing: the stores, the frame and the keys still work."""
     assert hevr.open_volume(d / "vol.zarr").shape == (8, 8, 8)
     assert not (d / "x.zarr").exists() and not (d / "x.hevr").exists() and not (d / "new.zarr").exists()
-    assert not (d / "y.hevr").exists() and not (d / "k2.json").exists() and hevr.load_sums(d / "v.hevrsums").channel == "vector"
+    assert (
+        not (d / "y.hevr").exists()
+        and not (d / "k2.json").exists()
+        and hevr.load_sums(d / "v.hevrsums").channel == "vector"
+    )
     assert hevr.load_key(d / "key.json").fingerprint == hevr.load_key(d / "key.pub.json").fingerprint
 
 
@@ -254,10 +369,13 @@ def test_decrypt_public_key_message(d, capsys):
     assert one_error_line(err) == f"--key: expected a private key file, got a public key ({d / 'key.pub.json'})"
 
 
-@pytest.mark.parametrize("argv, code, needle", [
-    ([], 2, "a command is required"),
-    (["frobnicate"], 2, "invalid choice"),
-])
+@pytest.mark.parametrize(
+    "argv, code, needle",
+    [
+        ([], 2, "a command is required"),
+        (["frobnicate"], 2, "invalid choice"),
+    ],
+)
 def test_no_or_unknown_command(capsys, argv, code, needle):
     got, _, err = run(capsys, *argv)
     assert got == code and needle in one_error_line(err)
@@ -268,8 +386,17 @@ def test_unreachable_scheduler_is_a_run_failure(d, capsys, monkeypatch):
         raise OSError("connection refused")
 
     monkeypatch.setattr(cli_cluster, "Client", refuse)
-    code, _, err = run(capsys, "encrypt", "phantom:8", "--key", d / "key.pub.json", "--out", d / "s.zarr",
-                       "--scheduler", "tcp://127.0.0.1:1")
+    code, _, err = run(
+        capsys,
+        "encrypt",
+        "phantom:8",
+        "--key",
+        d / "key.pub.json",
+        "--out",
+        d / "s.zarr",
+        "--scheduler",
+        "tcp://127.0.0.1:1",
+    )
     msg = one_error_line(err)
     assert code == 1 and msg.startswith("--scheduler: cannot connect") and "connection refused" in msg
 
@@ -287,44 +414,70 @@ def test_crashed_worker_then_incomplete_store(d, capsys, monkeypatch, tmp_path):
 
     monkeypatch.setattr(writer_mod, "_encrypt_brick", flaky)
     store = tmp_path / "half.zarr"
-    code, _, err = run(capsys, "encrypt", "phantom:8", "--key", d / "key.json", "--out", store, "--brick", "4",
-                       "--workers", "0", "-q")
+    code, _, err = run(
+        capsys, "encrypt", "phantom:8", "--key", d / "key.json", "--out", store, "--brick", "4", "--workers", "0", "-q"
+    )
     msg = one_error_line(err)
     assert code == 1 and "worker died" in msg and "--verbose" in msg
     monkeypatch.setattr(writer_mod, "_encrypt_brick", real)
     code, _, err = run(capsys, "render", store, "--out", tmp_path / "x.hevr", "--size", "8x8")
     msg = one_error_line(err)
     assert code == 1 and msg.startswith("STORE: ") and "incomplete" in msg and "--resume" in msg
-    code, _, err = run(capsys, "encrypt", "phantom:8", "--key", d / "key.json", "--out", store, "--brick", "4",
-                       "--resume", "-q")
+    code, _, err = run(
+        capsys, "encrypt", "phantom:8", "--key", d / "key.json", "--out", store, "--brick", "4", "--resume", "-q"
+    )
     assert code == 0, err
 
 
-@pytest.mark.parametrize("exc, code", [
-    (hevr.ParameterError("x"), 2), (hevr.MissingFileError("key", "a key file", "k.json"), 2),
-    (hevr.ExistingFileError("path", "k.json"), 2), (hevr.StoreExistsError("x"), 2), (hevr.KeyMismatchError("x"), 2),
-    (hevr.RenderPlanError("x"), 2), (hevr.InvalidKeyError("x"), 2), (hevr.VolumeFormatError("x"), 2),
-    (cli_util.UsageError("x"), 2),
-    (hevr.CorruptStoreError("x"), 1), (hevr.IntegrityError("x"), 1), (hevr.IncompleteStoreError("x"), 1),
-    (hevr.PlaintextOverflowError("x"), 1), (hevr.MissingDependencyError("x"), 1), (hevr.MemoryLimitError("x"), 1),
-    (OSError(28, "No space left on device", "x"), 1), (RuntimeError("x"), 1), (KeyboardInterrupt(), 130),
-])
+@pytest.mark.parametrize(
+    "exc, code",
+    [
+        (hevr.ParameterError("x"), 2),
+        (hevr.MissingFileError("key", "a key file", "k.json"), 2),
+        (hevr.ExistingFileError("path", "k.json"), 2),
+        (hevr.StoreExistsError("x"), 2),
+        (hevr.KeyMismatchError("x"), 2),
+        (hevr.RenderPlanError("x"), 2),
+        (hevr.InvalidKeyError("x"), 2),
+        (hevr.VolumeFormatError("x"), 2),
+        (cli_util.UsageError("x"), 2),
+        (hevr.CorruptStoreError("x"), 1),
+        (hevr.IntegrityError("x"), 1),
+        (hevr.IncompleteStoreError("x"), 1),
+        (hevr.PlaintextOverflowError("x"), 1),
+        (hevr.MissingDependencyError("x"), 1),
+        (hevr.MemoryLimitError("x"), 1),
+        (OSError(28, "No space left on device", "x"), 1),
+        (RuntimeError("x"), 1),
+        (KeyboardInterrupt(), 130),
+    ],
+)
 def test_exit_status_by_error_class(exc, code):
     assert exits.exit_code(exc) == code
 
 
-@pytest.mark.parametrize("command, text, want", [
-    ("encrypt", "vol: expected a 3-D array", "INPUT: expected a 3-D array"),
-    ("encrypt", "private_key: expected a key", "--key: expected a key"),
-    ("encrypt", "scalar/vector_dims: expected at least one channel", "--no-scalar, --vector-dims: expected at least"),
-    ("render", "width, height: expected at most", "--size: expected at most"),
-    ("render", "nodes[1]: expected a colour", "--tf: expected a colour"),
-    ("render", "ev: expected an EncryptedVolume", "STORE: expected an EncryptedVolume"),
-    ("decrypt", "private_key: the image was encrypted under key", "--key: the image was encrypted under key"),
-    ("upgrade-store", "dst: x already exists", "NEW: x already exists"),
-    ("keygen", "path: expected no file at k.json (pass overwrite=True to replace it), found one",
-     "--out: expected no file at k.json (pass --force to replace it), found one"),
-])
+@pytest.mark.parametrize(
+    "command, text, want",
+    [
+        ("encrypt", "vol: expected a 3-D array", "INPUT: expected a 3-D array"),
+        ("encrypt", "private_key: expected a key", "--key: expected a key"),
+        (
+            "encrypt",
+            "scalar/vector_dims: expected at least one channel",
+            "--no-scalar, --vector-dims: expected at least",
+        ),
+        ("render", "width, height: expected at most", "--size: expected at most"),
+        ("render", "nodes[1]: expected a colour", "--tf: expected a colour"),
+        ("render", "ev: expected an EncryptedVolume", "STORE: expected an EncryptedVolume"),
+        ("decrypt", "private_key: the image was encrypted under key", "--key: the image was encrypted under key"),
+        ("upgrade-store", "dst: x already exists", "NEW: x already exists"),
+        (
+            "keygen",
+            "path: expected no file at k.json (pass overwrite=True to replace it), found one",
+            "--out: expected no file at k.json (pass --force to replace it), found one",
+        ),
+    ],
+)
 def test_python_names_become_cli_words(command, text, want):
     class Args:
         pass
@@ -348,8 +501,20 @@ def test_every_command_prints_the_same_axis_order(tmp_path, d, capsys):
     says x×y×z = 6×5×4 and x, y, z = 1, 2, 3; images say W×H."""
     np.save(tmp_path / "v.npy", np.arange(120, dtype=np.uint8).reshape(4, 5, 6))
     size, spacing, brick = "x×y×z = 6×5×4", "x, y, z = 1, 2, 3", "x×y×z = 4×3×2"
-    code, enc, err = run(capsys, "encrypt", tmp_path / "v.npy", "--key", d / "key.json", "--out", tmp_path / "v.zarr",
-                         "--spacing", "1,2,3", "--brick", "2,3,4", "-q")
+    code, enc, err = run(
+        capsys,
+        "encrypt",
+        tmp_path / "v.npy",
+        "--key",
+        d / "key.json",
+        "--out",
+        tmp_path / "v.zarr",
+        "--spacing",
+        "1,2,3",
+        "--brick",
+        "2,3,4",
+        "-q",
+    )
     assert code == 0, err
     assert size in enc and spacing in enc and f"bricks of {brick}" in enc
     code, info_store, err = run(capsys, "info", tmp_path / "v.zarr")
@@ -376,10 +541,23 @@ def test_a_value_that_starts_with_a_minus_is_checked_as_that_value(d, capsys, tm
     """``--size -5x-5`` is the size option's own error, not argparse's "expected one argument"; a
     negative angle or value range still reads."""
     code, _, err = run(capsys, "render", d / "vol.zarr", "--out", tmp_path / "x.hevr", "--size", "-5x-5")
-    assert code == 2 and one_error_line(err).startswith("argument --size: expected WIDTHxHEIGHT in pixels such as "
-                                                        "150x150, got '-5x-5'"), err
-    code, _, err = run(capsys, "render", d / "vol.zarr", "--out", tmp_path / "y.hevr", "--size", "6x5", "--azimuth",
-                       "-30", "--elevation", "-10", "-q")
+    assert code == 2 and one_error_line(err).startswith(
+        "argument --size: expected WIDTHxHEIGHT in pixels such as 150x150, got '-5x-5'"
+    ), err
+    code, _, err = run(
+        capsys,
+        "render",
+        d / "vol.zarr",
+        "--out",
+        tmp_path / "y.hevr",
+        "--size",
+        "6x5",
+        "--azimuth",
+        "-30",
+        "--elevation",
+        "-10",
+        "-q",
+    )
     assert code == 0, err
 
 
@@ -393,8 +571,9 @@ def test_a_reader_that_leaves_ends_the_command_quietly(d):
     r, w = os.pipe()
     os.close(r)  # the reader is gone before hevr writes a byte
     try:
-        proc = subprocess.run([sys.executable, "-m", "hevr", "info", str(d / "vol.zarr")], stdout=w,
-                              stderr=subprocess.PIPE, timeout=120)
+        proc = subprocess.run(
+            [sys.executable, "-m", "hevr", "info", str(d / "vol.zarr")], stdout=w, stderr=subprocess.PIPE, timeout=120
+        )
     finally:
         os.close(w)
     assert proc.returncode == 141 and proc.stderr == b"", (proc.returncode, proc.stderr)
@@ -402,8 +581,9 @@ def test_a_reader_that_leaves_ends_the_command_quietly(d):
 
 @pytest.mark.parametrize("address", ["garbage://x", "tcp://"])
 def test_a_scheduler_address_dask_cannot_parse_names_the_option(d, capsys, address):
-    code, _, err = run(capsys, "encrypt", "phantom:8", "--key", d / "key.pub.json", "--out", d / "s.zarr",
-                       "--scheduler", address)
+    code, _, err = run(
+        capsys, "encrypt", "phantom:8", "--key", d / "key.pub.json", "--out", d / "s.zarr", "--scheduler", address
+    )
     msg = one_error_line(err)
     assert code == 2, msg
     want = f"--scheduler: expected a Dask scheduler address like tcp://10.0.0.5:8786, got {address!r}"
@@ -419,8 +599,11 @@ def test_a_fifo_as_the_input_volume_is_named_as_the_input(d, capsys, tmp_path, c
 
     fifo = tmp_path / "in.fifo"
     os.mkfifo(fifo)  # reading it would block forever
-    argv = (["encrypt", fifo, "--key", d / "key.pub.json", "--out", tmp_path / "o.zarr"] if command == "encrypt"
-            else ["demo", "--input", fifo, "--out", tmp_path / "demo"])
+    argv = (
+        ["encrypt", fifo, "--key", d / "key.pub.json", "--out", tmp_path / "o.zarr"]
+        if command == "encrypt"
+        else ["demo", "--input", fifo, "--out", tmp_path / "demo"]
+    )
     code, _, err = run(capsys, *argv)
     msg = one_error_line(err)
     word = "INPUT" if command == "encrypt" else "--input"
@@ -457,8 +640,10 @@ def _outputs_into(d, tmp_path, ro):
         (["keygen", "--bits", "256", "--out", ro / "k.json"], "--out"),
         (["encrypt", "phantom:8", "--key", d / "key.pub.json", "--out", ro / "x.zarr", "--brick", "4"], "--out"),
         (["render", d / "vol.zarr", "--out", ro / "f.hevr", "--size", "8x8"], "--out"),
-        (["render", d / "vol.zarr", "--out", tmp_path / "f.hevr", "--size", "8x8", "--keep-sums", ro / "x.hevrsums"],
-         "--keep-sums"),
+        (
+            ["render", d / "vol.zarr", "--out", tmp_path / "f.hevr", "--size", "8x8", "--keep-sums", ro / "x.hevrsums"],
+            "--keep-sums",
+        ),
         (["decrypt", d / "f.hevr", "--key", d / "key.json", "--out", ro / "f.png"], "--out"),
         (["convert-key", d / "key.json", "--out", ro / "k2.json"], "--out"),
         (["demo", "--out", ro, "--size", "4", "--bits", "256", "--image", "8x8"], "--out"),
@@ -468,8 +653,7 @@ def _outputs_into(d, tmp_path, ro):
 
 
 @pytest.mark.parametrize("case", range(9))
-def test_a_read_only_output_folder_fails_the_run_naming_the_option_and_the_cause(d, capsys, tmp_path, read_only,
-                                                                                  case):
+def test_a_read_only_output_folder_fails_the_run_naming_the_option_and_the_cause(d, capsys, tmp_path, read_only, case):
     """encrypt, render, decrypt, keygen and --keep-sums said 'permission denied' and exited 2, demo
     'Read-only file system' and 1: one rule now (an environment failure, exit 1) and the true cause."""
     argv, option = _outputs_into(d, tmp_path, read_only)[case]
@@ -490,8 +674,9 @@ def test_an_output_folder_without_write_permission_fails_the_run(d, capsys, tmp_
     ro.chmod(0o555)
     if os.geteuid() == 0:
         real = os.access
-        monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if str(p) == str(ro) and mode & os.W_OK
-                            else real(p, mode, **kw))
+        monkeypatch.setattr(
+            os, "access", lambda p, mode, **kw: False if str(p) == str(ro) and mode & os.W_OK else real(p, mode, **kw)
+        )
     try:
         code, _, err = run(capsys, "render", d / "vol.zarr", "--out", ro / "f.hevr", "--size", "8x8")
         msg = one_error_line(err)

@@ -39,7 +39,7 @@ def _fails(capsys, *argv) -> str:
     code, out, err = _run(capsys, *argv)
     assert code == 2, (code, out, err)
     assert err.count("\n") == 1 and err.startswith("hevr: error: "), err
-    return err[len("hevr: error: "):]
+    return err[len("hevr: error: ") :]
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +57,7 @@ def _reference(d, finish="client", **kw):
 
 def _decrypt_line(out: str) -> list[str]:
     line = next(ln for ln in out.splitlines() if ln.startswith("decrypt it with: "))
-    return shlex.split(line[len("decrypt it with: "):])
+    return shlex.split(line[len("decrypt it with: ") :])
 
 
 def test_render_tf_then_decrypt_tf_matches_the_plaintext(store, tmp_path, capsys):
@@ -75,21 +75,46 @@ def test_render_tf_then_decrypt_tf_matches_the_plaintext(store, tmp_path, capsys
     assert got.shape == ref.shape and (np.abs(got - ref) <= bound).all() and ref.max() > 0
     assert (tmp_path / "tf.png").stat().st_size > 0
     # the same frame, re-coloured at decryption: an emphasis and another transfer function
-    _ok(capsys, "decrypt", tmp_path / "tf.hevr", "--key", d / "key.json", "--density", "0.653", "--out",
-        tmp_path / "e.png", "--npy", tmp_path / "e.npy", "-q")
+    _ok(
+        capsys,
+        "decrypt",
+        tmp_path / "tf.hevr",
+        "--key",
+        d / "key.json",
+        "--density",
+        "0.653",
+        "--out",
+        tmp_path / "e.png",
+        "--npy",
+        tmp_path / "e.npy",
+        "-q",
+    )
     ref, bound = _reference(d, mode="emphasize", density=0.653)
     got = np.load(tmp_path / "e.npy")
     assert got.shape == ref.shape and (np.abs(got - ref) <= bound).all()
-    _ok(capsys, "decrypt", tmp_path / "tf.hevr", "--key", d / "key.json", "--mode", "tf", "--out",
-        tmp_path / "p.png", "--npy", tmp_path / "p.npy", "-q")  # --mode tf alone: the paper's first TF
+    _ok(
+        capsys,
+        "decrypt",
+        tmp_path / "tf.hevr",
+        "--key",
+        d / "key.json",
+        "--mode",
+        "tf",
+        "--out",
+        tmp_path / "p.png",
+        "--npy",
+        tmp_path / "p.npy",
+        "-q",
+    )  # --mode tf alone: the paper's first TF
     ref, bound = _reference(d, mode="tf", nodes=list(hevr.paper.PAPER_TF1))
     assert (np.abs(np.load(tmp_path / "p.npy") - ref) <= bound).all()
 
 
 def test_the_frame_file_holds_no_colouring(store, tmp_path, capsys):
     d = store
-    out = _ok(capsys, "render", d / "vol.zarr", "--out", tmp_path / "tf.hevr", "--tf", "0.2345:#123456,0.8765:#abcdef",
-              *VIEW)
+    out = _ok(
+        capsys, "render", d / "vol.zarr", "--out", tmp_path / "tf.hevr", "--tf", "0.2345:#123456,0.8765:#abcdef", *VIEW
+    )
     assert "--tf '0.2345:#123456,0.8765:#abcdef'" in out
     out = _ok(capsys, "render", d / "vol.zarr", "--out", tmp_path / "e.hevr", "--density", "0.6543", *VIEW)
     assert "--density 0.6543" in out and "not the density" in out
@@ -137,8 +162,9 @@ def test_finish_server_round_trip(store, tmp_path, capsys):
     _ok(capsys, "decrypt", tmp_path / "s.hevr", "--key", d / "key.json", "--npy", tmp_path / "s.npy", "-q")
     ref, bound = _reference(d, "server", mode="tf", nodes=NODES)
     assert (np.abs(np.load(tmp_path / "s.npy") - ref) <= bound).all()
-    err = _fails(capsys, "decrypt", tmp_path / "s.hevr", "--key", d / "key.json", "--tf", TF, "--out",
-                 tmp_path / "t.png")
+    err = _fails(
+        capsys, "decrypt", tmp_path / "s.hevr", "--key", d / "key.json", "--tf", TF, "--out", tmp_path / "t.png"
+    )
     assert err.startswith("--tf: only for a frame finished on the client") and "--finish client" in err
     out = _ok(capsys, "info", tmp_path / "s.hevr")
     assert "finish:      server" in out and "transfer fn: 0.279:#0000ff,0.797:#ff0000" in out
@@ -148,16 +174,46 @@ def test_finish_server_round_trip(store, tmp_path, capsys):
 
 def test_recolour_and_slice_print_the_decrypt_command(store, tmp_path, capsys):
     d = store
-    _ok(capsys, "render", d / "vol.zarr", "--out", tmp_path / "tf.hevr", "--tf", TF, "--keep-sums",
-        tmp_path / "v.hevrsums", *VIEW)
+    _ok(
+        capsys,
+        "render",
+        d / "vol.zarr",
+        "--out",
+        tmp_path / "tf.hevr",
+        "--tf",
+        TF,
+        "--keep-sums",
+        tmp_path / "v.hevrsums",
+        *VIEW,
+    )
     out = _ok(capsys, "recolour", tmp_path / "v.hevrsums", "--out", tmp_path / "r.hevr", "--density", "0.4", "-q")
     assert "packed for colouring at decryption" in out and _decrypt_line(out)[-2:] == ["--density", "0.4"]
-    out = _ok(capsys, "recolour", tmp_path / "v.hevrsums", "--out", tmp_path / "s.hevr", "--density", "0.4",
-              "--finish", "server", "-q")
+    out = _ok(
+        capsys,
+        "recolour",
+        tmp_path / "v.hevrsums",
+        "--out",
+        tmp_path / "s.hevr",
+        "--density",
+        "0.4",
+        "--finish",
+        "server",
+        "-q",
+    )
     assert "re-coloured in" in out and "--density" not in _decrypt_line(out)
     _ok(capsys, "decrypt", tmp_path / "s.hevr", "--key", d / "key.json", "--npy", tmp_path / "s.npy", "-q")
-    _ok(capsys, "decrypt", tmp_path / "r.hevr", "--key", d / "key.json", "--density", "0.4", "--npy",
-        tmp_path / "r.npy", "-q")
+    _ok(
+        capsys,
+        "decrypt",
+        tmp_path / "r.hevr",
+        "--key",
+        d / "key.json",
+        "--density",
+        "0.4",
+        "--npy",
+        tmp_path / "r.npy",
+        "-q",
+    )
     ref, bound = _reference(d, mode="emphasize", density=0.4)
     assert (np.abs(np.load(tmp_path / "r.npy") - ref) <= bound).all()
     ref, bound = _reference(d, "server", mode="emphasize", density=0.4)
@@ -170,8 +226,18 @@ def test_recolour_and_slice_print_the_decrypt_command(store, tmp_path, capsys):
 def test_slice_finish_server(store, tmp_path, capsys):
     """``hevr slice --finish server`` passes through to hevr.render_slice."""
     d = store
-    argv = ["slice", d / "vol.zarr", "--out", tmp_path / "s.hevr", "--axial", "4", "--density", "0.5", "--finish",
-            "server"]
+    argv = [
+        "slice",
+        d / "vol.zarr",
+        "--out",
+        tmp_path / "s.hevr",
+        "--axial",
+        "4",
+        "--density",
+        "0.5",
+        "--finish",
+        "server",
+    ]
     out = _ok(capsys, *argv, "-q")
     assert "--density" not in _decrypt_line(out)
     assert hevr.load_image(tmp_path / "s.hevr").finish == "server"

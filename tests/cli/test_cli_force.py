@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr.core import files as _files
 from hevr.cli.exits import exit_code
 from hevr.cli.main import main
+from hevr.core import files as _files
 
 pytestmark = pytest.mark.filterwarnings("ignore::hevr.InsecureKeyWarning")
 
@@ -48,8 +48,22 @@ def _temporaries(folder: Path) -> list[str]:
 @pytest.fixture(scope="module")
 def work(cli_store):
     d = cli_store("force", size=8, dims=2)
-    assert main(["render", str(d / "vol.zarr"), "--out", str(d / "f.hevr"), "--size", "6x5", "--keep-sums",
-                 str(d / "f.hevrsums"), "-q"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(d / "vol.zarr"),
+                "--out",
+                str(d / "f.hevr"),
+                "--size",
+                "6x5",
+                "--keep-sums",
+                str(d / "f.hevrsums"),
+                "-q",
+            ]
+        )
+        == 0
+    )
     return d
 
 
@@ -65,8 +79,11 @@ def test_render_slice_recolour_never_write_over_a_key(work, tmp_path, capsys):
     assert key.read_bytes() == before and stat.S_IMODE(key.stat().st_mode) == 0o600
     frame = tmp_path / "a.hevr"
     frame.write_bytes(b"older")
-    for argv in (["render", work / "vol.zarr", *small], ["slice", work / "vol.zarr", "--axial", "3", *small],
-                 ["recolour", work / "f.hevrsums", "--mode", "xray", "-q"]):
+    for argv in (
+        ["render", work / "vol.zarr", *small],
+        ["slice", work / "vol.zarr", "--axial", "3", *small],
+        ["recolour", work / "f.hevrsums", "--mode", "xray", "-q"],
+    ):
         code, _, err = run(capsys, *argv, "--out", frame, "--force")
         assert code == 0, err
         assert hevr.load_image(frame).n_ciphertexts > 0
@@ -76,11 +93,34 @@ def test_render_slice_recolour_never_write_over_a_key(work, tmp_path, capsys):
 def test_keep_sums_is_refused_before_the_render(work, tmp_path, capsys):
     sums = tmp_path / "s.hevrsums"
     sums.write_text("mine")
-    refused(capsys, "--keep-sums", sums, "render", work / "vol.zarr", "--out", tmp_path / "b.hevr", "--size", "6x5",
-            "--keep-sums", sums, "-q")
+    refused(
+        capsys,
+        "--keep-sums",
+        sums,
+        "render",
+        work / "vol.zarr",
+        "--out",
+        tmp_path / "b.hevr",
+        "--size",
+        "6x5",
+        "--keep-sums",
+        sums,
+        "-q",
+    )
     assert sums.read_text() == "mine" and not (tmp_path / "b.hevr").exists()
-    code, _, err = run(capsys, "render", work / "vol.zarr", "--out", tmp_path / "b.hevr", "--size", "6x5",
-                       "--keep-sums", sums, "--force", "-q")
+    code, _, err = run(
+        capsys,
+        "render",
+        work / "vol.zarr",
+        "--out",
+        tmp_path / "b.hevr",
+        "--size",
+        "6x5",
+        "--keep-sums",
+        sums,
+        "--force",
+        "-q",
+    )
     assert code == 0, err
     assert sums.read_bytes()[:8] == b"HEVRSUMS"
 
@@ -90,22 +130,47 @@ def test_decrypt_png_and_npy(work, tmp_path, capsys):
     png.write_text("mine")
     refused(capsys, "--out", png, "decrypt", work / "f.hevr", "--key", work / "key.json", "--out", png, "-q")
     npy.write_text("mine too")
-    refused(capsys, "--npy", npy, "decrypt", work / "f.hevr", "--key", work / "key.json", "--out", tmp_path / "g.png",
-            "--npy", npy, "-q")
+    refused(
+        capsys,
+        "--npy",
+        npy,
+        "decrypt",
+        work / "f.hevr",
+        "--key",
+        work / "key.json",
+        "--out",
+        tmp_path / "g.png",
+        "--npy",
+        npy,
+        "-q",
+    )
     assert png.read_text() == "mine" and npy.read_text() == "mine too" and not (tmp_path / "g.png").exists()
-    code, _, err = run(capsys, "decrypt", work / "f.hevr", "--key", work / "key.json", "--out", png, "--npy", npy,
-                       "--force", "-q")
+    code, _, err = run(
+        capsys, "decrypt", work / "f.hevr", "--key", work / "key.json", "--out", png, "--npy", npy, "--force", "-q"
+    )
     assert code == 0, err
     arr = np.load(npy)
     assert arr.shape == (5, 6) and png.read_bytes()[:4] == b"\x89PNG"
-    code, _, err = run(capsys, "decrypt", work / "f.hevr", "--key", work / "key.json", "--out", tmp_path / "h.png",
-                       "--npy", tmp_path / "h.png", "-q")
+    code, _, err = run(
+        capsys,
+        "decrypt",
+        work / "f.hevr",
+        "--key",
+        work / "key.json",
+        "--out",
+        tmp_path / "h.png",
+        "--npy",
+        tmp_path / "h.png",
+        "-q",
+    )
     assert code == 2 and "--npy: expected another file than --out" in err
 
 
-@pytest.mark.parametrize("step, code, force", [("write", errno.ENOSPC, False), ("link", errno.EROFS, False),
-                                               ("replace", errno.EFBIG, True)],
-                         ids=["ENOSPC", "EROFS", "EFBIG"])
+@pytest.mark.parametrize(
+    "step, code, force",
+    [("write", errno.ENOSPC, False), ("link", errno.EROFS, False), ("replace", errno.EFBIG, True)],
+    ids=["ENOSPC", "EROFS", "EFBIG"],
+)
 def test_a_failed_write_is_one_line_and_exit_1(work, tmp_path, capsys, monkeypatch, step, code, force):
     png, frame = tmp_path / "x.png", tmp_path / "x.hevr"
     if force:
@@ -119,8 +184,10 @@ def test_a_failed_write_is_one_line_and_exit_1(work, tmp_path, capsys, monkeypat
     extra = ["--force"] if force else []
     with monkeypatch.context() as m:
         m.setattr(_files.os, step, fail)
-        for argv, path in ((["decrypt", work / "f.hevr", "--key", work / "key.json", "--out", png], png),
-                           (["render", work / "vol.zarr", "--out", frame, "--size", "6x5"], frame)):
+        for argv, path in (
+            (["decrypt", work / "f.hevr", "--key", work / "key.json", "--out", png], png),
+            (["render", work / "vol.zarr", "--out", frame, "--size", "6x5"], frame),
+        ):
             got, _, err = run(capsys, *argv, *extra, "-q")
             lines = [line for line in err.splitlines() if line.strip()]
             assert got == 1 and len(lines) == 1, err
@@ -191,8 +258,7 @@ def test_bench_refuses_an_earlier_run_unless_resumed_or_forced(tmp_path, capsys)
     assert code == 2 and "--resume, --force" in err
     results.unlink()
     (tmp_path / "RESULTS-quick.md").write_text("my notes")
-    refused(capsys, "--out", tmp_path / "RESULTS-quick.md", "bench", "--quick", "--out", tmp_path, "--only", "t1",
-            "-q")
+    refused(capsys, "--out", tmp_path / "RESULTS-quick.md", "bench", "--quick", "--out", tmp_path, "--only", "t1", "-q")
     assert (tmp_path / "RESULTS-quick.md").read_text() == "my notes" and not results.exists()
 
 

@@ -46,8 +46,18 @@ def test_keygen_phe_pair_is_pheutils(tmp_path, capsys):
 def test_a_pheutil_key_drives_every_command(tmp_path, capsys):
     _phe("genpkey", "--keysize", "256", tmp_path / "phe.json")
     _phe("extract", tmp_path / "phe.json", tmp_path / "phe.pub.json")
-    _ok(capsys, "encrypt", "phantom:8", "--key", tmp_path / "phe.pub.json", "--out", tmp_path / "v.zarr",
-        "--brick", "4", "-q")
+    _ok(
+        capsys,
+        "encrypt",
+        "phantom:8",
+        "--key",
+        tmp_path / "phe.pub.json",
+        "--out",
+        tmp_path / "v.zarr",
+        "--brick",
+        "4",
+        "-q",
+    )
     _ok(capsys, "render", tmp_path / "v.zarr", "--out", tmp_path / "f.hevr", "--size", "8x8", "-q")
     _ok(capsys, "decrypt", tmp_path / "f.hevr", "--key", tmp_path / "phe.json", "--npy", tmp_path / "f.npy", "-q")
     out = _ok(capsys, "info", tmp_path / "phe.json")

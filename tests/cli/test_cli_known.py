@@ -91,6 +91,7 @@ def test_trust_store_untagged_on_the_command_line(keypair256, tmp_path, monkeypa
     code, out, _ = run(capsys, *argv, "--untagged", "--out", tmp_path / "b.hevr")
     assert code == 0 and "accepted without tags" in out
     assert known_stores()[str(plain.path)].accepted_untagged
-    code, _, err = run(capsys, "render", plain.path, "--key", key, "--size", "8x8", "--untagged",
-                       "--out", tmp_path / "c.hevr")
+    code, _, err = run(
+        capsys, "render", plain.path, "--key", key, "--size", "8x8", "--untagged", "--out", tmp_path / "c.hevr"
+    )
     assert code == 2 and "--untagged: expected --trust-store" in err

@@ -41,19 +41,25 @@ def store(tmp_path_factory):
     return path
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["render", "v.zarr", "--out", "f.hevr", "--size", "16384x16384"], "--size: expected WIDTHxHEIGHT of at most"),
-    (["render", "v.zarr", "--out", "f.hevr", "--size", "1x100000000"], "--size"),
-    (["render", "v.zarr", "--out", "f.hevr", "--size", "١٥٠x١٥٠"], "--size"),
-    (["demo", "--image", "20000x20000"], "--image"),
-    (["demo", "--size", str(MAX_PHANTOM + 1)], "--size: expected a phantom edge"),
-    (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--brick", "100000"], "--brick: expected a brick edge"),
-    (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--brick", "2,2,5000"], "--brick"),
-    (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--workers", str(MAX_WORKERS + 1)], "--workers"),
-    (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--digits", "1000"], "--digits: expected an integer"),
-    (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--digits", "31"], "--digits: expected an integer in [0, 30]"),
-    (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--vector-dims", "100000"], "--vector-dims: expected"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["render", "v.zarr", "--out", "f.hevr", "--size", "16384x16384"], "--size: expected WIDTHxHEIGHT of at most"),
+        (["render", "v.zarr", "--out", "f.hevr", "--size", "1x100000000"], "--size"),
+        (["render", "v.zarr", "--out", "f.hevr", "--size", "١٥٠x١٥٠"], "--size"),
+        (["demo", "--image", "20000x20000"], "--image"),
+        (["demo", "--size", str(MAX_PHANTOM + 1)], "--size: expected a phantom edge"),
+        (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--brick", "100000"], "--brick: expected a brick edge"),
+        (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--brick", "2,2,5000"], "--brick"),
+        (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--workers", str(MAX_WORKERS + 1)], "--workers"),
+        (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--digits", "1000"], "--digits: expected an integer"),
+        (
+            ["encrypt", "phantom:8", "--key", "k", "--out", "o", "--digits", "31"],
+            "--digits: expected an integer in [0, 30]",
+        ),
+        (["encrypt", "phantom:8", "--key", "k", "--out", "o", "--vector-dims", "100000"], "--vector-dims: expected"),
+    ],
+)
 def test_absurd_options_are_usage_errors(capsys, argv, needle):
     code, line, seconds = run(capsys, *argv)
     assert code == 2 and needle in line and seconds < 1.0
@@ -75,15 +81,17 @@ def test_absurd_phantom_is_refused_before_allocating(capsys, tmp_path, store, sp
     assert seconds < 1.0
 
 
-@pytest.mark.parametrize("extra, needle", [(["--step", "1e-9"], "--step: expected at most"),
-                                           (["--step", "1e-300"], "--step: expected at most")])
+@pytest.mark.parametrize(
+    "extra, needle",
+    [(["--step", "1e-9"], "--step: expected at most"), (["--step", "1e-300"], "--step: expected at most")],
+)
 def test_render_refuses_before_starting_a_cluster(capsys, tmp_path, store, extra, needle):
-    code, line, seconds = run(capsys, "render", store, "--out", tmp_path / "f.hevr", "--workers", "2",
-                              "--size", "32x32", *extra)
+    code, line, seconds = run(
+        capsys, "render", store, "--out", tmp_path / "f.hevr", "--workers", "2", "--size", "32x32", *extra
+    )
     assert code == 2 and needle in line
     assert seconds < 1.0  # a 2-worker LocalCluster alone takes longer to start
     assert not (tmp_path / "f.hevr").exists()
-
 
 
 @pytest.mark.parametrize("cores", [2, 1, None])
@@ -98,7 +106,9 @@ def test_workers_far_above_the_cores_are_refused(capsys, monkeypatch, cores):
     code, line, seconds = run(capsys, "encrypt", "phantom:8", "--key", "k", "--out", "o", "--workers", "1000")
     has = {2: "this machine has 2 CPU cores", 1: "this machine has 1 CPU core", None: "its core count is unknown"}
     assert code == 2 and seconds < 1.0
-    assert line == (f"hevr: error: argument --workers: expected at most {limit} worker processes (0: none; 4 per "
-                    f"CPU core, and {has[cores]}), got '1000' (see 'hevr encrypt --help')"), line
+    assert line == (
+        f"hevr: error: argument --workers: expected at most {limit} worker processes (0: none; 4 per "
+        f"CPU core, and {has[cores]}), got '1000' (see 'hevr encrypt --help')"
+    ), line
     code, line, _ = run(capsys, "encrypt", "phantom:8", "--key", "k", "--out", "o", "--workers", str(limit + 1))
     assert code == 2 and f"expected at most {limit} worker processes" in line

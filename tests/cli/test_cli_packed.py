@@ -21,8 +21,22 @@ def run(capsys, *argv: str) -> tuple[int, str, str]:
 def test_encrypt_packed_info_and_refusals(tmp_path, capsys):
     key, store = tmp_path / "key.json", tmp_path / "p.zarr"
     assert run(capsys, "keygen", "--bits", "256", "--out", key)[0] == 0
-    code, out, _ = run(capsys, "encrypt", "phantom:12", "--key", key, "--out", store, "--layout", "packed",
-                       "--pack-axis", "x", "--brick", "4", "--verifiable")
+    code, out, _ = run(
+        capsys,
+        "encrypt",
+        "phantom:12",
+        "--key",
+        key,
+        "--out",
+        store,
+        "--layout",
+        "packed",
+        "--pack-axis",
+        "x",
+        "--brick",
+        "4",
+        "--verifiable",
+    )
     assert code == 0 and "packed:" in out and "along x" in out and "not verified yet" not in out
     assert "frames rendered with --key KEY are verified" in out
     ev = hevr.open_volume(store)
@@ -48,8 +62,24 @@ def packed_store(tmp_path_factory):
     d = tmp_path_factory.mktemp("cli-packed")
     key, store = d / "key.json", d / "z.zarr"
     assert main(["keygen", "--bits", "256", "--out", str(key)]) == 0
-    assert main(["encrypt", "phantom:12", "--key", str(key), "--out", str(store), "--layout", "packed", "--brick",
-                 "4", "-q"]) == 0  # verifiable by default: the owner's private key
+    assert (
+        main(
+            [
+                "encrypt",
+                "phantom:12",
+                "--key",
+                str(key),
+                "--out",
+                str(store),
+                "--layout",
+                "packed",
+                "--brick",
+                "4",
+                "-q",
+            ]
+        )
+        == 0
+    )  # verifiable by default: the owner's private key
     return key, store
 
 
@@ -58,19 +88,40 @@ def test_render_decrypt_info_packed_frame(packed_store, tmp_path, capsys):
     ev, priv = hevr.open_volume(store), hevr.load_key(key)
     assert ev.meta.tags and ev.packing.axis == 0
     frame = tmp_path / "x.hevr"
-    code, out, err = run(capsys, "render", store, "--out", frame, "--key", key, "--size", "11x10", "--sampling",
-                         "trilinear", "--azimuth", "25", "--view", "anterior", "-q")
+    code, out, err = run(
+        capsys,
+        "render",
+        store,
+        "--out",
+        frame,
+        "--key",
+        key,
+        "--size",
+        "11x10",
+        "--sampling",
+        "trilinear",
+        "--azimuth",
+        "25",
+        "--view",
+        "anterior",
+        "-q",
+    )
     assert code == 0, err
     assert "verified: the frame is the packed X-ray of store " + ev.meta.store_id in out
     assert "stamped with the key holder's MAC" in out and f"hevr decrypt {frame}" in out
     assert frame.read_bytes().startswith(b"HEVRIMGP\x01")
     code, out, err = run(capsys, "info", frame)
     assert code == 0, err
-    assert "encrypted packed frame" in out and f"with the key holder's stamp, saved as {frame.resolve()}" in out and "view key" in out
+    assert (
+        "encrypted packed frame" in out
+        and f"with the key holder's stamp, saved as {frame.resolve()}" in out
+        and "view key" in out
+    )
     assert "W×H = 11×10 px" in out and "trilinear" in out
     png, npy = tmp_path / "x.png", tmp_path / "x.npy"
-    code, out, err = run(capsys, "decrypt", frame, "--key", key, "--out", png, "--npy", npy, "--require-verified",
-                         ev.meta.store_id)
+    code, out, err = run(
+        capsys, "decrypt", frame, "--key", key, "--out", png, "--npy", npy, "--require-verified", ev.meta.store_id
+    )
     assert code == 0, err
     assert "verified: the frame is the packed X-ray" in out and png.is_file()
     arr = np.load(npy)
@@ -85,8 +136,9 @@ def test_render_decrypt_info_packed_frame(packed_store, tmp_path, capsys):
     frame.rename(tmp_path / "y.hevr")
     code, out, err = run(capsys, "decrypt", tmp_path / "y.hevr", "--key", key, "--out", tmp_path / "y.png")
     assert code == 0 and "NOT verified for" in out and "--expect-view" in out, out  # an image, not "verified"
-    code, _, err = run(capsys, "decrypt", tmp_path / "y.hevr", "--key", key, "--out", tmp_path / "z.png",
-                       "--require-verified")
+    code, _, err = run(
+        capsys, "decrypt", tmp_path / "y.hevr", "--key", key, "--out", tmp_path / "z.png", "--require-verified"
+    )
     assert code == 1 and f"saved this verified frame as {frame.resolve()}" in err and not (tmp_path / "z.png").exists()
 
 
@@ -104,19 +156,22 @@ def test_unverified_packed_frame(packed_store, tmp_path, capsys):
     assert code == 0 and "not verified" in out and (tmp_path / "u.png").is_file()
 
 
-@pytest.mark.parametrize("opts, named", [
-    (["--mode", "emphasize", "--density", "0.5"], "--mode emphasize"),
-    (["--tf", "0.5:red"], "--tf"),
-    (["--step", "2"], "--step"),
-    (["--finish", "server"], "--finish server"),
-    (["--view-angle", "20"], "--view-angle"),
-    (["--keep-sums", "{d}/s.hevrsums"], "--keep-sums"),
-    (["--no-pack"], "--no-pack"),
-    (["--gradient"], "--gradient"),                      # an X-ray has no gradient modulation
-    (["--view", "superior"], "--view"),                 # along the packing axis z
-    (["--azimuth", "0"], "--azimuth"),                  # the plain orbit at 0 looks along z
-    (["--view", "anterior", "--elevation", "60"], "--view/--elevation"),
-])
+@pytest.mark.parametrize(
+    "opts, named",
+    [
+        (["--mode", "emphasize", "--density", "0.5"], "--mode emphasize"),
+        (["--tf", "0.5:red"], "--tf"),
+        (["--step", "2"], "--step"),
+        (["--finish", "server"], "--finish server"),
+        (["--view-angle", "20"], "--view-angle"),
+        (["--keep-sums", "{d}/s.hevrsums"], "--keep-sums"),
+        (["--no-pack"], "--no-pack"),
+        (["--gradient"], "--gradient"),  # an X-ray has no gradient modulation
+        (["--view", "superior"], "--view"),  # along the packing axis z
+        (["--azimuth", "0"], "--azimuth"),  # the plain orbit at 0 looks along z
+        (["--view", "anterior", "--elevation", "60"], "--view/--elevation"),
+    ],
+)
 def test_packed_render_refusals(packed_store, tmp_path, capsys, opts, named):
     key, store = packed_store
     opts = [o.replace("{d}", str(tmp_path)) for o in opts]
@@ -130,21 +185,46 @@ def test_encrypt_verifiable_pair(tmp_path, capsys):
     key = tmp_path / "key.json"
     assert run(capsys, "keygen", "--bits", "256", "--out", key)[0] == 0
     # a new key's policy: every store carries tags, per-voxel ones too, and --no-verifiable is refused
-    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "d.zarr", "--brick", "4",
-                       "-q")
+    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "d.zarr", "--brick", "4", "-q")
     assert code == 0 and hevr.open_volume(tmp_path / "d.zarr").meta.tags
-    code, out, err = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "n.zarr", "--layout",
-                         "packed", "--brick", "4", "--no-verifiable", "-q")
+    code, out, err = run(
+        capsys,
+        "encrypt",
+        "phantom:8",
+        "--key",
+        key,
+        "--out",
+        tmp_path / "n.zarr",
+        "--layout",
+        "packed",
+        "--brick",
+        "4",
+        "--no-verifiable",
+        "-q",
+    )
     assert code == 2 and "require_tags" in err and not (tmp_path / "n.zarr").exists(), err
     assert run(capsys, "key-policy", key, "--no-require-tags")[0] == 0  # a key without the policy
-    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "n.zarr", "--layout",
-                       "packed", "--brick", "4", "--no-verifiable", "-q")
+    code, out, _ = run(
+        capsys,
+        "encrypt",
+        "phantom:8",
+        "--key",
+        key,
+        "--out",
+        tmp_path / "n.zarr",
+        "--layout",
+        "packed",
+        "--brick",
+        "4",
+        "--no-verifiable",
+        "-q",
+    )
     assert code == 0 and "not verifiable: no tags" in out and not hevr.open_volume(tmp_path / "n.zarr").meta.tags
-    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4",
-                       "--verifiable", "-q")
+    code, out, _ = run(
+        capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4", "--verifiable", "-q"
+    )
     assert code == 0 and hevr.open_volume(tmp_path / "v.zarr").meta.tags  # a per-voxel store: on request
-    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "e.zarr", "--brick", "4",
-                       "-q")
+    code, out, _ = run(capsys, "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "e.zarr", "--brick", "4", "-q")
     assert code == 0 and not hevr.open_volume(tmp_path / "e.zarr").meta.tags  # the library's default without it
 
 
@@ -154,8 +234,9 @@ def test_demo_packed_store(tmp_path, capsys):
     import json
 
     out_dir = tmp_path / "demo"
-    code, out, err = run(capsys, "demo", "--out", out_dir, "--size", "8", "--image", "10x10", "--bits", "256",
-                         "--workers", "1", "-q")
+    code, out, err = run(
+        capsys, "demo", "--out", out_dir, "--size", "8", "--image", "10x10", "--bits", "256", "--workers", "1", "-q"
+    )
     assert code == 0, err
     assert "not verified" not in err and out.count("not verified: the per-voxel demo store has no tags") == 1
     packed = json.loads((out_dir / "summary.json").read_text())["packed"]
@@ -167,10 +248,26 @@ def test_demo_packed_store(tmp_path, capsys):
     assert img.stamp is not None and img.decrypt(priv, require_verified=True).shape == (10, 10)
     assert (out_dir / "xray-packed.png").is_file() and hevr.open_volume(out_dir / "volume-packed.zarr").meta.tags
     bare = tmp_path / "bare"
-    code, out, err = run(capsys, "demo", "--out", bare, "--size", "6", "--image", "6x6", "--bits", "256",
-                         "--workers", "1", "-q", "--no-packed")
+    code, out, err = run(
+        capsys,
+        "demo",
+        "--out",
+        bare,
+        "--size",
+        "6",
+        "--image",
+        "6x6",
+        "--bits",
+        "256",
+        "--workers",
+        "1",
+        "-q",
+        "--no-packed",
+    )
     assert code == 0, err
-    assert "packed" not in json.loads((bare / "summary.json").read_text()) and not (bare / "volume-packed.zarr").exists()
+    assert (
+        "packed" not in json.loads((bare / "summary.json").read_text()) and not (bare / "volume-packed.zarr").exists()
+    )
 
 
 def test_packed_colour_frames_on_the_command_line(tmp_path, capsys):
@@ -179,23 +276,62 @@ def test_packed_colour_frames_on_the_command_line(tmp_path, capsys):
     here); hevr info describes it; decrypt without a colouring is refused naming the options."""
     key, store = tmp_path / "k.json", tmp_path / "c.zarr"
     assert main(["keygen", "--bits", "256", "--out", str(key)]) == 0
-    assert main(["encrypt", "phantom:12", "--key", str(key), "--out", str(store), "--layout", "packed",
-                 "--vector-dims", "3", "--gradient", "--brick", "4", "-q"]) == 0
+    assert (
+        main(
+            [
+                "encrypt",
+                "phantom:12",
+                "--key",
+                str(key),
+                "--out",
+                str(store),
+                "--layout",
+                "packed",
+                "--vector-dims",
+                "3",
+                "--gradient",
+                "--brick",
+                "4",
+                "-q",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     priv, ev = hevr.load_key(key), hevr.open_volume(store)
     for extra in (["--tf", "0.3:red,0.8:white"], ["--density", "0.5", "--gradient"]):
         frame = tmp_path / "f.hevr"
-        code, out, err = run(capsys, "render", store, "--out", frame, "--key", key, "--size", "12x10", "-q",
-                             "--force", *extra)
+        code, out, err = run(
+            capsys, "render", store, "--out", frame, "--key", key, "--size", "12x10", "-q", "--force", *extra
+        )
         assert code == 0, err
-        assert "verified: the frame is the packed" in out and "decrypt it with:" in out and f"{extra[0]} " in out.split("decrypt it with:")[1]
+        assert (
+            "verified: the frame is the packed" in out
+            and "decrypt it with:" in out
+            and f"{extra[0]} " in out.split("decrypt it with:")[1]
+        )
         png = tmp_path / "f.png"
-        code, out, err = run(capsys, "decrypt", frame, "--key", key, "--out", png, "--npy", tmp_path / "f.npy",
-                             "--force", "--require-verified", *extra[:2])
+        code, out, err = run(
+            capsys,
+            "decrypt",
+            frame,
+            "--key",
+            key,
+            "--out",
+            png,
+            "--npy",
+            tmp_path / "f.npy",
+            "--force",
+            "--require-verified",
+            *extra[:2],
+        )
         assert code == 0 and "coloured on this machine" in out, err
         cam = hevr.Camera.orbit(ev, view="anterior", width=12, height=10, parallel=True)
-        kw = {"mode": "tf", "nodes": [(0.3, "red"), (0.8, "white")]} if extra[0] == "--tf" else {
-            "mode": "emphasize", "density": 0.5, "gradient": True}
+        kw = (
+            {"mode": "tf", "nodes": [(0.3, "red"), (0.8, "white")]}
+            if extra[0] == "--tf"
+            else {"mode": "emphasize", "density": 0.5, "gradient": True}
+        )
         want = hevr.render(ev, cam, progress=False, verify=False, **kw).decrypt(priv)
         np.testing.assert_allclose(np.load(tmp_path / "f.npy"), want, rtol=0, atol=1e-12)
         code, out, _ = run(capsys, "info", frame)

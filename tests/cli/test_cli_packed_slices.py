@@ -23,8 +23,10 @@ def packed(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cli-packed-slices")
     key, store = tmp / "key.json", tmp / "p.zarr"
     assert main(["keygen", "--bits", "256", "--out", str(key)]) == 0
-    assert main(["encrypt", "phantom:12", "--key", str(key), "--out", str(store), "--layout", "packed",
-                 "--brick", "4"]) == 0
+    assert (
+        main(["encrypt", "phantom:12", "--key", str(key), "--out", str(store), "--layout", "packed", "--brick", "4"])
+        == 0
+    )
     return key, store
 
 
@@ -34,8 +36,21 @@ def test_slices_decrypted_in_process(packed, tmp_path, capsys):
     vol = hevr.phantom(12)
     ev = hevr.open_volume(store)
     npy = tmp_path / "cor.npy"
-    code, out, _ = run(capsys, "slice", store, "--out", npy, "--coronal", "5.5", "--sampling", "trilinear",
-                       "--key", key, "--no-verify", "--quiet")
+    code, out, _ = run(
+        capsys,
+        "slice",
+        store,
+        "--out",
+        npy,
+        "--coronal",
+        "5.5",
+        "--sampling",
+        "trilinear",
+        "--key",
+        key,
+        "--no-verify",
+        "--quiet",
+    )
     assert code == 0, out
     assert "containing the packing axis z" in out and "verified" not in out and "wrote" in out
     arr = np.load(npy)
@@ -53,12 +68,15 @@ def test_slices_decrypted_in_process(packed, tmp_path, capsys):
     assert hevr.render_slice(ev, hevr.Plane.axial(ev, 4), progress=False, verify=False).decrypt(priv).max() > 0
 
 
-@pytest.mark.parametrize("extra, where, needle", [
-    (["--oblique", ":1,0,1"], "--oblique", "perpendicular to the packing axis z or containing its direction"),
-    (["--axial", "3", "--mode", "emphasize", "--density", "0.5"], "--mode", "xray"),
-    (["--axial", "3", "--finish", "server"], "--finish server", "does not apply"),
-    (["--axial", "3", "--no-pack"], "--no-pack", "does not apply"),
-])
+@pytest.mark.parametrize(
+    "extra, where, needle",
+    [
+        (["--oblique", ":1,0,1"], "--oblique", "perpendicular to the packing axis z or containing its direction"),
+        (["--axial", "3", "--mode", "emphasize", "--density", "0.5"], "--mode", "xray"),
+        (["--axial", "3", "--finish", "server"], "--finish server", "does not apply"),
+        (["--axial", "3", "--no-pack"], "--no-pack", "does not apply"),
+    ],
+)
 def test_refusals(packed, tmp_path, capsys, extra, where, needle):
     key, store = packed
     out = tmp_path / "x.png"
@@ -70,8 +88,9 @@ def test_refusals(packed, tmp_path, capsys, extra, where, needle):
 def test_verify_pins_the_store(packed, tmp_path, capsys):
     key, store = packed
     out = tmp_path / "v.png"
-    code, _, err = run(capsys, "slice", store, "--out", out, "--key", key, "--quiet", "--axial", "3",
-                       "--verify", "0123456789abcdef")
+    code, _, err = run(
+        capsys, "slice", store, "--out", out, "--key", key, "--quiet", "--axial", "3", "--verify", "0123456789abcdef"
+    )
     assert code != 0 and "0123456789abcdef" in err and not out.exists()
     sid = hevr.open_volume(store).meta.store_id
     code, text, _ = run(capsys, "slice", store, "--out", out, "--key", key, "--quiet", "--axial", "3", "--verify", sid)

@@ -39,9 +39,24 @@ def test_pyramid_then_render_a_level(store, capsys, tmp_path):
     key = hevr.load_key(d / "key.json")
     ev = hevr.open_volume(d / "v.zarr")
     for level, mode, extra in [(1, "xray", []), (2, "tf", ["--tf", "0.3:red,0.8:blue"])]:
-        code, out, err = _run(capsys, "render", d / "v.zarr", "--out", tmp_path / "f.hevr", "--level", level,
-                              "--size", "10x9", "--azimuth", "30", "--elevation", "15", *extra, "-q",
-                              "--force")  # one frame file, rendered again per level
+        code, out, err = _run(
+            capsys,
+            "render",
+            d / "v.zarr",
+            "--out",
+            tmp_path / "f.hevr",
+            "--level",
+            level,
+            "--size",
+            "10x9",
+            "--azimuth",
+            "30",
+            "--elevation",
+            "15",
+            *extra,
+            "-q",
+            "--force",
+        )  # one frame file, rendered again per level
         assert code == 0, err
         assert f"pyramid level {level}" in out
         img = hevr.load_image(tmp_path / "f.hevr")
@@ -54,10 +69,12 @@ def test_pyramid_then_render_a_level(store, capsys, tmp_path):
 
 def test_errors(store, capsys, tmp_path):
     d = store
-    for argv, word in [(["pyramid", d / "none.zarr"], "STORE"), (["pyramid", d / "v.zarr", "--levels", "0"],
-                                                                 "argument --levels"),
-                       (["render", d / "v.zarr", "--out", tmp_path / "x.hevr", "--level", "5"], "--level 5"),
-                       (["render", d / "v.zarr", "--out", tmp_path / "x.hevr", "--level", "x"], "argument --level")]:
+    for argv, word in [
+        (["pyramid", d / "none.zarr"], "STORE"),
+        (["pyramid", d / "v.zarr", "--levels", "0"], "argument --levels"),
+        (["render", d / "v.zarr", "--out", tmp_path / "x.hevr", "--level", "5"], "--level 5"),
+        (["render", d / "v.zarr", "--out", tmp_path / "x.hevr", "--level", "x"], "argument --level"),
+    ]:
         code, _, err = _run(capsys, *argv)
         assert code == 2, err
         line = err.strip().splitlines()

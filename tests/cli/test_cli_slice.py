@@ -50,18 +50,31 @@ def test_axial_slice_is_the_layer(store, tmp_path, capsys):
     assert "plane:" in out and "slab 1" in out
 
 
-@pytest.mark.parametrize("argv, plane, kw", [
-    (["--coronal", "6.5", "--size", "14x12", "--sampling", "trilinear"],
-     lambda ev: Plane.coronal(ev, 6.5, width=14, height=12), {"sampling": "trilinear"}),
-    (["--sagittal", "2", "--pixel-spacing", "0.7", "--slab", "3", "--slab-step", "0.5"],
-     lambda ev: Plane.sagittal(ev, 2, pixel_spacing=0.7, slab=3, slab_step=0.5), {}),
-    (["--oblique", ":1,2,2", "--size", "12x11", "--tf", "0.2:red,0.8:blue"],
-     lambda ev: Plane.oblique(ev, None, (1, 2, 2), width=12, height=11),
-     {"mode": "tf", "nodes": [(0.2, "red"), (0.8, "blue")]}),
-    (["--oblique", "4,4.5,5:0,-1,0.3", "--size", "9x9", "--density", "0.5", "--slab", "2"],
-     lambda ev: Plane.oblique(ev, (4, 4.5, 5), (0, -1, 0.3), width=9, height=9, slab=2),
-     {"mode": "emphasize", "density": 0.5}),
-])
+@pytest.mark.parametrize(
+    "argv, plane, kw",
+    [
+        (
+            ["--coronal", "6.5", "--size", "14x12", "--sampling", "trilinear"],
+            lambda ev: Plane.coronal(ev, 6.5, width=14, height=12),
+            {"sampling": "trilinear"},
+        ),
+        (
+            ["--sagittal", "2", "--pixel-spacing", "0.7", "--slab", "3", "--slab-step", "0.5"],
+            lambda ev: Plane.sagittal(ev, 2, pixel_spacing=0.7, slab=3, slab_step=0.5),
+            {},
+        ),
+        (
+            ["--oblique", ":1,2,2", "--size", "12x11", "--tf", "0.2:red,0.8:blue"],
+            lambda ev: Plane.oblique(ev, None, (1, 2, 2), width=12, height=11),
+            {"mode": "tf", "nodes": [(0.2, "red"), (0.8, "blue")]},
+        ),
+        (
+            ["--oblique", "4,4.5,5:0,-1,0.3", "--size", "9x9", "--density", "0.5", "--slab", "2"],
+            lambda ev: Plane.oblique(ev, (4, 4.5, 5), (0, -1, 0.3), width=9, height=9, slab=2),
+            {"mode": "emphasize", "density": 0.5},
+        ),
+    ],
+)
 def test_slices_match_the_reference(store, tmp_path, capsys, argv, plane, kw):
     out = _ok(capsys, "slice", store / "vol.zarr", "--out", tmp_path / "s.hevr", *argv, "-q")
     assert "wrote" in out and "decrypt it with" in out
@@ -74,22 +87,25 @@ def test_slices_match_the_reference(store, tmp_path, capsys, argv, plane, kw):
     assert np.count_nonzero(ref) > 10
 
 
-@pytest.mark.parametrize("argv, start", [
-    (["--axial", "40"], "--axial: expected a position in [0, 9], got 40"),
-    (["--coronal", "-1"], "--coronal: expected a position in [0, 9]"),
-    (["--oblique", "1,2:0,0,1"], "argument --oblique: expected CX,CY,CZ:NX,NY,NZ"),
-    (["--oblique", "1,2,3:0,0,0"], "argument --oblique: expected CX,CY,CZ:NX,NY,NZ"),
-    (["--axial", "1", "--sagittal", "2"], "argument --sagittal: not allowed with argument --axial"),
-    ([], "one of the arguments --axial --coronal --sagittal --oblique is required"),
-    (["--axial", "1", "--size", "0x4"], "argument --size: expected WIDTHxHEIGHT"),
-    (["--axial", "1", "--pixel-spacing", "0"], "argument --pixel-spacing: expected a positive number"),
-    (["--axial", "1", "--slab", "0"], "argument --slab: expected a positive integer"),
-    (["--axial", "1", "--slab", "70000"], "--slab: expected an integer in [1, 65536], got 70000"),
-    (["--axial", "1", "--slab-step", "2"], "--slab-step: only applies to a thick slab"),
-    (["--axial", "1", "--mode", "xray", "--tf", "0.5:red"], "--tf: only applies to --mode tf"),
-    (["--axial", "1", "--mode", "emphasize"], "--mode emphasize: expected --density D"),
-    (["--axial", "1", "--mode", "mip"], "argument --mode: invalid choice"),
-])
+@pytest.mark.parametrize(
+    "argv, start",
+    [
+        (["--axial", "40"], "--axial: expected a position in [0, 9], got 40"),
+        (["--coronal", "-1"], "--coronal: expected a position in [0, 9]"),
+        (["--oblique", "1,2:0,0,1"], "argument --oblique: expected CX,CY,CZ:NX,NY,NZ"),
+        (["--oblique", "1,2,3:0,0,0"], "argument --oblique: expected CX,CY,CZ:NX,NY,NZ"),
+        (["--axial", "1", "--sagittal", "2"], "argument --sagittal: not allowed with argument --axial"),
+        ([], "one of the arguments --axial --coronal --sagittal --oblique is required"),
+        (["--axial", "1", "--size", "0x4"], "argument --size: expected WIDTHxHEIGHT"),
+        (["--axial", "1", "--pixel-spacing", "0"], "argument --pixel-spacing: expected a positive number"),
+        (["--axial", "1", "--slab", "0"], "argument --slab: expected a positive integer"),
+        (["--axial", "1", "--slab", "70000"], "--slab: expected an integer in [1, 65536], got 70000"),
+        (["--axial", "1", "--slab-step", "2"], "--slab-step: only applies to a thick slab"),
+        (["--axial", "1", "--mode", "xray", "--tf", "0.5:red"], "--tf: only applies to --mode tf"),
+        (["--axial", "1", "--mode", "emphasize"], "--mode emphasize: expected --density D"),
+        (["--axial", "1", "--mode", "mip"], "argument --mode: invalid choice"),
+    ],
+)
 def test_bad_options_exit_2_naming_the_option(store, tmp_path, capsys, argv, start):
     err = _fails(capsys, "slice", store / "vol.zarr", "--out", tmp_path / "x.hevr", *argv)
     assert err.startswith(f"hevr: error: {start}"), err
@@ -121,8 +137,11 @@ def test_slice_pngs_are_shown_the_radiological_way(tmp_path, capsys):
     key = tmp_path / "key.json"
     _ok(capsys, "keygen", "--bits", "256", "--out", key, "-q")
     _ok(capsys, "encrypt", tmp_path / "v.npy", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4", "-q")
-    for opt, top, left in (("--coronal", "superior", "the patient's right"), ("--sagittal", "superior", "anterior"),
-                           ("--axial", "anterior", "the patient's right")):
+    for opt, top, left in (
+        ("--coronal", "superior", "the patient's right"),
+        ("--sagittal", "superior", "anterior"),
+        ("--axial", "anterior", "the patient's right"),
+    ):
         out = _ok(capsys, "slice", tmp_path / "v.zarr", "--out", tmp_path / f"{opt[2:]}.hevr", opt, "3", "-q")
         assert f"radiological convention: {top} at the top, {left} on the left" in out
         out = _ok(capsys, "decrypt", tmp_path / f"{opt[2:]}.hevr", "--key", key, "--out", tmp_path / f"{opt[2:]}.png")
@@ -135,9 +154,11 @@ def test_slice_pngs_are_shown_the_radiological_way(tmp_path, capsys):
 def test_slice_banner_places_the_plane_in_the_scans_frame(tmp_path, capsys):
     """Issue 39, item 10: the banner said z = 2 for a scan whose voxel 0 lies at z = 30 mm."""
     np.arange(6 * 6 * 6, dtype=np.uint8).tofile(tmp_path / "v.raw")
-    (tmp_path / "v.nhdr").write_text("NRRD0004\ntype: uint8\ndimension: 3\nspace: right-anterior-superior\n"
-                                     "sizes: 6 6 6\nspace directions: (1,0,0) (0,2,0) (0,0,1.5)\nkinds: domain domain "
-                                     "domain\nendian: little\nencoding: raw\nspace origin: (10,20,30)\ndata file: v.raw\n")
+    (tmp_path / "v.nhdr").write_text(
+        "NRRD0004\ntype: uint8\ndimension: 3\nspace: right-anterior-superior\n"
+        "sizes: 6 6 6\nspace directions: (1,0,0) (0,2,0) (0,0,1.5)\nkinds: domain domain "
+        "domain\nendian: little\nencoding: raw\nspace origin: (10,20,30)\ndata file: v.raw\n"
+    )
     key = tmp_path / "key.json"
     _ok(capsys, "keygen", "--bits", "256", "--out", key, "-q")
     _ok(capsys, "encrypt", tmp_path / "v.nhdr", "--key", key, "--out", tmp_path / "v.zarr", "-q")

@@ -31,8 +31,13 @@ def run(capsys, *argv) -> tuple[int, str, str]:
 def run_process(*argv, timeout: float = 120) -> subprocess.CompletedProcess:
     """``hevr ARGV`` in a child process; one that blocks past ``timeout`` is killed and fails the test."""
     try:
-        return subprocess.run([sys.executable, "-m", "hevr", *map(str, argv)], capture_output=True, text=True,
-                              timeout=timeout, env={**os.environ, "PYTHONWARNINGS": "ignore"})
+        return subprocess.run(
+            [sys.executable, "-m", "hevr", *map(str, argv)],
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            env={**os.environ, "PYTHONWARNINGS": "ignore"},
+        )
     except subprocess.TimeoutExpired:
         pytest.fail(f"hevr {' '.join(map(str, argv))} blocked for more than {timeout:g} s")
 
@@ -77,8 +82,9 @@ def test_verify_names_the_damaged_bricks(store, capsys):
     assert re.search(r"^verify: +FAILED: 2 of 27 bricks damaged", out, re.M), out
     damaged = [line for line in out.splitlines() if line.startswith("damaged: ")]
     assert len(damaged) == 2
-    assert damaged[0].startswith("damaged: brick (1, 2, 2) of channel 'vector' cannot be read (its chunk fails "
-                                 "its crc32c check")
+    assert damaged[0].startswith(
+        "damaged: brick (1, 2, 2) of channel 'vector' cannot be read (its chunk fails its crc32c check"
+    )
     assert damaged[1].startswith("damaged: brick (2, 0, 1) of channel 'scalar' ")
 
 
@@ -122,8 +128,10 @@ def test_decrypt_and_info_of_a_fifo(made, tmp_path):
     r = run_process("decrypt", fifo, "--key", made / "key.json", "--out", tmp_path / "f.png")
     assert r.returncode == 2 and "FRAME: expected an encrypted image" in r.stderr and "got a FIFO" in r.stderr
     r = run_process("info", fifo)
-    assert r.returncode == 2 and "PATH: expected a key, store, frame or volume file (a regular file), got a FIFO" \
-        in r.stderr
+    assert (
+        r.returncode == 2
+        and "PATH: expected a key, store, frame or volume file (a regular file), got a FIFO" in r.stderr
+    )
 
 
 @pytest.mark.parametrize("rel", ["zarr.json", "scalar/zarr.json", "scalar/c/1/1/1/0"])

@@ -48,8 +48,9 @@ def two(tmp_path_factory, keypair256):
         vol = np.random.default_rng(3).integers(0, 256, (6, 5, 7)).astype(np.uint8)
         b = hevr.encrypt_volume(vol, str(d / "p.zarr"), pub, brick=4, layout="packed", progress=False)
     alice = new_token()
-    tokens = TokenTable.from_dict({"version": 1, "tokens": [
-        {"name": "alice", "sha256": hash_token(alice), "stores": [b.meta.store_id]}]})
+    tokens = TokenTable.from_dict(
+        {"version": 1, "tokens": [{"name": "alice", "sha256": hash_token(alice), "stores": [b.meta.store_id]}]}
+    )
     return d, a, b, alice, tokens
 
 
@@ -93,9 +94,14 @@ def test_hevr_stores_needs_a_server(capsys):
     assert "--server" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("argv, option", [(["--timeout", "-1"], "--timeout"), (["--connect-timeout", "0"],
-                                                                              "--connect-timeout"),
-                                          (["--cafile", "ca.pem"], "--cafile")])
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["--timeout", "-1"], "--timeout"),
+        (["--connect-timeout", "0"], "--connect-timeout"),
+        (["--cafile", "ca.pem"], "--cafile"),
+    ],
+)
 def test_hevr_stores_names_the_option_it_refuses(argv, option, capsys, monkeypatch):
     """``hevr stores`` connects as ``hevr render --server`` does (hevr.cli.remote.connect_remote): a
     refused setting is a usage error naming the option, not the library's parameter name."""

@@ -54,8 +54,9 @@ def _write_nifti(path: Path, hu: np.ndarray) -> Path:
     return path
 
 
-def _write_dicom(folder: Path, hu: np.ndarray, series: str = "1.2.826.0.1.3680043.2.1", number: int = 1,
-                 modality: str = "CT") -> Path:
+def _write_dicom(
+    folder: Path, hu: np.ndarray, series: str = "1.2.826.0.1.3680043.2.1", number: int = 1, modality: str = "CT"
+) -> Path:
     """Axial CT slices (LPS: rows run posterior, columns left), stored + 1024 with intercept -1024."""
     pytest.importorskip("pydicom")
     from pydicom.dataset import Dataset, FileMetaDataset
@@ -95,8 +96,26 @@ def ct_store(tmp_path_factory, keys):
     """A CT NIfTI encrypted with --modality CT (vector channel for --tf)."""
     d = tmp_path_factory.mktemp("ct")
     src = _write_nifti(d / "ct.nii.gz", _hu())
-    assert main(["encrypt", str(src), "--key", str(keys), "--out", str(d / "ct.zarr"), "--modality", "CT",
-                 "--vector-dims", "6", "--brick", "4", "-q"]) == 0
+    assert (
+        main(
+            [
+                "encrypt",
+                str(src),
+                "--key",
+                str(keys),
+                "--out",
+                str(d / "ct.zarr"),
+                "--modality",
+                "CT",
+                "--vector-dims",
+                "6",
+                "--brick",
+                "4",
+                "-q",
+            ]
+        )
+        == 0
+    )
     return d / "ct.zarr"
 
 
@@ -158,8 +177,19 @@ def test_the_hint_never_reaches_the_store(tmp_path, keys, capsys):
 # -- render --view ---------------------------------------------------------------------------------
 def test_render_view_is_the_python_camera(ct_store, keys, tmp_path, capsys):
     argv = ["--size", "9x8", "--parallel", "--azimuth", "20", "--elevation", "10"]
-    out, _ = _ok(capsys, "render", ct_store, "--out", tmp_path / "a.hevr", "--view", "anterior", *argv,
-                 "--keep-sums", tmp_path / "a.hevrsums", "-q")
+    out, _ = _ok(
+        capsys,
+        "render",
+        ct_store,
+        "--out",
+        tmp_path / "a.hevr",
+        "--view",
+        "anterior",
+        *argv,
+        "--keep-sums",
+        tmp_path / "a.hevrsums",
+        "-q",
+    )
     assert "anterior view, azimuth 20, elevation 10" in out
     ev = hevr.open_volume(ct_store)
     cam = Camera.orbit(ev, azimuth=20, elevation=10, width=9, height=8, parallel=True, view="anterior")
@@ -177,8 +207,22 @@ def test_render_view_is_the_python_camera(ct_store, keys, tmp_path, capsys):
 def test_tf_presets_in_render_recolour_and_slice(ct_store, keys, tmp_path, capsys):
     ev = hevr.open_volume(ct_store)
     cam = Camera.orbit(ev, width=6, height=6, view="right")
-    out, _ = _ok(capsys, "render", ct_store, "--out", tmp_path / "t.hevr", "--view", "right", "--size", "6x6",
-                 "--tf", "ct-bone", "--keep-sums", tmp_path / "t.hevrsums", "-q")
+    out, _ = _ok(
+        capsys,
+        "render",
+        ct_store,
+        "--out",
+        tmp_path / "t.hevr",
+        "--view",
+        "right",
+        "--size",
+        "6x6",
+        "--tf",
+        "ct-bone",
+        "--keep-sums",
+        tmp_path / "t.hevrsums",
+        "-q",
+    )
     nodes = hevr.tf_preset("ct-bone", CT)
     assert "0.3233:#d9b38c" in out
     kw = dict(mode="tf", nodes=nodes)
@@ -189,41 +233,73 @@ def test_tf_presets_in_render_recolour_and_slice(ct_store, keys, tmp_path, capsy
     # hevr decrypt turns a preset into nodes with --value-range (a frame does not record the store's)
     err = _fails(capsys, "decrypt", tmp_path / "t.hevr", "--key", keys, "--tf", "ct-bone")
     assert err.startswith("hevr: error: --tf ct-bone: a preset needs the store's value range"), err
-    _ok(capsys, "decrypt", tmp_path / "t.hevr", "--key", keys, "--tf", "ct-bone", "--value-range=-1024,3071",
-        "--npy", tmp_path / "t.npy", "-q")
+    _ok(
+        capsys,
+        "decrypt",
+        tmp_path / "t.hevr",
+        "--key",
+        keys,
+        "--tf",
+        "ct-bone",
+        "--value-range=-1024,3071",
+        "--npy",
+        tmp_path / "t.npy",
+        "-q",
+    )
     assert np.array_equal(np.load(tmp_path / "t.npy"), got)
     # recolour with another preset, resolved with the sums' value range
     _ok(capsys, "recolour", tmp_path / "t.hevrsums", "--out", tmp_path / "r.hevr", "--tf", "CT-Soft-Tissue", "-q")
     kw = dict(mode="tf", nodes=hevr.tf_preset("ct-soft-tissue", CT))
     ref = hevr.render_plain(_hu(), cam, spacing=ev.spacing, value_range=CT, vector_dims=6, **kw)
-    assert np.all(np.abs(_decrypt(keys, tmp_path / "r.hevr", nodes=kw["nodes"]) - ref) <= hevr.error_bound(ev, cam, **kw))
+    assert np.all(
+        np.abs(_decrypt(keys, tmp_path / "r.hevr", nodes=kw["nodes"]) - ref) <= hevr.error_bound(ev, cam, **kw)
+    )
     # slice, and the node syntax still works
     _ok(capsys, "slice", ct_store, "--out", tmp_path / "s.hevr", "--axial", "3", "--tf", "ct-lung", "-q")
-    _ok(capsys, "render", ct_store, "--out", tmp_path / "n.hevr", "--size", "4x4", "--tf", "0.279:#0000ff,0.5:red", "-q")
+    _ok(
+        capsys, "render", ct_store, "--out", tmp_path / "n.hevr", "--size", "4x4", "--tf", "0.279:#0000ff,0.5:red", "-q"
+    )
 
 
 def test_a_preset_outside_the_store_range_is_refused(tmp_path, keys, capsys):
     _ok(capsys, "encrypt", "phantom:6", "--key", keys, "--out", tmp_path / "p.zarr", "--vector-dims", "3", "-q")
     err = _fails(capsys, "render", tmp_path / "p.zarr", "--out", tmp_path / "x.hevr", "--tf", "ct-bone")
-    assert err.startswith("hevr: error: --tf ct-bone: the CT preset 'ct-bone' has no node inside the value range (0, 255)")
+    assert err.startswith(
+        "hevr: error: --tf ct-bone: the CT preset 'ct-bone' has no node inside the value range (0, 255)"
+    )
     assert not (tmp_path / "x.hevr").exists()
 
 
-@pytest.mark.parametrize("argv, start", [
-    (["render", "{store}", "--out", "{tmp}/x.hevr", "--view", "front"],
-     "argument --view: invalid choice: 'front' (choose from 'anterior', 'posterior', 'left', 'right', 'superior', "
-     "'inferior')"),
-    (["render", "{store}", "--out", "{tmp}/x.hevr", "--tf", "ct-brain"],
-     "argument --tf: expected a preset (ct-bone, ct-soft-tissue, ct-lung, mr-generic) or DENSITY:COLOR"),
-    (["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--modality", "XY"],
-     "argument --modality: expected one of auto, CT, MR, US, got 'XY'"),
-    (["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--modality", "PT"],
-     "argument --modality: expected one of auto, CT, MR, US, got 'PT'; PT has no fixed value range"),
-    (["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--series", "1.2"],
-     "--series: expected a scan file or folder as INPUT, got 'phantom:6'"),
-    (["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--oblique", "tilt"],
-     "argument --oblique: invalid choice: 'tilt'"),
-])
+@pytest.mark.parametrize(
+    "argv, start",
+    [
+        (
+            ["render", "{store}", "--out", "{tmp}/x.hevr", "--view", "front"],
+            "argument --view: invalid choice: 'front' (choose from 'anterior', 'posterior', 'left', 'right', 'superior', "
+            "'inferior')",
+        ),
+        (
+            ["render", "{store}", "--out", "{tmp}/x.hevr", "--tf", "ct-brain"],
+            "argument --tf: expected a preset (ct-bone, ct-soft-tissue, ct-lung, mr-generic) or DENSITY:COLOR",
+        ),
+        (
+            ["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--modality", "XY"],
+            "argument --modality: expected one of auto, CT, MR, US, got 'XY'",
+        ),
+        (
+            ["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--modality", "PT"],
+            "argument --modality: expected one of auto, CT, MR, US, got 'PT'; PT has no fixed value range",
+        ),
+        (
+            ["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--series", "1.2"],
+            "--series: expected a scan file or folder as INPUT, got 'phantom:6'",
+        ),
+        (
+            ["encrypt", "phantom:6", "--key", "{key}", "--out", "{tmp}/x.zarr", "--oblique", "tilt"],
+            "argument --oblique: invalid choice: 'tilt'",
+        ),
+    ],
+)
 def test_bad_options_exit_2(ct_store, keys, tmp_path, capsys, argv, start):
     filled = [a.format(store=ct_store, tmp=tmp_path, key=keys) for a in argv]
     err = _fails(capsys, *filled)
@@ -255,8 +331,20 @@ def test_info_lists_series_and_encrypt_picks_one(tmp_path, keys, capsys):
     assert "found 2" in err and "--series UID" in err
     assert "1.2.826.0.1.3680043.2.111" in err and "1.2.826.0.1.3680043.2.222" in err
     assert "CLI" not in err and "series=UID" not in err
-    out, _ = _ok(capsys, "encrypt", folder, "--key", keys, "--out", tmp_path / "b.zarr", "--series", "4",
-                 "--vector-dims", "3", "-q")
+    out, _ = _ok(
+        capsys,
+        "encrypt",
+        folder,
+        "--key",
+        keys,
+        "--out",
+        tmp_path / "b.zarr",
+        "--series",
+        "4",
+        "--vector-dims",
+        "3",
+        "-q",
+    )
     ev = hevr.open_volume(tmp_path / "b.zarr")
     assert ev.value_range == CT and ev.shape == hu.shape
     # one series: info describes the scan as well
@@ -289,8 +377,9 @@ def test_the_store_records_the_scans_frame_and_origin(ct_store, keys, tmp_path, 
     assert hevr.open_volume(tmp_path / "p.zarr").frame is None
     out, _ = _ok(capsys, "info", tmp_path / "p.zarr")
     assert "none recorded" in out
-    _, err = _ok(capsys, "render", tmp_path / "p.zarr", "--out", tmp_path / "p.hevr", "--view", "anterior",
-                 "--size", "4x4", "-q")
+    _, err = _ok(
+        capsys, "render", tmp_path / "p.zarr", "--out", tmp_path / "p.hevr", "--view", "anterior", "--size", "4x4", "-q"
+    )
     assert "records no patient frame" in err
     _, err = _ok(capsys, "render", ct_store, "--out", tmp_path / "c.hevr", "--view", "anterior", "--size", "4x4", "-q")
     assert "records no patient frame" not in err
@@ -330,14 +419,19 @@ def test_a_single_dicom_slice_is_described_and_refused(tmp_path, capsys):
     t0 = time.perf_counter()
     err = _fails(capsys, "encrypt", ct, "--key", tmp_path / "key.json", "--out", tmp_path / "ct.zarr")
     assert time.perf_counter() - t0 < 5 and not (tmp_path / "ct.zarr").exists()
-    assert err.startswith("hevr: error: INPUT: expected a volume at least 2 voxels thick along every axis") \
-        and "got 1 slice of 128x128 voxels" in err, err
+    assert (
+        err.startswith("hevr: error: INPUT: expected a volume at least 2 voxels thick along every axis")
+        and "got 1 slice of 128x128 voxels" in err
+    ), err
 
 
 def test_a_single_slice_scan_is_refused_and_a_frame_that_misses_says_so(tmp_path, keypair256, caplog):
     slice_ = hevr.Scan(volume=np.zeros((1, 6, 7), np.uint8), spacing=(1.0, 1.0, 1.0), source="one.tif")
-    with pytest.raises(hevr.ParameterError, match=r"^vol: expected a volume at least 2 voxels thick .* got "
-                                                  r"1 slice of 7x6 voxels \(shape \(1, 6, 7\)\)"):
+    with pytest.raises(
+        hevr.ParameterError,
+        match=r"^vol: expected a volume at least 2 voxels thick .* got "
+        r"1 slice of 7x6 voxels \(shape \(1, 6, 7\)\)",
+    ):
         hevr.encrypt_volume(slice_, tmp_path / "s.zarr", keypair256[1], progress=False)
     flat = hevr.Scan(volume=np.zeros((5, 1, 7), np.uint8), spacing=(1.0, 1.0, 1.0), source="flat.nii")
     with pytest.raises(hevr.ParameterError, match=r"got 7x1x5 voxels"):
@@ -366,14 +460,18 @@ def test_nan_voxels_are_counted_refused_and_filled_on_request(tmp_path, keys, ca
     out, _ = _ok(capsys, "info", path)
     assert "and 2 NaN voxels of 120" in out and "needs --nan-as VALUE" in out and "nan .. nan" not in out
     err = _fails(capsys, "encrypt", path, "--key", keys, "--out", tmp_path / "v.zarr")
-    assert "got 2 NaN voxels of 120; give them a value with --nan-as VALUE" in err and not (tmp_path / "v.zarr").exists()
+    assert (
+        "got 2 NaN voxels of 120; give them a value with --nan-as VALUE" in err and not (tmp_path / "v.zarr").exists()
+    )
     out, _ = _ok(capsys, "encrypt", path, "--key", keys, "--out", tmp_path / "v.zarr", "--nan-as", "0")
     assert "2 NaN voxels of 120 encrypted as 0 (--nan-as)" in out
     ev = hevr.open_volume(tmp_path / "v.zarr")
     priv = hevr.load_key(keys)
-    got = np.array([priv.decrypt(c) for c in ev.read_brick((0, 0, 0))], dtype=np.float64) * 10.0 ** ev.meta.scalar.exponent
-    want = np.nan_to_num(hevr.read_scan(path).volume, nan=0.0)[:ev.brick[0], :ev.brick[1], :ev.brick[2]]
-    assert np.allclose(got, want.ravel(), atol=10.0 ** ev.meta.scalar.exponent)
+    got = (
+        np.array([priv.decrypt(c) for c in ev.read_brick((0, 0, 0))], dtype=np.float64) * 10.0**ev.meta.scalar.exponent
+    )
+    want = np.nan_to_num(hevr.read_scan(path).volume, nan=0.0)[: ev.brick[0], : ev.brick[1], : ev.brick[2]]
+    assert np.allclose(got, want.ravel(), atol=10.0**ev.meta.scalar.exponent)
     with pytest.raises(hevr.ParameterError, match=r"np.nan_to_num\(vol, nan=VALUE\); hevr encrypt --nan-as VALUE"):
         hevr.encrypt_volume(vol, tmp_path / "w.zarr", priv, progress=False)
 

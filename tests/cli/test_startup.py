@@ -16,13 +16,20 @@ import sys
 
 import pytest
 
-from hevr.core.lazy import resolve
 from hevr.cli.parser import COMMANDS, build_parser
+from hevr.core.lazy import resolve
 
 # The data path's dependencies: half a second of imports together.
 HEAVY = ("zarr", "numcodecs", "dask", "distributed", "fsspec", "PIL", "tifffile", "pydicom", "nibabel", "scipy")
 # hevr's own heavy subpackages (each imports some of HEAVY).
-HEAVY_HEVR = ("hevr.volume", "hevr.store", "hevr.image", "hevr.rendering.encrypted", "hevr.runtime.scheduler", "hevr.backends")
+HEAVY_HEVR = (
+    "hevr.volume",
+    "hevr.store",
+    "hevr.image",
+    "hevr.rendering.encrypted",
+    "hevr.runtime.scheduler",
+    "hevr.backends",
+)
 NOTHING = HEAVY + HEAVY_HEVR + ("numpy", "gmpy2", "hevr.crypto")
 
 PROBE = """\
@@ -41,11 +48,17 @@ print("PROBE" + json.dumps({"code": code, "modules": sorted(sys.modules)}), file
 def _probe(argv: list[str] | None, cwd) -> tuple[int | None, str, set[str]]:
     """Run ``hevr ARGV`` (or ``import hevr`` for None) in a fresh interpreter: exit code,
     stdout, and the names of the modules it left imported."""
-    out = subprocess.run([sys.executable, "-c", PROBE, json.dumps(argv)], cwd=cwd, capture_output=True,
-                         text=True, timeout=120, check=False)
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, json.dumps(argv)],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     line = next((x for x in out.stderr.splitlines() if x.startswith("PROBE")), None)
     assert line is not None, out.stderr[-3000:]
-    doc = json.loads(line[len("PROBE"):])
+    doc = json.loads(line[len("PROBE") :])
     return doc["code"], out.stdout, set(doc["modules"])
 
 
@@ -64,19 +77,23 @@ def keys(tmp_path_factory, keypair256):
     return d
 
 
-@pytest.mark.parametrize("argv, shows", [
-    (None, ""),
-    (["--version"], "hevr "),
-    (["--help"], "usage: hevr"),
-])
+@pytest.mark.parametrize(
+    "argv, shows",
+    [
+        (None, ""),
+        (["--version"], "hevr "),
+        (["--help"], "usage: hevr"),
+    ],
+)
 def test_import_version_and_help_import_nothing_heavy(tmp_path, argv, shows):
     code, out, modules = _probe(argv, tmp_path)
     assert code in (None, 0) and shows in out
     assert not _imported(modules, NOTHING), f"{argv or 'import hevr'} imported {_imported(modules, NOTHING)}"
 
 
-@pytest.mark.parametrize("name, fmt", [("key.json", "hevr"), ("key.pub.json", "hevr"),
-                                       ("phe.json", "python-paillier (pheutil)")])
+@pytest.mark.parametrize(
+    "name, fmt", [("key.json", "hevr"), ("key.pub.json", "hevr"), ("phe.json", "python-paillier (pheutil)")]
+)
 def test_info_of_a_key_imports_no_data_path(keys, name, fmt):
     code, out, modules = _probe(["info", name], keys)
     assert code == 0 and "fingerprint:" in out and f"format:      {fmt}" in out

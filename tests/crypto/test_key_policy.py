@@ -84,7 +84,9 @@ def test_first_contact_with_a_relabelled_tagless_store(policy_keypair256, tmp_pa
     fake = _encrypt(tmp_path / "fake.zarr", pub)
     shutil.rmtree(real)
     shutil.copytree(fake.path, real)  # the server's answer under the real store's name
-    monkeypatch.setenv("HEVR_KNOWN_STORES", str(tmp_path / "fresh" / "known_stores.json"))  # a machine that never saw it
+    monkeypatch.setenv(
+        "HEVR_KNOWN_STORES", str(tmp_path / "fresh" / "known_stores.json")
+    )  # a machine that never saw it
     ev = hevr.open_volume(real)
     assert not ev.meta.tags
     img = _render(ev)  # the render itself needs no key (the server's side): unverified
@@ -107,8 +109,21 @@ def test_first_contact_with_a_relabelled_tagless_store(policy_keypair256, tmp_pa
     assert not (tmp_path / "f.png").exists()
     # an unverified image asked for by name, or the store accepted explicitly by the key holder
     assert img.decrypt(priv, require_verified=False).shape == (7, 8)
-    assert main(["decrypt", str(tmp_path / "f.hevr"), "--key", str(key), "--out", str(tmp_path / "f.png"), "-q",
-                 "--unverified"]) == 0
+    assert (
+        main(
+            [
+                "decrypt",
+                str(tmp_path / "f.hevr"),
+                "--key",
+                str(key),
+                "--out",
+                str(tmp_path / "f.png"),
+                "-q",
+                "--unverified",
+            ]
+        )
+        == 0
+    )
     with pytest.raises(hevr.VerificationError, match="untagged=True"):
         hevr.trust_store(ev, priv)  # the refusal's advice alone does not accept a store without tags
     hevr.trust_store(ev, priv, untagged=True)
@@ -174,10 +189,10 @@ def test_a_frame_file_saying_its_store_has_tags(policy_keypair256, tmp_path, kno
     img.save(tmp_path / "f.hevr")
     raw = (tmp_path / "f.hevr").read_bytes()
     (hl,) = LENGTH.unpack_from(raw, len(MAGIC))
-    header = json.loads(raw[HEAD:HEAD + hl])
+    header = json.loads(raw[HEAD : HEAD + hl])
     for info in ({**header["info"], "tags": True}, {k: v for k, v in header["info"].items() if k != "store"}):
         head = json.dumps(dict(header, info=info)).encode()
-        body = MAGIC + LENGTH.pack(len(head)) + head + raw[HEAD + hl:-32]
+        body = MAGIC + LENGTH.pack(len(head)) + head + raw[HEAD + hl : -32]
         (tmp_path / "g.hevr").write_bytes(body + hashlib.sha256(body).digest())
         with pytest.raises(hevr.VerificationError, match="policy"):
             hevr.load_image(tmp_path / "g.hevr").decrypt(priv)

@@ -57,8 +57,11 @@ def test_a_public_n_that_cannot_be_p_times_q_is_refused(tmp_path, keypair256, fm
     assert n.bit_length() == 256
     path = tmp_path / "k.pub.json"
     _public_file(path, n, fmt)
-    with pytest.raises(hevr.InvalidKeyError, match=rf"^key file {path}: field 'n': expected a product of two "
-                                                   rf"distinct odd primes of 128 bits each, got {words}"):
+    with pytest.raises(
+        hevr.InvalidKeyError,
+        match=rf"^key file {path}: field 'n': expected a product of two "
+        rf"distinct odd primes of 128 bits each, got {words}",
+    ):
         _load(path)
 
 
@@ -87,8 +90,11 @@ def test_a_private_file_edited_to_say_public_is_refused(tmp_path, keypair256, ex
     path = tmp_path / "k.json"
     path.write_text(json.dumps(d))
     os.chmod(path, 0o600)
-    with pytest.raises(hevr.InvalidKeyError, match=rf"field 'kind': expected 'private' for a file holding the "
-                                                   rf"private fields? '{extra[0]}'.*got 'public'") as info:
+    with pytest.raises(
+        hevr.InvalidKeyError,
+        match=rf"field 'kind': expected 'private' for a file holding the "
+        rf"private fields? '{extra[0]}'.*got 'public'",
+    ) as info:
         _load(path)
     assert not any(s in str(info.value) for s in _secrets(priv))
 
@@ -127,8 +133,11 @@ def test_a_private_key_others_may_read_warns_like_openssh(tmp_path, keypair256, 
     path = tmp_path / "key.json"
     priv.save(path, format=fmt)
     os.chmod(path, mode)
-    with pytest.warns(KeyFilePermissionWarning, match=rf"UNPROTECTED PRIVATE KEY FILE: key file {path} has "
-                                                      rf"permissions {mode:04o}.*run: chmod 600 {path}") as rec:
+    with pytest.warns(
+        KeyFilePermissionWarning,
+        match=rf"UNPROTECTED PRIVATE KEY FILE: key file {path} has "
+        rf"permissions {mode:04o}.*run: chmod 600 {path}",
+    ) as rec:
         assert _load(path) == priv  # a warning, not a refusal (module docstring of hevr.crypto.keyfile)
     assert not any(s in str(w.message) for w in rec for s in _secrets(priv))
 

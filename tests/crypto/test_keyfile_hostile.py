@@ -54,9 +54,20 @@ def test_non_ascii_digits_are_refused(tmp_path, keypair256, field, digits):
     assert not any(s in msg for s in _secrets(priv))
 
 
-@pytest.mark.parametrize("value, got", [("1_000", "other than 0-9"), (" 12", "other than 0-9"), ("-7", "other than 0-9"),
-                                        ("+7", "other than 0-9"), ("", "other than 0-9"), ("²", "other than 0-9"),
-                                        (12, "a JSON int"), (None, "nothing"), ("9" * 5000, "5000 digits")])
+@pytest.mark.parametrize(
+    "value, got",
+    [
+        ("1_000", "other than 0-9"),
+        (" 12", "other than 0-9"),
+        ("-7", "other than 0-9"),
+        ("+7", "other than 0-9"),
+        ("", "other than 0-9"),
+        ("²", "other than 0-9"),
+        (12, "a JSON int"),
+        (None, "nothing"),
+        ("9" * 5000, "5000 digits"),
+    ],
+)
 def test_bad_decimal_fields_name_the_field(tmp_path, keypair256, value, got):
     _, priv = keypair256
     d = priv.to_dict()
@@ -67,13 +78,16 @@ def test_bad_decimal_fields_name_the_field(tmp_path, keypair256, value, got):
     assert "field 'p': expected" in msg and got in msg
 
 
-@pytest.mark.parametrize("raw, needle", [
-    (b'{"format": "hevr-key", "n": "\xff\xfe"}', "not UTF-8"),
-    (b"\xe9t\xe9", "not UTF-8"),
-    (b"[" * 60000, "nested too deeply"),
-    (b'{"format": "hevr-key", "version": ' + b"1" * 5000 + b"}", "number too long"),
-    (b" " * (MAX_KEY_FILE_BYTES + 1), f"expected at most {MAX_KEY_FILE_BYTES} bytes"),
-])
+@pytest.mark.parametrize(
+    "raw, needle",
+    [
+        (b'{"format": "hevr-key", "n": "\xff\xfe"}', "not UTF-8"),
+        (b"\xe9t\xe9", "not UTF-8"),
+        (b"[" * 60000, "nested too deeply"),
+        (b'{"format": "hevr-key", "version": ' + b"1" * 5000 + b"}", "number too long"),
+        (b" " * (MAX_KEY_FILE_BYTES + 1), f"expected at most {MAX_KEY_FILE_BYTES} bytes"),
+    ],
+)
 def test_hostile_bytes(tmp_path, raw, needle):
     path = tmp_path / "k.json"
     path.write_bytes(raw)
@@ -108,8 +122,15 @@ def test_folder_and_fifo_are_refused_without_blocking(tmp_path):
     assert "expected a regular file" in _load(fifo)  # reading would block forever
 
 
-@pytest.mark.parametrize("mutate, needle", [({"version": True}, "version"), ({"version": 1.0}, "version"),
-                                            ({"bits": True}, "bits"), ({"bits": "256"}, "bits")])
+@pytest.mark.parametrize(
+    "mutate, needle",
+    [
+        ({"version": True}, "version"),
+        ({"version": 1.0}, "version"),
+        ({"bits": True}, "bits"),
+        ({"bits": "256"}, "bits"),
+    ],
+)
 def test_json_types_are_exact(tmp_path, keypair256, mutate, needle):
     _, priv = keypair256
     d = priv.to_dict()

@@ -129,7 +129,12 @@ def _tamper(d, **kw):
         (lambda d, pr: _tamper(d, version=9), "version"),
         (lambda d, pr: _tamper(d, kind="weird"), "kind"),
         (lambda d, pr: _tamper(d, bits=1024), "bits"),
-        (lambda d, pr: _tamper(d, n=str(int(pr.p) * int(pr.p)), p=str(int(pr.p)), q=str(int(pr.p)), fingerprint=None), "distinct"),
+        (
+            lambda d, pr: _tamper(
+                d, n=str(int(pr.p) * int(pr.p)), p=str(int(pr.p)), q=str(int(pr.p)), fingerprint=None
+            ),
+            "distinct",
+        ),
     ],
 )
 def test_tampered_files_rejected(tmp_path, keypair256, mutate, match):

@@ -75,7 +75,9 @@ def test_plain_add_and_negation(keypair256):
 
 
 @settings(max_examples=80, deadline=None)
-@given(a=st.integers(-(10**9), 10**9), d=st.one_of(st.integers(1, 10**6), st.floats(1e-3, 1e6)), digits=st.integers(1, 12))
+@given(
+    a=st.integers(-(10**9), 10**9), d=st.one_of(st.integers(1, 10**6), st.floats(1e-3, 1e6)), digits=st.integers(1, 12)
+)
 def test_reciprocal_division_relative_error(keypair256, a, d, digits):
     pub, priv = keypair256
     q = pub.encrypt_number(a).divide(d, digits=digits)

@@ -132,8 +132,10 @@ def test_2048_bit_key_on_a_few_values(keypair2048):
 def test_batched_crt_decryption_is_the_same(keypair512, threads):
     """raw_decrypt_crt_list (powmod_base_list on threads) gives raw_decrypt_crt's numbers, in order."""
     from hevr.crypto.paillier import raw_decrypt_crt, raw_decrypt_crt_list
+
     pub, priv = keypair512
     import random
+
     rng = random.Random(7)
     ms = [rng.randrange(int(pub.n) // 3) for _ in range(45)]
     cs = [priv.encrypt(m) for m in ms]

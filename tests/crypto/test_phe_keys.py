@@ -179,7 +179,7 @@ def test_phe_reads_hevr_exported_keys(tmp_path, keypair512):
     assert _pheutil_decrypt(tmp_path / "k.json", pub.encrypt(-77), tmp_path) == "-77"
     pub.save(tmp_path / "hevr.pub.json", format="phe")  # and pheutil encrypts with hevr's public file
     out = json.loads(_pheutil("encrypt", str(tmp_path / "hevr.pub.json"), "3"))
-    assert priv.decrypt(int(out["v"])) == 3 * 16 ** 32
+    assert priv.decrypt(int(out["v"])) == 3 * 16**32
 
 
 def test_encrypted_volume_with_a_pheutil_key(tmp_path, pheutil_keys):
@@ -277,8 +277,10 @@ HOSTILE = {
     "wrong alg": (lambda d, pr: _set(d, pub=_set(d["pub"], alg="PAI-GN2")), "field 'pub.alg': expected 'PAI-GN1'"),
     "no alg": (lambda d, pr: _set(d, pub=_drop(d["pub"], "alg")), "field 'pub.alg': expected 'PAI-GN1'.* nothing"),
     # base64url
-    "standard base64": (lambda d, pr: _set(d, p=_b64(int(pr.p)).replace("-", "+").replace("_", "/") + "+/"),
-                        "field 'p': .* characters other than"),
+    "standard base64": (
+        lambda d, pr: _set(d, p=_b64(int(pr.p)).replace("-", "+").replace("_", "/") + "+/"),
+        "field 'p': .* characters other than",
+    ),
     "padding": (lambda d, pr: _set(d, q=_b64(int(pr.q)) + "=="), "field 'q': .* characters other than"),
     "non-ASCII": (lambda d, pr: _set(d, p="é" + _b64(int(pr.p))[1:]), "field 'p': .* characters other than"),
     "length 1 mod 4": (lambda d, pr: _set(d, p="A" * 41), "field 'p': .* length of 1 modulo 4"),
@@ -287,8 +289,10 @@ HOSTILE = {
     "too long": (lambda d, pr: _set(d, p="A" * 1000), "field 'p': .* got 1000 characters"),
     # consistency and sizes
     "p swapped": (lambda d, pr: _set(d, p=_b64(_other_prime(pr))), "p·q does not equal n"),
-    "n of another key": (lambda d, pr: _set(d, pub=_set(d["pub"], n=_b64(int(pr.public_key.n) + 2))),
-                         "p·q does not equal n"),
+    "n of another key": (
+        lambda d, pr: _set(d, pub=_set(d["pub"], n=_b64(int(pr.public_key.n) + 2))),
+        "p·q does not equal n",
+    ),
     "p equals q": (lambda d, pr: _set(d, p=d["q"]), "p·q does not equal n"),
     "n too small": (lambda d, pr: _set(d, pub=_set(d["pub"], n=_b64(2**61 + 1))), "field 'pub.n': expected an even"),
     "n odd bits": (lambda d, pr: _set(d, pub=_set(d["pub"], n=_b64(2**300 + 1))), r"got 301 bits"),
@@ -297,10 +301,14 @@ HOSTILE = {
     "lambda odd": (lambda d, pr: _legacy(pr, (pr.p - 1) * (pr.q - 1) + 1), "field 'lambda': expected"),
     "mu wrong": (lambda d, pr: _set(_legacy(pr, (pr.p - 1) * (pr.q - 1)), mu=_b64(12345)), "field 'mu': expected"),
     "no mu": (lambda d, pr: _drop(_legacy(pr, (pr.p - 1) * (pr.q - 1)), "mu"), "field 'mu': expected base64url"),
-    "lambda >= n": (lambda d, pr: _set(_legacy(pr, 1), **{"lambda": _b64(int(pr.public_key.n) + 4)}),
-                    "field 'lambda': expected a value below n"),
-    "lambda disagrees with p, q": (lambda d, pr: _with_lambda(pr, (pr.p - 1) * (pr.q - 1) + 2),
-                                   "field 'lambda': expected a multiple of lcm"),
+    "lambda >= n": (
+        lambda d, pr: _set(_legacy(pr, 1), **{"lambda": _b64(int(pr.public_key.n) + 4)}),
+        "field 'lambda': expected a value below n",
+    ),
+    "lambda disagrees with p, q": (
+        lambda d, pr: _with_lambda(pr, (pr.p - 1) * (pr.q - 1) + 2),
+        "field 'lambda': expected a multiple of lcm",
+    ),
 }
 
 
@@ -328,8 +336,13 @@ def test_hostile_phe_files(tmp_path, keypair256, case):
 
 def test_composite_factor_is_refused(tmp_path):
     n, p, q = _composite_factor_key(256)
-    d = {"kty": "DAJ", "key_ops": ["decrypt"], "p": _b64(p), "q": _b64(q),
-         "pub": {"kty": "DAJ", "alg": "PAI-GN1", "key_ops": ["encrypt"], "n": _b64(n)}}
+    d = {
+        "kty": "DAJ",
+        "key_ops": ["decrypt"],
+        "p": _b64(p),
+        "q": _b64(q),
+        "pub": {"kty": "DAJ", "alg": "PAI-GN1", "key_ops": ["encrypt"], "n": _b64(n)},
+    }
     (tmp_path / "k.json").write_text(json.dumps(d))
     with pytest.raises(hevr.InvalidKeyError, match="p or q is not prime") as info:
         _load(tmp_path / "k.json")

@@ -42,7 +42,7 @@ def test_table_is_built_once_per_key_and_process(keypair):
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.integers(min_value=-(2 ** 60), max_value=2 ** 60))
+@given(st.integers(min_value=-(2**60), max_value=2**60))
 def test_public_encryption_decrypts_any_value(keypair256, value):
     pub, priv = keypair256
     c = pub.encrypt(value)

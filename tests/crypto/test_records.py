@@ -58,29 +58,35 @@ def test_python_ints_generators_and_numpy_ints():
     assert mpz_to_bytes([np.int64(5), np.uint16(258)], 2).tolist() == [[0, 5], [1, 2]]
 
 
-@pytest.mark.parametrize("arr", [
-    np.zeros((2, 4), np.int8),
-    np.zeros((2, 4), np.uint16),
-    np.array(5, np.uint8),
-    np.zeros((3, 0), np.uint8),
-    [[1, 2]],
-])
+@pytest.mark.parametrize(
+    "arr",
+    [
+        np.zeros((2, 4), np.int8),
+        np.zeros((2, 4), np.uint16),
+        np.array(5, np.uint8),
+        np.zeros((3, 0), np.uint8),
+        [[1, 2]],
+    ],
+)
 def test_decode_rejects_bad_arrays(arr):
     with pytest.raises(ParameterError, match="arr"):
         bytes_to_mpz(arr)
 
 
-@pytest.mark.parametrize("values, width, match", [
-    ([1, 256], 1, r"values\[1\].*does not fit"),
-    ([mpz(2) ** 64], 8, r"values\[0\].*does not fit"),
-    ([3, -1], 4, r"values\[1\].*non-negative"),
-    ([1.0], 4, r"values\[0\].*integer"),
-    (["12"], 4, r"values\[0\].*integer"),
-    ([None], 4, r"values\[0\].*integer"),
-    ([1], 0, "width"),
-    ([1], 2.0, "width"),
-    ([1], True, "width"),
-])
+@pytest.mark.parametrize(
+    "values, width, match",
+    [
+        ([1, 256], 1, r"values\[1\].*does not fit"),
+        ([mpz(2) ** 64], 8, r"values\[0\].*does not fit"),
+        ([3, -1], 4, r"values\[1\].*non-negative"),
+        ([1.0], 4, r"values\[0\].*integer"),
+        (["12"], 4, r"values\[0\].*integer"),
+        ([None], 4, r"values\[0\].*integer"),
+        ([1], 0, "width"),
+        ([1], 2.0, "width"),
+        ([1], True, "width"),
+    ],
+)
 def test_encode_rejects_bad_values(values, width, match):
     with pytest.raises(ParameterError, match=match):
         mpz_to_bytes(values, width)

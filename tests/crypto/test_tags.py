@@ -101,6 +101,7 @@ def test_altered_sums_are_caught(scene, attack):
         else:
             S[0] = S[9]
         return S, T
+
     assert _frame(scene, indptr, vox, w, tamper=tamper)[0] is False
 
 
@@ -124,8 +125,9 @@ def test_tags_of_another_store_and_guessed_reencryptions_are_caught(scene):
     pub, priv, key, m = scene[:4]
     indptr, vox, w = _rows(6)
     other_beta = betas(key, "store-b", "scalar", 0, 0, np.arange(V))  # same key, another store id
-    other_tags = priv.owner.encrypt_residues([gmpy2.mpz(t) for t in raw_tags(
-        key, [int(x) % int(pub.n) for x in m.tolist()], other_beta)])
+    other_tags = priv.owner.encrypt_residues(
+        [gmpy2.mpz(t) for t in raw_tags(key, [int(x) % int(pub.n) for x in m.tolist()], other_beta)]
+    )
     assert _frame(scene, indptr, vox, w, tags=other_tags)[0] is False
     # a server that re-encrypts values it guessed (here the true ones!) cannot make their tags
     guessed = [pub.encrypt(int(x)) for x in m.tolist()]

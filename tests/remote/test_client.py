@@ -63,8 +63,12 @@ class Handler(socketserver.StreamRequestHandler):
 
 def answer(status=200, media="application/json", body=b"", extra=""):
     def fn(w, _):
-        w.write(f"HTTP/1.1 {status} X\r\nContent-Type: {media}\r\nContent-Length: {len(body)}\r\n{extra}"
-                "Connection: close\r\n\r\n".encode() + body)
+        w.write(
+            f"HTTP/1.1 {status} X\r\nContent-Type: {media}\r\nContent-Length: {len(body)}\r\n{extra}"
+            "Connection: close\r\n\r\n".encode()
+            + body
+        )
+
     return fn
 
 
@@ -83,8 +87,11 @@ def truth(tmp_path_factory, keypair256):
 
 def _rv(truth, render, timeout=5.0, extra_routes=None):
     ev, _, _, _, desc, _ = truth
-    routes = {("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=desc), ("POST", "/render"): render,
-              **(extra_routes or {})}
+    routes = {
+        ("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=desc),
+        ("POST", "/render"): render,
+        **(extra_routes or {}),
+    }
     double = Double(routes)
     return double, connect(double.url, timeout=timeout).open(ev.meta.store_id)
 
@@ -110,27 +117,59 @@ def test_honest_double_gives_the_image(truth):
 IMG = "application/vnd.hevr.image"
 
 
-@pytest.mark.parametrize("name, render, match", [
-    ("another camera's image", lambda t: answer(media=IMG, body=t[3].to_bytes()), "not the one this request implies"),
-    ("truncated", lambda t: answer(media=IMG, body=t[2].to_bytes()[:-40]), "valid .hevr"),
-    ("garbage", lambda t: answer(media=IMG, body=bytes(range(256)) * 8), "valid .hevr"),
-    ("wrong media", lambda t: answer(media="application/python-pickle", body=b"\x80\x04N."), "expected application"),
-    ("oversized", lambda t: (lambda w, _: w.write(f"HTTP/1.1 200 OK\r\nContent-Type: {IMG}\r\n"
-                                                   f"Content-Length: {10**9}\r\n\r\n".encode() + b"\0" * 1000)),
-     "refused unread"),
-    ("oversized, chunked", lambda t: (lambda w, _: (w.write(f"HTTP/1.1 200 OK\r\nContent-Type: {IMG}\r\n"
-                                                              "Transfer-Encoding: chunked\r\n\r\n".encode()),
-                                                      [w.write(b"10000\r\n" + b"\0" * 65536 + b"\r\n")
-                                                       for _ in range(40)])), "at most"),
-    ("redirect", lambda t: answer(302, extra="Location: http://evil.example/steal\r\n"), "redirect"),
-    ("compression bomb", lambda t: answer(media=IMG, body=gzip.compress(b"\0" * 50_000_000),
-                                          extra="Content-Encoding: gzip\r\n"), "Content-Encoding"),
-    ("problem", lambda t: answer(500, "application/problem+json",
-                                 json.dumps({"title": "boom", "status": 500, "detail": "disk on fire"}).encode()),
-     "disk on fire"),
-    ("not HTTP", lambda t: (lambda w, _: w.write(b"\x00\x01garbage\r\n\r\n")), "^server "),
-    ("closed", lambda t: (lambda w, _: None), "^server "),
-])
+@pytest.mark.parametrize(
+    "name, render, match",
+    [
+        (
+            "another camera's image",
+            lambda t: answer(media=IMG, body=t[3].to_bytes()),
+            "not the one this request implies",
+        ),
+        ("truncated", lambda t: answer(media=IMG, body=t[2].to_bytes()[:-40]), "valid .hevr"),
+        ("garbage", lambda t: answer(media=IMG, body=bytes(range(256)) * 8), "valid .hevr"),
+        (
+            "wrong media",
+            lambda t: answer(media="application/python-pickle", body=b"\x80\x04N."),
+            "expected application",
+        ),
+        (
+            "oversized",
+            lambda t: (
+                lambda w, _: w.write(
+                    f"HTTP/1.1 200 OK\r\nContent-Type: {IMG}\r\nContent-Length: {10**9}\r\n\r\n".encode() + b"\0" * 1000
+                )
+            ),
+            "refused unread",
+        ),
+        (
+            "oversized, chunked",
+            lambda t: (
+                lambda w, _: (
+                    w.write(f"HTTP/1.1 200 OK\r\nContent-Type: {IMG}\r\nTransfer-Encoding: chunked\r\n\r\n".encode()),
+                    [w.write(b"10000\r\n" + b"\0" * 65536 + b"\r\n") for _ in range(40)],
+                )
+            ),
+            "at most",
+        ),
+        ("redirect", lambda t: answer(302, extra="Location: http://evil.example/steal\r\n"), "redirect"),
+        (
+            "compression bomb",
+            lambda t: answer(media=IMG, body=gzip.compress(b"\0" * 50_000_000), extra="Content-Encoding: gzip\r\n"),
+            "Content-Encoding",
+        ),
+        (
+            "problem",
+            lambda t: answer(
+                500,
+                "application/problem+json",
+                json.dumps({"title": "boom", "status": 500, "detail": "disk on fire"}).encode(),
+            ),
+            "disk on fire",
+        ),
+        ("not HTTP", lambda t: lambda w, _: w.write(b"\x00\x01garbage\r\n\r\n"), "^server "),
+        ("closed", lambda t: lambda w, _: None, "^server "),
+    ],
+)
 def test_lying_server_gives_a_clean_error(truth, name, render, match):
     """A lie the checks catch is a RemoteAnswerError (issue 48); a server failure, a redirect or a
     connection without an HTTP answer is another RemoteError."""
@@ -172,8 +211,9 @@ def test_forged_streams_and_aggregates(truth):
     ]
     for frames, match in cases:
         ev_, _, _, _, desc_, _ = truth
-        double = Double({("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=desc),
-                         ("POST", "/stream"): stream_of(frames)})
+        double = Double(
+            {("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=desc), ("POST", "/stream"): stream_of(frames)}
+        )
         rv = connect(double.url, timeout=5).open(ev.meta.store_id)
         with pytest.raises(hevr.HevrError, match=match):
             hevr.render_frame(rv, cam, priv, progress=False)
@@ -185,15 +225,19 @@ def test_bad_store_descriptions(truth):
     d = json.loads(desc)
     forged = dict(d, metadata=dict(d["metadata"], shape=[9, 9, 9]))  # keyless checksum now wrong
     other = dict(d, id="0" * 16)
-    cases = ((forged, "checksum"), (other, "names the store"), ([], "JSON object"),
-             # checked by the schema's Store model (hevr.remote.schema), each naming the field
-             ({"id": 1}, r"description: expected the fields \['id', 'metadata', 'name'\], missing \['metadata'\]"),
-             (dict(d, id=1), r"a store description: id: expected 16 lower-case hex digits, got 1"),
-             (dict(d, id="ABCDEF0123456789"), "id: expected 16 lower-case hex digits"),
-             (dict(d, colour="red"), r"a store description: expected only the fields .*got extra fields \['colour'\]"),
-             (dict(d, metadata=[1]), "metadata: expected"),
-             (dict(d, name="a/b"), "name: expected a store name of 1-64"),
-             (dict(d, name="0123456789abcdef"), "name: expected a store name that is not 16 hex digits"))
+    cases = (
+        (forged, "checksum"),
+        (other, "names the store"),
+        ([], "JSON object"),
+        # checked by the schema's Store model (hevr.remote.schema), each naming the field
+        ({"id": 1}, r"description: expected the fields \['id', 'metadata', 'name'\], missing \['metadata'\]"),
+        (dict(d, id=1), r"a store description: id: expected 16 lower-case hex digits, got 1"),
+        (dict(d, id="ABCDEF0123456789"), "id: expected 16 lower-case hex digits"),
+        (dict(d, colour="red"), r"a store description: expected only the fields .*got extra fields \['colour'\]"),
+        (dict(d, metadata=[1]), "metadata: expected"),
+        (dict(d, name="a/b"), "name: expected a store name of 1-64"),
+        (dict(d, name="0123456789abcdef"), "name: expected a store name that is not 16 hex digits"),
+    )
     for doc, match in cases:
         body = json.dumps(doc).encode()
         double = Double({("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=body)})
@@ -207,19 +251,25 @@ def test_store_names_in_descriptions(truth):
     that name, and the volume renders by the id of its checked metadata."""
     ev, _, _, _, desc, _ = truth
     d, sid = json.loads(desc), ev.meta.store_id
-    routes = {("GET", "/v1/stores/ct"): answer(body=json.dumps(dict(d, name="ct")).encode()),
-              ("GET", "/v1/stores/mr"): answer(body=json.dumps(dict(d, name="ct")).encode()),
-              ("GET", "/v1/stores/us"): answer(body=desc),
-              ("GET", "/v1/stores/xx"): answer(body=json.dumps(dict(d, name="a/b")).encode()),
-              ("GET", "/v1/stores/yy"): answer(body=json.dumps(dict(d, name="0123456789abcdef")).encode()),
-              ("GET", "/v1/stores/zz"): answer(body=json.dumps(dict(d, name="zz", extra=1)).encode())}
+    routes = {
+        ("GET", "/v1/stores/ct"): answer(body=json.dumps(dict(d, name="ct")).encode()),
+        ("GET", "/v1/stores/mr"): answer(body=json.dumps(dict(d, name="ct")).encode()),
+        ("GET", "/v1/stores/us"): answer(body=desc),
+        ("GET", "/v1/stores/xx"): answer(body=json.dumps(dict(d, name="a/b")).encode()),
+        ("GET", "/v1/stores/yy"): answer(body=json.dumps(dict(d, name="0123456789abcdef")).encode()),
+        ("GET", "/v1/stores/zz"): answer(body=json.dumps(dict(d, name="zz", extra=1)).encode()),
+    }
     double = Double(routes)
     server = connect(double.url, timeout=5)
     rv = server.open("ct")
     assert (rv.name, rv.store_id, rv.path) == ("ct", sid, f"{double.url}/v1/stores/ct")
-    for name, match in (("mr", "named 'mr', got one named 'ct'"), ("us", "one without a name"),
-                        ("xx", "name: expected a store name"), ("yy", "not 16 hex digits"),
-                        ("zz", r"expected only the fields .*got extra fields \['extra'\]")):
+    for name, match in (
+        ("mr", "named 'mr', got one named 'ct'"),
+        ("us", "one without a name"),
+        ("xx", "name: expected a store name"),
+        ("yy", "not 16 hex digits"),
+        ("zz", r"expected only the fields .*got extra fields \['extra'\]"),
+    ):
         with pytest.raises(hevr.RemoteError, match=match):
             server.open(name)
     double.shutdown()
@@ -244,11 +294,30 @@ def test_unreachable_and_bad_arguments():
 
 def test_cli_writes_nothing_on_a_lie(truth, tmp_path):
     ev, cam, img, other, desc, _ = truth
-    double = Double({("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=desc),
-                     ("POST", "/render"): answer(media=IMG, body=other.to_bytes())})
+    double = Double(
+        {
+            ("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=desc),
+            ("POST", "/render"): answer(media=IMG, body=other.to_bytes()),
+        }
+    )
     out = tmp_path / "f.hevr"
-    code = main(["render", "--server", double.url, ev.meta.store_id, "--out", str(out), "--size", "9x7",
-                 "--azimuth", "20", "--timeout", "5", "-q"])
+    code = main(
+        [
+            "render",
+            "--server",
+            double.url,
+            ev.meta.store_id,
+            "--out",
+            str(out),
+            "--size",
+            "9x7",
+            "--azimuth",
+            "20",
+            "--timeout",
+            "5",
+            "-q",
+        ]
+    )
     double.shutdown()
     assert code == 1 and not out.exists() and list(tmp_path.iterdir()) == []
 
@@ -264,15 +333,18 @@ def test_review_findings_end_in_remote_errors(truth, keypair256, tmp_path):
     zeroed.ciphertexts[0] = np.zeros_like(zeroed.ciphertexts[0])
     _expect(truth, answer(media=IMG, body=zeroed.to_bytes()), "not a ciphertext", cls=hevr.RemoteAnswerError)
 
-    vev = hevr.encrypt_volume(hevr.phantom(6), str(tmp_path / "t.zarr"), priv, brick=6, verifiable=True,
-                              progress=False)
+    vev = hevr.encrypt_volume(hevr.phantom(6), str(tmp_path / "t.zarr"), priv, brick=6, verifiable=True, progress=False)
     vcam = hevr.Camera.orbit(vev, width=5, height=4)
     vimg = hevr.render(vev, vcam, progress=False, verify=False)
     vdesc = json.dumps({"id": vev.meta.store_id, "metadata": vev.meta.to_dict()}).encode()
     for agg in ("\u00b2", "1" * 3000, "0", "-5"):
-        double = Double({("GET", f"/v1/stores/{vev.meta.store_id}"): answer(body=vdesc),
-                         ("POST", "/render"): answer(media=IMG, body=vimg.to_bytes()),
-                         ("POST", "/verify"): answer(body=json.dumps({"aggregate": agg}).encode())})
+        double = Double(
+            {
+                ("GET", f"/v1/stores/{vev.meta.store_id}"): answer(body=vdesc),
+                ("POST", "/render"): answer(media=IMG, body=vimg.to_bytes()),
+                ("POST", "/verify"): answer(body=json.dumps({"aggregate": agg}).encode()),
+            }
+        )
         rv = connect(double.url, timeout=5).open(vev.meta.store_id)
         with pytest.raises(hevr.RemoteError, match="aggregate"):
             hevr.render(rv, vcam, progress=False)
@@ -280,8 +352,12 @@ def test_review_findings_end_in_remote_errors(truth, keypair256, tmp_path):
 
     for records in (0, 1, 7):
         frames = pack_frame(0, b"\1" * (W * records)) + pack_frame(END, json.dumps({"ok": True}).encode())
-        double = Double({("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=desc),
-                         ("POST", "/stream"): answer(media="application/vnd.hevr.units", body=frames)})
+        double = Double(
+            {
+                ("GET", f"/v1/stores/{ev.meta.store_id}"): answer(body=desc),
+                ("POST", "/stream"): answer(media="application/vnd.hevr.units", body=frames),
+            }
+        )
         rv = connect(double.url, timeout=5).open(ev.meta.store_id)
         with pytest.raises(hevr.RemoteError, match="unit 0"):
             hevr.render_frame(rv, cam, priv, progress=False)
@@ -303,17 +379,26 @@ def test_store_lists_and_aggregates_are_checked_by_the_schema(truth):
 
     ev, _, _, _, desc, _ = truth
     item, url = json.loads(desc), "http://s"
-    assert [(sid, name) for sid, name, _ in parse_stores({"stores": [item, dict(item, name="ct")]}, url)] == \
-        [(ev.meta.store_id, None), (ev.meta.store_id, "ct")]
-    for doc, match in (({"stores": "x"}, r"stores: expected an array"), ({}, r"missing \['stores'\]"),
-                       ({"stores": [], "more": 1}, r"extra fields \['more'\]"),
-                       ({"stores": [dict(item, id="x")]}, r"stores\[0\]\.id: expected 16 lower-case hex")):
+    assert [(sid, name) for sid, name, _ in parse_stores({"stores": [item, dict(item, name="ct")]}, url)] == [
+        (ev.meta.store_id, None),
+        (ev.meta.store_id, "ct"),
+    ]
+    for doc, match in (
+        ({"stores": "x"}, r"stores: expected an array"),
+        ({}, r"missing \['stores'\]"),
+        ({"stores": [], "more": 1}, r"extra fields \['more'\]"),
+        ({"stores": [dict(item, id="x")]}, r"stores\[0\]\.id: expected 16 lower-case hex"),
+    ):
         with pytest.raises(hevr.RemoteAnswerError, match=match):
             parse_stores(doc, url)
     n = 1000003 * 1000033
     assert _aggregate(b'{"aggregate": "12345"}', n, url) == 12345
-    for raw, match in ((b'{"aggregate": "5", "seed": "00"}', r"extra fields \['seed'\]"),
-                       (b'{"aggregate": 5}', "aggregate: expected a string"), (b'{}', r"missing \['aggregate'\]"),
-                       (b'{"aggregate": "5\\n"}', "aggregate: expected"), (b'{"aggregate": "0"}', r"in \(0, n²\)")):
+    for raw, match in (
+        (b'{"aggregate": "5", "seed": "00"}', r"extra fields \['seed'\]"),
+        (b'{"aggregate": 5}', "aggregate: expected a string"),
+        (b"{}", r"missing \['aggregate'\]"),
+        (b'{"aggregate": "5\\n"}', "aggregate: expected"),
+        (b'{"aggregate": "0"}', r"in \(0, n²\)"),
+    ):
         with pytest.raises(hevr.RemoteAnswerError, match=match):
             _aggregate(raw, n, url)

@@ -54,15 +54,22 @@ class Dribbler:
                 path = head.split(b" ", 2)[1].decode()
                 body = next((b for suffix, b in self.honest.items() if path.endswith(suffix)), None)
                 if body is not None:
-                    conn.sendall(b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nContent-Length: "
-                                 + str(len(body)).encode() + b"\r\nConnection: close\r\n\r\n" + body)
+                    conn.sendall(
+                        b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nContent-Length: "
+                        + str(len(body)).encode()
+                        + b"\r\nConnection: close\r\n\r\n"
+                        + body
+                    )
                     return
-                answer = (b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nX-Pad: " + b"a" * 200
-                          + b"\r\nContent-Length: 14\r\n\r\n{\"stores\": []}")
+                answer = (
+                    b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nX-Pad: "
+                    + b"a" * 200
+                    + b'\r\nContent-Length: 14\r\n\r\n{"stores": []}'
+                )
                 for i in range(len(answer)):
                     if self.stop.wait(self.interval):
                         return
-                    conn.sendall(answer[i:i + 1])
+                    conn.sendall(answer[i : i + 1])
             except OSError:
                 return
 
@@ -97,8 +104,9 @@ def test_a_dribbled_head_hits_the_deadline(dribbler):
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair256):
     _, priv = keypair256
-    ev = hevr.encrypt_volume(hevr.phantom(8), str(tmp_path_factory.mktemp("dl") / "v.zarr"), priv, brick=4,
-                             progress=False)
+    ev = hevr.encrypt_volume(
+        hevr.phantom(8), str(tmp_path_factory.mktemp("dl") / "v.zarr"), priv, brick=4, progress=False
+    )
     return ev, json.dumps({"id": ev.meta.store_id, "metadata": ev.meta.to_dict()}).encode()
 
 
@@ -117,8 +125,9 @@ def test_the_cli_gives_up_at_its_timeout(dribbler, store, tmp_path, capsys):
     d = dribbler()
     out = tmp_path / "f.hevr"
     t0 = time.monotonic()
-    code = main(["render", "--server", d.url, ev.meta.store_id, "--out", str(out), "--size", "6x5", "--timeout", "3",
-                 "-q"])
+    code = main(
+        ["render", "--server", d.url, ev.meta.store_id, "--out", str(out), "--size", "6x5", "--timeout", "3", "-q"]
+    )
     took = time.monotonic() - t0
     assert code == 1 and not out.exists()
     assert "timeout: expected an answer within 3 s" in capsys.readouterr().err

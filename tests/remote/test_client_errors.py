@@ -20,8 +20,11 @@ PROBLEM = "application/problem+json"
 
 
 def problem(status, title="x", detail="y", headers=None):
-    return httpx.Response(status, headers={"Content-Type": PROBLEM, **(headers or {})},
-                          content=json.dumps({"title": title, "status": status, "detail": detail}).encode())
+    return httpx.Response(
+        status,
+        headers={"Content-Type": PROBLEM, **(headers or {})},
+        content=json.dumps({"title": title, "status": status, "detail": detail}).encode(),
+    )
 
 
 def stores_ok():
@@ -47,14 +50,17 @@ def server(script, **kw):
     return connect(URL, transport=httpx.MockTransport(script), **kw)
 
 
-@pytest.mark.parametrize("status, cls, builtin, words", [
-    (401, hevr.RemoteUnauthorisedError, PermissionError, "no token was sent: set HEVR_TOKEN"),
-    (403, hevr.RemoteUnauthorisedError, PermissionError, "pass token="),
-    (404, hevr.RemoteNotFoundError, LookupError, "HTTP 404"),
-    (400, hevr.RemoteRefusedError, ValueError, "HTTP 400"),
-    (413, hevr.RemoteRefusedError, ValueError, "HTTP 413"),
-    (422, hevr.RemoteRefusedError, ValueError, "HTTP 422: x; y"),
-])
+@pytest.mark.parametrize(
+    "status, cls, builtin, words",
+    [
+        (401, hevr.RemoteUnauthorisedError, PermissionError, "no token was sent: set HEVR_TOKEN"),
+        (403, hevr.RemoteUnauthorisedError, PermissionError, "pass token="),
+        (404, hevr.RemoteNotFoundError, LookupError, "HTTP 404"),
+        (400, hevr.RemoteRefusedError, ValueError, "HTTP 400"),
+        (413, hevr.RemoteRefusedError, ValueError, "HTTP 413"),
+        (422, hevr.RemoteRefusedError, ValueError, "HTTP 422: x; y"),
+    ],
+)
 def test_statuses_are_typed(status, cls, builtin, words):
     script = Script(problem(status))
     with pytest.raises(cls, match=words) as e:
@@ -90,8 +96,10 @@ def test_busy_then_ok_succeeds_after_one_retry():
 
 
 def test_a_render_request_is_retried_too():
-    script = Script(problem(503, "server out of memory", headers={"Retry-After": "0"}),
-                    lambda: httpx.Response(200, headers={"Content-Type": "application/json"}, content=b'{"a": 1}'))
+    script = Script(
+        problem(503, "server out of memory", headers={"Retry-After": "0"}),
+        lambda: httpx.Response(200, headers={"Content-Type": "application/json"}, content=b'{"a": 1}'),
+    )
     raw, _ = server(script).request("POST", "/v1/stores/0123456789abcdef/render", body={"x": 1})
     assert raw == b'{"a": 1}' and len(script.calls) == 2
     assert script.calls[0][1].content == script.calls[1][1].content == b'{"x":1}'
@@ -134,13 +142,18 @@ def test_failures_without_an_answer():
             connect(URL, **bad)
 
 
-@pytest.mark.parametrize("answer, words", [
-    (httpx.Response(200, headers={"Content-Type": "text/html"}, content=b"<html>"), "expected application/json"),
-    (httpx.Response(200, headers={"Content-Type": "application/json"}, content=b"[]"), "JSON object"),
-    (httpx.Response(200, headers={"Content-Type": "application/json", "Content-Encoding": "gzip"}, content=b"x"),
-     "Content-Encoding"),
-    (httpx.Response(200, headers={"Content-Type": "application/json"}, content=b" " * (2 << 20)), "at most"),
-])
+@pytest.mark.parametrize(
+    "answer, words",
+    [
+        (httpx.Response(200, headers={"Content-Type": "text/html"}, content=b"<html>"), "expected application/json"),
+        (httpx.Response(200, headers={"Content-Type": "application/json"}, content=b"[]"), "JSON object"),
+        (
+            httpx.Response(200, headers={"Content-Type": "application/json", "Content-Encoding": "gzip"}, content=b"x"),
+            "Content-Encoding",
+        ),
+        (httpx.Response(200, headers={"Content-Type": "application/json"}, content=b" " * (2 << 20)), "at most"),
+    ],
+)
 def test_answers_the_checks_refuse_are_answer_errors(answer, words):
     with pytest.raises(hevr.RemoteAnswerError, match=words) as e:
         server(Script(answer)).stores()
@@ -162,6 +175,7 @@ def test_slow_chunks_hit_the_deadline_but_the_callers_time_between_frames_does_n
                 time.sleep(delay)
                 yield pack_frame(i, b"\1" * 8)
             yield pack_frame(END, b'{"ok": true}')
+
         return lambda: httpx.Response(200, headers={"Content-Type": UNITS_MEDIA}, content=body())
 
     got = []
@@ -176,8 +190,8 @@ def test_slow_chunks_hit_the_deadline_but_the_callers_time_between_frames_does_n
 
 
 def test_retry_after_dates():
-    from email.utils import format_datetime
     from datetime import datetime, timedelta, timezone
+    from email.utils import format_datetime
 
     when = datetime.now(timezone.utc) + timedelta(seconds=30)
     assert 25 <= retry_after(format_datetime(when, usegmt=True)) <= 31

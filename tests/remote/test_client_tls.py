@@ -33,8 +33,10 @@ def listen(handle):
     return sock, sock.getsockname()[1]
 
 
-ANSWER = b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nContent-Length: 14\r\nConnection: close\r\n\r\n" \
-         b'{"stores": []}'
+ANSWER = (
+    b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nContent-Length: 14\r\nConnection: close\r\n\r\n"
+    b'{"stores": []}'
+)
 
 
 @pytest.fixture(scope="module")

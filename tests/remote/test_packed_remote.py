@@ -22,8 +22,9 @@ def packed_served(tmp_path_factory, keypair256):
     pub, priv = keypair256
     d = tmp_path_factory.mktemp("packed-served")
     vol = np.random.default_rng(3).integers(0, 256, (13, 9, 11)).astype(np.uint8)
-    ev = hevr.encrypt_volume(vol, str(d / "p.zarr"), priv, brick=4, spacing=(1.0, 0.8, 1.3), layout="packed",
-                             levels=1, progress=False)
+    ev = hevr.encrypt_volume(
+        vol, str(d / "p.zarr"), priv, brick=4, spacing=(1.0, 0.8, 1.3), layout="packed", levels=1, progress=False
+    )
     assert ev.meta.tags
     with hevr_serve(str(d / "p.zarr"), "--workers", "1") as (url, proc, lines):
         yield types.SimpleNamespace(url=url, ev=ev, priv=priv, vol=vol, lines=lines)
@@ -80,6 +81,7 @@ def test_a_lying_server_is_caught(packed_served, rv, monkeypatch):
         def frames(path, body, limit):
             got = list(honest_frames(path, body, limit))
             yield from change(got)
+
         return frames
 
     def swap_values(got):  # two different records of a tile swapped: well-formed ciphertexts
@@ -95,15 +97,24 @@ def test_a_lying_server_is_caught(packed_served, rv, monkeypatch):
                 return [tuple(x) for x in out]
         raise AssertionError("no tile with two different values")
 
-    other = list(honest_frames(f"/v1/stores/{rv.store_id}/render",
-                               dict(hevr.remote.protocol.RenderRequest(view=_cam(rv, 250, 31), channel="scalar",
-                                                                       sampling="trilinear", tile=4).to_dict()),
-                         1 << 24))
-    for change, error in ((swap_values, (hevr.VerificationError, hevr.IntegrityError)),
-                          (lambda got: got[:1] + got[2:], hevr.RemoteError),  # a tile missing
-                          (lambda got: got[:1] + got[:1] + got[1:], hevr.RemoteError),  # a tile twice
-                          (lambda got: [(i, d + b"\0") if i == 0 else (i, d) for i, d in got], hevr.RemoteError),
-                          (lambda got: other, (hevr.RemoteError, hevr.VerificationError, hevr.IntegrityError))):
+    other = list(
+        honest_frames(
+            f"/v1/stores/{rv.store_id}/render",
+            dict(
+                hevr.remote.protocol.RenderRequest(
+                    view=_cam(rv, 250, 31), channel="scalar", sampling="trilinear", tile=4
+                ).to_dict()
+            ),
+            1 << 24,
+        )
+    )
+    for change, error in (
+        (swap_values, (hevr.VerificationError, hevr.IntegrityError)),
+        (lambda got: got[:1] + got[2:], hevr.RemoteError),  # a tile missing
+        (lambda got: got[:1] + got[:1] + got[1:], hevr.RemoteError),  # a tile twice
+        (lambda got: [(i, d + b"\0") if i == 0 else (i, d) for i, d in got], hevr.RemoteError),
+        (lambda got: other, (hevr.RemoteError, hevr.VerificationError, hevr.IntegrityError)),
+    ):
         monkeypatch.setattr(rv.server, "frames", lying(change))
         with pytest.raises(error):
             hevr.render(rv, cam, sampling="trilinear", tile=4, progress=False).decrypt(s.priv)
@@ -127,8 +138,10 @@ def test_what_a_packed_store_does_not_serve(packed_served, rv):
         assert r.status_code == 400 and "packed store" in r.json()["detail"]
         r = http.post(f"/v1/stores/{rv.store_id}/render", json={**body, "channel": "vector"})
         assert r.status_code == 400 and "channel: expected 'scalar'" in r.json()["detail"]
-        r = http.post(f"/v1/stores/{rv.store_id}/render", json={**body, "view": hevr.Camera.orbit(
-            rv, azimuth=60, width=8, height=8).to_dict()})  # a perspective camera
+        r = http.post(
+            f"/v1/stores/{rv.store_id}/render",
+            json={**body, "view": hevr.Camera.orbit(rv, azimuth=60, width=8, height=8).to_dict()},
+        )  # a perspective camera
         assert r.status_code == 400 and "parallel" in r.json()["detail"]
     with pytest.raises(hevr.ParameterError, match="client: expected None"):
         hevr.render(rv, _cam(rv), progress=False, client=object())
@@ -157,17 +170,23 @@ def colour_served(tmp_path_factory, keypair256):
     pub, priv = keypair256
     d = tmp_path_factory.mktemp("packed-colour-served")
     vol = np.random.default_rng(8).integers(0, 256, (9, 8, 10)).astype(np.uint8)
-    ev = hevr.encrypt_volume(vol, str(d / "c.zarr"), priv, brick=4, layout="packed", vector_dims=3, gradient=True,
-                             progress=False)
+    ev = hevr.encrypt_volume(
+        vol, str(d / "c.zarr"), priv, brick=4, layout="packed", vector_dims=3, gradient=True, progress=False
+    )
     with hevr_serve(str(d / "c.zarr"), "--workers", "1") as (url, proc, lines):
         server = connect(url, timeout=120)
         yield types.SimpleNamespace(ev=ev, priv=priv, vol=vol, rv=server.open(ev.meta.store_id), server=server)
         server.close()
 
 
-@pytest.mark.parametrize("mode, kw", [("tf", {"nodes": [(0.2, "blue"), (0.8, "red")]}),
-                                      ("emphasize", {"density": 0.5}),
-                                      ("tf", {"nodes": [(0.3, "white")], "gradient": True})])
+@pytest.mark.parametrize(
+    "mode, kw",
+    [
+        ("tf", {"nodes": [(0.2, "blue"), (0.8, "red")]}),
+        ("emphasize", {"density": 0.5}),
+        ("tf", {"nodes": [(0.3, "white")], "gradient": True}),
+    ],
+)
 def test_colour_frames_through_the_server(colour_served, mode, kw):
     """Transfer-function and emphasis frames of a packed store on hevr serve: the server sums the
     vector channel's k components (it never sees the colouring), the key holder colours them: the
@@ -175,8 +194,9 @@ def test_colour_frames_through_the_server(colour_served, mode, kw):
     s = colour_served
     cam = _cam(s.rv, 60, 10)
     remote = hevr.render(s.rv, cam, mode=mode, sampling="trilinear", tile=4, progress=False, **kw)
-    local = hevr.render(s.ev, _cam(s.ev, 60, 10), mode=mode, sampling="trilinear", tile=4, verify=False,
-                        progress=False, **kw)
+    local = hevr.render(
+        s.ev, _cam(s.ev, 60, 10), mode=mode, sampling="trilinear", tile=4, verify=False, progress=False, **kw
+    )
     assert remote.verified and remote.verification.components == 3 and len(remote.components) == 3
     for a, b in zip(remote.components, local.components):
         assert all(np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts))
@@ -231,11 +251,13 @@ def test_cli_slice_and_render_through_the_server(packed_served, rv, tmp_path, ca
     text = capsys.readouterr().out
     assert "verified:" in text
     plane = hevr.Plane.axial(s.ev, 4)
-    np.testing.assert_array_equal(np.load(out), hevr.render_slice(s.ev, plane, verify=False,
-                                                                  progress=False).decrypt(s.priv))
+    np.testing.assert_array_equal(
+        np.load(out), hevr.render_slice(s.ev, plane, verify=False, progress=False).decrypt(s.priv)
+    )
     frame = tmp_path / "f.hevr"
-    assert main(["render", "--server", s.url, sid, "--key", str(key), "--out", str(frame), "--size", "14x11",
-                 "-q"]) == 0
+    assert (
+        main(["render", "--server", s.url, sid, "--key", str(key), "--out", str(frame), "--size", "14x11", "-q"]) == 0
+    )
     img = hevr.load_image(frame)
     assert img.verified and img.plan.geometry.principal != 0
 
@@ -250,8 +272,9 @@ def test_verify_requests_have_the_render_size_limits(packed_served, rv):
     with httpx.Client(base_url=s.url, timeout=60) as http:
         ok = http.post(f"/v1/stores/{rv.store_id}/verify", json=body)
         assert ok.status_code == 200 and int(ok.json()["aggregate"]) > 0
-    from hevr.serve.jobs import verify_aggregate
     from hevr.remote.protocol import RenderRequest
+    from hevr.serve.jobs import verify_aggregate
+
     big = hevr.Camera.orbit(rv, azimuth=60, elevation=10, width=64, height=64, parallel=True)
     with dask.config.set({"hevr.limits.max-samples": 2000}):  # the plan (~340 cells) fits; its ~10^4 samples do not
         with pytest.raises(hevr.RenderPlanError, match="step"):

@@ -24,8 +24,12 @@ CAM = {"position": [0.0, 0.0, 40.0], "focal_point": [0.0, 0.0, 0.0], "width": 8,
 
 requests = st.builds(
     RenderRequest,
-    view=st.builds(lambda az, w, h: hevr.Camera((40.0 * az, 1.0, 30.0), (0.0, 0.0, 0.0), width=w, height=h),
-                   st.floats(-1, 1), st.integers(1, 64), st.integers(1, 64)),
+    view=st.builds(
+        lambda az, w, h: hevr.Camera((40.0 * az, 1.0, 30.0), (0.0, 0.0, 0.0), width=w, height=h),
+        st.floats(-1, 1),
+        st.integers(1, 64),
+        st.integers(1, 64),
+    ),
     channel=st.sampled_from(["scalar", "vector", "gradient"]),
     sampling=st.sampled_from(["nearest", "trilinear"]),
     step=st.floats(0.01, 100),
@@ -52,24 +56,27 @@ def test_verify_requests_round_trip(req, seed):
     assert VerifyRequest.from_dict(parse_json(json.dumps(v.to_dict()).encode(), "body")) == v
 
 
-@pytest.mark.parametrize("change, match", [
-    ({"view": dict(CAM, width=MAX_SIDE + 1)}, "width"),
-    ({"view": dict(CAM, colour="red")}, r"view: .*extra fields \[.colour.\]"),
-    ({"view": [1, 2, 3]}, "view"),
-    ({"channel": "scalar_tag"}, "channel"),
-    ({"sampling": "cubic"}, "sampling"),
-    ({"step": 0}, "step"),
-    ({"step": "1"}, "step"),
-    ({"step": True}, "step"),
-    ({"level": 9}, "level"),
-    ({"level": 1.0}, "level"),
-    ({"digits": -1}, "digits"),
-    ({"tile": 0}, "tile"),
-    ({"pack": 1}, "pack"),
-    ({"backend": "gpu"}, "backend"),
-    ({"density": 0.5}, "extra fields"),
-    ({"nodes": [[0.1, "red"]]}, "extra fields"),
-])
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"view": dict(CAM, width=MAX_SIDE + 1)}, "width"),
+        ({"view": dict(CAM, colour="red")}, r"view: .*extra fields \[.colour.\]"),
+        ({"view": [1, 2, 3]}, "view"),
+        ({"channel": "scalar_tag"}, "channel"),
+        ({"sampling": "cubic"}, "sampling"),
+        ({"step": 0}, "step"),
+        ({"step": "1"}, "step"),
+        ({"step": True}, "step"),
+        ({"level": 9}, "level"),
+        ({"level": 1.0}, "level"),
+        ({"digits": -1}, "digits"),
+        ({"tile": 0}, "tile"),
+        ({"pack": 1}, "pack"),
+        ({"backend": "gpu"}, "backend"),
+        ({"density": 0.5}, "extra fields"),
+        ({"nodes": [[0.1, "red"]]}, "extra fields"),
+    ],
+)
 def test_requests_refuse_by_name(change, match):
     with pytest.raises(hevr.ParameterError, match=match):
         RenderRequest.from_dict({"view": CAM, "channel": "scalar", **change})
@@ -104,25 +111,33 @@ PY_CAM = hevr.Camera((0.0, 0.0, 40.0), (0.0, 0.0, 0.0), width=8, height=6)
 OPTIONS = ("channel", "sampling", "step", "level", "digits", "pack", "tile", "backend", "weight_bits")
 
 
-@pytest.mark.parametrize("change, match", [
-    ({"step": -1.0}, r"^step: expected a number in \(0, 1e\+06\], got -1.0$"),
-    ({"tile": 0}, rf"^tile: expected an integer in \[1, {MAX_SIDE}\], got 0$"),
-    ({"digits": 99}, r"^digits: expected an integer in \[0, 9\], got 99$"),
-    ({"channel": "bogus"}, r"^channel: expected one of scalar, vector, gradient, got 'bogus'$"),
-    ({"step": True}, r"^step: expected a number .*got True$"),
-    ({"step": float("nan")}, r"^step: expected a number .*got nan$"),
-    ({"level": np.int64(99)}, r"^level: expected an integer in \[0, 8\], got 99$"),
-])
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"step": -1.0}, r"^step: expected a number in \(0, 1e\+06\], got -1.0$"),
+        ({"tile": 0}, rf"^tile: expected an integer in \[1, {MAX_SIDE}\], got 0$"),
+        ({"digits": 99}, r"^digits: expected an integer in \[0, 9\], got 99$"),
+        ({"channel": "bogus"}, r"^channel: expected one of scalar, vector, gradient, got 'bogus'$"),
+        ({"step": True}, r"^step: expected a number .*got True$"),
+        ({"step": float("nan")}, r"^step: expected a number .*got nan$"),
+        ({"level": np.int64(99)}, r"^level: expected an integer in \[0, 8\], got 99$"),
+    ],
+)
 def test_a_request_built_in_python_is_refused_by_name(change, match):
     with pytest.raises(hevr.ParameterError, match=match):
         RenderRequest(view=PY_CAM, **{"channel": "scalar", **change})
 
 
 anything = st.recursive(
-    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=20)
+    st.none()
+    | st.booleans()
+    | st.integers()
+    | st.floats()
+    | st.text(max_size=20)
     | st.sampled_from([np.int64(3), np.float64("nan"), np.float32(1.5), np.bool_(True), 2**70, -0.0, 1e999]),
     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=5), inner, max_size=3),
-    max_leaves=6)
+    max_leaves=6,
+)
 
 
 @settings(max_examples=300, deadline=None)

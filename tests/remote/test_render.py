@@ -45,10 +45,15 @@ def test_render_is_the_in_process_image_byte_for_byte(served, rv, sampling, mode
     assert remote.to_bytes() == local.to_bytes()
     arr = remote.decrypt(served.priv)
     np.testing.assert_array_equal(arr, local.decrypt(served.priv))
-    ref = hevr.render_plain(served.vol, _cam(served.ev), mode=mode, sampling=sampling,
-                            nodes=NODES if mode == "tf" else None, vector_dims=3)
-    assert (np.abs(arr - ref) <= hevr.error_bound(served.ev, _cam(served.ev), mode=mode, sampling=sampling,
-                                                  nodes=NODES if mode == "tf" else None)).all()
+    ref = hevr.render_plain(
+        served.vol, _cam(served.ev), mode=mode, sampling=sampling, nodes=NODES if mode == "tf" else None, vector_dims=3
+    )
+    assert (
+        np.abs(arr - ref)
+        <= hevr.error_bound(
+            served.ev, _cam(served.ev), mode=mode, sampling=sampling, nodes=NODES if mode == "tf" else None
+        )
+    ).all()
 
 
 def test_verified_by_default_with_a_seed_drawn_here(served, rv):
@@ -66,7 +71,10 @@ def test_verified_by_default_with_a_seed_drawn_here(served, rv):
 def test_a_wrong_aggregate_is_caught(served, rv):
     img = hevr.render(rv, _cam(rv), progress=False)
     import dataclasses
-    img.verification = dataclasses.replace(img.verification, aggregate=img.verification.aggregate * 2 % int(rv.meta.n) ** 2)
+
+    img.verification = dataclasses.replace(
+        img.verification, aggregate=img.verification.aggregate * 2 % int(rv.meta.n) ** 2
+    )
     with pytest.raises(hevr.VerificationError):
         img.decrypt(served.priv)
 
@@ -79,12 +87,15 @@ def test_slices_levels_and_frames(served, rv):
         hevr.render_slice(rv, plane, progress=False).decrypt(served.priv)  # verified slice
     small = hevr.Camera.orbit(rv, azimuth=10, width=8, height=8)
     remote = hevr.render(rv, small, level=1, verify=False, progress=False)
-    assert remote.to_bytes() == hevr.render(served.ev, small, level=1, verify=False, cache=False,
-                                            progress=False).to_bytes()
+    assert (
+        remote.to_bytes()
+        == hevr.render(served.ev, small, level=1, verify=False, cache=False, progress=False).to_bytes()
+    )
     hevr.render(rv, small, level=1, progress=False).decrypt(served.priv)  # a level verifies too
     frame = hevr.render_frame(rv, _cam(rv), served.priv, mode="tf", nodes=NODES, progress=False)
-    here = hevr.render_frame(served.ev, _cam(served.ev), served.priv, mode="tf", nodes=NODES, progress=False,
-                             cache=False)
+    here = hevr.render_frame(
+        served.ev, _cam(served.ev), served.priv, mode="tf", nodes=NODES, progress=False, cache=False
+    )
     np.testing.assert_array_equal(frame.image, here.image)
     assert frame.stats["ciphertexts"] == here.stats["ciphertexts"]
     assert frame.stats["verified"] and here.stats["verified"]  # streamed frames verified when they settle
@@ -134,10 +145,39 @@ def test_cli_render_and_slice_write_the_same_files(served, tmp_path, monkeypatch
     assert (tmp_path / "rs.hevr").read_bytes() == (tmp_path / "ls.hevr").read_bytes()
     # a verified remote frame (the key holder's --key) decrypts as verified
     served.priv.save(str(tmp_path / "key.json"))
-    assert main(["render", "--server", served.url, sid, "--key", str(tmp_path / "key.json"), "--out",
-                 str(tmp_path / "v.hevr"), "--size", "8x8", "-q"]) == 0
-    assert main(["decrypt", str(tmp_path / "v.hevr"), "--key", str(tmp_path / "key.json"), "--require-verified",
-                 "--out", str(tmp_path / "v.png"), "-q"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--server",
+                served.url,
+                sid,
+                "--key",
+                str(tmp_path / "key.json"),
+                "--out",
+                str(tmp_path / "v.hevr"),
+                "--size",
+                "8x8",
+                "-q",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "decrypt",
+                str(tmp_path / "v.hevr"),
+                "--key",
+                str(tmp_path / "key.json"),
+                "--require-verified",
+                "--out",
+                str(tmp_path / "v.png"),
+                "-q",
+            ]
+        )
+        == 0
+    )
     # the server refuses what it does not serve; nothing is written
     assert main(["render", "--server", served.url, "0" * 16, "--out", str(tmp_path / "x.hevr"), "-q"]) == 1
     assert not (tmp_path / "x.hevr").exists()
@@ -156,13 +196,17 @@ def test_cli_remote_render_verifies_with_the_key_holders_key(served, tmp_path, c
         assert main([argv[0], "--server", served.url, "v", "--key", key, "--out", out, *argv[1:]]) == 0
         text = capsys.readouterr()
         assert f"verified: the frame is the render of store {sid}" in text.out and "not verified" not in text.err
-        assert main(["decrypt", out, "--key", key, "--require-verified", sid, "--out", str(tmp_path / f"k{i}.png")]) == 0
+        assert (
+            main(["decrypt", out, "--key", key, "--require-verified", sid, "--out", str(tmp_path / f"k{i}.png")]) == 0
+        )
         assert "verified: the frame is the render" in capsys.readouterr().out
     out = str(tmp_path / "nokey.hevr")
     assert main(["render", "--server", served.url, "v", "--out", out, "--size", "8x8"]) == 0
     err = capsys.readouterr().err
-    assert "not verified" in err and "pass --key KEY.json, the key holder's private key, to verify the server's " \
-                                      "answer" in err
+    assert (
+        "not verified" in err
+        and "pass --key KEY.json, the key holder's private key, to verify the server's answer" in err
+    )
     assert main(["decrypt", out, "--key", key, "--require-verified", "--out", str(tmp_path / "nokey.png")]) == 1
     assert "not verified" in capsys.readouterr().err
 
@@ -178,8 +222,10 @@ def test_a_store_is_served_under_its_name(served, rv):
     assert rv.path == f"{served.url}/v1/stores/{sid}" and rv.name is None
     assert by_name.at_level(1).path == by_name.path and by_name.at_level(1).store_id == sid
     cam = _cam(by_name)
-    assert hevr.render(by_name, cam, verify=False, progress=False).to_bytes() == \
-        hevr.render(rv, cam, verify=False, progress=False).to_bytes()
+    assert (
+        hevr.render(by_name, cam, verify=False, progress=False).to_bytes()
+        == hevr.render(rv, cam, verify=False, progress=False).to_bytes()
+    )
     with pytest.raises(hevr.RemoteError, match="404"):
         rv.server.open("w")
     for bad in ("a/b", "", "x" * 65, "0123456789ABCDEF", 7):

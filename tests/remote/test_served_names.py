@@ -27,24 +27,30 @@ def _trust(rv, priv):
     return hevr.trust_store(rv, priv) if len(params) >= 2 else hevr.trust_store(rv)
 
 
-@pytest.mark.parametrize("spec, want", [
-    ("/data/ct/vol.zarr", ("vol", "/data/ct/vol.zarr")),
-    ("/data/ct/vol.zarr/", ("vol", "/data/ct/vol.zarr/")),
-    ("s3://bucket/x=1/b.zarr", ("b", "s3://bucket/x=1/b.zarr")),
-    ("ct=/data/2024/vol.zarr", ("ct", "/data/2024/vol.zarr")),
-    ("scan_7", ("scan_7", "scan_7")),
-])
+@pytest.mark.parametrize(
+    "spec, want",
+    [
+        ("/data/ct/vol.zarr", ("vol", "/data/ct/vol.zarr")),
+        ("/data/ct/vol.zarr/", ("vol", "/data/ct/vol.zarr/")),
+        ("s3://bucket/x=1/b.zarr", ("b", "s3://bucket/x=1/b.zarr")),
+        ("ct=/data/2024/vol.zarr", ("ct", "/data/2024/vol.zarr")),
+        ("scan_7", ("scan_7", "scan_7")),
+    ],
+)
 def test_store_names_from_the_command_line(spec, want):
     assert store_name(spec) == want
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["/x/a/vol.zarr", "/x/b/vol.zarr"], ["'vol' twice", "NAME=PATH"]),
-    (["0123456789abcdef=/x/v.zarr"], ["16 hex digits"]),
-    (["/x/0123456789ABCDEF.zarr"], ["16 hex digits", "NAME=PATH"]),
-    (["a b=/x/v.zarr"], ["letters, digits"]),
-    (["ct="], ["NAME=PATH with a path"]),
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["/x/a/vol.zarr", "/x/b/vol.zarr"], ["'vol' twice", "NAME=PATH"]),
+        (["0123456789abcdef=/x/v.zarr"], ["16 hex digits"]),
+        (["/x/0123456789ABCDEF.zarr"], ["16 hex digits", "NAME=PATH"]),
+        (["a b=/x/v.zarr"], ["letters, digits"]),
+        (["ct="], ["NAME=PATH with a path"]),
+    ],
+)
 def test_bad_names_are_refused_at_startup(argv, words, capsys):
     assert main(["serve", *argv]) == 2  # before any store is opened or a port bound
     err = capsys.readouterr().err
@@ -76,8 +82,9 @@ def test_a_new_version_under_a_served_name_is_refused_until_trusted(tmp_path, ke
         cam = hevr.Camera.orbit(rv, azimuth=20, width=8, height=6)
         hevr.render(rv, cam, progress=False).decrypt(priv, require_verified=old)  # verified: recorded under the name
         assert hevr.known_stores()[rv.path].store_id == old
-    new = hevr.encrypt_volume(vol, str(store), priv, brick=4, verifiable=True, overwrite=True,
-                              progress=False).meta.store_id
+    new = hevr.encrypt_volume(
+        vol, str(store), priv, brick=4, verifiable=True, overwrite=True, progress=False
+    ).meta.store_id
     assert new != old
     with hevr_serve(f"ct={store}", port=port) as (url2, proc, lines):
         assert url2 == url

@@ -65,8 +65,9 @@ def test_perspective_corner_angle() -> None:
 
 
 def test_identity_roundtrip_and_hash() -> None:
-    cam = Camera((1, 2, 3.5), (0, -1, 0), view_up=(0, 0, 1), view_angle=45, width=7, height=3,
-                 parallel=True, parallel_scale=2.5)
+    cam = Camera(
+        (1, 2, 3.5), (0, -1, 0), view_up=(0, 0, 1), view_angle=45, width=7, height=3, parallel=True, parallel_scale=2.5
+    )
     data = cam.to_dict()
     text = json.dumps(data)
     back = Camera.from_dict(json.loads(text))
@@ -81,8 +82,11 @@ def test_identity_roundtrip_and_hash() -> None:
 
 @pytest.mark.parametrize(
     "data, match",
-    [({"position": [0, 0, 1]}, "focal_point"), ({"position": [0, 0, 1], "focal_point": [0, 0, 0], "zoom": 2}, "zoom"),
-     ([1, 2], "dict")],
+    [
+        ({"position": [0, 0, 1]}, "focal_point"),
+        ({"position": [0, 0, 1], "focal_point": [0, 0, 0], "zoom": 2}, "zoom"),
+        ([1, 2], "dict"),
+    ],
 )
 def test_from_dict_rejects(data: object, match: str) -> None:
     with pytest.raises(ParameterError, match=match):
@@ -133,8 +137,15 @@ def test_orbit_default_pose() -> None:
 
 @pytest.mark.parametrize(
     "azimuth, elevation, side",
-    [(90, 0, (1, 0, 0)), (-90, 0, (-1, 0, 0)), (180, 0, (0, 0, -1)), (0, 90, (0, 1, 0)), (0, -90, (0, -1, 0)),
-     (45, 90, (0, 1, 0)), (270, -90, (0, -1, 0))],
+    [
+        (90, 0, (1, 0, 0)),
+        (-90, 0, (-1, 0, 0)),
+        (180, 0, (0, 0, -1)),
+        (0, 90, (0, 1, 0)),
+        (0, -90, (0, -1, 0)),
+        (45, 90, (0, 1, 0)),
+        (270, -90, (0, -1, 0)),
+    ],
 )
 def test_orbit_directions(azimuth: float, elevation: float, side: tuple) -> None:
     cam = Camera.orbit((4, 4, 4), azimuth=azimuth, elevation=elevation, width=8, height=8)
@@ -206,10 +217,15 @@ def test_orbit_rejects(args: tuple, kwargs: dict, match: str) -> None:
         Camera.orbit(*args, **kwargs)
 
 
-@pytest.mark.parametrize("pixels, match", [([0.5], "expected integer pixel indices, got float64"),
-                                           (["a"], "expected integer pixel indices"),
-                                           ([-1], r"expected indices in \[0, 6\), got -1"),
-                                           ([6], r"expected indices in \[0, 6\), got 6")])
+@pytest.mark.parametrize(
+    "pixels, match",
+    [
+        ([0.5], "expected integer pixel indices, got float64"),
+        (["a"], "expected integer pixel indices"),
+        ([-1], r"expected indices in \[0, 6\), got -1"),
+        ([6], r"expected indices in \[0, 6\), got 6"),
+    ],
+)
 def test_rays_of_bad_pixels_are_refused(pixels, match):
     cam = Camera((0, 0, 5), (0, 0, 0), width=3, height=2)
     with pytest.raises(ParameterError, match=match):

@@ -26,8 +26,9 @@ def volume():
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair256, volume):
     path = tmp_path_factory.mktemp("render") / "v.zarr"
-    return hevr.encrypt_volume(volume, path, keypair256[1], brick=BRICK, spacing=SPACING, vector_dims=4,
-                               vector_digits=4, progress=False)
+    return hevr.encrypt_volume(
+        volume, path, keypair256[1], brick=BRICK, spacing=SPACING, vector_dims=4, vector_digits=4, progress=False
+    )
 
 
 CAMERAS = {
@@ -73,8 +74,14 @@ def test_axis_aligned_parallel_is_exact_mean(tmp_path, keypair256, sampling):
     nz, ny, nx = SHAPE
     ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", priv, brick=BRICK, progress=False)
     centre = ((nx - 1) / 2, (ny - 1) / 2, (nz - 1) / 2)
-    cam = hevr.Camera(position=(centre[0], centre[1], nz + 5.0), focal_point=centre, width=nx, height=ny,
-                      parallel=True, parallel_scale=ny / 2)
+    cam = hevr.Camera(
+        position=(centre[0], centre[1], nz + 5.0),
+        focal_point=centre,
+        width=nx,
+        height=ny,
+        parallel=True,
+        parallel_scale=ny / 2,
+    )
     hevr.clear_cache()
     img = hevr.render(ev, cam, sampling=sampling, progress=False)
     sums = next(iter(render_mod._CACHE.values()))

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr.image.tiles import TileLayout
 from hevr.crypto.records import bytes_to_mpz, mpz_to_bytes
+from hevr.image.tiles import TileLayout
 from hevr.rendering import encrypted as render_mod
+from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.pipeline.finishing import finish_tile, merge_partials, one_records
 from hevr.rendering.planning.planner import RenderPlan
-from hevr.rendering.geometry.rays import cast_rays
 
 SHAPE, BRICK = (5, 6, 7), (3, 3, 4)
 NODES = [(0.25, "blue"), (0.75, "red")]
@@ -58,8 +58,15 @@ def rendered(tmp_path_factory, keypair256):
     rng = np.random.default_rng(2)
     vol = rng.integers(-50, 200, SHAPE).astype(np.int16)
     with dask.config.set(scheduler="sync"):
-        ev = hevr.encrypt_volume(vol, tmp_path_factory.mktemp("fin") / "v.zarr", priv, brick=BRICK, vector_dims=2,
-                                 value_range=(-50, 200), progress=False)
+        ev = hevr.encrypt_volume(
+            vol,
+            tmp_path_factory.mktemp("fin") / "v.zarr",
+            priv,
+            brick=BRICK,
+            vector_dims=2,
+            value_range=(-50, 200),
+            progress=False,
+        )
         cam = hevr.Camera.orbit(ev, azimuth=30, elevation=15, width=7, height=6)
         out = {}
         for mode, kw in (("xray", {}), ("tf", {"nodes": NODES})):
@@ -96,14 +103,17 @@ def test_finish_tile_is_combination_times_reciprocal_plus_offset_packed(rendered
             if R == 0:
                 continue
             s = by_ray.get(p, np.zeros(K, dtype=object))
-            chans = [s[0]] if plan.comb is None else [sum(int(s[k]) * plan.comb[k][ch] for k in range(K))
-                                                     for ch in range(plan.channels_out)]
+            chans = (
+                [s[0]]
+                if plan.comb is None
+                else [sum(int(s[k]) * plan.comb[k][ch] for k in range(K)) for ch in range(plan.channels_out)]
+            )
             want += [int(v) * R + plan.offset for v in chans]
         got = []
         for m in priv.decrypt_array(bytes_to_mpz(packed), signed=False):
             for _ in range(plan.per_pack):
                 got.append(m & ((1 << plan.pack_bits) - 1))
                 m >>= plan.pack_bits
-        assert got[:len(want)] == want and not any(got[len(want):])
+        assert got[: len(want)] == want and not any(got[len(want) :])
         checked += len(want)
     assert checked > 10

@@ -50,14 +50,29 @@ def cameras(draw, shape, spacing, width, height):
     centre = ext / 2
     scale = draw(st.floats(0.3, 6.0)) if parallel else None
     if kind == "orbit":
-        return Camera.orbit(shape, azimuth=draw(st.floats(-180, 180)), elevation=draw(st.floats(-89, 89)),
-                            width=width, height=height, spacing=spacing, parallel=parallel,
-                            view_angle=draw(st.floats(10, 100)))
+        return Camera.orbit(
+            shape,
+            azimuth=draw(st.floats(-180, 180)),
+            elevation=draw(st.floats(-89, 89)),
+            width=width,
+            height=height,
+            spacing=spacing,
+            parallel=parallel,
+            view_angle=draw(st.floats(10, 100)),
+        )
     if kind == "inside":  # the camera stands inside the voxel-centre box
         pos = np.array([draw(st.floats(0, 1)) for _ in range(3)]) * ext
         d = _unit(draw)
-        return Camera(tuple(pos), tuple(pos + d), _up_for(draw, d), view_angle=draw(st.floats(20, 150)),
-                      width=width, height=height, parallel=parallel, parallel_scale=scale)
+        return Camera(
+            tuple(pos),
+            tuple(pos + d),
+            _up_for(draw, d),
+            view_angle=draw(st.floats(20, 150)),
+            width=width,
+            height=height,
+            parallel=parallel,
+            parallel_scale=scale,
+        )
     if kind == "axis":  # looking exactly along +-x, +-y or +-z, pixel centres on voxel rows
         ax, sign = draw(st.integers(0, 2)), draw(st.sampled_from([-1.0, 1.0]))
         off = np.zeros(3)
@@ -69,8 +84,9 @@ def cameras(draw, shape, spacing, width, height):
         up[(ax + 1) % 3] = 1.0
         if parallel:
             scale = draw(st.sampled_from([height / 2 * spacing[(ax + 1) % 3], ext.max() / 2 + 0.5, scale]))
-        return Camera(tuple(pos), tuple(pos - off), tuple(up), width=width, height=height, parallel=parallel,
-                      parallel_scale=scale)
+        return Camera(
+            tuple(pos), tuple(pos - off), tuple(up), width=width, height=height, parallel=parallel, parallel_scale=scale
+        )
     # "near": on, or just beside, a face of the voxel box or of a brick's grown box
     sp = np.asarray(spacing)
     pos = np.array([draw(st.floats(-sp[i] - 0.3, ext[i] + sp[i] + 0.3)) for i in range(3)])
@@ -80,8 +96,16 @@ def cameras(draw, shape, spacing, width, height):
     if np.linalg.norm(foc - pos) < 1e-3:
         foc = pos + 1.0
     d = (foc - pos) / np.linalg.norm(foc - pos)
-    return Camera(tuple(pos), tuple(foc), _up_for(draw, d), view_angle=draw(st.sampled_from([5.0, 30.0, 90.0, 170.0])),
-                  width=width, height=height, parallel=parallel, parallel_scale=scale)
+    return Camera(
+        tuple(pos),
+        tuple(foc),
+        _up_for(draw, d),
+        view_angle=draw(st.sampled_from([5.0, 30.0, 90.0, 170.0])),
+        width=width,
+        height=height,
+        parallel=parallel,
+        parallel_scale=scale,
+    )
 
 
 @st.composite
@@ -151,8 +175,15 @@ def test_footprints_are_conservative_fixed_views(view, parallel, sampling):
     if view == "orbit":
         cam = Camera.orbit(shape, azimuth=33, elevation=21, width=17, height=13, spacing=spacing, parallel=parallel)
     elif view == "inside":
-        cam = Camera(tuple(c + [0.3, -0.2, 0.1]), tuple(c + [5.0, 1.0, 2.0]), view_angle=100, width=16, height=12,
-                     parallel=parallel, parallel_scale=scale)
+        cam = Camera(
+            tuple(c + [0.3, -0.2, 0.1]),
+            tuple(c + [5.0, 1.0, 2.0]),
+            view_angle=100,
+            width=16,
+            height=12,
+            parallel=parallel,
+            parallel_scale=scale,
+        )
     else:
         ax = "xyz".index(view[0])
         off = np.zeros(3)
@@ -176,8 +207,15 @@ def test_bricks_behind_the_camera_get_no_footprint():
     """A camera in the volume looking +x: the bricks wholly behind it (x far below) get no task."""
     shape, brick, spacing = (8, 8, 16), (4, 4, 4), (1.0, 1.0, 1.0)
     for parallel in (False, True):
-        cam = Camera((10.5, 3.5, 3.5), (20.0, 3.5, 3.5), width=8, height=8, view_angle=60, parallel=parallel,
-                     parallel_scale=3.0 if parallel else None)
+        cam = Camera(
+            (10.5, 3.5, 3.5),
+            (20.0, 3.5, 3.5),
+            width=8,
+            height=8,
+            view_angle=60,
+            parallel=parallel,
+            parallel_scale=3.0 if parallel else None,
+        )
         rays = cast_rays(cam, shape, spacing, 0.5)
         prints = brick_footprints(cam, shape, spacing, brick, rays.n_samples > 0, 4)
         assert prints and all(bx >= 2 for _, _, bx in prints), sorted(prints)  # bx 0, 1 lie behind (x < 8)

@@ -27,10 +27,16 @@ def stores(tmp_path_factory, keypair256):
     cube[2:8, 2:8, 2:8] = 200  # interior 4:6 of the cube is homogeneous: |∇d| = 0 there
     kw = dict(brick=4, gradient=True, progress=False)
     return {
-        "phantom": (build_pyramid(hevr.encrypt_volume(ph, d / "ph.zarr", priv, vector_dims=4, **kw), 1,
-                                  progress=False), ph, (1.0, 1.0, 1.0)),
-        "random": (hevr.encrypt_volume(rnd, d / "rnd.zarr", priv, vector_dims=3, spacing=RND_SPACING, **kw),
-                   rnd, RND_SPACING),
+        "phantom": (
+            build_pyramid(hevr.encrypt_volume(ph, d / "ph.zarr", priv, vector_dims=4, **kw), 1, progress=False),
+            ph,
+            (1.0, 1.0, 1.0),
+        ),
+        "random": (
+            hevr.encrypt_volume(rnd, d / "rnd.zarr", priv, vector_dims=3, spacing=RND_SPACING, **kw),
+            rnd,
+            RND_SPACING,
+        ),
         "cube": (hevr.encrypt_volume(cube, d / "cube.zarr", priv, vector_dims=2, **kw), cube, (1.0, 1.0, 1.0)),
     }
 
@@ -45,8 +51,10 @@ def _plain(vol, view, spacing, ev, mode, kw, sampling="nearest", **extra):
 def test_gradient_renders_match_the_plaintext_definition(stores, keypair256, name, sampling):
     ev, vol, spacing = stores[name]
     priv = keypair256[1]
-    for cam in (hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=9, height=8),
-                hevr.Camera.orbit(ev, azimuth=200, elevation=-50, width=8, height=9, parallel=True)):
+    for cam in (
+        hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=9, height=8),
+        hevr.Camera.orbit(ev, azimuth=200, elevation=-50, width=8, height=9, parallel=True),
+    ):
         for mode, kw in MODES:
             img = hevr.render(ev, cam, mode=mode, sampling=sampling, gradient=True, progress=False, **kw)
             assert img.info["gradient"] and img.info["plan"]["channel"] == "gradient"
@@ -73,8 +81,10 @@ def test_boundaries_are_emphasised(stores, keypair256):
     assert g[2, 2:8].min() > 0.3 and g[7, 2:8].min() > 0.3  # ... and the cube's faces stay
     tf = hevr.render_slice(ev, plane, mode="tf", nodes=NODES, sampling="trilinear", gradient=True, progress=False)
     ref = _plain(vol, plane, spacing, ev, "tf", {"nodes": NODES}, "trilinear", gradient=True)
-    assert (np.abs(tf.decrypt(priv) - ref)
-            <= hevr.error_bound(ev, plane, mode="tf", nodes=NODES, sampling="trilinear", gradient=True)).all()
+    assert (
+        np.abs(tf.decrypt(priv) - ref)
+        <= hevr.error_bound(ev, plane, mode="tf", nodes=NODES, sampling="trilinear", gradient=True)
+    ).all()
 
 
 def test_pyramid_level_with_gradient(stores, keypair256):
@@ -93,8 +103,16 @@ def test_cluster_cache_and_saved_sums(stores, keypair256, cluster, tmp_path):
     ev, vol, spacing = stores["random"]
     priv = keypair256[1]
     cam = hevr.Camera.orbit(ev, azimuth=60, elevation=10, width=8, height=7)
-    a = hevr.render(ev, cam, mode="tf", nodes=NODES, gradient=True, client=cluster, progress=False,
-                    keep_sums=tmp_path / "g.hevrsums")
+    a = hevr.render(
+        ev,
+        cam,
+        mode="tf",
+        nodes=NODES,
+        gradient=True,
+        client=cluster,
+        progress=False,
+        keep_sums=tmp_path / "g.hevrsums",
+    )
     ref = _plain(vol, cam, spacing, ev, "tf", {"nodes": NODES}, gradient=True)
     assert (np.abs(a.decrypt(priv) - ref) <= hevr.error_bound(ev, cam, mode="tf", nodes=NODES, gradient=True)).all()
     b = hevr.render(ev, cam, mode="emphasize", density=0.3, gradient=True, client=cluster, progress=False)
@@ -104,11 +122,17 @@ def test_cluster_cache_and_saved_sums(stores, keypair256, cluster, tmp_path):
     again = hevr.recolour(tmp_path / "g.hevrsums", mode="emphasize", density=0.3, gradient=True, progress=False)
     assert [bytes(x) for x in again.ciphertexts] == [bytes(x) for x in b.ciphertexts]  # bit for bit
     hevr.render(ev, cam, mode="tf", nodes=NODES, client=cluster, progress=False, keep_sums=tmp_path / "v.hevrsums")
-    with pytest.raises(hevr.ParameterError, match=r"gradient: expected sums of the gradient channel for "
-                                                  r"gradient=True, got the vector channel's"):
+    with pytest.raises(
+        hevr.ParameterError,
+        match=r"gradient: expected sums of the gradient channel for "
+        r"gradient=True, got the vector channel's",
+    ):
         hevr.recolour(tmp_path / "v.hevrsums", mode="tf", nodes=NODES, gradient=True)
-    with pytest.raises(hevr.ParameterError, match=r"gradient: expected sums of the vector channel for "
-                                                  r"gradient=False, got the gradient channel's"):
+    with pytest.raises(
+        hevr.ParameterError,
+        match=r"gradient: expected sums of the vector channel for "
+        r"gradient=False, got the gradient channel's",
+    ):
         hevr.recolour(tmp_path / "g.hevrsums", mode="tf", nodes=NODES)
 
 
@@ -124,10 +148,11 @@ def test_bad_requests_name_gradient(stores, tmp_path, keypair256):
     plain = hevr.encrypt_volume(vol, tmp_path / "p.zarr", keypair256[0], brick=4, vector_dims=3, progress=False)
     assert not plain.has_gradient
     msg = r"gradient: expected a store encrypted with gradient=True \(its 'gradient' channel\), got one without"
-    for call in (lambda: hevr.render(plain, cam, mode="tf", nodes=NODES, gradient=True),
-                 lambda: hevr.render_slice(plain, hevr.Plane.axial(plain, 2), mode="emphasize", density=0.5,
-                                           gradient=True),
-                 lambda: hevr.error_bound(plain, cam, mode="emphasize", density=0.5, gradient=True)):
+    for call in (
+        lambda: hevr.render(plain, cam, mode="tf", nodes=NODES, gradient=True),
+        lambda: hevr.render_slice(plain, hevr.Plane.axial(plain, 2), mode="emphasize", density=0.5, gradient=True),
+        lambda: hevr.error_bound(plain, cam, mode="emphasize", density=0.5, gradient=True),
+    ):
         with pytest.raises(hevr.ParameterError, match=msg):
             call()
     with pytest.raises(hevr.ParameterError, match="gradient: expected mode"):

@@ -14,8 +14,8 @@ from distributed import Client, LocalCluster
 
 import hevr
 from hevr.rendering.encrypted import error_bound
-from hevr.rendering.pipeline.graph import FAN_IN, build_sums_graph
 from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.pipeline.graph import FAN_IN, build_sums_graph
 
 SHAPE = (7, 9, 11)
 BRICK = (3, 4, 5)
@@ -29,14 +29,17 @@ def volume():
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair256, volume):
-    return hevr.encrypt_volume(volume, tmp_path_factory.mktemp("mr") / "v.zarr", keypair256[1], brick=BRICK,
-                               vector_dims=4, progress=False)
+    return hevr.encrypt_volume(
+        volume, tmp_path_factory.mktemp("mr") / "v.zarr", keypair256[1], brick=BRICK, vector_dims=4, progress=False
+    )
 
 
 @pytest.fixture(scope="module")
 def client():
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
-            Client(cluster) as c:
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        Client(cluster) as c,
+    ):
         yield c
 
 
@@ -88,8 +91,9 @@ def test_untouched_bricks_cost_nothing(store):
     nz, ny, nx = store.shape
     centre = ((nx - 1) / 2, (ny - 1) / 2, (nz - 1) / 2)
     # a thin parallel beam through the first brick column only
-    cam = hevr.Camera(position=(1.0, 1.0, 50.0), focal_point=(1.0, 1.0, 0.0), width=2, height=2,
-                      parallel=True, parallel_scale=0.5)
+    cam = hevr.Camera(
+        position=(1.0, 1.0, 50.0), focal_point=(1.0, 1.0, 0.0), width=2, height=2, parallel=True, parallel_scale=0.5
+    )
     rays = cast_rays(cam, store.shape, store.spacing, 1.0)
     g = build_sums_graph(store, cam, rays, "nearest", 1.0, 0, "scalar", tile=32, n_tiles=1)
     n_map = g.map_tasks
@@ -104,17 +108,21 @@ def test_render_survives_a_killed_worker(tmp_path, keypair512):
     ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", priv, brick=4, vector_dims=4, progress=False)
     cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=48, height=48)
     nodes = [(0.2, "blue"), (0.8, "red")]
-    with dask.config.set({"distributed.scheduler.allowed-failures": 10}), \
-            LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
-            Client(cluster) as c:
-        reference = hevr.render(ev, cam, mode="tf", nodes=nodes, sampling="trilinear", cache=False, client=c,
-                                progress=False)
+    with (
+        dask.config.set({"distributed.scheduler.allowed-failures": 10}),
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        Client(cluster) as c,
+    ):
+        reference = hevr.render(
+            ev, cam, mode="tf", nodes=nodes, sampling="trilinear", cache=False, client=c, progress=False
+        )
         pids = c.run(os.getpid)
         result = {}
 
         def run():
-            result["img"] = hevr.render(ev, cam, mode="tf", nodes=nodes, sampling="trilinear", cache=False,
-                                        client=c, progress=False)
+            result["img"] = hevr.render(
+                ev, cam, mode="tf", nodes=nodes, sampling="trilinear", cache=False, client=c, progress=False
+            )
 
         th = threading.Thread(target=run)
         th.start()

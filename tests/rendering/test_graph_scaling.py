@@ -11,8 +11,8 @@ import pytest
 import hevr
 from hevr.image.tiles import TileLayout
 from hevr.rendering.geometry.footprint import Footprint, brick_footprints
-from hevr.rendering.pipeline.graph import FAN_IN, build_sums_graph
 from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.pipeline.graph import FAN_IN, build_sums_graph
 
 SHAPE = (8, 8, 16)
 SPACING = (1.0, 0.8, 1.3)
@@ -25,8 +25,10 @@ IMAGES = [(8, 8), (16, 12), (32, 32), (64, 48)]
 def family(tmp_path_factory, keypair256):
     vol = np.random.default_rng(21).integers(0, 256, SHAPE).astype(np.uint8)
     root = tmp_path_factory.mktemp("scaling")
-    return [hevr.encrypt_volume(vol, root / f"b{i}.zarr", keypair256[1], brick=b, spacing=SPACING, progress=False)
-            for i, b in enumerate(BRICKS)]
+    return [
+        hevr.encrypt_volume(vol, root / f"b{i}.zarr", keypair256[1], brick=b, spacing=SPACING, progress=False)
+        for i, b in enumerate(BRICKS)
+    ]
 
 
 def _graph(ev, cam, tile, sampling="trilinear", resident=None):
@@ -83,8 +85,9 @@ def test_task_count_is_linear_in_bricks_tiles_and_edges(family, parallel, tile):
 
 def test_documented_merge_bound(tmp_path, keypair256):
     """SumsGraph: 'fewer than edges/(FAN_IN - 1) merges' -- here with one tile of slack per tile."""
-    ev = hevr.encrypt_volume(np.zeros((2, 2, 5), np.uint8), tmp_path / "v.zarr", keypair256[1], brick=(2, 2, 1),
-                             progress=False)
+    ev = hevr.encrypt_volume(
+        np.zeros((2, 2, 5), np.uint8), tmp_path / "v.zarr", keypair256[1], brick=(2, 2, 1), progress=False
+    )
     cam = hevr.Camera((2.0, 0.5, 8.0), (2.0, 0.5, 0.5), width=9, height=9)
     g, _, n_tiles = _graph(ev, cam, 32, "nearest")
     assert (g.map_tasks, g.edges, n_tiles) == (5, 5, 1)  # five bricks, one tile
@@ -180,7 +183,6 @@ def test_resident_bricks_are_passed_to_their_map_tasks(family):
     assert all(isinstance(k, str) for k in dict(res.dsk))
 
 
-
 def test_tile_row_pieces_split_rays_not_outputs(family):
     """With bands every (brick, tile) output still comes from exactly one map task, and each
     piece's rectangle lies in one tile row inside its brick's rectangle."""
@@ -191,8 +193,11 @@ def test_tile_row_pieces_split_rays_not_outputs(family):
     split = build_sums_graph(ev, cam, rays, "nearest", 1.0, 0, "scalar", 8, 25, bands=True)
     assert split.edges == whole.edges and split.map_tasks == whole.map_tasks
     assert whole.pieces == whole.map_tasks < split.pieces <= split.edges
+
     def outputs(g):  # (brick, tile) pairs the map tasks emit
-        return sorted((task[3], t) for k, task in dict(g.dsk).items() if k.startswith("hevr-map-") for t in task[8].tiles)
+        return sorted(
+            (task[3], t) for k, task in dict(g.dsk).items() if k.startswith("hevr-map-") for t in task[8].tiles
+        )
 
     assert outputs(split) == outputs(whole) and len(outputs(whole)) == whole.edges
     for key, task in dict(split.dsk).items():

@@ -39,9 +39,15 @@ def _check(rays, shape, spacing, brick, step, indices) -> int:
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.floats(-180, 180), st.floats(-80, 80), st.sampled_from([(9, 7, 8), (5, 11, 6)]),
-       st.sampled_from([3, (4, 2, 5), 16]), st.sampled_from([0.5, 1.0, 1.7]), st.booleans(),
-       st.integers(0, 2**16))
+@given(
+    st.floats(-180, 180),
+    st.floats(-80, 80),
+    st.sampled_from([(9, 7, 8), (5, 11, 6)]),
+    st.sampled_from([3, (4, 2, 5), 16]),
+    st.sampled_from([0.5, 1.0, 1.7]),
+    st.booleans(),
+    st.integers(0, 2**16),
+)
 def test_matches_brick_weights(az, el, shape, brick, step, parallel, seed):
     spacing = (1.0, 0.8, 1.3)
     cam = Camera.orbit(shape, az, el, width=13, height=11, spacing=spacing, parallel=parallel)
@@ -101,8 +107,9 @@ def test_geometry_is_namespace_generic(view):
     some = every[5:17]
     for indices in (every, some):
         ref = nearest_group_rows(rays, shape, spacing, brick, indices, 0.8 if view != "plane" else 1.0)
-        got = nearest_group_rows(rays.to_namespace(xps), shape, spacing, brick, indices,
-                                 0.8 if view != "plane" else 1.0)
+        got = nearest_group_rows(
+            rays.to_namespace(xps), shape, spacing, brick, indices, 0.8 if view != "plane" else 1.0
+        )
         assert ref.indptr[-1] > 0
         for name in ("rays", "indptr", "brick", "local", "weights"):
             a, b = getattr(ref, name), getattr(got, name)

@@ -65,8 +65,7 @@ def _check(cts, rows, n2, counter=None):
 def test_empty_csr_and_empty_rows(ring):
     _, n2, cts = ring
     c = OpCounter()
-    assert brick_ray_products(cts, np.array([0]), np.array([], np.int64), np.array([], np.int64),
-                              n2, c) == []
+    assert brick_ray_products(cts, np.array([0]), np.array([], np.int64), np.array([], np.int64), n2, c) == []
     got = _check(cts, [[], [(3, 0), (4, 0)], [], [(5, 0)]], n2, c)
     assert got == [mpz(1)] * 4
     assert (c.mulmod, c.squarings, c.powmod, c.rows, c.pairs) == (0, 0, 0, 4, 3)
@@ -139,8 +138,10 @@ def test_weights_up_to_5000(ring):
 def test_trilinear_cost_per_pair(ring):
     rng, n2, cts = ring
     # Distinct voxels per row and little reuse: the per-row Horner bucket method.
-    rows = [[(int(v), int(w)) for v, w in zip(rng.permutation(len(cts))[:128],
-                                                rng.integers(1, 1024, 128))] for _ in range(4)]
+    rows = [
+        [(int(v), int(w)) for v, w in zip(rng.permutation(len(cts))[:128], rng.integers(1, 1024, 128))]
+        for _ in range(4)
+    ]
     c = OpCounter()
     _check(cts, rows, n2, c)
     assert c.precomputed == 0 and c.powmod == 0
@@ -149,8 +150,7 @@ def test_trilinear_cost_per_pair(ring):
 
 def test_nearest_cost_per_pair(ring):
     rng, n2, cts = ring
-    rows = [[(int(v), 2 if rng.random() < 0.08 else 1) for v in rng.integers(0, 400, 32)]
-            for _ in range(20)]
+    rows = [[(int(v), 2 if rng.random() < 0.08 else 1) for v in rng.integers(0, 400, 32)] for _ in range(20)]
     c = OpCounter()
     _check(cts, rows, n2, c)
     assert c.mulmod + c.squarings <= c.pairs - 20 + sum(any(w == 2 for _, w in r) for r in rows)
@@ -158,8 +158,7 @@ def test_nearest_cost_per_pair(ring):
 
 def test_shared_buckets_with_high_reuse(ring):
     rng, n2, cts = ring
-    rows = [[(int(v), int(w)) for v, w in zip(rng.permutation(16), rng.integers(1, 1024, 16))]
-            for _ in range(200)]
+    rows = [[(int(v), int(w)) for v, w in zip(rng.permutation(16), rng.integers(1, 1024, 16))] for _ in range(200)]
     c = OpCounter()
     _check(cts, rows, n2, c)
     assert 0 < c.precomputed <= 16 * 9  # at most J_v - 1 <= 9 powers per voxel
@@ -183,8 +182,10 @@ def test_large_uint64_weights(ring):
 def test_components_share_plan(ring, k):
     rng, n2, cts = ring
     comps = [_values(rng, 50, n2) for _ in range(k)]
-    rows = [[(int(v), int(w)) for v, w in zip(rng.integers(0, 50, n), rng.integers(0, 1100, n))]
-            for n in [0, 1, 3, 30, 30, 70]]
+    rows = [
+        [(int(v), int(w)) for v, w in zip(rng.integers(0, 50, n), rng.integers(0, 1100, n))]
+        for n in [0, 1, 3, 30, 30, 70]
+    ]
     rows.append(rows[3])
     ip, vx, wt = _csr(rows)
     c = OpCounter()
@@ -242,15 +243,15 @@ def test_invalid_modulus_and_components(ring):
         brick_ray_products_multi([cts[:3], cts[:4]], *args, n2)
 
 
-_weight = st.one_of(st.integers(0, 3), st.integers(0, 1100), st.integers(0, 2**24),
-                    st.sampled_from([2**31 - 1, 2**32 + 1]))
+_weight = st.one_of(
+    st.integers(0, 3), st.integers(0, 1100), st.integers(0, 2**24), st.sampled_from([2**31 - 1, 2**32 + 1])
+)
 
 
 @st.composite
 def _random_csr(draw):
     n_vox = draw(st.integers(1, 12))
-    rows = draw(st.lists(
-        st.lists(st.tuples(st.integers(0, n_vox - 1), _weight), max_size=14), max_size=10))
+    rows = draw(st.lists(st.lists(st.tuples(st.integers(0, n_vox - 1), _weight), max_size=14), max_size=10))
     if rows and draw(st.booleans()):  # duplicated rows, as nearest sampling makes them
         rows = rows + [rows[draw(st.integers(0, len(rows) - 1))]]
     dtype = draw(st.sampled_from([np.int64, np.uint64, np.int32]))
@@ -258,8 +259,7 @@ def _random_csr(draw):
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(case=_random_csr(), bits=st.sampled_from([256, 512]), k=st.integers(1, 2),
-       seed=st.integers(0, 2**32 - 1))
+@given(case=_random_csr(), bits=st.sampled_from([256, 512]), k=st.integers(1, 2), seed=st.integers(0, 2**32 - 1))
 def test_random_csr_matches_naive(case, bits, k, seed):
     n_vox, rows, dtype = case
     rng = np.random.default_rng(seed)
@@ -278,8 +278,10 @@ def test_random_csr_matches_naive(case, bits, k, seed):
 def _csr_with_repeats(rng: np.random.Generator, n_rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows drawn from a few distinct (voxel, weight) lists, with empty rows and near-misses
     (same voxels, one weight changed; same pairs in another order)."""
-    base = [(rng.integers(0, 30, size=n, dtype=np.uint64), rng.integers(1, 4, size=n, dtype=np.uint64))
-            for n in rng.integers(1, 6, size=6)]
+    base = [
+        (rng.integers(0, 30, size=n, dtype=np.uint64), rng.integers(1, 4, size=n, dtype=np.uint64))
+        for n in rng.integers(1, 6, size=6)
+    ]
     rows = []
     for _ in range(n_rows):
         v, w = base[int(rng.integers(0, len(base)))]
@@ -323,7 +325,7 @@ def test_duplicate_rows_survive_hash_collisions(monkeypatch):
 
 # -- the plan under a second array namespace (issue 27, item 2) ----------------------------------------
 def _plans_equal(a, b) -> None:
-    to_np = (lambda x: x if isinstance(x, np.ndarray) else np.from_dlpack(x))
+    to_np = lambda x: x if isinstance(x, np.ndarray) else np.from_dlpack(x)
     assert (a.n_rows, a.n_pairs, a.shared_w) == (b.n_rows, b.n_pairs, b.shared_w)
     for name in ("rep", "vl", "wl", "tasks"):
         x, y = to_np(getattr(a, name)), to_np(getattr(b, name))

@@ -24,12 +24,14 @@ def stores(tmp_path_factory, keypair256):
     ev = hevr.encrypt_volume(vol, d / "ph.zarr", priv, brick=4, vector_dims=3, progress=False)
     out["phantom"] = (build_pyramid(ev, 2, progress=False), vol, (1.0, 1.0, 1.0))
     rnd = np.random.default_rng(8).integers(0, 256, (7, 11, 9)).astype(np.uint8)
-    ev = hevr.encrypt_volume(rnd, d / "rnd.zarr", priv, brick=(3, 4, 5), vector_dims=4, spacing=(0.8, 1.0, 1.7),
-                             progress=False)
+    ev = hevr.encrypt_volume(
+        rnd, d / "rnd.zarr", priv, brick=(3, 4, 5), vector_dims=4, spacing=(0.8, 1.0, 1.7), progress=False
+    )
     out["random"] = (build_pyramid(ev, 2, progress=False), rnd, (0.8, 1.0, 1.7))
     flt = (np.random.default_rng(9).random((6, 8, 10)) * 5 - 2).astype(np.float32)
-    ev = hevr.encrypt_volume(flt, d / "flt.zarr", priv, brick=4, vector_dims=2, value_range=(-2.0, 3.0),
-                             digits=2, progress=False)
+    ev = hevr.encrypt_volume(
+        flt, d / "flt.zarr", priv, brick=4, vector_dims=2, value_range=(-2.0, 3.0), digits=2, progress=False
+    )
     out["float"] = (build_pyramid(ev, 1, progress=False), flt, (1.0, 1.0, 1.0))
     return out, priv
 
@@ -37,8 +39,17 @@ def stores(tmp_path_factory, keypair256):
 def _check(ev, vol, spacing, priv, cam, level, mode, kw, sampling, **extra):
     img = hevr.render(ev, cam, mode=mode, sampling=sampling, level=level, progress=False, **extra, **kw)
     got = img.decrypt(priv)
-    ref = hevr.render_plain(vol, cam, mode=mode, sampling=sampling, spacing=spacing, value_range=ev.value_range,
-                            vector_dims=ev.vector_dims, level=level, **kw)
+    ref = hevr.render_plain(
+        vol,
+        cam,
+        mode=mode,
+        sampling=sampling,
+        spacing=spacing,
+        value_range=ev.value_range,
+        vector_dims=ev.vector_dims,
+        level=level,
+        **kw,
+    )
     bound = hevr.error_bound(ev, cam, mode=mode, sampling=sampling, level=level, **kw)
     assert (np.abs(got - ref) <= bound).all(), (mode, sampling, level, float(np.abs(got - ref).max()))
     return img, got, ref
@@ -49,8 +60,10 @@ def _check(ev, vol, spacing, priv, cam, level, mode, kw, sampling, **extra):
 def test_level_renders_match_the_plaintext_definition(stores, name, sampling):
     out, priv = stores
     ev, vol, spacing = out[name]
-    cams = [hevr.Camera.orbit(ev, azimuth=35, elevation=25, width=13, height=11),
-            hevr.Camera.orbit(ev, azimuth=-70, elevation=-10, width=9, height=12, parallel=True)]
+    cams = [
+        hevr.Camera.orbit(ev, azimuth=35, elevation=25, width=13, height=11),
+        hevr.Camera.orbit(ev, azimuth=-70, elevation=-10, width=9, height=12, parallel=True),
+    ]
     for level in range(ev.levels + 1):
         for cam in cams:
             for mode, kw in MODES:
@@ -79,16 +92,20 @@ def test_levels_on_a_cluster_with_sums_and_deferred(stores, cluster, tmp_path):
     ev, vol, spacing = out["random"]
     cam = hevr.Camera.orbit(ev, azimuth=10, elevation=40, width=10, height=10)
     hevr.clear_cache()
-    a = hevr.render(ev, cam, mode="tf", nodes=NODES, level=1, client=cluster, progress=False,
-                    keep_sums=tmp_path / "l1.hevrsums")
+    a = hevr.render(
+        ev, cam, mode="tf", nodes=NODES, level=1, client=cluster, progress=False, keep_sums=tmp_path / "l1.hevrsums"
+    )
     b = hevr.recolour(tmp_path / "l1.hevrsums", mode="tf", nodes=NODES, client=cluster, progress=False)
     assert [c.tobytes() for c in a.ciphertexts] == [c.tobytes() for c in b.ciphertexts]
-    c = cluster.compute(hevr.render(ev, cam, mode="emphasize", density=0.3, level=2, client=cluster,
-                                    compute=False)).result()
+    c = cluster.compute(
+        hevr.render(ev, cam, mode="emphasize", density=0.3, level=2, client=cluster, compute=False)
+    ).result()
     _check(ev, vol, spacing, priv, cam, 2, "emphasize", {"density": 0.3}, "nearest")
     ref = hevr.render_plain(vol, cam, mode="emphasize", density=0.3, spacing=spacing, vector_dims=4, level=2)
     assert c.colouring is None  # computed by the scheduler: the density never went there
-    assert (np.abs(c.decrypt(priv, density=0.3) - ref) <= hevr.error_bound(ev, cam, mode="emphasize", density=0.3, level=2)).all()
+    assert (
+        np.abs(c.decrypt(priv, density=0.3) - ref) <= hevr.error_bound(ev, cam, mode="emphasize", density=0.3, level=2)
+    ).all()
     resident = ev.at_level(1).persist(client=cluster)
     d = hevr.render(resident, cam, level=1, client=cluster, progress=False)
     assert d.stats["resident"] is True

@@ -19,8 +19,8 @@ import pytest
 
 import hevr
 from hevr.core.validate import MAX_BRICK_EDGE, MAX_BRICK_VOXELS, check_brick
-from hevr.rendering.reference import plain
 from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.planning.planner import (
     DEFAULT_MAX_PIXELS,
     DEFAULT_MAX_SAMPLES,
@@ -30,7 +30,7 @@ from hevr.rendering.planning.planner import (
     max_ray_samples,
     render_limits,
 )
-from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.reference import plain
 
 SECONDS = 1.0  # generous: every refusal here takes milliseconds
 PEAK_BYTES = 4 << 20  # "a few MB" of Python-visible allocations
@@ -99,8 +99,9 @@ def test_exact_count_decides_when_the_public_bound_is_too_loose() -> None:
     assert msg.startswith("step:") and MAX_SAMPLES_KEY in msg
 
 
-@pytest.mark.parametrize("azimuth, elevation, parallel", [(0, 0, True), (30, 20, False), (45, 35.26, True),
-                                                          (170, -60, False)])
+@pytest.mark.parametrize(
+    "azimuth, elevation, parallel", [(0, 0, True), (30, 20, False), (45, 35.26, True), (170, -60, False)]
+)
 def test_public_bound_bounds_every_ray(azimuth: float, elevation: float, parallel: bool) -> None:
     shape, spacing = (6, 9, 13), (0.7, 1.0, 1.9)
     cam = Camera.orbit(shape, azimuth, elevation, width=31, height=23, spacing=spacing, parallel=parallel)
@@ -113,8 +114,9 @@ def test_limits_come_from_dask_config() -> None:
     with dask.config.set({MAX_PIXELS_KEY: 100}):
         assert render_limits()[0] == 100
         check_render_size(Camera.orbit(shape, width=10, height=10), shape, (1, 1, 1), 1.0)
-        msg, _, _ = refused(hevr.RenderPlanError, check_render_size, Camera.orbit(shape, width=11, height=10),
-                            shape, (1, 1, 1), 1.0)
+        msg, _, _ = refused(
+            hevr.RenderPlanError, check_render_size, Camera.orbit(shape, width=11, height=10), shape, (1, 1, 1), 1.0
+        )
         assert "width, height" in msg and "at most 100 pixels" in msg
     with dask.config.set({"hevr.limits.max_samples": "50"}):  # '_' and '-' are one key; strings from env
         assert render_limits()[1] == 50
@@ -129,16 +131,19 @@ def test_bad_limit_in_config_is_a_parameter_error(value: Any) -> None:
 
 
 def test_limits_from_the_environment() -> None:
-    code = ("import hevr, sys\n"
-            "from hevr.rendering.planning.planner import render_limits\n"
-            "print(render_limits())\n"
-            "try:\n"
-            "    hevr.render_plain(hevr.phantom(8), hevr.Camera.orbit((8, 8, 8), width=8, height=8))\n"
-            "except hevr.RenderPlanError as e:\n"
-            "    print(e)\n")
+    code = (
+        "import hevr, sys\n"
+        "from hevr.rendering.planning.planner import render_limits\n"
+        "print(render_limits())\n"
+        "try:\n"
+        "    hevr.render_plain(hevr.phantom(8), hevr.Camera.orbit((8, 8, 8), width=8, height=8))\n"
+        "except hevr.RenderPlanError as e:\n"
+        "    print(e)\n"
+    )
     env = dict(os.environ, DASK_HEVR__LIMITS__MAX_PIXELS="50", DASK_HEVR__LIMITS__MAX_SAMPLES="1000")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
-                         check=False)
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120, check=False
+    )
     assert out.returncode == 0, out.stderr
     first, second = out.stdout.splitlines()[:2]
     assert first == "(50, 1000)" and second.startswith("width, height: expected an image of at most 50 pixels")
@@ -193,9 +198,15 @@ def test_long_rays_are_summed_in_pieces(monkeypatch: pytest.MonkeyPatch) -> None
 
 
 # -- bricks -----------------------------------------------------------------------------------
-@pytest.mark.parametrize("brick, needle", [(10**9, "at most 4096 voxels per axis"), ((1, 1, 4097), "per axis"),
-                                           (257, "at most 16777216 voxels per brick"),
-                                           ((512, 256, 256), "voxels per brick")])
+@pytest.mark.parametrize(
+    "brick, needle",
+    [
+        (10**9, "at most 4096 voxels per axis"),
+        ((1, 1, 4097), "per axis"),
+        (257, "at most 16777216 voxels per brick"),
+        ((512, 256, 256), "voxels per brick"),
+    ],
+)
 def test_absurd_bricks_are_refused(brick: Any, needle: str) -> None:
     with pytest.raises(hevr.ParameterError, match="^brick: expected") as info:
         check_brick(brick)
@@ -218,8 +229,9 @@ def test_encrypt_volume_refuses_an_absurd_brick(tmp_path) -> None:
         warnings.simplefilter("ignore", hevr.InsecureKeyWarning)
         pub, _ = hevr.generate_keypair(128)
     vol = np.zeros((8, 8, 8), np.uint8)
-    msg, seconds, peak = refused(hevr.ParameterError, hevr.encrypt_volume, vol, tmp_path / "v.zarr", pub,
-                                 brick=10**9, progress=False)
+    msg, seconds, peak = refused(
+        hevr.ParameterError, hevr.encrypt_volume, vol, tmp_path / "v.zarr", pub, brick=10**9, progress=False
+    )
     assert msg.startswith("brick: expected") and seconds < SECONDS and peak < PEAK_BYTES
     assert not (tmp_path / "v.zarr").exists()
 
@@ -229,6 +241,7 @@ def test_encrypt_volume_refuses_an_absurd_brick(tmp_path) -> None:
 def test_absurd_vector_dims_are_refused(dims: int) -> None:
     vol = np.zeros((4, 4, 4), np.uint8)
     cam = Camera.orbit(vol.shape, width=4, height=4)
-    msg, seconds, peak = refused(hevr.ParameterError, hevr.render_plain, vol, cam, mode="emphasize", density=0.5,
-                                 vector_dims=dims)
+    msg, seconds, peak = refused(
+        hevr.ParameterError, hevr.render_plain, vol, cam, mode="emphasize", density=0.5, vector_dims=dims
+    )
     assert msg.startswith("vector_dims: expected an integer in [2, 64]") and seconds < SECONDS and peak < PEAK_BYTES

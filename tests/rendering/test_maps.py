@@ -32,8 +32,9 @@ def device_like(monkeypatch):
     return calls
 
 
-@pytest.mark.parametrize("mode, sampling, kw", [("xray", "trilinear", {}), ("tf", "trilinear", {"nodes": NODES}),
-                                                ("xray", "nearest", {})])
+@pytest.mark.parametrize(
+    "mode, sampling, kw", [("xray", "trilinear", {}), ("tf", "trilinear", {"nodes": NODES}), ("xray", "nearest", {})]
+)
 def test_a_device_group_is_one_kernel_call_and_the_cpu_image(device_like, tmp_path, keypair256, mode, sampling, kw):
     vol = np.random.default_rng(3).integers(0, 256, (12, 14, 16)).astype(np.uint8)
     with dask.config.set(scheduler="sync"):

@@ -44,8 +44,20 @@ def test_parse_color(color: object, expected: tuple[float, float, float]) -> Non
 
 
 @pytest.mark.parametrize(
-    "color", ["#12345", "#gggggg", "chartreuse-ish", "", (1, 0), (0, 0, 2), (0, -0.1, 0),
-              (0, float("nan"), 0), None, 3, ("a", 0, 0)],
+    "color",
+    [
+        "#12345",
+        "#gggggg",
+        "chartreuse-ish",
+        "",
+        (1, 0),
+        (0, 0, 2),
+        (0, -0.1, 0),
+        (0, float("nan"), 0),
+        None,
+        3,
+        ("a", 0, 0),
+    ],
 )
 def test_parse_color_rejects(color: object) -> None:
     with pytest.raises(ParameterError, match="color"):
@@ -126,8 +138,11 @@ def test_combination_matrix_rejects_xray() -> None:
 
 
 def test_duplicate_transfer_function_densities_are_refused():
-    with pytest.raises(ParameterError, match=r"nodes: expected distinct densities, got 0.5 twice \(nodes\[0\] "
-                                                  r"and nodes\[2\]\)"):
+    with pytest.raises(
+        ParameterError,
+        match=r"nodes: expected distinct densities, got 0.5 twice \(nodes\[0\] "
+        r"and nodes\[2\]\)",
+    ):
         make_spec("tf", "nearest", 1.0, None, [(0.5, "red"), (0.7, "blue"), (0.5, "green")], 4, True)
     spec = make_spec("tf", "nearest", 1.0, None, [(0.5, "red"), (0.50001, "red")], 4, True)  # close is fine
     assert spec.n_nodes == 2

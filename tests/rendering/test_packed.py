@@ -71,6 +71,7 @@ def test_zoomed_camera(store, keypair256, volume, sampling):
     """A camera that sees part of the volume: the blocks' slots of rays outside the frame hold real
     sums (checked against their own bounds, not counted), and the frame is exact and within the bound."""
     import dataclasses
+
     priv = keypair256[1]
     for view in ((90, 10), (60, 10)):
         c = cam(store, *view, w=9, h=7)
@@ -86,8 +87,9 @@ def test_zoomed_camera(store, keypair256, volume, sampling):
 def test_other_packing_axes(tmp_path, keypair256, volume, axis, view):
     """Stores packed along y or x: exact sums, and within the bound of the reference for that axis."""
     priv = keypair256[1]
-    ev = hevr.encrypt_volume(volume, tmp_path / "o.zarr", priv, brick=4, spacing=SPACING, layout="packed",
-                             pack_axis=axis, progress=False)
+    ev = hevr.encrypt_volume(
+        volume, tmp_path / "o.zarr", priv, brick=4, spacing=SPACING, layout="packed", pack_axis=axis, progress=False
+    )
     c = hevr.Camera.orbit(ev, width=13, height=11, parallel=True, **view)
     for sampling in SAMPLINGS:
         img = render(ev, c, sampling)
@@ -109,9 +111,15 @@ def test_one_product_serves_S_rays(store, keypair256):
 
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(shape=st.tuples(st.integers(2, 9), st.integers(2, 7), st.integers(2, 7)),
-       az=st.floats(45.5, 134.5), el=st.floats(-80, 80), flip=st.booleans(), sampling=st.sampled_from(SAMPLINGS),
-       brick=st.integers(2, 5), seed=st.integers(0, 2**16))
+@given(
+    shape=st.tuples(st.integers(2, 9), st.integers(2, 7), st.integers(2, 7)),
+    az=st.floats(45.5, 134.5),
+    el=st.floats(-80, 80),
+    flip=st.booleans(),
+    sampling=st.sampled_from(SAMPLINGS),
+    brick=st.integers(2, 5),
+    seed=st.integers(0, 2**16),
+)
 def test_hypothesis_views_and_shapes(tmp_path_factory, keypair256, shape, az, el, flip, sampling, brick, seed):
     """Any shape (ragged packs, multi-brick), any view the store serves: exact sums, within the bound."""
     priv = keypair256[1]
@@ -170,8 +178,9 @@ def test_refusals(store):
 
 def test_unverified_default_warns(tmp_path, keypair256, volume, caplog):
     """A packed store without tags (opted out) renders unverified by default, saying so on every render."""
-    ev = hevr.encrypt_volume(volume, tmp_path / "u.zarr", keypair256[1], brick=4, layout="packed", verifiable=False,
-                             progress=False)
+    ev = hevr.encrypt_volume(
+        volume, tmp_path / "u.zarr", keypair256[1], brick=4, layout="packed", verifiable=False, progress=False
+    )
     assert not ev.meta.tags
     for _ in range(2):
         caplog.clear()
@@ -218,6 +227,7 @@ def test_integrity(store, keypair256, keypair512):
             bad.decrypt(priv)
     # a well-formed ciphertext of a value in the frame's slots but above a ray's largest sum
     from hevr.crypto.records import mpz_to_bytes
+
     bad = PackedImage(**{**img.__dict__, "ciphertexts": [c.copy() for c in img.ciphertexts]})
     K = store.packing.slot_bits
     bad.ciphertexts[0][0] = mpz_to_bytes([priv.public_key.encrypt((1 << K) - 1)], store.meta.ciphertext_bytes)[0]
@@ -249,6 +259,7 @@ def test_resident_and_distributed(store, keypair256, cluster):
 def test_cuda_host_backend_identical(store):
     """The host-compiled CUDA kernels run the packed products and the Horner combine: identical bytes."""
     from hevr.backends import get_backend
+
     try:
         get_backend("cuda-host")
     except Exception as exc:  # pragma: no cover - a machine without a C compiler
@@ -264,6 +275,7 @@ def test_cuda_host_backend_identical(store):
 def test_plan_is_public_and_small(store):
     """The plan is built from public parameters only and pickles small (it travels in every task)."""
     import pickle
+
     c = cam(store, 60, 10)
     plan = SlicePlan.build(c, store.shape, store.spacing, store.brick, store.packing, "trilinear")
     assert len(pickle.dumps(plan)) < 20_000
@@ -294,4 +306,5 @@ def test_resident_packed_store_costs_its_records(store):
     width = store.meta.ciphertext_bytes
     records = int(np.prod(store.packing.array_shape(store.shape)))
     from hevr.backends import get_backend
+
     assert res.resident.nbytes == records * get_backend(res.resident.backend).residue_bytes(width)

@@ -8,7 +8,6 @@ import dataclasses
 import logging
 
 import dask
-
 import numpy as np
 import pytest
 
@@ -41,14 +40,15 @@ def volume():
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair256, volume):
     path = tmp_path_factory.mktemp("packed-colour") / "c.zarr"
-    return hevr.encrypt_volume(volume, path, keypair256[1], brick=4, spacing=SPACING, layout="packed", vector_dims=K,
-                               progress=False)
+    return hevr.encrypt_volume(
+        volume, path, keypair256[1], brick=4, spacing=SPACING, layout="packed", vector_dims=K, progress=False
+    )
 
 
 def components(volume, store):
     """The stored mantissas of e(d)'s components (k, z, y, x), as the owner quantised them."""
     enc = encode_density(normalize_density(volume, store.value_range), K)
-    return np.moveaxis(np.rint(enc * 10.0 ** store.meta.vector.digits).astype(np.int64), -1, 0)
+    return np.moveaxis(np.rint(enc * 10.0**store.meta.vector.digits).astype(np.int64), -1, 0)
 
 
 def render(ev, camera, sampling, **kw):
@@ -72,21 +72,27 @@ def test_store_layout_and_tags(store, keypair256, volume):
     sl = tuple(slice(i * b, min((i + 1) * b, s)) for i, b, s in zip(idx, store.brick, SHAPE))
     tk = tag_key_of(priv)
     packed_shape = info.array_shape(SHAPE)
-    pz, py, px = np.meshgrid(*(np.arange(s.start // (info.slots if a == 0 else 1),
-                                         -(-s.stop // (info.slots if a == 0 else 1))) for a, s in enumerate(sl)),
-                             indexing="ij")
+    pz, py, px = np.meshgrid(
+        *(
+            np.arange(s.start // (info.slots if a == 0 else 1), -(-s.stop // (info.slots if a == 0 else 1)))
+            for a, s in enumerate(sl)
+        ),
+        indexing="ij",
+    )
     packs = np.ravel_multi_index((pz, py, px), packed_shape).reshape(-1)
     for j in range(K):
         plain = [int(priv.raw_decrypt(c)) for c in batches[j]]
-        slots = unpack_slots(plain, info.slots, info.slot_bits).reshape(1, sl[1].stop - sl[1].start,
-                                                                          sl[2].stop - sl[2].start, info.slots)
+        slots = unpack_slots(plain, info.slots, info.slot_bits).reshape(
+            1, sl[1].stop - sl[1].start, sl[2].stop - sl[2].start, info.slots
+        )
         got = np.moveaxis(slots, -1, 1).reshape(info.slots, *slots.shape[1:3])
         want = q[j][sl]
-        assert (got[:want.shape[0]] == want).all() and not got[want.shape[0]:].any()
+        assert (got[: want.shape[0]] == want).all() and not got[want.shape[0] :].any()
         t = [int(priv.raw_decrypt(c)) for c in tags[j]]
         assert t == raw_tags(tk, [p % tk.n for p in plain], betas(tk, store.meta.store_id, "vector", 0, j, packs))
-        assert t != raw_tags(tk, [p % tk.n for p in plain], betas(tk, store.meta.store_id, "vector", 0, 0 if j else 1,
-                                                                    packs))
+        assert t != raw_tags(
+            tk, [p % tk.n for p in plain], betas(tk, store.meta.store_id, "vector", 0, 0 if j else 1, packs)
+        )
 
 
 @pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
@@ -104,8 +110,17 @@ def test_tf_exact_sums_and_reference(store, keypair256, volume, view, sampling):
     for j in range(K):
         assert (sums[j] == img.plan.plain_sums(q[j])).all()
     arr = img.decrypt(priv)
-    ref = hevr.render_plain(volume, c, mode="tf", nodes=NODES, sampling=sampling, spacing=SPACING, vector_dims=K,
-                            value_range=store.value_range, slices=True)
+    ref = hevr.render_plain(
+        volume,
+        c,
+        mode="tf",
+        nodes=NODES,
+        sampling=sampling,
+        spacing=SPACING,
+        vector_dims=K,
+        value_range=store.value_range,
+        slices=True,
+    )
     bound = hevr.error_bound(store, c, mode="tf", nodes=NODES, sampling=sampling)
     assert arr.shape == ref.shape == bound.shape == (10, 12, 3)
     assert (np.abs(arr - ref) <= bound).all()
@@ -123,8 +138,17 @@ def test_emphasis_and_recolouring(store, keypair256, volume, sampling):
     c = cam(store, 60, 10)
     img = render(store, c, sampling, mode="emphasize", density=0.4)
     arr = img.decrypt(priv)
-    ref = hevr.render_plain(volume, c, mode="emphasize", density=0.4, sampling=sampling, spacing=SPACING,
-                            vector_dims=K, value_range=store.value_range, slices=True)
+    ref = hevr.render_plain(
+        volume,
+        c,
+        mode="emphasize",
+        density=0.4,
+        sampling=sampling,
+        spacing=SPACING,
+        vector_dims=K,
+        value_range=store.value_range,
+        slices=True,
+    )
     bound = hevr.error_bound(store, c, mode="emphasize", density=0.4, sampling=sampling)
     assert arr.shape == ref.shape == bound.shape == (10, 12)
     assert (np.abs(arr - ref) <= bound).all() and ref.max() > 0.1
@@ -134,8 +158,17 @@ def test_emphasis_and_recolouring(store, keypair256, volume, sampling):
     tf = frame.recolour(nodes=NODES)  # another colouring, no second render
     assert np.array_equal(tf, colour(frame.means, Colouring("tf", nodes=NODES)))
     assert np.array_equal(img.decrypt(priv, nodes=NODES), tf)
-    ref_tf = hevr.render_plain(volume, c, mode="tf", nodes=NODES, sampling=sampling, spacing=SPACING, vector_dims=K,
-                               value_range=store.value_range, slices=True)
+    ref_tf = hevr.render_plain(
+        volume,
+        c,
+        mode="tf",
+        nodes=NODES,
+        sampling=sampling,
+        spacing=SPACING,
+        vector_dims=K,
+        value_range=store.value_range,
+        slices=True,
+    )
     assert (np.abs(tf - ref_tf) <= hevr.error_bound(store, c, mode="tf", nodes=NODES, sampling=sampling)).all()
     xray = render(store, c, sampling)  # the scalar channel of the same store
     xref = hevr.render_plain(volume, c, sampling=sampling, spacing=SPACING, slices=True)
@@ -185,11 +218,11 @@ def test_refusals(store, keypair256, tmp_path, volume):
         img.decrypt(keypair256[1], require_verified=True)  # rendered with verify=False
     priv = keypair256[1]
     with pytest.raises(ParameterError, match="layout: expected 'voxel' for a store without the scalar channel"):
-        hevr.encrypt_volume(volume, tmp_path / "g.zarr", priv, layout="packed", vector_dims=K, scalar=False,
-                            progress=False)
+        hevr.encrypt_volume(
+            volume, tmp_path / "g.zarr", priv, layout="packed", vector_dims=K, scalar=False, progress=False
+        )
     with pytest.raises(ParameterError, match="levels: expected 0 for a packed store with the vector channel"):
-        hevr.encrypt_volume(volume, tmp_path / "l.zarr", priv, layout="packed", vector_dims=K, levels=1,
-                            progress=False)
+        hevr.encrypt_volume(volume, tmp_path / "l.zarr", priv, layout="packed", vector_dims=K, levels=1, progress=False)
     assert not (tmp_path / "g.zarr").exists() and not (tmp_path / "l.zarr").exists()
 
 
@@ -227,8 +260,16 @@ def test_verified_by_default(store, keypair256, mode):
 
 
 def test_unverified_store_warns(tmp_path, keypair256, volume, caplog):
-    ev = hevr.encrypt_volume(volume, tmp_path / "u.zarr", keypair256[1], brick=4, layout="packed", vector_dims=K,
-                             verifiable=False, progress=False)
+    ev = hevr.encrypt_volume(
+        volume,
+        tmp_path / "u.zarr",
+        keypair256[1],
+        brick=4,
+        layout="packed",
+        vector_dims=K,
+        verifiable=False,
+        progress=False,
+    )
     with caplog.at_level(logging.WARNING, logger="hevr"):
         img = hevr.render(ev, cam(ev, 90, 0), mode="tf", nodes=NODES, progress=False)
     assert not img.verified and "not verified" in caplog.text
@@ -265,8 +306,9 @@ def test_integrity(store, keypair256):
     comp = img.components[1]
     tiles = [t.copy() for t in comp.ciphertexts]
     tiles[0][0, -8:] ^= 0x5A  # a damaged ciphertext: a random plaintext (the integrity margin) or not in (0, n²)
-    bad = dataclasses.replace(img, components=[img.components[0], dataclasses.replace(comp, ciphertexts=tiles),
-                                               img.components[2]])
+    bad = dataclasses.replace(
+        img, components=[img.components[0], dataclasses.replace(comp, ciphertexts=tiles), img.components[2]]
+    )
     with pytest.raises(IntegrityError):
         bad.decrypt(priv)
     swapped = dataclasses.replace(img, components=[img.components[1], img.components[0], img.components[2]])
@@ -297,15 +339,25 @@ def test_render_frame_recolours_on_the_client(store, keypair256):
     assert frame.channel == "vector" and frame.components == K and frame.stats["verified"]
     img = render(store, c, "trilinear", mode="tf", nodes=NODES)
     np.testing.assert_allclose(frame.image, img.decrypt(priv), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(frame.recolour("emphasize", density=0.5),
-                               img.decrypt(priv, mode="emphasize", density=0.5), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        frame.recolour("emphasize", density=0.5), img.decrypt(priv, mode="emphasize", density=0.5), rtol=0, atol=1e-12
+    )
 
 
 @pytest.fixture(scope="module")
 def gradient_store(tmp_path_factory, keypair256, volume):
     path = tmp_path_factory.mktemp("packed-gradient") / "g.zarr"
-    return hevr.encrypt_volume(volume, path, keypair256[1], brick=4, spacing=SPACING, layout="packed", vector_dims=K,
-                               gradient=True, progress=False)
+    return hevr.encrypt_volume(
+        volume,
+        path,
+        keypair256[1],
+        brick=4,
+        spacing=SPACING,
+        layout="packed",
+        vector_dims=K,
+        gradient=True,
+        progress=False,
+    )
 
 
 @pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
@@ -321,8 +373,18 @@ def test_gradient_modulation(gradient_store, keypair256, volume, mode, kw, sampl
     img = hevr.render(ev, c, mode=mode, sampling=sampling, gradient=True, progress=False, tile=4, **kw)
     assert img.channel == "gradient" and img.verified and img.verification.channel == "gradient"
     arr = img.decrypt(priv, require_verified=True)
-    ref = hevr.render_plain(volume, c, mode=mode, sampling=sampling, gradient=True, vector_dims=K, slices=True,
-                            value_range=ev.value_range, spacing=SPACING, **kw)
+    ref = hevr.render_plain(
+        volume,
+        c,
+        mode=mode,
+        sampling=sampling,
+        gradient=True,
+        vector_dims=K,
+        slices=True,
+        value_range=ev.value_range,
+        spacing=SPACING,
+        **kw,
+    )
     assert (np.abs(arr - ref) <= hevr.error_bound(ev, c, mode=mode, sampling=sampling, gradient=True, **kw)).all()
     flat = hevr.render(ev, c, mode=mode, sampling=sampling, progress=False, verify=False, **kw).decrypt(priv)
     assert np.abs(arr - flat).max() > 0.01  # the modulation shows
@@ -346,8 +408,12 @@ def test_colour_frame_files(gradient_store, keypair256, tmp_path, gradient):
     assert isinstance(back, PackedColourImage) and back.channel == ("gradient" if gradient else "vector")
     assert back.verified and back.verification.components == K and back.stamp is not None
     np.testing.assert_array_equal(back.decrypt(priv, mode="tf", nodes=NODES, require_verified=True), want)
-    np.testing.assert_allclose(back.decrypt_frame(priv).recolour("emphasize", density=0.5),
-                               img.decrypt(priv, mode="emphasize", density=0.5), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        back.decrypt_frame(priv).recolour("emphasize", density=0.5),
+        img.decrypt(priv, mode="emphasize", density=0.5),
+        rtol=0,
+        atol=1e-12,
+    )
     moved = tmp_path / "moved.hevr"
     path.rename(moved)
     with pytest.raises(VerificationError, match="saved this verified frame as"):

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import hevr
-from hevr.image.files import image_from_bytes
 from hevr.errors import CorruptStoreError, ExistingFileError, IntegrityError, VerificationError
+from hevr.image.files import image_from_bytes
 from hevr.rendering.packed import PackedImage
 from hevr.rendering.packed import files as pf
 
@@ -31,8 +31,9 @@ def volume():
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair256, volume):
     path = tmp_path_factory.mktemp("packed-files") / "v.zarr"
-    return hevr.encrypt_volume(volume, path, keypair256[1], brick=4, spacing=(1.0, 0.9, 1.2), layout="packed",
-                               progress=False)
+    return hevr.encrypt_volume(
+        volume, path, keypair256[1], brick=4, spacing=(1.0, 0.9, 1.2), layout="packed", progress=False
+    )
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +46,7 @@ def frames(store):
 
 def parts(blob: bytes) -> tuple[dict, bytes]:
     (hl,) = struct.unpack_from("<I", blob, len(pf.MAGIC))
-    return json.loads(blob[pf.HEAD:pf.HEAD + hl]), blob[pf.HEAD + hl:-32]
+    return json.loads(blob[pf.HEAD : pf.HEAD + hl]), blob[pf.HEAD + hl : -32]
 
 
 def rebuild(header: dict, body: bytes) -> bytes:
@@ -100,8 +101,10 @@ def test_verified_frame_keeps_its_proof_with_the_stamp(frames, keypair256, tmp_p
     verified.save(path, private_key=priv)
     img = hevr.load_image(path)
     assert img.verified and not img.verification.drawn_here and img.stamp is not None
-    assert img.verification.store_id == verified.verification.store_id and img.verification.seed == \
-        verified.verification.seed
+    assert (
+        img.verification.store_id == verified.verification.store_id
+        and img.verification.seed == verified.verification.seed
+    )
     assert np.array_equal(img.decrypt(priv, require_verified=verified.store_id), want)
     # a stamped file copied as it is keeps its stamp (saved again without the key, same name): it
     # proves its store and view, not that it belongs in the other folder
@@ -150,8 +153,9 @@ def test_renamed_or_forged_proof_is_refused(frames, keypair256, tmp_path):
     with pytest.raises(VerificationError, match="carries no stamp"):
         hevr.load_image(tmp_path / "c.hevr").decrypt(priv)
     # an altered aggregate under the old stamp: the stamp no longer matches
-    forged = dict(header, verification=dict(header["verification"], aggregate=str(int(
-        header["verification"]["aggregate"]) + 1)))
+    forged = dict(
+        header, verification=dict(header["verification"], aggregate=str(int(header["verification"]["aggregate"]) + 1))
+    )
     (tmp_path / "a.hevr").write_bytes(rebuild(forged, body))
     with pytest.raises(VerificationError, match="does not match its bytes"):
         hevr.load_image(tmp_path / "a.hevr").decrypt(priv)
@@ -179,8 +183,13 @@ def test_flipped_or_truncated_file(frames, tmp_path, where):
     _, _, plain = frames
     blob = bytearray(plain.to_bytes())
     (hl,) = struct.unpack_from("<I", blob, len(pf.MAGIC))
-    at = {"magic-version": len(pf.MAGIC) - 1, "length": len(pf.MAGIC), "header": pf.HEAD + 10,
-          "body": pf.HEAD + hl + 3, "trailer": len(blob) - 1}[where]
+    at = {
+        "magic-version": len(pf.MAGIC) - 1,
+        "length": len(pf.MAGIC),
+        "header": pf.HEAD + 10,
+        "body": pf.HEAD + hl + 3,
+        "trailer": len(blob) - 1,
+    }[where]
     blob[at] ^= 0x10
     (tmp_path / "f.hevr").write_bytes(bytes(blob))
     err = CorruptStoreError if where == "magic-version" else IntegrityError
@@ -202,25 +211,38 @@ def _edit(header: dict, **kw) -> dict:
     return out
 
 
-@pytest.mark.parametrize("change, match", [
-    (dict(format="hevr-encrypted-image"), "'format'"),
-    (dict(version=2), "'version'"),
-    (dict(extra=1), "unexpected field"),
-    (dict(counts=None), "'counts'"),
-    (dict(sampling="cubic"), "'sampling'"),
-    (dict(weight_bits=17), "'weight_bits'"),
-    (dict(weight_bits=True), "'weight_bits'"),
-    (dict(tile=0), "'tile'"),
-    (dict(level=1), "'level'"),
-    (dict(camera={"position": "x"}), "'camera'"),
-    (dict(camera={"position": [0, 0, 30], "focal_point": [0, 0, 0], "parallel": False}), "perspective"),
-    (dict(camera={"position": [5, 30, 5], "focal_point": [5, 4, 5], "parallel": True, "width": 100000,
-                  "height": 100000}), "'camera'"),
-    (dict(stamp="hmac-sha256:" + "0" * 64), "'stamp'"),
-    (dict(verification={"aggregate": "1", "seed": "zz" * 32}), "'verification.seed'"),
-    (dict(verification={"aggregate": "0", "seed": "00" * 32}), "'verification.aggregate'"),
-    (dict(verification={"aggregate": "1", "seed": "00" * 32, "level": 0}), "'verification'"),
-])
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (dict(format="hevr-encrypted-image"), "'format'"),
+        (dict(version=2), "'version'"),
+        (dict(extra=1), "unexpected field"),
+        (dict(counts=None), "'counts'"),
+        (dict(sampling="cubic"), "'sampling'"),
+        (dict(weight_bits=17), "'weight_bits'"),
+        (dict(weight_bits=True), "'weight_bits'"),
+        (dict(tile=0), "'tile'"),
+        (dict(level=1), "'level'"),
+        (dict(camera={"position": "x"}), "'camera'"),
+        (dict(camera={"position": [0, 0, 30], "focal_point": [0, 0, 0], "parallel": False}), "perspective"),
+        (
+            dict(
+                camera={
+                    "position": [5, 30, 5],
+                    "focal_point": [5, 4, 5],
+                    "parallel": True,
+                    "width": 100000,
+                    "height": 100000,
+                }
+            ),
+            "'camera'",
+        ),
+        (dict(stamp="hmac-sha256:" + "0" * 64), "'stamp'"),
+        (dict(verification={"aggregate": "1", "seed": "zz" * 32}), "'verification.seed'"),
+        (dict(verification={"aggregate": "0", "seed": "00" * 32}), "'verification.aggregate'"),
+        (dict(verification={"aggregate": "1", "seed": "00" * 32, "level": 0}), "'verification'"),
+    ],
+)
 def test_hand_made_fields(frames, tmp_path, change, match):
     """A file whose checksum is right but whose fields are not: IntegrityError naming the field."""
     _, _, plain = frames
@@ -296,6 +318,8 @@ def test_level_frame_round_trip(tmp_path, keypair256, volume):
     assert back.level == 1 and back.plan.geometry.shape == img.plan.geometry.shape != tuple(ev.shape)
     assert np.array_equal(back.decrypt(priv, require_verified=True), want)
     header, body = parts((tmp_path / "l.hevr").read_bytes())
-    (tmp_path / "m.hevr").write_bytes(rebuild(_edit(header, level=0, stamp=None, saved_as=None, rendered_at=None), body))
+    (tmp_path / "m.hevr").write_bytes(
+        rebuild(_edit(header, level=0, stamp=None, saved_as=None, rendered_at=None), body)
+    )
     with pytest.raises(IntegrityError, match="'counts|'camera"):  # level 0's plan: other tiles
         hevr.load_image(tmp_path / "m.hevr")

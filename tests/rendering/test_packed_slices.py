@@ -28,8 +28,9 @@ def volume():
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair256, volume):
     path = tmp_path_factory.mktemp("packed-slices") / "p.zarr"
-    return hevr.encrypt_volume(volume, path, keypair256[1], brick=4, spacing=SPACING, layout="packed",
-                               verifiable=False, progress=False)
+    return hevr.encrypt_volume(
+        volume, path, keypair256[1], brick=4, spacing=SPACING, layout="packed", verifiable=False, progress=False
+    )
 
 
 def planes(ev):
@@ -103,19 +104,32 @@ def test_containing_plane_serves_s_pixels_per_ciphertext(store, keypair256, volu
 @pytest.fixture(scope="module")
 def store_x(tmp_path_factory, keypair256, volume):
     path = tmp_path_factory.mktemp("packed-slices-x") / "px.zarr"
-    return hevr.encrypt_volume(volume, path, keypair256[1], brick=4, spacing=SPACING, layout="packed", pack_axis="x",
-                               verifiable=False, progress=False)
+    return hevr.encrypt_volume(
+        volume,
+        path,
+        keypair256[1],
+        brick=4,
+        spacing=SPACING,
+        layout="packed",
+        pack_axis="x",
+        verifiable=False,
+        progress=False,
+    )
 
 
 @pytest.mark.parametrize("sampling", SAMPLINGS)
 def test_store_packed_along_x(store_x, keypair256, volume, sampling):
     """Packed along x: sagittal planes are perpendicular to the axis, axial and coronal ones contain it."""
-    for plane, kind in ((hevr.Plane.sagittal(store_x, 6.5), "perpendicular"),
-                        (hevr.Plane.axial(store_x, 4), "contains"), (hevr.Plane.coronal(store_x, 3.7), "contains")):
+    for plane, kind in (
+        (hevr.Plane.sagittal(store_x, 6.5), "perpendicular"),
+        (hevr.Plane.axial(store_x, 4), "contains"),
+        (hevr.Plane.coronal(store_x, 3.7), "contains"),
+    ):
         img = slice_(store_x, plane, sampling)
         assert img.plan.kind == kind
-        assert np.array_equal(img.decrypt_values(keypair256[1]),
-                              img.plan.plain_values(volume.astype(np.int64) - store_x.packing.offset))
+        assert np.array_equal(
+            img.decrypt_values(keypair256[1]), img.plan.plain_values(volume.astype(np.int64) - store_x.packing.offset)
+        )
         ref = hevr.render_slice_plain(volume, plane, sampling=sampling, spacing=SPACING)
         assert (np.abs(img.decrypt(keypair256[1]) - ref) <= hevr.error_bound(store_x, plane, sampling=sampling)).all()
     with pytest.raises(ParameterError, match=r"^plane: .*packing axis x"):
@@ -125,22 +139,30 @@ def test_store_packed_along_x(store_x, keypair256, volume, sampling):
 def test_other_planes_refused_before_any_work(store, monkeypatch):
     """A plane that neither contains z nor is perpendicular to it: refused, naming plane and what
     serves it, before any brick is read."""
+
     def no_read(*a, **k):
         raise AssertionError("a brick was read")
+
     monkeypatch.setattr(type(store), "read_brick", no_read)
     for normal in ((1, 0, 1), (0, 0.1, 1), (0.3, -0.2, 0.9)):
-        with pytest.raises(ParameterError, match=r"^plane: expected a plane perpendicular to the packing axis z or "
-                                                 r"containing its direction.*per-voxel store"):
+        with pytest.raises(
+            ParameterError,
+            match=r"^plane: expected a plane perpendicular to the packing axis z or "
+            r"containing its direction.*per-voxel store",
+        ):
             slice_(store, hevr.Plane.oblique(store, normal=normal), "trilinear")
 
 
-@pytest.mark.parametrize("kw, match", [
-    ({"mode": "emphasize", "density": 0.5}, "^mode: expected 'xray' on a packed store"),
-    ({"gradient": True}, "^density/nodes/gradient"),
-    ({"finish": "server"}, "^finish: expected 'client'"),
-    ({"verify": True}, "^verify: expected a request that can be verified, got the store has no tags"),
-    ({"compute": False}, "^keep_sums/compute"),
-])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"mode": "emphasize", "density": 0.5}, "^mode: expected 'xray' on a packed store"),
+        ({"gradient": True}, "^density/nodes/gradient"),
+        ({"finish": "server"}, "^finish: expected 'client'"),
+        ({"verify": True}, "^verify: expected a request that can be verified, got the store has no tags"),
+        ({"compute": False}, "^keep_sums/compute"),
+    ],
+)
 def test_requests_refused(store, kw, match):
     with pytest.raises(ParameterError, match=match):
         slice_(store, hevr.Plane.axial(store, 2), "nearest", **kw)
@@ -192,15 +214,25 @@ def test_verified_slices(verifiable, keypair256, name, sampling):
         raise AssertionError("no non-zero slot to lower")
     other = hevr.render_slice(verifiable, plane, sampling=sampling, progress=False)
     with pytest.raises(VerificationError, match="does not verify"):
-        dataclasses.replace(img, verification=dataclasses.replace(img.verification,
-                                                                  seed=other.verification.seed)).decrypt(priv)
+        dataclasses.replace(
+            img, verification=dataclasses.replace(img.verification, seed=other.verification.seed)
+        ).decrypt(priv)
 
 
 def _tampered(img, value, record):
     recs = [r.copy() for r in img.ciphertexts]
     recs[0][value] = record
-    return PackedSlice(plan=img.plan, plane=img.plane, fingerprint=img.fingerprint, n=img.n, exponent=img.exponent,
-                       offset=img.offset, span=img.span, ciphertexts=recs, store_id=img.store_id)
+    return PackedSlice(
+        plan=img.plan,
+        plane=img.plane,
+        fingerprint=img.fingerprint,
+        n=img.n,
+        exponent=img.exponent,
+        offset=img.offset,
+        span=img.span,
+        ciphertexts=recs,
+        store_id=img.store_id,
+    )
 
 
 def _record(pub, m):
@@ -226,8 +258,17 @@ def test_integrity_checks(store, keypair256, keypair512):
     with pytest.raises(IntegrityError, match="above the largest sum"):
         _tampered(img, last, _record(pub, 1 << (2 * K))).decrypt(priv)  # layer 14 does not exist
     with pytest.raises(IntegrityError, match="tiles"):
-        PackedSlice(plan=img.plan, plane=img.plane, fingerprint=img.fingerprint, n=img.n, exponent=img.exponent,
-                    offset=img.offset, span=img.span, ciphertexts=[], store_id=img.store_id).decrypt(priv)
+        PackedSlice(
+            plan=img.plan,
+            plane=img.plane,
+            fingerprint=img.fingerprint,
+            n=img.n,
+            exponent=img.exponent,
+            offset=img.offset,
+            span=img.span,
+            ciphertexts=[],
+            store_id=img.store_id,
+        ).decrypt(priv)
     with pytest.raises(KeyMismatchError):
         img.decrypt(keypair512[1])
 

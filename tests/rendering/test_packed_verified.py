@@ -12,8 +12,7 @@ import pytest
 
 import hevr
 from hevr.errors import IntegrityError, ParameterError, VerificationError
-from hevr.rendering.packed import PackedImage
-from hevr.rendering.packed import SlicePlan
+from hevr.rendering.packed import PackedImage, SlicePlan
 from hevr.rendering.packed.verified import PackedVerification
 
 SHAPE = (13, 9, 11)
@@ -44,8 +43,9 @@ def test_verifiable_by_default(store, tmp_path, keypair256, volume, caplog):
     encrypted with the public key cannot, and says so."""
     pub, priv = keypair256
     assert store.meta.tags and "scalar_tag" in store.meta.channel_names
-    off = hevr.encrypt_volume(volume, tmp_path / "off.zarr", priv, brick=4, layout="packed", verifiable=False,
-                              progress=False)
+    off = hevr.encrypt_volume(
+        volume, tmp_path / "off.zarr", priv, brick=4, layout="packed", verifiable=False, progress=False
+    )
     assert not off.meta.tags
     with caplog.at_level(logging.WARNING, logger="hevr"):
         public = hevr.encrypt_volume(volume, tmp_path / "pub.zarr", pub, brick=4, layout="packed", progress=False)
@@ -83,8 +83,9 @@ def test_verify_arguments(store, tmp_path, keypair256, volume):
     assert render(store, c, verify=store.meta.store_id).verified
     with pytest.raises(VerificationError, match="expected the store 0123456789abcdef"):
         render(store, c, verify="0123456789abcdef")
-    off = hevr.encrypt_volume(volume, tmp_path / "off.zarr", priv, brick=4, layout="packed", verifiable=False,
-                              progress=False)
+    off = hevr.encrypt_volume(
+        volume, tmp_path / "off.zarr", priv, brick=4, layout="packed", verifiable=False, progress=False
+    )
     with pytest.raises(ParameterError, match="verify: expected a request that can be verified.*no tags"):
         render(off, c, verify=True)
     img = render(store, c)
@@ -126,12 +127,14 @@ def test_lies_are_caught(store, keypair256, volume):
         dataclasses.replace(img, verification=other.verification).decrypt(priv)
     again = render(store, c)  # the same view again: another seed, another aggregate
     with pytest.raises(VerificationError, match="does not verify"):
-        dataclasses.replace(img, verification=dataclasses.replace(img.verification,
-                                                                  seed=again.verification.seed)).decrypt(priv)
+        dataclasses.replace(
+            img, verification=dataclasses.replace(img.verification, seed=again.verification.seed)
+        ).decrypt(priv)
     v = img.verification
     with pytest.raises(VerificationError, match="does not verify"):
         dataclasses.replace(img, verification=dataclasses.replace(v, aggregate=again.verification.aggregate)).decrypt(
-            priv)
+            priv
+        )
     meta = dataclasses.replace(v.meta, value_range=(0.0, 300.0))  # public metadata altered: the MAC fails
     with pytest.raises(VerificationError, match="owner's MAC"):
         dataclasses.replace(img, verification=dataclasses.replace(v, meta=meta)).decrypt(priv)

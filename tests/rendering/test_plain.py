@@ -10,9 +10,9 @@ import pytest
 import hevr
 from hevr.errors import HevrError, ParameterError
 from hevr.rendering.geometry.camera import Camera
+from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.planning.modes import parse_color
 from hevr.rendering.reference.plain import render_plain
-from hevr.rendering.geometry.rays import cast_rays
 from hevr.volume.density import encode_density
 
 _NODES = [(0.279, (0, 0, 1)), (0.797, "red"), (0.5, "#00ff00")]
@@ -24,8 +24,14 @@ def column_camera(shape: tuple, spacing: tuple, pad: float = 0.0) -> Camera:
     nz, ny, nx = shape
     sx, sy, sz = spacing
     centre = ((nx - 1) * sx / 2, (ny - 1) * sy / 2)
-    return Camera((*centre, (nz - 1) * sz + 7.0), (*centre, 0.0), width=nx, height=ny,
-                  parallel=True, parallel_scale=ny * sy / 2 + pad)
+    return Camera(
+        (*centre, (nz - 1) * sz + 7.0),
+        (*centre, 0.0),
+        width=nx,
+        height=ny,
+        parallel=True,
+        parallel_scale=ny * sy / 2 + pad,
+    )
 
 
 @pytest.mark.parametrize("sampling", ["nearest", "trilinear"])
@@ -33,8 +39,9 @@ def column_camera(shape: tuple, spacing: tuple, pad: float = 0.0) -> Camera:
 @pytest.mark.parametrize("shape", [(5, 7, 9), (9, 5, 3), (3, 11, 7)])
 def test_axis_aligned_parallel_xray_is_mean_projection(shape: tuple, spacing: tuple, sampling: str) -> None:
     vol = np.random.default_rng(sum(shape)).random(shape) * 100
-    img = render_plain(vol, column_camera(shape, spacing), mode="xray", sampling=sampling,
-                       step=spacing[2], spacing=spacing)
+    img = render_plain(
+        vol, column_camera(shape, spacing), mode="xray", sampling=sampling, step=spacing[2], spacing=spacing
+    )
     # Pins the conventions: x to the right, y up (row 0 on top), border rows/columns kept.
     np.testing.assert_allclose(img, np.flipud(vol.mean(axis=0)), rtol=1e-12, atol=1e-12)
 
@@ -44,8 +51,14 @@ def test_axis_aligned_side_view() -> None:
     shape, spacing = (5, 7, 9), (1.0, 1.0, 1.0)
     vol = np.random.default_rng(0).random(shape)
     nz, ny, nx = shape
-    cam = Camera((nx + 5.0, (ny - 1) / 2, (nz - 1) / 2), (0.0, (ny - 1) / 2, (nz - 1) / 2), width=nz, height=ny,
-                 parallel=True, parallel_scale=ny / 2)
+    cam = Camera(
+        (nx + 5.0, (ny - 1) / 2, (nz - 1) / 2),
+        (0.0, (ny - 1) / 2, (nz - 1) / 2),
+        width=nz,
+        height=ny,
+        parallel=True,
+        parallel_scale=ny / 2,
+    )
     img = render_plain(vol, cam, sampling="trilinear", spacing=spacing)
     np.testing.assert_allclose(img, vol.mean(axis=2).T[::-1, ::-1], atol=1e-12)
 
@@ -113,8 +126,9 @@ def test_matches_slow_reference(mode: str, sampling: str, parallel: bool) -> Non
     cam = Camera.orbit(shape, azimuth=37, elevation=-23, width=7, height=5, spacing=spacing, parallel=parallel)
     kw = dict(_MODE_KW[mode])
     value_range = (100.0, 4000.0)
-    img = render_plain(vol, cam, mode=mode, sampling=sampling, step=step, spacing=spacing,
-                       value_range=value_range, vector_dims=5, **kw)
+    img = render_plain(
+        vol, cam, mode=mode, sampling=sampling, step=step, spacing=spacing, value_range=value_range, vector_dims=5, **kw
+    )
     ref = _reference(vol, cam, mode, sampling, step, spacing, value_range, 5, **kw)
     assert img.shape == ref.shape and img.dtype == np.float64
     np.testing.assert_allclose(img, ref, rtol=1e-10, atol=1e-10)
@@ -144,12 +158,13 @@ def test_value_range_defaults() -> None:
     np.testing.assert_allclose(render_plain(vol8, cam, **kw), render_plain(vol8, cam, value_range=(0, 255), **kw))
     volf = rng.random(shape) * 7 + 3
     np.testing.assert_allclose(
-        render_plain(volf, cam, **kw), render_plain(volf, cam, value_range=(volf.min(), volf.max()), **kw),
-        atol=1e-14)
+        render_plain(volf, cam, **kw), render_plain(volf, cam, value_range=(volf.min(), volf.max()), **kw), atol=1e-14
+    )
     # int32 data outside the LUT span goes through the direct encoder with the same result.
     vol32 = vol8.astype(np.int32) * 1000
-    np.testing.assert_allclose(render_plain(vol32, cam, value_range=(0, 255000), **kw),
-                               render_plain(vol8, cam, **kw), atol=1e-13)
+    np.testing.assert_allclose(
+        render_plain(vol32, cam, value_range=(0, 255000), **kw), render_plain(vol8, cam, **kw), atol=1e-13
+    )
     assert render_plain(volf, cam, mode="tf", nodes=_NODES).shape == (6, 6, 3)
 
 
@@ -206,5 +221,6 @@ def test_a_scan_brings_its_spacing():
     assert not np.array_equal(hevr.render_plain(scan, cam), hevr.render_plain(vol, cam))
     assert np.array_equal(hevr.render_plain(scan, cam, spacing=(1, 1, 1)), hevr.render_plain(vol, cam))
     plane = hevr.Plane.axial(vol.shape, 2, spacing=(0.5, 1.0, 2.0), slab=3)
-    assert np.array_equal(hevr.render_slice_plain(scan, plane),
-                          hevr.render_slice_plain(vol, plane, spacing=(0.5, 1.0, 2.0)))
+    assert np.array_equal(
+        hevr.render_slice_plain(scan, plane), hevr.render_slice_plain(vol, plane, spacing=(0.5, 1.0, 2.0))
+    )

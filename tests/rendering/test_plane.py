@@ -12,9 +12,9 @@ from hevr.image.tiles import TileLayout
 from hevr.rendering.geometry.camera import Camera
 from hevr.rendering.geometry.footprint import brick_footprints
 from hevr.rendering.geometry.plane import MAX_SLAB, Plane, view_from_dict
-from hevr.rendering.planning.planner import check_render_size
 from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.geometry.weights import brick_grid, brick_weights
+from hevr.rendering.planning.planner import check_render_size
 
 X, Y, Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
 
@@ -26,29 +26,32 @@ def _plane(**kw):
 
 
 # -- validation ----------------------------------------------------------------------------------
-@pytest.mark.parametrize("kw, match", [
-    ({"v": (2, 0, 0)}, r"^v: expected a direction not parallel to u = \(1.0, 0.0, 0.0\)"),
-    ({"v": (-1, 1e-12, 0)}, r"^v: expected a direction not parallel to u"),
-    ({"v": (1, 1, 0)}, r"^v: expected a direction orthogonal to u .* at 45 degrees"),
-    ({"u": (0, 0, 0)}, r"^u: expected a non-zero direction"),
-    ({"v": (0, float("nan"), 0)}, r"^v: expected 3 finite numbers"),
-    ({"origin": (0, float("nan"), 0)}, r"^origin: expected 3 finite numbers"),
-    ({"origin": (0, 1)}, r"^origin: expected 3 finite numbers"),
-    ({"width": 0}, r"^width: expected a positive integer, got 0"),
-    ({"height": 0}, r"^height: expected a positive integer, got 0"),
-    ({"width": 2.5}, r"^width: expected a positive integer"),
-    ({"pixel_spacing": 0}, r"^pixel_spacing: expected a positive pixel spacing"),
-    ({"pixel_spacing": float("nan")}, r"^pixel_spacing: expected"),
-    ({"pixel_spacing": (1, -1)}, r"^pixel_spacing: expected"),
-    ({"pixel_spacing": (1, 2, 3)}, r"^pixel_spacing: expected"),
-    ({"pixel_spacing": "1"}, r"^pixel_spacing: expected"),
-    ({"pixel_spacing": True}, r"^pixel_spacing: expected"),
-    ({"slab": 0}, r"^slab: expected an integer in \[1, 65536\], got 0"),
-    ({"slab": MAX_SLAB + 1}, r"^slab: expected an integer in"),
-    ({"slab": 1.5}, r"^slab: expected an integer in"),
-    ({"slab_step": 0}, r"^slab_step: expected a positive finite number"),
-    ({"slab_step": float("inf")}, r"^slab_step: expected a positive finite number"),
-])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"v": (2, 0, 0)}, r"^v: expected a direction not parallel to u = \(1.0, 0.0, 0.0\)"),
+        ({"v": (-1, 1e-12, 0)}, r"^v: expected a direction not parallel to u"),
+        ({"v": (1, 1, 0)}, r"^v: expected a direction orthogonal to u .* at 45 degrees"),
+        ({"u": (0, 0, 0)}, r"^u: expected a non-zero direction"),
+        ({"v": (0, float("nan"), 0)}, r"^v: expected 3 finite numbers"),
+        ({"origin": (0, float("nan"), 0)}, r"^origin: expected 3 finite numbers"),
+        ({"origin": (0, 1)}, r"^origin: expected 3 finite numbers"),
+        ({"width": 0}, r"^width: expected a positive integer, got 0"),
+        ({"height": 0}, r"^height: expected a positive integer, got 0"),
+        ({"width": 2.5}, r"^width: expected a positive integer"),
+        ({"pixel_spacing": 0}, r"^pixel_spacing: expected a positive pixel spacing"),
+        ({"pixel_spacing": float("nan")}, r"^pixel_spacing: expected"),
+        ({"pixel_spacing": (1, -1)}, r"^pixel_spacing: expected"),
+        ({"pixel_spacing": (1, 2, 3)}, r"^pixel_spacing: expected"),
+        ({"pixel_spacing": "1"}, r"^pixel_spacing: expected"),
+        ({"pixel_spacing": True}, r"^pixel_spacing: expected"),
+        ({"slab": 0}, r"^slab: expected an integer in \[1, 65536\], got 0"),
+        ({"slab": MAX_SLAB + 1}, r"^slab: expected an integer in"),
+        ({"slab": 1.5}, r"^slab: expected an integer in"),
+        ({"slab_step": 0}, r"^slab_step: expected a positive finite number"),
+        ({"slab_step": float("inf")}, r"^slab_step: expected a positive finite number"),
+    ],
+)
 def test_bad_planes_are_refused_naming_the_parameter(kw, match):
     with pytest.raises(hevr.ParameterError, match=match):
         _plane(**kw)
@@ -63,8 +66,16 @@ def test_directions_are_normalised_and_spacing_is_a_pair():
 
 def test_identity_round_trips_and_tells_planes_from_cameras():
     a = 0.3
-    p = Plane((1.5, -2, 3), (math.cos(a), math.sin(a), 0), (-math.sin(a), math.cos(a), 0), 7, 5,
-              pixel_spacing=(0.7, 1.1), slab=4, slab_step=0.6)
+    p = Plane(
+        (1.5, -2, 3),
+        (math.cos(a), math.sin(a), 0),
+        (-math.sin(a), math.cos(a), 0),
+        7,
+        5,
+        pixel_spacing=(0.7, 1.1),
+        slab=4,
+        slab_step=0.6,
+    )
     q = Plane.from_dict(p.to_dict())
     assert q == p and q.key() == p.key() and hash(q) == hash(p)
     assert Plane.from_dict(q.to_dict()) == p  # normalising is idempotent: no drift
@@ -72,8 +83,15 @@ def test_identity_round_trips_and_tells_planes_from_cameras():
     cam = Camera((0, 0, 5), (0, 0, 0))
     assert view_from_dict(cam.to_dict()) == cam
     assert p.to_dict()["kind"] == "plane"
-    keys = {p.key(), cam.key(), _plane().key(), _plane(slab=3).key(), _plane(slab_step=2).key(),
-            _plane(pixel_spacing=(1, 2)).key(), _plane(origin=(0, 0, 1e-9)).key()}
+    keys = {
+        p.key(),
+        cam.key(),
+        _plane().key(),
+        _plane(slab=3).key(),
+        _plane(slab_step=2).key(),
+        _plane(pixel_spacing=(1, 2)).key(),
+        _plane(origin=(0, 0, 1e-9)).key(),
+    }
     assert len(keys) == 7
     with pytest.raises(hevr.ParameterError, match="extra keys"):
         Plane.from_dict({**p.to_dict(), "position": [0, 0, 0]})
@@ -93,8 +111,10 @@ def _voxel_centres(index_grid):
     return np.stack([index_grid[2] * SPACING[0], index_grid[1] * SPACING[1], index_grid[0] * SPACING[2]], -1)
 
 
-@pytest.mark.parametrize("kind, index, sl", [
-    ("axial", 2, lambda a: a[2]), ("coronal", 1, lambda a: a[:, 1, :]), ("sagittal", 3, lambda a: a[:, :, 3])])
+@pytest.mark.parametrize(
+    "kind, index, sl",
+    [("axial", 2, lambda a: a[2]), ("coronal", 1, lambda a: a[:, 1, :]), ("sagittal", 3, lambda a: a[:, :, 3])],
+)
 def test_aligned_helpers_put_every_pixel_on_the_array_slice(kind, index, sl):
     p = getattr(Plane, kind)(SHAPE, index, spacing=SPACING)
     grid = np.indices(SHAPE)
@@ -143,8 +163,9 @@ def test_oblique_defaults_reproduce_the_aligned_orientations():
 
 def test_oblique_geometry():
     c = (1.0, 2.0, 2.5)
-    p = Plane.oblique(SHAPE, c, normal=(1, 2, 3), v=(0, 0, 1), width=5, height=7, pixel_spacing=(0.5, 0.25),
-                      spacing=SPACING, slab=3)
+    p = Plane.oblique(
+        SHAPE, c, normal=(1, 2, 3), v=(0, 0, 1), width=5, height=7, pixel_spacing=(0.5, 0.25), spacing=SPACING, slab=3
+    )
     u, v, n = p.basis()
     assert np.allclose([u @ u, v @ v, n @ n], 1) and np.allclose([u @ v, u @ n, v @ n], 0, atol=1e-15)
     assert np.allclose(n, np.array([1, 2, 3]) / math.sqrt(14))
@@ -182,8 +203,11 @@ def test_cast_rays_keeps_the_slab_samples_inside_the_box():
     rs = cast_rays(p, SHAPE, SPACING, p.slab_step)
     assert set(rs.n_samples.tolist()) == {4} and set(rs.t_index.tolist()) == {-1.0}  # samples k = 1..4 of 0..4
     # brute force: every sample position tested against the box
-    for pl in (p, Plane.oblique(SHAPE, normal=(1, 1, 1), width=9, height=9, spacing=SPACING, slab=7),
-               _plane(origin=(-1, 0, 0), slab=3)):
+    for pl in (
+        p,
+        Plane.oblique(SHAPE, normal=(1, 1, 1), width=9, height=9, spacing=SPACING, slab=7),
+        _plane(origin=(-1, 0, 0), slab=3),
+    ):
         rs = cast_rays(pl, SHAPE, SPACING, pl.slab_step)
         hi = np.array([(SHAPE[2] - 1) * SPACING[0], (SHAPE[1] - 1) * SPACING[1], (SHAPE[0] - 1) * SPACING[2]])
         pts = pl.centres()[:, None, :] + pl.slab_offsets[None, :, None] * pl.normal
@@ -214,10 +238,12 @@ PLANES = {
     "coronal-fit": lambda s, sp: Plane.coronal(s, 2.5, width=13, height=11, spacing=sp),
     "sagittal": lambda s, sp: Plane.sagittal(s, 0, spacing=sp),
     "oblique": lambda s, sp: Plane.oblique(s, normal=(1, 2, 3), width=17, height=15, pixel_spacing=0.6, spacing=sp),
-    "oblique-slab": lambda s, sp: Plane.oblique(s, normal=(-0.3, 1, 0.2), width=14, height=12, spacing=sp, slab=5,
-                                                slab_step=0.7),
-    "partly-outside": lambda s, sp: Plane((-2.0, 1.0, -1.0), (0.6, 0.8, 0.0), (0.0, 0.0, 1.0), 15, 12,
-                                          pixel_spacing=0.7, slab=2),
+    "oblique-slab": lambda s, sp: Plane.oblique(
+        s, normal=(-0.3, 1, 0.2), width=14, height=12, spacing=sp, slab=5, slab_step=0.7
+    ),
+    "partly-outside": lambda s, sp: Plane(
+        (-2.0, 1.0, -1.0), (0.6, 0.8, 0.0), (0.0, 0.0, 1.0), 15, 12, pixel_spacing=0.7, slab=2
+    ),
 }
 
 

@@ -16,10 +16,10 @@ import hevr
 from hevr.core.limits import integrity_bits
 from hevr.crypto.keys import generate_keypair
 from hevr.rendering.geometry.camera import Camera
-from hevr.rendering.planning.modes import combination_matrix, make_spec
-from hevr.rendering.planning.planner import RenderPlan, plan_render
 from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.geometry.weights import brick_grid, brick_weights
+from hevr.rendering.planning.modes import combination_matrix, make_spec
+from hevr.rendering.planning.planner import RenderPlan, plan_render
 from hevr.store.metadata import ChannelInfo, VolumeMetadata
 
 SHAPE = (6, 7, 8)
@@ -32,8 +32,15 @@ def tiny(tmp_path_factory):
         pub, priv = generate_keypair(64)
     rng = np.random.default_rng(11)
     vol = rng.integers(0, 256, SHAPE).astype(np.uint8)
-    ev = hevr.encrypt_volume(vol, tmp_path_factory.mktemp("p") / "v.zarr", priv, brick=(3, 4, 4),
-                             vector_dims=3, vector_digits=2, progress=False)
+    ev = hevr.encrypt_volume(
+        vol,
+        tmp_path_factory.mktemp("p") / "v.zarr",
+        priv,
+        brick=(3, 4, 4),
+        vector_dims=3,
+        vector_digits=2,
+        progress=False,
+    )
     return ev, vol, priv
 
 
@@ -44,8 +51,17 @@ def test_64_bit_key_refuses_high_precision(tiny):  # the reciprocal's precision:
         hevr.render(ev, cam, sampling="trilinear", precision=15, progress=False, finish="server")
     assert "64-bit key" in str(info.value)
     with pytest.raises(hevr.RenderPlanError):
-        hevr.render(ev, cam, mode="tf", nodes=[(0.2, "red"), (0.9, "blue")], sampling="trilinear",
-                    precision=8, comb_digits=8, progress=False, finish="server")
+        hevr.render(
+            ev,
+            cam,
+            mode="tf",
+            nodes=[(0.2, "red"), (0.9, "blue")],
+            sampling="trilinear",
+            precision=8,
+            comb_digits=8,
+            progress=False,
+            finish="server",
+        )
 
 
 @pytest.mark.parametrize("mode, kw", [("xray", {}), ("emphasize", {"density": 0.4})])
@@ -53,8 +69,7 @@ def test_64_bit_key_refuses_high_precision(tiny):  # the reciprocal's precision:
 def test_64_bit_key_accepts_feasible_render_and_decrypts_right(tiny, mode, kw, sampling):
     ev, vol, priv = tiny
     cam = hevr.Camera.orbit(ev, azimuth=20, elevation=10, width=8, height=8)
-    img = hevr.render(ev, cam, mode=mode, sampling=sampling, precision=2, digits=2, comb_digits=2,
-                      progress=False, **kw)
+    img = hevr.render(ev, cam, mode=mode, sampling=sampling, precision=2, digits=2, comb_digits=2, progress=False, **kw)
     got = img.decrypt(priv)
     ref = hevr.render_plain(vol, cam, mode=mode, sampling=sampling, vector_dims=3, **kw)
     bound = hevr.rendering.encrypted.error_bound(ev, cam, mode, sampling, digits=2, precision=2, comb_digits=2, **kw)
@@ -89,16 +104,48 @@ BIG_N = 2**2047 + 1  # plan_render reads n only through n // 3 and n's bit lengt
 
 
 def _meta(value_range=(0.0, 255.0), scalar=ChannelInfo(exponent=0), vector=ChannelInfo(exponent=-3, digits=3, dims=4)):
-    return VolumeMetadata(shape=(4, 4, 4), spacing=(1.0, 1.0, 1.0), brick=(2, 2, 2), n="1", fingerprint="",
-                          ciphertext_bytes=0, dtype="uint8", value_range=value_range, scalar=scalar, vector=vector)
+    return VolumeMetadata(
+        shape=(4, 4, 4),
+        spacing=(1.0, 1.0, 1.0),
+        brick=(2, 2, 2),
+        n="1",
+        fingerprint="",
+        ciphertext_bytes=0,
+        dtype="uint8",
+        value_range=value_range,
+        scalar=scalar,
+        vector=vector,
+    )
 
 
-def _plan(n=BIG_N, *, mode="xray", sampling="nearest", density=None, nodes=None, n_samples=(0, 1, 2, 3),
-          digits=0, precision=2, comb_digits=2, pack=True, meta=None, vector_dims=4):
+def _plan(
+    n=BIG_N,
+    *,
+    mode="xray",
+    sampling="nearest",
+    density=None,
+    nodes=None,
+    n_samples=(0, 1, 2, 3),
+    digits=0,
+    precision=2,
+    comb_digits=2,
+    pack=True,
+    meta=None,
+    vector_dims=4,
+):
     spec = make_spec(mode, sampling, 1.0, density, nodes, vector_dims)
     comb = combination_matrix(spec, vector_dims) if mode != "xray" else None
-    return plan_render(n=n, spec=spec, meta=meta or _meta(), n_samples=np.asarray(n_samples), digits=digits,
-                       precision=precision, comb_digits=comb_digits, pack=pack, combination=comb)
+    return plan_render(
+        n=n,
+        spec=spec,
+        meta=meta or _meta(),
+        n_samples=np.asarray(n_samples),
+        digits=digits,
+        precision=precision,
+        comb_digits=comb_digits,
+        pack=pack,
+        combination=comb,
+    )
 
 
 def _recip(G: int, n_r: int, K: int) -> int:
@@ -120,8 +167,15 @@ def test_hand_computed_xray_plan():
 def test_hand_computed_tf_exponent():
     """tf, trilinear, 2 weight digits, vector digits 3, comb_digits 4, two nodes (K = 2),
     n_r <= 7, precision 1: G = 1 + ceil(log10 14) = 3 and the exponent is -2 - 3 - 4 - 3."""
-    plan = _plan(mode="tf", sampling="trilinear", nodes=[(0.25, "red"), (0.75, "blue")], n_samples=(7, 0, 5),
-                 digits=2, precision=1, comb_digits=4)
+    plan = _plan(
+        mode="tf",
+        sampling="trilinear",
+        nodes=[(0.25, "red"), (0.75, "blue")],
+        n_samples=(7, 0, 5),
+        digits=2,
+        precision=1,
+        comb_digits=4,
+    )
     assert (plan.channel, plan.factor, plan.recip_digits, plan.channels_out) == ("vector", 2, 3, 3)
     assert plan.exponent == -12 and plan.weight_exponent == -2 and plan.channel_exponent == -3
     spec = make_spec("tf", "trilinear", 1.0, None, [(0.25, "red"), (0.75, "blue")], 4)
@@ -130,8 +184,9 @@ def test_hand_computed_tf_exponent():
     assert len(plan.comb) == 4 and all(len(r) == 3 for r in plan.comb)
 
 
-@pytest.mark.parametrize("n_max, precision, G",
-                         [(1, 2, 2), (9, 2, 3), (10, 2, 3), (11, 2, 4), (100, 0, 2), (101, 0, 3)])
+@pytest.mark.parametrize(
+    "n_max, precision, G", [(1, 2, 2), (9, 2, 3), (10, 2, 3), (11, 2, 4), (100, 0, 2), (101, 0, 3)]
+)
 def test_reciprocal_digits(n_max, precision, G):
     """G = precision + ceil(log10(max n_r)), so 10^G >= 10^precision · n_r for every pixel."""
     plan = _plan(n_samples=(0, n_max), precision=precision)
@@ -147,7 +202,7 @@ def test_reciprocals_are_rounded_half_up():
     for n_r in range(1, 8):
         r = plan.reciprocal(np.array([n_r]))[0]
         assert r == _recip(3, n_r, 3)
-        assert abs(Fraction(r * n_r * 3, 10**3) - 1) <= Fraction(5, 10**(plan.precision + 1))
+        assert abs(Fraction(r * n_r * 3, 10**3) - 1) <= Fraction(5, 10 ** (plan.precision + 1))
 
 
 @pytest.mark.parametrize("precision", [0, 1, 2])
@@ -204,8 +259,7 @@ def test_trilinear_bound_against_real_weights(digits):
     nodes = [(0.2, "red"), (0.8, (0.5, 0.5, 1.0))]
     tf = _plan(mode="tf", nodes=nodes, sampling="trilinear", digits=digits, n_samples=ns, precision=1)
     colsum = np.asarray(tf.comb).sum(axis=0)  # Σ_k Q[k, c], every S_k at 10^3 · W_r
-    reach_tf = max(int(c) * 10**3 * int(w) * _recip(tf.recip_digits, int(n), 2)
-                   for w, n in zip(W, ns) for c in colsum)
+    reach_tf = max(int(c) * 10**3 * int(w) * _recip(tf.recip_digits, int(n), 2) for w, n in zip(W, ns) for c in colsum)
     assert reach_tf <= tf.bound and tf.offset == 0
 
 
@@ -280,8 +334,11 @@ def test_ray_sum_overflow_is_named_first(value_range, amax):
     [
         ("precision", {"precision": 1}, {"precision": 4}),
         ("digits", {"sampling": "trilinear", "digits": 1}, {"sampling": "trilinear", "digits": 4}),
-        ("comb_digits", {"mode": "tf", "nodes": [(0.3, "red")], "comb_digits": 1},
-         {"mode": "tf", "nodes": [(0.3, "red")], "comb_digits": 5}),
+        (
+            "comb_digits",
+            {"mode": "tf", "nodes": [(0.3, "red")], "comb_digits": 1},
+            {"mode": "tf", "nodes": [(0.3, "red")], "comb_digits": 5},
+        ),
     ],
 )
 def test_turning_the_named_knob_makes_a_refused_render_fit(knob, small, large):
@@ -297,8 +354,14 @@ def test_turning_the_named_knob_makes_a_refused_render_fit(knob, small, large):
 
 
 def test_plan_dict_round_trip():
-    plan = _plan(mode="tf", nodes=[(0.25, "red"), (0.75, "blue")], sampling="trilinear", digits=2,
-                 n_samples=(3, 9), meta=_meta(value_range=(-1000.0, 1000.0)))
+    plan = _plan(
+        mode="tf",
+        nodes=[(0.25, "red"), (0.75, "blue")],
+        sampling="trilinear",
+        digits=2,
+        n_samples=(3, 9),
+        meta=_meta(value_range=(-1000.0, 1000.0)),
+    )
     d = json.loads(json.dumps(plan.to_dict()))
     assert isinstance(d["bound"], str) and isinstance(d["offset"], str)
     assert RenderPlan.from_dict(d) == plan

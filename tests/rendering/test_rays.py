@@ -28,8 +28,14 @@ def column_camera(shape: tuple, spacing: tuple, parallel_scale_pad: float = 0.0)
     sx, sy, sz = spacing
     assert sx == sy
     centre = ((nx - 1) * sx / 2, (ny - 1) * sy / 2)
-    return Camera((*centre, (nz - 1) * sz + 10.0), (*centre, 0.0), width=nx, height=ny,
-                  parallel=True, parallel_scale=ny * sy / 2 + parallel_scale_pad)
+    return Camera(
+        (*centre, (nz - 1) * sz + 10.0),
+        (*centre, 0.0),
+        width=nx,
+        height=ny,
+        parallel=True,
+        parallel_scale=ny * sy / 2 + parallel_scale_pad,
+    )
 
 
 @pytest.mark.parametrize(
@@ -71,11 +77,13 @@ def test_zero_direction_components_and_outside_slab() -> None:
 @pytest.mark.parametrize("axis_len", [1])
 def test_degenerate_one_voxel_axes(axis_len: int) -> None:
     shape = (axis_len, 5, 5)  # a single z slice: the box is the plane z = 0
-    face_on = cast_rays(Camera((2, 2, 3), (2, 2, 0), width=5, height=5, parallel=True, parallel_scale=2.5),
-                        shape, (1, 1, 1), 1.0)
+    face_on = cast_rays(
+        Camera((2, 2, 3), (2, 2, 0), width=5, height=5, parallel=True, parallel_scale=2.5), shape, (1, 1, 1), 1.0
+    )
     np.testing.assert_array_equal(face_on.n_samples, 1)
-    edge_on = cast_rays(Camera((9, 2, 0), (0, 2, 0), width=5, height=3, parallel=True, parallel_scale=1.5),
-                        shape, (1, 1, 1), 1.0)
+    edge_on = cast_rays(
+        Camera((9, 2, 0), (0, 2, 0), width=5, height=3, parallel=True, parallel_scale=1.5), shape, (1, 1, 1), 1.0
+    )
     # Rows at y = 3, 2, 1 and columns at z = -2..2: only the z = 0 column lies in the plane.
     n = edge_on.n_samples.reshape(3, 5)
     np.testing.assert_array_equal(n[:, 2], 5)
@@ -101,9 +109,15 @@ def test_bad_step(step: object) -> None:
 
 @pytest.mark.parametrize(
     "kwargs, match",
-    [(dict(shape=(2, 2)), "shape"), (dict(shape=(2, 0, 2)), "shape"), (dict(shape=(2, 2.0, 2)), "shape"),
-     (dict(spacing=(1, 1)), "spacing"), (dict(spacing=(1, -1, 1)), "spacing"), (dict(spacing="x"), "spacing"),
-     (dict(camera="cam"), "camera")],
+    [
+        (dict(shape=(2, 2)), "shape"),
+        (dict(shape=(2, 0, 2)), "shape"),
+        (dict(shape=(2, 2.0, 2)), "shape"),
+        (dict(spacing=(1, 1)), "spacing"),
+        (dict(spacing=(1, -1, 1)), "spacing"),
+        (dict(spacing="x"), "spacing"),
+        (dict(camera="cam"), "camera"),
+    ],
 )
 def test_cast_rays_rejects(kwargs: dict, match: str) -> None:
     args = dict(camera=Camera((0, 0, 5), (0, 0, 0)), shape=(2, 2, 2), spacing=(1, 1, 1), step=1.0)

@@ -25,8 +25,15 @@ def volume():
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair256, volume):
-    return hevr.encrypt_volume(volume, tmp_path_factory.mktemp("recolour") / "v.zarr", keypair256[1], brick=BRICK,
-                               spacing=SPACING, vector_dims=K, progress=False)
+    return hevr.encrypt_volume(
+        volume,
+        tmp_path_factory.mktemp("recolour") / "v.zarr",
+        keypair256[1],
+        brick=BRICK,
+        spacing=SPACING,
+        vector_dims=K,
+        progress=False,
+    )
 
 
 @pytest.fixture(autouse=True)
@@ -74,8 +81,9 @@ def test_recolour_keeps_ray_sums_on_the_workers(store, volume, keypair256, clust
     cam = hevr.Camera.orbit(store, azimuth=-40, elevation=20, width=24, height=20)
     n_tiles = -(-24 // 8) * -(-20 // 8)
     with cluster.as_current():
-        first = hevr.render(store, cam, mode="tf", nodes=NODES, sampling=sampling, tile=8, client=cluster,
-                            progress=False)
+        first = hevr.render(
+            store, cam, mode="tf", nodes=NODES, sampling=sampling, tile=8, client=cluster, progress=False
+        )
         assert not first.stats["reused_ray_sums"] and first.stats["map_tasks"] > 0
         assert first.stats["gathered_bytes"] == sum(int(c.nbytes) for c in first.ciphertexts)
         _check_plain(first, store, volume, cam, priv, mode="tf", nodes=NODES, sampling=sampling)
@@ -92,8 +100,9 @@ def test_recolour_keeps_ray_sums_on_the_workers(store, volume, keypair256, clust
 
         # finished on the client, another colouring of the view is the packed sums it already has: no task
         with get_task_stream(client=cluster) as ts:
-            same = hevr.render(store, cam, mode="emphasize", density=0.42, sampling=sampling, tile=8, client=cluster,
-                               progress=False)
+            same = hevr.render(
+                store, cam, mode="emphasize", density=0.42, sampling=sampling, tile=8, client=cluster, progress=False
+            )
         assert same.stats["finish_tasks"] == 0 and same.stats["gathered_bytes"] == 0 and not ts.data
         assert all(np.array_equal(a, b) for a, b in zip(same.ciphertexts, first.ciphertexts))
         _check_plain(same, store, volume, cam, priv, mode="emphasize", density=0.42, sampling=sampling)
@@ -101,8 +110,9 @@ def test_recolour_keeps_ray_sums_on_the_workers(store, volume, keypair256, clust
         # finished on the server (the paper's way), the finishing runs next to the sums on the workers
         for kw in ({"mode": "tf", "nodes": OTHER}, {"mode": "emphasize", "density": 0.42}):
             with _GatherLog(cluster) as log, get_task_stream(client=cluster) as ts:
-                again = hevr.render(store, cam, sampling=sampling, tile=8, client=cluster, progress=False,
-                                    finish="server", **kw)
+                again = hevr.render(
+                    store, cam, sampling=sampling, tile=8, client=cluster, progress=False, finish="server", **kw
+                )
             assert again.stats["reused_ray_sums"] is True and again.stats["map_tasks"] == 0
             assert again.stats["finish_tasks"] >= n_tiles  # at least one finishing task per tile
             packed = sum(int(c.nbytes) for c in again.ciphertexts)
@@ -130,8 +140,9 @@ def test_recolour_matches_a_fresh_render(store, keypair256, cluster):
     with cluster.as_current():
         hevr.render(store, cam, mode="emphasize", density=0.3, sampling="trilinear", client=cluster, progress=False)
         again = hevr.render(store, cam, mode="tf", nodes=OTHER, sampling="trilinear", client=cluster, progress=False)
-        fresh = hevr.render(store, cam, mode="tf", nodes=OTHER, sampling="trilinear", client=cluster,
-                            progress=False, cache=False)
+        fresh = hevr.render(
+            store, cam, mode="tf", nodes=OTHER, sampling="trilinear", client=cluster, progress=False, cache=False
+        )
     assert again.stats["reused_ray_sums"] and not fresh.stats["reused_ray_sums"]
     assert all(np.array_equal(a, b) for a, b in zip(again.ciphertexts, fresh.ciphertexts))
     assert np.array_equal(again.decrypt(priv), fresh.decrypt(priv))

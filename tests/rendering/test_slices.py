@@ -37,8 +37,9 @@ def volume():
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair256, volume):
     path = tmp_path_factory.mktemp("slices") / "v.zarr"
-    return hevr.encrypt_volume(volume, path, keypair256[1], brick=4, spacing=SPACING, vector_dims=4,
-                               vector_digits=4, progress=False)
+    return hevr.encrypt_volume(
+        volume, path, keypair256[1], brick=4, spacing=SPACING, vector_dims=4, vector_digits=4, progress=False
+    )
 
 
 @pytest.fixture(scope="module")
@@ -51,8 +52,15 @@ def _check(ev, vol, plane, priv, sampling="nearest", mode="xray", spacing=SPACIN
     """Decrypted slice vs the plaintext reference, within error_bound; returns (got, ref, img)."""
     img = render_slice(ev, plane, mode=mode, sampling=sampling, progress=False, **kw)
     got = img.decrypt(priv)
-    ref = render_slice_plain(vol, plane, mode=mode, sampling=sampling, spacing=spacing, vector_dims=ev.vector_dims,
-                             **{k: v for k, v in kw.items() if k in ("density", "nodes")})
+    ref = render_slice_plain(
+        vol,
+        plane,
+        mode=mode,
+        sampling=sampling,
+        spacing=spacing,
+        vector_dims=ev.vector_dims,
+        **{k: v for k, v in kw.items() if k in ("density", "nodes")},
+    )
     bound = error_bound(ev, plane, mode, sampling, **{k: v for k, v in kw.items() if k in ("density", "nodes")})
     assert got.shape == ref.shape == bound.shape
     assert np.all(np.abs(got - ref) <= bound), float(np.abs(got - ref).max())
@@ -83,8 +91,9 @@ PLANES = {
     "coronal-fit": lambda ev: Plane.coronal(ev, 3.7, width=16, height=11),
     "sagittal-spacing": lambda ev: Plane.sagittal(ev, 6.2, pixel_spacing=0.45),
     "oblique": lambda ev: Plane.oblique(ev, normal=(1, 2, 3), width=15, height=13, pixel_spacing=0.55),
-    "oblique-v": lambda ev: Plane.oblique(ev, (4, 5, 3), normal=(-0.4, 0.1, 1), v=(1, 1, 0), width=12, height=14,
-                                          pixel_spacing=(0.6, 0.5)),
+    "oblique-v": lambda ev: Plane.oblique(
+        ev, (4, 5, 3), normal=(-0.4, 0.1, 1), v=(1, 1, 0), width=12, height=14, pixel_spacing=(0.6, 0.5)
+    ),
 }
 
 
@@ -109,7 +118,7 @@ def test_thick_slab_is_the_mean_of_its_layers(store, volume, keypair256):
     priv = keypair256[1]
     for k in (0, 3, 7):  # at the borders only the layers inside count
         got, _, img = _check(store, volume, Plane.axial(store, k, slab=3), priv)
-        want = volume[max(k - 1, 0):k + 2].astype(np.float64).mean(axis=0)
+        want = volume[max(k - 1, 0) : k + 2].astype(np.float64).mean(axis=0)
         # finished on the client: the sum of the layers divided by their count in float64, exact
         assert np.abs(got - want).max() <= 1e-9 and img.finish == "client"
     got, _, _ = _check(store, volume, Plane.axial(store, 3.5, slab=4), priv)  # even: layers 2..5
@@ -151,8 +160,9 @@ def test_reference_is_exact_on_a_linear_ramp():
     k, j, i = np.indices(SHAPE).astype(np.float64)
     a = np.array([0.7, -1.3, 2.1])
     vol = a[0] * i * SPACING[0] + a[1] * j * SPACING[1] + a[2] * k * SPACING[2] + 40.0
-    plane = Plane.oblique(SHAPE, normal=(1, -2, 2), width=9, height=9, pixel_spacing=0.4, slab=3, slab_step=0.3,
-                          spacing=SPACING)
+    plane = Plane.oblique(
+        SHAPE, normal=(1, -2, 2), width=9, height=9, pixel_spacing=0.4, slab=3, slab_step=0.3, spacing=SPACING
+    )
     got = render_slice_plain(vol, plane, sampling="trilinear", spacing=SPACING)
     pts = plane.centres()[:, None, :] + plane.slab_offsets[None, :, None] * plane.normal
     inside = np.all((pts >= 0) & (pts <= EXTENT), axis=2)

@@ -32,17 +32,23 @@ def _same(a: hevr.EncryptedImage, b: hevr.EncryptedImage) -> bool:
 def test_recolour_equals_a_full_render(scene, tmp_path, sampling):
     ev, priv, vol, cam = scene
     path = tmp_path / "view.hevrsums"
-    first = hevr.render(ev, cam, mode="tf", sampling=sampling, nodes=NODES, keep_sums=path, cache=False,
-                        progress=False, tile=4)
+    first = hevr.render(
+        ev, cam, mode="tf", sampling=sampling, nodes=NODES, keep_sums=path, cache=False, progress=False, tile=4
+    )
     assert first.stats["map_tasks"] > 0 and path.stat().st_size > 0
-    for mode, kw in [("tf", {"nodes": [(0.1, "lime"), (0.5, "#ff0"), (0.9, "white")]}),
-                     ("emphasize", {"density": 0.4}), ("tf", {"nodes": NODES})]:
+    for mode, kw in [
+        ("tf", {"nodes": [(0.1, "lime"), (0.5, "#ff0"), (0.9, "white")]}),
+        ("emphasize", {"density": 0.4}),
+        ("tf", {"nodes": NODES}),
+    ]:
         again = hevr.recolour(path, mode=mode, progress=False, **kw)
         full = hevr.render(ev, cam, mode=mode, sampling=sampling, cache=False, progress=False, tile=4, **kw)
         assert again.stats["map_tasks"] == 0 and again.stats["reused_ray_sums"] is True
         assert _same(again, full), (mode, kw)
         ref = hevr.render_plain(vol, cam, mode=mode, sampling=sampling, vector_dims=3, **kw)
-        assert (np.abs(again.decrypt(priv) - ref) <= hevr.error_bound(ev, cam, mode=mode, sampling=sampling, **kw)).all()
+        assert (
+            np.abs(again.decrypt(priv) - ref) <= hevr.error_bound(ev, cam, mode=mode, sampling=sampling, **kw)
+        ).all()
 
 
 def test_xray_sums_and_a_cluster(scene, tmp_path, cluster):
@@ -91,19 +97,26 @@ def test_header_checks_name_the_field(scene, tmp_path):
     hevr.render(ev, cam, keep_sums=path, cache=False, progress=False)
     blob = path.read_bytes()
     (hl,) = struct.unpack_from("<I", blob, 9)
-    head = json.loads(blob[13:13 + hl])
-    body = blob[13 + hl:-32]
+    head = json.loads(blob[13 : 13 + hl])
+    body = blob[13 + hl : -32]
 
     def write(h, b=body):
         raw = json.dumps(h).encode()
         data = sums_mod.MAGIC + struct.pack("<I", len(raw)) + raw + b
         path.write_bytes(data + hashlib.sha256(data).digest())
 
-    for field, value, words in [("channel", "gradient", "one of the volume's channels"), ("components", 2, "'components'"),
-                                ("tile", 0, "'tile'"), ("width", 3, "'width'"), ("sampling", "cubic", "'sampling'"),
-                                ("step", -1, "'step'"), ("fingerprint", "00", "'fingerprint'"),
-                                ("tiles", [[0, 1], [1, 1]], "'tiles'"), ("tiles", [[0, 500]], r"tiles\[0\]\[1\]"),
-                                ("note", "added by something else", r"v\.hevrsums: header: unexpected field 'note'")]:
+    for field, value, words in [
+        ("channel", "gradient", "one of the volume's channels"),
+        ("components", 2, "'components'"),
+        ("tile", 0, "'tile'"),
+        ("width", 3, "'width'"),
+        ("sampling", "cubic", "'sampling'"),
+        ("step", -1, "'step'"),
+        ("fingerprint", "00", "'fingerprint'"),
+        ("tiles", [[0, 1], [1, 1]], "'tiles'"),
+        ("tiles", [[0, 500]], r"tiles\[0\]\[1\]"),
+        ("note", "added by something else", r"v\.hevrsums: header: unexpected field 'note'"),
+    ]:
         write(dict(head, **{field: value}))
         with pytest.raises(hevr.CorruptStoreError, match=words):
             hevr.load_sums(path)

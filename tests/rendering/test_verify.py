@@ -61,8 +61,10 @@ def _rewrite(ev, index, channel, records):
     group = zarr.open_group(ev.path, mode="r+")
     sl = ev.brick_slices(index)
     group[channel][sl if channel.startswith("scalar") else (slice(None),) + sl] = records
-    digests = [brick_digest(ev.meta.store_id, ch, index, ev.read_brick_bytes(index, ch, verify=False))
-               for ch in ev.meta.channel_names]
+    digests = [
+        brick_digest(ev.meta.store_id, ch, index, ev.read_brick_bytes(index, ch, verify=False))
+        for ch in ev.meta.channel_names
+    ]
     group["done"][index] = marker(digests)
 
 
@@ -71,8 +73,10 @@ def _rewrite_level(view, index, channel, records):
     group = zarr.open_group(view.path, mode="r+")
     sl = view.brick_slices(index)
     group[view.prefix + channel][sl if channel.startswith("scalar") else (slice(None),) + sl] = records
-    digests = [brick_digest(view.meta.store_id, view.prefix + ch, index, view.read_brick_bytes(index, ch, verify=False))
-               for ch in view.meta.channel_names]
+    digests = [
+        brick_digest(view.meta.store_id, view.prefix + ch, index, view.read_brick_bytes(index, ch, verify=False))
+        for ch in view.meta.channel_names
+    ]
     group[view.prefix + "done"][index] = marker(digests)
 
 
@@ -89,7 +93,9 @@ def test_a_verifiable_store_holds_a_tag_channel_per_channel(stores, keypair256):
     tags = CPU.decrypt(priv, ev.read_brick((0, 0, 0), "scalar_tag"))
     data = CPU.decrypt(priv, ev.read_brick((0, 0, 0), "scalar"))
     vox = np.ravel_multi_index(np.meshgrid(*(np.arange(4),) * 3, indexing="ij"), VOL.shape).reshape(-1)
-    beta = [int.from_bytes(b.astype("<u4").tobytes(), "little") for b in betas(key, ev.meta.store_id, "scalar", 0, 0, vox)]
+    beta = [
+        int.from_bytes(b.astype("<u4").tobytes(), "little") for b in betas(key, ev.meta.store_id, "scalar", 0, 0, vox)
+    ]
     assert [t % n for t in tags] == [(key.alpha * m + b) % n for m, b in zip(data, beta)]
 
 
@@ -98,14 +104,21 @@ def test_verifiable_stores_on_object_storage_and_in_memory(keypair256):
     the data channels only (the tags are always streamed)."""
     _, priv = keypair256
     with dask.config.set(scheduler="sync"):
-        ev = hevr.encrypt_volume(VOL, "memory://hevr-verify/v.zarr", priv, brick=4, vector_dims=2, progress=False,
-                                 verifiable=True)
+        ev = hevr.encrypt_volume(
+            VOL, "memory://hevr-verify/v.zarr", priv, brick=4, vector_dims=2, progress=False, verifiable=True
+        )
         ev = hevr.open_volume("memory://hevr-verify/v.zarr")
         assert ev.meta.channel_names == ("scalar", "vector", "scalar_tag", "vector_tag")
         resident = ev.persist()
         assert resident.resident.channels == ("scalar", "vector")
-        img = hevr.render(resident, hevr.Camera.orbit(ev, azimuth=20, width=8, height=8), "tf", nodes=NODES,
-                          progress=False, cache=False)
+        img = hevr.render(
+            resident,
+            hevr.Camera.orbit(ev, azimuth=20, width=8, height=8),
+            "tf",
+            nodes=NODES,
+            progress=False,
+            cache=False,
+        )
     img.decrypt(priv)
 
 
@@ -128,9 +141,18 @@ def test_verifiable_needs_the_private_key_and_a_bool(tmp_path, keypair256):
 
 
 @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(azimuth=st.floats(-180, 180), elevation=st.floats(-80, 80), case=st.sampled_from([
-    ("xray", "nearest", {}), ("xray", "trilinear", {}), ("tf", "nearest", {"nodes": NODES}),
-    ("emphasize", "trilinear", {"density": 0.5})]))
+@given(
+    azimuth=st.floats(-180, 180),
+    elevation=st.floats(-80, 80),
+    case=st.sampled_from(
+        [
+            ("xray", "nearest", {}),
+            ("xray", "trilinear", {}),
+            ("tf", "nearest", {"nodes": NODES}),
+            ("emphasize", "trilinear", {"density": 0.5}),
+        ]
+    ),
+)
 def test_honest_renders_always_verify(stores, keypair256, azimuth, elevation, case):
     ev, _ = stores
     _, priv = keypair256
@@ -139,16 +161,19 @@ def test_honest_renders_always_verify(stores, keypair256, azimuth, elevation, ca
     img = _render(ev, cam, mode, sampling, **kw)
     assert img.verification is not None and img.stats["verify_s"] >= 0
     got = img.decrypt(priv)
-    assert np.all(np.abs(got - hevr.render_plain(VOL, cam, mode, sampling, vector_dims=3, **kw))
-                  <= hevr.error_bound(ev, cam, mode, sampling, **kw))
+    assert np.all(
+        np.abs(got - hevr.render_plain(VOL, cam, mode, sampling, vector_dims=3, **kw))
+        <= hevr.error_bound(ev, cam, mode, sampling, **kw)
+    )
 
 
 def test_trilinear_weights_beyond_2_31_verify(stores, keypair256):
     """Many weight digits and a short step: per-pair weights pass 2^31 (the client splits them)."""
     ev, _ = stores
     _, priv = keypair256
-    img = _render(ev, hevr.Camera.orbit(ev, azimuth=25, elevation=15, width=6, height=5), "xray", "trilinear",
-                  step=0.25, digits=9)
+    img = _render(
+        ev, hevr.Camera.orbit(ev, azimuth=25, elevation=15, width=6, height=5), "xray", "trilinear", step=0.25, digits=9
+    )
     img.decrypt(priv)
 
 
@@ -185,7 +210,9 @@ def test_a_pinned_store_id_refuses_any_other_store(stores, keypair256, tmp_path)
 
 def test_what_cannot_be_verified_is_said(stores, caplog):
     ev, plain = stores
-    with pytest.raises(hevr.ParameterError, match="verify: expected a request that can be verified, got the store has no tags"):
+    with pytest.raises(
+        hevr.ParameterError, match="verify: expected a request that can be verified, got the store has no tags"
+    ):
         _render(plain, verify=True)
     with pytest.raises(hevr.ParameterError, match="finish='server'"):
         _render(ev, finish="server", verify=True)
@@ -212,8 +239,12 @@ def test_another_camera_s_image_is_caught(stores, keypair256):
         forged.decrypt(priv)  # its public fields give it away first
     # the other view's ray sums under the asked view's public fields (as many hit pixels): the tags catch it
     # parallel views down z, shifted in x: every ray crosses the whole depth, so the sample counts agree
-    cam2, cam3 = (hevr.Camera((x, 4.0, 30.0), (x, 4.0, 4.5), view_up=(0, 1, 0), width=12, height=10, parallel=True,
-                              parallel_scale=2.0) for x in (3.5, 3.0))
+    cam2, cam3 = (
+        hevr.Camera(
+            (x, 4.0, 30.0), (x, 4.0, 4.5), view_up=(0, 1, 0), width=12, height=10, parallel=True, parallel_scale=2.0
+        )
+        for x in (3.5, 3.0)
+    )
     a, b = _render(ev, cam2), _render(ev, cam3)
     assert a.hits.all() and np.array_equal(a.samples, b.samples)
     swapped = dataclasses.replace(a, ciphertexts=b.ciphertexts)
@@ -259,8 +290,9 @@ def test_tags_from_another_store_of_the_same_key_are_caught(stores, keypair256, 
     ev, _ = stores
     _, priv = keypair256
     with dask.config.set(scheduler="sync"):
-        twin = hevr.encrypt_volume(255 - VOL, tmp_path / "twin.zarr", priv, brick=4, vector_dims=3, progress=False,
-                                   verifiable=True)
+        twin = hevr.encrypt_volume(
+            255 - VOL, tmp_path / "twin.zarr", priv, brick=4, vector_dims=3, progress=False, verifiable=True
+        )
     _render(twin).decrypt(priv)  # in its own store, it verifies
     bad = _copy(ev, tmp_path)
     for index in bad.brick_indices():
@@ -356,14 +388,17 @@ def test_a_frame_file_carries_its_verification(stores, keypair256, tmp_path, cap
         hevr.load_image(tmp_path / "nokey.hevr").decrypt(priv, require_verified=True)
     other = _render(ev, hevr.Camera.orbit(ev, azimuth=34, elevation=20, width=12, height=10))
     dataclasses.replace(back, ciphertexts=other.ciphertexts, hits=other.hits, samples=other.samples).save(
-        tmp_path / "forged.hevr")
+        tmp_path / "forged.hevr"
+    )
     with pytest.raises(hevr.VerificationError, match="stamp that does not match"):
         hevr.load_image(tmp_path / "forged.hevr").decrypt(priv)
     with pytest.raises(hevr.VerificationError, match="sample counts"):  # means halved, tags untouched
         dataclasses.replace(img, samples=img.samples * 2).save(tmp_path / "scaled.hevr", private_key=priv)
     assert not (tmp_path / "scaled.hevr").exists()
     bad = dataclasses.replace(img.verification, seed=b"short", drawn_here=False)
-    dataclasses.replace(img, verification=bad, stamp=Stamp("hmac-sha256:" + "0" * 64, b"", "bad.hevr")).save(tmp_path / "bad.hevr")
+    dataclasses.replace(img, verification=bad, stamp=Stamp("hmac-sha256:" + "0" * 64, b"", "bad.hevr")).save(
+        tmp_path / "bad.hevr"
+    )
     with pytest.raises(hevr.IntegrityError, match="'verification.seed': expected 64 lower-case hex digits"):
         hevr.load_image(tmp_path / "bad.hevr")
     assert _render(ev, verify=False).verification is None
@@ -377,8 +412,9 @@ def test_the_command_line_verifies(tmp_path, capsys):
 
     key = tmp_path / "key.json"
     assert main(["keygen", "--bits", "256", "--out", str(key), "-q"]) == 0
-    code, out, err = run("encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4",
-                         "--verifiable")
+    code, out, err = run(
+        "encrypt", "phantom:8", "--key", key, "--out", tmp_path / "v.zarr", "--brick", "4", "--verifiable"
+    )
     assert code == 0 and "verifiable: store id" in out, err
     assert hevr.open_volume(tmp_path / "v.zarr").meta.tags
     code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "n.hevr", "--size", "8x8", "-q")
@@ -389,29 +425,55 @@ def test_the_command_line_verifies(tmp_path, capsys):
     code, out, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "f.hevr", "--size", "8x8", "--key", key)
     sid = hevr.open_volume(tmp_path / "v.zarr").meta.store_id
     assert code == 0 and f"verified: the frame is the render of store {sid}" in out, err
-    code, out, err = run("decrypt", tmp_path / "f.hevr", "--key", key, "--out", tmp_path / "f.png",
-                         "--require-verified", sid)
+    code, out, err = run(
+        "decrypt", tmp_path / "f.hevr", "--key", key, "--out", tmp_path / "f.png", "--require-verified", sid
+    )
     assert code == 0 and f"verified: the frame is the render of store {sid}" in out and "level 0" in out, err
-    code, out, err = run("decrypt", tmp_path / "f.hevr", "--key", key, "--out", tmp_path / "g.png",
-                         "--require-verified", "0" * 16)
+    code, out, err = run(
+        "decrypt", tmp_path / "f.hevr", "--key", key, "--out", tmp_path / "g.png", "--require-verified", "0" * 16
+    )
     assert code == 1 and "expected a frame of the store 0000000000000000" in err, err
-    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "u.hevr", "--size", "8x8", "--no-verify",
-                       "--key", key, "-q")
+    code, _, err = run(
+        "render", tmp_path / "v.zarr", "--out", tmp_path / "u.hevr", "--size", "8x8", "--no-verify", "--key", key, "-q"
+    )
     assert code == 0 and hevr.load_image(tmp_path / "u.hevr").verification is None, err
     code, out, err = run("decrypt", tmp_path / "u.hevr", "--key", key, "--out", tmp_path / "u.png")
     assert code == 0 and "not verified" in out, err  # a store with tags: the key's policy lets it say so
-    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "p.hevr", "--size", "8x8", "--verify", sid,
-                       "--key", key, "-q")
+    code, _, err = run(
+        "render",
+        tmp_path / "v.zarr",
+        "--out",
+        tmp_path / "p.hevr",
+        "--size",
+        "8x8",
+        "--verify",
+        sid,
+        "--key",
+        key,
+        "-q",
+    )
     assert code == 0 and hevr.load_image(tmp_path / "p.hevr").verification.store_id == sid, err
-    code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "q.hevr", "--size", "8x8", "--verify",
-                       "0" * 16, "--key", key, "-q")
+    code, _, err = run(
+        "render",
+        tmp_path / "v.zarr",
+        "--out",
+        tmp_path / "q.hevr",
+        "--size",
+        "8x8",
+        "--verify",
+        "0" * 16,
+        "--key",
+        key,
+        "-q",
+    )
     assert code != 0 and "expected the store 0000000000000000" in err, err
     code, _, err = run("render", tmp_path / "v.zarr", "--out", tmp_path / "q.hevr", "--size", "8x8", "--verify", sid)
     assert code == 2 and "--verify: expected --key KEY.json as well" in err, err
     code, _, err = run("render", "--verify", tmp_path / "v.zarr", "--out", tmp_path / "r.hevr")
     assert code == 2 and "--verify: expected a store id of 16 lower-case hex digits" in err, err
-    code, _, err = run("encrypt", "phantom:8", "--key", tmp_path / "key.pub.json", "--out", tmp_path / "p.zarr",
-                       "--verifiable", "-q")
+    code, _, err = run(
+        "encrypt", "phantom:8", "--key", tmp_path / "key.pub.json", "--out", tmp_path / "p.zarr", "--verifiable", "-q"
+    )
     assert code == 2 and err.startswith("hevr: error: --verifiable: expected a PrivateKey"), err
 
 

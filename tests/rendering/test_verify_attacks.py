@@ -21,11 +21,11 @@ import dask
 import numpy as np
 import pytest
 import zarr
+from _stores import edit_meta
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import hevr
-from _stores import edit_meta
 from hevr.cli.main import main
 from hevr.image.header import MAGIC
 from hevr.store.known import check_known, known_stores, trust_store
@@ -167,11 +167,11 @@ def _frame_file(img, priv, path):
 def _rewrite_header(path, out, change):
     raw = path.read_bytes()
     m = len(MAGIC)
-    hl = int.from_bytes(raw[m:m + 4], "little")
-    head = json.loads(raw[m + 4:m + 4 + hl])
+    hl = int.from_bytes(raw[m : m + 4], "little")
+    head = json.loads(raw[m + 4 : m + 4 + hl])
     change(head)
     text = json.dumps(head, separators=(",", ":")).encode()
-    body = raw[:m] + len(text).to_bytes(4, "little") + text + raw[m + 4 + hl:-32]
+    body = raw[:m] + len(text).to_bytes(4, "little") + text + raw[m + 4 + hl : -32]
     out.write_bytes(body + hashlib.sha256(body).digest())
     return out
 
@@ -188,8 +188,9 @@ def test_frame_files_put_in_place_edited_or_stripped(keypair256, tmp_path, known
     ev = _encrypt(VOL, tmp_path / "v.zarr", priv)
     asked = tmp_path / "frame.hevr"
     _frame_file(_render(ev), priv, asked)
-    np.testing.assert_array_equal(hevr.load_image(asked).decrypt(priv, require_verified=ev.meta.store_id),
-                                  _render(ev).decrypt(priv))
+    np.testing.assert_array_equal(
+        hevr.load_image(asked).decrypt(priv, require_verified=ev.meta.store_id), _render(ev).decrypt(priv)
+    )
     with dask.config.set(scheduler="sync"):
         hevr.build_pyramid(ev, 1, progress=False)
     other = _encrypt(255 - VOL, tmp_path / "w.zarr", priv)
@@ -210,22 +211,47 @@ def test_frame_files_put_in_place_edited_or_stripped(keypair256, tmp_path, known
         if name != "replay":  # by default: the image, and a warning saying what it proves, not "verified"
             with pytest.warns(hevr.FrameMovedWarning, match="not verified for .*saved this frame as"):
                 moved.decrypt(priv)
-            code = main(["decrypt", str(tmp_path / name / "frame.hevr"), "--key", str(key), "-q",
-                         "--out", str(tmp_path / name / "f.png")])
+            code = main(
+                [
+                    "decrypt",
+                    str(tmp_path / name / "frame.hevr"),
+                    "--key",
+                    str(key),
+                    "-q",
+                    "--out",
+                    str(tmp_path / name / "f.png"),
+                ]
+            )
             assert code == 0
         with pytest.raises(hevr.VerificationError, match="saved this verified frame as|which the owner replaced"):
             moved.decrypt(priv, require_verified=True)
-        with pytest.raises(hevr.VerificationError, match="expected the view|expected a frame of the store|which "
-                                                         "the owner replaced"):
+        with pytest.raises(
+            hevr.VerificationError, match="expected the view|expected a frame of the store|which the owner replaced"
+        ):
             moved.decrypt(priv, require_verified=want)  # what the key holder asked for: not this frame
         for flags in (["--require-verified"], ["--expect-store", want.store, "--expect-view", want.view]):
-            assert main(["decrypt", str(tmp_path / name / "frame.hevr"), "--key", str(key), "-q", *flags,
-                         "--out", str(tmp_path / name / "g.png")]) == 1
+            assert (
+                main(
+                    [
+                        "decrypt",
+                        str(tmp_path / name / "frame.hevr"),
+                        "--key",
+                        str(key),
+                        "-q",
+                        *flags,
+                        "--out",
+                        str(tmp_path / name / "g.png"),
+                    ]
+                )
+                == 1
+            )
     # the frame the key holder asked for, moved on purpose: what it proves is what is expected
     (tmp_path / "archive").mkdir()
     shutil.copyfile(asked, tmp_path / "archive" / "frame.hevr")
-    np.testing.assert_array_equal(hevr.load_image(tmp_path / "archive" / "frame.hevr").decrypt(
-        priv, require_verified=want), _render(ev).decrypt(priv))
+    np.testing.assert_array_equal(
+        hevr.load_image(tmp_path / "archive" / "frame.hevr").decrypt(priv, require_verified=want),
+        _render(ev).decrypt(priv),
+    )
     with pytest.raises(hevr.VerificationError, match="which the owner replaced"):
         hevr.load_image(tmp_path / "replay" / "src" / "frame.hevr").decrypt(priv)  # where it was saved
 
@@ -234,28 +260,37 @@ def test_frame_files_put_in_place_edited_or_stripped(keypair256, tmp_path, known
         h["verification"]["exponent"] -= 3
 
     (tmp_path / "edit").mkdir()
-    for change, match in ((raise_exponent, "stamp that does not match"),
-                          (lambda h: [h.pop(k, None) for k in ("stamp", "saved_as", "rendered_at")], "carries no stamp")):
+    for change, match in (
+        (raise_exponent, "stamp that does not match"),
+        (lambda h: [h.pop(k, None) for k in ("stamp", "saved_as", "rendered_at")], "carries no stamp"),
+    ):
         bad = _rewrite_header(asked, tmp_path / "edit" / "frame.hevr", change)
         with pytest.raises(hevr.VerificationError, match=match):
             hevr.load_image(bad).decrypt(priv)
         assert main(["decrypt", str(bad), "--key", str(key), "--out", str(tmp_path / "x.png"), "-q"]) == 1
-    bare = _rewrite_header(asked, tmp_path / "edit" / "frame.hevr",
-                           lambda h: [h.pop(k, None) for k in ("verification", "stamp", "saved_as", "rendered_at")])
+    bare = _rewrite_header(
+        asked,
+        tmp_path / "edit" / "frame.hevr",
+        lambda h: [h.pop(k, None) for k in ("verification", "stamp", "saved_as", "rendered_at")],
+    )
     assert hevr.load_image(bare).decrypt(priv).shape == (9, 10)  # not verified, and says so
     with pytest.raises(hevr.VerificationError, match="not verified"):
         hevr.load_image(bare).decrypt(priv, require_verified=True)
-    assert main(["decrypt", str(bare), "--key", str(key), "--out", str(tmp_path / "y.png"), "--require-verified",
-                 "-q"]) == 1
+    assert (
+        main(["decrypt", str(bare), "--key", str(key), "--out", str(tmp_path / "y.png"), "--require-verified", "-q"])
+        == 1
+    )
 
 
 def test_a_record_whose_level_does_not_fit_is_an_integrity_error(keypair256, tmp_path, known):
     _, priv = keypair256
     ev = _encrypt(VOL, tmp_path / "v.zarr", priv)
     f = _frame_file(_render(ev), priv, tmp_path / "f.hevr")
-    for change, field in ((lambda h: h["verification"].update(level=1), "level"),
-                          (lambda h: h["verification"].update(base_shape=[5, 4, 4]), "base_shape"),
-                          (lambda h: h["verification"].update(shape=[5, 4, 4]), "shape")):
+    for change, field in (
+        (lambda h: h["verification"].update(level=1), "level"),
+        (lambda h: h["verification"].update(base_shape=[5, 4, 4]), "base_shape"),
+        (lambda h: h["verification"].update(shape=[5, 4, 4]), "shape"),
+    ):
         bad = _rewrite_header(f, tmp_path / "bad.hevr", change)
         with pytest.raises(hevr.IntegrityError, match=f"verification.{field}"):
             hevr.load_image(bad)
@@ -272,8 +307,9 @@ def test_streamed_frames_are_verified_when_they_settle(keypair256, tmp_path, kno
     with dask.config.set(scheduler="sync"):
         frame = hevr.render_frame(ev, cam, priv, "tf", "trilinear", nodes=NODES, progress=False, cache=False)
         assert frame.stats["verified"]
-        np.testing.assert_allclose(frame.image, _render(ev, cam, mode="tf", sampling="trilinear", nodes=NODES)
-                                   .decrypt(priv))
+        np.testing.assert_allclose(
+            frame.image, _render(ev, cam, mode="tf", sampling="trilinear", nodes=NODES).decrypt(priv)
+        )
         group = zarr.open_group(str(ev.path), mode="r+")
         a, b = (0, 0, 0), (1, 0, 0)
         for ch in ("vector", "vector_tag"):  # data and tags moved together, digests recomputed
@@ -281,12 +317,16 @@ def test_streamed_frames_are_verified_when_they_settle(keypair256, tmp_path, kno
             group[ch][(slice(None),) + ev.brick_slices(a)] = db
             group[ch][(slice(None),) + ev.brick_slices(b)] = da
         for idx in (a, b):
-            group["done"][idx] = marker([brick_digest(ev.meta.store_id, c, idx,
-                                                      ev.read_brick_bytes(idx, c, verify=False))
-                                         for c in ev.meta.channel_names])
+            group["done"][idx] = marker(
+                [
+                    brick_digest(ev.meta.store_id, c, idx, ev.read_brick_bytes(idx, c, verify=False))
+                    for c in ev.meta.channel_names
+                ]
+            )
         bad = hevr.open_volume(ev.path)
-        unverified = hevr.render_frame(bad, cam, priv, "tf", "trilinear", nodes=NODES, progress=False, cache=False,
-                                       verify=False)
+        unverified = hevr.render_frame(
+            bad, cam, priv, "tf", "trilinear", nodes=NODES, progress=False, cache=False, verify=False
+        )
         assert not unverified.stats["verified"]  # a plausible wrong frame without the check
         with pytest.raises(hevr.VerificationError):
             hevr.render_frame(bad, cam, priv, "tf", "trilinear", nodes=NODES, progress=False, cache=False)
@@ -303,9 +343,12 @@ def honest(tmp_path_factory, keypair256):
 
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(azimuth=st.floats(0, 359), elevation=st.floats(-60, 60),
-       kind=st.sampled_from(["xray", "tf", "slice", "stream", "level"]),
-       sampling=st.sampled_from(["nearest", "trilinear"]))
+@given(
+    azimuth=st.floats(0, 359),
+    elevation=st.floats(-60, 60),
+    kind=st.sampled_from(["xray", "tf", "slice", "stream", "level"]),
+    sampling=st.sampled_from(["nearest", "trilinear"]),
+)
 def test_honest_renders_of_every_kind_verify(honest, keypair256, tmp_path, azimuth, elevation, kind, sampling):
     _, priv = keypair256
     ev = honest

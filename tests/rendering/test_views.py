@@ -39,12 +39,12 @@ def _where(img) -> tuple[str, str]:
 
 # The blob (patient's right, anterior, superior) seen from each side:
 EXPECTED = {
-    "anterior": ("top", "left"),    # facing the patient: their right on the image's left
+    "anterior": ("top", "left"),  # facing the patient: their right on the image's left
     "posterior": ("top", "right"),  # from behind: their right on the image's right
-    "left": ("top", "left"),        # from the left side: anterior on the image's left
-    "right": ("top", "right"),      # from the right side: anterior on the image's right
-    "superior": ("top", "right"),   # from above, anterior up: their right on the image's right
-    "inferior": ("top", "left"),    # from the feet, anterior up (radiological axial): right on the left
+    "left": ("top", "left"),  # from the left side: anterior on the image's left
+    "right": ("top", "right"),  # from the right side: anterior on the image's right
+    "superior": ("top", "right"),  # from above, anterior up: their right on the image's right
+    "inferior": ("top", "left"),  # from the feet, anterior up (radiological axial): right on the left
 }
 
 
@@ -83,11 +83,20 @@ def test_opposite_views_are_mirror_images(blob, a, b):
     assert not np.allclose(ia, ib, atol=1e-3)
 
 
-@pytest.mark.parametrize("view, azimuth, elevation, same_place_as", [
-    ("anterior", 90, 0, "left"), ("anterior", -90, 0, "right"), ("anterior", 180, 0, "posterior"),
-    ("right", 90, 0, "anterior"), ("left", 90, 0, "posterior"), ("anterior", 0, 90, "superior"),
-    ("posterior", 0, -90, "inferior"), ("superior", 0, 90, "anterior"), ("inferior", 90, 0, "left"),
-])
+@pytest.mark.parametrize(
+    "view, azimuth, elevation, same_place_as",
+    [
+        ("anterior", 90, 0, "left"),
+        ("anterior", -90, 0, "right"),
+        ("anterior", 180, 0, "posterior"),
+        ("right", 90, 0, "anterior"),
+        ("left", 90, 0, "posterior"),
+        ("anterior", 0, 90, "superior"),
+        ("posterior", 0, -90, "inferior"),
+        ("superior", 0, 90, "anterior"),
+        ("inferior", 90, 0, "left"),
+    ],
+)
 def test_azimuth_and_elevation_are_relative_to_the_view(view, azimuth, elevation, same_place_as):
     shape = (10, 14, 18)
     cam = Camera.orbit(shape, azimuth=azimuth, elevation=elevation, view=view)
@@ -111,14 +120,16 @@ def test_no_view_is_the_plain_orbit():
         cam = Camera.orbit((10, 20, 30), azimuth=az, elevation=el)
         dist = np.linalg.norm(np.subtract(cam.position, cam.focal_point))
         a, e = math.radians(az), math.radians(el)
-        want = np.add(cam.focal_point, dist * np.array([math.cos(e) * math.sin(a), math.sin(e),
-                                                        math.cos(e) * math.cos(a)]))
+        want = np.add(
+            cam.focal_point, dist * np.array([math.cos(e) * math.sin(a), math.sin(e), math.cos(e) * math.cos(a)])
+        )
         assert np.allclose(cam.position, want)
     assert Camera.orbit((4, 5, 6), view=None) == Camera.orbit((4, 5, 6))
 
 
 @pytest.mark.parametrize("bad", ["front", "Anterior", "", 3])
 def test_unknown_view_lists_the_choices(bad):
-    with pytest.raises(hevr.ParameterError, match="^view: expected one of anterior, posterior, left, right, "
-                                                  "superior, inferior, got "):
+    with pytest.raises(
+        hevr.ParameterError, match="^view: expected one of anterior, posterior, left, right, superior, inferior, got "
+    ):
         Camera.orbit((4, 4, 4), view=bad)

@@ -13,8 +13,6 @@ from hypothesis import strategies as st
 import hevr.rendering.geometry.weights as weights_mod
 from hevr.errors import ParameterError
 from hevr.rendering.geometry.camera import Camera
-from hevr.rendering.planning.modes import combination_matrix, make_spec, normalisation_factor
-from hevr.rendering.reference.plain import render_plain
 from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.geometry.weights import (
     BrickWeights,
@@ -23,6 +21,8 @@ from hevr.rendering.geometry.weights import (
     brick_weights,
     touched_bricks,
 )
+from hevr.rendering.planning.modes import combination_matrix, make_spec, normalisation_factor
+from hevr.rendering.reference.plain import render_plain
 from hevr.volume.density import encode_density, normalize_density
 
 SHAPE, BRICK, SPACING, STEP = (7, 9, 11), (3, 4, 5), (0.8, 1.1, 1.3), 0.7
@@ -112,16 +112,17 @@ def test_weights_reproduce_render_plain(mode: str, sampling: str, parallel: bool
     spec = make_spec(mode, sampling, STEP, _MODE_KW[mode].get("density"), _MODE_KW[mode].get("nodes"), 4)
     factor = normalisation_factor(spec)
     q = _field(mode)
-    sums = split.reshape(rs.n_rays, -1).astype(np.float64) @ q * 10.0 ** full.exponent
+    sums = split.reshape(rs.n_rays, -1).astype(np.float64) @ q * 10.0**full.exponent
     n = rs.n_samples.astype(np.float64)[:, None] * factor
     img = np.divide(sums, n, out=np.zeros_like(sums), where=n > 0)
-    ref = render_plain(_VOL, _camera(parallel), mode=mode, sampling=sampling, step=STEP, spacing=SPACING,
-                       **_MODE_KW[mode]).reshape(rs.n_rays, -1)
+    ref = render_plain(
+        _VOL, _camera(parallel), mode=mode, sampling=sampling, step=STEP, spacing=SPACING, **_MODE_KW[mode]
+    ).reshape(rs.n_rays, -1)
     if sampling == "nearest":
         np.testing.assert_allclose(img, ref, rtol=1e-12, atol=1e-12)
     else:
         # Module docstring bound: P * 0.5e-3 * max|q| / (n*factor) per pixel with P <= 8n pairs.
-        bound = 4 * 10.0 ** full.exponent * np.abs(q).max() / factor
+        bound = 4 * 10.0**full.exponent * np.abs(q).max() / factor
         err = np.abs(img - ref)
         assert err.max() <= bound + 1e-9
         assert err.max() > 0  # rounding is visible, so the check is not vacuous
@@ -164,12 +165,15 @@ def test_exact_halves_and_faces_split_consistently(sampling: str, offset: float)
     rs = cast_rays(cam, shape, spacing, 0.5)
     vol = np.random.default_rng(5).random(shape)
     full = brick_weights(rs, shape, spacing, shape, (0, 0, 0), sampling, 0.5)
-    split = sum(_dense(brick_weights(rs, shape, spacing, brick, i, sampling, 0.5), shape,
-                       brick_bounds(shape, brick, i), rs.n_rays)
-                for i in itertools.product(*map(range, brick_grid(shape, brick))))
+    split = sum(
+        _dense(
+            brick_weights(rs, shape, spacing, brick, i, sampling, 0.5), shape, brick_bounds(shape, brick, i), rs.n_rays
+        )
+        for i in itertools.product(*map(range, brick_grid(shape, brick)))
+    )
     np.testing.assert_array_equal(split, _dense(full, shape, brick_bounds(shape, shape, (0, 0, 0)), rs.n_rays))
     n = rs.n_samples
-    img = (split.reshape(rs.n_rays, -1) @ vol.reshape(-1)) * 10.0 ** full.exponent
+    img = (split.reshape(rs.n_rays, -1) @ vol.reshape(-1)) * 10.0**full.exponent
     img = np.divide(img, n, out=np.zeros_like(img), where=n > 0)
     ref = render_plain(vol, cam, sampling=sampling, step=0.5, spacing=spacing).reshape(-1)
     tol = 0 if sampling == "nearest" else 4e-3
@@ -191,14 +195,16 @@ def test_split_invariance_property(shape, brick, spacing, step, azimuth, elevati
     cam = Camera.orbit(shape, azimuth, elevation, width=5, height=4, spacing=spacing, parallel=parallel)
     rs = cast_rays(cam, shape, spacing, step)
     full = brick_weights(rs, shape, spacing, shape, (0, 0, 0), sampling, step)
-    parts = [brick_weights(rs, shape, spacing, brick, i, sampling, step)
-             for i in itertools.product(*map(range, brick_grid(shape, brick)))]
+    parts = [
+        brick_weights(rs, shape, spacing, brick, i, sampling, step)
+        for i in itertools.product(*map(range, brick_grid(shape, brick)))
+    ]
     split = sum(_dense(bw, shape, brick_bounds(shape, brick, bw.brick), rs.n_rays) for bw in parts)
     np.testing.assert_array_equal(split, _dense(full, shape, brick_bounds(shape, shape, (0, 0, 0)), rs.n_rays))
     touched = touched_bricks(rs, shape, spacing, brick, sampling, step)
     assert {bw.brick for bw in parts if bw.n_pairs} <= set(touched)
     vol = np.random.default_rng(0).random(shape)
-    img = (split.reshape(rs.n_rays, -1) @ vol.reshape(-1)) * 10.0 ** full.exponent
+    img = (split.reshape(rs.n_rays, -1) @ vol.reshape(-1)) * 10.0**full.exponent
     n = rs.n_samples
     img = np.divide(img, n, out=np.zeros_like(img), where=n > 0)
     ref = render_plain(vol, cam, sampling=sampling, step=step, spacing=spacing).reshape(-1)
@@ -249,8 +255,16 @@ def test_apply_and_empty_brick() -> None:
 )
 def test_brick_weights_rejects(kwargs: dict, match: str) -> None:
     rs = cast_rays(Camera.orbit((4, 4, 4), width=3, height=3), (4, 4, 4), (1, 1, 1), 1.0)
-    args = dict(rays=rs, shape=(4, 4, 4), spacing=(1, 1, 1), brick=2, brick_index=(0, 0, 0),
-                sampling="nearest", step=1.0, digits=3)
+    args = dict(
+        rays=rs,
+        shape=(4, 4, 4),
+        spacing=(1, 1, 1),
+        brick=2,
+        brick_index=(0, 0, 0),
+        sampling="nearest",
+        step=1.0,
+        digits=3,
+    )
     args.update(kwargs)
     with pytest.raises(ParameterError, match=match):
         brick_weights(**args)

@@ -56,38 +56,60 @@ def test_version_openapi_and_stores(served, http):
     _problem(http.get(f"/v1/stores/{served.ev.meta.store_id}/render"), 405)
 
 
-@pytest.mark.parametrize("body, status, words", [
-    (b"{not json", 400, ["JSON"]),
-    (b'{"view": {}, "channel": "scalar", "channel": "vector"}', 400, ["duplicate"]),
-    (b'[1, 2]', 400, ["object"]),
-    (b'{"view": {"position": [0,0,40], "focal_point": [0,0,0]}, "channel": "scalar", "colour": "red"}', 400,
-     ["extra fields", "colour"]),
-    (b'{"view": {"position": [0,0,40], "focal_point": [0,0,0]}, "channel": "scalar", "step": 1e999}', 400, ["step"]),
-    (b'{"view": {"position": [0,0,40], "focal_point": [0,0,0]}, "channel": "scalar", "tile": '
-     + b"9" * 60 + b"}", 400, ["JSON"]),
-    (b'{"view": {"position": [0,0,40], "focal_point": [0,0,0], "width": 100000}, "channel": "scalar"}', 400,
-     ["width"]),
-    (b'{"view": {"position": [0,0,40], "focal_point": [0,0,0]}, "channel": "secret"}', 400, ["channel"]),
-    (b'{"view": {"position": [0,0,NaN], "focal_point": [0,0,0]}, "channel": "scalar"}', 400, ["JSON"]),
-    (b"[" * 5000 + b"]" * 5000, 400, []),
-    ("{\"view\": \"\u00e9\"}".encode("latin-1"), 400, ["JSON"]),
-])
+@pytest.mark.parametrize(
+    "body, status, words",
+    [
+        (b"{not json", 400, ["JSON"]),
+        (b'{"view": {}, "channel": "scalar", "channel": "vector"}', 400, ["duplicate"]),
+        (b"[1, 2]", 400, ["object"]),
+        (
+            b'{"view": {"position": [0,0,40], "focal_point": [0,0,0]}, "channel": "scalar", "colour": "red"}',
+            400,
+            ["extra fields", "colour"],
+        ),
+        (
+            b'{"view": {"position": [0,0,40], "focal_point": [0,0,0]}, "channel": "scalar", "step": 1e999}',
+            400,
+            ["step"],
+        ),
+        (
+            b'{"view": {"position": [0,0,40], "focal_point": [0,0,0]}, "channel": "scalar", "tile": '
+            + b"9" * 60
+            + b"}",
+            400,
+            ["JSON"],
+        ),
+        (
+            b'{"view": {"position": [0,0,40], "focal_point": [0,0,0], "width": 100000}, "channel": "scalar"}',
+            400,
+            ["width"],
+        ),
+        (b'{"view": {"position": [0,0,40], "focal_point": [0,0,0]}, "channel": "secret"}', 400, ["channel"]),
+        (b'{"view": {"position": [0,0,NaN], "focal_point": [0,0,0]}, "channel": "scalar"}', 400, ["JSON"]),
+        (b"[" * 5000 + b"]" * 5000, 400, []),
+        ('{"view": "\u00e9"}'.encode("latin-1"), 400, ["JSON"]),
+    ],
+)
 def test_malformed_requests_are_clear_400s(served, http, body, status, words):
-    r = http.post(f"/v1/stores/{served.ev.meta.store_id}/render", content=body,
-                  headers={"Content-Type": "application/json"})
+    r = http.post(
+        f"/v1/stores/{served.ev.meta.store_id}/render", content=body, headers={"Content-Type": "application/json"}
+    )
     _problem(r, status, *words)
 
 
 def test_size_type_and_store_limits(served, http):
     sid = served.ev.meta.store_id
-    _problem(http.post(f"/v1/stores/{sid}/render", content=b" " * (65 * 1024),
-                       headers={"Content-Type": "application/json"}), 413, "65536")
+    _problem(
+        http.post(f"/v1/stores/{sid}/render", content=b" " * (65 * 1024), headers={"Content-Type": "application/json"}),
+        413,
+        "65536",
+    )
 
     def chunks():  # no Content-Length: counted as it comes
         for _ in range(100):
             yield b" " * 1024
-    _problem(http.post(f"/v1/stores/{sid}/render", content=chunks(), headers={"Content-Type": "application/json"}),
-             413)
+
+    _problem(http.post(f"/v1/stores/{sid}/render", content=chunks(), headers={"Content-Type": "application/json"}), 413)
     body = json.dumps({"view": _cam(served), "channel": "scalar"})
     _problem(http.post(f"/v1/stores/{sid}/render", content=body, headers={"Content-Type": "text/plain"}), 415)
     _problem(http.post("/v1/stores/0123456789abcdef/render", json={"view": _cam(served), "channel": "scalar"}), 404)
@@ -96,5 +118,4 @@ def test_size_type_and_store_limits(served, http):
     r = http.post(f"/v1/stores/{sid}/render", json={"view": big, "channel": "scalar", "step": 0.001})
     assert r.status_code in (400, 422), r.text
     # the store has no gradient channel
-    _problem(http.post(f"/v1/stores/{sid}/render", json={"view": _cam(served), "channel": "gradient"}), 400,
-             "gradient")
+    _problem(http.post(f"/v1/stores/{sid}/render", json={"view": _cam(served), "channel": "gradient"}), 400, "gradient")

@@ -49,12 +49,19 @@ def test_hundred_concurrent_requests_are_bounded(served, http):
 def test_a_client_leaving_mid_stream_frees_its_slot(served, http):
     sid = served.ev.meta.store_id
     parts = urlsplit(served.url)
-    body = json.dumps({"view": hevr.Camera.orbit(served.ev, azimuth=77, width=20, height=20).to_dict(),
-                       "channel": "vector", "sampling": "trilinear"}).encode()
+    body = json.dumps(
+        {
+            "view": hevr.Camera.orbit(served.ev, azimuth=77, width=20, height=20).to_dict(),
+            "channel": "vector",
+            "sampling": "trilinear",
+        }
+    ).encode()
     for _ in range(6):  # more than the server's 4 slots: each must be freed when its client leaves
         s = socket.create_connection((parts.hostname, parts.port), timeout=30)
-        s.sendall(b"POST /v1/stores/%s/stream HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
-                  b"Content-Length: %d\r\n\r\n" % (sid.encode(), len(body)) + body)
+        s.sendall(
+            b"POST /v1/stores/%s/stream HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+            b"Content-Length: %d\r\n\r\n" % (sid.encode(), len(body)) + body
+        )
         s.recv(64)
         s.close()
     ok = threading.Event()
@@ -67,7 +74,7 @@ def test_a_client_leaving_mid_stream_frees_its_slot(served, http):
         index = None
         while data:
             index, n = unpack_head(data[:8])
-            data = data[8 + n:]
+            data = data[8 + n :]
         assert index == END
         ok.set()
 
@@ -77,6 +84,7 @@ def test_a_client_leaving_mid_stream_frees_its_slot(served, http):
             break
         except AssertionError:
             import time
+
             time.sleep(0.5)
     assert ok.is_set()
     assert served.proc.poll() is None

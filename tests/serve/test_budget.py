@@ -20,9 +20,9 @@ from starlette.testclient import TestClient
 import hevr
 from hevr.remote.protocol import RenderRequest
 from hevr.rendering.planning.request import ray_cost
+from hevr.serve import budget as budget_module
 from hevr.serve import jobs
 from hevr.serve.app import create_app
-from hevr.serve import budget as budget_module
 from hevr.serve.budget import Budget, Limits, parse_count
 from hevr.serve.problems import Problem
 from hevr.serve.run import open_stores
@@ -50,8 +50,10 @@ def http(app):
 @pytest.fixture
 def no_render(monkeypatch):
     """Any render that starts fails the test: a refusal must come before any work."""
+
     def render_image(*a, **k):
         raise AssertionError("a refused request started a render")
+
     monkeypatch.setattr("hevr.serve.routes.render.render_image", render_image)
     monkeypatch.setattr("hevr.serve.routes.render.verify_aggregate", render_image)
 
@@ -60,13 +62,16 @@ def _body(ev, w, h, **kw):
     return {"view": hevr.Camera.orbit(ev, azimuth=5, width=w, height=h).to_dict(), "channel": "scalar", **kw}
 
 
-@pytest.mark.parametrize("w, h, kw, words", [
-    (8, 8, {"step": 1e-6}, ["step: expected at least 0.25", "got 1e-06"]),
-    (256, 256, {"tile": 1}, ["tile: expected at least 4 for a 256x256 image", "got 1"]),
-    (2048, 2048, {}, ["width, height: expected an image of at most 1048576 pixels", "--max-pixels", "2048x2048"]),
-    (4096, 4096, {}, ["--max-pixels", "4096x4096"]),
-    (8, 8, {"step": 1e-6, "sampling": "trilinear"}, ["step"]),
-])
+@pytest.mark.parametrize(
+    "w, h, kw, words",
+    [
+        (8, 8, {"step": 1e-6}, ["step: expected at least 0.25", "got 1e-06"]),
+        (256, 256, {"tile": 1}, ["tile: expected at least 4 for a 256x256 image", "got 1"]),
+        (2048, 2048, {}, ["width, height: expected an image of at most 1048576 pixels", "--max-pixels", "2048x2048"]),
+        (4096, 4096, {}, ["--max-pixels", "4096x4096"]),
+        (8, 8, {"step": 1e-6, "sampling": "trilinear"}, ["step"]),
+    ],
+)
 @pytest.mark.parametrize("endpoint", ["render", "stream"])
 def test_the_issues_bombs_are_refused_before_any_work(served_store, app, http, no_render, w, h, kw, words, endpoint):
     t0 = time.perf_counter()
@@ -90,12 +95,14 @@ def test_a_verify_request_has_the_same_budget(served_store, http, no_render):
 def test_products_over_the_budget_name_the_limit_and_the_estimate(served_store, no_render):
     app = create_app(open_stores([str(served_store.dir / "v.zarr")]), budget=Budget(max_products=10**5))
     with TestClient(app) as http:
-        r = http.post("/v1/stores/v/render", json=_body(served_store.ev, 64, 64, sampling="trilinear",
-                                                         channel="vector"))
+        r = http.post(
+            "/v1/stores/v/render", json=_body(served_store.ev, 64, 64, sampling="trilinear", channel="vector")
+        )
     assert r.status_code == 422, r.text
     detail = r.json()["detail"]
-    assert detail.startswith("products: expected at most 1e+05 for one render on this server (--max-products), "
-                             "got an estimated "), detail
+    assert detail.startswith(
+        "products: expected at most 1e+05 for one render on this server (--max-products), got an estimated "
+    ), detail
     assert "64x64 rays" in detail and "8 voxels a sample, 3 ciphertexts a voxel" in detail, detail
 
 
@@ -179,8 +186,9 @@ def test_limits_count_products_per_token_and_in_all():
 
 
 def test_the_budget_comes_from_the_dask_config():
-    with dask.config.set({"hevr.serve.max-products": "1e6", "hevr.serve.max-pixels": 4096,
-                          "hevr.serve.max-token-products": 3 * 10**6}):
+    with dask.config.set(
+        {"hevr.serve.max-products": "1e6", "hevr.serve.max-pixels": 4096, "hevr.serve.max-token-products": 3 * 10**6}
+    ):
         b = Budget.from_config()
     assert (b.max_products, b.max_pixels, b.token_products) == (10**6, 4096, 3 * 10**6)
     with dask.config.set({"hevr.serve.max-pixels": 2**40}), pytest.raises(hevr.ParameterError, match="max-pixels"):
@@ -221,8 +229,9 @@ def test_a_level_costs_its_own_samples_and_a_packed_store_its_slices(served_stor
     assert 0 < half.samples < full.samples  # step·2 through a level of half the voxels
     _, priv = keypair256
     vol = np.random.default_rng(3).integers(0, 256, (13, 9, 11)).astype(np.uint8)
-    pk = hevr.encrypt_volume(vol, str(tmp_path / "p.zarr"), priv, brick=4, spacing=(1.0, 0.8, 1.3),
-                             layout="packed", progress=False)
+    pk = hevr.encrypt_volume(
+        vol, str(tmp_path / "p.zarr"), priv, brick=4, spacing=(1.0, 0.8, 1.3), layout="packed", progress=False
+    )
     cam = hevr.Camera.orbit(pk, azimuth=60, elevation=10, width=14, height=11, parallel=True)
     for sampling, c in (("nearest", 1), ("trilinear", 4)):
         cost = Budget().check(pk, RenderRequest(view=cam, channel="scalar", sampling=sampling, tile=4))
@@ -231,8 +240,12 @@ def test_a_level_costs_its_own_samples_and_a_packed_store_its_slices(served_stor
     with TestClient(app) as http:
         body = {"view": cam.to_dict(), "channel": "scalar", "sampling": "trilinear", "tile": 4}
         assert http.post("/v1/stores/p/render", json=body).status_code == 200
-        r = http.post("/v1/stores/p/render", json=dict(body, tile=1, view=hevr.Camera.orbit(
-            pk, azimuth=60, width=128, height=128, parallel=True).to_dict()))
+        r = http.post(
+            "/v1/stores/p/render",
+            json=dict(
+                body, tile=1, view=hevr.Camera.orbit(pk, azimuth=60, width=128, height=128, parallel=True).to_dict()
+            ),
+        )
         assert r.status_code == 422 and r.json()["detail"].startswith("tile: expected at least 2"), r.text
 
 
@@ -310,12 +323,14 @@ def test_the_weights_bits_scale_the_estimate(served_store):
     nine = b.check(_ct(), RenderRequest(view=cam, channel="vector", sampling="trilinear", digits=9))
     assert (three.bits, nine.bits) == (10, 30) and nine.products == 3 * three.products
     assert "30-bit weights" in nine.describe() and "bit" not in three.describe()
-    near = [b.check(_ct(), RenderRequest(view=cam, channel="vector", sampling="nearest", digits=d)).products
-            for d in (3, 9)]
+    near = [
+        b.check(_ct(), RenderRequest(view=cam, channel="vector", sampling="nearest", digits=d)).products for d in (3, 9)
+    ]
     assert near[0] == near[1]
     packing = types.SimpleNamespace(weight_bits=8)
-    pk = types.SimpleNamespace(meta=types.SimpleNamespace(packing=packing, store_id=None), shape=CT,
-                               spacing=(1.0, 1.0, 1.0), level=0)
+    pk = types.SimpleNamespace(
+        meta=types.SimpleNamespace(packing=packing, store_id=None), shape=CT, spacing=(1.0, 1.0, 1.0), level=0
+    )
     eight = b.check(pk, RenderRequest(view=cam, channel="scalar", sampling="trilinear", tile=8))
     sixteen = b.check(pk, RenderRequest(view=cam, channel="scalar", sampling="trilinear", tile=8, weight_bits=16))
     assert eight.products == 64 * 64 * 512 * 4 and sixteen.products == -(-eight.products * 16 // 10)

@@ -33,6 +33,7 @@ def quick_poll(monkeypatch):
 
 def _slow_render(started: list, done: threading.Event):
     """A render_image whose work is N_TASKS slow tasks on Dask's threaded scheduler."""
+
     def task(i):
         started.append(i)
         time.sleep(0.05)
@@ -41,11 +42,15 @@ def _slow_render(started: list, done: threading.Event):
     def render_image(ev, req, *, client, backend=None, stream=None):
         try:
             with dask.config.set(scheduler="threads", num_workers=2):
-                compute([dask.delayed(task)(i, dask_key_name=f"slow-{i}") for i in range(N_TASKS)], client=None,
-                        progress=False)
+                compute(
+                    [dask.delayed(task)(i, dask_key_name=f"slow-{i}") for i in range(N_TASKS)],
+                    client=None,
+                    progress=False,
+                )
             raise AssertionError("the render ran to its end")
         finally:
             done.set()
+
     return render_image
 
 
@@ -76,11 +81,24 @@ async def _leave(app, path: str, body: dict, leave: threading.Event | None, slow
             await asyncio.sleep(0.02)
         gone.set()
 
-    scope = {"type": "http", "asgi": {"version": "3.0", "spec_version": "2.3"}, "http_version": "1.1",
-             "method": "POST", "scheme": "http", "path": path, "raw_path": path.encode(), "query_string": b"",
-             "root_path": "", "client": ("127.0.0.1", 40000), "server": ("127.0.0.1", 8750),
-             "headers": [(b"host", b"127.0.0.1"), (b"content-type", b"application/json"),
-                         (b"content-length", str(len(raw)).encode())]}
+    scope = {
+        "type": "http",
+        "asgi": {"version": "3.0", "spec_version": "2.3"},
+        "http_version": "1.1",
+        "method": "POST",
+        "scheme": "http",
+        "path": path,
+        "raw_path": path.encode(),
+        "query_string": b"",
+        "root_path": "",
+        "client": ("127.0.0.1", 40000),
+        "server": ("127.0.0.1", 8750),
+        "headers": [
+            (b"host", b"127.0.0.1"),
+            (b"content-type", b"application/json"),
+            (b"content-length", str(len(raw)).encode()),
+        ],
+    }
     leaver = asyncio.ensure_future(trigger())
     await asyncio.wait_for(app(scope, receive, send), 120)
     leaver.cancel()
@@ -98,8 +116,10 @@ def test_a_client_that_leaves_cancels_its_render(served_store, monkeypatch, capl
     monkeypatch.setattr("hevr.serve.routes.render.render_image", _slow_render(started, done))
     app = create_app(open_stores([str(served_store.dir / "v.zarr")]))
     working = threading.Event()
-    threading.Thread(target=lambda: (time.sleep(0.01), [time.sleep(0.02) for _ in iter(lambda: bool(started), True)],
-                                     working.set()), daemon=True).start()
+    threading.Thread(
+        target=lambda: (time.sleep(0.01), [time.sleep(0.02) for _ in iter(lambda: bool(started), True)], working.set()),
+        daemon=True,
+    ).start()
     with caplog.at_level(logging.INFO, logger="hevr.serve"):
         asyncio.run(_leave(app, f"/v1/stores/v/{endpoint}", _body(served_store.ev), working))
         assert done.wait(60), "the render was not cancelled"
@@ -134,8 +154,9 @@ def test_the_servers_shutdown_cancels_running_renders(served_store, monkeypatch,
             said.append(message["type"])
 
         await events.put({"type": "lifespan.startup"})
-        life = asyncio.ensure_future(app({"type": "lifespan", "asgi": {"version": "3.0"}, "state": {}},
-                                         events.get, send))
+        life = asyncio.ensure_future(
+            app({"type": "lifespan", "asgi": {"version": "3.0"}, "state": {}}, events.get, send)
+        )
         call = asyncio.ensure_future(_leave(app, "/v1/stores/v/render", _body(served_store.ev), None))
         for _ in range(1200):
             if started:
@@ -170,11 +191,17 @@ def test_a_render_on_a_cluster_is_cancelled_there(served_store, monkeypatch, cap
         return real(*a, **k)
 
     monkeypatch.setattr(maps, "brick_ray_products_multi", slow)
-    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster, \
-            Client(cluster) as client:
+    with (
+        LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster,
+        Client(cluster) as client,
+    ):
         app = create_app(open_stores([str(served_store.dir / "v.zarr")]), client=client)
-        body = {"view": hevr.Camera.orbit(served_store.ev, azimuth=5, width=32, height=32).to_dict(),
-                "channel": "vector", "sampling": "trilinear", "tile": 8}
+        body = {
+            "view": hevr.Camera.orbit(served_store.ev, azimuth=5, width=32, height=32).to_dict(),
+            "channel": "vector",
+            "sampling": "trilinear",
+            "tile": 8,
+        }
         working = threading.Event()
 
         def watch():
@@ -196,8 +223,10 @@ def test_a_render_on_a_cluster_is_cancelled_there(served_store, monkeypatch, cap
         assert len(ran) == total < 27  # nothing more runs for it: not all of the 27 bricks' map tasks ran
         assert "client left; render cancelled" in caplog.text
         monkeypatch.setattr(maps, "brick_ray_products_multi", real)
-        small = {"view": hevr.Camera.orbit(served_store.ev, azimuth=5, width=8, height=8).to_dict(),
-                 "channel": "scalar"}
+        small = {
+            "view": hevr.Camera.orbit(served_store.ev, azimuth=5, width=8, height=8).to_dict(),
+            "channel": "scalar",
+        }
         with TestClient(app) as http:
             assert http.post("/v1/stores/v/render", json=small).status_code == 200
 
@@ -210,8 +239,7 @@ def _freed(limits, seconds: float) -> bool:
 
 
 @pytest.mark.parametrize("endpoint", ["stream", "render"])
-def test_a_client_that_closes_right_after_its_request_cancels_its_render(served_store, monkeypatch, caplog,
-                                                                        endpoint):
+def test_a_client_that_closes_right_after_its_request_cancels_its_render(served_store, monkeypatch, caplog, endpoint):
     """M5: the client is gone before the answer starts (Starlette then cancels a stream's response
     before its frames' generator runs): the render is cancelled all the same, its slot freed within
     seconds (uncancelled, its 1000 tasks take 25 s)."""
@@ -285,8 +313,9 @@ def test_shutdown_is_not_stalled_by_a_full_thread_pool(served_store, monkeypatch
             said.append(message["type"])
 
         await events.put({"type": "lifespan.startup"})
-        life = asyncio.ensure_future(app({"type": "lifespan", "asgi": {"version": "3.0"}, "state": {}},
-                                         events.get, send))
+        life = asyncio.ensure_future(
+            app({"type": "lifespan", "asgi": {"version": "3.0"}, "state": {}}, events.get, send)
+        )
         call = asyncio.ensure_future(_leave(app, "/v1/stores/v/render", _body(served_store.ev), None))
         for _ in range(1200):
             if started:

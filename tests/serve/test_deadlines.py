@@ -32,9 +32,13 @@ IDLE, HEAD, BODY, SEND = 2.0, 4.0, 4.0, 2.0
 PER_ADDRESS = 120
 SLACK = 8.0  # a loaded machine: the event loop may be late by seconds, never early
 EARLY = 0.3  # timer granularity and clock differences between the two processes
-ENV = {"DASK_HEVR__SERVE__IDLE_TIMEOUT": str(IDLE), "DASK_HEVR__SERVE__HEAD_TIMEOUT": str(HEAD),
-       "DASK_HEVR__SERVE__BODY_TIMEOUT": str(BODY), "DASK_HEVR__SERVE__PER_ADDRESS": str(PER_ADDRESS),
-       "DASK_HEVR__SERVE__SEND_TIMEOUT": str(SEND)}
+ENV = {
+    "DASK_HEVR__SERVE__IDLE_TIMEOUT": str(IDLE),
+    "DASK_HEVR__SERVE__HEAD_TIMEOUT": str(HEAD),
+    "DASK_HEVR__SERVE__BODY_TIMEOUT": str(BODY),
+    "DASK_HEVR__SERVE__PER_ADDRESS": str(PER_ADDRESS),
+    "DASK_HEVR__SERVE__SEND_TIMEOUT": str(SEND),
+}
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="sources 127.0.0.2-7 need Linux's loopback /8")
 
@@ -56,9 +60,16 @@ def guarded(served_store, tmp_path_factory):
 
     d = tmp_path_factory.mktemp("deadlines")
     token = new_token()
-    (d / "tokens.json").write_text(json.dumps({"version": 1, "tokens": [
-        {"name": "owner", "sha256": hash_token(token), "stores": ["*"], "concurrent": 2}]}))
-    with hevr_serve(str(served_store.dir / "v.zarr"), "--tokens", str(d / "tokens.json"), env=ENV) as (url, proc, lines):
+    (d / "tokens.json").write_text(
+        json.dumps(
+            {"version": 1, "tokens": [{"name": "owner", "sha256": hash_token(token), "stores": ["*"], "concurrent": 2}]}
+        )
+    )
+    with hevr_serve(str(served_store.dir / "v.zarr"), "--tokens", str(d / "tokens.json"), env=ENV) as (
+        url,
+        proc,
+        lines,
+    ):
         yield types.SimpleNamespace(url=url, token=token, proc=proc, lines=lines, s=served_store)
 
 
@@ -97,8 +108,10 @@ def test_500_idle_and_dribbling_connections_are_closed_while_an_authorised_rende
     _raise_open_files(2048)
     url, token = guarded.url, guarded.token
     head = b"GET /v1/stores HTTP/1.1\r\nHost: x\r\nAccept: application/json\r\nX-Padding: " + b"a" * 64
-    post = (b"POST /v1/stores/v/render HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 900\r\n"
-            b"Authorization: Bearer " + token.encode() + b"\r\n\r\n")  # the body is read (without a token: a 401 at once)
+    post = (
+        b"POST /v1/stores/v/render HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 900\r\n"
+        b"Authorization: Bearer " + token.encode() + b"\r\n\r\n"
+    )  # the body is read (without a token: a 401 at once)
     conns = []  # [socket, kind, opened at, closed at, bytes left to dribble]
     kinds = ("idle", "head", "body", "kept")
     for i in range(500):
@@ -148,8 +161,10 @@ def test_500_idle_and_dribbling_connections_are_closed_while_an_authorised_rende
     frame, took = outcome["render"]
     print(f"authorised: stores in {outcome['stores'][1]:.2f} s, a verified 8x8 render by {took:.2f} s")
     ref = hevr.render_plain(guarded.s.vol, hevr.Camera.orbit(guarded.s.ev, azimuth=20, width=8, height=8))
-    assert (abs(frame - ref) <= hevr.error_bound(guarded.s.ev, hevr.Camera.orbit(guarded.s.ev, azimuth=20, width=8,
-                                                                                  height=8))).all()
+    assert (
+        abs(frame - ref)
+        <= hevr.error_bound(guarded.s.ev, hevr.Camera.orbit(guarded.s.ev, azimuth=20, width=8, height=8))
+    ).all()
     for kind, deadline in (("idle", IDLE), ("kept", IDLE), ("head", HEAD), ("body", BODY)):
         lived = sorted(c[3] - c[2] for c in conns if c[1] == kind and c[3] is not None)
         print(f"{kind}: closed after {lived[0]:.2f} .. {lived[-1]:.2f} s (deadline {deadline} s)")
@@ -187,8 +202,9 @@ def test_a_client_that_stops_reading_its_answers_is_cut_off(guarded):
     s = socket.socket()
     s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     s.connect((parts.hostname, parts.port))
-    s.sendall(f"GET /v1/openapi.json HTTP/1.1\r\nHost: x\r\nAuthorization: {auth['Authorization']}\r\n\r\n".encode()
-              * 300)
+    s.sendall(
+        f"GET /v1/openapi.json HTTP/1.1\r\nHost: x\r\nAuthorization: {auth['Authorization']}\r\n\r\n".encode() * 300
+    )
     time.sleep(SEND + 4.0)  # the deadline, and time to fill the buffers first
     s.settimeout(30)
     got = 0
@@ -207,10 +223,15 @@ def tight(served_store, tmp_path_factory):
     from _serving import hevr_serve
 
     d = tmp_path_factory.mktemp("tight")
-    (d / "tokens.json").write_text(json.dumps({"version": 1, "tokens": [
-        {"name": "owner", "sha256": hash_token(new_token()), "stores": ["*"]}]}))
+    (d / "tokens.json").write_text(
+        json.dumps({"version": 1, "tokens": [{"name": "owner", "sha256": hash_token(new_token()), "stores": ["*"]}]})
+    )
     env = dict(ENV, DASK_HEVR__SERVE__PER_ADDRESS="2")
-    with hevr_serve(str(served_store.dir / "v.zarr"), "--tokens", str(d / "tokens.json"), env=env) as (url, proc, lines):
+    with hevr_serve(str(served_store.dir / "v.zarr"), "--tokens", str(d / "tokens.json"), env=env) as (
+        url,
+        proc,
+        lines,
+    ):
         yield url
 
 
@@ -228,8 +249,10 @@ def test_websocket_upgrades_leave_no_connection_behind(tight):
     """Two WebSocket upgrade requests (the bound: 2 from one address), then a plain request from the
     same address: the upgrades were served as plain HTTP and left the bound when they closed (before,
     uvicorn handed them to its WebSocket protocol and they stayed counted for good)."""
-    upgrade = (b"GET /v1/health HTTP/1.1\r\nHost: a\r\nConnection: Upgrade\r\nUpgrade: websocket\r\n"
-               b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n")
+    upgrade = (
+        b"GET /v1/health HTTP/1.1\r\nHost: a\r\nConnection: Upgrade\r\nUpgrade: websocket\r\n"
+        b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
+    )
     for _ in range(2):
         s = _open(tight, "127.0.0.8")
         s.send(upgrade)
@@ -262,10 +285,13 @@ def test_the_guard_serves_an_upgrade_as_http_whatever_uvicorn_is_told():
 
     async def main() -> bytes:
         server = await asyncio.get_running_loop().create_server(
-            lambda: protocol(config=config, server_state=state, app_state={}), "127.0.0.1", 0)
+            lambda: protocol(config=config, server_state=state, app_state={}), "127.0.0.1", 0
+        )
         reader, writer = await asyncio.open_connection("127.0.0.1", server.sockets[0].getsockname()[1])
-        writer.write(b"GET / HTTP/1.1\r\nHost: a\r\nConnection: Upgrade\r\nUpgrade: websocket\r\n"
-                     b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n")
+        writer.write(
+            b"GET / HTTP/1.1\r\nHost: a\r\nConnection: Upgrade\r\nUpgrade: websocket\r\n"
+            b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
+        )
         answer = await asyncio.wait_for(reader.read(4096), 30)
         writer.close()
         for _ in range(200):  # until the server sees it closed
@@ -282,8 +308,10 @@ def test_a_request_answered_before_its_body_does_not_hold_its_connection(tight):
     """POSTs without a token, a 1000-byte body announced and never sent: each is answered 401 and
     its connection closed, so a prompt client from the same address gets through (before, each
     stayed in the body phase, not to be closed for room, until the body deadline)."""
-    post = (b"POST /v1/stores/v/render HTTP/1.1\r\nHost: a\r\nContent-Type: application/json\r\n"
-            b"Content-Length: 1000\r\n\r\n")
+    post = (
+        b"POST /v1/stores/v/render HTTP/1.1\r\nHost: a\r\nContent-Type: application/json\r\n"
+        b"Content-Length: 1000\r\n\r\n"
+    )
     pins = []
     for _ in range(2):
         s = _open(tight, "127.0.0.9")
@@ -311,8 +339,14 @@ def test_tls_connections_count_from_their_tcp_accept(served_store, tmp_path):
 
     _pems(tmp_path)
     env = dict(ENV, DASK_HEVR__SERVE__HANDSHAKE_TIMEOUT="20", DASK_HEVR__SERVE__PER_ADDRESS="4")
-    with hevr_serve(str(served_store.dir / "v.zarr"), "--tls-cert", str(tmp_path / "cert.pem"), "--tls-key",
-                    str(tmp_path / "key.pem"), env=env) as (url, proc, lines):
+    with hevr_serve(
+        str(served_store.dir / "v.zarr"),
+        "--tls-cert",
+        str(tmp_path / "cert.pem"),
+        "--tls-key",
+        str(tmp_path / "key.pem"),
+        env=env,
+    ) as (url, proc, lines):
         context = ssl.create_default_context(cafile=str(tmp_path / "ca.pem"))
         raw = []
         for _ in range(10):
@@ -364,6 +398,7 @@ def test_the_bounds_close_the_oldest_waiting_connection_and_refuse_only_when_non
 
 def test_one_ipv6_slash_64_is_one_address_for_the_bound():
     reg = Connections(Deadlines(per_address=2))
+
     class Conn:
         waiting = True
 
@@ -395,8 +430,14 @@ def test_over_tls_a_handshake_and_a_head_have_deadlines_too(served_store, tmp_pa
 
     _pems(tmp_path)
     env = dict(ENV, DASK_HEVR__SERVE__HANDSHAKE_TIMEOUT="3")
-    with hevr_serve(str(served_store.dir / "v.zarr"), "--tls-cert", str(tmp_path / "cert.pem"), "--tls-key",
-                    str(tmp_path / "key.pem"), env=env) as (url, proc, lines):
+    with hevr_serve(
+        str(served_store.dir / "v.zarr"),
+        "--tls-cert",
+        str(tmp_path / "cert.pem"),
+        "--tls-key",
+        str(tmp_path / "key.pem"),
+        env=env,
+    ) as (url, proc, lines):
         context = ssl.create_default_context(cafile=str(tmp_path / "ca.pem"))
         conns = []
         for i in range(60):

@@ -24,8 +24,14 @@ def test_tls_connections_the_guard_closes_give_back_their_sockets(served_store, 
     from _serving import hevr_serve
 
     _pems(tmp_path)
-    with hevr_serve(str(served_store.dir / "v.zarr"), "--tls-cert", str(tmp_path / "cert.pem"), "--tls-key",
-                    str(tmp_path / "key.pem"), env=ENV) as (url, proc, lines):
+    with hevr_serve(
+        str(served_store.dir / "v.zarr"),
+        "--tls-cert",
+        str(tmp_path / "cert.pem"),
+        "--tls-key",
+        str(tmp_path / "key.pem"),
+        env=ENV,
+    ) as (url, proc, lines):
         context = ssl.create_default_context(cafile=str(tmp_path / "ca.pem"))
         time.sleep(1.0)
         before = _fds(proc.pid)

@@ -66,8 +66,9 @@ def hostile(tmp_path, served_store):
     script = tmp_path / "cluster.py"
     script.write_text(CLUSTER)
     mark = tmp_path / "pwned"
-    proc = subprocess.Popen([sys.executable, str(script), str(mark)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [sys.executable, str(script), str(mark)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
     try:
         address = proc.stdout.readline().strip()
         assert address.startswith("tcp://"), address
@@ -102,5 +103,6 @@ def test_a_malicious_cluster_never_runs_code_in_the_key_holder(served_store, hos
     assert os.getpid() not in pids  # it ran on the server side only
     # a lie caught by the key holder: the client's checks (RemoteAnswerError), the server's own check of
     # the store (RemoteError: 500), or the frame's verification at decryption
-    assert set(outcomes) <= {"image", "RemoteError", "RemoteAnswerError", "IntegrityError", "VerificationError"}, \
+    assert set(outcomes) <= {"image", "RemoteError", "RemoteAnswerError", "IntegrityError", "VerificationError"}, (
         outcomes
+    )

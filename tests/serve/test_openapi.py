@@ -19,8 +19,8 @@ from starlette.routing import Route
 from starlette.testclient import TestClient
 
 import hevr
-from hevr.remote import schema
 from hevr.image.header import MAX_INT_DIGITS
+from hevr.remote import schema
 from hevr.remote.protocol import (
     IMAGE_MEDIA,
     MAX_BODY,
@@ -175,8 +175,9 @@ def test_no_link_to_a_missing_file():
         assert (ROOT / name).exists() or (ROOT / "hevr" / name).exists(), name
 
 
-@pytest.mark.parametrize("name, parse", [("RenderRequest", RenderRequest.from_dict),
-                                         ("VerifyRequest", VerifyRequest.from_dict)])
+@pytest.mark.parametrize(
+    "name, parse", [("RenderRequest", RenderRequest.from_dict), ("VerifyRequest", VerifyRequest.from_dict)]
+)
 def test_the_documents_examples_are_accepted_and_round_trip(name, parse):
     examples = SCHEMAS[name]["examples"]
     assert examples
@@ -188,17 +189,34 @@ def test_the_documents_examples_are_accepted_and_round_trip(name, parse):
 
 
 views = st.one_of(
-    st.builds(lambda az, w, h, par: hevr.Camera((40.0 * az, 1.0, 30.0), (0.0, 0.0, 0.0), width=w, height=h,
-                                                parallel=par), st.floats(-1, 1), st.integers(1, 64),
-              st.integers(1, 64), st.booleans()),
-    st.builds(lambda w, h, slab, sp: hevr.Plane((0, 0, 1), (1, 0, 0), (0, 1, 0), w, h, pixel_spacing=sp, slab=slab),
-              st.integers(1, 64), st.integers(1, 64), st.integers(1, 9), st.floats(0.01, 10)))
+    st.builds(
+        lambda az, w, h, par: hevr.Camera((40.0 * az, 1.0, 30.0), (0.0, 0.0, 0.0), width=w, height=h, parallel=par),
+        st.floats(-1, 1),
+        st.integers(1, 64),
+        st.integers(1, 64),
+        st.booleans(),
+    ),
+    st.builds(
+        lambda w, h, slab, sp: hevr.Plane((0, 0, 1), (1, 0, 0), (0, 1, 0), w, h, pixel_spacing=sp, slab=slab),
+        st.integers(1, 64),
+        st.integers(1, 64),
+        st.integers(1, 9),
+        st.floats(0.01, 10),
+    ),
+)
 requests = st.builds(
     lambda view, **kw: RenderRequest(view=view, **{**kw, "level": 0 if isinstance(view, hevr.Plane) else kw["level"]}),
-    view=views, channel=st.sampled_from(schema.CHANNELS), sampling=st.sampled_from(schema.SAMPLINGS),
-    step=st.floats(0.01, schema.MAX_STEP), level=st.integers(0, MAX_LEVELS), digits=st.integers(0, schema.MAX_DIGITS),
-    pack=st.booleans(), tile=st.integers(1, schema.MAX_SIDE), backend=st.sampled_from([None, *schema.BACKENDS]),
-    weight_bits=st.none() | st.integers(0, MAX_WEIGHT_BITS))
+    view=views,
+    channel=st.sampled_from(schema.CHANNELS),
+    sampling=st.sampled_from(schema.SAMPLINGS),
+    step=st.floats(0.01, schema.MAX_STEP),
+    level=st.integers(0, MAX_LEVELS),
+    digits=st.integers(0, schema.MAX_DIGITS),
+    pack=st.booleans(),
+    tile=st.integers(1, schema.MAX_SIDE),
+    backend=st.sampled_from([None, *schema.BACKENDS]),
+    weight_bits=st.none() | st.integers(0, MAX_WEIGHT_BITS),
+)
 
 
 @settings(max_examples=60, deadline=None)
@@ -210,23 +228,29 @@ def test_what_the_client_sends_the_document_accepts(req, seed):
     assert RenderRequest.from_dict(wire) == req
 
 
-@pytest.mark.parametrize("change, match", [
-    ({"colour": "red"}, r"request: expected only the fields .*got extra fields \['colour'\]"),
-    ({"view": dict(CAM, colour="red")}, r"view: expected only the fields .*got extra fields \['colour'\]"),
-    ({"view": dict(CAM, width=schema.MAX_SIDE + 1)}, r"view\.width: expected an integer in \[1, 4096\], got 4097"),
-    ({"view": dict(CAM, position=[0, 0, True])}, r"view\.position\[2\]: expected a number"),
-    ({"view": dict(CAM, position=[0, 0])}, r"view\.position: expected an array of 3 items"),
-    ({"view": {"kind": "plane", "origin": [0, 0, 0]}}, r"view: expected the fields .*missing \['height', 'u', 'v', "),
-    ({"view": "camera"}, r"view: expected a Camera object or a Plane object, got 'camera'"),
-    ({"channel": "secret"}, r"channel: expected one of scalar, vector, gradient, got 'secret'"),
-    ({"step": "1"}, r"step: expected a number in \(0, 1e\+06\], got '1'"),
-    ({"step": 2e6}, "step: expected a number in"),
-    ({"level": MAX_LEVELS + 1}, rf"level: expected an integer in \[0, {MAX_LEVELS}\], got {MAX_LEVELS + 1}"),
-    ({"level": True}, "level: expected an integer"),
-    ({"pack": 1}, "pack: expected true or false, got 1"),
-    ({"backend": "gpu"}, "backend: expected one of auto, .* or null, got 'gpu'"),
-    ({"weight_bits": MAX_WEIGHT_BITS + 1}, "weight_bits: expected an integer in"),
-])
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"colour": "red"}, r"request: expected only the fields .*got extra fields \['colour'\]"),
+        ({"view": dict(CAM, colour="red")}, r"view: expected only the fields .*got extra fields \['colour'\]"),
+        ({"view": dict(CAM, width=schema.MAX_SIDE + 1)}, r"view\.width: expected an integer in \[1, 4096\], got 4097"),
+        ({"view": dict(CAM, position=[0, 0, True])}, r"view\.position\[2\]: expected a number"),
+        ({"view": dict(CAM, position=[0, 0])}, r"view\.position: expected an array of 3 items"),
+        (
+            {"view": {"kind": "plane", "origin": [0, 0, 0]}},
+            r"view: expected the fields .*missing \['height', 'u', 'v', ",
+        ),
+        ({"view": "camera"}, r"view: expected a Camera object or a Plane object, got 'camera'"),
+        ({"channel": "secret"}, r"channel: expected one of scalar, vector, gradient, got 'secret'"),
+        ({"step": "1"}, r"step: expected a number in \(0, 1e\+06\], got '1'"),
+        ({"step": 2e6}, "step: expected a number in"),
+        ({"level": MAX_LEVELS + 1}, rf"level: expected an integer in \[0, {MAX_LEVELS}\], got {MAX_LEVELS + 1}"),
+        ({"level": True}, "level: expected an integer"),
+        ({"pack": 1}, "pack: expected true or false, got 1"),
+        ({"backend": "gpu"}, "backend: expected one of auto, .* or null, got 'gpu'"),
+        ({"weight_bits": MAX_WEIGHT_BITS + 1}, "weight_bits: expected an integer in"),
+    ],
+)
 def test_what_the_document_refuses_the_parser_refuses_by_name(change, match):
     body = {"view": CAM, "channel": "scalar", **change}
     assert not _validator("RenderRequest").is_valid(body)

@@ -17,10 +17,10 @@ import dask
 import httpx
 import numpy as np
 import pytest
+from _serving import hevr_serve, wait_until
 from starlette.testclient import TestClient
 
 import hevr
-from _serving import hevr_serve, wait_until
 from hevr.serve.app import create_app
 from hevr.serve.token_file import TokenFile
 from hevr.serve.tokens import TokenTable, hash_token, new_token
@@ -38,8 +38,11 @@ def store(tmp_path_factory, keypair256):
 
 
 def _tokens(path, **names):
-    path.write_text(json.dumps({"version": 1, "tokens": [{"name": n, "sha256": hash_token(t), "stores": ["*"]}
-                                                         for n, t in names.items()]}))
+    path.write_text(
+        json.dumps(
+            {"version": 1, "tokens": [{"name": n, "sha256": hash_token(t), "stores": ["*"]} for n, t in names.items()]}
+        )
+    )
     path.chmod(0o600)
 
 
@@ -103,8 +106,16 @@ def _stream_line(chunks, caplog, leave: bool) -> str:
     async def fn(request, caller):
         return StreamingResponse(chunks())
 
-    scope = {"type": "http", "method": "POST", "path": "/v1/stores/x/stream", "raw_path": b"/v1/stores/x/stream",
-             "query_string": b"", "headers": [], "client": ("10.0.0.7", 5000), "asgi": {"spec_version": "2.3"}}
+    scope = {
+        "type": "http",
+        "method": "POST",
+        "path": "/v1/stores/x/stream",
+        "raw_path": b"/v1/stores/x/stream",
+        "query_string": b"",
+        "headers": [],
+        "client": ("10.0.0.7", 5000),
+        "asgi": {"spec_version": "2.3"},
+    }
     messages = [{"type": "http.request", "body": b"", "more_body": False}, {"type": "http.disconnect"}]
 
     async def receive():
@@ -195,6 +206,7 @@ def _ready(http, url, body=None):
     def done():
         answers.append(http.post(url, json=body) if body is not None else http.get(url))
         return answers[-1].status_code != 503
+
     assert wait_until(done, timeout=60), answers[-1].text
     return answers[-1]
 
@@ -214,8 +226,9 @@ def test_a_store_re_encrypted_under_the_server_is_opened_again(store, tmp_path, 
         before = http.post("/v1/stores/ct/render", json=body)
         assert before.status_code == 200
         with dask.config.set(scheduler="sync"):
-            new = hevr.encrypt_volume(np.flip(vol, 0).copy(), str(path), priv.public_key, brick=4, overwrite=True,
-                                      progress=False)
+            new = hevr.encrypt_volume(
+                np.flip(vol, 0).copy(), str(path), priv.public_key, brick=4, overwrite=True, progress=False
+            )
         assert new.meta.store_id != old.meta.store_id
         other = {"view": hevr.Camera.orbit(old, azimuth=50, width=6, height=5).to_dict(), "channel": "scalar"}
         within = http.post("/v1/stores/ct/render", json=other)  # within the second: the old handle's digests

@@ -19,8 +19,9 @@ def test_a_storage_fault_is_said_without_the_servers_paths(keypair256, tmp_path,
     pub, _ = keypair256
     root = tmp_path / "secret-hospital-share"
     with dask.config.set(scheduler="sync"):
-        ev = hevr.encrypt_volume(np.arange(512, dtype=np.uint16).reshape(8, 8, 8), root / "ct.zarr", pub, brick=4,
-                                 progress=False)
+        ev = hevr.encrypt_volume(
+            np.arange(512, dtype=np.uint16).reshape(8, 8, 8), root / "ct.zarr", pub, brick=4, progress=False
+        )
     chunks = sorted(p for p in (root / "ct.zarr" / "scalar").rglob("*") if p.is_file() and p.name != "zarr.json")
     raw = bytearray(chunks[0].read_bytes())
     raw[len(raw) // 2] ^= 0xFF
@@ -50,9 +51,16 @@ def test_public_text_keeps_what_is_not_a_path():
     assert public_text(text) == text
 
 
-@pytest.mark.parametrize("text", ["s3://hospital-bucket/scans/ct.zarr", "store gs://b/k: missing",
-                                  "at https://minio.internal:9000/b/k.zarr/scalar/c/0/0/0, status 403",
-                                  "file:///srv/share/ct.zarr (gone)", "'s3://b/k.zarr'"])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "s3://hospital-bucket/scans/ct.zarr",
+        "store gs://b/k: missing",
+        "at https://minio.internal:9000/b/k.zarr/scalar/c/0/0/0, status 403",
+        "file:///srv/share/ct.zarr (gone)",
+        "'s3://b/k.zarr'",
+    ],
+)
 def test_public_text_leaves_no_url(text):
     from hevr.serve.app import public_text
 
@@ -73,8 +81,12 @@ def test_the_served_stores_locations_as_given_are_not_said(keypair256, tmp_path,
         ev = hevr.encrypt_volume(hevr.phantom(8), "ward7/ct.zarr", pub, brick=4, progress=False)
     create_app({"ct": hevr.open_volume("ward7/ct.zarr")})  # the service registers its stores' locations
     private_locations(["s3://secret-bucket/scans/mr.zarr", "scans"])
-    for said in ["ward7/ct.zarr", "ward7/ct.zarr/scalar/c/0/0/1", "secret-bucket/scans/mr.zarr/zarr.json",
-                 "scans/mr.zarr"]:
+    for said in [
+        "ward7/ct.zarr",
+        "ward7/ct.zarr/scalar/c/0/0/1",
+        "secret-bucket/scans/mr.zarr/zarr.json",
+        "scans/mr.zarr",
+    ]:
         assert public_text(f"brick at {said}: gone") == "brick at <server path>: gone", said
     kept = f"the scans of {ev.meta.store_id}: W/H 1/2 (ct.zarr)"
     assert public_text(kept) == kept  # a one-word location alone is a word; a file name alone is no location

@@ -41,8 +41,13 @@ from hevr.remote.protocol import PROBLEM_MEDIA
 from hevr.serve.app import create_app
 from hevr.serve.tokens import TokenTable, hash_token, new_token
 
-CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance,
-          response_headers_conformance]
+CHECKS = [
+    not_a_server_error,
+    status_code_conformance,
+    content_type_conformance,
+    response_schema_conformance,
+    response_headers_conformance,
+]
 LIMITS = {"hevr.limits.max-pixels": 256, "hevr.limits.max-samples": 1 << 16}
 EXAMPLES = 50  # per operation and generation mode
 
@@ -83,8 +88,10 @@ def _tokens(path=None):
     """A token of a table that may render every store (the document asks for the bearer token:
     a server with a token table, as the document describes it); its file written at ``path``."""
     token = new_token()
-    doc = {"version": 1, "tokens": [{"name": "schemathesis", "sha256": hash_token(token), "stores": ["*"],
-                                     "concurrent": 4}]}
+    doc = {
+        "version": 1,
+        "tokens": [{"name": "schemathesis", "sha256": hash_token(token), "stores": ["*"], "concurrent": 4}],
+    }
     if path is not None:
         path.write_text(json.dumps(doc))
     return token, TokenTable.from_dict(doc)
@@ -107,8 +114,14 @@ def run(schema, stores: list[str], counts: dict, token: str) -> None:
         for mode in schemathesis.GenerationMode:
             checks = CHECKS + ([negative_data_rejection] if mode.is_negative else [])
 
-            @settings(max_examples=EXAMPLES, deadline=None, database=None, derandomize=True,
-                      phases=[Phase.explicit, Phase.generate], suppress_health_check=list(HealthCheck))
+            @settings(
+                max_examples=EXAMPLES,
+                deadline=None,
+                database=None,
+                derandomize=True,
+                phases=[Phase.explicit, Phase.generate],
+                suppress_health_check=list(HealthCheck),
+            )
             @given(case=op.as_strategy(generation_mode=mode), store=st.sampled_from([*stores, None]))
             def one(case, store):
                 if store and "store" in (case.path_parameters or {}):
@@ -152,8 +165,11 @@ def test_schemathesis_against_hevr_serve(tiny, tmp_path):
     ev, path = tiny
     token, _ = _tokens(tmp_path / "tokens.json")
     env = {"DASK_HEVR__LIMITS__MAX_PIXELS": "256", "DASK_HEVR__LIMITS__MAX_SAMPLES": str(1 << 16)}
-    with hevr_serve(str(path), "--workers", "1", "--tokens", str(tmp_path / "tokens.json"),
-                    env=env) as (url, proc, lines):
+    with hevr_serve(str(path), "--workers", "1", "--tokens", str(tmp_path / "tokens.json"), env=env) as (
+        url,
+        proc,
+        lines,
+    ):
         schema = schemathesis.openapi.from_url(f"{url}/v1/openapi.json", headers={"Authorization": f"Bearer {token}"})
         counts: dict = {}
         run(schema, ["tiny", ev.meta.store_id], counts, token)

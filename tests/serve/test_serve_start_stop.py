@@ -47,16 +47,26 @@ def _serve_error(capsys, store, *args: str) -> str:
 def test_bad_tls_files_and_hosts_are_one_line_naming_the_option(served_store, pems, capsys):
     store = served_store.dir / "v.zarr"
     cases = [
-        (("--tls-cert", pems / "key.pem", "--tls-key", pems / "cert.pem"),
-         "--tls-cert: expected a certificate in PEM, got .*key.pem without one; --tls-cert and --tls-key look swapped"),
-        (("--tls-cert", pems / "cert.pem", "--tls-key", pems / "other.pem"),
-         "--tls-cert/--tls-key: expected a certificate chain and its own private key in PEM, got .* mismatch"),
-        (("--tls-cert", pems / "cert.pem", "--tls-key", pems / "enc.pem"),
-         "--tls-key: expected an unencrypted private key"),
-        (("--tls-cert", pems / "cert.pem", "--tls-key", pems / "none.pem"),
-         "--tls-key: expected a PEM file, found nothing at"),
-        (("--tls-cert", pems / "junk.pem", "--tls-key", pems / "key.pem"),
-         "--tls-cert: expected a certificate in PEM, got .*junk.pem without one$"),
+        (
+            ("--tls-cert", pems / "key.pem", "--tls-key", pems / "cert.pem"),
+            "--tls-cert: expected a certificate in PEM, got .*key.pem without one; --tls-cert and --tls-key look swapped",
+        ),
+        (
+            ("--tls-cert", pems / "cert.pem", "--tls-key", pems / "other.pem"),
+            "--tls-cert/--tls-key: expected a certificate chain and its own private key in PEM, got .* mismatch",
+        ),
+        (
+            ("--tls-cert", pems / "cert.pem", "--tls-key", pems / "enc.pem"),
+            "--tls-key: expected an unencrypted private key",
+        ),
+        (
+            ("--tls-cert", pems / "cert.pem", "--tls-key", pems / "none.pem"),
+            "--tls-key: expected a PEM file, found nothing at",
+        ),
+        (
+            ("--tls-cert", pems / "junk.pem", "--tls-key", pems / "key.pem"),
+            "--tls-cert: expected a certificate in PEM, got .*junk.pem without one$",
+        ),
         (("--host", "no-such-host.invalid"), "--host: expected an address of this machine or a name that resolves"),
         (("--host", "192.0.2.1"), r"--host: expected an address of this machine, got '192.0.2.1'"),
     ]
@@ -71,8 +81,12 @@ def test_a_port_in_use_is_one_line_and_exit_2_from_the_command_line(served_store
     taken.listen()
     port = taken.getsockname()[1]
     try:
-        r = subprocess.run([sys.executable, "-m", "hevr", "serve", str(served_store.dir / "v.zarr"), "--port", str(port)],
-                           capture_output=True, text=True, timeout=120)
+        r = subprocess.run(
+            [sys.executable, "-m", "hevr", "serve", str(served_store.dir / "v.zarr"), "--port", str(port)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
     finally:
         taken.close()
     assert r.returncode == 2, r.stderr

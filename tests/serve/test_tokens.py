@@ -13,9 +13,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
+from _serving import hevr_serve, wait_until
 
 import hevr
-from _serving import hevr_serve, wait_until
 from hevr.remote import connect
 from hevr.serve.token_file import add_token
 from hevr.serve.tokens import DEFAULT_CONCURRENT, TokenTable, hash_token, new_token
@@ -56,16 +56,33 @@ def secure(tmp_path_factory, keypair256):
     a = hevr.encrypt_volume(hevr.phantom(8), str(d / "a.zarr"), priv, brick=4, progress=False)
     b = hevr.encrypt_volume(hevr.phantom(8), str(d / "b.zarr"), priv, brick=4, progress=False)
     alice, bob = new_token(), new_token()
-    (d / "tokens.json").write_text(json.dumps({"version": 1, "tokens": [
-        {"name": "alice", "sha256": hash_token(alice), "stores": [a.meta.store_id], "concurrent": 1},
-        {"name": "bob", "sha256": hash_token(bob), "stores": ["*"]}]}))
+    (d / "tokens.json").write_text(
+        json.dumps(
+            {
+                "version": 1,
+                "tokens": [
+                    {"name": "alice", "sha256": hash_token(alice), "stores": [a.meta.store_id], "concurrent": 1},
+                    {"name": "bob", "sha256": hash_token(bob), "stores": ["*"]},
+                ],
+            }
+        )
+    )
     ca = trustme.CA()
     cert = ca.issue_cert("127.0.0.1")
     cert.cert_chain_pems[0].write_to_path(str(d / "cert.pem"))
     cert.private_key_pem.write_to_path(str(d / "key.pem"))
     ca.cert_pem.write_to_path(str(d / "ca.pem"))
-    with hevr_serve(str(d / "a.zarr"), str(d / "b.zarr"), "--tokens", str(d / "tokens.json"), "--tls-cert",
-                    str(d / "cert.pem"), "--tls-key", str(d / "key.pem"), "-v") as (url, proc, lines):
+    with hevr_serve(
+        str(d / "a.zarr"),
+        str(d / "b.zarr"),
+        "--tokens",
+        str(d / "tokens.json"),
+        "--tls-cert",
+        str(d / "cert.pem"),
+        "--tls-key",
+        str(d / "key.pem"),
+        "-v",
+    ) as (url, proc, lines):
         assert url.startswith("https://")
         yield url, str(d / "ca.pem"), a, b, alice, bob, priv, lines, proc
 
@@ -101,8 +118,13 @@ def test_per_token_concurrency_is_429_with_retry_after(secure):
     def one(i):
         rv = connect(url, token=alice, cafile=ca, timeout=120, retries=0).open(a.meta.store_id)  # no retry of a 429
         try:
-            hevr.render(rv, hevr.Camera.orbit(rv, azimuth=100 + i, width=24, height=24), sampling="trilinear",
-                        progress=False, verify=False)
+            hevr.render(
+                rv,
+                hevr.Camera.orbit(rv, azimuth=100 + i, width=24, height=24),
+                sampling="trilinear",
+                progress=False,
+                verify=False,
+            )
             return 200
         except hevr.RemoteError as exc:
             assert "retry" in str(exc)
@@ -148,10 +170,10 @@ def _ok(url, token, ca):
         return False
 
 
-README_FILE = '''{"version": 1,
+README_FILE = """{"version": 1,
  "tokens": [{"name": "radiology", "sha256": "%s", "stores": ["3f2a9c0d1e4b5a67"], "concurrent": 2},
             {"name": "research",  "sha256": "%s", "stores": ["*"]}]}
-''' % (hash_token("r1"), hash_token("r2"))
+""" % (hash_token("r1"), hash_token("r2"))
 
 
 def test_add_token_keeps_every_other_byte(tmp_path):
@@ -162,7 +184,7 @@ def test_add_token_keeps_every_other_byte(tmp_path):
     text = path.read_text()
     head, tail = README_FILE.rsplit("]}", 1)
     assert text.startswith(head) and text.endswith("]}" + tail)  # the entries there, byte for byte
-    assert text[len(head):].startswith(',\n            {"name": "carol"')  # indented as the first entry
+    assert text[len(head) :].startswith(',\n            {"name": "carol"')  # indented as the first entry
     assert stat.S_IMODE(path.stat().st_mode) == 0o600
     table = TokenTable.load(path)
     assert [t.name for t in table.tokens] == ["radiology", "research", "carol"]
@@ -198,8 +220,12 @@ def test_add_token_creates_refuses_and_never_half_writes(tmp_path):
     open_dir.chmod(0o777)
     with pytest.raises(hevr.ParameterError, match="anyone may write"):
         add_token(open_dir / "t.json", "second")
-    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == \
-        ["bad.json", "link.json", "new.json", "open"]
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == [
+        "bad.json",
+        "link.json",
+        "new.json",
+        "open",
+    ]
 
 
 def test_new_token_on_the_command_line(tmp_path, capsys, caplog):
@@ -224,8 +250,11 @@ def test_new_token_on_the_command_line(tmp_path, capsys, caplog):
 
 # -- the one policy of the tokens file: at the start, at every re-read, in add_token ---------------
 def _file(path, **names):
-    path.write_text(json.dumps({"version": 1, "tokens": [{"name": n, "sha256": hash_token(t), "stores": ["*"]}
-                                                         for n, t in names.items()]}))
+    path.write_text(
+        json.dumps(
+            {"version": 1, "tokens": [{"name": n, "sha256": hash_token(t), "stores": ["*"]} for n, t in names.items()]}
+        )
+    )
     path.chmod(0o600)
     return path
 

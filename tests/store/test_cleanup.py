@@ -95,8 +95,12 @@ def test_an_overwrite_killed_with_sigkill_is_cleaned_up_by_the_next_one(tmp_path
     priv.save(tmp_path / "key.json")
     path = tmp_path / "v.zarr"
     hevr.encrypt_volume(_vol(1), path, pub, brick=BRICK, progress=False)
-    proc = subprocess.Popen([sys.executable, "-c", _KILLED, str(tmp_path / "key.json"), str(path)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _KILLED, str(tmp_path / "key.json"), str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     assert proc.stdout.readline().strip() == "writing", proc.stderr.read()
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=60)

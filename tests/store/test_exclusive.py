@@ -67,7 +67,9 @@ def _check_one_winner(results: list, path, priv) -> None:
     winners = [i for i, r in enumerate(results) if isinstance(r, hevr.EncryptedVolume)]
     others = [r for r in results if not isinstance(r, hevr.EncryptedVolume)]
     assert len(winners) == 1, results
-    assert all(isinstance(r, hevr.StoreExistsError) for r in others), [(type(r).__name__, str(r)[-300:]) for r in others]
+    assert all(isinstance(r, hevr.StoreExistsError) for r in others), [
+        (type(r).__name__, str(r)[-300:]) for r in others
+    ]
     assert _value(path, priv) == {winners[0] + 1}  # the winner's own volume, every digest checked
     assert hevr.open_volume(path).meta.store_id == results[winners[0]].meta.store_id
 
@@ -113,9 +115,15 @@ def test_concurrent_creators_in_processes_one_wins(tmp_path, keypair256):
     priv.save(tmp_path / "key.json")
     for rnd in range(3):
         path, go = tmp_path / f"v{rnd}.zarr", tmp_path / f"go{rnd}"
-        procs = [subprocess.Popen([sys.executable, "-c", _CREATOR, str(tmp_path / "key.json"), str(path), str(go),
-                                   str(i + 1)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                 for i in range(3)]
+        procs = [
+            subprocess.Popen(
+                [sys.executable, "-c", _CREATOR, str(tmp_path / "key.json"), str(path), str(go), str(i + 1)],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for i in range(3)
+        ]
         time.sleep(1.0)  # the imports
         go.touch()
         outs = [p.communicate(timeout=120) for p in procs]
@@ -131,8 +139,9 @@ def test_concurrent_overwrites_never_mix_two_stores(tmp_path, keypair256):
     path = tmp_path / "v.zarr"
     hevr.encrypt_volume(_vol(9), path, pub, brick=BRICK, progress=False)
     for _ in range(3):
-        results = _race(3, lambda i: hevr.encrypt_volume(_vol(i + 1), path, pub, brick=BRICK, progress=False,
-                                                          overwrite=True))
+        results = _race(
+            3, lambda i: hevr.encrypt_volume(_vol(i + 1), path, pub, brick=BRICK, progress=False, overwrite=True)
+        )
         ok = [i for i, r in enumerate(results) if isinstance(r, hevr.EncryptedVolume)]
         assert ok and all(isinstance(r, hevr.StoreExistsError) for i, r in enumerate(results) if i not in ok), results
         final = hevr.open_volume(path)
@@ -211,8 +220,7 @@ def test_a_read_only_filesystem_is_named_when_creating(tmp_path, keypair256, mon
     with pytest.raises(hevr.FileSystemError) as err:
         hevr.encrypt_volume(_vol(1), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False)
     assert err.value.errno == errno.EROFS and isinstance(err.value, OSError)
-    assert str(err.value).startswith("creating the store ") and str(err.value).endswith(
-        "Read-only file system (EROFS)")
+    assert str(err.value).startswith("creating the store ") and str(err.value).endswith("Read-only file system (EROFS)")
 
 
 def test_a_full_disk_inside_the_tasks_is_a_filesystem_error(tmp_path, keypair256, monkeypatch):
@@ -253,6 +261,7 @@ def _open_fds() -> set[str]:
 def test_a_failing_lock_leaks_no_descriptor_and_no_folder(tmp_path, monkeypatch):
     """flock refused by the filesystem (an errno that is not 'no locks here'): the descriptors
     opened for the lock are closed and the fresh temporary folder is removed."""
+
     def refuse(fd, op):
         raise OSError(errno.EIO, "Input/output error")
 

@@ -15,9 +15,9 @@ import stat
 import dask
 import numpy as np
 import pytest
+from _stores import edit_meta
 
 import hevr
-from _stores import edit_meta
 from hevr.store import known_file
 from hevr.store.known import (
     accepted_untagged,
@@ -37,10 +37,12 @@ VOL = np.random.default_rng(7).integers(0, 256, (8, 8, 8)).astype(np.uint8)
 @pytest.fixture
 def machine(tmp_path, monkeypatch):
     """Switch to a machine of its own: a fresh known-stores file (returned)."""
+
     def use(name: str = "a"):
         path = tmp_path / f"machine-{name}" / "known_stores.json"
         monkeypatch.setenv("HEVR_KNOWN_STORES", str(path))
         return path
+
     return use
 
 
@@ -51,8 +53,9 @@ def _encrypt(vol, path, key, **kw):
 
 def _render(ev, **kw):
     packed = getattr(ev.meta, "packing", None) is not None
-    cam = hevr.Camera.orbit(ev, azimuth=90 if packed else 30, elevation=0 if packed else 20, width=8, height=8,
-                            parallel=packed)
+    cam = hevr.Camera.orbit(
+        ev, azimuth=90 if packed else 30, elevation=0 if packed else 20, width=8, height=8, parallel=packed
+    )
     with dask.config.set(scheduler="sync"):
         return hevr.render(ev, cam, progress=False, cache=False, **kw)
 
@@ -218,9 +221,14 @@ def test_a_version_1_file_refuses_but_never_accepts(keypair256, tmp_path, machin
     ev = _encrypt(VOL, tmp_path / "v.zarr", priv, verifiable=True)
     other = _encrypt(255 - VOL, tmp_path / "o.zarr", priv, verifiable=True)
     before = known_stores()
-    v1 = {"format": "hevr-known-stores", "version": 1,
-          "stores": {str(ev.path): before[str(ev.path)].fields(),
-                     str(other.path): dict(before[str(other.path)].fields(), accepted_untagged=True)}}  # never believed
+    v1 = {
+        "format": "hevr-known-stores",
+        "version": 1,
+        "stores": {
+            str(ev.path): before[str(ev.path)].fields(),
+            str(other.path): dict(before[str(other.path)].fields(), accepted_untagged=True),
+        },
+    }  # never believed
     known.write_text(json.dumps(v1))
     os.chmod(known, 0o600)
     known_file._WARNED_V1.discard(str(known))
@@ -296,9 +304,16 @@ def test_fifty_thousand_entries(keypair256, tmp_path, machine):
     other = _encrypt(255 - VOL, tmp_path / "o.zarr", priv, verifiable=True)
     mine = known_stores()
     fp = priv.public_key.fingerprint
-    many = {f"/stores/{i}.zarr": signed_by(priv, f"/stores/{i}.zarr", KnownStore(
-        f"{i:016x}", "sha256:" + "0" * 64, True, fp, "2024-01-01T00:00:00Z", retired=(f"{i + 10**9:016x}",)))
-        for i in range(50_000)}
+    many = {
+        f"/stores/{i}.zarr": signed_by(
+            priv,
+            f"/stores/{i}.zarr",
+            KnownStore(
+                f"{i:016x}", "sha256:" + "0" * 64, True, fp, "2024-01-01T00:00:00Z", retired=(f"{i + 10**9:016x}",)
+            ),
+        )
+        for i in range(50_000)
+    }
     known.write_text(document({**many, **mine}))
     _reset(known)
     assert len(known_stores()) == 50_002

@@ -22,10 +22,18 @@ N = 3233 * 10**70 + 1  # any decimal string will do: metadata never checks prima
 
 def _meta(**kw) -> VolumeMetadata:
     base = dict(
-        shape=(5, 7, 9), spacing=(1.0, 2.0, 0.5), brick=(2, 3, 4), n=str(N), fingerprint="ab" * 32,
-        ciphertext_bytes=64, dtype="int16", value_range=(-1024.0, 3000.0),
-        scalar=ChannelInfo(exponent=0), vector=ChannelInfo(exponent=-3, digits=3, dims=4),
-        complete=True, store_id="0123abcd0123abcd",
+        shape=(5, 7, 9),
+        spacing=(1.0, 2.0, 0.5),
+        brick=(2, 3, 4),
+        n=str(N),
+        fingerprint="ab" * 32,
+        ciphertext_bytes=64,
+        dtype="int16",
+        value_range=(-1024.0, 3000.0),
+        scalar=ChannelInfo(exponent=0),
+        vector=ChannelInfo(exponent=-3, digits=3, dims=4),
+        complete=True,
+        store_id="0123abcd0123abcd",
     )
     base.update(kw)
     names = [k for k in ("scalar", "vector") if base[k] is not None] + ["done"]
@@ -122,6 +130,7 @@ def _without(path: str):
         for p in parents:
             d = d[p]
         del d[last]
+
     return edit
 
 
@@ -131,6 +140,7 @@ def _set(path: str, value):
         for p in parents:
             d = d[p]
         d[last] = value
+
     return edit
 
 
@@ -195,8 +205,16 @@ def test_malformed_metadata_is_named(edit, match):
     assert isinstance(info.value, StoreError)
 
 
-@pytest.mark.parametrize("edit", [_set("shape", [5, 7, 8]), _set("complete", False), _set("store_id", "f" * 16),
-                                  _set("value_range", [-1024.0, 3001.0]), _set("public_key.n", str(N + 2))])
+@pytest.mark.parametrize(
+    "edit",
+    [
+        _set("shape", [5, 7, 8]),
+        _set("complete", False),
+        _set("store_id", "f" * 16),
+        _set("value_range", [-1024.0, 3001.0]),
+        _set("public_key.n", str(N + 2)),
+    ],
+)
 def test_any_edit_without_the_checksum_is_detected(edit):
     d = copy.deepcopy(_meta().to_dict())
     edit(d)
@@ -226,9 +244,15 @@ def test_patient_frame_round_trip_and_strict_parsing():
     assert d["patient"] == {"frame": "RAS", "origin": [-50.5, -46.0, -80.5]}
     assert VolumeMetadata.from_dict(d) == meta
     assert "patient" not in _meta().to_dict() and VolumeMetadata.from_dict(_meta().to_dict()).patient == {}
-    for bad in ({"frame": "LPS", "origin": [0, 0, 0]}, {"frame": "RAS"}, {"frame": "RAS", "origin": [0, 0]},
-                {"frame": "RAS", "origin": [0, "1", 0]}, {"frame": "RAS", "origin": [0, float("nan"), 0]},
-                {"frame": "RAS", "origin": [0, 0, 0], "modality": "CT"}, []):
+    for bad in (
+        {"frame": "LPS", "origin": [0, 0, 0]},
+        {"frame": "RAS"},
+        {"frame": "RAS", "origin": [0, 0]},
+        {"frame": "RAS", "origin": [0, "1", 0]},
+        {"frame": "RAS", "origin": [0, float("nan"), 0]},
+        {"frame": "RAS", "origin": [0, 0, 0], "modality": "CT"},
+        [],
+    ):
         d = meta.to_dict()
         d["patient"] = bad
         d.pop("checksum")

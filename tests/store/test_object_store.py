@@ -29,8 +29,10 @@ SHAPE, BRICK = (5, 6, 7), (2, 3, 4)  # 3 × 2 × 2 bricks, ragged on every axis
 @pytest.fixture(scope="module")
 def procs():
     """Two worker processes: they see the S3 server over HTTP, and nothing of this process's memory."""
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc, \
-            Client(lc, set_as_default=False) as c:
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc,
+        Client(lc, set_as_default=False) as c,
+    ):
         yield c
 
 
@@ -62,8 +64,9 @@ def test_s3_encrypt_render_decrypt_on_two_worker_processes(s3_server, procs, key
     vol = _vol()
     url, so = _url(s3_server, "v.zarr")
     with caplog.at_level(logging.INFO, logger="hevr"):
-        ev = hevr.encrypt_volume(vol, url, pub, brick=BRICK, vector_dims=2, client=procs, progress=False,
-                                 storage_options=so)
+        ev = hevr.encrypt_volume(
+            vol, url, pub, brick=BRICK, vector_dims=2, client=procs, progress=False, storage_options=so
+        )
     assert ev.path == url and ev.storage_options == so
     assert so["secret"] not in repr(ev) and so["secret"] not in caplog.text
     assert pickle.loads(pickle.dumps(ev)).storage_options == so  # what the tasks get
@@ -109,8 +112,7 @@ def test_s3_resume_after_an_interrupted_upload(s3_server, procs, keypair256, mon
         hevr.encrypt_volume(vol, url, pub, brick=BRICK, progress=False, storage_options=so)
     with pytest.raises(hevr.ParameterError, match="brick .* differs"):  # the journal guards a resume on S3 too
         hevr.encrypt_volume(vol[::-1].copy(), url, pub, brick=BRICK, progress=False, resume=True, storage_options=so)
-    ev = hevr.encrypt_volume(vol, url, pub, brick=BRICK, progress=False, resume=True, client=procs,
-                             storage_options=so)
+    ev = hevr.encrypt_volume(vol, url, pub, brick=BRICK, progress=False, resume=True, client=procs, storage_options=so)
     assert ev.meta.complete
     _check(hevr.open_volume(url, verify="full", storage_options=so), vol, priv, client=procs)
 
@@ -127,7 +129,7 @@ def test_s3_overwrite_replaces_the_store(s3_server, keypair256):
     ev = hevr.open_volume(url, storage_options=so)
     assert ev.meta.store_id != first.meta.store_id
     assert priv.decrypt_array(ev.read_brick((0, 0, 0))) == other.ravel().tolist()
-    assert _fs(so).ls(url[len("s3://"):].rsplit("/", 1)[0]) == [url[len("s3://"):]]
+    assert _fs(so).ls(url[len("s3://") :].rsplit("/", 1)[0]) == [url[len("s3://") :]]
 
 
 def test_s3_integrity_checks_hold(s3_server, keypair256):
@@ -137,7 +139,7 @@ def test_s3_integrity_checks_hold(s3_server, keypair256):
     vol = _vol()
     url, so = _url(s3_server, "v.zarr")
     ev = hevr.encrypt_volume(vol, url, pub, brick=BRICK, progress=False, storage_options=so)
-    fs, root = _fs(so), url[len("s3://"):]
+    fs, root = _fs(so), url[len("s3://") :]
     chunk = f"{root}/scalar/c/1/1/0/0"
     blob = fs.cat_file(chunk)
     cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20, width=6, height=6)
@@ -155,8 +157,9 @@ def test_s3_integrity_checks_hold(s3_server, keypair256):
     with pytest.raises(hevr.CorruptStoreError, match=r"missing chunk for brick \(1, 1, 0\)"):
         hevr.open_volume(url, storage_options=so)
     fs.pipe_file(chunk, blob)
-    assert np.array_equal(hevr.render(hevr.open_volume(url, storage_options=so), cam, cache=False,
-                                      progress=False).decrypt(priv), clean)
+    assert np.array_equal(
+        hevr.render(hevr.open_volume(url, storage_options=so), cam, cache=False, progress=False).decrypt(priv), clean
+    )
     doc = fs.cat_file(f"{root}/scalar/zarr.json")
     fs.pipe_file(f"{root}/scalar/zarr.json", doc.replace(b'"fill_value": 0', b'"fill_value":0'))
     with pytest.raises(hevr.CorruptStoreError, match="metadata document of array 'scalar'") as info:
@@ -217,26 +220,37 @@ def test_cli_round_trip_with_storage_options(s3_server, tmp_path, monkeypatch):
     monkeypatch.setenv("HEVR_STORAGE_OPTIONS", f'{{"secret": "{so["secret"]}", "key": "overridden"}}')
     # a key without the policy (the store is made with the public key: no tags); storage options are the point
     assert _cli("keygen", "--bits", "256", "--out", tmp_path / "key.json", "--no-require-tags")[0] == 0
-    code, out, err = _cli("encrypt", "phantom:8", "--key", tmp_path / "key.pub.json", "--out", url, "--brick", "4",
-                          "-q", *opts)
+    code, out, err = _cli(
+        "encrypt", "phantom:8", "--key", tmp_path / "key.pub.json", "--out", url, "--brick", "4", "-q", *opts
+    )
     assert code == 0, err
     assert _cli("encrypt", "phantom:8", "--key", tmp_path / "key.pub.json", "--out", url, "-q", *opts)[0] == 2
     sums, again = url.replace("vol.zarr", "view.hevrsums"), url.replace("vol.zarr", "again.hevr")
-    code, out, err = _cli("render", url, "--out", frame, "--size", "8x8", "--azimuth", "20", "--keep-sums", sums,
-                          "-q", *opts)
+    code, out, err = _cli(
+        "render", url, "--out", frame, "--size", "8x8", "--azimuth", "20", "--keep-sums", sums, "-q", *opts
+    )
     assert code == 0, err
     code, out, err = _cli("recolour", sums, "--out", again, "-q", *opts)  # X-ray sums: the same frame again
     assert code == 0, err
     fs = _fs(so)
-    assert fs.cat_file(again[len("s3://"):]) == fs.cat_file(frame[len("s3://"):])
+    assert fs.cat_file(again[len("s3://") :]) == fs.cat_file(frame[len("s3://") :])
     code, out, err = _cli("slice", url, "--out", url.replace("vol.zarr", "axial.hevr"), "--axial", "3", "-q", *opts)
     assert code == 0, err
     code, out, err = _cli("info", url, *opts)
     assert code == 0 and "encrypted volume store" in out and re.search(r"check:\s+ok", out), (out, err)
     code, out, err = _cli("info", frame, *opts)
     assert code == 0 and "encrypted image" in out, (out, err)
-    code, out, err = _cli("decrypt", frame, "--key", tmp_path / "key.json", "--out", tmp_path / "x.png",
-                          "--npy", tmp_path / "x.npy", *opts)
+    code, out, err = _cli(
+        "decrypt",
+        frame,
+        "--key",
+        tmp_path / "key.json",
+        "--out",
+        tmp_path / "x.png",
+        "--npy",
+        tmp_path / "x.npy",
+        *opts,
+    )
     assert code == 0, err
     ev = hevr.open_volume(url, storage_options=so)
     cam = hevr.Camera.orbit(ev, azimuth=20, elevation=0, width=8, height=8)
@@ -269,8 +283,8 @@ pub, priv = hevr.generate_keypair(256)
 ev = hevr.encrypt_volume(hevr.phantom(6), {url!r}, priv, brick=3, storage_options={so!r}, progress=False)
 ev = hevr.open_volume({url!r}, storage_options={so!r})
 img = hevr.render(ev, hevr.Camera.orbit(ev, width=4, height=4), progress=False)
-img.save({url + '.hevr'!r}, storage_options={so!r})
-print("done", hevr.load_image({url + '.hevr'!r}, storage_options={so!r}).shape)
+img.save({url + ".hevr"!r}, storage_options={so!r})
+print("done", hevr.load_image({url + ".hevr"!r}, storage_options={so!r}).shape)
 """
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert run.returncode == 0 and "done (4, 4)" in run.stdout, run.stderr

@@ -36,8 +36,17 @@ def volume():
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair512, volume):
     path = tmp_path_factory.mktemp("packed-levels") / "p.zarr"
-    return hevr.encrypt_volume(volume, path, keypair512[1], brick=4, spacing=SPACING, layout="packed", levels=2,
-                               verifiable=True, progress=False)
+    return hevr.encrypt_volume(
+        volume,
+        path,
+        keypair512[1],
+        brick=4,
+        spacing=SPACING,
+        layout="packed",
+        levels=2,
+        verifiable=True,
+        progress=False,
+    )
 
 
 def level_mantissas(view, priv) -> np.ndarray:
@@ -52,7 +61,7 @@ def level_mantissas(view, priv) -> np.ndarray:
         cols = np.moveaxis(slots, info.axis, -2)
         cols = cols.reshape(cols.shape[:-2] + (-1,))
         vsl = view.brick_slices(idx)
-        block = np.moveaxis(cols[..., :vsl[info.axis].stop - vsl[info.axis].start], -1, info.axis)
+        block = np.moveaxis(cols[..., : vsl[info.axis].stop - vsl[info.axis].start], -1, info.axis)
         out[vsl] = block.astype(object) + info.offset
     return out
 
@@ -68,14 +77,15 @@ def test_levels_hold_the_pyramid_means(store, keypair512, volume):
         assert view.level == L and view.shape == level_shape(SHAPE, L) and view.layout == "packed"
         assert view.meta.scalar.exponent == -3 * L
         assert view.brick[0] % view.packing.slots == 0 and view.brick[1:] == store.brick[1:]
-        want = np.rint(downsample(volume, L) * 1000 ** L).astype(np.int64)
+        want = np.rint(downsample(volume, L) * 1000**L).astype(np.int64)
         assert (level_mantissas(view, priv) == want).all()
     # each level's values carry 3 more digits: wider slots, fewer of them
     slots = [store.packing.slots] + [lv.packing.slots for lv in store.meta.levels]
     bits = [store.packing.slot_bits] + [lv.packing.slot_bits for lv in store.meta.levels]
     assert slots[0] > slots[1] > slots[2] >= 2 and bits[0] < bits[1] < bits[2]
     assert store.written_now["ciphertexts"] == sum(
-        int(np.prod(v.packing.array_shape(v.shape))) for v in (ev, ev.at_level(1), ev.at_level(2)))
+        int(np.prod(v.packing.array_shape(v.shape))) for v in (ev, ev.at_level(1), ev.at_level(2))
+    )
 
 
 def test_level_tags_use_the_levels_own_betas(store, keypair512):
@@ -88,8 +98,10 @@ def test_level_tags_use_the_levels_own_betas(store, keypair512):
             data = [int(priv.raw_decrypt(c)) for c in view.read_brick(idx)]
             tags = [int(priv.raw_decrypt(c)) for c in view.read_brick(idx, "scalar_tag")]
             sl = array_slices(view.meta, idx)
-            packs = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
-                                         view.packing.array_shape(view.shape)).reshape(-1)
+            packs = np.ravel_multi_index(
+                np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
+                view.packing.array_shape(view.shape),
+            ).reshape(-1)
             assert tags == raw_tags(key, data, betas(key, store.meta.store_id, "scalar", L, 0, packs))
             assert tags != raw_tags(key, data, betas(key, store.meta.store_id, "scalar", 0, 0, packs))
 
@@ -101,7 +113,7 @@ def test_level_frames_against_the_reference(store, keypair512, volume, level, sa
     within error_bound(level=) of render_plain(..., slices=True, level=) (the means on the level's grid)."""
     priv = keypair512[1]
     view = store.at_level(level)
-    mant = np.rint(downsample(volume, level) * 1000 ** level).astype(np.int64) - view.packing.offset
+    mant = np.rint(downsample(volume, level) * 1000**level).astype(np.int64) - view.packing.offset
     for az, el in VIEWS:
         cam = hevr.Camera.orbit(store, azimuth=az, elevation=el, width=12, height=10, parallel=True)
         img = hevr.render(store, cam, sampling=sampling, level=level, verify=False, progress=False)
@@ -125,8 +137,17 @@ def test_float_volume_levels(tmp_path, keypair512):
     f = np.random.default_rng(7).uniform(-1, 1, (9, 7, 6))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ev = hevr.encrypt_volume(f, tmp_path / "f.zarr", priv, brick=4, layout="packed", value_range=(-1, 1),
-                                 digits=2, levels=1, progress=False)
+        ev = hevr.encrypt_volume(
+            f,
+            tmp_path / "f.zarr",
+            priv,
+            brick=4,
+            layout="packed",
+            value_range=(-1, 1),
+            digits=2,
+            levels=1,
+            progress=False,
+        )
     view = ev.at_level(1)
     assert view.meta.scalar.digits == 5 and view.packing.offset == -100000
     assert (level_mantissas(view, priv) == np.rint(downsample(f, 1) * 1e5).astype(np.int64)).all()
@@ -140,8 +161,9 @@ def test_float_volume_levels(tmp_path, keypair512):
 def test_other_axis_and_public_key(tmp_path, keypair256, volume):
     """Anyone with the public key writes a packed store's levels; packed along x they render too."""
     pub, priv = keypair256
-    ev = hevr.encrypt_volume(volume, tmp_path / "x.zarr", pub, brick=4, layout="packed", pack_axis="x", levels=1,
-                             progress=False)
+    ev = hevr.encrypt_volume(
+        volume, tmp_path / "x.zarr", pub, brick=4, layout="packed", pack_axis="x", levels=1, progress=False
+    )
     view = ev.at_level(1)
     assert view.packing.axis == 2 and view.brick[2] % view.packing.slots == 0 and not ev.meta.tags
     assert (level_mantissas(view, priv) == np.rint(downsample(volume, 1) * 1000).astype(np.int64)).all()
@@ -190,6 +212,7 @@ class dask_sync:
 
     def __enter__(self):
         import dask
+
         self._cfg = dask.config.set(scheduler="synchronous")
         self._cfg.__enter__()
 
@@ -239,8 +262,9 @@ def test_level_metadata_round_trip_mac_and_checks(store, keypair512):
 
 
 def test_corrupt_level_brick_is_caught(tmp_path, keypair256, volume):
-    ev = hevr.encrypt_volume(volume, tmp_path / "c.zarr", keypair256[1], brick=4, layout="packed", levels=1,
-                             progress=False)
+    ev = hevr.encrypt_volume(
+        volume, tmp_path / "c.zarr", keypair256[1], brick=4, layout="packed", levels=1, progress=False
+    )
     arr = zarr.open_array(str(tmp_path / "c.zarr") + "/levels/1/scalar", mode="r+")
     rec = arr[0, 0, 0]
     rec[-1] ^= 1
@@ -258,8 +282,16 @@ def test_refusals(tmp_path, keypair256, volume, store):
     with pytest.raises(ParameterError, match="levels: expected at most 4 levels for this key and value range"):
         hevr.encrypt_volume(volume, tmp_path / "a.zarr", priv, layout="packed", levels=5, progress=False)
     with pytest.raises(ParameterError, match="levels: expected at most"):
-        hevr.encrypt_volume(np.zeros((4, 4, 4)), tmp_path / "a.zarr", priv, layout="packed", levels=2, digits=26,
-                            value_range=(0, 1e-20), progress=False)
+        hevr.encrypt_volume(
+            np.zeros((4, 4, 4)),
+            tmp_path / "a.zarr",
+            priv,
+            layout="packed",
+            levels=2,
+            digits=26,
+            value_range=(0, 1e-20),
+            progress=False,
+        )
     assert not (tmp_path / "a.zarr").exists()  # refused before the disk is touched
     # the server still cannot build a packed store's pyramid: the message says how to get one
     with pytest.raises(ParameterError, match=r"cannot downsample across slots.*levels=L"):
@@ -272,8 +304,9 @@ def test_refusals(tmp_path, keypair256, volume, store):
 def test_voxel_store_levels_are_the_servers_pyramid(tmp_path, keypair256, volume, caplog):
     """levels= on a per-voxel store builds its pyramid with hevr.build_pyramid after level 0."""
     with caplog.at_level(logging.WARNING):
-        ev = hevr.encrypt_volume(volume[:6, :5, :4], tmp_path / "v.zarr", keypair256[1], brick=4, levels=1,
-                                 progress=False)
+        ev = hevr.encrypt_volume(
+            volume[:6, :5, :4], tmp_path / "v.zarr", keypair256[1], brick=4, levels=1, progress=False
+        )
     assert ev.layout == "voxel" and ev.levels == 1 and ev.meta.levels[0].packing is None
     assert dataclasses.replace(ev.meta.levels[0], complete=True) == ev.meta.levels[0]
 
@@ -291,8 +324,9 @@ def test_cli_encrypt_levels_info_and_pyramid(tmp_path, capsys):
 
     key, store = tmp_path / "key.json", tmp_path / "p.zarr"
     assert run("keygen", "--bits", "256", "--out", key)[0] == 0
-    code, out, _ = run("encrypt", "phantom:12", "--key", key, "--out", store, "--layout", "packed", "--brick", "4",
-                       "--levels", "2")
+    code, out, _ = run(
+        "encrypt", "phantom:12", "--key", key, "--out", store, "--layout", "packed", "--brick", "4", "--levels", "2"
+    )
     assert code == 0 and "level 2:" in out
     ev = hevr.open_volume(store)
     assert ev.levels == 2 and all(lv.packing is not None for lv in ev.meta.levels)
@@ -333,6 +367,6 @@ def test_overwrite_writes_levels_beside_then_swaps(tmp_path, keypair256, volume)
     new = hevr.encrypt_volume(other, path, priv, brick=4, layout="packed", levels=2, overwrite=True, progress=False)
     assert new.meta.store_id != old.meta.store_id and new.levels == 2
     for L in (1, 2):
-        want = np.rint(downsample(other, L) * 1000 ** L).astype(np.int64)
+        want = np.rint(downsample(other, L) * 1000**L).astype(np.int64)
         assert (level_mantissas(new.at_level(L), priv) == want).all()
     assert [p.name for p in tmp_path.iterdir()] == ["o.zarr"]  # nothing left beside it

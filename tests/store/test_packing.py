@@ -35,17 +35,23 @@ def test_pack_unpack_round_trip(S, K, axis, data):
     """Packing columns then reading the slots back gives every voxel, ragged ends as 0."""
     shape = [data.draw(st.integers(1, 7)) for _ in range(3)]
     lo = data.draw(st.integers(-50, 50))
-    vals = np.array(data.draw(st.lists(st.integers(0, (1 << K) - 1), min_size=int(np.prod(shape)),
-                                       max_size=int(np.prod(shape))))).reshape(shape) + lo
+    vals = (
+        np.array(
+            data.draw(
+                st.lists(st.integers(0, (1 << K) - 1), min_size=int(np.prod(shape)), max_size=int(np.prod(shape)))
+            )
+        ).reshape(shape)
+        + lo
+    )
     info = PackingInfo(axis=axis, slots=S, slot_bits=K, weight_bits=0, offset=lo)
     packed = pack_columns(vals, info)
     assert packed.shape == info.array_shape(tuple(shape))
     cols = np.moveaxis(packed, axis, -1)
     slots = unpack_slots(cols.ravel().tolist(), S, K).reshape(cols.shape + (S,))
-    back = slots.reshape(cols.shape[:-1] + (-1,))[..., :shape[axis]]
+    back = slots.reshape(cols.shape[:-1] + (-1,))[..., : shape[axis]]
     assert (np.moveaxis(back, -1, axis) == vals - lo).all()
     if shape[axis] % S:  # the ragged end of each column is empty
-        assert (slots.reshape(cols.shape[:-1] + (-1,))[..., shape[axis]:] == 0).all()
+        assert (slots.reshape(cols.shape[:-1] + (-1,))[..., shape[axis] :] == 0).all()
 
 
 def test_pack_refuses_values_outside_slots():
@@ -84,8 +90,9 @@ def volume():
 @pytest.fixture(scope="module")
 def packed(tmp_path_factory, keypair512, volume):
     path = tmp_path_factory.mktemp("packed") / "p.zarr"
-    return hevr.encrypt_volume(volume, path, keypair512[1], brick=(4, 4, 4), layout="packed", verifiable=True,
-                               progress=False)
+    return hevr.encrypt_volume(
+        volume, path, keypair512[1], brick=(4, 4, 4), layout="packed", verifiable=True, progress=False
+    )
 
 
 def _voxels(ev, priv):
@@ -99,7 +106,7 @@ def _voxels(ev, priv):
         rec[info.axis] = -(-rec[info.axis] // info.slots)
         slots = unpack_slots(vals, info.slots, info.slot_bits).reshape(rec + [info.slots])
         cols = np.moveaxis(slots, info.axis, -2).reshape(*[r for i, r in enumerate(rec) if i != info.axis], -1)
-        block = np.moveaxis(cols[..., :sl[info.axis].stop - sl[info.axis].start], -1, info.axis)
+        block = np.moveaxis(cols[..., : sl[info.axis].stop - sl[info.axis].start], -1, info.axis)
         out[sl] = block + info.offset
     return out
 
@@ -124,9 +131,11 @@ def test_packed_tags_one_per_pack(packed, keypair512):
     data = [int(priv.raw_decrypt(c)) for c in ev.read_brick(idx)]
     tags = [int(priv.raw_decrypt(c)) for c in ev.read_brick(idx, "scalar_tag")]
     from hevr.store.layout import array_slices
+
     sl = array_slices(ev.meta, idx)
-    packs = np.ravel_multi_index(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"),
-                                 ev.packing.array_shape(ev.shape)).reshape(-1)
+    packs = np.ravel_multi_index(
+        np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"), ev.packing.array_shape(ev.shape)
+    ).reshape(-1)
     assert tags == raw_tags(key, data, betas(key, ev.meta.store_id, "scalar", 0, 0, packs))
     assert len(tags) == len(packs) == int(np.prod([s.stop - s.start for s in sl]))
 
@@ -148,6 +157,7 @@ def test_packed_metadata_round_trip_and_mac(packed, keypair512):
 
 def _resealed(d: dict, **layout) -> dict:
     from hevr.store.metadata import metadata_checksum
+
     d = json.loads(json.dumps(d))
     d["layout"].update(layout)
     d["checksum"] = metadata_checksum(d)
@@ -174,8 +184,9 @@ def test_encrypt_packed_parameters(tmp_path, keypair256, volume):
     with pytest.raises(ParameterError, match="layout: expected one of"):
         hevr.encrypt_volume(volume, tmp_path / "a.zarr", priv, layout="slots", progress=False)
     with pytest.raises(ParameterError, match="layout: expected 'voxel' for a store without the scalar channel"):
-        hevr.encrypt_volume(volume, tmp_path / "a.zarr", priv, layout="packed", vector_dims=4, scalar=False,
-                            progress=False)
+        hevr.encrypt_volume(
+            volume, tmp_path / "a.zarr", priv, layout="packed", vector_dims=4, scalar=False, progress=False
+        )
     with pytest.raises(ParameterError, match="pack_axis: expected None for layout='voxel'"):
         hevr.encrypt_volume(volume, tmp_path / "a.zarr", priv, pack_axis="x", progress=False)
     with pytest.raises(ParameterError, match="pack_axis: expected 0, 1, 2"):
@@ -189,8 +200,9 @@ def test_packed_store_other_axis_and_resume(tmp_path, keypair256, volume):
     ev = hevr.encrypt_volume(volume, path, priv, brick=3, layout="packed", pack_axis="x", progress=False)
     assert ev.packing.axis == 2 and ev.brick[2] % ev.packing.slots == 0
     assert (_voxels(ev, priv) == volume).all()
-    again = hevr.encrypt_volume(volume, path, priv, brick=3, layout="packed", pack_axis="x", resume=True,
-                                progress=False)
+    again = hevr.encrypt_volume(
+        volume, path, priv, brick=3, layout="packed", pack_axis="x", resume=True, progress=False
+    )
     assert again.written_now["bricks"] == 0 and again.meta.store_id == ev.meta.store_id
 
 
@@ -198,14 +210,16 @@ def test_packed_float_and_signed_volumes(tmp_path, keypair512):
     """Signed integers and float volumes pack their offset mantissas exactly."""
     priv = keypair512[1]
     vol = np.random.default_rng(2).integers(-1024, 3072, (5, 4, 3)).astype(np.int16)
-    ev = hevr.encrypt_volume(vol, tmp_path / "s.zarr", priv, brick=4, layout="packed", value_range=(-1024, 3071),
-                             progress=False)
+    ev = hevr.encrypt_volume(
+        vol, tmp_path / "s.zarr", priv, brick=4, layout="packed", value_range=(-1024, 3071), progress=False
+    )
     assert ev.packing.offset == -1024 and (_voxels(ev, priv) == vol).all()
     f = np.random.default_rng(3).uniform(-1, 1, (5, 4, 3))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ev = hevr.encrypt_volume(f, tmp_path / "f.zarr", priv, brick=4, layout="packed", value_range=(-1, 1),
-                                 digits=2, progress=False)
+        ev = hevr.encrypt_volume(
+            f, tmp_path / "f.zarr", priv, brick=4, layout="packed", value_range=(-1, 1), digits=2, progress=False
+        )
     assert ev.packing.offset == -100 and (_voxels(ev, priv) == np.rint(f * 100)).all()
 
 
@@ -224,10 +238,12 @@ def test_packed_store_keeps_metadata_for_other_readers(packed):
     d = packed.meta.to_dict()
     stripped = {k: v for k, v in d.items() if k not in ("layout", "checksum")}
     from hevr.store.metadata import metadata_checksum
+
     stripped["checksum"] = metadata_checksum(stripped)
     meta = VolumeMetadata.from_dict(stripped)
     # without its layout the store's arrays no longer match what the metadata implies
     from hevr.store.layout import array_layout
+
     assert array_layout(meta)["scalar"][0] != array_layout(packed.meta)["scalar"][0]
     assert dataclasses.replace(meta, packing=packed.packing) == dataclasses.replace(packed.meta)
 

@@ -31,7 +31,7 @@ def _decrypt_level(lv, priv, channel):
         sl = lv.brick_slices(idx)
         for j, b in enumerate(batches):
             vals = np.array([priv.decrypt(c) for c in b], dtype=np.float64)
-            out[sl + (j,)] = vals.reshape(lv.brick_shape(idx)) * 10.0 ** info.exponent
+            out[sl + (j,)] = vals.reshape(lv.brick_shape(idx)) * 10.0**info.exponent
     return out[..., 0] if channel == "scalar" else out
 
 
@@ -66,8 +66,10 @@ def test_metadata_and_ome_attribute(built):
     assert [m["name"] for m in ome["multiscales"]] == ["scalar", "vector"]
     ds = ome["multiscales"][0]["datasets"]
     assert [d["path"] for d in ds] == ["scalar", "levels/1/scalar", "levels/2/scalar"]
-    assert ds[2]["coordinateTransformations"] == [{"type": "scale", "scale": [2.0, 8.0, 4.0, 1.0]},
-                                                  {"type": "translation", "translation": [0.75, 3.0, 1.5, 0.0]}]
+    assert ds[2]["coordinateTransformations"] == [
+        {"type": "scale", "scale": [2.0, 8.0, 4.0, 1.0]},
+        {"type": "translation", "translation": [0.75, 3.0, 1.5, 0.0]},
+    ]
     again = hevr.open_volume(ev.path, verify="full")
     assert again.meta.levels == ev.meta.levels
     assert hevr.store.metadata.VolumeMetadata.from_dict(ev.meta.to_dict()) == ev.meta
@@ -89,9 +91,11 @@ def test_every_level_is_checked_on_read(built, tmp_path):
     shutil.rmtree(copy)
     shutil.copytree(ev.path, copy)
     (copy / "scalar" / "c" / "0" / "0" / "0" / "0").write_bytes(
-        (copy / "levels" / "1" / "scalar" / "c" / "0" / "0" / "0" / "0").read_bytes())
+        (copy / "levels" / "1" / "scalar" / "c" / "0" / "0" / "0" / "0").read_bytes()
+    )
     (copy / "done" / "c" / "0" / "0" / "0" / "0" / "0").write_bytes(
-        (copy / "levels" / "1" / "done" / "c" / "0" / "0" / "0" / "0" / "0").read_bytes())
+        (copy / "levels" / "1" / "done" / "c" / "0" / "0" / "0" / "0" / "0").read_bytes()
+    )
     with pytest.raises(hevr.CorruptStoreError, match="digest mismatch"):
         hevr.open_volume(copy).read_brick((0, 0, 0), "scalar")
     # the OME attribute is pinned by the checksummed metadata

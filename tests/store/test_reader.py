@@ -48,8 +48,9 @@ def signed_store(tmp_path_factory, keypair256):
     pub, _ = keypair256
     vol = np.random.default_rng(3).integers(-500, 500, SHAPE).astype(np.int16)
     path = tmp_path_factory.mktemp("reader") / "signed.zarr"
-    hevr.encrypt_volume(vol, path, pub, brick=BRICK, spacing=(1.0, 2.0, 0.5), vector_dims=3,
-                        vector_digits=2, progress=False)
+    hevr.encrypt_volume(
+        vol, path, pub, brick=BRICK, spacing=(1.0, 2.0, 0.5), vector_dims=3, vector_digits=2, progress=False
+    )
     return hevr.open_volume(path), vol
 
 
@@ -218,6 +219,7 @@ def test_not_a_zarr_group(tmp_path, content):
 
 def test_wrong_key_fingerprint_is_refused(small_store, keypair512):
     """The modulus of another key under this store's fingerprint: the pair no longer matches."""
+
     def swap(meta):
         meta["public_key"]["n"] = str(int(keypair512[0].n))
         meta["public_key"]["bits"] = 512

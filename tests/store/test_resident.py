@@ -30,8 +30,12 @@ BRICK = (3, 4, 5)  # 27 bricks, edge bricks smaller
 SPACING = (1.0, 0.8, 1.3)
 K = 4
 NODES = [(0.279, "blue"), (0.797, "red")]
-RENDERS = [("xray", "nearest", {}), ("xray", "trilinear", {}), ("tf", "nearest", {"nodes": NODES}),
-           ("tf", "trilinear", {"nodes": NODES})]
+RENDERS = [
+    ("xray", "nearest", {}),
+    ("xray", "trilinear", {}),
+    ("tf", "nearest", {"nodes": NODES}),
+    ("tf", "trilinear", {"nodes": NODES}),
+]
 IDS = [f"{m}-{s}" for m, s, _ in RENDERS]
 
 
@@ -42,8 +46,15 @@ def volume():
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, keypair256, volume):
-    return hevr.encrypt_volume(volume, tmp_path_factory.mktemp("resident") / "v.zarr", keypair256[1], brick=BRICK,
-                               spacing=SPACING, vector_dims=K, progress=False)
+    return hevr.encrypt_volume(
+        volume,
+        tmp_path_factory.mktemp("resident") / "v.zarr",
+        keypair256[1],
+        brick=BRICK,
+        spacing=SPACING,
+        vector_dims=K,
+        progress=False,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +68,8 @@ def _render(ev, cam, mode, sampling, kw, **extra):
 
 def _same(a, b) -> bool:
     return len(a.ciphertexts) == len(b.ciphertexts) and all(
-        np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts))
+        np.array_equal(x, y) for x, y in zip(a.ciphertexts, b.ciphertexts)
+    )
 
 
 def _check_plain(img, ev, volume, cam, mode, sampling, kw, priv):
@@ -127,8 +139,9 @@ def test_resident_render_reads_no_brick(store, camera, monkeypatch):
     ev2 = store.persist()
     reads = []
     original = reader_mod.EncryptedVolume.read_brick_bytes
-    monkeypatch.setattr(reader_mod.EncryptedVolume, "read_brick_bytes",
-                        lambda self, *a, **k: reads.append(a) or original(self, *a, **k))
+    monkeypatch.setattr(
+        reader_mod.EncryptedVolume, "read_brick_bytes", lambda self, *a, **k: reads.append(a) or original(self, *a, **k)
+    )
     with dask.config.set(scheduler="sync"):
         img = _render(ev2, camera, "tf", "trilinear", {"nodes": NODES})
         assert img.stats["resident"] and reads == []
@@ -175,8 +188,7 @@ def test_non_sequence_channels(store):
 
 
 def test_missing_channel(tmp_path, keypair256):
-    ev = hevr.encrypt_volume(np.ones((4, 4, 4), np.uint8), tmp_path / "s.zarr", keypair256[1], brick=2,
-                             progress=False)
+    ev = hevr.encrypt_volume(np.ones((4, 4, 4), np.uint8), tmp_path / "s.zarr", keypair256[1], brick=2, progress=False)
     with pytest.raises(hevr.ParameterError, match="channels"):
         ev.persist(channels="vector")
     assert ev.persist(channels=["scalar", "scalar"]).resident.channels == ("scalar",)
@@ -204,8 +216,10 @@ def test_memory_limit_refuses_before_loading(store, monkeypatch):
 @pytest.mark.parametrize("value", [2, "x", 0, -0.5, float("nan"), None, [0.5]])
 def test_memory_limit_must_be_a_fraction(store, value, monkeypatch):
     monkeypatch.setattr(reader_mod, "load_brick", lambda *a, **k: pytest.fail("a brick was loaded"))
-    with dask.config.set({RESIDENT_MEMORY_KEY: value}), \
-            pytest.raises(hevr.ParameterError, match="hevr.limits.resident-memory"):
+    with (
+        dask.config.set({RESIDENT_MEMORY_KEY: value}),
+        pytest.raises(hevr.ParameterError, match="hevr.limits.resident-memory"),
+    ):
         store.persist()
 
 
@@ -333,9 +347,11 @@ def test_render_with_an_explicit_non_default_client(store, camera, cluster):
 @pytest.mark.slow
 def test_resident_volume_survives_a_killed_worker(store, keypair256, camera):
     priv = keypair256[1]
-    with dask.config.set({"distributed.scheduler.allowed-failures": 10}), \
-            LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc, \
-            Client(lc) as c:
+    with (
+        dask.config.set({"distributed.scheduler.allowed-failures": 10}),
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc,
+        Client(lc) as c,
+    ):
         ev2 = store.persist(client=c)
         ev2.resident.wait()
         before = _render(ev2, camera, "tf", "trilinear", {"nodes": NODES}, client=c)
@@ -365,17 +381,20 @@ def test_map_tasks_run_where_their_brick_lives(store, camera, cluster):
         holder = {idx: next(iter(who[f.key])) for idx, f in ev2.resident.bricks.items()}
         with get_task_stream(client=cluster) as ts:
             _render(ev2, camera, "xray", "nearest", {}, client=cluster)
-    ran = {tuple(int(x) for x in str(t["key"]).rsplit("-", 3)[1:]): t["worker"]
-           for t in ts.data if str(t["key"]).startswith("hevr-map-")}
+    ran = {
+        tuple(int(x) for x in str(t["key"]).rsplit("-", 3)[1:]): t["worker"]
+        for t in ts.data
+        if str(t["key"]).startswith("hevr-map-")
+    }
     assert len(ran) > 5
     local = sum(ran[idx] == holder[idx] for idx in ran)
     assert local >= 0.75 * len(ran), (local, len(ran))  # work stealing may move a few; the brick stays put
 
 
-
 @pytest.mark.parametrize("mode, sampling, kw", RENDERS, ids=IDS)
-def test_tile_row_pieces_give_the_identical_image(store, volume, keypair256, camera, cluster, monkeypatch,
-                                                 mode, sampling, kw):
+def test_tile_row_pieces_give_the_identical_image(
+    store, volume, keypair256, camera, cluster, monkeypatch, mode, sampling, kw
+):
     """Resident bricks split into one map task per tile row (the default from BAND_BITS on):
     the same ciphertexts as one task per brick, and as streaming."""
     with cluster.as_current(), dask.config.set({"hevr.render.resident-batch": False}):
@@ -396,8 +415,9 @@ def test_tile_row_pieces_give_the_identical_image(store, volume, keypair256, cam
 
 
 @pytest.mark.parametrize("mode, sampling, kw", RENDERS, ids=IDS)
-def test_one_map_task_per_worker_gives_the_identical_image(store, volume, keypair256, camera, cluster,
-                                                          mode, sampling, kw):
+def test_one_map_task_per_worker_gives_the_identical_image(
+    store, volume, keypair256, camera, cluster, mode, sampling, kw
+):
     """Resident bricks mapped in one task per worker (the default, issue 27): the same packed
     ciphertexts as one task per brick and as streaming; each group's task runs on the worker
     that holds its bricks, and there are no more map tasks than workers."""
@@ -470,6 +490,8 @@ def test_resident_batch_setting():
     for value, expected in (("False", False), ("true", True), (False, False), (True, True)):
         with dask.config.set({"hevr.render.resident-batch": value}):
             assert _batch(64) is expected and _batch(2048) is expected
-    with dask.config.set({"hevr.render.resident-batch": "sometimes"}), pytest.raises(
-            hevr.ParameterError, match="resident-batch: expected true, false or 'auto', got 'sometimes'"):
+    with (
+        dask.config.set({"hevr.render.resident-batch": "sometimes"}),
+        pytest.raises(hevr.ParameterError, match="resident-batch: expected true, false or 'auto', got 'sometimes'"),
+    ):
         _batch(64)

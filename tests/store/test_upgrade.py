@@ -25,10 +25,20 @@ SHAPE, BRICK = (5, 6, 7), (2, 3, 4)
 
 def _v1_store(path: Path, pub, vol: np.ndarray, complete: bool = True) -> VolumeMetadata:
     w = record_width(int(pub.n))
-    meta = VolumeMetadata(shape=SHAPE, spacing=(1.0, 1.0, 1.0), brick=BRICK, n=str(int(pub.n)),
-                          fingerprint=pub.fingerprint, ciphertext_bytes=w, dtype="uint8",
-                          value_range=(0.0, 255.0), scalar=ChannelInfo(exponent=0), vector=None,
-                          complete=complete, version=1)
+    meta = VolumeMetadata(
+        shape=SHAPE,
+        spacing=(1.0, 1.0, 1.0),
+        brick=BRICK,
+        n=str(int(pub.n)),
+        fingerprint=pub.fingerprint,
+        ciphertext_bytes=w,
+        dtype="uint8",
+        value_range=(0.0, 255.0),
+        scalar=ChannelInfo(exponent=0),
+        vector=None,
+        complete=complete,
+        version=1,
+    )
     group = zarr.open_group(str(path), mode="w")
     group.create_array("scalar", shape=SHAPE + (w,), chunks=BRICK + (w,), dtype="uint8", compressors=None, fill_value=0)
     group.create_array("done", shape=meta.grid, chunks=(1, 1, 1), dtype="uint8", compressors=None, fill_value=0)
@@ -36,7 +46,8 @@ def _v1_store(path: Path, pub, vol: np.ndarray, complete: bool = True) -> Volume
         sl = brick_slices(meta, idx)
         cts = pub.encrypt_array(vol[sl].ravel().tolist())
         group["scalar"][sl] = np.array([list(int(c).to_bytes(w, "big")) for c in cts], np.uint8).reshape(
-            vol[sl].shape + (w,))
+            vol[sl].shape + (w,)
+        )
         group["done"][idx] = 1
     group.attrs["hevr"] = meta.to_dict()
     return meta
@@ -88,14 +99,28 @@ def test_upgrade_refuses_out_of_range_records(v1, tmp_path):
     path, _ = v1
     arr = zarr.open_array(str(path / "scalar"), mode="r+")
     arr[1, 4, 5] = 255  # >= n² (n² < 2^512 = 64 bytes of 0xFF)
-    with pytest.raises(hevr.CorruptStoreError, match=r"brick \(0, 1, 1\) of channel 'scalar': ciphertext \d+ is not in"):
+    with pytest.raises(
+        hevr.CorruptStoreError, match=r"brick \(0, 1, 1\) of channel 'scalar': ciphertext \d+ is not in"
+    ):
         hevr.upgrade_store(path, tmp_path / "new.zarr", progress=False)
 
 
 def test_metadata_of_a_v1_store_has_no_checksum():
-    meta = dataclasses.replace(VolumeMetadata(shape=SHAPE, spacing=(1.0, 1.0, 1.0), brick=BRICK, n="3233",
-                                              fingerprint="ab" * 32, ciphertext_bytes=3, dtype="uint8",
-                                              value_range=(0.0, 1.0), scalar=ChannelInfo(0), vector=None), version=1)
+    meta = dataclasses.replace(
+        VolumeMetadata(
+            shape=SHAPE,
+            spacing=(1.0, 1.0, 1.0),
+            brick=BRICK,
+            n="3233",
+            fingerprint="ab" * 32,
+            ciphertext_bytes=3,
+            dtype="uint8",
+            value_range=(0.0, 1.0),
+            scalar=ChannelInfo(0),
+            vector=None,
+        ),
+        version=1,
+    )
     assert "checksum" not in meta.to_dict()
 
 
@@ -110,8 +135,7 @@ def test_upgrade_store_command_and_info_on_old_formats(tmp_path, keypair256, cap
     assert main(["info", str(tmp_path / "old.zarr")]) == 1  # described, but its check fails: cannot be opened
     out = capsys.readouterr().out
     assert "version 1" in out and "hevr upgrade-store" in out and "FAILED" in out
-    assert main(["upgrade-store", str(tmp_path / "old.zarr"), str(tmp_path / "new.zarr"), "--workers", "0",
-                 "-q"]) == 0
+    assert main(["upgrade-store", str(tmp_path / "old.zarr"), str(tmp_path / "new.zarr"), "--workers", "0", "-q"]) == 0
     assert hevr.open_volume(tmp_path / "new.zarr", verify="full").meta.version == 2
     assert main(["upgrade-store", str(tmp_path / "old.zarr"), str(tmp_path / "new.zarr"), "--workers", "0"]) == 2
     assert "already exists" in capsys.readouterr().err

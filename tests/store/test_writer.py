@@ -55,8 +55,9 @@ def test_scalar_round_trip(tmp_path, keypair256, dtype, owner):
     pub, priv = keypair256
     vol = _vol(dtype)
     kw = {"value_range": (-5, 5)} if dtype == "float32" else {}
-    ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", priv if owner else pub, brick=BRICK,
-                             spacing=(1.0, 2.0, 0.5), progress=False, **kw)
+    ev = hevr.encrypt_volume(
+        vol, tmp_path / "v.zarr", priv if owner else pub, brick=BRICK, spacing=(1.0, 2.0, 0.5), progress=False, **kw
+    )
     assert ev.grid == (3, 3, 3) and ev.shape == SHAPE and ev.spacing == (1.0, 2.0, 0.5)
     got = _decrypt_scalar(hevr.open_volume(tmp_path / "v.zarr"), priv)
     if dtype == "float32":
@@ -71,8 +72,9 @@ def test_scalar_round_trip(tmp_path, keypair256, dtype, owner):
 def test_vector_channel_round_trip(tmp_path, keypair256, k):
     pub, priv = keypair256
     vol = _vol("uint8")
-    ev = hevr.encrypt_volume(vol, tmp_path / "v.zarr", priv, brick=BRICK, scalar=False, vector_dims=k,
-                             vector_digits=4, progress=False)
+    ev = hevr.encrypt_volume(
+        vol, tmp_path / "v.zarr", priv, brick=BRICK, scalar=False, vector_dims=k, vector_digits=4, progress=False
+    )
     assert not ev.has_scalar and ev.vector_dims == k and ev.value_range == (0.0, 255.0)
     got = _decrypt_vector(ev, priv).astype(np.float64) * 1e-4
     expected = np.moveaxis(encode_density(normalize_density(vol, (0, 255)), k), -1, 0)
@@ -84,10 +86,19 @@ def test_dask_array_input_and_distributed_client(tmp_path, keypair256):
 
     pub, priv = keypair256
     vol = _vol("int16")
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
-            Client(cluster) as client:
-        ev = hevr.encrypt_volume(da.from_array(vol, chunks=(3, 3, 3)), tmp_path / "v.zarr", priv,
-                                 brick=BRICK, vector_dims=3, progress=False, client=client)
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        Client(cluster) as client,
+    ):
+        ev = hevr.encrypt_volume(
+            da.from_array(vol, chunks=(3, 3, 3)),
+            tmp_path / "v.zarr",
+            priv,
+            brick=BRICK,
+            vector_dims=3,
+            progress=False,
+            client=client,
+        )
     assert np.array_equal(_decrypt_scalar(ev, priv).astype(np.int64), vol.astype(np.int64))
 
 
@@ -99,8 +110,13 @@ def _secret_forms(priv):
     lcm = lam // math.gcd(p - 1, q - 1)
     forms = []
     for x in (p, q, lam, lcm):
-        forms += [str(x).encode(), format(x, "x").encode(), format(x, "X").encode(),
-                  x.to_bytes((x.bit_length() + 7) // 8, "big"), x.to_bytes((x.bit_length() + 7) // 8, "little")]
+        forms += [
+            str(x).encode(),
+            format(x, "x").encode(),
+            format(x, "X").encode(),
+            x.to_bytes((x.bit_length() + 7) // 8, "big"),
+            x.to_bytes((x.bit_length() + 7) // 8, "little"),
+        ]
     return forms
 
 
@@ -188,8 +204,12 @@ def test_existing_store_needs_overwrite_and_is_kept(tmp_path, keypair256):
     digest = hashlib.sha256(b"".join(f.read_bytes() for f in sorted(path.rglob("*")) if f.is_file())).hexdigest()
     with pytest.raises(hevr.StoreExistsError, match="overwrite=True"):
         hevr.encrypt_volume(np.zeros(SHAPE, np.uint8), path, keypair256[0], brick=BRICK, progress=False)
-    assert digest == hashlib.sha256(b"".join(f.read_bytes() for f in sorted(path.rglob("*")) if f.is_file())).hexdigest()
-    ev = hevr.encrypt_volume(np.zeros(SHAPE, np.uint8), path, keypair256[0], brick=BRICK, progress=False, overwrite=True)
+    assert (
+        digest == hashlib.sha256(b"".join(f.read_bytes() for f in sorted(path.rglob("*")) if f.is_file())).hexdigest()
+    )
+    ev = hevr.encrypt_volume(
+        np.zeros(SHAPE, np.uint8), path, keypair256[0], brick=BRICK, progress=False, overwrite=True
+    )
     assert ev.meta.complete
 
 
@@ -197,7 +217,9 @@ def test_refuses_to_delete_a_non_store(tmp_path, keypair256):
     (tmp_path / "precious").mkdir()
     (tmp_path / "precious" / "thesis.txt").write_text("do not delete")
     with pytest.raises(hevr.StoreExistsError):
-        hevr.encrypt_volume(np.ones(SHAPE, np.uint8), tmp_path / "precious", keypair256[0], overwrite=True, progress=False)
+        hevr.encrypt_volume(
+            np.ones(SHAPE, np.uint8), tmp_path / "precious", keypair256[0], overwrite=True, progress=False
+        )
     assert (tmp_path / "precious" / "thesis.txt").read_text() == "do not delete"
 
 
@@ -368,8 +390,14 @@ def test_overwrite_refuses_a_zarr_group_that_is_not_hevr(tmp_path, keypair256):
     group = zarr.open_group(str(tmp_path / "other.zarr"), mode="w")
     group.create_array("precious", shape=(2,), dtype="uint8")
     with pytest.raises(hevr.StoreExistsError, match="not an hevr store"):
-        hevr.encrypt_volume(np.ones(SHAPE, np.uint8), tmp_path / "other.zarr", keypair256[0], brick=BRICK,
-                            progress=False, overwrite=True)
+        hevr.encrypt_volume(
+            np.ones(SHAPE, np.uint8),
+            tmp_path / "other.zarr",
+            keypair256[0],
+            brick=BRICK,
+            progress=False,
+            overwrite=True,
+        )
     assert "precious" in zarr.open_group(str(tmp_path / "other.zarr"), mode="r")
 
 
@@ -415,8 +443,9 @@ def test_overwrite_deletes_the_replaced_stores_journal(tmp_path, keypair256):
     folder = tmp_path / "journals"
     with dask.config.set({"hevr.journal-dir": str(folder)}):
         first = hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False)
-        second = hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False,
-                                     overwrite=True)
+        second = hevr.encrypt_volume(
+            _vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False, overwrite=True
+        )
     assert sorted(p.name for p in folder.iterdir()) == [f"{second.meta.store_id}.json"]
     assert first.meta.store_id != second.meta.store_id
 
@@ -429,9 +458,12 @@ def test_an_unusable_backend_is_refused_before_the_disk_is_touched(tmp_path, key
     monkeypatch.setitem(__import__("sys").modules, "cupy", None)  # CuPy not installed (import raises)
     monkeypatch.delitem(backends._INSTANCES, "cuda", raising=False)
     folder = tmp_path / "journals"
-    with dask.config.set({"hevr.journal-dir": str(folder)}), \
-            pytest.raises(hevr.MissingDependencyError, match="backend: 'cuda' needs CuPy"):
-        hevr.encrypt_volume(_vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False,
-                            backend="cuda")
+    with (
+        dask.config.set({"hevr.journal-dir": str(folder)}),
+        pytest.raises(hevr.MissingDependencyError, match="backend: 'cuda' needs CuPy"),
+    ):
+        hevr.encrypt_volume(
+            _vol("uint8"), tmp_path / "v.zarr", keypair256[0], brick=BRICK, progress=False, backend="cuda"
+        )
     assert not (tmp_path / "v.zarr").exists()
     assert not folder.exists() or not any(folder.iterdir())

@@ -33,8 +33,9 @@ def _render(ev, priv, mode="xray", **kw):
     return cam, hevr.render(ev, cam, mode=mode, progress=False, **kw).decrypt(priv)
 
 
-@pytest.mark.parametrize("make, kw", [(_ints, {}), (_floats, {"value_range": (-3, 7), "digits": 4})],
-                         ids=["int16", "float64"])
+@pytest.mark.parametrize(
+    "make, kw", [(_ints, {}), (_floats, {"value_range": (-3, 7), "digits": 4})], ids=["int16", "float64"]
+)
 def test_big_endian_arrays_encrypt_their_values(tmp_path, keypair256, make, kw):
     priv = keypair256[1]
     native = make()
@@ -42,13 +43,15 @@ def test_big_endian_arrays_encrypt_their_values(tmp_path, keypair256, make, kw):
     assert not big.dtype.isnative and np.array_equal(big, native)
     stores = {}
     for name, vol in [("native", native), ("big", big), ("little", native.astype(native.dtype.newbyteorder("<")))]:
-        stores[name] = hevr.encrypt_volume(vol, tmp_path / f"{name}.zarr", priv, brick=3, spacing=SPACING,
-                                           vector_dims=3, progress=False, **kw)
+        stores[name] = hevr.encrypt_volume(
+            vol, tmp_path / f"{name}.zarr", priv, brick=3, spacing=SPACING, vector_dims=3, progress=False, **kw
+        )
         assert stores[name].dtype == native.dtype.name  # the store records the values' type, not a byte order
     for mode, extra in [("xray", {}), ("emphasize", {"density": 0.4})]:
         cam, got = _render(stores["big"], priv, mode, **extra)
-        ref = hevr.render_plain(native, cam, mode=mode, spacing=SPACING, vector_dims=3,
-                                value_range=stores["native"].value_range, **extra)
+        ref = hevr.render_plain(
+            native, cam, mode=mode, spacing=SPACING, vector_dims=3, value_range=stores["native"].value_range, **extra
+        )
         assert np.all(np.abs(got - ref) <= error_bound(stores["big"], cam, mode, **extra))
         assert np.count_nonzero(ref) > 10
         for other in ("native", "little"):
@@ -69,8 +72,7 @@ def test_a_big_endian_memory_map_is_read_inside_the_tasks(tmp_path, keypair256):
     darr = task_array(mm, (3, 3, 3), "t")
     assert darr.dtype == np.int16 and np.array_equal(darr.compute(), native[:, ::-1])
     ev = hevr.encrypt_volume(mm, tmp_path / "m.zarr", priv, brick=3, progress=False)
-    ref = hevr.encrypt_volume(np.ascontiguousarray(native[:, ::-1]), tmp_path / "r.zarr", priv, brick=3,
-                              progress=False)
+    ref = hevr.encrypt_volume(np.ascontiguousarray(native[:, ::-1]), tmp_path / "r.zarr", priv, brick=3, progress=False)
     assert np.array_equal(_render(ev, priv)[1], _render(ref, priv)[1])
 
 
@@ -91,13 +93,17 @@ def test_resume_digests_do_not_depend_on_byte_order(tmp_path, keypair256, monkey
 
     monkeypatch.setattr(writer, "_encrypt_brick", flaky)
     with pytest.raises(RuntimeError, match="worker lost"):
-        hevr.encrypt_volume(native.astype("<i2"), tmp_path / "v.zarr", keypair256[1], brick=3, progress=False,
-                            client=None)
+        hevr.encrypt_volume(
+            native.astype("<i2"), tmp_path / "v.zarr", keypair256[1], brick=3, progress=False, client=None
+        )
     monkeypatch.setattr(writer, "_encrypt_brick", real)
-    ev = hevr.encrypt_volume(native.astype(">i2"), tmp_path / "v.zarr", keypair256[1], brick=3, resume=True,
-                             progress=False)
-    assert np.array_equal(hevr.render_plain(native, hevr.Camera.orbit(ev, width=5, height=5)),
-                          hevr.render_plain(native.astype(">i2"), hevr.Camera.orbit(ev, width=5, height=5)))
+    ev = hevr.encrypt_volume(
+        native.astype(">i2"), tmp_path / "v.zarr", keypair256[1], brick=3, resume=True, progress=False
+    )
+    assert np.array_equal(
+        hevr.render_plain(native, hevr.Camera.orbit(ev, width=5, height=5)),
+        hevr.render_plain(native.astype(">i2"), hevr.Camera.orbit(ev, width=5, height=5)),
+    )
     ref = hevr.encrypt_volume(native, tmp_path / "r.zarr", keypair256[1], brick=3, progress=False)
     assert np.array_equal(_render(ev, keypair256[1])[1], _render(ref, keypair256[1])[1])
 
@@ -108,10 +114,22 @@ def test_hevr_encrypt_of_a_big_endian_file(tmp_path, keypair256, name, capsys):
     priv.save(tmp_path / "key.json")
     native = _ints()
     path = hevr.save_volume(tmp_path / name, native, SPACING, byte_order="big")
-    assert "endian: big" in (path.read_text(errors="replace") if name.endswith("nhdr") else
-                             path.read_bytes().split(b"\n\n")[0].decode())
-    code = main(["encrypt", str(path), "--key", str(tmp_path / "key.json"), "--out", str(tmp_path / "v.zarr"),
-                 "--brick", "3", "-q"])
+    assert "endian: big" in (
+        path.read_text(errors="replace") if name.endswith("nhdr") else path.read_bytes().split(b"\n\n")[0].decode()
+    )
+    code = main(
+        [
+            "encrypt",
+            str(path),
+            "--key",
+            str(tmp_path / "key.json"),
+            "--out",
+            str(tmp_path / "v.zarr"),
+            "--brick",
+            "3",
+            "-q",
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     ev = hevr.open_volume(tmp_path / "v.zarr")
     ref = hevr.encrypt_volume(native, tmp_path / "r.zarr", priv, brick=3, spacing=SPACING, progress=False)

@@ -19,8 +19,7 @@ from hevr.volume.loaders import load_volume
 AXIAL = (1, 0, 0, 0, 1, 0)
 
 
-def dataset(pixels: np.ndarray, *, series: str, modality: str = "CT", sop: str | None = None,
-            **attrs: Any) -> Any:
+def dataset(pixels: np.ndarray, *, series: str, modality: str = "CT", sop: str | None = None, **attrs: Any) -> Any:
     """A minimal DICOM image dataset holding int16 ``pixels`` (frames, rows, cols) or (rows, cols)."""
     from pydicom.dataset import Dataset, FileMetaDataset
     from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian, generate_uid
@@ -43,21 +42,48 @@ def dataset(pixels: np.ndarray, *, series: str, modality: str = "CT", sop: str |
     return ds
 
 
-def write_slice(path: Path, pixels: np.ndarray, *, position: Any, instance: int | None, series: str,
-                iop: tuple[float, ...] = AXIAL, intercept: float = -1024, slope: float = 1,
-                spacing: tuple[float, float] = (0.5, 0.7), **attrs: Any) -> None:
+def write_slice(
+    path: Path,
+    pixels: np.ndarray,
+    *,
+    position: Any,
+    instance: int | None,
+    series: str,
+    iop: tuple[float, ...] = AXIAL,
+    intercept: float = -1024,
+    slope: float = 1,
+    spacing: tuple[float, float] = (0.5, 0.7),
+    **attrs: Any,
+) -> None:
     """One single-frame CT slice; ``spacing`` is PixelSpacing (between rows, between columns)."""
-    ds = dataset(pixels, series=series, PixelSpacing=list(spacing), SliceThickness=3.0,
-                 ImagePositionPatient=None if position is None else [float(v) for v in position],
-                 ImageOrientationPatient=None if position is None else list(iop), InstanceNumber=instance,
-                 RescaleIntercept=intercept, RescaleSlope=slope, **attrs)
+    ds = dataset(
+        pixels,
+        series=series,
+        PixelSpacing=list(spacing),
+        SliceThickness=3.0,
+        ImagePositionPatient=None if position is None else [float(v) for v in position],
+        ImageOrientationPatient=None if position is None else list(iop),
+        InstanceNumber=instance,
+        RescaleIntercept=intercept,
+        RescaleSlope=slope,
+        **attrs,
+    )
     path.parent.mkdir(parents=True, exist_ok=True)
     ds.save_as(path, enforce_file_format=True)
 
 
-def write_series(folder: Path, stored: np.ndarray, *, iop: tuple[float, ...] = AXIAL,
-                 origin: tuple[float, ...] = (10.0, -20.0, 30.0), step: Any = None, gap: float = 2.5,
-                 series: str = "1.2.3.4", prefix: str = "IM", **attrs: Any) -> list[Path]:
+def write_series(
+    folder: Path,
+    stored: np.ndarray,
+    *,
+    iop: tuple[float, ...] = AXIAL,
+    origin: tuple[float, ...] = (10.0, -20.0, 30.0),
+    step: Any = None,
+    gap: float = 2.5,
+    series: str = "1.2.3.4",
+    prefix: str = "IM",
+    **attrs: Any,
+) -> list[Path]:
     """Slice k of ``stored`` (k, rows, cols) at ``origin + k * step`` (default: ``gap`` along the
     normal), files named in scrambled order."""
     normal = np.cross(iop[:3], iop[3:])
@@ -66,14 +92,16 @@ def write_series(folder: Path, stored: np.ndarray, *, iop: tuple[float, ...] = A
     n = len(stored)
     for k in range(n):
         path = folder / f"{prefix}{(k * 7) % n if n % 7 else k:04d}.dcm"
-        write_slice(path, stored[k], position=np.asarray(origin) + k * step, instance=k + 1, series=series,
-                    iop=iop, **attrs)
+        write_slice(
+            path, stored[k], position=np.asarray(origin) + k * step, instance=k + 1, series=series, iop=iop, **attrs
+        )
         paths.append(path)
     return paths
 
 
-def _dicom_series(folder: Path, *, iop: tuple[float, ...] = AXIAL, positions: bool = True,
-                  slope: float = 1, series: str = "1.2.3.4") -> np.ndarray:
+def _dicom_series(
+    folder: Path, *, iop: tuple[float, ...] = AXIAL, positions: bool = True, slope: float = 1, series: str = "1.2.3.4"
+) -> np.ndarray:
     """Write 4 int16 slices 2.5 mm apart, in scrambled file and InstanceNumber order.
 
     Returns the expected stored values (before rescaling) in ascending slice-normal order.
@@ -86,8 +114,9 @@ def _dicom_series(folder: Path, *, iop: tuple[float, ...] = AXIAL, positions: bo
     order, instances = [2, 0, 3, 1], [1, 2, 3, 4] if positions else [3, 1, 4, 2]
     for k, (s, inst) in enumerate(zip(order, instances)):
         pos = (np.array([10.0, -20.0, 30.0]) + 2.5 * s * normal).tolist() if positions else None
-        write_slice(folder / f"IM{k:04d}.dcm", stored[s], position=pos, instance=inst,
-                    series=series, iop=iop, slope=slope)
+        write_slice(
+            folder / f"IM{k:04d}.dcm", stored[s], position=pos, instance=inst, series=series, iop=iop, slope=slope
+        )
     return stored
 
 
@@ -168,8 +197,9 @@ def test_dicom_per_slice_rescale(tmp_path: Path) -> None:
     pytest.importorskip("pydicom")
     stored = np.arange(2 * 2 * 3, dtype=np.int16).reshape(2, 2, 3)
     write_slice(tmp_path / "ct" / "a.dcm", stored[0], position=[0, 0, 0], instance=1, series="1", slope=2)
-    write_slice(tmp_path / "ct" / "b.dcm", stored[1], position=[0, 0, 1], instance=2, series="1",
-                slope=3, intercept=-1000)
+    write_slice(
+        tmp_path / "ct" / "b.dcm", stored[1], position=[0, 0, 1], instance=2, series="1", slope=3, intercept=-1000
+    )
     vol = read_dicom(tmp_path / "ct").volume
     assert vol.dtype == np.int16
     np.testing.assert_array_equal(vol[0], stored[0, ::-1, ::-1] * 2 - 1024)
@@ -182,23 +212,40 @@ def test_dicom_errors(tmp_path: Path) -> None:
     with pytest.raises(VolumeFormatError, match="empty.*no DICOM"):
         read_dicom(tmp_path / "empty")
     _dicom_series(tmp_path / "dup")
-    write_slice(tmp_path / "dup" / "copy.dcm", np.zeros((3, 5), np.int16),
-                position=[10.0, -20.0, 30.0], instance=9, series="1.2.3.4")
+    write_slice(
+        tmp_path / "dup" / "copy.dcm",
+        np.zeros((3, 5), np.int16),
+        position=[10.0, -20.0, 30.0],
+        instance=9,
+        series="1.2.3.4",
+    )
     with pytest.raises(VolumeFormatError, match=r"dup: slices .*(copy\.dcm|IM0001\.dcm).* same position"):
         read_dicom(tmp_path / "dup")
     _dicom_series(tmp_path / "sizes")
-    write_slice(tmp_path / "sizes" / "big.dcm", np.zeros((4, 5), np.int16),
-                position=[0, 0, 99], instance=9, series="1.2.3.4")
+    write_slice(
+        tmp_path / "sizes" / "big.dcm", np.zeros((4, 5), np.int16), position=[0, 0, 99], instance=9, series="1.2.3.4"
+    )
     with pytest.raises(VolumeFormatError, match=r"big\.dcm.*4x5"):
         read_dicom(tmp_path / "sizes")
     _dicom_series(tmp_path / "scout")  # a localizer in the series: another orientation
-    write_slice(tmp_path / "scout" / "loc.dcm", np.zeros((3, 5), np.int16), position=[0, 0, 99],
-                instance=9, series="1.2.3.4", iop=(0, 1, 0, 0, 0, -1))
+    write_slice(
+        tmp_path / "scout" / "loc.dcm",
+        np.zeros((3, 5), np.int16),
+        position=[0, 0, 99],
+        instance=9,
+        series="1.2.3.4",
+        iop=(0, 1, 0, 0, 0, -1),
+    )
     with pytest.raises(VolumeFormatError, match=r"scout: ImageOrientationPatient.*loc\.dcm.*localizer"):
         read_dicom(tmp_path / "scout")
     _dicom_series(tmp_path / "shift")  # one slice moved within its plane
-    write_slice(tmp_path / "shift" / "moved.dcm", np.zeros((3, 5), np.int16), position=[15.0, -20.0, 40.0],
-                instance=9, series="1.2.3.4")
+    write_slice(
+        tmp_path / "shift" / "moved.dcm",
+        np.zeros((3, 5), np.int16),
+        position=[15.0, -20.0, 40.0],
+        instance=9,
+        series="1.2.3.4",
+    )
     with pytest.raises(VolumeFormatError, match=r"shift: slice moved\.dcm is shifted 5 mm"):
         read_dicom(tmp_path / "shift")
     with pytest.raises(FileNotFoundError, match="nothing at"):
@@ -216,14 +263,17 @@ def test_a_single_file_that_stands_for_its_series_says_so_in_errors(tmp_path: Pa
     it now says why that file was read, and how to read the one file alone."""
     pytest.importorskip("pydicom")
     _dicom_series(tmp_path / "s")
-    write_slice(tmp_path / "s" / "big.dcm", np.zeros((4, 5), np.int16), position=[0, 0, 99], instance=9,
-                series="1.2.3.4")
+    write_slice(
+        tmp_path / "s" / "big.dcm", np.zeros((4, 5), np.int16), position=[0, 0, 99], instance=9, series="1.2.3.4"
+    )
     with pytest.raises(VolumeFormatError) as info:
         read_dicom(tmp_path / "s" / "IM0000.dcm")
     text = str(info.value)
     assert "big.dcm" in text and "4x5" in text  # the sibling at fault, as before
-    assert ("IM0000.dcm is one slice of series 1.2.3.4: a single-frame DICOM file stands for its series, so the "
-            "4 other files of it in") in text
+    assert (
+        "IM0000.dcm is one slice of series 1.2.3.4: a single-frame DICOM file stands for its series, so the "
+        "4 other files of it in"
+    ) in text
     assert "to read IM0000.dcm alone, put it in a folder of its own" in text
     (tmp_path / "alone").mkdir()
     (tmp_path / "s" / "IM0000.dcm").rename(tmp_path / "alone" / "IM0000.dcm")

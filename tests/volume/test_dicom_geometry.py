@@ -20,8 +20,9 @@ pytest.importorskip("pydicom")
 H = np.array([0.7, 0.5, 2.5])
 P0 = np.array([-30.0, 12.0, 80.0])
 NA, NB, NC = 5, 4, 3
-V = (100 * np.arange(NC)[:, None, None] + 10 * np.arange(NB)[None, :, None]
-     + np.arange(NA)[None, None, :]).astype(np.int16)
+V = (100 * np.arange(NC)[:, None, None] + 10 * np.arange(NB)[None, :, None] + np.arange(NA)[None, None, :]).astype(
+    np.int16
+)
 # In RAS+ x runs to the right (LPS -x) and y to the front (LPS -y): both lattice axes flip.
 EXPECTED = V[:, ::-1, ::-1]
 EXPECTED_ORIGIN = (-(P0[0] + (NA - 1) * H[0]), -(P0[1] + (NB - 1) * H[1]), P0[2])
@@ -43,16 +44,26 @@ def _acquire(folder: Path, iop: tuple[float, ...], series: str = "1.9") -> None:
         pix = np.empty((rows, cols), np.int16)
         for j in range(rows):
             for i in range(cols):
-                a, b, cc = (corner + (i * r + j * c + k * n).round().astype(int))
+                a, b, cc = corner + (i * r + j * c + k * n).round().astype(int)
                 pix[j, i] = V[cc, b, a]
         ipp = P0 + (corner + k * n) * H
-        write_slice(folder / f"s{(k * 2) % slices}_{k}.dcm", pix, position=ipp, instance=k + 1, series=series,
-                    iop=iop, intercept=0, spacing=(H[axis[1]], H[axis[0]]))
+        write_slice(
+            folder / f"s{(k * 2) % slices}_{k}.dcm",
+            pix,
+            position=ipp,
+            instance=k + 1,
+            series=series,
+            iop=iop,
+            intercept=0,
+            spacing=(H[axis[1]], H[axis[0]]),
+        )
 
 
-@pytest.mark.parametrize("iop", [AXIAL, (-1, 0, 0, 0, -1, 0), (0, 1, 0, 0, 0, -1), (1, 0, 0, 0, 0, -1),
-                                 (0, -1, 0, 1, 0, 0)],
-                         ids=["axial", "axial-flipped", "sagittal", "coronal", "axial-rotated"])
+@pytest.mark.parametrize(
+    "iop",
+    [AXIAL, (-1, 0, 0, 0, -1, 0), (0, 1, 0, 0, 0, -1), (1, 0, 0, 0, 0, -1), (0, -1, 0, 1, 0, 0)],
+    ids=["axial", "axial-flipped", "sagittal", "coronal", "axial-rotated"],
+)
 def test_every_orientation_gives_the_same_ras_volume(tmp_path: Path, iop: tuple[float, ...]) -> None:
     _acquire(tmp_path / "s", iop)
     scan = read_dicom(tmp_path / "s")
@@ -78,8 +89,11 @@ def test_uneven_spacing_refused_or_allowed(tmp_path: Path, caplog: pytest.LogCap
     stored = np.arange(4 * 2 * 3, dtype=np.int16).reshape(4, 2, 3)
     for k, z in enumerate([0.0, 2.5, 5.0, 10.0]):  # the slice at 7.5 is missing
         write_slice(tmp_path / "gap" / f"z{k}.dcm", stored[k], position=[0, 0, z], instance=k + 1, series="1")
-    with pytest.raises(VolumeFormatError, match=r"^gap: uneven slice spacing: expected the slices 2\.5 mm apart.*"
-                       r"z2\.dcm to z3\.dcm: 5 mm.*allow_uneven=True"):
+    with pytest.raises(
+        VolumeFormatError,
+        match=r"^gap: uneven slice spacing: expected the slices 2\.5 mm apart.*"
+        r"z2\.dcm to z3\.dcm: 5 mm.*allow_uneven=True",
+    ):
         read_dicom(tmp_path / "gap")
     with caplog.at_level(logging.WARNING, logger="hevr.volume"):
         scan = read_dicom(tmp_path / "gap", allow_uneven=True)
@@ -121,8 +135,13 @@ def test_oblique_plane_refused_or_snapped(tmp_path: Path) -> None:
 
 
 def test_colour_refused(tmp_path: Path) -> None:
-    ds = dataset(np.zeros((2, 3), np.int16), series="1", ImagePositionPatient=[0, 0, 0],
-                 ImageOrientationPatient=list(AXIAL), PixelSpacing=[1, 1])
+    ds = dataset(
+        np.zeros((2, 3), np.int16),
+        series="1",
+        ImagePositionPatient=[0, 0, 0],
+        ImageOrientationPatient=list(AXIAL),
+        PixelSpacing=[1, 1],
+    )
     ds.SamplesPerPixel, ds.PhotometricInterpretation, ds.PlanarConfiguration = 3, "RGB", 0
     ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 8, 8, 7, 0
     ds.PixelData = np.zeros((2, 3, 3), np.uint8).tobytes()
@@ -141,8 +160,14 @@ def _sequence(**attrs: Any) -> Any:
     return Sequence([item])
 
 
-def _enhanced(path: Path, stored: np.ndarray, positions: list[list[float]], slopes: list[float],
-              intercepts: list[float], iop: tuple[float, ...]) -> None:
+def _enhanced(
+    path: Path,
+    stored: np.ndarray,
+    positions: list[list[float]],
+    slopes: list[float],
+    intercepts: list[float],
+    iop: tuple[float, ...],
+) -> None:
     """An Enhanced CT file: geometry and pixel size shared, positions and rescale per frame."""
     from pydicom.dataset import Dataset
     from pydicom.sequence import Sequence
@@ -156,8 +181,7 @@ def _enhanced(path: Path, stored: np.ndarray, positions: list[list[float]], slop
     for pos, slope, inter in zip(positions, slopes, intercepts):
         item = Dataset()
         item.PlanePositionSequence = _sequence(ImagePositionPatient=pos)
-        item.PixelValueTransformationSequence = _sequence(RescaleSlope=slope, RescaleIntercept=inter,
-                                                          RescaleType="HU")
+        item.PixelValueTransformationSequence = _sequence(RescaleSlope=slope, RescaleIntercept=inter, RescaleType="HU")
         per.append(item)
     ds.PerFrameFunctionalGroupsSequence = Sequence(per)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -171,11 +195,25 @@ def test_enhanced_multiframe_equals_single_frames(tmp_path: Path, iop: tuple[flo
     positions = [(np.array([10.0, -20.0, 30.0]) + 2.5 * k * normal).tolist() for k in range(4)]
     slopes, intercepts = [1, 1, 2, 1], [-1024, -1000, -1024, -1024]
     frame_order = [2, 0, 3, 1]  # frames stored out of position order
-    _enhanced(tmp_path / "enh" / "ct.dcm", stored[frame_order], [positions[k] for k in frame_order],
-              [slopes[k] for k in frame_order], [intercepts[k] for k in frame_order], iop)
+    _enhanced(
+        tmp_path / "enh" / "ct.dcm",
+        stored[frame_order],
+        [positions[k] for k in frame_order],
+        [slopes[k] for k in frame_order],
+        [intercepts[k] for k in frame_order],
+        iop,
+    )
     for k in range(4):
-        write_slice(tmp_path / "single" / f"s{k}.dcm", stored[k], position=positions[k], instance=k + 1,
-                    series="3.3", iop=iop, slope=slopes[k], intercept=intercepts[k])
+        write_slice(
+            tmp_path / "single" / f"s{k}.dcm",
+            stored[k],
+            position=positions[k],
+            instance=k + 1,
+            series="3.3",
+            iop=iop,
+            slope=slopes[k],
+            intercept=intercepts[k],
+        )
     single = read_dicom(tmp_path / "single")
     for path in (tmp_path / "enh", tmp_path / "enh" / "ct.dcm"):  # the folder or the file
         enhanced = read_dicom(path)
@@ -188,10 +226,18 @@ def test_enhanced_multiframe_equals_single_frames(tmp_path: Path, iop: tuple[flo
 
 def test_legacy_multiframe_nm_style(tmp_path: Path) -> None:
     stored = np.arange(3 * 2 * 4, dtype=np.int16).reshape(3, 2, 4)
-    ds = dataset(stored, series="4.4", modality="NM", sop="1.2.840.10008.5.1.4.1.1.20", NumberOfFrames=3,
-                 PixelSpacing=[2.0, 3.0], SpacingBetweenSlices=4.0,
-                 DetectorInformationSequence=_sequence(ImagePositionPatient=[0.0, 0.0, 0.0],
-                                                       ImageOrientationPatient=list(AXIAL)))
+    ds = dataset(
+        stored,
+        series="4.4",
+        modality="NM",
+        sop="1.2.840.10008.5.1.4.1.1.20",
+        NumberOfFrames=3,
+        PixelSpacing=[2.0, 3.0],
+        SpacingBetweenSlices=4.0,
+        DetectorInformationSequence=_sequence(
+            ImagePositionPatient=[0.0, 0.0, 0.0], ImageOrientationPatient=list(AXIAL)
+        ),
+    )
     ds.save_as(tmp_path / "nm.dcm", enforce_file_format=True)
     scan = read_dicom(tmp_path / "nm.dcm")
     np.testing.assert_array_equal(scan.volume, stored[:, ::-1, ::-1])
@@ -217,6 +263,5 @@ def test_pydicom_bundled_files() -> None:
     scan = read_dicom(dose)  # GridFrameOffsetVector 0, 5, ... 70 mm; DoseGridScaling to Gy
     ds = pydicom.dcmread(dose)
     assert scan.volume.shape == (15, 10, 10) and scan.spacing == pytest.approx((10.0, 10.0, 5.0))
-    np.testing.assert_allclose(scan.volume, (ds.pixel_array * float(ds.DoseGridScaling))[:, ::-1, ::-1],
-                               rtol=1e-6)
+    np.testing.assert_allclose(scan.volume, (ds.pixel_array * float(ds.DoseGridScaling))[:, ::-1, ::-1], rtol=1e-6)
     assert scan.origin[2] == pytest.approx(float(ds.ImagePositionPatient[2]))

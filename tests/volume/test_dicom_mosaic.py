@@ -91,8 +91,11 @@ def test_one_file_of_a_diffusion_series_reads_that_volume(tmp_path):
 def test_mosaic_that_cannot_hold_its_slices_is_refused():
     """nibabel's 0.dcm: 48 slices declared, 256 × 256 pixels (7 does not divide 256). Read as
     two 256 × 256 slices it was a plausible wrong volume; now it is a data error."""
-    with pytest.raises(CorruptVolumeError, match=r"0\.dcm: a Siemens MOSAIC of 48 slices on a 7x7 grid: "
-                                                 r"expected rows and columns that are multiples of 7, got 256x256"):
+    with pytest.raises(
+        CorruptVolumeError,
+        match=r"0\.dcm: a Siemens MOSAIC of 48 slices on a 7x7 grid: "
+        r"expected rows and columns that are multiples of 7, got 256x256",
+    ):
         read_dicom(DATA / "0.dcm")
 
 
@@ -113,8 +116,9 @@ def test_cli_info_and_exit_status(tmp_path):
     assert ok.returncode == 0, ok.stderr
     assert "128x128x48" in ok.stdout.replace(" ", "").replace("×", "x")
     assert "warning" not in ok.stderr, ok.stderr  # nibabel's note on its own DICOM readers is not the user's
-    bad = subprocess.run([sys.executable, "-m", "hevr", "info", str(tmp_path / "bad.dcm")], capture_output=True,
-                         text=True)
+    bad = subprocess.run(
+        [sys.executable, "-m", "hevr", "info", str(tmp_path / "bad.dcm")], capture_output=True, text=True
+    )
     assert bad.returncode == 1 and "multiples of 7, got 256x256" in bad.stderr
 
 

@@ -23,8 +23,9 @@ def _two_series(folder: Path) -> tuple[np.ndarray, np.ndarray]:
     ct = np.arange(4 * 3 * 5, dtype=np.int16).reshape(4, 3, 5)
     mr = 100 + np.arange(3 * 2 * 4, dtype=np.int16).reshape(3, 2, 4)
     write_series(folder / "ct" / "a", ct, series=CT_UID, SeriesNumber=2, SeriesDescription="AX 2.5")
-    write_series(folder / "mr", mr, series=MR_UID, gap=4.0, intercept=0, modality="MR", SeriesNumber=7,
-                 SeriesDescription="T1 AX")
+    write_series(
+        folder / "mr", mr, series=MR_UID, gap=4.0, intercept=0, modality="MR", SeriesNumber=7, SeriesDescription="T1 AX"
+    )
     return ct, mr
 
 
@@ -66,14 +67,26 @@ def test_list_series(tmp_path: Path) -> None:
     _two_series(tmp_path / "cd")
     (tmp_path / "cd" / "notes.txt").write_text("report")
     (tmp_path / "cd" / ".hidden").mkdir()
-    write_slice(tmp_path / "cd" / ".hidden" / "x.dcm", np.zeros((3, 5), np.int16), position=[0, 0, 0],
-                instance=1, series="7.7.7")  # hidden folders are skipped
+    write_slice(
+        tmp_path / "cd" / ".hidden" / "x.dcm",
+        np.zeros((3, 5), np.int16),
+        position=[0, 0, 0],
+        instance=1,
+        series="7.7.7",
+    )  # hidden folders are skipped
     infos = list_series(tmp_path / "cd")
     assert [i.uid for i in infos] == [CT_UID, MR_UID]
     ct = infos[0]
     assert isinstance(ct, SeriesInfo)
-    assert (ct.number, ct.modality, ct.description, ct.images, ct.frames, ct.rows, ct.columns) == \
-        (2, "CT", "AX 2.5", 4, 4, 3, 5)
+    assert (ct.number, ct.modality, ct.description, ct.images, ct.frames, ct.rows, ct.columns) == (
+        2,
+        "CT",
+        "AX 2.5",
+        4,
+        4,
+        3,
+        5,
+    )
     assert ct.path.parent == tmp_path / "cd" / "ct" / "a"
     assert ct.summary() == f"{CT_UID}  #2 CT 'AX 2.5': 4 images, 3x5, in {tmp_path / 'cd' / 'ct' / 'a'}"
     with pytest.raises(AttributeError):
@@ -87,18 +100,30 @@ def test_recursive_folder_and_single_file(tmp_path: Path) -> None:
     expected = stored[:, ::-1, ::-1] - 1024
     np.testing.assert_array_equal(read_dicom(tmp_path / "patient").volume, expected)
     # A single slice stands for its series in its folder, as viewers do; other series there are ignored.
-    write_slice(paths[0].parent / "other.dcm", np.zeros((2, 4), np.int16), position=[0, 0, 50], instance=1,
-                series="6.6")
+    write_slice(
+        paths[0].parent / "other.dcm", np.zeros((2, 4), np.int16), position=[0, 0, 50], instance=1, series="6.6"
+    )
     scan = read_dicom(paths[1])
     np.testing.assert_array_equal(scan.volume, expected)
     assert scan.details["images"] == 3
 
 
 def _fileset_dataset(pixels: np.ndarray, series: str, z: float, number: int) -> object:
-    return dataset(pixels, series=series, PatientID="P1", PatientName="Test^Patient", StudyInstanceUID="1.2.9",
-                   StudyDate="20240101", StudyTime="120000", StudyID="1", SeriesNumber=number,
-                   InstanceNumber=int(z) + 1, ImagePositionPatient=[0.0, 0.0, z],
-                   ImageOrientationPatient=[1, 0, 0, 0, 1, 0], PixelSpacing=[0.5, 0.5])
+    return dataset(
+        pixels,
+        series=series,
+        PatientID="P1",
+        PatientName="Test^Patient",
+        StudyInstanceUID="1.2.9",
+        StudyDate="20240101",
+        StudyTime="120000",
+        StudyID="1",
+        SeriesNumber=number,
+        InstanceNumber=int(z) + 1,
+        ImagePositionPatient=[0.0, 0.0, z],
+        ImageOrientationPatient=[1, 0, 0, 0, 1, 0],
+        PixelSpacing=[0.5, 0.5],
+    )
 
 
 def test_dicomdir_written_by_pydicom(tmp_path: Path) -> None:
@@ -194,7 +219,8 @@ def test_one_file_reads_its_series_whatever_else_lies_beside_it(tmp_path: Path, 
         warnings.simplefilter("error")
         scan = read_dicom(paths[0])
     assert np.array_equal(scan.volume, whole.volume) and scan.details["images"] == 3
-    said = " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING); print("LOG", caplog.text, caplog.records)
+    said = " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING)
+    print("LOG", caplog.text, caplog.records)
     assert not said, said
     assert "broken" not in caplog.text and "bomb" not in caplog.text
     with pytest.raises(VolumeFormatError, match="found 2"):  # the folder itself: both series, listed

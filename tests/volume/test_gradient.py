@@ -64,10 +64,18 @@ def stores(tmp_path_factory, keypair256):
     ph = hevr.phantom(10)
     rnd = _rnd()
     return {
-        "phantom": (hevr.encrypt_volume(ph, d / "ph.zarr", priv, brick=4, vector_dims=4, gradient=True,
-                                        progress=False), ph, (1.0, 1.0, 1.0)),
-        "random": (hevr.encrypt_volume(rnd, d / "rnd.zarr", priv, brick=4, vector_dims=3, gradient=True,
-                                       spacing=RND_SPACING, progress=False), rnd, RND_SPACING),
+        "phantom": (
+            hevr.encrypt_volume(ph, d / "ph.zarr", priv, brick=4, vector_dims=4, gradient=True, progress=False),
+            ph,
+            (1.0, 1.0, 1.0),
+        ),
+        "random": (
+            hevr.encrypt_volume(
+                rnd, d / "rnd.zarr", priv, brick=4, vector_dims=3, gradient=True, spacing=RND_SPACING, progress=False
+            ),
+            rnd,
+            RND_SPACING,
+        ),
     }
 
 
@@ -78,8 +86,10 @@ def test_the_stored_channel_is_the_quantised_definition(stores, keypair256, name
     ref = _reference(vol, spacing, (0, 255), ev.vector_dims)
     assert np.array_equal(_decrypt(ev, priv), ref)  # brick halos give exactly the whole volume's differences
     assert ref.max() > 0 and (ref == 0).any()
-    assert np.array_equal(_decrypt(ev, priv, "vector"), np.moveaxis(np.rint(encode_density(
-        np.clip(vol / 255.0, 0, 1), ev.vector_dims) * 1000).astype(np.int64), -1, 0))  # the vector channel unchanged
+    assert np.array_equal(
+        _decrypt(ev, priv, "vector"),
+        np.moveaxis(np.rint(encode_density(np.clip(vol / 255.0, 0, 1), ev.vector_dims) * 1000).astype(np.int64), -1, 0),
+    )  # the vector channel unchanged
     # the float field the writer quantises is hevr.volume.gradient's, which render_plain renders
     G = gradient_encoding(vol, spacing, (0, 255), ev.vector_dims)
     assert np.array_equal(np.moveaxis(np.rint(G * 1000).astype(np.int64), -1, 0), ref)
@@ -105,15 +115,30 @@ def test_metadata_layout_and_digests(stores, keypair256):
 
 
 def test_corrupt_gradient_metadata_is_named():
-    base = VolumeMetadata(shape=(2, 2, 2), spacing=(1.0, 1.0, 1.0), brick=(2, 2, 2), n="3233",
-                          fingerprint="ab" * 32, ciphertext_bytes=3, dtype="uint8", value_range=(0.0, 255.0),
-                          scalar=None, vector=ChannelInfo(-3, 3, 2), gradient=ChannelInfo(-3, 3, 2), complete=True,
-                          store_id="0123456789abcdef",
-                          arrays={n: "sha256:" + "0" * 64 for n in ("vector", "gradient", "done")})
+    base = VolumeMetadata(
+        shape=(2, 2, 2),
+        spacing=(1.0, 1.0, 1.0),
+        brick=(2, 2, 2),
+        n="3233",
+        fingerprint="ab" * 32,
+        ciphertext_bytes=3,
+        dtype="uint8",
+        value_range=(0.0, 255.0),
+        scalar=None,
+        vector=ChannelInfo(-3, 3, 2),
+        gradient=ChannelInfo(-3, 3, 2),
+        complete=True,
+        store_id="0123456789abcdef",
+        arrays={n: "sha256:" + "0" * 64 for n in ("vector", "gradient", "done")},
+    )
     assert VolumeMetadata.from_dict(base.to_dict()) == base
-    for change, match in ((lambda d: d["channels"]["gradient"].update(dims=3), "channels.gradient: expected the same"),
-                          (lambda d: d["channels"].pop("vector") and d["arrays"].pop("vector"),
-                           "channels: expected an object with 'scalar' and/or 'vector'")):
+    for change, match in (
+        (lambda d: d["channels"]["gradient"].update(dims=3), "channels.gradient: expected the same"),
+        (
+            lambda d: d["channels"].pop("vector") and d["arrays"].pop("vector"),
+            "channels: expected an object with 'scalar' and/or 'vector'",
+        ),
+    ):
         d = base.to_dict()
         change(d)
         d["checksum"] = metadata_checksum(d)
@@ -134,17 +159,29 @@ def test_dask_input_flat_axes_floats_and_a_cluster(tmp_path, keypair256, cluster
     pub, priv = keypair256
     rnd = _rnd()
     darr = da.from_array(rnd, chunks=(3, 5, 2))  # chunks unrelated to the bricks
-    ev = hevr.encrypt_volume(darr, tmp_path / "d.zarr", pub, brick=(2, 4, 3), vector_dims=3, gradient=True,
-                             spacing=RND_SPACING, scalar=False, progress=False, client=cluster)
+    ev = hevr.encrypt_volume(
+        darr,
+        tmp_path / "d.zarr",
+        pub,
+        brick=(2, 4, 3),
+        vector_dims=3,
+        gradient=True,
+        spacing=RND_SPACING,
+        scalar=False,
+        progress=False,
+        client=cluster,
+    )
     assert ev.meta.channel_names == ("vector", "gradient")
     assert np.array_equal(_decrypt(ev, priv), _reference(rnd, RND_SPACING, (0, 255), 3))
     flat = rnd[:1, :, :5]  # one voxel along z: that axis contributes nothing
-    ev = hevr.encrypt_volume(flat, tmp_path / "f.zarr", priv, brick=(1, 4, 2), vector_dims=2, gradient=True,
-                             vector_digits=4, progress=False)
+    ev = hevr.encrypt_volume(
+        flat, tmp_path / "f.zarr", priv, brick=(1, 4, 2), vector_dims=2, gradient=True, vector_digits=4, progress=False
+    )
     assert np.array_equal(_decrypt(ev, priv), _reference(flat, (1, 1, 1), (0, 255), 2, digits=4))
     flt = (np.random.default_rng(3).random((5, 6, 4)) * 4 - 1).astype(np.float32)
-    ev = hevr.encrypt_volume(flt, tmp_path / "x.zarr", priv, brick=3, vector_dims=2, gradient=True,
-                             value_range=(-1.0, 3.0), progress=False)
+    ev = hevr.encrypt_volume(
+        flt, tmp_path / "x.zarr", priv, brick=3, vector_dims=2, gradient=True, value_range=(-1.0, 3.0), progress=False
+    )
     assert np.array_equal(_decrypt(ev, priv), _reference(flt, (1, 1, 1), (-1.0, 3.0), 2))
     const = np.full((4, 4, 4), 9, np.uint8)  # max |∇d| = 0: g = 0 everywhere
     ev = hevr.encrypt_volume(const, tmp_path / "c.zarr", priv, brick=2, vector_dims=2, gradient=True, progress=False)
@@ -154,8 +191,13 @@ def test_dask_input_flat_axes_floats_and_a_cluster(tmp_path, keypair256, cluster
 def test_pyramid_residency_and_ome(tmp_path, keypair256):
     _, priv = keypair256
     vol = hevr.phantom(10)
-    ev = build_pyramid(hevr.encrypt_volume(vol, tmp_path / "p.zarr", priv, brick=4, vector_dims=2, gradient=True,
-                                           scalar=False, progress=False), 1, progress=False)
+    ev = build_pyramid(
+        hevr.encrypt_volume(
+            vol, tmp_path / "p.zarr", priv, brick=4, vector_dims=2, gradient=True, scalar=False, progress=False
+        ),
+        1,
+        progress=False,
+    )
     lv = ev.at_level(1)
     assert lv.meta.gradient == lv.meta.vector and lv.meta.gradient.exponent == -6
     below = _decrypt(ev, priv)

@@ -42,8 +42,15 @@ def header(sizes: str = "2 2 2", encoding: str = "raw", **fields: str) -> bytes:
 
 
 # -- .raw names -------------------------------------------------------------------------------
-@pytest.mark.parametrize("name, data", [("a_0x5x5_uint8.raw", b""), ("b_5x0x5_uint8.raw", b"x" * 10),
-                                        ("c_5x5x0_int16.raw", b""), ("d_0x0x0_float32.raw", b"")])
+@pytest.mark.parametrize(
+    "name, data",
+    [
+        ("a_0x5x5_uint8.raw", b""),
+        ("b_5x0x5_uint8.raw", b"x" * 10),
+        ("c_5x5x0_int16.raw", b""),
+        ("d_0x0x0_float32.raw", b""),
+    ],
+)
 def test_raw_name_with_a_zero_size(tmp_path: Path, name: str, data: bytes) -> None:
     (tmp_path / name).write_bytes(data)
     msg = refused(hevr.VolumeFormatError, hevr.load_volume, tmp_path / name)
@@ -111,9 +118,17 @@ def test_line_skip_over_data_without_newlines_is_bounded(tmp_path: Path) -> None
     assert "truncated" in refused(hevr.VolumeFormatError, hevr.load_volume, path)
 
 
-@pytest.mark.parametrize("sizes, needle", [("1000000 1000000 1000000", "truncated"), ("٢ 2 2", "'sizes'"),
-                                           ("2_0 2 2", "'sizes'"), ("2 2 -2", "positive"), ("0 2 2", "positive"),
-                                           ("9" * 5000 + " 2 2", "'sizes'")])
+@pytest.mark.parametrize(
+    "sizes, needle",
+    [
+        ("1000000 1000000 1000000", "truncated"),
+        ("٢ 2 2", "'sizes'"),
+        ("2_0 2 2", "'sizes'"),
+        ("2 2 -2", "positive"),
+        ("0 2 2", "positive"),
+        ("9" * 5000 + " 2 2", "'sizes'"),
+    ],
+)
 def test_bad_sizes(tmp_path: Path, sizes: str, needle: str) -> None:
     path = tmp_path / "s.nrrd"
     path.write_bytes(header(sizes) + bytes(8))
@@ -121,10 +136,17 @@ def test_bad_sizes(tmp_path: Path, sizes: str, needle: str) -> None:
     assert msg.startswith("s.nrrd:") and needle in msg
 
 
-@pytest.mark.parametrize("fields", [{"spacings": "-1 1 1"}, {"spacings": "inf 1 1"}, {"spacings": "0 1 1"},
-                                    {"space_directions": "(0,0,0) (0,1,0) (0,0,1)"},
-                                    {"space_directions": "(nan,0,0) (0,1,0) (0,0,1)"},
-                                    {"space_directions": "(inf,0,0) (0,1,0) (0,0,1)"}])
+@pytest.mark.parametrize(
+    "fields",
+    [
+        {"spacings": "-1 1 1"},
+        {"spacings": "inf 1 1"},
+        {"spacings": "0 1 1"},
+        {"space_directions": "(0,0,0) (0,1,0) (0,0,1)"},
+        {"space_directions": "(nan,0,0) (0,1,0) (0,0,1)"},
+        {"space_directions": "(inf,0,0) (0,1,0) (0,0,1)"},
+    ],
+)
 def test_bad_spacing(tmp_path: Path, fields: dict) -> None:
     path = tmp_path / "sp.nrrd"
     path.write_bytes(header(**fields) + bytes(8))

@@ -22,7 +22,6 @@ DATA = Path(__file__).resolve().parents[1] / "data"  # shipped with the tests (t
 TOOTH_SHA512 = "5ee3d77ae951e129d29062a4fd4d8730fd8670bd"
 
 
-
 def _volume(dtype: str | type, shape: tuple[int, int, int] = (5, 6, 7)) -> np.ndarray:
     """A deterministic volume using most of the dtype's range, no two axes alike."""
     dt = np.dtype(dtype)
@@ -105,8 +104,7 @@ def test_npy_big_endian_and_fortran_order(tmp_path: Path) -> None:
         _check(vol, arr)
 
 
-@pytest.mark.parametrize("dtype", ["int8", "uint8", "int16", "uint16", "int32", "uint32",
-                                   "float32", "float64"])
+@pytest.mark.parametrize("dtype", ["int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64"])
 def test_raw_round_trip_by_name(tmp_path: Path, dtype: str) -> None:
     arr = _volume(dtype, (3, 4, 5))
     # The name lists the sizes x, y, z; the array shape is (z, y, x).
@@ -122,8 +120,7 @@ def test_raw_round_trip_with_kwargs(tmp_path: Path, byte_order: str) -> None:
     path = save_volume(tmp_path / "plain.raw", arr, byte_order=byte_order)
     assert path.stat().st_size == arr.nbytes
     assert path.read_bytes() == arr.astype("<i2" if byte_order == "little" else ">i2").tobytes()
-    vol, spacing = load_volume(path, shape=(4, 3, 2), dtype=np.int16, byte_order=byte_order,
-                               spacing=(0.25, 0.5, 4.0))
+    vol, spacing = load_volume(path, shape=(4, 3, 2), dtype=np.int16, byte_order=byte_order, spacing=(0.25, 0.5, 4.0))
     _check(vol, arr)
     assert spacing == (0.25, 0.5, 4.0)
 
@@ -140,12 +137,10 @@ def test_raw_kwargs_override_the_name(tmp_path: Path) -> None:
 @pytest.mark.parametrize("encoding", ["raw", "gzip"])
 @pytest.mark.parametrize("byte_order", ["little", "big"])
 @pytest.mark.parametrize("dtype", ["uint8", "int16", "float32"])
-def test_nrrd_round_trip(tmp_path: Path, suffix: str, encoding: str, byte_order: str,
-                         dtype: str) -> None:
+def test_nrrd_round_trip(tmp_path: Path, suffix: str, encoding: str, byte_order: str, dtype: str) -> None:
     arr = _volume(dtype)
     spacing = (0.5, 1.25, 3.0)  # anisotropic, so a mix-up of axis order would show
-    path = save_volume(tmp_path / f"v{suffix}", arr, spacing, encoding=encoding,
-                       byte_order=byte_order)
+    path = save_volume(tmp_path / f"v{suffix}", arr, spacing, encoding=encoding, byte_order=byte_order)
     vol, got = load_volume(path)
     _check(vol, arr)
     assert got == spacing
@@ -169,20 +164,22 @@ def test_nhdr_writes_loadable_big_endian_int16(tmp_path: Path) -> None:
 def test_nrrd_cross_check_with_pynrrd(tmp_path: Path) -> None:
     nrrd = pytest.importorskip("nrrd")
     arr = _volume("int16", (3, 4, 5))
-    header = {"space directions": np.diag([0.5, 1.5, 2.0]), "space": "left-posterior-superior",
-              "encoding": "gzip", "endian": "big"}
+    header = {
+        "space directions": np.diag([0.5, 1.5, 2.0]),
+        "space": "left-posterior-superior",
+        "encoding": "gzip",
+        "endian": "big",
+    }
     # pynrrd writes what we read ...
     for detached in (False, True):
         name = "p.nhdr" if detached else "p.nrrd"
-        nrrd.write(str(tmp_path / name), arr, dict(header), detached_header=detached,
-                   index_order="C")
+        nrrd.write(str(tmp_path / name), arr, dict(header), detached_header=detached, index_order="C")
         vol, spacing = load_volume(tmp_path / name)
         _check(vol, arr[:, ::-1, ::-1])  # LPS: x and y reversed into RAS+
         assert spacing == (0.5, 1.5, 2.0)
     # ... and reads what we write.
     for encoding in ("raw", "gzip"):
-        path = save_volume(tmp_path / f"o_{encoding}.nhdr", arr, (0.5, 1.5, 2.0),
-                           encoding=encoding, byte_order="big")
+        path = save_volume(tmp_path / f"o_{encoding}.nhdr", arr, (0.5, 1.5, 2.0), encoding=encoding, byte_order="big")
         data, hdr = nrrd.read(str(path), index_order="C")
         np.testing.assert_array_equal(data, arr)
         np.testing.assert_allclose(np.linalg.norm(hdr["space directions"], axis=1), [0.5, 1.5, 2.0])
@@ -193,9 +190,11 @@ def test_nrrd_header_variants(tmp_path: Path) -> None:
     # 'spacings' (nan = unknown -> 1), comments, key/value pairs, type aliases,
     # mixed-case field names, CRLF line ends, line skip and byte skip.
     (tmp_path / "d.bin").write_bytes(b"junk line\n" + b"XYZ" + arr.tobytes())
-    text = ("NRRD0005\r\n# a comment\r\nType: unsigned short\r\ndimension: 3\r\nsizes: 4 3 2\r\n"
-            "spacings: 2 nan 0.5\r\nendian: little\r\nencoding: raw\r\nmodality:=CT\r\n"
-            "line skip: 1\r\nbyte skip: 3\r\ndata file: d.bin\r\n")
+    text = (
+        "NRRD0005\r\n# a comment\r\nType: unsigned short\r\ndimension: 3\r\nsizes: 4 3 2\r\n"
+        "spacings: 2 nan 0.5\r\nendian: little\r\nencoding: raw\r\nmodality:=CT\r\n"
+        "line skip: 1\r\nbyte skip: 3\r\ndata file: d.bin\r\n"
+    )
     (tmp_path / "h.nhdr").write_text(text, newline="")
     vol, spacing = load_volume(tmp_path / "h.nhdr")
     _check(vol, arr)
@@ -207,19 +206,17 @@ def test_nrrd_byte_skip_minus_one_and_absolute_data_file(tmp_path: Path) -> None
     data = tmp_path / "sub" / "d.dat"
     data.parent.mkdir()
     data.write_bytes(b"some foreign header" + arr.tobytes())
-    (tmp_path / "h.nhdr").write_text(_nrrd_header(type="float", endian="little", byte_skip="-1",
-                                                  data_file=str(data)))
+    (tmp_path / "h.nhdr").write_text(_nrrd_header(type="float", endian="little", byte_skip="-1", data_file=str(data)))
     vol, _ = load_volume(tmp_path / "h.nhdr")
     _check(vol, arr)
 
 
-def test_oblique_space_directions_use_vector_lengths(tmp_path: Path,
-                                                     caplog: pytest.LogCaptureFixture) -> None:
+def test_oblique_space_directions_use_vector_lengths(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     arr = np.arange(24, dtype=np.uint8).reshape(2, 3, 4)
     (tmp_path / "my data.raw").write_bytes(arr.tobytes())  # a data file name with a space
-    (tmp_path / "o.nhdr").write_text(_nrrd_header(
-        space_dimension="3", space_directions="(0.6,0.8,0) (-1.6,1.2,0) (0,0,-3)",
-        data_file="my data.raw"))
+    (tmp_path / "o.nhdr").write_text(
+        _nrrd_header(space_dimension="3", space_directions="(0.6,0.8,0) (-1.6,1.2,0) (0,0,-3)", data_file="my data.raw")
+    )
     with caplog.at_level("INFO", logger="hevr.volume.nrrd_space"):
         vol, spacing = load_volume(tmp_path / "o.nhdr")
     _check(vol, arr)
@@ -230,8 +227,7 @@ def test_oblique_space_directions_use_vector_lengths(tmp_path: Path,
 def test_attached_gzip_with_byte_skip(tmp_path: Path) -> None:
     arr = np.arange(24, dtype=np.uint8).reshape(2, 3, 4)
     body = gzip.compress(b"\0" * 5 + arr.tobytes())
-    (tmp_path / "a.nrrd").write_bytes((_nrrd_header(encoding="gzip", byte_skip="5") + "\n").encode()
-                                      + body)
+    (tmp_path / "a.nrrd").write_bytes((_nrrd_header(encoding="gzip", byte_skip="5") + "\n").encode() + body)
     vol, _ = load_volume(tmp_path / "a.nrrd")
     _check(vol, arr)
 
@@ -250,8 +246,9 @@ def test_nifti_round_trip(tmp_path: Path) -> None:
         assert spacing == pytest.approx((0.5, 0.75, 2.0))
 
 
-@pytest.mark.parametrize("slope, inter, dtype", [(2.0, -10.0, np.int16), (1.0, -40000.0, np.int32),
-                                                 (0.5, 0.0, np.float32)])
+@pytest.mark.parametrize(
+    "slope, inter, dtype", [(2.0, -10.0, np.int16), (1.0, -40000.0, np.int32), (0.5, 0.0, np.float32)]
+)
 def test_nifti_scaling(tmp_path: Path, slope: float, inter: float, dtype: type) -> None:
     nib = pytest.importorskip("nibabel")
     arr = np.arange(60, dtype=np.int16).reshape(3, 4, 5)
@@ -279,8 +276,10 @@ def test_nifti_trailing_singleton_and_4d(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------- missing extras
 
 
-@pytest.mark.parametrize("module, make", [("nibabel", "brain.nii.gz"), ("nibabel", "brain.mgz"), ("pydicom", "folder"),
-                                          ("tifffile", "cells.tif")])
+@pytest.mark.parametrize(
+    "module, make",
+    [("nibabel", "brain.nii.gz"), ("nibabel", "brain.mgz"), ("pydicom", "folder"), ("tifffile", "cells.tif")],
+)
 def test_missing_extra(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, module: str, make: str) -> None:
     monkeypatch.setitem(sys.modules, module, None)  # makes "import module" fail
     if make != "folder":
@@ -327,8 +326,7 @@ def _bad(tmp_path: Path, case: str) -> Path:
         "nrrd-wrong-sizes": ("w.nhdr", _nrrd_header(sizes="4 3 1", data_file="d.raw")),
         "nrrd-attached-truncated": ("a.nrrd", _nrrd_header() + "\n" + "x" * 10),
         "nrrd-kinds": ("k.nhdr", _nrrd_header(kinds="RGB-color domain domain", data_file="d.raw")),
-        "nrrd-directions": ("sd.nhdr", _nrrd_header(space_directions="(1,0,0) none (0,0,1)",
-                                                    data_file="d.raw")),
+        "nrrd-directions": ("sd.nhdr", _nrrd_header(space_directions="(1,0,0) none (0,0,1)", data_file="d.raw")),
         "nrrd-zero-spacing": ("zs.nhdr", _nrrd_header(spacings="1 0 1", data_file="d.raw")),
         "nrrd-gzip-corrupt": ("g.nhdr", _nrrd_header(encoding="gzip", data_file="d.raw")),
         "nrrd-gzip-short": ("gs.nhdr", _nrrd_header(encoding="gzip", data_file="short.raw.gz")),
@@ -432,18 +430,21 @@ def test_missing_nrrd_data_file(tmp_path: Path) -> None:
         load_volume(tmp_path / "h.nhdr")
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"byte_order": "middle"}, "byte_order"),
-    ({"spacing": (1, 0, 1)}, "spacing"),
-    ({"spacing": (1, 1)}, "spacing"),
-    ({"spacing": "abc"}, "spacing"),
-    ({"spacing": "123"}, "spacing"),
-    ({"spacing": (1, float("nan"), 1)}, "spacing"),
-    ({"shape": (2, 3)}, "shape"),
-    ({"shape": (2, 3, -4)}, "shape"),
-    ({"shape": (2, 3, 4), "dtype": "complex64"}, "dtype"),
-    ({"shape": (2, 3, 4), "dtype": "no-such-type"}, "dtype"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"byte_order": "middle"}, "byte_order"),
+        ({"spacing": (1, 0, 1)}, "spacing"),
+        ({"spacing": (1, 1)}, "spacing"),
+        ({"spacing": "abc"}, "spacing"),
+        ({"spacing": "123"}, "spacing"),
+        ({"spacing": (1, float("nan"), 1)}, "spacing"),
+        ({"shape": (2, 3)}, "shape"),
+        ({"shape": (2, 3, -4)}, "shape"),
+        ({"shape": (2, 3, 4), "dtype": "complex64"}, "dtype"),
+        ({"shape": (2, 3, 4), "dtype": "no-such-type"}, "dtype"),
+    ],
+)
 def test_bad_load_parameters(tmp_path: Path, kwargs: dict, match: str) -> None:
     path = tmp_path / "v_4x3x2_uint8.raw"
     path.write_bytes(bytes(24))
@@ -457,33 +458,50 @@ def test_shape_and_dtype_only_for_raw(tmp_path: Path) -> None:
         load_volume(path, shape=(2, 2, 2))
 
 
-@pytest.mark.parametrize("name, vol, kwargs, match", [
-    ("v.npy", np.zeros((2, 2)), {}, "3-D"),
-    ("v.npy", np.zeros((2, 2, 2), bool), {}, "integer or float"),
-    ("v.npy", np.zeros((2, 2, 2)), {"spacing": (1, -1, 1)}, "spacing"),
-    ("v.tif", np.zeros((2, 2, 2)), {}, r"\.npy, \.raw, \.nhdr or \.nrrd, got v\.tif"),
-    ("v.npy", np.zeros((2, 2, 2)), {"encoding": "gzip"}, "needs an NRRD"),
-    ("v.nhdr", np.zeros((2, 2, 2)), {"encoding": "bz2"}, "encoding"),
-    ("v.nhdr", np.zeros((2, 2, 2)), {"byte_order": "native"}, "byte_order"),
-    ("v.nhdr", np.zeros((2, 2, 2), np.float16), {}, "float16"),
-    ("v_2x2x3_uint8.raw", np.zeros((2, 2, 2), np.uint8), {}, r"v_2x2x3_uint8\.raw"),
-    ("v_2x2x2_int16.raw", np.zeros((2, 2, 2), np.uint8), {}, "int16"),
-])
-def test_bad_save_parameters(tmp_path: Path, name: str, vol: np.ndarray, kwargs: dict,
-                             match: str) -> None:
+@pytest.mark.parametrize(
+    "name, vol, kwargs, match",
+    [
+        ("v.npy", np.zeros((2, 2)), {}, "3-D"),
+        ("v.npy", np.zeros((2, 2, 2), bool), {}, "integer or float"),
+        ("v.npy", np.zeros((2, 2, 2)), {"spacing": (1, -1, 1)}, "spacing"),
+        ("v.tif", np.zeros((2, 2, 2)), {}, r"\.npy, \.raw, \.nhdr or \.nrrd, got v\.tif"),
+        ("v.npy", np.zeros((2, 2, 2)), {"encoding": "gzip"}, "needs an NRRD"),
+        ("v.nhdr", np.zeros((2, 2, 2)), {"encoding": "bz2"}, "encoding"),
+        ("v.nhdr", np.zeros((2, 2, 2)), {"byte_order": "native"}, "byte_order"),
+        ("v.nhdr", np.zeros((2, 2, 2), np.float16), {}, "float16"),
+        ("v_2x2x3_uint8.raw", np.zeros((2, 2, 2), np.uint8), {}, r"v_2x2x3_uint8\.raw"),
+        ("v_2x2x2_int16.raw", np.zeros((2, 2, 2), np.uint8), {}, "int16"),
+    ],
+)
+def test_bad_save_parameters(tmp_path: Path, name: str, vol: np.ndarray, kwargs: dict, match: str) -> None:
     with pytest.raises(ParameterError, match=match):
         save_volume(tmp_path / name, vol, **kwargs)
 
 
 def test_format_dispatch(tmp_path: Path) -> None:
-    for name, kind in [("a.npy", "npy"), ("a_2x2x2_uint8.raw", "raw"), ("a.NHDR", "nrrd"), ("a.nrrd", "nrrd"),
-                       ("a.nii", "nifti"), ("a.nii.gz", "nifti"), ("a.mgz", "nifti"), ("a.mgh", "nifti"),
-                       ("a.tif", "tiff"), ("a.ome.tiff", "tiff"), ("a.dcm", "dicom"), ("a.IMA", "dicom"),
-                       ("DICOMDIR", "dicom")]:
+    for name, kind in [
+        ("a.npy", "npy"),
+        ("a_2x2x2_uint8.raw", "raw"),
+        ("a.NHDR", "nrrd"),
+        ("a.nrrd", "nrrd"),
+        ("a.nii", "nifti"),
+        ("a.nii.gz", "nifti"),
+        ("a.mgz", "nifti"),
+        ("a.mgh", "nifti"),
+        ("a.tif", "tiff"),
+        ("a.ome.tiff", "tiff"),
+        ("a.dcm", "dicom"),
+        ("a.IMA", "dicom"),
+        ("DICOMDIR", "dicom"),
+    ]:
         (tmp_path / name).write_bytes(b"")
         assert _format(tmp_path / name) == kind, name
-    for folder, marker, kind in [("v3.zarr", "zarr.json", "zarr"), ("v2", ".zarray", "zarr"),
-                                 ("g2", ".zgroup", "zarr"), ("series", "IM0001", "dicom")]:
+    for folder, marker, kind in [
+        ("v3.zarr", "zarr.json", "zarr"),
+        ("v2", ".zarray", "zarr"),
+        ("g2", ".zgroup", "zarr"),
+        ("series", "IM0001", "dicom"),
+    ]:
         (tmp_path / folder).mkdir()
         (tmp_path / folder / marker).write_text("{}")
         assert _format(tmp_path / folder) == kind, folder

@@ -16,8 +16,14 @@ from hevr.volume.mapped import MappedFile, file_backed, task_array
 
 
 def _views(m: np.memmap) -> list[np.ndarray]:
-    return [m, m[1:, :, 2:], m[:, ::-1], m[::-1, :, ::-2], m.transpose(2, 1, 0)[::-1].transpose(2, 1, 0),
-            m.transpose(1, 0, 2)]
+    return [
+        m,
+        m[1:, :, 2:],
+        m[:, ::-1],
+        m[::-1, :, ::-2],
+        m.transpose(2, 1, 0)[::-1].transpose(2, 1, 0),
+        m.transpose(1, 0, 2),
+    ]
 
 
 @pytest.mark.parametrize("offset", [0, 3, 4096 + 5, 70000])
@@ -74,8 +80,10 @@ def test_encrypt_a_reoriented_memmap_on_worker_processes(tmp_path: Path, keypair
     vol.tofile(tmp_path / "s_11x10x9_uint16.raw")
     loaded, _ = hevr.load_volume(tmp_path / "s_11x10x9_uint16.raw")
     view = loaded[::-1, :, ::-1]  # as a reorientation returns it
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc, \
-            Client(lc, set_as_default=False) as c:
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc,
+        Client(lc, set_as_default=False) as c,
+    ):
         ev = hevr.encrypt_volume(view, tmp_path / "e.zarr", pub, brick=4, client=c, progress=False)
     for idx in ev.brick_indices():
         got = np.array([priv.decrypt(x) for x in ev.read_brick(idx)]).reshape(ev.brick_shape(idx))
@@ -110,21 +118,37 @@ def test_encrypt_a_memmap_larger_than_the_workers_memory_limit(tmp_path: Path) -
         return psutil.Process().memory_info().rss
 
     warm = np.zeros((4, 4, 4))
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc, \
-            Client(lc, set_as_default=False) as c:  # each worker's footprint once everything is imported
-        hevr.encrypt_volume(warm, tmp_path / "warm.zarr", pub, value_range=(0, 1), client=c, progress=False,
-                            unsafe_no_obfuscation=True)
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc,
+        Client(lc, set_as_default=False) as c,
+    ):  # each worker's footprint once everything is imported
+        hevr.encrypt_volume(
+            warm, tmp_path / "warm.zarr", pub, value_range=(0, 1), client=c, progress=False, unsafe_no_obfuscation=True
+        )
         base = max(c.run(rss).values())
     margin = 32 * 2**20
     limit = int((base + margin) / 0.95)  # the nanny restarts a worker at 95 % of its limit: base + margin
     assert vol.nbytes >= 2 * margin  # the volume is more than twice what a worker may add
     # no pausing or spilling (a paused worker would wait forever): past 95 % the nanny kills it
     quiet = {f"distributed.worker.memory.{k}": False for k in ("target", "spill", "pause")}
-    with dask.config.set(quiet), LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                              dashboard_address=":0", memory_limit=limit) as lc, \
-            Client(lc, set_as_default=False) as c:
-        ev = hevr.encrypt_volume(vol, tmp_path / "big.zarr", pub, brick=32, value_range=(0, 1.01), digits=6,
-                                 client=c, progress=False, unsafe_no_obfuscation=True)
+    with (
+        dask.config.set(quiet),
+        LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", memory_limit=limit
+        ) as lc,
+        Client(lc, set_as_default=False) as c,
+    ):
+        ev = hevr.encrypt_volume(
+            vol,
+            tmp_path / "big.zarr",
+            pub,
+            brick=32,
+            value_range=(0, 1.01),
+            digits=6,
+            client=c,
+            progress=False,
+            unsafe_no_obfuscation=True,
+        )
         assert max(c.run(rss).values()) < limit
     idx = (2, 7, 3)
     got = np.array([priv.decrypt(x) for x in ev.read_brick(idx)]).reshape(ev.brick_shape(idx)) / 1e6

@@ -36,7 +36,9 @@ def test_every_range_is_a_valid_value_range(code):
 
 @pytest.mark.parametrize("code", sorted(UNSUPPORTED))
 def test_modalities_without_a_scale_are_refused_with_the_reason(code):
-    with pytest.raises(hevr.ParameterError, match=rf"^modality: {code} has no fixed value range \(.+\); give a value_range"):
+    with pytest.raises(
+        hevr.ParameterError, match=rf"^modality: {code} has no fixed value range \(.+\); give a value_range"
+    ):
         modality_range(code)
 
 
@@ -69,8 +71,9 @@ def test_presets_are_valid_render_nodes(name):
     assert all(lo <= v <= hi for v, _ in preset.nodes)
     # hevr.render_plain accepts them
     vol = np.linspace(vr[0], vr[1], 64).reshape(4, 4, 4)
-    img = hevr.render_plain(vol, hevr.Camera.orbit(vol.shape, width=3, height=3), mode="tf", nodes=nodes,
-                            vector_dims=4, value_range=vr)
+    img = hevr.render_plain(
+        vol, hevr.Camera.orbit(vol.shape, width=3, height=3), mode="tf", nodes=nodes, vector_dims=4, value_range=vr
+    )
     assert img.shape == (3, 3, 3) and img.max() > 0
 
 
@@ -80,8 +83,9 @@ def test_ct_bone_highlights_bone_more_than_soft_tissue():
     cam = hevr.Camera.orbit((4, 4, 4), width=2, height=2, parallel=True)
 
     def tf(hu, dims):
-        return hevr.render_plain(np.full((4, 4, 4), hu, np.int16), cam, mode="tf", nodes=nodes, vector_dims=dims,
-                                 value_range=CT).sum()
+        return hevr.render_plain(
+            np.full((4, 4, 4), hu, np.int16), cam, mode="tf", nodes=nodes, vector_dims=dims, value_range=CT
+        ).sum()
 
     assert tf(900, 16) > 2 * tf(40, 16)  # the encoding's bumps are wide at few dimensions
     assert tf(900, 32) > 0 and tf(40, 32) == 0 and tf(-1000, 32) == 0  # and selective at more
@@ -93,7 +97,9 @@ def test_presets_follow_the_value_range():
     assert wide[0][0] == round((300 + 2048) / 6143, 4)
     # nodes outside the range are left out; none inside is refused
     assert [d for d, _ in tf_preset("ct-bone", (-1024, 1000))] == [round(1324 / 2024, 4), round(1724 / 2024, 4)]
-    with pytest.raises(hevr.ParameterError, match=r"^name: the CT preset 'ct-bone' has no node inside the value range \(0, 255\)"):
+    with pytest.raises(
+        hevr.ParameterError, match=r"^name: the CT preset 'ct-bone' has no node inside the value range \(0, 255\)"
+    ):
         tf_preset("ct-bone", (0, 255))
     # MR presets are relative: the same densities for every range
     assert tf_preset("mr-generic", (0, 4095)) == tf_preset("mr-generic", (0, 255))

@@ -121,7 +121,10 @@ def test_a_cifti_file_is_named_not_leaked(tmp_path):
 
     nib = pytest.importorskip("nibabel")
     path = os.path.join(os.path.dirname(nib.__file__), "tests", "data", "row_major.dconn.nii")
-    with pytest.raises(hevr.VolumeFormatError, match=r"row_major.dconn.nii: expected a NIfTI-1/2 or MGH volume on a "
-                                                     r"voxel grid, got a Cifti2 file") as info:
+    with pytest.raises(
+        hevr.VolumeFormatError,
+        match=r"row_major.dconn.nii: expected a NIfTI-1/2 or MGH volume on a "
+        r"voxel grid, got a Cifti2 file",
+    ) as info:
         hevr.read_scan(path)
     assert "attribute" not in str(info.value)

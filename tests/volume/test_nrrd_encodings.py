@@ -17,17 +17,21 @@ from hevr.errors import MissingDependencyError, ParameterError, VolumeFormatErro
 
 nrrd = pytest.importorskip("nrrd")
 
-ARR = (np.arange(3 * 4 * 5, dtype=np.int16).reshape(3, 4, 5) * 37 - 900)  # (z, y, x)
-SPACE = {"space": "right-anterior-superior", "space directions": np.diag([0.5, 1.5, 2.0]),
-         "space origin": np.array([1.0, 2.0, 3.0])}
+ARR = np.arange(3 * 4 * 5, dtype=np.int16).reshape(3, 4, 5) * 37 - 900  # (z, y, x)
+SPACE = {
+    "space": "right-anterior-superior",
+    "space directions": np.diag([0.5, 1.5, 2.0]),
+    "space origin": np.array([1.0, 2.0, 3.0]),
+}
 
 
 @pytest.mark.parametrize("detached", [False, True], ids=["attached", "detached"])
 @pytest.mark.parametrize("encoding", ["raw", "gzip", "bzip2", "ascii", "gz", "bz2", "text", "txt"])
 def test_every_pynrrd_encoding_reads_the_same(tmp_path: Path, encoding: str, detached: bool) -> None:
     path = tmp_path / ("v.nhdr" if detached else "v.nrrd")
-    nrrd.write(str(path), ARR, {**SPACE, "encoding": encoding, "endian": "big"}, index_order="C",
-               detached_header=detached)
+    nrrd.write(
+        str(path), ARR, {**SPACE, "encoding": encoding, "endian": "big"}, index_order="C", detached_header=detached
+    )
     scan = hevr.read_scan(path)
     assert scan.volume.dtype == np.int16 and scan.volume.dtype.isnative
     np.testing.assert_array_equal(scan.volume, ARR)
@@ -41,9 +45,11 @@ def test_every_pynrrd_encoding_reads_the_same(tmp_path: Path, encoding: str, det
 def test_hex_encoding(tmp_path: Path, dtype: str) -> None:
     arr = ARR.astype(dtype)
     text = arr.astype(np.dtype(dtype).newbyteorder(">")).tobytes().hex()
-    body = "\n".join(text[i:i + 30].upper() if i % 60 else text[i:i + 30] for i in range(0, len(text), 30))
-    header = (f"NRRD0004\ntype: {({'float32': 'float', 'float64': 'double'}).get(dtype, dtype)}\ndimension: 3\nsizes: 5 4 3\n"
-              "endian: big\nencoding: hex\n\n")
+    body = "\n".join(text[i : i + 30].upper() if i % 60 else text[i : i + 30] for i in range(0, len(text), 30))
+    header = (
+        f"NRRD0004\ntype: {({'float32': 'float', 'float64': 'double'}).get(dtype, dtype)}\ndimension: 3\nsizes: 5 4 3\n"
+        "endian: big\nencoding: hex\n\n"
+    )
     (tmp_path / "h.nrrd").write_text(header + body + "\n")
     np.testing.assert_array_equal(hevr.load_volume(tmp_path / "h.nrrd")[0], arr)
     (tmp_path / "odd.nrrd").write_text(header + text[:-1])
@@ -85,9 +91,12 @@ VEC = np.arange(3 * 4 * 5 * 3, dtype=np.float32).reshape(3, 4, 5, 3)  # (z, y, x
 
 
 def _vector_file(tmp_path: Path, encoding: str = "raw") -> Path:
-    header = {"kinds": ["vector", "domain", "domain", "domain"], "space": "left-posterior-superior",
-              "space directions": np.array([[np.nan] * 3, [1.0, 0, 0], [0, 2.0, 0], [0, 0, 3.0]]),
-              "encoding": encoding}
+    header = {
+        "kinds": ["vector", "domain", "domain", "domain"],
+        "space": "left-posterior-superior",
+        "space directions": np.array([[np.nan] * 3, [1.0, 0, 0], [0, 2.0, 0], [0, 0, 3.0]]),
+        "encoding": encoding,
+    }
     nrrd.write(str(tmp_path / f"vec_{encoding}.nrrd"), VEC, header, index_order="C")
     return tmp_path / f"vec_{encoding}.nrrd"
 
@@ -129,14 +138,17 @@ def test_singleton_4th_axis_and_volume_for_3d(tmp_path: Path) -> None:
         hevr.load_volume(tmp_path / "plain.nrrd", volume=0)
 
 
-@pytest.mark.parametrize("fields, match", [
-    ({"kinds": "domain domain domain domain"}, "exactly one non-spatial axis"),
-    ({"kinds": "vector vector domain domain"}, "exactly one non-spatial axis"),
-    ({"space directions": "(1,0,0) (0,1,0) (0,0,1) (1,1,1)"}, "space directions"),
-    ({"space directions": "none none (0,1,0) (0,0,1)"}, "space directions"),
-    ({"kinds": "domain domain domain"}, "'kinds' must name 4 axes"),
-    ({"space origin": "(1,2)"}, "space origin"),
-])
+@pytest.mark.parametrize(
+    "fields, match",
+    [
+        ({"kinds": "domain domain domain domain"}, "exactly one non-spatial axis"),
+        ({"kinds": "vector vector domain domain"}, "exactly one non-spatial axis"),
+        ({"space directions": "(1,0,0) (0,1,0) (0,0,1) (1,1,1)"}, "space directions"),
+        ({"space directions": "none none (0,1,0) (0,0,1)"}, "space directions"),
+        ({"kinds": "domain domain domain"}, "'kinds' must name 4 axes"),
+        ({"space origin": "(1,2)"}, "space origin"),
+    ],
+)
 def test_bad_4d_headers(tmp_path: Path, fields: dict, match: str) -> None:
     lines = ["NRRD0004", "type: uint8", "dimension: 4", "sizes: 2 2 2 2", "encoding: raw"]
     lines += [f"{k}: {v}" for k, v in fields.items()]
@@ -147,8 +159,9 @@ def test_bad_4d_headers(tmp_path: Path, fields: dict, match: str) -> None:
 
 
 def test_4d_refused_before_the_data_is_read(tmp_path: Path) -> None:
-    header = ("NRRD0004\ntype: uint8\ndimension: 4\nsizes: 3 2 2 2\nkinds: RGB-color domain domain domain\n"
-              "encoding: gzip\n\n")
+    header = (
+        "NRRD0004\ntype: uint8\ndimension: 4\nsizes: 3 2 2 2\nkinds: RGB-color domain domain domain\nencoding: gzip\n\n"
+    )
     (tmp_path / "c.nrrd").write_bytes(header.encode() + b"not gzip at all")
     with pytest.raises(VolumeFormatError, match=r"c\.nrrd: holds 3 rgb-color components"):
         hevr.load_volume(tmp_path / "c.nrrd")  # the header decides; the broken data is never touched

@@ -50,11 +50,19 @@ def _save_nifti(path: Path, data: np.ndarray, affine: np.ndarray) -> Path:
 
 
 def _save_nrrd(path: Path, data: np.ndarray, affine_ras: np.ndarray, space: str) -> Path:
-    signs = {"right-anterior-superior": (1, 1, 1), "left-anterior-superior": (-1, 1, 1),
-             "left-posterior-superior": (-1, -1, 1)}[space]
+    signs = {
+        "right-anterior-superior": (1, 1, 1),
+        "left-anterior-superior": (-1, 1, 1),
+        "left-posterior-superior": (-1, -1, 1),
+    }[space]
     a = np.diag([*signs, 1.0]) @ affine_ras  # RAS+ -> the file's space
-    header = {"space": space, "space directions": a[:3, :3].T, "space origin": a[:3, 3], "encoding": "raw",
-              "kinds": ["domain"] * 3}
+    header = {
+        "space": space,
+        "space directions": a[:3, :3].T,
+        "space origin": a[:3, 3],
+        "encoding": "raw",
+        "kinds": ["domain"] * 3,
+    }
     nrrd.write(str(path), data, header, index_order="F")
     return path
 
@@ -99,8 +107,9 @@ def test_blob_on_the_patients_right_ends_at_high_x(tmp_path: Path) -> None:
 AXES = list(itertools.product(itertools.permutations(range(3)), itertools.product((False, True), repeat=3)))
 
 
-@pytest.mark.parametrize("perm, flips", AXES, ids=[f"{''.join(map(str, p))}-{''.join('f' if f else '.' for f in fl)}"
-                                                   for p, fl in AXES])
+@pytest.mark.parametrize(
+    "perm, flips", AXES, ids=[f"{''.join(map(str, p))}-{''.join('f' if f else '.' for f in fl)}" for p, fl in AXES]
+)
 def test_every_axis_order_and_flip(tmp_path: Path, perm: tuple[int, ...], flips: tuple[bool, ...]) -> None:
     data, affine = _stored(perm, flips)
     _assert_phantom(hevr.read_scan(_save_nifti(tmp_path / "v.nii", data, affine)))
@@ -147,8 +156,9 @@ def test_files_without_orientation_keep_their_axes(tmp_path: Path) -> None:
     scan = hevr.read_scan(tmp_path / "bare.nii")
     assert scan.frame is None and scan.spacing == pytest.approx(SPACING)
     np.testing.assert_array_equal(scan.volume, data.transpose(2, 1, 0))
-    nrrd.write(str(tmp_path / "scanner.nrrd"), data, {"space": "scanner-xyz", "space directions": -np.eye(3)},
-               index_order="F")
+    nrrd.write(
+        str(tmp_path / "scanner.nrrd"), data, {"space": "scanner-xyz", "space directions": -np.eye(3)}, index_order="F"
+    )
     scan = hevr.read_scan(tmp_path / "scanner.nrrd")
     assert scan.frame is None and scan.spacing == (1.0, 1.0, 1.0)
     np.testing.assert_array_equal(scan.volume, data.transpose(2, 1, 0))

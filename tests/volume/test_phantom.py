@@ -12,8 +12,7 @@ from hevr.volume.phantom import PHANTOM_LEVELS, phantom
 def _levels(dtype: np.dtype) -> dict[str, float]:
     """Expected voxel value of each object for ``dtype``."""
     top = 1.0 if dtype.kind == "f" else np.iinfo(dtype).max
-    return {name: dtype.type(frac if dtype.kind == "f" else round(frac * top))
-            for name, frac in PHANTOM_LEVELS.items()}
+    return {name: dtype.type(frac if dtype.kind == "f" else round(frac * top)) for name, frac in PHANTOM_LEVELS.items()}
 
 
 @pytest.mark.parametrize("size", [8, 9, 16, 33, 100])

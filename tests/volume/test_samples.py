@@ -27,8 +27,9 @@ def test_the_sample_mri_renders_within_the_bound(tmp_path, keypair256):
     of render_plain, which takes the scan (and its spacing) as encrypt_volume does."""
     scan = hevr.read_scan(hevr.sample_scan())
     value_range = (-700.0, 30500.0)
-    ev = hevr.encrypt_volume(scan, tmp_path / "mri.zarr", keypair256[1], brick=16, vector_dims=3,
-                             value_range=value_range, progress=False)
+    ev = hevr.encrypt_volume(
+        scan, tmp_path / "mri.zarr", keypair256[1], brick=16, vector_dims=3, value_range=value_range, progress=False
+    )
     assert ev.frame == "RAS" and ev.spacing == pytest.approx((2.0, 2.0, 2.0))
     cam = hevr.Camera.orbit(ev, view="anterior", azimuth=20, width=12, height=10)
     for mode, kw in (("xray", {}), ("tf", {"nodes": [(0.3, "blue"), (0.6, "orange")]})):
@@ -42,8 +43,21 @@ def test_the_command_line_reads_sample_mri(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "anatomical.nii" in out and "33×41×25 voxels" in out and "RAS+ patient frame" in out
     assert main(["keygen", "--bits", "256", "--out", str(tmp_path / "key.json"), "-q"]) == 0
-    assert main(["encrypt", "sample:mri", "--key", str(tmp_path / "key.json"), "--out", str(tmp_path / "m.zarr"),
-                 "--value-range=-700,30500", "-q"]) == 0
+    assert (
+        main(
+            [
+                "encrypt",
+                "sample:mri",
+                "--key",
+                str(tmp_path / "key.json"),
+                "--out",
+                str(tmp_path / "m.zarr"),
+                "--value-range=-700,30500",
+                "-q",
+            ]
+        )
+        == 0
+    )
     assert hevr.open_volume(tmp_path / "m.zarr").shape == (25, 41, 33)
     capsys.readouterr()
     assert main(["encrypt", "sample:ct", "--key", str(tmp_path / "key.json"), "--out", str(tmp_path / "c.zarr")]) == 2

@@ -109,9 +109,11 @@ def test_forged_number_of_frames_is_refused_at_once(tmp_path: Path) -> None:
     assert time.perf_counter() - t0 < 2
 
 
-@pytest.mark.parametrize("tag, where", [(0x00209113, "item"), (0x52009229, "top"), (0x00540022, "top")],
-                         ids=["PlanePositionSequence", "SharedFunctionalGroupsSequence",
-                              "DetectorInformationSequence"])
+@pytest.mark.parametrize(
+    "tag, where",
+    [(0x00209113, "item"), (0x52009229, "top"), (0x00540022, "top")],
+    ids=["PlanePositionSequence", "SharedFunctionalGroupsSequence", "DetectorInformationSequence"],
+)
 def test_functional_group_that_is_not_a_sequence(tmp_path: Path, tag: int, where: str) -> None:
     """A sequence written as a string: AttributeError ('str' has no 'get'), or silently ignored."""
     pytest.importorskip("pydicom")
@@ -172,8 +174,18 @@ def test_allow_uneven_must_be_a_bool(tmp_path: Path) -> None:
 def test_ome_tiff_sizes_in_different_units_and_not_numbers(tmp_path: Path) -> None:
     tifffile = pytest.importorskip("tifffile")
     data = np.zeros((4, 5, 6), np.uint8)
-    tifffile.imwrite(tmp_path / "mm.tif", data, ome=True, metadata={
-        "axes": "ZYX", "PhysicalSizeX": 0.5, "PhysicalSizeY": 0.25, "PhysicalSizeZ": 0.002, "PhysicalSizeZUnit": "mm"})
+    tifffile.imwrite(
+        tmp_path / "mm.tif",
+        data,
+        ome=True,
+        metadata={
+            "axes": "ZYX",
+            "PhysicalSizeX": 0.5,
+            "PhysicalSizeY": 0.25,
+            "PhysicalSizeZ": 0.002,
+            "PhysicalSizeZUnit": "mm",
+        },
+    )
     scan = hevr.read_scan(tmp_path / "mm.tif")
     assert scan.spacing == pytest.approx((0.5, 0.25, 2.0)) and scan.details["unit"] == "µm"
     tifffile.imwrite(tmp_path / "bad.tif", data, ome=True, metadata={"axes": "ZYX", "PhysicalSizeX": "abc"})
@@ -186,8 +198,9 @@ def test_ome_tiff_sizes_in_different_units_and_not_numbers(tmp_path: Path) -> No
 
 def test_compressed_tiff_larger_than_memory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     tifffile = pytest.importorskip("tifffile")
-    tifffile.imwrite(tmp_path / "z.tif", np.zeros((3, 400, 400), np.uint8), photometric="minisblack",
-                     compression="zlib")
+    tifffile.imwrite(
+        tmp_path / "z.tif", np.zeros((3, 400, 400), np.uint8), photometric="minisblack", compression="zlib"
+    )
     _small_memory(monkeypatch)
     with pytest.raises(VolumeFormatError, match=r"^z\.tif: too big: 480000 bytes of compressed"):
         hevr.read_scan(tmp_path / "z.tif")
@@ -199,8 +212,10 @@ def _ome_zarr(path: Path, axes: list[dict], transforms: list[dict], shape: tuple
 
     group = zarr.open_group(str(path), mode="w", zarr_format=3)
     group.create_array("0", shape=shape, dtype="i2")
-    group.attrs["ome"] = {"version": "0.5", "multiscales": [
-        {"axes": axes, "datasets": [{"path": "0", "coordinateTransformations": transforms}]}]}
+    group.attrs["ome"] = {
+        "version": "0.5",
+        "multiscales": [{"axes": axes, "datasets": [{"path": "0", "coordinateTransformations": transforms}]}],
+    }
     return path
 
 
@@ -216,8 +231,9 @@ def test_ome_zarr_units_and_malformed_scales(tmp_path: Path) -> None:
         hevr.read_scan(_ome_zarr(tmp_path / "pc.zarr", [_space("z", "parsec"), _space("y"), _space("x")], []))
     for bad in ([2, 1], ["a", 1, 1], [True, 1, 1], [[1], 1, 1]):  # a short scale was silently ignored
         with pytest.raises(VolumeFormatError, match=r"^b\.zarr: OME-Zarr scale: expected 3 numbers"):
-            hevr.read_scan(_ome_zarr(tmp_path / "b.zarr", [_space(a) for a in "zyx"],
-                                     [{"type": "scale", "scale": bad}]))
+            hevr.read_scan(
+                _ome_zarr(tmp_path / "b.zarr", [_space(a) for a in "zyx"], [{"type": "scale", "scale": bad}])
+            )
 
 
 def test_zarr_declaring_more_than_memory(tmp_path: Path) -> None:

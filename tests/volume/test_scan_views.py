@@ -55,22 +55,41 @@ def _affine(flip_i: bool) -> np.ndarray:
 
 def write_all(folder: Path, ras: np.ndarray) -> dict[str, Path]:
     """The four files of ``ras`` (see the module docstring)."""
-    paths = {"nifti-ras": folder / "ras.nii", "nifti-las": folder / "las.nii.gz",
-             "nrrd-lps": folder / "lps.nrrd", "dicom": folder / "dicom"}
+    paths = {
+        "nifti-ras": folder / "ras.nii",
+        "nifti-las": folder / "las.nii.gz",
+        "nrrd-lps": folder / "lps.nrrd",
+        "dicom": folder / "dicom",
+    }
     nib.save(nib.Nifti1Image(ras.transpose(2, 1, 0), _affine(False)), paths["nifti-ras"])
     nib.save(nib.Nifti1Image(ras[:, :, ::-1].transpose(2, 1, 0), _affine(True)), paths["nifti-las"])
     # LPS: +x_LPS is the patient's left, +y_LPS posterior; file voxel (i, j) = RAS voxel (N-1-i, N-1-j),
     # whose LPS position is (-(x0 + (N-1) sx), -(y0 + (N-1) sy), z0) for i = j = 0.
     lps_origin = (-(ORIGIN[0] + (N - 1) * SPACING[0]), -(ORIGIN[1] + (N - 1) * SPACING[1]), ORIGIN[2])
     lps = ras[:, ::-1, ::-1]
-    nrrd.write(str(paths["nrrd-lps"]), np.ascontiguousarray(lps), index_order="C", header={
-        "space": "left-posterior-superior", "space directions": np.diag(SPACING),
-        "space origin": np.array(lps_origin), "encoding": "raw", "kinds": ["domain"] * 3})
+    nrrd.write(
+        str(paths["nrrd-lps"]),
+        np.ascontiguousarray(lps),
+        index_order="C",
+        header={
+            "space": "left-posterior-superior",
+            "space directions": np.diag(SPACING),
+            "space origin": np.array(lps_origin),
+            "encoding": "raw",
+            "kinds": ["domain"] * 3,
+        },
+    )
     # Axial DICOM: IOP (1,0,0, 0,1,0) = columns along +x_LPS, rows along +y_LPS; the same layout
     # as the NRRD. PixelSpacing is (between rows, between columns) = (sy, sx). Stored values
     # + RescaleIntercept -1024 give the phantom back.
-    write_series(paths["dicom"], (lps + 1024).astype(np.int16), origin=lps_origin, gap=SPACING[2],
-                 spacing=(SPACING[1], SPACING[0]), intercept=-1024)
+    write_series(
+        paths["dicom"],
+        (lps + 1024).astype(np.int16),
+        origin=lps_origin,
+        gap=SPACING[2],
+        spacing=(SPACING[1], SPACING[0]),
+        intercept=-1024,
+    )
     return paths
 
 
@@ -101,8 +120,10 @@ def _camera(scan: hevr.Scan, view: str) -> hevr.Camera:
 
 @pytest.mark.parametrize("view", ["anterior", "left"])
 def test_plaintext_renders_of_the_four_are_identical(scans: dict[str, hevr.Scan], view: str) -> None:
-    images = {name: hevr.render_plain(np.asarray(s.volume), _camera(s, view), mode="xray", spacing=s.spacing)
-              for name, s in scans.items()}
+    images = {
+        name: hevr.render_plain(np.asarray(s.volume), _camera(s, view), mode="xray", spacing=s.spacing)
+        for name, s in scans.items()
+    }
     first = images["nifti-ras"]
     assert first.max() > 0
     for name, img in images.items():

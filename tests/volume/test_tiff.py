@@ -18,8 +18,14 @@ ARR = np.arange(3 * 4 * 5, dtype=np.uint16).reshape(3, 4, 5) * 101  # (z, y, x)
 @pytest.mark.parametrize("compression", [None, "zlib"])
 def test_imagej_stack_with_spacing(tmp_path: Path, compression: str | None) -> None:
     path = tmp_path / "stack.tif"
-    tifffile.imwrite(path, ARR, imagej=True, resolution=(1 / 0.5, 1 / 0.25), compression=compression,
-                     metadata={"spacing": 2.0, "unit": "um", "axes": "ZYX"})
+    tifffile.imwrite(
+        path,
+        ARR,
+        imagej=True,
+        resolution=(1 / 0.5, 1 / 0.25),
+        compression=compression,
+        metadata={"spacing": 2.0, "unit": "um", "axes": "ZYX"},
+    )
     scan = hevr.read_scan(path)
     np.testing.assert_array_equal(scan.volume, ARR)
     assert scan.spacing == pytest.approx((0.5, 0.25, 2.0))
@@ -32,8 +38,12 @@ def test_plain_pages_and_ome_tiff(tmp_path: Path) -> None:
     vol, spacing = hevr.load_volume(tmp_path / "pages.tiff")
     np.testing.assert_array_equal(vol, ARR)
     assert spacing == (1.0, 1.0, 1.0)
-    tifffile.imwrite(tmp_path / "v.ome.tif", ARR, photometric="minisblack",
-                     metadata={"axes": "ZYX", "PhysicalSizeX": 0.3, "PhysicalSizeY": 0.4, "PhysicalSizeZ": 1.5})
+    tifffile.imwrite(
+        tmp_path / "v.ome.tif",
+        ARR,
+        photometric="minisblack",
+        metadata={"axes": "ZYX", "PhysicalSizeX": 0.3, "PhysicalSizeY": 0.4, "PhysicalSizeZ": 1.5},
+    )
     scan = hevr.read_scan(tmp_path / "v.ome.tif")
     np.testing.assert_array_equal(scan.volume, ARR)
     assert scan.spacing == pytest.approx((0.3, 0.4, 1.5))

@@ -30,19 +30,33 @@ def test_plain_array(tmp_path: Path, zarr_format: int) -> None:
         hevr.load_volume(path, volume=0)
 
 
-def _ome(path: Path, data: np.ndarray, axes: list[dict], scale: list[float], zarr_format: int = 3,
-         translation: list[float] | None = None) -> Path:
+def _ome(
+    path: Path,
+    data: np.ndarray,
+    axes: list[dict],
+    scale: list[float],
+    zarr_format: int = 3,
+    translation: list[float] | None = None,
+) -> Path:
     group = zarr.open_group(str(path), mode="w", zarr_format=zarr_format)
     for level, factor in (("0", 1), ("1", 2)):
-        a = group.create_array(level, shape=tuple(s if i < len(data.shape) - 3 else -(-s // factor)
-                                                  for i, s in enumerate(data.shape)), dtype=data.dtype)
+        a = group.create_array(
+            level,
+            shape=tuple(s if i < len(data.shape) - 3 else -(-s // factor) for i, s in enumerate(data.shape)),
+            dtype=data.dtype,
+        )
         if level == "0":
             a[...] = data
     transforms: list[dict] = [{"type": "scale", "scale": scale}]
     if translation:
         transforms.append({"type": "translation", "translation": translation})
-    ms = {"axes": axes, "datasets": [{"path": "0", "coordinateTransformations": transforms},
-                                     {"path": "1", "coordinateTransformations": [{"type": "scale", "scale": scale}]}]}
+    ms = {
+        "axes": axes,
+        "datasets": [
+            {"path": "0", "coordinateTransformations": transforms},
+            {"path": "1", "coordinateTransformations": [{"type": "scale", "scale": scale}]},
+        ],
+    }
     if zarr_format == 2:
         group.attrs["multiscales"] = [{"version": "0.4", **ms}]
     else:
@@ -71,8 +85,9 @@ def test_ome_zarr_time_and_channel(tmp_path: Path) -> None:
     vol, spacing = hevr.load_volume(path, volume=1)
     np.testing.assert_array_equal(vol, ARR * 2)
     assert spacing == (1.0, 2.0, 3.0)
-    channels = _ome(tmp_path / "c.zarr", np.stack([ARR, ARR]), [{"name": "c", "type": "channel"}, *ZYX],
-                    [1.0, 1.0, 1.0, 1.0])
+    channels = _ome(
+        tmp_path / "c.zarr", np.stack([ARR, ARR]), [{"name": "c", "type": "channel"}, *ZYX], [1.0, 1.0, 1.0, 1.0]
+    )
     with pytest.raises(VolumeFormatError, match=r"c\.zarr: expected one channel, got 2"):
         hevr.load_volume(channels)
 

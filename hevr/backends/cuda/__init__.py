@@ -28,5 +28,17 @@ from .host import (
 from .launch import HostLauncher, Launcher
 from .residues import LimbBatch
 
-__all__ = ["CudaHostBackend", "HostLauncher", "HostMontgomery", "KernelBackend", "Launcher", "LimbBatch", "build_host",
-           "build_library", "from_limbs", "montgomery_params", "source", "to_limbs"]
+__all__ = [
+    "CudaHostBackend",
+    "HostLauncher",
+    "HostMontgomery",
+    "KernelBackend",
+    "Launcher",
+    "LimbBatch",
+    "build_host",
+    "build_library",
+    "from_limbs",
+    "montgomery_params",
+    "source",
+    "to_limbs",
+]

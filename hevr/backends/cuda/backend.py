@@ -123,9 +123,9 @@ class KernelBackend(Backend):
         x = self._normal(batch)
         if x.shape[1] > M.nl:  # values of more limbs than N has (never from a store): reduced on the host
             x = self._launch.host(x).copy()
-            high = np.flatnonzero(x[:, M.nl:].any(axis=1))
+            high = np.flatnonzero(x[:, M.nl :].any(axis=1))
             x[high, :] = limbs_of([v % M.n for v in limbs_to_ints(x[high])], x.shape[1])
-            x = np.ascontiguousarray(x[:, :M.nl])
+            x = np.ascontiguousarray(x[:, : M.nl])
         elif x.shape[1] < M.nl:
             x = self._launch.join([x], M.nl)
         y = self._launch.mont_convert(x, M.r2, M)
@@ -159,14 +159,20 @@ class KernelBackend(Backend):
 
     # -- conversion ------------------------------------------------------------------------------
     def from_bytes(self, records: np.ndarray) -> LimbBatch:
-        if not isinstance(records, np.ndarray) or records.dtype != np.uint8 or records.ndim < 1 or \
-                records.shape[-1] < 1:
+        if (
+            not isinstance(records, np.ndarray)
+            or records.dtype != np.uint8
+            or records.ndim < 1
+            or records.shape[-1] < 1
+        ):
             bytes_to_mpz(records)  # the CPU backend's message for a bad array
             raise ParameterError("records: expected a uint8 array of shape (..., width)")  # pragma: no cover
         width = int(records.shape[-1])
         if width > 4 * MAX_LIMBS:
-            raise ParameterError(f"records: expected ciphertexts of at most {4 * MAX_LIMBS} bytes for backend "
-                                 f"{self.name!r} (keys of up to {MAX_LIMBS * 16} bits), got {width}-byte records")
+            raise ParameterError(
+                f"records: expected ciphertexts of at most {4 * MAX_LIMBS} bytes for backend "
+                f"{self.name!r} (keys of up to {MAX_LIMBS * 16} bits), got {width}-byte records"
+            )
         limbs, _ = self._launch.records_to_limbs(records.reshape(-1, width), -(-width // 4))
         return LimbBatch(limbs)
 
@@ -177,7 +183,7 @@ class KernelBackend(Backend):
         recs, over = self._launch.limbs_to_records(self._normal(batch), int(width))
         if over.any():
             i = int(np.flatnonzero(over)[0])
-            bits = limbs_to_ints(self._launch.host(self._normal(batch)[i:i + 1]))[0].bit_length()
+            bits = limbs_to_ints(self._launch.host(self._normal(batch)[i : i + 1]))[0].bit_length()
             raise ParameterError(f"values[{i}]: value of {bits} bits does not fit in {int(width)} bytes")
         return recs
 
@@ -252,14 +258,17 @@ class KernelBackend(Backend):
         batch = self._batch(values)
         if not len(batch):
             return []
-        if (-(-(int(private_key.public_key.nsquare)).bit_length() // 32) > MAX_LIMBS  # beyond the kernels: gmpy2
-                or not self._launch.keyholder):
+        if (
+            -(-(int(private_key.public_key.nsquare)).bit_length() // 32) > MAX_LIMBS  # beyond the kernels: gmpy2
+            or not self._launch.keyholder
+        ):
             return _CPU.decrypt(private_key, _CPU.from_bytes(self.to_bytes(batch, 4 * batch.nl)))
         return decrypt_limbs(self._launch, private_key, self._launch.host(self._normal(batch)))
 
     # -- rendering -------------------------------------------------------------------------------
-    def ray_products(self, plan: ProductPlan, components, nsquare: int,
-                     counter: OpCounter | None = None) -> list[LimbBatch]:
+    def ray_products(
+        self, plan: ProductPlan, components, nsquare: int, counter: OpCounter | None = None
+    ) -> list[LimbBatch]:
         if not len(components):
             return []
         M = self._modulus(nsquare)
@@ -281,9 +290,18 @@ class KernelBackend(Backend):
             out.append(LimbBatch(self._launch.rows(vals, rep, M.one), M.n))
             if counter is not None:
                 mul, sq, bits = (int(v) for v in counts.sum(axis=0)) if counts.size else (0, 0, 0)
-                counter.add(OpCounter(mulmod=mul, squarings=sq + t.squarings_pre, powmod=t.powmod, powmod_bits=bits,
-                                      pairs=plan.n_pairs, rows=plan.n_rows, duplicate_rows=t.duplicate_rows,
-                                      precomputed=t.precomputed))
+                counter.add(
+                    OpCounter(
+                        mulmod=mul,
+                        squarings=sq + t.squarings_pre,
+                        powmod=t.powmod,
+                        powmod_bits=bits,
+                        pairs=plan.n_pairs,
+                        rows=plan.n_rows,
+                        duplicate_rows=t.duplicate_rows,
+                        precomputed=t.precomputed,
+                    )
+                )
         return out
 
     def with_defines(self, defines: tuple[str, ...]) -> KernelBackend:
@@ -338,8 +356,7 @@ class KernelBackend(Backend):
             return self._fallback("combine", self._batch(values), comb, nsquare, mod=M.n)
         return LimbBatch(self._launch.combine(self._mont(values, M), k, np.ascontiguousarray(E), M), M.n)
 
-    def pack(self, terms: Any, exps: Sequence[int], pack_bits: int, per_pack: int, offset: int,
-             n: int) -> LimbBatch:
+    def pack(self, terms: Any, exps: Sequence[int], pack_bits: int, per_pack: int, offset: int, n: int) -> LimbBatch:
         n = int(n)
         M = self._modulus(n * n)
         if M is None:

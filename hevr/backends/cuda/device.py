@@ -47,8 +47,8 @@ from typing import Any
 
 import numpy as np
 
-from ...runtime import stats
 from ...errors import MissingDependencyError
+from ...runtime import stats
 from .host import SOURCE as MONT_SOURCE
 from .host import check_defines
 from .launch import OWNER_SOURCE, RENDER_SOURCE, Launcher, decrypt_args
@@ -64,8 +64,17 @@ MIN_THREADS = 32768
 # from the H200's 24³ frame (benchmarks/results-gpu-h200-2026-11-26.md): ~0.5-0.8 ms a product on one
 # thread against ~5 µs on a core with gmpy2, so a launch beats one core from ~100 items. Not yet measured.
 MIN_ITEMS = 128
-KERNELS = ("k_records_to_limbs", "k_limbs_to_records", "k_out_of_range", "k_mont_convert", "k_ray_powers",
-           "k_ray_tasks", "k_segments", "k_combine", "k_pack")
+KERNELS = (
+    "k_records_to_limbs",
+    "k_limbs_to_records",
+    "k_out_of_range",
+    "k_mont_convert",
+    "k_ray_powers",
+    "k_ray_tasks",
+    "k_segments",
+    "k_combine",
+    "k_pack",
+)
 _NULL = np.uint64(0)
 
 
@@ -95,7 +104,7 @@ def device_source() -> str:
     """
     render = RENDER_SOURCE.read_text(encoding="utf-8")
     if '#include "mont.cuh"' not in render:  # pragma: no cover - the source's own include
-        raise RuntimeError("render.cuh: expected #include \"mont.cuh\"")
+        raise RuntimeError('render.cuh: expected #include "mont.cuh"')
     return render.replace('#include "mont.cuh"', MONT_SOURCE.read_text(encoding="utf-8"), 1)
 
 
@@ -105,7 +114,9 @@ def owner_source() -> str:
     >>> "k_owner_encrypt" in owner_source() and '#include "mont.cuh"' not in owner_source()
     True
     """
-    return OWNER_SOURCE.read_text(encoding="utf-8").replace('#include "mont.cuh"', MONT_SOURCE.read_text(encoding="utf-8"), 1)
+    return OWNER_SOURCE.read_text(encoding="utf-8").replace(
+        '#include "mont.cuh"', MONT_SOURCE.read_text(encoding="utf-8"), 1
+    )
 
 
 def _i32(x: int) -> np.int32:
@@ -159,7 +170,8 @@ class CupyLauncher(Launcher):
             except ImportError as exc:
                 raise MissingDependencyError(
                     "backend: 'cuda' needs CuPy and an NVIDIA GPU; CuPy is not installed: pip install 'hevr[gpu]' "
-                    "(cupy-cuda12x or cupy-cuda13x, matching the driver), or use backend='cpu'") from exc
+                    "(cupy-cuda12x or cupy-cuda13x, matching the driver), or use backend='cpu'"
+                ) from exc
             try:
                 count = cupy.cuda.runtime.getDeviceCount()
             except Exception as exc:  # noqa: BLE001 - CUDARuntimeError without a driver, and its kin
@@ -220,7 +232,7 @@ class CupyLauncher(Launcher):
         for a in arrays:
             m, k = int(a.shape[0]), int(a.shape[1])
             if m:
-                out[r:r + m, :k] = self._dev(a, np.uint32)
+                out[r : r + m, :k] = self._dev(a, np.uint32)
             r += m
         return out
 
@@ -243,9 +255,19 @@ class CupyLauncher(Launcher):
         return int(resident) + SCRATCH_BYTES
 
     def device_tables(self, t):
-        dev = {f: self._dev(getattr(t, f), dt) for f, dt in (
-            ("vl", np.int64), ("wl", np.uint64), ("tasks", np.int64), ("pre_v", np.int64), ("pre_j", np.int64),
-            ("pre_start", np.int64), ("pw_off", np.int64), ("pw_n", np.int64))}
+        dev = {
+            f: self._dev(getattr(t, f), dt)
+            for f, dt in (
+                ("vl", np.int64),
+                ("wl", np.uint64),
+                ("tasks", np.int64),
+                ("pre_v", np.int64),
+                ("pre_j", np.int64),
+                ("pre_start", np.int64),
+                ("pw_off", np.int64),
+                ("pw_n", np.int64),
+            )
+        }
         return dataclasses.replace(t, **dev)
 
     def _mod(self, M: Modulus) -> tuple:
@@ -254,8 +276,12 @@ class CupyLauncher(Launcher):
         if got is None:
             if len(self._moduli) >= 8:
                 self._moduli.clear()
-            got = self._moduli[M.n] = (self._dev(M.limbs, np.uint32), self._dev(M.one, np.uint32),
-                                       np.uint32(M.ninv), _i32(M.nl))
+            got = self._moduli[M.n] = (
+                self._dev(M.limbs, np.uint32),
+                self._dev(M.one, np.uint32),
+                np.uint32(M.ninv),
+                _i32(M.nl),
+            )
         return got
 
     # -- the operations --------------------------------------------------------------------
@@ -278,8 +304,9 @@ class CupyLauncher(Launcher):
     def out_of_range(self, limbs, upper):
         x = self._dev(limbs, np.uint32)
         bad = self.cp.empty(x.shape[0], self.cp.uint8)
-        self._launch("k_out_of_range", x.shape[0], x, self._dev(upper, np.uint32), _i32(x.shape[1]),
-                     _i64(x.shape[0]), bad)
+        self._launch(
+            "k_out_of_range", x.shape[0], x, self._dev(upper, np.uint32), _i32(x.shape[1]), _i64(x.shape[0]), bad
+        )
         return bad.get()
 
     def mont_convert(self, limbs, b, M):
@@ -295,8 +322,18 @@ class CupyLauncher(Launcher):
         c = self._dev(cts, np.uint32)
         pw = cp.empty((max(1, t.pw_rows), nl), cp.uint32)
         if t.pre_v.size:
-            self._launch("k_ray_powers", t.pre_v.size, c, self._dev(t.pre_v, np.int64), self._dev(t.pre_j, np.int64),
-                         self._dev(t.pre_start, np.int64), _i32(shared_w), _i64(t.pre_v.size), pw, *mod)
+            self._launch(
+                "k_ray_powers",
+                t.pre_v.size,
+                c,
+                self._dev(t.pre_v, np.int64),
+                self._dev(t.pre_j, np.int64),
+                self._dev(t.pre_start, np.int64),
+                _i32(shared_w),
+                _i64(t.pre_v.size),
+                pw,
+                *mod,
+            )
         T = t.tasks.shape[0]
         vals, counts = cp.empty((max(T, 1), nl), cp.uint32), cp.zeros((max(T, 1), 3), cp.int64)
         per_thread = max(1, t.slot) * (nl * 4 + 1)
@@ -304,9 +341,22 @@ class CupyLauncher(Launcher):
         buckets = cp.empty((chunk * max(1, t.slot), nl), cp.uint32)
         used = cp.empty(chunk * max(1, t.slot), cp.uint8)
         args = (self._dev(t.tasks, np.int64),)
-        tables = (c, pw, self._dev(t.pw_off, np.int64), self._dev(t.pw_n, np.int64), self._dev(t.vl, np.int64),
-                  self._dev(t.wl, np.uint64), _i32(shared_w), self._dev(FOLD, np.int64), buckets, used,
-                  _i64(t.slot), vals, counts, *mod)
+        tables = (
+            c,
+            pw,
+            self._dev(t.pw_off, np.int64),
+            self._dev(t.pw_n, np.int64),
+            self._dev(t.vl, np.int64),
+            self._dev(t.wl, np.uint64),
+            _i32(shared_w),
+            self._dev(FOLD, np.int64),
+            buckets,
+            used,
+            _i64(t.slot),
+            vals,
+            counts,
+            *mod,
+        )
         for first in range(0, T, chunk):
             count = min(chunk, T - first)
             self._launch("k_ray_tasks", count, *args, _i64(first), _i64(count), *tables)
@@ -316,8 +366,16 @@ class CupyLauncher(Launcher):
         ip = np.ascontiguousarray(indptr, dtype=np.int64)
         count = (ip.size - 1) * k
         out = self.cp.empty((max(count, 1), M.nl), self.cp.uint32)
-        self._launch("k_segments", count, self._dev(vals, np.uint32), self._dev(ip, np.int64), _i32(k), _i64(count),
-                     out, *self._mod(M))
+        self._launch(
+            "k_segments",
+            count,
+            self._dev(vals, np.uint32),
+            self._dev(ip, np.int64),
+            _i32(k),
+            _i64(count),
+            out,
+            *self._mod(M),
+        )
         return out[:count]
 
     def combine(self, vals, k, E, M):
@@ -331,16 +389,27 @@ class CupyLauncher(Launcher):
         v, e, mod = self._dev(vals, np.uint32), self._dev(E, np.uint32), self._mod(M)
         for first in range(0, rows, chunk):
             count = min(chunk, rows - first)
-            self._launch("k_combine", count, v, _i32(k), _i32(C), e, _i32(ew), _i64(first), _i64(count), sub, out,
-                         *mod)
-        return out[:rows * C]
+            self._launch("k_combine", count, v, _i32(k), _i32(C), e, _i32(ew), _i64(first), _i64(count), sub, out, *mod)
+        return out[: rows * C]
 
     def pack(self, terms, R, per_pack, bits, offs, M):
         m, ew = R.shape
         groups = -(-m // per_pack)
         out = self.cp.empty((max(groups, 1), M.nl), self.cp.uint32)
-        self._launch("k_pack", groups, self._dev(terms, np.uint32), self._dev(R, np.uint32), _i32(ew), _i64(m),
-                     _i32(per_pack), _i32(bits), self._dev(offs, np.uint32), _i64(groups), out, *self._mod(M))
+        self._launch(
+            "k_pack",
+            groups,
+            self._dev(terms, np.uint32),
+            self._dev(R, np.uint32),
+            _i32(ew),
+            _i64(m),
+            _i32(per_pack),
+            _i32(bits),
+            self._dev(offs, np.uint32),
+            _i64(groups),
+            out,
+            *self._mod(M),
+        )
         return out[:groups]
 
     def _owner_module(self) -> None:
@@ -357,9 +426,23 @@ class CupyLauncher(Launcher):
         out = cp.empty((max(m, 1), M.nl), cp.uint32)
         if m:
             nd = self._dev(n, np.uint32)
-            self._public_fn(((m + BLOCK - 1) // BLOCK,), (BLOCK,), (
-                self._dev(x, np.int64), self._dev(r, np.uint32), nd, _i32(nd.shape[0]), self._dev(M.limbs, np.uint32),
-                self._dev(M.one, np.uint32), self._dev(M.r2, np.uint32), np.uint32(M.ninv), _i32(M.nl), _i64(m), out))
+            self._public_fn(
+                ((m + BLOCK - 1) // BLOCK,),
+                (BLOCK,),
+                (
+                    self._dev(x, np.int64),
+                    self._dev(r, np.uint32),
+                    nd,
+                    _i32(nd.shape[0]),
+                    self._dev(M.limbs, np.uint32),
+                    self._dev(M.one, np.uint32),
+                    self._dev(M.r2, np.uint32),
+                    np.uint32(M.ninv),
+                    _i32(M.nl),
+                    _i64(m),
+                    out,
+                ),
+            )
         return out[:m]
 
     def decrypt(self, c, tables):
@@ -368,8 +451,11 @@ class CupyLauncher(Launcher):
         where = f"cupy-{cp.cuda.Device().id}"  # copies per device
         dev = tables.device.get(where)
         if dev is None:  # the CRT constants once per key, process and device
-            dev = tables.device[where] = {id(a): self._dev(a, np.uint32) for h in (tables.p, tables.q) for a in (
-                h.P2.limbs, h.P2.one, h.P2.r2, h.E, h.P.limbs, h.PINV, h.HR, h.P.r2)} | {id(tables.PIQ): self._dev(tables.PIQ, np.uint32)}
+            dev = tables.device[where] = {
+                id(a): self._dev(a, np.uint32)
+                for h in (tables.p, tables.q)
+                for a in (h.P2.limbs, h.P2.one, h.P2.r2, h.E, h.P.limbs, h.PINV, h.HR, h.P.r2)
+            } | {id(tables.PIQ): self._dev(tables.PIQ, np.uint32)}
         m = int(c.shape[0])
         out = cp.empty((max(m, 1), tables.nlo), cp.uint32)
         if m:
@@ -385,19 +471,55 @@ class CupyLauncher(Launcher):
         dev = tables.device.get(where)
         if dev is None:  # the tables once per key, process and device (secret-derived: freed with the tables)
             dev = tables.device[where] = {
-                name: self._dev(arr, np.uint32) for name, arr in (
-                    ("Tp", tables.p.T), ("Pp", tables.p.P.limbs), ("op", tables.p.P.one), ("NRp", tables.p.NR),
-                    ("R2p", tables.p.P.r2), ("Tq", tables.q.T), ("Pq", tables.q.P.limbs), ("oq", tables.q.P.one),
-                    ("NRq", tables.q.NR), ("INV", tables.INV))}
+                name: self._dev(arr, np.uint32)
+                for name, arr in (
+                    ("Tp", tables.p.T),
+                    ("Pp", tables.p.P.limbs),
+                    ("op", tables.p.P.one),
+                    ("NRp", tables.p.NR),
+                    ("R2p", tables.p.P.r2),
+                    ("Tq", tables.q.T),
+                    ("Pq", tables.q.P.limbs),
+                    ("oq", tables.q.P.one),
+                    ("NRq", tables.q.NR),
+                    ("INV", tables.INV),
+                )
+            }
         m = int(np.asarray(x).size)
         out = cp.empty((max(m, 1), tables.NL), cp.uint32)
         ad, bd = self._dev(a, np.uint32), self._dev(b, np.uint32)
         if m:
             p, q = tables.p, tables.q
-            self._owner_fn(((m + BLOCK - 1) // BLOCK,), (BLOCK,), (
-                self._dev(x, np.int64), ad, _i32(ad.shape[1]), bd, _i32(bd.shape[1]),
-                dev["Tp"], _i32(p.rows), _i32(p.w), dev["Pp"], dev["op"], np.uint32(p.P.ninv), _i32(p.P.nl), dev["NRp"],
-                dev["R2p"],
-                dev["Tq"], _i32(q.rows), _i32(q.w), dev["Pq"], dev["oq"], np.uint32(q.P.ninv), _i32(q.P.nl), dev["NRq"],
-                dev["INV"], _i32(tables.NL), _i64(m), out))
+            self._owner_fn(
+                ((m + BLOCK - 1) // BLOCK,),
+                (BLOCK,),
+                (
+                    self._dev(x, np.int64),
+                    ad,
+                    _i32(ad.shape[1]),
+                    bd,
+                    _i32(bd.shape[1]),
+                    dev["Tp"],
+                    _i32(p.rows),
+                    _i32(p.w),
+                    dev["Pp"],
+                    dev["op"],
+                    np.uint32(p.P.ninv),
+                    _i32(p.P.nl),
+                    dev["NRp"],
+                    dev["R2p"],
+                    dev["Tq"],
+                    _i32(q.rows),
+                    _i32(q.w),
+                    dev["Pq"],
+                    dev["oq"],
+                    np.uint32(q.P.ninv),
+                    _i32(q.P.nl),
+                    dev["NRq"],
+                    dev["INV"],
+                    _i32(tables.NL),
+                    _i64(m),
+                    out,
+                ),
+            )
         return out[:m]

@@ -33,8 +33,16 @@ from . import kernel_cache
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HostMontgomery", "build_host", "build_library", "check_defines", "from_limbs", "montgomery_params",
-           "source", "to_limbs"]
+__all__ = [
+    "HostMontgomery",
+    "build_host",
+    "build_library",
+    "check_defines",
+    "from_limbs",
+    "montgomery_params",
+    "source",
+    "to_limbs",
+]
 
 SOURCE = Path(__file__).with_name("mont.cuh")
 MAX_LIMBS = 128  # HEVR_MAX_LIMBS in the source: 4096-bit moduli (n² of a 2048-bit key)
@@ -48,8 +56,9 @@ def source() -> str:
     return SOURCE.read_text(encoding="utf-8")
 
 
-def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None = None,
-                  defines: Sequence[str] = ()) -> ctypes.CDLL:
+def build_library(
+    main: Path, headers: Sequence[Path] = (), compiler: str | None = None, defines: Sequence[str] = ()
+) -> ctypes.CDLL:
     """Compile a kernel source for the host once per process and load it through ctypes.
 
     The shared library is cached on disk (a private folder in the temporary directory) under the
@@ -79,8 +88,9 @@ def build_library(main: Path, headers: Sequence[Path] = (), compiler: str | None
     cc = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or ""
     # the machine and the compiler too: a cache folder seen by other hosts or compilers never serves a foreign build
     flags = (*FLAGS, *(f"-D{d}" for d in check_defines(defines)))
-    digest = hashlib.sha256("\0".join(texts + list(flags) + [platform.machine(), platform.system(), cc]).encode()
-                            ).hexdigest()[:16]
+    digest = hashlib.sha256(
+        "\0".join(texts + list(flags) + [platform.machine(), platform.system(), cc]).encode()
+    ).hexdigest()[:16]
     key = f"{main.stem}-{digest}"
     with _BUILD:
         if key not in _LIB:
@@ -106,8 +116,9 @@ def check_defines(defines: Sequence[str]) -> tuple[str, ...]:
 def _compile(main: Path, key: str, compiler: str | None, flags: Sequence[str] = FLAGS) -> ctypes.CDLL:
     cc = compiler or os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if not cc:
-        raise MissingDependencyError("compiler: expected a C compiler (cc, gcc or $CC) to build the kernel source "
-                                     "for the host, got none on PATH")
+        raise MissingDependencyError(
+            "compiler: expected a C compiler (cc, gcc or $CC) to build the kernel source for the host, got none on PATH"
+        )
     return kernel_cache.load(main, key, cc, flags)
 
 
@@ -178,8 +189,15 @@ class HostMontgomery:
         A, B = to_limbs(a, self.nl), to_limbs(b, self.nl)
         out = np.zeros_like(A)
         p = ctypes.POINTER(ctypes.c_uint32)
-        rc = self._lib.hevr_mont_mul_batch(A.ctypes.data_as(p), B.ctypes.data_as(p), self._n.ctypes.data_as(p),
-                                           self.ninv, self.nl, len(a), out.ctypes.data_as(p))
+        rc = self._lib.hevr_mont_mul_batch(
+            A.ctypes.data_as(p),
+            B.ctypes.data_as(p),
+            self._n.ctypes.data_as(p),
+            self.ninv,
+            self.nl,
+            len(a),
+            out.ctypes.data_as(p),
+        )
         if rc != 0:  # pragma: no cover - montgomery_params bounds nl
             raise ParameterError(f"n: the kernel refused {self.nl} limbs")
         return from_limbs(out)

@@ -102,8 +102,13 @@ def _shared_folder() -> Path | None:
         log.warning("kernel cache %s unusable (%s); building in a private folder", folder, exc)
         return None
     if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o022:
-        what = ("a symlink" if stat.S_ISLNK(st.st_mode) else "not a folder" if not stat.S_ISDIR(st.st_mode)
-                else "not this user's alone")
+        what = (
+            "a symlink"
+            if stat.S_ISLNK(st.st_mode)
+            else "not a folder"
+            if not stat.S_ISDIR(st.st_mode)
+            else "not this user's alone"
+        )
         log.warning("kernel cache %s is %s; building in a private folder", folder, what)
         return None
     return folder
@@ -168,8 +173,9 @@ def _build(main: Path, lib: Path, cc: str, flags: Sequence[str]) -> None:
         except FileNotFoundError:
             st = None
         if st is None or not stat.S_ISREG(st.st_mode) or st.st_size == 0:
-            raise MissingDependencyError(f"compiler: expected {cc} to write a library for {main.name}, "
-                                         "it exited 0 without one")
+            raise MissingDependencyError(
+                f"compiler: expected {cc} to write a library for {main.name}, it exited 0 without one"
+            )
         os.chmod(out, 0o600)  # private whatever the umask (the compiler creates it 0777 & ~umask)
         digest = hashlib.sha256(out.read_bytes()).hexdigest()
         fd = os.open(dig, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o600)
@@ -190,16 +196,25 @@ def _run(cc: str, args: Sequence[str], name: str) -> None:
     """Run the compiler in its own process group within the time limit; kill the group past it."""
     limit = compile_seconds()
     try:
-        proc = subprocess.Popen([cc, *args], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, errors="replace", start_new_session=True)
+        proc = subprocess.Popen(
+            [cc, *args],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            errors="replace",
+            start_new_session=True,
+        )
     except OSError as exc:
         raise MissingDependencyError(f"compiler: expected a C compiler at {cc}, got {exc.strerror}") from None
     try:
         _, err = proc.communicate(timeout=limit)
     except subprocess.TimeoutExpired:
         _kill_group(proc)
-        raise MissingDependencyError(f"compiler: expected {cc} to build {name} within {limit} s "
-                                     f"({COMPILE_SECONDS_KEY}), it had not finished; stopped it") from None
+        raise MissingDependencyError(
+            f"compiler: expected {cc} to build {name} within {limit} s "
+            f"({COMPILE_SECONDS_KEY}), it had not finished; stopped it"
+        ) from None
     except BaseException:  # an interrupt: no compiler left behind
         _kill_group(proc)
         raise

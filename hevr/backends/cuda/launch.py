@@ -65,9 +65,20 @@ def decrypt_args(c: Any, tables: Any, pointer: Any, i32: Any, u32: Any, i64: Any
     own marshalling (``pointer`` for arrays, ``i32``/``u32``/``i64`` for scalars)."""
     args = [pointer(c), i32(tables.NL)]
     for h in (tables.p, tables.q):
-        args += [pointer(h.P2.limbs), pointer(h.P2.one), pointer(h.P2.r2), u32(h.P2.ninv), i32(h.P2.nl),
-                 pointer(h.E), i32(h.E.size), pointer(h.P.limbs), pointer(h.PINV), pointer(h.HR), u32(h.P.ninv),
-                 i32(h.P.nl)]
+        args += [
+            pointer(h.P2.limbs),
+            pointer(h.P2.one),
+            pointer(h.P2.r2),
+            u32(h.P2.ninv),
+            i32(h.P2.nl),
+            pointer(h.E),
+            i32(h.E.size),
+            pointer(h.P.limbs),
+            pointer(h.PINV),
+            pointer(h.HR),
+            u32(h.P.ninv),
+            i32(h.P.nl),
+        ]
     return args + [pointer(tables.q.P.r2), pointer(tables.PIQ), i32(tables.nlo), i64(c.shape[0])]
 
 
@@ -117,7 +128,7 @@ class Launcher:
         out = np.zeros((sum(int(a.shape[0]) for a in arrays), nl), np.uint32)
         r = 0
         for a in arrays:
-            out[r:r + a.shape[0], :a.shape[1]] = self.host(a)
+            out[r : r + a.shape[0], : a.shape[1]] = self.host(a)
             r += a.shape[0]
         return out
 
@@ -170,8 +181,7 @@ class Launcher:
         """``x·b·R^-1 mod N`` per value: to Montgomery form with ``b = M.r2``, back with ``M.unit``."""
         raise NotImplementedError
 
-    def ray_products(self, t: PlanTables, cts: np.ndarray, shared_w: int,
-                     M: Modulus) -> tuple[np.ndarray, np.ndarray]:
+    def ray_products(self, t: PlanTables, cts: np.ndarray, shared_w: int, M: Modulus) -> tuple[np.ndarray, np.ndarray]:
         """(per task its product, per task (products, squarings, powmod bits)) for one component."""
         raise NotImplementedError
 
@@ -183,8 +193,9 @@ class Launcher:
         """Per row of ``k`` values and channel ``ch``: ``Π_i v_i^E[ch, i]`` (E: (C, k, ew) words)."""
         raise NotImplementedError
 
-    def pack(self, terms: np.ndarray, R: np.ndarray, per_pack: int, bits: int, offs: np.ndarray | None,
-             M: Modulus) -> np.ndarray:
+    def pack(
+        self, terms: np.ndarray, R: np.ndarray, per_pack: int, bits: int, offs: np.ndarray | None, M: Modulus
+    ) -> np.ndarray:
         """Per group of ``per_pack`` terms the Horner packing; ``offs``: the offset factors of a full
         group and of a shorter last one (Montgomery), or None."""
         raise NotImplementedError
@@ -259,8 +270,12 @@ class HostLauncher(Launcher):
         x, r = np.ascontiguousarray(x, dtype=np.int64), np.ascontiguousarray(r, dtype=np.uint32)
         n = np.ascontiguousarray(n, dtype=np.uint32)
         out = np.empty((x.size, M.nl), np.uint32)
-        if self.owner_lib.hevr_public_encrypt_host(_p(x), _p(r), _p(n), n.size, _p(M.limbs), _p(M.one), _p(M.r2),
-                                                   M.ninv, M.nl, x.size, _p(out)) != 0:
+        if (
+            self.owner_lib.hevr_public_encrypt_host(
+                _p(x), _p(r), _p(n), n.size, _p(M.limbs), _p(M.one), _p(M.r2), M.ninv, M.nl, x.size, _p(out)
+            )
+            != 0
+        ):
             raise ParameterError("nl: the encryption kernel refused the limb counts")  # pragma: no cover
         return out
 
@@ -268,11 +283,26 @@ class HostLauncher(Launcher):
         x = np.ascontiguousarray(x, dtype=np.int64)
         a, b = np.ascontiguousarray(a, dtype=np.uint32), np.ascontiguousarray(b, dtype=np.uint32)
         out = np.empty((x.size, tables.NL), np.uint32)
-        halves = [[_p(h.T), h.rows, h.w, _p(h.P.limbs), _p(h.P.one), h.P.ninv, h.P.nl, _p(h.NR)]
-                  for h in (tables.p, tables.q)]
-        if self.owner_lib.hevr_owner_encrypt_host(_p(x), _p(a), a.shape[1], _p(b), b.shape[1], *halves[0],
-                                                   _p(tables.p.P.r2), *halves[1], _p(tables.INV), tables.NL,
-                                                   x.size, _p(out)) != 0:
+        halves = [
+            [_p(h.T), h.rows, h.w, _p(h.P.limbs), _p(h.P.one), h.P.ninv, h.P.nl, _p(h.NR)] for h in (tables.p, tables.q)
+        ]
+        if (
+            self.owner_lib.hevr_owner_encrypt_host(
+                _p(x),
+                _p(a),
+                a.shape[1],
+                _p(b),
+                b.shape[1],
+                *halves[0],
+                _p(tables.p.P.r2),
+                *halves[1],
+                _p(tables.INV),
+                tables.NL,
+                x.size,
+                _p(out),
+            )
+            != 0
+        ):
             raise ParameterError("nl: the owner kernel refused the limb counts")  # pragma: no cover
         return out
 
@@ -306,13 +336,40 @@ class HostLauncher(Launcher):
         nl = M.nl
         pw = np.empty((max(1, t.pw_rows), nl), np.uint32)
         if t.pre_v.size:
-            self._call("hevr_ray_powers_host", _p(cts), _p(t.pre_v), _p(t.pre_j), _p(t.pre_start), shared_w,
-                       t.pre_v.size, _p(pw), *_mod(M))
+            self._call(
+                "hevr_ray_powers_host",
+                _p(cts),
+                _p(t.pre_v),
+                _p(t.pre_j),
+                _p(t.pre_start),
+                shared_w,
+                t.pre_v.size,
+                _p(pw),
+                *_mod(M),
+            )
         T = t.tasks.shape[0]
         vals, counts = np.empty((T, nl), np.uint32), np.zeros((T, 3), np.int64)
         buckets, used = np.empty((t.slot, nl), np.uint32), np.empty(t.slot, np.uint8)
-        self._call("hevr_ray_tasks_host", _p(t.tasks), 0, T, _p(cts), _p(pw), _p(t.pw_off), _p(t.pw_n), _p(t.vl),
-                   _p(t.wl), shared_w, _p(FOLD), _p(buckets), _p(used), t.slot, _p(vals), _p(counts), *_mod(M))
+        self._call(
+            "hevr_ray_tasks_host",
+            _p(t.tasks),
+            0,
+            T,
+            _p(cts),
+            _p(pw),
+            _p(t.pw_off),
+            _p(t.pw_n),
+            _p(t.vl),
+            _p(t.wl),
+            shared_w,
+            _p(FOLD),
+            _p(buckets),
+            _p(used),
+            t.slot,
+            _p(vals),
+            _p(counts),
+            *_mod(M),
+        )
         return vals, counts
 
     def segments(self, vals, indptr, k, M):

@@ -26,17 +26,27 @@ def find_nvrtc() -> Path:
     roots = [Path(p) / "nvidia" for p in sys.path if p and Path(p, "nvidia").is_dir()]
     roots += [Path(os.environ.get("CUDA_HOME", "/usr/local/cuda"))]
     for root in roots:
-        for pattern in ("cuda_nvrtc/lib/libnvrtc.so*", "cu*/lib/libnvrtc.so*", "lib64/libnvrtc.so*", "lib/libnvrtc.so*"):
-            found = sorted(p for p in glob.glob(str(root / pattern)) if "alt" not in Path(p).name
-                           and "builtins" not in Path(p).name)
+        for pattern in (
+            "cuda_nvrtc/lib/libnvrtc.so*",
+            "cu*/lib/libnvrtc.so*",
+            "lib64/libnvrtc.so*",
+            "lib/libnvrtc.so*",
+        ):
+            found = sorted(
+                p
+                for p in glob.glob(str(root / pattern))
+                if "alt" not in Path(p).name and "builtins" not in Path(p).name
+            )
             if found:
                 return Path(found[0])
-    raise MissingDependencyError("nvrtc: expected the NVRTC library (pip install nvidia-cuda-nvrtc-cu12, or a CUDA "
-                                 "toolkit), got none")
+    raise MissingDependencyError(
+        "nvrtc: expected the NVRTC library (pip install nvidia-cuda-nvrtc-cu12, or a CUDA toolkit), got none"
+    )
 
 
-def ptx(source: str, arch: str = "compute_90", options: tuple[str, ...] = ("--std=c++11",),
-        name: str = "render.cu") -> str:
+def ptx(
+    source: str, arch: str = "compute_90", options: tuple[str, ...] = ("--std=c++11",), name: str = "render.cu"
+) -> str:
     """PTX of ``source`` for ``arch``; :class:`RuntimeError` with NVRTC's log if it does not compile."""
     lib = ctypes.CDLL(str(find_nvrtc()))
     prog = ctypes.c_void_p()

@@ -24,13 +24,21 @@ from typing import Any
 
 import numpy as np
 
-from ...runtime.recent import Recent
 from ...crypto.paillier import raw_encode_signed
+from ...runtime.recent import Recent
 from .host import MAX_LIMBS, from_limbs, to_limbs
 from .residues import Modulus
 
-__all__ = ["DecryptTables", "OwnerTables", "decrypt_limbs", "decrypt_tables", "owner_limbs", "owner_tables",
-           "public_limbs", "random_below"]
+__all__ = [
+    "DecryptTables",
+    "OwnerTables",
+    "decrypt_limbs",
+    "decrypt_tables",
+    "owner_limbs",
+    "owner_tables",
+    "public_limbs",
+    "random_below",
+]
 
 _CACHE = Recent(2)  # n -> OwnerTables
 _DCACHE = Recent(2)  # n -> DecryptTables
@@ -186,8 +194,9 @@ def decrypt_tables(key: Any) -> DecryptTables:
         HR = to_limbs([h * (1 << (32 * k)) % prime], k)[0]
         halves.append(DecryptHalf(P2, P, E, PINV, HR))
     Q = halves[1].P
-    tables = DecryptTables(halves[0], halves[1], to_limbs([piq % q], Q.nl)[0],
-                           -(-(n * n).bit_length() // 32), -(-n.bit_length() // 32))
+    tables = DecryptTables(
+        halves[0], halves[1], to_limbs([piq % q], Q.nl)[0], -(-(n * n).bit_length() // 32), -(-n.bit_length() // 32)
+    )
     return _DCACHE.keep(n, tables)
 
 

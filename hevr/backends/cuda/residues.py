@@ -57,8 +57,7 @@ class Modulus:
     def __init__(self, n: int) -> None:
         self.n = int(n)
         self.nl, self.ninv, r2 = montgomery_params(self.n)
-        self.limbs, self.r2, self.one, self.unit = to_limbs(
-            [self.n, r2, (1 << (32 * self.nl)) % self.n, 1], self.nl)
+        self.limbs, self.r2, self.one, self.unit = to_limbs([self.n, r2, (1 << (32 * self.nl)) % self.n, 1], self.nl)
 
     def __repr__(self) -> str:
         return f"Modulus({self.n.bit_length()} bits, {self.nl} limbs)"
@@ -111,8 +110,9 @@ class LimbBatch:
                 raise ParameterError("batch: parts in Montgomery form are joined by the backend")
             rows = [_host(p.state[0]) for p in parts]
             nl = max((r.shape[1] for r in rows), default=1)
-            return np.concatenate([np.pad(r, ((0, 0), (0, nl - r.shape[1]))) for r in rows] or
-                                  [np.zeros((0, 1), np.uint32)]), None
+            return np.concatenate(
+                [np.pad(r, ((0, 0), (0, nl - r.shape[1]))) for r in rows] or [np.zeros((0, 1), np.uint32)]
+            ), None
         return self._state
 
     @state.setter
@@ -271,26 +271,44 @@ def plan_tables(plan: ProductPlan, n_vox: int) -> PlanTables | None:
     if (horner & (w > 24)).any() or (shared.any() and sw > 24):
         return None  # 2^24 buckets or more
     if (horner & ((w < 1) | (J < 1) | (J > 64))).any() or (shared.any() and sw < 1):
-        raise ParameterError("plan: expected HORNER tasks with w >= 1 and 1 <= J <= 64, and shared_w >= 1 for SHARED "
-                             "ones")
+        raise ParameterError(
+            "plan: expected HORNER tasks with w >= 1 and 1 <= J <= 64, and shared_w >= 1 for SHARED ones"
+        )
     size = np.where(horner, J * ((np.int64(1) << np.where(horner, w, 0)) + 1), 0)
     slot = max(1, int(size.max(initial=0)), (1 << sw) if shared.any() else 0)
     if slot > MAX_BUCKETS:
         return None
     pre = np.asarray(plan.pre if plan.pre is not None else [], dtype=np.int64).reshape(-1, 2)
     pre_v, pre_j = np.ascontiguousarray(pre[:, 0]), np.ascontiguousarray(pre[:, 1])
-    if pre.size and (pre_v.min() < 0 or pre_v.max() >= n_vox or pre_j.min() < 1 or pre_j.max() > 64 or
-                     np.unique(pre_v).size < pre_v.size):
+    if pre.size and (
+        pre_v.min() < 0
+        or pre_v.max() >= n_vox
+        or pre_j.min() < 1
+        or pre_j.max() > 64
+        or np.unique(pre_v).size < pre_v.size
+    ):
         raise ParameterError(f"plan: expected pre entries (voxel in [0, {n_vox}), 1 <= J <= 64), each voxel once")
     pre_start = np.cumsum(pre_j) - pre_j
     pw_off, pw_n = np.full(n_vox, -1, np.int64), np.zeros(n_vox, np.int64)
     pw_off[pre_v], pw_n[pre_v] = pre_start, pre_j
     single = kind == SINGLE
     return PlanTables(
-        vl=vl, wl=wl, tasks=tasks, rep=rep, pre_v=pre_v, pre_j=pre_j, pre_start=pre_start, pw_off=pw_off,
-        pw_n=pw_n, pw_rows=int(pre_j.sum()), slot=slot,
-        squarings_pre=int(((pre_j - 1) * sw).sum()), duplicate_rows=int((rep >= 0).sum()) - n_tasks,
-        precomputed=int((pre_j - 1).sum()), powmod=int(single.sum()))
+        vl=vl,
+        wl=wl,
+        tasks=tasks,
+        rep=rep,
+        pre_v=pre_v,
+        pre_j=pre_j,
+        pre_start=pre_start,
+        pw_off=pw_off,
+        pw_n=pw_n,
+        pw_rows=int(pre_j.sum()),
+        slot=slot,
+        squarings_pre=int(((pre_j - 1) * sw).sum()),
+        duplicate_rows=int((rep >= 0).sum()) - n_tasks,
+        precomputed=int((pre_j - 1).sum()),
+        powmod=int(single.sum()),
+    )
 
 
 def _ints(values, code: str) -> np.ndarray:

@@ -30,8 +30,18 @@ if TYPE_CHECKING:  # what static tools read; at run time each name is imported o
     from .views import VIEWS
     from .weights import BrickWeights, brick_weights
 
-__all__ = ["VIEWS", "BrickWeights", "Camera", "Footprint", "Plane", "RaySet", "brick_footprints", "brick_weights",
-           "cast_rays", "nearest_group_rows"]
+__all__ = [
+    "VIEWS",
+    "BrickWeights",
+    "Camera",
+    "Footprint",
+    "Plane",
+    "RaySet",
+    "brick_footprints",
+    "brick_weights",
+    "cast_rays",
+    "nearest_group_rows",
+]
 
 # Name -> submodule, imported on first use (``.camera`` alone needs numpy only). Equal to the
 # TYPE_CHECKING imports above.

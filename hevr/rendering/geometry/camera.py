@@ -28,13 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validate import check_int
-
-from ...core.validate import check_pixel_ids
-
-from ...core.validate import check_shape
-
-from ...core.validate import check_spacing
+from ...core.validate import check_int, check_pixel_ids, check_shape, check_spacing
 from ...errors import ParameterError
 from .views import VIEWS, view_offset
 
@@ -60,19 +54,20 @@ def _vec3(name: str, value: Any) -> tuple[float, float, float]:
     string is no coordinate, though numpy would read True and "1" as 1.0)."""
     items = value.tolist() if isinstance(value, np.ndarray) else value
     if isinstance(items, (list, tuple)) and not all(
-            isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_)) for x in items):
+        isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_)) for x in items
+    ):
         raise ParameterError(f"{name}: expected 3 finite numbers (x, y, z), got {value!r}")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ParameterError(
-            f"{name}: expected 3 finite numbers (x, y, z), got {value!r}"
-        ) from None
+        raise ParameterError(f"{name}: expected 3 finite numbers (x, y, z), got {value!r}") from None
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ParameterError(f"{name}: expected 3 finite numbers (x, y, z), got {value!r}")
     if np.abs(arr).max() > MAX_COORDINATE:
-        raise ParameterError(f"{name}: expected coordinates of magnitude at most {MAX_COORDINATE:g} (world units), "
-                             f"got {tuple(float(x) for x in arr)}")
+        raise ParameterError(
+            f"{name}: expected coordinates of magnitude at most {MAX_COORDINATE:g} (world units), "
+            f"got {tuple(float(x) for x in arr)}"
+        )
     # + 0.0 turns -0.0 into 0.0 so equal cameras have equal keys.
     return (float(arr[0]) + 0.0, float(arr[1]) + 0.0, float(arr[2]) + 0.0)
 
@@ -155,18 +150,19 @@ class Camera:
         distance = float(np.linalg.norm(dist_vec))
         tiny = _MIN_RELATIVE * max(1.0, *map(abs, pos), *map(abs, foc))
         if distance == 0.0:
-            raise ParameterError(
-                f"focal_point: expected a point different from position, got {foc} == position"
-            )
+            raise ParameterError(f"focal_point: expected a point different from position, got {foc} == position")
         if distance < tiny:
-            raise ParameterError(f"focal_point: expected a point at least {tiny:.3g} from position ({_MIN_RELATIVE:g} "
-                                 f"of the largest coordinate, at least 1), got one {distance:.3g} away")
+            raise ParameterError(
+                f"focal_point: expected a point at least {tiny:.3g} from position ({_MIN_RELATIVE:g} "
+                f"of the largest coordinate, at least 1), got one {distance:.3g} away"
+            )
         up_norm = float(np.linalg.norm(up))
         if not any(up):
             raise ParameterError(f"view_up: expected a non-zero vector, got {up}")
         if up_norm < _MIN_RELATIVE:
-            raise ParameterError(f"view_up: expected a vector of length at least {_MIN_RELATIVE:g}, got {up} "
-                                 f"(length {up_norm:.3g})")
+            raise ParameterError(
+                f"view_up: expected a vector of length at least {_MIN_RELATIVE:g}, got {up} (length {up_norm:.3g})"
+            )
         if np.linalg.norm(np.cross(dist_vec / distance, np.asarray(up) / up_norm)) < _PARALLEL_TOL:
             raise ParameterError(
                 f"view_up: expected a direction not parallel to the view direction "
@@ -222,8 +218,7 @@ class Camera:
         """
         if not isinstance(data, dict):
             raise ParameterError(f"data: expected a dict from Camera.to_dict(), got {type(data).__name__}")
-        allowed = {"position", "focal_point", "view_up", "view_angle", "width", "height",
-                   "parallel", "parallel_scale"}
+        allowed = {"position", "focal_point", "view_up", "view_angle", "width", "height", "parallel", "parallel_scale"}
         unknown = sorted(set(data) - allowed)
         if unknown:
             raise ParameterError(f"data: expected only the keys {sorted(allowed)}, got extra keys {unknown}")
@@ -373,8 +368,9 @@ class Camera:
         width = check_int("width", width, 1)
         height = check_int("height", height, 1)
         angle = _view_angle(view_angle)
-        extent = np.array([(shape[2] - 1) * spacing[0], (shape[1] - 1) * spacing[1],
-                           (shape[0] - 1) * spacing[2]], dtype=np.float64)
+        extent = np.array(
+            [(shape[2] - 1) * spacing[0], (shape[1] - 1) * spacing[1], (shape[0] - 1) * spacing[2]], dtype=np.float64
+        )
         centre = extent / 2.0
         # Bounding sphere of the voxel-centre box; never 0 so 1-voxel volumes still work.
         with np.errstate(over="ignore"):  # an infinite extent is refused below, naming spacing
@@ -383,15 +379,18 @@ class Camera:
         half_v = math.radians(angle) / 2.0
         half_h = math.atan(aspect * math.tan(half_v))
         if not math.isfinite(radius) or float(np.linalg.norm(centre)) + radius > MAX_COORDINATE / 4:
-            raise ParameterError(f"spacing: expected a volume of at most {MAX_COORDINATE / 4:g} world units "
-                                 f"across (shape·spacing), got {shape} voxels of spacing {spacing}")
+            raise ParameterError(
+                f"spacing: expected a volume of at most {MAX_COORDINATE / 4:g} world units "
+                f"across (shape·spacing), got {shape} voxels of spacing {spacing}"
+            )
         if distance is None:  # at most MAX_COORDINATE / 2 away (only a sliver of a view angle needs more)
             dist = min(radius / math.sin(min(half_v, half_h)), MAX_COORDINATE / 2)
         else:
             dist = _finite_float("distance", distance, "a positive number or None")
             if not 0.0 < dist <= MAX_COORDINATE / 2:
-                raise ParameterError(f"distance: expected a positive number of at most {MAX_COORDINATE / 2:g} or "
-                                     f"None, got {distance!r}")
+                raise ParameterError(
+                    f"distance: expected a positive number of at most {MAX_COORDINATE / 2:g} or None, got {distance!r}"
+                )
         if view is not None:
             offset, up = view_offset(view, az, el)
             view_up = tuple(up.tolist())

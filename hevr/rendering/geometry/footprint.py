@@ -83,12 +83,12 @@ class Footprint:
         [4, 5, 8, 9]
         """
         r0, r1, c0, c1 = self.rect
-        return (np.arange(r0, r1, dtype=np.int64)[:, None] * width
-                + np.arange(c0, c1, dtype=np.int64)[None, :]).ravel()
+        return (np.arange(r0, r1, dtype=np.int64)[:, None] * width + np.arange(c0, c1, dtype=np.int64)[None, :]).ravel()
 
 
-def _grown_boxes(shape: tuple[int, int, int], spacing, brick: tuple[int, int, int],
-                 bricks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _grown_boxes(
+    shape: tuple[int, int, int], spacing, brick: tuple[int, int, int], bricks: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """World-space corners lo, hi (B, 3) of each brick's grown box (x, y, z order)."""
     b = np.asarray(brick[::-1], np.float64)  # (bx, by, bz)
     n = np.asarray(shape[::-1], np.float64)
@@ -99,8 +99,14 @@ def _grown_boxes(shape: tuple[int, int, int], spacing, brick: tuple[int, int, in
     return (v0 - 1.0) * sp, v1 * sp
 
 
-def brick_footprints(camera: Camera | Plane, shape: tuple[int, int, int], spacing, brick: tuple[int, int, int],
-                     hit: np.ndarray, tile: int) -> dict[tuple[int, int, int], Footprint]:
+def brick_footprints(
+    camera: Camera | Plane,
+    shape: tuple[int, int, int],
+    spacing,
+    brick: tuple[int, int, int],
+    hit: np.ndarray,
+    tile: int,
+) -> dict[tuple[int, int, int], Footprint]:
     """Footprints of every brick whose rectangle holds a hit pixel, in brick raster order.
 
     Parameters
@@ -161,7 +167,8 @@ def brick_footprints(camera: Camera | Plane, shape: tuple[int, int, int], spacin
         p0, p1 = np.maximum(tx * tile, b0), np.minimum((tx + 1) * tile, b1)
         keep = hits(q0, q1, p0, p1) > 0
         out[tuple(int(k) for k in bricks[i])] = Footprint(  # type: ignore[index]
-            (a0, a1, b0, b1), tuple((ty[keep] * lay.tiles_x + tx[keep]).tolist()))
+            (a0, a1, b0, b1), tuple((ty[keep] * lay.tiles_x + tx[keep]).tolist())
+        )
     return out
 
 

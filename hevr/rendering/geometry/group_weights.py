@@ -97,13 +97,20 @@ class GroupRows:
             a, e = int(ends[i - 1]) if i else 0, int(ends[i])
             rr = pair_ray[a:e]
             row = np.flatnonzero(np.concatenate(([True], rr[1:] != rr[:-1]))) if rr.size else np.zeros(0, np.int64)
-            out[idx] = BrickWeights(brick=idx, rays=rr[row], indptr=np.append(row, rr.size).astype(np.int64),
-                                    voxels=local[a:e], weights=weight[a:e], exponent=0)
+            out[idx] = BrickWeights(
+                brick=idx,
+                rays=rr[row],
+                indptr=np.append(row, rr.size).astype(np.int64),
+                voxels=local[a:e],
+                weights=weight[a:e],
+                exponent=0,
+            )
         return out
 
 
-def nearest_group_weights(rays: RaySet, shape: Any, spacing: Any, brick: Any, indices: list, step: float
-                          ) -> dict[tuple[int, int, int], BrickWeights]:
+def nearest_group_weights(
+    rays: RaySet, shape: Any, spacing: Any, brick: Any, indices: list, step: float
+) -> dict[tuple[int, int, int], BrickWeights]:
     """The nearest-sampling :class:`BrickWeights` of every brick in ``indices``, in one pass
     (:func:`nearest_group_rows`, then grouped by brick).
 
@@ -123,8 +130,7 @@ def nearest_group_weights(rays: RaySet, shape: Any, spacing: Any, brick: Any, in
     return nearest_group_rows(rays, shape, spacing, brick, indices, step).per_brick()
 
 
-def nearest_group_rows(rays: RaySet, shape: Any, spacing: Any, brick: Any, indices: list, step: float
-                       ) -> GroupRows:
+def nearest_group_rows(rays: RaySet, shape: Any, spacing: Any, brick: Any, indices: list, step: float) -> GroupRows:
     """The nearest-sampling pairs of the bricks ``indices``, one row per ray (module docstring).
 
     >>> from hevr.rendering.geometry.camera import Camera
@@ -176,11 +182,18 @@ def nearest_group_rows(rays: RaySet, shape: Any, spacing: Any, brick: Any, indic
         local = iz * xp.take(syx, bnum) + iy * xp.take(sx, bnum) + ix - xp.take(off, bnum)
         # Runs of equal (ray, brick, voxel): one pair each, weighted by the run's length.
         m = int(r.shape[0])
-        new = xp.concat([xp.ones(min(m, 1), dtype=xp.bool),
-                         (r[1:] != r[:-1]) | (local[1:] != local[:-1]) | (bnum[1:] != bnum[:-1])])
+        new = xp.concat(
+            [xp.ones(min(m, 1), dtype=xp.bool), (r[1:] != r[:-1]) | (local[1:] != local[:-1]) | (bnum[1:] != bnum[:-1])]
+        )
         at = xp.nonzero(new)[0]
-        runs.append((xp.take(r, at), xp.take(bnum, at), xp.take(local, at),
-                     xp.diff(xp.concat([at, xp.asarray([m], dtype=at.dtype)]))))
+        runs.append(
+            (
+                xp.take(r, at),
+                xp.take(bnum, at),
+                xp.take(local, at),
+                xp.diff(xp.concat([at, xp.asarray([m], dtype=at.dtype)])),
+            )
+        )
         start = end
     if runs:
         r, bnum, local, weight = (xp.concat(list(x)) for x in zip(*runs))
@@ -191,6 +204,11 @@ def nearest_group_rows(rays: RaySet, shape: Any, spacing: Any, brick: Any, indic
         position[(bz * grid[1] + by) * grid[2] + bx] = i
     m = int(r.shape[0])
     row = xp.nonzero(xp.concat([xp.ones(min(m, 1), dtype=xp.bool), r[1:] != r[:-1]]))[0]
-    return GroupRows(indices, rays.global_ids(xp.take(r, row)),
-                     xp.astype(xp.concat([row, xp.asarray([m], dtype=row.dtype)]), xp.int64),
-                     xp.take(xp.asarray(position), bnum), xp.astype(local, xp.int64), xp.astype(weight, xp.int64))
+    return GroupRows(
+        indices,
+        rays.global_ids(xp.take(r, row)),
+        xp.astype(xp.concat([row, xp.asarray([m], dtype=row.dtype)]), xp.int64),
+        xp.take(xp.asarray(position), bnum),
+        xp.astype(local, xp.int64),
+        xp.astype(weight, xp.int64),
+    )

@@ -42,9 +42,7 @@ from typing import Any
 import numpy as np
 
 from ...core.limits import MAX_IMAGE_PIXELS
-from ...core.validate import check_int
-from ...core.validate import check_pixel_ids
-from ...core.validate import check_step
+from ...core.validate import check_int, check_pixel_ids, check_step
 from ...errors import ParameterError
 from .camera import Camera, _orbit_geometry, _vec3
 
@@ -146,15 +144,25 @@ class Plane:
         dot = float(np.dot(u, v))
         if abs(dot) > _ORTHO_TOL:
             angle = math.degrees(math.acos(max(-1.0, min(1.0, dot))))
-            raise ParameterError(f"v: expected a direction orthogonal to u = {u} (Plane.oblique builds such a "
-                                 f"pair), got {v} at {angle:.6g} degrees")
+            raise ParameterError(
+                f"v: expected a direction orthogonal to u = {u} (Plane.oblique builds such a "
+                f"pair), got {v} at {angle:.6g} degrees"
+            )
         width = check_int("width", self.width, 1)
         height = check_int("height", self.height, 1)
         spacing = _pixel_spacing(self.pixel_spacing)
         slab = check_int("slab", self.slab, 1, MAX_SLAB)
         step = check_step(self.slab_step, "slab_step") + 0.0
-        for name, value in (("origin", origin), ("u", u), ("v", v), ("width", width), ("height", height),
-                            ("pixel_spacing", spacing), ("slab", slab), ("slab_step", step)):
+        for name, value in (
+            ("origin", origin),
+            ("u", u),
+            ("v", v),
+            ("width", width),
+            ("height", height),
+            ("pixel_spacing", spacing),
+            ("slab", slab),
+            ("slab_step", step),
+        ):
             object.__setattr__(self, name, value)
 
     # ------------------------------------------------------------------ identity
@@ -164,9 +172,17 @@ class Plane:
         >>> Plane((0, 0, 0), (1, 0, 0), (0, 1, 0), width=2, height=2).to_dict()["kind"]
         'plane'
         """
-        return {"kind": "plane", "origin": list(self.origin), "u": list(self.u), "v": list(self.v),
-                "width": self.width, "height": self.height, "pixel_spacing": list(self.pixel_spacing),
-                "slab": self.slab, "slab_step": self.slab_step}
+        return {
+            "kind": "plane",
+            "origin": list(self.origin),
+            "u": list(self.u),
+            "v": list(self.v),
+            "width": self.width,
+            "height": self.height,
+            "pixel_spacing": list(self.pixel_spacing),
+            "slab": self.slab,
+            "slab_step": self.slab_step,
+        }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Plane:
@@ -237,8 +253,11 @@ class Plane:
         rows, cols = np.divmod(pix, self.width)
         u, v, _ = self.basis()
         du, dv = self.pixel_spacing
-        return (np.asarray(self.origin, dtype=np.float64) + (cols * du).astype(np.float64)[:, None] * u
-                + (rows * dv).astype(np.float64)[:, None] * v)
+        return (
+            np.asarray(self.origin, dtype=np.float64)
+            + (cols * du).astype(np.float64)[:, None] * u
+            + (rows * dv).astype(np.float64)[:, None] * v
+        )
 
     def rays(self, pixels: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(origins, directions)``, each (N, 3) float64, like :meth:`Camera.rays`.
@@ -270,9 +289,18 @@ class Plane:
 
     # ------------------------------------------------------------------ helpers
     @classmethod
-    def axial(cls, ev_or_shape: Any, k: float, *, width: int | None = None, height: int | None = None,
-              pixel_spacing: Any = None, slab: int = 1, slab_step: float | None = None,
-              spacing: Any = None) -> Plane:
+    def axial(
+        cls,
+        ev_or_shape: Any,
+        k: float,
+        *,
+        width: int | None = None,
+        height: int | None = None,
+        pixel_spacing: Any = None,
+        slab: int = 1,
+        slab_step: float | None = None,
+        spacing: Any = None,
+    ) -> Plane:
         """The plane z = k·sz: u = +x, v = +y (nearest sampling gives ``vol[k]``, (ny, nx)).
 
         Parameters
@@ -299,9 +327,18 @@ class Plane:
         return cls._aligned(ev_or_shape, spacing, 0, k, width, height, pixel_spacing, slab, slab_step)
 
     @classmethod
-    def coronal(cls, ev_or_shape: Any, j: float, *, width: int | None = None, height: int | None = None,
-                pixel_spacing: Any = None, slab: int = 1, slab_step: float | None = None,
-                spacing: Any = None) -> Plane:
+    def coronal(
+        cls,
+        ev_or_shape: Any,
+        j: float,
+        *,
+        width: int | None = None,
+        height: int | None = None,
+        pixel_spacing: Any = None,
+        slab: int = 1,
+        slab_step: float | None = None,
+        spacing: Any = None,
+    ) -> Plane:
         """The plane y = j·sy: u = +x, v = +z (nearest gives ``vol[:, j, :]``, (nz, nx)); as :meth:`axial`.
 
         >>> p = Plane.coronal((4, 3, 2), 2)
@@ -311,9 +348,18 @@ class Plane:
         return cls._aligned(ev_or_shape, spacing, 1, j, width, height, pixel_spacing, slab, slab_step)
 
     @classmethod
-    def sagittal(cls, ev_or_shape: Any, i: float, *, width: int | None = None, height: int | None = None,
-                 pixel_spacing: Any = None, slab: int = 1, slab_step: float | None = None,
-                 spacing: Any = None) -> Plane:
+    def sagittal(
+        cls,
+        ev_or_shape: Any,
+        i: float,
+        *,
+        width: int | None = None,
+        height: int | None = None,
+        pixel_spacing: Any = None,
+        slab: int = 1,
+        slab_step: float | None = None,
+        spacing: Any = None,
+    ) -> Plane:
         """The plane x = i·sx: u = +y, v = +z (nearest gives ``vol[:, :, i]``, (nz, ny)); as :meth:`axial`.
 
         >>> p = Plane.sagittal((4, 3, 2), 1)
@@ -323,8 +369,18 @@ class Plane:
         return cls._aligned(ev_or_shape, spacing, 2, i, width, height, pixel_spacing, slab, slab_step)
 
     @classmethod
-    def _aligned(cls, ev_or_shape: Any, spacing: Any, kind: int, index: Any, width: Any, height: Any,
-                 pixel_spacing: Any, slab: int, slab_step: Any) -> Plane:
+    def _aligned(
+        cls,
+        ev_or_shape: Any,
+        spacing: Any,
+        kind: int,
+        index: Any,
+        width: Any,
+        height: Any,
+        pixel_spacing: Any,
+        slab: int,
+        slab_step: Any,
+    ) -> Plane:
         """An axis-aligned plane; ``kind`` 0 axial (normal axis z), 1 coronal (y), 2 sagittal (x)."""
         shape, sp = _orbit_geometry(ev_or_shape, spacing)
         n_world = (shape[2], shape[1], shape[0])  # voxels along x, y, z
@@ -342,9 +398,20 @@ class Plane:
         return cls(tuple(origin), u, v, w, h, (du, dv), slab, sp[normal_axis] if slab_step is None else slab_step)
 
     @classmethod
-    def oblique(cls, ev_or_shape: Any, center: Any = None, normal: Any = (0.0, 0.0, 1.0), v: Any = None, *,
-                width: int | None = None, height: int | None = None, pixel_spacing: Any = None, slab: int = 1,
-                slab_step: float | None = None, spacing: Any = None) -> Plane:
+    def oblique(
+        cls,
+        ev_or_shape: Any,
+        center: Any = None,
+        normal: Any = (0.0, 0.0, 1.0),
+        v: Any = None,
+        *,
+        width: int | None = None,
+        height: int | None = None,
+        pixel_spacing: Any = None,
+        slab: int = 1,
+        slab_step: float | None = None,
+        spacing: Any = None,
+    ) -> Plane:
         """A plane through ``center`` with the given ``normal``, the pixel grid centred on it.
 
         Parameters
@@ -385,8 +452,9 @@ class Plane:
             hint = np.asarray(_unit("v", v))
         vv = hint - float(np.dot(hint, n)) * n
         if float(np.linalg.norm(vv)) < _PARALLEL_TOL:
-            raise ParameterError(f"v: expected a direction not parallel to normal = {tuple(n.tolist())}, "
-                                 f"got {tuple(hint.tolist())}")
+            raise ParameterError(
+                f"v: expected a direction not parallel to normal = {tuple(n.tolist())}, got {tuple(hint.tolist())}"
+            )
         vv = vv / np.linalg.norm(vv)
         uu = np.cross(vv, n)
         d = min(sp) if pixel_spacing is None else None
@@ -395,8 +463,16 @@ class Plane:
         w = _count(diag, du) if width is None else check_int("width", width, 1)
         h = _count(diag, dv) if height is None else check_int("height", height, 1)
         origin = c - (w - 1) / 2.0 * du * uu - (h - 1) / 2.0 * dv * vv
-        return cls(tuple(origin.tolist()), tuple(uu.tolist()), tuple(vv.tolist()), w, h, (du, dv), slab,
-                   min(sp) if slab_step is None else slab_step)
+        return cls(
+            tuple(origin.tolist()),
+            tuple(uu.tolist()),
+            tuple(vv.tolist()),
+            w,
+            h,
+            (du, dv),
+            slab,
+            min(sp) if slab_step is None else slab_step,
+        )
 
 
 def _fit(ext: list, voxel: tuple, width: Any, height: Any, pixel_spacing: Any) -> tuple[int, int, float, float]:
@@ -425,8 +501,10 @@ def _count(extent: float, d: float) -> int:
     """
     n = extent / d + 1e-9
     if not math.isfinite(n) or n >= MAX_IMAGE_PIXELS:
-        raise ParameterError(f"pixel_spacing: expected a spacing giving at most {MAX_IMAGE_PIXELS} pixels across "
-                             f"the volume's extent {extent:g}, got {d:g}")
+        raise ParameterError(
+            f"pixel_spacing: expected a spacing giving at most {MAX_IMAGE_PIXELS} pixels across "
+            f"the volume's extent {extent:g}, got {d:g}"
+        )
     return int(math.floor(n)) + 1
 
 

@@ -29,11 +29,7 @@ from typing import Any
 import numpy as np
 from array_api_compat import array_namespace
 
-from ...core.validate import check_shape
-
-from ...core.validate import check_spacing
-
-from ...core.validate import check_step
+from ...core.validate import check_shape, check_spacing, check_step
 from ...errors import ParameterError, RenderPlanError
 from .camera import Camera
 from .plane import Plane
@@ -103,8 +99,14 @@ class RaySet:
     def to_namespace(self, xp: Any) -> RaySet:
         """The same rays with every array in array namespace ``xp`` (e.g. CuPy's, or
         ``array_api_strict`` in the tests): what the namespace-generic geometry then runs on."""
-        return RaySet(**{f.name: xp.asarray(getattr(self, f.name)) if isinstance(getattr(self, f.name), np.ndarray)
-                         else getattr(self, f.name) for f in fields(self)})
+        return RaySet(
+            **{
+                f.name: xp.asarray(getattr(self, f.name))
+                if isinstance(getattr(self, f.name), np.ndarray)
+                else getattr(self, f.name)
+                for f in fields(self)
+            }
+        )
 
 
 def cast_rays(camera: Camera | Plane, shape: Any, spacing: Any, step: float, pixels: Any = None) -> RaySet:
@@ -167,8 +169,10 @@ def cast_rays(camera: Camera | Plane, shape: Any, spacing: Any, step: float, pix
     with np.errstate(over="ignore", invalid="ignore"):
         span = np.where(hit, np.floor((t_exit - t_enter) / step + 1e-9), 0.0)
     if not np.all(span < MAX_RAY_SAMPLES):  # also catches inf / nan from an extreme step
-        raise RenderPlanError(f"step: expected at most 2^53 samples along one ray, got a ray of "
-                              f"{float(np.nanmax(span)):.3g} samples at step {step:g}")
+        raise RenderPlanError(
+            f"step: expected at most 2^53 samples along one ray, got a ray of "
+            f"{float(np.nanmax(span)):.3g} samples at step {step:g}"
+        )
     n = np.where(hit, span.astype(np.int64) + 1, 0)
     return RaySet(
         origins=origins,
@@ -202,8 +206,10 @@ def _cast_plane(plane: Plane, shape: Any, spacing: Any, step: Any, pixels: Any =
     sp = np.asarray(check_spacing(spacing))
     step = check_step(step)
     if step != plane.slab_step:
-        raise ParameterError(f"step: expected the plane's slab_step {plane.slab_step:g} (a plane's samples are "
-                             f"its slab's planes), got {step:g}")
+        raise ParameterError(
+            f"step: expected the plane's slab_step {plane.slab_step:g} (a plane's samples are "
+            f"its slab's planes), got {step:g}"
+        )
     ids = None if pixels is None else np.unique(plane.check_pixels(pixels))
     origins, dirs = plane.rays(ids)
     with np.errstate(over="ignore"):
@@ -225,14 +231,20 @@ def _cast_plane(plane: Plane, shape: Any, spacing: Any, step: Any, pixels: Any =
     # Samples are placed from the pixel centre, t = (k - (S-1)/2)·h, exactly as the definition
     # (and render_slice_plain) writes them: the same float operations, so the same voxel at ties.
     index0 = np.where(hit, k0 - (plane.slab - 1) / 2.0, 0.0)
-    return RaySet(origins=plane.centres(ids), directions=dirs, t_enter=index0 * step,
-                  t_exit=np.where(hit, (index0 + n - 1) * step, 0.0), n_samples=n,
-                  width=plane.width, height=plane.height, pixel_ids=ids, t_index=index0)
+    return RaySet(
+        origins=plane.centres(ids),
+        directions=dirs,
+        t_enter=index0 * step,
+        t_exit=np.where(hit, (index0 + n - 1) * step, 0.0),
+        n_samples=n,
+        width=plane.width,
+        height=plane.height,
+        pixel_ids=ids,
+        t_index=index0,
+    )
 
 
-def sample_positions(
-    rays: RaySet, ray_idx: np.ndarray, k: np.ndarray, spacing: Any, step: float
-) -> np.ndarray:
+def sample_positions(rays: RaySet, ray_idx: np.ndarray, k: np.ndarray, spacing: Any, step: float) -> np.ndarray:
     """Sample positions in voxel-index space, (m, 3) float64 with columns (i, j, k).
 
     ``p = (origin + (t_enter + k*step)*direction) / spacing`` evaluated elementwise, so
@@ -280,9 +292,7 @@ def nearest_voxels(p: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
     return xp.minimum(xp.maximum(idx, 0), upper)  # np.clip's arithmetic (clip's array bounds are slow)
 
 
-def trilinear_corners(
-    p: np.ndarray, shape: tuple[int, int, int]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def trilinear_corners(p: np.ndarray, shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The 8 trilinear corners of each sample: clamped lower/upper indices and weights.
 
     Corner ``c`` (0..7) uses the upper index along x if ``c & 1``, along y if ``c & 2``
@@ -335,9 +345,7 @@ def corner_index(lo: np.ndarray, hi: np.ndarray, corner: int) -> np.ndarray:
     return out
 
 
-def expand_samples(
-    ray_ids: np.ndarray, k_first: np.ndarray, counts: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def expand_samples(ray_ids: np.ndarray, k_first: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Enumerate sample (ray, k) pairs, ray-major, k ascending within each ray.
 
     Ray ``ray_ids[r]`` contributes ``k = k_first[r] .. k_first[r] + counts[r] - 1``.

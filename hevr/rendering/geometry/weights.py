@@ -126,7 +126,7 @@ class BrickWeights:
         contrib = flat[self.voxels] * self.weights.reshape((-1,) + (1,) * (flat.ndim - 1))
         if self.n_pairs == 0:
             return np.zeros((0,) + flat.shape[1:])
-        return np.add.reduceat(contrib, self.indptr[:-1], axis=0) * 10.0 ** self.exponent
+        return np.add.reduceat(contrib, self.indptr[:-1], axis=0) * 10.0**self.exponent
 
 
 def brick_grid(shape: Any, brick: Any) -> tuple[int, int, int]:
@@ -333,7 +333,7 @@ def brick_weights(
         wcat = np.concatenate(w_parts) if w_parts else np.zeros(0)
         pairs, inverse = np.unique(keys, return_inverse=True)
         total = np.bincount(inverse.reshape(-1), weights=wcat, minlength=pairs.size)
-        wts = np.floor(total * 10.0 ** digits + 0.5).astype(np.int64)
+        wts = np.floor(total * 10.0**digits + 0.5).astype(np.int64)
         nonzero = wts > 0
         pairs, wts = pairs[nonzero], wts[nonzero]
         exponent = -int(digits)

@@ -41,33 +41,44 @@ import gmpy2
 import numpy as np
 from dask.delayed import delayed
 
-from ...runtime.scheduler import active_client
-from ...runtime.scheduler import compute as run_tasks
 from ...backends import get_backend
 from ...backends.base import OpCounter
 from ...colour import Colouring, Frame, colour, colouring_spec
 from ...crypto.tags import data_channel, tag_channel
-from ...image.provenance import check_provenance
 from ...errors import ParameterError
+from ...image.provenance import check_provenance
+from ...runtime.scheduler import active_client
+from ...runtime.scheduler import compute as run_tasks
 from ...store.packing import mantissa_range
 from ..pipeline.kernel import plan_products
 from ..verify import resolve_verify
-from .graph import column_pairs, map_graph, merge_tile, render_context, resident_bricks
 from . import files
+from .graph import column_pairs, map_graph, merge_tile, render_context, resident_bricks
 from .image import PackedImage, decode
 from .plan import SlicePlan
 from .verified import PackedVerification, aggregate_tile
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PackedColourImage", "colour_aggregate", "map_components", "merge_components", "render_packed_colour",
-           "render_packed_colour_request"]
+__all__ = [
+    "PackedColourImage",
+    "colour_aggregate",
+    "map_components",
+    "merge_components",
+    "render_packed_colour",
+    "render_packed_colour_request",
+]
 
 
-
-def map_components(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles: list[int],
-                   residents: list | None = None,
-                   channel: str = "vector") -> tuple[list[list[tuple[np.ndarray, np.ndarray]]], dict]:
+def map_components(
+    ev: Any,
+    plan: SlicePlan,
+    indices: list,
+    backend: str,
+    tiles: list[int],
+    residents: list | None = None,
+    channel: str = "vector",
+) -> tuple[list[list[tuple[np.ndarray, np.ndarray]]], dict]:
     """The partial accumulators of a column of bricks for each of the vector channel's k components
     (``channel="vector_tag"``: of their tags), cut by the tiles ``tiles``: per tile a list of k
     (keys, records), and the operations counted. One product plan for the column, run on the k
@@ -75,8 +86,10 @@ def map_components(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles:
     be = get_backend(backend)
     width = ev.meta.ciphertext_bytes
     k = ev.meta.components(data_channel(channel))
-    per_brick = [r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
-                 for idx, r in zip(indices, residents or [None] * len(indices))]
+    per_brick = [
+        r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
+        for idx, r in zip(indices, residents or [None] * len(indices))
+    ]
     keys, local, weights = column_pairs(plan, indices, [len(b[0]) for b in per_brick])
     empty = (np.zeros(0, np.int64), np.zeros((0, width), np.uint8))
     if not len(keys):
@@ -94,8 +107,9 @@ def map_components(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles:
     return parts, {"map": counter.modmuls, "pairs": int(len(keys)) * k}
 
 
-def merge_components(plan: SlicePlan, t: int, n: int, width: int, backend: str, k: int,
-                     *parts: Any) -> tuple[list[np.ndarray], dict]:
+def merge_components(
+    plan: SlicePlan, t: int, n: int, width: int, backend: str, k: int, *parts: Any
+) -> tuple[list[np.ndarray], dict]:
     """Tile ``t`` of each component: :func:`~hevr.rendering.packed.graph.merge_tile` on the
     component's partial accumulators (``parts``: per map task a list of k (keys, records))."""
     out, ops = [], {}
@@ -181,15 +195,17 @@ class PackedColourImage:
         (drawn in this process), which its decryption runs before any mean is formed."""
         return self.verification is not None
 
-    def decrypt_sums(self, private_key: Any, backend: str | None = None, *,
-                     require_verified: bool | str | None = None) -> np.ndarray:
+    def decrypt_sums(
+        self, private_key: Any, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> np.ndarray:
         """The exact integer ray sums Σ w·q_c of every component c and intermediate ray, (k, N_i, N_j)
         int64: every component's values checked as an X-ray frame's, and a verified frame's all k
         against the tags at once (one aggregate), before any sum is returned."""
         first = self.components[0]
         key = first._key(private_key)
-        check_provenance(key, self, require_verified,
-                         "a store encrypted with verifiable=False, or a render with verify=False")
+        check_provenance(
+            key, self, require_verified, "a store encrypted with verifiable=False, or a render with verify=False"
+        )
         if self.verification is not None:  # the metadata first: it says what every number means
             self.verification.check_metadata(key, self.plan, self.fingerprint)
         tiles = [c._decrypted_tiles(key, backend) for c in self.components]
@@ -200,17 +216,20 @@ class PackedColourImage:
             self.stats["check_s"] = time.perf_counter() - t0
         return sums
 
-    def decrypt_means(self, private_key: Any, backend: str | None = None, *,
-                      require_verified: bool | str | None = None) -> np.ndarray:
+    def decrypt_means(
+        self, private_key: Any, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> np.ndarray:
         """Per pixel the mean of each component over its ray's samples, warped to the camera: (H, W, k) float64."""
         geo = self.plan.geometry
         coords = geo.pixel_coords(self.camera)
         sums = self.decrypt_sums(private_key, backend, require_verified=require_verified)
-        return np.stack([geo.warp(c._values(s), coords).reshape(self.shape) for c, s in zip(self.components, sums)],
-                        axis=-1)
+        return np.stack(
+            [geo.warp(c._values(s), coords).reshape(self.shape) for c, s in zip(self.components, sums)], axis=-1
+        )
 
-    def decrypt_frame(self, private_key: Any, backend: str | None = None, *,
-                      require_verified: bool | str | None = None) -> Frame:
+    def decrypt_frame(
+        self, private_key: Any, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> Frame:
         """A :class:`hevr.Frame` of the warped means, to colour (and re-colour) on this machine, checked
         as :meth:`decrypt` checks; its ``n_samples`` are the intermediate rays' sample counts warped to
         the pixels, rounded."""
@@ -220,11 +239,24 @@ class PackedColourImage:
         geo = plan.geometry
         counts = geo.warp(geo.sample_counts(plan.sampling).astype(np.float64), geo.pixel_coords(self.camera))
         stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts)
-        return Frame(means=means, n_samples=np.rint(counts).astype(np.int64).reshape(self.shape), channel=self.channel,
-                     colouring=self.colouring, stats=stats)
+        return Frame(
+            means=means,
+            n_samples=np.rint(counts).astype(np.int64).reshape(self.shape),
+            channel=self.channel,
+            colouring=self.colouring,
+            stats=stats,
+        )
 
-    def decrypt(self, private_key: Any, backend: str | None = None, *, mode: str | None = None,
-                density: float | None = None, nodes: Any = None, require_verified: bool | str | None = None) -> np.ndarray:
+    def decrypt(
+        self,
+        private_key: Any,
+        backend: str | None = None,
+        *,
+        mode: str | None = None,
+        density: float | None = None,
+        nodes: Any = None,
+        require_verified: bool | str | None = None,
+    ) -> np.ndarray:
         """The coloured (H, W) (emphasize) or (H, W, 3) (tf) float64 image: with ``mode`` /
         ``density`` / ``nodes`` when given, else the render's own colouring (:func:`hevr.colour.colour`).
         A verified frame's components are each checked against the vector channel's tags first;
@@ -232,8 +264,9 @@ class PackedColourImage:
         spec = colouring_spec(self.channel, len(self.components), mode, density, nodes, self.colouring)
         return colour(self.decrypt_means(private_key, backend, require_verified=require_verified), spec)
 
-    def save(self, path: Any, *, overwrite: bool = False, storage_options: dict | None = None,
-             private_key: Any = None) -> None:
+    def save(
+        self, path: Any, *, overwrite: bool = False, storage_options: dict | None = None, private_key: Any = None
+    ) -> None:
         """Write the frame file (a packed frame file with the ``channel`` field: the k components'
         tiles, component-major; ``docs/format.md``), as :meth:`PackedImage.save` does; the colouring
         is not saved (``hevr decrypt --tf / --density`` colours at decryption)."""
@@ -244,21 +277,35 @@ class PackedColourImage:
         return files.packed_bytes(self, private_key)
 
     def __repr__(self) -> str:
-        return (f"PackedColourImage(shape={self.shape}, components={len(self.components)}, "
-                f"sampling={self.plan.sampling!r}, ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)")
+        return (
+            f"PackedColourImage(shape={self.shape}, components={len(self.components)}, "
+            f"sampling={self.plan.sampling!r}, ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)"
+        )
 
 
-def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouring | None, *, tile: int = 32,
-                         client: Any = None, progress: bool = True, backend: str | None = None,
-                         weight_bits: int | None = None, channel: str = "vector") -> PackedColourImage:
+def render_packed_colour(
+    ev: Any,
+    camera: Any,
+    sampling: str,
+    colouring: Colouring | None,
+    *,
+    tile: int = 32,
+    client: Any = None,
+    progress: bool = True,
+    backend: str | None = None,
+    weight_bits: int | None = None,
+    channel: str = "vector",
+) -> PackedColourImage:
     """Render the vector (or gradient) channel's k components of a packed store for a parallel
     ``camera`` with the scalar frame's plan (module docstring); the request checks are
     :func:`render_packed_colour_request`'s."""
     meta = ev.meta
     if channel not in ("vector", "gradient") or getattr(meta, channel) is None:
         extra = ", gradient=True" if channel == "gradient" else ""
-        raise ParameterError(f"ev: expected a packed store with the {channel} channel, got the store {meta.store_id} "
-                             f"without it; encrypt it with vector_dims=k{extra}")
+        raise ParameterError(
+            f"ev: expected a packed store with the {channel} channel, got the store {meta.store_id} "
+            f"without it; encrypt it with vector_dims=k{extra}"
+        )
     cl, backend = render_context(ev, backend, client)
     t0 = time.perf_counter()
     plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)  # the scalar's slots checked
@@ -266,37 +313,74 @@ def render_packed_colour(ev: Any, camera: Any, sampling: str, colouring: Colouri
     vlo, vhi = mantissa_range((0.0, 1.0), info.exponent)
     plan.check_slots(vhi - vlo)  # and the components': no sum carries into the next slot
     if plan.n_tiles == 0:
-        log.warning("render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
-                    "volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height)
+        log.warning(
+            "render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
+            "volume (hevr.Camera.orbit looks at its centre)",
+            camera.width,
+            camera.height,
+        )
     resident = resident_bricks(ev, channel, backend, cl)
     k = meta.components(channel)
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     plain = ev._plain()
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     per_tile, maps = map_graph(plain, plan, backend, resident, channel, tag, map_components)  # k per task
-    fin = [delayed(merge_components, pure=True, nout=2)(plan, t, n, width, backend, k, *per_tile[t],
-                                                        dask_key_name=f"hevr-packed-tile-{channel}-{tag}-{t}")
-           for t in range(plan.n_tiles)]
+    fin = [
+        delayed(merge_components, pure=True, nout=2)(
+            plan, t, n, width, backend, k, *per_tile[t], dask_key_name=f"hevr-packed-tile-{channel}-{tag}-{t}"
+        )
+        for t in range(plan.n_tiles)
+    ]
     results = run_tasks(fin + maps, client=cl, progress=progress, desc="render")
-    counts = {"map": sum(m["map"] for m in results[len(fin):]), "pairs": sum(m["pairs"] for m in results[len(fin):])}
-    for r in results[:len(fin)]:
+    counts = {"map": sum(m["map"] for m in results[len(fin) :]), "pairs": sum(m["pairs"] for m in results[len(fin) :])}
+    for r in results[: len(fin)]:
         for name, v in r[1].items():
             counts[name] = counts.get(name, 0) + v
-    per_comp = [[r[0][c] for r in results[:len(fin)]] for c in range(k)]
-    stats = {"layout": "packed", "channel": channel, "components": k, "backend": backend, "map_tasks": len(maps),
-             "finish_tasks": len(fin), "resident": resident is not None, "ops": counts,
-             "rays": int(np.prod(plan.geometry.size)), "ciphertexts": int(sum(len(t) for c in per_comp for t in c)),
-             "seconds": time.perf_counter() - t0}
-    log.info("render packed %s/%s %dx%d: %s", colouring.mode if colouring is not None else channel, sampling,
-             camera.width, camera.height, stats)
-    comps = [PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=info.exponent,
-                         offset=0, span=vhi - vlo, ciphertexts=tiles_c, store_id=meta.store_id, stats=stats,
-                         meta=meta, level=0) for tiles_c in per_comp]
+    per_comp = [[r[0][c] for r in results[: len(fin)]] for c in range(k)]
+    stats = {
+        "layout": "packed",
+        "channel": channel,
+        "components": k,
+        "backend": backend,
+        "map_tasks": len(maps),
+        "finish_tasks": len(fin),
+        "resident": resident is not None,
+        "ops": counts,
+        "rays": int(np.prod(plan.geometry.size)),
+        "ciphertexts": int(sum(len(t) for c in per_comp for t in c)),
+        "seconds": time.perf_counter() - t0,
+    }
+    log.info(
+        "render packed %s/%s %dx%d: %s",
+        colouring.mode if colouring is not None else channel,
+        sampling,
+        camera.width,
+        camera.height,
+        stats,
+    )
+    comps = [
+        PackedImage(
+            plan=plan,
+            camera=camera,
+            fingerprint=meta.fingerprint,
+            n=n,
+            exponent=info.exponent,
+            offset=0,
+            span=vhi - vlo,
+            ciphertexts=tiles_c,
+            store_id=meta.store_id,
+            stats=stats,
+            meta=meta,
+            level=0,
+        )
+        for tiles_c in per_comp
+    ]
     return PackedColourImage(components=comps, colouring=colouring, stats=stats, channel=channel)
 
 
-def colour_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool,
-                     seed: bytes, channel: str = "vector") -> tuple[int, dict]:
+def colour_aggregate(
+    ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool, seed: bytes, channel: str = "vector"
+) -> tuple[int, dict]:
     """The server's half of a colour frame's tags' round for ``seed``: the vector tags' k components
     through the frame's plan in one map per column (:func:`map_components` on ``vector_tag``), per
     tile and component one aggregate with component j's coefficients from j·``plan.n_values``
@@ -309,15 +393,27 @@ def colour_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progre
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     per_tile, maps = map_graph(ev._plain(), plan, backend, None, tag_channel(channel), tag, map_components)
-    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan, t, n, width, backend, seed, c * plan.n_values,
-                                                        *[p[c] for p in per_tile[t]],
-                                                        dask_key_name=f"hevr-packed-verify-{channel}-{tag}-{t}-{c}")
-             for t in range(plan.n_tiles) if per_tile[t] for c in range(k)]
+    tasks = [
+        delayed(aggregate_tile, pure=True, nout=2)(
+            plan,
+            t,
+            n,
+            width,
+            backend,
+            seed,
+            c * plan.n_values,
+            *[p[c] for p in per_tile[t]],
+            dask_key_name=f"hevr-packed-verify-{channel}-{tag}-{t}-{c}",
+        )
+        for t in range(plan.n_tiles)
+        if per_tile[t]
+        for c in range(k)
+    ]
     results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
     n2 = gmpy2.mpz(n) * n
     A = gmpy2.mpz(1)
-    ops = {"map": sum(m["map"] for m in results[len(tasks):])}
-    for rec, counts in results[:len(tasks)]:
+    ops = {"map": sum(m["map"] for m in results[len(tasks) :])}
+    for rec, counts in results[: len(tasks)]:
         if rec is not None:
             A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
         for name, v in counts.items():
@@ -325,9 +421,22 @@ def colour_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progre
     return int(A), ops
 
 
-def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, nodes: Any, sampling: Any, *,
-                                 verify: Any, tile: Any, client: Any, progress: bool, backend: Any,
-                                 weight_bits: Any, channel: str = "vector") -> PackedColourImage:
+def render_packed_colour_request(
+    ev: Any,
+    camera: Any,
+    mode: Any,
+    density: Any,
+    nodes: Any,
+    sampling: Any,
+    *,
+    verify: Any,
+    tile: Any,
+    client: Any,
+    progress: bool,
+    backend: Any,
+    weight_bits: Any,
+    channel: str = "vector",
+) -> PackedColourImage:
     """A transfer-function or emphasis frame of a packed store with the vector channel, after the
     request checks every packed frame has (:func:`hevr.rendering.packed.request.render_packed_request`):
     the colouring checked here (:class:`hevr.colour.Colouring`), ``verify`` resolved as for an X-ray
@@ -335,19 +444,48 @@ def render_packed_colour_request(ev: Any, camera: Any, mode: Any, density: Any, 
     colouring = Colouring(mode, density, nodes)  # mode, density, nodes: checked before any work
     verified = resolve_verify(verify, ev, "client", level=getattr(ev, "level", 0), compute=True, stream=False)
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the k components come from there
-        return ev.render_packed_request(camera, sampling, tile=tile, weight_bits=weight_bits, backend=backend,
-                                        client=client, verify=verified, colouring=colouring, channel=channel)
-    image = render_packed_colour(ev, camera, sampling, colouring, tile=tile, client=client, progress=progress,
-                                 backend=backend, weight_bits=weight_bits, channel=channel)
+        return ev.render_packed_request(
+            camera,
+            sampling,
+            tile=tile,
+            weight_bits=weight_bits,
+            backend=backend,
+            client=client,
+            verify=verified,
+            colouring=colouring,
+            channel=channel,
+        )
+    image = render_packed_colour(
+        ev,
+        camera,
+        sampling,
+        colouring,
+        tile=tile,
+        client=client,
+        progress=progress,
+        backend=backend,
+        weight_bits=weight_bits,
+        channel=channel,
+    )
     if verified:  # the second round, as for an X-ray: the values are fixed here before the seed is drawn
         t0 = time.perf_counter()
         seed = secrets.token_bytes(32)
-        A, ops = colour_aggregate(ev, image.plan, image.stats["backend"], active_client(client), progress, seed,
-                                  channel)
+        A, ops = colour_aggregate(
+            ev, image.plan, image.stats["backend"], active_client(client), progress, seed, channel
+        )
         level = int(getattr(ev, "level", 0) or 0)
-        image.verification = PackedVerification(aggregate=A, seed=seed, meta=ev.base if level else ev.meta,
-                                                level=level, channel=channel, components=len(image.components),
-                                                ops=ops, server_s=time.perf_counter() - t0, drawn_here=True,
-                                                drawn_at=time.time(), known_name=str(ev.path))
+        image.verification = PackedVerification(
+            aggregate=A,
+            seed=seed,
+            meta=ev.base if level else ev.meta,
+            level=level,
+            channel=channel,
+            components=len(image.components),
+            ops=ops,
+            server_s=time.perf_counter() - t0,
+            drawn_here=True,
+            drawn_at=time.time(),
+            known_name=str(ev.path),
+        )
         image.stats["verify"] = {"server_s": image.verification.server_s, "ops": ops}
     return image

@@ -55,8 +55,17 @@ from .plan import SlicePlan
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FORMAT", "MAGIC", "MAGIC_PREFIX", "VERSION", "check_packed", "is_packed_frame", "packed_bytes",
-           "parse_packed", "save_packed"]
+__all__ = [
+    "FORMAT",
+    "MAGIC",
+    "MAGIC_PREFIX",
+    "VERSION",
+    "check_packed",
+    "is_packed_frame",
+    "packed_bytes",
+    "parse_packed",
+    "save_packed",
+]
 
 MAGIC_PREFIX = IMAGE_MAGIC_PREFIX + b"P"  # a frame file ("HEVRIMG"), packed ("P")
 VERSION = 1
@@ -80,7 +89,7 @@ def is_packed_frame(head: bytes) -> bool:
     >>> is_packed_frame(MAGIC + b"..."), is_packed_frame(b"HEVRIMG\\x03...")
     (True, False)
     """
-    return bytes(head[:len(MAGIC_PREFIX)]) == MAGIC_PREFIX
+    return bytes(head[: len(MAGIC_PREFIX)]) == MAGIC_PREFIX
 
 
 # -- writing ------------------------------------------------------------------------------------
@@ -88,8 +97,10 @@ def frame_metadata(img: Any) -> tuple[VolumeMetadata, VolumeMetadata]:
     """(the store's metadata, the frame's: its pyramid level's) of a packed frame."""
     meta = img.meta if img.meta is not None else getattr(img.verification, "meta", None)
     if meta is None:
-        raise ParameterError("image: expected a packed frame that keeps its store's metadata (one hevr.render "
-                             "returned), got one without it; render it again")
+        raise ParameterError(
+            "image: expected a packed frame that keeps its store's metadata (one hevr.render "
+            "returned), got one without it; render it again"
+        )
     level = int(img.level)
     return meta, (meta.level_meta(level) if level else meta)
 
@@ -116,18 +127,30 @@ def check_packed(img: Any) -> None:
 def _header(img: Any) -> dict:
     meta, fm = frame_metadata(img)
     plan = img.plan
-    head = {"format": FORMAT, "version": VERSION, "camera": img.camera.to_dict(), "sampling": plan.sampling,
-            "weight_bits": int(plan.weight_bits), "tile": int(plan.tile), "level": int(img.level),
-            "metadata": meta.to_dict(), "counts": [int(len(c)) for c in img.ciphertexts]}
+    head = {
+        "format": FORMAT,
+        "version": VERSION,
+        "camera": img.camera.to_dict(),
+        "sampling": plan.sampling,
+        "weight_bits": int(plan.weight_bits),
+        "tile": int(plan.tile),
+        "level": int(img.level),
+        "metadata": meta.to_dict(),
+        "counts": [int(len(c)) for c in img.ciphertexts],
+    }
     channel = getattr(img, "channel", "scalar") if hasattr(img, "components") else "scalar"
     if channel != "scalar":
         head["channel"] = channel
     v = img.verification
     if v is not None:
-        if (v.meta.to_dict() != meta.to_dict() or int(v.level) != int(img.level)
-                or getattr(v, "channel", "scalar") != channel):
-            raise ParameterError("image: its verification record is of another store or level than the frame; "
-                                 "render it again")
+        if (
+            v.meta.to_dict() != meta.to_dict()
+            or int(v.level) != int(img.level)
+            or getattr(v, "channel", "scalar") != channel
+        ):
+            raise ParameterError(
+                "image: its verification record is of another store or level than the frame; render it again"
+            )
         head["verification"] = {"aggregate": str(int(v.aggregate)), "seed": bytes(v.seed).hex()}
     return head
 
@@ -152,16 +175,22 @@ def for_file(img: Any, private_key: Any) -> Any:
     return keep_record(img, private_key, lambda key: img.decrypt_sums(key, require_verified=Expect(moved=True)))
 
 
-def save_packed(img: Any, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None,
-                private_key: Any = None) -> None:
+def save_packed(
+    img: Any, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None, private_key: Any = None
+) -> None:
     """Write ``img`` to ``path`` (:meth:`hevr.PackedImage.save`: atomic, never over a file unless
     ``overwrite``; an fsspec URL in one request)."""
     so = check_storage_options(storage_options)
     overwrite = check_bool("overwrite", overwrite)
     where = output_location(path)
     out = for_file(img, private_key)
-    write_output(where, file_parts(out, private_key, saved_name(where)), so, overwrite=overwrite,
-                 doing="writing the packed frame")
+    write_output(
+        where,
+        file_parts(out, private_key, saved_name(where)),
+        so,
+        overwrite=overwrite,
+        doing="writing the packed frame",
+    )
 
 
 def packed_bytes(img: Any, private_key: Any = None) -> bytes:
@@ -182,8 +211,10 @@ class _Fields:
 
     def fail(self, name: str, expected: str, got: Any) -> IntegrityError:
         text = repr(got)
-        return IntegrityError(f"{self.where}: header field '{name}': expected {expected}, got "
-                              f"{text[:80] + '…' if len(text) > 80 else text}; no image is returned")
+        return IntegrityError(
+            f"{self.where}: header field '{name}': expected {expected}, got "
+            f"{text[:80] + '…' if len(text) > 80 else text}; no image is returned"
+        )
 
     def integer(self, h: dict, name: str, lo: int, hi: int) -> int:
         v = h[name]
@@ -202,21 +233,27 @@ def parse_packed(blob: bytes, where: str) -> dict:
         raise CorruptStoreError(f"{where}: not a packed frame file (bad magic)")
     version = blob[len(MAGIC_PREFIX)] if len(blob) > len(MAGIC_PREFIX) else None
     if version != VERSION:
-        raise CorruptStoreError(f"{where}: unsupported packed frame format version {version}; this hevr reads "
-                                f"version {VERSION}")
+        raise CorruptStoreError(
+            f"{where}: unsupported packed frame format version {version}; this hevr reads version {VERSION}"
+        )
     if len(blob) < HEAD + DIGEST_BYTES:
-        raise IntegrityError(f"{where}: truncated: {len(blob)} bytes, shorter than any packed frame file; no image "
-                             "is returned")
+        raise IntegrityError(
+            f"{where}: truncated: {len(blob)} bytes, shorter than any packed frame file; no image is returned"
+        )
     view = memoryview(blob)
     if hashlib.sha256(view[:-DIGEST_BYTES]).digest() != bytes(view[-DIGEST_BYTES:]):
-        raise IntegrityError(f"{where}: checksum mismatch: the file was corrupted, truncated or altered after it was "
-                             "written; no image is returned")
+        raise IntegrityError(
+            f"{where}: checksum mismatch: the file was corrupted, truncated or altered after it was "
+            "written; no image is returned"
+        )
     (hl,) = LENGTH.unpack_from(blob, len(MAGIC))
     if hl > min(MAX_HEADER, len(blob) - HEAD - DIGEST_BYTES):
-        raise IntegrityError(f"{where}: header length: expected at most "
-                             f"{min(MAX_HEADER, len(blob) - HEAD - DIGEST_BYTES)} bytes, got {hl}; no image is returned")
+        raise IntegrityError(
+            f"{where}: header length: expected at most "
+            f"{min(MAX_HEADER, len(blob) - HEAD - DIGEST_BYTES)} bytes, got {hl}; no image is returned"
+        )
     try:
-        h = parse_json(bytes(view[HEAD:HEAD + hl]), where)
+        h = parse_json(bytes(view[HEAD : HEAD + hl]), where)
     except CorruptStoreError as exc:
         raise IntegrityError(f"{exc}; no image is returned") from None
     f = _Fields(where)
@@ -224,8 +261,11 @@ def parse_packed(blob: bytes, where: str) -> dict:
         raise f.fail("(header)", "a JSON object", type(h).__name__)
     missing, extra = sorted(FIELDS - set(h)), sorted(set(h) - FIELDS - OPTIONAL)
     if missing or extra:
-        raise f.fail(missing[0] if missing else extra[0], f"exactly the fields {sorted(FIELDS)} (and a verified "
-                     f"frame's {sorted(OPTIONAL)})", "nothing" if missing else "an unexpected field")
+        raise f.fail(
+            missing[0] if missing else extra[0],
+            f"exactly the fields {sorted(FIELDS)} (and a verified frame's {sorted(OPTIONAL)})",
+            "nothing" if missing else "an unexpected field",
+        )
     if h["format"] != FORMAT:
         raise f.fail("format", repr(FORMAT), h["format"])
     f.integer(h, "version", VERSION, VERSION)
@@ -250,8 +290,11 @@ def parse_packed(blob: bytes, where: str) -> dict:
     T = plan.n_tiles
     if not isinstance(counts, list) or len(counts) != k * T:
         per = f", for {k} components" if k > 1 else ""
-        raise f.fail("counts", f"a list of {k * T} integers (the frame plan's tiles{per})",
-                     f"a list of {len(counts)}" if isinstance(counts, list) else counts)
+        raise f.fail(
+            "counts",
+            f"a list of {k * T} integers (the frame plan's tiles{per})",
+            f"a list of {len(counts)}" if isinstance(counts, list) else counts,
+        )
     for i, c in enumerate(counts):
         t = i % T
         j0, j1, b0, b1 = plan.tile_bounds(t)
@@ -259,19 +302,34 @@ def parse_packed(blob: bytes, where: str) -> dict:
             raise f.fail(f"counts[{t}]", f"{(j1 - j0) * (b1 - b0)} (rows × blocks of the plan's tile {t})", c)
     if body.size != sum(counts) * width:
         what = "truncated" if body.size < sum(counts) * width else "too long"
-        raise IntegrityError(f"{where}: {what}: expected {sum(counts) * width} record bytes (sum of counts × "
-                             f"{width}), got {body.size}; no image is returned")
+        raise IntegrityError(
+            f"{where}: {what}: expected {sum(counts) * width} record bytes (sum of counts × "
+            f"{width}), got {body.size}; no image is returned"
+        )
     tiles, pos = [], 0
     for c in counts:
-        tiles.append(body[pos:pos + c * width].reshape(c, width))
+        tiles.append(body[pos : pos + c * width].reshape(c, width))
         pos += c * width
     v = _verification(h, f, meta, int(h["level"]))
     if v is not None and channel != "scalar":
         v = dict(v, channel=channel, components=k)
-    return {"plan": plan, "camera": camera, "fingerprint": fm.fingerprint, "n": int(fm.n),
-            "exponent": exponent, "offset": offset, "span": span, "ciphertexts": tiles,
-            "store_id": fm.store_id, "meta": meta, "level": int(h["level"]), "stamp": stamp,
-            "verification": v, "channel": channel, "components": k}
+    return {
+        "plan": plan,
+        "camera": camera,
+        "fingerprint": fm.fingerprint,
+        "n": int(fm.n),
+        "exponent": exponent,
+        "offset": offset,
+        "span": span,
+        "ciphertexts": tiles,
+        "store_id": fm.store_id,
+        "meta": meta,
+        "level": int(h["level"]),
+        "stamp": stamp,
+        "verification": v,
+        "channel": channel,
+        "components": k,
+    }
 
 
 def _metadata(h: dict, f: _Fields) -> tuple[VolumeMetadata, VolumeMetadata]:
@@ -286,13 +344,15 @@ def _metadata(h: dict, f: _Fields) -> tuple[VolumeMetadata, VolumeMetadata]:
     except ValueError:
         good_key = False
     if not good_key:
-        raise f.fail("metadata", "a public key whose fingerprint and record width are those of its modulus n",
-                     "another key")
+        raise f.fail(
+            "metadata", "a public key whose fingerprint and record width are those of its modulus n", "another key"
+        )
     level = f.integer(h, "level", 0, min(MAX_LEVELS, len(meta.levels)))
     fm = meta.level_meta(level) if level else meta
     if fm.packing is None or fm.scalar is None:
-        raise f.fail("metadata", f"a packed store's metadata (level {level}: packed, the scalar channel)",
-                     "a per-voxel store's")
+        raise f.fail(
+            "metadata", f"a packed store's metadata (level {level}: packed, the scalar channel)", "a per-voxel store's"
+        )
     return meta, fm
 
 
@@ -330,8 +390,13 @@ def _verification(h: dict, f: _Fields, meta: VolumeMetadata, level: int) -> dict
         raise f.fail("verification", f"an object with exactly {sorted(RECORD)}", d)
     n = int(meta.n)
     agg = d["aggregate"]
-    if not (isinstance(agg, str) and agg.isascii() and agg.isdigit() and len(agg) <= 2 * len(str(n))
-            and 0 < int(agg) < n * n):
+    if not (
+        isinstance(agg, str)
+        and agg.isascii()
+        and agg.isdigit()
+        and len(agg) <= 2 * len(str(n))
+        and 0 < int(agg) < n * n
+    ):
         raise f.fail("verification.aggregate", "a decimal string of a ciphertext in (0, n²)", agg)
     seed = d["seed"]
     if not (isinstance(seed, str) and len(seed) == 64 and all(c in "0123456789abcdef" for c in seed)):

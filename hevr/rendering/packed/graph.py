@@ -25,11 +25,10 @@ from typing import Any
 import numpy as np
 from dask.delayed import delayed
 
-from ...runtime.scheduler import active_client
-from ...runtime.scheduler import compute as run_tasks
-from ...runtime.scheduler import warn_if_remote
 from ...backends import get_backend, resolve_backend_name
 from ...backends.base import OpCounter
+from ...runtime.scheduler import active_client, warn_if_remote
+from ...runtime.scheduler import compute as run_tasks
 from ...store.packing import mantissa_range
 from ...store.paths import check_reachable
 from ..pipeline.finishing import one_records
@@ -55,9 +54,15 @@ def column_pairs(plan: SlicePlan, indices: list, sizes: list[int]) -> tuple[np.n
     return keys[order], np.concatenate([p[1] for p in parts])[order], np.concatenate([p[2] for p in parts])[order]
 
 
-def map_column(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles: list[int],
-               residents: list | None = None,
-               channel: str = "scalar") -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
+def map_column(
+    ev: Any,
+    plan: SlicePlan,
+    indices: list,
+    backend: str,
+    tiles: list[int],
+    residents: list | None = None,
+    channel: str = "scalar",
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
     """The partial accumulators of a column of bricks along the view's principal axis, cut by the
     tiles ``tiles``: a list of (keys, records) in that order, and the operations counted. One
     product plan for the column: an accumulator's pairs from all its slices in one
@@ -65,8 +70,10 @@ def map_column(ev: Any, plan: SlicePlan, indices: list, backend: str, tiles: lis
     ``channel``: ``"scalar"``, or its tags ``"scalar_tag"`` (the same products, :mod:`.verified`)."""
     be = get_backend(backend)
     width = ev.meta.ciphertext_bytes
-    batches = [r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
-               for idx, r in zip(indices, residents or [None] * len(indices))]
+    batches = [
+        r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
+        for idx, r in zip(indices, residents or [None] * len(indices))
+    ]
     keys, local, weights = column_pairs(plan, indices, [len(b) for b in batches])
     empty = (np.zeros(0, np.int64), np.zeros((0, width), np.uint8))
     if not len(keys):
@@ -138,12 +145,13 @@ def brick_columns(grid: tuple[int, int, int], axis: int, most: int = COLUMN_BRIC
                 idx = [0, 0, 0]
                 idx[others[0]], idx[others[1]], idx[axis] = a, b, k
                 col.append(tuple(idx))
-            out.extend(col[i:i + most] for i in range(0, len(col), most))
+            out.extend(col[i : i + most] for i in range(0, len(col), most))
     return out
 
 
-def map_graph(ev: Any, plan: SlicePlan, backend: str, resident: dict | None, channel: str,
-              tag: str, fn: Any = None) -> tuple[dict[int, list], list]:
+def map_graph(
+    ev: Any, plan: SlicePlan, backend: str, resident: dict | None, channel: str, tag: str, fn: Any = None
+) -> tuple[dict[int, list], list]:
     """The map tasks of a frame on ``channel``: per tile the delayed partial accumulators that
     reach it, and every map task's operation counts (one task per column of bricks). ``fn``: the
     map task, called as :func:`map_column` is (default; the colour frames' k components:
@@ -158,9 +166,16 @@ def map_graph(ev: Any, plan: SlicePlan, backend: str, resident: dict | None, cha
         tiles = sorted(set().union(*(reach[idx] for idx in column)))
         idx = column[0]
         name = f"hevr-packed-map-{channel}-{tag}-{idx[0]}-{idx[1]}-{idx[2]}"
-        task = delayed(fn or map_column, pure=True, nout=2)(ev, plan, column, backend, tiles,
-                                                      [resident.get(i) for i in column] if resident is not None
-                                                      else None, channel, dask_key_name=name)
+        task = delayed(fn or map_column, pure=True, nout=2)(
+            ev,
+            plan,
+            column,
+            backend,
+            tiles,
+            [resident.get(i) for i in column] if resident is not None else None,
+            channel,
+            dask_key_name=name,
+        )
         maps.append(task[1])
         for pos, t in enumerate(tiles):
             per_tile[t].append(task[0][pos])
@@ -184,13 +199,25 @@ def resident_bricks(ev: Any, channel: str, backend: str, client: Any) -> dict | 
         return None
     if ev.resident.usable(channel, backend, client):
         return ev.resident.bricks
-    log.warning("render: the resident bricks cannot serve this render (backend %s, the %s channel); streaming from "
-                "the store", backend, channel)
+    log.warning(
+        "render: the resident bricks cannot serve this render (backend %s, the %s channel); streaming from the store",
+        backend,
+        channel,
+    )
     return None
 
 
-def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client: Any = None, progress: bool = True,
-                  backend: str | None = None, weight_bits: int | None = None) -> PackedImage:
+def render_packed(
+    ev: Any,
+    camera: Any,
+    sampling: str,
+    *,
+    tile: int = 32,
+    client: Any = None,
+    progress: bool = True,
+    backend: str | None = None,
+    weight_bits: int | None = None,
+) -> PackedImage:
     """Render a packed store's X-ray of a parallel ``camera`` (:func:`hevr.render` routes here;
     its request checks are done there)."""
     cl, backend = render_context(ev, backend, client)
@@ -199,28 +226,53 @@ def render_packed(ev: Any, camera: Any, sampling: str, *, tile: int = 32, client
     plan = SlicePlan.of_store(meta, camera, sampling, tile, weight_bits)  # its slots checked before any work
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
     if plan.n_tiles == 0:  # public geometry: say so rather than hand back a black frame
-        log.warning("render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
-                    "volume (hevr.Camera.orbit looks at its centre)", camera.width, camera.height)
+        log.warning(
+            "render: no ray of this %dx%d camera hits the packed volume: the image is empty; aim it at the "
+            "volume (hevr.Camera.orbit looks at its centre)",
+            camera.width,
+            camera.height,
+        )
     resident = resident_bricks(ev, "scalar", backend, cl)
     n = int(ev.public_key.n)
     width = meta.ciphertext_bytes
     plain = ev._plain()
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"  # this render's tasks (never another render's results)
     per_tile, maps = map_graph(plain, plan, backend, resident, "scalar", tag)
-    fin = [delayed(merge_tile, pure=True, nout=2)(plan, t, n, width, backend, *per_tile[t],
-                                                  dask_key_name=f"hevr-packed-tile-{tag}-{t}")
-           for t in range(plan.n_tiles)]
+    fin = [
+        delayed(merge_tile, pure=True, nout=2)(
+            plan, t, n, width, backend, *per_tile[t], dask_key_name=f"hevr-packed-tile-{tag}-{t}"
+        )
+        for t in range(plan.n_tiles)
+    ]
     results = run_tasks([f for f in fin] + maps, client=cl, progress=progress, desc="render")
-    tiles_out = [r[0] for r in results[:len(fin)]]
-    counts = {"map": sum(m["map"] for m in results[len(fin):]), "pairs": sum(m["pairs"] for m in results[len(fin):])}
-    for r in results[:len(fin)]:
+    tiles_out = [r[0] for r in results[: len(fin)]]
+    counts = {"map": sum(m["map"] for m in results[len(fin) :]), "pairs": sum(m["pairs"] for m in results[len(fin) :])}
+    for r in results[: len(fin)]:
         for k, v in r[1].items():
             counts[k] = counts.get(k, 0) + v
-    stats = {"layout": "packed", "backend": backend, "map_tasks": len(maps), "finish_tasks": len(fin),
-             "resident": resident is not None, "ops": counts, "rays": int(np.prod(plan.geometry.size)),
-             "ciphertexts": int(sum(len(t) for t in tiles_out)), "seconds": time.perf_counter() - t0}
+    stats = {
+        "layout": "packed",
+        "backend": backend,
+        "map_tasks": len(maps),
+        "finish_tasks": len(fin),
+        "resident": resident is not None,
+        "ops": counts,
+        "rays": int(np.prod(plan.geometry.size)),
+        "ciphertexts": int(sum(len(t) for t in tiles_out)),
+        "seconds": time.perf_counter() - t0,
+    }
     log.info("render packed/%s %dx%d: %s", sampling, camera.width, camera.height, stats)
-    return PackedImage(plan=plan, camera=camera, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
-                       offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles_out, store_id=meta.store_id,
-                       stats=stats, meta=ev.base if getattr(ev, "level", 0) else meta,
-                       level=int(getattr(ev, "level", 0)))
+    return PackedImage(
+        plan=plan,
+        camera=camera,
+        fingerprint=meta.fingerprint,
+        n=n,
+        exponent=meta.scalar.exponent,
+        offset=meta.packing.offset,
+        span=hi - lo,
+        ciphertexts=tiles_out,
+        store_id=meta.store_id,
+        stats=stats,
+        meta=ev.base if getattr(ev, "level", 0) else meta,
+        level=int(getattr(ev, "level", 0)),
+    )

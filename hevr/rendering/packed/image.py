@@ -102,12 +102,17 @@ class PackedImage:
         one drawn in this process, or a file's with the key holder's valid stamp, read under the name
         it was saved as; ``require_verified`` (True, or the store id that must have been proven)
         refuses a frame without one."""
-        check_provenance(private_key, self, require_verified,
-                         "a store encrypted with verifiable=False, a render with verify=False, a public-key store, "
-                         "or a file saved without the key holder's stamp")
+        check_provenance(
+            private_key,
+            self,
+            require_verified,
+            "a store encrypted with verifiable=False, a render with verify=False, a public-key store, "
+            "or a file saved without the key holder's stamp",
+        )
 
-    def decrypt_sums(self, private_key: PrivateKey, backend: str | None = None, *,
-                     require_verified: bool | str | None = None) -> np.ndarray:
+    def decrypt_sums(
+        self, private_key: PrivateKey, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> np.ndarray:
         """The exact integer ray sums Σ w·(m − offset) of the intermediate image, (N_i, N_j) int64:
         a verified frame's values are checked against the store's tags first, and every value's
         slots against their bounds (:func:`decode`), before any sum is returned."""
@@ -134,18 +139,23 @@ class PackedImage:
         for t, recs in enumerate(self.ciphertexts):
             recs = np.asarray(recs)
             if recs.ndim != 2 or recs.shape[1] != width or recs.dtype != np.uint8:
-                raise IntegrityError(f"image: tile {t}: expected (values, {width}) uint8 records, got {recs.shape} "
-                                     f"{recs.dtype}; no image is returned")
+                raise IntegrityError(
+                    f"image: tile {t}: expected (values, {width}) uint8 records, got {recs.shape} "
+                    f"{recs.dtype}; no image is returned"
+                )
             batch = be.from_bytes(recs)
             bad = be.first_out_of_range(batch, n2)
             if bad is not None:
-                raise IntegrityError(f"image: tile {t}: ciphertext {bad} is not in (0, n²): the image was corrupted "
-                                     "or tampered with; no image is returned")
+                raise IntegrityError(
+                    f"image: tile {t}: ciphertext {bad} is not in (0, n²): the image was corrupted "
+                    "or tampered with; no image is returned"
+                )
             tiles.append(be.decrypt(key, batch))
         return tiles
 
-    def decrypt_intermediate(self, private_key: PrivateKey, backend: str | None = None, *,
-                             require_verified: bool | str | None = None) -> np.ndarray:
+    def decrypt_intermediate(
+        self, private_key: PrivateKey, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> np.ndarray:
         """The intermediate image (rays along the packing axis × the other axis), float64 X-ray values."""
         sums = self.decrypt_sums(private_key, backend, require_verified=require_verified)
         return self._values(sums)
@@ -165,11 +175,12 @@ class PackedImage:
             total = sums[hit].astype(np.float64) + W[hit].astype(np.float64) * float(off)
         else:  # pragma: no cover - offsets beyond 2^30 (float stores with many digits)
             total = np.array([float(int(s) + int(w) * off) for s, w in zip(sums[hit], W[hit])])
-        out[hit] = total * 10.0 ** e / (count[hit].astype(np.float64) * plan.unit)
+        out[hit] = total * 10.0**e / (count[hit].astype(np.float64) * plan.unit)
         return out
 
-    def decrypt(self, private_key: PrivateKey, backend: str | None = None, *,
-                require_verified: bool | str | None = None) -> np.ndarray:
+    def decrypt(
+        self, private_key: PrivateKey, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> np.ndarray:
         """The camera's float64 (H, W) image (X-ray: the mean of the samples of every pixel's ray).
 
         A verified frame (the default on a verifiable store) is checked against the store's tags
@@ -181,8 +192,9 @@ class PackedImage:
         return geo.warp(inter, geo.pixel_coords(self.camera)).reshape(self.shape)
 
     # -- the frame file (format: hevr.rendering.packed.files; reading: hevr.load_image) --------
-    def save(self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None,
-             private_key: Any = None) -> None:
+    def save(
+        self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None, private_key: Any = None
+    ) -> None:
         """Write the packed frame file (``docs/format.md``, "Packed frame files"); ``hevr.load_image``
         reads it back. Never over an existing file unless ``overwrite=True``
         (:class:`hevr.ExistingFileError`), atomic either way; ``path`` may be an fsspec URL
@@ -198,8 +210,9 @@ class PackedImage:
         """The packed frame file as bytes (:meth:`save`'s rules; ``hevr.image_from_bytes`` reads them)."""
         return files.packed_bytes(self, private_key)
 
-    def decrypt_frame(self, private_key: PrivateKey, backend: str | None = None, *,
-                      require_verified: bool | str | None = None) -> Frame:
+    def decrypt_frame(
+        self, private_key: PrivateKey, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> Frame:
         """A :class:`hevr.Frame` of the X-ray (one component: the mean of every pixel's samples),
         checked as :meth:`decrypt` checks; its ``n_samples`` are the intermediate rays' sample
         counts warped to the pixels, rounded."""
@@ -207,14 +220,22 @@ class PackedImage:
         arr = self.decrypt(private_key, backend, require_verified=require_verified)
         geo = self.plan.geometry
         counts = geo.warp(geo.sample_counts(self.plan.sampling).astype(np.float64), geo.pixel_coords(self.camera))
-        stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts,
-                     verified=self.verified)
-        return Frame(means=arr[..., None], n_samples=np.rint(counts).astype(np.int64).reshape(self.shape),
-                     channel="scalar", colouring=Colouring("xray"), stats=stats)
+        stats = dict(
+            self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts, verified=self.verified
+        )
+        return Frame(
+            means=arr[..., None],
+            n_samples=np.rint(counts).astype(np.int64).reshape(self.shape),
+            channel="scalar",
+            colouring=Colouring("xray"),
+            stats=stats,
+        )
 
     def __repr__(self) -> str:
-        return (f"PackedImage(shape={self.shape}, sampling={self.plan.sampling!r}, slots={self.plan.packing.slots}, "
-                f"ciphertexts={self.n_ciphertexts}, verified={self.verified}, key={self.fingerprint[:16]}…)")
+        return (
+            f"PackedImage(shape={self.shape}, sampling={self.plan.sampling!r}, slots={self.plan.packing.slots}, "
+            f"ciphertexts={self.n_ciphertexts}, verified={self.verified}, key={self.fingerprint[:16]}…)"
+        )
 
 
 def check_key(private_key: Any, fingerprint: str, n: int, what: str) -> PrivateKey:
@@ -223,8 +244,10 @@ def check_key(private_key: Any, fingerprint: str, n: int, what: str) -> PrivateK
     if not isinstance(private_key, PrivateKey):
         raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
     if private_key.public_key.fingerprint != fingerprint or int(private_key.public_key.n) != int(n):
-        raise KeyMismatchError(f"private_key: the {what} was encrypted under key {str(fingerprint)[:16]}…, got a key "
-                               f"with fingerprint {private_key.public_key.fingerprint[:16]}…")
+        raise KeyMismatchError(
+            f"private_key: the {what} was encrypted under key {str(fingerprint)[:16]}…, got a key "
+            f"with fingerprint {private_key.public_key.fingerprint[:16]}…"
+        )
     return private_key
 
 
@@ -249,11 +272,14 @@ def decode(plan: SlicePlan, tiles: list[list[int]], span: int) -> np.ndarray:
     for t, vals in enumerate(tiles):
         j0, j1, b0, b1 = plan.tile_bounds(t)
         if len(vals) != (j1 - j0) * (b1 - b0):
-            raise IntegrityError(f"image: tile {t} holds {len(vals)} values, expected {(j1 - j0) * (b1 - b0)}; "
-                                 f"{_CORRUPT}")
+            raise IntegrityError(
+                f"image: tile {t} holds {len(vals)} values, expected {(j1 - j0) * (b1 - b0)}; {_CORRUPT}"
+            )
         if any(not 0 <= int(v) < limit for v in vals):
-            raise IntegrityError(f"image: a value of tile {t} has bits set above its {n_out} slots of {K} bits "
-                                 f"(the {INTEGRITY_BITS}-bit integrity margin); {_CORRUPT}")
+            raise IntegrityError(
+                f"image: a value of tile {t} has bits set above its {n_out} slots of {K} bits "
+                f"(the {INTEGRITY_BITS}-bit integrity margin); {_CORRUPT}"
+            )
         slots = unpack_slots(vals, n_out, K).reshape(j1 - j0, b1 - b0, n_out)
         Bs = np.arange(b0, b1) + plan.block_range[0]
         ray = S * Bs[:, None] + np.arange(n_out)[None, :] - O - plan.m_lo  # (blocks, slots): the ray of each slot

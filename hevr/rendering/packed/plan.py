@@ -47,8 +47,7 @@ from typing import Any
 import numpy as np
 
 from ...core.limits import render_limits
-from ...core.validate import check_choice
-from ...core.validate import check_int
+from ...core.validate import check_choice, check_int
 from ...errors import RenderPlanError
 from ...store.packing import MAX_WEIGHT_BITS, PackingInfo, mantissa_range
 from .shear import ShearGeometry
@@ -94,8 +93,17 @@ class SlicePlan:
     block_range: tuple[int, int]
 
     @classmethod
-    def build(cls, camera: Any, shape: Any, spacing: Any, brick: Any, packing: PackingInfo, sampling: str,
-              tile: int = 32, weight_bits: int | None = None) -> "SlicePlan":
+    def build(
+        cls,
+        camera: Any,
+        shape: Any,
+        spacing: Any,
+        brick: Any,
+        packing: PackingInfo,
+        sampling: str,
+        tile: int = 32,
+        weight_bits: int | None = None,
+    ) -> SlicePlan:
         """The plan of ``camera`` on a packed store (refusals: :meth:`ShearGeometry.of`)."""
         sampling = check_choice("sampling", sampling, ("nearest", "trilinear"))
         tile = check_int("tile", tile, 1, 4096)
@@ -109,12 +117,12 @@ class SlicePlan:
         O = min(S - 1, m_hi - m_lo)
         i_lo, i_hi = geo.i_range
         blocks = (0, 0) if i_hi <= i_lo else ((i_lo + m_lo) // S, (i_hi - 1 + O + m_lo) // S + 1)
-        return cls(geo, packing, sampling, wb, tuple(int(b) for b in brick), tile, a_steps, a_frac, m_lo, O + 1,
-                   blocks)
+        return cls(geo, packing, sampling, wb, tuple(int(b) for b in brick), tile, a_steps, a_frac, m_lo, O + 1, blocks)
 
     @classmethod
-    def of_store(cls, meta: Any, camera: Any, sampling: str, tile: int = 32,
-                 weight_bits: int | None = None) -> "SlicePlan":
+    def of_store(
+        cls, meta: Any, camera: Any, sampling: str, tile: int = 32, weight_bits: int | None = None
+    ) -> SlicePlan:
         """The frame plan of ``camera`` on the packed store of metadata ``meta``, its slots checked
         (:meth:`check_slots`): the one plan the in-process render, ``hevr serve`` and the remote key
         holder each build from the same public request."""
@@ -147,8 +155,11 @@ class SlicePlan:
         """The ``a`` side: per slice, the offsets m of neighbours 0 and 1 (N_p, 2) int64 (a
         neighbour not used: a huge negative offset) and their factors (N_p, 2) float64."""
         f = self.a_frac
-        phi = np.stack([1.0 - f, f], axis=-1) if self.sampling == "trilinear" else np.stack(
-            [np.ones_like(f), np.zeros_like(f)], axis=-1)
+        phi = (
+            np.stack([1.0 - f, f], axis=-1)
+            if self.sampling == "trilinear"
+            else np.stack([np.ones_like(f), np.zeros_like(f)], axis=-1)
+        )
         return self.a_steps, phi
 
     def weights(self, phi_a: np.ndarray, phi_b: np.ndarray) -> np.ndarray:
@@ -208,8 +219,12 @@ class SlicePlan:
         ty, tx = self.tiles_shape
         r, c = divmod(int(t), tx)
         nj = self.geometry.size[1]
-        return (r * self.tile, min((r + 1) * self.tile, nj), c * self.tile_blocks,
-                min((c + 1) * self.tile_blocks, self.n_blocks))
+        return (
+            r * self.tile,
+            min((r + 1) * self.tile, nj),
+            c * self.tile_blocks,
+            min((c + 1) * self.tile_blocks, self.n_blocks),
+        )
 
     # -- slot safety -------------------------------------------------------------------------
     def weight_totals(self, i_range: tuple[int, int] | None = None) -> np.ndarray:
@@ -232,7 +247,8 @@ class SlicePlan:
             raise RenderPlanError(
                 f"weight_bits: expected in-slice weights whose largest ray sum fits a {K}-bit slot of this packed "
                 f"store, got weight_bits={self.weight_bits}: the largest sum {span}·{int(W.max())} needs "
-                f"{top.bit_length()} bits; use weight_bits={self.packing.weight_bits} (the store's) or fewer")
+                f"{top.bit_length()} bits; use weight_bits={self.packing.weight_bits} (the store's) or fewer"
+            )
         return W
 
     # -- the map's pairs -------------------------------------------------------------------
@@ -389,9 +405,11 @@ def check_plan_size(geo: ShearGeometry) -> None:
     n_i, n_j = geo.size
     cells = int(geo.slices) * (int(n_i) + int(n_j))
     if cells > min(MAX_PLAN_CELLS, max_samples) or int(n_i) * int(n_j) > max_pixels:
-        raise RenderPlanError(f"camera: expected a packed frame whose plan fits (slices × (rays + rows) at most "
-                              f"{min(MAX_PLAN_CELLS, max_samples)}, rays × rows at most {max_pixels}), got "
-                              f"{geo.slices} slices, {n_i} rays and {n_j} rows for the store's shape {geo.shape}")
+        raise RenderPlanError(
+            f"camera: expected a packed frame whose plan fits (slices × (rays + rows) at most "
+            f"{min(MAX_PLAN_CELLS, max_samples)}, rays × rows at most {max_pixels}), got "
+            f"{geo.slices} slices, {n_i} rays and {n_j} rows for the store's shape {geo.shape}"
+        )
 
 
 def _a_side(geo: ShearGeometry, sampling: str, weight_bits: int) -> tuple[np.ndarray, np.ndarray]:
@@ -406,6 +424,8 @@ def _a_side(geo: ShearGeometry, sampling: str, weight_bits: int) -> tuple[np.nda
     f = ca - m0
     U = float(1 << weight_bits)
     m0 = m0.astype(np.int64)
-    steps = np.stack([np.where(np.floor((1.0 - f) * U + 0.5) > 0, m0, _OFF),
-                      np.where(np.floor(f * U + 0.5) > 0, m0 + 1, _OFF)], axis=1)
+    steps = np.stack(
+        [np.where(np.floor((1.0 - f) * U + 0.5) > 0, m0, _OFF), np.where(np.floor(f * U + 0.5) > 0, m0 + 1, _OFF)],
+        axis=1,
+    )
     return steps, f

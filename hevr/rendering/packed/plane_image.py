@@ -30,19 +30,19 @@ import gmpy2
 import numpy as np
 from dask.delayed import delayed
 
-from ...runtime.scheduler import compute as run_tasks
 from ...backends import get_backend
 from ...backends.base import OpCounter
 from ...crypto.keys import PrivateKey
-from ...image.provenance import check_provenance
 from ...crypto.tags import tag_channel
 from ...errors import IntegrityError, ParameterError
+from ...image.provenance import check_provenance
+from ...runtime.scheduler import compute as run_tasks
 from ...store.packing import INTEGRITY_BITS, mantissa_range, unpack_slots
 from ..pipeline.finishing import one_records
 from ..pipeline.kernel import plan_products
 from .graph import brick_columns, merge_parts, render_context, resident_bricks
-from .planes import TILE_VALUES, PlanePlan
 from .image import check_key
+from .planes import TILE_VALUES, PlanePlan
 from .verified import PackedVerification, aggregate_tile
 
 log = logging.getLogger(__name__)
@@ -52,15 +52,23 @@ __all__ = ["PackedSlice", "decode_slice", "render_packed_slice"]
 _CORRUPT = "the slice was corrupted or tampered with; no image is returned"
 
 
-def map_bricks(ev: Any, plan: Any, indices: list, backend: str, tiles: list[int],
-               residents: list | None = None,
-               channel: str = "scalar") -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
+def map_bricks(
+    ev: Any,
+    plan: Any,
+    indices: list,
+    backend: str,
+    tiles: list[int],
+    residents: list | None = None,
+    channel: str = "scalar",
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
     """The partial output values of bricks ``indices`` cut by the tiles ``tiles`` ((values, records)
     each, in that order), and the operations counted (``channel="scalar_tag"``: the tags')."""
     be = get_backend(backend)
     width = ev.meta.ciphertext_bytes
-    batches = [r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
-               for idx, r in zip(indices, residents or [None] * len(indices))]
+    batches = [
+        r.batches[channel] if r is not None else ev.read_brick(idx, channel, backend=be)
+        for idx, r in zip(indices, residents or [None] * len(indices))
+    ]
     parts, off = [], 0
     for idx, batch in zip(indices, batches):
         v, loc, w = plan.brick_pairs(idx)
@@ -93,8 +101,15 @@ def merge_values(plan: Any, t: int, n: int, width: int, backend: str, *parts: An
     return out, ops
 
 
-def render_packed_slice(ev: Any, plane: Any, sampling: str = "nearest", *, client: Any = None, progress: bool = True,
-                        backend: str | None = None) -> "PackedSlice":
+def render_packed_slice(
+    ev: Any,
+    plane: Any,
+    sampling: str = "nearest",
+    *,
+    client: Any = None,
+    progress: bool = True,
+    backend: str | None = None,
+) -> PackedSlice:
     """Render ``plane`` of a packed store (:func:`hevr.render_slice` routes here after its checks)."""
     cl, backend = render_context(ev, backend, client)
     meta = ev.meta
@@ -102,31 +117,60 @@ def render_packed_slice(ev: Any, plane: Any, sampling: str = "nearest", *, clien
     t0 = time.perf_counter()
     lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
     if not plan.hits.any():
-        log.warning("render_slice: no pixel of this %dx%d plane meets the packed volume: the slice is empty",
-                    plane.width, plane.height)
+        log.warning(
+            "render_slice: no pixel of this %dx%d plane meets the packed volume: the slice is empty",
+            plane.width,
+            plane.height,
+        )
     resident = resident_bricks(ev, "scalar", backend, cl)
     n, width, plain = int(ev.public_key.n), meta.ciphertext_bytes, ev._plain()
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     plan_d = delayed(plan, pure=True, name=f"hevr-packed-slice-plan-{tag}")  # one copy in the graph
     per_tile, maps = _map_graph(plain, plan, plan_d, backend, resident, "scalar", tag)
-    fin = [delayed(merge_values, pure=True, nout=2)(plan_d, t, n, width, backend, *per_tile[t],
-                                                    dask_key_name=f"hevr-packed-slice-tile-{tag}-{t}")
-           for t in range(plan.n_tiles)]
+    fin = [
+        delayed(merge_values, pure=True, nout=2)(
+            plan_d, t, n, width, backend, *per_tile[t], dask_key_name=f"hevr-packed-slice-tile-{tag}-{t}"
+        )
+        for t in range(plan.n_tiles)
+    ]
     results = run_tasks(fin + maps, client=cl, progress=progress, desc="slice")
-    tiles_out = [r[0] for r in results[:len(fin)]]
-    ops = {"map": sum(m["map"] for m in results[len(fin):]), "pairs": sum(m["pairs"] for m in results[len(fin):]),
-           "merge": sum(r[1] for r in results[:len(fin)])}
-    stats = {"layout": "packed", "kind": plan.kind, "backend": backend, "map_tasks": len(maps),
-             "finish_tasks": len(fin), "resident": resident is not None, "ops": ops,
-             "footprints": plan.n_footprints, "ciphertexts": plan.n_values, "seconds": time.perf_counter() - t0}
+    tiles_out = [r[0] for r in results[: len(fin)]]
+    ops = {
+        "map": sum(m["map"] for m in results[len(fin) :]),
+        "pairs": sum(m["pairs"] for m in results[len(fin) :]),
+        "merge": sum(r[1] for r in results[: len(fin)]),
+    }
+    stats = {
+        "layout": "packed",
+        "kind": plan.kind,
+        "backend": backend,
+        "map_tasks": len(maps),
+        "finish_tasks": len(fin),
+        "resident": resident is not None,
+        "ops": ops,
+        "footprints": plan.n_footprints,
+        "ciphertexts": plan.n_values,
+        "seconds": time.perf_counter() - t0,
+    }
     log.info("slice packed/%s %dx%d (%s): %s", sampling, plane.width, plane.height, plan.kind, stats)
-    return PackedSlice(plan=plan, plane=plane, fingerprint=meta.fingerprint, n=n, exponent=meta.scalar.exponent,
-                       offset=meta.packing.offset, span=hi - lo, ciphertexts=tiles_out, store_id=meta.store_id,
-                       stats=stats, tags=bool(meta.tags))
+    return PackedSlice(
+        plan=plan,
+        plane=plane,
+        fingerprint=meta.fingerprint,
+        n=n,
+        exponent=meta.scalar.exponent,
+        offset=meta.packing.offset,
+        span=hi - lo,
+        ciphertexts=tiles_out,
+        store_id=meta.store_id,
+        stats=stats,
+        tags=bool(meta.tags),
+    )
 
 
-def _map_graph(ev: Any, plan: PlanePlan, plan_d: Any, backend: str, resident: dict | None, channel: str,
-               tag: str) -> tuple[dict[int, list], list]:
+def _map_graph(
+    ev: Any, plan: PlanePlan, plan_d: Any, backend: str, resident: dict | None, channel: str, tag: str
+) -> tuple[dict[int, list], list]:
     """The map tasks of a slice on ``channel``: per merge tile the delayed partial values that reach
     it, and every map task's operation counts (one task per column of bricks along the packing axis)."""
     per_tile: dict[int, list] = {t: [] for t in range(plan.n_tiles)}
@@ -139,16 +183,24 @@ def _map_graph(ev: Any, plan: PlanePlan, plan_d: Any, backend: str, resident: di
         tiles = sorted(set().union(*(reach[idx] for idx in column)))
         name = f"hevr-packed-slice-map-{channel}-{tag}-{'-'.join(map(str, column[0]))}"
         task = delayed(map_bricks, pure=True, nout=2)(
-            ev, plan_d, column, backend, tiles,
-            [resident.get(i) for i in column] if resident is not None else None, channel, dask_key_name=name)
+            ev,
+            plan_d,
+            column,
+            backend,
+            tiles,
+            [resident.get(i) for i in column] if resident is not None else None,
+            channel,
+            dask_key_name=name,
+        )
         maps.append(task[1])
         for pos, t in enumerate(tiles):
             per_tile[t].append(task[0][pos])
     return per_tile, maps
 
 
-def slice_aggregate(ev: Any, plan: PlanePlan, backend: str, client: Any, progress: bool,
-                    seed: bytes) -> tuple[int, dict]:
+def slice_aggregate(
+    ev: Any, plan: PlanePlan, backend: str, client: Any, progress: bool, seed: bytes
+) -> tuple[int, dict]:
     """The server's half of a slice's tags' round for ``seed``: the tags through the slice's plan,
     one aggregate per merge tile (A = Π_v T_v^ρ_v, the values' ids as indices:
     :func:`~hevr.rendering.packed.verified.aggregate_tile` with one class), their product."""
@@ -159,15 +211,19 @@ def slice_aggregate(ev: Any, plan: PlanePlan, backend: str, client: Any, progres
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     plan_d = delayed(plan, pure=True, name=f"hevr-packed-slice-plan-{tag}")
     per_tile, maps = _map_graph(ev._plain(), plan, plan_d, backend, None, tag_channel("scalar"), tag)
-    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan_d, t, n, width, backend, seed, 0, *per_tile[t],
-                                                        dask_key_name=f"hevr-packed-slice-verify-{tag}-{t}")
-             for t in range(plan.n_tiles) if per_tile[t]]
+    tasks = [
+        delayed(aggregate_tile, pure=True, nout=2)(
+            plan_d, t, n, width, backend, seed, 0, *per_tile[t], dask_key_name=f"hevr-packed-slice-verify-{tag}-{t}"
+        )
+        for t in range(plan.n_tiles)
+        if per_tile[t]
+    ]
     results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
     A, n2 = gmpy2.mpz(1), gmpy2.mpz(n) * n
-    for rec, _ in results[:len(tasks)]:
+    for rec, _ in results[: len(tasks)]:
         if rec is not None:
             A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
-    return int(A), {"map": sum(m["map"] for m in results[len(tasks):])}
+    return int(A), {"map": sum(m["map"] for m in results[len(tasks) :])}
 
 
 def slice_verification(ev: Any, plan: PlanePlan, backend: str, client: Any, progress: bool) -> PackedVerification:
@@ -176,8 +232,16 @@ def slice_verification(ev: Any, plan: PlanePlan, backend: str, client: Any, prog
     seed = secrets.token_bytes(32)
     t0 = time.perf_counter()
     A, ops = slice_aggregate(ev, plan, backend, client, progress, seed)
-    return PackedVerification(aggregate=A, seed=seed, meta=ev.meta, ops=ops, server_s=time.perf_counter() - t0,
-                              drawn_here=True, drawn_at=time.time(), known_name=str(ev.path))
+    return PackedVerification(
+        aggregate=A,
+        seed=seed,
+        meta=ev.meta,
+        ops=ops,
+        server_s=time.perf_counter() - t0,
+        drawn_here=True,
+        drawn_at=time.time(),
+        known_name=str(ev.path),
+    )
 
 
 @dataclass
@@ -243,8 +307,10 @@ class PackedSlice:
             recs = np.asarray(recs)
             v0, v1 = self.plan.tile_bounds(t)
             if recs.shape != (v1 - v0, width) or recs.dtype != np.uint8:
-                raise IntegrityError(f"slice: tile {t}: expected ({v1 - v0}, {width}) uint8 records, got {recs.shape} "
-                                     f"{recs.dtype}; {_CORRUPT}")
+                raise IntegrityError(
+                    f"slice: tile {t}: expected ({v1 - v0}, {width}) uint8 records, got {recs.shape} "
+                    f"{recs.dtype}; {_CORRUPT}"
+                )
             batch = be.from_bytes(recs)
             bad = be.first_out_of_range(batch, n2)
             if bad is not None:
@@ -255,13 +321,18 @@ class PackedSlice:
             self.verification.check(private_key, self.plan, [tiles], self.fingerprint)
         return slots
 
-    def decrypt(self, private_key: PrivateKey, backend: str | None = None, *,
-                require_verified: bool | str | None = None) -> np.ndarray:
+    def decrypt(
+        self, private_key: PrivateKey, backend: str | None = None, *, require_verified: bool | str | None = None
+    ) -> np.ndarray:
         """The slice's float64 (H, W) pixels (the mean of each pixel's slab samples; 0 where none is
         inside, see :attr:`hits`), after every check (a verified slice: against the store's tags first);
         ``require_verified`` (True, or the store id that must have been proven) refuses an unverified one."""
-        check_provenance(check_key(private_key, self.fingerprint, self.n, "slice"), self,
-                         require_verified, "a store without tags, or verify=False")
+        check_provenance(
+            check_key(private_key, self.fingerprint, self.n, "slice"),
+            self,
+            require_verified,
+            "a store without tags, or verify=False",
+        )
         slots = self.decrypt_values(private_key, backend)
         plan = self.plan
         fp, _ = plan.value_layers()
@@ -276,13 +347,15 @@ class PackedSlice:
         np.add.at(sums, plan.term_pixel, plan.term_alpha * total)
         out = np.zeros_like(sums)
         hit = plan.counts > 0
-        out[hit] = sums[hit] * 10.0 ** e / (plan.counts[hit] * float(plan.unit))
+        out[hit] = sums[hit] * 10.0**e / (plan.counts[hit] * float(plan.unit))
         return out.reshape(self.shape)
 
     def __repr__(self) -> str:
-        return (f"PackedSlice(shape={self.shape}, kind={self.plan.kind!r}, sampling={self.plan.sampling!r}, "
-                f"slots={self.plan.packing.slots}, ciphertexts={self.n_ciphertexts}, verified={self.verified}, "
-                f"key={self.fingerprint[:16]}…)")
+        return (
+            f"PackedSlice(shape={self.shape}, kind={self.plan.kind!r}, sampling={self.plan.sampling!r}, "
+            f"slots={self.plan.packing.slots}, ciphertexts={self.n_ciphertexts}, verified={self.verified}, "
+            f"key={self.fingerprint[:16]}…)"
+        )
 
 
 def decode_slice(plan: PlanePlan, values: list[int], span: int) -> np.ndarray:
@@ -296,8 +369,10 @@ def decode_slice(plan: PlanePlan, values: list[int], span: int) -> np.ndarray:
         raise IntegrityError(f"slice: expected {plan.n_values} values, got {len(values)}; {_CORRUPT}")
     limit = 1 << (S * K)
     if any(not 0 <= v < limit for v in values):
-        raise IntegrityError(f"slice: a value has bits set above its {S} slots of {K} bits (the "
-                             f"{INTEGRITY_BITS}-bit integrity margin and more); {_CORRUPT}")
+        raise IntegrityError(
+            f"slice: a value has bits set above its {S} slots of {K} bits (the "
+            f"{INTEGRITY_BITS}-bit integrity margin and more); {_CORRUPT}"
+        )
     slots = unpack_slots(values, S, K).reshape(len(values), S)
     fp, first = plan.value_layers()
     top = (plan.weight_totals()[fp] * int(span))[:, None] * np.ones((1, S), np.int64)

@@ -47,11 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validate import check_choice
-
-from ...core.validate import check_int
-
-from ...core.validate import check_spacing
+from ...core.validate import check_choice, check_int, check_spacing
 from ...errors import ParameterError
 from ...store.packing import MAX_WEIGHT_BITS, PackingInfo
 from ..geometry.plane import Plane
@@ -78,14 +74,18 @@ def plane_kind(plane: Plane, axis: int) -> str:
     if dot <= _TOL:
         return "contains"
     name = AXIS_NAMES[axis]
-    helpers = {0: "Plane.axial, or Plane.coronal / Plane.sagittal", 1: "Plane.coronal, or Plane.axial / Plane.sagittal",
-               2: "Plane.sagittal, or Plane.axial / Plane.coronal"}[axis]
+    helpers = {
+        0: "Plane.axial, or Plane.coronal / Plane.sagittal",
+        1: "Plane.coronal, or Plane.axial / Plane.sagittal",
+        2: "Plane.sagittal, or Plane.axial / Plane.coronal",
+    }[axis]
     angle = math.degrees(math.acos(min(1.0, dot)))
     raise ParameterError(
         f"plane: expected a plane perpendicular to the packing axis {name} or containing its direction ({helpers}, "
         f"or Plane.oblique with a normal along {name} or perpendicular to it) on a store packed along {name}, got a "
         f"plane whose normal {tuple(round(float(x), 6) for x in n)} is at {angle:.4g} degrees to {name}; a per-voxel "
-        "store (encrypt_volume(..., layout='voxel')) serves every plane")
+        "store (encrypt_volume(..., layout='voxel')) serves every plane"
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,8 +133,16 @@ class PlanePlan:
     counts: np.ndarray = field(repr=False)
 
     @classmethod
-    def build(cls, plane: Plane, shape: Any, spacing: Any, brick: Any, packing: PackingInfo, sampling: str,
-              weight_bits: int | None = None) -> "PlanePlan":
+    def build(
+        cls,
+        plane: Plane,
+        shape: Any,
+        spacing: Any,
+        brick: Any,
+        packing: PackingInfo,
+        sampling: str,
+        weight_bits: int | None = None,
+    ) -> PlanePlan:
         """The plan of ``plane`` on a packed store (refusals: :func:`plane_kind`, the size limits)."""
         if not isinstance(plane, Plane):
             raise ParameterError(f"plane: expected a hevr.Plane, got {type(plane).__name__}")
@@ -176,9 +184,26 @@ class PlanePlan:
         starts = np.r_[0, np.cumsum(packs[:, 1] - packs[:, 0])].astype(np.int64)
         t_value = starts[t_fp] + t_layer // S - packs[t_fp, 0]
         counts = np.bincount(pix, minlength=plane.width * plane.height).astype(np.int64)
-        return cls(plane, packing, shape, tuple(int(b) for b in brick), sampling, wb, kind, fp_id,
-                   fp_b.astype(np.int64), fp_c.astype(np.int64), fp_w, packs, starts, t_pix, t_value,
-                   (t_layer % S).astype(np.int64), t_alpha, counts)
+        return cls(
+            plane,
+            packing,
+            shape,
+            tuple(int(b) for b in brick),
+            sampling,
+            wb,
+            kind,
+            fp_id,
+            fp_b.astype(np.int64),
+            fp_c.astype(np.int64),
+            fp_w,
+            packs,
+            starts,
+            t_pix,
+            t_value,
+            (t_layer % S).astype(np.int64),
+            t_alpha,
+            counts,
+        )
 
     # -- sizes ------------------------------------------------------------------------------
     @property
@@ -302,8 +327,9 @@ def _samples(plane: Plane, shape: tuple, sp: np.ndarray) -> tuple[np.ndarray, np
     return np.concatenate(pixs), np.concatenate(points).reshape(-1, 3)
 
 
-def _footprints(pb: np.ndarray, pc: np.ndarray, nb: int, nc: int, sampling: str,
-                wb: int) -> tuple[np.ndarray, np.ndarray, int]:
+def _footprints(
+    pb: np.ndarray, pc: np.ndarray, nb: int, nc: int, sampling: str, wb: int
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Per sample its in-slice voxels (flat b·nc + c, ascending, −1 unused) and integer weights
     (0 unused): (N, C) each, C = 1 (nearest) or 4, duplicates (clamped at a face) merged."""
     if sampling == "nearest":
@@ -353,6 +379,6 @@ def packed_slice_error_bound(meta: Any, plane: Plane, sampling: str, weight_bits
     D = max(abs(lo), abs(hi))
     U = float(plan.unit)
     weights = 2.0 * D / U if sampling == "trilinear" else 0.0
-    store = 0.5 * 10.0 ** meta.scalar.exponent * (1 + 2 / U) if meta.scalar.digits is not None else 0.0
+    store = 0.5 * 10.0**meta.scalar.exponent * (1 + 2 / U) if meta.scalar.digits is not None else 0.0
     per = (weights + store) * 1.0001 + 1e-9 * max(D, 1.0)  # float64 rounding of the finishing
     return np.where(plan.hits, per, 0.0)

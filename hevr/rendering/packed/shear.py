@@ -110,7 +110,7 @@ class ShearGeometry:
     rows: tuple[float, float, int]
 
     @classmethod
-    def of(cls, camera: Any, shape: Any, spacing: Any, axis: int) -> "ShearGeometry":
+    def of(cls, camera: Any, shape: Any, spacing: Any, axis: int) -> ShearGeometry:
         """The geometry of ``camera`` (parallel) on a volume of ``shape`` and ``spacing`` packed along
         ``axis``, which must not be the view's principal axis (a view within 45° of it is refused
         with a :class:`hevr.ParameterError` saying which views the store serves)."""
@@ -120,7 +120,8 @@ class ShearGeometry:
             raise ParameterError(
                 "camera: expected a parallel camera (parallel=True) for the packed store, got a perspective one: a "
                 "packed store renders parallel projections slice by slice; pass hevr.Camera.orbit(..., parallel=True), "
-                "or render a per-voxel store (encrypt_volume(..., layout='voxel')) for perspective views")
+                "or render a per-voxel store (encrypt_volume(..., layout='voxel')) for perspective views"
+            )
         d = index_vector(camera.basis()[0], spacing)
         mag = np.abs(d)
         p = max((ax for ax in range(3) if ax != axis), key=lambda ax: (mag[ax], -ax))
@@ -132,7 +133,8 @@ class ShearGeometry:
                 f"direction leans more towards the other two axes than towards {name} (orbits around the {name} "
                 f"axis: with a store packed along z, Camera.orbit(..., parallel=True) at azimuth 90 or a view "
                 "'anterior', 'posterior', 'left' or 'right' within 45°); for views along it encrypt a store packed "
-                f"along another axis (pack_axis=...) or a per-voxel store (layout='voxel')")
+                f"along another axis (pack_axis=...) or a per-voxel store (layout='voxel')"
+            )
         if mag[p] == 0:  # pragma: no cover - the camera's direction is a unit vector
             raise ParameterError("camera: expected a view direction, got a zero vector")
         a = axis
@@ -185,11 +187,14 @@ class ShearGeometry:
         (N_p, N_j) bools (module docstring: the voxel exists, or the point lies in the closed box)."""
         ca, cb = self.offsets()
         out = []
-        for c, pos, n in ((ca, np.arange(*self.i_range, dtype=np.float64), self.shape[self.axis]),
-                          (cb, self.row_positions(), self.shape[self.other])):
+        for c, pos, n in (
+            (ca, np.arange(*self.i_range, dtype=np.float64), self.shape[self.axis]),
+            (cb, self.row_positions(), self.shape[self.other]),
+        ):
             x = pos[None, :] + c[:, None]
-            out.append((np.floor(x + 0.5) >= 0) & (np.floor(x + 0.5) < n) if sampling == "nearest"
-                       else (x >= 0) & (x <= n - 1))
+            out.append(
+                (np.floor(x + 0.5) >= 0) & (np.floor(x + 0.5) < n) if sampling == "nearest" else (x >= 0) & (x <= n - 1)
+            )
         return out[0], out[1]
 
     def sample_counts(self, sampling: str) -> np.ndarray:

@@ -21,12 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validate import check_choice
-
-from ...core.validate import check_spacing
-
-from ...core.validate import check_volume
 from ...colour import Colouring
+from ...core.validate import check_choice, check_spacing, check_volume
 from ...errors import ParameterError
 from ...volume.scan import Scan
 from ..planning.planner import check_render_size
@@ -36,8 +32,9 @@ from .shear import ShearGeometry
 __all__ = ["render_plain_field_slices", "render_plain_slices", "packed_error_bound"]
 
 
-def render_plain_slices(vol: Any, camera: Any, sampling: str = "nearest", spacing: Any = None,
-                        axis: int = 0) -> np.ndarray:
+def render_plain_slices(
+    vol: Any, camera: Any, sampling: str = "nearest", spacing: Any = None, axis: int = 0
+) -> np.ndarray:
     """The X-ray of ``camera`` (parallel) on ``vol``, sampled slice by slice: (H, W) float64.
 
     ``axis``: the packing axis of the store compared with: its rays are one voxel apart (the packs'
@@ -54,8 +51,9 @@ def render_plain_slices(vol: Any, camera: Any, sampling: str = "nearest", spacin
     return geo.warp(inter, geo.pixel_coords(camera)).reshape(camera.height, camera.width)
 
 
-def render_plain_field_slices(field: np.ndarray, camera: Any, sampling: str = "nearest", spacing: Any = None,
-                              axis: int = 0) -> np.ndarray:
+def render_plain_field_slices(
+    field: np.ndarray, camera: Any, sampling: str = "nearest", spacing: Any = None, axis: int = 0
+) -> np.ndarray:
     """:func:`render_plain_slices` of every channel of a per-voxel ``field`` (nz, ny, nx, C) float64
     (``render_plain(..., mode="emphasize" | "tf", slices=True)``: the field e(d)·M/N of its
     voxels): (H, W, C) float64, each channel sampled slice by slice and warped alike."""
@@ -102,18 +100,26 @@ def _intermediate(arr: np.ndarray, geo: ShearGeometry, sampling: str) -> np.ndar
     return out
 
 
-def packed_error_bound(meta: Any, camera: Any, sampling: str, weight_bits: int | None = None, mode: str = "xray",
-                       density: Any = None, nodes: Any = None) -> np.ndarray:
+def packed_error_bound(
+    meta: Any,
+    camera: Any,
+    sampling: str,
+    weight_bits: int | None = None,
+    mode: str = "xray",
+    density: Any = None,
+    nodes: Any = None,
+) -> np.ndarray:
     """Per-pixel bound (H, W) on |decrypted packed frame − :func:`render_plain_slices`| (module
     docstring); ``mode`` ``"emphasize"`` / ``"tf"`` (a store with the vector channel): the bound
     against ``render_plain(..., mode=..., slices=True)``, (H, W) or (H, W, 3) (:func:`_colour_terms`)."""
-    plan = SlicePlan.build(camera, meta.shape, meta.spacing, meta.brick, meta.packing, sampling,
-                           weight_bits=weight_bits)
+    plan = SlicePlan.build(
+        camera, meta.shape, meta.spacing, meta.brick, meta.packing, sampling, weight_bits=weight_bits
+    )
     U = float(1 << plan.weight_bits)
     if mode == "xray":
         lo, hi = (float(v) for v in meta.value_range)
         D = max(abs(lo), abs(hi))
-        store = 0.5 * 10.0 ** meta.scalar.exponent * (1 + 2 / U) if meta.scalar.digits is not None else 0.0
+        store = 0.5 * 10.0**meta.scalar.exponent * (1 + 2 / U) if meta.scalar.digits is not None else 0.0
         scale, channels = 1.0, 1
     else:
         D, store, scale, channels = _colour_terms(meta, mode, density, nodes, U)
@@ -138,5 +144,5 @@ def _colour_terms(meta: Any, mode: str, density: Any, nodes: Any, unit: float) -
         raise ParameterError(f"mode: expected 'xray' for a packed store without the vector channel, got {mode!r}")
     colouring = Colouring(mode, density, nodes)
     M = colouring.matrix(int(meta.vector.dims)) / colouring.n_nodes
-    store = 0.5 * 10.0 ** meta.vector.exponent * (1 + 2 / unit)
+    store = 0.5 * 10.0**meta.vector.exponent * (1 + 2 / unit)
     return 1.0, store, float(np.abs(M).sum(axis=0).max()), colouring.channels

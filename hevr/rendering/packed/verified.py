@@ -44,10 +44,10 @@ import gmpy2
 import numpy as np
 from dask.delayed import delayed
 
-from ...runtime.scheduler import compute as run_tasks
 from ...backends import get_backend
 from ...crypto.tags import aggregate_holds, betas, coefficients_at, tag_channel, tag_key_of
 from ...errors import ParameterError, VerificationError
+from ...runtime.scheduler import compute as run_tasks
 from ...store.authenticity import authenticated_fields, check_metadata_mac
 from ...store.known import record_verified
 from ...store.layout import array_slices
@@ -62,8 +62,9 @@ __all__ = ["PackedVerification", "aggregate_for", "aggregate_tile", "class_beta_
 WORKERS = max(1, min(os.cpu_count() or 1, 8))  # the key holder's threads for the check
 
 
-def aggregate_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, seed: bytes, first: int,
-                   *parts: Any) -> tuple[np.ndarray | None, dict]:
+def aggregate_tile(
+    plan: SlicePlan, t: int, n: int, width: int, backend: str, seed: bytes, first: int, *parts: Any
+) -> tuple[np.ndarray | None, dict]:
     """One server task: tile ``t``'s tag accumulators merged per key, then
     Π_c (Π acc[j, B, c]^ρ[j, B])^(2^(K·c)) mod n² as one ``(W,)`` record (None: the tile has no
     product), and the operations spent; ``first``: the coefficients' index of the component's value
@@ -83,8 +84,7 @@ def aggregate_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, se
     return out, {"verify_merge": merged_ops, "verify_values": int(len(uniq))}
 
 
-def aggregate_for(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool,
-                  seed: bytes) -> tuple[int, dict]:
+def aggregate_for(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool, seed: bytes) -> tuple[int, dict]:
     """The server's half of the round for the coefficients of ``seed``: A = Π_t A_t mod n² over the
     tag channel's map with the frame's plan (``hevr serve`` runs it for the seed the key holder sent
     after it held the values), and the operations spent."""
@@ -94,36 +94,49 @@ def aggregate_for(ev: Any, plan: SlicePlan, backend: str, client: Any, progress:
     n, width = int(ev.public_key.n), meta.ciphertext_bytes
     tag = f"{meta.store_id}-{uuid.uuid4().hex}"
     per_tile, maps = map_graph(ev._plain(), plan, backend, None, tag_channel("scalar"), tag)  # tags: streamed
-    tasks = [delayed(aggregate_tile, pure=True, nout=2)(plan, t, n, width, backend, seed, 0, *per_tile[t],
-                                                        dask_key_name=f"hevr-packed-verify-{tag}-{t}")
-             for t in range(plan.n_tiles) if per_tile[t]]
+    tasks = [
+        delayed(aggregate_tile, pure=True, nout=2)(
+            plan, t, n, width, backend, seed, 0, *per_tile[t], dask_key_name=f"hevr-packed-verify-{tag}-{t}"
+        )
+        for t in range(plan.n_tiles)
+        if per_tile[t]
+    ]
     results = run_tasks(tasks + maps, client=client, progress=progress, desc="verify") if tasks else []
     A = gmpy2.mpz(1)
     n2 = gmpy2.mpz(n) * n
-    for rec, _ in results[:len(tasks)]:
+    for rec, _ in results[: len(tasks)]:
         if rec is not None:
             A = A * gmpy2.mpz(int.from_bytes(np.asarray(rec, np.uint8).tobytes(), "big")) % n2
-    ops = {"map": sum(m["map"] for m in results[len(tasks):])}
-    for _, r in results[:len(tasks)]:
+    ops = {"map": sum(m["map"] for m in results[len(tasks) :])}
+    for _, r in results[: len(tasks)]:
         for k, v in r.items():
             ops[k] = ops.get(k, 0) + v
     return int(A), ops
 
 
-def tag_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool) -> "PackedVerification":
+def tag_aggregate(ev: Any, plan: SlicePlan, backend: str, client: Any, progress: bool) -> PackedVerification:
     """The second round of a verified frame, after its values are in the key holder's hands: a
     fresh seed drawn here, then :func:`aggregate_for`; the :class:`PackedVerification` to keep."""
     seed = secrets.token_bytes(32)
     t0 = time.perf_counter()
     A, ops = aggregate_for(ev, plan, backend, client, progress, seed)
     level = int(getattr(ev, "level", 0) or 0)
-    return PackedVerification(aggregate=A, seed=seed, meta=ev.base if level else ev.meta, level=level, ops=ops,
-                              server_s=time.perf_counter() - t0, drawn_here=True, drawn_at=time.time(),
-                              known_name=str(ev.path))
+    return PackedVerification(
+        aggregate=A,
+        seed=seed,
+        meta=ev.base if level else ev.meta,
+        level=level,
+        ops=ops,
+        server_s=time.perf_counter() - t0,
+        drawn_here=True,
+        drawn_at=time.time(),
+        known_name=str(ev.path),
+    )
 
 
-def class_beta_total(beta_limbs: np.ndarray, packs: np.ndarray, classes: np.ndarray, rho: np.ndarray,
-                     weights: np.ndarray, slot_bits: int) -> int:
+def class_beta_total(
+    beta_limbs: np.ndarray, packs: np.ndarray, classes: np.ndarray, rho: np.ndarray, weights: np.ndarray, slot_bits: int
+) -> int:
     """Σ_pairs 2^(K·c)·ρ·w·β_pack exactly, in numpy (``packs`` index the rows of ``beta_limbs``):
     per (pack, class) the coefficient Σ ρ·w in 16-bit pieces of ρ (float64 sums stay below 2^53:
     pieces below 2^16, weights at most 2^16, fewer than 2^21 pairs per pack and class), then per
@@ -148,8 +161,12 @@ def class_beta_total(beta_limbs: np.ndarray, packs: np.ndarray, classes: np.ndar
         raise ParameterError("pairs: expected fewer than 2^21 per pack and class")
     r = np.asarray(rho, np.uint64)
     wf = w.astype(np.float64)
-    coef = [np.bincount(inv, weights=((r >> np.uint64(16 * i)) & np.uint64(0xFFFF)).astype(np.float64) * wf,
-                        minlength=uk.size).astype(np.uint64) for i in range(4)]  # exact: < 2^53
+    coef = [
+        np.bincount(
+            inv, weights=((r >> np.uint64(16 * i)) & np.uint64(0xFFFF)).astype(np.float64) * wf, minlength=uk.size
+        ).astype(np.uint64)
+        for i in range(4)
+    ]  # exact: < 2^53
     pieces = np.ascontiguousarray(beta_limbs, dtype="<u4").view("<u2").astype(np.float64)  # (U, P) 16-bit
     cls, pk = uk // U, uk % U
     bounds = np.searchsorted(cls, np.arange(int(cls.max()) + 2))
@@ -208,16 +225,24 @@ class PackedVerification:
                 "store metadata: expected the owner's MAC over the shape, spacing, brick, layout, value range and "
                 "store "
                 f"id, got {'none' if m is None or not m.auth else 'a MAC that does not match'}: the store's public "
-                "metadata was altered (or is not this key's); no image is returned")
+                "metadata was altered (or is not this key's); no image is returned"
+            )
         lm = self.level_meta
         g = getattr(plan, "geometry", None)  # a frame's shear geometry; a slice's plan holds the shape itself
-        same = (tuple(g.shape if g is not None else plan.shape) == tuple(lm.shape)
-                and (g is None or tuple(float(s) for s in g.spacing) == tuple(lm.spacing))
-                and tuple(plan.brick) == tuple(lm.brick) and plan.packing == lm.packing and m.tags
-                and fingerprint == m.fingerprint and int(private_key.public_key.n) == int(m.n))
+        same = (
+            tuple(g.shape if g is not None else plan.shape) == tuple(lm.shape)
+            and (g is None or tuple(float(s) for s in g.spacing) == tuple(lm.spacing))
+            and tuple(plan.brick) == tuple(lm.brick)
+            and plan.packing == lm.packing
+            and m.tags
+            and fingerprint == m.fingerprint
+            and int(private_key.public_key.n) == int(m.n)
+        )
         if not same:
-            raise VerificationError("image: its shape, spacing, brick, packing or key are not those of the store's "
-                                    "authenticated metadata; no image is returned")
+            raise VerificationError(
+                "image: its shape, spacing, brick, packing or key are not those of the store's "
+                "authenticated metadata; no image is returned"
+            )
 
     def beta_sum(self, private_key: Any, plan: SlicePlan) -> int:
         """Σ_c 2^(K·c) Σ_A β_A·Σ ρ·w over every product of the frame's plan, mod n (module docstring)."""
@@ -255,7 +280,7 @@ class PackedVerification:
 
         bricks = list(np.ndindex(*grid))
         runs = max(1, min(len(bricks), 4 * WORKERS))
-        chunks = [bricks[i * len(bricks) // runs:(i + 1) * len(bricks) // runs] for i in range(runs)]
+        chunks = [bricks[i * len(bricks) // runs : (i + 1) * len(bricks) // runs] for i in range(runs)]
         with ThreadPoolExecutor(max_workers=WORKERS) as pool:  # numpy's sorts and products release the GIL
             total = sum(pool.map(part, chunks))
         return total % int(self.meta.n)
@@ -266,15 +291,17 @@ class PackedVerification:
         t0 = time.perf_counter()
         self.check_metadata(private_key, plan, fingerprint)
         if len(values) != self.components or any(len(v) != plan.n_tiles for v in values):
-            raise VerificationError(f"image: expected {self.components} component(s) of {plan.n_tiles} tiles; no "
-                                    "image is returned")
+            raise VerificationError(
+                f"image: expected {self.components} component(s) of {plan.n_tiles} tiles; no image is returned"
+            )
         s_sum = 0
         for j, tiles in enumerate(values):
             for t, vals in enumerate(tiles):
                 ids = plan.value_ids(t)
                 if len(vals) != ids.size:
-                    raise VerificationError(f"image: tile {t} holds {len(vals)} values, expected {ids.size}; no "
-                                            "image is returned")
+                    raise VerificationError(
+                        f"image: tile {t} holds {len(vals)} values, expected {ids.size}; no image is returned"
+                    )
                 rho = coefficients_at(self.seed, ids + j * plan.n_values).tolist()
                 s_sum += sum(int(r) * int(v) for r, v in zip(rho, vals))
         holds = aggregate_holds(private_key, s_sum, self.beta_sum(private_key, plan), self.aggregate)
@@ -283,5 +310,6 @@ class PackedVerification:
             raise VerificationError(
                 "image: the packed frame does not verify: its values are not the ones the store's tags certify (an "
                 "altered, substituted or replayed image or store, or a server that did not render as asked); no "
-                "image is returned")
+                "image is returned"
+            )
         record_verified(self, private_key)  # proven: the store under its name is the one the key holder knows

@@ -33,8 +33,21 @@ if TYPE_CHECKING:  # what static tools read; at run time each name is imported o
     from .stream import render_frame
     from .sums import RaySums, SavedSums, load_sums, recolour
 
-__all__ = ["BlockedReduce", "RaySums", "SavedSums", "brick_ray_products_multi", "build_sums_graph", "finish_tile",
-           "load_sums", "map_brick", "map_group", "merge_partials", "plan_products", "recolour", "render_frame"]
+__all__ = [
+    "BlockedReduce",
+    "RaySums",
+    "SavedSums",
+    "brick_ray_products_multi",
+    "build_sums_graph",
+    "finish_tile",
+    "load_sums",
+    "map_brick",
+    "map_group",
+    "merge_partials",
+    "plan_products",
+    "recolour",
+    "render_frame",
+]
 
 # Name -> submodule, imported on first use. Equal to the TYPE_CHECKING imports above.
 _LAZY = {

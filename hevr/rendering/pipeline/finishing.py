@@ -37,7 +37,7 @@ rounded to 0 has no partial sums: its sums are the trivial encryption 1 of 0.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -62,7 +62,7 @@ def finish_units(plan: RenderPlan, hit: np.ndarray, key_bits: int) -> list[tuple
     """
     C = plan.channels_out
     K = C if plan.comb is None else len(plan.comb)
-    per_value = max(1, plan.pack_bits) + 1.7 * plan.recip_digits + (0 if plan.comb is None else (2 ** K + 16 * K) / C)
+    per_value = max(1, plan.pack_bits) + 1.7 * plan.recip_digits + (0 if plan.comb is None else (2**K + 16 * K) / C)
     weight = max((key_bits / 2048) ** 1.6, 0.05)  # a mulmod's cost relative to a 2048-bit key's
     values = max(1, int(UNIT_MULS / (per_value * weight)))
     group = max(1, plan.per_pack)
@@ -92,8 +92,9 @@ def one_records(shape: tuple[int, ...], width: int) -> np.ndarray:
     return out
 
 
-def merge_partials(parts: Sequence[tuple[np.ndarray, np.ndarray]], nsquare: int,
-                   backend: str | Backend | None = None) -> tuple[np.ndarray, np.ndarray]:
+def merge_partials(
+    parts: Sequence[tuple[np.ndarray, np.ndarray]], nsquare: int, backend: str | Backend | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """fpAdd of partial ray sums that share one exponent: ⊕ per ray, i.e. a product mod n².
 
     ``parts`` are ``(rays (R,), records (R, K, W))``; the result has sorted unique rays.
@@ -122,9 +123,15 @@ def merge_partials(parts: Sequence[tuple[np.ndarray, np.ndarray]], nsquare: int,
     return uniq, out
 
 
-def finish_tile(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
-                n_samples: np.ndarray, n: int, width_bytes: int,
-                backend: str | Backend | None = None) -> np.ndarray:
+def finish_tile(
+    plan: RenderPlan,
+    merged: tuple[np.ndarray, np.ndarray],
+    pixels: np.ndarray,
+    n_samples: np.ndarray,
+    n: int,
+    width_bytes: int,
+    backend: str | Backend | None = None,
+) -> np.ndarray:
     """(P, W) uint8 packed ciphertexts of one tile, for its hit pixels in (pixel, channel) order.
 
     ``merged`` holds the tile's merged ray sums ``(rays (R,), records (R, K, W))`` (rays sorted,

@@ -33,9 +33,9 @@ import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
 
-from ...runtime import stats
-from ...image.tiles import TileLayout
 from ...crypto.records import record_width
+from ...image.tiles import TileLayout
+from ...runtime import stats
 from ...store.reader import EncryptedVolume
 from ..geometry.camera import Camera
 from ..geometry.footprint import brick_footprints
@@ -76,8 +76,15 @@ def merge_task(nsquare: int, backend: str, tile: int, *parts):
         return merge_partials([p[tile] if isinstance(p, dict) else p for p in parts], nsquare, backend)
 
 
-def finish_task(plan: RenderPlan, merged: tuple[np.ndarray, np.ndarray], pixels: np.ndarray,
-                n_samples: np.ndarray, n: int, width_bytes: int, backend: str = "cpu") -> np.ndarray:
+def finish_task(
+    plan: RenderPlan,
+    merged: tuple[np.ndarray, np.ndarray],
+    pixels: np.ndarray,
+    n_samples: np.ndarray,
+    n: int,
+    width_bytes: int,
+    backend: str = "cpu",
+) -> np.ndarray:
     """One finish task: (P, W) uint8 packed ciphertexts of one tile."""
     with stats.timed("finish", 1):
         return finish_tile(plan, merged, pixels, n_samples, n, width_bytes, backend)
@@ -142,10 +149,22 @@ def block_sums(block: tuple[list, dict], tile: int) -> tuple[np.ndarray, np.ndar
     return block[1][tile]
 
 
-def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling: str, step: float, digits: int,
-                     channel: str, tile: int, n_tiles: int, backend: str = "cpu",
-                     resident: dict | None = None, bands: bool = False,
-                     groups: list[list] | None = None, fuse: bool = False) -> SumsGraph:
+def build_sums_graph(
+    ev: EncryptedVolume,
+    camera: Camera,
+    rays: RaySet,
+    sampling: str,
+    step: float,
+    digits: int,
+    channel: str,
+    tile: int,
+    n_tiles: int,
+    backend: str = "cpu",
+    resident: dict | None = None,
+    bands: bool = False,
+    groups: list[list] | None = None,
+    fuse: bool = False,
+) -> SumsGraph:
     """The view's map -> merge graph, built in O(bricks + pixels + edges) on the client.
 
     Written as a plain task dictionary (Dask's graph specification): a few dictionary
@@ -166,8 +185,19 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
     caller reduces them in blocks (:class:`hevr.rendering.pipeline.reduce.BlockedReduce`).
     """
     prints = brick_footprints(camera, ev.shape, ev.spacing, ev.brick, rays.n_samples > 0, tile)
-    token = dask.base.tokenize(ev.path, ev.meta.store_id, camera.key(), sampling, step, digits, channel, tile,
-                               backend, resident is not None, groups is not None)
+    token = dask.base.tokenize(
+        ev.path,
+        ev.meta.store_id,
+        camera.key(),
+        sampling,
+        step,
+        digits,
+        channel,
+        tile,
+        backend,
+        resident is not None,
+        groups is not None,
+    )
     leaves: dict[int, list] = {t: [] for t in range(n_tiles)}
     n2 = int(ev.public_key.nsquare)
     dsk: dict[str, Any] = {}
@@ -178,13 +208,24 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
         if not items:
             continue
         name = f"hevr-map-{token}-g{g}"
-        dsk[name] = (map_group, ev, camera, items, sampling, step, digits, channel, tile, backend,
-                     *[resident[idx] for idx, _ in items])
+        dsk[name] = (
+            map_group,
+            ev,
+            camera,
+            items,
+            sampling,
+            step,
+            digits,
+            channel,
+            tile,
+            backend,
+            *[resident[idx] for idx, _ in items],
+        )
         for t in sorted({t for _, fp in items for t in fp.tiles}):
             leaves[t].append(name)
         pieces_total += 1
         edges += sum(len(fp.tiles) for _, fp in items)
-    for idx, fp in (prints.items() if groups is None else ()):
+    for idx, fp in prints.items() if groups is None else ():
         if not fp.tiles:
             continue
         data = resident.get(idx) if resident is not None else None
@@ -217,8 +258,15 @@ def build_sums_graph(ev: EncryptedVolume, camera: Camera, rays: RaySet, sampling
         merged[t] = queue[0] if queue else None
     layer = f"hevr-sums-{token}"
     hlg = HighLevelGraph({layer: MaterializedLayer(dsk, annotations={"priority": Priorities(prio)})}, {layer: set()})
-    return SumsGraph(hlg, layer, merged, len(prints) if groups is None else pieces_total, edges, pieces_total,
-                     {t: p for t, p in leaves.items() if p})
+    return SumsGraph(
+        hlg,
+        layer,
+        merged,
+        len(prints) if groups is None else pieces_total,
+        edges,
+        pieces_total,
+        {t: p for t, p in leaves.items() if p},
+    )
 
 
 @dataclass(frozen=True)
@@ -246,12 +294,16 @@ class FinishGraph:
     units: list
 
     @classmethod
-    def plan_units(cls, plan: RenderPlan, layout: TileLayout, n_samples: np.ndarray, n: int,
-                   backend: str) -> FinishGraph:
+    def plan_units(
+        cls, plan: RenderPlan, layout: TileLayout, n_samples: np.ndarray, n: int, backend: str
+    ) -> FinishGraph:
         """Cut every tile into finishing units (about one map task's work each)."""
         bits = int(n).bit_length()
-        units = [(t, a, b) for t in range(layout.n_tiles)
-                 for a, b in finish_units(plan, n_samples[layout.pixels(t)] > 0, bits)]
+        units = [
+            (t, a, b)
+            for t in range(layout.n_tiles)
+            for a, b in finish_units(plan, n_samples[layout.pixels(t)] > 0, bits)
+        ]
         return cls(plan, layout, n_samples, int(n), backend, units)
 
     def tasks(self, merged: dict[int, Any]) -> list[Delayed]:
@@ -274,8 +326,16 @@ class FinishGraph:
                 m = m.key
             elif isinstance(m, BlockSums):  # a reduce block's future: select the tile inside the task
                 m = (block_sums, m.block, m.tile)
-            dsk[f"{layer}-{i}"] = (finish_task, self.plan, m if m is not None else empty, pix, self.n_samples[pix],
-                                   self.n, width, self.backend)
+            dsk[f"{layer}-{i}"] = (
+                finish_task,
+                self.plan,
+                m if m is not None else empty,
+                pix,
+                self.n_samples[pix],
+                self.n,
+                width,
+                self.backend,
+            )
         hlg = HighLevelGraph.from_collections(layer, dsk, dependencies=deps)
         hlg.layers[layer].annotations = {"priority": Priorities({})}
         return [Delayed(f"{layer}-{i}", hlg, layer=layer) for i in range(len(self.units))]

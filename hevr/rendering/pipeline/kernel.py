@@ -46,11 +46,7 @@ from array_api_compat import array_namespace, is_numpy_namespace
 from gmpy2 import mpz
 
 from ...backends import get_backend
-from ...backends.base import Backend, OpCounter, ProductPlan
-from ...backends.base import HORNER
-from ...backends.base import ONES
-from ...backends.base import SHARED
-from ...backends.base import SINGLE
+from ...backends.base import HORNER, ONES, SHARED, SINGLE, Backend, OpCounter, ProductPlan
 from ...backends.base import SQR_COST as _SQR
 from ...errors import ParameterError
 from ._segments import (
@@ -222,8 +218,9 @@ def plan_products(indptr: Any, voxels: Any, weights: Any, n_vox: int) -> Product
     # One pair: binary powering is Horner with w = 1, (b - 1) S + popcount - 1; else powmod.
     b = bit_length(u_max)
     bf = xp.astype(b, xp.float64)
-    binary = (kinds == SINGLE) & ((bf - 1) * _SQR + xp.astype(popcount(u_max) - 1, xp.float64)
-                                   <= _POW_BIT * bf + _POW_BASE)
+    binary = (kinds == SINGLE) & (
+        (bf - 1) * _SQR + xp.astype(popcount(u_max) - 1, xp.float64) <= _POW_BIT * bf + _POW_BASE
+    )
     kinds = xp.where(binary, HORNER, kinds)
     w_r = xp.astype(binary, xp.int64)
     if gen.shape[0]:

@@ -15,12 +15,10 @@ from typing import Any
 import dask
 import numpy as np
 
-from ...runtime import malloc
-
-from ...runtime import stats
-from ...image.tiles import TileLayout
 from ...backends import get_backend
 from ...crypto.tags import data_channel
+from ...image.tiles import TileLayout
+from ...runtime import malloc, stats
 from ...store.reader import EncryptedVolume
 from ..geometry.camera import Camera
 from ..geometry.footprint import Footprint
@@ -33,9 +31,19 @@ from .kernel import brick_ray_products_multi
 __all__ = ["map_brick", "map_group", "resident_groups"]
 
 
-def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], sampling: str, step: float,
-              digits: int, channel: str, footprint: Footprint, tile: int,
-              backend: str = "cpu", data: Any = None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def map_brick(
+    ev: EncryptedVolume,
+    camera: Camera,
+    index: tuple[int, int, int],
+    sampling: str,
+    step: float,
+    digits: int,
+    channel: str,
+    footprint: Footprint,
+    tile: int,
+    backend: str = "cpu",
+    data: Any = None,
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """One map task: partial encrypted ray sums of one brick, split by tile.
 
     Casts only the rays of the brick's footprint rectangle (bit-identical to the same rays of
@@ -65,8 +73,9 @@ def map_brick(ev: EncryptedVolume, camera: Camera, index: tuple[int, int, int], 
     return _emit(prods, bw.rays, be, W, camera, tile, tiles, f"brick {index}")
 
 
-def _emit(prods: list, rays: np.ndarray, be: Any, width: int, camera: Camera, tile: int, tiles: Any,
-          what: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def _emit(
+    prods: list, rays: np.ndarray, be: Any, width: int, camera: Camera, tile: int, tiles: Any, what: str
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """A map task's output: the products of ``rays`` (one batch per component) as records,
     split by image tile (every tile of ``tiles`` present, possibly empty)."""
     t0 = time.perf_counter()
@@ -75,8 +84,9 @@ def _emit(prods: list, rays: np.ndarray, be: Any, width: int, camera: Camera, ti
     return _by_tile(rays, recs, camera, tile, tiles, what)
 
 
-def _by_tile(rays: np.ndarray, recs: np.ndarray, camera: Camera, tile: int, tiles: Any,
-             what: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def _by_tile(
+    rays: np.ndarray, recs: np.ndarray, camera: Camera, tile: int, tiles: Any, what: str
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Records of ``rays`` split by image tile (every tile of ``tiles`` present, possibly empty)."""
     t0 = time.perf_counter()
     tid = TileLayout(camera.width, camera.height, tile).ids(rays)
@@ -91,8 +101,18 @@ def _by_tile(rays: np.ndarray, recs: np.ndarray, camera: Camera, tile: int, tile
     return out
 
 
-def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, step: float, digits: int,
-              channel: str, tile: int, backend: str, *data: Any) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def map_group(
+    ev: EncryptedVolume,
+    camera: Camera,
+    items: list,
+    sampling: str,
+    step: float,
+    digits: int,
+    channel: str,
+    tile: int,
+    backend: str,
+    *data: Any,
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """One map task for several resident bricks of one worker, with one output per tile, so
     that the per-task overhead and the merge tasks scale with workers, not bricks.
 
@@ -123,27 +143,52 @@ def map_group(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, s
             return {t: empty for t in tiles}
         be = get_backend(backend)
         batches = [d.channel(channel) for d in data]
-        comps = [be.concat(batches)] if data_channel(channel) == "scalar" else [be.concat([b[c] for b in batches])
-                                                                  for c in range(K)]
+        comps = (
+            [be.concat(batches)]
+            if data_channel(channel) == "scalar"
+            else [be.concat([b[c] for b in batches]) for c in range(K)]
+        )
         with stats.timed("map.kernel", int(rows.indptr[-1]) * K):
             prods = brick_ray_products_multi(comps, rows.indptr, voxels, rows.weights, n2, backend=be)
         return _emit(prods, rows.rays, be, W, camera, tile, tiles, f"bricks {[idx for idx, _ in items]}")
     parts: dict[int, list] = {}
-    per_brick = (_fused_bricks(ev, camera, items, sampling, step, digits, channel, tile, backend, data)
-                 if get_backend(backend).residence == "device" else
-                 (map_brick(ev, camera, idx, sampling, step, digits, channel, fp, tile, backend, brick)
-                  for (idx, fp), brick in zip(items, data)))
+    per_brick = (
+        _fused_bricks(ev, camera, items, sampling, step, digits, channel, tile, backend, data)
+        if get_backend(backend).residence == "device"
+        else (
+            map_brick(ev, camera, idx, sampling, step, digits, channel, fp, tile, backend, brick)
+            for (idx, fp), brick in zip(items, data)
+        )
+    )
     for out in per_brick:
         for t, part in out.items():
             if part[0].size:
                 parts.setdefault(t, []).append(part)
     with stats.timed("map.merge", len(tiles)):
-        return {t: (parts[t][0] if len(parts.get(t, ())) == 1 else
-                    merge_partials(parts[t], n2, backend) if t in parts else empty) for t in tiles}
+        return {
+            t: (
+                parts[t][0]
+                if len(parts.get(t, ())) == 1
+                else merge_partials(parts[t], n2, backend)
+                if t in parts
+                else empty
+            )
+            for t in tiles
+        }
 
 
-def _fused_bricks(ev: EncryptedVolume, camera: Camera, items: list, sampling: str, step: float, digits: int,
-                  channel: str, tile: int, backend: str, data: tuple) -> list[dict]:
+def _fused_bricks(
+    ev: EncryptedVolume,
+    camera: Camera,
+    items: list,
+    sampling: str,
+    step: float,
+    digits: int,
+    channel: str,
+    tile: int,
+    backend: str,
+    data: tuple,
+) -> list[dict]:
     """Trilinear map of a group on a GPU: each brick's rows (its own :func:`brick_weights`, as
     :func:`map_brick` makes them) in one plan over the concatenation of the group's ciphertexts,
     so the device runs one launch for the group rather than one per brick in turn; then each
@@ -164,18 +209,22 @@ def _fused_bricks(ev: EncryptedVolume, camera: Camera, items: list, sampling: st
     W, K = ev.meta.ciphertext_bytes, ev.meta.components(channel)
     be = get_backend(backend)
     batches = [d.channel(channel) for d in data]
-    comps = [be.concat(batches)] if data_channel(channel) == "scalar" else [be.concat([b[c] for b in batches])
-                                                                           for c in range(K)]
+    comps = (
+        [be.concat(batches)]
+        if data_channel(channel) == "scalar"
+        else [be.concat([b[c] for b in batches]) for c in range(K)]
+    )
     ip = np.concatenate(indptr)
     recs = np.zeros((0, K, W), np.uint8)
     if ip[-1]:
         with stats.timed("map.kernel", int(ip[-1]) * K):
-            prods = brick_ray_products_multi(comps, ip, np.concatenate(voxels), np.concatenate(weights),
-                                             int(ev.public_key.nsquare), backend=be)
+            prods = brick_ray_products_multi(
+                comps, ip, np.concatenate(voxels), np.concatenate(weights), int(ev.public_key.nsquare), backend=be
+            )
         recs = np.stack([be.to_bytes(p, W) for p in prods], axis=1)  # (R, K, W): every brick's rows in turn
     out, r0 = [], 0
     for rays, tiles, idx in rows:
-        out.append(_by_tile(rays, recs[r0:r0 + rays.size], camera, tile, tiles, f"brick {idx}"))
+        out.append(_by_tile(rays, recs[r0 : r0 + rays.size], camera, tile, tiles, f"brick {idx}"))
         r0 += rays.size
     return out
 
@@ -195,4 +244,4 @@ def resident_groups(resident: dict, client: Any, backend: str = "cpu") -> list[l
             by.setdefault(holders[0], []).append(k)
         return [by[w] for w in sorted(by)]
     n = 1 if get_backend(backend).residence == "device" else max(1, min(len(keys), dask.system.CPU_COUNT))
-    return [keys[i * len(keys) // n:(i + 1) * len(keys) // n] for i in range(n)] if keys else []
+    return [keys[i * len(keys) // n : (i + 1) * len(keys) // n] for i in range(n)] if keys else []

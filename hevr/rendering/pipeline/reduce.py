@@ -29,10 +29,8 @@ import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph
 
-from ...runtime import malloc
-
-from ...runtime import stats
 from ...crypto.records import record_width
+from ...runtime import malloc, stats
 from ..planning.planner import RenderPlan
 from .finishing import finish_tile, merge_partials
 from .graph import BlockSums, FinishGraph, Priorities, SumsGraph
@@ -40,8 +38,9 @@ from .graph import BlockSums, FinishGraph, Priorities, SumsGraph
 __all__ = ["BlockedReduce", "reduce_block"]
 
 
-def reduce_block(plan: RenderPlan, nsquare: int, n: int, backend: str, tiles: list, units: list,
-                 *outputs: Any) -> tuple[list[np.ndarray], dict]:
+def reduce_block(
+    plan: RenderPlan, nsquare: int, n: int, backend: str, tiles: list, units: list, *outputs: Any
+) -> tuple[list[np.ndarray], dict]:
     """One reduce task: ``(packed units, {tile: merged sums})`` of a block of tiles.
 
     ``tiles`` lists ``(tile, [indices into outputs])`` — the map outputs (dicts by tile) that
@@ -51,9 +50,11 @@ def reduce_block(plan: RenderPlan, nsquare: int, n: int, backend: str, tiles: li
     malloc.tune()
     width = record_width(n)
     with stats.timed("merge", len(tiles)):
-        merged = {t: (outputs[idx[0]][t] if len(idx) == 1 else merge_partials([outputs[i][t] for i in idx], nsquare,
-                                                                              backend))
-                  for t, idx in tiles if idx}
+        merged = {
+            t: (outputs[idx[0]][t] if len(idx) == 1 else merge_partials([outputs[i][t] for i in idx], nsquare, backend))
+            for t, idx in tiles
+            if idx
+        }
     empty = (np.zeros(0, np.int64), np.zeros((0, 1, width), np.uint8))
     with stats.timed("finish", len(units)):
         packed = [finish_tile(plan, merged.get(t, empty), pix, ns, n, width, backend) for t, pix, ns in units]
@@ -129,6 +130,7 @@ class BlockedReduce:
         def call(b: int, packed: list) -> None:
             for j, p in enumerate(packed):
                 on_unit(self.starts[b] + j, p)
+
         return call
 
     def units(self, results: list[list]) -> list[np.ndarray]:
@@ -148,4 +150,3 @@ class BlockedReduce:
                 else:
                     out[t] = value[1][t]
         return out
-

@@ -23,14 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from ...runtime.scheduler import refuse_foreign_cluster
-from ...image.provenance import refuse_untagged
 from ...backends import get_backend
 from ...colour import Frame, frame_from_sums, scaled_sums
 from ...crypto.keys import PrivateKey
 from ...errors import IntegrityError, KeyMismatchError, ParameterError
 from ...image.checks import tile_name
 from ...image.encrypted import _CORRUPT, _unpack_checked
+from ...image.provenance import refuse_untagged
+from ...runtime.scheduler import refuse_foreign_cluster
 from ..encrypted import _render, render
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
@@ -52,8 +52,10 @@ class StreamDecryptor:
         if fields["finish"] != "client":  # pragma: no cover - render_frame asks for client finishing
             raise ParameterError("finish: expected 'client' for a streamed frame")
         if fields["fingerprint"] != self.key.public_key.fingerprint:
-            raise KeyMismatchError(f"private_key: the volume is encrypted under key {fields['fingerprint'][:16]}…, "
-                                   f"got a key with fingerprint {self.key.public_key.fingerprint[:16]}…")
+            raise KeyMismatchError(
+                f"private_key: the volume is encrypted under key {fields['fingerprint'][:16]}…, "
+                f"got a key with fingerprint {self.key.public_key.fingerprint[:16]}…"
+            )
         self.finish, self.fields = finish, fields
         self.K = int(fields["components"])
         self.samples = np.asarray(fields["samples"]).ravel()
@@ -72,18 +74,23 @@ class StreamDecryptor:
         need = hit.size * self.K
         J, bits, bound = int(self.fields["per_pack"]), int(self.fields["pack_bits"]), int(self.fields["bound"])
         if packed.shape[0] != -(-need // J):
-            raise IntegrityError(f"{tile_name(layout, t)}: expected {-(-need // J)} ciphertexts for pixels {a}-{b - 1}, "
-                                 f"got {packed.shape[0]}; {_CORRUPT}")
+            raise IntegrityError(
+                f"{tile_name(layout, t)}: expected {-(-need // J)} ciphertexts for pixels {a}-{b - 1}, "
+                f"got {packed.shape[0]}; {_CORRUPT}"
+            )
         if need:
             recs = self.be.from_bytes(packed)
             bad = self.be.first_out_of_range(recs, self.n * self.n)
             if bad is not None:
-                raise IntegrityError(f"{tile_name(layout, t)}: ciphertext {bad} of pixels {a}-{b - 1} is not in "
-                                     f"(0, n²); {_CORRUPT}")
+                raise IntegrityError(
+                    f"{tile_name(layout, t)}: ciphertext {bad} of pixels {a}-{b - 1} is not in (0, n²); {_CORRUPT}"
+                )
             vals, fault = _unpack_checked(self.be.decrypt(self.key, recs), need, bits, J, bound)
             if fault is not None:
-                raise IntegrityError(f"{tile_name(layout, t)}: a value of pixels {a}-{b - 1} decrypts outside the "
-                                     f"render plan's range; {_CORRUPT}")
+                raise IntegrityError(
+                    f"{tile_name(layout, t)}: a value of pixels {a}-{b - 1} decrypts outside the "
+                    f"render plan's range; {_CORRUPT}"
+                )
             offset = int(self.fields["offset"])
             exact = [v - offset for v in vals]
             self.sums[hit] = scaled_sums(exact, self.fields["exponent"]).reshape(-1, self.K)
@@ -103,19 +110,32 @@ class StreamDecryptor:
             raise IntegrityError(f"frame: expected {len(self.finish.units)} finished units, got {self.done}")
         H, W = self.fields["shape"][:2]
         stats = dict(stats, decrypt_s=self.decrypt_s, ciphertexts=self.ciphertexts)
-        return frame_from_sums(self.sums.reshape(H, W, self.K), self.samples.reshape(H, W), self.fields["channel"],
-                               colouring, stats, t0=t0)
+        return frame_from_sums(
+            self.sums.reshape(H, W, self.K), self.samples.reshape(H, W), self.fields["channel"], colouring, stats, t0=t0
+        )
 
 
 # the keywords of hevr.render that render_frame passes on, with render's defaults
-_RENDER_KEYWORDS = {name: p.default for name, p in inspect.signature(render).parameters.items()
-                    if p.kind is inspect.Parameter.KEYWORD_ONLY
-                    and name not in ("finish", "compute", "keep_sums", "weight_bits")}  # weight_bits: packed stores
+_RENDER_KEYWORDS = {
+    name: p.default
+    for name, p in inspect.signature(render).parameters.items()
+    if p.kind is inspect.Parameter.KEYWORD_ONLY and name not in ("finish", "compute", "keep_sums", "weight_bits")
+}  # weight_bits: packed stores
 
 
-def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xray", sampling: str = "nearest",
-                 step: float = 1.0, density: float | None = None, nodes: Any = None, *,
-                 decrypt_backend: str | None = None, **kwargs: Any) -> Frame:
+def render_frame(
+    ev: Any,
+    camera: Any,
+    private_key: PrivateKey,
+    mode: str = "xray",
+    sampling: str = "nearest",
+    step: float = 1.0,
+    density: float | None = None,
+    nodes: Any = None,
+    *,
+    decrypt_backend: str | None = None,
+    **kwargs: Any,
+) -> Frame:
     """Render a view finished on the client and decrypt it as it completes: a :class:`hevr.Frame`.
 
     Parameters
@@ -148,12 +168,16 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
     """
     for bad in ("finish", "compute", "keep_sums"):
         if bad in kwargs:
-            raise ParameterError(f"{bad}: expected no {bad}= for render_frame (a client-finished frame, computed "
-                                 f"now); use hevr.render for it, got {kwargs[bad]!r}")
+            raise ParameterError(
+                f"{bad}: expected no {bad}= for render_frame (a client-finished frame, computed "
+                f"now); use hevr.render for it, got {kwargs[bad]!r}"
+            )
     unknown = sorted(set(kwargs) - set(_RENDER_KEYWORDS))
     if unknown:
-        raise ParameterError(f"{unknown[0]}: expected a keyword of hevr.render ({', '.join(sorted(_RENDER_KEYWORDS))}), "
-                             f"got {unknown[0]}={kwargs[unknown[0]]!r}")
+        raise ParameterError(
+            f"{unknown[0]}: expected a keyword of hevr.render ({', '.join(sorted(_RENDER_KEYWORDS))}), "
+            f"got {unknown[0]}={kwargs[unknown[0]]!r}"
+        )
     if not isinstance(private_key, PrivateKey):
         raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
     if getattr(ev, "remote", None) is None:  # rendered here, on a Dask client, decrypted beside it
@@ -167,8 +191,21 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
     t0 = time.perf_counter()
     stream = StreamDecryptor(private_key, decrypt_backend)
     kw = {**_RENDER_KEYWORDS, **kwargs}  # hevr.render's own defaults: one home
-    img = _render(ev, camera, mode, sampling, camera.slab_step if plane else step, density, nodes, compute=True,
-                  keep_sums=None, views=(Plane,) if plane else (Camera,), finish="client", stream=stream, **kw)
+    img = _render(
+        ev,
+        camera,
+        mode,
+        sampling,
+        camera.slab_step if plane else step,
+        density,
+        nodes,
+        compute=True,
+        keep_sums=None,
+        views=(Plane,) if plane else (Camera,),
+        finish="client",
+        stream=stream,
+        **kw,
+    )
     stats = dict(img.stats, verified=img.verification is not None)
     if img.verification is not None:  # the frame has settled: the tags' round ran, now the check here
         t1 = time.perf_counter()
@@ -177,13 +214,27 @@ def render_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str = "xra
     return stream.frame(stats, t0, img.colouring)
 
 
-def _packed_frame(ev: Any, camera: Any, private_key: PrivateKey, mode: str, sampling: str, step: float,
-                  density: float | None, nodes: Any, decrypt_backend: str | None, kwargs: dict) -> Frame:
+def _packed_frame(
+    ev: Any,
+    camera: Any,
+    private_key: PrivateKey,
+    mode: str,
+    sampling: str,
+    step: float,
+    density: float | None,
+    nodes: Any,
+    decrypt_backend: str | None,
+    kwargs: dict,
+) -> Frame:
     """:func:`render_frame` on a packed store: the frame rendered whole (:mod:`hevr.rendering.packed`,
     verified on a verifiable store) and decrypted here, checked before any pixel; ``seconds`` end to end."""
     t0 = time.perf_counter()
     img = render(ev, camera, mode=mode, sampling=sampling, step=step, density=density, nodes=nodes, **kwargs)
     frame = img.decrypt_frame(private_key, decrypt_backend)
-    frame.stats.update(verified=img.verified, seconds=time.perf_counter() - t0,
-                       reused_ray_sums=False, map_tasks=img.stats.get("map_tasks"))
+    frame.stats.update(
+        verified=img.verified,
+        seconds=time.perf_counter() - t0,
+        reused_ray_sums=False,
+        map_tasks=img.stats.get("map_tasks"),
+    )
     return frame  # its stats carry the key holder's check_s (a verified frame)

@@ -46,19 +46,12 @@ from typing import Any
 
 import numpy as np
 
-from ...runtime.scheduler import active_client
-from ...runtime.scheduler import compute as run_tasks
-from ...core.files import read_regular
-from ...core.files import require_file
-from ...core.limits import MAX_IMAGE_PIXELS
-from ...core.magic import SUMS_MAGIC_PREFIX
-from ...image.tiles import TileLayout
-from ...core.validate import check_bool
-from ...core.validate import check_choice
-from ...core.validate import check_int
-from ...core.validate import check_step
 from ...backends import get_backend, resolve_backend_name
 from ...colour import Colouring
+from ...core.files import read_regular, require_file
+from ...core.limits import MAX_IMAGE_PIXELS
+from ...core.magic import SUMS_MAGIC_PREFIX
+from ...core.validate import check_bool, check_choice, check_int, check_step
 from ...crypto.paillier import fingerprint as fingerprint_of
 from ...crypto.records import record_width
 from ...errors import (
@@ -72,6 +65,9 @@ from ...errors import (
 from ...image.checks import FINISHES, Fields
 from ...image.encrypted import EncryptedImage
 from ...image.header import MAX_N_DIGITS, parse_json
+from ...image.tiles import TileLayout
+from ...runtime.scheduler import active_client
+from ...runtime.scheduler import compute as run_tasks
 from ...store.metadata import VolumeMetadata
 from ...store.paths import (
     check_storage_options,
@@ -98,8 +94,24 @@ FORMAT = "hevr-ray-sums"
 VERSION = 1
 LENGTH = struct.Struct("<I")
 DIGEST = 32
-FIELDS = ("format", "version", "n", "fingerprint", "volume", "store", "level", "camera", "sampling", "step",
-          "weight_digits", "channel", "tile", "width", "components", "tiles")
+FIELDS = (
+    "format",
+    "version",
+    "n",
+    "fingerprint",
+    "volume",
+    "store",
+    "level",
+    "camera",
+    "sampling",
+    "step",
+    "weight_digits",
+    "channel",
+    "tile",
+    "width",
+    "components",
+    "tiles",
+)
 
 
 @dataclass
@@ -132,8 +144,10 @@ class RaySums:
             futures = {t: v.block if isinstance(v, BlockSums) else v for t, v in live.items()}
             unique = list({f.key: f for f in futures.values()}.values())
             got = dict(zip((f.key for f in unique), self.client.gather(unique)))
-            live = {t: block_sums(got[futures[t].key], v.tile) if isinstance(v, BlockSums) else got[futures[t].key]
-                    for t, v in live.items()}
+            live = {
+                t: block_sums(got[futures[t].key], v.tile) if isinstance(v, BlockSums) else got[futures[t].key]
+                for t, v in live.items()
+            }
         return {t: live.get(t) for t in self.tiles}
 
 
@@ -158,8 +172,15 @@ class SavedSums:
     path: str
 
 
-def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: np.ndarray, meta: VolumeMetadata,
-                 tile: int, level: int = 0) -> dict:
+def image_fields(
+    spec: RenderSpec,
+    plan: RenderPlan,
+    camera: Camera,
+    n_samples: np.ndarray,
+    meta: VolumeMetadata,
+    tile: int,
+    level: int = 0,
+) -> dict:
     """Everything of an :class:`EncryptedImage` but its ciphertexts and stats (render and recolour).
 
     A client-finished plan (``plan.finish == "client"``) gives fields without the mode, the density
@@ -167,17 +188,44 @@ def image_fields(spec: RenderSpec, plan: RenderPlan, camera: Camera, n_samples: 
     shape, and the public sample counts the client divides by."""
     H, W = camera.height, camera.width
     client = plan.finish == "client"
-    colouring = {"channel": plan.channel} if client else {
-        "mode": spec.mode, "density": spec.density, "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None}
+    colouring = (
+        {"channel": plan.channel}
+        if client
+        else {
+            "mode": spec.mode,
+            "density": spec.density,
+            "nodes": [[d, list(c)] for d, c in spec.nodes] if spec.nodes else None,
+        }
+    )
     counts = np.asarray(n_samples).reshape(H, W)
-    return dict(shape=(H, W) if client else spec.image_shape(H, W), exponent=plan.exponent, offset=plan.offset, fingerprint=meta.fingerprint,
-                n=int(meta.n), tile=tile, pack_bits=plan.pack_bits, per_pack=plan.per_pack,
-                hits=counts > 0, bound=plan.bound, finish=plan.finish, channel=plan.channel,
-                components=plan.channels_out, samples=counts.astype(np.int64) if client else None,
-                info={"sampling": spec.sampling, "step": spec.step, **colouring, "store": meta.store_id, "tags": bool(meta.tags),
-                      "camera": camera.to_dict(), "plan": plan.to_dict(), "finish": plan.finish,
-                      **({"gradient": True} if spec.gradient else {}),
-                      **({"level": level} if level else {})})  # a level's camera is in the level's frame
+    return dict(
+        shape=(H, W) if client else spec.image_shape(H, W),
+        exponent=plan.exponent,
+        offset=plan.offset,
+        fingerprint=meta.fingerprint,
+        n=int(meta.n),
+        tile=tile,
+        pack_bits=plan.pack_bits,
+        per_pack=plan.per_pack,
+        hits=counts > 0,
+        bound=plan.bound,
+        finish=plan.finish,
+        channel=plan.channel,
+        components=plan.channels_out,
+        samples=counts.astype(np.int64) if client else None,
+        info={
+            "sampling": spec.sampling,
+            "step": spec.step,
+            **colouring,
+            "store": meta.store_id,
+            "tags": bool(meta.tags),
+            "camera": camera.to_dict(),
+            "plan": plan.to_dict(),
+            "finish": plan.finish,
+            **({"gradient": True} if spec.gradient else {}),
+            **({"level": level} if level else {}),
+        },
+    )  # a level's camera is in the level's frame
 
 
 def with_colouring(fields: dict, spec: RenderSpec) -> dict:
@@ -189,9 +237,23 @@ def with_colouring(fields: dict, spec: RenderSpec) -> dict:
     return dict(fields, colouring=Colouring.of(spec), shape=spec.image_shape(*fields["shape"][:2]))
 
 
-def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, camera: Camera, sampling: str,
-              step: float, weight_digits: int, channel: str, tile: int, store: str = "", level: int = 0,
-              storage_options: dict | None = None, overwrite: bool = False, name: str = "path") -> int:
+def save_sums(
+    path: str | os.PathLike,
+    sums: RaySums,
+    *,
+    meta: VolumeMetadata,
+    camera: Camera,
+    sampling: str,
+    step: float,
+    weight_digits: int,
+    channel: str,
+    tile: int,
+    store: str = "",
+    level: int = 0,
+    storage_options: dict | None = None,
+    overwrite: bool = False,
+    name: str = "path",
+) -> int:
     """Write ``sums`` (gathered from the workers if needed) as a ``.hevrsums`` file. Returns the
     file's size in bytes.
 
@@ -206,19 +268,40 @@ def save_sums(path: str | os.PathLike, sums: RaySums, *, meta: VolumeMetadata, c
     n = int(meta.n)
     width = record_width(n)
     K = meta.components(channel)
-    head = {"format": FORMAT, "version": VERSION, "n": str(n), "fingerprint": meta.fingerprint,
-            "volume": meta.to_dict(), "store": str(store), "level": int(level), "camera": camera.to_dict(), "sampling": sampling,
-            "step": float(step), "weight_digits": int(weight_digits), "channel": channel, "tile": int(tile),
-            "width": width, "components": K,
-            "tiles": [[int(t), -1 if v is None else int(v[0].size)] for t, v in sorted(values.items())]}
+    head = {
+        "format": FORMAT,
+        "version": VERSION,
+        "n": str(n),
+        "fingerprint": meta.fingerprint,
+        "volume": meta.to_dict(),
+        "store": str(store),
+        "level": int(level),
+        "camera": camera.to_dict(),
+        "sampling": sampling,
+        "step": float(step),
+        "weight_digits": int(weight_digits),
+        "channel": channel,
+        "tile": int(tile),
+        "width": width,
+        "components": K,
+        "tiles": [[int(t), -1 if v is None else int(v[0].size)] for t, v in sorted(values.items())],
+    }
     blob = json.dumps(head, separators=(",", ":")).encode()
     parts: list[Any] = [MAGIC, LENGTH.pack(len(blob)), blob]
     for _, v in sorted(values.items()):
         if v is not None:
-            parts += [np.ascontiguousarray(v[0], dtype="<i8").reshape(-1),
-                      np.ascontiguousarray(v[1], dtype=np.uint8).reshape(-1)]
-    size = write_output(where, parts, check_storage_options(storage_options), overwrite=overwrite, name=name,
-                        doing="writing the ray sums")
+            parts += [
+                np.ascontiguousarray(v[0], dtype="<i8").reshape(-1),
+                np.ascontiguousarray(v[1], dtype=np.uint8).reshape(-1),
+            ]
+    size = write_output(
+        where,
+        parts,
+        check_storage_options(storage_options),
+        overwrite=overwrite,
+        name=name,
+        doing="writing the ray sums",
+    )
     log.info("ray sums of %d tiles written to %s (%d bytes)", len(values), where, size)
     return size
 
@@ -236,7 +319,9 @@ def load_sums(path: str | os.PathLike, *, storage_options: dict | None = None) -
             raise MissingFileError("sums", what, where) from None
         return _parse(blob, where)
     if Path(path).is_dir():
-        raise ParameterError(f"sums: expected a ray-sums file (hevr.render(..., keep_sums=PATH)), got a folder ({path})")
+        raise ParameterError(
+            f"sums: expected a ray-sums file (hevr.render(..., keep_sums=PATH)), got a folder ({path})"
+        )
     # never blocks: a FIFO or a device is a NotRegularFileError before a byte is read
     return _parse(read_regular(path, "sums", what), str(path))
 
@@ -251,13 +336,15 @@ def _parse(blob: bytes, where: str) -> SavedSums:
         raise CorruptStoreError(f"{where}: truncated: {len(blob)} bytes, shorter than any ray-sums file")
     view = memoryview(blob)
     if hashlib.sha256(view[:-DIGEST]).digest() != bytes(view[-DIGEST:]):
-        raise IntegrityError(f"{where}: checksum mismatch: the file was corrupted, truncated or altered after it "
-                             "was written; no sums are returned")
+        raise IntegrityError(
+            f"{where}: checksum mismatch: the file was corrupted, truncated or altered after it "
+            "was written; no sums are returned"
+        )
     (hl,) = LENGTH.unpack_from(blob, len(MAGIC))
     start = len(MAGIC) + LENGTH.size
     if hl > len(blob) - start - DIGEST:
         raise CorruptStoreError(f"{where}: header length: expected at most {len(blob) - start - DIGEST}, got {hl}")
-    h = parse_json(bytes(view[start:start + hl]), where)
+    h = parse_json(bytes(view[start : start + hl]), where)
     ctx = Fields(where, CorruptStoreError, "header field")
     if not isinstance(h, dict):
         ctx.fail("header", "a JSON object", h)
@@ -267,8 +354,10 @@ def _parse(blob: bytes, where: str) -> SavedSums:
     extra = sorted(set(h) - set(FIELDS))
     if extra:  # as the .hevr header: a field this version does not write is not silently ignored
         shown = repr(extra[0]) if len(extra[0]) <= 40 else repr(extra[0][:30]) + f"… ({len(extra[0])} chars)"
-        raise CorruptStoreError(f"{where}: header: unexpected field {shown} (a ray-sums header of version "
-                                f"{VERSION} holds exactly {', '.join(FIELDS)})")
+        raise CorruptStoreError(
+            f"{where}: header: unexpected field {shown} (a ray-sums header of version "
+            f"{VERSION} holds exactly {', '.join(FIELDS)})"
+        )
     if h["format"] != FORMAT:
         ctx.fail("format", repr(FORMAT), h["format"])
     ctx.integer("version", h["version"], VERSION, VERSION)
@@ -298,12 +387,22 @@ def _parse(blob: bytes, where: str) -> SavedSums:
     width = ctx.integer("width", h["width"], record_width(n), record_width(n))
     tile = ctx.integer("tile", h["tile"], 1, 4096)
     layout = TileLayout(camera.width, camera.height, tile)
-    tiles = _read_tiles(ctx, h["tiles"], layout, view[start + hl:-DIGEST], K, width, n)
+    tiles = _read_tiles(ctx, h["tiles"], layout, view[start + hl : -DIGEST], K, width, n)
     nearest = h["sampling"] == "nearest"
     digits = ctx.integer("weight_digits", h["weight_digits"], 0, 0 if nearest else 9)  # nearest weights are counts
-    return SavedSums(meta=meta, camera=camera, sampling=h["sampling"], step=float(step), weight_digits=digits,
-                     channel=channel, tile=tile, tiles=tiles, store=str(h["store"]),
-                     level=ctx.integer("level", h["level"], 0, MAX_LEVELS), path=where)
+    return SavedSums(
+        meta=meta,
+        camera=camera,
+        sampling=h["sampling"],
+        step=float(step),
+        weight_digits=digits,
+        channel=channel,
+        tile=tile,
+        tiles=tiles,
+        store=str(h["store"]),
+        level=ctx.integer("level", h["level"], 0, MAX_LEVELS),
+        path=where,
+    )
 
 
 def check_sums_path(path: Any, name: str = "keep_sums", *, overwrite: bool = False) -> Path | str:
@@ -325,12 +424,14 @@ def check_sums_path(path: Any, name: str = "keep_sums", *, overwrite: bool = Fal
     return p
 
 
-def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, K: int, width: int,
-                n: int) -> dict:
+def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, K: int, width: int, n: int) -> dict:
     """Every tile's (rays, records) from the body, sizes checked before anything is allocated."""
     if not isinstance(listed, list) or len(listed) != layout.n_tiles:
-        ctx.fail("tiles", f"a list of {layout.n_tiles} [tile, rays] pairs", raw=f"{type(listed).__name__} "
-                 f"of {len(listed) if isinstance(listed, list) else '?'}")
+        ctx.fail(
+            "tiles",
+            f"a list of {layout.n_tiles} [tile, rays] pairs",
+            raw=f"{type(listed).__name__} of {len(listed) if isinstance(listed, list) else '?'}",
+        )
     counts = []
     for i, item in enumerate(listed):
         if not (isinstance(item, list) and len(item) == 2):
@@ -341,8 +442,10 @@ def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, 
     per_ray = 8 + K * width
     need = sum(max(c, 0) for c in counts) * per_ray
     if len(body) != need:
-        raise CorruptStoreError(f"{ctx.where}: {'truncated' if len(body) < need else 'too long'}: expected {need} "
-                                f"bytes of rays and records, got {len(body)}")
+        raise CorruptStoreError(
+            f"{ctx.where}: {'truncated' if len(body) < need else 'too long'}: expected {need} "
+            f"bytes of rays and records, got {len(body)}"
+        )
     be = get_backend("cpu")
     n2 = n * n
     out: dict = {}
@@ -355,8 +458,9 @@ def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, 
         recs = np.frombuffer(body, dtype=np.uint8, count=R * K * width, offset=pos + 8 * R).reshape(R, K, width)
         pos += R * per_ray
         if R and (np.any(np.diff(rays) <= 0) or not np.isin(rays, layout.pixels(t)).all()):
-            raise CorruptStoreError(f"{ctx.where}: tile {t}: expected strictly increasing pixel indices inside the "
-                                    "tile, got others")
+            raise CorruptStoreError(
+                f"{ctx.where}: tile {t}: expected strictly increasing pixel indices inside the tile, got others"
+            )
         bad = be.first_out_of_range(be.from_bytes(recs.reshape(-1, width)), n2) if R else None
         if bad is not None:
             raise CorruptStoreError(f"{ctx.where}: tile {t}: ciphertext {bad} is not in (0, n²)")
@@ -364,10 +468,21 @@ def _read_tiles(ctx: Fields, listed: Any, layout: TileLayout, body: memoryview, 
     return out
 
 
-def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: float | None = None,
-             nodes: Any = None, *, precision: int = 4, comb_digits: int = 4, pack: bool = True,
-             client: Any = None, progress: bool = True, backend: str | None = None,
-             gradient: bool = False, finish: str = "client") -> EncryptedImage:
+def recolour(
+    sums: SavedSums | str | os.PathLike,
+    mode: str = "tf",
+    density: float | None = None,
+    nodes: Any = None,
+    *,
+    precision: int = 4,
+    comb_digits: int = 4,
+    pack: bool = True,
+    client: Any = None,
+    progress: bool = True,
+    backend: str | None = None,
+    gradient: bool = False,
+    finish: str = "client",
+) -> EncryptedImage:
     """Finish saved ray sums with another density or transfer function: only the per-pixel step.
 
     Parameters
@@ -395,16 +510,29 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
         sums = load_sums(sums)
     t0 = time.perf_counter()
     meta, camera = sums.meta, sums.camera
-    spec = make_spec(mode, sums.sampling, sums.step, density, nodes, meta.vector.dims if meta.vector else None,
-                     meta.scalar is not None, gradient, meta.gradient is not None)
+    spec = make_spec(
+        mode,
+        sums.sampling,
+        sums.step,
+        density,
+        nodes,
+        meta.vector.dims if meta.vector else None,
+        meta.scalar is not None,
+        gradient,
+        meta.gradient is not None,
+    )
     if spec.channel != sums.channel and {spec.channel, sums.channel} == {"vector", "gradient"}:
-        raise ParameterError(f"gradient: expected sums of the {spec.channel} channel for gradient={spec.gradient}, got "
-                             f"the {sums.channel} channel's (rendered with gradient={not spec.gradient}; {sums.path}); "
-                             f"recolour them with gradient={not spec.gradient}")
+        raise ParameterError(
+            f"gradient: expected sums of the {spec.channel} channel for gradient={spec.gradient}, got "
+            f"the {sums.channel} channel's (rendered with gradient={not spec.gradient}; {sums.path}); "
+            f"recolour them with gradient={not spec.gradient}"
+        )
     if spec.channel != sums.channel:
         need = "an X-ray render" if spec.channel == "scalar" else "a render in mode 'emphasize' or 'tf'"
-        raise ParameterError(f"sums: expected the {spec.channel} channel's sums ({need}) for mode {spec.mode!r}, "
-                             f"got the {sums.channel} channel's ({sums.path})")
+        raise ParameterError(
+            f"sums: expected the {spec.channel} channel's sums ({need}) for mode {spec.mode!r}, "
+            f"got the {sums.channel} channel's ({sums.path})"
+        )
     precision = check_int("precision", precision, 0, 30)
     comb_digits = check_int("comb_digits", comb_digits, 1, 12)
     check_choice("finish", finish, FINISHES)
@@ -412,17 +540,33 @@ def recolour(sums: SavedSums | str | os.PathLike, mode: str = "tf", density: flo
     checked = check_render_size(camera, meta.shape, meta.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(camera, meta.shape, meta.spacing, spec.step)
     comb = combination_matrix(spec, meta.vector.dims) if spec.needs_vector and finish == "server" else None
-    plan = plan_render(n=int(meta.n), spec=spec, meta=meta, n_samples=rays.n_samples,
-                       digits=sums.weight_digits if spec.sampling == "trilinear" else 0, precision=precision,
-                       comb_digits=comb_digits, pack=pack, combination=comb, finish=finish)
+    plan = plan_render(
+        n=int(meta.n),
+        spec=spec,
+        meta=meta,
+        n_samples=rays.n_samples,
+        digits=sums.weight_digits if spec.sampling == "trilinear" else 0,
+        precision=precision,
+        comb_digits=comb_digits,
+        pack=pack,
+        combination=comb,
+        finish=finish,
+    )
     if plan.weight_digits != sums.weight_digits:  # the planner keeps the digits it is given; a guard
-        raise CorruptStoreError(f"{sums.path}: expected weights of {plan.weight_digits} digits, got "
-                                f"{sums.weight_digits}")
+        raise CorruptStoreError(
+            f"{sums.path}: expected weights of {plan.weight_digits} digits, got {sums.weight_digits}"
+        )
     layout = TileLayout(camera.width, camera.height, sums.tile)
     finish = FinishGraph.plan_units(plan, layout, rays.n_samples, int(meta.n), backend)
     fin = finish.tasks(sums.tiles)
     packed = finish.assemble(run_tasks(fin, client=active_client(client), progress=progress, desc="recolour"))
-    stats = {"map_tasks": 0, "finish_tasks": len(fin), "reused_ray_sums": True, "resident": False,
-             "gathered_bytes": sum(int(p.nbytes) for p in packed), "seconds": time.perf_counter() - t0}
+    stats = {
+        "map_tasks": 0,
+        "finish_tasks": len(fin),
+        "reused_ray_sums": True,
+        "resident": False,
+        "gathered_bytes": sum(int(p.nbytes) for p in packed),
+        "seconds": time.perf_counter() - t0,
+    }
     fields = image_fields(spec, plan, camera, rays.n_samples, meta, sums.tile, level=sums.level)
     return EncryptedImage(ciphertexts=list(packed), stats=stats, **with_colouring(fields, spec))

@@ -25,8 +25,17 @@ if TYPE_CHECKING:  # what static tools read; at run time each name is imported o
     from .planner import RenderPlan, check_render_size, plan_render
     from .request import at_level, check_request
 
-__all__ = ["RenderPlan", "RenderSpec", "at_level", "check_render_size", "check_request", "combination_matrix",
-           "error_bound", "make_spec", "plan_render"]
+__all__ = [
+    "RenderPlan",
+    "RenderSpec",
+    "at_level",
+    "check_render_size",
+    "check_request",
+    "combination_matrix",
+    "error_bound",
+    "make_spec",
+    "plan_render",
+]
 
 # Name -> submodule, imported on first use. Equal to the TYPE_CHECKING imports above.
 _LAZY = {

@@ -27,8 +27,8 @@ from ...store.reader import EncryptedVolume
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
 from ..geometry.rays import cast_rays
-from ..packed.sliced import packed_error_bound
 from ..packed.planes import packed_slice_error_bound
+from ..packed.sliced import packed_error_bound
 from .modes import combination_matrix
 from .planner import check_render_size
 from .request import at_level, check_request, level_step
@@ -36,10 +36,22 @@ from .request import at_level, check_request, level_step
 __all__ = ["error_bound"]
 
 
-def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray", sampling: str = "nearest",
-                step: float = 1.0, density: float | None = None, nodes: Any = None, *, digits: int = 3,
-                precision: int = 4, comb_digits: int = 4, level: int | None = None,
-                gradient: bool = False, finish: str = "client") -> np.ndarray:
+def error_bound(
+    ev: EncryptedVolume,
+    camera: Camera | Plane,
+    mode: str = "xray",
+    sampling: str = "nearest",
+    step: float = 1.0,
+    density: float | None = None,
+    nodes: Any = None,
+    *,
+    digits: int = 3,
+    precision: int = 4,
+    comb_digits: int = 4,
+    level: int | None = None,
+    gradient: bool = False,
+    finish: str = "client",
+) -> np.ndarray:
     """Per-pixel bound on ``|decrypted render − render_plain|`` (see the module docstring); for a packed
     store, against ``render_plain(..., slices=True)`` (:mod:`hevr.rendering.packed.sliced`).
 
@@ -57,12 +69,16 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
     if getattr(getattr(ev, "meta", None), "packing", None) is not None:  # a packed store: slice-sampled frames
         has = ev.meta.gradient if gradient else ev.meta.vector
         if (gradient and mode == "xray") or (mode != "xray" and (has is None or isinstance(camera, Plane))):
-            raise ParameterError(f"mode: expected an X-ray for a packed store (or 'emphasize' / 'tf' of a frame of one "
-                                 f"with the vector channel, or gradient=True with the gradient channel), got "
-                                 f"mode={mode!r}, gradient={gradient!r}")
+            raise ParameterError(
+                f"mode: expected an X-ray for a packed store (or 'emphasize' / 'tf' of a frame of one "
+                f"with the vector channel, or gradient=True with the gradient channel), got "
+                f"mode={mode!r}, gradient={gradient!r}"
+            )
         if isinstance(camera, Plane):  # a packed store's slice (hevr.rendering.packed.planes)
             if level:
-                raise ParameterError(f"level: expected None for a hevr.Plane (render_slice has no level), got {level!r}")
+                raise ParameterError(
+                    f"level: expected None for a hevr.Plane (render_slice has no level), got {level!r}"
+                )
             return packed_slice_error_bound(ev.meta, camera, sampling)
         ev, camera = at_level(ev, camera, level)  # a level the owner encrypted packed: its own slots and exponent
         return packed_error_bound(ev.meta, camera, sampling, mode=mode, density=density, nodes=nodes)
@@ -70,9 +86,21 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
         step = camera.slab_step
         if level:
             raise ParameterError(f"level: expected None for a hevr.Plane (render_slice has no level), got {level!r}")
-    spec, digits, precision, comb_digits = check_request(ev, camera, mode, sampling, step, density, nodes,
-                                                          digits, precision, comb_digits, (Camera, Plane), gradient,
-                                                          finish)
+    spec, digits, precision, comb_digits = check_request(
+        ev,
+        camera,
+        mode,
+        sampling,
+        step,
+        density,
+        nodes,
+        digits,
+        precision,
+        comb_digits,
+        (Camera, Plane),
+        gradient,
+        finish,
+    )
     ev, camera = at_level(ev, camera, level)
     spec = level_step(spec, ev, camera)
     # a level's values are exact means of level-0 values: their storage error is level 0's
@@ -82,16 +110,16 @@ def error_bound(ev: EncryptedVolume, camera: Camera | Plane, mode: str = "xray",
     n = rays.n_samples.astype(np.float64).reshape(camera.height, camera.width)
     if spec.channel == "scalar":
         qmax = max(abs(ev.value_range[0]), abs(ev.value_range[1]))
-        store = 0.5 * 10.0 ** stored.scalar.exponent if stored.scalar.digits is not None else 0.0
+        store = 0.5 * 10.0**stored.scalar.exponent if stored.scalar.digits is not None else 0.0
         comb_err = 0.0
     else:
         M = combination_matrix(spec, ev.vector_dims)
         qmax = float(np.abs(M).sum(axis=0).max())
         store = 0.5 * 10.0 ** getattr(stored, spec.channel).exponent * qmax  # vector or gradient
-        comb_err = 0.5 * 10.0 ** -comb_digits * np.sqrt(ev.vector_dims) if finish == "server" else 0.0
+        comb_err = 0.5 * 10.0**-comb_digits * np.sqrt(ev.vector_dims) if finish == "server" else 0.0
     K = spec.n_nodes
-    weights = 4 * 10.0 ** -digits * (qmax + store + comb_err) if spec.sampling == "trilinear" else 0.0
+    weights = 4 * 10.0**-digits * (qmax + store + comb_err) if spec.sampling == "trilinear" else 0.0
     value = (qmax + store + comb_err) / K
-    norm = value * 0.5 * 10.0 ** -precision * 1.0001 if finish == "server" else 0.0
+    norm = value * 0.5 * 10.0**-precision * 1.0001 if finish == "server" else 0.0
     b = (weights / K + store / K + comb_err / K + norm) * (n > 0) + 1e-9
     return np.repeat(b[..., None], spec.channels, axis=2) if spec.channels > 1 else b

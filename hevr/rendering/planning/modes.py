@@ -20,12 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validate import check_choice
-
-from ...core.validate import check_step
-
-from ...core.validate import check_vector_dims
 from ...colour import CSS_COLORS, Colouring, parse_color, parse_nodes, unit_density
+from ...core.validate import check_choice, check_step, check_vector_dims
 from ...errors import ParameterError
 
 __all__ = [
@@ -41,6 +37,7 @@ __all__ = [
 
 MODES = ("xray", "emphasize", "tf")
 SAMPLINGS = ("nearest", "trilinear")
+
 
 @dataclass(frozen=True)
 class RenderSpec:
@@ -145,12 +142,15 @@ def make_spec(
         raise ParameterError(f"gradient: expected True or False, got {gradient!r}")
     gradient = bool(gradient)
     if gradient and mode not in ("emphasize", "tf"):
-        raise ParameterError(f"gradient: expected mode 'emphasize' or 'tf' with gradient=True (the gradient channel "
-                             f"weights the density encoding; an X-ray has none), got mode={mode!r}")
+        raise ParameterError(
+            f"gradient: expected mode 'emphasize' or 'tf' with gradient=True (the gradient channel "
+            f"weights the density encoding; an X-ray has none), got mode={mode!r}"
+        )
     if gradient and not has_gradient:
         raise ParameterError(
             "gradient: expected a store encrypted with gradient=True (its 'gradient' channel), got one without — "
-            "encrypt again with hevr.encrypt_volume(..., vector_dims=k, gradient=True)")
+            "encrypt again with hevr.encrypt_volume(..., vector_dims=k, gradient=True)"
+        )
     if mode == "xray":
         if not has_scalar:
             raise ParameterError(
@@ -186,8 +186,9 @@ def combination_matrix(spec: RenderSpec, vector_dims: int) -> np.ndarray:
     [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
     """
     if spec.mode == "xray":
-        raise ParameterError(f"spec.mode: expected 'emphasize' or 'tf' (xray reads the scalar channel), got "
-                             f"{spec.mode!r}")
+        raise ParameterError(
+            f"spec.mode: expected 'emphasize' or 'tf' (xray reads the scalar channel), got {spec.mode!r}"
+        )
     return Colouring.of(spec).matrix(vector_dims)
 
 
@@ -202,4 +203,3 @@ def normalisation_factor(spec: RenderSpec) -> int:
     1
     """
     return spec.n_nodes
-

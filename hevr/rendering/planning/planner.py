@@ -78,9 +78,7 @@ from ...core.limits import (
     integrity_bits,
     render_limits,
 )
-from ...core.validate import check_shape
-from ...core.validate import check_spacing
-from ...core.validate import check_step
+from ...core.validate import check_shape, check_spacing, check_step
 from ...errors import ParameterError, RenderPlanError
 from ...store.metadata import VolumeMetadata
 from ...store.packing import mantissa_range
@@ -102,7 +100,6 @@ __all__ = [
     "plan_sums",
     "render_limits",
 ]
-
 
 
 @dataclass(frozen=True)
@@ -136,7 +133,7 @@ class RenderPlan:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RenderPlan":
+    def from_dict(cls, d: dict) -> RenderPlan:
         d = dict(d)
         d["comb"] = tuple(tuple(int(x) for x in r) for r in d["comb"]) if d.get("comb") is not None else None
         d["offset"] = int(d["offset"])
@@ -148,7 +145,7 @@ class RenderPlan:
         packs the sums themselves: R_r = 1 for every hit pixel."""
         if self.finish == "client":
             return [1 if int(n) else 0 for n in np.asarray(n_samples).ravel().tolist()]
-        num = 10 ** self.recip_digits
+        num = 10**self.recip_digits
         out = []
         for n in np.asarray(n_samples).ravel().tolist():
             den = int(n) * self.factor
@@ -160,9 +157,19 @@ def _bits(x: int) -> int:
     return max(1, int(x).bit_length())
 
 
-def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np.ndarray, digits: int,
-                precision: int, comb_digits: int, pack: bool, combination: np.ndarray | None,
-                finish: str = "server") -> RenderPlan:
+def plan_render(
+    *,
+    n: int,
+    spec: RenderSpec,
+    meta: VolumeMetadata,
+    n_samples: np.ndarray,
+    digits: int,
+    precision: int,
+    comb_digits: int,
+    pack: bool,
+    combination: np.ndarray | None,
+    finish: str = "server",
+) -> RenderPlan:
     """Plan a render and refuse it when any mantissa could reach n/3.
 
     The arguments come checked from :func:`hevr.render`: the channel read, the number of
@@ -171,8 +178,9 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
     unused: nothing of the colouring reaches the plan).
     """
     if finish == "client":
-        return plan_sums(n=n, channel=spec.channel, sampling=spec.sampling, meta=meta, n_samples=n_samples,
-                         digits=digits, pack=pack)
+        return plan_sums(
+            n=n, channel=spec.channel, sampling=spec.sampling, meta=meta, n_samples=n_samples, digits=digits, pack=pack
+        )
     limit = int(n) // 3
     key_bits = int(n).bit_length()
     channel = spec.channel
@@ -232,17 +240,29 @@ def plan_render(*, n: int, spec: RenderSpec, meta: VolumeMetadata, n_samples: np
             f"whose pixels could reach {max(offset, m_bound)}e{exponent}"
         )
     return RenderPlan(
-        mode=spec.mode, sampling=spec.sampling, channel=channel, weight_digits=int(digits),
-        weight_exponent=w_exp, channel_exponent=ch_exp, comb=comb, comb_digits=int(comb_digits),
-        recip_digits=G, factor=K, offset=int(offset),
-        exponent=exponent, bound=int(bound),
-        pack_bits=pack_bits if pack else 0, per_pack=per_pack,
-        channels_out=spec.channels, precision=int(precision),
+        mode=spec.mode,
+        sampling=spec.sampling,
+        channel=channel,
+        weight_digits=int(digits),
+        weight_exponent=w_exp,
+        channel_exponent=ch_exp,
+        comb=comb,
+        comb_digits=int(comb_digits),
+        recip_digits=G,
+        factor=K,
+        offset=int(offset),
+        exponent=exponent,
+        bound=int(bound),
+        pack_bits=pack_bits if pack else 0,
+        per_pack=per_pack,
+        channels_out=spec.channels,
+        precision=int(precision),
     )
 
 
-def plan_sums(*, n: int, channel: str, sampling: str, meta: VolumeMetadata, n_samples: np.ndarray, digits: int,
-              pack: bool) -> RenderPlan:
+def plan_sums(
+    *, n: int, channel: str, sampling: str, meta: VolumeMetadata, n_samples: np.ndarray, digits: int, pack: bool
+) -> RenderPlan:
     """Plan a client-finished render (:mod:`hevr.colour`): the server packs the K component ray
     sums S_k of ``channel`` themselves, with no combination and no reciprocal.
 
@@ -278,27 +298,45 @@ def plan_sums(*, n: int, channel: str, sampling: str, meta: VolumeMetadata, n_sa
     bound = max(0, hi_m) * w_max + offset
     tips = "use a larger key or fewer weight digits= (trilinear)"
     if max(abs(lo_m), abs(hi_m)) * w_max >= limit or bound >= limit:
-        raise RenderPlanError(f"overflow planner: the ray sum could reach {_bits(bound)} bits but a {key_bits}-bit "
-                              f"key allows plaintexts below n/3 (~{key_bits - 2} bits); {tips}")
+        raise RenderPlanError(
+            f"overflow planner: the ray sum could reach {_bits(bound)} bits but a {key_bits}-bit "
+            f"key allows plaintexts below n/3 (~{key_bits - 2} bits); {tips}"
+        )
     kappa = integrity_bits(key_bits)
     room = key_bits - 1 - kappa
     pack_bits = _bits(bound)
     if pack_bits > room:
         raise RenderPlanError(
             f"overflow planner: the ray sum could reach {pack_bits} bits but a {key_bits}-bit key keeps {kappa} bits "
-            f"of every decrypted plaintext for the integrity check, leaving {max(room, 0)} bits; {tips}")
+            f"of every decrypted plaintext for the integrity check, leaving {max(room, 0)} bits; {tips}"
+        )
     exponent = (-int(digits) if trilinear else 0) + ch_exp
     if not fits_float(max(offset, bound), exponent):
         raise RenderPlanError(
             f"overflow planner: value_range: expected values whose ray sums fit a float64 (at most {FLOAT_MAX:.4g}), "
             f"got the store's value_range ({meta.value_range[0]:g}, {meta.value_range[1]:g}), whose sums could "
-            f"reach {bound}e{exponent}")
+            f"reach {bound}e{exponent}"
+        )
     return RenderPlan(
-        mode="sums", sampling=sampling, channel=channel, weight_digits=int(digits),
-        weight_exponent=-int(digits) if trilinear else 0, channel_exponent=ch_exp, comb=None, comb_digits=0,
-        recip_digits=0, factor=1, offset=int(offset), exponent=exponent, bound=int(bound),
-        pack_bits=pack_bits if pack else 0, per_pack=max(1, room // pack_bits) if pack else 1,
-        channels_out=comps, precision=0, finish="client")
+        mode="sums",
+        sampling=sampling,
+        channel=channel,
+        weight_digits=int(digits),
+        weight_exponent=-int(digits) if trilinear else 0,
+        channel_exponent=ch_exp,
+        comb=None,
+        comb_digits=0,
+        recip_digits=0,
+        factor=1,
+        offset=int(offset),
+        exponent=exponent,
+        bound=int(bound),
+        pack_bits=pack_bits if pack else 0,
+        per_pack=max(1, room // pack_bits) if pack else 1,
+        channels_out=comps,
+        precision=0,
+        finish="client",
+    )
 
 
 def max_ray_samples(shape: Any, spacing: Any, step: float) -> float:
@@ -362,8 +400,10 @@ def check_render_size(camera: Any, shape: Any, spacing: Any, step: Any) -> RaySe
     w, h = camera.width, camera.height
     pixels = w * h
     if pixels > max_pixels:
-        raise RenderPlanError(f"width, height: expected an image of at most {max_pixels} pixels "
-                              f"(Dask config {MAX_PIXELS_KEY}), got {w}x{h} = {pixels} pixels")
+        raise RenderPlanError(
+            f"width, height: expected an image of at most {max_pixels} pixels "
+            f"(Dask config {MAX_PIXELS_KEY}), got {w}x{h} = {pixels} pixels"
+        )
     if pixels * max_ray_samples(shape, spacing, step) <= max_samples:
         return None
     # The public bound is too loose to decide: count exactly (memory linear in pixels).

@@ -54,11 +54,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ...core.validate import check_choice
-
-from ...core.validate import check_int
-
-from ...core.validate import check_shape
+from ...core.validate import check_choice, check_int, check_shape
 from ...errors import ParameterError
 from ...image.checks import FINISHES
 from ...store.reader import EncryptedVolume
@@ -67,13 +63,34 @@ from ..geometry.plane import Plane
 from ..geometry.rays import cast_rays
 from .modes import RenderSpec, make_spec
 
-__all__ = ["FINISHES", "RenderCost", "at_level", "check_request", "level_step", "ray_cost", "request_cost",
-           "weight_bits", "weighted"]
+__all__ = [
+    "FINISHES",
+    "RenderCost",
+    "at_level",
+    "check_request",
+    "level_step",
+    "ray_cost",
+    "request_cost",
+    "weight_bits",
+    "weighted",
+]
 
 
-def check_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: Any, density: Any, nodes: Any,
-                   digits: Any, precision: Any, comb_digits: Any, views: tuple[type, ...] = (Camera,),
-                   gradient: Any = False, finish: Any = "client") -> tuple[RenderSpec, int, int, int]:
+def check_request(
+    ev: Any,
+    camera: Any,
+    mode: Any,
+    sampling: Any,
+    step: Any,
+    density: Any,
+    nodes: Any,
+    digits: Any,
+    precision: Any,
+    comb_digits: Any,
+    views: tuple[type, ...] = (Camera,),
+    gradient: Any = False,
+    finish: Any = "client",
+) -> tuple[RenderSpec, int, int, int]:
     """Check what :func:`render` and :func:`error_bound` share, once, where it enters (``views``:
     the kinds of view the caller takes)."""
     if not isinstance(ev, EncryptedVolume):
@@ -83,8 +100,12 @@ def check_request(ev: Any, camera: Any, mode: Any, sampling: Any, step: Any, den
         raise ParameterError(f"camera: expected a {kinds}, got {type(camera).__name__}")
     spec = make_spec(mode, sampling, step, density, nodes, ev.vector_dims, ev.has_scalar, gradient, ev.has_gradient)
     check_choice("finish", finish, FINISHES)
-    return (spec, check_int("digits", digits, 0, 9), check_int("precision", precision, 0, 30),
-            check_int("comb_digits", comb_digits, 1, 12))
+    return (
+        spec,
+        check_int("digits", digits, 0, 9),
+        check_int("precision", precision, 0, 30),
+        check_int("comb_digits", comb_digits, 1, 12),
+    )
 
 
 def at_level(ev: EncryptedVolume, view: Camera | Plane, level: int | None) -> tuple[EncryptedVolume, Camera | Plane]:
@@ -98,8 +119,11 @@ def at_level(ev: EncryptedVolume, view: Camera | Plane, level: int | None) -> tu
     shift = np.asarray(ev.origin)
     if isinstance(view, Plane):
         return ev, dataclasses.replace(view, origin=tuple((np.asarray(view.origin) - shift).tolist()))
-    return ev, dataclasses.replace(view, position=tuple((np.asarray(view.position) - shift).tolist()),
-                                   focal_point=tuple((np.asarray(view.focal_point) - shift).tolist()))
+    return ev, dataclasses.replace(
+        view,
+        position=tuple((np.asarray(view.position) - shift).tolist()),
+        focal_point=tuple((np.asarray(view.focal_point) - shift).tolist()),
+    )
 
 
 def level_step(spec: RenderSpec, ev: EncryptedVolume, view: Camera | Plane) -> RenderSpec:
@@ -161,14 +185,24 @@ class RenderCost(NamedTuple):
 
     def describe(self) -> str:
         """The formula's factors, for a message."""
-        return (f"{self.width}x{self.height} rays, {self.samples:.2g} samples, {self.per_sample} voxel"
-                f"{'s' if self.per_sample > 1 else ''} a sample, {self.components} ciphertext"
-                f"{'s' if self.components > 1 else ''} a voxel"
-                + (f", {self.bits}-bit weights" if self.bits > REFERENCE_BITS else ""))
+        return (
+            f"{self.width}x{self.height} rays, {self.samples:.2g} samples, {self.per_sample} voxel"
+            f"{'s' if self.per_sample > 1 else ''} a sample, {self.components} ciphertext"
+            f"{'s' if self.components > 1 else ''} a voxel"
+            + (f", {self.bits}-bit weights" if self.bits > REFERENCE_BITS else "")
+        )
 
 
-def ray_cost(view: Camera | Plane, shape: Any, spacing: Any, step: float, sampling: str, components: int,
-             packed: bool = False, bits: int = 1) -> RenderCost:
+def ray_cost(
+    view: Camera | Plane,
+    shape: Any,
+    spacing: Any,
+    step: float,
+    sampling: str,
+    components: int,
+    packed: bool = False,
+    bits: int = 1,
+) -> RenderCost:
     """The cost of ``view`` through a volume of ``shape`` (nz, ny, nx) and ``spacing`` at ``step``
     (world units of this volume), ``components`` ciphertexts a voxel, ``bits`` a weight
     (:func:`weight_bits`); ``packed``: a packed store's public bound R·N (module docstring)."""
@@ -177,14 +211,28 @@ def ray_cost(view: Camera | Plane, shape: Any, spacing: Any, step: float, sampli
         samples = w * h * max(check_shape(shape))
         c = PACKED_VOXELS_PER_SAMPLE[sampling]
     else:  # counted COUNT_CHUNK rays at a time: the memory of a few MB, whatever the image
-        samples = sum(int(cast_rays(view, shape, spacing, step, np.arange(a, min(a + COUNT_CHUNK, w * h)))
-                          .n_samples.sum(dtype=np.float64)) for a in range(0, w * h, COUNT_CHUNK))
+        samples = sum(
+            int(
+                cast_rays(view, shape, spacing, step, np.arange(a, min(a + COUNT_CHUNK, w * h))).n_samples.sum(
+                    dtype=np.float64
+                )
+            )
+            for a in range(0, w * h, COUNT_CHUNK)
+        )
         c = VOXELS_PER_SAMPLE[sampling]
     return RenderCost(w, h, samples, c, int(components), weighted(int(components) * c * samples, bits), int(bits))
 
 
-def request_cost(ev: Any, view: Camera | Plane, channel: str, sampling: str, step: float,
-                 level: int | None = None, digits: int = 3, packed_bits: int | None = None) -> RenderCost:
+def request_cost(
+    ev: Any,
+    view: Camera | Plane,
+    channel: str,
+    sampling: str,
+    step: float,
+    level: int | None = None,
+    digits: int = 3,
+    packed_bits: int | None = None,
+) -> RenderCost:
     """The cost of rendering ``channel`` of the store ``ev`` (an opened store: per-voxel or packed)
     as ``view`` at ``level`` (``step`` in level 0's world units, as :func:`hevr.render` takes it),
     trilinear weights of ``digits`` decimal digits (a per-voxel store) or ``packed_bits`` bits (a

@@ -30,13 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validate import check_data_range
-
-from ...core.validate import check_spacing
-
-from ...core.validate import check_vector_dims
-
-from ...core.validate import check_volume
+from ...core.validate import check_data_range, check_spacing, check_vector_dims, check_volume
 from ...errors import ParameterError
 from ...volume.density import default_value_range, encode_density, normalize_density
 from ...volume.gradient import gradient_encoding
@@ -44,9 +38,6 @@ from ...volume.pyramid import check_level, downsample, level_origin, level_spaci
 from ...volume.scan import Scan
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
-from ..packed.sliced import render_plain_field_slices, render_plain_slices
-from ..planning.modes import RenderSpec, combination_matrix, make_spec
-from ..planning.planner import check_render_size
 from ..geometry.rays import (
     cast_rays,
     expand_samples,
@@ -54,6 +45,9 @@ from ..geometry.rays import (
     sample_positions,
     trilinear_corners,
 )
+from ..packed.sliced import render_plain_field_slices, render_plain_slices
+from ..planning.modes import RenderSpec, combination_matrix, make_spec
+from ..planning.planner import check_render_size
 
 __all__ = ["render_plain", "render_slice_plain", "DEFAULT_VECTOR_DIMS"]
 
@@ -82,8 +76,9 @@ def _check_volume(vol: Any, spacing: Any) -> tuple[np.ndarray, Any]:
     return arr, (1, 1, 1) if spacing is None else spacing
 
 
-def _make_field(arr: np.ndarray, spec: RenderSpec, value_range: Any, dims: int | None,
-                spacing: Any = (1, 1, 1)) -> tuple[Field, int]:
+def _make_field(
+    arr: np.ndarray, spec: RenderSpec, value_range: Any, dims: int | None, spacing: Any = (1, 1, 1)
+) -> tuple[Field, int]:
     """Return ``field(flat_voxel_indices) -> (m, C) float64`` and C (``spacing``: the gradient's world units)."""
     flat = arr.reshape(-1)
     if not spec.needs_vector:
@@ -203,17 +198,22 @@ def render_plain(
         axes = {"z": 0, "y": 1, "x": 2, 0: 0, 1: 1, 2: 2}  # True == 1 as a key: taken apart first
         axis = 0 if slices is True else axes.get(slices) if isinstance(slices, str) or type(slices) is int else None
         if axis is None:
-            raise ParameterError(f"slices: expected True, False or a packing axis (0, 1, 2, 'z', 'y', 'x'), "
-                                 f"got {slices!r}")
+            raise ParameterError(
+                f"slices: expected True, False or a packing axis (0, 1, 2, 'z', 'y', 'x'), got {slices!r}"
+            )
         if (gradient and mode == "xray") or type(step) not in (int, float) or float(step) != 1.0:
-            raise ParameterError(f"slices: expected mode='xray', step=1 and gradient=False with slice "
-                                 f"sampling ('emphasize' and 'tf' too, with or without gradient: a packed store's "
-                                 f"vector and gradient channels), got mode={mode!r}, step={step!r}, "
-                                 f"gradient={gradient!r}")
+            raise ParameterError(
+                f"slices: expected mode='xray', step=1 and gradient=False with slice "
+                f"sampling ('emphasize' and 'tf' too, with or without gradient: a packed store's "
+                f"vector and gradient channels), got mode={mode!r}, step={step!r}, "
+                f"gradient={gradient!r}"
+            )
         if mode != "xray":  # the per-voxel field e(d)·M / N (as below), slice-sampled: hevr.rendering.packed.colour
             if check_level(level):
-                raise ParameterError(f"level: expected 0 for mode={mode!r} with slice sampling (a packed store's "
-                                     f"levels hold the scalar channel only), got {level!r}")
+                raise ParameterError(
+                    f"level: expected 0 for mode={mode!r} with slice sampling (a packed store's "
+                    f"levels hold the scalar channel only), got {level!r}"
+                )
             arr, sp = _check_volume(vol, spacing)
             dims = DEFAULT_VECTOR_DIMS if vector_dims is None else int(check_vector_dims(vector_dims))
             spec = make_spec(mode, sampling, 1.0, density, nodes, dims, gradient=gradient, has_gradient=True)
@@ -224,8 +224,11 @@ def render_plain(
         if check_level(level):  # a packed store's level (hevr.store.packed_levels): the means, on the level's grid
             arr, sp = _check_volume(vol, spacing)
             shift = np.asarray(level_origin(check_spacing(sp), level))
-            camera = dataclasses.replace(camera, position=tuple((np.asarray(camera.position) - shift).tolist()),
-                                         focal_point=tuple((np.asarray(camera.focal_point) - shift).tolist()))
+            camera = dataclasses.replace(
+                camera,
+                position=tuple((np.asarray(camera.position) - shift).tolist()),
+                focal_point=tuple((np.asarray(camera.focal_point) - shift).tolist()),
+            )
             vol, spacing = downsample(arr, level), level_spacing(check_spacing(sp), level)
         return render_plain_slices(vol, camera, sampling, spacing, axis=axis)
     arr, spacing = _check_volume(vol, spacing)
@@ -246,8 +249,11 @@ def render_plain(
         arr = np.empty(coarse.shape[:3], dtype=np.uint8)  # only its shape is used from here on
         field = lambda idx: flat_field[idx]  # noqa: E731
         shift = np.asarray(level_origin(sp, level))
-        camera = dataclasses.replace(camera, position=tuple((np.asarray(camera.position) - shift).tolist()),
-                                     focal_point=tuple((np.asarray(camera.focal_point) - shift).tolist()))
+        camera = dataclasses.replace(
+            camera,
+            position=tuple((np.asarray(camera.position) - shift).tolist()),
+            focal_point=tuple((np.asarray(camera.focal_point) - shift).tolist()),
+        )
         sp = level_spacing(sp, level)
         spec = dataclasses.replace(spec, step=spec.step * 2**level)  # sampled in the level's voxels
     checked = check_render_size(camera, arr.shape, sp, spec.step)  # before anything per pixel or sample

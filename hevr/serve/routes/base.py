@@ -64,8 +64,17 @@ def log_line(request: Request, status: int, sent: int, name: str, seconds: float
     client = request.client.host if request.client else "-"
     raw = request.scope.get("raw_path") or request.url.path.encode()
     path = raw.decode("ascii", "backslashreplace")[:_MAX_PATH]
-    log.info("%s %s %s %d %d %s %.3f%s", client, request.method, path, status, sent, name, seconds,
-             f" {note}" if note else "")
+    log.info(
+        "%s %s %s %d %d %s %.3f%s",
+        client,
+        request.method,
+        path,
+        status,
+        sent,
+        name,
+        seconds,
+        f" {note}" if note else "",
+    )
 
 
 class _Logged:
@@ -103,6 +112,7 @@ class _Logged:
 def endpoint(fn: Callable[[Request, Caller], Awaitable[Response]], *, public: bool = False) -> Callable:
     """A Starlette endpoint of ``fn(request, caller)``: the token checked first (unless ``public``),
     every failure a problem document, one log line per request (the module docstring)."""
+
     async def handler(request: Request) -> Any:
         t0 = time.perf_counter()
         name = "-"
@@ -118,5 +128,6 @@ def endpoint(fn: Callable[[Request, Caller], Awaitable[Response]], *, public: bo
                 service(request).watch.soon()
             response = as_problem(exc).response()
         return _Logged(response, request, name, t0)
+
     handler.__name__ = handler.__qualname__ = fn.__name__
     return handler

@@ -27,8 +27,7 @@ from ...remote.protocol import END, IMAGE_MEDIA, UNITS_MEDIA, RenderRequest, Ver
 from ...rendering.packed import PackedImage
 from ...rendering.packed.colour import PackedColourImage
 from ...rendering.packed.plane_image import PackedSlice
-from ...runtime.cancel import Cancelled
-from ...runtime.cancel import cancel_soon
+from ...runtime.cancel import Cancelled, cancel_soon
 from ..budget import Slot, check_backend
 from ..jobs import CLIENT_GONE, SHUTDOWN, render_image, run_job, stats_header, verify_aggregate
 from ..problems import Problem, as_problem
@@ -60,8 +59,9 @@ def _cancelled(request: Request, caller: Caller, reason: str) -> Exception:
     if reason == CLIENT_GONE:
         log.info("client left; render cancelled: %s %s (token %s)", request.method, request.url.path, caller.name)
         return ClientLeft()
-    return Problem(503, "render cancelled", f"render: expected to finish, got cancelled ({reason})",
-                   {"Retry-After": "5"})
+    return Problem(
+        503, "render cancelled", f"render: expected to finish, got cancelled ({reason})", {"Retry-After": "5"}
+    )
 
 
 async def _run(request: Request, caller: Caller, held: Slot, work: Any) -> Any:
@@ -82,8 +82,9 @@ async def render(request: Request, caller: Caller) -> Response:
         if isinstance(img, (PackedImage, PackedColourImage, PackedSlice)):  # tiles as frames, then the end
             end = json.dumps({"ok": True, "stats": stats_header(img.stats)}).encode()
             tiles = [t for c in getattr(img, "components", [img]) for t in c.ciphertexts]
-            blob = b"".join(pack_frame(i, np.ascontiguousarray(t).tobytes())
-                            for i, t in enumerate(tiles)) + pack_frame(END, end)
+            blob = b"".join(pack_frame(i, np.ascontiguousarray(t).tobytes()) for i, t in enumerate(tiles)) + pack_frame(
+                END, end
+            )
             return blob, stats_header(img.stats), UNITS_MEDIA
         return img.to_bytes(), stats_header(img.stats), IMAGE_MEDIA
 
@@ -116,8 +117,12 @@ async def stream(request: Request, caller: Caller) -> Response:
     ev = svc.store(request, caller.token)
     req = RenderRequest.from_dict(parse_json(await read_body(request), "body"))
     if ev.meta.packing is not None:
-        raise Problem(400, "bad request", f"stream: expected a per-voxel store, got the packed store "
-                                          f"{ev.meta.store_id} (its frame comes whole from /render)")
+        raise Problem(
+            400,
+            "bad request",
+            f"stream: expected a per-voxel store, got the packed store "
+            f"{ev.meta.store_id} (its frame comes whole from /render)",
+        )
     held = await _admit(svc, caller, ev, req)  # a 429 now, before the stream starts
     loop = asyncio.get_running_loop()
     queue: asyncio.Queue = asyncio.Queue()
