@@ -51,8 +51,14 @@ def _help(parser: argparse.ArgumentParser, action: argparse.Action) -> str:
     return " ".join(parser._get_formatter()._expand_help(action).split())  # noqa: SLF001
 
 
+def section_id(prog: str) -> str:
+    """The anchor of a command's section: ``hevr known list`` -> ``cli-hevr-known-list``."""
+    return nodes.make_id("cli-" + prog)
+
+
 def _option_list(parser: argparse.ArgumentParser, actions: list[argparse.Action]) -> nodes.Node:
-    """A definition list: each option's invocation (``--out FRAME.hevr``) and help."""
+    """A definition list: each option's invocation (``--out FRAME.hevr``) and help; a command
+    (sub-parser) links to its own section."""
     dl = nodes.definition_list(classes=["hevr-cli-options"])
     for action in actions:
         if action.help == argparse.SUPPRESS:
@@ -61,7 +67,9 @@ def _option_list(parser: argparse.ArgumentParser, actions: list[argparse.Action]
             for choice in action._choices_actions:  # noqa: SLF001 - each sub-command's help line
                 item = nodes.definition_list_item()
                 term = nodes.term()
-                term += nodes.literal(text=choice.dest)
+                ref = nodes.reference("", "", internal=True, refid=section_id(f"{parser.prog} {choice.dest}"))
+                ref += nodes.literal(text=choice.dest)
+                term += ref
                 item += term
                 item += nodes.definition("", nodes.paragraph(text=choice.help or ""))
                 dl += item
@@ -104,7 +112,7 @@ class HevrCli(SphinxDirective):
                 os.environ["COLUMNS"] = old
 
     def _section(self, parser: argparse.ArgumentParser, prog: str, oneline: str, top: bool = False) -> list[nodes.Node]:
-        sid = nodes.make_id("cli-" + prog)
+        sid = section_id(prog)
         section = nodes.section(ids=[sid], names=[nodes.fully_normalize_name(prog)])
         title = nodes.title()
         title += nodes.literal(text=prog)
