@@ -58,8 +58,9 @@ def fenced_blocks(text: str) -> list[tuple[str, int, list[str]]]:
             continue
         fence, info, start = m["fence"], m["info"].strip(), i + 1
         j = start
-        while j < len(lines) and not (lines[j].strip().startswith(fence[0] * len(fence))
-                                      and lines[j].strip().strip(fence[0]) == ""):
+        while j < len(lines) and not (
+            lines[j].strip().startswith(fence[0] * len(fence)) and lines[j].strip().strip(fence[0]) == ""
+        ):
             j += 1
         out.append((info, start + 1, lines[start:j]))
         i = j + 1
@@ -73,14 +74,18 @@ OPERATORS = {"|", "||", "&&", ";", "&", ">", ">>", "<", "2>", "2>&1", "&>", "1>"
 def hevr_commands(lines: list[str], start: int, console: bool) -> list[tuple[int, list[str]]]:
     """(line number, argv after ``hevr``) of every ``hevr`` command of a shell block: a line of it
     (``$ `` prompted in a console block; there an unprompted line is output), continuation lines
-    joined, each command of a ``&&``/``|``/``;`` chain, ``hevr`` or a path ending in ``/hevr``.
+    joined, each command of a ``&&``/``|``/``;`` chain, ``hevr`` or a path ending in ``/hevr``;
+    a variable the block sets (``S3="--storage-option ..."``) expanded as the shell would.
 
     >>> hevr_commands(["$ hevr render v.zarr --out f.hevr \\\\", "    --size 8x8  # small", "out"], 1, True)
     [(1, ['render', 'v.zarr', '--out', 'f.hevr', '--size', '8x8'])]
     >>> hevr_commands(["pip install . && .venv/bin/hevr demo --out d | tail -1"], 5, False)
     [(5, ['demo', '--out', 'd'])]
+    >>> hevr_commands(['Q="-q --force"', "hevr demo $Q --out ${OUT}"], 1, False)
+    [(2, ['demo', '-q', '--force', '--out', '${OUT}'])]
     """
     out = []
+    env: dict[str, str] = {}
     i = 0
     while i < len(lines):
         number, line = start + i, lines[i]
@@ -97,13 +102,17 @@ def hevr_commands(lines: list[str], start: int, console: bool) -> list[tuple[int
             words = shlex.split(text, comments=True)
         except ValueError:
             words = text.split()
+        settings = words[1:] if words[:1] == ["export"] else words
+        if settings and all(ASSIGNMENT.fullmatch(w) for w in settings):
+            env.update(w.split("=", 1) for w in settings)
+            continue
         command: list[str] = []
         for word in [*words, ";"]:
             if word in OPERATORS or re.fullmatch(r"\d?>>?\S*", word):
                 if command:
                     argv = _after_hevr(command)
                     if argv is not None:
-                        out.append((number, argv))
+                        out.append((number, _expand(argv, env)))
                 command = []
                 if word not in {"|", "||", "&&", ";", "&"}:
                     command = ["<redirect>"]  # the rest until the next operator is not a command
@@ -112,16 +121,30 @@ def hevr_commands(lines: list[str], start: int, console: bool) -> list[tuple[int
     return out
 
 
+ASSIGNMENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*=.*")
+
+
+def _expand(argv: list[str], env: dict[str, str]) -> list[str]:
+    """``$NAME`` and ``${NAME}`` words of variables the block set, split as the shell splits them."""
+    out: list[str] = []
+    for word in argv:
+        m = re.fullmatch(r"\$(?:\{(\w+)\}|(\w+))", word)
+        name = m and (m[1] or m[2])
+        out += shlex.split(env[name]) if name in env else [word]
+    return out
+
+
 def _after_hevr(words: list[str]) -> list[str] | None:
     """The arguments of a command whose program is hevr (after ``VAR=value`` settings)."""
     k = 0
-    while k < len(words) and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*=.*", words[k]):
+    while k < len(words) and ASSIGNMENT.fullmatch(words[k]):
         k += 1
     if k < len(words) and (words[k] == "hevr" or words[k].endswith("/hevr")):
-        return _unbracket(words[k + 1:])
-    if words[k:k + 3] in (["python", "-m", "hevr"], ["python3", "-m", "hevr"]) or (
-            len(words) > k + 2 and words[k].endswith("/python") and words[k + 1:k + 3] == ["-m", "hevr"]):
-        return _unbracket(words[k + 3:])
+        return _unbracket(words[k + 1 :])
+    if words[k : k + 3] in (["python", "-m", "hevr"], ["python3", "-m", "hevr"]) or (
+        len(words) > k + 2 and words[k].endswith("/python") and words[k + 1 : k + 3] == ["-m", "hevr"]
+    ):
+        return _unbracket(words[k + 3 :])
     return None
 
 
@@ -131,8 +154,10 @@ def _unbracket(argv: list[str]) -> list[str]:
     >>> _unbracket(["render", "[--cafile", "ca.pem]", "[-q]"])
     ['render', '--cafile', 'ca.pem', '-q']
     """
-    return [w[1:] if w.startswith("[") and not w.startswith("[[") else w for w in
-            (w[:-1] if w.endswith("]") and not w.endswith("]]") and "[" not in w[1:] else w for w in argv)]
+    return [
+        w[1:] if w.startswith("[") and not w.startswith("[[") else w
+        for w in (w[:-1] if w.endswith("]") and not w.endswith("]]") and "[" not in w[1:] else w for w in argv)
+    ]
 
 
 def _documented_commands() -> list[tuple[str, int, list[str]]]:
@@ -194,7 +219,7 @@ def test_the_pages_doctests_run(page, tmp_path, monkeypatch):
     report = io.StringIO()
     name = str(page.relative_to(ROOT))
     ran = 0
-    for info, start, lines in fenced_blocks(page.read_text(encoding="utf-8")):
+    for _info, start, lines in fenced_blocks(page.read_text(encoding="utf-8")):
         if not any(line.lstrip().startswith(">>>") for line in lines):
             continue
         test = parser.get_doctest("\n".join(lines) + "\n", globs, name, str(page), start - 1)
@@ -225,10 +250,31 @@ def test_the_site_builds(tmp_path):
     pytest.importorskip("numpydoc")
     pytest.importorskip("myst_parser")
     pytest.importorskip("pydata_sphinx_theme")
-    run = subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html",
-                          "-d", str(tmp_path / "doctrees"), str(DOCS), str(tmp_path / "html")],
-                         capture_output=True, text=True, timeout=300)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sphinx",
+            "-W",
+            "--keep-going",
+            "-q",
+            "-b",
+            "html",
+            "-d",
+            str(tmp_path / "doctrees"),
+            str(DOCS),
+            str(tmp_path / "html"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert run.returncode == 0, run.stderr[-5000:]
-    for page in ("index.html", "reference/api.html", "reference/cli.html", "reference/protocol.html",
-                 "benchmarks.html"):
+    for page in (
+        "index.html",
+        "reference/api.html",
+        "reference/cli.html",
+        "reference/protocol.html",
+        "benchmarks.html",
+    ):
         assert (tmp_path / "html" / page).stat().st_size > 0, page

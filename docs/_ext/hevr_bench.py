@@ -74,8 +74,9 @@ def plot_table1(doc: dict, path: Path) -> None:
         ax.set_yscale("log", base=10)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle(f"Table 1: X-ray of the {doc['setting']['size']}³ phantom to {doc['setting']['image']}² pixels",
-                 fontsize=11)
+    fig.suptitle(
+        f"Table 1: X-ray of the {doc['setting']['size']}³ phantom to {doc['setting']['image']}² pixels", fontsize=11
+    )
     fig.tight_layout()
     _save(fig, path)
 
@@ -86,9 +87,11 @@ def plot_table3(doc: dict, path: Path) -> None:
     plt = _plt()
     cells, bits = doc["cells"], doc["setting"]["t3_bits"]
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.9))
-    rows = (("encrypt", lambda b: _cell(cells, f"t3.{b}.4.encrypt", "seconds"), paper.TABLE3_ENCRYPT[4]),
-            ("render, 4 colours", lambda b: _cell(cells, f"t3.{b}.4.4", "seconds"), paper.TABLE3_RENDER[(4, 4)]),
-            ("decrypt, 4 colours", lambda b: _cell(cells, f"t3.{b}.4.4", "decrypt_s"), paper.TABLE3_DECRYPT[(4, 4)]))
+    rows = (
+        ("encrypt", lambda b: _cell(cells, f"t3.{b}.4.encrypt", "seconds"), paper.TABLE3_ENCRYPT[4]),
+        ("render, 4 colours", lambda b: _cell(cells, f"t3.{b}.4.4", "seconds"), paper.TABLE3_RENDER[(4, 4)]),
+        ("decrypt, 4 colours", lambda b: _cell(cells, f"t3.{b}.4.4", "decrypt_s"), paper.TABLE3_DECRYPT[(4, 4)]),
+    )
     for ax, (title, ours_of, theirs) in zip(axes, rows):
         ours = [(b, ours_of(b)) for b in bits]
         ours = [(b, v) for b, v in ours if v is not None]

@@ -121,7 +121,7 @@ class HevrCli(SphinxDirective):
         if oneline:
             section += nodes.paragraph(text=oneline[:1].upper() + oneline[1:] + ".")
         usage = parser.format_usage().strip()
-        usage = usage[len("usage: "):] if usage.startswith("usage: ") else usage
+        usage = usage[len("usage: ") :] if usage.startswith("usage: ") else usage
         section += nodes.literal_block(usage, usage, language="text", classes=["hevr-cli-usage"])
         if parser.description:
             section.extend(_paragraphs(parser.description))

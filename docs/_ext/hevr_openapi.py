@@ -42,13 +42,19 @@ def _operation(path: str, method: str, op: dict, doc: dict, also_head: bool) -> 
     title = f"`{method.upper()} {path}`" + (" (and `HEAD`)" if also_head else "")
     out = [f"### {title}", "", op.get("summary", "").rstrip(".").capitalize() + ".", ""]
     security = op.get("security", doc.get("security"))
-    out += ["Asks for no token." if security == [] else
-            "Asks for the bearer token (on a server with a token table).", ""]
+    out += [
+        "Asks for no token." if security == [] else "Asks for the bearer token (on a server with a token table).",
+        "",
+    ]
     params = op.get("parameters", [])
     if params:
         out += ["| parameter | in | accepts | meaning |", "|---|---|---|---|"]
         for p in params:
-            accepts = f"`{p['schema']['pattern']}`" if "pattern" in p.get("schema", {}) else p.get("schema", {}).get("type", "")
+            accepts = (
+                f"`{p['schema']['pattern']}`"
+                if "pattern" in p.get("schema", {})
+                else p.get("schema", {}).get("type", "")
+            )
             out.append(f"| `{p['name']}` | {p['in']} | {_cell(accepts)} | {_cell(p.get('description', ''))} |")
         out.append("")
     body = op.get("requestBody")
@@ -57,7 +63,9 @@ def _operation(path: str, method: str, op: dict, doc: dict, also_head: bool) -> 
     out += ["| status | answer | body | headers |", "|---|---|---|---|"]
     for status, answer in op["responses"].items():
         headers = ", ".join(f"`{h}`" for h in answer.get("headers", {}))
-        out.append(f"| {status} | {_cell(answer.get('description', ''))} | {_content(answer.get('content', {}))} | {headers} |")
+        out.append(
+            f"| {status} | {_cell(answer.get('description', ''))} | {_content(answer.get('content', {}))} | {headers} |"
+        )
     out.append("")
     return out
 
@@ -69,19 +77,30 @@ def openapi_markdown() -> str:
 
     doc = openapi_document()
     info = doc["info"]
-    out = [f"The OpenAPI {doc['openapi']} document of `{info['title']}` {info['version']} "
-           f"({{download}}`openapi.json </_generated/openapi.json>`, as the server answers it at "
-           f"`GET /v1/openapi.json`), "
-           f"in tables.", "", _cell(info["description"]), "", "## Endpoints", ""]
+    out = [
+        f"The OpenAPI {doc['openapi']} document of `{info['title']}` {info['version']} "
+        f"({{download}}`openapi.json </_generated/openapi.json>`, as the server answers it at "
+        f"`GET /v1/openapi.json`), "
+        f"in tables.",
+        "",
+        _cell(info["description"]),
+        "",
+        "## Endpoints",
+        "",
+    ]
     for path, item in doc["paths"].items():
         methods = [m for m in METHODS if m in item]
         for method in methods:
             if method == "head" and "get" in item:
                 continue  # said with its GET: the same status and headers, no body
             out += _operation(path, method, item[method], doc, also_head=method == "get" and "head" in item)
-    out += ["## Schemas", "",
-            "The JSON Schema of each model of `hevr.remote.schema` (the same models check every request "
-            "the server receives and every JSON answer the key holder's client reads).", ""]
+    out += [
+        "## Schemas",
+        "",
+        "The JSON Schema of each model of `hevr.remote.schema` (the same models check every request "
+        "the server receives and every JSON answer the key holder's client reads).",
+        "",
+    ]
     models = {m.__name__: m for m in schema.MODELS}
     for name, s in doc["components"]["schemas"].items():
         out += [f"(schema-{name.lower()})=", f"### `{name}`", ""]
