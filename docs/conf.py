@@ -46,28 +46,15 @@ root_doc = "index"
 exclude_patterns = ["_build", "_generated", "images/README*", "Thumbs.db", ".DS_Store"]
 templates_path: list[str] = []
 
-# The prose pages written alongside this site (getting started, the guide, the operator's pages,
-# security): while one of them is not there yet the root toctree's entry for it is not an error.
-# Once all are there (the normal state) a missing page fails the build like any other warning.
-_PROSE = ["getting-started.md", "guide/index.md", "operator/index.md", "security.md"]
-suppress_warnings = ["toc.not_readable"] if any(not (DOCS / p).exists() for p in _PROSE) else []
-
 # MyST: heading anchors so that the pages' ``file.md#section`` links resolve, ``:::`` fences,
-# definition lists and ``$`` maths.
-myst_enable_extensions = ["colon_fence", "deflist", "dollarmath", "fieldlist", "substitution"]
+# definition lists and field lists (no ``$`` maths: the pages write shell variables such as $HEVR_KNOWN_STORES).
+myst_enable_extensions = ["colon_fence", "deflist", "fieldlist"]
 myst_heading_anchors = 4
-myst_url_schemes = {
-    "http": None,
-    "https": None,
-    "mailto": None,
-    # a link to a file of the repository outside docs/ (``../hevr/serve/openapi.py``) is read as
-    # an external link to it in the repository
-}
 
 # autodoc / numpydoc: the docstrings are numpydoc; the lazily re-exported names of ``hevr`` are
 # documented as ``hevr.NAME``.
 autodoc_default_options = {"member-order": "bysource"}
-autodoc_typehints = "none"  # the signatures carry the annotations; numpydoc's sections the prose
+autodoc_typehints = "none"  # signatures without annotations: numpydoc's Parameters sections give the types
 autodoc_preserve_defaults = True
 autosummary_generate = False
 numpydoc_show_class_members = False
