@@ -4,11 +4,14 @@
 ``main``              the entry point: parse, run the command, one exit-status rule
 ``parser``            the table of commands and the parser, built per command on demand
 ``arguments``         keygen, convert-key, info, upgrade-store, bench: their arguments
-``render_arguments``  encrypt, render, recolour, slice, decrypt, pyramid, demo: theirs
+``owner_arguments``   encrypt, pyramid, demo: their arguments
+``render_arguments``  render, recolour, slice, decrypt: theirs
 ``options``           argparse value types and shared option groups (light)
 ``render_options``    types and options quoting the render side (presets, views, sizes)
 ``keys``              keygen, convert-key, reading a ``--key``, ``info KEY``
-``commands``          encrypt, render, recolour, decrypt, upgrade-store
+``encrypt``           ``hevr encrypt`` and ``hevr upgrade-store``
+``render``            ``hevr render``; the mode and store checks the render commands share
+``decrypt``           ``hevr recolour`` and ``hevr decrypt``
 ``info``              ``hevr info``: a key file here, everything else to ``describe``
 ``describe``          what ``hevr info`` says about stores, frames, sums files, scans
 ``slice``             ``hevr slice``: encrypted planes (axial, coronal, sagittal, oblique)

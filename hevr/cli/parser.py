@@ -77,19 +77,19 @@ COMMANDS: tuple[Command, ...] = (
         ".keys:cmd_convert_key",
     ),
     Command(
-        "encrypt", "encrypt a volume into a Zarr store", ".render_arguments:encrypt_arguments", ".commands:cmd_encrypt"
+        "encrypt", "encrypt a volume into a Zarr store", ".owner_arguments:encrypt_arguments", ".encrypt:cmd_encrypt"
     ),
     Command(
         "render",
         "render an encrypted volume to an encrypted image (no key needed)",
         ".render_arguments:render_arguments",
-        ".commands:cmd_render",
+        ".render:cmd_render",
     ),
     Command(
         "recolour",
         "re-colour saved ray sums with another density or transfer function (no map step)",
         ".render_arguments:recolour_arguments",
-        ".commands:cmd_recolour",
+        ".decrypt:cmd_recolour",
     ),
     Command(
         "slice",
@@ -101,7 +101,7 @@ COMMANDS: tuple[Command, ...] = (
         "decrypt",
         "decrypt an encrypted image to PNG (and colour a client-finished frame)",
         ".render_arguments:decrypt_arguments",
-        ".commands:cmd_decrypt",
+        ".decrypt:cmd_decrypt",
     ),
     Command(
         "info",
@@ -119,12 +119,12 @@ COMMANDS: tuple[Command, ...] = (
         "upgrade-store",
         "convert a format-1 store (no integrity digests) into a new format-2 store",
         ".arguments:upgrade_store_arguments",
-        ".commands:cmd_upgrade_store",
+        ".encrypt:cmd_upgrade_store",
     ),
     Command(
         "pyramid",
         "add coarse levels (2x2x2 means) to a store, for quick previews (no key needed)",
-        ".render_arguments:pyramid_arguments",
+        ".owner_arguments:pyramid_arguments",
         ".pyramid:cmd_pyramid",
     ),
     Command(
@@ -142,7 +142,7 @@ COMMANDS: tuple[Command, ...] = (
     Command(
         "demo",
         "the whole pipeline on the paper's figures, no input needed",
-        ".render_arguments:demo_arguments",
+        ".owner_arguments:demo_arguments",
         ".demo:cmd_demo",
     ),
     Command(

@@ -28,8 +28,8 @@ from ..rendering.geometry.plane import Plane
 from ..rendering.packed.planes import plane_kind
 from ..rendering.planning.planner import check_render_size
 from ..rendering.slices import render_slice
-from .commands import compute_context, key_holder, open_for_mode, resolve_mode, verified_line, warn_unverified
 from .finish import report_finish
+from .render import compute_context, open_for_mode, resolve_mode
 from .render_options import format_tf
 from .scan import resolve_tf
 from .storage import output_file, save_decrypted, save_frame, size_of, storage_options
@@ -42,6 +42,7 @@ from .util import (
     wh,
     xyz,
 )
+from .verifying import key_holder, verified_line, warn_unverified
 
 __all__ = ["cmd_slice"]
 
