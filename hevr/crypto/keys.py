@@ -1,5 +1,7 @@
-"""Paillier keys (g = n + 1): generation, encryption, CRT decryption; saving as JSON, in hevr's
-format or python-paillier's (loading: :mod:`hevr.crypto.keyfile`, :mod:`hevr.crypto.phe_keys`).
+"""Paillier keys (g = n + 1): generation, and thin classes over the ``raw_`` integer functions of
+:mod:`hevr.crypto.paillier` for encryption and CRT decryption. Key files (hevr's JSON or
+python-paillier's) are :mod:`hevr.crypto.keyfile`'s and :mod:`hevr.crypto.phe_keys`' business; the
+classes' ``save`` and ``to_dict`` hand over to them.
 
 >>> import warnings, hevr
 >>> with warnings.catch_warnings():
@@ -14,25 +16,24 @@ log line or an exception message; private key files are created with mode 0600.
 
 from __future__ import annotations
 
-import base64
-import json
 import logging
+import os
 import warnings
 from collections.abc import Iterable, Sequence
 from numbers import Integral
+from typing import Any
 
 import gmpy2
 import numpy as np
 from gmpy2 import mpz
 
-from ..core.files import write_atomic
 from ..errors import InsecureKeyWarning, KeyMismatchError, ParameterError
-from ..runtime.recent import Recent
 from . import paillier as raw
 from .encoding import decode
 from .number import EncryptedNumber
-from .owner import OwnerEncryptor
-from .primes import is_probable_prime, random_prime_with_factors
+from .owner import OwnerEncryptor, owner_tables
+from .paillier import factor_problem
+from .primes import random_prime_with_factors
 from .public_masks import public_mask
 from .records import record_width
 
@@ -60,58 +61,8 @@ def _as_int_list(values: np.ndarray | Iterable[int], name: str) -> list[int]:
     if isinstance(values, np.ndarray):
         if values.dtype.kind not in "iub" and values.dtype != object:
             raise ParameterError(f"{name} must hold integers; got dtype {values.dtype}")
-        return values.ravel().tolist()
+        return [int(v) for v in values.ravel().tolist()]
     return [int(v) for v in values]
-
-
-def _check_format(format: str) -> str:
-    """``format`` if it is one of :data:`KEY_FORMATS`, else :class:`hevr.ParameterError`.
-
-    >>> _check_format("pem")
-    Traceback (most recent call last):
-    ...
-    hevr.errors.ParameterError: format: expected 'hevr' or 'phe', got 'pem'
-    """
-    if not isinstance(format, str) or format not in KEY_FORMATS:
-        raise ParameterError(f"format: expected 'hevr' or 'phe', got {format!r:.40}")
-    return format
-
-
-def _b64url(x: int) -> str:
-    """A positive integer as unpadded base64url of its minimal big-endian bytes (JWK style,
-    as python-paillier's ``phe.util.int_to_base64``).
-
-    >>> _b64url(65537)
-    'AQAB'
-    """
-    x = int(x)
-    return base64.urlsafe_b64encode(x.to_bytes((x.bit_length() + 7) // 8, "big")).rstrip(b"=").decode("ascii")
-
-
-def factor_problem(n: int, p: int, q: int) -> str | None:
-    """What is wrong with ``p`` and ``q`` as the secret factors of ``n``, or None if nothing.
-
-    Checks p·q = n, p ≠ q, half the bits of n each, primality and gcd(n, (p-1)(q-1)) = 1. The
-    answer never quotes p or q (they are secret).
-
-    >>> factor_problem(11 * 13, 11, 13) is None
-    True
-    >>> factor_problem(9 * 15, 9, 15)
-    'p or q is not prime'
-    """
-    n, p, q = mpz(n), mpz(p), mpz(q)
-    half = n.bit_length() // 2
-    if p * q != n:
-        return "p·q does not equal n (file tampered with?)"
-    if p == q:
-        return "p and q must be distinct"
-    if p.bit_length() != half or q.bit_length() != half:
-        return f"p and q must each have {half} bits"
-    if not (is_probable_prime(p) and is_probable_prime(q)):
-        return "p or q is not prime"
-    if gmpy2.gcd(n, (p - 1) * (q - 1)) != 1:
-        return "gcd(n, (p-1)(q-1)) must be 1"
-    return None
 
 
 class PublicKey:
@@ -220,32 +171,21 @@ class PublicKey:
         if gmpy2.gcd(c, self.n) != 1:
             raise ParameterError("ciphertext must be coprime to n; got one that is not")
 
-    # -- files ----------------------------------------------------------------------
-    def to_dict(self, format: str = "hevr") -> dict:
+    # -- files (:mod:`hevr.crypto.keyfile`) ------------------------------------------------
+    def to_dict(self, format: str = "hevr") -> dict[str, Any]:
         """The JSON object of the key file: ``format="hevr"`` (hevr's) or ``"phe"`` (pheutil's)."""
-        if _check_format(format) == "phe":
-            return {
-                "kty": "DAJ",
-                "alg": "PAI-GN1",
-                "key_ops": ["encrypt"],
-                "n": _b64url(self.n),
-                "kid": f"Paillier public key exported by hevr, fingerprint {self.fingerprint}",
-            }
-        return {
-            "format": "hevr-key",
-            "version": 1,
-            "kind": "public",
-            "bits": self.bits,
-            "n": str(int(self.n)),
-            "fingerprint": self.fingerprint,
-        }
+        from .keyfile import key_dict  # keyfile imports this module
 
-    def save(self, path, overwrite: bool = False, format: str = "hevr") -> None:
+        return key_dict(self, format)
+
+    def save(self, path: str | os.PathLike[str], overwrite: bool = False, format: str = "hevr") -> None:
         """Write the public key as JSON (world-readable is fine); read it with :func:`hevr.load_key`.
         An existing file is replaced only with ``overwrite=True`` (:class:`hevr.ExistingFileError`).
-        ``format="phe"`` writes python-paillier's ``pheutil`` JSON instead of hevr's."""
-        text = json.dumps(self.to_dict(format), indent=1) + "\n"
-        write_atomic(path, text, mode=0o644, overwrite=overwrite)
+        ``format="phe"`` writes python-paillier's ``pheutil`` JSON instead of hevr's
+        (:func:`hevr.crypto.keyfile.save_key`)."""
+        from .keyfile import save_key  # keyfile imports this module
+
+        save_key(self, path, overwrite=overwrite, format=format)
 
 
 class PrivateKey:
@@ -276,14 +216,10 @@ class PrivateKey:
         self.public_key = public_key
         self.p, self.q = p, q
         self._psquare, self._qsquare = p * p, q * q
-        self._hp = self._h(p, self._psquare)
-        self._hq = self._h(q, self._qsquare)
-        self._p_inv_q = gmpy2.invert(p, q)
+        self._hp = raw.raw_crt_h(p, self._psquare, public_key.g)
+        self._hq = raw.raw_crt_h(q, self._qsquare, public_key.g)
+        self._p_inv_q = mpz(gmpy2.invert(p, q))
         self._owner: OwnerEncryptor | None = None
-
-    def _h(self, x: mpz, xsquare: mpz) -> mpz:
-        lx = (gmpy2.powmod(self.public_key.g, x - 1, xsquare) - 1) // x
-        return gmpy2.invert(lx, x)
 
     def __repr__(self) -> str:
         return f"PrivateKey(bits={self.public_key.bits}, fingerprint={self.public_key.fingerprint[:16]}…)"
@@ -305,7 +241,8 @@ class PrivateKey:
         >>> with warnings.catch_warnings():
         ...     warnings.simplefilter("ignore")
         ...     pub, priv = generate_keypair(64, require_tags=False)
-        >>> priv.require_tags, priv.with_policy(require_tags=True).require_tags, priv.with_policy(require_tags=True) == priv
+        >>> strict = priv.with_policy(require_tags=True)
+        >>> priv.require_tags, strict.require_tags, strict == priv
         (False, True, True)
         """
         return PrivateKey(self.public_key, int(self.p), int(self.q), require_tags=require_tags)
@@ -318,7 +255,7 @@ class PrivateKey:
     @property
     def owner(self) -> OwnerEncryptor:
         if self._owner is None:
-            self._owner = _owner_tables(self.p, self.q)
+            self._owner = owner_tables(self.p, self.q)
         return self._owner
 
     def encrypt(self, m: int, *, unsafe_no_obfuscation: bool = False) -> mpz:
@@ -386,46 +323,27 @@ class PrivateKey:
             )
         return self.decrypt(x.ciphertext)
 
-    # -- files ----------------------------------------------------------------------
-    def to_dict(self, format: str = "hevr") -> dict:
+    # -- files (:mod:`hevr.crypto.keyfile`) ------------------------------------------------
+    def to_dict(self, format: str = "hevr") -> dict[str, Any]:
         """The JSON object of the key file (secret): ``format="hevr"`` or ``"phe"`` (pheutil's)."""
-        pub = self.public_key.to_dict(format)
-        if format == "phe":  # checked by the line above
-            return {
-                "kty": "DAJ",
-                "key_ops": ["decrypt"],
-                "p": _b64url(self.p),
-                "q": _b64url(self.q),
-                "pub": pub,
-                "kid": f"Paillier private key exported by hevr, fingerprint {self.fingerprint}",
-            }
-        pub.update(kind="private", p=str(int(self.p)), q=str(int(self.q)), policy={"require_tags": self.require_tags})
-        return pub
+        from .keyfile import key_dict  # keyfile imports this module
 
-    def save(self, path, overwrite: bool = False, format: str = "hevr") -> None:
+        return key_dict(self, format)
+
+    def save(self, path: str | os.PathLike[str], overwrite: bool = False, format: str = "hevr") -> None:
         """Write the private key as JSON, created with mode 0600 (atomically); read it with
         :func:`hevr.load_key`. An existing file is never replaced unless ``overwrite=True``
         (:class:`hevr.ExistingFileError`): a key written over loses every image it decrypts.
-        ``format="phe"`` writes python-paillier's ``pheutil`` JSON instead of hevr's."""
-        text = json.dumps(self.to_dict(format), indent=1) + "\n"
-        write_atomic(path, text, mode=0o600, overwrite=overwrite)
+        ``format="phe"`` writes python-paillier's ``pheutil`` JSON instead of hevr's
+        (:func:`hevr.crypto.keyfile.save_key`)."""
+        from .keyfile import save_key  # keyfile imports this module
+
+        save_key(self, path, overwrite=overwrite, format=format)
 
 
 def _private_key(public_key: PublicKey, p: int, q: int, require_tags: bool) -> PrivateKey:
     """Unpickling (:meth:`PrivateKey.__reduce__`): the policy is keyword-only."""
     return PrivateKey(public_key, p, q, require_tags=require_tags)
-
-
-_OWNER_CACHE = Recent(2)  # n -> OwnerEncryptor
-
-
-def _owner_tables(p: mpz, q: mpz) -> OwnerEncryptor:
-    """One set of fixed-base tables per key and process: every Dask task unpickles its own
-    PrivateKey, and rebuilding ~100 MB of tables per brick would cost ~0.7 s each time.
-    Kept in process memory only, for the two most recent keys."""
-    n = int(p * q)
-    enc = _OWNER_CACHE.find(n)
-    return enc if enc is not None else _OWNER_CACHE.keep(n, OwnerEncryptor(p, q))
 
 
 def generate_keypair(bits: int = 2048, *, require_tags: bool = True) -> tuple[PublicKey, PrivateKey]:

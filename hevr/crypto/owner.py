@@ -38,6 +38,7 @@ from collections.abc import Iterable
 import gmpy2
 from gmpy2 import mpz
 
+from ..runtime.recent import Recent
 from .primes import factor_p_minus_1, generator_mod_p
 
 
@@ -161,3 +162,20 @@ class OwnerEncryptor:
         p2, q2 = self._hp.psquare, self._hq.psquare
         mp, mq = self._hp.mask(), self._hq.mask()
         return mq + q2 * ((mp - mq) * self._q2_inv_p2 % p2)
+
+
+_OWNER_CACHE = Recent(2)  # n -> OwnerEncryptor
+
+
+def owner_tables(p: mpz, q: mpz) -> OwnerEncryptor:
+    """The :class:`OwnerEncryptor` of the key with factors ``p``, ``q``: one set of fixed-base tables
+    per key and process. Every Dask task unpickles its own private key, and rebuilding ~100 MB of
+    tables per brick would cost ~0.7 s each time. Kept in process memory only, for the two most
+    recent keys."""
+    n = int(p * q)
+    enc = _OWNER_CACHE.find(n)
+    if isinstance(enc, OwnerEncryptor):
+        return enc
+    enc = OwnerEncryptor(p, q)
+    _OWNER_CACHE.keep(n, enc)
+    return enc

@@ -26,6 +26,7 @@ import gmpy2
 from gmpy2 import mpz
 
 from ..errors import ParameterError, PlaintextOverflowError
+from .primes import is_probable_prime
 
 __all__ = [
     "raw_encrypt_nude",
@@ -34,12 +35,14 @@ __all__ = [
     "raw_neg",
     "raw_sub",
     "raw_mul",
+    "raw_crt_h",
     "raw_decrypt_crt",
     "raw_decrypt_crt_list",
     "raw_decode_signed",
     "raw_encode_signed",
     "max_int",
     "fingerprint",
+    "factor_problem",
 ]
 
 
@@ -123,6 +126,44 @@ def raw_mul(c: mpz, k: int, n: mpz, nsquare: mpz) -> mpz:
     if k == 1:
         return mpz(c)
     return gmpy2.powmod(c, k, nsquare)
+
+
+def factor_problem(n: int, p: int, q: int) -> str | None:
+    """What is wrong with ``p`` and ``q`` as the secret factors of ``n``, or None if nothing.
+
+    Checks p·q = n, p ≠ q, half the bits of n each, primality and gcd(n, (p-1)(q-1)) = 1. The
+    answer never quotes p or q (they are secret).
+
+    >>> factor_problem(11 * 13, 11, 13) is None
+    True
+    >>> factor_problem(9 * 15, 9, 15)
+    'p or q is not prime'
+    """
+    n, p, q = mpz(n), mpz(p), mpz(q)
+    half = n.bit_length() // 2
+    if p * q != n:
+        return "p·q does not equal n (file tampered with?)"
+    if p == q:
+        return "p and q must be distinct"
+    if p.bit_length() != half or q.bit_length() != half:
+        return f"p and q must each have {half} bits"
+    if not (is_probable_prime(p) and is_probable_prime(q)):
+        return "p or q is not prime"
+    if gmpy2.gcd(n, (p - 1) * (q - 1)) != 1:
+        return "gcd(n, (p-1)(q-1)) must be 1"
+    return None
+
+
+def raw_crt_h(x: mpz, xsquare: mpz, g: mpz) -> mpz:
+    """The CRT constant h_x = L_x(g^(x-1) mod x²)^-1 mod x of a prime factor x of n, L_x(u) = (u - 1) / x.
+
+    For g = n + 1, g^(x-1) = 1 + (x-1)·n mod x², so h_x = ((x-1)·n/x)^-1 mod x:
+
+    >>> int(raw_crt_h(mpz(11), mpz(121), mpz(11 * 13 + 1))) == int(gmpy2.invert(10 * 13, 11))
+    True
+    """
+    lx = (gmpy2.powmod(g, x - 1, xsquare) - 1) // x
+    return mpz(gmpy2.invert(lx, x))
 
 
 def raw_decrypt_crt(c: mpz, p: mpz, q: mpz, psquare: mpz, qsquare: mpz, hp: mpz, hq: mpz, p_inv_q: mpz) -> mpz:

@@ -24,7 +24,7 @@ Reading (:func:`key_from_phe_dict`, used by :func:`hevr.load_key`) accepts both 
 private key: without p and q they are recovered from ``lambda`` (:func:`factor_from_lambda`),
 and a file with both forms must agree with itself. Fields are validated as hevr's own key
 files are — sizes within [MIN_BITS, MAX_BITS], p·q = n, primality
-(:func:`hevr.crypto.keys.factor_problem`) — and a problem raises :class:`hevr.InvalidKeyError`
+(:func:`hevr.crypto.paillier.factor_problem`) — and a problem raises :class:`hevr.InvalidKeyError`
 naming the field, never quoting a secret. Writing (:func:`phe_key_dict`,
 ``key.save(path, format="phe")``) uses the current form, p and q, which pheutil ≥ 1.3 reads.
 
@@ -44,12 +44,14 @@ import base64
 import math
 import re
 import secrets
+from typing import Any
 
 import gmpy2
 from gmpy2 import mpz
 
 from ..errors import InvalidKeyError, ParameterError
-from .keys import MAX_BITS, MIN_BITS, PrivateKey, PublicKey, factor_problem
+from .keys import MAX_BITS, MIN_BITS, PrivateKey, PublicKey
+from .paillier import factor_problem
 
 __all__ = ["PHE_ALG", "PHE_KTY", "factor_from_lambda", "is_phe_dict", "key_from_phe_dict", "phe_key_dict"]
 
@@ -62,7 +64,18 @@ _FACTOR_TRIES = 40  # random bases for Miller's method (each succeeds with proba
 _PRIVATE_FIELDS = ("pub", "p", "q", "lambda", "mu")
 
 
-def phe_key_dict(key: PublicKey | PrivateKey) -> dict:
+def _b64url(x: int) -> str:
+    """A positive integer as unpadded base64url of its minimal big-endian bytes (JWK style,
+    as python-paillier's ``phe.util.int_to_base64``).
+
+    >>> _b64url(65537)
+    'AQAB'
+    """
+    x = int(x)
+    return base64.urlsafe_b64encode(x.to_bytes((x.bit_length() + 7) // 8, "big")).rstrip(b"=").decode("ascii")
+
+
+def phe_key_dict(key: PublicKey | PrivateKey) -> dict[str, Any]:
     """The pheutil JSON object of an hevr key (secret for a private key).
 
     Parameters
@@ -83,7 +96,22 @@ def phe_key_dict(key: PublicKey | PrivateKey) -> dict:
     """
     if not isinstance(key, (PublicKey, PrivateKey)):
         raise ParameterError(f"key: expected a PublicKey or PrivateKey, got {type(key).__name__}")
-    return key.to_dict(format="phe")
+    if isinstance(key, PrivateKey):
+        return {
+            "kty": PHE_KTY,
+            "key_ops": ["decrypt"],
+            "p": _b64url(key.p),
+            "q": _b64url(key.q),
+            "pub": phe_key_dict(key.public_key),
+            "kid": f"Paillier private key exported by hevr, fingerprint {key.fingerprint}",
+        }
+    return {
+        "kty": PHE_KTY,
+        "alg": PHE_ALG,
+        "key_ops": ["encrypt"],
+        "n": _b64url(key.n),
+        "kid": f"Paillier public key exported by hevr, fingerprint {key.fingerprint}",
+    }
 
 
 def is_phe_dict(d: object) -> bool:

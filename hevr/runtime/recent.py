@@ -16,7 +16,7 @@ from typing import Any
 __all__ = ["Recent"]
 
 
-class Recent(dict):
+class Recent(dict[Any, Any]):
     """A dict of at most ``size`` entries; :meth:`keep` drops the oldest first."""
 
     def __init__(self, size: int) -> None:

@@ -13,7 +13,7 @@ import pytest
 import hevr
 from hevr.cli.main import main
 from hevr.crypto.keyfile import modulus_problem
-from hevr.crypto.keys import _b64url
+from hevr.crypto.phe_keys import _b64url
 from hevr.errors import KeyFilePermissionWarning
 
 
