@@ -18,7 +18,7 @@ import hevr
 from hevr.bench.measure import machine
 from hevr.bench.pipeline import trace_frame
 from hevr.paper import TF_NODES
-from hevr.rendering import encrypted as render_mod
+from hevr.rendering import view as render_mod
 
 warnings.simplefilter("ignore")
 

@@ -18,7 +18,8 @@ import pytest
 
 import hevr
 from hevr.cli.main import main
-from hevr.rendering import encrypted as encrypted_mod
+from hevr.rendering import cache as render_cache
+from hevr.rendering import view as view_mod
 from hevr.rendering.pipeline import sums as sums_mod
 from hevr.runtime import progress as _progress
 from hevr.runtime import scheduler as _dask
@@ -119,11 +120,11 @@ def test_deferred_render_from_cached_sums_and_resident_bricks(stores):
     full = hevr.render(ev, cam, mode="tf", nodes=NODES, cache=False, progress=False)
     hevr.clear_cache()
     d = hevr.render(ev, cam, mode="tf", nodes=NODES, compute=False)
-    assert len(encrypted_mod._CACHE) == 0 and _same(d.compute(), full)
+    assert len(render_cache._CACHE) == 0 and _same(d.compute(), full)
     hevr.render(ev, cam, mode="emphasize", density=0.3, progress=False)  # caches the vector sums
     d = hevr.render(ev, cam, mode="tf", nodes=NODES, compute=False)
     img = d.compute(scheduler="sync")
-    assert _same(img, full) and img.stats["map_tasks"] == 0 and len(encrypted_mod._CACHE) == 1
+    assert _same(img, full) and img.stats["map_tasks"] == 0 and len(render_cache._CACHE) == 1
     d = hevr.render(ev.persist(), cam, mode="tf", nodes=NODES, compute=False, cache=False)
     img = d.compute()
     assert _same(img, full) and img.stats["resident"] is True
@@ -196,7 +197,7 @@ def test_keep_sums_path_is_checked_before_any_map_task(stores, tmp_path, monkeyp
     def no_tasks(*a, **k):
         raise AssertionError("the render ran before keep_sums was checked")
 
-    monkeypatch.setattr(encrypted_mod, "run_tasks", no_tasks)
+    monkeypatch.setattr(view_mod, "run_tasks", no_tasks)
     for bad in (tmp_path / "missing" / "v.hevrsums", tmp_path, "", 123):
         hevr.clear_cache()
         with pytest.raises((hevr.ParameterError, hevr.MissingFileError), match="keep_sums"):

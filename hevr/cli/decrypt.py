@@ -21,8 +21,8 @@ from ..image.proof import Expect, proof_of
 from ..paper import PAPER_TF1
 from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.image import PackedImage
-from ..rendering.pipeline.sums_file import MAGIC as SUMS_MAGIC
 from ..rendering.pipeline.sums import load_sums, recolour
+from ..rendering.pipeline.sums_file import MAGIC as SUMS_MAGIC
 from ..store.paths import normalise
 from . import storage as st
 from .cluster import dask_client, describe_client

@@ -27,8 +27,8 @@ from ..image.files import load_image
 from ..image.header import MAGIC
 from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.image import PackedImage
-from ..rendering.pipeline.sums import MAGIC as SUMS_MAGIC
 from ..rendering.pipeline.sums import load_sums
+from ..rendering.pipeline.sums_file import MAGIC as SUMS_MAGIC
 from ..store.layout import check_document
 from ..store.metadata import VolumeMetadata
 from ..store.paths import normalise, zarr_store

@@ -34,7 +34,7 @@ from ..core.files import check_regular, write_file
 from ..errors import ExistingFileError, MissingFileError
 from ..image.display import save_png
 from ..image.header import MAGIC
-from ..rendering.pipeline.sums import MAGIC as SUMS_MAGIC
+from ..rendering.pipeline.sums_file import MAGIC as SUMS_MAGIC
 from ..store.paths import (
     normalise,
     object_sizes,

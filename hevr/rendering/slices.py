@@ -28,10 +28,10 @@ from ..errors import ParameterError
 from ..image.encrypted import EncryptedImage
 from ..runtime.scheduler import active_client
 from ..store.reader import EncryptedVolume
-from .encrypted import _render
 from .geometry.plane import Plane
 from .packed.plane_image import PackedSlice, render_packed_slice, slice_verification
 from .verify import resolve_verify
+from .view import render_view
 
 __all__ = ["DEFAULT_PRECISION", "render_slice"]
 
@@ -139,7 +139,7 @@ def render_slice(
         )
     if precision is None:
         precision = 0 if plane.slab == 1 and mode in ("xray", "emphasize") else DEFAULT_PRECISION
-    return _render(
+    return render_view(
         ev,
         plane,
         mode,

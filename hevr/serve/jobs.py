@@ -35,7 +35,6 @@ from ..errors import ParameterError
 from ..image import EncryptedImage
 from ..image.tiles import TileLayout
 from ..remote.protocol import RenderRequest
-from ..rendering.encrypted import _render
 from ..rendering.geometry.camera import Camera
 from ..rendering.geometry.plane import Plane
 from ..rendering.geometry.rays import cast_rays
@@ -49,6 +48,7 @@ from ..rendering.packed.verified import aggregate_for as packed_aggregate_for
 from ..rendering.planning.planner import check_render_size
 from ..rendering.planning.request import at_level, check_request, level_step
 from ..rendering.verify import aggregate_for
+from ..rendering.view import render_view
 from ..runtime import cancel
 from ..runtime.cancel import cancel_soon
 
@@ -215,7 +215,7 @@ def render_image(
         raise ParameterError(f"weight_bits: expected null for a per-voxel store, got {req.weight_bits}")
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)
-    return _render(
+    return render_view(
         ev,
         req.view,
         mode,

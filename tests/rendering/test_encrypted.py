@@ -7,7 +7,8 @@ import pytest
 
 import hevr
 from hevr.crypto.records import bytes_to_mpz
-from hevr.rendering import encrypted as render_mod
+from hevr.rendering import cache as render_cache
+from hevr.rendering import view as view_mod
 from hevr.rendering.encrypted import error_bound
 
 SHAPE = (7, 9, 11)  # odd, non-cubic
@@ -56,7 +57,7 @@ def test_render_matches_plain(store, volume, keypair256, mode, kw, sampling, cam
 
 def _decrypt_sums(sums, priv, n_pixels, channels):
     out = np.zeros((n_pixels, channels), dtype=object)
-    for t, merged in sums.tiles.items():
+    for merged in sums.tiles.values():
         if merged is None or merged[0].size == 0:
             continue
         rays, recs = merged
@@ -84,7 +85,7 @@ def test_axis_aligned_parallel_is_exact_mean(tmp_path, keypair256, sampling):
     )
     hevr.clear_cache()
     img = hevr.render(ev, cam, sampling=sampling, progress=False)
-    sums = next(iter(render_mod._CACHE.values()))
+    sums = next(iter(render_cache._CACHE.values()))
     s = _decrypt_sums(sums, priv, nx * ny, 1)[:, 0].reshape(ny, nx)
     scale = 10 ** (-img.info["plan"]["weight_exponent"])
     assert np.array_equal(s.astype(np.int64), np.flipud(vol.astype(np.int64).sum(axis=0)) * scale)
@@ -197,14 +198,14 @@ def test_renders_from_many_threads_share_the_cache(store, volume, keypair256, mo
     cams = [hevr.Camera.orbit(store, azimuth=a, elevation=10, width=8, height=7) for a in (10, 70, 130, 190)]
     refs = [hevr.render_plain(volume, c, spacing=SPACING) for c in cams]
     bounds = [error_bound(store, c) for c in cams]
-    render_mod.clear_cache()
-    fields = render_mod.image_fields
+    render_cache.clear_cache()
+    fields = view_mod.image_fields
 
     def slow_fields(*a, **kw):  # widens the window between a render's cache look-up and its use
         time.sleep(0.02)
         return fields(*a, **kw)
 
-    monkeypatch.setattr(render_mod, "image_fields", slow_fields)
+    monkeypatch.setattr(view_mod, "image_fields", slow_fields)
 
     def one(i):
         k = i % len(cams)
@@ -213,4 +214,4 @@ def test_renders_from_many_threads_share_the_cache(store, volume, keypair256, mo
 
     with ThreadPoolExecutor(max_workers=8) as pool:
         assert all(pool.map(one, range(32)))
-    assert len(render_mod._CACHE) <= render_mod.CACHE_SIZE
+    assert len(render_cache._CACHE) <= render_cache.CACHE_SIZE

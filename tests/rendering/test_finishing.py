@@ -10,7 +10,7 @@ import pytest
 import hevr
 from hevr.crypto.records import bytes_to_mpz, mpz_to_bytes
 from hevr.image.tiles import TileLayout
-from hevr.rendering import encrypted as render_mod
+from hevr.rendering import cache as render_cache
 from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.pipeline.finishing import finish_tile, merge_partials, one_records
 from hevr.rendering.planning.planner import RenderPlan
@@ -72,7 +72,7 @@ def rendered(tmp_path_factory, keypair256):
         for mode, kw in (("xray", {}), ("tf", {"nodes": NODES})):
             hevr.clear_cache()
             img = hevr.render(ev, cam, mode=mode, sampling="trilinear", tile=4, progress=False, finish="server", **kw)
-            out[mode] = (img, next(iter(render_mod._CACHE.values())))
+            out[mode] = (img, next(iter(render_cache._CACHE.values())))
     return ev, cam, out
 
 

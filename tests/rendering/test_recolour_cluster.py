@@ -7,7 +7,7 @@ import pytest
 from distributed import Future, get_task_stream
 
 import hevr
-from hevr.rendering import encrypted as render_mod
+from hevr.rendering import cache as render_cache
 from hevr.rendering.encrypted import error_bound
 
 SHAPE = (7, 9, 11)
@@ -88,8 +88,8 @@ def test_recolour_keeps_ray_sums_on_the_workers(store, volume, keypair256, clust
         assert first.stats["gathered_bytes"] == sum(int(c.nbytes) for c in first.ciphertexts)
         _check_plain(first, store, volume, cam, priv, mode="tf", nodes=NODES, sampling=sampling)
 
-        assert len(render_mod._CACHE) == 1
-        sums = next(iter(render_mod._CACHE.values()))
+        assert len(render_cache._CACHE) == 1
+        sums = next(iter(render_cache._CACHE.values()))
         assert sums.client is cluster and set(sums.tiles) == set(range(n_tiles))
         futures = [v for v in sums.tiles.values() if v is not None]
         assert len(futures) > 1 and all(isinstance(f, Future) for f in futures)
@@ -155,7 +155,7 @@ def test_cluster_sums_do_not_serve_another_scheduler(store, keypair256, cluster)
         hevr.render(store, cam, mode="tf", nodes=NODES, client=cluster, progress=False)
     local = hevr.render(store, cam, mode="tf", nodes=OTHER, progress=False)  # no client: default scheduler
     assert not local.stats["reused_ray_sums"] and local.stats["map_tasks"] > 0
-    sums = next(iter(render_mod._CACHE.values()))
+    sums = next(iter(render_cache._CACHE.values()))
     assert sums.client is None and all(not isinstance(v, Future) for v in sums.tiles.values())
     again = hevr.render(store, cam, mode="tf", nodes=NODES, progress=False)
     assert again.stats["reused_ray_sums"]

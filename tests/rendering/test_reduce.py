@@ -11,6 +11,7 @@ from distributed import get_task_stream
 
 import hevr
 from hevr.image.tiles import TileLayout
+from hevr.rendering import cache as render_cache
 from hevr.rendering.encrypted import error_bound
 from hevr.rendering.geometry.rays import cast_rays
 from hevr.rendering.pipeline.graph import BlockSums, FinishGraph, build_sums_graph
@@ -109,7 +110,7 @@ def test_cached_block_sums_recolour_save_and_stream(store, volume, keypair256, c
             tile=4,
             keep_sums=tmp_path / "s.hevrsums",
         )
-        sums = next(iter(hevr.rendering.encrypted._CACHE.values()))
+        sums = next(iter(render_cache._CACHE.values()))
         assert any(isinstance(v, BlockSums) for v in sums.tiles.values())
         with get_task_stream(client=cluster) as ts:
             again = hevr.render(ev2, camera, "tf", "nearest", nodes=OTHER, progress=False, finish="server", tile=4)

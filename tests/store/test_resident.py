@@ -15,7 +15,7 @@ import pytest
 from distributed import Client, LocalCluster, get_task_stream
 
 import hevr
-from hevr.rendering import encrypted as render_mod
+from hevr.rendering import view as view_mod
 from hevr.rendering.encrypted import error_bound
 from hevr.store import reader as reader_mod
 from hevr.store.resident import (
@@ -155,7 +155,7 @@ def test_scalar_resident_tf_render_streams(store, volume, keypair256, camera, ca
     ev2 = store.persist(channels="scalar")
     assert ev2.resident.channels == ("scalar",)
     assert ev2.resident.nbytes * (1 + K) == store.persist().resident.nbytes  # a fifth of the ciphertexts
-    with caplog.at_level(logging.WARNING, logger="hevr.rendering.encrypted"):
+    with caplog.at_level(logging.WARNING, logger="hevr.rendering.view"):
         tf = _render(ev2, camera, "tf", "trilinear", {"nodes": NODES})
     assert tf.stats["resident"] is False and "streaming from the store" in caplog.text
     _check_plain(tf, store, volume, camera, "tf", "trilinear", {"nodes": NODES}, keypair256[1])
@@ -401,7 +401,7 @@ def test_tile_row_pieces_give_the_identical_image(
         ev2 = store.persist()
         ev2.resident.wait()
         whole = _render(ev2, camera, mode, sampling, kw, client=cluster, tile=4)
-        monkeypatch.setattr(render_mod, "BAND_BITS", 0)
+        monkeypatch.setattr(view_mod, "BAND_BITS", 0)
         with get_task_stream(client=cluster) as ts:
             split = _render(ev2, camera, mode, sampling, kw, client=cluster, tile=4)
     streamed = _render(store, camera, mode, sampling, kw, tile=4)
@@ -484,7 +484,7 @@ def test_batched_views_that_miss_bricks(store, volume, keypair256, cluster, samp
 def test_resident_batch_setting():
     """``hevr.render.resident-batch``: "auto" by key size; true/false also as the strings an
     environment variable gives (DASK_HEVR__RENDER__RESIDENT_BATCH=false); anything else refused."""
-    from hevr.rendering.encrypted import _batch
+    from hevr.rendering.view import _batch
 
     assert _batch(64) and not _batch(2048)
     for value, expected in (("False", False), ("true", True), (False, False), (True, True)):

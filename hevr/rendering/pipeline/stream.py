@@ -31,9 +31,10 @@ from ...image.checks import tile_name
 from ...image.encrypted import _CORRUPT, _unpack_checked
 from ...image.provenance import refuse_untagged
 from ...runtime.scheduler import refuse_foreign_cluster
-from ..encrypted import _render, render
+from ..encrypted import render
 from ..geometry.camera import Camera
 from ..geometry.plane import Plane
+from ..view import render_view
 
 __all__ = ["StreamDecryptor", "render_frame"]
 
@@ -191,7 +192,7 @@ def render_frame(
     t0 = time.perf_counter()
     stream = StreamDecryptor(private_key, decrypt_backend)
     kw = {**_RENDER_KEYWORDS, **kwargs}  # hevr.render's own defaults: one home
-    img = _render(
+    img = render_view(
         ev,
         camera,
         mode,
