@@ -22,7 +22,6 @@ import json
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -31,21 +30,22 @@ import numpy as np
 from ..core.files import write_atomic
 from ..crypto.keys import SECURE_BITS, generate_keypair
 from ..errors import InsecureKeyWarning, MemoryLimitError
-from ..image.display import default_window, save_png
-from ..paper import (
-    PAPER_DENSITIES,
-    PAPER_TF1,
-    PAPER_TF2,
-    tf_text,
-)
-from ..rendering.encrypted import error_bound, render
 from ..rendering.geometry.camera import Camera
-from ..rendering.reference.plain import render_plain
 from ..store.writer import encrypt_volume
 from .cluster import dask_client, describe_client
+from .demo_jobs import (
+    Job,
+    jobs_table,
+    output_names,
+    packed_job,
+    packed_table,
+    paper_jobs,
+    run_jobs,
+    run_packed,
+    stages_table,
+)
 from .keys import key_label
 from .outdir import OutputFolder
-from .packed import default_packed_view
 from .render_options import format_tf
 from .scan import load_input
 from .sheet import contact_sheet
@@ -56,161 +56,12 @@ from .util import (
     human_bytes,
     plural,
     show_progress,
-    table,
     warn_line,
     wh,
     xyz,
 )
 
 __all__ = ["Job", "paper_jobs", "cmd_demo"]
-
-
-@dataclass
-class Job:
-    """One image of the figure set."""
-
-    name: str
-    title: str
-    mode: str
-    sampling: str
-    density: float | None = None
-    nodes: Any = None
-    result: dict = field(default_factory=dict)
-
-
-def paper_jobs() -> list[Job]:
-    """The paper's figure set (X-ray, emphasis at three densities, two transfer functions)."""
-    jobs = [
-        Job("xray-nearest", "X-ray, nearest", "xray", "nearest"),
-        Job("xray-trilinear", "X-ray, trilinear", "xray", "trilinear"),
-    ]
-    for d in PAPER_DENSITIES:
-        jobs.append(Job(f"emphasize-{d}", f"emphasis of density {d}, trilinear", "emphasize", "trilinear", density=d))
-    for i, tf in enumerate((PAPER_TF1, PAPER_TF2), 1):
-        jobs.append(Job(f"tf{i}", f"transfer function {tf_text(tf)}", "tf", "trilinear", nodes=list(tf)))
-    return jobs
-
-
-def _window(ref: np.ndarray) -> tuple[float, float]:
-    """The default PNG window of :func:`hevr.image.display.to_uint8`, taken from the reference."""
-    return default_window(ref)
-
-
-def packed_job() -> Job:
-    """The packed store's frame (:func:`run_packed`)."""
-    return Job("xray-packed", "packed store: verified parallel X-ray, bilinear in each slice", "xray", "trilinear")
-
-
-def output_names(jobs: list[Job], packed: bool = True) -> list[str]:
-    """Every name the demo writes into its folder (``packed``: the packed store's too)."""
-    frames = [
-        f"{j.name}{ext}" for j in jobs + ([packed_job()] if packed else []) for ext in (".hevr", ".png", ".ref.png")
-    ]
-    return [
-        "demo-key.json",
-        "demo-key.pub.json",
-        "volume.zarr",
-        *(["volume-packed.zarr"] if packed else []),
-        *frames,
-        "contact-sheet.png",
-        "summary.json",
-        "report.md",
-    ]
-
-
-def run_jobs(
-    ev: Any,
-    vol: np.ndarray,
-    priv: Any,
-    jobs: list[Job],
-    cam: Any,
-    *,
-    progress: bool,
-    outdir: OutputFolder | None = None,
-    log: Any = print,
-) -> None:
-    """Render, decrypt and compare every job (results in ``job.result``); optionally write files
-    into ``outdir`` (what it may replace: :class:`hevr.cli.outdir.OutputFolder`)."""
-
-    for job in jobs:
-        kw = dict(mode=job.mode, sampling=job.sampling, step=1.0, density=job.density, nodes=job.nodes)
-        with Timer() as tr:  # the store has no tags: said once by the caller, not at every frame
-            img = render(ev, cam, progress=progress, verify=False, **kw)
-        with Timer() as td:
-            arr = img.decrypt(priv)
-        with Timer() as tp:
-            ref = render_plain(
-                vol, cam, spacing=ev.spacing, value_range=ev.value_range, vector_dims=ev.vector_dims, **kw
-            )
-        err = np.abs(arr - ref)
-        bound = error_bound(ev, cam, **kw)
-        scale = float(np.abs(ref).max()) or 1.0
-        job.result = {
-            "render_s": tr.seconds,
-            "decrypt_s": td.seconds,
-            "frame_s": tr.seconds + td.seconds,
-            "reference_s": tp.seconds,
-            "finish": img.finish,
-            "max_abs_error": float(err.max()),
-            "max_rel_error": float(err.max()) / scale,
-            "within_bound": bool((err <= bound).all()),
-            "ciphertexts": img.n_ciphertexts,
-            "reused_ray_sums": bool(img.stats.get("reused_ray_sums")),
-            "resident": bool(img.stats.get("resident")),
-        }
-        if outdir is not None:
-            win = _window(ref)
-            for name, write in (
-                (f"{job.name}.hevr", lambda p, o: img.save(p, overwrite=o)),
-                (f"{job.name}.png", lambda p, o: save_png(arr, p, window=win, overwrite=o)),
-                (f"{job.name}.ref.png", lambda p, o: save_png(ref, p, window=win, overwrite=o)),
-            ):
-                write(outdir.path / name, outdir.overwrite(name))
-                outdir.wrote(name)
-            job.result["window"] = list(win)
-        log(
-            f"  {job.name:<16} frame {tr.seconds + td.seconds:6.2f} s (render {tr.seconds:.2f} + decrypt "
-            f"{td.seconds:.2f})  "
-            f"max|err| {err.max():.2e}{'' if job.result['within_bound'] else '  (ABOVE the error bound!)'}"
-        )
-
-
-def _jobs_table(jobs: list[Job]) -> str:
-    rows = [
-        [
-            j.name,
-            f"{j.result['max_abs_error']:.2e}",
-            f"{j.result['max_rel_error']:.1e}",
-            "yes" if j.result["within_bound"] else "NO",
-            f"{j.result['frame_s']:.2f}",
-            f"{j.result['render_s']:.2f}",
-            f"{j.result['decrypt_s']:.3f}",
-            j.result["ciphertexts"],
-            "yes" if j.result["reused_ray_sums"] else "no",
-        ]
-        for j in jobs
-    ]
-    return table(
-        rows,
-        [
-            "image",
-            "max|err|",
-            "rel.err",
-            "in bound",
-            "frame s (request → image)",
-            "render s",
-            "decrypt s",
-            "ciphertexts",
-            "cached sums",
-        ],
-    )
-
-
-def _stages_table(stages: dict) -> str:
-    total = sum(stages.values())
-    rows = [[k, f"{v:.2f}", f"{100 * v / total:.0f}%" if total else "-"] for k, v in stages.items()]
-    rows.append(["total", f"{total:.2f}", "100%"])
-    return table(rows, ["stage", "seconds", "share"])
 
 
 def _keypair(bits: int) -> tuple[Any, Any]:
@@ -297,6 +148,7 @@ def cmd_demo(args: Any) -> int:
         with Timer() as t:  # open once, render many: the jobs below read no brick from the store
             try:
                 ev = ev.persist(client=client)
+                assert ev.resident is not None  # persist() returns a handle with it set
                 ev.resident.wait()
                 resident = f"{human_bytes(ev.resident.nbytes)} of decoded bricks in worker memory"
             except MemoryLimitError as exc:
@@ -355,8 +207,8 @@ def cmd_demo(args: Any) -> int:
     }
     if packed_result is not None:
         summary["packed"] = packed_result
-    jt, st = _jobs_table(jobs), _stages_table(stages)
-    pt = _packed_table(packed_result) if packed_result is not None else None
+    jt, st = jobs_table(jobs), stages_table(stages)
+    pt = packed_table(packed_result) if packed_result is not None else None
     for name, text in (
         ("summary.json", json.dumps(summary, indent=1) + "\n"),
         ("report.md", _report(summary, jt, st, pt)),
@@ -376,121 +228,6 @@ def cmd_demo(args: Any) -> int:
         warn_line(f"decrypted images above the error bound: {', '.join(bad)}")
         return 1
     return 0
-
-
-def run_packed(
-    ev: Any,
-    vol: np.ndarray,
-    priv: Any,
-    args: Any,
-    client: Any,
-    folder: OutputFolder,
-    stages: dict,
-    job: Job,
-    brick: Any,
-) -> dict:
-    """The packed store of the same volume (verifiable: the private key; ``brick`` as the per-voxel
-    one's), persisted as that one is, and one verified parallel X-ray of it beside the per-voxel
-    store's frame of the same camera; files into ``folder``, results in ``job.result`` and returned
-    for the summary."""
-    out, progress = folder.path, show_progress(args)
-    with Timer() as t:
-        pev = encrypt_volume(
-            vol,
-            out / "volume-packed.zarr",
-            priv,
-            spacing=ev.spacing,
-            brick=brick,
-            value_range=ev.value_range,
-            layout="packed",
-            overwrite=folder.overwrite("volume-packed.zarr"),
-            progress=progress,
-        )
-        folder.wrote("volume-packed.zarr")
-    stages["encrypt packed"] = t.seconds
-    info = pev.packing
-    size, size_voxel = disk_usage(pev.path), disk_usage(ev.path)
-    print(
-        f"[packed]  {t.seconds:.2f} s: {info.slots} voxels per ciphertext along {'zyx'[info.axis]}, with tags "
-        f"(verifiable), {human_bytes(size)} (the per-voxel store: {human_bytes(size_voxel)})"
-    )
-    try:
-        pev = pev.persist(client=client)
-        pev.resident.wait()
-    except MemoryLimitError:
-        pass  # streamed from the store, as the per-voxel one would be
-    el = args.elevation if abs(args.elevation) < 40 else 0.0  # a packed store serves views around its axis
-    w, h = args.image
-    cam = Camera.orbit(
-        pev, view=default_packed_view(pev), azimuth=args.azimuth, elevation=el, width=w, height=h, parallel=True
-    )
-    with Timer() as tr:
-        img = render(pev, cam, sampling=job.sampling, progress=progress)
-    with Timer() as td:
-        arr = img.decrypt(priv, require_verified=pev.meta.store_id)  # checked against the tags before any pixel
-    ref = render_plain(vol, cam, spacing=pev.spacing, value_range=pev.value_range, sampling=job.sampling, slices=True)
-    err = np.abs(arr - ref)
-    bound = error_bound(pev, cam, sampling=job.sampling)
-    with Timer() as tv:  # the per-voxel store's frame of the same camera, for comparison
-        vimg = render(ev, cam, mode="xray", sampling=job.sampling, progress=progress, verify=False)
-        vimg.decrypt(priv)
-    job.result = {
-        "render_s": tr.seconds,
-        "decrypt_s": td.seconds,
-        "frame_s": tr.seconds + td.seconds,
-        "finish": "client",
-        "max_abs_error": float(err.max()),
-        "max_rel_error": float(err.max()) / (float(np.abs(ref).max()) or 1.0),
-        "within_bound": bool((err <= bound).all()),
-        "ciphertexts": img.n_ciphertexts,
-        "reused_ray_sums": False,
-        "resident": bool(img.stats.get("resident")),
-        "verified": img.verified,
-        "window": list(_window(ref)),
-    }
-    for name, write in (
-        ("xray-packed.hevr", lambda p, o: img.save(p, overwrite=o, private_key=priv)),
-        ("xray-packed.png", lambda p, o: save_png(arr, p, window=job.result["window"], overwrite=o)),
-        ("xray-packed.ref.png", lambda p, o: save_png(ref, p, window=job.result["window"], overwrite=o)),
-    ):
-        write(out / name, folder.overwrite(name))
-        folder.wrote(name)
-    stages["render packed"], stages["decrypt packed"] = tr.seconds, td.seconds
-    print(
-        f"  {job.name:<16} frame {tr.seconds + td.seconds:6.2f} s (render {tr.seconds:.2f} + decrypt and verify "
-        f"{td.seconds:.2f}), verified; max|err| {err.max():.2e}"
-        f"{'' if job.result['within_bound'] else '  (ABOVE the error bound!)'}; the per-voxel store's frame of the "
-        f"same camera: {tv.seconds:.2f} s, not verified"
-    )
-    return {
-        "store": "volume-packed.zarr",
-        "axis": "zyx"[info.axis],
-        "slots": info.slots,
-        "slot_bits": info.slot_bits,
-        "store_bytes": size,
-        "voxel_store_bytes": size_voxel,
-        "encrypt_s": t.seconds,
-        "camera": cam.to_dict(),
-        "voxel_frame_s": tv.seconds,
-        "frame": "xray-packed.hevr",
-        "png": "xray-packed.png",
-        "reference_png": "xray-packed.ref.png",
-        **job.result,
-    }
-
-
-def _packed_table(r: dict) -> str:
-    rows = [
-        ["per-voxel (scalar + vector[4])", human_bytes(r["voxel_store_bytes"]), f"{r['voxel_frame_s']:.2f}", "no", "-"],
-        [
-            f"packed ({r['slots']} voxels/ciphertext along {r['axis']}, tags)",
-            human_bytes(r["store_bytes"]),
-            f"{r['frame_s']:.2f}",
-            "yes" if r["verified"] else "no",
-            f"{r['max_abs_error']:.2e}",
-        ],
-    ]
-    return table(rows, ["store", "size", "parallel X-ray frame s", "verified", "max|err| (slice reference)"])
 
 
 def _report(summary: dict, jobs_table: str, stages_table: str, packed_table: str | None = None) -> str:
