@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from hevr.bench import report
+from hevr.bench import report, report_cells
 from hevr.bench.pipeline import predict, simulate
 from hevr.bench.runner import rewrite_report, run_bench
 from hevr.bench.settings import PAPER, QUICK, SETTINGS
@@ -116,7 +116,7 @@ def test_goals_judged_from_cells():
     ],
 )
 def test_cell_format(ours, theirs, text):
-    assert report._cmp(ours, theirs) == text
+    assert report_cells.compare(ours, theirs) == text
 
 
 def test_pipeline_model_replays_a_graph():

@@ -3,8 +3,11 @@
 Modules: ``settings`` (quick / default / paper), ``paper`` (the published figures),
 ``measure`` (timers, machine, workers), ``cases`` (one function per kind of cell),
 ``crypto_micro`` and ``kernel_micro`` (one-core micro-benchmarks), ``runner`` (resumable
-orchestration, raw JSON), ``report`` and ``plot`` (markdown, goals, figure), ``gpu`` (``hevr bench
---gpu``: the GPU backend's proof), ``gpu_goals`` (issue 40's goal table, step by step on a GPU machine),
-``gpu_packed`` (its packed step: a packed store's frames on the backend and on cpu, issue 46) and
-``gpu_common`` (what those steps share: rows, digests, the key, a LocalCluster).
+orchestration, raw JSON), ``report`` (the markdown: head, scaling, pipeline, the sections put
+together) with ``report_goals`` (the earlier issues' goals), ``report_tables`` (the paper's Tables
+1-3), ``report_limits`` (floors, primitives, python-paillier) and ``report_cells`` (how one cell
+reads), ``plot`` (the figure), ``gpu`` (``hevr bench --gpu``: the GPU backend's proof), ``gpu_goals``
+(issue 40's goal table, step by step on a GPU machine), ``gpu_packed`` (its packed step: a packed
+store's frames on the backend and on cpu, issue 46) and ``gpu_common`` (what those steps share:
+rows, digests, the key, a LocalCluster).
 """
