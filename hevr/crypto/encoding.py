@@ -29,14 +29,14 @@ __all__ = ["BASE", "encode", "decode", "decode_exact", "reciprocal"]
 _CTX = Context(prec=10_000, rounding=ROUND_HALF_EVEN)
 
 
-def _check_finite(value: Real, name: str) -> None:
+def _check_finite(value: float, name: str) -> None:
     if isinstance(value, bool) or not isinstance(value, (Integral, Real)):
         raise ParameterError(f"{name} must be an int or float; got {type(value).__name__}")
     if not isinstance(value, Integral) and not math.isfinite(float(value)):
         raise ParameterError(f"{name} must be finite; got {value!r}")
 
 
-def encode(value: Real, exponent: int | None = None) -> tuple[int, int]:
+def encode(value: float, exponent: int | None = None) -> tuple[int, int]:
     """Encode ``value`` as ``(mantissa, exponent)`` with ``value ≈ mantissa * 10**exponent``.
 
     Parameters
@@ -63,7 +63,8 @@ def encode(value: Real, exponent: int | None = None) -> tuple[int, int]:
         if isinstance(value, Integral):
             return int(value), 0
         d = Decimal(repr(float(value)))
-        sign, digits, exp = d.as_tuple()
+        sign, digits, exp_ = d.as_tuple()
+        exp = int(exp_)  # d is finite: its exponent is an int, never 'n', 'N' or 'F'
         mant = int("".join(map(str, digits)) or "0")
         mant = -mant if sign else mant
         if mant == 0:
@@ -93,7 +94,7 @@ def decode(mantissa: int, exponent: int) -> float:
     return float(decode_exact(mantissa, exponent))
 
 
-def reciprocal(divisor: Real, digits: int) -> tuple[int, int]:
+def reciprocal(divisor: float, digits: int) -> tuple[int, int]:
     """Rounded reciprocal of Eq. 1 with relative error at most 0.5·10**-digits.
 
     Returns ``(round(10**g / divisor), -g)`` where g = digits + (number of integer

@@ -151,7 +151,7 @@ def _warn_if_exposed(path: Path) -> None:
         )
 
 
-def _int_field(d: dict, name: str, path: Path) -> mpz:
+def _int_field(d: dict[str, Any], name: str, path: Path) -> mpz:
     """Field ``name`` of the key file as an mpz; never quotes the value (it may be secret)."""
     v = d.get(name)
     if is_decimal(v, _MAX_DIGITS):
@@ -201,7 +201,7 @@ def _parse(text: str, path: Path) -> object:
         raise InvalidKeyError(f"key file {path} is not a key file: its JSON is nested too deeply") from None
 
 
-def load_key(path) -> PublicKey | PrivateKey:
+def load_key(path: str | os.PathLike[str]) -> PublicKey | PrivateKey:
     """Load a key file written by :meth:`PublicKey.save` / :meth:`PrivateKey.save` (either
     format), or by python-paillier's ``pheutil`` (:mod:`hevr.crypto.phe_keys`).
 
@@ -270,7 +270,7 @@ def load_key(path) -> PublicKey | PrivateKey:
     return key
 
 
-def _policy(d: dict, path: Path) -> bool:
+def _policy(d: dict[str, Any], path: Path) -> bool:
     """The key's ``require_tags`` policy (:class:`hevr.PrivateKey`): the file's ``policy`` object;
     a file without one (written before issue 47) has none."""
     pol = d.get("policy")

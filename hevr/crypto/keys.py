@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import os
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from numbers import Integral
 from typing import Any
 
@@ -114,7 +114,7 @@ class PublicKey:
     def __hash__(self) -> int:
         return hash(("hevr.PublicKey", int(self.n)))
 
-    def __reduce__(self):
+    def __reduce__(self) -> tuple[type[PublicKey], tuple[int]]:
         return (PublicKey, (int(self.n),))
 
     # -- encryption -----------------------------------------------------------------
@@ -230,7 +230,7 @@ class PrivateKey:
     def __hash__(self) -> int:
         return hash(("hevr.PrivateKey", int(self.public_key.n)))
 
-    def __reduce__(self):
+    def __reduce__(self) -> tuple[Callable[[PublicKey, int, int, bool], PrivateKey], tuple[PublicKey, int, int, bool]]:
         # Tables are rebuilt where they are needed rather than shipped.
         return (_private_key, (self.public_key, int(self.p), int(self.q), self.require_tags))
 

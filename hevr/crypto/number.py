@@ -47,6 +47,9 @@ class EncryptedNumber:
     """
 
     __slots__ = ("public_key", "ciphertext", "exponent")
+    public_key: PublicKey
+    ciphertext: mpz
+    exponent: int
 
     def __init__(self, public_key: PublicKey, ciphertext: int, exponent: int = 0) -> None:
         if not isinstance(exponent, Integral) or isinstance(exponent, bool):
@@ -57,7 +60,7 @@ class EncryptedNumber:
 
     @classmethod
     def encrypt(
-        cls, public_key: PublicKey, value: Real, exponent: int | None, encrypt_int: Callable[[int], mpz]
+        cls, public_key: PublicKey, value: float, exponent: int | None, encrypt_int: Callable[[int], mpz]
     ) -> EncryptedNumber:
         mantissa, exp = encode(value, exponent)
         return cls(public_key, encrypt_int(mantissa), exp)
@@ -89,7 +92,7 @@ class EncryptedNumber:
             )
 
     # -- fpAdd --------------------------------------------------------------------------
-    def __add__(self, other: EncryptedNumber | Real) -> EncryptedNumber:
+    def __add__(self, other: EncryptedNumber | float) -> EncryptedNumber:
         pk = self.public_key
         if isinstance(other, EncryptedNumber):
             self._same_key(other)
@@ -111,18 +114,18 @@ class EncryptedNumber:
     def __neg__(self) -> EncryptedNumber:
         return EncryptedNumber(self.public_key, raw.raw_neg(self.ciphertext, self.public_key.nsquare), self.exponent)
 
-    def __sub__(self, other: EncryptedNumber | Real) -> EncryptedNumber:
+    def __sub__(self, other: EncryptedNumber | float) -> EncryptedNumber:
         if isinstance(other, EncryptedNumber):
             return self + (-other)
         if isinstance(other, (Integral, Real)) and not isinstance(other, bool):
             return self + (-other)
         return NotImplemented
 
-    def __rsub__(self, other: Real) -> EncryptedNumber:
+    def __rsub__(self, other: float) -> EncryptedNumber:
         return (-self) + other
 
     # -- fpMultiply ------------------------------------------------------------------------
-    def __mul__(self, other: Real) -> EncryptedNumber:
+    def __mul__(self, other: float) -> EncryptedNumber:
         if isinstance(other, EncryptedNumber):
             raise ParameterError("Paillier cannot multiply two encrypted numbers; other must be plain")
         if isinstance(other, bool) or not isinstance(other, (Integral, Real)):
@@ -136,7 +139,7 @@ class EncryptedNumber:
 
     __rmul__ = __mul__
 
-    def divide(self, divisor: Real, digits: int = 6) -> EncryptedNumber:
+    def divide(self, divisor: float, digits: int = 6) -> EncryptedNumber:
         """Divide by a plain number via its rounded reciprocal (Eq. 1).
 
         The reciprocal is exact to a relative error of at most 0.5·10**-digits
@@ -146,5 +149,5 @@ class EncryptedNumber:
         pk = self.public_key
         return EncryptedNumber(pk, raw.raw_mul(self.ciphertext, mant, pk.n, pk.nsquare), self.exponent + exp)
 
-    def __truediv__(self, divisor: Real) -> EncryptedNumber:
+    def __truediv__(self, divisor: float) -> EncryptedNumber:
         return self.divide(divisor)

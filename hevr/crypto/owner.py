@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import secrets
 from collections.abc import Iterable
+from typing import Any
 
 import gmpy2
 from gmpy2 import mpz
@@ -128,7 +129,7 @@ class OwnerEncryptor:
     def uses_tables(self) -> bool:
         return self._hp.table is not None and self._hq.table is not None
 
-    def tables(self) -> tuple | None:
+    def tables(self) -> tuple[Any, ...] | None:
         """What a kernel needs to make the same masks, or None without tables (secret material:
         for the owner's own processes only).
 
@@ -136,9 +137,10 @@ class OwnerEncryptor:
         is ``G^(d·2^(w·i))`` mod the prime square, and the masks are ``G_p^a``, ``G_q^b`` with ``a``,
         ``b`` uniform in ``[0, p − 1)``, ``[0, q − 1)``.
         """
-        if not self.uses_tables:
+        tp, tq = self._hp.table, self._hq.table
+        if tp is None or tq is None:
             return None
-        halves = tuple((h.psquare, h.n_mod, h.table.window, h.table._rows) for h in (self._hp, self._hq))
+        halves = tuple((h.psquare, h.n_mod, t.window, t._rows) for h, t in ((self._hp, tp), (self._hq, tq)))
         return halves[0], halves[1], self._q2_inv_p2
 
     def encrypt_residues(self, residues: Iterable[mpz]) -> list[mpz]:
@@ -148,7 +150,7 @@ class OwnerEncryptor:
         np2, nq2 = hp.n_mod, hq.n_mod
         inv = self._q2_inv_p2
         mask_p, mask_q = hp.mask, hq.mask
-        out = []
+        out: list[mpz] = []
         append = out.append
         for m in residues:
             # c mod p² = (1 + m·n)·mask_p; n mod p² is precomputed so small m stay cheap.

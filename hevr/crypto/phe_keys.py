@@ -186,13 +186,13 @@ def _show(v: object) -> str:
     return f"a JSON {type(v).__name__}"
 
 
-def _expect(d: dict, name: str, value: str, prefix: str, where: str, note: str = "") -> None:
+def _expect(d: dict[str, Any], name: str, value: str, prefix: str, where: str, note: str = "") -> None:
     """Field ``name`` must equal ``value`` (a public constant such as kty or alg)."""
     if not (isinstance(d.get(name), str) and d[name] == value):
         raise InvalidKeyError(f"{where}: field '{prefix}{name}': expected {value!r}{note}, got {_show(d.get(name))}")
 
 
-def _key_ops(d: dict, op: str, prefix: str, where: str, required: bool) -> None:
+def _key_ops(d: dict[str, Any], op: str, prefix: str, where: str, required: bool) -> None:
     """``key_ops`` must be a list of strings holding ``op`` (when present, or always if required)."""
     ops = d.get("key_ops")
     if ops is None and not required:
@@ -202,7 +202,7 @@ def _key_ops(d: dict, op: str, prefix: str, where: str, required: bool) -> None:
         raise InvalidKeyError(f"{where}: field '{prefix}key_ops': expected a list of strings with {op!r}, got {got}")
 
 
-def _b64_int(d: dict, name: str, where: str, prefix: str = "") -> mpz:
+def _b64_int(d: dict[str, Any], name: str, where: str, prefix: str = "") -> mpz:
     """Field ``name`` as a positive integer; never quotes the value (it may be secret)."""
     v = d.get(name)
     if not isinstance(v, str):
@@ -224,7 +224,7 @@ def _b64_int(d: dict, name: str, where: str, prefix: str = "") -> mpz:
 # -- keys --------------------------------------------------------------------------------------
 
 
-def _public(d: dict, prefix: str, where: str) -> PublicKey:
+def _public(d: dict[str, Any], prefix: str, where: str) -> PublicKey:
     """The public key of object ``d`` (the file itself, or its ``pub`` with prefix 'pub.')."""
     _expect(d, "kty", PHE_KTY, prefix, where, note=" (a python-paillier key)")
     _expect(d, "alg", PHE_ALG, prefix, where, note=" (Paillier with g = n + 1)")
@@ -238,7 +238,7 @@ def _public(d: dict, prefix: str, where: str) -> PublicKey:
     return PublicKey(n)
 
 
-def _private(d: dict, pub: PublicKey, where: str) -> PrivateKey:
+def _private(d: dict[str, Any], pub: PublicKey, where: str) -> PrivateKey:
     """The private key of ``d`` from p and q, or from lambda and mu; both forms must agree."""
     n = pub.n
     has_pq, has_lambda = "p" in d or "q" in d, "lambda" in d or "mu" in d
@@ -246,6 +246,7 @@ def _private(d: dict, pub: PublicKey, where: str) -> PrivateKey:
     if has_pq:
         p, q = _b64_int(d, "p", where), _b64_int(d, "q", where)
     else:
+        assert lam is not None  # read above whenever p and q are absent
         factors = factor_from_lambda(n, lam)
         if factors is None:
             raise InvalidKeyError(
@@ -264,7 +265,7 @@ def _private(d: dict, pub: PublicKey, where: str) -> PrivateKey:
     return PrivateKey(pub, p, q)
 
 
-def _lambda_mu(d: dict, n: mpz, where: str) -> mpz:
+def _lambda_mu(d: dict[str, Any], n: mpz, where: str) -> mpz:
     """Fields lambda (below n) and mu (lambda⁻¹ mod n) of a phe ≤ 1.2 file; returns lambda."""
     lam, mu = _b64_int(d, "lambda", where), _b64_int(d, "mu", where)
     if lam >= n:
