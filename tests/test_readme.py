@@ -42,6 +42,7 @@ def test_readme_example_runs_as_a_script(tmp_path):
     script.write_text(code, encoding="utf-8")
     run = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
-    for name in ("key.json", "key.pub.json", "xray.png", "tf.png", "tf2.png", "frame.hevr", "vol.zarr"):
+    for name in ("key.json", "key.pub.json", "tf.png", "tf2.png", "vol.zarr"):
         assert (tmp_path / name).exists(), name
+    assert (tmp_path / "tf.png").read_bytes() != (tmp_path / "tf2.png").read_bytes()  # re-coloured
     assert (tmp_path / "key.json").stat().st_mode & 0o777 == 0o600

@@ -103,8 +103,8 @@ def test_verify_is_documented(capsys):
         pass
     out = capsys.readouterr().out
     assert "--verify" in out and "damaged brick" in out and "hevr info vol.zarr --verify" in out
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    assert "hevr info vol.zarr --verify" in readme
+    guide = (Path(__file__).resolve().parents[2] / "docs" / "guide" / "encrypt.md").read_text()
+    assert "hevr info vol.zarr --verify" in guide
 
 
 def test_info_names_stale_temporaries_with_their_sizes(store, capsys):
