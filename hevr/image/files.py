@@ -20,7 +20,7 @@ from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.files import is_packed_frame, parse_packed
 from ..rendering.packed.image import PackedImage
 from ..rendering.packed.verified import PackedVerification
-from ..rendering.verify import Verification
+from ..rendering.verification import Verification
 from ..store.paths import check_storage_options, is_local, normalise, read_bytes
 from .encrypted import EncryptedImage
 from .header import parse_file

@@ -40,7 +40,8 @@ from ..rendering.pipeline.graph import FinishGraph
 from ..rendering.pipeline.sums import image_fields, with_colouring
 from ..rendering.planning.planner import check_render_size, plan_render
 from ..rendering.planning.request import at_level, level_step
-from ..rendering.verify import Verification, resolve_verify
+from ..rendering.verification import Verification
+from ..rendering.verify import resolve_verify
 from . import schema
 from .failures import check_answer
 from .protocol import END, MAX_BODY, RenderRequest, VerifyRequest, image_limit, parse_json

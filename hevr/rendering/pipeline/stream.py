@@ -101,7 +101,7 @@ class StreamDecryptor:
         self.decrypt_s += time.perf_counter() - t0
 
     def verify(self, img: Any) -> None:
-        """The check of a verified frame (:meth:`hevr.rendering.verify.Verification.check`) on the
+        """The check of a verified frame (:meth:`hevr.rendering.verification.Verification.check`) on the
         sums decrypted as the units came: :class:`hevr.VerificationError` before any frame is returned."""
         rays = np.flatnonzero(self.samples > 0)
         img.verification.check(self.key, img, rays, self.exact[rays].reshape(-1).tolist())
