@@ -208,7 +208,7 @@ def _doctest_pages() -> list[Path]:
     return [p for p in _pages() if ">>>" in p.read_text(encoding="utf-8")]
 
 
-@pytest.mark.filterwarnings("ignore:.*Paillier key is not secure")  # the pages' small demo keys
+@pytest.mark.filterwarnings("ignore::hevr.errors.InsecureKeyWarning")  # the pages' small demo keys
 @pytest.mark.parametrize("page", _doctest_pages(), ids=lambda p: str(p.relative_to(DOCS)))
 def test_the_pages_doctests_run(page, tmp_path, monkeypatch):
     """Each page's ``>>>`` examples, block after block in one namespace, in a scratch folder."""
