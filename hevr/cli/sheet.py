@@ -76,8 +76,8 @@ def contact_sheet(folder: Path, jobs: list, caption: str, out: Path, *, overwrit
             font=small,
         )
         top = y + 2 * line + _GAP
-        sheet.paste(enc.resize((cw, ch), Image.NEAREST), (x, top))
-        sheet.paste(ref.resize((cw, ch), Image.NEAREST), (x + cw + _GAP, top))
+        sheet.paste(enc.resize((cw, ch), Image.Resampling.NEAREST), (x, top))
+        sheet.paste(ref.resize((cw, ch), Image.Resampling.NEAREST), (x + cw + _GAP, top))
     buf = io.BytesIO()
     sheet.save(buf, format="PNG")
     write_file(out, [buf.getbuffer()], overwrite=overwrite, doing="writing the contact sheet")

@@ -168,7 +168,8 @@ def png(arr: np.ndarray, window: tuple[float, float] | None, size: tuple[int, in
     """The frame as PNG bytes of ``size`` (W, H): a preview's fewer pixels are shown enlarged."""
     buf = io.BytesIO()
     im = Image.fromarray(to_uint8(arr, window))
-    (im if im.size == tuple(size) else im.resize(tuple(size), Image.NEAREST)).save(buf, format="PNG")
+    shown = (int(size[0]), int(size[1]))
+    (im if im.size == shown else im.resize(shown, Image.Resampling.NEAREST)).save(buf, format="PNG")
     return buf.getvalue()
 
 
@@ -238,7 +239,8 @@ class Orbit:
 
     def _start(self) -> tuple[float, float, float]:
         """The exact camera the last drag left, or the sliders' when they moved since (or never dragged)."""
-        now = tuple(float(s.value) for s in self._sliders())
+        azimuth, elevation, view_angle = self._sliders()
+        now = (float(azimuth.value), float(elevation.value), float(view_angle.value))
         if self._exact is not None and all(abs(a - b) < 1e-6 for a, b in zip(self._snap(self._exact), now)):
             return self._exact
         return now

@@ -61,32 +61,20 @@ import numpy as np
 
 from ..colour import Frame
 from ..crypto.keys import PrivateKey
-from ..errors import HevrError, MissingDependencyError, ParameterError
-from ..image.provenance import refuse_untagged
+from ..errors import HevrError, ParameterError
 from ..paper import PAPER_DENSITIES, PAPER_TF1
-from ..rendering.encrypted import error_bound
 from ..rendering.geometry.camera import Camera
 from ..rendering.pipeline.stream import render_frame
-from ..rendering.planning.modes import parse_color
-from ..rendering.reference.plain import render_plain
-from ..runtime.scheduler import refuse_foreign_cluster
 from ..store.reader import EncryptedVolume
 from ..volume.pyramid import check_level
+from .checks import check_viewer, import_widgets, viewer_modes
+from .controls import arrange, camera_sliders, density_slider, mode_toggles, node_row
 from .drag import Orbit, drag_image, png
+from .report import compare, status_text
 
 log = logging.getLogger(__name__)
 
 __all__ = ["Viewer"]
-
-
-def _hex(colour: Any) -> str:
-    """'#rrggbb' of any colour hevr accepts.
-
-    >>> _hex("red"), _hex((0, 0.5, 1))
-    ('#ff0000', '#0080ff')
-    """
-    r, g, b = parse_color(colour)
-    return "#{:02x}{:02x}{:02x}".format(*(int(round(255 * v)) for v in (r, g, b)))
 
 
 class Viewer:
@@ -161,43 +149,20 @@ class Viewer:
         settle: float | None = 0.6,
         show: bool = True,
     ) -> None:
-        try:
-            import anywidget  # noqa: F401  (the drag surface, hevr.viewer.drag)
-            import ipywidgets as widgets
-        except ImportError as exc:
-            raise MissingDependencyError(
-                f"Viewer: expected ipywidgets and anywidget (pip install 'hevr[notebook]'), "
-                f"got an environment without {exc.name}"
-            ) from None
-        if not isinstance(ev, EncryptedVolume):
-            raise ParameterError(f"ev: expected an EncryptedVolume (hevr.open_volume), got {type(ev).__name__}")
-        if not isinstance(private_key, PrivateKey):
-            raise ParameterError(f"private_key: expected a hevr.PrivateKey, got {type(private_key).__name__}")
-        if private_key.public_key.fingerprint != ev.meta.fingerprint:
-            raise ParameterError(
-                "private_key: expected the key of this volume (fingerprint "
-                f"{ev.meta.fingerprint[:16]}…), got {private_key.public_key.fingerprint[:16]}…"
-            )
-        refuse_untagged(ev, private_key)  # the key's policy (hevr.PrivateKey.require_tags), before any frame
-        if getattr(ev, "remote", None) is None:  # its frames decrypted here, beside the Dask client
-            refuse_foreign_cluster(client, "hevr.Viewer with the private key")
-        if volume is not None and tuple(np.shape(volume)) != tuple(ev.shape):
-            raise ParameterError(f"volume: expected the plaintext of shape {tuple(ev.shape)}, got {np.shape(volume)}")
+        W = import_widgets()
+        check_viewer(ev, private_key, volume, client)
         self.ev, self._key, self.volume, self.client, self.step = ev, private_key, volume, client, float(step)
         self.size = (width, height)
         Camera.orbit(ev, width=width, height=height)  # validates the size once, here
-        self.packed = ev.meta.packing is not None
+        packing = ev.meta.packing
+        self.packed = packing is not None
         # a packed store: parallel views orbiting its packing axis (superior z: "anterior", whose up is z)
-        self.view = {0: "anterior", 1: "superior"}.get(ev.meta.packing.axis) if self.packed else None
-        self.history: list[dict] = []
+        self.view = {0: "anterior", 1: "superior"}.get(packing.axis) if packing is not None else None
+        self.history: list[dict[str, Any]] = []
         self.frame: Frame | None = None
-        self._frame_view: tuple | None = None  # what the frame depends on: camera, level, sampling, channel
+        self._frame_view: tuple[Any, ...] | None = None  # what the frame depends on: camera, level, sampling, channel
         self._held = False
-        modes = ["xray"] * ev.has_scalar + ["emphasize", "tf"] * bool(ev.vector_dims)
-        mode = modes[0] if mode is None else mode
-        if mode not in modes:
-            raise ParameterError(f"mode: expected one of {modes} (the store's channels), got {mode!r}")
-        W = widgets
+        modes, mode = viewer_modes(ev, mode)
         self.preview = min(ev.levels, 2) if preview is None else check_level(preview, ev.levels, "preview")
         if settle is not None and not (isinstance(settle, (int, float)) and settle >= 0):
             raise ParameterError(f"settle: expected seconds >= 0 or None, got {settle!r}")
@@ -206,32 +171,9 @@ class Viewer:
         self._pending = False
         self._lock = threading.RLock()
         # with a preview level, camera sliders report every move (cheap coarse frames); else on release
-        slider = dict(continuous_update=bool(self.preview), readout_format=".0f")
-        self.azimuth = W.FloatSlider(
-            value=0.0 if self.packed else 30.0, min=-180.0, max=180.0, step=1.0, description="azimuth", **slider
-        )
-        tilt = 44.0 if self.packed else 89.0  # a packed store's views lean less than 45° towards its axis
-        self.elevation = W.FloatSlider(
-            value=10.0 if self.packed else 20.0, min=-tilt, max=tilt, step=1.0, description="elevation", **slider
-        )
-        self.view_angle = W.FloatSlider(value=30.0, min=5.0, max=90.0, step=1.0, description="view angle", **slider)
-        self.mode = W.ToggleButtons(options=modes, value=mode, description="mode")
-        self.sampling = W.ToggleButtons(options=["nearest", "trilinear"], value=sampling, description="sampling")
-        self.gradient = W.Checkbox(
-            value=False,
-            description="gradient",
-            indent=False,
-            layout=W.Layout(display=None if ev.meta.gradient is not None else "none"),
-        )
-        self.density = W.FloatSlider(
-            value=PAPER_DENSITIES[1] if density is None else float(density),
-            min=0.0,
-            max=1.0,
-            step=0.001,
-            readout_format=".3f",
-            description="density",
-            continuous_update=False,
-        )
+        self.azimuth, self.elevation, self.view_angle = camera_sliders(W, self.packed, bool(self.preview))
+        self.mode, self.sampling, self.gradient = mode_toggles(W, modes, mode, sampling, ev.meta.gradient is not None)
+        self.density = density_slider(W, PAPER_DENSITIES[1] if density is None else float(density), "density")
         self._W = W
         self._rows = W.VBox()
         self.add_button = W.Button(description="add node", icon="plus")
@@ -250,28 +192,8 @@ class Viewer:
         self.gradient.observe(lambda ch: self._changed(ch, only="vector"), names="value")
         self.density.observe(lambda ch: self._changed(ch, only="emphasize"), names="value")
         self.tf_box = W.VBox([self._rows, self.add_button])
-        self.widget = W.VBox(
-            [
-                W.HBox(
-                    [
-                        self.image,
-                        W.VBox(
-                            [
-                                self.azimuth,
-                                self.elevation,
-                                self.view_angle,
-                                self.mode,
-                                self.sampling,
-                                self.gradient,
-                                self.density,
-                                self.tf_box,
-                            ]
-                        ),
-                    ]
-                ),
-                self.status,
-            ]
-        )
+        controls = [self.azimuth, self.elevation, self.view_angle, self.mode, self.sampling, self.gradient]
+        self.widget = arrange(W, self.image, [*controls, self.density, self.tf_box], self.status)
         self._layout()
         if show:
             self.refresh()
@@ -305,7 +227,7 @@ class Viewer:
         """The transfer function of the editor: (density, '#rrggbb') per row, in row order."""
         return [(float(d.value), str(c.value)) for d, c, _ in self.node_rows]
 
-    def request(self) -> dict:
+    def request(self) -> dict[str, Any]:
         """Keyword arguments of :func:`hevr.render_frame` (and :func:`hevr.render_plain`) for the current state."""
         kw: dict[str, Any] = {"mode": self.mode.value, "sampling": self.sampling.value, "step": self.step}
         if self.packed:  # one sample per slice: no step
@@ -322,18 +244,7 @@ class Viewer:
     def add_node(self, density: float = 0.5, colour: Any = "white") -> None:
         """Append a node row (density slider, colour picker, remove button); renders once."""
         W = self._W
-        d = W.FloatSlider(
-            value=float(density),
-            min=0.0,
-            max=1.0,
-            step=0.001,
-            readout_format=".3f",
-            description="node",
-            continuous_update=False,
-        )
-        c = W.ColorPicker(value=_hex(colour), concise=True)
-        rm = W.Button(icon="trash", tooltip="remove this node", layout=W.Layout(width="36px"))
-        row = (d, c, rm)
+        row = d, c, rm = node_row(W, density, colour)
         rm.on_click(lambda _b, row=row: self.remove_node(self.node_rows.index(row)))
         d.observe(lambda ch: self._changed(ch, only="tf"), names="value")
         c.observe(lambda ch: self._changed(ch, only="tf"), names="value")
@@ -382,7 +293,7 @@ class Viewer:
             self._timer.daemon = True
             self._timer.start()
 
-    def settle(self) -> dict | None:
+    def settle(self) -> dict[str, Any] | None:
         """Render the full frame if the last one shown was a preview; returns its history entry."""
         if self._timer is not None:
             self._timer.cancel()
@@ -399,7 +310,7 @@ class Viewer:
     def _say(self, text: str) -> None:
         self.status.value = f"<span style='color:#b00'>{html.escape(text)}</span>"
 
-    def refresh(self, level: int = 0) -> dict:
+    def refresh(self, level: int = 0) -> dict[str, Any]:
         """Render, decrypt and show the current state (at pyramid ``level``: a preview); returns
         (and appends to :attr:`history`) what happened."""
         with self._lock:
@@ -407,22 +318,23 @@ class Viewer:
                 self._pending = False
             return self._refresh(level)
 
-    def _view(self, cam: Camera, level: int, kw: dict) -> tuple:
+    def _view(self, cam: Camera, level: int, kw: dict[str, Any]) -> tuple[Any, ...]:
         """What a frame of component sums depends on (anything else is colouring): the camera,
         the level, the sampling, the step and the stored channel the mode reads."""
         channel = "scalar" if kw["mode"] == "xray" else "gradient" if kw.get("gradient") else "vector"
         return cam.key(), level, kw["sampling"], kw.get("step", 1.0), channel
 
-    def _refresh(self, level: int) -> dict:
+    def _refresh(self, level: int) -> dict[str, Any]:
         kw = self.request()
         cam = self.camera(level)
         entry: dict[str, Any] = {"request": kw, "camera": cam.to_dict(), "level": level}
         view = self._view(cam, level, kw)
         t0 = time.perf_counter()
-        recolour = self.frame is not None and view == self._frame_view
+        kept = self.frame if view == self._frame_view else None
+        recolour = kept is not None
         try:
-            if recolour:  # only the colouring changed: numpy here, nothing sent anywhere
-                frame = self.frame
+            if kept is not None:  # only the colouring changed: numpy here, nothing sent anywhere
+                frame = kept
                 arr = frame.recolour(kw["mode"], kw.get("density"), kw.get("nodes"))
             else:
                 # a preview is not verified (it must come fast); the settled full frame is
@@ -445,23 +357,11 @@ class Viewer:
         seconds = time.perf_counter() - t0
         if not recolour:
             self.frame, self._frame_view = frame, view
-        err = bound = None
-        window = None
-        if self.volume is not None:  # a packed store's reference samples slice by slice (slices=its axis)
-            slices = {"slices": self.ev.meta.packing.axis} if self.packed else {}
-            ref = render_plain(
-                self.volume,
-                cam,
-                spacing=self.ev.spacing,
-                value_range=self.ev.value_range,
-                vector_dims=self.ev.vector_dims,
-                level=level,
-                **slices,
-                **kw,
-            )
-            err = float(np.abs(arr - ref).max()) if arr.size else 0.0
-            bound = float(error_bound(self.ev, cam, level=level or None, **kw).max())
-            window = (0.0, max(float(ref.max()), 1e-12))
+        err: float | None = None
+        bound: float | None = None
+        window: tuple[float, float] | None = None
+        if self.volume is not None:
+            err, bound, window = compare(self.ev, self.volume, cam, level, kw, arr)
         stats = frame.stats
         # a remote frame's server does not say (issue 48: what it reused would tell of other tokens' views)
         tasks, reused = stats.get("map_tasks"), bool(stats.get("reused_ray_sums"))
@@ -475,22 +375,11 @@ class Viewer:
         )
         self.history.append(entry)  # before the image: an observer of image.value sees this entry last
         self.image.value = png(arr, window, self.size)
-        took = f"{seconds:.2f} s" if seconds >= 1 else f"{1000 * seconds:.0f} ms"
-        if recolour:
-            how = f"re-coloured on the client in {1000 * seconds:.1f} ms, no server"
-        elif reused:
-            how = f"{took} request → decrypted frame, ray sums reused on the cluster (no map step)"
-        elif tasks is None:
-            how = f"{took} request → decrypted frame"
-        else:
-            how = f"{took} request → decrypted frame, {tasks} map tasks"
-        what = f"preview at pyramid level {level}, " if level else ""
-        text = f"{what}{kw['mode']}/{kw['sampling']}: {how}"
-        if not recolour:  # a full frame of a verifiable store is checked before it is shown
-            text += ", verified" if stats.get("verified") else ", not verified"
-        entry["verified"] = bool(stats.get("verified")) if not recolour else entry.get("verified")
-        if err is not None:
-            text += f"; max |error| vs plaintext {err:.2e} (bound {bound:.2e})"
+        verified = bool(stats.get("verified"))
+        text = status_text(
+            kw, level, seconds, recolour=recolour, reused=reused, tasks=tasks, verified=verified, err=err, bound=bound
+        )
+        entry["verified"] = verified if not recolour else entry.get("verified")
         self.status.value = html.escape(text)
         log.info("viewer: %s", text)
         return entry
@@ -503,9 +392,9 @@ class Viewer:
             f", azimuth {self.azimuth.value:g}, elevation {self.elevation.value:g}; {len(self.history)} frames)"
         )
 
-    def _repr_mimebundle_(self, **kwargs: Any) -> dict:
+    def _repr_mimebundle_(self, **kwargs: Any) -> dict[str, Any]:
         """The widget for Jupyter front ends; this short text where widgets cannot show."""
-        data = self.widget._repr_mimebundle_(**kwargs)
+        data: dict[str, Any] = self.widget._repr_mimebundle_(**kwargs)
         data["text/plain"] = repr(self)
         return data
 
