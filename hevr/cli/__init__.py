@@ -8,6 +8,7 @@
 ``render_arguments``  render, recolour, slice, decrypt: theirs
 ``options``           argparse value types and shared option groups (light)
 ``render_options``    types and options quoting the render side (presets, views, sizes)
+``verify_options``    --key / --verify of render and slice; what decrypt requires a frame to prove
 ``keys``              keygen, convert-key, reading a ``--key``, ``info KEY``
 ``encrypt``           ``hevr encrypt`` and ``hevr upgrade-store``
 ``render``            ``hevr render``; the mode and store checks the render commands share
@@ -23,6 +24,7 @@
 ``exits``             the exit-status rule and the CLI's words in error messages
 ``util``              shared checks, messages and formatting (light)
 ``demo``              ``hevr demo``: the whole data path on a phantom
+``demo_jobs``         the demo's figure set: each image rendered, decrypted, compared
 ``sheet``             the demo's contact sheet
 ``bench``             ``hevr bench`` (the engine is :mod:`hevr.bench`)
 ====================  ==========================================================

@@ -34,9 +34,7 @@ from .render_options import (
     TF_HELP,
     add_decrypt_colour_options,
     add_finish_option,
-    add_require_verified_option,
     add_server_option,
-    add_verify_option,
     add_view_option,
     format_tf,
     level_type,
@@ -44,6 +42,7 @@ from .render_options import (
     size_type,
     tf_type,
 )
+from .verify_options import add_require_verified_option, add_verify_option
 
 __all__ = [
     "DECRYPT_DESCRIPTION",
