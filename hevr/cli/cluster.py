@@ -135,6 +135,7 @@ def _stop_workers(cluster: Any) -> None:
 def describe_client(client: Any) -> str:
     if client is None:
         return "Dask's default (threaded) scheduler"
+    n: int | str
     try:
         n = len(client.scheduler_info().get("workers", {}))
     except Exception:  # pragma: no cover - informational only

@@ -17,7 +17,7 @@ from ..core.files import check_regular
 from ..image import load_image
 from ..image.display import default_window
 from ..image.orient import describe_layout
-from ..image.proof import Expect, proof_of
+from ..image.proof import Expect
 from ..paper import PAPER_TF1
 from ..rendering.packed.colour import PackedColourImage
 from ..rendering.packed.image import PackedImage
@@ -45,15 +45,19 @@ from .util import (
     show_progress,
     wh,
 )
-from .verifying import verified_line
+from .verifying import recorded_proof, verified_line
 
 
 # -- recolour ------------------------------------------------------------------------------
+def _spelled(name: str) -> str:
+    """A file's one spelling: a URL normalised, a local path absolute."""
+    return normalise(name) if st.is_url(name) else str(st.local_path(name).absolute())
+
+
 def cmd_recolour(args: Any) -> int:
     so = st.storage_options(args)
     path = normalise(args.sums) if st.is_url(args.sums) else st.local_path(args.sums)
-    out = normalise(args.out) if st.is_url(args.out) else st.local_path(args.out)
-    if str(path if st.is_url(args.sums) else path.absolute()) == str(out if st.is_url(args.out) else out.absolute()):
+    if _spelled(args.sums) == _spelled(args.out):
         raise UsageError(f"--out: expected another file than SUMS, got {args.out} for both (it would replace the sums)")
     out = st.output_file(args.out, force=args.force, so=so)  # after the check above: SUMS exists
     if not st.is_url(args.sums):  # missing, or a folder, FIFO, device (never opened: it could block)
@@ -198,7 +202,11 @@ def cmd_decrypt(args: Any) -> int:
     key = read_key(args.key, private=True)
     img = load_image(frame, storage_options=so)
     packed = isinstance(img, (PackedImage, PackedColourImage))
-    colouring = check_packed_decrypt(args) if isinstance(img, PackedImage) else decrypt_colouring(args, img)
+    colouring: tuple[str, float | None, Any] | None = None
+    if isinstance(img, PackedImage):
+        check_packed_decrypt(args)  # decrypted as it is: no colouring option
+    else:
+        colouring = decrypt_colouring(args, img)
     need = expected(args)
     with Timer() as t:
         decrypted = (
@@ -232,7 +240,7 @@ def cmd_decrypt(args: Any) -> int:
         f"{rgb}, values {float(arr.min()):.6g} .. {float(arr.max()):.6g}{coloured}"
     )
     if img.verification is not None:
-        proof = proof_of(img)
+        proof = recorded_proof(img)
         if proof.moved and need is None:
             print(
                 f"NOT verified for {frame}: the key holder saved this frame as {proof.saved_as}; it proves only "
@@ -240,10 +248,8 @@ def cmd_decrypt(args: Any) -> int:
                 f"{proof.store_id} --expect-view {proof.view_key})"
             )
         else:
-            print(
-                (packed_verified_line(img) if packed else verified_line(img)) + " (the file carries the key "
-                f"holder's stamp)\nproof:   {proof.describe()}"
-            )
+            line = packed_verified_line(img) if packed else verified_line(img)
+            print(f"{line} (the file carries the key holder's stamp)\nproof:   {proof.describe()}")
     else:
         print(
             "not verified: the frame carries no check against a store's tags (a store encrypted without "

@@ -124,7 +124,8 @@ def _info_store(path: Path | str, so: dict | None = None, args: Any = None) -> i
         check = "ok (metadata checksum and documents, completeness, chunk sizes; digests are checked on every read)"
     except StoreError as exc:
         check, failed = f"FAILED: {cli_phrases(str(exc), 'info')}", True
-    verify, damaged = None, []
+    verify: str | None = None
+    damaged: list[str] = []
     if getattr(args, "verify", False):
         verify, damaged, bad = verify_store(str(path), so, args)
         failed = failed or bad

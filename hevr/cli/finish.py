@@ -26,6 +26,8 @@ def colour_options(mode: str, density: float | None, nodes: Any) -> str:
     (" --tf '0.279:#0000ff,0.8:#ff0000'", ' --density 0.653')
     """
     if mode == "emphasize":
+        if density is None:
+            raise ValueError("colour_options: expected the density of an emphasis, got None")
         return f" --density {float(density)!r}"
     if mode == "tf":
         hexes = (format_tf([(0.0, c)]).partition(":")[2] for _, c in nodes)

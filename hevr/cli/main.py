@@ -29,12 +29,13 @@ nor Zarr nor numpy, and ``hevr info KEY`` only the key code (``tests/cli/test_st
 
 from __future__ import annotations
 
+import io
 import logging
 import sys
 import traceback
 import warnings
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 from ..core.lazy import resolve
 from .exits import cli_message, exit_code, interrupted_message
@@ -125,8 +126,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         logging.getLogger("hevr").removeHandler(handler)
         logging.getLogger("hevr.progress").setLevel(logging.NOTSET)
-        if errors is not None:
-            sys.stdout.reconfigure(errors=errors)
+        if errors is not None:  # _names_as_bytes changed it: the stream has reconfigure (a text stream's)
+            cast(io.TextIOWrapper, sys.stdout).reconfigure(errors=errors)
 
 
 if __name__ == "__main__":  # pragma: no cover

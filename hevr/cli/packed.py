@@ -15,13 +15,12 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import ParameterError
-from ..image.proof import proof_of
 from ..rendering.geometry.camera import Camera
 from ..rendering.packed.shear import ShearGeometry
 from ..rendering.planning.planner import check_render_size
 from .storage import png_name
 from .util import UsageError, plural, warn_line, wh, xyz
-from .verifying import verified_row
+from .verifying import recorded_proof, verified_row
 
 __all__ = [
     "check_packed_decrypt",
@@ -56,7 +55,10 @@ def check_packed_render(args: Any, mode: str, ev: Any = None) -> None:
     """Refuse (:class:`UsageError`, exit 2) an option of ``hevr render`` that a packed store cannot
     serve, naming it; before the store is read further or a cluster starts. Emphasis and transfer
     functions need the vector channel (``--gradient``: the gradient channel) in the store."""
-    has = lambda ch: ev is not None and getattr(ev.meta, ch) is not None
+
+    def has(channel: str) -> bool:
+        return ev is not None and getattr(ev.meta, channel) is not None
+
     if mode != "xray" and not has("vector"):
         opt = f"--mode {mode}" if args.mode else "--tf" if args.tf is not None else "--density"
         raise UsageError(
@@ -231,7 +233,7 @@ def packed_verified_line(img: Any) -> str | None:
         f"verified: the frame is the packed {kind} of store {v.store_id} ({img.plan.sampling} sampling, level "
         f"{img.level}) and its view, parallel camera at ({', '.join(f'{x:g}' for x in c.position)}) looking at "
         f"({', '.join(f'{x:g}' for x in c.focal_point)}), {c.width}x{c.height} px (view key "
-        f"{proof_of(img).view_key}); checked against the store's tags and its owner-authenticated metadata"
+        f"{recorded_proof(img).view_key}); checked against the store's tags and its owner-authenticated metadata"
     )
 
 

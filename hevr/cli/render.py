@@ -174,8 +174,9 @@ def cmd_render(args: Any) -> int:
                 verify=verify,
             )
     st.save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
-    if verified_line(img):
-        print(verified_line(img) + " (stamped with the key holder's MAC)")
+    line = verified_line(img)
+    if line:
+        print(f"{line} (stamped with the key holder's MAC)")
     warn_unverified(args, ev, img)
     print(
         f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "

@@ -156,7 +156,8 @@ def encrypt_input(args: Any) -> tuple[Scan, Any]:
     if fixed:
         lo, hi = value_range if value_range is not None else default_value_range(scan.volume)
         print(f"values:  density range {lo:g} .. {hi:g}, {how}")
-        hint = range_hint(*(float(v) for v in minmax(scan.volume)), (lo, hi))  # one pass over the data
+        data_lo, data_hi = minmax(scan.volume)  # one pass over the data
+        hint = range_hint(float(data_lo), float(data_hi), (lo, hi))
         if hint:
             warn_line(hint)
     else:

@@ -22,9 +22,11 @@ import numpy as np
 
 from ..core.files import write_file
 from ..errors import ParameterError
+from ..image.encrypted import EncryptedImage
 from ..image.orient import describe_layout
 from ..paper import PAPER_TF1
 from ..rendering.geometry.plane import Plane
+from ..rendering.packed.plane_image import PackedSlice
 from ..rendering.packed.planes import plane_kind
 from ..rendering.planning.planner import check_render_size
 from ..rendering.slices import render_slice
@@ -128,11 +130,13 @@ def cmd_slice(args: Any) -> int:
                 verify=verify,
                 **finish,
             )
+    assert isinstance(img, EncryptedImage)  # a per-voxel store's slice, computed (here or on hevr serve)
     save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
-    if verified_line(img):
-        print(verified_line(img) + " (stamped with the key holder's MAC)")
+    line = verified_line(img)
+    if line:
+        print(f"{line} (stamped with the key holder's MAC)")
     warn_unverified(args, ev, img)
-    inside = int(img.hits.sum())
+    inside = 0 if img.hits is None else int(img.hits.sum())
     print(
         f"wrote {out}: {plural(img.n_ciphertexts, 'ciphertext')} ({img.per_pack} values each), "
         f"{human_bytes(size_of(out, so))}, {inside:,} of {plane.width * plane.height:,} pixels inside the volume, "
@@ -197,6 +201,7 @@ def _packed_slice(args: Any, ev: Any, mode: str, out: Any) -> int:
             img = render_slice(
                 ev, plane, sampling=args.sampling, client=client, progress=show_progress(args), verify=verify
             )
+    assert isinstance(img, PackedSlice)  # a packed store's slice (here or on hevr serve)
     arr = img.decrypt(args.private_key)
     if suffix == "npy":
         buf = io.BytesIO()

@@ -211,10 +211,9 @@ def url_kind(url: str, so: dict | None = None) -> str:
 def encrypt_target(args: Any, so: dict | None) -> Path | str:
     """``hevr encrypt --out STORE``: a folder (in a writable folder) or a URL; one that exists
     only with ``--resume`` or ``--overwrite``; ``--resume`` only of one that exists."""
-    url = is_url(args.out)
-    store = normalise(args.out) if url else local_path(args.out).absolute()
-    exists = store_exists(store, so) if url else store.exists()
-    if exists and not url and not store.is_dir():
+    local = None if is_url(args.out) else local_path(args.out).absolute()
+    exists = store_exists(normalise(args.out), so) if local is None else local.exists()
+    if exists and local is not None and not local.is_dir():
         raise UsageError(f"--out: expected a store folder (e.g. vol.zarr), got a file ({args.out})")
     if exists and not (args.resume or args.overwrite):
         raise UsageError(
@@ -222,6 +221,7 @@ def encrypt_target(args: Any, so: dict | None) -> Path | str:
         )
     if not exists and args.resume:
         raise MissingFileError("--resume", "the interrupted store named by --out", args.out)
-    if not url:
-        check_writable_dir(store)
-    return store
+    if local is None:
+        return normalise(args.out)
+    check_writable_dir(local)
+    return local

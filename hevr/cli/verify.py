@@ -64,8 +64,8 @@ def verify_store(path: str, so: dict | None, args: Any) -> tuple[str, list[str],
     if report.ok:
         return (
             (
-                f"ok: verified {plural(report.bricks, 'brick')}{levels} (every ciphertext of every channel read: chunk crc32c, "
-                "brick digests, 0 < c < n², coprime to n)"
+                f"ok: verified {plural(report.bricks, 'brick')}{levels} (every ciphertext of every channel read: "
+                "chunk crc32c, brick digests, 0 < c < n², coprime to n)"
             ),
             [],
             False,

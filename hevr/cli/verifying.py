@@ -8,13 +8,27 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..image.proof import proof_of
+from ..image.proof import FrameProof, proof_of
 from ..image.provenance import refuse_untagged
 from ..store.known import known_stores_path, trust_store
 from .keys import read_key
 from .util import UsageError, warn_line
 
-__all__ = ["key_holder", "verified_line", "verify_argument", "warn_unverified"]
+__all__ = ["key_holder", "recorded_proof", "verified_line", "verify_argument", "warn_unverified"]
+
+
+def recorded_proof(img: Any) -> FrameProof:
+    """What a frame that carries a verification record proves (:func:`hevr.image.proof.proof_of`).
+
+    Raises
+    ------
+    ValueError
+        ``img`` has no verification record (the callers check ``img.verification`` first).
+    """
+    proof = proof_of(img)
+    if proof is None:
+        raise ValueError("expected a frame with a verification record, got one without")
+    return proof
 
 
 def verify_argument(args: Any) -> bool | str | None:
@@ -93,7 +107,7 @@ def verified_line(img: Any) -> str | None:
     )
     return (
         f"verified: the frame is the render of store {v.store_id} (channel {v.channel}, {v.sampling} sampling, "
-        f"step {v.step:g}, level {v.level}) and its view, {what} (view key {proof_of(img).view_key}); checked "
+        f"step {v.step:g}, level {v.level}) and its view, {what} (view key {recorded_proof(img).view_key}); checked "
         "against the store's tags and its owner-authenticated metadata"
     )
 
@@ -105,7 +119,7 @@ def verified_row(img: Any) -> str:
         return "no (no check against the store's tags: --require-verified refuses it)"
     if img.stamp is None:
         return f"record of store {img.verification.store_id}, without the key holder's stamp (refused at decryption)"
-    p = proof_of(img)
+    p = recorded_proof(img)
     moved = (
         f"; read from {p.read_as}: moved, so not verified for this file unless you name its store and view"
         if p.moved
