@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import hashlib
 import struct
+from typing import Any
 
 import google_crc32c
 import numpy as np
@@ -67,14 +68,14 @@ def marker(digests: list[bytes]) -> np.ndarray:
     return np.frombuffer(b"".join(digests), np.uint8).reshape(len(digests), DIGEST_BYTES)
 
 
-def written(done: np.ndarray) -> np.ndarray:
+def written(done: Any) -> np.ndarray:
     """Which bricks have their digests: ``done`` (..., C, 32) -> bool (...); all-zero = not written.
 
     >>> written(np.zeros((2, 1, 1, 2, 32), np.uint8)).tolist()
     [[[False]], [[False]]]
     """
-    done = np.asarray(done)
-    return done.reshape(done.shape[:-2] + (-1,)).any(axis=-1)
+    arr = np.asarray(done)
+    return np.asarray(arr.reshape(arr.shape[:-2] + (-1,)).any(axis=-1))
 
 
 def digest_hex(digest: bytes | np.ndarray) -> str:

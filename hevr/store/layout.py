@@ -51,6 +51,7 @@ __all__ = [
     "check_chunk_objects",
     "check_documents",
     "check_level_layout",
+    "store_array",
 ]
 
 CRC_BYTES = 4  # Zarr's crc32c codec appends 4 bytes to every chunk
@@ -92,6 +93,14 @@ def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple
     nch = len(meta.channel_names)
     out["done"] = (meta.grid + (nch, DIGEST_BYTES), (1, 1, 1, nch, DIGEST_BYTES))
     return out
+
+
+def store_array(group: zarr.Group, name: str) -> zarr.Array[Any]:
+    """The array ``name`` of a store's Zarr group (a group in its place is a damaged store)."""
+    arr = group[name]
+    if not isinstance(arr, zarr.Array):
+        raise CorruptStoreError(f"{name}: expected an array of the store, found a group")
+    return arr
 
 
 def brick_slices(meta: VolumeMetadata, index: tuple[int, int, int]) -> tuple[slice, slice, slice]:

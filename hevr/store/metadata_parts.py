@@ -30,6 +30,13 @@ class ChannelInfo:
     def to_dict(self) -> dict[str, int]:
         return {k: v for k, v in asdict(self).items() if v is not None}
 
+    def digits_dims(self) -> tuple[int, int]:
+        """``(digits, dims)`` of a vector or gradient channel, which has both (:meth:`from_dict` and
+        the writer's plan see to it); a channel without them is a :class:`hevr.CorruptStoreError`."""
+        if self.digits is None or self.dims is None:
+            raise CorruptStoreError(f"channels: expected 'digits' and 'dims' of a k-dimensional channel, got {self}")
+        return self.digits, self.dims
+
     @classmethod
     def from_dict(cls, d: Any, where: str = "store", name: str = "channels") -> ChannelInfo:
         if not isinstance(d, dict) or "exponent" not in d or set(d) - {"exponent", "digits", "dims"}:

@@ -3,52 +3,46 @@
 A store is a location (:mod:`hevr.store.paths`): a path or fsspec URL and its
 ``storage_options``. The handle keeps both, so the Dask tasks it is pickled into reach the same
 store; the options (object-store credentials, never hevr key material) stay out of its ``repr``
-and of every message. A task process opens each array once (:func:`_array`, a small LRU).
+and of every message. A brick is read and checked by :mod:`hevr.store.brick_read`.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-import threading
-from collections import OrderedDict
 from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-import dask
 import numpy as np
 import zarr
 
-from ..backends import Backend, get_backend
+from ..backends import Backend
 from ..core.validate import check_brick_index, check_choice
 from ..crypto.keys import PublicKey
 from ..crypto.records import record_width
-from ..crypto.tags import data_channel
 from ..errors import (
     CorruptStoreError,
     IncompleteStoreError,
     MissingFileError,
-    ParameterError,
 )
 from ..runtime.scheduler import active_client
 from ..volume.pyramid import check_level, level_origin
-from .digests import brick_digest, digest_hex, written
+from .brick_read import read_batches, read_records
+from .digests import written
 from .layout import (
     CRC_BYTES,
     array_layout,
-    array_slices,
     brick_slices,
     check_arrays,
     check_chunk_files,
     check_chunk_objects,
     check_document,
     check_documents,
-    check_entry,
     check_level_layout,
-    chunk_key,
+    store_array,
 )
-from .metadata import CHANNELS, VolumeMetadata
+from .metadata import VolumeMetadata
 from .paths import (
     check_reachable,
     check_storage_options,
@@ -58,35 +52,12 @@ from .paths import (
     store_exists,
     zarr_store,
 )
-from .resident import Residency, load_brick, plan_residency
+from .resident import Residency, load_residency
 from .verify import check_brick
 
 log = logging.getLogger(__name__)
 
 __all__ = ["EncryptedVolume", "open_volume", "brick_slices", "array_layout", "CRC_BYTES"]
-
-_ARRAYS: OrderedDict = OrderedDict()
-_ARRAYS_LOCK = threading.Lock()
-_ARRAYS_SIZE = 64
-
-
-def _array(path: str, store_id: str, name: str, storage_options: dict | None = None) -> Any:
-    """One store array, opened once per process (a render task reads one brick of it; opening
-    parses its metadata). Keyed by ``store_id`` too: a store replaced at the same path has
-    another id, so a stale handle is never used; open_volume checks the documents each time.
-    The options enter the key as their ``repr`` (they need not be hashable), kept only here."""
-    key = (path, store_id, name, repr(sorted((storage_options or {}).items())))
-    with _ARRAYS_LOCK:
-        if key in _ARRAYS:
-            _ARRAYS.move_to_end(key)
-            return _ARRAYS[key]
-    check_document(path, name)  # a FIFO in its place would block Zarr's open
-    arr = zarr.open_array(zarr_store(path, storage_options, read_only=True), path=name, mode="r")
-    with _ARRAYS_LOCK:
-        _ARRAYS[key] = arr
-        while len(_ARRAYS) > _ARRAYS_SIZE:
-            _ARRAYS.popitem(last=False)
-    return arr
 
 
 class EncryptedVolume:
@@ -95,6 +66,8 @@ class EncryptedVolume:
     Holds only the location (path and ``storage_options``) and public metadata, so it pickles
     cheaply into Dask tasks; the Zarr arrays are opened lazily wherever the handle is used.
     """
+
+    written_now: dict[str, int]  # set by encrypt_volume on the handle it returns: what that call encrypted
 
     def __init__(
         self,
@@ -275,35 +248,8 @@ class EncryptedVolume:
         """
         client = active_client(client)
         check_reachable(self.path, client)
-        channels, backend, place, share = plan_residency(self, channels, backend, client)
-        plain = self._plain()
-        if client is None:
-            bricks = dict(
-                zip(
-                    place,
-                    dask.compute(
-                        *[dask.delayed(load_brick, pure=False)(plain, idx, channels, backend) for idx in place]
-                    ),
-                )
-            )
-        else:
-            tag = f"{self.meta.store_id}-{'+'.join(channels)}-{backend}"
-            bricks = {
-                idx: client.submit(
-                    load_brick,
-                    plain,
-                    idx,
-                    channels,
-                    backend,
-                    workers=[w],
-                    allow_other_workers=True,
-                    pure=False,
-                    key=f"hevr-brick-{tag}-{idx[0]}-{idx[1]}-{idx[2]}",
-                )
-                for idx, w in place.items()
-            }
         out = self._plain()
-        out.resident = Residency(channels, backend, bricks, client, sum(share.values()), share)
+        out.resident = load_residency(self, self._plain(), channels, backend, client)
         return out
 
     # -- bricks --------------------------------------------------------------------------
@@ -328,49 +274,7 @@ class EncryptedVolume:
         match the one its writer recorded; a mismatch raises :class:`hevr.CorruptStoreError`
         naming the brick. Zarr's crc32c codec checks the chunk file itself in any case.
         """
-        if not isinstance(channel, str) or data_channel(channel) not in CHANNELS:
-            raise ParameterError(
-                f"channel: expected 'scalar', 'vector' or 'gradient' (or its tag channel "
-                f"'<channel>_tag'), got {channel!r}"
-            )
-        if channel not in self.meta.channel_names:
-            raise ParameterError(f"channel: this store has no {channel} channel")
-        self._check_index(index)
-        sl = array_slices(self.meta, index)  # a packed store's records: pack units along its axis
-        index = tuple(int(i) for i in index)
-        where = f"brick {index} of channel {channel!r}" + (f" of level {self.level}" if self.level else "")
-        for name in (channel, "done") if verify else (channel,):  # a FIFO there would block Zarr's read
-            what = f"the chunk of {where}" if name == channel else f"the digest marker of {where}"
-            check_entry(self.path, f"{self.prefix}{name}/{chunk_key(name, index)}", what)
-        try:
-            so = self.storage_options
-            arr = _array(self.path, self.meta.store_id, self.prefix + channel, so)
-            data = np.asarray(arr[sl if data_channel(channel) == "scalar" else (slice(None),) + sl])
-            stored = (
-                np.asarray(_array(self.path, self.meta.store_id, self.prefix + "done", so)[index]) if verify else None
-            )
-        except Exception as exc:
-            why = (
-                "its chunk fails its crc32c check: the file was damaged"
-                if "checksum" in str(exc).lower()
-                else f"{type(exc).__name__}: {exc}"
-            )
-            raise CorruptStoreError(f"{self.path}: {where} cannot be read ({why})") from None
-        if verify:
-            want = stored[self.meta.channel_names.index(channel)]
-            if not want.any():
-                raise CorruptStoreError(
-                    f"{self.path}: {where} has no digest "
-                    "(its marker is missing: the brick was never finished or was removed)"
-                )
-            got = brick_digest(self.meta.store_id, self.prefix + channel, index, data)
-            if got != want.tobytes():
-                raise CorruptStoreError(
-                    f"{self.path}: {where}: digest mismatch (recorded "
-                    f"{digest_hex(want)}…, computed {digest_hex(got)}…): the chunk was corrupted, truncated, "
-                    "swapped with another brick or copied from another store"
-                )
-        return data
+        return read_records(self, index, channel, verify)
 
     def read_brick(
         self,
@@ -378,7 +282,7 @@ class EncryptedVolume:
         channel: str = "scalar",
         check: bool = True,
         backend: str | Backend | None = None,
-    ):
+    ) -> Any:
         """Ciphertexts of one brick in the backend's form, converted once: one batch (scalar)
         or k batches (vector, gradient). For the default ``cpu`` backend a batch is a list of mpz.
 
@@ -387,21 +291,7 @@ class EncryptedVolume:
         :class:`hevr.CorruptStoreError` naming the brick; the backend checks its converted
         batch (:meth:`~hevr.backends.base.Backend.first_out_of_range`), the same rule for all.
         """
-        be = get_backend(backend)
-        data = self.read_brick_bytes(index, channel, verify=check)
-        parts = [data] if data_channel(channel) == "scalar" else list(data)
-        batches = [be.from_bytes(d) for d in parts]
-        if check:
-            n2 = int(self.public_key.nsquare)
-            for part, batch in zip(parts, batches):
-                i = be.first_out_of_range(batch, n2)
-                if i is not None:
-                    what = ">= n²" if part.reshape(-1, part.shape[-1])[i].any() else "zero (missing data)"
-                    lv = f" of level {self.level}" if self.level else ""
-                    raise CorruptStoreError(
-                        f"{self.path}: brick {tuple(index)} of channel {channel!r}{lv}: ciphertext {i} is {what}"
-                    )
-        return batches[0] if data_channel(channel) == "scalar" else batches
+        return read_batches(self, index, channel, check, backend)
 
     def verify(self, coprime: bool = True) -> None:
         """Read every brick and check every ciphertext (digest, range, and coprimality with n);
@@ -462,7 +352,7 @@ def open_volume(
     meta = VolumeMetadata.from_dict(attrs.get("hevr"), where=path)
     if not meta.complete:
         try:
-            missing = int((~written(group["done"][...])).sum())
+            missing = int((~written(store_array(group, "done")[...])).sum())
         except Exception:
             missing = meta.n_bricks
         raise IncompleteStoreError(

@@ -53,7 +53,15 @@ from .layout import array_slices
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ResidentBrick", "Residency", "batched", "load_brick", "plan_residency", "RESIDENT_MEMORY_KEY"]
+__all__ = [
+    "ResidentBrick",
+    "Residency",
+    "batched",
+    "load_brick",
+    "load_residency",
+    "plan_residency",
+    "RESIDENT_MEMORY_KEY",
+]
 
 RESIDENT_MEMORY_KEY = "hevr.limits.resident-memory"
 # Below this key size a render maps a worker's resident bricks in one task
@@ -274,3 +282,31 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
         " (device memory)" if device else "",
     )
     return channels, backend, place, share
+
+
+def load_residency(ev: Any, plain: Any, channels: Any, backend: Any, client: Any) -> Residency:
+    """:meth:`hevr.EncryptedVolume.persist`: plan the bricks' places (:func:`plan_residency`), then
+    load each brick of ``plain`` (``ev`` without residency) there: in this process without a
+    client (one Dask task per brick), else one future per brick on its worker."""
+    channels, backend, place, share = plan_residency(ev, channels, backend, client)
+    bricks: dict[tuple[int, int, int], Any]
+    if client is None:
+        loads = [dask.delayed(load_brick, pure=False)(plain, idx, channels, backend) for idx in place]
+        bricks = dict(zip(place, dask.compute(*loads)))
+    else:
+        tag = f"{ev.meta.store_id}-{'+'.join(channels)}-{backend}"
+        bricks = {
+            idx: client.submit(
+                load_brick,
+                plain,
+                idx,
+                channels,
+                backend,
+                workers=[w],
+                allow_other_workers=True,
+                pure=False,
+                key=f"hevr-brick-{tag}-{idx[0]}-{idx[1]}-{idx[2]}",
+            )
+            for idx, w in place.items()
+        }
+    return Residency(channels, backend, bricks, client, sum(share.values()), share)

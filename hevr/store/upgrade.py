@@ -35,13 +35,13 @@ from ..errors import (
     StoreExistsError,
 )
 from ..runtime.scheduler import compute
+from .creation import create_store
 from .digests import brick_digest, marker
 from .exclusive import rename_noreplace, swap_lock
 from .layout import check_document, check_entry, chunk_key
 from .metadata import VolumeMetadata
 from .paths import is_local, normalise, remove_tree, store_exists, token
 from .reader import EncryptedVolume, brick_slices, open_volume
-from .writer import create_store
 
 log = logging.getLogger(__name__)
 

@@ -48,39 +48,22 @@ import dask.array
 import numpy as np
 import zarr
 
-from ..backends import CpuBackend, check_backend, get_backend, resolve_backend_name
+from ..backends import check_backend, resolve_backend_name
 from ..core.files import fs_errors
-from ..core.validate import (
-    check_brick,
-    check_choice,
-    check_spacing,
-    check_volume,
-)
 from ..crypto.keys import PrivateKey, PublicKey
-from ..crypto.tags import tag_channel, tag_ciphertexts
 from ..errors import ParameterError, StoreError, StoreExistsError
-from ..runtime import stats
 from ..runtime.scheduler import active_client, check_encryption_client, compute
 from ..volume import gradient as grad
-from ..volume.density import (
-    check_brick_range,
-    encode_density,
-    normalize_density,
-)
-from ..volume.mapped import task_array
-from ..volume.scan import Scan
 from .authenticity import authenticate
-from .brick_crypto import encrypt_components
-from .creation import create_store, new_store, resume_target  # noqa: F401 - create_store: hevr.store.upgrade
-from .digests import brick_digest, marker, written
+from .brick_write import write_brick
+from .creation import new_store, resume_target
+from .digests import written
 from .exclusive import lock_store, remove_leftovers
 from .journal import check_journal, input_digests, remove_journal, write_journal
 from .known import record_quietly
-from .layout import array_slices
+from .layout import array_slices, store_array
 from .metadata import VolumeMetadata
-from .packed_brick import pack_axis_of, write_packed_brick
-from .packed_levels import build_pyramid, check_levels, encrypt_levels, plan_levels, prepare_levels
-from .packing import choose_packing, mantissa_range
+from .packed_levels import build_pyramid, encrypt_levels, plan_levels, prepare_levels
 from .paths import (
     check_reachable,
     check_replaceable,
@@ -94,27 +77,25 @@ from .paths import (
     token,
     zarr_store,
 )
-from .quantise import plan_channels, quantise_scalar, quantise_vector
-from .reader import EncryptedVolume, brick_slices, open_volume
+from .reader import EncryptedVolume, open_volume
+from .store_plan import plan_store
 
 log = logging.getLogger(__name__)
 
 __all__ = ["encrypt_volume", "open_volume", "EncryptedVolume"]
-
-_CPU = CpuBackend()  # the tags' records (owner-encrypted on the CPU whatever the data's backend)
 
 
 def _encrypt_brick(
     block: np.ndarray,
     path: str,
     index: tuple[int, int, int],
-    meta_dict: dict,
+    meta_dict: dict[str, Any],
     key: Any,
     unsafe_no_obfuscation: bool,
     backend: str = "cpu",
     halo: grad.Halo | None = None,
     m_max: float = 0.0,
-    storage_options: dict | None = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> tuple[int, int, int]:
     """One task: encrypt one plaintext brick and write its chunks, then its digest marker.
 
@@ -123,77 +104,9 @@ def _encrypt_brick(
     An ``OSError`` (disk full, read-only filesystem, …) becomes :class:`hevr.FileSystemError`
     naming the store and the reason only (never a value of the brick)."""
     with fs_errors("writing a brick of the store", path):
-        return _write_brick(
+        return write_brick(
             block, path, index, meta_dict, key, unsafe_no_obfuscation, backend, halo, m_max, storage_options
         )
-
-
-def _write_brick(
-    block: np.ndarray,
-    path: str,
-    index: tuple[int, int, int],
-    meta_dict: dict,
-    key: Any,
-    unsafe_no_obfuscation: bool,
-    backend: str,
-    halo: grad.Halo | None,
-    m_max: float,
-    storage_options: dict | None,
-) -> tuple[int, int, int]:
-    be = get_backend(backend)
-    meta = VolumeMetadata.from_dict(meta_dict)
-    haloed = np.asarray(block)
-    block = haloed if halo is None else haloed[tuple(slice(lo, n - hi) for (lo, hi), n in zip(halo, haloed.shape))]
-    check_brick_range(block, meta.value_range, index)  # no data value in a task's message
-    sl = brick_slices(meta, index)
-    width = meta.ciphertext_bytes
-    group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
-    digests = []
-    mantissas = {}  # channel -> (k, voxels) int64, for the tags of a verifiable store
-    if meta.packing is not None:  # S voxels per ciphertext along the packing axis (hevr.store.packing)
-        genc = (
-            None
-            if meta.gradient is None
-            else grad.brick_gradient_encoding(haloed, halo, meta.spacing, meta.value_range, meta.gradient.dims, m_max)
-        )
-        return write_packed_brick(be, block, group, index, meta, key, unsafe_no_obfuscation, genc)
-    if meta.scalar is not None:
-        q = quantise_scalar(block, meta.scalar)
-        out = encrypt_components(be, key, [q], block.shape, width, unsafe_no_obfuscation)[0]
-        digests.append(brick_digest(meta.store_id, "scalar", index, out))
-        with stats.timed("encrypt.write"):
-            group["scalar"][sl] = out
-        mantissas["scalar"] = np.asarray(q).reshape(1, -1)
-    fields = {}
-    if meta.vector is not None:
-        fields["vector"] = encode_density(normalize_density(block, meta.value_range), meta.vector.dims)
-    if meta.gradient is not None:
-        if halo is None:  # pragma: no cover - _run always passes the halo with the gradient channel
-            raise StoreError(f"brick {index}: the gradient channel needs the brick's halo")
-        fields["gradient"] = grad.brick_gradient_encoding(
-            haloed, halo, meta.spacing, meta.value_range, meta.gradient.dims, m_max
-        )
-    for name, enc in fields.items():  # store order: vector, then gradient
-        q = quantise_vector(enc, getattr(meta, name))
-        out = encrypt_components(be, key, q, block.shape, width, unsafe_no_obfuscation)
-        digests.append(brick_digest(meta.store_id, name, index, out))
-        with stats.timed("encrypt.write"):
-            group[name][(slice(None),) + sl] = out
-        mantissas[name] = np.asarray(q)
-    if meta.tags:  # after every data channel: the digests' order (VolumeMetadata.channel_names)
-        voxels = np.ravel_multi_index(
-            np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"), meta.shape
-        ).reshape(-1)
-        for name, q in mantissas.items():
-            with stats.timed("encrypt.tags", q.size):
-                tags = tag_ciphertexts(key, meta.store_id, name, 0, q, voxels)
-            out = np.stack([_CPU.to_bytes(t, width).reshape(block.shape + (width,)) for t in tags])
-            out = out[0] if name == "scalar" else out
-            digests.append(brick_digest(meta.store_id, tag_channel(name), index, out))
-            with stats.timed("encrypt.write"):
-                group[tag_channel(name)][sl if name == "scalar" else (slice(None),) + sl] = out
-    group["done"][index] = marker(digests)
-    return index
 
 
 def encrypt_volume(
@@ -215,7 +128,7 @@ def encrypt_volume(
     client: Any = None,
     unsafe_no_obfuscation: bool = False,
     backend: str | None = None,
-    storage_options: dict | None = None,
+    storage_options: dict[str, Any] | None = None,
     verifiable: bool | None = None,
     layout: str = "voxel",
     pack_axis: int | str | None = None,
@@ -307,86 +220,23 @@ def encrypt_volume(
     if unsafe_no_obfuscation:
         log.warning("encrypt_volume(unsafe_no_obfuscation=True): the store is NOT secure")
     backend = resolve_backend_name(backend)
-    patient = {"frame": vol.frame, "origin": tuple(vol.origin)} if isinstance(vol, Scan) and vol.frame else {}
-    scanned = isinstance(vol, Scan)
-    if scanned:
-        vol, spacing = vol.volume, vol.spacing if spacing is None else spacing
-    # a file's single 2-D slice is refused, as a 2-D array is (arrays with a flat axis stay: slices of them render)
-    vol = check_volume(vol, thick=scanned)
-    brick_t = check_brick(brick, shape=vol.shape)
-    vol = task_array(vol, brick_t, f"hevr-plain-{token()}{token()}")  # memmaps: read inside the tasks
-    spacing_t = check_spacing((1.0, 1.0, 1.0) if spacing is None else spacing)
-    pub = key.public_key if isinstance(key, PrivateKey) else key
-    if not isinstance(gradient, (bool, np.bool_)):
-        raise ParameterError(f"gradient: expected True or False, got {gradient!r}")
-    if verifiable is not None and not isinstance(verifiable, (bool, np.bool_)):
-        raise ParameterError(f"verifiable: expected True, False or None, got {verifiable!r}")
-    if verifiable and not isinstance(key, PrivateKey):
-        raise ParameterError(
-            "verifiable: expected a PrivateKey as key (the tags need its tag key, "
-            f"hevr.crypto.tags), got a {type(key).__name__}"
-        )
-    if gradient and vector_dims is None:
-        raise ParameterError(
-            "gradient: expected vector_dims=k as well, got vector_dims=None (the gradient channel "
-            "holds g·e(d), the k-dimensional density encoding scaled by the gradient magnitude)"
-        )
-    layout, levels = check_choice("layout", layout, ("voxel", "packed")), check_levels(levels)
-    policy = isinstance(key, PrivateKey) and key.require_tags  # the key's policy: every store carries tags
-    if policy and verifiable is not None and not verifiable:
-        raise ParameterError(
-            "verifiable: expected True or None under a key whose policy is that every store of it "
-            "carries tags (PrivateKey.require_tags), got False: its key holder would refuse the "
-            "store; encrypt with key.with_policy(require_tags=False) to make one without tags"
-        )
-    if verifiable is None:  # packed stores carry tags by default (one per packed ciphertext costs little), and
-        verifiable = policy or (layout == "packed" and isinstance(key, PrivateKey))  # every store of a policy key
-        if layout == "packed" and not verifiable:
-            log.warning(
-                "encrypt_volume: a packed store encrypted with the public key has no tags (they need the "
-                "private key), so its frames cannot be verified"
-            )
-    if layout == "packed" and not scalar:
-        raise ParameterError(
-            "layout: expected 'voxel' for a store without the scalar channel (a packed store "
-            "packs every channel along the scalar's slots), got 'packed' with scalar=False"
-        )
-    if layout == "packed" and vector_dims is not None and levels:
-        raise ParameterError(
-            f"levels: expected 0 for a packed store with the vector channel (its levels are "
-            f"encrypted scalar only), got {levels}; encrypt without vector_dims, or layout='voxel'"
-        )
-    if layout == "voxel" and pack_axis is not None:
-        raise ParameterError(f"pack_axis: expected None for layout='voxel', got {pack_axis!r}")
-    sc, vc, vr = plan_channels(vol, int(pub.n), scalar, vector_dims, value_range, digits, vector_digits)
-    packing = None
-    if layout == "packed":
-        axis = pack_axis_of(pack_axis)
-        packing = choose_packing(
-            int(pub.n).bit_length(),
-            tuple(int(s) for s in vol.shape),
-            axis,
-            mantissa_range(vr, sc.exponent),
-            vector_digits=None if vc is None else vc.digits,
-        )
-        brick_t = tuple(-(-b // packing.slots) * packing.slots if i == axis else b for i, b in enumerate(brick_t))
-    meta = VolumeMetadata(
-        shape=tuple(int(s) for s in vol.shape),
-        spacing=spacing_t,
-        brick=brick_t,
-        n=str(int(pub.n)),
-        fingerprint=pub.fingerprint,
-        ciphertext_bytes=pub.ciphertext_bytes,
-        dtype=str(np.dtype(vol.dtype)),
-        value_range=vr,
-        scalar=sc,
-        vector=vc,
-        gradient=vc if gradient else None,
-        patient=patient,
-        tags=bool(verifiable),
-        packing=packing,
+    vol, brick_t, meta, levels = plan_store(
+        vol,
+        key,
+        spacing=spacing,
+        brick=brick,
+        scalar=scalar,
+        vector_dims=vector_dims,
+        value_range=value_range,
+        digits=digits,
+        vector_digits=vector_digits,
+        gradient=gradient,
+        verifiable=verifiable,
+        layout=layout,
+        pack_axis=pack_axis,
+        levels=levels,
     )
-    planned = plan_levels(meta, levels) if packing is not None else ()  # the packed levels' slots, before the disk
+    planned = plan_levels(meta, levels) if meta.packing is not None else ()  # the packed levels' slots, before the disk
     path, so = normalise(path), check_storage_options(storage_options)
     check_encryption_client(client, isinstance(key, PrivateKey))  # another party's cluster: before any work
     check_reachable(path, active_client(client))
@@ -402,7 +252,7 @@ def encrypt_volume(
         left = interrupted_swaps(path)
         if left:
             log.warning("an interrupted or failed overwrite left %s beside %s; they are not touched", left, path)
-    bricks = [tuple(int(i) for i in idx) for idx in np.ndindex(*meta.grid)]
+    bricks = [(int(z), int(y), int(x)) for z, y, x in np.ndindex(*meta.grid)]
     with contextlib.ExitStack() as stack:  # the store's lock, held until the store is opened
         if exists and resume:
             if local:
@@ -458,7 +308,8 @@ def encrypt_volume(
             f"path: the store at {path} was created or replaced by another run while this one "
             "wrote it; this run's store is not there"
         )
-    ev = build_pyramid(ev, levels, client=client, progress=progress, backend=backend) if levels and not packing else ev
+    if levels and meta.packing is None:  # a packed store's levels were encrypted above
+        ev = build_pyramid(ev, levels, client=client, progress=progress, backend=backend)
     ev.written_now = {"bricks": len(todo), "ciphertexts": values}  # this call's share (resume: the missing ones)
     record_quietly(ev, key if isinstance(key, PrivateKey) else None, replace=True)  # the owner's: hevr.store.known
     return ev
@@ -467,7 +318,7 @@ def encrypt_volume(
 def _run(
     vol: Any,
     brick: tuple[int, int, int],
-    todo: list,
+    todo: list[tuple[int, int, int]],
     path: str,
     meta: VolumeMetadata,
     key: Any,
@@ -475,7 +326,7 @@ def _run(
     backend: str,
     client: Any,
     progress: bool,
-    storage_options: dict | None = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> int:
     """Encrypt the bricks ``todo`` into the store at ``path`` (one impure task per brick), then
     mark the store complete once every digest marker is written; returns the ciphertexts written."""
@@ -487,7 +338,7 @@ def _run(
         else dask.array.from_array(vol, chunks=brick, name=f"hevr-plain-{token()}{token()}")
     )
     darr = darr.rechunk(brick)
-    extra: list[dict] = [{} for _ in todo]
+    extra: list[dict[str, Any]] = [{} for _ in todo]
     if meta.gradient is not None and todo:
         # bricks with a one-voxel halo of their neighbours (none at the volume's faces), and the
         # whole volume's max |∇d| from a first pass: a task argument, never in a key or the store
@@ -527,7 +378,7 @@ def _run(
     compute(tasks, client=client, progress=progress, desc="encrypt", steps=values, unit="ciphertexts")
     with fs_errors("finishing the store", path):
         group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
-        final = written(group["done"][...])
+        final = written(store_array(group, "done")[...])
         if not final.all():  # pragma: no cover - tasks raise instead
             raise StoreError(f"path: {int((~final).sum())} bricks of {path} are still missing")
         group.attrs["hevr"] = dataclasses.replace(meta, complete=True).to_dict()

@@ -18,6 +18,7 @@ import hevr
 from hevr.rendering import view as view_mod
 from hevr.rendering.encrypted import error_bound
 from hevr.store import reader as reader_mod
+from hevr.store import resident as resident_mod
 from hevr.store.resident import (
     RESIDENT_MEMORY_KEY,
     Residency,
@@ -203,7 +204,7 @@ def test_memory_limit_refuses_before_loading(store, monkeypatch):
     def forbidden(*a, **k):
         raise AssertionError("a brick was loaded")
 
-    monkeypatch.setattr(reader_mod, "load_brick", forbidden)
+    monkeypatch.setattr(resident_mod, "load_brick", forbidden)
     with dask.config.set({RESIDENT_MEMORY_KEY: 1e-9}):
         with pytest.raises(hevr.MemoryLimitError, match="hevr.limits.resident-memory") as info:
             store.persist()
@@ -215,7 +216,7 @@ def test_memory_limit_refuses_before_loading(store, monkeypatch):
 
 @pytest.mark.parametrize("value", [2, "x", 0, -0.5, float("nan"), None, [0.5]])
 def test_memory_limit_must_be_a_fraction(store, value, monkeypatch):
-    monkeypatch.setattr(reader_mod, "load_brick", lambda *a, **k: pytest.fail("a brick was loaded"))
+    monkeypatch.setattr(resident_mod, "load_brick", lambda *a, **k: pytest.fail("a brick was loaded"))
     with (
         dask.config.set({RESIDENT_MEMORY_KEY: value}),
         pytest.raises(hevr.ParameterError, match="hevr.limits.resident-memory"),
