@@ -5,7 +5,8 @@
   parses with the command's own parser (:func:`hevr.cli.parser.build_parser`): a renamed or removed
   option fails here, naming the page and line;
 * every Python example written as a doctest (``>>>`` in a fenced block) on the site runs and
-  prints what the page says;
+  prints what the page says; every other Python block parses, and every ``hevr.NAME`` in a Python
+  block (README too) is a public name;
 * every page of the root toctree exists.
 
 Building the site itself (warnings as errors) is .ci/run's step; ``test_the_site_builds`` (slow)
@@ -14,8 +15,10 @@ does the same into a temporary folder when Sphinx is installed (``pip install -e
 
 from __future__ import annotations
 
+import ast
 import doctest
 import io
+import pkgutil
 import re
 import shlex
 import subprocess
@@ -229,6 +232,42 @@ def test_the_pages_doctests_run(page, tmp_path, monkeypatch):
     results = runner.summarize(verbose=False)
     assert ran > 0
     assert results.failed == 0, report.getvalue()
+
+
+def _python_blocks() -> list[tuple[str, int, list[str]]]:
+    found = []
+    for page in [*_pages(), ROOT / "README.md"]:
+        for info, start, lines in fenced_blocks(page.read_text(encoding="utf-8")):
+            if info.split()[:1] in (["python"], ["py"], ["pycon"]):
+                found.append((str(page.relative_to(ROOT)), start, lines))
+    return found
+
+
+def test_the_pages_python_sketches_are_python():
+    """A Python block that is not a doctest (a sketch that needs a cluster, a server or a scan) is
+    not run, but it is Python: it parses."""
+    sketches = [(p, n, lines) for p, n, lines in _python_blocks() if not any(">>>" in line for line in lines)]
+    bad = []
+    for page, start, lines in sketches:
+        try:
+            ast.parse("\n".join(lines))
+        except SyntaxError as exc:
+            bad.append(f"{page}:{start + (exc.lineno or 1) - 1}: {exc.msg}")
+    assert bad == []
+
+
+def test_the_pages_python_names_are_public():
+    """Every ``hevr.NAME`` a Python block of the pages or the README uses is a public name (or a
+    subpackage): a renamed or removed name fails here, naming the page and line."""
+    known = set(hevr.__all__) | {m.name for m in pkgutil.iter_modules(hevr.__path__)} | {"__version__"}
+    unknown = [
+        f"{page}:{start + i}: hevr.{name}"
+        for page, start, lines in _python_blocks()
+        for i, line in enumerate(lines)
+        for name in re.findall(r"(?<![\w.])hevr\.([A-Za-z_]\w*)", line)
+        if name not in known
+    ]
+    assert len(_python_blocks()) > 10 and unknown == []
 
 
 def test_every_toctree_page_exists():
