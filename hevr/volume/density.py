@@ -70,7 +70,8 @@ def encode_density(density: Any, dims: int) -> np.ndarray:
     np.put_along_axis(v, prev[..., None], np.where(down, 1.0 - frac, 1.0)[..., None], axis=-1)
     nxt = np.where(up, idx + 1, idx)
     np.put_along_axis(v, nxt[..., None], np.where(up, frac, 1.0)[..., None], axis=-1)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    unit: np.ndarray = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return unit
 
 
 def minmax(vol: Any, slab_bytes: int = 64 << 20) -> tuple[Any, Any]:
@@ -86,7 +87,9 @@ def minmax(vol: Any, slab_bytes: int = 64 << 20) -> tuple[Any, Any]:
     for k in range(0, vol.shape[0], step):
         slab = np.asarray(vol[k : k + step])
         a, b = slab.min(), slab.max()
-        lo, hi = (a, b) if lo is None else (np.minimum(lo, a), np.maximum(hi, b))
+        lo, hi = (a, b) if lo is None or hi is None else (np.minimum(lo, a), np.maximum(hi, b))
+    if lo is None or hi is None:
+        raise ValueError(f"minmax: expected a volume with at least one slice, got shape {vol.shape}")
     return lo.item(), hi.item()
 
 
@@ -101,10 +104,11 @@ def check_brick_range(block: np.ndarray, value_range: tuple[float, float], index
     — only the brick and the public ``value_range``.
 
     >>> check_brick_range(np.array([1.0, 2.0]), (0.0, 2.0), (0, 0, 0))
-    >>> check_brick_range(np.array([1.0, 31415.9]), (0.0, 2.0), (0, 1, 0))
+    >>> check_brick_range(np.array([1.0, 31415.9]), (0.0, 2.0), (0, 1, 0))  # doctest: +NORMALIZE_WHITESPACE
     Traceback (most recent call last):
     ...
-    hevr.errors.ParameterError: vol: brick (0, 1, 0): expected values inside value_range (0.0, 2.0) as checked before encryption, got values outside it (the input changed while it was encrypted?)
+    hevr.errors.ParameterError: vol: brick (0, 1, 0): expected values inside value_range (0.0, 2.0) as checked
+    before encryption, got values outside it (the input changed while it was encrypted?)
     """
     arr = np.asarray(block)
     if not arr.size:

@@ -9,8 +9,9 @@ in hevr's RAS+ patient frame (:mod:`hevr.volume.orientation`):
    positions, uneven gaps (unless ``allow_uneven``), gantry tilt (unless ``oblique="snap"``)
    and mixed orientations (:mod:`hevr.volume.dicom_frames`);
 3. refuse a series larger than this machine's memory (:mod:`hevr.volume._memory`: compressed
-   pixel data is decoded into one array of the declared size), then decode the pixels of that series only, rescale them per frame (``RescaleSlope/Intercept``,
-   integer-preserving, :func:`~hevr.volume.rescale.rescale`);
+   pixel data is decoded into one array of the declared size), then decode the pixels of that
+   series only, rescale them per frame (``RescaleSlope/Intercept``, integer-preserving,
+   :func:`~hevr.volume.rescale.rescale`);
 4. turn the voxel→LPS+ affine into RAS+ (``LPS_TO_RAS @ affine``) and reorient the array
    with :func:`~hevr.volume.orientation.to_patient_frame` (a view: transposes and flips only).
 

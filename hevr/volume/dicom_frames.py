@@ -234,7 +234,10 @@ def frames_of(image: Image) -> list[Frame]:
 
 def _tiles(whole: Frame, mosaic: Mosaic) -> list[Frame]:
     """The slices of a Siemens MOSAIC image, each placed (:mod:`hevr.volume.dicom_mosaic`)."""
-    placed = whole.position is not None and whole.orientation is not None and whole.pixel_spacing is not None
+    where = None  # ImagePositionPatient, ImageOrientationPatient, PixelSpacing: the mosaic's corner and axes
+    if whole.position is not None and whole.orientation is not None and whole.pixel_spacing is not None:
+        where = (whole.position, whole.orientation, whole.pixel_spacing)
+    placed = where is not None
     gap = abs(whole.thickness or 1.0)
     if placed and not whole.thickness:
         _log.warning(
@@ -243,7 +246,7 @@ def _tiles(whole: Frame, mosaic: Mosaic) -> list[Frame]:
         )
     out = []
     for k in range(mosaic.slices):
-        pos = tile_position(mosaic, whole.position, whole.orientation, whole.pixel_spacing, gap, k) if placed else None
+        pos = tile_position(mosaic, *where, gap, k) if where is not None else None
         instance = None if whole.instance is None else whole.instance * mosaic.slices + k
         out.append(dataclasses.replace(whole, index=k, position=pos, instance=instance, mosaic=mosaic))
     return out

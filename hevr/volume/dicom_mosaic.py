@@ -103,7 +103,7 @@ def mosaic_of(ds: Any, path: Path) -> Mosaic | None:
             f"read ({exc}); expected it to say how many slices the mosaic holds"
         ) from None
     try:
-        n = int(n)
+        n = 0 if n is None else int(n)
     except (TypeError, ValueError):
         n = 0
     if n < 1:
@@ -122,7 +122,8 @@ def mosaic_of(ds: Any, path: Path) -> Mosaic | None:
     if normal is not None:
         v = np.asarray(normal, np.float64).ravel()
         if v.size == 3 and np.all(np.isfinite(v)) and abs(np.linalg.norm(v) - 1) < 1e-2:
-            vec = tuple(float(x) for x in v / np.linalg.norm(v))
+            x, y, z = (float(c) for c in v / np.linalg.norm(v))
+            vec = (x, y, z)
     return Mosaic(n, m, rows // m, cols // m, vec)
 
 

@@ -225,7 +225,8 @@ def read_scan(
     else:
         scan = read_dicom(path, series=series, allow_uneven=allow_uneven, oblique=oblique)
     vol = _check_volume(scan.volume, path)
-    file_spacing = tuple(float(v) for v in scan.spacing)
+    sx, sy, sz = scan.spacing
+    file_spacing = (float(sx), float(sy), float(sz))
     if override is None and not all(math.isfinite(v) and v > 0 for v in file_spacing):
         raise VolumeFormatError(
             f"{path.name}: spacing: expected 3 positive finite voxel sizes in the file, got "

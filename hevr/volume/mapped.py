@@ -89,12 +89,13 @@ def file_backed(vol: Any) -> MappedFile | None:
 
     Writable maps are not described: their contents may change under the tasks.
     """
-    if not isinstance(vol, np.memmap) or getattr(vol, "_mmap", None) is None or vol.flags.writeable:
+    mm = getattr(vol, "_mmap", None)  # numpy's mmap.mmap under the array (private: not in its stubs)
+    if not isinstance(vol, np.memmap) or mm is None or vol.flags.writeable:
         return None
     filename = getattr(vol, "filename", None)
     if not filename or not os.path.isfile(filename):
         return None
-    base = np.frombuffer(vol._mmap, dtype=np.uint8)
+    base = np.frombuffer(mm, dtype=np.uint8)
     start = int(vol.offset) - int(vol.offset) % mmap.ALLOCATIONGRANULARITY  # where numpy mapped from
     pos = int(vol.__array_interface__["data"][0]) - int(base.ctypes.data) + start
     return MappedFile(os.path.abspath(filename), pos, vol.shape, vol.strides, vol.dtype)

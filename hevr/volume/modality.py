@@ -119,10 +119,11 @@ def modality_range(modality: str) -> tuple[float, float]:
     (-1024.0, 3071.0)
     >>> modality_range("mr")
     (0.0, 4095.0)
-    >>> modality_range("PT")
+    >>> modality_range("PT")  # doctest: +NORMALIZE_WHITESPACE
     Traceback (most recent call last):
     ...
-    hevr.errors.ParameterError: modality: PT has no fixed value range (PET activity (Bq/ml, SUV) has no fixed range: it depends on dose, timing and patient); give a value_range
+    hevr.errors.ParameterError: modality: PT has no fixed value range (PET activity (Bq/ml, SUV) has no fixed
+    range: it depends on dose, timing and patient); give a value_range
     """
     code = normalize_modality(modality)
     if code in MODALITY_RANGES:
@@ -274,8 +275,9 @@ def range_hint(data_lo: float, data_hi: float, value_range: Any) -> str | None:
     --------
     >>> range_hint(-1000, 2000, (-1024, 3071)) is None
     True
-    >>> print(range_hint(0, 1500, (-32768, 32767)))
-    the data span 0 .. 1500, only 2.3 % of the value range (-32768, 32767): the render will look nearly flat; set the modality (--modality CT|MR) or the value range (--value-range LO,HI)
+    >>> print(range_hint(0, 1500, (-32768, 32767)))  # doctest: +NORMALIZE_WHITESPACE
+    the data span 0 .. 1500, only 2.3 % of the value range (-32768, 32767): the render will look nearly flat; set
+    the modality (--modality CT|MR) or the value range (--value-range LO,HI)
     """
     lo, hi = check_value_range(value_range)
     dlo, dhi = float(data_lo), float(data_hi)

@@ -119,7 +119,7 @@ def to_native(arr: np.ndarray) -> np.ndarray:
 
 
 def read_raw(
-    path: Path, offset: int, shape: tuple[int, int, int], dtype: np.dtype, *, exact: bool = True, what: str = ""
+    path: Path, offset: int, shape: tuple[int, ...], dtype: np.dtype, *, exact: bool = True, what: str = ""
 ) -> np.ndarray:
     """Memory-map ``prod(shape)`` values of ``dtype`` at ``offset`` of ``path``, read-only.
 

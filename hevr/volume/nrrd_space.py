@@ -175,15 +175,8 @@ def read_nrrd_scan(path: Path, *, volume: int | None = None, oblique: str = "ref
     if space not in SPACE_SIGNS or steps is None:
         if space in SPACE_SIGNS:
             _log.warning("%s: space %s but no 'space directions'; axes kept as stored", path.name, space)
-        return Scan(
-            arr,
-            plan["spacing"],
-            tuple(float(v) for v in origin),
-            None,
-            None,
-            str(path),  # type: ignore[arg-type]
-            details,
-        )
+        ox, oy, oz = (float(v) for v in origin)  # a 3-vector (_plan)
+        return Scan(arr, plan["spacing"], (ox, oy, oz), None, None, str(path), details)
     signs = np.array(SPACE_SIGNS[space])
     affine = np.eye(4)
     affine[:3, :3] = signs[:, None] * steps

@@ -44,11 +44,14 @@ _SLAB_VOXELS = 1 << 22
 
 def _level(fraction: float, dtype: np.dtype) -> np.generic:
     """Value at ``fraction`` of the dtype's range ([0, max] for integers, [0, 1] for floats)."""
+    value: np.generic
     if dtype.kind == "f":
-        return dtype.type(fraction)
-    # Signed integers use their positive half too: the background must stay 0, and a
-    # renderer normalising with (0, max) then sees the same fractions as for unsigned.
-    return dtype.type(round(fraction * np.iinfo(dtype).max))
+        value = dtype.type(fraction)
+    else:
+        # Signed integers use their positive half too: the background must stay 0, and a
+        # renderer normalising with (0, max) then sees the same fractions as for unsigned.
+        value = dtype.type(round(fraction * np.iinfo(dtype).max))
+    return value
 
 
 def phantom(size: int = PAPER_SIZE, dtype: npt.DTypeLike = np.uint8) -> np.ndarray:

@@ -45,10 +45,11 @@ def check_level(level: Any, available: int | None = None, name: str = "level") -
 
     >>> check_level(1, 2)
     1
-    >>> check_level(3, 2)
+    >>> check_level(3, 2)  # doctest: +NORMALIZE_WHITESPACE
     Traceback (most recent call last):
     ...
-    hevr.errors.ParameterError: level: expected a level of this store's pyramid, 0 to 2, got 3 (build more levels with hevr.build_pyramid; a packed store's: encrypt_volume(..., levels=))
+    hevr.errors.ParameterError: level: expected a level of this store's pyramid, 0 to 2, got 3 (build more levels
+    with hevr.build_pyramid; a packed store's: encrypt_volume(..., levels=))
     """
     level = check_int(name, level, 0, MAX_LEVELS)
     if available is not None and level > available:
@@ -82,12 +83,12 @@ def level_brick(brick: Any, level: int) -> tuple[int, int, int]:
 
 def level_spacing(spacing: Any, level: int) -> tuple[float, float, float]:
     """World-order voxel spacing of level ``level``: ``2^level · spacing``."""
-    return tuple(float(s) * 2**level for s in spacing)  # type: ignore[return-value]
+    return tuple(float(s) * 2**level for s in spacing)
 
 
 def level_origin(spacing: Any, level: int) -> tuple[float, float, float]:
     """World-order centre of level voxel (0, 0, 0): ``(2^level − 1)/2 · spacing``."""
-    return tuple(float(s) * (2**level - 1) / 2 for s in spacing)  # type: ignore[return-value]
+    return tuple(float(s) * (2**level - 1) / 2 for s in spacing)
 
 
 def downsample(arr: np.ndarray, levels: int = 1) -> np.ndarray:

@@ -42,7 +42,7 @@ def rescale(raw: np.ndarray, slope: Any, inter: Any) -> np.ndarray:
     )
     if target is None:  # beyond int64: exact integers are out of reach anyway
         return _float(raw, slope, inter, np.float64)
-    out = raw.astype(target)
+    out: np.ndarray = raw.astype(target)
     out *= slope.astype(target)
     out += inter.astype(target)
     return out

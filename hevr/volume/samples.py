@@ -46,6 +46,8 @@ def sample_scan(name: str = "mri") -> Path:
     check_choice("name", name, tuple(SAMPLES))
     package, inside, what = SAMPLES[name]
     module = require(package, Path(inside))
+    if module.__file__ is None:  # a namespace package: no folder of its own to hold the sample
+        raise MissingFileError("name", f"the sample scan {name!r}: {what}", inside)
     path = Path(module.__file__).parent / inside
     if not path.is_file():
         raise MissingFileError("name", f"the sample scan {name!r}: {what}", path)

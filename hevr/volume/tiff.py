@@ -140,9 +140,8 @@ def read_tiff(path: Path, *, volume: int | None = None) -> Scan:
             mappable = series.dataoffset is not None
             if not mappable:
                 check_fits(path.name, shape, dtype, "compressed or scattered TIFF data")
-            data = None if mappable else series.asarray()
-        if mappable:
-            data = tifffile.memmap(str(path), mode="r", series=0)
+            read = None if mappable else series.asarray()
+        data = tifffile.memmap(str(path), mode="r", series=0) if read is None else read
     except HevrError:
         raise
     except Exception as exc:  # tifffile raises many types for broken files

@@ -112,8 +112,8 @@ def _ome(path: Path, group: Any, ms: dict[str, Any], volume: int | None) -> Scan
         )
     arr = group[str(datasets[0]["path"])]
     n = arr.ndim
-    axes = ms.get("axes") or ["t", "c", "z", "y", "x"][-n:]
-    axes = [a if isinstance(a, dict) else {"name": str(a)} for a in axes]
+    given = ms.get("axes") or ["t", "c", "z", "y", "x"][-n:]
+    axes: list[dict[str, Any]] = [a if isinstance(a, dict) else {"name": str(a)} for a in given]
     if len(axes) != n:
         raise VolumeFormatError(
             f"{path.name}: OME-Zarr axes {[a.get('name') for a in axes]} do not match the "
