@@ -118,7 +118,7 @@ def d(tmp_path_factory):
     return d
 
 
-E, R, I, DE, S = "encrypt", "render", "info", "decrypt", "upgrade-store"
+E, R, INFO, DE, S = "encrypt", "render", "info", "decrypt", "upgrade-store"
 P8 = "phantom:8"
 # (id, argv with {d} for the fixture folder, exit code, the CLI word the message starts with)
 CASES = [
@@ -308,14 +308,14 @@ CASES = [
     ),
     ("decrypt-bad-window", [DE, "{d}/f.hevr", "--key", "{d}/key.json", "--window", "1,0"], 2, "--window"),
     # info
-    ("info-missing", [I, "{d}/nothing-here"], 2, "PATH"),
-    ("info-json-not-key", [I, "{d}/plain.json"], 2, "PATH"),
-    ("info-garbage-json", [I, "{d}/bad.json"], 2, "PATH"),
-    ("info-garbage-npy", [I, "{d}/garbage.npy"], 2, "PATH"),
-    ("info-unknown-file", [I, "{d}/notes.txt"], 2, "PATH"),
-    ("info-garbage-frame", [I, "{d}/garbage.hevr"], 2, "PATH"),
-    ("info-foreign-zarr", [I, "{d}/foreign.zarr"], 2, "PATH"),
-    ("info-tampered-frame", [I, "{d}/tampered.hevr"], 1, "PATH"),
+    ("info-missing", [INFO, "{d}/nothing-here"], 2, "PATH"),
+    ("info-json-not-key", [INFO, "{d}/plain.json"], 2, "PATH"),
+    ("info-garbage-json", [INFO, "{d}/bad.json"], 2, "PATH"),
+    ("info-garbage-npy", [INFO, "{d}/garbage.npy"], 2, "PATH"),
+    ("info-unknown-file", [INFO, "{d}/notes.txt"], 2, "PATH"),
+    ("info-garbage-frame", [INFO, "{d}/garbage.hevr"], 2, "PATH"),
+    ("info-foreign-zarr", [INFO, "{d}/foreign.zarr"], 2, "PATH"),
+    ("info-tampered-frame", [INFO, "{d}/tampered.hevr"], 1, "PATH"),
     # upgrade-store
     ("upgrade-missing-old", [S, "{d}/missing.zarr", "{d}/new.zarr"], 2, "OLD"),
     ("upgrade-old-is-file", [S, "{d}/notes.txt", "{d}/new.zarr"], 2, "OLD"),
