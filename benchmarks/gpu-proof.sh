@@ -92,7 +92,7 @@ run|goals|packed)
     #    then the source's experiment (HEVR_CIOS_REG) and the operation suite on the device
     HEVR_TEST_KERNELS=cuda step 80 $PY -m pytest -q -rs -p no:cacheprovider -o addopts= -m gpu \
       tests/backends/test_cuda_device.py tests/backends/test_packed_backends.py >> "$OUT/pytest.log" 2>&1
-    step 40 $PY -c "import json, sys; from hevr.backends import get_backend; from hevr.bench.gpu import experiments
+    step 40 $PY -c "import json, sys; from hevr.backends import get_backend; from hevr.bench.gpu_operations import experiments
 print(json.dumps(experiments(get_backend('cuda'), False)))" > "$OUT/experiments.json" 2>>"$OUT/goals.log"
     HEVR_TEST_KERNELS=cuda step 60 $PY -m pytest -q -rs -p no:cacheprovider -o addopts= --maxfail=20 \
       tests/backends/test_cuda_host_backend.py >> "$OUT/pytest.log" 2>&1

@@ -29,9 +29,9 @@ sys.modules["cupy"] = FakeCupy
 
 import hevr
 from hevr.backends.cuda import device
-from hevr.bench.gpu import phantom
 from hevr.rendering.pipeline import maps
 from hevr.runtime import stats
+from hevr.volume.phantom import phantom
 
 
 def launches(rv, cam, sampling: str) -> str:

@@ -28,8 +28,8 @@ import warnings
 import dask
 
 import hevr
-from hevr.bench.gpu import phantom
 from hevr.runtime import stats as _stats
+from hevr.volume.phantom import phantom
 
 
 def main(argv: list[str]) -> None:

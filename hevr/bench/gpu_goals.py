@@ -7,7 +7,7 @@ of their value — the throughput, the store, the GPU frames, then the CPU curve
 ``throughput``
     4096-bit products/s and 10-bit multi-exponentiation pairs/s at 2048-bit keys, end to end
     (``Backend.ray_products``: plan, uploads, kernels, downloads) and kernel-only (the plan already
-    on the device), beside ``cpu`` on one core (:func:`hevr.bench.gpu.throughput`).
+    on the device), beside ``cpu`` on one core (:func:`hevr.bench.gpu_operations.throughput`).
 ``stores``
     the ``size``³ phantom (scalar) and the ``tf_size``³ phantom (scalar + 4-dim vector, for the
     transfer function) under one key in ``work``; the scalar store's seconds are the "100³
@@ -61,8 +61,8 @@ from ..rendering.reference.plain import render_plain
 from ..store.reader import open_volume
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
-from .gpu import throughput
 from .gpu_common import append_row, bench_key, image_digest, local_cluster, read_rows
+from .gpu_operations import throughput
 from .gpu_packed import packed_step, table_lines
 from .measure import machine
 

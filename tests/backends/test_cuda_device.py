@@ -39,7 +39,7 @@ from hevr.backends import (
 from hevr.backends.cuda import device as device_module
 from hevr.backends.cuda.device import KERNELS, CupyLauncher, device_source, owner_source
 from hevr.backends.cuda.nvrtc import find_nvrtc, ptx
-from hevr.bench.gpu import EXPERIMENTS
+from hevr.bench.gpu_operations import EXPERIMENTS
 from hevr.cli.main import main
 from hevr.rendering.pipeline.kernel import plan_products
 from hevr.store import resident as resident_module

@@ -9,8 +9,10 @@
   combining and packing (issue 26, items 1–3, for a render).
 * :mod:`~hevr.backends.cuda.residues` (limb batches, Montgomery constants, plan tables) and
   :mod:`~hevr.backends.cuda.backend` (the orchestration) are shared by every launcher;
-  :mod:`~hevr.backends.cuda.launch` holds the launchers: the host build through ctypes now, CuPy
-  (NVRTC, ``k_*`` kernels) on a GPU machine later.
+  :mod:`~hevr.backends.cuda.launch` holds the launchers' interface and the host build through
+  ctypes; :mod:`~hevr.backends.cuda.device` the CuPy launcher (NVRTC, ``k_*`` kernels) on a GPU,
+  with :mod:`~hevr.backends.cuda.device_build` (what it compiles and loads) and
+  :mod:`~hevr.backends.cuda.device_owner` (the key holder's kernels there).
 """
 
 from __future__ import annotations

@@ -4,8 +4,10 @@ The same source as the host build (:class:`~hevr.backends.cuda.launch.HostLaunch
 once per process by NVRTC through CuPy's ``RawModule`` for the current device's architecture —
 no jitify (it hung for minutes here) and no ``<stdint.h>`` (``mont.cuh`` typedefs its limb types
 under ``__CUDACC_RTC__``); ``mont.cuh`` is pasted in place of its ``#include`` so no include path
-is needed. Each method mirrors the host launcher's: numpy arrays in, one launch of the ``k_*``
-kernel over all items (``BLOCK`` threads per block), numpy arrays out. Kernel arguments are typed
+is needed (:mod:`~hevr.backends.cuda.device_build`: the sources, the kernels' names, the stack they
+need; :mod:`~hevr.backends.cuda.device_owner`: the key holder's launches). Each method mirrors
+the host launcher's: numpy arrays in, one launch of the ``k_*`` kernel over all items (``BLOCK``
+threads per block), numpy arrays out. Kernel arguments are typed
 as the kernels declare them (``int`` → int32, ``long long`` → int64, ``hevr_u32`` → uint32); a
 NULL pointer is passed as a zero uint64 (CuPy turns ``None`` into 0xffffffff, cupy#9046).
 
@@ -49,14 +51,14 @@ import numpy as np
 
 from ...errors import MissingDependencyError
 from ...runtime import stats
-from .host import SOURCE as MONT_SOURCE
+from . import device_owner
+from .device_build import BLOCK, KERNELS, device_source, owner_source, reserve_stack
 from .host import check_defines
-from .launch import OWNER_SOURCE, RENDER_SOURCE, Launcher, decrypt_args
+from .launch import Launcher
 from .residues import FOLD, Modulus, PlanTables
 
-__all__ = ["BLOCK", "CupyLauncher", "device_source", "owner_source", "reserve_stack"]
+__all__ = ["BLOCK", "KERNELS", "CupyLauncher", "device_source", "owner_source", "reserve_stack"]
 
-BLOCK = 128
 SCRATCH_BYTES = 256 << 20
 MIN_THREADS = 32768
 # Fewer independent items than this (segments, rows to combine, packed ciphertexts) go to gmpy2: a GPU
@@ -64,59 +66,7 @@ MIN_THREADS = 32768
 # from the H200's 24³ frame (benchmarks/results-gpu-h200-2026-11-26.md): ~0.5-0.8 ms a product on one
 # thread against ~5 µs on a core with gmpy2, so a launch beats one core from ~100 items. Not yet measured.
 MIN_ITEMS = 128
-KERNELS = (
-    "k_records_to_limbs",
-    "k_limbs_to_records",
-    "k_out_of_range",
-    "k_mont_convert",
-    "k_ray_powers",
-    "k_ray_tasks",
-    "k_segments",
-    "k_combine",
-    "k_pack",
-)
 _NULL = np.uint64(0)
-
-
-def reserve_stack(cp: Any, fns: Any) -> int:
-    """Raise the device's per-thread stack limit to the deepest frame of ``fns`` before any of them
-    runs, with the device idle; the limit after. ``owner.cuh``'s kernels take 2,576 bytes of stack
-    frame at sm_90 (ptxas), over the default limit of 1,024: on an H200 (2026-11-28) they were exact
-    in every run with the limit raised before any launch and wrong or faulting (illegal address,
-    ``cudaErrorInvalidAddressSpace``) in some runs without, exact under ``compute-sanitizer``, which
-    serialises launches; so the driver's own growing of the stack at a launch is not relied on."""
-    rt = cp.cuda.runtime
-    need = max((int(f.attributes["local_size_bytes"]) for f in fns), default=0)
-    have = int(rt.deviceGetLimit(0))  # cudaLimitStackSize
-    if need > have:
-        cp.cuda.Device().synchronize()  # no kernel in flight while the driver re-sizes local memory
-        rt.deviceSetLimit(0, -(-need // 1024) * 1024)
-        have = int(rt.deviceGetLimit(0))
-    return have
-
-
-def device_source() -> str:
-    """``render.cuh`` with ``mont.cuh`` pasted in place of its include (what NVRTC compiles).
-
-    >>> src = device_source()
-    >>> '#include "mont.cuh"' in src, "k_ray_tasks" in src, "hevr_mont_mul" in src
-    (False, True, True)
-    """
-    render = RENDER_SOURCE.read_text(encoding="utf-8")
-    if '#include "mont.cuh"' not in render:  # pragma: no cover - the source's own include
-        raise RuntimeError('render.cuh: expected #include "mont.cuh"')
-    return render.replace('#include "mont.cuh"', MONT_SOURCE.read_text(encoding="utf-8"), 1)
-
-
-def owner_source() -> str:
-    """``owner.cuh`` with ``mont.cuh`` pasted in (the owner-encryption module NVRTC compiles).
-
-    >>> "k_owner_encrypt" in owner_source() and '#include "mont.cuh"' not in owner_source()
-    True
-    """
-    return OWNER_SOURCE.read_text(encoding="utf-8").replace(
-        '#include "mont.cuh"', MONT_SOURCE.read_text(encoding="utf-8"), 1
-    )
 
 
 def _i32(x: int) -> np.int32:
@@ -419,107 +369,15 @@ class CupyLauncher(Launcher):
             reserve_stack(self.cp, fns)
             self._decrypt_fn, self._public_fn, self._owner_fn = fns  # _owner_fn, tested first, set last
 
+    # -- the key holder's kernels (owner.cuh; device_owner.py launches them) ---------------------
     def public_encrypt(self, x, r, n, M):
-        cp = self.cp
         self._owner_module()
-        m = int(np.asarray(x).size)
-        out = cp.empty((max(m, 1), M.nl), cp.uint32)
-        if m:
-            nd = self._dev(n, np.uint32)
-            self._public_fn(
-                ((m + BLOCK - 1) // BLOCK,),
-                (BLOCK,),
-                (
-                    self._dev(x, np.int64),
-                    self._dev(r, np.uint32),
-                    nd,
-                    _i32(nd.shape[0]),
-                    self._dev(M.limbs, np.uint32),
-                    self._dev(M.one, np.uint32),
-                    self._dev(M.r2, np.uint32),
-                    np.uint32(M.ninv),
-                    _i32(M.nl),
-                    _i64(m),
-                    out,
-                ),
-            )
-        return out[:m]
+        return device_owner.public_encrypt(self.cp, self._public_fn, self._dev, x, r, n, M)
 
     def decrypt(self, c, tables):
-        cp = self.cp
         self._owner_module()
-        where = f"cupy-{cp.cuda.Device().id}"  # copies per device
-        dev = tables.device.get(where)
-        if dev is None:  # the CRT constants once per key, process and device
-            dev = tables.device[where] = {
-                id(a): self._dev(a, np.uint32)
-                for h in (tables.p, tables.q)
-                for a in (h.P2.limbs, h.P2.one, h.P2.r2, h.E, h.P.limbs, h.PINV, h.HR, h.P.r2)
-            } | {id(tables.PIQ): self._dev(tables.PIQ, np.uint32)}
-        m = int(c.shape[0])
-        out = cp.empty((max(m, 1), tables.nlo), cp.uint32)
-        if m:
-            cd = self._dev(c, np.uint32)
-            args = decrypt_args(cd, tables, lambda a: cd if a is cd else dev[id(a)], _i32, np.uint32, _i64)
-            self._decrypt_fn(((m + BLOCK - 1) // BLOCK,), (BLOCK,), (*args, out))
-        return out[:m].get()
+        return device_owner.decrypt(self.cp, self._decrypt_fn, self._dev, c, tables)
 
     def owner_encrypt(self, x, a, b, tables):
-        cp = self.cp
         self._owner_module()
-        where = f"cupy-{cp.cuda.Device().id}"  # copies per device
-        dev = tables.device.get(where)
-        if dev is None:  # the tables once per key, process and device (secret-derived: freed with the tables)
-            dev = tables.device[where] = {
-                name: self._dev(arr, np.uint32)
-                for name, arr in (
-                    ("Tp", tables.p.T),
-                    ("Pp", tables.p.P.limbs),
-                    ("op", tables.p.P.one),
-                    ("NRp", tables.p.NR),
-                    ("R2p", tables.p.P.r2),
-                    ("Tq", tables.q.T),
-                    ("Pq", tables.q.P.limbs),
-                    ("oq", tables.q.P.one),
-                    ("NRq", tables.q.NR),
-                    ("INV", tables.INV),
-                )
-            }
-        m = int(np.asarray(x).size)
-        out = cp.empty((max(m, 1), tables.NL), cp.uint32)
-        ad, bd = self._dev(a, np.uint32), self._dev(b, np.uint32)
-        if m:
-            p, q = tables.p, tables.q
-            self._owner_fn(
-                ((m + BLOCK - 1) // BLOCK,),
-                (BLOCK,),
-                (
-                    self._dev(x, np.int64),
-                    ad,
-                    _i32(ad.shape[1]),
-                    bd,
-                    _i32(bd.shape[1]),
-                    dev["Tp"],
-                    _i32(p.rows),
-                    _i32(p.w),
-                    dev["Pp"],
-                    dev["op"],
-                    np.uint32(p.P.ninv),
-                    _i32(p.P.nl),
-                    dev["NRp"],
-                    dev["R2p"],
-                    dev["Tq"],
-                    _i32(q.rows),
-                    _i32(q.w),
-                    dev["Pq"],
-                    dev["oq"],
-                    np.uint32(q.P.ninv),
-                    _i32(q.P.nl),
-                    dev["NRq"],
-                    dev["INV"],
-                    _i32(tables.NL),
-                    _i64(m),
-                    out,
-                ),
-            )
-        return out[:m]
+        return device_owner.owner_encrypt(self.cp, self._owner_fn, self._dev, x, a, b, tables)

@@ -139,7 +139,8 @@ class Launcher:
     def rows(self, vals: Any, rep: np.ndarray, fill: np.ndarray) -> Any:
         """Row ``i`` is ``vals[rep[i]]``, or ``fill`` where ``rep[i] < 0`` (a plan's empty rows).
 
-        >>> HostLauncher().rows(np.array([[7], [8]], np.uint32), np.array([1, -1, 0]), np.array([1], np.uint32)).tolist()
+        >>> vals, fill = np.array([[7], [8]], np.uint32), np.array([1], np.uint32)
+        >>> HostLauncher().rows(vals, np.array([1, -1, 0]), fill).tolist()
         [[8], [1], [7]]
         """
         out = np.empty((rep.size, vals.shape[1]), np.uint32)  # one allocation, one gather (the hot path)
