@@ -20,7 +20,7 @@ import hevr
 from hevr.cli.main import main
 from hevr.rendering import cache as render_cache
 from hevr.rendering import view as view_mod
-from hevr.rendering.pipeline import sums as sums_mod
+from hevr.rendering.pipeline import sums_file
 from hevr.runtime import progress as _progress
 from hevr.runtime import scheduler as _dask
 
@@ -66,7 +66,7 @@ def _sums_file(ev, cam, path, **kw):
 def _write(path, head, body):
     """A .hevrsums file with a crafted header and a VALID SHA-256 trailer (anyone can compute it)."""
     raw = json.dumps(head).encode()
-    data = sums_mod.MAGIC + struct.pack("<I", len(raw)) + raw + body
+    data = sums_file.MAGIC + struct.pack("<I", len(raw)) + raw + body
     path.write_bytes(data + hashlib.sha256(data).digest())
 
 

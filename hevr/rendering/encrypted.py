@@ -27,6 +27,8 @@ from ..store.reader import EncryptedVolume
 from .cache import clear_cache
 from .geometry.camera import Camera
 from .geometry.plane import Plane
+from .packed.colour import PackedColourImage
+from .packed.image import PackedImage
 from .packed.request import render_packed_request
 from .pipeline.sums import RaySums
 from .planning.bounds import error_bound
@@ -54,14 +56,14 @@ def render(
     progress: bool = True,
     backend: str | None = None,
     compute: bool = True,
-    keep_sums: str | os.PathLike | None = None,
+    keep_sums: str | os.PathLike[str] | None = None,
     level: int | None = None,
     gradient: bool = False,
     overwrite: bool = False,
     finish: str = "client",
     verify: bool | str | None = None,
     weight_bits: int | None = None,
-) -> EncryptedImage | Delayed:
+) -> EncryptedImage | PackedImage | PackedColourImage | Delayed:
     """Render an encrypted volume to an :class:`EncryptedImage` on the active Dask scheduler.
 
     Parameters
@@ -160,7 +162,7 @@ def render(
 
     Returns
     -------
-    EncryptedImage, PackedImage or dask.delayed.Delayed
+    EncryptedImage, PackedImage, PackedColourImage or dask.delayed.Delayed
         Never touches the secret key. ``stats`` reports ``map_tasks``, ``finish_tasks``,
         ``reused_ray_sums``, ``resident`` (bricks taken from a persisted volume,
         :meth:`hevr.EncryptedVolume.persist`), ``backend`` (the one that ran: ``backend="auto"``

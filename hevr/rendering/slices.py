@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import logging
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 from dask.delayed import Delayed
 
@@ -32,6 +32,9 @@ from .geometry.plane import Plane
 from .packed.plane_image import PackedSlice, render_packed_slice, slice_verification
 from .verify import resolve_verify
 from .view import render_view
+
+if TYPE_CHECKING:
+    from ..remote.volume import RemoteVolume
 
 __all__ = ["DEFAULT_PRECISION", "render_slice"]
 
@@ -59,7 +62,7 @@ def render_slice(
     progress: bool = True,
     backend: str | None = None,
     compute: bool = True,
-    keep_sums: str | os.PathLike | None = None,
+    keep_sums: str | os.PathLike[str] | None = None,
     gradient: bool = False,
     overwrite: bool = False,
     finish: str = "client",
@@ -204,7 +207,11 @@ def _packed_slice(
         )
     verified = resolve_verify(verify, ev, "client", level=0, compute=True, stream=False)
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: planned here, rendered there
-        return ev.render_packed_slice_request(plane, sampling, backend=backend, client=client, verify=verified)
+        remote = cast("RemoteVolume", ev)
+        served: PackedSlice = remote.render_packed_slice_request(
+            plane, sampling, backend=backend, client=client, verify=verified
+        )
+        return served
     img = render_packed_slice(ev, plane, sampling, client=client, progress=progress, backend=backend)
     if verified:  # the values are fixed in this process: only now the seed (hevr.rendering.packed.verified)
         img.verification = slice_verification(ev, img.plan, img.stats["backend"], active_client(client), progress)

@@ -14,7 +14,7 @@ import logging
 import os
 import time
 import uuid
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import dask
 from dask.delayed import Delayed, delayed
@@ -44,12 +44,15 @@ from .planning.planner import check_render_size, plan_render
 from .planning.request import at_level, check_request, level_step
 from .verify import resolve_verify, tag_aggregate
 
+if TYPE_CHECKING:
+    from ..remote.volume import RemoteVolume
+
 log = logging.getLogger(__name__)
 
 __all__ = ["BAND_BITS", "RESIDENT_BATCH_KEY", "render_view"]
 
 
-def _gathered_bytes(packed: list, sums: RaySums, client: Any, reused: bool) -> int:
+def _gathered_bytes(packed: list[Any], sums: RaySums, client: Any, reused: bool) -> int:
     """Bytes the client received: the packed tiles, plus the ray sums it holds itself (single machine)."""
     total = sum(int(p.nbytes) for p in packed)
     if client is None and not reused:
@@ -107,7 +110,7 @@ def render_view(
     progress: bool,
     backend: str | None,
     compute: bool,
-    keep_sums: str | os.PathLike | None,
+    keep_sums: str | os.PathLike[str] | None,
     views: tuple[type, ...] = (Camera,),
     level: int | None = None,
     gradient: bool = False,
@@ -135,7 +138,7 @@ def render_view(
         ev, camera, mode, sampling, step, density, nodes, digits, precision, comb_digits, views, gradient, finish
     )
     if getattr(ev, "remote", None) is not None:  # a store on hevr serve: the request goes there (remote/render.py)
-        return ev.render_request(
+        return cast("RemoteVolume", ev).render_request(
             camera,
             spec,
             level=level,
@@ -186,7 +189,10 @@ def render_view(
             "x".join(map(str, ev.shape[::-1])),
             ", ".join(f"{s:g}" for s in ev.spacing),
         )
-    comb = combination_matrix(spec, ev.vector_dims) if spec.needs_vector and finish == "server" else None
+    comb = None
+    if spec.needs_vector and finish == "server":
+        assert ev.vector_dims is not None  # check_request: a store with the vector channel
+        comb = combination_matrix(spec, ev.vector_dims)
     plan = plan_render(
         n=int(ev.public_key.n),
         spec=spec,
@@ -218,7 +224,7 @@ def render_view(
     )
     sums = render_cache.cached(key, cl) if cache else None
     reused = sums is not None
-    finish = FinishGraph.plan_units(plan, layout, rays.n_samples, int(ev.public_key.n), backend)
+    finishing = FinishGraph.plan_units(plan, layout, rays.n_samples, int(ev.public_key.n), backend)
 
     resident = None
     if ev.resident is not None and ev.resident.bricks:  # a released residency just streams
@@ -237,14 +243,14 @@ def render_view(
     fields = image_fields(spec, plan, camera, rays.n_samples, ev.meta, tile, level=ev.level)
     on_unit = None
     if stream is not None:
-        stream.start(finish, fields)
+        stream.start(finishing, fields)
         on_unit = stream.unit
     if sums is None:
         # One graph: map -> tree merge -> finish, so merged sums never travel through the client.
         # When they are cached they stay where they are: futures on a cluster (re-colouring
         # then runs next to them), values on a single machine.
         batch = resident is not None and _batch(int(ev.public_key.n).bit_length(), backend)
-        groups = resident_groups(resident, cl, backend) if batch else None
+        groups = resident_groups(resident, cl, backend) if resident is not None and batch else None
         graph = build_sums_graph(
             ev,
             camera,
@@ -265,17 +271,17 @@ def render_view(
         )
         keep = cache or keep_sums is not None
         if groups is not None:  # G map tasks: merge and finish in G blocks of tiles (reduce.py)
-            red = BlockedReduce(graph, finish, len(groups))
+            red = BlockedReduce(graph, finishing, len(groups))
             fin, kept, on_result = red.unit_tasks(), red.block_tasks() if keep else [], red.on_block(on_unit)
         else:
-            red, fin, on_result = None, finish.tasks({t: graph.delayed(t) for t in graph.merged}), on_unit
+            red, fin, on_result = None, finishing.tasks({t: graph.delayed(t) for t in graph.merged}), on_unit
             live = [t for t, d in graph.merged.items() if d is not None] if keep else []
             kept = [graph.delayed(t) for t in live]
         map_tasks = graph.map_tasks
         if not compute:
             return _deferred(
                 fin,
-                finish,
+                finishing,
                 fields,
                 {
                     "map_tasks": map_tasks,
@@ -289,7 +295,7 @@ def render_view(
             fin + kept, client=cl, progress=progress, desc="render", keep=len(kept), on_result=on_result
         )
         units = results[: len(fin)] if red is None else red.units(results[: len(fin)])
-        packed = finish.assemble(units)
+        packed = finishing.assemble(units)
         sums = RaySums(key, dict.fromkeys(range(n_tiles)), map_tasks, cl, backend=backend)
         if plan.finish == "client":  # copies: the image's arrays are the caller's to change
             sums.packed[plan] = [u.copy() for u in units]
@@ -305,18 +311,18 @@ def render_view(
         for i, unit in enumerate(units):
             if on_unit is not None:
                 on_unit(i, unit)
-        packed = finish.assemble(units)
+        packed = finishing.assemble(units)
     else:
-        fin = finish.tasks(sums.tiles)
+        fin = finishing.tasks(sums.tiles)
         if not compute:
             return _deferred(
                 fin,
-                finish,
+                finishing,
                 fields,
                 {"map_tasks": 0, "reused_ray_sums": True, "backend": backend, "resident": resident is not None},
             )
         units = run_tasks(fin, client=cl, progress=False, desc="finish", on_result=on_unit)
-        packed = finish.assemble(units)
+        packed = finishing.assemble(units)
         if plan.finish == "client":
             sums.packed[plan] = [u.copy() for u in units]
     if keep_sums is not None:
@@ -370,7 +376,9 @@ def render_view(
     )
 
 
-def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict, nested: bool = False) -> EncryptedImage:
+def _image_from(
+    parts: list[Any], finish: FinishGraph, fields: dict[str, Any], stats: dict[str, Any], nested: bool = False
+) -> EncryptedImage:
     """The last task of a deferred render (``compute=False``): the finished units as an image
     (``nested``: ``parts`` are reduce blocks' lists of units)."""
     packed = finish.assemble([p for block in parts for p in block] if nested else parts)
@@ -378,7 +386,9 @@ def _image_from(parts: list, finish: FinishGraph, fields: dict, stats: dict, nes
     return EncryptedImage(ciphertexts=list(packed), stats=stats, **fields)
 
 
-def _deferred(fin: list, finish: FinishGraph, fields: dict, stats: dict, nested: bool = False) -> Delayed:
+def _deferred(
+    fin: list[Delayed], finish: FinishGraph, fields: dict[str, Any], stats: dict[str, Any], nested: bool = False
+) -> Delayed:
     """A ``Delayed`` of the image: one more task over the finishing tasks (tile-sized outputs)."""
     return delayed(_image_from, pure=True)(
         fin, finish, fields, stats, nested, dask_key_name=f"hevr-image-{uuid.uuid4().hex}"

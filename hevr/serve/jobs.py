@@ -39,7 +39,8 @@ from ..rendering.geometry.camera import Camera
 from ..rendering.geometry.plane import Plane
 from ..rendering.geometry.rays import cast_rays
 from ..rendering.packed import PackedImage
-from ..rendering.packed.colour import PackedColourImage, colour_aggregate, render_packed_colour
+from ..rendering.packed.colour import PackedColourImage
+from ..rendering.packed.colour_render import colour_aggregate, render_packed_colour
 from ..rendering.packed.plan import SlicePlan
 from ..rendering.packed.plane_image import PackedSlice, render_packed_slice, slice_aggregate
 from ..rendering.packed.planes import PlanePlan

@@ -9,7 +9,7 @@ import pytest
 from dask.delayed import Delayed
 
 import hevr
-from hevr.rendering.pipeline import sums as sums_mod
+from hevr.rendering.pipeline import sums_file
 
 NODES = [(0.2, "red"), (0.8, "blue")]
 
@@ -102,7 +102,7 @@ def test_header_checks_name_the_field(scene, tmp_path):
 
     def write(h, b=body):
         raw = json.dumps(h).encode()
-        data = sums_mod.MAGIC + struct.pack("<I", len(raw)) + raw + b
+        data = sums_file.MAGIC + struct.pack("<I", len(raw)) + raw + b
         path.write_bytes(data + hashlib.sha256(data).digest())
 
     for field, value, words in [

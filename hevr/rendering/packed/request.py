@@ -21,7 +21,8 @@ from ...runtime.scheduler import active_client
 from ..planning.planner import check_render_size
 from ..planning.request import at_level
 from ..verify import resolve_verify
-from .colour import render_packed_colour_request
+from .colour import PackedColourImage
+from .colour_render import render_packed_colour_request
 from .graph import render_packed
 from .image import PackedImage
 from .verified import tag_aggregate
@@ -53,7 +54,7 @@ def render_packed_request(
     finish: Any,
     verify: Any,
     weight_bits: Any,
-) -> PackedImage:
+) -> PackedImage | PackedColourImage:
     """Check a render request against what a packed store serves, then render it."""
     if mode != "xray" and ev.meta.vector is None:
         raise ParameterError(

@@ -32,6 +32,7 @@ import dask
 import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
+from dask.typing import Key
 
 from ...crypto.records import record_width
 from ...image.tiles import TileLayout
@@ -39,6 +40,7 @@ from ...runtime import stats
 from ...store.reader import EncryptedVolume
 from ..geometry.camera import Camera
 from ..geometry.footprint import brick_footprints
+from ..geometry.plane import Plane
 from ..geometry.rays import RaySet
 from ..planning.planner import RenderPlan
 from .finishing import finish_tile, finish_units, merge_partials
@@ -151,7 +153,7 @@ def block_sums(block: tuple[list, dict], tile: int) -> tuple[np.ndarray, np.ndar
 
 def build_sums_graph(
     ev: EncryptedVolume,
-    camera: Camera,
+    camera: Camera | Plane,
     rays: RaySet,
     sampling: str,
     step: float,
@@ -204,6 +206,7 @@ def build_sums_graph(
     prio: dict[str, int] = {}
     edges = pieces_total = 0
     for g, group in enumerate(groups or ()):
+        assert resident is not None  # groups are of resident bricks (resident_groups)
         items = [(idx, prints[idx]) for idx in group if idx in prints and prints[idx].tiles]  # in view only
         if not items:
             continue
@@ -313,7 +316,7 @@ class FinishGraph:
         width = record_width(self.n)
         empty = (np.zeros(0, np.int64), np.zeros((0, 1, width), np.uint8))
         layer = f"hevr-finish-{uuid.uuid4().hex}"
-        dsk: dict[str, Any] = {}
+        dsk: dict[Key, Any] = {}
         deps = []
         tile_pixels: dict[int, np.ndarray] = {}
         for i, (t, a, b) in enumerate(self.units):
@@ -336,7 +339,8 @@ class FinishGraph:
                 width,
                 self.backend,
             )
-        hlg = HighLevelGraph.from_collections(layer, dsk, dependencies=deps)
+        # dask's Delayed does not match its own DaskCollection protocol (__dask_scheduler__ is no staticmethod)
+        hlg = HighLevelGraph.from_collections(layer, dsk, dependencies=deps)  # type: ignore[arg-type]
         hlg.layers[layer].annotations = {"priority": Priorities({})}
         return [Delayed(f"{layer}-{i}", hlg, layer=layer) for i in range(len(self.units))]
 

@@ -292,7 +292,9 @@ def _duplicate_rows_exact(ip: Any, vox: Any, wt: Any) -> tuple[Any, Any]:
     ipl, v, w = (to_host(a) for a in (ip, vox, wt))
     blob = np.stack([v.astype(np.uint64), w.astype(np.uint64)], axis=1).tobytes()
     ipl = ipl.tolist()
-    rep, uniq, first = [-1] * (len(ipl) - 1), [], {}
+    rep = [-1] * (len(ipl) - 1)
+    uniq: list[int] = []  # the first row of each distinct content
+    first: dict[bytes, int] = {}  # a row's bytes -> its index in uniq
     for r in range(len(ipl) - 1):
         s, e = ipl[r], ipl[r + 1]
         if s != e:

@@ -223,9 +223,9 @@ def _fused_bricks(
             )
         recs = np.stack([be.to_bytes(p, W) for p in prods], axis=1)  # (R, K, W): every brick's rows in turn
     out, r0 = [], 0
-    for rays, tiles, idx in rows:
-        out.append(_by_tile(rays, recs[r0 : r0 + rays.size], camera, tile, tiles, f"brick {idx}"))
-        r0 += rays.size
+    for ray_ids, tiles, idx in rows:
+        out.append(_by_tile(ray_ids, recs[r0 : r0 + ray_ids.size], camera, tile, tiles, f"brick {idx}"))
+        r0 += ray_ids.size
     return out
 
 

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from dask.delayed import Delayed
 from dask.highlevelgraph import HighLevelGraph
+from dask.typing import Key
 
 from ...crypto.records import record_width
 from ...runtime import malloc, stats
@@ -98,7 +99,7 @@ class BlockedReduce:
             mine[block_of[t]].append((t, pix, finish.n_samples[pix]))
         self.starts = np.cumsum([0, *(len(m) for m in mine[:-1])]).tolist()  # the first unit of each block
         self.layer = f"hevr-reduce-{uuid.uuid4().hex}"  # the finishing plan is in the task: a key per render
-        dsk: dict[str, Any] = {}
+        dsk: dict[Key, Any] = {}
         for b, block in enumerate(self.tiles):
             inputs = sorted({k for t in block for k in graph.parts.get(t, ())})
             pos = {k: i for i, k in enumerate(inputs)}
@@ -106,7 +107,9 @@ class BlockedReduce:
             n = finish.n
             dsk[self.key(b)] = (reduce_block, finish.plan, n * n, n, finish.backend, spec, mine[b], *inputs)
             dsk[f"{self.layer}-units-{b}"] = (operator.getitem, self.key(b), 0)
-        hlg = HighLevelGraph.from_collections(self.layer, dsk, dependencies=[graph.collection()])
+        # dask's Delayed does not match its own DaskCollection protocol (__dask_scheduler__ is no staticmethod)
+        deps = [graph.collection()]
+        hlg = HighLevelGraph.from_collections(self.layer, dsk, dependencies=deps)  # type: ignore[arg-type]
         hlg.layers[self.layer].annotations = {"priority": Priorities({})}
         self.hlg = hlg
 

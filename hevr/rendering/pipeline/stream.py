@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import inspect
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -36,6 +36,10 @@ from ..geometry.camera import Camera
 from ..geometry.plane import Plane
 from ..view import render_view
 
+if TYPE_CHECKING:
+    from ..packed.colour import PackedColourImage
+    from ..packed.image import PackedImage
+
 __all__ = ["StreamDecryptor", "render_frame"]
 
 
@@ -48,7 +52,7 @@ class StreamDecryptor:
         self.decrypt_s = 0.0
         self.ciphertexts = 0
 
-    def start(self, finish: Any, fields: dict) -> None:
+    def start(self, finish: Any, fields: dict[str, Any]) -> None:
         """The plan of the render (its :class:`~hevr.rendering.pipeline.graph.FinishGraph`) and image fields."""
         if fields["finish"] != "client":  # pragma: no cover - render_frame asks for client finishing
             raise ParameterError("finish: expected 'client' for a streamed frame")
@@ -106,7 +110,7 @@ class StreamDecryptor:
         rays = np.flatnonzero(self.samples > 0)
         img.verification.check(self.key, img, rays, self.exact[rays].reshape(-1).tolist())
 
-    def frame(self, stats: dict, t0: float, colouring: Any = None) -> Frame:
+    def frame(self, stats: dict[str, Any], t0: float, colouring: Any = None) -> Frame:
         if self.done != len(self.finish.units):  # pragma: no cover - compute returns every unit
             raise IntegrityError(f"frame: expected {len(self.finish.units)} finished units, got {self.done}")
         H, W = self.fields["shape"][:2]
@@ -225,12 +229,15 @@ def _packed_frame(
     density: float | None,
     nodes: Any,
     decrypt_backend: str | None,
-    kwargs: dict,
+    kwargs: dict[str, Any],
 ) -> Frame:
     """:func:`render_frame` on a packed store: the frame rendered whole (:mod:`hevr.rendering.packed`,
     verified on a verifiable store) and decrypted here, checked before any pixel; ``seconds`` end to end."""
     t0 = time.perf_counter()
-    img = render(ev, camera, mode=mode, sampling=sampling, step=step, density=density, nodes=nodes, **kwargs)
+    img = cast(  # a packed store's frame (hevr.render: rendering.packed.request)
+        "PackedImage | PackedColourImage",
+        render(ev, camera, mode=mode, sampling=sampling, step=step, density=density, nodes=nodes, **kwargs),
+    )
     frame = img.decrypt_frame(private_key, decrypt_backend)
     frame.stats.update(
         verified=img.verified,

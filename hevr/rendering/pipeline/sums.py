@@ -70,18 +70,20 @@ class RaySums:
     another density or transfer function on this view needs no task at all.
     """
 
-    key: tuple
-    tiles: dict  # tile id -> (rays, records (R, C, W)), a future of it, or None
+    key: tuple[Any, ...]
+    tiles: dict[int, Any]  # tile id -> (rays, records (R, C, W)), a future of it, or None
     map_tasks: int
     client: Any = None
-    packed: dict = field(default_factory=dict)  # client-finished RenderPlan -> its units' (P, W) outputs
+    packed: dict[RenderPlan, list[np.ndarray]] = field(
+        default_factory=dict
+    )  # client-finished RenderPlan -> its units' (P, W) outputs
     backend: str = "cpu"  # the backend that computed them
 
     def usable(self, client: Any) -> bool:
         """Whether these sums can serve a render on ``client`` (futures are bound to theirs)."""
         return client is self.client and (client is None or client.status == "running")
 
-    def values(self) -> dict:
+    def values(self) -> dict[int, Any]:
         """Tile id -> ``(rays, records)`` or None, gathered from the workers if they hold them
         (a tile's future, or the future of the reduce block holding it: :class:`BlockSums`)."""
         live = {t: v for t, v in self.tiles.items() if v is not None}
@@ -111,7 +113,7 @@ class SavedSums:
     weight_digits: int
     channel: str
     tile: int
-    tiles: dict
+    tiles: dict[int, tuple[np.ndarray, np.ndarray] | None]
     store: str
     level: int
     path: str
@@ -120,12 +122,12 @@ class SavedSums:
 def image_fields(
     spec: RenderSpec,
     plan: RenderPlan,
-    camera: Camera,
+    camera: Camera | Plane,
     n_samples: np.ndarray,
     meta: VolumeMetadata,
     tile: int,
     level: int = 0,
-) -> dict:
+) -> dict[str, Any]:
     """Everything of an :class:`EncryptedImage` but its ciphertexts and stats (render and recolour).
 
     A client-finished plan (``plan.finish == "client"``) gives fields without the mode, the density
@@ -173,7 +175,7 @@ def image_fields(
     )  # a level's camera is in the level's frame
 
 
-def with_colouring(fields: dict, spec: RenderSpec) -> dict:
+def with_colouring(fields: dict[str, Any], spec: RenderSpec) -> dict[str, Any]:
     """The fields of the image returned in this process: a client-finished one gets the request's
     :class:`~hevr.colour.Colouring` and the shape it colours to ((H, W, 3) for a transfer
     function); neither is ever in a task, a file or a log."""
@@ -182,7 +184,7 @@ def with_colouring(fields: dict, spec: RenderSpec) -> dict:
     return dict(fields, colouring=Colouring.of(spec), shape=spec.image_shape(*fields["shape"][:2]))
 
 
-def load_sums(path: str | os.PathLike, *, storage_options: dict | None = None) -> SavedSums:
+def load_sums(path: str | os.PathLike[str], *, storage_options: dict[str, Any] | None = None) -> SavedSums:
     """Read and check a ``.hevrsums`` file (module docstring: checksum, header, sizes, ranges);
     ``path`` may be an fsspec URL, read with ``storage_options``."""
     what = "a ray-sums file (hevr.render(..., keep_sums=PATH))"
@@ -203,7 +205,7 @@ def load_sums(path: str | os.PathLike, *, storage_options: dict | None = None) -
 
 
 def recolour(
-    sums: SavedSums | str | os.PathLike,
+    sums: SavedSums | str | os.PathLike[str],
     mode: str = "tf",
     density: float | None = None,
     nodes: Any = None,
@@ -273,7 +275,11 @@ def recolour(
     backend = resolve_backend_name(backend, int(meta.n).bit_length(), client=active_client(client))
     checked = check_render_size(camera, meta.shape, meta.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(camera, meta.shape, meta.spacing, spec.step)
-    comb = combination_matrix(spec, meta.vector.dims) if spec.needs_vector and finish == "server" else None
+    comb = None
+    if spec.needs_vector and finish == "server":
+        dims = meta.vector.dims if meta.vector is not None else None
+        assert dims is not None  # make_spec: emphasis and transfer functions need the vector channel
+        comb = combination_matrix(spec, dims)
     plan = plan_render(
         n=int(meta.n),
         spec=spec,
@@ -291,9 +297,9 @@ def recolour(
             f"{sums.path}: expected weights of {plan.weight_digits} digits, got {sums.weight_digits}"
         )
     layout = TileLayout(camera.width, camera.height, sums.tile)
-    finish = FinishGraph.plan_units(plan, layout, rays.n_samples, int(meta.n), backend)
-    fin = finish.tasks(sums.tiles)
-    packed = finish.assemble(run_tasks(fin, client=active_client(client), progress=progress, desc="recolour"))
+    finishing = FinishGraph.plan_units(plan, layout, rays.n_samples, int(meta.n), backend)
+    fin = finishing.tasks(sums.tiles)
+    packed = finishing.assemble(run_tasks(fin, client=active_client(client), progress=progress, desc="recolour"))
     stats = {
         "map_tasks": 0,
         "finish_tasks": len(fin),

@@ -54,7 +54,7 @@ from ...store.metadata import VolumeMetadata
 from ...store.paths import check_storage_options, output_location, write_output
 from ...volume.pyramid import MAX_LEVELS
 from ..geometry.camera import Camera
-from ..geometry.plane import view_from_dict
+from ..geometry.plane import Plane, view_from_dict
 
 if TYPE_CHECKING:
     from .sums import RaySums
@@ -90,11 +90,11 @@ FIELDS = (
 
 
 def save_sums(
-    path: str | os.PathLike,
+    path: str | os.PathLike[str],
     sums: RaySums,
     *,
     meta: VolumeMetadata,
-    camera: Camera,
+    camera: Camera | Plane,
     sampling: str,
     step: float,
     weight_digits: int,
