@@ -24,8 +24,9 @@ from ..errors import ExistingFileError, FileSystemError, ParameterError, StoreEr
 from .exclusive import StoreLock, locked_folder, remove_local_tree, rename_noreplace, swap_lock
 from .layout import check_document, check_documents, check_entry, chunk_key, compressors
 from .metadata import VolumeMetadata
-from .paths import document_digest, filesystem, is_local, read_document, sibling, write_new_bytes, zarr_store
+from .paths import document_digest, filesystem, is_local, read_document, write_new_bytes, zarr_store
 from .reader import array_layout
+from .replacing import sibling
 
 __all__ = ["create_store", "claim_store", "new_store", "resume_target"]
 
@@ -170,6 +171,7 @@ def resume_target(path: str, meta: VolumeMetadata, storage_options: dict | None 
     for name in ("shape", "brick", "spacing", "scalar", "vector", "gradient", "value_range", "dtype", "tags"):
         if getattr(old, name) != getattr(meta, name):
             raise ParameterError(
-                f"{name}: resume needs the same {name} as the interrupted run ({getattr(old, name)!r}), got {getattr(meta, name)!r}"
+                f"{name}: resume needs the same {name} as the interrupted run ({getattr(old, name)!r}), "
+                f"got {getattr(meta, name)!r}"
             )
     return old

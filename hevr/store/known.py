@@ -121,7 +121,7 @@ def _need_key(private_key: Any, what: str) -> None:
         )
 
 
-def known_stores(path: str | os.PathLike | None = None) -> dict[str, KnownStore]:
+def known_stores(path: str | os.PathLike[str] | None = None) -> dict[str, KnownStore]:
     """The stores recorded in the known-stores file (none if it does not exist): each name's MAC'd
     entry, else its unsigned one (``entry.signed`` says which). A damaged, insecure or linked file is
     a :class:`hevr.ParameterError` naming it (never silently forgotten: it is what protects you)."""
@@ -316,7 +316,7 @@ def retired_by(store_id: str) -> tuple[str, str] | None:
     return got if got is not None and got[1] != store_id else None
 
 
-def export_known_stores(path: str | os.PathLike, private_key: Any, *, overwrite: bool = False) -> int:
+def export_known_stores(path: str | os.PathLike[str], private_key: Any, *, overwrite: bool = False) -> int:
     """Write the MAC'd entries of ``private_key``'s stores to ``path`` (mode 0600; an existing file
     only with ``overwrite``), for :func:`import_known_stores` on another machine; returns how many.
     Every entry of the key is MAC-checked first (a forged one: :class:`hevr.VerificationError`)."""
@@ -330,7 +330,7 @@ def export_known_stores(path: str | os.PathLike, private_key: Any, *, overwrite:
     return len(mine)
 
 
-def import_known_stores(path: str | os.PathLike, private_key: Any) -> int:
+def import_known_stores(path: str | os.PathLike[str], private_key: Any) -> int:
     """Merge the entries of an exported file into the key holder's (:mod:`hevr.store.known_merge`:
     retired ids are unioned, and a store retired on either side stays retired); returns how many
     names were added or changed. Every entry of the file must be of ``private_key`` and carry its

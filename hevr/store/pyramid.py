@@ -14,9 +14,10 @@ level below, so a whole pyramid costs at most 18/7 ≈ 2.6 products per voxel an
 level 0 — a few percent of encryption, which costs two fixed-base exponentiations per value.
 
 Layout (docs/format.md, "Pyramid levels"): level L's arrays are ``levels/L/scalar``,
-``levels/L/vector``, ``levels/L/gradient`` (every channel of the store) and ``levels/L/done`` with the bricks, codecs and digest markers
-of level 0 (:func:`hevr.volume.pyramid.level_brick` says why the bricks do not shrink) (digests over the channel name ``levels/L/<channel>``, so no brick can pass for one of
-another level); the checksummed ``hevr`` attribute lists each level (shape, completeness,
+``levels/L/vector``, ``levels/L/gradient`` (every channel of the store) and ``levels/L/done``
+with the bricks, codecs and digest markers of level 0 (:func:`hevr.volume.pyramid.level_brick`
+says why the bricks do not shrink) (digests over the channel name ``levels/L/<channel>``, so no
+brick can pass for one of another level); the checksummed ``hevr`` attribute lists each level (shape, completeness,
 array-document digests) and the group's ``ome`` attribute mirrors it as OME-Zarr
 ``multiscales``. :func:`build_pyramid` is one Dask task per brick of a level, level after
 level, and resumable: bricks whose digest marker exists are not recomputed. Each task reads
@@ -40,7 +41,7 @@ from ..errors import ParameterError, StoreError
 from ..runtime.scheduler import active_client, compute
 from ..volume.pyramid import MAX_LEVELS, level_brick, level_shape
 from .digests import brick_digest, marker, written
-from .layout import compressors
+from .layout import compressors, store_array
 from .metadata import LevelInfo, VolumeMetadata, ome_attribute
 from .paths import check_reachable, document_digest, zarr_store
 from .reader import EncryptedVolume, array_layout, brick_slices, open_volume
@@ -53,7 +54,7 @@ LEVEL_FACTOR = 125  # 10^3 / 8: the ⊗ that turns a sum of 8 children into thei
 _MAX_DIGITS = 30  # hevr.core.validate.MAX_STORE_DIGITS: the most decimal digits a channel's metadata holds
 
 
-def _children(shape_below: tuple, coarse: tuple[slice, slice, slice]) -> np.ndarray:
+def _children(shape_below: tuple[int, ...], coarse: tuple[slice, slice, slice]) -> np.ndarray:
     """Level-below voxel coordinates (M, 8, 3) of the children of every coarse voxel of the slices
     (C order), clamped at the last voxel of each axis.
 
@@ -63,8 +64,8 @@ def _children(shape_below: tuple, coarse: tuple[slice, slice, slice]) -> np.ndar
     axes = np.meshgrid(*[np.arange(s.start, s.stop) for s in coarse], indexing="ij")
     base = np.stack([a.ravel() for a in axes], axis=1) * 2  # (M, 3)
     offs = np.array([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])  # (8, 3): z, y, x bits
-    out = base[:, None, :] + offs[None, :, :]
-    return np.minimum(out, np.asarray(shape_below) - 1)
+    out: np.ndarray = np.minimum(base[:, None, :] + offs[None, :, :], np.asarray(shape_below) - 1)
+    return out
 
 
 def _level_brick(
@@ -111,15 +112,21 @@ def _level_brick(
         out = out[..., 0, :] if data_channel(channel) == "scalar" else np.moveaxis(out, 3, 0)
         out = np.ascontiguousarray(out)
         digests.append(brick_digest(meta.store_id, prefix + channel, index, out))
-        group[prefix + channel][sl if data_channel(channel) == "scalar" else (slice(None),) + sl] = out
-    group[prefix + "done"][index] = marker(digests)
+        store_array(group, prefix + channel)[sl if data_channel(channel) == "scalar" else (slice(None),) + sl] = out
+    store_array(group, prefix + "done")[index] = marker(digests)
     return index
 
 
-def write_meta(path: str, meta: VolumeMetadata, so: dict | None) -> None:
+def _done(path: str, level: int, so: dict[str, Any] | None) -> Any:
+    """The digest markers of level ``level`` of the store at ``path``, read now."""
+    return store_array(zarr.open_group(zarr_store(path, so, read_only=True), mode="r"), f"levels/{level}/done")[...]
+
+
+def write_meta(path: str, meta: VolumeMetadata, so: dict[str, Any] | None) -> None:
     """Record ``meta`` (and its OME attribute) — only over the same store (its id on disk)."""
     group = zarr.open_group(zarr_store(path, so), mode="r+")
-    on_disk = (dict(group.attrs).get("hevr") or {}).get("store_id")
+    attr = dict(group.attrs).get("hevr")
+    on_disk = attr.get("store_id") if isinstance(attr, dict) else None
     if on_disk != meta.store_id:
         raise StoreError(
             f"ev: the store at {path} was replaced while its pyramid was being built (store id "
@@ -128,7 +135,7 @@ def write_meta(path: str, meta: VolumeMetadata, so: dict | None) -> None:
     group.attrs.update({"hevr": meta.to_dict(), "ome": ome_attribute(meta)})
 
 
-def level_arrays_ok(path: str, info: LevelInfo, so: dict | None) -> bool:
+def level_arrays_ok(path: str, info: LevelInfo, so: dict[str, Any] | None) -> bool:
     """Whether level ``info``'s arrays are all there with the documents its metadata pins."""
     try:
         return all(
@@ -138,7 +145,7 @@ def level_arrays_ok(path: str, info: LevelInfo, so: dict | None) -> bool:
         return False
 
 
-def _start_level(path: str, meta: VolumeMetadata, level: int, so: dict | None) -> VolumeMetadata:
+def _start_level(path: str, meta: VolumeMetadata, level: int, so: dict[str, Any] | None) -> VolumeMetadata:
     """Create level ``level``'s arrays (if not there from an interrupted run, or gone since) and
     record them, the level incomplete."""
     if len(meta.levels) >= level and level_arrays_ok(path, meta.levels[level - 1], so):
@@ -170,7 +177,7 @@ def build_pyramid(
     client: Any = None,
     progress: bool = True,
     backend: str | None = None,
-    storage_options: dict | None = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> EncryptedVolume:
     """Add pyramid levels 1 … ``levels`` to an encrypted store, on the cluster, without a key.
 
@@ -236,8 +243,8 @@ def build_pyramid(
         below = EncryptedVolume(path, meta, storage_options=so).at_level(level - 1)  # readable before anything starts
         meta = _start_level(path, meta, level, so)
         lmeta = meta.level_meta(level)
-        done = written(zarr.open_group(zarr_store(path, so, read_only=True), mode="r")[f"levels/{level}/done"][...])
-        todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*lmeta.grid) if not done[idx]]
+        done = written(_done(path, level, so))
+        todo = [(int(z), int(y), int(x)) for z, y, x in np.ndindex(*lmeta.grid) if not done[z, y, x]]
         log.info("pyramid level %d: %d of %d bricks to compute", level, len(todo), lmeta.n_bricks)
         task = dask.delayed(_level_brick, pure=False)
         compute(
@@ -257,9 +264,7 @@ def build_pyramid(
             progress=progress,
             desc=f"pyramid level {level}",
         )
-        if not written(
-            zarr.open_group(zarr_store(path, so, read_only=True), mode="r")[f"levels/{level}/done"][...]
-        ).all():  # pragma: no cover
+        if not written(_done(path, level, so)).all():  # pragma: no cover
             raise StoreError(f"ev: level {level} of {path} still has missing bricks")
         infos = list(meta.levels)
         infos[level - 1] = dataclasses.replace(infos[level - 1], complete=True)

@@ -75,7 +75,7 @@ class EncryptedVolume:
         meta: VolumeMetadata,
         level: int = 0,
         base: VolumeMetadata | None = None,
-        storage_options: dict | None = None,
+        storage_options: dict[str, Any] | None = None,
     ) -> None:
         self.path = str(path)
         self.storage_options = check_storage_options(storage_options)  # never in repr or messages
@@ -90,9 +90,14 @@ class EncryptedVolume:
         return f"levels/{self.level}/" if self.level else ""
 
     @property
+    def _level0(self) -> VolumeMetadata:
+        """Level 0's metadata: this volume's, or a level's view's ``base``."""
+        return self.base if self.base is not None else self.meta
+
+    @property
     def origin(self) -> tuple[float, float, float]:
         """World position of voxel (0, 0, 0)'s centre: the origin, or a level's offset."""
-        return level_origin(self.base.spacing, self.level) if self.level else (0.0, 0.0, 0.0)
+        return level_origin(self._level0.spacing, self.level) if self.level else (0.0, 0.0, 0.0)
 
     @property
     def levels(self) -> int:
@@ -110,7 +115,7 @@ class EncryptedVolume:
         """A read-only view of pyramid level ``level`` as a volume of its own (its shape,
         spacing, exponents and arrays; :meth:`hevr.EncryptedVolume.origin` says where it sits);
         level 0 is this volume. Renders take it through ``hevr.render(..., level=)``."""
-        base = self.base if self.level else self.meta
+        base = self._level0
         so = self.storage_options
         ev0 = self if not self.level else EncryptedVolume(self.path, base, storage_options=so)
         level = check_level(level, ev0.levels)
@@ -206,7 +211,7 @@ class EncryptedVolume:
             f"channels={'+'.join(ch)}{packed}, key={self.meta.fingerprint[:16]}…{res})"
         )
 
-    def __getstate__(self) -> dict:
+    def __getstate__(self) -> dict[str, Any]:
         return {
             "path": self.path,
             "meta": self.meta,
@@ -215,7 +220,7 @@ class EncryptedVolume:
             "storage_options": self.storage_options,
         }
 
-    def __setstate__(self, state: dict) -> None:
+    def __setstate__(self, state: dict[str, Any]) -> None:
         self.path, self.meta = state["path"], state["meta"]
         self.storage_options = state.get("storage_options")
         self.level, self.base = state.get("level", 0), state.get("base")
@@ -254,14 +259,15 @@ class EncryptedVolume:
 
     # -- bricks --------------------------------------------------------------------------
     def brick_indices(self) -> list[tuple[int, int, int]]:
-        return [tuple(int(i) for i in idx) for idx in np.ndindex(*self.grid)]  # type: ignore[misc]
+        return [(int(z), int(y), int(x)) for z, y, x in np.ndindex(*self.grid)]
 
     def brick_slices(self, index: tuple[int, int, int]) -> tuple[slice, slice, slice]:
         self._check_index(index)
         return brick_slices(self.meta, index)
 
     def brick_shape(self, index: tuple[int, int, int]) -> tuple[int, int, int]:
-        return tuple(s.stop - s.start for s in self.brick_slices(index))  # type: ignore[return-value]
+        z, y, x = self.brick_slices(index)
+        return z.stop - z.start, y.stop - y.start, x.stop - x.start
 
     def _check_index(self, index: Any) -> None:
         check_brick_index(index, self.grid, "index")
@@ -304,7 +310,7 @@ class EncryptedVolume:
 
 
 def open_volume(
-    path: str | os.PathLike, verify: str = "quick", *, storage_options: dict | None = None
+    path: str | os.PathLike[str], verify: str = "quick", *, storage_options: dict[str, Any] | None = None
 ) -> EncryptedVolume:
     """Open an encrypted volume store.
 

@@ -38,10 +38,11 @@ from ..runtime.scheduler import compute
 from .creation import create_store
 from .digests import brick_digest, marker
 from .exclusive import rename_noreplace, swap_lock
-from .layout import check_document, check_entry, chunk_key
+from .layout import check_document, check_entry, chunk_key, store_array
 from .metadata import VolumeMetadata
-from .paths import is_local, normalise, remove_tree, store_exists, token
+from .paths import is_local, normalise, store_exists, token
 from .reader import EncryptedVolume, brick_slices, open_volume
+from .replacing import remove_tree
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +67,7 @@ def _old_metadata(src: str) -> VolumeMetadata:
     return meta
 
 
-def _copy_brick(src: str, dst: str, index: tuple[int, int, int], meta_dict: dict) -> tuple[int, int, int]:
+def _copy_brick(src: str, dst: str, index: tuple[int, int, int], meta_dict: dict[str, Any]) -> tuple[int, int, int]:
     """One task: copy one brick's records of every channel, checked, then write its digests."""
     meta = VolumeMetadata.from_dict(meta_dict)
     be = get_backend("cpu")
@@ -88,14 +89,14 @@ def _copy_brick(src: str, dst: str, index: tuple[int, int, int], meta_dict: dict
         bad = be.first_out_of_range(be.from_bytes(flat), n2)
         if bad is not None:
             raise CorruptStoreError(f"{src}: brick {index} of channel {name!r}: ciphertext {bad} is not in (0, n²)")
-        group[name][key] = data
+        store_array(group, name)[key] = data
         digests.append(brick_digest(meta.store_id, name, index, data))
-    group["done"][index] = marker(digests)
+    store_array(group, "done")[index] = marker(digests)
     return index
 
 
 def upgrade_store(
-    src: str | os.PathLike, dst: str | os.PathLike, *, client: Any = None, progress: bool = True
+    src: str | os.PathLike[str], dst: str | os.PathLike[str], *, client: Any = None, progress: bool = True
 ) -> EncryptedVolume:
     """Copy the format-1 store ``src`` into a new format-2 store ``dst`` (module docstring).
 
@@ -121,10 +122,10 @@ def upgrade_store(
     Locally the new store is built in a hidden sibling ``.NAME.hevr-new-…`` (locked while it
     is written, removed if the upgrade fails) and moved to ``dst`` only when complete, by a
     rename that never replaces anything (``renameat2(RENAME_NOREPLACE)``, else an exclusive
-    ``mkdir`` claim): of two upgrades (or an upgrade and any other writer) into one path exactly one wins, and nothing already at
-    ``dst`` is ever touched. An object store has no atomic create of a prefix: there ``dst`` is
-    checked before the store is created in place, and a writer that creates it in between is
-    not detected.
+    ``mkdir`` claim): of two upgrades (or an upgrade and any other writer) into one path exactly
+    one wins, and nothing already at ``dst`` is ever touched. An object store has no atomic create
+    of a prefix: there ``dst`` is checked before the store is created in place, and a writer that
+    creates it in between is not detected.
     """
     src, dst = normalise(src), normalise(dst)
     old = _old_metadata(src)

@@ -66,18 +66,16 @@ from .metadata import VolumeMetadata
 from .packed_levels import build_pyramid, encrypt_levels, plan_levels, prepare_levels
 from .paths import (
     check_reachable,
-    check_replaceable,
     check_storage_options,
     interrupted_swaps,
     is_local,
     normalise,
-    remove_tree,
     store_exists,
-    swap,
     token,
     zarr_store,
 )
 from .reader import EncryptedVolume, open_volume
+from .replacing import check_replaceable, remove_tree, swap
 from .store_plan import plan_store
 
 log = logging.getLogger(__name__)

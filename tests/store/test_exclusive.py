@@ -78,7 +78,9 @@ def test_concurrent_creators_in_threads_one_wins(tmp_path, keypair256):
     pub, priv = keypair256
     for rnd in range(6):
         path = tmp_path / f"v{rnd}.zarr"
-        results = _race(4, lambda i: hevr.encrypt_volume(_vol(i + 1), path, pub, brick=BRICK, progress=False))
+        results = _race(
+            4, lambda i, path=path: hevr.encrypt_volume(_vol(i + 1), path, pub, brick=BRICK, progress=False)
+        )
         _check_one_winner(results, path, priv)
         assert _hidden(tmp_path) == []  # the losers left nothing behind
 
@@ -87,7 +89,7 @@ def test_concurrent_creators_of_a_memory_url_one_wins(keypair256):
     pub, priv = keypair256
     for rnd in range(4):
         url = f"memory://hevr-test-exclusive-{os.getpid()}-{rnd}/v.zarr"
-        results = _race(4, lambda i: hevr.encrypt_volume(_vol(i + 1), url, pub, brick=BRICK, progress=False))
+        results = _race(4, lambda i, url=url: hevr.encrypt_volume(_vol(i + 1), url, pub, brick=BRICK, progress=False))
         _check_one_winner(results, url, priv)
 
 
