@@ -169,7 +169,7 @@ def test_the_planner_plans_or_refuses_every_accepted_request(
     hi = min(lo + width, 1e100)
     if not hi > lo:
         return
-    vr = hevr.core.validate.check_value_range((lo, hi))
+    vr = hevr.core.voxels.check_value_range((lo, hi))
     nodes = [(0.1, "red"), (density, "blue")] if mode == "tf" else None
     spec = make_spec(mode, sampling, 1.0, density if mode == "emphasize" else None, nodes, 4)
     comb = combination_matrix(spec, 4) if mode != "xray" else None

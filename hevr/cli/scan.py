@@ -234,7 +234,7 @@ def scan_rows(path: Path, spec: str | None = None, **read: Any) -> list[tuple[st
         ("modality", scan.modality or "-"),
         ("values", _values_row(vol, nans)),
     ]
-    if min(vol.shape) < 2:  # the rule of encrypt_volume (hevr.core.validate.check_volume, thick=True)
+    if min(vol.shape) < 2:  # the rule of encrypt_volume (hevr.core.voxels.check_volume, thick=True)
         rows.append(
             (
                 "encrypt",

@@ -24,7 +24,8 @@ import dask
 import dask.array
 import numpy as np
 
-from ..core.validate import MAX_STORE_DIGITS, check_data_range, check_int, check_value_range, check_vector_dims
+from ..core.validate import MAX_STORE_DIGITS, check_int, check_vector_dims
+from ..core.voxels import check_data_range, check_value_range
 from ..errors import ParameterError
 from ..volume.density import default_value_range, minmax
 from .metadata import ChannelInfo

@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.validate import check_brick, check_choice, check_spacing, check_volume
+from ..core.validate import check_brick, check_choice, check_spacing
+from ..core.voxels import check_volume
 from ..crypto.keys import PrivateKey, PublicKey
 from ..errors import ParameterError
 from ..volume.mapped import task_array

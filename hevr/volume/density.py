@@ -17,11 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.validate import (
-    check_data_range,
-    check_value_range,
-    check_vector_dims,
-)
+from ..core.validate import check_vector_dims
+from ..core.voxels import check_data_range, check_value_range
 from ..errors import ParameterError
 
 __all__ = ["check_brick_range", "encode_density", "normalize_density", "default_value_range", "minmax"]

@@ -38,7 +38,8 @@ import numpy as np
 import numpy.typing as npt
 
 from ..core.files import check_regular, require_file, write_file
-from ..core.validate import check_bool, check_choice, check_int, check_spacing, check_volume
+from ..core.validate import check_bool, check_choice, check_int, check_spacing
+from ..core.voxels import check_volume
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from .dicom import read_dicom
 from .nifti import read_nifti

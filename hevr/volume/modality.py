@@ -59,7 +59,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from ..core.validate import check_value_range
+from ..core.voxels import check_value_range
 from ..errors import ParameterError
 
 __all__ = [

@@ -33,7 +33,8 @@ from typing import Any
 import numpy as np
 
 from ..core.files import check_regular, write_file
-from ..core.validate import check_dtype, check_shape
+from ..core.validate import check_shape
+from ..core.voxels import check_dtype
 from ..errors import ExistingFileError, MissingFileError, ParameterError
 from .nrrd_encodings import (
     BLOCK,

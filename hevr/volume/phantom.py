@@ -18,7 +18,8 @@ from types import MappingProxyType
 import numpy as np
 import numpy.typing as npt
 
-from ..core.validate import check_dtype, check_int
+from ..core.validate import check_int
+from ..core.voxels import check_dtype
 from ..paper import PAPER_DENSITIES, PAPER_SIZE
 
 __all__ = ["phantom", "PHANTOM_LEVELS"]

@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from ...colour import Colouring
-from ...core.validate import check_choice, check_spacing, check_volume
+from ...core.validate import check_choice, check_spacing
+from ...core.voxels import check_volume
 from ...errors import ParameterError
 from ...volume.scan import Scan
 from ..planning.planner import check_render_size

@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validate import check_data_range, check_spacing, check_vector_dims, check_volume
+from ...core.validate import check_spacing, check_vector_dims
+from ...core.voxels import check_data_range, check_volume
 from ...errors import ParameterError
 from ...volume.density import default_value_range, encode_density, normalize_density
 from ...volume.gradient import gradient_encoding
