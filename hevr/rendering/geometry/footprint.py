@@ -161,14 +161,12 @@ def brick_footprints(
         a0, a1, b0, b1 = int(r0[i]), int(r1[i]), int(c0[i]), int(c1[i])
         tys = np.arange(a0 // tile, (a1 - 1) // tile + 1)
         txs = np.arange(b0 // tile, (b1 - 1) // tile + 1)
-        ty, tx = np.meshgrid(tys, txs, indexing="ij")
-        ty, tx = ty.ravel(), tx.ravel()
+        ty, tx = (a.ravel() for a in np.meshgrid(tys, txs, indexing="ij"))
         q0, q1 = np.maximum(ty * tile, a0), np.minimum((ty + 1) * tile, a1)
         p0, p1 = np.maximum(tx * tile, b0), np.minimum((tx + 1) * tile, b1)
         keep = hits(q0, q1, p0, p1) > 0
-        out[tuple(int(k) for k in bricks[i])] = Footprint(  # type: ignore[index]
-            (a0, a1, b0, b1), tuple((ty[keep] * lay.tiles_x + tx[keep]).tolist())
-        )
+        bz, by, bx = (int(k) for k in bricks[i])
+        out[bz, by, bx] = Footprint((a0, a1, b0, b1), tuple((ty[keep] * lay.tiles_x + tx[keep]).tolist()))
     return out
 
 
@@ -180,6 +178,7 @@ def _camera_extent(camera: Camera, corners: np.ndarray) -> tuple[np.ndarray, ...
     x, y, z = rel @ right, rel @ up, rel @ d  # (B, 8)
     behind = (z < 0).all(axis=1)
     if camera.parallel:
+        assert camera.parallel_scale is not None  # Camera.__post_init__ sets it for every camera
         scale = float(camera.parallel_scale)
         u, v = x / scale, y / scale
         whole = np.zeros(len(corners), bool)

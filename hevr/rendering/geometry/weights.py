@@ -141,7 +141,8 @@ def brick_grid(shape: Any, brick: Any) -> tuple[int, int, int]:
 
 
 def _grid(shape: tuple[int, int, int], brick: tuple[int, int, int]) -> tuple[int, int, int]:
-    return tuple(-(-n // b) for n, b in zip(shape, brick))  # type: ignore[return-value]
+    z, y, x = (-(-n // b) for n, b in zip(shape, brick))
+    return z, y, x
 
 
 def brick_bounds(shape: Any, brick: Any, brick_index: Any) -> tuple[tuple[int, int], ...]:
@@ -286,7 +287,8 @@ def brick_weights(
     shape, sp, brick, step = _check_request(rays, shape, spacing, brick, sampling, step)
     digits = check_int("digits", digits, 0, _MAX_DIGITS)
     bounds = _bounds(shape, brick, brick_index)
-    index = tuple(int(i) for i in brick_index)
+    bz, by, bx = (int(i) for i in brick_index)
+    index = (bz, by, bx)
     v0 = np.array([b[0] for b in bounds[::-1]], dtype=np.int64)  # (i, j, k) order
     v1 = np.array([b[1] for b in bounds[::-1]], dtype=np.int64)
     full = np.array(shape[::-1], dtype=np.int64)
@@ -302,7 +304,8 @@ def brick_weights(
     hi = np.where(v1 == full, np.inf, hi)
     ray_ids, ka, counts = _clip_rays(rays, sp, step, lo, hi)
 
-    keys_parts, w_parts = [], []
+    keys_parts: list[np.ndarray] = []
+    w_parts: list[np.ndarray] = []  # trilinear only (nearest sampling counts pairs)
     csum = np.concatenate(([0], np.cumsum(counts)))
     start = 0
     while start < ray_ids.size:
@@ -310,7 +313,7 @@ def brick_weights(
         r, k = expand_samples(ray_ids[start:end], ka[start:end], counts[start:end])
         p = sample_positions(rays, r, k, sp, step)
         if sampling == "nearest":
-            corners = [(nearest_voxels(p, shape), None)]
+            corners: list[tuple[np.ndarray, np.ndarray | None]] = [(nearest_voxels(p, shape), None)]
         else:
             clo, chi, cw = trilinear_corners(p, shape)
             corners = [(corner_index(clo, chi, c), cw[:, c]) for c in range(8)]
@@ -318,8 +321,8 @@ def brick_weights(
             own = np.all((idx >= v0) & (idx < v1), axis=1)
             if w is not None:
                 own &= w > 0
+                w_parts.append(w[own])
             keys_parts.append(r[own] * nloc + (idx[own] - v0) @ lstride)
-            w_parts.append(None if w is None else w[own])
         start = end
 
     keys = np.concatenate(keys_parts) if keys_parts else np.zeros(0, dtype=np.int64)
@@ -341,7 +344,7 @@ def brick_weights(
     uniq, first = np.unique(pair_rays, return_index=True)
     indptr = np.append(first, pairs.size).astype(np.int64)
     return BrickWeights(
-        brick=index,  # type: ignore[arg-type]
+        brick=index,
         rays=rays.global_ids(uniq),
         indptr=indptr,
         voxels=(pairs % nloc).astype(np.int64),

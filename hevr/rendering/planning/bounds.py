@@ -104,19 +104,23 @@ def error_bound(
     ev, camera = at_level(ev, camera, level)
     spec = level_step(spec, ev, camera)
     # a level's values are exact means of level-0 values: their storage error is level 0's
-    stored = ev.base if ev.level else ev.meta
+    stored = ev.base if ev.level and ev.base is not None else ev.meta
     checked = check_render_size(camera, ev.shape, ev.spacing, spec.step)
     rays = checked if checked is not None else cast_rays(camera, ev.shape, ev.spacing, spec.step)
     n = rays.n_samples.astype(np.float64).reshape(camera.height, camera.width)
     if spec.channel == "scalar":
         qmax = max(abs(ev.value_range[0]), abs(ev.value_range[1]))
-        store = 0.5 * 10.0**stored.scalar.exponent if stored.scalar.digits is not None else 0.0
+        scalar = stored.scalar
+        assert scalar is not None  # check_request: an X-ray reads the scalar channel
+        store = 0.5 * 10.0**scalar.exponent if scalar.digits is not None else 0.0
         comb_err = 0.0
     else:
-        M = combination_matrix(spec, ev.vector_dims)
+        dims = ev.vector_dims
+        assert dims is not None  # check_request: emphasis and transfer functions read the vector channel
+        M = combination_matrix(spec, dims)
         qmax = float(np.abs(M).sum(axis=0).max())
         store = 0.5 * 10.0 ** getattr(stored, spec.channel).exponent * qmax  # vector or gradient
-        comb_err = 0.5 * 10.0**-comb_digits * np.sqrt(ev.vector_dims) if finish == "server" else 0.0
+        comb_err = 0.5 * 10.0**-comb_digits * np.sqrt(dims) if finish == "server" else 0.0
     K = spec.n_nodes
     weights = 4 * 10.0**-digits * (qmax + store + comb_err) if spec.sampling == "trilinear" else 0.0
     value = (qmax + store + comb_err) / K

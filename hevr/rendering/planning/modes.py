@@ -130,10 +130,10 @@ def make_spec(
     --------
     >>> make_spec("emphasize", "nearest", 1.0, 0.653, None, vector_dims=4).density
     0.653
-    >>> make_spec("xray", "nearest", 1.0, None, None, None, gradient=True)
+    >>> make_spec("xray", "nearest", 1.0, None, None, None, gradient=True)  # doctest: +ELLIPSIS
     Traceback (most recent call last):
         ...
-    hevr.errors.ParameterError: gradient: expected mode 'emphasize' or 'tf' with gradient=True (the gradient channel weights the density encoding; an X-ray has none), got mode='xray'
+    hevr.errors.ParameterError: gradient: expected mode 'emphasize' or 'tf' with gradient=True (...), got mode='xray'
     """
     check_choice("mode", mode, MODES)
     check_choice("sampling", sampling, SAMPLINGS)

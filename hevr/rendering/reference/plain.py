@@ -216,9 +216,9 @@ def render_plain(
                     f"levels hold the scalar channel only), got {level!r}"
                 )
             arr, sp = _check_volume(vol, spacing)
-            dims = DEFAULT_VECTOR_DIMS if vector_dims is None else int(check_vector_dims(vector_dims))
-            spec = make_spec(mode, sampling, 1.0, density, nodes, dims, gradient=gradient, has_gradient=True)
-            field, channels = _make_field(arr, spec, value_range, dims, check_spacing(sp))
+            n_dims = DEFAULT_VECTOR_DIMS if vector_dims is None else int(check_vector_dims(vector_dims))
+            spec = make_spec(mode, sampling, 1.0, density, nodes, n_dims, gradient=gradient, has_gradient=True)
+            field, channels = _make_field(arr, spec, value_range, n_dims, check_spacing(sp))
             values = field(np.arange(arr.size)).reshape(arr.shape + (channels,)) / spec.n_nodes
             out = render_plain_field_slices(values, camera, spec.sampling, sp, axis=axis)
             return out.reshape(spec.image_shape(camera.height, camera.width))
@@ -275,7 +275,8 @@ def render_plain(
             lo_f, hi_f = lo * strides, hi * strides  # per-axis flat offsets
             vals = np.zeros((p.shape[0], channels), dtype=np.float64)
             for c in range(8):
-                off = sum((hi_f if (c >> ax) & 1 else lo_f)[:, ax] for ax in range(3))
+                x, y, z = ((hi_f if (c >> ax) & 1 else lo_f)[:, ax] for ax in range(3))
+                off = x + y + z
                 vals += w[:, c, None] * field(off)
         starts = np.concatenate(([0], np.cumsum(counts[a:b])[:-1]))
         np.add.at(sums, ray_ids[a:b], np.add.reduceat(vals, starts, axis=0))  # pieces of a ray add up
