@@ -21,7 +21,9 @@ __all__ = ["BATCH", "encrypt_components"]
 BATCH = 64
 
 
-def encrypt_components(be: Any, key: Any, q: Sequence[Any], shape: tuple, width: int, unsafe: bool) -> np.ndarray:
+def encrypt_components(
+    be: Any, key: Any, q: Sequence[Any] | np.ndarray, shape: tuple[int, ...], width: int, unsafe: bool
+) -> np.ndarray:
     """(k, bz, by, bx, W) records of the k rows of mantissas ``q`` (a (k, voxels) array, or a
     list of lists), encrypted in batches of :data:`BATCH` on the CPU: between two an
     interrupted job stops (:func:`hevr.runtime.cancel.check`) and a progress display of this process

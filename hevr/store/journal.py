@@ -77,7 +77,7 @@ def plain_digest(block: np.ndarray) -> str:
     ``>i2`` brick and its ``<i2`` twin have one digest)."""
     arr = np.ascontiguousarray(block, dtype=np.dtype(block.dtype).newbyteorder("="))
     h = hashlib.sha256(f"{arr.dtype.str}|{arr.shape}|".encode())
-    h.update(memoryview(arr).cast("B") if arr.size else b"")
+    h.update(arr.data.cast("B") if arr.size else b"")
     return h.hexdigest()
 
 

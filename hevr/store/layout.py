@@ -75,8 +75,11 @@ def compressors(name: str) -> list[Any]:
 def array_layout(meta: VolumeMetadata) -> dict[str, tuple[tuple[int, ...], tuple[int, ...]]]:
     """``{array name: (shape, chunk shape)}`` of every array a store of ``meta`` has; the
     ``done`` array holds one digest per channel per brick (:mod:`hevr.store.digests`)."""
-    w, out = meta.ciphertext_bytes, {}
+    w = meta.ciphertext_bytes
+    out: dict[str, tuple[tuple[int, ...], tuple[int, ...]]] = {}
     # a packed store's arrays: S voxels per record along its axis (hevr.store.packing)
+    shape: tuple[int, ...]
+    brick: tuple[int, ...]
     shape, brick = (
         (meta.shape, meta.brick)
         if meta.packing is None
@@ -270,7 +273,7 @@ def check_arrays(path: str, group: Any, meta: VolumeMetadata) -> None:
             raise CorruptStoreError(f"{path}: array {name!r} cannot be opened ({type(exc).__name__}: {exc})") from None
         codecs = [c.to_dict().get("name") for c in arr.metadata.codecs] if hasattr(arr.metadata, "codecs") else None
         got = (tuple(arr.shape), tuple(arr.chunks), str(arr.dtype), arr.metadata.fill_value, codecs, dict(arr.attrs))
-        want = (
+        want: tuple[Any, ...] = (
             shape,
             chunks,
             "uint8",

@@ -20,6 +20,7 @@ from typing import Any
 
 import gmpy2
 import numpy as np
+import zarr
 
 from ..backends import CpuBackend
 from ..crypto.tags import betas, raw_tags, tag_channel, tag_key_of
@@ -28,9 +29,9 @@ from ..runtime import stats
 from ..volume.density import encode_density, normalize_density
 from .brick_crypto import encrypt_components
 from .digests import brick_digest, marker
-from .layout import array_slices
-from .metadata import VolumeMetadata
-from .packing import pack_columns
+from .layout import array_slices, store_array
+from .metadata import ChannelInfo, VolumeMetadata
+from .packing import PackingInfo, pack_columns
 from .quantise import quantise_scalar, quantise_vector
 
 __all__ = ["pack_axis_of", "write_packed_brick"]
@@ -38,10 +39,18 @@ __all__ = ["pack_axis_of", "write_packed_brick"]
 _CPU = CpuBackend()  # the tags' records
 
 
+def packed_parts(meta: VolumeMetadata) -> tuple[PackingInfo, ChannelInfo]:
+    """A packed store's (or packed level's) packing and scalar channel, which it always has
+    (:mod:`hevr.store.metadata_parse` refuses a layout without the scalar channel)."""
+    if meta.packing is None or meta.scalar is None:
+        raise ParameterError("meta: expected a packed store's metadata (its layout and scalar channel)")
+    return meta.packing, meta.scalar
+
+
 def write_packed_brick(
     be: Any,
     block: np.ndarray,
-    group: Any,
+    group: zarr.Group,
     index: tuple[int, int, int],
     meta: VolumeMetadata,
     key: Any,
@@ -53,15 +62,18 @@ def write_packed_brick(
     then (a verifiable store) one tag per packed ciphertext, E(α·P + β) at the packed array's flat
     index, then the digest marker. ``gradient``: the brick's g·e(d) (the writer computes it with the
     brick's halo, :mod:`hevr.volume.gradient`), packed as the vector channel is."""
-    info = meta.packing
-    q = np.array(quantise_scalar(block, meta.scalar), dtype=object if block.dtype == np.uint64 else np.int64)
+    info, scalar = packed_parts(meta)
+    dtype: Any = object if block.dtype == np.uint64 else np.int64  # uint64 mantissas: Python ints
+    q = np.array(quantise_scalar(block, scalar), dtype=dtype)
     plains = {"scalar": [pack_columns(q.reshape(block.shape), info)]}
     if meta.vector is not None:  # e(d)'s k components, in [0, 10^digits]: slot value = mantissa (offset 0)
-        enc = encode_density(normalize_density(block, meta.value_range), meta.vector.dims)
+        enc = encode_density(normalize_density(block, meta.value_range), meta.vector.digits_dims()[1])
         vq = quantise_vector(enc, meta.vector)
         vinfo = dataclasses.replace(info, offset=0)
         plains["vector"] = [pack_columns(row.reshape(block.shape), vinfo) for row in vq]
     if meta.gradient is not None:  # g·e(d)'s k components, in [0, 10^digits] like e(d)'s
+        if gradient is None:  # pragma: no cover - the writer passes it with the gradient channel
+            raise ParameterError("gradient: expected the brick's g·e(d) for the store's gradient channel")
         gq = quantise_vector(gradient, meta.gradient)
         plains["gradient"] = [pack_columns(row.reshape(block.shape), dataclasses.replace(info, offset=0)) for row in gq]
     shape = plains["scalar"][0].shape
@@ -73,7 +85,7 @@ def write_packed_brick(
         out = out[0] if name == "scalar" else out
         digests.append(brick_digest(meta.store_id, name, index, out))
         with stats.timed("encrypt.write"):
-            group[name][sl if name == "scalar" else (slice(None),) + sl] = out
+            store_array(group, name)[sl if name == "scalar" else (slice(None),) + sl] = out
     if meta.tags:  # after every data channel: the digests' order (VolumeMetadata.channel_names)
         tk = tag_key_of(key)
         packs = np.ravel_multi_index(
@@ -91,8 +103,8 @@ def write_packed_brick(
             rec = recs[0] if name == "scalar" else np.stack(recs)
             digests.append(brick_digest(meta.store_id, tag_channel(name), index, rec))
             with stats.timed("encrypt.write"):
-                group[tag_channel(name)][sl if name == "scalar" else (slice(None),) + sl] = rec
-    group["done"][index] = marker(digests)
+                store_array(group, tag_channel(name))[sl if name == "scalar" else (slice(None),) + sl] = rec
+    store_array(group, "done")[index] = marker(digests)
     return index
 
 

@@ -59,8 +59,9 @@ from ..volume.pyramid import MAX_LEVELS, level_brick, level_shape
 from .authenticity import authenticate
 from .brick_crypto import encrypt_components
 from .digests import brick_digest, marker, written
-from .layout import array_layout, array_slices, compressors
+from .layout import array_layout, array_slices, compressors, store_array
 from .metadata import ChannelInfo, LevelInfo, VolumeMetadata
+from .packed_brick import packed_parts
 from .packing import choose_packing, mantissa_range, pack_columns
 from .paths import document_digest, token, zarr_store
 from .pyramid import build_pyramid, level_arrays_ok, write_meta  # noqa: F401 - build_pyramid: hevr.store.writer
@@ -87,14 +88,14 @@ def check_levels(levels: Any) -> int:
 def plan_levels(meta: VolumeMetadata, levels: int) -> tuple[LevelInfo, ...]:
     """The layouts of a packed store's levels 1 … ``levels`` (shape, brick, packing; no arrays yet),
     from public parameters only; :class:`hevr.ParameterError` when a level's slots do not fit."""
-    info0, sc = meta.packing, meta.scalar
+    info0, sc = packed_parts(meta)
     if sc.digits is not None and sc.digits + 3 * levels > _MAX_DIGITS:
         raise ParameterError(
             f"levels: expected at most {(_MAX_DIGITS - sc.digits) // 3} levels for a channel of "
             f"{sc.digits} digits (each level adds 3), got {levels}"
         )
     bits = int(meta.n).bit_length()
-    out = []
+    out: list[LevelInfo] = []
     for level in range(1, levels + 1):
         shape = level_shape(meta.shape, level)
         try:
@@ -106,16 +107,16 @@ def plan_levels(meta: VolumeMetadata, levels: int) -> tuple[LevelInfo, ...]:
                 f"levels: expected at most {level - 1} levels for this key and value range (level "
                 f"{level}'s values carry 3 more digits each: {exc})"
             ) from None
-        brick = tuple(
+        b0, b1, b2 = (
             -(-b // packing.slots) * packing.slots if i == packing.axis else b
             for i, b in enumerate(level_brick(meta.brick, level))
         )
-        out.append(LevelInfo(level, shape, brick, False, {}, packing))  # type: ignore[arg-type]
+        out.append(LevelInfo(level, shape, (b0, b1, b2), False, {}, packing))
     return tuple(out)
 
 
 def prepare_levels(
-    path: str, meta: VolumeMetadata, wanted: tuple[LevelInfo, ...], key: Any, so: dict | None
+    path: str, meta: VolumeMetadata, wanted: tuple[LevelInfo, ...], key: Any, so: dict[str, Any] | None
 ) -> VolumeMetadata:
     """Record the levels ``wanted`` (:func:`plan_levels`; none: nothing to do) in the store at ``path``,
     incomplete, their arrays created, unless they are there with the same layout and arrays (a
@@ -160,16 +161,19 @@ def prepare_levels(
 def level_values(means: np.ndarray, scalar: ChannelInfo) -> np.ndarray:
     """A float volume's level mantissas: the level's means rounded at the level channel's digits
     (``digits + 3·level``; NumPy's ``rint``, as level 0's :func:`~hevr.store.quantise.quantise_scalar`)."""
-    return np.rint(np.asarray(means, np.float64) * 10.0**scalar.digits)
+    digits = 0 if scalar.digits is None else scalar.digits  # an integer channel: whole values
+    out: np.ndarray = np.rint(np.asarray(means, np.float64) * 10.0**digits)
+    return out
 
 
 def _level_array(darr: Any, meta: VolumeMetadata, info: LevelInfo) -> Any:
     """The dask array of level ``info.level`` chunked by its bricks: an integer volume's exact
     125^L·Σ of (m − offset) over the leaves, a float volume's means (float64), 2×2×2 children
     at a time, the last voxel of an odd axis repeated (:func:`hevr.volume.pyramid.downsample`)."""
-    integer = meta.scalar.digits is None
+    packing, scalar = packed_parts(meta)
+    integer = scalar.digits is None
     if integer:  # slot values of level 0, exact in int64 (two's complement: uint64 too)
-        off = meta.packing.offset
+        off = packing.offset
 
         def shift(b: np.ndarray) -> np.ndarray:
             if b.dtype == np.uint64:
@@ -192,23 +196,23 @@ def _encrypt_level_brick(
     path: str,
     level: int,
     index: tuple[int, int, int],
-    meta_dict: dict,
+    meta_dict: dict[str, Any],
     delta: int,
     key: Any,
     unsafe_no_obfuscation: bool,
     backend: str,
-    storage_options: dict | None,
+    storage_options: dict[str, Any] | None,
 ) -> tuple[int, int, int]:
     """One task: brick ``index`` of level ``level`` packed, encrypted and written with its tags and marker."""
     with fs_errors("writing a brick of a pyramid level", path):
         base = VolumeMetadata.from_dict(meta_dict)
         meta = base.level_meta(level)
-        info = meta.packing
-        if meta.scalar.digits is None:  # 125^L·Σ(m − offset_0) + 1000^L·offset_0 − offset_L
+        info, scalar = packed_parts(meta)
+        if scalar.digits is None:  # 125^L·Σ(m − offset_0) + 1000^L·offset_0 − offset_L
             u = np.asarray(block, np.int64) + np.int64(delta)
         else:
-            lo, hi = mantissa_range(meta.value_range, meta.scalar.exponent)
-            u = (np.clip(level_values(block, meta.scalar), lo, hi) - lo).astype(np.int64)
+            lo, hi = mantissa_range(meta.value_range, scalar.exponent)
+            u = (np.clip(level_values(block, scalar), lo, hi) - lo).astype(np.int64)
         plain = pack_columns(u, dataclasses.replace(info, offset=0))
         shape, width, prefix = plain.shape, meta.ciphertext_bytes, f"levels/{level}/"
         out = encrypt_components(
@@ -218,7 +222,7 @@ def _encrypt_level_brick(
         sl = array_slices(meta, index)
         group = zarr.open_group(zarr_store(path, storage_options), mode="r+")
         with stats.timed("encrypt.write"):
-            group[prefix + "scalar"][sl] = out
+            store_array(group, prefix + "scalar")[sl] = out
         if meta.tags:
             tk = tag_key_of(key)
             packs = np.ravel_multi_index(
@@ -232,8 +236,8 @@ def _encrypt_level_brick(
             rec = _CPU.to_bytes(tags, width).reshape(shape + (width,))
             digests.append(brick_digest(meta.store_id, prefix + tag_channel("scalar"), index, rec))
             with stats.timed("encrypt.write"):
-                group[prefix + tag_channel("scalar")][sl] = rec
-        group[prefix + "done"][index] = marker(digests)
+                store_array(group, prefix + tag_channel("scalar"))[sl] = rec
+        store_array(group, prefix + "done")[index] = marker(digests)
     return index
 
 
@@ -247,7 +251,7 @@ def encrypt_levels(
     backend: str,
     client: Any,
     progress: bool,
-    storage_options: dict | None,
+    storage_options: dict[str, Any] | None,
     counted: int = 0,
 ) -> tuple[VolumeMetadata, int]:
     """Encrypt the bricks without markers of every recorded level of the packed store at ``path``,
@@ -270,11 +274,13 @@ def encrypt_levels(
         if info.complete and level_arrays_ok(path, info, so):
             continue
         lmeta = meta.level_meta(info.level)
-        done = written(group[f"levels/{info.level}/done"][...])
-        todo = [tuple(int(i) for i in idx) for idx in np.ndindex(*lmeta.grid) if not done[idx]]
+        done = written(store_array(group, f"levels/{info.level}/done")[...])
+        todo = [(int(z), int(y), int(x)) for z, y, x in np.ndindex(*lmeta.grid) if not done[z, y, x]]
         log.info("packed level %d: %d of %d bricks to encrypt", info.level, len(todo), lmeta.n_bricks)
-        blocks = _level_array(darr, meta, info).to_delayed() if todo else None
-        delta = (1000**info.level) * meta.packing.offset - info.packing.offset
+        if not todo:
+            continue
+        blocks = _level_array(darr, meta, info).to_delayed()
+        delta = (1000**info.level) * packed_parts(meta)[0].offset - packed_parts(lmeta)[0].offset
         for idx in todo:
             tasks.append(
                 task(
@@ -297,7 +303,9 @@ def encrypt_levels(
         compute(tasks, client=client, progress=progress, desc="encrypt levels", steps=values, unit="ciphertexts")
     group = zarr.open_group(zarr_store(path, so, read_only=True), mode="r")
     infos = tuple(
-        dataclasses.replace(info, complete=True) if written(group[f"levels/{info.level}/done"][...]).all() else info
+        dataclasses.replace(info, complete=True)
+        if written(store_array(group, f"levels/{info.level}/done")[...]).all()
+        else info
         for info in meta.levels
     )
     if infos != meta.levels:

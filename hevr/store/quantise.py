@@ -109,5 +109,6 @@ def quantise_scalar(block: np.ndarray, info: ChannelInfo) -> list[int]:
 def quantise_vector(enc: np.ndarray, info: ChannelInfo) -> np.ndarray:
     """(k, voxels) non-negative integer mantissas of a (..., k) field with components in [0, 1]:
     the Alg. 4 encoding (vector) or g·e(d) (gradient)."""
-    q = np.rint(enc * 10.0**info.digits).astype(np.int64)
-    return q.reshape(-1, info.dims).T
+    digits, dims = info.digits_dims()
+    q = np.rint(enc * 10.0**digits).astype(np.int64)
+    return q.reshape(-1, dims).T

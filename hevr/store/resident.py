@@ -136,7 +136,10 @@ def load_brick(ev: Any, index: tuple[int, int, int], channels: tuple[str, ...], 
     batches = {ch: ev.read_brick(index, ch, backend=be) for ch in channels}
     n_cts = sum(len(b) if data_channel(ch) == "scalar" else sum(len(x) for x in b) for ch, b in batches.items())
     return ResidentBrick(
-        tuple(index), batches, n_cts * be.residue_bytes(ev.meta.ciphertext_bytes), device=be.residence == "device"
+        (index[0], index[1], index[2]),
+        batches,
+        n_cts * be.residue_bytes(ev.meta.ciphertext_bytes),
+        device=be.residence == "device",
     )
 
 

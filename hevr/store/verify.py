@@ -73,7 +73,7 @@ def _reason(exc: CorruptStoreError, path: str) -> str:
 def check_brick(ev: Any, index: tuple[int, int, int], coprime: bool = True) -> list[BrickProblem]:
     """Read brick ``index`` of every channel of the volume (or level view) ``ev`` and return
     its problems (none: it is intact); reading errors other than damage propagate."""
-    index = tuple(int(i) for i in index)
+    index = (int(index[0]), int(index[1]), int(index[2]))
     out = []
     for ch in ev.meta.channel_names:
         try:
@@ -90,7 +90,7 @@ def check_brick(ev: Any, index: tuple[int, int, int], coprime: bool = True) -> l
                             f"{ev.path}: brick {index} of channel {ch!r}{lv} holds a ciphertext not coprime to n"
                         )
         except CorruptStoreError as exc:
-            out.append(BrickProblem(ev.level, index, ch, _reason(exc, ev.path)))  # type: ignore[arg-type]
+            out.append(BrickProblem(ev.level, index, ch, _reason(exc, ev.path)))
     return out
 
 
