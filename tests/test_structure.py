@@ -803,3 +803,35 @@ def test_test_module_basenames_are_unique():
         seen.setdefault(p.name, []).append(_rel(p))
     dup = {name: paths for name, paths in seen.items() if len(paths) > 1}
     assert not dup, f"test module basenames used twice: {dup}"
+
+
+# -- the house: hevr's floor and rooms (issue 49) ----------------------------------------------------
+
+# hevr/'s floor: the package's entry, the command's entry, and the farm-level modules every layer
+# and every user reads (the errors, colour on the client, the paper's settings). Everything else is in
+# a room named for its concept (core/, runtime/ and the data path's subpackages).
+FLOOR = ("__init__", "__main__", "colour", "errors", "paper")
+
+
+def test_the_floor_holds_no_private_module():
+    floor = sorted(p.stem for p in PKG.glob("*.py"))
+    assert floor == sorted(FLOOR), f"modules on hevr/'s floor: {floor}, expected {sorted(FLOOR)}"
+    private_rooms = sorted(
+        p.name for p in PKG.iterdir() if p.is_dir() and p.name.startswith("_") and p.name != "__pycache__"
+    )
+    assert not private_rooms, f"private subpackages on hevr/'s floor: {private_rooms}"
+
+
+def test_mypys_strict_modules_are_the_public_modules():
+    """pyproject.toml's strict mypy override names exactly the modules hevr/__init__.py re-exports from."""
+    import tomllib
+
+    import hevr
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    strict = [o for o in config["tool"]["mypy"]["overrides"] if o.get("disallow_untyped_defs")]
+    assert len(strict) == 1, "expected one strict override in [tool.mypy]"
+    listed = set(strict[0]["module"])
+    public = {"hevr"} | {"hevr" + m for m in hevr._LAZY}
+    public = {"hevr.viewer.widget" if m == "hevr.viewer" else m for m in public}
+    assert listed == public, f"strict list: missing {sorted(public - listed)}, extra {sorted(listed - public)}"

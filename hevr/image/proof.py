@@ -36,15 +36,15 @@ True
 from __future__ import annotations
 
 import calendar
-import hashlib
 import math
 import re
 import time
 from dataclasses import dataclass
 from typing import Any
 
+from ..crypto.mac import digest
 from ..errors import ParameterError, VerificationError
-from ..store.authenticity import authenticated_fields, canonical, metadata_digest
+from ..store.authenticity import authenticated_fields, metadata_digest
 from .stamp import TIME_FORMAT, rendered_at
 
 __all__ = ["Expect", "FrameProof", "as_expect", "check_expect", "first_frame", "proof_of", "view_key", "view_of"]
@@ -55,7 +55,7 @@ CLOCK_SKEW = 300.0  # seconds a stamp's render time may lie ahead of this machin
 
 def view_key(view: dict) -> str:
     """The 16-hex-digit key of a view (module docstring)."""
-    return hashlib.sha256(canonical(view)).hexdigest()[:16]
+    return digest(view).hex()[:16]
 
 
 @dataclass(frozen=True)

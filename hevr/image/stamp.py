@@ -34,7 +34,6 @@ record without a valid stamp (:class:`hevr.VerificationError`), and checks the r
 from __future__ import annotations
 
 import hashlib
-import hmac
 import os
 import re
 import time
@@ -42,8 +41,8 @@ from pathlib import Path
 from typing import Any, NamedTuple
 from urllib.parse import urlsplit, urlunsplit
 
+from ..crypto.mac import PREFIX, check_tag, derive_key, digest, raw_mac
 from ..crypto.tags import tag_key_of
-from ..store.authenticity import canonical
 
 __all__ = [
     "STAMP_FIELDS",
@@ -61,7 +60,7 @@ __all__ = [
     "stamp_header",
 ]
 
-STAMP_PREFIX = "hmac-sha256:"
+STAMP_PREFIX = PREFIX
 _STAMP = re.compile(r"hmac-sha256:[0-9a-f]{64}")
 TIME_FORMAT = "%Y-%m-%dT%H:%M:%SZ"
 
@@ -106,7 +105,7 @@ def message(header: dict, body_digest: bytes) -> bytes:
     """What a stamp authenticates: SHA-256 of the canonical header (its ``stamp`` left out) and the
     body's SHA-256."""
     head = {k: v for k, v in header.items() if k != "stamp"}
-    return hashlib.sha256(canonical(head)).digest() + bytes(body_digest)
+    return digest(head) + bytes(body_digest)
 
 
 def saved_name(path: str | Path) -> str:
@@ -129,22 +128,14 @@ def saved_name(path: str | Path) -> str:
     return os.path.realpath(os.path.expanduser(text))
 
 
-def _key(prf_key: bytes) -> bytes:
-    return hmac.new(bytes(prf_key), b"hevr-frame-stamp-v1", hashlib.sha256).digest()
-
-
 def raw_stamp(prf_key: bytes, msg: bytes) -> str:
     """The stamp of ``msg`` under the tag key's PRF key ``prf_key``."""
-    return STAMP_PREFIX + hmac.new(_key(prf_key), msg, hashlib.sha256).hexdigest()
+    return raw_mac(derive_key(prf_key, b"hevr-frame-stamp-v1"), msg)
 
 
 def raw_check(prf_key: bytes, msg: bytes, stamp: Any) -> bool:
     """Whether ``stamp`` is the stamp of ``msg`` (constant-time comparison)."""
-    return (
-        isinstance(stamp, str)
-        and _STAMP.fullmatch(stamp) is not None
-        and hmac.compare_digest(raw_stamp(prf_key, msg), stamp)
-    )
+    return isinstance(stamp, str) and _STAMP.fullmatch(stamp) is not None and check_tag(raw_stamp(prf_key, msg), stamp)
 
 
 def make_stamp(private_key: Any, msg: bytes) -> str:

@@ -50,13 +50,13 @@ hevr.errors.ParameterError: request: expected only the fields ['backend', 'chann
 
 from __future__ import annotations
 
-import hashlib
 import json
 import re
 import struct
 from dataclasses import dataclass
 from typing import Any
 
+from ..crypto.mac import digest
 from ..errors import HevrError, ParameterError
 from ..image.header import _no_duplicates, _small_int
 from ..rendering.geometry.camera import Camera
@@ -276,8 +276,7 @@ class RenderRequest:
 
     def key(self) -> str:
         """SHA-256 of the canonical JSON: equal across processes."""
-        text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
-        return hashlib.sha256(text.encode()).hexdigest()
+        return digest(self.to_dict()).hex()
 
     @property
     def pixels(self) -> int:

@@ -43,12 +43,10 @@ False
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import hmac
-import json
 import re
 from typing import Any
 
+from ..crypto.mac import PREFIX, check_tag, derive_key, digest, mac
 from ..crypto.tags import tag_key_of
 
 __all__ = [
@@ -62,7 +60,7 @@ __all__ = [
     "raw_metadata_mac",
 ]
 
-AUTH_PREFIX = "hmac-sha256:"
+AUTH_PREFIX = PREFIX
 _AUTH = re.compile(r"hmac-sha256:[0-9a-f]{64}")
 # the fields of the metadata (VolumeMetadata.to_dict's names) that the owner's MAC binds
 AUTHENTICATED = (
@@ -107,15 +105,6 @@ def authenticated_fields(d: dict) -> dict:
     return out
 
 
-def canonical(doc: Any) -> bytes:
-    """The canonical JSON bytes every digest and MAC of hevr is taken over (sorted keys, no spaces, ASCII).
-
-    >>> canonical({"b": 1, "a": [2.5, None]})
-    b'{"a":[2.5,null],"b":1}'
-    """
-    return json.dumps(doc, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
-
-
 def metadata_digest(fields: dict) -> str:
     """``"sha256:<hex>"`` of the canonical bound fields: what the key holder's known-stores file
     remembers of a store (:mod:`hevr.store.known`), with or without a MAC.
@@ -123,13 +112,12 @@ def metadata_digest(fields: dict) -> str:
     >>> metadata_digest({"a": 1}) == metadata_digest({"a": 1}), metadata_digest({"a": 1})[:7]
     (True, 'sha256:')
     """
-    return "sha256:" + hashlib.sha256(canonical(fields)).hexdigest()
+    return "sha256:" + digest(fields).hex()
 
 
 def raw_metadata_mac(prf_key: bytes, fields: dict) -> str:
     """The MAC of the bound ``fields`` under the tag key's PRF key (module docstring)."""
-    k_meta = hmac.new(bytes(prf_key), b"hevr-metadata-mac-v1", hashlib.sha256).digest()
-    return AUTH_PREFIX + hmac.new(k_meta, canonical(fields), hashlib.sha256).hexdigest()
+    return mac(derive_key(prf_key, b"hevr-metadata-mac-v1"), fields)
 
 
 def metadata_mac(private_key: Any, fields: dict) -> str:
@@ -141,7 +129,7 @@ def check_metadata_mac(private_key: Any, fields: dict, auth: Any) -> bool:
     """Whether ``auth`` is the owner's MAC of ``fields`` (constant-time comparison)."""
     if not is_auth(auth):
         return False
-    return hmac.compare_digest(metadata_mac(private_key, fields), auth)
+    return check_tag(metadata_mac(private_key, fields), auth)
 
 
 def authenticate(meta: Any, key: Any) -> Any:

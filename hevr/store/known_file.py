@@ -17,7 +17,6 @@ import dataclasses
 import errno
 import fcntl
 import hashlib
-import hmac
 import json
 import logging
 import os
@@ -30,9 +29,9 @@ from pathlib import Path
 from typing import Any
 
 from ..core.files import file_kind, write_atomic
+from ..crypto.mac import PREFIX, check_tag, derive_key, mac
 from ..crypto.tags import tag_key_of
 from ..errors import FileSystemError, NotRegularFileError, ParameterError, VerificationError
-from .authenticity import canonical
 
 __all__ = [
     "FORMAT",
@@ -57,7 +56,7 @@ FORMAT = "hevr-known-stores"
 VERSION = 2
 MAX_BYTES = 32 << 20  # some 80 000 stores; a bigger file is refused unread
 MAX_RETIRED = 64  # retired ids kept per name (the newest)
-MAC_PREFIX = "hmac-sha256:"
+MAC_PREFIX = PREFIX
 _MAC = re.compile(r"hmac-sha256:[0-9a-f]{64}")
 _FIELDS = ("store_id", "digest", "verifiable", "fingerprint", "recorded", "retired", "accepted_untagged")
 _CACHE: dict[str, tuple[tuple, KnownFile]] = {}
@@ -130,7 +129,7 @@ def known_stores_path() -> Path:
 
 def known_key(private_key: Any) -> bytes:
     """K = HMAC-SHA256(k, "hevr-known-stores-v2"), k the private key's tag PRF key."""
-    return hmac.new(bytes(tag_key_of(private_key).prf_key), b"hevr-known-stores-v2", hashlib.sha256).digest()
+    return derive_key(tag_key_of(private_key).prf_key, b"hevr-known-stores-v2")
 
 
 def entry_mac(key: bytes, name: str, entry: KnownStore) -> str:
@@ -141,7 +140,7 @@ def entry_mac(key: bytes, name: str, entry: KnownStore) -> str:
     >>> m.startswith("hmac-sha256:"), m == entry_mac(bytes(32), "w.zarr", e)
     (True, False)
     """
-    return MAC_PREFIX + hmac.new(key, canonical([name, entry.fields()]), hashlib.sha256).hexdigest()
+    return mac(key, [name, entry.fields()])
 
 
 def signed_by(private_key: Any, name: str, entry: KnownStore) -> KnownStore:
@@ -157,7 +156,7 @@ def verify_entries(kf: KnownFile, private_key: Any, where: str | None = None) ->
     if mark in kf.checked:
         return
     for name, e in kf.signed.items():
-        if e.fingerprint == fp and not hmac.compare_digest(entry_mac(key, name, e), e.mac):
+        if e.fingerprint == fp and not check_tag(entry_mac(key, name, e), e.mac):
             raise VerificationError(
                 f"known stores: the entry {name!r} in {where or kf.path} does not carry the key holder's MAC: it was "
                 "edited, forged or copied from another file; nothing is trusted from it (remove that entry, or the "

@@ -19,8 +19,6 @@ frame (:mod:`hevr.rendering.geometry.views`).
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 import numbers
 from dataclasses import dataclass
@@ -29,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ...core.validate import check_int, check_pixel_ids, check_shape, check_spacing
+from ...crypto.mac import digest
 from ...errors import ParameterError
 from .views import VIEWS, view_offset
 
@@ -235,8 +234,7 @@ class Camera:
         >>> Camera((0, 0, 5), (0, 0, 0)).key() == Camera([0, 0, 5.0], [0, 0, 0]).key()
         True
         """
-        text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
-        return hashlib.sha256(text.encode("ascii")).hexdigest()
+        return digest(self.to_dict()).hex()
 
     # ------------------------------------------------------------------ geometry
     @property
