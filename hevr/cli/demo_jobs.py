@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import MemoryLimitError
 from ..image.display import default_window, save_png
+from ..image.encrypted import EncryptedImage
 from ..paper import (
     PAPER_DENSITIES,
     PAPER_TF1,
@@ -139,6 +140,7 @@ def run_jobs(
         kw = dict(mode=job.mode, sampling=job.sampling, step=1.0, density=job.density, nodes=job.nodes)
         with Timer() as tr:  # the store has no tags: said once by the caller, not at every frame
             img = render(ev, cam, progress=progress, verify=False, **kw)
+        assert isinstance(img, EncryptedImage)  # the per-voxel store's frame
         with Timer() as td:
             arr = img.decrypt(priv)
         with Timer() as tp:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 from typing import Any
 
+from ..image.encrypted import EncryptedImage
 from ..paper import PAPER_DENSITIES, PAPER_TF1
 from ..rendering.encrypted import render
 from ..rendering.geometry.camera import Camera
@@ -173,6 +174,7 @@ def cmd_render(args: Any) -> int:
                 finish=args.finish,
                 verify=verify,
             )
+    assert isinstance(img, EncryptedImage)  # a per-voxel store's frame, computed (here or on hevr serve)
     st.save_frame(img, out, force=args.force, so=so, private_key=args.private_key)
     line = verified_line(img)
     if line:

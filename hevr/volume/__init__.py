@@ -5,7 +5,8 @@ Alg. 4 vector encoding.
 ``loaders``        ``read_scan`` (one dispatcher) / ``load_volume`` / ``save_volume``
 ``scan``           ``Scan``: a loaded volume, its spacing, origin, frame and modality
 ``orientation``    hevr's RAS+ patient frame: reorienting views of the stored axes
-``nrrd``           the NRRD reader/writer (memory-mapped raw data); ``nrrd_space`` its geometry
+``nrrd``           the NRRD reader/writer; ``nrrd_space`` its geometry
+``raw``            headerless raw files (layout in the name), memory-mapped raw data
 ``nifti``          NIfTI and FreeSurfer MGH/MGZ (nibabel)
 ``dicom``          DICOM series, DICOMDIR and multi-frame files (pydicom)
 ``tiff``           TIFF stacks, OME-TIFF, ImageJ hyperstacks (tifffile)

@@ -4,7 +4,7 @@
 comes from the name (and, for folders, what they hold):
 
 =========================================  =====================================================
-``.npy``, ``.raw``                         numpy / headerless; axes as stored, ``frame=None``
+``.npy``, ``.raw``                         numpy / headerless (:mod:`hevr.volume.raw`); axes as stored, ``frame=None``
 ``.nrrd``, ``.nhdr``                       :mod:`hevr.volume.nrrd` + :mod:`hevr.volume.nrrd_space`
 ``.nii``, ``.nii.gz``, ``.mgz``, ``.mgh``  nibabel (:mod:`hevr.volume.nifti`)
 ``.tif``, ``.tiff`` (OME-TIFF, ImageJ)     tifffile (:mod:`hevr.volume.tiff`)
@@ -43,8 +43,9 @@ from ..core.voxels import check_volume
 from ..errors import MissingFileError, ParameterError, VolumeFormatError
 from .dicom import read_dicom
 from .nifti import read_nifti
-from .nrrd import check_file, data_parts, is_kind, load_raw, to_native, write_nrrd, write_raw
+from .nrrd import write_nrrd
 from .nrrd_space import read_nrrd_scan
+from .raw import check_file, data_parts, is_kind, load_raw, to_native, write_raw
 from .scan import Scan
 from .tiff import read_tiff
 from .zarr_input import is_zarr, read_zarr
