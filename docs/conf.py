@@ -71,9 +71,25 @@ html_static_path: list[str] = []
 html_theme_options = {
     "navigation_with_keys": False,
     "show_toc_level": 2,
-    "header_links_before_dropdown": 8,
+    "header_links_before_dropdown": 5,
     "secondary_sidebar_items": ["page-toc"],
 }
-html_sidebars = {"**": ["sidebar-nav-bs"]}
 html_copy_source = False
 html_show_sourcelink = False
+# a page without sub-pages has no section navigation to show: no left sidebar there
+html_sidebars = {
+    page: []
+    for page in (
+        "index",
+        "getting-started",
+        "security",
+        "format",
+        "image-format",
+        "sums-format",
+        "inputs",
+        "api-contract",
+        "benchmarks",
+        "reference/api",
+        "reference/cli",
+    )
+}

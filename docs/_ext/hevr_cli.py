@@ -129,7 +129,8 @@ class HevrCli(SphinxDirective):
             actions = [a for a in group._group_actions if a.help != argparse.SUPPRESS]  # noqa: SLF001
             if not actions:
                 continue
-            rubric = nodes.rubric(text=(group.title or "options").capitalize())
+            commands = all(isinstance(a, argparse._SubParsersAction) for a in actions)  # noqa: SLF001
+            rubric = nodes.rubric(text="Commands" if commands else (group.title or "options").capitalize())
             section += rubric
             if group.description:
                 section += nodes.paragraph(text=" ".join(group.description.split()))
