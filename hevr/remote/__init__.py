@@ -7,7 +7,8 @@ never unpickles anything the server sends.
 
 ====================================  ====================================================
 :mod:`hevr.remote.protocol`           requests (strict JSON) and the units stream's frames
-:mod:`hevr.remote.client`             :func:`connect`, :class:`Server`: HTTP with bounds
+:mod:`hevr.remote.client`             :func:`connect`, :class:`Server`: the service's API
+:mod:`hevr.remote.connection`         one HTTP exchange with bounds (sizes, retries, no redirects)
 :mod:`hevr.remote.transport`          one deadline per exchange, enforced at the socket
 :mod:`hevr.remote.failures`           typed failures (busy, unauthorised, …), Retry-After
 :mod:`hevr.remote.volume`             :class:`RemoteVolume`: a served store's public side
