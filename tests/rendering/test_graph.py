@@ -76,7 +76,7 @@ def test_tree_reduce_no_task_receives_every_partial(store):
     n_map = g.map_tasks
     assert n_map > 1
     graph = dict(g.dsk)
-    for key, task in graph.items():
+    for key in graph:
         deps = dask.core.get_dependencies(graph, key)
         if str(key).startswith("hevr-merge"):
             assert len(deps) <= FAN_IN

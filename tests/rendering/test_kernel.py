@@ -325,7 +325,9 @@ def test_duplicate_rows_survive_hash_collisions(monkeypatch):
 
 # -- the plan under a second array namespace (issue 27, item 2) ----------------------------------------
 def _plans_equal(a, b) -> None:
-    to_np = lambda x: x if isinstance(x, np.ndarray) else np.from_dlpack(x)
+    def to_np(x):
+        return x if isinstance(x, np.ndarray) else np.from_dlpack(x)
+
     assert (a.n_rows, a.n_pairs, a.shared_w) == (b.n_rows, b.n_pairs, b.shared_w)
     for name in ("rep", "vl", "wl", "tasks"):
         x, y = to_np(getattr(a, name)), to_np(getattr(b, name))

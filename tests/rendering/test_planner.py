@@ -103,7 +103,11 @@ def test_plan_bounds_are_recorded(tiny):
 BIG_N = 2**2047 + 1  # plan_render reads n only through n // 3 and n's bit length
 
 
-def _meta(value_range=(0.0, 255.0), scalar=ChannelInfo(exponent=0), vector=ChannelInfo(exponent=-3, digits=3, dims=4)):
+SCALAR = ChannelInfo(exponent=0)
+VECTOR = ChannelInfo(exponent=-3, digits=3, dims=4)
+
+
+def _meta(value_range=(0.0, 255.0), scalar=SCALAR, vector=VECTOR):
     return VolumeMetadata(
         shape=(4, 4, 4),
         spacing=(1.0, 1.0, 1.0),
