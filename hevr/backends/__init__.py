@@ -4,10 +4,11 @@ Every bulk modular operation — owner-side masks, the per-brick multi-exponenti
 merging partial sums, finishing and packing, batch decryption — goes through one
 :class:`~hevr.backends.base.Backend` (interface and operation counts per render mode in
 :mod:`hevr.backends.base`). ``cpu`` (gmpy2, :mod:`hevr.backends.cpu`) is the reference, and the
-default's choice (``"auto"``, below) for keys of 256 bits and more. ``cuda-host`` (:mod:`hevr.backends.cuda.backend`) runs the CUDA backend's kernels,
-compiled for the host with the C compiler on first use, on the CPU: bit-identical to ``cpu``, for
-tests and for checking a machine (encryption and decryption included: ``owner.cuh``). ``cuda``
-runs the same kernels on an NVIDIA GPU through CuPy (:mod:`hevr.backends.cuda.device`; ``pip install
+default's choice (``"auto"``, below) for keys of 256 bits and more. ``cuda-host``
+(:mod:`hevr.backends.cuda.registered`) runs the CUDA backend's kernels, compiled for the host with
+the C compiler on first use, on the CPU: bit-identical to ``cpu``, for tests and for checking a
+machine (encryption and decryption included: ``owner.cuh``). ``cuda`` runs the same kernels on an
+NVIDIA GPU through CuPy (:mod:`hevr.backends.cuda.device`; ``pip install
 'hevr[gpu]'``), bit-identical too; without CuPy or a device its first operation raises
 :class:`hevr.MissingDependencyError`.
 
@@ -54,7 +55,7 @@ import dask
 from ..errors import MissingDependencyError, ParameterError
 from .base import Backend, OpCounter, ProductPlan
 from .cpu import CpuBackend
-from .cuda.backend import CudaBackend, CudaHostBackend
+from .cuda.registered import CudaBackend, CudaHostBackend
 
 __all__ = [
     "AUTO",

@@ -164,9 +164,12 @@ class Backend(ABC):
     """
 
     name: str = ""
-    # where resident residues live: "host" (this process's memory) or "device" (a GPU's memory,
-    # :meth:`memory` says how much); a device backend maps a worker's resident bricks in one task
-    residence: str = "host"
+
+    @property
+    def residence(self) -> str:
+        """Where resident residues live: ``"host"`` (this process's memory) or ``"device"`` (a GPU's
+        memory, :meth:`memory` says how much); a device backend maps a worker's resident bricks in one task."""
+        return "host"
 
     def memory(self) -> tuple[int, int] | None:
         """(free, total) bytes of the device memory resident residues take; None for the host's."""

@@ -204,11 +204,8 @@ class _ListedPlan(NamedTuple):
 
     @classmethod
     def of(cls, plan: ProductPlan) -> _ListedPlan:
-        return cls(
-            plan,
-            *(_listed(a) for a in (plan.vl, plan.wl, plan.tasks, plan.rep)),
-            _listed(plan.pre) if plan.pre is not None else [],
-        )
+        vl, wl, tasks, rep = (_listed(a) for a in (plan.vl, plan.wl, plan.tasks, plan.rep))
+        return cls(plan, vl, wl, tasks, rep, _listed(plan.pre) if plan.pre is not None else [])
 
 
 def _execute(listed: _ListedPlan, cts: Sequence[mpz], n2: mpz, counter: OpCounter | None) -> list[mpz]:

@@ -12,6 +12,7 @@ import logging
 import shutil
 import warnings
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -41,7 +42,7 @@ log = logging.getLogger(__name__)
 # Tried in order when the planner refuses a render at a tiny key (64 bits cannot hold
 # 4 reciprocal digits times 100 samples times 10-bit weights): the first that plans is used
 # and recorded in the cell.
-PARAM_LADDER = (
+PARAM_LADDER: tuple[dict[str, Any], ...] = (
     {"precision": 4, "digits": 3},
     {"precision": 3, "digits": 2},
     {"precision": 2, "digits": 2},
@@ -156,7 +157,8 @@ def render_case(
         try:
             if finish == "client":
                 frame, wall = timed(
-                    lambda: render_frame(
+                    partial(
+                        render_frame,
                         ev,
                         cam,
                         private_key,
@@ -171,7 +173,8 @@ def render_case(
                 )
             else:
                 img, wall = timed(
-                    lambda: render(
+                    partial(
+                        render,
                         ev,
                         cam,
                         mode=mode,
@@ -266,17 +269,8 @@ def naive_phe_case(size: int, image: int, bits: int) -> dict:
         ip, vx, wt = bw.indptr.tolist(), bw.voxels.tolist(), (bw.weights * scale).tolist()
         inv = (1.0 / rays.n_samples[bw.rays]).tolist()
 
-        def run() -> list:
-            pixels = []
-            for r in range(len(bw.rays)):
-                acc = encs[vx[ip[r]]] * wt[ip[r]]
-                for i in range(ip[r] + 1, ip[r + 1]):
-                    acc = acc + encs[vx[i]] * wt[i]
-                pixels.append(acc * inv[r])
-            return pixels
-
-        pixels, render_s = timed(run)
-        vals, dec_s = timed(lambda: [ppriv.decrypt(p) for p in pixels])
+        pixels, render_s = timed(partial(_phe_pixels, encs, ip, vx, wt, inv))
+        vals, dec_s = timed(partial(_phe_decrypt, ppriv, pixels))
         ref = bw.apply(vol.astype(np.float64)) / rays.n_samples[bw.rays]
         plain = render_plain(vol, cam, sampling=sampling).ravel()[bw.rays]
         out[sampling] = {
@@ -289,6 +283,23 @@ def naive_phe_case(size: int, image: int, bits: int) -> dict:
         }
         log.info("phe naive %s: render %.2f s, decrypt %.2f s", sampling, render_s, dec_s)
     return out
+
+
+def _phe_pixels(encs: list[Any], ip: list[int], vx: list[int], wt: list[float], inv: list[float]) -> list[Any]:
+    """Per ray ``sum(w * E(v)) * (1 / n)`` on phe's ``EncryptedNumber`` (ray ``r``'s pairs are
+    ``ip[r]:ip[r + 1]`` of ``vx``, ``wt``)."""
+    pixels = []
+    for r in range(len(inv)):
+        acc = encs[vx[ip[r]]] * wt[ip[r]]
+        for i in range(ip[r] + 1, ip[r + 1]):
+            acc = acc + encs[vx[i]] * wt[i]
+        pixels.append(acc * inv[r])
+    return pixels
+
+
+def _phe_decrypt(private_key: Any, pixels: list[Any]) -> list[float]:
+    """phe's decryption of each pixel."""
+    return [private_key.decrypt(p) for p in pixels]
 
 
 def hevr_small_case(ctx: Context, size: int, image: int, bits: int) -> dict:
@@ -313,9 +324,11 @@ def pipeline_case(workers: Workers, ev: EncryptedVolume, camera: Camera) -> dict
     """A resident volume's second X-ray nearest frame on ``workers``, traced
     (:func:`hevr.bench.pipeline.trace_frame`); the first frame is the warm-up."""
     rv = ev.persist(client=workers.client)
-    rv.resident.wait()
+    residency = rv.resident
+    assert residency is not None  # persist() returns a handle with it set
+    residency.wait()
     try:
         trace_frame(workers.client, rv, camera)
         return trace_frame(workers.client, rv, camera)
     finally:
-        rv.resident.release()
+        residency.release()

@@ -68,7 +68,8 @@ def run_gpu_bench(
     be = get_backend(backend)
     be.check() if hasattr(be, "check") else None  # CuPy, a device and the module, or a clear error now
     launcher = getattr(be, "_launch", None)
-    device = launcher.device_name() if hasattr(launcher, "device_name") else f"the host CPU ({backend})"
+    device_name = getattr(launcher, "device_name", None)
+    device = device_name() if device_name is not None else f"the host CPU ({backend})"
     res: dict = {"machine": machine(), "backend": backend, "device": device, "quick": quick}
     md, js = out / "gpu.md", out / "gpu.json"
 

@@ -61,24 +61,16 @@ from ..rendering.reference.plain import render_plain
 from ..store.reader import open_volume
 from ..store.writer import encrypt_volume
 from ..volume.phantom import phantom
-from .gpu_common import append_row, bench_key, image_digest, local_cluster, read_rows
+from .gpu_common import append_row, bench_key, image_digest, local_cluster
+from .gpu_goals_table import GOALS, table
 from .gpu_operations import throughput
-from .gpu_packed import packed_step, table_lines
+from .gpu_packed import packed_step
 from .measure import machine
 
 log = logging.getLogger(__name__)
 
 __all__ = ["GOALS", "STEPS", "main", "run_step"]
 
-# issue 40's goals; a frame's goal is its seconds, "efficiency" the cpu curve's at the largest cluster
-GOALS = {
-    "products_per_s kernels": 1.0e8,
-    "encrypt scalar": 3.0,
-    "frame xray nearest": 0.10,
-    "frame xray trilinear": 0.30,
-    "frame tf trilinear": 1.0,
-    "efficiency nearest": 0.80,
-}
 STEPS = ("throughput", "stores", "frames", "curve", "packed", "table")
 SLOW = 5.0  # seconds: a first frame slower than this is timed once more, not ``repeats`` times
 FRAMES = (("xray", "nearest", "scalar"), ("xray", "trilinear", "scalar"), ("tf", "trilinear", "tf"))
@@ -116,7 +108,7 @@ def stores_step(
     priv = bench_key(work, bits)
     for kind, n, vdims in (("scalar", size, None), ("tf", tf_size, 4)):
         path = _store(work, kind)
-        kw = dict(brick=max(4, n // 4), vector_dims=vdims, progress=False, overwrite=True)
+        kw: dict[str, Any] = dict(brick=max(4, n // 4), vector_dims=vdims, progress=False, overwrite=True)
         t0 = time.perf_counter()
         if owner_kernels:  # owner.cuh in this process
             with dask.config.set(scheduler="sync"):
@@ -165,7 +157,7 @@ def _frame(
 
 
 def _within(ev: Any, cam: Camera, mode: str, sampling: str, plain: np.ndarray, vol: np.ndarray) -> bool:
-    kw = {"nodes": TF_NODES} if mode == "tf" else {}
+    kw: dict[str, Any] = {"nodes": TF_NODES} if mode == "tf" else {}
     want = render_plain(vol, cam, mode, sampling, **kw)
     return bool(np.all(np.abs(np.asarray(plain) - want) <= error_bound(ev, cam, mode, sampling, **kw)))
 
@@ -212,6 +204,7 @@ def curve_step(out: Path, work: Path, image: int, repeats: int, workers: tuple[i
             for mode, sampling, kind in cases:
                 ev = open_volume(_store(work, kind))
                 resident = ev.persist(client=client, backend="cpu")
+                assert resident.resident is not None  # persist() returns a handle with it set
                 resident.resident.wait()
                 cam = _camera(ev, image)
 
@@ -235,98 +228,6 @@ def curve_step(out: Path, work: Path, image: int, repeats: int, workers: tuple[i
                     },
                 )
                 log.info("cpu on %d workers %s %s: %.3f s", N, mode, sampling, statistics.median(times))
-
-
-def _fmt(v: Any, unit: str = "") -> str:
-    return "—" if v is None else f"{v:.3g}{unit}"
-
-
-def table(out: Path) -> str:
-    """``goals.md``: the goal table (each goal, the figure measured, met or not) and the cpu curve."""
-    rows = read_rows(out)
-    first = lambda **kw: next((r for r in rows if all(r.get(k) == v for k, v in kw.items())), None)  # noqa: E731
-    mach = first(step="machine")
-    lines = ["# Issue 40's goals, measured", ""]
-    if mach:
-        lines += [
-            f"Device: {mach.get('device')}; machine: {mach['machine'].get('cpu')}, {mach['machine'].get('cores')} "
-            f"cores, {mach['machine'].get('date')}, commit {mach['machine'].get('commit')}.",
-            "",
-        ]
-    lines += ["| goal | target | measured | met |", "|---|---:|---:|---|"]
-
-    def goal(name: str, target: str, value: float | None, met: bool | None, note: str = "") -> None:
-        lines.append(
-            f"| {name} | {target} | {_fmt(value)}{note} | {'—' if met is None else ('yes' if met else 'no')} |"
-        )
-
-    p = first(step="throughput", what="products")
-    k = p and p.get("kernels_per_s")
-    goal("4096-bit products/s, kernels only", "≥ 1e8", k, None if not k else k >= GOALS["products_per_s kernels"])
-    goal("4096-bit products/s, end to end", "—", p and p["end_to_end_per_s"], None)
-    q = first(step="throughput", what="pairs")
-    goal(
-        "pairs/s (10-bit), end to end / kernels",
-        "—",
-        q and q["end_to_end_per_s"],
-        None,
-        f" / {_fmt(q and q.get('kernels_per_s'))}",
-    )
-    e = first(step="stores", what="encrypt scalar")
-    goal(
-        f"{e['size'] if e else 100}³ owner encryption, s" + (f" ({e['how']})" if e else ""),
-        "≤ 3",
-        e and e["seconds"],
-        None if not e else e["seconds"] <= GOALS["encrypt scalar"],
-    )
-    curve = [r for r in rows if r["step"] == "curve"]
-    top = max((r["workers"] for r in curve), default=None)
-    for what, target in (
-        ("frame xray nearest", "≤ 0.10"),
-        ("frame xray trilinear", "≤ 0.30"),
-        ("frame tf trilinear", "≤ 1 (end to end)"),
-    ):
-        f = first(step="frames", what=what)
-        c = first(step="curve", what=what, workers=top) if top else None
-        same = (
-            "" if not (f and c) else ("; identical to cpu" if f["sha256"] == c["sha256"] else "; NOT identical to cpu")
-        )
-        note = (
-            ""
-            if not f
-            else f" ({f['backend']}, {f['size']}³, {f['image']}²{same}{'' if f['within_bound'] else '; OUT OF BOUND'})"
-        )
-        goal(
-            what.replace("frame ", "frame: "),
-            target,
-            f and f["seconds"],
-            None if not f else f["seconds"] <= GOALS[what],
-            note,
-        )
-    t1 = first(step="curve", what="frame xray nearest", workers=1)
-    tn = first(step="curve", what="frame xray nearest", workers=top) if top else None
-    eff = t1["seconds"] / (top * tn["seconds"]) if t1 and tn and top else None
-    goal(
-        f"cpu nearest, efficiency at {top} workers",
-        "≥ 0.80",
-        eff,
-        None if eff is None else eff >= GOALS["efficiency nearest"],
-    )
-    if curve:
-        lines += [
-            "",
-            "`cpu` resident frames (median s) by workers:",
-            "",
-            "| workers | frame | s | efficiency |",
-            "|---:|---|---:|---:|",
-        ]
-        for r in curve:
-            eff = t1["seconds"] / (r["workers"] * r["seconds"]) if t1 and r["what"] == "frame xray nearest" else None
-            lines.append(f"| {r['workers']} | {r['what'][6:]} | {r['seconds']:.3g} | {_fmt(eff)} |")
-    lines += table_lines(rows)
-    text = "\n".join(lines) + "\n"
-    (out / "goals.md").write_text(text, encoding="utf-8")
-    return text
 
 
 def run_step(
@@ -359,7 +260,8 @@ def run_step(
     launcher = getattr(be, "_launch", None)
     if owner_kernels and launcher is not None:
         launcher.keyholder = True  # the key holder's kernels for this backend (device.py keeps them off by default)
-    device = launcher.device_name() if hasattr(launcher, "device_name") else f"the host CPU ({backend})"
+    device_name = getattr(launcher, "device_name", None)
+    device = device_name() if device_name is not None else f"the host CPU ({backend})"
     append_row(out, {"step": "machine", "for": step, "device": device, "machine": machine()})
     ok = True
     if step == "throughput":

@@ -171,6 +171,7 @@ def packed_step(
                 on_cpu = ev.persist(backend="cpu")
         else:
             on_cpu = ev.persist(client=client, backend="cpu")
+            assert on_cpu.resident is not None  # persist() returns a handle with it set
             on_cpu.resident.wait()
         ok = True
         for view, sampling, verify in CASES:

@@ -14,6 +14,7 @@ import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import dask
 import numpy as np
@@ -65,11 +66,12 @@ def render_identity(
         with dask.config.set(scheduler="sync"):  # resident in the backend's form, in this process
             resident = ev.persist(backend=be_name)
         out = []
-        for mode, sampling, kw in (
+        cases: tuple[tuple[str, str, dict[str, Any]], ...] = (
             ("xray", "nearest", {}),
             ("xray", "trilinear", {}),
             ("tf", "nearest", {"nodes": TF_NODES}),
-        ):
+        )
+        for mode, sampling, kw in cases:
             t0 = time.perf_counter()
             with dask.config.set(scheduler="sync"):
                 a = render(ev, cam, mode, sampling, backend=be_name, progress=False, cache=False, verify=False, **kw)

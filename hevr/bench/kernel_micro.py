@@ -34,6 +34,8 @@ import platform
 import secrets
 import time
 import timeit
+from functools import partial
+from typing import Any
 
 import gmpy2
 import numpy as np
@@ -175,7 +177,7 @@ def kernel_micro(bits: int = 2048, quick: bool = False) -> dict:
         "trilinear": trilinear_workload(rng, **({"n_side": 12} if args.quick else {})),
         "trilinear-real": trilinear_workload(rng, uniform=False, **({"n_side": 12} if args.quick else {})),
     }
-    results = []
+    results: list[dict[str, Any]] = []
     measured = []
     for name, (ip, vx, wt, n_vox) in workloads.items():
         raw = rng.integers(0, 256, (n_vox, width), dtype=np.uint8)
@@ -190,13 +192,13 @@ def kernel_micro(bits: int = 2048, quick: bool = False) -> dict:
         t_kernel = float("inf")
         for _ in range(repeat):
             t_mul = min(t_mul, time_mulmod(3))
-            t_kernel = min(t_kernel, best_time(lambda: brick_ray_products(cts, ip, vx, wt, n2), 1))
+            t_kernel = min(t_kernel, best_time(partial(brick_ray_products, cts, ip, vx, wt, n2), 1))
         sub = rng.choice(n_rows, size=min(n_rows, 40 if args.quick else 150), replace=False)
         sub_pairs = int(sum(ip[r + 1] - ip[r] for r in sub))
         res = brick_ray_products(cts, ip, vx, wt, n2)
         ref = naive(cts, ip, vx, wt, n2, sub)
         assert all(res[r] == x for r, x in zip(sub, ref)), f"{name}: kernel != naive"
-        t_naive = best_time(lambda: naive(cts, ip, vx, wt, n2, sub), 1)
+        t_naive = best_time(partial(naive, cts, ip, vx, wt, n2, sub), 1)
         nz = wt[wt > 0]
         measured.append((t_kernel, t_naive, t_conv, sub_pairs))
         results.append(

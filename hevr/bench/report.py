@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import fields
 from pathlib import Path
+from typing import Any
 
 from ..core.files import write_atomic
 from . import paper
@@ -127,9 +128,11 @@ def _pipeline(doc: dict) -> list[str]:
             f"{number(v['tail'])} | {number(v['busy'])} | {number(m) if m else '—'} | "
             f"{f'{eff[str(n)]:.0%}' if str(n) in eff else '—'} |"
         )
-    for n in ("16", "64"):
-        if n in frames:
-            lines.append(f"| {n} (predicted) | — | — | — | — | {number(frames[n])} | {eff[n]:.0%} |")
+    for predicted in ("16", "64"):
+        if predicted in frames:
+            lines.append(
+                f"| {predicted} (predicted) | — | — | — | — | {number(frames[predicted])} | {eff[predicted]:.0%} |"
+            )
     return lines + [""]
 
 
@@ -163,7 +166,8 @@ def _planned(doc: dict) -> list[str]:
 
     s = doc["setting"]
     known = {f.name for f in fields(BenchSettings)}
-    st = BenchSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in s.items() if k in known})
+    values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in s.items() if k in known}
+    st = BenchSettings(**values)
     return [name for name, _kind in block_names(st)]
 
 

@@ -105,7 +105,7 @@ def limits(doc: dict) -> list[str]:
 
 def micro(doc: dict) -> list[str]:
     c = doc["cells"]
-    lines = []
+    lines: list[str] = []
     for key in sorted((k for k in c if k.startswith("micro.crypto.")), key=lambda k: int(k.split(".")[-1])):
         b = key.split(".")[-1]
         if not lines:

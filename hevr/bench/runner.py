@@ -96,13 +96,22 @@ def outputs(out: Path, name: str) -> list[Path]:
     ]
 
 
+def _at_bits(block: Callable[..., None], bits: int) -> Callable[..., None]:
+    """``block`` at one key size: called as the other blocks are, ``fn(ctx, results, settings)``."""
+
+    def fn(ctx: Any, r: Any, s: BenchSettings) -> None:
+        block(ctx, r, s, bits)
+
+    return fn
+
+
 def _blocks(s: BenchSettings) -> list[tuple[str, str, Callable[..., None]]]:
     """(name, kind, function) in the run order of :func:`block_names`."""
     fns: dict[str, Callable[..., None]] = {"micro": _micro, "naive": _naive, "scaling": _scaling, "pipeline": _pipeline}
     table = {"t1": _table1, "t3": _table3, "t2": _table2_extra}
     out = []
     for name, kind in block_names(s):
-        fn = fns.get(kind) or (lambda ctx, r, s, f=table[kind], b=int(name.split(".")[1]): f(ctx, r, s, b))
+        fn = fns.get(kind) or _at_bits(table[kind], int(name.split(".")[1]))
         out.append((name, kind, fn))
     return out
 

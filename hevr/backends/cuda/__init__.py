@@ -8,7 +8,8 @@
   multi-exponentiation of a :class:`~hevr.backends.base.ProductPlan` (every task kind), merging,
   combining and packing (issue 26, items 1–3, for a render).
 * :mod:`~hevr.backends.cuda.residues` (limb batches, Montgomery constants, plan tables) and
-  :mod:`~hevr.backends.cuda.backend` (the orchestration) are shared by every launcher;
+  :mod:`~hevr.backends.cuda.backend` (the orchestration) are shared by every launcher
+  (:mod:`~hevr.backends.cuda.registered`: ``cuda-host`` and ``cuda``);
   :mod:`~hevr.backends.cuda.launch` holds the launchers' interface and the host build through
   ctypes; :mod:`~hevr.backends.cuda.device` the CuPy launcher (NVRTC, ``k_*`` kernels) on a GPU,
   with :mod:`~hevr.backends.cuda.device_build` (what it compiles and loads) and
@@ -17,7 +18,7 @@
 
 from __future__ import annotations
 
-from .backend import CudaHostBackend, KernelBackend
+from .backend import KernelBackend
 from .host import (
     HostMontgomery,
     build_host,
@@ -28,6 +29,7 @@ from .host import (
     to_limbs,
 )
 from .launch import HostLauncher, Launcher
+from .registered import CudaHostBackend
 from .residues import LimbBatch
 
 __all__ = [

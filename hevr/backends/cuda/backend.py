@@ -2,10 +2,10 @@
 
 :class:`KernelBackend` implements :class:`~hevr.backends.base.Backend` on top of the kernels of
 ``render.cuh`` (one independent item per thread: see the source's header) and is shared by every
-launcher; :class:`CudaHostBackend` (registered as ``"cuda-host"``) runs them on the host through
-ctypes, so CI checks the GPU path's arithmetic, bit for bit, against the ``cpu`` reference;
-:class:`CudaBackend` (``"cuda"``) runs them on an NVIDIA GPU through CuPy
-(:mod:`hevr.backends.cuda.device`).
+launcher (:mod:`hevr.backends.cuda.registered`): :class:`~hevr.backends.cuda.registered.CudaHostBackend`
+(registered as ``"cuda-host"``) runs them on the host through ctypes, so CI checks the GPU path's
+arithmetic, bit for bit, against the ``cpu`` reference; :class:`~hevr.backends.cuda.registered.CudaBackend`
+(``"cuda"``) runs them on an NVIDIA GPU through CuPy (:mod:`hevr.backends.cuda.device`).
 
 Where each operation runs
 -------------------------
@@ -44,6 +44,7 @@ ciphertexts — two per tile, each a Horner chain of thousands of products — a
 prints a frame's launches).
 
 >>> import numpy as np
+>>> from hevr.backends import CudaHostBackend
 >>> be = CudaHostBackend()
 >>> x = be.from_bytes(np.array([[0, 2], [0, 3], [0, 5]], np.uint8))
 >>> be.to_bytes(be.segment_products(x, np.array([0, 2, 3]), 1, 1001), 2).tolist()
@@ -63,13 +64,12 @@ from ...crypto.records import bytes_to_mpz, record_width
 from ...errors import ParameterError
 from ..base import Backend, OpCounter, ProductPlan
 from ..cpu import CpuBackend
-from .device import CupyLauncher
-from .host import MAX_LIMBS, check_defines
-from .launch import HostLauncher, Launcher
+from .host import MAX_LIMBS
+from .launch import Launcher
 from .owner import decrypt_limbs, owner_limbs, public_limbs
-from .residues import LimbBatch, Modulus, exponent_words, limbs_of, plan_tables
+from .residues import LimbBatch, Modulus, exponent_words, ints_of, limbs_of, plan_tables
 
-__all__ = ["CudaBackend", "CudaHostBackend", "KernelBackend"]
+__all__ = ["KernelBackend"]
 
 _CPU = CpuBackend()
 
@@ -124,7 +124,7 @@ class KernelBackend(Backend):
         if x.shape[1] > M.nl:  # values of more limbs than N has (never from a store): reduced on the host
             x = self._launch.host(x).copy()
             high = np.flatnonzero(x[:, M.nl :].any(axis=1))
-            x[high, :] = limbs_of([v % M.n for v in limbs_to_ints(x[high])], x.shape[1])
+            x[high, :] = limbs_of([v % M.n for v in ints_of(x[high])], x.shape[1])
             x = np.ascontiguousarray(x[:, : M.nl])
         elif x.shape[1] < M.nl:
             x = self._launch.join([x], M.nl)
@@ -141,6 +141,7 @@ class KernelBackend(Backend):
         if mod is None:
             return limbs
         M = self._modulus(int(mod))
+        assert M is not None  # a batch is in Montgomery form only mod a modulus the kernels took
         return self._launch.mont_convert(limbs, M.unit, M)
 
     def _few(self, items: int) -> bool:
@@ -183,7 +184,7 @@ class KernelBackend(Backend):
         recs, over = self._launch.limbs_to_records(self._normal(batch), int(width))
         if over.any():
             i = int(np.flatnonzero(over)[0])
-            bits = limbs_to_ints(self._launch.host(self._normal(batch)[i : i + 1]))[0].bit_length()
+            bits = ints_of(self._launch.host(self._normal(batch)[i : i + 1]))[0].bit_length()
             raise ParameterError(f"values[{i}]: value of {bits} bits does not fit in {int(width)} bytes")
         return recs
 
@@ -202,6 +203,7 @@ class KernelBackend(Backend):
     def residue_bytes(self, width: int) -> int:
         """Memory of one resident value: its limbs, a row of 32-bit words (on the device for ``cuda``).
 
+        >>> from hevr.backends import CudaHostBackend
         >>> CudaHostBackend().residue_bytes(512), CudaHostBackend().residue_bytes(17)
         (512, 20)
         """
@@ -227,6 +229,7 @@ class KernelBackend(Backend):
         when the modulus is known, so that each part — a resident brick — is converted once for
         all frames, not once per frame.
 
+        >>> from hevr.backends import CudaHostBackend
         >>> be = CudaHostBackend()
         >>> x = be.from_bytes(np.array([[0, 2], [0, 3]], np.uint8))
         >>> y = be.segment_products(x, np.array([0, 1, 2]), 1, 1001)
@@ -274,7 +277,7 @@ class KernelBackend(Backend):
         M = self._modulus(nsquare)
         n_vox = len(components[0])
         t = plan_tables(plan, n_vox) if M is not None else None
-        if t is None:  # an even modulus, or a task with over MAX_BUCKETS buckets: gmpy2
+        if M is None or t is None:  # an even modulus, or a task with over MAX_BUCKETS buckets: gmpy2
             mpz = [_CPU.from_bytes(self.to_bytes(c, 4 * self._batch(c).nl)) for c in components]
             return [LimbBatch(limbs_of(r)) for r in _CPU.ray_products(plan, mpz, nsquare, counter)]
         rep = t.rep
@@ -316,11 +319,17 @@ class KernelBackend(Backend):
         counts' download); ``kernels``, the same with the arrays already where the kernels run.
         The component is converted to Montgomery form first (not timed)."""
         M = self._modulus(nsquare)
+        if M is None:
+            raise ParameterError(f"nsquare: the kernels cannot take this modulus ({int(nsquare).bit_length()} bits)")
         cts = self._mont(component, M)
         w = int(plan.shared_w or 0)
         t0 = time.perf_counter()
         t = plan_tables(plan, len(component))
         t1 = time.perf_counter()
+        if t is None:
+            raise ParameterError(
+                "plan: a task needs more buckets than the kernels take (ray_products runs it on gmpy2)"
+            )
         self._launch.ray_products(t, cts, w, M)
         t2 = time.perf_counter()
         dev = self._launch.device_tables(t)
@@ -376,54 +385,3 @@ class KernelBackend(Backend):
             raw = limbs_of([(1 + offset * d * n) % M.n for d in digits], M.nl)
             offs = self._launch.mont_convert(raw, M.r2, M)
         return LimbBatch(self._launch.pack(self._mont(terms, M), R, J, b, offs, M), M.n)
-
-
-def limbs_to_ints(limbs: np.ndarray) -> list[int]:
-    """Python ints of limb rows (slow paths and messages only)."""
-    return [int.from_bytes(np.ascontiguousarray(r, dtype="<u4").tobytes(), "little") for r in limbs]
-
-
-class CudaHostBackend(KernelBackend):
-    """The kernels of the CUDA backend compiled for the host: backend ``"cuda-host"``.
-
-    For tests and for checking a machine: the same kernels and orchestration as the GPU
-    backend, on the CPU; bit-identical to ``cpu``. The C source is compiled on first use
-    (:class:`MissingDependencyError` without a C compiler).
-    """
-
-    name = "cuda-host"
-
-    def __init__(self) -> None:
-        super().__init__(HostLauncher())
-
-    def __reduce__(self):
-        return (CudaHostBackend, ())
-
-    def check(self) -> bool:
-        """Build (or load the cached build of) the kernels now: True, or
-        :class:`MissingDependencyError` where no C compiler here builds them."""
-        return self._launch.lib is not None  # the property builds or loads the library
-
-
-class CudaBackend(KernelBackend):
-    """The kernels on an NVIDIA GPU through CuPy: backend ``"cuda"``
-    (:class:`~hevr.backends.cuda.device.CupyLauncher`).
-
-    Bit-identical to ``cpu`` and ``cuda-host`` (the same kernels and orchestration). Creating it
-    touches no GPU; the first operation compiles the module with NVRTC and raises
-    :class:`MissingDependencyError` on a machine without CuPy or a device.
-    """
-
-    name = "cuda"
-
-    def __init__(self, device: int | None = None, defines: tuple[str, ...] = ()) -> None:
-        super().__init__(CupyLauncher(device, defines))
-        self._device, self._defines = device, check_defines(defines)
-
-    def __reduce__(self):
-        return (CudaBackend, (self._device, self._defines))
-
-    def check(self) -> bool:
-        """CuPy and a device are there, and the module compiles: True, else
-        :class:`MissingDependencyError` saying what is missing."""
-        return self._launch.load()

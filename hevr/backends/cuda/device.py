@@ -22,7 +22,7 @@ The key holder's kernels are off on a device (``keyholder = False``). On an NVID
 encryption of 262,144 values faulted while 64 were exact, and one public-key ciphertext of a
 33/95-bit key was wrong; the host build of the same source passes every test, also under
 AddressSanitizer and UBSan. Until a device run passes ``tests/backends/test_cuda_owner.py``
-(``benchmarks/gpu-proof.sh``), :class:`~hevr.backends.cuda.backend.CudaBackend` encrypts and
+(``benchmarks/gpu-proof.sh``), :class:`~hevr.backends.cuda.registered.CudaBackend` encrypts and
 decrypts the CPU way on a device; the kernels stay reachable for that proof (set ``keyholder``).
 The second run (2026-11-28, ``benchmarks/results-gpu-h200-2026-11-28.md``) found them exact with the
 device's stack limit raised before any launch and wrong or faulting in some runs without:

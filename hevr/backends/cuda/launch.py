@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import ctypes
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 
@@ -41,8 +41,9 @@ RENDER_SOURCE = Path(__file__).with_name("render.cuh")
 OWNER_SOURCE = Path(__file__).with_name("owner.cuh")
 
 _P, _I, _LL, _U32 = ctypes.c_void_p, ctypes.c_int, ctypes.c_longlong, ctypes.c_uint32
-_MOD = [_P, _P, _U32, _I]  # n, one, ninv, nl
-_SIGNATURES = {
+_Args: TypeAlias = "list[type[ctypes._SimpleCData[Any]]]"  # a C function's argtypes
+_MOD: _Args = [_P, _P, _U32, _I]  # n, one, ninv, nl
+_SIGNATURES: dict[str, _Args] = {
     "hevr_records_to_limbs_host": [_P, _I, _I, _LL, _P, _P],
     "hevr_limbs_to_records_host": [_P, _I, _I, _LL, _P, _P],
     "hevr_out_of_range_host": [_P, _P, _I, _LL, _P],
@@ -53,11 +54,14 @@ _SIGNATURES = {
     "hevr_combine_host": [_P, _I, _I, _P, _I, _LL, _LL, _P, _P, *_MOD],
     "hevr_pack_host": [_P, _P, _I, _LL, _I, _I, _P, _LL, _P, *_MOD],
 }
-_HALF = [_P, _I, _I, _P, _P, _U32, _I, _P]  # T, rows, w, P, one, ninv, nl, NR
-_OWNER_SIGNATURE = [_P, _P, _I, _P, _I, *_HALF, _P, *_HALF, _P, _I, _LL, _P]  # ..., p half, R2p, q half, INV, ...
-_DHALF = [_P, _P, _P, _U32, _I, _P, _I, _P, _P, _P, _U32, _I]  # P2, one2, R2, ninv2, nl2, E, ew, P, PINV, HR, ninv, k
-_DECRYPT_SIGNATURE = [_P, _I, *_DHALF, *_DHALF, _P, _P, _I, _LL, _P]  # ..., R2Q, PIQ, nlo, count, out
-_PUBLIC_SIGNATURE = [_P, _P, _P, _I, _P, _P, _P, _U32, _I, _LL, _P]  # x, r, n, k, N, one, R2, ninv, NL, count, out
+_HALF: _Args = [_P, _I, _I, _P, _P, _U32, _I, _P]  # T, rows, w, P, one, ninv, nl, NR
+# x, a, ka, b, kb, p half, R2p, q half, INV, NL, count, out
+_OWNER_SIGNATURE: _Args = [_P, _P, _I, _P, _I, *_HALF, _P, *_HALF, _P, _I, _LL, _P]
+# P2, one2, R2, ninv2, nl2, E, ew, P, PINV, HR, ninv, k
+_DHALF: _Args = [_P, _P, _P, _U32, _I, _P, _I, _P, _P, _P, _U32, _I]
+_DECRYPT_SIGNATURE: _Args = [_P, _I, *_DHALF, *_DHALF, _P, _P, _I, _LL, _P]  # ..., R2Q, PIQ, nlo, count, out
+# x, r, n, k, N, one, R2, ninv, NL, count, out
+_PUBLIC_SIGNATURE: _Args = [_P, _P, _P, _I, _P, _P, _P, _U32, _I, _LL, _P]
 
 
 def decrypt_args(c: Any, tables: Any, pointer: Any, i32: Any, u32: Any, i64: Any) -> list:
