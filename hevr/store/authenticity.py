@@ -88,7 +88,7 @@ def is_auth(value: Any) -> bool:
     return isinstance(value, str) and _AUTH.fullmatch(value) is not None
 
 
-def authenticated_fields(d: dict) -> dict:
+def authenticated_fields(d: dict[str, Any]) -> dict[str, Any]:
     """The bound fields of a metadata dict (``to_dict``'s form; absent optional ones as their defaults)."""
     out = {name: d.get(name) for name in AUTHENTICATED}
     out["patient"] = d.get("patient") or {}
@@ -98,7 +98,8 @@ def authenticated_fields(d: dict) -> dict:
     out["public_key"] = {"n": pk.get("n"), "fingerprint": pk.get("fingerprint")}
     if d.get("layout") is not None:  # a packed store's slots (absent, as in every store before them, for per-voxel)
         out["layout"] = d["layout"]
-    levels = d.get("levels") if isinstance(d.get("levels"), list) else []
+    levels = d.get("levels")
+    levels = levels if isinstance(levels, list) else []
     layouts = [lv["layout"] for lv in levels if isinstance(lv, dict) and "layout" in lv]
     if layouts:  # a packed store's levels' slots, level 1, 2, … (the owner encrypted them: hevr.store.packed_levels)
         out["level_layouts"] = layouts

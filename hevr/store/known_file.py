@@ -207,7 +207,7 @@ def read_file(p: Path, *, strict: bool = True, known: tuple | None = None) -> tu
                 p,
                 "a symbolic link (to {}); hevr reads and replaces only a regular file there, so point "
                 "HEVR_KNOWN_STORES at the file itself".format(os.readlink(p) if p.is_symlink() else "?"),
-            )
+            ) from None
         if exc.errno in (errno.ENXIO, errno.EOPNOTSUPP):  # a socket
             raise NotRegularFileError("known stores", "the key holder's known-stores file", p, "a socket") from None
         raise FileSystemError(exc.errno, "reading the known-stores file", p, exc.strerror) from None
