@@ -41,6 +41,9 @@ extensions = [
     "hevr_bench",
 ]
 
+# no smart quotes: "--force" in a help text or a page stays two hyphens, not an en dash
+smartquotes = False
+
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
 exclude_patterns = ["_build", "_generated", "images/README*", "Thumbs.db", ".DS_Store"]
