@@ -81,10 +81,11 @@ def map_components(
 
 def merge_components(
     plan: SlicePlan, t: int, n: int, width: int, backend: str, k: int, *parts: Any
-) -> tuple[list[np.ndarray], dict]:
+) -> tuple[list[np.ndarray], dict[str, int]]:
     """Tile ``t`` of each component: :func:`~hevr.rendering.packed.graph.merge_tile` on the
     component's partial accumulators (``parts``: per map task a list of k (keys, records))."""
-    out, ops = [], {}
+    out: list[np.ndarray] = []
+    ops: dict[str, int] = {}
     for c in range(k):
         recs, counts = merge_tile(plan, t, n, width, backend, *[p[c] for p in parts])
         out.append(recs)

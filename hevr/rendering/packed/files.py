@@ -270,10 +270,11 @@ def parse_packed(blob: bytes, where: str) -> dict:
         raise f.fail("format", repr(FORMAT), h["format"])
     f.integer(h, "version", VERSION, VERSION)
     body = np.frombuffer(blob, np.uint8, count=len(blob) - HEAD - hl - DIGEST_BYTES, offset=HEAD + hl)
-    stamp = read_stamp(h, hashlib.sha256(body).digest(), f.fail)
+    stamp = read_stamp(h, hashlib.sha256(memoryview(blob)[HEAD + hl : HEAD + hl + body.size]).digest(), f.fail)
     meta, fm = _metadata(h, f)
     plan, span, camera = _plan(h, f, fm)
     width = int(fm.ciphertext_bytes)
+    assert fm.scalar is not None and fm.packing is not None  # _metadata: a packed store's, or refused
     channel, k, exponent, offset = "scalar", 1, fm.scalar.exponent, fm.packing.offset
     if "channel" in h:  # a colour frame: the k components of the vector or gradient channel
         channel = h["channel"]
@@ -369,6 +370,7 @@ def _plan(h: dict, f: _Fields, fm: VolumeMetadata) -> tuple[SlicePlan, int, Came
         raise f.fail("camera", f"a camera (Camera.to_dict: {exc})", h["camera"]) from None
     if not cam.parallel:
         raise f.fail("camera", "a parallel camera (a packed frame's)", "a perspective camera")
+    assert fm.scalar is not None and fm.packing is not None  # _metadata: a packed store's, or refused
     try:
         check_render_size(cam, fm.shape, fm.spacing, 1.0)  # the size limits, before anything per pixel
         plan = SlicePlan.build(cam, fm.shape, fm.spacing, fm.brick, fm.packing, h["sampling"], tile, wb)

@@ -123,20 +123,21 @@ def merge_tile(plan: SlicePlan, t: int, n: int, width: int, backend: str, *parts
         full[(jr * nb + br) * C + c] = be.to_bytes(merged, width)
     out = be.pack(be.from_bytes(full), [1] * n_acc, plan.packing.slot_bits, C, 0, n)
     n_out = (j1 - j0) * nb
-    K, O = plan.packing.slot_bits, C - 1
-    return be.to_bytes(out, width), {"merge": merged_ops, "combine_squarings": n_out * K * O, "combine": n_out * O}
+    K, o_max = plan.packing.slot_bits, C - 1
+    ops = {"merge": merged_ops, "combine_squarings": n_out * K * o_max, "combine": n_out * o_max}
+    return be.to_bytes(out, width), ops
 
 
 COLUMN_BRICKS = 16  # bricks of one map task at most (a column along the principal axis, in pieces)
 
 
-def brick_columns(grid: tuple[int, int, int], axis: int, most: int = COLUMN_BRICKS) -> list[list[tuple]]:
+def brick_columns(grid: tuple[int, int, int], axis: int, most: int = COLUMN_BRICKS) -> list[list[tuple[int, ...]]]:
     """The brick indices in columns along ``axis`` (pieces of at most ``most`` bricks): one map task each.
 
     >>> brick_columns((2, 1, 3), 2, 2)
     [[(0, 0, 0), (0, 0, 1)], [(0, 0, 2)], [(1, 0, 0), (1, 0, 1)], [(1, 0, 2)]]
     """
-    out = []
+    out: list[list[tuple[int, ...]]] = []
     others = [ax for ax in range(3) if ax != axis]
     for a in range(grid[others[0]]):
         for b in range(grid[others[1]]):

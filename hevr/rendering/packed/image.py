@@ -72,9 +72,9 @@ class PackedImage:
     exponent: int
     offset: int
     span: int
-    ciphertexts: list = field(repr=False)
+    ciphertexts: list[np.ndarray] = field(repr=False)
     store_id: str = ""
-    stats: dict = field(default_factory=dict, repr=False)
+    stats: dict[str, Any] = field(default_factory=dict, repr=False)
     verification: Any = field(default=None, repr=False, compare=False)  # a PackedVerification, or None
     meta: Any = field(default=None, repr=False, compare=False)  # the store's VolumeMetadata (frame files)
     level: int = 0
@@ -128,7 +128,7 @@ class PackedImage:
             self.stats["check_s"] = time.perf_counter() - t0  # the key holder's check, measured
         return sums
 
-    def _decrypted_tiles(self, key: PrivateKey, backend: str | None = None) -> list:
+    def _decrypted_tiles(self, key: PrivateKey, backend: str | None = None) -> list[Any]:
         """Every tile's plaintexts (residues mod n), after each record's shape and range (0, n²) are
         checked: what :func:`decode` and the tags' check take (the key already checked: :meth:`_key`).
         Not checked against the tags here: callers run the verification before using them."""
@@ -193,7 +193,12 @@ class PackedImage:
 
     # -- the frame file (format: hevr.rendering.packed.files; reading: hevr.load_image) --------
     def save(
-        self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None, private_key: Any = None
+        self,
+        path: str | Path,
+        *,
+        overwrite: bool = False,
+        storage_options: dict[str, Any] | None = None,
+        private_key: Any = None,
     ) -> None:
         """Write the packed frame file (``docs/format.md``, "Packed frame files"); ``hevr.load_image``
         reads it back. Never over an existing file unless ``overwrite=True``
@@ -259,7 +264,7 @@ def decode(plan: SlicePlan, tiles: list[list[int]], span: int) -> np.ndarray:
     above its last slot (the integrity margin: a corrupted ciphertext), or a slot above the largest
     sum its ray can have (span·W of that ray, which is 0 for a ray that reads no voxel)."""
     g, S, K = plan.geometry, plan.packing.slots, plan.packing.slot_bits
-    O, n_out = plan.classes - 1, plan.slots_out
+    o_max, n_out = plan.classes - 1, plan.slots_out
     ni, nj = g.size
     sums = np.zeros((ni, nj), np.int64)
     lo, hi = plan.block_rays()  # every slot's ray, the frame's and its blocks' neighbours
@@ -282,7 +287,7 @@ def decode(plan: SlicePlan, tiles: list[list[int]], span: int) -> np.ndarray:
             )
         slots = unpack_slots(vals, n_out, K).reshape(j1 - j0, b1 - b0, n_out)
         Bs = np.arange(b0, b1) + plan.block_range[0]
-        ray = S * Bs[:, None] + np.arange(n_out)[None, :] - O - plan.m_lo  # (blocks, slots): the ray of each slot
+        ray = S * Bs[:, None] + np.arange(n_out)[None, :] - o_max - plan.m_lo  # (blocks, slots): the ray of each slot
         ext, frame = ray - lo, ray - g.i_range[0]
         cols = np.arange(j0, j1)
         if (slots > top[ext[None, :, :], cols[:, None, None]]).any():

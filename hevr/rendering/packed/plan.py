@@ -46,11 +46,10 @@ from typing import Any
 
 import numpy as np
 
-from ...core.limits import render_limits
 from ...core.validate import check_choice, check_int
 from ...errors import RenderPlanError
 from ...store.packing import MAX_WEIGHT_BITS, PackingInfo, mantissa_range
-from .shear import ShearGeometry
+from .shear import ShearGeometry, check_plan_size
 
 __all__ = ["SlicePlan"]
 
@@ -114,10 +113,11 @@ class SlicePlan:
         S = packing.slots
         used = a_steps[a_steps > _OFF]
         m_lo, m_hi = (int(used.min()), int(used.max())) if used.size else (0, 0)
-        O = min(S - 1, m_hi - m_lo)
+        o_max = min(S - 1, m_hi - m_lo)
         i_lo, i_hi = geo.i_range
-        blocks = (0, 0) if i_hi <= i_lo else ((i_lo + m_lo) // S, (i_hi - 1 + O + m_lo) // S + 1)
-        return cls(geo, packing, sampling, wb, tuple(int(b) for b in brick), tile, a_steps, a_frac, m_lo, O + 1, blocks)
+        blocks = (0, 0) if i_hi <= i_lo else ((i_lo + m_lo) // S, (i_hi - 1 + o_max + m_lo) // S + 1)
+        bz, by, bx = (int(b) for b in brick)
+        return cls(geo, packing, sampling, wb, (bz, by, bx), tile, a_steps, a_frac, m_lo, o_max + 1, blocks)
 
     @classmethod
     def of_store(
@@ -287,7 +287,7 @@ class SlicePlan:
         A = np.arange(a0 // S, -(-a1 // S), dtype=np.int64)
         dims = [0, 0, 0]
         dims[g.principal], dims[g.axis], dims[g.other] = k1 - k0, len(A), y1 - y0
-        O, NB = self.classes - 1, self.n_blocks
+        o_max, NB = self.classes - 1, self.n_blocks
         keys, local, wts = [], [], []
         for da in range(2):
             for db in range(2):
@@ -299,8 +299,8 @@ class SlicePlan:
                 q, o = np.divmod(m_all[k0 + kk, da] - self.m_lo, S)
                 B = A[None, :] - q[:, None]
                 keep = (B >= self.block_range[0]) & (B < self.block_range[1])
-                key = (rr[:, None] * NB + (B - self.block_range[0])) * self.classes + (O - o)[:, None]
-                loc = [None, None, None]
+                key = (rr[:, None] * NB + (B - self.block_range[0])) * self.classes + (o_max - o)[:, None]
+                loc = [np.empty(0, np.int64)] * 3  # per axis of the brick, each set below
                 loc[g.principal] = kk[:, None]
                 loc[g.axis] = (A - a0 // S)[None, :]
                 loc[g.other] = (y[kk, rr] - y0)[:, None]
@@ -317,8 +317,8 @@ class SlicePlan:
     def block_rays(self) -> tuple[int, int]:
         """The rays along ``a`` whose sums the combined values hold, ``[lo, hi)``: slot t of block B
         is ray S·B + t − O − m_lo (the frame's rays and the blocks' other slots)."""
-        S, O = self.packing.slots, self.classes - 1
-        return S * self.block_range[0] - O - self.m_lo, S * (self.block_range[1] - 1) + S - self.m_lo
+        S, o_max = self.packing.slots, self.classes - 1
+        return S * self.block_range[0] - o_max - self.m_lo, S * (self.block_range[1] - 1) + S - self.m_lo
 
     def tile_of(self, keys: np.ndarray) -> np.ndarray:
         """The reduce tile of every accumulator key."""
@@ -382,34 +382,10 @@ class SlicePlan:
         _, pb = self.b_table()
         anya = (ina & ((pa > 0) & (m > _OFF))[:, :, None]).any(axis=1)
         anyb = (inb & (pb > 0)).any(axis=-1)
-        return anya.astype(np.int64).T @ anyb.astype(np.int64)
+        return np.asarray(anya, np.int64).T @ np.asarray(anyb, np.int64)
 
 
 _OFF = -(1 << 40)  # the offset of a neighbour not used
-MAX_PLAN_CELLS = 1 << 24  # slices × (rays along a + rows): the plan's tables (~80 bytes a cell, ~1.3 GB at most)
-
-
-def check_plan_size(geo: ShearGeometry) -> None:
-    """Refuse (:class:`hevr.RenderPlanError`) a plan whose tables would be too big: slices × (rays
-    along the packing axis + rows) above :data:`MAX_PLAN_CELLS` (or the render sample limit), or an
-    intermediate image above the pixel limit — what a store's metadata of millions of thin slices
-    would ask, before anything is allocated per slice.
-
-    >>> from hevr.rendering.geometry.camera import Camera
-    >>> g = ShearGeometry.of(Camera.orbit((8, 8, 8), azimuth=90, width=4, height=4, parallel=True),
-    ...                      (8, 8, 8), (1.0, 1.0, 1.0), axis=0)
-    >>> check_plan_size(g) is None
-    True
-    """
-    max_pixels, max_samples = render_limits()
-    n_i, n_j = geo.size
-    cells = int(geo.slices) * (int(n_i) + int(n_j))
-    if cells > min(MAX_PLAN_CELLS, max_samples) or int(n_i) * int(n_j) > max_pixels:
-        raise RenderPlanError(
-            f"camera: expected a packed frame whose plan fits (slices × (rays + rows) at most "
-            f"{min(MAX_PLAN_CELLS, max_samples)}, rays × rows at most {max_pixels}), got "
-            f"{geo.slices} slices, {n_i} rays and {n_j} rows for the store's shape {geo.shape}"
-        )
 
 
 def _a_side(geo: ShearGeometry, sampling: str, weight_bits: int) -> tuple[np.ndarray, np.ndarray]:

@@ -188,7 +188,7 @@ class PlanePlan:
             plane,
             packing,
             shape,
-            tuple(int(b) for b in brick),
+            _triple(brick),
             sampling,
             wb,
             kind,
@@ -274,7 +274,7 @@ class PlanePlan:
         values = self.starts[fp[rep]] + A - self.packs[fp[rep], 0]
         dims = [0, 0, 0]
         dims[b_ax], dims[c_ax], dims[a] = b1 - b0, c1 - c0, A1 - A0
-        loc = [None, None, None]
+        loc = [np.empty(0, np.int64)] * 3  # per axis of the brick, each set below
         loc[b_ax], loc[c_ax], loc[a] = fb[rep] - b0, fc[rep] - c0, A - A0
         flat = (loc[0] * dims[1] + loc[1]) * dims[2] + loc[2]
         order = np.argsort(values, kind="stable")
@@ -382,3 +382,9 @@ def packed_slice_error_bound(meta: Any, plane: Plane, sampling: str, weight_bits
     store = 0.5 * 10.0**meta.scalar.exponent * (1 + 2 / U) if meta.scalar.digits is not None else 0.0
     per = (weights + store) * 1.0001 + 1e-9 * max(D, 1.0)  # float64 rounding of the finishing
     return np.where(plan.hits, per, 0.0)
+
+
+def _triple(brick: Any) -> tuple[int, int, int]:
+    """A brick shape as three Python ints."""
+    bz, by, bx = (int(b) for b in brick)
+    return bz, by, bx

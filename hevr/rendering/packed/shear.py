@@ -26,6 +26,9 @@ The warp: the camera's pixel ray meets slice 0 at real (i*, j*) (:meth:`ShearGeo
 its value is the bilinear interpolation of the intermediate image there, rays outside the image
 counting 0 (:meth:`ShearGeometry.warp`). Only the rays the camera's pixels need are computed.
 
+A view's plan is sized by its slices and rays: :func:`check_plan_size` refuses one too big before any
+table per slice is allocated.
+
 >>> from hevr.rendering.geometry.camera import Camera
 >>> cam = Camera.orbit((8, 8, 8), azimuth=90, width=4, height=4, parallel=True)   # from +x
 >>> g = ShearGeometry.of(cam, (8, 8, 8), (1, 1, 1), axis=0)
@@ -41,9 +44,10 @@ from typing import Any
 
 import numpy as np
 
-from ...errors import ParameterError
+from ...core.limits import render_limits
+from ...errors import ParameterError, RenderPlanError
 
-__all__ = ["AXIS_NAMES", "ShearGeometry"]
+__all__ = ["AXIS_NAMES", "MAX_PLAN_CELLS", "ShearGeometry", "check_plan_size"]
 
 AXIS_NAMES = ("z", "y", "x")
 _WORLD = (2, 1, 0)  # array axis -> index of its world coordinate (x, y, z)
@@ -229,3 +233,29 @@ class ShearGeometry:
                 ok = (ii >= 0) & (ii < ni) & (jj >= 0) & (jj < nj)
                 out[ok] += (wi * wj)[ok] * img[ii[ok], jj[ok]]
         return out
+
+
+MAX_PLAN_CELLS = 1 << 24  # slices × (rays along a + rows): the plan's tables (~80 bytes a cell, ~1.3 GB at most)
+
+
+def check_plan_size(geo: ShearGeometry) -> None:
+    """Refuse (:class:`hevr.RenderPlanError`) a plan whose tables would be too big: slices × (rays
+    along the packing axis + rows) above :data:`MAX_PLAN_CELLS` (or the render sample limit), or an
+    intermediate image above the pixel limit — what a store's metadata of millions of thin slices
+    would ask, before anything is allocated per slice.
+
+    >>> from hevr.rendering.geometry.camera import Camera
+    >>> g = ShearGeometry.of(Camera.orbit((8, 8, 8), azimuth=90, width=4, height=4, parallel=True),
+    ...                      (8, 8, 8), (1.0, 1.0, 1.0), axis=0)
+    >>> check_plan_size(g) is None
+    True
+    """
+    max_pixels, max_samples = render_limits()
+    n_i, n_j = geo.size
+    cells = int(geo.slices) * (int(n_i) + int(n_j))
+    if cells > min(MAX_PLAN_CELLS, max_samples) or int(n_i) * int(n_j) > max_pixels:
+        raise RenderPlanError(
+            f"camera: expected a packed frame whose plan fits (slices × (rays + rows) at most "
+            f"{min(MAX_PLAN_CELLS, max_samples)}, rays × rows at most {max_pixels}), got "
+            f"{geo.slices} slices, {n_i} rays and {n_j} rows for the store's shape {geo.shape}"
+        )

@@ -38,7 +38,7 @@ import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gmpy2
 import numpy as np
@@ -54,6 +54,9 @@ from ...store.layout import array_slices
 from ..pipeline.kernel import plan_products
 from .graph import map_graph, merge_parts
 from .plan import SlicePlan
+
+if TYPE_CHECKING:
+    from .planes import PlanePlan
 
 log = logging.getLogger(__name__)
 
@@ -216,7 +219,7 @@ class PackedVerification:
         """The metadata of the frame's level (level 0's own at level 0)."""
         return self.meta.level_meta(self.level) if self.level else self.meta
 
-    def check_metadata(self, private_key: Any, plan: SlicePlan, fingerprint: str) -> None:
+    def check_metadata(self, private_key: Any, plan: SlicePlan | PlanePlan, fingerprint: str) -> None:
         """Raise :class:`hevr.VerificationError` unless the metadata carries the owner's MAC and the
         frame's plan is the one its shape, spacing, brick and packing give."""
         m = self.meta
@@ -228,10 +231,13 @@ class PackedVerification:
                 "metadata was altered (or is not this key's); no image is returned"
             )
         lm = self.level_meta
-        g = getattr(plan, "geometry", None)  # a frame's shear geometry; a slice's plan holds the shape itself
+        if isinstance(plan, SlicePlan):  # a frame's shear geometry
+            g = plan.geometry
+            grid = tuple(g.shape) == tuple(lm.shape) and tuple(float(s) for s in g.spacing) == tuple(lm.spacing)
+        else:  # a slice's plan holds the shape itself
+            grid = tuple(plan.shape) == tuple(lm.shape)
         same = (
-            tuple(g.shape if g is not None else plan.shape) == tuple(lm.shape)
-            and (g is None or tuple(float(s) for s in g.spacing) == tuple(lm.spacing))
+            grid
             and tuple(plan.brick) == tuple(lm.brick)
             and plan.packing == lm.packing
             and m.tags
@@ -244,7 +250,7 @@ class PackedVerification:
                 "authenticated metadata; no image is returned"
             )
 
-    def beta_sum(self, private_key: Any, plan: SlicePlan) -> int:
+    def beta_sum(self, private_key: Any, plan: SlicePlan | PlanePlan) -> int:
         """Σ_c 2^(K·c) Σ_A β_A·Σ ρ·w over every product of the frame's plan, mod n (module docstring)."""
         key = tag_key_of(private_key)
         m = self.level_meta
@@ -285,7 +291,9 @@ class PackedVerification:
             total = sum(pool.map(part, chunks))
         return total % int(self.meta.n)
 
-    def check(self, private_key: Any, plan: SlicePlan, values: list[list[list[int]]], fingerprint: str) -> None:
+    def check(
+        self, private_key: Any, plan: SlicePlan | PlanePlan, values: list[list[list[int]]], fingerprint: str
+    ) -> None:
         """Raise :class:`hevr.VerificationError` unless D(A) = α·Σρ·V' + Σρ·β (mod n) for the
         frame's decrypted values ``values`` (per component, per tile, in the tile's order)."""
         t0 = time.perf_counter()
