@@ -34,7 +34,8 @@ def main(argv=None) -> None:
         for r in res["rows"]:
             name, h, p, bare = r["name"], r["hevr_s"], r["phe_s"], r["bare_s"]
             lines.append(
-                f"| {bits} | {name} | {h * 1e6:,.1f} | {p * 1e6:,.1f} | {p / h:,.2f}× | {bare * 1e6:,.2f} | {h / bare:,.2f} |"
+                f"| {bits} | {name} | {h * 1e6:,.1f} | {p * 1e6:,.1f} | {p / h:,.2f}× | {bare * 1e6:,.2f} | "
+                f"{h / bare:,.2f} |"
             )
         lines.append(f"| {bits} | owner tables (once per key and process) | {table_s * 1e6:,.0f} | | | | |")
         print("\n".join(lines[-7:]), flush=True)

@@ -259,7 +259,8 @@ def main() -> None:
     for name, rec in res["small"].items():
         print(name, "  ".join(f"{k}: {v['median_s']:.3f} s ({v['map_tasks']} maps)" for k, v in rec.items()))
     print(
-        f"plain {res['plain_nearest_s']:.3f} s (fresh process {res['plain_fresh_s']:.3f} s); geometry per-brick {res['geometry']['nearest']['total_s']:.3f} s, "
+        f"plain {res['plain_nearest_s']:.3f} s (fresh process {res['plain_fresh_s']:.3f} s); "
+        f"geometry per-brick {res['geometry']['nearest']['total_s']:.3f} s, "
         f"batched {res['geometry_batched']['total_s']:.3f} s"
     )
 

@@ -5,8 +5,9 @@ is fast on a device only when its launches are few and wide. This counts, per ke
 launches and their threads of one warm resident frame of the ``size``³ phantom (2048-bit key,
 brick 8, image 2·size square), with CuPy played by the host build (``tests/backends/_fake_cupy``):
 under the rules before issue 26's second CPU session (commit aa61989: per-brick map tasks at 2048
-bits, every operation in the kernels; residues already on the device here, which only moves bytes) and now (one map task for the device's bricks, trilinear rows of every
-brick in one plan, fewer than ``MIN_ITEMS`` items to gmpy2). Counts, not times: the host build's
+bits, every operation in the kernels; residues already on the device here, which only moves
+bytes) and now (one map task for the device's bricks, trilinear rows of every brick in one plan,
+fewer than ``MIN_ITEMS`` items to gmpy2). Counts, not times: the host build's
 seconds say nothing about a GPU's.
 
     python benchmarks/gpu_launches.py [size] > benchmarks/results-gpu-launches.md
@@ -23,15 +24,15 @@ import warnings
 import dask
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "backends"))
-from _fake_cupy import FakeCupy
+from _fake_cupy import FakeCupy  # noqa: E402 - from tests/backends, on the path above
 
-sys.modules["cupy"] = FakeCupy
+sys.modules["cupy"] = FakeCupy  # before hevr imports: CuPy is the host build's fake
 
-import hevr
-from hevr.backends.cuda import device
-from hevr.rendering.pipeline import maps
-from hevr.runtime import stats
-from hevr.volume.phantom import phantom
+import hevr  # noqa: E402
+from hevr.backends.cuda import device  # noqa: E402
+from hevr.rendering.pipeline import maps  # noqa: E402
+from hevr.runtime import stats  # noqa: E402
+from hevr.volume.phantom import phantom  # noqa: E402
 
 
 def launches(rv, cam, sampling: str) -> str:

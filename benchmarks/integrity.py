@@ -11,7 +11,8 @@ off (patched out). The crc32c of every chunk is part of Zarr's codec and cannot 
 off on one store; its cost is measured separately over the store's bytes. Render times on a
 small shared machine vary by ±10 % from run to run, more than the checks cost, so the script
 also measures, with little noise, the CPU time of reading every brick with and without the
-digest check in one process. The decrypted images of both arms must be identical. Appends a section to benchmarks/history.md.
+digest check in one process. The decrypted images of both arms must be identical. Appends a section to
+benchmarks/history.md.
 """
 
 from __future__ import annotations
@@ -169,7 +170,8 @@ def main(argv=None) -> None:
     append(
         f"## Integrity checks: cost on the paper case (issue 12)\n\nMachine: {machine()}\n\n"
         f"100³ phantom, 2048-bit key, owner-encrypted, brick 25, 150² px X-ray, 2-worker LocalCluster "
-        f"(1 thread each); {args.rounds} rounds of nearest and {args.trilinear_rounds} of trilinear renders, arms alternated within each round, images identical in "
+        f"(1 thread each); {args.rounds} rounds of nearest and {args.trilinear_rounds} of trilinear renders, "
+        "arms alternated within each round, images identical in "
         f"both arms. Store checks = each brick's digest (on every read); decrypt checks = "
         f"the plaintext range checks of EncryptedImage (one core, the client).\n\n{text}\n\n"
         f"crc32c (Zarr codec, always on) over all {ev.meta.n_bricks} scalar chunks "
@@ -177,7 +179,8 @@ def main(argv=None) -> None:
         f"process, i.e. about {crc / 2:.2f} s of wall time spread over 2 workers.\n\n"
         f"Reading all {ev.meta.n_bricks} bricks once in one process (best of 5 per brick, CPU time): "
         f"{read_on:.3f} s with the digest check, {read_off:.3f} s without; the check costs "
-        f"{read_on - read_off:.3f} s of CPU per render, i.e. {100 * (read_on - read_off) / (2 * med[('render', 'nearest', True)]):.1f} % "
+        f"{read_on - read_off:.3f} s of CPU per render, "
+        f"i.e. {100 * (read_on - read_off) / (2 * med[('render', 'nearest', True)]):.1f} % "
         f"of the 2 workers' time in a nearest render and "
         f"{100 * (read_on - read_off) / (2 * med[('render', 'trilinear', True)]):.1f} % in a trilinear one.\n"
     )

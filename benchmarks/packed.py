@@ -218,13 +218,13 @@ def packed_ops_of(plan: SlicePlan, shape, brick) -> dict:
         seen.update(keys[starts].tolist())
     ni, nj = plan.geometry.size
     n_out = plan.n_blocks * nj
-    O = plan.classes - 1
+    classes = plan.classes - 1  # O in the docstring
     return {
         "pairs": pairs,
         "map": counter.modmuls,
         "merge": partials - len(seen),
-        "combine_squarings": n_out * plan.packing.slot_bits * O,
-        "combine": n_out * O,
+        "combine_squarings": n_out * plan.packing.slot_bits * classes,
+        "combine": n_out * classes,
         "decryptions": n_out,
         "rays": ni * nj,
     }
@@ -330,7 +330,8 @@ def report(result: dict) -> str:
             "",
             "| | per-voxel | packed | ratio |",
             "|---|---|---|---|",
-            f"| ciphertexts | {ev['ciphertexts']:,} | {ep['ciphertexts']:,} | {ev['ciphertexts'] / ep['ciphertexts']:.1f} |",
+            f"| ciphertexts | {ev['ciphertexts']:,} | {ep['ciphertexts']:,} | "
+            f"{ev['ciphertexts'] / ep['ciphertexts']:.1f} |",
             f"| store bytes | {ev['bytes'] / 2**20:.1f} MiB | {ep['bytes'] / 2**20:.2f} MiB | "
             f"{ev['bytes'] / ep['bytes']:.1f} |",
             f"| encryption | {ev['seconds']:.1f} s | {ep['seconds']:.1f} s | {ev['seconds'] / ep['seconds']:.1f} |",

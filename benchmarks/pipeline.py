@@ -18,6 +18,7 @@ import os
 import sys
 import time
 import warnings
+from functools import partial
 
 import numpy as np
 from distributed import Client, LocalCluster
@@ -66,7 +67,7 @@ def main(scalar: str, vector: str, key: str, small: str, out: str) -> None:
             cam = hevr.Camera.orbit(ev, azimuth=30, elevation=20)
             kw = {"mode": mode, "sampling": sampling} | ({"nodes": TF_NODES} if mode == "tf" else {})
             streamed = trace_frame(cl, ev, cam, **kw)
-            rv, persist_s = timed(lambda: ev.persist())
+            rv, persist_s = timed(ev.persist)
             (_, wait_s) = timed(rv.resident.wait)
             first = trace_frame(cl, rv, cam, **kw)
             second = trace_frame(cl, rv, cam, **kw)
@@ -84,7 +85,7 @@ def main(scalar: str, vector: str, key: str, small: str, out: str) -> None:
                 img = hevr.render(rv, cam, client=cl, progress=False, **kw)
                 ref = img.decrypt(priv)
                 again, t_re = timed(
-                    lambda: hevr.render(rv, cam, mode="tf", nodes=TF_NODES[:2], client=cl, progress=False)
+                    partial(hevr.render, rv, cam, mode="tf", nodes=TF_NODES[:2], client=cl, progress=False)
                 )
                 cell["recolour"] = {"seconds": t_re, "stats": {k: v for k, v in again.stats.items()}}
                 cell["recolour"]["ok"] = bool(np.isfinite(again.decrypt(priv)).all() and np.isfinite(ref).all())

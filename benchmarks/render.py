@@ -13,6 +13,7 @@ import argparse
 import sys
 import time
 import warnings
+from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -70,7 +71,7 @@ def main(argv=None) -> None:
     ):
         client.run(lambda: __import__("hevr"))  # warm the workers' imports
         for sampling in ("nearest", "trilinear"):
-            img, s = timed(lambda: hevr.render(sc, cam, sampling=sampling, cache=False, client=client, progress=False))
+            img, s = timed(partial(hevr.render, sc, cam, sampling=sampling, cache=False, client=client, progress=False))
             err = float(np.abs(img.decrypt(priv) - hevr.render_plain(vol, cam, sampling=sampling)).max())
             rows.append((f"X-ray {sampling}", s, PAPER_RENDER[("xray", sampling)], err))
             images[("xray", sampling)] = img
@@ -79,8 +80,16 @@ def main(argv=None) -> None:
             for k in range(1, 5):
                 nodes = TF_NODES[:k]
                 img, s = timed(
-                    lambda: hevr.render(
-                        vec, cam, mode="tf", nodes=nodes, sampling=sampling, cache=False, client=client, progress=False
+                    partial(
+                        hevr.render,
+                        vec,
+                        cam,
+                        mode="tf",
+                        nodes=nodes,
+                        sampling=sampling,
+                        cache=False,
+                        client=client,
+                        progress=False,
                     )
                 )
                 ref = hevr.render_plain(vol, cam, mode="tf", nodes=nodes, sampling=sampling, vector_dims=4)
@@ -137,7 +146,8 @@ def main(argv=None) -> None:
         f"\nRe-colouring the cached 4-dim ray sums with a new 2-node transfer function: {recolour:.2f} s.\n",
         "| client decryption (1 core) | ciphertexts | seconds | paper s |",
         "|---|---:|---:|---:|",
-        f"| {W}² RGB, packed ({rgb.per_pack} values per ciphertext) | {rgb.n_ciphertexts:,} | {dec_packed:.2f} | {p_rgb} |",
+        f"| {W}² RGB, packed ({rgb.per_pack} values per ciphertext) | {rgb.n_ciphertexts:,} | {dec_packed:.2f} "
+        f"| {p_rgb} |",
         f"| {W}² grey, unpacked | {grey_unpacked.n_ciphertexts:,} | {dec_grey_unpacked:.2f} | {p_grey} |",
     ]
     if dec_unpacked is not None:

@@ -31,7 +31,7 @@ if __name__ == "__main__":
                 src.resident.wait()
             for size in (100, 150):
                 plane = hevr.Plane.axial(ev, 50) if size == 100 else hevr.Plane.axial(ev, 50, width=150, height=150)
-                for rep in range(3):
+                for _rep in range(3):
                     hevr.clear_cache()
                     t = time.perf_counter()
                     img = hevr.render_slice(src, plane, cache=False, progress=False)
