@@ -6,8 +6,12 @@ Modules: ``settings`` (quick / default / paper), ``paper`` (the published figure
 orchestration, raw JSON), ``report`` (the markdown: head, scaling, pipeline, the sections put
 together) with ``report_goals`` (the earlier issues' goals), ``report_tables`` (the paper's Tables
 1-3), ``report_limits`` (floors, primitives, python-paillier) and ``report_cells`` (how one cell
-reads), ``plot`` (the figure), ``gpu`` (``hevr bench --gpu``: the GPU backend's proof), ``gpu_goals``
-(issue 40's goal table, step by step on a GPU machine), ``gpu_packed`` (its packed step: a packed
-store's frames on the backend and on cpu, issue 46) and ``gpu_common`` (what those steps share:
-rows, digests, the key, a LocalCluster).
+reads), ``plot`` (the figure).
+
+The GPU proof: ``gpu`` (``hevr bench --gpu``, its steps in order) with ``gpu_operations`` (each
+operation against cpu, and their rates), ``gpu_renders`` (a phantom's frames on the backend and on
+cpu) and ``gpu_report`` (``gpu.md``); ``gpu_goals`` (issue 40's goal table, step by step on a GPU
+machine) with ``gpu_goals_table`` (``goals.md``), ``gpu_packed`` (its packed step: a packed store's
+frames on the backend and on cpu, issue 46) and ``gpu_common`` (what those steps share: rows,
+digests, the key, a LocalCluster).
 """
