@@ -16,6 +16,7 @@
 ``brick_write``      one encryption task: a brick's ciphertexts, tags and digest marker
 ``writer``           ``encrypt_volume``: brick-parallel encryption on Dask
 ``layout``           the arrays of a store and the checks that a store on disk has them
+``zstd_frame``       a zstd chunk's exact length from its block headers (the size checks)
 ``brick_read``       one brick read and checked: records, digest, ciphertext range
 ``reader``           ``open_volume`` / :class:`EncryptedVolume`: opening, bricks, levels
 ``verify``           the full check: every brick of every channel read back and named if damaged
