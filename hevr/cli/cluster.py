@@ -119,17 +119,25 @@ def _sigint_ignored() -> Iterator[None]:
 
 
 def _stop_workers(cluster: Any) -> None:
-    """After Ctrl-C: end the local worker processes at once (SIGTERM) instead of waiting for
+    """After Ctrl-C: end the local worker processes at once (SIGKILL) instead of waiting for
     their running tasks — gmpy2 holds the GIL, so a worker answers a polite close only after its
     brick — and keep Dask's complaints about the vanished workers off the terminal. A brick
-    being written is not marked done, so ``--resume`` encrypts it again; nothing finished is lost."""
+    being written is not marked done, so ``--resume`` encrypts it again; nothing finished is lost.
+
+    Each nanny is told first that it is closing: a nanny whose worker dies while it runs starts a
+    new worker process, and the cluster's close then waited for that one to start and stop (seconds
+    on a loaded machine: issue 49)."""
+    from distributed.core import Status
+
     for name in ("distributed", "tornado", "asyncio"):
         logging.getLogger(name).setLevel(logging.CRITICAL + 1)
     for nanny in list(getattr(cluster, "workers", {}).values()):
         pid = getattr(nanny, "pid", None)
+        if getattr(nanny, "status", None) == Status.running:
+            nanny.status = Status.closing_gracefully  # its worker's exit closes it: no new worker
         if pid:
             with contextlib.suppress(OSError):
-                os.kill(pid, signal.SIGTERM)
+                os.kill(pid, signal.SIGKILL)
 
 
 def describe_client(client: Any) -> str:
