@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..core.files import temporaries
+from ..core.siblings import temporaries
 from ..errors import StoreError
 from ..store.paths import interrupted_swaps, is_local
 from ..store.reader import open_volume

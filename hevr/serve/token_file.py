@@ -40,7 +40,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from ..core.files import file_kind, fs_errors, held_lock, temp_sibling
+from ..core.files import file_kind, fs_errors
+from ..core.siblings import held_lock, temp_sibling
 from ..errors import FileSystemError, HevrError, MissingFileError, ParameterError
 from ..remote.protocol import MAX_BODY, parse_json
 from .file_watch import CHECK_SECONDS, FileWatch, is_missing

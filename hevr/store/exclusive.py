@@ -11,7 +11,7 @@ its ``zarr.json``, and a store is marked complete only when its last brick is wr
 
 Locking. The run that writes a local store holds an exclusive ``flock`` on the store's folder
 (on the open folder, so the lock follows a rename) from creation to its return (the mark of
-:func:`hevr.core.files.held_lock`): a second ``resume=True``, an ``overwrite=True`` that would swap
+:func:`hevr.core.siblings.held_lock`): a second ``resume=True``, an ``overwrite=True`` that would swap
 the store out, and the clean-up below see the lock and keep off. Swaps of stores in one
 folder are serialised by a ``flock`` on the folder (:func:`swap_lock`). ``flock`` is advisory
 and local: on filesystems without it (some network mounts) the locks are not taken (logged).
@@ -44,7 +44,8 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from ..core.files import read_regular, remove_if_abandoned, temp_sibling, temporaries
+from ..core.files import read_regular
+from ..core.siblings import remove_if_abandoned, temp_sibling, temporaries
 from ..errors import FileSystemError, StoreError, StoreExistsError
 
 log = logging.getLogger(__name__)

@@ -31,9 +31,9 @@ from ..core.files import (
     check_name,
     fs_errors,
     read_regular,
-    temporaries,
     write_checksummed,
 )
+from ..core.siblings import temporaries
 from ..errors import (
     CorruptStoreError,
     ExistingFileError,

@@ -13,7 +13,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..core.files import fs_errors, temp_sibling
+from ..core.files import fs_errors
+from ..core.siblings import temp_sibling
 from ..errors import StoreExistsError
 from .exclusive import lock_store, remove_local_tree, rename_noreplace, swap_lock
 from .metadata import FORMAT_NAME
@@ -26,7 +27,7 @@ __all__ = ["check_replaceable", "remove_tree", "sibling", "swap"]
 
 def sibling(path: str, what: str) -> str:
     """A fresh path beside ``path`` (same folder or bucket prefix) for a new or an old store:
-    locally ``.NAME.hevr-WHAT-TOKEN`` (:func:`hevr.core.files.temp_sibling`)."""
+    locally ``.NAME.hevr-WHAT-TOKEN`` (:func:`hevr.core.siblings.temp_sibling`)."""
     if is_local(path):
         return str(temp_sibling(path, what))
     return f"{path.rstrip('/')}.hevr-{what}-{token()}"

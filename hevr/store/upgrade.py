@@ -25,7 +25,8 @@ import numpy as np
 import zarr
 
 from ..backends import get_backend
-from ..core.files import held_lock, os_error, temp_sibling
+from ..core.files import os_error
+from ..core.siblings import held_lock, temp_sibling
 from ..crypto.keys import PublicKey
 from ..errors import (
     CorruptStoreError,

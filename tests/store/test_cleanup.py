@@ -20,7 +20,7 @@ import pytest
 import hevr
 import hevr.store.brick_write as store_mod  # the encryption tasks: where a brick's digest is taken
 import hevr.store.upgrade as upgrade_mod
-from hevr.core.files import held_lock, temp_sibling
+from hevr.core.siblings import held_lock, temp_sibling
 
 SHAPE, BRICK = (4, 4, 6), 2
 
