@@ -58,7 +58,7 @@ myst_heading_anchors = 4
 # documented as ``hevr.NAME``.
 autodoc_default_options = {"member-order": "bysource"}
 autodoc_typehints = "none"  # signatures without annotations: numpydoc's Parameters sections give the types
-autodoc_preserve_defaults = True
+autodoc_preserve_defaults = False  # True fails on some multi-line signatures (Plane.oblique)
 autosummary_generate = False
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False
