@@ -8,7 +8,7 @@ Alg. 4 vector encoding.
 ``nrrd``           the NRRD reader/writer; ``nrrd_space`` its geometry
 ``raw``            headerless raw files (layout in the name), memory-mapped raw data
 ``nifti``          NIfTI and FreeSurfer MGH/MGZ (nibabel)
-``dicom``          DICOM series, DICOMDIR and multi-frame files (pydicom)
+``dicom``          DICOM series, DICOMDIR and multi-frame files (pydicom); ``dicom_*`` its parts
 ``tiff``           TIFF stacks, OME-TIFF, ImageJ hyperstacks (tifffile)
 ``zarr_input``     plaintext Zarr arrays and OME-Zarr images
 ``phantom``        the paper's synthetic phantom

@@ -7,7 +7,7 @@ in hevr's RAS+ patient frame (:mod:`hevr.volume.orientation`):
 2. list its frames with their geometry (single-frame slices, enhanced and legacy
    multi-frame files alike) and stack them along the slice normal, refusing duplicate
    positions, uneven gaps (unless ``allow_uneven``), gantry tilt (unless ``oblique="snap"``)
-   and mixed orientations (:mod:`hevr.volume.dicom_frames`);
+   and mixed orientations (:mod:`hevr.volume.dicom_frames`, :mod:`hevr.volume.dicom_stack`);
 3. refuse a series larger than this machine's memory (:mod:`hevr.volume._memory`: compressed
    pixel data is decoded into one array of the declared size), then decode the pixels of that
    series only, rescale them per frame (``RescaleSlope/Intercept``, integer-preserving,
@@ -35,9 +35,10 @@ from ..core.validate import check_choice
 from ..errors import CorruptVolumeError, MissingDependencyError, VolumeFormatError
 from ._memory import check_fits
 from ._optional import require
-from .dicom_frames import Frame, frames_of, plan_stack
+from .dicom_frames import Frame, frames_of
 from .dicom_mosaic import untile
 from .dicom_series import Image, SeriesInfo, choose_series, list_series, scan_images
+from .dicom_stack import plan_stack
 from .orientation import FRAME, LPS_TO_RAS, to_patient_frame
 from .rescale import rescale
 from .scan import Scan
