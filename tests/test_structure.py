@@ -97,9 +97,9 @@ OLD_NAMES_ALLOWED_IN = frozenset({"CHANGELOG.md"})
 # order the data flows. The floor keeps the entry points only; hevr.rendering.<module> of a
 # module now in a room is an old path (see CHANGELOG.md).
 RENDERING_ROOMS = {
-    "geometry": ("camera", "views", "plane", "rays", "footprint", "weights", "group_weights"),
+    "geometry": ("camera", "views", "plane", "plane_grid", "rays", "footprint", "weights", "group_weights"),
     "planning": ("modes", "request", "planner", "bounds"),
-    "pipeline": ("kernel", "_segments", "maps", "graph", "reduce", "finishing", "sums", "stream"),
+    "pipeline": ("kernel", "_segments", "maps", "graph", "reduce", "finishing", "sums", "sums_file", "cache", "stream"),
     "reference": ("plain",),
     "packed": (
         "request",
@@ -113,9 +113,10 @@ RENDERING_ROOMS = {
         "verified",
         "files",
         "colour",
+        "colour_render",
     ),
 }
-RENDERING_FLOOR = ("__init__", "encrypted", "slices", "verify")
+RENDERING_FLOOR = ("__init__", "encrypted", "slices", "view", "verify", "verification", "tag_betas")
 
 # The public names, as in hevr/__init__.py when the layout changed. A change here is a change
 # of the public contract (docs/api-contract.md): make it on purpose.

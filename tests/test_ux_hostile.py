@@ -18,8 +18,8 @@ import pytest
 
 import hevr
 from hevr.cli.main import main
-from hevr.rendering import cache as render_cache
 from hevr.rendering import view as view_mod
+from hevr.rendering.pipeline import cache as render_cache
 from hevr.rendering.pipeline import sums_file
 from hevr.runtime import progress as _progress
 from hevr.runtime import scheduler as _dask

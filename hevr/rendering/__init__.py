@@ -7,8 +7,8 @@ The data path of one frame reads from the folder names, room by room:
                    the rays go and which voxels each sample reads (plaintext numpy)
 ``planning/``      modes, request, planner, bounds: the request checked once, every
                    quantity bounded from public parameters before any ciphertext
-``pipeline/``      kernel, maps, graph, reduce, finishing, sums, stream: the MapReduce
-                   on Dask over ciphertext bricks, its ray sums, the streamed frame
+``pipeline/``      kernel, maps, graph, reduce, finishing, sums, cache, stream: the
+                   MapReduce on Dask over ciphertext bricks, its ray sums, the streamed frame
 ``reference/``     plain: ``render_plain`` / ``render_slice_plain``, the independent
                    plaintext references
 ``packed/``        request, shear, plan, graph, image, sliced: a packed store's frame
@@ -20,7 +20,10 @@ The entry points stay here, beside the rooms they walk through:
 =================  =============================================================
 ``encrypted``      ``render`` (client or server finishing), the ray-sum cache
 ``slices``         ``render_slice``: slices through the same pipeline
-``verify``         verified renders: the tags' sums and the client's check
+``view``           the render of one view of a per-voxel store, behind both
+``verify``         verified renders: the request, the tags' sums on the server
+``verification``   the record of a verified render and the client's check
+``tag_betas``      the client's Σρ·B from the public geometry and the tag key
 =================  =============================================================
 
 Each room's ``__init__`` names its modules in the order the data flows through them.

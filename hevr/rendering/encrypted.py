@@ -10,7 +10,7 @@ packs the finished pixels (bit for bit the images of earlier releases).
 The error bound of a decrypted pixel against :func:`hevr.render_plain` is
 :mod:`hevr.rendering.planning.bounds` (:func:`error_bound`); a request is checked once, where it enters
 (:mod:`hevr.rendering.planning.request`). The render of a per-voxel store's view is
-:mod:`hevr.rendering.view`, its cache of ray sums :mod:`hevr.rendering.cache`; a packed store's frames
+:mod:`hevr.rendering.view`, its cache of ray sums :mod:`hevr.rendering.pipeline.cache`; a packed store's frames
 are :mod:`hevr.rendering.packed`'s.
 """
 
@@ -24,12 +24,12 @@ from dask.delayed import Delayed
 from ..errors import ParameterError
 from ..image.encrypted import EncryptedImage
 from ..store.reader import EncryptedVolume
-from .cache import clear_cache
 from .geometry.camera import Camera
 from .geometry.plane import Plane
 from .packed.colour import PackedColourImage
 from .packed.image import PackedImage
 from .packed.request import render_packed_request
+from .pipeline.cache import clear_cache
 from .pipeline.sums import RaySums
 from .planning.bounds import error_bound
 from .view import render_view

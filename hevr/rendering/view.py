@@ -4,7 +4,7 @@
 and :func:`hevr.render_slice`'s for a :class:`~hevr.rendering.geometry.plane.Plane` (a packed store's
 frames are :mod:`hevr.rendering.packed`'s): the request checked once
 (:mod:`hevr.rendering.planning.request`), the plan, one graph map -> tree merge -> finish
-(:mod:`hevr.rendering.pipeline`), the ray sums kept for re-colouring (:mod:`hevr.rendering.cache`, a
+(:mod:`hevr.rendering.pipeline`), the ray sums kept for re-colouring (:mod:`hevr.rendering.pipeline.cache`, a
 ``.hevrsums`` file) and, for a verifiable store, the tags' aggregate (:mod:`hevr.rendering.verify`).
 """
 
@@ -30,10 +30,10 @@ from ..runtime.scheduler import compute as run_tasks
 from ..store.paths import check_reachable
 from ..store.reader import EncryptedVolume
 from ..store.resident import batched
-from . import cache as render_cache
 from .geometry.camera import Camera
 from .geometry.plane import Plane
 from .geometry.rays import cast_rays
+from .pipeline import cache as render_cache
 from .pipeline.graph import FinishGraph, build_sums_graph
 from .pipeline.maps import resident_groups
 from .pipeline.reduce import BlockedReduce

@@ -7,9 +7,9 @@ import pytest
 
 import hevr
 from hevr.crypto.records import bytes_to_mpz
-from hevr.rendering import cache as render_cache
 from hevr.rendering import view as view_mod
 from hevr.rendering.encrypted import error_bound
+from hevr.rendering.pipeline import cache as render_cache
 
 SHAPE = (7, 9, 11)  # odd, non-cubic
 BRICK = (3, 4, 5)  # 3 bricks per axis

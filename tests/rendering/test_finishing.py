@@ -10,8 +10,8 @@ import pytest
 import hevr
 from hevr.crypto.records import bytes_to_mpz, mpz_to_bytes
 from hevr.image.tiles import TileLayout
-from hevr.rendering import cache as render_cache
 from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.pipeline import cache as render_cache
 from hevr.rendering.pipeline.finishing import finish_tile, merge_partials, one_records
 from hevr.rendering.planning.planner import RenderPlan
 

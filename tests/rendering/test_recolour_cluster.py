@@ -7,8 +7,8 @@ import pytest
 from distributed import Future, get_task_stream
 
 import hevr
-from hevr.rendering import cache as render_cache
 from hevr.rendering.encrypted import error_bound
+from hevr.rendering.pipeline import cache as render_cache
 
 SHAPE = (7, 9, 11)
 BRICK = (3, 4, 5)

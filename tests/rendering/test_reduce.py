@@ -11,9 +11,9 @@ from distributed import get_task_stream
 
 import hevr
 from hevr.image.tiles import TileLayout
-from hevr.rendering import cache as render_cache
 from hevr.rendering.encrypted import error_bound
 from hevr.rendering.geometry.rays import cast_rays
+from hevr.rendering.pipeline import cache as render_cache
 from hevr.rendering.pipeline.graph import BlockSums, FinishGraph, build_sums_graph
 from hevr.rendering.pipeline.reduce import BlockedReduce, reduce_block
 from hevr.rendering.planning.modes import make_spec

@@ -6,6 +6,7 @@ The data flows through this room in this order:
 ``camera``         :class:`Camera`: the request's geometry (frozen, validated)
 ``views``          anatomical presets of ``Camera.orbit(view=...)`` (RAS+ patient frame)
 ``plane``          :class:`Plane`: a slice (and slab) as the second kind of view
+``plane_grid``     the pixel grids of axial, coronal, sagittal and oblique planes
 ``rays``           rays of a view, ray/box clipping and sample positions
 ``footprint``      each brick's image rectangle and tiles (the graph in O(bricks + pixels))
 ``weights``        one brick's sparse (ray, voxel, weight) matrix (nearest, trilinear)

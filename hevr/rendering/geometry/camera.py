@@ -88,7 +88,8 @@ def _view_angle(value: Any) -> float:
 
 
 def _normalize(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    unit: np.ndarray = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return unit
 
 
 @dataclass(frozen=True)
@@ -420,4 +421,4 @@ def _orbit_geometry(ev_or_shape: Any, spacing: Any) -> tuple[tuple[int, int, int
         shape_in = ev_or_shape
     shape = check_shape(shape_in, "ev_or_shape")
     sp = check_spacing((1.0, 1.0, 1.0) if spacing is None else spacing)
-    return shape, sp  # type: ignore[return-value]
+    return shape, sp

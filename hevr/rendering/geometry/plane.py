@@ -32,63 +32,25 @@ radiological convention (:func:`hevr.image.orient.orient_slice`).
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
-import numbers
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ...core.limits import MAX_IMAGE_PIXELS
 from ...core.validate import check_int, check_pixel_ids, check_step
+from ...crypto.mac import digest
 from ...errors import ParameterError
-from .camera import Camera, _orbit_geometry, _vec3
+from .camera import Camera, _vec3
+from .plane_grid import PARALLEL_TOL, aligned_grid, oblique_grid, pixel_spacing_of, unit
 
 __all__ = ["Plane", "MAX_SLAB", "view_from_dict"]
 
 # Most parallel planes of one slab (each is one sample per pixel).
 MAX_SLAB = 1 << 16
-# |u x v| below this (unit vectors) counts as parallel, |u·v| above this as not orthogonal.
-_PARALLEL_TOL = 1e-9
+# |u·v| above this (unit vectors) counts as not orthogonal (parallel: plane_grid.PARALLEL_TOL).
 _ORTHO_TOL = 1e-6
-# A vector whose norm is this close to 1 is kept as given, so normalising is idempotent
-# (from_dict(to_dict(p)) == p, bit for bit).
-_UNIT_TOL = 8 * np.finfo(np.float64).eps
 _FIELDS = ("origin", "u", "v", "width", "height", "pixel_spacing", "slab", "slab_step")
-
-
-def _unit(name: str, value: Any) -> tuple[float, float, float]:
-    vec = np.asarray(_vec3(name, value), dtype=np.float64)
-    norm = float(np.linalg.norm(vec))
-    if norm == 0.0:
-        raise ParameterError(f"{name}: expected a non-zero direction (x, y, z), got {tuple(vec.tolist())}")
-    if abs(norm - 1.0) > _UNIT_TOL:
-        vec = vec / norm
-    return (float(vec[0]) + 0.0, float(vec[1]) + 0.0, float(vec[2]) + 0.0)
-
-
-def _pixel_spacing(value: Any) -> tuple[float, float]:
-    """One positive number (square pixels) or a pair (du, dv)."""
-    expected = "a positive pixel spacing D or a pair (du, dv) of world units per pixel"
-    vals = [value] if isinstance(value, numbers.Real) else value
-    try:
-        out = [float(x) for x in vals if isinstance(x, numbers.Real) and not isinstance(x, bool)]
-        ok = len(out) == len(vals) and len(out) in (1, 2) and all(math.isfinite(x) and x > 0 for x in out)
-    except (TypeError, ValueError, OverflowError):
-        ok = False
-    if isinstance(value, (bool, str, bytes)) or not ok:
-        raise ParameterError(f"pixel_spacing: expected {expected}, got {value!r}")
-    return (out[0] + 0.0, out[-1] + 0.0)
-
-
-def _real(name: str, value: Any, lo: float, hi: float) -> float:
-    ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
-    x = float(value) if ok else math.nan
-    if not (math.isfinite(x) and lo <= x <= hi):
-        raise ParameterError(f"{name}: expected a position in [{lo:g}, {hi:g}], got {value!r}")
-    return x
 
 
 @dataclass(frozen=True)
@@ -137,9 +99,9 @@ class Plane:
 
     def __post_init__(self) -> None:
         origin = _vec3("origin", self.origin)
-        u = _unit("u", self.u)
-        v = _unit("v", self.v)
-        if float(np.linalg.norm(np.cross(u, v))) < _PARALLEL_TOL:
+        u = unit("u", self.u)
+        v = unit("v", self.v)
+        if float(np.linalg.norm(np.cross(u, v))) < PARALLEL_TOL:
             raise ParameterError(f"v: expected a direction not parallel to u = {u}, got {v}")
         dot = float(np.dot(u, v))
         if abs(dot) > _ORTHO_TOL:
@@ -150,7 +112,7 @@ class Plane:
             )
         width = check_int("width", self.width, 1)
         height = check_int("height", self.height, 1)
-        spacing = _pixel_spacing(self.pixel_spacing)
+        spacing = pixel_spacing_of(self.pixel_spacing)
         slab = check_int("slab", self.slab, 1, MAX_SLAB)
         step = check_step(self.slab_step, "slab_step") + 0.0
         for name, value in (
@@ -215,8 +177,7 @@ class Plane:
         >>> a.key() == Plane([0, 0, 0.0], [2, 0, 0], [0, 1, 0], 2, 2, pixel_spacing=(1, 1)).key()
         True
         """
-        text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
-        return hashlib.sha256(text.encode("ascii")).hexdigest()
+        return digest(self.to_dict()).hex()
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -253,11 +214,12 @@ class Plane:
         rows, cols = np.divmod(pix, self.width)
         u, v, _ = self.basis()
         du, dv = self.pixel_spacing
-        return (
+        centres: np.ndarray = (
             np.asarray(self.origin, dtype=np.float64)
             + (cols * du).astype(np.float64)[:, None] * u
             + (rows * dv).astype(np.float64)[:, None] * v
         )
+        return centres
 
     def rays(self, pixels: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(origins, directions)``, each (N, 3) float64, like :meth:`Camera.rays`.
@@ -324,7 +286,7 @@ class Plane:
         >>> p.origin, p.width, p.height, p.pixel_spacing
         ((0.0, 0.0, 3.0), 2, 3, (1.0, 2.0))
         """
-        return cls._aligned(ev_or_shape, spacing, 0, k, width, height, pixel_spacing, slab, slab_step)
+        return cls(*aligned_grid(ev_or_shape, spacing, 0, k, width, height, pixel_spacing, slab, slab_step))
 
     @classmethod
     def coronal(
@@ -345,7 +307,7 @@ class Plane:
         >>> p.origin, (p.width, p.height), p.normal.tolist()
         ((0.0, 2.0, 0.0), (2, 4), [0.0, -1.0, 0.0])
         """
-        return cls._aligned(ev_or_shape, spacing, 1, j, width, height, pixel_spacing, slab, slab_step)
+        return cls(*aligned_grid(ev_or_shape, spacing, 1, j, width, height, pixel_spacing, slab, slab_step))
 
     @classmethod
     def sagittal(
@@ -366,36 +328,7 @@ class Plane:
         >>> p.origin, (p.width, p.height), p.normal.tolist()
         ((1.0, 0.0, 0.0), (3, 4), [1.0, 0.0, 0.0])
         """
-        return cls._aligned(ev_or_shape, spacing, 2, i, width, height, pixel_spacing, slab, slab_step)
-
-    @classmethod
-    def _aligned(
-        cls,
-        ev_or_shape: Any,
-        spacing: Any,
-        kind: int,
-        index: Any,
-        width: Any,
-        height: Any,
-        pixel_spacing: Any,
-        slab: int,
-        slab_step: Any,
-    ) -> Plane:
-        """An axis-aligned plane; ``kind`` 0 axial (normal axis z), 1 coronal (y), 2 sagittal (x)."""
-        shape, sp = _orbit_geometry(ev_or_shape, spacing)
-        n_world = (shape[2], shape[1], shape[0])  # voxels along x, y, z
-        normal_axis, ua, va = ((2, 0, 1), (1, 0, 2), (0, 1, 2))[kind]
-        name = ("k", "j", "i")[kind]
-        pos = _real(name, index, 0.0, float(n_world[normal_axis] - 1)) * sp[normal_axis]
-        ext = [(n_world[a] - 1) * sp[a] for a in (ua, va)]
-        w, h, du, dv = _fit(ext, (sp[ua], sp[va]), width, height, pixel_spacing)
-        origin = [0.0, 0.0, 0.0]
-        origin[normal_axis] = pos
-        origin[ua] = (ext[0] - (w - 1) * du) / 2.0
-        origin[va] = (ext[1] - (h - 1) * dv) / 2.0
-        u = tuple(1.0 if a == ua else 0.0 for a in range(3))
-        v = tuple(1.0 if a == va else 0.0 for a in range(3))
-        return cls(tuple(origin), u, v, w, h, (du, dv), slab, sp[normal_axis] if slab_step is None else slab_step)
+        return cls(*aligned_grid(ev_or_shape, spacing, 2, i, width, height, pixel_spacing, slab, slab_step))
 
     @classmethod
     def oblique(
@@ -442,70 +375,8 @@ class Plane:
         >>> p.origin, p.u, p.v
         ((1.0, 1.0, 2.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
         """
-        shape, sp = _orbit_geometry(ev_or_shape, spacing)
-        extent = np.array([(shape[2] - 1) * sp[0], (shape[1] - 1) * sp[1], (shape[0] - 1) * sp[2]])
-        c = extent / 2.0 if center is None else np.asarray(_vec3("center", center))
-        n = np.asarray(_unit("normal", normal))
-        if v is None:
-            hint = np.array([0.0, 1.0, 0.0]) if abs(n[2]) >= max(abs(n[0]), abs(n[1])) else np.array([0.0, 0.0, 1.0])
-        else:
-            hint = np.asarray(_unit("v", v))
-        vv = hint - float(np.dot(hint, n)) * n
-        if float(np.linalg.norm(vv)) < _PARALLEL_TOL:
-            raise ParameterError(
-                f"v: expected a direction not parallel to normal = {tuple(n.tolist())}, got {tuple(hint.tolist())}"
-            )
-        vv = vv / np.linalg.norm(vv)
-        uu = np.cross(vv, n)
-        d = min(sp) if pixel_spacing is None else None
-        du, dv = (d, d) if d is not None else _pixel_spacing(pixel_spacing)
-        diag = float(np.linalg.norm(extent))
-        w = _count(diag, du) if width is None else check_int("width", width, 1)
-        h = _count(diag, dv) if height is None else check_int("height", height, 1)
-        origin = c - (w - 1) / 2.0 * du * uu - (h - 1) / 2.0 * dv * vv
-        return cls(
-            tuple(origin.tolist()),
-            tuple(uu.tolist()),
-            tuple(vv.tolist()),
-            w,
-            h,
-            (du, dv),
-            slab,
-            min(sp) if slab_step is None else slab_step,
-        )
-
-
-def _fit(ext: list, voxel: tuple, width: Any, height: Any, pixel_spacing: Any) -> tuple[int, int, float, float]:
-    """Image size and pixel spacing of an axis-aligned plane (see :meth:`Plane.axial`)."""
-    w = None if width is None else check_int("width", width, 1)
-    h = None if height is None else check_int("height", height, 1)
-    if pixel_spacing is not None:
-        du, dv = _pixel_spacing(pixel_spacing)
-    elif w is None and h is None:
-        du, dv = float(voxel[0]), float(voxel[1])
-    else:  # square pixels that fit the extent into the given size
-        fits = [e / (n - 1) for e, n in zip(ext, (w, h)) if n is not None and n > 1 and e > 0]
-        du = dv = max(fits) if fits else float(min(voxel))
-    if w is None:
-        w = _count(ext[0], du)
-    if h is None:
-        h = _count(ext[1], dv)
-    return w, h, du, dv
-
-
-def _count(extent: float, d: float) -> int:
-    """Pixels of spacing ``d`` across ``extent``, refused (naming ``pixel_spacing``) past the image cap.
-
-    >>> _count(10.0, 0.5)
-    21
-    """
-    n = extent / d + 1e-9
-    if not math.isfinite(n) or n >= MAX_IMAGE_PIXELS:
-        raise ParameterError(
-            f"pixel_spacing: expected a spacing giving at most {MAX_IMAGE_PIXELS} pixels across "
-            f"the volume's extent {extent:g}, got {d:g}"
-        )
-    return int(math.floor(n)) + 1
+        fields = oblique_grid(ev_or_shape, center, normal, v, width, height, pixel_spacing, slab, slab_step, spacing)
+        return cls(*fields)
 
 
 def view_from_dict(data: Any) -> Camera | Plane:

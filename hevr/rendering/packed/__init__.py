@@ -15,6 +15,7 @@ The data path of one packed frame, module by module:
 ``verified``       verified frames: the tags' aggregate on the server and the key holder's check
 ``files``          packed frame files: :meth:`PackedImage.save`, read by ``hevr.load_image``
 ``colour``         transfer-function and emphasis frames: the vector channel's k components
+``colour_render``  a colour frame's render: map, merge and the tags' round of k components
 =================  =============================================================
 
 ``hevr.render`` routes a packed store to :func:`hevr.rendering.packed.request.render_packed_request`.

@@ -9,13 +9,15 @@ The data flows through this room in this order:
 ``graph``          the Dask graph: map per brick (or per worker), tree merge per tile
 ``reduce``         a batched render's reduce: a worker's block of tiles merged and finished
 ``finishing``      ⊕ of partial sums, combination, normalisation and packing of one tile
-``sums``           ray sums kept in memory or in a ``.hevrsums`` file; ``recolour``
+``sums``           ray sums kept in memory or read from a file; ``recolour``
+``sums_file``      the ``.hevrsums`` file: written beside a render, read back checked
+``cache``          the render cache: the ray sums of the last views, per process
 ``stream``         ``render_frame``: finishing units decrypted on the client as they complete
 =================  =============================================================
 
 Before: :mod:`hevr.rendering.geometry` (the weights a map task computes) and
 :mod:`hevr.rendering.planning` (the plan it obeys). :func:`hevr.render`
-(:mod:`hevr.rendering.encrypted`) builds and runs this graph.
+(:mod:`hevr.rendering.encrypted`, :mod:`hevr.rendering.view`) builds and runs this graph.
 """
 
 from __future__ import annotations

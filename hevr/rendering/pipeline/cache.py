@@ -13,7 +13,7 @@ import threading
 from collections import OrderedDict
 from typing import Any
 
-from .pipeline.sums import RaySums
+from .sums import RaySums
 
 __all__ = ["CACHE_SIZE", "cached", "clear_cache", "keep"]
 
