@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import errno
 import os
+from typing import Any
 
 __all__ = [
     "HevrError",
@@ -130,7 +131,7 @@ class MissingFileError(HevrError, FileNotFoundError):
     'key: expected a key file, found nothing at k.json'
     """
 
-    def __init__(self, name: str, expected: str, path: str | os.PathLike) -> None:
+    def __init__(self, name: str, expected: str, path: str | os.PathLike[str]) -> None:
         super().__init__(errno.ENOENT, f"{name}: expected {expected}, found nothing at {path}", str(path))
 
     def __str__(self) -> str:
@@ -145,7 +146,7 @@ class ExistingFileError(HevrError, FileExistsError):
     'path: expected no file at k.json (pass overwrite=True to replace it), found one'
     """
 
-    def __init__(self, name: str, path: str | os.PathLike) -> None:
+    def __init__(self, name: str, path: str | os.PathLike[str]) -> None:
         super().__init__(
             errno.EEXIST,
             f"{name}: expected no file at {path} (pass overwrite=True to replace it), found one",
@@ -165,7 +166,7 @@ class NotRegularFileError(HevrError, OSError):
     'path: expected an encrypted image file (a regular file), got a FIFO at a.hevr'
     """
 
-    def __init__(self, name: str, expected: str, path: str | os.PathLike, kind: str) -> None:
+    def __init__(self, name: str, expected: str, path: str | os.PathLike[str], kind: str) -> None:
         super().__init__(errno.EINVAL, f"{name}: expected {expected} (a regular file), got {kind} at {path}", str(path))
 
     def __str__(self) -> str:
@@ -183,7 +184,7 @@ class FileSystemError(HevrError, OSError):
     ('writing the image /d/a.hevr: No space left on device (ENOSPC)', True, '/d/a.hevr')
     """
 
-    def __init__(self, err: int | None, doing: str, path: str | os.PathLike, reason: str | None = None) -> None:
+    def __init__(self, err: int | None, doing: str, path: str | os.PathLike[str], reason: str | None = None) -> None:
         reason = reason or (os.strerror(err) if err else "failed")
         code = errno.errorcode.get(err or 0)
         text = f"{doing} {path}: {reason}" + (f" ({code})" if code else "")
@@ -207,7 +208,7 @@ class RemoteError(HevrError, ConnectionError):
     'server: expected an image, got HTTP 503 (busy)'
     """
 
-    def __init__(self, message: str, *, status: int | None = None, problem: dict | None = None) -> None:
+    def __init__(self, message: str, *, status: int | None = None, problem: dict[str, Any] | None = None) -> None:
         super().__init__(message)
         self.status = status
         self.problem = problem
@@ -243,7 +244,12 @@ class RemoteBusyError(RemoteError):
     """
 
     def __init__(
-        self, message: str, *, status: int | None = None, problem: dict | None = None, retry_after: float | None = None
+        self,
+        message: str,
+        *,
+        status: int | None = None,
+        problem: dict[str, Any] | None = None,
+        retry_after: float | None = None,
     ) -> None:
         super().__init__(message, status=status, problem=problem)
         self.retry_after = retry_after

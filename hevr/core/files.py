@@ -291,8 +291,8 @@ def check_regular(path: str | os.PathLike, name: str, expected: str, *, error: A
             getattr(exc, "errno", None), f"reading {expected}", path, getattr(exc, "strerror", None) or str(exc)
         ) from None
     if not stat.S_ISREG(st.st_mode):
-        exc = NotRegularFileError(name, expected, path, file_kind(st.st_mode))
-        raise (error(str(exc)) if error is not None else exc)
+        refused = NotRegularFileError(name, expected, path, file_kind(st.st_mode))
+        raise (error(str(refused)) if error is not None else refused)
     return st
 
 

@@ -191,7 +191,7 @@ def check_spacing(spacing: Any, name: str = "spacing") -> tuple[float, float, fl
         out = ()
     if len(out) != 3 or not all(math.isfinite(s) and s > 0 for s in out):
         raise ParameterError(f"{name}: expected 3 positive finite numbers (sx, sy, sz), got {spacing!r}")
-    return out  # type: ignore[return-value]
+    return out
 
 
 def check_step(step: Any, name: str = "step") -> float:
@@ -213,7 +213,7 @@ def check_step(step: Any, name: str = "step") -> float:
     except OverflowError:
         raise ParameterError(
             f"{name}: expected a positive finite number (world units), got an integer of "
-            f"{len(str(abs(int(step))))} digits"
+            f"{len(str(abs(math.trunc(step))))} digits"
         ) from None
     if not math.isfinite(value) or value <= 0:
         raise ParameterError(f"{name}: expected a positive finite number (world units), got {step!r}")
@@ -299,4 +299,4 @@ def check_brick_index(index: Any, grid: Sequence[int], name: str = "brick_index"
         raise ParameterError(
             f"{name}: expected a brick index (bz, by, bx) inside the grid {tuple(grid)}, got {index!r}"
         )
-    return out  # type: ignore[return-value]
+    return out

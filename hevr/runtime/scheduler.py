@@ -18,7 +18,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import dask
@@ -348,7 +348,7 @@ class _JobPool(ThreadPoolExecutor):
         super().__init__(max_workers=max_workers)
         self.job = job
 
-    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Any:
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
         def run() -> Any:
             self.job.check()
             return fn(*args, **kwargs)

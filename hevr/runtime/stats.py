@@ -47,10 +47,10 @@ def timed(phase: str, count: int = 0) -> Iterator[None]:
         add(phase, time.perf_counter() - t0, count)
 
 
-def take(reset: bool = True) -> dict[str, dict]:
+def take(reset: bool = True) -> dict[str, dict[str, float]]:
     """Totals of this process since the last reset: ``{"seconds": {...}, "counts": {...}}``."""
     with _LOCK:
-        out = {"seconds": dict(_SECONDS), "counts": dict(_COUNTS)}
+        out: dict[str, dict[str, float]] = {"seconds": dict(_SECONDS), "counts": dict(_COUNTS)}
         if reset:
             _SECONDS.clear()
             _COUNTS.clear()
