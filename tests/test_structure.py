@@ -97,7 +97,17 @@ OLD_NAMES_ALLOWED_IN = frozenset({"CHANGELOG.md"})
 # order the data flows. The floor keeps the entry points only; hevr.rendering.<module> of a
 # module now in a room is an old path (see CHANGELOG.md).
 RENDERING_ROOMS = {
-    "geometry": ("camera", "views", "plane", "plane_grid", "rays", "footprint", "weights", "group_weights"),
+    "geometry": (
+        "coordinates",
+        "camera",
+        "views",
+        "plane",
+        "plane_grid",
+        "rays",
+        "footprint",
+        "weights",
+        "group_weights",
+    ),
     "planning": ("modes", "request", "planner", "bounds"),
     "pipeline": ("kernel", "_segments", "maps", "graph", "reduce", "finishing", "sums", "sums_file", "cache", "stream"),
     "reference": ("plain",),

@@ -42,8 +42,8 @@ from pydantic.json_schema import GenerateJsonSchema, models_json_schema
 
 from ..backends import AUTO, available_backends
 from ..errors import ParameterError
-from ..rendering.geometry.camera import MAX_COORDINATE
 from ..rendering.geometry.camera import Camera as _Camera
+from ..rendering.geometry.coordinates import MAX_COORDINATE
 from ..rendering.geometry.plane import MAX_SLAB
 from ..rendering.geometry.plane import Plane as _Plane
 from ..rendering.planning.modes import SAMPLINGS

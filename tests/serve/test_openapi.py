@@ -31,7 +31,7 @@ from hevr.remote.protocol import (
     VerifyRequest,
     parse_json,
 )
-from hevr.rendering.geometry.camera import MAX_COORDINATE
+from hevr.rendering.geometry.coordinates import MAX_COORDINATE
 from hevr.rendering.geometry.plane import MAX_SLAB
 from hevr.serve.app import create_app
 from hevr.serve.openapi import ERRORS, openapi_document

@@ -3,6 +3,7 @@
 The data flows through this room in this order:
 
 =================  =============================================================
+``coordinates``    the world coordinates a view may hold, and the volume it is placed on
 ``camera``         :class:`Camera`: the request's geometry (frozen, validated)
 ``views``          anatomical presets of ``Camera.orbit(view=...)`` (RAS+ patient frame)
 ``plane``          :class:`Plane`: a slice (and slab) as the second kind of view

@@ -20,15 +20,15 @@ frame (:mod:`hevr.rendering.geometry.views`).
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ...core.validate import check_int, check_pixel_ids, check_shape, check_spacing
+from ...core.validate import check_int, check_pixel_ids
 from ...crypto.mac import digest
 from ...errors import ParameterError
+from .coordinates import MAX_COORDINATE, finite_float, vec3, volume_geometry
 from .views import VIEWS, view_offset
 
 __all__ = ["Camera"]
@@ -38,50 +38,13 @@ _FRAME_MARGIN = 1.05
 # |d x view_up| below this (both unit vectors) counts as parallel: the basis would be
 # numerically meaningless.
 _PARALLEL_TOL = 1e-9
-# Largest |coordinate| of position, focal_point and view_up, and largest distance and
-# parallel_scale, in world units: the ray geometry (differences, norms, box intersections
-# along rays) stays finite and keeps ~1e-4 of a unit of precision there; far beyond any scan
-# (1e12 mm is 1e6 km).
-MAX_COORDINATE = 1e12
 # Smallest |focal_point - position| and |view_up|, relative to the largest coordinate
 # (at least 1): below it the view direction or the up direction is lost in rounding.
 _MIN_RELATIVE = 1e-9
 
 
-def _vec3(name: str, value: Any) -> tuple[float, float, float]:
-    """Validate a 3-vector of finite reals and return it as a tuple of Python floats (a bool or a
-    string is no coordinate, though numpy would read True and "1" as 1.0)."""
-    items = value.tolist() if isinstance(value, np.ndarray) else value
-    if isinstance(items, (list, tuple)) and not all(
-        isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_)) for x in items
-    ):
-        raise ParameterError(f"{name}: expected 3 finite numbers (x, y, z), got {value!r}")
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name}: expected 3 finite numbers (x, y, z), got {value!r}") from None
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ParameterError(f"{name}: expected 3 finite numbers (x, y, z), got {value!r}")
-    if np.abs(arr).max() > MAX_COORDINATE:
-        raise ParameterError(
-            f"{name}: expected coordinates of magnitude at most {MAX_COORDINATE:g} (world units), "
-            f"got {tuple(float(x) for x in arr)}"
-        )
-    # + 0.0 turns -0.0 into 0.0 so equal cameras have equal keys.
-    return (float(arr[0]) + 0.0, float(arr[1]) + 0.0, float(arr[2]) + 0.0)
-
-
-def _finite_float(name: str, value: Any, expected: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ParameterError(f"{name}: expected {expected}, got {value!r}")
-    out = float(value)
-    if not math.isfinite(out):
-        raise ParameterError(f"{name}: expected {expected}, got {value!r}")
-    return out + 0.0
-
-
 def _view_angle(value: Any) -> float:
-    angle = _finite_float("view_angle", value, "degrees in (0, 180)")
+    angle = finite_float("view_angle", value, "degrees in (0, 180)")
     if not 0.0 < angle < 180.0:
         raise ParameterError(f"view_angle: expected degrees in (0, 180), got {value!r}")
     return angle
@@ -138,9 +101,9 @@ class Camera:
 
     def __post_init__(self) -> None:
         # Frozen dataclass: normalise fields through object.__setattr__.
-        pos = _vec3("position", self.position)
-        foc = _vec3("focal_point", self.focal_point)
-        up = _vec3("view_up", self.view_up)
+        pos = vec3("position", self.position)
+        foc = vec3("focal_point", self.focal_point)
+        up = vec3("view_up", self.view_up)
         angle = _view_angle(self.view_angle)
         width = check_int("width", self.width, 1)
         height = check_int("height", self.height, 1)
@@ -171,7 +134,7 @@ class Camera:
         if self.parallel_scale is None:
             scale = distance * math.tan(math.radians(angle) / 2.0)
         else:
-            scale = _finite_float("parallel_scale", self.parallel_scale, "a positive number or None")
+            scale = finite_float("parallel_scale", self.parallel_scale, "a positive number or None")
             if not 0.0 < scale <= MAX_COORDINATE:
                 raise ParameterError(
                     f"parallel_scale: expected a positive number of at most {MAX_COORDINATE:g} or None, "
@@ -361,9 +324,9 @@ class Camera:
         >>> front.basis()[0].tolist(), front.view_up
         ([0.0, -1.0, 0.0], (0.0, 0.0, 1.0))
         """
-        shape, spacing = _orbit_geometry(ev_or_shape, spacing)
-        az = math.radians(_finite_float("azimuth", azimuth, "degrees"))
-        el = math.radians(_finite_float("elevation", elevation, "degrees"))
+        shape, spacing = volume_geometry(ev_or_shape, spacing)
+        az = math.radians(finite_float("azimuth", azimuth, "degrees"))
+        el = math.radians(finite_float("elevation", elevation, "degrees"))
         width = check_int("width", width, 1)
         height = check_int("height", height, 1)
         angle = _view_angle(view_angle)
@@ -385,7 +348,7 @@ class Camera:
         if distance is None:  # at most MAX_COORDINATE / 2 away (only a sliver of a view angle needs more)
             dist = min(radius / math.sin(min(half_v, half_h)), MAX_COORDINATE / 2)
         else:
-            dist = _finite_float("distance", distance, "a positive number or None")
+            dist = finite_float("distance", distance, "a positive number or None")
             if not 0.0 < dist <= MAX_COORDINATE / 2:
                 raise ParameterError(
                     f"distance: expected a positive number of at most {MAX_COORDINATE / 2:g} or None, got {distance!r}"
@@ -409,16 +372,3 @@ class Camera:
             parallel=bool(parallel),
             parallel_scale=radius / min(1.0, aspect) if parallel else None,
         )
-
-
-def _orbit_geometry(ev_or_shape: Any, spacing: Any) -> tuple[tuple[int, int, int], tuple[float, float, float]]:
-    """Extract (shape, spacing) from a shape tuple or a volume-like object."""
-    if hasattr(ev_or_shape, "shape") and hasattr(ev_or_shape, "spacing"):
-        shape_in = ev_or_shape.shape
-        if spacing is None:
-            spacing = ev_or_shape.spacing
-    else:
-        shape_in = ev_or_shape
-    shape = check_shape(shape_in, "ev_or_shape")
-    sp = check_spacing((1.0, 1.0, 1.0) if spacing is None else spacing)
-    return shape, sp

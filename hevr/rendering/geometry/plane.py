@@ -41,7 +41,8 @@ import numpy as np
 from ...core.validate import check_int, check_pixel_ids, check_step
 from ...crypto.mac import digest
 from ...errors import ParameterError
-from .camera import Camera, _vec3
+from .camera import Camera
+from .coordinates import vec3
 from .plane_grid import PARALLEL_TOL, aligned_grid, oblique_grid, pixel_spacing_of, unit
 
 __all__ = ["Plane", "MAX_SLAB", "view_from_dict"]
@@ -98,7 +99,7 @@ class Plane:
     slab_step: float = 1.0
 
     def __post_init__(self) -> None:
-        origin = _vec3("origin", self.origin)
+        origin = vec3("origin", self.origin)
         u = unit("u", self.u)
         v = unit("v", self.v)
         if float(np.linalg.norm(np.cross(u, v))) < PARALLEL_TOL:

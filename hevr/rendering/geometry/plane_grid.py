@@ -18,7 +18,7 @@ import numpy as np
 from ...core.limits import MAX_IMAGE_PIXELS
 from ...core.validate import check_int
 from ...errors import ParameterError
-from .camera import _orbit_geometry, _vec3
+from .coordinates import vec3, volume_geometry
 
 __all__ = ["PARALLEL_TOL", "PlaneFields", "aligned_grid", "oblique_grid", "pixel_spacing_of", "unit"]
 
@@ -35,7 +35,7 @@ PlaneFields = tuple[Vec3, Vec3, Vec3, int, int, tuple[float, float], int, float]
 
 def unit(name: str, value: Any) -> tuple[float, float, float]:
     """``value`` as a unit direction (x, y, z): normalised unless within rounding of unit length."""
-    vec = np.asarray(_vec3(name, value), dtype=np.float64)
+    vec = np.asarray(vec3(name, value), dtype=np.float64)
     norm = float(np.linalg.norm(vec))
     if norm == 0.0:
         raise ParameterError(f"{name}: expected a non-zero direction (x, y, z), got {tuple(vec.tolist())}")
@@ -80,7 +80,7 @@ def aligned_grid(
 ) -> PlaneFields:
     """The fields of an axis-aligned plane; ``kind`` 0 axial (normal axis z), 1 coronal (y), 2 sagittal (x)
     (the other arguments: :meth:`Plane.axial <hevr.rendering.geometry.plane.Plane.axial>`)."""
-    shape, sp = _orbit_geometry(ev_or_shape, spacing)
+    shape, sp = volume_geometry(ev_or_shape, spacing)
     n_world = (shape[2], shape[1], shape[0])  # voxels along x, y, z
     normal_axis, ua, va = ((2, 0, 1), (1, 0, 2), (0, 1, 2))[kind]
     name = ("k", "j", "i")[kind]
@@ -111,9 +111,9 @@ def oblique_grid(
 ) -> PlaneFields:
     """The fields of a plane through ``center`` with the given ``normal``, the pixel grid centred on it
     (the arguments: :meth:`Plane.oblique <hevr.rendering.geometry.plane.Plane.oblique>`)."""
-    shape, sp = _orbit_geometry(ev_or_shape, spacing)
+    shape, sp = volume_geometry(ev_or_shape, spacing)
     extent = np.array([(shape[2] - 1) * sp[0], (shape[1] - 1) * sp[1], (shape[0] - 1) * sp[2]])
-    c = extent / 2.0 if center is None else np.asarray(_vec3("center", center))
+    c = extent / 2.0 if center is None else np.asarray(vec3("center", center))
     n = np.asarray(unit("normal", normal))
     if v is None:
         hint = np.array([0.0, 1.0, 0.0]) if abs(n[2]) >= max(abs(n[0]), abs(n[1])) else np.array([0.0, 0.0, 1.0])
