@@ -254,6 +254,20 @@ def test_plans_beyond_the_kernels_and_even_moduli_run_on_gmpy2(monkeypatch):
     )
 
 
+def test_stage_times_refuses_what_the_kernels_cannot_take(monkeypatch):
+    """stage_times times the kernels only: an even modulus, or a plan beyond the kernels' buckets,
+    is a ParameterError naming it (it was an AttributeError on None)."""
+    n = _modulus(64)
+    x = GPU.from_bytes(np.array([[0, 2], [0, 3]], np.uint8))
+    plan = ProductPlan(1, 2, [0], [0, 1], [1, 1], [(ONES, 0, 2, 0, 0)])
+    with pytest.raises(ParameterError, match="nsquare"):
+        GPU.stage_times(plan, x, 1000)
+    monkeypatch.setattr(residues_module, "MAX_BUCKETS", 16)
+    big = ProductPlan(1, 2, [0], [0, 1], [3, 2**9 + 1], [(HORNER, 0, 2, 5, 2)])  # 66 buckets
+    with pytest.raises(ParameterError, match="buckets"):
+        GPU.stage_times(big, x, n * n)
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     data=st.data(),
