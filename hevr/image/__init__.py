@@ -7,6 +7,7 @@ Module by module:
 ``encrypted``   :class:`EncryptedImage`: per-tile pixel ciphertexts (or client-finished ray sums)
                 and their public numbers; checked decryption and unpacking (any fault is an
                 :class:`hevr.IntegrityError`), ``save`` and ``to_bytes``
+``unpack``      the checked unpacking of a tile's plaintexts (shared with the streamed frames)
 ``files``       :func:`load_image` (a path or an fsspec URL) and :func:`image_from_bytes`: a
                 ``.hevr`` file read back, checked whole before an image is returned
 ``header``      the ``.hevr`` file layout (version 3; version 2 is still read): the header
@@ -31,10 +32,13 @@ from ..core.lazy import attach
 
 if TYPE_CHECKING:  # what static tools read; at run time each name is imported on first use (hevr.core.lazy)
     from .display import save_png, to_uint8
-    from .encrypted import _CORRUPT, EncryptedImage, _unpack_checked
-    from .files import _from_blob, image_from_bytes, load_image
-    from .header import MAGIC
+    from .encrypted import EncryptedImage
+    from .files import _from_blob as _from_blob
+    from .files import image_from_bytes, load_image
+    from .header import MAGIC as MAGIC
     from .orient import orient_slice, slice_layout
+    from .unpack import _CORRUPT as _CORRUPT
+    from .unpack import _unpack_checked as _unpack_checked
 
 __all__ = ["EncryptedImage", "image_from_bytes", "load_image", "orient_slice", "save_png", "slice_layout", "to_uint8"]
 
@@ -43,7 +47,8 @@ __all__ = ["EncryptedImage", "image_from_bytes", "load_image", "orient_slice", "
 _LAZY = {
     ".display": ("save_png", "to_uint8"),
     ".orient": ("orient_slice", "slice_layout"),
-    ".encrypted": ("EncryptedImage", "_CORRUPT", "_unpack_checked"),
+    ".encrypted": ("EncryptedImage",),
+    ".unpack": ("_CORRUPT", "_unpack_checked"),
     ".files": ("image_from_bytes", "load_image", "_from_blob"),
     ".header": ("MAGIC",),
 }

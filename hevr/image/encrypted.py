@@ -8,7 +8,7 @@ packed ``per_pack`` values per ciphertext (Horner, B = 2^pack_bits) unless rende
 every pixel, a public offset, the render plan's bound, the key fingerprint.
 
 Nothing wrong reaches the screen: decryption checks every ciphertext and every plaintext
-against the bound and the planner's 64-bit integrity margin (:func:`_unpack_checked`, shared
+against the bound and the planner's 64-bit integrity margin (:mod:`hevr.image.unpack`, shared
 with :mod:`hevr.rendering.pipeline.stream`); every fault is a :class:`hevr.HevrError`. The ``.hevr``
 file (:meth:`EncryptedImage.save`, :meth:`EncryptedImage.to_bytes`) is laid out by
 :mod:`hevr.image.header` and read back by :mod:`hevr.image.files`; an image is checked
@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -36,17 +37,16 @@ from ..core.validate import check_bool
 from ..crypto.keys import PrivateKey
 from ..errors import IntegrityError, KeyMismatchError, ParameterError
 from ..store.paths import check_storage_options, output_location, write_output
-from .checks import check_image, tile_name
+from .checks import check_image
 from .header import file_parts
 from .proof import Expect
 from .provenance import check_provenance, for_file
 from .stamp import saved_name
+from .unpack import _CORRUPT, tile_values
 
 __all__ = ["EncryptedImage"]
 
 log = logging.getLogger(__name__)
-
-_CORRUPT = "the image was corrupted or tampered with after the render; no image is returned"
 
 
 @dataclass
@@ -94,7 +94,7 @@ class EncryptedImage:
         never saved, shown or sent; :meth:`decrypt` applies it unless given another.
     """
 
-    shape: tuple
+    shape: tuple[int, ...]
     exponent: int
     offset: int
     fingerprint: str
@@ -102,10 +102,10 @@ class EncryptedImage:
     tile: int
     pack_bits: int
     per_pack: int
-    ciphertexts: list
+    ciphertexts: list[np.ndarray]
     hits: np.ndarray | None = None
-    info: dict = field(default_factory=dict)
-    stats: dict = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
+    stats: dict[str, Any] = field(default_factory=dict)
     bound: int | None = None
     finish: str = "server"
     channel: str | None = None
@@ -122,7 +122,7 @@ class EncryptedImage:
             f"per_pack={self.per_pack}, ciphertexts={self.n_ciphertexts}, key={self.fingerprint[:16]}…)"
         )
 
-    def __getstate__(self) -> dict:
+    def __getstate__(self) -> dict[str, Any]:
         """Pickled — to a worker, another process, a file — without the colouring, which stays in
         the process that rendered (``copy.copy`` too; :func:`dataclasses.replace` keeps it)."""
         return dict(self.__dict__, colouring=None)
@@ -141,7 +141,7 @@ class EncryptedImage:
         return self.shape[2] if len(self.shape) == 3 else 1
 
     def decrypt_mantissas(
-        self, private_key: Any, backend: str | None = None, *, require_verified: bool | str | None = None
+        self, private_key: Any, backend: str | None = None, *, require_verified: bool | str | Expect | None = None
     ) -> np.ndarray:
         """Integer mantissas (offset removed) as an object array of the image shape.
 
@@ -175,7 +175,9 @@ class EncryptedImage:
             block[mask] = np.array([v - offset for v in vals], dtype=object).reshape(-1, C)
         return out[..., 0] if C == 1 and len(self.shape) == 2 else out
 
-    def _checked_tiles(self, private_key: Any, backend: str | None, require_verified: Any = False):
+    def _checked_tiles(
+        self, private_key: Any, backend: str | None, require_verified: Any = False
+    ) -> Iterator[tuple[int, int, int, int, np.ndarray, list[int]]]:
         """Check the image's numbers now, then return an iterator over the tiles with hits:
         (r0, r1, c0, c1, hit mask, checked values with the offset), in tile order, which raises
         on the first faulty ciphertext (the rules of :meth:`decrypt_mantissas`)."""
@@ -194,19 +196,19 @@ class EncryptedImage:
             raise IntegrityError(f"image: its modulus n is not the one of its key fingerprint; {_CORRUPT}")
         if self.verification is not None:  # the store's metadata first: it says what every number means
             self.verification.check_metadata(private_key, self)
-        tiles = self._tile_values(private_key, be, layout, hits, int(n))
+        tiles = tile_values(self, private_key, be, layout, hits, int(n))
         if self.verification is None:
             return tiles
-        tiles = list(tiles)  # a verified render: every value checked against the tags before any is used
+        listed = list(tiles)  # a verified render: every value checked against the tags before any is used
         W, offset = self.shape[1], int(self.offset)
-        ids = [(r0 + rr) * W + c0 + cc for r0, _, c0, _, mask, _ in tiles for rr, cc in [np.nonzero(mask)]]
+        ids = [(r0 + rr) * W + c0 + cc for r0, _, c0, _, mask, _ in listed for rr, cc in [np.nonzero(mask)]]
         self.verification.check(
             private_key,
             self,
             np.concatenate(ids) if ids else np.zeros(0, np.int64),
-            [v - offset for *_, vals in tiles for v in vals],
+            [v - offset for *_, vals in listed for v in vals],
         )
-        return iter(tiles)
+        return iter(listed)
 
     def _check_provenance(self, private_key: Any, require_verified: Any) -> None:
         """Who vouches for the verification record (:mod:`hevr.image.provenance`): one drawn in this
@@ -220,40 +222,8 @@ class EncryptedImage:
             "or a file saved without the key holder's stamp",
         )
 
-    def _tile_values(self, private_key: Any, be: Any, layout: Any, hits: np.ndarray | None, n: int):
-        """The iterator of :meth:`_checked_tiles`: range-check, decrypt and unpack tile by tile."""
-        C = self.values_per_pixel
-        bound, J, b = int(self.bound), int(self.per_pack), int(self.pack_bits)
-        nsquare = int(n) * int(n)
-        for t in range(layout.n_tiles):
-            if not len(self.ciphertexts[t]):
-                continue
-            r0, r1, c0, c1 = layout.bounds(t)
-            mask = np.ones((r1 - r0, c1 - c0), bool) if hits is None else hits[r0:r1, c0:c1]
-            need = int(mask.sum()) * C
-            recs = be.from_bytes(self.ciphertexts[t])
-            bad = be.first_out_of_range(recs, nsquare)
-            if bad is not None:
-                raise IntegrityError(
-                    f"{tile_name(layout, t)}: ciphertext {bad} (pixels "
-                    f"{_pixels(mask, r0, c0, C, bad * J, min(need, bad * J + J))}) is not in "
-                    f"(0, n²); {_CORRUPT}"
-                )
-            vals, fault = _unpack_checked(be.decrypt(private_key, recs), need, b, J, bound)
-            if fault is not None:
-                wide, j, lo, hi = fault
-                pix = _pixels(mask, r0, c0, C, lo, hi)
-                what = (
-                    f"ciphertext {j} (pixels {pix}) decrypts to a plaintext wider than its {hi - lo} packed "
-                    f"values ({b * (hi - lo)} bits)"
-                    if wide
-                    else f"pixel {pix} (ciphertext {j}) decrypts to a value outside the render plan's range [0, bound]"
-                )
-                raise IntegrityError(f"{tile_name(layout, t)}: {what}; {_CORRUPT}")
-            yield r0, r1, c0, c1, mask, vals
-
     def decrypt_frame(
-        self, private_key: Any, backend: str | None = None, *, require_verified: bool | str | None = None
+        self, private_key: Any, backend: str | None = None, *, require_verified: bool | str | Expect | None = None
     ) -> Any:
         """Decrypt a client-finished image to a :class:`hevr.Frame`: the per-pixel means of the
         stored components, to colour (and re-colour) on this machine (:mod:`hevr.colour`).
@@ -273,6 +243,8 @@ class EncryptedImage:
             block = sums[r0:r1, c0:c1, :]
             block[mask] = scaled_sums([v - offset for v in vals], self.exponent).reshape(-1, K)
         stats = dict(self.stats, decrypt_s=time.perf_counter() - t0, ciphertexts=self.n_ciphertexts)
+        if self.samples is None:  # refused by check_image before: a client-finished image carries them
+            raise IntegrityError(f"image: expected the rays' sample counts, got none; {_CORRUPT}")
         return frame_from_sums(sums, self.samples, str(self.channel), self.colouring, stats)
 
     def decrypt(
@@ -283,7 +255,7 @@ class EncryptedImage:
         mode: str | None = None,
         density: float | None = None,
         nodes: Any = None,
-        require_verified: bool | str | None = None,
+        require_verified: bool | str | Expect | None = None,
     ) -> np.ndarray:
         """Decrypt to float64 pixel values (batch CRT decryption on ``backend``, then unpacking),
         after the checks of :meth:`decrypt_mantissas` (``IntegrityError`` on any fault). Only
@@ -316,7 +288,12 @@ class EncryptedImage:
 
     # -- the .hevr file (layout: hevr.image.header; reading: hevr.image.files) ---------------
     def save(
-        self, path: str | Path, *, overwrite: bool = False, storage_options: dict | None = None, private_key: Any = None
+        self,
+        path: str | Path,
+        *,
+        overwrite: bool = False,
+        storage_options: dict[str, Any] | None = None,
+        private_key: Any = None,
     ) -> None:
         """Write the ``.hevr`` file (format version 3, ``docs/image-format.md``): magic, header
         length, JSON header, ciphertext records, SHA-256 of all of it. The image is checked
@@ -362,42 +339,3 @@ class EncryptedImage:
         for part in parts:
             digest.update(part)
         return b"".join(bytes(memoryview(p).cast("B")) for p in parts) + digest.digest()
-
-
-def _unpack_checked(
-    plain: list[int], need: int, pack_bits: int, per_pack: int, bound: int
-) -> tuple[list[int], tuple[bool, int, int, int] | None]:
-    """The ``need`` values of a tile's plaintexts, and the first fault or None.
-
-    A fault is (wide, ciphertext, first value, end value): ``wide`` when a packed plaintext of L
-    values is not below 2^(pack_bits·L) (the whole group), else the one value outside [0, bound].
-    Only shifts and comparisons: the cost is negligible next to the decryption.
-    """
-    if per_pack == 1:
-        if plain and (min(plain) < 0 or max(plain) > bound):
-            i = next(i for i, m in enumerate(plain) if not 0 <= m <= bound)
-            return plain, (False, i, i, i + 1)
-        return plain, None
-    vals: list[int] = []
-    append = vals.append
-    digit = (1 << pack_bits) - 1
-    for j, m in enumerate(plain):
-        lo = j * per_pack
-        L = min(per_pack, need - lo)
-        if m < 0 or m >> (pack_bits * L):
-            return vals, (True, j, lo, lo + L)
-        for _ in range(L):
-            append(m & digit)
-            m >>= pack_bits
-    if vals and max(vals) > bound:
-        i = next(i for i, v in enumerate(vals) if v > bound)
-        return vals, (False, i // per_pack, i, i + 1)
-    return vals, None
-
-
-def _pixels(mask: np.ndarray, r0: int, c0: int, channels: int, lo: int, hi: int) -> str:
-    """The pixels (row, col) of a tile's values ``lo:hi`` (hit pixels row-major, channels inside)."""
-    where = np.argwhere(mask)[lo // channels : (hi - 1) // channels + 1]
-    names = [f"({r0 + int(r)}, {c0 + int(c)})" for r, c in where[:8]]
-    more = f", … {len(where)} in all" if len(where) > 8 else ""
-    return ", ".join(names) + more

@@ -29,9 +29,9 @@ from .stamp import saved_name
 __all__ = ["image_from_bytes", "load_image", "saved_name"]
 
 
-def load_image(path: str | Path, *, storage_options: dict | None = None) -> Any:
-    """Read an image written by :meth:`EncryptedImage.save` (format version 3; version-2 files are read as server-finished images),
-    or a packed frame written by :meth:`hevr.PackedImage.save` (a :class:`hevr.PackedImage`,
+def load_image(path: str | Path, *, storage_options: dict[str, Any] | None = None) -> Any:
+    """Read an image written by :meth:`EncryptedImage.save` (format version 3; version-2 files are read
+    as server-finished images), or a packed frame written by :meth:`hevr.PackedImage.save` (a :class:`hevr.PackedImage`,
     checked by :func:`hevr.rendering.packed.files.parse_packed`: any fault an ``IntegrityError``).
 
     The whole file is checked before an image is returned (``docs/image-format.md``): its

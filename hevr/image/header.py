@@ -144,13 +144,19 @@ def file_parts(img: Any, private_key: Any = None, saved_as: str = "") -> list:
 
 
 # -- reading ------------------------------------------------------------------------------------
-def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict:
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     out = dict(pairs)
     if len(out) != len(pairs):
-        seen: set = set()
-        dup = next(k for k, _ in pairs if k in seen or seen.add(k))
+        seen: set[str] = set()
+        dup = next(k for k, _ in pairs if k in seen or _seen(seen, k))
         raise ValueError(f"duplicate key {_show(dup)}")
     return out
+
+
+def _seen(seen: set[str], key: str) -> bool:
+    """Add ``key`` to ``seen``; False (so that a generator's condition goes on to the next key)."""
+    seen.add(key)
+    return False
 
 
 def _small_int(text: str) -> int:

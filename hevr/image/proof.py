@@ -25,10 +25,10 @@ it again with the key stamps it for its new place, keeping its render time).
 
 >>> Expect(store="0123456789abcdef", max_age=3600).max_age
 3600.0
->>> Expect(view="x")
+>>> Expect(view="x")  # doctest: +ELLIPSIS
 Traceback (most recent call last):
 ...
-hevr.errors.ParameterError: view: expected a view key of 16 lower-case hex digits (hevr.proof_of(img).view_key; a camera alone does not fix sampling, level and channel), got 'x'
+hevr.errors.ParameterError: view: expected a view key of 16 lower-case hex digits (...), got 'x'
 >>> view_key({"camera": {"kind": "plane"}, "level": 0}) == view_key({"level": 0, "camera": {"kind": "plane"}})
 True
 """
@@ -53,7 +53,7 @@ _HEX16 = re.compile(r"[0-9a-f]{16}")
 CLOCK_SKEW = 300.0  # seconds a stamp's render time may lie ahead of this machine's clock
 
 
-def view_key(view: dict) -> str:
+def view_key(view: dict[str, Any]) -> str:
     """The 16-hex-digit key of a view (module docstring)."""
     return digest(view).hex()[:16]
 
@@ -131,7 +131,7 @@ class FrameProof:
 
     store_id: str
     store_version: str
-    view: dict
+    view: dict[str, Any]
     view_key: str
     rendered_at: str = ""
     saved_as: str | None = None
@@ -169,7 +169,7 @@ def first_frame(img: Any) -> Any:
     return comps[0] if isinstance(comps, list) else img
 
 
-def view_of(img: Any) -> dict:
+def view_of(img: Any) -> dict[str, Any]:
     """The view a verified frame shows, from what its check fixed (module docstring)."""
     v = img.verification
     if hasattr(v, "camera"):  # a per-voxel frame's record holds its whole geometry

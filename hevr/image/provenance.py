@@ -14,13 +14,17 @@ from __future__ import annotations
 import dataclasses
 import logging
 import warnings
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from ..errors import FrameMovedWarning, VerificationError
 from ..runtime.scheduler import refuse_foreign_cluster
 from ..store import known
 from .proof import as_expect, check_expect, first_frame, proof_of
 from .stamp import check_stamp
+
+if TYPE_CHECKING:
+    from .encrypted import EncryptedImage
 
 log = logging.getLogger(__name__)
 
@@ -145,8 +149,8 @@ def check_provenance(private_key: Any, img: Any, require_verified: Any, unverifi
             f"image: a frame of the store {v.store_id}, which the owner replaced with the store {replaced[1]} at "
             f"{replaced[0]} (the key holder's known stores): an old frame replayed?; no image is returned"
         )
-    proof = proof_of(img)
-    if expect is not None:
+    proof = proof_of(img)  # not None: img carries a verification record
+    if expect is not None and proof is not None:
         check_expect(proof, expect)
     elif proof is not None and proof.moved:
         warnings.warn(
@@ -158,7 +162,7 @@ def check_provenance(private_key: Any, img: Any, require_verified: Any, unverifi
         )
 
 
-def for_file(img: Any, private_key: Any, check_with_key: Any) -> Any:
+def for_file(img: EncryptedImage, private_key: Any, check_with_key: Callable[[Any], object]) -> EncryptedImage:
     """The frame as a file holds it: a verified one checked now with the key (``check_with_key``:
     the frame's decryption, its record required) before it is stamped, or, drawn in this
     process and saved without the key, without its record (a warning: only the key holder's stamp

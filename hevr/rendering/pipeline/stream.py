@@ -28,7 +28,7 @@ from ...colour import Frame, frame_from_sums, scaled_sums
 from ...crypto.keys import PrivateKey
 from ...errors import IntegrityError, KeyMismatchError, ParameterError
 from ...image.checks import tile_name
-from ...image.encrypted import _CORRUPT, _unpack_checked
+from ...image.unpack import _CORRUPT, _unpack_checked
 from ...image.provenance import refuse_untagged
 from ...runtime.scheduler import refuse_foreign_cluster
 from ..encrypted import render
