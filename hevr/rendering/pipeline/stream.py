@@ -28,8 +28,8 @@ from ...colour import Frame, frame_from_sums, scaled_sums
 from ...crypto.keys import PrivateKey
 from ...errors import IntegrityError, KeyMismatchError, ParameterError
 from ...image.checks import tile_name
-from ...image.unpack import _CORRUPT, _unpack_checked
 from ...image.provenance import refuse_untagged
+from ...image.unpack import _CORRUPT, _unpack_checked
 from ...runtime.scheduler import refuse_foreign_cluster
 from ..encrypted import render
 from ..geometry.camera import Camera
