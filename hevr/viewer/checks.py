@@ -16,7 +16,7 @@ from ..image.provenance import refuse_untagged
 from ..runtime.scheduler import refuse_foreign_cluster
 from ..store.reader import EncryptedVolume
 
-__all__ = ["check_viewer", "import_widgets", "viewer_modes"]
+__all__ = ["check_settle", "check_viewer", "import_widgets", "viewer_modes"]
 
 
 def import_widgets() -> ModuleType:
@@ -64,6 +64,13 @@ def check_viewer(ev: Any, private_key: Any, volume: np.ndarray | None, client: A
         refuse_foreign_cluster(client, "hevr.Viewer with the private key")
     if volume is not None and tuple(np.shape(volume)) != tuple(ev.shape):
         raise ParameterError(f"volume: expected the plaintext of shape {tuple(ev.shape)}, got {np.shape(volume)}")
+
+
+def check_settle(settle: Any) -> float | None:
+    """``settle``: seconds without slider movement before the full frame (>= 0), or None."""
+    if settle is not None and not (isinstance(settle, (int, float)) and settle >= 0):
+        raise ParameterError(f"settle: expected seconds >= 0 or None, got {settle!r}")
+    return settle
 
 
 def viewer_modes(ev: EncryptedVolume, mode: str | None) -> tuple[list[str], str]:

@@ -8,11 +8,13 @@ holds only what they do (it observes them and renders). The ipywidgets module is
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
+from ..rendering.geometry.camera import Camera
 from ..rendering.planning.modes import parse_color
 
-__all__ = ["arrange", "camera_sliders", "density_slider", "hex_colour", "mode_toggles", "node_row"]
+__all__ = ["arrange", "camera_sliders", "density_slider", "hex_colour", "mode_toggles", "node_row", "slider_camera"]
 
 
 def hex_colour(colour: Any) -> str:
@@ -52,6 +54,33 @@ def camera_sliders(W: Any, packed: bool, continuous: bool) -> tuple[Any, Any, An
     )
     view_angle = W.FloatSlider(value=30.0, min=5.0, max=90.0, step=1.0, description="view angle", **slider)
     return azimuth, elevation, view_angle
+
+
+def slider_camera(
+    ev: Any, angles: tuple[float, float, float], width: int, height: int, view: str | None = None
+) -> Camera:
+    """The camera the sliders describe (:meth:`hevr.Camera.orbit`).
+
+    Parameters
+    ----------
+    ev : EncryptedVolume
+        The store looked at.
+    angles : tuple of float
+        (azimuth, elevation, view angle) in degrees.
+    width, height : int
+        Frame size in pixels.
+    view : str, optional
+        A packed store's anatomical view (:mod:`hevr.rendering.geometry.views`): the camera is
+        then parallel, and the view angle zooms it (the frame's half-height shrinks with it).
+    """
+    azimuth, elevation, view_angle = angles
+    if view is not None:
+        cam = Camera.orbit(
+            ev, azimuth=azimuth, elevation=elevation, width=width, height=height, parallel=True, view=view
+        )
+        assert cam.parallel_scale is not None  # a parallel camera's half-height
+        return dataclasses.replace(cam, parallel_scale=cam.parallel_scale * view_angle / 30.0)
+    return Camera.orbit(ev, azimuth=azimuth, elevation=elevation, width=width, height=height, view_angle=view_angle)
 
 
 def mode_toggles(W: Any, modes: list[str], mode: str, sampling: str, gradient: bool) -> tuple[Any, Any, Any]:

@@ -50,7 +50,6 @@ headlessly — set a widget's ``value`` in code, as a test does, and the render 
 
 from __future__ import annotations
 
-import dataclasses
 import html
 import logging
 import threading
@@ -67,8 +66,8 @@ from ..rendering.geometry.camera import Camera
 from ..rendering.pipeline.stream import render_frame
 from ..store.reader import EncryptedVolume
 from ..volume.pyramid import check_level
-from .checks import check_viewer, import_widgets, viewer_modes
-from .controls import arrange, camera_sliders, density_slider, mode_toggles, node_row
+from .checks import check_settle, check_viewer, import_widgets, viewer_modes
+from .controls import arrange, camera_sliders, density_slider, mode_toggles, node_row, slider_camera
 from .drag import Orbit, drag_image, png
 from .report import compare, status_text
 
@@ -164,9 +163,7 @@ class Viewer:
         self._held = False
         modes, mode = viewer_modes(ev, mode)
         self.preview = min(ev.levels, 2) if preview is None else check_level(preview, ev.levels, "preview")
-        if settle is not None and not (isinstance(settle, (int, float)) and settle >= 0):
-            raise ParameterError(f"settle: expected seconds >= 0 or None, got {settle!r}")
-        self.settle_after = settle
+        self.settle_after = check_settle(settle)
         self._timer: threading.Timer | None = None
         self._pending = False
         self._lock = threading.RLock()
@@ -203,25 +200,8 @@ class Viewer:
         """The camera of the current slider positions; for a preview at pyramid ``level``, with
         2^level times fewer pixels per axis (a level's voxels are 2^level times larger)."""
         w, h = (max(1, d >> level) for d in self.size)
-        if self.packed:  # the view angle zooms a parallel camera: the frame's half-height shrinks with it
-            cam = Camera.orbit(
-                self.ev,
-                azimuth=self.azimuth.value,
-                elevation=self.elevation.value,
-                width=w,
-                height=h,
-                parallel=True,
-                view=self.view,
-            )
-            return dataclasses.replace(cam, parallel_scale=cam.parallel_scale * self.view_angle.value / 30.0)
-        return Camera.orbit(
-            self.ev,
-            azimuth=self.azimuth.value,
-            elevation=self.elevation.value,
-            width=w,
-            height=h,
-            view_angle=self.view_angle.value,
-        )
+        angles = (self.azimuth.value, self.elevation.value, self.view_angle.value)
+        return slider_camera(self.ev, angles, w, h, self.view if self.packed else None)
 
     def nodes(self) -> list[tuple[float, str]]:
         """The transfer function of the editor: (density, '#rrggbb') per row, in row order."""
