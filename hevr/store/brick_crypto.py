@@ -29,19 +29,20 @@ def encrypt_components(
     interrupted job stops (:func:`hevr.runtime.cancel.check`) and a progress display of this process
     moves (:func:`hevr.runtime.cancel.add_steps`)."""
     out = np.empty((len(q),) + shape + (width,), dtype=np.uint8)
-    for j, row in enumerate(q):
-        cancel.check()
-        if be.name != "cpu":  # one batch (an accelerator's); its own type of result
-            with stats.timed("encrypt.crypto", len(row)):
-                cts = be.encrypt(key, row, unsafe_no_obfuscation=unsafe)
-            cancel.add_steps(len(row))
-        else:
-            cts = []
-            for lo in range(0, len(row), BATCH):
-                cancel.check()
-                part = row[lo : lo + BATCH]
-                with stats.timed("encrypt.crypto", len(part)):
-                    cts.extend(be.encrypt(key, part, unsafe_no_obfuscation=unsafe))
-                cancel.add_steps(len(part))
-        out[j] = be.to_bytes(cts, width).reshape(shape + (width,))
+    with cancel.batched_steps():  # on a worker: one event every 0.25 s, not one per batch
+        for j, row in enumerate(q):
+            cancel.check()
+            if be.name != "cpu":  # one batch (an accelerator's); its own type of result
+                with stats.timed("encrypt.crypto", len(row)):
+                    cts = be.encrypt(key, row, unsafe_no_obfuscation=unsafe)
+                cancel.add_steps(len(row))
+            else:
+                cts = []
+                for lo in range(0, len(row), BATCH):
+                    cancel.check()
+                    part = row[lo : lo + BATCH]
+                    with stats.timed("encrypt.crypto", len(part)):
+                        cts.extend(be.encrypt(key, part, unsafe_no_obfuscation=unsafe))
+                    cancel.add_steps(len(part))
+            out[j] = be.to_bytes(cts, width).reshape(shape + (width,))
     return out

@@ -99,7 +99,16 @@ def test_encrypt_a_memmap_larger_than_the_workers_memory_limit(tmp_path: Path) -
     hand with file_backed patched to return None: distributed.scheduler.KilledWorker after 4 workers
     died). Encrypting streamed bricks grows a worker by 20–22 MiB here (measured, 256-wide slices);
     the earlier margin of 24 MiB at the limit itself left the nanny ~19 MiB, and it restarted
-    workers over and over (the failure issue 49 reported)."""
+    workers over and over (the failure issue 49 reported).
+
+    Issue 49, for real: the footprint was measured after a warm-up of one 4³ brick, on one worker
+    (the other: 62 MiB against 81), so the margin held a 32³ brick's working set (12-16 MiB:
+    its ciphertexts as Python integers, its records, zstd's buffers) besides any growth; and each
+    batch of 64 values sent the client a worker event (147,000 for this volume), which piled up
+    in a worker while a busy scheduler fell behind (4-5 MiB a worker, 117 s against 38 s with a
+    starved scheduler). Now the warm-up encrypts bricks of the size used on both workers, the
+    events are one per 0.25 s (hevr.runtime.cancel.batched_steps), and the test asserts that no
+    worker was restarted (the same worker processes before and after)."""
     from distributed import Client, LocalCluster
 
     with warnings.catch_warnings():
@@ -117,13 +126,20 @@ def test_encrypt_a_memmap_larger_than_the_workers_memory_limit(tmp_path: Path) -
     def rss() -> int:
         return psutil.Process().memory_info().rss
 
-    warm = np.zeros((4, 4, 4))
+    warm = np.zeros((32, 64, 64))  # four bricks of the size below: one at a time on each worker
     with (
         LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc,
         Client(lc, set_as_default=False) as c,
-    ):  # each worker's footprint once everything is imported
+    ):  # each worker's footprint once everything is imported and a brick was encrypted there
         hevr.encrypt_volume(
-            warm, tmp_path / "warm.zarr", pub, value_range=(0, 1), client=c, progress=False, unsafe_no_obfuscation=True
+            warm,
+            tmp_path / "warm.zarr",
+            pub,
+            brick=32,
+            value_range=(0, 1),
+            client=c,
+            progress=False,
+            unsafe_no_obfuscation=True,
         )
         base = max(c.run(rss).values())
     margin = 32 * 2**20
@@ -138,6 +154,7 @@ def test_encrypt_a_memmap_larger_than_the_workers_memory_limit(tmp_path: Path) -
         ) as lc,
         Client(lc, set_as_default=False) as c,
     ):
+        workers = sorted(n.pid for n in lc.workers.values()), sorted(c.scheduler_info()["workers"])
         ev = hevr.encrypt_volume(
             vol,
             tmp_path / "big.zarr",
@@ -150,6 +167,8 @@ def test_encrypt_a_memmap_larger_than_the_workers_memory_limit(tmp_path: Path) -
             unsafe_no_obfuscation=True,
         )
         assert max(c.run(rss).values()) < limit
+        after = sorted(n.pid for n in lc.workers.values()), sorted(c.scheduler_info()["workers"])
+        assert after == workers and None not in after[0], (workers, after)  # no worker restarted
     idx = (2, 7, 3)
     got = np.array([priv.decrypt(x) for x in ev.read_brick(idx)]).reshape(ev.brick_shape(idx)) / 1e6
     np.testing.assert_allclose(got, np.asarray(vol[ev.brick_slices(idx)]), atol=1e-6)
