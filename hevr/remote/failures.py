@@ -92,10 +92,10 @@ def check_answer(model: Any, doc: Any, url: str, what: str) -> Any:
     >>> from hevr.remote.schema import Aggregate
     >>> check_answer(Aggregate, {"aggregate": "42"}, "http://s", "the verification answer").aggregate
     '42'
-    >>> check_answer(Aggregate, {"aggregate": "-5"}, "http://s", "the verification answer")
+    >>> check_answer(Aggregate, {"aggregate": "-5"}, "http://s", "the answer")
     Traceback (most recent call last):
     ...
-    hevr.errors.RemoteAnswerError: server http://s: the verification answer: aggregate: expected a string matching ^[0-9]+$, got '-5'
+    hevr.errors.RemoteAnswerError: server http://s: the answer: aggregate: expected a string matching ^[0-9]+$, got '-5'
     """
     try:
         return check(model, doc, what)

@@ -34,14 +34,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import MISSING, fields
-from functools import cache
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeAlias
 
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, create_model
-from pydantic.json_schema import GenerateJsonSchema, models_json_schema
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, create_model
+from pydantic.json_schema import JsonDict, models_json_schema
 
 from ..backends import AUTO, available_backends
-from ..errors import ParameterError
 from ..rendering.geometry.camera import Camera as _Camera
 from ..rendering.geometry.coordinates import MAX_COORDINATE
 from ..rendering.geometry.plane import MAX_SLAB
@@ -50,6 +48,7 @@ from ..rendering.planning.modes import SAMPLINGS
 from ..store.metadata import CHANNELS
 from ..store.packing import MAX_WEIGHT_BITS
 from ..volume.pyramid import MAX_LEVELS
+from .schema_words import _NoTitles, check, expected, message
 
 __all__ = [
     "BACKENDS",
@@ -101,6 +100,15 @@ def _default(cls: type, name: str) -> Any:
     return list(f.default) if isinstance(f.default, tuple) else None if f.default is MISSING else f.default
 
 
+# The names the wire accepts, from the constants the code uses: a Literal of them for pydantic (its
+# enum in the OpenAPI document); a str for static checkers, which cannot read a Literal of a tuple.
+if TYPE_CHECKING:
+    ChannelName: TypeAlias = str
+    SamplingName: TypeAlias = str
+    BackendName: TypeAlias = str
+else:
+    ChannelName, SamplingName, BackendName = Literal[CHANNELS], Literal[SAMPLINGS], Literal[BACKENDS]
+
 Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
 Vec3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
 Side = Annotated[int, Field(ge=1, le=MAX_SIDE)]
@@ -150,8 +158,8 @@ def _view_kind(value: Any) -> str:
 View = Annotated[Annotated[Camera, Tag("Camera")] | Annotated[Plane, Tag("Plane")], Discriminator(_view_kind)]
 
 
-_CAMERA_EXAMPLE = {"position": [3.5, 3.5, 40.0], "focal_point": [3.5, 3.5, 3.5], "width": 8, "height": 8}
-_PLANE_EXAMPLE = {
+_CAMERA_EXAMPLE: JsonDict = {"position": [3.5, 3.5, 40.0], "focal_point": [3.5, 3.5, 3.5], "width": 8, "height": 8}
+_PLANE_EXAMPLE: JsonDict = {
     "kind": "plane",
     "origin": [0.0, 0.0, 3.0],
     "u": [1.0, 0.0, 0.0],
@@ -174,8 +182,8 @@ class RenderRequest(Wire):
     )
 
     view: View = Field(description="a camera (level 0's frame) or a slice plane")
-    channel: Literal[CHANNELS] = Field(description="the store's channel to sum")
-    sampling: Literal[SAMPLINGS] = Field("nearest", description="how a sample reads the voxels")
+    channel: ChannelName = Field(description="the store's channel to sum")
+    sampling: SamplingName = Field("nearest", description="how a sample reads the voxels")
     step: Annotated[
         float, Field(gt=0, le=MAX_STEP, description="sample spacing in world units (a plane: its slab step)")
     ] = 1.0
@@ -183,7 +191,7 @@ class RenderRequest(Wire):
     digits: Annotated[int, Field(ge=0, le=MAX_DIGITS, description="decimal digits of trilinear weights")] = 3
     pack: bool = Field(True, description="pack many pixels per ciphertext")
     tile: Annotated[int, Field(ge=1, le=MAX_SIDE)] = Field(32, description="image tile edge (pixels) of the reduce")
-    backend: Literal[BACKENDS] | None = Field(None, description="the server's arithmetic backend (null: its default)")
+    backend: BackendName | None = Field(None, description="the server's arithmetic backend (null: its default)")
     weight_bits: Annotated[int, Field(ge=0, le=MAX_WEIGHT_BITS)] | None = Field(
         None, description="a packed store's in-slice weight bits (null: the store's)"
     )
@@ -191,11 +199,8 @@ class RenderRequest(Wire):
 
 #: A render request's fields but its view: what ``RenderRequest.__post_init__`` checks of a request
 #: built in Python (its view is a Camera or Plane object, checked by itself).
-RenderOptions = create_model(
-    "RenderOptions",
-    __base__=Wire,
-    **{name: (f.annotation, f) for name, f in RenderRequest.model_fields.items() if name != "view"},
-)
+_OPTIONS: dict[str, Any] = {name: (f.annotation, f) for name, f in RenderRequest.model_fields.items() if name != "view"}
+RenderOptions = create_model("RenderOptions", __base__=Wire, **_OPTIONS)
 
 
 class VerifyRequest(Wire):
@@ -260,13 +265,6 @@ class Problem(BaseModel):
 MODELS = (RenderRequest, VerifyRequest, Version, Health, Store, Stores, Aggregate, Problem)
 
 
-class _NoTitles(GenerateJsonSchema):
-    """JSON Schema without pydantic's generated field titles ("Focal Point")."""
-
-    def field_title_should_be_set(self, schema: Any) -> bool:
-        return False
-
-
 def components(ref: str = "#/components/schemas/{model}") -> dict[str, dict]:
     """The JSON Schema of every model, by name, its references ``ref`` (OpenAPI's components).
 
@@ -277,117 +275,7 @@ def components(ref: str = "#/components/schemas/{model}") -> dict[str, dict]:
     return doc["$defs"]
 
 
-@cache
-def _defs(model: type[BaseModel]) -> dict[str, dict]:
-    """The JSON Schema of ``model`` and of every model it refers to, by name (references
-    ``#/$defs/NAME``): what :func:`message` walks, derived from the model itself, so that any model
-    :func:`check` is given (``RenderOptions`` included) has its schema.
-
-    >>> sorted(_defs(RenderOptions))
-    ['RenderOptions']
-    """
-    _, doc = models_json_schema([(model, "validation")], ref_template="#/$defs/{model}", schema_generator=_NoTitles)
-    return doc["$defs"]
-
-
 _SCHEMAS = components("#/$defs/{model}")  # the protocol's models (field tables, expected())
-
-
-# ----------------------------------------------------------------------------------- errors
-def check(model: type[BaseModel], data: Any, name: str = "request") -> Any:
-    """``data`` validated by ``model``; a :class:`hevr.ParameterError` naming the field otherwise
-    (``name``: what the whole object is called)."""
-    try:
-        return model.model_validate(data)
-    except ValidationError as exc:
-        raise ParameterError(message(exc, model, name)) from None
-
-
-def _show(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
-
-
-def _deref(s: dict, defs: dict | None = None) -> dict:
-    while "$ref" in s:
-        s = (defs or _SCHEMAS)[s["$ref"].rsplit("/", 1)[1]]
-    return s
-
-
-def _walk(model: type[BaseModel], loc: tuple) -> tuple[str, dict, dict, bool]:
-    """(the field's path, the schema of the field, the schema of the node the error is at,
-    whether the walk stopped at a union's member) of a pydantic error location in ``model``."""
-    defs = _defs(model)
-    node = field = defs[model.__name__]
-    path = ""
-    for part in loc:
-        node = _deref(node, defs)
-        options = node.get("oneOf") or node.get("anyOf")
-        if options and isinstance(part, str) and {"$ref": f"#/$defs/{part}"} in options:
-            node = defs[part]  # a tagged member: the same field
-        elif isinstance(part, int) and "items" in node:
-            node = field = node["items"]
-            path += f"[{part}]"
-        elif isinstance(part, str) and part in node.get("properties", {}):
-            node = field = node["properties"][part]
-            path += f".{part}" if path else part
-        else:  # inside an untagged union (its members' names): the field as a whole
-            return path, field, field, True
-    return path, field, _deref(node, defs), False
-
-
-def _number(x: Any) -> str:
-    return str(x) if isinstance(x, int) else f"{x:g}"
-
-
-def expected(s: dict, defs: dict | None = None) -> str:
-    """What a JSON Schema accepts, in words (``defs``: the schemas its references name; None: the
-    protocol's models).
-
-    >>> expected({"type": "integer", "minimum": 0, "maximum": 8})
-    'an integer in [0, 8]'
-    >>> expected({"anyOf": [{"type": "number", "exclusiveMinimum": 0}, {"type": "null"}]})
-    'a number > 0 or null'
-    """
-    s = _deref(s, defs)
-    if "const" in s:
-        return json.dumps(s["const"])
-    if "enum" in s:
-        return "one of " + ", ".join(map(str, s["enum"]))
-    options = s.get("oneOf") or s.get("anyOf")
-    if options:
-        return " or ".join(expected(o, defs) for o in options)
-    kind = s.get("type")
-    if kind in ("integer", "number"):
-        lo = (
-            f"[{_number(s['minimum'])}"
-            if "minimum" in s
-            else f"({_number(s['exclusiveMinimum'])}"
-            if "exclusiveMinimum" in s
-            else None
-        )
-        hi = (
-            f"{_number(s['maximum'])}]"
-            if "maximum" in s
-            else f"{_number(s['exclusiveMaximum'])})"
-            if "exclusiveMaximum" in s
-            else None
-        )
-        what = "an integer" if kind == "integer" else "a number"
-        if lo and hi:
-            return f"{what} in {lo}, {hi}"
-        if lo:
-            return f"{what} {'>=' if lo[0] == '[' else '>'} {lo[1:]}"
-        return f"{what} {'<=' if hi[-1] == ']' else '<'} {hi[:-1]}" if hi else what
-    if kind == "array":
-        lo, hi = s.get("minItems", 0), s.get("maxItems")
-        count = f"{lo}" if lo == hi else f"{lo} to {hi}" if hi is not None else f"at least {lo}"
-        return f"an array of {count} items, each {expected(s.get('items', {}), defs)}"
-    if kind == "string":
-        return s.get("description") or (f"a string matching {s['pattern']}" if "pattern" in s else "a string")
-    if kind == "object":
-        return f"a {s['title']} object" if "title" in s else "a JSON object"
-    return {"boolean": "true or false", "null": "null"}.get(kind, "a JSON value")
 
 
 def field_table(model: type[BaseModel]) -> str:
@@ -405,34 +293,5 @@ def field_table(model: type[BaseModel]) -> str:
         default = "required" if name in s.get("required", ()) else f"`{json.dumps(prop.get('default'))}`"
         said = prop.get("type") == "string" and not {"enum", "const"} & set(prop)  # the description is `accepts`
         meaning = "" if said else prop.get("description", "")
-        rows.append(f"| `{name}` | {default} | {expected(prop)} | {meaning} |")
+        rows.append(f"| `{name}` | {default} | {expected(prop, _SCHEMAS)} | {meaning} |")
     return "\n".join(rows)
-
-
-def message(exc: ValidationError, model: type[BaseModel], name: str) -> str:
-    """The one-line message of a pydantic error of ``model`` (any model: its schema is derived
-    from it): unknown fields first, then missing ones, then the first field refused, each as
-    ``field: expected X, got Y``.
-
-    >>> try:
-    ...     RenderOptions.model_validate({"channel": "scalar", "step": -1.0})
-    ... except ValidationError as exc:
-    ...     message(exc, RenderOptions, "request")
-    'step: expected a number in (0, 1e+06], got -1.0'
-    """
-    errors = exc.errors(include_url=False)
-    for kind in ("extra_forbidden", "missing"):
-        found = [e for e in errors if e["type"] == kind]
-        if found:
-            where = min((_walk(model, e["loc"][:-1]) for e in found), key=lambda w: w[0].count("."))
-            names = sorted(str(e["loc"][-1]) for e in found if _walk(model, e["loc"][:-1])[0] == where[0])
-            node = where[2]
-            if kind == "extra_forbidden":
-                return (
-                    f"{where[0] or name}: expected only the fields {sorted(node.get('properties', {}))}, "
-                    f"got extra fields {names}"
-                )
-            return f"{where[0] or name}: expected the fields {sorted(node.get('required', []))}, missing {names}"
-    e = errors[0]
-    path, field, node, _ = _walk(model, e["loc"])
-    return f"{path or name}: expected {expected(field if path else node, _defs(model))}, got {_show(e['input'])}"

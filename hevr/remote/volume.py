@@ -141,7 +141,7 @@ class RemoteVolume(EncryptedVolume):
         raise TypeError("a RemoteVolume is not pickled: it holds a connection (open it again with hevr.connect)")
 
     def at_level(self, level: int) -> RemoteVolume:
-        base = self.base if self.level else self.meta
+        base = self.base if self.level and self.base is not None else self.meta  # a level's base: level 0's
         ev0 = self if not self.level else RemoteVolume(self.server, self.store_id, base, name=self.name)
         level = check_level(level, ev0.levels)
         if level == 0:
