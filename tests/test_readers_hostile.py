@@ -262,7 +262,7 @@ def test_overwriting_or_resuming_a_store_whose_zarr_json_is_a_fifo_does_not_bloc
     vol = np.zeros(SHAPE, np.uint8)
     for kw in ({"overwrite": True}, {"resume": True}):
         with pytest.raises(hevr.HevrError):
-            _bounded(lambda: hevr.encrypt_volume(vol, store, keypair256[0], brick=BRICK, progress=False, **kw), fifo)
+            _bounded(lambda: hevr.encrypt_volume(vol, store, keypair256[0], brick=BRICK, progress=False, **kw), fifo)  # noqa: B023 - _bounded calls it at once
     assert fifo.is_fifo()  # refused, not replaced: it is no hevr store
 
 
