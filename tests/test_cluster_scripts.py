@@ -63,7 +63,8 @@ def test_launch_help():
 
 
 def test_launch_import_starts_nothing():
-    code = f"import runpy, threading; runpy.run_path({str(LAUNCH)!r}, run_name='not_main'); print(threading.active_count())"
+    run = f"runpy.run_path({str(LAUNCH)!r}, run_name='not_main')"
+    code = f"import runpy, threading; {run}; print(threading.active_count())"
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30, env=_env())
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "1"  # no cluster, no event-loop thread
