@@ -206,7 +206,7 @@ def test_keep_sums_path_is_checked_before_any_map_task(stores, tmp_path, monkeyp
 
 # -- BUG: CLI outputs that overwrite each other -----------------------------------------------------------
 def test_cli_keep_sums_same_path_as_out_is_refused(stores, tmp_path, capsys):
-    """BUG (cli/commands.py cmd_render): 'hevr render STORE --out F --keep-sums F' writes the sums,
+    """BUG (cli/render.py cmd_render): 'hevr render STORE --out F --keep-sums F' writes the sums,
     then img.save(F) replaces them; exit 0 and it prints 'wrote F: the view's encrypted ray sums'
     although F is now a frame. Expected: exit 2, '--keep-sums: ...' (same for recolour --out SUMS,
     which silently replaces the sums it read)."""
