@@ -16,7 +16,8 @@ with data only. It never needs or accepts a private key, and no endpoint writes 
 :mod:`hevr.serve.store_watch`   a store re-encrypted under the server, noticed and opened again
 :mod:`hevr.serve.file_watch`    one watched file: stat at most once a second, changed or not
 :mod:`hevr.serve.openapi`       the protocol's OpenAPI document
-:mod:`hevr.serve.guard`         deadlines for every byte; connections per address and in all
+:mod:`hevr.serve.guard`         deadlines for every byte: uvicorn's h11 protocol, guarded
+:mod:`hevr.serve.connections`   the deadlines' settings; connections per address and in all
 :mod:`hevr.serve.run`           opening the stores, the cluster and uvicorn (the CLI's)
 ==============================  ==========================================================
 """

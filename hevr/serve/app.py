@@ -71,18 +71,24 @@ def create_app(
     return app
 
 
+def _settle(done: asyncio.Future[None]) -> None:
+    """Mark ``done`` finished, unless it is already (cancelled while the thread waited)."""
+    if not done.done():
+        done.set_result(None)
+
+
 async def _stop(svc: Service) -> None:
     """Cancel the running renders at once (no thread needed: each scope is cancelled from a thread of
     its own), then wait for them on a dedicated thread: never on anyio's pool, which renders may fill."""
     svc.limits.cancel_all(SHUTDOWN)
     loop = asyncio.get_running_loop()
-    done = loop.create_future()
+    done: asyncio.Future[None] = loop.create_future()
 
     def wait() -> None:
         try:
             svc.close()
         finally:
-            loop.call_soon_threadsafe(lambda: done.done() or done.set_result(None))
+            loop.call_soon_threadsafe(_settle, done)
 
     threading.Thread(target=wait, name="hevr-shutdown", daemon=True).start()
     await done

@@ -28,9 +28,9 @@ a token's ``concurrent``), the products of one token's running renders
 The count comes first (:meth:`Limits.enter`, free), then the estimate (:meth:`Budget.estimate`:
 it casts the rays: 0.07 s of CPU at 512² and 0.27 s at 1024², idle, 0.26 and 0.77 s on a loaded
 2-core machine, half the pipeline's own cast; so at most ``max_concurrent`` run at once, and the
-last :data:`CACHED` are kept by store and request, a 0.1 ms hit), then the products (:meth:`Limits.charge`). A running render holds a
-:class:`hevr.runtime.cancel.Scope`: a client that leaves, or the server's shutdown (:meth:`Limits.close`),
-cancels its tasks on the cluster.
+last :data:`CACHED` are kept by store and request, a 0.1 ms hit), then the products
+(:meth:`Limits.charge`). A running render holds a :class:`hevr.runtime.cancel.Scope`: a client that
+leaves, or the server's shutdown (:meth:`Limits.close`), cancels its tasks on the cluster.
 
 The settings are Dask config keys (``hevr.serve.max-products``, ``hevr.serve.max-token-products``,
 ``hevr.serve.max-pixels``; ``DASK_HEVR__SERVE__MAX_PRODUCTS`` … in the environment), which the CLI's
@@ -51,7 +51,7 @@ from collections import OrderedDict
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, overload
 
 import dask
 
@@ -108,6 +108,14 @@ def parse_count(name: str, value: Any, cap: int) -> int:
     if isinstance(given, str) and not isinstance(value, int):
         raise ParameterError(f"{name}: expected a whole number in [1, {cap}], got {given!r}")
     return check_int(name, value, 1, cap)
+
+
+@overload
+def _setting(key: str, default: int, cap: int) -> int: ...
+
+
+@overload
+def _setting(key: str, default: None, cap: int) -> int | None: ...
 
 
 def _setting(key: str, default: int | None, cap: int) -> int | None:

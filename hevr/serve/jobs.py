@@ -140,6 +140,8 @@ def _packed_plane(ev: Any, req: RenderRequest) -> Plane:
             f"channel: expected 'scalar' for a slice of the packed store {ev.meta.store_id}, got {req.channel!r}"
         )
     _step(req)
+    if not isinstance(req.view, Plane):  # the callers ask for a plane's slice only
+        raise ParameterError(f"view: expected a plane for a slice of the packed store {ev.meta.store_id}, got a camera")
     return req.view
 
 
@@ -216,7 +218,7 @@ def render_image(
         raise ParameterError(f"weight_bits: expected null for a per-voxel store, got {req.weight_bits}")
     mode, density, gradient = _mode(req)
     plane = isinstance(req.view, Plane)
-    return render_view(
+    img = render_view(
         ev,
         req.view,
         mode,
@@ -242,23 +244,27 @@ def render_image(
         stream=stream,
         verify=False,
     )
+    assert isinstance(img, EncryptedImage)  # compute=True: the image, not a dask Delayed
+    return img
 
 
 def verify_aggregate(ev: Any, req: RenderRequest, seed: bytes, *, client: Any, backend: str | None = None) -> int:
     """The tag aggregate of ``req``'s render for the key holder's ``seed``
     (:func:`hevr.rendering.verify.aggregate_for`; the store must have tags)."""
     if ev.meta.packing is not None and isinstance(req.view, Plane):
-        plane = _packed_plane(ev, req)
-        plan = PlanePlan.build(plane, ev.meta.shape, ev.meta.spacing, ev.meta.brick, ev.meta.packing, req.sampling)
+        slice_plane = _packed_plane(ev, req)
+        plane_plan = PlanePlan.build(
+            slice_plane, ev.meta.shape, ev.meta.spacing, ev.meta.brick, ev.meta.packing, req.sampling
+        )
         name = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), client=client)
-        return slice_aggregate(ev, plan, name, client, False, seed)[0]
+        return slice_aggregate(ev, plane_plan, name, client, False, seed)[0]
     if ev.meta.packing is not None:
-        view = _packed_view(ev, req)
+        camera = _packed_view(ev, req)
         if req.step != 1.0 or (req.level and req.channel != "scalar"):
             raise ParameterError("step/level: expected 1.0 on a packed store (and level 0 for its vector channels)")
-        ev_l, view = at_level(ev, view, req.level or None)  # a level the owner encrypted: its own plan and tags
-        check_render_size(view, ev_l.shape, ev_l.spacing, 1.0)  # the render's size limits, before any work
-        plan = SlicePlan.of_store(ev_l.meta, view, req.sampling, req.tile, req.weight_bits)
+        ev_l, level_view = at_level(ev, camera, req.level or None)  # a level the owner encrypted: its own plan and tags
+        check_render_size(level_view, ev_l.shape, ev_l.spacing, 1.0)  # the render's size limits, before any work
+        plan = SlicePlan.of_store(ev_l.meta, level_view, req.sampling, req.tile, req.weight_bits)
         name = resolve_backend_name(backend, int(ev.public_key.n).bit_length(), client=client)
         if req.channel != "scalar":
             return colour_aggregate(ev_l, plan, name, client, False, seed, req.channel)[0]

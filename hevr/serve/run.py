@@ -26,27 +26,27 @@ import logging
 import os
 import socket
 import ssl
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..errors import MissingDependencyError, MissingFileError, ParameterError
 from ..remote.protocol import check_store_name
 from ..store.reader import EncryptedVolume, open_volume
+from .connections import Deadlines
 
-try:
+if sys.platform != "win32":  # no open-files limit to raise on Windows
     import resource
-except ImportError:  # pragma: no cover - Windows
-    resource = None
 try:  # the 'serve' extra: Starlette and uvicorn (only their absence is a missing extra)
-    import starlette
+    import starlette  # noqa: F401  (the application's)
     import uvicorn
+
+    SERVE_EXTRA = True
 except ModuleNotFoundError:  # pragma: no cover - hevr serve says which extra
-    starlette = uvicorn = None
-if uvicorn is not None and starlette is not None:
+    SERVE_EXTRA = False
+if SERVE_EXTRA:
     from .app import create_app
-    from .guard import Deadlines, guarded_protocol, over_tls
-else:  # pragma: no cover
-    create_app = guarded_protocol = over_tls = Deadlines = None
+    from .guard import GuardedH11Protocol, guarded_protocol, over_tls
 
 log = logging.getLogger("hevr.serve")
 
@@ -120,7 +120,7 @@ def check_tls(cert: str | None, key: str | None) -> None:
     """
     if (cert is None) != (key is None):
         raise ParameterError("--tls-cert/--tls-key: expected both or neither, got one")
-    if cert is None:
+    if cert is None or key is None:  # neither (one without the other was refused above)
         return
     texts = {}
     for option, path in (("--tls-cert", cert), ("--tls-key", key)):
@@ -233,7 +233,7 @@ def _bind_error(exc: OSError, host: str, port: int) -> ParameterError:
 def _room_for(deadlines: Deadlines) -> Deadlines:
     """``deadlines`` with at most as many connections as the open-files limit leaves room for (the
     soft limit raised towards the hard one first)."""
-    if resource is None:  # pragma: no cover - Windows
+    if sys.platform == "win32":  # pragma: no cover - no open-files limit
         return deadlines
     need = deadlines.connections + 256  # the stores, the cluster's sockets, the log
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
@@ -256,15 +256,17 @@ def _room_for(deadlines: Deadlines) -> Deadlines:
     return deadlines
 
 
-if uvicorn is not None:
+if SERVE_EXTRA:
 
     class _Server(uvicorn.Server):
         """uvicorn's server on sockets bound beforehand (:func:`bind`), with TLS in the guarded
         protocol (:func:`~hevr.serve.guard.over_tls`: bounds from the TCP accept, a handshake deadline)."""
 
-        def __init__(self, config: Any, sockets: list[socket.socket], handshake: float) -> None:
+        def __init__(
+            self, config: Any, sockets: list[socket.socket], handshake: float, protocol: type[GuardedH11Protocol]
+        ) -> None:
             super().__init__(config)
-            self.bound, self.handshake = sockets, handshake
+            self.bound, self.handshake, self.protocol_class = sockets, handshake, protocol
 
         async def startup(self, sockets: Any = None) -> None:
             await self.lifespan.startup()
@@ -272,8 +274,8 @@ if uvicorn is not None:
                 raise RuntimeError("hevr serve: the application did not start (its log says why)")
             loop, config = asyncio.get_running_loop(), self.config
 
-            def protocol(_loop: Any = None) -> asyncio.Protocol:
-                app = config.http_protocol_class(
+            def protocol(_loop: Any = None) -> asyncio.BaseProtocol:
+                app = self.protocol_class(  # config.http_protocol_class: the guarded protocol (serve)
                     config=config, server_state=self.server_state, app_state=self.lifespan.state, _loop=_loop
                 )
                 return app if config.ssl is None else over_tls(app, config.ssl, self.handshake)
@@ -336,7 +338,7 @@ def serve(
     ``on_ready(url)`` is called once the socket listens. Every connection keeps ``deadlines``
     (default: :meth:`Deadlines.from_config`; :mod:`hevr.serve.guard`). The TLS files, the host and
     the port are checked before anything starts (:func:`check_tls`, :func:`bind`)."""
-    if uvicorn is None or create_app is None:
+    if not SERVE_EXTRA:
         raise MissingDependencyError(
             "hevr serve needs the 'serve' extra (Starlette, uvicorn): pip install 'hevr[serve]'"
         )
@@ -359,11 +361,12 @@ def serve(
             proxy_headers=False,
             ssl_certfile=tls_cert,
             ssl_keyfile=tls_key,
-            timeout_keep_alive=deadlines.idle,
+            # uvicorn annotates int; it hands the seconds to loop.call_later, which takes a float
+            timeout_keep_alive=deadlines.idle,  # type: ignore[arg-type]
             limit_concurrency=None,
             h11_max_incomplete_event_size=64 * 1024,
         )
-        server = _Server(config, sockets, deadlines.handshake)
+        server = _Server(config, sockets, deadlines.handshake, protocol)
     except BaseException:
         for s in sockets:
             s.close()
@@ -372,14 +375,14 @@ def serve(
     bound = sockets[0].getsockname()[1]
 
     async def main() -> None:
-        task = asyncio.create_task(startup()) if on_ready is not None else None
+        task = asyncio.create_task(startup(on_ready)) if on_ready is not None else None
         await server.serve()
         if task is not None:
             task.cancel()
 
-    async def startup() -> None:
+    async def startup(ready: Callable[[str], None]) -> None:
         while not server.started:  # pragma: no branch - polled until the socket listens
             await asyncio.sleep(0.02)
-        on_ready(f"{scheme}://{host if ':' not in host else f'[{host}]'}:{bound}")
+        ready(f"{scheme}://{host if ':' not in host else f'[{host}]'}:{bound}")
 
     asyncio.run(main())

@@ -113,6 +113,7 @@ class StoreWatch:
             if w is None or sid not in svc.stores or sid in self._reopening:
                 continue
             retry = self._retry.get(sid)
+            key: tuple[Any, ...] | None
             if retry is not None:
                 if self.clock() < retry[1]:
                     continue

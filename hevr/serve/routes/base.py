@@ -27,7 +27,7 @@ from typing import Any, NamedTuple
 import anyio
 from starlette.requests import ClientDisconnect, Request
 from starlette.responses import Response
-from starlette.types import Message, Receive, Scope, Send
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from ...errors import CorruptStoreError
 from ..problems import as_problem
@@ -109,7 +109,9 @@ class _Logged:
             log_line(self.request, code, sent, self.name, time.perf_counter() - self.t0, note)
 
 
-def endpoint(fn: Callable[[Request, Caller], Awaitable[Response]], *, public: bool = False) -> Callable:
+def endpoint(
+    fn: Callable[[Request, Caller], Awaitable[ASGIApp]], *, public: bool = False
+) -> Callable[[Request], Awaitable[Any]]:
     """A Starlette endpoint of ``fn(request, caller)``: the token checked first (unless ``public``),
     every failure a problem document, one log line per request (the module docstring)."""
 

@@ -112,7 +112,7 @@ class _Stream:
                 await asyncio.wait({self.work})
 
 
-async def stream(request: Request, caller: Caller) -> Response:
+async def stream(request: Request, caller: Caller) -> Response | _Stream:
     svc = service(request)
     ev = svc.store(request, caller.token)
     req = RenderRequest.from_dict(parse_json(await read_body(request), "body"))
