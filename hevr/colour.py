@@ -33,16 +33,14 @@ Re-colouring (:meth:`Frame.recolour`) is one (H·W, K) × (K, C) product: millis
 
 from __future__ import annotations
 
-import numbers
-import re
 import time
 from dataclasses import dataclass, field
 from fractions import Fraction
 from typing import Any
 
 import numpy as np
-from PIL import ImageColor
 
+from .core.colours import CSS_COLORS, parse_color, parse_nodes, unit_density
 from .core.validate import check_choice
 from .errors import ParameterError
 from .volume.density import encode_density
@@ -61,105 +59,6 @@ __all__ = [
 ]
 
 MODES = ("xray", "emphasize", "tf")
-
-# CSS Color Module values (so "green" and "purple" are the half-intensity CSS colours;
-# "lime" is pure green).
-CSS_COLORS: dict[str, tuple[float, float, float]] = {
-    "black": (0.0, 0.0, 0.0),
-    "white": (1.0, 1.0, 1.0),
-    "red": (1.0, 0.0, 0.0),
-    "lime": (0.0, 1.0, 0.0),
-    "green": (0.0, 128 / 255, 0.0),
-    "blue": (0.0, 0.0, 1.0),
-    "yellow": (1.0, 1.0, 0.0),
-    "cyan": (0.0, 1.0, 1.0),
-    "magenta": (1.0, 0.0, 1.0),
-    "purple": (128 / 255, 0.0, 128 / 255),
-    "orange": (1.0, 165 / 255, 0.0),
-    "gray": (128 / 255, 128 / 255, 128 / 255),
-}
-
-_HEX = re.compile(r"^#([0-9a-fA-F]{6}|[0-9a-fA-F]{3})$")
-
-
-def parse_color(c: Any) -> tuple[float, float, float]:
-    """Parse a colour: (r, g, b) floats in [0, 1], ``'#rrggbb'``/``'#rgb'`` or a CSS name
-    (any of the ~150 names of Pillow's ``ImageColor`` table; :data:`CSS_COLORS` lists the
-    common ones, with the same values).
-
-    Examples
-    --------
-    >>> parse_color("#ff8000")
-    (1.0, 0.5019607843137255, 0.0)
-    >>> parse_color("Red"), parse_color((0, 0, 1)), parse_color("#00f")
-    ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, 1.0))
-    >>> parse_color("steelblue")
-    (0.27450980392156865, 0.5098039215686274, 0.7058823529411765)
-    """
-    if isinstance(c, str):
-        text = c.strip()
-        m = _HEX.match(text)
-        if m:
-            h = m.group(1)
-            if len(h) == 3:
-                h = "".join(ch * 2 for ch in h)
-            return tuple(int(h[i : i + 2], 16) / 255 for i in (0, 2, 4))  # type: ignore[return-value]
-        name = text.lower()
-        if name in CSS_COLORS:
-            return CSS_COLORS[name]
-        if name in ImageColor.colormap:
-            return tuple(v / 255 for v in ImageColor.getrgb(name)[:3])  # type: ignore[return-value]
-        raise ParameterError(
-            f"color: expected (r, g, b) in [0, 1], '#rgb', '#rrggbb' or a CSS colour name (one of "
-            f"{len(ImageColor.colormap)}, e.g. {', '.join(sorted(CSS_COLORS)[:6])}, steelblue), got {c!r}"
-        )
-    try:
-        vals = [x for x in c]
-    except TypeError:
-        vals = []
-    if len(vals) != 3 or any(isinstance(x, bool) or not isinstance(x, numbers.Real) for x in vals):
-        raise ParameterError(f"color: expected (r, g, b) in [0, 1], '#rrggbb' or a CSS name, got {c!r}")
-    rgb = tuple(float(x) + 0.0 for x in vals)
-    if not all(0.0 <= x <= 1.0 for x in rgb):  # also rejects NaN
-        raise ParameterError(f"color: expected components in [0, 1], got {c!r}")
-    return rgb  # type: ignore[return-value]
-
-
-def unit_density(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0.0 <= float(value) <= 1.0:
-        raise ParameterError(f"{name}: expected a normalised density in [0, 1], got {value!r}")
-    return float(value) + 0.0
-
-
-def parse_nodes(nodes: Any) -> tuple[tuple[float, tuple[float, float, float]], ...]:
-    if nodes is None:
-        raise ParameterError("nodes: expected a list of (density, color) pairs for mode='tf', got None")
-    try:
-        items = list(nodes)
-    except TypeError:
-        raise ParameterError(f"nodes: expected a list of (density, color) pairs, got {nodes!r}") from None
-    if not items:
-        raise ParameterError("nodes: expected at least one (density, color) pair, got none")
-    out = []
-    for i, node in enumerate(items):
-        try:
-            d, col = node
-        except (TypeError, ValueError):
-            raise ParameterError(f"nodes[{i}]: expected a (density, color) pair, got {node!r}") from None
-        density = unit_density(f"nodes[{i}] density", d)
-        try:
-            out.append((density, parse_color(col)))
-        except ParameterError as exc:
-            raise ParameterError(f"nodes[{i}]: {exc}") from None
-    seen: dict[float, int] = {}
-    for i, (d, _) in enumerate(out):
-        if d in seen:
-            raise ParameterError(
-                f"nodes: expected distinct densities, got {d:g} twice (nodes[{seen[d]}] and "
-                f"nodes[{i}]); give each density one colour"
-            )
-        seen[d] = i
-    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -227,7 +126,7 @@ class Colouring:
             "mode: expected 'emphasize' or 'tf' for a combination matrix (an X-ray has none), got 'xray'"
         )
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "mode": self.mode,
             "density": self.density,
@@ -240,7 +139,7 @@ class Colouring:
             raise ParameterError(f"colouring: expected a dict with mode, density and nodes, got {d!r:.80}")
         return cls(d["mode"], d.get("density"), d.get("nodes"))
 
-    def key(self) -> tuple:
+    def key(self) -> tuple[Any, ...]:
         return (self.mode, self.density, self.nodes)
 
 
@@ -258,10 +157,10 @@ def colouring_spec(
 
     >>> colouring_spec("vector", 4, nodes=[(0.5, "red")]).mode
     'tf'
-    >>> colouring_spec("vector", 4)
+    >>> colouring_spec("vector", 4)  # doctest: +ELLIPSIS
     Traceback (most recent call last):
         ...
-    hevr.errors.ParameterError: nodes: expected a transfer function (nodes=[(density, colour), ...]) or an emphasised density (density=...) to colour a frame of the vector channel's ray sums, got neither
+    hevr.errors.ParameterError: nodes: expected a transfer function (...) or an emphasised density ..., got neither
     """
     if mode is None and density is None and nodes is None:
         if default is not None:
@@ -329,7 +228,7 @@ class Frame:
     n_samples: np.ndarray
     channel: str
     colouring: Colouring | None = field(default=None, repr=False)
-    stats: dict = field(default_factory=dict)
+    stats: dict[str, Any] = field(default_factory=dict)
 
     def __repr__(self) -> str:  # never the pixels, never the colouring
         H, W, K = self.means.shape
@@ -394,7 +293,7 @@ def frame_from_sums(
     n_samples: np.ndarray,
     channel: str,
     colouring: Colouring | None,
-    stats: dict,
+    stats: dict[str, Any],
     t0: float | None = None,
 ) -> Frame:
     """A :class:`Frame` from the scaled sums S·10^exponent (H, W, K) (:func:`scaled_sums`) and
