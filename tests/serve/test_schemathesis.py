@@ -123,17 +123,17 @@ def run(schema, stores: list[str], counts: dict, token: str) -> None:
                 suppress_health_check=list(HealthCheck),
             )
             @given(case=op.as_strategy(generation_mode=mode), store=st.sampled_from([*stores, None]))
-            def one(case, store):
+            def one(case, store):  # called at once below, in this iteration: its loop variables are current
                 if store and "store" in (case.path_parameters or {}):
                     case.path_parameters = {**case.path_parameters, "store": store}
-                if mode.is_positive and isinstance(case.body, dict):
+                if mode.is_positive and isinstance(case.body, dict):  # noqa: B023 (runs in this iteration)
                     case.body = _integers(case.body)
-                _authorise(case, token, mode.is_positive)
+                _authorise(case, token, mode.is_positive)  # noqa: B023 (runs in this iteration)
                 response = case.call()
-                key = f"{op.label} {mode.value}"
+                key = f"{op.label} {mode.value}"  # noqa: B023 (runs in this iteration)
                 counts.setdefault(key, {}).setdefault(response.status_code, 0)
                 counts[key][response.status_code] += 1
-                case.validate_response(response, checks=checks)
+                case.validate_response(response, checks=checks)  # noqa: B023 (runs in this iteration)
                 _problem(response)
 
             try:

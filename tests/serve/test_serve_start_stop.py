@@ -49,7 +49,8 @@ def test_bad_tls_files_and_hosts_are_one_line_naming_the_option(served_store, pe
     cases = [
         (
             ("--tls-cert", pems / "key.pem", "--tls-key", pems / "cert.pem"),
-            "--tls-cert: expected a certificate in PEM, got .*key.pem without one; --tls-cert and --tls-key look swapped",
+            "--tls-cert: expected a certificate in PEM, got .*key.pem without one; "
+            "--tls-cert and --tls-key look swapped",
         ),
         (
             ("--tls-cert", pems / "cert.pem", "--tls-key", pems / "other.pem"),
