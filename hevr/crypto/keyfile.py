@@ -1,5 +1,5 @@
-"""JSON key files: writing (:func:`save_key`, behind :meth:`PublicKey.save` / :meth:`PrivateKey.save`;
-private files 0600, atomically) and validated loading (:func:`load_key`).
+"""JSON key files: validated loading (writing is :meth:`PublicKey.save` / :meth:`PrivateKey.save`,
+:mod:`hevr.crypto.key_json`: private files 0600, atomically).
 
 A key file is a JSON object ``{"format": "hevr-key", "version": 1, "kind":
 "public"|"private", "bits": …, "n": "…", "fingerprint": "…"}`` plus ``"p"`` and ``"q"``
@@ -33,14 +33,14 @@ from typing import Any
 import gmpy2
 from gmpy2 import mpz
 
-from ..core.files import require_file, write_atomic
+from ..core.files import require_file
 from ..core.validate import is_decimal
-from ..errors import InsecureKeyWarning, InvalidKeyError, KeyFilePermissionWarning, ParameterError
-from .keys import KEY_FORMATS, MAX_BITS, MIN_BITS, SECURE_BITS, PrivateKey, PublicKey
+from ..errors import InsecureKeyWarning, InvalidKeyError, KeyFilePermissionWarning
+from .keys import MAX_BITS, MIN_BITS, SECURE_BITS, PrivateKey, PublicKey
 from .paillier import factor_problem
-from .phe_keys import is_phe_dict, key_from_phe_dict, phe_key_dict
+from .phe_keys import is_phe_dict, key_from_phe_dict
 
-__all__ = ["MAX_KEY_FILE_BYTES", "PRIVATE_FIELDS", "key_dict", "load_key", "modulus_problem", "save_key"]
+__all__ = ["MAX_KEY_FILE_BYTES", "PRIVATE_FIELDS", "load_key", "modulus_problem"]
 
 # A private key file of MAX_BITS holds about 2.5 kB: anything much bigger is not a key file,
 # and is refused before it is read into memory.
@@ -51,52 +51,6 @@ _MAX_DIGITS = math.ceil(MAX_BITS * math.log10(2)) + 1
 PRIVATE_FIELDS = ("p", "q", "lambda", "mu")
 # No prime factor of a valid n lies below this: p and q have at least MIN_BITS/2 = 32 bits.
 _SMALL_PRIMES_BELOW = 1 << 16
-
-
-def _check_format(format: str) -> str:
-    """``format`` if it is one of :data:`hevr.crypto.keys.KEY_FORMATS`, else :class:`hevr.ParameterError`.
-
-    >>> _check_format("pem")
-    Traceback (most recent call last):
-    ...
-    hevr.errors.ParameterError: format: expected 'hevr' or 'phe', got 'pem'
-    """
-    if not isinstance(format, str) or format not in KEY_FORMATS:
-        raise ParameterError(f"format: expected 'hevr' or 'phe', got {format!r:.40}")
-    return format
-
-
-def key_dict(key: PublicKey | PrivateKey, format: str = "hevr") -> dict[str, Any]:
-    """The JSON object of ``key``'s file (secret for a private key): ``format="hevr"`` (hevr's,
-    module docstring) or ``"phe"`` (pheutil's: :func:`hevr.crypto.phe_keys.phe_key_dict`).
-
-    >>> sorted(key_dict(PublicKey(65537 * 65539)))
-    ['bits', 'fingerprint', 'format', 'kind', 'n', 'version']
-    """
-    if _check_format(format) == "phe":
-        return phe_key_dict(key)
-    pub = key.public_key if isinstance(key, PrivateKey) else key
-    d: dict[str, Any] = {
-        "format": "hevr-key",
-        "version": 1,
-        "kind": "public",
-        "bits": pub.bits,
-        "n": str(int(pub.n)),
-        "fingerprint": pub.fingerprint,
-    }
-    if isinstance(key, PrivateKey):
-        d.update(kind="private", p=str(int(key.p)), q=str(int(key.q)), policy={"require_tags": key.require_tags})
-    return d
-
-
-def save_key(
-    key: PublicKey | PrivateKey, path: str | os.PathLike[str], *, overwrite: bool = False, format: str = "hevr"
-) -> None:
-    """Write ``key``'s file (:func:`key_dict`) atomically: a private key created with mode 0600, a
-    public one 0644. An existing file is replaced only with ``overwrite=True``
-    (:class:`hevr.ExistingFileError`): a private key written over loses every image it decrypts."""
-    text = json.dumps(key_dict(key, format), indent=1) + "\n"
-    write_atomic(path, text, mode=0o600 if isinstance(key, PrivateKey) else 0o644, overwrite=overwrite)
 
 
 @functools.lru_cache(maxsize=1)

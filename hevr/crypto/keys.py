@@ -1,7 +1,7 @@
 """Paillier keys (g = n + 1): generation, and thin classes over the ``raw_`` integer functions of
 :mod:`hevr.crypto.paillier` for encryption and CRT decryption. Key files (hevr's JSON or
-python-paillier's) are :mod:`hevr.crypto.keyfile`'s and :mod:`hevr.crypto.phe_keys`' business; the
-classes' ``save`` and ``to_dict`` hand over to them.
+python-paillier's) are built and written by :mod:`hevr.crypto.key_json` (the classes' ``to_dict`` and
+``save`` hand over to it) and read by :mod:`hevr.crypto.keyfile` and :mod:`hevr.crypto.phe_keys`.
 
 >>> import warnings, hevr
 >>> with warnings.catch_warnings():
@@ -30,6 +30,7 @@ from gmpy2 import mpz
 from ..errors import InsecureKeyWarning, KeyMismatchError, ParameterError
 from . import paillier as raw
 from .encoding import decode
+from .key_json import KEY_FORMATS, private_dict, public_dict, write_key
 from .number import EncryptedNumber
 from .owner import OwnerEncryptor, owner_tables
 from .paillier import factor_problem
@@ -41,9 +42,6 @@ log = logging.getLogger(__name__)
 
 MIN_BITS, MAX_BITS, SECURE_BITS = 64, 4096, 2048
 
-# Key-file formats :meth:`PublicKey.save` / :meth:`PrivateKey.save` write: hevr's own, and the
-# JSON of python-paillier's ``pheutil`` (described in :mod:`hevr.crypto.phe_keys`).
-KEY_FORMATS = ("hevr", "phe")
 
 __all__ = [
     "PublicKey",
@@ -171,21 +169,17 @@ class PublicKey:
         if gmpy2.gcd(c, self.n) != 1:
             raise ParameterError("ciphertext must be coprime to n; got one that is not")
 
-    # -- files (:mod:`hevr.crypto.keyfile`) ------------------------------------------------
+    # -- files (:mod:`hevr.crypto.key_json`) -----------------------------------------------
     def to_dict(self, format: str = "hevr") -> dict[str, Any]:
         """The JSON object of the key file: ``format="hevr"`` (hevr's) or ``"phe"`` (pheutil's)."""
-        from .keyfile import key_dict  # keyfile imports this module
-
-        return key_dict(self, format)
+        return public_dict(self.n, format)
 
     def save(self, path: str | os.PathLike[str], overwrite: bool = False, format: str = "hevr") -> None:
         """Write the public key as JSON (world-readable is fine); read it with :func:`hevr.load_key`.
         An existing file is replaced only with ``overwrite=True`` (:class:`hevr.ExistingFileError`).
         ``format="phe"`` writes python-paillier's ``pheutil`` JSON instead of hevr's
-        (:func:`hevr.crypto.keyfile.save_key`)."""
-        from .keyfile import save_key  # keyfile imports this module
-
-        save_key(self, path, overwrite=overwrite, format=format)
+        (:func:`hevr.crypto.key_json.write_key`)."""
+        write_key(path, self.to_dict(format), secret=False, overwrite=overwrite)
 
 
 class PrivateKey:
@@ -323,22 +317,18 @@ class PrivateKey:
             )
         return self.decrypt(x.ciphertext)
 
-    # -- files (:mod:`hevr.crypto.keyfile`) ------------------------------------------------
+    # -- files (:mod:`hevr.crypto.key_json`) -----------------------------------------------
     def to_dict(self, format: str = "hevr") -> dict[str, Any]:
         """The JSON object of the key file (secret): ``format="hevr"`` or ``"phe"`` (pheutil's)."""
-        from .keyfile import key_dict  # keyfile imports this module
-
-        return key_dict(self, format)
+        return private_dict(self.p, self.q, self.require_tags, format)
 
     def save(self, path: str | os.PathLike[str], overwrite: bool = False, format: str = "hevr") -> None:
         """Write the private key as JSON, created with mode 0600 (atomically); read it with
         :func:`hevr.load_key`. An existing file is never replaced unless ``overwrite=True``
         (:class:`hevr.ExistingFileError`): a key written over loses every image it decrypts.
         ``format="phe"`` writes python-paillier's ``pheutil`` JSON instead of hevr's
-        (:func:`hevr.crypto.keyfile.save_key`)."""
-        from .keyfile import save_key  # keyfile imports this module
-
-        save_key(self, path, overwrite=overwrite, format=format)
+        (:func:`hevr.crypto.key_json.write_key`)."""
+        write_key(path, self.to_dict(format), secret=True, overwrite=overwrite)
 
 
 def _private_key(public_key: PublicKey, p: int, q: int, require_tags: bool) -> PrivateKey:

@@ -64,17 +64,6 @@ _FACTOR_TRIES = 40  # random bases for Miller's method (each succeeds with proba
 _PRIVATE_FIELDS = ("pub", "p", "q", "lambda", "mu")
 
 
-def _b64url(x: int) -> str:
-    """A positive integer as unpadded base64url of its minimal big-endian bytes (JWK style,
-    as python-paillier's ``phe.util.int_to_base64``).
-
-    >>> _b64url(65537)
-    'AQAB'
-    """
-    x = int(x)
-    return base64.urlsafe_b64encode(x.to_bytes((x.bit_length() + 7) // 8, "big")).rstrip(b"=").decode("ascii")
-
-
 def phe_key_dict(key: PublicKey | PrivateKey) -> dict[str, Any]:
     """The pheutil JSON object of an hevr key (secret for a private key).
 
@@ -96,22 +85,7 @@ def phe_key_dict(key: PublicKey | PrivateKey) -> dict[str, Any]:
     """
     if not isinstance(key, (PublicKey, PrivateKey)):
         raise ParameterError(f"key: expected a PublicKey or PrivateKey, got {type(key).__name__}")
-    if isinstance(key, PrivateKey):
-        return {
-            "kty": PHE_KTY,
-            "key_ops": ["decrypt"],
-            "p": _b64url(key.p),
-            "q": _b64url(key.q),
-            "pub": phe_key_dict(key.public_key),
-            "kid": f"Paillier private key exported by hevr, fingerprint {key.fingerprint}",
-        }
-    return {
-        "kty": PHE_KTY,
-        "alg": PHE_ALG,
-        "key_ops": ["encrypt"],
-        "n": _b64url(key.n),
-        "kid": f"Paillier public key exported by hevr, fingerprint {key.fingerprint}",
-    }
+    return key.to_dict(format="phe")
 
 
 def is_phe_dict(d: object) -> bool:

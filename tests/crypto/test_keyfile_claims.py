@@ -12,8 +12,8 @@ import pytest
 
 import hevr
 from hevr.cli.main import main
+from hevr.crypto.key_json import b64url as _b64url
 from hevr.crypto.keyfile import modulus_problem
-from hevr.crypto.phe_keys import _b64url
 from hevr.errors import KeyFilePermissionWarning
 
 
