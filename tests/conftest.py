@@ -8,7 +8,9 @@ launcher's whole path (device arrays, marshalling, the key holder's kernels) run
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 
@@ -25,6 +27,24 @@ if os.environ.get("HEVR_TEST_FAKE_CUPY") == "1":  # before any test module asks 
 
     sys.modules["cupy"] = FakeCupy
     os.environ["HEVR_TEST_KERNELS"] = "cuda"
+
+
+def pytest_configure(config):
+    """pytest-xdist starts its workers with SIGINT ignored (a terminal's Ctrl-C is for the
+    controller), and a process started so ignores it too: the Ctrl-C tests (tests/test_dask.py, the
+    CLI's, hevr serve's) would interrupt nothing. Each worker takes Python's handler back.
+
+    Dask's connect timeout, 30 s, is raised to 120 s here and in the processes the tests start
+    (hevr serve, the CLI): at a load of 20 on 2 cores, starting a local cluster's worker processes
+    beside the other test processes took longer (issue 49: "hevr: error: TimeoutError")."""
+    os.environ["DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT"] = "120s"
+    dask.config.set({"distributed.comm.timeouts.connect": "120s"})
+    if (
+        os.environ.get("PYTEST_XDIST_WORKER")
+        and threading.current_thread() is threading.main_thread()
+        and signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+    ):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _keypair(bits: int, require_tags: bool = False):
@@ -118,7 +138,8 @@ def s3_server():
 @pytest.fixture(scope="session")
 def cli_store(tmp_path_factory):
     """The CLI tests' set-up: ``cli_store(name, size=10, brick=4, dims=3, store="vol.zarr")``, a
-    folder holding ``key.json`` (256 bits) and ``hevr encrypt phantom:SIZE`` (brick ``brick``, a ``dims``-dim vector channel) at ``store``."""
+    folder holding ``key.json`` (256 bits) and ``hevr encrypt phantom:SIZE`` (brick ``brick``, a
+    ``dims``-dim vector channel) at ``store``."""
 
     from hevr.cli.main import main  # only where a CLI test asks for it
 

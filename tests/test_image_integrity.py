@@ -414,7 +414,7 @@ def test_crafted_headers_fail_fast_and_small(tmp_path, valid):
             seconds = time.perf_counter() - t0
             peak = tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
-        assert seconds < 1.0, (name, seconds)
+        assert seconds < 3.0, (name, seconds)  # ~0.1 s; 1.5 s under tracemalloc at load 20 (issue 49)
         assert peak < 10 * len(data) + (1 << 20), (name, peak, len(data))
         names.append(name)
     assert len(names) >= 110, len(names)

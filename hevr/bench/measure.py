@@ -26,6 +26,7 @@ from gmpy2 import mpz
 
 from .. import __version__
 from ..runtime import stats
+from ..runtime.scheduler import workers_of
 
 
 def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
@@ -184,7 +185,7 @@ def workers(n_workers: int, scheduler: str | None = None) -> Iterator[Workers]:
         return
     if scheduler:
         with Client(scheduler) as client:
-            n = len(client.scheduler_info()["workers"])
+            n = len(workers_of(client))
             client.run(_warm)
             yield Workers(client, False, n)
         return

@@ -32,6 +32,7 @@ from distributed import get_task_stream
 from distributed.diagnostics.plugin import SchedulerPlugin
 
 from ..rendering.encrypted import render
+from ..runtime.scheduler import workers_of
 
 __all__ = ["trace_frame", "simulate", "predict"]
 
@@ -95,7 +96,7 @@ def trace_frame(client: Any, ev: Any, camera: Any, **kw: Any) -> dict:
     by_kind: dict[str, list[float]] = defaultdict(list)
     for k, d in dur.items():
         by_kind[_kind(k)].append(d)
-    n_workers = len(client.scheduler_info()["workers"])
+    n_workers = len(workers_of(client))
     # Task times come from the workers' clocks (the same clock on one machine; a cluster's are
     # offset-corrected by distributed): a few ms of skew can make the serial parts slightly negative.
     return {

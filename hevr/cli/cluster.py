@@ -20,8 +20,9 @@ from typing import Any
 from distributed import Client, LocalCluster
 from distributed.comm.addressing import parse_address
 from distributed.comm.registry import get_backend
+from distributed.core import Status
 
-from ..runtime.scheduler import own_cluster
+from ..runtime.scheduler import own_cluster, workers_of
 from .util import UsageError
 
 __all__ = ["check_scheduler", "dask_client", "describe_client"]
@@ -127,8 +128,6 @@ def _stop_workers(cluster: Any) -> None:
     Each nanny is told first that it is closing: a nanny whose worker dies while it runs starts a
     new worker process, and the cluster's close then waited for that one to start and stop (seconds
     on a loaded machine: issue 49)."""
-    from distributed.core import Status
-
     for name in ("distributed", "tornado", "asyncio"):
         logging.getLogger(name).setLevel(logging.CRITICAL + 1)
     for nanny in list(getattr(cluster, "workers", {}).values()):
@@ -145,7 +144,7 @@ def describe_client(client: Any) -> str:
         return "Dask's default (threaded) scheduler"
     n: int | str
     try:
-        n = len(client.scheduler_info().get("workers", {}))
+        n = len(workers_of(client))
     except Exception:  # pragma: no cover - informational only
         n = "?"
     try:

@@ -23,7 +23,7 @@ from typing import Any
 
 import dask
 import dask.threaded
-from distributed import LocalCluster, as_completed, default_client
+from distributed import Client, LocalCluster, as_completed, default_client
 from distributed.comm.addressing import normalize_address
 
 from ..errors import ForeignClusterError, ParameterError
@@ -43,6 +43,7 @@ __all__ = [
     "refuse_foreign_cluster",
     "scheduler_address",
     "warn_if_remote",
+    "workers_of",
 ]
 
 OWN_CLUSTER_ENV = "HEVR_OWN_CLUSTER"  # <address>[,<address>…]: the opt-in of own_cluster, for the command line
@@ -225,6 +226,18 @@ def warn_if_remote(client: Any) -> None:
         UserWarning,
         stacklevel=3,
     )
+
+
+def workers_of(client: Any) -> dict[str, Any]:
+    """The workers of ``client``'s cluster (address -> the scheduler's record of it), asked of
+    the scheduler now. ``client.scheduler_info()["workers"]`` may be empty though workers run:
+    the client's own refresh every 2 s, which asks for no workers, can replace the answer between
+    its fetch and its return, and a loaded machine widens that window (issue 49: a render
+    refused "a cluster with workers, got none" under load)."""
+    if not isinstance(client, Client):  # a stand-in with scheduler_info() only (tests)
+        return dict(client.scheduler_info().get("workers", {}))
+    info = client.sync(client.scheduler.identity, n_workers=-1)
+    return dict(info.get("workers", {}))
 
 
 def active_client(client: Any = None) -> Any:

@@ -49,6 +49,7 @@ from ..backends import get_backend, resolve_backend_name
 from ..core.validate import check_choice
 from ..crypto.tags import data_channel
 from ..errors import MemoryLimitError, ParameterError
+from ..runtime.scheduler import workers_of
 from .layout import array_slices
 
 log = logging.getLogger(__name__)
@@ -244,7 +245,7 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
     # records per brick: its voxels, or a packed store's packs (S voxels each)
     cost = {idx: int(np.prod([s.stop - s.start for s in array_slices(ev.meta, idx)])) * k * per_ct for idx in bricks}
     if client is not None:
-        info = client.scheduler_info()["workers"]
+        info = workers_of(client)  # not scheduler_info(): it may say none under load
         workers = sorted(info)
         if not workers:
             raise ParameterError("client: expected a cluster with workers, got none")
