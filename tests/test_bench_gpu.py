@@ -15,6 +15,7 @@ from hevr.backends import CudaHostBackend, register_backend
 from hevr.cli.main import main
 
 
+@pytest.mark.slow  # heavy end to end: .ci/run's -m slow, not the README's command (issue 49)
 def test_gpu_bench_on_the_host_kernels_writes_its_report(tmp_path, capsys):
     assert main(["bench", "--gpu", "--quick", "--gpu-backend", "cuda-host", "--out", str(tmp_path)]) == 0
     res = json.loads((tmp_path / "gpu.json").read_text())
@@ -32,6 +33,7 @@ def test_gpu_bench_on_the_host_kernels_writes_its_report(tmp_path, capsys):
     assert "operations against cpu: identical" in capsys.readouterr().out
 
 
+@pytest.mark.slow  # heavy end to end: .ci/run's -m slow, not the README's command (issue 49)
 def test_gpu_bench_exits_1_on_a_mismatch(tmp_path, monkeypatch):
     calls = []
 

@@ -19,6 +19,7 @@ def _known(tmp_path, monkeypatch):
     monkeypatch.setenv("HEVR_KNOWN_STORES", str(tmp_path / "known.json"))
 
 
+@pytest.mark.slow  # heavy end to end: .ci/run's -m slow, not the README's command (issue 49)
 def test_every_step_on_the_host_kernels_writes_the_goal_table(tmp_path):
     out, work = tmp_path / "out", tmp_path / "work"
     kw = dict(backend="cuda-host", size=8, tf_size=6, image=8, bits=256, repeats=1, workers=(1, 2))

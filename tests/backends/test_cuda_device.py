@@ -228,6 +228,7 @@ def test_few_long_chains_go_to_the_cpu(fake_cuda):
     assert CudaHostBackend()._launch.min_items == 0  # the host build always runs its kernels (CI checks them)
 
 
+@pytest.mark.slow  # heavy end to end: .ci/run's -m slow, not the README's command (issue 49)
 def test_the_kernel_suites_pass_on_fake_cupy():
     """The three kernel suites (operations, the key holder's kernels, renders) on the ``cuda``
     backend over FakeCupy, in a fresh interpreter (``tests/conftest.py``): what a GPU run
@@ -350,6 +351,7 @@ def test_device_residency_behind_a_scheduler(fake_cuda, tmp_path, keypair256, cl
     assert hevr.render(host, cam, backend="cpu", progress=False, cache=False, client=cluster).stats["map_tasks"] == 8
 
 
+@pytest.mark.slow  # heavy end to end: .ci/run's -m slow, not the README's command (issue 49)
 def test_gpu_bench_on_fake_cupy(fake_cuda, tmp_path):
     assert main(["bench", "--gpu", "--quick", "--out", str(tmp_path)]) == 0
     md = (tmp_path / "gpu.md").read_text()

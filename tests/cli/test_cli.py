@@ -271,6 +271,7 @@ def test_demo_tiny(tmp_path, capsys):
     assert code == 0, err
 
 
+@pytest.mark.slow  # heavy end to end: .ci/run's -m slow, not the README's command (issue 49)
 def test_bench_quick_threaded(capsys, tmp_path):
     code, out, err = run(capsys, "bench", "--quick", "--workers", "0", "-q", "--out", str(tmp_path), "--only", "t1")
     assert code == 0, err

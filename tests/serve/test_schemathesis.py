@@ -142,6 +142,7 @@ def run(schema, stores: list[str], counts: dict, token: str) -> None:
                 assert mode.is_negative, op.label
 
 
+@pytest.mark.slow  # heavy end to end: .ci/run's -m slow, not the README's command (issue 49)
 @pytest.mark.timeout(300)
 def test_schemathesis_in_process(tiny):
     ev, path = tiny
