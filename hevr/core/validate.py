@@ -170,7 +170,8 @@ def check_shape(shape: Any, name: str = "shape") -> tuple[int, int, int]:
         out = ()
     if len(out) != 3 or not all(_is_int(s) and s > 0 for s in out):
         raise ParameterError(f"{name}: expected 3 positive integers (nz, ny, nx), got {shape!r}")
-    return tuple(int(s) for s in out)  # type: ignore[return-value]
+    nz, ny, nx = (int(s) for s in out)
+    return nz, ny, nx
 
 
 def check_spacing(spacing: Any, name: str = "spacing") -> tuple[float, float, float]:
@@ -261,7 +262,8 @@ def check_brick(brick: Any, name: str = "brick", *, shape: Any = None) -> tuple[
             f"{name}: expected at most {MAX_BRICK_VOXELS} voxels per brick (2^24, e.g. 256^3), "
             f"got {tuple(int(b) for b in out)} = {math.prod(out)} voxels"
         )
-    return tuple(int(b) for b in out)  # type: ignore[return-value]
+    b0, b1, b2 = (int(b) for b in out)
+    return b0, b1, b2
 
 
 def check_vector_dims(dims: Any, name: str = "vector_dims") -> int:

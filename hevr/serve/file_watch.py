@@ -28,11 +28,11 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
+from typing import Any
 
 __all__ = ["CHECK_SECONDS", "FileWatch", "stat_key"]
 
 CHECK_SECONDS = 1.0  # a watched file is stat'ed at most this often (on a request)
-_UNSET = object()
 
 
 def stat_key(path: str | os.PathLike) -> tuple:
@@ -79,12 +79,12 @@ class FileWatch:
         *,
         interval: float = CHECK_SECONDS,
         clock: Callable[[], float] = time.monotonic,
-        key: object = _UNSET,
+        key: tuple[Any, ...] | None = None,
     ) -> None:
         self.path = path
         self.interval = float(interval)
         self.clock = clock
-        self.key: tuple = stat_key(path) if key is _UNSET else key  # type: ignore[assignment]
+        self.key: tuple[Any, ...] = stat_key(path) if key is None else key
         self.failed: tuple | None = None
         self.checked = clock()
 
