@@ -6,7 +6,7 @@ A store is served under the name ``NAME=PATH`` gives it, else its folder's name 
 It never needs or accepts a private key.
 
 It logs one line per request to stderr (``--no-request-log``: warnings and errors only; the format:
-:mod:`hevr.serve.routes.base`, ``cluster/README.md``), re-reads ``--tokens FILE`` when it changes
+:mod:`hevr.serve.routes.base`, ``docs/operator/tokens.md`` and ``logs.md``), re-reads ``--tokens FILE`` when it changes
 or on ``SIGHUP``, and ``--new-token NAME --tokens FILE`` adds a token to the file itself.
 """
 

@@ -1,6 +1,6 @@
 """The key holder's stamp on a verified ``.hevr`` file (issue 38): "I checked this frame".
 
-A frame's verification record (:class:`hevr.rendering.verify.Verification`) is a proof only if the
+A frame's verification record (:class:`hevr.rendering.verification.Verification`) is a proof only if the
 seed of its coefficients was drawn by the key holder *after* the image was fixed: a server that
 drew (or learnt) the seed first can fit a wrong image to it, and anyone who can write the file can
 put a genuine record beside other pixels. So a file is trusted as verified only when it carries the

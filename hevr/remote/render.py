@@ -15,7 +15,7 @@ error, so that an application can tell the two apart.
 Verified renders: the key holder draws the seed *after* it holds the image (the server never
 sees it before it has committed to the ciphertexts) and sends it in a second request; the
 server's answer is one aggregate ciphertext; everything else of the
-:class:`~hevr.rendering.verify.Verification` — store id, view, level, step, channel, exponent —
+:class:`~hevr.rendering.verification.Verification` — store id, view, level, step, channel, exponent —
 is this process's own request, never the server's word.
 """
 

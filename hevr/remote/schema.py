@@ -4,7 +4,7 @@ request (:mod:`hevr.remote.protocol` validates with them before building a
 :class:`~hevr.remote.protocol.RenderRequest`) and the source of the OpenAPI document
 (:mod:`hevr.serve.openapi` generates its schemas from them); every bound comes from the
 constant the code uses (:data:`~hevr.volume.pyramid.MAX_LEVELS`,
-:data:`~hevr.rendering.geometry.camera.MAX_COORDINATE`, …).
+:data:`~hevr.rendering.geometry.coordinates.MAX_COORDINATE`, …).
 
 Why pydantic (a core dependency: the client builds requests with these models too) and not
 msgspec: the view is a camera *or* a plane told apart by ``kind`` (absent from a camera), which

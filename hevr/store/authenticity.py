@@ -12,7 +12,7 @@ binds them with a MAC under a key derived from the tag key:
     K_meta = HMAC-SHA256(k, "hevr-metadata-mac-v1")            (k: the tag key's PRF key)
 
 and the key holder recomputes it before any pixel of a verified render is returned
-(:meth:`hevr.rendering.verify.Verification.check`). Bound (:data:`AUTHENTICATED`): shape, spacing,
+(:meth:`hevr.rendering.verification.Verification.check`). Bound (:data:`AUTHENTICATED`): shape, spacing,
 brick, the key (n, fingerprint, record width), dtype, value range, base, the channels (exponent,
 digits, dims), the store id, the patient frame and origin, the tags flag and, for a packed store,
 its ``layout`` (axis, slots, slot bits, weight bits, offset: :mod:`hevr.store.packing`) and its pyramid

@@ -250,7 +250,7 @@ def plan_residency(ev: Any, channels: Any, backend: Any, client: Any) -> tuple[t
         if not workers:
             raise ParameterError("client: expected a cluster with workers, got none")
         limits = {w: info[w].get("memory_limit") or psutil.virtual_memory().total for w in workers}
-        if device:  # a GPU worker's total device memory (one worker per GPU: cluster/README.md)
+        if device:  # a GPU worker's total device memory (one worker per GPU: docs/operator/deploy.md)
             got = client.run(_device_memory, backend, workers=workers)
             limits = {w: got[w][1] if got.get(w) else limits[w] for w in workers}
     else:

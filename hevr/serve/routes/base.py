@@ -7,7 +7,7 @@ answer's last byte was handed to the server (a stream's at its end)::
     10.0.0.7 POST /v1/stores/ct/render 200 48213 radiology 2.315
     10.0.0.7 POST /v1/stores/ct/stream 499 12288 radiology 9.870 client left
 
-The fields, space-separated (``cluster/README.md``, "Operations"): the client's address (the
+The fields, space-separated (``docs/operator/logs.md``): the client's address (the
 TCP peer: a reverse proxy's own address behind one; ``X-Forwarded-For`` is not read here), the
 method, the path (percent-encoded as sent, no query string, at most 200 characters), the status,
 the body bytes sent, the token's *name* (``-``: none asked, as on ``/v1/health``; ``anonymous``:
