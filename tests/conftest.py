@@ -31,19 +31,16 @@ if os.environ.get("HEVR_TEST_FAKE_CUPY") == "1":  # before any test module asks 
 
 def pytest_configure(config):
     """pytest-xdist starts its workers with SIGINT ignored (a terminal's Ctrl-C is for the
-    controller), and a process started so ignores it too: the Ctrl-C tests (tests/test_dask.py, the
-    CLI's, hevr serve's) would interrupt nothing. Each worker takes Python's handler back.
+    controller), as a shell without job control starts a command run with ``&``, and a process
+    started so ignores it too: the Ctrl-C tests (tests/test_dask.py, the CLI's, hevr serve's) would
+    interrupt nothing. The test process takes Python's handler back.
 
     Dask's connect timeout, 30 s, is raised to 120 s here and in the processes the tests start
     (hevr serve, the CLI): at a load of 20 on 2 cores, starting a local cluster's worker processes
     beside the other test processes took longer (issue 49: "hevr: error: TimeoutError")."""
     os.environ["DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT"] = "120s"
     dask.config.set({"distributed.comm.timeouts.connect": "120s"})
-    if (
-        os.environ.get("PYTEST_XDIST_WORKER")
-        and threading.current_thread() is threading.main_thread()
-        and signal.getsignal(signal.SIGINT) == signal.SIG_IGN
-    ):
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
