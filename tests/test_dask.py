@@ -128,3 +128,26 @@ def test_a_workers_steps_are_one_event_a_quarter_second_and_none_lost(cluster):
     assert _dask.compute([dask.delayed(task, pure=False)()], client=cluster, progress=False) == [1]
     events = [msg for _, msg in cluster.get_events(cancel.TOPIC)[before:]]
     assert sum(events) == 300 and 1 <= len(events) < 25, events  # 2-4 measured; one per batch: 100
+
+
+def test_workers_of_asks_the_scheduler_and_works_with_an_identity_without_arguments():
+    """workers_of lists the cluster's workers; a scheduler of distributed < 2025.4, whose identity()
+    takes no n_workers (and lists every worker), is asked without it."""
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, processes=False, threads_per_worker=1, dashboard_address=None) as cluster:
+        with Client(cluster) as client:
+            assert len(_dask.workers_of(client)) == 2
+            real = cluster.scheduler.handlers["identity"]
+            asked = []
+
+            def old_identity():  # the signature of distributed < 2025.4
+                asked.append(True)
+                return real()
+
+            cluster.scheduler.handlers["identity"] = old_identity
+            try:
+                assert sorted(_dask.workers_of(client)) == sorted(cluster.scheduler.workers)
+            finally:
+                cluster.scheduler.handlers["identity"] = real
+            assert asked

@@ -68,8 +68,9 @@ def test_colour_change_alone_recolours_on_the_client(viewer):
 def test_a_tf_change_makes_no_render_call(viewer, monkeypatch):
     """After a render, TF and density edits re-colour the kept frame in the notebook: neither
     render_frame nor the render underneath is called; a camera move renders again."""
+    import hevr.rendering.encrypted as encrypted
     import hevr.rendering.pipeline.stream as stream
-    import hevr.rendering.view as view
+    import hevr.rendering.slices as slices
     import hevr.viewer.widget as viewer_module
 
     calls = []
@@ -83,7 +84,8 @@ def test_a_tf_change_makes_no_render_call(viewer, monkeypatch):
 
     monkeypatch.setattr(viewer_module, "render_frame", counting(viewer_module.render_frame, "render_frame"))
     monkeypatch.setattr(stream, "render_view", counting(stream.render_view, "render_view"))
-    monkeypatch.setattr(view, "render_view", counting(view.render_view, "render_view"))
+    monkeypatch.setattr(encrypted, "render_view", counting(encrypted.render_view, "render_view"))  # hevr.render's
+    monkeypatch.setattr(slices, "render_view", counting(slices.render_view, "render_view"))
     first = viewer.history[-1]
     assert first["client_recolour"] is False and "request → decrypted frame" in viewer.status.value
     viewer.node_rows[1][1].value = "#ffff00"

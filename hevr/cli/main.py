@@ -51,7 +51,7 @@ from .parser import (
 )
 from .util import err_line, show_warning, silence_stdout
 
-__all__ = ["build_parser", "main"]
+__all__ = ["build_parser", "main", "run"]
 
 
 def _setup_logging(verbose: bool) -> logging.Handler:
@@ -90,12 +90,16 @@ def _run(args: Any) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``hevr`` console script; returns the exit code (module docstring).
+    """Run the command ``argv`` (default ``sys.argv[1:]``) and return its exit code (module
+    docstring); a program or notebook that calls it keeps running whatever the command did."""
+    return _main(argv)
 
-    Run as the program (no ``argv``: the console script, ``python -m hevr``), a command interrupted
+
+def run() -> int:
+    """The ``hevr`` console script and ``python -m hevr``: :func:`main`, and a command interrupted
     with Ctrl-C ends the process as soon as its one line is printed (:func:`_leave`)."""
-    code = _main(argv)
-    if code == 130 and argv is None:
+    code = _main(None)
+    if code == 130:
         _leave(code)
     return code
 

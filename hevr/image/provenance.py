@@ -150,7 +150,9 @@ def check_provenance(private_key: Any, img: Any, require_verified: Any, unverifi
             f"{replaced[0]} (the key holder's known stores): an old frame replayed?; no image is returned"
         )
     proof = proof_of(img)  # not None: img carries a verification record
-    if expect is not None and proof is not None:
+    if expect is not None:
+        if proof is None:  # (never skip the caller's check)
+            raise VerificationError("image: expected a verified frame with its record, got none; no image is returned")
         check_expect(proof, expect)
     elif proof is not None and proof.moved:
         warnings.warn(

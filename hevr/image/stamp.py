@@ -18,7 +18,7 @@ another patient, view or render copied over this one: :mod:`hevr.image.provenanc
 that the owner has since replaced (the key holder's known stores, :mod:`hevr.store.known`) is
 refused: an old frame replayed.
 
-(the header's canonical form: :func:`hevr.store.authenticity.canonical`; the
+(the header's canonical form: :func:`hevr.crypto.mac.canonical`; the
 body: the ciphertext records and sample counts, without the file's SHA-256 trailer). Only the
 holder of the private key can make or check a stamp; :meth:`hevr.EncryptedImage.decrypt` refuses a
 record without a valid stamp (:class:`hevr.VerificationError`), and checks the record again.

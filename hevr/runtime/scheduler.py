@@ -236,7 +236,10 @@ def workers_of(client: Any) -> dict[str, Any]:
     refused "a cluster with workers, got none" under load)."""
     if not isinstance(client, Client):  # a stand-in with scheduler_info() only (tests)
         return dict(client.scheduler_info().get("workers", {}))
-    info = client.sync(client.scheduler.identity, n_workers=-1)
+    try:
+        info = client.sync(client.scheduler.identity, n_workers=-1)
+    except TypeError:  # distributed < 2025.4: identity() takes no argument and lists every worker
+        info = client.sync(client.scheduler.identity)
     return dict(info.get("workers", {}))
 
 

@@ -154,8 +154,12 @@ def parse_metadata(cls: type[VolumeMetadata], d: dict[str, Any], where: str, ver
             names,
             None if meta.packing is None else meta.packing.axis,
         )
-        if info.packing is not None and meta.scalar is not None:  # (a packed store has the scalar: _packing)
-            _level_packing(meta, meta.scalar, info, info.packing, where)  # as level 0's: shape, exponent, key
+        if info.packing is not None:  # as level 0's: shape, exponent, key
+            if meta.scalar is None:  # (_packing refuses a packed store without it; never skip the check)
+                raise bad_field(
+                    where, "channels", "'scalar' in a store with packed levels", sorted(d.get("channels", {}))
+                )
+            _level_packing(meta, meta.scalar, info, info.packing, where)
         parsed.append(info)
     if parsed:
         meta = dataclasses.replace(meta, levels=tuple(parsed))
