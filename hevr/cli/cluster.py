@@ -17,6 +17,8 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
+import dask
+from dask.utils import parse_timedelta
 from distributed import Client, LocalCluster
 from distributed.comm.addressing import parse_address
 from distributed.comm.registry import get_backend
@@ -28,6 +30,25 @@ from .util import UsageError
 __all__ = ["check_scheduler", "dask_client", "describe_client"]
 
 log = logging.getLogger(__name__)
+
+# The least time the worker processes this command starts on this machine get to reach their
+# scheduler. Dask's default, 30 s, is for remote peers; local workers that start slowly because the
+# machine is busy (a 2-core machine at load 20: issue 49) are not a network failure.
+LOCAL_START_TIMEOUT = 120.0
+
+
+def _local_start_timeout() -> float:
+    """Dask's connect timeout, raised to :data:`LOCAL_START_TIMEOUT` (a larger configured one is kept).
+
+    >>> with dask.config.set({"distributed.comm.timeouts.connect": "30s"}):
+    ...     _local_start_timeout()
+    120.0
+    >>> with dask.config.set({"distributed.comm.timeouts.connect": "10m"}):
+    ...     _local_start_timeout()
+    600.0
+    """
+    configured = parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), default="seconds")
+    return max(float(configured or 0), LOCAL_START_TIMEOUT)
 
 
 @contextlib.contextmanager
@@ -61,7 +82,9 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, own: b
             client.close()
     elif workers:
         log.info("starting a local Dask cluster: %d worker processes, 1 thread each", workers)
-        with _sigint_ignored():  # the worker processes inherit it: Ctrl-C stops this one only
+        # _sigint_ignored: the worker processes inherit it, so Ctrl-C stops this one only; the connect
+        # timeout travels to them with the nannies' config
+        with _sigint_ignored(), dask.config.set({"distributed.comm.timeouts.connect": _local_start_timeout()}):
             cluster = LocalCluster(
                 n_workers=workers,
                 threads_per_worker=1,

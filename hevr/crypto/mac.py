@@ -38,6 +38,8 @@ import hmac
 import json
 from typing import Any
 
+from ..errors import ParameterError
+
 __all__ = ["LABELS", "PREFIX", "canonical", "check_tag", "derive_key", "digest", "mac", "raw_mac"]
 
 PREFIX = "hmac-sha256:"
@@ -69,7 +71,7 @@ def derive_key(prf_key: bytes, label: bytes) -> bytes:
     True
     """
     if label not in LABELS:
-        raise ValueError(f"label: expected one of {sorted(x.decode() for x in LABELS)}, got {label!r}")
+        raise ParameterError(f"label: expected one of {sorted(x.decode() for x in LABELS)}, got {label!r}")
     return hmac.new(bytes(prf_key), label, hashlib.sha256).digest()
 
 

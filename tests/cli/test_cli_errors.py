@@ -684,3 +684,35 @@ def test_an_output_folder_without_write_permission_fails_the_run(d, capsys, tmp_
         assert list(ro.iterdir()) == []
     finally:
         ro.chmod(0o755)
+
+
+def test_local_workers_get_time_to_start_on_a_busy_machine(monkeypatch):
+    """--workers N: the local cluster starts with Dask's connect timeout raised to 120 s (a worker
+    process that starts slowly on a loaded machine is not a network failure; issue 49), carried to
+    the workers by the nannies' config; a larger configured timeout is kept."""
+    import dask
+
+    seen = []
+
+    class Recording:
+        def __init__(self, **kw):
+            seen.append(dask.config.get("distributed.comm.timeouts.connect"))
+
+        def close(self):
+            pass
+
+    class NoClient:
+        def __init__(self, cluster):
+            pass
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(cli_cluster, "LocalCluster", Recording)
+    monkeypatch.setattr(cli_cluster, "Client", NoClient)
+    for configured, expected in (("30s", 120.0), ("10m", 600.0)):
+        with dask.config.set({"distributed.comm.timeouts.connect": configured}):
+            with cli_cluster.dask_client(workers=2):
+                pass
+            assert dask.config.get("distributed.comm.timeouts.connect") == configured  # only while starting
+        assert seen[-1] == expected
